@@ -144,7 +144,6 @@ class CellStats:
         self._sums = np.zeros((n, 5))
         self._sums[:, _DSM] = np.nan
         self._stamp = 0
-        self._touched = np.empty(0, np.int64)     # the cells a chunk touched (reused chunk after chunk)
         self.chm = np.full(n, np.nan)
 
     valid_n = property(lambda self: self._counts[:, _VALID_N])
@@ -161,10 +160,8 @@ class CellStats:
         """A chunk of points (x, y, z in metres, class, return number, intensity)."""
         self._stamp += 1
         c = np.ascontiguousarray  # one layout, one compilation (record fields and slices were two more of each kernel)
-        if len(self._touched) < len(x):
-            self._touched = np.empty(len(x), np.int64)
         bad = _accumulate(_Returns(c(x), c(y), c(z), c(cls), c(return_number), c(intensity)), self._window(),
-                          self._counts, self._sums, self._stamp, self._touched)
+                          self._counts, self._sums, self._stamp, np.empty(len(x), np.int64))
         if bad >= 0:
             raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
 

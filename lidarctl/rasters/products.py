@@ -22,8 +22,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import itertools
-import threading
 from typing import ClassVar, NamedTuple
 import logging
 from pathlib import Path
@@ -495,17 +493,17 @@ _BLOCK_PX = 512
 _BIN_READ_POINTS = 250_000
 
 
-def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> "_TileBins":
-    """Pass 1: stream every file once and append each tile's points (core + buffer) to its bin
-    (``_TileBins``: ``_BIN_DTYPE`` records, metres, file order). Tiles are in raster cells: the tile grid's
+def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> np.ndarray:
+    """Pass 1: stream every file once and append each tile's points (core + buffer) to its
+    ``tile_<id>.bin`` (``_BIN_DTYPE``, metres, file order). Tiles are in raster cells: the tile grid's
     coordinates are the global cell indices, so tile membership is exact integer arithmetic and
-    agrees with the cell ``_CellSums`` puts a point in. Returns the bins (which tiles hold points)."""
+    agrees with the cell ``_CellSums`` puts a point in. Returns which tiles hold points."""
     from aerotri.core.log import progress
 
     res_m, x0, y0 = args[:3]
     tile_px, buffer_px = int(grid.tile_m), int(grid.buffer_m)
     lay = _TileLayout(res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols)
-    bins = _TileBins(work, grid.n_tiles, _bin_memory_bytes())
+    used = np.zeros(grid.n_tiles, bool)
     n_ground = 0
     read_points = min(chunk_points, _BIN_READ_POINTS)
     chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, read_points))
@@ -516,101 +514,13 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> "
             # classes contiguous (a strided record field of some files): numba compiles one signature
             n_ground += _gather_records(rec, count, _ChunkPoints(x, y, z, np.ascontiguousarray(cls), rn, inten), lay)
             for tid in np.flatnonzero(count[1:] > count[:-1]):
-                bins.append(tid, rec[count[tid]:count[tid + 1]])
+                used[tid] = True
+                with open(work / f"tile_{tid}.bin", "ab") as fh:
+                    rec[count[tid]:count[tid + 1]].tofile(fh)
             bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
-    return bins
-
-
-# Records of the binning pass kept in memory (the chunks' record arrays themselves, no copy) up to this share of
-# the RAM, at most _BIN_MEMORY_MAX_BYTES; beyond it every tile's records so far go to its file (appended, so a
-# tile's records stay in file order: its file first, then those in memory). The demo's 4.9 M points are 6.0 M
-# records, 168 MB: written and read back twice through temporary files they cost 0.5-0.6 s of system time.
-_BIN_MEMORY_SHARE = 1 / 32
-_BIN_MEMORY_MAX_BYTES = 768 * MiB
-
-
-def _bin_memory_bytes() -> int:
-    from aerotri.core.limits import physical_memory_bytes
-
-    return int(min(_BIN_MEMORY_SHARE * (physical_memory_bytes() or 0), _BIN_MEMORY_MAX_BYTES))
-
-
-class _TileBins:
-    """The binned records of every tile (``_BIN_DTYPE``, file order): in memory (views of the binning pass's
-    chunk arrays) while they fit in ``budget_bytes``, beyond it spilled to ``work/tile_<id>.bin``. ``chunks``
-    gives a tile's records, its file's first, then those in memory; ``drop`` releases them."""
-
-    def __init__(self, work: Path, n_tiles: int, budget_bytes: int):
-        self.work, self.budget_bytes = work, budget_bytes
-        self.memory: list[list[np.ndarray]] = [[] for _ in range(n_tiles)]
-        self.on_disk = np.zeros(n_tiles, bool)
-        self.count = np.zeros(n_tiles, np.int64)
-        self.memory_bytes = 0
-
-    @property
-    def used(self) -> np.ndarray:
-        """Which tiles hold points."""
-        return self.count > 0
-
-    def path(self, tid: int) -> Path:
-        return self.work / f"tile_{tid}.bin"
-
-    def append(self, tid: int, rec: np.ndarray) -> None:
-        self.memory[tid].append(rec)
-        self.count[tid] += len(rec)
-        self.memory_bytes += rec.nbytes
-        if self.memory_bytes > self.budget_bytes:
-            self.spill()
-
-    def spill(self) -> None:
-        """Every tile's records in memory appended to its file (all of them, so that no chunk array stays alive
-        for the view of one tile)."""
-        for tid, recs in enumerate(self.memory):
-            if recs:
-                with open(self.path(tid), "ab") as fh:
-                    for rec in recs:
-                        rec.tofile(fh)
-                self.on_disk[tid] = True
-                recs.clear()
-        self.memory_bytes = 0
-
-    def chunks(self, tid: int, chunk_points: int):
-        """A tile's records as ``_ChunkPoints`` of ``chunk_points`` records (the last one fewer), the same chunks
-        whether the records were in memory or in the file (the per-cell sums add a chunk's total: the chunks
-        decide their last bits). The arrays are this thread's buffers, overwritten by the next chunk."""
-        n = int(min(chunk_points, self.count[tid]))
-        cols = getattr(_BUFFERS, "columns", None)
-        if cols is None or len(cols[0]) < n:    # contiguous columns: the kernels take them without a copy
-            cols = _BUFFERS.columns = [np.empty(n, _BIN_DTYPE[name]) for name in _BIN_DTYPE.names]
-        pieces = self.memory[tid]
-        if self.on_disk[tid]:
-            pieces = itertools.chain(_bin_chunks(self.path(tid), chunk_points), pieces)
-        k = 0
-        for rec in pieces:
-            i = 0
-            while i < len(rec):
-                m = min(len(rec) - i, n - k)
-                for col, name in zip(cols, _BIN_DTYPE.names):
-                    col[k:k + m] = rec[name][i:i + m]
-                i, k = i + m, k + m
-                if k == n:
-                    yield _ChunkPoints(*(col[:k] for col in cols))
-                    k = 0
-        if k:
-            yield _ChunkPoints(*(col[:k] for col in cols))
-
-    def drop(self, tid: int) -> None:
-        import os
-
-        self.memory[tid] = []
-        if self.on_disk[tid]:
-            os.remove(self.path(tid))
-
-
-# the tile threads' buffers of ``_TileBins.chunks`` (one set per thread, reused tile after tile: no fresh pages)
-_BUFFERS = threading.local()
+    return used
 
 
 # The tiles of a point (its own and the 0 to 3 neighbours whose buffer holds it; the tile grid's
@@ -875,8 +785,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
 
     The raster grid covers the union of the files' header bounds. It is cut into square tiles of
     ``tile_px`` cells; each tile is computed over its window grown by ``buffer_px`` cells on every
-    side (the points there are binned per tile in one pass over the files: in memory up to
-    ``_bin_memory_bytes``, in a temporary file per tile beyond) and
+    side (the points there are binned into a temporary file per tile in one pass over the files) and
     only its core is written, by windows, into tiled GeoTIFFs, which are copied block by block into
     COGs (ZSTD level 1, predictor 3); the hillshade is computed by strips of rows of the written DEM as the
     PNG is written.
@@ -889,8 +798,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     equal wherever ``buffer_px >= 2 * dem_fill_radius_px + 2``. ``bench/lidar_rasters.py``
     measures the difference and the memory.
 
-    Temporary disk space: 28 bytes per point and buffer copy beyond the memory budget, plus the
-    uncompressed-size GeoTIFFs at worst, in a hidden folder in ``outdir``, removed at the end, also on errors.
+    Temporary disk space: 28 bytes per point and buffer copy, plus the uncompressed-size GeoTIFFs
+    at worst, in a hidden folder in ``outdir``, removed at the end, also on errors.
     """
     import rasterio
     from rasterio.transform import from_origin as _from_origin
@@ -930,10 +839,10 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     def write(tmp: Path) -> None:
         work = tmp / "work"
         work.mkdir()
-        bins = _bin_points(inputs, args, grid, work, chunk_points)
+        used = _bin_points(inputs, args, grid, work, chunk_points)
         with contextlib.ExitStack() as working:     # the working GeoTIFFs, closed on errors too
             with rasterio.Env(**_GDAL_THREAD_ENV):
-                gtiffs = _tiles_to_gtiffs(inputs, args, grid, bins, work, working, transform=transform, tags=tags,
+                gtiffs = _tiles_to_gtiffs(inputs, args, grid, used, work, working, transform=transform, tags=tags,
                                           chunk_points=chunk_points, footprint_cells=footprint_cells,
                                           dem_fill_radius_px=dem_fill_radius_px, threads=threads)
 
@@ -1024,29 +933,30 @@ def _run_threads(tasks) -> None:
             raise
 
 
-def _tile_grids(inputs: _Inputs, args, tile, bins: _TileBins, *, chunk_points: int, footprint_cells: int,
+def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, footprint_cells: int,
                 dem_fill_radius_px: float):
     """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
     NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``). Runs in a worker thread."""
+    import os
+
     res_m, x0, y0 = args[:3]
     tid, (row0, col0, rows, cols), core, _ = tile
+    bin_path = work / f"tile_{tid}.bin"
     sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
-    # a tile of one chunk (the demo's four): its columns made once for both passes
-    one = list(bins.chunks(tid, chunk_points)) if bins.count[tid] <= chunk_points else None
-    for pts in one or bins.chunks(tid, chunk_points):
-        sums.add(*pts)
+    for rec in _bin_chunks(bin_path, chunk_points):
+        sums.add(rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"])
     grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's bilinear samples
     dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
-    for pts in one or bins.chunks(tid, chunk_points):
-        sums.add_chm(pts.x, pts.y, pts.z, pts.cls, dem)
-    bins.drop(tid)
+    for rec in _bin_chunks(bin_path, chunk_points):
+        sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
+    os.remove(bin_path)
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
     return out
 
 
-def _tiles_to_gtiffs(inputs: _Inputs, args, grid, bins: _TileBins, work: Path, working: contextlib.ExitStack, *, transform,
+def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
                      tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
     """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
     at most one more waiting, largest first), the core written by window into tiled GeoTIFFs
@@ -1082,15 +992,15 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, bins: _TileBins, work: Path, w
         # any order): no thread waits for an earlier tile while another computes, and the last tiles are the
         # small ones. ``threads`` tiles computing and one queued, so that a thread goes on while the calling
         # thread writes a finished tile.
-        todo = collections.deque(sorted((t for t in tiles if bins.used[t[0]]), key=lambda t: -t[1][2] * t[1][3]))
-        empty = [t[3] for t in tiles if not bins.used[t[0]]]
+        todo = collections.deque(sorted((t for t in tiles if used[t[0]]), key=lambda t: -t[1][2] * t[1][3]))
+        empty = [t[3] for t in tiles if not used[t[0]]]
         running = {}
         with progress(grid.n_tiles, "rasters: tiles", "tile") as bar:
             try:
                 while todo or running or empty:
                     while todo and len(running) < threads + 1:
                         tile = todo.popleft()
-                        running[pool.submit(_tile_grids, inputs, args, tile, bins, chunk_points=chunk_points,
+                        running[pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
                                             footprint_cells=footprint_cells,
                                             dem_fill_radius_px=dem_fill_radius_px)] = tile
                     if empty:     # tiles without points: nodata, written while the first tiles are computed

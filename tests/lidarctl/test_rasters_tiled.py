@@ -94,24 +94,3 @@ def test_rasters_cli_several_files_and_errors(strips, tmp_path):
     assert r.exit_code == 2 and "no ground points" in r.output
     assert {f: (out / f).read_bytes() for f in rasters.FILES} == before
     assert sorted(p.name for p in out.iterdir()) == sorted(rasters.FILES)
-
-
-def test_tiled_rasters_same_bytes_with_points_in_memory_or_spilled(strips, tmp_path, monkeypatch):
-    """The tiles' binned points in memory, all spilled to the tile files at once (the old way), or spilled part
-    way (a tile's file, then the records in memory): the same chunks of ``chunk_points``, so the same files."""
-    paths = [strips / "west.las", strips / "east.las"]
-    kw = dict(tile_px=64, buffer_px=32, chunk_points=7_000)    # a tile's points in several chunks of both kinds
-    budgets = {"memory": 1 << 40, "files": 0, "part_way": 400_000}
-    spills = {}
-    for name, budget in budgets.items():
-        monkeypatch.setattr(rasters, "_bin_memory_bytes", lambda budget=budget: budget)
-        spill = rasters._TileBins.spill
-        monkeypatch.setattr(rasters._TileBins, "spill", lambda self, name=name: (
-            spills.__setitem__(name, spills.get(name, 0) + 1), spill(self))[1])
-        rasters.write_rasters(paths, tmp_path / name, 1.0, **kw)
-        monkeypatch.undo()
-    assert "memory" not in spills and spills["files"] > 10 and 1 <= spills["part_way"] < spills["files"]
-    for f in rasters.FILES:
-        ref = (tmp_path / "files" / f).read_bytes()
-        assert (tmp_path / "memory" / f).read_bytes() == ref, f
-        assert (tmp_path / "part_way" / f).read_bytes() == ref, f
