@@ -863,8 +863,41 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
 
             _run_threads([hillshade_png] + [functools.partial(cog, name) for name in RASTERS])
 
-    with stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice():
+    with stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice(), _freed_memory_kept():
         return _write_set(outdir, write)
+
+
+# glibc's mallopt parameters (malloc.h)
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+
+
+@contextlib.contextmanager
+def _freed_memory_kept():
+    """glibc's allocator keeps freed memory while the tiled rasters are made: arrays up to 1 GiB come from the
+    heap instead of fresh ``mmap`` pages, and freed ones stay there for the next tile's arrays. Why: every tile
+    allocates window-sized arrays (per-cell records, pull-push pyramid, TIN) that the kernel otherwise zeroes page
+    by page at first touch; on the demo's strips 33 % fewer minor page faults, 0.4-0.6 s less system time, 0.2-0.5
+    CPU-s less in all (``bench/results/rasters_speed.json`` keys ``i41_rasters6_malloc_env*``), peak RSS +30-60 MB.
+    Process-wide: set around the stage, then glibc's own limits once its sliding threshold has grown (32 MiB
+    for mmap, 64 MiB for trimming) and the free memory returned (``malloc_trim``). Other C libraries: nothing."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt, malloc_trim = libc.mallopt, libc.malloc_trim
+    except (OSError, AttributeError):
+        yield
+        return
+    if not (mallopt(_M_MMAP_THRESHOLD, 1 << 30) and mallopt(_M_TRIM_THRESHOLD, 2**31 - 1)):
+        yield
+        return
+    try:
+        yield
+    finally:
+        mallopt(_M_MMAP_THRESHOLD, 32 << 20)
+        mallopt(_M_TRIM_THRESHOLD, 64 << 20)
+        malloc_trim(0)
 
 
 @contextlib.contextmanager
