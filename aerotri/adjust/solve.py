@@ -270,7 +270,8 @@ def _adjust_block(
                                                        sigma0=sigma0, rays=rays)
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
-            bias = _surface_bias(block, opts, state, obs_active, control_active, marg, rays)
+            bias = _surface_bias(block, opts, state, obs_active=obs_active, control_active=control_active, marg=marg,
+                                 rays=rays)
             if bias is not None:
                 # the surface's systematic error in every covariance reported (the solution stays as it is)
                 pose_cov = pose_cov + sb.pose_covariance(bias, marg, block.n_images)
@@ -401,8 +402,8 @@ def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, 
     obs_active &= ~weak[block.obs_point]
 
 
-def _surface_bias(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, marg, rays
-                  ) -> sb.SurfaceBias | None:
+def _surface_bias(block: G.Block, opts: G.SolveSettings, state: G.State, *, obs_active, control_active, marg,
+                  rays) -> sb.SurfaceBias | None:
     """The surface control's systematic error as a consider parameter (``surface_bias``), or None (no surface, or
     its bias sigmas zero)."""
     sc = block.surface

@@ -141,7 +141,7 @@ def _check_corners(corners: LidarCorners, camera: BrownCamera, frames: FramesOnE
 
 
 def _select(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, primary: np.ndarray, rays: dict,
-            s: ControlSettings, frames: FramesOnEarth) -> tuple[np.ndarray, list[LayoutTarget], float]:
+            *, s: ControlSettings, frames: FramesOnEarth) -> tuple[np.ndarray, list[LayoutTarget], float]:
     """Kind of every corner (full / height / check among the accepted ones of the ``primary`` set,
     candidate for accepted fallback corners not chosen, rejected, not_measured), the layout targets
     (``corner``: index into ``corners``) and the base (m)."""
@@ -262,7 +262,7 @@ def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOri
     meas, pred = _measure_frames(corners, camera, eo=eo, frames=frames, images_dir=Path(images_dir), idx=idx,
                                  manual_k=manual_k, s=s)
     rays = _check_corners(corners, camera, frames, idx, meas, s)
-    kind, targets, base = _select(corners, camera, eo, primary, rays, s, frames)
+    kind, targets, base = _select(corners, camera, eo, primary, rays, s=s, frames=frames)
     extra = _near_unfilled_targets(corners, targets, ~primary) if s.layout.fallback else np.zeros(0, int)
     if len(extra):
         log.info(f"{sum(t.tier != 'usable' for t in targets)} layout targets without a usable corner: measuring "
@@ -272,7 +272,7 @@ def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOri
         meas.update(m2)
         pred.update(p2)
         rays.update(_check_corners(corners, camera, frames, extra, meas, s))
-        kind, targets, base = _select(corners, camera, eo, primary, rays, s, frames)
+        kind, targets, base = _select(corners, camera, eo, primary, rays, s=s, frames=frames)
     res = TransferResult(corners, list(eo.image_id), meas, pred, rays, kind, targets, base, set(manual_k), primary)
     res.targets = [t if t.corner is not None else dataclasses.replace(t, empty_reason=why_empty(res, t, s))
                    for t in targets]
