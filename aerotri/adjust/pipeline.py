@@ -147,8 +147,9 @@ def datum_shortfall(control: ControlPoints, gnss: bool, correction: str, surface
         return None
     if n_xy < need[0] or n_z < need[1]:
         what = "without GNSS" if not gnss else f"with GNSS {correction.replace('_', ' and ')} corrections per strip"
-        return (f"too few control points for the datum {what}: need at least {need[0]} with plan and {need[1]} with "
-                f"height coordinates, have {n_xy} and {n_z} (control/points.csv)")
+        needed = " and ".join(f"{n} with {c} coordinates" for n, c in zip(need, ("plan", "height")) if n)
+        return (f"too few control points for the datum {what}: need at least {needed}, have {n_xy} with plan and "
+                f"{n_z} with height coordinates (control/points.csv)")
     return None
 
 

@@ -71,3 +71,18 @@ def test_a_part_without_datum_is_named_and_left_out(split_block):
     # no control at all: the whole block has no datum -> a clear error before anything is solved
     with pytest.raises(InputError, match="too few control points for the datum"):
         run_adjustment(root, dataclasses.replace(st, use_control=False), html=False)
+
+
+def test_the_datum_shortfall_names_only_the_coordinates_needed():
+    """Without GNSS two plan points are needed and no height point: the message no longer asks for "0 with height
+    coordinates" (the tiny preset's note read "need at least 2 with plan and 0 with height coordinates")."""
+    from aerotri.adjust.pipeline import datum_shortfall
+    from aerotri.geom.observations import ControlPoints
+
+    none = ControlPoints(id=np.array([], dtype=object), xyz_m=np.zeros((0, 3)), sigma_m=np.zeros((0, 3)),
+                         kind=np.array([], dtype=object))
+    msg = datum_shortfall(none, gnss=False, correction="shift")
+    assert "need at least 2 with plan coordinates, have 0 with plan and 0 with height coordinates" in msg
+    assert "0 with height coordinates, have" not in msg
+    msg = datum_shortfall(none, gnss=True, correction="shift_drift")
+    assert "need at least 2 with plan coordinates and 2 with height coordinates" in msg
