@@ -889,15 +889,15 @@ def _freed_memory_kept():
     except (OSError, AttributeError):
         yield
         return
-    if not (mallopt(_M_MMAP_THRESHOLD, 1 << 30) and mallopt(_M_TRIM_THRESHOLD, 2**31 - 1)):
-        yield
-        return
+    # both set, not short-circuited: a threshold set alone (the other refused) is still put back afterwards
+    changed = bool(mallopt(_M_MMAP_THRESHOLD, 1 << 30)) | bool(mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
     try:
         yield
     finally:
-        mallopt(_M_MMAP_THRESHOLD, 32 << 20)
-        mallopt(_M_TRIM_THRESHOLD, 64 << 20)
-        malloc_trim(0)
+        if changed:
+            mallopt(_M_MMAP_THRESHOLD, 32 << 20)
+            mallopt(_M_TRIM_THRESHOLD, 64 << 20)
+            malloc_trim(0)
 
 
 @contextlib.contextmanager
