@@ -43,6 +43,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+from bench.results_json import store_result  # noqa: E402
 
 COPIED = ("project.toml", "camera.toml", "gnss.txt", "at", "control", "work/at_first", "reports")
 LINKED = ("images", "lidar_out", "lidar", "trajectory")
@@ -181,7 +182,6 @@ def main() -> None:
     ap.add_argument("--match-m", type=float, default=0.5, help="LiDAR corner -> simulated roof corner distance")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "earth_projections.json")
     args = ap.parse_args()
-    from aerotri.core.atomic import write_text_atomic
     from aerotri.core.project import Project
 
     root = args.work / args.key
@@ -211,9 +211,7 @@ def main() -> None:
                                                "mean_m": [float(v) for v in d.mean(axis=0)]}
     print("common check points", json.dumps(out["check_points_common"]), flush=True)
     out["load_avg_end"] = list(os.getloadavg())
-    results = json.loads(args.out.read_text()) if args.out.is_file() else {}
-    results.setdefault("control", {})[args.key] = out
-    write_text_atomic(args.out, json.dumps(results, indent=1) + "\n")
+    store_result(args.out, out, key=args.key, section="control")
 
 
 if __name__ == "__main__":

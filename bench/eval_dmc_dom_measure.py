@@ -29,6 +29,7 @@ from rasterio.transform import Affine
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from bench.results_json import read_results, store_result  # noqa: E402
 
 import ortho.mosaic as M  # noqa: E402
 from ortho.grid import OrthoGrid  # noqa: E402
@@ -161,16 +162,14 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     classes = Classes(args.block / "truth" / "classes.tif")
     t0 = time.process_time()
-    results = json.loads(args.out.read_text()) if args.out.exists() else {}
     if args.anisotropy_only:  # added to the run's entry
-        entry = dict(results.get(args.key, {}), dom_check_anisotropy=anisotropy(args.run_dir))
+        entry = dict(read_results(args.out).get(args.key, {}), dom_check_anisotropy=anisotropy(args.run_dir))
     else:
         entry = dict(run_dir=str(args.run_dir), dom_check_gsd=dom_patches(args.run_dir, classes),
                      seams_px=seam_patches(args.run_dir, classes), dom_check_anisotropy=anisotropy(args.run_dir),
                      measured_utc=time.strftime("%Y-%m-%d %H:%M", time.gmtime()))
     entry["cpu_s" if not args.anisotropy_only else "anisotropy_cpu_s"] = round(time.process_time() - t0, 1)
-    results[args.key] = entry
-    args.out.write_text(json.dumps(results, indent=1) + "\n")
+    store_result(args.out, entry, key=args.key)
     print(json.dumps(entry, indent=1))
     return 0
 

@@ -25,6 +25,7 @@ import rasterio
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from bench.results_json import store_result  # noqa: E402
 
 from ortho.check import check_against_reference  # noqa: E402
 from ortho.patches import MIN_TEXTURE_RATIO  # noqa: E402
@@ -79,9 +80,7 @@ def main(argv=None) -> int:
     passes = [measure(args.run_dir, args.block, r) for r in args.ratios]
     entry = dict(run_dir=str(args.run_dir), block=str(args.block), passes=passes,
                  measured_utc=time.strftime("%Y-%m-%d %H:%M", time.gmtime()))
-    results = json.loads(args.out.read_text()) if args.out.exists() else {}
-    results.setdefault("aperture_test", {})[args.key] = entry
-    args.out.write_text(json.dumps(results, indent=1) + "\n")
+    store_result(args.out, entry, key=args.key, section="aperture_test")
     print(json.dumps(entry, indent=1))
     return 0
 

@@ -43,6 +43,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+from bench.results_json import store_result  # noqa: E402
 
 
 def stats(dx_px, dy_px) -> dict:
@@ -183,10 +184,7 @@ def main() -> None:
     result["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                                       text=True).stdout.strip()
     print(json.dumps(result, indent=1))
-    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
-    doc[args.key] = result
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    store_result(args.out, result, key=args.key)
 
 
 if __name__ == "__main__":

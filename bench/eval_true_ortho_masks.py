@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -38,6 +37,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
+from bench.results_json import git_commit, store_result  # noqa: E402
 
 ROOF_BANDS_M = (1.0, 3.0)  # distance bands from the nearest roof cell
 
@@ -193,15 +193,11 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_masks.json")
     ap.add_argument("--key", default=None, help="key of the result in the JSON (default: the project's name)")
     args = ap.parse_args()
-    out = json.loads(args.out.read_text()) if args.out.exists() else {}
     for p in args.projects:
         res = run_project(p, args.truth_orientation, args.frames.split(",") if args.frames else None)
-        res["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
-                                       text=True).stdout.strip()
-        out[args.key or p.name] = res
+        res["commit"] = git_commit(REPO)
         print(p, json.dumps(res["all_frames"], indent=1))
-    args.out.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"wrote {args.out}")
+        store_result(args.out, res, key=args.key or p.name)
 
 
 if __name__ == "__main__":

@@ -41,7 +41,6 @@ import argparse
 import json
 import os
 import shutil
-import subprocess
 import sys
 import time
 import warnings
@@ -52,6 +51,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
+from bench.results_json import git_commit, store_result  # noqa: E402
 
 WAYS = ("orthority_dem", "orthority_dsm", "ours_conventional_dem", "ours_conventional_dsm", "ours_true_dsm")
 
@@ -263,17 +263,8 @@ def main() -> None:
     out["command"] = "python bench/eval_true_ortho_orthority.py " + " ".join(sys.argv[1:])
     out["cpu_s"], out["wall_s"] = round(time.process_time() - cpu0, 1), round(time.perf_counter() - t0, 1)
     out["load_avg_1min_at_end"] = os.getloadavg()[0]
-    out["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
-                                   text=True).stdout.strip()
-    from aerotri.core.atomic import write_text_atomic
-
-    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
-    if args.key:  # the other keys (earlier runs) stay as they were
-        doc[args.key] = out
-    else:
-        doc.update(out)
-    write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    out["commit"] = git_commit(REPO)
+    store_result(args.out, out, key=args.key)  # no key: the top level, the other keys kept
 
 
 if __name__ == "__main__":

@@ -42,6 +42,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
+from bench.results_json import store_result  # noqa: E402
 
 BUILDING_M = 2.5  # DSM above the truth's DEM: a building cell (as ortho.check.ROOF_HEIGHT_M)
 CORNER_DISC_M = 3.0  # the DSM's outline compared within this of the corner too
@@ -420,9 +421,7 @@ def main() -> None:
     result["command"] = "python bench/eval_true_ortho_roofs.py " + " ".join(sys.argv[1:])
     result["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
                                       text=True).stdout.strip()
-    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
-    doc[args.key] = result
-    args.out.write_text(json.dumps(doc, indent=1) + "\n")
+    store_result(args.out, result, key=args.key)
     print(json.dumps(result.get("largest_summary"), indent=1))
     print(f"wrote {args.out}")
 

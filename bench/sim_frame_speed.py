@@ -156,6 +156,7 @@ def main() -> None:
         ap.error("--before DIR is needed")
     sys.path.insert(0, str(ROOT / "bench"))
     from lidar_common import alternate_rounds
+    from results_json import git_commit, store_result
 
     def measure(code: Path, side: str, k: int) -> dict:
         r = _side(code, a, a.work / side)
@@ -172,17 +173,17 @@ def main() -> None:
     print(f"frames identical {identical}; MP per CPU-s (least CPU of each side) {best['before']['mp_per_cpu_s']} -> "
           f"{best['after']['mp_per_cpu_s']}: {ratio:.2f}x")
     if a.json:
-        from aerotri.core.atomic import write_text_atomic
-
-        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
-                                text=True).stdout.strip()
+        commit = git_commit(ROOT)
         doc = {"preset": PRESET, "sets": a.set, "rounds": a.rounds, "busy_threads": a.busy_threads, "commit": commit,
                "before": str(a.before), "identical": identical, "mp_per_cpu_s_before": best["before"]["mp_per_cpu_s"],
                "mp_per_cpu_s_after": best["after"]["mp_per_cpu_s"], "ratio": round(ratio, 3), "runs": runs}
         if a.key:
-            doc = {**(json.loads(a.json.read_text()) if a.json.exists() else {}), a.key: doc}
-        write_text_atomic(a.json, json.dumps(doc, indent=1) + "\n")
-        print(f"wrote {a.json}")
+            store_result(a.json, doc, key=a.key)
+        else:  # the whole file is this run
+            from aerotri.core.atomic import write_text_atomic
+
+            write_text_atomic(a.json, json.dumps(doc, indent=1) + "\n")
+            print(f"wrote {a.json}")
 
 
 if __name__ == "__main__":

@@ -311,18 +311,19 @@ def project_terrain(project) -> Terrain | None:
     return None
 
 
-def project_flight_acceptance(root, limits: dict | None = None) -> FlightAcceptance | None:
+def project_flight_acceptance(root, limits: dict | None = None, *,
+                              terrain: Terrain | None = None) -> FlightAcceptance | None:
     """The flight acceptance of a project folder: ``at/eo.txt`` (with the adjusted camera) when the block
-    is adjusted, else ``gnss.txt`` with the nominal attitude; footprints on ``lidar_out/dem.tif`` when
-    present, else on ``[flight] mean_terrain_height_m``. None when there is neither EO nor GNSS, or neither
-    a DEM nor a mean terrain height."""
+    is adjusted, else ``gnss.txt`` with the nominal attitude; footprints on ``terrain`` when given, else on
+    ``lidar_out/dem.tif`` when present, else on ``[flight] mean_terrain_height_m``. None when there is
+    neither EO nor GNSS, or no terrain."""
     from aerotri.core.project import Project
     from aerotri.geom.camera import oriented_camera
     from aerotri.geom.crs.definition import parse_crs
     from aerotri.geom.eo import read_eo, read_gnss
 
     project = Project.open(root)
-    terrain = project_terrain(project)
+    terrain = terrain if terrain is not None else project_terrain(project)
     camera, _ = oriented_camera(project)
     if project.eo_path.is_file():
         eo = read_eo(project.eo_path, parse_crs(project.crs))

@@ -214,6 +214,20 @@ def _hypot(a, b):
 
 
 
+def _footprint_terrain(project: Project):
+    """The terrain the flight acceptance puts the footprints on when the adjustment did not: the DEM the
+    frame orthos were made on (``at/dem.tif`` of a block without LiDAR) or the adjustment's surface-control
+    DEM, as the exported footprints; None leaves it to ``lidar_out/dem.tif`` / ``[flight]``."""
+    from aerotri.adjust.flight_acceptance import Terrain
+    from aerotri.exchange.layers import footprint_dem
+
+    dem, _why = footprint_dem(project)
+    if dem is None or dem == project.dem_path:
+        return None
+    source = str(dem.relative_to(project.root)) if dem.is_relative_to(project.root) else str(dem)
+    return Terrain.from_dem(dem, project.flight.mean_terrain_height_m, source=source)
+
+
 def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
     """The flight acceptance checks as verdict rows; the limits are those of this report's table (a
     section computed by the adjustment with another table is judged again)."""
@@ -490,7 +504,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     # the adjustment: GNSS positions with the nominal attitude)
     fa = at.flight_acceptance if at else None
     if fa is None and (project.eo_path.is_file() or project.gnss_path.is_file()) and project.camera_path.is_file():
-        got = project_flight_acceptance(root, tol)
+        got = project_flight_acceptance(root, tol, terrain=_footprint_terrain(project))
         fa = dataclasses.asdict(got) if got is not None else None
     if fa:
         # judged by this report's table (its platform), whatever the adjustment's section was held to
@@ -499,8 +513,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         rows += flight_rows(fa, tol)
     elif project.eo_path.is_file() or project.gnss_path.is_file():
         missing = (f"no {project.camera_path.name}" if not project.camera_path.is_file() else
-                   f"no DEM ({project.dem_path.relative_to(project.root)}) and no [flight] mean_terrain_height_m in "
-                   "project.toml to put the footprints on")
+                   f"no DEM ({project.dem_path.relative_to(project.root)}, the frame orthos' or the adjustment's) "
+                   "and no [flight] mean_terrain_height_m in project.toml to put the footprints on")
         rows.append(_check("flight_acceptance", "Flight acceptance", "flight acceptance", None, None, "",
                            note=f"not measured: {missing}"))
 

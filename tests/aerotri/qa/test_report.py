@@ -329,3 +329,33 @@ def test_a_leave_one_out_record_that_is_not_one_is_named(tmp_path):
     (p / "at" / "leave_one_out.json").write_text(json.dumps({"checked": 3}))
     with pytest.raises(InputError, match="leave_one_out.json: not a leave-one-out record: KeyError"):
         write_qa_report(p)
+
+
+def test_flight_acceptance_uses_the_dem_the_frame_orthos_were_made_on(tmp_path, tiny_project):
+    """A block without LiDAR and without [flight] mean_terrain_height_m (the kite): its orthos stand on
+    at/dem.tif (the tie points' DEM), so the flight acceptance puts the footprints there instead of saying
+    'no DEM'."""
+    import re
+    import shutil
+
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.1)
+    toml = (tiny_project / "project.toml").read_text()
+    toml = re.sub(r"(?m)^mean_terrain_height_m\s*=.*\n", "", toml)
+    (p / "project.toml").write_text(toml)
+    for name in ("camera.toml", "gnss.txt"):
+        shutil.copy(tiny_project / name, p / name)
+    rep = write_qa_report(p)
+    assert [r.note for r in rep.checks if r.id == "flight_acceptance"][0].startswith("not measured: no DEM")
+    shutil.copy(tiny_project / "truth" / "dem.tif", p / "at" / "dem.tif")
+    (p / "ortho" / "frames").mkdir(parents=True)
+    (p / "ortho" / "frames" / "index.json").write_text(json.dumps(
+        {"crs": "EPSG:32649", "res_m": 0.5, "frames": [],
+         "inputs": {"eo": {"file": "at/eo.txt", "sha256": ""}, "camera": {"file": None, "sha256": ""},
+                    "dem": {"file": "at/dem.tif", "size": 0, "mtime_ns": 0, "sha256": ""}}}))
+    rep = write_qa_report(p)
+    ids = {r.id: r for r in rep.checks}
+    assert "flight_acceptance" not in ids
+    overlap = [r for r in rep.checks if r.section == "Flight acceptance" and "overlap" in r.id]
+    assert overlap and all(r.value is not None for r in overlap)
+    summary = json.loads((p / "reports" / "summary.json").read_text())
+    assert "at/dem.tif" in json.dumps(summary)  # the terrain the footprints stand on is named
