@@ -299,10 +299,14 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
     return FlightAcceptance(frames, strips, to_record(lim, drop_none=True), source, terrain.source, checks, spec)
 
 
-def project_terrain(project) -> Terrain | None:
-    """The project's terrain for the footprints: ``lidar_out/dem.tif``, else ``[flight]
-    mean_terrain_height_m`` of project.toml, else None."""
+def project_terrain(project, *, dem: Path | None = None) -> Terrain | None:
+    """The project's terrain for the footprints: ``dem`` (the adjustment's surface-control DEM) when given,
+    else ``lidar_out/dem.tif``, else ``[flight] mean_terrain_height_m`` of project.toml, else None."""
     mean_h = project.flight.mean_terrain_height_m
+    if dem is not None and Path(dem).is_file():
+        dem = Path(dem).resolve()
+        root = Path(project.root).resolve()
+        return Terrain.from_dem(dem, mean_h, source=str(dem.relative_to(root)) if dem.is_relative_to(root) else str(dem))
     # named relative to the project folder: the same project elsewhere reports the same
     if project.dem_path.is_file():
         return Terrain.from_dem(project.dem_path, mean_h, source=str(project.dem_path.relative_to(project.root)))

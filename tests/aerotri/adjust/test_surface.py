@@ -131,8 +131,11 @@ def test_the_report_has_a_surface_control_section(surface_block, tmp_path):
     shutil.copytree(root, p)
     ba = adjust_project(p, AdjustSettings(dem=trees, surface_sigma_m=0.05, point_covariances=False))
     write_outputs(ba, p)
-    sc = json.loads((p / "at" / "report.json").read_text())["surface_control"]
+    rep = json.loads((p / "at" / "report.json").read_text())
+    sc = rep["surface_control"]
     assert sc["used"] == ba.result.surface.used and sc["rejected"] == ba.result.surface.rejected > 0
+    # no lidar_out/dem.tif and no [flight] mean terrain height: the footprints stand on the DEM given
+    assert rep["flight_acceptance"]["terrain"] == str(trees)  # outside the project: named in full
     assert sc["dem"].endswith("dem_trees.tif") and sc["sigma_m"] == 0.05
     assert "SURFACE CONTROL" in (p / "at" / "report.txt").read_text()
     assert "<h2>Surface control</h2>" in (p / "at" / "report.html").read_text()
