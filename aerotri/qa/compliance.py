@@ -201,19 +201,24 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
         return None
     _, v, src = _survey_accuracy(qa)
     kw = dict(cp_rmse_v_m=v, cp_source=src, anpd_per_m2=density[0], density_note=density[1])
-    pts = [p for p in hc.get("points", []) if p.get("dz_m") is not None]
+    # the DEM raster when it was checked (check-heights --dem: the product; alone, the only dz), else the
+    # cloud's ground points around each surveyed point
+    key = "dz_dem_m" if any(p.get("dz_dem_m") is not None for p in hc.get("points", [])) else "dz_m"
+    pts = [p for p in hc.get("points", []) if p.get(key) is not None]
     if pts:
         veg = [vegetated(p.get("group")) for p in pts]
-        dz = np.asarray([p["dz_m"] for p in pts], dtype=float)
+        dz = np.asarray([p[key] for p in pts], dtype=float)
+        source = (f"dz of the DEM raster {Path((hc.get('dem') or {}).get('path') or 'DEM').name}" if key == "dz_dem_m"
+                  else "dz of the cloud's ground points")
         if any(x is not None for x in veg):
             nv = np.array([x is False for x in veg])
             vg = np.array([x is True for x in veg])
             names = sorted({p.get("group") for p, x in zip(pts, veg) if x})
-            note = (f"groups {', '.join(sorted({str(p.get('group')) for p in pts}))}; vegetated: "
+            note = (f"{source}; groups {', '.join(sorted({str(p.get('group')) for p in pts}))}; vegetated: "
                     f"{', '.join(names) or 'none'}; points without a group left out")
         else:
             nv, vg = np.ones(len(dz), bool), np.zeros(len(dz), bool)
-            note = "no land-cover groups (check-heights --groups): every point taken as non-vegetated"
+            note = f"{source}; no land-cover groups (check-heights --groups): every point taken as non-vegetated"
         kw.update(nva_rmse_m=F.rmse(dz[nv]) if nv.any() else None, n_nva=int(nv.sum()),
                   vva_p95_m=F.vva_p95(dz[vg]) if vg.any() else None, vva_rmse_m=F.rmse(dz[vg]) if vg.any() else None,
                   n_vva=int(vg.sum()), grouping_note=note)

@@ -374,6 +374,14 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             rows.append(_check("height_check_outlier_pct", sec,
                                f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
                                tol.get("height_check_max_outlier_pct"), "%", key="height_check_max_outlier_pct"))
+    if hc is not None and hc.dem_n_checked == 0:
+        rows.append(_failed("dem_raster_rmse_m", sec, "DEM height check", "no surveyed point lies on valid cells of "
+                                                                         f"{hc.dem_path} (points in another CRS?)"))
+    elif hc is not None and hc.dem_n_checked:
+        # the DEM raster is the product a contract judges (check-heights --dem; without a cloud the only figure)
+        name = Path(hc.dem_path).name if hc.dem_path else "the DEM"
+        rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at {hc.dem_n_checked} surveyed points",
+                           round(hc.dem_rmse_m, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
 
     rows += line_map_rows(project, tol)
 

@@ -588,6 +588,10 @@ class HeightCheckRecord:
     bins: list | None  # counts per dz bin as written (``_stats_document``)
     groups: dict  # group -> statistics as written
     mean_abs_dz_m: float | None = None
+    dem_n_checked: int | None = None  # surveyed points on valid DEM cells (None: no DEM was checked)
+    dem_rmse_m: float | None = None
+    dem_dz_m: tuple[float, ...] = ()  # Z_dem - Z_surveyed per point on valid DEM cells
+    dem_path: str | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -610,10 +614,16 @@ def _record_of(d: dict) -> HeightCheckRecord:
     overall = d.get("overall") or {}
     every = overall.get("all") or {}
     dz = tuple(float(p["dz_m"]) for p in d.get("points") or [] if p.get("dz_m") is not None)
+    dem = d.get("dem") or {}
+    dem_all = (dem.get("overall") or {}).get("all") or {}
+    dem_dz = tuple(float(p["dz_dem_m"]) for p in d.get("points") or [] if p.get("dz_dem_m") is not None)
     return HeightCheckRecord(None if "n" not in every else int(every["n"]),
                              None if every.get("rmse_m") is None else float(every["rmse_m"]), dz,
                              overall.get("bins"), dict(d.get("groups") or {}),
-                             None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]))
+                             None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]),
+                             dem_n_checked=None if not dem else int(dem_all.get("n") or 0),
+                             dem_rmse_m=None if dem_all.get("rmse_m") is None else float(dem_all["rmse_m"]),
+                             dem_dz_m=dem_dz, dem_path=dem.get("path"))
 
 
 def read_height_check(path) -> HeightCheckRecord:
