@@ -26,8 +26,8 @@ import numpy as np
 from aerotri.core.errors import ConfigError, OptionError
 from aerotri.core.project import ControlPointSettings, Project
 from aerotri.core.textio import read_json
-from aerotri.core.tolerances import (SCALE_TABLES, ToleranceTable, asprs_classes_for_gsd, asprs_table, load_table,
-                                     scale_for_gsd, split_key)
+from aerotri.core.tolerances import (SCALE_TABLES, Provenance, ToleranceTable, asprs_classes_for_gsd, asprs_table,
+                                     load_table, scale_for_gsd, split_key)
 from aerotri.qa.standards import STANDARD_KEYS, asprs2023, cn_at, usgs_lbs
 from aerotri.qa.standards import formulas as F
 
@@ -695,6 +695,23 @@ def judge(figs: Figures, choice: Choice) -> Compliance:
     unconf = tuple(dict.fromkeys(f"{c.product}: {c.quantity}" for c in checks if c.limit_confirmed is False))
     return Compliance(key=choice.key, name=names[choice.key], class_tested=choice.class_tested, reason=choice.reason,
                       checks=checks, products=summarise(checks), unconfirmed=unconf)
+
+
+def with_lbs_lidar_limits(table: ToleranceTable, level: str) -> ToleranceTable:
+    """The report's table with its LiDAR limits from the USGS LBS level the compliance section tests (DEM height
+    RMSE: the level's NVA RMSEz; strip RMSDz: its interswath RMSDz), so that the verdict table and the compliance
+    section judge the LiDAR by one number (the LBS has no table of its own: the table is chosen by the block, for a
+    LiDAR-only folder the 1:5000 table, whose 0.5 m passed a DEM the LBS QL2 fails)."""
+    lv = usgs_lbs().level(level)
+    src = f"USGS Lidar Base Specification {level} (usgs_lbs.toml)"
+    limits = {**table.limits, "dem_rmse_m": lv.nva_rmse_m, "strip_rmsdz_m": lv.interswath_rmsdz_m}
+    prov = {**table.provenance,
+            "dem_rmse_m": Provenance(f"{src}: NVA RMSEz", "nva_rmse_m" in lv.confirmed),
+            "strip_rmsdz_m": Provenance(f"{src}: interswath RMSDz", "interswath_rmsdz_m" in lv.confirmed)}
+    return dataclasses.replace(table, limits=limits, provenance=prov,
+                               reason=f"{table.reason}; LiDAR limits (DEM height RMSE {lv.nva_rmse_m:g} m, strip "
+                                      f"RMSDz {lv.interswath_rmsdz_m:g} m) from the USGS LBS {level}, the standard of "
+                                      "the compliance section")
 
 
 def project_compliance(project: Project, table: ToleranceTable, block, standard: str | None = None,

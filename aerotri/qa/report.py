@@ -37,7 +37,7 @@ from aerotri.core.figures import pyplot
 from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
                                      split_key)
 from aerotri.geom.block_scale import project_block_scale
-from aerotri.qa.compliance import asprs_class_cm, project_compliance
+from aerotri.qa.compliance import asprs_class_cm, project_compliance, with_lbs_lidar_limits
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
 from lidarctl.vectors.settings import VectorsSettings
@@ -337,6 +337,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm)
     compliance = project_compliance(project, table, block, standard, accuracy_class, terrain)
+    if compliance.key == "usgs-lbs":
+        table = with_lbs_lidar_limits(table, compliance.class_tested)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
     tol_file = None if table.path.parent == TOLERANCE_DIR else table.path  # a user's own table
     at = (read_adjustment_report(project.adjustment_report_path)
