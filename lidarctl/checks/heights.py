@@ -106,9 +106,13 @@ class SurveyedPoints:
                                    z=units.z_to_m(self.z) if self.z is not None else None)
 
 
+ID_COLUMNS = ("id", "point", "point_id", "pointid", "point id", "name", "pt", "station")
+
+
 def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
-    """Surveyed points: header with id, x, y, z (case-insensitive; also e/n/h) and optional group; without
-    ``require_z`` the z column may be missing (``z`` None)."""
+    """Surveyed points: header with id, x, y, z (case-insensitive; also point/name/pt for the id, e/easting,
+    n/northing, h/height/elevation) and optional group; without ``require_z`` the z column may be missing (``z``
+    None). Columns are found by name, so a surveyor's P,N,E,Z,D order reads as it is."""
     path = Path(path)
     rows = list(csv.reader(stringio.StringIO(read_text(path, "surveyed points table (id,x,y,z[,group])"), newline="")))
     if not rows:
@@ -123,7 +127,8 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
                 continue
             raise InputError(f"{path}: line 1: no '{key}' column in header {rows[0]}")
         col[key] = found[0]
-    col_id = head.index("id") if "id" in head else None
+    # a surveyor's "Point" column: without it the points were numbered 1, 2, ... and the names lost
+    col_id = next((head.index(n) for n in ID_COLUMNS if n in head), None)
     col_group = head.index("group") if "group" in head else None
     ids, xyz, groups = [], [], []
     for line_no, row in enumerate(rows[1:], start=2):
