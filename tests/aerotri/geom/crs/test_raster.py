@@ -233,3 +233,21 @@ def test_warp_cell_size_options_follow_the_target_crs(small_dem, tmp_path):
     assert r.exit_code == 0, r.output
     with rasterio.open(out) as dst:
         assert dst.res == pytest.approx((0.00002, 0.00002)) and dst.tags()["CELL_SIZE"] == "2e-05 deg"
+
+
+def test_warp_keeps_the_heights_along_the_rasters_edges(tmp_path):
+    # a DEM valid to its edges (Autzen's 1 m DEM into UTM 10N): target cells whose centre fell in the outer half of
+    # an edge cell were blended with a 0 beyond the edge, 110 cells 0-61 m low (62.7 m where 123.9 m was the lowest)
+    from rasterio.transform import from_origin
+
+    from aerotri.geom.crs.raster import warp_raster
+
+    src = tmp_path / "flat.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=60, height=40, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=from_origin(799_003.3, 3_400_007.7, 1.0, 1.0), nodata=-9999.0) as ds:
+        ds.write(np.full((40, 60), 125.0, np.float32), 1)
+    warp_raster(src, tmp_path / "utm50.tif", "EPSG:32650")
+    with rasterio.open(tmp_path / "utm50.tif") as ds:
+        z = ds.read(1, masked=True)
+    assert z.count() > 0.9 * 60 * 40
+    assert z.min() == pytest.approx(125.0, abs=1e-3) and z.max() == pytest.approx(125.0, abs=1e-3)
