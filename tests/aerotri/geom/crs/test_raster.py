@@ -251,3 +251,26 @@ def test_warp_keeps_the_heights_along_the_rasters_edges(tmp_path):
         z = ds.read(1, masked=True)
     assert z.count() > 0.9 * 60 * 40
     assert z.min() == pytest.approx(125.0, abs=1e-3) and z.max() == pytest.approx(125.0, abs=1e-3)
+
+
+def test_warp_says_when_heights_without_a_vertical_crs_move_with_the_datum(tmp_path, caplog):
+    # AHN3's DEM (NAP heights, the file declares RD New only) into ETRS89 / UTM 31N: every height went up 43.6 m (taken
+    # as heights on the Bessel ellipsoid) and nothing said so; with the vertical CRS declared they stay NAP heights
+    from rasterio.transform import from_origin
+
+    from aerotri.geom.crs.raster import warp_raster
+
+    src = tmp_path / "nap.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=40, height=40, count=1, dtype="float32", crs="EPSG:28992",
+                       transform=from_origin(84_800.0, 447_650.0, 1.0, 1.0), nodata=-9999.0) as ds:
+        ds.write(np.full((40, 40), 1.5, np.float32), 1)
+    with caplog.at_level("WARNING"):
+        r = warp_raster(src, tmp_path / "utm.tif", "EPSG:25831")
+    assert 42.0 < r.height_change_m[0] <= r.height_change_m[1] < 45.0
+    said = [m for m in caplog.messages if "heights changed by +4" in m]
+    assert len(said) == 1 and "declares no vertical CRS" in said[0] and "EPSG:28992+5709" in said[0]
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        r = warp_raster(src, tmp_path / "utm_nap.tif", "EPSG:25831+5709", from_crs="EPSG:28992+5709")
+    assert abs(r.height_change_m[0]) < 0.01 and abs(r.height_change_m[1]) < 0.01
+    assert not [m for m in caplog.messages if "heights changed" in m]
