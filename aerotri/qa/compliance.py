@@ -26,8 +26,8 @@ import numpy as np
 from aerotri.core.errors import ConfigError, OptionError
 from aerotri.core.project import ControlPointSettings, Project
 from aerotri.core.textio import read_json
-from aerotri.core.tolerances import (SCALE_TABLES, ToleranceTable, asprs_classes_for_gsd, asprs_table, load_table,
-                                     scale_for_gsd, split_key)
+from aerotri.core.tolerances import (SCALE_TABLES, Provenance, ToleranceTable, asprs_classes_for_gsd, asprs_table,
+                                     load_table, scale_for_gsd, split_key)
 from aerotri.qa.standards import STANDARD_KEYS, asprs2023, cn_at, usgs_lbs
 from aerotri.qa.standards import formulas as F
 
@@ -201,19 +201,24 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
         return None
     _, v, src = _survey_accuracy(qa)
     kw = dict(cp_rmse_v_m=v, cp_source=src, anpd_per_m2=density[0], density_note=density[1])
-    pts = [p for p in hc.get("points", []) if p.get("dz_m") is not None]
+    # the DEM raster when it was checked (check-heights --dem: the product; alone, the only dz), else the
+    # cloud's ground points around each surveyed point
+    key = "dz_dem_m" if any(p.get("dz_dem_m") is not None for p in hc.get("points", [])) else "dz_m"
+    pts = [p for p in hc.get("points", []) if p.get(key) is not None]
     if pts:
         veg = [vegetated(p.get("group")) for p in pts]
-        dz = np.asarray([p["dz_m"] for p in pts], dtype=float)
+        dz = np.asarray([p[key] for p in pts], dtype=float)
+        source = (f"dz of the DEM raster {Path((hc.get('dem') or {}).get('path') or 'DEM').name}" if key == "dz_dem_m"
+                  else "dz of the cloud's ground points")
         if any(x is not None for x in veg):
             nv = np.array([x is False for x in veg])
             vg = np.array([x is True for x in veg])
             names = sorted({p.get("group") for p, x in zip(pts, veg) if x})
-            note = (f"groups {', '.join(sorted({str(p.get('group')) for p in pts}))}; vegetated: "
+            note = (f"{source}; groups {', '.join(sorted({str(p.get('group')) for p in pts}))}; vegetated: "
                     f"{', '.join(names) or 'none'}; points without a group left out")
         else:
             nv, vg = np.ones(len(dz), bool), np.zeros(len(dz), bool)
-            note = "no land-cover groups (check-heights --groups): every point taken as non-vegetated"
+            note = f"{source}; no land-cover groups (check-heights --groups): every point taken as non-vegetated"
         kw.update(nva_rmse_m=F.rmse(dz[nv]) if nv.any() else None, n_nva=int(nv.sum()),
                   vva_p95_m=F.vva_p95(dz[vg]) if vg.any() else None, vva_rmse_m=F.rmse(dz[vg]) if vg.any() else None,
                   n_vva=int(vg.sum()), grouping_note=note)
@@ -690,6 +695,23 @@ def judge(figs: Figures, choice: Choice) -> Compliance:
     unconf = tuple(dict.fromkeys(f"{c.product}: {c.quantity}" for c in checks if c.limit_confirmed is False))
     return Compliance(key=choice.key, name=names[choice.key], class_tested=choice.class_tested, reason=choice.reason,
                       checks=checks, products=summarise(checks), unconfirmed=unconf)
+
+
+def with_lbs_lidar_limits(table: ToleranceTable, level: str) -> ToleranceTable:
+    """The report's table with its LiDAR limits from the USGS LBS level the compliance section tests (DEM height
+    RMSE: the level's NVA RMSEz; strip RMSDz: its interswath RMSDz), so that the verdict table and the compliance
+    section judge the LiDAR by one number (the LBS has no table of its own: the table is chosen by the block, for a
+    LiDAR-only folder the 1:5000 table, whose 0.5 m passed a DEM the LBS QL2 fails)."""
+    lv = usgs_lbs().level(level)
+    src = f"USGS Lidar Base Specification {level} (usgs_lbs.toml)"
+    limits = {**table.limits, "dem_rmse_m": lv.nva_rmse_m, "strip_rmsdz_m": lv.interswath_rmsdz_m}
+    prov = {**table.provenance,
+            "dem_rmse_m": Provenance(f"{src}: NVA RMSEz", "nva_rmse_m" in lv.confirmed),
+            "strip_rmsdz_m": Provenance(f"{src}: interswath RMSDz", "interswath_rmsdz_m" in lv.confirmed)}
+    return dataclasses.replace(table, limits=limits, provenance=prov,
+                               reason=f"{table.reason}; LiDAR limits (DEM height RMSE {lv.nva_rmse_m:g} m, strip "
+                                      f"RMSDz {lv.interswath_rmsdz_m:g} m) from the USGS LBS {level}, the standard of "
+                                      "the compliance section")
 
 
 def project_compliance(project: Project, table: ToleranceTable, block, standard: str | None = None,

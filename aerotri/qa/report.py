@@ -37,7 +37,7 @@ from aerotri.core.figures import pyplot
 from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
                                      split_key)
 from aerotri.geom.block_scale import project_block_scale
-from aerotri.qa.compliance import asprs_class_cm, project_compliance
+from aerotri.qa.compliance import asprs_class_cm, project_compliance, with_lbs_lidar_limits
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
 from lidarctl.vectors.settings import VectorsSettings
@@ -351,6 +351,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm)
     compliance = project_compliance(project, table, block, standard, accuracy_class, terrain)
+    if compliance.key == "usgs-lbs":
+        table = with_lbs_lidar_limits(table, compliance.class_tested)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
     tol_file = None if table.path.parent == TOLERANCE_DIR else table.path  # a user's own table
     at = (read_adjustment_report(project.adjustment_report_path)
@@ -388,6 +390,14 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             rows.append(_check("height_check_outlier_pct", sec,
                                f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
                                tol.get("height_check_max_outlier_pct"), "%", key="height_check_max_outlier_pct"))
+    if hc is not None and hc.dem_n_checked == 0:
+        rows.append(_failed("dem_raster_rmse_m", sec, "DEM height check", "no surveyed point lies on valid cells of "
+                                                                         f"{hc.dem_path} (points in another CRS?)"))
+    elif hc is not None and hc.dem_n_checked:
+        # the DEM raster is the product a contract judges (check-heights --dem; without a cloud the only figure)
+        name = Path(hc.dem_path).name if hc.dem_path else "the DEM"
+        rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at {hc.dem_n_checked} surveyed points",
+                           round(hc.dem_rmse_m, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
 
     rows += line_map_rows(project, tol)
 

@@ -106,9 +106,13 @@ class SurveyedPoints:
                                    z=units.z_to_m(self.z) if self.z is not None else None)
 
 
+ID_COLUMNS = ("id", "point", "point_id", "pointid", "point id", "name", "pt", "station")
+
+
 def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
-    """Surveyed points: header with id, x, y, z (case-insensitive; also e/n/h) and optional group; without
-    ``require_z`` the z column may be missing (``z`` None)."""
+    """Surveyed points: header with id, x, y, z (case-insensitive; also point/name/pt for the id, e/easting,
+    n/northing, h/height/elevation) and optional group; without ``require_z`` the z column may be missing (``z``
+    None). Columns are found by name, so a surveyor's P,N,E,Z,D order reads as it is."""
     path = Path(path)
     rows = list(csv.reader(stringio.StringIO(read_text(path, "surveyed points table (id,x,y,z[,group])"), newline="")))
     if not rows:
@@ -123,7 +127,8 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
                 continue
             raise InputError(f"{path}: line 1: no '{key}' column in header {rows[0]}")
         col[key] = found[0]
-    col_id = head.index("id") if "id" in head else None
+    # a surveyor's "Point" column: without it the points were numbered 1, 2, ... and the names lost
+    col_id = next((head.index(n) for n in ID_COLUMNS if n in head), None)
     col_group = head.index("group") if "group" in head else None
     ids, xyz, groups = [], [], []
     for line_no, row in enumerate(rows[1:], start=2):
@@ -588,6 +593,10 @@ class HeightCheckRecord:
     bins: list | None  # counts per dz bin as written (``_stats_document``)
     groups: dict  # group -> statistics as written
     mean_abs_dz_m: float | None = None
+    dem_n_checked: int | None = None  # surveyed points on valid DEM cells (None: no DEM was checked)
+    dem_rmse_m: float | None = None
+    dem_dz_m: tuple[float, ...] = ()  # Z_dem - Z_surveyed per point on valid DEM cells
+    dem_path: str | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -610,10 +619,16 @@ def _record_of(d: dict) -> HeightCheckRecord:
     overall = d.get("overall") or {}
     every = overall.get("all") or {}
     dz = tuple(float(p["dz_m"]) for p in d.get("points") or [] if p.get("dz_m") is not None)
+    dem = d.get("dem") or {}
+    dem_all = (dem.get("overall") or {}).get("all") or {}
+    dem_dz = tuple(float(p["dz_dem_m"]) for p in d.get("points") or [] if p.get("dz_dem_m") is not None)
     return HeightCheckRecord(None if "n" not in every else int(every["n"]),
                              None if every.get("rmse_m") is None else float(every["rmse_m"]), dz,
                              overall.get("bins"), dict(d.get("groups") or {}),
-                             None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]))
+                             None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]),
+                             dem_n_checked=None if not dem else int(dem_all.get("n") or 0),
+                             dem_rmse_m=None if dem_all.get("rmse_m") is None else float(dem_all["rmse_m"]),
+                             dem_dz_m=dem_dz, dem_path=dem.get("path"))
 
 
 def read_height_check(path) -> HeightCheckRecord:

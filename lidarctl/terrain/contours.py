@@ -316,8 +316,8 @@ def write_contours(cs: ContourSet, path, crs, z_unit_name: str, z_unit_m: float)
     return path
 
 
-def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "") -> Path:
-    """Contours (index lines thicker) over the DEM's hillshade."""
+def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "", xy_unit: str = "") -> Path:
+    """Contours (index lines thicker) over the DEM's hillshade; axes in the CRS's unit ``xy_unit`` (ft, m)."""
     plt = pyplot()
     from lidarctl.rasters.products import hillshade
 
@@ -333,8 +333,9 @@ def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.set_title(title or f"contours every {cs.interval:g} (index every {5 * cs.interval:g}; DEM height unit), "
                           f"{cs.smoothing}")
-    ax.set_xlabel("easting")
-    ax.set_ylabel("northing")
+    unit = f" ({xy_unit})" if xy_unit else ""  # a DEM in feet: the axes are feet too
+    ax.set_xlabel(f"easting{unit}")
+    ax.set_ylabel(f"northing{unit}")
     fig.tight_layout()
     save_png(fig, path, dpi=110)
     return Path(path)
@@ -393,7 +394,7 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
     if png:
         written.append(str(preview_png(cs, dem, transform, out_path.with_suffix(".png"),
                                        f"{dem_path.name}: every {interval:g} {z_unit} (index {index_every * interval:g} "
-                                       f"{z_unit}), smoothing {smoothing}")))
+                                       f"{z_unit}), smoothing {smoothing}", unit_name(crs.to_wkt()))))
     levels = sorted({c.level for c in contours})
     summary = ContoursResult(
         contours=len(contours), levels=len(levels), closed=sum(c.closed for c in contours),

@@ -223,3 +223,26 @@ def test_map_shades_every_valid_cell_up_to_a_hole(tmp_path, monkeypatch):
     (hs,) = drawn
     assert np.array_equal(np.isfinite(hs), np.isfinite(z))
     assert np.ptp(hs[np.isfinite(hs)]) < 1e-4  # float32 heights; a grey level is 1/256
+
+
+def test_map_axes_name_the_crs_unit(tmp_path, monkeypatch):
+    # Autzen's DEM in feet: the drainage and contour maps said "easting" / "northing" with coordinates in feet
+    from lidarctl.terrain import contours as ct
+
+    labels = []
+
+    def keep(fig, path, **kw):
+        labels.append((fig.axes[0].get_xlabel(), fig.axes[0].get_ylabel()))
+
+    monkeypatch.setattr(dr, "save_png", keep)
+    monkeypatch.setattr(ct, "save_png", keep)
+    z, _ = _y_valleys()
+    for name, crs, unit in (("m", "EPSG:32633", 1.0), ("ft", "EPSG:2992", 0.3048)):
+        _write(tmp_path / f"dem_{name}.tif", z / unit, crs, 2.0 / unit)
+        r = CliRunner().invoke(main, ["drainage", str(tmp_path / f"dem_{name}.tif"), str(tmp_path / f"o_{name}"),
+                                      "--min-area-m2", "1200"])
+        assert r.exit_code == 0, r.output
+        r = CliRunner().invoke(main, ["contours", str(tmp_path / f"dem_{name}.tif"), str(tmp_path / f"c_{name}.gpkg"),
+                                      "--interval-m", "1"])
+        assert r.exit_code == 0, r.output
+    assert labels == [("easting (m)", "northing (m)")] * 2 + [("easting (ft)", "northing (ft)")] * 2

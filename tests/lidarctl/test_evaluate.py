@@ -68,6 +68,10 @@ def test_height_check_csv_errors_name_the_line(tmp_path):
     f.write_text("id,x,y\nA,1,2\n")
     with pytest.raises(InputError, match="no 'z' column"):
         heights_check.read_points_csv(f)
+    # a surveyor's header (Point, Northing, Easting, Elevation, Description): the names were lost (1, 2, ...)
+    f.write_text("Point,Northing,Easting,Elevation,Description\nCP07,849166.5,636759.3,425.441,curb\n")
+    p = heights_check.read_points_csv(f)
+    assert p.ids == ("CP07",) and (p.x[0], p.y[0], p.z[0]) == (636759.3, 849166.5, 425.441) and p.group is None
 
 
 def test_evaluate_says_what_a_ground_only_truth_cannot_measure():

@@ -51,6 +51,7 @@ class WarpResult:
     crs: str
     operation: dict
     valid_fraction: float
+    height_change_m: tuple[float, float] | None = None  # smallest and largest change of a height cell (m)
 
 
 def _open(path):
@@ -128,6 +129,8 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
             profile["nodata"] = nodata
         blocks = [(r, c) for r in range(0, height, block_px) for c in range(0, width, block_px)]
         n_valid = 0
+        z_src_m, z_dst_m = height_unit_m(parse_crs(src_crs, "--from")), height_unit_m(dst_crs)
+        change = [np.inf, -np.inf]
         with scratch_dir(out_path.parent, out_path.name) as tmp_dir, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
             stage = Path(tmp_dir) / "stage.tif"
             with rasterio.open(stage, "w", **profile) as dst, progress(len(blocks), "warp", "blocks") as bar:
@@ -136,7 +139,10 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                     bx, by = x0 + c0 * res, y0 - r0 * res
                     data, valid = read_on_grid(ds, bx, by, res, (h, w), inverse, resampling=resampling)
                     if kind == "height" and valid.any():
-                        data[0] = _heights_through(data[0], valid, inverse, bx, by, res)
+                        z_new = _heights_through(data[0], valid, inverse, bx, by, res)
+                        d = z_new[valid].astype(float) * z_dst_m - data[0][valid].astype(float) * z_src_m
+                        change = [min(change[0], float(d.min())), max(change[1], float(d.max()))]
+                        data[0] = z_new
                     n_valid += int(valid.sum())
                     win = Window(c0, r0, w, h)
                     out = cast_to_dtype(data, dtype)
@@ -163,8 +169,16 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                     check_stored_crs(dst_crs, written.crs, str(out_path), gx, gy, 1e-3 * res)
     for w in forward.warnings:
         log.warning(w)
+    dz = (change[0], change[1]) if np.isfinite(change[0]) else None
+    src_p = parse_crs(src_crs, "--from")
+    if dz and params is None and heights is None and max(abs(dz[0]), abs(dz[1])) > 0.01 and len(src_p.axis_info) < 3:
+        # the datum's change of ellipsoidal heights put on heights that may be above a geoid (NAP: +43.6 m in Delft)
+        log.warning(f"{in_path}: the heights changed by {dz[0]:+.3f} to {dz[1]:+.3f} m: the raster declares no vertical "
+                    f"CRS, so they were taken as ellipsoidal heights of {crs_label(src_p)} and moved with the datum; if "
+                    "they are heights above a geoid (NAP, NAVD88, EGM2008 ...), give --from and --to with the vertical "
+                    "CRS (EPSG:<code>+<vertical code>, e.g. EPSG:28992+5709) to keep them")
     return WarpResult(out_path, kind, width, height, float(res), crs_label(dst_crs), record,
-                      n_valid / float(width * height))
+                      n_valid / float(width * height), dz)
 
 
 def _target_cell(dst_crs, res_m, res_deg) -> tuple[float | None, str]:

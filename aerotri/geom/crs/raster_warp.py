@@ -93,7 +93,9 @@ def warp_array(src: np.ndarray, src_valid: np.ndarray, src_x_left: float, src_y_
     work = np.where(src_valid[..., None] if src.ndim == 3 else src_valid, src, 0)
     if work.dtype == np.float64 or work.dtype.kind in "iu" and work.dtype.itemsize > 2:
         work = work.astype(np.float32)
-    dst = cv2.remap(work, map_x, map_y, interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    # the edge cells continue beyond the array: a destination centre in the outer half of an edge cell (still on
+    # the source's footprint, and valid below) was blended with a constant 0 there (a DEM's edge 0-61 m low)
+    dst = cv2.remap(work, map_x, map_y, interp, borderMode=cv2.BORDER_REPLICATE)
     if dst.ndim == 2 and src.ndim == 3:
         dst = dst[:, :, None]
     # validity: nearest neighbour of the mask, eroded by the kernel's reach
@@ -104,6 +106,7 @@ def warp_array(src: np.ndarray, src_valid: np.ndarray, src_x_left: float, src_y_
     inside = cv2.remap(1 - invalid, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                        borderValue=0).astype(bool)
     inside &= (map_x >= -0.5) & (map_y >= -0.5) & (map_x <= src.shape[1] - 0.5) & (map_y <= src.shape[0] - 0.5)
+    dst[~inside] = 0  # as documented (the replicated border reaches beyond the footprint)
     return cast_to_dtype(dst, src.dtype), inside
 
 

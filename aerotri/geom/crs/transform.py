@@ -253,6 +253,8 @@ class CrsTransformer:
         if self.params is not None:
             way = " applied inversely" if self.params.inverted else ""
             parts.append(f"via {self.params.model}{way} ({self.params.from_crs} -> {self.params.to_crs})")
+            if not self.params.spatial and self.heights is None:  # a 4-parameter user may expect new heights
+                parts.append("heights unchanged (a plane model)")
         if self.heights is not None:
             kind = "ellipsoidal heights from" if self.heights_inverse else "normal heights by"
             parts.append(f"{kind} {self.heights.model} height anomaly model")

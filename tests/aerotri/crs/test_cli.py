@@ -162,6 +162,14 @@ def test_helmert2d_cli_on_gk_grids(tmp_path):
         assert abs(t.parameters[k] - v) < 3 * t.std_devs[k], k
     X, Y, _ = CrsTransformer(4546, 2361, params=t).transform(src[:, 0], src[:, 1])
     assert np.sqrt(np.mean((X - dst[:, 0]) ** 2 + (Y - dst[:, 1]) ** 2)) < 0.01
+    # a plane model leaves the heights as they are: the transform says so (it copied WGS 84 ellipsoidal heights
+    # into a Xian 1980 file without a word, 119 m off Xian's ellipsoid at Yichang)
+    pts = tmp_path / "pts.csv"
+    pts.write_text("id,x,y,z\n" + "".join(f"Q{i},{x:.3f},{y:.3f},100.0\n" for i, (x, y) in enumerate(src[:3])))
+    r = _run("transform", pts, tmp_path / "pts_out.csv", "--from", "4546", "--to", "2361", "--params", out)
+    assert r.exit_code == 0, r.output
+    assert "heights unchanged (a plane model)" in r.output
+    assert [line.split(",")[3] for line in (tmp_path / "pts_out.csv").read_text().splitlines()[1:]] == ["100.0000"] * 3
 
 
 def test_transform_las_uses_the_file_crs(tmp_path):

@@ -152,3 +152,61 @@ def test_report_summary_html_and_cli_carry_the_compliance_section(tmp_path):
     assert "class 1:1000 flat" in res.output
     res = CliRunner().invoke(main, ["report", str(p), "--standard", "usgs-lbs", "--class", "QL7"])
     assert res.exit_code == 2 and "--class 'QL7'" in res.output
+
+
+def _dem_checked_alone(tmp_path, open_dz_m=0.05):
+    """A LiDAR-only folder: project.toml, lidar_out/dem.tif (a plane) and lidar_out/height_check.json of
+    `lidarctl check-heights POINTS.csv --dem dem.tif` at 34 open points (dz +-open_dz_m) and 6 forest points
+    (dz 0.2 m)."""
+    import numpy as np
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from lidarctl.checks.heights import check_heights_file
+
+    (tmp_path / "project.toml").write_text(PROJECT)
+    out = tmp_path / "lidar_out"
+    out.mkdir()
+    x0, y0, cell = 500000.0, 3400000.0, 1.0
+    rows, cols = np.mgrid[0:100, 0:100]
+    dem = (100.0 + 0.01 * (x0 + (cols + 0.5) * cell - 500000.0)).astype("float32")  # a plane: bilinear is exact
+    with rasterio.open(out / "dem.tif", "w", driver="GTiff", width=100, height=100, count=1, dtype="float32",
+                       crs="EPSG:32649", transform=from_origin(x0, y0 + 100 * cell, cell, cell), nodata=-9999) as ds:
+        ds.write(dem, 1)
+    rng = np.random.default_rng(1)
+    lines = ["id,x,y,z,group"]
+    for i in range(40):
+        x, y = x0 + rng.uniform(10, 90), y0 + rng.uniform(10, 90)
+        dz = open_dz_m * (-1) ** i if i < 34 else 0.2  # open: RMSE open_dz_m; forest: 20 cm
+        lines.append(f"P{i},{x:.3f},{y:.3f},{100.0 + 0.01 * (x - 500000.0) - dz:.4f},{'open' if i < 34 else 'forest'}")
+    (tmp_path / "points.csv").write_text("\n".join(lines) + "\n")
+    check = check_heights_file(None, tmp_path / "points.csv", dem_path=out / "dem.tif")
+    (out / "height_check.json").write_text(check.to_json())
+    return tmp_path
+
+
+def test_lidar_dem_checked_alone_is_judged_by_its_own_dz(tmp_path):
+    # `lidarctl check-heights POINTS.csv --dem dem.tif` (no cloud, as docs/commands.md offers): the report said
+    # "not measured: no surveyed check points" for the LiDAR DEM and had no height-check row at all
+    _dem_checked_alone(tmp_path)
+    rep = write_qa_report(tmp_path, standard="asprs2023", accuracy_class="H10 V10")
+    summary = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    nva = [c for c in summary["compliance"]["checks"] if c["quantity"].startswith("NVA")][0]
+    assert nva["n_points"] == 34 and nva["measured"] == pytest.approx(0.05, abs=1e-4) and nva["verdict"] == "pass"
+    assert "DEM raster dem.tif" in nva["checkpoints_note"]
+    vva = [c for c in summary["compliance"]["checks"] if c["quantity"].startswith("VVA")][0]
+    assert vva["n_points"] == 6 and vva["measured"] == pytest.approx(0.2, abs=1e-4)
+    row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
+    assert row.value == pytest.approx(math.sqrt((34 * 0.05**2 + 6 * 0.2**2) / 40), abs=1e-4) and row.verdict == "pass"
+
+
+def test_usgs_lbs_judges_the_verdict_table_by_its_own_lidar_limits(tmp_path):
+    # --standard usgs-lbs on a LiDAR-only folder: the verdict table fell back to the 1:5000 table and passed a DEM of
+    # 0.3 m RMSE against its 0.5 m while the compliance section failed it against QL2's 0.1 m
+    _dem_checked_alone(tmp_path, open_dz_m=0.3)
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
+    assert row.limit == pytest.approx(0.10) and row.verdict == "fail" and rep.overall == "fail"
+    nva = [c for c in rep.compliance["checks"] if c["quantity"].startswith("NVA")][0]
+    assert nva["limit"] == pytest.approx(0.10) and nva["verdict"] == "fail"
+    assert "from the USGS LBS QL2" in rep.table["reason"]

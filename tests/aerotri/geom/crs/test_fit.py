@@ -168,3 +168,23 @@ def test_geometry_warnings_collinear_clustered_and_minimum_points():
     assert res.redundancy == 0 and res.transformation.std_devs is None
     assert any("no redundancy" in w for w in res.warnings)
     assert json.loads(res.to_json())["sigma0_m"] is None
+
+
+@pytest.mark.parametrize("model", ["bursa-wolf7", "helmert2d"])
+def test_a_typo_in_one_common_point_is_named(tmp_path, model):
+    # 7 points over 10 km, 2 cm noise: one northing mistyped by 13.8 m went into the parameters with sigma0 3.2 m and
+    # no warning (the residuals spread it: 10.7 m on the point, 1-4 m on the others)
+    rng = np.random.default_rng(7)
+    lon, lat, h = 111.15 + rng.uniform(0, 0.12, 7), 30.65 + rng.uniform(0, 0.1, 7), rng.uniform(60, 400, 7)
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, "EPSG:32649", "EPSG:2382", lon_deg=lon, lat_deg=lat, h_m=h,
+                                   noise_m=0.02, seed=3)
+    ids = [f"K{i + 1:02d}" for i in range(7)]
+    write_common_points(tmp_path / "good.csv", ids, src, dst)
+    assert not [w for w in fit_common_points(tmp_path / "good.csv", model, "EPSG:32649", "EPSG:2382").warnings
+                if "blunder" in w]
+    dst[3, 1] += 13.8
+    write_common_points(tmp_path / "typo.csv", ids, src, dst)
+    res = fit_common_points(tmp_path / "typo.csv", model, "EPSG:32649", "EPSG:2382")
+    named = [w for w in res.warnings if "blunder" in w]
+    assert len(named) == 1 and named[0].startswith("point K04 lies 13.8")
+    assert "(north)" in named[0]

@@ -233,3 +233,44 @@ def test_warp_cell_size_options_follow_the_target_crs(small_dem, tmp_path):
     assert r.exit_code == 0, r.output
     with rasterio.open(out) as dst:
         assert dst.res == pytest.approx((0.00002, 0.00002)) and dst.tags()["CELL_SIZE"] == "2e-05 deg"
+
+
+def test_warp_keeps_the_heights_along_the_rasters_edges(tmp_path):
+    # a DEM valid to its edges (Autzen's 1 m DEM into UTM 10N): target cells whose centre fell in the outer half of
+    # an edge cell were blended with a 0 beyond the edge, 110 cells 0-61 m low (62.7 m where 123.9 m was the lowest)
+    from rasterio.transform import from_origin
+
+    from aerotri.geom.crs.raster import warp_raster
+
+    src = tmp_path / "flat.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=60, height=40, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=from_origin(799_003.3, 3_400_007.7, 1.0, 1.0), nodata=-9999.0) as ds:
+        ds.write(np.full((40, 60), 125.0, np.float32), 1)
+    warp_raster(src, tmp_path / "utm50.tif", "EPSG:32650")
+    with rasterio.open(tmp_path / "utm50.tif") as ds:
+        z = ds.read(1, masked=True)
+    assert z.count() > 0.9 * 60 * 40
+    assert z.min() == pytest.approx(125.0, abs=1e-3) and z.max() == pytest.approx(125.0, abs=1e-3)
+
+
+def test_warp_says_when_heights_without_a_vertical_crs_move_with_the_datum(tmp_path, caplog):
+    # AHN3's DEM (NAP heights, the file declares RD New only) into ETRS89 / UTM 31N: every height went up 43.6 m (taken
+    # as heights on the Bessel ellipsoid) and nothing said so; with the vertical CRS declared they stay NAP heights
+    from rasterio.transform import from_origin
+
+    from aerotri.geom.crs.raster import warp_raster
+
+    src = tmp_path / "nap.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=40, height=40, count=1, dtype="float32", crs="EPSG:28992",
+                       transform=from_origin(84_800.0, 447_650.0, 1.0, 1.0), nodata=-9999.0) as ds:
+        ds.write(np.full((40, 40), 1.5, np.float32), 1)
+    with caplog.at_level("WARNING"):
+        r = warp_raster(src, tmp_path / "utm.tif", "EPSG:25831")
+    assert 42.0 < r.height_change_m[0] <= r.height_change_m[1] < 45.0
+    said = [m for m in caplog.messages if "heights changed by +4" in m]
+    assert len(said) == 1 and "declares no vertical CRS" in said[0] and "EPSG:28992+5709" in said[0]
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        r = warp_raster(src, tmp_path / "utm_nap.tif", "EPSG:25831+5709", from_crs="EPSG:28992+5709")
+    assert abs(r.height_change_m[0]) < 0.01 and abs(r.height_change_m[1]) < 0.01
+    assert not [m for m in caplog.messages if "heights changed" in m]
