@@ -44,6 +44,7 @@ from aerotri.core.settings import setting
 from aerotri.core.figures import pyplot, save_png
 from lidarctl.grid import GRID_BYTES_PER_CELL, check_grid, lowest_per_cell
 from lidarctl.raster_ops import fill_nodata, reduce_grid, sample_bilinear
+from lidarctl.units import LengthUnits
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -453,8 +454,16 @@ def write_gpkg(model: TreeModel, path, crs_wkt: str, units) -> None:
               fields=list(fields), geometry_type="Point", crs=crs_wkt, driver="GPKG", layer="tree_tops", append=True)
 
 
-def preview_png(model: TreeModel, path, title: str) -> None:
-    """CHM (colour key in metres) with the stand outlines and the tree tops, axes in metres from the corner."""
+def corner_axis_labels(x0_m: float, y0_m: float, units: LengthUnits) -> tuple[str, str]:
+    """Axis labels of a map drawn in metres from its lower-left corner (``x0_m``, ``y0_m``: metres), the corner
+    given in the CRS's own unit: a cloud in feet reads its own easting, not a metre value found in no file."""
+    return (f"metres east of easting {float(units.xy_from_m(x0_m)):.1f} {units.xy_name}",
+            f"metres north of northing {float(units.xy_from_m(y0_m)):.1f} {units.xy_name}")
+
+
+def preview_png(model: TreeModel, path, title: str, *, units: LengthUnits | None = None) -> None:
+    """CHM (colour key in metres) with the stand outlines and the tree tops, axes in metres from the corner;
+    the corner named in the CRS's unit (``units``; metres when None), as the user's files give it."""
     plt = pyplot()
 
     g = model.grid
@@ -472,8 +481,9 @@ def preview_png(model: TreeModel, path, title: str) -> None:
     ax.set_xlim(0, w)
     ax.set_ylim(0, h)
     ax.set_aspect("equal")
-    ax.set_xlabel(f"metres east of {g.x0:.1f} m (CRS easting in metres)")
-    ax.set_ylabel(f"metres north of {g.y_top - h:.1f} m")
+    xlabel, ylabel = corner_axis_labels(g.x0, g.y_top - h, units or LengthUnits())
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
@@ -519,7 +529,7 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
         write_gpkg(model, tmp / "trees.gpkg", crs_found.to_wkt(), units)
         area = result["forest_area_m2"]
         preview_png(model, tmp / "trees.png", f"{paths[0].name}: CHM at {g.res_m:g} m, {len(model.stands)} stands "
-                    f"({area / 1e4:.2f} ha), {len(model.tops.x)} tree tops")
+                    f"({area / 1e4:.2f} ha), {len(model.tops.x)} tree tops", units=units)
         (tmp / "trees.json").write_text(json.dumps(result, indent=2) + "\n")
 
     files = tuple(str(p) for p in rs._write_set(outdir, write, FILES, "trees"))

@@ -270,3 +270,13 @@ def test_check_heights_dem_bad_input(forest_edge, tmp_path):
             out / "a.json"], out, "other.tif")
     (tmp_path / "bad.tif").write_text("not a raster")
     _fails(["check-heights", d / "pts.csv", "--dem", tmp_path / "bad.tif", "--json", out / "a.json"], out, "bad.tif")
+
+
+def test_the_trees_map_names_its_corner_in_the_crs_unit():
+    """Autzen (international feet): the corner is the easting of the user's files, not its value in metres."""
+    from lidarctl.rasters.trees import corner_axis_labels
+    from lidarctl.units import LengthUnits
+
+    x, y = corner_axis_labels(193853.0, 1502.4, LengthUnits(xy_m=0.3048, z_m=0.3048))
+    assert x == "metres east of easting 636000.7 ft" and y == "metres north of northing 4929.1 ft"
+    assert corner_axis_labels(100.0, 200.0, LengthUnits())[0] == "metres east of easting 100.0 m"
