@@ -235,7 +235,11 @@ def lidar_density(project: Project) -> tuple[float | None, str]:
     area of lidar_out/dem.tif's valid cells (overlaps counted, as the aggregate density does)."""
     strips = project.lidar_strips() if project.lidar_dir.is_dir() else []
     if not strips or not project.dem_path.is_file():
-        return None, "not measured: no lidar/ strips or no lidar_out/dem.tif for the area"
+        missing = [f"no LAS/LAZ strips in {project.lidar_dir} (where the report counts the first returns: put or "
+                   "link the strips, or the classified cloud, there)"] if not strips else []
+        if not project.dem_path.is_file():
+            missing.append(f"no {project.dem_path} for the area (lidarctl rasters CLOUD... {project.lidar_out_dir})")
+        return None, "not measured: " + "; ".join(missing)
     import laspy
     import rasterio
 
@@ -259,7 +263,7 @@ def project_figures(project: Project) -> Figures:
     adjusted = project.strips_adjust_path.is_file()
     strips = _json(project.strips_check_after_path if adjusted else project.strips_check_path)
     lidar = lidar_figures(_json(project.height_check_path), strips,
-                          lidar_density(project) if (strips or project.dem_path.is_file()) else (None, ""), qa,
+                          lidar_density(project), qa,
                           " (after the strip adjustment)" if adjusted else "")
     vec = project.vectors_check_path
     return Figures(at=at_checks(at, project.control_points),
@@ -533,7 +537,7 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             ch = _check("LiDAR density", quantity, c.class_tested, fig, fig, limit=limit, unit="per m2", n=None,
                         need=None, cp_ok=None, cp_note=note, confirmed=conf, source=source, finest=fin, rank=rank,
                         verdict=NOT_TESTABLE if ok is None else ("pass" if ok else "fail"),
-                        why="not measured" if ok is None else "a lower limit: the density must reach it")
+                        why=(note or "not measured") if ok is None else "a lower limit: the density must reach it")
         out.append(ch)
 
     # the DEM rows always: without surveyed points they say so (not testable)
@@ -697,17 +701,25 @@ def judge(figs: Figures, choice: Choice) -> Compliance:
                       checks=checks, products=summarise(checks), unconfirmed=unconf)
 
 
-def with_lbs_lidar_limits(table: ToleranceTable, level: str) -> ToleranceTable:
+def with_lbs_lidar_limits(table: ToleranceTable, level: str, lidar_only: bool = False) -> ToleranceTable:
     """The report's table with its LiDAR limits from the USGS LBS level the compliance section tests (DEM height
     RMSE: the level's NVA RMSEz; strip RMSDz: its interswath RMSDz), so that the verdict table and the compliance
     section judge the LiDAR by one number (the LBS has no table of its own: the table is chosen by the block, for a
-    LiDAR-only folder the 1:5000 table, whose 0.5 m passed a DEM the LBS QL2 fails)."""
+    LiDAR-only folder the 1:5000 table, whose 0.5 m passed a DEM the LBS QL2 fails). ``lidar_only``: the table is
+    named after the LBS level (a LiDAR-only project is judged by its limits; the map-scale table only gives the
+    project conventions the LBS has no number for)."""
     lv = usgs_lbs().level(level)
     src = f"USGS Lidar Base Specification {level} (usgs_lbs.toml)"
     limits = {**table.limits, "dem_rmse_m": lv.nva_rmse_m, "strip_rmsdz_m": lv.interswath_rmsdz_m}
     prov = {**table.provenance,
             "dem_rmse_m": Provenance(f"{src}: NVA RMSEz", "nva_rmse_m" in lv.confirmed),
             "strip_rmsdz_m": Provenance(f"{src}: interswath RMSDz", "interswath_rmsdz_m" in lv.confirmed)}
+    if lidar_only:
+        return dataclasses.replace(
+            table, limits=limits, provenance=prov, name=f"USGS Lidar Base Specification, {level}",
+            reason=f"standard usgs-lbs, {level}: DEM height RMSE {lv.nva_rmse_m:g} m (NVA RMSEz), strip RMSDz "
+                   f"{lv.interswath_rmsdz_m:g} m (interswath); the limits the LBS has no number for (ground filter "
+                   f"error, share of height outliers, line map) from {table.path.name} ({table.reason})")
     return dataclasses.replace(table, limits=limits, provenance=prov,
                                reason=f"{table.reason}; LiDAR limits (DEM height RMSE {lv.nva_rmse_m:g} m, strip "
                                       f"RMSDz {lv.interswath_rmsdz_m:g} m) from the USGS LBS {level}, the standard of "
