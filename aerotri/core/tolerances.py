@@ -333,9 +333,10 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
             why += f"; classes from {QA_SECTION if not horizontal_class_cm else 'the command line'}"
         return load_table(asprs_key(h_cm, v_cm, uas), terrain, None, f"{why}; {plat_why}")
     if gsd is None and lidar_only:
-        return cn(DEFAULT_SCALE, "the LBS has no table of its own: the default " + DEFAULT_SCALE if named == "usgs-lbs"
-                  else f"no standard named: the default {DEFAULT_SCALE} table (--standard usgs-lbs or asprs2023 "
-                       f"--class, or [qa] standard, judges by a LiDAR standard)")
+        why = (f"the LBS has no table of its own: the default {DEFAULT_SCALE} table" if named == "usgs-lbs" else
+               f"no standard named: the default {DEFAULT_SCALE} table (--standard usgs-lbs or asprs2023 --class, or "
+               f"[qa] standard, judges by a LiDAR standard)")
+        return cn(DEFAULT_SCALE, why)
     if gsd is None:
         return cn(DEFAULT_SCALE, f"{_block_text(block)}: the default {DEFAULT_SCALE} table (set [qa] map_scale or "
                                  f"standard to choose)")

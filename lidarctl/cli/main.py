@@ -180,8 +180,9 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
               help="Reference map: class GeoTIFF (ASPRS codes) or class polygons (.gpkg/.geojson); PRED is then a "
                    "classified cloud or a class GeoTIFF, scored per cell and per building.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
-@click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1 (TO 255: leave out); "
-                                              "--truth: replaces the mapping onto a coarser truth's class 1.")
+@click.option("--map-pred", default=None,
+              help="Class mapping for the prediction, e.g. 3:1,4:1,5:1 (TO 255: leave out); --truth: replaces the "
+                   "mapping onto a coarser truth's class 1.")
 @click.option("--map-truth", default=None, help="Class mapping for the truth or reference, e.g. 0:1.")
 @click.option("--res-m", "res_m", type=positive(), default=None,
               help="--reference: cell size in metres [0.5; with a raster: the raster's cells, or a raster sampled at "
