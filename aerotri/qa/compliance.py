@@ -230,30 +230,50 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
     return LidarFigures(**kw)
 
 
+def _las_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.glob("*") if p.suffix.lower() in (".las", ".laz")) if folder.is_dir() else []
+
+
+def density_inputs(project: Project) -> tuple[list[Path], Path | None, str]:
+    """(the clouds, the DEM, where they were found) for the density: the strips of P/lidar/, else the LAS/LAZ files
+    in P/ and P/lidar_out/ (where docs/your-own-block.md's LiDAR-only commands write the classified cloud: the same
+    points); P/lidar_out/dem.tif, else the DEM lidar_out/height_check.json was checked on (check-heights --dem;
+    its path as given, from the working folder or the project's)."""
+    clouds, where = _las_files(project.lidar_dir), f"the strips of {project.lidar_dir}"
+    if not clouds:
+        clouds = _las_files(project.root) + _las_files(project.lidar_out_dir)
+        where = f"{', '.join(p.name for p in clouds)} (no strips in {project.lidar_dir})"
+    dem = project.dem_path if project.dem_path.is_file() else None
+    if dem is None and project.height_check_path.is_file():
+        given = (_json(project.height_check_path).get("dem") or {}).get("path")
+        dem = next((p for p in (Path(given), project.root / given) if p.is_file()), None) if given else None
+    return clouds, dem, where
+
+
 def lidar_density(project: Project) -> tuple[float | None, str]:
-    """First returns per m2 (ANPD) of the project's strips: first-return counts from the LAS headers over the
-    area of lidar_out/dem.tif's valid cells (overlaps counted, as the aggregate density does)."""
-    strips = project.lidar_strips() if project.lidar_dir.is_dir() else []
-    if not strips or not project.dem_path.is_file():
-        missing = [f"no LAS/LAZ strips in {project.lidar_dir} (where the report counts the first returns: put or "
-                   "link the strips, or the classified cloud, there)"] if not strips else []
-        if not project.dem_path.is_file():
-            missing.append(f"no {project.dem_path} for the area (lidarctl rasters CLOUD... {project.lidar_out_dir})")
+    """First returns per m2 (ANPD) of the project's clouds (``density_inputs``): first-return counts from the LAS
+    headers over the area of the DEM's valid cells (overlaps counted, as the aggregate density does)."""
+    clouds, dem, where = density_inputs(project)
+    if not clouds or dem is None:
+        missing = [f"no LAS/LAZ strips in {project.lidar_dir}, nor a classified cloud in {project.root} or "
+                   f"{project.lidar_out_dir} (put or link the strips there)"] if not clouds else []
+        if dem is None:
+            missing.append(f"no {project.dem_path} for the area, nor a DEM named by {project.height_check_path.name} "
+                           f"(lidarctl rasters CLOUD... {project.lidar_out_dir})")
         return None, "not measured: " + "; ".join(missing)
     import laspy
     import rasterio
 
     first = 0
-    for p in strips:
+    for p in clouds:
         with laspy.open(p) as f:
             h = f.header
             first += int(h.number_of_points_by_return[0]) if h.number_of_points_by_return[0] else int(h.point_count)
-    with rasterio.open(project.dem_path) as ds:
+    with rasterio.open(dem) as ds:
         valid = ds.read_masks(1) > 0
         unit = ds.crs.linear_units_factor[1] if ds.crs is not None else 1.0
         area = float(valid.sum()) * abs(ds.transform.a * ds.transform.e) * unit * unit
-    return F.anpd(first, area), (f"{first} first returns of {len(strips)} strips over {area / 1e6:.3f} km2 "
-                                 f"(valid cells of lidar_out/dem.tif)")
+    return F.anpd(first, area), f"{first} first returns of {where} over {area / 1e6:.3f} km2 (valid cells of {dem})"
 
 
 def project_figures(project: Project) -> Figures:

@@ -238,3 +238,32 @@ def test_lidar_only_report_has_no_frame_camera_table(tmp_path):
     (tmp_path / "images").mkdir()
     (tmp_path / "images" / "f1.tif").write_bytes(b"")
     assert not lidar_only_project(Project.open(tmp_path))
+
+
+def test_lidar_only_density_from_where_the_docs_commands_write(tmp_path):
+    # docs/your-own-block.md's LiDAR-only commands write P/classified.laz and P/rasters/dem.tif, not P/lidar/ and
+    # P/lidar_out/dem.tif: the density was "not measured"; now counted from the classified cloud over the DEM the
+    # height check names
+    import shutil
+
+    import laspy
+
+    from lidarctl import synthetic
+
+    _dem_checked_alone(tmp_path)
+    (tmp_path / "rasters").mkdir()
+    shutil.move(tmp_path / "lidar_out" / "dem.tif", tmp_path / "rasters" / "dem.tif")
+    hc = json.loads((tmp_path / "lidar_out" / "height_check.json").read_text())
+    hc["dem"]["path"] = "rasters/dem.tif"                    # as given on the command line, in the project folder
+    (tmp_path / "lidar_out" / "height_check.json").write_text(json.dumps(hc))
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
+    assert dens["figure"] is None and "nor a classified cloud in" in dens["why"] and "dem.tif" not in dens["why"]
+
+    cloud, _ = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=4)
+    synthetic.write_las(tmp_path / "classified.laz", cloud, crs="EPSG:32649")
+    first = int(laspy.open(tmp_path / "classified.laz").header.number_of_points_by_return[0])
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
+    assert dens["figure"] == pytest.approx(first / 100.0 ** 2)         # 100 x 100 valid cells of 1 m
+    assert "classified.laz (no strips in" in dens["checkpoints_note"] and "rasters/dem.tif" in dens["checkpoints_note"]
