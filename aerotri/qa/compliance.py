@@ -230,17 +230,25 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
     return LidarFigures(**kw)
 
 
+def lidar_only_project(project: Project) -> bool:
+    """A project without frames: no camera file, images/, gnss.txt, EO or adjustment (lidarctl's products only)."""
+    frames = project.images_dir.is_dir() and any(project.images_dir.iterdir())
+    return not (frames or project.camera_path.is_file() or project.gnss_path.is_file() or project.eo_path.is_file()
+                or project.adjustment_report_path.is_file())
+
+
 def _las_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.glob("*") if p.suffix.lower() in (".las", ".laz")) if folder.is_dir() else []
 
 
 def density_inputs(project: Project) -> tuple[list[Path], Path | None, str]:
-    """(the clouds, the DEM, where they were found) for the density: the strips of P/lidar/, else the LAS/LAZ files
-    in P/ and P/lidar_out/ (where docs/your-own-block.md's LiDAR-only commands write the classified cloud: the same
+    """(the clouds, the DEM, where they were found) for the density: the strips of P/lidar/, else, in a LiDAR-only
+    project (``lidar_only_project``; a frame block's P/ may hold a photogrammetric cloud), the LAS/LAZ files in P/
+    and P/lidar_out/ (where docs/your-own-block.md's LiDAR-only commands write the classified cloud: the same
     points); P/lidar_out/dem.tif, else the DEM lidar_out/height_check.json was checked on (check-heights --dem;
     its path as given, from the working folder or the project's)."""
     clouds, where = _las_files(project.lidar_dir), f"the strips of {project.lidar_dir}"
-    if not clouds:
+    if not clouds and lidar_only_project(project):
         clouds = _las_files(project.root) + _las_files(project.lidar_out_dir)
         where = f"{', '.join(p.name for p in clouds)} (no strips in {project.lidar_dir})"
     dem = project.dem_path if project.dem_path.is_file() else None
@@ -255,8 +263,10 @@ def lidar_density(project: Project) -> tuple[float | None, str]:
     headers over the area of the DEM's valid cells (overlaps counted, as the aggregate density does)."""
     clouds, dem, where = density_inputs(project)
     if not clouds or dem is None:
-        missing = [f"no LAS/LAZ strips in {project.lidar_dir}, nor a classified cloud in {project.root} or "
-                   f"{project.lidar_out_dir} (put or link the strips there)"] if not clouds else []
+        elsewhere = (f", nor a classified cloud in {project.root} or {project.lidar_out_dir}"
+                     if lidar_only_project(project) else "")
+        missing = [f"no LAS/LAZ strips in {project.lidar_dir}{elsewhere} (put or link the strips there)"] \
+            if not clouds else []
         if dem is None:
             missing.append(f"no {project.dem_path} for the area, nor a DEM named by {project.height_check_path.name} "
                            f"(lidarctl rasters CLOUD... {project.lidar_out_dir})")

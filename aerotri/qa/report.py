@@ -37,7 +37,7 @@ from aerotri.core.figures import pyplot
 from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
                                      split_key)
 from aerotri.geom.block_scale import project_block_scale
-from aerotri.qa.compliance import asprs_class_cm, project_compliance, with_lbs_lidar_limits
+from aerotri.qa.compliance import asprs_class_cm, lidar_only_project, project_compliance, with_lbs_lidar_limits
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
 from lidarctl.vectors.settings import VectorsSettings
@@ -104,13 +104,6 @@ def _table_record(table: ToleranceTable, lidar_only: bool = False) -> dict:
 # the limits that can judge a LiDAR-only project: its LiDAR products and a line map drawn from them
 LIDAR_ONLY_LIMITS = ("dem_rmse_m", "height_check_max_outlier_pct", "strip_rmsdz_m", "filter_total_error_pct",
                      "feature_rms_xy_m")
-
-
-def lidar_only_project(project: Project) -> bool:
-    """A project without frames: no camera file, images/, gnss.txt, EO or adjustment (lidarctl's products only)."""
-    frames = project.images_dir.is_dir() and any(project.images_dir.iterdir())
-    return not (frames or project.camera_path.is_file() or project.gnss_path.is_file() or project.eo_path.is_file()
-                or project.adjustment_report_path.is_file())
 
 
 def lidar_limits(table: ToleranceTable) -> ToleranceTable:

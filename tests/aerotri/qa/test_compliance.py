@@ -217,7 +217,8 @@ def test_lidar_only_report_has_no_frame_camera_table(tmp_path):
     # manned frame photography and every frame limit (sigma naught, flight, seams) as unconfirmed, and its density
     # row said "not measured" without where the strips were looked for
     from aerotri.core.project import Project
-    from aerotri.qa.report import LIDAR_ONLY_LIMITS, console_summary, lidar_only_project
+    from aerotri.qa.compliance import lidar_only_project
+    from aerotri.qa.report import LIDAR_ONLY_LIMITS, console_summary
 
     _dem_checked_alone(tmp_path)
     rep = write_qa_report(tmp_path)
@@ -267,3 +268,9 @@ def test_lidar_only_density_from_where_the_docs_commands_write(tmp_path):
     dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
     assert dens["figure"] == pytest.approx(first / 100.0 ** 2)         # 100 x 100 valid cells of 1 m
     assert "classified.laz (no strips in" in dens["checkpoints_note"] and "rasters/dem.tif" in dens["checkpoints_note"]
+    # a frame block's folder may hold a photogrammetric cloud: only P/lidar/ counts there
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "f1.tif").write_bytes(b"")
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
+    assert dens["figure"] is None and "nor a classified cloud" not in dens["why"]
