@@ -272,17 +272,21 @@ def _block_text(block: BlockScale | None) -> str:
 
 def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str | None = None,
                  standard: str | None = None, terrain: str | None = None, tolerance_file=None,
-                 horizontal_class_cm: float | None = None, vertical_class_cm: float | None = None) -> ToleranceTable:
+                 horizontal_class_cm: float | None = None, vertical_class_cm: float | None = None,
+                 lidar_only: bool = False) -> ToleranceTable:
     """The table that judges a block, and why. The keyword arguments (the command line) override ``cfg``
     (project.toml [qa]); what neither names is chosen from ``block``: a low-altitude (UAS) block, or any block
     with a GSD under ``selection.toml`` [asprs] gsd_max_m, gets the ASPRS 2023 classes of its GSD; a coarser
-    manned block the Chinese map-scale table of its GSD; a block of unknown GSD the 1:5000 table."""
+    manned block the Chinese map-scale table of its GSD; a block of unknown GSD the 1:5000 table.
+    ``lidar_only``: a project without frames (no platform to assume; the reason says so)."""
     platform = cfg.platform or (block.platform if block is not None else None)
     if cfg.platform:
         plat_why = f"platform {cfg.platform} from {QA_SECTION}"
     elif platform:
         plat_why = (f"platform {platform}: {block.height_above_ground_m:.0f} m above ground (a UAS block flies below "
                     f"{low_altitude_height_m():g} m)")
+    elif lidar_only:
+        plat_why = "a LiDAR-only project (no camera.toml, frames, GNSS or EO): only its LiDAR limits apply"
     else:
         plat_why = "platform unknown (manned assumed)"
     uas = platform == "uas"
@@ -292,6 +296,7 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
     std = standard or (None if scale else cfg.standard)
     # the report's compliance standards (aerotri/qa/compliance.py) map onto the table families: the Chinese ones
     # onto the map-scale tables, the LiDAR specification onto none (chosen by the block)
+    named = std
     std = {"cn-at": "cn", "thesis": "cn", "usgs-lbs": None}.get(std, std)
     given_scale = scale or (None if standard else cfg.map_scale)
     file = tolerance_file or (None if (scale or standard) else cfg.tolerances)
@@ -327,6 +332,11 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
         else:
             why += f"; classes from {QA_SECTION if not horizontal_class_cm else 'the command line'}"
         return load_table(asprs_key(h_cm, v_cm, uas), terrain, None, f"{why}; {plat_why}")
+    if gsd is None and lidar_only:
+        why = (f"the LBS has no table of its own: the default {DEFAULT_SCALE} table" if named == "usgs-lbs" else
+               f"no standard named: the default {DEFAULT_SCALE} table (--standard usgs-lbs or asprs2023 --class, or "
+               f"[qa] standard, judges by a LiDAR standard)")
+        return cn(DEFAULT_SCALE, why)
     if gsd is None:
         return cn(DEFAULT_SCALE, f"{_block_text(block)}: the default {DEFAULT_SCALE} table (set [qa] map_scale or "
                                  f"standard to choose)")

@@ -230,26 +230,60 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
     return LidarFigures(**kw)
 
 
+def lidar_only_project(project: Project) -> bool:
+    """A project without frames: no camera file, images/, gnss.txt, EO or adjustment (lidarctl's products only)."""
+    frames = project.images_dir.is_dir() and any(project.images_dir.iterdir())
+    return not (frames or project.camera_path.is_file() or project.gnss_path.is_file() or project.eo_path.is_file()
+                or project.adjustment_report_path.is_file())
+
+
+def _las_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.glob("*") if p.suffix.lower() in (".las", ".laz")) if folder.is_dir() else []
+
+
+def density_inputs(project: Project) -> tuple[list[Path], Path | None, str]:
+    """(the clouds, the DEM, where they were found) for the density: the strips of P/lidar/, else, in a LiDAR-only
+    project (``lidar_only_project``; a frame block's P/ may hold a photogrammetric cloud), the LAS/LAZ files in P/
+    and P/lidar_out/ (where docs/your-own-block.md's LiDAR-only commands write the classified cloud: the same
+    points); P/lidar_out/dem.tif, else the DEM lidar_out/height_check.json was checked on (check-heights --dem;
+    its path as given, from the working folder or the project's)."""
+    clouds, where = _las_files(project.lidar_dir), f"the strips of {project.lidar_dir}"
+    if not clouds and lidar_only_project(project):
+        clouds = _las_files(project.root) + _las_files(project.lidar_out_dir)
+        where = f"{', '.join(p.name for p in clouds)} (no strips in {project.lidar_dir})"
+    dem = project.dem_path if project.dem_path.is_file() else None
+    if dem is None and project.height_check_path.is_file():
+        given = (_json(project.height_check_path).get("dem") or {}).get("path")
+        dem = next((p for p in (Path(given), project.root / given) if p.is_file()), None) if given else None
+    return clouds, dem, where
+
+
 def lidar_density(project: Project) -> tuple[float | None, str]:
-    """First returns per m2 (ANPD) of the project's strips: first-return counts from the LAS headers over the
-    area of lidar_out/dem.tif's valid cells (overlaps counted, as the aggregate density does)."""
-    strips = project.lidar_strips() if project.lidar_dir.is_dir() else []
-    if not strips or not project.dem_path.is_file():
-        return None, "not measured: no lidar/ strips or no lidar_out/dem.tif for the area"
+    """First returns per m2 (ANPD) of the project's clouds (``density_inputs``): first-return counts from the LAS
+    headers over the area of the DEM's valid cells (overlaps counted, as the aggregate density does)."""
+    clouds, dem, where = density_inputs(project)
+    if not clouds or dem is None:
+        elsewhere = (f", nor a classified cloud in {project.root} or {project.lidar_out_dir}"
+                     if lidar_only_project(project) else "")
+        missing = [f"no LAS/LAZ strips in {project.lidar_dir}{elsewhere} (put or link the strips there)"] \
+            if not clouds else []
+        if dem is None:
+            missing.append(f"no {project.dem_path} for the area, nor a DEM named by {project.height_check_path.name} "
+                           f"(lidarctl rasters CLOUD... {project.lidar_out_dir})")
+        return None, "not measured: " + "; ".join(missing)
     import laspy
     import rasterio
 
     first = 0
-    for p in strips:
+    for p in clouds:
         with laspy.open(p) as f:
             h = f.header
             first += int(h.number_of_points_by_return[0]) if h.number_of_points_by_return[0] else int(h.point_count)
-    with rasterio.open(project.dem_path) as ds:
+    with rasterio.open(dem) as ds:
         valid = ds.read_masks(1) > 0
         unit = ds.crs.linear_units_factor[1] if ds.crs is not None else 1.0
         area = float(valid.sum()) * abs(ds.transform.a * ds.transform.e) * unit * unit
-    return F.anpd(first, area), (f"{first} first returns of {len(strips)} strips over {area / 1e6:.3f} km2 "
-                                 f"(valid cells of lidar_out/dem.tif)")
+    return F.anpd(first, area), f"{first} first returns of {where} over {area / 1e6:.3f} km2 (valid cells of {dem})"
 
 
 def project_figures(project: Project) -> Figures:
@@ -259,7 +293,7 @@ def project_figures(project: Project) -> Figures:
     adjusted = project.strips_adjust_path.is_file()
     strips = _json(project.strips_check_after_path if adjusted else project.strips_check_path)
     lidar = lidar_figures(_json(project.height_check_path), strips,
-                          lidar_density(project) if (strips or project.dem_path.is_file()) else (None, ""), qa,
+                          lidar_density(project), qa,
                           " (after the strip adjustment)" if adjusted else "")
     vec = project.vectors_check_path
     return Figures(at=at_checks(at, project.control_points),
@@ -533,7 +567,7 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             ch = _check("LiDAR density", quantity, c.class_tested, fig, fig, limit=limit, unit="per m2", n=None,
                         need=None, cp_ok=None, cp_note=note, confirmed=conf, source=source, finest=fin, rank=rank,
                         verdict=NOT_TESTABLE if ok is None else ("pass" if ok else "fail"),
-                        why="not measured" if ok is None else "a lower limit: the density must reach it")
+                        why=(note or "not measured") if ok is None else "a lower limit: the density must reach it")
         out.append(ch)
 
     # the DEM rows always: without surveyed points they say so (not testable)
@@ -697,17 +731,25 @@ def judge(figs: Figures, choice: Choice) -> Compliance:
                       checks=checks, products=summarise(checks), unconfirmed=unconf)
 
 
-def with_lbs_lidar_limits(table: ToleranceTable, level: str) -> ToleranceTable:
+def with_lbs_lidar_limits(table: ToleranceTable, level: str, lidar_only: bool = False) -> ToleranceTable:
     """The report's table with its LiDAR limits from the USGS LBS level the compliance section tests (DEM height
     RMSE: the level's NVA RMSEz; strip RMSDz: its interswath RMSDz), so that the verdict table and the compliance
     section judge the LiDAR by one number (the LBS has no table of its own: the table is chosen by the block, for a
-    LiDAR-only folder the 1:5000 table, whose 0.5 m passed a DEM the LBS QL2 fails)."""
+    LiDAR-only folder the 1:5000 table, whose 0.5 m passed a DEM the LBS QL2 fails). ``lidar_only``: the table is
+    named after the LBS level (a LiDAR-only project is judged by its limits; the map-scale table only gives the
+    project conventions the LBS has no number for)."""
     lv = usgs_lbs().level(level)
     src = f"USGS Lidar Base Specification {level} (usgs_lbs.toml)"
     limits = {**table.limits, "dem_rmse_m": lv.nva_rmse_m, "strip_rmsdz_m": lv.interswath_rmsdz_m}
     prov = {**table.provenance,
             "dem_rmse_m": Provenance(f"{src}: NVA RMSEz", "nva_rmse_m" in lv.confirmed),
             "strip_rmsdz_m": Provenance(f"{src}: interswath RMSDz", "interswath_rmsdz_m" in lv.confirmed)}
+    if lidar_only:
+        return dataclasses.replace(
+            table, limits=limits, provenance=prov, name=f"USGS Lidar Base Specification, {level}",
+            reason=f"standard usgs-lbs, {level}: DEM height RMSE {lv.nva_rmse_m:g} m (NVA RMSEz), strip RMSDz "
+                   f"{lv.interswath_rmsdz_m:g} m (interswath); the limits the LBS has no number for (ground filter "
+                   f"error, share of height outliers, line map) from {table.path.name} ({table.reason})")
     return dataclasses.replace(table, limits=limits, provenance=prov,
                                reason=f"{table.reason}; LiDAR limits (DEM height RMSE {lv.nva_rmse_m:g} m, strip "
                                       f"RMSDz {lv.interswath_rmsdz_m:g} m) from the USGS LBS {level}, the standard of "

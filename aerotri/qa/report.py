@@ -37,7 +37,7 @@ from aerotri.core.figures import pyplot
 from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
                                      split_key)
 from aerotri.geom.block_scale import project_block_scale
-from aerotri.qa.compliance import asprs_class_cm, project_compliance, with_lbs_lidar_limits
+from aerotri.qa.compliance import asprs_class_cm, lidar_only_project, project_compliance, with_lbs_lidar_limits
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
 from lidarctl.vectors.settings import VectorsSettings
@@ -92,12 +92,25 @@ class QaReport:
         return any(c.id == check_id for c in self.checks)
 
 
-def _table_record(table: ToleranceTable) -> dict:
+def _table_record(table: ToleranceTable, lidar_only: bool = False) -> dict:
     """The report's record of the tolerance table that judged the block: which table (its file's name), why, the
-    flight specification, the limits whose source is unconfirmed and every limit's source."""
+    flight specification, the limits whose source is unconfirmed and every limit's source; whether the project is
+    LiDAR-only (``lidar_only_project``: the table holds its LiDAR limits only)."""
     return dict(key=table.key, name=table.name, file=table.path.name, terrain=table.terrain, reason=table.reason,
                 platform=table.platform, flight_spec=table.limits.get("flight_spec"), unconfirmed=table.unconfirmed,
-                provenance={k: dataclasses.asdict(p) for k, p in table.provenance.items()})
+                provenance={k: dataclasses.asdict(p) for k, p in table.provenance.items()}, lidar_only=lidar_only)
+
+
+# the limits that can judge a LiDAR-only project: its LiDAR products and a line map drawn from them
+LIDAR_ONLY_LIMITS = ("dem_rmse_m", "height_check_max_outlier_pct", "strip_rmsdz_m", "filter_total_error_pct",
+                     "feature_rms_xy_m")
+
+
+def lidar_limits(table: ToleranceTable) -> ToleranceTable:
+    """``table`` with the limits of a LiDAR-only project only (``LIDAR_ONLY_LIMITS``): no adjustment, DOM or flight
+    limits (nor the flight specification) for a project that has no frames."""
+    return dataclasses.replace(table, limits={k: v for k, v in table.limits.items() if k in LIDAR_ONLY_LIMITS},
+                               provenance={k: p for k, p in table.provenance.items() if k in LIDAR_ONLY_LIMITS})
 
 
 def _failed(check_id: str, section: str, name: str, why: str) -> QaCheck:
@@ -348,11 +361,15 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if (standard or cfg.standard) == "asprs2023" and (hv := asprs_class_cm(accuracy_class or project.qa.accuracy_class)):
         # the class of the compliance section is the class of the verdict table too
         horizontal_class_cm, vertical_class_cm = horizontal_class_cm or hv[0], vertical_class_cm or hv[1]
+    lidar_only = lidar_only_project(project)
     table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
-                         horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm)
+                         horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
+                         lidar_only=lidar_only)
     compliance = project_compliance(project, table, block, standard, accuracy_class, terrain)
     if compliance.key == "usgs-lbs":
-        table = with_lbs_lidar_limits(table, compliance.class_tested)
+        table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
+    if lidar_only:
+        table = lidar_limits(table)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
     tol_file = None if table.path.parent == TOLERANCE_DIR else table.path  # a user's own table
     at = (read_adjustment_report(project.adjustment_report_path)
@@ -549,7 +566,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                  for r, p in zip(rows, prov))
     return QaReport(project=(at.project if at and at.project else root.name),
                     map_scale=tol_path.stem if tol_file else split_key(table.key)[0],
-                    tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol, table=_table_record(table),
+                    tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol,
+                    table=_table_record(table, lidar_only),
                     block=dataclasses.asdict(block), checks=rows,
                     overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
                     passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info,
@@ -872,6 +890,6 @@ def console_summary(report: QaReport) -> str:
             lines.append(f"  {r.verdict:<5} {r.section}: {r.quantity} = {r.value} {r.unit} (limit {r.limit}{star})")
     lines += compliance_lines(report.compliance)
     verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
-    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; "
-                 f"{report.map_scale} {report.terrain})")
+    judged_by = t["name"] if t.get("lidar_only") else f"{report.map_scale} {report.terrain}"
+    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; {judged_by})")
     return "\n".join(lines)

@@ -10,6 +10,11 @@ row sum (how much of the truth class was found), user's accuracy = diagonal / co
 much of what was labelled is right), overall accuracy = trace / total, Cohen's kappa from the
 row and column sums (p_e = sum of row x column sums / total^2).
 
+A truth in a coarser scheme (``coarse_scheme_map``: it holds class 1 and no vegetation class 3/4/5, as AHN3's
+1 2 6 9 26) is scored on its own classes: our vegetation, noise and bridge-deck classes that it does not hold
+(3, 4, 5, 7, 17, 18) count as its class 1 in the confusion matrix (the filter test is the same either way: none
+of them is ground); the matrix before that mapping is kept beside it. A ``map_pred`` given replaces it.
+
 Prediction and truth must hold the same points in the same order (``read_same_points``): their
 coordinates are compared in metres (each file scaled by its CRS's unit) within
 ``SAME_POINT_TOL_M`` or 1.1 coordinate steps (the coarser scale factor), whichever is larger.
@@ -94,10 +99,16 @@ class Confusion:
 
 @dataclasses.dataclass(frozen=True)
 class ClassificationEvaluation:
-    """``evaluate_strips`` / ``evaluate_files``: the filter test (ground = classes 2, 9) and the confusion matrix."""
+    """``evaluate_strips`` / ``evaluate_files``: the filter test (ground = classes 2, 9) and the confusion matrix.
+    Against a truth in a coarser scheme (``coarse_scheme_map``) the matrix is on the truth's classes:
+    ``class_map`` (our class as text -> the truth's class), why (``class_map_reason``) and the matrix of the
+    classes as labelled (``confusion_before_map``); all None otherwise."""
 
     filter_test: FilterTest
     confusion: Confusion
+    class_map: dict[str, int] | None = None
+    class_map_reason: str | None = None
+    confusion_before_map: Confusion | None = None
 
     def to_json(self) -> str:
         """classification_eval.json's text (``lidarctl evaluate --json``, the chain's lidar_eval)."""
@@ -112,6 +123,21 @@ def read_filter_test(path) -> FilterTest:
         return FilterTest(**d["filter_test"])
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, CLASSIFICATION_EVAL, exc) from None
+
+
+# ASPRS classes a scheme without vegetation classes holds in its class 1 ("unclassified"): vegetation 3/4/5, noise
+# 7/18 and bridge deck 17 (AHN3's scheme: 1 2 6 9 26)
+COARSE_UNCLASSIFIED = (3, 4, 5, 7, 17, 18)
+VEGETATION = (3, 4, 5)
+
+
+def coarse_scheme_map(pred_classes, truth_classes) -> dict[int, int]:
+    """Our classes to score as the truth's class 1 when the truth is in a coarser scheme: it holds class 1 and none
+    of the vegetation classes 3/4/5. The classes of ``COARSE_UNCLASSIFIED`` we hold and it does not; {} otherwise."""
+    truth = {int(c) for c in truth_classes}
+    if 1 not in truth or truth & set(VEGETATION):
+        return {}
+    return {int(c): 1 for c in sorted({int(c) for c in pred_classes}) if c in COARSE_UNCLASSIFIED and c not in truth}
 
 
 def filter_errors(pred_ground: np.ndarray, true_ground: np.ndarray) -> FilterTest:
@@ -208,6 +234,28 @@ def format_confusion(conf: Confusion, names: dict | None = None) -> str:
     return "\n".join(lines)
 
 
+def format_class_map(result: ClassificationEvaluation) -> list[str]:
+    """The lines under the matrix of a truth in a coarser scheme: the mapping and why, and the figures that the
+    mapping changed (overall accuracy, kappa, producer's and user's accuracy per class) as labelled -> as scored."""
+    if result.class_map is None or result.confusion_before_map is None:
+        return []
+    b, a = result.confusion_before_map, result.confusion
+
+    def pct(v):
+        return "-" if v is None else f"{v:.2f} %"
+
+    lines = [f"scored on the truth's classes: {result.class_map_reason} (--map-pred gives another mapping)",
+             f"as labelled, before the mapping: overall accuracy {b.overall_accuracy_pct:.2f} %, kappa "
+             f"{b.kappa_pct:.2f} % (now {a.overall_accuracy_pct:.2f} %, {a.kappa_pct:.2f} %)"]
+    for c in a.classes:
+        k = str(c)
+        pb, pa = b.producers_accuracy_pct.get(k), a.producers_accuracy_pct[k]
+        ub, ua = b.users_accuracy_pct.get(k), a.users_accuracy_pct[k]
+        if (pb, ub) != (pa, ua):
+            lines.append(f"  class {c}: producer's {pct(pb)} -> {pct(pa)}, user's {pct(ub)} -> {pct(ua)}")
+    return lines
+
+
 def evaluate_files(pred_path, truth_path, map_pred: dict | None = None,
                    map_truth: dict | None = None) -> ClassificationEvaluation:
     """The stage (``lidarctl evaluate``): filter-test errors (ground = classes 2, 9) and the confusion
@@ -230,7 +278,20 @@ def evaluate_strips(pred_paths, truth_paths, map_pred: dict | None = None,
         truths.append(truth.classification)
     pc, tc = np.concatenate(preds).astype(int), np.concatenate(truths).astype(int)
     for mapping, arr in ((map_pred or {}, pc), (map_truth or {}, tc)):
-        src = arr.copy()
-        for a, b in mapping.items():
-            arr[src == a] = b
-    return ClassificationEvaluation(filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9))), confusion(pc, tc))
+        _remap(arr, mapping)
+    ft, conf = filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9))), confusion(pc, tc)
+    coarse = {} if map_pred else coarse_scheme_map(np.unique(pc), np.unique(tc))
+    if not coarse:
+        return ClassificationEvaluation(ft, conf)
+    reason = (f"the truth holds class 1 and no vegetation class (classes {' '.join(map(str, np.unique(tc)))}): "
+              f"our classes {', '.join(map(str, coarse))} scored as its class 1")
+    return ClassificationEvaluation(ft, confusion(_remap(pc, coarse), tc), {str(a): b for a, b in coarse.items()},
+                                    reason, conf)
+
+
+def _remap(classes: np.ndarray, mapping: dict) -> np.ndarray:
+    """``classes`` with each class a of ``mapping`` replaced by mapping[a], in place (and returned)."""
+    src = classes.copy()
+    for a, b in mapping.items():
+        classes[src == a] = b
+    return classes

@@ -180,7 +180,9 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
               help="Reference map: class GeoTIFF (ASPRS codes) or class polygons (.gpkg/.geojson); PRED is then a "
                    "classified cloud or a class GeoTIFF, scored per cell and per building.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Write the numbers as JSON.")
-@click.option("--map-pred", default=None, help="Class mapping for the prediction, e.g. 3:1,4:1,5:1 (TO 255: leave out).")
+@click.option("--map-pred", default=None,
+              help="Class mapping for the prediction, e.g. 3:1,4:1,5:1 (TO 255: leave out); --truth: replaces the "
+                   "mapping onto a coarser truth's class 1.")
 @click.option("--map-truth", default=None, help="Class mapping for the truth or reference, e.g. 0:1.")
 @click.option("--res-m", "res_m", type=positive(), default=None,
               help="--reference: cell size in metres [0.5; with a raster: the raster's cells, or a raster sampled at "
@@ -204,7 +206,8 @@ def evaluate(*, pred_paths, truth_path, reference_path, json_path, map_pred, map
     """Accuracy of the classification PRED_PATHS (one file; --reference: also classified strips).
 
     --truth: a cloud against its truth cloud point by point: type I/II/total error and kappa (ground =
-    classes 2, 9) and the confusion matrix.
+    classes 2, 9) and the confusion matrix; against a truth with class 1 and no vegetation class (AHN3: 1 2 6 9 26)
+    our classes 3 4 5 7 17 18 count as its 1 (said, with the figures before the mapping).
 
     --reference: a classified cloud (the class of each cell's highest point, noise left out; medium
     vegetation counts as tree) or a class raster against a reference map, as the seeds report it:
@@ -256,14 +259,16 @@ def _evaluate_truth(pred_paths, truth_path, map_pred: dict, map_truth: dict) -> 
         raise OptionError(f"--truth: one classified file, not {len(pred_paths)}", param="--truth")
     result = ev.evaluate_files(pred_paths[0], truth_path, map_pred, map_truth)
     text = "\n".join([ev.format_filter_table({"ground": result.filter_test}), "",
-                      ev.format_confusion(result.confusion)] + _truth_notes(result.confusion))
+                      ev.format_confusion(result.confusion), *ev.format_class_map(result)]
+                     + _truth_notes(result.confusion, result.class_map))
     return text, result.to_json()
 
 
-def _truth_notes(conf) -> list[str]:
+def _truth_notes(conf, class_map: dict | None = None) -> list[str]:
     """What the numbers against a truth cloud do not say: its class 1 may hold ground (a production classification:
     Autzen, lidR's topography), and a truth of ground and one other class makes the matrix compare classes it has
-    no label for (the ISPRS filter test's 0 / 2)."""
+    no label for (the ISPRS filter test's 0 / 2). ``class_map``: the mapping already applied to the prediction
+    (a truth in a coarser scheme), which the --map-pred offered must repeat (it replaces it)."""
     truth = [c for c, row in zip(conf.classes, conf.matrix) if sum(row) > 0]
     pred = [c for c, col in zip(conf.classes, zip(*conf.matrix)) if sum(col) > 0]
     notes = []
@@ -272,10 +277,11 @@ def _truth_notes(conf) -> list[str]:
                      "production classification), type II and total overstate the errors; type I does not")
     other = [c for c in truth if c not in (2, 9)]
     if len(other) == 1 and len(set(pred) - {2, 9, other[0]}) > 0:
+        mapping = {**{int(a): b for a, b in (class_map or {}).items()},
+                   **{c: other[0] for c in sorted(set(pred) - {2, 9, other[0]})}}
         notes.append(f"note: the truth labels ground and class {other[0]} only: the overall accuracy and kappa above "
                      f"count every other predicted class as wrong; --map-pred "
-                     + ",".join(f"{c}:{other[0]}" for c in sorted(set(pred) - {2, 9, other[0]}))
-                     + " gives the two-class matrix")
+                     + ",".join(f"{a}:{b}" for a, b in sorted(mapping.items())) + " gives the two-class matrix")
     return notes
 
 

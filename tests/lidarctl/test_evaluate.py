@@ -105,3 +105,57 @@ def test_filter_test_read_back_from_its_json_file_as_written(tmp_path):
     ft = evaluate.read_filter_test(path)
     assert ft.type_i_count == 1 and ft.type_ii_count == 1 and ft.type_i_error_pct == 25.0
     assert ft == errors and json.dumps(dataclasses.asdict(ft)) == json.dumps(dataclasses.asdict(errors))
+
+
+def test_evaluate_scores_a_coarser_truth_on_its_own_classes(tmp_path):
+    """AHN3's classes (1 2 6 9 26: vegetation in 1) read "overall accuracy 66.94 %" against a right classification:
+    our 3/4/5 counted against its 1. A truth with class 1 and no vegetation class is now scored on its classes (our
+    3 4 5 7 17 18 as its 1), said, with the matrix as labelled beside it; the filter test is the same; a truth in the
+    full scheme and a --map-pred given are scored as before."""
+    import json
+
+    from click.testing import CliRunner
+
+    from lidarctl.cli.main import main
+
+    cloud, fine = synthetic.synthetic_scene(width_m=80.0, density_per_m2=2.0, seed=3)
+    assert {2, 4, 5, 6, 7}.issubset(set(np.unique(fine).tolist()))
+    coarse = np.where(np.isin(fine, (3, 4, 5, 7, 18)), 1, fine)     # the truth in AHN3's scheme
+    pred = fine.copy()
+    wrong = np.flatnonzero(fine == 6)[:10]
+    pred[wrong] = 5                                                 # 10 building points called high vegetation
+    for name, cls in (("pred", pred), ("coarse", coarse), ("fine", fine)):
+        synthetic.write_las(tmp_path / f"{name}.laz", cloud, classification=cls, crs="EPSG:32632")
+
+    r = evaluate.evaluate_files(tmp_path / "pred.laz", tmp_path / "coarse.laz")
+    n = len(fine)
+    assert r.confusion.overall_accuracy_pct == pytest.approx(100.0 * (n - 10) / n)
+    assert r.class_map == {str(c): 1 for c in sorted(set(np.unique(pred)) & {3, 4, 5, 7, 17, 18})}
+    assert "no vegetation class" in r.class_map_reason
+    assert r.confusion_before_map.overall_accuracy_pct == pytest.approx(100.0 * np.mean(pred == coarse))
+    assert r.confusion_before_map.overall_accuracy_pct < 90.0
+    assert r.filter_test == evaluate.evaluate_files(tmp_path / "pred.laz", tmp_path / "fine.laz").filter_test
+
+    full = evaluate.evaluate_files(tmp_path / "pred.laz", tmp_path / "fine.laz")
+    assert full.class_map is None and full.confusion_before_map is None
+    assert full.confusion.overall_accuracy_pct == pytest.approx(100.0 * (n - 10) / n)
+    given = evaluate.evaluate_files(tmp_path / "pred.laz", tmp_path / "coarse.laz", {3: 1})
+    assert given.class_map is None and given.confusion.overall_accuracy_pct < r.confusion.overall_accuracy_pct
+
+    out = CliRunner().invoke(main, ["evaluate", str(tmp_path / "pred.laz"), "--truth", str(tmp_path / "coarse.laz"),
+                                    "--json", str(tmp_path / "eval.json")])
+    assert out.exit_code == 0, out.output
+    assert "scored on the truth's classes" in out.output and "as labelled, before the mapping" in out.output
+    assert "class 1: producer's" in out.output
+    js = json.loads((tmp_path / "eval.json").read_text())
+    assert js["class_map"] == r.class_map and js["confusion_before_map"]["overall_accuracy_pct"] < 90.0
+
+
+def test_two_class_note_repeats_the_coarse_mapping():
+    """Against a truth of ground and class 1 (Autzen) the --map-pred offered for the two-class matrix replaces the
+    coarse mapping already applied, so it must hold it too."""
+    from lidarctl.cli.main import _truth_notes
+
+    conf = evaluate.confusion(np.array([2, 1, 1, 6]), np.array([2, 1, 1, 1]))
+    notes = _truth_notes(conf, {"3": 1, "5": 1})
+    assert any("--map-pred 3:1,5:1,6:1 " in n for n in notes)

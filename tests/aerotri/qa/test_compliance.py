@@ -209,4 +209,68 @@ def test_usgs_lbs_judges_the_verdict_table_by_its_own_lidar_limits(tmp_path):
     assert row.limit == pytest.approx(0.10) and row.verdict == "fail" and rep.overall == "fail"
     nva = [c for c in rep.compliance["checks"] if c["quantity"].startswith("NVA")][0]
     assert nva["limit"] == pytest.approx(0.10) and nva["verdict"] == "fail"
-    assert "from the USGS LBS QL2" in rep.table["reason"]
+    assert rep.table["name"] == "USGS Lidar Base Specification, QL2" and "DEM height RMSE 0.1 m" in rep.table["reason"]
+
+
+def test_lidar_only_report_has_no_frame_camera_table(tmp_path):
+    # a LiDAR-only folder's report read "platform unknown (manned assumed)", listed the flight specification of
+    # manned frame photography and every frame limit (sigma naught, flight, seams) as unconfirmed, and its density
+    # row said "not measured" without where the strips were looked for
+    from aerotri.core.project import Project
+    from aerotri.qa.compliance import lidar_only_project
+    from aerotri.qa.report import LIDAR_ONLY_LIMITS, console_summary
+
+    _dem_checked_alone(tmp_path)
+    rep = write_qa_report(tmp_path)
+    t = rep.table
+    assert "manned" not in t["reason"] and "a LiDAR-only project" in t["reason"] and "no standard named" in t["reason"]
+    assert t["lidar_only"] and t["flight_spec"] is None and set(rep.tolerances) <= set(LIDAR_ONLY_LIMITS)
+    assert set(t["unconfirmed"]) <= set(LIDAR_ONLY_LIMITS) and "dem_rmse_m" in rep.tolerances
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert "Flight acceptance" not in html and "manned" not in html and "sigma0" not in html
+    assert console_summary(rep).endswith(f"failed; {t['name']})")
+
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    assert "manned" not in rep.table["reason"] and "no standard named" not in rep.table["reason"]
+    dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
+    assert dens["verdict"] == "not testable" and f"no LAS/LAZ strips in {tmp_path / 'lidar'}" in dens["why"]
+
+    assert lidar_only_project(Project.open(tmp_path))
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "f1.tif").write_bytes(b"")
+    assert not lidar_only_project(Project.open(tmp_path))
+
+
+def test_lidar_only_density_from_where_the_docs_commands_write(tmp_path):
+    # docs/your-own-block.md's LiDAR-only commands write P/classified.laz and P/rasters/dem.tif, not P/lidar/ and
+    # P/lidar_out/dem.tif: the density was "not measured"; now counted from the classified cloud over the DEM the
+    # height check names
+    import shutil
+
+    import laspy
+
+    from lidarctl import synthetic
+
+    _dem_checked_alone(tmp_path)
+    (tmp_path / "rasters").mkdir()
+    shutil.move(tmp_path / "lidar_out" / "dem.tif", tmp_path / "rasters" / "dem.tif")
+    hc = json.loads((tmp_path / "lidar_out" / "height_check.json").read_text())
+    hc["dem"]["path"] = "rasters/dem.tif"                    # as given on the command line, in the project folder
+    (tmp_path / "lidar_out" / "height_check.json").write_text(json.dumps(hc))
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
+    assert dens["figure"] is None and "nor a classified cloud in" in dens["why"] and "dem.tif" not in dens["why"]
+
+    cloud, _ = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=4)
+    synthetic.write_las(tmp_path / "classified.laz", cloud, crs="EPSG:32649")
+    first = int(laspy.open(tmp_path / "classified.laz").header.number_of_points_by_return[0])
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
+    assert dens["figure"] == pytest.approx(first / 100.0 ** 2)         # 100 x 100 valid cells of 1 m
+    assert "classified.laz (no strips in" in dens["checkpoints_note"] and "rasters/dem.tif" in dens["checkpoints_note"]
+    # a frame block's folder may hold a photogrammetric cloud: only P/lidar/ counts there
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "f1.tif").write_bytes(b"")
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
+    assert dens["figure"] is None and "nor a classified cloud" not in dens["why"]
