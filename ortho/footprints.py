@@ -9,8 +9,11 @@ the walls from cadastral footprints (BGT, OSM, a user's GeoPackage); so does thi
 - a cell inside a footprint, or one that no footprint is near, is a solid column from the ground to its top, as
   without footprints (roofs inside the walls, trees, the ground);
 - a cell outside every footprint but within ``OVERHANG_REACH_M`` of one, standing more than ``OVERHANG_ABOVE_M``
-  above the DEM, is an overhang: it blocks a ray only within a slab of ``OVERHANG_SLAB_M`` under its top (the roof
-  and its eave boarding), so a ray that stays beneath that slab across the cell passes;
+  above the DEM, is an overhang: it blocks a ray only from its top down to the building's soffit, ``OVERHANG_SLAB_M``
+  (the fascia) under the building's eave line (the lowest top of its overhang cells), so a ray that stays beneath the
+  soffit across the cell passes; the cells beside an overhang that are not roof carry its slab too, over the half
+  cell next to it (the DSM samples the roof at cell centres: the eave's edge lies anywhere within half a cell of
+  the roof cell's edge);
 - where a footprint's wall crosses an overhang cell, the part inside the footprint (the cell split in
   ``SUB_CELL_M`` sub-cells, a sub-cell inside when its centre is) stays a solid column up to the cell's top.
 
@@ -27,6 +30,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 
 from aerotri.core.errors import InputError
@@ -36,29 +40,34 @@ if TYPE_CHECKING:
 
     from ortho.dem import HeightRaster
 
-OVERHANG_SLAB_M = 0.3  # thickness of a roof overhang beyond the walls: the ray passes beneath it
+OVERHANG_SLAB_M = 0.3  # depth of the roof's edge (fascia) below the eave line: a ray passes beneath it
 OVERHANG_REACH_M = 1.5  # furthest a roof reaches beyond its wall line and counts as an overhang
 OVERHANG_ABOVE_M = 2.0  # an overhang cell stands at least this much above the DEM (a roof, not the ground)
 SUB_CELL_M = 0.1  # the walls within an overhang cell are resolved to sub-cells of at most this size
+HALO = -3  # ``sub_index`` HALO - k: a cell beside an overhang, its own solid column and the overhang's slab over the
+# sub-cells of ``sub_masks[k]``
 _ROWS_PER_CHUNK = 256  # DSM rows rasterised at a time (the sub-cell raster of a chunk: 256 x 5 rows)
 
 
 @dataclasses.dataclass(frozen=True)
 class FootprintOccluder:
     """What the march reads beside the DSM (same shape as its heights): ``base_m`` the underside of each cell's
-    occluder (-inf: a solid column; else the top minus ``OVERHANG_SLAB_M``: an overhang), ``sub_index`` (int32,
-    -1 or the index into ``sub_masks`` of an overhang cell a wall crosses), ``sub_masks`` ((K, sub, sub) uint8, 1
-    where the sub-cell is inside a footprint; rows from the north, columns from the west) and ``sub`` (sub-cells
-    per cell side)."""
+    slab (-inf: none, the cell a solid column; else an overhang's soffit: its building's eave line minus
+    ``OVERHANG_SLAB_M``), ``slab_top_m`` the slab's top (an overhang cell's DSM top; beside an overhang, the eave
+    line), ``sub_index`` (int32: -1 an overhang cell; k >= 0 an overhang cell a wall crosses, its sub-cells inside a
+    footprint ``sub_masks[k]``; ``HALO`` - k a cell beside an overhang: its own solid column, and the slab over the
+    sub-cells ``sub_masks[k]``), ``sub_masks`` ((K, sub, sub) uint8; rows from the north, columns from the west)
+    and ``sub`` (sub-cells per cell side)."""
 
     base_m: np.ndarray
+    slab_top_m: np.ndarray
     sub_index: np.ndarray
     sub_masks: np.ndarray
     sub: int
 
     @property
     def overhang_cells(self) -> int:
-        return int(np.isfinite(self.base_m).sum())
+        return int((np.isfinite(self.base_m) & (self.sub_index > HALO)).sum())
 
 
 def read_footprints(path, project_crs: CRS) -> np.ndarray:
@@ -107,9 +116,6 @@ def footprint_occluder(dsm: HeightRaster, dem: HeightRaster, footprints: np.ndar
     from rasterio.features import rasterize
     from rasterio.transform import from_origin
 
-    from ortho.grid import OrthoGrid
-    from ortho.rectify import heights_on_grid
-
     top = dsm.heights_m
     dh, dw = top.shape
     res = dsm.res_m
@@ -120,13 +126,15 @@ def footprint_occluder(dsm: HeightRaster, dem: HeightRaster, footprints: np.ndar
     polys = footprints[shapely.intersects(footprints, shapely.box(left - reach_m, bottom - reach_m,
                                                                    right + reach_m, top_y + reach_m))]
     if len(polys) == 0:
-        return FootprintOccluder(base, sub_index, np.zeros((0, sub, sub), np.uint8), sub)
-    near = rasterize(((g, 1) for g in shapely.buffer(polys, reach_m)), out_shape=(dh, dw),
-                     transform=from_origin(dsm.x_left_m, dsm.y_top_m, res, res), all_touched=True,
-                     dtype="uint8").astype(bool)
-    ground = heights_on_grid(dem, OrthoGrid(dsm.crs, dsm.x_left_m, dsm.y_top_m, res, dw, dh))
+        return FootprintOccluder(base, base.copy(), sub_index, np.zeros((0, sub, sub), np.uint8), sub)
+    # each cell near a footprint labelled with it (1-based; where two buildings' reaches overlap, one of them)
+    label = rasterize(((g, k + 1) for k, g in enumerate(shapely.buffer(polys, reach_m))), out_shape=(dh, dw),
+                      transform=from_origin(dsm.x_left_m, dsm.y_top_m, res, res), all_touched=True, dtype="int32")
+    rr, cc = np.nonzero((label > 0) & np.isfinite(top))
+    ground = dem.sample(dsm.x_left_m + (cc + 0.5) * res, dsm.y_top_m - (rr + 0.5) * res)
+    candidate = np.zeros((dh, dw), bool)
     with np.errstate(invalid="ignore"):
-        candidate = near & np.isfinite(top) & (top - ground > above_m)
+        candidate[rr, cc] = top[rr, cc] - ground > above_m
     masks, count = [], 0
     for r0 in range(0, dh, _ROWS_PER_CHUNK):
         r1 = min(dh, r0 + _ROWS_PER_CHUNK)
@@ -139,10 +147,43 @@ def footprint_occluder(dsm: HeightRaster, dem: HeightRaster, footprints: np.ndar
         inside = cells.sum((2, 3), dtype=np.int32)
         over = candidate[r0:r1] & (inside < sub * sub)
         rr, cc = np.nonzero(over)
-        base[r0 + rr, cc] = top[r0 + rr, cc] - slab_m
+        base[r0 + rr, cc] = 1.0  # an overhang; its underside set below, per building
         walls = inside[rr, cc] > 0
         sub_index[r0 + rr[walls], cc[walls]] = count + np.arange(int(walls.sum()), dtype=np.int32)
         count += int(walls.sum())
         masks.append(np.ascontiguousarray(cells[rr[walls], cc[walls]]))
     sub_masks = np.concatenate(masks) if masks else np.zeros((0, sub, sub), np.uint8)
-    return FootprintOccluder(base, sub_index, sub_masks, sub)
+    # the underside: the building's eave line (the lowest top of its overhang cells) less the slab, flat under the
+    # whole overhang (a pitched roof's overhang rises inwards and up its gable ends; what lies under it is the
+    # soffit at the eave line's level, or the roof itself)
+    over = np.isfinite(base)
+    rr, cc = np.nonzero(over)
+    eave = np.full(len(polys) + 1, np.inf, np.float32)
+    np.minimum.at(eave, label[rr, cc], top[rr, cc])
+    base[rr, cc] = eave[label[rr, cc]] - slab_m
+    slab_top = np.where(over, top, -np.inf).astype(np.float32)
+    # the eave's edge lies anywhere within the cell beyond the last one sampled on the roof (a DSM samples the roof
+    # at its cell centres): the cells beside an overhang that are not roof (the ground, lower than the overhang)
+    # carry its soffit slab as well, so that no ray passes through the part of the eave the DSM missed
+    beside = cv2.erode(np.where(over, base, np.inf).astype(np.float32), np.ones((3, 3), np.uint8),
+                       borderType=cv2.BORDER_CONSTANT, borderValue=float("inf"))
+    halo = ~over & ~candidate & np.isfinite(beside)
+    base[halo] = beside[halo]
+    slab_top[halo] = beside[halo] + slab_m
+    # the slab reaches half a cell into such a cell from each overhang beside it: the sub-cells whose centres lie
+    # within half a cell of that side (or corner)
+    hr, hc = np.nonzero(halo)
+    near_side = (np.arange(sub) + 0.5) / sub <= 0.5
+    halo_masks = np.zeros((len(hr), sub, sub), np.uint8)
+    over_pad = np.pad(over, 1)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            if di == dj == 0:
+                continue
+            hit = over_pad[hr + 1 + di, hc + 1 + dj]
+            rows = near_side if di < 0 else near_side[::-1] if di > 0 else np.ones(sub, bool)
+            cols = near_side if dj < 0 else near_side[::-1] if dj > 0 else np.ones(sub, bool)
+            halo_masks[hit] |= (rows[:, None] & cols[None, :]).astype(np.uint8)
+    sub_index[hr, hc] = HALO - (len(sub_masks) + np.arange(len(hr), dtype=np.int32))
+    sub_masks = np.concatenate([sub_masks, halo_masks])
+    return FootprintOccluder(base, slab_top, sub_index, sub_masks, sub)

@@ -146,17 +146,20 @@ class MarchArgs(NamedTuple):
 
 
 class FootprintWalls(NamedTuple):
-    """Building footprints as the march takes them (``ortho.footprints.FootprintOccluder``): the underside of each
-    DSM cell's occluder (float32, -inf: a solid column), the index of its wall sub-cells (int32, -1: none), the
-    sub-cell masks (uint8 (K, sub, sub)) and ``sub``; (1, 1) arrays: no footprints."""
+    """Building footprints as the march takes them (``ortho.footprints.FootprintOccluder``): the underside and top
+    of each DSM cell's slab (float32, -inf: none, a solid column), the index of its wall sub-cells (int32, -1:
+    none, -2: beside an overhang), the sub-cell masks (uint8 (K, sub, sub)) and ``sub``; (1, 1) arrays: no
+    footprints."""
 
     base_m: np.ndarray
+    slab_top_m: np.ndarray
     sub_index: np.ndarray
     sub_masks: np.ndarray
     sub: int
 
 
-_NO_WALLS = FootprintWalls(np.full((1, 1), -np.inf, np.float32), np.full((1, 1), -1, np.int32),
+_NO_WALLS = FootprintWalls(np.full((1, 1), -np.inf, np.float32), np.full((1, 1), -np.inf, np.float32),
+                           np.full((1, 1), -1, np.int32),
                            np.zeros((1, 1, 1), np.uint8), 1)
 
 
@@ -328,13 +331,15 @@ class MarchBound:
     coarse: int
 
 
-def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS) -> MarchBound:
-    """The bounds of the march over ``dsm`` (once per frame; ``occlusion_mask`` makes them if not given)."""
+def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS,
+                occluder: FootprintOccluder | None = None) -> MarchBound:
+    """The bounds of the march over ``dsm`` (once per frame; ``occlusion_mask`` makes them if not given); with
+    ``occluder`` over the tops of its slabs too (a cell beside an overhang carries the overhang's slab)."""
     from ortho.rectify_kernels import _block_max
 
     fine, coarse = (int(b) for b in blocks)
-    return MarchBound(float(np.nanmax(dsm.heights_m)), _block_max(dsm.heights_m, fine), fine,
-                      _block_max(dsm.heights_m, coarse), coarse)
+    z = dsm.heights_m if occluder is None else np.fmax(dsm.heights_m, occluder.slab_top_m)
+    return MarchBound(float(np.nanmax(z)), _block_max(z, fine), fine, _block_max(z, coarse), coarse)
 
 
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors, *,
@@ -348,15 +353,15 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     roof overhangs a ray may pass; None: every DSM cell a solid column."""
     AX, AY, s = anchors
     occ = np.zeros((grid.height, grid.width), dtype=np.bool_)
-    bound = bound or march_bound(dsm)
+    bound = bound or march_bound(dsm, occluder=occluder)
     from ortho.rectify_kernels import _occlusion_kernel
 
     points = TilePoints(heights_m.astype(np.float32), np.ones(occ.shape, np.bool_) if candidates is None else candidates,
                         np.zeros((1, 1), np.float32) if near_share is None else near_share)
     march = MarchArgs(bound.max_m, bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
                       float(tolerance_m), float(OWN_COLUMN_M))
-    walls = _NO_WALLS if occluder is None else FootprintWalls(occluder.base_m, occluder.sub_index,
-                                                              occluder.sub_masks, int(occluder.sub))
+    walls = _NO_WALLS if occluder is None else FootprintWalls(occluder.base_m, occluder.slab_top_m,
+                                                              occluder.sub_index, occluder.sub_masks, int(occluder.sub))
     if occluder is not None and occluder.base_m.shape != dsm.heights_m.shape:
         raise ValueError(f"footprint occluder of {occluder.base_m.shape} cells for a DSM of {dsm.heights_m.shape}")
     _occlusion_kernel(AnchorGrid(AX, AY, float(s)), points, _height_grid(dsm), march, walls,
@@ -649,7 +654,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
 
     # true ortho: the frame's z-buffer of the DSM first (the occluders of a tile can lie in any other tile)
     zbuffer = frame_zbuffer(geometry, occlusion_dsm, grid, to_project, tile_px) if occlusion_dsm is not None else None
-    bound = march_bound(occlusion_dsm) if occlusion_dsm is not None else None
+    bound = march_bound(occlusion_dsm, occluder=occluder) if occlusion_dsm is not None else None
     # the maps are the image positions at the DSM's heights when the ortho is rectified on the DSM itself (as
     # ``ortho rectify --true-ortho`` does) in the project CRS: the z-buffer test reads them instead of projecting again
     maps_at_dsm = occlusion_dsm is not None and dem_dataset is occlusion_dsm and to_project.identity

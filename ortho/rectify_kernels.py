@@ -244,30 +244,47 @@ def _dda_step(boundary, between, cell, step):
 def _cell_blocks(top, i, j, ray, span, walls):
     """Whether DSM cell (i, j) of height ``top`` stops the ray that crosses it from ``span`` = (s_in, s_out) (its
     horizontal parameters where it enters and leaves the cell, in cells): ``ray`` = (Z, rise, gx, gy, ex, ey,
-    tolerance_m) as in ``_occlusion_kernel``, ``walls`` = (footprinted, base_m, sub_index, sub_masks, sub) (a
-    ``FootprintOccluder``; ``footprinted`` False: every cell a solid column).
+    tolerance_m) as in ``_occlusion_kernel``, ``walls`` = (footprinted, base_m, slab_top_m, sub_index, sub_masks,
+    sub) (a ``FootprintOccluder``; ``footprinted`` False: every cell a solid column).
 
     A solid column stops the ray where it is more than the tolerance above the ray where it enters (the ray's
-    lowest in the cell); an overhang cell (a finite ``base_m``) only when the ray also reaches the slab's
-    underside within the cell (its highest there, where it leaves), or runs through a sub-cell inside a footprint
-    (the wall, a column up to ``top``) more than the tolerance below ``top``."""
+    lowest in the cell). A cell with a slab (a finite ``base_m``) stops it where the slab's top is more than the
+    tolerance above the ray where it enters and the ray reaches the slab's underside where it leaves (its highest);
+    an overhang cell (``sub_index`` >= -1) is nothing more, but for its sub-cells inside a footprint (``sub_index``
+    >= 0: the wall, a column up to ``top``) that the ray crosses more than the tolerance below ``top``; a cell beside
+    an overhang (``sub_index`` <= -3) is its own solid column, and the slab over the sub-cells of its mask only
+    (where the ray first and last crosses them)."""
     Z, rise, gx, gy, ex, ey, tolerance_m = ray
     s_in, s_out = span
-    if not top > Z + rise * s_in + tolerance_m:  # (NaN: no surface)
-        return False
-    footprinted, base_m, sub_index, sub_masks, sub = walls
+    z_in = Z + rise * s_in
+    footprinted, base_m, slab_top_m, sub_index, sub_masks, sub = walls
+    column = top > z_in + tolerance_m  # (NaN: no surface)
     if not footprinted:
-        return True
+        return column
     base = base_m[i, j]
     if base == -np.inf:
-        return True
-    if Z + rise * s_out > base:
-        return True
+        return column
     k = sub_index[i, j]
-    if k < 0:
+    ds = 0.25 / sub  # the ray's sub-cells within the cell, at quarter sub-cell steps
+    if k <= -3:  # beside an overhang: its own column, and the slab over the sub-cells of its mask
+        if column:
+            return True
+        m = -3 - k
+        first, last = 1e30, -1e30
+        s = s_in
+        while s <= s_out:
+            a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
+            b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
+            if sub_masks[m, a, b]:
+                first = min(first, s)
+                last = s
+            s += ds
+        return last >= first and slab_top_m[i, j] > Z + rise * first + tolerance_m and Z + rise * last > base
+    if slab_top_m[i, j] > z_in + tolerance_m and Z + rise * s_out > base:
+        return True
+    if k < 0 or not column:
         return False
-    # the wall: the ray's sub-cells within the cell at quarter sub-cell steps
-    ds = 0.25 / sub
+    # the wall
     s = s_in
     while s <= s_out:
         a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
@@ -312,9 +329,9 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
     height_tile, candidates, near_share = points
     dsm, dsm_x0, dsm_y0, dsm_res = grid
     dsm_max, block_max, block, coarse_max, coarse, tolerance_m, own_column_m = march
-    base_m, sub_index, sub_masks, sub = walls
+    base_m, slab_top_m, sub_index, sub_masks, sub = walls
     footprinted = base_m.shape[0] == dsm.shape[0] and base_m.shape[1] == dsm.shape[1]
-    cell_walls = (footprinted, base_m, sub_index, sub_masks, sub)
+    cell_walls = (footprinted, base_m, slab_top_m, sub_index, sub_masks, sub)
     rows, cols = height_tile.shape
     hinted = near_share.shape[0] == rows and near_share.shape[1] == cols
     dh, dw = dsm.shape

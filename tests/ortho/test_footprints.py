@@ -120,3 +120,61 @@ def test_footprints_file_errors_name_the_file_and_what_was_expected(tmp_path):
                       [], driver="GPKG", geometry_type="LineString", crs="EPSG:32633")
     with pytest.raises(InputError, match="lines.gpkg: feature 1 is a LineString; expected"):
         read_footprints(lines, CRS_UTM)
+
+
+def _write_boxes_gpkg(path, boxes, crs):
+    import pyogrio.raw
+
+    geoms = np.array([shapely.box(x0, y0, x1, y1) for x0, y0, x1, y1, _ in boxes], dtype=object)
+    pyogrio.raw.write(str(path), shapely.to_wkb(geoms), [], [], driver="GPKG", geometry_type="Polygon", crs=crs)
+
+
+def test_rectify_with_footprints_of_walls_without_overhangs_masks_as_without(tmp_path):
+    """The synthetic block's boxes stand on whole DSM cells with no overhang: their footprints make every roof cell
+    a solid column, as without footprints, so the frame orthos are the same; a footprints file in another CRS is
+    refused (exit 2, naming it) before any frame is written."""
+    import hashlib
+
+    from ortho.cli import main
+    from ortho.synthetic import write_synthetic_project
+
+    info = write_synthetic_project(tmp_path / "p", strips=1, frames_per_strip=2, buildings=8, seed=3)
+    root = info.root
+    fp = tmp_path / "walls.gpkg"
+    _write_boxes_gpkg(fp, info.buildings, "EPSG:32649")
+    digests = {}
+    for way, extra in (("without", []), ("with", ["--footprints", str(fp)])):
+        r = CliRunner().invoke(main, ["rectify", str(root), "--true-ortho", "--dsm", str(root / "truth" / "dsm.tif"),
+                                      *extra])
+        assert r.exit_code == 0, r.output
+        frames = sorted((root / "ortho" / "frames").glob("*.tif"))
+        assert frames
+        digests[way] = [hashlib.sha256(p.read_bytes()).hexdigest() for p in frames]
+    index = (root / "ortho" / "frames" / "index.json").read_text()
+    assert str(fp) in index
+    assert digests["with"] == digests["without"]
+    wrong = tmp_path / "walls_4326.gpkg"
+    _write_boxes_gpkg(wrong, [(0.0, 0.0, 1.0, 1.0, 0.0)], "EPSG:4326")
+    before = (root / "ortho" / "frames" / "index.json").stat().st_mtime_ns
+    r = CliRunner().invoke(main, ["rectify", str(root), "--true-ortho", "--dsm", str(root / "truth" / "dsm.tif"),
+                                  "--footprints", str(wrong)])
+    assert r.exit_code == 2 and "walls_4326.gpkg: the footprints are in EPSG:4326" in r.output, r.output
+    assert "Traceback" not in r.output
+    assert (root / "ortho" / "frames" / "index.json").stat().st_mtime_ns == before
+
+
+def test_the_simulator_writes_the_wall_lines_as_footprints(tiny_project):
+    """truth/footprints.gpkg: the buildings' wall lines (part "footprint" of truth/buildings.geojson) in the project
+    CRS, read as ``ortho rectify --footprints`` reads them; inside the roof outlines (the eaves reach beyond)."""
+    import json
+
+    from aerotri.core.project import Project
+
+    t = tiny_project / "truth"
+    got = read_footprints(t / "footprints.gpkg", CRS.from_user_input(Project.open(tiny_project).crs))
+    feats = json.loads((t / "buildings.geojson").read_text())["features"]
+    walls = [shapely.geometry.shape(f["geometry"]) for f in feats if f["properties"]["part"] == "footprint"]
+    eaves = [shapely.geometry.shape(f["geometry"]) for f in feats if f["properties"]["part"] == "roof_outline"]
+    assert len(got) == len(walls) > 0
+    assert all(g.equals_exact(w, 1e-6) for g, w in zip(got, walls))
+    assert all(e.contains(g) and e.area > g.area for g, e in zip(got, eaves))
