@@ -676,11 +676,18 @@ def write_footprints_gpkg(buildings_geojson, out, crs: str) -> int:
     feats = [f for f in json.loads(Path(buildings_geojson).read_text())["features"]
              if f["properties"].get("part") == "footprint"]
     geoms = np.array([shapely.geometry.shape(f["geometry"]) for f in feats], dtype=object)
-    with atomic_path(Path(out)) as tmp:
-        tmp.unlink(missing_ok=True)  # a new GeoPackage, not the empty temporary file
-        pyogrio.raw.write(str(tmp), shapely.to_wkb(geoms),
-                          field_data=[np.array([int(f["properties"]["building_id"]) for f in feats], np.int64)],
-                          fields=["building_id"], geometry_type="Polygon", crs=crs, driver="GPKG", layer="footprints")
+    # GDAL stamps the GeoPackage with the time of writing: a fixed stamp keeps the same seed's files the same bytes
+    before = pyogrio.get_gdal_config_option("OGR_CURRENT_DATE")
+    pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": "2000-01-01T00:00:00.000Z"})
+    try:
+        with atomic_path(Path(out)) as tmp:
+            tmp.unlink(missing_ok=True)  # a new GeoPackage, not the empty temporary file
+            pyogrio.raw.write(str(tmp), shapely.to_wkb(geoms),
+                              field_data=[np.array([int(f["properties"]["building_id"]) for f in feats], np.int64)],
+                              fields=["building_id"], geometry_type="Polygon", crs=crs, driver="GPKG",
+                              layer="footprints")
+    finally:
+        pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": before})
     return len(feats)
 
 
