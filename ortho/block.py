@@ -51,7 +51,8 @@ from aerotri.geom.crs.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
-from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, frame_grid, rectify_frame
+from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, frame_grid, heights_on_grid,
+                           rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -316,7 +317,9 @@ def _rectify_frame_task(task: FrameTask) -> dict:
     if task.dsm_path and task.footprints_path:
         from ortho.footprints import footprint_occluder, read_footprints
 
-        occluder = footprint_occluder(heights, dem, read_footprints(task.footprints_path, project_crs))
+        h, w = heights.heights_m.shape
+        ground = heights_on_grid(dem, OrthoGrid(project_crs, heights.x_left_m, heights.y_top_m, heights.res_m, w, h))
+        occluder = footprint_occluder(heights, ground, read_footprints(task.footprints_path, project_crs))
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
                       partial=True, max_view_angle_deg=task.max_view_angle_deg)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))

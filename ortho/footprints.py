@@ -9,9 +9,9 @@ the walls from cadastral footprints (BGT, OSM, a user's GeoPackage); so does thi
 - a cell inside a footprint, or one that no footprint is near, is a solid column from the ground to its top, as
   without footprints (roofs inside the walls, trees, the ground);
 - a cell outside every footprint but within ``OVERHANG_REACH_M`` of one, standing more than ``OVERHANG_ABOVE_M``
-  above the DEM, is an overhang: it blocks a ray only from its top down to the building's soffit, ``OVERHANG_SLAB_M``
-  (the fascia) under the building's eave line (the lowest top of its overhang cells), so a ray that stays beneath the
-  soffit across the cell passes; the cells beside an overhang that are not roof carry its slab too, over the half
+  above the DEM, is an overhang: it blocks a ray only from its top (at least the eave line) down to the building's
+  soffit, ``OVERHANG_SLAB_M`` (the fascia) under the building's eave line (``EAVE_QUANTILE`` of the tops of its
+  overhang cells), so a ray that stays beneath the soffit across the cell passes; the cells beside an overhang that are not roof carry its slab too, over the half
   cell next to it (the DSM samples the roof at cell centres: the eave's edge lies anywhere within half a cell of
   the roof cell's edge);
 - where a footprint's wall crosses an overhang cell, the part inside the footprint (the cell split in
@@ -107,11 +107,28 @@ def read_footprints(path, project_crs: CRS) -> np.ndarray:
     return shapely.make_valid(geoms)
 
 
-def footprint_occluder(dsm: HeightRaster, dem: HeightRaster, footprints: np.ndarray, *,
+EAVE_QUANTILE = 0.25  # the eave line: this quantile of the tops of a building's overhang cells
+
+
+def _eave_lines(labels: np.ndarray, tops: np.ndarray, n: int) -> np.ndarray:
+    """Per label (0 .. n - 1) the ``EAVE_QUANTILE`` of its cells' tops (inf for a label without cells): the eave line
+    most of an overhang's cells stand at (a flat roof's all, a pitched roof's long sides, the gable ends above it),
+    below the few the LiDAR DSM fills lower, between ground and roof, in a wall's shadow."""
+    order = np.lexsort((tops, labels))
+    lab, z = labels[order], tops[order]
+    start = np.searchsorted(lab, np.arange(n), "left")
+    count = np.searchsorted(lab, np.arange(n), "right") - start
+    out = np.full(n, np.inf, np.float32)
+    has = count > 0
+    out[has] = z[start[has] + np.floor(EAVE_QUANTILE * (count[has] - 1)).astype(np.int64)]
+    return out
+
+
+def footprint_occluder(dsm: HeightRaster, ground_m: np.ndarray, footprints: np.ndarray, *,
                        slab_m: float = OVERHANG_SLAB_M, reach_m: float = OVERHANG_REACH_M,
                        above_m: float = OVERHANG_ABOVE_M, sub_cell_m: float = SUB_CELL_M) -> FootprintOccluder:
     """The ``FootprintOccluder`` of ``dsm`` (a window in the project CRS) with the footprint polygons (project CRS)
-    and the DEM (any grid in the project CRS: sampled at the DSM's cell centres)."""
+    and ``ground_m``, the DEM at the DSM's cell centres (same shape; ``ortho.rectify.heights_on_grid``)."""
     import shapely
     from rasterio.features import rasterize
     from rasterio.transform import from_origin
@@ -131,11 +148,8 @@ def footprint_occluder(dsm: HeightRaster, dem: HeightRaster, footprints: np.ndar
     label = rasterize(((shapely.geometry.mapping(g), k + 1) for k, g in enumerate(shapely.buffer(polys, reach_m))),
                       out_shape=(dh, dw),
                       transform=from_origin(dsm.x_left_m, dsm.y_top_m, res, res), all_touched=True, dtype="int32")
-    rr, cc = np.nonzero((label > 0) & np.isfinite(top))
-    ground = dem.sample(dsm.x_left_m + (cc + 0.5) * res, dsm.y_top_m - (rr + 0.5) * res)
-    candidate = np.zeros((dh, dw), bool)
     with np.errstate(invalid="ignore"):
-        candidate[rr, cc] = top[rr, cc] - ground > above_m
+        candidate = (label > 0) & (top - ground_m > above_m)
     masks, count = [], 0
     shapes = [shapely.geometry.mapping(g) for g in polys]  # converted once, not by every rasterize
     for r0 in range(0, dh, _ROWS_PER_CHUNK):
@@ -146,29 +160,30 @@ def footprint_occluder(dsm: HeightRaster, dem: HeightRaster, footprints: np.ndar
         here = [shapes[k] for k in np.flatnonzero(shapely.intersects(polys, shapely.box(left, y0, right, y1)))]
         if not here:
             continue
-        fine = rasterize(((g, 1) for g in here), out_shape=((r1 - r0) * sub, dw * sub),
-                         transform=from_origin(dsm.x_left_m, y1, res / sub, res / sub), dtype="uint8")
-        # sub-cells inside per cell (at most 25 with 0.1 m sub-cells of a 0.5 m cell: uint8 sums)
-        blocks = fine.reshape(r1 - r0, sub, dw, sub)
-        inside = blocks.sum(3, dtype=np.uint8).sum(1, dtype=np.uint8 if sub * sub < 256 else np.int32)
-        cells = blocks.transpose(0, 2, 1, 3)  # (rows, cols, sub, sub)
+        # sub-cells inside a footprint, each the value sub x sub x 100: cv2's area average per cell (exact for a
+        # whole factor) is then 100 x the number inside
+        fine = rasterize(((g, sub * sub * 100) for g in here), out_shape=((r1 - r0) * sub, dw * sub),
+                         transform=from_origin(dsm.x_left_m, y1, res / sub, res / sub), dtype="uint16")
+        inside = (cv2.resize(fine, (dw, r1 - r0), interpolation=cv2.INTER_AREA) + 50) // 100
+        cells = fine.reshape(r1 - r0, sub, dw, sub).transpose(0, 2, 1, 3)  # (rows, cols, sub, sub)
         over = candidate[r0:r1] & (inside < sub * sub)
         rr, cc = np.nonzero(over)
         base[r0 + rr, cc] = 1.0  # an overhang; its underside set below, per building
         walls = inside[rr, cc] > 0
         sub_index[r0 + rr[walls], cc[walls]] = count + np.arange(int(walls.sum()), dtype=np.int32)
         count += int(walls.sum())
-        masks.append(np.ascontiguousarray(cells[rr[walls], cc[walls]]))
+        masks.append((cells[rr[walls], cc[walls]] > 0).astype(np.uint8))
     sub_masks = np.concatenate(masks) if masks else np.zeros((0, sub, sub), np.uint8)
-    # the underside: the building's eave line (the lowest top of its overhang cells) less the slab, flat under the
-    # whole overhang (a pitched roof's overhang rises inwards and up its gable ends; what lies under it is the
-    # soffit at the eave line's level, or the roof itself)
+    # the underside: the building's eave line less the slab, flat under the whole overhang (a pitched roof's
+    # overhang rises inwards and up its gable ends; what lies under it is the soffit at the eave line's level, or
+    # the roof itself); the slab reaches up to the eave line at least (a cell lower than it, e.g. filled between
+    # the LiDAR's returns in a wall's shadow, lies under the eave)
     over = np.isfinite(base)
     rr, cc = np.nonzero(over)
-    eave = np.full(len(polys) + 1, np.inf, np.float32)
-    np.minimum.at(eave, label[rr, cc], top[rr, cc])
-    base[rr, cc] = eave[label[rr, cc]] - slab_m
-    slab_top = np.where(over, top, -np.inf).astype(np.float32)
+    eave = _eave_lines(label[rr, cc], top[rr, cc], len(polys) + 1)[label[rr, cc]]
+    base[rr, cc] = eave - slab_m
+    slab_top = np.full((dh, dw), -np.inf, np.float32)
+    slab_top[rr, cc] = np.maximum(top[rr, cc], eave)
     # the eave's edge lies anywhere within the cell beyond the last one sampled on the roof (a DSM samples the roof
     # at its cell centres): the cells beside an overhang that are not roof (the ground, lower than the overhang)
     # carry its soffit slab as well, so that no ray passes through the part of the eave the DSM missed

@@ -27,15 +27,14 @@ CRS_UTM = CRS.from_epsg(32633)
 
 
 def _rasters():
-    """DSM (the roof over the eave outline, sampled at the cell centres) and DEM (0 m) of 40 x 40 m."""
+    """DSM (the roof over the eave outline, sampled at the cell centres) of 40 x 40 m and the DEM (0 m) on it."""
     n = int(40 / RES_M)
     c = (np.arange(n) + 0.5) * RES_M
     X, Y = np.meshgrid(c, 40.0 - c)
     x0, y0, x1, y1 = WALL
     roof = (X > x0 - EAVE_M) & (X < x1 + EAVE_M) & (Y > y0 - EAVE_M) & (Y < y1 + EAVE_M)
     dsm = HeightRaster(np.where(roof, ROOF_M, 0.0).astype(np.float32), 0.0, 40.0, RES_M, CRS_UTM, "DSM")
-    dem = HeightRaster(np.zeros((n, n), np.float32), 0.0, 40.0, RES_M, CRS_UTM, "DEM")
-    return dsm, dem
+    return dsm, np.zeros((n, n), np.float32)
 
 
 def _truth_sees(p, centre) -> bool:
