@@ -16,8 +16,9 @@ overhang, ``[scene] eave_m`` of the preset) or a tree crown; no height raster, h
 through without letting through the ground the roof hides. The share of cells some seeing frame sees over the 2.5D
 surface is the most a 2.5D occlusion test can fill; the misses of each DOM are split the same way.
 
-Usage: python bench/eval_true_ortho_dsm_cell.py --work DIR [--tall PROJECT] [--demo PROJECT]
-[--blocks "demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1"] [--out FILE]
+Usage: python bench/eval_true_ortho_dsm_cell.py --work DIR [--tall PROJECT] [--tall2 PROJECT] [--demo PROJECT]
+[--blocks "demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1"] [--out FILE] (block ``tall2``: the tall preset with another
+seed, as ``tall``)
 Per block the DSMs to try: ``lidar`` the project's lidar_out/dsm.tif (the demo: the chain's LiDAR DSM and adjusted
 orientation), ``0.5`` on the tall block truth/dsm.tif, other numbers the truth surface at that cell (m). The tall
 block: ``aerotri sim DIR --preset tall``, rectified with the true orientation and camera as in
