@@ -177,3 +177,21 @@ def test_the_simulator_writes_the_wall_lines_as_footprints(tiny_project):
     assert len(got) == len(walls) > 0
     assert all(g.equals_exact(w, 1e-6) for g, w in zip(got, walls))
     assert all(e.contains(g) and e.area > g.area for g, e in zip(got, eaves))
+
+
+def test_the_eave_line_stands_above_the_cells_a_lidar_dsm_fills_low_in_a_walls_shadow():
+    """A few overhang cells lower than the roof (a LiDAR DSM fills cells without returns in a wall's shadow between
+    ground and roof) neither lower the building's soffit nor open a gap in its overhang: the eave line is a low
+    quantile of the overhang's tops, and a low cell's slab reaches up to it."""
+    dsm, ground = _rasters()
+    z = dsm.heights_m.copy()
+    c = (np.arange(z.shape[0]) + 0.5) * RES_M
+    X, Y = np.meshgrid(c, 40.0 - c)
+    x0, y0, x1, y1 = WALL
+    rr, cc = np.nonzero((z > 0) & ~((X > x0) & (X < x1) & (Y > y0) & (Y < y1)))  # the eave's cells
+    low = (rr[:3], cc[:3])
+    z[low] = 4.0
+    occ = footprint_occluder(HeightRaster(z, dsm.x_left_m, dsm.y_top_m, RES_M, CRS_UTM, "DSM"), ground,
+                             np.array([shapely.box(*WALL)], dtype=object))
+    assert np.allclose(occ.base_m[low], ROOF_M - OVERHANG_SLAB_M)
+    assert np.allclose(occ.slab_top_m[low], ROOF_M)
