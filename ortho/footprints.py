@@ -11,14 +11,14 @@ the walls from cadastral footprints (BGT, OSM, a user's GeoPackage); so does thi
 - a cell outside every footprint but within ``OVERHANG_REACH_M`` of one, standing more than ``OVERHANG_ABOVE_M``
   above the DEM, is an overhang: it blocks a ray only from its top (at least the eave line) down to the building's
   soffit, ``OVERHANG_SLAB_M`` (the fascia) under the building's eave line (``EAVE_QUANTILE`` of the tops of its
-  overhang cells), so a ray that stays beneath the soffit across the cell passes; the cells beside an overhang that are not roof carry its slab too, over the half
-  cell next to it (the DSM samples the roof at cell centres: the eave's edge lies anywhere within half a cell of
-  the roof cell's edge);
+  overhang cells), so a ray that stays beneath the soffit across the cell passes; the cells beside an overhang that
+  are not roof carry its slab too, over the half cell next to it (the DSM samples the roof at cell centres: the
+  eave's edge lies anywhere within half a cell of the roof cell's edge);
 - where a footprint's wall crosses an overhang cell, the part inside the footprint (the cell split in
   ``SUB_CELL_M`` sub-cells, a sub-cell inside when its centre is) stays a solid column up to the cell's top.
 
 The march (``ortho.rectify_kernels._occlusion_kernel``) reads this as ``FootprintOccluder``. The thresholds are
-physical defaults, not fitted to a block: an eave's rafters, boarding and roofing make 0.2-0.4 m; eaves reach
+physical defaults, not fitted to a block: a fascia (the roof's edge below the eave line) is 0.2-0.4 m; eaves reach
 0.3-1 m beyond the wall (more is a canopy or balcony); a storey is about 3 m, so a roof stands at least 2 m above the
 ground.
 """
