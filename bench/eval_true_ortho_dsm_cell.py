@@ -16,16 +16,19 @@ overhang, ``[scene] eave_m`` of the preset) or a tree crown; no height raster, h
 through without letting through the ground the roof hides. The share of cells some seeing frame sees over the 2.5D
 surface is the most a 2.5D occlusion test can fill; the misses of each DOM are split the same way.
 
-Usage: python bench/eval_true_ortho_dsm_cell.py --work DIR [--tall PROJECT] [--demo PROJECT]
-[--blocks "demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1"] [--out FILE]
+Usage: python bench/eval_true_ortho_dsm_cell.py --work DIR [--tall PROJECT] [--tall2 PROJECT] [--demo PROJECT]
+[--blocks "demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1"] [--out FILE] (block ``tall2``: the tall preset with another
+seed, as ``tall``)
 Per block the DSMs to try: ``lidar`` the project's lidar_out/dsm.tif (the demo: the chain's LiDAR DSM and adjusted
 orientation), ``0.5`` on the tall block truth/dsm.tif, other numbers the truth surface at that cell (m). The tall
 block: ``aerotri sim DIR --preset tall``, rectified with the true orientation and camera as in
 eval_true_ortho_occlusion.py; the demo: a project made by ``aerotri demo``. ``max``, ``tin``, ``tin_top`` and
 ``nearest``: DSMs from the block's LiDAR first returns on the grid of its LiDAR DSM (demo) or truth DSM (tall), see
 ``write_points_dsm`` (the demo's classified strips of the chain, the tall block's simulated strips with their
-true classes). Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other
-keys kept).
+true classes). A DSM spec ending in ``+fp`` is the same DSM with the simulator's building footprints (the wall
+lines of truth/buildings.geojson written as truth/footprints.gpkg, ``aerotri.sim.project.write_footprints_gpkg``) in
+the occlusion test (``ortho rectify --footprints``, ``ortho.footprints``), e.g. ``--blocks "tall:0.5,0.5+fp"``.
+Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other keys kept).
 """
 
 from __future__ import annotations
@@ -320,11 +323,19 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
     print(name, "2.5D bound", json.dumps(bound), flush=True)
     results = {}
     points = None
-    for cell in cells:
-        p = work / name / f"true_ortho_dsm_{cell}"
+    for spec in cells:
+        cell, footprints = spec.removesuffix("+fp"), spec.endswith("+fp")
+        p = work / name / f"true_ortho_dsm_{spec}"
         made_path = p / "made.json"
         if not made_path.exists():
             copy(src, p)
+            fp_path = None
+            if footprints:
+                from aerotri.core.project import Project
+                from aerotri.sim.project import write_footprints_gpkg
+
+                fp_path = p / "truth" / "footprints.gpkg"
+                write_footprints_gpkg(p / "truth" / "buildings.geojson", fp_path, Project.open(p).crs)
             cast_s = 0.0
             if cell == "0.5" and tall:
                 pass  # copy_tall put truth/dsm.tif there
@@ -335,13 +346,15 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 point_dsm = write_points_dsm(cell, *points, like, p / "lidar_out" / "dsm.tif")
             elif cell != "lidar":
                 cast_s = write_fine_dsm(src, truth, float(cell), p / "lidar_out" / "dsm.tif")
-            made = E.make_dom(p, True, **kw)
+            made = E.make_dom(p, True, footprints=fp_path, **kw)
             made["dsm_ray_cast_s"] = cast_s
+            made["footprints"] = str(fp_path) if fp_path else None
             if cell in POINT_DSMS:
                 made["point_dsm"] = point_dsm
             made_path.write_text(json.dumps(made, indent=1, default=str) + "\n")
         made = json.loads(made_path.read_text())
         res = {"rectify": made["rectify"], "dsm_ray_cast_s": made["dsm_ray_cast_s"], "point_dsm": made.get("point_dsm"),
+               "footprints": made.get("footprints"),
                "roofs": roof_displacements(p / "ortho" / "mosaic.tif", p / "truth" / "ortho.tif",
                                            p / "truth" / "roof_corners.csv")}
         way = E.measure_way(p, None, grid, kind, ground, roof, vis, foot_nadir, conv_masks)
@@ -354,15 +367,18 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                                     truth_arrays=(kind, ground, roof, vis, foot_nadir), cells_out=got)
         res["misses_by_what_the_2_5d_surface_puts_in_the_line_of_sight"] = {
             which: misses_by_blocker(codes, vis, got[which]) for which in ("miss", "over")}
-        results[cell] = res
-        print(name, cell, json.dumps({k: v for k, v in res.items() if k != "seams"}, indent=1), flush=True)
+        results[spec] = res
+        print(name, spec, json.dumps({k: v for k, v in res.items() if k != "seams"}, indent=1), flush=True)
         shutil.rmtree(p / "images", ignore_errors=True)
-    return {"project": str(src), "surface_2_5d_bound": bound, "dsm": results}
+    conv_made = json.loads((conv / "made.json").read_text())
+    return {"project": str(src), "surface_2_5d_bound": bound, "conventional_rectify": conv_made["rectify"],
+            "dsm": results}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--tall", type=Path, default=REPO / "out" / "tall_sim")
+    ap.add_argument("--tall2", type=Path, default=None, help="block ``tall2``: the tall preset with another seed")
     ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_occlusion")
     ap.add_argument("--blocks", default="demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1")
@@ -373,8 +389,10 @@ def main() -> None:
     key = out.setdefault(args.key, {"blocks": {}})
     for spec in args.blocks.split(";"):
         name, cells = spec.split(":")
-        key["blocks"][name] = run_block(name, args.tall if name == "tall" else args.demo, args.work, cells.split(","))
+        src = {"tall": args.tall, "tall2": args.tall2}.get(name, args.demo)
+        key["blocks"][name] = run_block(name, src, args.work, cells.split(","))
     key["command"] = ("python bench/eval_true_ortho_dsm_cell.py --work DIR --tall DIR --demo DIR "
+                      + ("--tall2 DIR " if args.tall2 else "") +
                       f"--blocks '{args.blocks}' --key {args.key}")
     key["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()

@@ -51,7 +51,8 @@ from aerotri.geom.crs.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, open_height_raster, read_height_window
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
-from ortho.rectify import WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, frame_grid, rectify_frame
+from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, frame_grid, heights_on_grid,
+                           rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -204,7 +205,7 @@ def operation_tags(operation: dict | None, height_operation: dict | None = None)
 
 def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, grid, interpolation, to_project,
                           occlusion_dsm=None, compression: str = "zstd", threads: int | None = None,
-                          tags: dict | None = None, max_view_angle_deg: float = 90.0) -> float:
+                          tags: dict | None = None, max_view_angle_deg: float = 90.0, occluder=None) -> float:
     """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory).
 
     The tile threads compute the next tiles while this thread writes (GDAL compresses the blocks on
@@ -230,7 +231,7 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
 
             rectify_frame(image, camera, C, R, heights, grid, interpolation=interpolation, to_project=to_project,
                           occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads,
-                          max_view_angle_deg=max_view_angle_deg)
+                          max_view_angle_deg=max_view_angle_deg, occluder=occluder)
     return valid[0] / float(grid.width * grid.height)
 
 
@@ -257,6 +258,7 @@ class FrameTask:
     operation: OperationSpec | None = None  # project -> output CRS (None: the project CRS itself)
     height_operation: OperationSpec | None = None  # DEM/DSM heights -> the project's height system
     max_view_angle_deg: float = 90.0  # cells seen more obliquely than this from the vertical are nodata
+    footprints_path: str | None = None  # true ortho: building footprints (walls) in the occlusion test
 
 
 def _frame_image(path, expect_size):
@@ -311,12 +313,19 @@ def _rectify_frame_task(task: FrameTask) -> dict:
                                          frame=task.image_id, height_operation=height_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs)
+    occluder = None
+    if task.dsm_path and task.footprints_path:
+        from ortho.footprints import footprint_occluder, read_footprints
+
+        h, w = heights.heights_m.shape
+        ground = heights_on_grid(dem, OrthoGrid(project_crs, heights.x_left_m, heights.y_top_m, heights.res_m, w, h))
+        occluder = footprint_occluder(heights, ground, read_footprints(task.footprints_path, project_crs))
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
                       partial=True, max_view_angle_deg=task.max_view_angle_deg)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
-                                           occlusion_dsm=heights if task.dsm_path else None,
+                                           occlusion_dsm=heights if task.dsm_path else None, occluder=occluder,
                                            compression=task.compression, threads=task.threads,
                                            max_view_angle_deg=task.max_view_angle_deg,
                                            tags=operation_tags(to_project.record(),
@@ -427,6 +436,11 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     dem_ds = open_height_raster(dem_path, project_crs, "DEM")
     if true_ortho:
         open_height_raster(dsm_path, project_crs, "DSM").close()
+    footprints = Path(s.footprints) if s.footprints and true_ortho else None
+    if footprints is not None:  # checked whole before any frame is written
+        from ortho.footprints import read_footprints
+
+        read_footprints(footprints, project_crs)
     out_dir = project.ortho_dir / "frames"
     # what a killed earlier run left of its atomic frames folder (.frames.part-*): one rectification per
     # project at a time, so nothing else writes there now
@@ -478,7 +492,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
                               dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
                               dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
                               height_op=height_op, executor=executor, inputs=inputs,
-                              max_view_angle_deg=float(s.max_view_angle_deg))
+                              max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints)
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
             done = {e["image_id"] for e in index["frames"]}
             keep = [e for e in old_index.document["frames"] if e["image_id"] not in done]
@@ -522,7 +536,7 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
 
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, project_crs, dem_path, zlo, zhi,
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
-                  inputs: dict, max_view_angle_deg: float = 90.0) -> dict:
+                  inputs: dict, max_view_angle_deg: float = 90.0, footprints: Path | None = None) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order)."""
     tasks = [FrameTask(image_id, str(path), str(out_dir / f"{image_id}.tif"), block.camera,
                        tuple(float(v) for v in block.eo.centre_m[eo_idx[image_id]]),
@@ -531,13 +545,15 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        str(dsm_path) if true_ortho else None, compression, threads,
                        operation.spec() if operation is not None else None,
                        height_op.spec() if height_op is not None else None,
-                       max_view_angle_deg=max_view_angle_deg)
+                       max_view_angle_deg=max_view_angle_deg,
+                       footprints_path=str(footprints) if footprints is not None else None)
              for image_id, path in block.images.pairs()]
     entries = executor.map(_rectify_frame_task, tasks, desc="rectify", unit="frame")
     return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),
-        "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None, "interpolation": interpolation,
+        "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None,
+        "footprints": str(footprints) if footprints is not None else None, "interpolation": interpolation,
         "coordinate_operation": operation.record() if operation is not None else None,
         "operation": dataclasses.asdict(operation.spec()) if operation is not None else None,
         "height_operation": height_op.record() if height_op is not None else None,

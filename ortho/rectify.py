@@ -52,6 +52,7 @@ from ortho.grid import GridToProject, OrthoGrid
 if TYPE_CHECKING:
     from aerotri.geom.camera import Camera
     from ortho.dem import HeightRaster
+    from ortho.footprints import FootprintOccluder
 
 INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "bilinear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}
 
@@ -142,6 +143,24 @@ class MarchArgs(NamedTuple):
     coarse: int
     tolerance_m: float
     own_column_m: float
+
+
+class FootprintWalls(NamedTuple):
+    """Building footprints as the march takes them (``ortho.footprints.FootprintOccluder``): the underside and top
+    of each DSM cell's slab (float32, -inf: none, a solid column), the index of its wall sub-cells (int32, -1:
+    none, -2: beside an overhang), the sub-cell masks (uint8 (K, sub, sub)) and ``sub``; (1, 1) arrays: no
+    footprints."""
+
+    base_m: np.ndarray
+    slab_top_m: np.ndarray
+    sub_index: np.ndarray
+    sub_masks: np.ndarray
+    sub: int
+
+
+_NO_WALLS = FootprintWalls(np.full((1, 1), -np.inf, np.float32), np.full((1, 1), -np.inf, np.float32),
+                           np.full((1, 1), -1, np.int32),
+                           np.zeros((1, 1, 1), np.uint8), 1)
 
 
 class TilePoints(NamedTuple):
@@ -312,31 +331,40 @@ class MarchBound:
     coarse: int
 
 
-def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS) -> MarchBound:
-    """The bounds of the march over ``dsm`` (once per frame; ``occlusion_mask`` makes them if not given)."""
+def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS,
+                occluder: FootprintOccluder | None = None) -> MarchBound:
+    """The bounds of the march over ``dsm`` (once per frame; ``occlusion_mask`` makes them if not given); with
+    ``occluder`` over the tops of its slabs too (a cell beside an overhang carries the overhang's slab)."""
     from ortho.rectify_kernels import _block_max
 
     fine, coarse = (int(b) for b in blocks)
-    return MarchBound(float(np.nanmax(dsm.heights_m)), _block_max(dsm.heights_m, fine), fine,
-                      _block_max(dsm.heights_m, coarse), coarse)
+    z = dsm.heights_m if occluder is None else np.fmax(dsm.heights_m, occluder.slab_top_m)
+    return MarchBound(float(np.nanmax(z)), _block_max(z, fine), fine, _block_max(z, coarse), coarse)
 
 
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors, *,
                    tolerance_m: float = 0.3, candidates: np.ndarray | None = None,
-                   bound: MarchBound | None = None, near_share: np.ndarray | None = None) -> np.ndarray:
+                   bound: MarchBound | None = None, near_share: np.ndarray | None = None,
+                   occluder: FootprintOccluder | None = None) -> np.ndarray:
     """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM (a march
     along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface).
-    ``near_share`` (``zbuffer_occlusion_from_maps``): where the march looks first; the result is the same."""
+    ``near_share`` (``zbuffer_occlusion_from_maps``): where the march looks first; the result is the same.
+    ``occluder`` (``ortho.footprints.footprint_occluder`` of the same ``dsm``): building footprints, under whose
+    roof overhangs a ray may pass; None: every DSM cell a solid column."""
     AX, AY, s = anchors
     occ = np.zeros((grid.height, grid.width), dtype=np.bool_)
-    bound = bound or march_bound(dsm)
+    bound = bound or march_bound(dsm, occluder=occluder)
     from ortho.rectify_kernels import _occlusion_kernel
 
     points = TilePoints(heights_m.astype(np.float32), np.ones(occ.shape, np.bool_) if candidates is None else candidates,
                         np.zeros((1, 1), np.float32) if near_share is None else near_share)
     march = MarchArgs(bound.max_m, bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
                       float(tolerance_m), float(OWN_COLUMN_M))
-    _occlusion_kernel(AnchorGrid(AX, AY, float(s)), points, _height_grid(dsm), march,
+    walls = _NO_WALLS if occluder is None else FootprintWalls(occluder.base_m, occluder.slab_top_m,
+                                                              occluder.sub_index, occluder.sub_masks, int(occluder.sub))
+    if occluder is not None and occluder.base_m.shape != dsm.heights_m.shape:
+        raise ValueError(f"footprint occluder of {occluder.base_m.shape} cells for a DSM of {dsm.heights_m.shape}")
+    _occlusion_kernel(AnchorGrid(AX, AY, float(s)), points, _height_grid(dsm), march, walls,
                       np.asarray(geometry.centre_m, np.float64), occ)
     return occ
 
@@ -577,14 +605,16 @@ class FrameFile:
 def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: HeightRaster, grid: OrthoGrid,
                   *, interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
-                  sink_bands_first: bool = False, max_view_angle_deg: float = 90.0, earth: bool = True):
+                  sink_bands_first: bool = False, max_view_angle_deg: float = 90.0, earth: bool = True,
+                  occluder: FootprintOccluder | None = None):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
 
     ``image`` is (rows, cols[, bands]) in the camera's pixel convention, in memory, or a ``FrameFile``
     read by windows as the tiles need them (the same ortho, memory set by the tiles); ``centre_m`` and ``R``
     (camera -> object, omega-phi-kappa) are in the project CRS, as is ``dem_dataset`` (a
     HeightRaster; the DSM for a true ortho). ``to_project`` maps the grid CRS to the project CRS
-    (default: identical). With ``occlusion_dsm`` pixels hidden by the DSM are masked (true ortho).
+    (default: identical). With ``occlusion_dsm`` pixels hidden by the DSM are masked (true ortho); ``occluder``
+    (``ortho.footprints.footprint_occluder`` of that DSM): building footprints in the occlusion test.
     With ``sink(row0, col0, ortho_tile, mask_tile)`` the tiles are handed over in row-major order as
     they are made (e.g. written to a file, overlapping with the computation of the next tiles)
     instead of assembled: the returned ortho and mask are then None. With ``sink_bands_first`` the sink gets
@@ -624,7 +654,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
 
     # true ortho: the frame's z-buffer of the DSM first (the occluders of a tile can lie in any other tile)
     zbuffer = frame_zbuffer(geometry, occlusion_dsm, grid, to_project, tile_px) if occlusion_dsm is not None else None
-    bound = march_bound(occlusion_dsm) if occlusion_dsm is not None else None
+    bound = march_bound(occlusion_dsm, occluder=occluder) if occlusion_dsm is not None else None
     # the maps are the image positions at the DSM's heights when the ortho is rectified on the DSM itself (as
     # ``ortho rectify --true-ortho`` does) in the project CRS: the z-buffer test reads them instead of projecting again
     maps_at_dsm = occlusion_dsm is not None and dem_dataset is occlusion_dsm and to_project.identity
@@ -665,7 +695,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
                 if maps_at_dsm else zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
             if behind.any():
                 occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind, bound=bound,
-                                          near_share=near)
+                                          near_share=near, occluder=occluder)
                 m[occluded] = 0
                 map_int[occluded] = -32768
         if not m.any():

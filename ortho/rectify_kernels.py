@@ -240,11 +240,68 @@ def _dda_step(boundary, between, cell, step):
     return sy, sx, sy + between[1], i + step[0], j
 
 
+@numba.njit(cache=True, inline="always")
+def _cell_blocks(top, i, j, ray, span, walls):
+    """Whether DSM cell (i, j) of height ``top`` stops the ray that crosses it from ``span`` = (s_in, s_out) (its
+    horizontal parameters where it enters and leaves the cell, in cells): ``ray`` = (Z, rise, gx, gy, ex, ey,
+    tolerance_m) as in ``_occlusion_kernel``, ``walls`` = (footprinted, base_m, slab_top_m, sub_index, sub_masks,
+    sub) (a ``FootprintOccluder``; ``footprinted`` False: every cell a solid column).
+
+    A solid column stops the ray where it is more than the tolerance above the ray where it enters (the ray's
+    lowest in the cell). A cell with a slab (a finite ``base_m``) stops it where the slab's top is more than the
+    tolerance above the ray where it enters and the ray reaches the slab's underside where it leaves (its highest);
+    an overhang cell (``sub_index`` >= -1) is nothing more, but for its sub-cells inside a footprint (``sub_index``
+    >= 0: the wall, a column up to ``top``) that the ray crosses more than the tolerance below ``top``; a cell beside
+    an overhang (``sub_index`` <= -3) is its own solid column, and the slab over the sub-cells of its mask only
+    (where the ray first and last crosses them)."""
+    Z, rise, gx, gy, ex, ey, tolerance_m = ray
+    s_in, s_out = span
+    z_in = Z + rise * s_in
+    footprinted, base_m, slab_top_m, sub_index, sub_masks, sub = walls
+    column = top > z_in + tolerance_m  # (NaN: no surface)
+    if not footprinted:
+        return column
+    base = base_m[i, j]
+    if base == -np.inf:
+        return column
+    k = sub_index[i, j]
+    ds = 0.25 / sub  # the ray's sub-cells within the cell, at quarter sub-cell steps
+    if k <= -3:  # beside an overhang: its own column, and the slab over the sub-cells of its mask
+        if column:
+            return True
+        m = -3 - k
+        first, last = 1e30, -1e30
+        s = s_in
+        while s <= s_out:
+            a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
+            b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
+            if sub_masks[m, a, b]:
+                first = min(first, s)
+                last = s
+            s += ds
+        return last >= first and slab_top_m[i, j] > Z + rise * first + tolerance_m and Z + rise * last > base
+    if slab_top_m[i, j] > z_in + tolerance_m and Z + rise * s_out > base:
+        return True
+    if k < 0 or not column:
+        return False
+    # the wall
+    s = s_in
+    while s <= s_out:
+        a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
+        b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
+        if sub_masks[k, a, b] and top > Z + rise * s + tolerance_m:
+            return True
+        s += ds
+    return False
+
+
 @numba.njit(cache=True, nogil=True)
-def _occlusion_kernel(anchors, points, grid, march, centre, occluded):
+def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
     """Mark ground points whose ray to the projection centre passes below the DSM surface (``HeightGrid``
     ``grid``): the points of a tile (``AnchorGrid`` ``anchors``) at heights ``points.heights_m`` (``TilePoints``), the
-    ``MarchArgs`` ``march`` (bounds, ``tolerance_m``, ``own_column_m``), into ``occluded``.
+    ``MarchArgs`` ``march`` (bounds, ``tolerance_m``, ``own_column_m``), the ``FootprintWalls`` ``walls`` (building
+    footprints: overhang cells block only within a slab under their top, ``_cell_blocks``; none: (1, 1) arrays),
+    into ``occluded``.
 
     The DSM is taken as columns: each cell a flat top at its height over its whole square (the edge of a roof
     half way between a roof sample and a ground sample, where a point-sampled DSM puts it on average). The ray is
@@ -272,6 +329,9 @@ def _occlusion_kernel(anchors, points, grid, march, centre, occluded):
     height_tile, candidates, near_share = points
     dsm, dsm_x0, dsm_y0, dsm_res = grid
     dsm_max, block_max, block, coarse_max, coarse, tolerance_m, own_column_m = march
+    base_m, slab_top_m, sub_index, sub_masks, sub = walls
+    footprinted = base_m.shape[0] == dsm.shape[0] and base_m.shape[1] == dsm.shape[1]
+    cell_walls = (footprinted, base_m, slab_top_m, sub_index, sub_masks, sub)
     rows, cols = height_tile.shape
     hinted = near_share.shape[0] == rows and near_share.shape[1] == cols
     dh, dw = dsm.shape
@@ -331,7 +391,9 @@ def _occlusion_kernel(anchors, points, grid, march, centre, occluded):
                         continue
                     # the walk tests the cell where the ray enters it (its lowest there)
                     s_in = max(_boundary_in(gx, ex, j), _boundary_in(gy, ey, i), 0.0)
-                    if dsm[i, j] > Z + rise * s_in + tolerance_m:
+                    s_out = min(_next_boundary(gx, ex, j), _next_boundary(gy, ey, i))
+                    if _cell_blocks(dsm[i, j], i, j, (Z, rise, gx, gy, ex, ey, tolerance_m), (s_in, s_out),
+                                    cell_walls):
                         hit = True
                         break
                 if hit:
@@ -371,7 +433,8 @@ def _occlusion_kernel(anchors, points, grid, march, centre, occluded):
                     sx = _next_boundary(gx, ex, j)
                     sy = _next_boundary(gy, ey, i)
                     continue
-                if dsm[i, j] > zr + tolerance_m:
+                if _cell_blocks(dsm[i, j], i, j, (Z, rise, gx, gy, ex, ey, tolerance_m), (s, min(sx, sy)),
+                                cell_walls):
                     occluded[r, c] = True
                     break
                 s, sx, sy, i, j = _dda_step((sx, sy), (dsx, dsy), (i, j), (step_i, step_j))

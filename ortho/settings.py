@@ -45,6 +45,12 @@ class RectifySettings:
     interpolation: str = setting("bilinear", choices=tuple(INTERPOLATION), help="Resampling of the frames.")
     true_ortho: bool = setting(False, help="Rectify on the DSM and mask pixels occluded by it.")
     dsm: Path | None = setting(None, path=True, help="DSM GeoTIFF of the true ortho.")
+    footprints: Path | None = setting(
+        None, path=True,
+        help="Building footprints (GeoPackage of wall-line polygons in the project CRS, e.g. a cadastre) for the true "
+             "ortho's occlusion test: inside them the DSM is solid; a roof overhang outside them (within 1.5 m, 2 m "
+             "above the DEM) hides only down to 0.3 m below its building's eave line, so ground seen beneath eaves is "
+             "kept (docs/true-ortho.md).")
     max_view_angle_deg: float = setting(
         90.0, min=0.0, min_open=True, max=90.0,
         help="Largest angle between a cell's ray to the projection centre and the vertical (deg); cells seen more "

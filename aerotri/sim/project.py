@@ -256,6 +256,8 @@ def simulate(cfg: Preset, outdir, force: bool = False, on_phase=None) -> SimTrut
                                  epsg=epsg, gains=gains)
             corners = scene.roof_corners()
             _write_truth_corners(tmp / "truth", scene, corners, origin)
+            write_footprints_gpkg(tmp / "truth" / "buildings.geojson", tmp / "truth" / "footprints.gpkg",
+                                  f"EPSG:{epsg}")
             targets = _write_check_targets(tmp / "truth", scene=scene, accel=accel, plan=plan, cam_true=cam_true,
                                            origin=origin, earth=earth)
             _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin)
@@ -661,6 +663,34 @@ def _write_buildings_geojson(path, scene, origin):
     path.write_text(json.dumps(dict(type="FeatureCollection", features=feats)) + "\n")
 
 
+def write_footprints_gpkg(buildings_geojson, out, crs: str) -> int:
+    """The buildings' wall lines (part "footprint" of ``truth/buildings.geojson``, which carries no CRS) as a
+    GeoPackage in ``crs`` (the project's): layer ``footprints``, one Polygon per building with its ``building_id``,
+    the cadastral footprints ``ortho rectify --true-ortho --footprints`` takes (stand-ins for BGT or OSM buildings).
+    Written atomically; returns the number of footprints."""
+    import pyogrio.raw
+    import shapely
+
+    from aerotri.core.atomic import atomic_path
+
+    feats = [f for f in json.loads(Path(buildings_geojson).read_text())["features"]
+             if f["properties"].get("part") == "footprint"]
+    geoms = np.array([shapely.geometry.shape(f["geometry"]) for f in feats], dtype=object)
+    # GDAL stamps the GeoPackage with the time of writing: a fixed stamp keeps the same seed's files the same bytes
+    before = pyogrio.get_gdal_config_option("OGR_CURRENT_DATE")
+    pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": "2000-01-01T00:00:00.000Z"})
+    try:
+        with atomic_path(Path(out)) as tmp:
+            tmp.unlink(missing_ok=True)  # a new GeoPackage, not the empty temporary file
+            pyogrio.raw.write(str(tmp), shapely.to_wkb(geoms),
+                              field_data=[np.array([int(f["properties"]["building_id"]) for f in feats], np.int64)],
+                              fields=["building_id"], geometry_type="Polygon", crs=crs, driver="GPKG",
+                              layer="footprints")
+    finally:
+        pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": before})
+    return len(feats)
+
+
 _README = """Simulated project "{preset}" (aerotri sim, seed {seed}), CRS {crs}, ellipsoidal heights.
 
 project.toml camera.toml gnss.txt   project settings, nominal camera, GNSS antenna positions (with errors)
@@ -670,7 +700,8 @@ trajectory/                         strip_NN.txt: each strip's scanner trajector
                                     pitch_deg heading_deg; lidarctl strips adjust --trajectory)
 truth/                              the truth: eo.txt, camera.toml (true interior orientation), dem.tif,
                                     dsm.tif, ortho.tif, lidar/ (true classes, same point order),
-                                    roof_corners.csv, buildings.geojson, checkpoints.csv,
+                                    roof_corners.csv, buildings.geojson, footprints.gpkg (the
+                                    wall lines), checkpoints.csv,
                                     checkpoint_image_points.csv, gnss_truth.toml, frames.csv, truth.json,
                                     flight_acceptance.json
 """
