@@ -12,7 +12,7 @@ heights in CRS units, the ``_m`` attributes in metres):
   Building cells no regularised outline covers (roofs below the outliner's 25 m2, outlines that failed)
   are outlined from their cells (roof ``cells``; pieces of at least ``CELL_BUILDING_MIN_M2``, slivers
   along the regularised outlines removed by an opening of one cell); cells that returned no pulse inside a
-  rim of building cells join them (``roof_dropouts``).
+  rim of building cells join them (``MapVectorSettings.roof_dropouts``).
 * ``roads`` (Polygon): cells of ``cell_m`` holding road points (class 11, e.g. from ``classify --image``),
   closed over gaps of one cell, holes below ``min_area_m2`` filled, pieces below it dropped; the polygon
   edges are the road edges; ``width_m`` is the median width along its centre line.
@@ -72,6 +72,8 @@ class MapVectorSettings:
                                                                   "centre lines (m).")
     spot_spacing_m: float = setting(100.0, min=0.0, min_open=True, help="One spot height per square of this side (m).")
     contour_interval_m: float = setting(1.0, min=0.0, min_open=True, help="--dem: contour interval (m).")
+    roof_dropouts: bool = setting(True, help="Empty regions rimmed mostly by building cells join the buildings (a roof "
+                                             "that returned no pulse).")
 
 
 @dataclasses.dataclass
@@ -319,7 +321,7 @@ def centrelines(mask: np.ndarray, x0, y0, cell_m: float, simplify_m: float) -> l
 
 
 # --------------------------------------------------------------------------------------------- buildings
-def roof_dropouts(pts, bxy: np.ndarray, x0, y0, cell_m: float, shape) -> np.ndarray:
+def _roof_dropouts(pts, bxy: np.ndarray, x0, y0, cell_m: float, shape) -> np.ndarray:
     """Cells of the grid (``_grid``) that returned no pulse and belong to a roof: the regions of empty cells
     (no return of any class; opened by one cell, 8-connected, off the grid's border) whose rim (the cells with returns around
     them) is mostly roof - more than half of it building cells and none water. A glass, wet or black roof
@@ -354,9 +356,10 @@ def roof_dropouts(pts, bxy: np.ndarray, x0, y0, cell_m: float, shape) -> np.ndar
     return keep[lab]
 
 
-def building_outlines(pts, spacing_m: float | None = None) -> tuple[list, list, dict]:
+def building_outlines(pts, spacing_m: float | None = None, roof_dropouts: bool = True) -> tuple[list, list, dict]:
     """(polygons in metres, attribute rows, stats) of the buildings of a cloud (``corners.ClassifiedStrips``, or
-    any object with its x, y, z, classification and point_source_id arrays)."""
+    any object with its x, y, z, classification and point_source_id arrays); ``roof_dropouts``: empty regions
+    rimmed by roof join the building cells."""
     import shapely
     from shapely.geometry import Polygon
 
@@ -406,8 +409,8 @@ def building_outlines(pts, spacing_m: float | None = None) -> tuple[list, list, 
     spacing = float(np.median([cand[3] for cand in candidates])) if candidates else (spacing_m or 1.0)
     cell = max(0.5, spacing)
     x0, y0, nrows, ncols = _grid(bxy, cell)
-    bmask = class_mask(bxy, x0, y0, cell, (nrows, ncols), min_area_m2=CELL_BUILDING_MIN_M2, close_cells=1,
-                       void=roof_dropouts(pts, bxy, x0, y0, cell, (nrows, ncols)))
+    void = _roof_dropouts(pts, bxy, x0, y0, cell, (nrows, ncols)) if roof_dropouts else None
+    bmask = class_mask(bxy, x0, y0, cell, (nrows, ncols), min_area_m2=CELL_BUILDING_MIN_M2, close_cells=1, void=void)
     covered = shapely.union_all([cand[0] for cand in candidates]) if candidates else None
     next_id = max([cand[1] for cand in candidates], default=0) + 1
     pieces = mask_polygons(bmask, x0, y0, cell, cell)
@@ -590,7 +593,7 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     f_z = 1.0 / units.z_m
     layers = []
 
-    polys, rows, bstats = building_outlines(pts)
+    polys, rows, bstats = building_outlines(pts, roof_dropouts=p.roof_dropouts)
     layers.append(Layer("buildings", "Polygon", _scale_geoms(polys, f_xy), {
         "building_id": np.array([r["building_id"] for r in rows], np.int64),
         "roof": np.array([r["roof"] for r in rows], object),
