@@ -31,8 +31,17 @@ held-out quarter the set with the best worst-quarter min(completeness, correctne
 quarters (those with footprints) is chosen, and the held-out quarter is scored once with it (area, objects, vector centroids). Ties go to the earlier (simpler) set.
 The rule set the same criterion picks on all quarters is reported beside the one the shipped defaults
 are ("chosen_on_all_quarters", "shipped_defaults_set": the shipped defaults must be that pick).
+Footprint parts (fourth round; the quarters hold 0 / 8 / 24 / 104 footprints): four parts with about equal
+numbers of footprints, decided from the footprints' positions alone before anything is scored (the median x
+of the centroids of the footprints the crop covers, then each half at its own median y; ``footprint_parts``).
+The shipped defaults per footprint part ("defaults_footprint_parts", vectors "per_footprint_part") and, with
+``--rules``, the nested choice on them ("rules_nested_footprint_parts") by two criteria fixed before they were
+scored: "area" (as for the quarters) and "area and objects" (the lowest of completeness, correctness and the
+share of footprints found over the training parts). In every nested fold the vectors' roof dropouts
+(``MapVectorSettings.roof_dropouts``) are chosen too: on when they put more centroids in the buildings layer
+on the training parts (the lowest share over them), else off.
 Writes bench/results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --rules
-[--jobs 2] (and/or --nested).
+[--jobs 2] (and/or --nested); ``--rescore``: the nested choices again from the rule sets' scores in that JSON.
 """
 
 from __future__ import annotations
@@ -370,18 +379,30 @@ def nested_choice(per_set: dict, key: str, criterion: str) -> dict:
         chosen = max(crit, key=lambda s: (crit[s], -list(RULE_SETS).index(s)))
         on, off = (_vector_share(per_set[chosen][v], per, train) for v in ("vectors", "vectors_roof_dropouts_off"))
         vkey = "vectors" if on > off else "vectors_roof_dropouts_off"
+        # added after the first run (the lowest share ties whenever the worst training part holds no roof that
+        # returned no pulse): the centroids on the map summed over the training parts
+        on_n, off_n = (sum(per_set[chosen][v][per][n]["centroid_in_building_layer"] for n in train)
+                       for v in ("vectors", "vectors_roof_dropouts_off"))
+        vkey_total = "vectors" if on_n > off_n else "vectors_roof_dropouts_off"
         q = per_set[chosen][key][name]
         vq = per_set[chosen][vkey][per][name]
+        vt = per_set[chosen][vkey_total][per][name]
         held[name] = {"chosen": chosen, "chosen_on": train, "training_worst_pct": crit,
                       "vectors_roof_dropouts": vkey == "vectors", "training_vector_share_pct": {"on": on, "off": off},
                       "area": q["area"], "footprints": q["footprints"], "footprints_found": q["footprints_found"],
                       "footprints_found_pct": q["footprints_found_pct"], "missed_footprints_m2": q["missed_footprints_m2"],
                       "vector_centroids": vq["centroid_in_building_layer"], "vector_footprints": vq["footprints"],
-                      "vector_centroids_pct": 100.0 * vq["centroid_in_building_layer"] / max(vq["footprints"], 1)}
+                      "vector_centroids_pct": 100.0 * vq["centroid_in_building_layer"] / max(vq["footprints"], 1),
+                      "vectors_roof_dropouts_by_total": vkey_total == "vectors",
+                      "training_vector_centroids": {"on": on_n, "off": off_n},
+                      "vector_centroids_by_total": vt["centroid_in_building_layer"]}
     crit_all = {s: _worst_of(v[key], scored, criterion) for s, v in per_set.items()}
     pick = max(crit_all, key=lambda s: (crit_all[s], -list(RULE_SETS).index(s)))
     out = {"criterion": CRITERIA[criterion] + "; ties to the earlier rule set", "held_out": held,
            "chosen_on_all_parts": {"set": pick, "on": scored, "worst_pct": crit_all[pick], "by_set_pct": crit_all}}
+    out["vector_choice"] = ("roof dropouts on when the lowest training share of centroids on the map is higher with "
+                            "them (fixed before the run; 'vector_centroids'); added after it: when the centroids on "
+                            "the map summed over the training parts are more ('vector_centroids_by_total')")
     out["worst_held_out"] = {
         "completeness_pct": min(v["area"]["completeness_pct"] for v in held.values()),
         "correctness_pct": min(v["area"]["correctness_pct"] for v in held.values()),
@@ -391,6 +412,7 @@ def nested_choice(per_set: dict, key: str, criterion: str) -> dict:
         "footprints_found": sum(v["footprints_found"] for v in held.values()),
         "footprints": sum(v["footprints"] for v in held.values()),
         "vector_centroids": sum(v["vector_centroids"] for v in held.values()),
+        "vector_centroids_by_total": sum(v["vector_centroids_by_total"] for v in held.values()),
         "vector_footprints": sum(v["vector_footprints"] for v in held.values())}
     return out
 
@@ -415,6 +437,11 @@ def rules_nested(laz: Path, polys: list, partitions: tuple, tmp: Path, jobs: int
         for key in _KEY.values():
             for q in v[key].values():
                 q.pop("classified_with", None)
+    return nested_sections(per_set)
+
+
+def nested_sections(per_set: dict) -> tuple[dict, dict]:
+    """The nested choices from the rule sets' scores: (quarters' section, footprint parts' section)."""
     shipped = next((n for n, o in RULE_SETS.items() if all(getattr(ClassifySettings(), k) == v for k, v in o.items())), None)
     q = nested_choice(per_set, "quarters", "area")
     # the quarters' section keeps its earlier keys ("held_out", "chosen_on_all_quarters", "rule_sets")
@@ -439,6 +466,11 @@ def _print_nested(title: str, section: dict) -> None:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if "--rescore" in argv:   # the nested choices again from the rule sets' scores of the JSON (no classification)
+        result = json.loads((REPO / "bench" / "results" / "buildings_bgt.json").read_text())
+        result["rules_nested"], result["rules_nested_footprint_parts"] = nested_sections(result["rules_nested"]["rule_sets"])
+        result["rescored_by"] = "bench/eval_buildings_bgt.py " + " ".join(argv)
+        return _finish(result)
     laz = SHARED / "ahn3_delft" / "ahn3_cropped_1.laz"
     polys = read_bgt(SHARED / "ahn3_delft" / "bgt_pand.sqlite")
     c = io.read_cloud(laz, crs=CRS)
@@ -518,6 +550,11 @@ def main(argv=None) -> int:
     print(f"vectors: centroid in the building layer {vd['centroid_in_building_layer']}/"
           f"{vd['footprints_covered_by_the_crop']} ({vd['centroid_in_building_layer_pct']:.1f} %); per footprint part "
           + ", ".join(f"{n} {v['centroid_in_building_layer']}/{v['footprints']}" for n, v in vd["per_footprint_part"].items()))
+    return _finish(result)
+
+
+def _finish(result: dict) -> int:
+    """The nested sections' targets and summary; the JSON written."""
     if "rules_nested" in result:
         rn, rp = result["rules_nested"], result["rules_nested_footprint_parts"]
         wh = rn["worst_held_out"]
@@ -536,12 +573,16 @@ def main(argv=None) -> int:
         _print_nested("quarters, area and objects", rn["criterion_area_and_objects"])
         for c in CRITERIA:
             _print_nested(f"footprint parts, {c}", rp[c])
-    out = REPO / "bench" / "results" / "buildings_bgt.json"
-    tmp_out = out.with_suffix(".json.tmp")
-    tmp_out.write_text(json.dumps(result, indent=2))
-    tmp_out.replace(out)
-    print(f"wrote {out}")
+    write_result(REPO / "bench" / "results" / "buildings_bgt.json", result)
     return 0
+
+
+def write_result(path: Path, result: dict) -> None:
+    """``result`` as JSON at ``path``, written atomically."""
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(path)
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,8 @@ The vectors' roof dropouts (``MapVectorSettings.roof_dropouts``) change no class
 Writes bench/results/buildings_bgt_regression.json. Run:
     nice .venv/bin/python bench/eval_buildings_bgt_regress.py [--tiny WORKDIR] [--demo LIDAR_DIR]
 ``--tiny``: ``aerotri sim --preset tiny`` is simulated into WORKDIR (when not there) and its strips classified;
-``--demo``: the demo chain's strips (e.g. /work/ref/demo_chain/project/lidar).
+``--demo``: the demo chain's strips (e.g. /work/ref/demo_chain/project/lidar), each classified alone (demo_<stem>);
+``--only demo_strip_01,sim_tiny``: those clouds only, merged into the existing JSON.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_ahn3_holdout import part_of, scores, PARTS  # noqa: E402
+from eval_buildings_bgt import write_result  # noqa: E402
 
 from lidarctl import io  # noqa: E402
 from lidarctl.classify import pipeline as classify  # noqa: E402
@@ -84,9 +86,17 @@ def main(argv=None) -> int:
             simulate(load_preset("tiny"), sim)
         clouds["sim_tiny"] = (sorted((sim / "lidar").glob("*.la[sz]")), None, False)
     if "--demo" in argv:
-        clouds["demo"] = (sorted(Path(argv[argv.index("--demo") + 1]).glob("*.la[sz]")), None, False)
-    result = {"command": "bench/eval_buildings_bgt_regress.py " + " ".join(argv),
-              "rule_off": RULE, "clouds": {}}
+        # strip by strip (one process holds one strip, as a tile of the chain)
+        for f in sorted(Path(argv[argv.index("--demo") + 1]).glob("*.la[sz]")):
+            clouds[f"demo_{f.stem}"] = ([f], None, False)
+    out = REPO / "bench" / "results" / "buildings_bgt_regression.json"
+    result = {"command": "bench/eval_buildings_bgt_regress.py " + " ".join(argv), "rule_off": RULE, "clouds": {}}
+    if "--only" in argv:   # these clouds only, merged into the file's others
+        only = argv[argv.index("--only") + 1].split(",")
+        clouds = {k: v for k, v in clouds.items() if k in only}
+        if out.exists():
+            old = json.loads(out.read_text())
+            result = {**old, "clouds": old["clouds"], "commands_merged": [*old.get("commands_merged", []), result["command"]]}
     for name, (paths, crs, labelled) in clouds.items():
         c = _read(paths, crs)
         if labelled:
@@ -107,13 +117,11 @@ def main(argv=None) -> int:
                             "ua_pct": 100.0 * float((w & water).sum()) / max(int(w.sum()), 1)}
         result["clouds"][name] = fig
         print(f"{name}: {fig['points']:,} points, {fig['changed']} change {fig['changed_from_to']}", flush=True)
-    result["seconds"] = time.perf_counter() - t0
-    result["load_average_before_after"] = [list(load0), list(os.getloadavg())]
-    out = REPO / "bench" / "results" / "buildings_bgt_regression.json"
-    tmp = out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(out)
-    print(f"wrote {out}")
+    key = "seconds" if "--only" not in argv else f"seconds_{'_'.join(clouds)}"
+    result[key] = time.perf_counter() - t0
+    result["load_average_before_after" if "--only" not in argv else f"load_average_{'_'.join(clouds)}"] = \
+        [list(load0), list(os.getloadavg())]
+    write_result(out, result)
     return 0
 
 
