@@ -31,8 +31,17 @@ held-out quarter the set with the best worst-quarter min(completeness, correctne
 quarters (those with footprints) is chosen, and the held-out quarter is scored once with it (area, objects, vector centroids). Ties go to the earlier (simpler) set.
 The rule set the same criterion picks on all quarters is reported beside the one the shipped defaults
 are ("chosen_on_all_quarters", "shipped_defaults_set": the shipped defaults must be that pick).
+Footprint parts (fourth round; the quarters hold 0 / 8 / 24 / 104 footprints): four parts with about equal
+numbers of footprints, decided from the footprints' positions alone before anything is scored (the median x
+of the centroids of the footprints the crop covers, then each half at its own median y; ``footprint_parts``).
+The shipped defaults per footprint part ("defaults_footprint_parts", vectors "per_footprint_part") and, with
+``--rules``, the nested choice on them ("rules_nested_footprint_parts") by two criteria fixed before they were
+scored: "area" (as for the quarters) and "area and objects" (the lowest of completeness, correctness and the
+share of footprints found over the training parts). In every nested fold the vectors' roof dropouts
+(``MapVectorSettings.roof_dropouts``) are chosen too: on when they put more centroids in the buildings layer
+on the training parts (the lowest share over them), else off.
 Writes bench/results/buildings_bgt.json. Run: nice .venv/bin/python bench/eval_buildings_bgt.py --rules
-[--jobs 2] (and/or --nested).
+[--jobs 2] (and/or --nested); ``--rescore``: the nested choices again from the rule sets' scores in that JSON.
 """
 
 from __future__ import annotations
@@ -67,7 +76,7 @@ PARTS = ("south-west", "south-east", "north-west", "north-east")
 # steps to roofs only (else a shed is cut as an object standing above its own wall returns), and the
 # roof reach (a segment's cells beyond it from a roof cell join only when mostly single-return).
 _OFF = {"small_building_planar_cores": False, "rooftop_steps_to_roofs_only": False, "roof_reach_cells": 0,
-        "low_growth_max_height_m": 0.0, "pierced_growth_max_fraction": 0.0}
+        "low_growth_max_height_m": 0.0, "pierced_growth_max_fraction": 0.0, "crown_covered_roofs": False}
 _SHEDS = {**_OFF, "small_building_planar_cores": True, "rooftop_steps_to_roofs_only": True}
 RULE_SETS = {
     "main (rules off)": _OFF,
@@ -87,6 +96,13 @@ RULE_SETS = {
     **{f"sheds + pierced {f:g}": {**_SHEDS, "pierced_growth_max_fraction": f} for f in (0.1, 0.2, 0.3)},
     **{f"sheds + low {h:g} + pierced 0.1": {**_SHEDS, "low_growth_max_height_m": h, "pierced_growth_max_fraction": 0.1}
        for h in (2.5, 3.0, 3.5, 4.0)},
+    # Roofs under crowns (crown_covered_roofs; fourth round): alone, with the shed rules, and with the shed rules
+    # and the two growth tests the third round's pick held (sets fixed before the run).
+    "crowns": {**_OFF, "crown_covered_roofs": True},
+    "sheds + crowns": {**_SHEDS, "crown_covered_roofs": True},
+    "sheds + crowns + pierced 0.1": {**_SHEDS, "crown_covered_roofs": True, "pierced_growth_max_fraction": 0.1},
+    "sheds + crowns + low 3 + pierced 0.1": {**_SHEDS, "crown_covered_roofs": True, "low_growth_max_height_m": 3.0,
+                                             "pierced_growth_max_fraction": 0.1},
 }
 
 # What each rule was designed on (issue 44's discipline: the nested choice is made per held-out quarter,
@@ -104,7 +120,51 @@ RULE_NOTES = {
         "pulses through to the ground); the share test is the roof cells' score test mirrored (95 %), the glass-roof "
         "exemption re-uses the roof cells' planarity and penetration tests (roof_rms_m); shares 0.1-0.5 and the "
         "combinations with low growth tried on all quarters in a scratch run before this one (in-sample)",
+    "crown_covered_roofs": "designed looking at the shipped defaults' missed vector centroids on the whole crop (fourth "
+        "round: two BGT sheds, 8 and 21 m2, in the north-east quarter / south-east and south-west footprint parts, flat "
+        "at 2.2 m under garden crowns, every pulse ending on them); re-uses building_min_height_m and the small-building "
+        "thresholds (6 m2, 0.2, 0.1 m); no value tried other than those",
 }
+
+
+@dataclasses.dataclass(frozen=True)
+class Parts:
+    """Four spatial parts (order of ``PARTS``): west / east of ``x_split_m``, each half split south / north at its
+    own y (the geometric quarters: one y for both halves)."""
+
+    name: str
+    x_split_m: float
+    y_split_west_m: float
+    y_split_east_m: float
+
+    def index(self, x, y) -> np.ndarray:
+        x, y = np.asarray(x), np.asarray(y)
+        east = x >= self.x_split_m
+        return east.astype(int) + 2 * (y >= np.where(east, self.y_split_east_m, self.y_split_west_m)).astype(int)
+
+
+def quarters(x_split: float, y_split: float) -> Parts:
+    """The geometric quarters of bench/eval_ahn3_holdout.py (median x / y of the points)."""
+    return Parts("quarters", x_split, y_split, y_split)
+
+
+def footprint_parts(polys: list, covered: np.ndarray) -> Parts:
+    """Parts holding about equal numbers of footprints, from the footprints' positions alone (decided before any
+    scoring): the median x of the centroids of the footprints the crop covers, then each half at its median y."""
+    cent = np.array([[p.centroid.x, p.centroid.y] for p in polys])[covered]
+    xm = float(np.median(cent[:, 0]))
+    east = cent[:, 0] >= xm
+    return Parts("footprint parts", xm, float(np.median(cent[~east, 1])), float(np.median(cent[east, 1])))
+
+
+def covered_footprints(cloud_path: Path, polys: list) -> np.ndarray:
+    """Footprints whose centroid has points of the crop within 2 m (the crop covers them)."""
+    from scipy.spatial import cKDTree
+
+    c = io.read_cloud(cloud_path, crs=CRS)
+    tree = cKDTree(np.column_stack([c.x[::4], c.y[::4]]))
+    cent = np.array([[p.centroid.x, p.centroid.y] for p in polys])
+    return np.array([len(h) > 0 for h in tree.query_ball_point(cent, 2.0)])
 
 
 def read_bgt(sqlite_path: Path) -> list:
@@ -134,7 +194,9 @@ def score_area(bld: np.ndarray, ref: np.ndarray, scored: np.ndarray) -> dict:
             "false_m2": fp * a}
 
 
-def evaluate_quarters(classified_by_part: dict, polys: list, x_split: float, y_split: float) -> dict:
+def evaluate_quarters(classified_by_part: dict, polys: list, parts: Parts) -> dict:
+    """Area and objects per part of ``parts`` (a footprint's part: the one holding its centroid); a part's
+    classification from ``classified_by_part`` (else the first)."""
     first = next(iter(classified_by_part.values()))
     grid, _ = cg.cloud_grid(first, CELL_M, CRS)
     ref_polys = cg.ClassPolygons(polys, np.full(len(polys), BUILDING, np.uint8), None, Path("bgt"))
@@ -144,9 +206,9 @@ def evaluate_quarters(classified_by_part: dict, polys: list, x_split: float, y_s
     hulls = cg.block_hulls(ref_polys)
     in_blocks = cg.rasterize_mask(hulls, grid)
     xc, yc = grid.centres()
-    part_cell = (xc[None, :] >= x_split).astype(int) + 2 * (yc[:, None] >= y_split).astype(int)
+    part_cell = parts.index(xc[None, :], yc[:, None])
     cent = np.array([[p.centroid.x, p.centroid.y] for p in polys])
-    part_poly = (cent[:, 0] >= x_split).astype(int) + 2 * (cent[:, 1] >= y_split).astype(int)
+    part_poly = parts.index(cent[:, 0], cent[:, 1])
     out = {}
     rasters = {}
     for k, name in enumerate(PARTS):
@@ -169,7 +231,7 @@ def evaluate_quarters(classified_by_part: dict, polys: list, x_split: float, y_s
 
 
 def _quarter_of(x, y, x_split: float, y_split: float) -> np.ndarray:
-    return (np.asarray(x) >= x_split).astype(int) + 2 * (np.asarray(y) >= y_split).astype(int)
+    return quarters(x_split, y_split).index(x, y)
 
 
 def errors_by_type(classified: Path, laz: Path, polys: list, x_split: float, y_split: float) -> dict:
@@ -220,8 +282,11 @@ def errors_by_type(classified: Path, laz: Path, polys: list, x_split: float, y_s
     return out
 
 
-def vector_centroids(classified: Path, polys: list, out_gpkg: Path, split: tuple | None = None) -> dict:
-    mv = map_vectors.extract_vectors([classified], out_gpkg, crs=CRS)
+def vector_centroids(classified: Path, polys: list, out_gpkg: Path, parts: tuple = (), roof_dropouts: bool = True) -> dict:
+    """Footprints whose centroid lies in the buildings layer, over the crop and per part of each of ``parts``
+    (keys "per_quarter" for the quarters, "per_footprint_part" for the footprint parts)."""
+    settings = dataclasses.replace(map_vectors.MapVectorSettings(), roof_dropouts=roof_dropouts)
+    mv = map_vectors.extract_vectors([classified], out_gpkg, params=settings, crs=CRS)
     layer = next(lay for lay in mv.layers if lay.name == "buildings")
     union = shapely.union_all(layer.geometries) if layer.geometries else shapely.Polygon()
     c = io.read_cloud(classified, crs=CRS)
@@ -235,42 +300,129 @@ def vector_centroids(classified: Path, polys: list, out_gpkg: Path, split: tuple
            "centroid_in_building_layer_pct": 100.0 * float((inside & covered).sum()) / max(int(covered.sum()), 1),
            "building_polygons": len(layer.geometries),
            "missed_footprint_areas_m2": sorted(float(polys[i].area) for i in np.flatnonzero(covered & ~inside))}
-    if split is not None:
-        q = _quarter_of(cent[:, 0], cent[:, 1], *split)
-        out["per_quarter"] = {name: {"footprints": int((covered & (q == k)).sum()),
+    for pp in parts:
+        q = pp.index(cent[:, 0], cent[:, 1])
+        out[_PER[pp.name]] = {name: {"footprints": int((covered & (q == k)).sum()),
                                      "centroid_in_building_layer": int((inside & covered & (q == k)).sum())}
                               for k, name in enumerate(PARTS)}
     return out
 
 
-def _worst(quarters: dict, names) -> float:
-    """The lowest of completeness and correctness over the quarters ``names`` that hold footprints."""
-    vals = [min(quarters[n]["area"]["completeness_pct"], quarters[n]["area"]["correctness_pct"])
-            for n in names if quarters[n]["area"]["footprint_area_m2"] > 0]
+_PER = {"quarters": "per_quarter", "footprint parts": "per_footprint_part"}
+
+
+def _worst(part_scores: dict, names) -> float:
+    """The lowest of completeness and correctness over the parts ``names`` that hold footprints."""
+    vals = [min(part_scores[n]["area"]["completeness_pct"], part_scores[n]["area"]["correctness_pct"])
+            for n in names if part_scores[n]["area"]["footprint_area_m2"] > 0]
     return min(vals) if vals else float("nan")
 
 
 def _score_rule_set(job) -> tuple[str, dict]:
-    """One RULE_SETS classification of the crop scored per quarter and for the vectors (a pool task)."""
-    k, name, laz, polys, split, tmp = job
+    """One RULE_SETS classification of the crop scored per part of each partition and for the vectors (with and
+    without the roof dropouts of the vectors); a pool task."""
+    k, name, laz, polys, partitions, tmp = job
     overrides = RULE_SETS[name]
     path = tmp / f"rules_{k}.laz"
     t0 = time.process_time()
     tiles.classify_file(laz, path, crs=CRS, params=dataclasses.replace(ClassifySettings(), **overrides))
     cpu = time.process_time() - t0
-    out = {"overrides": overrides, "classify_cpu_s": cpu, "quarters": evaluate_quarters({"x": path}, polys, *split),
-           "vectors": vector_centroids(path, polys, tmp / f"rules_{k}.gpkg", split)}
+    out = {"overrides": overrides, "classify_cpu_s": cpu}
+    for pp in partitions:
+        out[_KEY[pp.name]] = evaluate_quarters({"x": path}, polys, pp)
+    out["vectors"] = vector_centroids(path, polys, tmp / f"rules_{k}.gpkg", partitions)
+    out["vectors_roof_dropouts_off"] = vector_centroids(path, polys, tmp / f"rules_{k}.gpkg", partitions, roof_dropouts=False)
     path.unlink()
-    print(f"{name}: worst quarter min(completeness, correctness) {_worst(out['quarters'], PARTS):.2f} %; "
-          f"vectors {out['vectors']['centroid_in_building_layer']}/{out['vectors']['footprints_covered_by_the_crop']}",
-          flush=True)
+    print(f"{name}: worst quarter min(completeness, correctness) {_worst(out['quarters'], PARTS):.2f} %, footprint parts "
+          f"{_worst(out['footprint_parts'], PARTS):.2f} %; vectors {out['vectors']['centroid_in_building_layer']}"
+          f"/{out['vectors']['footprints_covered_by_the_crop']}", flush=True)
     return name, out
 
 
-def rules_nested(laz: Path, polys: list, split: tuple, tmp: Path, jobs: int = 1) -> dict:
-    """Each RULE_SETS classification scored per quarter; per held-out quarter the set chosen on the others.
-    ``jobs``: rule sets scored at once (processes; about 1 GB each)."""
-    work = [(k, name, laz, polys, split, tmp) for k, name in enumerate(RULE_SETS)]
+_KEY = {"quarters": "quarters", "footprint parts": "footprint_parts"}
+
+# How the training parts choose (issue 44): "area" fixed before the first round; "area and objects" fixed in the
+# fourth round before the footprint parts were scored (the held-out part of the quarters had been seen).
+CRITERIA = {
+    "area": "the lowest of area completeness and correctness over the training parts (those with footprints)",
+    "area and objects": "the lowest of area completeness, area correctness and the share of footprints found over "
+                        "the training parts",
+}
+
+
+def _worst_of(part_scores: dict, names, criterion: str) -> float:
+    if criterion == "area":
+        return _worst(part_scores, names)
+    vals = [min(part_scores[n]["area"]["completeness_pct"], part_scores[n]["area"]["correctness_pct"],
+                part_scores[n]["footprints_found_pct"]) for n in names if part_scores[n]["area"]["footprint_area_m2"] > 0]
+    return min(vals) if vals else float("nan")
+
+
+def _vector_share(v: dict, per: str, names) -> float:
+    """The lowest share of footprint centroids in the buildings layer over the parts ``names``."""
+    vals = [100.0 * v[per][n]["centroid_in_building_layer"] / v[per][n]["footprints"] for n in names if v[per][n]["footprints"]]
+    return min(vals) if vals else float("nan")
+
+
+def nested_choice(per_set: dict, key: str, criterion: str) -> dict:
+    """Per held-out part of partition ``key`` ("quarters", "footprint_parts"): the rule set the criterion picks on
+    the other parts (ties to the earlier set), then the vectors with or without roof dropouts by the lowest
+    training share of centroids in the buildings layer (ties to without: the older map); the held-out part
+    scored once (area, objects, vector centroids)."""
+    per = "per_quarter" if key == "quarters" else "per_footprint_part"
+    first = next(iter(per_set.values()))
+    scored = [n for n in PARTS if first[key][n]["area"]["footprint_area_m2"] > 0]
+    held = {}
+    for name in scored:
+        train = [n for n in scored if n != name]
+        crit = {s: _worst_of(v[key], train, criterion) for s, v in per_set.items()}
+        chosen = max(crit, key=lambda s: (crit[s], -list(RULE_SETS).index(s)))
+        on, off = (_vector_share(per_set[chosen][v], per, train) for v in ("vectors", "vectors_roof_dropouts_off"))
+        vkey = "vectors" if on > off else "vectors_roof_dropouts_off"
+        # added after the first run (the lowest share ties whenever the worst training part holds no roof that
+        # returned no pulse): the centroids on the map summed over the training parts
+        on_n, off_n = (sum(per_set[chosen][v][per][n]["centroid_in_building_layer"] for n in train)
+                       for v in ("vectors", "vectors_roof_dropouts_off"))
+        vkey_total = "vectors" if on_n > off_n else "vectors_roof_dropouts_off"
+        q = per_set[chosen][key][name]
+        vq = per_set[chosen][vkey][per][name]
+        vt = per_set[chosen][vkey_total][per][name]
+        held[name] = {"chosen": chosen, "chosen_on": train, "training_worst_pct": crit,
+                      "vectors_roof_dropouts": vkey == "vectors", "training_vector_share_pct": {"on": on, "off": off},
+                      "area": q["area"], "footprints": q["footprints"], "footprints_found": q["footprints_found"],
+                      "footprints_found_pct": q["footprints_found_pct"], "missed_footprints_m2": q["missed_footprints_m2"],
+                      "vector_centroids": vq["centroid_in_building_layer"], "vector_footprints": vq["footprints"],
+                      "vector_centroids_pct": 100.0 * vq["centroid_in_building_layer"] / max(vq["footprints"], 1),
+                      "vectors_roof_dropouts_by_total": vkey_total == "vectors",
+                      "training_vector_centroids": {"on": on_n, "off": off_n},
+                      "vector_centroids_by_total": vt["centroid_in_building_layer"]}
+    crit_all = {s: _worst_of(v[key], scored, criterion) for s, v in per_set.items()}
+    pick = max(crit_all, key=lambda s: (crit_all[s], -list(RULE_SETS).index(s)))
+    out = {"criterion": CRITERIA[criterion] + "; ties to the earlier rule set", "held_out": held,
+           "chosen_on_all_parts": {"set": pick, "on": scored, "worst_pct": crit_all[pick], "by_set_pct": crit_all}}
+    out["vector_choice"] = ("roof dropouts on when the lowest training share of centroids on the map is higher with "
+                            "them (fixed before the run; 'vector_centroids'); added after it: when the centroids on "
+                            "the map summed over the training parts are more ('vector_centroids_by_total')")
+    out["worst_held_out"] = {
+        "completeness_pct": min(v["area"]["completeness_pct"] for v in held.values()),
+        "correctness_pct": min(v["area"]["correctness_pct"] for v in held.values()),
+        "footprints_found_pct": min(v["footprints_found_pct"] for v in held.values()),
+        "vector_centroids_pct": min(v["vector_centroids_pct"] for v in held.values())}
+    out["held_out_totals"] = {
+        "footprints_found": sum(v["footprints_found"] for v in held.values()),
+        "footprints": sum(v["footprints"] for v in held.values()),
+        "vector_centroids": sum(v["vector_centroids"] for v in held.values()),
+        "vector_centroids_by_total": sum(v["vector_centroids_by_total"] for v in held.values()),
+        "vector_footprints": sum(v["vector_footprints"] for v in held.values())}
+    return out
+
+
+def rules_nested(laz: Path, polys: list, partitions: tuple, tmp: Path, jobs: int = 1) -> tuple[dict, dict]:
+    """Each RULE_SETS classification scored per part; per held-out part the set chosen on the others, for the
+    quarters (criterion "area": as before; "area and objects") and the footprint parts (both criteria).
+    ``jobs``: rule sets scored at once (processes; about 1 GB each). Returns (quarters' section, footprint
+    parts' section)."""
+    work = [(k, name, laz, polys, partitions, tmp) for k, name in enumerate(RULE_SETS)]
     if jobs > 1:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
@@ -281,39 +433,53 @@ def rules_nested(laz: Path, polys: list, split: tuple, tmp: Path, jobs: int = 1)
     else:
         done = dict(map(_score_rule_set, work))
     per_set = {name: done[name] for name in RULE_SETS}
-    scored = [n for n in PARTS if per_set["main (rules off)"]["quarters"][n]["area"]["footprint_area_m2"] > 0]
-    held = {}
-    for name in scored:
-        train = [n for n in scored if n != name]
-        crit = {s: _worst(v["quarters"], train) for s, v in per_set.items()}
-        chosen = max(crit, key=lambda s: (crit[s], -list(RULE_SETS).index(s)))
-        q = per_set[chosen]["quarters"][name]
-        vq = per_set[chosen]["vectors"]["per_quarter"][name]
-        held[name] = {"chosen": chosen, "chosen_on": train, "training_worst_pct": crit,
-                      "area": q["area"], "footprints": q["footprints"], "footprints_found": q["footprints_found"],
-                      "footprints_found_pct": q["footprints_found_pct"],
-                      "vector_centroids": vq["centroid_in_building_layer"], "vector_footprints": vq["footprints"],
-                      "vector_centroids_pct": 100.0 * vq["centroid_in_building_layer"] / max(vq["footprints"], 1)}
     for v in per_set.values():
-        for q in v["quarters"].values():
-            q.pop("classified_with", None)
-    # The shipped defaults: the set the same criterion picks on all quarters (what a user gets).
-    crit_all = {s: _worst(v["quarters"], scored) for s, v in per_set.items()}
-    pick = max(crit_all, key=lambda s: (crit_all[s], -list(RULE_SETS).index(s)))
+        for key in _KEY.values():
+            for q in v[key].values():
+                q.pop("classified_with", None)
+    return nested_sections(per_set)
+
+
+def nested_sections(per_set: dict) -> tuple[dict, dict]:
+    """The nested choices from the rule sets' scores: (quarters' section, footprint parts' section)."""
     shipped = next((n for n, o in RULE_SETS.items() if all(getattr(ClassifySettings(), k) == v for k, v in o.items())), None)
-    return {"criterion": "the lowest of area completeness and correctness over the training quarters (those "
-                         "with footprints); ties to the earlier rule set", "rule_notes": RULE_NOTES,
-            "rule_sets": per_set, "held_out": held,
-            "chosen_on_all_quarters": {"set": pick, "on": scored, "worst_pct": crit_all[pick], "by_set_pct": crit_all},
-            "shipped_defaults_set": shipped}
+    q = nested_choice(per_set, "quarters", "area")
+    # the quarters' section keeps its earlier keys ("held_out", "chosen_on_all_quarters", "rule_sets")
+    quarters_section = {"criterion": q["criterion"], "rule_notes": RULE_NOTES, "rule_sets": per_set,
+                        "held_out": q["held_out"], "worst_held_out": q["worst_held_out"],
+                        "held_out_totals": q["held_out_totals"],
+                        "chosen_on_all_quarters": q["chosen_on_all_parts"], "shipped_defaults_set": shipped,
+                        "criterion_area_and_objects": nested_choice(per_set, "quarters", "area and objects")}
+    parts_section = {c: nested_choice(per_set, "footprint_parts", c) for c in CRITERIA}
+    parts_section["shipped_defaults_set"] = shipped
+    return quarters_section, parts_section
+
+
+def _print_nested(title: str, section: dict) -> None:
+    for name, v in section["held_out"].items():
+        a = v["area"]
+        print(f"{title}: held out {name} (rules '{v['chosen']}', roof dropouts {'on' if v['vectors_roof_dropouts'] else 'off'}; "
+              f"chosen on {', '.join(v['chosen_on'])}): completeness {a['completeness_pct']:.1f} %, correctness "
+              f"{a['correctness_pct']:.1f} %; footprints found {v['footprints_found']}/{v['footprints']}; vector centroids "
+              f"{v['vector_centroids']}/{v['vector_footprints']}")
 
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if "--rescore" in argv:   # the nested choices again from the rule sets' scores of the JSON (no classification)
+        result = json.loads((REPO / "bench" / "results" / "buildings_bgt.json").read_text())
+        result["rules_nested"], result["rules_nested_footprint_parts"] = nested_sections(result["rules_nested"]["rule_sets"])
+        result["rescored_by"] = "bench/eval_buildings_bgt.py " + " ".join(argv)
+        return _finish(result)
     laz = SHARED / "ahn3_delft" / "ahn3_cropped_1.laz"
     polys = read_bgt(SHARED / "ahn3_delft" / "bgt_pand.sqlite")
     c = io.read_cloud(laz, crs=CRS)
     x_split, y_split = float(np.median(c.x)), float(np.median(c.y))
+    geo = quarters(x_split, y_split)
+    # the footprint parts: from the footprints' positions alone, before anything is classified or scored
+    covered = covered_footprints(laz, polys)
+    fparts = footprint_parts(polys, covered)
+    partitions = (geo, fparts)
     per_part = json.loads(Path(argv[argv.index("--params") + 1]).read_text()) if "--params" in argv else {}
     if "--nested" in argv:   # the configurations chosen without each quarter (bench/eval_classify_nested.py --ahn3)
         folds = json.loads((REPO / "bench" / "results" / "classify_nested.json").read_text())["ahn3"]["nested"]["folds"]
@@ -331,60 +497,92 @@ def main(argv=None) -> int:
                 tiles.classify_file(laz, done[key], crs=CRS,
                                     params=dataclasses.replace(ClassifySettings(), **overrides))
             classified[name] = done[key]
+        cent = np.array([[p.centroid.x, p.centroid.y] for p in polys])[covered]
         result = {
+            "command": "bench/eval_buildings_bgt.py " + " ".join(argv),
             "data": "ahn3_cropped_1.laz (AHN3 Delft crop) vs the 160 BGT footprints (bgt_pand.sqlite)",
             "cell_m": CELL_M, "tolerance_band_m": BAND_M,
             "scored_area": "convex hulls of the BGT footprint blocks, cells within 0.5 m of an outline ignored",
             "quarters_split_at_m": [x_split, y_split],
-            "defaults": evaluate_quarters({"default": default}, polys, x_split, y_split),
-            "vectors_defaults": vector_centroids(default, polys, tmp / "vectors.gpkg", (x_split, y_split)),
+            "footprint_parts": {
+                "how": "the median x of the centroids of the footprints the crop covers (points within 2 m), then each "
+                       "half at its own median y; decided from the footprint positions alone before any scoring; "
+                       "part names as the quarters' (south-west: the west half's southern part)",
+                "x_split_m": fparts.x_split_m, "y_split_west_m": fparts.y_split_west_m,
+                "y_split_east_m": fparts.y_split_east_m,
+                "covered_footprints_per_part": {n: int((fparts.index(cent[:, 0], cent[:, 1]) == k).sum())
+                                                for k, n in enumerate(PARTS)},
+                "covered_footprints_per_quarter": {n: int((geo.index(cent[:, 0], cent[:, 1]) == k).sum())
+                                                   for k, n in enumerate(PARTS)}},
+            "defaults": evaluate_quarters({"default": default}, polys, geo),
+            "defaults_footprint_parts": evaluate_quarters({"default": default}, polys, fparts),
+            "vectors_defaults": vector_centroids(default, polys, tmp / "vectors.gpkg", partitions),
+            "vectors_defaults_roof_dropouts_off": vector_centroids(default, polys, tmp / "vectors.gpkg", partitions,
+                                                                   roof_dropouts=False),
             "errors": errors_by_type(default, laz, polys, x_split, y_split),
         }
+        for v in (*result["defaults"].values(), *result["defaults_footprint_parts"].values()):
+            v.pop("classified_with", None)
         if "--rules" in argv:
             jobs = int(argv[argv.index("--jobs") + 1]) if "--jobs" in argv else 1
-            result["rules_nested"] = rules_nested(laz, polys, (x_split, y_split), tmp, jobs)
+            result["rules_nested"], result["rules_nested_footprint_parts"] = rules_nested(laz, polys, partitions, tmp, jobs)
         if classified:
             result["held_out_params"] = per_part
-            result["held_out"] = evaluate_quarters(classified, polys, x_split, y_split)
+            result["held_out"] = evaluate_quarters(classified, polys, geo)
     result["targets"] = {"completeness_pct": 95.0, "correctness_pct": 95.0, "vector_centroids_pct": 95.0}
     key = "held_out" if "held_out" in result else "defaults"
     q = result[key]
     result["worst_quarter"] = {m: min(v["area"][m] for v in q.values() if v["area"]["footprint_area_m2"] > 0)
                                for m in ("completeness_pct", "correctness_pct")}
+    result["worst_footprint_part_defaults"] = {
+        m: min(v["area"][m] for v in result["defaults_footprint_parts"].values() if v["area"]["footprint_area_m2"] > 0)
+        for m in ("completeness_pct", "correctness_pct")}
     result["targets_met"] = {"area": bool(min(result["worst_quarter"].values()) >= 95.0),
+                             "area_footprint_parts_defaults": bool(min(result["worst_footprint_part_defaults"].values()) >= 95.0),
                              "vectors": bool(result["vectors_defaults"]["centroid_in_building_layer_pct"] >= 95.0)}
     result["seconds"] = time.perf_counter() - t0
-    for name, v in q.items():
-        a = v["area"]
-        print(f"{name}: completeness {a['completeness_pct']:.1f} %, correctness {a['correctness_pct']:.1f} % "
-              f"({a['footprint_area_m2']:.0f} m2 of footprint); footprints found {v['footprints_found']}/{v['footprints']}")
+    for title, sec in (("quarters", q), ("footprint parts", result["defaults_footprint_parts"])):
+        for name, v in sec.items():
+            a = v["area"]
+            print(f"{title} {name}: completeness {a['completeness_pct']:.1f} %, correctness {a['correctness_pct']:.1f} % "
+                  f"({a['footprint_area_m2']:.0f} m2 of footprint); footprints found {v['footprints_found']}/{v['footprints']}")
     vd = result["vectors_defaults"]
     print(f"vectors: centroid in the building layer {vd['centroid_in_building_layer']}/"
-          f"{vd['footprints_covered_by_the_crop']} ({vd['centroid_in_building_layer_pct']:.1f} %)")
+          f"{vd['footprints_covered_by_the_crop']} ({vd['centroid_in_building_layer_pct']:.1f} %); per footprint part "
+          + ", ".join(f"{n} {v['centroid_in_building_layer']}/{v['footprints']}" for n, v in vd["per_footprint_part"].items()))
+    return _finish(result)
+
+
+def _finish(result: dict) -> int:
+    """The nested sections' targets and summary; the JSON written."""
     if "rules_nested" in result:
-        held = result["rules_nested"]["held_out"]
-        result["rules_nested"]["worst_held_out"] = {
-            "completeness_pct": min(v["area"]["completeness_pct"] for v in held.values()),
-            "correctness_pct": min(v["area"]["correctness_pct"] for v in held.values()),
-            "footprints_found_pct": min(v["footprints_found_pct"] for v in held.values()),
-            "vector_centroids_pct": min(v["vector_centroids_pct"] for v in held.values())}
-        wh = result["rules_nested"]["worst_held_out"]
+        rn, rp = result["rules_nested"], result["rules_nested_footprint_parts"]
+        wh = rn["worst_held_out"]
         result["targets_met"]["area_rules_nested"] = bool(min(wh["completeness_pct"], wh["correctness_pct"]) >= 95.0)
         result["targets_met"]["vectors_rules_nested"] = bool(wh["vector_centroids_pct"] >= 95.0)
-        rn = result["rules_nested"]
+        for c in CRITERIA:
+            w = rp[c]["worst_held_out"]
+            result["targets_met"][f"footprint_parts_{c.replace(' ', '_')}"] = {
+                "area": bool(min(w["completeness_pct"], w["correctness_pct"]) >= 95.0),
+                "objects": bool(w["footprints_found_pct"] >= 95.0), "vectors": bool(w["vector_centroids_pct"] >= 95.0)}
         result["targets_met"]["shipped_defaults_are_the_nested_choice_on_all_quarters"] = \
             rn["shipped_defaults_set"] == rn["chosen_on_all_quarters"]["set"]
         print(f"chosen on all quarters: {rn['chosen_on_all_quarters']['set']} "
               f"({rn['chosen_on_all_quarters']['worst_pct']:.2f} %); shipped defaults: {rn['shipped_defaults_set']}")
-        for name, v in held.items():
-            a = v["area"]
-            print(f"held out {name} (rules '{v['chosen']}' chosen on {', '.join(v['chosen_on'])}): completeness "
-                  f"{a['completeness_pct']:.1f} %, correctness {a['correctness_pct']:.1f} %; footprints found "
-                  f"{v['footprints_found']}/{v['footprints']}; vector centroids {v['vector_centroids']}/{v['vector_footprints']}")
-    out = REPO / "bench" / "results" / "buildings_bgt.json"
-    out.write_text(json.dumps(result, indent=2))
-    print(f"wrote {out}")
+        _print_nested("quarters, area", rn)
+        _print_nested("quarters, area and objects", rn["criterion_area_and_objects"])
+        for c in CRITERIA:
+            _print_nested(f"footprint parts, {c}", rp[c])
+    write_result(REPO / "bench" / "results" / "buildings_bgt.json", result)
     return 0
+
+
+def write_result(path: Path, result: dict) -> None:
+    """``result`` as JSON at ``path``, written atomically."""
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(path)
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,11 @@ Pipeline (``classify_points``):
    below ``small_plane_rms_m``). A small roof next to a hedge or under a crown edge joins their
    segment, which then fails these tests as a whole: ``planar_cores`` fits a plane to each
    4+-cell group of roof cells of a rejected segment, grows it over the segment's cells on that
-   plane and judges the grown piece alone by the small-building tests. Wall points: single returns in the
+   plane and judges the grown piece alone by the small-building tests. A shed under a crown has the crown
+   on the DSM: ``crown_covered_roofs`` finds its roof on the surface of the last returns (the lowest
+   non-ground last return per cell, where no pulse reaches the ground), by the same planar cores and
+   small-building tests, with the share of its returns whose pulse went on below it as the
+   multi-return share (``covered_roofs``). Wall points: single returns in the
    ring of cells around a building. Roof-edge completion (``roof_edge_completion``): region
    growing of building points over eaves and low roof parts by local-plane continuity (kNN
    least-squares plane of the neighbouring building points, ``edge_tolerance_m``). Rooftop objects
@@ -248,6 +252,11 @@ class ClassifySettings:
     pierced_growth_max_fraction: float = setting(0.0, min=0.0, max=1.0, help="Building cells (not roof cells) whose "
                                                  "3x3 window shows (95 % confidence) more than this share of its "
                                                  "pulses reaching the ground leave the building (0: no test).")
+    # Roofs under crowns: on AHN3 Delft two BGT sheds (8 and 21 m2) stood under garden crowns, flat at 2.2 m,
+    # every pulse ending on them (single returns and last returns of pulses split by the crown above). The
+    # rule re-uses the small-building thresholds and building_min_height_m; it adds no fitted parameter.
+    crown_covered_roofs: bool = setting(True, help="Small roofs under a crown are found on the surface of the last "
+                                        "returns (cells no pulse passes to the ground), by the planar-core tests.")
     small_building_planar_cores: bool = setting(True, help="Small roofs inside a segment rejected as a whole (a shed "
                                                 "beside a hedge) are judged alone: each group of roof cells grows "
                                                 "over the cells on its plane.")
@@ -384,6 +393,55 @@ def planar_cores(surface: np.ndarray, seeds: np.ndarray, allowed: np.ndarray, mu
             continue
         out[r0:r1, c0:c1] |= piece
     return out
+
+
+def covered_roofs(z, flat, candidate, last, reaches_ground, dem, cell_m: float, shape, p: "ClassifySettings") -> np.ndarray:
+    """Returns (bool per point) of small roofs under crowns. ``flat``: each point's cell on the grid ``shape``
+    (``cell_m``, the ``dem`` grid); ``candidate``: the non-ground, non-building returns; ``last``: last (or
+    single) returns; ``reaches_ground``: returns at the ground's level.
+
+    A roof stops every pulse: where a crown stands above it, the pulses it split end on the roof. The surface
+    of the last returns (the lowest candidate last return per cell) over the cells standing above
+    ``building_min_height_m`` holds the roof; its 3x3 planar cells (plane RMS below ``small_plane_rms_m``)
+    where no return reaches the ground seed ``planar_cores`` on it (the edge cells, straddling the walls,
+    may join), with the share of a cell's returns on that
+    surface whose pulse went on below it (not a last return) in place of the multi-return share (a hedge's
+    top lets pulses on, a roof none). A core's returns on its surface (within ``small_plane_rms_m`` plus the
+    rise of the core's plane across half a cell diagonal) are the roof's; the crown above stays vegetation."""
+    n_cells = shape[0] * shape[1]
+    sel = candidate & last
+    lsm = np.full(n_cells, np.inf)
+    np.minimum.at(lsm, flat[sel], z[sel])
+    lsm = lsm.reshape(shape)
+    has = np.isfinite(lsm)
+    surface = np.where(has, lsm, dem)
+    grounded = np.bincount(flat[reaches_ground], minlength=n_cells).reshape(shape) > 0
+    # the roof's edge cells straddle its walls (ground returns beside them): they may join a core, not seed it
+    allowed = has & (surface - dem > p.building_min_height_m)
+    if not (allowed & ~grounded).any():
+        return np.zeros(len(z), bool)
+    # the share of the returns at the surface (within small_plane_rms_m of the cell's lowest: a ratio, so a
+    # pitched roof's returns further up the cell only thin the sample) whose pulse went on below it
+    near = candidate & (np.abs(z - surface.ravel()[flat]) <= p.small_plane_rms_m)
+    tot = np.bincount(flat[near], minlength=n_cells).reshape(shape)
+    went_on = np.bincount(flat[near & ~last], minlength=n_cells).reshape(shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        went_on_frac = np.where(tot > 0, went_on / np.maximum(tot, 1), 0.0)
+    seeds = allowed & ~grounded & (plane_rms(surface, cell_m) < p.small_plane_rms_m)
+    cores = planar_cores(surface, seeds, allowed, went_on_frac, cell_m, min_area_m2=p.small_building_min_area_m2,
+                         max_multi_fraction=p.small_building_max_multi_fraction, plane_rms_m=p.small_plane_rms_m,
+                         reach_m=p.edge_zone_m)
+    lab, nlab = ndimage.label(cores, np.ones((3, 3), int))
+    if nlab == 0:
+        return np.zeros(len(z), bool)
+    # a core's returns: within small_plane_rms_m plus its plane's rise across half a cell diagonal of the cell's
+    # lowest (the crown above, and the foliage's single returns, lie higher)
+    rows, cols = np.nonzero(lab)
+    a, b = _segment_planes(surface, rows, cols, lab[rows, cols], nlab, cell_m)[:2]
+    rise = np.zeros(shape)
+    rise[rows, cols] = 0.5 * np.sqrt(2.0) * cell_m * np.hypot(a, b)[lab[rows, cols]]
+    tol = p.small_plane_rms_m + rise.ravel()[flat]
+    return candidate & (lab.ravel()[flat] > 0) & (np.abs(z - surface.ravel()[flat]) <= tol)
 
 
 def _segment_planes(surface, rows, cols, lab, nlab: int, cell_m: float):
@@ -1497,6 +1555,11 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         is_building &= ~rooftop_objects(x, y, z, is_building, spacing, range_noise_m(x, y, z, is_ground),
                                         max_area_m2=p.rooftop_object_max_area_m2, max_pitch_deg=p.roof_max_pitch_deg,
                                         steps_to_roofs_only=p.rooftop_steps_to_roofs_only)
+    if p.crown_covered_roofs and has_multi:
+        # a shed under a crown: the crown is on the DSM, the roof on the surface where the pulses end
+        level = is_ground | lifted | (hag <= p.wall_min_height_m)
+        is_building |= covered_roofs(z, flat, obj & ~is_building & ~level, last, clean & level, dem, c,
+                                     (nrows, ncols), p)
     cls[is_building] = BUILDING
 
     # vegetation

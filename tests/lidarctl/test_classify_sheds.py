@@ -10,7 +10,8 @@ import dataclasses
 import numpy as np
 from lidarctl.classify import pipeline as classify
 
-OFF = {"small_building_planar_cores": False, "rooftop_steps_to_roofs_only": False, "roof_reach_cells": 0}
+OFF = {"small_building_planar_cores": False, "rooftop_steps_to_roofs_only": False, "roof_reach_cells": 0,
+       "crown_covered_roofs": False}
 
 
 def _garden(rng, density_per_m2: float):
@@ -215,3 +216,60 @@ def test_more_than_fraction_is_the_mirror_of_fewer_multi_returns():
     assert not classify.more_than_fraction(np.array([0]), np.array([0]), 0.1)[0]
     below = classify.fewer_multi_returns(k, n, 0.1)
     assert not (above & below).any()
+
+
+def _crowned_garden(seed: int, density_per_m2: float = 10.0):
+    """A 40 x 30 m garden, level ground at 100 m: a flat 4 x 4 m shed roof 2.4 m high under a crown (radius 3 m,
+    4-7 m up, covering the whole roof: 75 % of the pulses through it split, first return in the crown, last on
+    what lies below; 25 % end in the foliage); the same crown over open ground; a hedge 1.2 x 8 m, 2.5-3.5 m
+    high, passing 30 % of its pulses to the ground. Returns x, y, z, return number, number of returns, truth
+    (2 ground, 5 crown, 4 hedge, 6 roof)."""
+    rng = np.random.default_rng(seed)
+    n, u, v, ground = _garden(rng, density_per_m2)
+    z, truth = ground.copy(), np.full(n, 2, np.uint8)
+    roof = (u > 10.0) & (u < 14.0) & (v > 10.0) & (v < 14.0)
+    z[roof] = 102.4 + rng.normal(0, 0.02, roof.sum())
+    truth[roof] = 6
+    crown = (np.hypot(u - 12.0, v - 12.0) < 3.0) | (np.hypot(u - 30.0, v - 15.0) < 3.0)
+    foliage_z = 104.0 + rng.uniform(0.0, 3.0, n)
+    stopped = crown & (rng.random(n) < 0.25)                    # single returns in the foliage
+    split = crown & ~stopped                                    # first in the foliage, last below
+    hedge = (u > 20.0) & (u < 21.2) & (v > 4.0) & (v < 12.0)
+    hedge_z = 102.5 + rng.uniform(0.0, 1.0, n)
+    through = hedge & (rng.random(n) < 0.3)
+    z[stopped] = foliage_z[stopped]
+    truth[stopped] = 5
+    z[hedge & ~through] = hedge_z[hedge & ~through]
+    truth[hedge & ~through] = 4
+    first = split | through                                     # the pulses' first returns, added
+    k = int(first.sum())
+    x = np.r_[u, u[first]] + 85000.0
+    y = np.r_[v, v[first]] + 447000.0
+    zz = np.r_[z, np.where(split, foliage_z, hedge_z)[first]]
+    rn = np.r_[np.where(first, 2, 1).astype(np.uint8), np.ones(k, np.uint8)]
+    nr = np.r_[np.where(first, 2, 1).astype(np.uint8), np.full(k, 2, np.uint8)]
+    tr = np.r_[truth, np.where(split, 5, 4)[first].astype(np.uint8)]
+    return x, y, zz, rn, nr, tr
+
+
+def test_a_roof_under_a_crown_is_a_building_the_crown_is_not():
+    """Issue 44 (AHN3 Delft: two BGT sheds under garden crowns): the crown is on the DSM, the roof on the surface
+    where the pulses end. The roof's returns are building, the crown above it, the same crown over open ground
+    and a hedge are not; without the rule (or without return numbers: no last-return surface) the roof is missed."""
+    for seed in (0, 1):
+        x, y, z, rn, nr, truth = _crowned_garden(seed)
+        inten = np.full(len(x), 300, np.uint16)
+        roof = truth == 6
+        cls = classify.classify_points(x, y, z, rn, nr, inten)
+        assert np.mean(cls[roof] == classify.BUILDING) > 0.8, seed
+        assert not np.any(cls[truth == 5] == classify.BUILDING), seed
+        assert not np.any(cls[truth == 4] == classify.BUILDING), seed
+        assert not np.any(cls[(truth == 2) & ~roof] == classify.BUILDING), seed
+        off = dataclasses.replace(classify.ClassifySettings(), crown_covered_roofs=False)
+        cls_off = classify.classify_points(x, y, z, rn, nr, inten, params=off)
+        assert np.mean(cls_off[roof] == classify.BUILDING) < 0.1, seed
+        assert np.array_equal(cls_off[~roof], cls[~roof]), seed
+        # single returns only: the rule needs return numbers and changes nothing
+        single = classify.classify_points(x, y, z, params=classify.ClassifySettings())
+        single_off = classify.classify_points(x, y, z, params=off)
+        assert np.array_equal(single, single_off), seed

@@ -302,3 +302,34 @@ def test_line_overlap_window_by_window_equals_the_whole_layer_at_once():
     assert 50 < want_c < 95 and want_k > 90  # the case is not trivial
     assert vc.buffer_overlap([], ref, 1.5).completeness_pct == 0.0
     assert vc.buffer_overlap(prod, [], 1.5).completeness_pct is None
+
+
+def test_a_roof_that_returned_no_pulse_is_on_the_map_and_a_shadow_is_not():
+    """Issue 44: a 6 x 4 m flat roof whose middle returned no pulse (glass, a black or wet surface: AHN3 Delft has
+    two BGT buildings seen by their rims alone) and whose south rim is missing too (the void reaches the ground
+    beyond the wall) is one building polygon over its centre; a strip without returns beside the tall roof (a
+    scan shadow: ground on three sides) stays off the map. Without the join the roof's centre is not covered."""
+    from lidarctl.corners.roof_corners import ClassifiedStrips
+    from lidarctl.units import METRE
+    from lidarctl.vectors import layers
+
+    x, y, z, cls = _truth_m()
+    roof, void = box(40, 70, 46, 74), box(40.8, 69.0, 45.2, 73.2)
+    shadow = box(67.0, 62, 69.8, 82)
+    inside = shapely.contains_xy(roof, x, y)
+    cls[inside] = 6
+    z[inside] = ground_z(43, 72) + 3.0
+    keep = ~shapely.contains_xy(void, x, y) & ~shapely.contains_xy(shadow, x, y)
+    pts = ClassifiedStrips(x=x[keep], y=y[keep], z=z[keep], classification=cls[keep],
+                           point_source_id=np.ones(int(keep.sum()), np.int64), crs=None, units=METRE)
+
+    def covering(polys, px, py):
+        return [p for p in polys if p.contains(shapely.Point(px, py))]
+
+    polys, rows, _ = layers.building_outlines(pts)
+    hit = covering(polys, *roof.centroid.coords[0])
+    assert len(hit) == 1 and hit[0].area == pytest.approx(roof.area, rel=0.35)
+    assert not covering(polys, 68.4, 72.0) and not covering(polys, 68.4, 65.0)
+    assert len(polys) == 3
+    polys, _, _ = layers.building_outlines(pts, roof_dropouts=False)
+    assert not covering(polys, *roof.centroid.coords[0])
