@@ -228,6 +228,48 @@ def build_once(tmp_path_factory) -> Callable[[str, Callable[[Path], None]], Path
     return lambda name, build: built_once(tmp_path_factory, name, build)
 
 
+def _stamp(path: str) -> tuple[int, int, int] | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+@pytest.fixture
+def linked_copy():
+    """``linked_copy(src, dst, copied=None, **copytree_options)``: ``shutil.copytree`` with hard links to the files of
+    ``src`` instead of copies, but for the files ``copied(path relative to src)`` names (those the test itself
+    writes in place: they are copied). For the read-only workspaces that every case of ``test_bad_input.py`` and
+    ``test_faults.py`` copies (13-27 MB a case, 10.6 GB of file writes in a run). A command or a case's setup writing
+    in place into a linked file would write into the shared workspace: after the test, every linked file must still
+    have the inode, size and modification time it had (the test fails otherwise, naming the files). Where the file
+    system refuses a hard link, a copy."""
+    linked: list[tuple[str, tuple]] = []
+
+    def copy(src, dst, copied: Callable[[str], bool] | None = None, **options):
+        src = os.fspath(src)
+
+        def one(s, d):
+            if copied is None or not copied(os.path.relpath(s, src)):
+                stamp = _stamp(s)
+                try:
+                    os.link(s, d)
+                except OSError:
+                    pass
+                else:
+                    linked.append((s, stamp))
+                    return d
+            return shutil.copy2(s, d)
+
+        return shutil.copytree(src, dst, copy_function=one, **options)
+
+    yield copy
+    changed = [s for s, stamp in linked if _stamp(s) != stamp]
+    assert not changed, f"the test wrote in place into {len(changed)} hard-linked file(s) of the shared workspace " \
+                        f"(copy them instead): {changed[:5]}"
+
+
 if __name__ == "__main__":  # the background build of pytest_collection_finish (the lock is inherited)
     name, out, done = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3])
     if os.environ.get(NUMBA_LOCKS_ENV):

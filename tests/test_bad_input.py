@@ -23,8 +23,9 @@ nowhere, coordinates of another zone or place, and NaN, infinite, negative, tiny
 ``ACCEPTED``: unusual but valid inputs that must work (units from the CRS: a DEM or cloud in US feet; NaN
 as nodata). ``EXCHANGE_CASES``: imports, whose checks another task of issue 39 owns, reported by
 ``bench/eval_bad_input.py`` (which runs the whole corpus and classifies every case) and not asserted here.
-Each case copies only the workspace folders it names, runs under a time limit (a hang fails the case),
-and compares the tree before and after by size, time and inode.
+Each case copies only the workspace folders it names (as hard links, but for the files its setup names: the
+``linked_copy`` fixture fails a case that wrote into a linked file), runs under a time limit (a hang fails the
+case), and compares the tree before and after by size, time and inode.
 """
 
 from __future__ import annotations
@@ -1683,11 +1684,22 @@ def needed_parts(case: Case) -> set:
     return out
 
 
-def prepare(case: Case, workspace: Path, tmp_path: Path) -> Path:
+def written_by_setup(case: Case) -> Callable[[str], bool]:
+    """Whether a workspace-relative path may be written in place by the case's setup: named in it (a string of
+    its closure or code), lying in a folder named there, or its file name named there. Those files are copied for
+    the case, the others hard-linked (``linked_copy``, which fails the case if it wrote into a linked file)."""
+    names = {s.replace("{w}/", "").replace("{p}", "p").strip("/") for s in _strings(case.setup)} \
+        if case.setup is not None else set()
+    names.discard("")
+    return lambda rel: any(rel == s or rel.startswith(s + "/") or os.path.basename(rel) == s for s in names)
+
+
+def prepare(case: Case, workspace: Path, tmp_path: Path, linked_copy) -> Path:
     w = tmp_path / "w"
     w.mkdir()
+    written = written_by_setup(case)
     for part in needed_parts(case):
-        shutil.copytree(workspace / part, w / part)
+        linked_copy(workspace / part, w / part, copied=lambda rel, part=part: written(f"{part}/{rel}"))
     if case.setup is not None:
         case.setup(w)
     return w
@@ -1741,17 +1753,17 @@ def invoke(case: Case, w: Path, seconds: float = CASE_SECONDS):
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, id=c.id) for c in CASES])
-def test_bad_input(case: Case, workspace, tmp_path):
-    w = prepare(case, workspace, tmp_path)
+def test_bad_input(case: Case, workspace, tmp_path, linked_copy):
+    w = prepare(case, workspace, tmp_path, linked_copy)
     before = snapshot(w)
     r = invoke(case, w)
     check_failure(case, w, before, r.exit_code, r.stderr, r.exception)
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, id=c.id) for c in ACCEPTED])
-def test_accepted_input(case: Case, workspace, tmp_path):
+def test_accepted_input(case: Case, workspace, tmp_path, linked_copy):
     """Unusual but valid inputs (a DEM in US feet or degrees, NaN as nodata, 2 x 2 cells) are not refused."""
-    w = prepare(case, workspace, tmp_path)
+    w = prepare(case, workspace, tmp_path, linked_copy)
     r = invoke(case, w)
     assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
     assert r.exit_code == 0, r.stderr
@@ -1762,9 +1774,9 @@ SUBPROCESS_CASES = ["match_gnss_utf16", "match_image_all_black", "rectify_res_to
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, id=c.id) for c in CASES if c.id in SUBPROCESS_CASES])
-def test_bad_input_subprocess(case: Case, workspace, tmp_path):
+def test_bad_input_subprocess(case: Case, workspace, tmp_path, linked_copy):
     """The console script itself: no traceback escapes a real process."""
-    w = prepare(case, workspace, tmp_path)
+    w = prepare(case, workspace, tmp_path, linked_copy)
     before = snapshot(w)
     # what the console script does (``main()`` of the command group) in a fresh interpreter; the source tree
     # on the path, so that it does not depend on how the package is installed

@@ -57,13 +57,22 @@ def fit_text(text: str, width_in: float, fontsize: float) -> str:
     def fits(t: str) -> bool:
         return TextPath((0, 0), t, size=fontsize).get_extents().width / 72.0 <= width_in
 
+    def short(keep: int) -> str:
+        return f"{text[:keep // 2]}...{text[len(text) - (keep - keep // 2):]}"
+
     if fits(text):
         return text
-    for keep in range(len(text) - 1, 1, -1):
-        short = f"{text[:keep // 2]}...{text[len(text) - (keep - keep // 2):]}"
-        if fits(short):
-            return short
-    return text[:1] + "..."
+    # the most characters kept that fit, by bisection: one character fewer takes one glyph from the middle (the
+    # first and the last stay), so the width falls with ``keep``; each exact extent costs about 40 ms (13 names of
+    # 75 characters: 12.6 CPU-s one by one from the longest)
+    lo, hi = 1, len(text)  # short(lo) fits (or lo = 1: none fits), short(hi) does not
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if fits(short(mid)):
+            lo = mid
+        else:
+            hi = mid
+    return short(lo) if lo >= 2 else text[:1] + "..."
 
 
 def _fmt(x: float) -> str:

@@ -176,6 +176,23 @@ def test_frame_panel_titles_do_not_overlap(names, nx, ny):
         assert fig_box.x0 <= box.x0 and box.x1 <= fig_box.x1
 
 
+def test_fit_text_keeps_the_most_characters_that_fit():
+    """A shortened name fits and one character more (the next in the middle) would not; a name that fits stays."""
+    from matplotlib.textpath import TextPath
+
+    def width_in(t):
+        return TextPath((0, 0), t, size=8).get_extents().width / 72.0
+
+    assert RF.fit_text("IMG_0031.jpg", 2.3, 8) == "IMG_0031.jpg"
+    for text, w in [("a_very_long_project_prefix_of_a_survey_flown_in_2026_strip_07_frame_0007.tif", 2.3),
+                    ("3324c_2015_1004_05_0182_RGB", 0.8), ("WWWWWWWWWWiiiiiiiiii", 0.5)]:
+        s = RF.fit_text(text, w, 8)
+        head, tail = s.split("...")
+        assert text.startswith(head) and text.endswith(tail) and width_in(s) <= w
+        keep = len(head) + len(tail) + 1
+        assert width_in(f"{text[:keep // 2]}...{text[len(text) - (keep - keep // 2):]}") > w
+
+
 def test_ground_residual_legend_hides_no_point_name():
     """The legend sits outside the map: a control point in the map's upper left corner keeps its name in
     view (the kite block's gcp09 sat under the legend)."""
