@@ -15,7 +15,8 @@ import numpy as np
 from scipy import ndimage
 
 from lidarctl.grid import GRID_BYTES_PER_CELL, check_grid
-from lidarctl.raster_tin import COLLINEAR, OK, delaunay_lattice
+from lidarctl.raster_tin import (COLLINEAR, OK, _argsort_keys, _bw_insert, _bw_start, _bw_triangles, _conflicts_near,
+                                 _insertion_keys, _locate_cells, _new_mesh, delaunay_lattice)
 
 log = logging.getLogger(__name__)
 
@@ -342,6 +343,11 @@ def _rim_cells(gaps, r_lo, r_hi, c_lo, c_hi):
     return out_r, out_c
 
 
+# Cells triangulated beyond the needed cells before the certification (``_certified_tin``): a margin of a few
+# cells decides most of them; the points beyond are inserted only where a cell's triangle reaches them.
+TIN_INNER_MARGIN_PX = 16
+
+
 def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
                     offset: tuple[int, int] = (0, 0), needed=None) -> np.ndarray:
     """Fill NaN cells by linear interpolation in the Delaunay TIN of the valid cells around the gaps
@@ -352,8 +358,9 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
     Local by construction: a cell's value depends only on valid cells within ``2 * max_radius_px + 2``
     cells, so a window of a larger grid (``offset``: its first cell's (row, col) there) gets the same
     values as the whole grid wherever it has that margin. ``needed``: (row slice, col slice) of the
-    cells whose values the caller uses; only the cells within that distance of them are triangulated
-    (the others keep the pull-push fill).
+    cells whose values the caller uses; they get the triangles of the rim cells within that distance
+    (``_certified_tin``: most of those far from them are never triangulated); the cells beyond
+    that distance keep the pull-push fill, the others between may have either.
     """
     from scipy.spatial import Delaunay, QhullError
 
@@ -373,7 +380,11 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
         return filled
     gr, gc = vr + offset[0], vc + offset[1]
     pts = _jittered_cells(gr, gc)
-    simplices, status = delaunay_lattice(pts, gr, gc)
+    simplices, status = None, OK
+    if needed is not None:
+        simplices = _certified_tin(pts, (gr, gc), gaps, (needed, (rows, cols)), float(max_radius_px), offset)
+    if simplices is None:
+        simplices, status = delaunay_lattice(pts, gr, gc)
     if status == COLLINEAR:     # all rim cells on one line
         return filled
     if status != OK:            # cannot happen with exact predicates; Qhull gives the same triangles
@@ -384,3 +395,160 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
             return filled
     _fill_triangles(filled, gaps, (pts, a[vr, vc], simplices), float(max_radius_px), (offset[0], offset[1]))
     return filled
+
+
+@numba.njit(cache=True, nogil=True)
+def _split_inner(gr, gc, bounds):
+    """Positions (int32, in order) of the cells (global ``gr``, ``gc``) inside the rows r0..r1 - 1 and columns
+    c0..c1 - 1 of ``bounds`` (r0, r1, c0, c1), and of the others."""
+    r0, r1, c0, c1 = bounds
+    n_in = 0
+    for k in range(len(gr)):
+        n_in += r0 <= gr[k] < r1 and c0 <= gc[k] < c1
+    inside = np.empty(n_in, np.int32)
+    outside = np.empty(len(gr) - n_in, np.int32)
+    a, b = 0, 0
+    for k in range(len(gr)):
+        if r0 <= gr[k] < r1 and c0 <= gc[k] < c1:
+            inside[a] = k
+            a += 1
+        else:
+            outside[b] = k
+            b += 1
+    return inside, outside
+
+
+@numba.njit(cache=True, nogil=True)
+def _wanted_cells(gaps, needed, far, open_side, offset):
+    """(k, 2) global (row, col), row-major, of the gap cells of the ``needed`` rows and columns (r0, r1, c0,
+    c1 of the window) that are not ``far`` (r0, r1, c0, c1: rows at or after r0 and before r1 ... are far
+    from the sides that are ``open``: top, bottom, left, right)."""
+    n0, n1, m0, m1 = needed
+    f0, f1, g0, g1 = far
+    top, bottom, left, right = open_side
+    count = 0
+    for rep in range(2):
+        if rep == 1:
+            out = np.empty((count, 2), np.int64)
+            count = 0
+        for i in range(n0, n1):
+            row_near = (top and i < f0) or (bottom and i >= f1)
+            for j in range(m0, m1):
+                if gaps[i, j] and (row_near or (left and j < g0) or (right and j >= g1)):
+                    if rep == 1:
+                        out[count, 0] = i + offset[0]
+                        out[count, 1] = j + offset[1]
+                    count += 1
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _outer_points(br, bc, first, shape, inner, block):
+    """The lookup of ``_conflicts_near``: point index (``first`` + k) at the cells (``br``, ``bc``), -1 at the
+    other cells outside ``inner`` (r0, r1, c0, c1; not set inside it), and the summed-area table of the points
+    by blocks of ``block`` x ``block`` cells."""
+    r0, r1, c0, c1 = inner
+    point_at = np.empty(shape, np.int32)
+    for i in range(shape[0]):
+        if r0 <= i < r1:
+            point_at[i, :max(c0, 0)] = -1
+            point_at[i, max(c1, 0):] = -1
+        else:
+            point_at[i, :] = -1
+    nb0, nb1 = -(-shape[0] // block), -(-shape[1] // block)
+    sat = np.zeros((nb0 + 1, nb1 + 1), np.int64)
+    for k in range(len(br)):
+        point_at[br[k], bc[k]] = first + k
+        sat[br[k] // block + 1, bc[k] // block + 1] += 1
+    for i in range(1, nb0 + 1):
+        for j in range(1, nb1 + 1):
+            sat[i, j] += sat[i - 1, j] + sat[i, j - 1] - sat[i - 1, j - 1]
+    return point_at, sat
+
+
+def _certified_tin(pts, cells, gaps, regions, max_radius_px: float, offset):
+    """The triangles of the TIN fill that hold the needed gap cells, triangulating the rim cells near them
+    and only those farther away that can change them. ``pts``, ``cells``: the rim cells of the ``outer``
+    region (global rows, cols, row-major), ``regions``: (needed, outer) (row slice, col slice) of the
+    window. Returns the triangles (without those of three cells of one 2 x 2 block) as indices into ``pts``,
+    or None when the plain triangulation of all of them is wanted (nothing to save, or a degenerate case).
+
+    Why it is the same: the cells within ``TIN_INNER_MARGIN_PX`` of the needed ones are triangulated first;
+    then every needed gap cell close enough to the outer rim cells to see them (within 2 R of them, R the fill's
+    largest circumradius) is located, and the outer points within 2 R of it and in conflict with its triangle
+    (inside its circumcircle; beyond its hull edge) are inserted, until there are none. A triangle whose
+    circumradius is at most R and that holds the cell lies within 2 R of it, so its circumcircle is then empty
+    of all the rim cells: it is the cell's triangle in their Delaunay triangulation; if that one had a larger
+    circumradius (or none held the cell) one of its vertices would still be in conflict. The remaining
+    triangles are Delaunay triangles of a subset of the points: they hold the other cells differently, and
+    those cells are not used."""
+    needed, (rows, cols) = regions
+    needed = tuple(slice(max(s.start, 0), min(s.stop, n)) for s, n in zip(needed, gaps.shape))
+    margin = TIN_INNER_MARGIN_PX
+    reach = 2.0 * max_radius_px
+    inner = [(max(s.start - margin, o.start), min(s.stop + margin, o.stop)) for s, o in zip(needed, (rows, cols))]
+    # sides of the inner region with outer rim cells beyond them: top, bottom, left, right
+    open_side = (inner[0][0] > rows.start, inner[0][1] < rows.stop, inner[1][0] > cols.start, inner[1][1] < cols.stop)
+    if not any(open_side):
+        return None
+    gr, gc = cells
+    inner_idx, band_idx = _split_inner(gr, gc, (inner[0][0] + offset[0], inner[0][1] + offset[0],
+                                                inner[1][0] + offset[1], inner[1][1] + offset[1]))
+    if len(inner_idx) < 3:
+        return None
+    n_in = len(inner_idx)
+    ir0 = gr[inner_idx]
+    ir0 -= ir0.min()
+    ic0 = gc[inner_idx]
+    ic0 -= ic0.min()
+    bits = max(int(max(ir0.max(), ic0.max())).bit_length(), 1)
+    keys = _insertion_keys(ic0, ir0, bits)
+    del ir0, ic0                                       # (memory: temporaries of a tile's millions of cells)
+    index = np.concatenate((inner_idx[_argsort_keys(keys, 2 * bits + 5)], band_idx))   # mesh point k: pts[index[k]]
+    del keys, inner_idx
+    px, py = np.ascontiguousarray(pts[index, 0]), np.ascontiguousarray(pts[index, 1])
+    mesh = _new_mesh(len(index))
+    seq = np.arange(n_in, dtype=np.int32)
+    k0 = _bw_start(px, py, seq, mesh)
+    if k0 < 0 or _bw_insert(px, py, np.concatenate((seq[2:k0], seq[k0 + 1:])), mesh) != OK:
+        return None
+    del seq
+    # the needed gap cells within reach of the outer rim cells: near an open side of the inner region
+    d = int(np.ceil(reach)) + 1
+    wanted = _wanted_cells(gaps, (needed[0].start, needed[0].stop, needed[1].start, needed[1].stop),
+                           (inner[0][0] + d, inner[0][1] - d, inner[1][0] + d, inner[1][1] - d), open_side, offset)
+    if len(wanted):
+        # the outer points by cell of the outer region (-1: none; not set inside the inner region, never read),
+        # which are in the mesh, and their count by blocks
+        inner_rel = (inner[0][0] - rows.start, inner[0][1] - rows.start, inner[1][0] - cols.start,
+                     inner[1][1] - cols.start)
+        block = 16
+        point_at, sat = _outer_points(gr[band_idx] - offset[0] - rows.start, gc[band_idx] - offset[1] - cols.start,
+                                      n_in, (rows.stop - rows.start, cols.stop - cols.start), inner_rel, block)
+        inserted = np.zeros(len(index), np.bool_)
+        inserted[:n_in] = True
+        grid = (point_at, inserted, (rows.start + offset[0], cols.start + offset[1]), inner_rel, sat, block)
+        out = np.empty(len(band_idx), np.int32)
+        cell_tri = np.empty(len(wanted), np.int32)
+        tri_mark = mesh[2]
+        while len(wanted):
+            if not _locate_cells(px, py, mesh, wanted, cell_tri):
+                return None
+            # each triangle once, with the bounding box of its cells
+            by_tri = np.argsort(cell_tri, kind="stable")
+            t_sorted = cell_tri[by_tri]
+            starts = np.flatnonzero(np.r_[True, t_sorted[1:] != t_sorted[:-1]])
+            cy, cx = wanted[by_tri, 0].astype(float), wanted[by_tri, 1].astype(float)
+            boxes = np.column_stack((np.minimum.reduceat(cy, starts), np.maximum.reduceat(cy, starts),
+                                     np.minimum.reduceat(cx, starts), np.maximum.reduceat(cx, starts)))
+            found = _conflicts_near(px, py, mesh, t_sorted[starts], boxes, grid, reach, out)
+            if found == 0:
+                break
+            stamp = mesh[4][3]
+            if _bw_insert(px, py, out[:found].copy(), mesh) != OK:
+                return None
+            # again only the cells whose triangles the insertions replaced (the others keep theirs, and fewer
+            # points are left to conflict with them)
+            replaced = tri_mark[cell_tri] > stamp
+            wanted, cell_tri = wanted[replaced], cell_tri[replaced]
+    return _bw_triangles(px, py, mesh, index, True)
