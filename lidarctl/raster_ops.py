@@ -362,8 +362,6 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
     (``_certified_tin``: most of those far from them are never triangulated); the cells beyond
     that distance keep the pull-push fill, the others between may have either.
     """
-    from scipy.spatial import Delaunay, QhullError
-
     a = np.asarray(a, float)
     filled = fill_nodata(a)
     valid = np.isfinite(a)
@@ -388,6 +386,8 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
     if status == COLLINEAR:     # all rim cells on one line
         return filled
     if status != OK:            # cannot happen with exact predicates; Qhull gives the same triangles
+        from scipy.spatial import Delaunay, QhullError  # only here: its import costs 0.1 CPU-s of the stage
+
         log.warning("TIN fill: the Delaunay insertion failed on %d cells; using Qhull", len(pts))
         try:
             simplices = Delaunay(pts).simplices
