@@ -466,6 +466,38 @@ def _outer_points(br, bc, first, shape, inner, block):
     return point_at, sat
 
 
+@numba.njit(cache=True, nogil=True)
+def _mesh_points(pts, cells, inner, band):
+    """The order of the mesh's points: the cells ``inner`` (positions in ``pts`` and ``cells``: global
+    rows, cols) in the order of ``raster_tin._insertion_keys``, then ``band`` as given; returns (index, x, y)
+    of the points in that order (``delaunay_lattice``'s order for the inner cells, without its temporaries)."""
+    gr, gc = cells
+    n_in = len(inner)
+    rmin, cmin = gr[inner[0]], gc[inner[0]]
+    for k in range(n_in):
+        rmin, cmin = min(rmin, gr[inner[k]]), min(cmin, gc[inner[k]])
+    ix = np.empty(n_in, np.int64)
+    iy = np.empty(n_in, np.int64)
+    top = 0
+    for k in range(n_in):
+        ix[k], iy[k] = gc[inner[k]] - cmin, gr[inner[k]] - rmin
+        top = max(top, ix[k], iy[k])
+    bits = 0
+    while top > 0:
+        bits += 1
+        top >>= 1
+    bits = max(bits, 1)
+    order = _argsort_keys(_insertion_keys(ix, iy, bits), 2 * bits + 5)
+    n = n_in + len(band)
+    index = np.empty(n, np.int32)
+    px, py = np.empty(n), np.empty(n)
+    for k in range(n):
+        q = inner[order[k]] if k < n_in else band[k - n_in]
+        index[k] = q
+        px[k], py[k] = pts[q, 0], pts[q, 1]
+    return index, px, py
+
+
 def _certified_tin(pts, cells, gaps, regions, max_radius_px: float, offset):
     """The triangles of the TIN fill that hold the needed gap cells, triangulating the rim cells near them
     and only those farther away that can change them. ``pts``, ``cells``: the rim cells of the ``outer``
@@ -497,16 +529,8 @@ def _certified_tin(pts, cells, gaps, regions, max_radius_px: float, offset):
     if len(inner_idx) < 3:
         return None
     n_in = len(inner_idx)
-    ir0 = gr[inner_idx]
-    ir0 -= ir0.min()
-    ic0 = gc[inner_idx]
-    ic0 -= ic0.min()
-    bits = max(int(max(ir0.max(), ic0.max())).bit_length(), 1)
-    keys = _insertion_keys(ic0, ir0, bits)
-    del ir0, ic0                                       # (memory: temporaries of a tile's millions of cells)
-    index = np.concatenate((inner_idx[_argsort_keys(keys, 2 * bits + 5)], band_idx))   # mesh point k: pts[index[k]]
-    del keys, inner_idx
-    px, py = np.ascontiguousarray(pts[index, 0]), np.ascontiguousarray(pts[index, 1])
+    index, px, py = _mesh_points(pts, (gr, gc), inner_idx, band_idx)     # mesh point k: pts[index[k]]
+    del inner_idx
     mesh = _new_mesh(len(index))
     seq = np.arange(n_in, dtype=np.int32)
     k0 = _bw_start(px, py, seq, mesh)

@@ -18,6 +18,10 @@ to 0.044 m.
 
 Triangles: vertex indices in ``tri[3t], tri[3t+1], tri[3t+2]``, counter-clockwise; halfedge ``e``
 runs from ``tri[e]`` to the next vertex of its triangle, ``half[e]`` is the opposite halfedge.
+
+A triangulation can be grown (``_new_mesh``, ``_bw_start``, ``_bw_insert``: points added later to the same
+mesh) and queried (``_locate_cells``, ``_conflicts_near``): the TIN fill of a tile triangulates the cells near
+the ones it needs and adds the farther ones only where they change those (``raster_ops._certified_tin``).
 """
 
 from __future__ import annotations
