@@ -15,7 +15,7 @@ import numpy as np
 from scipy import ndimage
 
 from lidarctl.grid import GRID_BYTES_PER_CELL, check_grid
-from lidarctl.raster_tin import (COLLINEAR, OK, _argsort_keys, _bw_insert, _bw_start, _bw_triangles, _conflicts_near,
+from lidarctl.raster_tin import (COLLINEAR, OK, _argsort_keys, _bw_insert, _bw_start, _conflicts_near,
                                  _insertion_keys, _locate_cells, _new_mesh, delaunay_lattice)
 
 log = logging.getLogger(__name__)
@@ -242,6 +242,49 @@ def _jittered_cells(rows, cols):
     return out
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _fill_triangle(filled, gaps, done, corners, heights, max_radius_px, origin):
+    """``_fill_triangles``' work for one triangle: ``corners`` (x0, y0, x1, y1, x2, y2) and ``heights`` (z0, z1,
+    z2) of its vertices in increasing index order."""
+    x0, y0, x1, y1, x2, y2 = corners
+    z0, z1, z2 = heights
+    row0, col0 = origin
+    nrows, ncols = gaps.shape
+    eps = 1e-12
+    if max(x0, x1, x2) - min(x0, x1, x2) < 1.5 and max(y0, y1, y2) - min(y0, y1, y2) < 1.5:
+        # three corners of one 2 x 2 block of cells (jitter < 0.005 cell): the only other cell centre
+        # in its bounding box is the fourth corner, about 0.7 cell outside it; most triangles
+        return
+    cmin = max(int(np.ceil(min(x0, x1, x2))) - col0, 0)
+    cmax = min(int(np.floor(max(x0, x1, x2))) - col0, ncols - 1)
+    rmin = max(int(np.ceil(min(y0, y1, y2))) - row0, 0)
+    rmax = min(int(np.floor(max(y0, y1, y2))) - row0, nrows - 1)
+    e1x, e1y = x1 - x0, y1 - y0
+    e2x, e2y = x2 - x0, y2 - y0
+    det = e1x * e2y - e1y * e2x
+    checked = False          # the circumradius, computed for triangles that hold a gap cell
+    for r in range(rmin, rmax + 1):
+        for c in range(cmin, cmax + 1):
+            if not gaps[r, c] or done[r, c]:
+                continue
+            if not checked:
+                # circumradius R = abc / (4 area)
+                a_len = np.hypot(x1 - x2, y1 - y2)
+                b_len = np.hypot(e2x, e2y)
+                c_len = np.hypot(e1x, e1y)
+                if a_len * b_len * c_len / max(2.0 * abs(det), 1e-12) > max_radius_px:
+                    return
+                checked = True
+            dx, dy = (c + col0) - x0, (r + row0) - y0
+            l1 = (dx * e2y - dy * e2x) / det
+            l2 = (e1x * dy - e1y * dx) / det
+            l0 = 1.0 - l1 - l2
+            if l0 < -eps or l1 < -eps or l2 < -eps:
+                continue
+            filled[r, c] = l0 * z0 + l1 * z1 + l2 * z2
+            done[r, c] = True
+
+
 @numba.njit(cache=True, nogil=True)
 def _fill_triangles(filled, gaps, tin, max_radius_px, origin):
     """Linear interpolation of the gap cells of ``filled`` inside each triangle of the ``tin`` (pts, z,
@@ -251,10 +294,7 @@ def _fill_triangles(filled, gaps, tin, max_radius_px, origin):
     increasing index order (by global cell), so that a tile computes bit-identical weights. A cell on an edge
     shared by two triangles takes the first."""
     pts, z, simplices = tin
-    row0, col0 = origin
-    nrows, ncols = gaps.shape
     done = np.zeros_like(gaps)
-    eps = 1e-12
     for t in range(simplices.shape[0]):
         i0, i1, i2 = simplices[t, 0], simplices[t, 1], simplices[t, 2]
         if i0 > i1:
@@ -263,43 +303,31 @@ def _fill_triangles(filled, gaps, tin, max_radius_px, origin):
             i1, i2 = i2, i1
         if i0 > i1:
             i0, i1 = i1, i0
-        x0, y0 = pts[i0, 0], pts[i0, 1]
-        x1, y1, x2, y2 = pts[i1, 0], pts[i1, 1], pts[i2, 0], pts[i2, 1]
-        if max(x0, x1, x2) - min(x0, x1, x2) < 1.5 and max(y0, y1, y2) - min(y0, y1, y2) < 1.5:
-            # three corners of one 2 x 2 block of cells (jitter < 0.005 cell): the only other cell centre
-            # in its bounding box is the fourth corner, about 0.7 cell outside it; most triangles
+        _fill_triangle(filled, gaps, done, (pts[i0, 0], pts[i0, 1], pts[i1, 0], pts[i1, 1], pts[i2, 0], pts[i2, 1]),
+                       (z[i0], z[i1], z[i2]), max_radius_px, origin)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_mesh(filled, gaps, points, mesh, max_radius_px, origin):
+    """``_fill_triangles`` of the real triangles of a ``raster_tin`` mesh in its slot order (``_bw_triangles``'
+    order), read in place; ``points``: (x, y, z, index) of the mesh's points, ``index`` their indices in the
+    fill's ``pts`` (the vertex order of the weights)."""
+    px, py, pz, index = points
+    tri, _, _, _, state = mesh
+    inf, nt = state[0], state[1]
+    done = np.zeros_like(gaps)
+    for t in range(nt):
+        a, b, c = tri[3 * t], tri[3 * t + 1], tri[3 * t + 2]
+        if a == inf or b == inf or c == inf:
             continue
-        cmin = max(int(np.ceil(min(x0, pts[i1, 0], pts[i2, 0]))) - col0, 0)
-        cmax = min(int(np.floor(max(x0, pts[i1, 0], pts[i2, 0]))) - col0, ncols - 1)
-        rmin = max(int(np.ceil(min(y0, pts[i1, 1], pts[i2, 1]))) - row0, 0)
-        rmax = min(int(np.floor(max(y0, pts[i1, 1], pts[i2, 1]))) - row0, nrows - 1)
-        e1x, e1y = pts[i1, 0] - x0, pts[i1, 1] - y0
-        e2x, e2y = pts[i2, 0] - x0, pts[i2, 1] - y0
-        det = e1x * e2y - e1y * e2x
-        checked = False          # the circumradius, computed for triangles that hold a gap cell
-        for r in range(rmin, rmax + 1):
-            for c in range(cmin, cmax + 1):
-                if not gaps[r, c] or done[r, c]:
-                    continue
-                if not checked:
-                    # circumradius R = abc / (4 area)
-                    a_len = np.hypot(pts[i1, 0] - pts[i2, 0], pts[i1, 1] - pts[i2, 1])
-                    b_len = np.hypot(e2x, e2y)
-                    c_len = np.hypot(e1x, e1y)
-                    if a_len * b_len * c_len / max(2.0 * abs(det), 1e-12) > max_radius_px:
-                        break
-                    checked = True
-                dx, dy = (c + col0) - x0, (r + row0) - y0
-                l1 = (dx * e2y - dy * e2x) / det
-                l2 = (e1x * dy - e1y * dx) / det
-                l0 = 1.0 - l1 - l2
-                if l0 < -eps or l1 < -eps or l2 < -eps:
-                    continue
-                filled[r, c] = l0 * z[i0] + l1 * z[i1] + l2 * z[i2]
-                done[r, c] = True
-            else:
-                continue
-            break
+        if index[a] > index[b]:
+            a, b = b, a
+        if index[b] > index[c]:
+            b, c = c, b
+        if index[a] > index[b]:
+            a, b = b, a
+        _fill_triangle(filled, gaps, done, (px[a], py[a], px[b], py[b], px[c], py[c]), (pz[a], pz[b], pz[c]),
+                       max_radius_px, origin)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -378,11 +406,14 @@ def fill_nodata_tin(a: np.ndarray, max_radius_px: float = DEFAULT_TIN_FILL_RADIU
         return filled
     gr, gc = vr + offset[0], vc + offset[1]
     pts = _jittered_cells(gr, gc)
-    simplices, status = None, OK
     if needed is not None:
-        simplices = _certified_tin(pts, (gr, gc), gaps, (needed, (rows, cols)), float(max_radius_px), offset)
-    if simplices is None:
-        simplices, status = delaunay_lattice(pts, gr, gc)
+        certified = _certified_tin(pts, (gr, gc), gaps, (needed, (rows, cols)), float(max_radius_px), offset)
+        if certified is not None:
+            mesh, index, px, py = certified
+            _fill_mesh(filled, gaps, (px, py, a[vr[index], vc[index]], index), mesh, float(max_radius_px),
+                       (offset[0], offset[1]))
+            return filled
+    simplices, status = delaunay_lattice(pts, gr, gc)
     if status == COLLINEAR:     # all rim cells on one line
         return filled
     if status != OK:            # cannot happen with exact predicates; Qhull gives the same triangles
@@ -575,4 +606,4 @@ def _certified_tin(pts, cells, gaps, regions, max_radius_px: float, offset):
             # points are left to conflict with them)
             replaced = tri_mark[cell_tri] > stamp
             wanted, cell_tri = wanted[replaced], cell_tri[replaced]
-    return _bw_triangles(px, py, mesh, index, True)
+    return mesh, index, px, py

@@ -405,28 +405,18 @@ def _bw_insert(px, py, seq, mesh):
 
 
 @numba.njit(cache=True, nogil=True)
-def _bw_triangles(px, py, mesh, index, skip_block_triangles):
-    """The real triangles of ``mesh`` (m, 3) int32 as ``index`` of their vertices, in slot order;
-    ``skip_block_triangles``: without the triangles of three cells of one 2 x 2 block (``px``, ``py`` within
-    1.5 of each other in both coordinates), which hold no other cell centre (the TIN fill passes over them)."""
+def _bw_triangles(mesh, index):
+    """The real triangles of ``mesh`` (m, 3) int32 as ``index`` of their vertices, in slot order."""
     tri, _, _, _, state = mesh
     inf, nt = state[_INF], state[_NT]
-    keep = np.zeros(nt, np.bool_)
     m = 0
     for t in range(nt):
-        a, b, c = tri[3 * t], tri[3 * t + 1], tri[3 * t + 2]
-        if a == inf or b == inf or c == inf:
-            continue
-        if skip_block_triangles:
-            xa, xb, xc, ya, yb, yc = px[a], px[b], px[c], py[a], py[b], py[c]
-            if max(xa, xb, xc) - min(xa, xb, xc) < 1.5 and max(ya, yb, yc) - min(ya, yb, yc) < 1.5:
-                continue
-        keep[t] = True
-        m += 1
+        if tri[3 * t] != inf and tri[3 * t + 1] != inf and tri[3 * t + 2] != inf:
+            m += 1
     out = np.empty((m, 3), np.int32)
     m = 0
     for t in range(nt):
-        if keep[t]:
+        if tri[3 * t] != inf and tri[3 * t + 1] != inf and tri[3 * t + 2] != inf:
             out[m, 0], out[m, 1], out[m, 2] = index[tri[3 * t]], index[tri[3 * t + 1]], index[tri[3 * t + 2]]
             m += 1
     return out
@@ -446,7 +436,7 @@ def _bowyer_watson(px, py, index):
     rest = np.concatenate((seq[2:k0], seq[k0 + 1:]))
     if _bw_insert(px, py, rest, mesh) != OK:
         return empty, UNDECIDED
-    return _bw_triangles(px, py, mesh, index, False), OK
+    return _bw_triangles(mesh, index), OK
 
 
 def delaunay_lattice(pts: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, int]:
