@@ -153,9 +153,86 @@ def _push(coarse, v, w):
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _finite_count(a):
+    n = 0
+    for i in range(a.shape[0]):
+        for j in range(a.shape[1]):
+            n += np.isfinite(a[i, j])
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def _pull_nan(a):
+    """``_pull`` of the first level, (``np.where(valid, a, 0)``, ``valid``) of ``a`` (NaN: no value), read from
+    ``a`` itself: a valid cell's product is ``a * 1.0 == a``, an empty one's ``0.0 * 0.0``, so the sums are the
+    same bits without the two window-sized arrays."""
+    h, wd = a.shape
+    hh, ww = (h + 1) // 2, (wd + 1) // 2
+    vs = np.empty((hh, ww))
+    ws = np.empty((hh, ww))
+    for i in range(hh):
+        i1 = 2 * i + 1
+        for j in range(ww):
+            j1 = 2 * j + 1
+            a00, a01, a10, a11 = a[2 * i, 2 * j], 0.0, 0.0, 0.0
+            w00, w01, w10, w11 = 1.0, 0.0, 0.0, 0.0
+            if not np.isfinite(a00):
+                a00, w00 = 0.0, 0.0
+            if j1 < wd and np.isfinite(a[2 * i, j1]):
+                a01, w01 = a[2 * i, j1], 1.0
+            if i1 < h:
+                if np.isfinite(a[i1, 2 * j]):
+                    a10, w10 = a[i1, 2 * j], 1.0
+                if j1 < wd and np.isfinite(a[i1, j1]):
+                    a11, w11 = a[i1, j1], 1.0
+            n = (w00 + w01) + (w10 + w11)
+            if n > 0:
+                vs[i, j] = ((a00 + a01) + (a10 + a11)) / max(n, 1e-12)
+                ws[i, j] = 1.0
+            else:
+                vs[i, j] = 0.0
+                ws[i, j] = 0.0
+    return vs, ws
+
+
+@numba.njit(cache=True, nogil=True)
+def _push_nan(coarse, a):
+    """``_push`` onto the first level: ``a``'s value where it has one, else its parent's."""
+    h, wd = a.shape
+    out = np.empty((h, wd))
+    for i in range(h):
+        for j in range(wd):
+            out[i, j] = a[i, j] if np.isfinite(a[i, j]) else coarse[i // 2, j // 2]
+    return out
+
+
 def fill_nodata(a: np.ndarray) -> np.ndarray:
     """Fill NaN cells by pull-push (pyramid averaging, then coarse-to-fine fill); smooth and O(n)."""
-    a = np.asarray(a, float)
+    a = np.ascontiguousarray(a, float)         # one layout, one compilation of the kernels
+    if a.ndim != 2 or min(a.shape) == 1:
+        return _fill_nodata_levels(a)
+    n = _finite_count(a)
+    if n == a.size or n == 0:
+        return a.copy()
+    # the first level read from ``a`` itself (``_pull_nan``, ``_push_nan``): the same bits as the levels of
+    # ``_fill_nodata_levels`` without two window-sized arrays (the rasters fill two grids a tile)
+    levels = [_pull_nan(a)]
+    while True:
+        v, w = levels[-1]
+        if (w > 0).all() or min(v.shape) == 1:
+            break
+        levels.append(_pull(v, w))
+    filled, _ = levels[-1]
+    if not (levels[-1][1] > 0).all():
+        filled = np.where(levels[-1][1] > 0, filled, np.sum(filled * levels[-1][1]) / levels[-1][1].sum())
+    for v, w in reversed(levels[:-1]):
+        filled = _push(filled, v, w)
+    return _push_nan(filled, a)
+
+
+def _fill_nodata_levels(a: np.ndarray) -> np.ndarray:
+    """``fill_nodata`` with every level as (values, weights) arrays (rasters of one row or column, other shapes)."""
     valid = np.isfinite(a)
     if valid.all() or not valid.any():
         return a.copy()
