@@ -607,11 +607,12 @@ def _mesh_points(pts, cells, inner, band):
 
 
 def _certified_tin(pts, cells, gaps, regions, max_radius_px: float, offset):
-    """The triangles of the TIN fill that hold the needed gap cells, triangulating the rim cells near them
-    and only those farther away that can change them. ``pts``, ``cells``: the rim cells of the ``outer``
+    """The triangulation of the TIN fill that holds the needed gap cells' triangles, made of the rim cells near
+    them and only those farther away that can change them. ``pts``, ``cells``: the rim cells of the ``outer``
     region (global rows, cols, row-major), ``regions``: (needed, outer) (row slice, col slice) of the
-    window. Returns the triangles (without those of three cells of one 2 x 2 block) as indices into ``pts``,
-    or None when the plain triangulation of all of them is wanted (nothing to save, or a degenerate case).
+    window. Returns (mesh, index, x, y): the ``raster_tin`` mesh, the indices in ``pts`` of its points and
+    their coordinates (``_fill_mesh``); None when the plain triangulation of all of them is wanted (nothing
+    to save, or a degenerate case).
 
     Why it is the same: the cells within ``TIN_INNER_MARGIN_PX`` of the needed ones are triangulated first;
     then every needed gap cell close enough to the outer rim cells to see them (within 2 R of them, R the fill's
