@@ -217,34 +217,28 @@ def fill_nodata(a: np.ndarray) -> np.ndarray:
         return a.copy()
     # the first level read from ``a`` itself (``_pull_nan``, ``_push_nan``): the same bits as the levels of
     # ``_fill_nodata_levels`` without two window-sized arrays (the rasters fill two grids a tile)
-    levels = [_pull_nan(a)]
-    while True:
-        v, w = levels[-1]
-        if (w > 0).all() or min(v.shape) == 1:
-            break
-        levels.append(_pull(v, w))
-    filled, _ = levels[-1]
-    if not (levels[-1][1] > 0).all():
-        filled = np.where(levels[-1][1] > 0, filled, np.sum(filled * levels[-1][1]) / levels[-1][1].sum())
-    for v, w in reversed(levels[:-1]):
-        filled = _push(filled, v, w)
-    return _push_nan(filled, a)
+    return _push_nan(_pull_push([_pull_nan(a)]), a)
 
 
 def _fill_nodata_levels(a: np.ndarray) -> np.ndarray:
-    """``fill_nodata`` with every level as (values, weights) arrays (rasters of one row or column, other shapes)."""
+    """``fill_nodata`` with the first level as (values, weights) arrays (rasters of one row or column)."""
     valid = np.isfinite(a)
     if valid.all() or not valid.any():
         return a.copy()
-    levels = [(np.where(valid, a, 0.0), valid.astype(float))]
+    return _pull_push([(np.where(valid, a, 0.0), valid.astype(float))])
+
+
+def _pull_push(levels: list) -> np.ndarray:
+    """The pyramid from its first level (values, weights) up to a level without empty cells (or one row or
+    column: there empty cells take the level's mean), then filled back down to the first level."""
     while True:
         v, w = levels[-1]
         if (w > 0).all() or min(v.shape) == 1:
             break
         levels.append(_pull(v, w))
-    filled, _ = levels[-1]
-    if not (levels[-1][1] > 0).all():
-        filled = np.where(levels[-1][1] > 0, filled, np.sum(filled * levels[-1][1]) / levels[-1][1].sum())
+    filled, w = levels[-1]
+    if not (w > 0).all():
+        filled = np.where(w > 0, filled, np.sum(filled * w) / w.sum())
     for v, w in reversed(levels[:-1]):
         filled = _push(filled, v, w)
     return filled
