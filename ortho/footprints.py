@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import cv2
+import numba
 import numpy as np
 
 from aerotri.core.errors import InputError
@@ -217,10 +218,10 @@ def footprint_occluder(dsm: HeightRaster, ground_m: np.ndarray, footprints: np.n
 def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,
                       slab_m: float = OVERHANG_SLAB_M, above_m: float = OVERHANG_ABOVE_M) -> FootprintOccluder:
     """The ``FootprintOccluder`` of ``dsm`` (a window in the project CRS) from its ``FootprintCells`` (same grid, e.g.
-    ``FootprintCells.window`` of a larger one) and ``ground_m`` (as ``footprint_occluder``). What depends on the
-    window (a building's eave line from its overhang cells in the window, the cells beside an overhang) is taken
+    ``FootprintCells.window`` of a larger one) and ``ground_m`` (float32, as ``footprint_occluder``). What depends on
+    the window (a building's eave line from its overhang cells in the window, the cells beside an overhang) is taken
     here, so the occluder is the same whether the cells were rasterised for this window or cut from a larger one.
-    Computed on the cells near a footprint only (a few % of a window: a frame's window in 5 ms)."""
+    The cell loops compiled (``_overhang_cells``, ``_beside_overhangs``)."""
     import shapely
 
     top = dsm.heights_m
@@ -230,23 +231,19 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     base = np.full((dh, dw), -np.inf, np.float32)
     slab_top = np.full((dh, dw), -np.inf, np.float32)
     sub_index = np.full((dh, dw), -1, np.int32)
-    near = np.flatnonzero(cells.label > 0)  # row-major, as every list of cells below
-    nr, nc = near // dw, near % dw
-    with np.errstate(invalid="ignore"):
-        is_candidate = top[nr, nc] - ground_m[nr, nc] > above_m
-    cand, cr, cc = near[is_candidate], nr[is_candidate], nc[is_candidate]
     # (as the rasterisation by row bands did: a band of _ROWS_PER_CHUNK rows that no footprint crosses has no
     # overhang cells)
     left, _, right, _ = dsm.bounds
-    bands = np.unique(cr // _ROWS_PER_CHUNK)
-    crossed = np.zeros((dh + _ROWS_PER_CHUNK - 1) // _ROWS_PER_CHUNK, bool)
-    crossed[bands] = shapely.intersects(cells.polygons[:, None], shapely.box(
+    bands = np.arange((dh + _ROWS_PER_CHUNK - 1) // _ROWS_PER_CHUNK)
+    crossed = shapely.intersects(cells.polygons[:, None], shapely.box(
         left, dsm.y_top_m - np.minimum(dh, (bands + 1) * _ROWS_PER_CHUNK) * res, right,
-        dsm.y_top_m - bands * _ROWS_PER_CHUNK * res)[None, :]).any(axis=0) if len(bands) else False
-    inside = cells.inside[cr, cc]
-    is_over = crossed[cr // _ROWS_PER_CHUNK] & (inside < sub * sub)
-    rr, cc_, lab = cr[is_over], cc[is_over], cells.label[cr[is_over], cc[is_over]]
-    walls = inside[is_over] > 0
+        dsm.y_top_m - bands * _ROWS_PER_CHUNK * res)[None, :]).any(axis=0)
+    taken = np.zeros((dh, dw), np.bool_)  # candidates: overhangs, or roof inside the walls
+    over = np.zeros((dh, dw), np.bool_)
+    rr, cc_ = _overhang_cells(cells.label, cells.inside, top, ground_m.astype(np.float32, copy=False),
+                              np.float32(above_m), sub * sub, crossed, _ROWS_PER_CHUNK, taken, over)
+    lab = cells.label[rr, cc_]
+    walls = cells.inside[rr, cc_] > 0
     sub_index[rr[walls], cc_[walls]] = np.arange(int(walls.sum()), dtype=np.int32)
     sub_masks = cells.wall_masks[cells.wall_index[rr[walls], cc_[walls]]]
     # the underside: the building's eave line less the slab, flat under the whole overhang (a pitched roof's
@@ -260,34 +257,88 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     # the eave's edge lies anywhere within the cell beyond the last one sampled on the roof (a DSM samples the roof
     # at its cell centres): the cells beside an overhang that are not roof nor candidates (the ground, lower than
     # the overhang) carry its soffit slab as well (the lowest of the overhangs beside it), so that no ray passes
-    # through the part of the eave the DSM missed
-    taken = np.zeros(dh * dw, bool)  # an overhang or a candidate cell: never beside one
-    taken[cand] = True
-    over_flat = np.zeros((dh + 2) * (dw + 2), bool)  # the overhang cells, a cell of padding around
-    over_flat[(rr + 1) * (dw + 2) + cc_ + 1] = True
-    offsets = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)]
-    hi = np.concatenate([rr + di for di, dj in offsets])
-    hj = np.concatenate([cc_ + dj for di, dj in offsets])
-    hv = np.tile(over_base, len(offsets))
-    keep = (hi >= 0) & (hj >= 0) & (hi < dh) & (hj < dw)
-    hflat, hv = hi[keep] * dw + hj[keep], hv[keep]
-    keep = ~taken[hflat]
-    lowest = np.full(dh * dw, np.inf, np.float32)
-    np.minimum.at(lowest, hflat[keep], hv[keep])
-    halo = np.flatnonzero(lowest < np.inf)
-    beside = lowest[halo]
-    hr, hc = halo // dw, halo % dw
-    base[hr, hc] = beside
-    slab_top[hr, hc] = beside + slab_m
-    # the slab reaches half a cell into such a cell from each overhang beside it: the sub-cells whose centres lie
-    # within half a cell of that side (or corner)
-    near_side = (np.arange(sub) + 0.5) / sub <= 0.5
-    halo_masks = np.zeros((len(hr), sub, sub), np.uint8)
-    for di, dj in offsets:
-        hit = over_flat[(hr + 1 + di) * (dw + 2) + hc + 1 + dj]
-        rows = near_side if di < 0 else near_side[::-1] if di > 0 else np.ones(sub, bool)
-        cols = near_side if dj < 0 else near_side[::-1] if dj > 0 else np.ones(sub, bool)
-        halo_masks[hit] |= (rows[:, None] & cols[None, :]).astype(np.uint8)
+    # through the part of the eave the DSM missed; the slab reaches half a cell into such a cell from each overhang
+    # beside it: the sub-cells whose centres lie within half a cell of that side (or corner)
+    hr, hc, halo_masks = _beside_overhangs(rr, cc_, over_base.astype(np.float32), taken, over, sub, np.float32(slab_m),
+                                           base, slab_top)
     sub_index[hr, hc] = HALO - (len(sub_masks) + np.arange(len(hr), dtype=np.int32))
     sub_masks = np.concatenate([sub_masks, halo_masks])
     return FootprintOccluder(base, slab_top, sub_index, sub_masks, sub)
+
+
+@numba.njit(cache=True, nogil=True)
+def _overhang_cells(label, inside, top, ground, above_m, sub2, crossed, rows_per_band, taken, over):
+    """The candidates (near a footprint, more than ``above_m`` above the ground: ``taken``) and among them the
+    overhangs (not wholly inside a footprint, in a ``crossed`` band: ``over``) of a window; the overhangs' rows and
+    columns, row-major."""
+    dh, dw = label.shape
+    n = 0
+    for r in range(dh):
+        band = crossed[r // rows_per_band]
+        for c in range(dw):
+            if label[r, c] > 0 and top[r, c] - ground[r, c] > above_m:
+                taken[r, c] = True
+                if band and inside[r, c] < sub2:
+                    over[r, c] = True
+                    n += 1
+    rr = np.empty(n, np.int64)
+    cc = np.empty(n, np.int64)
+    k = 0
+    for r in range(dh):
+        for c in range(dw):
+            if over[r, c]:
+                rr[k] = r
+                cc[k] = c
+                k += 1
+    return rr, cc
+
+
+@numba.njit(cache=True, nogil=True)
+def _beside_overhangs(rr, cc, over_base, taken, over, sub, slab_m, base, slab_top):
+    """The cells beside an overhang (a neighbour of one of the 8 directions, not ``taken``): the lowest underside of the
+    overhangs beside it into ``base`` (and + ``slab_m`` into ``slab_top``); their rows, columns (row-major) and
+    sub-cell masks (within half a cell of each overhang beside it)."""
+    dh, dw = taken.shape
+    lowest = np.full((dh, dw), np.inf, np.float32)
+    for k in range(len(rr)):
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                i = rr[k] + di
+                j = cc[k] + dj
+                if (di != 0 or dj != 0) and i >= 0 and j >= 0 and i < dh and j < dw and not taken[i, j] \
+                        and over_base[k] < lowest[i, j]:
+                    lowest[i, j] = over_base[k]
+    n = 0
+    for i in range(dh):
+        for j in range(dw):
+            if lowest[i, j] < np.inf:
+                n += 1
+    hr = np.empty(n, np.int64)
+    hc = np.empty(n, np.int64)
+    masks = np.zeros((n, sub, sub), np.uint8)
+    near = np.empty(sub, np.bool_)
+    for t in range(sub):
+        near[t] = (t + 0.5) / sub <= 0.5
+    k = 0
+    for i in range(dh):
+        for j in range(dw):
+            if not lowest[i, j] < np.inf:
+                continue
+            hr[k] = i
+            hc[k] = j
+            base[i, j] = lowest[i, j]
+            slab_top[i, j] = lowest[i, j] + slab_m
+            for di in range(-1, 2):
+                for dj in range(-1, 2):
+                    ii = i + di
+                    jj = j + dj
+                    if (di == 0 and dj == 0) or ii < 0 or jj < 0 or ii >= dh or jj >= dw or not over[ii, jj]:
+                        continue
+                    for a in range(sub):
+                        row_ok = near[a] if di < 0 else near[sub - 1 - a] if di > 0 else True
+                        for b in range(sub):
+                            col_ok = near[b] if dj < 0 else near[sub - 1 - b] if dj > 0 else True
+                            if row_ok and col_ok:
+                                masks[k, a, b] = 1
+            k += 1
+    return hr, hc, masks
