@@ -134,8 +134,19 @@ def read_height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", fra
                        height_operation: CrsTransformer | None = None) -> HeightRaster:
     """Read the part of an open height raster covering ``bounds`` (project CRS) into a HeightRaster;
     ``height_operation`` (``dem_height_operation``) converts its heights to the project's system."""
-    left, bottom, right, top = bounds
+    w = height_window(ds, bounds, margin_m, what, frame)
+    a = ds.read(1, window=w, masked=True).astype(np.float32).filled(np.nan)
     res = ds.transform.a
+    x0 = ds.transform.c + w.col_off * res
+    y0 = ds.transform.f + w.row_off * ds.transform.e
+    if height_operation is not None:
+        a = convert_heights(a, x0, y0, res, height_operation)
+    return HeightRaster(a, x0, y0, res, CRS(ds.crs), source=f"{ds.name}")
+
+
+def height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", frame: str | None = None) -> Window:
+    """The window (whole cells) of an open height raster that ``read_height_window`` reads for ``bounds``."""
+    left, bottom, right, top = bounds
     win = from_bounds(left - margin_m, bottom - margin_m, right + margin_m, top + margin_m, ds.transform)
     c0 = max(0, int(math.floor(win.col_off)))
     r0 = max(0, int(math.floor(win.row_off)))
@@ -149,13 +160,7 @@ def read_height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", fra
             f"(the {what}'s extent: X {b.left:.1f} .. {b.right:.1f}, Y {b.bottom:.1f} .. {b.top:.1f})"
             + (f"; give a {what} that covers the frame, or leave it out with --frames" if frame else "")
         )
-    w = Window(c0, r0, c1 - c0, r1 - r0)
-    a = ds.read(1, window=w, masked=True).astype(np.float32).filled(np.nan)
-    x0 = ds.transform.c + c0 * res
-    y0 = ds.transform.f + r0 * ds.transform.e
-    if height_operation is not None:
-        a = convert_heights(a, x0, y0, res, height_operation)
-    return HeightRaster(a, x0, y0, res, CRS(ds.crs), source=f"{ds.name}")
+    return Window(c0, r0, c1 - c0, r1 - r0)
 
 
 def convert_heights(heights: np.ndarray, x_left: float, y_top: float, res: float,

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import cv2
+import numba
 import numpy as np
 
 from aerotri.core.errors import InputError
@@ -47,7 +48,8 @@ OVERHANG_ABOVE_M = 2.0  # an overhang cell stands at least this much above the D
 SUB_CELL_M = 0.1  # the walls within an overhang cell are resolved to sub-cells of at most this size
 HALO = -3  # ``sub_index`` HALO - k: a cell beside an overhang, its own solid column and the overhang's slab over the
 # sub-cells of ``sub_masks[k]``
-_ROWS_PER_CHUNK = 256  # DSM rows rasterised at a time (the sub-cell raster of a chunk: 256 x 5 rows)
+_ROWS_PER_CHUNK = 256  # the row bands of the first rasterisation of the sub-cells (which ``occluder_of_cells`` keeps:
+# a band that no footprint crosses has no overhang cells)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,88 +127,218 @@ def _eave_lines(labels: np.ndarray, tops: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class FootprintCells:
+    """The footprints rasterised on a DSM grid: the part of ``footprint_occluder`` that depends neither on the heights
+    nor on the window read, so that a block's frames share it (``window``). ``label`` (int32): per cell the 1-based
+    index in ``polygons`` of a footprint whose reach (the footprint grown by ``reach_m``, every cell it touches) covers
+    the cell, 0 none (where two reaches overlap, the later polygon's); ``inside`` (uint16): the cell's sub-cells inside
+    a footprint (``sub`` x ``sub`` a cell, a sub-cell inside when its centre is); ``wall_index`` (int32): for a cell
+    that a wall crosses (0 < ``inside`` < sub x sub) its sub-cells inside, ``wall_masks[k]`` ((K, sub, sub) uint8,
+    rows from the north, columns from the west), else -1; ``polygons``: the footprints near the grid (shapely)."""
+
+    label: np.ndarray
+    inside: np.ndarray
+    wall_index: np.ndarray
+    wall_masks: np.ndarray
+    polygons: np.ndarray
+    sub: int
+
+    def window(self, row0: int, col0: int, rows: int, cols: int) -> FootprintCells:
+        """The cells ``row0 .. row0 + rows``, ``col0 .. col0 + cols`` (views; the masks and polygons shared)."""
+        cut = np.s_[row0:row0 + rows, col0:col0 + cols]
+        return dataclasses.replace(self, label=self.label[cut], inside=self.inside[cut],
+                                   wall_index=self.wall_index[cut])
+
+
+def footprint_cells(x_left_m: float, y_top_m: float, res_m: float, shape: tuple[int, int], footprints: np.ndarray, *,
+                    reach_m: float = OVERHANG_REACH_M, sub_cell_m: float = SUB_CELL_M) -> FootprintCells:
+    """The ``FootprintCells`` of the north-up grid of ``shape`` (rows, cols) cells of ``res_m`` from its top-left
+    corner (``x_left_m``, ``y_top_m``; project CRS) with the footprint polygons (project CRS)."""
+    import shapely
+    from rasterio.features import rasterize
+    from rasterio.transform import from_origin
+
+    dh, dw = shape
+    res = res_m
+    sub = max(1, int(math.ceil(res / sub_cell_m - 1e-9)))
+    left, right, top_y, bottom = x_left_m, x_left_m + dw * res, y_top_m, y_top_m - dh * res
+    polys = footprints[shapely.intersects(footprints, shapely.box(left - reach_m, bottom - reach_m,
+                                                                   right + reach_m, top_y + reach_m))]
+    inside = np.zeros((dh, dw), np.uint16)
+    wall_index = np.full((dh, dw), -1, np.int32)
+    if len(polys) == 0:
+        return FootprintCells(np.zeros((dh, dw), np.int32), inside, wall_index, np.zeros((0, sub, sub), np.uint8),
+                              polys, sub)
+    label = rasterize(((shapely.geometry.mapping(g), k + 1) for k, g in enumerate(shapely.buffer(polys, reach_m))),
+                      out_shape=(dh, dw), transform=from_origin(x_left_m, y_top_m, res, res), all_touched=True,
+                      dtype="int32")
+    # sub-cells inside a footprint, rasterised over each footprint's cells (a window of whole cells around it, with
+    # every footprint that reaches into it): a few % of the grid, not all of it at sub x sub the cells
+    masks, count = [], 0
+    shapes = [shapely.geometry.mapping(g) for g in polys]  # converted once, not by every rasterize
+    x0, y0, x1, y1 = shapely.bounds(polys).T
+    c0 = np.clip(np.floor((x0 - x_left_m) / res).astype(np.int64) - 1, 0, dw)
+    c1 = np.clip(np.ceil((x1 - x_left_m) / res).astype(np.int64) + 1, 0, dw)
+    r0 = np.clip(np.floor((y_top_m - y1) / res).astype(np.int64) - 1, 0, dh)
+    r1 = np.clip(np.ceil((y_top_m - y0) / res).astype(np.int64) + 1, 0, dh)
+    windows = shapely.box(x_left_m + c0 * res, y_top_m - r1 * res, x_left_m + c1 * res, y_top_m - r0 * res)
+    which, there = shapely.STRtree(polys).query(windows, predicate="intersects")
+    for k in range(len(polys)):
+        h, w = int(r1[k] - r0[k]), int(c1[k] - c0[k])
+        if h <= 0 or w <= 0:
+            continue
+        fine = rasterize(((shapes[q], 1) for q in there[which == k]), out_shape=(h * sub, w * sub),
+                         transform=from_origin(x_left_m + c0[k] * res, y_top_m - r0[k] * res, res / sub, res / sub),
+                         dtype="uint8")
+        n_in = fine.reshape(h, sub, w * sub).sum(axis=1, dtype=np.uint16).reshape(h, w, sub).sum(axis=2,
+                                                                                                 dtype=np.uint16)
+        cells = fine.reshape(h, sub, w, sub).transpose(0, 2, 1, 3)  # (rows, cols, sub, sub)
+        win = np.s_[r0[k]:r1[k], c0[k]:c1[k]]
+        inside[win] = n_in
+        # a wall's cell in two windows: its sub-cells once
+        rr, cc = np.nonzero((n_in > 0) & (n_in < sub * sub) & (wall_index[win] < 0))
+        wall_index[r0[k] + rr, c0[k] + cc] = count + np.arange(len(rr), dtype=np.int32)
+        count += len(rr)
+        masks.append(cells[rr, cc].astype(np.uint8))
+    wall_masks = np.concatenate(masks) if masks else np.zeros((0, sub, sub), np.uint8)
+    return FootprintCells(label, inside, wall_index, wall_masks, polys, sub)
+
+
 def footprint_occluder(dsm: HeightRaster, ground_m: np.ndarray, footprints: np.ndarray, *,
                        slab_m: float = OVERHANG_SLAB_M, reach_m: float = OVERHANG_REACH_M,
                        above_m: float = OVERHANG_ABOVE_M, sub_cell_m: float = SUB_CELL_M) -> FootprintOccluder:
     """The ``FootprintOccluder`` of ``dsm`` (a window in the project CRS) with the footprint polygons (project CRS)
     and ``ground_m``, the DEM at the DSM's cell centres (same shape; ``ortho.rectify.heights_on_grid``)."""
+    cells = footprint_cells(dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.heights_m.shape, footprints, reach_m=reach_m,
+                            sub_cell_m=sub_cell_m)
+    return occluder_of_cells(dsm, ground_m, cells, slab_m=slab_m, above_m=above_m)
+
+
+def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,
+                      slab_m: float = OVERHANG_SLAB_M, above_m: float = OVERHANG_ABOVE_M) -> FootprintOccluder:
+    """The ``FootprintOccluder`` of ``dsm`` (a window in the project CRS) from its ``FootprintCells`` (same grid, e.g.
+    ``FootprintCells.window`` of a larger one) and ``ground_m`` (float32, as ``footprint_occluder``). What depends on
+    the window (a building's eave line from its overhang cells in the window, the cells beside an overhang) is taken
+    here, so the occluder is the same whether the cells were rasterised for this window or cut from a larger one.
+    The cell loops compiled (``_overhang_cells``, ``_beside_overhangs``)."""
     import shapely
-    from rasterio.features import rasterize
-    from rasterio.transform import from_origin
 
     top = dsm.heights_m
     dh, dw = top.shape
     res = dsm.res_m
-    sub = max(1, int(math.ceil(res / sub_cell_m - 1e-9)))
+    sub = cells.sub
     base = np.full((dh, dw), -np.inf, np.float32)
+    slab_top = np.full((dh, dw), -np.inf, np.float32)
     sub_index = np.full((dh, dw), -1, np.int32)
-    left, bottom, right, top_y = dsm.bounds
-    polys = footprints[shapely.intersects(footprints, shapely.box(left - reach_m, bottom - reach_m,
-                                                                   right + reach_m, top_y + reach_m))]
-    if len(polys) == 0:
-        return FootprintOccluder(base, base.copy(), sub_index, np.zeros((0, sub, sub), np.uint8), sub)
-    # each cell near a footprint labelled with it (1-based; where two buildings' reaches overlap, one of them)
-    label = rasterize(((shapely.geometry.mapping(g), k + 1) for k, g in enumerate(shapely.buffer(polys, reach_m))),
-                      out_shape=(dh, dw),
-                      transform=from_origin(dsm.x_left_m, dsm.y_top_m, res, res), all_touched=True, dtype="int32")
-    with np.errstate(invalid="ignore"):
-        candidate = (label > 0) & (top - ground_m > above_m)
-    masks, count = [], 0
-    shapes = [shapely.geometry.mapping(g) for g in polys]  # converted once, not by every rasterize
-    for r0 in range(0, dh, _ROWS_PER_CHUNK):
-        r1 = min(dh, r0 + _ROWS_PER_CHUNK)
-        if not candidate[r0:r1].any():
-            continue
-        y1, y0 = dsm.y_top_m - r0 * res, dsm.y_top_m - r1 * res
-        here = [shapes[k] for k in np.flatnonzero(shapely.intersects(polys, shapely.box(left, y0, right, y1)))]
-        if not here:
-            continue
-        # sub-cells inside a footprint, each the value sub x sub x 100: cv2's area average per cell (exact for a
-        # whole factor) is then 100 x the number inside
-        fine = rasterize(((g, sub * sub * 100) for g in here), out_shape=((r1 - r0) * sub, dw * sub),
-                         transform=from_origin(dsm.x_left_m, y1, res / sub, res / sub), dtype="uint16")
-        inside = (cv2.resize(fine, (dw, r1 - r0), interpolation=cv2.INTER_AREA) + 50) // 100
-        cells = fine.reshape(r1 - r0, sub, dw, sub).transpose(0, 2, 1, 3)  # (rows, cols, sub, sub)
-        over = candidate[r0:r1] & (inside < sub * sub)
-        rr, cc = np.nonzero(over)
-        base[r0 + rr, cc] = 1.0  # an overhang; its underside set below, per building
-        walls = inside[rr, cc] > 0
-        sub_index[r0 + rr[walls], cc[walls]] = count + np.arange(int(walls.sum()), dtype=np.int32)
-        count += int(walls.sum())
-        masks.append((cells[rr[walls], cc[walls]] > 0).astype(np.uint8))
-    sub_masks = np.concatenate(masks) if masks else np.zeros((0, sub, sub), np.uint8)
+    # (as the rasterisation by row bands did: a band of _ROWS_PER_CHUNK rows that no footprint crosses has no
+    # overhang cells)
+    left, _, right, _ = dsm.bounds
+    bands = np.arange((dh + _ROWS_PER_CHUNK - 1) // _ROWS_PER_CHUNK)
+    crossed = shapely.intersects(cells.polygons[:, None], shapely.box(
+        left, dsm.y_top_m - np.minimum(dh, (bands + 1) * _ROWS_PER_CHUNK) * res, right,
+        dsm.y_top_m - bands * _ROWS_PER_CHUNK * res)[None, :]).any(axis=0)
+    taken = np.zeros((dh, dw), np.bool_)  # candidates: overhangs, or roof inside the walls
+    over = np.zeros((dh, dw), np.bool_)
+    rr, cc_ = _overhang_cells(cells.label, cells.inside, top, ground_m.astype(np.float32, copy=False),
+                              np.float32(above_m), sub * sub, crossed, _ROWS_PER_CHUNK, taken, over)
+    lab = cells.label[rr, cc_]
+    walls = cells.inside[rr, cc_] > 0
+    sub_index[rr[walls], cc_[walls]] = np.arange(int(walls.sum()), dtype=np.int32)
+    sub_masks = cells.wall_masks[cells.wall_index[rr[walls], cc_[walls]]]
     # the underside: the building's eave line less the slab, flat under the whole overhang (a pitched roof's
     # overhang rises inwards and up its gable ends; what lies under it is the soffit at the eave line's level, or
     # the roof itself); the slab reaches up to the eave line at least (a cell lower than it, e.g. filled between
     # the LiDAR's returns in a wall's shadow, lies under the eave)
-    over = np.isfinite(base)
-    rr, cc = np.nonzero(over)
-    eave = _eave_lines(label[rr, cc], top[rr, cc], len(polys) + 1)[label[rr, cc]]
-    base[rr, cc] = eave - slab_m
-    slab_top = np.full((dh, dw), -np.inf, np.float32)
-    slab_top[rr, cc] = np.maximum(top[rr, cc], eave)
+    eave = _eave_lines(lab, top[rr, cc_], len(cells.polygons) + 1)[lab]
+    over_base = eave - slab_m
+    base[rr, cc_] = over_base
+    slab_top[rr, cc_] = np.maximum(top[rr, cc_], eave)
     # the eave's edge lies anywhere within the cell beyond the last one sampled on the roof (a DSM samples the roof
-    # at its cell centres): the cells beside an overhang that are not roof (the ground, lower than the overhang)
-    # carry its soffit slab as well, so that no ray passes through the part of the eave the DSM missed
-    beside = cv2.erode(np.where(over, base, np.inf).astype(np.float32), np.ones((3, 3), np.uint8),
-                       borderType=cv2.BORDER_CONSTANT, borderValue=float("inf"))
-    halo = ~over & ~candidate & np.isfinite(beside)
-    base[halo] = beside[halo]
-    slab_top[halo] = beside[halo] + slab_m
-    # the slab reaches half a cell into such a cell from each overhang beside it: the sub-cells whose centres lie
-    # within half a cell of that side (or corner)
-    hr, hc = np.nonzero(halo)
-    near_side = (np.arange(sub) + 0.5) / sub <= 0.5
-    halo_masks = np.zeros((len(hr), sub, sub), np.uint8)
-    over_pad = np.pad(over, 1)
-    for di in (-1, 0, 1):
-        for dj in (-1, 0, 1):
-            if di == dj == 0:
-                continue
-            hit = over_pad[hr + 1 + di, hc + 1 + dj]
-            rows = near_side if di < 0 else near_side[::-1] if di > 0 else np.ones(sub, bool)
-            cols = near_side if dj < 0 else near_side[::-1] if dj > 0 else np.ones(sub, bool)
-            halo_masks[hit] |= (rows[:, None] & cols[None, :]).astype(np.uint8)
+    # at its cell centres): the cells beside an overhang that are not roof nor candidates (the ground, lower than
+    # the overhang) carry its soffit slab as well (the lowest of the overhangs beside it), so that no ray passes
+    # through the part of the eave the DSM missed; the slab reaches half a cell into such a cell from each overhang
+    # beside it: the sub-cells whose centres lie within half a cell of that side (or corner)
+    hr, hc, halo_masks = _beside_overhangs(rr, cc_, over_base.astype(np.float32), taken, over, sub, np.float32(slab_m),
+                                           base, slab_top)
     sub_index[hr, hc] = HALO - (len(sub_masks) + np.arange(len(hr), dtype=np.int32))
     sub_masks = np.concatenate([sub_masks, halo_masks])
     return FootprintOccluder(base, slab_top, sub_index, sub_masks, sub)
+
+
+@numba.njit(cache=True, nogil=True)
+def _overhang_cells(label, inside, top, ground, above_m, sub2, crossed, rows_per_band, taken, over):
+    """The candidates (near a footprint, more than ``above_m`` above the ground: ``taken``) and among them the
+    overhangs (not wholly inside a footprint, in a ``crossed`` band: ``over``) of a window; the overhangs' rows and
+    columns, row-major."""
+    dh, dw = label.shape
+    n = 0
+    for r in range(dh):
+        band = crossed[r // rows_per_band]
+        for c in range(dw):
+            if label[r, c] > 0 and top[r, c] - ground[r, c] > above_m:
+                taken[r, c] = True
+                if band and inside[r, c] < sub2:
+                    over[r, c] = True
+                    n += 1
+    rr = np.empty(n, np.int64)
+    cc = np.empty(n, np.int64)
+    k = 0
+    for r in range(dh):
+        for c in range(dw):
+            if over[r, c]:
+                rr[k] = r
+                cc[k] = c
+                k += 1
+    return rr, cc
+
+
+@numba.njit(cache=True, nogil=True)
+def _beside_overhangs(rr, cc, over_base, taken, over, sub, slab_m, base, slab_top):
+    """The cells beside an overhang (a neighbour of one of the 8 directions, not ``taken``): the lowest underside of the
+    overhangs beside it into ``base`` (and + ``slab_m`` into ``slab_top``); their rows, columns (row-major) and
+    sub-cell masks (within half a cell of each overhang beside it)."""
+    dh, dw = taken.shape
+    lowest = np.full((dh, dw), np.inf, np.float32)
+    for k in range(len(rr)):
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                i = rr[k] + di
+                j = cc[k] + dj
+                if (di != 0 or dj != 0) and i >= 0 and j >= 0 and i < dh and j < dw and not taken[i, j] \
+                        and over_base[k] < lowest[i, j]:
+                    lowest[i, j] = over_base[k]
+    n = 0
+    for i in range(dh):
+        for j in range(dw):
+            if lowest[i, j] < np.inf:
+                n += 1
+    hr = np.empty(n, np.int64)
+    hc = np.empty(n, np.int64)
+    masks = np.zeros((n, sub, sub), np.uint8)
+    near = np.empty(sub, np.bool_)
+    for t in range(sub):
+        near[t] = (t + 0.5) / sub <= 0.5
+    k = 0
+    for i in range(dh):
+        for j in range(dw):
+            if not lowest[i, j] < np.inf:
+                continue
+            hr[k] = i
+            hc[k] = j
+            base[i, j] = lowest[i, j]
+            slab_top[i, j] = lowest[i, j] + slab_m
+            for di in range(-1, 2):
+                for dj in range(-1, 2):
+                    ii = i + di
+                    jj = j + dj
+                    if (di == 0 and dj == 0) or ii < 0 or jj < 0 or ii >= dh or jj >= dw or not over[ii, jj]:
+                        continue
+                    for a in range(sub):
+                        row_ok = near[a] if di < 0 else near[sub - 1 - a] if di > 0 else True
+                        for b in range(sub):
+                            col_ok = near[b] if dj < 0 else near[sub - 1 - b] if dj > 0 else True
+                            if row_ok and col_ok:
+                                masks[k, a, b] = 1
+            k += 1
+    return hr, hc, masks

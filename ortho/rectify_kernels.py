@@ -269,6 +269,10 @@ def _cell_blocks(top, i, j, ray, span, walls):
     if k <= -3:  # beside an overhang: its own column, and the slab over the sub-cells of its mask
         if column:
             return True
+        # the ray rises: where it passes above the slab's top where it enters, or below its underside where it
+        # leaves, no sub-cell can stop it (the same answer as the walk over them, without it)
+        if not (slab_top_m[i, j] > z_in + tolerance_m and Z + rise * s_out > base):
+            return False
         m = -3 - k
         first, last = 1e30, -1e30
         s = s_in
@@ -284,12 +288,13 @@ def _cell_blocks(top, i, j, ray, span, walls):
         return True
     if k < 0 or not column:
         return False
-    # the wall
+    # the wall: the sub-cells inside a footprint the ray crosses while below the cell's top (it rises: once above,
+    # it stays above)
     s = s_in
-    while s <= s_out:
+    while s <= s_out and top > Z + rise * s + tolerance_m:
         a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
         b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
-        if sub_masks[k, a, b] and top > Z + rise * s + tolerance_m:
+        if sub_masks[k, a, b]:
             return True
         s += ds
     return False

@@ -16,7 +16,7 @@ from pyproj import CRS
 
 from aerotri.core.errors import InputError
 from ortho.dem import HeightRaster
-from ortho.footprints import OVERHANG_SLAB_M, footprint_occluder, read_footprints
+from ortho.footprints import OVERHANG_SLAB_M, footprint_cells, footprint_occluder, occluder_of_cells, read_footprints
 from ortho.rectify import FrameGeometry, occlusion_mask
 
 WALL = (10.2, 10.2, 20.0, 20.0)  # x0, y0, x1, y1 (m)
@@ -195,3 +195,38 @@ def test_the_eave_line_stands_above_the_cells_a_lidar_dsm_fills_low_in_a_walls_s
                              np.array([shapely.box(*WALL)], dtype=object))
     assert np.allclose(occ.base_m[low], ROOF_M - OVERHANG_SLAB_M)
     assert np.allclose(occ.slab_top_m[low], ROOF_M)
+
+
+def test_the_occluder_cut_from_a_blocks_footprint_cells_is_the_windows_own():
+    """A block's frames share one rasterisation of the footprints (``footprint_cells`` over the block's DSM window,
+    ``FootprintCells.window`` per frame): the occluder from the cut is the one rasterised for the frame's window
+    itself, array for array, also where the window cuts a building (its eave line then from its cells in the window)
+    and beside the window's edges. Three box buildings with 0.5 m eaves on 60 x 50 m, rotated walls for the third."""
+    n_r, n_c = int(50 / RES_M), int(60 / RES_M)
+    X, Y = np.meshgrid((np.arange(n_c) + 0.5) * RES_M, 50.0 - (np.arange(n_r) + 0.5) * RES_M)
+    walls = [shapely.box(10.2, 10.2, 20.0, 20.0), shapely.box(30.05, 28.3, 41.7, 36.0),
+             shapely.affinity.rotate(shapely.box(40.0, 8.0, 52.0, 18.0), 20.0)]
+    z = np.zeros((n_r, n_c), np.float32)
+    for k, w in enumerate(walls):
+        roof = shapely.contains_xy(w.buffer(EAVE_M, join_style="mitre"), X, Y)
+        z[roof] = ROOF_M + 2.0 * k + 0.1 * (X[roof] - X[roof].min())  # pitched: the eave line a quantile
+    ground = np.zeros_like(z)
+    footprints = np.array(walls, dtype=object)
+    cells = footprint_cells(0.0, 50.0, RES_M, z.shape, footprints)
+    windows = [(0, 0, n_r, n_c), (30, 25, 40, 40), (0, 0, 35, 90), (41, 50, 59, 70), (55, 90, 45, 30)]
+    checked = 0
+    for r0, c0, h, w in windows:
+        dsm = HeightRaster(z[r0:r0 + h, c0:c0 + w].copy(), c0 * RES_M, 50.0 - r0 * RES_M, RES_M, CRS_UTM, "DSM")
+        own = footprint_occluder(dsm, ground[r0:r0 + h, c0:c0 + w], footprints)
+        cut = occluder_of_cells(dsm, ground[r0:r0 + h, c0:c0 + w], cells.window(r0, c0, h, w))
+        for name in ("base_m", "slab_top_m", "sub_index", "sub_masks"):
+            a, b = getattr(own, name), getattr(cut, name)
+            assert a.dtype == b.dtype and np.array_equal(a, b), (r0, c0, name)
+        checked += own.overhang_cells
+        assert own.overhang_cells > 0 and (own.sub_index >= 0).any() and (own.sub_index <= -3).any()
+    # a window that cuts a building takes the eave line of its cells in the window: not the whole building's
+    whole = footprint_occluder(HeightRaster(z, 0.0, 50.0, RES_M, CRS_UTM, "DSM"), ground, footprints)
+    part = footprint_occluder(HeightRaster(z[:, :104].copy(), 0.0, 50.0, RES_M, CRS_UTM, "DSM"), ground[:, :104],
+                              footprints)
+    assert not np.array_equal(whole.base_m[:, :104], part.base_m)
+    assert checked > 500
