@@ -53,7 +53,14 @@ def _measure(n_points: int, only: list[str] | None = None) -> dict:
 
         tile_px, buffer_px, ntr, ntc = 256, 32, 4, 5
         count = np.zeros(ntr * ntc + 1, np.int64)
-        if hasattr(rasters, "_TileLayout"):
+        if hasattr(rasters, "_gather_columns"):         # fields as columns (i41-rasters7): the same bytes as records
+            lay = rasters._TileLayout(cell_m, x0, y0, tile_px, buffer_px, ntr, ntc)
+            rec = np.empty(rasters._membership_count(wx, wy, lay, count), [(f, t) for f, t in rasters._BIN_FIELDS])
+            cols = rasters._ChunkPoints(*(np.empty(len(rec), t) for _, t in rasters._BIN_FIELDS))
+            n = rasters._gather_columns(cols, count, rasters._ChunkPoints(wx, wy, wz, cls, rn, inten), lay)
+            for (f, _), col in zip(rasters._BIN_FIELDS, cols):
+                rec[f] = col
+        elif hasattr(rasters, "_TileLayout"):
             lay = rasters._TileLayout(cell_m, x0, y0, tile_px, buffer_px, ntr, ntc)
             rec = np.empty(rasters._membership_count(wx, wy, lay, count), rasters._BIN_DTYPE)
             n = rasters._gather_records(rec, count, rasters._ChunkPoints(wx, wy, wz, cls, rn, inten), lay)

@@ -6,8 +6,8 @@ Each run is a fresh subprocess (one at a time, so that its peak RSS, resource.ge
 is its own) calling ``lidarctl.rasters.products.write_rasters`` on the strips (what the chain's rasters stage
 and the command call; the command adds its imports, about 1.4 CPU-s here): the baseline from
 ``git archive <rev>`` unpacked into the work folder, ours from this checkout. Before the timed runs
-both trees run once on a 20 000-point strip, so that numba's compilation (cached on disk) is not
-timed. Timed runs alternate baseline, ours, baseline, ours ... (``--repeat``); the figures are the
+both trees run once on 20 000 points spread over a strip (several tiles), so that numba's compilation
+(cached on disk) is not timed. Timed runs alternate baseline, ours, baseline, ours ... (``--repeat``); the figures are the
 best of each (the 2-core machine is shared: the load average is recorded beside every run).
 Throughput = points of the strips / wall seconds of the call.
 
@@ -112,12 +112,13 @@ def run(src: Path, out: Path, paths, numba_cache: Path | None = None, extra_env:
 
 
 def small_strip(path: Path, out: Path, n: int = 20_000) -> Path:
-    """The first n points of a strip (the warm-up run's input)."""
+    """n points spread over a strip (the warm-up run's input): its extent spans several tiles, so that the
+    warm-up also compiles what only tiles with neighbours run (the TIN fill's certification)."""
     import laspy
 
     if not out.exists():
         las = laspy.read(path)
-        las.points = las.points[:n]
+        las.points = las.points[np.arange(0, len(las.points), max(len(las.points) // n, 1))]
         las.write(out)
     return out
 
@@ -207,7 +208,7 @@ def main():
             cold[name] = r
             print(f"{name}, empty numba cache: {r['seconds']:.1f} s, CPU {r['cpu_seconds']:.1f} s, "
                   f"load {r['load_average_1min_before_after']}", flush=True)
-    warm = small_strip(paths[0], args.work / "warm_up.laz")
+    warm = small_strip(paths[0], args.work / "warm_up_spread.laz")
     for name, src in trees.items():
         run(src, args.work / f"warm_{name}", [warm], extra_env=envs[name])
     runs = {name: [] for name in trees}

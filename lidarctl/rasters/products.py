@@ -480,7 +480,10 @@ def _inputs(paths, crs_arg) -> _Inputs:
     return _Inputs(paths, first[1], first[3], first[2], (lo[0], lo[1], hi[0], hi[1]), n)
 
 
-_BIN_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("rn", "u1"), ("intensity", "u2")])
+# A tile's binned points: one file per field (``tile_<id>_<field>.bin``), so that its chunks are read back as the
+# contiguous arrays the cell kernels take (records cost a copy of every field of every chunk, twice: 0.15-0.3
+# CPU-s of the demo's rasters).
+_BIN_FIELDS = (("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("rn", "u1"), ("intensity", "u2"))
 _BLOCK_PX = 512
 
 
@@ -495,7 +498,7 @@ _BIN_READ_POINTS = 250_000
 
 def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> np.ndarray:
     """Pass 1: stream every file once and append each tile's points (core + buffer) to its
-    ``tile_<id>.bin`` (``_BIN_DTYPE``, metres, file order). Tiles are in raster cells: the tile grid's
+    files ``tile_<id>_<field>.bin`` (``_BIN_FIELDS``, metres, file order). Tiles are in raster cells: the tile grid's
     coordinates are the global cell indices, so tile membership is exact integer arithmetic and
     agrees with the cell ``_CellSums`` puts a point in. Returns which tiles hold points."""
     from aerotri.core.log import progress
@@ -510,13 +513,15 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
         for x, y, z, cls, rn, inten in _read_ahead(chunks):
             count = np.zeros(grid.n_tiles + 1, np.int64)
-            rec = np.empty(_membership_count(x, y, lay, count), _BIN_DTYPE)     # the memberships' records, by tile
+            n_members = _membership_count(x, y, lay, count)
+            cols = _ChunkPoints(*(np.empty(n_members, dtype) for _, dtype in _BIN_FIELDS))   # by tile
             # classes contiguous (a strided record field of some files): numba compiles one signature
-            n_ground += _gather_records(rec, count, _ChunkPoints(x, y, z, np.ascontiguousarray(cls), rn, inten), lay)
+            n_ground += _gather_columns(cols, count, _ChunkPoints(x, y, z, np.ascontiguousarray(cls), rn, inten), lay)
             for tid in np.flatnonzero(count[1:] > count[:-1]):
                 used[tid] = True
-                with open(work / f"tile_{tid}.bin", "ab") as fh:
-                    rec[count[tid]:count[tid + 1]].tofile(fh)
+                for (name, _), col in zip(_BIN_FIELDS, cols):
+                    with open(work / f"tile_{tid}_{name}.bin", "ab") as fh:
+                        col[count[tid]:count[tid + 1]].tofile(fh)
             bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
@@ -540,7 +545,8 @@ class _TileLayout(NamedTuple):
 
 
 class _ChunkPoints(NamedTuple):
-    """A chunk of points as ``_gather_records`` takes it (x, y, z in metres, class, return number, intensity)."""
+    """A chunk of points as ``_gather_columns`` takes and makes it (x, y, z in metres, class, return number,
+    intensity)."""
 
     x: np.ndarray
     y: np.ndarray
@@ -583,11 +589,12 @@ def _membership_count(x, y, lay, count):
 
 
 @numba.njit(cache=True, nogil=True)
-def _gather_records(rec, count, pts, lay):
-    """The records (``_BIN_DTYPE``) of the memberships by tile of the chunk ``pts`` (``_ChunkPoints``), points
-    in order within a tile (the counting sort of ``TileGrid.assign``); returns the number of ground (2) and
-    water (9) points."""
+def _gather_columns(cols, count, pts, lay):
+    """The fields (``_ChunkPoints`` of ``_BIN_FIELDS`` arrays) of the memberships by tile of the chunk ``pts``
+    (``_ChunkPoints``), points in order within a tile (the counting sort of ``TileGrid.assign``); returns the
+    number of ground (2) and water (9) points."""
     x, y, z, cls, rn, inten = pts.x, pts.y, pts.z, pts.cls, pts.rn, pts.intensity
+    ox, oy, oz, ocls, orn, ointen = cols.x, cols.y, cols.z, cols.cls, cols.rn, cols.intensity
     ntc = lay.ntc
     fill = count[:-1].copy()
     n = 0
@@ -598,8 +605,8 @@ def _gather_records(rec, count, pts, lay):
                 t = r * ntc + c
                 i = fill[t]
                 fill[t] += 1
-                rec[i].x, rec[i].y, rec[i].z = x[k], y[k], z[k]
-                rec[i].cls, rec[i].rn, rec[i].intensity = cls[k], rn[k], inten[k]
+                ox[i], oy[i], oz[i] = x[k], y[k], z[k]
+                ocls[i], orn[i], ointen[i] = cls[k], rn[k], inten[k]
         if cls[k] == 2 or cls[k] == 9:
             n += 1
     return n
@@ -651,13 +658,16 @@ def _read_ahead(chunks, depth: int = 1):
             thread.join(timeout=0.1)
 
 
-def _bin_chunks(path: Path, chunk_points: int):
-    with open(path, "rb") as fh:
+def _bin_chunks(work: Path, tid: int, chunk_points: int):
+    """The binned points of tile ``tid`` (``_bin_points``) by chunks of ``chunk_points``: ``_ChunkPoints`` of
+    contiguous arrays."""
+    with contextlib.ExitStack() as files:
+        fhs = [files.enter_context(open(work / f"tile_{tid}_{name}.bin", "rb")) for name, _ in _BIN_FIELDS]
         while True:
-            rec = np.fromfile(fh, _BIN_DTYPE, count=chunk_points)
-            if not len(rec):
+            chunk = _ChunkPoints(*(np.fromfile(fh, dtype, count=chunk_points) for fh, (_, dtype) in zip(fhs, _BIN_FIELDS)))
+            if not len(chunk.x):
                 return
-            yield rec
+            yield chunk
 
 
 def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "float32", nodata=NODATA):
@@ -974,15 +984,15 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
 
     res_m, x0, y0 = args[:3]
     tid, (row0, col0, rows, cols), core, _ = tile
-    bin_path = work / f"tile_{tid}.bin"
     sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
-    for rec in _bin_chunks(bin_path, chunk_points):
-        sums.add(rec["x"], rec["y"], rec["z"], rec["cls"], rec["rn"], rec["intensity"])
+    for ch in _bin_chunks(work, tid, chunk_points):
+        sums.add(ch.x, ch.y, ch.z, ch.cls, ch.rn, ch.intensity)
     grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's bilinear samples
     dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
-    for rec in _bin_chunks(bin_path, chunk_points):
-        sums.add_chm(rec["x"], rec["y"], rec["z"], rec["cls"], dem)
-    os.remove(bin_path)
+    for ch in _bin_chunks(work, tid, chunk_points):
+        sums.add_chm(ch.x, ch.y, ch.z, ch.cls, dem)
+    for name, _ in _BIN_FIELDS:
+        os.remove(work / f"tile_{tid}_{name}.bin")
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA

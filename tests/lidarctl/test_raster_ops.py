@@ -106,3 +106,16 @@ def test_pull_push_fill_equals_the_array_version():
                 f = fill_nodata(a)
                 assert np.isfinite(f).all()
                 np.testing.assert_array_equal(f, _fill_nodata_arrays(a))
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (3, 5), (17, 33), (101, 57)])
+@pytest.mark.parametrize("empty", [0.01, 0.5, 0.99])
+def test_fill_nodata_first_level_from_the_raster_is_the_same_bits(shape, empty):
+    # fill_nodata reads its first pyramid level from the raster itself (NaN: no value); the levels as (values,
+    # weights) arrays give the same bits, for a contiguous raster and a strided one (a column of records)
+    rng = np.random.default_rng(shape[0] * 100 + int(empty * 100))
+    records = rng.normal(100.0, 5.0, (shape[0] * shape[1], 5))
+    records[rng.random(len(records)) < empty, 2] = np.nan
+    strided = records[:, 2].reshape(shape)
+    for a in (strided, np.ascontiguousarray(strided)):
+        assert fill_nodata(a).tobytes() == raster_ops._fill_nodata_levels(np.asarray(a, float)).tobytes()

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import ConvexHull, Delaunay
 
 from lidarctl.raster_ops import _jittered_cells
-from lidarctl.raster_tin import COLLINEAR, OK, _incircle, _orient, delaunay_lattice
+from lidarctl.raster_tin import COLLINEAR, OK, _argsort_keys, _incircle, _insertion_keys, _orient, delaunay_lattice
 
 
 def _check_delaunay(pts: np.ndarray, tri: np.ndarray) -> None:
@@ -140,3 +140,64 @@ def test_fill_triangles_passing_over_2x2_triangles_fills_the_same():
     _fill_triangles_reference(ref, gaps, (pts, z, tri), 6.0, (row0, col0))
     assert (ref[gaps] != -1.0).mean() > 0.5                    # most gap cells filled by a triangle
     np.testing.assert_array_equal(ours, ref)
+
+
+def test_tin_fill_of_the_needed_cells_certified_as_the_whole_triangulation(monkeypatch):
+    # the needed cells' triangles come from the rim cells within TIN_INNER_MARGIN_PX of them, plus the farther
+    # ones found in conflict with them (a building across the margin, wide triangles near the survey's edge):
+    # the same values as the triangulation of all rim cells within 2 R + 3 cells; without the farther ones
+    # some cells would differ
+    from lidarctl import raster_ops
+
+    rng = np.random.default_rng(21)
+    rows, cols = np.mgrid[0:260, 0:240]
+    a = 50.0 + 0.05 * cols + 0.02 * rows + rng.normal(0, 0.2, rows.shape)
+    gaps = rng.random(a.shape) < 0.45
+    gaps[78:112, 100:134] = True                   # a building across the needed cells' edge and the margin
+    gaps[150:210, 170:200] = True
+    gaps[:, 225:] = True                           # outside the survey
+    a[gaps] = np.nan
+    needed = (slice(100, 180), slice(80, 190))
+    r = 20
+    inserted = []
+    bw_insert = raster_ops._bw_insert
+    monkeypatch.setattr(raster_ops, "_bw_insert", lambda px, py, seq, mesh: inserted.append(len(seq))
+                        or bw_insert(px, py, seq, mesh))
+    ours = raster_ops.fill_nodata_tin(a, max_radius_px=r, offset=(3, 7), needed=needed)
+    assert len(inserted) >= 2 and sum(inserted[1:]) > 0          # points beyond the margin were inserted
+    assert sum(inserted) < 0.5 * np.count_nonzero(~gaps[57:223, 37:233])   # far fewer than all within 2 R + 3
+    with monkeypatch.context() as m:
+        m.setattr(raster_ops, "_certified_tin", lambda *args: None)
+        plain = raster_ops.fill_nodata_tin(a, max_radius_px=r, offset=(3, 7), needed=needed)
+    np.testing.assert_array_equal(ours[needed], plain[needed])
+    monkeypatch.setattr(raster_ops, "_conflicts_near", lambda *args: 0)
+    margin_only = raster_ops.fill_nodata_tin(a, max_radius_px=r, offset=(3, 7), needed=needed)
+    assert np.count_nonzero(margin_only[needed] != plain[needed]) > 50
+
+
+def _hilbert_xy2d(order_bits: int, x: int, y: int) -> int:
+    """Wikipedia's xy2d: the Hilbert index of cell (x, y) of a square of 2^order_bits cells, one level at a time."""
+    side, d, s = 1 << order_bits, 0, 1 << (order_bits - 1)
+    while s > 0:
+        rx, ry = int(x & s > 0), int(y & s > 0)
+        d += s * s * ((3 * rx) ^ ry)
+        if ry == 0:
+            if rx == 1:
+                x, y = side - 1 - x, side - 1 - y
+            x, y = y, x
+        s >>= 1
+    return d
+
+
+@pytest.mark.parametrize("order_bits", [1, 3, 4, 6, 9, 12])
+def test_insertion_order_is_the_hilbert_curve_within_rounds_and_sorted_as_argsort(order_bits):
+    rng = np.random.default_rng(order_bits)
+    n = 3000
+    ix, iy = rng.integers(0, 1 << order_bits, n), rng.integers(0, 1 << order_bits, n)
+    keys = _insertion_keys(ix, iy, order_bits)
+    hilbert = keys & ((1 << 2 * order_bits) - 1)
+    assert [int(h) for h in hilbert] == [_hilbert_xy2d(order_bits, int(x), int(y)) for x, y in zip(ix, iy)]
+    rounds = keys >> 2 * order_bits
+    assert rounds.min() >= 0 and rounds.max() <= 20 and len(np.unique(rounds)) > 1
+    order = _argsort_keys(keys.copy(), 2 * order_bits + 5)
+    np.testing.assert_array_equal(order, np.argsort(keys, kind="stable"))
