@@ -734,7 +734,7 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
     def write(tmp: Path) -> None:
         for name in RASTERS:
             write_cog(tmp / f"{name}.tif", getattr(grids, name), grids.transform, crs, unit=_unit(name, units),
-                      description=_description(name, units), tags=tags)
+                      description=_description(name, units), tags=_raster_tags(tags, name))
         _write_png_grey_as_rgba(tmp / "hillshade.png", lambda r0, r1: grey[r0:r1], *grey.shape)
 
     return _write_set(outdir, write)
@@ -747,6 +747,11 @@ def _tags(units: LengthUnits, res_m: float) -> dict:
     return {"LINEAR_UNITS": length_unit_name(units.xy_m, long=True),
             "VERTICAL_UNITS": length_unit_name(units.z_m, long=True),
             "CELL_SIZE_M": f"{res_m:g}", "CELL_SIZE": f"{res_m / units.xy_m:.10g} {units.xy_name}"}
+
+
+def _raster_tags(tags: dict, name: str) -> dict:
+    """The stage's tags for raster ``name``: VERTICAL_UNITS only on the height grids (intensity is no length)."""
+    return tags if name in HEIGHT_GRIDS else {k: v for k, v in tags.items() if k != "VERTICAL_UNITS"}
 
 
 def _unit(name: str, units: LengthUnits) -> str | None:
@@ -1021,7 +1026,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
         if _unit(name, units):
             ds.units = (_unit(name, units),)
         ds.set_band_description(1, _description(name, units))
-        ds.update_tags(**tags)
+        ds.update_tags(**_raster_tags(tags, name))
         out[name] = ds
     out["dem_m"] = working.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
     with ThreadPoolExecutor(threads) as pool:
