@@ -48,8 +48,6 @@ OVERHANG_ABOVE_M = 2.0  # an overhang cell stands at least this much above the D
 SUB_CELL_M = 0.1  # the walls within an overhang cell are resolved to sub-cells of at most this size
 HALO = -3  # ``sub_index`` HALO - k: a cell beside an overhang, its own solid column and the overhang's slab over the
 # sub-cells of ``sub_masks[k]``
-_ROWS_PER_CHUNK = 256  # the row bands of the first rasterisation of the sub-cells (which ``occluder_of_cells`` keeps:
-# a band that no footprint crosses has no overhang cells)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -231,17 +229,10 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     base = np.full((dh, dw), -np.inf, np.float32)
     slab_top = np.full((dh, dw), -np.inf, np.float32)
     sub_index = np.full((dh, dw), -1, np.int32)
-    # (as the rasterisation by row bands did: a band of _ROWS_PER_CHUNK rows that no footprint crosses has no
-    # overhang cells)
-    left, _, right, _ = dsm.bounds
-    bands = np.arange((dh + _ROWS_PER_CHUNK - 1) // _ROWS_PER_CHUNK)
-    crossed = shapely.intersects(cells.polygons[:, None], shapely.box(
-        left, dsm.y_top_m - np.minimum(dh, (bands + 1) * _ROWS_PER_CHUNK) * res, right,
-        dsm.y_top_m - bands * _ROWS_PER_CHUNK * res)[None, :]).any(axis=0)
     taken = np.zeros((dh, dw), np.bool_)  # candidates: overhangs, or roof inside the walls
     over = np.zeros((dh, dw), np.bool_)
     rr, cc_ = _overhang_cells(cells.label, cells.inside, top, ground_m.astype(np.float32, copy=False),
-                              np.float32(above_m), sub * sub, crossed, _ROWS_PER_CHUNK, taken, over)
+                              np.float32(above_m), sub * sub, taken, over)
     lab = cells.label[rr, cc_]
     walls = cells.inside[rr, cc_] > 0
     sub_index[rr[walls], cc_[walls]] = np.arange(int(walls.sum()), dtype=np.int32)
@@ -267,18 +258,16 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
 
 
 @numba.njit(cache=True, nogil=True)
-def _overhang_cells(label, inside, top, ground, above_m, sub2, crossed, rows_per_band, taken, over):
+def _overhang_cells(label, inside, top, ground, above_m, sub2, taken, over):
     """The candidates (near a footprint, more than ``above_m`` above the ground: ``taken``) and among them the
-    overhangs (not wholly inside a footprint, in a ``crossed`` band: ``over``) of a window; the overhangs' rows and
-    columns, row-major."""
+    overhangs (not wholly inside a footprint: ``over``) of a window; the overhangs' rows and columns, row-major."""
     dh, dw = label.shape
     n = 0
     for r in range(dh):
-        band = crossed[r // rows_per_band]
         for c in range(dw):
             if label[r, c] > 0 and top[r, c] - ground[r, c] > above_m:
                 taken[r, c] = True
-                if band and inside[r, c] < sub2:
+                if inside[r, c] < sub2:
                     over[r, c] = True
                     n += 1
     rr = np.empty(n, np.int64)

@@ -230,3 +230,21 @@ def test_the_occluder_cut_from_a_blocks_footprint_cells_is_the_windows_own():
                               footprints)
     assert not np.array_equal(whole.base_m[:, :104], part.base_m)
     assert checked > 500
+
+
+def test_an_eave_is_an_overhang_wherever_the_window_rows_fall():
+    """The eave on the south side of a building whose walls end 0.05 m above row 256 of the window is an overhang
+    as on its other sides (the rasterisation by bands of 256 rows had left a band that no wall crosses without
+    overhang cells: the occluder then depended on where the window began)."""
+    n_r, n_c = 300, 60
+    X, Y = np.meshgrid((np.arange(n_c) + 0.5) * RES_M, 150.0 - (np.arange(n_r) + 0.5) * RES_M)
+    wall = shapely.box(10.2, 22.05, 20.0, 40.0)  # row 256 spans y 21.5 .. 22.0: the walls stay in rows 0 .. 255
+    roof = shapely.contains_xy(wall.buffer(EAVE_M, join_style="mitre"), X, Y)
+    z = np.where(roof, ROOF_M, 0.0).astype(np.float32)
+    occ = footprint_occluder(HeightRaster(z, 0.0, 150.0, RES_M, CRS_UTM, "DSM"), np.zeros_like(z),
+                             np.array([wall], dtype=object))
+    south = roof & (Y < 22.05)  # the eave's cells south of the walls: row 256
+    north = roof & (Y > 40.0)
+    assert south.sum() == north.sum() > 15
+    assert np.isfinite(occ.base_m[south]).all() and np.isfinite(occ.base_m[north]).all()
+    assert np.allclose(occ.base_m[south], ROOF_M - OVERHANG_SLAB_M)
