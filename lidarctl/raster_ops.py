@@ -112,13 +112,14 @@ def reduce_grid(x, y, values, *, cell_m, x0, y0, nrows, ncols, how: str = "min")
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _mean_of_four(a00, a01, a10, a11, w00, w01, w10, w11):
-    """(value, weight) of a coarser cell from its four children (products value * weight ``a``, weights ``w``):
+def _mean_of_four(a, w):
+    """(value, weight) of a coarser cell from its four children (``a``: the products value * weight of children
+    00 01 10 11, ``w``: their weights):
     the weighted mean and 1, or 0 and 0 when no child has a value. One order of the sums for every caller: the
     levels come out the same bits whichever kernel read them."""
-    n = (w00 + w01) + (w10 + w11)
+    n = (w[0] + w[1]) + (w[2] + w[3])
     if n > 0:
-        return ((a00 + a01) + (a10 + a11)) / max(n, 1e-12), 1.0
+        return ((a[0] + a[1]) + (a[2] + a[3])) / max(n, 1e-12), 1.0
     return 0.0, 0.0
 
 
@@ -143,7 +144,7 @@ def _pull(v, w):
                 a10, w10 = v[i1, 2 * j] * w[i1, 2 * j], w[i1, 2 * j]
                 if j1 < wd:
                     a11, w11 = v[i1, j1] * w[i1, j1], w[i1, j1]
-            vs[i, j], ws[i, j] = _mean_of_four(a00, a01, a10, a11, w00, w01, w10, w11)
+            vs[i, j], ws[i, j] = _mean_of_four((a00, a01, a10, a11), (w00, w01, w10, w11))
     return vs, ws
 
 
@@ -191,7 +192,7 @@ def _pull_nan(a):
                     a10, w10 = a[i1, 2 * j], 1.0
                 if j1 < wd and np.isfinite(a[i1, j1]):
                     a11, w11 = a[i1, j1], 1.0
-            vs[i, j], ws[i, j] = _mean_of_four(a00, a01, a10, a11, w00, w01, w10, w11)
+            vs[i, j], ws[i, j] = _mean_of_four((a00, a01, a10, a11), (w00, w01, w10, w11))
     return vs, ws
 
 

@@ -10,7 +10,7 @@ row sum (how much of the truth class was found), user's accuracy = diagonal / co
 much of what was labelled is right), overall accuracy = trace / total, Cohen's kappa from the
 row and column sums (p_e = sum of row x column sums / total^2).
 
-A truth in a coarser scheme (``coarse_scheme_map``: it holds class 1 and no vegetation class 3/4/5, as AHN3's
+A truth in a coarser scheme (``_coarse_scheme_map``: it holds class 1 and no vegetation class 3/4/5, as AHN3's
 1 2 6 9 26) is scored on its own classes: our vegetation, noise and bridge-deck classes that it does not hold
 (3, 4, 5, 7, 17, 18) count as its class 1 in the confusion matrix (the filter test is the same either way: none
 of them is ground); the matrix before that mapping is kept beside it. A ``map_pred`` given replaces it.
@@ -100,7 +100,7 @@ class Confusion:
 @dataclasses.dataclass(frozen=True)
 class ClassificationEvaluation:
     """``evaluate_strips`` / ``evaluate_files``: the filter test (ground = classes 2, 9) and the confusion matrix.
-    Against a truth in a coarser scheme (``coarse_scheme_map``) the matrix is on the truth's classes:
+    Against a truth in a coarser scheme (``_coarse_scheme_map``) the matrix is on the truth's classes:
     ``class_map`` (our class as text -> the truth's class), why (``class_map_reason``) and the matrix of the
     classes as labelled (``confusion_before_map``); all None otherwise."""
 
@@ -131,7 +131,7 @@ COARSE_UNCLASSIFIED = (3, 4, 5, 7, 17, 18)
 VEGETATION = (3, 4, 5)
 
 
-def coarse_scheme_map(pred_classes, truth_classes) -> dict[int, int]:
+def _coarse_scheme_map(pred_classes, truth_classes) -> dict[int, int]:
     """Our classes to score as the truth's class 1 when the truth is in a coarser scheme: it holds class 1 and none
     of the vegetation classes 3/4/5. The classes of ``COARSE_UNCLASSIFIED`` we hold and it does not; {} otherwise."""
     truth = {int(c) for c in truth_classes}
@@ -280,7 +280,7 @@ def evaluate_strips(pred_paths, truth_paths, map_pred: dict | None = None,
     for mapping, arr in ((map_pred or {}, pc), (map_truth or {}, tc)):
         _remap(arr, mapping)
     ft, conf = filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9))), confusion(pc, tc)
-    coarse = {} if map_pred else coarse_scheme_map(np.unique(pc), np.unique(tc))
+    coarse = {} if map_pred else _coarse_scheme_map(np.unique(pc), np.unique(tc))
     if not coarse:
         return ClassificationEvaluation(ft, conf)
     reason = (f"the truth holds class 1 and no vegetation class (classes {' '.join(map(str, np.unique(tc)))}): "

@@ -395,7 +395,8 @@ def planar_cores(surface: np.ndarray, seeds: np.ndarray, allowed: np.ndarray, mu
     return out
 
 
-def covered_roofs(z, flat, candidate, last, reaches_ground, dem, cell_m: float, shape, p: "ClassifySettings") -> np.ndarray:
+def covered_roofs(z, flat, candidate, *, last, reaches_ground, dem, cell_m: float, shape,
+                  p: "ClassifySettings") -> np.ndarray:
     """Returns (bool per point) of small roofs under crowns. ``flat``: each point's cell on the grid ``shape``
     (``cell_m``, the ``dem`` grid); ``candidate``: the non-ground, non-building returns; ``last``: last (or
     single) returns; ``reaches_ground``: returns at the ground's level.
@@ -1558,8 +1559,8 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     if p.crown_covered_roofs and has_multi:
         # a shed under a crown: the crown is on the DSM, the roof on the surface where the pulses end
         level = is_ground | lifted | (hag <= p.wall_min_height_m)
-        is_building |= covered_roofs(z, flat, obj & ~is_building & ~level, last, clean & level, dem, c,
-                                     (nrows, ncols), p)
+        is_building |= covered_roofs(z, flat, obj & ~is_building & ~level, last=last, reaches_ground=clean & level,
+                                     dem=dem, cell_m=c, shape=(nrows, ncols), p=p)
     cls[is_building] = BUILDING
 
     # vegetation

@@ -555,7 +555,7 @@ def _write_gpkg(path, net: Network, *, sub_ids, sub_geoms, basin_ids, basin_geom
           field_data=[basin_ids, np.bincount(net.basin[net.basin >= 0], minlength=len(seg))[basin_ids] * cell_area_m2])
 
 
-def preview_png(dem, transform, net: Network, path, title: str, dx_m: float, xy_unit: str = "") -> None:
+def preview_png(dem, transform, net: Network, path, title: str, *, dx_m: float, xy_unit: str = "") -> None:
     """Streams (width and colour by Strahler order) over the DEM's hillshade, with a key and map axes."""
     plt = pyplot()
     import shapely
@@ -676,8 +676,8 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
                     basin_geoms=basin_geoms, crs_wkt=crs.to_wkt(), cell_area_m2=cell_area_m2)
         if png:
             preview_png(dem * z_m, transform, net, tmp / "drainage.png",
-                        f"{dem_path.name}: streams >= {min_area_m2:g} m2 ({method}), {len(net.lines)} segments", dx_m,
-                        unit_name(crs))
+                        f"{dem_path.name}: streams >= {min_area_m2:g} m2 ({method}), {len(net.lines)} segments",
+                        dx_m=dx_m, xy_unit=unit_name(crs))
         (tmp / "drainage.json").write_text(json.dumps(summary, indent=2))
         files = sorted(p.name for p in tmp.iterdir())
     log.debug(f"{dem_path} -> {outdir}: {summary}")
