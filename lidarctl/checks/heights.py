@@ -440,7 +440,8 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
             p["first_returns"] = int(n)
     if dem_path is not None:
         labels = points_m.group
-        result["dem"] = {"path": str(dem_path), "z_unit_m": dem_z_m, "n_points": len(dz_dem),
+        # absolute: the report reads it from another working folder than the one the command ran in
+        result["dem"] = {"path": str(Path(dem_path).resolve()), "z_unit_m": dem_z_m, "n_points": len(dz_dem),
                          "n_without_dem": int(np.sum(~np.isfinite(dz_dem))),
                          "overall": _stats_document(dz_dem, exclude_m),
                          "groups": _group_stats_document(dz_dem, labels, exclude_m) if labels else {}}

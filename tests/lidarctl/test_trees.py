@@ -239,14 +239,16 @@ def test_check_heights_dem_by_vegetation_density(forest_edge):
     assert [p["group"] for p in hc2["points"]] == ["sparse"] * 16 + ["open"] * 8 and "dem" not in hc2
 
 
-def test_check_heights_dem_alone_with_group_column(forest_edge, tmp_path):
+def test_check_heights_dem_alone_with_group_column(forest_edge, tmp_path, monkeypatch):
     d = forest_edge
     lines = (d / "pts.csv").read_text().splitlines()
     pts = tmp_path / "g.csv"
     pts.write_text("\n".join([lines[0] + ",group"] + [f"{ln},{'wood' if k < 8 else 'field'}"
                                                        for k, ln in enumerate(lines[1:])]) + "\n")
-    _ok(["check-heights", pts, "--dem", d / "dem.tif", "--json", tmp_path / "hc.json"])
+    monkeypatch.chdir(d)  # the DEM given relative to the working folder, as a user types it
+    _ok(["check-heights", pts, "--dem", "dem.tif", "--json", tmp_path / "hc.json"])
     hc = json.loads((tmp_path / "hc.json").read_text())
+    assert hc["dem"]["path"] == str((d / "dem.tif").resolve())  # found again from any other folder
     assert hc["overall"] is None and hc["grouping"] == "column"
     assert hc["dem"]["groups"]["wood"]["all"]["mean_dz_m"] == pytest.approx(0.7, abs=0.01)
     assert hc["dem"]["groups"]["field"]["all"]["n"] == 16
