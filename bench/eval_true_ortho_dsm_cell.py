@@ -46,6 +46,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
+from results_json import read_results, store_result  # noqa: E402
 
 ROWS_PER_CHUNK = 256
 
@@ -385,8 +386,7 @@ def main() -> None:
     ap.add_argument("--key", default="dsm_cell", help="the key of the JSON to write (the others kept)")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_fill.json")
     args = ap.parse_args()
-    out = json.loads(args.out.read_text()) if args.out.exists() else {}
-    key = out.setdefault(args.key, {"blocks": {}})
+    key = read_results(args.out).get(args.key, {"blocks": {}})  # its earlier blocks kept, merged
     for spec in args.blocks.split(";"):
         name, cells = spec.split(":")
         src = {"tall": args.tall, "tall2": args.tall2}.get(name, args.demo)
@@ -396,8 +396,7 @@ def main() -> None:
                       f"--blocks '{args.blocks}' --key {args.key}")
     key["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()
-    args.out.write_text(json.dumps(out, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    store_result(args.out, key, key=args.key)
 
 
 if __name__ == "__main__":

@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -50,7 +49,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
-from aerotri.core.atomic import write_text_atomic  # noqa: E402
+from results_json import git_commit, read_results, store_result  # noqa: E402
 
 CLEARANCES_M = (0.2, 0.25)
 
@@ -188,24 +187,17 @@ def main() -> None:
                     help="write this run under KEY of --out (its blocks merged), every other key kept; "
                          "default: the top-level blocks")
     args = ap.parse_args()
-    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
+    doc = read_results(args.out)
     out = {"clearances_m": list(CLEARANCES_M),
            "blocks": (doc.get(args.key, {}) if args.key else doc).get("blocks", {})}
     cpu0 = time.process_time()
     for name in args.blocks.split(","):
         out["blocks"][name] = measure_block(args.work, name)
         print(name, json.dumps(out["blocks"][name], indent=1), flush=True)
-    out["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
-                                   text=True).stdout.strip()
+    out["commit"] = git_commit(REPO)
     out["command"] = "python bench/eval_true_ortho_fill.py " + " ".join(sys.argv[1:])
     out["cpu_s"], out["load_avg_1min_at_end"] = round(time.process_time() - cpu0, 1), os.getloadavg()[0]
-    if args.key:  # the other keys (earlier runs) stay as they were
-        doc[args.key] = out
-    else:
-        doc.update(out)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    store_result(args.out, out, key=args.key)  # the other keys (earlier runs) stay as they were
 
 
 if __name__ == "__main__":

@@ -60,7 +60,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
-from aerotri.core.atomic import write_text_atomic  # noqa: E402
+from results_json import git_commit, read_results, store_result  # noqa: E402
 
 VISIBLE_TOL_M = 0.2  # the first hit within this of the ground point: the frame sees it
 GHOST_MARGIN_M = 1.0  # ghosts also counted beyond this distance from the nearest roof cell
@@ -584,7 +584,7 @@ def main() -> None:
     if "tall" in args.blocks.split(",") and not (args.tall / "truth" / "truth.json").exists():
         subprocess.run([str(Path(sys.executable).with_name("aerotri")), "sim", str(args.tall), "--preset", "tall"],
                        check=True)
-    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
+    doc = read_results(args.out)
     out = {"visible_tol_m": VISIBLE_TOL_M, "ghost_margin_m": GHOST_MARGIN_M, "end_reach_m": END_REACH_M,
            "blocks": (doc.get(args.key, {}) if args.key else doc).get("blocks", {})}
     cpu0 = time.process_time()
@@ -593,16 +593,10 @@ def main() -> None:
         src = Path(chains[name]) if name in chains else args.demo if name == "demo" else args.tall
         out["blocks"][name] = run_block(name, src, args.work, tall=name == "tall", reuse=args.reuse,
                                         remosaic=args.remosaic)
-    out["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
-                                   text=True).stdout.strip()
+    out["commit"] = git_commit(REPO)
     out["command"] = "python bench/eval_true_ortho_occlusion.py " + " ".join(sys.argv[1:])
     out["cpu_s"], out["load_avg_1min_at_end"] = round(time.process_time() - cpu0, 1), os.getloadavg()[0]
-    if args.key:  # the other keys (earlier runs) stay as they were
-        doc[args.key] = out
-    else:
-        doc.update(out)
-    write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    store_result(args.out, out, key=args.key)  # the other keys (earlier runs) stay as they were
 
 
 if __name__ == "__main__":
