@@ -42,10 +42,10 @@ def write_seamlines_gpkg(path, labels: np.ndarray, transform, names: list[str], 
     """``path`` (a GeoPackage, written whole): layer ``seamlines``, one MultiPolygon per labelled frame with the
     fields ``frame`` (its image id) and ``area_m2``, in ``crs`` (the mosaic's). ``features``: ``label_polygons`` of
     the same labels, if already made."""
-    import pyogrio.raw
     import shapely
     from shapely.geometry import shape
 
+    from aerotri.core.vector_files import VectorLayer, write_layers
     from ortho.seamlines import label_polygons
 
     if features is None:
@@ -54,8 +54,7 @@ def write_seamlines_gpkg(path, labels: np.ndarray, transform, names: list[str], 
              for g in (shape(f["geometry"]) for f in features)]
     frames = np.array([f["properties"]["image_id"] for f in features], dtype=object)
     areas = np.array([f["properties"]["area_m2"] for f in features], dtype=np.float64)
-    pyogrio.raw.write(str(path), shapely.to_wkb(np.array(geoms, dtype=object)), [frames, areas], ["frame", "area_m2"],
-                      layer=LAYER, driver="GPKG", geometry_type="MultiPolygon", crs=crs.to_wkt())
+    write_layers(path, [VectorLayer(LAYER, "MultiPolygon", geoms, {"frame": frames, "area_m2": areas})], crs=crs)
 
 
 def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transform, valid: list, offsets: list

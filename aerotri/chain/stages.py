@@ -439,21 +439,16 @@ class Chain:
         import numpy as np
         import pyproj
         import shapely
-        from pyogrio.raw import write
 
-        from aerotri.core.atomic import atomic_path
+        from aerotri.core.vector_files import VectorLayer, write_layers
 
         feats = [f for f in _json(self.project.truth_buildings_path)["features"]
                  if f["properties"].get("part") == "roof_outline"]
-        geoms = np.array([shapely.geometry.shape(f["geometry"]) for f in feats], dtype=object)
-        out = self.project.work_dir / "vectors_reference.gpkg"
-        out.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(out) as tmp:
-            tmp.unlink()  # a new GeoPackage, not the empty temporary file
-            write(tmp, np.array(shapely.to_wkb(geoms), dtype=object),
-                  field_data=[np.array([f["properties"]["building_id"] for f in feats])], fields=["building_id"],
-                  geometry_type="Polygon", crs=pyproj.CRS(self.project.crs).to_wkt(), driver="GPKG", layer="buildings")
-        return out
+        geoms = [shapely.geometry.shape(f["geometry"]) for f in feats]
+        ids = np.array([f["properties"]["building_id"] for f in feats])
+        return write_layers(self.project.work_dir / "vectors_reference.gpkg",
+                            [VectorLayer("buildings", "Polygon", geoms, {"building_id": ids})],
+                            crs=pyproj.CRS(self.project.crs).to_wkt())
 
     # -- tie points and adjustments -------------------------------------------------------------
     def run_match(self, root) -> R.MatchResult:

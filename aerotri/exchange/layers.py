@@ -1,5 +1,6 @@
 """Map layers of an adjusted block: GeoPackage (``aerotri export --format gpkg``, project CRS) and KML
-(``--format kml``, WGS84 longitude/latitude/ellipsoidal height, as KML requires), written with pyogrio.
+(``--format kml``, WGS84 longitude/latitude/ellipsoidal height, as KML requires), written by
+``aerotri.core.vector_files``.
 
 Layers (the same in both files):
 
@@ -192,14 +193,10 @@ def _to_wgs84(geoms, block: AdjustedBlock, project: Project):
     return [shapely.transform(g, f, include_z=True) for g in geoms]
 
 
-def _write(path: Path, layers, crs: str, driver: str) -> None:
-    import shapely
-    from pyogrio.raw import write
+def _write(path: Path, layers, crs: str) -> None:
+    from aerotri.core.vector_files import VectorLayer, write_layers
 
-    for n, (name, gtype, geoms, fields) in enumerate(layers):
-        write(str(path), np.array(shapely.to_wkb(geoms, output_dimension=3), dtype=object),
-              [fields[k] for k in fields], fields=list(fields), layer=name, driver=driver, crs=crs,
-              geometry_type=gtype, append=n > 0)
+    write_layers(path, [VectorLayer(name, gtype, geoms, fields) for name, gtype, geoms, fields in layers], crs=crs)
 
 
 def files(block: AdjustedBlock, project: Project, fmt: str) -> list[ExportFile]:
@@ -213,11 +210,11 @@ def files(block: AdjustedBlock, project: Project, fmt: str) -> list[ExportFile]:
             path = Path(tmp) / "block.gpkg"
             crs = parse_crs(block.crs)
             label = crs_label(horizontal_crs(crs))
-            _write(path, layers, label if label.startswith("EPSG:") else horizontal_crs(crs).to_wkt(), "GPKG")
+            _write(path, layers, label if label.startswith("EPSG:") else horizontal_crs(crs).to_wkt())
             return [ExportFile("layers/block.gpkg", path.read_bytes())]
         path = Path(tmp) / "block.kml"
         # KML shows a placemark's "Name": the point's or frame's id
         wgs = [(n, g, _to_wgs84(geoms, block, project), {"Name": f.get("point_id", f.get("image_id"))} | f)
                for n, g, geoms, f in layers]
-        _write(path, wgs, "EPSG:4326", "KML")
+        _write(path, wgs, "EPSG:4326")
         return [ExportFile("layers/block.kml", path.read_text())]

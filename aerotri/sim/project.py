@@ -668,26 +668,17 @@ def write_footprints_gpkg(buildings_geojson, out, crs: str) -> int:
     GeoPackage in ``crs`` (the project's): layer ``footprints``, one Polygon per building with its ``building_id``,
     the cadastral footprints ``ortho rectify --true-ortho --footprints`` takes (stand-ins for BGT or OSM buildings).
     Written atomically; returns the number of footprints."""
-    import pyogrio.raw
     import shapely
 
-    from aerotri.core.atomic import atomic_path
+    from aerotri.core.vector_files import VectorLayer, write_layers
 
     feats = [f for f in json.loads(Path(buildings_geojson).read_text())["features"]
              if f["properties"].get("part") == "footprint"]
-    geoms = np.array([shapely.geometry.shape(f["geometry"]) for f in feats], dtype=object)
+    geoms = [shapely.geometry.shape(f["geometry"]) for f in feats]
+    ids = np.array([int(f["properties"]["building_id"]) for f in feats], np.int64)
     # GDAL stamps the GeoPackage with the time of writing: a fixed stamp keeps the same seed's files the same bytes
-    before = pyogrio.get_gdal_config_option("OGR_CURRENT_DATE")
-    pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": "2000-01-01T00:00:00.000Z"})
-    try:
-        with atomic_path(Path(out)) as tmp:
-            tmp.unlink(missing_ok=True)  # a new GeoPackage, not the empty temporary file
-            pyogrio.raw.write(str(tmp), shapely.to_wkb(geoms),
-                              field_data=[np.array([int(f["properties"]["building_id"]) for f in feats], np.int64)],
-                              fields=["building_id"], geometry_type="Polygon", crs=crs, driver="GPKG",
-                              layer="footprints")
-    finally:
-        pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": before})
+    write_layers(out, [VectorLayer("footprints", "Polygon", geoms, {"building_id": ids})], crs=crs,
+                 timestamp="2000-01-01T00:00:00.000Z")
     return len(feats)
 
 

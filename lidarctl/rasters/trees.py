@@ -427,31 +427,24 @@ def write_gpkg(model: TreeModel, path, crs_wkt: str, units) -> None:
     """Layers ``stands`` (polygons) and ``tree_tops`` (points) in the cloud's CRS and units."""
     import shapely
     import shapely.affinity
-    from pyogrio.raw import write
 
-    from aerotri.core.atomic import atomic_path
+    from aerotri.core.vector_files import VectorLayer, write_layers
 
     scale = 1.0 / units.xy_m
-    with atomic_path(path) as tmp:
-        tmp.unlink(missing_ok=True)
-        st = model.stands
-        geoms = [shapely.affinity.scale(s.geometry, scale, scale, origin=(0, 0)) for s in st]
-        fields = {"stand_id": np.array([s.stand_id for s in st], np.int32),
-                  "area_m2": np.array([s.area_m2 for s in st]),
-                  "n_tops": np.array([s.n_tops for s in st], np.int32),
-                  **{f: np.array([getattr(s, f) for s in st]) for f in
-                     ("mean_height_m", "p50_height_m", "p90_height_m", "p95_height_m", "max_height_m")}}
-        write(tmp, shapely.to_wkb(np.array([shapely.MultiPolygon([g]) if g.geom_type == "Polygon" else g
-                                            for g in geoms], dtype=object)),
-              field_data=list(fields.values()), fields=list(fields), geometry_type="MultiPolygon", crs=crs_wkt,
-              driver="GPKG", layer="stands")
-        t = model.tops
-        pts = shapely.points(units.xy_from_m(t.x), units.xy_from_m(t.y))
-        fields = {"tree_id": np.arange(1, len(t.x) + 1, dtype=np.int32), "height_m": t.height_m,
-                  "height": units.z_from_m(t.height_m), "window_radius_m": t.window_radius_m,
-                  "stand_id": t.stand_id.astype(np.int32)}
-        write(tmp, shapely.to_wkb(np.asarray(pts, dtype=object)), field_data=list(fields.values()),
-              fields=list(fields), geometry_type="Point", crs=crs_wkt, driver="GPKG", layer="tree_tops", append=True)
+    st = model.stands
+    geoms = [shapely.affinity.scale(s.geometry, scale, scale, origin=(0, 0)) for s in st]
+    stands = {"stand_id": np.array([s.stand_id for s in st], np.int32),
+              "area_m2": np.array([s.area_m2 for s in st]),
+              "n_tops": np.array([s.n_tops for s in st], np.int32),
+              **{f: np.array([getattr(s, f) for s in st]) for f in
+                 ("mean_height_m", "p50_height_m", "p90_height_m", "p95_height_m", "max_height_m")}}
+    t = model.tops
+    tops = {"tree_id": np.arange(1, len(t.x) + 1, dtype=np.int32), "height_m": t.height_m,
+            "height": units.z_from_m(t.height_m), "window_radius_m": t.window_radius_m,
+            "stand_id": t.stand_id.astype(np.int32)}
+    write_layers(path, [VectorLayer("stands", "MultiPolygon", geoms, stands),
+                        VectorLayer("tree_tops", "Point", shapely.points(units.xy_from_m(t.x), units.xy_from_m(t.y)),
+                                    tops)], crs=crs_wkt)
 
 
 def corner_axis_labels(x0_m: float, y0_m: float, units: LengthUnits) -> tuple[str, str]:

@@ -296,24 +296,18 @@ def write_contours(cs: ContourSet, path, crs, z_unit_name: str, z_unit_m: float)
     """A GeoPackage (or GeoJSON, by the suffix) layer ``contours``: elevation (DEM unit), elevation_m, index,
     closed; written atomically."""
     import shapely
-    from pyogrio.raw import write
 
-    from aerotri.core.atomic import atomic_path
+    from aerotri.core.vector_files import VectorLayer, write_layers
 
     path = Path(path)
-    driver = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON"}.get(path.suffix.lower())
-    if driver is None:
+    if path.suffix.lower() not in (".gpkg", ".geojson", ".json"):
         raise OptionError(f"{path}: the output must end in .gpkg or .geojson", param="OUT")
-    geoms = shapely.to_wkb(np.array([shapely.LineString(c.xy) for c in cs.contours], dtype=object))
     fields = {"elevation": np.array([c.level for c in cs.contours], float),
               "elevation_m": np.array([c.level * z_unit_m for c in cs.contours], float),
               "index": np.array([c.index for c in cs.contours], bool),
               "closed": np.array([c.closed for c in cs.contours], bool)}
-    with atomic_path(path) as tmp:
-        tmp.unlink(missing_ok=True)
-        write(tmp, geoms, field_data=list(fields.values()), fields=list(fields), geometry_type="LineString",
-                      crs=crs, driver=driver, layer="contours")
-    return path
+    return write_layers(path, [VectorLayer("contours", "LineString", [shapely.LineString(c.xy) for c in cs.contours],
+                                           fields)], crs=crs)
 
 
 def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "", xy_unit: str = "") -> Path:

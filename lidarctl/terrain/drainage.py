@@ -539,20 +539,21 @@ def _cog(path, array, profile, nodata, unit=None, description=None):
 
 
 def _write_gpkg(path, net: Network, *, sub_ids, sub_geoms, basin_ids, basin_geoms, crs_wkt, cell_area_m2):
-    import shapely
-    from pyogrio.raw import write
+    from aerotri.core.vector_files import VectorLayer, write_layers
 
     seg = np.arange(len(net.lines))
-    write(path, shapely.to_wkb(net.lines), geometry_type="LineString", crs=crs_wkt, driver="GPKG", layer="streams",
-          fields=["segment", "strahler_order", "length_m", "upstream_area_m2", "downstream_segment", "outlet_segment"],
-          field_data=[seg, net.order, net.length_m, net.upstream_area_m2, net.downstream, net.outlet])
     sub_cells = np.bincount(net.subcatchment[net.subcatchment >= 0], minlength=len(seg))
-    write(path, shapely.to_wkb(sub_geoms), geometry_type="MultiPolygon", promote_to_multi=True, crs=crs_wkt,
-          driver="GPKG", layer="watersheds", append=True, fields=["segment", "strahler_order", "area_m2"],
-          field_data=[sub_ids, net.order[sub_ids], sub_cells[sub_ids] * cell_area_m2])
-    write(path, shapely.to_wkb(basin_geoms), geometry_type="MultiPolygon", promote_to_multi=True, crs=crs_wkt,
-          driver="GPKG", layer="basins", append=True, fields=["outlet_segment", "area_m2"],
-          field_data=[basin_ids, np.bincount(net.basin[net.basin >= 0], minlength=len(seg))[basin_ids] * cell_area_m2])
+    basin_cells = np.bincount(net.basin[net.basin >= 0], minlength=len(seg))
+    write_layers(path, [
+        VectorLayer("streams", "LineString", net.lines,
+                    {"segment": seg, "strahler_order": net.order, "length_m": net.length_m,
+                     "upstream_area_m2": net.upstream_area_m2, "downstream_segment": net.downstream,
+                     "outlet_segment": net.outlet}),
+        VectorLayer("watersheds", "MultiPolygon", sub_geoms,
+                    {"segment": sub_ids, "strahler_order": net.order[sub_ids],
+                     "area_m2": sub_cells[sub_ids] * cell_area_m2}),
+        VectorLayer("basins", "MultiPolygon", basin_geoms,
+                    {"outlet_segment": basin_ids, "area_m2": basin_cells[basin_ids] * cell_area_m2})], crs=crs_wkt)
 
 
 def preview_png(dem, transform, net: Network, path, title: str, *, dx_m: float, xy_unit: str = "") -> None:

@@ -661,25 +661,13 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
 def write_vectors(mv: MapVectors, path) -> Path:
     """All layers into one GeoPackage, with the CRS on each, written atomically (an empty layer is written
     with its fields, so a reader finds every layer)."""
-    import shapely
-    from pyogrio.raw import write
-
-    from aerotri.core.atomic import atomic_path
+    from aerotri.core.vector_files import VectorLayer, write_layers
 
     path = Path(path)
     if path.suffix.lower() != ".gpkg":
         raise OptionError(f"{path}: the output must end in .gpkg", param="OUT")
-    crs = mv.crs.to_wkt() if mv.crs is not None else None
-    with atomic_path(path) as tmp:
-        tmp.unlink(missing_ok=True)
-        for i, layer in enumerate(mv.layers):
-            geoms = np.array(shapely.to_wkb(np.array(layer.geometries, dtype=object)) if layer.geometries else [],
-                             dtype=object)
-            names = list(layer.fields)
-            data = [np.asarray(v) for v in layer.fields.values()]
-            write(tmp, geoms, field_data=data, fields=names, geometry_type=layer.geometry_type, crs=crs,
-                  driver="GPKG", layer=layer.name, append=i > 0)
-    return path
+    return write_layers(path, [VectorLayer(layer.name, layer.geometry_type, layer.geometries, layer.fields)
+                               for layer in mv.layers], crs=mv.crs)
 
 
 def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None,

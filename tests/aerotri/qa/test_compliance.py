@@ -241,6 +241,28 @@ def test_lidar_only_report_has_no_frame_camera_table(tmp_path):
     assert not lidar_only_project(Project.open(tmp_path))
 
 
+def test_lidar_only_console_lists_only_the_unconfirmed_limits(tmp_path):
+    # "limits not confirmed" of a LiDAR-only report named all five LiDAR limits: right for the 1:5000 table and
+    # the LBS QL2 (none of their five is confirmed), but a limit whose source is confirmed (QL1's NVA RMSEz,
+    # usgs_lbs.toml) must not be listed, nor starred on its row
+    from aerotri.qa.report import LIDAR_ONLY_LIMITS, console_summary
+
+    _dem_checked_alone(tmp_path)
+    rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL1")
+    prov = rep.table["provenance"]
+    assert prov["dem_rmse_m"]["confirmed"] and set(prov) == set(LIDAR_ONLY_LIMITS)
+    unconfirmed = [k for k in LIDAR_ONLY_LIMITS if not prov[k]["confirmed"]]
+    assert sorted(rep.table["unconfirmed"]) == sorted(unconfirmed) and len(unconfirmed) == 4
+    lines = console_summary(rep).splitlines()
+    listed = [ln for ln in lines if "limits not confirmed" in ln][0].split(": ", 1)[1].split(", ")
+    assert sorted(listed) == sorted(unconfirmed)
+    dem_row = [ln for ln in lines if "DEM (dem.tif) height RMSE" in ln][0]
+    assert dem_row.endswith("(limit 0.1)")  # confirmed: no star
+
+    rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL2")  # QL2's numbers are recalled
+    assert sorted(rep.table["unconfirmed"]) == sorted(LIDAR_ONLY_LIMITS)
+
+
 def test_lidar_only_density_from_where_the_docs_commands_write(tmp_path):
     # docs/your-own-block.md's LiDAR-only commands write P/classified.laz and P/rasters/dem.tif, not P/lidar/ and
     # P/lidar_out/dem.tif: the density was "not measured"; now counted from the classified cloud over the DEM the

@@ -1,0 +1,90 @@
+"""The one writer of vector files: every GeoPackage the toolkit writes goes through ``write_layers`` (and the
+GeoJSON and KML files of the commands that offer them), so that each one is
+
+- GeoPackage 1.2 (``application_id`` 'GPKG', ``user_version`` 10200 in the SQLite header), the version every
+  reader knows: the GDAL of the wheels writes 1.4 by default, which GDAL 3.6 (QGIS 3.28 LTR, Debian 12's
+  gdal-bin) opens with "Warning 1: This version of GeoPackage user_version=0x000028A0 (10400, v1.4.0) ... may
+  only be partially supported";
+- in a CRS (every layer the same; a layer without one is refused), each layer under an explicit name, with a
+  spatial index (an R-tree: QGIS pans a large layer without reading it whole);
+- atomic: written under a temporary name next to the output and renamed onto it (``atomic_path``): the layers
+  of one file are all new or all old.
+
+The driver follows the suffix (``DRIVERS``); the GeoPackage options apply to .gpkg only.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from aerotri.core.atomic import atomic_path
+
+
+GPKG_VERSION = "1.2"  # the driver's VERSION creation option (AUTO, 1.0 ... 1.4)
+GPKG_APPLICATION_ID = 0x47504B47  # b"GPKG", the SQLite header's application_id of GeoPackage >= 1.2
+GPKG_USER_VERSION = 10200  # the SQLite header's user_version of GeoPackage 1.2.0
+DRIVERS = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON", ".kml": "KML"}
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorLayer:
+    """One layer: its ``name``, the OGR ``geometry_type`` of all its features ("Point", "LineString",
+    "MultiPolygon", "Point Z", ...), the ``geometries`` (shapely; a Polygon in a Multi* layer is written as a
+    MultiPolygon of one) and the ``fields`` (name -> one value per geometry, in the order given; a layer without
+    features keeps its fields)."""
+
+    name: str
+    geometry_type: str
+    geometries: Sequence
+    fields: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+
+def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | None = None) -> Path:
+    """Write ``layers`` (in this order) into the new file ``path`` (replacing it; the driver by the suffix,
+    ``DRIVERS``), all in ``crs`` (WKT, an authority code such as "EPSG:32649", or a pyproj CRS), atomically.
+    ``timestamp``: the time GDAL stamps into a GeoPackage (ISO 8601, e.g. "2000-01-01T00:00:00.000Z", so that
+    the same data gives the same bytes); None: the time of writing. Returns ``path``."""
+    import pyogrio
+    import shapely
+    from pyogrio.raw import write
+
+    path = Path(path)
+    driver = DRIVERS.get(path.suffix.lower())
+    if driver is None:
+        raise ValueError(f"{path}: a vector file ends in {', '.join(DRIVERS)}")
+    if crs is None or (isinstance(crs, str) and not crs.strip()):
+        raise ValueError(f"{path}: a vector file is written with its CRS")
+    crs = crs if isinstance(crs, str) else crs.to_wkt()
+    if not layers or any(not layer.name for layer in layers):
+        raise ValueError(f"{path}: every layer needs a name (got {[layer.name for layer in layers]})")
+    gpkg = driver == "GPKG"
+    with _gdal_timestamp(pyogrio, timestamp), atomic_path(path) as tmp:
+        tmp.unlink(missing_ok=True)  # a new file, not the empty temporary
+        for i, layer in enumerate(layers):
+            wkb = shapely.to_wkb(np.asarray(list(layer.geometries), dtype=object))
+            write(str(tmp), np.asarray(wkb, dtype=object), field_data=[np.asarray(v) for v in layer.fields.values()],
+                  fields=list(layer.fields), layer=layer.name, driver=driver, crs=crs,
+                  geometry_type=layer.geometry_type, promote_to_multi=layer.geometry_type.startswith("Multi"),
+                  append=i > 0, dataset_options={"VERSION": GPKG_VERSION} if gpkg else None,
+                  layer_options={"SPATIAL_INDEX": "YES"} if gpkg else None)
+    return path
+
+
+@contextlib.contextmanager
+def _gdal_timestamp(pyogrio, timestamp: str | None):
+    """GDAL's OGR_CURRENT_DATE set to ``timestamp`` for the block (a process-wide option: the writers that fix
+    it, the simulator's, run in one thread)."""
+    if timestamp is None:
+        yield
+        return
+    before = pyogrio.get_gdal_config_option("OGR_CURRENT_DATE")
+    pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": timestamp})
+    try:
+        yield
+    finally:
+        pyogrio.set_gdal_config_options({"OGR_CURRENT_DATE": before})
