@@ -131,12 +131,17 @@ def kinds(k: CellKinds) -> dict:
     }
 
 
-def diagnose(classified: Path, laz: Path, polys: list, split_xy: tuple, png_stem: str | None) -> dict:
+def scoring_grid(classified: Path, polys: list) -> tuple[cg.ClassGrid, np.ndarray, np.ndarray]:
+    """(grid, footprint cells, scored cells) of eval_buildings_bgt.py's area scoring over ``classified``."""
     grid, _ = cg.cloud_grid(classified, bgt.CELL_M, bgt.CRS)
     ref_polys = cg.ClassPolygons(polys, np.full(len(polys), BUILDING, np.uint8), None, Path("bgt"))
     ref = cg.rasterize_polygons(ref_polys, grid)[0] == BUILDING
     band = cg.rasterize_mask([shapely.union_all([p.boundary for p in polys]).buffer(bgt.BAND_M)], grid)
-    scored = cg.rasterize_mask(cg.block_hulls(ref_polys), grid) & ~band
+    return grid, ref, cg.rasterize_mask(cg.block_hulls(ref_polys), grid) & ~band
+
+
+def diagnose(classified: Path, laz: Path, polys: list, split_xy: tuple, png_stem: str | None) -> dict:
+    grid, ref, scored = scoring_grid(classified, polys)
     xc, yc = grid.centres()
     part = bgt._quarter_of(xc[None, :], yc[:, None], *split_xy)
     bld = bgt.building_raster(classified, grid)[0]

@@ -128,7 +128,7 @@ def main() -> int:
               "centroids_on_map_before": int((covered & on_before).sum()),
               "centroids_on_map_with_the_rules": int((covered & on_after).sum()), "missed_before": rows,
               "figure": png.name}
-    bgt.write_result(bgt.REPO / "bench" / "results" / "buildings_bgt_missed.json", result)
+    bgt.store_result(bgt.REPO / "bench" / "results" / "buildings_bgt_missed.json", result)
     return 0
 
 

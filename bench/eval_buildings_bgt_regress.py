@@ -13,6 +13,9 @@ Writes bench/results/buildings_bgt_regression.json. Run:
 ``--tiny``: ``aerotri sim --preset tiny`` is simulated into WORKDIR (when not there) and its strips classified;
 ``--demo``: the demo chain's strips (e.g. /work/ref/demo_chain/project/lidar), each classified alone (demo_<stem>);
 ``--only demo_strip_01,sim_tiny``: those clouds only, merged into the existing JSON.
+``--pair WITH WITHOUT``: two rule sets of bench/eval_buildings_bgt.py's RULE_SETS in place of the defaults and the
+crowns rule off (fifth round: a set with the roof edge completion's stop and the same set without it), written
+under the key "pair: WITH" (in the per-point keys "defaults" is WITH, "rule_off" WITHOUT).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_ahn3_holdout import part_of, scores, PARTS  # noqa: E402
-from eval_buildings_bgt import write_result  # noqa: E402
+from results_json import store_result  # noqa: E402
 
 from lidarctl import io  # noqa: E402
 from lidarctl.classify import pipeline as classify  # noqa: E402
@@ -46,14 +49,14 @@ def _read(paths, crs=None) -> dict:
     return c
 
 
-def compare(c: dict) -> tuple[dict, np.ndarray, np.ndarray]:
-    """(figures, classes with the defaults, classes with the rule off) of one cloud."""
+def compare(c: dict, on_params=None, off_params=None) -> tuple[dict, np.ndarray, np.ndarray]:
+    """(figures, classes with ``on_params`` (the defaults), classes with ``off_params`` (the rule off)) of one cloud."""
     args = (c["x"], c["y"], c["z"], c["return_number"], c["number_of_returns"], c["intensity"])
     t0 = time.process_time()
-    on = classify.classify_points(*args, params=classify.ClassifySettings())
+    on = classify.classify_points(*args, params=on_params or classify.ClassifySettings())
     cpu_on = time.process_time() - t0
     t0 = time.process_time()
-    off = classify.classify_points(*args, params=dataclasses.replace(classify.ClassifySettings(), **RULE))
+    off = classify.classify_points(*args, params=off_params or dataclasses.replace(classify.ClassifySettings(), **RULE))
     cpu_off = time.process_time() - t0
     ch = on != off
     pairs, n = np.unique(off[ch].astype(int) * 100 + on[ch], return_counts=True)
@@ -91,6 +94,13 @@ def main(argv=None) -> int:
             clouds[f"demo_{f.stem}"] = ([f], None, False)
     out = REPO / "bench" / "results" / "buildings_bgt_regression.json"
     result = {"command": "bench/eval_buildings_bgt_regress.py " + " ".join(argv), "rule_off": RULE, "clouds": {}}
+    on_params = off_params = None
+    if "--pair" in argv:   # two rule sets of eval_buildings_bgt.RULE_SETS (with, without): under their own key
+        from eval_buildings_bgt import RULE_SETS
+
+        with_set, without_set = argv[argv.index("--pair") + 1: argv.index("--pair") + 3]
+        on_params, off_params = (dataclasses.replace(classify.ClassifySettings(), **RULE_SETS[n]) for n in (with_set, without_set))
+        result = {"command": result["command"], "with": with_set, "without": without_set, "clouds": {}}
     if "--only" in argv:   # these clouds only, merged into the file's others
         only = argv[argv.index("--only") + 1].split(",")
         clouds = {k: v for k, v in clouds.items() if k in only}
@@ -101,7 +111,7 @@ def main(argv=None) -> int:
         c = _read(paths, crs)
         if labelled:
             c["labels"] = c["classification"]
-        fig, on, off = compare(c)
+        fig, on, off = compare(c, on_params, off_params)
         if name == "ahn3_delft":
             part = part_of(c["x"], c["y"])
             truth = c["classification"]
@@ -121,7 +131,10 @@ def main(argv=None) -> int:
     result[key] = time.perf_counter() - t0
     result["load_average_before_after" if "--only" not in argv else f"load_average_{'_'.join(clouds)}"] = \
         [list(load0), list(os.getloadavg())]
-    write_result(out, result)
+    if "--pair" in argv:
+        store_result(out, result, key="pair: " + result["with"])
+    else:
+        store_result(out, result)
     return 0
 
 

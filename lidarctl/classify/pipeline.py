@@ -252,6 +252,17 @@ class ClassifySettings:
     pierced_growth_max_fraction: float = setting(0.0, min=0.0, max=1.0, help="Building cells (not roof cells) whose "
                                                  "3x3 window shows (95 % confidence) more than this share of its "
                                                  "pulses reaching the ground leave the building (0: no test).")
+    # Pierced growth spares a grown surface that is planar with its returns at its top: a glass roof passes
+    # pulses too. A pergola, a slatted or translucent canopy does the same and is no closed roof (BAG: a pand
+    # has "a closed roof construction"; the BGT maps a canopy by its posts only).
+    pierced_glass_roofs: bool = setting(True, help="Pierced growth keeps planar surfaces that let pulses through (a "
+                                        "glass roof); false: only roofs that stop the pulses stay.")
+    # Roof edge completion grows a roof's plane point by point: over a pergola or a slatted canopy level with an
+    # extension roof beside it, it took the slats' returns whose pulses went on to the ground (AHN3 Delft,
+    # south-west footprint part). An eave splits the pulses along a line, such a surface over its whole area.
+    pierced_edge_completion: bool = setting(False, help="Roof edge completion does not grow into cells (not roof "
+                                            "cells) that the pierced-growth test finds letting pulses through to the "
+                                            "ground (with pierced_growth_max_fraction > 0).")
     # Roofs under crowns: on AHN3 Delft two BGT sheds (8 and 21 m2) stood under garden crowns, flat at 2.2 m,
     # every pulse ending on them (single returns and last returns of pulses split by the crown above). The
     # rule re-uses the small-building thresholds and building_min_height_m; it adds no fitted parameter.
@@ -1486,6 +1497,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     # roof edges break the 3x3 plane fit); a segment is a building when its planar part is large.
     candidate = ndimage.binary_closing(candidate, np.ones((3, 3), bool)) & high_obj | roof
     labels, nlab = ndimage.label(candidate, np.ones((3, 3), int))
+    see_through = None
     if nlab:
         ids = np.arange(1, nlab + 1)
         roof_area = ndimage.sum_labels(roof, labels, ids) * c * c
@@ -1526,8 +1538,10 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
             through3 = ndimage.correlate(through.reshape(nrows, ncols), k3, mode="constant")
             above3 = ndimage.correlate(above.reshape(nrows, ncols), k3, mode="constant")
             pierced = more_than_fraction(through3, above3, p.pierced_growth_max_fraction)
+            if p.pierced_edge_completion:
+                see_through = pierced & ~roof
             # A glass roof passes pulses too, but its surface is a roof's: planar, its returns at its top.
-            roof_surface = (rms < p.roof_rms_m) & (cnt >= 3) & (depth <= p.roof_rms_m + reach)
+            roof_surface = (rms < p.roof_rms_m) & (cnt >= 3) & (depth <= p.roof_rms_m + reach) & p.pierced_glass_roofs
             building_cells &= roof | ~pierced | roof_surface | np.concatenate([[False], small])[labels]
         if p.small_building_planar_cores:
             building_cells |= planar_cores(dsm_f, roof & ~building_cells, candidate & ~building_cells, multi_frac, c,
@@ -1549,6 +1563,8 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     is_building = obj & in_bld & (hag > p.wall_min_height_m) & (z >= dsm_f.ravel()[flat] - p.roof_depth_m)
     zone = max(1, int(round(p.edge_zone_m / c)))
     near = dilate_square(building_cells, 2 * zone + 1).ravel()[flat]
+    if see_through is not None:   # a surface the pulses pass is no roof edge
+        near &= ~see_through.ravel()[flat]
     roof_edge_completion(x, y, z, is_building, obj & near & (hag > p.wall_min_height_m), p)
     if p.rooftop_object_max_area_m2 > 0:
         # The range noise of the sensor, measured on the bare earth (roof plane fits cross ridges

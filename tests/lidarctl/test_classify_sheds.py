@@ -21,6 +21,16 @@ def _garden(rng, density_per_m2: float):
     return n, u, v, 100.0 + rng.normal(0, 0.02, n)
 
 
+def _split_pulses(u, v, z, ground, truth, through, through_truth: int):
+    """The garden's returns (local u, v; heights z) with a second, ground return for the pulses ``through``:
+    x, y, z, return number, number of returns, truth (``through_truth`` for those ground returns)."""
+    k = int(through.sum())
+    x, y = np.r_[u, u[through]] + 85000.0, np.r_[v, v[through]] + 447000.0
+    rn = np.r_[np.ones(len(u), np.uint8), np.full(k, 2, np.uint8)]
+    nr = np.r_[np.where(through, 2, 1).astype(np.uint8), np.full(k, 2, np.uint8)]
+    return x, y, np.r_[z, ground[through]], rn, nr, np.r_[truth, np.full(k, through_truth, np.uint8)]
+
+
 def _scene(seed: int, density_per_m2: float = 10.0):
     """A 40 x 30 m garden: level ground 100 m; a flat 3 x 3.5 m shed roof 2.6 m high with wall returns
     under its eave; a hedge 1.2 m wide, 3.0-4.0 m high, touching the shed's east side, splitting 45 % of
@@ -125,12 +135,7 @@ def _house_with_hedge(seed: int, density_per_m2: float = 10.0):
     hedge = (u >= 16.0) & (u < 18.0) & (v > 6.0) & (v < 26.0)
     z[hedge] = 102.0 + rng.uniform(0.0, 0.8, hedge.sum())
     truth[hedge] = 4
-    through = hedge & (rng.random(n) < 0.45)
-    k = int(through.sum())
-    x, y = np.r_[u, u[through]] + 85000.0, np.r_[v, v[through]] + 447000.0
-    rn = np.r_[np.ones(n, np.uint8), np.full(k, 2, np.uint8)]
-    nr = np.r_[np.where(through, 2, 1).astype(np.uint8), np.full(k, 2, np.uint8)]
-    return x, y, np.r_[z, ground[through]], rn, nr, np.r_[truth, np.full(k, 2, np.uint8)]
+    return _split_pulses(u, v, z, ground, truth, hedge & (rng.random(n) < 0.45), 2)
 
 
 def test_a_low_hedge_grown_from_a_roof_must_stop_the_pulses():
@@ -171,12 +176,7 @@ def _house_with_hedge_and_glass_roof(seed: int, density_per_m2: float = 10.0):
     z[glass] = 103.0 + rng.normal(0, 0.02, glass.sum())
     z[hedge] = 102.0 + rng.uniform(0.0, 1.5, hedge.sum())
     truth[house | glass], truth[hedge] = 6, 4
-    through = (hedge | glass) & (rng.random(n) < 0.45)
-    k = int(through.sum())
-    x, y = np.r_[u, u[through]] + 85000.0, np.r_[v, v[through]] + 447000.0
-    rn = np.r_[np.ones(n, np.uint8), np.full(k, 2, np.uint8)]
-    nr = np.r_[np.where(through, 2, 1).astype(np.uint8), np.full(k, 2, np.uint8)]
-    return x, y, np.r_[z, ground[through]], rn, nr, np.r_[truth, np.full(k, 7, np.uint8)]
+    return _split_pulses(u, v, z, ground, truth, (hedge | glass) & (rng.random(n) < 0.45), 7)
 
 
 def test_growth_that_passes_pulses_to_the_ground_leaves_the_building_a_glass_roof_does_not():
@@ -273,3 +273,54 @@ def test_a_roof_under_a_crown_is_a_building_the_crown_is_not():
         single = classify.classify_points(x, y, z, params=classify.ClassifySettings())
         single_off = classify.classify_points(x, y, z, params=off)
         assert np.array_equal(single, single_off), seed
+
+
+def _house_with_pergola(seed: int, density_per_m2: float = 10.0):
+    """A 40 x 30 m garden, level ground 100 m: a flat 8 x 6 m house roof 6 m high; on its west side a flat
+    4 x 6 m extension roof 2.8 m high (stops the pulses); west of it, level with it, a 3.5 x 4 m pergola whose
+    slats pass 80 % of the pulses to the ground (too many split pulses for
+    a roof segment's cells). Returns x, y, z, return number, number of returns, truth
+    (2 ground, 6 house and extension, 8 slats)."""
+    rng = np.random.default_rng(seed)
+    n, u, v, ground = _garden(rng, density_per_m2)
+    z, truth = ground.copy(), np.full(n, 2, np.uint8)
+    house = (u > 8.0) & (u < 16.0) & (v > 10.0) & (v < 16.0)
+    extension = (u > 4.0) & (u <= 8.0) & (v > 10.0) & (v < 16.0)
+    pergola = (u > 0.5) & (u <= 4.0) & (v > 11.0) & (v < 15.0)
+    z[house] = 106.0 + rng.normal(0, 0.02, house.sum())
+    z[extension | pergola] = 102.8 + rng.normal(0, 0.02, (extension | pergola).sum())
+    truth[house | extension], truth[pergola] = 6, 8
+    return _split_pulses(u, v, z, ground, truth, pergola & (rng.random(n) < 0.8), 2)
+
+
+def test_roof_edge_completion_stops_at_a_surface_the_pulses_pass():
+    pierced = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.1, low_growth_max_height_m=0.0)
+    for seed in (0, 1, 2):
+        x, y, z, rn, nr, truth = _house_with_pergola(seed)
+        inten = np.full(len(x), 300, np.uint16)
+        slats = (truth == 8) & (x - 85000.0 < 3.2)     # beyond the extension's ring of wall cells
+        for glass in (False, True):
+            base = dataclasses.replace(pierced, pierced_glass_roofs=glass)
+            cls = classify.classify_points(x, y, z, rn, nr, inten, params=base)
+            cls_stop = classify.classify_points(x, y, z, rn, nr, inten,
+                                                params=dataclasses.replace(base, pierced_edge_completion=True))
+            share, share_stop = np.mean(cls[slats] == classify.BUILDING), np.mean(cls_stop[slats] == classify.BUILDING)
+            assert share > 0.8, (seed, glass)
+            if glass:
+                # the slats' cells the pierced growth spares as a glass roof (planar) stay; the completion's
+                # points go
+                assert share_stop < share - 0.3, seed
+            else:
+                # the completion alone grows the extension's plane over the slats point by point; with the stop none
+                assert share_stop < 0.05, seed
+            for roof in ((truth == 6) & (z > 105.5), (truth == 6) & (z > 102.5) & (z < 103.5)):   # house, extension
+                assert np.mean(cls[roof] == classify.BUILDING) > 0.95, (seed, glass)
+                assert np.mean(cls_stop[roof] == classify.BUILDING) > 0.95, (seed, glass)
+        if seed:
+            continue
+        # the switch alone (pierced growth off) changes nothing; without return numbers neither
+        stop = dataclasses.replace(pierced, pierced_edge_completion=True)
+        off = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.0)
+        assert (classify.classify_points(x, y, z, rn, nr, inten, params=off) ==
+                classify.classify_points(x, y, z, rn, nr, inten, params=dataclasses.replace(off, pierced_edge_completion=True))).all()
+        assert (classify.classify_points(x, y, z, params=stop) == classify.classify_points(x, y, z, params=pierced)).all()
