@@ -1547,14 +1547,21 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                 else:
                     def tile(t):
                         return _blend_tile(ctx, readers, *t)
-                made = ordered_thread_map(tile, tiles, threads)
+
+                def tile_and_half(t):
+                    # the tile's 2 x 2 average for the first overview made on the tile's thread too (OpenCV): the
+                    # writing thread only writes
+                    out, valid = tile(t)
+                    return out, valid, pyramid.halved(out, valid)
+
+                made = ordered_thread_map(tile_and_half, tiles, threads)
             with rasterio.open(stage, "w", **profile) as dst, progress(len(tiles), "mosaic", "tiles") as bar:
                 dst.colorinterp = colorinterp
-                for (r0, c0, th, tw), (out, valid) in zip(tiles, made):
+                for (r0, c0, th, tw), (out, valid, *half) in zip(tiles, made):
                     w = Window(c0, r0, tw, th)
                     dst.write(out, window=w)
                     dst.write_mask(valid.view(np.uint8) * np.uint8(255), window=w)
-                    pyramid.add_tile(r0, c0, out, valid)
+                    pyramid.add_tile(r0, c0, out, valid, *half)
                     bar.update(1)
         finally:
             if made is not None:  # the tile threads end before their frame datasets are closed
@@ -1682,10 +1689,15 @@ class _Pyramid:
         return dict(self.base, width=-(-m.width // f), height=-(-m.height // f), count=self.bands, dtype=self.dtype,
                     crs=m.crs, transform=Affine(m.res_m * f, 0.0, m.x_left_m, 0.0, -m.res_m * f, m.y_top_m))
 
-    def add_tile(self, r0: int, c0: int, out: np.ndarray, valid: np.ndarray) -> None:
+    def halved(self, out: np.ndarray, valid: np.ndarray):
+        """``halve`` of a tile for the first overview (None when the first overview is not made by tiles)."""
+        return None if self.first is None else halve(out, valid)
+
+    def add_tile(self, r0: int, c0: int, out: np.ndarray, valid: np.ndarray, halved=None) -> None:
+        """The tile's 2 x 2 average into the first overview (``halved``: ``halved(out, valid)``, made already)."""
         if self.first is None:
             return
-        h, v = halve(out, valid)
+        h, v = halved if halved is not None else halve(out, valid)
         w = Window(c0 // 2, r0 // 2, h.shape[2], h.shape[1])
         self.first.write(h, window=w)
         self.first.write_mask(v.view(np.uint8) * np.uint8(255), window=w)
