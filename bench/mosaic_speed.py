@@ -475,7 +475,6 @@ def main() -> None:
               "machine": {"cpus": os.cpu_count(), "gdal_peer": peer_version, "gdal_ours": rasterio.__gdal_version__},
               "peer_command": " ".join(PEER) + " --optfile <frames> <out.tif>",
               "ours_command": "ortho mosaic <project>"}
-    earlier = json.loads(a.out.read_text()) if a.label and a.out.is_file() else {}
     if a.bytecode:
         import compileall
 
@@ -487,9 +486,14 @@ def main() -> None:
         result["bytecode"] = [str(t) for t in trees]
 
     def save():
-        """The results so far into --out (under --label, beside the file's other keys)."""
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(json.dumps({**earlier, a.label: result} if a.label else result, indent=1) + "\n")
+        """The results so far into --out (under --label, beside the file's other keys; written atomically)."""
+        from bench.results_json import store_result
+
+        if a.label:
+            store_result(a.out, result, key=a.label)
+        else:
+            a.out.parent.mkdir(parents=True, exist_ok=True)
+            a.out.write_text(json.dumps(result, indent=1) + "\n")
 
     demo = copy_demo(src, a.work / "demo")
     if not a.skip_demo:

@@ -80,7 +80,7 @@ from ortho.block import (FrameIndex, frame_index, index_operation, operation_tag
 from ortho.grid import OrthoGrid
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
-from ortho.seamlines_preview import write_seamlines_preview
+from ortho.seamlines_preview import preview_shape, write_seamlines_preview
 from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_objects_whole, label_polygons,
                              least_cost_seams, neighbour_pairs, seam_lines, voronoi_labels)
 
@@ -600,12 +600,15 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # any output is written; its error is raised before the seams are made)
     # the path search's modules (scipy.sparse.csgraph: 0.2 CPU-s, a fifth of the demo's start-up) are imported on a
     # thread of their own meanwhile; joined before the seams, so that no other thread imports them at the same time
+    # and so are the modules the writers of the vector files import (shapely, pyogrio: 0.05 CPU-s), which were imported
+    # by this thread before the frames were read
     importer = None
     if seams == "least-cost" and seamlines is None:
-        importer = threading.Thread(target=_import_quietly, args=(import_path_search,), name="mosaic-import",
+        importer = threading.Thread(target=_import_quietly, args=(_import_seam_modules,), name="mosaic-import",
                                     daemon=True)
         importer.start()
-    with _background(_ndsm_objects, ndsm_path, index, mosaic, seam_transform, seam_shape, object_height_m) as objects_of:
+    with _background(_ndsm_objects, ndsm_path, index, mosaic, seam_transform, seam_shape, object_height_m,
+                     imports=importer is None) as objects_of:
         # blending on local threads reads the frames kept decoded by the seam grid when they are small
         keep = (executor is None or not executor.distributed) and \
             decoded_bytes(index, bands, itemsize) <= DECODED_FRAMES_MAX_BYTES
@@ -619,32 +622,39 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     nadir = np.array([e.nadir_xy_m for e in index.frames])
     nadir_rc = np.stack([(mosaic.y_top_m - nadir[:, 1]) / (res * factor) - 0.5,
                          (nadir[:, 0] - mosaic.x_left_m) / (res * factor) - 0.5], axis=1)
-    edited = None
-    if seamlines is not None:  # the user's polygons, checked whole before anything is written
-        from ortho.seamlines_gpkg import read_edited_seamlines
 
-        edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, labels_shape=red.shape,
-                                       transform=red.transform, valid=red.valid, offsets=red.offsets)
-        labels = edited.labels
-    else:
-        # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
-        # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
-        # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
-        # whose outline, along the walls and across the roofs between the streets, was a seam)
-        covers = [footprint(v) for v in red.valid]
-        labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
-    if seams == "least-cost" and edited is None:
-        # a seam end may slide along the overlap border by up to end_reach_m to get round a building
-        labels = least_cost_seams(labels, covers, red.offsets, gray=red.gray_of, object_mask=objects,
-                                  end_reach_cells=end_reach_m / (res * factor), seen=red.valid)
-        if objects is not None:
-            labels = keep_objects_whole(labels, objects, covers, red.offsets)
-    if edited is not None:
-        seams = f"edited ({edited.path})"
-    timer.done("seams")
-    gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
-    # colour that does not clip: no gain saturates more of a frame than the frame has saturated itself
-    gains, limited = limit_gains(gains, red.histograms(gains))
+    def frame_gains():
+        gains = balance_gains(red) if balance else np.ones((len(red.names), red.rgb[0].shape[2]))
+        # colour that does not clip: no gain saturates more of a frame than the frame has saturated itself
+        return limit_gains(gains, red.histograms(gains))
+
+    # the gains do not depend on the seams: on a thread while this one routes them (OpenCV's masked means and
+    # histograms, numpy's solve; the seams are mostly scipy's Dijkstra and numpy)
+    with _background(frame_gains, imports=False) as gains_of:
+        edited = None
+        if seamlines is not None:  # the user's polygons, checked whole before anything is written
+            from ortho.seamlines_gpkg import read_edited_seamlines
+
+            edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, labels_shape=red.shape,
+                                           transform=red.transform, valid=red.valid, offsets=red.offsets)
+            labels = edited.labels
+        else:
+            # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
+            # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
+            # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
+            # whose outline, along the walls and across the roofs between the streets, was a seam)
+            covers = [footprint(v) for v in red.valid]
+            labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
+        if seams == "least-cost" and edited is None:
+            # a seam end may slide along the overlap border by up to end_reach_m to get round a building
+            labels = least_cost_seams(labels, covers, red.offsets, gray=red.gray_of, object_mask=objects,
+                                      end_reach_cells=end_reach_m / (res * factor), seen=red.valid)
+            if objects is not None:
+                labels = keep_objects_whole(labels, objects, covers, red.offsets)
+        if edited is not None:
+            seams = f"edited ({edited.path})"
+        timer.done("seams")
+        gains, limited = gains_of()
     for k, b, g0, g1, own, would in limited:
         logger.warning("frame %s band %d: gain %.2f lowered to %.2f so that it saturates no more of the frame than "
                        "the frame itself (%.2f %%; the gain would have saturated %.2f %%)", red.names[k], b + 1, g0, g1,
@@ -727,6 +737,12 @@ def _import_quietly(importer) -> None:
         pass
 
 
+def _import_seam_modules() -> None:
+    """The path search's modules (``import_path_search``), then the vector writers' (``_import_vector_modules``)."""
+    import_path_search()
+    _import_vector_modules()
+
+
 def _import_vector_modules() -> None:
     """Import what the seamline writer imports (``_write_seamlines``, ``write_seamlines_gpkg``), in this thread."""
     import pyogrio  # noqa: F401
@@ -737,14 +753,17 @@ def _import_vector_modules() -> None:
 
 
 @contextlib.contextmanager
-def _background(fn, *args):
-    """Run ``fn(*args)`` on a thread; yields a function that waits for its result (raising its error)."""
+def _background(fn, *args, imports: bool = True):
+    """Run ``fn(*args)`` on a thread; yields a function that waits for its result (raising its error). ``imports``:
+    the vector writers' modules are imported in this thread first (False: they are imported, or being imported by a
+    thread that is joined before any writer starts: ``_import_seam_modules``)."""
     from concurrent.futures import ThreadPoolExecutor
 
     # the modules the background writers import are loaded in this thread first: two threads importing shapely at
     # once can meet it half-initialised (ImportError 'partially initialized module shapely.geometry.base' on the
     # 120-frame DMC block)
-    _import_vector_modules()
+    if imports:
+        _import_vector_modules()
 
     with ThreadPoolExecutor(1, thread_name_prefix="mosaic-bg") as pool:
         future = pool.submit(fn, *args)
@@ -803,17 +822,32 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
     (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over."""
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
-    _write_labels(work / "seams.tif", labels, red.transform, crs)
-    # the seamlines' polygons and lines on a thread while the tiles are blended and written
-    with _background(_write_seamlines, work, labels, red.transform, red.names, crs) as vectors:
+    # Dask tasks read the labels from seams.tif; local threads have them in memory, and seams.tif is written with
+    # the vector files
+    distributed = executor is not None and executor.distributed
+    if distributed:
+        _write_labels(work / "seams.tif", labels, red.transform, crs)
+
+    # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage: when that is the
+    # size of one of the mosaic's levels (the demo's: its first overview), that level is what the preview reads of
+    # the COG (the COG copies the levels as they are), and it is read from the stage's files on a thread while the COG
+    # is written; else from the COG, on a thread while this one counts the pairs and the nodata inside the block
+    step = preview_shape(mosaic.width, mosaic.height)[2]
+    levels = [1] + overview_factors(mosaic.width, mosaic.height)
+    early = step in levels
+
+    def stage_preview(level_paths):
+        write_seamlines_preview(work / "seamlines_preview.png", level_paths[step], labels, factor,
+                                mosaic_size=(mosaic.width, mosaic.height))
+
+    # the seamlines' polygons and lines (and seams.tif) on a thread while the tiles are blended and written
+    with _background(_write_seamlines, work, labels, red.transform, red.names, crs, not distributed) as vectors:
         tiles = _write_mosaic(work / "mosaic.tif", frames_dir, index, mosaic, seams_path=work / "seams.tif",
                               factor=factor, gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                               executor=executor, labels=labels, previous=previous,
-                              decoded=red.decoded, holes=frame_holes(red))
-        # the seamlines over the DOM, reduced to at most 2000 px, for a look before opening the GeoPackage: on a thread
-        # while this one counts the pairs and the nodata inside the block for the summary
+                              decoded=red.decoded, holes=frame_holes(red), during_cog=stage_preview if early else None)
         with _background(write_seamlines_preview, work / "seamlines_preview.png", work / "mosaic.tif", labels,
-                         factor) as preview:
+                         factor, imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
             pairs = [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]
             nodata = _interior_nodata(work / "mosaic.tif", res)
             preview()
@@ -852,9 +886,12 @@ def _interior_nodata(path: Path, res_m: float, max_cells: float = 4e6) -> dict:
             "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1)}
 
 
-def _write_seamlines(work: Path, labels, transform, names, crs) -> None:
+def _write_seamlines(work: Path, labels, transform, names, crs, write_labels: bool = False) -> None:
     """seamlines.gpkg (``write_seamlines_gpkg``) and seamlines.geojson (one polygon per frame, ``frame_region``, and
-    the seam lines between neighbours) in ``work``, from one polygonisation of the labels."""
+    the seam lines between neighbours) in ``work``, from one polygonisation of the labels; with ``write_labels``
+    seams.tif first."""
+    if write_labels:
+        _write_labels(work / "seams.tif", labels, transform, crs)
     regions = frame_regions(labels, transform)
     features = label_polygons(labels, transform, names, regions)
     write_seamlines_gpkg(work / "seamlines.gpkg", labels, transform, names, crs, features)
@@ -1419,7 +1456,7 @@ def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, *, dr: int, d
 
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, factor, gains, nadir, feather_px, tile_px,
-                  executor=None, labels=None, previous=None, decoded=None, holes=None) -> dict:
+                  executor=None, labels=None, previous=None, decoded=None, holes=None, during_cog=None):
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
@@ -1428,7 +1465,9 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
     (``PreviousMosaic``, local threads only): tiles whose seam cells and halo did not change are read from it
     instead of blended. ``decoded``: frames already decoded in memory (file path -> ``DecodedFrame``; local
     threads only), read instead of their files. ``holes``: per frame None or its ``FrameHoles``
-    (``_BlendContext.holes``). Returns the counts of tiles blended and taken over."""
+    (``_BlendContext.holes``). ``during_cog``: a function of the mosaic's levels as the COG copies them (a dict of the files
+    by their factor: 1 the stage, 2, 4 ... its overviews), run on a thread while the COG is written. Returns
+    the counts of tiles blended and taken over."""
     from aerotri.core.executor import local_executor
     from ortho.rectify import ordered_thread_map
 
@@ -1508,14 +1547,21 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                 else:
                     def tile(t):
                         return _blend_tile(ctx, readers, *t)
-                made = ordered_thread_map(tile, tiles, threads)
+
+                def tile_and_half(t):
+                    # the tile's 2 x 2 average for the first overview made on the tile's thread too (OpenCV): the
+                    # writing thread only writes
+                    out, valid = tile(t)
+                    return out, valid, pyramid.halved(out, valid)
+
+                made = ordered_thread_map(tile_and_half, tiles, threads)
             with rasterio.open(stage, "w", **profile) as dst, progress(len(tiles), "mosaic", "tiles") as bar:
                 dst.colorinterp = colorinterp
-                for (r0, c0, th, tw), (out, valid) in zip(tiles, made):
+                for (r0, c0, th, tw), (out, valid, *half) in zip(tiles, made):
                     w = Window(c0, r0, tw, th)
                     dst.write(out, window=w)
                     dst.write_mask(valid.view(np.uint8) * np.uint8(255), window=w)
-                    pyramid.add_tile(r0, c0, out, valid)
+                    pyramid.add_tile(r0, c0, out, valid, *half)
                     bar.update(1)
         finally:
             if made is not None:  # the tile threads end before their frame datasets are closed
@@ -1528,8 +1574,13 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         vrt = tmp_dir / "mosaic.vrt"
         write_vrt(vrt, stage, pyramid.paths, mosaic, bands=bands, dtype=dtype, colorinterp=colorinterp,
                   tags=operation_tags(index.coordinate_operation, index.height_operation))
-        with atomic_path(path) as tmp:
-            rasterio.shutil.copy(vrt, tmp, **COG_OPTIONS)
+        with contextlib.ExitStack() as during:
+            waits = during.enter_context(_background(during_cog, {1: stage, **dict(zip(levels, pyramid.paths))},
+                                                     imports=False)) if during_cog else None
+            with atomic_path(path) as tmp:
+                rasterio.shutil.copy(vrt, tmp, **COG_OPTIONS)
+            if waits:
+                waits()
         timer.done("COG")
     if previous is not None and executor.distributed:
         previous.why_all = "the tiles run as Dask tasks: every tile blended"
@@ -1638,10 +1689,15 @@ class _Pyramid:
         return dict(self.base, width=-(-m.width // f), height=-(-m.height // f), count=self.bands, dtype=self.dtype,
                     crs=m.crs, transform=Affine(m.res_m * f, 0.0, m.x_left_m, 0.0, -m.res_m * f, m.y_top_m))
 
-    def add_tile(self, r0: int, c0: int, out: np.ndarray, valid: np.ndarray) -> None:
+    def halved(self, out: np.ndarray, valid: np.ndarray):
+        """``halve`` of a tile for the first overview (None when the first overview is not made by tiles)."""
+        return None if self.first is None else halve(out, valid)
+
+    def add_tile(self, r0: int, c0: int, out: np.ndarray, valid: np.ndarray, halved=None) -> None:
+        """The tile's 2 x 2 average into the first overview (``halved``: ``halved(out, valid)``, made already)."""
         if self.first is None:
             return
-        h, v = halve(out, valid)
+        h, v = halved if halved is not None else halve(out, valid)
         w = Window(c0 // 2, r0 // 2, h.shape[2], h.shape[1])
         self.first.write(h, window=w)
         self.first.write_mask(v.view(np.uint8) * np.uint8(255), window=w)

@@ -87,11 +87,16 @@ def legend_width() -> int:
                    for s in ("seamline", "nodata: no frame sees it", "outside the block"))
 
 
-def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX) -> np.ndarray:
+def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX, *,
+                   mosaic_size: tuple[int, int] | None = None) -> np.ndarray:
     """The preview image (rows, cols, 3) RGB uint8: ``labels`` is the seam grid (``factor`` mosaic pixels a cell,
-    its origin the mosaic's), ``mosaic_path`` the finished mosaic."""
+    its origin the mosaic's), ``mosaic_path`` the finished mosaic; or, with ``mosaic_size`` (the mosaic's width and
+    height), a raster of exactly the preview's size (the mosaic's overview of that size: what reading the mosaic at
+    that size reads), read whole."""
     with rasterio.open(mosaic_path) as ds:
-        h, w, step = preview_shape(ds.width, ds.height, max_px)
+        h, w, step = preview_shape(*(mosaic_size or (ds.width, ds.height)), max_px)
+        if mosaic_size is not None and (ds.height, ds.width) != (h, w):
+            raise ValueError(f"{mosaic_path}: {ds.width} x {ds.height} px, not the preview's {w} x {h}")
         img = ds.read(out_shape=(ds.count, h, w), resampling=Resampling.average)
         ok = ds.read_masks(1, out_shape=(h, w), resampling=Resampling.nearest) > 0
         nbits = ds.tags(1, ns="IMAGE_STRUCTURE").get("NBITS")
@@ -116,10 +121,11 @@ def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = P
     return out
 
 
-def write_seamlines_preview(path, mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX) -> None:
+def write_seamlines_preview(path, mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX, *,
+                            mosaic_size: tuple[int, int] | None = None) -> None:
     """Write the preview PNG to ``path`` (a work folder's file: the caller moves it into place with the other
-    outputs)."""
-    rgb = render_preview(mosaic_path, labels, factor, max_px)
+    outputs); ``mosaic_size``: as ``render_preview``."""
+    rgb = render_preview(mosaic_path, labels, factor, max_px, mosaic_size=mosaic_size)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
     if not ok:  # cv2 returns False only for an unknown extension or an empty image
         raise RuntimeError(f"{path}: PNG encoding failed")

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import functools
 
-import numba
 import numpy as np
 
 from aerotri.geom.crs.definition import horizontal_crs, parse_crs
@@ -209,14 +208,6 @@ class FramesOnEarth:
         return P
 
 
-@numba.njit(cache=True, inline="always")
-def earth_dz(dx, dy, dz, inv_radius):
-    """The height offset that puts a map offset (dx, dy, dz) from the projection centre where the camera sees it
-    through ``CameraOnEarth.M``: the earth's curvature and the scale's change with height (1 / (1 + dz / R) as
-    1 - dz / R: 3e-8 off at 1 km). Exactly dz when ``inv_radius`` is 0 (a Cartesian CRS)."""
-    return (dz - (dx * dx + dy * dy) * (0.5 * inv_radius)) * (1.0 - dz * inv_radius)
-
-
 class MapAnchors:
     """Project-CRS coordinates of points that move little between calls (the iterations of a solve) without a CRS
     transformation per point and call: each slot keeps an anchor, the local position ``p0`` at which its map
@@ -254,6 +245,8 @@ class MapAnchors:
         m = np.empty_like(p)
         stale = np.zeros(len(p), dtype=bool)
         # idx contiguous (a caller's index may be a strided view): numba compiles one signature
+        from aerotri.geom.local_frame_kernels import _taylor
+
         _taylor(self.p0, self.m0, self.J0, np.ascontiguousarray(idx), p, tol=self.tol_m, m=m, stale=stale)
         if stale.any():
             k = np.flatnonzero(stale)
@@ -265,16 +258,11 @@ class MapAnchors:
         return m, (self.J0[idx] if jacobian else None)
 
 
-@numba.njit(cache=True)
-def _taylor(p0, m0, J0, idx, p, *, tol, m, stale):
-    """``m = m0 + J0 (p - p0)`` at each point's slot, or ``stale`` (a finite point farther than ``tol`` from its
-    anchor, or without one); NaN for a non-finite point."""
-    for n in range(len(idx)):
-        q = idx[n]
-        d0, d1, d2 = p[n, 0] - p0[q, 0], p[n, 1] - p0[q, 1], p[n, 2] - p0[q, 2]
-        if not (abs(d0) <= tol and abs(d1) <= tol and abs(d2) <= tol):
-            m[n, 0] = m[n, 1] = m[n, 2] = np.nan
-            stale[n] = np.isfinite(p[n, 0]) and np.isfinite(p[n, 1]) and np.isfinite(p[n, 2])
-            continue
-        for r in range(3):
-            m[n, r] = m0[q, r] + J0[q, r, 0] * d0 + J0[q, r, 1] * d1 + J0[q, r, 2] * d2
+def __getattr__(name):
+    # the numba kernels live in ``local_frame_kernels``: importing numba costs 0.3 CPU-s, and the commands that
+    # only read frames (``ortho mosaic``, ``ortho check``) import this module through ``ortho.rectify``
+    if name == "earth_dz":
+        from aerotri.geom.local_frame_kernels import earth_dz
+
+        return earth_dz
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

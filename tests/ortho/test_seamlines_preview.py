@@ -12,7 +12,7 @@ from rasterio.transform import Affine
 
 from ortho.cli import main
 from ortho.seamlines_preview import (HATCH_RGB, LEGEND_PX, OUTSIDE_RGB, SEAM_RGB, preview_shape, render_preview,
-                                     seam_pixels)
+                                     seam_pixels, write_seamlines_preview)
 from ortho.synthetic import write_synthetic_project
 
 
@@ -51,6 +51,11 @@ def test_ortho_mosaic_writes_the_preview_with_the_seams_where_seams_tif_has_them
     # outside the block white; away from the seams the DOM's own samples
     assert _is(img, OUTSIDE_RGB)[~ok].all()
     assert not _is(png[h:], SEAM_RGB).all()  # the legend strip has text and swatches
+    # the mosaic writes it from the stage's level of the preview's size while the COG is copied: the same bytes as the
+    # preview of the finished COG
+    again = tmp_path / "again.png"
+    write_seamlines_preview(again, root / "ortho" / "mosaic.tif", labels, factor)
+    assert again.read_bytes() == (root / "ortho" / "seamlines_preview.png").read_bytes()
 
 
 def _write_mosaic(path, valid):
