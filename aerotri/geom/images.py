@@ -132,7 +132,8 @@ def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.
             with _open_raster(path) as ds:
                 size, layout = (ds.width, ds.height), (ds.count, ds.dtypes[0])
         except (rasterio.errors.RasterioIOError, OSError) as exc:
-            raise InputError(f"{path}: cannot read the image ({exc})") from None
+            raise InputError(f"{path}: cannot read the image ({exc}); replace it, or take it out of "
+                             f"{path.parent.name}/ (and its line out of gnss.txt) to go on without it") from None
         if size != (camera.width, camera.height):
             raise InputError(f"{path}: image is {size[0]} x {size[1]} px but {camera_source} says "
                              f"{camera.width} x {camera.height} px")

@@ -153,13 +153,19 @@ def _rewrite_frame(path, bands=None, dtype=None):
         ds.write(a)
 
 
-@pytest.mark.parametrize("case", ["unreadable", "one_band", "sixteen_bit", "missing_gnss", "pixels_focal",
-                                  "no_overlap"])
+@pytest.mark.parametrize("case", ["unreadable", "one_band", "sixteen_bit", "missing_image", "missing_gnss",
+                                  "pixels_focal", "no_overlap"])
 def test_bad_inputs_name_the_culprit(tiny_project, tmp_path, case):
     p = _copy_inputs(tiny_project, tmp_path / "p")
     if case == "unreadable":
         (p / "images" / "s01_002.tif").write_bytes(b"II*\x00garbage")
         expect = "s01_002.tif: cannot read the image"
+        assert "take it out of images/ (and its line out of gnss.txt) to go on without it" in \
+            CliRunner().invoke(aerotri_main, ["match", str(p)]).output
+    elif case == "missing_image":  # a bad frame taken out of images/: the error says how to go on without it
+        (p / "images" / "s02_003.tif").unlink()
+        expect = "no image file for GNSS record(s) s02_003 of"
+        assert "take their lines out of gnss.txt" in CliRunner().invoke(aerotri_main, ["match", str(p)]).output
     elif case == "one_band":  # a grey frame among colour ones: the chain's mosaic stopped on it with a traceback
         _rewrite_frame(p / "images" / "s01_002.tif", bands=[1])
         expect = "s01_002.tif: 1 band of uint8, but s01_001.tif has 3 bands of uint8"
