@@ -142,7 +142,7 @@ def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.
         elif layout != first[1:]:
             raise InputError(f"{path}: {_layout_text(*layout)}, but {first[0].name} has {_layout_text(*first[1:])}: "
                              "the frames of a block must have the same bands and bit depth (convert this frame, "
-                             "or leave it out of images/)")
+                             f"or take it out of {path.parent.name}/ and its line out of gnss.txt)")
 
 
 def _layout_text(bands: int, dtype: str) -> str:
