@@ -478,6 +478,10 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     dem_path = Path(dem_path)
     if true_ortho and not dsm_path:
         raise InputError("--true-ortho needs --dsm (the DSM, e.g. lidar_out/dsm.tif)")
+    if true_ortho and not dem_path.exists():  # a drone user with a peer's DSM alone meets this first
+        raise InputError(f"{dem_path}: DEM not found; the true ortho needs a DEM beside the DSM (the frames' ground "
+                         f"extent; with --footprints the ground beneath the eaves): pass --dem, e.g. the DSM itself or "
+                         f"the tie points' DEM of `ortho dem {root}` (at/dem.tif)")
     if compression not in FRAME_COMPRESSION:
         raise InputError(f"unknown frame compression {compression!r}; expected one of {sorted(FRAME_COMPRESSION)}")
     transformation = load_transformation(params) if params else None

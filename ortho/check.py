@@ -107,6 +107,28 @@ class DomCheck:
     json_path: str | None = None  # the report's own file (dom_report.json), as it names itself
     one_direction: int | None = None  # open-ground patches left out as textured in one direction only (roads)
     one_direction_pct: float | None = None  # their share (%) of the patches measured and left out
+    mosaic_fingerprint: str | None = None  # ``mosaic_fingerprint`` of the project's mosaic checked; None: another DOM,
+    # or a report written before it was recorded
+
+    def stale_for(self, mosaic_path) -> bool:
+        """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
+        since, e.g. by a new ``ortho mosaic`` or ``aerotri run`` without a reference); False when it cannot tell."""
+        return (self.mosaic_fingerprint is not None and Path(mosaic_path).is_file()
+                and mosaic_fingerprint(mosaic_path) != self.mosaic_fingerprint)
+
+
+MOSAIC_FINGERPRINT_HEAD_BYTES = 4 * MiB
+
+
+def mosaic_fingerprint(path) -> str:
+    """``size:sha1`` of a DOM file, the sha1 over its first 4 MiB only: a COG's header, before its tiles, holds every
+    tile's offset and byte count, so a mosaic made again with other pixels differs there, and a multi-GB mosaic is
+    not read whole for it."""
+    import hashlib
+
+    with open(path, "rb") as f:
+        head = f.read(MOSAIC_FINGERPRINT_HEAD_BYTES)
+    return f"{os.path.getsize(path)}:{hashlib.sha1(head).hexdigest()}"
 
 
 _DISPLACEMENT_FIELDS = frozenset(f.name for f in dataclasses.fields(Displacement))
@@ -130,7 +152,7 @@ def _dom_check_of(d: dict) -> DomCheck:
     one = d.get("left_out_one_direction") or {}
     return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs,
                     row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"), one.get("patches"),
-                    one.get("pct"))
+                    one.get("pct"), d.get("mosaic_fingerprint"))
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:
@@ -725,6 +747,8 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         crs = ds.crs.to_string()
         dom_bounds, dom_crs = tuple(ds.bounds), ds.crs
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
+    if _same_file(dom_path, paths.mosaic_path):  # the report tells a check of an earlier mosaic by it
+        report["mosaic_fingerprint"] = mosaic_fingerprint(dom_path)
     _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs)
     if reference_path is not None:
         ref_op = _operation_to(dom_path, reference_path, params, allow_ballpark, "reference orthophoto")

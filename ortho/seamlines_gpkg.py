@@ -128,12 +128,12 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
 
 
 def footprint(valid: np.ndarray) -> np.ndarray:
-    """The cells a frame's ortho covers: its valid seam cells with the holes inside them (occlusion of a true
-    ortho, DEM nodata) filled, widened by one cell (the rounding of edited vertices onto the seam grid)."""
-    outside = np.pad(~valid, 1, constant_values=True).view(np.uint8).copy()
-    cv2.floodFill(outside, None, (0, 0), 2)
-    inside = outside[1:-1, 1:-1] != 2
-    return cv2.dilate(inside.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    """The cells a frame's polygon may hold: the cells the mosaic's own seams may give it
+    (``ortho.seamlines.footprint``: its valid seam cells with the holes inside them filled, and for a true ortho
+    the convex hull of its valid cells), widened by one cell (the rounding of edited vertices onto the seam grid)."""
+    from ortho.seamlines import footprint as region_footprint
+
+    return cv2.dilate(region_footprint(valid).view(np.uint8), np.ones((3, 3), np.uint8)) > 0
 
 
 def _place(a: np.ndarray, off, shape) -> np.ndarray:

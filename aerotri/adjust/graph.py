@@ -55,7 +55,7 @@ from aerotri.adjust.check_points import intersect
 from aerotri.adjust.collinearity import point_jacobian_cv, point_normals, project_cv
 from aerotri.adjust.keys import A, D, K_KEY, L_KEY, P, S, X
 from aerotri.adjust.settings import GNSS_CORRECTIONS, SELF_CAL_GROUP_NAMES
-from aerotri.core.errors import InputError, SolveError
+from aerotri.core.errors import CrsError, InputError, SolveError
 from aerotri.geom.camera import SELF_CALIBRATION_GROUPS, Camera
 from aerotri.geom.rotation import FLIP_YZ
 
@@ -631,6 +631,8 @@ def _schur_levenberg_marquardt(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Va
                 new_values, new_coords = values.retract(delta), tp.updated(rs, delta, n, coords)
                 new_cost, failure = gr.reduced_cost(new_values, new_coords), None
             except RuntimeError as exc:  # indeterminate without (enough) damping
+                new_cost, failure = np.inf, exc
+            except CrsError as exc:  # the trial step threw a point off the earth (a wild undamped step): damp it
                 new_cost, failure = np.inf, exc
             accept, converged = _step_test(cost, new_cost, tol)
             if accept or converged:

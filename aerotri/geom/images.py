@@ -117,22 +117,36 @@ def _open_raster(path):
 
 
 def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.toml") -> None:
-    """Every frame is a readable image file of the camera's size, checked from the file headers before
-    any work (a folder, an unreadable file or a frame of another size stops here, naming it)."""
+    """Every frame is a readable image file of the camera's size, with the bands and sample type of the
+    first frame, checked from the file headers before any work (a folder, an unreadable file, a frame of
+    another size, another band count or another bit depth stops here, naming it: the mosaic blends the
+    frames band by band in one bit depth)."""
     import rasterio
 
+    first = None  # (path, bands, sample type) of the first frame
     for image_id, path in images.pairs():
         path = Path(path)
         if not path.is_file():
             raise InputError(f"{path}: not a file (image {image_id!r}); expected a TIFF/JPEG/PNG frame")
         try:
             with _open_raster(path) as ds:
-                size = (ds.width, ds.height)
+                size, layout = (ds.width, ds.height), (ds.count, ds.dtypes[0])
         except (rasterio.errors.RasterioIOError, OSError) as exc:
-            raise InputError(f"{path}: cannot read the image ({exc})") from None
+            raise InputError(f"{path}: cannot read the image ({exc}); replace it, or take it out of "
+                             f"{path.parent.name}/ (and its line out of gnss.txt) to go on without it") from None
         if size != (camera.width, camera.height):
             raise InputError(f"{path}: image is {size[0]} x {size[1]} px but {camera_source} says "
                              f"{camera.width} x {camera.height} px")
+        if first is None:
+            first = (path, *layout)
+        elif layout != first[1:]:
+            raise InputError(f"{path}: {_layout_text(*layout)}, but {first[0].name} has {_layout_text(*first[1:])}: "
+                             "the frames of a block must have the same bands and bit depth (convert this frame, "
+                             f"or take it out of {path.parent.name}/ and its line out of gnss.txt)")
+
+
+def _layout_text(bands: int, dtype: str) -> str:
+    return f"{bands} band{'s' if bands != 1 else ''} of {dtype}"
 
 
 def image_layout(path) -> tuple[int, int]:

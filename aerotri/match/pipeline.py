@@ -173,7 +173,8 @@ def _read_frames(project: Project, crs, camera: BrownCamera, s: MatchSettings) -
         no_image = sorted(set(gnss.image_id) - set(images.image_id))
         if no_image:
             raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])} "
-                             f"of {project.gnss_path}")
+                             f"of {project.gnss_path}" + (" ..." if len(no_image) > 10 else "")
+                             + f"; to go on without the frame(s), take their lines out of {project.gnss_path.name}")
         ids = list(gnss.image_id)
         lever = project.gnss.lever_arm_m
     else:

@@ -160,10 +160,13 @@ def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:
     return h, qa.survey_sigma_z_m, src
 
 
-def dom_checks(dom_all: dict, qa) -> CheckSet | None:
+def dom_checks(dom_all: dict, qa, *, stale: bool = False) -> CheckSet | None:
+    """``stale``: the check measured an earlier version of the project's mosaic (``DomCheck.stale_for``)."""
     d = dom_all.get("displacement") or {}
     if not dom_all:
         return None
+    if stale:
+        return CheckSet(note="the DOM check measured an earlier mosaic (made again since): re-run ortho check")
     if d.get("rms_xy_m") is None:
         return CheckSet(note="the DOM check measured no patch")
     h, _, src = _survey_accuracy(qa)
@@ -286,6 +289,13 @@ def lidar_density(project: Project) -> tuple[float | None, str]:
     return F.anpd(first, area), f"{first} first returns of {where} over {area / 1e6:.3f} km2 (valid cells of {dem})"
 
 
+def _dom_check_stale(project: Project) -> bool:
+    from ortho.check import read_dom_check
+
+    path = project.dom_report_path
+    return path.is_file() and read_dom_check(path).stale_for(project.mosaic_path)
+
+
 def project_figures(project: Project) -> Figures:
     """The measurements of every product present in the project folder."""
     qa = project.qa
@@ -297,7 +307,7 @@ def project_figures(project: Project) -> Figures:
                           " (after the strip adjustment)" if adjusted else "")
     vec = project.vectors_check_path
     return Figures(at=at_checks(at, project.control_points),
-                   dom=dom_checks(_json(project.dom_report_path), qa),
+                   dom=dom_checks(_json(project.dom_report_path), qa, stale=_dom_check_stale(project)),
                    line_map=line_map_checks(_json(vec) if vec.is_file() else {}, qa), lidar=lidar)
 
 

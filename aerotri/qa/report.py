@@ -377,6 +377,9 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     ctl = (read_control_transfer(project.control_transfer_path)
            if project.control_transfer_path.is_file() else None)
     dom_check = read_dom_check(project.dom_report_path) if project.dom_report_path.exists() else None
+    dom_check_stale = dom_check is not None and dom_check.stale_for(project.mosaic_path)
+    if dom_check_stale:  # its figures are of a mosaic that no longer exists: not shown as the DOM's
+        dom_check = None
     dom = dom_check.displacement if dom_check else None
     hc = read_height_check(project.height_check_path) if project.height_check_path.is_file() else None
     ce = read_filter_test(project.classification_eval_path) if project.classification_eval_path.exists() else None
@@ -513,6 +516,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                round(dom.p95_xy_m, 4), 2 * tol["feature_rms_xy_m"], "m",
                                note=f"largest {largest:.3f} m; " "limit 2 x the RMS limit (at most 5 % gross errors)",
                                key="feature_rms_xy_m"))
+    if dom_check_stale:
+        rows.append(_failed("dom_check_stale", sec, "DOM check of an earlier mosaic",
+                            f"{project.dom_report_path} measured an earlier {project.mosaic_path} (the mosaic was made "
+                            f"again since); re-run ortho check {root} --reference REF.tif (or aerotri run --reference)"))
     if dom_check and dom_check.roofs is not None:
         rows.append(_roofs_row(sec, dom_check, project))
     if project.frames_index_path.is_file() and (dom_check or project.mosaic_path.is_file()):

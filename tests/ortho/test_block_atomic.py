@@ -276,6 +276,34 @@ def test_frames_of_an_older_adjustment_are_refused(project):
     assert r.exit_code == 0, r.output
 
 
+def test_the_report_does_not_take_a_dom_check_of_an_earlier_mosaic(project):
+    """The overnight trial's state: a DOM check, then the mosaic made again (another setting, a new adjustment, or
+    `aerotri run` without --reference, which re-mosaics but does not re-check); the report judged the new DOM by
+    the old dom_report.json ("pass", 0.097 m on the demo) without a word. Now a failed row names both files and the
+    compliance statement has no DOM figure; a check of the new mosaic is taken again."""
+    from aerotri.qa.compliance import project_figures
+    from aerotri.qa.report import build_qa_report
+    from aerotri.core.project import Project
+
+    r = run("check", project, "--reference", project / "truth/ortho.tif", "--patch-px", "24", "--search-px", "4")
+    assert r.exit_code == 0, r.output
+    rep = build_qa_report(project)
+    assert rep.has("dom_rms_xy_m") and not rep.has("dom_check_stale")
+    assert project_figures(Project.open(project)).dom.rmse_h_m is not None
+    r = run("mosaic", project, "--seams", "voronoi", "--feather-m", "3")  # the mosaic made again, other pixels
+    assert r.exit_code == 0, r.output
+    rep = build_qa_report(project)
+    stale = rep.check("dom_check_stale")
+    assert stale.verdict == "fail" and "dom_report.json" in stale.note and "mosaic.tif" in stale.note, stale.note
+    assert not rep.has("dom_rms_xy_m") and not rep.has("seam_misalignment_rms_px") and rep.overall == "fail"
+    dom = project_figures(Project.open(project)).dom
+    assert dom.rmse_h_m is None and "earlier mosaic" in dom.note
+    r = run("check", project, "--reference", project / "truth/ortho.tif", "--patch-px", "24", "--search-px", "4")
+    assert r.exit_code == 0, r.output
+    rep = build_qa_report(project)
+    assert rep.has("dom_rms_xy_m") and not rep.has("dom_check_stale")
+
+
 def test_a_subset_rerun_after_a_readjustment_does_not_keep_the_old_frames(project):
     _readjusted(project)
     r = run("rectify", project, "--frames", "s01_002")

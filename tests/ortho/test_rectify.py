@@ -3,6 +3,8 @@ frames rendered from it by inverse mapping through aerotri.geom.camera (ray-DEM 
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import rasterio
@@ -205,6 +207,20 @@ def test_error_dem_does_not_cover_frame(project, tmp_path):
 def test_error_missing_dem(project, tmp_path):
     r = CliRunner().invoke(main, ["rectify", str(project), "--dem", str(tmp_path / "nope.tif")])
     assert r.exit_code == 2 and "DEM not found" in r.output
+
+
+def test_a_true_ortho_without_a_dem_says_it_needs_one(project, tmp_path):
+    """Tuniu's trial: a drone block with ODM's DSM alone, `ortho rectify --true-ortho --dsm DSM` said only
+    "lidar_out/dem.tif: DEM not found (run `lidarctl` to produce it, or pass --dem)"; now it says that the true ortho
+    needs a DEM too and which ones will do, and nothing is written."""
+    p = tmp_path / "p"
+    shutil.copytree(project, p, ignore=shutil.ignore_patterns("ortho"))
+    (p / "lidar_out" / "dem.tif").unlink()
+    r = CliRunner().invoke(main, ["rectify", str(p), "--true-ortho", "--dsm", str(p / "truth" / "dsm.tif")])
+    assert r.exit_code == 2, r.output
+    assert "lidar_out/dem.tif: DEM not found; the true ortho needs a DEM beside the DSM" in r.output
+    assert "--dem" in r.output and "ortho dem" in r.output and "Traceback" not in r.output
+    assert not (p / "ortho").exists()
 
 
 def test_heights_on_grid_match_bilinear_dem(scene):

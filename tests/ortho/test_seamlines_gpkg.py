@@ -227,3 +227,34 @@ print("ok", len(seen))
     last = (p.stdout.strip().splitlines() or [""])[-1]
     assert p.returncode == 0 and last.startswith("ok "), p.stdout + p.stderr[-2000:]
     assert int(last.split()[1]) >= 2  # at least the seamline writers and the preview ran on threads
+
+
+def test_the_unedited_geopackage_of_a_true_ortho_is_taken_back(tmp_path):
+    """A true ortho's frame may not see a strip that reaches the edge of its ortho (no hole then): the mosaic's
+    seams give the frame its convex hull there (``ortho.seamlines.footprint``), and the check of an edited file
+    took only the frame's filled valid cells, so the mosaic's own seamlines.gpkg, given back unedited, was refused
+    ("frame 100_0005_0018 does not cover its polygon: 7328 m2 of it lie outside the frame's ortho" on Tuniu's ODM
+    DSM, 454 m2 of DJI_0021 on Brighton's). Now it is taken back, 0 tiles blended, the same mosaic."""
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=2, frames_per_strip=3, buildings=20, seed=7)
+    # Tuniu's DSM had nodata reaching across frames: a band of 12 m across the block, which cuts each frame's
+    # valid cells in two (no hole, the hull spans it)
+    with rasterio.open(root / "truth" / "dsm.tif") as ds:
+        dsm, profile = ds.read(1), ds.profile
+        row = int(round(ds.height / 2))
+        dsm[row:row + int(round(12.0 / abs(ds.transform.e)))] = np.nan
+    profile.update(nodata=np.nan, dtype="float32")
+    with rasterio.open(tmp_path / "dsm_band.tif", "w", **profile) as ds:
+        ds.write(dsm.astype(np.float32), 1)
+    for args in (["rectify", str(root), "--true-ortho", "--dsm", str(tmp_path / "dsm_band.tif")],
+                 ["mosaic", str(root), "--tile-px", str(TILE_PX)]):
+        r = CliRunner().invoke(main, args)
+        assert r.exit_code == 0, r.output
+    before = _tile_sums(root / "ortho" / "mosaic.tif")
+    edited = tmp_path / "unedited.gpkg"
+    shutil.copy(root / "ortho" / "seamlines.gpkg", edited)
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(edited)])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((root / "ortho" / "mosaic.json").read_text())
+    assert doc["tiles"]["blended"] == 0, doc["tiles"]
+    assert _tile_sums(root / "ortho" / "mosaic.tif") == before

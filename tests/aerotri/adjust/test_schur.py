@@ -180,3 +180,37 @@ def test_a_reused_workspace_is_overwritten_entry_by_entry(tmp_path):
     assert not zeroed["Vinv"][0].any() and not zeroed["W"][rays0].any()
     for name, a in zeroed.items():
         np.testing.assert_array_equal(reused[name], a, err_msg=name)
+
+
+def test_a_trial_step_that_throws_a_point_off_the_earth_is_damped_not_fatal(tmp_path):
+    """An undamped Gauss-Newton step may throw a weak tie point thousands of km away, where the project CRS
+    cannot take it (CrsError from the local frame's ECEF -> map transform): the step is rejected and damped,
+    as an indeterminate one is. On the demo with one frame's tie points changed, `aerotri run` stopped with
+    "EPSG:4328 -> EPSG:32649: point 34 (1499431.486, 838718.236) could not be transformed rigorously"."""
+    from aerotri.core.errors import CrsError
+
+    block = geometric_block(2, 6, seed=51)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=4, points_per_image=60, n_check=2, seed=52)
+    b, opts, st0 = _project(root)
+    act, ctrl = np.ones(len(b.obs_point), bool), np.ones(len(b.control_point), bool)
+    solved = []
+    for wild_first_step in (False, True):
+        gr = G.build_graph(b, opts, st0, act, ctrl, robust=False)
+        calls = []
+        cost = gr.reduced_cost
+
+        def reduced_cost(values, coords, cost=cost, calls=calls, wild=wild_first_step):
+            calls.append(1)
+            if wild and len(calls) == 2:  # the first trial step
+                raise CrsError("EPSG:4328 -> EPSG:32649: point 34 (1499431.486, 838718.236) could not be "
+                               "transformed rigorously")
+            return cost(values, coords)
+
+        gr.reduced_cost = reduced_cost
+        values, info = G.optimize(gr, opts)
+        assert info.converged
+        solved.append((G.state_from_values(values, b, opts, st0, tie=gr.tie), info))
+    (s0, i0), (s1, i1) = solved
+    assert i1.chi2 == pytest.approx(i0.chi2, rel=1e-6)
+    assert np.abs(s1.centre - s0.centre).max() < 1e-4  # m

@@ -140,12 +140,38 @@ def _copy_inputs(src, dst):
     return dst
 
 
-@pytest.mark.parametrize("case", ["unreadable", "missing_gnss", "pixels_focal", "no_overlap"])
+def _rewrite_frame(path, bands=None, dtype=None):
+    """The frame at ``path`` rewritten with only ``bands`` (1-based) and/or in ``dtype`` (8 -> 16 bit: x 257)."""
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        a, profile = ds.read(bands), ds.profile
+    if dtype is not None:
+        a = a.astype(dtype) * 257
+    profile.update(count=a.shape[0], dtype=a.dtype.name, photometric="minisblack" if a.shape[0] == 1 else "rgb")
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write(a)
+
+
+@pytest.mark.parametrize("case", ["unreadable", "one_band", "sixteen_bit", "missing_image", "missing_gnss",
+                                  "pixels_focal", "no_overlap"])
 def test_bad_inputs_name_the_culprit(tiny_project, tmp_path, case):
     p = _copy_inputs(tiny_project, tmp_path / "p")
     if case == "unreadable":
         (p / "images" / "s01_002.tif").write_bytes(b"II*\x00garbage")
         expect = "s01_002.tif: cannot read the image"
+        assert "take it out of images/ (and its line out of gnss.txt) to go on without it" in \
+            CliRunner().invoke(aerotri_main, ["match", str(p)]).output
+    elif case == "missing_image":  # a bad frame taken out of images/: the error says how to go on without it
+        (p / "images" / "s02_003.tif").unlink()
+        expect = "no image file for GNSS record(s) s02_003 of"
+        assert "take their lines out of gnss.txt" in CliRunner().invoke(aerotri_main, ["match", str(p)]).output
+    elif case == "one_band":  # a grey frame among colour ones: the chain's mosaic stopped on it with a traceback
+        _rewrite_frame(p / "images" / "s01_002.tif", bands=[1])
+        expect = "s01_002.tif: 1 band of uint8, but s01_001.tif has 3 bands of uint8"
+    elif case == "sixteen_bit":  # a 16-bit frame among 8-bit ones
+        _rewrite_frame(p / "images" / "s01_002.tif", dtype=np.uint16)
+        expect = "s01_002.tif: 3 bands of uint16, but s01_001.tif has 3 bands of uint8"
     elif case == "missing_gnss":
         lines = (p / "gnss.txt").read_text().splitlines()
         (p / "gnss.txt").write_text("\n".join(l for l in lines if not l.startswith("s02_003")) + "\n")
