@@ -32,7 +32,8 @@ frame orthos with the shared rasterisation's (sha256 of samples and mask); ``--w
 
 Usage: python bench/true_ortho_footprints_cost.py [--demo /work/ref/demo_chain/project | --project P --truth T]
        [--work DIR] [--rounds 3] [--key footprints_demo] [--out bench/results/true_ortho_cost.json] [--sha256 FILE]
-       [--per-frame] [--ways conventional,true_ortho_footprints] [--no-roofs]
+       [--per-frame] [--ways conventional,true_ortho_footprints] [--no-roofs | --roofs-only]
+``--roofs-only`` (with ``--truth`` and the ``--work`` of an earlier run): the roofs again into that run's ``--key``.
 """
 
 from __future__ import annotations
@@ -153,9 +154,10 @@ def frame_sha256(project: Path) -> dict:
     return out
 
 
-def frame_roofs(project: Path, truth: Path) -> dict:
+def frame_roofs(project: Path, truth: Path, per_corner: dict | None = None) -> dict:
     """Roof-corner displacements of every frame ortho of ``project`` against ``truth``/ortho.tif, all frames
-    together (a corner once per frame ortho that holds its patch)."""
+    together (a corner once per frame ortho that holds its patch); ``per_corner``: filled with (frame, x, y) ->
+    displacement (m)."""
     import numpy as np
 
     from ortho.block import read_index
@@ -169,6 +171,9 @@ def frame_roofs(project: Path, truth: Path) -> dict:
         r = measure_roof_patches(project / "ortho" / "frames" / e["file"], truth / "ortho.tif", x, y)
         de.append(r.de_m)
         dn.append(r.dn_m)
+        if per_corner is not None:
+            per_corner.update({(e["image_id"], float(a), float(b)): float(v)
+                               for a, b, v in zip(r.x_m, r.y_m, np.hypot(r.de_m, r.dn_m))})
         outside += r.outside_or_invalid
         weak += r.weak
     d = np.hypot(np.concatenate(de), np.concatenate(dn))
@@ -177,6 +182,27 @@ def frame_roofs(project: Path, truth: Path) -> dict:
             "rms_m": round(float(np.sqrt(np.mean(d ** 2))), 4), "median_m": round(float(np.median(d)), 4),
             "rms_gsd": round(float(np.sqrt(np.mean(d ** 2))) / gsd, 3), "median_gsd": round(float(np.median(d)) / gsd, 3),
             "cpu_s": round(time.process_time() - t, 1)}
+
+
+def roofs_of_ways(projects: dict, truth: Path, ways) -> dict:
+    """``frame_roofs`` of each way, and the true ortho without and with footprints on the corners both measure
+    (rectified on the same DSM: only the masks, and so the patches' valid cells, differ)."""
+    import numpy as np
+
+    corners = {way: {} for way in ways}
+    out = {way: frame_roofs(projects[way], truth, corners[way]) for way in ways}
+    a, b = corners.get("true_ortho"), corners.get("true_ortho_footprints")
+    if a and b:
+        both = sorted(set(a) & set(b))
+        da, db = np.array([a[k] for k in both]), np.array([b[k] for k in both])
+        gsd = out["true_ortho"]["rms_m"] / out["true_ortho"]["rms_gsd"]
+        out["common_corners_true_ortho_vs_footprints"] = {
+            "corners": len(both), "rms_gsd": [round(float(np.sqrt(np.mean(v ** 2))) / gsd, 3) for v in (da, db)],
+            "median_gsd": [round(float(np.median(v)) / gsd, 3) for v in (da, db)],
+            "footprints_worse_by_over_0_5_gsd": int(np.sum(db - da > 0.5 * gsd)),
+            "footprints_better_by_over_0_5_gsd": int(np.sum(da - db > 0.5 * gsd)),
+            "only_without_footprints": len(set(a) - set(b)), "only_with_footprints": len(set(b) - set(a))}
+    return out
 
 
 def main() -> None:
@@ -193,6 +219,8 @@ def main() -> None:
     ap.add_argument("--per-frame", action="store_true",
                     help=f"a fourth way, {PER_FRAME}: the footprints rasterised per frame (the frame orthos compared)")
     ap.add_argument("--no-roofs", action="store_true", help="with --truth: leave the roofs out")
+    ap.add_argument("--roofs-only", action="store_true",
+                    help="with --truth: only the roofs of the frame orthos --work holds, into the key --key has")
     ap.add_argument("--ways", default=None, help="comma-separated subset of the ways (conventional first)")
     args = ap.parse_args()
     import shutil
@@ -207,6 +235,15 @@ def main() -> None:
     ways = WAYS + ((PER_FRAME,) if args.per_frame else ())
     if args.ways:
         ways = tuple(w for w in args.ways.split(",") if w in ways)
+    if args.roofs_only:  # the frame orthos of an earlier run of this script: its key gets the roofs
+        from results_json import read_results
+
+        out = read_results(args.out)[args.key]
+        out["roofs"] = roofs_of_ways({way: args.work / way for way in ways}, args.truth, ways)
+        out["roofs_command"] = "python bench/true_ortho_footprints_cost.py " + " ".join(sys.argv[1:])
+        print(json.dumps(out["roofs"], indent=1))
+        store_result(args.out, out, key=args.key)
+        return
     source = args.project or args.demo
     truth = args.truth or source / "truth"
     buildings = truth / "buildings.geojson"
@@ -256,7 +293,7 @@ def main() -> None:
     if args.sha256:
         write_text_atomic(args.sha256, json.dumps(frame_sha256(projects["true_ortho_footprints"]), indent=1) + "\n")
     if args.truth is not None and not args.no_roofs:
-        out["roofs"] = {way: frame_roofs(projects[way], args.truth) for way in ways if way != PER_FRAME}
+        out["roofs"] = roofs_of_ways(projects, args.truth, [way for way in ways if way != PER_FRAME])
         print(json.dumps(out["roofs"], indent=1))
     store_result(args.out, out, key=args.key)
 
