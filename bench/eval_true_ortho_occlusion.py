@@ -139,14 +139,16 @@ def remosaic_dom(project: Path) -> dict:
 class Truth:
     """The simulated scene of a project, its origin and the true projection centres."""
 
-    def __init__(self, project: Path):
+    def __init__(self, project: Path, overrides: tuple = ()):
+        """``overrides``: the ``--set`` options the block was simulated with (truth.json does not keep them; e.g. a
+        DMC subset's ``flight.strips=2``: the scene grows with the flight)."""
         from aerotri.sim import raycast
         from aerotri.sim.config import load_preset
         from aerotri.sim.flight import block_layout
         from aerotri.sim.scene import build_scene
 
         info = json.loads((project / "truth" / "truth.json").read_text())
-        cfg = load_preset(info["preset"], [f"preset.seed={int(info['seed'])}"])
+        cfg = load_preset(info["preset"], [*overrides, f"preset.seed={int(info['seed'])}"])
         self.origin = np.array(info["origin_m"], float)
         layout = block_layout(cfg)
         s_scene = np.random.SeedSequence(int(info["seed"])).spawn(4)[0]

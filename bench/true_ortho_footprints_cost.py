@@ -13,11 +13,27 @@ true + footprints, conventional, ...), so that the load of the shared machine fa
 
 CPU is the process's (user + sys of all its threads, ``time.process_time``) per call; one call of each way runs first
 and is not counted (numba's compiled-code cache, the imports). Per way: the CPU-s per MP of each round, their median,
-and the load average. ``--sha256``: also the sha256 of each frame ortho's decoded samples and mask of the last
-true + footprints round (to compare the frames of two commits).
+the load average, the process's peak RSS during the call (VmHWM, reset before each call through /proc/self/clear_refs)
+and the CPU of the footprints' occluder (``ortho.block._frame_occluder``, the thread's CPU, summed over the frames;
+the first call of a block rasterises the block's footprint cells in it). ``--sha256``: also the sha256 of each frame
+ortho's decoded samples and mask of the last true + footprints round (to compare the frames of two commits).
 
-Usage: python bench/true_ortho_footprints_cost.py [--demo /work/ref/demo_chain/project] [--work DIR] [--rounds 3]
-       [--key footprints_demo] [--out bench/results/true_ortho_cost.json] [--sha256 FILE]
+Full-size frames: ``--project`` a chain's project instead of the demo (e.g.
+/work/bench_blocks/dmc_block_subset_2x2_run_cccbc0a: 4 DMC frames of 13824 x 7680 px, its LiDAR DEM and DSM of 0.5 m,
+its adjusted orientations and camera) and ``--truth`` the simulator's truth folder of the same block (the run folder
+has none; /work/bench_blocks/dmc_block_subset_2x2/truth): the footprints are written from its buildings.geojson.
+With ``--truth`` the roofs of each way's frame orthos of the last round are measured too (``roofs``): every frame
+ortho against truth/ortho.tif at the corners of truth/roof_corners.csv (``ortho.check.measure_roof_patches``, as the
+DOM check's roofs row), RMS and median of the displacements of all frames together, in m and GSD.
+
+``--per-frame`` adds a fourth way, the true ortho with footprints rasterised per frame (as ``ortho.block`` does when
+the block's DSM window exceeds ``SHARED_FOOTPRINT_CELLS_MAX`` cells, e.g. the 120-frame DMC block), and compares its
+frame orthos with the shared rasterisation's (sha256 of samples and mask); ``--ways`` runs a subset of the ways.
+
+Usage: python bench/true_ortho_footprints_cost.py [--demo /work/ref/demo_chain/project | --project P --truth T]
+       [--work DIR] [--rounds 3] [--key footprints_demo] [--out bench/results/true_ortho_cost.json] [--sha256 FILE]
+       [--per-frame] [--ways conventional,true_ortho_footprints] [--no-roofs | --roofs-only]
+``--roofs-only`` (with ``--truth`` and the ``--work`` of an earlier run): the roofs again into that run's ``--key``.
 """
 
 from __future__ import annotations
@@ -36,6 +52,8 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
 WAYS = ("conventional", "true_ortho", "true_ortho_footprints")
+PER_FRAME = "true_ortho_footprints_per_frame"  # --per-frame: the footprints rasterised per frame, as above
+# ``ortho.block.SHARED_FOOTPRINT_CELLS_MAX`` DSM cells of the block's window (the 120-frame DMC block: 170 M)
 
 
 def settings(project: Path, way: str):
@@ -44,18 +62,83 @@ def settings(project: Path, way: str):
     if way == "conventional":
         return RectifySettings()
     return RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
-                           footprints=str(project / "truth" / "footprints.gpkg") if way.endswith("footprints") else None)
+                           footprints=str(project / "truth" / "footprints.gpkg") if "footprints" in way else None)
+
+
+_occluder_cpu_s: list = []  # the thread CPU of each ``_frame_occluder`` call of the current block
+
+
+def _timed_occluder():
+    """Wrap ``ortho.block._frame_occluder`` to add each call's thread CPU to ``_occluder_cpu_s``."""
+    import ortho.block
+
+    inner = ortho.block._frame_occluder
+
+    def timed(*a, **k):
+        c = time.thread_time()
+        try:
+            return inner(*a, **k)
+        finally:
+            _occluder_cpu_s.append(time.thread_time() - c)
+
+    ortho.block._frame_occluder = timed
+
+
+_cells_shapes: list = []  # the grid shape of each ``footprint_cells`` rasterisation of the current block
+
+
+def _counted_cells():
+    """Wrap ``ortho.footprints.footprint_cells`` to record the shape of each grid it rasterises: one call over the
+    block's window, or one per frame (the window above ``ortho.block.SHARED_FOOTPRINT_CELLS_MAX``)."""
+    import ortho.footprints
+
+    inner = ortho.footprints.footprint_cells
+
+    def counted(x_left_m, y_top_m, res_m, shape, *a, **k):
+        _cells_shapes.append([int(v) for v in shape])
+        return inner(x_left_m, y_top_m, res_m, shape, *a, **k)
+
+    ortho.footprints.footprint_cells = counted
+
+
+def _peak_rss_reset() -> None:
+    with open("/proc/self/clear_refs", "w") as f:  # "5": reset the peak RSS (VmHWM) to the current RSS
+        f.write("5")
+
+
+def _peak_rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
 
 
 def one_block(project: Path, way: str) -> dict:
+    import ortho.block
     from ortho.block import read_index, rectify_block
 
+    shared_max = ortho.block.SHARED_FOOTPRINT_CELLS_MAX
+    if way == PER_FRAME:
+        ortho.block.SHARED_FOOTPRINT_CELLS_MAX = 0
+    _occluder_cpu_s.clear()
+    _cells_shapes.clear()
+    _peak_rss_reset()
     t, c = time.perf_counter(), time.process_time()
-    rectify_block(project, settings(project, way))
+    try:
+        rectify_block(project, settings(project, way))
+    finally:
+        ortho.block.SHARED_FOOTPRINT_CELLS_MAX = shared_max
     cpu, wall = time.process_time() - c, time.perf_counter() - t
-    mp = sum(e["width"] * e["height"] for e in read_index(project).document["frames"]) / 1e6
-    return {"frame_ortho_mp": round(mp, 2), "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
-            "cpu_s_per_mp": round(cpu / mp, 4), "load_avg_1min": round(os.getloadavg()[0], 2)}
+    frames = read_index(project).document["frames"]
+    mp = sum(e["width"] * e["height"] for e in frames) / 1e6
+    load = os.getloadavg()
+    out = {"frame_ortho_mp": round(mp, 2), "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
+           "cpu_s_per_mp": round(cpu / mp, 4), "load_avg_1min": round(load[0], 2), "load_avg_5min": round(load[1], 2),
+           "peak_rss_mb": round(_peak_rss_mb(), 1)}
+    if _occluder_cpu_s:
+        out["occluder_cpu_s"] = round(sum(_occluder_cpu_s), 3)
+        out["footprint_cells_grids"] = list(_cells_shapes)
+    return out
 
 
 def frame_sha256(project: Path) -> dict:
@@ -71,56 +154,148 @@ def frame_sha256(project: Path) -> dict:
     return out
 
 
+def frame_roofs(project: Path, truth: Path, per_corner: dict | None = None) -> dict:
+    """Roof-corner displacements of every frame ortho of ``project`` against ``truth``/ortho.tif, all frames
+    together (a corner once per frame ortho that holds its patch); ``per_corner``: filled with (frame, x, y) ->
+    displacement (m)."""
+    import numpy as np
+
+    from ortho.block import read_index
+    from ortho.check import measure_roof_patches, read_roof_corners
+
+    x, y = read_roof_corners(truth / "roof_corners.csv")
+    index = read_index(project)
+    de, dn, outside, weak = [], [], 0, 0
+    t = time.process_time()
+    for e in index.document["frames"]:
+        r = measure_roof_patches(project / "ortho" / "frames" / e["file"], truth / "ortho.tif", x, y)
+        de.append(r.de_m)
+        dn.append(r.dn_m)
+        if per_corner is not None:
+            per_corner.update({(e["image_id"], float(a), float(b)): float(v)
+                               for a, b, v in zip(r.x_m, r.y_m, np.hypot(r.de_m, r.dn_m))})
+        outside += r.outside_or_invalid
+        weak += r.weak
+    d = np.hypot(np.concatenate(de), np.concatenate(dn))
+    gsd = float(index.document["res_m"])
+    return {"measured": int(d.size), "weak": weak, "outside_or_invalid": outside,
+            "rms_m": round(float(np.sqrt(np.mean(d ** 2))), 4), "median_m": round(float(np.median(d)), 4),
+            "rms_gsd": round(float(np.sqrt(np.mean(d ** 2))) / gsd, 3), "median_gsd": round(float(np.median(d)) / gsd, 3),
+            "cpu_s": round(time.process_time() - t, 1)}
+
+
+def roofs_of_ways(projects: dict, truth: Path, ways) -> dict:
+    """``frame_roofs`` of each way, and the true ortho without and with footprints on the corners both measure
+    (rectified on the same DSM: only the masks, and so the patches' valid cells, differ)."""
+    import numpy as np
+
+    corners = {way: {} for way in ways}
+    out = {way: frame_roofs(projects[way], truth, corners[way]) for way in ways}
+    a, b = corners.get("true_ortho"), corners.get("true_ortho_footprints")
+    if a and b:
+        both = sorted(set(a) & set(b))
+        da, db = np.array([a[k] for k in both]), np.array([b[k] for k in both])
+        gsd = out["true_ortho"]["rms_m"] / out["true_ortho"]["rms_gsd"]
+        out["common_corners_true_ortho_vs_footprints"] = {
+            "corners": len(both), "rms_gsd": [round(float(np.sqrt(np.mean(v ** 2))) / gsd, 3) for v in (da, db)],
+            "median_gsd": [round(float(np.median(v)) / gsd, 3) for v in (da, db)],
+            "footprints_worse_by_over_0_5_gsd": int(np.sum(db - da > 0.5 * gsd)),
+            "footprints_better_by_over_0_5_gsd": int(np.sum(da - db > 0.5 * gsd)),
+            "only_without_footprints": len(set(a) - set(b)), "only_with_footprints": len(set(b) - set(a))}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
+    ap.add_argument("--project", type=Path, default=None, help="a chain's project instead of the demo (full-size frames)")
+    ap.add_argument("--truth", type=Path, default=None,
+                    help="the simulator's truth folder of the block (default: truth/ of the demo or --project)")
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_footprints_cost")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--key", default="footprints_demo")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_cost.json")
     ap.add_argument("--sha256", type=Path, default=None)
+    ap.add_argument("--per-frame", action="store_true",
+                    help=f"a fourth way, {PER_FRAME}: the footprints rasterised per frame (the frame orthos compared)")
+    ap.add_argument("--no-roofs", action="store_true", help="with --truth: leave the roofs out")
+    ap.add_argument("--roofs-only", action="store_true",
+                    help="with --truth: only the roofs of the frame orthos --work holds, into the key --key has")
+    ap.add_argument("--ways", default=None, help="comma-separated subset of the ways (conventional first)")
     args = ap.parse_args()
+    import shutil
+
+    from results_json import store_result
     from true_ortho_cost import small_project
 
     from aerotri.core.atomic import write_text_atomic
     from aerotri.core.project import Project
     from aerotri.sim.project import write_footprints_gpkg
 
+    ways = WAYS + ((PER_FRAME,) if args.per_frame else ())
+    if args.ways:
+        ways = tuple(w for w in args.ways.split(",") if w in ways)
+    if args.roofs_only:  # the frame orthos of an earlier run of this script: its key gets the roofs
+        from results_json import read_results
+
+        out = read_results(args.out)[args.key]
+        out["roofs"] = roofs_of_ways({way: args.work / way for way in ways}, args.truth, ways)
+        out["roofs_command"] = "python bench/true_ortho_footprints_cost.py " + " ".join(sys.argv[1:])
+        print(json.dumps(out["roofs"], indent=1))
+        store_result(args.out, out, key=args.key)
+        return
+    source = args.project or args.demo
+    truth = args.truth or source / "truth"
+    buildings = truth / "buildings.geojson"
     projects = {}
-    for way in WAYS:
+    for way in ways:
         p = projects[way] = args.work / way
-        small_project(args.demo, p)
+        small_project(source, p)
+        if args.project is not None and (source / "at" / "camera.toml").is_file():
+            shutil.copy2(source / "at" / "camera.toml", p / "at" / "camera.toml")  # the camera of at/eo.txt
         (p / "truth").mkdir()
-        write_footprints_gpkg(args.demo / "truth" / "buildings.geojson", p / "truth" / "footprints.gpkg",
-                              Project.open(p).crs)
-    for way in WAYS:  # not counted: compiled code, imports
-        one_block(projects[way], way)
-    runs = {way: [] for way in WAYS}
+        n = write_footprints_gpkg(buildings, p / "truth" / "footprints.gpkg", Project.open(p).crs)
+    _timed_occluder()
+    _counted_cells()
+    first = {}
+    for way in ways:  # not counted: compiled code, imports
+        first[way] = one_block(projects[way], way)
+        print("first", way, first[way], flush=True)
+    runs = {way: [] for way in ways}
     for k in range(args.rounds):
-        for way in WAYS:
+        for way in ways:
             r = one_block(projects[way], way)
             runs[way].append(r)
             print(k, way, r, flush=True)
-    out = {"project": str(args.demo), "rounds": args.rounds, "ways": {}}
+    out = {"project": str(source), "buildings": str(buildings), "footprints": n, "rounds": args.rounds,
+           "first_calls_not_counted": first, "ways": {}}
     for way, rs in runs.items():
         per_mp = sorted(r["cpu_s_per_mp"] for r in rs)
-        out["ways"][way] = {"runs": rs, "cpu_s_per_mp_median": per_mp[len(per_mp) // 2]}
+        out["ways"][way] = {"runs": rs, "cpu_s_per_mp_median": per_mp[len(per_mp) // 2],
+                            "wall_s_median": sorted(r["wall_s"] for r in rs)[len(rs) // 2],
+                            "peak_rss_mb_max": max(r["peak_rss_mb"] for r in rs)}
     conv = out["ways"]["conventional"]["cpu_s_per_mp_median"]
     out["cpu_per_mp_ratio_to_conventional"] = {way: round(out["ways"][way]["cpu_s_per_mp_median"] / conv, 3)
-                                               for way in WAYS[1:]}
+                                               for way in ways[1:]}
+    out["wall_ratio_to_conventional"] = {way: round(out["ways"][way]["wall_s_median"]
+                                                    / out["ways"]["conventional"]["wall_s_median"], 3)
+                                         for way in ways[1:]}
     # the same ratio round by round (each round's three calls ran back to back)
     out["cpu_per_mp_ratio_by_round"] = {way: [round(runs[way][k]["cpu_s_per_mp"] / runs["conventional"][k]["cpu_s_per_mp"], 3)
-                                              for k in range(args.rounds)] for way in WAYS[1:]}
+                                              for k in range(args.rounds)] for way in ways[1:]}
     out["command"] = "python bench/true_ortho_footprints_cost.py " + " ".join(sys.argv[1:])
     out["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()
     print(json.dumps({k: v for k, v in out.items() if k != "ways"}, indent=1))
+    if PER_FRAME in ways and "true_ortho_footprints" in ways:
+        a, b = frame_sha256(projects["true_ortho_footprints"]), frame_sha256(projects[PER_FRAME])
+        out["per_frame_identical_frame_orthos"] = f"{sum(a[k] == b.get(k) for k in a)} of {len(a)}"
     if args.sha256:
         write_text_atomic(args.sha256, json.dumps(frame_sha256(projects["true_ortho_footprints"]), indent=1) + "\n")
-    doc = json.loads(args.out.read_text()) if args.out.exists() else {}
-    doc[args.key] = out
-    write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")
-    print(f"wrote {args.key} into {args.out}")
+    if args.truth is not None and not args.no_roofs:
+        out["roofs"] = roofs_of_ways(projects, args.truth, [way for way in ways if way != PER_FRAME])
+        print(json.dumps(out["roofs"], indent=1))
+    store_result(args.out, out, key=args.key)
 
 
 if __name__ == "__main__":
