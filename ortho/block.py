@@ -52,8 +52,8 @@ from aerotri.geom.crs.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, height_window, open_height_raster, read_height_window
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
-from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, frame_grid, heights_on_grid,
-                           rectify_frame)
+from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, footprint_polygon_xy,
+                           frame_grid, heights_on_grid, rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -373,6 +373,10 @@ def _rectify_frame_task(task: FrameTask) -> dict:
         occluder = _frame_occluder(task, heights, dem, project_crs)
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
                       partial=True, max_view_angle_deg=task.max_view_angle_deg)
+    # the ground the frame images (its border rays on the DEM): the mosaic counts the empty cells inside the
+    # frames' footprints as seen by no frame, also where they reach the block's edge
+    footprint = footprint_polygon_xy(task.camera, C, R, dem, to_project=to_project, image_id=task.image_id,
+                                     partial=True, max_view_angle_deg=task.max_view_angle_deg)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
@@ -393,6 +397,7 @@ def _rectify_frame_task(task: FrameTask) -> dict:
         "width": grid.width, "height": grid.height, "centre_m": [float(v) for v in C],
         "nadir_xy_m": [float(nadir_x[0]), float(nadir_y[0])], "valid_fraction": valid_fraction,
         "height_covered_share": round(covered, 4),
+        "footprint_xy_m": np.round(footprint, 2).tolist(),
         **to_record(file_fingerprint(task.out_path)),
     }
 
@@ -794,7 +799,8 @@ _FRAME_KEYS = ("image_id", "file", "x_left_m", "y_top_m", "width", "height", "na
 class FrameEntry:
     """One frame of ``ortho/frames/index.json``: its file (in the frames folder), its output grid (left and top
     edge, pixels), the nadir point in the output CRS, the projection centre in the project CRS (None in indexes
-    written before it was recorded) and the file's size and SHA-1 (None likewise)."""
+    written before it was recorded), the file's size and SHA-1 (None likewise) and the ground the frame images
+    (``footprint_xy_m``: the ring of its border rays on the DEM in the output CRS; None likewise)."""
 
     image_id: str
     file: str
@@ -806,6 +812,7 @@ class FrameEntry:
     centre_m: tuple[float, ...] | None = None
     size: int | None = None
     sha1: str | None = None
+    footprint_xy_m: tuple[tuple[float, float], ...] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -867,9 +874,20 @@ def frame_index(document: dict, path) -> FrameIndex:
             raise InputError(f"{path}: {where} nadir_xy_m = {e['nadir_xy_m']!r}: expected [x, y]; re-run `ortho rectify`")
         for v in e["nadir_xy_m"]:
             _check_number(path, f"{where} nadir_xy_m", v)
+        ring = e.get("footprint_xy_m")
+        if ring is not None:
+            if not (isinstance(ring, list) and len(ring) >= 3
+                    and all(isinstance(p, list) and len(p) == 2 for p in ring)):
+                raise InputError(f"{path}: {where} footprint_xy_m: expected a ring of at least 3 [x, y]; "
+                                 "re-run `ortho rectify`")
+            for p in ring:
+                for v in p:
+                    _check_number(path, f"{where} footprint_xy_m", v)
     frames = tuple(FrameEntry(e["image_id"], e["file"], e["x_left_m"], e["y_top_m"], e["width"], e["height"],
                               tuple(e["nadir_xy_m"]), tuple(e["centre_m"]) if e.get("centre_m") else None,
-                              e.get("size"), e.get("sha1")) for e in index["frames"])
+                              e.get("size"), e.get("sha1"),
+                              tuple(tuple(p) for p in e["footprint_xy_m"]) if e.get("footprint_xy_m") else None)
+                   for e in index["frames"])
     return FrameIndex(path, index["crs"], index["res_m"], frames, index.get("project_crs"),
                       bool(index.get("true_ortho")), index.get("operation"), index.get("coordinate_operation"),
                       index.get("height_operation"), index.get("inputs"), index)

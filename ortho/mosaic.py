@@ -849,7 +849,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
         with _background(write_seamlines_preview, work / "seamlines_preview.png", work / "mosaic.tif", labels,
                          factor, imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
             pairs = [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]
-            nodata = _interior_nodata(work / "mosaic.tif", res)
+            nodata = _interior_nodata(work / "mosaic.tif", res, footprints=[e.footprint_xy_m for e in index.frames])
             preview()
         vectors()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
@@ -869,18 +869,36 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
     return summary
 
 
-def _interior_nodata(path: Path, res_m: float, max_cells: float = 4e6) -> dict:
-    """Cells of the mosaic without a value that lie inside the block (not connected to its outer edge): no
-    frame sees them. Counted on the mask read at most ``max_cells`` large (an overview of a large mosaic),
-    scaled to mosaic cells."""
+def _interior_nodata(path: Path, res_m: float, *, footprints=(), max_cells: float = 6.4e7) -> dict:
+    """Cells of the mosaic without a value that lie inside the block: enclosed by valid cells (not connected to
+    the mosaic's outer edge), or inside the ground a frame images (``footprints``: per frame its ring (x, y) in the
+    mosaic's CRS, ``FrameEntry.footprint_xy_m``; None for an index written before it was recorded). The second
+    takes what a true ortho's frames do not see where it reaches the block's edge (a forest hidden from oblique
+    frames: Tuniu's mosaic lost 40 % of its cells to it and reported 7.6 %). No frame sees them (occluded in every
+    frame, or over DEM nodata). Counted on the mask at full resolution up to ``max_cells`` (64 MB), above it on
+    the mask read that large (an overview of a large mosaic, scaled to mosaic cells: the overviews' masks close
+    small holes, the count is then low; the demo's at half resolution read 91,268 of 138,797 enclosed cells)."""
     with rasterio.open(path) as ds:
         step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / max_cells))))
         shape = (max(1, ds.height // step), max(1, ds.width // step))
         ok = ds.read_masks(1, out_shape=shape, resampling=Resampling.nearest) > 0
         sy, sx = ds.height / shape[0], ds.width / shape[1]
+        to_read_px = ~(ds.transform * Affine.scale(sx, sy))
     empty = np.pad(~ok, 1, constant_values=True).view(np.uint8).copy()
     cv2.floodFill(empty, None, (0, 0), 2)  # the outside: every empty cell reached from the edge
-    holes = int(np.count_nonzero(empty[1:-1, 1:-1] == 1))
+    unseen = empty[1:-1, 1:-1] == 1
+    imaged = np.zeros(shape, np.uint8)
+    for ring in footprints:
+        if ring:
+            xy = np.asarray(ring, float)
+            col, row = to_read_px * (xy[:, 0], xy[:, 1])
+            # fillPoly takes a cell whose centre the ring holds; pixel corners -> centres
+            pts = np.round(np.stack([col - 0.5, row - 0.5], axis=-1) * 16).astype(np.int32)
+            cv2.fillPoly(imaged, [pts], 1, lineType=cv2.LINE_8, shift=4)
+    # the frame orthos leave the last cell along their image's edge empty (no sample to interpolate from): the
+    # footprints' union one cell in, so that the block's outline does not count as unseen
+    unseen |= ~ok & (cv2.erode(imaged, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0)
+    holes = int(np.count_nonzero(unseen))
     block = holes + int(np.count_nonzero(ok))
     return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),
             "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1)}

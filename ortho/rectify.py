@@ -846,11 +846,21 @@ def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float,
 
 
 def footprint_polygon_xy(camera: Camera, centre_m, R, heights: HeightRaster, *, to_project: GridToProject,
-                         image_id: str = "frame", per_side: int = 16) -> np.ndarray:
-    """Footprint ring (N, 2) in output-CRS coordinates (the rays over the earth, as ``frame_grid``)."""
+                         image_id: str = "frame", per_side: int = 16, partial: bool = False,
+                         max_view_angle_deg: float = 90.0) -> np.ndarray:
+    """Footprint ring (N, 2) in output-CRS coordinates (the rays over the earth, as ``frame_grid``; ``partial`` and
+    ``max_view_angle_deg`` as there: a ray that misses the raster on the plane of its mid height, the ring cut to
+    the cone of rays within that angle of the vertical)."""
     x, y = border_pixels(camera, per_side)
     zlo, zhi = heights.finite_range()
     g = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi), image_id=image_id,
-                                    crs=to_project.project_crs)
+                                    uncovered="plane" if partial else "raise", crs=to_project.project_crs)
+    if partial:
+        g = g[0]
+    if max_view_angle_deg < 90.0:
+        r = max((float(centre_m[2]) - zlo) * math.tan(math.radians(max_view_angle_deg)), 0.0)
+        g = g.copy()
+        g[:, 0] = np.clip(g[:, 0], centre_m[0] - r, centre_m[0] + r)
+        g[:, 1] = np.clip(g[:, 1], centre_m[1] - r, centre_m[1] + r)
     ox, oy = to_project.to_output(g[:, 0], g[:, 1])
     return np.stack([ox, oy], axis=-1)

@@ -48,28 +48,53 @@ def test_zbuffer_and_march_mask_what_the_march_masks_everywhere(block, frame):
     assert disagree.mean() < 1e-4, f"{disagree.sum()} of {disagree.size} pixels"
 
 
+def _union_of_frame_masks(root, mosaic_ds):
+    """The union of the frame orthos' validity in ``root``/ortho/frames on the mosaic's grid."""
+    import rasterio
+
+    union = np.zeros((mosaic_ds.height, mosaic_ds.width), bool)
+    index = json.loads((root / "ortho" / "frames" / "index.json").read_text())
+    for e in index["frames"]:
+        with rasterio.open(root / "ortho" / "frames" / e["file"]) as ds:
+            m = ds.read_masks(1) > 0
+            c0 = int(round((ds.transform.c - mosaic_ds.transform.c) / mosaic_ds.transform.a))
+            r0 = int(round((ds.transform.f - mosaic_ds.transform.f) / mosaic_ds.transform.e))
+        rs = slice(max(0, r0), min(union.shape[0], r0 + m.shape[0]))
+        cs = slice(max(0, c0), min(union.shape[1], c0 + m.shape[1]))
+        union[rs, cs] |= m[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
+    return union
+
+
 def test_the_mosaic_counts_the_cells_no_frame_sees(block, tmp_path):
-    root = tmp_path / "p"
-    shutil.copytree(block, root, ignore=shutil.ignore_patterns("ortho"))
+    """Cells no frame sees: the empty cells enclosed by valid ones, and those inside the ground the frames image
+    that reach the block's edge (Tuniu's oblique frames lost 40 % of the mosaic to a forest they do not see and
+    reported 7.6 %: only the enclosed). Truth for the second: what the conventional orthos of the same frames
+    cover (every cell a frame images)."""
+    import rasterio
+    from scipy import ndimage
+
+    root, conventional = tmp_path / "p", tmp_path / "c"
+    for p in (root, conventional):
+        shutil.copytree(block, p, ignore=shutil.ignore_patterns("ortho"))
     r = CliRunner().invoke(main, ["rectify", str(root), "--true-ortho", "--dsm", str(root / "truth" / "dsm.tif")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["rectify", str(conventional)])
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(main, ["mosaic", str(root)])
     assert r.exit_code == 0, r.output
     summary = json.loads((root / "ortho" / "mosaic.json").read_text())
-    import rasterio
-
     with rasterio.open(root / "ortho" / "mosaic.tif") as ds:
         ok = ds.read_masks(1) > 0
-    # the count is that of the empty cells enclosed by valid ones (here without decimation: a small mosaic)
-    from scipy import ndimage
-
+        imaged = _union_of_frame_masks(conventional, ds)
     lab, n = ndimage.label(~ok)
     edge = set(np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))) - {0}
     enclosed = int(np.count_nonzero((lab > 0) & ~np.isin(lab, list(edge))))
-    assert summary["cells_seen_by_no_frame"] == enclosed
-    assert summary["share_seen_by_no_frame"] < 0.01
-    if enclosed:
-        assert "seen by no frame" in r.stderr
+    unseen = int(np.count_nonzero(~ok & imaged))
+    assert unseen > 1.05 * enclosed  # hidden ground that reaches the block's edge is there to be counted
+    assert summary["cells_seen_by_no_frame"] >= enclosed
+    assert abs(summary["cells_seen_by_no_frame"] - unseen) <= 0.1 * unseen, (summary["cells_seen_by_no_frame"], unseen)
+    assert 0 < summary["share_seen_by_no_frame"] < 0.05
+    assert "seen by no frame" in r.stderr
 
 
 def test_the_dom_check_measures_roofs_against_the_true_orthophoto(block, tmp_path):
