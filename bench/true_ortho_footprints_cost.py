@@ -9,12 +9,14 @@ true + footprints, conventional, ...), so that the load of the shared machine fa
 - conventional: on the DEM (lidar_out/dem.tif), as ``ortho rectify P``;
 - true: ``--true-ortho --dsm P/lidar_out/dsm.tif``;
 - true + footprints: the same with ``--footprints P/truth/footprints.gpkg`` (the simulator's wall lines,
-  ``aerotri.sim.project.write_footprints_gpkg`` of truth/buildings.geojson).
+  ``aerotri.sim.project.write_footprints_gpkg`` of truth/buildings.geojson);
+- true + footprints + crowns (``--crowns``): the same with ``--crown-base P/lidar_out/crown_base.tif`` (the LiDAR's
+  crown bases from the chain's classified strips, ``eval_true_ortho_dsm_cell.lidar_crown_base``).
 
 CPU is the process's (user + sys of all its threads, ``time.process_time``) per call; one call of each way runs first
 and is not counted (numba's compiled-code cache, the imports). Per way: the CPU-s per MP of each round, their median,
 and the load average. ``--sha256``: also the sha256 of each frame ortho's decoded samples and mask of the last
-true + footprints round (to compare the frames of two commits).
+true + footprints round (to compare the frames of two commits); ``--sha256-all``: of every way's last round, by way.
 
 Usage: python bench/true_ortho_footprints_cost.py [--demo /work/ref/demo_chain/project] [--work DIR] [--rounds 3]
        [--key footprints_demo] [--out bench/results/true_ortho_cost.json] [--sha256 FILE]
@@ -36,6 +38,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
 WAYS = ("conventional", "true_ortho", "true_ortho_footprints")
+CROWNS = "true_ortho_footprints_crowns"
 
 
 def settings(project: Path, way: str):
@@ -43,8 +46,10 @@ def settings(project: Path, way: str):
 
     if way == "conventional":
         return RectifySettings()
+    crowns = {"crown_base": str(project / "lidar_out" / "crown_base.tif")} if way == CROWNS else {}
     return RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
-                           footprints=str(project / "truth" / "footprints.gpkg") if way.endswith("footprints") else None)
+                           footprints=str(project / "truth" / "footprints.gpkg") if "footprints" in way else None,
+                           **crowns)
 
 
 def one_block(project: Path, way: str) -> dict:
@@ -79,25 +84,32 @@ def main() -> None:
     ap.add_argument("--key", default="footprints_demo")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_cost.json")
     ap.add_argument("--sha256", type=Path, default=None)
+    ap.add_argument("--sha256-all", type=Path, default=None)
+    ap.add_argument("--crowns", action="store_true", help="a fourth way: footprints and the LiDAR's crown bases")
     args = ap.parse_args()
+    from eval_true_ortho_dsm_cell import lidar_crown_base
     from true_ortho_cost import small_project
+
+    ways = WAYS + ((CROWNS,) if args.crowns else ())
 
     from aerotri.core.atomic import write_text_atomic
     from aerotri.core.project import Project
     from aerotri.sim.project import write_footprints_gpkg
 
     projects = {}
-    for way in WAYS:
+    for way in ways:
         p = projects[way] = args.work / way
         small_project(args.demo, p)
         (p / "truth").mkdir()
         write_footprints_gpkg(args.demo / "truth" / "buildings.geojson", p / "truth" / "footprints.gpkg",
                               Project.open(p).crs)
-    for way in WAYS:  # not counted: compiled code, imports
+        if way == CROWNS:
+            lidar_crown_base(args.demo, False, p / "lidar_out" / "dsm.tif", p / "lidar_out" / "crown_base.tif")
+    for way in ways:  # not counted: compiled code, imports
         one_block(projects[way], way)
-    runs = {way: [] for way in WAYS}
+    runs = {way: [] for way in ways}
     for k in range(args.rounds):
-        for way in WAYS:
+        for way in ways:
             r = one_block(projects[way], way)
             runs[way].append(r)
             print(k, way, r, flush=True)
@@ -107,16 +119,19 @@ def main() -> None:
         out["ways"][way] = {"runs": rs, "cpu_s_per_mp_median": per_mp[len(per_mp) // 2]}
     conv = out["ways"]["conventional"]["cpu_s_per_mp_median"]
     out["cpu_per_mp_ratio_to_conventional"] = {way: round(out["ways"][way]["cpu_s_per_mp_median"] / conv, 3)
-                                               for way in WAYS[1:]}
+                                               for way in ways[1:]}
     # the same ratio round by round (each round's three calls ran back to back)
     out["cpu_per_mp_ratio_by_round"] = {way: [round(runs[way][k]["cpu_s_per_mp"] / runs["conventional"][k]["cpu_s_per_mp"], 3)
-                                              for k in range(args.rounds)] for way in WAYS[1:]}
+                                              for k in range(args.rounds)] for way in ways[1:]}
     out["command"] = "python bench/true_ortho_footprints_cost.py " + " ".join(sys.argv[1:])
     out["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()
     print(json.dumps({k: v for k, v in out.items() if k != "ways"}, indent=1))
     if args.sha256:
         write_text_atomic(args.sha256, json.dumps(frame_sha256(projects["true_ortho_footprints"]), indent=1) + "\n")
+    if args.sha256_all:
+        write_text_atomic(args.sha256_all, json.dumps({way: frame_sha256(projects[way]) for way in ways}, indent=1)
+                          + "\n")
     doc = json.loads(args.out.read_text()) if args.out.exists() else {}
     doc[args.key] = out
     write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")

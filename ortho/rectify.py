@@ -147,9 +147,9 @@ class MarchArgs(NamedTuple):
 
 class FootprintWalls(NamedTuple):
     """Building footprints as the march takes them (``ortho.footprints.FootprintOccluder``): the underside and top
-    of each DSM cell's slab (float32, -inf: none, a solid column), the index of its wall sub-cells (int32, -1:
-    none, -2: beside an overhang), the sub-cell masks (uint8 (K, sub, sub)) and ``sub``; (1, 1) arrays: no
-    footprints."""
+    of each DSM cell's slab (float32, -inf: none, a solid column), the index of its sub-cell mask (int32, -1: none;
+    <= -3: beside an overhang), the sub-cell masks (uint8 (K, sub, sub): bit 1 wall, 2 slab, 4 the whole cell's
+    slab) and ``sub``; (1, 1) arrays: no footprints nor crowns."""
 
     base_m: np.ndarray
     slab_top_m: np.ndarray
