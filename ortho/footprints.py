@@ -53,6 +53,7 @@ OVERHANG_REACH_M = 1.5  # furthest a roof reaches beyond its wall line and count
 OVERHANG_ABOVE_M = 2.0  # an overhang cell stands at least this much above the DEM (a roof, not the ground)
 SUB_CELL_M = 0.1  # the walls within an overhang cell are resolved to sub-cells of at most this size
 EAVE_MAX_M = 1.0  # widest eave overhang (beyond the wall line) a building's roof outline is given: eaves reach 0.3-1 m
+CROWN = -2  # ``sub_index`` of a tree crown's cell: a slab from its crown base to its top
 HALO = -3  # ``sub_index`` HALO - k: a cell beside an overhang, its own solid column and the overhang's slab over the
 # sub-cells of ``sub_masks[k]``
 
@@ -62,7 +63,7 @@ class FootprintOccluder:
     """What the march reads beside the DSM (same shape as its heights): ``base_m`` the underside of each cell's
     slab (-inf: none, the cell a solid column; else an overhang's soffit: its building's eave line minus
     ``OVERHANG_SLAB_M``; a tree's crown base), ``slab_top_m`` the slab's top (an overhang cell's DSM top; beside an
-    overhang, the eave line), ``sub_index`` (int32: -1 a slab over the whole cell; k >= 0 an overhang cell a wall
+    overhang, the eave line), ``sub_index`` (int32: -1 a slab over the whole cell; ``CROWN`` a tree crown's; k >= 0 an overhang cell a wall
     or the roof outline crosses: ``sub_masks[k]`` bit 1 its sub-cells inside a footprint (a column up to the top),
     bit 2 those within the roof outline (the slab), bit 4 at [0, 0] the slab over the whole cell; ``HALO`` - k a cell
     beside an overhang: its own solid column, and the slab over the sub-cells of bit 2 of ``sub_masks[k]``),
@@ -361,9 +362,11 @@ def with_crown_base(occluder: FootprintOccluder | None, top_m: np.ndarray, crown
         crown &= where
     base = occluder.base_m.copy()
     slab_top = occluder.slab_top_m.copy()
+    sub_index = occluder.sub_index.copy()
     base[crown] = crown_base_m[crown]
     slab_top[crown] = top_m[crown]
-    return dataclasses.replace(occluder, base_m=base, slab_top_m=slab_top)
+    sub_index[crown] = CROWN
+    return dataclasses.replace(occluder, base_m=base, slab_top_m=slab_top, sub_index=sub_index)
 
 
 @numba.njit(cache=True, nogil=True)
