@@ -28,7 +28,7 @@ eval_true_ortho_occlusion.py; the demo: a project made by ``aerotri demo``. ``ma
 true classes). A DSM spec ending in ``+fp`` is the same DSM with the simulator's building footprints (the wall
 lines of truth/buildings.geojson written as truth/footprints.gpkg, ``aerotri.sim.project.write_footprints_gpkg``) in
 the occlusion test (``ortho rectify --footprints``, ``ortho.footprints``), e.g. ``--blocks "tall:0.5,0.5+fp"``;
-``+fp4`` the same (a name of its own, so that a DOM made with ``+fp`` by earlier code is kept beside it: each DOM's
+``+fp4``, ``+fp5``, ... the same (names of their own, so that a DOM made with ``+fp`` by earlier code is kept beside it: each DOM's
 made.json records the commit that made it). ``+cb``: tree crown bases in the occlusion test (``ortho rectify
 --crown-base``): on the tall blocks the truth's (``truth_crown_base``: per cell the lowest underside of the crowns
 over it), on the demo the LiDAR's (``lidarctl.rasters.crown_base``: the lowest vegetation return of the cell and its
@@ -410,7 +410,7 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
     points = None
     for spec in cells:
         cell, *flags = spec.split("+")
-        footprints = "fp" in flags or "fp4" in flags
+        footprints = any(f.startswith("fp") for f in flags)
         p = work / name / f"true_ortho_dsm_{spec}"
         made_path = p / "made.json"
         if not made_path.exists():
