@@ -322,7 +322,12 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     outline = _outline(cells, rr, cc_, lab, width_cm)
     whole = outline.all(axis=(1, 2))
     walls = cells.inside[rr, cc_] > 0
-    masked = walls | ~whole
+    # an overhang cell wholly beyond the roof outline, no wall in it, stops no ray: base +inf (``_cell_blocks``: the
+    # same answer as its empty mask's walk, without it), and out of the march's bounds
+    void = ~walls & ~outline.any(axis=(1, 2))
+    base[rr[void], cc_[void]] = np.inf
+    slab_top[rr[void], cc_[void]] = -np.inf
+    masked = (walls | ~whole) & ~void
     wall_bits = np.zeros((int(masked.sum()), sub, sub), np.uint8)
     wall_bits[walls[masked]] = cells.wall_masks[cells.wall_index[rr[walls], cc_[walls]]]
     over_masks = wall_bits | (2 * outline[masked]).astype(np.uint8)
@@ -330,6 +335,12 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     sub_index[rr[masked], cc_[masked]] = np.arange(int(masked.sum()), dtype=np.int32)
     halo_masks = (2 * (halo_masks.astype(np.bool_) & _outline(cells, hr, hc, cells.label[hr, hc], width_cm))).astype(
         np.uint8)
+    # a cell beside an overhang whose half cell lies wholly beyond the roof outline carries no slab: its own column
+    # only (the same answer, without the sub-cell walk)
+    empty = ~halo_masks.any(axis=(1, 2))
+    base[hr[empty], hc[empty]] = -np.inf
+    slab_top[hr[empty], hc[empty]] = -np.inf
+    hr, hc, halo_masks = hr[~empty], hc[~empty], halo_masks[~empty]
     sub_index[hr, hc] = HALO - (len(over_masks) + np.arange(len(hr), dtype=np.int32))
     occluder = FootprintOccluder(base, slab_top, sub_index, np.concatenate([over_masks, halo_masks]), sub)
     if crown_base_m is None:
