@@ -27,7 +27,13 @@ eval_true_ortho_occlusion.py; the demo: a project made by ``aerotri demo``. ``ma
 ``write_points_dsm`` (the demo's classified strips of the chain, the tall block's simulated strips with their
 true classes). A DSM spec ending in ``+fp`` is the same DSM with the simulator's building footprints (the wall
 lines of truth/buildings.geojson written as truth/footprints.gpkg, ``aerotri.sim.project.write_footprints_gpkg``) in
-the occlusion test (``ortho rectify --footprints``, ``ortho.footprints``), e.g. ``--blocks "tall:0.5,0.5+fp"``.
+the occlusion test (``ortho rectify --footprints``, ``ortho.footprints``), e.g. ``--blocks "tall:0.5,0.5+fp"``;
+``+fp4``, ``+fp5``, ... the same (names of their own, so that a DOM made with ``+fp`` by earlier code is kept beside it: each DOM's
+made.json records the commit that made it). ``+cb``: tree crown bases in the occlusion test (``ortho rectify
+--crown-base``): on the tall blocks the truth's (``truth_crown_base``: per cell the lowest underside of the crowns
+over it), on the demo the LiDAR's (``lidarctl.rasters.crown_base``: the lowest vegetation return of the cell and its
+neighbours, from the chain's classified strips); ``+cbl`` on a tall block the LiDAR's (its simulated strips, true
+classes). Blocks ``tall2``, ``tall3``: the tall preset with other seeds (``--tall2``, ``--tall3``), as ``tall``.
 Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other keys kept).
 """
 
@@ -293,6 +299,84 @@ def block_first_returns(src: Path, tall: bool):
     return first_returns(sorted((src / "lidar_out" / "classified").glob("*.la[sz]")))
 
 
+def truth_crown_base(truth, like: Path, out: Path, sub: int = 5) -> int:
+    """The crown base of the simulator's trees (spheroids, no trunks) on the grid of ``like`` (a DSM GeoTIFF): per
+    cell the lowest underside of the crowns over it, sampled at ``sub`` x ``sub`` points of the cell (the lowest
+    vegetation return a cell could hold), nodata where no crown; returns the cells with a crown base."""
+    import rasterio
+
+    with rasterio.open(like) as ds:
+        prof, tf, shape = ds.profile, ds.transform, (ds.height, ds.width)
+    res, left, top = tf.a, tf.c - truth.origin[0], tf.f - truth.origin[1]
+    base = np.full(shape, np.inf)
+    off = (np.arange(sub) + 0.5) / sub
+    for (cx, cy, cz), (a, c) in zip(truth.scene.tree_c, truth.scene.tree_ac):
+        r0, r1 = max(0, int((top - cy - a) / res)), min(shape[0], int((top - cy + a) / res) + 1)
+        c0, c1 = max(0, int((cx - a - left) / res)), min(shape[1], int((cx + a - left) / res) + 1)
+        if r1 <= r0 or c1 <= c0:
+            continue
+        ys = top - (np.arange(r0, r1)[:, None] + off[None, :]) * res  # (rows, sub)
+        xs = left + (np.arange(c0, c1)[:, None] + off[None, :]) * res
+        q = 1.0 - ((xs[None, None, :, :] - cx) ** 2 + (ys[:, :, None, None] - cy) ** 2) / (a * a)
+        z = np.where(q > 0, cz - c * np.sqrt(np.maximum(q, 0.0)), np.inf).min(axis=(1, 3))
+        base[r0:r1, c0:c1] = np.minimum(base[r0:r1, c0:c1], z)
+    nodata = -9999.0
+    z = np.where(np.isfinite(base), base + truth.origin[2], nodata).astype(np.float32)
+    prof.update(dtype="float32", nodata=nodata, count=1)
+    with rasterio.open(out, "w", **prof) as dst:
+        dst.write(z, 1)
+    return int(np.isfinite(base).sum())
+
+
+def lidar_crown_base(src: Path, tall: bool, like: Path, out: Path) -> int:
+    """``lidarctl.rasters.crown_base.crown_base_surface`` of the block's returns (``block_first_returns``' strips,
+    all returns) on the grid of ``like``; returns the cells with a crown base."""
+    import laspy
+    import rasterio
+
+    from lidarctl.rasters.crown_base import crown_base_surface
+
+    las = sorted((src / "lidar").glob("*.la[sz]")) if tall else sorted((src / "lidar_out" / "classified").glob("*.la[sz]"))
+    xs, ys, zs, cls = [], [], [], []
+    for k, path in enumerate(las):
+        pts = laspy.read(path)
+        c = laspy.read(src / "truth" / "lidar" / path.name).classification if tall else pts.classification
+        xs.append(np.asarray(pts.x)), ys.append(np.asarray(pts.y)), zs.append(np.asarray(pts.z))
+        cls.append(np.asarray(c))
+    with rasterio.open(like) as ds:
+        prof, tf, shape = ds.profile, ds.transform, (ds.height, ds.width)
+    base = crown_base_surface(np.concatenate(xs), np.concatenate(ys), np.concatenate(zs), np.concatenate(cls),
+                              tf.c, tf.f, tf.a, shape)
+    nodata = -9999.0
+    prof.update(dtype="float32", nodata=nodata, count=1)
+    with rasterio.open(out, "w", **prof) as dst:
+        dst.write(np.where(np.isfinite(base), base, nodata).astype(np.float32), 1)
+    return int(np.isfinite(base).sum())
+
+
+def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None) -> dict:
+    """The true ortho DOM of ``project`` on its lidar_out/dsm.tif (``footprints``, ``crown_base``: in the occlusion
+    test), as ``eval_true_ortho_occlusion.make_dom``; the rectify and mosaic times."""
+    from aerotri.core.executor import Executor
+    from ortho.block import rectify_block
+    from ortho.mosaic import mosaic_block
+    from ortho.settings import MosaicSettings, RectifySettings
+
+    settings = RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
+                               footprints=str(footprints) if footprints else None,
+                               crown_base=str(crown_base) if crown_base else None)
+    with Executor() as ex:
+        t, c = time.perf_counter(), time.process_time()
+        done = rectify_block(project, settings, eo_path=eo_path, camera_path=camera_path, executor=ex)
+        rect = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
+        t, c = time.perf_counter(), time.process_time()
+        summary = json.loads(mosaic_block(project, MosaicSettings(), executor=ex).summary_path.read_text())
+        mos = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
+    mp = sum(g.width * g.height for g in done.grids) / 1e6
+    rect.update(frame_ortho_mp=round(mp, 2), cpu_s_per_mp=rect["cpu_s"] / mp)
+    return {"rectify": rect, "mosaic": mos, "summary": summary}
+
+
 def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
     """The block's conventional DOM, truth and 2.5D bound, then per DSM (``lidar``: the project's
     lidar_out/dsm.tif; ``0.5``: truth/dsm.tif; other numbers: the truth surface at that cell) its true-ortho DOM and
@@ -306,7 +390,7 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
     from ortho.block import read_index
     from ortho.grid import OrthoGrid
 
-    tall = name != "demo"
+    tall = name.startswith("tall")
     kw = {"eo_path": src / "truth" / "eo.txt", "camera_path": src / "truth" / "camera.toml"} if tall else {}
     copy = E.copy_tall if tall else E.copy_demo
     conv = work / name / "conventional"
@@ -325,7 +409,8 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
     results = {}
     points = None
     for spec in cells:
-        cell, footprints = spec.removesuffix("+fp"), spec.endswith("+fp")
+        cell, *flags = spec.split("+")
+        footprints = any(f.startswith("fp") for f in flags)
         p = work / name / f"true_ortho_dsm_{spec}"
         made_path = p / "made.json"
         if not made_path.exists():
@@ -347,15 +432,25 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 point_dsm = write_points_dsm(cell, *points, like, p / "lidar_out" / "dsm.tif")
             elif cell != "lidar":
                 cast_s = write_fine_dsm(src, truth, float(cell), p / "lidar_out" / "dsm.tif")
-            made = E.make_dom(p, True, footprints=fp_path, **kw)
+            crown_path, crown_cells = None, None
+            if "cb" in flags or "cbl" in flags:
+                crown_path = p / "lidar_out" / "crown_base.tif"
+                like = p / "lidar_out" / "dsm.tif"
+                crown_cells = (truth_crown_base(truth, like, crown_path) if tall and "cb" in flags
+                               else lidar_crown_base(src, tall, like, crown_path))
+            made = make_dom(p, footprints=fp_path, crown_base=crown_path, **kw)
             made["dsm_ray_cast_s"] = cast_s
             made["footprints"] = str(fp_path) if fp_path else None
+            made["crown_base"] = {"path": str(crown_path), "cells": crown_cells} if crown_path else None
+            made["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
+                                            capture_output=True, text=True).stdout.strip()
             if cell in POINT_DSMS:
                 made["point_dsm"] = point_dsm
             made_path.write_text(json.dumps(made, indent=1, default=str) + "\n")
         made = json.loads(made_path.read_text())
         res = {"rectify": made["rectify"], "dsm_ray_cast_s": made["dsm_ray_cast_s"], "point_dsm": made.get("point_dsm"),
-               "footprints": made.get("footprints"),
+               "footprints": made.get("footprints"), "crown_base": made.get("crown_base"),
+               "made_at_commit": made.get("commit"),
                "roofs": roof_displacements(p / "ortho" / "mosaic.tif", p / "truth" / "ortho.tif",
                                            p / "truth" / "roof_corners.csv")}
         way = E.measure_way(p, None, grid, kind, ground, roof, vis, foot_nadir, conv_masks)
@@ -380,6 +475,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--tall", type=Path, default=REPO / "out" / "tall_sim")
     ap.add_argument("--tall2", type=Path, default=None, help="block ``tall2``: the tall preset with another seed")
+    ap.add_argument("--tall3", type=Path, default=None, help="block ``tall3``: the tall preset with a third seed")
     ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_occlusion")
     ap.add_argument("--blocks", default="demo:lidar,0.5,0.1;tall:0.5,0.25,0.2,0.1")
@@ -389,10 +485,10 @@ def main() -> None:
     key = read_results(args.out).get(args.key, {"blocks": {}})  # its earlier blocks kept, merged
     for spec in args.blocks.split(";"):
         name, cells = spec.split(":")
-        src = {"tall": args.tall, "tall2": args.tall2}.get(name, args.demo)
+        src = {"tall": args.tall, "tall2": args.tall2, "tall3": args.tall3}.get(name, args.demo)
         key["blocks"][name] = run_block(name, src, args.work, cells.split(","))
     key["command"] = ("python bench/eval_true_ortho_dsm_cell.py --work DIR --tall DIR --demo DIR "
-                      + ("--tall2 DIR " if args.tall2 else "") +
+                      + ("--tall2 DIR " if args.tall2 else "") + ("--tall3 DIR " if args.tall3 else "") +
                       f"--blocks '{args.blocks}' --key {args.key}")
     key["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()

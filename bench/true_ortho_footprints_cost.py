@@ -9,7 +9,9 @@ true + footprints, conventional, ...), so that the load of the shared machine fa
 - conventional: on the DEM (lidar_out/dem.tif), as ``ortho rectify P``;
 - true: ``--true-ortho --dsm P/lidar_out/dsm.tif``;
 - true + footprints: the same with ``--footprints P/truth/footprints.gpkg`` (the simulator's wall lines,
-  ``aerotri.sim.project.write_footprints_gpkg`` of truth/buildings.geojson).
+  ``aerotri.sim.project.write_footprints_gpkg`` of truth/buildings.geojson);
+- true + footprints + crowns (``--crowns``): the same with ``--crown-base P/lidar_out/crown_base.tif`` (the LiDAR's
+  crown bases from the chain's classified strips, ``eval_true_ortho_dsm_cell.lidar_crown_base``).
 
 CPU is the process's (user + sys of all its threads, ``time.process_time``) per call; one call of each way runs first
 and is not counted (numba's compiled-code cache, the imports). Per way: the CPU-s per MP of each round, their median,
@@ -54,6 +56,7 @@ sys.path.insert(0, str(REPO / "bench"))
 WAYS = ("conventional", "true_ortho", "true_ortho_footprints")
 PER_FRAME = "true_ortho_footprints_per_frame"  # --per-frame: the footprints rasterised per frame, as above
 # ``ortho.block.SHARED_FOOTPRINT_CELLS_MAX`` DSM cells of the block's window (the 120-frame DMC block: 170 M)
+CROWNS = "true_ortho_footprints_crowns"
 
 
 def settings(project: Path, way: str):
@@ -61,8 +64,10 @@ def settings(project: Path, way: str):
 
     if way == "conventional":
         return RectifySettings()
+    crowns = {"crown_base": str(project / "lidar_out" / "crown_base.tif")} if way == CROWNS else {}
     return RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
-                           footprints=str(project / "truth" / "footprints.gpkg") if "footprints" in way else None)
+                           footprints=str(project / "truth" / "footprints.gpkg") if "footprints" in way else None,
+                           **crowns)
 
 
 _occluder_cpu_s: list = []  # the thread CPU of each ``_frame_occluder`` call of the current block
@@ -222,9 +227,12 @@ def main() -> None:
     ap.add_argument("--roofs-only", action="store_true",
                     help="with --truth: only the roofs of the frame orthos --work holds, into the key --key has")
     ap.add_argument("--ways", default=None, help="comma-separated subset of the ways (conventional first)")
+    ap.add_argument("--sha256-all", type=Path, default=None)
+    ap.add_argument("--crowns", action="store_true", help="a further way: footprints and the LiDAR's crown bases")
     args = ap.parse_args()
     import shutil
 
+    from eval_true_ortho_dsm_cell import lidar_crown_base
     from results_json import store_result
     from true_ortho_cost import small_project
 
@@ -232,7 +240,7 @@ def main() -> None:
     from aerotri.core.project import Project
     from aerotri.sim.project import write_footprints_gpkg
 
-    ways = WAYS + ((PER_FRAME,) if args.per_frame else ())
+    ways = WAYS + ((PER_FRAME,) if args.per_frame else ()) + ((CROWNS,) if args.crowns else ())
     if args.ways:
         ways = tuple(w for w in args.ways.split(",") if w in ways)
     if args.roofs_only:  # the frame orthos of an earlier run of this script: its key gets the roofs
@@ -255,6 +263,8 @@ def main() -> None:
             shutil.copy2(source / "at" / "camera.toml", p / "at" / "camera.toml")  # the camera of at/eo.txt
         (p / "truth").mkdir()
         n = write_footprints_gpkg(buildings, p / "truth" / "footprints.gpkg", Project.open(p).crs)
+        if way == CROWNS:
+            lidar_crown_base(source, False, p / "lidar_out" / "dsm.tif", p / "lidar_out" / "crown_base.tif")
     _timed_occluder()
     _counted_cells()
     first = {}
@@ -292,6 +302,9 @@ def main() -> None:
         out["per_frame_identical_frame_orthos"] = f"{sum(a[k] == b.get(k) for k in a)} of {len(a)}"
     if args.sha256:
         write_text_atomic(args.sha256, json.dumps(frame_sha256(projects["true_ortho_footprints"]), indent=1) + "\n")
+    if args.sha256_all:
+        write_text_atomic(args.sha256_all, json.dumps({way: frame_sha256(projects[way]) for way in ways}, indent=1)
+                          + "\n")
     if args.truth is not None and not args.no_roofs:
         out["roofs"] = roofs_of_ways(projects, args.truth, [way for way in ways if way != PER_FRAME])
         print(json.dumps(out["roofs"], indent=1))

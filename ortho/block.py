@@ -265,6 +265,7 @@ class FrameTask:
     # the ground bounds of all the block's frames (project CRS): the footprints' occluder is built once over them and
     # shared by the frames' tasks in a process (``_frame_occluder``); None: built per frame
     occluder_bounds_m: tuple | None = None
+    crown_base_path: str | None = None  # true ortho: tree crown bases on the DSM's grid in the occlusion test
 
 
 def _frame_image(path, expect_size):
@@ -328,7 +329,8 @@ def _block_footprint_cells(task: FrameTask, project_crs):
         return _shared_cells["value"]
 
 
-def _frame_occluder(task: FrameTask, heights: HeightRaster, dem: HeightRaster, project_crs) -> FootprintOccluder:
+def _frame_occluder(task: FrameTask, heights: HeightRaster, dem: HeightRaster, project_crs,
+                    crown_base_m: np.ndarray | None = None) -> FootprintOccluder:
     """The footprints' occluder of the frame's DSM window ``heights`` (ground: its DEM window ``dem`` at the cells),
     its footprint cells cut from the block's (``_block_footprint_cells``) where that window lies inside the block's,
     else rasterised for the frame: the same occluder either way."""
@@ -342,8 +344,25 @@ def _frame_occluder(task: FrameTask, heights: HeightRaster, dem: HeightRaster, p
         r0 = int(round((y_top - heights.y_top_m) / res))
         c0 = int(round((heights.x_left_m - x_left) / res))
         if r0 >= 0 and c0 >= 0 and r0 + h <= cells.label.shape[0] and c0 + w <= cells.label.shape[1]:
-            return occluder_of_cells(heights, ground, cells.window(r0, c0, h, w))
-    return footprint_occluder(heights, ground, read_footprints(task.footprints_path, project_crs))
+            return occluder_of_cells(heights, ground, cells.window(r0, c0, h, w), crown_base_m=crown_base_m)
+    return footprint_occluder(heights, ground, read_footprints(task.footprints_path, project_crs),
+                              crown_base_m=crown_base_m)
+
+
+def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_crs, height_op) -> np.ndarray | None:
+    """The crown bases of ``task.crown_base_path`` (None: none) on the frame's DSM window ``heights``, whose grid the
+    raster must share (float32, NaN where none)."""
+    if not task.crown_base_path:
+        return None
+    with open_height_raster(task.crown_base_path, project_crs, "crown base") as ds, \
+            _raster_read(task.crown_base_path, "crown base"):
+        crown = read_height_window(ds, ground_bounds, margin_m=4 * heights.res_m, what="crown base",
+                                   frame=task.image_id, height_operation=height_op)
+    if (crown.heights_m.shape != heights.heights_m.shape or crown.res_m != heights.res_m
+            or crown.x_left_m != heights.x_left_m or crown.y_top_m != heights.y_top_m):
+        raise InputError(f"{task.crown_base_path}: the crown base raster is not on the DSM's grid ({task.dsm_path}: "
+                         f"{heights.res_m:g} m cells); expected the grid of the DSM, e.g. both from lidarctl")
+    return crown.heights_m
 
 
 def _rectify_frame_task(task: FrameTask) -> dict:
@@ -369,8 +388,13 @@ def _rectify_frame_task(task: FrameTask) -> dict:
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs)
     occluder = None
+    crown = _crown_base(task, heights, ground_bounds, project_crs, height_op) if task.dsm_path else None
     if task.dsm_path and task.footprints_path:
-        occluder = _frame_occluder(task, heights, dem, project_crs)
+        occluder = _frame_occluder(task, heights, dem, project_crs, crown)
+    elif crown is not None:
+        from ortho.footprints import with_crown_base
+
+        occluder = with_crown_base(None, heights.heights_m, crown)
     grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
                       partial=True, max_view_angle_deg=task.max_view_angle_deg)
     # the ground the frame images (its border rays on the DEM): the mosaic counts the empty cells inside the
@@ -501,6 +525,9 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         from ortho.footprints import read_footprints
 
         read_footprints(footprints, project_crs)
+    crown_base = Path(s.crown_base) if s.crown_base and true_ortho else None
+    if crown_base is not None:
+        open_height_raster(crown_base, project_crs, "crown base").close()
     out_dir = project.ortho_dir / "frames"
     # what a killed earlier run left of its atomic frames folder (.frames.part-*): one rectification per
     # project at a time, so nothing else writes there now
@@ -552,7 +579,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
                               dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
                               dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
                               height_op=height_op, executor=executor, inputs=inputs,
-                              max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints)
+                              max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints,
+                              crown_base=crown_base)
         _shared_cells.clear()  # (this process's; the key names the files' sizes and times for the workers')
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
             done = {e["image_id"] for e in index["frames"]}
@@ -597,7 +625,8 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
 
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, project_crs, dem_path, zlo, zhi,
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
-                  inputs: dict, max_view_angle_deg: float = 90.0, footprints: Path | None = None) -> dict:
+                  inputs: dict, max_view_angle_deg: float = 90.0, footprints: Path | None = None,
+                  crown_base: Path | None = None) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order)."""
     occluder_bounds = None
     if true_ortho and footprints is not None:  # the frames' ground bounds together, as each task takes its own
@@ -614,14 +643,16 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        height_op.spec() if height_op is not None else None,
                        max_view_angle_deg=max_view_angle_deg,
                        footprints_path=str(footprints) if footprints is not None else None,
-                       occluder_bounds_m=occluder_bounds)
+                       occluder_bounds_m=occluder_bounds,
+                       crown_base_path=str(crown_base) if crown_base is not None else None)
              for image_id, path in block.images.pairs()]
     entries = executor.map(_rectify_frame_task, tasks, desc="rectify", unit="frame")
     return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),
         "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None,
-        "footprints": str(footprints) if footprints is not None else None, "interpolation": interpolation,
+        "footprints": str(footprints) if footprints is not None else None,
+        **({"crown_base": str(crown_base)} if crown_base is not None else {}), "interpolation": interpolation,
         "coordinate_operation": operation.record() if operation is not None else None,
         "operation": dataclasses.asdict(operation.spec()) if operation is not None else None,
         "height_operation": height_op.record() if height_op is not None else None,

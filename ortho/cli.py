@@ -50,6 +50,7 @@ def _settings(cls, project):
 @click_option(RectifySettings, "true_ortho", "--true-ortho")
 @click_option(RectifySettings, "dsm", "--dsm")
 @click_option(RectifySettings, "footprints", "--footprints")
+@click_option(RectifySettings, "crown_base", "--crown-base")
 @click_option(RectifySettings, "max_view_angle_deg", "--max-view-angle-deg")
 @click.option("--frames", help="comma-separated image ids (default: all images)")
 @click_option(RectifySettings, "compression", "--frame-compress")

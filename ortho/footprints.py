@@ -15,7 +15,13 @@ the walls from cadastral footprints (BGT, OSM, a user's GeoPackage); so does thi
   are not roof carry its slab too, over the half cell next to it (the DSM samples the roof at cell centres: the
   eave's edge lies anywhere within half a cell of the roof cell's edge);
 - where a footprint's wall crosses an overhang cell, the part inside the footprint (the cell split in
-  ``SUB_CELL_M`` sub-cells, a sub-cell inside when its centre is) stays a solid column up to the cell's top.
+  ``SUB_CELL_M`` sub-cells, a sub-cell inside when its centre is) stays a solid column up to the cell's top;
+- the roof outline: an overhang's slab (and the half cell beside it) covers only the sub-cells within the footprint
+  grown by the building's eave width (``eave_widths_m``: the roof's area outside the walls that the DSM's cells
+  sample, over the footprint's perimeter, at most ``EAVE_MAX_M``), not the part of a roof cell the DSM's 0.5 m cell
+  (or the LiDAR DSM's wider roof) spills beyond the eave;
+- tree crowns (``with_crown_base``, a crown-base raster): a cell near no footprint blocks only between its crown
+  base and its top.
 
 The march (``ortho.rectify_kernels._occlusion_kernel``) reads this as ``FootprintOccluder``. The thresholds are
 physical values, not fitted to a score: a fascia (the roof's edge below the eave line) is 0.2-0.4 m; eaves reach
@@ -46,6 +52,8 @@ OVERHANG_SLAB_M = 0.3  # depth of the roof's edge (fascia) below the eave line: 
 OVERHANG_REACH_M = 1.5  # furthest a roof reaches beyond its wall line and counts as an overhang
 OVERHANG_ABOVE_M = 2.0  # an overhang cell stands at least this much above the DEM (a roof, not the ground)
 SUB_CELL_M = 0.1  # the walls within an overhang cell are resolved to sub-cells of at most this size
+EAVE_MAX_M = 1.0  # widest eave overhang (beyond the wall line) a building's roof outline is given: eaves reach 0.3-1 m
+CROWN = -2  # ``sub_index`` of a tree crown's cell: a slab from its crown base to its top
 HALO = -3  # ``sub_index`` HALO - k: a cell beside an overhang, its own solid column and the overhang's slab over the
 # sub-cells of ``sub_masks[k]``
 
@@ -54,11 +62,13 @@ HALO = -3  # ``sub_index`` HALO - k: a cell beside an overhang, its own solid co
 class FootprintOccluder:
     """What the march reads beside the DSM (same shape as its heights): ``base_m`` the underside of each cell's
     slab (-inf: none, the cell a solid column; else an overhang's soffit: its building's eave line minus
-    ``OVERHANG_SLAB_M``), ``slab_top_m`` the slab's top (an overhang cell's DSM top; beside an overhang, the eave
-    line), ``sub_index`` (int32: -1 an overhang cell; k >= 0 an overhang cell a wall crosses, its sub-cells inside a
-    footprint ``sub_masks[k]``; ``HALO`` - k a cell beside an overhang: its own solid column, and the slab over the
-    sub-cells ``sub_masks[k]``), ``sub_masks`` ((K, sub, sub) uint8; rows from the north, columns from the west)
-    and ``sub`` (sub-cells per cell side)."""
+    ``OVERHANG_SLAB_M``; a tree's crown base), ``slab_top_m`` the slab's top (an overhang cell's DSM top; beside an
+    overhang, the eave line), ``sub_index`` (int32: -1 a slab over the whole cell; ``CROWN`` a tree crown's; k >= 0 an overhang cell a wall
+    or the roof outline crosses: ``sub_masks[k]`` bit 1 its sub-cells inside a footprint (a column up to the top),
+    bit 2 those within the roof outline (the slab), bit 4 at [0, 0] the slab over the whole cell; ``HALO`` - k a cell
+    beside an overhang: its own solid column, and the slab over the sub-cells of bit 2 of ``sub_masks[k]``),
+    ``sub_masks`` ((K, sub, sub) uint8; rows from the north, columns from the west) and ``sub`` (sub-cells per cell
+    side)."""
 
     base_m: np.ndarray
     slab_top_m: np.ndarray
@@ -68,6 +78,7 @@ class FootprintOccluder:
 
     @property
     def overhang_cells(self) -> int:
+        """Cells with a slab (overhangs and crowns), not those beside an overhang."""
         return int((np.isfinite(self.base_m) & (self.sub_index > HALO)).sum())
 
 
@@ -133,7 +144,11 @@ class FootprintCells:
     the cell, 0 none (where two reaches overlap, the later polygon's); ``inside`` (uint16): the cell's sub-cells inside
     a footprint (``sub`` x ``sub`` a cell, a sub-cell inside when its centre is); ``wall_index`` (int32): for a cell
     that a wall crosses (0 < ``inside`` < sub x sub) its sub-cells inside, ``wall_masks[k]`` ((K, sub, sub) uint8,
-    rows from the north, columns from the west), else -1; ``polygons``: the footprints near the grid (shapely)."""
+    rows from the north, columns from the west), else -1; ``polygons``: the footprints near the grid (shapely).
+    The roof outline: ``edge_index`` (int32) for a cell in a footprint's reach not wholly inside one, the index in
+    ``edge_cm`` ((K, sub, sub) uint8) of its sub-cells' distances to the nearest footprint (cm, 0 inside, at most
+    255), else -1; per polygon its ``area_m2``, ``perimeter_m`` and ``reach_cells`` (row0, row1, col0, col1 of the
+    cells its reach touches, in the cells of the grid the view ``origin`` (row, col) lies in)."""
 
     label: np.ndarray
     inside: np.ndarray
@@ -141,12 +156,19 @@ class FootprintCells:
     wall_masks: np.ndarray
     polygons: np.ndarray
     sub: int
+    edge_index: np.ndarray
+    edge_cm: np.ndarray
+    area_m2: np.ndarray
+    perimeter_m: np.ndarray
+    reach_cells: np.ndarray
+    origin: tuple[int, int] = (0, 0)
 
     def window(self, row0: int, col0: int, rows: int, cols: int) -> FootprintCells:
         """The cells ``row0 .. row0 + rows``, ``col0 .. col0 + cols`` (views; the masks and polygons shared)."""
         cut = np.s_[row0:row0 + rows, col0:col0 + cols]
         return dataclasses.replace(self, label=self.label[cut], inside=self.inside[cut],
-                                   wall_index=self.wall_index[cut])
+                                   wall_index=self.wall_index[cut], edge_index=self.edge_index[cut],
+                                   origin=(self.origin[0] + row0, self.origin[1] + col0))
 
 
 def footprint_cells(x_left_m: float, y_top_m: float, res_m: float, shape: tuple[int, int], footprints: np.ndarray, *,
@@ -165,21 +187,28 @@ def footprint_cells(x_left_m: float, y_top_m: float, res_m: float, shape: tuple[
                                                                    right + reach_m, top_y + reach_m))]
     inside = np.zeros((dh, dw), np.uint16)
     wall_index = np.full((dh, dw), -1, np.int32)
+    edge_index = np.full((dh, dw), -1, np.int32)
     if len(polys) == 0:
         return FootprintCells(np.zeros((dh, dw), np.int32), inside, wall_index, np.zeros((0, sub, sub), np.uint8),
-                              polys, sub)
+                              polys, sub, edge_index, np.zeros((0, sub, sub), np.uint8), np.zeros(0), np.zeros(0),
+                              np.zeros((0, 4), np.int64))
     label = rasterize(((shapely.geometry.mapping(g), k + 1) for k, g in enumerate(shapely.buffer(polys, reach_m))),
                       out_shape=(dh, dw), transform=from_origin(x_left_m, y_top_m, res, res), all_touched=True,
                       dtype="int32")
-    # sub-cells inside a footprint, rasterised over each footprint's cells (a window of whole cells around it, with
-    # every footprint that reaches into it): a few % of the grid, not all of it at sub x sub the cells
+    # sub-cells inside a footprint, rasterised over each footprint's cells (a window of whole cells around it and its
+    # reach, with every footprint that reaches into it): a few % of the grid, not all of it at sub x sub the cells
     masks, count = [], 0
+    edges, n_edge = [], 0
     shapes = [shapely.geometry.mapping(g) for g in polys]  # converted once, not by every rasterize
     x0, y0, x1, y1 = shapely.bounds(polys).T
-    c0 = np.clip(np.floor((x0 - x_left_m) / res).astype(np.int64) - 1, 0, dw)
-    c1 = np.clip(np.ceil((x1 - x_left_m) / res).astype(np.int64) + 1, 0, dw)
-    r0 = np.clip(np.floor((y_top_m - y1) / res).astype(np.int64) - 1, 0, dh)
-    r1 = np.clip(np.ceil((y_top_m - y0) / res).astype(np.int64) + 1, 0, dh)
+    grow = int(math.ceil(reach_m / res)) + 1
+    reach_cells = np.stack([np.floor((y_top_m - y1) / res).astype(np.int64) - grow,
+                            np.ceil((y_top_m - y0) / res).astype(np.int64) + grow,
+                            np.floor((x0 - x_left_m) / res).astype(np.int64) - grow,
+                            np.ceil((x1 - x_left_m) / res).astype(np.int64) + grow], axis=1)
+    r0, r1 = np.clip(reach_cells[:, 0], 0, dh), np.clip(reach_cells[:, 1], 0, dh)
+    c0, c1 = np.clip(reach_cells[:, 2], 0, dw), np.clip(reach_cells[:, 3], 0, dw)
+    sub_m = res / sub
     windows = shapely.box(x_left_m + c0 * res, y_top_m - r1 * res, x_left_m + c1 * res, y_top_m - r0 * res)
     which, there = shapely.STRtree(polys).query(windows, predicate="intersects")
     for k in range(len(polys)):
@@ -199,29 +228,66 @@ def footprint_cells(x_left_m: float, y_top_m: float, res_m: float, shape: tuple[
         wall_index[r0[k] + rr, c0[k] + cc] = count + np.arange(len(rr), dtype=np.int32)
         count += len(rr)
         masks.append(cells[rr, cc].astype(np.uint8))
+        # the roof outline: each sub-cell's distance to the nearest footprint edge (the distance between sub-cell
+        # centres less half a sub-cell), for the cells of this footprint's reach not wholly inside one
+        rr, cc = np.nonzero((label[win] == k + 1) & (n_in < sub * sub) & (edge_index[win] < 0))
+        if len(rr):
+            dist = cv2.distanceTransform((fine == 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            cm = np.clip(np.rint((dist * sub_m - 0.5 * sub_m) * 100.0), 0, 255).astype(np.uint8)
+            cm[fine > 0] = 0
+            edge_index[r0[k] + rr, c0[k] + cc] = n_edge + np.arange(len(rr), dtype=np.int32)
+            n_edge += len(rr)
+            edges.append(cm.reshape(h, sub, w, sub).transpose(0, 2, 1, 3)[rr, cc])
     wall_masks = np.concatenate(masks) if masks else np.zeros((0, sub, sub), np.uint8)
-    return FootprintCells(label, inside, wall_index, wall_masks, polys, sub)
+    edge_cm = np.concatenate(edges) if edges else np.zeros((0, sub, sub), np.uint8)
+    return FootprintCells(label, inside, wall_index, wall_masks, polys, sub, edge_index, edge_cm,
+                          shapely.area(polys), shapely.length(polys), reach_cells)
 
 
 def footprint_occluder(dsm: HeightRaster, ground_m: np.ndarray, footprints: np.ndarray, *,
                        slab_m: float = OVERHANG_SLAB_M, reach_m: float = OVERHANG_REACH_M,
-                       above_m: float = OVERHANG_ABOVE_M, sub_cell_m: float = SUB_CELL_M) -> FootprintOccluder:
+                       above_m: float = OVERHANG_ABOVE_M, sub_cell_m: float = SUB_CELL_M,
+                       crown_base_m: np.ndarray | None = None) -> FootprintOccluder:
     """The ``FootprintOccluder`` of ``dsm`` (a window in the project CRS) with the footprint polygons (project CRS)
-    and ``ground_m``, the DEM at the DSM's cell centres (same shape; ``ortho.rectify.heights_on_grid``)."""
+    and ``ground_m``, the DEM at the DSM's cell centres (same shape; ``ortho.rectify.heights_on_grid``);
+    ``crown_base_m`` as ``occluder_of_cells``."""
     cells = footprint_cells(dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.heights_m.shape, footprints, reach_m=reach_m,
                             sub_cell_m=sub_cell_m)
-    return occluder_of_cells(dsm, ground_m, cells, slab_m=slab_m, above_m=above_m)
+    return occluder_of_cells(dsm, ground_m, cells, slab_m=slab_m, above_m=above_m, crown_base_m=crown_base_m)
+
+
+def eave_widths_m(cells: FootprintCells, taken: np.ndarray, res_m: float) -> np.ndarray:
+    """Per label (0 .. len(polygons)) the width of the building's eave overhang beyond its wall line: the roof's area
+    outside the footprint (the roof cells of its reach, ``taken``, by their sub-cells outside every footprint: the
+    DSM samples the roof at its cell centres, so the count of roof cells is the roof's area without bias) over the
+    footprint's perimeter, within 0 .. ``EAVE_MAX_M``; ``EAVE_MAX_M`` for a footprint whose reach the window cuts
+    (and label 0)."""
+    n = len(cells.polygons) + 1
+    sub2 = cells.sub * cells.sub
+    lab = cells.label[taken]
+    outside_m2 = np.bincount(lab, weights=(sub2 - cells.inside[taken].astype(np.float64)) / sub2 * res_m * res_m,
+                             minlength=n)
+    dh, dw = cells.label.shape
+    rc = cells.reach_cells - np.array([cells.origin[0], cells.origin[0], cells.origin[1], cells.origin[1]])
+    whole = (rc[:, 0] >= 0) & (rc[:, 1] <= dh) & (rc[:, 2] >= 0) & (rc[:, 3] <= dw)
+    out = np.full(n, EAVE_MAX_M)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.clip(outside_m2[1:] / cells.perimeter_m, 0.0, EAVE_MAX_M)
+    out[1:] = np.where(whole & np.isfinite(w), w, EAVE_MAX_M)
+    return out
 
 
 def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,
-                      slab_m: float = OVERHANG_SLAB_M, above_m: float = OVERHANG_ABOVE_M) -> FootprintOccluder:
+                      slab_m: float = OVERHANG_SLAB_M, above_m: float = OVERHANG_ABOVE_M,
+                      crown_base_m: np.ndarray | None = None) -> FootprintOccluder:
     """The ``FootprintOccluder`` of ``dsm`` (a window in the project CRS) from its ``FootprintCells`` (same grid, e.g.
     ``FootprintCells.window`` of a larger one) and ``ground_m`` (float32, as ``footprint_occluder``). What depends on
-    the window (a building's eave line from its overhang cells in the window, the cells beside an overhang) is taken
-    here, so the occluder is the same whether the cells were rasterised for this window or cut from a larger one.
-    The cell loops compiled (``_overhang_cells``, ``_beside_overhangs``)."""
-    import shapely
-
+    the window (a building's eave line and eave width from its cells in the window, the cells beside an overhang) is
+    taken here, so the occluder is the same whether the cells were rasterised for this window or cut from a larger
+    one. The slab of an overhang (and beside it) spans only the sub-cells within the building's roof outline: the
+    footprint grown by its eave width (``eave_widths_m``). ``crown_base_m`` (same shape, NaN: none): a cell near no
+    footprint whose crown base lies below its top blocks only between the two (``with_crown_base``). The cell loops
+    compiled (``_overhang_cells``, ``_beside_overhangs``)."""
     top = dsm.heights_m
     dh, dw = top.shape
     res = dsm.res_m
@@ -234,9 +300,6 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     rr, cc_ = _overhang_cells(cells.label, cells.inside, top, ground_m.astype(np.float32, copy=False),
                               np.float32(above_m), sub * sub, taken, over)
     lab = cells.label[rr, cc_]
-    walls = cells.inside[rr, cc_] > 0
-    sub_index[rr[walls], cc_[walls]] = np.arange(int(walls.sum()), dtype=np.int32)
-    sub_masks = cells.wall_masks[cells.wall_index[rr[walls], cc_[walls]]]
     # the underside: the building's eave line less the slab, flat under the whole overhang (a pitched roof's
     # overhang rises inwards and up its gable ends; what lies under it is the soffit at the eave line's level, or
     # the roof itself); the slab reaches up to the eave line at least (a cell lower than it, e.g. filled between
@@ -252,9 +315,69 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     # beside it: the sub-cells whose centres lie within half a cell of that side (or corner)
     hr, hc, halo_masks = _beside_overhangs(rr, cc_, over_base.astype(np.float32), taken, over, sub, np.float32(slab_m),
                                            base, slab_top)
-    sub_index[hr, hc] = HALO - (len(sub_masks) + np.arange(len(hr), dtype=np.int32))
-    sub_masks = np.concatenate([sub_masks, halo_masks])
-    return FootprintOccluder(base, slab_top, sub_index, sub_masks, sub)
+    # the roof outline (the footprint grown by the building's eave width): an overhang's slab, and the half cell
+    # beside it, only over the sub-cells within it; the wall's sub-cells (inside the footprint) a column as before.
+    # Masks: 1 a wall sub-cell, 2 a slab sub-cell, 4 (at [0, 0]) the slab over the whole cell
+    width_cm = np.rint(eave_widths_m(cells, taken, res) * 100.0)
+    outline = _outline(cells, rr, cc_, lab, width_cm)
+    whole = outline.all(axis=(1, 2))
+    walls = cells.inside[rr, cc_] > 0
+    # an overhang cell wholly beyond the roof outline, no wall in it, stops no ray: base +inf (``_cell_blocks``: the
+    # same answer as its empty mask's walk, without it), and out of the march's bounds
+    void = ~walls & ~outline.any(axis=(1, 2))
+    base[rr[void], cc_[void]] = np.inf
+    slab_top[rr[void], cc_[void]] = -np.inf
+    masked = (walls | ~whole) & ~void
+    wall_bits = np.zeros((int(masked.sum()), sub, sub), np.uint8)
+    wall_bits[walls[masked]] = cells.wall_masks[cells.wall_index[rr[walls], cc_[walls]]]
+    over_masks = wall_bits | (2 * outline[masked]).astype(np.uint8)
+    over_masks[whole[masked], 0, 0] |= 4
+    sub_index[rr[masked], cc_[masked]] = np.arange(int(masked.sum()), dtype=np.int32)
+    halo_masks = (2 * (halo_masks.astype(np.bool_) & _outline(cells, hr, hc, cells.label[hr, hc], width_cm))).astype(
+        np.uint8)
+    # a cell beside an overhang whose half cell lies wholly beyond the roof outline carries no slab: its own column
+    # only (the same answer, without the sub-cell walk)
+    empty = ~halo_masks.any(axis=(1, 2))
+    base[hr[empty], hc[empty]] = -np.inf
+    slab_top[hr[empty], hc[empty]] = -np.inf
+    hr, hc, halo_masks = hr[~empty], hc[~empty], halo_masks[~empty]
+    sub_index[hr, hc] = HALO - (len(over_masks) + np.arange(len(hr), dtype=np.int32))
+    occluder = FootprintOccluder(base, slab_top, sub_index, np.concatenate([over_masks, halo_masks]), sub)
+    if crown_base_m is None:
+        return occluder
+    return with_crown_base(occluder, top, crown_base_m, cells.label == 0)
+
+
+def _outline(cells: FootprintCells, rr, cc, lab, width_cm) -> np.ndarray:
+    """(len(rr), sub, sub) bool: the sub-cells of cells (rr, cc) within the roof outline of footprint ``lab``
+    (``width_cm`` its eave width); every sub-cell where the cell has no distances (label 0, none rasterised)."""
+    sub = cells.sub
+    out = np.ones((len(rr), sub, sub), np.bool_)
+    e = cells.edge_index[rr, cc]
+    has = (e >= 0) & (lab > 0)
+    out[has] = cells.edge_cm[e[has]] <= width_cm[lab[has]][:, None, None]
+    return out
+
+
+def with_crown_base(occluder: FootprintOccluder | None, top_m: np.ndarray, crown_base_m: np.ndarray,
+                    where: np.ndarray | None = None) -> FootprintOccluder:
+    """``occluder`` (None: none, every cell a column) with tree crowns: a cell that is a solid column there (and
+    ``where``, e.g. near no footprint) whose crown base (``crown_base_m``, the lowest vegetation return of the cell;
+    NaN: none) lies below its top ``top_m`` blocks a ray only between the two, the crown (``_cell_blocks``: a slab
+    of the whole cell); a ray beneath the crown base passes (the trunk ignored)."""
+    if occluder is None:
+        occluder = FootprintOccluder(np.full(top_m.shape, -np.inf, np.float32), np.full(top_m.shape, -np.inf, np.float32),
+                                     np.full(top_m.shape, -1, np.int32), np.zeros((0, 1, 1), np.uint8), 1)
+    crown = (occluder.base_m == -np.inf) & (crown_base_m < top_m)  # NaN: False
+    if where is not None:
+        crown &= where
+    base = occluder.base_m.copy()
+    slab_top = occluder.slab_top_m.copy()
+    sub_index = occluder.sub_index.copy()
+    base[crown] = crown_base_m[crown]
+    slab_top[crown] = top_m[crown]
+    sub_index[crown] = CROWN
+    return dataclasses.replace(occluder, base_m=base, slab_top_m=slab_top, sub_index=sub_index)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -147,9 +147,9 @@ class MarchArgs(NamedTuple):
 
 class FootprintWalls(NamedTuple):
     """Building footprints as the march takes them (``ortho.footprints.FootprintOccluder``): the underside and top
-    of each DSM cell's slab (float32, -inf: none, a solid column), the index of its wall sub-cells (int32, -1:
-    none, -2: beside an overhang), the sub-cell masks (uint8 (K, sub, sub)) and ``sub``; (1, 1) arrays: no
-    footprints."""
+    of each DSM cell's slab (float32, -inf: none, a solid column), the index of its sub-cell mask (int32, -1: none;
+    <= -3: beside an overhang), the sub-cell masks (uint8 (K, sub, sub): bit 1 wall, 2 slab, 4 the whole cell's
+    slab) and ``sub``; (1, 1) arrays: no footprints nor crowns."""
 
     base_m: np.ndarray
     slab_top_m: np.ndarray
@@ -332,13 +332,15 @@ class MarchBound:
 
 
 def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS,
-                occluder: FootprintOccluder | None = None) -> MarchBound:
+                occluder: FootprintOccluder | None = None, tolerance_m: float = 0.3) -> MarchBound:
     """The bounds of the march over ``dsm`` (once per frame; ``occlusion_mask`` makes them if not given); with
-    ``occluder`` over the tops of its slabs too (a cell beside an overhang carries the overhang's slab)."""
+    ``occluder`` over the tops of its slabs too (a cell beside an overhang carries the overhang's slab), raised by
+    the march's ``tolerance_m``: the march skips a block the ray passes more than the tolerance above, and an
+    overhang's slab stops a ray below its top without the tolerance."""
     from ortho.rectify_kernels import _block_max
 
     fine, coarse = (int(b) for b in blocks)
-    z = dsm.heights_m if occluder is None else np.fmax(dsm.heights_m, occluder.slab_top_m)
+    z = dsm.heights_m if occluder is None else np.fmax(dsm.heights_m, occluder.slab_top_m + np.float32(tolerance_m))
     return MarchBound(float(np.nanmax(z)), _block_max(z, fine), fine, _block_max(z, coarse), coarse)
 
 
@@ -353,7 +355,7 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     roof overhangs a ray may pass; None: every DSM cell a solid column."""
     AX, AY, s = anchors
     occ = np.zeros((grid.height, grid.width), dtype=np.bool_)
-    bound = bound or march_bound(dsm, occluder=occluder)
+    bound = bound or march_bound(dsm, occluder=occluder, tolerance_m=tolerance_m)
     from ortho.rectify_kernels import _occlusion_kernel
 
     points = TilePoints(heights_m.astype(np.float32), np.ones(occ.shape, np.bool_) if candidates is None else candidates,

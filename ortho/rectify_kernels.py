@@ -248,12 +248,14 @@ def _cell_blocks(top, i, j, ray, span, walls):
     sub) (a ``FootprintOccluder``; ``footprinted`` False: every cell a solid column).
 
     A solid column stops the ray where it is more than the tolerance above the ray where it enters (the ray's
-    lowest in the cell). A cell with a slab (a finite ``base_m``) stops it where the slab's top is more than the
-    tolerance above the ray where it enters and the ray reaches the slab's underside where it leaves (its highest);
-    an overhang cell (``sub_index`` >= -1) is nothing more, but for its sub-cells inside a footprint (``sub_index``
-    >= 0: the wall, a column up to ``top``) that the ray crosses more than the tolerance below ``top``; a cell beside
-    an overhang (``sub_index`` <= -3) is its own solid column, and the slab over the sub-cells of its mask only
-    (where the ray first and last crosses them)."""
+    lowest in the cell). A cell with a slab (a finite ``base_m``) stops it where the slab's top is above the ray
+    where it enters (a tree crown's, ``sub_index`` -2: more than the tolerance above) and the ray reaches the slab's
+    underside where it leaves (its highest); a slab cell (``sub_index`` -1: an overhang; -2) is nothing more; an overhang cell with a mask
+    (``sub_index`` >= 0) also stops it at its sub-cells inside a footprint (bit 1: the wall, a column up to ``top``)
+    that the ray crosses more than the tolerance below ``top``, and its slab covers the whole cell (bit 4 at [0, 0])
+    or only the sub-cells within the roof outline (bit 2: where the ray first and last crosses them); a cell beside
+    an overhang (``sub_index`` <= -3) is its own solid column, and the slab over the sub-cells of bit 2 of its mask
+    only."""
     Z, rise, gx, gy, ex, ey, tolerance_m = ray
     s_in, s_out = span
     z_in = Z + rise * s_in
@@ -265,13 +267,19 @@ def _cell_blocks(top, i, j, ray, span, walls):
     if base == -np.inf:
         return column
     k = sub_index[i, j]
+    if k == -2:  # a tree crown: a slab of the whole cell from its crown base up to its top (the DSM's, with the
+        # tolerance of a column's top)
+        return top > z_in + tolerance_m and Z + rise * s_out > base
+    # an overhang's slab: its top the eave line, not a sampled height, so without the tolerance (with it a ray
+    # through the fascia, the 0.3 m between the soffit and the eave line, passed as soon as the roof outline bounds
+    # the slab instead of the DSM's whole cells)
     ds = 0.25 / sub  # the ray's sub-cells within the cell, at quarter sub-cell steps
     if k <= -3:  # beside an overhang: its own column, and the slab over the sub-cells of its mask
         if column:
             return True
         # the ray rises: where it passes above the slab's top where it enters, or below its underside where it
         # leaves, no sub-cell can stop it (the same answer as the walk over them, without it)
-        if not (slab_top_m[i, j] > z_in + tolerance_m and Z + rise * s_out > base):
+        if not (slab_top_m[i, j] > z_in and Z + rise * s_out > base):
             return False
         m = -3 - k
         first, last = 1e30, -1e30
@@ -279,25 +287,43 @@ def _cell_blocks(top, i, j, ray, span, walls):
         while s <= s_out:
             a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
             b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
-            if sub_masks[m, a, b]:
+            if sub_masks[m, a, b] & 2:
                 first = min(first, s)
                 last = s
             s += ds
-        return last >= first and slab_top_m[i, j] > Z + rise * first + tolerance_m and Z + rise * last > base
-    if slab_top_m[i, j] > z_in + tolerance_m and Z + rise * s_out > base:
-        return True
-    if k < 0 or not column:
+        return last >= first and slab_top_m[i, j] > Z + rise * first and Z + rise * last > base
+    if k < 0 or sub_masks[k, 0, 0] & 4:  # the slab over the whole cell
+        if slab_top_m[i, j] > z_in and Z + rise * s_out > base:
+            return True
+        if k < 0 or not column:
+            return False
+        # the wall: the sub-cells inside a footprint the ray crosses while below the cell's top (it rises: once
+        # above, it stays above)
+        s = s_in
+        while s <= s_out and top > Z + rise * s + tolerance_m:
+            a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
+            b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
+            if sub_masks[k, a, b] & 1:
+                return True
+            s += ds
         return False
-    # the wall: the sub-cells inside a footprint the ray crosses while below the cell's top (it rises: once above,
-    # it stays above)
+    # the slab over the sub-cells within the roof outline only (where the ray first and last crosses them), the
+    # wall's sub-cells a column up to the top
+    if not (column or (slab_top_m[i, j] > z_in and Z + rise * s_out > base)):
+        return False
+    first, last = 1e30, -1e30
     s = s_in
-    while s <= s_out and top > Z + rise * s + tolerance_m:
+    while s <= s_out:
         a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
         b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
-        if sub_masks[k, a, b]:
+        q = sub_masks[k, a, b]
+        if q & 1 and top > Z + rise * s + tolerance_m:
             return True
+        if q & 2:
+            first = min(first, s)
+            last = s
         s += ds
-    return False
+    return last >= first and slab_top_m[i, j] > Z + rise * first and Z + rise * last > base
 
 
 @numba.njit(cache=True, nogil=True)

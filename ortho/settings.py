@@ -49,8 +49,14 @@ class RectifySettings:
         None, path=True,
         help="Building footprints (GeoPackage of wall-line polygons in the project CRS, e.g. a cadastre) for the true "
              "ortho's occlusion test: inside them the DSM is solid; a roof overhang outside them (within 1.5 m, 2 m "
-             "above the DEM) hides only down to 0.3 m below its building's eave line, so ground seen beneath eaves is "
-             "kept (docs/true-ortho.md).")
+             "above the DEM) hides only down to 0.3 m below its building's eave line and only within the roof outline "
+             "(the footprint grown by the eave width the DSM gives, at most 1 m), so ground seen beneath and beside "
+             "eaves is kept (docs/true-ortho.md).")
+    crown_base: Path | None = setting(
+        None, path=True,
+        help="Tree crown bases (GeoTIFF on the DSM's grid: per cell the height of the lowest vegetation return, nodata "
+             "where none) for the true ortho's occlusion test: a tree cell near no footprint hides only between its "
+             "crown base and its top, so ground seen beneath a crown is kept (docs/true-ortho.md).")
     max_view_angle_deg: float = setting(
         90.0, min=0.0, min_open=True, max=90.0,
         help="Largest angle between a cell's ray to the projection centre and the vertical (deg); cells seen more "

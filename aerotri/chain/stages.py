@@ -165,7 +165,7 @@ class Chain:
     def true_ortho_dsm(self) -> list[Path]:
         """The DSM the rectify stage reads (none for a conventional ortho)."""
         s = self.rectify_settings().settings
-        return [Path(p) for p in (s.dsm, s.footprints) if s.true_ortho and s.dsm is not None and p is not None]
+        return [Path(p) for p in (s.dsm, s.footprints, s.crown_base) if s.true_ortho and s.dsm is not None and p is not None]
 
     def no_dem(self, root=None) -> str | None:
         if self.dem_path() is None:
