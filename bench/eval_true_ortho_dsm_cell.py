@@ -356,25 +356,11 @@ def lidar_crown_base(src: Path, tall: bool, like: Path, out: Path) -> int:
 
 def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None) -> dict:
     """The true ortho DOM of ``project`` on its lidar_out/dsm.tif (``footprints``, ``crown_base``: in the occlusion
-    test), as ``eval_true_ortho_occlusion.make_dom``; the rectify and mosaic times."""
-    from aerotri.core.executor import Executor
-    from ortho.block import rectify_block
-    from ortho.mosaic import mosaic_block
-    from ortho.settings import MosaicSettings, RectifySettings
+    test): ``eval_true_ortho_occlusion.make_dom``; the rectify and mosaic times."""
+    from eval_true_ortho_occlusion import make_dom as occlusion_make_dom
 
-    settings = RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
-                               footprints=str(footprints) if footprints else None,
-                               crown_base=str(crown_base) if crown_base else None)
-    with Executor() as ex:
-        t, c = time.perf_counter(), time.process_time()
-        done = rectify_block(project, settings, eo_path=eo_path, camera_path=camera_path, executor=ex)
-        rect = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
-        t, c = time.perf_counter(), time.process_time()
-        summary = json.loads(mosaic_block(project, MosaicSettings(), executor=ex).summary_path.read_text())
-        mos = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
-    mp = sum(g.width * g.height for g in done.grids) / 1e6
-    rect.update(frame_ortho_mp=round(mp, 2), cpu_s_per_mp=rect["cpu_s"] / mp)
-    return {"rectify": rect, "mosaic": mos, "summary": summary}
+    return occlusion_make_dom(project, True, eo_path=eo_path, camera_path=camera_path, footprints=footprints,
+                              crown_base=crown_base)
 
 
 def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
