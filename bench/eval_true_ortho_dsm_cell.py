@@ -346,7 +346,7 @@ def lidar_crown_base(src: Path, tall: bool, like: Path, out: Path) -> int:
     with rasterio.open(like) as ds:
         prof, tf, shape = ds.profile, ds.transform, (ds.height, ds.width)
     base = crown_base_surface(np.concatenate(xs), np.concatenate(ys), np.concatenate(zs), np.concatenate(cls),
-                              tf.c, tf.f, tf.a, shape)
+                              x0_m=tf.c, y_top_m=tf.f, res_m=tf.a, shape=shape)
     nodata = -9999.0
     prof.update(dtype="float32", nodata=nodata, count=1)
     with rasterio.open(out, "w", **prof) as dst:

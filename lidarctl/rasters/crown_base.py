@@ -39,8 +39,8 @@ def _lowest_around(lowest, count, k, min_returns):
     return out
 
 
-def crown_base_surface(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, classification: np.ndarray, x0_m: float,
-                       y_top_m: float, res_m: float, shape: tuple[int, int], *,
+def crown_base_surface(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, classification: np.ndarray, *,
+                       x0_m: float, y_top_m: float, res_m: float, shape: tuple[int, int],
                        neighbour_cells: int = NEIGHBOUR_CELLS, min_returns: int = MIN_RETURNS) -> np.ndarray:
     """(rows, cols) float32: per cell with a vegetation return the lowest vegetation return of it and its neighbours
     within ``neighbour_cells`` (NaN: no vegetation return in the cell, or fewer than ``min_returns`` around it)."""

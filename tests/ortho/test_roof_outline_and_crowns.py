@@ -119,11 +119,11 @@ def test_crown_base_from_lidar_is_the_lowest_vegetation_return_around_a_cell():
     y = np.array([1.5, 1.4, 1.5, 1.5, 2.5])
     z = np.array([9.0, 6.0, 7.0, 0.0, 8.0])
     cls = np.array([5, 5, 5, 2, 5])
-    base = crown_base_surface(x, y, z, cls, 0.0, 3.0, 1.0, (3, 3))
+    base = crown_base_surface(x, y, z, cls, x0_m=0.0, y_top_m=3.0, res_m=1.0, shape=(3, 3))
     assert base[1, 1] == 6.0 and base[1, 0] == 6.0  # the lowest of the cell and its neighbours (3 returns)
     assert base[0, 2] == 6.0  # the north-east cell sees the centre's returns too
     assert np.isnan(base[2, 2]) and np.isnan(base[0, 0])  # no vegetation return in the cell
-    lone = crown_base_surface(x[4:], y[4:], z[4:], cls[4:], 0.0, 3.0, 1.0, (3, 3))
+    lone = crown_base_surface(x[4:], y[4:], z[4:], cls[4:], x0_m=0.0, y_top_m=3.0, res_m=1.0, shape=(3, 3))
     assert np.isnan(lone).all()  # one return alone is the top: no crown base
 
 
