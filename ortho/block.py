@@ -238,6 +238,9 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
     return valid[0] / float(grid.width * grid.height)
 
 
+RESUME_DIR_NAME = "rectify_resume"  # in work/: the frames a killed or failed rectify finished (``FrameTask``)
+
+
 @dataclasses.dataclass(frozen=True)
 class FrameTask:
     """Everything one frame's rectification needs, small and picklable (paths and numbers), so that it
@@ -266,6 +269,11 @@ class FrameTask:
     # shared by the frames' tasks in a process (``_frame_occluder``); None: built per frame
     occluder_bounds_m: tuple | None = None
     crown_base_path: str | None = None  # true ortho: tree crown bases on the DSM's grid in the occlusion test
+    # per-frame resume: the finished frame ortho and its index entry are kept in ``resume_dir`` under ``resume_key``
+    # (``_resume_key``: everything the frame ortho depends on) until the stage commits, so that a run killed at
+    # frame 2,900 of 3,000 redoes 100 frames, not 3,000
+    resume_dir: str | None = None
+    resume_key: str | None = None
 
 
 def _frame_image(path, expect_size):
@@ -366,7 +374,64 @@ def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_c
 
 
 def _rectify_frame_task(task: FrameTask) -> dict:
-    """Rectify one frame into ``task.out_path`` (atomic); returns its index.json entry."""
+    """Rectify one frame into ``task.out_path`` (atomic); returns its index.json entry. With ``task.resume_dir``
+    the frame ortho (a hard link) and its entry are kept there for a resumed run (``_resumed_frame``)."""
+    entry = _rectify_frame(task)
+    if task.resume_dir and task.resume_key:
+        keep = Path(task.resume_dir)
+        keep.mkdir(parents=True, exist_ok=True)
+        tif = keep / f"{task.resume_key}.tif"
+        tif.unlink(missing_ok=True)
+        _link_or_copy(Path(task.out_path), tif)
+        # written last (the frame is whole), and outside the stage's commit, which a failed run rolls back
+        part = keep / f".{task.resume_key}.json.tmp"
+        part.write_text(json.dumps(entry) + "\n")
+        os.replace(part, keep / f"{task.resume_key}.json")
+    return entry
+
+
+def _resume_key(task: FrameTask, inputs: dict) -> str:
+    """sha256 (32 hex digits) of what a frame's ortho depends on: the task but where it is written and its
+    threads, the camera's parameters, the size and modification time of its image, DEM, DSM, footprints and crown
+    bases, the block's inputs (EO, camera, DEM hashes) and the toolkit's version."""
+    import hashlib
+
+    import aerotri
+
+    doc = {}
+    for f in dataclasses.fields(task):
+        if f.name in ("out_path", "threads", "resume_dir", "resume_key"):
+            continue
+        v = getattr(task, f.name)
+        doc[f.name] = _camera_sha256(v) if f.name == "camera" else repr(v) if dataclasses.is_dataclass(v) else v
+    for f in ("image_path", "dem_path", "dsm_path", "footprints_path", "crown_base_path"):
+        path = getattr(task, f)
+        if path:
+            st = os.stat(path)
+            doc[f"{f}_size_mtime"] = [st.st_size, st.st_mtime_ns]
+    doc["inputs"], doc["version"] = inputs, aerotri.__version__
+    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=repr).encode()).hexdigest()[:32]
+
+
+def _resumed_frame(task: FrameTask, out_dir: Path) -> dict | None:
+    """The index entry of ``task``'s frame kept by an earlier, interrupted run (its ortho linked into
+    ``out_dir``), or None when there is none whole."""
+    keep = Path(task.resume_dir) / f"{task.resume_key}.json"
+    tif = keep.with_suffix(".tif")
+    if not (keep.is_file() and tif.is_file()):
+        return None
+    try:
+        entry = json.loads(keep.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(entry, dict) or entry.get("size") != tif.stat().st_size:
+        return None
+    _link_or_copy(tif, out_dir / entry["file"])
+    return entry
+
+
+def _rectify_frame(task: FrameTask) -> dict:
+    """``_rectify_frame_task`` without the keeping for a resumed run."""
     project_crs = CRS.from_wkt(task.project_crs_wkt)
     out_crs = CRS.from_wkt(task.output_crs_wkt)
     zlo, zhi = task.z_range_m
@@ -580,7 +645,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
                               dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
                               height_op=height_op, executor=executor, inputs=inputs,
                               max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints,
-                              crown_base=crown_base)
+                              crown_base=crown_base, resume_dir=project.work_dir / RESUME_DIR_NAME)
         _shared_cells.clear()  # (this process's; the key names the files' sizes and times for the workers')
         if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
             done = {e["image_id"] for e in index["frames"]}
@@ -590,6 +655,9 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
         index["settings"] = resolved.record()
         write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
+    import shutil
+
+    shutil.rmtree(project.work_dir / RESUME_DIR_NAME, ignore_errors=True)  # committed: nothing to resume
     return _rectified_frames(frame_index(index, out_dir / "index.json"))
 
 
@@ -626,8 +694,10 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, project_crs, dem_path, zlo, zhi,
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
                   inputs: dict, max_view_angle_deg: float = 90.0, footprints: Path | None = None,
-                  crown_base: Path | None = None) -> dict:
-    """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order)."""
+                  crown_base: Path | None = None, resume_dir: Path | None = None) -> dict:
+    """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order). With
+    ``resume_dir``: the frames an interrupted run of the same inputs finished are taken from there, the others
+    kept there as they finish."""
     occluder_bounds = None
     if true_ortho and footprints is not None:  # the frames' ground bounds together, as each task takes its own
         fb = np.array([_plane_footprint_bounds(block.camera, block.eo.centre_m[eo_idx[i]],
@@ -646,7 +716,16 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        occluder_bounds_m=occluder_bounds,
                        crown_base_path=str(crown_base) if crown_base is not None else None)
              for image_id, path in block.images.pairs()]
-    entries = executor.map(_rectify_frame_task, tasks, desc="rectify", unit="frame")
+    resumed = {}
+    if resume_dir is not None:
+        tasks = [dataclasses.replace(t, resume_dir=str(resume_dir), resume_key=_resume_key(t, inputs)) for t in tasks]
+        resumed = {t.image_id: e for t in tasks if (e := _resumed_frame(t, out_dir)) is not None}
+        if resumed:
+            _log.info(f"resumed {len(resumed)} of {len(tasks)} frames an interrupted run finished ({resume_dir})")
+    todo = [t for t in tasks if t.image_id not in resumed]
+    done = dict(zip((t.image_id for t in todo), executor.map(_rectify_frame_task, todo, desc="rectify", unit="frame")
+                    if todo else []))
+    entries = [resumed.get(t.image_id) or done[t.image_id] for t in tasks]
     return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),

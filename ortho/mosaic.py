@@ -656,7 +656,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         timer.done("seams")
         gains, limited = gains_of()
     for k, b, g0, g1, own, would in limited:
-        logger.warning("frame %s band %d: gain %.2f lowered to %.2f so that it saturates no more of the frame than "
+        logger.warning("frame %s band %d: gain %.4g lowered to %.4g so that it saturates no more of the frame than "
                        "the frame itself (%.2f %%; the gain would have saturated %.2f %%)", red.names[k], b + 1, g0, g1,
                        100 * own, 100 * would)
     timer.done("gains")

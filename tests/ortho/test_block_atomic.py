@@ -352,3 +352,45 @@ def test_an_unchanged_dem_is_not_hashed_again(project, monkeypatch):
     assert r.exit_code == 0, r.output
     assert hashed.count("dem.tif") == 2
     assert recorded()["sha256"] == hashlib.sha256(dem.read_bytes()).hexdigest() != before["sha256"]
+
+
+def test_a_rerun_resumes_the_frames_an_interrupted_run_finished(project, monkeypatch):
+    """A rectify stopped part-way (here: an error in the fourth frame's task; a kill leaves the frames finished
+    before it) keeps the frames it finished in work/rectify_resume; the next run takes them and rectifies only the others, into the same frame
+    orthos as one uninterrupted run, and clears the folder when it commits."""
+    import ortho.block as B
+
+    before = tree(project / "ortho" / "frames")
+    first_frames = json.loads((project / "ortho" / "frames" / "index.json").read_text())["frames"]
+    calls = []
+    real = B._rectify_frame
+
+    def breaks_at_the_fourth(task):
+        calls.append(task.image_id)
+        if len(calls) == 4:
+            raise B.InputError(f"{task.image_id}: broken on purpose")
+        return real(task)
+
+    monkeypatch.setattr(B, "_rectify_frame", breaks_at_the_fourth)
+    r = run("rectify", project, "--workers", 1)
+    assert r.exit_code == 2, r.output
+    assert tree(project / "ortho" / "frames") == before  # the stage's output: all or none
+    kept = sorted(p.name for p in (project / "work" / "rectify_resume").iterdir())
+    finished = len(kept) // 2  # each frame: its ortho and its index entry (the other tasks run to their end)
+    assert 3 <= finished <= 5 and len(kept) == 2 * finished, kept
+    calls.clear()
+    monkeypatch.setattr(B, "_rectify_frame", lambda task: (calls.append(task.image_id), real(task))[1])
+    r = run("rectify", project, "--workers", 1)
+    assert r.exit_code == 0, r.output
+    assert len(calls) == 6 - finished, calls  # only the frames the first run did not finish
+    assert f"resumed {finished} of 6 frames" in r.stderr, r.stderr
+    after = tree(project / "ortho" / "frames")
+    before.pop("index.json"), after.pop("index.json")  # (the fixture's index names the fixture's paths)
+    assert after == before  # the same frame orthos as the uninterrupted run, byte for byte
+    frames_now = json.loads((project / "ortho" / "frames" / "index.json").read_text())["frames"]
+    assert frames_now == first_frames  # and the same index entries
+    assert not (project / "work" / "rectify_resume").exists()
+    calls.clear()
+    r = run("rectify", project, "--workers", 1)  # committed: a new run starts from the beginning
+    assert r.exit_code == 0, r.output
+    assert len(calls) == 6, calls
