@@ -639,25 +639,35 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
     # GDAL's block cache bounded for the whole stage, set here before the frame tasks start on their threads
-    with atomic_dir(out_dir) as tmp_dir, stage_block_cache(RECTIFY_CACHE_BYTES):
-        index = _rectify_into(tmp_dir, block, eo_idx, res=res, out_crs=out_crs, project_crs=project_crs,
-                              dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
-                              dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
-                              height_op=height_op, executor=executor, inputs=inputs,
-                              max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints,
-                              crown_base=crown_base, resume_dir=project.work_dir / RESUME_DIR_NAME)
-        _shared_cells.clear()  # (this process's; the key names the files' sizes and times for the workers')
-        if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
-            done = {e["image_id"] for e in index["frames"]}
-            keep = [e for e in old_index.document["frames"] if e["image_id"] not in done]
-            for e in keep:
-                _link_or_copy(out_dir / e["file"], tmp_dir / e["file"])
-            index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
-        index["settings"] = resolved.record()
-        write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
     import shutil
 
-    shutil.rmtree(project.work_dir / RESUME_DIR_NAME, ignore_errors=True)  # committed: nothing to resume
+    resume_dir, work_existed = project.work_dir / RESUME_DIR_NAME, project.work_dir.exists()
+    try:
+        with atomic_dir(out_dir) as tmp_dir, stage_block_cache(RECTIFY_CACHE_BYTES):
+            index = _rectify_into(tmp_dir, block, eo_idx, res=res, out_crs=out_crs, project_crs=project_crs,
+                                  dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
+                                  dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
+                                  height_op=height_op, executor=executor, inputs=inputs,
+                                  max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints,
+                                  crown_base=crown_base, resume_dir=resume_dir)
+            _shared_cells.clear()  # (this process's; the key names the files' sizes and times for the workers')
+            if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
+                done = {e["image_id"] for e in index["frames"]}
+                keep = [e for e in old_index.document["frames"] if e["image_id"] not in done]
+                for e in keep:
+                    _link_or_copy(out_dir / e["file"], tmp_dir / e["file"])
+                index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
+            index["settings"] = resolved.record()
+            write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
+    except Exception:
+        # an error (bad input, a bad frame) leaves no output of any kind: the frames kept for a resumed run go too;
+        # a kill or Ctrl-C (not an Exception) keeps them
+        shutil.rmtree(resume_dir, ignore_errors=True)
+        if not work_existed:
+            with contextlib.suppress(OSError):
+                project.work_dir.rmdir()
+        raise
+    shutil.rmtree(resume_dir, ignore_errors=True)  # committed: nothing to resume
     return _rectified_frames(frame_index(index, out_dir / "index.json"))
 
 

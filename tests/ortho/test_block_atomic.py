@@ -355,7 +355,7 @@ def test_an_unchanged_dem_is_not_hashed_again(project, monkeypatch):
 
 
 def test_a_rerun_resumes_the_frames_an_interrupted_run_finished(project, monkeypatch):
-    """A rectify stopped part-way (here: an error in the fourth frame's task; a kill leaves the frames finished
+    """A rectify stopped part-way (here: Ctrl-C in the fourth frame's task; a kill leaves the frames finished
     before it) keeps the frames it finished in work/rectify_resume; the next run takes them and rectifies only the others, into the same frame
     orthos as one uninterrupted run, and clears the folder when it commits."""
     import ortho.block as B
@@ -368,12 +368,12 @@ def test_a_rerun_resumes_the_frames_an_interrupted_run_finished(project, monkeyp
     def breaks_at_the_fourth(task):
         calls.append(task.image_id)
         if len(calls) == 4:
-            raise B.InputError(f"{task.image_id}: broken on purpose")
+            raise KeyboardInterrupt
         return real(task)
 
     monkeypatch.setattr(B, "_rectify_frame", breaks_at_the_fourth)
     r = run("rectify", project, "--workers", 1)
-    assert r.exit_code == 2, r.output
+    assert r.exit_code != 0, r.output
     assert tree(project / "ortho" / "frames") == before  # the stage's output: all or none
     kept = sorted(p.name for p in (project / "work" / "rectify_resume").iterdir())
     finished = len(kept) // 2  # each frame: its ortho and its index entry (the other tasks run to their end)
@@ -394,3 +394,24 @@ def test_a_rerun_resumes_the_frames_an_interrupted_run_finished(project, monkeyp
     r = run("rectify", project, "--workers", 1)  # committed: a new run starts from the beginning
     assert r.exit_code == 0, r.output
     assert len(calls) == 6, calls
+
+
+def test_an_error_leaves_no_frames_kept_for_a_resume(project, monkeypatch):
+    """An error (bad input, a bad frame) leaves nothing behind, not even the frames kept for a resumed run: only a
+    kill or Ctrl-C keeps them."""
+    import ortho.block as B
+
+    real, calls = B._rectify_frame, []
+
+    def fails_at_the_fourth(task):
+        calls.append(task.image_id)
+        if len(calls) == 4:
+            raise B.InputError(f"{task.image_id}: broken on purpose")
+        return real(task)
+
+    monkeypatch.setattr(B, "_rectify_frame", fails_at_the_fourth)
+    before = tree(project)
+    r = run("rectify", project, "--workers", 1)
+    assert r.exit_code == 2 and "broken on purpose" in r.stderr, r.output
+    assert tree(project) == before
+    assert not (project / "work" / "rectify_resume").exists()
