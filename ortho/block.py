@@ -53,7 +53,7 @@ from ortho.dem import dem_height_operation, height_range, height_window, open_he
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
 from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, footprint_polygon_xy,
-                           frame_grid, heights_on_grid, rectify_frame)
+                           grid_around_footprint, heights_on_grid, rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -460,12 +460,12 @@ def _rectify_frame(task: FrameTask) -> dict:
         from ortho.footprints import with_crown_base
 
         occluder = with_crown_base(None, heights.heights_m, crown)
-    grid = frame_grid(task.camera, C, R, dem, task.res_m, out_crs, to_project=to_project, image_id=task.image_id,
-                      partial=True, max_view_angle_deg=task.max_view_angle_deg)
-    # the ground the frame images (its border rays on the DEM): the mosaic counts the empty cells inside the
-    # frames' footprints as seen by no frame, also where they reach the block's edge
+    # the ground the frame images (its border rays on the DEM, as ``frame_grid``): the frame's grid, and (every
+    # 4th ray: 16 a side) the ring in index.json by which the mosaic counts the empty cells no frame sees
     footprint = footprint_polygon_xy(task.camera, C, R, dem, to_project=to_project, image_id=task.image_id,
-                                     partial=True, max_view_angle_deg=task.max_view_angle_deg)
+                                     per_side=64, partial=True, max_view_angle_deg=task.max_view_angle_deg,
+                                     min_cone_radius_m=task.res_m)
+    grid = grid_around_footprint(footprint, task.res_m, out_crs)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
@@ -486,7 +486,7 @@ def _rectify_frame(task: FrameTask) -> dict:
         "width": grid.width, "height": grid.height, "centre_m": [float(v) for v in C],
         "nadir_xy_m": [float(nadir_x[0]), float(nadir_y[0])], "valid_fraction": valid_fraction,
         "height_covered_share": round(covered, 4),
-        "footprint_xy_m": np.round(footprint, 2).tolist(),
+        "footprint_xy_m": np.round(footprint[::4], 2).tolist(),
         **to_record(file_fingerprint(task.out_path)),
     }
 

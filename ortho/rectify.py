@@ -822,7 +822,8 @@ def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: 
 def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, *,
                to_project: GridToProject, image_id: str = "frame", partial: bool = False,
                max_view_angle_deg: float = 90.0) -> OrthoGrid:
-    """The snapped output grid covering the ground footprint of a frame on the height raster.
+    """The snapped output grid covering the ground footprint of a frame on the height raster
+    (``grid_around_footprint`` of its ``footprint_polygon_xy`` of 64 rays a side).
 
     ``partial``: border rays that miss the raster (a DEM covering part of the frame) count with their
     point on the plane of the raster's mid height, so the grid holds the whole frame and the uncovered
@@ -830,29 +831,25 @@ def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float,
     the footprint is cut to the cone of rays within that angle of the vertical (at the raster's lowest
     height, where the cone is widest): an oblique frame's far field, which the ortho masks, takes no grid. The
     frame's rays over the earth (``intersect_rays_with_heights``) in ``to_project.project_crs``."""
-    x, y = border_pixels(camera)
-    zlo, zhi = heights.finite_range()
-    ground = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi),
-                                         image_id=image_id, uncovered="plane" if partial else "raise",
-                                         crs=to_project.project_crs)
-    if partial:
-        ground = ground[0]
-    if max_view_angle_deg < 90.0:
-        r = max((float(centre_m[2]) - zlo) * math.tan(math.radians(max_view_angle_deg)), res_m)
-        ground = ground.copy()
-        ground[:, 0] = np.clip(ground[:, 0], centre_m[0] - r, centre_m[0] + r)
-        ground[:, 1] = np.clip(ground[:, 1], centre_m[1] - r, centre_m[1] + r)
-    ox, oy = to_project.to_output(ground[:, 0], ground[:, 1])
+    ring = footprint_polygon_xy(camera, centre_m, R, heights, to_project=to_project, image_id=image_id, per_side=64,
+                                partial=partial, max_view_angle_deg=max_view_angle_deg, min_cone_radius_m=res_m)
+    return grid_around_footprint(ring, res_m, output_crs)
+
+
+def grid_around_footprint(ring: np.ndarray, res_m: float, output_crs) -> OrthoGrid:
+    """The snapped grid of ``res_m`` over a footprint ring (N, 2) in ``output_crs``, two cells of margin."""
     pad = 2 * res_m
-    return OrthoGrid.snapped(output_crs, (np.min(ox) - pad, np.min(oy) - pad, np.max(ox) + pad, np.max(oy) + pad), res_m)
+    return OrthoGrid.snapped(output_crs, (float(np.min(ring[:, 0])) - pad, float(np.min(ring[:, 1])) - pad,
+                                          float(np.max(ring[:, 0])) + pad, float(np.max(ring[:, 1])) + pad), res_m)
 
 
 def footprint_polygon_xy(camera: Camera, centre_m, R, heights: HeightRaster, *, to_project: GridToProject,
                          image_id: str = "frame", per_side: int = 16, partial: bool = False,
-                         max_view_angle_deg: float = 90.0) -> np.ndarray:
-    """Footprint ring (N, 2) in output-CRS coordinates (the rays over the earth, as ``frame_grid``; ``partial`` and
-    ``max_view_angle_deg`` as there: a ray that misses the raster on the plane of its mid height, the ring cut to
-    the cone of rays within that angle of the vertical)."""
+                         max_view_angle_deg: float = 90.0, min_cone_radius_m: float = 0.0) -> np.ndarray:
+    """Footprint ring (N, 2) in output-CRS coordinates: the frame's border rays (``per_side`` a side) over the
+    earth; ``partial`` and ``max_view_angle_deg`` as in ``frame_grid`` (a ray that misses the raster on the plane
+    of its mid height; the ring cut to the cone of rays within that angle of the vertical, of at least
+    ``min_cone_radius_m``)."""
     x, y = border_pixels(camera, per_side)
     zlo, zhi = heights.finite_range()
     g = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi), image_id=image_id,
@@ -860,7 +857,7 @@ def footprint_polygon_xy(camera: Camera, centre_m, R, heights: HeightRaster, *, 
     if partial:
         g = g[0]
     if max_view_angle_deg < 90.0:
-        r = max((float(centre_m[2]) - zlo) * math.tan(math.radians(max_view_angle_deg)), 0.0)
+        r = max((float(centre_m[2]) - zlo) * math.tan(math.radians(max_view_angle_deg)), min_cone_radius_m)
         g = g.copy()
         g[:, 0] = np.clip(g[:, 0], centre_m[0] - r, centre_m[0] + r)
         g[:, 1] = np.clip(g[:, 1], centre_m[1] - r, centre_m[1] + r)
