@@ -27,11 +27,18 @@ pulse's returns share it, ordered by return number), so each return knows where 
 3. The ceiling of any crown separation: the false cells whose top return is a pulse ending on our building below
    and which AHN3 does not call building, removed with nothing found lost.
 
+With ``--nested``: the separation as rule sets in the nested choice of bench/eval_buildings_bgt.py (footprint parts,
+both criteria): each set any fold chose in the fifth round and the shipped defaults' set, with the crown returns
+(section 2) made vegetation after the classification, scored as there (area, objects, vector centroids with and
+without roof dropouts) and added after the 32 stored sets (a tie goes to the set without the separation); the
+choices made again over all of them. Writes key "rules_nested_footprint_parts_crown_returns" of
+bench/results/buildings_bgt.json (the stored sets' section is not changed).
+
 Classifications: the shipped defaults and the held-out rule sets of bench/results/buildings_bgt.json
 ("rules_nested_footprint_parts", both criteria). Design parts: south-east, north-west, north-east (listed first);
 the south-west part scored once with the separation fixed (see the doc for what was tried before).
 Writes key "sixth_round_crowns" of bench/results/buildings_bgt_false_regions.json.
-Run: nice .venv/bin/python bench/eval_buildings_bgt_crowns.py
+Run: nice .venv/bin/python bench/eval_buildings_bgt_crowns.py [--nested]
 """
 
 from __future__ import annotations
@@ -53,7 +60,8 @@ import eval_buildings_bgt_false as bf  # noqa: E402
 from results_json import read_results, store_result  # noqa: E402
 
 from lidarctl import io, tiles  # noqa: E402
-from lidarctl.classify.pipeline import BUILDING, GROUND, ClassifySettings, fewer_multi_returns  # noqa: E402
+from lidarctl.classify import class_grid as cg  # noqa: E402
+from lidarctl.classify.pipeline import BUILDING, GROUND, HIGH_VEG, MED_VEG, ClassifySettings, fewer_multi_returns  # noqa: E402
 from lidarctl.raster_ops import plane_rms  # noqa: E402
 
 DESIGN_PARTS = ("south-east", "north-west", "north-east")
@@ -203,6 +211,67 @@ def analyse(path: Path, laz_class: np.ndarray, end: np.ndarray, polys: list, par
     return out
 
 
+def _separated(classified: Path, out: Path, end: np.ndarray, p: ClassifySettings) -> None:
+    """``classified`` with its crown returns (section 2) made vegetation (medium or high by their height), to ``out``."""
+    c = io.read_cloud(classified, crs=bgt.CRS)
+    grid = cg.cloud_grid(classified, bgt.CELL_M, bgt.CRS)[0]
+    k = cells(c, grid)
+    crown = crown_returns(c, k, end, p)[0]
+    cls = c.classification.copy()
+    cls[crown] = np.where(c.z[crown] - k.dem_m[k.flat[crown]] > p.medium_veg_max_m, HIGH_VEG, MED_VEG)
+    io.write_classified(classified, out, cls, crs=None)
+
+
+def nested_round(argv, laz: Path, polys: list, end: np.ndarray) -> int:
+    """The separation in the nested choice on the footprint parts (module docstring, ``--nested``)."""
+    stored = read_results(bgt.RESULTS)
+    per_set = dict(stored["rules_nested"]["rule_sets"])
+    sec = stored["rules_nested_footprint_parts"]
+    bases = list(dict.fromkeys([sec["shipped_defaults_set"]] + [v["chosen"] for c in bgt.CRITERIA
+                                                                 for v in sec[c]["held_out"].values()]))
+    x_split, y_split = stored["quarters_split_at_m"]
+    fparts = bgt.footprint_parts(polys, bgt.covered_footprints(laz, polys))
+    partitions = (bgt.quarters(x_split, y_split), fparts)
+    t0, cpu0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
+    added = []
+    with tempfile.TemporaryDirectory(prefix="eval_bgt_crowns_nested_") as tmp:
+        for j, base in enumerate(bases):
+            prm = dataclasses.replace(ClassifySettings(), **bgt.RULE_SETS[base])
+            raw_path, path = Path(tmp) / f"{j}_raw.laz", Path(tmp) / f"{j}.laz"
+            tiles.classify_file(laz, raw_path, crs=bgt.CRS, params=prm)
+            _separated(raw_path, path, end, prm)
+            name = f"{base} + crown returns (pulse)"
+            out = {"base": base, "separation": "crown returns (bench/eval_buildings_bgt_crowns.py), after the classification"}
+            for pp in partitions:
+                out[bgt._KEY[pp.name]] = bgt.evaluate_quarters({"x": path}, polys, pp)
+            out["vectors"] = bgt.vector_centroids(path, polys, Path(tmp) / f"{j}.gpkg", partitions)
+            out["vectors_roof_dropouts_off"] = bgt.vector_centroids(path, polys, Path(tmp) / f"{j}.gpkg", partitions,
+                                                                    roof_dropouts=False)
+            for key in bgt._KEY.values():
+                for q in out[key].values():
+                    q.pop("classified_with", None)
+            per_set[name] = out
+            added.append(name)
+            print(f"{name}: footprint parts worst {bgt._worst(out['footprint_parts'], bgt.PARTS):.2f} %, vectors "
+                  f"{out['vectors']['centroid_in_building_layer']}/{out['vectors']['footprints_covered_by_the_crop']}", flush=True)
+    order = list(bgt.RULE_SETS) + added
+    result = {"command": "bench/eval_buildings_bgt_crowns.py " + " ".join(argv),
+              "how": "the fifth round's 32 rule sets (scores from rules_nested/rule_sets) and, appended last, the sets "
+                     "any fold chose and the shipped defaults' set with the crown returns made vegetation; nested choice "
+                     "on the footprint parts again, both criteria (ties to the earlier set)",
+              "added_sets": {n: per_set[n] for n in added}}
+    for criterion in bgt.CRITERIA:
+        result[criterion] = bgt.nested_choice(per_set, "footprint_parts", criterion, order=order)
+        for name, v in result[criterion]["held_out"].items():
+            a = v["area"]
+            print(f"{criterion}: held out {name}: '{v['chosen']}' {a['completeness_pct']:.2f} / {a['correctness_pct']:.2f} %, "
+                  f"found {v['footprints_found']}/{v['footprints']}, centroids {v['vector_centroids']}/{v['vector_footprints']}")
+    result["seconds"], result["cpu_s"] = time.perf_counter() - t0, time.process_time() - cpu0
+    result["load_average_before_after"] = [load0, os.getloadavg()[0]]
+    store_result(bgt.RESULTS, result, key="rules_nested_footprint_parts_crown_returns")
+    return 0
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     laz = bgt.SHARED / "ahn3_delft" / "ahn3_cropped_1.laz"
@@ -211,6 +280,8 @@ def main(argv=None) -> int:
     raw = laspy.read(laz)
     end = pulse_ends(np.asarray(raw.gps_time), np.asarray(raw.return_number))
     laz_class = np.asarray(raw.classification)
+    if "--nested" in argv:
+        return nested_round(argv, laz, polys, end)
     linked = (np.asarray(raw.return_number) < np.asarray(raw.number_of_returns))
     nested = read_results(bgt.RESULTS)["rules_nested_footprint_parts"]
     sets = {"shipped defaults": "shipped defaults"}
