@@ -378,7 +378,7 @@ def _vector_share(v: dict, per: str, names) -> float:
     return min(vals) if vals else float("nan")
 
 
-def nested_choice(per_set: dict, key: str, criterion: str) -> dict:
+def nested_choice(per_set: dict, key: str, criterion: str, order: list | None = None) -> dict:
     """Per held-out part of partition ``key`` ("quarters", "footprint_parts"): the rule set the criterion picks on
     the other parts (ties to the earlier set), then the vectors with or without roof dropouts by the lowest
     training share of centroids in the buildings layer (ties to without: the older map); the held-out part
@@ -386,11 +386,12 @@ def nested_choice(per_set: dict, key: str, criterion: str) -> dict:
     per = "per_quarter" if key == "quarters" else "per_footprint_part"
     first = next(iter(per_set.values()))
     scored = [n for n in PARTS if first[key][n]["area"]["footprint_area_m2"] > 0]
+    order = order or list(RULE_SETS)   # ties go to the earlier set
     held = {}
     for name in scored:
         train = [n for n in scored if n != name]
         crit = {s: _worst_of(v[key], train, criterion) for s, v in per_set.items()}
-        chosen = max(crit, key=lambda s: (crit[s], -list(RULE_SETS).index(s)))
+        chosen = max(crit, key=lambda s: (crit[s], -order.index(s)))
         on, off = (_vector_share(per_set[chosen][v], per, train) for v in ("vectors", "vectors_roof_dropouts_off"))
         vkey = "vectors" if on > off else "vectors_roof_dropouts_off"
         # added after the first run (the lowest share ties whenever the worst training part holds no roof that
@@ -411,7 +412,7 @@ def nested_choice(per_set: dict, key: str, criterion: str) -> dict:
                       "training_vector_centroids": {"on": on_n, "off": off_n},
                       "vector_centroids_by_total": vt["centroid_in_building_layer"]}
     crit_all = {s: _worst_of(v[key], scored, criterion) for s, v in per_set.items()}
-    pick = max(crit_all, key=lambda s: (crit_all[s], -list(RULE_SETS).index(s)))
+    pick = max(crit_all, key=lambda s: (crit_all[s], -order.index(s)))
     out = {"criterion": CRITERIA[criterion] + "; ties to the earlier rule set", "held_out": held,
            "chosen_on_all_parts": {"set": pick, "on": scored, "worst_pct": crit_all[pick], "by_set_pct": crit_all}}
     out["vector_choice"] = ("roof dropouts on when the lowest training share of centroids on the map is higher with "

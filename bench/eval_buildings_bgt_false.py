@@ -77,6 +77,17 @@ class CellKinds:
     roof_near_m: np.ndarray
 
 
+def top_returns(flat: np.ndarray, z: np.ndarray, shape: tuple) -> np.ndarray:
+    """Index of the highest return of each cell of the grid ``shape`` (``flat``: each return's cell); a cell without
+    returns takes the nearest cell's."""
+    order = np.lexsort((z, flat))
+    last = np.r_[flat[order][1:] != flat[order][:-1], True]
+    top = np.full(shape[0] * shape[1], -1)
+    top[flat[order][last]] = order[last]
+    top = top.reshape(shape)
+    return top[tuple(ndimage.distance_transform_edt(top < 0, return_distances=False, return_indices=True))]
+
+
 def cell_kinds(classified: Path, laz: Path, grid: cg.ClassGrid, found: np.ndarray) -> CellKinds:
     c, ref = io.read_cloud(classified, crs=bgt.CRS), io.read_cloud(laz, crs=bgt.CRS)
     t, shape = grid.transform, grid.shape
@@ -84,13 +95,7 @@ def cell_kinds(classified: Path, laz: Path, grid: cg.ClassGrid, found: np.ndarra
     row = np.floor((c.y - t.f) / t.e).astype(int)
     flat = np.clip(row, 0, shape[0] - 1) * shape[1] + np.clip(col, 0, shape[1] - 1)
     size = shape[0] * shape[1]
-    order = np.lexsort((c.z, flat))
-    last = np.r_[flat[order][1:] != flat[order][:-1], True]
-    top = np.full(size, -1)
-    top[flat[order][last]] = order[last]
-    top = top.reshape(shape)
-    fill = ndimage.distance_transform_edt(top < 0, return_distances=False, return_indices=True)
-    top = top[tuple(fill)]
+    top = top_returns(flat, c.z, shape)
     g = c.classification == GROUND
     n_g = np.bincount(flat[g], minlength=size)
     dem = np.where(n_g > 0, np.bincount(flat[g], c.z[g], minlength=size) / np.maximum(n_g, 1), np.nan).reshape(shape)
