@@ -85,7 +85,7 @@ def georef_text(block: AdjustedBlock) -> str:
     return ("# aerotri: the world frame of this COLMAP model (ENU tangent plane at origin_map, aerotri.geom.local_frame)\n"
             "frame local_enu\n"
             f"crs {block.crs}\n"
-            f"origin_map {o[0]:.4f} {o[1]:.4f} {o[2]:.4f}\n"
+            f"origin_map {float(o[0])!r} {float(o[1])!r} {float(o[2])!r}\n"  # in full: poses and points hang on it
             f"pixel_um {block.camera.pixel_um!r}\n")
 
 

@@ -220,3 +220,14 @@ def test_a_known_k3_is_in_the_exported_camera_and_the_points_as_measured(tmp_pat
            for im in rec.images.values() for n in range(len(im.points2D)) if (pid[int(im.points2D[n].point3D_id)], im.name) in measured]
     assert len(got) > 100
     assert max(np.abs(a - b).max() for a, b in got) < 1e-3
+
+
+@pytest.mark.parametrize("folder", ["colmap", "colmap_bin"])
+def test_georef_origin_in_full(exported, folder):
+    """The model's world frame is the adjustment's to the micrometre: the origin was written to 0.1 mm, and a
+    kite block (21 m above ground, f 5747 px) then reprojected through georef.txt up to 0.017 px off."""
+    from aerotri.exchange.colmap import read_georef
+
+    root, out = exported
+    origin = np.array(read_georef(out / folder).origin_map)
+    assert np.abs(origin - read_adjusted_block(root).frame.origin_map).max() < 1e-6
