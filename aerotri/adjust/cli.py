@@ -73,5 +73,5 @@ def _summary(rec: AdjustmentRecord) -> str:
     lines += [f"surface control, {c.name}: {c.used} tie points used ({c.rejected} rejected), point - surface "
               f"rms {c.rms_m} m" for c in rec.surface_control]
     if rec.check_rms_m:
-        lines.append("check RMS X Y Z (m): " + " ".join(f"{v:.3f}" for v in rec.check_rms_m))
+        lines.append("check RMS X Y Z (m): " + " ".join("-" if v is None else f"{v:.3f}" for v in rec.check_rms_m))
     return "\n".join(lines)

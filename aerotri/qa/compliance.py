@@ -143,13 +143,16 @@ def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
     ``[control]`` sigma_xy_m / sigma_z_m (the a-priori accuracy of the control and check points)."""
     if not at:
         return None
-    d = [c["d_m"] for c in at.get("check_points", []) if c.get("d_m") and None not in c["d_m"]]
-    if not d:
+    # None: a coordinate not surveyed (the height of a plan-only check point) or not intersected
+    d = [[np.nan if v is None else v for v in c["d_m"]] for c in at.get("check_points", []) if c.get("d_m")]
+    d = np.asarray(d, dtype=float).reshape(-1, 3)
+    h, v = np.isfinite(d[:, :2]).all(axis=1), np.isfinite(d[:, 2])
+    if not h.any() and not v.any():
         return CheckSet(note="no check points in the adjustment")
-    d = np.asarray(d, dtype=float)
     src = ("[control] sigma_xy_m, sigma_z_m (a-priori accuracy of the control/check points)"
            if control.sigma_xy_m is not None or control.sigma_z_m is not None else "not stated ([control] sigma_*)")
-    return CheckSet(rmse_h_m=F.rmse_h_of_points(d[:, 0], d[:, 1]), rmse_v_m=F.rmse(d[:, 2]), n_h=len(d), n_v=len(d),
+    return CheckSet(rmse_h_m=F.rmse_h_of_points(d[h, 0], d[h, 1]) if h.any() else None,
+                    rmse_v_m=F.rmse(d[v, 2]) if v.any() else None, n_h=int(h.sum()), n_v=int(v.sum()),
                     cp_rmse_h_m=F.checkpoint_rmse_h(control.sigma_xy_m), cp_rmse_v_m=control.sigma_z_m, cp_source=src)
 
 
