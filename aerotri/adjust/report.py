@@ -122,7 +122,7 @@ def _check_rows(ba) -> tuple[list[dict], np.ndarray, np.ndarray]:
         d = np.where(np.asarray(c.get("surveyed", (True, True, True)), bool), d, np.nan)
         sig = np.hypot(np.array(c["sigma_m"]), np.array(c["given_sigma_m"]))
         rows.append({"id": pid, "rays": c["rays"], "measured_m": _lst(c["measured_m"], 4), "adjusted_m": _lst(c["adjusted_m"], 4),
-                     "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4)})
+                     "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4), "given_sigma_m": _lst(c["given_sigma_m"], 4)})
         if ok:
             dchk.append(d)
             nchk.append(d / sig)

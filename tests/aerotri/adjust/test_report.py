@@ -146,6 +146,7 @@ def test_a_plan_only_point_given_as_check_point_is_no_height_check(tmp_path):
     rep = to_record(report.build_report(ba))
     row = {r["id"]: r for r in rep["check_points"]}
     assert row["gcp05"]["d_m"][2] is None and None not in row["gcp05"]["d_m"][:2]
+    assert row["gcp05"]["given_sigma_m"] == pytest.approx([0.03, 0.03, 0.05])  # control/points.csv's, for the QA
     d = np.array([r["d_m"] for r in rep["check_points"]], float)  # None -> NaN
     full = np.array([r["d_m"] for i, r in row.items() if i != "gcp05"], float)
     assert len(full) == 6 and np.isfinite(full).all()
