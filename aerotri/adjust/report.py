@@ -581,6 +581,13 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
         message = ("Solution Successful." if r.info.iterations < opts.max_iterations else
                    f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
                    f"changed the error by less than 1e-6 relative).")
+    if r.rejected_control:
+        # the one finding a surveyor acts on first: which of their points the data snooping threw out
+        ranked = sorted(r.rejected_control, key=lambda cw: -cw[1])
+        message += (f" Control left out by the data snooping: {len(ranked)} of {len(ba.control)} points ("
+                    + ", ".join(f"{ba.control.id[c]} w = {w:.2f}" for c, w in ranked[:6])
+                    + (", ..." if len(ranked) > 6 else "") + "); a mislabelled or mistyped point, or a measurement "
+                    "on the wrong target, is the usual cause: look at the largest w first.")
     lines, pairs = getattr(r, "behind_camera", (0, 0))
     return {
         "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),

@@ -165,3 +165,18 @@ def test_a_plan_only_point_given_as_check_point_is_no_height_check(tmp_path):
     assert (cs.n_h, cs.n_v) == (7, 6)
     assert cs.rmse_v_m == pytest.approx(np.sqrt(np.mean(full[:, 2] ** 2)), abs=1e-4)
     assert cs.rmse_h_m == pytest.approx(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2)), abs=1e-4)
+
+
+def test_the_verdict_names_control_left_out_by_the_data_snooping(tmp_path):
+    """A control point 3 m off is thrown out by the data snooping; the verdict said "Solution Successful." and
+    nothing else (the kite block with two targets' labels swapped in one frame: "the last solve did not
+    converge", 5 of its 10 targets out, none named)."""
+    block = geometric_block(2, 5, seed=7)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=6, points_per_image=80, n_check=4, seed=2,
+                             bad_control_shift_m=3.0)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
+    assert [str(ba.control.id[c]) for c, _ in ba.result.rejected_control] == ["gcp01"]
+    ks = to_record(report.build_report(ba))["key_statistics"]
+    w = ba.result.rejected_control[0][1]
+    assert f"Control left out by the data snooping: 1 of 6 points (gcp01 w = {w:.2f})" in ks["message"]
