@@ -180,3 +180,21 @@ def test_the_verdict_names_control_left_out_by_the_data_snooping(tmp_path):
     ks = to_record(report.build_report(ba))["key_statistics"]
     w = ba.result.rejected_control[0][1]
     assert f"Control left out by the data snooping: 1 of 6 points (gcp01 w = {w:.2f})" in ks["message"]
+
+
+def test_check_points_given_as_a_comma_separated_list(tmp_path):
+    """``--check gcp05,gcp07`` (as ``--self-cal pp,radial`` is given) stopped with "control points
+    ['gcp05,gcp07'] are not in the control point file"; now the ids are split, and an unknown one is named alone."""
+    from click.testing import CliRunner
+
+    from aerotri.cli import main as aerotri_cli
+
+    block = geometric_block(2, 5, seed=11)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=2, seed=5)
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--check", "gcp04,nope", "--image-sigma-px", "0.3"])
+    assert r.exit_code == 2 and "['nope']" in r.output, r.output
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--check", "gcp04, gcp05", "--image-sigma-px", "0.3"])
+    assert r.exit_code == 0, r.output
+    ids = {c["id"] for c in json.loads((root / "at" / "report.json").read_text())["check_points"]}
+    assert {"gcp04", "gcp05", "chk01", "chk02"} <= ids
