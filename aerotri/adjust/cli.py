@@ -12,6 +12,12 @@ from aerotri.core.commands import Command, finite
 from aerotri.core.settings import click_option
 
 
+def _point_ids(ctx, param, values):
+    """--check / --control given once per point or as a comma-separated list (as --self-cal takes its groups;
+    an id holds no comma: control/points.csv is comma-separated)."""
+    return tuple(i.strip() for v in values for i in v.split(",") if i.strip())
+
+
 @click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False))
 @click_option(AdjustSettings, "gnss_correction", "--gnss-correction")
@@ -20,10 +26,12 @@ from aerotri.core.settings import click_option
                    "lever_arm_m, else [gnss] lever_arm_m, else zero).")
 @click_option(AdjustSettings, "self_calibration", "--self-cal")
 @click_option(AdjustSettings, "image_sigma_px", "--image-sigma-px")
-@click_option(AdjustSettings, "check", "--check", multiple=True, show_default=False,
-              help="Use this control point id as a check point (repeatable) (project.toml [adjust] check).")
-@click_option(AdjustSettings, "control", "--control", multiple=True, show_default=False,
-              help="Use this point id as full control (repeatable) (project.toml [adjust] control).")
+@click_option(AdjustSettings, "check", "--check", multiple=True, show_default=False, callback=_point_ids,
+              help="Use this control point id as a check point (repeatable, or ids separated by commas) (project.toml "
+                   "[adjust] check).")
+@click_option(AdjustSettings, "control", "--control", multiple=True, show_default=False, callback=_point_ids,
+              help="Use this point id as full control (repeatable, or ids separated by commas) (project.toml [adjust] "
+                   "control).")
 @click_option(AdjustSettings, "snooping", "--snooping/--no-snooping")
 @click_option(AdjustSettings, "use_control", "--no-control", flag_value=False, show_default=False,
               help="Ignore control/ (tie points + GNSS only, e.g. the first adjustment before the control transfer; "
@@ -73,5 +81,5 @@ def _summary(rec: AdjustmentRecord) -> str:
     lines += [f"surface control, {c.name}: {c.used} tie points used ({c.rejected} rejected), point - surface "
               f"rms {c.rms_m} m" for c in rec.surface_control]
     if rec.check_rms_m:
-        lines.append("check RMS X Y Z (m): " + " ".join(f"{v:.3f}" for v in rec.check_rms_m))
+        lines.append("check RMS X Y Z (m): " + " ".join("-" if v is None else f"{v:.3f}" for v in rec.check_rms_m))
     return "\n".join(lines)

@@ -735,6 +735,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         P, C, rays = check_point_errors(chk_obs.xy_px, oim, opi, len(chk), state, opts, result=result, alpha=st.alpha)
         Pm = frame.to_map(np.nan_to_num(P))
         Jinv = np.linalg.inv(frame.jacobian_local_from_map(chk.xyz_m))
+        surveyed = chk.measured_xyz()
         for c, pid in enumerate(chk.id):
             ok = np.all(np.isfinite(P[c]))
             cov_map = Jinv[c] @ C[c] @ Jinv[c].T if ok else np.full((3, 3), np.nan)
@@ -743,6 +744,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
                 "adjusted_m": Pm[c].tolist() if ok else [float("nan")] * 3,
                 "sigma_m": np.sqrt(np.abs(np.diag(cov_map))).tolist(),
                 "given_sigma_m": chk.sigma_m[c].tolist(),
+                "surveyed": surveyed[c].tolist(),  # x y z: a plan-only point is no height check
                 "rays": int(rays[c]),
             }
     gres = None

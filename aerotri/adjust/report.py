@@ -117,9 +117,12 @@ def _check_rows(ba) -> tuple[list[dict], np.ndarray, np.ndarray]:
     for pid, c in ba.check.items():
         d = np.array(c["adjusted_m"]) - np.array(c["measured_m"])
         ok = np.all(np.isfinite(d))
+        # a coordinate nobody surveyed (the height of a horizontal point used as a check point) is no check:
+        # its difference is None in the row and left out of the RMS (``_rms`` skips NaN)
+        d = np.where(np.asarray(c.get("surveyed", (True, True, True)), bool), d, np.nan)
         sig = np.hypot(np.array(c["sigma_m"]), np.array(c["given_sigma_m"]))
         rows.append({"id": pid, "rays": c["rays"], "measured_m": _lst(c["measured_m"], 4), "adjusted_m": _lst(c["adjusted_m"], 4),
-                     "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4)})
+                     "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4), "given_sigma_m": _lst(c["given_sigma_m"], 4)})
         if ok:
             dchk.append(d)
             nchk.append(d / sig)
@@ -494,9 +497,11 @@ def optimistic_sigmas(normalised: np.ndarray) -> str | None:
     nz = np.asarray(normalised, dtype=float).reshape(-1, 3)
     if len(nz) < 5:
         return None
-    rms = np.sqrt(np.mean(nz**2, axis=0))
-    limit = chi2.ppf(1.0 - OPTIMISTIC_ALPHA, len(nz))
-    bad = [ax for ax, r, q in zip("XYZ", rms, np.sum(nz**2, axis=0)) if r > OPTIMISTIC_NORMALISED_RMS and q > limit]
+    n = np.isfinite(nz).sum(axis=0)  # a component not surveyed at some points (plan-only check points) is NaN there
+    rms = _rms(nz)
+    q = np.nansum(nz**2, axis=0)
+    bad = [ax for ax, r, qa, na in zip("XYZ", rms, q, n)
+           if na >= 5 and r > OPTIMISTIC_NORMALISED_RMS and qa > chi2.ppf(1.0 - OPTIMISTIC_ALPHA, na)]
     if not bad:
         return None
     return (f"Sigmas too small: the {len(nz)} check points are off by {' / '.join(f'{r:.2f}' for r in rms)} of their "
@@ -576,6 +581,13 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
         message = ("Solution Successful." if r.info.iterations < opts.max_iterations else
                    f"Solution Successful (iteration limit {opts.max_iterations} reached; the last step "
                    f"changed the error by less than 1e-6 relative).")
+    if r.rejected_control:
+        # the one finding a surveyor acts on first: which of their points the data snooping threw out
+        ranked = sorted(r.rejected_control, key=lambda cw: -cw[1])
+        message += (f" Control left out by the data snooping: {len(ranked)} of {len(ba.control)} points ("
+                    + ", ".join(f"{ba.control.id[c]} w = {w:.2f}" for c, w in ranked[:6])
+                    + (", ..." if len(ranked) > 6 else "") + "); a mislabelled or mistyped point, or a measurement "
+                    "on the wrong target, is the usual cause: look at the largest w first.")
     lines, pairs = getattr(r, "behind_camera", (0, 0))
     return {
         "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),
@@ -738,7 +750,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "rms_control_ground_m": _lst(rms_control, 4),
         "rejected_control": rejected,
         "check_points": check_rows,
-        "check_sum_m": _lst(dchk.sum(axis=0), 4) if len(dchk) else None,
+        "check_sum_m": _lst(np.where(np.isfinite(dchk).any(axis=0), np.nansum(dchk, axis=0), np.nan), 4)
+        if len(dchk) else None,
         "check_rms_m": _lst(_rms(dchk), 4) if len(dchk) else None,
         "check_normalised_rms": _lst(_rms(nchk), 3) if len(nchk) else None,
         "check_points_from_lidar": int(getattr(ba, "check_from_lidar", 0)),
@@ -1022,7 +1035,7 @@ def format_txt(rep: dict) -> str:
     if rep["check_sum_m"]:
         L.append(f"{'sum':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_sum_m"]))
         L.append(f"{'rms':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_rms_m"]))
-        L.append("  normalised check errors (d / sigma), RMS X Y Z: " + " ".join(f"{x:.2f}" for x in rep["check_normalised_rms"]))
+        L.append("  normalised check errors (d / sigma), RMS X Y Z: " + " ".join("-" if x is None else f"{x:.2f}" for x in rep["check_normalised_rms"]))
         if rep.get("check_points_from_lidar"):
             L.append(f"  {rep['check_points_from_lidar']} check points are corners of the same LiDAR as the surface "
                      "control: they share its strip offsets, so their agreement does not test the LiDAR's datum")
@@ -1185,7 +1198,7 @@ def format_html(rep: dict, ba=None) -> str:
                                      [[r["id"], r["kind"], r.get("status", r["used"]), r["rays"], *r["residual_m"],
                                        r["image_rms_um"]] for r in rep["control_points"]], 4, num_from=3),
         rejected_control=", ".join(f"{x['id']} (w = {x['w']})" for x in rep["rejected_control"]),
-        check_points=None, check_sums=None, check_normalised=" ".join(f"{x:.2f}" for x in rep["check_normalised_rms"] or []),
+        check_points=None, check_sums=None, check_normalised=" ".join("-" if x is None else f"{x:.2f}" for x in rep["check_normalised_rms"] or []),
         gnss=gnss, gnss_strips=T(["strip", "shift X m", "shift Y m", "shift Z m", "drift X m/km", "drift Y m/km",
                                   "drift Z m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]
                                                     for s in rep["gnss_strips"]], 4) if rep.get("gnss_strips") else None,

@@ -163,13 +163,13 @@ def ground_residual_map(rep: dict) -> Figure | None:
     in metres) and the height residual as colour (colour bar in metres); points without a height residual
     (plan-only control) in grey, and no colour bar when no point has one."""
     ctrl = [r for r in rep.get("control_points", []) if r.get("used") and r.get("given_m") and r.get("residual_m")]
-    chk = [r for r in rep.get("check_points", []) if r.get("d_m") and None not in r["d_m"] and r.get("measured_m")]
+    chk = [r for r in rep.get("check_points", []) if r.get("d_m") and None not in r["d_m"][:2] and r.get("measured_m")]
     if not ctrl and not chk:
         return None
     plt = pyplot()
     pos = np.array([r["given_m"] for r in ctrl] + [r["measured_m"] for r in chk], dtype=float)
-    d = np.array([[np.nan if v is None else v for v in r["residual_m"]] for r in ctrl] + [r["d_m"] for r in chk],
-                 dtype=float)
+    d = np.array([[np.nan if v is None else v for v in r["residual_m"]] for r in ctrl]
+                 + [[np.nan if v is None else v for v in r["d_m"]] for r in chk], dtype=float)
     is_ctrl = np.arange(len(pos)) < len(ctrl)
     o = _origin(pos)
     x, y = pos[:, 0] - o[0], pos[:, 1] - o[1]

@@ -73,7 +73,7 @@ class AdjustmentRecord:
     control_rms_m: tuple[float | None, ...] | None  # X, Y, Z RMS of the control residuals on the ground
     rejected_control: tuple[str, ...]  # ids of control points the adjustment rejected
     check_rms_m: tuple[float | None, ...] | None  # X, Y, Z RMS at the check points
-    check_residuals_m: tuple[tuple[float, float, float], ...]  # dX, dY, dZ per check point with all three
+    check_residuals_m: tuple[tuple[float, float, float], ...]  # dX, dY, dZ per check point (NaN: not surveyed)
     check_points: int  # check points in the report (with or without residuals)
     check_normalised_rms: tuple[float | None, ...] | None
     flight_acceptance: dict | None  # the flight acceptance section as written (a ``FlightAcceptance``, asdict)
@@ -124,7 +124,9 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
     options = d.get("options") or {}
     rejected = tuple(str(r.get("id", r) if isinstance(r, dict) else r) for r in d.get("rejected_control") or [])
     checks = d.get("check_points") or []
-    residuals = tuple(tuple(float(x) for x in c["d_m"]) for c in checks if c.get("d_m") and None not in c["d_m"])
+    # a plan-only check point has dZ None (its height was not surveyed): NaN here, left out of height figures
+    residuals = tuple(tuple(math.nan if x is None else float(x) for x in c["d_m"]) for c in checks
+                      if c.get("d_m") and any(x is not None for x in c["d_m"]))
     sigma = options.get("image_sigma_px")
     return AdjustmentRecord(
         path=Path(path), project=d.get("project"), counts=dict(d.get("counts") or {}),

@@ -52,11 +52,11 @@ def adjustment_result(rec: AdjustmentRecord, **more) -> R.AdjustResult:
     """Key numbers of an adjustment report (the record ``run_adjustment`` returns, as at/report.json) for the
     summary; ``more``: the leave-one-out numbers and notes."""
     chk = rec.check_rms_m
-    checked = bool(chk) and len(chk) == 3 and None not in chk
+    plan = bool(chk) and len(chk) == 3 and None not in chk[:2]  # z None: plan-only check points
     return R.AdjustResult(sigma0_um=rec.key_statistics.sigma0_um if rec.key_statistics else None,
                           control_points=rec.counts.get("control_points"),
-                          rms_check_xy_m=round(float((chk[0] ** 2 + chk[1] ** 2) ** 0.5), 4) if checked else None,
-                          rms_check_z_m=chk[2] if checked else None, **more)
+                          rms_check_xy_m=round(float((chk[0] ** 2 + chk[1] ** 2) ** 0.5), 4) if plan else None,
+                          rms_check_z_m=chk[2] if plan else None, **more)
 
 
 @dataclasses.dataclass

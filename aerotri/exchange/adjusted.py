@@ -34,6 +34,7 @@ class AdjustedBlock:
     crs: str
     frame: LocalFrame
     camera: Camera  # the a-priori camera (camera.toml)
+    oriented: Camera  # the camera of the orientations (at/camera.toml), with what Cal3DS2 does not hold (k3)
     cal: np.ndarray  # (9,) interior orientation of at/camera.toml, Cal3DS2 order: fx fy skew u0 v0 k1 k2 p1 p2 (px)
     image_id: list
     centre_local: np.ndarray  # (N, 3) projection centres, ENU
@@ -45,6 +46,7 @@ class AdjustedBlock:
     obs_point: np.ndarray  # (K,) index into the points
     obs_image: np.ndarray  # (K,) index into the images
     obs_xy_px: np.ndarray  # (K, 2) measured pixel coordinates (a known k3 taken off, as the adjustment saw them)
+    obs_measured_px: np.ndarray  # (K, 2) the same measurements as measured (pixels of the image files)
     control_id: np.ndarray  # control points in the adjustment, not rejected
     control_kind: np.ndarray
     control_xyz_m: np.ndarray  # (C, 3) given coordinates, project CRS
@@ -87,7 +89,8 @@ def read_adjusted_block(root) -> AdjustedBlock:
     frame = LocalFrame(project.crs, frame_info["origin_map"])
     camera = project_camera(project)  # a priori: it prepared the measurements the adjustment saw
     # the orientations' own camera from its file, at full precision (report.json rounds to 8 decimals)
-    cal = oriented_camera(project)[0].calibration_vector()
+    oriented = oriented_camera(project)[0]
+    cal = oriented.calibration_vector()
     # the projection centres checked against the project CRS (another zone's numbers, swapped X/Y)
     eo = read_eo(project.eo_path, check_block_crs(project.crs, f"{project.config_path} [project] crs"))
     centre_local = frame.to_local(eo.centre_m)
@@ -99,7 +102,8 @@ def read_adjusted_block(root) -> AdjustedBlock:
         obs.append(read_image_points(project.control_image_points_path))
     pid = np.concatenate([o.point_id for o in obs]).astype(str)
     iid = np.concatenate([o.image_id for o in obs]).astype(str)
-    xy = camera.calibration_observations(np.vstack([o.xy_px for o in obs]))
+    measured = np.vstack([o.xy_px for o in obs])
+    xy = camera.calibration_observations(measured)
     removed = {(r["point_id"], r["image_id"]) for r in report.get("removed_observations", [])}
     point_index = {p: j for j, p in enumerate(ids.astype(str))}
     image_index = {i: n for n, i in enumerate(eo.image_id)}
@@ -115,10 +119,12 @@ def read_adjusted_block(root) -> AdjustedBlock:
         control_id = control_kind = np.zeros(0, object)
         control_xyz = np.zeros((0, 3))
     return AdjustedBlock(
-        project_name=project.name, crs=project.crs, frame=frame, camera=camera, cal=cal, image_id=list(eo.image_id),
+        project_name=project.name, crs=project.crs, frame=frame, camera=camera, oriented=oriented, cal=cal,
+        image_id=list(eo.image_id),
         centre_local=centre_local, R_cv=R_cv, point_id=ids, point_kind=kinds, points_local=frame.to_local(xyz_map),
         point_rms_px=rms, obs_point=np.array([point_index[p] for p in pid[keep]], int),
-        obs_image=np.array([image_index[i] for i in iid[keep]], int), obs_xy_px=xy[keep], control_id=control_id,
+        obs_image=np.array([image_index[i] for i in iid[keep]], int), obs_xy_px=xy[keep],
+        obs_measured_px=measured[keep], control_id=control_id,
         control_kind=control_kind, control_xyz_m=control_xyz,
     )
 

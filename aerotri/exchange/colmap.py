@@ -1,7 +1,7 @@
 """COLMAP models: export (text ``colmap/`` and binary ``colmap_bin/``) and import (text or binary).
 
 Export: one camera (OPENCV for a Brown camera, FULL_OPENCV when k3 is not zero, PINHOLE for a pinhole)
-with the adjusted interior orientation; poses world-to-camera (computer-vision camera frame: x right, y
+with the adjusted interior orientation (at/camera.toml, a known k3 included; the 2D points as measured); poses world-to-camera (computer-vision camera frame: x right, y
 down, z forward) in the adjustment's local ENU frame; pixel coordinates shifted by +0.5 (COLMAP's origin
 is the corner of the top-left pixel, ours the centre); image names are the image files' names in
 ``images/`` (with their extension), so COLMAP finds the frames. The binary model is the text model
@@ -85,21 +85,20 @@ def georef_text(block: AdjustedBlock) -> str:
     return ("# aerotri: the world frame of this COLMAP model (ENU tangent plane at origin_map, aerotri.geom.local_frame)\n"
             "frame local_enu\n"
             f"crs {block.crs}\n"
-            f"origin_map {o[0]:.4f} {o[1]:.4f} {o[2]:.4f}\n"
+            f"origin_map {float(o[0])!r} {float(o[1])!r} {float(o[2])!r}\n"  # in full: poses and points hang on it
             f"pixel_um {block.camera.pixel_um!r}\n")
 
 
 def files(block: AdjustedBlock, image_names: dict | None = None) -> list[ExportFile]:
     """The text model ``colmap/``; ``image_names``: image id -> file name (default: the id)."""
-    fx, fy, _, u0, v0 = block.cal[:5]
-    cam = block.camera
-    # the model of the camera the measurements fit (COLMAP's PARAMS start fx fy cx cy in every model we
-    # write; fx and fy as adjusted, the rest as the model gives them)
-    model, params = cam.calibration_camera(block.cal).colmap_model()
+    cam = block.oriented
+    # the camera of the orientations with all of its model (a known k3 too: FULL_OPENCV) and the measurements
+    # as measured, so that the model fits the image files (COLMAP's PARAMS start fx fy cx cy in every model)
+    model, params = cam.colmap_model()
     origin = block.frame.origin_map
     head = f"# local ENU frame of the adjustment, origin {origin[0]:.3f} {origin[1]:.3f} {origin[2]:.3f} in {block.crs}"
     cams = [head, "# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]",
-            f"1 {model} {cam.width} {cam.height} {fx:.6f} {fy:.6f} {u0 + 0.5:.6f} {v0 + 0.5:.6f}"
+            f"1 {model} {cam.width} {cam.height} " + " ".join(f"{v:.6f}" for v in params[:4])
             + "".join(f" {v:.10g}" for v in params[4:])]
     used = np.unique(block.obs_point)
     pid3 = {int(j): n + 1 for n, j in enumerate(used)}
@@ -117,7 +116,7 @@ def files(block: AdjustedBlock, image_names: dict | None = None) -> list[ExportF
         pts = []
         for n, k in enumerate(by_image[bounds[i]:bounds[i + 1]].tolist()):
             j = int(block.obs_point[k])
-            pts.append(f"{block.obs_xy_px[k, 0] + 0.5:.3f} {block.obs_xy_px[k, 1] + 0.5:.3f} {pid3[j]}")
+            pts.append(f"{block.obs_measured_px[k, 0] + 0.5:.3f} {block.obs_measured_px[k, 1] + 0.5:.3f} {pid3[j]}")
             track[j].append(f"{i + 1} {n}")
         imgs.append(" ".join(pts))
     p3 = [head, "# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"]

@@ -22,6 +22,7 @@ from aerotri.core.textio import read_text
 TIE_HEADER = ["point_id", "image_id", "x_px", "y_px"]
 CONTROL_HEADER = ["id", "kind", "x", "y", "z", "sx_m", "sy_m", "sz_m"]
 CONTROL_KINDS = ("full", "horizontal", "height", "check")
+KIND_COMPONENTS = {"horizontal": (True, True, False), "height": (False, False, True)}  # x y z surveyed; others all
 COINCIDENT_PX = 2.0  # two different control points measured closer than this in one frame: one is mislabelled
 
 
@@ -54,15 +55,25 @@ class ControlPoints:
     kind: np.ndarray  # (M,) str, one of CONTROL_KINDS
     xyz_m: np.ndarray  # (M, 3)
     sigma_m: np.ndarray  # (M, 3)
+    measured: np.ndarray | None = None  # (M, 3) bool: the coordinates surveyed (None: those of the kind)
 
     def __len__(self):
         return len(self.id)
 
+    def measured_xyz(self) -> np.ndarray:
+        """(M, 3) bool: which of x, y, z each point was surveyed in (a horizontal point made a check point
+        keeps its unmeasured height out of the check)."""
+        if self.measured is not None:
+            return self.measured
+        return np.array([KIND_COMPONENTS.get(k, (True, True, True)) for k in self.kind], bool).reshape(-1, 3)
+
     def subset(self, mask) -> "ControlPoints":
-        return ControlPoints(self.id[mask], self.kind[mask], self.xyz_m[mask], self.sigma_m[mask])
+        return ControlPoints(self.id[mask], self.kind[mask], self.xyz_m[mask], self.sigma_m[mask],
+                             None if self.measured is None else self.measured[mask])
 
     def with_kinds(self, kinds: dict[str, str]) -> "ControlPoints":
-        """A copy with the kind of some points changed (e.g. ``{"gcp03": "check"}``)."""
+        """A copy with the kind of some points changed (e.g. ``{"gcp03": "check"}``); the coordinates each
+        point was surveyed in stay (``measured_xyz``)."""
         unknown = sorted(set(kinds) - set(self.id.tolist()))
         if unknown:
             raise InputError(f"control points {unknown} are not in the control point file")
@@ -70,7 +81,7 @@ class ControlPoints:
         for i, pid in enumerate(self.id):
             if pid in kinds:
                 kind[i] = kinds[pid]
-        return ControlPoints(self.id.copy(), kind, self.xyz_m.copy(), self.sigma_m.copy())
+        return ControlPoints(self.id.copy(), kind, self.xyz_m.copy(), self.sigma_m.copy(), self.measured_xyz().copy())
 
 
 def _rows(path: Path, header: list[str], hint: str = ""):

@@ -139,18 +139,31 @@ def _json(path: Path) -> dict:
 
 
 def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
-    """The adjustment's check points (at/report.json): radial and height RMSE; their own accuracy from
-    ``[control]`` sigma_xy_m / sigma_z_m (the a-priori accuracy of the control and check points)."""
+    """The adjustment's check points (at/report.json): radial and height RMSE; their own accuracy from their
+    standard deviations in control/points.csv (``given_sigma_m`` of the report's rows: radial sqrt(sx^2 + sy^2)
+    and sz, RMS over the points), else ``[control]`` sigma_xy_m / sigma_z_m (a report written before the rows
+    carried them)."""
     if not at:
         return None
-    d = [c["d_m"] for c in at.get("check_points", []) if c.get("d_m") and None not in c["d_m"]]
-    if not d:
+    rows = [c for c in at.get("check_points", []) if c.get("d_m")]
+    # None: a coordinate not surveyed (the height of a plan-only check point) or not intersected
+    d = np.array([[np.nan if v is None else v for v in c["d_m"]] for c in rows], dtype=float).reshape(-1, 3)
+    h, v = np.isfinite(d[:, :2]).all(axis=1), np.isfinite(d[:, 2])
+    if not h.any() and not v.any():
         return CheckSet(note="no check points in the adjustment")
-    d = np.asarray(d, dtype=float)
-    src = ("[control] sigma_xy_m, sigma_z_m (a-priori accuracy of the control/check points)"
-           if control.sigma_xy_m is not None or control.sigma_z_m is not None else "not stated ([control] sigma_*)")
-    return CheckSet(rmse_h_m=F.rmse_h_of_points(d[:, 0], d[:, 1]), rmse_v_m=F.rmse(d[:, 2]), n_h=len(d), n_v=len(d),
-                    cp_rmse_h_m=F.checkpoint_rmse_h(control.sigma_xy_m), cp_rmse_v_m=control.sigma_z_m, cp_source=src)
+    given = [c.get("given_sigma_m") for c in rows]
+    if all(g is not None and None not in g for g in given):
+        s = np.asarray(given, dtype=float).reshape(-1, 3)
+        cp_h = float(np.sqrt(np.mean(s[h, 0] ** 2 + s[h, 1] ** 2))) if h.any() else None
+        cp_v = float(np.sqrt(np.mean(s[v, 2] ** 2))) if v.any() else None
+        src = "sx_m, sy_m, sz_m of the check points in control/points.csv (RMS)"
+    else:
+        cp_h, cp_v = F.checkpoint_rmse_h(control.sigma_xy_m), control.sigma_z_m
+        src = ("[control] sigma_xy_m, sigma_z_m (a-priori accuracy of the control/check points)"
+               if control.sigma_xy_m is not None or control.sigma_z_m is not None else "not stated ([control] sigma_*)")
+    return CheckSet(rmse_h_m=F.rmse_h_of_points(d[h, 0], d[h, 1]) if h.any() else None,
+                    rmse_v_m=F.rmse(d[v, 2]) if v.any() else None, n_h=int(h.sum()), n_v=int(v.sum()),
+                    cp_rmse_h_m=cp_h, cp_rmse_v_m=cp_v, cp_source=src)
 
 
 def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:

@@ -52,6 +52,11 @@ class EoComparison:
     per_frame: tuple[FrameDifference, ...]
     missing: tuple[str, ...]
     extra: tuple[str, ...]
+    note: str = ""  # why a figure is no independent check (the reference's centres are the project's GNSS)
+
+
+# gnss.txt within this of the reference's centres at every common frame: the GNSS came from the reference
+SAME_AS_GNSS_M = 0.01
 
 
 def _rms(a: np.ndarray) -> np.ndarray:
@@ -106,10 +111,33 @@ def compare_with_reference(root, format_name: str, files, crs: str | None = None
     if not project.eo_path.is_file():
         raise InputError(f"{project.eo_path}: not found (run aerotri adjust first)")
     result = compare_orientations(read_eo(project.eo_path), block.eo, tuple(str(f) for f in files))
+    result = dataclasses.replace(result, note=_gnss_from_reference(project, block.eo))
     record = {"schema_version": SCHEMA_VERSION, "kind": "eo comparison", **dataclasses.asdict(result)}
     write_text_atomic(project.root / "reports" / "eo_comparison.json",
                       json.dumps(record, indent=1, allow_nan=False) + "\n")
     return result
+
+
+def _gnss_from_reference(project: Project, reference: ExteriorOrientations) -> str:
+    """A note when gnss.txt holds the reference's own projection centres (a national AT imported with
+    ``--as-gnss``, as docs/your-own-block.md does): the centre differences then show how closely the adjustment
+    held its GNSS, not how right the centres are; the attitudes remain a check."""
+    from aerotri.geom.eo import read_gnss
+
+    if not project.gnss_path.is_file():
+        return ""
+    gnss = read_gnss(project.gnss_path)
+    at = {iid: k for k, iid in enumerate(gnss.image_id)}
+    k = [(at[iid], n) for n, iid in enumerate(reference.image_id) if iid in at]
+    if not k:
+        return ""
+    g, r = np.array(k).T
+    largest = float(np.linalg.norm(gnss.position_m[g] - reference.centre_m[r], axis=1).max())
+    if largest > SAME_AS_GNSS_M:
+        return ""
+    return (f"the reference's projection centres are this project's GNSS observations (gnss.txt within "
+            f"{largest:.3f} m of them at the {len(k)} common frames): the centre differences show how closely the "
+            f"adjustment held its GNSS, they are no independent check; the attitudes are")
 
 
 def summary_lines(c: EoComparison) -> list[str]:
@@ -127,4 +155,6 @@ def summary_lines(c: EoComparison) -> list[str]:
                      + (" ..." if len(c.missing) > 5 else "") + ")")
     if c.extra:
         lines.append(f"  only in the reference: {len(c.extra)} frames")
+    if c.note:
+        lines.append(f"  note: {c.note}")
     return lines

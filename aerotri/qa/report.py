@@ -473,7 +473,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if at:
         rows += leave_one_out_rows(project, sec)
     chk = at.check_rms_m if at else None
-    if chk and None not in chk:
+    if chk and None not in chk[:2]:  # chk[2] None: plan-only check points (heights not surveyed), no height row
         n = at.check_points
         need = tol.get("check_points_min")
         npts = f"{n} points"
@@ -485,18 +485,22 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                                                 if n < need else ""), key="check_points_min"))
         rows.append(_check("check_rms_xy_m", sec, "check points, plan RMS", _hypot(chk[0], chk[1]), tol.get("rms_xy_m"),
                            "m", note=npts, key="rms_xy_m"))
-        rows.append(_check("check_rms_z_m", sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m", note=npts,
-                           key="rms_z_m"))
+        if chk[2] is not None:
+            nz = sum(math.isfinite(c) for _, _, c in at.check_residuals_m)
+            rows.append(_check("check_rms_z_m", sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m",
+                               note=npts if nz == n else f"{nz} of the {npts} with a surveyed height", key="rms_z_m"))
         d = at.check_residuals_m
         # Gross errors: single residuals beyond the residual limit (2 x the RMS limit); a few percent
         # of them is tolerated (their share is limited, not their existence).
         for k, (name, lim) in enumerate((("plan", tol.get("residual_xy_m")), ("height", tol.get("residual_z_m")))):
-            if d and lim:
-                big = sum((math.hypot(a, b) if k == 0 else abs(c)) > lim for a, b, c in d)
+            e = [math.hypot(a, b) if k == 0 else abs(c) for a, b, c in d]
+            e = [x for x in e if math.isfinite(x)]  # heights not surveyed are no residuals
+            if e and lim:
+                big = sum(x > lim for x in e)
                 rows.append(_check(f"check_gross_{'xy' if k == 0 else 'z'}_pct", sec,
                                    f"check points with a {name} residual beyond {lim:g} m",
-                                   round(100.0 * big / len(d), 2), tol.get("gross_error_max_pct"), "%",
-                                   note=f"{big} of {len(d)}", key="gross_error_max_pct"))
+                                   round(100.0 * big / len(e), 2), tol.get("gross_error_max_pct"), "%",
+                                   note=f"{big} of {len(e)}", key="gross_error_max_pct"))
 
     # DOM
     sec = "DOM"

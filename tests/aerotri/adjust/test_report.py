@@ -123,3 +123,78 @@ def test_weak_mode_names_its_three_sigma_figure():
     assert [w[0].mode for w in weak] == ["bending"]
     assert weak[0][1] == ("bending sigma 0.342 m, 3 sigma (1.03 m) above the 1.00 m height limit "
                           "(determined by surface 59%, image 41%)")
+
+
+def test_a_plan_only_point_given_as_check_point_is_no_height_check(tmp_path):
+    """``--check`` on a horizontal control point (the kite block's targets: heights 0, not surveyed): its
+    height difference was reported (0.59 m RMS over the kite's 4 targets, "check points, height RMS" failed
+    against ASPRS's 0.035 m); it is no check, so dZ is None and the height RMS is that of the points surveyed
+    in height."""
+    from aerotri.adjust.report_record import adjustment_record
+    from aerotri.core.project import ControlPointSettings
+    from aerotri.qa.compliance import at_checks
+
+    block = geometric_block(2, 5, seed=11)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=6, seed=5)
+    path = root / "control" / "points.csv"
+    head, *rows = path.read_text().splitlines()
+    rows = [",".join([f[0], "horizontal", f[2], f[3], "0.0", *f[5:]]) if f[0] == "gcp05" else ",".join(f)
+            for f in (r.split(",") for r in rows)]
+    path.write_text("\n".join([head] + rows) + "\n")
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3, check=("gcp05",)))
+    rep = to_record(report.build_report(ba))
+    row = {r["id"]: r for r in rep["check_points"]}
+    assert row["gcp05"]["d_m"][2] is None and None not in row["gcp05"]["d_m"][:2]
+    assert row["gcp05"]["given_sigma_m"] == pytest.approx([0.03, 0.03, 0.05])  # control/points.csv's, for the QA
+    d = np.array([r["d_m"] for r in rep["check_points"]], float)  # None -> NaN
+    full = np.array([r["d_m"] for i, r in row.items() if i != "gcp05"], float)
+    assert len(full) == 6 and np.isfinite(full).all()
+    assert rep["check_rms_m"][2] == pytest.approx(np.sqrt(np.mean(full[:, 2] ** 2)), abs=1e-4)
+    assert rep["check_rms_m"][:2] == pytest.approx(list(np.sqrt(np.mean(d[:, :2] ** 2, axis=0))), abs=1e-4)
+    assert abs(rep["check_rms_m"][2]) < 1.0  # gcp05's adjusted height minus 0 is the block's terrain height
+    assert "gcp05" in report.format_txt(rep) and "gcp05" in report.format_html(rep, ba)
+    # every check point plan-only (the kite's): no height figure at all, and the reports say so, not a TypeError
+    plan_only = dict(rep, check_rms_m=rep["check_rms_m"][:2] + [None],
+                     check_normalised_rms=rep["check_normalised_rms"][:2] + [None])
+    assert "normalised check errors (d / sigma), RMS X Y Z: " in report.format_txt(plan_only)
+    report.format_html(plan_only, ba)
+    rec = adjustment_record(json.loads(json.dumps(rep, default=float)))
+    assert len(rec.check_residuals_m) == 7
+    cs = at_checks(json.loads(json.dumps(rep, default=float)), ControlPointSettings())
+    assert (cs.n_h, cs.n_v) == (7, 6)
+    assert cs.rmse_v_m == pytest.approx(np.sqrt(np.mean(full[:, 2] ** 2)), abs=1e-4)
+    assert cs.rmse_h_m == pytest.approx(np.sqrt(np.mean(d[:, 0] ** 2 + d[:, 1] ** 2)), abs=1e-4)
+
+
+def test_the_verdict_names_control_left_out_by_the_data_snooping(tmp_path):
+    """A control point 3 m off is thrown out by the data snooping; the verdict said "Solution Successful." and
+    nothing else (the kite block with two targets' labels swapped in one frame: "the last solve did not
+    converge", 5 of its 10 targets out, none named)."""
+    block = geometric_block(2, 5, seed=7)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=6, points_per_image=80, n_check=4, seed=2,
+                             bad_control_shift_m=3.0)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
+    assert [str(ba.control.id[c]) for c, _ in ba.result.rejected_control] == ["gcp01"]
+    ks = to_record(report.build_report(ba))["key_statistics"]
+    w = ba.result.rejected_control[0][1]
+    assert f"Control left out by the data snooping: 1 of 6 points (gcp01 w = {w:.2f})" in ks["message"]
+
+
+def test_check_points_given_as_a_comma_separated_list(tmp_path):
+    """``--check gcp05,gcp07`` (as ``--self-cal pp,radial`` is given) stopped with "control points
+    ['gcp05,gcp07'] are not in the control point file"; now the ids are split, and an unknown one is named alone."""
+    from click.testing import CliRunner
+
+    from aerotri.cli import main as aerotri_cli
+
+    block = geometric_block(2, 5, seed=11)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=2, seed=5)
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--check", "gcp04,nope", "--image-sigma-px", "0.3"])
+    assert r.exit_code == 2 and "['nope']" in r.output, r.output
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--check", "gcp04, gcp05", "--image-sigma-px", "0.3"])
+    assert r.exit_code == 0, r.output
+    ids = {c["id"] for c in json.loads((root / "at" / "report.json").read_text())["check_points"]}
+    assert {"gcp04", "gcp05", "chk01", "chk02"} <= ids

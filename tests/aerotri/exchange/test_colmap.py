@@ -179,3 +179,55 @@ def test_foreign_model_in_geocentric_coordinates(adjusted_tiny, tmp_path, fresh_
     assert back.image_id == eo.image_id
     assert np.abs(back.centre_m - eo.centre_m).max() < 1e-3
     assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6
+
+
+def test_a_known_k3_is_in_the_exported_camera_and_the_points_as_measured(tmp_path):
+    """A camera whose certificate gives k3 (held fixed; Cal3DS2 has none, the adjustment takes it off the
+    measurements): COLMAP's model must still describe the image files. It was exported as OPENCV without k3
+    and with the k3-shifted measurements: 1.4 px RMS (7 px at the corners) from the lens on the demo's frames."""
+    import dataclasses
+
+    import pycolmap
+
+    from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
+    from aerotri.geom.observations import read_image_points
+    from aerotri.sim.observations import geometric_block, true_dmc_camera, write_block_project, write_truth_observations
+
+    cam = dataclasses.replace(true_dmc_camera(), k3=1.0e-3)  # about 2 px at the corners of a DMC frame
+    block = geometric_block(2, 5, seed=7, camera_true=cam)
+    block = dataclasses.replace(block, camera_nominal=dataclasses.replace(block.camera_nominal, k3=cam.k3))
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=4, seed=2)
+    run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3, self_calibration=("pp", "radial")))
+    export_project(root, ["colmap"], tmp_path / "out")
+    blk = read_adjusted_block(root)
+    lens = oriented_camera(Project.open(root))[0]
+    assert lens.k3 == cam.k3
+    rec = pycolmap.Reconstruction(str(tmp_path / "out" / "colmap"))
+    (camera,) = rec.cameras.values()
+    assert camera.model.name == "FULL_OPENCV" and camera.params[8] == pytest.approx(cam.k3)
+    by_name = {im.name: im for im in rec.images.values()}
+    theirs = np.array([by_name[blk.image_id[i]].project_point(blk.points_local[j]) for i, j in zip(blk.obs_image, blk.obs_point)])
+    ours = np.array([lens.project(blk.points_local[j], blk.centre_local[i], blk.R_cv[i] @ FLIP_YZ)[:2]
+                     for i, j in zip(blk.obs_image, blk.obs_point)])[:, :, 0]
+    assert np.abs(theirs - 0.5 - ours).max() < 0.01
+    # the 2D points are the measurements of tiepoints.csv, as measured
+    tie = read_image_points(root / "at" / "tiepoints.csv")
+    measured = {(p, i): xy for p, i, xy in zip(tie.point_id.astype(str), tie.image_id.astype(str), tie.xy_px)}
+    pid = {n + 1: str(blk.point_id[j]) for n, j in enumerate(np.unique(blk.obs_point))}  # the export's numbering
+    assert sorted(rec.points3D) == sorted(pid)
+    got = [(im.points2D[n].xy - 0.5, measured[(pid[int(im.points2D[n].point3D_id)], im.name)])
+           for im in rec.images.values() for n in range(len(im.points2D)) if (pid[int(im.points2D[n].point3D_id)], im.name) in measured]
+    assert len(got) > 100
+    assert max(np.abs(a - b).max() for a, b in got) < 1e-3
+
+
+@pytest.mark.parametrize("folder", ["colmap", "colmap_bin"])
+def test_georef_origin_in_full(exported, folder):
+    """The model's world frame is the adjustment's to the micrometre: the origin was written to 0.1 mm, and a
+    kite block (21 m above ground, f 5747 px) then reprojected through georef.txt up to 0.017 px off."""
+    from aerotri.exchange.colmap import read_georef
+
+    root, out = exported
+    origin = np.array(read_georef(out / folder).origin_map)
+    assert np.abs(origin - read_adjusted_block(root).frame.origin_map).max() < 1e-6

@@ -296,3 +296,28 @@ def test_lidar_only_density_from_where_the_docs_commands_write(tmp_path):
     rep = write_qa_report(tmp_path, standard="usgs-lbs")
     dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
     assert dens["figure"] is None and "nor a classified cloud" not in dens["why"]
+
+
+def test_at_check_points_accuracy_from_their_own_sigmas():
+    """The check points' survey accuracy is what control/points.csv states for them (the report's rows carry
+    it); it said "accuracy unknown" unless [control] sigma_* was set, and the kite's 4 handheld-GNSS targets
+    (1 m per axis) counted as exact: RMSE_H 1.409 m, finest class H282.8cm instead of 1.996 m, H500cm."""
+    from aerotri.core.project import ControlPointSettings
+    from aerotri.qa.compliance import at_checks
+
+    d = [[1.4482, 1.2725, None], [-0.40, -1.20, None], [0.60, 0.90, None], [-0.50, 0.60, None]]  # plan-only
+    at = {"check_points": [{"id": f"gcp0{k}", "d_m": r, "given_sigma_m": [1.0, 1.0, 5.0]} for k, r in enumerate(d)]}
+    cs = at_checks(at, ControlPointSettings())
+    rmse_h = math.sqrt(sum(a * a + b * b for a, b, _ in d) / 4)
+    assert cs.rmse_h_m == pytest.approx(rmse_h, abs=1e-6) and cs.rmse_v_m is None and (cs.n_h, cs.n_v) == (4, 0)
+    assert cs.cp_rmse_h_m == pytest.approx(math.sqrt(2.0)) and cs.cp_rmse_v_m is None
+    assert "control/points.csv" in cs.cp_source
+    comp = judge(Figures(at=cs), Choice("asprs2023", "H3.5cm V5cm", "t", h_cm=3.5, v_cm=5.0))
+    (c,) = _by(comp, "Aerotriangulation", "check points, RMSE_H")
+    assert c.figure == pytest.approx(math.hypot(rmse_h, math.sqrt(2.0)), abs=1e-4)
+    assert c.finest_class == "H500cm"  # the AT held to half the class: 2 x 1.996 m -> the ladder's 500 cm
+    assert c.checkpoints_accurate is False  # 1.41 m is not twice as accurate as 3.5 cm
+    # a report written before the rows carried the sigmas: [control]'s, as before
+    old = {"check_points": [{"id": "a", "d_m": [0.1, 0.1, 0.1]}]}
+    assert at_checks(old, ControlPointSettings(sigma_xy_m=0.02, sigma_z_m=0.03)).cp_rmse_h_m == pytest.approx(0.02 * math.sqrt(2))
+    assert at_checks(old, ControlPointSettings()).cp_rmse_h_m is None

@@ -60,3 +60,25 @@ def test_bad_input_is_one_clear_error(tmp_path):
     assert not (root / "reports" / "eo_comparison.json").exists()
     r = CliRunner().invoke(aerotri_cli, ["compare", str(root), "--format", "orthority", str(tmp_path / "none.csv")])
     assert r.exit_code == 2 and "none.csv: not found" in r.output
+
+
+def test_centres_that_are_the_projects_gnss_are_no_check(tmp_path):
+    """docs/your-own-block.md imports the NGI national AT's centres as GNSS and compares with the same AT: the
+    centres then agree to 0.002 m RMS by construction, and nothing said so."""
+    root, ids, centre, opk = _project(tmp_path / "p")
+    ref = tmp_path / "ext_param.csv"
+    rows = ["filename,x,y,z,omega,phi,kappa"] + [f"{iid},{x:.4f},{y:.4f},{z:.4f},{o:.7f},{p:.7f},{k:.7f}"
+                                                 for iid, (x, y, z), (o, p, k) in zip(ids, centre + 0.002, opk)]
+    ref.write_text("\n".join(rows) + "\n")
+    args = ["compare", str(root), "--format", "orthority", "--crs", "EPSG:32632", str(ref)]
+    r = CliRunner().invoke(aerotri_cli, args)
+    assert r.exit_code == 0 and "note:" not in r.output  # no gnss.txt: nothing to say
+    (root / "gnss.txt").write_text("".join(f"{iid} {x:.4f} {y:.4f} {z:.4f} 0.05 0.05 0.05\n"
+                                           for iid, (x, y, z) in zip(ids, centre + 0.002)))
+    r = CliRunner().invoke(aerotri_cli, args)
+    assert r.exit_code == 0, r.output
+    assert "note: the reference's projection centres are this project's GNSS observations" in r.output
+    assert "no independent check" in json.loads((root / "reports" / "eo_comparison.json").read_text())["note"]
+    # GNSS of its own (0.5 m from the reference): a real check, no note
+    (root / "gnss.txt").write_text("".join(f"{iid} {x:.4f} {y:.4f} {z:.4f}\n" for iid, (x, y, z) in zip(ids, centre + 0.5)))
+    assert "note:" not in CliRunner().invoke(aerotri_cli, args).output
