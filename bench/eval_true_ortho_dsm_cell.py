@@ -34,6 +34,11 @@ made.json records the commit that made it). ``+cb``: tree crown bases in the occ
 over it), on the demo the LiDAR's (``lidarctl.rasters.crown_base``: the lowest vegetation return of the cell and its
 neighbours, from the chain's classified strips); ``+cbl`` on a tall block the LiDAR's (its simulated strips, true
 classes). Blocks ``tall2``, ``tall3``: the tall preset with other seeds (``--tall2``, ``--tall3``), as ``tall``.
+``lidarn``: the LiDAR stages' nearest-return DSM (``lidarctl rasters``' dsm_nearest.tif) for the heights and the
+occlusion test; ``+occn``: the DSM for the heights, the occlusion test on dsm_nearest.tif (``ortho rectify
+--occlusion-dsm``, the chain's default). On the demo these rasters are the chain's (lidar_out/, ``lidar`` its
+dsm.tif); on a tall block ``lidarctl rasters`` of its simulated strips with their true classes
+(``DIR/<block>/lidar_rasters``, made once; ``lidar`` there is that dsm.tif).
 Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other keys kept).
 """
 
@@ -354,13 +359,45 @@ def lidar_crown_base(src: Path, tall: bool, like: Path, out: Path) -> int:
     return int(np.isfinite(base).sum())
 
 
-def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None) -> dict:
-    """The true ortho DOM of ``project`` on its lidar_out/dsm.tif (``footprints``, ``crown_base``: in the occlusion
-    test): ``eval_true_ortho_occlusion.make_dom``; the rectify and mosaic times."""
+def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None,
+             occlusion_dsm=None) -> dict:
+    """The true ortho DOM of ``project`` on its lidar_out/dsm.tif (``footprints``, ``crown_base``, ``occlusion_dsm``:
+    in the occlusion test): ``eval_true_ortho_occlusion.make_dom``; the rectify and mosaic times."""
     from eval_true_ortho_occlusion import make_dom as occlusion_make_dom
 
     return occlusion_make_dom(project, True, eo_path=eo_path, camera_path=camera_path, footprints=footprints,
-                              crown_base=crown_base)
+                              crown_base=crown_base, occlusion_dsm=occlusion_dsm)
+
+
+def lidar_rasters(name: str, src: Path, work: Path, tall: bool) -> Path:
+    """The folder of the block's ``lidarctl rasters`` products (dsm.tif, dsm_nearest.tif): the demo's lidar_out; a
+    tall block's made once into ``work/<name>/lidar_rasters`` from its simulated strips with their true classes
+    (classified copies in a temporary folder); the CPU seconds in ``made.json`` there."""
+    if not tall:
+        return src / "lidar_out"
+    import shutil
+
+    import laspy
+
+    from lidarctl.rasters.products import write_rasters
+
+    out = work / name / "lidar_rasters"
+    if (out / "made.json").exists():
+        return out
+    tmp = work / name / "classified_tmp"
+    tmp.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for q in sorted((src / "lidar").glob("*.la[sz]")):
+        las = laspy.read(q)
+        las.classification = laspy.read(src / "truth" / "lidar" / q.name).classification
+        las.write(tmp / q.name)
+        paths.append(tmp / q.name)
+    t, c = time.perf_counter(), time.process_time()
+    write_rasters(paths, out, 0.5)
+    made = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "strips": [p.name for p in paths]}
+    shutil.rmtree(tmp)
+    (out / "made.json").write_text(json.dumps(made, indent=1) + "\n")
+    return out
 
 
 def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
@@ -409,6 +446,14 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 fp_path = p / "truth" / "footprints.gpkg"
                 write_footprints_gpkg(p / "truth" / "buildings.geojson", fp_path, Project.open(p).crs)
             cast_s = 0.0
+            occlusion_dsm = None
+            if cell in ("lidar", "lidarn") or "occn" in flags:
+                rasters_dir = lidar_rasters(name, src, work, tall)
+                if "occn" in flags:
+                    occlusion_dsm = rasters_dir / "dsm_nearest.tif"
+                if cell == "lidarn" or (cell == "lidar" and tall):
+                    shutil.copy2(rasters_dir / ("dsm_nearest.tif" if cell == "lidarn" else "dsm.tif"),
+                                 p / "lidar_out" / "dsm.tif")
             if cell == "0.5" and tall:
                 pass  # copy_tall put truth/dsm.tif there
             elif cell in POINT_DSMS:
@@ -416,7 +461,7 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                     points = block_first_returns(src, tall)
                 like = src / ("truth" if tall else "lidar_out") / "dsm.tif"
                 point_dsm = write_points_dsm(cell, *points, like, p / "lidar_out" / "dsm.tif")
-            elif cell != "lidar":
+            elif cell not in ("lidar", "lidarn"):
                 cast_s = write_fine_dsm(src, truth, float(cell), p / "lidar_out" / "dsm.tif")
             crown_path, crown_cells = None, None
             if "cb" in flags or "cbl" in flags:
@@ -424,7 +469,8 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 like = p / "lidar_out" / "dsm.tif"
                 crown_cells = (truth_crown_base(truth, like, crown_path) if tall and "cb" in flags
                                else lidar_crown_base(src, tall, like, crown_path))
-            made = make_dom(p, footprints=fp_path, crown_base=crown_path, **kw)
+            made = make_dom(p, footprints=fp_path, crown_base=crown_path, occlusion_dsm=occlusion_dsm, **kw)
+            made["occlusion_dsm"] = str(occlusion_dsm) if occlusion_dsm else None
             made["dsm_ray_cast_s"] = cast_s
             made["footprints"] = str(fp_path) if fp_path else None
             made["crown_base"] = {"path": str(crown_path), "cells": crown_cells} if crown_path else None
@@ -436,6 +482,7 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
         made = json.loads(made_path.read_text())
         res = {"rectify": made["rectify"], "dsm_ray_cast_s": made["dsm_ray_cast_s"], "point_dsm": made.get("point_dsm"),
                "footprints": made.get("footprints"), "crown_base": made.get("crown_base"),
+               "occlusion_dsm": made.get("occlusion_dsm"),
                "made_at_commit": made.get("commit"),
                "roofs": roof_displacements(p / "ortho" / "mosaic.tif", p / "truth" / "ortho.tif",
                                            p / "truth" / "roof_corners.csv")}
@@ -478,6 +525,8 @@ def main() -> None:
                       f"--blocks '{args.blocks}' --key {args.key}")
     key["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()
+    for spec in args.blocks.split(";"):   # the command that made each block (a key can be filled block by block)
+        key.setdefault("commands", {})[spec.split(":")[0]] = {"command": key["command"], "commit": key["commit"]}
     store_result(args.out, key, key=args.key)
 
 

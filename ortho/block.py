@@ -269,6 +269,9 @@ class FrameTask:
     # shared by the frames' tasks in a process (``_frame_occluder``); None: built per frame
     occluder_bounds_m: tuple | None = None
     crown_base_path: str | None = None  # true ortho: tree crown bases on the DSM's grid in the occlusion test
+    # true ortho: the DSM of the occlusion test (footprints and crown bases on its grid) when it is not ``dsm_path``,
+    # whose heights the ortho is rectified on (e.g. lidar_out/dsm_nearest.tif beside dsm.tif)
+    occlusion_dsm_path: str | None = None
     # per-frame resume: the finished frame ortho and its index entry are kept in ``resume_dir`` under ``resume_key``
     # (``_resume_key``: everything the frame ortho depends on) until the stage commits, so that a run killed at
     # frame 2,900 of 3,000 redoes 100 frames, not 3,000
@@ -319,11 +322,12 @@ def _block_footprint_cells(task: FrameTask, project_crs):
     ``SHARED_FOOTPRINT_CELLS_MAX``."""
     from ortho.footprints import footprint_cells, read_footprints
 
-    key = (task.dsm_path, task.footprints_path, task.occluder_bounds_m, task.project_crs_wkt,
-           *((st.st_size, st.st_mtime_ns) for st in (os.stat(task.dsm_path), os.stat(task.footprints_path))))
+    occlusion_path = task.occlusion_dsm_path or task.dsm_path
+    key = (occlusion_path, task.footprints_path, task.occluder_bounds_m, task.project_crs_wkt,
+           *((st.st_size, st.st_mtime_ns) for st in (os.stat(occlusion_path), os.stat(task.footprints_path))))
     with _shared_cells_lock:
         if _shared_cells.get("key") != key:
-            with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds:
+            with open_height_raster(occlusion_path, project_crs, "DSM") as dsm_ds:
                 win = height_window(dsm_ds, task.occluder_bounds_m, margin_m=4 * dsm_ds.transform.a, what="DSM")
                 t = dsm_ds.transform
             # the corner as read_height_window puts it
@@ -368,7 +372,8 @@ def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_c
                                    frame=task.image_id, height_operation=height_op)
     if (crown.heights_m.shape != heights.heights_m.shape or crown.res_m != heights.res_m
             or crown.x_left_m != heights.x_left_m or crown.y_top_m != heights.y_top_m):
-        raise InputError(f"{task.crown_base_path}: the crown base raster is not on the DSM's grid ({task.dsm_path}: "
+        raise InputError(f"{task.crown_base_path}: the crown base raster is not on the DSM's grid "
+                         f"({task.occlusion_dsm_path or task.dsm_path}: "
                          f"{heights.res_m:g} m cells); expected the grid of the DSM, e.g. both from lidarctl")
     return crown.heights_m
 
@@ -404,7 +409,7 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
             continue
         v = getattr(task, f.name)
         doc[f.name] = _camera_sha256(v) if f.name == "camera" else repr(v) if dataclasses.is_dataclass(v) else v
-    for f in ("image_path", "dem_path", "dsm_path", "footprints_path", "crown_base_path"):
+    for f in ("image_path", "dem_path", "dsm_path", "footprints_path", "crown_base_path", "occlusion_dsm_path"):
         path = getattr(task, f)
         if path:
             st = os.stat(path)
@@ -452,14 +457,20 @@ def _rectify_frame(task: FrameTask) -> dict:
                                          frame=task.image_id, height_operation=height_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs)
+    surface = heights    # of the occlusion test: the DSM itself (the same object: the maps' z-buffer test) or its own
+    if task.dsm_path and task.occlusion_dsm_path:
+        with open_height_raster(task.occlusion_dsm_path, project_crs, "DSM") as occ_ds, \
+                _raster_read(task.occlusion_dsm_path, "DSM"):
+            surface = read_height_window(occ_ds, ground_bounds, margin_m=4 * occ_ds.transform.a, what="DSM",
+                                         frame=task.image_id, height_operation=height_op)
     occluder = None
-    crown = _crown_base(task, heights, ground_bounds, project_crs, height_op) if task.dsm_path else None
+    crown = _crown_base(task, surface, ground_bounds, project_crs, height_op) if task.dsm_path else None
     if task.dsm_path and task.footprints_path:
-        occluder = _frame_occluder(task, heights, dem, project_crs, crown)
+        occluder = _frame_occluder(task, surface, dem, project_crs, crown)
     elif crown is not None:
         from ortho.footprints import with_crown_base
 
-        occluder = with_crown_base(None, heights.heights_m, crown)
+        occluder = with_crown_base(None, surface.heights_m, crown)
     # the ground the frame images (its border rays on the DEM, as ``frame_grid``): the frame's grid, and (every
     # 4th ray: 16 a side) the ring in index.json by which the mosaic counts the empty cells no frame sees
     footprint = footprint_polygon_xy(task.camera, C, R, dem, to_project=to_project, image_id=task.image_id,
@@ -469,7 +480,7 @@ def _rectify_frame(task: FrameTask) -> dict:
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
-                                           occlusion_dsm=heights if task.dsm_path else None, occluder=occluder,
+                                           occlusion_dsm=surface if task.dsm_path else None, occluder=occluder,
                                            compression=task.compression, threads=task.threads,
                                            max_view_angle_deg=task.max_view_angle_deg,
                                            tags=operation_tags(to_project.record(),
@@ -593,6 +604,11 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     crown_base = Path(s.crown_base) if s.crown_base and true_ortho else None
     if crown_base is not None:
         open_height_raster(crown_base, project_crs, "crown base").close()
+    occlusion_dsm = Path(s.occlusion_dsm) if s.occlusion_dsm and true_ortho else None
+    if occlusion_dsm is not None and occlusion_dsm.resolve() == Path(dsm_path).resolve():
+        occlusion_dsm = None      # the DSM itself
+    if occlusion_dsm is not None:
+        open_height_raster(occlusion_dsm, project_crs, "occlusion DSM").close()
     out_dir = project.ortho_dir / "frames"
     # what a killed earlier run left of its atomic frames folder (.frames.part-*): one rectification per
     # project at a time, so nothing else writes there now
@@ -649,7 +665,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
                                   dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
                                   height_op=height_op, executor=executor, inputs=inputs,
                                   max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints,
-                                  crown_base=crown_base, resume_dir=resume_dir)
+                                  crown_base=crown_base, occlusion_dsm=occlusion_dsm, resume_dir=resume_dir)
             _shared_cells.clear()  # (this process's; the key names the files' sizes and times for the workers')
             if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
                 done = {e["image_id"] for e in index["frames"]}
@@ -704,7 +720,8 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, project_crs, dem_path, zlo, zhi,
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
                   inputs: dict, max_view_angle_deg: float = 90.0, footprints: Path | None = None,
-                  crown_base: Path | None = None, resume_dir: Path | None = None) -> dict:
+                  crown_base: Path | None = None, occlusion_dsm: Path | None = None,
+                  resume_dir: Path | None = None) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order). With
     ``resume_dir``: the frames an interrupted run of the same inputs finished are taken from there, the others
     kept there as they finish."""
@@ -724,7 +741,8 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        max_view_angle_deg=max_view_angle_deg,
                        footprints_path=str(footprints) if footprints is not None else None,
                        occluder_bounds_m=occluder_bounds,
-                       crown_base_path=str(crown_base) if crown_base is not None else None)
+                       crown_base_path=str(crown_base) if crown_base is not None else None,
+                       occlusion_dsm_path=str(occlusion_dsm) if occlusion_dsm is not None else None)
              for image_id, path in block.images.pairs()]
     resumed = {}
     if resume_dir is not None:
@@ -741,7 +759,8 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),
         "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None,
         "footprints": str(footprints) if footprints is not None else None,
-        **({"crown_base": str(crown_base)} if crown_base is not None else {}), "interpolation": interpolation,
+        **({"crown_base": str(crown_base)} if crown_base is not None else {}),
+        **({"occlusion_dsm": str(occlusion_dsm)} if occlusion_dsm is not None else {}), "interpolation": interpolation,
         "coordinate_operation": operation.record() if operation is not None else None,
         "operation": dataclasses.asdict(operation.spec()) if operation is not None else None,
         "height_operation": height_op.record() if height_op is not None else None,

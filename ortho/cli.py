@@ -49,6 +49,7 @@ def _settings(cls, project):
 @click_option(RectifySettings, "interpolation", "--interpolation")
 @click_option(RectifySettings, "true_ortho", "--true-ortho")
 @click_option(RectifySettings, "dsm", "--dsm")
+@click_option(RectifySettings, "occlusion_dsm", "--occlusion-dsm")
 @click_option(RectifySettings, "footprints", "--footprints")
 @click_option(RectifySettings, "crown_base", "--crown-base")
 @click_option(RectifySettings, "max_view_angle_deg", "--max-view-angle-deg")

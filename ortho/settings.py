@@ -44,7 +44,12 @@ class RectifySettings:
                                          "target CRS of the datum parameters, else the project CRS).")
     interpolation: str = setting("bilinear", choices=tuple(INTERPOLATION), help="Resampling of the frames.")
     true_ortho: bool = setting(False, help="Rectify on the DSM and mask pixels occluded by it.")
-    dsm: Path | None = setting(None, path=True, help="DSM GeoTIFF of the true ortho.")
+    dsm: Path | None = setting(None, path=True, help="DSM GeoTIFF of the true ortho (the heights it is rectified on).")
+    occlusion_dsm: Path | None = setting(
+        None, path=True,
+        help="DSM GeoTIFF of the true ortho's occlusion test, when not the DSM itself; footprints and crown bases on "
+             "its grid (aerotri run on the LiDAR stages' DSM: lidar_out/dsm_nearest.tif, the first return nearest "
+             "each cell centre, which fills more of the occluded ground; lidar_out/dsm.tif: the DSM itself).")
     footprints: Path | None = setting(
         None, path=True,
         help="Building footprints (GeoPackage of wall-line polygons in the project CRS, e.g. a cadastre) for the true "

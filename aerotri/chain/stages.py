@@ -165,7 +165,8 @@ class Chain:
     def true_ortho_dsm(self) -> list[Path]:
         """The DSM the rectify stage reads (none for a conventional ortho)."""
         s = self.rectify_settings().settings
-        return [Path(p) for p in (s.dsm, s.footprints, s.crown_base) if s.true_ortho and s.dsm is not None and p is not None]
+        return [Path(p) for p in (s.dsm, s.occlusion_dsm, s.footprints, s.crown_base)
+                if s.true_ortho and s.dsm is not None and p is not None]
 
     def no_dem(self, root=None) -> str | None:
         if self.dem_path() is None:
@@ -182,6 +183,7 @@ class Chain:
 
         for section, key, path in (("rectify", "dem", self.options.rectify.dem),
                                    ("rectify", "dsm", self.options.rectify.dsm),
+                                   ("rectify", "occlusion_dsm", self.options.rectify.occlusion_dsm),
                                    ("mosaic", "ndsm", self.options.mosaic.ndsm),
                                    ("adjust", "initial_eo", self.options.adjust.initial_eo)):
             if path is not None and not Path(path).is_file():
@@ -228,7 +230,7 @@ class Chain:
                 read_image_points(p.control_image_points_path)
         if o.adjust.initial_eo is not None:
             read_eo(o.adjust.initial_eo, project_crs(p))
-        for what, path in (("DSM", o.rectify.dsm), ("nDSM", o.mosaic.ndsm)):
+        for what, path in (("DSM", o.rectify.dsm), ("occlusion DSM", o.rectify.occlusion_dsm), ("nDSM", o.mosaic.ndsm)):
             if path is not None:
                 with open_height_raster(path, project_crs(p), what) as ds:
                     _read_ends(ds, path, what)
@@ -256,7 +258,7 @@ class Chain:
             Stage("classify", lambda r: self.classify_inputs(), self.classified, self.run_classify,
                   options=dict(to_table(o.classify), crs=self.project.crs), skip=self.no_lidar),
             Stage("rasters", self.classified,
-                  lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif")], self.run_rasters,
+                  lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif", "dsm_nearest.tif")], self.run_rasters,
                   options=to_table(o.rasters), skip=self.no_lidar),
             Stage("corners", self.classified, self.corner_outputs, self.run_corners,
                   options=to_table(o.corners), skip=self.no_lidar),
@@ -583,7 +585,9 @@ class Chain:
 
     def rectify_settings(self) -> Resolved:
         """[rectify] with the chain's defaults: the DEM of ``dem_path``; a true ortho on the DSM whenever there is
-        one (``dsm_path``) and [rectify] true_ortho is not set (``true_ortho = false``: the conventional ortho)."""
+        one (``dsm_path``) and [rectify] true_ortho is not set (``true_ortho = false``: the conventional ortho); on
+        the LiDAR stages' DSM its occlusion test on their nearest-return DSM (lidar_out/dsm_nearest.tif) unless
+        [rectify] occlusion_dsm says otherwise."""
         r = self.stage_settings("rectify")
         if r.settings.dem is None and self.dem_path() is not None:
             r = r.replace("dem", self.dem_path(), r.sources.get("dem", "default"), "the LiDAR stages' DEM")
@@ -592,6 +596,9 @@ class Chain:
             r = r.replace("true_ortho", True, "aerotri run", "a DSM exists: the chain makes the true ortho")
         if r.settings.true_ortho and r.settings.dsm is None and dsm is not None:
             r = r.replace("dsm", dsm, r.sources.get("dsm", DEFAULT), "the LiDAR stages' DSM")
+            if r.settings.occlusion_dsm is None:
+                r = r.replace("occlusion_dsm", self.project.dsm_nearest_path, r.sources.get("occlusion_dsm", DEFAULT),
+                              "the LiDAR stages' nearest-return DSM")
         return r
 
     def run_rectify(self, root) -> R.RectifyResult:
@@ -611,7 +618,8 @@ class Chain:
             why = ("the chain's default with a DSM" if source == "aerotri run"
                    else f"[rectify] true_ortho = true in {self.project.config_path.name}" if source == PROJECT_TOML
                    else f"true_ortho from the {source}")
-            return (f"true ortho on the DSM {_rel(s.dsm, self.root)} ({why}; occluded cells filled from the frames "
+            occl = f", occlusion on {_rel(s.occlusion_dsm, self.root)}" if s.occlusion_dsm is not None else ""
+            return (f"true ortho on the DSM {_rel(s.dsm, self.root)}{occl} ({why}; occluded cells filled from the frames "
                     f"that see them; [rectify] true_ortho = false for the conventional ortho on the DEM)")
         if self.dsm_path() is not None:
             return (f"conventional ortho on the DEM: [rectify] true_ortho = false (the DSM "

@@ -292,6 +292,8 @@ class Project:
         return [self.strips_dir / p.name for p in self.lidar_strips()]
     dem_path = property(lambda self: self.lidar_out_dir / "dem.tif")
     dsm_path = property(lambda self: self.lidar_out_dir / "dsm.tif")
+    # the first return nearest each cell centre (lidarctl rasters): the DSM of the chain's true-ortho occlusion test
+    dsm_nearest_path = property(lambda self: self.lidar_out_dir / "dsm_nearest.tif")
     ndsm_path = property(lambda self: self.lidar_out_dir / "ndsm.tif")
     corners_path = property(lambda self: self.lidar_out_dir / "corners.csv")
     corners_summary_path = property(lambda self: self.lidar_out_dir / "corners.json")

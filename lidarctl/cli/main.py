@@ -150,7 +150,7 @@ def classify(*, in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_fo
                    "triangle's circumradius is at most this many cells (buildings, sparse ground under canopy); "
                    "wider gaps get a smooth pyramid fill. 0: pyramid fill only.")
 def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px):
-    """dem/dsm/ndsm/chm/intensity COGs and hillshade.png from classified LAS/LAZ file(s) (one or more
+    """dem/dsm/ndsm/chm/intensity/dsm_nearest COGs and hillshade.png from classified LAS/LAZ file(s) (one or more
     strips in one CRS) into OUTDIR, by tiles read straight from the files (no merged cloud).
 
     The rasters are in the files' CRS; heights in its vertical unit (band unit type and tags say

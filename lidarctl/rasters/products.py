@@ -11,6 +11,9 @@ description, and the tags ``LINEAR_UNITS``, ``VERTICAL_UNITS`` and ``CELL_SIZE_M
 * dem.tif: mean height of ground (2) and water (9) points per cell; gaps inside the footprint
   filled (pull-push interpolation); nodata outside it.
 * dsm.tif: highest first return (noise excluded) per cell; gaps filled as for the DEM.
+* dsm_nearest.tif: height of the first return (noise excluded) nearest each cell centre (``nearest``: the
+  surface straight down at the centres, the true ortho's occlusion test); the DSM's value where none lies within
+  ``nearest.SEARCH_RADIUS_M``; nodata where the DSM is.
 * ndsm.tif: dsm - dem.
 * chm.tif: highest vegetation (classes 4, 5) height above the DEM per cell; nodata where no trees.
 * intensity.tif: mean intensity of first returns (nodata where none).
@@ -43,6 +46,7 @@ from aerotri.core.limits import check_task_count
 from aerotri.core.limits import check_disk
 from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
+from lidarctl.rasters import nearest
 from lidarctl.rasters.cells import CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
 from aerotri.geom.crs.definition import length_unit_name
@@ -51,8 +55,8 @@ from lidarctl.units import METRE, LengthUnits
 log = logging.getLogger(__name__)
 
 NODATA = -9999.0
-FILES = ("dem.tif", "dsm.tif", "ndsm.tif", "chm.tif", "intensity.tif", "hillshade.png")
-HEIGHT_GRIDS = ("dem", "dsm", "ndsm", "chm")
+FILES = ("dem.tif", "dsm.tif", "ndsm.tif", "chm.tif", "intensity.tif", "hillshade.png", nearest.FILE)
+HEIGHT_GRIDS = ("dem", "dsm", "ndsm", "chm", "dsm_nearest")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,6 +71,7 @@ class RasterGrids:
     chm: np.ndarray
     intensity: np.ndarray
     transform: object  # affine.Affine
+    dsm_nearest: np.ndarray
 
     def in_crs_units(self, units: LengthUnits) -> "RasterGrids":
         """The grids in the cloud's units: heights divided by the vertical unit, the transform by the horizontal
@@ -77,7 +82,8 @@ class RasterGrids:
         return dataclasses.replace(self, **heights, transform=_transform_in_units(self.transform, units))
 DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points", "dsm": "DSM: highest first return",
                 "ndsm": "nDSM: DSM - DEM", "chm": "CHM: highest vegetation above the DEM",
-                "intensity": "mean intensity of first returns (sensor units)"}
+                "intensity": "mean intensity of first returns (sensor units)",
+                "dsm_nearest": "DSM: first return nearest the cell centre"}
 # Memory of a tile per cell of its window at the peak of ``_CellSums`` and the TIN fill (per-cell
 # records, the pull-push pyramid, the triangulation; measured: 1.07 GB peak RSS with one tile of
 # 2304 x 2224 cells at a time, 1.65 GB with two, of which 0.25 GB the process itself). Two tiles are
@@ -194,9 +200,13 @@ class _CellSums:
         out["ndsm"] = out["dsm"] - out["dem"]
         return {k: v.astype(np.float32) for k, v in out.items()}
 
-    def grids(self, dem: np.ndarray, footprint_cells: int) -> RasterGrids:
+    def grids(self, dem: np.ndarray, footprint_cells: int, first_returns) -> RasterGrids:
+        """The grids north-up; ``first_returns``: (x, y, z) in metres of the returns ``dsm_nearest`` takes."""
         res_m, x0, y0, nrows, ncols = self.args
         out = {k: v[::-1] for k, v in self.grids_south_up(dem, footprint_cells).items()}   # north-up rows
+        near = nearest.nearest_return_surface(*first_returns, x0_m=x0, y_top_m=y0 + nrows * res_m, res_m=res_m,
+                                              nrows=nrows, ncols=ncols, max_dist_m=nearest.SEARCH_RADIUS_M)
+        out["dsm_nearest"] = np.where(np.isnan(out["dsm"]) | np.isnan(near), out["dsm"], near).astype(np.float32)
         return RasterGrids(**out, transform=from_origin(x0, y0 + nrows * res_m, res_m, res_m))
 
 
@@ -225,7 +235,8 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
     sums.add(x, y, z, cls, cloud.return_number, cloud.intensity)
     dem = sums.dem(fill_radius_px=dem_fill_radius_px)
     sums.add_chm(x, y, z, cls, dem)
-    return sums.grids(dem, footprint_cells)
+    first = nearest.first_return_mask(cls, cloud.return_number)
+    return sums.grids(dem, footprint_cells, (x[first], y[first], z[first]))
 
 
 def _header_bounds(path, header):
@@ -277,14 +288,18 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds",
                option="--res-m", hint="use a coarser --res-m (or check the bounds: strips far apart, a wrong CRS?)")
     sums = _CellSums(args)
+    first = []    # the returns of dsm_nearest (x, y, z by chunk)
     for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
         sums.add(x, y, z, cls, rn, inten)
+        keep = nearest.first_return_mask(cls, rn)
+        first.append((x[keep], y[keep], z[keep]))
     if not sums.ground_n.any():
         raise InputError(f"{path}: no ground points (class 2); run 'lidarctl classify' first")
     dem = sums.dem()
     for x, y, z, cls, _, _ in _file_points(path, units, chunk_points, validate=False):
         sums.add_chm(x, y, z, cls, dem)
-    return sums.grids(dem, footprint_cells), int(header.point_count)
+    first = tuple(np.concatenate([f[k] for f in first]) for k in range(3))
+    return sums.grids(dem, footprint_cells, first), int(header.point_count)
 
 
 def _transform_in_units(t, units: LengthUnits):
@@ -740,7 +755,7 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
     return _write_set(outdir, write)
 
 
-RASTERS = ("dem", "dsm", "ndsm", "chm", "intensity")
+RASTERS = ("dem", "dsm", "ndsm", "chm", "intensity", "dsm_nearest")
 
 
 def _tags(units: LengthUnits, res_m: float) -> dict:
@@ -823,6 +838,10 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
 
     check_res(res_m)
     _check_tiling(tile_px, buffer_px, dem_fill_radius_px)
+    if buffer_px < nearest.reach_px(res_m):
+        log.warning("--buffer-px %d is less than the %d cells of dsm_nearest's search radius (%g m): its cells near "
+                    "a tile's edge may differ from those of an untiled run", buffer_px, nearest.reach_px(res_m),
+                    nearest.SEARCH_RADIUS_M)
     outdir = Path(outdir)
     inputs = _inputs(paths, crs)
     for f in FILES:
@@ -990,8 +1009,11 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     res_m, x0, y0 = args[:3]
     tid, (row0, col0, rows, cols), core, _ = tile
     sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
+    first = []    # the returns of dsm_nearest (x, y, z by chunk)
     for ch in _bin_chunks(work, tid, chunk_points):
         sums.add(ch.x, ch.y, ch.z, ch.cls, ch.rn, ch.intensity)
+        keep = nearest.first_return_mask(ch.cls, ch.rn)
+        first.append((ch.x[keep], ch.y[keep], ch.z[keep]))
     grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's bilinear samples
     dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
     for ch in _bin_chunks(work, tid, chunk_points):
@@ -1001,7 +1023,33 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
+    out["dsm_nearest"] = _tile_nearest(first, args, tile, out["dsm"], inputs.units)
     return out
+
+
+def _tile_nearest(first, args, tile, dsm: np.ndarray, units: LengthUnits) -> np.ndarray:
+    """dsm_nearest of a tile's core (north-up float32, CRS units, NODATA) from the first returns of its window
+    (``first``: (x, y, z) arrays in metres, by chunk) and its ``dsm`` (the core's, as written): the nearest return
+    over the core grown by ``nearest.reach_px`` cells (a buffer at least that wide holds every return that can be
+    the nearest to a core centre: the whole grid's values), else the DSM's value."""
+    res_m, x0, y0 = args[:3]
+    _, (row0, col0, rows, cols), core, _ = tile
+    x, y, z = (np.concatenate([f[k] for f in first]) if first else np.empty(0) for k in range(3))
+    reach = nearest.reach_px(res_m)
+    # the window's rows run south to north from row0 (``_CellSums``): the grown core's, clipped to the window
+    r_lo, r_hi = max(core[0].start - reach, 0), min(core[0].stop + reach, rows)
+    c_lo, c_hi = max(core[1].start - reach, 0), min(core[1].stop + reach, cols)
+    near = nearest.nearest_return_surface(x, y, z, x0_m=x0 + (col0 + c_lo) * res_m,
+                                          y_top_m=y0 + (row0 + r_hi) * res_m, res_m=res_m, nrows=r_hi - r_lo,
+                                          ncols=c_hi - c_lo, max_dist_m=nearest.SEARCH_RADIUS_M)
+    near = near[r_hi - core[0].stop: r_hi - core[0].start, core[1].start - c_lo: core[1].stop - c_lo]
+    if not units.is_metric:   # the arithmetic of ``RasterGrids.in_crs_units``
+        near = (near.astype(float) / units.z_m).astype(np.float32)
+    near = np.ascontiguousarray(near)
+    fallback = np.isnan(near)
+    fallback |= dsm == NODATA
+    near[fallback] = dsm[fallback]
+    return near
 
 
 def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
@@ -1022,7 +1070,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
     out = {}
     for name in RASTERS:
         ds = working.enter_context(_tiled_gtiff(work / f"{name}.tif", (nrows, ncols), transform,
-                                                 inputs.surface_crs if name in ("dem", "dsm") else inputs.crs))
+                                                 inputs.surface_crs if name in ("dem", "dsm", "dsm_nearest") else inputs.crs))
         if _unit(name, units):
             ds.units = (_unit(name, units),)
         ds.set_band_description(1, _description(name, units))

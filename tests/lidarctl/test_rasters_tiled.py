@@ -94,3 +94,31 @@ def test_rasters_cli_several_files_and_errors(strips, tmp_path):
     assert r.exit_code == 2 and "no ground points" in r.output
     assert {f: (out / f).read_bytes() for f in rasters.FILES} == before
     assert sorted(p.name for p in out.iterdir()) == sorted(rasters.FILES)
+
+
+def test_dsm_nearest_is_the_nearest_first_return_across_tiles(strips, tmp_path):
+    """dsm_nearest.tif by tiles of 32 cells (buffer 8, the 5 m search radius at 1 m: 6 cells) equals the nearest
+    first return of all the strips' points at every cell centre that has one within 5 m (no seams), and dsm.tif
+    elsewhere; noise (a return 50 m above the highest put among them) is not taken, and it is not dsm.tif (roof edges move)."""
+    from lidarctl.rasters.nearest import nearest_return_surface
+
+    cloud = io.read_cloud(strips / "west.las")
+    k = int(np.flatnonzero((cloud.return_number == 1) & (cloud.classification == 2))[len(cloud.x) // 3])
+    noise_z = float(cloud.z.max()) + 50.0
+    cloud.z[k], cloud.classification[k] = noise_z, 7          # a high noise return, first of its pulse
+    synthetic.write_las(tmp_path / "noisy.las", cloud, crs="EPSG:32632")
+    out = tmp_path / "r"
+    rasters.write_rasters([tmp_path / "noisy.las"], out, 1.0, tile_px=32, buffer_px=8, chunk_points=30_000)
+    with rasterio.open(out / "dsm_nearest.tif") as ds:
+        got, tf, nd = ds.read(1), ds.transform, ds.nodata
+        assert ds.descriptions[0].startswith("DSM: first return nearest") and ds.units == ("metre",)
+    with rasterio.open(out / "dsm.tif") as ds:
+        dsm = ds.read(1)
+    assert got.shape[0] > 4 * 32 and got.shape[1] > 4 * 32
+    keep = (cloud.return_number == 1) & ~np.isin(cloud.classification, (7, 18))
+    near = nearest_return_surface(cloud.x[keep], cloud.y[keep], cloud.z[keep], x0_m=tf.c, y_top_m=tf.f, res_m=1.0,
+                                  nrows=got.shape[0], ncols=got.shape[1], max_dist_m=5.0)
+    want = np.where((dsm == nd) | np.isnan(near), dsm, near).astype(np.float32)
+    np.testing.assert_array_equal(got, want)
+    assert (got != dsm).mean() > 0.05 and np.nanmax(np.where(got == nd, np.nan, got)) < noise_z - 40
+    assert ((got == nd) == (dsm == nd)).all()

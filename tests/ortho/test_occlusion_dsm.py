@@ -1,0 +1,64 @@
+"""``ortho rectify --true-ortho --dsm DSM --occlusion-dsm SURFACE`` (issue 42): the ortho on the DSM's heights, its
+occlusion test on another surface (the chain's: lidarctl rasters' dsm_nearest.tif beside dsm.tif)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from ortho.cli import main
+from ortho.synthetic import write_synthetic_project
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    root = tmp_path_factory.mktemp("occlusion_dsm") / "p"
+    write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=20, seed=7)
+    return root
+
+
+def _frames(root):
+    index = json.loads((root / "ortho" / "frames" / "index.json").read_text())
+    out = {}
+    for e in index["frames"]:
+        with rasterio.open(root / "ortho" / "frames" / e["file"]) as ds:
+            out[e["image_id"]] = (ds.read(), ds.read_masks(1) > 0, ds.transform)
+    return index, out
+
+
+def _rectify(block, tmp_path, name, *args):
+    root = tmp_path / name
+    shutil.copytree(block, root, ignore=shutil.ignore_patterns("ortho"))
+    r = CliRunner().invoke(main, ["rectify", str(root), "--true-ortho", "--dem", str(root / "truth" / "dem.tif"),
+                                  "--dsm", str(root / "truth" / "dsm.tif"), *(a.format(root=root) for a in args)])
+    assert r.exit_code == 0, r.output
+    return _frames(root)
+
+
+def test_the_occlusion_test_takes_its_own_surface_and_the_heights_stay_the_dsms(block, tmp_path):
+    index, dsm = _rectify(block, tmp_path, "dsm")
+    assert "occlusion_dsm" not in index
+    # the DSM itself given again: the same frame orthos, byte for byte
+    _, same = _rectify(block, tmp_path, "same", "--occlusion-dsm", "{root}/truth/dsm.tif")
+    for k, (img, m, tf) in dsm.items():
+        assert np.array_equal(img, same[k][0]) and np.array_equal(m, same[k][1]) and tf == same[k][2]
+    # a copy of the DSM in another file: the occlusion test reads it apart from the heights, the same masks
+    shutil.copy2(block / "truth" / "dsm.tif", tmp_path / "copy.tif")
+    index, copy = _rectify(block, tmp_path, "copy", "--occlusion-dsm", str(tmp_path / "copy.tif"))
+    assert index["occlusion_dsm"] == str(tmp_path / "copy.tif")
+    for k, (img, m, tf) in dsm.items():
+        assert tf == copy[k][2] and (m != copy[k][1]).mean() < 1e-3, (m != copy[k][1]).mean()
+        both = m & copy[k][1]
+        assert np.array_equal(img[:, both], copy[k][0][:, both])
+    # the ground as the occlusion surface: nothing stands in a line of sight, every pixel the DSM hides is back;
+    # its samples where the DSM's test keeps them are the same (the heights are the DSM's, not the ground's)
+    index, ground = _rectify(block, tmp_path, "ground", "--occlusion-dsm", str(block / "truth" / "dem.tif"))
+    for k, (img, m, tf) in dsm.items():
+        g_img, g_m, g_tf = ground[k]
+        assert g_tf == tf and (g_m & ~m).sum() > 0.01 * m.sum() and not (m & ~g_m).any()
+        assert np.array_equal(img[:, m], g_img[:, m])
