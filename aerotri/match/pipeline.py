@@ -167,12 +167,13 @@ def _frame_key(image_path: Path, p: F.FeatureSettings, size) -> str:
 def _features_task(item: _FrameItem) -> int:
     """Extract (or find cached or kept) the features of one frame; _NEW, _CACHED or _RESUMED."""
     f = F.features_cache_path(item.image_path, item.cache_dir, item.p)
-    if f.exists():
-        hit = _CACHED
-    elif item.resume is not None and item.resume.take(item.key, ".npz", f):
+    # kept: the interrupted run made it (a task it left running may have written the cache file after the roll-back)
+    if item.resume is not None and item.resume.kept(item.key, ".npz") is not None:
         hit = _RESUMED
+        if not f.exists():
+            item.resume.take(item.key, ".npz", f)
     else:
-        hit = _NEW
+        hit = _CACHED if f.exists() else _NEW
     F.cached_features(*item.args())
     if hit == _NEW and item.resume is not None:
         item.resume.keep(f, item.key, ".npz")
@@ -186,10 +187,12 @@ def _match_task(item) -> tuple[int, np.ndarray]:
     # the cache's name holds the features' key and both images' size and time: matches index the keypoints
     fkey = f"{fa.p.key()}-{key[:12]}"
     f = M.match_cache_path(tag, cache_dir, p, fkey, guide is not None)
+    if resume is not None and resume.kept(key, ".npy") is not None:  # (as in _features_task)
+        if not f.exists():
+            resume.take(key, ".npy", f)
+        return _RESUMED, np.load(f)
     if f.exists():  # without reading the two frames' features
         return _CACHED, np.load(f)
-    if resume is not None and resume.take(key, ".npy", f):
-        return _RESUMED, np.load(f)
     m = M.cached_match(tag, F.cached_features(*fa.args()), F.cached_features(*fb.args()), camera, p,
                        cache_dir=cache_dir, feature_key=fkey, guide=guide)
     if resume is not None:
