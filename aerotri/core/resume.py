@@ -68,6 +68,21 @@ class ResumeFolder:
             shutil.copy2(src, part)
             os.replace(part, dst)
 
+    def put_text(self, key: str, suffix: str, text: str) -> None:
+        """Keep a finished result written as ``text`` under ``key`` (whole or not at all)."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        part = self.path / f".{key}{TEMP_MARKER}keep{suffix}"
+        part.write_text(text)
+        os.replace(part, self.path / f"{key}{suffix}")
+
+    def get_text(self, key: str, suffix: str) -> str | None:
+        """The text kept under ``key``, None when none is kept."""
+        f = self.kept(key, suffix)
+        try:
+            return f.read_text() if f is not None else None
+        except OSError:
+            return None
+
     def take(self, key: str, suffix: str, dst) -> bool:
         """Put the file kept under ``key`` at ``dst`` (atomic, part of the open commit that covers it); False
         when none is kept."""
@@ -84,9 +99,13 @@ class ResumeFolder:
 def resumable(folder):
     """A ``ResumeFolder`` for a stage's block (module docstring): removed when the block ends normally or by an
     error (an ``Exception``), kept when it is interrupted (KeyboardInterrupt, SystemExit) or killed. After an error
-    the parent folder (``work``) goes too when the block created it and left it empty."""
+    the parent folder (``work``) goes too when it is left empty and held nothing else before (made by this block or
+    by the interrupted run for the kept files)."""
     folder = Path(folder)
-    parent_existed = folder.parent.exists()
+    try:
+        parent_existed = any(e.name != folder.name for e in os.scandir(folder.parent))
+    except OSError:
+        parent_existed = False
     try:
         yield ResumeFolder(folder)
     except Exception:
