@@ -95,7 +95,7 @@ class ReviewPage:
     chips: dict[str, bytes]
 
 
-CONTROL_RESUME_DIR_NAME = "control_resume"  # in work/: the frames' measurements an interrupted control transfer finished
+CONTROL_RESUME_DIR_NAME = "control_resume"  # in work/: the frames' measurements an interrupted transfer finished
 
 
 def _frame_keys(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, points, idx: np.ndarray,

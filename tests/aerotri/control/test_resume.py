@@ -1,4 +1,4 @@
-"""``aerotri control`` resumes the frames an interrupted transfer measured (work/control_resume, aerotri.core.resume)."""
+"""``aerotri control`` resumes the frames an interrupted transfer measured (work/control_resume)."""
 
 from __future__ import annotations
 
