@@ -56,17 +56,10 @@ class ResumeFolder:
         """Keep the finished file ``src`` (whole) under ``key``; outside any commit, so that a roll-back of the
         stage leaves it."""
         self.path.mkdir(parents=True, exist_ok=True)
-        dst = self.path / f"{key}{suffix}"
-        if dst.exists():
-            return
-        try:
-            os.link(src, dst)  # a link appears whole or not at all
-        except FileExistsError:
-            pass
-        except OSError:
-            part = self.path / f".{key}{TEMP_MARKER}keep{suffix}"  # (a kill's is swept by the next command)
-            shutil.copy2(src, part)
-            os.replace(part, dst)
+        part = self.path / f".{key}{TEMP_MARKER}keep{suffix}"  # (a kill's is swept by the next command)
+        part.unlink(missing_ok=True)
+        link_or_copy(src, part)
+        os.replace(part, self.path / f"{key}{suffix}")
 
     def put_text(self, key: str, suffix: str, text: str) -> None:
         """Keep a finished result written as ``text`` under ``key`` (whole or not at all)."""
