@@ -43,6 +43,8 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.local_frame import FramesOnEarth
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write_text_atomic
+from aerotri.core.resume import ResumeFolder, file_stamp, resumable, resume_key
+from aerotri.core.resume import link_or_copy as _link_or_copy
 from aerotri.core.errors import OptionError
 from aerotri.core.limits import check_allocation, check_grid
 from aerotri.core.textio import read_json
@@ -383,15 +385,10 @@ def _rectify_frame_task(task: FrameTask) -> dict:
     the frame ortho (a hard link) and its entry are kept there for a resumed run (``_resumed_frame``)."""
     entry = _rectify_frame(task)
     if task.resume_dir and task.resume_key:
-        keep = Path(task.resume_dir)
-        keep.mkdir(parents=True, exist_ok=True)
-        tif = keep / f"{task.resume_key}.tif"
-        tif.unlink(missing_ok=True)
-        _link_or_copy(Path(task.out_path), tif)
+        keep = ResumeFolder(Path(task.resume_dir))
+        keep.keep(task.out_path, task.resume_key, ".tif")
         # written last (the frame is whole), and outside the stage's commit, which a failed run rolls back
-        part = keep / f".{task.resume_key}.json.tmp"
-        part.write_text(json.dumps(entry) + "\n")
-        os.replace(part, keep / f"{task.resume_key}.json")
+        keep.put_text(task.resume_key, ".json", json.dumps(entry) + "\n")
     return entry
 
 
@@ -399,8 +396,6 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
     """sha256 (32 hex digits) of what a frame's ortho depends on: the task but where it is written and its
     threads, the camera's parameters, the size and modification time of its image, DEM, DSM, footprints and crown
     bases, the block's inputs (EO, camera, DEM hashes) and the toolkit's version."""
-    import hashlib
-
     import aerotri
 
     doc = {}
@@ -412,22 +407,21 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
     for f in ("image_path", "dem_path", "dsm_path", "footprints_path", "crown_base_path", "occlusion_dsm_path"):
         path = getattr(task, f)
         if path:
-            st = os.stat(path)
-            doc[f"{f}_size_mtime"] = [st.st_size, st.st_mtime_ns]
+            doc[f"{f}_size_mtime"] = file_stamp(path)
     doc["inputs"], doc["version"] = inputs, aerotri.__version__
-    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=repr).encode()).hexdigest()[:32]
+    return resume_key(doc)
 
 
 def _resumed_frame(task: FrameTask, out_dir: Path) -> dict | None:
     """The index entry of ``task``'s frame kept by an earlier, interrupted run (its ortho linked into
     ``out_dir``), or None when there is none whole."""
-    keep = Path(task.resume_dir) / f"{task.resume_key}.json"
-    tif = keep.with_suffix(".tif")
-    if not (keep.is_file() and tif.is_file()):
+    keep = ResumeFolder(Path(task.resume_dir))
+    tif, text = keep.kept(task.resume_key, ".tif"), keep.get_text(task.resume_key, ".json")
+    if tif is None or text is None:
         return None
     try:
-        entry = json.loads(keep.read_text())
-    except (OSError, ValueError):
+        entry = json.loads(text)
+    except ValueError:
         return None
     if not isinstance(entry, dict) or entry.get("size") != tif.stat().st_size:
         return None
@@ -655,10 +649,10 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
     # GDAL's block cache bounded for the whole stage, set here before the frame tasks start on their threads
-    import shutil
-
-    resume_dir, work_existed = project.work_dir / RESUME_DIR_NAME, project.work_dir.exists()
-    try:
+    resume_dir = project.work_dir / RESUME_DIR_NAME
+    # an error (bad input, a bad frame) leaves no output of any kind: the frames kept for a resumed run go too; a kill
+    # or Ctrl-C (not an Exception) keeps them; committed: nothing to resume (aerotri.core.resume)
+    with resumable(resume_dir):
         with atomic_dir(out_dir) as tmp_dir, stage_block_cache(RECTIFY_CACHE_BYTES):
             index = _rectify_into(tmp_dir, block, eo_idx, res=res, out_crs=out_crs, project_crs=project_crs,
                                   dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
@@ -675,15 +669,6 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
                 index["frames"] = sorted(keep + index["frames"], key=lambda e: e["image_id"])
             index["settings"] = resolved.record()
             write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
-    except Exception:
-        # an error (bad input, a bad frame) leaves no output of any kind: the frames kept for a resumed run go too;
-        # a kill or Ctrl-C (not an Exception) keeps them
-        shutil.rmtree(resume_dir, ignore_errors=True)
-        if not work_existed:
-            with contextlib.suppress(OSError):
-                project.work_dir.rmdir()
-        raise
-    shutil.rmtree(resume_dir, ignore_errors=True)  # committed: nothing to resume
     return _rectified_frames(frame_index(index, out_dir / "index.json"))
 
 
@@ -901,16 +886,6 @@ def _compatible_old_index(out_dir: Path, res: float, out_crs, inputs: dict) -> F
         return None
     verify_index(out_dir, old)
     return old
-
-
-def _link_or_copy(src: Path, dst: Path) -> None:
-    """A hard link (no copy of the data) where the file system allows it, else a copy."""
-    import shutil
-
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
 
 
 def _plane_footprint_bounds(camera, C, R, z_lo, z_hi, image_id, *, crs=None):

@@ -27,6 +27,7 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import track
 from aerotri.core.atomic import committed
 from aerotri.core.project import Project, project_paths
+from aerotri.core.resume import file_stamp, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import BrownCamera, orientations_camera
 from aerotri.geom.eo import ExteriorOrientations, read_eo
@@ -94,14 +95,71 @@ class ReviewPage:
     chips: dict[str, bytes]
 
 
+CONTROL_RESUME_DIR_NAME = "control_resume"  # in work/: the frames' measurements an interrupted transfer finished
+
+
+def _frame_keys(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, points, idx: np.ndarray,
+                images_dir: Path, s: ControlSettings, crs) -> list[str]:
+    """Key of each frame's measurements of the corners ``idx`` (``aerotri.core.resume``): the frame's image (name,
+    size, modification time) and orientation, the camera, the corners' points in the frames' Cartesian frame and
+    roof angles, the measurement settings, the CRS and the toolkit's version."""
+    import hashlib
+
+    import aerotri
+
+    h = hashlib.sha256()
+    for a in (idx, points.xyz, points.along_edges, points.by_sigma, corners.angle_deg[idx]):
+        h.update(np.ascontiguousarray(a, dtype=float).tobytes())
+    block = {"corners": h.hexdigest(), "camera": repr(camera), "measure": repr(s.measure),
+             "crs": crs.to_wkt() if crs is not None else None, "version": aerotri.__version__}
+    keys = []
+    for i, iid in enumerate(eo.image_id):
+        path = find_image(images_dir, iid)
+        keys.append(resume_key({**block, "frame": str(iid), "image": path.name, "stamp": file_stamp(path),
+                                "centre_m": eo.centre_m[i].tolist(), "rotation": eo.rotation(i).tolist()}))
+    return keys
+
+
+def _kept_measurements(text: str | None, i: int) -> tuple[dict, dict] | None:
+    """The measurements and predictions of frame ``i`` kept as ``_keep_measurements`` wrote them."""
+    if text is None:
+        return None
+    try:
+        rows = json.loads(text)
+    except ValueError:
+        return None
+    meas = {(int(r[0]), i): Measurement(*r[3:]) for r in rows}
+    pred = {(int(r[0]), i): (r[1], r[2]) for r in rows}
+    return meas, pred
+
+
+def _keep_measurements(resume, key: str, meas: dict, pred: dict) -> None:
+    rows = [[k, *pred[(k, i)], *dataclasses.astuple(m)] for (k, i), m in meas.items()]
+    resume.put_text(key, ".json", json.dumps(rows))
+
+
 def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorOrientations, frames: FramesOnEarth,
-                    images_dir: Path, idx: np.ndarray, manual_k: dict, s: ControlSettings) -> tuple[dict, dict]:
+                    images_dir: Path, idx: np.ndarray, manual_k: dict, s: ControlSettings, crs=None,
+                    resume=None) -> tuple[dict, dict]:
     """Measurements and predictions {(corner index, image index): ...} of the corners ``idx`` in every frame
     they are predicted in (``frames``: the orientations ``eo`` over the earth), then the manual measurements in place
-    of the automatic ones."""
+    of the automatic ones. ``resume`` (``aerotri.core.resume.ResumeFolder``): each frame's measurements are kept
+    there as it finishes, and taken from there when an interrupted run kept them (``crs``: the project CRS, in
+    their key)."""
     points = corner_points(frames, corners.xyz_m[idx], corners.edge_directions_m()[idx], corners.sigma_m[idx])
+    keys = _frame_keys(corners, camera, eo, points, idx, images_dir, s, crs) if resume is not None else None
+    if resume is not None and resume.path.is_dir():
+        k = sum(resume.kept(key, ".json") is not None for key in keys)
+        if k:
+            log.info(f"control transfer: resumed {k} of {len(keys)} frames an interrupted run finished "
+                     f"({resume.path})")
     meas, pred = {}, {}
     for i, iid in enumerate(track(eo.image_id, "control transfer", "frames")):
+        kept = _kept_measurements(resume.get_text(keys[i], ".json"), i) if resume is not None else None
+        if kept is not None:
+            meas.update(kept[0])
+            pred.update(kept[1])
+            continue
         x, y, d, _, radius = predict(camera, frames, i, points, eo_sigma_px=s.measure.eo_sigma_px,
                                      window_k=s.measure.window_k,
                                      min_radius_px=s.measure.min_radius_px, max_radius_px=s.measure.max_radius_px)
@@ -110,12 +168,17 @@ def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorO
         if not inside.any() and not has_manual:
             continue
         # windows on demand: the chips of a 106 MP frame, not the frame
+        frame_meas, frame_pred = {}, {}
         with FrameWindows(find_image(images_dir, iid), (camera.width, camera.height)) as image:
             for q in np.flatnonzero(inside):
                 k = int(idx[q])
-                pred[(k, i)] = (float(x[q]), float(y[q]))
-                meas[(k, i)] = measure_in_image(image, x[q], y[q], d[q], radius[q], settings=s.measure,
-                                                convex=bool(corners.angle_deg[k] < 180.0))
+                frame_pred[(k, i)] = (float(x[q]), float(y[q]))
+                frame_meas[(k, i)] = measure_in_image(image, x[q], y[q], d[q], radius[q], settings=s.measure,
+                                                      convex=bool(corners.angle_deg[k] < 180.0))
+        meas.update(frame_meas)
+        pred.update(frame_pred)
+        if resume is not None:
+            _keep_measurements(resume, keys[i], frame_meas, frame_pred)
     for (k, i), xy in manual_k.items():
         meas[(k, i)] = Measurement(float(xy[0]), float(xy[1]), True, "manual")
         pred.setdefault((k, i), (float(xy[0]), float(xy[1])))
@@ -240,7 +303,7 @@ def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str
 
 def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, images_dir,
                      settings: ControlSettings | None = None,
-                     manual: ManualMeasurements | None = None, *, crs) -> TransferResult:
+                     manual: ManualMeasurements | None = None, *, crs, resume=None) -> TransferResult:
     """Measure the corners in every frame, check them across frames, select control by the layout rule.
 
     ``crs``: the project CRS of the corners and orientations, whose map coordinates the frames see over the earth
@@ -260,7 +323,7 @@ def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOri
     idx = np.flatnonzero(primary)
     frames = FramesOnEarth(crs, eo.centre_m, eo.rotations())
     meas, pred = _measure_frames(corners, camera, eo=eo, frames=frames, images_dir=Path(images_dir), idx=idx,
-                                 manual_k=manual_k, s=s)
+                                 manual_k=manual_k, s=s, crs=crs, resume=resume)
     rays = _check_corners(corners, camera, frames, idx, meas, s)
     kind, targets, base = _select(corners, camera, eo, primary, rays, s=s, frames=frames)
     extra = _near_unfilled_targets(corners, targets, ~primary) if s.layout.fallback else np.zeros(0, int)
@@ -268,7 +331,7 @@ def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOri
         log.info(f"{sum(t.tier != 'usable' for t in targets)} layout targets without a usable corner: measuring "
                  f"{len(extra)} more corners near them")
         m2, p2 = _measure_frames(corners, camera, eo=eo, frames=frames, images_dir=Path(images_dir), idx=extra,
-                                 manual_k={}, s=s)
+                                 manual_k={}, s=s, crs=crs, resume=resume)
         meas.update(m2)
         pred.update(p2)
         rays.update(_check_corners(corners, camera, frames, extra, meas, s))
@@ -526,16 +589,18 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
     camera, _ = orientations_camera(Project.open(paths.root) if camera_path is None else None, eo_path, camera_path)
     manual = (read_manual(manual_path, corners.id, eo.image_id, camera, corners_path, eo_path)
               if manual_path else None)
-    res = transfer_control(corners, camera, eo, paths.images_dir, s, manual, crs=crs)
-    sm = summary(res)
-    if sm.corners_accepted == 0:
-        raise InputError(f"no corner could be measured consistently in two or more frames ({sm.corners_measured} "
-                         f"tried; rejected: {sm.corners_rejected}) - check {eo_path} and the camera")
-    texts = output_texts(res, s.checks, resolved.record())
-    review = review_page(res, paths.images_dir) if s.chips else None
-    if review is not None:
-        with atomic_dir(paths.control_dir / "review") as tmp:
-            write_review(tmp, paths.root.name, review.summary, review.corners, review.chips)
-    for name, text in texts.files():
-        write_text_atomic(paths.control_dir / name, text)
+    # each frame's measurements are kept in work/control_resume until the outputs are written (core.resume)
+    with resumable(paths.work_dir / CONTROL_RESUME_DIR_NAME) as keep:
+        res = transfer_control(corners, camera, eo, paths.images_dir, s, manual, crs=crs, resume=keep)
+        sm = summary(res)
+        if sm.corners_accepted == 0:
+            raise InputError(f"no corner could be measured consistently in two or more frames ({sm.corners_measured} "
+                             f"tried; rejected: {sm.corners_rejected}) - check {eo_path} and the camera")
+        texts = output_texts(res, s.checks, resolved.record())
+        review = review_page(res, paths.images_dir) if s.chips else None
+        if review is not None:
+            with atomic_dir(paths.control_dir / "review") as tmp:
+                write_review(tmp, paths.root.name, review.summary, review.corners, review.chips)
+        for name, text in texts.files():
+            write_text_atomic(paths.control_dir / name, text)
     return sm

@@ -18,6 +18,7 @@ from aerotri.core.atomic import committed, write_text_atomic
 from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor, local_executor
 from aerotri.core.project import Project
+from aerotri.core.resume import ResumeFolder, file_stamp, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import BrownCamera, project_camera
 from aerotri.geom.eo import check_block_crs, read_gnss
@@ -132,23 +133,83 @@ def _terrain_height(project: Project, s: MatchSettings, crs=None) -> float | Non
     return None
 
 
-def _features_task(item) -> bool:
-    """Extract (or find cached) the features of one frame; True when they came from the cache."""
-    image_path, cache_dir, p, size = item
-    hit = F.features_cache_path(image_path, cache_dir, p).exists()
-    F.cached_features(image_path, cache_dir, p, size)
+RESUME_DIR_NAME = "match_resume"  # in work/: the features and pair matches a killed or interrupted match finished
+
+# what a task found: computed, in the cache of an earlier committed run, or kept by an interrupted one (resumed)
+_NEW, _CACHED, _RESUMED = 0, 1, 2
+
+
+@dataclasses.dataclass(frozen=True)
+class _FrameItem:
+    """One frame's feature task: its image, the cache, the settings, the expected size (px) and the key of
+    everything its features depend on (``_frame_key``) in ``resume``."""
+
+    image_path: Path
+    cache_dir: Path
+    p: F.FeatureSettings
+    size: tuple[int, int]
+    key: str
+    resume: ResumeFolder | None
+
+    def args(self) -> tuple:
+        return self.image_path, self.cache_dir, self.p, self.size
+
+
+def _frame_key(image_path: Path, p: F.FeatureSettings, size) -> str:
+    """Key of a frame's features: the image file (name, size, modification time), the settings (their key holds
+    the extraction's version), the frame size and the toolkit's version."""
+    import aerotri
+
+    return resume_key({"features": image_path.name, "stamp": file_stamp(image_path), "settings": p.key(),
+                       "size": list(size), "version": aerotri.__version__})
+
+
+def _features_task(item: _FrameItem) -> int:
+    """Extract (or find cached or kept) the features of one frame; _NEW, _CACHED or _RESUMED."""
+    f = F.features_cache_path(item.image_path, item.cache_dir, item.p)
+    # kept: the interrupted run made it (a task it left running may have written the cache file after the roll-back)
+    if item.resume is not None and item.resume.kept(item.key, ".npz") is not None:
+        hit = _RESUMED
+        if not f.exists():
+            item.resume.take(item.key, ".npz", f)
+    else:
+        hit = _CACHED if f.exists() else _NEW
+    F.cached_features(*item.args())
+    if hit == _NEW and item.resume is not None:
+        item.resume.keep(f, item.key, ".npz")
     return hit
 
 
-def _match_task(item) -> tuple[bool, np.ndarray]:
-    """Match one frame pair (or read the cached matches); (cache hit, (M, 2) keypoint index pairs)."""
-    tag, fa, fb, camera, p, cache_dir, guide = item
-    fkey = fa[2].key()
+def _match_task(item) -> tuple[int, np.ndarray]:
+    """Match one frame pair (or read the cached or kept matches); (_NEW, _CACHED or _RESUMED, (M, 2) keypoint
+    index pairs)."""
+    tag, fa, fb, camera, p, cache_dir, guide, key, resume = item
+    # the cache's name holds the features' key and both images' size and time: matches index the keypoints
+    fkey = f"{fa.p.key()}-{key[:12]}"
     f = M.match_cache_path(tag, cache_dir, p, fkey, guide is not None)
+    if resume is not None and resume.kept(key, ".npy") is not None:  # (as in _features_task)
+        if not f.exists():
+            resume.take(key, ".npy", f)
+        return _RESUMED, np.load(f)
     if f.exists():  # without reading the two frames' features
-        return True, np.load(f)
-    return False, M.cached_match(tag, F.cached_features(*fa), F.cached_features(*fb), camera, p, cache_dir=cache_dir,
-                                 feature_key=fkey, guide=guide)
+        return _CACHED, np.load(f)
+    m = M.cached_match(tag, F.cached_features(*fa.args()), F.cached_features(*fb.args()), camera, p,
+                       cache_dir=cache_dir, feature_key=fkey, guide=guide)
+    if resume is not None:
+        resume.keep(f, key, ".npy")
+    return _NEW, m
+
+
+def _pair_key(tag: str, fa: _FrameItem, fb: _FrameItem, camera: BrownCamera, p: M.PairMatchSettings,
+              guide) -> str:
+    """Key of a pair's verified matches: its two frames' feature keys, the camera, the match settings, the flight
+    plan's guide (None: unguided) and the toolkit's version."""
+    import aerotri
+
+    g = None if guide is None else [guide.centre_m.tolist(), guide.kappa_deg.tolist(), guide.terrain_height_m,
+                                    guide.footprint_a.wkb_hex, guide.footprint_b.wkb_hex]
+    return resume_key({"pair": tag, "a": fa.key, "b": fb.key, "camera": repr(camera), "settings": p.key(),
+                       "guide": g, "version": aerotri.__version__})
 
 
 @dataclasses.dataclass
@@ -200,38 +261,60 @@ def check_inputs(root, settings: MatchSettings | None = None) -> None:
 
 class _Matcher:
     """Features (one task per frame) and matches (one task per pair) of a block's frames on an executor,
-    cached in ``work/features`` and ``work/matches``; counts the cache hits."""
+    cached in ``work/features`` and ``work/matches`` and kept in ``resume`` for a run after an interrupted one;
+    counts the cache hits."""
 
-    def __init__(self, project: Project, frames: _Frames, camera: BrownCamera, executor: Executor):
+    def __init__(self, project: Project, frames: _Frames, camera: BrownCamera, executor: Executor,
+                 resume: ResumeFolder | None = None):
         self.ids, self.images, self.camera, self.ex = frames.ids, frames.images, camera, executor
         self.plan = frames.plan
         self.cache_f = project.work_dir / "features"
         self.cache_m = project.work_dir / "matches"
+        self.resume = resume
         self.feature_cache_hits = 0
         self.match_cache_hits = 0
+        self._items: dict = {}
 
-    def _item(self, i: int, p: F.FeatureSettings) -> tuple:
-        return (self.images.path_of(self.ids[i]), self.cache_f, p, (self.camera.width, self.camera.height))
+    def _item(self, i: int, p: F.FeatureSettings) -> _FrameItem:
+        k = (i, p)
+        if k not in self._items:
+            path = self.images.path_of(self.ids[i])
+            size = (self.camera.width, self.camera.height)
+            self._items[k] = _FrameItem(path, self.cache_f, p, size, _frame_key(path, p, size), self.resume)
+        return self._items[k]
 
-    def extract(self, frames, p: F.FeatureSettings, desc: str) -> list:
-        """Extract (or find cached) the features of the given frames, one task per frame; their cache keys."""
+    def _say_resumed(self, keys: list[str], suffix: str, unit: str, desc: str) -> None:
+        if self.resume is not None and self.resume.path.is_dir():
+            k = sum(self.resume.kept(key, suffix) is not None for key in keys)
+            if k:
+                log.info(f"{desc}: resumed {k} of {len(keys)} {unit}s an interrupted run finished "
+                         f"({self.resume.path})")
+
+    def extract(self, frames, p: F.FeatureSettings, desc: str) -> list[_FrameItem]:
+        """Extract (or find cached) the features of the given frames, one task per frame; their items."""
         items = [self._item(i, p) for i in frames]
-        self.feature_cache_hits += sum(self.ex.map(_features_task, items, desc=desc, unit="frame"))
+        self._say_resumed([it.key for it in items], ".npz", "frame", desc)
+        self.feature_cache_hits += sum(h == _CACHED for h in self.ex.map(_features_task, items, desc=desc,
+                                                                         unit="frame"))
         return items
 
     def features(self, frames, p: F.FeatureSettings, desc: str) -> dict:
         """Keypoints of the given frames (index -> CachedKeypoints: descriptors stay in the cache files), extracted
         as one task per frame."""
         frames = list(frames)
-        return {i: F.cached_keypoints(*item) for i, item in zip(frames, self.extract(frames, p, desc))}
+        return {i: F.cached_keypoints(*item.args()) for i, item in zip(frames, self.extract(frames, p, desc))}
 
     def match(self, pairs_ij, fp: F.FeatureSettings, p: M.PairMatchSettings, desc: str) -> list:
         """Verified matches of the given frame pairs, one task per pair (features read from the cache)."""
-        items = [(f"{self.ids[i]}__{self.ids[j]}", self._item(i, fp), self._item(j, fp), self.camera, p, self.cache_m,
-                  self.plan.guide(i, j, p.guide_margin) if self.plan is not None else None)
-                 for i, j in pairs_ij]
+        items = []
+        for i, j in pairs_ij:
+            tag, fa, fb = f"{self.ids[i]}__{self.ids[j]}", self._item(i, fp), self._item(j, fp)
+            guide = self.plan.guide(i, j, p.guide_margin) if self.plan is not None else None
+            items.append((tag, fa, fb, self.camera, p, self.cache_m, guide,
+                          _pair_key(tag, fa, fb, self.camera, p, guide), self.resume))
+        self._say_resumed([it[7] for it in items], ".npy", "pair", desc)
         out = self.ex.map(_match_task, items, desc=desc, unit="pair")
-        self.match_cache_hits += sum(hit for hit, _ in out)
+        self.match_cache_hits += sum(hit == _CACHED for hit, _ in out)
         return [m for _, m in out]
 
 
@@ -322,7 +405,8 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
     ``settings``: None reads [match] of project.toml; a ``Resolved`` (``aerotri match``, the chain) carries the
     source of every setting into the report. Feature extraction (one task per frame) and matching (one task
     per pair) run on ``executor`` (default: local threads); the results are cached in ``work/features`` and
-    ``work/matches``."""
+    ``work/matches``, and kept in ``work/match_resume`` until the outputs are written, so that a run after an
+    interrupted or killed one computes only what that one did not finish (``aerotri.core.resume``)."""
     t0 = time.perf_counter()
     clock = _PhaseClock()
     project = Project.open(root)
@@ -341,60 +425,62 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
                     "pairs, no weak-model analysis or densification")
     else:
         log.info(f"{project.gnss_path} not found: pairs by thumbnail retrieval")
-    mt = _Matcher(project, frames, camera, executor or local_executor())
-    if plan is None:
-        pairs = _retrieved_pairs(mt, s)
-    clock.lap("plan")
-    sparse = mt.features(range(len(ids)), s.sparse, "features")
-    sparse = [sparse[i] for i in range(len(ids))]
-    clock.lap("features")
-    matches = {(pr.i, pr.j): ("sparse", m)
-               for pr, m in zip(pairs, mt.match([(pr.i, pr.j) for pr in pairs], s.sparse, s.match, "matching"))}
-    clock.lap("matching")
-    ties = _ties(plan, camera, sparse, {}, matches, s)
-    clock.lap("tracks")
-    densified = Densified()
-    if s.densify and plan is not None:
-        ties, extra, densified = _densify(mt, plan, sparse, ties, s)
-        pairs = pairs + extra
-    clock.lap("densify")
+    # what the tasks finish is kept in work/match_resume until the stage's outputs are written (core.resume)
+    with resumable(project.work_dir / RESUME_DIR_NAME) as keep:
+        mt = _Matcher(project, frames, camera, executor or local_executor(), keep)
+        if plan is None:
+            pairs = _retrieved_pairs(mt, s)
+        clock.lap("plan")
+        sparse = mt.features(range(len(ids)), s.sparse, "features")
+        sparse = [sparse[i] for i in range(len(ids))]
+        clock.lap("features")
+        matches = {(pr.i, pr.j): ("sparse", m)
+                   for pr, m in zip(pairs, mt.match([(pr.i, pr.j) for pr in pairs], s.sparse, s.match, "matching"))}
+        clock.lap("matching")
+        ties = _ties(plan, camera, sparse, {}, matches, s)
+        clock.lap("tracks")
+        densified = Densified()
+        if s.densify and plan is not None:
+            ties, extra, densified = _densify(mt, plan, sparse, ties, s)
+            pairs = pairs + extra
+        clock.lap("densify")
 
-    ties_per_pair = [(i, j, len(m)) for (i, j), (_, m) in ties.matches.items()]
-    components = _components(project, ids, ties_per_pair)
-    at = project.at_dir
-    at.mkdir(parents=True, exist_ok=True)
-    _write_tiepoints(project.tiepoints_path, ids, ties)
-    lengths = np.bincount(ties.track) if len(ties.track) else np.zeros(0, int)
-    kinds = {}
-    for pr in pairs:
-        kinds[pr.kind] = kinds.get(pr.kind, 0) + 1
-    strength = ties.strength
-    hist = track_lengths(ties.track)
-    report = MatchReport(
-        project=project.name, frames=len(ids), strips=int(len(np.unique(plan.strip))) if plan is not None else 0,
-        pairs=len(pairs), pairs_by_kind=kinds, pairs_with_ties=int(sum(t > 0 for _, _, t in ties_per_pair)),
-        components=len(components), component_frames=components if len(components) > 1 else [],
-        tracks=int(len(lengths)), observations=int(len(ties.track)), inconsistent_tracks_dropped=ties.n_bad,
-        tracks_3plus_fraction=float((lengths >= 3).mean()) if len(lengths) else 0.0,
-        track_length_histogram={str(n): t for n, t in zip(hist.rays.tolist(), hist.tracks.tolist())},
-        ties_per_pair=[PairTies(ids[i], ids[j], t) for i, j, t in ties_per_pair],
-        weak_models=[[m.left, m.right] for m in strength.models if m.weak],
-        weak_strip_pairs=[[c.strip_a, c.strip_b] for c in strength.cross_strip if c.weak],
-        densified=densified, models=strength.models, cross_strip=strength.cross_strip,
-        terrain_height_m=plan.terrain_height_m if plan is not None else None,
-        image_top_deg=plan.image_top_deg if plan is not None else None,
-        seconds=0.0, phase_seconds=clock.phases, feature_cache_hits=mt.feature_cache_hits,
-        match_cache_hits=mt.match_cache_hits, settings=resolved.record(),
-    )
-    if plan is not None:
-        plot_block(at / "connectivity.png", plan, ties_per_pair, strength)
-    clock.lap("output")  # the report's own writing is left out of its numbers (milliseconds)
-    report.seconds = round(time.perf_counter() - t0, 2)
-    write_text_atomic(project.connectivity_path, json.dumps(dataclasses.asdict(report), indent=1) + "\n")
-    log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
-             f"observations, {report.components} component(s), {len(report.weak_models)} weak model(s) -> "
-             f"{project.tiepoints_path}")
-    return report
+        ties_per_pair = [(i, j, len(m)) for (i, j), (_, m) in ties.matches.items()]
+        components = _components(project, ids, ties_per_pair)
+        at = project.at_dir
+        at.mkdir(parents=True, exist_ok=True)
+        _write_tiepoints(project.tiepoints_path, ids, ties)
+        lengths = np.bincount(ties.track) if len(ties.track) else np.zeros(0, int)
+        kinds = {}
+        for pr in pairs:
+            kinds[pr.kind] = kinds.get(pr.kind, 0) + 1
+        strength = ties.strength
+        hist = track_lengths(ties.track)
+        report = MatchReport(
+            project=project.name, frames=len(ids), strips=int(len(np.unique(plan.strip))) if plan is not None else 0,
+            pairs=len(pairs), pairs_by_kind=kinds, pairs_with_ties=int(sum(t > 0 for _, _, t in ties_per_pair)),
+            components=len(components), component_frames=components if len(components) > 1 else [],
+            tracks=int(len(lengths)), observations=int(len(ties.track)), inconsistent_tracks_dropped=ties.n_bad,
+            tracks_3plus_fraction=float((lengths >= 3).mean()) if len(lengths) else 0.0,
+            track_length_histogram={str(n): t for n, t in zip(hist.rays.tolist(), hist.tracks.tolist())},
+            ties_per_pair=[PairTies(ids[i], ids[j], t) for i, j, t in ties_per_pair],
+            weak_models=[[m.left, m.right] for m in strength.models if m.weak],
+            weak_strip_pairs=[[c.strip_a, c.strip_b] for c in strength.cross_strip if c.weak],
+            densified=densified, models=strength.models, cross_strip=strength.cross_strip,
+            terrain_height_m=plan.terrain_height_m if plan is not None else None,
+            image_top_deg=plan.image_top_deg if plan is not None else None,
+            seconds=0.0, phase_seconds=clock.phases, feature_cache_hits=mt.feature_cache_hits,
+            match_cache_hits=mt.match_cache_hits, settings=resolved.record(),
+        )
+        if plan is not None:
+            plot_block(at / "connectivity.png", plan, ties_per_pair, strength)
+        clock.lap("output")  # the report's own writing is left out of its numbers (milliseconds)
+        report.seconds = round(time.perf_counter() - t0, 2)
+        write_text_atomic(project.connectivity_path, json.dumps(dataclasses.asdict(report), indent=1) + "\n")
+        log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
+                 f"observations, {report.components} component(s), {len(report.weak_models)} weak model(s) -> "
+                 f"{project.tiepoints_path}")
+        return report
 
 
 def _tracks(sparse, dense, matches, complete_px: float | None = None, size_px=None):
