@@ -359,3 +359,33 @@ def test_flight_acceptance_uses_the_dem_the_frame_orthos_were_made_on(tmp_path, 
     assert overlap and all(r.value is not None for r in overlap)
     summary = json.loads((p / "reports" / "summary.json").read_text())
     assert "at/dem.tif" in json.dumps(summary)  # the terrain the footprints stand on is named
+
+
+def test_the_doms_holes_are_a_row_of_the_report(tmp_path):
+    """The 2 x 2 full-size DMC block's true ortho left 3,403,268 cells (1.42 %, 34,033 m2) inside the block that no
+    frame sees as nodata (mosaic.json and a console warning said so), and the report passed the DOM without a word
+    about them (trial 8): a row now states them, not judged (no table has a limit)."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    doc = dict(path=str(p / "ortho" / "mosaic.tif"), width=11512, height=23148, frames=4, res_m=0.1,
+               seams="least-cost", feather_px=8.0, gains={"a": [1.0]}, cells_seen_by_no_frame=3403268,
+               share_seen_by_no_frame=0.014218923772462021, area_seen_by_no_frame_m2=34032.7)
+    (p / "ortho" / "mosaic.json").write_text(json.dumps(doc))
+    rep = write_qa_report(p)
+    row = rep.check("dom_seen_by_no_frame_pct")
+    assert row.quantity == "DOM cells seen by no frame (nodata inside the block)"
+    assert row.value == 1.422 and row.unit == "%" and row.limit is None and row.verdict is None
+    assert row.note.startswith("3,403,268 cells, 34,033 m2;") and "seamlines_preview.png" in row.note
+    assert rep.overall == "pass"
+    assert "DOM cells seen by no frame" in (p / "reports" / "index.html").read_text()
+    (p / "ortho" / "mosaic.json").write_text("{}")
+    assert "ortho/mosaic.json" in str(_raises(lambda: write_qa_report(p)))
+
+
+def _raises(f):
+    from aerotri.core.errors import InputError
+
+    try:
+        f()
+    except InputError as e:
+        return e
+    raise AssertionError("no InputError")
