@@ -110,11 +110,17 @@ class DomCheck:
     mosaic_fingerprint: str | None = None  # ``mosaic_fingerprint`` of the project's mosaic checked; None: another DOM,
     # or a report written before it was recorded
 
-    def stale_for(self, mosaic_path) -> bool:
+    def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
-        since, e.g. by a new ``ortho mosaic`` or ``aerotri run`` without a reference); False when it cannot tell."""
-        return (self.mosaic_fingerprint is not None and Path(mosaic_path).is_file()
-                and mosaic_fingerprint(mosaic_path) != self.mosaic_fingerprint)
+        since, e.g. by a new ``ortho mosaic`` or ``aerotri run`` without a reference): by the fingerprint, or for a
+        check without one (written before it was recorded) when the mosaic is newer than the check's file
+        ``report_path``; False when it cannot tell."""
+        if not Path(mosaic_path).is_file():
+            return False
+        if self.mosaic_fingerprint is not None:
+            return mosaic_fingerprint(mosaic_path) != self.mosaic_fingerprint
+        return report_path is not None and Path(report_path).is_file() and \
+            os.path.getmtime(mosaic_path) > os.path.getmtime(report_path)
 
 
 MOSAIC_FINGERPRINT_HEAD_BYTES = 4 * MiB

@@ -389,7 +389,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     ctl = (read_control_transfer(project.control_transfer_path)
            if project.control_transfer_path.is_file() else None)
     dom_check = read_dom_check(project.dom_report_path) if project.dom_report_path.exists() else None
-    dom_check_stale = dom_check is not None and dom_check.stale_for(project.mosaic_path)
+    dom_check_stale = dom_check is not None and dom_check.stale_for(project.mosaic_path, project.dom_report_path)
     if dom_check_stale:  # its figures are of a mosaic that no longer exists: not shown as the DOM's
         dom_check = None
     dom = dom_check.displacement if dom_check else None

@@ -389,3 +389,23 @@ def _raises(f):
     except InputError as e:
         return e
     raise AssertionError("no InputError")
+
+
+def test_a_dom_check_older_than_the_mosaic_is_not_taken_without_a_fingerprint(tmp_path):
+    """The 2 x 2 DMC block copied with its chain run of an older main (dom_report.json without the mosaic's
+    fingerprint): `aerotri run` without --reference made the mosaic again, and the report passed the new DOM by the
+    old check's 0.0991 m (trial 8). Without a fingerprint a check older than the mosaic is now taken as of an earlier
+    mosaic; one made after it still counts."""
+    import os
+
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    mosaic, check = p / "ortho" / "mosaic.tif", p / "ortho" / "dom_report.json"
+    mosaic.write_bytes(b"II*\0")
+    os.utime(check, (1_000_000_000, 1_000_000_000))  # the check first, the mosaic made again after it
+    rep = write_qa_report(p)
+    stale = rep.check("dom_check_stale")
+    assert stale.verdict == "fail" and "dom_report.json" in stale.note and "mosaic.tif" in stale.note
+    assert not rep.has("dom_rms_xy_m") and rep.overall == "fail"
+    os.utime(mosaic, (900_000_000, 900_000_000))  # the check after the mosaic
+    rep = write_qa_report(p)
+    assert rep.has("dom_rms_xy_m") and not rep.has("dom_check_stale") and rep.overall == "pass"
