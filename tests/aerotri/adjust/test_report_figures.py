@@ -317,3 +317,23 @@ def test_ground_residual_map_shows_every_arrow_and_keeps_the_scale_bar_off_the_p
     f = RF.ground_residual_map({"control_points": [], "check_points": line})
     (bar,) = [a for a in f.fig.axes[0].get_children() if isinstance(a, AnchoredOffsetbox)]
     assert bar.loc == AnchoredOffsetbox.codes["lower left"]
+
+
+def test_flight_map_keeps_the_footprints_off_the_frame_and_the_scale_bar():
+    """The 2 x 2 DMC block's footprint map set its limits at the footprints' extremes: the outer footprints' edges ran
+    along the frame and under the scale bar (trial 8); a margin now, more below for the bar."""
+    from aerotri.adjust.report_figures import flight_map
+
+    frames = []
+    for k, (x, y) in enumerate(((452465.0, 3407775.0), (452770.0, 3407775.0), (452465.0, 3408740.0))):
+        ring = [(x - 385, y - 700), (x + 385, y - 690), (x + 390, y + 690), (x - 380, y + 700)]
+        frames.append(dict(image_id=f"f{k}", strip=1 + k // 2, footprint=ring, x_m=x, y_m=y))
+    fig = flight_map(dict(frames=frames, strips=[], terrain="dem.tif"))
+    ax = fig.fig.axes[0]
+    xy = np.vstack([f["footprint"] for f in frames])
+    ox, oy = np.floor(xy.min(axis=0) / 1000.0) * 1000.0
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    span = np.ptp(xy, axis=0).max()
+    assert x0 <= xy[:, 0].min() - ox - 0.02 * span and x1 >= xy[:, 0].max() - ox + 0.02 * span
+    assert y0 <= xy[:, 1].min() - oy - 0.05 * span and y1 >= xy[:, 1].max() - oy + 0.02 * span
