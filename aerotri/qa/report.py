@@ -442,7 +442,11 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         if ctl.layout_targets:
             empty = [t for t in ctl.layout_targets if t.corner is None]
             fb = sum(t.tier not in (None, "usable") for t in ctl.layout_targets)
-            note = "; ".join(empty_target_text(dataclasses.asdict(t)) for t in empty)
+            # the layout may put two targets at one place: named once, with their number
+            texts = [empty_target_text(dataclasses.asdict(t)) for t in empty]
+            note = "; ".join(text if texts.count(text) == 1 else
+                             f"{texts.count(text)} {text.replace(' target ', ' targets ', 1)}"
+                             for text in dict.fromkeys(texts))
             if fb:
                 note = f"{fb} filled by fallbacks" + (f"; {note}" if note else "")
             rows.append(_check("layout_targets_filled", sec, "layout targets with a control point",

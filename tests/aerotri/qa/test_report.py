@@ -409,3 +409,19 @@ def test_a_dom_check_older_than_the_mosaic_is_not_taken_without_a_fingerprint(tm
     os.utime(mosaic, (900_000_000, 900_000_000))  # the check after the mosaic
     rep = write_qa_report(p)
     assert rep.has("dom_rms_xy_m") and not rep.has("dom_check_stale") and rep.overall == "pass"
+
+
+def test_two_empty_targets_at_one_place_are_named_once(tmp_path):
+    """The 2 x 2 DMC block's layout puts two full targets at each place; the two empty ones in the north were named
+    twice in the same words (trial 8)."""
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.18)
+    (p / "control").mkdir()
+    empty = "no LiDAR roof corner within 383.9 m of the target (nearest 554.6 m away)"
+    targets = [dict(kind="full", target_x_m=452613.6, target_y_m=3407243.6, corner="RC01218", tier="height_only",
+                    empty_reason=None)] + \
+        [dict(kind="full", target_x_m=452621.75, target_y_m=3409261.2, corner=None, tier=None, empty_reason=empty)] * 2
+    (p / "control" / "transfer.json").write_text(json.dumps(dict(
+        summary=dict(control_full=0, control_height=1, check_points=5), layout_targets=targets)))
+    row = write_qa_report(p).check("layout_targets_filled")
+    assert row.value == "1 of 3"
+    assert row.note == f"1 filled by fallbacks; 2 full targets at 452622 3409261: {empty}"
