@@ -110,11 +110,17 @@ class DomCheck:
     mosaic_fingerprint: str | None = None  # ``mosaic_fingerprint`` of the project's mosaic checked; None: another DOM,
     # or a report written before it was recorded
 
-    def stale_for(self, mosaic_path) -> bool:
+    def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
-        since, e.g. by a new ``ortho mosaic`` or ``aerotri run`` without a reference); False when it cannot tell."""
-        return (self.mosaic_fingerprint is not None and Path(mosaic_path).is_file()
-                and mosaic_fingerprint(mosaic_path) != self.mosaic_fingerprint)
+        since, e.g. by a new ``ortho mosaic`` or ``aerotri run`` without a reference): by the fingerprint, or for a
+        check without one (written before it was recorded) when the mosaic is newer than the check's file
+        ``report_path``; False when it cannot tell."""
+        if not Path(mosaic_path).is_file():
+            return False
+        if self.mosaic_fingerprint is not None:
+            return mosaic_fingerprint(mosaic_path) != self.mosaic_fingerprint
+        return report_path is not None and Path(report_path).is_file() and \
+            os.path.getmtime(mosaic_path) > os.path.getmtime(report_path)
 
 
 MOSAIC_FINGERPRINT_HEAD_BYTES = 4 * MiB
@@ -225,20 +231,24 @@ def read_points_csv(path) -> DomPoints:
 
 def plot_displacements(path, patches: PatchDisplacements | None, stats: Displacement, title: str, points=None,
                        extent_px=None) -> None:
-    """Vector plot of displacements (exaggerated) and a histogram of their lengths; PNG."""
+    """Vector plot of displacements (exaggerated; at most ``MAX_LISTED`` patches drawn, evenly spread) and a histogram
+    of the lengths of every patch (those the statistics take: its count is the title's n); PNG."""
     plt = pyplot()
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [1.4, 1]})
     if patches is not None and len(patches):
-        d = np.hypot(patches.dx_px, patches.dy_px)
-        scale = 0.1 * (extent_px or max(patches.col_px.max(), patches.row_px.max())) / max(d.max(), 1e-3)
-        q = ax.quiver(patches.col_px, patches.row_px, patches.dx_px * scale, patches.dy_px * scale, d, angles="xy",
+        drawn = patches.select(_spread(len(patches), MAX_LISTED))
+        d = np.hypot(drawn.dx_px, drawn.dy_px)
+        scale = 0.1 * (extent_px or max(drawn.col_px.max(), drawn.row_px.max())) / max(d.max(), 1e-3)
+        q = ax.quiver(drawn.col_px, drawn.row_px, drawn.dx_px * scale, drawn.dy_px * scale, d, angles="xy",
                       scale_units="xy", scale=1, cmap="viridis")
         fig.colorbar(q, ax=ax, label="displacement (GSD)")
         ax.invert_yaxis()
         ax.set_xlabel("column (px)")
         ax.set_ylabel("row (px)")
-        bx.hist(d, bins=30)
+        if len(drawn) < len(patches):
+            title = f"{title}: {len(drawn):,} of {len(patches):,} patches drawn"
+        bx.hist(np.hypot(patches.dx_px, patches.dy_px), bins=30)
     elif points is not None:
         de, dn = points
         ax.quiver(np.arange(len(de)), np.zeros(len(de)), de, dn)
@@ -782,7 +792,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             report["roofs"] = roofs
 
         def plot():
-            plot_displacements(out_stem.with_suffix(".png"), listed, stats, f"DOM - reference ({Path(dom_path).name})",
+            plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
                                extent_px=max(w, h))
     else:
         stats, table = check_points(points_path, res, dom_bounds)

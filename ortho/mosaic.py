@@ -522,12 +522,25 @@ class MosaicSummary:
     gains: tuple[tuple[str, tuple[float, ...]], ...]
     cells_seen_by_no_frame: int
     area_seen_by_no_frame_m2: float
+    share_seen_by_no_frame: float | None = None  # of the block's cells (None: a record written before it was kept)
 
 
 def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
     return MosaicSummary(Path(doc["path"]), summary_path, doc["width"], doc["height"], doc["frames"], doc["res_m"],
                          doc["seams"], doc["feather_px"], tuple((n, tuple(g)) for n, g in doc["gains"].items()),
-                         doc["cells_seen_by_no_frame"], doc["area_seen_by_no_frame_m2"])
+                         doc["cells_seen_by_no_frame"], doc["area_seen_by_no_frame_m2"],
+                         doc.get("share_seen_by_no_frame"))
+
+
+def read_mosaic_summary(path) -> MosaicSummary:
+    """ortho/mosaic.json as ``mosaic_block`` wrote it; InputError naming the file when it is not one."""
+    from aerotri.core.textio import record_error
+
+    doc = read_json(path, "mosaic record (mosaic.json)")
+    try:
+        return _mosaic_summary(doc, Path(path))
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise record_error(path, "mosaic record (mosaic.json)", exc) from None
 
 
 def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, object_height_m: float = 2.5,

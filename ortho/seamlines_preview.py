@@ -4,9 +4,10 @@ seams between the frames' regions in magenta, the cells no frame sees (nodata in
 frame of a true ortho, or over DEM nodata) hatched orange and black, the outside of the block white, and a legend
 strip below the image.
 
-Colours: 8-bit frames as they are; 16-bit frames by their bit depth onto 0-255 (the NBITS tag, else the fewest of
-8, 10, 12, 14 or 16 bits that hold the largest sample: a DMC's 12-bit data in 16-bit samples would be black divided
-by 257); one band as grey.
+Colours: 8-bit frames as they are; 16-bit samples stretched linearly from their 0.5th to their 99.5th percentile
+(inside the block, all bands together, so colour balance is kept), the range named in the legend: a DMC's 12-bit
+data in 16-bit samples would be black divided by 257, and by its bit depth the balanced DOM of 12-bit frames (gains
+up to 1.05 take it to 4311, 13 bits) was a quarter as bright as the data, dark grey on black; one band as grey.
 """
 
 from __future__ import annotations
@@ -42,39 +43,49 @@ def seam_pixels(labels: np.ndarray) -> np.ndarray:
     return seam
 
 
-def sample_bits(img: np.ndarray, valid: np.ndarray | None = None, nbits: int | None = None) -> int:
-    """Bit depth of 16-bit samples: ``nbits`` (the raster's NBITS tag) when given, else the fewest of 8, 10, 12, 14
-    or 16 bits that hold the largest valid sample."""
-    if nbits:
-        return int(nbits)
-    top = int(img[:, valid].max()) if valid is not None and valid.any() else int(img.max(initial=0))
-    return next(b for b in (8, 10, 12, 14, 16) if top <= (1 << b) - 1)
+STRETCH_PERCENT = (0.5, 99.5)
 
 
-def _to_rgb8(img: np.ndarray, valid: np.ndarray | None = None, nbits: int | None = None) -> np.ndarray:
-    """(bands, h, w) samples -> (h, w, 3) uint8 (16-bit by their bit depth, ``sample_bits``)."""
+def stretch_range(img: np.ndarray, valid: np.ndarray | None = None) -> tuple[float, float]:
+    """(low, high): the ``STRETCH_PERCENT`` percentiles of the (bands, h, w) samples on the valid cells."""
+    samples = img[:, valid] if valid is not None and valid.any() else img.reshape(len(img), -1)
+    lo, hi = (float(v) for v in np.percentile(samples, STRETCH_PERCENT))
+    return lo, max(hi, lo + 1.0)
+
+
+def _to_rgb8(img: np.ndarray, valid: np.ndarray | None = None) -> tuple[np.ndarray, tuple[float, float] | None]:
+    """(bands, h, w) samples -> (h, w, 3) uint8 and the 16-bit stretch (``stretch_range``; None for 8-bit)."""
+    stretch = None
     if img.dtype == np.uint16:
-        top = (1 << sample_bits(img, valid, nbits)) - 1
-        # (x * 255 // 65535 is x // 257: 16-bit data as before)
-        img = (np.minimum(img.astype(np.uint32), top) * 255 // top).astype(np.uint8)
+        stretch = lo, hi = stretch_range(img, valid)
+        scaled = (img.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo))
+        img = np.rint(np.clip(scaled, 0, 255)).astype(np.uint8)
     elif img.dtype != np.uint8:
         img = np.clip(img, 0, 255).astype(np.uint8)
     rgb = img[:3] if img.shape[0] >= 3 else np.repeat(img[:1], 3, axis=0)
-    return cv2.merge(list(rgb))  # interleaved (h, w, 3): OpenCV's copy, faster than numpy's transposed one
+    return cv2.merge(list(rgb)), stretch  # interleaved (h, w, 3): OpenCV's copy, faster than numpy's transposed one
 
 
-def _legend(width: int) -> np.ndarray:
-    """A white strip with the three swatches and their names (RGB)."""
+def _labels(stretch: tuple[float, float] | None) -> list[str]:
+    names = ["seamline", "nodata: no frame sees it", "outside the block"]
+    if stretch is not None:
+        names.append(f"grey: 16-bit samples {stretch[0]:.0f}-{stretch[1]:.0f} stretched "
+                     f"({STRETCH_PERCENT[0]:g}-{STRETCH_PERCENT[1]:g} %)")
+    return names
+
+
+def _legend(width: int, stretch: tuple[float, float] | None = None) -> np.ndarray:
+    """A white strip with the three swatches and their names (RGB), and the 16-bit stretch when there is one."""
     strip = np.full((LEGEND_PX, width, 3), 255, np.uint8)
     x = 6
-    for label, kind in (("seamline", "seam"), ("nodata: no frame sees it", "hatch"), ("outside the block", "outside")):
+    for label, kind in zip(_labels(stretch), ("seam", "hatch", "outside", "note")):
         y0, y1 = 7, LEGEND_PX - 7
         if kind == "seam":
             strip[LEGEND_PX // 2 - 1:LEGEND_PX // 2 + 2, x:x + 16] = SEAM_RGB
         elif kind == "hatch":
             rr, cc = np.mgrid[y0:y1, x:x + 16]
             strip[y0:y1, x:x + 16] = np.where((((rr + cc) // 3) % 2 == 0)[..., None], HATCH_RGB[0], HATCH_RGB[1])
-        else:
+        elif kind == "outside":
             strip[y0:y1, x:x + 16] = OUTSIDE_RGB
             cv2.rectangle(strip, (x, y0), (x + 15, y1 - 1), (0, 0, 0), 1)
         cv2.putText(strip, label, (x + 22, LEGEND_PX - 9), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
@@ -82,9 +93,8 @@ def _legend(width: int) -> np.ndarray:
     return strip
 
 
-def legend_width() -> int:
-    return 6 + sum(22 + cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)[0][0] + 18
-                   for s in ("seamline", "nodata: no frame sees it", "outside the block"))
+def legend_width(stretch: tuple[float, float] | None = None) -> int:
+    return 6 + sum(22 + cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)[0][0] + 18 for s in _labels(stretch))
 
 
 def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX, *,
@@ -99,8 +109,7 @@ def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = P
             raise ValueError(f"{mosaic_path}: {ds.width} x {ds.height} px, not the preview's {w} x {h}")
         img = ds.read(out_shape=(ds.count, h, w), resampling=Resampling.average)
         ok = ds.read_masks(1, out_shape=(h, w), resampling=Resampling.nearest) > 0
-        nbits = ds.tags(1, ns="IMAGE_STRUCTURE").get("NBITS")
-    rgb = _to_rgb8(img, ok, int(nbits) if nbits else None)
+    rgb, stretch = _to_rgb8(img, ok)
     # nodata: inside the block (not reached from the edge through nodata) or outside it
     empty = np.pad(~ok, 1, constant_values=True).view(np.uint8).copy()
     cv2.floodFill(empty, None, (0, 0), 2)
@@ -114,10 +123,10 @@ def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = P
     seam = seam_pixels(labels.take(rows, axis=0).take(cols, axis=1))  # labels[np.ix_(rows, cols)], taken faster
     seam = cv2.dilate(seam.view(np.uint8), np.ones((2, 2), np.uint8)).view(bool) & ok
     rgb[seam] = SEAM_RGB
-    width = max(w, legend_width())
+    width = max(w, legend_width(stretch))
     out = np.full((h + LEGEND_PX, width, 3), 255, np.uint8)
     out[:h, :w] = rgb
-    out[h:] = _legend(width)
+    out[h:] = _legend(width, stretch)
     return out
 
 

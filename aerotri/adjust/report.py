@@ -1101,8 +1101,9 @@ def _surface_figure(ba, plt):
         u, x = used & (cls == k), ~used & (cls == k)
         if not (u.any() or x.any()):
             continue
-        sc = ax.scatter(P[u, 0], P[u, 1], c=e[u] / sigma[u], cmap="RdBu_r", vmin=-3, vmax=3, s=6 if k == 0 else 10,
-                        marker=marker, label=f"{name}: used ({int(u.sum())})")
+        # a grey edge: the points on the surface (within a sigma) are near-white on white without it
+        sc = ax.scatter(P[u, 0], P[u, 1], c=e[u] / sigma[u], cmap="RdBu_r", vmin=-3, vmax=3, s=8 if k == 0 else 12,
+                        marker=marker, edgecolors="0.45", linewidths=0.3, label=f"{name}: used ({int(u.sum())})")
         ax.plot(P[x, 0], P[x, 1], "x", color=rej_colour, ms=4, label=f"{name}: rejected ({int(x.sum())})")
     if sc is not None:
         fig.colorbar(sc, ax=ax, label="point - surface (sigmas)")
@@ -1111,7 +1112,7 @@ def _surface_figure(ba, plt):
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize=8)  # below: on none of the points
     ax.set_title(f"Surface control: {int(used.sum())} tie points on the DEM" + (
         f" and roof planes ({int((used & (cls == 1)).sum())})" if (cls == 1).any() else ""))
     return fig

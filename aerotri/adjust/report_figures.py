@@ -440,8 +440,9 @@ def flight_map(fa: dict) -> Figure | None:
         ax.annotate(f["image_id"], (f["x_m"] - o[0], f["y_m"] - o[1]), fontsize=6, xytext=(3, 3),
                     textcoords="offset points")
     allp = np.vstack(fp) - o
-    ax.set_xlim(allp[:, 0].min(), allp[:, 0].max())
-    ax.set_ylim(allp[:, 1].min(), allp[:, 1].max())
+    pad = 0.03 * max(float(np.ptp(allp[:, 0])), float(np.ptp(allp[:, 1])), 1.0)  # edges off the frame
+    ax.set_xlim(allp[:, 0].min() - pad, allp[:, 0].max() + pad)
+    ax.set_ylim(allp[:, 1].min() - 2.5 * pad, allp[:, 1].max() + pad)  # room for the scale bar
     for k, s in enumerate(strips):
         ax.plot([], [], color=cmap(k % 10), label=f"strip {s}")
     ax.legend(loc="upper right", fontsize=8)

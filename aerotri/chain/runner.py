@@ -115,16 +115,58 @@ def stamp_path(root: Path, stage: str) -> Path:
 
 
 def is_current(root: Path, st: Stage) -> bool:
+    return stale_reason(root, st) is None
+
+
+def stale_reason(root: Path, st: Stage) -> str | None:
+    """Why the stage must run (None: up to date): no stamp, an output missing, the inputs or the options that
+    changed since its stamp (by name: a new key of a newer version's settings re-runs a stage too)."""
     sp = stamp_path(root, st.name)
     if not sp.exists():
-        return False
+        return "not run before"
     try:
         stamp = json.loads(sp.read_text())
     except json.JSONDecodeError:
-        return False
-    if not all(p.exists() for p in st.outputs(root)):
-        return False
-    return stamp.get("inputs") == _signature(st.inputs(root), root) and stamp.get("options") == _plain(st.options_now(root), root)
+        return f"{_key(sp, root)} unreadable"
+    missing = [_key(p, root) for p in st.outputs(root) if not p.exists()]
+    if missing:
+        return f"output missing: {_names(missing)}"
+    reasons = []
+    inputs = _differing(stamp.get("inputs") or {}, _signature(st.inputs(root), root))
+    if inputs:
+        reasons.append(f"inputs changed: {inputs}")
+    options = _differing(stamp.get("options") or {}, _plain(st.options_now(root), root))
+    if options:
+        reasons.append(f"options changed: {options}")
+    return "; ".join(reasons) or None
+
+
+def _names(names: list[str], at_most: int = 4) -> str:
+    more = f" and {len(names) - at_most} more" if len(names) > at_most else ""
+    return ", ".join(names[:at_most]) + more
+
+
+def _differing(before: dict, now: dict, prefix: str = "") -> str:
+    """The keys whose values differ, nested keys dotted: ``a (new)``, ``b (dropped)``, ``c``."""
+    out = []
+    for k in sorted(set(before) | set(now), key=str):
+        name = f"{prefix}{k}"
+        if k not in before:
+            out.append(f"{name} (new)")
+        elif k not in now:
+            out.append(f"{name} (dropped)")
+        elif isinstance(before[k], dict) and isinstance(now[k], dict):
+            inner = _differing(before[k], now[k], f"{name}.")
+            if inner:
+                out.append(inner)
+        elif isinstance(before[k], list) and isinstance(now[k], list) and len(before[k]) == len(now[k]) and \
+                all(isinstance(a, dict) and isinstance(b, dict) for a, b in zip(before[k], now[k])):
+            inner = [_differing(a, b, f"{name}[{i}].") for i, (a, b) in enumerate(zip(before[k], now[k]))]
+            if any(inner):
+                out.append(", ".join(x for x in inner if x))
+        elif before[k] != now[k]:
+            out.append(name)
+    return _names(", ".join(out).split(", ")) if out else ""
 
 
 def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[str], None] = _log.info) -> list[dict]:
@@ -138,12 +180,13 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
             rows.append(dict(stage=st.name, status="skipped", seconds=0.0, why=reason))
             log(f"[{st.name}] skipped: {reason}")
             continue
-        if not force and is_current(root, st):
+        why = "--force" if force else stale_reason(root, st)
+        if why is None:
             stamp = json.loads(stamp_path(root, st.name).read_text())
             rows.append(dict(stage=st.name, status="skipped (up to date)", seconds=0.0, **stamp.get("result", {})))
             log(f"[{st.name}] up to date, skipped")
             continue
-        log(f"[{st.name}] running")
+        log(f"[{st.name}] running ({why})")
         _remove_stale_temporaries(st.outputs(root))
         options = _plain(st.options_now(root), root)  # before the run: the stage may change what they depend on
         # the stage's outputs and its stamp are one commit: all new, or (an error, a kill) all as before;

@@ -306,7 +306,7 @@ def _dom_check_stale(project: Project) -> bool:
     from ortho.check import read_dom_check
 
     path = project.dom_report_path
-    return path.is_file() and read_dom_check(path).stale_for(project.mosaic_path)
+    return path.is_file() and read_dom_check(path).stale_for(project.mosaic_path, path)
 
 
 def project_figures(project: Project) -> Figures:

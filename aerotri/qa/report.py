@@ -194,6 +194,18 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
                   f"corners: {source}{kind}; not judged")
 
 
+def _holes_row(section: str, project: Project) -> QaCheck:
+    """The DOM's cells inside the block that no frame sees (ortho/mosaic.json): nodata in the delivered mosaic (a
+    true ortho's ground occluded in every frame, or DEM nodata). Shown, not judged: no table has a limit."""
+    from ortho.mosaic import read_mosaic_summary
+
+    m = read_mosaic_summary(project.mosaic_summary_path)
+    share = None if m.share_seen_by_no_frame is None else round(100.0 * m.share_seen_by_no_frame, 3)
+    return _check("dom_seen_by_no_frame_pct", section, "DOM cells seen by no frame (nodata inside the block)", share,
+                  None, "%", note=f"{m.cells_seen_by_no_frame:,} cells, {m.area_seen_by_no_frame_m2:,.0f} m2; occluded "
+                  "in every frame (true ortho) or over DEM nodata; hatched in ortho/seamlines_preview.png; not judged")
+
+
 def _sigma_basis(at) -> str | None:
     """What the adjustment's reported sigmas contain, for the reader who trusts them: with surface control, whether
     the surface's systematic error (the LiDAR's strip offsets) is in them or they are formal."""
@@ -377,7 +389,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     ctl = (read_control_transfer(project.control_transfer_path)
            if project.control_transfer_path.is_file() else None)
     dom_check = read_dom_check(project.dom_report_path) if project.dom_report_path.exists() else None
-    dom_check_stale = dom_check is not None and dom_check.stale_for(project.mosaic_path)
+    dom_check_stale = dom_check is not None and dom_check.stale_for(project.mosaic_path, project.dom_report_path)
     if dom_check_stale:  # its figures are of a mosaic that no longer exists: not shown as the DOM's
         dom_check = None
     dom = dom_check.displacement if dom_check else None
@@ -430,7 +442,11 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         if ctl.layout_targets:
             empty = [t for t in ctl.layout_targets if t.corner is None]
             fb = sum(t.tier not in (None, "usable") for t in ctl.layout_targets)
-            note = "; ".join(empty_target_text(dataclasses.asdict(t)) for t in empty)
+            # the layout may put two targets at one place: named once, with their number
+            texts = [empty_target_text(dataclasses.asdict(t)) for t in empty]
+            note = "; ".join(text if texts.count(text) == 1 else
+                             f"{texts.count(text)} {text.replace(' target ', ' targets ', 1)}"
+                             for text in dict.fromkeys(texts))
             if fb:
                 note = f"{fb} filled by fallbacks" + (f"; {note}" if note else "")
             rows.append(_check("layout_targets_filled", sec, "layout targets with a control point",
@@ -533,6 +549,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         if why:
             rows.append(_failed("dom_stale", sec, "DOM from an older adjustment",
                                 f"{why}; re-run ortho rectify, ortho mosaic and ortho check"))
+    if project.mosaic_summary_path.is_file():
+        rows.append(_holes_row(sec, project))
     if dom_check and dom_check.seams_rms_px is not None:
         rows.append(_check("seam_misalignment_rms_px", sec, "misalignment across seamlines, RMS",
                            round(dom_check.seams_rms_px, 3), tol.get("seam_misalignment_rms_px"), "px",

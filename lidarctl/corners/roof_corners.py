@@ -1330,6 +1330,7 @@ def plot_corners(path, ndsm, extent, outlines, corners, *, truth_xy=None, refere
     ax.set_aspect("equal")
     ax.set_xlim(view[0], view[1])
     ax.set_ylim(view[2], view[3])
+    ax.ticklabel_format(useOffset=False, style="plain")  # a northing of 3.4 million m, not "3.4095" under "1e6"
     ax.set_xlabel(f"x ({xy_unit})")
     ax.set_ylabel(f"y ({xy_unit})")
     ax.legend(loc="upper right", fontsize=8)

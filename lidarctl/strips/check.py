@@ -464,9 +464,14 @@ def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
     ss = res.strip_set
     g = ss.grid
     fig, ax = plt.subplots(figsize=(9, 8))
+    # the strips' planar cells in greys (a hue beside the red-blue dz ramp reads as a difference), each strip named
     for k, s in enumerate(ss.strips):
         xc, yc = g.centres(s.ids)
-        ax.scatter(xc, yc, s=1, color=f"C{k % 10}", alpha=0.15, label=f"{s.name} planar cells", rasterized=True)
+        ax.scatter(xc, yc, s=1, color=("0.82", "0.68")[k % 2], label="planar cells of a strip" if k == 0 else None,
+                   rasterized=True)
+        if len(xc):
+            ax.text(float(np.median(xc)), float(np.median(yc)), s.name, fontsize=7, ha="center", va="center",
+                    bbox=dict(facecolor="white", edgecolor="none", alpha=0.7, pad=1))
     im = None
     for p in res.pairs:
         xc, yc = g.centres(p.ids)

@@ -92,17 +92,41 @@ def test_preview_is_reduced_hatches_nodata_inside_and_marks_the_seam(tmp_path):
 
 
 def test_12_bit_data_in_16_bit_samples_fill_the_preview_range():
-    """A DMC's 12-bit data in 16-bit samples is shown by its bit depth (it would be black divided by 257), full
-    16-bit data as before (x // 257), 8-bit data as it is."""
-    from ortho.seamlines_preview import _to_rgb8, sample_bits
+    """A DMC's 12-bit data in 16-bit samples fills the preview's range (it would be black divided by 257), as does
+    full 16-bit data; 8-bit data as it is. Invalid cells (their sample says nothing) do not set the stretch."""
+    from ortho.seamlines_preview import _to_rgb8, stretch_range
 
-    twelve = np.array([[[0, 1024, 2048, 4095]]], np.uint16)
-    assert sample_bits(twelve) == 12
-    assert _to_rgb8(twelve)[0, :, 0].tolist() == [0, 63, 127, 255]
-    full = np.array([[[0, 4095, 40000, 65535]]], np.uint16)
-    assert _to_rgb8(full)[0, :, 0].tolist() == [v // 257 for v in (0, 4095, 40000, 65535)]
-    assert sample_bits(twelve, nbits=16) == 16  # the raster's NBITS tag wins
-    # invalid cells (their sample says nothing) do not set the depth
-    assert sample_bits(full, valid=np.array([[True, True, False, False]])) == 12
+    twelve = np.tile(np.array([[[0, 1024, 2048, 4095]]], np.uint16), 50)
+    rgb, stretch = _to_rgb8(twelve)
+    assert stretch == (0.0, 4095.0) and rgb[0, :4, 0].tolist() == [0, 64, 128, 255]
+    full = np.tile(np.array([[[0, 4095, 40000, 65535]]], np.uint16), 50)
+    assert _to_rgb8(full)[0][0, :4, 0].tolist() == [0, 16, 156, 255]
+    assert stretch_range(full, valid=np.tile([True, True, False, False], 50)[None]) == (0.0, 4095.0)
     eight = np.array([[[0, 200]]], np.uint8)
-    assert _to_rgb8(eight)[0, :, 0].tolist() == [0, 200]
+    rgb, stretch = _to_rgb8(eight)
+    assert rgb[0, :, 0].tolist() == [0, 200] and stretch is None
+
+
+def test_balanced_12_bit_dom_is_stretched_not_darkened(tmp_path):
+    """The 2 x 2 DMC block's DOM (trial 8): 12-bit frames balanced by gains up to 1.05 reach 4311, more than 12 bits;
+    by the fewest bits holding the largest sample (14) the preview was a quarter as bright (median grey 14 of 255,
+    the DOM black to the eye). 16-bit samples are now stretched from their 0.5th to 99.5th percentile (the legend
+    states the range)."""
+    rng = np.random.default_rng(3)
+    h, w = 300, 200
+    img = np.clip(rng.gamma(6.0, 160.0, (1, h, w)), 160, 4311).astype(np.uint16)  # median about 900, like the DOM
+    img[0, :3, :3] = 4311
+    valid = np.ones((h, w), bool)
+    with rasterio.open(tmp_path / "m.tif", "w", driver="GTiff", width=w, height=h, count=1, dtype="uint16",
+                       crs="EPSG:32649", transform=Affine(0.1, 0.0, 452000.0, 0.0, -0.1, 3407000.0)) as ds:
+        ds.write(img)
+        ds.write_mask(valid.astype(np.uint8) * 255)
+    rgb = render_preview(tmp_path / "m.tif", np.zeros((h // 4, w // 4), np.int32), 4)
+    grey = rgb[:h, :w, 0]
+    lo, hi = np.percentile(img, [0.5, 99.5])
+    assert 80 <= np.median(grey) <= 140
+    assert (grey[img[0] <= lo] == 0).all() and (grey[img[0] >= hi] == 255).all()
+    # the legend names the stretch (more text than the 8-bit preview's legend)
+    _write_mosaic(tmp_path / "m8.tif", valid)
+    eight = render_preview(tmp_path / "m8.tif", np.zeros((h // 4, w // 4), np.int32), 4)
+    assert (rgb[h:] < 128).all(axis=-1).sum() > (eight[h:] < 128).all(axis=-1).sum() + 100

@@ -317,3 +317,56 @@ def test_ground_residual_map_shows_every_arrow_and_keeps_the_scale_bar_off_the_p
     f = RF.ground_residual_map({"control_points": [], "check_points": line})
     (bar,) = [a for a in f.fig.axes[0].get_children() if isinstance(a, AnchoredOffsetbox)]
     assert bar.loc == AnchoredOffsetbox.codes["lower left"]
+
+
+def test_flight_map_keeps_the_footprints_off_the_frame_and_the_scale_bar():
+    """The 2 x 2 DMC block's footprint map set its limits at the footprints' extremes: the outer footprints' edges ran
+    along the frame and under the scale bar (trial 8); a margin now, more below for the bar."""
+    from aerotri.adjust.report_figures import flight_map
+
+    frames = []
+    for k, (x, y) in enumerate(((452465.0, 3407775.0), (452770.0, 3407775.0), (452465.0, 3408740.0))):
+        ring = [(x - 385, y - 700), (x + 385, y - 690), (x + 390, y + 690), (x - 380, y + 700)]
+        frames.append(dict(image_id=f"f{k}", strip=1 + k // 2, footprint=ring, x_m=x, y_m=y))
+    fig = flight_map(dict(frames=frames, strips=[], terrain="dem.tif"))
+    ax = fig.fig.axes[0]
+    xy = np.vstack([f["footprint"] for f in frames])
+    ox, oy = np.floor(xy.min(axis=0) / 1000.0) * 1000.0
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    span = np.ptp(xy, axis=0).max()
+    assert x0 <= xy[:, 0].min() - ox - 0.02 * span and x1 >= xy[:, 0].max() - ox + 0.02 * span
+    assert y0 <= xy[:, 1].min() - oy - 0.05 * span and y1 >= xy[:, 1].max() - oy + 0.02 * span
+
+
+def test_surface_control_map_shows_points_on_the_surface_and_keeps_its_legend_off_them():
+    """The 2 x 2 DMC block's surface-control map: 1,160 of its used points within a sigma of the DEM were near-white
+    dots on white, invisible, and the legend covered the block's south end (trial 8); the used points have a grey
+    edge now, the legend is below the map."""
+    from types import SimpleNamespace
+
+    import matplotlib
+
+    from aerotri.core.figures import pyplot
+
+    rng = np.random.default_rng(2)
+    n = 400
+    xy = np.column_stack([rng.uniform(452000, 453000, n), rng.uniform(3407000, 3409500, n)])
+    e = rng.normal(0.0, 0.02, n)
+    surface = SimpleNamespace(observe=lambda pts, jacobian=False: (e, None, np.full(n, 0.05)),
+                              point_class=lambda m: (np.arange(m) % 3 == 0).astype(int))
+    use = np.ones(n, int)
+    use[::25] = 2
+    ba = SimpleNamespace(result=SimpleNamespace(surface_use=use, state=SimpleNamespace(points=None)),
+                         block=SimpleNamespace(surface=surface), points_map=np.column_stack([xy, np.zeros(n)]),
+                         eo_map=SimpleNamespace(centre_m=xy[:4]))
+    fig = report._surface_figure(ba, pyplot())
+    ax = fig.axes[0]
+    used = [c for c in ax.collections if isinstance(c, matplotlib.collections.PathCollection)]
+    assert len(used) == 2
+    for c in used:
+        edge = c.get_edgecolors()
+        assert len(edge) and (edge[:, 3] > 0).all() and (edge[:, :3] < 0.7).all()  # a visible dark edge
+    fig.canvas.draw()
+    legend = ax.get_legend().get_window_extent()
+    assert legend.y1 <= ax.get_window_extent().y0  # below the map, on none of the points

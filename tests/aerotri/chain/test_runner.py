@@ -272,3 +272,32 @@ def test_the_rectify_stage_reads_the_dsm_of_the_true_ortho(tmp_path):
     chain, _, _ = rectify("[rectify]\ntrue_ortho = true\n")
     with pytest.raises(ConfigError, match=r"project.toml \[rectify\] true_ortho = true: no DSM"):
         chain.check_files()
+
+
+def test_the_log_says_why_a_stage_runs(tmp_path):
+    """A copied block whose stamps an older version wrote re-ran its stages (the 2 x 2 DMC block: all but three) and
+    the log said only '[classify] running' (trial 8): it now names what changed, a new setting of a newer version
+    among them."""
+    (tmp_path / "in.txt").write_text("3")
+    lines = []
+
+    def stages(options):
+        return [dataclasses.replace(st, options=(lambda r, o=options: o)) for st in _stages([])]
+
+    run_stages(tmp_path, stages({"k": 1, "surface": {"a": 1}}), log=lines.append)
+    assert "[double] running (not run before)" in lines
+    lines.clear()
+    run_stages(tmp_path, stages({"k": 1, "surface": {"a": 1}}), log=lines.append)
+    assert "[double] up to date, skipped" in lines
+    lines.clear()
+    run_stages(tmp_path, stages({"k": 2, "surface": {"a": 1, "b": 0}, "new": True}), log=lines.append)
+    assert "[double] running (options changed: k, new (new), surface.b (new))" in lines
+    lines.clear()
+    (tmp_path / "in.txt").write_text("4")
+    (tmp_path / "out.txt").unlink()
+    run_stages(tmp_path, stages({"k": 2, "surface": {"a": 1, "b": 0}, "new": True}), log=lines.append)
+    assert "[double] running (inputs changed: in.txt)" in lines
+    assert "[add] running (output missing: out.txt)" in lines
+    lines.clear()
+    run_stages(tmp_path, stages({"k": 2, "surface": {"a": 1, "b": 0}, "new": True}), force=True, log=lines.append)
+    assert "[add] running (--force)" in lines

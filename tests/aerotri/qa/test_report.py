@@ -359,3 +359,69 @@ def test_flight_acceptance_uses_the_dem_the_frame_orthos_were_made_on(tmp_path, 
     assert overlap and all(r.value is not None for r in overlap)
     summary = json.loads((p / "reports" / "summary.json").read_text())
     assert "at/dem.tif" in json.dumps(summary)  # the terrain the footprints stand on is named
+
+
+def test_the_doms_holes_are_a_row_of_the_report(tmp_path):
+    """The 2 x 2 full-size DMC block's true ortho left 3,403,268 cells (1.42 %, 34,033 m2) inside the block that no
+    frame sees as nodata (mosaic.json and a console warning said so), and the report passed the DOM without a word
+    about them (trial 8): a row now states them, not judged (no table has a limit)."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    doc = dict(path=str(p / "ortho" / "mosaic.tif"), width=11512, height=23148, frames=4, res_m=0.1,
+               seams="least-cost", feather_px=8.0, gains={"a": [1.0]}, cells_seen_by_no_frame=3403268,
+               share_seen_by_no_frame=0.014218923772462021, area_seen_by_no_frame_m2=34032.7)
+    (p / "ortho" / "mosaic.json").write_text(json.dumps(doc))
+    rep = write_qa_report(p)
+    row = rep.check("dom_seen_by_no_frame_pct")
+    assert row.quantity == "DOM cells seen by no frame (nodata inside the block)"
+    assert row.value == 1.422 and row.unit == "%" and row.limit is None and row.verdict is None
+    assert row.note.startswith("3,403,268 cells, 34,033 m2;") and "seamlines_preview.png" in row.note
+    assert rep.overall == "pass"
+    assert "DOM cells seen by no frame" in (p / "reports" / "index.html").read_text()
+    (p / "ortho" / "mosaic.json").write_text("{}")
+    assert "ortho/mosaic.json" in str(_raises(lambda: write_qa_report(p)))
+
+
+def _raises(f):
+    from aerotri.core.errors import InputError
+
+    try:
+        f()
+    except InputError as e:
+        return e
+    raise AssertionError("no InputError")
+
+
+def test_a_dom_check_older_than_the_mosaic_is_not_taken_without_a_fingerprint(tmp_path):
+    """The 2 x 2 DMC block copied with its chain run of an older main (dom_report.json without the mosaic's
+    fingerprint): `aerotri run` without --reference made the mosaic again, and the report passed the new DOM by the
+    old check's 0.0991 m (trial 8). Without a fingerprint a check older than the mosaic is now taken as of an earlier
+    mosaic; one made after it still counts."""
+    import os
+
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    mosaic, check = p / "ortho" / "mosaic.tif", p / "ortho" / "dom_report.json"
+    mosaic.write_bytes(b"II*\0")
+    os.utime(check, (1_000_000_000, 1_000_000_000))  # the check first, the mosaic made again after it
+    rep = write_qa_report(p)
+    stale = rep.check("dom_check_stale")
+    assert stale.verdict == "fail" and "dom_report.json" in stale.note and "mosaic.tif" in stale.note
+    assert not rep.has("dom_rms_xy_m") and rep.overall == "fail"
+    os.utime(mosaic, (900_000_000, 900_000_000))  # the check after the mosaic
+    rep = write_qa_report(p)
+    assert rep.has("dom_rms_xy_m") and not rep.has("dom_check_stale") and rep.overall == "pass"
+
+
+def test_two_empty_targets_at_one_place_are_named_once(tmp_path):
+    """The 2 x 2 DMC block's layout puts two full targets at each place; the two empty ones in the north were named
+    twice in the same words (trial 8)."""
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.18)
+    (p / "control").mkdir()
+    empty = "no LiDAR roof corner within 383.9 m of the target (nearest 554.6 m away)"
+    targets = [dict(kind="full", target_x_m=452613.6, target_y_m=3407243.6, corner="RC01218", tier="height_only",
+                    empty_reason=None)] + \
+        [dict(kind="full", target_x_m=452621.75, target_y_m=3409261.2, corner=None, tier=None, empty_reason=empty)] * 2
+    (p / "control" / "transfer.json").write_text(json.dumps(dict(
+        summary=dict(control_full=0, control_height=1, check_points=5), layout_targets=targets)))
+    row = write_qa_report(p).check("layout_targets_filled")
+    assert row.value == "1 of 3"
+    assert row.note == f"1 filled by fallbacks; 2 full targets at 452622 3409261: {empty}"

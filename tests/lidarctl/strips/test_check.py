@@ -210,3 +210,25 @@ def read_pairs(paths, out, *args):
     r = _check(paths, out, *args)
     assert r.exit_code == 0, r.output
     return read_strip_check(out / "strips.json").pairs
+
+
+def test_overview_draws_planar_cells_in_grey_beside_the_dz_colours(clean_block, tmp_path, monkeypatch):
+    """The 2 x 2 DMC block's overview.png drew each strip's planar cells in its own tab10 colour, solid bands of red,
+    blue and pink beside the red-blue dz ramp (a strip's red band read as +0.1 m; trial 8): they are grey now, the
+    strips named on the map."""
+    import matplotlib.collections
+
+    import lidarctl.strips.check as chk
+
+    figs = {}
+    save = chk.save_png
+    monkeypatch.setattr(chk, "save_png", lambda fig, path, **k: (figs.__setitem__(path.name, fig), save(fig, path, **k)))
+    r = _check(clean_block.paths, tmp_path / "out")
+    assert r.exit_code == 0, r.output
+    ax = figs["overview.png"].axes[0]
+    cells = [c for c in ax.collections if isinstance(c, matplotlib.collections.PathCollection) and c.get_array() is None]
+    assert len(cells) == 3
+    for c in cells:
+        rgb = c.get_facecolors()[:, :3]
+        assert np.allclose(rgb, rgb[:, :1])  # grey: no hue to mistake for a dz
+    assert {t.get_text() for t in ax.texts} >= {"strip_1", "strip_2", "strip_3"}
