@@ -309,15 +309,7 @@ def _cell_blocks(top, i, j, ray, span, walls):
         # leaves, no sub-cell can stop it (the same answer as the walk over them, without it)
         if not (slab_top_m[i, j] > z_in and Z + rise * s_out > base):
             return False
-        m = -3 - k
-        first, last = 1e30, -1e30
-        s = s_in
-        while s <= s_out:
-            if _in_slab(sub_masks, sub_margin_cm, m, (gy + ey * s - i) * sub, (gx + ex * s - j) * sub, sub):
-                first = min(first, s)
-                last = s
-            s += ds
-        return last >= first and slab_top_m[i, j] > Z + rise * first and Z + rise * last > base
+        return _slab_walk(top, ray, span, walls, i, j, -3 - k, False)
     if k < 0 or sub_masks[k, 0, 0] & 4:  # the slab over the whole cell
         if slab_top_m[i, j] > z_in and Z + rise * s_out > base:
             return True
@@ -337,18 +329,40 @@ def _cell_blocks(top, i, j, ray, span, walls):
     # wall's sub-cells a column up to the top
     if not (column or (slab_top_m[i, j] > z_in and Z + rise * s_out > base)):
         return False
-    first, last = 1e30, -1e30
+    return _slab_walk(top, ray, span, walls, i, j, k, True)
+
+
+@numba.njit(cache=True, inline="always")
+def _slab_walk(top, ray, span, walls, i, j, m, with_walls):
+    """The walk of ``_cell_blocks`` over the sub-cells of cell (i, j) (DSM height ``top``) with mask ``m``, at quarter
+    sub-cell steps: the slab within the roof outline stops the ray where its top is above the ray at the first point
+    within it and the ray reaches its underside at the last; ``with_walls``: the mask's wall sub-cells (bit 1) are a
+    column up to ``top``. The ray rises, so the walk ends as soon as the answer is known: at a point within the
+    outline above the underside (True, the first one lay below the top), or with the ray at the slab's top (at least
+    the cell's) before any point within the outline (False: neither the slab nor a wall can stop it further on)."""
+    Z, rise, gx, gy, ex, ey, tolerance_m = ray
+    s_in, s_out = span
+    _, base_m, slab_top_m, _, sub_masks, sub, sub_margin_cm = walls
+    base = base_m[i, j]
+    slab_top = slab_top_m[i, j]
+    ds = 0.25 / sub
+    seen = False  # a point within the outline met (the first one below the slab's top)
     s = s_in
     while s <= s_out:
-        a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
-        b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
-        if sub_masks[k, a, b] & 1 and top > Z + rise * s + tolerance_m:
-            return True
-        if _in_slab(sub_masks, sub_margin_cm, k, (gy + ey * s - i) * sub, (gx + ex * s - j) * sub, sub):
-            first = min(first, s)
-            last = s
+        z = Z + rise * s
+        if with_walls:
+            a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
+            b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
+            if sub_masks[m, a, b] & 1 and top > z + tolerance_m:
+                return True
+        if not seen and not slab_top > z:
+            return False
+        if _in_slab(sub_masks, sub_margin_cm, m, (gy + ey * s - i) * sub, (gx + ex * s - j) * sub, sub):
+            seen = True
+            if z > base:
+                return True
         s += ds
-    return last >= first and slab_top_m[i, j] > Z + rise * first and Z + rise * last > base
+    return False
 
 
 @numba.njit(cache=True, nogil=True)
