@@ -19,7 +19,9 @@ the walls from cadastral footprints (BGT, OSM, a user's GeoPackage); so does thi
 - the roof outline: an overhang's slab (and the half cell beside it) covers only the sub-cells within the footprint
   grown by the building's eave width (``eave_widths_m``: the roof's area outside the walls that the DSM's cells
   sample, over the footprint's perimeter, at most ``EAVE_MAX_M``), not the part of a roof cell the DSM's 0.5 m cell
-  (or the LiDAR DSM's wider roof) spills beyond the eave;
+  (or the LiDAR DSM's wider roof) spills beyond the eave; the march finds the outline between the sub-cells'
+  centres (their distances to the footprint interpolated, ``FootprintOccluder.sub_margin_cm``), not at the edges of
+  the sub-cells whose centres lie within it (half a sub-cell beyond the eave);
 - tree crowns (``with_crown_base``, a crown-base raster): a cell near no footprint blocks only between its crown
   base and its top.
 
@@ -37,7 +39,6 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import cv2
 import numba
 import numpy as np
 
@@ -56,6 +57,8 @@ EAVE_MAX_M = 1.0  # widest eave overhang (beyond the wall line) a building's roo
 CROWN = -2  # ``sub_index`` of a tree crown's cell: a slab from its crown base to its top
 HALO = -3  # ``sub_index`` HALO - k: a cell beside an overhang, its own solid column and the overhang's slab over the
 # sub-cells of ``sub_masks[k]``
+MARGIN_ALL = 1000  # ``sub_margin_cm`` of a sub-cell of a cell without distances to a footprint: within the outline
+MARGIN_NONE = -32768  # ``sub_margin_cm`` of a sub-cell outside the half cell beside an overhang: no slab
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,14 +70,17 @@ class FootprintOccluder:
     or the roof outline crosses: ``sub_masks[k]`` bit 1 its sub-cells inside a footprint (a column up to the top),
     bit 2 those within the roof outline (the slab), bit 4 at [0, 0] the slab over the whole cell; ``HALO`` - k a cell
     beside an overhang: its own solid column, and the slab over the sub-cells of bit 2 of ``sub_masks[k]``),
-    ``sub_masks`` ((K, sub, sub) uint8; rows from the north, columns from the west) and ``sub`` (sub-cells per cell
-    side)."""
+    ``sub_masks`` ((K, sub, sub) uint8; rows from the north, columns from the west), ``sub`` (sub-cells per cell
+    side) and ``sub_margin_cm`` ((K, sub, sub) int16: how far each sub-cell's centre lies within the roof outline, cm,
+    negative beyond it; ``MARGIN_NONE`` outside the half cell beside an overhang): the march interpolates it between
+    the centres, so that the slab ends at the outline, not at the edge of the last sub-cell whose centre it holds."""
 
     base_m: np.ndarray
     slab_top_m: np.ndarray
     sub_index: np.ndarray
     sub_masks: np.ndarray
     sub: int
+    sub_margin_cm: np.ndarray
 
     @property
     def overhang_cells(self) -> int:
@@ -146,8 +152,8 @@ class FootprintCells:
     that a wall crosses (0 < ``inside`` < sub x sub) its sub-cells inside, ``wall_masks[k]`` ((K, sub, sub) uint8,
     rows from the north, columns from the west), else -1; ``polygons``: the footprints near the grid (shapely).
     The roof outline: ``edge_index`` (int32) for a cell in a footprint's reach not wholly inside one, the index in
-    ``edge_cm`` ((K, sub, sub) uint8) of its sub-cells' distances to the nearest footprint (cm, 0 inside, at most
-    255), else -1; per polygon its ``area_m2``, ``perimeter_m`` and ``reach_cells`` (row0, row1, col0, col1 of the
+    ``edge_cm`` ((K, sub, sub) uint8) of its sub-cells' distances (their centres') to the nearest footprint's wall
+    line (cm, 0 inside, at most 255), else -1; per polygon its ``area_m2``, ``perimeter_m`` and ``reach_cells`` (row0, row1, col0, col1 of the
     cells its reach touches, in the cells of the grid the view ``origin`` (row, col) lies in)."""
 
     label: np.ndarray
@@ -200,6 +206,7 @@ def footprint_cells(x_left_m: float, y_top_m: float, res_m: float, shape: tuple[
     masks, count = [], 0
     edges, n_edge = [], 0
     shapes = [shapely.geometry.mapping(g) for g in polys]  # converted once, not by every rasterize
+    rings = _wall_segments(polys)
     x0, y0, x1, y1 = shapely.bounds(polys).T
     grow = int(math.ceil(reach_m / res)) + 1
     reach_cells = np.stack([np.floor((y_top_m - y1) / res).astype(np.int64) - grow,
@@ -208,7 +215,6 @@ def footprint_cells(x_left_m: float, y_top_m: float, res_m: float, shape: tuple[
                             np.ceil((x1 - x_left_m) / res).astype(np.int64) + grow], axis=1)
     r0, r1 = np.clip(reach_cells[:, 0], 0, dh), np.clip(reach_cells[:, 1], 0, dh)
     c0, c1 = np.clip(reach_cells[:, 2], 0, dw), np.clip(reach_cells[:, 3], 0, dw)
-    sub_m = res / sub
     windows = shapely.box(x_left_m + c0 * res, y_top_m - r1 * res, x_left_m + c1 * res, y_top_m - r0 * res)
     which, there = shapely.STRtree(polys).query(windows, predicate="intersects")
     for k in range(len(polys)):
@@ -232,16 +238,64 @@ def footprint_cells(x_left_m: float, y_top_m: float, res_m: float, shape: tuple[
         # centres less half a sub-cell), for the cells of this footprint's reach not wholly inside one
         rr, cc = np.nonzero((label[win] == k + 1) & (n_in < sub * sub) & (edge_index[win] < 0))
         if len(rr):
-            dist = cv2.distanceTransform((fine == 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-            cm = np.clip(np.rint((dist * sub_m - 0.5 * sub_m) * 100.0), 0, 255).astype(np.uint8)
-            cm[fine > 0] = 0
+            # the distance of each sub-cell's centre to the walls of the footprints rasterised here (their edges,
+            # not the centres of the sub-cells inside them: those put the wall up to half a sub-cell off)
+            near = [rings[k]] + [rings[q] for q in there[which == k] if q != k]
+            cm = _edge_distances_cm(cells[rr, cc], rr, cc, x_left_m + c0[k] * res, y_top_m - r0[k] * res, res, sub,
+                                    np.concatenate(near))
             edge_index[r0[k] + rr, c0[k] + cc] = n_edge + np.arange(len(rr), dtype=np.int32)
             n_edge += len(rr)
-            edges.append(cm.reshape(h, sub, w, sub).transpose(0, 2, 1, 3)[rr, cc])
+            edges.append(cm)
     wall_masks = np.concatenate(masks) if masks else np.zeros((0, sub, sub), np.uint8)
     edge_cm = np.concatenate(edges) if edges else np.zeros((0, sub, sub), np.uint8)
     return FootprintCells(label, inside, wall_index, wall_masks, polys, sub, edge_index, edge_cm,
                           shapely.area(polys), shapely.length(polys), reach_cells)
+
+
+def _wall_segments(polys: np.ndarray) -> list:
+    """Per polygon its walls: the segments of its rings (exterior and holes), (n, 4) float64 x0, y0, x1, y1."""
+    import shapely
+
+    out = []
+    for g in polys:
+        rings = shapely.get_rings(g)
+        segs = []
+        for r in rings:
+            xy = shapely.get_coordinates(r)
+            segs.append(np.hstack([xy[:-1], xy[1:]]))
+        out.append(np.concatenate(segs) if segs else np.zeros((0, 4)))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_distances_cm(fine_cells, rr, cc, x_left_m, y_top_m, res_m, sub, segments):
+    """Per cell (rr, cc) of a window (top-left corner ``x_left_m``, ``y_top_m``; cells of ``res_m``) the distance (cm,
+    rounded, at most 255) of each of its ``sub`` x ``sub`` sub-cells' centres to the nearest wall segment
+    (``segments``: (n, 4) x0, y0, x1, y1), 0 where the sub-cell is inside a footprint (``fine_cells`` (cells, sub,
+    sub) nonzero); (cells, sub, sub) uint8."""
+    n = len(rr)
+    out = np.zeros((n, sub, sub), np.uint8)
+    step = res_m / sub
+    for k in range(n):
+        for a in range(sub):
+            y = y_top_m - rr[k] * res_m - (a + 0.5) * step
+            for b in range(sub):
+                if fine_cells[k, a, b]:
+                    continue
+                x = x_left_m + cc[k] * res_m + (b + 0.5) * step
+                best = 1e30
+                for q in range(segments.shape[0]):
+                    x0, y0, x1, y1 = segments[q, 0], segments[q, 1], segments[q, 2], segments[q, 3]
+                    dx, dy = x1 - x0, y1 - y0
+                    ll = dx * dx + dy * dy
+                    t = ((x - x0) * dx + (y - y0) * dy) / ll if ll > 0.0 else 0.0
+                    t = min(max(t, 0.0), 1.0)
+                    ex, ey = x0 + t * dx - x, y0 + t * dy - y
+                    d2 = ex * ex + ey * ey
+                    if d2 < best:
+                        best = d2
+                out[k, a, b] = np.uint8(min(255.0, math.floor(math.sqrt(best) * 100.0 + 0.5)))
+    return out
 
 
 def footprint_occluder(dsm: HeightRaster, ground_m: np.ndarray, footprints: np.ndarray, *,
@@ -317,14 +371,21 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
                                            base, slab_top)
     # the roof outline (the footprint grown by the building's eave width): an overhang's slab, and the half cell
     # beside it, only over the sub-cells within it; the wall's sub-cells (inside the footprint) a column as before.
-    # Masks: 1 a wall sub-cell, 2 a slab sub-cell, 4 (at [0, 0]) the slab over the whole cell
+    # Masks: 1 a wall sub-cell, 2 a slab sub-cell, 4 (at [0, 0]) the slab over the whole cell. The march takes the
+    # outline between sub-cell centres from their margins (``sub_margin_cm``): a sub-cell's centre samples the
+    # distance to the footprint, its square does not lie within the outline because its centre does (its outer half
+    # reached up to half a sub-cell beyond the eave, where rays that clear the roof's edge passed)
     width_cm = np.rint(eave_widths_m(cells, taken, res) * 100.0)
-    outline = _outline(cells, rr, cc_, lab, width_cm)
-    whole = outline.all(axis=(1, 2))
+    margin = _outline_margin_cm(cells, rr, cc_, lab, width_cm)
+    outline = margin >= 0
+    half_cm = 50.0 * res / sub  # half a sub-cell
+    # the slab over the whole cell where every sub-cell lies within the outline (its centre half a sub-cell inside)
+    whole = (margin >= half_cm).all(axis=(1, 2))
     walls = cells.inside[rr, cc_] > 0
-    # an overhang cell wholly beyond the roof outline, no wall in it, stops no ray: base +inf (``_cell_blocks``: the
-    # same answer as its empty mask's walk, without it), and out of the march's bounds
-    void = ~walls & ~outline.any(axis=(1, 2))
+    # an overhang cell wholly beyond the roof outline (every sub-cell centre more than half a sub-cell beyond it), no
+    # wall in it, stops no ray: base +inf (``_cell_blocks``: the same answer as its empty mask's walk, without it),
+    # and out of the march's bounds
+    void = ~walls & (margin < -half_cm).all(axis=(1, 2))
     base[rr[void], cc_[void]] = np.inf
     slab_top[rr[void], cc_[void]] = -np.inf
     masked = (walls | ~whole) & ~void
@@ -332,30 +393,34 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     wall_bits[walls[masked]] = cells.wall_masks[cells.wall_index[rr[walls], cc_[walls]]]
     over_masks = wall_bits | (2 * outline[masked]).astype(np.uint8)
     over_masks[whole[masked], 0, 0] |= 4
+    over_margin = margin[masked]
     sub_index[rr[masked], cc_[masked]] = np.arange(int(masked.sum()), dtype=np.int32)
-    halo_masks = (2 * (halo_masks.astype(np.bool_) & _outline(cells, hr, hc, cells.label[hr, hc], width_cm))).astype(
-        np.uint8)
+    near = halo_masks.astype(np.bool_)  # the half cell next to an overhang
+    halo_margin = np.where(near, _outline_margin_cm(cells, hr, hc, cells.label[hr, hc], width_cm), MARGIN_NONE)
+    halo_masks = (2 * (near & (halo_margin >= 0))).astype(np.uint8)
     # a cell beside an overhang whose half cell lies wholly beyond the roof outline carries no slab: its own column
     # only (the same answer, without the sub-cell walk)
-    empty = ~halo_masks.any(axis=(1, 2))
+    empty = ~(near & (halo_margin >= -half_cm)).any(axis=(1, 2))
     base[hr[empty], hc[empty]] = -np.inf
     slab_top[hr[empty], hc[empty]] = -np.inf
-    hr, hc, halo_masks = hr[~empty], hc[~empty], halo_masks[~empty]
+    hr, hc, halo_masks, halo_margin = hr[~empty], hc[~empty], halo_masks[~empty], halo_margin[~empty]
     sub_index[hr, hc] = HALO - (len(over_masks) + np.arange(len(hr), dtype=np.int32))
-    occluder = FootprintOccluder(base, slab_top, sub_index, np.concatenate([over_masks, halo_masks]), sub)
+    occluder = FootprintOccluder(base, slab_top, sub_index, np.concatenate([over_masks, halo_masks]), sub,
+                                 np.concatenate([over_margin, halo_margin]).astype(np.int16))
     if crown_base_m is None:
         return occluder
     return with_crown_base(occluder, top, crown_base_m, cells.label == 0)
 
 
-def _outline(cells: FootprintCells, rr, cc, lab, width_cm) -> np.ndarray:
-    """(len(rr), sub, sub) bool: the sub-cells of cells (rr, cc) within the roof outline of footprint ``lab``
-    (``width_cm`` its eave width); every sub-cell where the cell has no distances (label 0, none rasterised)."""
+def _outline_margin_cm(cells: FootprintCells, rr, cc, lab, width_cm) -> np.ndarray:
+    """(len(rr), sub, sub) int16: per sub-cell of cells (rr, cc) how far (cm) its centre lies within the roof outline
+    of footprint ``lab`` (``width_cm`` its eave width less the centre's distance to the footprint; negative beyond
+    it); ``MARGIN_ALL`` where the cell has no distances (label 0, none rasterised)."""
     sub = cells.sub
-    out = np.ones((len(rr), sub, sub), np.bool_)
+    out = np.full((len(rr), sub, sub), MARGIN_ALL, np.int16)
     e = cells.edge_index[rr, cc]
     has = (e >= 0) & (lab > 0)
-    out[has] = cells.edge_cm[e[has]] <= width_cm[lab[has]][:, None, None]
+    out[has] = width_cm[lab[has]][:, None, None].astype(np.int16) - cells.edge_cm[e[has]].astype(np.int16)
     return out
 
 
@@ -367,7 +432,8 @@ def with_crown_base(occluder: FootprintOccluder | None, top_m: np.ndarray, crown
     of the whole cell); a ray beneath the crown base passes (the trunk ignored)."""
     if occluder is None:
         occluder = FootprintOccluder(np.full(top_m.shape, -np.inf, np.float32), np.full(top_m.shape, -np.inf, np.float32),
-                                     np.full(top_m.shape, -1, np.int32), np.zeros((0, 1, 1), np.uint8), 1)
+                                     np.full(top_m.shape, -1, np.int32), np.zeros((0, 1, 1), np.uint8), 1,
+                                     np.zeros((0, 1, 1), np.int16))
     crown = (occluder.base_m == -np.inf) & (crown_base_m < top_m)  # NaN: False
     if where is not None:
         crown &= where

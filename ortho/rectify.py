@@ -149,18 +149,20 @@ class FootprintWalls(NamedTuple):
     """Building footprints as the march takes them (``ortho.footprints.FootprintOccluder``): the underside and top
     of each DSM cell's slab (float32, -inf: none, a solid column), the index of its sub-cell mask (int32, -1: none;
     <= -3: beside an overhang), the sub-cell masks (uint8 (K, sub, sub): bit 1 wall, 2 slab, 4 the whole cell's
-    slab) and ``sub``; (1, 1) arrays: no footprints nor crowns."""
+    slab), ``sub`` and the sub-cells' margins within the roof outline (int16 (K, sub, sub), cm); (1, 1) arrays: no
+    footprints nor crowns."""
 
     base_m: np.ndarray
     slab_top_m: np.ndarray
     sub_index: np.ndarray
     sub_masks: np.ndarray
     sub: int
+    sub_margin_cm: np.ndarray
 
 
 _NO_WALLS = FootprintWalls(np.full((1, 1), -np.inf, np.float32), np.full((1, 1), -np.inf, np.float32),
                            np.full((1, 1), -1, np.int32),
-                           np.zeros((1, 1, 1), np.uint8), 1)
+                           np.zeros((1, 1, 1), np.uint8), 1, np.zeros((1, 1, 1), np.int16))
 
 
 class TilePoints(NamedTuple):
@@ -363,7 +365,8 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     march = MarchArgs(bound.max_m, bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
                       float(tolerance_m), float(OWN_COLUMN_M))
     walls = _NO_WALLS if occluder is None else FootprintWalls(occluder.base_m, occluder.slab_top_m,
-                                                              occluder.sub_index, occluder.sub_masks, int(occluder.sub))
+                                                              occluder.sub_index, occluder.sub_masks, int(occluder.sub),
+                                                              occluder.sub_margin_cm)
     if occluder is not None and occluder.base_m.shape != dsm.heights_m.shape:
         raise ValueError(f"footprint occluder of {occluder.base_m.shape} cells for a DSM of {dsm.heights_m.shape}")
     _occlusion_kernel(AnchorGrid(AX, AY, float(s)), points, _height_grid(dsm), march, walls,

@@ -240,12 +240,40 @@ def _dda_step(boundary, between, cell, step):
     return sy, sx, sy + between[1], i + step[0], j
 
 
+_MARGIN_NONE = -32768  # ``ortho.footprints.MARGIN_NONE``: a sub-cell that carries no slab
+
+
+@numba.njit(cache=True, inline="always")
+def _in_slab(sub_masks, sub_margin_cm, m, v, u, sub):
+    """Whether the point at sub-cell coordinates (``v`` rows from the north, ``u`` columns from the west, 0 .. sub)
+    of mask ``m`` lies within the roof outline: the sub-cells' margins within it (cm, at their centres) interpolated
+    bilinearly (extrapolated over the outer half sub-cell), >= 0; where a neighbour carries no slab (``_MARGIN_NONE``)
+    or a cell has one sub-cell, its sub-cell's bit 2."""
+    a = min(max(int(v), 0), sub - 1)
+    b = min(max(int(u), 0), sub - 1)
+    if sub < 2:
+        return (sub_masks[m, a, b] & 2) != 0
+    fv = v - 0.5
+    fu = u - 0.5
+    a0 = min(max(int(math.floor(fv)), 0), sub - 2)
+    b0 = min(max(int(math.floor(fu)), 0), sub - 2)
+    m00 = sub_margin_cm[m, a0, b0]
+    m01 = sub_margin_cm[m, a0, b0 + 1]
+    m10 = sub_margin_cm[m, a0 + 1, b0]
+    m11 = sub_margin_cm[m, a0 + 1, b0 + 1]
+    if min(min(m00, m01), min(m10, m11)) == _MARGIN_NONE:
+        return (sub_masks[m, a, b] & 2) != 0
+    tv = fv - a0
+    tu = fu - b0
+    return (1.0 - tv) * ((1.0 - tu) * m00 + tu * m01) + tv * ((1.0 - tu) * m10 + tu * m11) >= 0.0
+
+
 @numba.njit(cache=True, inline="always")
 def _cell_blocks(top, i, j, ray, span, walls):
     """Whether DSM cell (i, j) of height ``top`` stops the ray that crosses it from ``span`` = (s_in, s_out) (its
     horizontal parameters where it enters and leaves the cell, in cells): ``ray`` = (Z, rise, gx, gy, ex, ey,
     tolerance_m) as in ``_occlusion_kernel``, ``walls`` = (footprinted, base_m, slab_top_m, sub_index, sub_masks,
-    sub) (a ``FootprintOccluder``; ``footprinted`` False: every cell a solid column).
+    sub, sub_margin_cm) (a ``FootprintOccluder``; ``footprinted`` False: every cell a solid column).
 
     A solid column stops the ray where it is more than the tolerance above the ray where it enters (the ray's
     lowest in the cell). A cell with a slab (a finite ``base_m``) stops it where the slab's top is above the ray
@@ -253,13 +281,13 @@ def _cell_blocks(top, i, j, ray, span, walls):
     underside where it leaves (its highest); a slab cell (``sub_index`` -1: an overhang; -2) is nothing more; an overhang cell with a mask
     (``sub_index`` >= 0) also stops it at its sub-cells inside a footprint (bit 1: the wall, a column up to ``top``)
     that the ray crosses more than the tolerance below ``top``, and its slab covers the whole cell (bit 4 at [0, 0])
-    or only the sub-cells within the roof outline (bit 2: where the ray first and last crosses them); a cell beside
-    an overhang (``sub_index`` <= -3) is its own solid column, and the slab over the sub-cells of bit 2 of its mask
-    only."""
+    or only within the roof outline (``_in_slab``: where the ray first and last crosses it); a cell beside an
+    overhang (``sub_index`` <= -3) is its own solid column, and the slab within the outline over the half cell next to
+    the overhang only."""
     Z, rise, gx, gy, ex, ey, tolerance_m = ray
     s_in, s_out = span
     z_in = Z + rise * s_in
-    footprinted, base_m, slab_top_m, sub_index, sub_masks, sub = walls
+    footprinted, base_m, slab_top_m, sub_index, sub_masks, sub, sub_margin_cm = walls
     column = top > z_in + tolerance_m  # (NaN: no surface)
     if not footprinted:
         return column
@@ -281,17 +309,7 @@ def _cell_blocks(top, i, j, ray, span, walls):
         # leaves, no sub-cell can stop it (the same answer as the walk over them, without it)
         if not (slab_top_m[i, j] > z_in and Z + rise * s_out > base):
             return False
-        m = -3 - k
-        first, last = 1e30, -1e30
-        s = s_in
-        while s <= s_out:
-            a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
-            b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
-            if sub_masks[m, a, b] & 2:
-                first = min(first, s)
-                last = s
-            s += ds
-        return last >= first and slab_top_m[i, j] > Z + rise * first and Z + rise * last > base
+        return _slab_walk(top, ray, span, walls, i, j, -3 - k, False)
     if k < 0 or sub_masks[k, 0, 0] & 4:  # the slab over the whole cell
         if slab_top_m[i, j] > z_in and Z + rise * s_out > base:
             return True
@@ -311,19 +329,40 @@ def _cell_blocks(top, i, j, ray, span, walls):
     # wall's sub-cells a column up to the top
     if not (column or (slab_top_m[i, j] > z_in and Z + rise * s_out > base)):
         return False
-    first, last = 1e30, -1e30
+    return _slab_walk(top, ray, span, walls, i, j, k, True)
+
+
+@numba.njit(cache=True, inline="always")
+def _slab_walk(top, ray, span, walls, i, j, m, with_walls):
+    """The walk of ``_cell_blocks`` over the sub-cells of cell (i, j) (DSM height ``top``) with mask ``m``, at quarter
+    sub-cell steps: the slab within the roof outline stops the ray where its top is above the ray at the first point
+    within it and the ray reaches its underside at the last; ``with_walls``: the mask's wall sub-cells (bit 1) are a
+    column up to ``top``. The ray rises, so the walk ends as soon as the answer is known: at a point within the
+    outline above the underside (True, the first one lay below the top), or with the ray at the slab's top (at least
+    the cell's) before any point within the outline (False: neither the slab nor a wall can stop it further on)."""
+    Z, rise, gx, gy, ex, ey, tolerance_m = ray
+    s_in, s_out = span
+    _, base_m, slab_top_m, _, sub_masks, sub, sub_margin_cm = walls
+    base = base_m[i, j]
+    slab_top = slab_top_m[i, j]
+    ds = 0.25 / sub
+    seen = False  # a point within the outline met (the first one below the slab's top)
     s = s_in
     while s <= s_out:
-        a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
-        b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
-        q = sub_masks[k, a, b]
-        if q & 1 and top > Z + rise * s + tolerance_m:
-            return True
-        if q & 2:
-            first = min(first, s)
-            last = s
+        z = Z + rise * s
+        if with_walls:
+            a = min(max(int((gy + ey * s - i) * sub), 0), sub - 1)
+            b = min(max(int((gx + ex * s - j) * sub), 0), sub - 1)
+            if sub_masks[m, a, b] & 1 and top > z + tolerance_m:
+                return True
+        if not seen and not slab_top > z:
+            return False
+        if _in_slab(sub_masks, sub_margin_cm, m, (gy + ey * s - i) * sub, (gx + ex * s - j) * sub, sub):
+            seen = True
+            if z > base:
+                return True
         s += ds
-    return last >= first and slab_top_m[i, j] > Z + rise * first and Z + rise * last > base
+    return False
 
 
 @numba.njit(cache=True, nogil=True)
@@ -360,9 +399,9 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
     height_tile, candidates, near_share = points
     dsm, dsm_x0, dsm_y0, dsm_res = grid
     dsm_max, block_max, block, coarse_max, coarse, tolerance_m, own_column_m = march
-    base_m, slab_top_m, sub_index, sub_masks, sub = walls
+    base_m, slab_top_m, sub_index, sub_masks, sub, sub_margin_cm = walls
     footprinted = base_m.shape[0] == dsm.shape[0] and base_m.shape[1] == dsm.shape[1]
-    cell_walls = (footprinted, base_m, slab_top_m, sub_index, sub_masks, sub)
+    cell_walls = (footprinted, base_m, slab_top_m, sub_index, sub_masks, sub, sub_margin_cm)
     rows, cols = height_tile.shape
     hinted = near_share.shape[0] == rows and near_share.shape[1] == cols
     dh, dw = dsm.shape

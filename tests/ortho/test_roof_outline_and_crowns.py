@@ -95,6 +95,36 @@ def test_a_line_of_sight_through_a_roof_edge_cell_beyond_the_eave_is_visible():
     assert _march(dsm, points, centre, dataclasses.replace(occluder, sub_masks=whole)).all()
 
 
+def test_the_slab_ends_at_the_roof_outline_between_sub_cell_centres():
+    """Walls 10.2 .. 20.7 m (east) x 10.2 .. 20.6 m, eave 0.28 m (the width the DSM gives this building): the east
+    outline at 20.98 m, inside the sub-cell 20.9 .. 21.0 m whose centre (20.95 m, 0.03 m within the outline) put it
+    all in the slab. A line of sight north along the wall 0.01 m beyond the outline reaches the ground; one 0.02 m
+    within it stays hidden. The sub-cells' margins interpolated find the outline; the sub-cell whose centre lies
+    within it (the rule before) hid both."""
+    import dataclasses
+
+    from ortho.footprints import MARGIN_NONE
+
+    wall, eave_m = (10.2, 10.2, 20.7, 20.6), 0.28
+    X, Y = _centres()
+    x0, y0, x1, y1 = wall
+    roof = (X > x0 - eave_m) & (X < x1 + eave_m) & (Y > y0 - eave_m) & (Y < y1 + eave_m)
+    dsm = HeightRaster(np.where(roof, ROOF_M, 0.0).astype(np.float32), 0.0, 40.0, RES_M, CRS_UTM, "DSM")
+    footprints = np.array([shapely.box(*wall)], dtype=object)
+    cells = footprint_cells(0.0, 40.0, RES_M, dsm.heights_m.shape, footprints)
+    assert round(eave_widths_m(cells, (cells.label > 0) & (dsm.heights_m > 2.0), RES_M)[1], 2) == eave_m
+    walls = (x0, y0, 0.0, x1, y1, ROOF_M)
+    eave = (x0 - eave_m, y0 - eave_m, ROOF_M - OVERHANG_SLAB_M, x1 + eave_m, y1 + eave_m, ROOF_M)
+    centre = (20.975, 1005.0, 970.0)  # rising 0.97 m a metre: the slab's height (9.7 .. 10 m) at y = 15 m
+    points = [(20.99, 5.0), (20.96, 5.0)]
+    truth = [_truth_sees((*p, 0.0), centre, [walls, eave]) for p in points]
+    assert truth == [True, False]
+    occluder = footprint_occluder(dsm, np.zeros(dsm.heights_m.shape, np.float32), footprints)
+    assert list(~_march(dsm, points, centre, occluder)) == truth
+    nearest = dataclasses.replace(occluder, sub_margin_cm=np.full_like(occluder.sub_margin_cm, MARGIN_NONE))
+    assert _march(dsm, points, centre, nearest).all()
+
+
 def test_a_line_of_sight_beneath_a_crown_base_is_visible_and_one_through_the_crown_hidden():
     dsm, tree = _tree_dsm()
     crown_base = np.where(tree, CROWN[2], np.nan).astype(np.float32)

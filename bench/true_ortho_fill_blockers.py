@@ -1,0 +1,191 @@
+"""What stops the lines of sight that clear the 2.5D surface but that the true ortho masks (issue 42, fill target
+99.5 %): per (ground cell, frame) pair where the frame sees the cell (the simulator's ray cast), clears the truth's
+straight-down surface (``eval_true_ortho_dsm_cell.surface_clearance``) and masks it in its true ortho, the DSM cell
+that stops the march's ray and what it is.
+
+A DOM made by ``bench/eval_true_ortho_dsm_cell.py`` (``--work DIR``, block, spec with footprints) is rectified again
+(its images from the simulated project ``--src``) with ``ortho.block._frame_occluder`` wrapped to keep each frame's DSM
+window and occluder; the frame masks must equal the DOM's. Each pair's ray (the pixel's centre at the DSM's bilinear
+height, the point at its own column's top as the march puts it, to the frame's true centre) is walked cell by cell
+with the march's own cell test (``ortho.rectify_kernels._cell_blocks``, no block bounds) to the first cell that stops
+it: beside an overhang (``halo``), an overhang cell with a sub-cell mask or a whole slab, a crown's slab, a column, or
+none (the march stops nothing: the mask comes from the imaging, e.g. the point projected from a height up a wall falls
+outside the frame). For the overhang and half-cell blocks (sub-cell walk replayed with the nearest sub-cell's bit 2:
+exact for main's rule, the first sub-cell of the nearest-bit walk for the interpolating one) the distance of the first
+slab point beyond the simulator's roof outline and whether the ray enters that outline in the cell, and how far above
+the eave line.
+
+Usage: python bench/true_ortho_fill_blockers.py --work DIR --block tall --src T1 --spec '0.5+fp7+cb' --out FILE
+[--key KEY] (scratch under DIR/<block>/blockers_<spec>/).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import numba
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "bench"))
+from results_json import store_result  # noqa: E402
+
+from ortho.rectify_kernels import _cell_blocks, _dda_step, _dem_height, _next_boundary  # noqa: E402
+
+
+@numba.njit
+def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m):
+    """The march's ray from (X, Y) at the DSM's bilinear height (its own column's top where that lies more than
+    ``own_column_m`` below) to ``C``: the first cell (i, j) ``_cell_blocks`` says stops it and where the ray enters it
+    (s, cells), and (Z, rise, gx, gy, ex, ey); i = -1 for none."""
+    dsm, x0, y0, res = grid
+    Z = _dem_height(grid, X, Y)
+    dh, dw = dsm.shape
+    vx, vy = C[0] - X, C[1] - Y
+    hd = math.sqrt(vx * vx + vy * vy)
+    gx = math.floor((X - x0) / res * 1024.0 + 0.5) / 1024.0
+    gy = math.floor((y0 - Y) / res * 1024.0 + 0.5) / 1024.0
+    ex, ey = vx / hd, -vy / hd
+    j, i = int(math.floor(gx)), int(math.floor(gy))
+    if dsm[i, j] < Z - own_column_m:
+        Z = dsm[i, j]
+    rise = (C[2] - Z) / hd * res
+    step = (1 if ey > 0 else -1, 1 if ex > 0 else -1)
+    between = (1.0 / abs(ex) if abs(ex) > 1e-12 else 1e30, 1.0 / abs(ey) if abs(ey) > 1e-12 else 1e30)
+    s, sx, sy, i, j = _dda_step((_next_boundary(gx, ex, j), _next_boundary(gy, ey, i)), between, (i, j), step)
+    while i >= 0 and j >= 0 and i < dh and j < dw:
+        if _cell_blocks(dsm[i, j], i, j, (Z, rise, gx, gy, ex, ey, tolerance_m), (s, min(sx, sy)), walls):
+            return i, j, s, min(sx, sy), Z, rise, gx, gy, ex, ey
+        s, sx, sy, i, j = _dda_step((sx, sy), between, (i, j), step)
+    return -1, -1, 0.0, 0.0, Z, rise, gx, gy, ex, ey
+
+
+def main() -> None:
+    import shapely
+
+    import eval_true_ortho_occlusion as E
+    import ortho.block as B
+    from eval_true_ortho_dsm_cell import CLEAR
+    from ortho.block import read_index
+    from ortho.grid import OrthoGrid
+    from ortho.rectify import OWN_COLUMN_M, _height_grid
+    from ortho.settings import RectifySettings
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--work", type=Path, required=True)
+    ap.add_argument("--block", default="tall")
+    ap.add_argument("--src", type=Path, required=True, help="the simulated project (its images)")
+    ap.add_argument("--spec", required=True)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--key", default="blockers")
+    args = ap.parse_args()
+    W = args.work / args.block
+    conv, dom = W / "conventional", W / f"true_ortho_dsm_{args.spec}"
+    grid = OrthoGrid.union(read_index(conv).grids)
+    z = np.load(W / "truth_on_grid.npz")
+    ground, vis, foot_nadir = z["ground"], z["vis"], z["foot_nadir"]
+    codes = np.load(W / "surface_clearance.npz")["codes"]
+    A = W / f"blockers_{args.spec}"
+    shutil.rmtree(A, ignore_errors=True)
+    shutil.copytree(dom, A, ignore=shutil.ignore_patterns("ortho"))
+    shutil.copytree(args.src / "images", A / "images")
+    kept, inner = {}, B._frame_occluder
+
+    def keep(task, heights, dem, crs, crown=None):
+        occ = inner(task, heights, dem, crs, crown)
+        kept[task.image_id] = (heights, occ)
+        return occ
+
+    B._frame_occluder = keep
+    crown = A / "lidar_out" / "crown_base.tif"
+    B.rectify_block(A, RectifySettings(true_ortho=True, dsm=str(A / "lidar_out" / "dsm.tif"),
+                                       footprints=str(A / "truth" / "footprints.gpkg"),
+                                       crown_base=str(crown) if crown.exists() else None),
+                    eo_path=A / "truth" / "eo.txt", camera_path=A / "truth" / "camera.toml")
+    B._frame_occluder = inner
+    H, Wd = grid.height, grid.width
+    masks, _ = E.frame_masks(A, grid)
+    valid = np.stack([E.place((H, Wd), r0, c0, m) for _, r0, c0, m in masks])
+    valid_dom = np.stack([E.place((H, Wd), r0, c0, m) for _, r0, c0, m in E.frame_masks(dom, grid)[0]])
+    if not (valid == valid_dom).all():
+        raise SystemExit(f"{dom}: the frame masks made again differ from the DOM's")
+    ids = [m[0] for m in masks]
+    sees = vis == E.SEES
+    code_nadir = np.zeros((H, Wd), np.uint8)
+    for k in range(len(ids)):
+        code_nadir[foot_nadir == k] = vis[k][foot_nadir == k]
+    seen_other = ground & (foot_nadir >= 0) & (code_nadir >= E.ROOF) & sees.any(0)
+    pairs = np.argwhere(seen_other[None] & sees & (codes == CLEAR) & ~valid)
+    truth = E.Truth(conv)
+    org = np.asarray(truth.origin, float)
+    buildings = truth.scene.buildings
+    tree = shapely.STRtree([b.outline for b in buildings])
+    xs, ys = grid.centres()
+    kinds, beyond, never, above = collections.Counter(), collections.defaultdict(list), collections.Counter(), \
+        collections.defaultdict(list)
+    for f, r, c in pairs:
+        h, occ = kept[ids[f]]
+        C = np.asarray(truth.centres[ids[f]], float) + org
+        walls = (True, occ.base_m, occ.slab_top_m, occ.sub_index, occ.sub_masks, occ.sub) + \
+            ((occ.sub_margin_cm,) if hasattr(occ, "sub_margin_cm") else ())  # (main's march: no margins)
+        i, j, s_in, s_out, Z, rise, gx, gy, ex, ey = first_blocking_cell(float(xs[c]), float(ys[r]), _height_grid(h),
+                                                                         walls, C, 0.3, OWN_COLUMN_M)
+        if i < 0:
+            kinds["none"] += 1
+            continue
+        k, base = int(occ.sub_index[i, j]), float(occ.base_m[i, j])
+        kind = ("column" if base == -np.inf else "crown" if k == -2 else "halo" if k <= -3 else
+                "overhang_mask" if k >= 0 and not occ.sub_masks[k, 0, 0] & 4 else "overhang_whole")
+        kinds[kind] += 1
+        if kind not in ("halo", "overhang_mask", "overhang_whole"):
+            continue
+        first, s, m = None, s_in, (-3 - k if k <= -3 else k)
+        if kind == "overhang_whole":
+            first = s_in
+        while first is None and s <= s_out:
+            a = min(max(int((gy + ey * s - i) * occ.sub), 0), occ.sub - 1)
+            b = min(max(int((gx + ex * s - j) * occ.sub), 0), occ.sub - 1)
+            first = s if occ.sub_masks[m, a, b] & 2 else None
+            s += 0.25 / occ.sub
+        if first is None:
+            continue
+
+        def at(t):
+            return h.x_left_m + (gx + ex * t) * h.res_m - org[0], h.y_top_m - (gy + ey * t) * h.res_m - org[1]
+
+        p = shapely.points(*at(first))
+        bld = buildings[int(tree.nearest(p))]
+        beyond[kind].append(shapely.distance(bld.outline.exterior, p) * (-1 if shapely.contains(bld.outline, p) else 1))
+        (x0, y0), (x1, y1) = at(s_in), at(s_out)
+        inter = shapely.intersection(shapely.linestrings([[x0, y0], [x1, y1]]), bld.outline)
+        if inter.is_empty:
+            never[kind] += 1
+            continue
+        q = shapely.get_coordinates(inter)
+        t = ((q[:, 0] - x0) * (x1 - x0) + (q[:, 1] - y0) * (y1 - y0)) / max(1e-12, (x1 - x0) ** 2 + (y1 - y0) ** 2)
+        above[kind].append(Z - org[2] + rise * (s_in + t.min() * (s_out - s_in)) - bld.eave_z_m)
+    pct = (5, 25, 50, 75, 95)
+    out = {"spec": args.spec, "pairs": int(len(pairs)), "cells": int(len({(r, c) for _, r, c in pairs})),
+           "blocking_cell": dict(kinds),
+           "slab_blocks": {kind: {"replayed": len(beyond[kind]),
+                                  "first_slab_point_beyond_true_outline_m_p5_25_50_75_95":
+                                      np.percentile(beyond[kind], pct).round(3).tolist(),
+                                  "never_enter_true_outline_in_cell": never[kind],
+                                  "enter_it_above_eave_line_m_p5_25_50_75_95":
+                                      np.percentile(above[kind], pct).round(3).tolist() if above[kind] else None}
+                           for kind in beyond},
+           "command": f"python bench/true_ortho_fill_blockers.py --work DIR --block {args.block} --src SRC "
+                      f"--spec '{args.spec}' --key {args.key}"}
+    print(out)
+    store_result(args.out, out, key=args.key)
+    shutil.rmtree(A, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
