@@ -9,18 +9,7 @@ from click.testing import CliRunner
 import aerotri.control.pipeline as P
 from aerotri.cli import main
 from aerotri.core.errors import InputError
-from aerotri.sim.evaluate import write_truth_corners_csv
-
-
-def project_copy(tiny_project, tmp_path):
-    root = tmp_path / "p"
-    root.mkdir()
-    for name in ("images", "truth"):
-        shutil.copytree(tiny_project / name, root / name)
-    for name in ("camera.toml", "project.toml", "gnss.txt"):
-        shutil.copy(tiny_project / name, root / name)
-    write_truth_corners_csv(root, root / "lidar_out" / "corners.csv")
-    return root
+from tests.aerotri.control.test_cli import project_copy
 
 
 def run(root):
