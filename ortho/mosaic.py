@@ -1258,9 +1258,9 @@ def _gained_weighted(samples: np.ndarray, gain: np.float32, weight: np.ndarray, 
     """``_gained`` x ``weight`` (float32), in the order the weights were always applied (samples x (weight x gain):
     the same bits wherever nothing is clipped)."""
     v = samples * (weight * gain)
-    if white is not None:
-        sat = samples * gain > np.float32(white)
-        if hold:
+    if white is not None and (hold or gain > 1):  # (a gain <= 1 takes no sample above the white level)
+        sat = samples * gain > np.float32(white) if gain > 1 else samples >= white
+        if hold and gain > 1:
             sat |= samples >= white
         if sat.any():
             v[sat] = np.float32(white) * weight[sat]
