@@ -72,3 +72,77 @@ def test_the_mosaic_saturates_no_more_than_its_frames(tmp_path):
     assert inside.sum() > 10_000
     assert frames["s01_002"] == 0.0 and (a == 255).any(axis=0)[inside].mean() <= 0.001 + 1e-9
     assert saturated_share(root / "ortho/mosaic.tif") <= max(frames.values()) + 0.001
+
+
+def test_12_bit_data_in_16_bit_frames_saturate_at_4095(tmp_path):
+    """12-bit data in 16-bit frames (the DMC's, no NBITS tag): the white level is 4095 (the smallest 2^n - 1 at or
+    above every frame's largest sample), so a frame's saturated middle is counted, the gain limit bites there, no
+    sample of the mosaic is above 4095 and none becomes newly saturated (counted at 65535 nothing was saturated,
+    the gain was not limited and a saturated 4095 became 4313 or 3836 with the frame's gain)."""
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=2, frames_per_strip=3, buildings=0, seed=11)
+    for p in sorted((root / "images").glob("*.tif")):
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float32) * np.float32(4095 / 255)
+        if p.stem == "s01_002":  # dark overlaps (a gain above 1), a bright middle partly saturated
+            h, w = img.shape[:2]
+            scale = np.full((h, w), 0.6, np.float32)
+            scale[h // 3:2 * h // 3, w // 3:2 * w // 3] = 1.5
+            img *= scale[:, :, None]
+        cv2.imwrite(str(p), np.clip(np.rint(img), 0, 4095).astype(np.uint16))
+    r = CliRunner().invoke(main, ["rectify", str(root)])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--seams", "voronoi"])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((root / "ortho/mosaic.json").read_text())
+    white = summary["white_level"]
+    assert (white["value"], white["bits"], white["from"], white["max_sample"]) == (4095, 12, "max sample", 4095)
+
+    def share(path):
+        with rasterio.open(path) as ds:
+            a, ok = ds.read(), ds.read_masks(1) > 0
+        assert a.dtype == np.uint16
+        return float((a >= 4095).any(axis=0)[ok].mean()), int(a[:, ok].max())
+
+    frames = {f.stem: share(f) for f in sorted((root / "ortho/frames").glob("*.tif"))}
+    assert frames["s01_002"][0] > 0.005  # the saturated middle
+    # the frame's share as counted at the white level (its largest band's, at least the any-band share's third)
+    assert white["saturated_share_frames"]["s01_002"] > 0.3 * frames["s01_002"][0]
+    assert "frame s01_002 band" in r.stderr and "lowered" in r.stderr, r.stderr
+    mosaic_share, mosaic_max = share(root / "ortho/mosaic.tif")
+    assert mosaic_max <= 4095
+    assert mosaic_share <= max(v[0] for v in frames.values()) + 0.001
+
+
+def test_a_saturated_sample_stays_at_the_white_level_whatever_the_gain():
+    from ortho.mosaic import _BlendContext
+
+    ctx = _BlendContext([], [], np.zeros((2, 2), np.int64), np.zeros((2, 2), np.int64), np.array([[0.9], [1.2]]),
+                        np.zeros((2, 2)), None, 1, 0, 1.0, 1, "uint16", None, (1, 1), white_level=4095)
+    low, high = ctx.luts[0][0], ctx.luts[1][0]
+    assert low[4095] == high[4095] == 4095 and low[65535] == high[65535] == 4095
+    assert low[1000] == 900 and high[1000] == 1200 and high[3500] == 4095 and high.max() == 4095
+
+
+def test_white_level_from_nbits_the_largest_sample_or_the_type():
+    from ortho.mosaic import white_level
+
+    assert white_level(np.uint16, [12, None], [100, 200]).value == 4095  # stated
+    assert white_level(np.uint16, [None, None], [4095, 3000]).value == 4095
+    assert white_level(np.uint16, [None], [300]).value == 1023  # at least 10 bits
+    assert white_level(np.uint16, [None], [40000]).value == 65535
+    assert white_level(np.uint8, [None], [200]).value == 255
+    assert white_level(np.float32, [None], [None]).value is None
+
+
+def test_nbits_is_read_from_a_12_bit_tiff(tmp_path):
+    from ortho.mosaic import _nbits
+
+    a = np.full((1, 32, 32), 4095, np.uint16)
+    for name, extra in (("packed.tif", {"nbits": 12}), ("plain.tif", {})):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", width=32, height=32, count=1, dtype="uint16",
+                           **extra) as ds:
+            ds.write(a)
+    with rasterio.open(tmp_path / "packed.tif") as ds:
+        assert _nbits(ds) == 12 and ds.read().max() == 4095
+    with rasterio.open(tmp_path / "plain.tif") as ds:
+        assert _nbits(ds) is None

@@ -106,11 +106,14 @@ def test_histograms_count_the_valid_samples_as_numpy_does(dtype, monkeypatch):
     shift = max(0, bits - 10)
     hist = np.zeros((3, (1 << bits) >> shift), np.int64)
     tops = np.zeros(3, np.int64)
-    mosaic_mod._add_histogram(hist, tops, img, ok, bits, shift)
+    levels, maxima = np.zeros((3, bits), np.int64), np.zeros(3, np.int64)
+    mosaic_mod._add_histogram(hist, tops, img, ok, bits, shift, levels, maxima)
     for b in range(3):
         v = img[b][ok]
         np.testing.assert_array_equal(hist[b], np.bincount(v >> shift, minlength=hist.shape[1]))
-        assert tops[b] == np.count_nonzero(v == top)
+        assert tops[b] == np.count_nonzero(v == top) and maxima[b] == v.max()
+        assert [levels[b, n - 1] for n in range(1, bits + 1)] == [np.count_nonzero(v == (1 << n) - 1)
+                                                                  for n in range(1, bits + 1)]
 
 
 def _pixels_sha(path) -> str:
