@@ -5,8 +5,9 @@ that stops the march's ray and what it is.
 
 A DOM made by ``bench/eval_true_ortho_dsm_cell.py`` (``--work DIR``, block, spec with footprints) is rectified again
 (its images from the simulated project ``--src``) with ``ortho.block._frame_occluder`` wrapped to keep each frame's DSM
-window and occluder; the frame masks must equal the DOM's. Each pair's ray (the pixel's centre at the DSM's bilinear
-height, the point at its own column's top as the march puts it, to the frame's true centre) is walked cell by cell
+window and occluder; the frame masks must equal the DOM's. Each pair's ray (the pixel's centre at the height the true
+ortho puts it: by its side of the roof outline, ``ortho.footprints.OutlineHeights``, or the DSM's bilinear height
+before those; the point at its own column's top as the march puts it, to the frame's true centre) is walked cell by cell
 with the march's own cell test (``ortho.rectify_kernels._cell_blocks``, no block bounds) to the first cell that stops
 it: beside an overhang (``halo``), an overhang cell with a sub-cell mask or a whole slab, a crown's slab, a column, or
 none (the march stops nothing: the mask comes from the imaging, e.g. the point projected from a height up a wall falls
@@ -40,12 +41,13 @@ from ortho.rectify_kernels import _cell_blocks, _dda_step, _dem_height, _next_bo
 
 
 @numba.njit
-def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m):
-    """The march's ray from (X, Y) at the DSM's bilinear height (its own column's top where that lies more than
-    ``own_column_m`` below) to ``C``: the first cell (i, j) ``_cell_blocks`` says stops it and where the ray enters it
-    (s, cells), and (Z, rise, gx, gy, ex, ey); i = -1 for none."""
+def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, Z=np.nan):
+    """The march's ray from (X, Y) at height ``Z`` (NaN: the DSM's bilinear height; its own column's top where that
+    lies more than ``own_column_m`` below) to ``C``: the first cell (i, j) ``_cell_blocks`` says stops it and where
+    the ray enters it (s, cells), and (Z, rise, gx, gy, ex, ey); i = -1 for none."""
     dsm, x0, y0, res = grid
-    Z = _dem_height(grid, X, Y)
+    if Z != Z:
+        Z = _dem_height(grid, X, Y)
     dh, dw = dsm.shape
     vx, vy = C[0] - X, C[1] - Y
     hd = math.sqrt(vx * vx + vy * vy)
@@ -97,10 +99,11 @@ def main() -> None:
     shutil.copytree(args.src / "images", A / "images")
     kept, inner = {}, B._frame_occluder
 
-    def keep(task, heights, dem, crs, crown=None):
-        occ = inner(task, heights, dem, crs, crown)
-        kept[task.image_id] = (heights, occ)
-        return occ
+    def keep(task, heights, dem, crs, crown=None, *rest):
+        out = inner(task, heights, dem, crs, crown, *rest)
+        occ, sides = out if isinstance(out, tuple) else (out, None)  # main's before the heights by side: occ alone
+        kept[task.image_id] = (heights, occ, sides)
+        return out
 
     B._frame_occluder = keep
     crown = A / "lidar_out" / "crown_base.tif"
@@ -130,12 +133,17 @@ def main() -> None:
     kinds, beyond, never, above = collections.Counter(), collections.defaultdict(list), collections.Counter(), \
         collections.defaultdict(list)
     for f, r, c in pairs:
-        h, occ = kept[ids[f]]
+        h, occ, sides = kept[ids[f]]
+        Z = np.nan  # the point's height as the true ortho puts it: by its side of the roof outline with ``sides``
+        if sides is not None:
+            p = shapely.Point(float(xs[c]), float(ys[r]))
+            within = len(sides.tree.query(p, predicate="intersects")) > 0
+            Z = float((sides.roof if within else sides.ground).sample(np.array([xs[c]]), np.array([ys[r]]))[0])
         C = np.asarray(truth.centres[ids[f]], float) + org
         walls = (True, occ.base_m, occ.slab_top_m, occ.sub_index, occ.sub_masks, occ.sub) + \
             ((occ.sub_margin_cm,) if hasattr(occ, "sub_margin_cm") else ())  # (main's march: no margins)
         i, j, s_in, s_out, Z, rise, gx, gy, ex, ey = first_blocking_cell(float(xs[c]), float(ys[r]), _height_grid(h),
-                                                                         walls, C, 0.3, OWN_COLUMN_M)
+                                                                         walls, C, 0.3, OWN_COLUMN_M, Z)
         if i < 0:
             kinds["none"] += 1
             continue

@@ -64,7 +64,7 @@ if TYPE_CHECKING:
     from aerotri.geom.camera import BrownCamera
     from aerotri.geom.images import ImageFiles
     from ortho.dem import HeightRaster
-    from ortho.footprints import FootprintOccluder
+    from ortho.footprints import FootprintOccluder, OutlineHeights
 
 _log = logging.getLogger(__name__)
 
@@ -210,8 +210,10 @@ def operation_tags(operation: dict | None, height_operation: dict | None = None)
 
 def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, grid, interpolation, to_project,
                           occlusion_dsm=None, compression: str = "zstd", threads: int | None = None,
-                          tags: dict | None = None, max_view_angle_deg: float = 90.0, occluder=None) -> float:
-    """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory).
+                          tags: dict | None = None, max_view_angle_deg: float = 90.0, occluder=None,
+                          sides=None) -> float:
+    """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory); ``occluder``,
+    ``sides``: as ``rectify_frame``.
 
     The tile threads compute the next tiles while this thread writes (GDAL compresses the blocks on
     all cores). Returns the valid fraction of the grid.
@@ -236,7 +238,7 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
 
             rectify_frame(image, camera, C, R, heights, grid, interpolation=interpolation, to_project=to_project,
                           occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads,
-                          max_view_angle_deg=max_view_angle_deg, occluder=occluder)
+                          max_view_angle_deg=max_view_angle_deg, occluder=occluder, sides=sides)
     return valid[0] / float(grid.width * grid.height)
 
 
@@ -311,6 +313,10 @@ def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent
     return share
 
 
+# true ortho with footprints: each cell's height from its own side of the roof outlines (``ortho.footprints.
+# outline_heights``: beyond every outline the ground's, within one the roof's), not the DSM's bilinear height part
+# way up a wall beside it (docs/true-ortho.md, "Heights from the cell's own side of the roof outline")
+HEIGHTS_BY_OUTLINE = True
 SHARED_FOOTPRINT_CELLS_MAX = 40_000_000  # a larger window of the block's frames: the footprints rasterised per frame
 # (10 bytes a cell kept: 400 MB)
 _shared_cells: dict = {}  # the last block's footprints on the DSM grid (key, value); one per process
@@ -343,24 +349,35 @@ def _block_footprint_cells(task: FrameTask, project_crs):
         return _shared_cells["value"]
 
 
-def _frame_occluder(task: FrameTask, heights: HeightRaster, dem: HeightRaster, project_crs,
-                    crown_base_m: np.ndarray | None = None) -> FootprintOccluder:
-    """The footprints' occluder of the frame's DSM window ``heights`` (ground: its DEM window ``dem`` at the cells),
-    its footprint cells cut from the block's (``_block_footprint_cells``) where that window lies inside the block's,
-    else rasterised for the frame: the same occluder either way."""
-    from ortho.footprints import footprint_occluder, occluder_of_cells, read_footprints
+def _frame_occluder(task: FrameTask, surface: HeightRaster, dem: HeightRaster, project_crs,
+                    crown_base_m: np.ndarray | None = None,
+                    heights: HeightRaster | None = None) -> tuple[FootprintOccluder, OutlineHeights | None]:
+    """The footprints' occluder of the frame's DSM window ``surface`` (of the occlusion test; ground: its DEM window
+    ``dem`` at the cells), its footprint cells cut from the block's (``_block_footprint_cells``) where that window lies
+    inside the block's, else rasterised for the frame: the same occluder either way; and with ``heights`` (the DSM
+    window the cells' heights are read from) its ``OutlineHeights`` (``HEIGHTS_BY_OUTLINE``; else None)."""
+    from ortho.footprints import footprint_cells, occluder_of_cells, outline_heights, read_footprints
 
-    h, w = heights.heights_m.shape
-    ground = heights_on_grid(dem, OrthoGrid(project_crs, heights.x_left_m, heights.y_top_m, heights.res_m, w, h))
-    shared = _block_footprint_cells(task, project_crs) if task.occluder_bounds_m is not None else None
-    if shared is not None and shared[3] is not None and shared[2] == heights.res_m:
-        x_left, y_top, res, cells = shared
-        r0 = int(round((y_top - heights.y_top_m) / res))
-        c0 = int(round((heights.x_left_m - x_left) / res))
-        if r0 >= 0 and c0 >= 0 and r0 + h <= cells.label.shape[0] and c0 + w <= cells.label.shape[1]:
-            return occluder_of_cells(heights, ground, cells.window(r0, c0, h, w), crown_base_m=crown_base_m)
-    return footprint_occluder(heights, ground, read_footprints(task.footprints_path, project_crs),
-                              crown_base_m=crown_base_m)
+    def cells_of(window: HeightRaster):
+        h, w = window.heights_m.shape
+        ground = heights_on_grid(dem, OrthoGrid(project_crs, window.x_left_m, window.y_top_m, window.res_m, w, h))
+        shared = _block_footprint_cells(task, project_crs) if task.occluder_bounds_m is not None else None
+        if shared is not None and shared[3] is not None and shared[2] == window.res_m:
+            x_left, y_top, res, cells = shared
+            r0 = int(round((y_top - window.y_top_m) / res))
+            c0 = int(round((window.x_left_m - x_left) / res))
+            if r0 >= 0 and c0 >= 0 and r0 + h <= cells.label.shape[0] and c0 + w <= cells.label.shape[1]:
+                return cells.window(r0, c0, h, w), ground
+        return footprint_cells(window.x_left_m, window.y_top_m, window.res_m, (h, w),
+                               read_footprints(task.footprints_path, project_crs)), ground
+
+    cells, ground = cells_of(surface)
+    occluder = occluder_of_cells(surface, ground, cells, crown_base_m=crown_base_m)
+    if heights is None or not HEIGHTS_BY_OUTLINE:
+        return occluder, None
+    if heights is not surface:
+        cells, ground = cells_of(heights)
+    return occluder, outline_heights(heights, ground, cells)
 
 
 def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_crs, height_op) -> np.ndarray | None:
@@ -457,10 +474,10 @@ def _rectify_frame(task: FrameTask) -> dict:
                 _raster_read(task.occlusion_dsm_path, "DSM"):
             surface = read_height_window(occ_ds, ground_bounds, margin_m=4 * occ_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
-    occluder = None
+    occluder, sides = None, None
     crown = _crown_base(task, surface, ground_bounds, project_crs, height_op) if task.dsm_path else None
     if task.dsm_path and task.footprints_path:
-        occluder = _frame_occluder(task, surface, dem, project_crs, crown)
+        occluder, sides = _frame_occluder(task, surface, dem, project_crs, crown, heights)
     elif crown is not None:
         from ortho.footprints import with_crown_base
 
@@ -475,6 +492,7 @@ def _rectify_frame(task: FrameTask) -> dict:
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
                                            occlusion_dsm=surface if task.dsm_path else None, occluder=occluder,
+                                           sides=sides,
                                            compression=task.compression, threads=task.threads,
                                            max_view_angle_deg=task.max_view_angle_deg,
                                            tags=operation_tags(to_project.record(),

@@ -412,6 +412,57 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     return with_crown_base(occluder, top, crown_base_m, cells.label == 0)
 
 
+@dataclasses.dataclass(frozen=True)
+class OutlineHeights:
+    """The heights of the true ortho's cells on their own side of the roof outlines (``outline_heights``): ``ground``
+    the DSM window with its cells within a roof outline replaced by the DEM (what a cell beyond every outline lies
+    on), ``roof`` the same window with its cells beyond every outline replaced by the nearest roof cell's height (what
+    a cell within an outline lies on), ``outlines`` the roof outlines (shapely polygons, project CRS: each footprint
+    grown by its building's eave width, ``eave_widths_m``) and their ``tree`` (shapely STRtree). A cell beside a
+    wall then lies at its own side's height, not part way up the bilinear ramp between the roof and the ground."""
+
+    ground: HeightRaster
+    roof: HeightRaster
+    outlines: np.ndarray
+    tree: object
+
+
+def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,
+                    above_m: float = OVERHANG_ABOVE_M) -> OutlineHeights:
+    """The ``OutlineHeights`` of ``dsm`` (a window, project CRS) from its ``FootprintCells`` and ``ground_m`` (the DEM
+    at its cell centres, as ``occluder_of_cells``): the roof outlines are those of the occluder (the same eave widths);
+    a DSM cell is roof where its centre lies within an outline."""
+    import shapely
+    from rasterio.features import rasterize
+    from rasterio.transform import from_origin
+    from scipy import ndimage
+
+    from ortho.dem import HeightRaster
+
+    top = dsm.heights_m
+    dh, dw = top.shape
+    sub = cells.sub
+    taken = np.zeros((dh, dw), np.bool_)
+    over = np.zeros((dh, dw), np.bool_)
+    ground32 = ground_m.astype(np.float32, copy=False)
+    _overhang_cells(cells.label, cells.inside, top, ground32, np.float32(above_m), sub * sub, taken, over)
+    width_m = np.rint(eave_widths_m(cells, taken, dsm.res_m)[1:] * 100.0) / 100.0  # as the margins' cm
+    outlines = shapely.buffer(cells.polygons, width_m) if len(cells.polygons) else cells.polygons
+    roof = np.zeros((dh, dw), np.bool_)
+    if len(outlines):
+        roof = rasterize(((shapely.geometry.mapping(g), 1) for g in outlines), out_shape=(dh, dw),
+                         transform=from_origin(dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.res_m),
+                         dtype="uint8").astype(np.bool_)
+    ground = np.where(roof, ground32, top).astype(np.float32)
+    roof_heights = top.copy()
+    if roof.any() and not roof.all():
+        rows, cols = ndimage.distance_transform_edt(~roof, return_distances=False, return_indices=True)
+        roof_heights = top[rows, cols]
+    return OutlineHeights(HeightRaster(ground, dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.crs, dsm.source),
+                          HeightRaster(roof_heights, dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.crs, dsm.source),
+                          outlines, shapely.STRtree(outlines))
+
+
 def _outline_margin_cm(cells: FootprintCells, rr, cc, lab, width_cm) -> np.ndarray:
     """(len(rr), sub, sub) int16: per sub-cell of cells (rr, cc) how far (cm) its centre lies within the roof outline
     of footprint ``lab`` (``width_cm`` its eave width less the centre's distance to the footprint; negative beyond

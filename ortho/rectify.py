@@ -52,7 +52,7 @@ from ortho.grid import GridToProject, OrthoGrid
 if TYPE_CHECKING:
     from aerotri.geom.camera import Camera
     from ortho.dem import HeightRaster
-    from ortho.footprints import FootprintOccluder
+    from ortho.footprints import FootprintOccluder, OutlineHeights
 
 INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "bilinear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}
 
@@ -237,6 +237,26 @@ def heights_on_grid(dem: HeightRaster, grid: OrthoGrid, out: np.ndarray | None =
                           borderValue=float("nan"))
 
 
+def heights_by_side(sides: OutlineHeights, grid: OrthoGrid, out: np.ndarray | None = None) -> np.ndarray:
+    """Bilinear heights at the pixel centres of ``grid`` (in the DSM's CRS) each from its own side of the roof
+    outlines (``ortho.footprints.OutlineHeights``): within an outline among the roof's cells, beyond every outline
+    among the ground's; float32 (H, W) as ``heights_on_grid``."""
+    import shapely
+    from rasterio.features import rasterize
+    from rasterio.transform import from_origin
+
+    z = heights_on_grid(sides.ground, grid, out=out)
+    x1, y0 = grid.x_left_m + grid.width * grid.res_m, grid.y_top_m - grid.height * grid.res_m
+    near = sides.tree.query(shapely.box(grid.x_left_m, y0, x1, grid.y_top_m), predicate="intersects")
+    if len(near) == 0:
+        return z
+    within = rasterize(((shapely.geometry.mapping(g), 1) for g in sides.outlines[near]),
+                       out_shape=(grid.height, grid.width),
+                       transform=from_origin(grid.x_left_m, grid.y_top_m, grid.res_m, grid.res_m), dtype="uint8")
+    np.copyto(z, heights_on_grid(sides.roof, grid), where=within.astype(np.bool_))
+    return z
+
+
 def image_coordinates(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid, to_project: GridToProject | None = None,
                       margin_px: float = 0.0):
     """Image coordinates (map_x, map_y float32) and heights (float32) for every pixel of ``grid``.
@@ -282,8 +302,11 @@ class MapBuffers:
 
 def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid, to_project: GridToProject | None = None,
                      *, margin_px: float = 0.0, buffers: MapBuffers | None = None, mask_out: np.ndarray | None = None,
-                     bounds_out: np.ndarray | None = None):
+                     bounds_out: np.ndarray | None = None, sides: OutlineHeights | None = None):
     """cv2.remap fixed-point maps (int16 (H, W, 2), uint16 (H, W)), validity mask (uint8 255/0), heights, anchors.
+
+    ``sides``: the heights each from its own side of the roof outlines (``heights_by_side``) instead of the bilinear
+    ``dem`` across them, where ``grid`` is in the project CRS (``to_project`` the identity; else ``dem``'s as before).
 
     With ``buffers`` the maps and heights are views of those (valid until the next call with them);
     the mask is ``mask_out`` if given, else a new array. ``bounds_out`` (int32 [4]) receives the
@@ -303,7 +326,7 @@ def fixed_point_maps(geometry: FrameGeometry, dem: HeightRaster, grid: OrthoGrid
 
     frame, maps = geometry.kernel_frame(), RemapMaps(map_int, map_frac, mask, bounds)
     if to_project.identity:
-        z = heights_on_grid(dem, grid, out=z)
+        z = heights_on_grid(dem, grid, out=z) if sides is None else heights_by_side(sides, grid, out=z)
         _fixed_point_kernel_affine(_affine_tile(z, grid), frame, float(margin_px), maps)
         return map_int, map_frac, mask, z, (AX, AY, s)
     _fixed_point_kernel(AnchorGrid(AX, AY, float(s)), _height_grid(dem), frame, float(margin_px), maps, z)
@@ -611,7 +634,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
                   *, interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
                   sink_bands_first: bool = False, max_view_angle_deg: float = 90.0, earth: bool = True,
-                  occluder: FootprintOccluder | None = None):
+                  occluder: FootprintOccluder | None = None, sides: OutlineHeights | None = None):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
 
     ``image`` is (rows, cols[, bands]) in the camera's pixel convention, in memory, or a ``FrameFile``
@@ -619,7 +642,9 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     (camera -> object, omega-phi-kappa) are in the project CRS, as is ``dem_dataset`` (a
     HeightRaster; the DSM for a true ortho). ``to_project`` maps the grid CRS to the project CRS
     (default: identical). With ``occlusion_dsm`` pixels hidden by the DSM are masked (true ortho); ``occluder``
-    (``ortho.footprints.footprint_occluder`` of that DSM): building footprints in the occlusion test.
+    (``ortho.footprints.footprint_occluder`` of that DSM): building footprints in the occlusion test; ``sides``
+    (``ortho.footprints.outline_heights`` of that DSM): each cell's height from its own side of the roof outlines
+    (``fixed_point_maps``).
     With ``sink(row0, col0, ortho_tile, mask_tile)`` the tiles are handed over in row-major order as
     they are made (e.g. written to a file, overlapping with the computation of the next tiles)
     instead of assembled: the returned ortho and mask are then None. With ``sink_bands_first`` the sink gets
@@ -690,7 +715,8 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             local.near_share = np.empty(tile_px * tile_px, np.float32)
         handle, o, m = take_out_buffers(tile.height, tile.width)
         map_int, map_frac, _, z, anchors = fixed_point_maps(geometry, dem_dataset, tile, to_project,
-                                                            buffers=local.buffers, mask_out=m, bounds_out=local.bounds)
+                                                            buffers=local.buffers, mask_out=m, bounds_out=local.bounds,
+                                                            sides=sides)
         if zbuffer is not None:
             # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
             # roof edge above them): the points it puts behind a nearer surface are decided by the march
