@@ -171,24 +171,33 @@ class Sampler:
         return out
 
 
-def measured(cmd: list[str], cwd=None, keep_stderr: bool = False, sampler: Sampler | None = None) -> dict:
+def measured(cmd: list[str], cwd=None, keep_stderr: bool = False, sampler: Sampler | None = None,
+             allow_fail: bool = False) -> dict:
     """Run ``cmd`` in its own process: wall s, CPU s (user + system), peak RSS MB, exit code (and its ``stderr`` with
-    ``keep_stderr``); with a ``sampler``, its peak disk use, the least free disk and the mean load while it ran."""
+    ``keep_stderr``); with a ``sampler``, its peak disk use, the least free disk and the mean load while it ran. A
+    failed command stops the run, or with ``allow_fail`` is returned with ``failed`` (exit code, last error line)."""
+    import tempfile
+
     load = os.getloadavg()[0]
     started = time.strftime("%H:%M:%S", time.gmtime())
     t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    if sampler is not None:
-        sampler.proc = p
-        sampler.__enter__()
-    try:
-        # wait4 gives this child's own resource use (RUSAGE_CHILDREN would mix all children so far)
-        _, status, ru = os.wait4(p.pid, 0)
-    finally:
+    # output into files, not pipes: a command writing more than a pipe holds (gdalwarp repeating an error per block)
+    # would block until it is read, i.e. for ever
+    with tempfile.TemporaryFile() as out_f, tempfile.TemporaryFile() as err_f:
+        p = subprocess.Popen(cmd, cwd=cwd, stdout=out_f, stderr=err_f)
         if sampler is not None:
-            sampler.__exit__(None, None, None)
-    wall = time.perf_counter() - t0
-    out, err = p.stdout.read().decode(errors="replace"), p.stderr.read().decode(errors="replace")
+            sampler.proc = p
+            sampler.__enter__()
+        try:
+            # wait4 gives this child's own resource use (RUSAGE_CHILDREN would mix all children so far)
+            _, status, ru = os.wait4(p.pid, 0)
+        finally:
+            if sampler is not None:
+                sampler.__exit__(None, None, None)
+        wall = time.perf_counter() - t0
+        out_f.seek(0)
+        err_f.seek(0)
+        out, err = out_f.read().decode(errors="replace"), err_f.read().decode(errors="replace")
     code = os.waitstatus_to_exitcode(status)
     figures = {"wall_s": round(wall, 3), "cpu_s": round(ru.ru_utime + ru.ru_stime, 3),
                "peak_rss_mb": round(ru.ru_maxrss / 1024.0, 1), "load_1min_before": round(load, 2),
@@ -197,6 +206,8 @@ def measured(cmd: list[str], cwd=None, keep_stderr: bool = False, sampler: Sampl
     # killed by the sampler (deadline, disk): the figures so far (``killed_*`` say so), the caller records them
     if code != 0 and any(k.startswith("killed") for k in figures):
         return figures
+    if code != 0 and allow_fail:
+        return {**figures, "failed": f"exit code {code}: {(err.strip().splitlines() or [''])[-1][:300]}"}
     if code != 0:
         raise SystemExit(f"{' '.join(map(str, cmd))} failed ({code}):\n{err[-3000:]}")
     return {**figures, "stdout": out.strip()[-500:], **({"stderr": err} if keep_stderr else {})}
@@ -485,6 +496,8 @@ def compare(work: Path, repeats: int, label: str, between=None, before_src: Path
         ours = measured([tool("ortho"), "mosaic", "-q", str(work)], sampler=sampler())
         if "killed_low_disk" in ours:
             print(f"  killed, the disk short: {ours}", flush=True)
+            for q in (work / "ortho").glob(".mosaic.part-*"):  # its scratch (SIGKILL: not cleaned)
+                shutil.rmtree(q, ignore_errors=True)
             return {"ours_killed": ours}
         ours["file_mb"] = round((work / "ortho" / "mosaic.tif").stat().st_size / 1e6, 1)
         if before is not None:
@@ -497,11 +510,12 @@ def compare(work: Path, repeats: int, label: str, between=None, before_src: Path
         print(f"{label}: run {k + 1}/{repeats}: gdalwarp", flush=True)
         # in the work folder: whatever temporary files gdalwarp writes there are in its disk peak
         peer = measured(PEER + ["--optfile", str(listing), str(peer_out)], cwd=work,
-                        sampler=sampler(low_disk=low_disk if k == 0 else None, deadline_utc=peer_deadline))
-        if "killed_at_deadline" in peer:
+                        sampler=sampler(low_disk=low_disk if k == 0 else None, deadline_utc=peer_deadline),
+                        allow_fail=True)
+        if "killed_at_deadline" in peer or "failed" in peer:
             for f in work.glob(peer_out.name + "*"):
                 f.unlink()
-            print(f"  killed at {peer_deadline} UTC: {peer['wall_s']} s wall, {peer['cpu_s']} CPU-s so far", flush=True)
+            print(f"  unfinished: {peer}", flush=True)
             if after is not None:
                 after(peer)
             return {"mosaic_px": px, "mosaic_gp": round(px / 1e9, 4), "runs": [{"ours": ours, "peer": peer}],
@@ -567,6 +581,9 @@ def main() -> None:
                     "session): its CPU seconds so far are recorded, a lower bound")
     ap.add_argument("--peer-only", action="store_true", help="the large set's gdalwarp alone (when the disk has no "
                     "room for ortho mosaic's scratch beside the frames)")
+    ap.add_argument("--ours-only", action="store_true", help="the large set's ortho mosaic alone (gdalwarp measured in "
+                    "another run of the same session, --peer-only)")
+    ap.add_argument("--ours-deadline", metavar="HH:MM", help="kill the large set's ortho mosaic at this UTC time")
     ap.add_argument("--min-free-gb", type=float, default=7.0,
                     help="the free disk to leave to others (default 7): the large runs stop before a step that would "
                          "need more, our DOM is kept through gdalwarp only when twice its size stays free above this, "
@@ -703,8 +720,9 @@ def main() -> None:
                 peer_out = proj / "peer_mosaic.tif"
                 print(f"{key}: {free_gb():.1f} GB free; gdalwarp alone", flush=True)
                 peer = measured(PEER + ["--optfile", str(listing), str(peer_out)], cwd=proj,
-                                sampler=Sampler([proj], min_free_gb=a.min_free_gb, deadline_utc=a.peer_deadline))
-                if peer_out.exists() and not any(k.startswith("killed") for k in peer):
+                                sampler=Sampler([proj], min_free_gb=a.min_free_gb, deadline_utc=a.peer_deadline),
+                                allow_fail=True)
+                if peer_out.exists() and not any(k.startswith(("killed", "failed")) for k in peer):
                     peer.update(file_mb=round(peer_out.stat().st_size / 1e6, 1), mosaic_px=mosaic_px(peer_out))
                     gp = peer["mosaic_px"] / 1e9
                     peer.update(mp_per_s=round(gp * 1e3 / peer["wall_s"], 2), cpu_s_per_gp=round(peer["cpu_s"] / gp, 1))
@@ -718,6 +736,23 @@ def main() -> None:
             if free_gb() < need_gb:
                 raise SystemExit(f"{key}: {free_gb():.1f} GB free, {need_gb:.1f} GB needed ({a.min_free_gb} GB left to "
                                  "others and about 2.6 GB per GP of DOM): stopped before the mosaics")
+            if a.ours_only:
+                ours = measured([tool("ortho"), "mosaic", "-q", str(proj)],
+                                sampler=Sampler([proj], min_free_gb=a.min_free_gb, deadline_utc=a.ours_deadline))
+                if not any(k.startswith("killed") for k in ours):
+                    size, px = dom.stat().st_size, mosaic_px(dom)
+                    ours.update(file_mb=round(size / 1e6, 1), dom_bytes=size, dom_sha256=sha256_of(dom), mosaic_px=px,
+                                mp_per_s=round(px / 1e6 / ours["wall_s"], 2), cpu_s_per_gp=round(ours["cpu_s"] / (px / 1e9), 1))
+                    if a.large_check:
+                        part["first_ours"] = ours
+                        run_check()
+                    dom.unlink()
+                for q in (proj / "ortho").glob(".mosaic.part-*"):  # a killed run's scratch (SIGKILL: not cleaned)
+                    shutil.rmtree(q, ignore_errors=True)
+                print(f"  {ours}", flush=True)
+                part["first_ours"] = ours
+                save()
+                continue
             part.update(compare(proj, a.large_repeats, key, between=first_ours, after=first_peer,
                                 min_free_gb=a.min_free_gb, low_disk=low_disk, peer_deadline=a.peer_deadline))
             if "ours_killed" in part:
