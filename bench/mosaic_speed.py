@@ -24,12 +24,24 @@ For each set, in one run, alternating (``--repeats``, default 3 for the demo and
   line tools. Without gdalwarp the run stops and says so.
 
 Each command runs in its own process: wall time, CPU seconds (user + system of that process, from
-``os.wait4``; they depend much less on the load of this shared machine than the wall time), peak RSS,
-output megapixels per second of wall time and the output file's size; the 1-minute load average before
-each run. ``ratio`` = peer wall / ours wall of the same repetition (the median is reported).
+``os.wait4``; they depend much less on the load of this shared machine than the wall time), peak RSS, output
+megapixels per second of wall time and the output file's size; the 1-minute load average before and after each
+run and the start time (UTC). On the large set both also run under a ``Sampler`` of the work folder (every 2 s): the
+disk they take at their peak above what was there before (outputs, scratch, gdalwarp's temporary files, which it
+writes beside its output), the least free disk of the file system and the mean load while they ran. ``ratio`` =
+peer wall / ours wall of the same repetition (the median is reported).
 
-With ``--large-check``, after the first large mosaic (which is then removed, for the disk), ``ortho check`` of that DOM against a reference orthophoto of the same ground
-image at 0.5 m: its wall, CPU and peak RSS (the check reads the DOM by blocks), and the accuracy it finds.
+The large set's first runs are recorded as they end (``first_ours`` with the DOM's size and sha256, ``first_peer``), so
+that a run stopped later loses nothing. The disk is shared: the mosaics start only when ``--min-free-gb`` (default 7)
+plus about 2.6 GB per GP of DOM are free; ``ortho mosaic`` is killed (and the run stopped) if the free disk falls under
+``--min-free-gb``; our DOM is kept through gdalwarp only when twice its size stays free above it, and removed if the
+free disk falls under it while gdalwarp runs. ``--peer-deadline HH:MM`` kills the large set's gdalwarp at that UTC
+time (the session's end): its CPU seconds so far are recorded, a lower bound (``peer_unfinished``).
+
+With ``--large-check``, ``ortho check`` of the first large DOM against a reference orthophoto of the same ground image at
+0.5 m: its wall, CPU and peak RSS (the check reads the DOM by blocks), and the accuracy it finds; after gdalwarp when
+our DOM was kept through it, else between the two (the DOM is then removed, for the disk); ``--check-by HH:MM``: only
+if it can start before that UTC time.
 On the demo, the DOM check against the truth orthophoto (accuracy before and after this mosaic, from the
 demo's own ``ortho/dom_report.json``).
 
@@ -54,8 +66,8 @@ phase, ``outside_phases``, is the start-up, its imports and the end; ``outputs``
 preview and the summary after the COG).
 
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
-       [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--subset S,F ...] [--out FILE] [--label KEY]
-       [--before-src DIR] [--bytecode] [--phases N]
+       [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--check-by HH:MM] [--peer-deadline HH:MM]
+       [--min-free-gb 7] [--subset S,F ...] [--out FILE] [--label KEY] [--before-src DIR] [--bytecode] [--phases N]
 """
 
 from __future__ import annotations
@@ -91,24 +103,114 @@ def tool(name: str) -> str:
     return str(here) if here.exists() else (shutil.which(name) or name)
 
 
-def measured(cmd: list[str], cwd=None, keep_stderr: bool = False) -> dict:
+class Sampler:
+    """While a command runs, every ``every_s`` seconds: the bytes allocated under ``dirs`` (where the command writes
+    its output and scratch), the free bytes of their file system and the 1-minute load average. Peaks (the bytes above
+    what was there at the start: the command's peak disk use) and the mean load. ``low_disk()`` is called (once)
+    when the free space falls under ``min_free_gb``: e.g. to remove a file kept for later, for the shared disk; without
+    ``low_disk`` the command is killed then (``measured`` stops the run and says so)."""
+
+    def __init__(self, dirs, every_s: float = 2.0, min_free_gb: float | None = None, low_disk=None,
+                 deadline_utc: str | None = None):
+        import threading
+
+        self.dirs, self.every_s, self.min_free_gb, self.low_disk = [Path(d) for d in dirs], every_s, min_free_gb, low_disk
+        self.stop_event, self.thread = threading.Event(), threading.Thread(target=self._run, daemon=True)
+        self.base = self.peak = self._bytes()
+        self.free_min = shutil.disk_usage(self.dirs[0]).free
+        self.loads, self.low_disk_at, self.proc = [], None, None
+        # HH:MM UTC: the command is killed then (a run that would not end within the session); measured records it
+        self.deadline_utc, self.deadline_at = deadline_utc, None
+
+    def _bytes(self) -> int:
+        total = 0
+        for d in self.dirs:
+            for root, _, files in os.walk(d):
+                for f in files:
+                    try:  # files come and go while the command runs
+                        total += os.lstat(os.path.join(root, f)).st_blocks * 512
+                    except OSError:
+                        pass
+        return total
+
+    def _run(self) -> None:
+        t0 = time.perf_counter()
+        while not self.stop_event.wait(self.every_s):
+            self.peak = max(self.peak, self._bytes())
+            free = shutil.disk_usage(self.dirs[0]).free
+            self.free_min = min(self.free_min, free)
+            self.loads.append(os.getloadavg()[0])
+            if self.min_free_gb is not None and free < self.min_free_gb * 1e9 and self.low_disk_at is None:
+                self.low_disk_at = round(time.perf_counter() - t0, 1)
+                if self.low_disk is not None:
+                    self.low_disk()
+                elif self.proc is not None:
+                    self.proc.kill()
+            if (self.deadline_utc and self.deadline_at is None and self.proc is not None
+                    and time.strftime("%H:%M", time.gmtime()) >= self.deadline_utc):
+                self.deadline_at = round(time.perf_counter() - t0, 1)
+                self.proc.kill()
+
+    def __enter__(self):
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop_event.set()
+        self.thread.join()
+
+    def figures(self) -> dict:
+        out = {"disk_peak_gb": round((self.peak - self.base) / 1e9, 3), "disk_free_min_gb": round(self.free_min / 1e9, 2),
+               "load_1min_mean": round(statistics.fmean(self.loads), 2) if self.loads else None}
+        if self.low_disk_at is not None:
+            out["low_disk_after_s"] = self.low_disk_at
+            if self.low_disk is None:
+                out["killed_low_disk"] = f"free disk under {self.min_free_gb} GB after {self.low_disk_at} s: unfinished"
+        if self.deadline_at is not None:
+            out["killed_at_deadline"] = f"{self.deadline_utc} UTC, after {self.deadline_at} s: unfinished"
+        return out
+
+
+def measured(cmd: list[str], cwd=None, keep_stderr: bool = False, sampler: Sampler | None = None,
+             allow_fail: bool = False) -> dict:
     """Run ``cmd`` in its own process: wall s, CPU s (user + system), peak RSS MB, exit code (and its ``stderr`` with
-    ``keep_stderr``)."""
+    ``keep_stderr``); with a ``sampler``, its peak disk use, the least free disk and the mean load while it ran. A
+    failed command stops the run, or with ``allow_fail`` is returned with ``failed`` (exit code, last error line)."""
+    import tempfile
+
     load = os.getloadavg()[0]
+    started = time.strftime("%H:%M:%S", time.gmtime())
     t0 = time.perf_counter()
-    p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    out_chunks = []
-    # wait4 gives this child's own resource use (RUSAGE_CHILDREN would mix all children so far)
-    _, status, ru = os.wait4(p.pid, 0)
-    wall = time.perf_counter() - t0
-    out, err = p.stdout.read().decode(errors="replace"), p.stderr.read().decode(errors="replace")
-    out_chunks.append(out)
+    # output into files, not pipes: a command writing more than a pipe holds (gdalwarp repeating an error per block)
+    # would block until it is read, i.e. for ever
+    with tempfile.TemporaryFile() as out_f, tempfile.TemporaryFile() as err_f:
+        p = subprocess.Popen(cmd, cwd=cwd, stdout=out_f, stderr=err_f)
+        if sampler is not None:
+            sampler.proc = p
+            sampler.__enter__()
+        try:
+            # wait4 gives this child's own resource use (RUSAGE_CHILDREN would mix all children so far)
+            _, status, ru = os.wait4(p.pid, 0)
+        finally:
+            if sampler is not None:
+                sampler.__exit__(None, None, None)
+        wall = time.perf_counter() - t0
+        out_f.seek(0)
+        err_f.seek(0)
+        out, err = out_f.read().decode(errors="replace"), err_f.read().decode(errors="replace")
     code = os.waitstatus_to_exitcode(status)
+    figures = {"wall_s": round(wall, 3), "cpu_s": round(ru.ru_utime + ru.ru_stime, 3),
+               "peak_rss_mb": round(ru.ru_maxrss / 1024.0, 1), "load_1min_before": round(load, 2),
+               "load_1min_after": round(os.getloadavg()[0], 2), "started_utc": started,
+               **(sampler.figures() if sampler is not None else {})}
+    # killed by the sampler (deadline, disk): the figures so far (``killed_*`` say so), the caller records them
+    if code != 0 and any(k.startswith("killed") for k in figures):
+        return figures
+    if code != 0 and allow_fail:
+        return {**figures, "failed": f"exit code {code}: {(err.strip().splitlines() or [''])[-1][:300]}"}
     if code != 0:
         raise SystemExit(f"{' '.join(map(str, cmd))} failed ({code}):\n{err[-3000:]}")
-    return {"wall_s": round(wall, 3), "cpu_s": round(ru.ru_utime + ru.ru_stime, 3),
-            "peak_rss_mb": round(ru.ru_maxrss / 1024.0, 1), "load_1min_before": round(load, 2),
-            "stdout": out.strip()[-500:], **({"stderr": err} if keep_stderr else {})}
+    return {**figures, "stdout": out.strip()[-500:], **({"stderr": err} if keep_stderr else {})}
 
 
 PHASE_LINE = re.compile(r"mosaic: (.+?) [0-9.]+ s \(CPU ([0-9.]+) s\)")
@@ -366,11 +468,18 @@ def before_command(src: Path) -> list[str]:
     return [sys.executable, "-c", code]
 
 
-def compare(work: Path, repeats: int, label: str, between=None, before_src: Path | None = None) -> dict:
-    """Ours and the peer alternately ``repeats`` times on ``work``'s frames; ``between()`` runs after the
-    first of ours (e.g. the DOM check), before our DOM is removed for the peer (``between`` set: disk). With
+def compare(work: Path, repeats: int, label: str, between=None, before_src: Path | None = None, after=None,
+            min_free_gb: float | None = None, low_disk=None, peer_deadline: str | None = None) -> dict:
+    """Ours and the peer alternately ``repeats`` times on ``work``'s frames. ``between(ours)`` runs after the first of
+    ours (record it, e.g. the DOM check); when it returns False our DOM is removed before the peer runs (``between``
+    set: disk), when True it is kept. ``after(peer)`` runs after the first of the peer (its output removed), e.g. the
+    DOM check of our kept DOM. With ``min_free_gb`` both run under a ``Sampler`` of ``work`` (peak disk use, least
+    free disk, mean load) and ``low_disk()`` is called if the free disk falls under it while the peer runs; the peer is
+    killed at ``peer_deadline`` (HH:MM UTC; its figures so far are returned, unfinished, without medians). With
     ``before_src`` (a source tree of the code before a change) its ``ortho mosaic`` runs first in every repetition
     (``before``), and the sha256 of both mosaics are recorded."""
+    sampler = (lambda **kw: Sampler([work], min_free_gb=min_free_gb, **kw)) if min_free_gb is not None \
+        else (lambda **kw: None)
     frames = sorted((work / "ortho" / "frames").glob("*.tif"))
     listing = work / "peer_inputs.txt"
     listing.write_text("\n".join(str(f) for f in frames) + "\n")
@@ -384,24 +493,41 @@ def compare(work: Path, repeats: int, label: str, between=None, before_src: Path
             before["sha256"] = sha256_of(work / "ortho" / "mosaic.tif")
             print(f"  {before['wall_s']} s wall, {before['cpu_s']} CPU-s, {before['peak_rss_mb']} MB", flush=True)
         print(f"{label}: run {k + 1}/{repeats}: ortho mosaic", flush=True)
-        ours = measured([tool("ortho"), "mosaic", "-q", str(work)])
+        ours = measured([tool("ortho"), "mosaic", "-q", str(work)], sampler=sampler())
+        if "killed_low_disk" in ours:
+            print(f"  killed, the disk short: {ours}", flush=True)
+            for q in (work / "ortho").glob(".mosaic.part-*"):  # its scratch (SIGKILL: not cleaned)
+                shutil.rmtree(q, ignore_errors=True)
+            return {"ours_killed": ours}
         ours["file_mb"] = round((work / "ortho" / "mosaic.tif").stat().st_size / 1e6, 1)
         if before is not None:
             ours["sha256"] = sha256_of(work / "ortho" / "mosaic.tif")
         print(f"  {ours['wall_s']} s wall, {ours['cpu_s']} CPU-s, {ours['peak_rss_mb']} MB", flush=True)
         if k == 0:
             px = mosaic_px(work / "ortho" / "mosaic.tif")
-            if between is not None:
-                between()
+            if between is not None and not between(ours):
                 (work / "ortho" / "mosaic.tif").unlink()
         print(f"{label}: run {k + 1}/{repeats}: gdalwarp", flush=True)
-        peer = measured(PEER + ["--optfile", str(listing), str(peer_out)])
+        # in the work folder: whatever temporary files gdalwarp writes there are in its disk peak
+        peer = measured(PEER + ["--optfile", str(listing), str(peer_out)], cwd=work,
+                        sampler=sampler(low_disk=low_disk if k == 0 else None, deadline_utc=peer_deadline),
+                        allow_fail=True)
+        if "killed_at_deadline" in peer or "failed" in peer:
+            for f in work.glob(peer_out.name + "*"):
+                f.unlink()
+            print(f"  unfinished: {peer}", flush=True)
+            if after is not None:
+                after(peer)
+            return {"mosaic_px": px, "mosaic_gp": round(px / 1e9, 4), "runs": [{"ours": ours, "peer": peer}],
+                    "peer_unfinished": True}
         peer["file_mb"] = round(peer_out.stat().st_size / 1e6, 1)
         print(f"  {peer['wall_s']} s wall, {peer['cpu_s']} CPU-s, {peer['peak_rss_mb']} MB", flush=True)
         runs.append({"ours": ours, "peer": peer, "ratio": round(peer["wall_s"] / ours["wall_s"], 3),
                      **({"before": before} if before is not None else {})})
         peer_px = mosaic_px(peer_out)
         peer_out.unlink()
+        if k == 0 and after is not None:
+            after(peer)
     for r in runs:
         r["ours"]["mp_per_s"] = round(px / 1e6 / r["ours"]["wall_s"], 2)
         r["peer"]["mp_per_s"] = round(peer_px / 1e6 / r["peer"]["wall_s"], 2)
@@ -447,7 +573,21 @@ def main() -> None:
     ap.add_argument("--subset", action="append", default=[],
                     help="S,F: the first F frames of the first S strips of the large set ('all': every frame)")
     ap.add_argument("--keep-large", action="store_true")
-    ap.add_argument("--large-check", action="store_true", help="also ortho check the large DOM (long)")
+    ap.add_argument("--large-check", action="store_true", help="also ortho check the large DOM (long): after gdalwarp "
+                    "when our DOM could be kept through it (--min-free-gb), else before gdalwarp")
+    ap.add_argument("--check-by", metavar="HH:MM", help="start the large DOM check only before this UTC time (else it "
+                    "is skipped and recorded so)")
+    ap.add_argument("--peer-deadline", metavar="HH:MM", help="kill the large set's gdalwarp at this UTC time (end of "
+                    "session): its CPU seconds so far are recorded, a lower bound")
+    ap.add_argument("--peer-only", action="store_true", help="the large set's gdalwarp alone (when the disk has no "
+                    "room for ortho mosaic's scratch beside the frames)")
+    ap.add_argument("--ours-only", action="store_true", help="the large set's ortho mosaic alone (gdalwarp measured in "
+                    "another run of the same session, --peer-only)")
+    ap.add_argument("--ours-deadline", metavar="HH:MM", help="kill the large set's ortho mosaic at this UTC time")
+    ap.add_argument("--min-free-gb", type=float, default=7.0,
+                    help="the free disk to leave to others (default 7): the large runs stop before a step that would "
+                         "need more, our DOM is kept through gdalwarp only when twice its size stays free above this, "
+                         "and is removed as soon as the free disk falls under it while gdalwarp runs")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "mosaic_speed.json")
     ap.add_argument("--before-src", type=Path, help="source tree of the code before a change (git archive of main): "
                     "its ortho mosaic also runs on the demo, alternately, and the two mosaics' sha256 are compared")
@@ -474,7 +614,8 @@ def main() -> None:
     result = {"commit": commit.stdout.strip() + (" (with uncommitted changes)" if dirty else ""),
               "machine": {"cpus": os.cpu_count(), "gdal_peer": peer_version, "gdal_ours": rasterio.__gdal_version__},
               "peer_command": " ".join(PEER) + " --optfile <frames> <out.tif>",
-              "ours_command": "ortho mosaic <project>"}
+              "ours_command": "ortho mosaic <project>",
+              "command": "nice -n " + str(os.nice(0)) + " python " + " ".join(sys.argv)}
     if a.bytecode:
         import compileall
 
@@ -531,17 +672,94 @@ def main() -> None:
             part = result["large"] if key == "large" else result.setdefault(key, {})
             part["frames"] = len(json.loads((proj / "ortho" / "frames" / "index.json").read_text())["frames"])
 
-            def large_check(part=part, proj=proj):
-                part["first_ours"] = "measured"
+            dom = proj / "ortho" / "mosaic.tif"
+            free_gb = lambda: shutil.disk_usage(proj).free / 1e9  # noqa: E731
+
+            def run_check(part=part, proj=proj, key=key):
+                if a.check_by and time.strftime("%H:%M", time.gmtime()) >= a.check_by:
+                    part["dom_check"] = f"skipped: not started before {a.check_by} UTC"
+                    return save()
+                print(f"{key}: ortho check", flush=True)
+                part["dom_check"] = check(proj, proj / "reference.tif", "dom_report_bench")
+                part["dom_check"]["reference"] = f"the ground image at {REF_RES_M} m"
                 save()
-                if a.large_check:
-                    print(f"{key}: ortho check", flush=True)
-                    part["dom_check"] = check(proj, proj / "reference.tif", "dom_report_bench")
-                    part["dom_check"]["reference"] = f"the ground image at {REF_RES_M} m"
+
+            def first_ours(ours, part=part, dom=dom):
+                """Record the first of ours at once (a later kill loses nothing); keep our DOM through gdalwarp
+                when the disk allows (True), else check it now (--large-check) and let it be removed."""
+                size = dom.stat().st_size
+                part["first_ours"] = {**ours, "dom_bytes": size, "dom_sha256": sha256_of(dom),
+                                      "mosaic_px": mosaic_px(dom)}
+                keep = a.large_check and free_gb() - 2 * size / 1e9 >= a.min_free_gb
+                part["dom_kept_through_peer"] = keep
+                save()
+                if a.large_check and not keep:
+                    run_check()
+                return keep
+
+            def first_peer(peer, part=part, dom=dom):
+                part["first_peer"] = peer
+                save()
+                if dom.exists():
+                    run_check()
+                    dom.unlink()
+                elif a.large_check and "dom_check" not in part:
+                    part["dom_check"] = "skipped: our DOM was removed while gdalwarp ran (free disk under " \
+                                        f"{a.min_free_gb} GB)"
                     save()
 
-            part.update(compare(proj, a.large_repeats, key, between=large_check))
-            part["per_gp"] = per_gp(part)
+            def low_disk(dom=dom):
+                print(f"{key}: free disk under {a.min_free_gb} GB: our DOM removed", flush=True)
+                dom.unlink(missing_ok=True)
+
+            # ortho mosaic's scratch and output peak at about 2.5 GB per GP of DOM (docs/performance.md)
+            need_gb = a.min_free_gb + 2.6 * layout["block_gp"] * part["frames"] / layout["frames"]
+            if a.peer_only:
+                listing = proj / "peer_inputs.txt"
+                listing.write_text("\n".join(str(f) for f in sorted((proj / "ortho" / "frames").glob("*.tif"))) + "\n")
+                peer_out = proj / "peer_mosaic.tif"
+                print(f"{key}: {free_gb():.1f} GB free; gdalwarp alone", flush=True)
+                peer = measured(PEER + ["--optfile", str(listing), str(peer_out)], cwd=proj,
+                                sampler=Sampler([proj], min_free_gb=a.min_free_gb, deadline_utc=a.peer_deadline),
+                                allow_fail=True)
+                if peer_out.exists() and not any(k.startswith(("killed", "failed")) for k in peer):
+                    peer.update(file_mb=round(peer_out.stat().st_size / 1e6, 1), mosaic_px=mosaic_px(peer_out))
+                    gp = peer["mosaic_px"] / 1e9
+                    peer.update(mp_per_s=round(gp * 1e3 / peer["wall_s"], 2), cpu_s_per_gp=round(peer["cpu_s"] / gp, 1))
+                for f in proj.glob(peer_out.name + "*"):
+                    f.unlink()
+                print(f"  {peer}", flush=True)
+                part["first_peer"] = peer
+                save()
+                continue
+            print(f"{key}: {free_gb():.1f} GB free before the mosaics, {need_gb:.1f} needed", flush=True)
+            if free_gb() < need_gb:
+                raise SystemExit(f"{key}: {free_gb():.1f} GB free, {need_gb:.1f} GB needed ({a.min_free_gb} GB left to "
+                                 "others and about 2.6 GB per GP of DOM): stopped before the mosaics")
+            if a.ours_only:
+                ours = measured([tool("ortho"), "mosaic", "-q", str(proj)],
+                                sampler=Sampler([proj], min_free_gb=a.min_free_gb, deadline_utc=a.ours_deadline))
+                if not any(k.startswith("killed") for k in ours):
+                    size, px = dom.stat().st_size, mosaic_px(dom)
+                    ours.update(file_mb=round(size / 1e6, 1), dom_bytes=size, dom_sha256=sha256_of(dom), mosaic_px=px,
+                                mp_per_s=round(px / 1e6 / ours["wall_s"], 2), cpu_s_per_gp=round(ours["cpu_s"] / (px / 1e9), 1))
+                    if a.large_check:
+                        part["first_ours"] = ours
+                        run_check()
+                    dom.unlink()
+                for q in (proj / "ortho").glob(".mosaic.part-*"):  # a killed run's scratch (SIGKILL: not cleaned)
+                    shutil.rmtree(q, ignore_errors=True)
+                print(f"  {ours}", flush=True)
+                part["first_ours"] = ours
+                save()
+                continue
+            part.update(compare(proj, a.large_repeats, key, between=first_ours, after=first_peer,
+                                min_free_gb=a.min_free_gb, low_disk=low_disk, peer_deadline=a.peer_deadline))
+            if "ours_killed" in part:
+                save()
+                raise SystemExit(f"{key}: ortho mosaic killed, the free disk under {a.min_free_gb} GB (recorded)")
+            if "median" in part:
+                part["per_gp"] = per_gp(part)
             save()
             if proj != large:
                 shutil.rmtree(proj)
