@@ -594,12 +594,17 @@ def main() -> None:
     ap.add_argument("--phases", type=int, default=0, metavar="N",
                     help="after the timed runs, N runs of `ortho mosaic -v` on the demo (and of --before-src's) for "
                          "the CPU seconds of each phase (medians, `phases_cpu_s`)")
+    ap.add_argument("--peer-co", action="append", default=[], metavar="NAME=VALUE",
+                    help="one more creation option of gdalwarp (repeatable), e.g. BIGTIFF=YES: the issue's command writes a "
+                         "classic TIFF, which stops at 4 GiB (a DOM of about 4 GP)")
     ap.add_argument("--label", help="write this run under this key of --out, keeping the file's other keys")
     ap.add_argument("--bytecode", action="store_true",
                     help="compile the measured sources (this tree's and --before-src's ortho and aerotri) to bytecode "
                          "first, as a wheel install has them: an editable install under PYTHONDONTWRITEBYTECODE=1 "
                          "compiles every module of this project in every run")
     a = ap.parse_args()
+    for co in a.peer_co:
+        PEER.extend(["-co", co])
     if shutil.which("gdalwarp") is None:
         raise SystemExit("gdalwarp not found: the peer of this benchmark is GDAL's command line gdalwarp (Debian "
                          "package gdal-bin, installed by `make bench`); rasterio's bundled GDAL has no command line "
