@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
-from pyproj import CRS
 
 from aerotri.geom.camera import BrownCamera
 from aerotri.geom.rotation import rotation_matrix_opk
@@ -16,13 +15,8 @@ from ortho.dem import HeightRaster
 from ortho.footprints import footprint_cells, outline_heights
 from ortho.grid import GridToProject, OrthoGrid
 from ortho.rectify import FrameGeometry, fixed_point_maps, heights_by_side, heights_on_grid
-
-RES_M = 0.5
-N = 80  # cells a side: 40 x 40 m, the top-left corner at (0, 40)
-CRS_UTM = CRS.from_epsg(32633)
-WALL = (10.2, 10.2, 20.6, 20.6)
-EAVE_M = 0.3
-ROOF_M = 10.0
+# the scene of the roof outline's tests: a 40 x 40 m grid of 0.5 m cells, one building with a 0.3 m eave
+from tests.ortho.test_roof_outline_and_crowns import CRS_UTM, EAVE_M, N, RES_M, ROOF_M, WALL
 
 
 def _dsm(roof_m: float) -> HeightRaster:
