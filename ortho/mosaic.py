@@ -267,7 +267,8 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, *, strip_p
             win = (cc0 * factor - c0, (rc0 + s) * factor - r0, w * factor, n * factor)
             img, ok = read_planar(ds, *win) if decoded is None else window_of(*decoded, *win)
             if hist is not None:
-                _add_histogram(hist, top_count, img, ok, bits, shift, at_levels, max_sample)
+                _add_histogram(hist, top_count, img, ok, bits=bits, shift=shift, at_levels=at_levels,
+                               max_sample=max_sample)
             for b in range(img.shape[0]):
                 band = img[b] if img.dtype == keep else img[b].astype(keep)
                 rgb[s:s + n, :, b] = cv2.resize(band, (w, n), interpolation=cv2.INTER_AREA)
@@ -324,11 +325,11 @@ def sample_histogram(img: np.ndarray, ok: np.ndarray) -> SampleHistogram | None:
     top_count = np.zeros(img.shape[0], np.int64)
     at_levels = np.zeros((img.shape[0], bits), np.int64)
     max_sample = np.zeros(img.shape[0], np.int64)
-    _add_histogram(hist, top_count, img, ok, bits, shift, at_levels, max_sample)
+    _add_histogram(hist, top_count, img, ok, bits=bits, shift=shift, at_levels=at_levels, max_sample=max_sample)
     return SampleHistogram(hist, top_count, bits, at_levels, max_sample)
 
 
-def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok: np.ndarray, bits: int,
+def _add_histogram(hist: np.ndarray, top_count: np.ndarray, img: np.ndarray, ok: np.ndarray, *, bits: int,
                    shift: int, at_levels: np.ndarray, max_sample: np.ndarray) -> None:
     """Add the valid samples of ``img`` (bands, h, w; 8- or 16-bit) to ``hist`` (bands, bins: value >> shift),
     those at the type's maximum to ``top_count`` (bands,), those at every white level 2^n - 1 (n = 1 .. bits) to

@@ -99,7 +99,7 @@ CONTROL_RESUME_DIR_NAME = "control_resume"  # in work/: the frames' measurements
 
 
 def _frame_keys(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, points, idx: np.ndarray,
-                images_dir: Path, s: ControlSettings, crs) -> list[str]:
+                *, images_dir: Path, s: ControlSettings, crs) -> list[str]:
     """Key of each frame's measurements of the corners ``idx`` (``aerotri.core.resume``): the frame's image (name,
     size, modification time) and orientation, the camera, the corners' points in the frames' Cartesian frame and
     roof angles, the measurement settings, the CRS and the toolkit's version."""
@@ -147,7 +147,8 @@ def _measure_frames(corners: LidarCorners, camera: BrownCamera, *, eo: ExteriorO
     there as it finishes, and taken from there when an interrupted run kept them (``crs``: the project CRS, in
     their key)."""
     points = corner_points(frames, corners.xyz_m[idx], corners.edge_directions_m()[idx], corners.sigma_m[idx])
-    keys = _frame_keys(corners, camera, eo, points, idx, images_dir, s, crs) if resume is not None else None
+    keys = (_frame_keys(corners, camera, eo, points, idx, images_dir=images_dir, s=s, crs=crs)
+            if resume is not None else None)
     if resume is not None and resume.path.is_dir():
         k = sum(resume.kept(key, ".json") is not None for key in keys)
         if k:
