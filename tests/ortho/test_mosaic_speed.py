@@ -107,7 +107,7 @@ def test_histograms_count_the_valid_samples_as_numpy_does(dtype, monkeypatch):
     hist = np.zeros((3, (1 << bits) >> shift), np.int64)
     tops = np.zeros(3, np.int64)
     levels, maxima = np.zeros((3, bits), np.int64), np.zeros(3, np.int64)
-    mosaic_mod._add_histogram(hist, tops, img, ok, bits, shift, levels, maxima)
+    mosaic_mod._add_histogram(hist, tops, img, ok, bits=bits, shift=shift, at_levels=levels, max_sample=maxima)
     for b in range(3):
         v = img[b][ok]
         np.testing.assert_array_equal(hist[b], np.bincount(v >> shift, minlength=hist.shape[1]))
