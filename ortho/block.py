@@ -375,7 +375,9 @@ def _frame_occluder(task: FrameTask, surface: HeightRaster, dem: HeightRaster, p
     occluder = occluder_of_cells(surface, ground, cells, crown_base_m=crown_base_m)
     if heights is None or not HEIGHTS_BY_OUTLINE:
         return occluder, None
-    if heights is not surface:
+    same_window = (heights.heights_m.shape == surface.heights_m.shape and heights.res_m == surface.res_m
+                   and heights.x_left_m == surface.x_left_m and heights.y_top_m == surface.y_top_m)
+    if not same_window:    # (the chain's dsm.tif and dsm_nearest.tif share one grid: their cells and ground too)
         cells, ground = cells_of(heights)
     return occluder, outline_heights(heights, ground, cells)
 
