@@ -32,8 +32,13 @@ Conventions (Metashape manual, appendix "Camera models"):
   as full XYZ control: horizontal and height control come back as full, noted); marker projections:
   the control points' measured pixels (control/image_points.csv, as measured).
 
-Import: the sensor -> camera.toml, the aligned cameras -> imported/eo.txt (approximations), markers ->
-control/; the camera positions go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz-m``).
+Import: the sensor -> camera.toml (a frame sensor only: fisheye, spherical, ... are refused; its adjusted
+calibration when it also holds an initial one), the aligned cameras -> imported/eo.txt (approximations), markers
+-> control/ (x y without z: horizontal control); the camera positions go to gnss.txt only with ``--as-gnss``
+(accuracies from ``--sigma-xyz-m``). A camera with a ``component_id`` is in its component's frame (Metashape 1.6
+and later): camera -> component ``<transform>`` -> chunk ``<transform>`` -> geocentric, each X = s R x + T; without
+a chunk transform the component's reaches geocentric coordinates. Markers' coordinates go through the whole
+``<reference>`` CRS: a compound one's vertical part (e.g. EGM96 height) says what their heights are.
 
 Heights: the geocentric coordinates come from the project's heights read as ellipsoidal
 (``aerotri.geom.local_frame``); the round trip is exact, but with ``[project] heights`` a geoid
