@@ -193,6 +193,10 @@ def _read_images_txt(path: Path) -> list[tuple[str, int, np.ndarray, np.ndarray,
             continue
         if expect_points:  # the POINTS2D line of the image before (not needed for the orientations)
             expect_points = False
+            if len(s.split()) % 3:  # X Y POINT3D_ID triples: not the next image's line taken for points
+                raise InputError(f"{path}:{n}: expected the POINTS2D line (X Y POINT3D_ID triples, or an empty line) "
+                                 f"of the image on line {seen[out[-1][0]]}, got {len(s.split())} fields: each image "
+                                 "line of images.txt is followed by its points line")
             continue
         if not s:
             continue

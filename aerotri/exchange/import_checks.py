@@ -16,6 +16,8 @@
   CRS are transformed rigorously (``aerotri.geom.crs.transform``) before these checks.
 - **Ids**: when ``images/`` holds frames, every image id of the import must be one of them; every measured
   point must be a control point (of the import, else of control/points.csv). Those that are not are named.
+- **Camera size**: an imported camera has the size of the frames in ``images/`` (a COLMAP or Metashape
+  model made on resized frames is refused at the import, not by ``aerotri match``).
 """
 
 from __future__ import annotations
@@ -170,6 +172,29 @@ def check_image_ids(project: Project, block: ImportedBlock) -> None:
                              f"{_listing(sorted(frames.image_id), 3)})")
 
 
+def check_camera_size(project: Project, block: ImportedBlock) -> None:
+    """The imported camera has the size of the frames in images/ (the first frame's header): a model made on
+    resized frames would otherwise be written and refused only by ``aerotri match``."""
+    import rasterio
+
+    from aerotri.geom.images import IMAGE_SUFFIXES, find_images
+
+    if block.camera is None or not project.images_dir.is_dir() or not any(
+            p.suffix.lower() in IMAGE_SUFFIXES for p in project.images_dir.iterdir()):
+        return
+    path = find_images(project.images_dir).path[0]
+    try:
+        with rasterio.open(path) as ds:
+            w, h = ds.width, ds.height
+    except (rasterio.errors.RasterioIOError, OSError):
+        return  # an unreadable frame is named where frames are read
+    cam = block.camera
+    if (w, h) != (cam.width, cam.height):
+        raise InputError(f"{block.source_of('camera')}: the camera is {cam.width} x {cam.height} px but the frames in "
+                         f"{project.images_dir} are {w} x {h} px ({path.name}): a model of resized frames (its camera "
+                         f"scaled by {w / cam.width:.4g} would fit these), or other frames")
+
+
 def check_point_ids(project: Project, block: ImportedBlock, replaced: set) -> None:
     """Every measured point of the import is a control point: of the import, else of control/points.csv."""
     from aerotri.geom.observations import read_control_points
@@ -195,6 +220,7 @@ def check_import(project: Project, block: ImportedBlock, replaced: set) -> list[
     notes = check_project_crs(project, block)
     check_positions(project, block, replaced)
     check_image_ids(project, block)
+    check_camera_size(project, block)
     check_point_ids(project, block, replaced)
     return notes
 

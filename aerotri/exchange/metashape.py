@@ -32,8 +32,13 @@ Conventions (Metashape manual, appendix "Camera models"):
   as full XYZ control: horizontal and height control come back as full, noted); marker projections:
   the control points' measured pixels (control/image_points.csv, as measured).
 
-Import: the sensor -> camera.toml, the aligned cameras -> imported/eo.txt (approximations), markers ->
-control/; the camera positions go to gnss.txt only with ``--as-gnss`` (accuracies from ``--sigma-xyz-m``).
+Import: the sensor -> camera.toml (a frame sensor only: fisheye, spherical, ... are refused; its adjusted
+calibration when it also holds an initial one), the aligned cameras -> imported/eo.txt (approximations), markers
+-> control/ (x y without z: horizontal control); the camera positions go to gnss.txt only with ``--as-gnss``
+(accuracies from ``--sigma-xyz-m``). A camera with a ``component_id`` is in its component's frame (Metashape 1.6
+and later): camera -> component ``<transform>`` -> chunk ``<transform>`` -> geocentric, each X = s R x + T; without
+a chunk transform the component's reaches geocentric coordinates. Markers' coordinates go through the whole
+``<reference>`` CRS: a compound one's vertical part (e.g. EGM96 height) says what their heights are.
 
 Heights: the geocentric coordinates come from the project's heights read as ellipsoidal
 (``aerotri.geom.local_frame``); the round trip is exact, but with ``[project] heights`` a geoid
@@ -145,15 +150,38 @@ def _numbers(el, n: int, where: str, what: str) -> np.ndarray:
     return np.array([number(p, where, what) for p in parts])
 
 
+def _similarity(tr, where: str) -> tuple[float, np.ndarray, np.ndarray]:
+    """(s, R, T) of a chunk or component ``<transform>``: X = s R x + T (rotation, translation, scale)."""
+    R = _numbers(tr.find("rotation"), 9, where, "rotation").reshape(3, 3) if tr.find("rotation") is not None else np.eye(3)
+    T = _numbers(tr.find("translation"), 3, where, "translation") if tr.find("translation") is not None else np.zeros(3)
+    s = _numbers(tr.find("scale"), 1, where, "scale")[0] if tr.find("scale") is not None else 1.0
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0 or s <= 0:
+        raise InputError(f"{where}: rotation and scale are not a rotation and a positive scale")
+    return s, R, T
+
+
 def _attr(el, key: str, where: str) -> float:
     if key not in el.attrib:
         raise InputError(f"{where}: attribute {key} is missing")
     return number(el.attrib[key], where, key)
 
 
+def _calibration(sensor):
+    """The sensor's adjusted calibration (``class="adjusted"``), else its first: a sensor may hold the user's
+    initial (pre-calibrated) one too, ``class="initial"``."""
+    cals = sensor.findall("calibration")
+    adjusted = [c for c in cals if c.get("class") == "adjusted"]
+    return (adjusted or cals or [None])[0]
+
+
 def read_camera_xml(sensor, where: str) -> Camera:
     res = sensor.find("resolution")
-    cal = sensor.find("calibration")
+    kind = sensor.get("type", "frame")
+    if kind != "frame":  # fisheye, spherical, cylindrical, rpc: not a frame camera with Brown distortion
+        raise InputError(f"{where}: sensor type {kind!r} is not supported; expected a frame camera (type=\"frame\")")
+    cal = _calibration(sensor)
+    if cal is not None and cal.get("type", "frame") != "frame":
+        raise InputError(f"{where}: calibration type {cal.get('type')!r} is not supported; expected \"frame\"")
     if res is None:
         raise InputError(f"{where}: <resolution> is missing")
     w, h = int(_attr(res, "width", where)), int(_attr(res, "height", where))
@@ -208,21 +236,28 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         raise InputError(f"{path}: the aligned cameras use sensors {used}; a project has one camera (and the sensor "
                          "must be in <sensors>)")
     block.camera = read_camera_xml(sensors[used[0]], f"{path} sensor {used[0]}")
+    if _calibration(sensors[used[0]]).get("class") == "initial":
+        block.notes.append(f"{path} sensor {used[0]}: its initial calibration (the file holds no adjusted one)")
     if block.camera.pixel_um == 1.0 and "pixel_width" not in {p.get("name") for p in sensors[used[0]].findall("property")}:
         block.notes.append("no pixel_width in the sensor: a nominal 1 um pixel (focal length in pixels kept)")
+    components = {c.get("id"): _similarity(c.find("transform"), f"{path} component id={c.get('id')}")
+                  for c in chunk.findall("components/component") if c.find("transform") is not None}
     ids, centre, R_cv, cam_id = [], [], [], {}
     for c in aligned:
         where = f"{path} camera id={c.get('id')} label={c.get('label')!r}"
         T = _numbers(c.find("transform"), 16, where, "transform").reshape(4, 4)
-        R = T[:3, :3]
+        R, C = T[:3, :3], T[:3, 3]
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
             raise InputError(f"{where}: the transform's rotation is not a rotation")
+        if c.get("component_id") in components:  # camera -> component -> chunk (Metashape 1.6 and later)
+            s_k, R_k, T_k = components[c.get("component_id")]
+            R, C = R_k @ R, s_k * R_k @ C + T_k
         iid = image_id_of(c.get("label", ""))
         if iid in cam_id.values():
             raise InputError(f"{where}: duplicate label {iid!r}")
         cam_id[c.get("id")] = iid
         ids.append(iid)
-        centre.append(T[:3, 3])
+        centre.append(C)
         R_cv.append(R)
     centre, R_cv = np.array(centre), np.array(R_cv)
     # chunk -> world
@@ -231,12 +266,10 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     if not crs_text:
         raise CrsError(f"{path}: no <reference> CRS; give --crs")
     tr = chunk.find("transform")
-    if tr is None:
+    if tr is None and not components:
         raise CrsError(f"{path}: no chunk <transform>: the block is not georeferenced (reference it in Metashape first)")
-    Rc = _numbers(tr.find("rotation"), 9, f"{path} chunk transform", "rotation").reshape(3, 3)
-    Tc = _numbers(tr.find("translation"), 3, f"{path} chunk transform", "translation")
-    s_el = tr.find("scale")
-    s = _numbers(s_el, 1, f"{path} chunk transform", "scale")[0] if s_el is not None else 1.0
+    # chunk -> geocentric; without a chunk transform the components' transforms reach geocentric coordinates
+    s, Rc, Tc = _similarity(tr, f"{path} chunk transform") if tr is not None else (1.0, np.eye(3), np.zeros(3))
     X = s * centre @ Rc.T + Tc
     R_world = Rc @ R_cv
     from aerotri.geom.crs.definition import horizontal_crs, parse_crs
@@ -259,30 +292,46 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     if markers:
         from aerotri.exchange.imported import to_project_crs
 
-        mid, kinds, xyz, sig, label_of = [], [], [], [], {}
+        mid, kinds, xyz, sig, label_of, plan_checks = [], [], [], [], {}, []
         for m in markers:
             where = f"{path} marker id={m.get('id')} label={m.get('label')!r}"
             r = m.find("reference")
-            if r is None or not {"x", "y", "z"} <= set(r.attrib):
+            if r is None or not {"x", "y"} <= set(r.attrib):
                 continue  # a marker without ground coordinates is a tie point here
             label = m.get("label") or m.get("id")
+            check, plan = r.get("enabled", "true").lower() == "false", "z" not in r.attrib
+            if check and plan:  # control/points.csv's check points carry a height
+                plan_checks.append(label)
+                continue
             if label in label_of.values():
                 raise InputError(f"{where}: duplicate label {label!r}")
             label_of[m.get("id")] = label
             mid.append(label)
-            kinds.append("check" if r.get("enabled", "true").lower() == "false" else "full")
-            xyz.append([_attr(r, k, where) for k in "xyz"])
-            if {"sx", "sy", "sz"} <= set(r.attrib):
-                sig.append([_attr(r, k, where) for k in ("sx", "sy", "sz")])
+            kinds.append("check" if check else "horizontal" if plan else "full")
+            xyz.append([_attr(r, "x", where), _attr(r, "y", where), 0.0 if plan else _attr(r, "z", where)])
+            if {"sx", "sy", "sz"} <= set(r.attrib) or (plan and {"sx", "sy"} <= set(r.attrib)):
+                sig.append([_attr(r, k, where) for k in ("sx", "sy")] + [_attr(r, "sx", where) if plan else
+                                                                        _attr(r, "sz", where)])
             elif options.sigma_xyz_m:
                 sig.append(list(options.sigma_xyz_m))
             else:
                 raise InputError(f"{where}: no sx sy sz; give --sigma-xyz-m")
             if min(sig[-1]) <= 0:
                 raise InputError(f"{where}: sx sy sz must be positive")
+        if plan_checks:
+            block.notes.append(f"{path}: check point(s) {', '.join(plan_checks[:10])} without z left out (a check "
+                               "point in control/points.csv has a height)")
+        if any(k == "horizontal" for k in kinds):
+            block.notes.append(f"{path}: {kinds.count('horizontal')} markers with x y and no z: horizontal control")
         if mid:
-            block.control = ControlPoints(np.array(mid, object), np.array(kinds, object),
-                                          to_project_crs(np.array(xyz), ref_crs, project, f"{path} <reference>"),
+            # markers with heights through the full <reference> CRS: a compound one's vertical part says what
+            # their heights are (EGM96 heights are not ellipsoidal ones)
+            marker_crs = ref_crs if set(kinds) == {"horizontal"} else parse_crs(crs_text, f"{path} <reference>")
+            try:
+                marker_xyz = to_project_crs(np.array(xyz), marker_crs, project, f"{path} <reference>")
+            except CrsError as exc:
+                raise type(exc)(f"{path}: the markers' coordinates: {exc}") from None
+            block.control = ControlPoints(np.array(mid, object), np.array(kinds, object), marker_xyz,
                                           np.array(sig, float))
             pids, iids, xy = [], [], []
             for m in chunk.findall("frames/frame/markers/marker"):

@@ -126,6 +126,9 @@ def test_foreign_model_in_map_coordinates(tiny_project, tmp_path, fresh_project)
     (None, "1 1 0 0 0 0 0 1 a.jpg\n\n", r"images.txt:1: expected IMAGE_ID QW"),
     (None, "1 9 0 0 0 0 0 0 1 a.jpg\n\n", r"images.txt:1: quaternion .* is not a rotation"),
     (None, "1 1 0 0 0 0 0 0 2 a.jpg\n\n", r"CAMERA_ID\(s\) \[2\]"),
+    # a pose-only images.txt without the POINTS2D lines: every other image was taken for points and dropped
+    (None, "1 1 0 0 0 0 0 0 1 a.jpg\n2 1 0 0 0 0 0 0 1 b.jpg\n3 1 0 0 0 0 0 0 1 c.jpg\n",
+     r"images.txt:2: expected the POINTS2D line .* of the image on line 1, got 10 fields"),
 ])
 def test_bad_text_model(tiny_project, tmp_path, cameras, images, match, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")

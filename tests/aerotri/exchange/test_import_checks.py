@@ -190,3 +190,29 @@ def test_control_of_any_format_with_unmeasured_heights_is_plan_only():
     b = block([10.1, 12.4, 9.8, 0.0])
     plan_only_when_unmeasured(b, False, "patb")
     assert list(b.control.kind) == ["full", "full", "height", "horizontal"] and not b.notes
+
+
+def test_camera_of_another_size_than_the_frames(tmp_path):
+    """A COLMAP model made on frames resized by 2 (as pipelines downscale them) is refused at the import, naming
+    the factor, and nothing is written (it was written, and refused only by ``aerotri match``)."""
+    import rasterio
+
+    root = _project(tmp_path, "EPSG:32610")
+    (root / "images").mkdir()
+    xyz = _to("EPSG:32610", _lonlat_block(-121.9, 37.4))
+    m = tmp_path / "model"
+    m.mkdir()
+    (m / "cameras.txt").write_text("1 PINHOLE 100 80 120 120 50 40\n")
+    (m / "images.txt").write_text("".join(f"{n + 1} 1 0 0 0 {-x:.4f} {-y:.4f} {-z:.4f} 1 {i}.jpg\n\n"
+                                          for n, (i, (x, y, z)) in enumerate(zip("abc", xyz))))
+    (m / "georef.txt").write_text("frame crs\ncrs EPSG:32610\n")
+    for size in ((200, 160), (100, 80)):
+        for i in "abc":
+            with rasterio.open(root / "images" / f"{i}.tif", "w", driver="GTiff", width=size[0], height=size[1],
+                               count=1, dtype="uint8") as ds:
+                ds.write(np.zeros((1, size[1], size[0]), np.uint8))
+        if size == (200, 160):
+            _refused(root, "colmap", [m], "the camera is 100 x 80 px but the frames in")
+            assert "scaled by 2 would fit" in _import(root, "colmap", [m]).output
+        else:
+            assert _import(root, "colmap", [m]).exit_code == 0 and (root / "camera.toml").is_file()

@@ -105,3 +105,114 @@ def test_bad_input(tiny_project, tmp_path, fresh_project):
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "metashape", str(f)])
     assert r.exit_code == 2 and "<reference>: unknown CRS" in r.output and "Traceback" not in r.output
     assert not (root / "imported").exists()
+
+
+def _rewrite(xml, out, edit):
+    tree = ET.parse(xml)
+    edit(tree.getroot().find("chunk"))
+    tree.write(out, encoding="unicode")
+    return out
+
+
+def test_component_transforms(exported, tmp_path, fresh_project):
+    """Metashape 1.6 and later keep a camera's transform in its component's frame (``component_id``; the
+    component's ``<transform>`` X = s R x + T into the chunk), and a 2.x export may hold the georeferencing in the
+    component alone (no chunk ``<transform>``): either way the orientations are those of the plain export."""
+    from scipy.spatial.transform import Rotation
+
+    root, xml = exported
+    eo = read_eo(Project.open(root).eo_path)
+    s_k, R_k, T_k = 2.5, Rotation.from_euler("zyx", [40, -15, 70], degrees=True).as_matrix(), np.array([12.0, -30.0, 7.5])
+
+    def into_component(chunk, fold_chunk=False):
+        comps = ET.SubElement(chunk, "components", next_id="1", active_id="0")
+        tr = ET.SubElement(ET.SubElement(comps, "component", id="0", label="Component 1"), "transform")
+        s, R, T = s_k, R_k, T_k
+        if fold_chunk:  # the chunk's transform moved into the component: component -> geocentric
+            ct = chunk.find("transform")
+            Rc = np.array(ct.find("rotation").text.split(), float).reshape(3, 3)
+            Tc = np.array(ct.find("translation").text.split(), float)
+            s, R, T = s_k, Rc @ R_k, Rc @ T_k + Tc
+            chunk.remove(ct)
+        ET.SubElement(tr, "rotation").text = " ".join(repr(float(v)) for v in R.ravel())
+        ET.SubElement(tr, "translation").text = " ".join(repr(float(v)) for v in T)
+        ET.SubElement(tr, "scale").text = repr(float(s))
+        for c in chunk.findall("cameras/camera"):
+            M = np.array(c.find("transform").text.split(), float).reshape(4, 4)
+            M[:3, :3], M[:3, 3] = R_k.T @ M[:3, :3], R_k.T @ (M[:3, 3] - T_k) / s_k  # the camera in the component
+            c.set("component_id", "0")
+            c.find("transform").text = " ".join(repr(float(v)) for v in M.ravel())
+
+    for fold in (False, True):
+        dst = fresh_project(root, tmp_path / f"p{fold}")
+        import_files(dst, "metashape", [_rewrite(xml, tmp_path / f"c{fold}.xml", lambda ch: into_component(ch, fold))])
+        back = read_eo(dst / "imported" / "eo.txt")
+        assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4, fold
+        assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6, fold
+
+
+def test_sensor_types_and_calibrations(exported, tmp_path, fresh_project):
+    """A fisheye (or spherical, ...) sensor is refused, not read as a frame camera; of an initial and an adjusted
+    calibration the adjusted one is the camera, whichever comes first."""
+    root, xml = exported
+    cam = oriented_camera(Project.open(root))[0]
+
+    def fisheye(chunk):
+        chunk.find("sensors/sensor").set("type", "fisheye")
+
+    r = CliRunner().invoke(aerotri_cli, ["import", str(fresh_project(root, tmp_path / "f")), "--format", "metashape",
+                                         str(_rewrite(xml, tmp_path / "f.xml", fisheye))])
+    assert r.exit_code == 2 and "sensor type 'fisheye' is not supported" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "f" / "camera.toml").exists()
+
+    def initial_first(chunk):
+        sensor = chunk.find("sensors/sensor")
+        adjusted = sensor.find("calibration")
+        initial = ET.fromstring(ET.tostring(adjusted))
+        initial.set("class", "initial")
+        initial.find("f").text = repr(float(initial.find("f").text) * 1.1)
+        sensor.insert(list(sensor).index(adjusted), initial)
+
+    dst = fresh_project(root, tmp_path / "i")
+    import_files(dst, "metashape", [_rewrite(xml, tmp_path / "i.xml", initial_first)])
+    assert read_camera(dst / "camera.toml").focal_mm == pytest.approx(cam.focal_mm, rel=1e-12)
+
+
+def test_marker_heights_and_plan_markers(exported, tmp_path, fresh_project):
+    """Markers' heights in a compound <reference> (horizontal + EGM96 height) go through its vertical CRS, not
+    read as ellipsoidal heights (without the geoid grid: refused, naming the file); markers with x y and no z are
+    horizontal control, not dropped."""
+    import pyproj
+
+    from aerotri.geom.crs.definition import horizontal_crs, parse_crs
+
+    root, xml = exported
+    p = Project.open(root)
+    mine = read_control_points(p.control_points_path)
+
+    def egm96(chunk):
+        wkt = pyproj.CRS.from_user_input(f"EPSG:{horizontal_crs(parse_crs(p.crs)).to_epsg()}+5773").to_wkt()
+        chunk.find("reference").text = wkt
+
+    dst = fresh_project(root, tmp_path / "g")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(dst), "--format", "metashape",
+                                         str(_rewrite(xml, tmp_path / "g.xml", egm96))])
+    if r.exit_code == 0:  # the geoid grid is installed: the heights moved by the geoid undulation
+        con = read_control_points(dst / "control" / "points.csv")
+        full = con.kind != "horizontal"
+        assert np.abs(con.xyz_m[full, 2] - mine.xyz_m[full, 2]).min() > 1.0
+    else:
+        assert r.exit_code == 2 and "g.xml: the markers' coordinates" in r.output and "EGM96" in r.output
+        assert "Traceback" not in r.output and not (dst / "control").exists()
+
+    def plan(chunk):
+        for m in chunk.findall("markers/marker"):
+            r = m.find("reference")
+            del r.attrib["z"], r.attrib["sz"]
+
+    dst = fresh_project(root, tmp_path / "h")
+    import_files(dst, "metashape", [_rewrite(xml, tmp_path / "h.xml", plan)])
+    con = read_control_points(dst / "control" / "points.csv")
+    control = mine.kind != "check"  # a check point without z is left out (with a note)
+    assert list(con.id) == list(mine.id[control]) and set(con.kind) == {"horizontal"}
+    assert np.abs(con.xyz_m[:, :2] - mine.xyz_m[control, :2]).max() < 1e-4
