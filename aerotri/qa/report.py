@@ -538,8 +538,14 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                key="feature_rms_xy_m"))
     if dom_check_stale:
         rows.append(_failed("dom_check_stale", sec, "DOM check of an earlier mosaic",
-                            f"{project.dom_report_path} measured an earlier {project.mosaic_path} (the mosaic was made "
-                            f"again since); re-run ortho check {root} --reference REF.tif (or aerotri run --reference)"))
+                            f"the DOM was not checked: {project.dom_report_path} measured an earlier "
+                            f"{project.mosaic_path} (the mosaic was made again since, e.g. by aerotri run without "
+                            f"--reference, which does not check it); re-run ortho check {root} --reference REF.tif (or "
+                            "aerotri run --reference)"))
+    elif not dom_check and project.mosaic_path.is_file():  # said, not judged: no reference was given
+        rows.append(QaCheck("dom_not_checked", sec, "DOM not checked", None, None, "",
+                            f"no DOM check ({project.dom_report_path.name}): no reference orthophoto was given; "
+                            f"ortho check {root} --reference REF.tif (or aerotri run --reference REF.tif)", None))
     if dom_check and dom_check.roofs is not None:
         rows.append(_roofs_row(sec, dom_check, project))
     if project.frames_index_path.is_file() and (dom_check or project.mosaic_path.is_file()):
@@ -800,6 +806,11 @@ def _pdf_table(pdf, plt, title: str, *, header: list, rows: list, widths: list, 
         plt.close(fig)
 
 
+def _dom_check_stale(rep: dict) -> bool:
+    """Whether the report's DOM check measured an earlier mosaic (its row ``dom_check_stale``)."""
+    return any(r["id"] == "dom_check_stale" for r in rep["checks"])
+
+
 def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = None) -> None:
     """The verdict table on the first page, the flight acceptance tables, the report's figures (each with
     its caption and scale key), then the plots the stages wrote (A4 landscape)."""
@@ -874,9 +885,10 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             ax.axis("off")
             pdf.savefig(fig)
             plt.close(fig)
+        stale = _dom_check_stale(rep)
         for title, png in (("DOM displacement against the reference", project.dom_report_plot_path),
                            ("Tie-point connectivity", project.connectivity_plot_path)):
-            if png.is_file():
+            if png.is_file() and not (stale and png == project.dom_report_plot_path):
                 fig = plt.figure(figsize=(11.69, 8.27))
                 fig.suptitle(title)
                 ax = fig.add_axes([0.02, 0.02, 0.96, 0.9])
@@ -898,9 +910,13 @@ def write_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     summary = to_record(rep, exclude=("html",))
     write_text_atomic(project.report_summary_path, json.dumps(summary, indent=1) + "\n")
     figures = report_figures(rep, project)
-    present = [(src, alt) for src, alt in STAGE_IMAGES if (project.reports_dir / src).resolve().is_file()]
+    # a DOM check of an earlier mosaic: neither its plot nor its page (the row says the DOM was not checked)
+    stale = ("../ortho/dom_report.png", "../ortho/dom_report.json") if _dom_check_stale(summary) else ()
+    present = [(src, alt) for src, alt in STAGE_IMAGES
+               if (project.reports_dir / src).resolve().is_file() and src not in stale]
     # only the stage pages this project has: a block without LiDAR has no height check or strip page
-    links = [(src, text) for src, text in STAGE_LINKS if (project.reports_dir / src).resolve().is_file()]
+    links = [(src, text) for src, text in STAGE_LINKS
+             if (project.reports_dir / src).resolve().is_file() and src not in stale]
     write_text_atomic(project.report_index_path, format_html(summary, figures, present, links))
     if pdf if pdf is not None else read_qa_config(root).pdf:
         write_pdf(project.report_pdf_path, summary, project, figures)
