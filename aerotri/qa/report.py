@@ -702,8 +702,8 @@ def _tolerance_section(rep: dict) -> dict | None:
 
 
 VERDICT_COLOURS = {"pass": "#ccffcc", "fail": "#ffcccc", "not testable": "#eeeeee", "reported": "#ddeeff"}
-COMPLIANCE_HEADER = ["product", "quantity", "class", "measured", "figure", "limit", "check points", "accurate",
-                     "verdict", "finest class met"]
+COMPLIANCE_HEADER = ["product", "quantity", "class", "measured", "figure", "limit", "check points (or what was counted)",
+                     "accurate", "verdict", "finest class met"]
 
 
 def _num(v, star: bool = False) -> str:
@@ -713,7 +713,10 @@ def _num(v, star: bool = False) -> str:
 def compliance_row(c: dict) -> list:
     """A compliance check as table cells: figure and limit in the check's unit, the limit marked * when its
     number is not confirmed in the standard's text."""
-    need = f"{c['n_points']}" + (f" ({c['n_required']} required)" if c["n_required"] else "") if c["n_points"] is not None else ""
+    counted = c.get("counted") or "check points"  # (a summary.json of before it was recorded: check points)
+    need = (f"{c['n_points']}" + ("" if counted == "check points" else f" {counted}")
+            + (f" ({c['n_required']} check points required)" if c["n_required"] else "")
+            if c["n_points"] is not None else "")
     acc = {True: "yes", False: "no", None: "unknown"}[c["checkpoints_accurate"]] if c["n_points"] is not None else ""
     verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
     return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]), _num(c["figure"]),
@@ -742,7 +745,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
         acc = {True: "accurate enough", False: "not accurate enough", None: "accuracy unknown"}[c["checkpoints_accurate"]]
-        pts = f"{c['n_points']} points" + (f", {c['n_required']} required" if c["n_required"] else "") + f", {acc}" \
+        pts = f"{c['n_points']} {c.get('counted') or 'check points'}" + \
+            (f", {c['n_required']} check points required" if c["n_required"] else "") + f", {acc}" \
             if c["n_points"] is not None else ""
         unit = f" {c['unit']}" if c.get("unit") else ""
         figure = f"{_num(c['figure'])}{unit}" if c["figure"] is not None else "not measured"
