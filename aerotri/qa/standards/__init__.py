@@ -114,8 +114,9 @@ class LidarBaseSpecification:
 
 # -- Chinese specifications for digital aerial triangulation -------------------------------------------
 @dataclasses.dataclass(frozen=True)
-class MapPlanLimit:
-    """A plan RMS limit in millimetres on the map, by terrain class, for the map ``scales`` it applies to."""
+class PlanLimit:
+    """A plan RMS limit by terrain class, for the map ``scales`` it applies to; where it stands and how far it was
+    confirmed. Its unit is its subclass's."""
 
     what: str
     scales: tuple[str, ...]
@@ -127,10 +128,19 @@ class MapPlanLimit:
     evidence: str
     confirmed: bool
 
-    def mm(self, terrain: str) -> float:
-        """The limit (mm on the map) of a terrain class (``CnAt.terrains``)."""
+    def by_terrain(self, terrain: str) -> float:
+        """The number of a terrain class (``CnAt.terrains``), in the subclass's unit."""
         return {"flat": self.flat, "hilly": self.hilly, "mountainous": self.mountainous,
                 "high_mountain": self.high_mountain}[terrain]
+
+
+@dataclasses.dataclass(frozen=True)
+class MapPlanLimit(PlanLimit):
+    """A plan RMS limit in millimetres on the map."""
+
+    def mm(self, terrain: str) -> float:
+        """The limit (mm on the map) of a terrain class."""
+        return self.by_terrain(terrain)
 
     def ground_m(self, terrain: str, scale: str) -> float:
         """The limit (m on the ground) of a terrain class at a map scale."""
@@ -140,24 +150,13 @@ class MapPlanLimit:
 
 
 @dataclasses.dataclass(frozen=True)
-class GroundPlanLimit:
-    """A plan RMS limit in metres on the ground, by terrain class, for the map ``scales`` it applies to (a figure
-    given in metres, e.g. by the design table of ../shared/design/reports.md)."""
-
-    what: str
-    scales: tuple[str, ...]
-    flat: float
-    hilly: float
-    mountainous: float
-    high_mountain: float
-    clause: str
-    evidence: str
-    confirmed: bool
+class GroundPlanLimit(PlanLimit):
+    """A plan RMS limit in metres on the ground, the same at each of its scales (a figure given in metres, e.g. by
+    the design table of ../shared/design/reports.md)."""
 
     def ground_m(self, terrain: str, scale: str) -> float:
-        """The limit (m) of a terrain class (``CnAt.terrains``); the same at each of ``scales``."""
-        return {"flat": self.flat, "hilly": self.hilly, "mountainous": self.mountainous,
-                "high_mountain": self.high_mountain}[terrain]
+        """The limit (m on the ground) of a terrain class."""
+        return self.by_terrain(terrain)
 
 
 @dataclasses.dataclass(frozen=True)
