@@ -184,9 +184,14 @@ class Chain:
         why = "no reference orthophoto (aerotri run --reference REF.tif): the DOM is not checked"
         report = self.project.dom_report_path
         if report.is_file():
+            from aerotri.core.errors import InputError
             from ortho.check import read_dom_check
 
-            if read_dom_check(report).stale_for(self.project.mosaic_path, report):
+            try:
+                stale = read_dom_check(report).stale_for(self.project.mosaic_path, report)
+            except InputError as e:  # not this run's business: the report names it
+                return f"{why}; {report.name} of an earlier run is unreadable ({e})"
+            if stale:
                 why += (f"; {report.name} of an earlier run measured an earlier mosaic: the report says the DOM was "
                         "not checked")
             else:
@@ -312,7 +317,8 @@ class Chain:
                   self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem),
         ]
         # always planned: without --reference it is skipped with why (an earlier run's check is not dropped silently)
-        stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path, Path(self.reference_ortho)]
+        stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path]
+                            + ([Path(self.reference_ortho)] if self.reference_ortho is not None else [])
                             + ([self.roof_corners_path()] if self.roof_corners_path() else []),
                             lambda r: [self.project.dom_report_path], self.run_dom_check,
                             options=to_table(o.dom_check), skip=self.no_dom_check))
