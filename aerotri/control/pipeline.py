@@ -82,8 +82,9 @@ class TransferSummary:
         return (f"{self.corners_accepted} of {self.corners_measured} corners accepted "
                 f"({self.measurements_accepted_in_image} of {self.measurements_attempted} image measurements); "
                 f"control {self.control_full} full + "
-                f"{self.control_height} height, {self.check_points} check points; rejected corners "
-                f"{self.corners_rejected}")
+                f"{self.control_height} height, {self.check_points} check points; rejected corners: "
+                + (", ".join(f"{k} {n}" for k, n in sorted(self.corners_rejected.items(), key=lambda kv: -kv[1]))
+                   or "none"))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -204,6 +204,7 @@ def test_review_page_lists_the_rejections_as_a_table_not_a_python_dict(frames, t
     assert "<td>corner</td><td>too_few_rays: in_no_frame</td><td style=\"text-align:right\">1</td><td>of those: in no " \
            "frame</td>" in html
     assert "2 corners and 0 image measurements rejected (table below)" in page.summary
+    assert summary(res).command_line().endswith("rejected corners: lidar_mismatch 1, too_few_rays 1")
 
 
 def test_too_few_rays_by_cause(frames):
