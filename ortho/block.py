@@ -53,7 +53,7 @@ from aerotri.geom.crs.datum import load_height_model, load_transformation
 from aerotri.geom.crs.transform import CrsTransformer, OperationSpec
 from ortho.dem import dem_height_operation, height_range, height_window, open_height_raster, read_height_window
 from aerotri.core.gdal_cache import MiB, stage_block_cache
-from ortho.grid import GridToProject, OrthoGrid, nice_resolution, parse_crs, resolve_output_crs
+from ortho.grid import GridToProject, OrthoGrid, nice_resolution, overview_factors, parse_crs, resolve_output_crs
 from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, footprint_polygon_xy,
                            grid_around_footprint, heights_on_grid, rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
@@ -208,12 +208,23 @@ def operation_tags(operation: dict | None, height_operation: dict | None = None)
     return tags
 
 
+def add_overviews(path) -> None:
+    """Internal overviews (``overview_factors``, average of the valid samples) of a frame ortho GeoTIFF and of its
+    internal mask, compressed as the full resolution; the full-resolution samples are left as they are."""
+    from rasterio.enums import Resampling
+
+    with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(path, "r+") as ds:
+        factors = overview_factors(ds.width, ds.height)
+        if factors:
+            ds.build_overviews(factors, Resampling.average)
+
+
 def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, grid, interpolation, to_project,
                           occlusion_dsm=None, compression: str = "zstd", threads: int | None = None,
                           tags: dict | None = None, max_view_angle_deg: float = 90.0, occluder=None,
-                          sides=None) -> float:
+                          sides=None, overviews: bool = False) -> float:
     """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory); ``occluder``,
-    ``sides``: as ``rectify_frame``.
+    ``sides``: as ``rectify_frame``; ``overviews``: internal overviews too (``add_overviews``).
 
     The tile threads compute the next tiles while this thread writes (GDAL compresses the blocks on
     all cores). Returns the valid fraction of the grid.
@@ -239,6 +250,8 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
             rectify_frame(image, camera, C, R, heights, grid, interpolation=interpolation, to_project=to_project,
                           occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads,
                           max_view_angle_deg=max_view_angle_deg, occluder=occluder, sides=sides)
+        if overviews:
+            add_overviews(tmp)
     return valid[0] / float(grid.width * grid.height)
 
 
@@ -281,6 +294,7 @@ class FrameTask:
     # frame 2,900 of 3,000 redoes 100 frames, not 3,000
     resume_dir: str | None = None
     resume_key: str | None = None
+    overviews: bool = False  # internal overviews in the frame ortho ([rectify] overviews)
 
 
 def _frame_image(path, expect_size):
@@ -419,8 +433,8 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
 
     doc = {}
     for f in dataclasses.fields(task):
-        if f.name in ("out_path", "threads", "resume_dir", "resume_key"):
-            continue
+        if f.name in ("out_path", "threads", "resume_dir", "resume_key") or (f.name == "overviews" and not task.overviews):
+            continue  # (without overviews the key of a frame kept before the option existed)
         v = getattr(task, f.name)
         doc[f.name] = _camera_sha256(v) if f.name == "camera" else repr(v) if dataclasses.is_dataclass(v) else v
     for f in ("image_path", "dem_path", "dsm_path", "footprints_path", "crown_base_path", "occlusion_dsm_path"):
@@ -496,7 +510,7 @@ def _rectify_frame(task: FrameTask) -> dict:
                                            occlusion_dsm=surface if task.dsm_path else None, occluder=occluder,
                                            sides=sides,
                                            compression=task.compression, threads=task.threads,
-                                           max_view_angle_deg=task.max_view_angle_deg,
+                                           max_view_angle_deg=task.max_view_angle_deg, overviews=task.overviews,
                                            tags=operation_tags(to_project.record(),
                                                                height_op.record() if height_op else None))
     if isinstance(image, FrameFile):
@@ -679,7 +693,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
                                   dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
                                   height_op=height_op, executor=executor, inputs=inputs,
                                   max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints,
-                                  crown_base=crown_base, occlusion_dsm=occlusion_dsm, resume_dir=resume_dir)
+                                  crown_base=crown_base, occlusion_dsm=occlusion_dsm, resume_dir=resume_dir,
+                                  overviews=s.overviews)
             _shared_cells.clear()  # (this process's; the key names the files' sizes and times for the workers')
             if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
                 done = {e["image_id"] for e in index["frames"]}
@@ -726,7 +741,7 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
                   inputs: dict, max_view_angle_deg: float = 90.0, footprints: Path | None = None,
                   crown_base: Path | None = None, occlusion_dsm: Path | None = None,
-                  resume_dir: Path | None = None) -> dict:
+                  resume_dir: Path | None = None, overviews: bool = False) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order). With
     ``resume_dir``: the frames an interrupted run of the same inputs finished are taken from there, the others
     kept there as they finish."""
@@ -747,7 +762,8 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        footprints_path=str(footprints) if footprints is not None else None,
                        occluder_bounds_m=occluder_bounds,
                        crown_base_path=str(crown_base) if crown_base is not None else None,
-                       occlusion_dsm_path=str(occlusion_dsm) if occlusion_dsm is not None else None)
+                       occlusion_dsm_path=str(occlusion_dsm) if occlusion_dsm is not None else None,
+                       overviews=overviews)
              for image_id, path in block.images.pairs()]
     resumed = {}
     if resume_dir is not None:

@@ -55,6 +55,7 @@ def _settings(cls, project):
 @click_option(RectifySettings, "max_view_angle_deg", "--max-view-angle-deg")
 @click.option("--frames", help="comma-separated image ids (default: all images)")
 @click_option(RectifySettings, "compression", "--frame-compress")
+@click_option(RectifySettings, "overviews", "--frame-overviews")
 @scheduler_options
 def rectify(*, project, params_path, heights_path, allow_ballpark, eo_path, camera_path, frames, scheduler, workers,
             **_settings_given):

@@ -196,3 +196,13 @@ class GridToProject:
         """
         return anchor_grid(self.exact, grid.x_left_m, grid.y_top_m, grid.res_m, grid.width, grid.height,
                            spacing_px=spacing_px, tolerance=self.tolerance_m, affine=self.identity)
+
+
+def overview_factors(width: int, height: int, block_px: int = 512) -> list[int]:
+    """Overview decimation factors 2, 4, ... until the coarsest fits one block (GDAL's COG default): the mosaic's
+    and the frame orthos' (``[rectify] overviews``)."""
+    out, f = [], 2
+    while -(-max(width, height) // (f // 2)) > block_px:
+        out.append(f)
+        f *= 2
+    return out

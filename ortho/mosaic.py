@@ -77,7 +77,7 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
 from ortho.block import (FrameIndex, frame_index, index_operation, operation_tags, read_index, require_current_frames,
                          verify_index)
-from ortho.grid import OrthoGrid
+from ortho.grid import OrthoGrid, overview_factors
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seamlines_preview import preview_shape, write_seamlines_preview
@@ -1842,15 +1842,6 @@ def _stage_profile(mosaic: OrthoGrid, bands: int, dtype) -> dict:
     if raw > STAGE_RAW_MAX_BYTES:
         return dict(STAGE_PROFILE)
     return {k: v for k, v in STAGE_PROFILE.items() if k not in ("compress", "zstd_level", "predictor", "num_threads")}
-
-
-def overview_factors(width: int, height: int, block_px: int = 512) -> list[int]:
-    """Overview decimation factors 2, 4, ... until the coarsest fits one block (GDAL's COG default)."""
-    out, f = [], 2
-    while -(-max(width, height) // (f // 2)) > block_px:
-        out.append(f)
-        f *= 2
-    return out
 
 
 def halve(img: np.ndarray, valid: np.ndarray):

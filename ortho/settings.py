@@ -70,6 +70,14 @@ class RectifySettings:
     compression: str = setting("zstd", choices=tuple(FRAME_COMPRESSION),
                                help="Per-frame GeoTIFFs: zstd (level 1 + predictor), zstd-fast (no predictor, ~1.7x "
                                     "larger, no less CPU), none (~40 % less CPU per frame, ~3.7x larger).")
+    # Off by default: on a full-size DMC frame ortho (8484 x 14308 px, 16 bit) they cost 3.7 CPU-s, 0.70 of the
+    # frame's rectification (5.2 CPU-s per frame in the 2 x 4 DMC block's true-ortho run), and 34 % more disk (demo
+    # frames: 0.075 CPU-s, 0.09 of it, 38 % more disk); the mosaic, the product, has its own
+    # (bench/frame_overviews.py, bench/results/frame_overviews.json)
+    overviews: bool = setting(False, help="Internal overviews (2x, 4x ... averaged, with the mask's) in each frame ortho, "
+                                          "so a GIS opens one at full extent quickly; the full-resolution samples are "
+                                          "unchanged. On a full-size DMC frame about 0.7 x the CPU of its "
+                                          "rectification and 34 % more disk.")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -174,6 +174,30 @@ class Chain:
                     "([rectify] dem = \"DEM.tif\") or with aerotri run --dem DEM.tif")
         return None
 
+    def no_dom_check(self, root=None) -> str | None:
+        """Why the DOM is not checked (None: it is): no DEM, or no reference orthophoto; then also what becomes of
+        an earlier run's ortho/dom_report.json (still the current mosaic's, or of an earlier mosaic: the report then
+        says the DOM was not checked)."""
+        why = self.no_dem()
+        if why or self.reference_ortho is not None:
+            return why
+        why = "no reference orthophoto (aerotri run --reference REF.tif): the DOM is not checked"
+        report = self.project.dom_report_path
+        if report.is_file():
+            from aerotri.core.errors import InputError
+            from ortho.check import read_dom_check
+
+            try:
+                stale = read_dom_check(report).stale_for(self.project.mosaic_path, report)
+            except InputError as e:  # not this run's business: the report names it
+                return f"{why}; {report.name} of an earlier run is unreadable ({e})"
+            if stale:
+                why += (f"; {report.name} of an earlier run measured an earlier mosaic: the report says the DOM was "
+                        "not checked")
+            else:
+                why += f"; {report.name} of an earlier run measured this mosaic and stays in the report"
+        return why
+
     def check_files(self) -> None:
         """The inputs of every stage that the project (or the command line) gives, read and checked as the
         stage will before the first stage writes anything: a bad input of a late stage stops the run with
@@ -292,11 +316,12 @@ class Chain:
             Stage("mosaic", lambda r: [self.project.frames_index_path], lambda r: [self.project.mosaic_path],
                   self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem),
         ]
-        if self.reference_ortho is not None:
-            stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path, Path(self.reference_ortho)]
-                                + ([self.roof_corners_path()] if self.roof_corners_path() else []),
-                                lambda r: [self.project.dom_report_path], self.run_dom_check,
-                                options=to_table(o.dom_check), skip=self.no_dem))
+        # always planned: without --reference it is skipped with why (an earlier run's check is not dropped silently)
+        stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path]
+                            + ([Path(self.reference_ortho)] if self.reference_ortho is not None else [])
+                            + ([self.roof_corners_path()] if self.roof_corners_path() else []),
+                            lambda r: [self.project.dom_report_path], self.run_dom_check,
+                            options=to_table(o.dom_check), skip=self.no_dom_check))
         if self.surveyed_points is not None:
             stages.append(Stage("height_check", lambda r: self.classified() + [Path(self.surveyed_points)],
                                 lambda r: [self.project.height_check_path], self.run_height_check, skip=self.no_lidar))

@@ -34,11 +34,13 @@ def chip_png(image, pred_xy, meas_xy, ok: bool, half_px: int = 16, scale: int = 
     return cv2.imencode(".png", big)[1].tobytes()
 
 
-def write_review(folder: Path, project: str, summary: str, corners: list[dict], chips: dict[str, bytes]) -> None:
-    """Write review.html and chips/ into folder (a fresh temporary folder; the caller moves it in place)."""
+def write_review(folder: Path, project: str, summary: str, corners: list[dict], chips: dict[str, bytes],
+                 rejections=()) -> None:
+    """Write review.html and chips/ into folder (a fresh temporary folder; the caller moves it in place);
+    ``rejections``: the rejection table's rows (``aerotri.control.pipeline.RejectionRow``)."""
     folder = Path(folder)
     (folder / "chips").mkdir(parents=True, exist_ok=True)
     for name, data in chips.items():
         (folder / "chips" / name).write_bytes(data)
     (folder / "review.html").write_text(render("control_review.html.j2", project=project, summary=summary,
-                                                    corners=corners))
+                                                    corners=corners, rejections=rejections))

@@ -82,17 +82,55 @@ class TransferSummary:
         return (f"{self.corners_accepted} of {self.corners_measured} corners accepted "
                 f"({self.measurements_accepted_in_image} of {self.measurements_attempted} image measurements); "
                 f"control {self.control_full} full + "
-                f"{self.control_height} height, {self.check_points} check points; rejected corners "
-                f"{self.corners_rejected}")
+                f"{self.control_height} height, {self.check_points} check points; rejected corners: "
+                + (", ".join(f"{k} {n}" for k, n in sorted(self.corners_rejected.items(), key=lambda kv: -kv[1]))
+                   or "none"))
+
+
+@dataclasses.dataclass(frozen=True)
+class RejectionRow:
+    """One line of the review page's rejection table: ``what`` was rejected (a corner, or one measurement of a
+    corner in a frame), the ``reason`` key (control/transfer.json), how many, and what it means."""
+
+    what: str
+    reason: str
+    count: int
+    meaning: str
+
+
+# What each rejection reason of control/transfer.json means (the review page's table)
+CORNER_REJECTIONS = {"too_few_rays": "measured in fewer than two frames",
+                     "inconsistent_rays": "the frames' rays do not meet in one point",
+                     "lidar_mismatch": "the rays meet away from the LiDAR corner"}
+MEASUREMENT_REJECTIONS = {"outside_frame": "the predicted corner lies outside the frame (or too near its edge)",
+                          "no_edges": "no roof edges with enough contrast near the prediction",
+                          "occluded": "the corner's edges are not seen up to the corner (hidden)",
+                          "ambiguous": "another corner-like edge pair in the search window scores almost as well",
+                          "poor_edge_fit": "the roof edges fit badly, or the corner lies beyond the search radius"}
+
+
+def rejection_rows(sm: "TransferSummary") -> tuple[RejectionRow, ...]:
+    """The rejected corners (too few rays split by cause) and the rejected image measurements, most first."""
+    rows = []
+    for reason, n in sorted(sm.corners_rejected.items(), key=lambda kv: -kv[1]):
+        rows.append(RejectionRow("corner", reason, n, CORNER_REJECTIONS.get(reason, reason.replace("_", " "))))
+        if reason == "too_few_rays":
+            rows += [RejectionRow("corner", f"too_few_rays: {cause}", m, f"of those: {TOO_FEW_RAYS_CAUSES[cause]}")
+                     for cause, m in sorted(sm.too_few_rays_by_cause.items(), key=lambda kv: -kv[1])]
+    rows += [RejectionRow("measurement in a frame", reason, n, MEASUREMENT_REJECTIONS.get(reason, reason.replace("_", " ")))
+             for reason, n in sorted(sm.measurements_rejected_in_image.items(), key=lambda kv: -kv[1])]
+    return tuple(rows)
 
 
 @dataclasses.dataclass
 class ReviewPage:
-    """What ``chips.write_review`` writes: the summary line, a row per corner, the chip PNGs by file name."""
+    """What ``chips.write_review`` writes: the summary line, the rejection table, a row per corner, the chip PNGs
+    by file name."""
 
     summary: str
     corners: list[dict]
     chips: dict[str, bytes]
+    rejections: tuple[RejectionRow, ...] = ()
 
 
 CONTROL_RESUME_DIR_NAME = "control_resume"  # in work/: the frames' measurements an interrupted transfer finished
@@ -531,9 +569,10 @@ def review_page(res: TransferResult, images_dir) -> ReviewPage:
                         "status": status, "cls": res.kind[k], "chips": sorted(rows[k], key=lambda c: c["image"])})
     sm = summary(res)
     line = (f"{sm.corners_accepted} of {sm.corners_measured} corners accepted; control: {sm.control_full} full, "
-            f"{sm.control_height} height; {sm.check_points} check points; rejected corners: {sm.corners_rejected}; "
-            f"rejected measurements: {sm.measurements_rejected_in_image}. {layout_line(res)}")
-    return ReviewPage(line, corners, chips)
+            f"{sm.control_height} height; {sm.check_points} check points; "
+            f"{sum(sm.corners_rejected.values())} corners and {sum(sm.measurements_rejected_in_image.values())} "
+            f"image measurements rejected (table below). {layout_line(res)}")
+    return ReviewPage(line, corners, chips, rejection_rows(sm))
 
 
 def _block_crs(root):
@@ -601,7 +640,7 @@ def run_control(root, corners_path=None, eo_path=None, camera_path=None, manual_
         review = review_page(res, paths.images_dir) if s.chips else None
         if review is not None:
             with atomic_dir(paths.control_dir / "review") as tmp:
-                write_review(tmp, paths.root.name, review.summary, review.corners, review.chips)
+                write_review(tmp, paths.root.name, review.summary, review.corners, review.chips, review.rejections)
         for name, text in texts.files():
             write_text_atomic(paths.control_dir / name, text)
     return sm

@@ -19,11 +19,14 @@ Schedulers:
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 from typing import Any, Callable, Iterable
 
 from aerotri.core.errors import OptionError
 from aerotri.core.log import progress
+
+_log = logging.getLogger(__name__)
 
 
 class _Failed:
@@ -32,6 +35,31 @@ class _Failed:
 
 
 _SKIPPED = object()
+
+
+def _wait_for_running(cond, stopping: list, running: list) -> None:
+    """After an interrupt of ``Executor.map``: no more tasks start; wait until the running ones have ended (a
+    second Ctrl-C stops the wait)."""
+    with cond:
+        stopping[0] = True
+        if running[0]:
+            _log.warning(
+                f"interrupted: waiting for the {running[0]} running task(s) to end before the outputs are rolled back "
+                "(Ctrl-C again: stop at once)")
+        while running[0]:
+            cond.wait(0.2)
+
+
+@contextlib.contextmanager
+def _cancelled_when_interrupted(client, futures):
+    """On a cluster: an interrupt cancels the tasks not yet run (a worker's running task cannot be stopped from
+    here; it ends on its own)."""
+    try:
+        yield
+    except BaseException:
+        with contextlib.suppress(Exception):
+            client.cancel(futures)
+        raise
 
 
 class Executor:
@@ -123,19 +151,25 @@ class Executor:
         from dask.threaded import get as threaded_get
 
         first_bad = [len(items)]
-        lock = threading.Lock()
+        stopping, running = [False], [0]  # interrupted in this thread; tasks in progress on the pool
+        lock = threading.Condition()
 
         def guarded(k_item):
             k, item = k_item
             with lock:
-                if k > first_bad[0]:
+                if k > first_bad[0] or stopping[0]:
                     return _SKIPPED
+                running[0] += 1
             try:
                 return fn(item)
             except BaseException as exc:  # noqa: BLE001 - handed back to the caller below
                 with lock:
                     first_bad[0] = min(first_bad[0], k)
                 return _Failed(exc)
+            finally:
+                with lock:
+                    running[0] -= 1
+                    lock.notify_all()
 
         tasks = [dask.delayed(guarded, pure=False)((k, item)) for k, item in enumerate(items)]
         class _Progress(Callback):
@@ -145,10 +179,17 @@ class Executor:
         # the local schedulers as functions, not by name: a name makes dask import distributed (about
         # 0.3 s) to look for a default client, a tenth of what a one-frame ``ortho rectify`` takes
         with progress(len(items), desc, unit) as bar, _Progress():
-            if self.scheduler == "synchronous" or self.workers == 1:
-                out = list(dask.compute(*tasks, scheduler=get_sync))
-            else:
-                out = list(dask.compute(*tasks, scheduler=threaded_get, num_workers=self.workers))
+            try:
+                if self.scheduler == "synchronous" or self.workers == 1:
+                    out = list(dask.compute(*tasks, scheduler=get_sync))
+                else:
+                    out = list(dask.compute(*tasks, scheduler=threaded_get, num_workers=self.workers))
+            except BaseException:
+                # Ctrl-C or SIGTERM in this thread: the pool's threads go on with their tasks, which would write
+                # their files after the caller's roll-back (aerotri.core.atomic), outside any commit. No task
+                # starts any more, and the running ones end before the interrupt goes on to the roll-back.
+                _wait_for_running(lock, stopping, running)
+                raise
         for r in out:
             if isinstance(r, _Failed):
                 raise r.exc
@@ -160,7 +201,7 @@ class Executor:
         futures = self._client.map(fn, items, pure=False)
         index = {f.key: k for k, f in enumerate(futures)}
         first_bad = len(items)
-        with progress(len(items), desc, unit) as bar:
+        with progress(len(items), desc, unit) as bar, _cancelled_when_interrupted(self._client, futures):
             for fut in as_completed(futures):
                 k = index[fut.key]
                 if fut.status == "error" and k < first_bad:

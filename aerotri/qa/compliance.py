@@ -51,6 +51,7 @@ class CheckSet:
     cp_rmse_v_m: float | None = None
     cp_source: str = "not stated"
     note: str = ""
+    points: str = "check points"  # what was counted: surveyed check points, or the DOM's ground patches ...
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,6 +108,7 @@ class ComplianceCheck:
     finest_class: str | None
     dimension: str = ""  # "H" / "V" for ASPRS classes: the finest class is stated per dimension
     finest_rank: float | None = None  # lower = finer, to combine a product's checks
+    counted: str = "check points"  # what ``n_points`` counts (the DOM: ground patches, not surveyed check points)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,7 +186,8 @@ def dom_checks(dom_all: dict, qa, *, stale: bool = False) -> CheckSet | None:
         return CheckSet(note="the DOM check measured no patch")
     h, _, src = _survey_accuracy(qa)
     return CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=int(d.get("count") or 0), cp_rmse_h_m=h, cp_source=src,
-                    note="ground patches against the reference orthophoto")
+                    note="ground patches of the DOM matched to the reference orthophoto (phase correlation), not "
+                         "surveyed check points; the reference's accuracy stands for theirs", points="ground patches")
 
 
 def line_map_checks(chk: dict, qa) -> CheckSet | None:
@@ -195,7 +198,8 @@ def line_map_checks(chk: dict, qa) -> CheckSet | None:
         return CheckSet(note="no building corner matched a reference corner")
     h, _, src = _survey_accuracy(qa)
     return CheckSet(rmse_h_m=float(b["rms_xy_corner_m"]), n_h=int(b["n_matched_corners"]), cp_rmse_h_m=h,
-                    cp_source=src, note="building corners against the reference outlines' corners")
+                    cp_source=src, note="building corners against the reference outlines' corners, not surveyed check "
+                                        "points", points="building corners")
 
 
 def vegetated(group: str | None) -> bool | None:
@@ -325,35 +329,42 @@ def project_figures(project: Project) -> Figures:
 
 
 # ---------------------------------------------------------------------------------------------- judging
-def _verdict(figure, limit, n, need, cp_ok) -> tuple[str, str]:
+def _verdict(figure, limit, n, need, cp_ok, counted: str = "check points") -> tuple[str, str]:
     if limit is None:
-        return NOT_TESTABLE, "the standard sets no limit for this quantity (or none is shipped: docs/standards.md)"
+        return NOT_TESTABLE, "not stated: the standard sets no limit for this quantity (or none is shipped: " \
+                             "docs/standards.md)"
     if figure is None or (isinstance(figure, float) and math.isnan(figure)):
         return NOT_TESTABLE, "not measured"
     would = "pass" if figure <= limit else "fail"
     if need and n is not None and n < need:
-        return NOT_TESTABLE, f"{n} check points, {need} required (the figure would {would})"
+        need_text = f"{need} required" if counted == "check points" else f"{need} check points required"
+        return NOT_TESTABLE, f"{n} {counted}, {need_text} (the figure would {would})"
     if cp_ok is False:
-        return NOT_TESTABLE, f"the check points are not accurate enough for the class (the figure would {would})"
+        who = "the check points are" if counted == "check points" else "the reference is"
+        return NOT_TESTABLE, f"{who} not accurate enough for the class (the figure would {would})"
     return would, ""
 
 
 def _check(product, quantity, cls, measured, figure, *, limit, unit, n, need, cp_ok, cp_note, confirmed, source,
-           finest=None, rank=None, dimension="", verdict=None, why=None) -> ComplianceCheck:
+           finest=None, rank=None, dimension="", verdict=None, why=None, counted="check points") -> ComplianceCheck:
     if verdict is None:
-        verdict, why = _verdict(figure, limit, n, need, cp_ok)
+        verdict, why = _verdict(figure, limit, n, need, cp_ok, counted)
     r = (lambda x: None if x is None or (isinstance(x, float) and math.isnan(x)) else round(float(x), 4))
     return ComplianceCheck(product=product, quantity=quantity, class_tested=cls, measured=r(measured), figure=r(figure),
                            limit=r(limit), unit=unit, n_points=n, n_required=need, checkpoints_accurate=cp_ok,
                            checkpoints_note=cp_note, verdict=verdict, why=why or "", limit_confirmed=confirmed,
-                           limit_source=source, finest_class=finest, finest_rank=rank, dimension=dimension)
+                           limit_source=source, finest_class=finest, finest_rank=rank, dimension=dimension,
+                           counted=counted)
 
 
-def _cp_note(cp_rmse, need_m, src, factor_text) -> tuple[bool | None, str]:
+def _cp_note(cp_rmse, need_m, src, factor_text, counted: str = "check points") -> tuple[bool | None, str]:
+    """Whether the check points (for patches or corners against a reference: the reference) are accurate enough."""
+    who = "check points" if counted == "check points" else "reference"
     if cp_rmse is None:
-        return None, f"check points' accuracy {src}: not judged"
+        return None, f"{who}' accuracy {src}: not judged" if who == "check points" else \
+            f"the reference's accuracy {src}: not judged"
     ok = cp_rmse <= need_m + 1e-12
-    return ok, f"check points {cp_rmse:.3f} m ({src}); {factor_text} {need_m:.3f} m"
+    return ok, f"{who} {cp_rmse:.3f} m ({src}); {factor_text} {need_m:.3f} m"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -500,16 +511,17 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             else:
                 cp_ok, cp_note = _cp_note(cp, limit / factor, cs.cp_source,
                                           f"{factor:g} x finer than the limit ({'' if fac_ok else 'unconfirmed '}"
-                                          f"Edition 2 rule) needs <=")
+                                          f"Edition 2 rule) needs <=", cs.points)
             if cp is not None and meas is not None:
-                cp_note += f"; measured {meas:.3f} m combined with the check points' {cp:.3f} m"
+                cp_note += (f"; measured {meas:.3f} m combined with the "
+                            f"{'check points' if cs.points == 'check points' else 'reference'}' {cp:.3f} m")
             if cs.note:
                 cp_note += f"; {cs.note}"
             # the finest class: the limit is ``multiple`` x the class (the AT twice as accurate as the product)
             fin, rank = finest(fig, lad_h if dim == "H" else lad_v, multiple, dim)
-            ch = _check(product, f"check points, {quantity}", c.class_tested, meas, fig, limit=limit, unit="m", n=n,
+            ch = _check(product, f"{cs.points}, {quantity}", c.class_tested, meas, fig, limit=limit, unit="m", n=n,
                         need=need, cp_ok=cp_ok, cp_note=cp_note, confirmed=conf, source=source, finest=fin, rank=rank,
-                        dimension=dim)
+                        dimension=dim, counted=cs.points)
             if meas is None:
                 ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
             out.append(ch)
@@ -615,18 +627,18 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     acc = d.check_point_accuracy
 
     def limit_m(limits, scale, terrain):
-        """(limit m, confirmed, source) of the first of ``limits`` (``MapPlanLimit``) that covers ``scale``."""
+        """(limit m, confirmed, source) of the first of ``limits`` (``MapPlanLimit`` in map mm, ``GroundPlanLimit``
+        in metres) that covers ``scale``; none: not stated."""
         for e in limits:
             if scale in e.scales:
-                return (F.map_mm_to_ground_m(e.mm(terrain), scale), e.confirmed,
-                        f"{src}: {e.what}, {e.clause}; {e.evidence}")
-        return None, None, f"{src}: no limit shipped for {scale} {terrain}"
+                return e.ground_m(terrain, scale), e.confirmed, f"{src}: {e.what}, {e.clause}; {e.evidence}"
+        return None, None, f"{src}: not stated for {scale} {terrain}"
 
     def finest(fig, limits, terrain):
         met = [s for s in scales if (lm := limit_m(limits, s, terrain)[0]) is not None and fig <= lm]
         return (met[0], float(F.scale_denominator(met[0]))) if met else ("none (coarser than 1:10000)", math.inf)
 
-    feat = (L.feature_plan_mm, L.feature_plan_mm_small)
+    feat = (L.feature_plan_mm, L.feature_plan_m_small)
     out = []
     for product, cs, keys in (("Aerotriangulation", figs.at, (L.check_plan_mm,)), ("DOM", figs.dom, feat),
                               ("Line map (DLG)", figs.line_map, feat)):
@@ -635,19 +647,19 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         limit, conf, source = limit_m(keys, c.scale, c.terrain)
         f_lim = limit_m(feat, c.scale, c.terrain)[0]
         cp_ok, cp_note = (_cp_note(cs.cp_rmse_h_m, acc.plan_fraction_of_feature * f_lim, cs.cp_source,
-                                   "1/5 of the feature limit (GB/T 7931-2008 6.1) needs <=") if f_lim else
+                                   "1/5 of the feature limit (GB/T 7931-2008 6.1) needs <=", cs.points) if f_lim else
                           (None, "no feature limit to judge the check points by"))
         fin, rank = finest(cs.rmse_h_m, keys, c.terrain) if cs.rmse_h_m is not None else (None, None)
-        ch = _check(product, "check points, plan RMS (radial)", c.class_tested, cs.rmse_h_m, cs.rmse_h_m,
+        ch = _check(product, f"{cs.points}, plan RMS (radial)", c.class_tested, cs.rmse_h_m, cs.rmse_h_m,
                     limit=limit, unit="m", n=cs.n_h, need=None, cp_ok=cp_ok,
                     cp_note=cp_note + "; the specifications set no minimum number of check points"
                     + (f"; {cs.note}" if cs.note else ""),
-                    confirmed=conf, source=source, finest=fin, rank=rank)
+                    confirmed=conf, source=source, finest=fin, rank=rank, counted=cs.points)
         if cs.rmse_h_m is None:
             ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
         out.append(ch)
         if product == "Aerotriangulation" and cs.rmse_v_m is not None:
-            out.append(_check(product, "check points, height RMS", c.class_tested, cs.rmse_v_m, cs.rmse_v_m,
+            out.append(_check(product, f"{cs.points}, height RMS", c.class_tested, cs.rmse_v_m, cs.rmse_v_m,
                               limit=None, unit="m", n=cs.n_v, need=None, cp_ok=None, cp_note="", confirmed=None,
                               source=f"{src}: heights of AT points not shipped (not read in any "
                               f"copy; docs/standards.md)"))
@@ -698,9 +710,10 @@ def _thesis(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                 continue
             limit, conf, source = lim(key)
             fin, rank = finest(meas, key) if meas is not None else (None, None)
-            ch = _check(product, f"check points, {q}", c.class_tested, meas, meas, limit=limit, unit="m", n=n,
-                        need=None, cp_ok=None, cp_note="the thesis tables set no minimum number or accuracy of check points",
-                        confirmed=conf, source=source, finest=fin, rank=rank)
+            ch = _check(product, f"{cs.points}, {q}", c.class_tested, meas, meas, limit=limit, unit="m", n=n,
+                        need=None, cp_ok=None, cp_note="the thesis tables set no minimum number or accuracy of check points"
+                        + (f"; {cs.note}" if cs.note else ""),
+                        confirmed=conf, source=source, finest=fin, rank=rank, counted=cs.points)
             if meas is None:
                 ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
             out.append(ch)

@@ -538,8 +538,14 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                key="feature_rms_xy_m"))
     if dom_check_stale:
         rows.append(_failed("dom_check_stale", sec, "DOM check of an earlier mosaic",
-                            f"{project.dom_report_path} measured an earlier {project.mosaic_path} (the mosaic was made "
-                            f"again since); re-run ortho check {root} --reference REF.tif (or aerotri run --reference)"))
+                            f"the DOM was not checked: {project.dom_report_path} measured an earlier "
+                            f"{project.mosaic_path} (the mosaic was made again since, e.g. by aerotri run without "
+                            f"--reference, which does not check it); re-run ortho check {root} --reference REF.tif (or "
+                            "aerotri run --reference)"))
+    elif not dom_check and project.mosaic_path.is_file():  # said, not judged: no reference was given
+        rows.append(QaCheck("dom_not_checked", sec, "DOM not checked", None, None, "",
+                            f"no DOM check ({project.dom_report_path.name}): no reference orthophoto was given; "
+                            f"ortho check {root} --reference REF.tif (or aerotri run --reference REF.tif)", None))
     if dom_check and dom_check.roofs is not None:
         rows.append(_roofs_row(sec, dom_check, project))
     if project.frames_index_path.is_file() and (dom_check or project.mosaic_path.is_file()):
@@ -696,8 +702,8 @@ def _tolerance_section(rep: dict) -> dict | None:
 
 
 VERDICT_COLOURS = {"pass": "#ccffcc", "fail": "#ffcccc", "not testable": "#eeeeee", "reported": "#ddeeff"}
-COMPLIANCE_HEADER = ["product", "quantity", "class", "measured", "figure", "limit", "check points", "accurate",
-                     "verdict", "finest class met"]
+COMPLIANCE_HEADER = ["product", "quantity", "class", "measured", "figure", "limit", "check points (or what was counted)",
+                     "accurate", "verdict", "finest class met"]
 
 
 def _num(v, star: bool = False) -> str:
@@ -707,7 +713,10 @@ def _num(v, star: bool = False) -> str:
 def compliance_row(c: dict) -> list:
     """A compliance check as table cells: figure and limit in the check's unit, the limit marked * when its
     number is not confirmed in the standard's text."""
-    need = f"{c['n_points']}" + (f" ({c['n_required']} required)" if c["n_required"] else "") if c["n_points"] is not None else ""
+    counted = c.get("counted") or "check points"  # (a summary.json of before it was recorded: check points)
+    need = (f"{c['n_points']}" + ("" if counted == "check points" else f" {counted}")
+            + (f" ({c['n_required']} check points required)" if c["n_required"] else "")
+            if c["n_points"] is not None else "")
     acc = {True: "yes", False: "no", None: "unknown"}[c["checkpoints_accurate"]] if c["n_points"] is not None else ""
     verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
     return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]), _num(c["figure"]),
@@ -736,7 +745,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
         acc = {True: "accurate enough", False: "not accurate enough", None: "accuracy unknown"}[c["checkpoints_accurate"]]
-        pts = f"{c['n_points']} points" + (f", {c['n_required']} required" if c["n_required"] else "") + f", {acc}" \
+        pts = f"{c['n_points']} {c.get('counted') or 'check points'}" + \
+            (f", {c['n_required']} check points required" if c["n_required"] else "") + f", {acc}" \
             if c["n_points"] is not None else ""
         unit = f" {c['unit']}" if c.get("unit") else ""
         figure = f"{_num(c['figure'])}{unit}" if c["figure"] is not None else "not measured"
@@ -798,6 +808,11 @@ def _pdf_table(pdf, plt, title: str, *, header: list, rows: list, widths: list, 
             t.scale(1, 1.25)
         pdf.savefig(fig)
         plt.close(fig)
+
+
+def _dom_check_stale(rep: dict) -> bool:
+    """Whether the report's DOM check measured an earlier mosaic (its row ``dom_check_stale``)."""
+    return any(r["id"] == "dom_check_stale" for r in rep["checks"])
 
 
 def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = None) -> None:
@@ -874,9 +889,10 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             ax.axis("off")
             pdf.savefig(fig)
             plt.close(fig)
+        stale = _dom_check_stale(rep)
         for title, png in (("DOM displacement against the reference", project.dom_report_plot_path),
                            ("Tie-point connectivity", project.connectivity_plot_path)):
-            if png.is_file():
+            if png.is_file() and not (stale and png == project.dom_report_plot_path):
                 fig = plt.figure(figsize=(11.69, 8.27))
                 fig.suptitle(title)
                 ax = fig.add_axes([0.02, 0.02, 0.96, 0.9])
@@ -898,9 +914,13 @@ def write_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     summary = to_record(rep, exclude=("html",))
     write_text_atomic(project.report_summary_path, json.dumps(summary, indent=1) + "\n")
     figures = report_figures(rep, project)
-    present = [(src, alt) for src, alt in STAGE_IMAGES if (project.reports_dir / src).resolve().is_file()]
+    # a DOM check of an earlier mosaic: neither its plot nor its page (the row says the DOM was not checked)
+    stale = ("../ortho/dom_report.png", "../ortho/dom_report.json") if _dom_check_stale(summary) else ()
+    present = [(src, alt) for src, alt in STAGE_IMAGES
+               if (project.reports_dir / src).resolve().is_file() and src not in stale]
     # only the stage pages this project has: a block without LiDAR has no height check or strip page
-    links = [(src, text) for src, text in STAGE_LINKS if (project.reports_dir / src).resolve().is_file()]
+    links = [(src, text) for src, text in STAGE_LINKS
+             if (project.reports_dir / src).resolve().is_file() and src not in stale]
     write_text_atomic(project.report_index_path, format_html(summary, figures, present, links))
     if pdf if pdf is not None else read_qa_config(root).pdf:
         write_pdf(project.report_pdf_path, summary, project, figures)

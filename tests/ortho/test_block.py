@@ -5,6 +5,7 @@ handed to a sink equal the assembled ortho."""
 from __future__ import annotations
 
 import hashlib
+import json
 import shutil
 
 import cv2
@@ -249,3 +250,38 @@ def test_frames_read_by_windows_give_the_same_ortho(small_block, tmp_path, monke
                 assert np.array_equal(a.read(), b.read()) and np.array_equal(a.read_masks(1), b.read_masks(1))
                 assert 0.3 < (a.read_masks(1) > 0).mean() < 1.0
     assert len(opened) == 8
+
+
+def test_frame_overviews_are_an_option_and_leave_the_full_resolution_as_it_is(small_block, tmp_path):
+    """Trial 8: a frame ortho had no overviews (a GIS reads all of it to show it whole). ``[rectify] overviews``
+    (``ortho rectify --frame-overviews``) adds internal ones, averaged over the valid samples, with the mask's; the
+    full-resolution samples and mask are those of the frame without them. Off by default (bench/frame_overviews.py:
+    0.7 x the rectification's CPU on a full-size DMC frame)."""
+    from ortho.grid import overview_factors
+
+    plain, with_ovr = tmp_path / "plain", tmp_path / "ovr"
+    shutil.copytree(small_block, plain)
+    shutil.copytree(small_block, with_ovr)
+    res = rectify_block(plain, frames=["s01_002"]).res_m * 0.4  # several 512 px blocks: two levels
+    rectify_block(plain, RectifySettings(res_m=res), frames=["s01_002"])
+    r = CliRunner().invoke(main, ["rectify", str(with_ovr), "--frames", "s01_002", "--res-m", f"{res!r}",
+                                  "--frame-overviews"])
+    assert r.exit_code == 0, r.output
+    a, b = (p / "ortho" / "frames" / "s01_002.tif" for p in (plain, with_ovr))
+    with rasterio.open(a) as x, rasterio.open(b) as y:
+        assert x.overviews(1) == [] and y.overviews(1) == overview_factors(y.width, y.height) != []
+        assert np.array_equal(x.read(), y.read()) and np.array_equal(x.read_masks(1), y.read_masks(1))
+        f = y.overviews(1)[0]
+        got = y.read(1, out_shape=(y.height // f, y.width // f))  # from the overview
+        got_mask = y.read_masks(1, out_shape=(y.height // f, y.width // f))
+        full, valid = x.read(1).astype(float), x.read_masks(1) > 0
+    h, w = got.shape
+    blocks = (lambda v: v[:h * f, :w * f].reshape(h, f, w, f).sum((1, 3)))
+    n = blocks(valid)
+    want = blocks(full * valid) / np.maximum(n, 1)
+    inside = got_mask > 0
+    assert inside.mean() > 0.3 and (n[inside] > 0).all()  # the mask's overview: where any sample is valid
+    # the average of the valid samples only (no nodata 0 pulled in at the edge of the ground seen)
+    assert np.abs(got[inside] - want[inside]).max() <= 0.5 + 1e-9
+    index = json.loads((with_ovr / "ortho" / "frames" / "index.json").read_text())
+    assert index["settings"]["overviews"]["value"] is True

@@ -5,7 +5,7 @@ map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml), read th
 
 Each file is read into its own frozen dataclass (the three standards state their limits in three shapes: ASPRS
 by class multiples and counts, the LBS by quality level, the Chinese specifications in map millimetres by scale
-and terrain): ``asprs2023()``, ``usgs_lbs()``, ``cn_at()``. The TOML keys are the field names
+and terrain, but for the features at 1:5000 / 1:10000 in the design table's metres): ``asprs2023()``, ``usgs_lbs()``, ``cn_at()``. The TOML keys are the field names
 (``aerotri.core.settings.from_table`` reads them; the files ship with the package, so a key of another name is a
 bug, not bad input).
 """
@@ -114,8 +114,9 @@ class LidarBaseSpecification:
 
 # -- Chinese specifications for digital aerial triangulation -------------------------------------------
 @dataclasses.dataclass(frozen=True)
-class MapPlanLimit:
-    """A plan RMS limit in millimetres on the map, by terrain class, for the map ``scales`` it applies to."""
+class PlanLimit:
+    """A plan RMS limit by terrain class, for the map ``scales`` it applies to; where it stands and how far it was
+    confirmed. Its unit is its subclass's."""
 
     what: str
     scales: tuple[str, ...]
@@ -127,10 +128,35 @@ class MapPlanLimit:
     evidence: str
     confirmed: bool
 
-    def mm(self, terrain: str) -> float:
-        """The limit (mm on the map) of a terrain class (``CnAt.terrains``)."""
+    def by_terrain(self, terrain: str) -> float:
+        """The number of a terrain class (``CnAt.terrains``), in the subclass's unit."""
         return {"flat": self.flat, "hilly": self.hilly, "mountainous": self.mountainous,
                 "high_mountain": self.high_mountain}[terrain]
+
+
+@dataclasses.dataclass(frozen=True)
+class MapPlanLimit(PlanLimit):
+    """A plan RMS limit in millimetres on the map."""
+
+    def mm(self, terrain: str) -> float:
+        """The limit (mm on the map) of a terrain class."""
+        return self.by_terrain(terrain)
+
+    def ground_m(self, terrain: str, scale: str) -> float:
+        """The limit (m on the ground) of a terrain class at a map scale."""
+        from aerotri.qa.standards.formulas import map_mm_to_ground_m
+
+        return map_mm_to_ground_m(self.mm(terrain), scale)
+
+
+@dataclasses.dataclass(frozen=True)
+class GroundPlanLimit(PlanLimit):
+    """A plan RMS limit in metres on the ground, the same at each of its scales (a figure given in metres, e.g. by
+    the design table of ../shared/design/reports.md)."""
+
+    def ground_m(self, terrain: str, scale: str) -> float:
+        """The limit (m on the ground) of a terrain class."""
+        return self.by_terrain(terrain)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,7 +186,7 @@ class CnAtLimits:
     control_plan_mm: MapPlanLimit  # AT basic orientation (control) points
     tie_plan_mm: MapPlanLimit  # common points between adjacent blocks
     feature_plan_mm: MapPlanLimit  # well-defined map features, 1:500-1:2000
-    feature_plan_mm_small: MapPlanLimit  # the same, 1:5000 and 1:10000
+    feature_plan_m_small: GroundPlanLimit  # the same, 1:5000 and 1:10000 (the design table's metres)
     spot_height_m: SpotHeightLimit
 
 

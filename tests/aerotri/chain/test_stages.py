@@ -262,6 +262,44 @@ def test_the_chain_dom_check_measures_roofs_at_the_configured_or_the_simulator_c
     assert [q.stat().st_mtime_ns for q in before] == stamps
 
 
+def test_run_without_reference_says_why_the_dom_is_not_checked(run_to_end, tmp_path):
+    """Trial 8: `aerotri run` without --reference dropped an earlier run's DOM check stage without a word, and after a
+    new mosaic the report still showed the old check's plot. Now the stage is listed as skipped with why; the report
+    keeps an earlier check of this mosaic, says the DOM was not checked after the mosaic was made again (no rows,
+    plot or link of the old check), and says so, not judged, when no check was ever made."""
+    from aerotri.qa.report import write_qa_report
+
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p)
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rows = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
+    assert "dom_check          skipped  " in rows["dom_check"], rows["dom_check"]
+    assert "no reference orthophoto (aerotri run --reference REF.tif): the DOM is not checked; dom_report.json of " \
+           "an earlier run measured this mosaic and stays in the report" in rows["dom_check"]
+    summary = json.loads((p / "reports" / "summary.json").read_text())
+    assert {"dom_rms_xy_m"} <= {c["id"] for c in summary["checks"]}
+    with open(p / "project.toml", "a") as f:  # the mosaic made again, other pixels
+        f.write("\n[mosaic]\nbalance = false\n")
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rows = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
+    assert " done " in rows["mosaic"] and "dom_report.json of an earlier run measured an earlier mosaic: the report " \
+           "says the DOM was not checked" in rows["dom_check"], (rows["mosaic"], rows["dom_check"])
+    summary = json.loads((p / "reports" / "summary.json").read_text())
+    ids = {c["id"]: c for c in summary["checks"]}
+    assert "dom_rms_xy_m" not in ids and "seam_misalignment_rms_px" not in ids and "dom_not_checked" not in ids
+    assert ids["dom_check_stale"]["note"].startswith("the DOM was not checked: ")
+    html = (p / "reports" / "index.html").read_text()
+    assert "dom_report.png" not in html and "dom_report.json" in html  # the row names it; no plot, no link
+    assert "../ortho/dom_report.json" not in html
+    # no check at all: said, not judged
+    (p / "ortho" / "dom_report.json").unlink()
+    rep = write_qa_report(p)
+    row = rep.check("dom_not_checked")
+    assert row.verdict is None and "no reference orthophoto was given" in row.note and not rep.has("dom_check_stale")
+
+
 def test_run_without_lidar_makes_the_tie_point_dem_or_uses_a_dem_from_elsewhere(tiny_project, tmp_path):
     p = tmp_path / "p"
     shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("lidar"))

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from aerotri.control.corners import LidarCorners, ManualMeasurements
-from aerotri.control.pipeline import output_texts, run_control, summary, transfer_control
+from aerotri.control.chips import write_review
+from aerotri.control.pipeline import output_texts, review_page, run_control, summary, transfer_control
 from aerotri.control.settings import ControlSettings, LayoutSettings
 from aerotri.core.errors import InputError
 from aerotri.geom.camera import BrownCamera
@@ -189,6 +190,21 @@ def test_an_empty_layout_target_measures_fallback_corners_and_says_why_when_it_s
     near = transfer_control(c, CAM, EO, frames, ControlSettings(layout=LayoutSettings(search_radius_baselines=0.2)), crs=None)
     assert re.fullmatch(r"no LiDAR roof corner within 1\.2 m of the target \(nearest \d+\.\d m away\)",
                         near.targets[0].empty_reason)
+
+
+def test_review_page_lists_the_rejections_as_a_table_not_a_python_dict(frames, tmp_path):
+    res = transfer_control(corners(z_error_m=1.5, far=True), CAM, EO, frames, ControlSettings(), crs=None)
+    page = review_page(res, frames)
+    assert [(r.what, r.reason, r.count) for r in page.rejections] == [
+        ("corner", "lidar_mismatch", 1), ("corner", "too_few_rays", 1), ("corner", "too_few_rays: in_no_frame", 1)]
+    assert page.rejections[0].meaning == "the rays meet away from the LiDAR corner"
+    write_review(tmp_path, "p", page.summary, page.corners, page.chips, page.rejections)
+    html = (tmp_path / "review.html").read_text()
+    assert "{" not in page.summary and "&#39;" not in html and "{&" not in html
+    assert "<td>corner</td><td>too_few_rays: in_no_frame</td><td style=\"text-align:right\">1</td><td>of those: in no " \
+           "frame</td>" in html
+    assert "2 corners and 0 image measurements rejected (table below)" in page.summary
+    assert summary(res).command_line().endswith("rejected corners: lidar_mismatch 1, too_few_rays 1")
 
 
 def test_too_few_rays_by_cause(frames):

@@ -116,3 +116,49 @@ def test_task_counts_are_bounded():
     check_task_count(MAX_TASKS, "a grid", "--tile-px")
     with pytest.raises(ResourceError, match="--tile-px"):
         check_task_count(MAX_TASKS + 1, "a grid", "--tile-px", "use a larger --tile-px")
+
+
+_STARTED = []  # items whose task began (the fault injection below)
+
+
+def _slow_write(item) -> int:
+    """A task that takes 0.6 s and then writes its cache file (as features or frame orthos do)."""
+    import time
+
+    from aerotri.core.atomic import write_text_atomic
+
+    folder, k = item
+    _STARTED.append(k)
+    time.sleep(0.6)
+    write_text_atomic(folder / f"{k}.txt", "done\n")
+    return k
+
+
+def test_ctrl_c_waits_for_the_running_tasks_before_the_stage_rolls_back(tmp_path):
+    """Ctrl-C (SIGINT to the main thread) while two tasks run on the pool's threads: the map stops starting tasks and
+    returns (raises) only when the running ones have ended, so their files fall inside the stage's commit and are
+    rolled back with it; before, they were written 0.5 s after the roll-back, outside any commit."""
+    import signal
+    import threading
+    import time
+
+    from aerotri.core.atomic import commit_outputs
+
+    out = tmp_path / "out"
+    out.mkdir()
+    _STARTED.clear()
+    main = threading.get_ident()
+
+    def interrupt():
+        while len(_STARTED) < 2:
+            time.sleep(0.01)
+        time.sleep(0.1)
+        signal.pthread_kill(main, signal.SIGINT)
+
+    with Executor(workers=2) as ex:
+        threading.Thread(target=interrupt, daemon=True).start()
+        with pytest.raises(KeyboardInterrupt), commit_outputs(out):
+            ex.map(_slow_write, [(out, k) for k in range(8)])
+        time.sleep(1.0)  # a task still running would write now, after the roll-back
+    assert len(_STARTED) == 2, f"no task starts after the interrupt: {_STARTED}"
+    assert list(out.iterdir()) == [], "nothing written after the roll-back"

@@ -89,6 +89,35 @@ def test_cn_at_limits_in_map_millimetres_by_scale_and_terrain():
     assert _by(comp, "DOM")[0].limit == pytest.approx(1.6)
 
 
+def test_one_dom_limit_per_scale_and_standard_and_patches_are_not_called_check_points():
+    """Trial 8: at 1:5000 flat the verdict table judged the DOM by 0.5 m (the tolerance table) and the cn-at
+    compliance by 2.5 m* (0.5 mm on the map, recalled), and called the DOM's 72,565 phase-correlation patches "check
+    points". Now each shipped scale and terrain has one well-defined-feature limit, the same in the verdict table and
+    the compliance section (the design table of ../shared/design/reports.md at 1:5000 / 1:10000, in metres; GB/T
+    7931-2008 6.1 at 1:2000), with its source; the DOM's row counts ground patches."""
+    from aerotri.core.tolerances import SCALE_TABLES, load_table
+
+    dom = CheckSet(rmse_h_m=0.097, n_h=1228, note="t", points="ground patches")
+    for scale in SCALE_TABLES:
+        for terrain in ("flat", "hilly", "mountainous"):
+            table = load_table(scale, terrain)
+            for key in ("cn-at", "thesis"):
+                (d,) = _by(judge(Figures(dom=dom), Choice(key, f"{scale} {terrain}", "t", scale=scale, terrain=terrain)),
+                           "DOM")
+                assert d.limit == pytest.approx(table.limits["feature_rms_xy_m"]), (scale, terrain, key)
+                assert d.limit_confirmed == table.provenance["feature_rms_xy_m"].confirmed, (scale, terrain, key)
+                assert d.quantity == "ground patches, plan RMS (radial)" and d.counted == "ground patches"
+    (d,) = _by(judge(Figures(dom=dom), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")), "DOM")
+    assert d.limit == 0.5 and d.limit_confirmed is False and "shared/design/reports.md" in d.limit_source
+    assert "check points" not in d.quantity and "reference's accuracy" in d.checkpoints_note
+    assert load_table("1:2000", "flat").limits["feature_rms_xy_m"] == 1.2  # 0.6 mm x 2000, confirmed
+    # ASPRS: the patches are named, and counted against its check-point minimum as such
+    (d,) = _by(judge(Figures(dom=CheckSet(rmse_h_m=0.08, n_h=12, points="ground patches")),
+                     Choice("asprs2023", "H10 V10", "t", h_cm=10, v_cm=10)), "DOM")
+    assert d.quantity == "ground patches, RMSE_H (radial)"
+    assert "12 ground patches, 30 check points required (the figure would pass)" in d.why
+
+
 def test_land_cover_groups():
     assert vegetated("dense") is True and vegetated("Forest") is True and vegetated("open") is False
     assert vegetated("road") is False and vegetated(None) is None and vegetated("unknown") is None

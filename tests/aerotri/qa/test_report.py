@@ -159,9 +159,10 @@ def test_line_map_row_from_the_check_vectors_result(tmp_path):
     row = write_qa_report(p).check("line_map_rms_xy_m")
     assert row.value == pytest.approx(0.3, abs=1e-3) and row.limit == 0.5 and row.verdict == "pass"
     assert "8 corners" in row.note and "ref.gpkg" in row.note
-    # 1:2000: 0.20 m for well-defined features, whatever scale the check was made with (its default 1:10000)
+    # 1:2000: 1.2 m for well-defined features (GB/T 7931-2008 6.1: 0.6 mm on the map), whatever scale the check was
+    # made with (its default 1:10000: 0.5 m)
     row = write_qa_report(p, scale="1:2000").check("line_map_rms_xy_m")
-    assert row.limit == 0.2 and row.verdict == "fail"
+    assert row.limit == 1.2 and row.verdict == "pass" and row.limit_confirmed is True
     # a check made elsewhere, named in project.toml
     (p / "lidar_out" / "vectors_check.json").rename(p / "dlg_check.json")
     (p / "project.toml").write_text(PROJECT + '[vectors]\ncheck_json = "dlg_check.json"\n')
