@@ -17,7 +17,8 @@ slab point beyond the simulator's roof outline and whether the ray enters that o
 the eave line.
 
 For a column block, what the truth's straight-down surface is where the ray enters the cell (ground, roof, tree;
-within 1.5 m of a roof outline or not) and how far the column's top stands above it.
+within 1.5 m of a roof outline or not), how far the column's top stands above it and how far the entry point lies
+beyond the nearest tree crown's rim (the simulator's crowns, horizontally).
 The DOM's own settings: its occlusion DSM (made.json), ``+bil`` / ``+hod`` in the spec as in
 ``eval_true_ortho_dsm_cell.py``; a tall block with the true orientation, the demo with the project's adjusted one
 (each ray to the centre the frame was rectified from).
@@ -149,7 +150,8 @@ def main() -> None:
     xs, ys = grid.centres()
     kinds, beyond, never, above = collections.Counter(), collections.defaultdict(list), collections.Counter(), \
         collections.defaultdict(list)
-    columns, column_excess = collections.Counter(), collections.defaultdict(list)
+    columns, column_excess, crown_gap = collections.Counter(), collections.defaultdict(list), collections.defaultdict(list)
+    crowns = np.array([(c[0], c[1], ac[0]) for c, ac in zip(truth.scene.tree_c, truth.scene.tree_ac)]).reshape(-1, 3)
     for f, r, c in pairs:
         h, occ, sides, hz, C = kept[ids[f]]
         # the point's height as the true ortho puts it: by its side of the roof outline with ``sides``, else the
@@ -176,6 +178,8 @@ def main() -> None:
             q = shapely.points(ex_, ey_)
             d = float(shapely.distance(buildings[int(tree.nearest(q))].outline, q))
             columns[what + (" within 1.5 m of a roof outline" if d <= 1.5 else "")] += 1
+            if len(crowns):   # how far beyond the nearest tree crown's rim (horizontally; negative: within it)
+                crown_gap[what].append(float((np.hypot(crowns[:, 0] - ex_, crowns[:, 1] - ey_) - crowns[:, 2]).min()))
             column_excess[what].append(float(h.heights_m[i, j]) - org[2] - float(tz[0]))
             continue
         if kind not in ("halo", "overhang_mask", "overhang_whole"):
@@ -211,6 +215,9 @@ def main() -> None:
            "column_blocks_by_the_truths_surface_where_the_ray_enters": dict(columns),
            "column_top_above_the_truths_surface_there_m_p5_25_50_75_95": {
                k: np.percentile(v, pct).round(2).tolist() for k, v in column_excess.items()},
+           "column_entry_beyond_the_nearest_crowns_rim_m_p5_25_50_75_95": {
+               k: np.percentile(v, pct).round(2).tolist() for k, v in crown_gap.items()},
+           "column_entry_within_1m_of_a_crowns_rim": {k: int((np.asarray(v) <= 1.0).sum()) for k, v in crown_gap.items()},
            "slab_blocks": {kind: {"replayed": len(beyond[kind]),
                                   "first_slab_point_beyond_true_outline_m_p5_25_50_75_95":
                                       np.percentile(beyond[kind], pct).round(3).tolist(),
