@@ -38,7 +38,10 @@ classes). Blocks ``tall2``, ``tall3``: the tall preset with other seeds (``--tal
 occlusion test; ``+occn``: the DSM for the heights, the occlusion test on dsm_nearest.tif (``ortho rectify
 --occlusion-dsm``, the chain's default). On the demo these rasters are the chain's (lidar_out/, ``lidar`` its
 dsm.tif); on a tall block ``lidarctl rasters`` of its simulated strips with their true classes
-(``DIR/<block>/lidar_rasters``, made once; ``lidar`` there is that dsm.tif).
+(``DIR/<block>/lidar_rasters``, made once; ``lidar`` there is that dsm.tif). ``+bil``: with footprints, each cell's
+height the DSM's bilinear one (``ortho.block.HEIGHTS_BY_OUTLINE`` off for that DOM: the rule before heights by side);
+``+hod``: with ``+occn`` and footprints, the heights' roof outlines from the heights DSM's roof cells
+(``ortho.block.OUTLINES_OF_THE_OCCLUSION_TEST`` off: main's before the outlines of the occlusion test).
 Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other keys kept).
 """
 
@@ -469,7 +472,15 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 like = p / "lidar_out" / "dsm.tif"
                 crown_cells = (truth_crown_base(truth, like, crown_path) if tall and "cb" in flags
                                else lidar_crown_base(src, tall, like, crown_path))
-            made = make_dom(p, footprints=fp_path, crown_base=crown_path, occlusion_dsm=occlusion_dsm, **kw)
+            import ortho.block as ortho_block
+
+            switches = (ortho_block.HEIGHTS_BY_OUTLINE, ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST)
+            ortho_block.HEIGHTS_BY_OUTLINE = "bil" not in flags   # ``+bil``: footprints, heights bilinear (main's before)
+            ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = "hod" not in flags  # ``+hod``: the outlines of the heights DSM
+            try:
+                made = make_dom(p, footprints=fp_path, crown_base=crown_path, occlusion_dsm=occlusion_dsm, **kw)
+            finally:
+                ortho_block.HEIGHTS_BY_OUTLINE, ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = switches
             made["occlusion_dsm"] = str(occlusion_dsm) if occlusion_dsm else None
             made["dsm_ray_cast_s"] = cast_s
             made["footprints"] = str(fp_path) if fp_path else None

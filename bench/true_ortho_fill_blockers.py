@@ -16,6 +16,13 @@ exact for main's rule, the first sub-cell of the nearest-bit walk for the interp
 slab point beyond the simulator's roof outline and whether the ray enters that outline in the cell, and how far above
 the eave line.
 
+For a column block, what the truth's straight-down surface is where the ray enters the cell (ground, roof, tree;
+within 1.5 m of a roof outline or not), how far the column's top stands above it and how far the entry point lies
+beyond the nearest tree crown's rim (the simulator's crowns, horizontally).
+The DOM's own settings: its occlusion DSM (made.json), ``+bil`` / ``+hod`` in the spec as in
+``eval_true_ortho_dsm_cell.py``; a tall block with the true orientation, the demo with the project's adjusted one
+(each ray to the centre the frame was rectified from).
+
 Usage: python bench/true_ortho_fill_blockers.py --work DIR --block tall --src T1 --spec '0.5+fp7+cb' --out FILE
 [--key KEY] (scratch under DIR/<block>/blockers_<spec>/).
 """
@@ -24,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import json
 import math
 import shutil
 import sys
@@ -79,6 +87,8 @@ def main() -> None:
     from ortho.rectify import OWN_COLUMN_M, _height_grid
     from ortho.settings import RectifySettings
 
+    from aerotri.sim.scene import KIND_ROOF, KIND_TERRAIN, KIND_TREE
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--work", type=Path, required=True)
     ap.add_argument("--block", default="tall")
@@ -99,19 +109,27 @@ def main() -> None:
     shutil.copytree(args.src / "images", A / "images")
     kept, inner = {}, B._frame_occluder
 
-    def keep(task, heights, dem, crs, crown=None, *rest):
-        out = inner(task, heights, dem, crs, crown, *rest)
+    def keep(task, surface, dem, crs, crown=None, *rest):
+        out = inner(task, surface, dem, crs, crown, *rest)
         occ, sides = out if isinstance(out, tuple) else (out, None)  # main's before the heights by side: occ alone
-        kept[task.image_id] = (heights, occ, sides)
+        # the occlusion test's DSM window, the heights' (the DSM's bilinear heights without sides), the centre
+        kept[task.image_id] = (surface, occ, sides, rest[0] if rest else surface, np.asarray(task.centre_m, float))
         return out
 
+    made = json.loads((dom / "made.json").read_text())
+    tall = args.block.startswith("tall")   # the true orientation; the demo its adjusted one (the project's at/)
     B._frame_occluder = keep
+    switches = (B.HEIGHTS_BY_OUTLINE, B.OUTLINES_OF_THE_OCCLUSION_TEST)   # the spec's, as eval_true_ortho_dsm_cell
+    B.HEIGHTS_BY_OUTLINE = "bil" not in args.spec.split("+")
+    B.OUTLINES_OF_THE_OCCLUSION_TEST = "hod" not in args.spec.split("+")
     crown = A / "lidar_out" / "crown_base.tif"
     B.rectify_block(A, RectifySettings(true_ortho=True, dsm=str(A / "lidar_out" / "dsm.tif"),
                                        footprints=str(A / "truth" / "footprints.gpkg"),
-                                       crown_base=str(crown) if crown.exists() else None),
-                    eo_path=A / "truth" / "eo.txt", camera_path=A / "truth" / "camera.toml")
+                                       crown_base=str(crown) if crown.exists() else None,
+                                       occlusion_dsm=made.get("occlusion_dsm")),
+                    **({"eo_path": A / "truth" / "eo.txt", "camera_path": A / "truth" / "camera.toml"} if tall else {}))
     B._frame_occluder = inner
+    B.HEIGHTS_BY_OUTLINE, B.OUTLINES_OF_THE_OCCLUSION_TEST = switches
     H, Wd = grid.height, grid.width
     masks, _ = E.frame_masks(A, grid)
     valid = np.stack([E.place((H, Wd), r0, c0, m) for _, r0, c0, m in masks])
@@ -132,14 +150,16 @@ def main() -> None:
     xs, ys = grid.centres()
     kinds, beyond, never, above = collections.Counter(), collections.defaultdict(list), collections.Counter(), \
         collections.defaultdict(list)
+    columns, column_excess, crown_gap = collections.Counter(), collections.defaultdict(list), collections.defaultdict(list)
+    crowns = np.array([(c[0], c[1], ac[0]) for c, ac in zip(truth.scene.tree_c, truth.scene.tree_ac)]).reshape(-1, 3)
     for f, r, c in pairs:
-        h, occ, sides = kept[ids[f]]
-        Z = np.nan  # the point's height as the true ortho puts it: by its side of the roof outline with ``sides``
-        if sides is not None:
-            p = shapely.Point(float(xs[c]), float(ys[r]))
-            within = len(sides.tree.query(p, predicate="intersects")) > 0
-            Z = float((sides.roof if within else sides.ground).sample(np.array([xs[c]]), np.array([ys[r]]))[0])
-        C = np.asarray(truth.centres[ids[f]], float) + org
+        h, occ, sides, hz, C = kept[ids[f]]
+        # the point's height as the true ortho puts it: by its side of the roof outline with ``sides``, else the
+        # bilinear height of the DSM of the heights (``hz``: dsm.tif where the occlusion test has its own raster)
+        p = shapely.Point(float(xs[c]), float(ys[r]))
+        within = sides is not None and len(sides.tree.query(p, predicate="intersects")) > 0
+        Z = float((hz if sides is None else sides.roof if within else sides.ground).sample(
+            np.array([xs[c]]), np.array([ys[r]]))[0])
         walls = (True, occ.base_m, occ.slab_top_m, occ.sub_index, occ.sub_masks, occ.sub) + \
             ((occ.sub_margin_cm,) if hasattr(occ, "sub_margin_cm") else ())  # (main's march: no margins)
         i, j, s_in, s_out, Z, rise, gx, gy, ex, ey = first_blocking_cell(float(xs[c]), float(ys[r]), _height_grid(h),
@@ -151,6 +171,17 @@ def main() -> None:
         kind = ("column" if base == -np.inf else "crown" if k == -2 else "halo" if k <= -3 else
                 "overhang_mask" if k >= 0 and not occ.sub_masks[k, 0, 0] & 4 else "overhang_whole")
         kinds[kind] += 1
+        if kind == "column":   # what the truth's straight-down surface is where the ray enters the column
+            ex_, ey_ = (h.x_left_m + (gx + ex * s_in) * h.res_m - org[0], h.y_top_m - (gy + ey * s_in) * h.res_m - org[1])
+            tk, tz, _ = truth.surface(np.array([ex_]), np.array([ey_]))
+            what = {KIND_TERRAIN: "ground", KIND_ROOF: "roof", KIND_TREE: "tree"}.get(int(tk[0]), "other")
+            q = shapely.points(ex_, ey_)
+            d = float(shapely.distance(buildings[int(tree.nearest(q))].outline, q))
+            columns[what + (" within 1.5 m of a roof outline" if d <= 1.5 else "")] += 1
+            if len(crowns):   # how far beyond the nearest tree crown's rim (horizontally; negative: within it)
+                crown_gap[what].append(float((np.hypot(crowns[:, 0] - ex_, crowns[:, 1] - ey_) - crowns[:, 2]).min()))
+            column_excess[what].append(float(h.heights_m[i, j]) - org[2] - float(tz[0]))
+            continue
         if kind not in ("halo", "overhang_mask", "overhang_whole"):
             continue
         first, s, m = None, s_in, (-3 - k if k <= -3 else k)
@@ -181,6 +212,12 @@ def main() -> None:
     pct = (5, 25, 50, 75, 95)
     out = {"spec": args.spec, "pairs": int(len(pairs)), "cells": int(len({(r, c) for _, r, c in pairs})),
            "blocking_cell": dict(kinds),
+           "column_blocks_by_the_truths_surface_where_the_ray_enters": dict(columns),
+           "column_top_above_the_truths_surface_there_m_p5_25_50_75_95": {
+               k: np.percentile(v, pct).round(2).tolist() for k, v in column_excess.items()},
+           "column_entry_beyond_the_nearest_crowns_rim_m_p5_25_50_75_95": {
+               k: np.percentile(v, pct).round(2).tolist() for k, v in crown_gap.items()},
+           "column_entry_within_1m_of_a_crowns_rim": {k: int((np.asarray(v) <= 1.0).sum()) for k, v in crown_gap.items()},
            "slab_blocks": {kind: {"replayed": len(beyond[kind]),
                                   "first_slab_point_beyond_true_outline_m_p5_25_50_75_95":
                                       np.percentile(beyond[kind], pct).round(3).tolist(),

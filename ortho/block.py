@@ -331,6 +331,11 @@ def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent
 # outline_heights``: beyond every outline the ground's, within one the roof's), not the DSM's bilinear height part
 # way up a wall beside it (docs/true-ortho.md, "Heights from the cell's own side of the roof outline")
 HEIGHTS_BY_OUTLINE = True
+# ... and with an occlusion test on a surface of its own (the chain's dsm_nearest.tif beside dsm.tif), the outlines
+# the heights are taken by are the occluder's: their eave widths from that surface's roof cells, not from the
+# heights DSM's (the highest return per cell: roofs wider by up to a cell, so ground beyond the occluder's outline
+# was imaged at the roof's height); docs/true-ortho.md, "One roof outline for the heights and the occlusion test"
+OUTLINES_OF_THE_OCCLUSION_TEST = True
 SHARED_FOOTPRINT_CELLS_MAX = 40_000_000  # a larger window of the block's frames: the footprints rasterised per frame
 # (10 bytes a cell kept: 400 MB)
 _shared_cells: dict = {}  # the last block's footprints on the DSM grid (key, value); one per process
@@ -393,7 +398,8 @@ def _frame_occluder(task: FrameTask, surface: HeightRaster, dem: HeightRaster, p
                    and heights.x_left_m == surface.x_left_m and heights.y_top_m == surface.y_top_m)
     if not same_window:    # (the chain's dsm.tif and dsm_nearest.tif share one grid: their cells and ground too)
         cells, ground = cells_of(heights)
-    return occluder, outline_heights(heights, ground, cells)
+    own = same_window and heights is not surface and OUTLINES_OF_THE_OCCLUSION_TEST
+    return occluder, outline_heights(heights, ground, cells, outline_top_m=surface.heights_m if own else None)
 
 
 def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_crs, height_op) -> np.ndarray | None:

@@ -428,10 +428,14 @@ class OutlineHeights:
 
 
 def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,
-                    above_m: float = OVERHANG_ABOVE_M) -> OutlineHeights:
+                    above_m: float = OVERHANG_ABOVE_M, outline_top_m: np.ndarray | None = None) -> OutlineHeights:
     """The ``OutlineHeights`` of ``dsm`` (a window, project CRS) from its ``FootprintCells`` and ``ground_m`` (the DEM
-    at its cell centres, as ``occluder_of_cells``): the roof outlines are those of the occluder (the same eave widths);
-    a DSM cell is roof where its centre lies within an outline."""
+    at its cell centres, as ``occluder_of_cells``): the roof outlines are those of the occluder (the same eave widths:
+    from ``outline_top_m``, the occlusion test's surface on the same window, where it has its own, else ``dsm``'s);
+    a DSM cell is roof where its centre lies within an outline. With ``outline_top_m`` the cells of ``dsm`` beyond
+    every outline that stand as a roof within a footprint's reach (more than ``above_m`` above the ground: the
+    highest return per cell stands a roof up to a cell wider than the outline) are the ground's too, as the occluder
+    has them (an overhang cell beyond the outline stops no ray)."""
     import shapely
     from rasterio.features import rasterize
     from rasterio.transform import from_origin
@@ -445,7 +449,8 @@ def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCel
     taken = np.zeros((dh, dw), np.bool_)
     over = np.zeros((dh, dw), np.bool_)
     ground32 = ground_m.astype(np.float32, copy=False)
-    _overhang_cells(cells.label, cells.inside, top, ground32, np.float32(above_m), sub * sub, taken, over)
+    _overhang_cells(cells.label, cells.inside, top if outline_top_m is None else outline_top_m, ground32,
+                    np.float32(above_m), sub * sub, taken, over)
     width_m = np.rint(eave_widths_m(cells, taken, dsm.res_m)[1:] * 100.0) / 100.0  # as the margins' cm
     outlines = shapely.buffer(cells.polygons, width_m) if len(cells.polygons) else cells.polygons
     roof = np.zeros((dh, dw), np.bool_)
@@ -453,7 +458,10 @@ def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCel
         roof = rasterize(((shapely.geometry.mapping(g), 1) for g in outlines), out_shape=(dh, dw),
                          transform=from_origin(dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.res_m),
                          dtype="uint8").astype(np.bool_)
-    ground = np.where(roof, ground32, top).astype(np.float32)
+    beyond = np.zeros((dh, dw), np.bool_)
+    if outline_top_m is not None:
+        beyond = ~roof & (cells.label > 0) & (top - ground32 > above_m)
+    ground = np.where(roof | beyond, ground32, top).astype(np.float32)
     roof_heights = top.copy()
     if roof.any() and not roof.all():
         rows, cols = ndimage.distance_transform_edt(~roof, return_distances=False, return_indices=True)

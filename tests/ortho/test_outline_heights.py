@@ -67,3 +67,51 @@ def test_a_ground_cell_beside_a_wall_is_imaged_at_the_ground_height_with_footpri
     # without footprints: the bilinear DSM, as before (the ramp's cells imaged elsewhere)
     assert np.array_equal(plain[3], bilinear)
     assert np.mean(np.any(plain[0][seen] != flat[0][seen], axis=-1)) > 0.9
+
+
+def _wide_dsm() -> HeightRaster:
+    """The building's DSM as the highest return per cell stands it: the roof a cell (0.5 m) wider than its outline."""
+    c = (np.arange(N) + 0.5) * RES_M
+    X, Y = np.meshgrid(c, 40.0 - c)
+    x0, y0, x1, y1 = WALL
+    w = EAVE_M + RES_M
+    roof = (X > x0 - w) & (X < x1 + w) & (Y > y0 - w) & (Y < y1 + w)
+    return HeightRaster(np.where(roof, ROOF_M, 0.0).astype(np.float32), 0.0, 40.0, RES_M, CRS_UTM, "DSM")
+
+
+def test_with_an_occlusion_surface_of_its_own_the_heights_take_the_occluders_outline(tmp_path, monkeypatch):
+    """The chain's true ortho: heights on the highest-return DSM (the roof a cell wider than its outline), the
+    occlusion test on a surface of its own (here the exact one, as the nearest-return DSM on average). The heights'
+    roof outlines are the occluder's (eave widths from the occlusion surface: 0.3 m within 2 cm, not 0.8 m from the
+    wide roof), and the wide DSM's roof cells beyond them are the ground's: every output cell beyond the true outline
+    lies at the ground's height, every one within it at the roof's. Main's rule (the outlines from the heights DSM)
+    put the ground within half a metre of the eave at the roof's height."""
+    import types
+
+    import pyogrio.raw
+
+    import ortho.block
+
+    fp = tmp_path / "walls.gpkg"
+    pyogrio.raw.write(str(fp), shapely.to_wkb(np.array([shapely.box(*WALL)], dtype=object)), [], [], driver="GPKG",
+                      geometry_type="Polygon", crs="EPSG:32633")
+    task = types.SimpleNamespace(footprints_path=str(fp), occluder_bounds_m=None)
+    wide, exact = _wide_dsm(), _dsm(ROOF_M)
+    dem = HeightRaster(np.zeros((N, N), np.float32), 0.0, 40.0, RES_M, CRS_UTM, "DEM")
+    grid = OrthoGrid(CRS_UTM, 5.0, 26.0, 0.1, 210, 210)
+    beyond = _outline_distance_m(grid)
+    by_side = {}
+    for rule in (True, False):
+        monkeypatch.setattr(ortho.block, "OUTLINES_OF_THE_OCCLUSION_TEST", rule)
+        occluder, sides = ortho.block._frame_occluder(task, exact, dem, CRS_UTM, None, wide)
+        by_side[rule] = heights_by_side(sides, grid)
+        widths = [WALL[0] - o.bounds[0] for o in sides.outlines]  # the footprint grown by the eave width
+        assert (abs(widths[0] - EAVE_M) < 0.02) if rule else (widths[0] > EAVE_M + 0.4), (rule, widths)
+    assert np.all(by_side[True][beyond > 0.02] == 0.0)
+    assert np.all(by_side[True][beyond < -0.02] == ROOF_M)
+    # main's: the ground out to half a metre beyond the eave at the roof's height, or part way up the wide roof's ramp
+    ring = (beyond > 0.02) & (beyond < RES_M - 0.02)
+    assert np.mean(by_side[False][ring] > 0.0) > 0.9
+    # the occluder is the occlusion surface's either way (the outline's rule changes the heights only)
+    same, _ = ortho.block._frame_occluder(task, exact, dem, CRS_UTM, None, None)
+    assert np.array_equal(same.sub_margin_cm, occluder.sub_margin_cm) and np.array_equal(same.base_m, occluder.base_m)
