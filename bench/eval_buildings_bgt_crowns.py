@@ -44,10 +44,8 @@ Run: nice .venv/bin/python bench/eval_buildings_bgt_crowns.py [--nested]
 from __future__ import annotations
 
 import dataclasses
-import os
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import laspy
@@ -57,7 +55,6 @@ from scipy import ndimage
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import eval_buildings_bgt as bgt  # noqa: E402
 import eval_buildings_bgt_false as bf  # noqa: E402
-from results_json import read_results, store_result  # noqa: E402
 
 from lidarctl import io, tiles  # noqa: E402
 from lidarctl.classify import class_grid as cg  # noqa: E402
@@ -224,52 +221,10 @@ def _separated(classified: Path, out: Path, end: np.ndarray, p: ClassifySettings
 
 def nested_round(argv, laz: Path, polys: list, end: np.ndarray) -> int:
     """The separation in the nested choice on the footprint parts (module docstring, ``--nested``)."""
-    stored = read_results(bgt.RESULTS)
-    per_set = dict(stored["rules_nested"]["rule_sets"])
-    sec = stored["rules_nested_footprint_parts"]
-    bases = list(dict.fromkeys([sec["shipped_defaults_set"]] + [v["chosen"] for c in bgt.CRITERIA
-                                                                 for v in sec[c]["held_out"].values()]))
-    x_split, y_split = stored["quarters_split_at_m"]
-    fparts = bgt.footprint_parts(polys, bgt.covered_footprints(laz, polys))
-    partitions = (bgt.quarters(x_split, y_split), fparts)
-    t0, cpu0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
-    added = []
-    with tempfile.TemporaryDirectory(prefix="eval_bgt_crowns_nested_") as tmp:
-        for j, base in enumerate(bases):
-            prm = dataclasses.replace(ClassifySettings(), **bgt.RULE_SETS[base])
-            raw_path, path = Path(tmp) / f"{j}_raw.laz", Path(tmp) / f"{j}.laz"
-            tiles.classify_file(laz, raw_path, crs=bgt.CRS, params=prm)
-            _separated(raw_path, path, end, prm)
-            name = f"{base} + crown returns (pulse)"
-            out = {"base": base, "separation": "crown returns (bench/eval_buildings_bgt_crowns.py), after the classification"}
-            for pp in partitions:
-                out[bgt._KEY[pp.name]] = bgt.evaluate_quarters({"x": path}, polys, pp)
-            out["vectors"] = bgt.vector_centroids(path, polys, Path(tmp) / f"{j}.gpkg", partitions)
-            out["vectors_roof_dropouts_off"] = bgt.vector_centroids(path, polys, Path(tmp) / f"{j}.gpkg", partitions,
-                                                                    roof_dropouts=False)
-            for key in bgt._KEY.values():
-                for q in out[key].values():
-                    q.pop("classified_with", None)
-            per_set[name] = out
-            added.append(name)
-            print(f"{name}: footprint parts worst {bgt._worst(out['footprint_parts'], bgt.PARTS):.2f} %, vectors "
-                  f"{out['vectors']['centroid_in_building_layer']}/{out['vectors']['footprints_covered_by_the_crop']}", flush=True)
-    order = list(bgt.RULE_SETS) + added
-    result = {"command": "bench/eval_buildings_bgt_crowns.py " + " ".join(argv),
-              "how": "the fifth round's 32 rule sets (scores from rules_nested/rule_sets) and, appended last, the sets "
-                     "any fold chose and the shipped defaults' set with the crown returns made vegetation; nested choice "
-                     "on the footprint parts again, both criteria (ties to the earlier set)",
-              "added_sets": {n: per_set[n] for n in added}}
-    for criterion in bgt.CRITERIA:
-        result[criterion] = bgt.nested_choice(per_set, "footprint_parts", criterion, order=order)
-        for name, v in result[criterion]["held_out"].items():
-            a = v["area"]
-            print(f"{criterion}: held out {name}: '{v['chosen']}' {a['completeness_pct']:.2f} / {a['correctness_pct']:.2f} %, "
-                  f"found {v['footprints_found']}/{v['footprints']}, centroids {v['vector_centroids']}/{v['vector_footprints']}")
-    result["seconds"], result["cpu_s"] = time.perf_counter() - t0, time.process_time() - cpu0
-    result["load_average_before_after"] = [load0, os.getloadavg()[0]]
-    store_result(bgt.RESULTS, result, key="rules_nested_footprint_parts_crown_returns")
-    return 0
+    return bgt.nested_with_separation(
+        argv, "bench/eval_buildings_bgt_crowns.py", laz, polys, lambda raw, out, prm: _separated(raw, out, end, prm),
+        "crown returns (pulse)", "crown returns (bench/eval_buildings_bgt_crowns.py), after the classification",
+        "rules_nested_footprint_parts_crown_returns")
 
 
 def main(argv=None) -> int:
@@ -283,12 +238,8 @@ def main(argv=None) -> int:
     if "--nested" in argv:
         return nested_round(argv, laz, polys, end)
     linked = (np.asarray(raw.return_number) < np.asarray(raw.number_of_returns))
-    nested = read_results(bgt.RESULTS)["rules_nested_footprint_parts"]
-    sets = {"shipped defaults": "shipped defaults"}
-    for criterion in ("area and objects", "area"):
-        for name in bgt.PARTS:
-            sets[f"{criterion}: held out {name}"] = nested[criterion]["held_out"][name]["chosen"]
-    t0, cpu0, load0 = time.perf_counter(), time.process_time(), os.getloadavg()[0]
+    sets = bgt.held_out_sets()
+    started = bgt.clock()
     result = {"command": "bench/eval_buildings_bgt_crowns.py " + " ".join(argv), "top_kinds": list(TOP_KINDS),
               "design_parts": list(DESIGN_PARTS),
               "pulses": {"non_last_returns": int(linked.sum()),
@@ -316,9 +267,7 @@ def main(argv=None) -> int:
                   f"{r['crown returns, cell']['ahn3_per_point_building_pa_ua_pct']}", flush=True)
         result["classifications"] = done
         result["held_out_sets"] = sets
-    result["seconds"], result["cpu_s"] = time.perf_counter() - t0, time.process_time() - cpu0
-    result["load_average_before_after"] = [load0, os.getloadavg()[0]]
-    store_result(bgt.REPO / "bench" / "results" / "buildings_bgt_false_regions.json", result, key="sixth_round_crowns")
+    bgt.store_timed(bgt.REPO / "bench" / "results" / "buildings_bgt_false_regions.json", result, started, "sixth_round_crowns")
     return 0
 
 

@@ -3,30 +3,19 @@ run: ``bench/eval_buildings_bgt_crowns.py``, about 1 minute)."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lidarctl.classify.pipeline import BUILDING, GROUND, ClassifySettings
 
-ROOT = Path(__file__).resolve().parents[2]
+BENCH_SCRIPT = "eval_buildings_bgt_crowns.py"
 
 
 @pytest.fixture(scope="module")
-def crowns():
-    sys.path.insert(0, str(ROOT / "bench"))
-    try:
-        spec = importlib.util.spec_from_file_location("bench_bgt_crowns", ROOT / "bench" / "eval_buildings_bgt_crowns.py")
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = mod   # its dataclass looks its module up
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(ROOT / "bench"))
-    return mod
+def crowns(bench_script):
+    return bench_script
 
 
 def test_pulse_ends_follow_return_numbers_of_one_gps_time(crowns):
