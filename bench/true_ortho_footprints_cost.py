@@ -28,13 +28,23 @@ With ``--truth`` the roofs of each way's frame orthos of the last round are meas
 ortho against truth/ortho.tif at the corners of truth/roof_corners.csv (``ortho.check.measure_roof_patches``, as the
 DOM check's roofs row), RMS and median of the displacements of all frames together, in m and GSD.
 
+``--occlusion`` adds the chain's default (``aerotri run``: the occlusion test on lidar_out/dsm_nearest.tif, a second
+raster beside the DSM the ortho is rectified on, ``--occlusion-dsm``), without and with the footprints
+(``true_ortho_occlusion``, ``true_ortho_footprints_occlusion``; the project must hold lidar_out/dsm_nearest.tif).
+``--code DIR``: the toolkit's packages from DIR (e.g. main's, ``git archive main aerotri lidarctl ortho``) instead of
+this checkout, so that two commits are measured by the same script; ``--sha256-against FILE``: the frame orthos of
+each way compared with FILE (``--sha256-all`` of such a run; ``identical_to``).
+
+``--frames A,B``: only those frames (each way's block of them).
+
 ``--per-frame`` adds a fourth way, the true ortho with footprints rasterised per frame (as ``ortho.block`` does when
 the block's DSM window exceeds ``SHARED_FOOTPRINT_CELLS_MAX`` cells, e.g. the 120-frame DMC block), and compares its
 frame orthos with the shared rasterisation's (sha256 of samples and mask); ``--ways`` runs a subset of the ways.
 
 Usage: python bench/true_ortho_footprints_cost.py [--demo /work/ref/demo_chain/project | --project P --truth T]
        [--work DIR] [--rounds 3] [--key footprints_demo] [--out bench/results/true_ortho_cost.json] [--sha256 FILE]
-       [--per-frame] [--ways conventional,true_ortho_footprints] [--no-roofs | --roofs-only]
+       [--per-frame] [--occlusion] [--ways conventional,true_ortho_footprints] [--no-roofs | --roofs-only]
+       [--code DIR] [--sha256-all FILE] [--sha256-against FILE]
 ``--roofs-only`` (with ``--truth`` and the ``--work`` of an earlier run): the roofs again into that run's ``--key``.
 """
 
@@ -57,6 +67,7 @@ WAYS = ("conventional", "true_ortho", "true_ortho_footprints")
 PER_FRAME = "true_ortho_footprints_per_frame"  # --per-frame: the footprints rasterised per frame, as above
 # ``ortho.block.SHARED_FOOTPRINT_CELLS_MAX`` DSM cells of the block's window (the 120-frame DMC block: 170 M)
 CROWNS = "true_ortho_footprints_crowns"
+OCCLUSION = ("true_ortho_occlusion", "true_ortho_footprints_occlusion")  # --occlusion: on dsm_nearest.tif, the chain's
 
 
 def settings(project: Path, way: str):
@@ -65,6 +76,8 @@ def settings(project: Path, way: str):
     if way == "conventional":
         return RectifySettings()
     crowns = {"crown_base": str(project / "lidar_out" / "crown_base.tif")} if way == CROWNS else {}
+    if way in OCCLUSION:
+        crowns["occlusion_dsm"] = str(project / "lidar_out" / "dsm_nearest.tif")
     return RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
                            footprints=str(project / "truth" / "footprints.gpkg") if "footprints" in way else None,
                            **crowns)
@@ -118,7 +131,7 @@ def _peak_rss_mb() -> float:
     return float("nan")
 
 
-def one_block(project: Path, way: str) -> dict:
+def one_block(project: Path, way: str, frames=None) -> dict:
     import ortho.block
     from ortho.block import read_index, rectify_block
 
@@ -130,12 +143,12 @@ def one_block(project: Path, way: str) -> dict:
     _peak_rss_reset()
     t, c = time.perf_counter(), time.process_time()
     try:
-        rectify_block(project, settings(project, way))
+        rectify_block(project, settings(project, way), frames=frames)
     finally:
         ortho.block.SHARED_FOOTPRINT_CELLS_MAX = shared_max
     cpu, wall = time.process_time() - c, time.perf_counter() - t
-    frames = read_index(project).document["frames"]
-    mp = sum(e["width"] * e["height"] for e in frames) / 1e6
+    entries = read_index(project).document["frames"]
+    mp = sum(e["width"] * e["height"] for e in entries) / 1e6
     load = os.getloadavg()
     out = {"frame_ortho_mp": round(mp, 2), "cpu_s": round(cpu, 3), "wall_s": round(wall, 3),
            "cpu_s_per_mp": round(cpu / mp, 4), "load_avg_1min": round(load[0], 2), "load_avg_5min": round(load[1], 2),
@@ -229,6 +242,13 @@ def main() -> None:
     ap.add_argument("--ways", default=None, help="comma-separated subset of the ways (conventional first)")
     ap.add_argument("--sha256-all", type=Path, default=None)
     ap.add_argument("--crowns", action="store_true", help="a further way: footprints and the LiDAR's crown bases")
+    ap.add_argument("--occlusion", action="store_true",
+                    help="two further ways: the occlusion test on lidar_out/dsm_nearest.tif (the chain's), without and "
+                         "with footprints")
+    ap.add_argument("--frames", default=None, help="comma-separated image ids: only these frames (default: all)")
+    ap.add_argument("--code", type=Path, default=None, help="import the toolkit from this folder (e.g. main's)")
+    ap.add_argument("--sha256-against", type=Path, default=None,
+                    help="compare each way's frame orthos with this --sha256-all file")
     args = ap.parse_args()
     import shutil
 
@@ -236,11 +256,21 @@ def main() -> None:
     from results_json import store_result
     from true_ortho_cost import small_project
 
+    if args.code is not None:  # the bench modules above put this checkout first: the toolkit imported again from DIR
+        sys.path.insert(0, str(args.code.resolve()))
+        for name in [m for m in sys.modules if m.split(".")[0] in ("aerotri", "ortho", "lidarctl")]:
+            del sys.modules[name]
+        import ortho
+
+        if not Path(ortho.__file__).resolve().is_relative_to(args.code.resolve()):
+            raise SystemExit(f"--code {args.code}: ortho imported from {ortho.__file__}")
+
     from aerotri.core.atomic import write_text_atomic
     from aerotri.core.project import Project
     from aerotri.sim.project import write_footprints_gpkg
 
-    ways = WAYS + ((PER_FRAME,) if args.per_frame else ()) + ((CROWNS,) if args.crowns else ())
+    ways = WAYS + ((PER_FRAME,) if args.per_frame else ()) + ((CROWNS,) if args.crowns else ()) \
+        + (OCCLUSION if args.occlusion else ())
     if args.ways:
         ways = tuple(w for w in args.ways.split(",") if w in ways)
     if args.roofs_only:  # the frame orthos of an earlier run of this script: its key gets the roofs
@@ -263,18 +293,21 @@ def main() -> None:
             shutil.copy2(source / "at" / "camera.toml", p / "at" / "camera.toml")  # the camera of at/eo.txt
         (p / "truth").mkdir()
         n = write_footprints_gpkg(buildings, p / "truth" / "footprints.gpkg", Project.open(p).crs)
+        if way in OCCLUSION:
+            shutil.copy2(source / "lidar_out" / "dsm_nearest.tif", p / "lidar_out" / "dsm_nearest.tif")
         if way == CROWNS:
             lidar_crown_base(source, False, p / "lidar_out" / "dsm.tif", p / "lidar_out" / "crown_base.tif")
     _timed_occluder()
     _counted_cells()
+    frames = args.frames.split(",") if args.frames else None
     first = {}
     for way in ways:  # not counted: compiled code, imports
-        first[way] = one_block(projects[way], way)
+        first[way] = one_block(projects[way], way, frames)
         print("first", way, first[way], flush=True)
     runs = {way: [] for way in ways}
     for k in range(args.rounds):
         for way in ways:
-            r = one_block(projects[way], way)
+            r = one_block(projects[way], way, frames)
             runs[way].append(r)
             print(k, way, r, flush=True)
     out = {"project": str(source), "buildings": str(buildings), "footprints": n, "rounds": args.rounds,
@@ -296,15 +329,24 @@ def main() -> None:
     out["command"] = "python bench/true_ortho_footprints_cost.py " + " ".join(sys.argv[1:])
     out["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
                                    text=True).stdout.strip()
+    if args.code is not None:
+        out["code"] = str(args.code)
     print(json.dumps({k: v for k, v in out.items() if k != "ways"}, indent=1))
     if PER_FRAME in ways and "true_ortho_footprints" in ways:
         a, b = frame_sha256(projects["true_ortho_footprints"]), frame_sha256(projects[PER_FRAME])
         out["per_frame_identical_frame_orthos"] = f"{sum(a[k] == b.get(k) for k in a)} of {len(a)}"
     if args.sha256:
         write_text_atomic(args.sha256, json.dumps(frame_sha256(projects["true_ortho_footprints"]), indent=1) + "\n")
-    if args.sha256_all:
-        write_text_atomic(args.sha256_all, json.dumps({way: frame_sha256(projects[way]) for way in ways}, indent=1)
-                          + "\n")
+    if args.sha256_all or args.sha256_against:
+        sha = {way: frame_sha256(projects[way]) for way in ways}
+        if args.sha256_all:
+            write_text_atomic(args.sha256_all, json.dumps(sha, indent=1) + "\n")
+        if args.sha256_against:
+            ref = json.loads(args.sha256_against.read_text())
+            out["identical_to"] = {"file": str(args.sha256_against), **{
+                way: f"{sum(ref[way].get(k) == v for k, v in sha[way].items())} of {len(sha[way])}"
+                for way in ways if way in ref}}
+            print(json.dumps(out["identical_to"], indent=1))
     if args.truth is not None and not args.no_roofs:
         out["roofs"] = roofs_of_ways(projects, args.truth, [way for way in ways if way != PER_FRAME])
         print(json.dumps(out["roofs"], indent=1))

@@ -417,14 +417,17 @@ class OutlineHeights:
     """The heights of the true ortho's cells on their own side of the roof outlines (``outline_heights``): ``ground``
     the DSM window with its cells within a roof outline replaced by the DEM (what a cell beyond every outline lies
     on), ``roof`` the same window with its cells beyond every outline replaced by the nearest roof cell's height (what
-    a cell within an outline lies on), ``outlines`` the roof outlines (shapely polygons, project CRS: each footprint
-    grown by its building's eave width, ``eave_widths_m``) and their ``tree`` (shapely STRtree). A cell beside a
-    wall then lies at its own side's height, not part way up the bilinear ramp between the roof and the ground."""
+    a cell within an outline lies on; at the cells such a cell reads, ``outline_reach``: the others keep the DSM's),
+    ``outlines`` the roof outlines that reach into the window (shapely polygons, project CRS: each footprint grown by
+    its building's eave width, ``eave_widths_m``), their ``tree`` (shapely STRtree) and ``shapes`` (their GeoJSON-like
+    mappings, as rasterio burns them: converted once a frame, not once a tile). A cell beside a wall then lies at its
+    own side's height, not part way up the bilinear ramp between the roof and the ground."""
 
     ground: HeightRaster
     roof: HeightRaster
     outlines: np.ndarray
     tree: object
+    shapes: tuple = ()
 
 
 def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,
@@ -435,11 +438,12 @@ def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCel
     a DSM cell is roof where its centre lies within an outline. With ``outline_top_m`` the cells of ``dsm`` beyond
     every outline that stand as a roof within a footprint's reach (more than ``above_m`` above the ground: the
     highest return per cell stands a roof up to a cell wider than the outline) are the ground's too, as the occluder
-    has them (an overhang cell beyond the outline stops no ray)."""
+    has them (an overhang cell beyond the outline stops no ray). Only the outlines that reach into the window are
+    grown and burnt (``cells.polygons`` are the block's when the cells were cut from the block's): the others burn
+    no cell of it."""
     import shapely
     from rasterio.features import rasterize
     from rasterio.transform import from_origin
-    from scipy import ndimage
 
     from ortho.dem import HeightRaster
 
@@ -452,23 +456,141 @@ def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCel
     _overhang_cells(cells.label, cells.inside, top if outline_top_m is None else outline_top_m, ground32,
                     np.float32(above_m), sub * sub, taken, over)
     width_m = np.rint(eave_widths_m(cells, taken, dsm.res_m)[1:] * 100.0) / 100.0  # as the margins' cm
-    outlines = shapely.buffer(cells.polygons, width_m) if len(cells.polygons) else cells.polygons
+    # an outline lies within its footprint's bounds grown by its eave width (at most EAVE_MAX_M)
+    boxes = outline_cell_boxes(cells.polygons, dsm.x_left_m, dsm.y_top_m, dsm.res_m, (dh, dw), grow_m=EAVE_MAX_M)
+    here = (boxes[:, 1] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 2])
+    outlines = shapely.buffer(cells.polygons[here], width_m[here]) if here.any() else cells.polygons[here]
+    shapes = tuple(shapely.geometry.mapping(g) for g in outlines)
     roof = np.zeros((dh, dw), np.bool_)
-    if len(outlines):
-        roof = rasterize(((shapely.geometry.mapping(g), 1) for g in outlines), out_shape=(dh, dw),
-                         transform=from_origin(dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.res_m),
+    near = roof
+    if shapes:
+        transform = from_origin(dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.res_m)
+        roof = rasterize(((g, 1) for g in shapes), out_shape=(dh, dw), transform=transform,
                          dtype="uint8").astype(np.bool_)
+        near = outline_reach(rasterize(((g, 1) for g in shapes), out_shape=(dh, dw), transform=transform,
+                                       all_touched=True, dtype="uint8"))
     beyond = np.zeros((dh, dw), np.bool_)
     if outline_top_m is not None:
         beyond = ~roof & (cells.label > 0) & (top - ground32 > above_m)
     ground = np.where(roof | beyond, ground32, top).astype(np.float32)
     roof_heights = top.copy()
     if roof.any() and not roof.all():
-        rows, cols = ndimage.distance_transform_edt(~roof, return_distances=False, return_indices=True)
-        roof_heights = top[rows, cols]
+        nearest_roof_heights(top, roof, near, out=roof_heights)
     return OutlineHeights(HeightRaster(ground, dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.crs, dsm.source),
                           HeightRaster(roof_heights, dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.crs, dsm.source),
-                          outlines, shapely.STRtree(outlines))
+                          outlines, shapely.STRtree(outlines), shapes)
+
+
+OUTLINE_BOX_PAD_CELLS = 2  # an output cell within an outline reads the DSM cells around it: at most 1 beyond its box
+NEAREST_ROOF_RADIUS_CELLS = 32  # how far from a cell its nearest roof cell is looked for before the whole window's
+
+
+def outline_cell_boxes(outlines: np.ndarray, x_left_m: float, y_top_m: float, res_m: float,
+                       shape: tuple[int, int], grow_m: float = 0.0) -> np.ndarray:
+    """Per polygon (shapely, project CRS) the cells of the north-up grid (top-left corner, cell size, ``shape``) its
+    bounds grown by ``grow_m`` touch, ``OUTLINE_BOX_PAD_CELLS`` more each side, clipped to the grid: int64 (N, 4)
+    row0, row1, col0, col1 (row1 <= row0 or col1 <= col0: none, e.g. a polygon off the grid or empty)."""
+    import shapely
+
+    dh, dw = shape
+    b = shapely.bounds(outlines).reshape(-1, 4) + np.array([-grow_m, -grow_m, grow_m, grow_m])
+    ok = np.isfinite(b).all(axis=1)
+    b = np.where(ok[:, None], b, 0.0)
+    pad = OUTLINE_BOX_PAD_CELLS
+    boxes = np.stack([np.floor((y_top_m - b[:, 3]) / res_m) - pad, np.ceil((y_top_m - b[:, 1]) / res_m) + pad,
+                      np.floor((b[:, 0] - x_left_m) / res_m) - pad, np.ceil((b[:, 2] - x_left_m) / res_m) + pad],
+                     axis=1).astype(np.int64)
+    boxes[:, :2] = np.clip(boxes[:, :2], 0, dh)
+    boxes[:, 2:] = np.clip(boxes[:, 2:], 0, dw)
+    boxes[~ok] = 0
+    return boxes
+
+
+def outline_reach(touched: np.ndarray) -> np.ndarray:
+    """The DSM cells an output cell within a roof outline reads (bool): ``touched`` (uint8, the cells the outlines
+    touch, ``all_touched``) grown by ``OUTLINE_BOX_PAD_CELLS`` (a cell's bilinear heights read the cells around it)."""
+    import cv2
+
+    k = 2 * OUTLINE_BOX_PAD_CELLS + 1
+    return cv2.dilate(touched, np.ones((k, k), np.uint8)).astype(np.bool_)
+
+
+def nearest_roof_heights(top_m: np.ndarray, roof: np.ndarray, need: np.ndarray, out: np.ndarray,
+                         max_radius: int = NEAREST_ROOF_RADIUS_CELLS) -> np.ndarray:
+    """Into ``out`` at the cells ``need`` (bool; e.g. ``outline_reach``) that are not ``roof`` the height ``top_m``
+    of their nearest roof cell, the cell ``scipy.ndimage.distance_transform_edt``'s feature transform of the whole
+    grid gives (its ties: the smallest column, then the smallest row; ``_nearest_roof_cells``), looked for within
+    ``max_radius`` cells of each, not over the whole window (the band around the outlines: on the demo a few % of
+    its windows' cells); a cell with none that near is compared with every roof cell. ``out`` elsewhere untouched;
+    returned."""
+    dh, dw = roof.shape
+    missed = np.zeros((dh, dw), np.bool_)
+    n_missed = _nearest_roof_cells(roof, need, top_m, out, int(max_radius), missed)
+    if n_missed:  # e.g. beside an outline the window cuts, its roof beyond the window: every roof cell compared
+        rr, cc = np.nonzero(roof)
+        mr, mc = np.nonzero(missed)
+        _nearest_roof_of_all(rr, cc, mr, mc, top_m, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_roof_of_all(roof_rows, roof_cols, rows, cols, top, out):
+    """``_nearest_roof_cells`` of the cells (``rows``, ``cols``) among every roof cell (``roof_rows``, ``roof_cols``,
+    row-major), the same ties."""
+    for t in range(len(rows)):
+        r = rows[t]
+        c = cols[t]
+        best = -1
+        br = -1
+        bc = -1
+        for q in range(len(roof_rows)):
+            i = roof_rows[q]
+            j = roof_cols[q]
+            d = (i - r) * (i - r) + (j - c) * (j - c)
+            if best < 0 or d < best or (d == best and (j < bc or (j == bc and i < br))):
+                best = d
+                br = i
+                bc = j
+        out[r, c] = top[br, bc]
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest_roof_cells(roof, need, top, out, max_radius, missed):
+    """For each cell ``need`` and not ``roof``: ``top`` of its nearest ``roof`` cell into ``out``, ties as
+    ``scipy.ndimage.distance_transform_edt``'s feature transform breaks them (its pass down each column keeps the upper
+    of two equally near cells, its pass along each row the leftmost column of the equally near: of the equally near
+    cells the smallest column, then the smallest row); searched ring by ring (Chebyshev radius k holds no cell nearer
+    than k) up to ``max_radius``; a cell with none that near is set in ``missed``. Returns how many were missed."""
+    dh, dw = roof.shape
+    n_missed = 0
+    for r in range(dh):
+        for c in range(dw):
+            if not need[r, c] or roof[r, c]:
+                continue
+            best = -1
+            br = -1
+            bc = -1
+            for k in range(1, max_radius + 1):
+                if best >= 0 and k * k > best:
+                    break
+                for i in range(max(r - k, 0), min(r + k, dh - 1) + 1):
+                    di = i - r
+                    step = 1 if di == -k or di == k else 2 * k
+                    for j in range(c - k, c + k + 1, step):
+                        if j < 0 or j >= dw or not roof[i, j]:
+                            continue
+                        dj = j - c
+                        d = di * di + dj * dj
+                        if best < 0 or d < best or (d == best and (j < bc or (j == bc and i < br))):
+                            best = d
+                            br = i
+                            bc = j
+            if best < 0:
+                missed[r, c] = True
+                n_missed += 1
+            else:
+                out[r, c] = top[br, bc]
+    return n_missed
 
 
 def _outline_margin_cm(cells: FootprintCells, rr, cc, lab, width_cm) -> np.ndarray:

@@ -115,3 +115,82 @@ def test_with_an_occlusion_surface_of_its_own_the_heights_take_the_occluders_out
     # the occluder is the occlusion surface's either way (the outline's rule changes the heights only)
     same, _ = ortho.block._frame_occluder(task, exact, dem, CRS_UTM, None, None)
     assert np.array_equal(same.sub_margin_cm, occluder.sub_margin_cm) and np.array_equal(same.base_m, occluder.base_m)
+
+
+def test_nearest_roof_heights_is_the_distance_transforms_cell():
+    """Each cell's nearest roof cell by the ring search is the cell scipy's Euclidean feature transform of the whole
+    grid gives (its ties too), dense or sparse roofs, within the search radius or beyond it (every roof cell)."""
+    from scipy import ndimage
+
+    from ortho.footprints import nearest_roof_heights
+
+    rng = np.random.default_rng(20261130)
+    for share, radius in ((0.5, 32), (0.05, 32), (0.002, 32), (0.05, 2)):
+        roof = rng.random((61, 73)) < share
+        roof[30, 36] = True
+        top = rng.random(roof.shape).astype(np.float32)
+        rows, cols = ndimage.distance_transform_edt(~roof, return_distances=False, return_indices=True)
+        got = nearest_roof_heights(top, roof, np.ones(roof.shape, bool), top.copy(), max_radius=radius)
+        assert np.array_equal(got, top[rows, cols])
+    # only the cells asked for that are not roof are written
+    need = np.zeros(roof.shape, bool)
+    need[10:20, 5:9] = True
+    got = nearest_roof_heights(top, roof, need, np.full(roof.shape, -1.0, np.float32))
+    assert np.array_equal(got[need & ~roof], top[rows, cols][need & ~roof])
+    assert np.all(got[~(need & ~roof)] == -1.0) and (need & ~roof).sum() > 30
+
+
+def _old_outline_heights(dsm: HeightRaster, ground: np.ndarray, cells):
+    """``outline_heights`` as it was (c86acb0 .. 74c5e51): every outline of the block burnt over the window, the
+    nearest roof cell of every cell by the whole window's distance transform."""
+    from rasterio.features import rasterize
+    from rasterio.transform import from_origin
+    from scipy import ndimage
+
+    from ortho.footprints import OutlineHeights, _overhang_cells, eave_widths_m
+
+    top = dsm.heights_m
+    taken, over = np.zeros(top.shape, bool), np.zeros(top.shape, bool)
+    _overhang_cells(cells.label, cells.inside, top, ground, np.float32(2.0), cells.sub ** 2, taken, over)
+    width_m = np.rint(eave_widths_m(cells, taken, dsm.res_m)[1:] * 100.0) / 100.0
+    outlines = shapely.buffer(cells.polygons, width_m)
+    roof = rasterize(((shapely.geometry.mapping(g), 1) for g in outlines), out_shape=top.shape,
+                     transform=from_origin(dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.res_m), dtype="uint8").astype(bool)
+    rows, cols = ndimage.distance_transform_edt(~roof, return_distances=False, return_indices=True)
+    raster = (lambda z: HeightRaster(z, dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.crs, dsm.source))
+    return OutlineHeights(raster(np.where(roof, ground, top).astype(np.float32)), raster(top[rows, cols]), outlines,
+                          shapely.STRtree(outlines))
+
+
+def test_outline_heights_give_the_same_heights_as_the_whole_windows_distance_transform():
+    """The frame's heights by side (``heights_by_side`` at 0.1 m) from ``outline_heights`` are the same bytes as from the
+    whole window's distance transform with every outline of the block burnt (the rule of "Heights from the cell's own
+    side of the roof outline"): 7 buildings with eaves of 0.3 m, two with diagonal walls (equally near roof cells), one
+    cut by the window's edge, one beyond the window, a sliver holding no DSM cell centre; the ground sloping."""
+    c = (np.arange(N) + 0.5) * RES_M
+    X, Y = np.meshgrid(c, 40.0 - c)
+    walls = [shapely.box(*WALL), shapely.box(2.2, 30.1, 7.9, 37.3), shapely.box(25.0, 2.0, 33.0, 8.0),
+             shapely.Polygon([(26, 20), (32, 26), (28, 30), (22, 24)]),
+             shapely.Polygon([(3, 3), (8, 5), (6, 10), (2, 8)]),
+             shapely.box(35.5, 15.0, 45.0, 25.0),  # cut by the window's east edge
+             shapely.box(60.0, 60.0, 70.0, 70.0),  # beyond the window
+             shapely.box(14.05, 33.05, 14.2, 36.0)]  # a sliver between cell centres
+    heights = [10.0, 6.5, 12.0, 8.0, 4.5, 9.0, 7.0, 3.0]
+    ground = (0.02 * X + 0.01 * Y).astype(np.float32)
+    top = ground.copy()
+    pts = shapely.points(X.ravel(), Y.ravel())
+    for w, h in zip(walls, heights):
+        inside = shapely.contains(w.buffer(EAVE_M, join_style="mitre"), pts).reshape(X.shape)
+        top[inside] = ground[inside] + h
+    dsm = HeightRaster(top, 0.0, 40.0, RES_M, CRS_UTM, "DSM")
+    # the window's cells cut from the block's (0 .. 80 m a side), as ``ortho.block`` shares them between frames
+    cells = footprint_cells(0.0, 80.0, RES_M, (2 * N, 2 * N), np.array(walls, dtype=object)).window(N, 0, N, N)
+    assert len(cells.polygons) == 8
+    new, old = outline_heights(dsm, ground, cells), _old_outline_heights(dsm, ground, cells)
+    assert len(new.outlines) == 7 and len(old.outlines) == 8
+    assert np.array_equal(new.ground.heights_m, old.ground.heights_m)
+    grid = OrthoGrid(CRS_UTM, 0.3, 39.7, 0.1, 394, 394)
+    by_new, by_old = heights_by_side(new, grid), heights_by_side(old, grid)
+    assert np.array_equal(by_new, by_old, equal_nan=True)
+    # the cells beside the outlines take a roof height other than their own DSM's (the nearest roof cell's)
+    assert np.sum(new.roof.heights_m != top) > 200
