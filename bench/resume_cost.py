@@ -1,17 +1,22 @@
 """What keeping a stage's finished work for a resumed run costs, and what a resume saves (issue 41)
--> bench/results/resume_cost.json (docs/full-size-block.md, "Resuming the match stage").
+-> bench/results/resume_cost.json (docs/full-size-block.md, "Resuming the match stage", "Resuming the classify
+stage").
 
 On a copy of PROJECT (its images, lidar and trajectory hard-linked: inputs are never written), for
 ``aerotri match`` (its feature and match caches emptied before every run, so that each run computes) and
 ``aerotri control``: one uninterrupted run; then runs killed (SIGKILL, or SIGTERM, which ends a command as Ctrl-C
 does) once ``work/<stage>_resume`` holds the given share of the frames (match: also of the pairs), each followed by
-the re-run. Each run is a child process: wall seconds, CPU seconds and peak RSS from ``os.wait4``; the re-run's
-"resumed" lines; its outputs against the uninterrupted run's (byte for byte; at/connectivity.json but for
-``seconds`` and ``phase_seconds``); whether the resume folder is gone after it. Load averages beside every run.
+the re-run. The chain's ``classify`` stage (``--stages classify``: run_stages with force, one tile at a time, so
+that a kill falls between tiles and the peak memory stays that of one tile) is killed once the given share of its
+tiles is kept; its uninterrupted run is also measured without the keeping (``classify_files`` without
+``resume_dir``), the overhead. Each run is a child process: wall seconds, CPU seconds and peak RSS from
+``os.wait4``; the re-run's "resumed" lines; its outputs against the uninterrupted run's (byte for byte;
+at/connectivity.json but for ``seconds`` and ``phase_seconds``); whether the resume folder is gone after it. Load
+averages beside every run.
 
 Usage (nice -n 10 on a shared machine; the runs inherit it):
   python bench/resume_cost.py --project DIR --work SCRATCH [--signal KILL|TERM] [--share 0.5] [--key NAME]
-       [--out bench/results/resume_cost.json]
+       [--stages match,control|classify] [--out bench/results/resume_cost.json]
 """
 
 from __future__ import annotations
@@ -32,7 +37,23 @@ sys.path.insert(0, str(REPO / "bench"))
 from results_json import git_commit, store_result  # noqa: E402
 
 CMD = "import sys; sys.argv[0] = 'aerotri'; from aerotri.cli import main; sys.exit(main())"
-OUTPUTS = {"match": ["at/tiepoints.csv", "at/connectivity.json", "at/connectivity.png"], "control": ["control"]}
+# the chain's classify stage alone (forced), its tiles one at a time (2 numba threads each); NO_KEEP: without the
+# keeping for a resumed run (classify_files without resume_dir)
+CLASSIFY = """import logging, sys
+from pathlib import Path
+from aerotri.chain import chain_stages, run_stages
+from aerotri.core.executor import Executor, activate
+logging.basicConfig(level=logging.INFO, format="%(message)s")
+if sys.argv[2] == "NO_KEEP":
+    import lidarctl.tiles as T
+    classify_files = T.classify_files
+    T.classify_files = lambda *a, resume_dir=None, **k: classify_files(*a, **k)
+root = Path(sys.argv[1])
+with Executor(None, 1) as ex, activate(ex):
+    run_stages(root, [s for s in chain_stages(root) if s.name == "classify"], force=True)
+"""
+OUTPUTS = {"match": ["at/tiepoints.csv", "at/connectivity.json", "at/connectivity.png"], "control": ["control"],
+           "classify": ["lidar_out/classified"]}
 
 
 def _files(root: Path, names: list[str]) -> dict:
@@ -54,14 +75,16 @@ def _fresh(root: Path, stage: str) -> None:
             shutil.rmtree(root / "work" / name, ignore_errors=True)
 
 
-def _run(root: Path, stage: str, kill_at: tuple[str, int] | None = None, sig=signal.SIGKILL) -> dict:
+def _run(root: Path, stage: str, kill_at: tuple[str, int] | None = None, sig=signal.SIGKILL, keep_tiles=True) -> dict:
     """One run of the stage; with ``kill_at`` (suffix, count) killed by ``sig`` once the resume folder holds
     ``count`` files of that suffix."""
     keep = root / "work" / f"{stage}_resume"
     log = root.parent / f"{stage}.log"
     t0 = time.perf_counter()
     with open(log, "w") as f:
-        p = subprocess.Popen([sys.executable, "-c", CMD, stage, str(root)], stdout=f, stderr=subprocess.STDOUT)
+        args = [CMD, stage, str(root)] if stage != "classify" else [CLASSIFY, str(root), "KEEP" if keep_tiles
+                                                                     else "NO_KEEP"]
+        p = subprocess.Popen([sys.executable, "-c", *args], stdout=f, stderr=subprocess.STDOUT)
     kept_at_kill = None
     while kill_at is not None and p.poll() is None:
         n = sum(1 for q in keep.glob(f"*{kill_at[0]}")) if keep.is_dir() else 0
@@ -87,6 +110,7 @@ def main(argv=None) -> int:
     ap.add_argument("--signal", choices=["KILL", "TERM"], default="KILL")
     ap.add_argument("--share", type=float, default=0.5, help="share of the frames (pairs) kept when killed")
     ap.add_argument("--key", default="demo")
+    ap.add_argument("--stages", default="match,control", help="match,control or classify")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "resume_cost.json")
     a = ap.parse_args(argv)
     root = a.work / "project"
@@ -100,25 +124,34 @@ def main(argv=None) -> int:
     shutil.copytree(a.project, root, copy_function=link_inputs)
     sig = getattr(signal, f"SIG{a.signal}")
     result = {"commit": git_commit(REPO), "project": str(a.project), "signal": a.signal, "share": a.share}
-    for stage in ("match", "control"):
+    for stage in a.stages.split(","):
         _fresh(root, stage)
         whole = _run(root, stage)
         assert whole["exit"] == 0, (root.parent / f"{stage}.log").read_text()
         want = _files(root, OUTPUTS[stage])
+        rows = {"uninterrupted": whole}
+        if stage == "classify":
+            no_keep = _run(root, stage, keep_tiles=False)
+            same = _files(root, OUTPUTS[stage]) == want
+            rows["uninterrupted_without_keeping"] = dict(no_keep, outputs_identical=same)
+            tiles = json.loads((root / "work" / "stages" / "classify.json").read_text())["result"]["tiles"]
+            result.update(tiles=tiles)
+            frames = tiles  # the units a kill counts
+            print(f"classify uninterrupted {whole['cpu_s']} CPU-s, without keeping {no_keep['cpu_s']} CPU-s")
         if stage == "match":
             conn = json.loads((root / "at" / "connectivity.json").read_text())
             frames, pairs = conn["frames"], conn["pairs"]
             result.update(frames=frames, pairs=pairs)
         points = [(".npz" if stage == "match" else ".json", max(1, round(a.share * frames)))]
+        unit = {"match": "frames", "control": "frames", "classify": "tiles"}[stage]
         if stage == "match":
             points.append((".npy", max(1, round(a.share * pairs))))
-        rows = {"uninterrupted": whole}
         for suffix, count in points:
             _fresh(root, stage)
             killed = _run(root, stage, (suffix, count), sig)
             again = _run(root, stage)
             same = _files(root, OUTPUTS[stage]) == want
-            name = f"killed_at_{count}_{'pairs' if suffix == '.npy' else 'frames'}"
+            name = f"killed_at_{count}_{'pairs' if suffix == '.npy' else unit}"
             rows[name] = {"killed": killed, "rerun": again, "outputs_identical": same,
                           "resume_folder_gone": not (root / "work" / f"{stage}_resume").exists(),
                           "rerun_cpu_share_of_uninterrupted": round(again["cpu_s"] / whole["cpu_s"], 3)}
