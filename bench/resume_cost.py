@@ -1,6 +1,6 @@
 """What keeping a stage's finished work for a resumed run costs, and what a resume saves (issue 41)
 -> bench/results/resume_cost.json (docs/full-size-block.md, "Resuming the match stage", "Resuming the classify
-stage").
+stage and the mosaic").
 
 On a copy of PROJECT (its images, lidar and trajectory hard-linked: inputs are never written), for
 ``aerotri match`` (its feature and match caches emptied before every run, so that each run computes) and
@@ -8,20 +8,22 @@ On a copy of PROJECT (its images, lidar and trajectory hard-linked: inputs are n
 does) once ``work/<stage>_resume`` holds the given share of the frames (match: also of the pairs), each followed by
 the re-run. The chain's ``classify`` stage (``--stages classify``: run_stages with force, one tile at a time, so
 that a kill falls between tiles and the peak memory stays that of one tile) is killed once the given share of its
-tiles is kept; its uninterrupted run is also measured without the keeping (``classify_files`` without
-``resume_dir``), the overhead. Each run is a child process: wall seconds, CPU seconds and peak RSS from
+tiles is kept; ``ortho mosaic`` (``--stages mosaic``: tiles of 256 px) once the given share of its rows of tiles
+is kept. Their uninterrupted runs are also measured without the keeping (``classify_files`` without ``resume_dir``;
+the mosaic without its resume folder), the overhead. Each run is a child process: wall seconds, CPU seconds and peak RSS from
 ``os.wait4``; the re-run's "resumed" lines; its outputs against the uninterrupted run's (byte for byte;
 at/connectivity.json but for ``seconds`` and ``phase_seconds``); whether the resume folder is gone after it. Load
 averages beside every run.
 
 Usage (nice -n 10 on a shared machine; the runs inherit it):
   python bench/resume_cost.py --project DIR --work SCRATCH [--signal KILL|TERM] [--share 0.5] [--key NAME]
-       [--stages match,control|classify] [--out bench/results/resume_cost.json]
+       [--stages match,control|classify|mosaic] [--out bench/results/resume_cost.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -52,8 +54,21 @@ root = Path(sys.argv[1])
 with Executor(None, 1) as ex, activate(ex):
     run_stages(root, [s for s in chain_stages(root) if s.name == "classify"], force=True)
 """
+# ``ortho mosaic`` in rows of 256 px tiles (the demo's 3,660 rows of pixels: 15 rows of tiles, each kept as it is
+# written); NO_KEEP: without the keeping (the rows are files all the same)
+MOSAIC_TILE_PX = 256
+MOSAIC = """import contextlib, sys
+if sys.argv[2] == "NO_KEEP":
+    import ortho.mosaic as M
+    M.resumable = lambda folder: contextlib.nullcontext()
+sys.argv[0] = "ortho"
+from ortho.cli import main
+sys.exit(main(["mosaic", sys.argv[1], "--tile-px", sys.argv[3]]))
+"""
 OUTPUTS = {"match": ["at/tiepoints.csv", "at/connectivity.json", "at/connectivity.png"], "control": ["control"],
-           "classify": ["lidar_out/classified"]}
+           "classify": ["lidar_out/classified"],
+           "mosaic": ["ortho/mosaic.tif", "ortho/mosaic.json", "ortho/seams.tif", "ortho/seamlines.geojson",
+                      "ortho/seamlines_preview.png", "ortho/seamlines.gpkg"]}
 
 
 def _files(root: Path, names: list[str]) -> dict:
@@ -62,6 +77,11 @@ def _files(root: Path, names: list[str]) -> dict:
         p = root / name
         for f in ([p] if p.is_file() else sorted(q for q in p.rglob("*") if q.is_file())):
             data = f.read_bytes()
+            if f.suffix == ".gpkg":  # its rows; gpkg_contents holds the time it was written
+                import sqlite3
+
+                with contextlib.closing(sqlite3.connect(f)) as db:
+                    data = "\n".join(x for x in db.iterdump() if "gpkg_contents" not in x).encode()
             if f.name == "connectivity.json":  # its times differ from run to run
                 doc = json.loads(data)
                 data = json.dumps({k: v for k, v in doc.items() if k not in ("seconds", "phase_seconds")}).encode()
@@ -82,8 +102,9 @@ def _run(root: Path, stage: str, kill_at: tuple[str, int] | None = None, sig=sig
     log = root.parent / f"{stage}.log"
     t0 = time.perf_counter()
     with open(log, "w") as f:
-        args = [CMD, stage, str(root)] if stage != "classify" else [CLASSIFY, str(root), "KEEP" if keep_tiles
-                                                                     else "NO_KEEP"]
+        how = "KEEP" if keep_tiles else "NO_KEEP"
+        args = {"classify": [CLASSIFY, str(root), how], "mosaic": [MOSAIC, str(root), how, str(MOSAIC_TILE_PX)]}.get(
+            stage, [CMD, stage, str(root)])
         p = subprocess.Popen([sys.executable, "-c", *args], stdout=f, stderr=subprocess.STDOUT)
     kept_at_kill = None
     while kill_at is not None and p.poll() is None:
@@ -92,7 +113,7 @@ def _run(root: Path, stage: str, kill_at: tuple[str, int] | None = None, sig=sig
             p.send_signal(sig)
             kept_at_kill = n
             break
-        time.sleep(0.1)
+        time.sleep(0.02)
     _, status, ru = os.wait4(p.pid, 0)
     p.returncode = os.waitstatus_to_exitcode(status)
     text = log.read_text()
@@ -110,7 +131,7 @@ def main(argv=None) -> int:
     ap.add_argument("--signal", choices=["KILL", "TERM"], default="KILL")
     ap.add_argument("--share", type=float, default=0.5, help="share of the frames (pairs) kept when killed")
     ap.add_argument("--key", default="demo")
-    ap.add_argument("--stages", default="match,control", help="match,control or classify")
+    ap.add_argument("--stages", default="match,control", help="match,control, classify or mosaic")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "resume_cost.json")
     a = ap.parse_args(argv)
     root = a.work / "project"
@@ -130,20 +151,23 @@ def main(argv=None) -> int:
         assert whole["exit"] == 0, (root.parent / f"{stage}.log").read_text()
         want = _files(root, OUTPUTS[stage])
         rows = {"uninterrupted": whole}
-        if stage == "classify":
+        if stage in ("classify", "mosaic"):
             no_keep = _run(root, stage, keep_tiles=False)
             same = _files(root, OUTPUTS[stage]) == want
             rows["uninterrupted_without_keeping"] = dict(no_keep, outputs_identical=same)
-            tiles = json.loads((root / "work" / "stages" / "classify.json").read_text())["result"]["tiles"]
-            result.update(tiles=tiles)
+            if stage == "classify":
+                tiles = json.loads((root / "work" / "stages" / "classify.json").read_text())["result"]["tiles"]
+            else:
+                tiles = -(-json.loads((root / "ortho" / "mosaic.json").read_text())["height"] // MOSAIC_TILE_PX)
+            result[f"{stage}_units"] = tiles  # classify: tiles; mosaic: rows of tiles
             frames = tiles  # the units a kill counts
-            print(f"classify uninterrupted {whole['cpu_s']} CPU-s, without keeping {no_keep['cpu_s']} CPU-s")
+            print(f"{stage} uninterrupted {whole['cpu_s']} CPU-s, without keeping {no_keep['cpu_s']} CPU-s")
         if stage == "match":
             conn = json.loads((root / "at" / "connectivity.json").read_text())
             frames, pairs = conn["frames"], conn["pairs"]
             result.update(frames=frames, pairs=pairs)
-        points = [(".npz" if stage == "match" else ".json", max(1, round(a.share * frames)))]
-        unit = {"match": "frames", "control": "frames", "classify": "tiles"}[stage]
+        points = [({"match": ".npz", "mosaic": ".tif"}.get(stage, ".json"), max(1, round(a.share * frames)))]
+        unit = {"match": "frames", "control": "frames", "classify": "tiles", "mosaic": "rows"}[stage]
         if stage == "match":
             points.append((".npy", max(1, round(a.share * pairs))))
         for suffix, count in points:

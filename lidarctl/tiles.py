@@ -44,6 +44,11 @@ with fewer than 10 points (a stray point off the grid) leaves its core points un
 Temporary disk space: about 2.3 x the uncompressed point records (tiles with buffers + the copy),
 in a hidden folder next to the output (or ``work_dir``), removed at the end, also on errors.
 
+Resume (``classify_files(resume_dir=...)``, the chain's ``work/classify_resume``): each tile's two result files
+are hard-linked there as the tile finishes, under a key of everything they depend on (``_tiles_key_doc``), and a
+run after a kill or Ctrl-C takes them back instead of classifying the tile again (pass 1 and 3 run again); the
+folder goes when the set commits or by an error.
+
 Tasks take small items (paths and parameters) and exchange data through files, so the same task
 graph runs in local threads, local worker processes or on a Dask cluster with a shared file
 system; results are gathered in tile order, so the output is byte-identical for every scheduler.
