@@ -8,23 +8,14 @@ import hashlib
 import json
 import logging
 import os
-import shutil
 import sqlite3
-
-import pytest
-from click.testing import CliRunner
 
 import ortho.mosaic as M
 from aerotri.core.errors import InputError
-from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.ortho.test_block_atomic import project, rectified, run  # noqa: F401 (fixtures: a rectified synthetic block)
 
 _BLEND_TILE = M._blend_tile
 TILE_PX = "128"
-
-
-def run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def mosaic(root):
@@ -44,23 +35,6 @@ def tree(folder) -> dict:
                 continue
             out[os.path.relpath(p, folder)] = hashlib.sha1(open(p, "rb").read()).hexdigest()
     return out
-
-
-@pytest.fixture(scope="module")
-def rectified(tmp_path_factory):
-    """A synthetic block (6 frames, truth EO) rectified once; tests work on copies."""
-    root = tmp_path_factory.mktemp("mosaic_resume") / "p"
-    write_synthetic_project(root, strips=2, frames_per_strip=3, buildings=0, seed=11)
-    r = run("rectify", root)
-    assert r.exit_code == 0, r.output
-    return root
-
-
-@pytest.fixture
-def project(rectified, tmp_path):
-    root = tmp_path / "p"
-    shutil.copytree(rectified, root)
-    return root
 
 
 class _Blend:
