@@ -41,11 +41,14 @@ from results_json import git_commit, store_result  # noqa: E402
 CMD = "import sys; sys.argv[0] = 'aerotri'; from aerotri.cli import main; sys.exit(main())"
 # the chain's classify stage alone (forced), its tiles one at a time (2 numba threads each); NO_KEEP: without the
 # keeping for a resumed run (classify_files without resume_dir)
-CLASSIFY = """import logging, sys
+CLASSIFY = """import logging, signal, sys
 from pathlib import Path
 from aerotri.chain import chain_stages, run_stages
 from aerotri.core.executor import Executor, activate
 logging.basicConfig(level=logging.INFO, format="%(message)s")
+def _term(signum, frame):  # SIGTERM ends the stage as Ctrl-C does, as in `aerotri run` (aerotri.core.commands)
+    raise KeyboardInterrupt
+signal.signal(signal.SIGTERM, _term)
 if sys.argv[2] == "NO_KEEP":
     import lidarctl.tiles as T
     classify_files = T.classify_files
