@@ -590,7 +590,9 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
     format and one CRS (``merge.check_strips``: InputError / CrsError naming the strip that differs);
     ``crs`` is the CRS of strips without a CRS record (a strip tagged with another CRS is refused).
     ``out_dir`` holds the set and is replaced as a whole, atomically (``atomic_dir``): all outputs
-    or none; an input inside it is refused. Other parameters as in ``classify_file``.
+    or none; an input inside it is refused. ``resume_dir``: the tiles an interrupted run of the same strips and
+    settings finished are taken from there, the others kept there as they finish (module doc, "Resume"); None: no
+    resume. Other parameters as in ``classify_file``.
     """
     from lidarctl.merge import check_strips
 
