@@ -44,6 +44,11 @@ with fewer than 10 points (a stray point off the grid) leaves its core points un
 Temporary disk space: about 2.3 x the uncompressed point records (tiles with buffers + the copy),
 in a hidden folder next to the output (or ``work_dir``), removed at the end, also on errors.
 
+Resume (``classify_files(resume_dir=...)``, the chain's ``work/classify_resume``): each tile's two result files
+are hard-linked there as the tile finishes, under a key of everything they depend on (``_tiles_key_doc``), and a
+run after a kill or Ctrl-C takes them back instead of classifying the tile again (pass 1 and 3 run again); the
+folder goes when the set commits or by an error.
+
 Tasks take small items (paths and parameters) and exchange data through files, so the same task
 graph runs in local threads, local worker processes or on a Dask cluster with a shared file
 system; results are gathered in tile order, so the output is byte-identical for every scheduler.
@@ -53,6 +58,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import json
 import logging
 import math
 import shutil
@@ -69,6 +75,7 @@ from aerotri.core.atomic import atomic_dir, atomic_path, refuse_input_as_output,
 from aerotri.core.errors import InputError, OptionError, ResourceError
 from aerotri.core.executor import local_executor
 from aerotri.core.log import progress
+from aerotri.core.resume import ResumeFolder, file_stamp, link_or_copy, resumable, resume_key
 from aerotri.geom.crs.definition import parse_crs
 from lidarctl.units import METRE, LengthUnits
 
@@ -211,6 +218,10 @@ class TileTask:
     numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
     units: LengthUnits = METRE  # the input's units: tile files hold coordinates in them
     fusion: object = None   # lidarctl.classify.fusion.Fusion: the orthophoto's rules after the LiDAR classes
+    # per-tile resume: the finished tile's classes and core indices are kept in ``resume_dir`` under ``resume_key``
+    # (everything they depend on, ``_tiles_key_doc``) until the set commits (aerotri.core.resume)
+    resume_dir: str | None = None
+    resume_key: str | None = None
 
 
 # What a tile file holds per point: the fields the classifier reads, coordinates in the input's
@@ -404,8 +415,57 @@ def classify_tile(task: TileTask) -> TileResult:
     """Pass 2 (an executor task): classify one tile with its buffer, keep the core points' classes.
 
     Writes ``classes_path`` (uint8 ASPRS classes) and ``core_index_path`` (int64 point indices in
-    the input file), both in input order. Returns small statistics (points, seconds).
+    the input file), both in input order. Returns small statistics (points, seconds). With
+    ``task.resume_dir`` both files (hard links) and the statistics are kept there for a resumed run
+    (``_resumed_tile``), the statistics last: a tile is kept whole or not at all.
     """
+    result = _classify_tile(task)
+    if task.resume_dir and task.resume_key:
+        keep = ResumeFolder(Path(task.resume_dir))
+        keep.keep(task.classes_path, task.resume_key, ".classes.npy")
+        keep.keep(task.core_index_path, task.resume_key, ".core.npy")
+        keep.put_text(task.resume_key, ".json", json.dumps(dataclasses.asdict(result)) + "\n")
+    return result
+
+
+def _resumed_tile(task: TileTask) -> TileResult | None:
+    """The statistics of ``task``'s tile kept by an earlier, interrupted run (its two files linked to the task's
+    paths), or None when none is kept whole."""
+    keep = ResumeFolder(Path(task.resume_dir))
+    text = keep.get_text(task.resume_key, ".json")
+    classes, core = keep.kept(task.resume_key, ".classes.npy"), keep.kept(task.resume_key, ".core.npy")
+    if text is None or classes is None or core is None:
+        return None
+    try:
+        result = TileResult(**json.loads(text))
+        shapes = {np.load(f, mmap_mode="r").shape for f in (classes, core)}
+    except (ValueError, TypeError, OSError):
+        return None
+    if (result.row, result.col) != (task.row, task.col) or shapes != {(result.n_core,)}:
+        return None
+    link_or_copy(classes, task.classes_path)
+    link_or_copy(core, task.core_index_path)
+    return result
+
+
+def _tiles_key_doc(in_paths, grid: TileGrid, params, units: LengthUnits, fusion) -> dict:
+    """What every tile's classes depend on but its place in the grid: the strips in order (name, size,
+    modification time: they set the points and their indices), the grid, the settings, the units, the fusion's
+    image and rules, and the toolkit's version (not the scheduler or the chunk size: the classes do not depend
+    on them)."""
+    import aerotri
+
+    doc = {"strips": [[Path(q).name, file_stamp(q)] for q in in_paths], "grid": dataclasses.asdict(grid),
+           "settings": dataclasses.asdict(params), "units": repr(units), "version": aerotri.__version__}
+    if fusion is not None:
+        img = fusion.image
+        doc["fusion"] = {"image": dataclasses.asdict(img), "rules": dataclasses.asdict(fusion.params),
+                         "stamps": [file_stamp(q) for q in (img.path, img.nir_path) if q]}
+    return doc
+
+
+def _classify_tile(task: TileTask) -> TileResult:
+    """``classify_tile`` without the keeping for a resumed run."""
     from lidarctl.classify import pipeline as cl
 
     t0 = time.perf_counter()
@@ -519,7 +579,7 @@ def classified_names(in_paths, suffix: str | None = None) -> list[str]:
 
 def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | None = None,
                    tile_size_m: float | None = None, buffer_m: float | None = None, executor=None,
-                   work_dir=None, chunk_points: int = io.CHUNK_POINTS, fusion=None) -> ClassifyStats:
+                   work_dir=None, chunk_points: int = io.CHUNK_POINTS, fusion=None, resume_dir=None) -> ClassifyStats:
     """Classify LiDAR strips (LAS/LAZ files) together, without merging them: one classified copy per
     strip in ``out_dir`` (names: ``classified_names``; LAS/LAZ by ``suffix``, default the strip's).
 
@@ -530,7 +590,9 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
     format and one CRS (``merge.check_strips``: InputError / CrsError naming the strip that differs);
     ``crs`` is the CRS of strips without a CRS record (a strip tagged with another CRS is refused).
     ``out_dir`` holds the set and is replaced as a whole, atomically (``atomic_dir``): all outputs
-    or none; an input inside it is refused. Other parameters as in ``classify_file``.
+    or none; an input inside it is refused. ``resume_dir``: the tiles an interrupted run of the same strips and
+    settings finished are taken from there, the others kept there as they finish (module doc, "Resume"); None: no
+    resume. Other parameters as in ``classify_file``.
     """
     from lidarctl.merge import check_strips
 
@@ -549,10 +611,13 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
     project_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else None
     check_strips(in_paths, [las.read_header(q) for q in in_paths], project_crs)
     parent = Path(work_dir) if work_dir is not None else out_dir.parent
-    with atomic_dir(out_dir) as tmp:
+    # an error leaves no output of any kind, the tiles kept for a resumed run included; an interrupt or a kill
+    # keeps them (aerotri.core.resume)
+    with resumable(resume_dir) if resume_dir is not None else contextlib.nullcontext() as keep, \
+            atomic_dir(out_dir) as tmp:
         return _classify(in_paths, [tmp / name for name in names], crs, params, tile_size_m=tile_size_m,
                          buffer_m=buffer_m, executor=executor, work_parent=parent, tiles_name=out_dir.name,
-                         chunk_points=chunk_points, fusion=fusion)
+                         chunk_points=chunk_points, fusion=fusion, resume=keep)
 
 
 def _union_bounds(headers):
@@ -565,7 +630,7 @@ def _union_bounds(headers):
 
 
 def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, executor, work_parent, tiles_name,
-              chunk_points, fusion=None) -> ClassifyStats:
+              chunk_points, fusion=None, resume: ResumeFolder | None = None) -> ClassifyStats:
     """``classify_file`` / ``classify_files``: the files in ``in_paths`` (checked to agree) classified
     together, each written to its ``out_paths`` entry."""
     from lidarctl.classify import pipeline as cl
@@ -614,7 +679,7 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
         else:
             run = _classify_tiled(in_paths, out_paths, out_crs=out_crs, units=units, params=params, grid=grid,
                                   executor=executor, work_parent=work_parent, tiles_name=tiles_name,
-                                  chunk_points=chunk_points, t0=t0, fusion=fusion)
+                                  chunk_points=chunk_points, t0=t0, fusion=fusion, resume=resume)
     except ResourceError as exc:
         # A grid inside the classifier would not fit: name the file (points spread far apart, e.g.
         # strips of two zones merged under one CRS).
@@ -656,9 +721,11 @@ def _classify_whole(in_paths, out_paths, *, crs, out_crs, params, chunk_points, 
 
 
 def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, executor, work_parent, tiles_name,
-                    chunk_points, t0, fusion=None) -> ClassifyRun:
+                    chunk_points, t0, fusion=None, resume: ResumeFolder | None = None) -> ClassifyRun:
     """In tiles: split all files (pass 1), classify tiles on the executor (pass 2), scatter the core
-    classes into a memory-mapped file and write each output from its records copy (pass 3)."""
+    classes into a memory-mapped file and write each output from its records copy (pass 3). ``resume``: the
+    tiles an interrupted run of the same inputs and settings finished are taken from there (pass 2 skips them),
+    the others kept there as they finish."""
     headers = [las.read_header(q) for q in in_paths]
     n = sum(h.point_count for h in headers)
     if n < 10:
@@ -669,15 +736,26 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
     try:
         records_paths = [tmp_dir / f"records_{k}.bin" for k in range(len(in_paths))]
         tasks = split_into_tiles(in_paths, grid, tmp_dir, params, chunk_points, records_paths, units=units)
-        # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
-        # numba keeps its default).
-        per_task = executor.cores_per_task(len(tasks))
-        if per_task is not None:
-            tasks = [dataclasses.replace(t, numba_threads=per_task) for t in tasks]
         if fusion is not None:
             tasks = [dataclasses.replace(t, fusion=fusion) for t in tasks]
+        resumed = {}
+        if resume is not None:
+            doc = _tiles_key_doc(in_paths, grid, params, units, fusion)
+            tasks = [dataclasses.replace(t, resume_dir=str(resume.path), resume_key=resume_key({**doc, "tile": [
+                t.row, t.col]})) for t in tasks]
+            resumed = {k: r for k, t in enumerate(tasks) if (r := _resumed_tile(t)) is not None}
+            if resumed:
+                logger.info(f"tiles: resumed {len(resumed)} of {len(tasks)} tiles an interrupted run finished "
+                            f"({resume.path})")
+        todo = [t for k, t in enumerate(tasks) if k not in resumed]
+        # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
+        # numba keeps its default; the classes do not depend on it).
+        per_task = executor.cores_per_task(len(todo))
+        if per_task is not None:
+            todo = [dataclasses.replace(t, numba_threads=per_task) for t in todo]
         t1 = time.perf_counter()
-        results = executor.map(classify_tile, tasks, desc="tiles: classify", unit="tile")
+        done = iter(executor.map(classify_tile, todo, desc="tiles: classify", unit="tile"))
+        results = [resumed[k] if k in resumed else next(done) for k in range(len(tasks))]
         t2 = time.perf_counter()
         # 0 is no class classify_points assigns: it marks points no tile core claimed.
         classes = np.lib.format.open_memmap(tmp_dir / "classes.npy", mode="w+", dtype=np.uint8, shape=(n,))

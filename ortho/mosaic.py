@@ -18,9 +18,11 @@ Steps (``mosaic_block``):
    samples); elsewhere the frame weights are the label masks blurred across the seam (feather width),
    times the frame's validity, and where no frame is labelled (at the edge of the block) the
    nearest-nadir valid frame fills in. Only the frames labelled around a tile are read.
-5. The tiles go into a tiled stage GeoTIFF (ZSTD level 1) with an internal mask, and their 2 x 2 averages
+5. The tiles go into a tiled stage GeoTIFF (ZSTD level 1) with an internal mask, one file per row of tiles
+   (kept in ``work/mosaic_resume`` as it is closed, a hard link, so that a run after a kill or Ctrl-C takes the
+   rows it finished instead of blending them again: ``_row_keys``), and their 2 x 2 averages
    of the valid pixels into the first overview; the coarser overviews are halved from the finer ones by
-   strips of rows. A VRT joins the stage and its overviews, and GDAL's COG driver copies it into the COG
+   strips of rows. A VRT joins the stage's rows and its overviews, and GDAL's COG driver copies it into the COG
    (ZSTD level 1 with the horizontal predictor, 512 px blocks, BigTIFF when it may pass 4 GB, the
    overviews as made here): the full resolution is compressed once for the COG, no overview is made
    from it again, and memory is bounded by the tiles, not by the mosaic.
@@ -73,6 +75,7 @@ from aerotri.core.log import progress
 from aerotri.core.atomic import atomic_path, commit_outputs, move_into, scratch_dir, write_text_atomic
 from aerotri.core.limits import check_allocation, check_grid, check_task_count
 from aerotri.core.project import Project
+from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
 from ortho.block import (FrameIndex, frame_index, index_operation, operation_tags, read_index, require_current_frames,
@@ -85,6 +88,7 @@ from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_
                              least_cost_seams, neighbour_pairs, seam_lines, voronoi_labels)
 
 logger = logging.getLogger(__name__)
+RESUME_DIR_NAME = "mosaic_resume"  # in work/: the rows of tiles a killed or interrupted mosaic finished
 
 # GDAL's block cache during mosaic (``aerotri.core.gdal_cache``): the frame blocks a row of tiles reads (frame
 # blocks are not aligned with the mosaic tiles, so the next row reads some again) and the stage blocks being
@@ -777,11 +781,13 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                            "file stores the bands", name, ", ".join(f"{v:.2f}" for v in g))
     out_dir = root / "ortho"
     # every output is made in a work folder first and moved into ortho/ only when all of them exist:
-    # a failed run leaves the previous seams, seamlines, mosaic and summary together
-    with scratch_dir(out_dir, "mosaic") as work:
+    # a failed run leaves the previous seams, seamlines, mosaic and summary together; the rows of tiles a killed or
+    # interrupted run finished are kept in work/mosaic_resume until the commit (an error removes them too)
+    with resumable(root / "work" / RESUME_DIR_NAME) as keep, scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red=red, labels=labels, gains=gains,
                                   mosaic=mosaic, factor=factor, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
-                                  seams=seams, executor=executor, settings_record=resolved.record(), previous=previous)
+                                  seams=seams, executor=executor, settings_record=resolved.record(), previous=previous,
+                                  resume=keep)
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all new, or (a failure, a kill) all as before
             for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "seamlines_preview.png", "mosaic.tif",
@@ -924,10 +930,11 @@ def _open_frame(path):
 
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
-                    feather_px, tile_px, seams, executor, settings_record: dict, previous=None) -> dict:
+                    feather_px, tile_px, seams, executor, settings_record: dict, previous=None, resume=None) -> dict:
     """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
     returns the summary. ``previous``
-    (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over."""
+    (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over. ``resume``
+    (``ResumeFolder``): the rows of tiles an interrupted run finished (``_write_mosaic``)."""
     crs, res = mosaic.crs, mosaic.res_m
     out_dir = root / "ortho"
     # Dask tasks read the labels from seams.tif; local threads have them in memory, and seams.tif is written with
@@ -954,7 +961,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                               factor=factor, gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                               executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red), during_cog=stage_preview if early else None,
-                              white_level=red.white_level.value)
+                              white_level=red.white_level.value, resume=resume)
         with _background(write_seamlines_preview, work / "seamlines_preview.png", work / "mosaic.tif", labels,
                          factor, imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
             pairs = [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]
@@ -1660,7 +1667,7 @@ def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, *, dr: int, d
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, factor, gains, nadir, feather_px, tile_px,
                   executor=None, labels=None, previous=None, decoded=None, holes=None, during_cog=None,
-                  white_level=None):
+                  white_level=None, resume=None):
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
@@ -1671,7 +1678,11 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
     threads only), read instead of their files. ``holes``: per frame None or its ``FrameHoles``
     (``_BlendContext.holes``). ``during_cog``: a function of the mosaic's levels as the COG copies them (a dict of the files
     by their factor: 1 the stage, 2, 4 ... its overviews), run on a thread while the COG is written. Returns
-    the counts of tiles blended and taken over."""
+    the counts of tiles blended and taken over.
+
+    The stage is one GeoTIFF per row of tiles (joined by a VRT): with ``resume`` (``aerotri.core.resume.ResumeFolder``)
+    each row, once written, is hard-linked there under a key of everything its tiles depend on (``_row_keys``), and
+    the rows an interrupted run kept are linked back instead of blended (their samples read for the overview)."""
     from aerotri.core.executor import local_executor
     from ortho.rectify import ordered_thread_map
 
@@ -1718,12 +1729,25 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                            seam_shape=labels.shape, holes=holes, white_level=white_level)
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
-        stage = tmp_dir / "stage.tif"
+        rows = {r0: tmp_dir / f"stage_{r0:07d}.tif" for r0 in range(0, mosaic.height, tile_px)}
+        keys = kept = {}
+        if resume is not None:
+            keys = _row_keys(index, mosaic, rows, labels=labels, seams_path=seams_path, factor=factor, halo=halo,
+                             gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px, bands=bands, dtype=dtype,
+                             white_level=white_level, previous=previous)
+            kept = {r0: path for r0, path in rows.items()
+                    if _resumed_row(resume, keys[r0], path, (min(tile_px, mosaic.height - r0), mosaic.width))}
+            if kept:
+                k = sum(t[0] in kept for t in tiles)
+                logger.info(f"mosaic: resumed {k} of {len(tiles)} tiles an interrupted run finished ({len(kept)} of "
+                            f"{len(rows)} rows of tiles, {resume.path})")
+        todo = [t for t in tiles if t[0] not in kept]
+        stage = tmp_dir / "stage.vrt"  # the rows of tiles as one raster
         counts = {"taken_over": 0}
         stack = contextlib.ExitStack()
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
         readers = _FrameReaders(None if executor.distributed else decoded)
-        made = None
+        made = row = None
         profile = dict(_stage_profile(mosaic, bands, dtype), width=mosaic.width, height=mosaic.height, count=bands,
                        dtype=dtype, crs=mosaic.crs, transform=mosaic.transform)
         try:
@@ -1731,9 +1755,9 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                 batch = max(2, 2 * executor.workers)
 
                 def results():
-                    for i in range(0, len(tiles), batch):
+                    for i in range(0, len(todo), batch):
                         yield from executor.map(blend_tile_task, [MosaicTile(str(context_path), *t)
-                                                                  for t in tiles[i:i + batch]],
+                                                                  for t in todo[i:i + batch]],
                                                 desc="mosaic tiles", unit="tile")
                 made = results()
             else:
@@ -1759,25 +1783,43 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                     out, valid = tile(t)
                     return out, valid, pyramid.halved(out, valid)
 
-                made = ordered_thread_map(tile_and_half, tiles, threads)
-            with rasterio.open(stage, "w", **profile) as dst, progress(len(tiles), "mosaic", "tiles") as bar:
-                dst.colorinterp = colorinterp
-                for (r0, c0, th, tw), (out, valid, *half) in zip(tiles, made):
-                    w = Window(c0, r0, tw, th)
-                    dst.write(out, window=w)
-                    dst.write_mask(valid.view(np.uint8) * np.uint8(255), window=w)
-                    pyramid.add_tile(r0, c0, out, valid, *half)
+                made = ordered_thread_map(tile_and_half, todo, threads)
+            with progress(len(tiles), "mosaic", "tiles") as bar:
+                row = None
+                for r0, c0, th, tw in tiles:
+                    if row is None or row.r0 != r0:
+                        if row is not None:
+                            row.close()
+                        t = mosaic.transform
+                        row = _StageRow(r0, rows[r0], kept.get(r0), dict(profile, height=th, transform=Affine(
+                            t.a, t.b, t.c + t.b * r0, t.d, t.e, t.f + t.e * r0)), colorinterp, resume, keys.get(r0))
+                    w = Window(c0, 0, tw, th)
+                    if row.src is not None:  # kept: its samples only for the first overview
+                        if pyramid.first is not None:
+                            pyramid.add_tile(r0, c0, row.src.read(window=w), row.src.read_masks(1, window=w) > 0)
+                    else:
+                        out, valid, *half = next(made)
+                        row.dst.write(out, window=w)
+                        row.dst.write_mask(valid.view(np.uint8) * np.uint8(255), window=w)
+                        pyramid.add_tile(r0, c0, out, valid, *half)
                     bar.update(1)
+                row.close()
+                row = None
         finally:
             if made is not None:  # the tile threads end before their frame datasets are closed
                 made.close()
+            if row is not None:  # an error: the row is not whole
+                row.close(keep=False)
             readers.close()
             stack.close()
+        write_vrt(stage, [(p, r0, min(tile_px, mosaic.height - r0)) for r0, p in rows.items()], [], mosaic,
+                  bands=bands, dtype=dtype, colorinterp=colorinterp, tags={})
         timer.done("tiles")
         pyramid.finish(stage)
         timer.done("overviews")
         vrt = tmp_dir / "mosaic.vrt"
-        write_vrt(vrt, stage, pyramid.paths, mosaic, bands=bands, dtype=dtype, colorinterp=colorinterp,
+        write_vrt(vrt, [(p, r0, min(tile_px, mosaic.height - r0)) for r0, p in rows.items()], pyramid.paths, mosaic,
+                  bands=bands, dtype=dtype, colorinterp=colorinterp,
                   tags=operation_tags(index.coordinate_operation, index.height_operation))
         with contextlib.ExitStack() as during:
             waits = during.enter_context(_background(during_cog, {1: stage, **dict(zip(levels, pyramid.paths))},
@@ -1791,6 +1833,68 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         previous.why_all = "the tiles run as Dask tasks: every tile blended"
     return {"total": len(tiles), "blended": len(tiles) - counts["taken_over"], "taken_over": counts["taken_over"],
             **({"why_all_blended": previous.why_all} if previous is not None and previous.why_all else {})}
+
+
+class _StageRow:
+    """One row of tiles of the stage: written (``dst``), or kept by an interrupted run and linked in (``src``, read
+    for the overview); ``close`` keeps a written row for a resumed run (``resume``, under ``key``)."""
+
+    def __init__(self, r0: int, path: Path, kept, profile: dict, colorinterp, resume, key):
+        self.r0, self.path, self.resume, self.key = r0, path, resume, key
+        self.src = rasterio.open(path) if kept else None
+        self.dst = None
+        if self.src is None:
+            self.dst = rasterio.open(path, "w", **profile)
+            self.dst.colorinterp = colorinterp
+
+    def close(self, keep: bool = True) -> None:
+        if self.src is not None:
+            self.src.close()
+        if self.dst is not None:
+            self.dst.close()
+            if keep and self.resume is not None:
+                self.resume.keep(self.path, self.key, ".tif")
+
+
+def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, factor, halo, gains, nadir, feather_px,
+              tile_px, bands, dtype, white_level, previous) -> dict:
+    """Key of each row of tiles (row offset px -> sha256): what its samples depend on, the frame orthos (index.json,
+    which holds their sizes and hashes), the seam labels, the gains, nadir points, feather, seam grid, tiles, the
+    mosaic's grid and type, the white level, the earlier mosaic an edit takes tiles over from, and the version."""
+    import hashlib
+
+    import aerotri
+
+    if labels is None:
+        with rasterio.open(seams_path) as sds:
+            labels = sds.read(1)
+    labels = np.ascontiguousarray(labels)
+    doc = {"index_sha1": hashlib.sha1(Path(index.path).read_bytes()).hexdigest(),
+           "labels": [hashlib.sha256(labels.tobytes()).hexdigest(), list(labels.shape), str(labels.dtype)],
+           "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
+           "factor": int(factor), "halo": int(halo), "feather_px": float(feather_px), "tile_px": int(tile_px),
+           "grid": [mosaic.x_left_m, mosaic.y_top_m, mosaic.res_m, mosaic.width, mosaic.height, mosaic.crs.to_wkt()],
+           "bands": int(bands), "dtype": str(dtype), "white_level": white_level, "version": aerotri.__version__,
+           "previous": None if previous is None else [
+               file_stamp(previous.mosaic_path) if previous.mosaic_path.is_file() else None,
+               hashlib.sha256(np.packbits(previous.changed)).hexdigest(), previous.why_all]}
+    return {r0: resume_key({**doc, "row": r0}) for r0 in rows}
+
+
+def _resumed_row(resume, key: str, path: Path, shape: tuple[int, int]) -> bool:
+    """Link the row kept under ``key`` to ``path`` when it is whole (``shape``: its rows and columns); False when none
+    is."""
+    src = resume.kept(key, ".tif")
+    if src is None:
+        return False
+    try:
+        with rasterio.open(src) as ds:
+            ok = (ds.height, ds.width) == shape
+    except (rasterio.errors.RasterioError, OSError):
+        return False
+    if ok:
+        link_or_copy(src, path)
+    return ok
 
 
 @dataclasses.dataclass
@@ -1918,19 +2022,25 @@ _GDAL_TYPES = {"uint8": "Byte", "int8": "Int8", "uint16": "UInt16", "int16": "In
                "int32": "Int32", "float32": "Float32", "float64": "Float64"}
 
 
-def write_vrt(path: Path, full: Path, overviews: list, grid: OrthoGrid, *, bands: int, dtype: str, colorinterp,
+def write_vrt(path: Path, full, overviews: list, grid: OrthoGrid, *, bands: int, dtype: str, colorinterp,
               tags: dict) -> None:
-    """A VRT of ``full`` (a GeoTIFF with an internal mask) declaring ``overviews`` (files of the same bands
-    and mask, finest first) as its overviews and its mask's, with the metadata ``tags``: the source the
-    COG driver copies with its overviews as they are (``OVERVIEWS=FORCE_USE_EXISTING``)."""
+    """A VRT of ``full`` (a GeoTIFF with an internal mask, or a list of (path, row offset px, rows) of such files
+    of the grid's width, the rows of the raster) declaring ``overviews`` (files of the same bands and mask, finest
+    first) as its overviews and its mask's, with the metadata ``tags``: the source the COG driver copies with its
+    overviews as they are (``OVERVIEWS=FORCE_USE_EXISTING``)."""
     from xml.sax.saxutils import escape, quoteattr
 
     t = grid.transform
     gdal_type = _GDAL_TYPES[str(dtype)]
 
-    def source(name, band, kind="SimpleSource"):
-        return (f'<{kind}><SourceFilename relativeToVRT="1">{escape(name)}</SourceFilename>'
-                f'<SourceBand>{band}</SourceBand></{kind}>')
+    parts_of = [(full, 0, grid.height)] if isinstance(full, (str, Path)) else list(full)
+
+    def source(band, kind="SimpleSource"):
+        return "".join(f'<{kind}><SourceFilename relativeToVRT="1">{escape(Path(name).name)}</SourceFilename>'
+                       f'<SourceBand>{band}</SourceBand>'
+                       f'<SrcRect xOff="0" yOff="0" xSize="{grid.width}" ySize="{h}"/>'
+                       f'<DstRect xOff="0" yOff="{r0}" xSize="{grid.width}" ySize="{h}"/></{kind}>'
+                       for name, r0, h in parts_of)
 
     def overview_list(band):
         return "".join(f'<Overview><SourceFilename relativeToVRT="1">{escape(Path(o).name)}</SourceFilename>'
@@ -1946,8 +2056,8 @@ def write_vrt(path: Path, full: Path, overviews: list, grid: OrthoGrid, *, bands
         ci = colorinterp[b - 1].name.capitalize() if colorinterp else "Undefined"
         ci = {"Gray": "Gray", "Undefined": "Undefined"}.get(ci, ci)
         parts.append(f'<VRTRasterBand dataType="{gdal_type}" band="{b}"><ColorInterp>{ci}</ColorInterp>'
-                     + source(Path(full).name, b) + overview_list(b) + "</VRTRasterBand>")
-    parts.append('<MaskBand><VRTRasterBand dataType="Byte">' + source(Path(full).name, "mask,1")
+                     + source(b) + overview_list(b) + "</VRTRasterBand>")
+    parts.append('<MaskBand><VRTRasterBand dataType="Byte">' + source("mask,1")
                  + overview_list("mask,1") + "</VRTRasterBand></MaskBand>")
     parts.append("</VRTDataset>")
     Path(path).write_text("\n".join(parts) + "\n")

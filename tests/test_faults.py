@@ -462,10 +462,11 @@ def test_kill_and_rerun(wr, workspace, forkserver, tmp_path, linked_copy):
     assert leftovers(w) == [], f"left after the re-run's start: {leftovers(w)[:8]} (before it: {left[:8]})"
     changed = differences(before, snapshot(w))
     # what the killed run finished, kept on purpose for the next run to resume (ortho.block.RESUME_DIR_NAME,
-    # aerotri.match.pipeline.RESUME_DIR_NAME, aerotri.control.pipeline.CONTROL_RESUME_DIR_NAME; an error removes them,
-    # a committed run too)
-    resume = {"rectify": "p/work/rectify_resume/", "match": "p/work/match_resume/",
-              "control": "p/work/control_resume/"}.get(wr.id)
+    # aerotri.match.pipeline.RESUME_DIR_NAME, aerotri.control.pipeline.CONTROL_RESUME_DIR_NAME,
+    # ortho.mosaic.RESUME_DIR_NAME, aerotri.chain.stages.CLASSIFY_RESUME_DIR_NAME; an error removes them, a committed
+    # run too)
+    resume = {"rectify": "p/work/rectify_resume/", "match": "p/work/match_resume/", "control": "p/work/control_resume/",
+              "mosaic": "p/work/mosaic_resume/", "classify": "p/work/classify_resume/"}.get(wr.id)
     if resume is not None:
         changed = [c for c in changed if not c.startswith(resume)]
     assert not changed, f"not as before the killed run: {changed[:12]}"

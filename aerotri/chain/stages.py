@@ -43,6 +43,7 @@ from aerotri.core.settings import COMMAND_LINE, DEFAULT, PROJECT_TOML, Resolved,
 from aerotri.core.project import Project
 
 _log = logging.getLogger(__name__)
+CLASSIFY_RESUME_DIR_NAME = "classify_resume"  # in work/: the LiDAR tiles a killed or interrupted classify finished
 
 def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
@@ -389,10 +390,12 @@ class Chain:
         from aerotri.core.atomic import remove_leftovers
         from lidarctl.tiles import classify_files
 
-        # what a killed run left next to classified/ (the set's temporary folder, the tiles' work folder)
+        # what a killed run left next to classified/ (the set's temporary folder, the tiles' work folder); the
+        # tiles it finished are in work/classify_resume until the set commits
         remove_leftovers(self.lo)
         st = classify_files(self.classify_inputs(), self.project.classified_dir, crs=self.project.crs,
-                            params=self.options.classify, suffix=".laz")
+                            params=self.options.classify, suffix=".laz",
+                            resume_dir=self.project.work_dir / CLASSIFY_RESUME_DIR_NAME)
         return R.ClassifyResult(points=st.n_points, strips=st.n_files, tiles=st.run.n_tiles)
 
     def run_rasters(self, root) -> R.RastersResult:

@@ -1,0 +1,198 @@
+"""The tiled classification resumes the tiles an interrupted run finished (``classify_files(resume_dir=...)``,
+the chain's work/classify_resume): a re-run computes only the rest and writes the same bytes."""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from aerotri.core.errors import InputError
+from aerotri.core.executor import Executor
+from lidarctl import io, synthetic, tiles
+
+TILING = dict(tile_size_m=100.0, buffer_m=40.0)  # 2 x 2 tiles over the 200 m scene
+
+
+@pytest.fixture(scope="module")
+def strips(tmp_path_factory):
+    """A 200 m scene (2.5 points/m2) cut into two strips along y."""
+    d = tmp_path_factory.mktemp("resume_strips")
+    cloud, _ = synthetic.synthetic_scene(width_m=200.0, density_per_m2=2.5, seed=5, n_buildings=4, n_trees=30)
+    paths = []
+    for k, sel in enumerate((cloud.y < np.median(cloud.y), cloud.y >= np.median(cloud.y))):
+        part = io.PointCloud(*(getattr(cloud, f)[sel] for f in ("x", "y", "z", "intensity", "return_number",
+                                                                  "number_of_returns", "classification")))
+        paths.append(d / "lidar" / f"strip_{k}.laz")
+        paths[-1].parent.mkdir(exist_ok=True)
+        synthetic.write_las(paths[-1], part, crs="EPSG:32632")
+    return paths
+
+
+def _tree(folder) -> dict:
+    return {f.name: f.read_bytes() for f in sorted(folder.iterdir())}
+
+
+_CLASSIFY_TILE = tiles._classify_tile
+
+
+class _Tiles:
+    """``tiles._classify_tile`` counting the tiles it classifies; raises ``exc`` at the ``at``-th."""
+
+    def __init__(self, at=None, exc=KeyboardInterrupt):
+        self.at, self.exc, self.done = at, exc, 0
+
+    def __call__(self, task):
+        if self.done + 1 == self.at:
+            raise self.exc("broken on purpose") if self.exc is InputError else self.exc
+        self.done += 1
+        return _CLASSIFY_TILE(task)
+
+
+def _classify(paths, root, resume=True):
+    with Executor("synchronous") as ex:  # one tile after the other: the interrupt comes at a known tile
+        return tiles.classify_files(paths, root / "classified", executor=ex, suffix=".laz",
+                                    resume_dir=root / "work" / "classify_resume" if resume else None, **TILING)
+
+
+def test_a_rerun_resumes_the_tiles_an_interrupted_run_finished(strips, tmp_path, monkeypatch, caplog):
+    """Ctrl-C at the third tile: the two classified before are kept; the next run classifies only the others
+    and writes the strips of one uninterrupted run, byte for byte, then clears the folder."""
+    ref = _classify(strips, tmp_path / "ref", resume=False)
+    n = ref.run.n_tiles
+    assert n == 4
+    want = _tree(tmp_path / "ref" / "classified")
+    root = tmp_path / "p"
+    keep = root / "work" / "classify_resume"
+
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    with pytest.raises(KeyboardInterrupt):
+        _classify(strips, root)
+    assert not (root / "classified").exists()  # the set: all or none
+    assert len(list(keep.glob("*.json"))) == 2 and len(list(keep.glob("*.npy"))) == 4
+    assert [p.name for p in root.iterdir()] == ["work"]  # the tiles' work folder went
+
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):
+        st = _classify(strips, root)
+    assert count.done == n - 2
+    assert f"tiles: resumed 2 of {n} tiles an interrupted run finished" in caplog.text
+    assert _tree(root / "classified") == want
+    assert st.run.class_counts == ref.run.class_counts and st.run.tiled_points == ref.run.tiled_points
+    assert not keep.exists() and sorted(p.name for p in root.rglob("*")) == ["classified", "strip_0.laz",
+                                                                               "strip_1.laz", "work"]
+
+
+def test_a_changed_strip_resumes_nothing(strips, tmp_path, monkeypatch, caplog):
+    """The kept tiles' key holds the strips' size and time: after a strip changed every tile is classified."""
+    lidar = tmp_path / "lidar"
+    shutil.copytree(strips[0].parent, lidar)
+    paths = sorted(lidar.glob("*.laz"))
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    with pytest.raises(KeyboardInterrupt):
+        _classify(paths, tmp_path)
+    st = os.stat(paths[1])
+    os.utime(paths[1], ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):
+        _classify(paths, tmp_path)
+    assert count.done == 4 and "resumed" not in caplog.text
+    assert not (tmp_path / "work" / "classify_resume").exists()
+
+
+def test_an_error_leaves_nothing_and_nothing_to_resume(strips, tmp_path, monkeypatch):
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    with pytest.raises(KeyboardInterrupt):
+        _classify(strips, tmp_path)
+    assert len(list((tmp_path / "work" / "classify_resume").glob("*.json"))) == 2
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=2, exc=InputError))
+    with pytest.raises(InputError, match="broken on purpose"):
+        _classify(strips, tmp_path)
+    assert list(tmp_path.iterdir()) == []  # work/ too: the interrupted run made it for the kept tiles only
+
+
+KILLED = """
+import logging
+import sys
+from pathlib import Path
+from aerotri.core.atomic import remove_leftovers
+from aerotri.core.executor import Executor
+from lidarctl import tiles
+logging.basicConfig(level=logging.INFO)
+root, paths = Path(sys.argv[1]), sys.argv[2:]
+remove_leftovers(root)  # what a killed run left of its atomic writes, as the chain's classify stage does
+with Executor("synchronous") as ex:
+    tiles.classify_files(paths, root / "classified", executor=ex, suffix=".laz",
+                         resume_dir=root / "work" / "classify_resume", tile_size_m=100.0, buffer_m=40.0)
+"""
+
+
+def test_sigkill_in_the_middle_keeps_the_finished_tiles(strips, tmp_path):
+    """A process killed (SIGKILL) once two tiles are kept: the next run takes them and writes the same bytes."""
+    ref = tmp_path / "ref"
+    _classify(strips, ref, resume=False)
+    root = tmp_path / "p"
+    keep = root / "work" / "classify_resume"
+    proc = subprocess.Popen([sys.executable, "-c", KILLED, str(root), *map(str, strips)], start_new_session=True)
+    t0 = time.monotonic()
+    while proc.poll() is None and time.monotonic() - t0 < 120:
+        if keep.is_dir() and len(list(keep.glob("*.json"))) >= 2:
+            os.killpg(proc.pid, signal.SIGKILL)
+            break
+        time.sleep(0.02)
+    assert proc.wait(timeout=60) == -signal.SIGKILL
+    kept = len(list(keep.glob("*.json")))
+    assert 2 <= kept < 4 and not (root / "classified").exists()
+    done = subprocess.run([sys.executable, "-c", KILLED, str(root), *map(str, strips)], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert f"resumed {kept} of 4 tiles an interrupted run finished" in done.stderr, done.stderr
+    assert _tree(root / "classified") == _tree(ref / "classified")
+    assert not keep.exists() and not [p for p in root.rglob(".*")]
+
+
+def test_the_chain_classify_stage_resumes_its_tiles(tiny_project, tmp_path, monkeypatch, caplog):
+    """The chain's classify stage keeps its tiles in work/classify_resume: Ctrl-C at the third tile, then the
+    re-run classifies the rest, says so, and commits the strips of one uninterrupted run and its stamp."""
+    from aerotri.chain import chain_stages, run_stages
+    from aerotri.core.executor import activate
+
+    plan = tiles.plan_tiles  # tiles of 100 m (+ 50 m buffer): the tiny block's strips fit one tile by default
+    monkeypatch.setattr(tiles, "plan_tiles", lambda header, _t, _b, *a, **k: plan(header, 100.0, 50.0, *a, **k))
+
+    def classify(root):
+        with Executor("synchronous") as ex, activate(ex):
+            return run_stages(root, [s for s in chain_stages(root) if s.name == "classify"])
+
+    ref, root = tmp_path / "ref", tmp_path / "p"
+    for d in (ref, root):
+        shutil.copytree(tiny_project, d, ignore=shutil.ignore_patterns("truth", "images"))
+    n = classify(ref)[0]["tiles"]
+    assert n >= 4
+    want = _tree(ref / "lidar_out" / "classified")
+
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    with pytest.raises(KeyboardInterrupt):
+        classify(root)
+    keep = root / "work" / "classify_resume"
+    assert len(list(keep.glob("*.json"))) == 2 and not (root / "lidar_out" / "classified").exists()
+    assert not (root / "work" / "stages" / "classify.json").exists()
+
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):
+        row = classify(root)[0]
+    assert row["status"] == "done" and count.done == n - 2
+    assert f"tiles: resumed 2 of {n} tiles an interrupted run finished" in caplog.text
+    assert _tree(root / "lidar_out" / "classified") == want
+    assert (root / "work" / "stages" / "classify.json").is_file() and not keep.exists()
+    assert [p for p in root.rglob(".*")] == []

@@ -1,0 +1,99 @@
+"""``ortho mosaic`` resumes the rows of tiles an interrupted run wrote (work/mosaic_resume): a re-run blends only
+the rest and commits the outputs of one uninterrupted run, byte for byte."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import sqlite3
+
+import ortho.mosaic as M
+from aerotri.core.errors import InputError
+from tests.ortho.test_block_atomic import project, rectified, run  # noqa: F401 (fixtures: a rectified synthetic block)
+
+_BLEND_TILE = M._blend_tile
+TILE_PX = "128"
+
+
+def mosaic(root):
+    return run("mosaic", root, "--seams", "voronoi", "--tile-px", TILE_PX, "--scheduler", "synchronous")
+
+
+def tree(folder) -> dict:
+    """sha1 of every file below ``folder``; of a GeoPackage its rows but for the time it was written."""
+    out = {}
+    for dirpath, _, files in os.walk(folder):
+        for n in files:
+            p = os.path.join(dirpath, n)
+            if n.endswith(".gpkg"):
+                with contextlib.closing(sqlite3.connect(p)) as db:
+                    rows = [line for line in db.iterdump() if "gpkg_contents" not in line]
+                out[os.path.relpath(p, folder)] = hashlib.sha1("\n".join(rows).encode()).hexdigest()
+                continue
+            out[os.path.relpath(p, folder)] = hashlib.sha1(open(p, "rb").read()).hexdigest()
+    return out
+
+
+class _Blend:
+    """``_blend_tile`` counting the tiles it blends; raises ``exc`` at the ``at``-th."""
+
+    def __init__(self, at=None, exc=KeyboardInterrupt):
+        self.at, self.exc, self.done = at, exc, 0
+
+    def __call__(self, *args):
+        if self.done + 1 == self.at:
+            raise self.exc("broken on purpose") if self.exc is InputError else self.exc
+        self.done += 1
+        return _BLEND_TILE(*args)
+
+
+def test_a_rerun_resumes_the_rows_an_interrupted_mosaic_wrote(project, monkeypatch, caplog):
+    count = _Blend()
+    monkeypatch.setattr(M, "_blend_tile", count)
+    r = mosaic(project)
+    assert r.exit_code == 0, r.output
+    total = count.done
+    want = tree(project / "ortho")
+    cols = -(-json.loads((project / "ortho" / "mosaic.json").read_text())["width"] // int(TILE_PX))
+    assert total >= 3 * cols  # at least three rows of tiles
+    for name in ("mosaic.tif", "mosaic.json", "seams.tif"):
+        (project / "ortho" / name).unlink()
+
+    # Ctrl-C in the middle of the third row: the first two rows are kept
+    monkeypatch.setattr(M, "_blend_tile", _Blend(at=2 * cols + 2))
+    r = mosaic(project)
+    assert r.exit_code != 0 and not (project / "ortho" / "mosaic.tif").exists(), r.output
+    keep = project / "work" / "mosaic_resume"
+    assert len(list(keep.glob("*.tif"))) == 2
+
+    count = _Blend()
+    monkeypatch.setattr(M, "_blend_tile", count)
+    with caplog.at_level(logging.INFO, logger="ortho.mosaic"):
+        r = mosaic(project)
+    assert r.exit_code == 0, r.output
+    assert count.done == total - 2 * cols
+    assert f"mosaic: resumed {2 * cols} of {total} tiles an interrupted run finished" in caplog.text
+    assert tree(project / "ortho") == want
+    assert not keep.exists() and [p for p in project.rglob(".*")] == []
+
+
+def test_other_gains_resume_nothing_and_an_error_leaves_nothing(project, monkeypatch, caplog):
+    """The rows' key holds the gains: without balancing no kept row is taken; an error then removes them all."""
+    monkeypatch.setattr(M, "_blend_tile", _Blend(at=20))  # 9 tiles a row: two rows kept
+    assert mosaic(project).exit_code != 0
+    keep = project / "work" / "mosaic_resume"
+    assert len(list(keep.glob("*.tif"))) == 2
+    before = tree(project)
+    count = _Blend()
+    monkeypatch.setattr(M, "_blend_tile", count)
+    with caplog.at_level(logging.INFO, logger="ortho.mosaic"):
+        monkeypatch.setattr(M, "_blend_tile", _Blend(at=3, exc=InputError))
+        r = run("mosaic", project, "--seams", "voronoi", "--tile-px", TILE_PX, "--scheduler", "synchronous",
+                "--no-balance")
+    assert r.exit_code == 2 and "broken on purpose" in r.output, r.output
+    assert "resumed" not in caplog.text
+    assert tree(project) == {k: v for k, v in before.items() if not k.startswith("work/mosaic_resume/")}
+    assert not keep.exists()
