@@ -200,12 +200,16 @@ class _CellSums:
         out["ndsm"] = out["dsm"] - out["dem"]
         return {k: v.astype(np.float32) for k, v in out.items()}
 
-    def grids(self, dem: np.ndarray, footprint_cells: int, first_returns) -> RasterGrids:
-        """The grids north-up; ``first_returns``: (x, y, z) in metres of the returns ``dsm_nearest`` takes."""
+    def nearest_returns(self) -> nearest.NearestReturns:
+        """The nearest returns (``dsm_nearest``) of the whole grid, none added yet."""
+        res_m, x0, y0, nrows, ncols = self.args
+        return nearest.NearestReturns(x0_m=x0, y_top_m=y0 + nrows * res_m, res_m=res_m, nrows=nrows, ncols=ncols,
+                                      max_dist_m=nearest.SEARCH_RADIUS_M)
+
+    def grids(self, dem: np.ndarray, footprint_cells: int, near: np.ndarray) -> RasterGrids:
+        """The grids north-up; ``near``: the nearest-return surface of the grid (``nearest``, metres, NaN for none)."""
         res_m, x0, y0, nrows, ncols = self.args
         out = {k: v[::-1] for k, v in self.grids_south_up(dem, footprint_cells).items()}   # north-up rows
-        near = nearest.nearest_return_surface(*first_returns, x0_m=x0, y_top_m=y0 + nrows * res_m, res_m=res_m,
-                                              nrows=nrows, ncols=ncols, max_dist_m=nearest.SEARCH_RADIUS_M)
         out["dsm_nearest"] = np.where(np.isnan(out["dsm"]) | np.isnan(near), out["dsm"], near).astype(np.float32)
         return RasterGrids(**out, transform=from_origin(x0, y0 + nrows * res_m, res_m, res_m))
 
@@ -235,8 +239,10 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
     sums.add(x, y, z, cls, cloud.return_number, cloud.intensity)
     dem = sums.dem(fill_radius_px=dem_fill_radius_px)
     sums.add_chm(x, y, z, cls, dem)
-    first = nearest.first_return_mask(cls, cloud.return_number)
-    return sums.grids(dem, footprint_cells, (x[first], y[first], z[first]))
+    near = sums.nearest_returns()
+    near.count(x, y, cls, cloud.return_number)
+    near.add(x, y, z, cls, cloud.return_number)
+    return sums.grids(dem, footprint_cells, near.surface())
 
 
 def _header_bounds(path, header):
@@ -288,18 +294,17 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds",
                option="--res-m", hint="use a coarser --res-m (or check the bounds: strips far apart, a wrong CRS?)")
     sums = _CellSums(args)
-    first = []    # the returns of dsm_nearest (x, y, z by chunk)
+    near = sums.nearest_returns()
     for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
         sums.add(x, y, z, cls, rn, inten)
-        keep = nearest.first_return_mask(cls, rn)
-        first.append((x[keep], y[keep], z[keep]))
+        near.count(x, y, cls, rn)
     if not sums.ground_n.any():
         raise InputError(f"{path}: no ground points (class 2); run 'lidarctl classify' first")
     dem = sums.dem()
-    for x, y, z, cls, _, _ in _file_points(path, units, chunk_points, validate=False):
+    for x, y, z, cls, rn, _ in _file_points(path, units, chunk_points, validate=False):
         sums.add_chm(x, y, z, cls, dem)
-    first = tuple(np.concatenate([f[k] for f in first]) for k in range(3))
-    return sums.grids(dem, footprint_cells, first), int(header.point_count)
+        near.add(x, y, z, cls, rn)
+    return sums.grids(dem, footprint_cells, near.surface()), int(header.point_count)
 
 
 def _transform_in_units(t, units: LengthUnits):
@@ -1009,47 +1014,54 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     res_m, x0, y0 = args[:3]
     tid, (row0, col0, rows, cols), core, _ = tile
     sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
-    first = []    # the returns of dsm_nearest (x, y, z by chunk)
+    near = _tile_nearest_returns(args, tile)    # the returns of dsm_nearest: counted, then sorted into cells
     for ch in _bin_chunks(work, tid, chunk_points):
         sums.add(ch.x, ch.y, ch.z, ch.cls, ch.rn, ch.intensity)
-        keep = nearest.first_return_mask(ch.cls, ch.rn)
-        first.append((ch.x[keep], ch.y[keep], ch.z[keep]))
+        near.count(ch.x, ch.y, ch.cls, ch.rn)
     grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's bilinear samples
     dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
     for ch in _bin_chunks(work, tid, chunk_points):
         sums.add_chm(ch.x, ch.y, ch.z, ch.cls, dem)
+        near.add(ch.x, ch.y, ch.z, ch.cls, ch.rn)
     for name, _ in _BIN_FIELDS:
         os.remove(work / f"tile_{tid}_{name}.bin")
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
-    out["dsm_nearest"] = _tile_nearest(first, args, tile, out["dsm"], inputs.units)
+    out["dsm_nearest"] = _tile_nearest(near, args, tile, out["dsm"], inputs.units)
     return out
 
 
-def _tile_nearest(first, args, tile, dsm: np.ndarray, units: LengthUnits) -> np.ndarray:
-    """dsm_nearest of a tile's core (north-up float32, CRS units, NODATA) from the first returns of its window
-    (``first``: (x, y, z) arrays in metres, by chunk) and its ``dsm`` (the core's, as written): the nearest return
-    over the core grown by ``nearest.reach_px`` cells (a buffer at least that wide holds every return that can be
-    the nearest to a core centre: the whole grid's values), else the DSM's value."""
+def _tile_nearest_returns(args, tile) -> nearest.NearestReturns:
+    """The nearest returns of a tile: its core grown by ``nearest.reach_px`` cells, clipped to its window (a
+    buffer at least that wide holds every return that can be the nearest to a core centre: the whole grid's
+    values)."""
     res_m, x0, y0 = args[:3]
     _, (row0, col0, rows, cols), core, _ = tile
-    x, y, z = (np.concatenate([f[k] for f in first]) if first else np.empty(0) for k in range(3))
     reach = nearest.reach_px(res_m)
-    # the window's rows run south to north from row0 (``_CellSums``): the grown core's, clipped to the window
+    # the window's rows run south to north from row0 (``_CellSums``)
     r_lo, r_hi = max(core[0].start - reach, 0), min(core[0].stop + reach, rows)
     c_lo, c_hi = max(core[1].start - reach, 0), min(core[1].stop + reach, cols)
-    near = nearest.nearest_return_surface(x, y, z, x0_m=x0 + (col0 + c_lo) * res_m,
-                                          y_top_m=y0 + (row0 + r_hi) * res_m, res_m=res_m, nrows=r_hi - r_lo,
-                                          ncols=c_hi - c_lo, max_dist_m=nearest.SEARCH_RADIUS_M)
-    near = near[r_hi - core[0].stop: r_hi - core[0].start, core[1].start - c_lo: core[1].stop - c_lo]
+    return nearest.NearestReturns(x0_m=x0 + (col0 + c_lo) * res_m, y_top_m=y0 + (row0 + r_hi) * res_m, res_m=res_m,
+                                  nrows=r_hi - r_lo, ncols=c_hi - c_lo, max_dist_m=nearest.SEARCH_RADIUS_M)
+
+
+def _tile_nearest(near: nearest.NearestReturns, args, tile, dsm: np.ndarray, units: LengthUnits) -> np.ndarray:
+    """dsm_nearest of a tile's core (north-up float32, CRS units, NODATA) from the nearest returns of its grown core
+    (``_tile_nearest_returns``, every chunk added) and its ``dsm`` (the core's, as written): the nearest return,
+    else the DSM's value."""
+    _, (_, _, rows, _), core, _ = tile
+    reach = nearest.reach_px(args[0])
+    r_hi, c_lo = min(core[0].stop + reach, rows), max(core[1].start - reach, 0)     # ``_tile_nearest_returns``'
+    surface = near.surface()
+    surface = surface[r_hi - core[0].stop: r_hi - core[0].start, core[1].start - c_lo: core[1].stop - c_lo]
     if not units.is_metric:   # the arithmetic of ``RasterGrids.in_crs_units``
-        near = (near.astype(float) / units.z_m).astype(np.float32)
-    near = np.ascontiguousarray(near)
-    fallback = np.isnan(near)
+        surface = (surface.astype(float) / units.z_m).astype(np.float32)
+    surface = np.ascontiguousarray(surface)
+    fallback = np.isnan(surface)
     fallback |= dsm == NODATA
-    near[fallback] = dsm[fallback]
-    return near
+    surface[fallback] = dsm[fallback]
+    return surface
 
 
 def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
