@@ -690,15 +690,51 @@ def _bin_chunks(work: Path, tid: int, chunk_points: int):
             yield chunk
 
 
-def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "float32", nodata=NODATA):
+def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "float32", nodata=NODATA,
+                 in_memory: bool = False):
     """A working GeoTIFF, uncompressed: written once by windows and read once by the COG copy, so
     compressing it cost 2.3 CPU-s of the demo's rasters and saved only temporary disk space (which
-    ``check_disk`` asks for uncompressed anyway)."""
+    ``check_disk`` asks for uncompressed anyway). ``in_memory``: a GDAL in-memory raster instead (``MEM``; no
+    file is written at ``path``), read by ``_working_raster`` before it is closed."""
     import rasterio
 
+    if in_memory:
+        return rasterio.open(path, "w+", driver="MEM", width=shape[1], height=shape[0], count=count, dtype=dtype,
+                             crs=crs, transform=transform, nodata=nodata)
     return rasterio.open(path, "w", driver="GTiff", width=shape[1], height=shape[0], count=count, dtype=dtype,
                          crs=crs, transform=transform, nodata=nodata, tiled=True, blockxsize=_BLOCK_PX,
                          blockysize=_BLOCK_PX, bigtiff="IF_SAFER")
+
+
+# The working rasters are held in memory (``_tiled_gtiff``'s ``in_memory``) when all of them take at most this share
+# of the RAM: the demo's seven, 212 MB, are then neither written to nor read back from disk (each COG and the
+# hillshade read the raster the tiles were written into; 0.04-0.08 CPU-s less a raster, the COGs the same bytes).
+# Larger grids keep the files: memory stays set by the tile.
+WORKING_IN_MEMORY_SHARE = 1 / 16
+
+
+def _working_in_memory(total_bytes: int) -> bool:
+    from aerotri.core.limits import physical_memory_bytes
+
+    ram = physical_memory_bytes()     # 0: the system does not say
+    return bool(ram) and total_bytes <= WORKING_IN_MEMORY_SHARE * ram
+
+
+@contextlib.contextmanager
+def _working_raster(ds, path: Path):
+    """A working raster of ``_tiles_to_gtiffs`` to read once every tile is written, closed after: an in-memory one
+    itself, a GeoTIFF closed (its blocks written out) and opened again for reading."""
+    import rasterio
+
+    if ds.driver == "MEM":
+        try:
+            yield ds
+        finally:
+            ds.close()
+        return
+    ds.close()
+    with rasterio.open(path) as src:
+        yield src
 
 
 def _tile_windows(grid, nrows: int, ncols: int):
@@ -862,6 +898,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
                option="--tile-px", hint="use a smaller --tile-px")
     threads = _tile_threads(win[0] * win[1])
+    in_memory = _working_in_memory((len(RASTERS) + 1) * nrows * ncols * 4)
     # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
     # is mostly nodata, but the tiles are still visited and written)
     check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
@@ -883,18 +920,19 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
             with rasterio.Env(**_GDAL_THREAD_ENV):
                 gtiffs = _tiles_to_gtiffs(inputs, args, grid, used, work, working, transform=transform, tags=tags,
                                           chunk_points=chunk_points, footprint_cells=footprint_cells,
-                                          dem_fill_radius_px=dem_fill_radius_px, threads=threads)
+                                          dem_fill_radius_px=dem_fill_radius_px, threads=threads,
+                                          in_memory=in_memory)
 
             # Each task closes its working GeoTIFF first: the windows sit in GDAL's block cache (the demo's six
             # working rasters, 181 MB, fit in it) and are written out at the close, so the six closes run two
             # at a time beside the hillshade and the COGs instead of one after the other before them.
             def hillshade_png() -> None:
-                gtiffs["dem_m"].close()
-                _hillshade_png(work / "dem_m.tif", tmp / "hillshade.png", res_m)
+                with _working_raster(gtiffs["dem_m"], work / "dem_m.tif") as src:
+                    _hillshade_png(src, tmp / "hillshade.png", res_m)
 
             def cog(name: str) -> None:
-                gtiffs[name].close()
-                with rasterio.open(work / f"{name}.tif") as src, atomic_path(tmp / f"{name}.tif") as dst:
+                with _working_raster(gtiffs[name], work / f"{name}.tif") as src, \
+                        atomic_path(tmp / f"{name}.tif") as dst:
                     # ZSTD level 1 (as the ortho mosaic's COGs): the same values as DEFLATE level 1 with 40 %
                     # less CPU (the demo's five COGs 1.95-2.02 -> 1.17-1.26 CPU-s) and files 0.9 % smaller
                     rio_copy(src, dst, driver="COG", compress="ZSTD", predictor=3, level=1,
@@ -1085,7 +1123,8 @@ def _tile_nearest(near: nearest.NearestReturns, args, tile, dsm: np.ndarray, uni
 
 
 def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
-                     tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
+                     tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1,
+                     in_memory: bool = False):
     """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
     at most one more waiting, largest first), the core written by window into tiled GeoTIFFs
     (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) as each
@@ -1102,13 +1141,15 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
     out = {}
     for name in RASTERS:
         ds = working.enter_context(_tiled_gtiff(work / f"{name}.tif", (nrows, ncols), transform,
-                                                 inputs.surface_crs if name in ("dem", "dsm", "dsm_nearest") else inputs.crs))
+                                                 inputs.surface_crs if name in ("dem", "dsm", "dsm_nearest") else inputs.crs,
+                                                 in_memory=in_memory))
         if _unit(name, units):
             ds.units = (_unit(name, units),)
         ds.set_band_description(1, _description(name, units))
         ds.update_tags(**_raster_tags(tags, name))
         out[name] = ds
-    out["dem_m"] = working.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
+    out["dem_m"] = working.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs,
+                                                       in_memory=in_memory))
     with ThreadPoolExecutor(threads) as pool:
 
         def write(window, grids) -> None:
@@ -1147,19 +1188,17 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
     return out
 
 
-def _hillshade_png(dem_path: Path, png_path: Path, res_m: float) -> None:
-    """Pass 3: the hillshade PNG of the metric DEM (north-up, NODATA for none), computed by strips of
-    rows as the PNG is written, each strip read with a one-row border (clipped to the raster, as
+def _hillshade_png(src, png_path: Path, res_m: float) -> None:
+    """Pass 3: the hillshade PNG of the metric DEM (``src``: an open raster, north-up, NODATA for none), computed
+    by strips of rows as the PNG is written, each strip read with a one-row border (clipped to the raster, as
     ``np.gradient`` treats the raster's edges): no working hillshade file."""
-    import rasterio
     from rasterio.windows import Window
 
-    with rasterio.open(dem_path) as src:
-        nrows, ncols = src.height, src.width
+    nrows, ncols = src.height, src.width
 
-        def read_rows(r0: int, r1: int) -> np.ndarray:
-            b0, b1 = max(r0 - 1, 0), min(r1 + 1, nrows)
-            dem = src.read(1, window=Window(0, b0, ncols, b1 - b0), masked=True).filled(np.nan)
-            return hillshade_grey_of_dem(dem, res_m)[r0 - b0: r1 - b0]
+    def read_rows(r0: int, r1: int) -> np.ndarray:
+        b0, b1 = max(r0 - 1, 0), min(r1 + 1, nrows)
+        dem = src.read(1, window=Window(0, b0, ncols, b1 - b0), masked=True).filled(np.nan)
+        return hillshade_grey_of_dem(dem, res_m)[r0 - b0: r1 - b0]
 
-        _write_png_grey_as_rgba(png_path, read_rows, nrows, ncols)
+    _write_png_grey_as_rgba(png_path, read_rows, nrows, ncols)
