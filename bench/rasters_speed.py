@@ -241,6 +241,7 @@ def main():
     out = {
         "what": "write_rasters (lidarctl rasters) of the demo's classified strips at 0.5 m: this checkout against "
                 "the baseline revision, each run in its own process; best of the runs",
+        "command": " ".join(["python", "bench/rasters_speed.py", *sys.argv[1:]]),
         "project": str(args.project), "baseline_rev": args.baseline_rev, "ours_rev": head, "points": int(n),
         "strips": len(paths),
         "res_m": RES_M, "machine_cores": os.cpu_count(),
