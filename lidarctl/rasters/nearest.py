@@ -208,9 +208,11 @@ class NearestReturns:
                          c(return_number, np.uint8), self._grid, self._start, self._pts)
 
     def surface(self) -> np.ndarray:
-        """``nearest_return_surface`` of the returns added."""
-        pts = np.empty((0, 3)) if self._pts is None else self._pts
-        return _nearest_in_buckets(pts, self._start[:-1], self._grid, self._max_dist_m)
+        """``nearest_return_surface`` of the returns added (none if no chunk was added)."""
+        if self._pts is None:
+            return _nearest_in_buckets(np.empty((0, 3)), np.zeros(len(self._start) - 1, np.int64), self._grid,
+                                       self._max_dist_m)
+        return _nearest_in_buckets(self._pts, self._start[:-1], self._grid, self._max_dist_m)
 
 
 def nearest_return_surface(x: np.ndarray, y: np.ndarray, z: np.ndarray, *, x0_m: float, y_top_m: float,

@@ -112,3 +112,11 @@ def test_chunks_read_twice_take_the_first_returns_not_noise():
     assert 0 < keep.sum() < n
     np.testing.assert_array_equal(near.surface(), nearest_return_surface(x[keep], y[keep], z[keep], **kw))
     np.testing.assert_array_equal(near.surface(), _brute_force(x[keep], y[keep], z[keep], **kw))
+
+
+def test_no_returns_added_gives_no_surface():
+    kw = dict(x0_m=0.0, y_top_m=4.0, res_m=1.0, nrows=4, ncols=4, max_dist_m=2.0)
+    near = NearestReturns(**kw)
+    near.count(np.array([1.5]), np.array([2.5]), np.array([2], np.uint8), np.array([1], np.uint8))  # never added
+    assert np.isnan(near.surface()).all()
+    assert np.isnan(nearest_return_surface(np.empty(0), np.empty(0), np.empty(0), **kw)).all()
