@@ -46,9 +46,12 @@ def _nearer(d, z, best, best_z):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _nearest_in_run(pts, q0, q1, cx, cy, best, best_z):
-    # the points q0 .. q1 (cells next to each other in a row: one run of the sorted points)
-    for q in range(q0, q1):
+def _nearest_in_run(pts, run, centre, nearest):
+    # the points run = (q0, q1) (cells next to each other in a row: one run of the sorted points) against the
+    # nearest so far, (squared distance, z), to the centre (x, y)
+    cx, cy = centre
+    best, best_z = nearest
+    for q in range(run[0], run[1]):
         d = (pts[q, 0] - cx) ** 2 + (pts[q, 1] - cy) ** 2
         if _nearer(d, pts[q, 2], best, best_z):
             best, best_z = d, pts[q, 2]
@@ -56,12 +59,16 @@ def _nearest_in_run(pts, q0, q1, cx, cy, best, best_z):
 
 
 @numba.njit(cache=True, nogil=True)
-def _nearest_beyond(pts, start, grid, i, j, k0, reach, best, best_z):
-    # rings k0 .. reach of cell (i, j) after the nearer ones gave (best, best_z). Ring k: its top and bottom rows are
-    # each one run of points (cells of a row are consecutive), its sides two cells a row; every cell of ring k lies
-    # at least (k - 0.5) cells from the centre, so the search stops at the first ring that cannot hold a nearer one.
+def _nearest_beyond(pts, start, grid, cell, rings, nearest):
+    # rings k0 .. reach (``rings``) of cell (i, j) after the nearer ones gave ``nearest`` (squared distance, z). Ring
+    # k: its top and bottom rows are each one run of points (cells of a row are consecutive), its sides two cells a
+    # row; every cell of ring k lies at least (k - 0.5) cells from the centre, so the search stops at the first
+    # ring that cannot hold a nearer one.
     x0, y_top, res, nrows, ncols = grid
-    cx, cy = x0 + (j + 0.5) * res, y_top - (i + 0.5) * res
+    i, j = cell
+    k0, reach = rings
+    best, best_z = nearest
+    centre = (x0 + (j + 0.5) * res, y_top - (i + 0.5) * res)
     for k in range(k0, reach + 1):
         if k > 0 and ((k - 0.5) * res) ** 2 > best:
             break
@@ -69,13 +76,13 @@ def _nearest_beyond(pts, start, grid, i, j, k0, reach, best, best_z):
         for side in range(2 if k > 0 else 1):   # the top row, the bottom row (ring 0: the cell)
             a = i - k if side == 0 else i + k
             if 0 <= a < nrows:
-                best, best_z = _nearest_in_run(pts, start[a * ncols + b_lo], start[a * ncols + b_hi + 1], cx, cy,
-                                               best, best_z)
+                best, best_z = _nearest_in_run(pts, (start[a * ncols + b_lo], start[a * ncols + b_hi + 1]), centre,
+                                               (best, best_z))
         for a in range(max(i - k + 1, 0), min(i + k, nrows)):
             for b in (j - k, j + k):
                 if 0 <= b < ncols:
                     c = a * ncols + b
-                    best, best_z = _nearest_in_run(pts, start[c], start[c + 1], cx, cy, best, best_z)
+                    best, best_z = _nearest_in_run(pts, (start[c], start[c + 1]), centre, (best, best_z))
     return best, best_z
 
 
@@ -138,7 +145,7 @@ def _nearest_in_buckets(pts, start, grid, max_dist):
                 if _nearer(near1[r, j + 1], near1_z[r, j + 1], best, best_z):
                     best, best_z = near1[r, j + 1], near1_z[r, j + 1]
                 if reach >= 2 and not ring2 > best and _any_within(start, grid, i, j, reach):
-                    best, best_z = _nearest_beyond(pts, start, grid, i, j, 2, reach, best, best_z)
+                    best, best_z = _nearest_beyond(pts, start, grid, (i, j), (2, reach), (best, best_z))
             out[i, j] = best_z
     return out
 
@@ -158,8 +165,9 @@ def _takes(cls, return_number):
 
 
 @numba.njit(cache=True, nogil=True)
-def _count_in_cells(x, y, cls, return_number, grid, start):
-    # the returns the surface takes per cell, into start[cell + 2]
+def _count_in_cells(chunk, grid, start):
+    # the returns the surface takes of a chunk (x, y, z, class, return number) per cell, into start[cell + 2]
+    x, y, _, cls, return_number = chunk
     for q in range(len(x)):
         if _takes(cls[q], return_number[q]):
             k = _cell_of(x[q], y[q], grid)
@@ -168,8 +176,10 @@ def _count_in_cells(x, y, cls, return_number, grid, start):
 
 
 @numba.njit(cache=True, nogil=True)
-def _sort_into_cells(x, y, z, cls, return_number, grid, start, pts):
-    # the counting sort's scatter (stable): start[cell + 1] is the cell's next free row of pts
+def _sort_into_cells(chunk, grid, start, pts):
+    # the counting sort's scatter (stable) of a chunk (x, y, z, class, return number): start[cell + 1] is the cell's
+    # next free row of pts
+    x, y, z, cls, return_number = chunk
     for q in range(len(x)):
         if _takes(cls[q], return_number[q]):
             k = _cell_of(x[q], y[q], grid)
@@ -177,6 +187,12 @@ def _sort_into_cells(x, y, z, cls, return_number, grid, start, pts):
                 i = start[k + 1]
                 start[k + 1] += 1
                 pts[i, 0], pts[i, 1], pts[i, 2] = x[q], y[q], z[q]
+
+
+def _chunk(x, y, z, cls, return_number):
+    # one layout, one compilation of the kernels
+    c = np.ascontiguousarray
+    return c(x, np.float64), c(y, np.float64), c(z, np.float64), c(cls, np.uint8), c(return_number, np.uint8)
 
 
 class NearestReturns:
@@ -194,18 +210,14 @@ class NearestReturns:
 
     def count(self, x, y, cls, return_number) -> None:
         """First pass: a chunk's returns (x, y in metres, class, return number) counted by cell."""
-        c = np.ascontiguousarray
-        _count_in_cells(c(x, np.float64), c(y, np.float64), c(cls, np.uint8), c(return_number, np.uint8),
-                        self._grid, self._start)
+        _count_in_cells(_chunk(x, y, x, cls, return_number), self._grid, self._start)
 
     def add(self, x, y, z, cls, return_number) -> None:
         """Second pass: the same chunk, its returns (z in metres) sorted into their cells."""
         if self._pts is None:
             np.cumsum(self._start, out=self._start)
             self._pts = np.empty((int(self._start[-1]), 3))
-        c = np.ascontiguousarray
-        _sort_into_cells(c(x, np.float64), c(y, np.float64), c(z, np.float64), c(cls, np.uint8),
-                         c(return_number, np.uint8), self._grid, self._start, self._pts)
+        _sort_into_cells(_chunk(x, y, z, cls, return_number), self._grid, self._start, self._pts)
 
     def surface(self) -> np.ndarray:
         """``nearest_return_surface`` of the returns added (none if no chunk was added)."""
