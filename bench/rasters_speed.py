@@ -129,7 +129,10 @@ def compare(a: Path, b: Path) -> dict:
     import rasterio
 
     out = {}
-    for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
+    # dsm_nearest.tif: written since the nearest-return surface (a baseline before it has none)
+    names = ("dem", "dsm", "ndsm", "chm", "intensity") + (("dsm_nearest",) if all(
+        (d / "dsm_nearest.tif").exists() for d in (a, b)) else ())
+    for name in names:
         with rasterio.open(a / f"{name}.tif") as fa, rasterio.open(b / f"{name}.tif") as fb:
             assert fa.shape == fb.shape and fa.transform == fb.transform and fa.crs == fb.crs, name
             x, y = fa.read(1, masked=True), fb.read(1, masked=True)
@@ -149,7 +152,7 @@ def compare(a: Path, b: Path) -> dict:
     ha, hb = mpimg.imread(a / "hillshade.png"), mpimg.imread(b / "hillshade.png")
     out["hillshade"] = dict(pixels=int(ha.shape[0] * ha.shape[1]),
                             differing_pixels=int((ha != hb).any(axis=-1).sum()))
-    for name in ("dem", "dsm", "ndsm", "chm", "intensity"):
+    for name in names:
         out[name]["same_bytes"] = sha256(a / f"{name}.tif") == sha256(b / f"{name}.tif")
     out["hillshade"]["same_bytes"] = sha256(a / "hillshade.png") == sha256(b / "hillshade.png")
     return out
@@ -238,6 +241,7 @@ def main():
     out = {
         "what": "write_rasters (lidarctl rasters) of the demo's classified strips at 0.5 m: this checkout against "
                 "the baseline revision, each run in its own process; best of the runs",
+        "command": " ".join(["python", "bench/rasters_speed.py", *sys.argv[1:]]),
         "project": str(args.project), "baseline_rev": args.baseline_rev, "ours_rev": head, "points": int(n),
         "strips": len(paths),
         "res_m": RES_M, "machine_cores": os.cpu_count(),

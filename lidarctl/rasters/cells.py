@@ -20,8 +20,10 @@ VEGETATION = (4, 5)      # medium and high vegetation: the CHM
 
 
 # columns of the per-cell records (one record per cell: a point touches one or two cache lines, not seven)
-_STAMP, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                     # int32 (2^31 points a cell)
-_GROUND_CHUNK, _INTEN_CHUNK, _DSM, _GROUND_SUM, _INTEN_SUM = 0, 1, 2, 3, 4   # float64
+_SLOT, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                      # int32 (2^31 points a cell)
+_DSM, _GROUND_SUM, _INTEN_SUM = 0, 1, 2                               # float64
+# columns of a chunk's sums, one row per cell the chunk touches (its slot)
+_GROUND_CHUNK, _INTEN_CHUNK = 0, 1
 
 
 class _Window(NamedTuple):
@@ -58,9 +60,12 @@ class _Classified(NamedTuple):
 
 
 @numba.njit(cache=True, nogil=True)
-def _accumulate(pts, win, counts, sums, stamp, touched):
+def _accumulate(pts, win, counts, sums, touched, chunk_sums):
     """One chunk (``_Returns``) into the records of the ``_Window`` (``counts``, ``sums``: one row per flat
-    cell). Returns the index of the first point off the window, or -1."""
+    cell). Returns the index of the first point off the window, or -1. The chunk's own sums go into rows of
+    ``chunk_sums`` (as many as points), one per cell it touches: ``touched[slot]`` is the cell of a slot,
+    ``counts[cell, _SLOT]`` its slot if ``touched`` says so (a sparse set: nothing to clear between chunks, and
+    two columns fewer per cell of the window than stamps and chunk sums in the records)."""
     x, y, z, cls, rn, inten = pts.x, pts.y, pts.z, pts.cls, pts.return_number, pts.intensity
     res_m, x0, y0, row0, col0, nrows, ncols = win.res_m, win.x0, win.y0, win.row0, win.col0, win.nrows, win.ncols
     nt = 0
@@ -75,25 +80,29 @@ def _accumulate(pts, win, counts, sums, stamp, touched):
         first = rn[k] == 1
         if cl == 7 or cl == 18:
             continue
-        if counts[c, _STAMP] != stamp and (ground or first):
-            counts[c, _STAMP] = stamp            # the chunk's sums of this cell start at 0
-            sums[c, _GROUND_CHUNK] = 0.0
-            sums[c, _INTEN_CHUNK] = 0.0
-            touched[nt] = c
-            nt += 1
         counts[c, _VALID_N] += 1
+        if not (ground or first):
+            continue
+        s = counts[c, _SLOT]
+        if s >= nt or touched[s] != c:
+            s = nt                               # the chunk's sums of this cell start at 0
+            counts[c, _SLOT] = s
+            touched[s] = c
+            chunk_sums[s, _GROUND_CHUNK] = 0.0
+            chunk_sums[s, _INTEN_CHUNK] = 0.0
+            nt += 1
         if ground:
-            sums[c, _GROUND_CHUNK] += z[k]
+            chunk_sums[s, _GROUND_CHUNK] += z[k]
             counts[c, _GROUND_N] += 1
         if first:
             if np.isnan(sums[c, _DSM]) or z[k] > sums[c, _DSM]:
                 sums[c, _DSM] = z[k]
-            sums[c, _INTEN_CHUNK] += float(inten[k])
+            chunk_sums[s, _INTEN_CHUNK] += float(inten[k])
             counts[c, _INTEN_N] += 1
-    for t in range(nt):
-        c = touched[t]
-        sums[c, _GROUND_SUM] += sums[c, _GROUND_CHUNK]
-        sums[c, _INTEN_SUM] += sums[c, _INTEN_CHUNK]
+    for s in range(nt):
+        c = touched[s]
+        sums[c, _GROUND_SUM] += chunk_sums[s, _GROUND_CHUNK]
+        sums[c, _INTEN_SUM] += chunk_sums[s, _INTEN_CHUNK]
     return -1
 
 
@@ -141,9 +150,8 @@ class CellStats:
         self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
         n = self.nrows * self.ncols
         self._counts = np.zeros((n, 4), np.int32)
-        self._sums = np.zeros((n, 5))
+        self._sums = np.zeros((n, 3))
         self._sums[:, _DSM] = np.nan
-        self._stamp = 0
         self.chm = np.full(n, np.nan)
 
     valid_n = property(lambda self: self._counts[:, _VALID_N])
@@ -158,10 +166,9 @@ class CellStats:
 
     def add(self, x, y, z, cls, return_number, intensity) -> None:
         """A chunk of points (x, y, z in metres, class, return number, intensity)."""
-        self._stamp += 1
         c = np.ascontiguousarray  # one layout, one compilation (record fields and slices were two more of each kernel)
         bad = _accumulate(_Returns(c(x), c(y), c(z), c(cls), c(return_number), c(intensity)), self._window(),
-                          self._counts, self._sums, self._stamp, np.empty(len(x), np.int64))
+                          self._counts, self._sums, np.empty(len(x), np.int32), np.empty((len(x), 2)))
         if bad >= 0:
             raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
 

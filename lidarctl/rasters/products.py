@@ -200,12 +200,16 @@ class _CellSums:
         out["ndsm"] = out["dsm"] - out["dem"]
         return {k: v.astype(np.float32) for k, v in out.items()}
 
-    def grids(self, dem: np.ndarray, footprint_cells: int, first_returns) -> RasterGrids:
-        """The grids north-up; ``first_returns``: (x, y, z) in metres of the returns ``dsm_nearest`` takes."""
+    def nearest_returns(self) -> nearest.NearestReturns:
+        """The nearest returns (``dsm_nearest``) of the whole grid, none added yet."""
+        res_m, x0, y0, nrows, ncols = self.args
+        return nearest.NearestReturns(x0_m=x0, y_top_m=y0 + nrows * res_m, res_m=res_m, nrows=nrows, ncols=ncols,
+                                      max_dist_m=nearest.SEARCH_RADIUS_M)
+
+    def grids(self, dem: np.ndarray, footprint_cells: int, near: np.ndarray) -> RasterGrids:
+        """The grids north-up; ``near``: the nearest-return surface of the grid (``nearest``, metres, NaN for none)."""
         res_m, x0, y0, nrows, ncols = self.args
         out = {k: v[::-1] for k, v in self.grids_south_up(dem, footprint_cells).items()}   # north-up rows
-        near = nearest.nearest_return_surface(*first_returns, x0_m=x0, y_top_m=y0 + nrows * res_m, res_m=res_m,
-                                              nrows=nrows, ncols=ncols, max_dist_m=nearest.SEARCH_RADIUS_M)
         out["dsm_nearest"] = np.where(np.isnan(out["dsm"]) | np.isnan(near), out["dsm"], near).astype(np.float32)
         return RasterGrids(**out, transform=from_origin(x0, y0 + nrows * res_m, res_m, res_m))
 
@@ -235,8 +239,10 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
     sums.add(x, y, z, cls, cloud.return_number, cloud.intensity)
     dem = sums.dem(fill_radius_px=dem_fill_radius_px)
     sums.add_chm(x, y, z, cls, dem)
-    first = nearest.first_return_mask(cls, cloud.return_number)
-    return sums.grids(dem, footprint_cells, (x[first], y[first], z[first]))
+    near = sums.nearest_returns()
+    near.count(x, y, cls, cloud.return_number)
+    near.add(x, y, z, cls, cloud.return_number)
+    return sums.grids(dem, footprint_cells, near.surface())
 
 
 def _header_bounds(path, header):
@@ -288,18 +294,17 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     check_grid(args[3], args[4], res_m, RASTER_BYTES_PER_CELL, f"{path}: rasters over the header bounds",
                option="--res-m", hint="use a coarser --res-m (or check the bounds: strips far apart, a wrong CRS?)")
     sums = _CellSums(args)
-    first = []    # the returns of dsm_nearest (x, y, z by chunk)
+    near = sums.nearest_returns()
     for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
         sums.add(x, y, z, cls, rn, inten)
-        keep = nearest.first_return_mask(cls, rn)
-        first.append((x[keep], y[keep], z[keep]))
+        near.count(x, y, cls, rn)
     if not sums.ground_n.any():
         raise InputError(f"{path}: no ground points (class 2); run 'lidarctl classify' first")
     dem = sums.dem()
-    for x, y, z, cls, _, _ in _file_points(path, units, chunk_points, validate=False):
+    for x, y, z, cls, rn, _ in _file_points(path, units, chunk_points, validate=False):
         sums.add_chm(x, y, z, cls, dem)
-    first = tuple(np.concatenate([f[k] for f in first]) for k in range(3))
-    return sums.grids(dem, footprint_cells, first), int(header.point_count)
+        near.add(x, y, z, cls, rn)
+    return sums.grids(dem, footprint_cells, near.surface()), int(header.point_count)
 
 
 def _transform_in_units(t, units: LengthUnits):
@@ -685,15 +690,51 @@ def _bin_chunks(work: Path, tid: int, chunk_points: int):
             yield chunk
 
 
-def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "float32", nodata=NODATA):
+def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "float32", nodata=NODATA,
+                 in_memory: bool = False):
     """A working GeoTIFF, uncompressed: written once by windows and read once by the COG copy, so
     compressing it cost 2.3 CPU-s of the demo's rasters and saved only temporary disk space (which
-    ``check_disk`` asks for uncompressed anyway)."""
+    ``check_disk`` asks for uncompressed anyway). ``in_memory``: a GDAL in-memory raster instead (``MEM``; no
+    file is written at ``path``), read by ``_working_raster`` before it is closed."""
     import rasterio
 
+    if in_memory:
+        return rasterio.open(path, "w+", driver="MEM", width=shape[1], height=shape[0], count=count, dtype=dtype,
+                             crs=crs, transform=transform, nodata=nodata)
     return rasterio.open(path, "w", driver="GTiff", width=shape[1], height=shape[0], count=count, dtype=dtype,
                          crs=crs, transform=transform, nodata=nodata, tiled=True, blockxsize=_BLOCK_PX,
                          blockysize=_BLOCK_PX, bigtiff="IF_SAFER")
+
+
+# The working rasters are held in memory (``_tiled_gtiff``'s ``in_memory``) when all of them take at most this share
+# of the RAM: the demo's seven, 212 MB, are then neither written to nor read back from disk (each COG and the
+# hillshade read the raster the tiles were written into; 0.04-0.08 CPU-s less a raster, the COGs the same bytes).
+# Larger grids keep the files: memory stays set by the tile.
+WORKING_IN_MEMORY_SHARE = 1 / 16
+
+
+def _working_in_memory(total_bytes: int) -> bool:
+    from aerotri.core.limits import physical_memory_bytes
+
+    ram = physical_memory_bytes()     # 0: the system does not say
+    return bool(ram) and total_bytes <= WORKING_IN_MEMORY_SHARE * ram
+
+
+@contextlib.contextmanager
+def _working_raster(ds, path: Path):
+    """A working raster of ``_tiles_to_gtiffs`` to read once every tile is written, closed after: an in-memory one
+    itself, a GeoTIFF closed (its blocks written out) and opened again for reading."""
+    import rasterio
+
+    if ds.driver == "MEM":
+        try:
+            yield ds
+        finally:
+            ds.close()
+        return
+    ds.close()
+    with rasterio.open(path) as src:
+        yield src
 
 
 def _tile_windows(grid, nrows: int, ncols: int):
@@ -857,6 +898,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
                option="--tile-px", hint="use a smaller --tile-px")
     threads = _tile_threads(win[0] * win[1])
+    in_memory = _working_in_memory((len(RASTERS) + 1) * nrows * ncols * 4)
     # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
     # is mostly nodata, but the tiles are still visited and written)
     check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
@@ -878,18 +920,19 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
             with rasterio.Env(**_GDAL_THREAD_ENV):
                 gtiffs = _tiles_to_gtiffs(inputs, args, grid, used, work, working, transform=transform, tags=tags,
                                           chunk_points=chunk_points, footprint_cells=footprint_cells,
-                                          dem_fill_radius_px=dem_fill_radius_px, threads=threads)
+                                          dem_fill_radius_px=dem_fill_radius_px, threads=threads,
+                                          in_memory=in_memory)
 
             # Each task closes its working GeoTIFF first: the windows sit in GDAL's block cache (the demo's six
             # working rasters, 181 MB, fit in it) and are written out at the close, so the six closes run two
             # at a time beside the hillshade and the COGs instead of one after the other before them.
             def hillshade_png() -> None:
-                gtiffs["dem_m"].close()
-                _hillshade_png(work / "dem_m.tif", tmp / "hillshade.png", res_m)
+                with _working_raster(gtiffs["dem_m"], work / "dem_m.tif") as src:
+                    _hillshade_png(src, tmp / "hillshade.png", res_m)
 
             def cog(name: str) -> None:
-                gtiffs[name].close()
-                with rasterio.open(work / f"{name}.tif") as src, atomic_path(tmp / f"{name}.tif") as dst:
+                with _working_raster(gtiffs[name], work / f"{name}.tif") as src, \
+                        atomic_path(tmp / f"{name}.tif") as dst:
                     # ZSTD level 1 (as the ortho mosaic's COGs): the same values as DEFLATE level 1 with 40 %
                     # less CPU (the demo's five COGs 1.95-2.02 -> 1.17-1.26 CPU-s) and files 0.9 % smaller
                     rio_copy(src, dst, driver="COG", compress="ZSTD", predictor=3, level=1,
@@ -897,8 +940,28 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
 
             _run_threads([hillshade_png] + [functools.partial(cog, name) for name in RASTERS])
 
-    with stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice(), _freed_memory_kept():
+    with stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice(), _freed_memory_kept(), _older_objects_frozen():
         return _write_set(outdir, write)
+
+
+@contextlib.contextmanager
+def _older_objects_frozen():
+    """Python's cyclic garbage collector leaves the objects made before the tiled rasters alone while they are
+    made (``gc.freeze``; ``gc.unfreeze`` after, so they are collected as before). Why: the stage allocates enough
+    Python objects (numba's dispatch, rasterio's windows, the threads' futures) for one full collection a run,
+    which walked every object of the process (the imports': numba, GDAL, scipy) for 0.12-0.19 s of the demo's
+    rasters, to free none of the stage's arrays (they hold no cycles). Left as it is when the caller froze
+    objects itself."""
+    import gc
+
+    if gc.get_freeze_count():
+        yield
+        return
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 # glibc's mallopt parameters (malloc.h)
@@ -1009,51 +1072,59 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     res_m, x0, y0 = args[:3]
     tid, (row0, col0, rows, cols), core, _ = tile
     sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
-    first = []    # the returns of dsm_nearest (x, y, z by chunk)
+    near = _tile_nearest_returns(args, tile)    # the returns of dsm_nearest: counted, then sorted into cells
     for ch in _bin_chunks(work, tid, chunk_points):
         sums.add(ch.x, ch.y, ch.z, ch.cls, ch.rn, ch.intensity)
-        keep = nearest.first_return_mask(ch.cls, ch.rn)
-        first.append((ch.x[keep], ch.y[keep], ch.z[keep]))
+        near.count(ch.x, ch.y, ch.cls, ch.rn)
     grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's bilinear samples
     dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
     for ch in _bin_chunks(work, tid, chunk_points):
         sums.add_chm(ch.x, ch.y, ch.z, ch.cls, dem)
+        near.add(ch.x, ch.y, ch.z, ch.cls, ch.rn)
     for name, _ in _BIN_FIELDS:
         os.remove(work / f"tile_{tid}_{name}.bin")
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
-    out["dsm_nearest"] = _tile_nearest(first, args, tile, out["dsm"], inputs.units)
+    out["dsm_nearest"] = _tile_nearest(near, args, tile, out["dsm"], inputs.units)
     return out
 
 
-def _tile_nearest(first, args, tile, dsm: np.ndarray, units: LengthUnits) -> np.ndarray:
-    """dsm_nearest of a tile's core (north-up float32, CRS units, NODATA) from the first returns of its window
-    (``first``: (x, y, z) arrays in metres, by chunk) and its ``dsm`` (the core's, as written): the nearest return
-    over the core grown by ``nearest.reach_px`` cells (a buffer at least that wide holds every return that can be
-    the nearest to a core centre: the whole grid's values), else the DSM's value."""
+def _tile_nearest_returns(args, tile) -> nearest.NearestReturns:
+    """The nearest returns of a tile: its core grown by ``nearest.reach_px`` cells, clipped to its window (a
+    buffer at least that wide holds every return that can be the nearest to a core centre: the whole grid's
+    values)."""
     res_m, x0, y0 = args[:3]
     _, (row0, col0, rows, cols), core, _ = tile
-    x, y, z = (np.concatenate([f[k] for f in first]) if first else np.empty(0) for k in range(3))
     reach = nearest.reach_px(res_m)
-    # the window's rows run south to north from row0 (``_CellSums``): the grown core's, clipped to the window
+    # the window's rows run south to north from row0 (``_CellSums``)
     r_lo, r_hi = max(core[0].start - reach, 0), min(core[0].stop + reach, rows)
     c_lo, c_hi = max(core[1].start - reach, 0), min(core[1].stop + reach, cols)
-    near = nearest.nearest_return_surface(x, y, z, x0_m=x0 + (col0 + c_lo) * res_m,
-                                          y_top_m=y0 + (row0 + r_hi) * res_m, res_m=res_m, nrows=r_hi - r_lo,
-                                          ncols=c_hi - c_lo, max_dist_m=nearest.SEARCH_RADIUS_M)
-    near = near[r_hi - core[0].stop: r_hi - core[0].start, core[1].start - c_lo: core[1].stop - c_lo]
+    return nearest.NearestReturns(x0_m=x0 + (col0 + c_lo) * res_m, y_top_m=y0 + (row0 + r_hi) * res_m, res_m=res_m,
+                                  nrows=r_hi - r_lo, ncols=c_hi - c_lo, max_dist_m=nearest.SEARCH_RADIUS_M)
+
+
+def _tile_nearest(near: nearest.NearestReturns, args, tile, dsm: np.ndarray, units: LengthUnits) -> np.ndarray:
+    """dsm_nearest of a tile's core (north-up float32, CRS units, NODATA) from the nearest returns of its grown core
+    (``_tile_nearest_returns``, every chunk added) and its ``dsm`` (the core's, as written): the nearest return,
+    else the DSM's value."""
+    _, (_, _, rows, _), core, _ = tile
+    reach = nearest.reach_px(args[0])
+    r_hi, c_lo = min(core[0].stop + reach, rows), max(core[1].start - reach, 0)     # ``_tile_nearest_returns``'
+    surface = near.surface()
+    surface = surface[r_hi - core[0].stop: r_hi - core[0].start, core[1].start - c_lo: core[1].stop - c_lo]
     if not units.is_metric:   # the arithmetic of ``RasterGrids.in_crs_units``
-        near = (near.astype(float) / units.z_m).astype(np.float32)
-    near = np.ascontiguousarray(near)
-    fallback = np.isnan(near)
+        surface = (surface.astype(float) / units.z_m).astype(np.float32)
+    surface = np.ascontiguousarray(surface)
+    fallback = np.isnan(surface)
     fallback |= dsm == NODATA
-    near[fallback] = dsm[fallback]
-    return near
+    surface[fallback] = dsm[fallback]
+    return surface
 
 
 def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
-                     tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1):
+                     tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1,
+                     in_memory: bool = False):
     """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
     at most one more waiting, largest first), the core written by window into tiled GeoTIFFs
     (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) as each
@@ -1070,13 +1141,15 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
     out = {}
     for name in RASTERS:
         ds = working.enter_context(_tiled_gtiff(work / f"{name}.tif", (nrows, ncols), transform,
-                                                 inputs.surface_crs if name in ("dem", "dsm", "dsm_nearest") else inputs.crs))
+                                                 inputs.surface_crs if name in ("dem", "dsm", "dsm_nearest") else inputs.crs,
+                                                 in_memory=in_memory))
         if _unit(name, units):
             ds.units = (_unit(name, units),)
         ds.set_band_description(1, _description(name, units))
         ds.update_tags(**_raster_tags(tags, name))
         out[name] = ds
-    out["dem_m"] = working.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs))
+    out["dem_m"] = working.enter_context(_tiled_gtiff(work / "dem_m.tif", (nrows, ncols), transform, inputs.crs,
+                                                       in_memory=in_memory))
     with ThreadPoolExecutor(threads) as pool:
 
         def write(window, grids) -> None:
@@ -1115,19 +1188,17 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
     return out
 
 
-def _hillshade_png(dem_path: Path, png_path: Path, res_m: float) -> None:
-    """Pass 3: the hillshade PNG of the metric DEM (north-up, NODATA for none), computed by strips of
-    rows as the PNG is written, each strip read with a one-row border (clipped to the raster, as
+def _hillshade_png(src, png_path: Path, res_m: float) -> None:
+    """Pass 3: the hillshade PNG of the metric DEM (``src``: an open raster, north-up, NODATA for none), computed
+    by strips of rows as the PNG is written, each strip read with a one-row border (clipped to the raster, as
     ``np.gradient`` treats the raster's edges): no working hillshade file."""
-    import rasterio
     from rasterio.windows import Window
 
-    with rasterio.open(dem_path) as src:
-        nrows, ncols = src.height, src.width
+    nrows, ncols = src.height, src.width
 
-        def read_rows(r0: int, r1: int) -> np.ndarray:
-            b0, b1 = max(r0 - 1, 0), min(r1 + 1, nrows)
-            dem = src.read(1, window=Window(0, b0, ncols, b1 - b0), masked=True).filled(np.nan)
-            return hillshade_grey_of_dem(dem, res_m)[r0 - b0: r1 - b0]
+    def read_rows(r0: int, r1: int) -> np.ndarray:
+        b0, b1 = max(r0 - 1, 0), min(r1 + 1, nrows)
+        dem = src.read(1, window=Window(0, b0, ncols, b1 - b0), masked=True).filled(np.nan)
+        return hillshade_grey_of_dem(dem, res_m)[r0 - b0: r1 - b0]
 
-        _write_png_grey_as_rgba(png_path, read_rows, nrows, ncols)
+    _write_png_grey_as_rgba(png_path, read_rows, nrows, ncols)

@@ -175,7 +175,8 @@ def test_hillshade_grey_of_dem_is_the_grey_of_the_hillshade(tmp_path):
     with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=d32.shape[1], height=d32.shape[0], count=1,
                        dtype="float32", nodata=NODATA, transform=from_origin(0, 0, 0.5, 0.5)) as ds:
         ds.write(np.where(np.isfinite(d32), d32, NODATA).astype(np.float32), 1)
-    _hillshade_png(tmp_path / "dem.tif", tmp_path / "h.png", 0.5)
+    with rasterio.open(tmp_path / "dem.tif") as src:
+        _hillshade_png(src, tmp_path / "h.png", 0.5)
     back = np.round(mpimg.imread(tmp_path / "h.png") * 255).astype(np.uint8)
     np.testing.assert_array_equal(back[..., 0], hillshade_grey(hillshade(d32, 0.5)))
 

@@ -122,3 +122,19 @@ def test_dsm_nearest_is_the_nearest_first_return_across_tiles(strips, tmp_path):
     np.testing.assert_array_equal(got, want)
     assert (got != dsm).mean() > 0.05 and np.nanmax(np.where(got == nd, np.nan, got)) < noise_z - 40
     assert ((got == nd) == (dsm == nd)).all()
+
+
+def test_working_rasters_in_memory_or_on_disk_give_the_same_bytes(strips, tmp_path, monkeypatch):
+    """The working rasters held in memory (small grids) or written to working GeoTIFFs (large ones): every file the
+    same bytes, and no working file left either way."""
+    paths = [strips / "west.las", strips / "east.las"]
+    out, opened = {}, rasters._tiled_gtiff
+    for share in (1.0, 0.0):           # in memory, on disk
+        monkeypatch.setattr(rasters, "WORKING_IN_MEMORY_SHARE", share)
+        seen = []
+        monkeypatch.setattr(rasters, "_tiled_gtiff", lambda *a, **k: seen.append(k["in_memory"]) or opened(*a, **k))
+        rasters.write_rasters(paths, tmp_path / str(share), 1.0, tile_px=64, buffer_px=16)
+        assert set(seen) == {share > 0} and len(seen) == len(rasters.RASTERS) + 1
+        assert sorted(p.name for p in (tmp_path / str(share)).iterdir()) == sorted(rasters.FILES)
+        out[share] = {f: (tmp_path / str(share) / f).read_bytes() for f in rasters.FILES}
+    assert out[1.0] == out[0.0]
