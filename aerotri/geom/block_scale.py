@@ -5,8 +5,8 @@ GSD = pixel size x height above ground / focal length (``Camera.gsd_m``), with t
 ground of the frames: projection centres from ``at/eo.txt`` (else ``gnss.txt``) minus the ground under them
 from ``lidar_out/dem.tif``, else the median height of the adjusted tie points (the heights the caller gives, else
 ``at/object_points.csv``), else ``[flight] mean_terrain_height_m``. The planned terrain height comes last: it is
-a planning figure (an EXIF import writes the take-off point's height there; Tuniu's 86.6 m against its tie points'
-95.5 m made "GSD 11 cm at 100 m" of 10.0 cm at 91 m). A block flown lower than ``selection.toml``
+a planning figure (an EXIF import writes the take-off point's height there; Tuniu's 86.6 m made "GSD 11 cm at
+100 m" of 10 cm at 92 m over its adjusted points' 94.2 m). A block flown lower than ``selection.toml``
 [platform] low_altitude_height_max_m (150 m) is a low-altitude (UAS) block. Heights in the project CRS's
 height unit are converted to metres.
 """
