@@ -257,6 +257,7 @@ class ProjectInputs:
     datum_notes: list = dataclasses.field(default_factory=list)  # how the approximations got their datum
     model_heights: ModelHeights = dataclasses.field(default_factory=ModelHeights)  # of the control, in the image model
     control_rays_left_out: tuple = ()  # (point, frame, px): blunders by the image model alone (relative.ray_blunders)
+    control_held_out: tuple = ()  # ids the datum's robust similarity left out: the adjustment's first rejected
 
 
 @dataclasses.dataclass
@@ -283,6 +284,7 @@ class PreparedBlock:
     check_surface: SurfaceControl | None = None  # the check DEM (settings.check_dem): compared, not observed
     gnss_sigma_source: str = ""  # where the GNSS positions' sigmas came from (gnss_model.sigma_source)
     control_rays_left_out: tuple = ()  # (point, frame, px): blunders by the image model alone (relative.ray_blunders)
+    control_held_out: tuple = ()  # ids the datum's robust similarity left out: the adjustment's first rejected
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -295,7 +297,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     control, cobs = read_project_control(project, st, crs)
     # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
     gnss = eo0 = None
-    notes, model_heights, rays_out = [], ModelHeights(), ()
+    notes, model_heights, rays_out, held_out = [], ModelHeights(), (), ()
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
         image_ids, approx_pos_map, block_path = list(gnss.image_id), gnss.position_m, project.gnss_path
@@ -308,6 +310,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
         # no GNSS, no given orientations: from the images (pycolmap on the tie points) and the control
         ap, ties, control, cobs, note = _image_approximations(project, cam, ties, control, cobs, crs)
         eo0, model_heights, rays_out = ap.eo, ap.control_heights(control), ap.datum.left_out_rays
+        held_out = tuple(p for p, _ in ap.datum.rejected)
         image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, project.tiepoints_path
         notes.append(note)
     _check_control_near_block(control, approx_pos_map, project.control_points_path, block_path, crs)
@@ -322,7 +325,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     return ProjectInputs(project=project, settings=st, camera=cam, ties=ties, control=control, control_obs=cobs,
                          image_ids=image_ids, approx_position_map=approx_pos_map, gnss=gnss, initial_eo=eo0,
                          gnss_sigma_m=gnss_sigma, datum_notes=notes, model_heights=model_heights,
-                         control_rays_left_out=rays_out)
+                         control_rays_left_out=rays_out, control_held_out=held_out)
 
 
 def _image_approximations(project: Project, cam, ties: ImageObservations, control: ControlPoints,
@@ -614,6 +617,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
         components=ob.components, left_out=ob.left_out, datum_notes=notes, level=level,
         check_surface=check_surface, control_rays_left_out=inp.control_rays_left_out,
+        control_held_out=inp.control_held_out,
         gnss_sigma_source=gnss_model.sigma_source(project, gnss.sigma_m is not None) if gnss is not None else "",
     )
     return prepared, state0
@@ -626,9 +630,10 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     requested = tuple(prepared.opts.self_calibration)
     opts, checks, focal_mode = prepared.opts, {}, None
     while True:
+        held = [c for c, pid in enumerate(prepared.control_used.id) if str(pid) in prepared.control_held_out]
         result = adjust_block(prepared.block, opts, state0, snooping=st.snooping, alpha=st.alpha,
                               point_covariances=st.point_covariances, variance_components=st.variance_components,
-                              image_sigma_from_residuals=st.image_sigma_from_residuals)
+                              image_sigma_from_residuals=st.image_sigma_from_residuals, control_held_out=held)
         if not opts.self_calibration or result.calibration is None:
             break
         # the determinability of each estimated group (determinability.py); the groups the block cannot

@@ -295,3 +295,38 @@ def test_a_target_measured_under_another_s_label_is_named_not_the_good_ones(kite
     ref = adjust_project(clean, st)
     assert ref.control_rays_left_out == () and ref.result.rejected_control == []
     assert np.abs(ba.eo_map.centre_m - ref.eo_map.centre_m).max() < 1e-3
+
+
+def test_a_target_off_by_four_sigma_is_held_out_first_and_rejected(kite_like_block, tmp_path):
+    """gcp01's coordinates 8 m off (the targets' noise 2 m): the datum's robust similarity leaves it out, but the
+    adjustment took it in and, the block bent to it, accepted it (no point rejected). Now the points the robust start
+    left out are held out first and tested against the block the others hold: rejected, named with its w."""
+    block, src = kite_like_block
+    root = _copy(src, tmp_path / "p")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, control_sigma_m=(2.0, 2.0, 2.0), n_control=9,
+                             points_per_image=150, n_check=0, seed=6, bad_control_shift_m=8.0)
+    _plan_only(root)
+    ba = adjust_project(root, AdjustSettings(image_sigma_px=SIGMA_PX, point_covariances=False,
+                                             self_calibration=("pp", "radial")))
+    assert "gcp01" in ba.datum_notes[0] and "left out of that similarity" in ba.datum_notes[0]
+    assert [str(ba.control.id[c]) for c, _ in ba.result.rejected_control] == ["gcp01"]
+    assert ba.result.rejected_control[0][1] > 3.89  # the test's critical value (alpha 1e-4)
+
+
+def test_a_good_point_held_out_at_the_start_is_taken_back(kite_like_block, tmp_path, monkeypatch):
+    """A point the robust start held out that agrees with the block the others hold is taken back: the solution is
+    the one with every point in."""
+    import dataclasses
+
+    from aerotri.adjust import pipeline
+
+    block, src = kite_like_block
+    root = _copy(src, tmp_path / "p")
+    st = AdjustSettings(image_sigma_px=SIGMA_PX, point_covariances=False, self_calibration=("pp", "radial"))
+    ref = adjust_project(root, st)
+    prepare = pipeline.prepare_project
+    monkeypatch.setattr(pipeline, "prepare_project", lambda *a, **k: (
+        lambda pb, s0: (dataclasses.replace(pb, control_held_out=("gcp03",)), s0))(*prepare(*a, **k)))
+    ba = adjust_project(root, st)
+    assert ba.result.rejected_control == [] and ba.result.control_active.all()
+    assert np.abs(ba.eo_map.centre_m - ref.eo_map.centre_m).max() < 1e-3
