@@ -86,6 +86,7 @@ class BlockAdjustment:
     calibration_checks: list = dataclasses.field(default_factory=list)  # determinability.GroupCheck, every group
     dem_checks: list = dataclasses.field(default_factory=list)  # dem_check.DemCheck: surface control DEM, check DEM
     check_from_lidar: int = 0  # check points that are corners of the project's LiDAR (share its strip offsets)
+    control_rays_left_out: tuple = ()  # (point, frame, px): blunders by the image model alone (relative.ray_blunders)
 
 
 def _settings_from_project(project: Project, s: AdjustSettings | None) -> AdjustSettings:
@@ -255,6 +256,8 @@ class ProjectInputs:
     gnss_sigma_m: tuple  # (xy, z) default a-priori sigmas of project.toml [gnss]
     datum_notes: list = dataclasses.field(default_factory=list)  # how the approximations got their datum
     model_heights: ModelHeights = dataclasses.field(default_factory=ModelHeights)  # of the control, in the image model
+    control_rays_left_out: tuple = ()  # (point, frame, px): blunders by the image model alone (relative.ray_blunders)
+    control_held_out: tuple = ()  # ids the datum's robust similarity left out: the adjustment's first rejected
 
 
 @dataclasses.dataclass
@@ -280,6 +283,8 @@ class PreparedBlock:
     level: object | None = None  # level_datum.LevelDatum: plan-only control, heights and tilt by assumption
     check_surface: SurfaceControl | None = None  # the check DEM (settings.check_dem): compared, not observed
     gnss_sigma_source: str = ""  # where the GNSS positions' sigmas came from (gnss_model.sigma_source)
+    control_rays_left_out: tuple = ()  # (point, frame, px): blunders by the image model alone (relative.ray_blunders)
+    control_held_out: tuple = ()  # ids the datum's robust similarity left out: the adjustment's first rejected
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -292,7 +297,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     control, cobs = read_project_control(project, st, crs)
     # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
     gnss = eo0 = None
-    notes, model_heights = [], ModelHeights()
+    notes, model_heights, rays_out, held_out = [], ModelHeights(), (), ()
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
         image_ids, approx_pos_map, block_path = list(gnss.image_id), gnss.position_m, project.gnss_path
@@ -304,7 +309,8 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     else:
         # no GNSS, no given orientations: from the images (pycolmap on the tie points) and the control
         ap, ties, control, cobs, note = _image_approximations(project, cam, ties, control, cobs, crs)
-        eo0, model_heights = ap.eo, ap.control_heights(control)
+        eo0, model_heights, rays_out = ap.eo, ap.control_heights(control), ap.datum.left_out_rays
+        held_out = tuple(p for p, _ in ap.datum.rejected)
         image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, project.tiepoints_path
         notes.append(note)
     _check_control_near_block(control, approx_pos_map, project.control_points_path, block_path, crs)
@@ -318,7 +324,8 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     cobs = ImageObservations(cobs.point_id, cobs.image_id, cam.calibration_observations(cobs.xy_px))
     return ProjectInputs(project=project, settings=st, camera=cam, ties=ties, control=control, control_obs=cobs,
                          image_ids=image_ids, approx_position_map=approx_pos_map, gnss=gnss, initial_eo=eo0,
-                         gnss_sigma_m=gnss_sigma, datum_notes=notes, model_heights=model_heights)
+                         gnss_sigma_m=gnss_sigma, datum_notes=notes, model_heights=model_heights,
+                         control_rays_left_out=rays_out, control_held_out=held_out)
 
 
 def _image_approximations(project: Project, cam, ties: ImageObservations, control: ControlPoints,
@@ -334,6 +341,8 @@ def _image_approximations(project: Project, cam, ties: ImageObservations, contro
     oriented = list(ap.eo.image_id)
     ties = ties.subset(_is_in(ties.image_id, oriented))
     kept = _is_in(cobs.image_id, oriented)
+    for pid, iid, _ in ap.datum.left_out_rays:  # blunders by the image model alone: out of the adjustment too
+        kept &= ~((cobs.point_id == pid) & (cobs.image_id == iid))
     lost = set(cobs.point_id[~kept].tolist()) - set(cobs.point_id[kept].tolist())  # measured only in those frames
     cobs = cobs.subset(kept)
     control = control.subset(~np.isin(control.id, sorted(lost)))
@@ -607,7 +616,8 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         image_index={k: i for i, k in enumerate(ob.image_ids)},
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
         components=ob.components, left_out=ob.left_out, datum_notes=notes, level=level,
-        check_surface=check_surface,
+        check_surface=check_surface, control_rays_left_out=inp.control_rays_left_out,
+        control_held_out=inp.control_held_out,
         gnss_sigma_source=gnss_model.sigma_source(project, gnss.sigma_m is not None) if gnss is not None else "",
     )
     return prepared, state0
@@ -620,9 +630,10 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     requested = tuple(prepared.opts.self_calibration)
     opts, checks, focal_mode = prepared.opts, {}, None
     while True:
+        held = [c for c, pid in enumerate(prepared.control_used.id) if str(pid) in prepared.control_held_out]
         result = adjust_block(prepared.block, opts, state0, snooping=st.snooping, alpha=st.alpha,
                               point_covariances=st.point_covariances, variance_components=st.variance_components,
-                              image_sigma_from_residuals=st.image_sigma_from_residuals)
+                              image_sigma_from_residuals=st.image_sigma_from_residuals, control_held_out=held)
         if not opts.self_calibration or result.calibration is None:
             break
         # the determinability of each estimated group (determinability.py); the groups the block cannot
@@ -759,6 +770,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
         left_out=p.left_out, datum_notes=list(p.datum_notes), dem_checks=dem_checks,
         check_from_lidar=int(_lidar_control(p.project, chk).sum()) if len(chk) else 0,
+        control_rays_left_out=p.control_rays_left_out,
     )
 
 

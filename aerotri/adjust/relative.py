@@ -19,6 +19,13 @@
      the height control points, when there are some), their scale that of the plan;
    - else no datum: ``NoDatum`` names what is missing; the model stays in its local frame.
 
+   Before that, each control point's rays are checked against each other in the model (``ray_blunders``), where
+   no control pulls them: a measurement that lies far (``ray_limit_px``) from where the point's other rays put it
+   in its frame, while those agree, is on another target or under the wrong name; it is left out of the datum and
+   of the adjustment, and named. With few targets and no GNSS the control makes the datum, and such a ray, left
+   to the adjustment, bends the block towards it until the data snooping blames the good targets (the Coal Oil
+   Point kite with gcp04's label on gcp00 in IMG_0031: 6 of 9 good targets out, gcp04 kept).
+
 The result (``ImageApproximations``) holds the approximate exterior orientations in the project CRS, for the
 bundle adjustment (``aerotri.adjust.pipeline``), and a statement of the datum for the console and the report.
 """
@@ -100,6 +107,7 @@ class ImageDatum:
     not_intersected: tuple[str, ...]  # control points with fewer than 2 usable rays in registered frames
     view_off_vertical_deg: float  # the frames' mean viewing direction from the vertical, after the transform
     height_points: int = 0  # "plan": control points with heights that gave the height offset (0: none)
+    left_out_rays: tuple[tuple[str, str, float], ...] = ()  # (point, frame, px off its other rays): ray_blunders
 
     def apply(self, xyz_model: np.ndarray) -> np.ndarray:
         return self.scale * np.asarray(xyz_model) @ self.R.T + self.t_m
@@ -110,8 +118,10 @@ class ImageDatum:
         rej = "; ".join(f"{p} ({r:.2f} m)" for p, r in self.rejected)
         head = (f"approximate orientations from the images (pycolmap), brought into the project CRS by "
                 f"{len(self.used)} control points ({'plan' if self.kind == 'plan' else '3D'} RMS {rms:.2f} m)"
-                + (f"; left out of that similarity as off by more than {INLIER_SIGMAS:g} robust sigmas: {rej} (the "
-                   "adjustment tests them again)" if rej else ""))
+                + (f"; left out of that similarity as off by more than {INLIER_SIGMAS:g} robust sigmas: {rej} (held "
+                   "out of the adjustment at first, then tested against the block the others hold)" if rej else ""))
+        if self.left_out_rays:
+            head += ("; " + left_out_rays_text(self.left_out_rays))
         if self.kind == "3d":
             return head + "."
         return (head + ". The control has no measured heights: plan, scale and rotation about the vertical come "
@@ -444,11 +454,90 @@ def _rms_of(residual: dict, ids) -> float:
     return float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")
 
 
+def left_out_rays_text(rays) -> str:
+    """The sentence that names the control measurements ``ray_blunders`` left out: (point, frame, px) each."""
+    return ("control measurements left out before the adjustment, each far from where the point's other rays put "
+            "it in the image model (on another target or under the wrong name?): "
+            + ", ".join(f"{p} in {i} ({r:,.0f} px)" for p, i, r in rays))
+
+
+def ray_limit_px(rel: RelativeBlock) -> float:
+    """How far (px) a control measurement may lie from the point's other rays in the image model:
+    ``INLIER_SIGMAS`` times the model's precision floor (``MODEL_PRECISION`` of the flying height, in pixels of
+    the focal length), and at least 10 times the mapper's mean reprojection error."""
+    return float(max(INLIER_SIGMAS * MODEL_PRECISION * rel.cal[0], 10.0 * rel.reprojection_px))
+
+
+def ray_blunders(xy_px, point_index, image_index, rel: RelativeBlock, n_points: int,
+                 limit_px: float) -> list[tuple[int, float]]:
+    """(index, px off) of the measurements (rows of ``xy_px``, calibration pixels) that are blunders by the image model
+    alone: of a point whose rays do not agree (some residual of their intersection above ``limit_px``, or the
+    intersection behind a camera), the one ray whose omission leaves the others agreeing (2 or more, in front
+    of their cameras) while it lies more than ``limit_px`` from where they put the point. Exactly one such ray, or
+    none is named (a point with two rays that disagree cannot say which: the adjustment tests it)."""
+    from aerotri.adjust.collinearity import project_cv
+
+    def residuals(k):
+        X, _ = intersect(xy_px[k], np.zeros(len(k), dtype=int), image_index[k], rel.centre, rel.R_cv, rel.cal,
+                         n_points=1)
+        if not np.all(np.isfinite(X[0])):
+            return X[0], None
+        uv, pc = project_cv(np.repeat(X, len(k), 0), rel.centre[image_index[k]], rel.R_cv[image_index[k]], rel.cal)
+        if np.any(pc[:, 2] <= 0):
+            return X[0], None
+        return X[0], np.linalg.norm(uv - xy_px[k], axis=1)
+
+    bad = []
+    for j in range(n_points):
+        k = np.flatnonzero(point_index == j)
+        if len(k) < 3:
+            continue
+        _, r = residuals(k)
+        if r is not None and r.max() <= limit_px:
+            continue
+        found = []
+        for q in range(len(k)):
+            rest = np.delete(k, q)
+            X, r = residuals(rest)
+            if r is None or r.max() > limit_px:
+                continue
+            uv, pc = project_cv(X[None], rel.centre[image_index[k[q]]][None], rel.R_cv[image_index[k[q]]][None],
+                                rel.cal)
+            off = float(np.linalg.norm(uv[0] - xy_px[k[q]])) if pc[0, 2] > 0 else float("inf")
+            if off > limit_px:
+                found.append((int(k[q]), off))
+        if len(found) == 1:
+            bad.append(found[0])
+    return bad
+
+
+def control_ray_blunders(rel: RelativeBlock, control_obs: ImageObservations,
+                         camera: Camera) -> tuple[tuple[str, str, float], ...]:
+    """(point, frame, px off) of the measurements of ``control_obs`` (the camera's pixels; control and check points)
+    in oriented frames that ``ray_blunders`` finds, with ``ray_limit_px``."""
+    index = {k: i for i, k in enumerate(rel.image_id)}
+    m = np.array([i in index for i in control_obs.image_id], dtype=bool)
+    obs = control_obs.subset(m)
+    if not len(obs):
+        return ()
+    _, opt = np.unique(obs.point_id.astype(str), return_inverse=True)
+    oim = np.array([index[i] for i in obs.image_id], dtype=int)
+    found = ray_blunders(camera.calibration_observations(obs.xy_px), opt, oim, rel, int(opt.max()) + 1,
+                         ray_limit_px(rel))
+    return tuple((str(obs.point_id[k]), str(obs.image_id[k]), off) for k, off in found)
+
+
 def georeference(rel: RelativeBlock, control: ControlPoints, control_obs: ImageObservations, camera: Camera,
                  frame: LocalFrame, seed: int = 0) -> ImageDatum:
     """The similarity from the model of ``rel`` into ``frame`` (the project CRS's local ENU frame) by the control
     points (kinds full, horizontal, height; check points are not used). ``control_obs`` in the camera's pixels.
     ``NoDatum`` when the control cannot fix it (fewer than 2 plan points intersected in the model)."""
+    left_out = control_ray_blunders(rel, control_obs, camera)  # check points' too: they are left out alike
+    if left_out:
+        out = {(p, i) for p, i, _ in left_out}
+        control_obs = control_obs.subset(np.array([(p, i) not in out for p, i in
+                                                   zip(control_obs.point_id.tolist(), control_obs.image_id.tolist())],
+                                                  dtype=bool))
     use = np.isin(control.kind, ["full", "horizontal", "height"])
     control = control.subset(use)
     index = {k: i for i, k in enumerate(rel.image_id)}
@@ -515,7 +604,8 @@ def georeference(rel: RelativeBlock, control: ControlPoints, control_obs: ImageO
     heights = {str(p): float(z) for p, z, k in zip(control.id, z_local, ok) if k}
     n_height = int(hz.sum()) if kind == "plan" else 0
     return ImageDatum(kind, float(scale), R, np.asarray(t, float), tuple(used.tolist()),
-                      tuple((str(p), float(r)) for p, r in rejected), residual, heights, not_int, off, n_height)
+                      tuple((str(p), float(r)) for p, r in rejected), residual, heights, not_int, off, n_height,
+                      left_out)
 
 
 def exterior_orientations(rel: RelativeBlock, datum: ImageDatum, frame: LocalFrame) -> ExteriorOrientations:

@@ -588,6 +588,11 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
                     + ", ".join(f"{ba.control.id[c]} w = {w:.2f}" for c, w in ranked[:6])
                     + (", ..." if len(ranked) > 6 else "") + "); a mislabelled or mistyped point, or a measurement "
                     "on the wrong target, is the usual cause: look at the largest w first.")
+    if getattr(ba, "control_rays_left_out", ()):
+        from aerotri.adjust.relative import left_out_rays_text
+
+        text = left_out_rays_text(ba.control_rays_left_out)
+        message += f" {text[0].upper()}{text[1:]}."
     lines, pairs = getattr(r, "behind_camera", (0, 0))
     return {
         "sigma0_um": _f(s0_um), "sigma0_px": _f(r.sigma0 * opts.image_sigma_px, 4), "sigma0": _f(r.sigma0, 4),

@@ -102,14 +102,22 @@ def _adjust_block(
     variance_components: bool = False,
     max_vce_iterations: int = 6,
     image_sigma_from_residuals: bool = False,
+    control_held_out=(),
 ) -> AdjustmentResult:
     """Adjust the block; with ``snooping``, remove blunders (image points, then control points). The variance
     components of the observation groups are estimated with the covariances; with ``variance_components``
-    the groups are reweighted by them and solved again until every factor is within 5 % of one."""
+    the groups are reweighted by them and solved again until every factor is within 5 % of one.
+    ``control_held_out`` (control indices; with ``snooping``): points a robust start without them found off (the
+    datum's robust similarity of a block without GNSS): the first rejected, so that with few points a wrong one
+    cannot bend the block and have the good ones blamed. When the rest has passed its tests, each is tested
+    against the block the others hold (``control_test``), the best taken back while it passes, the others
+    rejected with their w."""
     t_start = time.perf_counter()
     crit = critical_value(alpha)
     obs_active = np.ones(len(block.obs_point), dtype=bool)
     control_active = np.ones(len(block.control_point), dtype=bool)
+    held = [int(c) for c in control_held_out] if snooping else []
+    control_active[held] = False
     removed, rejected = [], []
     state = state0.copy()
     iterations = 0
@@ -194,6 +202,20 @@ def _adjust_block(
                     continue
             if snoop(state, rnd, with_control=True):
                 continue
+            if held:
+                # the held-out points against the block the others hold: the best back while it passes
+                out = np.zeros(len(block.control_point), dtype=bool)
+                out[held] = True
+                w = control_test(block, opts, state, obs_active, out, _marginals(gr, values, block, obs_active))
+                best = min(held, key=lambda c: w[c])
+                if w[best] <= crit and rnd < max_rounds:
+                    control_active[best] = True
+                    held.remove(best)
+                    log.info(f"control point {block.point_id[block.control_point[best]]} held out at the start: "
+                             f"w = {w[best]:.2f} against the others, taken back")
+                    continue
+                rejected.extend((c, float(w[c])) for c in held)
+                held.clear()
             break
 
     image_factor = 1.0

@@ -3,8 +3,10 @@ tolerance table (``aerotri.core.tolerances.choose_table``).
 
 GSD = pixel size x height above ground / focal length (``Camera.gsd_m``), with the median height above
 ground of the frames: projection centres from ``at/eo.txt`` (else ``gnss.txt``) minus the ground under them
-from ``lidar_out/dem.tif``, else ``[flight] mean_terrain_height_m``, else the heights the caller gives (the
-adjustment's tie points), else ``at/object_points.csv``. A block flown lower than ``selection.toml``
+from ``lidar_out/dem.tif``, else the median height of the adjusted tie points (the heights the caller gives, else
+``at/object_points.csv``), else ``[flight] mean_terrain_height_m``. The planned terrain height comes last: it is
+a planning figure (an EXIF import writes the take-off point's height there; Tuniu's 86.6 m made "GSD 11 cm at
+100 m" of 10 cm at 92 m over its adjusted points' 94.2 m). A block flown lower than ``selection.toml``
 [platform] low_altitude_height_max_m (150 m) is a low-altitude (UAS) block. Heights in the project CRS's
 height unit are converted to metres.
 """
@@ -55,8 +57,8 @@ def block_scale(camera, centre_z, ground_z, height_unit_m: float, how: str) -> B
 def project_block_scale(project, ground_heights=None, ground_source: str = "the adjusted tie points", *,
                         camera: tuple | None = None, positions: tuple | None = None) -> BlockScale:
     """The block's GSD and platform from the project folder (module docstring); ``ground_heights``: heights
-    of the ground in the CRS's height unit (e.g. the adjustment's tie points) when there is neither a DEM nor
-    a mean terrain height. The camera is the one the orientations belong to (``oriented_camera``: the
+    of the ground in the CRS's height unit (the adjustment's tie points; NaN ignored), taken when there is no
+    lidar_out/dem.tif, before ``at/object_points.csv`` and ``[flight] mean_terrain_height_m``. The camera is the one the orientations belong to (``oriented_camera``: the
     adjustment's at/camera.toml, else the nominal camera.toml), or ``camera``, (camera, source), when given. The
     frames' positions are ``positions``, ((N, 3) map coordinates, source), when given (an adjustment writing its
     report before its eo.txt: a block without GNSS has neither file yet), else at/eo.txt's, else gnss.txt's. A
@@ -84,15 +86,20 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     if project.dem_path.is_file():
         return block_scale(camera, pos[:, 2], _dem_heights(project.dem_path, pos[:, 0], pos[:, 1]), unit,
                            f"{head} over lidar_out/dem.tif")
-    if isinstance(mean_h, (int, float)) and not isinstance(mean_h, bool):
-        return block_scale(camera, pos[:, 2], float(mean_h), unit, f"{head} over [flight] mean_terrain_height_m")
-    if ground_heights is not None and len(ground_heights):
+    # the adjusted tie points before the planned terrain height: they are the ground the frames were measured on
+    if ground_heights is not None and np.isfinite(np.asarray(ground_heights, float)).any():
         g = float(np.nanmedian(np.asarray(ground_heights, float)))
-        return block_scale(camera, pos[:, 2], g, unit, f"{head} over the median height of {ground_source}")
+        return block_scale(camera, pos[:, 2], g, unit, f"{head} over the median height of {ground_source} ({g:.1f})")
     if project.object_points_path.is_file():
         z = _object_point_heights(project.object_points_path)
+        z = z[np.isfinite(z)]
         if len(z):
-            return block_scale(camera, pos[:, 2], float(np.median(z)), unit,
-                               f"{head} over the median height of at/object_points.csv")
+            g = float(np.median(z))
+            return block_scale(camera, pos[:, 2], g, unit,
+                               f"{head} over the median height of the adjusted points of at/object_points.csv "
+                               f"({g:.1f})")
+    if isinstance(mean_h, (int, float)) and not isinstance(mean_h, bool):
+        return block_scale(camera, pos[:, 2], float(mean_h), unit,
+                           f"{head} over [flight] mean_terrain_height_m ({float(mean_h):g}; no adjusted tie points)")
     return BlockScale(None, None, None, f"{head}; no terrain height (no lidar_out/dem.tif, no [flight] "
                                         f"mean_terrain_height_m, no adjusted tie points)")

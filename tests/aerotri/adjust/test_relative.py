@@ -242,3 +242,91 @@ def test_simulated_frames_without_gnss_end_to_end(tiny_project, tmp_path):
         true = np.array([v[0] for v in b.sample(list(zip(xs, ys)))])
     dz = z.compressed() - true
     assert abs(np.median(dz)) < 2.0 * gsd
+
+
+@pytest.fixture(scope="module")
+def kite_like_block(tmp_path_factory):
+    """A kite-like block: 3 x 6 frames 21 m above nearly flat ground (1068 x 712 px, 30 mm, 5 deg tilts), 9
+    plan-only targets with 2 m noise (handheld GNSS over a block some 40 m across), no GNSS."""
+    from aerotri.geom.camera import BrownCamera
+
+    cam = BrownCamera(focal_mm=30.0, pixel_um=20.8, width=1068, height=712, name="kite-like")
+    block = geometric_block(3, 6, camera_true=cam, flying_height_m=21.0, relief_m=0.5, tilt_sigma_deg=5.0,
+                            forward_overlap=0.75, side_overlap=0.5, seed=5, crs="EPSG:32611",
+                            origin_map=(235260.0, 3811200.0, 0.0))
+    root = write_block_project(block, tmp_path_factory.mktemp("kite") / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, control_sigma_m=(2.0, 2.0, 2.0), n_control=9,
+                             points_per_image=150, n_check=0, seed=6)
+    (root / "gnss.txt").unlink()
+    _plan_only(root)
+    return block, root
+
+
+@pytest.mark.parametrize("bad, frame, other", [("gcp01", "s01_003", "gcp05"), ("gcp01", "s02_001", "gcp04")])
+def test_a_target_measured_under_another_s_label_is_named_not_the_good_ones(kite_like_block, tmp_path, bad, frame,
+                                                                          other):
+    """The kite's case: a frame that does not see ``bad`` has ``other`` measured under ``bad``'s label (and the
+    user removed ``other``'s line of the pair, not the mislabelled one). Before, with few targets and no GNSS, the
+    control made the datum, the block bent to the wrong ray and the data snooping threw out good targets (gcp07,
+    gcp02 / gcp07, gcp02, gcp03) and kept ``bad``. The image model alone names the measurement; the solution is
+    the one without it."""
+    block, src = kite_like_block
+    root = _copy(src, tmp_path / "p")
+    lines = (root / "control" / "image_points.csv").read_text().splitlines()
+    rows = [ln.split(",") for ln in lines[1:]]
+    assert frame not in {r[1] for r in rows if r[0] == bad}  # the frame does not see the mislabelled target
+    moved = next(r for r in rows if (r[0], r[1]) == (other, frame))
+    (root / "control" / "image_points.csv").write_text("\n".join(
+        [lines[0]] + [",".join(r) for r in rows if r is not moved] + [",".join([bad, frame] + moved[2:])]) + "\n")
+    st = AdjustSettings(image_sigma_px=SIGMA_PX, point_covariances=False, self_calibration=("pp", "radial"))
+    ba = adjust_project(root, st)
+    assert ba.result.rejected_control == []  # no good target out
+    assert [(p, i) for p, i, _ in ba.control_rays_left_out] == [(bad, frame)]
+    assert ba.control_rays_left_out[0][2] > 100.0  # px from where the other rays put it (the limit: 7 px here)
+    from aerotri.adjust.report import build_report
+
+    msg = to_record(build_report(ba))["key_statistics"]["message"]
+    assert f"{bad} in {frame} (" in msg and "Control left out by the data snooping" not in msg
+    assert any(f"{bad} in {frame}" in n for n in ba.datum_notes)
+    # the solution is the one with the mislabelled line removed instead
+    clean = _copy(src, tmp_path / "clean")
+    (clean / "control" / "image_points.csv").write_text("\n".join(
+        [lines[0]] + [",".join(r) for r in rows if r is not moved]) + "\n")
+    ref = adjust_project(clean, st)
+    assert ref.control_rays_left_out == () and ref.result.rejected_control == []
+    assert np.abs(ba.eo_map.centre_m - ref.eo_map.centre_m).max() < 1e-3
+
+
+def test_a_target_off_by_four_sigma_is_held_out_first_and_rejected(kite_like_block, tmp_path):
+    """gcp01's coordinates 8 m off (the targets' noise 2 m): the datum's robust similarity leaves it out, but the
+    adjustment took it in and, the block bent to it, accepted it (no point rejected). Now the points the robust start
+    left out are held out first and tested against the block the others hold: rejected, named with its w."""
+    block, src = kite_like_block
+    root = _copy(src, tmp_path / "p")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, control_sigma_m=(2.0, 2.0, 2.0), n_control=9,
+                             points_per_image=150, n_check=0, seed=6, bad_control_shift_m=8.0)
+    _plan_only(root)
+    ba = adjust_project(root, AdjustSettings(image_sigma_px=SIGMA_PX, point_covariances=False,
+                                             self_calibration=("pp", "radial")))
+    assert "gcp01" in ba.datum_notes[0] and "left out of that similarity" in ba.datum_notes[0]
+    assert [str(ba.control.id[c]) for c, _ in ba.result.rejected_control] == ["gcp01"]
+    assert ba.result.rejected_control[0][1] > 3.89  # the test's critical value (alpha 1e-4)
+
+
+def test_a_good_point_held_out_at_the_start_is_taken_back(kite_like_block, tmp_path, monkeypatch):
+    """A point the robust start held out that agrees with the block the others hold is taken back: the solution is
+    the one with every point in."""
+    import dataclasses
+
+    from aerotri.adjust import pipeline
+
+    block, src = kite_like_block
+    root = _copy(src, tmp_path / "p")
+    st = AdjustSettings(image_sigma_px=SIGMA_PX, point_covariances=False, self_calibration=("pp", "radial"))
+    ref = adjust_project(root, st)
+    prepare = pipeline.prepare_project
+    monkeypatch.setattr(pipeline, "prepare_project", lambda *a, **k: (
+        lambda pb, s0: (dataclasses.replace(pb, control_held_out=("gcp03",)), s0))(*prepare(*a, **k)))
+    ba = adjust_project(root, st)
+    assert ba.result.rejected_control == [] and ba.result.control_active.all()
+    assert np.abs(ba.eo_map.centre_m - ref.eo_map.centre_m).max() < 1e-3

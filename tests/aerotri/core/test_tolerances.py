@@ -224,3 +224,26 @@ def test_a_block_without_gnss_is_scaled_by_the_adjustment_s_own_centres(tmp_path
     assert block.platform == "uas" and block.height_above_ground_m == pytest.approx(40.0)
     assert "the adjusted projection centres" in block.how
     assert qa_settings(root, block).table.key == "ASPRS2023 H7.1cm V10cm UAS"
+
+
+def test_the_ground_of_the_gsd_is_the_adjusted_tie_points_not_the_planned_terrain_height(tmp_path):
+    """Tuniu: the EXIF import writes the take-off point's height as [flight] mean_terrain_height_m; the report
+    stated "GSD 11 cm at 100 m" from it while the tie points lay 9 m higher (10.0 cm at 91 m). The adjusted tie
+    points (at/object_points.csv, or the heights the adjustment passes) come first, the planned height last."""
+    root = _project(tmp_path / "drone", DRONE, 40.0)  # [flight] mean_terrain_height_m = GROUND_M (the take-off)
+    assert project_block_scale(Project.open(root)).height_above_ground_m == pytest.approx(40.0)  # no tie points yet
+    rng = np.random.default_rng(1)
+    z = GROUND_M + 9.0 + rng.normal(0.0, 0.5, 301)
+    z[:20] += 30.0  # a tree row: the median holds
+    (root / "at").mkdir()
+    (root / "at" / "object_points.csv").write_text(
+        "id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px\n"
+        + "".join(f"T{i},tie,500010.0,5000010.0,{v:.4f},0.01,0.01,0.02,3,0.2\n" for i, v in enumerate(z)))
+    block = project_block_scale(Project.open(root))
+    assert block.height_above_ground_m == pytest.approx(40.0 - 9.0, abs=0.2)
+    assert block.gsd_m == pytest.approx(DRONE.gsd_m(block.height_above_ground_m))
+    assert "the adjusted points of at/object_points.csv" in block.how and "mean_terrain_height_m" not in block.how
+    # the adjustment's own tie points when it passes them (its report is written before object_points.csv)
+    block = project_block_scale(Project.open(root), np.r_[np.full(50, GROUND_M + 12.0), np.nan])
+    assert block.height_above_ground_m == pytest.approx(28.0) and "the adjusted tie points (192.0)" in block.how
+    assert "GSD 1.2 cm at 28 m above ground" in qa_settings(root, block).table.reason
