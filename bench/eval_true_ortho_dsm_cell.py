@@ -42,6 +42,9 @@ dsm.tif); on a tall block ``lidarctl rasters`` of its simulated strips with thei
 height the DSM's bilinear one (``ortho.block.HEIGHTS_BY_OUTLINE`` off for that DOM: the rule before heights by side);
 ``+hod``: with ``+occn`` and footprints, the heights' roof outlines from the heights DSM's roof cells
 (``ortho.block.OUTLINES_OF_THE_OCCLUSION_TEST`` off: main's before the outlines of the occlusion test).
+``+occc``: with ``+occn``, the occlusion test on dsm_nearest.tif with each tree crown's cell a column only where the
+returns say the crown covers the whole cell (``lidarctl.rasters.crown_rim.crowns_within_cells`` of the block's
+classified first returns, written to the DOM's lidar_out/dsm_crowns.tif); ``+occcNN`` where it covers NN % of it.
 Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other keys kept).
 """
 
@@ -362,6 +365,36 @@ def lidar_crown_base(src: Path, tall: bool, like: Path, out: Path) -> int:
     return int(np.isfinite(base).sum())
 
 
+def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min_share: float) -> dict:
+    """``lidarctl.rasters.crown_rim.crowns_within_cells`` of ``nearest`` (the block's dsm_nearest.tif) from the first
+    returns (noise excluded) of ``block_first_returns``' strips with their classes, written to ``out`` on its grid;
+    the cells lowered and the CPU seconds."""
+    import laspy
+    import rasterio
+
+    from lidarctl.rasters.crown_rim import crowns_within_cells
+    from lidarctl.rasters.nearest import first_return_mask
+
+    t = time.process_time()
+    las = sorted((src / "lidar").glob("*.la[sz]")) if tall else sorted((src / "lidar_out" / "classified").glob("*.la[sz]"))
+    xs, ys, zs, cls = [], [], [], []
+    for path in las:
+        pts = laspy.read(path)
+        c = np.asarray(laspy.read(src / "truth" / "lidar" / path.name).classification if tall else pts.classification)
+        keep = first_return_mask(c, np.asarray(pts.return_number))
+        xs.append(np.asarray(pts.x)[keep]), ys.append(np.asarray(pts.y)[keep]), zs.append(np.asarray(pts.z)[keep])
+        cls.append(c[keep])
+    with rasterio.open(nearest) as ds:
+        prof, tf = ds.profile, ds.transform
+        z = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
+    got = crowns_within_cells(np.concatenate(xs), np.concatenate(ys), np.concatenate(zs), np.concatenate(cls), z,
+                              x0_m=tf.c, y_top_m=tf.f, res_m=tf.a, min_share=min_share)
+    with rasterio.open(out, "w", **prof) as dst:
+        dst.write(np.where(np.isfinite(got), got, prof["nodata"]).astype(prof["dtype"]), 1)
+    return {"path": str(out), "min_share": min_share, "cells_lowered": int((got != z)[np.isfinite(z)].sum()),
+            "cpu_s": time.process_time() - t}
+
+
 def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None,
              occlusion_dsm=None) -> dict:
     """The true ortho DOM of ``project`` on its lidar_out/dsm.tif (``footprints``, ``crown_base``, ``occlusion_dsm``:
@@ -450,10 +483,17 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 write_footprints_gpkg(p / "truth" / "buildings.geojson", fp_path, Project.open(p).crs)
             cast_s = 0.0
             occlusion_dsm = None
+            crowns = None
             if cell in ("lidar", "lidarn") or "occn" in flags:
                 rasters_dir = lidar_rasters(name, src, work, tall)
                 if "occn" in flags:
                     occlusion_dsm = rasters_dir / "dsm_nearest.tif"
+                occc = [f for f in flags if f.startswith("occc")]
+                if occc:  # ``+occc[NN]``: dsm_nearest's crowns within the cells they cover (min share NN %, 100)
+                    share = int(occc[0][4:] or 100) / 100
+                    crowns = crowns_within_cells_dsm(src, tall, occlusion_dsm, p / "lidar_out" / "dsm_crowns.tif",
+                                                     share)
+                    occlusion_dsm = Path(crowns["path"])
                 if cell == "lidarn" or (cell == "lidar" and tall):
                     shutil.copy2(rasters_dir / ("dsm_nearest.tif" if cell == "lidarn" else "dsm.tif"),
                                  p / "lidar_out" / "dsm.tif")
@@ -483,6 +523,7 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 ortho_block.HEIGHTS_BY_OUTLINE, ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = switches
             made["occlusion_dsm"] = str(occlusion_dsm) if occlusion_dsm else None
             made["dsm_ray_cast_s"] = cast_s
+            made["crowns_within_cells"] = crowns
             made["footprints"] = str(fp_path) if fp_path else None
             made["crown_base"] = {"path": str(crown_path), "cells": crown_cells} if crown_path else None
             made["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
@@ -493,7 +534,7 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
         made = json.loads(made_path.read_text())
         res = {"rectify": made["rectify"], "dsm_ray_cast_s": made["dsm_ray_cast_s"], "point_dsm": made.get("point_dsm"),
                "footprints": made.get("footprints"), "crown_base": made.get("crown_base"),
-               "occlusion_dsm": made.get("occlusion_dsm"),
+               "occlusion_dsm": made.get("occlusion_dsm"), "crowns_within_cells": made.get("crowns_within_cells"),
                "made_at_commit": made.get("commit"),
                "roofs": roof_displacements(p / "ortho" / "mosaic.tif", p / "truth" / "ortho.tif",
                                            p / "truth" / "roof_corners.csv")}

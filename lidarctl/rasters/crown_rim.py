@@ -1,0 +1,99 @@
+"""The nearest-return surface with tree crowns no wider than the returns say: for the true ortho's occlusion test.
+
+``dsm_nearest.tif`` (``nearest``) stands each 0.5 m cell whole at the height of the return nearest its centre. At a
+crown's rim, where that return is a vegetation return, the whole cell becomes a column of the crown's height although
+the crown covers part of it: the march then stops lines of sight that pass beside the crown over the rest of the cell
+(issue 42: two thirds of the demo's masked ground that clears the true surface, 0.04-0.60 m beyond a crown's rim).
+The returns place the rim between a crown's last vegetation return and the first return beside it (Voronoi), so a
+cell lies wholly within the crown where every point of it is nearer a vegetation return than any other; here its
+``SUB_CELLS`` x ``SUB_CELLS`` sub-cell centres (``crown_share``, the share of them that are). ``crowns_within_cells``
+keeps a vegetation cell a column only where that share reaches ``min_share``; the others take the height of the
+nearest return that is not vegetation (the ground or a roof beside the crown), as ``dsm_nearest`` does beyond the
+rim. Not written by ``lidarctl rasters`` (the bench makes it from the classified strips). Grids north-up: row 0 at
+``y_top_m``, columns from ``x0_m``; lengths in metres; classes ASPRS (``crown_base.VEGETATION_CLASSES``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from lidarctl.rasters.crown_base import VEGETATION_CLASSES
+from lidarctl.rasters.nearest import SEARCH_RADIUS_M, _bucket_points, _nearest_in_run, nearest_return_surface
+
+SUB_CELLS = 5  # sub-cell centres per cell side (0.1 m at a 0.5 m cell) at which the crown's cover is tested
+WHOLE_CELL = 1.0  # ``min_share``: a column only where the crown covers every sub-cell centre
+
+
+@numba.njit(cache=True, nogil=True)
+def _shares(points, start, grid, cells_i, cells_j, sub, max_dist):
+    # per candidate cell the share of its sub-cell centres whose nearest return (z: 1 vegetation, 0 not; ties the
+    # higher, vegetation) is vegetation; ring k of a cell lies at least (k - 1) cells from any point of the cell
+    px, py, pz = points
+    x0, y_top, res, nrows, ncols = grid
+    out = np.empty(len(cells_i), np.float32)
+    reach = int(math.ceil(max_dist / res)) + 1
+    for n in range(len(cells_i)):
+        i, j = cells_i[n], cells_j[n]
+        veg = 0
+        for u in range(sub):
+            cy = y_top - (i + (u + 0.5) / sub) * res
+            for v in range(sub):
+                cx = x0 + (j + (v + 0.5) / sub) * res
+                best, best_z = max_dist * max_dist, 0.0
+                for k in range(reach + 1):
+                    if k > 1 and ((k - 1) * res) ** 2 > best:
+                        break
+                    b_lo, b_hi = max(j - k, 0), min(j + k, ncols - 1)
+                    for side in range(2 if k > 0 else 1):
+                        a = i - k if side == 0 else i + k
+                        if 0 <= a < nrows:
+                            best, best_z = _nearest_in_run(px, py, pz, start[a * ncols + b_lo],
+                                                           start[a * ncols + b_hi + 1], cx, cy, best, best_z)
+                    for a in range(max(i - k + 1, 0), min(i + k, nrows)):
+                        for b in (j - k, j + k):
+                            if 0 <= b < ncols:
+                                c = a * ncols + b
+                                best, best_z = _nearest_in_run(px, py, pz, start[c], start[c + 1], cx, cy, best,
+                                                               best_z)
+                if best_z > 0.5:
+                    veg += 1
+        out[n] = veg / (sub * sub)
+    return out
+
+
+def crown_share(x: np.ndarray, y: np.ndarray, is_vegetation: np.ndarray, *, x0_m: float, y_top_m: float,
+                res_m: float, nrows: int, ncols: int, cells: np.ndarray, sub: int = SUB_CELLS) -> np.ndarray:
+    """Per cell of ``cells`` ((N, 2) rows, columns) the share (0..1) of its ``sub`` x ``sub`` sub-cell centres whose
+    nearest return (x, y; within ``nearest.SEARCH_RADIUS_M``) is vegetation (``is_vegetation``; equally near: the
+    vegetation)."""
+    x, y = (np.ascontiguousarray(v, np.float64) for v in (x, y))
+    grid = (float(x0_m), float(y_top_m), float(res_m), int(nrows), int(ncols))
+    points, start = _bucket_points(x, y, np.asarray(is_vegetation, np.float64), grid)
+    cells = np.asarray(cells, np.int64).reshape(-1, 2)
+    return _shares(points, start, grid, np.ascontiguousarray(cells[:, 0]), np.ascontiguousarray(cells[:, 1]),
+                   int(sub), float(SEARCH_RADIUS_M))
+
+
+def crowns_within_cells(x: np.ndarray, y: np.ndarray, z: np.ndarray, cls: np.ndarray, nearest_m: np.ndarray, *,
+                        x0_m: float, y_top_m: float, res_m: float, min_share: float = WHOLE_CELL,
+                        sub: int = SUB_CELLS) -> np.ndarray:
+    """``nearest_m`` (the nearest-return surface of the first returns x, y, z of classes ``cls`` on this grid, NaN
+    nodata) with each cell whose centre's nearest return is vegetation and whose crown share (``crown_share``) is
+    below ``min_share`` at the height of the nearest return that is not vegetation (kept where none lies within
+    ``nearest.SEARCH_RADIUS_M``: a crown's inside). float32, the shape of ``nearest_m``."""
+    nrows, ncols = nearest_m.shape
+    veg = np.isin(np.asarray(cls), VEGETATION_CLASSES)
+    kw = {"x0_m": x0_m, "y_top_m": y_top_m, "res_m": res_m, "nrows": nrows, "ncols": ncols}
+    at_centre = nearest_return_surface(x, y, veg.astype(np.float64), max_dist_m=SEARCH_RADIUS_M, **kw) > 0.5
+    cells = np.argwhere(at_centre & np.isfinite(nearest_m))
+    share = crown_share(x, y, veg, cells=cells, sub=sub, **kw)
+    other = nearest_return_surface(x[~veg], y[~veg], z[~veg], max_dist_m=SEARCH_RADIUS_M, **kw)
+    out = np.array(nearest_m, np.float32)
+    low = cells[share < min_share]
+    o = other[low[:, 0], low[:, 1]]
+    keep = np.isfinite(o)
+    out[low[keep, 0], low[keep, 1]] = o[keep]
+    return out
