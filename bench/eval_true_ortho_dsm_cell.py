@@ -45,6 +45,9 @@ height the DSM's bilinear one (``ortho.block.HEIGHTS_BY_OUTLINE`` off for that D
 ``+occc``: with ``+occn``, the occlusion test on dsm_nearest.tif with each tree crown's cell a column only where the
 returns say the crown covers the whole cell (``lidarctl.rasters.crown_rim.crowns_within_cells`` of the block's
 classified first returns, written to the DOM's lidar_out/dsm_crowns.tif); ``+occcNN`` where it covers NN % of it.
+``+occs``: with ``+occn`` and footprints, dsm_nearest's crown cells a column over the sub-cells the crown covers only
+(``crown_sub_cells`` to lidar_out/crown_bits.tif, ``ortho.crown_cells.with_crown_sub_cells`` on each frame's
+occluder: ``_frame_occluder`` wrapped, a trial, not a rectifier option).
 Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other keys kept).
 """
 
@@ -365,14 +368,15 @@ def lidar_crown_base(src: Path, tall: bool, like: Path, out: Path) -> int:
     return int(np.isfinite(base).sum())
 
 
-def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min_share: float) -> dict:
+def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min_share: float | None) -> dict:
     """``lidarctl.rasters.crown_rim.crowns_within_cells`` of ``nearest`` (the block's dsm_nearest.tif) from the first
     returns (noise excluded) of ``block_first_returns``' strips with their classes, written to ``out`` on its grid;
-    the cells lowered and the CPU seconds."""
+    the cells lowered and the CPU seconds. ``min_share`` None: ``crown_sub_cells`` instead (uint32 bits), the cells
+    with bits."""
     import laspy
     import rasterio
 
-    from lidarctl.rasters.crown_rim import crowns_within_cells
+    from lidarctl.rasters.crown_rim import crown_sub_cells, crowns_within_cells
     from lidarctl.rasters.nearest import first_return_mask
 
     t = time.process_time()
@@ -387,12 +391,45 @@ def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min
     with rasterio.open(nearest) as ds:
         prof, tf = ds.profile, ds.transform
         z = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
-    got = crowns_within_cells(np.concatenate(xs), np.concatenate(ys), np.concatenate(zs), np.concatenate(cls), z,
-                              x0_m=tf.c, y_top_m=tf.f, res_m=tf.a, min_share=min_share)
+    pts = (np.concatenate(xs), np.concatenate(ys), np.concatenate(zs), np.concatenate(cls))
+    if min_share is None:
+        bits = crown_sub_cells(pts[0], pts[1], pts[3], z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a)
+        prof.update(dtype="uint32", nodata=None)
+        with rasterio.open(out, "w", **prof) as dst:
+            dst.write(bits, 1)
+        return {"path": str(out), "sub_cells": True, "cells_with_bits": int((bits != 0).sum()),
+                "cpu_s": time.process_time() - t}
+    got = crowns_within_cells(*pts, z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a, min_share=min_share)
     with rasterio.open(out, "w", **prof) as dst:
         dst.write(np.where(np.isfinite(got), got, prof["nodata"]).astype(prof["dtype"]), 1)
     return {"path": str(out), "min_share": min_share, "cells_lowered": int((got != z)[np.isfinite(z)].sum()),
             "cpu_s": time.process_time() - t}
+
+
+def with_crown_bits(frame_occluder, bits_path: Path):
+    """``ortho.block._frame_occluder`` with ``ortho.crown_cells.with_crown_sub_cells`` of the crown bits raster
+    ``bits_path`` (on the occlusion DSM's grid) over the frame's window: the trial of the crowns' sub-cells in the
+    march (not an option of the rectifier)."""
+    import rasterio
+
+    from ortho.crown_cells import with_crown_sub_cells
+    from lidarctl.rasters.crown_rim import SUB_CELLS
+
+    with rasterio.open(bits_path) as ds:
+        bits, tf = ds.read(1), ds.transform
+
+    def occluder(task, surface, *rest):
+        occ, sides = frame_occluder(task, surface, *rest)
+        h, w = surface.heights_m.shape
+        r0, c0 = int(round((tf.f - surface.y_top_m) / tf.a)), int(round((surface.x_left_m - tf.c) / tf.a))
+        window = np.zeros((h, w), np.uint32)
+        a0, b0 = max(r0, 0), max(c0, 0)
+        a1, b1 = min(r0 + h, bits.shape[0]), min(c0 + w, bits.shape[1])
+        if a1 > a0 and b1 > b0:
+            window[a0 - r0:a1 - r0, b0 - c0:b1 - c0] = bits[a0:a1, b0:b1]
+        return with_crown_sub_cells(occ, surface.heights_m, window, SUB_CELLS), sides
+
+    return occluder
 
 
 def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None,
@@ -494,6 +531,9 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                     crowns = crowns_within_cells_dsm(src, tall, occlusion_dsm, p / "lidar_out" / "dsm_crowns.tif",
                                                      share)
                     occlusion_dsm = Path(crowns["path"])
+                if "occs" in flags:  # ``+occs``: dsm_nearest's crowns over their sub-cells in the march
+                    crowns = crowns_within_cells_dsm(src, tall, occlusion_dsm, p / "lidar_out" / "crown_bits.tif",
+                                                     None)
                 if cell == "lidarn" or (cell == "lidar" and tall):
                     shutil.copy2(rasters_dir / ("dsm_nearest.tif" if cell == "lidarn" else "dsm.tif"),
                                  p / "lidar_out" / "dsm.tif")
@@ -517,10 +557,14 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
             switches = (ortho_block.HEIGHTS_BY_OUTLINE, ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST)
             ortho_block.HEIGHTS_BY_OUTLINE = "bil" not in flags   # ``+bil``: footprints, heights bilinear (main's before)
             ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = "hod" not in flags  # ``+hod``: the outlines of the heights DSM
+            inner = ortho_block._frame_occluder
+            if "occs" in flags:
+                ortho_block._frame_occluder = with_crown_bits(inner, Path(crowns["path"]))
             try:
                 made = make_dom(p, footprints=fp_path, crown_base=crown_path, occlusion_dsm=occlusion_dsm, **kw)
             finally:
                 ortho_block.HEIGHTS_BY_OUTLINE, ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = switches
+                ortho_block._frame_occluder = inner
             made["occlusion_dsm"] = str(occlusion_dsm) if occlusion_dsm else None
             made["dsm_ray_cast_s"] = cast_s
             made["crowns_within_cells"] = crowns

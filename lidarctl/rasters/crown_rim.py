@@ -25,6 +25,7 @@ from lidarctl.rasters.nearest import SEARCH_RADIUS_M, _bucket_points, _nearest_i
 
 SUB_CELLS = 5  # sub-cell centres per cell side (0.1 m at a 0.5 m cell) at which the crown's cover is tested
 WHOLE_CELL = 1.0  # ``min_share``: a column only where the crown covers every sub-cell centre
+MOST_OF_THE_CELL = 0.5  # ``min_share``: where it covers at least half of them (chosen on the demo's seed 7)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -33,11 +34,11 @@ def _shares(points, start, grid, cells_i, cells_j, sub, max_dist):
     # higher, vegetation) is vegetation; ring k of a cell lies at least (k - 1) cells from any point of the cell
     px, py, pz = points
     x0, y_top, res, nrows, ncols = grid
-    out = np.empty(len(cells_i), np.float32)
+    bits = np.zeros(len(cells_i), np.uint32)
+    counts = np.zeros(len(cells_i), np.int64)
     reach = int(math.ceil(max_dist / res)) + 1
     for n in range(len(cells_i)):
         i, j = cells_i[n], cells_j[n]
-        veg = 0
         for u in range(sub):
             cy = y_top - (i + (u + 0.5) / sub) * res
             for v in range(sub):
@@ -59,9 +60,9 @@ def _shares(points, start, grid, cells_i, cells_j, sub, max_dist):
                                 best, best_z = _nearest_in_run(px, py, pz, start[c], start[c + 1], cx, cy, best,
                                                                best_z)
                 if best_z > 0.5:
-                    veg += 1
-        out[n] = veg / (sub * sub)
-    return out
+                    bits[n] |= np.uint32(1) << np.uint32(u * sub + v)
+                    counts[n] += 1
+    return bits, counts
 
 
 def crown_share(x: np.ndarray, y: np.ndarray, is_vegetation: np.ndarray, *, x0_m: float, y_top_m: float,
@@ -69,16 +70,43 @@ def crown_share(x: np.ndarray, y: np.ndarray, is_vegetation: np.ndarray, *, x0_m
     """Per cell of ``cells`` ((N, 2) rows, columns) the share (0..1) of its ``sub`` x ``sub`` sub-cell centres whose
     nearest return (x, y; within ``nearest.SEARCH_RADIUS_M``) is vegetation (``is_vegetation``; equally near: the
     vegetation)."""
-    x, y = (np.ascontiguousarray(v, np.float64) for v in (x, y))
     grid = (float(x0_m), float(y_top_m), float(res_m), int(nrows), int(ncols))
+    _, counts = _crown_bits(x, y, is_vegetation, grid, cells, sub)
+    return (counts / (sub * sub)).astype(np.float32)
+
+
+def _crown_bits(x, y, is_vegetation, grid, cells, sub):
+    x, y = (np.ascontiguousarray(v, np.float64) for v in (x, y))
     points, start = _bucket_points(x, y, np.asarray(is_vegetation, np.float64), grid)
     cells = np.asarray(cells, np.int64).reshape(-1, 2)
     return _shares(points, start, grid, np.ascontiguousarray(cells[:, 0]), np.ascontiguousarray(cells[:, 1]),
                    int(sub), float(SEARCH_RADIUS_M))
 
 
+def crown_sub_cells(x: np.ndarray, y: np.ndarray, cls: np.ndarray, nearest_m: np.ndarray, *, x0_m: float,
+                    y_top_m: float, res_m: float, sub: int = SUB_CELLS) -> np.ndarray:
+    """Per cell of the grid of ``nearest_m`` (NaN nodata) whose centre's nearest first return (x, y; classes ``cls``)
+    is vegetation and which that crown does not cover whole, the bits (uint32, bit ``u * sub + v``: sub-cell row u
+    from the north, column v from the west) of its ``sub`` x ``sub`` sub-cell centres nearer a vegetation return than
+    any other; 0 for every other cell (a column or not as ``nearest_m`` has it). For the occlusion test's crowns
+    within the cells (``ortho.crown_cells``)."""
+    if sub * sub > 32:
+        raise ValueError(f"sub {sub}: at most 5 x 5 sub-cells fit a uint32")
+    nrows, ncols = nearest_m.shape
+    veg = np.isin(np.asarray(cls), VEGETATION_CLASSES)
+    kw = {"x0_m": x0_m, "y_top_m": y_top_m, "res_m": res_m, "nrows": nrows, "ncols": ncols}
+    at_centre = nearest_return_surface(x, y, veg.astype(np.float64), max_dist_m=SEARCH_RADIUS_M, **kw) > 0.5
+    cells = np.argwhere(at_centre & np.isfinite(nearest_m))
+    grid = (float(x0_m), float(y_top_m), float(res_m), int(nrows), int(ncols))
+    bits, counts = _crown_bits(x, y, veg, grid, cells, sub)
+    out = np.zeros((nrows, ncols), np.uint32)
+    part = counts < sub * sub
+    out[cells[part, 0], cells[part, 1]] = bits[part]
+    return out
+
+
 def crowns_within_cells(x: np.ndarray, y: np.ndarray, z: np.ndarray, cls: np.ndarray, nearest_m: np.ndarray, *,
-                        x0_m: float, y_top_m: float, res_m: float, min_share: float = WHOLE_CELL,
+                        x0_m: float, y_top_m: float, res_m: float, min_share: float,
                         sub: int = SUB_CELLS) -> np.ndarray:
     """``nearest_m`` (the nearest-return surface of the first returns x, y, z of classes ``cls`` on this grid, NaN
     nodata) with each cell whose centre's nearest return is vegetation and whose crown share (``crown_share``) is

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from lidarctl.rasters.crown_rim import SUB_CELLS, crowns_within_cells
+from lidarctl.rasters.crown_rim import MOST_OF_THE_CELL, SUB_CELLS, WHOLE_CELL, crown_sub_cells, crowns_within_cells
 from lidarctl.rasters.nearest import nearest_return_surface
 
 RES_M, N, SPACING_M, TOP_M = 0.5, 80, 0.75, 12.0
@@ -37,7 +37,7 @@ def test_crown_columns_stay_within_the_crowns(seed):
     x, y, z, cls, px, py, covered = _crown_block(seed)
     kw = {"x0_m": -20.0, "y_top_m": 20.0, "res_m": RES_M}
     nearest = nearest_return_surface(x, y, z, nrows=N, ncols=N, max_dist_m=5.0, **kw)
-    got = crowns_within_cells(x, y, z, cls, nearest, **kw)
+    got = crowns_within_cells(x, y, z, cls, nearest, min_share=WHOLE_CELL, **kw)
     truth_area = covered.sum()
 
     def spill_and_cover(surface):
@@ -64,5 +64,34 @@ def test_cells_with_no_other_return_near_keep_the_crown():
     # one crown return and nothing else within reach: the crown's inside, kept
     x, y, z, cls = np.array([0.6]), np.array([0.4]), np.array([TOP_M]), np.array([5])
     nearest = nearest_return_surface(x, y, z, x0_m=0.0, y_top_m=1.0, res_m=RES_M, nrows=2, ncols=2, max_dist_m=5.0)
-    got = crowns_within_cells(x, y, z, cls, nearest, x0_m=0.0, y_top_m=1.0, res_m=RES_M)
+    got = crowns_within_cells(x, y, z, cls, nearest, x0_m=0.0, y_top_m=1.0, res_m=RES_M, min_share=WHOLE_CELL)
     assert (got == TOP_M).all()
+
+
+@pytest.mark.parametrize(("ground_m", "column"), [(0.3, False), (0.6, True)])
+def test_a_lone_vegetation_return_is_a_column_where_it_is_nearest_to_most_of_the_cell(ground_m, column):
+    # a shrub's return at the centre of a 0.5 m cell, ground returns ground_m to its four sides: 0.3 m, it is the
+    # nearest return to 9 of the cell's 25 sub-cell centres (the ground's height, though the nearest at the centre);
+    # 0.6 m, to all 25 (kept)
+    d = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], float) * ground_m
+    x, y = 0.75 + d[:, 0], 0.75 + d[:, 1]  # the middle cell of 3 x 3
+    z, cls = np.array([3.0, 0.0, 0.0, 0.0, 0.0]), np.array([4, 2, 2, 2, 2])
+    kw = {"x0_m": 0.0, "y_top_m": 1.5, "res_m": RES_M}
+    nearest = nearest_return_surface(x, y, z, nrows=3, ncols=3, max_dist_m=5.0, **kw)
+    assert nearest[1, 1] == 3.0
+    got = crowns_within_cells(x, y, z, cls, nearest, min_share=MOST_OF_THE_CELL, **kw)
+    assert got[1, 1] == (3.0 if column else 0.0)
+    assert (np.delete(got.ravel(), 4) == np.delete(nearest.ravel(), 4)).all()
+
+
+def test_crown_sub_cells_of_a_lone_return():
+    # the shrub's return of the test above, ground 0.3 m around: bits of the 3 x 3 middle sub-cells; 0.6 m: the
+    # whole cell, 0 (a column as dsm_nearest has it)
+    for ground_m, want in ((0.3, sum(1 << (u * SUB_CELLS + v) for u in (1, 2, 3) for v in (1, 2, 3))), (0.6, 0)):
+        d = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], float) * ground_m
+        x, y = 0.75 + d[:, 0], 0.75 + d[:, 1]
+        z, cls = np.array([3.0, 0.0, 0.0, 0.0, 0.0]), np.array([4, 2, 2, 2, 2])
+        kw = {"x0_m": 0.0, "y_top_m": 1.5, "res_m": RES_M}
+        nearest = nearest_return_surface(x, y, z, nrows=3, ncols=3, max_dist_m=5.0, **kw)
+        bits = crown_sub_cells(x, y, cls, nearest, **kw)
+        assert bits[1, 1] == want and (np.delete(bits.ravel(), 4) == 0).all()
