@@ -368,7 +368,8 @@ def lidar_crown_base(src: Path, tall: bool, like: Path, out: Path) -> int:
     return int(np.isfinite(base).sum())
 
 
-def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min_share: float | None) -> dict:
+def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min_share: float | None,
+                            beside: bool = False) -> dict:
     """``lidarctl.rasters.crown_rim.crowns_within_cells`` of ``nearest`` (the block's dsm_nearest.tif) from the first
     returns (noise excluded) of ``block_first_returns``' strips with their classes, written to ``out`` on its grid;
     the cells lowered and the CPU seconds. ``min_share`` None: ``crown_sub_cells`` instead (uint32 bits), the cells
@@ -376,11 +377,11 @@ def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min
     import laspy
     import rasterio
 
-    from lidarctl.rasters.crown_rim import crown_sub_cells, crowns_within_cells
+    from lidarctl.rasters.crown_rim import crown_sub_cells, crown_sub_cells_beside, crowns_within_cells
     from lidarctl.rasters.nearest import first_return_mask
 
     t = time.process_time()
-    las = sorted((src / "lidar").glob("*.la[sz]")) if tall else sorted((src / "lidar_out" / "classified").glob("*.la[sz]"))
+    las = sorted((src / "lidar").glob("*.la[sz]") if tall else (src / "lidar_out" / "classified").glob("*.la[sz]"))
     xs, ys, zs, cls = [], [], [], []
     for path in las:
         pts = laspy.read(path)
@@ -393,11 +394,19 @@ def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min
         z = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
     pts = (np.concatenate(xs), np.concatenate(ys), np.concatenate(zs), np.concatenate(cls))
     if min_share is None:
-        bits = crown_sub_cells(pts[0], pts[1], pts[3], z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a)
+        top = None
+        if beside:  # ``+occs2``: the crown's sub-cells in the cells beside its rim too, at a crown return's height
+            bits, top = crown_sub_cells_beside(*pts, z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a)
+            with rasterio.open(out.with_name("crown_top.tif"), "w", **prof) as dst:
+                dst.write(np.where(np.isfinite(top), top, prof["nodata"]).astype(prof["dtype"]), 1)
+        else:
+            bits = crown_sub_cells(pts[0], pts[1], pts[3], z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a)
         prof.update(dtype="uint32", nodata=None)
         with rasterio.open(out, "w", **prof) as dst:
             dst.write(bits, 1)
         return {"path": str(out), "sub_cells": True, "cells_with_bits": int((bits != 0).sum()),
+                "cells_raised": int(np.isfinite(top).sum()) if top is not None else 0,
+                "top_path": str(out.with_name("crown_top.tif")) if top is not None else None,
                 "cpu_s": time.process_time() - t}
     got = crowns_within_cells(*pts, z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a, min_share=min_share)
     with rasterio.open(out, "w", **prof) as dst:
@@ -406,10 +415,11 @@ def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min
             "cpu_s": time.process_time() - t}
 
 
-def with_crown_bits(frame_occluder, bits_path: Path):
+def with_crown_bits(frame_occluder, bits_path: Path, top_path: str | None = None):
     """``ortho.block._frame_occluder`` with ``ortho.crown_cells.with_crown_sub_cells`` of the crown bits raster
     ``bits_path`` (on the occlusion DSM's grid) over the frame's window: the trial of the crowns' sub-cells in the
-    march (not an option of the rectifier)."""
+    march (not an option of the rectifier). ``top_path``: the crown's top in the cells beside its rim (NaN
+    elsewhere), where the frame's occluder has a solid column put into the occlusion DSM's window (in place)."""
     import rasterio
 
     from ortho.crown_cells import with_crown_sub_cells
@@ -417,16 +427,28 @@ def with_crown_bits(frame_occluder, bits_path: Path):
 
     with rasterio.open(bits_path) as ds:
         bits, tf = ds.read(1), ds.transform
+    tops = None
+    if top_path:
+        with rasterio.open(top_path) as ds:
+            tops = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
+
+    def window_of(raster, surface, fill):
+        h, w = surface.heights_m.shape
+        r0, c0 = int(round((tf.f - surface.y_top_m) / tf.a)), int(round((surface.x_left_m - tf.c) / tf.a))
+        window = np.full((h, w), fill, raster.dtype)
+        a0, b0 = max(r0, 0), max(c0, 0)
+        a1, b1 = min(r0 + h, raster.shape[0]), min(c0 + w, raster.shape[1])
+        if a1 > a0 and b1 > b0:
+            window[a0 - r0:a1 - r0, b0 - c0:b1 - c0] = raster[a0:a1, b0:b1]
+        return window
 
     def occluder(task, surface, *rest):
         occ, sides = frame_occluder(task, surface, *rest)
-        h, w = surface.heights_m.shape
-        r0, c0 = int(round((tf.f - surface.y_top_m) / tf.a)), int(round((surface.x_left_m - tf.c) / tf.a))
-        window = np.zeros((h, w), np.uint32)
-        a0, b0 = max(r0, 0), max(c0, 0)
-        a1, b1 = min(r0 + h, bits.shape[0]), min(c0 + w, bits.shape[1])
-        if a1 > a0 and b1 > b0:
-            window[a0 - r0:a1 - r0, b0 - c0:b1 - c0] = bits[a0:a1, b0:b1]
+        window = window_of(bits, surface, 0)
+        if tops is not None:
+            top = window_of(tops, surface, np.nan)
+            raise_ = np.isfinite(top) & (window != 0) & (occ.base_m == -np.inf) & (top > surface.heights_m)
+            surface.heights_m[raise_] = top[raise_]
         return with_crown_sub_cells(occ, surface.heights_m, window, SUB_CELLS), sides
 
     return occluder
@@ -531,9 +553,9 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                     crowns = crowns_within_cells_dsm(src, tall, occlusion_dsm, p / "lidar_out" / "dsm_crowns.tif",
                                                      share)
                     occlusion_dsm = Path(crowns["path"])
-                if "occs" in flags:  # ``+occs``: dsm_nearest's crowns over their sub-cells in the march
+                if "occs" in flags or "occs2" in flags:  # dsm_nearest's crowns over their sub-cells in the march
                     crowns = crowns_within_cells_dsm(src, tall, occlusion_dsm, p / "lidar_out" / "crown_bits.tif",
-                                                     None)
+                                                     None, beside="occs2" in flags)
                 if cell == "lidarn" or (cell == "lidar" and tall):
                     shutil.copy2(rasters_dir / ("dsm_nearest.tif" if cell == "lidarn" else "dsm.tif"),
                                  p / "lidar_out" / "dsm.tif")
@@ -558,8 +580,8 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
             ortho_block.HEIGHTS_BY_OUTLINE = "bil" not in flags   # ``+bil``: footprints, heights bilinear (main's before)
             ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = "hod" not in flags  # ``+hod``: the outlines of the heights DSM
             inner = ortho_block._frame_occluder
-            if "occs" in flags:
-                ortho_block._frame_occluder = with_crown_bits(inner, Path(crowns["path"]))
+            if "occs" in flags or "occs2" in flags:
+                ortho_block._frame_occluder = with_crown_bits(inner, Path(crowns["path"]), crowns["top_path"])
             try:
                 made = make_dom(p, footprints=fp_path, crown_base=crown_path, occlusion_dsm=occlusion_dsm, **kw)
             finally:

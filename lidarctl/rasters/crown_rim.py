@@ -19,13 +19,48 @@ import math
 
 import numba
 import numpy as np
+from scipy.ndimage import maximum_filter
 
 from lidarctl.rasters.crown_base import VEGETATION_CLASSES
-from lidarctl.rasters.nearest import SEARCH_RADIUS_M, _bucket_points, _nearest_in_run, nearest_return_surface
+from lidarctl.rasters.nearest import SEARCH_RADIUS_M, nearest_return_surface
 
 SUB_CELLS = 5  # sub-cell centres per cell side (0.1 m at a 0.5 m cell) at which the crown's cover is tested
 WHOLE_CELL = 1.0  # ``min_share``: a column only where the crown covers every sub-cell centre
 MOST_OF_THE_CELL = 0.5  # ``min_share``: where it covers at least half of them (chosen on the demo's seed 7)
+
+
+@numba.njit(cache=True, nogil=True)
+def _bucket_points(x, y, z, grid):
+    # the points on the grid sorted by cell (a counting sort) and each cell's first point (start, n_cells + 1)
+    x0, y_top, res, nrows, ncols = grid
+    cell = np.full(len(x), -1, np.int64)
+    start = np.zeros(nrows * ncols + 1, np.int64)
+    for q in range(len(x)):
+        r = math.floor((y_top - y[q]) / res)
+        c = math.floor((x[q] - x0) / res)
+        if 0 <= r < nrows and 0 <= c < ncols:
+            cell[q] = r * ncols + c
+            start[cell[q] + 1] += 1
+    for k in range(1, len(start)):
+        start[k] += start[k - 1]
+    at = start[:-1].copy()
+    px, py, pz = np.empty(start[-1]), np.empty(start[-1]), np.empty(start[-1])
+    for q in range(len(x)):
+        if cell[q] >= 0:
+            i = at[cell[q]]
+            at[cell[q]] += 1
+            px[i], py[i], pz[i] = x[q], y[q], z[q]
+    return (px, py, pz), start
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _nearest_in_run(px, py, pz, q0, q1, cx, cy, best, best_z):
+    # the points q0 .. q1 (cells next to each other in a row); ties: the higher z (vegetation)
+    for q in range(q0, q1):
+        d = (px[q] - cx) ** 2 + (py[q] - cy) ** 2
+        if d < best or (d == best and pz[q] > best_z):
+            best, best_z = d, pz[q]
+    return best, best_z
 
 
 @numba.njit(cache=True, nogil=True)
@@ -125,3 +160,34 @@ def crowns_within_cells(x: np.ndarray, y: np.ndarray, z: np.ndarray, cls: np.nda
     keep = np.isfinite(o)
     out[low[keep, 0], low[keep, 1]] = o[keep]
     return out
+
+
+def crown_sub_cells_beside(x: np.ndarray, y: np.ndarray, z: np.ndarray, cls: np.ndarray, nearest_m: np.ndarray, *,
+                           x0_m: float, y_top_m: float, res_m: float,
+                           sub: int = SUB_CELLS) -> tuple[np.ndarray, np.ndarray]:
+    """``crown_sub_cells`` on both sides of the rim: also the cells whose centre's nearest first return is not
+    vegetation but some of whose sub-cell centres are nearer a vegetation return (the crown reaches into them), with
+    the height of the vegetation return nearest the centre as their top (float32, NaN for every other cell); the
+    Voronoi rim within the cells on either side, as wide on average as the crown."""
+    bits = crown_sub_cells(x, y, cls, nearest_m, x0_m=x0_m, y_top_m=y_top_m, res_m=res_m, sub=sub)
+    nrows, ncols = nearest_m.shape
+    veg = np.isin(np.asarray(cls), VEGETATION_CLASSES)
+    kw = {"x0_m": x0_m, "y_top_m": y_top_m, "res_m": res_m, "nrows": nrows, "ncols": ncols}
+    at_centre = nearest_return_surface(x, y, veg.astype(np.float64), max_dist_m=SEARCH_RADIUS_M, **kw) > 0.5
+    # the candidates: the cells within a cell of a vegetation return (a crown's sub-cells lie within half the
+    # spacing of its returns)
+    count = np.zeros((nrows, ncols), np.int32)
+    r = np.floor((y_top_m - y[veg]) / res_m).astype(np.int64)
+    c = np.floor((x[veg] - x0_m) / res_m).astype(np.int64)
+    ok = (r >= 0) & (r < nrows) & (c >= 0) & (c < ncols)
+    np.add.at(count, (r[ok], c[ok]), 1)
+    near = maximum_filter(count, size=3) > 0
+    cells = np.argwhere(near & ~at_centre & np.isfinite(nearest_m))
+    grid = (float(x0_m), float(y_top_m), float(res_m), int(nrows), int(ncols))
+    b, counts = _crown_bits(x, y, veg, grid, cells, sub)
+    some = counts > 0
+    bits[cells[some, 0], cells[some, 1]] = b[some]
+    top = np.full((nrows, ncols), np.nan, np.float32)
+    veg_top = nearest_return_surface(x[veg], y[veg], z[veg], max_dist_m=SEARCH_RADIUS_M, **kw)
+    top[cells[some, 0], cells[some, 1]] = veg_top[cells[some, 0], cells[some, 1]]
+    return bits, top

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from lidarctl.rasters.crown_rim import MOST_OF_THE_CELL, SUB_CELLS, WHOLE_CELL, crown_sub_cells, crowns_within_cells
+from lidarctl.rasters.crown_rim import (MOST_OF_THE_CELL, SUB_CELLS, WHOLE_CELL, crown_sub_cells, crown_sub_cells_beside,
+                                       crowns_within_cells)
 from lidarctl.rasters.nearest import nearest_return_surface
 
 RES_M, N, SPACING_M, TOP_M = 0.5, 80, 0.75, 12.0
@@ -95,3 +96,20 @@ def test_crown_sub_cells_of_a_lone_return():
         nearest = nearest_return_surface(x, y, z, nrows=3, ncols=3, max_dist_m=5.0, **kw)
         bits = crown_sub_cells(x, y, cls, nearest, **kw)
         assert bits[1, 1] == want and (np.delete(bits.ravel(), 4) == 0).all()
+
+
+def test_crown_sub_cells_beside_the_rim():
+    # the shrub's return 0.2 m east of the middle cell's centre, ground returns 0.3 m around it: no centre's nearest
+    # return; its sub-cells (within 0.15 m of it) in the middle cell (2 columns x 3 rows) and the eastern one (1 x 3)
+    d = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]], float) * 0.3
+    x, y = 0.95 + d[:, 0], 0.75 + d[:, 1]
+    z, cls = np.array([3.0, 0.0, 0.0, 0.0, 0.0]), np.array([4, 2, 2, 2, 2])
+    kw = {"x0_m": 0.0, "y_top_m": 1.5, "res_m": RES_M}
+    nearest = nearest_return_surface(x, y, z, nrows=3, ncols=3, max_dist_m=5.0, **kw)
+    assert (nearest == 0.0).all()
+    bits, top = crown_sub_cells_beside(x, y, z, cls, nearest, **kw)
+    want = np.zeros((3, 3), np.uint32)
+    want[1, 1] = sum(1 << (u * SUB_CELLS + v) for u in (1, 2, 3) for v in (3, 4))
+    want[1, 2] = sum(1 << (u * SUB_CELLS) for u in (1, 2, 3))
+    assert (bits == want).all()
+    assert (top[bits != 0] == 3.0).all() and np.isnan(top[bits == 0]).all()
