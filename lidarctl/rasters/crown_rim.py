@@ -9,7 +9,10 @@ cell lies wholly within the crown where every point of it is nearer a vegetation
 ``SUB_CELLS`` x ``SUB_CELLS`` sub-cell centres (``crown_share``, the share of them that are). ``crowns_within_cells``
 keeps a vegetation cell a column only where that share reaches ``min_share``; the others take the height of the
 nearest return that is not vegetation (the ground or a roof beside the crown), as ``dsm_nearest`` does beyond the
-rim. Not written by ``lidarctl rasters`` (the bench makes it from the classified strips). Grids north-up: row 0 at
+rim (chosen against: it gives up too much crown, docs/true-ortho.md). ``crown_sub_cells`` / ``crown_sub_cells_beside``
+give the crown's sub-cells per cell instead (on the crown's own cells / on both sides of the rim, the cells beside
+it with a crown return's height), for the march to take the crown over those sub-cells only (``ortho.crown_cells``).
+Not written by ``lidarctl rasters`` (the bench makes them from the classified strips). Grids north-up: row 0 at
 ``y_top_m``, columns from ``x0_m``; lengths in metres; classes ASPRS (``crown_base.VEGETATION_CLASSES``).
 """
 
