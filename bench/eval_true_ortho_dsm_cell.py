@@ -42,6 +42,12 @@ dsm.tif); on a tall block ``lidarctl rasters`` of its simulated strips with thei
 height the DSM's bilinear one (``ortho.block.HEIGHTS_BY_OUTLINE`` off for that DOM: the rule before heights by side);
 ``+hod``: with ``+occn`` and footprints, the heights' roof outlines from the heights DSM's roof cells
 (``ortho.block.OUTLINES_OF_THE_OCCLUSION_TEST`` off: main's before the outlines of the occlusion test).
+``+occc``: with ``+occn``, the occlusion test on dsm_nearest.tif with each tree crown's cell a column only where the
+returns say the crown covers the whole cell (``lidarctl.rasters.crown_rim.crowns_within_cells`` of the block's
+classified first returns, written to the DOM's lidar_out/dsm_crowns.tif); ``+occcNN`` where it covers NN % of it.
+``+occs``: with ``+occn`` and footprints, dsm_nearest's crown cells a column over the sub-cells the crown covers only
+(``crown_sub_cells`` to lidar_out/crown_bits.tif, ``ortho.crown_cells.with_crown_sub_cells`` on each frame's
+occluder: ``_frame_occluder`` wrapped, a trial, not a rectifier option).
 Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other keys kept).
 """
 
@@ -362,6 +368,92 @@ def lidar_crown_base(src: Path, tall: bool, like: Path, out: Path) -> int:
     return int(np.isfinite(base).sum())
 
 
+def crowns_within_cells_dsm(src: Path, tall: bool, nearest: Path, out: Path, min_share: float | None,
+                            beside: bool = False) -> dict:
+    """``lidarctl.rasters.crown_rim.crowns_within_cells`` of ``nearest`` (the block's dsm_nearest.tif) from the first
+    returns (noise excluded) of ``block_first_returns``' strips with their classes, written to ``out`` on its grid;
+    the cells lowered and the CPU seconds. ``min_share`` None: ``crown_sub_cells`` instead (uint32 bits), the cells
+    with bits."""
+    import laspy
+    import rasterio
+
+    from lidarctl.rasters.crown_rim import crown_sub_cells, crown_sub_cells_beside, crowns_within_cells
+    from lidarctl.rasters.nearest import first_return_mask
+
+    t = time.process_time()
+    las = sorted((src / "lidar").glob("*.la[sz]") if tall else (src / "lidar_out" / "classified").glob("*.la[sz]"))
+    xs, ys, zs, cls = [], [], [], []
+    for path in las:
+        pts = laspy.read(path)
+        c = np.asarray(laspy.read(src / "truth" / "lidar" / path.name).classification if tall else pts.classification)
+        keep = first_return_mask(c, np.asarray(pts.return_number))
+        xs.append(np.asarray(pts.x)[keep]), ys.append(np.asarray(pts.y)[keep]), zs.append(np.asarray(pts.z)[keep])
+        cls.append(c[keep])
+    with rasterio.open(nearest) as ds:
+        prof, tf = ds.profile, ds.transform
+        z = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
+    pts = (np.concatenate(xs), np.concatenate(ys), np.concatenate(zs), np.concatenate(cls))
+    if min_share is None:
+        top = None
+        if beside:  # ``+occs2``: the crown's sub-cells in the cells beside its rim too, at a crown return's height
+            bits, top = crown_sub_cells_beside(*pts, z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a)
+            with rasterio.open(out.with_name("crown_top.tif"), "w", **prof) as dst:
+                dst.write(np.where(np.isfinite(top), top, prof["nodata"]).astype(prof["dtype"]), 1)
+        else:
+            bits = crown_sub_cells(pts[0], pts[1], pts[3], z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a)
+        prof.update(dtype="uint32", nodata=None)
+        with rasterio.open(out, "w", **prof) as dst:
+            dst.write(bits, 1)
+        return {"path": str(out), "sub_cells": True, "cells_with_bits": int((bits != 0).sum()),
+                "cells_raised": int(np.isfinite(top).sum()) if top is not None else 0,
+                "top_path": str(out.with_name("crown_top.tif")) if top is not None else None,
+                "cpu_s": time.process_time() - t}
+    got = crowns_within_cells(*pts, z, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a, min_share=min_share)
+    with rasterio.open(out, "w", **prof) as dst:
+        dst.write(np.where(np.isfinite(got), got, prof["nodata"]).astype(prof["dtype"]), 1)
+    return {"path": str(out), "min_share": min_share, "cells_lowered": int((got != z)[np.isfinite(z)].sum()),
+            "cpu_s": time.process_time() - t}
+
+
+def with_crown_bits(frame_occluder, bits_path: Path, top_path: str | None = None):
+    """``ortho.block._frame_occluder`` with ``ortho.crown_cells.with_crown_sub_cells`` of the crown bits raster
+    ``bits_path`` (on the occlusion DSM's grid) over the frame's window: the trial of the crowns' sub-cells in the
+    march (not an option of the rectifier). ``top_path``: the crown's top in the cells beside its rim (NaN
+    elsewhere), where the frame's occluder has a solid column put into the occlusion DSM's window (in place)."""
+    import rasterio
+
+    from ortho.crown_cells import with_crown_sub_cells
+    from lidarctl.rasters.crown_rim import SUB_CELLS
+
+    with rasterio.open(bits_path) as ds:
+        bits, tf = ds.read(1), ds.transform
+    tops = None
+    if top_path:
+        with rasterio.open(top_path) as ds:
+            tops = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
+
+    def window_of(raster, surface, fill):
+        h, w = surface.heights_m.shape
+        r0, c0 = int(round((tf.f - surface.y_top_m) / tf.a)), int(round((surface.x_left_m - tf.c) / tf.a))
+        window = np.full((h, w), fill, raster.dtype)
+        a0, b0 = max(r0, 0), max(c0, 0)
+        a1, b1 = min(r0 + h, raster.shape[0]), min(c0 + w, raster.shape[1])
+        if a1 > a0 and b1 > b0:
+            window[a0 - r0:a1 - r0, b0 - c0:b1 - c0] = raster[a0:a1, b0:b1]
+        return window
+
+    def occluder(task, surface, *rest):
+        occ, sides = frame_occluder(task, surface, *rest)
+        window = window_of(bits, surface, 0)
+        if tops is not None:
+            top = window_of(tops, surface, np.nan)
+            raise_ = np.isfinite(top) & (window != 0) & (occ.base_m == -np.inf) & (top > surface.heights_m)
+            surface.heights_m[raise_] = top[raise_]
+        return with_crown_sub_cells(occ, surface.heights_m, window, SUB_CELLS), sides
+
+    return occluder
+
+
 def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None,
              occlusion_dsm=None) -> dict:
     """The true ortho DOM of ``project`` on its lidar_out/dsm.tif (``footprints``, ``crown_base``, ``occlusion_dsm``:
@@ -450,10 +542,20 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 write_footprints_gpkg(p / "truth" / "buildings.geojson", fp_path, Project.open(p).crs)
             cast_s = 0.0
             occlusion_dsm = None
+            crowns = None
             if cell in ("lidar", "lidarn") or "occn" in flags:
                 rasters_dir = lidar_rasters(name, src, work, tall)
                 if "occn" in flags:
                     occlusion_dsm = rasters_dir / "dsm_nearest.tif"
+                occc = [f for f in flags if f.startswith("occc")]
+                if occc:  # ``+occc[NN]``: dsm_nearest's crowns within the cells they cover (min share NN %, 100)
+                    share = int(occc[0][4:] or 100) / 100
+                    crowns = crowns_within_cells_dsm(src, tall, occlusion_dsm, p / "lidar_out" / "dsm_crowns.tif",
+                                                     share)
+                    occlusion_dsm = Path(crowns["path"])
+                if "occs" in flags or "occs2" in flags:  # dsm_nearest's crowns over their sub-cells in the march
+                    crowns = crowns_within_cells_dsm(src, tall, occlusion_dsm, p / "lidar_out" / "crown_bits.tif",
+                                                     None, beside="occs2" in flags)
                 if cell == "lidarn" or (cell == "lidar" and tall):
                     shutil.copy2(rasters_dir / ("dsm_nearest.tif" if cell == "lidarn" else "dsm.tif"),
                                  p / "lidar_out" / "dsm.tif")
@@ -477,12 +579,17 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
             switches = (ortho_block.HEIGHTS_BY_OUTLINE, ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST)
             ortho_block.HEIGHTS_BY_OUTLINE = "bil" not in flags   # ``+bil``: footprints, heights bilinear (main's before)
             ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = "hod" not in flags  # ``+hod``: the outlines of the heights DSM
+            inner = ortho_block._frame_occluder
+            if "occs" in flags or "occs2" in flags:
+                ortho_block._frame_occluder = with_crown_bits(inner, Path(crowns["path"]), crowns["top_path"])
             try:
                 made = make_dom(p, footprints=fp_path, crown_base=crown_path, occlusion_dsm=occlusion_dsm, **kw)
             finally:
                 ortho_block.HEIGHTS_BY_OUTLINE, ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = switches
+                ortho_block._frame_occluder = inner
             made["occlusion_dsm"] = str(occlusion_dsm) if occlusion_dsm else None
             made["dsm_ray_cast_s"] = cast_s
+            made["crowns_within_cells"] = crowns
             made["footprints"] = str(fp_path) if fp_path else None
             made["crown_base"] = {"path": str(crown_path), "cells": crown_cells} if crown_path else None
             made["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
@@ -493,7 +600,7 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
         made = json.loads(made_path.read_text())
         res = {"rectify": made["rectify"], "dsm_ray_cast_s": made["dsm_ray_cast_s"], "point_dsm": made.get("point_dsm"),
                "footprints": made.get("footprints"), "crown_base": made.get("crown_base"),
-               "occlusion_dsm": made.get("occlusion_dsm"),
+               "occlusion_dsm": made.get("occlusion_dsm"), "crowns_within_cells": made.get("crowns_within_cells"),
                "made_at_commit": made.get("commit"),
                "roofs": roof_displacements(p / "ortho" / "mosaic.tif", p / "truth" / "ortho.tif",
                                            p / "truth" / "roof_corners.csv")}
