@@ -119,17 +119,20 @@ def test_task_counts_are_bounded():
 
 
 _STARTED = []  # items whose task began (the fault injection below)
+_INTERRUPT_SENT = None  # threading.Event: set once the fault injection has sent its SIGINT
 
 
 def _slow_write(item) -> int:
-    """A task that takes 0.6 s and then writes its cache file (as features or frame orthos do)."""
+    """A task that runs until the interrupt has been sent, 0.3 s more, and then writes its cache file (as features
+    or frame orthos do): it is still running when the Ctrl-C arrives, however loaded the machine."""
     import time
 
     from aerotri.core.atomic import write_text_atomic
 
     folder, k = item
     _STARTED.append(k)
-    time.sleep(0.6)
+    _INTERRUPT_SENT.wait(30.0)
+    time.sleep(0.3)
     write_text_atomic(folder / f"{k}.txt", "done\n")
     return k
 
@@ -144,9 +147,11 @@ def test_ctrl_c_waits_for_the_running_tasks_before_the_stage_rolls_back(tmp_path
 
     from aerotri.core.atomic import commit_outputs
 
+    global _INTERRUPT_SENT
     out = tmp_path / "out"
     out.mkdir()
     _STARTED.clear()
+    _INTERRUPT_SENT = threading.Event()
     main = threading.get_ident()
 
     def interrupt():
@@ -154,11 +159,16 @@ def test_ctrl_c_waits_for_the_running_tasks_before_the_stage_rolls_back(tmp_path
             time.sleep(0.01)
         time.sleep(0.1)
         signal.pthread_kill(main, signal.SIGINT)
+        _INTERRUPT_SENT.set()
 
-    with Executor(workers=2) as ex:
-        threading.Thread(target=interrupt, daemon=True).start()
-        with pytest.raises(KeyboardInterrupt), commit_outputs(out):
-            ex.map(_slow_write, [(out, k) for k in range(8)])
-        time.sleep(1.0)  # a task still running would write now, after the roll-back
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C as in a terminal, whatever the runner
+    try:
+        with Executor(workers=2) as ex:
+            threading.Thread(target=interrupt, daemon=True).start()
+            with pytest.raises(KeyboardInterrupt), commit_outputs(out):
+                ex.map(_slow_write, [(out, k) for k in range(8)])
+            time.sleep(1.0)  # a task still running would write now, after the roll-back
+    finally:
+        signal.signal(signal.SIGINT, before)
     assert len(_STARTED) == 2, f"no task starts after the interrupt: {_STARTED}"
     assert list(out.iterdir()) == [], "nothing written after the roll-back"
