@@ -118,8 +118,9 @@ class ImageDatum:
         rej = "; ".join(f"{p} ({r:.2f} m)" for p, r in self.rejected)
         head = (f"approximate orientations from the images (pycolmap), brought into the project CRS by "
                 f"{len(self.used)} control points ({'plan' if self.kind == 'plan' else '3D'} RMS {rms:.2f} m)"
-                + (f"; left out of that similarity as off by more than {INLIER_SIGMAS:g} robust sigmas: {rej} (held "
-                   "out of the adjustment at first, then tested against the block the others hold)" if rej else ""))
+                + (f"; left out of that similarity as off by more than {INLIER_SIGMAS:g} robust sigmas: {rej} (with "
+                   "the data snooping held out of the adjustment at first, then tested against the block the others "
+                   "hold)" if rej else ""))
         if self.left_out_rays:
             head += ("; " + left_out_rays_text(self.left_out_rays))
         if self.kind == "3d":

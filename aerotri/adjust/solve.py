@@ -159,6 +159,28 @@ def _adjust_block(
         surface_candidates = block.surface.candidates(state.points)
         block.surface_active = surface_candidates.copy()
         log.info(f"surface control: {int(surface_candidates.sum())} of {block.n_points} points are candidates")
+    def held_out_test(gr, values) -> np.ndarray:
+        """w of each held-out control point against the block the active ones hold."""
+        out = np.zeros(len(block.control_point), dtype=bool)
+        out[held] = True
+        return control_test(block, opts, state, obs_active, out, _marginals(gr, values, block, obs_active))
+
+    def take_back(c: int, w: np.ndarray) -> None:
+        control_active[c] = True
+        held.remove(c)
+        log.info(f"control point {block.point_id[block.control_point[c]]} held out at the start: "
+                 f"w = {w[c]:.2f} against the others, taken back")
+
+    def settle_held(w: np.ndarray) -> None:
+        """No round left to test one against the others with another: each that passes back, the rest rejected
+        with their w (never left out without one)."""
+        for c in sorted(held, key=lambda c: w[c]):
+            if w[c] <= crit:
+                take_back(c, w)
+            else:
+                rejected.append((c, float(w[c])))
+        held.clear()
+
     rnd = 0
     if snooping:
         while rnd < max_rounds:
@@ -204,19 +226,18 @@ def _adjust_block(
                 continue
             if held:
                 # the held-out points against the block the others hold: the best back while it passes
-                out = np.zeros(len(block.control_point), dtype=bool)
-                out[held] = True
-                w = control_test(block, opts, state, obs_active, out, _marginals(gr, values, block, obs_active))
+                w = held_out_test(gr, values)
                 best = min(held, key=lambda c: w[c])
                 if w[best] <= crit and rnd < max_rounds:
-                    control_active[best] = True
-                    held.remove(best)
-                    log.info(f"control point {block.point_id[block.control_point[best]]} held out at the start: "
-                             f"w = {w[best]:.2f} against the others, taken back")
+                    take_back(best, w)
                     continue
-                rejected.extend((c, float(w[c])) for c in held)
-                held.clear()
+                settle_held(w)
             break
+        if held and rnd > 0:  # the rounds ran out before the held-out points were tested against the others
+            settle_held(held_out_test(gr, values))
+    for c in held:  # no robust round at all: nothing to test them against, so they are not held out
+        control_active[c] = True
+    held.clear()
 
     image_factor = 1.0
     if image_sigma_from_residuals and rnd > 0:

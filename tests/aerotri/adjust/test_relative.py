@@ -330,3 +330,25 @@ def test_a_good_point_held_out_at_the_start_is_taken_back(kite_like_block, tmp_p
     ba = adjust_project(root, st)
     assert ba.result.rejected_control == [] and ba.result.control_active.all()
     assert np.abs(ba.eo_map.centre_m - ref.eo_map.centre_m).max() < 1e-3
+
+
+@pytest.mark.parametrize("max_rounds", [1, 2])
+def test_a_good_held_out_point_is_taken_back_when_the_rounds_run_out(kite_like_block, tmp_path, monkeypatch,
+                                                                     max_rounds):
+    """The robust rounds ending before (1) or while (2) the held-out point is tested: it was left out without a w
+    (1) or rejected although it passed (2, w 0.11). Now it is tested once more against the block the others hold and
+    taken back when it passes."""
+    import dataclasses
+    import functools
+
+    from aerotri.adjust import pipeline
+
+    block, src = kite_like_block
+    root = _copy(src, tmp_path / "p")
+    st = AdjustSettings(image_sigma_px=SIGMA_PX, point_covariances=False, self_calibration=("pp", "radial"))
+    prepare = pipeline.prepare_project
+    monkeypatch.setattr(pipeline, "prepare_project", lambda *a, **k: (
+        lambda pb, s0: (dataclasses.replace(pb, control_held_out=("gcp03",)), s0))(*prepare(*a, **k)))
+    monkeypatch.setattr(pipeline, "adjust_block", functools.partial(pipeline.adjust_block, max_rounds=max_rounds))
+    ba = adjust_project(root, st)
+    assert ba.result.rejected_control == [] and ba.result.control_active.all()
