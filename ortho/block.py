@@ -448,6 +448,9 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
         if path:
             doc[f"{f}_size_mtime"] = file_stamp(path)
     doc["inputs"], doc["version"] = inputs, aerotri.__version__
+    if task.footprints_path:  # the footprints' rules change frame orthos within a version (a run resumed on newer code)
+        doc["footprint_rules"] = {"heights_by_outline": HEIGHTS_BY_OUTLINE,
+                                  "outlines_of_the_occlusion_test": OUTLINES_OF_THE_OCCLUSION_TEST}
     return resume_key(doc)
 
 
