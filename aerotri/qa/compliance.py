@@ -619,6 +619,21 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     return out
 
 
+def _finest_scale_met(scales_fine_to_coarse, limit_m_of, fig_m: float) -> str | None:
+    """The finest map scale whose limit ``fig_m`` meets together with every coarser scale's stated limit (None: not
+    even the coarsest). A figure that fails a coarser scale's limit meets no finer one, even where the tables give the
+    finer scale a looser figure (cn-at: 1:2000's 1.2 m from GB/T 7931 against the design table's 0.5 m at 1:5000)."""
+    met = None
+    for scale in reversed(list(scales_fine_to_coarse)):
+        limit = limit_m_of(scale)
+        if limit is None:
+            continue
+        if fig_m > limit:
+            break
+        met = scale
+    return met
+
+
 def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     d = cn_at()
     L = d.limits
@@ -635,8 +650,8 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         return None, None, f"{src}: not stated for {scale} {terrain}"
 
     def finest(fig, limits, terrain):
-        met = [s for s in scales if (lm := limit_m(limits, s, terrain)[0]) is not None and fig <= lm]
-        return (met[0], float(F.scale_denominator(met[0]))) if met else ("none (coarser than 1:10000)", math.inf)
+        met = _finest_scale_met(scales, lambda s: limit_m(limits, s, terrain)[0], fig)
+        return (met, float(F.scale_denominator(met))) if met else ("none (coarser than 1:10000)", math.inf)
 
     feat = (L.feature_plan_mm, L.feature_plan_m_small)
     out = []
@@ -696,8 +711,8 @@ def _thesis(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         return t.limits.get(key), (p.confirmed if p else None), f"{t.name}; {p.source if p else 'no source given'}"
 
     def finest(fig, key):
-        met = [s for s in SCALE_TABLES if (x := table(s).limits.get(key)) is not None and fig <= x]
-        return (met[0], float(F.scale_denominator(met[0]))) if met else ("none (coarser than 1:10000)", math.inf)
+        met = _finest_scale_met(list(SCALE_TABLES), lambda s: table(s).limits.get(key), fig)
+        return (met, float(F.scale_denominator(met))) if met else ("none (coarser than 1:10000)", math.inf)
 
     out = []
     for product, cs, hkey, vkey in (("Aerotriangulation", figs.at, "rms_xy_m", "rms_z_m"),

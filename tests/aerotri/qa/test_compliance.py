@@ -78,7 +78,9 @@ def test_cn_at_limits_in_map_millimetres_by_scale_and_terrain():
     comp = judge(Figures(at=at, dom=dom), Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat"))
     (d,) = _by(comp, "DOM")
     assert d.limit == pytest.approx(1.2) and d.verdict == "pass" and d.limit_confirmed is True  # 0.6 mm x 2000
-    assert d.finest_class == "1:2000"  # 0.9 m > 0.6 m of 1:1000
+    # 0.9 m meets 1:2000's 1.2 m but not the 0.5 m the design table gives 1:5000 and 1:10000: no finer class is
+    # claimed over a coarser one it fails (it read "1:2000" while 1:5000 failed)
+    assert d.finest_class == "none (coarser than 1:10000)"
     assert d.checkpoints_accurate is True  # 0.2 m <= 1/5 of 1.2 m
     plan, height = _by(comp, "Aerotriangulation")
     assert plan.limit == pytest.approx(0.7) and plan.verdict == "pass" and plan.limit_confirmed is False
@@ -350,3 +352,19 @@ def test_at_check_points_accuracy_from_their_own_sigmas():
     old = {"check_points": [{"id": "a", "d_m": [0.1, 0.1, 0.1]}]}
     assert at_checks(old, ControlPointSettings(sigma_xy_m=0.02, sigma_z_m=0.03)).cp_rmse_h_m == pytest.approx(0.02 * math.sqrt(2))
     assert at_checks(old, ControlPointSettings()).cp_rmse_h_m is None
+
+
+def test_the_finest_class_met_never_passes_over_a_coarser_class_it_fails():
+    """cn-at's feature limits: 0.6 m at 1:1000 and 1.2 m at 1:2000 (GB/T 7931) but 0.5 m at 1:5000 and 1:10000 (the
+    design table): a DOM of 0.3 m meets them all (finest 1:1000); one of 0.7 m meets 1:2000's limit but fails the
+    coarser scales' and meets no class."""
+    from aerotri.qa.compliance import _finest_scale_met
+
+    limits = {"1:1000": 0.6, "1:2000": 1.2, "1:5000": 0.5, "1:10000": 0.5}
+    scales = ("1:500", "1:1000", "1:2000", "1:5000", "1:10000")
+    assert _finest_scale_met(scales, limits.get, 0.3) == "1:1000"  # 1:500 not stated: passed by
+    assert _finest_scale_met(scales, limits.get, 0.7) is None
+    assert _finest_scale_met(scales, limits.get, 0.5) == "1:1000"
+    (d,) = _by(judge(Figures(dom=CheckSet(rmse_h_m=0.7, n_h=12, points="ground patches")),
+                     Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat")), "DOM")
+    assert d.verdict == "pass" and d.finest_class == "none (coarser than 1:10000)"
