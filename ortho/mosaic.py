@@ -1812,6 +1812,9 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                 row.close(keep=False)
             readers.close()
             stack.close()
+        if kept and previous is not None and not previous.why_all and not executor.distributed:
+            # the kept rows' tiles were taken over or blended by the interrupted run as by this one: counted the same
+            counts["taken_over"] += sum(1 for t in tiles if t[0] in kept and not previous.touched(*t, halo, factor))
         write_vrt(stage, [(p, r0, min(tile_px, mosaic.height - r0)) for r0, p in rows.items()], [], mosaic,
                   bands=bands, dtype=dtype, colorinterp=colorinterp, tags={})
         timer.done("tiles")

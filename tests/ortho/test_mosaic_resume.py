@@ -97,3 +97,57 @@ def test_other_gains_resume_nothing_and_an_error_leaves_nothing(project, monkeyp
     assert "resumed" not in caplog.text
     assert tree(project) == {k: v for k, v in before.items() if not k.startswith("work/mosaic_resume/")}
     assert not keep.exists()
+
+
+def test_a_resumed_edited_mosaic_counts_the_kept_rows_tiles_as_one_run(tmp_path, monkeypatch):
+    """An edited mosaic (``--seamlines EDITED.gpkg``) interrupted and resumed: the kept rows' tiles skip the blending
+    and were left out of mosaic.json's counts (fewer taken over, more "blended" than the uninterrupted run's)."""
+    import shutil
+
+    import rasterio
+    import shapely
+    from click.testing import CliRunner
+
+    from ortho.cli import main
+    from ortho.synthetic import write_synthetic_project
+    from tests.ortho.test_seamlines_gpkg import TILE_PX as GPKG_TILE_PX
+    from tests.ortho.test_seamlines_gpkg import _moved_edge, _read, _write
+
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=2, frames_per_strip=3, buildings=6, seed=3)
+    for args in (["rectify", str(root)], ["mosaic", str(root), "--tile-px", str(GPKG_TILE_PX)]):
+        r = CliRunner().invoke(main, args)
+        assert r.exit_code == 0, r.output
+    meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
+    with rasterio.open(root / "ortho" / "seams.tif") as ds:
+        res = ds.res[0]
+
+    def valid_of(k):
+        from rasterio import features
+        with rasterio.open(root / "ortho" / "frames" / f"{names[k]}.tif") as f:
+            m = f.read_masks(1)
+            shapes = [shapely.geometry.shape(g) for g, v in features.shapes(m, mask=m > 0, transform=f.transform)]
+        return shapely.union_all(shapes).buffer(-2 * res)
+
+    moved, _ = _moved_edge(names, geoms, valid_of)
+    edited = tmp_path / "edited.gpkg"
+    _write(edited, names, moved, meta["crs"])
+    base = tmp_path / "base"
+    shutil.copytree(root, base)
+    args = ["--tile-px", str(GPKG_TILE_PX), "--seamlines", str(edited), "--scheduler", "synchronous"]
+    count = _Blend()
+    monkeypatch.setattr(M, "_blend_tile", count)
+    r = CliRunner().invoke(main, ["mosaic", str(root), *args])
+    assert r.exit_code == 0, r.output
+    want = json.loads((root / "ortho" / "mosaic.json").read_text())["tiles"]
+    assert 0 < want["blended"] < want["total"]
+
+    # the same edit on a copy of the project before it, interrupted at its last tile to blend: the rows before kept
+    monkeypatch.setattr(M, "_blend_tile", _Blend(at=count.done))
+    r = CliRunner().invoke(main, ["mosaic", str(base), *args])
+    assert r.exit_code != 0
+    assert list((base / "work" / "mosaic_resume").glob("*.tif"))
+    monkeypatch.setattr(M, "_blend_tile", _BLEND_TILE)
+    r = CliRunner().invoke(main, ["mosaic", str(base), *args])
+    assert r.exit_code == 0, r.output
+    assert json.loads((base / "ortho" / "mosaic.json").read_text())["tiles"] == want
