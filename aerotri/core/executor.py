@@ -179,16 +179,19 @@ class Executor:
         # the local schedulers as functions, not by name: a name makes dask import distributed (about
         # 0.3 s) to look for a default client, a tenth of what a one-frame ``ortho rectify`` takes
         with progress(len(items), desc, unit) as bar, _Progress():
+            in_this_thread = self.scheduler == "synchronous" or self.workers == 1
             try:
-                if self.scheduler == "synchronous" or self.workers == 1:
+                if in_this_thread:
                     out = list(dask.compute(*tasks, scheduler=get_sync))
                 else:
                     out = list(dask.compute(*tasks, scheduler=threaded_get, num_workers=self.workers))
             except BaseException:
                 # Ctrl-C or SIGTERM in this thread: the pool's threads go on with their tasks, which would write
                 # their files after the caller's roll-back (aerotri.core.atomic), outside any commit. No task
-                # starts any more, and the running ones end before the interrupt goes on to the roll-back.
-                _wait_for_running(lock, stopping, running)
+                # starts any more, and the running ones end before the interrupt goes on to the roll-back. (Tasks
+                # run in this thread have ended with the interrupt: their count may not have been taken down.)
+                if not in_this_thread:
+                    _wait_for_running(lock, stopping, running)
                 raise
         for r in out:
             if isinstance(r, _Failed):
