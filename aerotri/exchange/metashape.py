@@ -276,6 +276,12 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
 
     ref_crs = horizontal_crs(parse_crs(crs_text, f"{path} <reference>"))
     frame0 = LocalFrame(ref_crs, [0.0, 0.0, 0.0])
+    if tr is None and not frame0.cartesian_crs:
+        radius_m = np.linalg.norm(X, axis=1)
+        if not np.all((radius_m > 6.30e6) & (radius_m < 6.45e6)):  # the earth's radius, give or take 80 km
+            raise CrsError(f"{path}: no chunk <transform>, and the components' transforms do not reach geocentric "
+                           f"coordinates (camera centres {radius_m.min():.6g} to {radius_m.max():.6g} m from the "
+                           "earth's centre): the block is not georeferenced (reference it in Metashape first)")
     if frame0.cartesian_crs:  # a local engineering CRS: the chunk transform gives its coordinates
         centre_map, R_map = X, R_world @ FLIP_YZ
     else:  # geocentric -> the CRS, through the local frame's own conversion (the inverse of the export)

@@ -150,6 +150,17 @@ def test_component_transforms(exported, tmp_path, fresh_project):
         assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4, fold
         assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6, fold
 
+    # a component's transform into an unreferenced chunk (no chunk transform): model coordinates, not geocentric
+    def unreferenced(chunk):
+        into_component(chunk)
+        chunk.remove(chunk.find("transform"))
+
+    dst = fresh_project(root, tmp_path / "u")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(dst), "--format", "metashape",
+                                         str(_rewrite(xml, tmp_path / "u.xml", unreferenced))])
+    assert r.exit_code == 2 and "not georeferenced" in r.output and "Traceback" not in r.output, r.output
+    assert not (dst / "imported").exists()
+
 
 def test_sensor_types_and_calibrations(exported, tmp_path, fresh_project):
     """A fisheye (or spherical, ...) sensor is refused, not read as a frame camera; of an initial and an adjusted
