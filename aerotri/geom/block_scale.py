@@ -99,7 +99,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
                                f"{head} over the median height of the adjusted points of at/object_points.csv "
                                f"({g:.1f})")
     if isinstance(mean_h, (int, float)) and not isinstance(mean_h, bool):
-        return block_scale(camera, pos[:, 2], float(mean_h), unit,
-                           f"{head} over [flight] mean_terrain_height_m ({float(mean_h):g}; no adjusted tie points)")
+        return block_scale(camera, pos[:, 2], float(mean_h) / unit, unit,  # metres by its name: in the CRS's unit
+                           f"{head} over [flight] mean_terrain_height_m ({float(mean_h):g} m; no adjusted tie points)")
     return BlockScale(None, None, None, f"{head}; no terrain height (no lidar_out/dem.tif, no [flight] "
                                         f"mean_terrain_height_m, no adjusted tie points)")

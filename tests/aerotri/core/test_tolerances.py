@@ -247,3 +247,20 @@ def test_the_ground_of_the_gsd_is_the_adjusted_tie_points_not_the_planned_terrai
     block = project_block_scale(Project.open(root), np.r_[np.full(50, GROUND_M + 12.0), np.nan])
     assert block.height_above_ground_m == pytest.approx(28.0) and "the adjusted tie points (192.0)" in block.how
     assert "GSD 1.2 cm at 28 m above ground" in qa_settings(root, block).table.reason
+
+
+def test_the_planned_terrain_height_is_in_metres_whatever_the_crs_unit(tmp_path):
+    """[flight] mean_terrain_height_m is metres by its name; in a CRS in US survey feet it was taken as feet (the
+    flying height above ground came out 1,125 m for 1,000 m)."""
+    ft = 1200.0 / 3937.0
+    root = tmp_path / "feet"
+    root.mkdir()
+    (root / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:2229"\n\n'
+                                       f"[flight]\nmean_terrain_height_m = {GROUND_M}\n")
+    (root / "camera.toml").write_text(DMC.to_toml())
+    rows = [f"f{s}_{i:02d} {6000000 + i * 984.0:.3f} {2000000 + s * 1968.0:.3f} {(GROUND_M + 1000.0) / ft:.3f}"
+            for s in range(2) for i in range(8)]
+    (root / "gnss.txt").write_text("\n".join(rows) + "\n")
+    block = project_block_scale(Project.open(root))
+    assert block.height_above_ground_m == pytest.approx(1000.0, rel=1e-6)
+    assert block.gsd_m == pytest.approx(1000.0 * 12e-6 / 0.12, rel=1e-6)
