@@ -303,6 +303,10 @@ def project_terrain(project, *, dem: Path | None = None) -> Terrain | None:
     """The project's terrain for the footprints: ``dem`` (the adjustment's surface-control DEM) when given,
     else ``lidar_out/dem.tif``, else ``[flight] mean_terrain_height_m`` of project.toml, else None."""
     mean_h = project.flight.mean_terrain_height_m
+    if mean_h is not None:  # metres by its name; the footprints' heights are in the CRS's height unit
+        from aerotri.geom.crs.definition import height_unit_m, project_crs
+
+        mean_h = float(mean_h) / height_unit_m(project_crs(project))
     if dem is not None and Path(dem).is_file():
         dem = Path(dem).resolve()
         root = Path(project.root).resolve()

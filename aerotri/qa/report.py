@@ -250,7 +250,12 @@ def _footprint_terrain(project: Project):
     if dem is None or dem == project.dem_path:
         return None
     source = str(dem.relative_to(project.root)) if dem.is_relative_to(project.root) else str(dem)
-    return Terrain.from_dem(dem, project.flight.mean_terrain_height_m, source=source)
+    mean_h = project.flight.mean_terrain_height_m
+    if mean_h is not None:  # metres by its name; the DEM's heights are in the CRS's height unit
+        from aerotri.geom.crs.definition import height_unit_m, project_crs
+
+        mean_h = float(mean_h) / height_unit_m(project_crs(project))
+    return Terrain.from_dem(dem, mean_h, source=source)
 
 
 def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
