@@ -981,8 +981,8 @@ def _freed_memory_kept():
     Also one arena for the threads that get theirs from now on (``M_ARENA_MAX`` 1, as ``MALLOC_ARENA_MAX=1``): the
     tile threads' arrays come from the main heap too. Why: a thread's own arena is made of heaps of at most 64 MiB,
     which glibc unmaps as soon as they are free, and it takes larger arrays from ``mmap`` whatever the thresholds
-    above, so each tile's arrays were fresh pages again; on the demo's strips 455 k -> 370 k minor faults, 0.1-0.2 s
-    less system time, 0.2 CPU-s less (``rasters9*`` keys), peak RSS +50 MB. It stays set: glibc fixes the
+    above, so each tile's arrays were fresh pages again; on the demo's strips 455 k -> 365 k minor faults, 0.1-0.2 s
+    less system time, about 0.2 CPU-s less (``rasters9_arena*`` keys), peak RSS +30-50 MB. It stays set: glibc fixes the
     limit when a thread first needs an arena, once a process (threads then share the main arena, and its lock)."""
     import ctypes
     import ctypes.util
