@@ -153,8 +153,9 @@ def camera_from_opensfm(cam: dict, where: str, size, pixel_um: float, name: str 
     return camera, notes
 
 
-def read_reconstruction(path) -> tuple[dict, dict]:
-    """(the first reconstruction, its reference lla) of a ``reconstruction.json``."""
+def read_reconstruction(path) -> tuple[dict, dict, int]:
+    """(the first reconstruction, its reference lla, how many reconstructions the file holds) of a
+    ``reconstruction.json``."""
     path = Path(path)
     doc = read_json(path, "OpenSfM reconstruction")
     if not isinstance(doc, list) or not doc or not isinstance(doc[0], dict):
@@ -171,12 +172,7 @@ def read_reconstruction(path) -> tuple[dict, dict]:
                          f"topocentric coordinates cannot be placed")
     for key in ("latitude", "longitude", "altitude"):
         _number(ref, key, f"{path} reference_lla")
-    if len(doc) > 1:
-        import logging
-
-        logging.getLogger(__name__).warning(f"{path}: {len(doc)} reconstructions; importing the first "
-                                            f"({len(rec['shots'])} shots)")
-    return rec, ref
+    return rec, ref, len(doc)
 
 
 # -- the topocentric frame ---------------------------------------------------------------------------
@@ -277,8 +273,12 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     path = Path(files[0])
     if path.is_dir():
         path = path / "reconstruction.json"
-    rec, ref = read_reconstruction(path)
+    rec, ref, n_reconstructions = read_reconstruction(path)
     block = ImportedBlock(source=[str(path)], origin={"camera": path.name, "eo": path.name, "gnss": path.name})
+    if n_reconstructions > 1:  # in imports.json and on the console, not only in a log line
+        block.notes.append(f"orientations: {path.name} holds {n_reconstructions} reconstructions (OpenSfM could not "
+                           f"join the block); the first imported ({len(rec['shots'])} shots), the other "
+                           f"{n_reconstructions - 1} left out")
     if len(rec["cameras"]) != 1:
         raise InputError(f"{path}: {len(rec['cameras'])} cameras; the project holds one (import each camera's "
                          f"shots into their own project)")

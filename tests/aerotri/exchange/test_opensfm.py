@@ -135,6 +135,22 @@ def test_synthetic_reconstruction_conventions(tmp_path):
     assert cam.cx_px == pytest.approx(199.5 + 4.0) and cam.cy_px == pytest.approx(149.5 - 8.0)
 
 
+def test_a_file_of_several_reconstructions_says_so_in_the_import_record(tmp_path):
+    """OpenSfM writes one reconstruction per part it could not join: the first is imported and imports.json says
+    how many were left out (the warning was a log line only)."""
+    path = _recon(tmp_path)
+    rec = json.loads(path.read_text())[0]
+    other = json.loads(json.dumps(rec))
+    other["shots"] = {"b.jpg": other["shots"].pop("a.jpg")}
+    path.write_text(json.dumps([rec, other]))
+    root = _project(tmp_path)
+    import_files(root, "opensfm", [path])
+    eo = read_eo(root / "imported" / "eo.txt")
+    assert list(eo.image_id) == ["a"]
+    notes = json.loads((root / "imported" / "imports.json").read_text())["imports"][-1]["notes"]
+    assert any("holds 2 reconstructions" in n and "the other 1 left out" in n for n in notes), notes
+
+
 @pytest.mark.parametrize("change, message", [
     (lambda r: r.pop("reference_lla"), "no reference_lla"),
     (lambda r: r["cameras"]["c"].pop("focal_x"), "missing key 'focal_x'"),
