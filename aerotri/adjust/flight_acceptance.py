@@ -30,6 +30,7 @@ import numpy as np
 from aerotri.core.errors import InputError
 from aerotri.core.records import to_record
 from aerotri.core.tolerances import NO_FLIGHT_SPEC, FlightLimits, manned_flight_limits
+from aerotri.geom.block_scale import planned_terrain_height
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.geom.strips import strips_from_track
 
@@ -302,11 +303,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
 def project_terrain(project, *, dem: Path | None = None) -> Terrain | None:
     """The project's terrain for the footprints: ``dem`` (the adjustment's surface-control DEM) when given,
     else ``lidar_out/dem.tif``, else ``[flight] mean_terrain_height_m`` of project.toml, else None."""
-    mean_h = project.flight.mean_terrain_height_m
-    if mean_h is not None:  # metres by its name; the footprints' heights are in the CRS's height unit
-        from aerotri.geom.crs.definition import height_unit_m, project_crs
-
-        mean_h = float(mean_h) / height_unit_m(project_crs(project))
+    mean_h = planned_terrain_height(project)
     if dem is not None and Path(dem).is_file():
         dem = Path(dem).resolve()
         root = Path(project.root).resolve()

@@ -40,6 +40,18 @@ def _object_point_heights(path: Path) -> np.ndarray:
         return np.array([])
 
 
+def planned_terrain_height(project) -> float | None:
+    """``[flight] mean_terrain_height_m`` of project.toml in the project CRS's height unit (None: not given): metres
+    by its name, while the frames' positions, DEMs and footprints are in the CRS's unit (US feet: 1,125 m above
+    ground read for 1,000 when taken as it stands)."""
+    mean_h = project.flight.mean_terrain_height_m
+    if mean_h is None:
+        return None
+    from aerotri.geom.crs.definition import height_unit_m, project_crs
+
+    return float(mean_h) / height_unit_m(project_crs(project))
+
+
 def block_scale(camera, centre_z, ground_z, height_unit_m: float, how: str) -> BlockScale:
     """The median height above ground (m), its GSD and the platform of frames at heights ``centre_z`` over
     ground heights ``ground_z`` (arrays, or a scalar ground height; in the CRS's height unit)."""
@@ -81,7 +93,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     else:
         return BlockScale(None, None, None, f"{cam}; no at/eo.txt or gnss.txt")
     unit = height_unit_m(project_crs(project))
-    mean_h = project.flight.mean_terrain_height_m
+    planned = planned_terrain_height(project)
     head = f"{cam}; {len(pos)} frames of {src}"
     if project.dem_path.is_file():
         return block_scale(camera, pos[:, 2], _dem_heights(project.dem_path, pos[:, 0], pos[:, 1]), unit,
@@ -98,8 +110,8 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
             return block_scale(camera, pos[:, 2], g, unit,
                                f"{head} over the median height of the adjusted points of at/object_points.csv "
                                f"({g:.1f})")
-    if isinstance(mean_h, (int, float)) and not isinstance(mean_h, bool):
-        return block_scale(camera, pos[:, 2], float(mean_h) / unit, unit,  # metres by its name: in the CRS's unit
-                           f"{head} over [flight] mean_terrain_height_m ({float(mean_h):g} m; no adjusted tie points)")
+    if planned is not None:
+        return block_scale(camera, pos[:, 2], planned, unit, f"{head} over [flight] mean_terrain_height_m "
+                           f"({project.flight.mean_terrain_height_m:g} m; no adjusted tie points)")
     return BlockScale(None, None, None, f"{head}; no terrain height (no lidar_out/dem.tif, no [flight] "
                                         f"mean_terrain_height_m, no adjusted tie points)")

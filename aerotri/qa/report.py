@@ -36,7 +36,7 @@ from aerotri.core.records import to_record
 from aerotri.core.figures import pyplot
 from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
                                      split_key)
-from aerotri.geom.block_scale import project_block_scale
+from aerotri.geom.block_scale import planned_terrain_height, project_block_scale
 from aerotri.qa.compliance import asprs_class_cm, lidar_only_project, project_compliance, with_lbs_lidar_limits
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
@@ -250,12 +250,7 @@ def _footprint_terrain(project: Project):
     if dem is None or dem == project.dem_path:
         return None
     source = str(dem.relative_to(project.root)) if dem.is_relative_to(project.root) else str(dem)
-    mean_h = project.flight.mean_terrain_height_m
-    if mean_h is not None:  # metres by its name; the DEM's heights are in the CRS's height unit
-        from aerotri.geom.crs.definition import height_unit_m, project_crs
-
-        mean_h = float(mean_h) / height_unit_m(project_crs(project))
-    return Terrain.from_dem(dem, mean_h, source=source)
+    return Terrain.from_dem(dem, planned_terrain_height(project), source=source)
 
 
 def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
