@@ -333,16 +333,15 @@ def _image_approximations(project: Project, cam, ties: ImageObservations, contro
     """(``ImageApproximations``, ties, control points and control measurements of the oriented frames, datum
     statement) of a block without GNSS from its images (``aerotri.adjust.relative``); frames the images cannot orient are left
     out, named, and so are control points measured only in them."""
-    from aerotri.adjust.relative import image_approximations
+    from aerotri.adjust.relative import image_approximations, is_left_out_ray
 
     frames = sorted(set(ties.image_id.tolist()) | set(cobs.image_id.tolist()))
     ap = image_approximations(project.work_dir, project.tiepoints_path, ties, cam, frames, control, control_obs=cobs,
                               crs=crs)
     oriented = list(ap.eo.image_id)
     ties = ties.subset(_is_in(ties.image_id, oriented))
-    kept = _is_in(cobs.image_id, oriented)
-    for pid, iid, _ in ap.datum.left_out_rays:  # blunders by the image model alone: out of the adjustment too
-        kept &= ~((cobs.point_id == pid) & (cobs.image_id == iid))
+    # in oriented frames, and not a blunder by the image model alone (out of the adjustment too)
+    kept = _is_in(cobs.image_id, oriented) & ~is_left_out_ray(cobs, ap.datum.left_out_rays)
     lost = set(cobs.point_id[~kept].tolist()) - set(cobs.point_id[kept].tolist())  # measured only in those frames
     cobs = cobs.subset(kept)
     control = control.subset(~np.isin(control.id, sorted(lost)))

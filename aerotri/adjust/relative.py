@@ -512,6 +512,12 @@ def ray_blunders(xy_px, point_index, image_index, rel: RelativeBlock, n_points: 
     return bad
 
 
+def is_left_out_ray(obs: ImageObservations, rays) -> np.ndarray:
+    """Which measurements of ``obs`` are among ``rays`` ((point, frame, px) of ``control_ray_blunders``)."""
+    out = {(p, i) for p, i, _ in rays}
+    return np.array([(p, i) in out for p, i in zip(obs.point_id.tolist(), obs.image_id.tolist())], dtype=bool)
+
+
 def control_ray_blunders(rel: RelativeBlock, control_obs: ImageObservations,
                          camera: Camera) -> tuple[tuple[str, str, float], ...]:
     """(point, frame, px off) of the measurements of ``control_obs`` (the camera's pixels; control and check points)
@@ -535,10 +541,7 @@ def georeference(rel: RelativeBlock, control: ControlPoints, control_obs: ImageO
     ``NoDatum`` when the control cannot fix it (fewer than 2 plan points intersected in the model)."""
     left_out = control_ray_blunders(rel, control_obs, camera)  # check points' too: they are left out alike
     if left_out:
-        out = {(p, i) for p, i, _ in left_out}
-        control_obs = control_obs.subset(np.array([(p, i) not in out for p, i in
-                                                   zip(control_obs.point_id.tolist(), control_obs.image_id.tolist())],
-                                                  dtype=bool))
+        control_obs = control_obs.subset(~is_left_out_ray(control_obs, left_out))
     use = np.isin(control.kind, ["full", "horizontal", "height"])
     control = control.subset(use)
     index = {k: i for i, k in enumerate(rel.image_id)}
