@@ -1730,7 +1730,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         rows = {r0: tmp_dir / f"stage_{r0:07d}.tif" for r0 in range(0, mosaic.height, tile_px)}
-        keys = kept = {}
+        keys, kept = {}, {}
         if resume is not None:
             keys = _row_keys(index, mosaic, rows, labels=labels, seams_path=seams_path, factor=factor, halo=halo,
                              gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px, bands=bands, dtype=dtype,
@@ -1815,14 +1815,13 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         if kept and previous is not None and not previous.why_all and not executor.distributed:
             # the kept rows' tiles were taken over or blended by the interrupted run as by this one: counted the same
             counts["taken_over"] += sum(1 for t in tiles if t[0] in kept and not previous.touched(*t, halo, factor))
-        write_vrt(stage, [(p, r0, min(tile_px, mosaic.height - r0)) for r0, p in rows.items()], [], mosaic,
-                  bands=bands, dtype=dtype, colorinterp=colorinterp, tags={})
+        row_parts = [(p, r0, min(tile_px, mosaic.height - r0)) for r0, p in rows.items()]
+        write_vrt(stage, row_parts, [], mosaic, bands=bands, dtype=dtype, colorinterp=colorinterp, tags={})
         timer.done("tiles")
         pyramid.finish(stage)
         timer.done("overviews")
         vrt = tmp_dir / "mosaic.vrt"
-        write_vrt(vrt, [(p, r0, min(tile_px, mosaic.height - r0)) for r0, p in rows.items()], pyramid.paths, mosaic,
-                  bands=bands, dtype=dtype, colorinterp=colorinterp,
+        write_vrt(vrt, row_parts, pyramid.paths, mosaic, bands=bands, dtype=dtype, colorinterp=colorinterp,
                   tags=operation_tags(index.coordinate_operation, index.height_operation))
         with contextlib.ExitStack() as during:
             waits = during.enter_context(_background(during_cog, {1: stage, **dict(zip(levels, pyramid.paths))},
