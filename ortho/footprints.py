@@ -427,7 +427,7 @@ class OutlineHeights:
     roof: HeightRaster
     outlines: np.ndarray
     tree: object
-    shapes: tuple = ()
+    shapes: tuple
 
 
 def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,

@@ -250,8 +250,7 @@ def heights_by_side(sides: OutlineHeights, grid: OrthoGrid, out: np.ndarray | No
     near = sides.tree.query(shapely.box(grid.x_left_m, y0, x1, grid.y_top_m), predicate="intersects")
     if len(near) == 0:
         return z
-    shapes = sides.shapes or tuple(shapely.geometry.mapping(g) for g in sides.outlines)
-    within = rasterize(((shapes[k], 1) for k in near),
+    within = rasterize(((sides.shapes[k], 1) for k in near),
                        out_shape=(grid.height, grid.width),
                        transform=from_origin(grid.x_left_m, grid.y_top_m, grid.res_m, grid.res_m), dtype="uint8")
     np.copyto(z, heights_on_grid(sides.roof, grid), where=within.astype(np.bool_))

@@ -159,7 +159,7 @@ def _old_outline_heights(dsm: HeightRaster, ground: np.ndarray, cells):
     rows, cols = ndimage.distance_transform_edt(~roof, return_distances=False, return_indices=True)
     raster = (lambda z: HeightRaster(z, dsm.x_left_m, dsm.y_top_m, dsm.res_m, dsm.crs, dsm.source))
     return OutlineHeights(raster(np.where(roof, ground, top).astype(np.float32)), raster(top[rows, cols]), outlines,
-                          shapely.STRtree(outlines))
+                          shapely.STRtree(outlines), tuple(shapely.geometry.mapping(g) for g in outlines))
 
 
 def test_outline_heights_give_the_same_heights_as_the_whole_windows_distance_transform():
