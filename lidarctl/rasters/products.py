@@ -1072,7 +1072,7 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     res_m, x0, y0 = args[:3]
     tid, (row0, col0, rows, cols), core, _ = tile
     sums = _CellSums((res_m, x0, y0, rows, cols), (row0, col0))
-    near = _tile_nearest_returns(args, tile)    # the returns of dsm_nearest: counted, then sorted into cells
+    near, near_core = _tile_nearest_returns(args, tile)    # the returns of dsm_nearest: counted, then sorted
     for ch in _bin_chunks(work, tid, chunk_points):
         sums.add(ch.x, ch.y, ch.z, ch.cls, ch.rn, ch.intensity)
         near.count(ch.x, ch.y, ch.cls, ch.rn)
@@ -1086,33 +1086,31 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
-    out["dsm_nearest"] = _tile_nearest(near, args, tile, out["dsm"], inputs.units)
+    out["dsm_nearest"] = _tile_nearest(near, near_core, out["dsm"], inputs.units)
     return out
 
 
-def _tile_nearest_returns(args, tile) -> nearest.NearestReturns:
+def _tile_nearest_returns(args, tile) -> tuple[nearest.NearestReturns, tuple[slice, slice]]:
     """The nearest returns of a tile: its core grown by ``nearest.reach_px`` cells, clipped to its window (a
     buffer at least that wide holds every return that can be the nearest to a core centre: the whole grid's
-    values)."""
+    values); and the core's rows and columns in their north-up surface."""
     res_m, x0, y0 = args[:3]
     _, (row0, col0, rows, cols), core, _ = tile
     reach = nearest.reach_px(res_m)
     # the window's rows run south to north from row0 (``_CellSums``)
     r_lo, r_hi = max(core[0].start - reach, 0), min(core[0].stop + reach, rows)
     c_lo, c_hi = max(core[1].start - reach, 0), min(core[1].stop + reach, cols)
-    return nearest.NearestReturns(x0_m=x0 + (col0 + c_lo) * res_m, y_top_m=y0 + (row0 + r_hi) * res_m, res_m=res_m,
+    near = nearest.NearestReturns(x0_m=x0 + (col0 + c_lo) * res_m, y_top_m=y0 + (row0 + r_hi) * res_m, res_m=res_m,
                                   nrows=r_hi - r_lo, ncols=c_hi - c_lo, max_dist_m=nearest.SEARCH_RADIUS_M)
+    return near, (slice(r_hi - core[0].stop, r_hi - core[0].start), slice(core[1].start - c_lo, core[1].stop - c_lo))
 
 
-def _tile_nearest(near: nearest.NearestReturns, args, tile, dsm: np.ndarray, units: LengthUnits) -> np.ndarray:
+def _tile_nearest(near: nearest.NearestReturns, core: tuple[slice, slice], dsm: np.ndarray,
+                  units: LengthUnits) -> np.ndarray:
     """dsm_nearest of a tile's core (north-up float32, CRS units, NODATA) from the nearest returns of its grown core
-    (``_tile_nearest_returns``, every chunk added) and its ``dsm`` (the core's, as written): the nearest return,
-    else the DSM's value."""
-    _, (_, _, rows, _), core, _ = tile
-    reach = nearest.reach_px(args[0])
-    r_hi, c_lo = min(core[0].stop + reach, rows), max(core[1].start - reach, 0)     # ``_tile_nearest_returns``'
-    surface = near.surface()
-    surface = surface[r_hi - core[0].stop: r_hi - core[0].start, core[1].start - c_lo: core[1].stop - c_lo]
+    and the core's place in them (``_tile_nearest_returns``, every chunk added) and its ``dsm`` (the core's, as
+    written): the nearest return, else the DSM's value."""
+    surface = near.surface()[core]
     if not units.is_metric:   # the arithmetic of ``RasterGrids.in_crs_units``
         surface = (surface.astype(float) / units.z_m).astype(np.float32)
     surface = np.ascontiguousarray(surface)
