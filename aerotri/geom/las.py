@@ -194,6 +194,7 @@ def iter_chunks(reader, path, chunk_points: int):
     done = 0
     try:
         for chunk in reader.chunk_iterator(chunk_points):
+            _warn_withheld(path, chunk, done)
             yield done, chunk
             done += len(chunk)
     except InputError:
@@ -205,6 +206,24 @@ def iter_chunks(reader, path, chunk_points: int):
         raise InputError(f"{path}: truncated or corrupt point data in {where} of {n} ({one_line(exc)})") from exc
     if done != n:
         raise InputError(f"{path}: truncated file: header says {n} points, read {done}")
+
+
+# files already warned about (once per process and file: the stages read a file several times)
+_WITHHELD_WARNED: set[str] = set()
+
+
+def _warn_withheld(path, chunk, first: int) -> None:
+    """Warn, naming the file and the first such record, when points carry the LAS withheld flag: the spec says
+    they are not to be used, and no stage leaves them out yet (a withheld spike would enter the DEM silently)."""
+    key = str(path)
+    if key in _WITHHELD_WARNED or "withheld" not in chunk.point_format.dimension_names:
+        return
+    flagged = np.flatnonzero(np.asarray(chunk.withheld, bool))
+    if flagged.size:
+        _WITHHELD_WARNED.add(key)
+        logger.warning(f"{path}: point record {first + int(flagged[0])} and others carry the withheld flag "
+                       f"({flagged.size:,} in records {first}-{first + len(chunk) - 1}): they are processed like "
+                       "every other point (the flag is not honoured); remove them first if they are unreliable")
 
 
 def iter_file_chunks(path, chunk_points: int, decompression_selection=None):
