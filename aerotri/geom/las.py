@@ -35,6 +35,7 @@ FOOT_M = 0.3048
 EPSG_UNIT_M = {9001: 1.0, 9002: FOOT_M, 9003: US_SURVEY_FOOT_M}
 # GeoTIFF keys: vertical CRS (an EPSG code) and vertical units.
 VERTICAL_CS_KEY, VERTICAL_UNITS_KEY = 4096, 4099
+PROJ_LINEAR_UNITS_KEY = 3076
 
 
 def one_line(exc: Exception) -> str:
@@ -193,6 +194,7 @@ def iter_chunks(reader, path, chunk_points: int):
     done = 0
     try:
         for chunk in reader.chunk_iterator(chunk_points):
+            _warn_withheld(path, chunk, done)
             yield done, chunk
             done += len(chunk)
     except InputError:
@@ -206,6 +208,24 @@ def iter_chunks(reader, path, chunk_points: int):
         raise InputError(f"{path}: truncated file: header says {n} points, read {done}")
 
 
+# files already warned about (once per process and file: the stages read a file several times)
+_WITHHELD_WARNED: set[str] = set()
+
+
+def _warn_withheld(path, chunk, first: int) -> None:
+    """Warn, naming the file and the first such record, when points carry the LAS withheld flag: the spec says
+    they are not to be used, and no stage leaves them out yet (a withheld spike would enter the DEM silently)."""
+    key = str(path)
+    if key in _WITHHELD_WARNED or "withheld" not in chunk.point_format.dimension_names:
+        return
+    flagged = np.flatnonzero(np.asarray(chunk.withheld, bool))
+    if flagged.size:
+        _WITHHELD_WARNED.add(key)
+        logger.warning(f"{path}: point record {first + int(flagged[0])} and others carry the withheld flag "
+                       f"({flagged.size:,} in records {first}-{first + len(chunk) - 1}): they are processed like "
+                       "every other point (the flag is not honoured); remove them first if they are unreliable")
+
+
 def iter_file_chunks(path, chunk_points: int, decompression_selection=None):
     """``iter_chunks`` of a file, opened (and checked) by ``open_las`` and closed at the end."""
     with open_las(path, decompression_selection) as reader:
@@ -217,7 +237,7 @@ def header_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
     """The CRS record of a header as it is (a compound CRS keeps its vertical part); None when the
     header has none or it cannot be read (``read_header_crs`` reports that)."""
     try:
-        return header.parse_crs()
+        return _parse_crs(header)
     except Exception:  # laspy/pyproj raise several types for malformed CRS records
         return None
 
@@ -226,10 +246,58 @@ def read_header_crs(path, header: laspy.LasHeader, hint: str = "") -> pyproj.CRS
     """The CRS record of a header, or None when it has none; ``CrsError`` naming the file for a record
     that is present but unreadable (``hint``: what to do instead, appended after a semicolon)."""
     try:
-        return header.parse_crs()
+        return _parse_crs(header)
     except Exception as exc:  # laspy/pyproj raise several types for malformed CRS records
         raise CrsError(f"{path}: CRS record present but unreadable ({one_line(exc)})"
                        + (f"; {hint}" if hint else "")) from exc
+
+
+def _parse_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
+    """laspy's CRS of the header (its WKT record first), with the GeoTIFF keys' ProjLinearUnitsGeoKey
+    (3076) applied when the CRS came from the keys: laspy takes ProjectedCSTypeGeoKey's EPSG code alone,
+    so a file keyed "EPSG:32104 (metres), linear units US survey foot" (GDAL, PDAL and QGIS read feet:
+    the GeoTIFF rule that the units key overrides the code's) was processed as metres."""
+    crs = header.parse_crs()
+    if crs is None or not crs.is_projected or _wkt_crs(header) is not None:
+        return crs
+    keys = _geo_keys(header) or {}
+    key = keys.get(PROJ_LINEAR_UNITS_KEY)
+    if key is None or key.tiff_tag_location != 0 or key.value_offset not in EPSG_UNIT_M:
+        return crs
+    unit_m = EPSG_UNIT_M[key.value_offset]
+    if all(abs(a.unit_conversion_factor - unit_m) < 1e-12 for a in crs.axis_info):
+        return crs
+    return with_linear_unit(crs, key.value_offset)
+
+
+def _wkt_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
+    """The CRS of the header's WKT record (None when there is none or laspy cannot read it)."""
+    from laspy.vlrs.known import WktCoordinateSystemVlr
+
+    for vlr in list(header.vlrs) + list(header.evlrs or []):
+        if isinstance(vlr, WktCoordinateSystemVlr):
+            try:
+                crs = vlr.parse_crs()
+            except Exception:  # an unreadable WKT record: laspy falls back to the keys, as we do
+                crs = None
+            if crs is not None:
+                return crs
+    return None
+
+
+def with_linear_unit(crs: pyproj.CRS, unit_code: int) -> pyproj.CRS:
+    """Projected ``crs`` with its axes in EPSG unit ``unit_code`` (9001 metre, 9002 foot, 9003 US survey
+    foot); the projection's parameters keep their own units (false easting 500000 m stays 500000 m), as
+    GDAL's SetLinearUnitsAndUpdateParameters does for such GeoTIFF keys."""
+    unit = {9001: "metre", 9002: {"type": "LinearUnit", "name": "foot", "conversion_factor": FOOT_M,
+                                  "id": {"authority": "EPSG", "code": 9002}},
+            9003: {"type": "LinearUnit", "name": "US survey foot", "conversion_factor": US_SURVEY_FOOT_M,
+                   "id": {"authority": "EPSG", "code": 9003}}}[unit_code]
+    d = crs.to_json_dict()
+    for axis in d["coordinate_system"]["axis"]:
+        axis["unit"] = unit
+    d.pop("id", None)  # no longer the EPSG code's CRS
+    return pyproj.CRS.from_json_dict(d)
 
 
 def _geo_keys(header: laspy.LasHeader) -> dict | None:

@@ -319,7 +319,19 @@ def _stand_polygons(stand_label: np.ndarray, transform) -> dict:
     parts: dict[int, list] = {}
     for geom, value in features.shapes(stand_label, mask=stand_label > 0, connectivity=8, transform=transform):
         parts.setdefault(int(value), []).append(shape(geom))
-    return {k: (v[0] if len(v) == 1 else shapely.union_all(v)) for k, v in parts.items()}
+    # GDAL's 8-connected polygons join cells that touch at a corner by a ring that touches itself there, which
+    # is not a valid polygon (QGIS flags it, overlay tools fail on it): made valid, the same cells and area
+    return {k: _polygonal(shapely.make_valid(v[0] if len(v) == 1 else shapely.union_all(v)))
+            for k, v in parts.items()}
+
+
+def _polygonal(geom):
+    """The polygon parts of ``geom`` (``make_valid`` may add the touching corners as points or lines)."""
+    import shapely
+
+    if geom.geom_type in ("Polygon", "MultiPolygon"):
+        return geom
+    return shapely.union_all([g for g in getattr(geom, "geoms", [geom]) if g.geom_type in ("Polygon", "MultiPolygon")])
 
 
 def tree_model(x, y, z, cls, return_number, settings: TreeSettings | None = None, name: str = "the cloud") -> TreeModel:

@@ -144,7 +144,9 @@ def trace(dem: np.ndarray, transform, interval: float, index_every: int = 5, opt
     for kf in _level_multiples(z.filled(np.nan), interval):
         k, level = int(kf), _level(kf, interval)
         for line in gen.lines(level):
-            if len(line) < 2:
+            # a cell exactly at the level among lower (or higher) ones gives a "line" of one point repeated:
+            # no contour, and an invalid geometry in a GeoPackage
+            if len(line) < 2 or not np.ptp(line, axis=0).any():
                 continue
             # closed in cell coordinates, exactly: contourpy repeats a ring's first point, while an open line
             # from the border back to it may end a fraction of a cell from its start (np.allclose's relative

@@ -229,3 +229,26 @@ def test_map_shades_every_valid_cell_up_to_a_hole(tmp_path, monkeypatch):
     (hs,) = drawn
     assert np.array_equal(np.isfinite(hs), np.isfinite(z))
     assert np.ptp(hs[np.isfinite(hs)]) < 1e-4  # float32 heights; a grey level is 1/256
+
+
+def test_a_cell_exactly_at_a_level_gives_no_one_point_line(tmp_path):
+    """A DEM cell exactly at a contour level among lower ones (a spot height of 806.0 m in lidR's Topography, AHN3's
+    0.0 m): contourpy gives a "line" of one point five times, written as an invalid GeoPackage geometry."""
+    import pyogrio.raw
+    import shapely
+
+    rows, cols = np.mgrid[0:40, 0:50]
+    z = 800.0 + 0.1 * cols + 0.05 * rows
+    z[20, 20] = 806.0            # a peak exactly at a level
+    t = from_origin(0.0, 40.0, 1.0, 1.0)
+    cs = trace(z, t, 1.0, 5)
+    assert all(np.ptp(c.xy, axis=0).any() for c in cs)
+    assert not [c for c in cs if c.level == 806.0 and np.hypot(*(c.xy[0] - [20.5, 19.5])) < 1e-6]
+    path = tmp_path / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=50, height=40, count=1, dtype="float32", crs="EPSG:32632",
+                       transform=t, nodata=-9999.0) as ds:
+        ds.write(z.astype(np.float32), 1)
+    r = CliRunner().invoke(main, ["contours", str(path), str(tmp_path / "c.gpkg"), "--interval-m", "1", "--no-png"])
+    assert r.exit_code == 0, r.output
+    g = shapely.from_wkb(pyogrio.raw.read(tmp_path / "c.gpkg", layer="contours")[2])
+    assert len(g) and shapely.is_valid(g).all()

@@ -270,3 +270,89 @@ def test_a_huge_point_count_is_refused_before_allocating(files, tmp_path):
     r = CliRunner().invoke(main, ["check-heights", str(bad), str(d / "points.csv")])
     assert r.exit_code == 2 and r.output.count("\n") == 1, r.output
     assert "huge.laz: truncated or corrupt point data in records 0-" in r.output and "of 5000000000" in r.output
+
+
+def _with_linear_units_key(las, code: int) -> None:
+    vlr = next(v for v in las.header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr")
+    vlr.geo_keys = [k for k in vlr.geo_keys if k.id != 3076]
+    key = GeoKeyEntryStruct()
+    key.id, key.tiff_tag_location, key.count, key.value_offset = 3076, 0, 1, code
+    vlr.geo_keys.append(key)
+    vlr.geo_keys_header.number_of_keys = len(vlr.geo_keys)
+
+
+def test_linear_units_key_overrides_the_projected_crs_code(files, tmp_path):
+    """GeoTIFF keys "EPSG:32632, ProjLinearUnitsGeoKey = US survey foot" (GDAL, PDAL and QGIS read feet): the
+    coordinates were taken as metres (laspy reads the code alone), the rasters written 3.28x too large in EPSG:32632."""
+    import rasterio
+
+    from aerotri.geom.las import US_SURVEY_FOOT_M
+
+    d, _ = files
+    src = laspy.read(d / "c12.las")
+    ref = io.read_cloud(d / "c12.las")
+    las = laspy.LasData(laspy.LasHeader(version="1.2", point_format=src.header.point_format.id))
+    las.header.vlrs = src.header.vlrs
+    las.header.scales = np.array([0.01, 0.01, 0.01])
+    las.header.offsets = np.array([1_640_000.0, 17_700_000.0, 0.0])
+    for dim in ("classification", "intensity", "return_number", "number_of_returns"):
+        las[dim] = src[dim]
+    las.x, las.y, las.z = src.x / US_SURVEY_FOOT_M, src.y / US_SURVEY_FOOT_M, src.z / US_SURVEY_FOOT_M
+    _with_linear_units_key(las, 9003)
+    path = tmp_path / "ftus.las"
+    las.write(path)
+    c = io.read_cloud(path)
+    assert c.units.xy_m == pytest.approx(US_SURVEY_FOOT_M) and c.units.z_m == pytest.approx(US_SURVEY_FOOT_M)
+    np.testing.assert_allclose(c.x, ref.x, atol=0.01)
+    np.testing.assert_allclose(c.y, ref.y, atol=0.01)
+    # the CRS keeps its projection: the same places on the earth as the metre file
+    lonlat = pyproj.Transformer.from_crs(c.crs, "EPSG:4326", always_xy=True).transform(las.x[:5], las.y[:5])
+    np.testing.assert_allclose(lonlat, pyproj.Transformer.from_crs("EPSG:32632", "EPSG:4326", always_xy=True)
+                               .transform(src.x[:5], src.y[:5]), atol=1e-8)
+    r = CliRunner().invoke(main, ["rasters", str(path), str(tmp_path / "r"), "--res-m", "2"])
+    assert r.exit_code == 0, r.output
+    with rasterio.open(tmp_path / "r" / "dem.tif") as ds:
+        assert ds.crs.linear_units == "US survey foot" and ds.res[0] == pytest.approx(2 / US_SURVEY_FOOT_M)
+        assert ds.bounds.left <= las.x.min() <= ds.bounds.left + ds.res[0]
+    # a key that agrees with the code changes nothing
+    _with_linear_units_key(src, 9001)
+    src.write(tmp_path / "m.las")
+    assert io.read_cloud(tmp_path / "m.las").crs == ref.crs
+
+
+def test_nebraska_read_from_its_geotiff_keys_alone_equals_its_wkt(shared_data, tmp_path):
+    """laspy's Nebraska file keys EPSG:32104 (metres) with ProjLinearUnitsGeoKey US survey foot beside a WKT of
+    NAD83(2011) / Nebraska (ftUS); without the WKT (as in a LAS 1.2 delivery) it was read as metres."""
+    src = laspy.read(shared_data / "laspy_nebraska" / "file_with_both_wkt_and_geotiff_vlrs.las")
+    las = laspy.LasData(laspy.LasHeader(version="1.2", point_format=3))
+    las.header.scales, las.header.offsets = src.header.scales, src.header.offsets
+    las.header.vlrs = [v for v in src.header.vlrs if type(v).__name__ != "WktCoordinateSystemVlr"]
+    las.x, las.y, las.z = src.x, src.y, src.z
+    las.classification = src.classification
+    las.write(tmp_path / "keys_only.las")
+    c, ref = io.read_cloud(tmp_path / "keys_only.las"), io.read_cloud(
+        shared_data / "laspy_nebraska" / "file_with_both_wkt_and_geotiff_vlrs.las")
+    assert c.units.xy_m == pytest.approx(ref.units.xy_m, rel=1e-12) and c.units.xy_m == pytest.approx(0.3048006096)
+    np.testing.assert_allclose(c.x, ref.x, atol=1e-6)
+
+
+def test_withheld_points_are_named_not_used_silently(files, tmp_path):
+    """Points flagged withheld (the LAS spec: not to be used) were classified and gridded like the others without a
+    word (lidR Topography with 200 withheld points lowered 3-20 m: 10 became ground, the DEM moved by up to 4.41 m in
+    526 cells). No stage leaves them out yet: each command now warns once per file, naming the first record."""
+    d, n = files
+    las = laspy.read(d / "c12.las")
+    flag = np.zeros(len(las.x), bool)
+    flag[[1234, 40_000]] = True
+    las.withheld = flag
+    las.write(tmp_path / "withheld.las")
+    said = []
+    for args in (["rasters", tmp_path / "withheld.las", tmp_path / "r", "--res-m", "2"],
+                 ["classify", tmp_path / "withheld.las", tmp_path / "c.las"]):
+        r = CliRunner().invoke(main, [str(a) for a in args])
+        assert r.exit_code == 0, r.output
+        said += [line for line in r.output.splitlines() if "withheld flag" in line]
+    assert len(said) == 1, said                                  # once per file and process
+    assert str(tmp_path / "withheld.las") in said[0] and "record 1234" in said[0] and "2 in records" in said[0]
+    r = CliRunner().invoke(main, ["rasters", str(d / "c12.las"), str(tmp_path / "r2"), "--res-m", "2"])
+    assert r.exit_code == 0 and "withheld flag" not in r.output

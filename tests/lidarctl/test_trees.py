@@ -282,3 +282,25 @@ def test_the_trees_map_names_its_corner_in_the_crs_unit():
     x, y = corner_axis_labels(193853.0, 1502.4, LengthUnits(xy_m=0.3048, z_m=0.3048))
     assert x == "metres east of easting 636000.7 ft" and y == "metres north of northing 4929.1 ft"
     assert corner_axis_labels(100.0, 200.0, LengthUnits())[0] == "metres east of easting 100.0 m"
+
+
+def test_stands_touching_at_a_corner_are_valid_polygons_of_their_cells():
+    """8-connected canopy cells that meet at a corner only: GDAL traces them as a ring touching itself, an invalid
+    polygon (lidR Topography: 5 of 5 stands invalid, AHN3 Delft 15 of 17); now valid, with the cells' area."""
+    import shapely
+
+    from lidarctl.rasters.trees import _stand_polygons
+
+    label = np.zeros((8, 8), np.int32)
+    label[1:3, 1:3] = 1          # a block and one cell diagonal to it: one 8-connected stand
+    label[3, 3] = 1
+    label[4:7, 4:7] = 2          # a ring of cells around a gap whose corner touches the outer edge
+    label[5, 5] = 0
+    label[4, 4] = 0
+    label[3, 4] = 2
+    polys = _stand_polygons(label, from_origin(500000.0, 5000008.0, 1.0, 1.0))
+    assert sorted(polys) == [1, 2]
+    for k, g in polys.items():
+        assert shapely.is_valid(g), shapely.is_valid_reason(g)
+        assert g.geom_type in ("Polygon", "MultiPolygon")
+        assert g.area == pytest.approx(float((label == k).sum()))
