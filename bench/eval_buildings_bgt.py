@@ -549,7 +549,7 @@ def nested_with_separation(argv, script: str, laz: Path, polys: list, separate, 
     added = []
     with tempfile.TemporaryDirectory(prefix="eval_bgt_nested_separation_") as tmp:
         for j, base in enumerate(bases):
-            prm = dataclasses.replace(ClassifySettings(), **RULE_SETS[base], **(overrides or {}))
+            prm = dataclasses.replace(ClassifySettings(), **{**RULE_SETS[base], **(overrides or {})})
             raw_path, path = Path(tmp) / f"{j}_raw.laz", Path(tmp) / f"{j}.laz"
             tiles.classify_file(laz, raw_path, crs=CRS, params=prm)
             if separate is None:
