@@ -528,19 +528,19 @@ def store_timed(path: Path, result: dict, started: tuple, key: str) -> None:
 
 
 def nested_with_separation(argv, script: str, laz: Path, polys: list, separate, suffix: str, note: str, key: str,
-                           overrides: dict | None = None, applies=None) -> int:
+                           overrides: dict | None = None, applies=None, bases: list | None = None) -> int:
     """A separation applied after the classification as rule sets in the nested choice on the footprint parts (both
     criteria): the sets any fold chose and the shipped defaults' set, each classified, then ``separate(classified,
     out, settings)``, scored as the stored sets (area, objects, vector centroids with and without roof dropouts) and
     appended after them (a tie goes to the set without it) as "<set> + ``suffix``". Writes key ``key`` of RESULTS.
     ``overrides`` (ClassifySettings fields, with ``separate`` None): a classification switch in place of the
     separation, added to each base ``applies(base's overrides)`` accepts (a base the switch cannot change is left
-    out: its scores would be the stored set's)."""
+    out: its scores would be the stored set's). ``bases``: these RULE_SETS names in place of the chosen ones."""
     stored = read_results(RESULTS)
     per_set = dict(stored["rules_nested"]["rule_sets"])
     sec = stored["rules_nested_footprint_parts"]
-    bases = list(dict.fromkeys([sec["shipped_defaults_set"]] + [v["chosen"] for crit in CRITERIA
-                                                                 for v in sec[crit]["held_out"].values()]))
+    bases = bases or list(dict.fromkeys([sec["shipped_defaults_set"]] + [v["chosen"] for crit in CRITERIA
+                                                                          for v in sec[crit]["held_out"].values()]))
     if applies is not None:
         bases = [b for b in bases if applies(RULE_SETS[b])]
     x_split, y_split = stored["quarters_split_at_m"]
