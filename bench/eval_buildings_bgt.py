@@ -527,29 +527,38 @@ def store_timed(path: Path, result: dict, started: tuple, key: str) -> None:
     store_result(path, result, key=key)
 
 
-def nested_with_separation(argv, script: str, laz: Path, polys: list, separate, suffix: str, note: str, key: str) -> int:
+def nested_with_separation(argv, script: str, laz: Path, polys: list, separate, suffix: str, note: str, key: str,
+                           overrides: dict | None = None, applies=None, bases: list | None = None) -> int:
     """A separation applied after the classification as rule sets in the nested choice on the footprint parts (both
     criteria): the sets any fold chose and the shipped defaults' set, each classified, then ``separate(classified,
     out, settings)``, scored as the stored sets (area, objects, vector centroids with and without roof dropouts) and
-    appended after them (a tie goes to the set without it) as "<set> + ``suffix``". Writes key ``key`` of RESULTS."""
+    appended after them (a tie goes to the set without it) as "<set> + ``suffix``". Writes key ``key`` of RESULTS.
+    ``overrides`` (ClassifySettings fields, with ``separate`` None): a classification switch in place of the
+    separation, added to each base ``applies(base's overrides)`` accepts (a base the switch cannot change is left
+    out: its scores would be the stored set's). ``bases``: these RULE_SETS names in place of the chosen ones."""
     stored = read_results(RESULTS)
     per_set = dict(stored["rules_nested"]["rule_sets"])
     sec = stored["rules_nested_footprint_parts"]
-    bases = list(dict.fromkeys([sec["shipped_defaults_set"]] + [v["chosen"] for crit in CRITERIA
-                                                                 for v in sec[crit]["held_out"].values()]))
+    bases = bases or list(dict.fromkeys([sec["shipped_defaults_set"]] + [v["chosen"] for crit in CRITERIA
+                                                                          for v in sec[crit]["held_out"].values()]))
+    if applies is not None:
+        bases = [b for b in bases if applies(RULE_SETS[b])]
     x_split, y_split = stored["quarters_split_at_m"]
     partitions = (quarters(x_split, y_split), footprint_parts(polys, covered_footprints(laz, polys)))
     started = clock()
     added = []
     with tempfile.TemporaryDirectory(prefix="eval_bgt_nested_separation_") as tmp:
         for j, base in enumerate(bases):
-            prm = dataclasses.replace(ClassifySettings(), **RULE_SETS[base])
+            prm = dataclasses.replace(ClassifySettings(), **{**RULE_SETS[base], **(overrides or {})})
             raw_path, path = Path(tmp) / f"{j}_raw.laz", Path(tmp) / f"{j}.laz"
             tiles.classify_file(laz, raw_path, crs=CRS, params=prm)
-            separate(raw_path, path, prm)
-            raw_path.unlink()
+            if separate is None:
+                raw_path.rename(path)
+            else:
+                separate(raw_path, path, prm)
+                raw_path.unlink()
             name = f"{base} + {suffix}"
-            out = {"base": base, "separation": note}
+            out = {"base": base, "separation": note, "overrides": {**RULE_SETS[base], **(overrides or {})}}
             for pp in partitions:
                 out[_KEY[pp.name]] = evaluate_quarters({"x": path}, polys, pp)
             out["vectors"] = vector_centroids(path, polys, Path(tmp) / f"{j}.gpkg", partitions)
@@ -567,8 +576,8 @@ def nested_with_separation(argv, script: str, laz: Path, polys: list, separate, 
     order = list(RULE_SETS) + added
     result = {"command": f"{script} " + " ".join(argv),
               "how": "the stored rule sets (rules_nested/rule_sets) and, appended last, the sets any fold chose and the "
-                     "shipped defaults' set with the separation; nested choice on the footprint parts again, both "
-                     "criteria (ties to the earlier set)",
+                     "shipped defaults' set with the separation (those it can change); nested choice on the footprint "
+                     "parts again, both criteria (ties to the earlier set)",
               "added_sets": {n: per_set[n] for n in added}}
     for criterion in CRITERIA:
         result[criterion] = nested_choice(per_set, "footprint_parts", criterion, order=order)

@@ -15,7 +15,8 @@ Writes bench/results/buildings_bgt_regression.json. Run:
 ``--only demo_strip_01,sim_tiny``: those clouds only, merged into the existing JSON.
 ``--pair WITH WITHOUT``: two rule sets of bench/eval_buildings_bgt.py's RULE_SETS in place of the defaults and the
 crowns rule off (fifth round: a set with the roof edge completion's stop and the same set without it), written
-under the key "pair: WITH" (in the per-point keys "defaults" is WITH, "rule_off" WITHOUT).
+under the key "pair: WITH" (in the per-point keys "defaults" is WITH, "rule_off" WITHOUT); a name ending in
+" + dropout rims" is that set with ``ClassifySettings.dropout_roof_rims`` on (eighth round).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from lidarctl.classify import pipeline as classify  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data"))
 RULE = {"crown_covered_roofs": False}
+RIMS_SUFFIX = " + dropout rims"
 
 
 def _read(paths, crs=None) -> dict:
@@ -98,8 +100,14 @@ def main(argv=None) -> int:
     if "--pair" in argv:   # two rule sets of eval_buildings_bgt.RULE_SETS (with, without): under their own key
         from eval_buildings_bgt import RULE_SETS
 
+        def settings(name: str) -> classify.ClassifySettings:
+            # eighth round: "<set> + dropout rims", the set with ClassifySettings.dropout_roof_rims on
+            base = name.removesuffix(RIMS_SUFFIX)
+            return dataclasses.replace(classify.ClassifySettings(), **RULE_SETS[base],
+                                       **({"dropout_roof_rims": True} if name != base else {}))
+
         with_set, without_set = argv[argv.index("--pair") + 1: argv.index("--pair") + 3]
-        on_params, off_params = (dataclasses.replace(classify.ClassifySettings(), **RULE_SETS[n]) for n in (with_set, without_set))
+        on_params, off_params = (settings(n) for n in (with_set, without_set))
         result = {"command": result["command"], "with": with_set, "without": without_set, "clouds": {}}
     if "--only" in argv:   # these clouds only, merged into the file's others
         only = argv[argv.index("--only") + 1].split(",")

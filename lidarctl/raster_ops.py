@@ -290,6 +290,29 @@ def plane_rms(a: np.ndarray, cell_m: float) -> np.ndarray:
     return np.sqrt(np.maximum(resid2, 0.0))
 
 
+def rimmed_dropouts(occupied: np.ndarray, rim: np.ndarray, blocked: np.ndarray | None = None) -> np.ndarray:
+    """Cells that returned no pulse and lie in a region rimmed mostly by ``rim`` cells: the regions of cells
+    without a return (not ``occupied``; opened by one cell, so at least three cells wide: a sampling gap is no
+    dropout; 8-connected; off the grid's border) where more than half of the cells with returns around them
+    are ``rim`` and none ``blocked``. A glass, wet or black roof returns few or no pulses and is seen by its
+    rim alone; a scan shadow beside a wall has ground on its other sides."""
+    eight = np.ones((3, 3), bool)
+    lab, n = ndimage.label(ndimage.binary_opening(~occupied, structure=eight), structure=eight)
+    if n == 0:
+        return np.zeros(occupied.shape, bool)
+    # each cell with returns counted for the empty region beside it (two regions meet at a cell rarely: one of
+    # them takes it)
+    rim_of = np.where(occupied, ndimage.grey_dilation(lab, footprint=eight), 0)
+    total = np.bincount(rim_of.ravel(), minlength=n + 1)
+    on_rim = np.bincount(rim_of.ravel(), weights=rim.ravel(), minlength=n + 1)
+    keep = 2 * on_rim > total
+    if blocked is not None:
+        keep &= np.bincount(rim_of.ravel(), weights=blocked.ravel(), minlength=n + 1) == 0
+    keep[np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])] = False
+    keep[0] = False
+    return keep[lab]
+
+
 DEFAULT_TIN_FILL_RADIUS_PX = 64
 """Largest circumradius (cells) of a TIN triangle that fills a DEM gap; gaps needing larger triangles
 (open water, survey edges) keep the pull-push fill."""

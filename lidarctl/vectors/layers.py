@@ -327,9 +327,8 @@ def _roof_dropouts(pts, bxy: np.ndarray, x0, y0, cell_m: float, shape) -> np.nda
     them) is mostly roof - more than half of it building cells and none water. A glass, wet or black roof
     returns few or no pulses and is then seen by its rim alone (AHN3 Delft: two 22 m2 BGT buildings); a
     shadow beside a wall has ground on its other sides, a dropout lake its shore or its water returns."""
-    from scipy import ndimage
+    from lidarctl.raster_ops import rimmed_dropouts
 
-    eight = np.ones((3, 3), bool)
     axy = np.column_stack([pts.x, pts.y])
     on = (axy[:, 0] >= x0) & (axy[:, 0] < x0 + shape[1] * cell_m) & (axy[:, 1] <= y0) & (axy[:, 1] > y0 - shape[0] * cell_m)
     occupied = np.zeros(shape, bool)
@@ -339,21 +338,7 @@ def _roof_dropouts(pts, bxy: np.ndarray, x0, y0, cell_m: float, shape) -> np.nda
     water = np.zeros(shape, bool)
     w = on & (pts.classification == WATER)
     water[_cells(axy[w], x0, y0, cell_m, shape)] = True
-    # sampling gaps (a cell of about the spacing misses a return now and then) are no dropout: an opening of
-    # one cell keeps the empty regions at least three cells wide
-    lab, n = ndimage.label(ndimage.binary_opening(~occupied, structure=eight), structure=eight)
-    if n == 0:
-        return np.zeros(shape, bool)
-    # each cell with returns counted for the empty region beside it (two regions meet at a cell rarely: one of
-    # them takes it)
-    rim_of = np.where(occupied, ndimage.grey_dilation(lab, footprint=eight), 0)
-    total = np.bincount(rim_of.ravel(), minlength=n + 1)
-    roof = np.bincount(rim_of.ravel(), weights=building.ravel(), minlength=n + 1)
-    wet = np.bincount(rim_of.ravel(), weights=water.ravel(), minlength=n + 1)
-    keep = (2 * roof > total) & (wet == 0)
-    keep[np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])] = False
-    keep[0] = False
-    return keep[lab]
+    return rimmed_dropouts(occupied, building, blocked=water)
 
 
 def building_outlines(pts, spacing_m: float | None = None, roof_dropouts: bool = True) -> tuple[list, list, dict]:
