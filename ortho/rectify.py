@@ -479,15 +479,16 @@ def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.n
 
 
 def zbuffer_occlusion_affine(geometry: FrameGeometry, zbuffer: ZBuffer, tile: OrthoGrid, heights_m: np.ndarray, *,
-                             out: np.ndarray) -> np.ndarray:
+                             out: np.ndarray, near_share: np.ndarray | None = None) -> np.ndarray:
     """``zbuffer_occlusion`` of a tile in the project CRS (ground X, Y affine in its rows and columns), vectorised:
     where the maps were made at other heights than the occlusion test's surface (``--occlusion-dsm``), so that the
-    test cannot read them (``zbuffer_occlusion_from_maps``)."""
+    test cannot read them (``zbuffer_occlusion_from_maps``). ``near_share``: as ``zbuffer_occlusion_from_maps``."""
     from ortho.rectify_kernels import _zbuffer_test_affine
 
     out[...] = False
+    near = np.empty(heights_m.shape, np.float32) if near_share is None else near_share
     _zbuffer_test_affine(_affine_tile(heights_m, tile), geometry.kernel_frame(),
-                         ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), out)
+                         ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), out, near)
     return out
 
 
@@ -737,12 +738,13 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
             # roof edge above them): the points it puts behind a nearer surface are decided by the march
             occ_out = local.occluded[:tile.height * tile.width].reshape(tile.height, tile.width)
-            near = local.near_share[:tile.height * tile.width].reshape(tile.height, tile.width) if maps_at_dsm else None
+            near = local.near_share[:tile.height * tile.width].reshape(tile.height, tile.width) \
+                if to_project.identity else None
             if maps_at_dsm:
                 behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, out=occ_out,
                                                      near_share=near)
             elif to_project.identity:
-                behind = zbuffer_occlusion_affine(geometry, zbuffer, tile, z, out=occ_out)
+                behind = zbuffer_occlusion_affine(geometry, zbuffer, tile, z, out=occ_out, near_share=near)
             else:
                 behind = zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
             if behind.any():
