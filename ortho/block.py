@@ -402,13 +402,55 @@ def _frame_occluder(task: FrameTask, surface: HeightRaster, dem: HeightRaster, p
     return occluder, outline_heights(heights, ground, cells, outline_top_m=surface.heights_m if own else None)
 
 
+_kept_rasters: dict = {}  # path -> (open dataset, its lock) while blocks are rectified in this process
+_kept_lock = threading.Lock()
+_keeping = [0]  # how many ``rectify_block`` calls of this process keep their height rasters open now
+
+
+@contextlib.contextmanager
+def _rasters_kept_open():
+    """The height rasters (DEM, DSM, occlusion DSM, crown bases) the frame tasks of this process read kept open until
+    the block is done, so that GDAL's block cache decodes each of their blocks once, not once for every frame window
+    that holds it (the demo's 18 windows read each raster about 3 times over: 0.35 CPU-s a raster, opened and
+    decoded per frame). Tasks on other processes (a cluster) open them per frame as before."""
+    with _kept_lock:
+        _keeping[0] += 1
+    try:
+        yield
+    finally:
+        with _kept_lock:
+            _keeping[0] -= 1
+            if _keeping[0] == 0:
+                for ds, _ in _kept_rasters.values():
+                    ds.close()
+                _kept_rasters.clear()
+
+
+@contextlib.contextmanager
+def _height_raster(path, project_crs, what: str):
+    """``open_height_raster`` for a frame task: the block's kept-open dataset (``_rasters_kept_open``), held under its
+    lock while the task reads it (a dataset is not to be read by two threads at once), else opened and closed here;
+    read errors named (``_raster_read``). The same values either way."""
+    if not _keeping[0]:
+        with open_height_raster(path, project_crs, what) as ds, _raster_read(path, what):
+            yield ds
+        return
+    key = str(path)  # (its CRS checked against the project's when opened; a block's tasks share the project)
+    with _kept_lock:
+        kept = _kept_rasters.get(key)
+        if kept is None:
+            kept = _kept_rasters[key] = (open_height_raster(path, project_crs, what), threading.Lock())
+    ds, lock = kept
+    with lock, _raster_read(path, what):
+        yield ds
+
+
 def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_crs, height_op) -> np.ndarray | None:
     """The crown bases of ``task.crown_base_path`` (None: none) on the frame's DSM window ``heights``, whose grid the
     raster must share (float32, NaN where none)."""
     if not task.crown_base_path:
         return None
-    with open_height_raster(task.crown_base_path, project_crs, "crown base") as ds, \
-            _raster_read(task.crown_base_path, "crown base"):
+    with _height_raster(task.crown_base_path, project_crs, "crown base") as ds:
         crown = read_height_window(ds, ground_bounds, margin_m=4 * heights.res_m, what="crown base",
                                    frame=task.image_id, height_operation=height_op)
     if (crown.heights_m.shape != heights.heights_m.shape or crown.res_m != heights.res_m
@@ -482,21 +524,20 @@ def _rectify_frame(task: FrameTask) -> dict:
     C = np.asarray(task.centre_m, float)
     R = rotation_matrix_opk(*task.opk_deg)
     ground_bounds = _plane_footprint_bounds(task.camera, C, R, zlo - 5.0, zhi + 5.0, task.image_id, crs=project_crs)
-    with open_height_raster(task.dem_path, project_crs, "DEM") as dem_ds, _raster_read(task.dem_path, "DEM"):
+    with _height_raster(task.dem_path, project_crs, "DEM") as dem_ds:
         dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=task.image_id,
                                  height_operation=height_op)
         extent = tuple(dem_ds.bounds)
     heights, what, path = dem, "DEM", task.dem_path
     if task.dsm_path:
-        with open_height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(task.dsm_path, "DSM"):
+        with _height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds:
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs)
     surface = heights    # of the occlusion test: the DSM itself (the same object: the maps' z-buffer test) or its own
     if task.dsm_path and task.occlusion_dsm_path:
-        with open_height_raster(task.occlusion_dsm_path, project_crs, "DSM") as occ_ds, \
-                _raster_read(task.occlusion_dsm_path, "DSM"):
+        with _height_raster(task.occlusion_dsm_path, project_crs, "DSM") as occ_ds:
             surface = read_height_window(occ_ds, ground_bounds, margin_m=4 * occ_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=height_op)
     occluder, sides = None, None
@@ -696,7 +737,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     # an error (bad input, a bad frame) leaves no output of any kind: the frames kept for a resumed run go too; a kill
     # or Ctrl-C (not an Exception) keeps them; committed: nothing to resume (aerotri.core.resume)
     with resumable(resume_dir):
-        with atomic_dir(out_dir) as tmp_dir, stage_block_cache(RECTIFY_CACHE_BYTES):
+        with atomic_dir(out_dir) as tmp_dir, stage_block_cache(RECTIFY_CACHE_BYTES), _rasters_kept_open():
             index = _rectify_into(tmp_dir, block, eo_idx, res=res, out_crs=out_crs, project_crs=project_crs,
                                   dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
                                   dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,

@@ -362,11 +362,14 @@ def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS,
     ``occluder`` over the tops of its slabs too (a cell beside an overhang carries the overhang's slab), raised by
     the march's ``tolerance_m``: the march skips a block the ray passes more than the tolerance above, and an
     overhang's slab stops a ray below its top without the tolerance."""
-    from ortho.rectify_kernels import _block_max
+    from ortho.rectify_kernels import _block_max, _coarser_max
 
     fine, coarse = (int(b) for b in blocks)
-    z = dsm.heights_m if occluder is None else np.fmax(dsm.heights_m, occluder.slab_top_m + np.float32(tolerance_m))
-    return MarchBound(float(np.nanmax(z)), _block_max(z, fine), fine, _block_max(z, coarse), coarse)
+    slab_top = None if occluder is None else occluder.slab_top_m
+    fine_max, seen = _block_max(dsm.heights_m, fine, slab_top, np.float32(tolerance_m))
+    coarse_max = _coarser_max(fine_max, coarse // fine) if coarse % fine == 0 else \
+        _block_max(dsm.heights_m, coarse, slab_top, np.float32(tolerance_m))[0]
+    return MarchBound(float(fine_max.max()) if seen else math.nan, fine_max, fine, coarse_max, coarse)
 
 
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors, *,
@@ -473,6 +476,20 @@ def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.n
     _zbuffer_kernel(AnchorGrid(AX, AY, float(s)), heights_m, geometry.kernel_frame(),
                     ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), occ, False)
     return occ
+
+
+def zbuffer_occlusion_affine(geometry: FrameGeometry, zbuffer: ZBuffer, tile: OrthoGrid, heights_m: np.ndarray, *,
+                             out: np.ndarray, near_share: np.ndarray | None = None) -> np.ndarray:
+    """``zbuffer_occlusion`` of a tile in the project CRS (ground X, Y affine in its rows and columns), vectorised:
+    where the maps were made at other heights than the occlusion test's surface (``--occlusion-dsm``), so that the
+    test cannot read them (``zbuffer_occlusion_from_maps``). ``near_share``: as ``zbuffer_occlusion_from_maps``."""
+    from ortho.rectify_kernels import _zbuffer_test_affine
+
+    out[...] = False
+    near = np.empty(heights_m.shape, np.float32) if near_share is None else near_share
+    _zbuffer_test_affine(_affine_tile(heights_m, tile), geometry.kernel_frame(),
+                         ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), out, near)
+    return out
 
 
 def zbuffer_occlusion_from_maps(geometry: FrameGeometry, zbuffer: ZBuffer, tile: OrthoGrid, map_int: np.ndarray,
@@ -721,9 +738,15 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             # the z-buffer is fast but coarse (where a wall spans few DSM cells it puts visible points behind the
             # roof edge above them): the points it puts behind a nearer surface are decided by the march
             occ_out = local.occluded[:tile.height * tile.width].reshape(tile.height, tile.width)
-            near = local.near_share[:tile.height * tile.width].reshape(tile.height, tile.width) if maps_at_dsm else None
-            behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, out=occ_out, near_share=near) \
-                if maps_at_dsm else zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
+            near = local.near_share[:tile.height * tile.width].reshape(tile.height, tile.width) \
+                if to_project.identity else None
+            if maps_at_dsm:
+                behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, out=occ_out,
+                                                     near_share=near)
+            elif to_project.identity:
+                behind = zbuffer_occlusion_affine(geometry, zbuffer, tile, z, out=occ_out, near_share=near)
+            else:
+                behind = zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
             if behind.any():
                 occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind, bound=bound,
                                           near_share=near, occluder=occluder)

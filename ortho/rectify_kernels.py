@@ -365,6 +365,15 @@ def _slab_walk(top, ray, span, walls, i, j, m, with_walls):
     return False
 
 
+@numba.njit(cache=True, inline="always")
+def _log2_exact(n):
+    """k where n == 2 ** k (n >= 1), else -1."""
+    k = 0
+    while (1 << k) < n:
+        k += 1
+    return k if (1 << k) == n else -1
+
+
 @numba.njit(cache=True, nogil=True)
 def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
     """Mark ground points whose ray to the projection centre passes below the DSM surface (``HeightGrid``
@@ -407,6 +416,9 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
     dh, dw = dsm.shape
     inv_s = 1.0 / anchors.spacing_px
     inv_res = 1.0 / dsm_res
+    block_shift = _log2_exact(block)
+    coarse_shift = _log2_exact(coarse)
+    pow2 = block_shift >= 0 and coarse_shift >= 0
     for r in range(rows):
         ar = r * inv_s
         i0 = min(int(ar), anchor_x.shape[0] - 2)
@@ -459,6 +471,12 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
                     i = int(math.floor(gy + ey * s))
                     if i < 0 or j < 0 or i >= dh or j >= dw or (i == i_own and j == j_own):
                         continue
+                    # a solid column stops the ray only where its top is above the ray where it enters the cell, at
+                    # most sqrt(2) cells before s: a top below the ray 1.5 cells before s cannot (the same answer as
+                    # ``_cell_blocks``, without the cell's boundaries)
+                    if (not footprinted or base_m[i, j] == -np.inf) and \
+                            not dsm[i, j] > Z + rise * max(s - 1.5, 0.0) + tolerance_m:
+                        continue
                     # the walk tests the cell where the ray enters it (its lowest there)
                     s_in = max(_boundary_in(gx, ex, j), _boundary_in(gy, ey, i), 0.0)
                     s_out = min(_next_boundary(gx, ex, j), _next_boundary(gy, ey, i))
@@ -485,11 +503,14 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
                 if zr > dsm_max or i < 0 or j < 0 or i >= dh or j >= dw:
                     break
                 b = coarse
-                if coarse_max[i // coarse, j // coarse] > zr + tolerance_m:
-                    b = block if block_max[i // block, j // block] <= zr + tolerance_m else 0
+                # (i, j >= 0 here: with blocks of powers of two the block index is a shift, not a 64-bit division)
+                if (coarse_max[i >> coarse_shift, j >> coarse_shift] if pow2
+                        else coarse_max[i // coarse, j // coarse]) > zr + tolerance_m:
+                    b = block if (block_max[i >> block_shift, j >> block_shift] if pow2
+                                  else block_max[i // block, j // block]) <= zr + tolerance_m else 0
                 if b > 0:  # the ray passes above the block: on from the cell it enters when it leaves the block
-                    bi0 = (i // b) * b
-                    bj0 = (j // b) * b
+                    bi0 = (i & -b) if pow2 else (i // b) * b
+                    bj0 = (j & -b) if pow2 else (j // b) * b
                     ox = (bj0 + (b if ex > 0 else 0) - gx) / ex if abs(ex) > 1e-12 else 1e30
                     oy = (bi0 + (b if ey > 0 else 0) - gy) / ey if abs(ey) > 1e-12 else 1e30
                     if ox < oy:
@@ -706,6 +727,54 @@ def _zbuffer_scatter_affine(tile, frame, zbuffer):
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _zbuffer_test_affine(tile, frame, zbuffer, occluded, near_share):
+    """The test pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (``AffineTile`` ``tile``: ground
+    X, Y affine in (row, col), the points at ``tile.heights_m``) where the tile's maps were made at other heights (the
+    occlusion test on its own DSM): the projection branch-free and vectorised into row arrays as in
+    ``_zbuffer_scatter_affine``, then the cell test of ``_zbuffer_kernel`` (the same points tested, the same cells: the
+    positions differ from the anchors' interpolation in the last bits only). ``occluded`` set, never cleared; and
+    there ``near_share`` as ``_zbuffer_test_maps`` (where the march looks first)."""
+    heights, x0, y0, res = tile
+    centre, M, cam, fold_r2, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2, frame.inv_radius
+    width, height = frame.width_px, frame.height_px
+    zbuf, cell_px, tolerance_m = zbuffer
+    rows, cols = heights.shape
+    zh, zw = zbuf.shape
+    inv_cell = 1.0 / cell_px
+    m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
+    sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
+    cell_i = np.empty(cols, np.int32)
+    cell_j = np.empty(cols, np.int32)
+    zcs = np.empty(cols, np.float64)
+    oks = np.empty(cols, np.bool_)
+    for r in range(rows):
+        dx0 = x0 - centre[0]
+        dy = y0 - r * res - centre[1]
+        bx = M[0, 1] * dy + M[0, 0] * dx0
+        by = M[1, 1] * dy + M[1, 0] * dx0
+        bz = M[2, 1] * dy + M[2, 0] * dx0
+        z_row = heights[r]
+        for c in range(cols):
+            dz = earth_dz(dx0 + c * res, dy, np.float64(z_row[c]) - centre[2], inv_r)
+            zc = bz + c * sz + m22 * dz
+            inv_zc = 1.0 / zc
+            xn = (bx + c * sx + m02 * dz) * inv_zc
+            yn = (by + c * sy + m12 * dz) * inv_zc
+            x, y = to_pixel(cam, xn, yn)
+            ok = (zc > 0.0) & (xn * xn + yn * yn <= fold_r2) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
+            oks[c] = ok
+            # (a select, not a branch: the loop stays vectorised; NaN or far positions never reach the conversion)
+            cell_i[c] = min(np.int32((y if ok else 0.0) * inv_cell), zh - 1)
+            cell_j[c] = min(np.int32((x if ok else 0.0) * inv_cell), zw - 1)
+            zcs[c] = zc
+        occ_row, near_row = occluded[r], near_share[r]
+        for c in range(cols):
+            if oks[c] and zcs[c] > zbuf[cell_i[c], cell_j[c]] + tolerance_m:
+                occ_row[c] = True
+                near_row[c] = zbuf[cell_i[c], cell_j[c]] / zcs[c]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _zbuffer_test_maps(imaged, tile, frame, zbuffer, occluded, near_share):
     """The test pass of ``_zbuffer_kernel`` reusing the tile's cv2.remap maps (``imaged``: the integer map and the
     mask of ``RemapMaps``, the image position of every imaged pixel of ``AffineTile`` ``tile`` at the same heights,
@@ -740,25 +809,52 @@ def _zbuffer_test_maps(imaged, tile, frame, zbuffer, occluded, near_share):
                 near_row[c] = zbuf[i, j] / zc
 
 
-@numba.njit(cache=True)
-def _block_max(dsm, block):
+@numba.njit(cache=True, nogil=True)
+def _block_max(dsm, block, slab_top=None, raise_m=np.float32(0.0)):
     """Highest DSM height over blocks of ``block`` x ``block`` cells and the row and column after them (the
-    cells a bilinear sample in the block reads), NaN left out (-inf where all are NaN): the march's bound."""
+    cells a bilinear sample in the block reads), NaN left out (-inf where all are NaN): the march's bound. With
+    ``slab_top`` (same shape, float32) each cell's height is the higher of its DSM height and its slab top +
+    ``raise_m`` (float32, as ``np.fmax``). Also returns the highest height of all (NaN where every cell is NaN).
+    Row by row, each row's maximum per block of columns, so that no cell is read more than twice."""
     dh, dw = dsm.shape
     bh = (dh + block - 1) // block
     bw = (dw + block - 1) // block
     out = np.full((bh, bw), -np.inf, np.float32)
+    row_max = np.empty(bw, np.float32)
+    seen = False
     for i in range(dh):
-        for j in range(dw):
-            v = dsm[i, j]
-            if v != v:
-                continue
-            bi = i // block
-            bj = j // block
-            # cell (i, j) is read by samples in its own block and, on the block's first row/column, by the
-            # block before it
-            for ii in range(max(bi - (1 if i % block == 0 else 0), 0), bi + 1):
-                for jj in range(max(bj - (1 if j % block == 0 else 0), 0), bj + 1):
-                    if v > out[ii, jj]:
-                        out[ii, jj] = v
+        for bj in range(bw):
+            m = -np.inf
+            for j in range(bj * block, min(bj * block + block + 1, dw)):
+                v = dsm[i, j]
+                if slab_top is not None:
+                    t = slab_top[i, j] + raise_m
+                    if v != v or t > v:
+                        v = t
+                if v > m:
+                    m = v
+                elif v == v:
+                    seen = True
+            if m > -np.inf:
+                seen = True
+            row_max[bj] = m
+        bi = i // block
+        # row i is read by samples in its own block and, on the block's first row, by the block before it
+        for ii in range(max(bi - (1 if i % block == 0 else 0), 0), bi + 1):
+            for bj in range(bw):
+                if row_max[bj] > out[ii, bj]:
+                    out[ii, bj] = row_max[bj]
+    return out, seen
+
+
+@numba.njit(cache=True, nogil=True)
+def _coarser_max(fine, ratio):
+    """``_block_max`` by blocks ``ratio`` times as large from the one by the fine blocks (the union of the fine blocks'
+    cells, each with its row and column after, is the coarse block's with its own): the same maxima."""
+    fh, fw = fine.shape
+    out = np.full(((fh + ratio - 1) // ratio, (fw + ratio - 1) // ratio), -np.inf, np.float32)
+    for i in range(fh):
+        for j in range(fw):
+            if fine[i, j] > out[i // ratio, j // ratio]:
+                out[i // ratio, j // ratio] = fine[i, j]
     return out
