@@ -3,6 +3,7 @@ the chain's work/classify_resume): a re-run computes only the rest and writes th
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import os
 import shutil
@@ -10,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,20 +42,15 @@ def _tree(folder) -> dict:
     return {f.name: f.read_bytes() for f in sorted(folder.iterdir())}
 
 
+_spec = importlib.util.spec_from_file_location("tile_faults", Path(__file__).with_name("tile_faults.py"))
+tile_faults = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(tile_faults)
 _CLASSIFY_TILE = tiles._classify_tile
 
 
-class _Tiles:
+def _Tiles(at=None, exc=KeyboardInterrupt):
     """``tiles._classify_tile`` counting the tiles it classifies; raises ``exc`` at the ``at``-th."""
-
-    def __init__(self, at=None, exc=KeyboardInterrupt):
-        self.at, self.exc, self.done = at, exc, 0
-
-    def __call__(self, task):
-        if self.done + 1 == self.at:
-            raise self.exc("broken on purpose") if self.exc is InputError else self.exc
-        self.done += 1
-        return _CLASSIFY_TILE(task)
+    return tile_faults.Tiles(_CLASSIFY_TILE, at, exc)
 
 
 def _classify(paths, root, resume=True):
@@ -258,30 +255,7 @@ def test_lidarctl_classify_changed_setting_or_no_resume_starts_over(strips, cli_
     count = _Tiles()
     monkeypatch.setattr(tiles, "_classify_tile", count)
     r = _cli(strips, out, "--no-resume")
-    assert r.exit_code == 0, r.output
-    assert f"{keep}: what an interrupted run kept there removed (--no-resume)" in r.stderr
-    assert "resumed" not in r.stderr and count.done == 4
-    assert _tree(out) == cli_reference and not keep.exists()
-
-
-KILLED_CLI = """
-import os
-import signal
-import sys
-from click.testing import CliRunner
-from lidarctl import tiles
-from lidarctl.cli.main import main
-classify, done = tiles._classify_tile, []
-
-def killed_at_third(task):  # a fault-injection hook: SIGKILL as the third tile starts
-    if len(done) == 2:
-        os.kill(os.getpid(), signal.SIGKILL)
-    done.append(task)
-    return classify(task)
-
-tiles._classify_tile = killed_at_third
-CliRunner().invoke(main, sys.argv[1:])
-"""
+    tile_faults.check_started_over(r, count, 4, keep, _tree(out), cli_reference)
 
 
 def test_lidarctl_classify_sigkill_then_resume(strips, cli_reference, tmp_path):
@@ -291,8 +265,7 @@ def test_lidarctl_classify_sigkill_then_resume(strips, cli_reference, tmp_path):
 
     out, keep = tmp_path / "classified", tmp_path / "classified.resume"
     args = ["classify", *map(str, strips), str(out), *CLI_TILING]
-    proc = subprocess.run([sys.executable, "-c", KILLED_CLI, *args], timeout=300)
-    assert proc.returncode == -signal.SIGKILL
+    assert tile_faults.killed_at("lidarctl.tiles", "_classify_tile", 3, args) == -signal.SIGKILL
     assert not out.exists() and len(list(keep.glob("*.json"))) == 2
     assert [p for p in tmp_path.iterdir() if ".part-" in p.name]  # the killed run's temporaries, swept next
 

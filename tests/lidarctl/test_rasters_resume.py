@@ -3,11 +3,10 @@
 
 from __future__ import annotations
 
+import importlib.util
 import signal
-import subprocess
-import sys
+from pathlib import Path
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -49,20 +48,15 @@ def reference(strips, tmp_path_factory):
     return _tree(out)
 
 
+_spec = importlib.util.spec_from_file_location("tile_faults", Path(__file__).with_name("tile_faults.py"))
+tile_faults = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(tile_faults)
 _TILE_GRIDS = products._tile_grids
 
 
-class _Tiles:
+def _Tiles(at=None, exc=KeyboardInterrupt):
     """``products._tile_grids`` counting the tiles it computes; raises ``exc`` at the ``at``-th."""
-
-    def __init__(self, at=None, exc=KeyboardInterrupt):
-        self.at, self.exc, self.done = at, exc, 0
-
-    def __call__(self, *args, **kwargs):
-        if self.done + 1 == self.at:
-            raise self.exc("broken on purpose") if self.exc is InputError else self.exc
-        self.done += 1
-        return _TILE_GRIDS(*args, **kwargs)
+    return tile_faults.Tiles(_TILE_GRIDS, at, exc)
 
 
 @pytest.fixture
@@ -113,31 +107,7 @@ def test_rasters_changed_setting_resumes_nothing_and_an_error_removes_the_kept(s
     count = _Tiles()
     monkeypatch.setattr(products, "_tile_grids", count)
     r = _rasters(strips, out, "--no-resume")
-    assert r.exit_code == 0, r.output
-    assert f"{keep}: what an interrupted run kept there removed (--no-resume)" in r.stderr
-    assert "resumed" not in r.stderr and count.done == 16
-    assert _tree(out) == reference and not keep.exists()
-
-
-KILLED = """
-import os
-import signal
-import sys
-from click.testing import CliRunner
-from lidarctl.cli.main import main
-from lidarctl.rasters import products
-compute, done = products._tile_grids, []
-
-def killed_at_third(*args, **kwargs):  # a fault-injection hook: SIGKILL as the third tile starts
-    if len(done) == 2:
-        os.kill(os.getpid(), signal.SIGKILL)
-    done.append(1)
-    return compute(*args, **kwargs)
-
-products._tile_grids = killed_at_third
-products._tile_threads = lambda cells: 1
-CliRunner().invoke(main, sys.argv[1:])
-"""
+    tile_faults.check_started_over(r, count, 16, keep, _tree(out), reference)
 
 
 def test_rasters_sigkill_then_resume(strips, reference, tmp_path, monkeypatch):
@@ -145,8 +115,9 @@ def test_rasters_sigkill_then_resume(strips, reference, tmp_path, monkeypatch):
     run sweeps the killed run's temporaries, takes the two and writes the uninterrupted run's bytes."""
     out, keep = tmp_path / "r", tmp_path / "r.resume"
     args = ["rasters", *map(str, strips), str(out), *TILING]
-    proc = subprocess.run([sys.executable, "-c", KILLED, *args], timeout=300)
-    assert proc.returncode == -signal.SIGKILL and _kept(keep) == 2
+    code = tile_faults.killed_at("lidarctl.rasters.products", "_tile_grids", 3, args,
+                                 setup="module._tile_threads = lambda cells: 1  # one tile at a time")
+    assert code == -signal.SIGKILL and _kept(keep) == 2
     assert [p.name for p in out.iterdir() if ".part-" not in p.name] == []  # no raster, only the temporaries
 
     count = _Tiles()
