@@ -3,7 +3,7 @@ the chain's work/classify_resume): a re-run computes only the rest and writes th
 
 from __future__ import annotations
 
-import importlib.util
+import functools
 import logging
 import os
 import shutil
@@ -11,10 +11,10 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+import tile_faults  # tests/lidarctl/tile_faults.py, through tests/lidarctl/conftest.py
 
 from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor
@@ -42,15 +42,8 @@ def _tree(folder) -> dict:
     return {f.name: f.read_bytes() for f in sorted(folder.iterdir())}
 
 
-_spec = importlib.util.spec_from_file_location("tile_faults", Path(__file__).with_name("tile_faults.py"))
-tile_faults = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(tile_faults)
-_CLASSIFY_TILE = tiles._classify_tile
-
-
-def _Tiles(at=None, exc=KeyboardInterrupt):
-    """``tiles._classify_tile`` counting the tiles it classifies; raises ``exc`` at the ``at``-th."""
-    return tile_faults.Tiles(_CLASSIFY_TILE, at, exc)
+# ``tiles._classify_tile`` counting the tiles it computes, raising KeyboardInterrupt (or ``exc``) at the ``at``-th
+_Tiles = functools.partial(tile_faults.Tiles, tiles._classify_tile)
 
 
 def _classify(paths, root, resume=True):

@@ -3,11 +3,11 @@
 
 from __future__ import annotations
 
-import importlib.util
+import functools
 import signal
-from pathlib import Path
 
 import pytest
+import tile_faults  # tests/lidarctl/tile_faults.py, through tests/lidarctl/conftest.py
 from click.testing import CliRunner
 
 from aerotri.core.errors import InputError
@@ -48,15 +48,8 @@ def reference(strips, tmp_path_factory):
     return _tree(out)
 
 
-_spec = importlib.util.spec_from_file_location("tile_faults", Path(__file__).with_name("tile_faults.py"))
-tile_faults = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(tile_faults)
-_TILE_GRIDS = products._tile_grids
-
-
-def _Tiles(at=None, exc=KeyboardInterrupt):
-    """``products._tile_grids`` counting the tiles it computes; raises ``exc`` at the ``at``-th."""
-    return tile_faults.Tiles(_TILE_GRIDS, at, exc)
+# ``products._tile_grids`` counting the tiles it computes, raising KeyboardInterrupt (or ``exc``) at the ``at``-th
+_Tiles = functools.partial(tile_faults.Tiles, products._tile_grids)
 
 
 @pytest.fixture
