@@ -272,3 +272,23 @@ def test_lidarctl_classify_sigkill_then_resume(strips, cli_reference, tmp_path):
     assert "tiles: resumed 2 of 4 tiles an interrupted run finished" in r.stderr and count.done == 2
     assert _tree(out) == cli_reference
     assert sorted(p.name for p in tmp_path.rglob("*") if p.parent == tmp_path) == ["classified"]
+
+
+def test_lidarctl_classify_one_file_resumes_beside_it(strips, tmp_path, monkeypatch):
+    """One file into OUT.laz: the tiles are kept in OUT.laz.resume; the resumed run writes the bytes of one
+    uninterrupted run."""
+    tiling = ["--tile-size-m", "60", "--buffer-m", "30"]  # over CLI_TILING's (the last value wins)
+    r = _cli(strips[:1], tmp_path / "ref.laz", *tiling)
+    assert r.exit_code == 0, r.output
+    out, keep = tmp_path / "out.laz", tmp_path / "out.laz.resume"
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    assert _cli(strips[:1], out, *tiling).exit_code == 130
+    assert not out.exists() and len(list(keep.glob("*.json"))) == 2
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    r = _cli(strips[:1], out, *tiling)
+    assert r.exit_code == 0, r.output
+    n = count.done + 2
+    assert n >= 4 and f"tiles: resumed 2 of {n} tiles an interrupted run finished ({keep})" in r.stderr
+    assert out.read_bytes() == (tmp_path / "ref.laz").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.laz", "ref.laz"]
