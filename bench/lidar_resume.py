@@ -18,7 +18,7 @@ has 2 classify tiles and 4 raster tiles at the defaults; ``--classify-tile-size-
 Usage (nice -n 10 on a shared machine; the children inherit it):
   python bench/lidar_resume.py --project DEMO --work SCRATCH [--repeats 2] [--key demo]
        [--commands classify,rasters] [--classify-kill-after 1] [--rasters-kill-after 2]
-       [--classify-tile-size-m M] [--tile-px N]
+       [--classify-tile-size-m M] [--tile-px N] [--keeping-only]
 """
 
 from __future__ import annotations
@@ -84,7 +84,8 @@ def _run(mode: str, args: list[str], log: Path, kill_after: int = 0) -> dict:
             "load_avg": [round(x, 2) for x in os.getloadavg()]}
 
 
-def bench_command(name: str, args: list[str], out: Path, kill_after: int, repeats: int, logs: Path) -> dict:
+def bench_command(name: str, args: list[str], out: Path, kill_after: int, repeats: int, logs: Path,
+                  keeping_only: bool = False) -> dict:
     keep = out.with_name(out.name + ".resume")
     rows, want = [], None
     for k in range(repeats):
@@ -96,6 +97,12 @@ def bench_command(name: str, args: list[str], out: Path, kill_after: int, repeat
         no_keep = _run("NO_KEEP", args, logs / f"{name}_nokeep.log")
         assert no_keep["exit"] == 0, (logs / f"{name}_nokeep.log").read_text()
         no_keep["outputs_identical"] = _hashes(out) == want
+        if keeping_only:
+            rows.append({"uninterrupted": whole, "uninterrupted_without_keeping": no_keep,
+                         "keeping_cpu_s": round(whole["cpu_s"] - no_keep["cpu_s"], 2)})
+            print(f"{name} #{k + 1}: uninterrupted {whole['cpu_s']} CPU-s, without keeping {no_keep['cpu_s']}",
+                  flush=True)
+            continue
         shutil.rmtree(out)
         killed = _run("KILL", args, logs / f"{name}_killed.log", kill_after)
         killed.update(kept=len(list(keep.glob("*.json" if name == "classify" else "*.npy"))) if keep.is_dir() else 0,
@@ -112,9 +119,11 @@ def bench_command(name: str, args: list[str], out: Path, kill_after: int, repeat
               f"{no_keep['cpu_s']}); killed with {killed['kept']} kept at {killed['cpu_s']} CPU-s; re-run "
               f"{again['cpu_s']} CPU-s {again['wall_s']} s ({row['rerun_cpu_share_of_uninterrupted']}), identical "
               f"{again['outputs_identical']}, {again['resumed']}", flush=True)
-    best = {k: min(r[k]["cpu_s"] for r in rows) for k in ("uninterrupted", "uninterrupted_without_keeping", "rerun")}
-    return {"args": args, "kill_after_tiles": kill_after, "runs": rows, "best_cpu_s": best,
-            "best_rerun_cpu_share": round(best["rerun"] / best["uninterrupted"], 3), "sha256": want}
+    best = {k: min(r[k]["cpu_s"] for r in rows) for k in ("uninterrupted", "uninterrupted_without_keeping", "rerun")
+            if k in rows[0]}
+    return {"args": args, "kill_after_tiles": None if keeping_only else kill_after, "runs": rows, "best_cpu_s": best,
+            "best_rerun_cpu_share": round(best["rerun"] / best["uninterrupted"], 3) if "rerun" in best else None,
+            "sha256": want}
 
 
 def main(argv=None) -> int:
@@ -128,6 +137,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rasters-kill-after", type=int, default=2)
     ap.add_argument("--classify-tile-size-m", type=float, default=None)
     ap.add_argument("--tile-px", type=int, default=None, help="lidarctl rasters --tile-px")
+    ap.add_argument("--keeping-only", action="store_true",
+                    help="only the uninterrupted runs with and without the keeping (its cost), no kill")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "lidar_resume.json")
     a = ap.parse_args(argv)
     work = a.work
@@ -147,7 +158,7 @@ def main(argv=None) -> int:
                     "--crs", "EPSG:32649", "--workers", "1"]
             if a.classify_tile_size_m:
                 args += ["--tile-size-m", str(a.classify_tile_size_m)]
-            result[name] = bench_command(name, args, out, a.classify_kill_after, a.repeats, work)
+            result[name] = bench_command(name, args, out, a.classify_kill_after, a.repeats, work, a.keeping_only)
             chain = _hashes(a.project / "lidar_out" / "classified")
             result[name]["same_as_the_chains_classified_strips"] = chain == result[name]["sha256"]
         else:
@@ -155,7 +166,7 @@ def main(argv=None) -> int:
             args = ["rasters", *map(str, sorted((work / "classified_in").glob("*.laz"))), str(out), "--res-m", "0.5"]
             if a.tile_px:
                 args += ["--tile-px", str(a.tile_px)]
-            result[name] = bench_command(name, args, out, a.rasters_kill_after, a.repeats, work)
+            result[name] = bench_command(name, args, out, a.rasters_kill_after, a.repeats, work, a.keeping_only)
     store_result(a.out, result, key=a.key)
     shutil.rmtree(work)
     return 0
