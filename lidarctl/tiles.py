@@ -44,10 +44,11 @@ with fewer than 10 points (a stray point off the grid) leaves its core points un
 Temporary disk space: about 2.3 x the uncompressed point records (tiles with buffers + the copy),
 in a hidden folder next to the output (or ``work_dir``), removed at the end, also on errors.
 
-Resume (``classify_files(resume_dir=...)``, the chain's ``work/classify_resume``): each tile's two result files
-are hard-linked there as the tile finishes, under a key of everything they depend on (``_tiles_key_doc``), and a
-run after a kill or Ctrl-C takes them back instead of classifying the tile again (pass 1 and 3 run again); the
-folder goes when the set commits or by an error.
+Resume (``classify_files(resume_dir=...)``, ``classify_file``; the chain's ``work/classify_resume``, ``lidarctl
+classify``'s ``OUT.resume`` beside its output): each tile's two result files are hard-linked there as the tile
+finishes, under a key of everything they depend on (``_tiles_key_doc``), and a run after a kill or Ctrl-C takes
+them back instead of classifying the tile again (pass 1 and 3 run again); the folder goes when the set commits or
+by an error.
 
 Tasks take small items (paths and parameters) and exchange data through files, so the same task
 graph runs in local threads, local worker processes or on a Dask cluster with a shared file
@@ -75,7 +76,8 @@ from aerotri.core.atomic import atomic_dir, atomic_path, refuse_input_as_output,
 from aerotri.core.errors import InputError, OptionError, ResourceError
 from aerotri.core.executor import local_executor
 from aerotri.core.log import progress
-from aerotri.core.resume import ResumeFolder, file_stamp, link_or_copy, resumable, resume_key
+from aerotri.core.resume import (ResumeFolder, beside, discard_kept, file_stamp, is_beside, link_or_copy, resumable,
+                                 resume_key)
 from aerotri.geom.crs.definition import parse_crs
 from lidarctl.units import METRE, LengthUnits
 
@@ -545,7 +547,7 @@ class ClassifyStats:
 
 def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: float | None = None,
                   buffer_m: float | None = None, executor=None, work_dir=None,
-                  chunk_points: int = io.CHUNK_POINTS, fusion=None) -> ClassifyStats:
+                  chunk_points: int = io.CHUNK_POINTS, fusion=None, resume_dir=None) -> ClassifyStats:
     """Classify a LAS/LAZ file of any size into ``out_path`` (LAS/LAZ by suffix), tile by tile.
 
     ``crs``: used only when the file has none (never guessed). ``params``: classify.ClassifySettings.
@@ -555,13 +557,24 @@ def classify_file(in_path, out_path, crs=None, params=None, *, tile_size_m: floa
     temporary tile files (default: next to the output); they are removed in any case.
     The output is written atomically: on any error or interrupt no output file is left.
     ``fusion`` (``lidarctl.classify.fusion.Fusion``): fuse each tile's classes with an orthophoto.
+    ``resume_dir``: as in ``classify_files`` (a tiled run only).
     Returns statistics: points, tiles, buffer overhead, seconds per pass, class counts.
     """
     in_path, out_path = Path(in_path), Path(out_path)
     refuse_input_as_output(out_path, [in_path], "OUT_PATH")
-    return _classify([in_path], [out_path], crs, params, tile_size_m=tile_size_m, buffer_m=buffer_m,
-                     executor=executor, work_parent=Path(work_dir) if work_dir is not None else out_path.parent,
-                     tiles_name=out_path.stem, chunk_points=chunk_points, fusion=fusion)
+    with _resumable(resume_dir, out_path) as keep:
+        return _classify([in_path], [out_path], crs, params, tile_size_m=tile_size_m, buffer_m=buffer_m,
+                         executor=executor, work_parent=Path(work_dir) if work_dir is not None else out_path.parent,
+                         tiles_name=out_path.stem, chunk_points=chunk_points, fusion=fusion, resume=keep)
+
+
+def _resumable(resume_dir, out_path):
+    """``aerotri.core.resume.resumable`` over ``resume_dir`` (None: no resume). An error leaves no output of any
+    kind, the tiles kept for a resumed run included; an interrupt or a kill keeps them. The chain's work/ goes when
+    an error leaves it empty; the folder that holds ``out_path`` and its ``resume.beside`` folder is the user's."""
+    if resume_dir is None:
+        return contextlib.nullcontext()
+    return resumable(resume_dir, remove_empty_parent=not is_beside(resume_dir, out_path))
 
 
 def classified_names(in_paths, suffix: str | None = None) -> list[str]:
@@ -611,10 +624,7 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
     project_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else None
     check_strips(in_paths, [las.read_header(q) for q in in_paths], project_crs)
     parent = Path(work_dir) if work_dir is not None else out_dir.parent
-    # an error leaves no output of any kind, the tiles kept for a resumed run included; an interrupt or a kill
-    # keeps them (aerotri.core.resume)
-    with resumable(resume_dir) if resume_dir is not None else contextlib.nullcontext() as keep, \
-            atomic_dir(out_dir) as tmp:
+    with _resumable(resume_dir, out_dir) as keep, atomic_dir(out_dir) as tmp:
         return _classify(in_paths, [tmp / name for name in names], crs, params, tile_size_m=tile_size_m,
                          buffer_m=buffer_m, executor=executor, work_parent=parent, tiles_name=out_dir.name,
                          chunk_points=chunk_points, fusion=fusion, resume=keep)
@@ -816,13 +826,14 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
                      *, crs=None, tile_size_m: float | None = None,
                      buffer_m: float | None = None, work_dir=None, out_format: str | None = None, image_path=None,
                      nir=None, ground_params_file=None, ground_options=None, method_given: bool = True,
-                     preset_given: bool = True, scheduler=None, workers=None) -> str:
+                     preset_given: bool = True, scheduler=None, workers=None, resume: bool = True) -> str:
     """``lidarctl classify``: one file (IN_PATH OUT_PATH, a .las/.laz name) or strips into a folder, with the
     ground filter's parameter file and per-parameter options over ``params`` (``ground.resolve_options``:
     ``ground_options`` {(filter, name): value or None}; ``method_given``/``preset_given``: the command line named
     them, so the file's do not count), fused with an orthophoto (``image_path``, ``nir``); ``keep_classes``: the
-    delivered classes, checked. The other settings are ``ClassifySettings``' defaults. Returns the line the command
-    prints."""
+    delivered classes, checked. The other settings are ``ClassifySettings``' defaults. The finished tiles are kept in
+    ``resume.beside(out_path)`` until the output is written, and an interrupted run's are taken from there;
+    ``resume`` False: those are removed first (start over). Returns the line the command prints."""
     from aerotri.core.executor import executor_for
     from lidarctl.classify import pipeline as cl
     from lidarctl.classify import ground
@@ -845,7 +856,11 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
         refuse_input_as_output(out_path, [image_path, None if nir is None or str(nir).isdigit() else nir], "OUT_PATH")
         cloud_crs, units = io.resolve_crs_units(in_paths[0], las.read_header(in_paths[0]), crs)
         fusion = fu.Fusion(fu.open_image(image_path, nir, cloud_crs, units.xy_m))
-    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir, fusion=fusion)
+    resume_dir = beside(out_path)
+    if not resume:
+        discard_kept(resume_dir)
+    common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir, fusion=fusion,
+                  resume_dir=resume_dir)
     with executor_for(scheduler, workers) as executor:
         if to_folder:
             stats = classify_files(in_paths, out_path, executor=executor,

@@ -463,13 +463,15 @@ def test_kill_and_rerun(wr, workspace, forkserver, tmp_path, linked_copy):
     changed = differences(before, snapshot(w))
     # what the killed run finished, kept on purpose for the next run to resume (ortho.block.RESUME_DIR_NAME,
     # aerotri.match.pipeline.RESUME_DIR_NAME, aerotri.control.pipeline.CONTROL_RESUME_DIR_NAME,
-    # ortho.mosaic.RESUME_DIR_NAME, aerotri.chain.stages.CLASSIFY_RESUME_DIR_NAME; an error removes them, a committed
-    # run too)
+    # ortho.mosaic.RESUME_DIR_NAME, aerotri.chain.stages.CLASSIFY_RESUME_DIR_NAME, RASTERS_RESUME_DIR_NAME; lidarctl
+    # classify's and rasters' OUT.resume beside the output; an error removes them, a committed run too)
     resume_of = {"rectify": "p/work/rectify_resume/", "match": "p/work/match_resume/",
                  "control": "p/work/control_resume/", "mosaic": "p/work/mosaic_resume/",
-                 "classify": "p/work/classify_resume/"}
+                 "classify": "o/cls.las.resume/", "rasters": "r.resume/"}
+    chain = ("p/work/rectify_resume/", "p/work/match_resume/", "p/work/control_resume/", "p/work/mosaic_resume/",
+             "p/work/classify_resume/", "p/work/rasters_resume/")
     # `aerotri run` may be killed inside any of its stages: whichever stage it was in keeps its finished part
-    resume = tuple(resume_of.values()) if wr.id == "run" else resume_of.get(wr.id)
+    resume = chain if wr.id == "run" else resume_of.get(wr.id)
     if resume is not None:
         changed = [c for c in changed if not c.startswith(resume)]
     assert not changed, f"not as before the killed run: {changed[:12]}"

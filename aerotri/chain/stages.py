@@ -44,6 +44,7 @@ from aerotri.core.project import Project
 
 _log = logging.getLogger(__name__)
 CLASSIFY_RESUME_DIR_NAME = "classify_resume"  # in work/: the LiDAR tiles a killed or interrupted classify finished
+RASTERS_RESUME_DIR_NAME = "rasters_resume"  # in work/: the raster tiles a killed or interrupted rasters stage finished
 
 def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
@@ -401,7 +402,8 @@ class Chain:
     def run_rasters(self, root) -> R.RastersResult:
         from lidarctl.rasters.products import write_rasters
 
-        write_rasters(self.classified(), self.lo, self.options.rasters.res_m, crs=self.project.crs)
+        write_rasters(self.classified(), self.lo, self.options.rasters.res_m, crs=self.project.crs,
+                      resume_dir=self.project.work_dir / RASTERS_RESUME_DIR_NAME)
         return R.RastersResult(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:

@@ -7,6 +7,9 @@ each task links what it finished into ``folder`` under a key of everything the f
 (``keep.take``) instead of computing it. The folder goes when the block ends normally (committed: nothing to
 resume) or by an error (bad input, a bad frame: no output of any kind is left); only an interrupt (Ctrl-C,
 SIGTERM, which end a command as Ctrl-C does) or a kill leaves it.
+
+Outside a project (``lidarctl classify``, ``lidarctl rasters``) the folder is ``beside(OUTPUT)``: ``OUTPUT.resume``
+next to the command's output file or folder.
 """
 
 from __future__ import annotations
@@ -15,11 +18,27 @@ import contextlib
 import dataclasses
 import hashlib
 import json
+import logging
 import os
 import shutil
 from pathlib import Path
 
 from aerotri.core.atomic import TEMP_MARKER, atomic_path
+
+logger = logging.getLogger(__name__)
+RESUME_SUFFIX = ".resume"
+
+
+def beside(output) -> Path:
+    """The resume folder of a command's output file or folder outside a project: ``OUTPUT.resume`` next to it
+    (the output's own lock covers it: a second command on the same output is refused)."""
+    out = Path(os.path.abspath(output))
+    return out.with_name(out.name + RESUME_SUFFIX)
+
+
+def is_beside(folder, output) -> bool:
+    """Whether ``folder`` is ``beside(output)`` (its parent is then the user's folder, not a project's work/)."""
+    return Path(os.path.abspath(folder)) == beside(output)
 
 
 def resume_key(doc) -> str:
@@ -39,6 +58,14 @@ def link_or_copy(src, dst) -> None:
         os.link(src, dst)
     except OSError:
         shutil.copy2(src, dst)
+
+
+def discard_kept(folder) -> None:
+    """Start over (``--no-resume``): remove what an interrupted run kept in ``folder``, saying so."""
+    folder = Path(folder)
+    if folder.is_dir():
+        shutil.rmtree(folder)
+        logger.info(f"{folder}: what an interrupted run kept there removed (--no-resume)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,14 +116,15 @@ class ResumeFolder:
 
 
 @contextlib.contextmanager
-def resumable(folder):
+def resumable(folder, *, remove_empty_parent: bool = True):
     """A ``ResumeFolder`` for a stage's block (module docstring): removed when the block ends normally or by an
-    error (an ``Exception``), kept when it is interrupted (KeyboardInterrupt, SystemExit) or killed. After an error
-    the parent folder (``work``) goes too when it is left empty and held nothing else before (made by this block or
-    by the interrupted run for the kept files)."""
+    error (an ``Exception``), kept when it is interrupted (KeyboardInterrupt, SystemExit) or killed (an interrupt
+    says where). After an error the parent folder (``work``) goes too when it is left empty and held nothing else
+    before (made by this block or by the interrupted run for the kept files), unless ``remove_empty_parent`` is
+    False (a user's output folder)."""
     folder = Path(folder)
     try:
-        parent_existed = any(e.name != folder.name for e in os.scandir(folder.parent))
+        parent_existed = not remove_empty_parent or any(e.name != folder.name for e in os.scandir(folder.parent))
     except OSError:
         parent_existed = False
     try:
@@ -106,5 +134,10 @@ def resumable(folder):
         if not parent_existed:
             with contextlib.suppress(OSError):
                 folder.parent.rmdir()  # only when empty
+        raise
+    except BaseException:
+        if folder.is_dir():
+            logger.info(f"{folder}: what this run finished is kept there; the next run of the same inputs and "
+                        "settings resumes it")
         raise
     shutil.rmtree(folder, ignore_errors=True)

@@ -103,10 +103,15 @@ def ground_filter_options(f):
 @click.option("--nir", default=None,
               help="--image: the near-infrared band number of the orthophoto (e.g. 4) or a one-band file on its "
                    "grid; greenness is then NDVI, else excess green.")
+@click.option("--resume/--no-resume", default=True, show_default=True,
+              help="Keep each finished tile in OUT.resume/ next to the output until the output is written, and take "
+                   "back the tiles a killed or interrupted run of the same inputs and settings kept there (the folder "
+                   "goes when the run ends or fails); --no-resume: start over (what an interrupted run kept is removed "
+                   "first; this run's tiles are kept as usual).")
 @scheduler_options
 @ground_filter_options
 def classify(*, in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_format, image_path, nir, scheduler,
-             workers, ground_params_file, **options):
+             workers, ground_params_file, resume, **options):
     """Noise, ground, buildings, vegetation and water as ASPRS classes (LAS/LAZ in, LAS/LAZ out).
 
     One file: IN_PATH OUT_PATH (a .las/.laz file). Strips of a block: STRIP... OUT_DIR; they are
@@ -117,7 +122,8 @@ def classify(*, in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_fo
     Large clouds are cut into tiles with overlap buffers, classified as parallel tasks and written
     back in file order (memory bounded by the tile size, not the file or block size; lidarctl.tiles).
     A cloud in feet is classified in metres; the output is the input with new classes (same CRS and
-    units).
+    units). A run after a kill, Ctrl-C or SIGTERM classifies only the tiles the interrupted run did not
+    finish (--resume).
     """
     from aerotri.core.settings import option_given
     from lidarctl.tiles import classify_command
@@ -129,7 +135,7 @@ def classify(*, in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_fo
         tile_size_m=tile_size_m,
         buffer_m=buffer_m, work_dir=work_dir, out_format=out_format, image_path=image_path, nir=nir,
         ground_params_file=ground_params_file, ground_options=ground, method_given=option_given(ctx, "ground_method"),
-        preset_given=option_given(ctx, "preset"), scheduler=scheduler, workers=workers))
+        preset_given=option_given(ctx, "preset"), scheduler=scheduler, workers=workers, resume=resume))
 
 
 @main.command()
@@ -149,15 +155,22 @@ def classify(*, in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_fo
               help="DEM cells without ground are interpolated in the TIN of the ground around them where the "
                    "triangle's circumradius is at most this many cells (buildings, sparse ground under canopy); "
                    "wider gaps get a smooth pyramid fill. 0: pyramid fill only.")
-def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px):
+@click.option("--resume/--no-resume", default=True, show_default=True,
+              help="Keep each finished tile's grids in OUTDIR.resume/ next to OUTDIR until the rasters are written "
+                   "(28 bytes a cell, uncompressed), and take back the tiles a killed or interrupted run of the same "
+                   "inputs and settings kept there (the folder goes when the run ends or fails); --no-resume: start "
+                   "over (what an interrupted run kept is removed first; this run's tiles are kept as usual).")
+def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius_px, resume):
     """dem/dsm/ndsm/chm/intensity/dsm_nearest COGs and hillshade.png from classified LAS/LAZ file(s) (one or more
     strips in one CRS) into OUTDIR, by tiles read straight from the files (no merged cloud).
 
     The rasters are in the files' CRS; heights in its vertical unit (band unit type and tags say
-    which).
+    which). A run after a kill, Ctrl-C or SIGTERM computes only the tiles the interrupted run did not finish
+    (--resume).
     """
     import logging
 
+    from aerotri.core.resume import beside, discard_kept
     from aerotri.geom import las
     from lidarctl import io
     from lidarctl.rasters import products as rs
@@ -167,8 +180,11 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
         logging.getLogger(__name__).info(
             "%s: %s; cells of %g m = %.6g %s, heights in %s", in_paths[0], units.describe(), res_m,
             res_m / units.xy_m, units.xy_name, units.z_name)
+    resume_dir = beside(outdir)
+    if not resume:
+        discard_kept(resume_dir)
     for p in rs.write_rasters(list(in_paths), outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px,
-                              dem_fill_radius_px=dem_fill_radius_px):
+                              dem_fill_radius_px=dem_fill_radius_px, resume_dir=resume_dir):
         click.echo(str(p))
 
 

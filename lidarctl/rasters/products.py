@@ -39,6 +39,7 @@ from scipy import ndimage
 from aerotri.geom import las
 from lidarctl import io
 from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
+from aerotri.core.resume import ResumeFolder, file_stamp, is_beside, resumable, resume_key
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.settings import setting
@@ -756,7 +757,7 @@ def _tile_windows(grid, nrows: int, ncols: int):
 
 def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
                   buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
-                  dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
+                  dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX, resume_dir=None) -> list[Path]:
     """Write all rasters into ``outdir``; other files there (e.g. the classified cloud) stay.
 
     ``cloud``: a PointCloud (x, y, z in metres; its ``crs`` and ``units`` say how to write them; whole
@@ -767,7 +768,8 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
     most this many cells (under buildings, sparse ground under canopy); wider gaps keep the smooth
     pyramid fill. The rasters are in the cloud's CRS and units (see the
     module docstring). Everything is written into a temporary folder first and moved into place only
-    when all files are complete, so an error leaves no partial set behind.
+    when all files are complete, so an error leaves no partial set behind. ``resume_dir``: files only, see
+    ``write_rasters_tiled``.
     """
     check_res(res_m)
     if not isinstance(cloud, PointCloud):
@@ -776,7 +778,8 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
 
         check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
         return write_rasters_tiled(paths, outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px,
-                                   chunk_points=chunk_points, dem_fill_radius_px=dem_fill_radius_px)
+                                   chunk_points=chunk_points, dem_fill_radius_px=dem_fill_radius_px,
+                                   resume_dir=resume_dir)
     crs, units = cloud.crs, cloud.units
     if crs is None:
         raise ValueError("a CRS is needed for the rasters")
@@ -850,7 +853,8 @@ def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
 
 def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
                         buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
-                        footprint_cells: int = 3, dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX) -> list[Path]:
+                        footprint_cells: int = 3, dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
+                        resume_dir=None) -> list[Path]:
     """The rasters of classified LAS/LAZ files (strips in one CRS) by tiles: memory is set by the tile
     size, not by the size of the block.
 
@@ -871,6 +875,13 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
 
     Temporary disk space: 28 bytes per point and buffer copy, plus the uncompressed-size GeoTIFFs
     at worst, in a hidden folder in ``outdir``, removed at the end, also on errors.
+
+    Resume (``resume_dir``: ``lidarctl rasters``' ``OUTDIR.resume`` beside the output folder, the chain's
+    ``work/rasters_resume``): each finished tile's grids (its core, the six rasters and the metric DEM, 28 bytes a
+    cell, uncompressed) are kept there under a key of everything they depend on (``_tiles_key_doc``) until the set
+    is written; a run after a kill or an interrupt writes them into the working rasters instead of computing the
+    tile again (the binning pass, the COGs and the hillshade run again). The folder goes when the set is written or
+    by an error (``aerotri.core.resume``).
     """
     import rasterio
     from rasterio.transform import from_origin as _from_origin
@@ -901,7 +912,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     in_memory = _working_in_memory((len(RASTERS) + 1) * nrows * ncols * 4)
     # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
     # is mostly nodata, but the tiles are still visited and written)
-    check_disk(2.0 * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
+    # (the tiles kept for a resumed run: the grids once more)
+    check_disk((2.0 if resume_dir is None else 3.0) * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
                f"{inputs.names}: rasters over the header bounds, a grid of {nrows:,} x {ncols:,} cells of {res_m:g} m",
                "--res-m", hint="use a coarser --res-m (or are strips far apart?)")
     check_task_count((-(-nrows // tile_px)) * (-(-ncols // tile_px)),
@@ -911,8 +923,10 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     transform_m = _from_origin(x0, y0 + nrows * res_m, res_m, res_m)
     transform = transform_m if units.is_metric else _transform_in_units(transform_m, units)
     tags = _tags(units, res_m)
+    key_doc = _tiles_key_doc(inputs, args, grid, chunk_points=chunk_points, footprint_cells=footprint_cells,
+                             dem_fill_radius_px=dem_fill_radius_px)
 
-    def write(tmp: Path) -> None:
+    def write(tmp: Path, keep: ResumeFolder | None) -> None:
         work = tmp / "work"
         work.mkdir()
         used = _bin_points(inputs, args, grid, work, chunk_points)
@@ -921,7 +935,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
                 gtiffs = _tiles_to_gtiffs(inputs, args, grid, used, work, working, transform=transform, tags=tags,
                                           chunk_points=chunk_points, footprint_cells=footprint_cells,
                                           dem_fill_radius_px=dem_fill_radius_px, threads=threads,
-                                          in_memory=in_memory)
+                                          in_memory=in_memory, resume=None if keep is None else (keep, key_doc))
 
             # Each task closes its working GeoTIFF first: the windows sit in GDAL's block cache (the demo's six
             # working rasters, 181 MB, fit in it) and are written out at the close, so the six closes run two
@@ -940,8 +954,58 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
 
             _run_threads([hillshade_png] + [functools.partial(cog, name) for name in RASTERS])
 
-    with stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice(), _freed_memory_kept(), _older_objects_frozen():
-        return _write_set(outdir, write)
+    # an error leaves no output of any kind, the kept tiles included; an interrupt or a kill keeps them; the folder
+    # that holds OUTDIR and its OUTDIR.resume is the user's, the chain's work/ goes when an error leaves it empty
+    with resumable(resume_dir, remove_empty_parent=not is_beside(resume_dir, outdir)) \
+            if resume_dir is not None else contextlib.nullcontext() as keep, \
+            stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice(), _freed_memory_kept(), _older_objects_frozen():
+        return _write_set(outdir, lambda tmp: write(tmp, keep))
+
+
+def _tiles_key_doc(inputs: _Inputs, args, grid, **settings) -> dict:
+    """What every tile's grids depend on but its place in the grid: the files in order (name, size, modification
+    time), the raster grid and the tiles, the CRS and units, the settings, the toolkit's version (not the threads:
+    the grids do not depend on them)."""
+    import aerotri
+
+    return {"files": [[p.name, file_stamp(p)] for p in inputs.paths], "raster": [float(a) for a in args],
+            "tiles": dataclasses.asdict(grid), "crs": str(inputs.crs), "surface_crs": str(inputs.surface_crs),
+            "units": repr(inputs.units), "settings": settings, "version": aerotri.__version__}
+
+
+# What a kept tile holds (``_keep_tile``): its core's grids of ``_tile_grids`` in this order, one float32 array.
+_KEPT_GRIDS = (*RASTERS, "dem_m")
+
+
+def _keep_tile(keep: ResumeFolder, key: str, grids: dict, work: Path, tid: int) -> None:
+    """Keep a finished tile's grids (``_KEPT_GRIDS``, shape (7, rows, cols)) under ``key``: written into the work
+    folder one grid after the other (no stacked copy), then linked into the resume folder whole."""
+    first = grids[_KEPT_GRIDS[0]]
+    part = work / f"tile_{tid}.kept.npy"
+    with open(part, "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, {"descr": np.dtype(np.float32).str, "fortran_order": False,
+                                                  "shape": (len(_KEPT_GRIDS), *first.shape)})
+        for name in _KEPT_GRIDS:
+            np.asarray(grids[name], np.float32).tofile(fh)
+    keep.keep(part, key, ".npy")
+    part.unlink()
+
+
+def _kept_tile(keep: ResumeFolder, key: str, shape) -> Path | None:
+    """The file of a tile kept whole by an interrupted run (``_keep_tile``) for a core of ``shape``, or None."""
+    f = keep.kept(key, ".npy")
+    if f is None:
+        return None
+    try:
+        a = np.load(f, mmap_mode="r")
+    except (ValueError, OSError):
+        return None
+    return f if a.shape == (len(_KEPT_GRIDS), *shape) and a.dtype == np.float32 else None
+
+
+def _kept_grids(path: Path) -> dict:
+    a = np.load(path)
+    return dict(zip(_KEPT_GRIDS, a))
 
 
 @contextlib.contextmanager
@@ -1064,9 +1128,10 @@ def _run_threads(tasks) -> None:
 
 
 def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, footprint_cells: int,
-                dem_fill_radius_px: float):
+                dem_fill_radius_px: float, keep: tuple[ResumeFolder, str] | None = None):
     """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
-    NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``). Runs in a worker thread."""
+    NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``). Runs in a worker thread.
+    ``keep``: (resume folder, key): the grids are kept there for a resumed run (``_keep_tile``)."""
     import os
 
     res_m, x0, y0 = args[:3]
@@ -1087,6 +1152,8 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
     out["dsm_nearest"] = _tile_nearest(near, near_core, out["dsm"], inputs.units)
+    if keep is not None:
+        _keep_tile(*keep, out, work, tid)
     return out
 
 
@@ -1122,12 +1189,13 @@ def _tile_nearest(near: nearest.NearestReturns, core: tuple[slice, slice], dsm: 
 
 def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
                      tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1,
-                     in_memory: bool = False):
+                     in_memory: bool = False, resume: tuple[ResumeFolder, dict] | None = None):
     """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
     at most one more waiting, largest first), the core written by window into tiled GeoTIFFs
     (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) as each
-    tile is done. Returns the working GeoTIFFs, open (``working`` closes them: the caller closes each when it
-    copies it)."""
+    tile is done. ``resume``: (the resume folder, ``_tiles_key_doc``): the tiles kept there are written from it,
+    the others kept there as they finish. Returns the working GeoTIFFs, open (``working`` closes them: the caller
+    closes each when it copies it)."""
     import collections
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
@@ -1161,20 +1229,36 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
         # thread writes a finished tile.
         todo = collections.deque(sorted((t for t in tiles if used[t[0]]), key=lambda t: -t[1][2] * t[1][3]))
         empty = [t[3] for t in tiles if not used[t[0]]]
+        keys, kept = {}, []
+        if resume is not None:
+            keep, doc = resume
+            keys = {t[0]: resume_key({**doc, "tile": t[0]}) for t in todo}
+            kept = [(t, f) for t in todo if (f := _kept_tile(keep, keys[t[0]], (t[3].height, t[3].width)))]
+            if kept:
+                log.info(f"tiles: resumed {len(kept)} of {len(todo)} tiles an interrupted run finished ({keep.path})")
+                done_ids = {t[0] for t, _ in kept}
+                todo = collections.deque(t for t in todo if t[0] not in done_ids)
+                for t, _ in kept:   # their points are not needed
+                    for name, _ in _BIN_FIELDS:
+                        (work / f"tile_{t[0]}_{name}.bin").unlink(missing_ok=True)
         running = {}
         with progress(grid.n_tiles, "rasters: tiles", "tile") as bar:
             try:
-                while todo or running or empty:
+                while todo or running or empty or kept:
                     while todo and len(running) < threads + 1:
                         tile = todo.popleft()
                         running[pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
-                                            footprint_cells=footprint_cells,
-                                            dem_fill_radius_px=dem_fill_radius_px)] = tile
+                                            footprint_cells=footprint_cells, dem_fill_radius_px=dem_fill_radius_px,
+                                            keep=None if resume is None else (resume[0], keys[tile[0]]))] = tile
                     if empty:     # tiles without points: nodata, written while the first tiles are computed
                         for window in empty:
                             write(window, {name: np.full((window.height, window.width), NODATA, np.float32)
                                            for name in out})
                         empty = []
+                        continue
+                    if kept:      # kept by an interrupted run: one at a time, between the computed ones
+                        tile, path = kept.pop()
+                        write(tile[3], _kept_grids(path))
                         continue
                     done, _ = wait(running, return_when=FIRST_COMPLETED)
                     for future in done:

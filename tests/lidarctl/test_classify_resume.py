@@ -3,6 +3,7 @@ the chain's work/classify_resume): a re-run computes only the rest and writes th
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import shutil
@@ -13,6 +14,7 @@ import time
 
 import numpy as np
 import pytest
+import tile_faults  # tests/lidarctl/tile_faults.py, through tests/lidarctl/conftest.py
 
 from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor
@@ -40,20 +42,8 @@ def _tree(folder) -> dict:
     return {f.name: f.read_bytes() for f in sorted(folder.iterdir())}
 
 
-_CLASSIFY_TILE = tiles._classify_tile
-
-
-class _Tiles:
-    """``tiles._classify_tile`` counting the tiles it classifies; raises ``exc`` at the ``at``-th."""
-
-    def __init__(self, at=None, exc=KeyboardInterrupt):
-        self.at, self.exc, self.done = at, exc, 0
-
-    def __call__(self, task):
-        if self.done + 1 == self.at:
-            raise self.exc("broken on purpose") if self.exc is InputError else self.exc
-        self.done += 1
-        return _CLASSIFY_TILE(task)
+# ``tiles._classify_tile`` counting the tiles it computes, raising KeyboardInterrupt (or ``exc``) at the ``at``-th
+_Tiles = functools.partial(tile_faults.Tiles, tiles._classify_tile)
 
 
 def _classify(paths, root, resume=True):
@@ -196,3 +186,109 @@ def test_the_chain_classify_stage_resumes_its_tiles(tiny_project, tmp_path, monk
     assert _tree(root / "lidar_out" / "classified") == want
     assert (root / "work" / "stages" / "classify.json").is_file() and not keep.exists()
     assert [p for p in root.rglob(".*")] == []
+
+
+# ----------------------------------------------------------------------------------------------
+# `lidarctl classify`: the same per tile, in OUT.resume beside the output
+
+CLI_TILING = ["--tile-size-m", "100", "--buffer-m", "40", "--scheduler", "synchronous"]
+
+
+def _cli(paths, out, *options):
+    from click.testing import CliRunner
+
+    from lidarctl.cli.main import main
+
+    return CliRunner().invoke(main, ["classify", *map(str, paths), str(out), *CLI_TILING, *options])
+
+
+@pytest.fixture(scope="module")
+def cli_reference(strips, tmp_path_factory):
+    """The classified strips of one uninterrupted `lidarctl classify` (4 tiles), file name -> bytes."""
+    out = tmp_path_factory.mktemp("cli_ref") / "classified"
+    r = _cli(strips, out)
+    assert r.exit_code == 0, r.output
+    assert not (out.parent / "classified.resume").exists()
+    return _tree(out)
+
+
+def test_lidarctl_classify_resumes_after_ctrl_c(strips, cli_reference, tmp_path, monkeypatch):
+    """Ctrl-C at the third tile: the command exits 130, writes no output and keeps two tiles in classified.resume;
+    the next run says it resumed them, classifies the other two, writes the uninterrupted run's bytes and removes
+    the folder."""
+    out, keep = tmp_path / "classified", tmp_path / "classified.resume"
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    r = _cli(strips, out)
+    assert r.exit_code == 130, r.output
+    assert not out.exists() and len(list(keep.glob("*.json"))) == 2
+    assert f"{keep}: what this run finished is kept there" in r.stderr
+
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    r = _cli(strips, out)
+    assert r.exit_code == 0, r.output
+    assert "tiles: resumed 2 of 4 tiles an interrupted run finished" in r.stderr and count.done == 2
+    assert _tree(out) == cli_reference
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["classified"]
+
+
+def test_lidarctl_classify_changed_setting_or_no_resume_starts_over(strips, cli_reference, tmp_path, monkeypatch):
+    """A ground filter setting changed since the interrupted run: no tile is taken (the key holds the settings);
+    --no-resume removes the kept tiles and classifies every tile, to the uninterrupted run's bytes."""
+    out, keep = tmp_path / "classified", tmp_path / "classified.resume"
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    assert _cli(strips, out).exit_code == 130 and len(list(keep.glob("*.json"))) == 2
+
+    count = _Tiles(at=3)
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    r = _cli(strips, out, "--morph-cell-m", "2.0")  # interrupted again: kept its own two tiles beside the others
+    assert r.exit_code == 130 and "resumed" not in r.stderr and count.done == 2
+    assert len(list(keep.glob("*.json"))) == 4
+
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    r = _cli(strips, out, "--no-resume")
+    tile_faults.check_started_over(r, count, 4, keep, _tree(out), cli_reference)
+
+
+def test_lidarctl_classify_sigkill_then_resume(strips, cli_reference, tmp_path):
+    """A `lidarctl classify` process killed (SIGKILL) as its third tile starts: no output, no temporary left after
+    the next run's start, two tiles kept; the next run takes them and writes the uninterrupted run's bytes."""
+    from click.testing import CliRunner
+
+    out, keep = tmp_path / "classified", tmp_path / "classified.resume"
+    args = ["classify", *map(str, strips), str(out), *CLI_TILING]
+    assert tile_faults.killed_at("lidarctl.tiles", "_classify_tile", 3, args) == -signal.SIGKILL
+    assert not out.exists() and len(list(keep.glob("*.json"))) == 2
+    assert [p for p in tmp_path.iterdir() if ".part-" in p.name]  # the killed run's temporaries, swept next
+
+    from lidarctl.cli.main import main
+
+    count = _Tiles()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(tiles, "_classify_tile", count)
+        r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert "tiles: resumed 2 of 4 tiles an interrupted run finished" in r.stderr and count.done == 2
+    assert _tree(out) == cli_reference
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.parent == tmp_path) == ["classified"]
+
+
+def test_lidarctl_classify_one_file_resumes_beside_it(strips, tmp_path, monkeypatch):
+    """One file into OUT.laz: the tiles are kept in OUT.laz.resume; the resumed run writes the bytes of one
+    uninterrupted run."""
+    tiling = ["--tile-size-m", "60", "--buffer-m", "30"]  # over CLI_TILING's (the last value wins)
+    r = _cli(strips[:1], tmp_path / "ref.laz", *tiling)
+    assert r.exit_code == 0, r.output
+    out, keep = tmp_path / "out.laz", tmp_path / "out.laz.resume"
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    assert _cli(strips[:1], out, *tiling).exit_code == 130
+    assert not out.exists() and len(list(keep.glob("*.json"))) == 2
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    r = _cli(strips[:1], out, *tiling)
+    assert r.exit_code == 0, r.output
+    n = count.done + 2
+    assert n >= 4 and f"tiles: resumed 2 of {n} tiles an interrupted run finished ({keep})" in r.stderr
+    assert out.read_bytes() == (tmp_path / "ref.laz").read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.laz", "ref.laz"]
