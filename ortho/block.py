@@ -175,12 +175,16 @@ def frame_profile(grid: OrthoGrid, bands: int, dtype: str, block_px: int = 512, 
     """Per-frame ortho GeoTIFF: tiled 512 px, band interleaved (the tiles arrive as band planes, and
     ZSTD packs single-band blocks about 30 % smaller than pixel-interleaved ones at the same CPU),
     ``FRAME_COMPRESSION[compression]``; GDAL compresses blocks on all cores while the next tiles are
-    computed."""
+    computed. Three bands or more are R, G, B (the frames' band order) and the rest unspecified: GDAL's default
+    marked a 4th 8-bit band alpha (a DMC's NIR taken as transparency by QGIS and GDAL's tools, in the frames and
+    the mosaic, which takes their colours) and 16-bit RGB grey."""
     if compression not in FRAME_COMPRESSION:
         raise InputError(f"unknown frame compression {compression!r}; expected one of {sorted(FRAME_COMPRESSION)}")
     profile = dict(driver="GTiff", width=grid.width, height=grid.height, count=bands, dtype=dtype, crs=grid.crs,
                    transform=grid.transform, tiled=True, blockxsize=block_px, blockysize=block_px,
                    num_threads="ALL_CPUS", interleave="band", BIGTIFF="IF_SAFER", **FRAME_COMPRESSION[compression])
+    if bands >= 3:
+        profile.update(photometric="RGB")
     if grid.width < block_px or grid.height < block_px:
         profile.update(tiled=False)
         profile.pop("blockxsize")
