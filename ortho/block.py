@@ -715,6 +715,10 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     executor = executor or local_executor()
     check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res-m" if res_m is not None else None,
                       concurrent=min(len(block.images), max(1, executor.workers)), operation=operation)
+    if true_ortho:
+        tie_points_off_surface(block, dsm_path, "DSM", project_crs, raster_ops["dsm"], res_in_m)
+    else:
+        tie_points_off_surface(block, dem_path, "DEM", project_crs, height_op, res_in_m)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
     inputs = _rectify_inputs_document(block, dem_path, _recorded_inputs(out_dir))
     old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
@@ -743,6 +747,49 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             index["settings"] = resolved.record()
             write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
     return _rectified_frames(frame_index(index, out_dir / "index.json"))
+
+
+TIE_POINTS_MIN = 20  # tie points on the surface for its offset from the block to be told
+
+
+def tie_points_off_surface(block: BlockInputs, surface_path, what: str, project_crs, height_op, res_m: float
+                           ) -> float | None:
+    """The median height of the project's adjusted tie points (at/object_points.csv, 2+ rays) above the surface the
+    orthos are rectified on (``surface_path``, its heights through ``height_op``), with a warning when it displaces
+    the orthos by more than a pixel (``res_m``) at the frames' corners (the offset times the tangent of the corner's
+    view angle): a DEM the block was not oriented on (Brighton Beach's ODM DEM against its GNSS-only block: -3.6 m,
+    3 m at the corners, 200 px) gives orthos that look right and stand metres off, and true orthos that cut cars and
+    roofs. None when the EO is not the project's adjustment or fewer than ``TIE_POINTS_MIN`` points lie on it."""
+    from ortho.points_dem import read_tie_points
+
+    project = block.project
+    if Path(block.eo_path).resolve() != project.eo_path.resolve() or not project.object_points_path.is_file():
+        return None
+    try:
+        xyz = read_tie_points(project.object_points_path, min_rays=2)
+    except InputError:
+        return None
+    with open_height_raster(surface_path, project_crs, what) as ds, _raster_read(surface_path, what):
+        h = np.array([np.nan if np.ma.is_masked(v[0]) else float(v[0])
+                      for v in ds.sample([tuple(p) for p in xyz[:, :2]], masked=True)], float)
+    on = np.isfinite(h)
+    if np.count_nonzero(on) < TIE_POINTS_MIN:
+        return None
+    if height_op is not None:
+        _, _, h[on] = height_op.transform(xyz[on, 0], xyz[on, 1], h[on])
+    dz = xyz[on, 2] - h[on]
+    offset = float(np.median(dz))
+    cam = block.camera
+    corner = math.hypot(0.5 * cam.width, 0.5 * cam.height) / cam.focal_px  # tan of the corner's view angle
+    if abs(offset) * corner > res_m:
+        nmad = 1.4826 * float(np.median(np.abs(dz - offset)))
+        _log.warning(f"the block's tie points (at/object_points.csv, {int(np.count_nonzero(on))} on the {what}) lie "
+                     f"{abs(offset):.2f} m {'above' if offset > 0 else 'below'} the {what} {surface_path} (median; "
+                     f"NMAD {nmad:.2f} m): the orthos on it stand up to {abs(offset) * corner:.2f} m "
+                     f"({abs(offset) * corner / res_m:.0f} px) off toward the frames' corners; orient the block on it "
+                     f"(`aerotri adjust {project.root} --dem {surface_path}`: surface control) or rectify on the "
+                     f"surface it was oriented on")
+    return offset
 
 
 def _raster_height_operation(path, project_crs, project_heights, height_model, allow_ballpark):

@@ -99,3 +99,35 @@ def test_a_dem_in_feet_gives_the_default_pixel_size_and_orthos_of_the_dem_in_met
     index_ft, feet = _rectified(block, tmp_path, "ft", "--dem", block / "dem_ft.tif")
     assert index_m["res_m"] == index_ft["res_m"] == 0.2
     _assert_same_orthos(metres, feet)
+
+
+def _write_tie_points(root, dz_m: float, n: int = 60):
+    """at/object_points.csv as aerotri adjust writes it: n tie points of 2 rays on the truth DEM raised by dz_m."""
+    with rasterio.open(root / "truth" / "dem.tif") as ds:
+        b = ds.bounds
+        rng = np.random.default_rng(3)
+        x = rng.uniform(b.left + 60, b.right - 60, n)
+        y = rng.uniform(b.bottom + 60, b.top - 60, n)
+        z = np.array([v[0] for v in ds.sample(zip(x, y))], float) + dz_m
+    lines = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
+    lines += [f"T{i:07d},tie,{x[i]:.4f},{y[i]:.4f},{z[i]:.4f},0.05,0.05,0.08,2,0.1" for i in range(n)]
+    (root / "at" / "object_points.csv").write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("dz_m", [0.0, -3.0])
+def test_rectify_warns_when_the_blocks_tie_points_lie_off_its_dem(block, tmp_path, dz_m):
+    """The adjusted tie points 3 m below the DEM the orthos are rectified on (Brighton Beach's GNSS-only block on
+    its ODM DEM: -3.56 m, the orthos 1-2 m off): a warning giving the offset and the displacement at the frames'
+    corners, naming `aerotri adjust --dem`; none when they lie on it."""
+    root = tmp_path / "p"
+    shutil.copytree(block, root)
+    _write_tie_points(root, dz_m)
+    r = CliRunner().invoke(main, ["rectify", str(root), "--dem", str(root / "dem_m.tif"), "--frames", "s01_001"])
+    assert r.exit_code == 0, r.output
+    if dz_m == 0.0:
+        assert "tie points" not in r.stderr, r.stderr
+    else:
+        assert "lie 3.00 m below the DEM" in r.stderr and "--dem" in r.stderr, r.stderr
+        # the corner's displacement: 3 m x the tangent of the corner's view angle (600 x 400 px, f 24 mm, 12 um)
+        corner = np.hypot(300, 200) * 12e-3 / 24.0
+        assert f"up to {3.0 * corner:.2f} m" in r.stderr, r.stderr
