@@ -760,7 +760,7 @@ def tie_points_off_surface(block: BlockInputs, surface_path, what: str, project_
     view angle): a DEM the block was not oriented on (Brighton Beach's ODM DEM against its GNSS-only block: -3.6 m,
     3 m at the corners, 200 px) gives orthos that look right and stand metres off, and true orthos that cut cars and
     roofs. None when the EO is not the project's adjustment or fewer than ``TIE_POINTS_MIN`` points lie on it."""
-    from ortho.points_dem import read_tie_points
+    from ortho.tie_points import read_tie_points
 
     project = block.project
     if Path(block.eo_path).resolve() != project.eo_path.resolve() or not project.object_points_path.is_file():
