@@ -759,7 +759,9 @@ def tie_points_off_surface(block: BlockInputs, surface_path, what: str, project_
     the orthos by more than a pixel (``res_m``) at the frames' corners (the offset times the tangent of the corner's
     view angle): a DEM the block was not oriented on (Brighton Beach's ODM DEM against its GNSS-only block: -3.6 m,
     3 m at the corners, 200 px) gives orthos that look right and stand metres off, and true orthos that cut cars and
-    roofs. None when the EO is not the project's adjustment or fewer than ``TIE_POINTS_MIN`` points lie on it."""
+    roofs. A DSM ``what``: either way; a DEM: only tie points below it (above it they may stand on roofs and crowns,
+    a forest's all of them). None when the EO is not the project's adjustment or fewer than ``TIE_POINTS_MIN``
+    points lie on it."""
     from ortho.tie_points import read_tie_points
 
     project = block.project
@@ -781,7 +783,7 @@ def tie_points_off_surface(block: BlockInputs, surface_path, what: str, project_
     offset = float(np.median(dz))
     cam = block.camera
     corner = math.hypot(0.5 * cam.width, 0.5 * cam.height) / cam.focal_px  # tan of the corner's view angle
-    if abs(offset) * corner > res_m:
+    if abs(offset) * corner > res_m and (offset < 0 or what == "DSM"):
         nmad = 1.4826 * float(np.median(np.abs(dz - offset)))
         _log.warning(f"the block's tie points (at/object_points.csv, {int(np.count_nonzero(on))} on the {what}) lie "
                      f"{abs(offset):.2f} m {'above' if offset > 0 else 'below'} the {what} {surface_path} (median; "

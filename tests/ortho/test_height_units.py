@@ -131,3 +131,18 @@ def test_rectify_warns_when_the_blocks_tie_points_lie_off_its_dem(block, tmp_pat
         # the corner's displacement: 3 m x the tangent of the corner's view angle (600 x 400 px, f 24 mm, 12 um)
         corner = np.hypot(300, 200) * 12e-3 / 24.0
         assert f"up to {3.0 * corner:.2f} m" in r.stderr, r.stderr
+
+
+def test_tie_points_above_the_dem_are_not_warned_of_but_above_the_dsm_they_are(block, tmp_path):
+    """Above a DEM tie points may stand on roofs and crowns (a forest's all of them): no warning for a conventional
+    ortho; the true ortho's DSM is the surface they lie on: 3 m above it is warned of."""
+    root = tmp_path / "p"
+    shutil.copytree(block, root)
+    _write_tie_points(root, 3.0)
+    r = CliRunner().invoke(main, ["rectify", str(root), "--dem", str(root / "dem_m.tif"), "--frames", "s01_001"])
+    assert r.exit_code == 0, r.output
+    assert "tie points" not in r.stderr, r.stderr
+    r = CliRunner().invoke(main, ["rectify", str(root), "--dem", str(root / "dem_m.tif"), "--true-ortho",
+                                  "--dsm", str(root / "dem_m.tif"), "--frames", "s01_001"])
+    assert r.exit_code == 0, r.output
+    assert "lie 3.00 m above the DSM" in r.stderr, r.stderr
