@@ -175,12 +175,16 @@ def frame_profile(grid: OrthoGrid, bands: int, dtype: str, block_px: int = 512, 
     """Per-frame ortho GeoTIFF: tiled 512 px, band interleaved (the tiles arrive as band planes, and
     ZSTD packs single-band blocks about 30 % smaller than pixel-interleaved ones at the same CPU),
     ``FRAME_COMPRESSION[compression]``; GDAL compresses blocks on all cores while the next tiles are
-    computed."""
+    computed. Three bands or more are R, G, B (the frames' band order) and the rest unspecified: GDAL's default
+    marked a 4th 8-bit band alpha (a DMC's NIR taken as transparency by QGIS and GDAL's tools, in the frames and
+    the mosaic, which takes their colours) and 16-bit RGB grey."""
     if compression not in FRAME_COMPRESSION:
         raise InputError(f"unknown frame compression {compression!r}; expected one of {sorted(FRAME_COMPRESSION)}")
     profile = dict(driver="GTiff", width=grid.width, height=grid.height, count=bands, dtype=dtype, crs=grid.crs,
                    transform=grid.transform, tiled=True, blockxsize=block_px, blockysize=block_px,
                    num_threads="ALL_CPUS", interleave="band", BIGTIFF="IF_SAFER", **FRAME_COMPRESSION[compression])
+    if bands >= 3:
+        profile.update(photometric="RGB")
     if grid.width < block_px or grid.height < block_px:
         profile.update(tiled=False)
         profile.pop("blockxsize")
@@ -279,7 +283,7 @@ class FrameTask:
     compression: str = "zstd"
     threads: int | None = None  # tile threads (None: all cores of the worker)
     operation: OperationSpec | None = None  # project -> output CRS (None: the project CRS itself)
-    height_operation: OperationSpec | None = None  # DEM/DSM heights -> the project's height system
+    height_operation: OperationSpec | None = None  # DEM heights -> the project's height system
     max_view_angle_deg: float = 90.0  # cells seen more obliquely than this from the vertical are nodata
     footprints_path: str | None = None  # true ortho: building footprints (walls) in the occlusion test
     # the ground bounds of all the block's frames (project CRS): the footprints' occluder is built once over them and
@@ -295,6 +299,16 @@ class FrameTask:
     resume_dir: str | None = None
     resume_key: str | None = None
     overviews: bool = False  # internal overviews in the frame ortho ([rectify] overviews)
+    # true ortho: each height raster's heights -> the project's height system, from its own vertical CRS (a DSM in
+    # feet beside a DEM in metres); None: its heights are the project's
+    dsm_height_operation: OperationSpec | None = None
+    occlusion_height_operation: OperationSpec | None = None
+    crown_base_height_operation: OperationSpec | None = None
+
+
+# FrameTask fields left out of the resume key while None (the key of a frame kept by code without them)
+_KEY_FIELDS_IF_SET = ("overviews", "dsm_height_operation", "occlusion_height_operation",
+                      "crown_base_height_operation")
 
 
 def _frame_image(path, expect_size):
@@ -445,14 +459,14 @@ def _height_raster(path, project_crs, what: str):
         yield ds
 
 
-def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_crs, height_op) -> np.ndarray | None:
+def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_crs) -> np.ndarray | None:
     """The crown bases of ``task.crown_base_path`` (None: none) on the frame's DSM window ``heights``, whose grid the
     raster must share (float32, NaN where none)."""
     if not task.crown_base_path:
         return None
     with _height_raster(task.crown_base_path, project_crs, "crown base") as ds:
         crown = read_height_window(ds, ground_bounds, margin_m=4 * heights.res_m, what="crown base",
-                                   frame=task.image_id, height_operation=height_op)
+                                   frame=task.image_id, height_operation=_built(task.crown_base_height_operation))
     if (crown.heights_m.shape != heights.heights_m.shape or crown.res_m != heights.res_m
             or crown.x_left_m != heights.x_left_m or crown.y_top_m != heights.y_top_m):
         raise InputError(f"{task.crown_base_path}: the crown base raster is not on the DSM's grid "
@@ -481,8 +495,9 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
 
     doc = {}
     for f in dataclasses.fields(task):
-        if f.name in ("out_path", "threads", "resume_dir", "resume_key") or (f.name == "overviews" and not task.overviews):
-            continue  # (without overviews the key of a frame kept before the option existed)
+        if f.name in ("out_path", "threads", "resume_dir", "resume_key") or (f.name in _KEY_FIELDS_IF_SET
+                                                                              and not getattr(task, f.name)):
+            continue  # (without them the key of a frame kept before the fields existed)
         v = getattr(task, f.name)
         doc[f.name] = _camera_sha256(v) if f.name == "camera" else repr(v) if dataclasses.is_dataclass(v) else v
     for f in ("image_path", "dem_path", "dsm_path", "footprints_path", "crown_base_path", "occlusion_dsm_path"):
@@ -513,6 +528,10 @@ def _resumed_frame(task: FrameTask, out_dir: Path) -> dict | None:
     return entry
 
 
+def _built(spec: OperationSpec | None):
+    return spec.build() if spec is not None else None
+
+
 def _rectify_frame(task: FrameTask) -> dict:
     """``_rectify_frame_task`` without the keeping for a resumed run."""
     project_crs = CRS.from_wkt(task.project_crs_wkt)
@@ -528,20 +547,22 @@ def _rectify_frame(task: FrameTask) -> dict:
         dem = read_height_window(dem_ds, ground_bounds, margin_m=4 * dem_ds.transform.a, what="DEM", frame=task.image_id,
                                  height_operation=height_op)
         extent = tuple(dem_ds.bounds)
-    heights, what, path = dem, "DEM", task.dem_path
+    heights, what, path, heights_op = dem, "DEM", task.dem_path, height_op
     if task.dsm_path:
         with _height_raster(task.dsm_path, project_crs, "DSM") as dsm_ds:
+            heights_op = _built(task.dsm_height_operation)
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
-                                         frame=task.image_id, height_operation=height_op)
+                                         frame=task.image_id, height_operation=heights_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs)
     surface = heights    # of the occlusion test: the DSM itself (the same object: the maps' z-buffer test) or its own
     if task.dsm_path and task.occlusion_dsm_path:
         with _height_raster(task.occlusion_dsm_path, project_crs, "DSM") as occ_ds:
             surface = read_height_window(occ_ds, ground_bounds, margin_m=4 * occ_ds.transform.a, what="DSM",
-                                         frame=task.image_id, height_operation=height_op)
+                                         frame=task.image_id,
+                                         height_operation=_built(task.occlusion_height_operation))
     occluder, sides = None, None
-    crown = _crown_base(task, surface, ground_bounds, project_crs, height_op) if task.dsm_path else None
+    crown = _crown_base(task, surface, ground_bounds, project_crs) if task.dsm_path else None
     if task.dsm_path and task.footprints_path:
         occluder, sides = _frame_occluder(task, surface, dem, project_crs, crown, heights)
     elif crown is not None:
@@ -562,7 +583,7 @@ def _rectify_frame(task: FrameTask) -> dict:
                                            compression=task.compression, threads=task.threads,
                                            max_view_angle_deg=task.max_view_angle_deg, overviews=task.overviews,
                                            tags=operation_tags(to_project.record(),
-                                                               height_op.record() if height_op else None))
+                                                               heights_op.record() if heights_op else None))
     if isinstance(image, FrameFile):
         image.close()
     del image
@@ -695,18 +716,26 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     try:
         height_op = dem_height_operation(CRS(dem_ds.crs), project_crs, project_heights, height_model, allow_ballpark,
                                          str(dem_path))
+        # every height raster through the operation of its own vertical CRS (a DSM in feet beside a DEM in metres)
+        raster_ops = {what: _raster_height_operation(path, project_crs, project_heights, height_model, allow_ballpark)
+                      for what, path in (("dsm", dsm_path if true_ortho else None), ("occlusion", occlusion_dsm),
+                                         ("crown_base", crown_base))}
         with _raster_read(dem_path, "DEM"):
             zlo, zhi = height_range(dem_ds)
-        if height_op is not None:  # the range in the project's height system, for the footprints
+        if height_op is not None:  # the range in the project's height system (and unit), for the footprints
             b = dem_ds.bounds
-            _, _, zc = height_op.transform([0.5 * (b.left + b.right)], [0.5 * (b.bottom + b.top)], [0.5 * (zlo + zhi)])
-            zlo, zhi = zlo + float(zc[0]) - 0.5 * (zlo + zhi), zhi + float(zc[0]) - 0.5 * (zlo + zhi)
+            _, _, zc = height_op.transform([0.5 * (b.left + b.right)] * 2, [0.5 * (b.bottom + b.top)] * 2, [zlo, zhi])
+            zlo, zhi = float(np.min(zc)), float(np.max(zc))
         sel = block.eo.rows(list(block.images.image_id))
         eo_idx = dict(zip(block.images.image_id, sel.tolist()))  # image id -> row of block.eo
         eo_sel = ExteriorOrientations([block.eo.image_id[i] for i in sel], block.eo.centre_m[sel], block.eo.opk_deg[sel])
         with _raster_read(dem_path, "DEM"):
             nadir_z = np.array([np.ma.filled(v.astype(float), np.nan)[0]
                                 for v in dem_ds.sample([tuple(p) for p in eo_sel.centre_m[:, :2]], masked=True)])
+        if height_op is not None:  # the DEM's heights in the project's system, as the centres' (feet: metres)
+            ok = np.isfinite(nadir_z)
+            if ok.any():
+                _, _, nadir_z[ok] = height_op.transform(eo_sel.centre_m[ok, 0], eo_sel.centre_m[ok, 1], nadir_z[ok])
         nadir_z = np.where(np.isfinite(nadir_z), nadir_z, 0.5 * (zlo + zhi))
         gsd_res = default_resolution(block.camera, eo_sel, nadir_z)
         res = gsd_res if res_m is None else float(res_m)
@@ -727,6 +756,10 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     executor = executor or local_executor()
     check_frame_sizes(block, eo_idx, zlo, zhi, res, "--res-m" if res_m is not None else None,
                       concurrent=min(len(block.images), max(1, executor.workers)), operation=operation)
+    if true_ortho:
+        tie_points_off_surface(block, dsm_path, "DSM", project_crs, raster_ops["dsm"], res_in_m)
+    else:
+        tie_points_off_surface(block, dem_path, "DEM", project_crs, height_op, res_in_m)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
     inputs = _rectify_inputs_document(block, dem_path, _recorded_inputs(out_dir))
     old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
@@ -741,7 +774,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             index = _rectify_into(tmp_dir, block, eo_idx, res=res, out_crs=out_crs, project_crs=project_crs,
                                   dem_path=dem_path, zlo=zlo, zhi=zhi, interpolation=interpolation, true_ortho=true_ortho,
                                   dsm_path=dsm_path, compression=compression, threads=threads, operation=operation,
-                                  height_op=height_op, executor=executor, inputs=inputs,
+                                  height_op=height_op, raster_ops=raster_ops, executor=executor, inputs=inputs,
                                   max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints,
                                   crown_base=crown_base, occlusion_dsm=occlusion_dsm, resume_dir=resume_dir,
                                   overviews=s.overviews)
@@ -755,6 +788,60 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             index["settings"] = resolved.record()
             write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
     return _rectified_frames(frame_index(index, out_dir / "index.json"))
+
+
+TIE_POINTS_MIN = 20  # tie points on the surface for its offset from the block to be told
+
+
+def tie_points_off_surface(block: BlockInputs, surface_path, what: str, project_crs, height_op, res_m: float
+                           ) -> float | None:
+    """The median height of the project's adjusted tie points (at/object_points.csv, 2+ rays) above the surface the
+    orthos are rectified on (``surface_path``, its heights through ``height_op``), with a warning when it displaces
+    the orthos by more than a pixel (``res_m``) at the frames' corners (the offset times the tangent of the corner's
+    view angle): a DEM the block was not oriented on (Brighton Beach's ODM DEM against its GNSS-only block: -3.6 m,
+    3 m at the corners, 200 px) gives orthos that look right and stand metres off, and true orthos that cut cars and
+    roofs. A DSM ``what``: either way; a DEM: only tie points below it (above it they may stand on roofs and crowns,
+    a forest's all of them). None when the EO is not the project's adjustment or fewer than ``TIE_POINTS_MIN``
+    points lie on it."""
+    from ortho.tie_points import read_tie_points
+
+    project = block.project
+    if Path(block.eo_path).resolve() != project.eo_path.resolve() or not project.object_points_path.is_file():
+        return None
+    try:
+        xyz = read_tie_points(project.object_points_path, min_rays=2)
+    except InputError:
+        return None
+    with open_height_raster(surface_path, project_crs, what) as ds, _raster_read(surface_path, what):
+        h = np.array([np.nan if np.ma.is_masked(v[0]) else float(v[0])
+                      for v in ds.sample([tuple(p) for p in xyz[:, :2]], masked=True)], float)
+    on = np.isfinite(h)
+    if np.count_nonzero(on) < TIE_POINTS_MIN:
+        return None
+    if height_op is not None:
+        _, _, h[on] = height_op.transform(xyz[on, 0], xyz[on, 1], h[on])
+    dz = xyz[on, 2] - h[on]
+    offset = float(np.median(dz))
+    cam = block.camera
+    corner = math.hypot(0.5 * cam.width, 0.5 * cam.height) / cam.focal_px  # tan of the corner's view angle
+    if abs(offset) * corner > res_m and (offset < 0 or what == "DSM"):
+        nmad = 1.4826 * float(np.median(np.abs(dz - offset)))
+        _log.warning(f"the block's tie points (at/object_points.csv, {int(np.count_nonzero(on))} on the {what}) lie "
+                     f"{abs(offset):.2f} m {'above' if offset > 0 else 'below'} the {what} {surface_path} (median; "
+                     f"NMAD {nmad:.2f} m): the orthos on it stand up to {abs(offset) * corner:.2f} m "
+                     f"({abs(offset) * corner / res_m:.0f} px) off toward the frames' corners; orient the block on it "
+                     f"(`aerotri adjust {project.root} --dem {surface_path}`: surface control) or rectify on the "
+                     f"surface it was oriented on")
+    return offset
+
+
+def _raster_height_operation(path, project_crs, project_heights, height_model, allow_ballpark):
+    """``dem_height_operation`` of the height raster at ``path`` (None: no raster, or its heights are the project's)."""
+    if path is None:
+        return None
+    with open_height_raster(path, project_crs, "DSM") as ds:
+        raster_crs = CRS(ds.crs)
+    return dem_height_operation(raster_crs, project_crs, project_heights, height_model, allow_ballpark, str(path))
 
 
 def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, res: float, option: str | None,
@@ -789,12 +876,17 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
 
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, project_crs, dem_path, zlo, zhi,
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
-                  inputs: dict, max_view_angle_deg: float = 90.0, footprints: Path | None = None,
+                  inputs: dict, raster_ops: dict | None = None, max_view_angle_deg: float = 90.0, footprints: Path | None = None,
                   crown_base: Path | None = None, occlusion_dsm: Path | None = None,
                   resume_dir: Path | None = None, overviews: bool = False) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order). With
     ``resume_dir``: the frames an interrupted run of the same inputs finished are taken from there, the others
     kept there as they finish."""
+    ops = raster_ops or {}
+
+    def spec_of(op):
+        return op.spec() if op is not None else None
+
     occluder_bounds = None
     if true_ortho and footprints is not None:  # the frames' ground bounds together, as each task takes its own
         fb = np.array([_plane_footprint_bounds(block.camera, block.eo.centre_m[eo_idx[i]],
@@ -813,7 +905,10 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        occluder_bounds_m=occluder_bounds,
                        crown_base_path=str(crown_base) if crown_base is not None else None,
                        occlusion_dsm_path=str(occlusion_dsm) if occlusion_dsm is not None else None,
-                       overviews=overviews)
+                       overviews=overviews,
+                       dsm_height_operation=spec_of(ops.get("dsm")) if true_ortho else None,
+                       occlusion_height_operation=spec_of(ops.get("occlusion")) if true_ortho else None,
+                       crown_base_height_operation=spec_of(ops.get("crown_base")) if true_ortho else None)
              for image_id, path in block.images.pairs()]
     resumed = {}
     if resume_dir is not None:
@@ -835,6 +930,7 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
         "coordinate_operation": operation.record() if operation is not None else None,
         "operation": dataclasses.asdict(operation.spec()) if operation is not None else None,
         "height_operation": height_op.record() if height_op is not None else None,
+        **{f"{what}_height_operation": op.record() for what, op in ops.items() if op is not None and true_ortho},
         "inputs": inputs,
         "frames": entries,
     }

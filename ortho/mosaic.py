@@ -84,6 +84,7 @@ from ortho.grid import OrthoGrid, overview_factors
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seamlines_preview import preview_shape, write_seamlines_preview
+from ortho.unseen import unseen_cells
 from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_objects_whole, label_polygons,
                              least_cost_seams, neighbour_pairs, seam_lines, voronoi_labels)
 
@@ -949,11 +950,12 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
     # is written; else from the COG, on a thread while this one counts the pairs and the nodata inside the block
     step = preview_shape(mosaic.width, mosaic.height)[2]
     levels = [1] + overview_factors(mosaic.width, mosaic.height)
+    footprints = [e.footprint_xy_m for e in index.frames]  # the cells no frame sees: hatched as counted
     early = step in levels
 
     def stage_preview(level_paths):
         write_seamlines_preview(work / "seamlines_preview.png", level_paths[step], labels, factor,
-                                mosaic_size=(mosaic.width, mosaic.height))
+                                mosaic_size=(mosaic.width, mosaic.height), footprints=footprints)
 
     # the seamlines' polygons and lines (and seams.tif) on a thread while the tiles are blended and written
     with _background(_write_seamlines, work, labels, red.transform, red.names, crs, not distributed) as vectors:
@@ -962,10 +964,11 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                               executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red), during_cog=stage_preview if early else None,
                               white_level=red.white_level.value, resume=resume)
-        with _background(write_seamlines_preview, work / "seamlines_preview.png", work / "mosaic.tif", labels,
-                         factor, imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
+        with _background(functools.partial(write_seamlines_preview, footprints=footprints),
+                         work / "seamlines_preview.png", work / "mosaic.tif", labels, factor,
+                         imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
             pairs = [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]
-            nodata = _interior_nodata(work / "mosaic.tif", res, footprints=[e.footprint_xy_m for e in index.frames])
+            nodata = _interior_nodata(work / "mosaic.tif", res, footprints=footprints)
             preview()
         vectors()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
@@ -1019,20 +1022,7 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), max_cells: floa
         ok = ds.read_masks(1, out_shape=shape, resampling=Resampling.nearest) > 0
         sy, sx = ds.height / shape[0], ds.width / shape[1]
         to_read_px = ~(ds.transform * Affine.scale(sx, sy))
-    empty = np.pad(~ok, 1, constant_values=True).view(np.uint8).copy()
-    cv2.floodFill(empty, None, (0, 0), 2)  # the outside: every empty cell reached from the edge
-    unseen = empty[1:-1, 1:-1] == 1
-    imaged = np.zeros(shape, np.uint8)
-    for ring in footprints:
-        if ring:
-            xy = np.asarray(ring, float)
-            col, row = to_read_px * (xy[:, 0], xy[:, 1])
-            # fillPoly takes a cell whose centre the ring holds; pixel corners -> centres
-            pts = np.round(np.stack([col - 0.5, row - 0.5], axis=-1) * 16).astype(np.int32)
-            cv2.fillPoly(imaged, [pts], 1, lineType=cv2.LINE_8, shift=4)
-    # the frame orthos leave the last cell along their image's edge empty (no sample to interpolate from): the
-    # footprints' union one cell in, so that the block's outline does not count as unseen
-    unseen |= ~ok & (cv2.erode(imaged, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0)
+    unseen = unseen_cells(ok, to_read_px, footprints)
     holes = int(np.count_nonzero(unseen))
     block = holes + int(np.count_nonzero(ok))
     return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),

@@ -17,9 +17,7 @@ as a Cloud-Optimized GeoTIFF (float32, nodata -9999) in the project CRS.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
 import json
 import logging
 import math
@@ -35,8 +33,8 @@ _log = logging.getLogger(__name__)
 # (Tuniu with --min-rays 3: 3 points for a block of frames).
 MIN_POINTS_PER_FRAME = 10
 from aerotri.core.project import Project
-from aerotri.core.textio import read_text
 from aerotri.geom.crs.definition import project_crs
+from ortho.tie_points import read_tie_points
 
 NODATA = -9999.0
 
@@ -139,21 +137,6 @@ def points_dem(xyz_m: np.ndarray, res_m: float, bounds=None, min_tolerance_m: fl
         grid[still] = grid[ir[still], ic[still]]
     return PointsDem(grid.astype(np.float32), float(x0), float(y1), float(res_m), int(keep.sum()), int((~keep).sum()),
                      int(measured.sum()), n_interp, int(still.sum()))
-
-
-def read_tie_points(path: Path, min_rays: int = 3) -> np.ndarray:
-    """(N, 3) project-CRS coordinates of the tie points in ``at/object_points.csv`` seen in ``min_rays`` frames."""
-    text = read_text(path, "table of adjusted object points (CSV)", "run aerotri adjust first")
-    out = []
-    for lineno, row in enumerate(csv.DictReader(io.StringIO(text, newline="")), start=2):
-        try:
-            if row["kind"] != "tie" or int(row["rays"]) < min_rays:
-                continue
-            out.append((float(row["x"]), float(row["y"]), float(row["z"])))
-        except (KeyError, TypeError, ValueError):
-            raise InputError(f"{path}:{lineno}: expected id,kind,x,y,z,...,rays,... (aerotri adjust's "
-                             f"object_points.csv), got {row}") from None
-    return np.array(out, dtype=float).reshape(-1, 3)
 
 
 def default_resolution(xyz_m: np.ndarray, points_per_cell: float = 4.0) -> float:

@@ -4,7 +4,8 @@ layer ``seamlines``, openable and editable in QGIS), and the edited polygons rea
 
 An edited file is checked whole before the mosaic writes anything (``InputError`` naming the file, the feature and
 the frame; exit 2): every feature names a frame of ``ortho/frames/index.json`` (field ``frame``, or ``image_id``
-as in seamlines.geojson) once, holds a valid polygon in the mosaic's CRS; no two polygons overlap (by more than
+as in seamlines.geojson, whose features of another ``kind`` than ``frame_region``, the seam lines, are passed over)
+once, holds a valid polygon in the mosaic's CRS; no two polygons overlap (by more than
 ``OVERLAP_TOLERANCE_CELLS`` seam cells); every seam cell some frame sees is inside a polygon (no gap); and every
 polygon lies inside its frame's footprint (the cells its ortho covers, holes of occlusion included, widened by one
 seam cell for the rounding of edited vertices).
@@ -24,6 +25,7 @@ import numpy as np
 from aerotri.core.errors import InputError
 
 LAYER = "seamlines"
+REGION_KIND = "frame_region"  # seamlines.geojson's "kind" of a frame's polygon (its seam lines: "seamline")
 OVERLAP_TOLERANCE_CELLS = 0.5  # overlaps smaller than half a seam cell are rounding of shared vertices
 
 
@@ -90,6 +92,9 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
     frame_names = fields[columns.index(name_field)]
     known = {n: k for k, n in enumerate(names)}
     geoms = shapely.from_wkb(wkb)
+    region = np.array([k == REGION_KIND for k in fields[columns.index("kind")]], bool) if "kind" in columns else None
+    if region is not None and region.any():  # seamlines.geojson as the mosaic writes it: seam lines beside polygons
+        fids, frame_names, geoms = fids[region], frame_names[region], geoms[region]
     feature_of_frame: dict[int, int] = {}
     polygons = []
     for fid, name, g in zip(fids, frame_names, geoms):

@@ -18,7 +18,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import rasterio
+from rasterio.transform import Affine
 from rasterio.enums import Resampling
+
+from ortho.unseen import unseen_cells
 
 PREVIEW_MAX_PX = 2000
 SEAM_RGB = (255, 0, 255)
@@ -98,22 +101,22 @@ def legend_width(stretch: tuple[float, float] | None = None) -> int:
 
 
 def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX, *,
-                   mosaic_size: tuple[int, int] | None = None) -> np.ndarray:
+                   mosaic_size: tuple[int, int] | None = None, footprints=()) -> np.ndarray:
     """The preview image (rows, cols, 3) RGB uint8: ``labels`` is the seam grid (``factor`` mosaic pixels a cell,
     its origin the mosaic's), ``mosaic_path`` the finished mosaic; or, with ``mosaic_size`` (the mosaic's width and
     height), a raster of exactly the preview's size (the mosaic's overview of that size: what reading the mosaic at
-    that size reads), read whole."""
+    that size reads), read whole. ``footprints``: per frame the ring of the ground it images (mosaic CRS;
+    ``FrameEntry.footprint_xy_m``): nodata there is inside the block, as mosaic.json counts it (``ortho.unseen``)."""
     with rasterio.open(mosaic_path) as ds:
         h, w, step = preview_shape(*(mosaic_size or (ds.width, ds.height)), max_px)
         if mosaic_size is not None and (ds.height, ds.width) != (h, w):
             raise ValueError(f"{mosaic_path}: {ds.width} x {ds.height} px, not the preview's {w} x {h}")
         img = ds.read(out_shape=(ds.count, h, w), resampling=Resampling.average)
         ok = ds.read_masks(1, out_shape=(h, w), resampling=Resampling.nearest) > 0
+        to_cells = ~(ds.transform @ Affine.scale(ds.width / w, ds.height / h))
     rgb, stretch = _to_rgb8(img, ok)
-    # nodata: inside the block (not reached from the edge through nodata) or outside it
-    empty = np.pad(~ok, 1, constant_values=True).view(np.uint8).copy()
-    cv2.floodFill(empty, None, (0, 0), 2)
-    inside = empty[1:-1, 1:-1] == 1
+    # nodata: inside the block (enclosed, or on the ground a frame images: over DEM nodata, occluded) or outside it
+    inside = unseen_cells(ok, to_cells, footprints)
     rgb[~ok] = OUTSIDE_RGB
     rr, cc = np.nonzero(inside)
     rgb[rr, cc] = np.where((((rr + cc) // 3) % 2 == 0)[:, None], HATCH_RGB[0], HATCH_RGB[1])
@@ -131,10 +134,10 @@ def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = P
 
 
 def write_seamlines_preview(path, mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX, *,
-                            mosaic_size: tuple[int, int] | None = None) -> None:
+                            mosaic_size: tuple[int, int] | None = None, footprints=()) -> None:
     """Write the preview PNG to ``path`` (a work folder's file: the caller moves it into place with the other
-    outputs); ``mosaic_size``: as ``render_preview``."""
-    rgb = render_preview(mosaic_path, labels, factor, max_px, mosaic_size=mosaic_size)
+    outputs); ``mosaic_size``, ``footprints``: as ``render_preview``."""
+    rgb = render_preview(mosaic_path, labels, factor, max_px, mosaic_size=mosaic_size, footprints=footprints)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
     if not ok:  # cv2 returns False only for an unknown extension or an empty image
         raise RuntimeError(f"{path}: PNG encoding failed")

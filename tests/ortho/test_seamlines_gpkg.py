@@ -151,6 +151,32 @@ def test_an_edited_edge_changes_only_the_tiles_around_it(mosaicked, tmp_path):
         assert g.symmetric_difference(moved[k]).area < 0.2 * square.area, n
 
 
+def test_the_seamlines_geojson_given_back_is_read_by_its_frame_polygons(mosaicked, tmp_path):
+    """seamlines.geojson (the docs name its ``image_id`` field as accepted) holds the seam lines beside the frames'
+    polygons: its polygons are the seams, the lines passed over (they were refused as "frame None is not a frame of
+    the mosaic"); a GeoPackage with a ``kind`` field of the user's own is read whole."""
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    before = _tile_sums(root / "ortho" / "mosaic.tif")
+    given = tmp_path / "seamlines.geojson"
+    shutil.copy(root / "ortho" / "seamlines.geojson", given)
+    kinds = {f["properties"]["kind"] for f in json.loads(given.read_text())["features"]}
+    assert kinds == {"frame_region", "seamline"}
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(given)])
+    assert r.exit_code == 0, r.output
+    assert json.loads((root / "ortho" / "mosaic.json").read_text())["tiles"]["blended"] == 0
+    assert _tile_sums(root / "ortho" / "mosaic.tif") == before
+    meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
+    own = tmp_path / "own_kind.gpkg"
+    pyogrio.raw.write(str(own), shapely.to_wkb(np.array(geoms, dtype=object)),
+                      [np.array(names, dtype=object), np.array(["checked"] * len(names), dtype=object)],
+                      ["frame", "kind"], layer="seamlines", driver="GPKG", geometry_type="MultiPolygon",
+                      crs=meta["crs"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(own)])
+    assert r.exit_code == 0, r.output
+    assert _tile_sums(root / "ortho" / "mosaic.tif") == before
+
+
 @pytest.mark.parametrize("edit, message", [
     ("unknown", "feature {fid}: frame 'no_such_frame' is not a frame of the mosaic"),
     ("overlap", "overlap by"),
