@@ -151,5 +151,5 @@ def test_the_height_rasters_kept_open_for_the_block_give_the_frames_opened_per_f
         opens[name] = opened.count(str(tmp_path / "occlusion.tif"))
         assert json.loads((root / "ortho" / "frames" / "index.json").read_text())["occlusion_dsm"]
     assert len(frames["kept"]) == 2 and frames["kept"] == frames["per_frame"]
-    # the block's check of the file, then once for both frames, or once a frame
-    assert opens == {"kept": 2, "per_frame": 3}
+    # the block's check of the file and its vertical CRS's height operation, then once for both frames, or once a frame
+    assert opens == {"kept": 3, "per_frame": 4}
