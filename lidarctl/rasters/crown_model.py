@@ -285,11 +285,13 @@ def crown_surface(crowns: TreeCrowns, x_m, y_m, z_m, classification, return_numb
 
 
 def write_crown_model(paths, nearest_path, outdir) -> tuple[Path, Path]:
-    """Fit the trees of classified LAS/LAZ files (``paths``: strips in one CRS of metres, every return) and write
-    into ``outdir`` the disks (``CROWNS_FILE``: layer ``crowns``, one Polygon of 64 vertices per tree with its centre
-    ``x_m``, ``y_m``, ``radius_m``, ``top_m``, ``base_m``, ``returns``, ``circle_fit``) and the occlusion surface
-    (``SURFACE_FILE``: ``crown_surface`` of the nearest-return DSM ``nearest_path``, on its grid), both atomically;
-    their paths. The block's returns are held in memory (about 40 bytes each)."""
+    """Fit the trees of classified LAS/LAZ files (``paths``: strips in the CRS of the nearest-return DSM
+    ``nearest_path``, every return) and write into ``outdir`` the disks (``CROWNS_FILE``: layer ``crowns``, one
+    Polygon of 64 vertices per tree with its centre ``x_m``, ``y_m``, ``radius_m``, ``top_m``, ``base_m``,
+    ``returns``, ``circle_fit``; despite the names in the CRS's units, as the DSM) and the occlusion surface
+    (``SURFACE_FILE``: ``crown_surface`` of the DSM, on its grid), both atomically; their paths. The fit is made in
+    metres (a CRS in feet scaled by its unit; heights taken in the same unit). The block's returns are held in
+    memory (about 40 bytes each)."""
     import laspy
     import rasterio
     import shapely
@@ -303,17 +305,22 @@ def write_crown_model(paths, nearest_path, outdir) -> tuple[Path, Path]:
         crs, tf = ds.crs, ds.transform
         nearest_m = ds.read(1, masked=True).astype(np.float32).filled(np.nan)
         unit, tags = (ds.units[0] if ds.units else None), ds.tags()
-    if crs is None or not crs.is_projected or crs.linear_units.lower() not in ("metre", "meter", "m"):
-        raise InputError(f"{nearest_path}: the crowns are fitted in a projected CRS of metres; the DSM is in "
+    if crs is None or not crs.is_projected:
+        raise InputError(f"{nearest_path}: the crowns are fitted in a projected CRS; the DSM is in "
                          f"{crs.to_string() if crs else 'no CRS'}")
+    f = float(crs.linear_units_factor[1])  # CRS unit -> metres
     xs, ys, zs, cls, rn = [], [], [], [], []
     for p in paths:
         las = laspy.read(p)
         xs.append(np.asarray(las.x)), ys.append(np.asarray(las.y)), zs.append(np.asarray(las.z))
         cls.append(np.asarray(las.classification)), rn.append(np.asarray(las.return_number))
-    x, y, z, c, r = (np.concatenate(a) for a in (xs, ys, zs, cls, rn))
+    x, y, z = (np.concatenate(a) * f for a in (xs, ys, zs))
+    c, r = np.concatenate(cls), np.concatenate(rn)
     crowns = fit_crowns(x, y, z, c, r)
-    surface = crown_surface(crowns, x, y, z, c, r, nearest_m, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a)
+    surface = crown_surface(crowns, x, y, z, c, r, nearest_m * np.float32(f), x0_m=tf.c * f, y_top_m=tf.f * f,
+                            res_m=tf.a * f) / np.float32(f)
+    crowns = dataclasses.replace(crowns, **{k: getattr(crowns, k) / f
+                                            for k in ("x_m", "y_m", "radius_m", "top_m", "base_m")})
     angles = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
     geoms = [shapely.Polygon(np.column_stack([cx + rr * np.cos(angles), cy + rr * np.sin(angles)]))
              for cx, cy, rr in zip(crowns.x_m, crowns.y_m, crowns.radius_m)]

@@ -124,3 +124,14 @@ def test_write_crown_model_round_trip(tmp_path):
     np.testing.assert_allclose(crowns.radius_m[order], [3.0, 2.2], atol=0.3)
     with rasterio.open(tif) as ds:
         assert ds.shape == (84, 84) and ds.transform == from_origin(x0, y0 + 42.0, 0.5, 0.5)
+
+
+def test_lidarctl_crowns_refuses_a_missing_nearest_return_dsm(tmp_path):
+    from click.testing import CliRunner
+
+    from lidarctl.cli.main import main
+
+    (tmp_path / "strip.las").write_bytes(b"")
+    r = CliRunner().invoke(main, ["crowns", str(tmp_path / "strip.las"), str(tmp_path / "out")])
+    assert r.exit_code == 2 and "dsm_nearest.tif: nearest-return DSM not found" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "out").exists()
