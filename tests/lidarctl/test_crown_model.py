@@ -1,6 +1,7 @@
 """Tree crowns fitted to their returns (``lidarctl.rasters.crown_model``), on constructed crowns."""
 
 import numpy as np
+import pytest
 
 from lidarctl.rasters.crown_model import crown_sub_cells, fit_crowns
 
@@ -96,7 +97,9 @@ def test_the_surface_closes_the_crowns_gaps_and_drops_the_crown_beyond_the_disks
     assert (out[beyond & ~spill] == dsm[beyond & ~spill]).all()  # the rest beyond them as it was
 
 
-def test_write_crown_model_round_trip(tmp_path):
+@pytest.mark.parametrize(("epsg", "unit_m"), [(32611, 1.0), (2263, 0.30480060960121924)])
+def test_write_crown_model_round_trip(tmp_path, epsg, unit_m):
+    """The files in the CRS's units (metres; US survey feet: the fit in metres all the same)."""
     import laspy
     import rasterio
     from pyproj import CRS
@@ -110,20 +113,23 @@ def test_write_crown_model_round_trip(tmp_path):
     header = laspy.LasHeader(point_format=1, version="1.2")
     header.scales, header.offsets = [0.001] * 3, [x0, y0, 0.0]
     las = laspy.LasData(header)
-    las.x, las.y, las.z = x + x0, y + y0, z
+    las.x, las.y, las.z = x / unit_m + x0, y / unit_m + y0, z / unit_m
     las.classification, las.return_number, las.number_of_returns = cls, rn, np.where(rn == 1, 1, 2)
     las.write(tmp_path / "strip.las")
     dsm, _ = _nearest_dsm(x, y, z, cls, rn)
+    tf = from_origin(x0, y0 + 42.0 / unit_m, 0.5 / unit_m, 0.5 / unit_m)
     with rasterio.open(tmp_path / "dsm_nearest.tif", "w", driver="GTiff", width=84, height=84, count=1,
-                       dtype="float32", crs="EPSG:32611", transform=from_origin(x0, y0 + 42.0, 0.5, 0.5)) as ds:
-        ds.write(dsm, 1)
+                       dtype="float32", crs=f"EPSG:{epsg}", transform=tf) as ds:
+        ds.write(dsm / unit_m, 1)
     gpkg, tif = write_crown_model([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", tmp_path)
-    crowns = read_crowns(gpkg, CRS.from_epsg(32611))
+    crowns = read_crowns(gpkg, CRS.from_epsg(epsg))
     order = np.argsort(crowns.x_m)
-    np.testing.assert_allclose(crowns.x_m[order] - x0, [10.0, 30.3], atol=0.3)
-    np.testing.assert_allclose(crowns.radius_m[order], [3.0, 2.2], atol=0.3)
+    np.testing.assert_allclose((crowns.x_m[order] - x0) * unit_m, [10.0, 30.3], atol=0.3)
+    np.testing.assert_allclose(crowns.radius_m[order] * unit_m, [3.0, 2.2], atol=0.3)
+    np.testing.assert_allclose(crowns.top_m[order] * unit_m, [12.0, 8.0], atol=0.05)
     with rasterio.open(tif) as ds:
-        assert ds.shape == (84, 84) and ds.transform == from_origin(x0, y0 + 42.0, 0.5, 0.5)
+        assert ds.shape == (84, 84) and ds.transform == tf
+        assert abs(float(ds.read(1).max()) * unit_m - 12.0) < 0.05
 
 
 def test_lidarctl_crowns_refuses_a_missing_nearest_return_dsm(tmp_path):
