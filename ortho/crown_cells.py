@@ -6,7 +6,11 @@ stops the lines of sight that pass beside the crown over the part of the cell th
 crown's sub-cells per cell (``lidarctl.rasters.crown_rim.crown_sub_cells``: the sub-cell centres nearer a vegetation
 return than any other, the rim half way between the returns as ``dsm_nearest`` puts it between cells), such a cell
 is a column up to its top over those sub-cells only: ``FootprintOccluder``'s mask of wall sub-cells (bit 1), no
-slab (``ortho.rectify_kernels._cell_blocks``).
+slab (``ortho.rectify_kernels._cell_blocks``) (a trial, not in the chain).
+
+The chain's since: the trees' crowns as disks fitted to their returns (``lidarctl.rasters.crown_model``,
+lidar_out/crowns.gpkg; ``read_crowns``), the cells they cover a crown from the tree's base up over the disks only
+(``with_crown_disks``; ``ortho rectify --crowns``).
 """
 
 from __future__ import annotations
