@@ -293,13 +293,14 @@ def write_crown_model(paths, nearest_path, outdir) -> tuple[Path, Path]:
     (``SURFACE_FILE``: ``crown_surface`` of the DSM, on its grid), both atomically; their paths. The fit is made in
     metres (a CRS in feet scaled by its unit; heights taken in the same unit). The block's returns are held in
     memory (about 40 bytes each)."""
-    import laspy
     import rasterio
     import shapely
 
     from aerotri.core.errors import InputError
     from aerotri.core.vector_files import VectorLayer, write_layers
-    from lidarctl.rasters.products import write_cog
+    from aerotri.geom import las as las_io
+    from lidarctl import io
+    from lidarctl.rasters.products import _file_points, write_cog
 
     outdir = Path(outdir)
     with rasterio.open(nearest_path) as ds:
@@ -311,12 +312,11 @@ def write_crown_model(paths, nearest_path, outdir) -> tuple[Path, Path]:
                          f"{crs.to_string() if crs else 'no CRS'}")
     f = float(crs.linear_units_factor[1])  # CRS unit -> metres
     xs, ys, zs, cls, rn = [], [], [], [], []
-    for p in paths:
-        las = laspy.read(p)
-        xs.append(np.asarray(las.x)), ys.append(np.asarray(las.y)), zs.append(np.asarray(las.z))
-        cls.append(np.asarray(las.classification)), rn.append(np.asarray(las.return_number))
-    x, y, z = (np.concatenate(a) * f for a in (xs, ys, zs))
-    c, r = np.concatenate(cls), np.concatenate(rn)
+    for p in paths:  # in metres, checked as lidarctl rasters reads them (a bad file: InputError naming it)
+        _, units = io.resolve_crs_units(p, las_io.read_header(p), None)
+        for x, y, z, c, r, _ in _file_points(p, units, io.CHUNK_POINTS):
+            xs.append(x), ys.append(y), zs.append(z), cls.append(c), rn.append(r)
+    x, y, z, c, r = (np.concatenate(a) for a in (xs, ys, zs, cls, rn))
     crowns = fit_crowns(x, y, z, c, r)
     surface = crown_surface(crowns, x, y, z, c, r, nearest_m * np.float32(f), x0_m=tf.c * f, y_top_m=tf.f * f,
                             res_m=tf.a * f) / np.float32(f)

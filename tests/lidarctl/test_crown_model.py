@@ -110,8 +110,9 @@ def test_write_crown_model_round_trip(tmp_path, epsg, unit_m):
 
     x, y, z, cls, rn = _scene(6)
     x0, y0 = 500000.0, 4000000.0
-    header = laspy.LasHeader(point_format=1, version="1.2")
+    header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales, header.offsets = [0.001] * 3, [x0, y0, 0.0]
+    header.add_crs(CRS.from_epsg(epsg))
     las = laspy.LasData(header)
     las.x, las.y, las.z = x / unit_m + x0, y / unit_m + y0, z / unit_m
     las.classification, las.return_number, las.number_of_returns = cls, rn, np.where(rn == 1, 1, 2)
