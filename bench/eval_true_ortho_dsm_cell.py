@@ -48,6 +48,12 @@ classified first returns, written to the DOM's lidar_out/dsm_crowns.tif); ``+occ
 ``+occs``: with ``+occn`` and footprints, dsm_nearest's crown cells a column over the sub-cells the crown covers only
 (``crown_sub_cells`` to lidar_out/crown_bits.tif, ``ortho.crown_cells.with_crown_sub_cells`` on each frame's
 occluder: ``_frame_occluder`` wrapped, a trial, not a rectifier option).
+``+occt``: with ``+occn`` and footprints, each tree's crown a disk fitted to its returns (``lidarctl.rasters.crown_model``,
+``crown_model_cells`` to lidar_out/crown_model.npz; ``with_crown_model`` on each frame's occluder, a trial): the
+occlusion DSM's columns within the disks only, the nearest-return crown beyond them none; ``+occtb`` the same from each
+tree's crown base (its lowest vegetation return) up. ``+crowns``: the product's way of the same (``ortho rectify
+--occlusion-dsm lidar_out/dsm_crowns.tif --crowns lidar_out/crowns.gpkg``, written by ``block_crown_model``), the
+chain's default since.
 Writes the key ``--key`` (default ``dsm_cell``) of bench/results/true_ortho_fill.json (the other keys kept).
 """
 
@@ -454,14 +460,181 @@ def with_crown_bits(frame_occluder, bits_path: Path, top_path: str | None = None
     return occluder
 
 
+def crown_model_cells(src: Path, tall: bool, nearest: Path, out: Path, truth=None) -> dict:
+    """``lidarctl.rasters.crown_model`` of the block's returns (``block_first_returns``' strips with their classes,
+    every return) on the grid of ``nearest`` (the block's dsm_nearest.tif): the trees' disks, tops and crown bases,
+    and per cell a disk reaches (within 1 m) the signed distance of its 5 x 5 sub-cell centres within the disks, the
+    lowest crown base over it, the height of the vegetation first return nearest its centre (the crown's height
+    there) and whether the first return nearest its centre is vegetation or a building's; kept in ``out`` (npz).
+    With ``truth`` (the simulator's), each fitted disk against the nearest true crown (its centre within the disk)."""
+    import laspy
+    import rasterio
+    from scipy.spatial import cKDTree
+
+    from lidarctl.rasters.crown_model import VEGETATION_CLASSES, crown_sub_cells, fit_crowns
+    from lidarctl.rasters.nearest import first_return_mask
+
+    t = time.process_time()
+    las = sorted((src / "lidar").glob("*.la[sz]") if tall else (src / "lidar_out" / "classified").glob("*.la[sz]"))
+    xs, ys, zs, cls, rn = [], [], [], [], []
+    for path in las:
+        pts = laspy.read(path)
+        c = np.asarray(laspy.read(src / "truth" / "lidar" / path.name).classification if tall else pts.classification)
+        xs.append(np.asarray(pts.x)), ys.append(np.asarray(pts.y)), zs.append(np.asarray(pts.z))
+        cls.append(c), rn.append(np.asarray(pts.return_number))
+    x, y, z, c, r = (np.concatenate(a) for a in (xs, ys, zs, cls, rn))
+    crowns = fit_crowns(x, y, z, c, r)
+    with rasterio.open(nearest) as ds:
+        tf, shape = ds.transform, (ds.height, ds.width)
+    rows, cols, margin_cm, base, top = crown_sub_cells(crowns, x0_m=tf.c, y_top_m=tf.f, res_m=tf.a, shape=shape, sub=5)
+    first = first_return_mask(c, r)
+    cx, cy = tf.c + (cols + 0.5) * tf.a, tf.f - (rows + 0.5) * tf.a
+    _, j = cKDTree(np.column_stack([x[first], y[first]])).query(np.column_stack([cx, cy]))
+    near_cls = c[first][j]
+    veg = first & np.isin(c, VEGETATION_CLASSES)
+    d, k = cKDTree(np.column_stack([x[veg], y[veg]])).query(np.column_stack([cx, cy]), distance_upper_bound=3.0)
+    crown_z = np.where(np.isfinite(d), z[veg][np.minimum(k, veg.sum() - 1)], np.nan).astype(np.float32)
+    np.savez_compressed(out, rows=rows, cols=cols, margin_cm=margin_cm, base=base, top=top, crown_z=crown_z,
+                        near_veg=np.isin(near_cls, VEGETATION_CLASSES), near_building=near_cls == 6,
+                        x0=tf.c, y_top=tf.f, res=tf.a)
+    got = {"path": str(out), "trees": len(crowns), "circle_fit": int(crowns.circle_fit.sum()),
+           "spacing_m": crowns.spacing_m, "cells": int(len(rows)),
+           "cells_covered": int((margin_cm >= 0).any(axis=(1, 2)).sum()), "cpu_s": time.process_time() - t}
+    if truth is not None:   # each fitted disk against the true crown nearest its centre (trees taller than 2 m)
+        tc, ta = np.asarray(truth.scene.tree_c), np.asarray(truth.scene.tree_ac)
+        fx, fy = crowns.x_m - truth.origin[0], crowns.y_m - truth.origin[1]
+        dd, ii = cKDTree(tc[:, :2]).query(np.column_stack([fx, fy]))
+        ok = dd < ta[ii, 0]
+        rad_err = crowns.radius_m[ok] - ta[ii[ok], 0]
+        base_err = crowns.base_m[ok] - truth.origin[2] - (tc[ii[ok], 2] - ta[ii[ok], 1])
+        q = [5, 25, 50, 75, 95]
+        got["against_truth"] = {
+            "fitted_on_a_true_crown": int(ok.sum()), "true_crowns": int(len(tc)),
+            "true_crowns_with_a_fit": int(len(np.unique(ii[ok]))),
+            "radius_error_m_percentiles_5_25_50_75_95": np.round(np.percentile(rad_err, q), 3).tolist(),
+            "radius_error_m_circle_fit_median": float(np.median(rad_err[crowns.circle_fit[ok]])),
+            "centre_error_m_median": float(np.median(dd[ok])),
+            "base_above_true_base_m_percentiles_5_25_50_75_95": np.round(np.percentile(base_err, q), 3).tolist()}
+    return got
+
+
+def with_crown_model(frame_occluder, cells_path: Path, use_base: bool, sub: int = 5):
+    """``ortho.block._frame_occluder`` with the fitted crowns (``crown_model_cells``) over the frame's window: the
+    trial of ``+occt`` / ``+occtb`` (not an option of the rectifier). A solid column of the occlusion DSM a disk
+    reaches whose nearest first return is not a building's: covered at some sub-cell centre, a column up to the
+    higher of its DSM height and the crown's there over the disks' sub-cells only (the march finds the rim between
+    the sub-cell centres, ``sub_margin_cm``); covered at all, the whole cell; ``use_base``: only from the trees'
+    crown base up (a slab); covered at none and its nearest return vegetation (the nearest-return DSM's crown
+    beyond the fitted rim): it stops no ray. The occlusion DSM's window is raised in place where the crown stands
+    higher (the march's bounds)."""
+    import dataclasses
+
+    from ortho.footprints import CROWN, FootprintOccluder
+
+    z = np.load(cells_path)
+    rows, cols, margin_cm, base = z["rows"], z["cols"], z["margin_cm"], z["base"]
+    crown_z, near_veg, near_building = z["crown_z"], z["near_veg"], z["near_building"]
+    x0, y_top, res = float(z["x0"]), float(z["y_top"]), float(z["res"])
+
+    def occluder(task, surface, *rest):
+        occ, sides = frame_occluder(task, surface, *rest)
+        h, w = surface.heights_m.shape
+        r0, c0 = int(round((y_top - surface.y_top_m) / res)), int(round((surface.x_left_m - x0) / res))
+        if occ is None:
+            occ = FootprintOccluder(np.full((h, w), -np.inf, np.float32), np.full((h, w), -np.inf, np.float32),
+                                    np.full((h, w), -1, np.int32), np.zeros((0, sub, sub), np.uint8), sub,
+                                    np.zeros((0, sub, sub), np.int16))
+        if occ.sub != sub and len(occ.sub_masks):
+            raise ValueError(f"the occluder's cells have {occ.sub} sub-cells a side, the crowns' {sub}")
+        sel = np.flatnonzero((rows >= r0) & (rows < r0 + h) & (cols >= c0) & (cols < c0 + w) & ~near_building)
+        rr, cc = rows[sel] - r0, cols[sel] - c0
+        solid = occ.base_m[rr, cc] == -np.inf
+        sel, rr, cc = sel[solid], rr[solid], cc[solid]
+        m = margin_cm[sel]
+        n_in = (m >= 0).sum(axis=(1, 2))
+        heights = surface.heights_m
+        top = heights[rr, cc]
+        raised = np.where(n_in > 0, np.fmax(top, crown_z[sel]), top).astype(np.float32)
+        heights[rr, cc] = raised
+        base_m, slab_top, sub_index = occ.base_m.copy(), occ.slab_top_m.copy(), occ.sub_index.copy()
+        spill = (n_in == 0) & near_veg[sel]
+        base_m[rr[spill], cc[spill]] = np.inf   # stops nothing: ``_cell_blocks``' slab of the whole cell, none
+        slab_top[rr[spill], cc[spill]] = -np.inf
+        sub_index[rr[spill], cc[spill]] = -1
+        b = base[sel]
+        whole = n_in == sub * sub
+        if use_base:
+            wb = whole & np.isfinite(b) & (b < raised)
+            base_m[rr[wb], cc[wb]] = b[wb]
+            slab_top[rr[wb], cc[wb]] = raised[wb]
+            sub_index[rr[wb], cc[wb]] = CROWN
+        part = (n_in > 0) & ~whole
+        k0 = len(occ.sub_masks)
+        pb = np.where(use_base & np.isfinite(b[part]), b[part], -1e9).astype(np.float32)
+        base_m[rr[part], cc[part]] = pb
+        # the march takes a column within the tolerance of the ray as passed, a slab's top as it is
+        slab_top[rr[part], cc[part]] = raised[part] - np.float32(task_tolerance_m)
+        sub_index[rr[part], cc[part]] = k0 + np.arange(int(part.sum()), dtype=np.int32)
+        masks = np.where(m[part] >= 0, 2, 0).astype(np.uint8)
+        occ = dataclasses.replace(
+            occ, base_m=base_m, slab_top_m=slab_top, sub_index=sub_index, sub=sub,
+            sub_masks=np.concatenate([occ.sub_masks.reshape(-1, sub, sub), masks]),
+            sub_margin_cm=np.concatenate([occ.sub_margin_cm.reshape(-1, sub, sub), m[part]]))
+        return occ, sides
+
+    return occluder
+
+
+task_tolerance_m = 0.3  # the march's tolerance (``ortho.rectify.march_bound``'s default, the true ortho's)
+
+
+def block_crown_model(name: str, src: Path, work: Path, tall: bool) -> dict:
+    """The product's crowns of the block (``lidarctl.rasters.crown_model.write_crown_model``: crowns.gpkg and
+    dsm_crowns.tif, as the chain's rasters stage writes them) into ``work/<name>/crown_model``, made once: from the
+    demo's classified strips and dsm_nearest.tif of the chain, a tall block's simulated strips with their true
+    classes (classified copies in a temporary folder) and its ``lidar_rasters`` dsm_nearest.tif; paths and CPU s."""
+    import shutil
+
+    import laspy
+
+    from lidarctl.rasters.crown_model import write_crown_model
+
+    out = work / name / "crown_model"
+    made = out / "made.json"
+    if made.exists():
+        return json.loads(made.read_text())
+    out.mkdir(parents=True, exist_ok=True)
+    nearest = lidar_rasters(name, src, work, tall) / "dsm_nearest.tif"
+    tmp = None
+    if tall:
+        tmp = work / name / "classified_crowns_tmp"
+        tmp.mkdir(parents=True, exist_ok=True)
+        paths = []
+        for q in sorted((src / "lidar").glob("*.la[sz]")):
+            las = laspy.read(q)
+            las.classification = laspy.read(src / "truth" / "lidar" / q.name).classification
+            las.write(tmp / q.name)
+            paths.append(tmp / q.name)
+    else:
+        paths = sorted((src / "lidar_out" / "classified").glob("*.la[sz]"))
+    t, c = time.perf_counter(), time.process_time()
+    gpkg, tif = write_crown_model(paths, nearest, out)
+    got = {"crowns": str(gpkg), "occlusion_dsm": str(tif), "wall_s": time.perf_counter() - t,
+           "cpu_s": time.process_time() - c}
+    if tmp is not None:
+        shutil.rmtree(tmp)
+    made.write_text(json.dumps(got, indent=1) + "\n")
+    return got
+
+
 def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None,
-             occlusion_dsm=None) -> dict:
+             occlusion_dsm=None, crowns=None) -> dict:
     """The true ortho DOM of ``project`` on its lidar_out/dsm.tif (``footprints``, ``crown_base``, ``occlusion_dsm``:
     in the occlusion test): ``eval_true_ortho_occlusion.make_dom``; the rectify and mosaic times."""
     from eval_true_ortho_occlusion import make_dom as occlusion_make_dom
 
     return occlusion_make_dom(project, True, eo_path=eo_path, camera_path=camera_path, footprints=footprints,
-                              crown_base=crown_base, occlusion_dsm=occlusion_dsm)
+                              crown_base=crown_base, occlusion_dsm=occlusion_dsm, crowns=crowns)
 
 
 def lidar_rasters(name: str, src: Path, work: Path, tall: bool) -> Path:
@@ -556,6 +729,11 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
                 if "occs" in flags or "occs2" in flags:  # dsm_nearest's crowns over their sub-cells in the march
                     crowns = crowns_within_cells_dsm(src, tall, occlusion_dsm, p / "lidar_out" / "crown_bits.tif",
                                                      None, beside="occs2" in flags)
+                if "occt" in flags or "occtb" in flags:  # the crowns fitted to each tree's returns
+                    crowns = crown_model_cells(src, tall, occlusion_dsm, p / "lidar_out" / "crown_model.npz", truth)
+                if "crowns" in flags:  # the product's: lidarctl rasters' crowns.gpkg and dsm_crowns.tif
+                    crowns = block_crown_model(name, src, work, tall)
+                    occlusion_dsm = Path(crowns["occlusion_dsm"])
                 if cell == "lidarn" or (cell == "lidar" and tall):
                     shutil.copy2(rasters_dir / ("dsm_nearest.tif" if cell == "lidarn" else "dsm.tif"),
                                  p / "lidar_out" / "dsm.tif")
@@ -582,8 +760,11 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
             inner = ortho_block._frame_occluder
             if "occs" in flags or "occs2" in flags:
                 ortho_block._frame_occluder = with_crown_bits(inner, Path(crowns["path"]), crowns["top_path"])
+            if "occt" in flags or "occtb" in flags:
+                ortho_block._frame_occluder = with_crown_model(inner, Path(crowns["path"]), "occtb" in flags)
             try:
-                made = make_dom(p, footprints=fp_path, crown_base=crown_path, occlusion_dsm=occlusion_dsm, **kw)
+                made = make_dom(p, footprints=fp_path, crown_base=crown_path, occlusion_dsm=occlusion_dsm,
+                                crowns=crowns["crowns"] if "crowns" in flags else None, **kw)
             finally:
                 ortho_block.HEIGHTS_BY_OUTLINE, ortho_block.OUTLINES_OF_THE_OCCLUSION_TEST = switches
                 ortho_block._frame_occluder = inner

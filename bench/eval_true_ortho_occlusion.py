@@ -100,7 +100,7 @@ def copy_tall(src: Path, dst: Path) -> None:
 
 
 def make_dom(project: Path, true_ortho: bool, eo_path=None, camera_path=None, footprints=None, crown_base=None,
-             occlusion_dsm=None) -> dict:
+             occlusion_dsm=None, crowns=None) -> dict:
     """Rectify (``footprints``: a footprints GeoPackage, ``crown_base``: a crown-base raster, ``occlusion_dsm``: a DSM
     of its own, in the true ortho's occlusion test) and mosaic the project; the rectify and mosaic times."""
     from aerotri.core.executor import Executor
@@ -111,7 +111,8 @@ def make_dom(project: Path, true_ortho: bool, eo_path=None, camera_path=None, fo
     settings = RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
                                footprints=str(footprints) if footprints else None,
                                crown_base=str(crown_base) if crown_base else None,
-                               occlusion_dsm=str(occlusion_dsm) if occlusion_dsm else None) if true_ortho \
+                               occlusion_dsm=str(occlusion_dsm) if occlusion_dsm else None,
+                               crowns=str(crowns) if crowns else None) if true_ortho \
         else RectifySettings()
     with Executor() as ex:
         t, c = time.perf_counter(), time.process_time()

@@ -290,6 +290,7 @@ class FrameTask:
     # shared by the frames' tasks in a process (``_frame_occluder``); None: built per frame
     occluder_bounds_m: tuple | None = None
     crown_base_path: str | None = None  # true ortho: tree crown bases on the DSM's grid in the occlusion test
+    crowns_path: str | None = None  # true ortho: tree crowns fitted to their returns (disks) in the occlusion test
     # true ortho: the DSM of the occlusion test (footprints and crown bases on its grid) when it is not ``dsm_path``,
     # whose heights the ortho is rectified on (e.g. lidar_out/dsm_nearest.tif beside dsm.tif)
     occlusion_dsm_path: str | None = None
@@ -459,6 +460,21 @@ def _height_raster(path, project_crs, what: str):
         yield ds
 
 
+_CROWNS: dict = {}  # this process's crowns by (path, size, mtime): read once, not per frame
+
+
+def _crowns_of(path: str, project_crs):
+    """The crown disks of ``path`` (``ortho.crown_cells.read_crowns``), read once per process and file version."""
+    from ortho.crown_cells import read_crowns
+
+    st = Path(path).stat()
+    key = (str(path), st.st_size, st.st_mtime_ns)
+    if key not in _CROWNS:
+        _CROWNS.clear()
+        _CROWNS[key] = read_crowns(path, project_crs)
+    return _CROWNS[key]
+
+
 def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_crs) -> np.ndarray | None:
     """The crown bases of ``task.crown_base_path`` (None: none) on the frame's DSM window ``heights``, whose grid the
     raster must share (float32, NaN where none)."""
@@ -500,7 +516,8 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
             continue  # (without them the key of a frame kept before the fields existed)
         v = getattr(task, f.name)
         doc[f.name] = _camera_sha256(v) if f.name == "camera" else repr(v) if dataclasses.is_dataclass(v) else v
-    for f in ("image_path", "dem_path", "dsm_path", "footprints_path", "crown_base_path", "occlusion_dsm_path"):
+    for f in ("image_path", "dem_path", "dsm_path", "footprints_path", "crown_base_path", "occlusion_dsm_path",
+              "crowns_path"):
         path = getattr(task, f)
         if path:
             doc[f"{f}_size_mtime"] = file_stamp(path)
@@ -569,6 +586,11 @@ def _rectify_frame(task: FrameTask) -> dict:
         from ortho.footprints import with_crown_base
 
         occluder = with_crown_base(None, surface.heights_m, crown)
+    if task.dsm_path and task.crowns_path:
+        from ortho.crown_cells import with_crown_disks
+
+        occluder = with_crown_disks(occluder, surface.heights_m, surface.x_left_m, surface.y_top_m, surface.res_m,
+                                    _crowns_of(task.crowns_path, project_crs))
     # the ground the frame images (its border rays on the DEM, as ``frame_grid``): the frame's grid, and (every
     # 4th ray: 16 a side) the ring in index.json by which the mosaic counts the empty cells no frame sees
     footprint = footprint_polygon_xy(task.camera, C, R, dem, to_project=to_project, image_id=task.image_id,
@@ -700,6 +722,11 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         from ortho.footprints import read_footprints
 
         read_footprints(footprints, project_crs)
+    crowns = Path(s.crowns) if s.crowns and true_ortho else None
+    if crowns is not None:  # checked whole before any frame is written
+        from ortho.crown_cells import read_crowns
+
+        read_crowns(crowns, project_crs)
     crown_base = Path(s.crown_base) if s.crown_base and true_ortho else None
     if crown_base is not None:
         open_height_raster(crown_base, project_crs, "crown base").close()
@@ -777,7 +804,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
                                   height_op=height_op, raster_ops=raster_ops, executor=executor, inputs=inputs,
                                   max_view_angle_deg=float(s.max_view_angle_deg), footprints=footprints,
                                   crown_base=crown_base, occlusion_dsm=occlusion_dsm, resume_dir=resume_dir,
-                                  overviews=s.overviews)
+                                  overviews=s.overviews, crowns=crowns)
             _shared_cells.clear()  # (this process's; the key names the files' sizes and times for the workers')
             if old_index is not None:  # re-run of a subset: the other frames of the earlier run come along
                 done = {e["image_id"] for e in index["frames"]}
@@ -878,7 +905,7 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
                   inputs: dict, raster_ops: dict | None = None, max_view_angle_deg: float = 90.0, footprints: Path | None = None,
                   crown_base: Path | None = None, occlusion_dsm: Path | None = None,
-                  resume_dir: Path | None = None, overviews: bool = False) -> dict:
+                  resume_dir: Path | None = None, overviews: bool = False, crowns: Path | None = None) -> dict:
     """One task per frame writing ``out_dir/<image_id>.tif``; the index of the frames (in frame order). With
     ``resume_dir``: the frames an interrupted run of the same inputs finished are taken from there, the others
     kept there as they finish."""
@@ -906,6 +933,7 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        crown_base_path=str(crown_base) if crown_base is not None else None,
                        occlusion_dsm_path=str(occlusion_dsm) if occlusion_dsm is not None else None,
                        overviews=overviews,
+                       crowns_path=str(crowns) if crowns is not None else None,
                        dsm_height_operation=spec_of(ops.get("dsm")) if true_ortho else None,
                        occlusion_height_operation=spec_of(ops.get("occlusion")) if true_ortho else None,
                        crown_base_height_operation=spec_of(ops.get("crown_base")) if true_ortho else None)
@@ -926,6 +954,7 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
         "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None,
         "footprints": str(footprints) if footprints is not None else None,
         **({"crown_base": str(crown_base)} if crown_base is not None else {}),
+        **({"crowns": str(crowns)} if crowns is not None else {}),
         **({"occlusion_dsm": str(occlusion_dsm)} if occlusion_dsm is not None else {}), "interpolation": interpolation,
         "coordinate_operation": operation.record() if operation is not None else None,
         "operation": dataclasses.asdict(operation.spec()) if operation is not None else None,

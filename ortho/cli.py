@@ -52,6 +52,7 @@ def _settings(cls, project):
 @click_option(RectifySettings, "occlusion_dsm", "--occlusion-dsm")
 @click_option(RectifySettings, "footprints", "--footprints")
 @click_option(RectifySettings, "crown_base", "--crown-base")
+@click_option(RectifySettings, "crowns", "--crowns")
 @click_option(RectifySettings, "max_view_angle_deg", "--max-view-angle-deg")
 @click.option("--frames", help="comma-separated image ids (default: all images)")
 @click_option(RectifySettings, "compression", "--frame-compress")

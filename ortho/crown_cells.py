@@ -6,7 +6,11 @@ stops the lines of sight that pass beside the crown over the part of the cell th
 crown's sub-cells per cell (``lidarctl.rasters.crown_rim.crown_sub_cells``: the sub-cell centres nearer a vegetation
 return than any other, the rim half way between the returns as ``dsm_nearest`` puts it between cells), such a cell
 is a column up to its top over those sub-cells only: ``FootprintOccluder``'s mask of wall sub-cells (bit 1), no
-slab (``ortho.rectify_kernels._cell_blocks``).
+slab (``ortho.rectify_kernels._cell_blocks``) (a trial, not in the chain).
+
+The chain's since: the trees' crowns as disks fitted to their returns (``lidarctl.rasters.crown_model``,
+lidar_out/crowns.gpkg; ``read_crowns``), the cells they cover a crown from the tree's base up over the disks only
+(``with_crown_disks``; ``ortho rectify --crowns``).
 """
 
 from __future__ import annotations
@@ -47,3 +51,102 @@ def with_crown_sub_cells(occluder: FootprintOccluder | None, top_m: np.ndarray, 
         sub_masks=np.concatenate([occluder.sub_masks.reshape(-1, sub, sub), masks.reshape(-1, sub, sub)]),
         sub_margin_cm=np.concatenate([occluder.sub_margin_cm.reshape(-1, sub, sub),
                                       np.full((len(rows), sub, sub), MARGIN_NONE, np.int16)]))
+
+
+@dataclasses.dataclass(frozen=True)
+class CrownDisks:
+    """Tree crowns as disks (``lidarctl rasters``' lidar_out/crowns.gpkg): centre ``x_m``, ``y_m``, ``radius_m``,
+    ``top_m`` and crown base ``base_m`` (project CRS, metres; heights in the DSM's system)."""
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    radius_m: np.ndarray
+    top_m: np.ndarray
+    base_m: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.x_m)
+
+
+CROWN_FIELDS = ("x_m", "y_m", "radius_m", "top_m", "base_m")
+
+
+def read_crowns(path, project_crs) -> CrownDisks:
+    """The crowns of the GeoPackage ``path`` (its first layer, in ``project_crs``, with the fields
+    ``CROWN_FIELDS``); ``InputError`` naming the file and what was expected otherwise."""
+    from pathlib import Path
+
+    import pyogrio
+    from pyproj import CRS as _CRS
+
+    from aerotri.core.errors import InputError
+    from aerotri.geom.crs.definition import same_horizontal
+
+    path = Path(path)
+    what = (f"expected the tree crowns of lidarctl rasters (lidar_out/crowns.gpkg: fields {', '.join(CROWN_FIELDS)}) "
+            "in the project CRS")
+    if not path.is_file():
+        raise InputError(f"{path}: crowns file not found; {what}")
+    try:
+        meta, _, _, fields = pyogrio.raw.read(str(path), read_geometry=False, columns=list(CROWN_FIELDS))
+    except Exception as e:  # pyogrio's DataSourceError, a missing field, ...
+        raise InputError(f"{path}: cannot read its crowns ({str(e).splitlines()[0]}); {what}") from None
+    if meta.get("crs") is None or not same_horizontal(_CRS.from_user_input(meta["crs"]), project_crs):
+        raise InputError(f"{path}: the crowns are in {meta.get('crs') or 'no CRS'}; {what} "
+                         f"({project_crs.to_string()})")
+    names = list(meta.get("fields", []))
+    missing = [f for f in CROWN_FIELDS if f not in names]
+    if missing:
+        raise InputError(f"{path}: no field {', '.join(missing)}; {what}")
+    cols = {f: np.asarray(fields[names.index(f)], np.float64) for f in CROWN_FIELDS}
+    bad = ~np.all([np.isfinite(v) for v in cols.values()], axis=0) | (cols["radius_m"] <= 0)
+    if bad.any():
+        raise InputError(f"{path}: crown {int(np.flatnonzero(bad)[0]) + 1} has a missing value or a radius <= 0; "
+                         f"{what}, {int(bad.sum())} such crown(s)")
+    return CrownDisks(**cols)
+
+
+def with_crown_disks(occluder: FootprintOccluder | None, top_m: np.ndarray, x_left_m: float, y_top_m: float,
+                     res_m: float, crowns: CrownDisks, sub: int = 5, tolerance_m: float = 0.3) -> FootprintOccluder:
+    """``occluder`` (None: none) with the tree crowns' disks: each cell of the occlusion DSM window (``top_m``, its
+    north-west corner at ``x_left_m``, ``y_top_m``, cells of ``res_m``) that is a solid column there, that a disk
+    covers at one of its ``sub`` x ``sub`` sub-cell centres and that stands no more than ``tolerance_m`` above the
+    covering trees' tops (not a roof) blocks only from the covering trees' lowest crown base up to its top: over the
+    whole cell when every sub-cell centre is covered (a crown slab, as ``ortho.footprints.with_crown_base``), else
+    over the disks only (the march interpolates the sub-cells' signed distances: the rim between their centres;
+    the slab's top the column's less ``tolerance_m``, as the march takes a column). Cells no disk covers are left as
+    they are (``lidarctl rasters``' dsm_crowns.tif stands the nearest-return crown beyond the disks at the ground)."""
+    from lidarctl.rasters.crown_model import TreeCrowns, crown_sub_cells
+    from ortho.footprints import CROWN
+
+    shape = top_m.shape
+    if occluder is None:
+        occluder = FootprintOccluder(np.full(shape, -np.inf, np.float32), np.full(shape, -np.inf, np.float32),
+                                     np.full(shape, -1, np.int32), np.zeros((0, sub, sub), np.uint8), sub,
+                                     np.zeros((0, sub, sub), np.int16))
+    if occluder.sub != sub and len(occluder.sub_masks):
+        raise ValueError(f"the occluder's cells have {occluder.sub} sub-cells a side, the crowns' {sub}")
+    trees = TreeCrowns(crowns.x_m, crowns.y_m, crowns.radius_m, crowns.top_m, crowns.base_m,
+                       np.zeros(len(crowns), np.int64), np.zeros(len(crowns), bool), 0.0)
+    rows, cols, margin_cm, base, tree_top = crown_sub_cells(trees, x0_m=x_left_m, y_top_m=y_top_m, res_m=res_m,
+                                                            shape=shape, sub=sub, reach_m=0.0)
+    n_in = (margin_cm >= 0).sum(axis=(1, 2))
+    top = top_m[rows, cols]
+    take = ((n_in > 0) & (occluder.base_m[rows, cols] == -np.inf) & (top <= tree_top + tolerance_m)
+            & (base < top))
+    rows, cols, margin_cm, base, top, n_in = (a[take] for a in (rows, cols, margin_cm, base, top, n_in))
+    whole = n_in == sub * sub
+    base_m, slab_top, sub_index = occluder.base_m.copy(), occluder.slab_top_m.copy(), occluder.sub_index.copy()
+    base_m[rows[whole], cols[whole]] = base[whole]
+    slab_top[rows[whole], cols[whole]] = top[whole]
+    sub_index[rows[whole], cols[whole]] = CROWN
+    part = ~whole
+    k0 = len(occluder.sub_masks)
+    base_m[rows[part], cols[part]] = base[part]
+    slab_top[rows[part], cols[part]] = top[part] - np.float32(tolerance_m)
+    sub_index[rows[part], cols[part]] = k0 + np.arange(int(part.sum()), dtype=np.int32)
+    return dataclasses.replace(
+        occluder, base_m=base_m, slab_top_m=slab_top, sub_index=sub_index, sub=sub,
+        sub_masks=np.concatenate([occluder.sub_masks.reshape(-1, sub, sub),
+                                  np.where(margin_cm[part] >= 0, 2, 0).astype(np.uint8)]),
+        sub_margin_cm=np.concatenate([occluder.sub_margin_cm.reshape(-1, sub, sub), margin_cm[part]]))

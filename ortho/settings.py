@@ -48,8 +48,9 @@ class RectifySettings:
     occlusion_dsm: Path | None = setting(
         None, path=True,
         help="DSM GeoTIFF of the true ortho's occlusion test, when not the DSM itself; footprints and crown bases on "
-             "its grid (aerotri run on the LiDAR stages' DSM: lidar_out/dsm_nearest.tif, the first return nearest "
-             "each cell centre, which fills more of the occluded ground; lidar_out/dsm.tif: the DSM itself).")
+             "its grid (aerotri run on the LiDAR stages' DSM: lidar_out/dsm_crowns.tif, the first return nearest "
+             "each cell centre with the trees' fitted crowns, with [rectify] crowns = lidar_out/crowns.gpkg; "
+             "lidar_out/dsm_nearest.tif the same without the crowns; lidar_out/dsm.tif: the DSM itself).")
     footprints: Path | None = setting(
         None, path=True,
         help="Building footprints (GeoPackage of wall-line polygons in the project CRS, e.g. a cadastre) for the true "
@@ -62,6 +63,11 @@ class RectifySettings:
         help="Tree crown bases (GeoTIFF on the DSM's grid: per cell the height of the lowest vegetation return, nodata "
              "where none) for the true ortho's occlusion test: a tree cell near no footprint hides only between its "
              "crown base and its top, so ground seen beneath a crown is kept (docs/true-ortho.md).")
+    crowns: Path | None = setting(
+        None, path=True,
+        help="Tree crowns fitted to their LiDAR returns (lidarctl rasters' lidar_out/crowns.gpkg: a disk, top and crown "
+             "base per tree) for the true ortho's occlusion test, on the occlusion DSM lidar_out/dsm_crowns.tif: a tree "
+             "cell hides only within the disks and from the tree's crown base up (docs/true-ortho.md).")
     max_view_angle_deg: float = setting(
         90.0, min=0.0, min_open=True, max=90.0,
         help="Largest angle between a cell's ray to the projection centre and the vertical (deg); cells seen more "

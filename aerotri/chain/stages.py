@@ -167,7 +167,7 @@ class Chain:
     def true_ortho_dsm(self) -> list[Path]:
         """The DSM the rectify stage reads (none for a conventional ortho)."""
         s = self.rectify_settings().settings
-        return [Path(p) for p in (s.dsm, s.occlusion_dsm, s.footprints, s.crown_base)
+        return [Path(p) for p in (s.dsm, s.occlusion_dsm, s.footprints, s.crown_base, s.crowns)
                 if s.true_ortho and s.dsm is not None and p is not None]
 
     def no_dem(self, root=None) -> str | None:
@@ -284,7 +284,8 @@ class Chain:
             Stage("classify", lambda r: self.classify_inputs(), self.classified, self.run_classify,
                   options=dict(to_table(o.classify), crs=self.project.crs), skip=self.no_lidar),
             Stage("rasters", self.classified,
-                  lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif", "dsm_nearest.tif")], self.run_rasters,
+                  lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif", "dsm_nearest.tif", "crowns.gpkg",
+                                              "dsm_crowns.tif")], self.run_rasters,
                   options=to_table(o.rasters), skip=self.no_lidar),
             Stage("corners", self.classified, self.corner_outputs, self.run_corners,
                   options=to_table(o.corners), skip=self.no_lidar),
@@ -400,10 +401,14 @@ class Chain:
         return R.ClassifyResult(points=st.n_points, strips=st.n_files, tiles=st.run.n_tiles)
 
     def run_rasters(self, root) -> R.RastersResult:
+        from lidarctl.rasters.crown_model import write_crown_model
         from lidarctl.rasters.products import write_rasters
 
         write_rasters(self.classified(), self.lo, self.options.rasters.res_m, crs=self.project.crs,
                       resume_dir=self.project.work_dir / RASTERS_RESUME_DIR_NAME)
+        # the trees' crowns for the true ortho's occlusion test (docs/true-ortho.md, "Tree crowns fitted to their
+        # returns"), after the nearest-return DSM they are cut into
+        write_crown_model(self.classified(), self.project.dsm_nearest_path, self.lo)
         return R.RastersResult(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:
@@ -616,8 +621,8 @@ class Chain:
     def rectify_settings(self) -> Resolved:
         """[rectify] with the chain's defaults: the DEM of ``dem_path``; a true ortho on the DSM whenever there is
         one (``dsm_path``) and [rectify] true_ortho is not set (``true_ortho = false``: the conventional ortho); on
-        the LiDAR stages' DSM its occlusion test on their nearest-return DSM (lidar_out/dsm_nearest.tif) unless
-        [rectify] occlusion_dsm says otherwise."""
+        the LiDAR stages' DSM its occlusion test on their nearest-return DSM with the trees' fitted crowns
+        (lidar_out/dsm_crowns.tif and lidar_out/crowns.gpkg) unless [rectify] occlusion_dsm says otherwise."""
         r = self.stage_settings("rectify")
         if r.settings.dem is None and self.dem_path() is not None:
             r = r.replace("dem", self.dem_path(), r.sources.get("dem", "default"), "the LiDAR stages' DEM")
@@ -627,8 +632,11 @@ class Chain:
         if r.settings.true_ortho and r.settings.dsm is None and dsm is not None:
             r = r.replace("dsm", dsm, r.sources.get("dsm", DEFAULT), "the LiDAR stages' DSM")
             if r.settings.occlusion_dsm is None:
-                r = r.replace("occlusion_dsm", self.project.dsm_nearest_path, r.sources.get("occlusion_dsm", DEFAULT),
-                              "the LiDAR stages' nearest-return DSM")
+                r = r.replace("occlusion_dsm", self.project.dsm_crowns_path, r.sources.get("occlusion_dsm", DEFAULT),
+                              "the LiDAR stages' nearest-return DSM with the trees' fitted crowns")
+                if r.settings.crowns is None:
+                    r = r.replace("crowns", self.project.crowns_path, r.sources.get("crowns", DEFAULT),
+                                  "the LiDAR stages' tree crowns fitted to their returns")
         return r
 
     def run_rectify(self, root) -> R.RectifyResult:

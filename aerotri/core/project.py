@@ -294,6 +294,9 @@ class Project:
     dsm_path = property(lambda self: self.lidar_out_dir / "dsm.tif")
     # the first return nearest each cell centre (lidarctl rasters): the DSM of the chain's true-ortho occlusion test
     dsm_nearest_path = property(lambda self: self.lidar_out_dir / "dsm_nearest.tif")
+    # the tree crowns fitted to their returns and the nearest-return DSM with them (lidarctl.rasters.crown_model)
+    crowns_path = property(lambda self: self.lidar_out_dir / "crowns.gpkg")
+    dsm_crowns_path = property(lambda self: self.lidar_out_dir / "dsm_crowns.tif")
     ndsm_path = property(lambda self: self.lidar_out_dir / "ndsm.tif")
     corners_path = property(lambda self: self.lidar_out_dir / "corners.csv")
     corners_summary_path = property(lambda self: self.lidar_out_dir / "corners.json")

@@ -189,6 +189,30 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
 
 
 @main.command()
+@click.argument("in_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("outdir", type=click.Path(file_okay=False))
+@click.option("--dsm-nearest", "nearest_path", type=click.Path(dir_okay=False), default=None,
+              help="The nearest-return DSM the crowns are cut into [OUTDIR/dsm_nearest.tif, of lidarctl rasters].")
+def crowns(*, in_paths, outdir, nearest_path):
+    """Tree crowns fitted to their returns for the true ortho's occlusion test: crowns.gpkg (a disk, top and crown
+    base per tree) and dsm_crowns.tif (the nearest-return DSM with them) into OUTDIR, from classified LAS/LAZ
+    file(s) (strips in one CRS, held in memory; docs/true-ortho.md, "Tree crowns fitted to their returns"). The
+    chain's rasters stage writes them after the rasters; ortho rectify --occlusion-dsm dsm_crowns.tif --crowns
+    crowns.gpkg reads them."""
+    from pathlib import Path
+
+    from aerotri.core.errors import InputError
+    from lidarctl.rasters.crown_model import write_crown_model
+
+    nearest = Path(nearest_path) if nearest_path else Path(outdir) / "dsm_nearest.tif"
+    if not nearest.is_file():
+        raise InputError(f"{nearest}: nearest-return DSM not found; expected dsm_nearest.tif of lidarctl rasters "
+                         "(--dsm-nearest)")
+    for p in write_crown_model(list(in_paths), nearest, outdir):
+        click.echo(str(p))
+
+
+@main.command()
 @click.argument("pred_paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--truth", "truth_path", type=click.Path(dir_okay=False), default=None,
               help="Truth cloud with the same points in the same order (point-by-point filter test).")

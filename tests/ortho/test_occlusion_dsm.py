@@ -62,3 +62,32 @@ def test_the_occlusion_test_takes_its_own_surface_and_the_heights_stay_the_dsms(
         g_img, g_m, g_tf = ground[k]
         assert g_tf == tf and (g_m & ~m).sum() > 0.01 * m.sum() and not (m & ~g_m).any()
         assert np.array_equal(img[:, m], g_img[:, m])
+
+
+def test_crowns_change_nothing_where_no_disk_lies_and_a_bad_file_is_refused(block, tmp_path):
+    """``--crowns`` (lidarctl rasters' crowns.gpkg): a crown beyond every frame's DSM window leaves the frame orthos
+    byte for byte; a crowns file in another CRS stops the command before any frame (exit 2, naming the file)."""
+    import shapely
+
+    from aerotri.core.project import Project
+    from aerotri.core.vector_files import VectorLayer, write_layers
+
+    crs = Project.open(block).crs
+    with rasterio.open(block / "truth" / "dsm.tif") as ds:
+        far_x, far_y = ds.bounds.right + 500.0, ds.bounds.top + 500.0
+    fields = {"x_m": np.array([far_x]), "y_m": np.array([far_y]), "radius_m": np.array([3.0]),
+              "top_m": np.array([20.0]), "base_m": np.array([5.0])}
+    disk = [shapely.Point(far_x, far_y).buffer(3.0)]
+    write_layers(tmp_path / "far.gpkg", [VectorLayer("crowns", "Polygon", disk, fields)], crs=crs)
+    _, plain = _rectify(block, tmp_path, "plain")
+    index, far = _rectify(block, tmp_path, "far", "--crowns", str(tmp_path / "far.gpkg"))
+    assert index["crowns"] == str(tmp_path / "far.gpkg")
+    for k, (img, m, tf) in plain.items():
+        assert np.array_equal(img, far[k][0]) and np.array_equal(m, far[k][1]) and tf == far[k][2]
+    write_layers(tmp_path / "wgs.gpkg", [VectorLayer("crowns", "Polygon", disk, fields)], crs="EPSG:4326")
+    root = tmp_path / "bad"
+    shutil.copytree(block, root, ignore=shutil.ignore_patterns("ortho"))
+    r = CliRunner().invoke(main, ["rectify", str(root), "--true-ortho", "--dem", str(root / "truth" / "dem.tif"),
+                                  "--dsm", str(root / "truth" / "dsm.tif"), "--crowns", str(tmp_path / "wgs.gpkg")])
+    assert r.exit_code == 2 and "wgs.gpkg: the crowns are in" in r.output and "Traceback" not in r.output
+    assert not (root / "ortho" / "frames").exists()

@@ -253,13 +253,16 @@ def test_the_rectify_stage_reads_the_dsm_of_the_true_ortho(tmp_path):
     chain, inputs, options = rectify()
     assert tmp_path / "lidar_out" / "dsm.tif" in inputs and options["true_ortho"] is True
     assert chain.rectify_settings().sources["true_ortho"] == "aerotri run"
-    # the occlusion test on the rasters stage's nearest-return DSM (an output of that stage, an input of this one)
-    nearest = tmp_path / "lidar_out" / "dsm_nearest.tif"
+    # the occlusion test on the rasters stage's nearest-return DSM with the trees' fitted crowns (outputs of that
+    # stage, inputs of this one)
+    nearest, crowns = tmp_path / "lidar_out" / "dsm_crowns.tif", tmp_path / "lidar_out" / "crowns.gpkg"
     assert nearest in inputs and Path(options["occlusion_dsm"]) == nearest
-    assert nearest in next(s for s in chain.stages() if s.name == "rasters").outputs(tmp_path)
+    assert crowns in inputs and Path(options["crowns"]) == crowns
+    assert {nearest, crowns} <= set(next(s for s in chain.stages() if s.name == "rasters").outputs(tmp_path))
     # back to the DSM itself; a DSM of the user's own: its occlusion test on it
     chain, inputs, options = rectify('[rectify]\nocclusion_dsm = "lidar_out/dsm.tif"\n')
     assert nearest not in inputs and Path(options["occlusion_dsm"]).resolve() == (tmp_path / "lidar_out" / "dsm.tif").resolve()
+    assert crowns not in inputs and options["crowns"] is None
     (tmp_path / "own.tif").write_bytes(b"")
     chain, inputs, options = rectify('[rectify]\ndsm = "own.tif"\n')
     assert nearest not in inputs and options["occlusion_dsm"] is None

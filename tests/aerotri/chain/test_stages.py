@@ -169,8 +169,9 @@ def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end
     p0, table = run_to_end
     index = json.loads((p0 / "ortho" / "frames" / "index.json").read_text())
     assert index["true_ortho"] and Path(index["dsm"]).resolve() == (p0 / "lidar_out" / "dsm.tif").resolve()
-    # its occlusion test on the rasters stage's nearest-return DSM
-    assert Path(index["occlusion_dsm"]).resolve() == (p0 / "lidar_out" / "dsm_nearest.tif").resolve()
+    # its occlusion test on the rasters stage's nearest-return DSM with the trees' fitted crowns
+    assert Path(index["occlusion_dsm"]).resolve() == (p0 / "lidar_out" / "dsm_crowns.tif").resolve()
+    assert Path(index["crowns"]).resolve() == (p0 / "lidar_out" / "crowns.gpkg").resolve()
     assert index["settings"]["true_ortho"]["value"] is True and index["settings"]["true_ortho"]["source"] == "aerotri run"
     assert "ortho=true (DSM)" in table and "rectify: true ortho on the DSM lidar_out/dsm.tif" in table
     p = tmp_path / "p"

@@ -1,0 +1,144 @@
+"""Tree crowns fitted to their returns (``lidarctl.rasters.crown_model``), on constructed crowns."""
+
+import numpy as np
+import pytest
+
+from lidarctl.rasters.crown_model import crown_sub_cells, fit_crowns
+
+
+def _scene(seed, spacing=0.75, trees=((10.0, 10.0, 3.0, 12.0), (30.3, 12.2, 2.2, 8.0)), gap_share=0.15):
+    """First returns on a jittered grid over spheroid crowns (x, y, radius, top) and flat ground at 0; a
+    ``gap_share`` of the pulses into a crown reach the ground (its first return there); one interior return per
+    crown pulse at half the crown's depth, and one stray low-vegetation return on open ground."""
+    rng = np.random.default_rng(seed)
+    g = np.arange(0.0, 42.0, spacing)
+    x, y = np.meshgrid(g, g)
+    x = (x + rng.uniform(-0.3, 0.3, x.shape) * spacing).ravel()
+    y = (y + rng.uniform(-0.3, 0.3, y.shape) * spacing).ravel()
+    z = np.zeros_like(x)
+    cls = np.full(len(x), 2, np.uint8)
+    extra = []
+    for cx, cy, a, top in trees:
+        q = 1 - ((x - cx) ** 2 + (y - cy) ** 2) / a ** 2
+        hit = (q > 0) & (rng.uniform(size=len(x)) >= gap_share)
+        c = a  # vertical semi-axis
+        z[hit] = top - c + c * np.sqrt(q[hit])
+        cls[hit] = 5
+        extra.append((x[hit], y[hit], top - c - 0.5 * c * np.sqrt(q[hit])))
+    rn = np.ones(len(x), np.uint8)
+    ix = np.concatenate([e[0] for e in extra])
+    iy = np.concatenate([e[1] for e in extra])
+    iz = np.concatenate([e[2] for e in extra])
+    x, y, z = np.concatenate([x, ix, [25.0]]), np.concatenate([y, iy, [30.0]]), np.concatenate([z, iz, [0.4]])
+    cls = np.concatenate([cls, np.full(len(ix), 5, np.uint8), [3]])
+    rn = np.concatenate([rn, np.full(len(ix), 2, np.uint8), [1]])
+    return x, y, z, cls, rn
+
+
+def test_round_crowns_are_fitted_within_0_4_of_the_spacing():
+    for seed in (1, 2, 3):
+        crowns = fit_crowns(*_scene(seed))
+        assert len(crowns) == 2  # the stray return is no tree
+        order = np.argsort(crowns.x_m)
+        assert np.all(crowns.circle_fit)
+        np.testing.assert_allclose(crowns.x_m[order], [10.0, 30.3], atol=0.3)
+        np.testing.assert_allclose(crowns.y_m[order], [10.0, 12.2], atol=0.3)
+        np.testing.assert_allclose(crowns.radius_m[order], [3.0, 2.2], atol=0.3)
+        np.testing.assert_allclose(crowns.top_m[order], [12.0, 8.0], atol=0.05)
+        # the lowest return inside the crown: half way down, above the true base (top - 2 x radius)
+        assert np.all(crowns.base_m[order] > np.array([12.0 - 6.0, 8.0 - 4.4]))
+        assert np.all(crowns.base_m[order] < np.array([12.0 - 3.0, 8.0 - 2.2]))
+
+
+def test_sub_cells_follow_the_fitted_disk():
+    crowns = fit_crowns(*_scene(4))
+    rows, cols, margin_cm, base, top = crown_sub_cells(crowns, x0_m=0.0, y_top_m=42.0, res_m=0.5, shape=(84, 84),
+                                                       sub=5)
+    inside = margin_cm >= 0
+    area = inside.sum() * 0.1 * 0.1
+    fitted = np.pi * (crowns.radius_m ** 2).sum()   # the disks apart: their sub-cells' area is theirs
+    assert abs(area - fitted) < 0.02 * fitted
+    covered = inside.any(axis=(1, 2))
+    assert np.all(np.isfinite(base[covered])) and np.all(np.isnan(base[~covered]))
+    # a cell whose centre lies 2 m from the first crown's centre is inside at all its sub-cells
+    k = np.flatnonzero((rows == int((42.0 - 10.0) / 0.5)) & (cols == int((10.0 + 2.0) / 0.5)))
+    assert inside[k].all()
+
+
+def _nearest_dsm(x, y, z, cls, rn, res=0.5, n=84):
+    """The first return nearest each cell centre (the nearest-return DSM of ``lidarctl.rasters.nearest``)."""
+    from scipy.spatial import cKDTree
+
+    first = rn == 1
+    c = (np.arange(n) + 0.5) * res
+    X, Y = np.meshgrid(c, 42.0 - c)
+    _, j = cKDTree(np.column_stack([x[first], y[first]])).query(np.column_stack([X.ravel(), Y.ravel()]))
+    return z[first][j].reshape(n, n).astype(np.float32), cls[first][j].reshape(n, n)
+
+
+def test_the_surface_closes_the_crowns_gaps_and_drops_the_crown_beyond_the_disks():
+    from lidarctl.rasters.crown_model import crown_surface
+
+    import dataclasses
+
+    pts = _scene(5)
+    crowns = fit_crowns(*pts)
+    # disks half a metre narrower than the fit: the returns' crown spills beyond them
+    crowns = dataclasses.replace(crowns, radius_m=crowns.radius_m - 0.5)
+    dsm, near_cls = _nearest_dsm(*pts)
+    out = crown_surface(crowns, *pts, dsm, x0_m=0.0, y_top_m=42.0, res_m=0.5)
+    c = (np.arange(84) + 0.5) * 0.5
+    X, Y = np.meshgrid(c, 42.0 - c)
+    inner = np.hypot(X - 10.0, Y - 10.0) < 2.0   # well within the first crown (3 m; its disk about 2.5 m)
+    assert (dsm[inner] < 1.0).any() and (out[inner] > 9.0).all()  # its gaps (ground returns) stand at the crown
+    beyond = ~(np.hypot(X[:, :, None] - crowns.x_m, Y[:, :, None] - crowns.y_m) < crowns.radius_m + 0.36).any(-1)
+    spill = beyond & (near_cls == 5)
+    assert spill.any() and (out[spill] == 0.0).all()  # the nearest-return crown beyond the disks: the ground
+    assert (out[beyond & ~spill] == dsm[beyond & ~spill]).all()  # the rest beyond them as it was
+
+
+@pytest.mark.parametrize(("epsg", "unit_m"), [(32611, 1.0), (2263, 0.30480060960121924)])
+def test_write_crown_model_round_trip(tmp_path, epsg, unit_m):
+    """The files in the CRS's units (metres; US survey feet: the fit in metres all the same)."""
+    import laspy
+    import rasterio
+    from pyproj import CRS
+    from rasterio.transform import from_origin
+
+    from lidarctl.rasters.crown_model import write_crown_model
+    from ortho.crown_cells import read_crowns
+
+    x, y, z, cls, rn = _scene(6)
+    x0, y0 = 500000.0, 4000000.0
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = [0.001] * 3, [x0, y0, 0.0]
+    header.add_crs(CRS.from_epsg(epsg))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x / unit_m + x0, y / unit_m + y0, z / unit_m
+    las.classification, las.return_number, las.number_of_returns = cls, rn, np.where(rn == 1, 1, 2)
+    las.write(tmp_path / "strip.las")
+    dsm, _ = _nearest_dsm(x, y, z, cls, rn)
+    tf = from_origin(x0, y0 + 42.0 / unit_m, 0.5 / unit_m, 0.5 / unit_m)
+    with rasterio.open(tmp_path / "dsm_nearest.tif", "w", driver="GTiff", width=84, height=84, count=1,
+                       dtype="float32", crs=f"EPSG:{epsg}", transform=tf) as ds:
+        ds.write(dsm / unit_m, 1)
+    gpkg, tif = write_crown_model([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", tmp_path)
+    crowns = read_crowns(gpkg, CRS.from_epsg(epsg))
+    order = np.argsort(crowns.x_m)
+    np.testing.assert_allclose((crowns.x_m[order] - x0) * unit_m, [10.0, 30.3], atol=0.3)
+    np.testing.assert_allclose(crowns.radius_m[order] * unit_m, [3.0, 2.2], atol=0.3)
+    np.testing.assert_allclose(crowns.top_m[order] * unit_m, [12.0, 8.0], atol=0.05)
+    with rasterio.open(tif) as ds:
+        assert ds.shape == (84, 84) and ds.transform == tf
+        assert abs(float(ds.read(1).max()) * unit_m - 12.0) < 0.05
+
+
+def test_lidarctl_crowns_refuses_a_missing_nearest_return_dsm(tmp_path):
+    from click.testing import CliRunner
+
+    from lidarctl.cli.main import main
+
+    (tmp_path / "strip.las").write_bytes(b"")
+    r = CliRunner().invoke(main, ["crowns", str(tmp_path / "strip.las"), str(tmp_path / "out")])
+    assert r.exit_code == 2 and "dsm_nearest.tif: nearest-return DSM not found" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "out").exists()
