@@ -116,7 +116,7 @@ def with_crown_disks(occluder: FootprintOccluder | None, top_m: np.ndarray, x_le
     over the disks only (the march interpolates the sub-cells' signed distances: the rim between their centres;
     the slab's top the column's less ``tolerance_m``, as the march takes a column). Cells no disk covers are left as
     they are (``lidarctl rasters``' dsm_crowns.tif stands the nearest-return crown beyond the disks at the ground)."""
-    from lidarctl.rasters.crown_model import TreeCrowns, crown_sub_cells
+    from aerotri.geom.crown_disks import TreeCrowns, crown_sub_cells
     from ortho.footprints import CROWN
 
     shape = top_m.shape
