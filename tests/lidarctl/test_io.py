@@ -391,3 +391,14 @@ def test_withheld_points_are_left_out(files, tmp_path, tiled):
             np.testing.assert_array_equal(ra.read(1), rb.read(1))
     notes = [line for line in said if "withheld flag" in line]
     assert notes and "200 of" in notes[0] and f"first record {idx[0]}" in notes[0] and "left out" in notes[0]
+
+
+def test_evaluate_names_withheld_points_when_the_counts_differ(files, tmp_path):
+    """``evaluate`` compares point by point; a prediction whose withheld points are left out has fewer points than a
+    truth without the flag: the message says why (it said only "same order needed")."""
+    d, _ = files
+    _, withheld, _, _ = _withheld_pair(d, tmp_path)
+    r = CliRunner().invoke(main, ["evaluate", str(withheld), "--truth", str(d / "c14.las")])
+    assert r.exit_code == 2 and "200 flagged withheld" in r.output, r.output
+    r = CliRunner().invoke(main, ["evaluate", str(withheld), "--truth", str(withheld)])
+    assert r.exit_code == 0, r.output
