@@ -62,6 +62,9 @@ class PointCloud:
     crs: pyproj.CRS | None = None
     units: LengthUnits = METRE
     point_source_id: np.ndarray | None = None
+    # the file's records the points are (a mask over them), None when every record was used: records
+    # flagged withheld are left out (``aerotri.geom.las.usable``)
+    used: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.x)
@@ -117,10 +120,11 @@ def _validate_xyz(path, x, y, z, first_index: int, units: LengthUnits = METRE) -
 
 
 def read_records(path) -> laspy.ScaleAwarePointRecord:
-    """All point records of a (small) LAS/LAZ file at once, checked as ``las.iter_chunks`` does."""
+    """All point records of a (small) LAS/LAZ file at once (those flagged withheld too: for copies), checked as
+    ``las.iter_chunks`` does."""
     with las.open_las(path) as reader:
         header = reader.header
-        chunks = [chunk for _, chunk in las.iter_chunks(reader, path, max(int(header.point_count), 1))]
+        chunks = [chunk for _, chunk in las.iter_chunks(reader, path, max(int(header.point_count), 1), withheld=True)]
     if not chunks:
         return laspy.ScaleAwarePointRecord.zeros(0, header=header)
     if len(chunks) == 1:
@@ -138,7 +142,8 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
     CRS is an InputError, else its coordinates are taken as they are (``units`` UNKNOWN). With
     ``keep_records`` also return the raw point records (list of chunks, file units) so that
     ``write_classified`` need not decompress the input a second time (costs point-record-size bytes
-    per point, e.g. 30 for format 6). ``point_source_id``: also read the strip ids.
+    per point, e.g. 30 for format 6; every record, withheld ones too). ``point_source_id``: also read the strip
+    ids. Records flagged withheld are not in the cloud (``PointCloud.used`` says which records are).
     """
     header = las.read_header(path)
     n = header.point_count
@@ -163,11 +168,16 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
     nr = np.empty(n, np.uint8)
     cls = np.empty(n, np.uint8)
     sid = np.empty(n, np.uint16) if point_source_id else None
-    records = []
-    for first, chunk in las.iter_file_chunks(path, chunk_points):
+    records, used, at = [], [], 0
+    for first, chunk in las.iter_file_chunks(path, chunk_points, withheld=keep_records):
         if keep_records:
             records.append(chunk)
-        sl = slice(first, first + len(chunk))
+            mask = las.usable(chunk)
+            used.append(np.ones(len(chunk), bool) if mask is None else mask)
+            if mask is not None:
+                chunk = chunk[mask]
+        sl = slice(at, at + len(chunk))
+        at += len(chunk)
         cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
         _validate_xyz(path, cx, cy, cz, first, units)
         x[sl], y[sl], z[sl] = units.xy_to_m(cx), units.xy_to_m(cy), units.z_to_m(cz)
@@ -177,9 +187,33 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
         cls[sl] = chunk.classification
         if sid is not None:
             sid[sl] = chunk.point_source_id
+    used_mask = _used_mask(used, keep_records, at, n, path)
+    if at < n:
+        x, y, z, intensity, rn, nr, cls = (a[:at] for a in (x, y, z, intensity, rn, nr, cls))
+        sid = None if sid is None else sid[:at]
+    if at == 0:
+        raise InputError(f"{path}: every one of its {n:,} points carries the withheld flag (not to be used)")
     rn, nr = sanitize_returns(rn, nr)
-    cloud = PointCloud(x, y, z, intensity, rn, nr, cls, resolved, units, sid)
+    cloud = PointCloud(x, y, z, intensity, rn, nr, cls, resolved, units, sid, used_mask)
     return (cloud, records) if keep_records else cloud
+
+
+def _used_mask(used, keep_records: bool, n_used: int, n: int, path) -> np.ndarray | None:
+    """``PointCloud.used`` from ``read_cloud``'s per-chunk masks (``keep_records``) or a second look at the
+    flags (only when records were left out)."""
+    if n_used == n:
+        return None
+    if keep_records:
+        mask = np.concatenate(used)
+        las.note_withheld(path, n - n_used, n, int(np.argmin(mask)))
+        return mask
+    mask = np.ones(n, bool)
+    for first, chunk in las.iter_file_chunks(path, CHUNK_POINTS, laspy.DecompressionSelection.XY_RETURNS_CHANNEL
+                                             | laspy.DecompressionSelection.FLAGS, withheld=True):
+        m = las.usable(chunk)
+        if m is not None:
+            mask[first:first + len(chunk)] = m
+    return mask
 
 
 def require_same_crs(path, crs, units: LengthUnits, first) -> None:
@@ -255,7 +289,8 @@ def write_classified(in_path, out_path, classification: np.ndarray, *, crs: pypr
     ``classification`` may be a memory map (only a chunk of it is touched at a time); ``records``:
     the chunks kept by ``read_cloud(keep_records=True)``, or any iterable of point-record chunks in
     file order (consumed lazily), else the input is streamed again;
-    ``progress(n_points)`` is called after each chunk.
+    ``progress(n_points)`` is called after each chunk. ``classification`` holds a class for every record: a
+    record flagged withheld keeps its delivered class whatever is given for it (it was not classified).
     """
     refuse_input_as_output(out_path, [in_path], "OUT_PATH")
     header = las.read_header(in_path)
@@ -266,9 +301,13 @@ def write_classified(in_path, out_path, classification: np.ndarray, *, crs: pypr
     with atomic_path(out_path) as tmp:
         with laspy.open(tmp, mode="w", header=out_header,
                         do_compress=out_path.suffix.lower() == ".laz") as writer:
-            chunks = _numbered(records) if records is not None else las.iter_file_chunks(in_path, chunk_points)
+            chunks = _numbered(records) if records is not None else \
+                las.iter_file_chunks(in_path, chunk_points, withheld=True)
             for first, chunk in chunks:
-                chunk.classification = np.asarray(classification[first:first + len(chunk)], np.uint8)
+                new = np.asarray(classification[first:first + len(chunk)], np.uint8)
+                if (mask := las.usable(chunk)) is not None:
+                    new = np.where(mask, new, np.asarray(chunk.classification, np.uint8))
+                chunk.classification = new
                 writer.write_points(chunk)
                 if progress is not None:
                     progress(len(chunk))

@@ -54,7 +54,7 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     with atomic_path(out_path) as tmp:
         with laspy.open(tmp, mode="w", header=header) as w:
             for p in paths:
-                for _, chunk in las.iter_file_chunks(p, chunk_points):
+                for _, chunk in las.iter_file_chunks(p, chunk_points, withheld=True):
                     w.write_points(in_scales_of(chunk, header))
                     total += len(chunk)
     return total

@@ -325,7 +325,7 @@ def _assign_points(x, y, layout):
 
 
 def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
-                     records_paths=None, *, units: LengthUnits = METRE):
+                     records_paths=None, *, units: LengthUnits = METRE, withheld: list | None = None):
     """Pass 1: stream the input file(s) and append each tile's points to its points file (``TILE_DTYPE``);
     list of TileTask.
 
@@ -337,7 +337,9 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
     file) the raw point records are also copied there in file order (uncompressed), so that writing
     the outputs needs no second decompression of a LAZ input. ``units``: the inputs' linear units
     (points are assigned to tiles in metres; the tile files hold coordinates in these units, on the
-    first file's scales and offsets, ``_tile_points``).
+    first file's scales and offsets, ``_tile_points``). Records flagged withheld (``las.usable``) go to no
+    tile (the records copy keeps them); ``withheld``: a list that gets (point indices, delivered classes) of
+    them, for the output to keep.
     """
     in_paths = [Path(in_paths)] if isinstance(in_paths, (str, Path)) else [Path(q) for q in in_paths]
     work_dir = Path(work_dir)
@@ -345,35 +347,52 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
     scales, offsets = np.asarray(headers[0].scales, float), np.asarray(headers[0].offsets, float)
     has_core = np.zeros(grid.n_tiles, bool)
     offset = 0
+    n_withheld, first_withheld = [0] * len(in_paths), {}
     with progress(sum(h.point_count for h in headers), "tiles: split", "pt", unit_scale=True) as bar:
         for k, (in_path, header) in enumerate(zip(in_paths, headers)):
             records = open(records_paths[k], "wb") if records_paths is not None else None
             try:
-                for first, chunk in las.iter_file_chunks(in_path, chunk_points):
+                for first, chunk in las.iter_file_chunks(in_path, chunk_points, withheld=True):
                     if records is not None:
                         records.write(chunk.array.tobytes())
+                    n_read = len(chunk)
+                    if (mask := las.usable(chunk)) is not None:
+                        if withheld is not None:
+                            left = np.flatnonzero(~mask)
+                            withheld.append((left + (offset + first),
+                                             np.asarray(chunk.classification, np.uint8)[left]))
+                        kept = np.flatnonzero(mask)
+                        chunk = chunk[mask]
+                        n_withheld[k] += n_read - len(kept)
+                        first_withheld.setdefault(k, first + int(np.argmin(mask)))
+                    else:
+                        kept = None
                     x, y = np.asarray(chunk.x), np.asarray(chunk.y)
                     io.validate_xyz(in_path, x, y, np.asarray(chunk.z), first, units)
                     x, y = units.xy_to_m(x), units.xy_to_m(y)
                     ids, pos, own = grid.memberships(x, y)
                     has_core |= own
                     del x, y
+                    index = pos if kept is None else kept[pos]
                     points = _tile_points(chunk, scales, offsets)
                     del chunk
                     # Rows of bytes: numpy gathers them ~10x faster than structured records.
                     rows = points.view(np.uint8).reshape(len(points), TILE_DTYPE.itemsize)
                     bounds = np.flatnonzero(np.diff(ids)) + 1
-                    for sel_ids, sel_pos in zip(np.split(ids, bounds), np.split(pos, bounds)):
+                    for sel_ids, sel_pos, sel_idx in zip(np.split(ids, bounds), np.split(pos, bounds),
+                                                         np.split(index, bounds)):
                         tid = int(sel_ids[0])
                         stem = _tile_stem(work_dir, tid // grid.ncols, tid % grid.ncols)
                         with open(stem.with_suffix(".pts"), "ab") as fh:
                             np.take(rows, sel_pos, axis=0).tofile(fh)
                         with open(stem.with_suffix(".index"), "ab") as fh:
-                            (sel_pos + (offset + first)).tofile(fh)
-                    bar.update(len(points))
+                            (sel_idx + (offset + first)).tofile(fh)
+                    bar.update(n_read)
             finally:
                 if records is not None:
                     records.close()
+            if n_withheld[k]:
+                las.note_withheld(in_path, n_withheld[k], header.point_count, first_withheld[k])
             offset += header.point_count
     tasks = []
     for tid in np.flatnonzero(has_core):
@@ -498,7 +517,8 @@ def _classify_tile(task: TileTask) -> TileResult:
 
 def _direct_classes(in_paths, crs, params, chunk_points, fusion=None):
     """Classes of a one-tile input in memory (no temporary files): the tiled path with one tile.
-    (classes of all files one after the other, the records of each file, the CRS of the first)."""
+    (classes of all files' points one after the other, the records of each file, each file's ``PointCloud.used``,
+    the CRS of the first)."""
     from lidarctl.classify import pipeline as cl
 
     read = [io.read_cloud(q, crs=crs, chunk_points=chunk_points, keep_records=True) for q in in_paths]
@@ -507,7 +527,7 @@ def _direct_classes(in_paths, crs, params, chunk_points, fusion=None):
     if len(cloud["x"]) < 10:
         raise InputError(f"{in_paths[0]}: only {len(cloud['x'])} points; classification needs at least 10")
     classes = cl.classify_points(*(cloud[f] for f in fields), params=params, fusion=fusion)
-    return classes, [r for _, r in read], read[0][0].crs
+    return classes, [r for _, r in read], [c.used for c, _ in read], read[0][0].crs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -703,7 +723,8 @@ def _keep_delivered(in_path, out_path, *, out_crs, units, chunk_points, t0) -> C
     from lidarctl.classify.delivered_classes import check_delivered_classes
 
     found = check_delivered_classes(in_path, units, chunk_points)
-    classes = np.concatenate([np.asarray(c.classification, np.uint8) for _, c in las.iter_file_chunks(in_path, chunk_points)])
+    classes = np.concatenate([np.asarray(c.classification, np.uint8)
+                              for _, c in las.iter_file_chunks(in_path, chunk_points, withheld=True)])
     t1 = time.perf_counter()
     io.write_classified(in_path, out_path, classes, crs=out_crs)
     logger.info("%s: delivered classes kept (ground %.1f %% of the points in %.0f %% of the cells)", in_path,
@@ -718,15 +739,22 @@ def _class_counts(counts: np.ndarray) -> dict[int, int]:
 
 def _classify_whole(in_paths, out_paths, *, crs, out_crs, params, chunk_points, t0, fusion=None) -> ClassifyRun:
     """A one-tile input: classified in memory, each file written from the records kept."""
-    classes, records, _ = _direct_classes(in_paths, crs, params, chunk_points, fusion)
+    classes, records, used, _ = _direct_classes(in_paths, crs, params, chunk_points, fusion)
     t1 = time.perf_counter()
     first = 0
-    for q, out, rec in zip(in_paths, out_paths, records):
-        count = sum(len(c) for c in rec)
-        io.write_classified(q, out, classes[first:first + count], crs=out_crs, records=rec)
+    counts = np.zeros(256, np.int64)
+    for q, out, rec, u in zip(in_paths, out_paths, records, used):
+        count = sum(len(c) for c in rec) if u is None else int(u.sum())
+        part = classes[first:first + count]
         first += count
+        if u is not None:  # withheld records keep their delivered class
+            full = np.concatenate([np.asarray(c.classification, np.uint8) for c in rec])
+            full[u] = part
+            part = full
+        io.write_classified(q, out, part, crs=out_crs, records=rec)
+        counts += np.bincount(part, minlength=256)
     return ClassifyRun(n_tiles=1, tiled_points=len(classes), max_tile_points=len(classes),
-                       class_counts=_class_counts(np.bincount(classes, minlength=256)),
+                       class_counts=_class_counts(counts),
                        classify_s=t1 - t0, write_s=time.perf_counter() - t1)
 
 
@@ -745,7 +773,9 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
     tmp_dir = temporary_dir(work_parent, f"{tiles_name}.tiles")
     try:
         records_paths = [tmp_dir / f"records_{k}.bin" for k in range(len(in_paths))]
-        tasks = split_into_tiles(in_paths, grid, tmp_dir, params, chunk_points, records_paths, units=units)
+        withheld = []
+        tasks = split_into_tiles(in_paths, grid, tmp_dir, params, chunk_points, records_paths, units=units,
+                                 withheld=withheld)
         if fusion is not None:
             tasks = [dataclasses.replace(t, fusion=fusion) for t in tasks]
         resumed = {}
@@ -771,12 +801,17 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
         classes = np.lib.format.open_memmap(tmp_dir / "classes.npy", mode="w+", dtype=np.uint8, shape=(n,))
         for task in tasks:
             classes[np.load(task.core_index_path)] = np.load(task.classes_path)
+        for index, delivered in withheld:  # not classified: the delivered class
+            classes[index] = delivered
         classes.flush()
+        # withheld records delivered as class 0 (never classified) are no points the tiling missed
+        unclassified = np.sort(np.concatenate([i[d == 0] for i, d in withheld])) if withheld else None
         counts = np.zeros(256, np.int64)
         first = 0
         with progress(n, "tiles: write", "pt", unit_scale=True) as bar:
             for q, out, h, rp in zip(in_paths, out_paths, headers, records_paths):
-                checked = _CheckedClasses(classes[first:first + h.point_count])
+                checked = _CheckedClasses(classes[first:first + h.point_count],
+                                          None if unclassified is None else unclassified - first)
                 io.write_classified(q, out, checked, crs=out_crs, progress=bar.update,
                                     records=_stored_records(rp, h, chunk_points))
                 counts += checked.counts
@@ -807,8 +842,9 @@ def _stored_records(path, header: laspy.LasHeader, chunk_points: int):
 class _CheckedClasses:
     """Slices of the assembled classes, refusing points that no tile core claimed (class 0)."""
 
-    def __init__(self, classes):
+    def __init__(self, classes, zero_ok=None):
         self._classes = classes
+        self._zero_ok = zero_ok  # sorted indices whose class 0 is delivered (withheld records)
         self.counts = np.zeros(256, np.int64)
 
     def __len__(self):
@@ -816,8 +852,12 @@ class _CheckedClasses:
 
     def __getitem__(self, sl):
         part = np.asarray(self._classes[sl])
-        if not part.all():
-            raise RuntimeError(f"tiling left {int((part == 0).sum())} points without a class")
+        missing = int((part == 0).sum())
+        if missing and self._zero_ok is not None:
+            start, stop, _ = sl.indices(len(self._classes))
+            missing -= int(np.searchsorted(self._zero_ok, stop) - np.searchsorted(self._zero_ok, start))
+        if missing:
+            raise RuntimeError(f"tiling left {missing} points without a class")
         self.counts += np.bincount(part, minlength=256)
         return part
 

@@ -7,6 +7,8 @@ broken file gives the same one-line error (naming the file and the record) in ev
   table; so that a header that understates the count does not silently drop the rest of the cloud).
 - ``iter_chunks``: point-record chunks of an open reader (coordinates in the file's units); a
   decompression or read error names the block of records; ``iter_file_chunks`` opens the file too.
+  Records flagged withheld are left out here (``usable``, the one rule: ASPRS says they are not to be
+  processed) unless a writer that copies every record asks for them (``withheld=True``).
 - CRS of a header: ``header_crs`` (None when absent or unreadable), ``read_header_crs`` (an
   unreadable record is an error), ``geokey_vertical_unit_m`` (the vertical unit the GeoTIFF keys
   state, which laspy's CRS parser ignores) and ``add_crs`` (writes a compound CRS as GeoTIFF keys
@@ -186,17 +188,37 @@ def check_point_count(path, header: laspy.LasHeader) -> None:
 
 
 # ------------------------------------------------------------------------------------------- reading
-def iter_chunks(reader, path, chunk_points: int):
+def usable(chunk) -> np.ndarray | None:
+    """The one rule for points that are not to be used: a mask of the chunk's records without the LAS withheld
+    flag (ASPRS: "should not be included in processing"); None when every record may be used (no record
+    flagged, or a point format without the flag), so that the common case costs no copy."""
+    if "withheld" not in chunk.point_format.dimension_names:
+        return None
+    withheld = np.asarray(chunk.withheld, bool)
+    return ~withheld if withheld.any() else None
+
+
+def iter_chunks(reader, path, chunk_points: int, *, withheld: bool = False):
     """Yield (first_index, laspy.ScaleAwarePointRecord) chunks of an open reader (``open_las``),
     coordinates in the file's units; a read or decompression error names the file and the block of
-    records, a file that ends early names both counts."""
+    records, a file that ends early names both counts.
+
+    Records flagged withheld (``usable``) are left out of the chunks unless ``withheld`` (writers that copy
+    every record: classified outputs, CRS transforms, merges); a note says once per file how many were left
+    out. ``first_index`` is the file's record number of the chunk's first record whatever was left out (a
+    reader's ``first_index + i`` names record i exactly when no record before it in the chunk was withheld)."""
     n = reader.header.point_count
-    done = 0
+    done = left_out = 0
     try:
         for chunk in reader.chunk_iterator(chunk_points):
-            _warn_withheld(path, chunk, done)
+            size = len(chunk)
+            if not withheld and (mask := usable(chunk)) is not None:
+                if not left_out:
+                    first_flagged = done + int(np.argmin(mask))
+                left_out += size - int(mask.sum())
+                chunk = chunk[mask]
             yield done, chunk
-            done += len(chunk)
+            done += size
     except InputError:
         raise
     except Exception as exc:  # lazrs/laszip and numpy raise their own types for corrupt data
@@ -206,30 +228,31 @@ def iter_chunks(reader, path, chunk_points: int):
         raise InputError(f"{path}: truncated or corrupt point data in {where} of {n} ({one_line(exc)})") from exc
     if done != n:
         raise InputError(f"{path}: truncated file: header says {n} points, read {done}")
+    if left_out:
+        note_withheld(path, left_out, n, first_flagged)
 
 
-# files already warned about (once per process and file: the stages read a file several times)
-_WITHHELD_WARNED: set[str] = set()
+def note_withheld(path, left_out: int, n: int, first_flagged: int) -> None:
+    """The note (once per process and file) that ``left_out`` of the file's ``n`` records were left out as
+    withheld; for readers that apply ``usable`` themselves (they read every record for a copy)."""
+    if str(path) not in _WITHHELD_NOTED:
+        _WITHHELD_NOTED.add(str(path))
+        logger.info(f"{path}: {left_out:,} of {n:,} points carry the withheld flag (first record {first_flagged}) "
+                    "and were left out (LAS: not to be used)")
 
 
-def _warn_withheld(path, chunk, first: int) -> None:
-    """Warn, naming the file and the first such record, when points carry the LAS withheld flag: the spec says
-    they are not to be used, and no stage leaves them out yet (a withheld spike would enter the DEM silently)."""
-    key = str(path)
-    if key in _WITHHELD_WARNED or "withheld" not in chunk.point_format.dimension_names:
-        return
-    flagged = np.flatnonzero(np.asarray(chunk.withheld, bool))
-    if flagged.size:
-        _WITHHELD_WARNED.add(key)
-        logger.warning(f"{path}: point record {first + int(flagged[0])} and others carry the withheld flag "
-                       f"({flagged.size:,} in records {first}-{first + len(chunk) - 1}): they are processed like "
-                       "every other point (the flag is not honoured); remove them first if they are unreliable")
+# files already noted (once per process and file: the stages read a file several times)
+_WITHHELD_NOTED: set[str] = set()
 
 
-def iter_file_chunks(path, chunk_points: int, decompression_selection=None):
-    """``iter_chunks`` of a file, opened (and checked) by ``open_las`` and closed at the end."""
+def iter_file_chunks(path, chunk_points: int, decompression_selection=None, *, withheld: bool = False):
+    """``iter_chunks`` of a file, opened (and checked) by ``open_las`` and closed at the end. A
+    ``decompression_selection`` always takes the flags layer too (LAZ point formats 6-10), so that withheld
+    records are known."""
+    if decompression_selection is not None and not withheld:
+        decompression_selection = decompression_selection | laspy.DecompressionSelection.FLAGS
     with open_las(path, decompression_selection) as reader:
-        yield from iter_chunks(reader, path, chunk_points)
+        yield from iter_chunks(reader, path, chunk_points, withheld=withheld)
 
 
 # ----------------------------------------------------------------------------------------------- CRS

@@ -43,7 +43,10 @@ def read_same_points(pred_path, truth_path):
     pred = io.read_cloud(pred_path, require_crs=False)
     truth = io.read_cloud(truth_path, require_crs=False)
     if len(pred) != len(truth):
-        raise InputError(f"{pred_path}: {len(pred)} points, but {truth_path} has {len(truth)} (same order needed)")
+        held = [f"{p}: {int((~c.used).sum())} flagged withheld" for p, c in ((pred_path, pred), (truth_path, truth))
+                if c.used is not None]
+        raise InputError(f"{pred_path}: {len(pred)} points, but {truth_path} has {len(truth)} (same order needed"
+                         + (f"; points flagged withheld are left out, {', '.join(held)}" if held else "") + ")")
     pu, tu = pred.units, truth.units
     # x, y of a file with a known CRS are metres; a file without CRS takes the other's unit.
     pf = 1.0 if pu.known else (tu.xy_m if tu.known else 1.0)

@@ -8,7 +8,7 @@ extent over the cell, not by the number of points):
 - ground (class 2) is present: at least ``MIN_GROUND_SHARE`` of the points and in at least
   ``MIN_GROUND_CELLS`` of the cells that hold points (the DEM is interpolated between);
 - ground is the lowest surface: in at most ``MAX_BELOW_GROUND_CELLS`` of the cells with ground does a
-  point of another class (noise 7 and 18 and withheld points excepted) lie more than ``BELOW_GROUND_M``
+  point of another class (noise 7 and 18 excepted; records flagged withheld are not read) lie more than ``BELOW_GROUND_M``
   below the cell's lowest ground point (a shifted, inverted or wrongly numbered ground class fails here);
 - building (class 6): without it the roof-corner control finds nothing (a warning: rural blocks have
   none); with it, its points stand on average at least ``MIN_BUILDING_HEIGHT_M`` above their cell's
@@ -75,12 +75,12 @@ def check_delivered_classes(path, units: LengthUnits, chunk_points: int = 2_000_
         occupied[cell] = True
         g = c == GROUND
         np.minimum.at(ground_min, cell[g], z[g])
-        withheld = np.asarray(getattr(chunk, "withheld", np.zeros(len(c), bool)), dtype=bool)
-        o = ~g & ~np.isin(c, NOISE) & ~withheld
+        o = ~g & ~np.isin(c, NOISE)
         np.minimum.at(other_min, cell[o], z[o])
     if counts[2:].sum() == 0:
         raise InputError(f"{path}: the points carry no classes (all class 0 or 1): it is not classified; "
                          "classify it (drop the option to keep the delivered classes)")
+    n = int(counts.sum())  # the points used (records flagged withheld are left out by the reader)
     ground_share = float(counts[GROUND] / n)
     has_ground = np.isfinite(ground_min)
     ground_cells = float(has_ground.sum() / max(occupied.sum(), 1))

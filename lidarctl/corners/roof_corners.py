@@ -1139,18 +1139,40 @@ def corners_csv_text(corners: list[dict]) -> str:
     return buf.getvalue()
 
 
+def valid_outline(rings: list[np.ndarray]) -> dict | None:
+    """GeoJSON geometry of a regularised roof outline (rings of corners, the first the exterior) that is valid: the
+    fitted edges of a spike or of a courtyard next to the eave may cross (AHN3: 8 of 53 outlines were invalid
+    polygons), so the area is rebuilt from the rings' structure (shapely ``make_valid`` "structure": the area the
+    exterior encloses less the courtyards; crossings become vertices, lines of no area are dropped). Every corner
+    stays where it was (the vertices are the rings' own and the crossings of their edges); None when no area is
+    left."""
+    closed = [np.vstack([r, r[:1]]) for r in rings]
+    poly = shapely.Polygon(closed[0], closed[1:])
+    if not poly.is_valid:
+        poly = shapely.make_valid(poly, method="structure", keep_collapsed=False)
+        parts = [g for g in getattr(poly, "geoms", [poly]) if isinstance(g, shapely.Polygon) and not g.is_empty]
+        if not parts:
+            return None
+        poly = parts[0] if len(parts) == 1 else shapely.MultiPolygon(parts)
+    if poly.is_empty:
+        return None
+    return json.loads(shapely.to_geojson(shapely.orient_polygons(poly)))  # exteriors CCW, holes CW
+
+
 def _corners_geojson_document(corners: list[dict], outlines: list[dict], crs=None) -> dict:
-    """Corners (Point) and regularised roof outlines (Polygon, exterior CCW, courtyards CW), map CRS."""
+    """Corners (Point) and regularised roof outlines (Polygon or MultiPolygon, valid: ``valid_outline``;
+    exteriors CCW, courtyards CW), map CRS."""
     feats = []
     for o in outlines:
         if not o["rings"] or len(o["rings"][0]) < 3:
             continue  # no exterior ring left
-        rings = [np.vstack([r, r[:1]]).round(3).tolist() for r in o["rings"] if len(r) >= 3]
+        geometry = valid_outline([np.asarray(r, float).round(3) for r in o["rings"] if len(r) >= 3])
+        if geometry is None:
+            continue
         props = {k: o[k] for k in ("building_id", "roof", "n_points", "n_planes")}
         props.update(spacing_m=round(o["spacing_m"], 3), sigma0=round(o["sigma0"], 3),
                      theta_deg=round(o["theta_deg"], 3))
-        feats.append({"type": "Feature", "geometry": {"type": "Polygon", "coordinates": rings},
-                      "properties": {"kind": "roof_outline", **props}})
+        feats.append({"type": "Feature", "geometry": geometry, "properties": {"kind": "roof_outline", **props}})
     for c in corners:
         props = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items() if k not in ("x", "y", "z")}
         xyz = [round(c["x"], 3), round(c["y"], 3), round(c["z"], 3)]

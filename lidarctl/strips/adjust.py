@@ -546,7 +546,7 @@ def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Pa
         out_header = io.output_header(header)
         dst = folder / path.name
         with laspy.open(dst, mode="w", header=out_header, do_compress=path.suffix.lower() == ".laz") as w:
-            for _, chunk in las.iter_file_chunks(path, chunk_points):
+            for _, chunk in las.iter_file_chunks(path, chunk_points, withheld=True):  # a copy: every record
                 x, y, z = units.xy_to_m(np.asarray(chunk.x)), units.xy_to_m(np.asarray(chunk.y)), units.z_to_m(
                     np.asarray(chunk.z))
                 x, y, z = np.array(x, float), np.array(y, float), np.array(z, float)

@@ -20,7 +20,10 @@ heights in CRS units, the ``_m`` attributes in metres):
   junctions, spurs (a free end, shorter than twice the road width) dropped, merged through junctions
   that are left with two lines, simplified by ``simplify_m``; ``width_m`` = 2 x the median distance
   from the centre line to the road edge (within half a cell), ``length_m``.
-* ``water`` (Polygon): cells of water points (class 9) as for roads; ``water_z`` the median height.
+* ``water`` (Polygon): cells of water points (class 9) as for roads, with the cells without returns they border
+  (water mirrors the pulse away); a gap that runs out of the data's footprint joins by the water rule
+  (``lakes_at_edge``: its rim in a bed at the water's level), not by its shape; ``water_z`` the median height of
+  its water returns (a polygon without any is no water feature: never a NaN height).
 * ``spot_heights`` (Point): one per ``spot_spacing_m`` square, at the ground cell of the square with the
   flattest neighbourhood (smallest RMS of a plane over 3 x 3 cells) that is at least ``BREAKLINE_CLEAR_M``
   from any cell that is not open ground (buildings, water, trees, data gaps) - off breaklines; open
@@ -135,10 +138,10 @@ def _cells(xy, x0, y0, cell_m, shape):
 
 
 def class_mask(xy: np.ndarray, x0, y0, cell_m: float, shape, *, min_area_m2: float, close_cells: int = 1,
-               void: np.ndarray | None = None) -> np.ndarray:
+               void: np.ndarray | None = None, join: np.ndarray | None = None) -> np.ndarray:
     """Cells holding points ``xy`` (m), closed over gaps of ``close_cells``, small holes filled, small pieces
     dropped. ``void``: cells without any return; the void regions that touch the class's cells (and not the
-    grid's border) join it - water gives few returns."""
+    grid's border) join it - water gives few returns. ``join``: more cells that join (``lakes_at_edge``)."""
     from scipy import ndimage
 
     eight = np.ones((3, 3), bool)
@@ -150,11 +153,13 @@ def class_mask(xy: np.ndarray, x0, y0, cell_m: float, shape, *, min_area_m2: flo
         lab, n = ndimage.label(void, structure=eight)
         touch = np.unique(lab[ndimage.binary_dilation(m, structure=eight) & void])
         border = np.unique(np.r_[lab[0], lab[-1], lab[:, 0], lab[:, -1]])
-        join = np.zeros(n + 1, bool)
-        join[touch] = True
-        join[border] = False
-        join[0] = False
-        m |= join[lab]
+        joins = np.zeros(n + 1, bool)
+        joins[touch] = True
+        joins[border] = False
+        joins[0] = False
+        m |= joins[lab]
+    if join is not None:
+        m |= join
     if close_cells > 0:
         m = ndimage.binary_closing(np.pad(m, close_cells), structure=eight,
                                    iterations=close_cells)[close_cells:-close_cells, close_cells:-close_cells]
@@ -174,6 +179,75 @@ def class_mask(xy: np.ndarray, x0, y0, cell_m: float, shape, *, min_area_m2: flo
         keep[0] = False
         m = keep[lab]
     return m
+
+
+def lakes_at_edge(void: np.ndarray, occupied: np.ndarray, row: np.ndarray, col: np.ndarray, z: np.ndarray,
+                  water: np.ndarray, *, tol_m: float, bank_fraction: float) -> np.ndarray:
+    """Cells of the lakes that run out of the data: void regions (no return) inside the data's footprint (the
+    convex hull of the cells with returns) that reach its edge - so ``class_mask`` cannot tell them from the
+    outside - and hold water by the water rule of ``classify.level_water``: they border water returns, and the
+    returns on their rim lie in a bed at the water's level (at least ``bank_fraction`` of the rim cells' lowest
+    returns other than water no more than ``tol_m`` below the level, the median height of the water returns on
+    the rim; water cannot stand above the ground beside it). The outside of an irregular footprint is rimmed by whatever the
+    survey's edge crosses, ground below a lake's level included. ``row``, ``col``, ``z``, ``water``: cell,
+    height (m) and water flag of each return."""
+    from rasterio import features
+    from scipy import ndimage
+    from scipy.spatial import ConvexHull, QhullError
+    import shapely
+
+    out = np.zeros(void.shape, bool)
+    if not water.any():
+        return out
+    occ_r, occ_c = np.nonzero(occupied)
+    corners = np.column_stack([np.r_[occ_c, occ_c + 1, occ_c, occ_c + 1], np.r_[occ_r, occ_r, occ_r + 1, occ_r + 1]])
+    try:
+        hull = ConvexHull(np.unique(corners, axis=0))
+    except (QhullError, ValueError):  # data in one row or column: no area to hold a lake
+        return out
+    footprint = features.rasterize([shapely.Polygon(hull.points[hull.vertices])], out_shape=void.shape,
+                                   dtype=np.uint8).astype(bool)
+    eight = np.ones((3, 3), bool)
+    outside = np.pad(~footprint, 1, constant_values=True)
+    at_edge = ndimage.binary_dilation(outside, structure=eight)[1:-1, 1:-1]
+    lab, n = ndimage.label(void & footprint, structure=eight)
+    if n == 0:
+        return out
+    edge_ids = np.unique(lab[at_edge & (lab > 0)])
+    ncols = void.shape[1]
+    flat = row * ncols + col
+    # the lowest return of each cell but the water's (the bank), and the water returns' heights by cell
+    land = ~water
+    order = np.lexsort((z[land], flat[land]))
+    lf, lz = flat[land][order], z[land][order]
+    first = np.r_[True, lf[1:] != lf[:-1]] if len(lf) else np.zeros(0, bool)
+    zmin = np.full(void.size, np.nan)
+    zmin[lf[first]] = lz[first]
+    wflat, wz = flat[water], z[water]
+    water_cells = np.zeros(void.size, bool)
+    water_cells[wflat] = True
+    water_cells = water_cells.reshape(void.shape)
+    for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+        if k not in edge_ids:
+            continue
+        # the region's window, one cell wider each side
+        r0, r1 = max(sl[0].start - 1, 0), min(sl[0].stop + 1, void.shape[0])
+        c0, c1 = max(sl[1].start - 1, 0), min(sl[1].stop + 1, void.shape[1])
+        region = lab[r0:r1, c0:c1] == k
+        rim = ndimage.binary_dilation(region, structure=eight) & ~region & occupied[r0:r1, c0:c1]
+        if not (rim & water_cells[r0:r1, c0:c1]).any():
+            continue
+        rr, cc = np.nonzero(rim)
+        rim_flat = (rr + r0) * ncols + (cc + c0)
+        level = float(np.median(wz[np.isin(wflat, rim_flat[water_cells.ravel()[rim_flat]])]))
+        bank = zmin[rim_flat]
+        bank = bank[np.isfinite(bank)]
+        bed = float(np.mean(bank >= level - tol_m)) if len(bank) else 1.0
+        log.debug("void of %d cells at the data's edge, rim of %d cells: water level %.3f m, %.0f %% of the rim in "
+                  "its bed: %s", region.sum(), len(rim_flat), level, 100 * bed, bed >= bank_fraction)
+        if bed >= bank_fraction:
+            out[r0:r1, c0:c1] |= region
+    return out
 
 
 def mask_polygons(mask: np.ndarray, x0, y0, cell_m: float, simplify_m: float) -> list:
@@ -598,9 +672,9 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     spacing = point_spacing_m(xy)
     close = max(1, int(np.ceil(spacing / p.cell_m)))
     r, c = _cells(xy, x0, y0, p.cell_m, shape)
-    void = np.ones(shape, bool)
-    void[r, c] = False
-    void = ndimage.binary_opening(void, structure=np.ones((3, 3), bool), iterations=close)
+    void_cells = np.ones(shape, bool)
+    void_cells[r, c] = False
+    void = ndimage.binary_opening(void_cells, structure=np.ones((3, 3), bool), iterations=close)
     road = class_mask(xy[cls == ROAD], x0, y0, p.cell_m, shape, min_area_m2=p.min_area_m2, close_cells=close)
     rpolys = mask_polygons(road, x0, y0, p.cell_m, p.simplify_m)
     lines = centrelines(road, x0, y0, p.cell_m, p.simplify_m)
@@ -615,14 +689,27 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
                         {"width_m": np.array([w for _, w in lines], float),
                          "length_m": np.array([ln.length for ln, _ in lines], float)}))
 
+    from lidarctl.classify.pipeline import ClassifySettings
+
+    water_rule = ClassifySettings()
+    occupied = ~void_cells
+    edge_lakes = lakes_at_edge(void, occupied, r, c, pts.z, cls == WATER, tol_m=water_rule.level_water_tol_m,
+                               bank_fraction=water_rule.level_water_bank_fraction)
     wmask = class_mask(xy[cls == WATER], x0, y0, p.cell_m, shape, min_area_m2=p.min_area_m2, close_cells=close,
-                       void=void)
+                       void=void, join=edge_lakes)
     wpolys = mask_polygons(wmask, x0, y0, p.cell_m, p.simplify_m)
     wxy, wz = xy[cls == WATER], pts.z[cls == WATER]
-    wlevel = []
+    wlevel, kept = [], []
     for q in wpolys:
+        # its water returns; a piece without any (a void joined across the simplified outline) takes those
+        # within a cell of it, and none at all means no water level is known: no water feature
         inside = shapely.contains_xy(q, wxy[:, 0], wxy[:, 1]) if len(wxy) else np.zeros(0, bool)
-        wlevel.append(float(np.median(wz[inside])) if inside.any() else float("nan"))
+        if not inside.any() and len(wxy):
+            inside = shapely.dwithin(q, shapely.points(wxy), p.cell_m)
+        if inside.any():
+            kept.append(q)
+            wlevel.append(float(np.median(wz[inside])))
+    wpolys = kept
     layers.append(Layer("water", "Polygon", _scale_geoms(wpolys, f_xy),
                         {"area_m2": np.array([q.area for q in wpolys], float),
                          "water_z": np.array(wlevel, float) * f_z}))

@@ -336,23 +336,69 @@ def test_nebraska_read_from_its_geotiff_keys_alone_equals_its_wkt(shared_data, t
     np.testing.assert_allclose(c.x, ref.x, atol=1e-6)
 
 
-def test_withheld_points_are_named_not_used_silently(files, tmp_path):
-    """Points flagged withheld (the LAS spec: not to be used) were classified and gridded like the others without a
-    word (lidR Topography with 200 withheld points lowered 3-20 m: 10 became ground, the DEM moved by up to 4.41 m in
-    526 cells). No stage leaves them out yet: each command now warns once per file, naming the first record."""
-    d, n = files
-    las = laspy.read(d / "c12.las")
-    flag = np.zeros(len(las.x), bool)
-    flag[[1234, 40_000]] = True
-    las.withheld = flag
-    las.write(tmp_path / "withheld.las")
+def _withheld_pair(d, tmp_path):
+    """(file without 200 points, file with them flagged withheld and lowered 3-20 m, their indices, mask of the
+    others) from c14.las (LAS 1.4); the points are interior, so that both files have the same horizontal bounds."""
+    src = laspy.read(d / "c14.las")
+    x, y = np.asarray(src.x), np.asarray(src.y)
+    rng = np.random.default_rng(44)
+    inner = np.flatnonzero((x > x.min() + 5) & (x < x.max() - 5) & (y > y.min() + 5) & (y < y.max() - 5))
+    idx = np.sort(rng.choice(inner, 200, replace=False))
+    moved = laspy.read(d / "c14.las")
+    z = np.asarray(moved.z).copy()
+    z[idx] -= rng.uniform(3.0, 20.0, len(idx))
+    moved.z = z
+    flag = np.zeros(len(x), bool)
+    flag[idx] = True
+    moved.withheld = flag
+    moved.write(tmp_path / "withheld.las")
+    keep = ~flag
+    without = laspy.LasData(src.header)
+    without.points = src.points[keep]
+    without.write(tmp_path / "without.las")
+    return tmp_path / "without.las", tmp_path / "withheld.las", idx, keep
+
+
+@pytest.mark.parametrize("tiled", [False, True])
+def test_withheld_points_are_left_out(files, tmp_path, tiled):
+    """Points flagged withheld (the LAS spec: not to be used) were classified and gridded like the others (lidR
+    Topography with 200 withheld points lowered 3-20 m: 10 became ground, the DEM moved by up to 4.41 m in 526 cells).
+    Now they are left out of every computation (``aerotri.geom.las.usable``): the same classes and DEM as the file
+    without them; ``classify`` writes every record, the withheld ones with their delivered class and flag."""
+    import rasterio
+
+    d, _ = files
+    without, withheld, idx, keep = _withheld_pair(d, tmp_path)
+    tile = ["--tile-size-m", "60"] if tiled else []
     said = []
-    for args in (["rasters", tmp_path / "withheld.las", tmp_path / "r", "--res-m", "2"],
-                 ["classify", tmp_path / "withheld.las", tmp_path / "c.las"]):
-        r = CliRunner().invoke(main, [str(a) for a in args])
+    for src, name in ((without, "a"), (withheld, "b")):
+        r = CliRunner().invoke(main, ["classify", str(src), str(tmp_path / f"{name}.las"), *tile])
         assert r.exit_code == 0, r.output
-        said += [line for line in r.output.splitlines() if "withheld flag" in line]
-    assert len(said) == 1, said                                  # once per file and process
-    assert str(tmp_path / "withheld.las") in said[0] and "record 1234" in said[0] and "2 in records" in said[0]
-    r = CliRunner().invoke(main, ["rasters", str(d / "c12.las"), str(tmp_path / "r2"), "--res-m", "2"])
-    assert r.exit_code == 0 and "withheld flag" not in r.output
+        said += r.output.splitlines()
+        r = CliRunner().invoke(main, ["rasters", str(tmp_path / f"{name}.las"), str(tmp_path / f"r{name}"),
+                                      "--res-m", "1"])
+        assert r.exit_code == 0, r.output
+    a, b = laspy.read(tmp_path / "a.las"), laspy.read(tmp_path / "b.las")
+    delivered = laspy.read(withheld)
+    assert len(b.points) == len(delivered.points)                # every record written
+    np.testing.assert_array_equal(np.asarray(b.classification)[keep], np.asarray(a.classification))
+    np.testing.assert_array_equal(np.asarray(b.classification)[idx], np.asarray(delivered.classification)[idx])
+    np.testing.assert_array_equal(np.asarray(b.withheld), np.asarray(delivered.withheld))
+    np.testing.assert_array_equal(np.asarray(b.z), np.asarray(delivered.z))
+    for name in ("dem", "dsm"):
+        with rasterio.open(tmp_path / "ra" / f"{name}.tif") as ra, rasterio.open(tmp_path / "rb" / f"{name}.tif") as rb:
+            assert ra.transform == rb.transform
+            np.testing.assert_array_equal(ra.read(1), rb.read(1))
+    notes = [line for line in said if "withheld flag" in line]
+    assert notes and "200 of" in notes[0] and f"first record {idx[0]}" in notes[0] and "left out" in notes[0]
+
+
+def test_evaluate_names_withheld_points_when_the_counts_differ(files, tmp_path):
+    """``evaluate`` compares point by point; a prediction whose withheld points are left out has fewer points than a
+    truth without the flag: the message says why (it said only "same order needed")."""
+    d, _ = files
+    _, withheld, _, _ = _withheld_pair(d, tmp_path)
+    r = CliRunner().invoke(main, ["evaluate", str(withheld), "--truth", str(d / "c14.las")])
+    assert r.exit_code == 2 and "200 flagged withheld" in r.output, r.output
+    r = CliRunner().invoke(main, ["evaluate", str(withheld), "--truth", str(withheld)])
+    assert r.exit_code == 0, r.output

@@ -333,3 +333,39 @@ def test_a_roof_that_returned_no_pulse_is_on_the_map_and_a_shadow_is_not():
     assert len(polys) == 3
     polys, _, _ = layers.building_outlines(pts, roof_dropouts=False)
     assert not covering(polys, *roof.centroid.coords[0])
+
+
+def test_a_lake_running_out_of_the_data_is_water_by_its_level(tmp_path):
+    """lidR Topography's western lake reaches the tile's edge: its gap without returns touched the grid's border, so
+    it was taken for the outside of the footprint and left out (three slivers of 15-66 m2, one with water_z NaN).
+    Now the water rule decides (``layers.lakes_at_edge``): a lake returning only along its shore, cut by the west
+    edge, is one water polygon at its level; a notch in the footprint beside it, rimmed by ground below the water's
+    level (water cannot stand there), is not water; no feature without a height."""
+    rng = np.random.default_rng(7)
+    lake, notch, low = box(0, 10, 25, 30), box(20, 0, 37, 10), box(25, 0, 45, 14)
+    gx, gy = np.meshgrid(np.arange(0, 80, SPACING), np.arange(0, 60, SPACING))
+    x = gx.ravel() + rng.uniform(-0.2, 0.2, gx.size)
+    y = gy.ravel() + rng.uniform(-0.2, 0.2, gx.size)
+    z = ground_z(x, y) + rng.normal(0, 0.02, x.size)
+    low_ground = shapely.contains_xy(low, x, y)
+    z[low_ground] = 97.5 + rng.normal(0, 0.02, low_ground.sum())     # below the lake's level
+    cls = np.full(x.size, 2, np.uint8)
+    in_lake = shapely.contains_xy(lake, x, y)
+    shore = in_lake & ~shapely.contains_xy(lake.buffer(-1.5), x, y) & (x > 1.5)  # returns only along its shores
+    cls[in_lake], z[in_lake] = 9, 99.0 + rng.normal(0, 0.01, in_lake.sum())
+    keep = (~in_lake | shore) & ~shapely.contains_xy(notch, x, y)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = np.array([0.001] * 3), np.array([X0, Y0, 0.0])
+    header.add_crs(pyproj.CRS(M_CRS))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = X0 + x[keep], Y0 + y[keep], z[keep]
+    las.classification = cls[keep]
+    las.write(tmp_path / "edge.las")
+    r = CliRunner().invoke(main, ["vectors", str(tmp_path / "edge.las"), str(tmp_path / "v.gpkg")])
+    assert r.exit_code == 0, r.output
+    _, water, fields = _layer(tmp_path / "v.gpkg", "water")
+    truth = affinity.translate(lake, X0, Y0)
+    assert len(water) == 1, [w.area for w in water]
+    assert water[0].intersection(truth).area / water[0].union(truth).area > 0.9
+    assert water[0].intersection(affinity.translate(notch, X0, Y0)).area < 5.0
+    np.testing.assert_allclose(fields["water_z"], 99.0, atol=0.02)

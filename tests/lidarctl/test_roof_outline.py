@@ -168,3 +168,33 @@ def test_reweighting_keeps_a_ragged_edge_from_inflating_the_clean_ones():
     assert np.all(s_two[1:] < 0.3 * s_one[1:])  # the clean edges get their own precision back
     assert s_two[0] > 3.0 * s_two[1:].max()
     assert edges[0].n_obs < 40  # the outlying bins are dropped
+
+
+def test_outlines_in_corners_geojson_are_valid_with_the_corners_where_they_were():
+    """AHN3: 8 of 53 regularised roof outlines in corners.geojson were invalid polygons (a courtyard's fitted edges
+    crossing the eave, a spike where fitted edges cross); QGIS flags them, overlays fail. Now valid (Polygon or
+    MultiPolygon), every vertex a corner of the rings or a crossing of their edges, the corner points untouched."""
+    from shapely.geometry import shape
+
+    from lidarctl.corners.roof_corners import _corners_geojson_document
+
+    square = np.array([[0, 0], [20, 0], [20, 20], [0, 20]], float)
+    courtyard_out = np.array([[15, 5], [25, 5], [25, 10], [15, 10]], float)[::-1]       # crosses the east eave
+    bowtie = np.array([[0, 0], [20, 0], [20, 20], [12, 20], [8, 24], [10, 26], [12, 24], [8, 20], [0, 20]], float)
+    outlines = [dict(building_id=k, rings=rings, roof="flat", n_points=100, n_planes=1, spacing_m=0.5, sigma0=1.0,
+                     theta_deg=0.0) for k, rings in enumerate([[square, courtyard_out], [bowtie], [square]])]
+    corners = [dict(x=20.0, y=20.0, z=10.0, building_id=0, score=0.9)]
+    old = [shapely.Polygon(np.vstack([r[0], r[0][:1]]), [np.vstack([h, h[:1]]) for h in r[1:]])
+           for r in ([square, courtyard_out], [bowtie])]
+    assert not any(g.is_valid for g in old)                       # the shapes the trial found
+    doc = _corners_geojson_document(corners, outlines)
+    polys = [shape(f["geometry"]) for f in doc["features"] if f["properties"]["kind"] == "roof_outline"]
+    assert len(polys) == 3 and all(g.is_valid and g.geom_type in ("Polygon", "MultiPolygon") for g in polys)
+    assert shapely.equals(polys[2], shapely.Polygon(square))      # a valid outline as it was
+    assert abs(polys[0].area - (400 - 5 * 5)) < 1e-9              # the courtyard's part under the roof is left out
+    for g, o in zip(polys, old):
+        d = shapely.distance(shapely.points(shapely.get_coordinates(g)), o.boundary)
+        assert d.max() < 1e-9                                     # vertices on the rings: nothing moved
+    assert [f["geometry"]["coordinates"] for f in doc["features"] if f["properties"]["kind"] == "roof_corner"] == \
+        [[20.0, 20.0, 10.0]]
+    assert all(shapely.is_ccw(shapely.get_exterior_ring(p)) for g in polys for p in getattr(g, "geoms", [g]))

@@ -393,7 +393,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         n = 0
         with atomic_path(out_path) as tmp:
             with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:
-                for _, chunk in track_chunks(las.iter_chunks(reader, in_path, chunk_size), hdr.point_count,
+                for _, chunk in track_chunks(las.iter_chunks(reader, in_path, chunk_size, withheld=True), hdr.point_count,
                                              f"transform {in_path.name}"):
                     X, Y, Z = transformer.transform(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
                     out = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=out_hdr)
