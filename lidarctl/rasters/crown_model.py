@@ -54,15 +54,30 @@ MIN_ARC_DEG = 180.0  # the rim samples' angular span around the fitted centre fo
 MIN_TREE_RETURNS = 3  # vegetation first returns a crown needs (fewer: a stray return, left to the DSM)
 
 
+def segment_grid(x_m: np.ndarray, y_m: np.ndarray, res_m: float = SEGMENT_RES_M):
+    """The segmentation grid of vegetation first returns (``x_m``, ``y_m``; or their (min x, max x, min y, max y)
+    as a 4-tuple of floats in ``x_m``): (x0, y_top, shape), one empty cell beyond the returns on each side."""
+    lo_x, hi_x, lo_y, hi_y = (x_m if isinstance(x_m, tuple) else
+                              (float(x_m.min()), float(x_m.max()), float(y_m.min()), float(y_m.max())))
+    x0, y_top = lo_x - res_m, hi_y + res_m
+    rows = int(np.floor((y_top - lo_y) / res_m))
+    cols = int(np.floor((hi_x - x0) / res_m))
+    return x0, y_top, (rows + 2, cols + 2)
+
+
 def segment_trees(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, res_m: float = SEGMENT_RES_M,
-                  smooth_cells: float = SMOOTH_CELLS):
+                  smooth_cells: float = SMOOTH_CELLS, *, grid=None, box=None):
     """Tree of each vegetation first return (``x_m``, ``y_m``, ``z_m``): labels (int64, 0 .. n - 1), n, and the
-    grid (x0, y_top, shape, cell labels: -1 none) for placing other returns."""
-    x0, y_top = float(x_m.min()) - res_m, float(y_m.max()) + res_m
+    grid (x0, y_top, res, shape, cell labels: -1 none, first row, first column, top cells) for placing other
+    returns. ``grid``: the whole block's (``segment_grid``), ``box``: the window (row0, col0, rows, cols) of it
+    segmented here (a tile and its halo; the returns given lie in it): the labels of the cells far enough from the
+    window's edges are those of the whole grid. Top cells: flat indices in the window, in the whole grid's order."""
+    x0, y_top, gshape = grid if grid is not None else segment_grid(x_m, y_m, res_m)
     rows = np.floor((y_top - y_m) / res_m).astype(np.int64)
     cols = np.floor((x_m - x0) / res_m).astype(np.int64)
-    shape = (int(rows.max()) + 2, int(cols.max()) + 2)
-    flat = rows * shape[1] + cols
+    r0, c0, *shape = box if box is not None else (0, 0, *gshape)
+    shape = tuple(shape)
+    flat = (rows - r0) * shape[1] + (cols - c0)
     high = np.full(shape[0] * shape[1], -np.inf)
     np.maximum.at(high, flat, z_m)
     high = high.reshape(shape)
@@ -99,7 +114,7 @@ def segment_trees(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, res_m: floa
     tops = np.unique(to[valid.ravel()])
     cell_label = np.full(shape[0] * shape[1], -1, np.int64)
     cell_label[valid.ravel()] = np.searchsorted(tops, to[valid.ravel()])
-    return cell_label[flat], len(tops), (x0, y_top, res_m, shape, cell_label.reshape(shape))
+    return cell_label[flat], len(tops), (x0, y_top, res_m, shape, cell_label.reshape(shape), r0, c0, tops)
 
 
 def _kasa(px: np.ndarray, py: np.ndarray):
@@ -121,6 +136,19 @@ def fit_crowns(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, classification
                return_number: np.ndarray) -> TreeCrowns:
     """The trees of a classified cloud (every return: ``return_number`` 1 the first) as fitted disks, tops and
     crown bases (module docstring)."""
+    return _fit_crowns(x_m, y_m, z_m, classification, return_number)[0]
+
+
+def _first_masks(cls, return_number):
+    first = (np.asarray(return_number) <= 1) & ~np.isin(cls, NOISE_CLASSES)
+    return first, first & np.isin(cls, VEGETATION_CLASSES)
+
+
+def _fit_crowns(x_m, y_m, z_m, classification, return_number, *, spacing_m: float | None = None, grid=None,
+                box=None):
+    """``fit_crowns`` and the top cell of each tree (flat index in ``segment_trees``' window; row, column of the
+    whole grid). ``spacing_m``, ``grid``, ``box``: the whole block's spacing and segmentation grid and the
+    window of it the returns fill (a tile with its halo); None: of these returns."""
     x_m, y_m, z_m = (np.asarray(a, np.float64) for a in (x_m, y_m, z_m))
     cls = np.asarray(classification)
     first = (np.asarray(return_number) <= 1) & ~np.isin(cls, NOISE_CLASSES)
@@ -128,16 +156,20 @@ def fit_crowns(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, classification
     vf, of = first & veg, first & ~veg
     vx, vy, vz = x_m[vf], y_m[vf], z_m[vf]
     ox, oy = x_m[of], y_m[of]
-    if not len(vx) or not len(ox):  # no trees, or nothing but trees: no rim to fit
-        e = np.zeros(0)
-        return TreeCrowns(e, e, e, e, e, np.zeros(0, np.int64), np.zeros(0, bool), 0.0)
-    bx, by = np.ptp(x_m[first]), np.ptp(y_m[first])
-    spacing = math.sqrt(max(bx * by, 1e-9) / max(int(first.sum()), 1))
-    label, n, (gx0, gy_top, gres, gshape, cell_label) = segment_trees(vx, vy, vz)
+    e = np.zeros(0)
+    empty = (TreeCrowns(e, e, e, e, e, np.zeros(0, np.int64), np.zeros(0, bool), 0.0),
+             np.zeros(0, np.int64), np.zeros(0, np.int64))
+    if not len(vx) or (spacing_m is None and not len(ox)):  # no trees, or nothing but trees: no rim to fit
+        return empty
+    if spacing_m is None:
+        bx, by = np.ptp(x_m[first]), np.ptp(y_m[first])
+        spacing_m = math.sqrt(max(bx * by, 1e-9) / max(int(first.sum()), 1))
+    spacing = spacing_m
+    label, n, (gx0, gy_top, gres, gshape, cell_label, r0, c0, tops) = segment_trees(vx, vy, vz, grid=grid, box=box)
     # every vegetation return (interior ones too) to the tree of its cell
     va = veg & ~np.isin(cls, NOISE_CLASSES)
-    r = np.floor((gy_top - y_m[va]) / gres).astype(np.int64)
-    c = np.floor((x_m[va] - gx0) / gres).astype(np.int64)
+    r = np.floor((gy_top - y_m[va]) / gres).astype(np.int64) - r0
+    c = np.floor((x_m[va] - gx0) / gres).astype(np.int64) - c0
     ok = (r >= 0) & (r < gshape[0]) & (c >= 0) & (c < gshape[1])
     lab_all = np.full(len(r), -1, np.int64)
     lab_all[ok] = cell_label[r[ok], c[ok]]
@@ -153,13 +185,16 @@ def fit_crowns(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, classification
     np.maximum.at(far, label, np.hypot(vx - cxm[label], vy - cym[label]))
     # rim samples: midpoints of (another first return, the vegetation return nearest it), gaps in the crown left out
     vtree = cKDTree(np.column_stack([vx, vy]))
-    d, j = vtree.query(np.column_stack([ox, oy]), distance_upper_bound=RIM_PAIR_SPACINGS * spacing)
+    d, j = vtree.query(np.column_stack([ox, oy]).reshape(-1, 2), distance_upper_bound=RIM_PAIR_SPACINGS * spacing)
     near = np.isfinite(d)
     qx, qy, j = ox[near], oy[near], j[near]
     around = 2.0 * spacing
-    nv = np.asarray(vtree.query_ball_point(np.column_stack([qx, qy]), around, return_length=True))
-    no = np.asarray(cKDTree(np.column_stack([ox, oy])).query_ball_point(np.column_stack([qx, qy]), around,
-                                                                       return_length=True))
+    if len(qx):  # (a tile of nothing but trees has no other return)
+        nv = np.asarray(vtree.query_ball_point(np.column_stack([qx, qy]), around, return_length=True))
+        no = np.asarray(cKDTree(np.column_stack([ox, oy])).query_ball_point(np.column_stack([qx, qy]), around,
+                                                                           return_length=True))
+    else:
+        nv = no = np.zeros(0, np.int64)
     rim = nv < PIT_SHARE * (nv + no)
     mx, my, mt = (0.5 * (qx + vx[j]))[rim], (0.5 * (qy + vy[j]))[rim], label[j][rim]
     order = np.argsort(mt, kind="stable")
@@ -182,7 +217,9 @@ def fit_crowns(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, classification
         if len(px):
             rad[t] = float(np.median(np.hypot(px - cxm[t], py - cym[t])))
     keep = count >= MIN_TREE_RETURNS
-    return TreeCrowns(cx[keep], cy[keep], rad[keep], top[keep], base[keep], count[keep], fitted[keep], spacing)
+    top_r, top_c = np.divmod(tops[keep], gshape[1])
+    return (TreeCrowns(cx[keep], cy[keep], rad[keep], top[keep], base[keep], count[keep], fitted[keep], spacing),
+            top_r + r0, top_c + c0)
 
 
 CROWNS_FILE = "crowns.gpkg"
