@@ -283,6 +283,9 @@ def _crown_surface(crowns, x_m, y_m, z_m, classification, return_number, nearest
 MAX_CROWN_RADIUS_M = 15.0  # the widest crown a tile's halo holds whole (a tree's returns within 2 radii of its top)
 TILE_M = 500.0  # tile side: about 1 M returns with the halo at the demo's density (~3 returns per m2)
 _TILE_FIELDS = (("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("rn", "u1"))
+# Returns read at a time (as ``lidarctl rasters`` bins them): a chunk of ``io.CHUNK_POINTS`` (2 M) set the demo's
+# peak at 200 m tiles (481 MiB, of which about 190 the interpreter and its imports), not the tile
+_READ_POINTS = 250_000
 
 
 def crown_halo_m(spacing_m: float) -> float:
@@ -356,7 +359,7 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
 
     def chunks(validate=True):  # in metres, checked as lidarctl rasters reads them (a bad file: InputError naming it)
         for p, u in zip(paths, units):
-            for x, y, z, c, r, _ in _file_points(p, u, io.CHUNK_POINTS, validate=validate):
+            for x, y, z, c, r, _ in _file_points(p, u, min(io.CHUNK_POINTS, _READ_POINTS), validate=validate):
                 yield x, y, z, c, r
 
     # pass 1: the block's spacing (its first returns' box over their count) and segmentation grid
