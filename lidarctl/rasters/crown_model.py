@@ -286,6 +286,9 @@ _TILE_FIELDS = (("x", "f8"), ("y", "f8"), ("z", "f8"), ("cls", "u1"), ("rn", "u1
 # Returns read at a time (as ``lidarctl rasters`` bins them): a chunk of ``io.CHUNK_POINTS`` (2 M) set the demo's
 # peak at 200 m tiles (481 MiB, of which about 190 the interpreter and its imports), not the tile
 _READ_POINTS = 250_000
+# GDAL's block cache while the surface is written by windows and copied to the COG (GDAL's default, 5 % of the RAM,
+# would hold a full-size block's working raster, 0.7 GB, in memory)
+SURFACE_CACHE_BYTES = 64 * 2 ** 20
 
 
 def crown_halo_m(spacing_m: float) -> float:
@@ -341,6 +344,7 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
 
     from aerotri.core.atomic import atomic_path, temporary_dir
     from aerotri.core.errors import InputError
+    from aerotri.core.gdal_cache import stage_block_cache
     from aerotri.core.log import progress
     from aerotri.core.vector_files import VectorLayer, write_layers
     from aerotri.geom import las as las_io
@@ -444,7 +448,8 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
         working = work / "surface.tif"
         profile = dict(driver="GTiff", width=dsm_shape[1], height=dsm_shape[0], count=1, dtype="float32", crs=crs,
                        transform=tf, nodata=NODATA, tiled=True, blockxsize=512, blockysize=512, bigtiff="IF_SAFER")
-        with rasterio.open(nearest_path) as src, rasterio.open(working, "w", **profile) as dst, \
+        with stage_block_cache(SURFACE_CACHE_BYTES), rasterio.open(nearest_path) as src, \
+                rasterio.open(working, "w", **profile) as dst, \
                 progress(len(row_runs) * len(col_runs), "crowns: the surface by tile", "tile") as bar:
             for tr, (a0, a1) in row_runs:
                 for tc, (b0, b1) in col_runs:
@@ -492,7 +497,8 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
             "circle_fit": crowns.circle_fit.astype(np.int64)})], crs=crs.to_wkt(),
             timestamp="2000-01-01T00:00:00.000Z")
         tif = outdir / SURFACE_FILE
-        with rasterio.open(working) as src, atomic_path(tif) as tmp:  # the COG as ``write_cog`` makes it
+        with stage_block_cache(SURFACE_CACHE_BYTES), rasterio.open(working) as src, \
+                atomic_path(tif) as tmp:  # the COG as ``write_cog`` makes it
             rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average")
     finally:
         shutil.rmtree(work, ignore_errors=True)
