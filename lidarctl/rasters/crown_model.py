@@ -325,11 +325,12 @@ def write_crown_model(paths, nearest_path, outdir, *, tile_m: float | None = TIL
     metres (a CRS in feet scaled by its unit; heights taken in the same unit).
 
     By tiles of ``tile_m`` metres (None: one tile, the whole block in memory): the returns are binned on disk into
-    the tiles with a halo of ``crown_halo_m`` (about 40 m at the demo's spacing), each tile's trees segmented and
+    the tiles with a halo of ``crown_halo_m`` (36 m at the demo's spacing), each tile's trees segmented and
     fitted from its returns and halo and kept when their top lies in the tile, the surface written by the tiles'
     windows of the DSM. The cloud's spacing and the segmentation grid are the block's (a first pass), so a tree
     whose crown lies within the halo is fitted as untiled, bit for bit. Memory: the tile's returns with their halo
-    (about 40 bytes each, plus the k-d trees of its first returns) and its window of the DSM."""
+    (about 60 bytes each with the segmentation window and k-d trees, measured on the demo) and its window of the
+    DSM (``bench/crowns_tiled_memory.py``)."""
     run = write_crown_model_run(paths, nearest_path, outdir, tile_m=tile_m)
     return run.crowns_path, run.surface_path
 
