@@ -32,19 +32,21 @@ class TreeCrowns:
 
 
 def crown_sub_cells(crowns: TreeCrowns, *, x0_m: float, y_top_m: float, res_m: float, shape: tuple[int, int],
-                    sub: int, reach_m: float = 1.0):
+                    sub: int, reach_m: float = 1.0, window: tuple[int, int, int, int] | None = None):
     """The cells a crown's disk reaches within ``reach_m``: rows, cols (int64), per cell the signed distance (cm,
     int16, positive inside) of its ``sub`` x ``sub`` sub-cell centres within the union of the disks (rows from the
     north, columns from the west), the lowest crown base and the highest top of the trees whose disks cover a
-    sub-cell centre of it (NaN: none)."""
+    sub-cell centre of it (NaN: none). ``window``: (row0, col0, rows, cols) of the grid, the only cells given (rows
+    and columns still of the whole grid; a window's cells as in the whole grid, bit for bit)."""
+    w_r0, w_c0, w_rows, w_cols = window if window is not None else (0, 0, *shape)
     off = (np.arange(sub) + 0.5) / sub
     cells, margins, bases, tops = [], [], [], []
     for t in range(len(crowns)):
         cx, cy, r = crowns.x_m[t], crowns.y_m[t], crowns.radius_m[t]
-        r0 = max(0, int((y_top_m - cy - r - reach_m) / res_m))
-        r1 = min(shape[0], int((y_top_m - cy + r + reach_m) / res_m) + 1)
-        c0 = max(0, int((cx - r - reach_m - x0_m) / res_m))
-        c1 = min(shape[1], int((cx + r + reach_m - x0_m) / res_m) + 1)
+        r0 = max(w_r0, int((y_top_m - cy - r - reach_m) / res_m))
+        r1 = min(w_r0 + w_rows, int((y_top_m - cy + r + reach_m) / res_m) + 1)
+        c0 = max(w_c0, int((cx - r - reach_m - x0_m) / res_m))
+        c1 = min(w_c0 + w_cols, int((cx + r + reach_m - x0_m) / res_m) + 1)
         if r1 <= r0 or c1 <= c0:
             continue
         rr, cc = np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), indexing="ij")

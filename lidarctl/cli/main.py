@@ -193,10 +193,13 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--dsm-nearest", "nearest_path", type=click.Path(dir_okay=False), default=None,
               help="The nearest-return DSM the crowns are cut into [OUTDIR/dsm_nearest.tif, of lidarctl rasters].")
-def crowns(*, in_paths, outdir, nearest_path):
+@click.option("--tile-m", "tile_m", type=positive(), default=500.0, show_default=True,
+              help="Tile side (m): the returns of a tile and its halo (about 40 m) are held in memory at a time; "
+                   "the outputs do not depend on it.")
+def crowns(*, in_paths, outdir, nearest_path, tile_m):
     """Tree crowns fitted to their returns for the true ortho's occlusion test: crowns.gpkg (a disk, top and crown
     base per tree) and dsm_crowns.tif (the nearest-return DSM with them) into OUTDIR, from classified LAS/LAZ
-    file(s) (strips in one CRS, held in memory; docs/true-ortho.md, "Tree crowns fitted to their returns"). The
+    file(s) (strips in one CRS, by tiles; docs/true-ortho.md, "Tree crowns fitted to their returns"). The
     chain's rasters stage writes them after the rasters; ortho rectify --occlusion-dsm dsm_crowns.tif --crowns
     crowns.gpkg reads them."""
     from pathlib import Path
@@ -208,7 +211,7 @@ def crowns(*, in_paths, outdir, nearest_path):
     if not nearest.is_file():
         raise InputError(f"{nearest}: nearest-return DSM not found; expected dsm_nearest.tif of lidarctl rasters "
                          "(--dsm-nearest)")
-    for p in write_crown_model(list(in_paths), nearest, outdir):
+    for p in write_crown_model(list(in_paths), nearest, outdir, tile_m=tile_m):
         click.echo(str(p))
 
 

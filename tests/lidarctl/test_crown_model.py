@@ -6,12 +6,12 @@ import pytest
 from lidarctl.rasters.crown_model import crown_sub_cells, fit_crowns
 
 
-def _scene(seed, spacing=0.75, trees=((10.0, 10.0, 3.0, 12.0), (30.3, 12.2, 2.2, 8.0)), gap_share=0.15):
+def _scene(seed, spacing=0.75, trees=((10.0, 10.0, 3.0, 12.0), (30.3, 12.2, 2.2, 8.0)), gap_share=0.15, size=42.0):
     """First returns on a jittered grid over spheroid crowns (x, y, radius, top) and flat ground at 0; a
     ``gap_share`` of the pulses into a crown reach the ground (its first return there); one interior return per
     crown pulse at half the crown's depth, and one stray low-vegetation return on open ground."""
     rng = np.random.default_rng(seed)
-    g = np.arange(0.0, 42.0, spacing)
+    g = np.arange(0.0, size, spacing)
     x, y = np.meshgrid(g, g)
     x = (x + rng.uniform(-0.3, 0.3, x.shape) * spacing).ravel()
     y = (y + rng.uniform(-0.3, 0.3, y.shape) * spacing).ravel()
@@ -71,7 +71,7 @@ def _nearest_dsm(x, y, z, cls, rn, res=0.5, n=84):
 
     first = rn == 1
     c = (np.arange(n) + 0.5) * res
-    X, Y = np.meshgrid(c, 42.0 - c)
+    X, Y = np.meshgrid(c, n * res - c)
     _, j = cKDTree(np.column_stack([x[first], y[first]])).query(np.column_stack([X.ravel(), Y.ravel()]))
     return z[first][j].reshape(n, n).astype(np.float32), cls[first][j].reshape(n, n)
 
@@ -131,6 +131,73 @@ def test_write_crown_model_round_trip(tmp_path, epsg, unit_m):
     with rasterio.open(tif) as ds:
         assert ds.shape == (84, 84) and ds.transform == tf
         assert abs(float(ds.read(1).max()) * unit_m - 12.0) < 0.05
+
+
+def _write_strip(path, x, y, z, cls, rn, x0, y0, epsg=32611):
+    import laspy
+    from pyproj import CRS
+
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = [0.001] * 3, [x0, y0, 0.0]
+    header.add_crs(CRS.from_epsg(epsg))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x + x0, y + y0, z
+    las.classification, las.return_number, las.number_of_returns = cls, rn, np.where(rn == 1, 1, 2)
+    las.write(path)
+
+
+def test_tiled_crowns_equal_the_untiled_ones_with_trees_across_the_tile_edges(tmp_path):
+    """A 126 m block of 150 crowns (radius 1.5-3.5 m on a jittered 10 m lattice) cut into 5 x 5 tiles of 25 m:
+    the crowns across the tiles' edges are fitted from all their returns once, the files equal those of one tile
+    (the whole block in memory) and ``fit_crowns`` of all the returns."""
+    import rasterio
+    from pyogrio import raw
+    from rasterio.transform import from_origin
+
+    from lidarctl.rasters.crown_model import SEGMENT_RES_M, write_crown_model_run
+
+    rng = np.random.default_rng(11)
+    size = 126.0
+    lattice = np.arange(5.0, size - 4.0, 10.0)
+    trees = [(cx + rng.uniform(-2, 2), cy + rng.uniform(-2, 2), rng.uniform(1.5, 3.5), rng.uniform(6.0, 18.0))
+             for cx in lattice for cy in lattice][:150]
+    x, y, z, cls, rn = _scene(12, trees=tuple(trees), size=size)
+    x0, y0 = 500000.0, 4000000.0
+    _write_strip(tmp_path / "strip.las", x, y, z, cls, rn, x0, y0)
+    n = int(size / 0.5)
+    dsm, _ = _nearest_dsm(x, y, z, cls, rn, n=n)
+    tf = from_origin(x0, y0 + size, 0.5, 0.5)
+    with rasterio.open(tmp_path / "dsm_nearest.tif", "w", driver="GTiff", width=n, height=n, count=1,
+                       dtype="float32", crs="EPSG:32611", transform=tf) as ds:
+        ds.write(dsm, 1)
+    runs, out = {}, {}
+    for name, tile_m in (("tiled", 25.0), ("whole", None)):
+        runs[name] = write_crown_model_run([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif",
+                                           tmp_path / name, tile_m=tile_m)
+        meta, _, geoms, fields = raw.read(runs[name].crowns_path)
+        with rasterio.open(runs[name].surface_path) as ds:
+            out[name] = dict(zip(meta["fields"], fields)), list(geoms), ds.read(1)
+    assert runs["tiled"].tiles >= 25 and runs["whole"].tiles <= 4  # (the whole: its tile and the halo's neighbours)
+    assert runs["tiled"].cells_beyond_halo == 0 and runs["tiled"].max_tile_returns < 0.7 * len(x)
+    (ft, gt, st), (fw, gw, sw) = out["tiled"], out["whole"]
+    assert len(ft["x_m"]) == len(fw["x_m"]) >= 140
+    for k in fw:
+        np.testing.assert_array_equal(ft[k], fw[k], err_msg=k)
+    assert gt == gw and np.array_equal(st, sw)
+    # the crowns across a tile edge (the tiles of 50 cells of the segmentation grid from the vegetation's corner)
+    veg_first = (rn == 1) & np.isin(cls, (3, 4, 5))
+    gx0, gy_top = x[veg_first].min() + x0 - SEGMENT_RES_M, y[veg_first].max() + y0 + SEGMENT_RES_M
+    cx, cy, r = fw["x_m"], fw["y_m"], fw["radius_m"]
+    across = ((np.floor((cx - r - gx0) / 25.0) != np.floor((cx + r - gx0) / 25.0))
+              | (np.floor((gy_top - cy - r) / 25.0) != np.floor((gy_top - cy + r) / 25.0)))
+    assert across.sum() >= 30
+    import laspy
+
+    las = laspy.read(tmp_path / "strip.las")  # the in-memory fit of every return, as stored (mm)
+    crowns = fit_crowns(np.asarray(las.x), np.asarray(las.y), np.asarray(las.z), np.asarray(las.classification),
+                        np.asarray(las.return_number))
+    np.testing.assert_array_equal(np.sort(crowns.x_m), np.sort(fw["x_m"]))
+    np.testing.assert_array_equal(np.sort(crowns.radius_m), np.sort(fw["radius_m"]))
 
 
 def test_lidarctl_crowns_refuses_a_missing_nearest_return_dsm(tmp_path):
