@@ -368,10 +368,11 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
                 yield x, y, z, c, r
 
     # pass 1: the block's spacing (its first returns' box over their count) and segmentation grid
-    n_first = n_other = 0
+    n_first = n_other = n_all = 0
     box_first, box_veg = [np.inf, -np.inf, np.inf, -np.inf], [np.inf, -np.inf, np.inf, -np.inf]
     for x, y, z, c, r in chunks():
         first, vf = _first_masks(c, r)
+        n_all += len(x)
         n_first += int(first.sum())
         n_other += int((first & ~vf).sum())
         for box, m in ((box_first, first), (box_veg, vf)):
@@ -390,6 +391,12 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
     def tile_rc(x, y):  # the segmentation cell of each return
         return (np.floor((gy_top - y) / res).astype(np.int64), np.floor((x - gx0) / res).astype(np.int64))
 
+    if has_trees and tile_m is not None:  # the tile files hold each return once, and again in each halo it lies in
+        from aerotri.core.limits import check_disk
+
+        spread = ((tile_m + 2 * halo_m) / tile_m) ** 2
+        check_disk(n_all * spread * sum(np.dtype(d).itemsize for _, d in _TILE_FIELDS), outdir,
+                   "the crown model's tile files", "--tile-m")
     work = temporary_dir(outdir, "crowns-tiles")
     try:
         # pass 2: each tile's returns and halo to its files (file order)

@@ -209,3 +209,32 @@ def test_lidarctl_crowns_refuses_a_missing_nearest_return_dsm(tmp_path):
     r = CliRunner().invoke(main, ["crowns", str(tmp_path / "strip.las"), str(tmp_path / "out")])
     assert r.exit_code == 2 and "dsm_nearest.tif: nearest-return DSM not found" in r.output
     assert "Traceback" not in r.output and not (tmp_path / "out").exists()
+
+
+def test_the_tile_files_are_refused_before_they_fill_the_disk(tmp_path, monkeypatch):
+    """The tile files (each return once, and again in each halo it lies in) are checked against the free disk before
+    any is written: a ResourceError naming --tile-m, no output and no tile folder left."""
+    import collections
+    import shutil
+
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from aerotri.core.errors import ResourceError
+    from lidarctl.rasters.crown_model import write_crown_model_run
+
+    x, y, z, cls, rn = _scene(6)
+    x0, y0 = 500000.0, 4000000.0
+    _write_strip(tmp_path / "strip.las", x, y, z, cls, rn, x0, y0)
+    dsm, _ = _nearest_dsm(x, y, z, cls, rn)
+    with rasterio.open(tmp_path / "dsm_nearest.tif", "w", driver="GTiff", width=84, height=84, count=1,
+                       dtype="float32", crs="EPSG:32611", transform=from_origin(x0, y0 + 42.0, 0.5, 0.5)) as ds:
+        ds.write(dsm, 1)
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 1000, 1000))
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(ResourceError, match="tile files") as e:
+        write_crown_model_run([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", out, tile_m=25.0)
+    assert e.value.param == "--tile-m"
+    assert list(out.iterdir()) == []
