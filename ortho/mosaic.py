@@ -217,9 +217,9 @@ class ReducedFrames:
         return [self.gray_of(k) for k in range(len(self.rgb))]
 
     def histograms(self, gains: np.ndarray) -> list:
-        """Per frame its ``SampleHistogram`` (None for types without one), what ``limit_gains`` reads for ``gains``
-        (frames, bands): a frame kept decoded has it made here, and only when one of its gains is above 1 (the
-        others are left alone by ``limit_gains``: None)."""
+        """Per frame its ``SampleHistogram`` (None for types without one), what ``gain_caps`` reads for ``gains``
+        (frames, bands): a frame kept decoded has it made here, and only when one of its gains is above 1 (no cap
+        binds the others, every cap being above 1: None)."""
         out = list(self.sample_histograms)
         for k, frame in enumerate(self.decoded_frames):
             if frame is not None and out[k] is None and np.any(np.asarray(gains[k]) > 1.0):
