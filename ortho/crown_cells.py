@@ -22,6 +22,18 @@ import numpy as np
 from ortho.footprints import MARGIN_NONE, FootprintOccluder
 
 
+def _occluder_of_sub(occluder: FootprintOccluder | None, shape: tuple[int, int], sub: int) -> FootprintOccluder:
+    """``occluder``, or one of ``shape`` in which every cell is a solid column (None); ``ValueError`` for a footprint
+    occluder with sub-cells of another ``sub`` per side than the crowns'."""
+    if occluder is None:
+        return FootprintOccluder(np.full(shape, -np.inf, np.float32), np.full(shape, -np.inf, np.float32),
+                                 np.full(shape, -1, np.int32), np.zeros((0, sub, sub), np.uint8), sub,
+                                 np.zeros((0, sub, sub), np.int16))
+    if occluder.sub != sub and len(occluder.sub_masks):
+        raise ValueError(f"the occluder's cells have {occluder.sub} sub-cells a side, the crowns' {sub}")
+    return occluder
+
+
 def with_crown_sub_cells(occluder: FootprintOccluder | None, top_m: np.ndarray, crown_bits: np.ndarray,
                          sub: int) -> FootprintOccluder:
     """``occluder`` (None: none, every cell a column) with each cell that is a solid column there and has crown
@@ -30,12 +42,7 @@ def with_crown_sub_cells(occluder: FootprintOccluder | None, top_m: np.ndarray, 
     sub-cells only. ``sub``: the occluder's sub-cells per
     side (5 at a 0.5 m DSM with footprints); a footprint occluder of another ``sub``: ``ValueError``."""
     shape = crown_bits.shape
-    if occluder is None:
-        occluder = FootprintOccluder(np.full(shape, -np.inf, np.float32), np.full(shape, -np.inf, np.float32),
-                                     np.full(shape, -1, np.int32), np.zeros((0, sub, sub), np.uint8), sub,
-                                     np.zeros((0, sub, sub), np.int16))
-    if occluder.sub != sub and len(occluder.sub_masks):
-        raise ValueError(f"the occluder's cells have {occluder.sub} sub-cells a side, the crowns' {sub}")
+    occluder = _occluder_of_sub(occluder, shape, sub)
     rows, cols = np.nonzero((crown_bits != 0) & (occluder.base_m == -np.inf))
     k0 = len(occluder.sub_masks)
     u, v = np.divmod(np.arange(sub * sub), sub)
@@ -120,12 +127,7 @@ def with_crown_disks(occluder: FootprintOccluder | None, top_m: np.ndarray, x_le
     from ortho.footprints import CROWN
 
     shape = top_m.shape
-    if occluder is None:
-        occluder = FootprintOccluder(np.full(shape, -np.inf, np.float32), np.full(shape, -np.inf, np.float32),
-                                     np.full(shape, -1, np.int32), np.zeros((0, sub, sub), np.uint8), sub,
-                                     np.zeros((0, sub, sub), np.int16))
-    if occluder.sub != sub and len(occluder.sub_masks):
-        raise ValueError(f"the occluder's cells have {occluder.sub} sub-cells a side, the crowns' {sub}")
+    occluder = _occluder_of_sub(occluder, shape, sub)
     trees = TreeCrowns(crowns.x_m, crowns.y_m, crowns.radius_m, crowns.top_m, crowns.base_m,
                        np.zeros(len(crowns), np.int64), np.zeros(len(crowns), bool), 0.0)
     rows, cols, margin_cm, base, tree_top = crown_sub_cells(trees, x0_m=x_left_m, y_top_m=y_top_m, res_m=res_m,
