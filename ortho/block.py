@@ -461,6 +461,7 @@ def _height_raster(path, project_crs, what: str):
 
 
 _CROWNS: dict = {}  # this process's crowns by (path, size, mtime): read once, not per frame
+_CROWNS_LOCK = threading.Lock()
 
 
 def _crowns_of(path: str, project_crs):
@@ -469,10 +470,11 @@ def _crowns_of(path: str, project_crs):
 
     st = Path(path).stat()
     key = (str(path), st.st_size, st.st_mtime_ns)
-    if key not in _CROWNS:
-        _CROWNS.clear()
-        _CROWNS[key] = read_crowns(path, project_crs)
-    return _CROWNS[key]
+    with _CROWNS_LOCK:  # the frames' threads: one reading, and no entry cleared under another thread
+        if key not in _CROWNS:
+            _CROWNS.clear()
+            _CROWNS[key] = read_crowns(path, project_crs)
+        return _CROWNS[key]
 
 
 def _crown_base(task: FrameTask, heights: HeightRaster, ground_bounds, project_crs) -> np.ndarray | None:
@@ -589,8 +591,14 @@ def _rectify_frame(task: FrameTask) -> dict:
     if task.dsm_path and task.crowns_path:
         from ortho.crown_cells import with_crown_disks
 
+        crowns = _crowns_of(task.crowns_path, project_crs)
+        occ_op = _built(task.occlusion_height_operation if task.occlusion_dsm_path else task.dsm_height_operation)
+        if occ_op is not None and len(crowns):  # the crowns' heights are the occlusion DSM's: into the same system
+            _, _, top = occ_op.transform(crowns.x_m, crowns.y_m, crowns.top_m)
+            _, _, base = occ_op.transform(crowns.x_m, crowns.y_m, crowns.base_m)
+            crowns = dataclasses.replace(crowns, top_m=np.asarray(top, np.float64), base_m=np.asarray(base, np.float64))
         occluder = with_crown_disks(occluder, surface.heights_m, surface.x_left_m, surface.y_top_m, surface.res_m,
-                                    _crowns_of(task.crowns_path, project_crs))
+                                    crowns)
     # the ground the frame images (its border rays on the DEM, as ``frame_grid``): the frame's grid, and (every
     # 4th ray: 16 a side) the ring in index.json by which the mosaic counts the empty cells no frame sees
     footprint = footprint_polygon_xy(task.camera, C, R, dem, to_project=to_project, image_id=task.image_id,

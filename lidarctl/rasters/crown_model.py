@@ -353,14 +353,30 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
     from lidarctl.rasters.products import NODATA, _file_points
 
     outdir = Path(outdir)
-    with rasterio.open(nearest_path) as ds:
-        crs, tf, dsm_shape = ds.crs, ds.transform, ds.shape
-        unit, tags = (ds.units[0] if ds.units else None), ds.tags()
+    try:
+        with rasterio.open(nearest_path) as ds:
+            crs, tf, dsm_shape = ds.crs, ds.transform, ds.shape
+            unit, tags = (ds.units[0] if ds.units else None), ds.tags()
+    except rasterio.errors.RasterioIOError as e:
+        raise InputError(f"{nearest_path}: not a readable nearest-return DSM ({e})") from None
     if crs is None or not crs.is_projected:
         raise InputError(f"{nearest_path}: the crowns are fitted in a projected CRS; the DSM is in "
                          f"{crs.to_string() if crs else 'no CRS'}")
-    f = float(crs.linear_units_factor[1])  # CRS unit -> metres
-    units = [io.resolve_crs_units(p, las_io.read_header(p), None)[1] for p in paths]
+    f = float(crs.linear_units_factor[1])  # CRS unit -> metres (lengths)
+    from aerotri.geom.crs.definition import same_horizontal
+
+    crs_units = [io.resolve_crs_units(p, las_io.read_header(p), None) for p in paths]
+    for p, (strip_crs, _) in zip(paths, crs_units):
+        if not same_horizontal(strip_crs, crs):
+            raise InputError(f"{p}: in {strip_crs.name}, not in the nearest-return DSM's CRS ({crs.to_string()}, "
+                             f"{nearest_path})")
+    units = [u for _, u in crs_units]
+    # heights: the DSM is the clouds' (``lidarctl rasters`` writes it in their height unit), which may differ from
+    # the horizontal one (UTM in metres, heights in US feet)
+    fz = units[0].z_m if units else f
+    if any(u.z_m != fz for u in units):
+        raise InputError(f"{paths[0]}: the strips' heights are in different units "
+                         f"({sorted({u.z_name for u in units})}); the crowns need one")
 
     def chunks(validate=True):  # in metres, checked as lidarctl rasters reads them (a bad file: InputError naming it)
         for p, u in zip(paths, units):
@@ -471,11 +487,11 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
                     sub_crowns = TreeCrowns(*(getattr(crowns, k)[near] for k in _CROWN_FIELDS), crowns.spacing_m)
                     pts = tile_points((int(tr), int(tc))) if near.any() else tuple(
                         np.zeros(0, d) for _, d in _TILE_FIELDS)
-                    out, unsure = _crown_surface(sub_crowns, *pts, nearest_m * np.float32(f), x0_m=x0d, y_top_m=ytd,
+                    out, unsure = _crown_surface(sub_crowns, *pts, nearest_m * np.float32(fz), x0_m=x0d, y_top_m=ytd,
                                                  res_m=resd, sub=5, window=(a0, b0, *dsm_shape),
                                                  sure_m=(halo - 1) * res)
                     beyond += unsure
-                    out = out / np.float32(f)
+                    out = out / np.float32(fz)
                     dst.write(np.where(np.isfinite(out), out, NODATA).astype(np.float32), 1, window=win)
                     bar.update(1)
             if unit:
@@ -491,8 +507,8 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
                 "crowns: %d cells beside a crown found no ground return within the tiles' halo (%.0f m); their "
                 "height is that of the nearest one within it", beyond, halo_m)
 
-        crowns = dataclasses.replace(crowns, **{k: getattr(crowns, k) / f
-                                                for k in ("x_m", "y_m", "radius_m", "top_m", "base_m")})
+        crowns = dataclasses.replace(crowns, **{k: getattr(crowns, k) / f for k in ("x_m", "y_m", "radius_m")},
+                                     **{k: getattr(crowns, k) / fz for k in ("top_m", "base_m")})
         angles = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
         import shapely
 

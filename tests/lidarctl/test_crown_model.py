@@ -238,3 +238,65 @@ def test_the_tile_files_are_refused_before_they_fill_the_disk(tmp_path, monkeypa
         write_crown_model_run([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", out, tile_m=25.0)
     assert e.value.param == "--tile-m"
     assert list(out.iterdir()) == []
+
+
+def test_crown_heights_in_the_clouds_height_unit_beside_metre_lengths(tmp_path):
+    """UTM in metres with NAVD88 heights in US survey feet (a common US delivery): the crowns' tops and the surface in
+    feet, as the DSM beside them; the same crowns as the all-metre block, scaled."""
+    import laspy
+    import rasterio
+    from pyproj import CRS
+    from rasterio.transform import from_origin
+
+    from lidarctl.rasters.crown_model import write_crown_model
+    from ortho.crown_cells import read_crowns
+
+    ft = 0.30480060960121924
+    x, y, z, cls, rn = _scene(6)
+    x0, y0 = 500000.0, 4000000.0
+    dsm, _ = _nearest_dsm(x, y, z, cls, rn)
+    out = {}
+    for name, crs_text, zunit in (("m", "EPSG:32611+5703", 1.0), ("ft", "EPSG:32611+6360", ft)):
+        d = tmp_path / name
+        d.mkdir()
+        crs = CRS.from_user_input(crs_text)
+        header = laspy.LasHeader(point_format=6, version="1.4")
+        header.scales, header.offsets = [0.001] * 3, [x0, y0, 0.0]
+        header.add_crs(crs)
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = x + x0, y + y0, z / zunit
+        las.classification, las.return_number, las.number_of_returns = cls, rn, np.where(rn == 1, 1, 2)
+        las.write(d / "strip.las")
+        with rasterio.open(d / "dsm_nearest.tif", "w", driver="GTiff", width=84, height=84, count=1, dtype="float32",
+                           crs=rasterio.crs.CRS.from_wkt(crs.to_wkt()), transform=from_origin(x0, y0 + 42.0, 0.5, 0.5)
+                           ) as ds:
+            ds.write(dsm / zunit, 1)
+        gpkg, tif = write_crown_model([d / "strip.las"], d / "dsm_nearest.tif", d)
+        with rasterio.open(tif) as ds:
+            out[name] = read_crowns(gpkg, crs), ds.read(1, masked=True).filled(np.nan)
+    (cm, sm), (cf, sf) = out["m"], out["ft"]
+    np.testing.assert_allclose(np.sort(cf.top_m) * ft, np.sort(cm.top_m), atol=0.01)
+    np.testing.assert_allclose(np.sort(cf.base_m) * ft, np.sort(cm.base_m), atol=0.01)
+    np.testing.assert_allclose(np.sort(cf.radius_m), np.sort(cm.radius_m), atol=0.01)
+    np.testing.assert_allclose(sf * ft, sm, atol=0.01)
+
+
+def test_strips_in_another_crs_than_the_dsm_are_refused(tmp_path):
+    """Strips in UTM 12N beside a DSM in UTM 11N: an InputError naming the strip, nothing written."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from aerotri.core.errors import InputError
+    from lidarctl.rasters.crown_model import write_crown_model
+
+    x, y, z, cls, rn = _scene(6)
+    _write_strip(tmp_path / "strip.las", x, y, z, cls, rn, 500000.0, 4000000.0, epsg=32612)
+    dsm, _ = _nearest_dsm(x, y, z, cls, rn)
+    with rasterio.open(tmp_path / "dsm_nearest.tif", "w", driver="GTiff", width=84, height=84, count=1,
+                       dtype="float32", crs="EPSG:32611", transform=from_origin(500000.0, 4000042.0, 0.5, 0.5)) as ds:
+        ds.write(dsm, 1)
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(InputError, match="strip.las"):
+        write_crown_model([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", out)
+    assert list(out.iterdir()) == []
