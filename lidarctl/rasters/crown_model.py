@@ -151,9 +151,9 @@ def _fit_crowns(x_m, y_m, z_m, classification, return_number, *, spacing_m: floa
     window of it the returns fill (a tile with its halo); None: of these returns."""
     x_m, y_m, z_m = (np.asarray(a, np.float64) for a in (x_m, y_m, z_m))
     cls = np.asarray(classification)
-    first = (np.asarray(return_number) <= 1) & ~np.isin(cls, NOISE_CLASSES)
+    first, vf = _first_masks(cls, return_number)
     veg = np.isin(cls, VEGETATION_CLASSES)
-    vf, of = first & veg, first & ~veg
+    of = first & ~veg
     vx, vy, vz = x_m[vf], y_m[vf], z_m[vf]
     ox, oy = x_m[of], y_m[of]
     e = np.zeros(0)
@@ -246,7 +246,7 @@ def _crown_surface(crowns, x_m, y_m, z_m, classification, return_number, nearest
     """``crown_surface`` and the number of its cells whose nearest return that is not vegetation lies farther than
     ``sure_m`` (per cell: the returns given are all those within it; None: all returns given)."""
     cls = np.asarray(classification)
-    first = (np.asarray(return_number) <= 1) & ~np.isin(cls, NOISE_CLASSES)
+    first, _ = _first_masks(cls, return_number)
     w_r0, w_c0 = (window[0], window[1]) if window is not None else (0, 0)
     shape = (window[2], window[3]) if window is not None else nearest_m.shape
     rows, cols, margin_cm, _, _ = crown_sub_cells(
