@@ -1105,7 +1105,7 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), max_cells: floa
         shape = (max(1, ds.height // step), max(1, ds.width // step))
         ok = ds.read_masks(1, out_shape=shape, resampling=Resampling.nearest) > 0
         sy, sx = ds.height / shape[0], ds.width / shape[1]
-        to_read_px = ~(ds.transform * Affine.scale(sx, sy))
+        to_read_px = ~(ds.transform @ Affine.scale(sx, sy))
     unseen = unseen_cells(ok, to_read_px, footprints)
     holes = int(np.count_nonzero(unseen))
     block = holes + int(np.count_nonzero(ok))
