@@ -266,8 +266,9 @@ def floor(work: Path, runs: int, peer_cpu_s: float) -> dict:
     at most for ``ortho mosaic`` to use half of ``peer_cpu_s`` (gdalwarp's, same run), and the CPU ratio gdalwarp /
     ours if that work took no time at all."""
     mods = mosaic_modules(work)
-    code = ("import importlib, sys\nfor m in sys.argv[1:]:\n    try:\n        importlib.import_module(m)\n"
-            "    except Exception:\n        pass\n")
+    # ended as the console script ends (``aerotri.core.console``: no module teardown, which ``ortho`` does not do)
+    code = ("import importlib, os, sys\nfor m in sys.argv[1:]:\n    try:\n        importlib.import_module(m)\n"
+            "    except Exception:\n        pass\nos._exit(0)\n")
     got = [measured([sys.executable, "-c", code, *mods], cwd=work) for _ in range(runs)]
     cpu = statistics.median(g["cpu_s"] for g in got)
     return {"runs": runs, "modules": len(mods), "imports_cpu_s": round(cpu, 3),
