@@ -55,6 +55,10 @@ file, whose other keys (earlier rounds) are kept. The commit of the code measure
 ``--before-src DIR`` (a source tree of the code before a change, e.g. ``git archive main``) the demo runs that code's
 ``ortho mosaic`` too, first in every repetition, and records whether the two mosaics have the same sha256.
 
+With ``--floor N`` the start-up floor on the demo: N runs of a process that only imports the modules an ``ortho
+mosaic`` run imports (in its order), their CPU seconds, and what that leaves for the mosaic's own work at half of
+gdalwarp's CPU seconds (``floor``).
+
 With ``--bytecode`` the measured sources (this tree's ``ortho`` and ``aerotri``, and ``--before-src``'s) are compiled to
 bytecode first (``__pycache__``, as pip writes it for a wheel install): an editable install run with
 PYTHONDONTWRITEBYTECODE=1 (this machine's sessions) compiles every module of this project in every run, about 0.08
@@ -67,7 +71,7 @@ preview and the summary after the COG).
 
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
        [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--check-by HH:MM] [--peer-deadline HH:MM]
-       [--min-free-gb 7] [--subset S,F ...] [--out FILE] [--label KEY] [--before-src DIR] [--bytecode] [--phases N]
+       [--min-free-gb 7] [--subset S,F ...] [--out FILE] [--label KEY] [--before-src DIR] [--bytecode] [--phases N] [--floor N]
 """
 
 from __future__ import annotations
@@ -241,6 +245,36 @@ def phases(work: Path, runs: int, before_src: Path | None = None) -> dict:
         got["ours"].append(phase_cpu([tool("ortho"), "mosaic", str(work)]))
     return {"runs": runs, **{who: {k: round(statistics.median(r[k] for r in rs if k in r), 3) for k in rs[0]}
                              for who, rs in got.items()}}
+
+
+def mosaic_modules(work: Path) -> list[str]:
+    """The modules an ``ortho mosaic`` run of ``work`` has imported by its end, in the order they were imported
+    (its click group run in a process of its own, ``sys.modules`` printed after it)."""
+    code = ("import json, sys; import ortho.cli as cli; "
+            f"cli.main.main(['mosaic', '-q', {str(work)!r}], standalone_mode=False); "
+            "print('MODULES ' + json.dumps([m for m in sys.modules if m != '__main__']))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=work)
+    line = [x for x in r.stdout.splitlines() if x.startswith("MODULES ")]
+    if r.returncode != 0 or not line:
+        raise SystemExit(f"ortho mosaic {work} failed ({r.returncode}):\n{r.stderr[-3000:]}")
+    return json.loads(line[0][len("MODULES "):])
+
+
+def floor(work: Path, runs: int, peer_cpu_s: float) -> dict:
+    """The start-up floor of ``ortho mosaic`` on ``work``: a process that only imports the modules a run of it imports
+    (``mosaic_modules``, in their order), ``runs`` times: its CPU seconds (median), what the run's own work could take
+    at most for ``ortho mosaic`` to use half of ``peer_cpu_s`` (gdalwarp's, same run), and the CPU ratio gdalwarp /
+    ours if that work took no time at all."""
+    mods = mosaic_modules(work)
+    # ended as the console script ends (``aerotri.core.console``: no module teardown, which ``ortho`` does not do)
+    code = ("import importlib, os, sys\nfor m in sys.argv[1:]:\n    try:\n        importlib.import_module(m)\n"
+            "    except Exception:\n        pass\nos._exit(0)\n")
+    got = [measured([sys.executable, "-c", code, *mods], cwd=work) for _ in range(runs)]
+    cpu = statistics.median(g["cpu_s"] for g in got)
+    return {"runs": runs, "modules": len(mods), "imports_cpu_s": round(cpu, 3),
+            "imports_wall_s": round(statistics.median(g["wall_s"] for g in got), 3),
+            "peer_cpu_s": peer_cpu_s, "work_cpu_s_left_at_2x": round(peer_cpu_s / 2 - cpu, 3),
+            "ratio_cpu_if_no_work": round(peer_cpu_s / cpu, 2)}
 
 
 # --- the demo's frames -----------------------------------------------------------------------------------
@@ -461,10 +495,12 @@ def sha256_of(path: Path) -> str:
 
 def before_command(src: Path) -> list[str]:
     """``ortho`` of the source tree ``src`` (e.g. ``git archive`` of main), run by this interpreter: that tree's
-    packages first on the path, the editable install of this one left out."""
+    packages first on the path, the editable install of this one left out; through its console script's function
+    (``ortho.cli.run``: the process ends without Python's teardown, as ``ortho`` does) where the tree has one, else
+    its click group (until i41-mosaic4 always the group: the teardown, 0.2 CPU-s, was counted to the code before)."""
     code = ("import sys; sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in repr(f)]; "
             f"sys.path.insert(0, {str(src)!r}); import ortho; assert ortho.__file__.startswith({str(src)!r}); "
-            "from ortho.cli import main; sys.argv = ['ortho'] + sys.argv[1:]; main()")
+            "import ortho.cli as cli; sys.argv = ['ortho'] + sys.argv[1:]; getattr(cli, 'run', cli.main)()")
     return [sys.executable, "-c", code]
 
 
@@ -594,6 +630,9 @@ def main() -> None:
     ap.add_argument("--phases", type=int, default=0, metavar="N",
                     help="after the timed runs, N runs of `ortho mosaic -v` on the demo (and of --before-src's) for "
                          "the CPU seconds of each phase (medians, `phases_cpu_s`)")
+    ap.add_argument("--floor", type=int, default=0, metavar="N",
+                    help="after the timed runs, N runs of a process that only imports what ortho mosaic imports on the "
+                         "demo: the start-up floor (CPU-s) against gdalwarp's CPU-s (`floor`)")
     ap.add_argument("--peer-co", action="append", default=[], metavar="NAME=VALUE",
                     help="one more creation option of gdalwarp (repeatable), e.g. BIGTIFF=YES: the issue's command writes a "
                          "classic TIFF, which stops at 4 GiB (a DOM of about 4 GP)")
@@ -649,6 +688,9 @@ def main() -> None:
         if a.phases:
             print(f"demo: CPU per phase, {a.phases} run(s) each", flush=True)
             result["demo"]["phases_cpu_s"] = phases(demo, a.phases, a.before_src)
+        if a.floor:
+            print(f"demo: start-up floor, {a.floor} run(s)", flush=True)
+            result["demo"]["floor"] = floor(demo, a.floor, result["demo"]["median"]["peer_cpu_s"])
     if not a.skip_demo and (demo / "truth" / "ortho.tif").exists():
         before = json.loads((demo / "ortho" / "dom_report.json").read_text())["displacement"] \
             if (demo / "ortho" / "dom_report.json").exists() else None

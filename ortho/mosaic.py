@@ -231,6 +231,20 @@ _RESIZABLE = (np.uint8, np.uint16, np.int16, np.float32, np.float64)
 _HISTOGRAM_TYPES = (np.dtype(np.uint8), np.dtype(np.uint16))
 
 
+def _cells_reduce(a: np.ndarray, factor: int, op) -> np.ndarray:
+    """``op`` (``np.bitwise_and``, ``np.bitwise_or``) over every ``factor`` x ``factor`` cell of ``a`` (uint8, (h * factor,
+    w * factor)) -> (h, w) uint8: rows then columns of each cell combined by slices, exact and in uint8 (a float32
+    indicator block-averaged by OpenCV took 4 times as long and faulted in a float32 copy of every strip)."""
+    rows = a[0::factor].copy()
+    for k in range(1, factor):
+        op(rows, a[k::factor], out=rows)
+    by_cell = rows.reshape(rows.shape[0], -1, factor)
+    out = by_cell[:, :, 0].copy()
+    for k in range(1, factor):
+        op(out, by_cell[:, :, k], out=out)
+    return out
+
+
 def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, *, strip_px: int = 1024, keep_decoded=False,
                   margin_px: int = 0):
     """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell, histogram,
@@ -251,7 +265,6 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, *, strip_p
         rgb = np.empty((h, w, ds.count), keep)
         valid = np.empty((h, w), bool)
         step = max(1, strip_px // factor)
-        n_px = float(factor * factor)
         # per band, the histogram of the valid samples (8- and 16-bit frames: at most 1024 bins, and the count
         # of samples at the type's maximum): what a gain would saturate
         bits = 8 * dtype.itemsize
@@ -277,10 +290,8 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, *, strip_p
             for b in range(img.shape[0]):
                 band = img[b] if img.dtype == keep else img[b].astype(keep)
                 rgb[s:s + n, :, b] = cv2.resize(band, (w, n), interpolation=cv2.INTER_AREA)
-            # a cell is valid when all its pixels are: the mean of the invalid indicator is 0 (exactly; any
-            # invalid pixel gives at least 1 / factor^2)
-            bad = cv2.resize((~ok).view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA)
-            valid[s:s + n] = bad < 0.5 / n_px
+            # a cell is valid when all its pixels are (the window is whole cells)
+            valid[s:s + n] = _cells_reduce(ok.view(np.uint8), factor, np.bitwise_and).view(bool)
             np.logical_not(ok, out=invalid[1 + s * factor:1 + (s + n) * factor, 1:-1].view(bool))
     holes = find_holes(invalid, factor, (rc0, cc0))
     if decoded is not None:
@@ -1094,7 +1105,7 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), max_cells: floa
         shape = (max(1, ds.height // step), max(1, ds.width // step))
         ok = ds.read_masks(1, out_shape=shape, resampling=Resampling.nearest) > 0
         sy, sx = ds.height / shape[0], ds.width / shape[1]
-        to_read_px = ~(ds.transform * Affine.scale(sx, sy))
+        to_read_px = ~(ds.transform @ Affine.scale(sx, sy))
     unseen = unseen_cells(ok, to_read_px, footprints)
     holes = int(np.count_nonzero(unseen))
     block = holes + int(np.count_nonzero(ok))
@@ -1614,16 +1625,13 @@ def find_holes(invalid: np.ndarray, factor: int, offset, strip_cells: int = 256)
         return None
     h, w = (invalid.shape[0] - 2) // factor, (invalid.shape[1] - 2) // factor
     px = invalid[1:-1, 1:-1]
-
-    def any_in_cell(mask, n):
-        # a cell's mean of the indicator is > 0 exactly when one of its pixels is set (float32: no rounding to 0)
-        return cv2.resize(mask.view(np.uint8).astype(np.float32), (w, n), interpolation=cv2.INTER_AREA) > 0
-
     cells = np.zeros((h, w), np.uint8)
-    for s in range(0, h, strip_cells):  # by strips of rows: float32 indicators of a strip, not of the frame
+    for s in range(0, h, strip_cells):  # by strips of rows
         n = min(strip_cells, h - s)
-        block = px[s * factor:(s + n) * factor]
-        cells[s:s + n] = np.where(any_in_cell(block == 1, n), np.where(any_in_cell(block == 2, n), 2, 1), 0)
+        # the pixels are 0 (valid), 1 (a hole) or 2 (joined to the outside): OR over a cell sets bit 1 when it has a
+        # hole pixel, bit 2 when it has an outside one
+        found = _cells_reduce(px[s * factor:(s + n) * factor], factor, np.bitwise_or)
+        cells[s:s + n] = np.where(found & 1, np.where(found & 2, 2, 1), 0)
     if not cells.any():
         return None
     rs, cs = np.nonzero(cells == 2)

@@ -22,7 +22,7 @@ def unseen_cells(valid: np.ndarray, to_cells, footprints=()) -> np.ndarray:
     for ring in footprints:
         if ring:
             xy = np.asarray(ring, float)
-            col, row = to_cells * (xy[:, 0], xy[:, 1])
+            col, row = to_cells @ (xy[:, 0], xy[:, 1])
             # fillPoly takes a cell whose centre the ring holds; pixel corners -> centres
             pts = np.round(np.stack([col - 0.5, row - 0.5], axis=-1) * 16).astype(np.int32)
             cv2.fillPoly(imaged, [pts], 1, lineType=cv2.LINE_8, shift=4)

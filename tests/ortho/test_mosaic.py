@@ -195,6 +195,25 @@ def test_mosaic_away_from_seams_is_the_frame_through_its_gain(block):
     assert np.abs(ov[:, :h2 // 2, :w2 // 2][:, full] - mean).max() <= 1.0
 
 
+def test_seam_cells_are_valid_where_all_their_pixels_are_and_hold_what_any_pixel_holds():
+    """``_cells_reduce`` (the seam grid's validity and a frame's hole cells): AND / OR over every factor x factor cell,
+    for factors that are not powers of two and strided inputs (a window of a larger array)."""
+    from ortho.mosaic import _cells_reduce
+
+    rng = np.random.default_rng(5)
+    for factor, (h, w) in ((2, (5, 7)), (3, (4, 9)), (4, (6, 5)), (15, (3, 4))):
+        big = rng.integers(0, 3, (h * factor + 2, w * factor + 2)).astype(np.uint8)
+        a = big[1:-1, 1:-1]  # a strided view, as find_holes passes its framed pixels
+        cells = a.reshape(h, factor, w, factor)
+        ok = (a == 0).view(np.uint8)
+        ok[:factor, :factor] = 1  # one cell valid all over
+        np.testing.assert_array_equal(_cells_reduce(ok, factor, np.bitwise_and),
+                                      ok.reshape(h, factor, w, factor).all(axis=(1, 3)))
+        got = _cells_reduce(a, factor, np.bitwise_or)
+        np.testing.assert_array_equal(got & 1 > 0, (cells == 1).any(axis=(1, 3)))
+        np.testing.assert_array_equal(got & 2 > 0, (cells == 2).any(axis=(1, 3)))
+
+
 def test_overview_halving_is_the_mean_of_the_valid_samples():
     from ortho.mosaic import halve, overview_factors
 
