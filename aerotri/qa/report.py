@@ -277,6 +277,20 @@ def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
     return rows
 
 
+def non_vegetated_dz(dz_m, groups) -> tuple[list[float], str]:
+    """The dz the DEM height RMSE limit is judged on, and the word for them: with land-cover groups
+    (check-heights --groups) only the non-vegetated points ("non-vegetated "), as the compliance section's NVA
+    (``compliance.vegetated``; vegetated points and points without a group left out): the limit is an open-ground
+    (NVA) limit, and vegetated points have their own (LBS VVA p95) or none (ASPRS 2023). Without groups every
+    point ("")."""
+    from aerotri.qa.compliance import vegetated
+
+    veg = [vegetated(g) for g in groups] if len(groups) == len(dz_m) else []
+    if not any(v is not None for v in veg):
+        return list(dz_m), ""
+    return [d for d, v in zip(dz_m, veg) if v is False], "non-vegetated "
+
+
 def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]:
     """(the strip-consistency row, the pairs for the details) from lidar_out/strips/: the check, or after a
     strip adjustment its check after (the note gives the value before).
@@ -414,11 +428,14 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                                                       "search radius (points in another CRS, or x and "
                                                                       "y swapped?)"))
     elif hc is not None and hc.n_checked:
-        rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {hc.n_checked} surveyed points",
-                           round(hc.rmse_m, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
-        if hc.dz_m and tol.get("dem_rmse_m"):
+        dz, which = non_vegetated_dz(hc.dz_m, hc.dz_groups)
+        rmse = (hc.rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
+        rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {len(dz) if which else hc.n_checked} "
+                           f"{which}surveyed points", None if rmse is None else round(rmse, 4), tol.get("dem_rmse_m"), "m",
+                           key="dem_rmse_m"))
+        if dz and tol.get("dem_rmse_m"):
             lim = 3.0 * tol["dem_rmse_m"]
-            pct = 100.0 * sum(abs(d) > lim for d in hc.dz_m) / len(hc.dz_m)
+            pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
             rows.append(_check("height_check_outlier_pct", sec,
                                f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
                                tol.get("height_check_max_outlier_pct"), "%", key="height_check_max_outlier_pct"))
@@ -428,8 +445,11 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     elif hc is not None and hc.dem_n_checked:
         # the DEM raster is the product a contract judges (check-heights --dem; without a cloud the only figure)
         name = Path(hc.dem_path).name if hc.dem_path else "the DEM"
-        rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at {hc.dem_n_checked} surveyed points",
-                           round(hc.dem_rmse_m, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
+        dz, which = non_vegetated_dz(hc.dem_dz_m, hc.dem_dz_groups)
+        rmse = (hc.dem_rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
+        rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at "
+                           f"{len(dz) if which else hc.dem_n_checked} {which}surveyed points",
+                           None if rmse is None else round(rmse, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
 
     rows += line_map_rows(project, tol)
 
