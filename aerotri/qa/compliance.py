@@ -263,11 +263,11 @@ def _las_files(folder: Path) -> list[Path]:
 
 def density_inputs(project: Project) -> tuple[list[Path], Path | None, str]:
     """(the clouds, the DEM, where they were found) for the density: the strips of P/lidar/, else, in a LiDAR-only
-    project (``lidar_only_project``; a frame block's P/ may hold a photogrammetric cloud), the LAS/LAZ files in P/
-    and P/lidar_out/ (where docs/your-own-block.md's LiDAR-only commands write the classified cloud: the same
-    points; the per-strip copies of ``lidarctl classify STRIPS... P/lidar_out/classified`` first, as they hold the
-    same points twice over otherwise); P/lidar_out/dem.tif, else the DEM lidar_out/height_check.json was checked on (check-heights --dem;
-    its path as given, from the working folder or the project's)."""
+    project (``lidar_only_project``; a frame block's P/ may hold a photogrammetric cloud), the per-strip copies of
+    README's ``lidarctl classify STRIPS... P/lidar_out/classified``, else the LAS/LAZ files in P/ and P/lidar_out/
+    (where docs/your-own-block.md's LiDAR-only commands write the classified cloud: the same points);
+    P/lidar_out/dem.tif, else the DEM lidar_out/height_check.json was checked on (check-heights --dem; its path as
+    given, from the working folder or the project's)."""
     clouds, where = _las_files(project.lidar_dir), f"the strips of {project.lidar_dir}"
     if not clouds and lidar_only_project(project):
         # README's `lidarctl classify STRIPS... P/lidar_out/classified` writes one classified copy per strip there
@@ -298,7 +298,8 @@ def first_returns(path: Path) -> int:
 
 def lidar_density(project: Project) -> tuple[float | None, str]:
     """First returns per m2 (ANPD) of the project's clouds (``density_inputs``): first returns counted in the
-    points (``first_returns``: withheld records left out) over the area of the DEM's valid cells (overlaps counted, as the aggregate density does)."""
+    points (``first_returns``: withheld records left out) over the area of the DEM's valid cells (overlaps
+    counted, as the aggregate density does)."""
     clouds, dem, where = density_inputs(project)
     if not clouds or dem is None:
         elsewhere = (f", nor a classified cloud in {project.root} or {project.lidar_out_dir}"

@@ -431,8 +431,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         dz, which = non_vegetated_dz(hc.dz_m, hc.dz_groups)
         rmse = (hc.rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
         rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {len(dz) if which else hc.n_checked} "
-                           f"{which}surveyed points", None if rmse is None else round(rmse, 4), tol.get("dem_rmse_m"), "m",
-                           key="dem_rmse_m"))
+                           f"{which}surveyed points", None if rmse is None else round(rmse, 4),
+                           tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
         if dz and tol.get("dem_rmse_m"):
             lim = 3.0 * tol["dem_rmse_m"]
             pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
