@@ -755,6 +755,21 @@ def _compliance_section(comp: dict | None) -> dict | None:
                 header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]))
 
 
+def compliance_headline(comp: dict | None) -> str:
+    """The compliance section's verdict in one phrase, for beside the verdict table's overall verdict (the two
+    judge different things: a LiDAR-only report under usgs-lbs read "Overall verdict: pass" at its top while the
+    standard's VVA and density failed below): "" without a standard; the products that fail (else are not
+    testable) named."""
+    if not comp or not comp.get("products"):
+        return ""
+    fails = [p["product"] for p in comp["products"] if p["verdict"] == "fail"]
+    untested = [p["product"] for p in comp["products"] if p["verdict"].startswith("not testable")]
+    verdict = "fail" if fails else ("not testable" if untested else "pass")
+    named = fails or untested
+    return (f"compliance with {comp['name']}, class {comp['class_tested']}: {verdict}"
+            + (f" ({', '.join(named)})" if named else ""))
+
+
 def compliance_lines(comp: dict | None) -> list[str]:
     """The console lines of the compliance section."""
     if not comp:
@@ -795,7 +810,7 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
     return render("qa_report.html.j2", project=rep["project"],
                   table_name=(rep.get("table") or {}).get("name") or str(rep["map_scale"]),
                   tolerance_table=rep["tolerance_table"], terrain=rep["terrain"],
-                  reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
+                  reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "", compliance_headline=compliance_headline(rep.get("compliance")),
                   passed=rep["passed"], failed=rep["failed"], verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
                   stage_images=list(stage_images), figures=list(figures or []),
@@ -850,8 +865,10 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         head = (f"tolerances: {t.get('name') or rep['map_scale']} ({rep['tolerance_table']}), terrain {rep['terrain']}; "
                 f"chosen because {t.get('reason', 'given')}")
         fig.text(0.04, 0.905, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
+        headline = compliance_headline(rep.get("compliance"))
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
-                             f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10)
+                             f"({rep['passed']} passed, {rep['failed']} failed)" + (f"; {headline}" if headline else ""),
+                 fontsize=10 if not headline else 8)
         cells, colours = [], []
         for r in rep["checks"]:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
@@ -960,5 +977,7 @@ def console_summary(report: QaReport) -> str:
     lines += compliance_lines(report.compliance)
     verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
     judged_by = t["name"] if t.get("lidar_only") else f"{report.map_scale} {report.terrain}"
-    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; {judged_by})")
+    headline = compliance_headline(report.compliance)
+    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; {judged_by})"
+                 + (f"; {headline}" if headline else ""))
     return "\n".join(lines)

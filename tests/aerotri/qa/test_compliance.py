@@ -260,7 +260,7 @@ def test_lidar_only_report_has_no_frame_camera_table(tmp_path):
     assert set(t["unconfirmed"]) <= set(LIDAR_ONLY_LIMITS) and "dem_rmse_m" in rep.tolerances
     html = (tmp_path / "reports" / "index.html").read_text()
     assert "Flight acceptance" not in html and "manned" not in html and "sigma0" not in html
-    assert console_summary(rep).endswith(f"failed; {t['name']})")
+    assert f"failed; {t['name']}); compliance with " in console_summary(rep).splitlines()[-1]
 
     rep = write_qa_report(tmp_path, standard="usgs-lbs")
     assert "manned" not in rep.table["reason"] and "no standard named" not in rep.table["reason"]
@@ -420,3 +420,23 @@ def test_verdict_table_judges_the_dem_rmse_on_the_non_vegetated_points(tmp_path)
     row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
     assert row.value == pytest.approx(math.sqrt((34 * 0.08**2 + 6 * 0.2**2) / 40), abs=1e-4) and row.verdict == "fail"
     assert "at 40 surveyed points" in row.quantity
+
+
+def test_the_headline_gives_the_compliance_verdict_beside_the_overall_one(tmp_path):
+    # a LiDAR-only report under usgs-lbs read "Overall verdict: pass" at its top (console: "index.html: pass") while
+    # the standard's VVA failed in the compliance section below: a client reading the headline took it as compliant
+    from aerotri.qa.report import console_summary
+
+    _dem_checked_alone(tmp_path, open_dz_m=0.05)     # forest |dz| 0.2 m: beyond QL0's VVA 0.15 m
+    rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL0")
+    assert rep.overall == "pass"                      # the verdict table: NVA 0.05 <= 0.05
+    dem = [p for p in rep.compliance["products"] if p["product"] == "LiDAR DEM"][0]
+    assert dem["verdict"] == "fail"
+    last = console_summary(rep).splitlines()[-1]
+    assert last.endswith("; compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)"), last
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert "compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)</b> (below)" in html
+    rep = write_qa_report(tmp_path)                   # no standard named: the one the table chose (docs/standards.md)
+    assert console_summary(rep).splitlines()[-1].endswith(
+        "compliance with Chinese specifications for digital aerial triangulation (GB/T 23236, GB/T 7930, GB/T 13990), "
+        "class 1:5000 flat: not testable (LiDAR DEM)")
