@@ -810,7 +810,9 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
     return render("qa_report.html.j2", project=rep["project"],
                   table_name=(rep.get("table") or {}).get("name") or str(rep["map_scale"]),
                   tolerance_table=rep["tolerance_table"], terrain=rep["terrain"],
-                  reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "", compliance_headline=compliance_headline(rep.get("compliance")),
+                  reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
+                  compliance_headline=compliance_headline(rep.get("compliance")),
+                  compliance_verdict=compliance_headline(rep.get("compliance")).split(": ")[-1].split(" (")[0],
                   passed=rep["passed"], failed=rep["failed"], verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
                   stage_images=list(stage_images), figures=list(figures or []),
@@ -867,8 +869,8 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         fig.text(0.04, 0.905, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
         headline = compliance_headline(rep.get("compliance"))
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
-                             f"({rep['passed']} passed, {rep['failed']} failed)" + (f"; {headline}" if headline else ""),
-                 fontsize=10 if not headline else 8)
+                             f"({rep['passed']} passed, {rep['failed']} failed)"
+                 + (f"; {headline}" if headline else ""), fontsize=10 if not headline else 8)
         cells, colours = [], []
         for r in rep["checks"]:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
