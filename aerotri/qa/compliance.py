@@ -317,7 +317,9 @@ def lidar_density(project: Project) -> tuple[float | None, str]:
         valid = ds.read_masks(1) > 0
         unit = ds.crs.linear_units_factor[1] if ds.crs is not None else 1.0
         area = float(valid.sum()) * abs(ds.transform.a * ds.transform.e) * unit * unit
-    return F.anpd(first, area), f"{first} first returns of {where} over {area / 1e6:.3f} km2 (valid cells of {dem})"
+    density = F.anpd(first, area)
+    return density, (f"{first} first returns of {where} over {area / 1e6:.3f} km2 (valid cells of {dem}); "
+                     f"ANPS {F.anps(density):.2f} m (1 / sqrt(ANPD))")
 
 
 def _dom_check_stale(project: Project) -> bool:

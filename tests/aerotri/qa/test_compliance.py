@@ -398,6 +398,7 @@ def test_lbs_density_counts_usable_first_returns_not_the_header(tmp_path):
     assert 0 < usable_first < int(first.sum())
     assert dens["figure"] == pytest.approx(usable_first / 100.0 ** 2, abs=1e-4)   # 100 x 100 valid cells of 1 m
     assert "classified strips of" in dens["checkpoints_note"]
+    assert f"ANPS {1 / math.sqrt(usable_first / 100.0 ** 2):.2f} m" in dens["checkpoints_note"]
 
 
 def test_verdict_table_judges_the_dem_rmse_on_the_non_vegetated_points(tmp_path):
