@@ -372,6 +372,11 @@ def test_user_defined_linear_units_key_takes_its_size(files, tmp_path):
     r = CliRunner().invoke(main, ["rasters", str(bad), str(tmp_path / "r"), "--res-m", "2"])
     assert r.exit_code == 2 and "ProjLinearUnitSizeGeoKey (3077)" in r.output and "nosize.las" in r.output, r.output
     assert not (tmp_path / "r").exists()
+    from aerotri.cli import main as aerotri_main  # crs transform said "no CRS record in the file; give --from"
+
+    r = CliRunner().invoke(aerotri_main, ["crs", "transform", str(bad), str(tmp_path / "o.las"), "--to", "EPSG:4978"])
+    assert r.exit_code == 2 and "nosize.las: CRS record present but unreadable (ProjLinearUnitsGeoKey" in r.output
+    assert "give --from" in r.output and not (tmp_path / "o.las").exists()
 
 
 def test_units_key_crs_is_named_by_its_unit_and_crs_transform_says_why(files, tmp_path):

@@ -441,6 +441,8 @@ def transform_points_file(in_path, out_path, *, from_crs=None, to_crs=None, para
             raise InputError("--from is required for point lists")
         src = las_crs(in_path)
         if src is None:
+            with las.open_las(in_path) as reader:  # a record present but unreadable: why, not "no CRS record"
+                las.read_header_crs(in_path, reader.header, hint="give --from")
             raise InputError(f"{in_path}: no CRS record in the file; give --from")
     else:
         src = parse_crs(from_crs, "--from")
