@@ -38,6 +38,8 @@ EPSG_UNIT_M = {9001: 1.0, 9002: FOOT_M, 9003: US_SURVEY_FOOT_M}
 # GeoTIFF keys: vertical CRS (an EPSG code) and vertical units.
 VERTICAL_CS_KEY, VERTICAL_UNITS_KEY = 4096, 4099
 PROJ_LINEAR_UNITS_KEY = 3076
+PROJ_LINEAR_UNIT_SIZE_KEY = 3077  # metres per unit of a user-defined ProjLinearUnitsGeoKey (32767), a double
+USER_DEFINED_KEY = 32767
 
 
 def one_line(exc: Exception) -> str:
@@ -285,12 +287,34 @@ def _parse_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
         return crs
     keys = _geo_keys(header) or {}
     key = keys.get(PROJ_LINEAR_UNITS_KEY)
-    if key is None or key.tiff_tag_location != 0 or key.value_offset not in EPSG_UNIT_M:
+    if key is None or key.tiff_tag_location != 0:
         return crs
-    unit_m = EPSG_UNIT_M[key.value_offset]
+    code = key.value_offset
+    if code == USER_DEFINED_KEY:  # the unit's size in metres is ProjLinearUnitSizeGeoKey's (GeoTIFF 1.0 6.3.1.3)
+        size = _geo_double(header, keys.get(PROJ_LINEAR_UNIT_SIZE_KEY))
+        if size is None or not size > 0:
+            raise ValueError("ProjLinearUnitsGeoKey (3076) is user-defined (32767) but ProjLinearUnitSizeGeoKey "
+                             "(3077), the unit's size in metres, is missing or not a positive number")
+        # the known units by their size, so that the CRS and the outputs name them as GDAL does
+        code = next((c for c, m in EPSG_UNIT_M.items() if abs(size - m) <= 1e-9 * m), size)
+    elif code not in EPSG_UNIT_M:
+        return crs
+    unit_m = EPSG_UNIT_M.get(code, code)
     if all(abs(a.unit_conversion_factor - unit_m) < 1e-12 for a in crs.axis_info):
         return crs
-    return with_linear_unit(crs, key.value_offset)
+    return with_linear_unit(crs, code)
+
+
+def _geo_double(header: laspy.LasHeader, key) -> float | None:
+    """The value of a GeoTIFF key held in the GeoDoubleParams record (tag 34736), None when it is not there."""
+    if key is None or key.tiff_tag_location != 34736:
+        return None
+    for vlr in header.vlrs:
+        if type(vlr).__name__ == "GeoDoubleParamsVlr":
+            doubles = list(vlr.doubles)  # laspy's ctypes.c_double values
+            return float(getattr(doubles[key.value_offset], "value", doubles[key.value_offset])) \
+                if key.value_offset < len(doubles) else None
+    return None
 
 
 def _wkt_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
@@ -308,18 +332,26 @@ def _wkt_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
     return None
 
 
-def with_linear_unit(crs: pyproj.CRS, unit_code: int) -> pyproj.CRS:
+def with_linear_unit(crs: pyproj.CRS, unit_code: int | float) -> pyproj.CRS:
     """Projected ``crs`` with its axes in EPSG unit ``unit_code`` (9001 metre, 9002 foot, 9003 US survey
-    foot); the projection's parameters keep their own units (false easting 500000 m stays 500000 m), as
-    GDAL's SetLinearUnitsAndUpdateParameters does for such GeoTIFF keys."""
-    unit = {9001: "metre", 9002: {"type": "LinearUnit", "name": "foot", "conversion_factor": FOOT_M,
-                                  "id": {"authority": "EPSG", "code": 9002}},
-            9003: {"type": "LinearUnit", "name": "US survey foot", "conversion_factor": US_SURVEY_FOOT_M,
-                   "id": {"authority": "EPSG", "code": 9003}}}[unit_code]
+    foot; a float: a unit of that many metres, a user-defined GeoTIFF unit); the projection's parameters keep their
+    own units (false easting 500000 m stays 500000 m), as GDAL's SetLinearUnitsAndUpdateParameters does for such
+    GeoTIFF keys. The name says the new unit ("NAD83 / Nebraska (US survey foot)"): it is no longer the EPSG
+    code's CRS, whose name it would otherwise keep (so that "the file's CRS (NAD83 / Nebraska) is not --from
+    EPSG:32104" read as a contradiction)."""
+    if isinstance(unit_code, float):
+        unit = {"type": "LinearUnit", "name": f"user-defined unit of {unit_code:.10g} m",
+                "conversion_factor": unit_code}
+    else:
+        unit = {9001: "metre", 9002: {"type": "LinearUnit", "name": "foot", "conversion_factor": FOOT_M,
+                                      "id": {"authority": "EPSG", "code": 9002}},
+                9003: {"type": "LinearUnit", "name": "US survey foot", "conversion_factor": US_SURVEY_FOOT_M,
+                       "id": {"authority": "EPSG", "code": 9003}}}[unit_code]
     d = crs.to_json_dict()
     for axis in d["coordinate_system"]["axis"]:
         axis["unit"] = unit
     d.pop("id", None)  # no longer the EPSG code's CRS
+    d["name"] = f"{d.get('name', 'unknown')} ({unit if isinstance(unit, str) else unit['name']})"
     return pyproj.CRS.from_json_dict(d)
 
 

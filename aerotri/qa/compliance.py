@@ -263,14 +263,18 @@ def _las_files(folder: Path) -> list[Path]:
 
 def density_inputs(project: Project) -> tuple[list[Path], Path | None, str]:
     """(the clouds, the DEM, where they were found) for the density: the strips of P/lidar/, else, in a LiDAR-only
-    project (``lidar_only_project``; a frame block's P/ may hold a photogrammetric cloud), the LAS/LAZ files in P/
-    and P/lidar_out/ (where docs/your-own-block.md's LiDAR-only commands write the classified cloud: the same
-    points); P/lidar_out/dem.tif, else the DEM lidar_out/height_check.json was checked on (check-heights --dem;
-    its path as given, from the working folder or the project's)."""
+    project (``lidar_only_project``; a frame block's P/ may hold a photogrammetric cloud), the per-strip copies of
+    README's ``lidarctl classify STRIPS... P/lidar_out/classified``, else the LAS/LAZ files in P/ and P/lidar_out/
+    (where docs/your-own-block.md's LiDAR-only commands write the classified cloud: the same points);
+    P/lidar_out/dem.tif, else the DEM lidar_out/height_check.json was checked on (check-heights --dem; its path as
+    given, from the working folder or the project's)."""
     clouds, where = _las_files(project.lidar_dir), f"the strips of {project.lidar_dir}"
     if not clouds and lidar_only_project(project):
-        clouds = _las_files(project.root) + _las_files(project.lidar_out_dir)
-        where = f"{', '.join(p.name for p in clouds)} (no strips in {project.lidar_dir})"
+        # README's `lidarctl classify STRIPS... P/lidar_out/classified` writes one classified copy per strip there
+        classified = project.lidar_out_dir / "classified"
+        clouds = _las_files(classified) or _las_files(project.root) + _las_files(project.lidar_out_dir)
+        where = (f"the classified strips of {classified}" if _las_files(classified)
+                 else ", ".join(p.name for p in clouds)) + f" (no strips in {project.lidar_dir})"
     dem = project.dem_path if project.dem_path.is_file() else None
     if dem is None and project.height_check_path.is_file():
         given = (_json(project.height_check_path).get("dem") or {}).get("path")
@@ -278,9 +282,24 @@ def density_inputs(project: Project) -> tuple[list[Path], Path | None, str]:
     return clouds, dem, where
 
 
+def first_returns(path: Path) -> int:
+    """First returns (return number 1; 0, which LAS does not allow, taken as a single return) among the records of a
+    LAS/LAZ file that may be used: withheld records are left out (``aerotri.geom.las.usable``). The header's
+    count by return cannot be used: it counts the withheld records too (and some writers leave it 0)."""
+    import laspy
+
+    from aerotri.geom.las import iter_file_chunks
+
+    n = 0
+    for _, chunk in iter_file_chunks(path, 2_000_000, laspy.DecompressionSelection.base()):
+        n += int(np.count_nonzero(np.asarray(chunk.return_number) <= 1))
+    return n
+
+
 def lidar_density(project: Project) -> tuple[float | None, str]:
-    """First returns per m2 (ANPD) of the project's clouds (``density_inputs``): first-return counts from the LAS
-    headers over the area of the DEM's valid cells (overlaps counted, as the aggregate density does)."""
+    """First returns per m2 (ANPD) of the project's clouds (``density_inputs``): first returns counted in the
+    points (``first_returns``: withheld records left out) over the area of the DEM's valid cells (overlaps
+    counted, as the aggregate density does)."""
     clouds, dem, where = density_inputs(project)
     if not clouds or dem is None:
         elsewhere = (f", nor a classified cloud in {project.root} or {project.lidar_out_dir}"
@@ -291,19 +310,16 @@ def lidar_density(project: Project) -> tuple[float | None, str]:
             missing.append(f"no {project.dem_path} for the area, nor a DEM named by {project.height_check_path.name} "
                            f"(lidarctl rasters CLOUD... {project.lidar_out_dir})")
         return None, "not measured: " + "; ".join(missing)
-    import laspy
     import rasterio
 
-    first = 0
-    for p in clouds:
-        with laspy.open(p) as f:
-            h = f.header
-            first += int(h.number_of_points_by_return[0]) if h.number_of_points_by_return[0] else int(h.point_count)
+    first = sum(first_returns(p) for p in clouds)
     with rasterio.open(dem) as ds:
         valid = ds.read_masks(1) > 0
         unit = ds.crs.linear_units_factor[1] if ds.crs is not None else 1.0
         area = float(valid.sum()) * abs(ds.transform.a * ds.transform.e) * unit * unit
-    return F.anpd(first, area), f"{first} first returns of {where} over {area / 1e6:.3f} km2 (valid cells of {dem})"
+    density = F.anpd(first, area)
+    return density, (f"{first} first returns of {where} over {area / 1e6:.3f} km2 (valid cells of {dem}); "
+                     f"ANPS {F.anps(density):.2f} m (1 / sqrt(ANPD))")
 
 
 def _dom_check_stale(project: Project) -> bool:

@@ -277,6 +277,20 @@ def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
     return rows
 
 
+def non_vegetated_dz(dz_m, groups) -> tuple[list[float], str]:
+    """The dz the DEM height RMSE limit is judged on, and the word for them: with land-cover groups
+    (check-heights --groups) only the non-vegetated points ("non-vegetated "), as the compliance section's NVA
+    (``compliance.vegetated``; vegetated points and points without a group left out): the limit is an open-ground
+    (NVA) limit, and vegetated points have their own (LBS VVA p95) or none (ASPRS 2023). Without groups every
+    point ("")."""
+    from aerotri.qa.compliance import vegetated
+
+    veg = [vegetated(g) for g in groups] if len(groups) == len(dz_m) else []
+    if not any(v is not None for v in veg):
+        return list(dz_m), ""
+    return [d for d, v in zip(dz_m, veg) if v is False], "non-vegetated "
+
+
 def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]:
     """(the strip-consistency row, the pairs for the details) from lidar_out/strips/: the check, or after a
     strip adjustment its check after (the note gives the value before).
@@ -414,11 +428,14 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                                                       "search radius (points in another CRS, or x and "
                                                                       "y swapped?)"))
     elif hc is not None and hc.n_checked:
-        rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {hc.n_checked} surveyed points",
-                           round(hc.rmse_m, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
-        if hc.dz_m and tol.get("dem_rmse_m"):
+        dz, which = non_vegetated_dz(hc.dz_m, hc.dz_groups)
+        rmse = (hc.rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
+        rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {len(dz) if which else hc.n_checked} "
+                           f"{which}surveyed points", None if rmse is None else round(rmse, 4),
+                           tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
+        if dz and tol.get("dem_rmse_m"):
             lim = 3.0 * tol["dem_rmse_m"]
-            pct = 100.0 * sum(abs(d) > lim for d in hc.dz_m) / len(hc.dz_m)
+            pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
             rows.append(_check("height_check_outlier_pct", sec,
                                f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
                                tol.get("height_check_max_outlier_pct"), "%", key="height_check_max_outlier_pct"))
@@ -428,8 +445,11 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     elif hc is not None and hc.dem_n_checked:
         # the DEM raster is the product a contract judges (check-heights --dem; without a cloud the only figure)
         name = Path(hc.dem_path).name if hc.dem_path else "the DEM"
-        rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at {hc.dem_n_checked} surveyed points",
-                           round(hc.dem_rmse_m, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
+        dz, which = non_vegetated_dz(hc.dem_dz_m, hc.dem_dz_groups)
+        rmse = (hc.dem_rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
+        rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at "
+                           f"{len(dz) if which else hc.dem_n_checked} {which}surveyed points",
+                           None if rmse is None else round(rmse, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
 
     rows += line_map_rows(project, tol)
 
@@ -735,6 +755,21 @@ def _compliance_section(comp: dict | None) -> dict | None:
                 header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]))
 
 
+def compliance_headline(comp: dict | None) -> str:
+    """The compliance section's verdict in one phrase, for beside the verdict table's overall verdict (the two
+    judge different things: a LiDAR-only report under usgs-lbs read "Overall verdict: pass" at its top while the
+    standard's VVA and density failed below): "" without a standard; the products that fail (else are not
+    testable) named."""
+    if not comp or not comp.get("products"):
+        return ""
+    fails = [p["product"] for p in comp["products"] if p["verdict"] == "fail"]
+    untested = [p["product"] for p in comp["products"] if p["verdict"].startswith("not testable")]
+    verdict = "fail" if fails else ("not testable" if untested else "pass")
+    named = fails or untested
+    return (f"compliance with {comp['name']}, class {comp['class_tested']}: {verdict}"
+            + (f" ({', '.join(named)})" if named else ""))
+
+
 def compliance_lines(comp: dict | None) -> list[str]:
     """The console lines of the compliance section."""
     if not comp:
@@ -776,6 +811,8 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
                   table_name=(rep.get("table") or {}).get("name") or str(rep["map_scale"]),
                   tolerance_table=rep["tolerance_table"], terrain=rep["terrain"],
                   reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
+                  compliance_headline=compliance_headline(rep.get("compliance")),
+                  compliance_verdict=compliance_headline(rep.get("compliance")).split(": ")[-1].split(" (")[0],
                   passed=rep["passed"], failed=rep["failed"], verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
                   stage_images=list(stage_images), figures=list(figures or []),
@@ -830,8 +867,10 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         head = (f"tolerances: {t.get('name') or rep['map_scale']} ({rep['tolerance_table']}), terrain {rep['terrain']}; "
                 f"chosen because {t.get('reason', 'given')}")
         fig.text(0.04, 0.905, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
+        headline = compliance_headline(rep.get("compliance"))
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
-                             f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10)
+                             f"({rep['passed']} passed, {rep['failed']} failed)"
+                 + (f"; {headline}" if headline else ""), fontsize=10 if not headline else 8)
         cells, colours = [], []
         for r in rep["checks"]:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
@@ -940,5 +979,7 @@ def console_summary(report: QaReport) -> str:
     lines += compliance_lines(report.compliance)
     verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
     judged_by = t["name"] if t.get("lidar_only") else f"{report.map_scale} {report.terrain}"
-    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; {judged_by})")
+    headline = compliance_headline(report.compliance)
+    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; {judged_by})"
+                 + (f"; {headline}" if headline else ""))
     return "\n".join(lines)

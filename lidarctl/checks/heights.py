@@ -598,6 +598,8 @@ class HeightCheckRecord:
     dem_rmse_m: float | None = None
     dem_dz_m: tuple[float, ...] = ()  # Z_dem - Z_surveyed per point on valid DEM cells
     dem_path: str | None = None
+    dz_groups: tuple[str | None, ...] = ()  # the group of each dz_m (check-heights --groups), None without one
+    dem_dz_groups: tuple[str | None, ...] = ()  # the group of each dem_dz_m
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -623,13 +625,15 @@ def _record_of(d: dict) -> HeightCheckRecord:
     dem = d.get("dem") or {}
     dem_all = (dem.get("overall") or {}).get("all") or {}
     dem_dz = tuple(float(p["dz_dem_m"]) for p in d.get("points") or [] if p.get("dz_dem_m") is not None)
+    groups = tuple(p.get("group") for p in d.get("points") or [] if p.get("dz_m") is not None)
+    dem_groups = tuple(p.get("group") for p in d.get("points") or [] if p.get("dz_dem_m") is not None)
     return HeightCheckRecord(None if "n" not in every else int(every["n"]),
                              None if every.get("rmse_m") is None else float(every["rmse_m"]), dz,
                              overall.get("bins"), dict(d.get("groups") or {}),
                              None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]),
                              dem_n_checked=None if not dem else int(dem_all.get("n") or 0),
                              dem_rmse_m=None if dem_all.get("rmse_m") is None else float(dem_all["rmse_m"]),
-                             dem_dz_m=dem_dz, dem_path=dem.get("path"))
+                             dem_dz_m=dem_dz, dem_path=dem.get("path"), dz_groups=groups, dem_dz_groups=dem_groups)
 
 
 def read_height_check(path) -> HeightCheckRecord:

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Mapping
 
 import numpy as np
+import pyproj
 
 from aerotri.core.atomic import atomic_dir, refuse_input_as_output
 from aerotri.core.records import to_record
@@ -412,7 +413,8 @@ def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | No
                   tags={"LINEAR_UNITS": units.xy_name, "VERTICAL_UNITS": units.z_name, "CELL_SIZE_M": ss.grid.cell_m})
         ps = dataclasses.replace(ps, raster=f"{stem}.tif")
         if png:
-            _pair_png(folder / f"{stem}.png", p, ps=ps, a=a, transform=transform, vmax=vmax, title=title)
+            _pair_png(folder / f"{stem}.png", p, ps=ps, a=a, transform=transform, vmax=vmax, title=title,
+                      xy_m=units.xy_m, xy_unit=units.xy_name)
             ps = dataclasses.replace(ps, png=f"{stem}.png")
         rows.append(ps)
     res.summary = dataclasses.replace(res.summary, pairs=tuple(rows), map_colour_limit_m=vmax)
@@ -422,19 +424,23 @@ def write_outputs(res: CheckResult, folder: Path, title: str, vmax_m: float | No
     _html(folder / "index.html", res.summary, title)
 
 
-def _pair_png(path, p: PairDiff, *, ps: PairCheck, a, transform, vmax: float, title: str) -> None:
+def _pair_png(path, p: PairDiff, *, ps: PairCheck, a, transform, vmax: float, title: str, xy_m: float = 1.0,
+              xy_unit: str = "m") -> None:
+    """The pair's dz map, axes in the file's coordinates (``transform`` is in metres: divided by ``xy_m``, metres
+    per file unit; a file in feet showed metre-scaled numbers that are no CRS's coordinates), and dz by scan angle."""
     plt = pyplot()
 
     ny, nx = a.shape
-    extent = (transform.c, transform.c + nx * transform.a, transform.f - ny * transform.a, transform.f)
+    extent = tuple(v / xy_m for v in (transform.c, transform.c + nx * transform.a, transform.f - ny * transform.a,
+                                      transform.f))
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 5.2), gridspec_kw={"width_ratios": [1.25, 1]})
     im = ax.imshow(a, cmap="RdBu_r", vmin=-vmax, vmax=vmax, extent=extent, interpolation="nearest")
     ax.set_facecolor("#d9d9d9")
     ax.set_aspect("equal")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.tick_params(labelsize=7)
-    ax.set_xlabel("easting")
-    ax.set_ylabel("northing")
+    ax.set_xlabel(f"easting [{xy_unit}]")
+    ax.set_ylabel(f"northing [{xy_unit}]")
     cb = fig.colorbar(im, ax=ax, shrink=0.85)
     cb.set_label(f"dz = z({p.b}) - z({p.a})  [m]")
     d = ps.diff
@@ -465,8 +471,10 @@ def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
     g = ss.grid
     fig, ax = plt.subplots(figsize=(9, 8))
     # the strips' planar cells in greys (a hue beside the red-blue dz ramp reads as a difference), each strip named
+    f = 1.0 / ss.units.xy_m  # the file's coordinates (the grid is in metres)
     for k, s in enumerate(ss.strips):
         xc, yc = g.centres(s.ids)
+        xc, yc = xc * f, yc * f
         ax.scatter(xc, yc, s=1, color=("0.82", "0.68")[k % 2], label="planar cells of a strip" if k == 0 else None,
                    rasterized=True)
         if len(xc):
@@ -475,10 +483,13 @@ def _overview_png(path, res: CheckResult, vmax: float, title: str) -> None:
     im = None
     for p in res.pairs:
         xc, yc = g.centres(p.ids)
+        xc, yc = xc * f, yc * f
         im = ax.scatter(xc, yc, c=p.dz_m, s=4, marker="s", cmap="RdBu_r", vmin=-vmax, vmax=vmax, rasterized=True)
     ax.set_aspect("equal")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.tick_params(labelsize=7)
+    ax.set_xlabel(f"easting [{ss.units.xy_name}]")
+    ax.set_ylabel(f"northing [{ss.units.xy_name}]")
     if im is not None:
         fig.colorbar(im, ax=ax, shrink=0.8).set_label("dz of each pair (z_b - z_a) [m]")
     ax.legend(fontsize=7, markerscale=8, loc="upper right")
@@ -506,4 +517,17 @@ def _html(path: Path, summary: StripCheckResult, title: str) -> None:
 
     # the page shows strips.json's numbers, under its names
     path.write_text(render("strips_check.html.j2", package="lidarctl", s=_check_record(summary),
-                           not_compared=_not_compared(summary), title=title))
+                           not_compared=_not_compared(summary), title=title, crs_name=_crs_name(summary.crs)))
+
+
+def _crs_name(crs: str | None) -> str:
+    """The page's name of strips.json's CRS: EPSG:code, else the CRS's name (the JSON keeps the whole WKT; the page
+    showed it, 1,500 characters for a LAS file in feet whose CRS has no EPSG code)."""
+    if crs is None:
+        return "none"
+    from aerotri.geom.crs.definition import crs_label
+
+    try:
+        return crs_label(pyproj.CRS.from_user_input(crs))
+    except pyproj.exceptions.CRSError:
+        return crs

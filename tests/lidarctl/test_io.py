@@ -320,6 +320,84 @@ def test_linear_units_key_overrides_the_projected_crs_code(files, tmp_path):
     assert io.read_cloud(tmp_path / "m.las").crs == ref.crs
 
 
+def _ftus_copy(files, tmp_path, name, *, unit_key: int, size_m: float | None):
+    """c12.las in US survey feet, keyed EPSG:32632 with ProjLinearUnitsGeoKey ``unit_key`` and (when given)
+    ProjLinearUnitSizeGeoKey ``size_m`` in a GeoDoubleParams record; (path, the metre file's cloud)."""
+    import ctypes
+
+    from laspy.vlrs.known import GeoDoubleParamsVlr
+
+    from aerotri.geom.las import US_SURVEY_FOOT_M
+
+    d, _ = files
+    src = laspy.read(d / "c12.las")
+    las = laspy.LasData(laspy.LasHeader(version="1.2", point_format=src.header.point_format.id))
+    las.header.vlrs = [v for v in src.header.vlrs if type(v).__name__ != "GeoDoubleParamsVlr"]
+    las.header.scales = np.array([0.01, 0.01, 0.01])
+    las.header.offsets = np.array([1_640_000.0, 17_700_000.0, 0.0])
+    for dim in ("classification", "intensity", "return_number", "number_of_returns"):
+        las[dim] = src[dim]
+    las.x, las.y, las.z = src.x / US_SURVEY_FOOT_M, src.y / US_SURVEY_FOOT_M, src.z / US_SURVEY_FOOT_M
+    _with_linear_units_key(las, unit_key)
+    if size_m is not None:
+        vlr = next(v for v in las.header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr")
+        key = GeoKeyEntryStruct()
+        key.id, key.tiff_tag_location, key.count, key.value_offset = 3077, 34736, 1, 0
+        vlr.geo_keys.append(key)
+        vlr.geo_keys_header.number_of_keys = len(vlr.geo_keys)
+        doubles = GeoDoubleParamsVlr()
+        doubles.doubles = [ctypes.c_double(size_m)]
+        las.header.vlrs.append(doubles)
+    path = tmp_path / name
+    las.write(path)
+    return path, io.read_cloud(d / "c12.las")
+
+
+def test_user_defined_linear_units_key_takes_its_size(files, tmp_path):
+    """ProjLinearUnitsGeoKey 32767 (user-defined) with ProjLinearUnitSizeGeoKey 0.3048006096 m: the file was read
+    in the EPSG code's metres (coordinates 3.28x too large, silently); without the size it is refused."""
+    from aerotri.geom.las import US_SURVEY_FOOT_M
+
+    path, ref = _ftus_copy(files, tmp_path, "user.las", unit_key=32767, size_m=US_SURVEY_FOOT_M)
+    c = io.read_cloud(path)
+    assert c.units.xy_m == pytest.approx(US_SURVEY_FOOT_M, rel=1e-12)
+    assert c.crs.axis_info[0].unit_name == "US survey foot"
+    np.testing.assert_allclose(c.x, ref.x, atol=0.01)
+    # a unit no EPSG code names: its size
+    odd, _ = _ftus_copy(files, tmp_path, "odd.las", unit_key=32767, size_m=0.5)
+    from aerotri.geom.las import read_header, read_header_crs
+    crs = read_header_crs(odd, read_header(odd))
+    assert crs.axis_info[0].unit_conversion_factor == pytest.approx(0.5) and "0.5 m" in crs.name
+    bad, _ = _ftus_copy(files, tmp_path, "nosize.las", unit_key=32767, size_m=None)
+    r = CliRunner().invoke(main, ["rasters", str(bad), str(tmp_path / "r"), "--res-m", "2"])
+    assert r.exit_code == 2 and "ProjLinearUnitSizeGeoKey (3077)" in r.output and "nosize.las" in r.output, r.output
+    assert not (tmp_path / "r").exists()
+    from aerotri.cli import main as aerotri_main  # crs transform said "no CRS record in the file; give --from"
+
+    r = CliRunner().invoke(aerotri_main, ["crs", "transform", str(bad), str(tmp_path / "o.las"), "--to", "EPSG:4978"])
+    assert r.exit_code == 2 and "nosize.las: CRS record present but unreadable (ProjLinearUnitsGeoKey" in r.output
+    assert "give --from" in r.output and not (tmp_path / "o.las").exists()
+
+
+def test_units_key_crs_is_named_by_its_unit_and_crs_transform_says_why(files, tmp_path):
+    """The CRS of "EPSG:32632 + US survey foot" keys kept the EPSG name ("WGS 84 / UTM zone 32N"), so that
+    `aerotri crs transform --from EPSG:32632` refused it as "the file's CRS (WGS 84 / UTM zone 32N) is not --from
+    EPSG:32632"; it is named with its unit now, and the refusal says the units."""
+    from aerotri.cli import main as aerotri_main
+
+    path, _ = _ftus_copy(files, tmp_path, "ftus.las", unit_key=9003, size_m=None)
+    c = io.read_cloud(path)
+    assert c.crs.name == "WGS 84 / UTM zone 32N (US survey foot)"
+    r = CliRunner().invoke(aerotri_main, ["crs", "transform", str(path), str(tmp_path / "o.las"), "--from",
+                                          "EPSG:32632", "--to", "EPSG:4978"])
+    assert r.exit_code == 2 and "(WGS 84 / UTM zone 32N (US survey foot)) is not --from EPSG:32632" in r.output
+    assert "coordinates are in US survey foot, --from's in metre" in r.output, r.output
+    r = CliRunner().invoke(aerotri_main, ["crs", "transform", str(path), str(tmp_path / "o.las"), "--to",
+                                          "EPSG:32632"])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_allclose(laspy.read(tmp_path / "o.las").x, io.read_cloud(files[0] / "c12.las").x, atol=0.01)
+
+
 def test_nebraska_read_from_its_geotiff_keys_alone_equals_its_wkt(shared_data, tmp_path):
     """laspy's Nebraska file keys EPSG:32104 (metres) with ProjLinearUnitsGeoKey US survey foot beside a WKT of
     NAD83(2011) / Nebraska (ftUS); without the WKT (as in a LAS 1.2 delivery) it was read as metres."""

@@ -351,8 +351,11 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
             raise InputError(f"{in_path}: header scale factors {list(hdr.scales)} must be positive numbers")
         file_crs = las.header_crs(hdr)
         if file_crs is not None and not same_crs(file_crs, transformer.src):
+            units = [c.axis_info[0].unit_name if c.axis_info else "" for c in (file_crs, transformer.src)]
             raise InputError(
                 f"{in_path}: the file's CRS ({file_crs.name}) is not --from {crs_label(transformer.src)}"
+                + (f" (the file's coordinates are in {units[0]}, --from's in {units[1]}; leave --from out to use "
+                   "the file's CRS)" if units[0] != units[1] else "")
             )
         out_hdr = laspy.LasHeader(version=hdr.version, point_format=hdr.point_format)
         for vlr in hdr.vlrs:
@@ -438,6 +441,8 @@ def transform_points_file(in_path, out_path, *, from_crs=None, to_crs=None, para
             raise InputError("--from is required for point lists")
         src = las_crs(in_path)
         if src is None:
+            with las.open_las(in_path) as reader:  # a record present but unreadable: why, not "no CRS record"
+                las.read_header_crs(in_path, reader.header, hint="give --from")
             raise InputError(f"{in_path}: no CRS record in the file; give --from")
     else:
         src = parse_crs(from_crs, "--from")

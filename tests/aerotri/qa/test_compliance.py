@@ -227,8 +227,9 @@ def test_lidar_dem_checked_alone_is_judged_by_its_own_dz(tmp_path):
     assert "DEM raster dem.tif" in nva["checkpoints_note"]
     vva = [c for c in summary["compliance"]["checks"] if c["quantity"].startswith("VVA")][0]
     assert vva["n_points"] == 6 and vva["measured"] == pytest.approx(0.2, abs=1e-4)
-    row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
-    assert row.value == pytest.approx(math.sqrt((34 * 0.05**2 + 6 * 0.2**2) / 40), abs=1e-4) and row.verdict == "pass"
+    row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]   # the open points only, as the NVA
+    assert row.value == pytest.approx(0.05, abs=1e-4) and row.verdict == "pass"
+    assert "at 34 non-vegetated surveyed points" in row.quantity
 
 
 def test_usgs_lbs_judges_the_verdict_table_by_its_own_lidar_limits(tmp_path):
@@ -259,7 +260,7 @@ def test_lidar_only_report_has_no_frame_camera_table(tmp_path):
     assert set(t["unconfirmed"]) <= set(LIDAR_ONLY_LIMITS) and "dem_rmse_m" in rep.tolerances
     html = (tmp_path / "reports" / "index.html").read_text()
     assert "Flight acceptance" not in html and "manned" not in html and "sigma0" not in html
-    assert console_summary(rep).endswith(f"failed; {t['name']})")
+    assert f"failed; {t['name']}); compliance with " in console_summary(rep).splitlines()[-1]
 
     rep = write_qa_report(tmp_path, standard="usgs-lbs")
     assert "manned" not in rep.table["reason"] and "no standard named" not in rep.table["reason"]
@@ -368,3 +369,75 @@ def test_the_finest_class_met_never_passes_over_a_coarser_class_it_fails():
     (d,) = _by(judge(Figures(dom=CheckSet(rmse_h_m=0.7, n_h=12, points="ground patches")),
                      Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat")), "DOM")
     assert d.verdict == "pass" and d.finest_class == "none (coarser than 1:10000)"
+
+
+def test_lbs_density_counts_usable_first_returns_not_the_header(tmp_path):
+    # the density row took the header's count of first returns: withheld records (LAS: not to be used) were
+    # counted, and the per-strip copies that README's `lidarctl classify STRIPS... P/lidar_out/classified` writes
+    # were not found in a LiDAR-only folder ("not measured")
+    import laspy
+    import numpy as np
+
+    from lidarctl import synthetic
+
+    _dem_checked_alone(tmp_path)
+    cloud, _ = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=4)
+    (tmp_path / "lidar_out" / "classified").mkdir()
+    path = tmp_path / "lidar_out" / "classified" / "strip_01.las"
+    synthetic.write_las(path, cloud, crs="EPSG:32649")
+    las = laspy.read(path)
+    first = np.asarray(las.return_number) == 1
+    flagged = np.zeros(len(las.points), bool)
+    flagged[np.flatnonzero(first)[::4]] = True              # a quarter of the first returns withheld
+    las.withheld = flagged
+    las.write(path)
+    assert int(laspy.open(path).header.number_of_points_by_return[0]) == int(first.sum())
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
+    usable_first = int((first & ~flagged).sum())
+    assert 0 < usable_first < int(first.sum())
+    assert dens["figure"] == pytest.approx(usable_first / 100.0 ** 2, abs=1e-4)   # 100 x 100 valid cells of 1 m
+    assert "classified strips of" in dens["checkpoints_note"]
+    assert f"ANPS {1 / math.sqrt(usable_first / 100.0 ** 2):.2f} m" in dens["checkpoints_note"]
+
+
+def test_verdict_table_judges_the_dem_rmse_on_the_non_vegetated_points(tmp_path):
+    # with land-cover groups the verdict table's "DEM height RMSE" (the NVA limit, docs/standards.md: "both sections
+    # judge the LiDAR by one number") took every point, the forest too: 34 open points at 0.08 m and 6 forest
+    # points at 0.20 m gave 0.107 m, a fail of the report beside a compliance section whose NVA (0.08 m) passed
+    _dem_checked_alone(tmp_path, open_dz_m=0.08)
+    for standard, cls in (("asprs2023", "H10 V10"), ("usgs-lbs", "QL2")):
+        rep = write_qa_report(tmp_path, standard=standard, accuracy_class=cls)
+        row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
+        nva = [c for c in rep.compliance["checks"] if c["quantity"].startswith("NVA")][0]
+        assert row.value == pytest.approx(0.08, abs=1e-4) == nva["measured"]
+        assert row.verdict == "pass" == nva["verdict"] and rep.overall == "pass", standard
+    # without groups every point counts, as before
+    hc = json.loads((tmp_path / "lidar_out" / "height_check.json").read_text())
+    for p in hc["points"]:
+        p["group"] = None
+    (tmp_path / "lidar_out" / "height_check.json").write_text(json.dumps(hc))
+    rep = write_qa_report(tmp_path, standard="asprs2023", accuracy_class="H10 V10")
+    row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
+    assert row.value == pytest.approx(math.sqrt((34 * 0.08**2 + 6 * 0.2**2) / 40), abs=1e-4) and row.verdict == "fail"
+    assert "at 40 surveyed points" in row.quantity
+
+
+def test_the_headline_gives_the_compliance_verdict_beside_the_overall_one(tmp_path):
+    # a LiDAR-only report under usgs-lbs read "Overall verdict: pass" at its top (console: "index.html: pass") while
+    # the standard's VVA failed in the compliance section below: a client reading the headline took it as compliant
+    from aerotri.qa.report import console_summary
+
+    _dem_checked_alone(tmp_path, open_dz_m=0.05)     # forest |dz| 0.2 m: beyond QL0's VVA 0.15 m
+    rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL0")
+    assert rep.overall == "pass"                      # the verdict table: NVA 0.05 <= 0.05
+    dem = [p for p in rep.compliance["products"] if p["product"] == "LiDAR DEM"][0]
+    assert dem["verdict"] == "fail"
+    last = console_summary(rep).splitlines()[-1]
+    assert last.endswith("; compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)"), last
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert "compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)</b> (below)" in html
+    rep = write_qa_report(tmp_path)                   # no standard named: the one the table chose (docs/standards.md)
+    assert console_summary(rep).splitlines()[-1].endswith(
+        "compliance with Chinese specifications for digital aerial triangulation (GB/T 23236, GB/T 7930, GB/T 13990), "
+        "class 1:5000 flat: not testable (LiDAR DEM)")

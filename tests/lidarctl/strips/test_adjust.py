@@ -91,6 +91,10 @@ def test_trajectory_model_recovers_boresight_and_relative_shifts(shifted_block, 
         d = p[f"strip_{k}.shift_z_m"].value - p["strip_1.shift_z_m"].value
         assert d == pytest.approx(shifts[k - 1, 2] - shifts[0, 2], abs=0.02)
     assert s.check_after.rms_m < 0.015
+    # the block's height follows the range offset without control: said, with the estimate and its sigma
+    ro = p["range_offset_m"]
+    assert f"warning: no --control: the block's height is held by no surveyed point and moves with the range offset " \
+           f"({ro.value:+.3f} +- {ro.sigma:.3f} m)" in r.output
 
 
 def test_trajectory_not_covering_a_strip_is_refused(shifted_block, tmp_path):

@@ -232,3 +232,41 @@ def test_overview_draws_planar_cells_in_grey_beside_the_dz_colours(clean_block, 
         rgb = c.get_facecolors()[:, :3]
         assert np.allclose(rgb, rgb[:, :1])  # grey: no hue to mistake for a dz
     assert {t.get_text() for t in ax.texts} >= {"strip_1", "strip_2", "strip_3"}
+
+
+def test_strips_in_feet_are_drawn_in_their_coordinates_and_named(clean_block, tmp_path, monkeypatch):
+    """Strips in US survey feet: the maps' axes held metre-scaled coordinates (452000 where the file says 1482917
+    ft; no CRS has those numbers) without a unit, and the page printed the CRS as 1,500 characters of WKT."""
+    import pyproj
+
+    import lidarctl.strips.check as chk
+    from aerotri.geom.las import US_SURVEY_FOOT_M as F
+    from aerotri.geom.las import add_crs, with_linear_unit
+
+    paths = []
+    for p in clean_block.paths:
+        src = laspy.read(p)
+        crs = with_linear_unit(src.header.parse_crs(), 9003)
+        h = laspy.LasHeader(version=src.header.version, point_format=src.header.point_format)
+        h.scales, h.offsets = np.array([0.001] * 3), np.round(np.asarray(src.header.offsets) / F)
+        add_crs(h, crs)
+        out = laspy.LasData(h)
+        for d in src.point_format.dimension_names:
+            if d not in ("X", "Y", "Z"):
+                out[d] = src[d]
+        out.x, out.y, out.z = np.asarray(src.x) / F, np.asarray(src.y) / F, np.asarray(src.z) / F
+        paths.append(tmp_path / p.name)
+        out.write(paths[-1])
+    figs = {}
+    save = chk.save_png
+    monkeypatch.setattr(chk, "save_png", lambda fig, path, **k: (figs.__setitem__(path.name, fig), save(fig, path, **k)))
+    r = _check(paths, tmp_path / "ft")
+    assert r.exit_code == 0, r.output
+    x_ft = np.concatenate([np.asarray(laspy.read(p).x) for p in paths])
+    for name, fig in figs.items():
+        ax = fig.axes[0]
+        lo, hi = ax.get_xlim()
+        assert lo <= np.percentile(x_ft, 50) <= hi and hi - lo < 1.2 * np.ptp(x_ft), name   # feet, not metres
+        assert ax.get_xlabel() == "easting [us-ft]" and ax.get_ylabel() == "northing [us-ft]", name
+    html = (tmp_path / "ft" / "index.html").read_text()
+    assert "PROJCRS[" not in html and f"CRS {pyproj.CRS(crs).name};" in html and "(US survey foot)" in html
