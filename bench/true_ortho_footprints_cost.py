@@ -38,7 +38,7 @@ each way compared with FILE (``--sha256-all`` of such a run; ``identical_to``).
 ``--chain-crowns`` adds the chain's default since the fitted crowns (``aerotri run``: the occlusion test on
 lidar_out/dsm_crowns.tif with the trees' disks of lidar_out/crowns.gpkg, ``--crowns``), without and with the footprints
 (``true_ortho_crowns``, ``true_ortho_crowns_footprints``). Each way's CPU in the occluder's steps:
-``--steps`` (below).
+``--steps`` (``STEPS``: the thread CPU of each step per block, ``steps_cpu_s`` in every run).
 
 ``--frames A,B``: only those frames (each way's block of them).
 
