@@ -35,6 +35,11 @@ raster beside the DSM the ortho is rectified on, ``--occlusion-dsm``), without a
 this checkout, so that two commits are measured by the same script; ``--sha256-against FILE``: the frame orthos of
 each way compared with FILE (``--sha256-all`` of such a run; ``identical_to``).
 
+``--chain-crowns`` adds the chain's default since the fitted crowns (``aerotri run``: the occlusion test on
+lidar_out/dsm_crowns.tif with the trees' disks of lidar_out/crowns.gpkg, ``--crowns``), without and with the footprints
+(``true_ortho_crowns``, ``true_ortho_crowns_footprints``). Each way's CPU in the occluder's steps:
+``--steps`` (``STEPS``: the thread CPU of each step per block, ``steps_cpu_s`` in every run).
+
 ``--frames A,B``: only those frames (each way's block of them).
 
 ``--per-frame`` adds a fourth way, the true ortho with footprints rasterised per frame (as ``ortho.block`` does when
@@ -44,7 +49,7 @@ frame orthos with the shared rasterisation's (sha256 of samples and mask); ``--w
 Usage: python bench/true_ortho_footprints_cost.py [--demo /work/ref/demo_chain/project | --project P --truth T]
        [--work DIR] [--rounds 3] [--key footprints_demo] [--out bench/results/true_ortho_cost.json] [--sha256 FILE]
        [--per-frame] [--occlusion] [--ways conventional,true_ortho_footprints] [--no-roofs | --roofs-only]
-       [--code DIR] [--sha256-all FILE] [--sha256-against FILE]
+       [--code DIR] [--sha256-all FILE] [--sha256-against FILE] [--chain-crowns] [--steps]
 ``--roofs-only`` (with ``--truth`` and the ``--work`` of an earlier run): the roofs again into that run's ``--key``.
 """
 
@@ -68,6 +73,9 @@ PER_FRAME = "true_ortho_footprints_per_frame"  # --per-frame: the footprints ras
 # ``ortho.block.SHARED_FOOTPRINT_CELLS_MAX`` DSM cells of the block's window (the 120-frame DMC block: 170 M)
 CROWNS = "true_ortho_footprints_crowns"
 OCCLUSION = ("true_ortho_occlusion", "true_ortho_footprints_occlusion")  # --occlusion: on dsm_nearest.tif, the chain's
+# --chain-crowns: the chain's default since the fitted crowns, the occlusion test on lidar_out/dsm_crowns.tif with
+# lidar_out/crowns.gpkg (``--crowns``), without and with the footprints
+CHAIN_CROWNS = ("true_ortho_crowns", "true_ortho_crowns_footprints")
 
 
 def settings(project: Path, way: str):
@@ -78,6 +86,9 @@ def settings(project: Path, way: str):
     crowns = {"crown_base": str(project / "lidar_out" / "crown_base.tif")} if way == CROWNS else {}
     if way in OCCLUSION:
         crowns["occlusion_dsm"] = str(project / "lidar_out" / "dsm_nearest.tif")
+    if way in CHAIN_CROWNS:
+        crowns["occlusion_dsm"] = str(project / "lidar_out" / "dsm_crowns.tif")
+        crowns["crowns"] = str(project / "lidar_out" / "crowns.gpkg")
     return RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
                            footprints=str(project / "truth" / "footprints.gpkg") if "footprints" in way else None,
                            **crowns)
@@ -119,6 +130,38 @@ def _counted_cells():
     ortho.footprints.footprint_cells = counted
 
 
+# --steps: the thread CPU of each call of these functions, summed per block (a step's CPU includes the steps it
+# calls: ``_frame_occluder`` holds ``footprint_cells``, ``occluder_of_cells`` and ``outline_heights``;
+# ``with_crown_disks`` holds ``crown_sub_cells``)
+STEPS = (("ortho.block", "_frame_occluder"), ("ortho.footprints", "footprint_cells"),
+         ("ortho.footprints", "occluder_of_cells"), ("ortho.footprints", "outline_heights"),
+         ("ortho.block", "_crowns_of"), ("ortho.crown_cells", "with_crown_disks"),
+         ("aerotri.geom.crown_disks", "crown_sub_cells"), ("ortho.rectify", "frame_zbuffer"),
+         ("ortho.rectify", "march_bound"), ("ortho.rectify", "occlusion_mask"), ("ortho.rectify", "heights_by_side"),
+         ("ortho.rectify", "zbuffer_occlusion_affine"), ("ortho.rectify", "zbuffer_occlusion_from_maps"),
+         ("ortho.rectify", "fixed_point_maps"))
+_step_cpu_s: dict = {}  # step -> [thread CPU of each call] of the current block
+
+
+def _timed_steps() -> None:
+    """Wrap each function of ``STEPS`` (looked up through its module at call time) to add its thread CPU to
+    ``_step_cpu_s``."""
+    import importlib
+
+    for module, name in STEPS:
+        m = importlib.import_module(module)
+        inner = getattr(m, name)
+
+        def timed(*a, _inner=inner, _name=name, **k):
+            c = time.thread_time()
+            try:
+                return _inner(*a, **k)
+            finally:
+                _step_cpu_s.setdefault(_name, []).append(time.thread_time() - c)
+
+        setattr(m, name, timed)
+
+
 def _peak_rss_reset() -> None:
     with open("/proc/self/clear_refs", "w") as f:  # "5": reset the peak RSS (VmHWM) to the current RSS
         f.write("5")
@@ -140,6 +183,7 @@ def one_block(project: Path, way: str, frames=None) -> dict:
         ortho.block.SHARED_FOOTPRINT_CELLS_MAX = 0
     _occluder_cpu_s.clear()
     _cells_shapes.clear()
+    _step_cpu_s.clear()
     _peak_rss_reset()
     t, c = time.perf_counter(), time.process_time()
     try:
@@ -156,6 +200,8 @@ def one_block(project: Path, way: str, frames=None) -> dict:
     if _occluder_cpu_s:
         out["occluder_cpu_s"] = round(sum(_occluder_cpu_s), 3)
         out["footprint_cells_grids"] = list(_cells_shapes)
+    if _step_cpu_s:
+        out["steps_cpu_s"] = {k: round(sum(v), 3) for k, v in _step_cpu_s.items()}
     return out
 
 
@@ -245,6 +291,11 @@ def main() -> None:
     ap.add_argument("--occlusion", action="store_true",
                     help="two further ways: the occlusion test on lidar_out/dsm_nearest.tif (the chain's), without and "
                          "with footprints")
+    ap.add_argument("--chain-crowns", action="store_true",
+                    help="two further ways: the chain's default, the occlusion test on lidar_out/dsm_crowns.tif with "
+                         "the fitted crowns lidar_out/crowns.gpkg, without and with footprints")
+    ap.add_argument("--steps", action="store_true",
+                    help="the thread CPU of the occlusion test's steps (STEPS) per block, in each run")
     ap.add_argument("--frames", default=None, help="comma-separated image ids: only these frames (default: all)")
     ap.add_argument("--code", type=Path, default=None, help="import the toolkit from this folder (e.g. main's)")
     ap.add_argument("--sha256-against", type=Path, default=None,
@@ -270,7 +321,7 @@ def main() -> None:
     from aerotri.sim.project import write_footprints_gpkg
 
     ways = WAYS + ((PER_FRAME,) if args.per_frame else ()) + ((CROWNS,) if args.crowns else ()) \
-        + (OCCLUSION if args.occlusion else ())
+        + (OCCLUSION if args.occlusion else ()) + (CHAIN_CROWNS if args.chain_crowns else ())
     if args.ways:
         ways = tuple(w for w in args.ways.split(",") if w in ways)
     if args.roofs_only:  # the frame orthos of an earlier run of this script: its key gets the roofs
@@ -295,8 +346,13 @@ def main() -> None:
         n = write_footprints_gpkg(buildings, p / "truth" / "footprints.gpkg", Project.open(p).crs)
         if way in OCCLUSION:
             shutil.copy2(source / "lidar_out" / "dsm_nearest.tif", p / "lidar_out" / "dsm_nearest.tif")
+        if way in CHAIN_CROWNS:
+            for name in ("dsm_crowns.tif", "crowns.gpkg"):
+                shutil.copy2(source / "lidar_out" / name, p / "lidar_out" / name)
         if way == CROWNS:
             lidar_crown_base(source, False, p / "lidar_out" / "dsm.tif", p / "lidar_out" / "crown_base.tif")
+    if args.steps:
+        _timed_steps()
     _timed_occluder()
     _counted_cells()
     frames = args.frames.split(",") if args.frames else None
@@ -314,12 +370,15 @@ def main() -> None:
            "first_calls_not_counted": first, "ways": {}}
     for way, rs in runs.items():
         per_mp = sorted(r["cpu_s_per_mp"] for r in rs)
-        out["ways"][way] = {"runs": rs, "cpu_s_per_mp_median": per_mp[len(per_mp) // 2],
+        out["ways"][way] = {"runs": rs, "cpu_s_per_mp_median": per_mp[len(per_mp) // 2], "cpu_s_per_mp_best": per_mp[0],
                             "wall_s_median": sorted(r["wall_s"] for r in rs)[len(rs) // 2],
                             "peak_rss_mb_max": max(r["peak_rss_mb"] for r in rs)}
     conv = out["ways"]["conventional"]["cpu_s_per_mp_median"]
     out["cpu_per_mp_ratio_to_conventional"] = {way: round(out["ways"][way]["cpu_s_per_mp_median"] / conv, 3)
                                                for way in ways[1:]}
+    out["cpu_per_mp_ratio_best"] = {way: round(out["ways"][way]["cpu_s_per_mp_best"]
+                                               / out["ways"]["conventional"]["cpu_s_per_mp_best"], 3)
+                                    for way in ways[1:]}  # each way's least CPU over the conventional's least
     out["wall_ratio_to_conventional"] = {way: round(out["ways"][way]["wall_s_median"]
                                                     / out["ways"]["conventional"]["wall_s_median"], 3)
                                          for way in ways[1:]}

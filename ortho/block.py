@@ -390,7 +390,7 @@ def _frame_occluder(task: FrameTask, surface: HeightRaster, dem: HeightRaster, p
     ``dem`` at the cells), its footprint cells cut from the block's (``_block_footprint_cells``) where that window lies
     inside the block's, else rasterised for the frame: the same occluder either way; and with ``heights`` (the DSM
     window the cells' heights are read from) its ``OutlineHeights`` (``HEIGHTS_BY_OUTLINE``; else None)."""
-    from ortho.footprints import footprint_cells, occluder_of_cells, outline_heights, read_footprints
+    from ortho.footprints import footprint_cells, occluder_of_cells, outline_heights, read_footprints, roof_candidates
 
     def cells_of(window: HeightRaster):
         h, w = window.heights_m.shape
@@ -406,7 +406,8 @@ def _frame_occluder(task: FrameTask, surface: HeightRaster, dem: HeightRaster, p
                                read_footprints(task.footprints_path, project_crs)), ground
 
     cells, ground = cells_of(surface)
-    occluder = occluder_of_cells(surface, ground, cells, crown_base_m=crown_base_m)
+    candidates = roof_candidates(cells, surface.heights_m, ground, surface.res_m)
+    occluder = occluder_of_cells(surface, ground, cells, crown_base_m=crown_base_m, candidates=candidates)
     if heights is None or not HEIGHTS_BY_OUTLINE:
         return occluder, None
     same_window = (heights.heights_m.shape == surface.heights_m.shape and heights.res_m == surface.res_m
@@ -414,7 +415,11 @@ def _frame_occluder(task: FrameTask, surface: HeightRaster, dem: HeightRaster, p
     if not same_window:    # (the chain's dsm.tif and dsm_nearest.tif share one grid: their cells and ground too)
         cells, ground = cells_of(heights)
     own = same_window and heights is not surface and OUTLINES_OF_THE_OCCLUSION_TEST
-    return occluder, outline_heights(heights, ground, cells, outline_top_m=surface.heights_m if own else None)
+    # the outlines' surface is the occluder's (the occlusion surface on the same window, or the DSM itself): the
+    # occluder's candidates and eave widths, not made again
+    shared = candidates if same_window and (own or heights is surface) else None
+    return occluder, outline_heights(heights, ground, cells, outline_top_m=surface.heights_m if own else None,
+                                     candidates=shared)
 
 
 _kept_rasters: dict = {}  # path -> (open dataset, its lock) while blocks are rectified in this process
@@ -598,7 +603,7 @@ def _rectify_frame(task: FrameTask) -> dict:
             _, _, base = occ_op.transform(crowns.x_m, crowns.y_m, crowns.base_m)
             crowns = dataclasses.replace(crowns, top_m=np.asarray(top, np.float64), base_m=np.asarray(base, np.float64))
         occluder = with_crown_disks(occluder, surface.heights_m, surface.x_left_m, surface.y_top_m, surface.res_m,
-                                    crowns)
+                                    crowns, own=True)  # (the occluder above is this frame's)
     # the ground the frame images (its border rays on the DEM, as ``frame_grid``): the frame's grid, and (every
     # 4th ray: 16 a side) the ring in index.json by which the mosaic counts the empty cells no frame sees
     footprint = footprint_polygon_xy(task.camera, C, R, dem, to_project=to_project, image_id=task.image_id,

@@ -114,7 +114,8 @@ def read_crowns(path, project_crs) -> CrownDisks:
 
 
 def with_crown_disks(occluder: FootprintOccluder | None, top_m: np.ndarray, x_left_m: float, y_top_m: float,
-                     res_m: float, crowns: CrownDisks, sub: int = 5, tolerance_m: float = 0.3) -> FootprintOccluder:
+                     res_m: float, crowns: CrownDisks, sub: int = 5, tolerance_m: float = 0.3,
+                     own: bool = False) -> FootprintOccluder:
     """``occluder`` (None: none) with the tree crowns' disks: each cell of the occlusion DSM window (``top_m``, its
     north-west corner at ``x_left_m``, ``y_top_m``, cells of ``res_m``) that is a solid column there, that a disk
     covers at one of its ``sub`` x ``sub`` sub-cell centres and that stands no more than ``tolerance_m`` above the
@@ -122,11 +123,14 @@ def with_crown_disks(occluder: FootprintOccluder | None, top_m: np.ndarray, x_le
     whole cell when every sub-cell centre is covered (a crown slab, as ``ortho.footprints.with_crown_base``), else
     over the disks only (the march interpolates the sub-cells' signed distances: the rim between their centres;
     the slab's top the column's less ``tolerance_m``, as the march takes a column). Cells no disk covers are left as
-    they are (``lidarctl rasters``' dsm_crowns.tif stands the nearest-return crown beyond the disks at the ground)."""
+    they are (``lidarctl rasters``' dsm_crowns.tif stands the nearest-return crown beyond the disks at the ground).
+    ``own``: ``occluder``'s window arrays are this call's to change (the caller made it for this and drops it), not
+    copied (three copies of the frame's window: 0.1 CPU-s a demo block)."""
     from aerotri.geom.crown_disks import TreeCrowns, crown_sub_cells
     from ortho.footprints import CROWN
 
     shape = top_m.shape
+    own = own or occluder is None
     occluder = _occluder_of_sub(occluder, shape, sub)
     trees = TreeCrowns(crowns.x_m, crowns.y_m, crowns.radius_m, crowns.top_m, crowns.base_m,
                        np.zeros(len(crowns), np.int64), np.zeros(len(crowns), bool), 0.0)
@@ -138,7 +142,8 @@ def with_crown_disks(occluder: FootprintOccluder | None, top_m: np.ndarray, x_le
             & (base < top))
     rows, cols, margin_cm, base, top, n_in = (a[take] for a in (rows, cols, margin_cm, base, top, n_in))
     whole = n_in == sub * sub
-    base_m, slab_top, sub_index = occluder.base_m.copy(), occluder.slab_top_m.copy(), occluder.sub_index.copy()
+    base_m, slab_top, sub_index = ((a if own else a.copy()) for a in (occluder.base_m, occluder.slab_top_m,
+                                                                      occluder.sub_index))
     base_m[rows[whole], cols[whole]] = base[whole]
     slab_top[rows[whole], cols[whole]] = top[whole]
     sub_index[rows[whole], cols[whole]] = CROWN

@@ -331,9 +331,48 @@ def eave_widths_m(cells: FootprintCells, taken: np.ndarray, res_m: float) -> np.
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class RoofCandidates:
+    """A window's roof cells near the footprints (``roof_candidates``): ``taken`` (bool) the cells of a footprint's
+    reach more than ``above_m`` above the ground, ``over`` those of them not wholly inside a footprint (the
+    overhangs), their rows and columns ``rows``, ``cols`` (row-major), and per label the eave widths
+    ``eave_width_m`` (``eave_widths_m``). What the occluder and the heights by the roof outlines both take from one
+    surface: made once a frame when both read the same (``occluder_of_cells``, ``outline_heights``)."""
+
+    taken: np.ndarray
+    over: np.ndarray
+    rows: np.ndarray
+    cols: np.ndarray
+    eave_width_m: np.ndarray
+    above_m: float
+
+
+def roof_candidates(cells: FootprintCells, top_m: np.ndarray, ground_m: np.ndarray, res_m: float,
+                    above_m: float = OVERHANG_ABOVE_M) -> RoofCandidates:
+    """The ``RoofCandidates`` of a window: its ``FootprintCells``, surface ``top_m`` (float32), ``ground_m`` (the DEM
+    at its cell centres) and cell size ``res_m``."""
+    dh, dw = top_m.shape
+    taken = np.zeros((dh, dw), np.bool_)
+    over = np.zeros((dh, dw), np.bool_)
+    rr, cc = _overhang_cells(cells.label, cells.inside, top_m, ground_m.astype(np.float32, copy=False),
+                             np.float32(above_m), cells.sub * cells.sub, taken, over)
+    return RoofCandidates(taken, over, rr, cc, eave_widths_m(cells, taken, res_m), float(above_m))
+
+
+def _candidates_of(given: RoofCandidates | None, cells: FootprintCells, top_m, ground_m, res_m: float,
+                   above_m: float) -> RoofCandidates:
+    if given is None:
+        return roof_candidates(cells, top_m, ground_m, res_m, above_m)
+    if given.above_m != float(above_m) or given.taken.shape != top_m.shape:
+        raise ValueError(f"roof candidates of another window or height above the ground ({given.above_m} m, "
+                         f"{given.taken.shape}) than asked ({above_m} m, {top_m.shape})")
+    return given
+
+
 def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,
                       slab_m: float = OVERHANG_SLAB_M, above_m: float = OVERHANG_ABOVE_M,
-                      crown_base_m: np.ndarray | None = None) -> FootprintOccluder:
+                      crown_base_m: np.ndarray | None = None,
+                      candidates: RoofCandidates | None = None) -> FootprintOccluder:
     """The ``FootprintOccluder`` of ``dsm`` (a window in the project CRS) from its ``FootprintCells`` (same grid, e.g.
     ``FootprintCells.window`` of a larger one) and ``ground_m`` (float32, as ``footprint_occluder``). What depends on
     the window (a building's eave line and eave width from its cells in the window, the cells beside an overhang) is
@@ -341,18 +380,17 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     one. The slab of an overhang (and beside it) spans only the sub-cells within the building's roof outline: the
     footprint grown by its eave width (``eave_widths_m``). ``crown_base_m`` (same shape, NaN: none): a cell near no
     footprint whose crown base lies below its top blocks only between the two (``with_crown_base``). The cell loops
-    compiled (``_overhang_cells``, ``_beside_overhangs``)."""
+    compiled (``_overhang_cells``, ``_beside_overhangs``). ``candidates``: ``roof_candidates`` of this window, ``dsm``
+    and ``ground_m`` when the caller has them (made here otherwise)."""
     top = dsm.heights_m
     dh, dw = top.shape
-    res = dsm.res_m
     sub = cells.sub
     base = np.full((dh, dw), -np.inf, np.float32)
     slab_top = np.full((dh, dw), -np.inf, np.float32)
     sub_index = np.full((dh, dw), -1, np.int32)
-    taken = np.zeros((dh, dw), np.bool_)  # candidates: overhangs, or roof inside the walls
-    over = np.zeros((dh, dw), np.bool_)
-    rr, cc_ = _overhang_cells(cells.label, cells.inside, top, ground_m.astype(np.float32, copy=False),
-                              np.float32(above_m), sub * sub, taken, over)
+    # candidates: overhangs, or roof inside the walls
+    cand = _candidates_of(candidates, cells, top, ground_m, dsm.res_m, above_m)
+    taken, over, rr, cc_ = cand.taken, cand.over, cand.rows, cand.cols
     lab = cells.label[rr, cc_]
     # the underside: the building's eave line less the slab, flat under the whole overhang (a pitched roof's
     # overhang rises inwards and up its gable ends; what lies under it is the soffit at the eave line's level, or
@@ -375,10 +413,10 @@ def occluder_of_cells(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintC
     # outline between sub-cell centres from their margins (``sub_margin_cm``): a sub-cell's centre samples the
     # distance to the footprint, its square does not lie within the outline because its centre does (its outer half
     # reached up to half a sub-cell beyond the eave, where rays that clear the roof's edge passed)
-    width_cm = np.rint(eave_widths_m(cells, taken, res) * 100.0)
+    width_cm = np.rint(cand.eave_width_m * 100.0)
     margin = _outline_margin_cm(cells, rr, cc_, lab, width_cm)
     outline = margin >= 0
-    half_cm = 50.0 * res / sub  # half a sub-cell
+    half_cm = 50.0 * dsm.res_m / sub  # half a sub-cell
     # the slab over the whole cell where every sub-cell lies within the outline (its centre half a sub-cell inside)
     whole = (margin >= half_cm).all(axis=(1, 2))
     walls = cells.inside[rr, cc_] > 0
@@ -431,7 +469,8 @@ class OutlineHeights:
 
 
 def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCells, *,
-                    above_m: float = OVERHANG_ABOVE_M, outline_top_m: np.ndarray | None = None) -> OutlineHeights:
+                    above_m: float = OVERHANG_ABOVE_M, outline_top_m: np.ndarray | None = None,
+                    candidates: RoofCandidates | None = None) -> OutlineHeights:
     """The ``OutlineHeights`` of ``dsm`` (a window, project CRS) from its ``FootprintCells`` and ``ground_m`` (the DEM
     at its cell centres, as ``occluder_of_cells``): the roof outlines are those of the occluder (the same eave widths:
     from ``outline_top_m``, the occlusion test's surface on the same window, where it has its own, else ``dsm``'s);
@@ -440,7 +479,8 @@ def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCel
     highest return per cell stands a roof up to a cell wider than the outline) are the ground's too, as the occluder
     has them (an overhang cell beyond the outline stops no ray). Only the outlines that reach into the window are
     grown and burnt (``cells.polygons`` are the block's when the cells were cut from the block's): the others burn
-    no cell of it."""
+    no cell of it. ``candidates``: ``roof_candidates`` of the outlines' surface (``outline_top_m``, else ``dsm``) on
+    this window when the caller has them (the occluder's: made here otherwise)."""
     import shapely
     from rasterio.features import rasterize
     from rasterio.transform import from_origin
@@ -449,13 +489,10 @@ def outline_heights(dsm: HeightRaster, ground_m: np.ndarray, cells: FootprintCel
 
     top = dsm.heights_m
     dh, dw = top.shape
-    sub = cells.sub
-    taken = np.zeros((dh, dw), np.bool_)
-    over = np.zeros((dh, dw), np.bool_)
     ground32 = ground_m.astype(np.float32, copy=False)
-    _overhang_cells(cells.label, cells.inside, top if outline_top_m is None else outline_top_m, ground32,
-                    np.float32(above_m), sub * sub, taken, over)
-    width_m = np.rint(eave_widths_m(cells, taken, dsm.res_m)[1:] * 100.0) / 100.0  # as the margins' cm
+    cand = _candidates_of(candidates, cells, top if outline_top_m is None else outline_top_m, ground32, dsm.res_m,
+                          above_m)
+    width_m = np.rint(cand.eave_width_m[1:] * 100.0) / 100.0  # as the margins' cm
     # an outline lies within its footprint's bounds grown by its eave width (at most EAVE_MAX_M)
     boxes = outline_cell_boxes(cells.polygons, dsm.x_left_m, dsm.y_top_m, dsm.res_m, (dh, dw), grow_m=EAVE_MAX_M)
     here = (boxes[:, 1] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 2])
@@ -658,19 +695,27 @@ def _beside_overhangs(rr, cc, over_base, taken, over, sub, slab_m, base, slab_to
     overhangs beside it into ``base`` (and + ``slab_m`` into ``slab_top``); their rows, columns (row-major) and
     sub-cell masks (within half a cell of each overhang beside it)."""
     dh, dw = taken.shape
-    lowest = np.full((dh, dw), np.inf, np.float32)
+    # the cells beside the overhangs lie within their box grown by a cell: scanned there only, row-major as the
+    # whole window (on the demo the box is the whole window in most frames, a third of it in the block's edge ones)
+    i0, i1, j0, j1 = dh, 0, dw, 0
+    for k in range(len(rr)):
+        i0 = min(i0, max(rr[k] - 1, 0))
+        i1 = max(i1, min(rr[k] + 2, dh))
+        j0 = min(j0, max(cc[k] - 1, 0))
+        j1 = max(j1, min(cc[k] + 2, dw))
+    lowest = np.full((max(i1 - i0, 0), max(j1 - j0, 0)), np.inf, np.float32)
     for k in range(len(rr)):
         for di in range(-1, 2):
             for dj in range(-1, 2):
                 i = rr[k] + di
                 j = cc[k] + dj
                 if (di != 0 or dj != 0) and i >= 0 and j >= 0 and i < dh and j < dw and not taken[i, j] \
-                        and over_base[k] < lowest[i, j]:
-                    lowest[i, j] = over_base[k]
+                        and over_base[k] < lowest[i - i0, j - j0]:
+                    lowest[i - i0, j - j0] = over_base[k]
     n = 0
-    for i in range(dh):
-        for j in range(dw):
-            if lowest[i, j] < np.inf:
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            if lowest[i - i0, j - j0] < np.inf:
                 n += 1
     hr = np.empty(n, np.int64)
     hc = np.empty(n, np.int64)
@@ -679,14 +724,15 @@ def _beside_overhangs(rr, cc, over_base, taken, over, sub, slab_m, base, slab_to
     for t in range(sub):
         near[t] = (t + 0.5) / sub <= 0.5
     k = 0
-    for i in range(dh):
-        for j in range(dw):
-            if not lowest[i, j] < np.inf:
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            low = lowest[i - i0, j - j0]
+            if not low < np.inf:
                 continue
             hr[k] = i
             hc[k] = j
-            base[i, j] = lowest[i, j]
-            slab_top[i, j] = lowest[i, j] + slab_m
+            base[i, j] = low
+            slab_top[i, j] = low + slab_m
             for di in range(-1, 2):
                 for dj in range(-1, 2):
                     ii = i + di

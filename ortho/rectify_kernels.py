@@ -659,6 +659,35 @@ def _fill_gap(p0, p1, flat, cell_px, inv_cell, zbuf):
             zbuf[i, j] = z
 
 
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _affine_row(x0, y0, r, res, centre, M):
+    """Row ``r`` of an ``AffineTile`` (first cell centre ``x0``, ``y0``, cells of ``res``) for ``_affine_pixel``: the
+    row's ground offsets from the projection centre (dx of its first column, dy) and its first column's camera-frame
+    coordinates at the centre's height (x, y, z: affine along the row, start + c * step + dz * column of M)."""
+    dx0 = x0 - centre[0]
+    dy = y0 - r * res - centre[1]
+    return dx0, dy, M[0, 1] * dy + M[0, 0] * dx0, M[1, 1] * dy + M[1, 0] * dx0, M[2, 1] * dy + M[2, 0] * dx0
+
+
+@numba.njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
+def _affine_pixel(row, c, z, res, steps, z_centre, inv_r, cam, limits):
+    """Column ``c`` of an ``_affine_row`` ``row`` at height ``z``: image position x, y (px), depth along the optical
+    axis zc and whether it is imaged (in front, within the lens fold, inside the frame; branch-free, so that the
+    loops calling it stay vectorised). ``steps``: a column's step of the camera-frame coordinates (M[:, 0] * res)
+    and M's third column; ``limits``: the fold's squared radius, the frame's width and height (px)."""
+    dx0, dy, bx, by, bz = row
+    sx, sy, sz, m02, m12, m22 = steps
+    fold_r2, width, height = limits
+    dz = earth_dz(dx0 + c * res, dy, np.float64(z) - z_centre, inv_r)
+    zc = bz + c * sz + m22 * dz
+    inv_zc = 1.0 / zc
+    xn = (bx + c * sx + m02 * dz) * inv_zc
+    yn = (by + c * sy + m12 * dz) * inv_zc
+    x, y = to_pixel(cam, xn, yn)
+    ok = (zc > 0.0) & (xn * xn + yn * yn <= fold_r2) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
+    return x, y, zc, ok
+
+
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _zbuffer_scatter_affine(tile, frame, zbuffer):
     """The scatter pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (``AffineTile`` ``tile``:
@@ -669,15 +698,16 @@ def _zbuffer_scatter_affine(tile, frame, zbuffer):
     as ``_zbuffer_kernel``) are not surface points, nor ends of a gap. Tiles must overlap by a row and a column for
     the gaps across their edges."""
     heights, x0, y0, res = tile
-    centre, M, cam, fold_r2, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2, frame.inv_radius
-    width, height = frame.width_px, frame.height_px
+    centre, M, cam, inv_r = frame.centre_m, frame.M, frame.cam, frame.inv_radius
+    limits = (frame.limits.fold_r2, frame.width_px, frame.height_px)
     zbuf, cell_px = zbuffer.depth_m, zbuffer.cell_px
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     inv_cell = 1.0 / cell_px
-    m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
     m01, m11, m21 = M[0, 1], M[1, 1], M[2, 1]
-    sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
+    steps = (M[0, 0] * res, M[1, 0] * res, M[2, 0] * res, M[0, 2], M[1, 2], M[2, 2])
+    sx, sy, sz = steps[0], steps[1], steps[2]
+    z_centre = centre[2]
     xs = np.empty((2, cols), np.float32)
     ys = np.empty((2, cols), np.float32)
     zcs = np.empty((2, cols), np.float32)
@@ -686,21 +716,11 @@ def _zbuffer_scatter_affine(tile, frame, zbuffer):
         cur = r & 1
         x_row, y_row, zc_row, ok_row = xs[cur], ys[cur], zcs[cur], oks[cur]
         x_up, y_up, zc_up, ok_up = xs[1 - cur], ys[1 - cur], zcs[1 - cur], oks[1 - cur]
-        dx0 = x0 - centre[0]
-        dy = y0 - r * res - centre[1]
-        bx = M[0, 1] * dy + M[0, 0] * dx0
-        by = M[1, 1] * dy + M[1, 0] * dx0
-        bz = M[2, 1] * dy + M[2, 0] * dx0
+        row = _affine_row(x0, y0, r, res, centre, M)
         z_row = heights[r]
         for c in range(cols):
-            dz = earth_dz(dx0 + c * res, dy, np.float64(z_row[c]) - centre[2], inv_r)
-            zc = bz + c * sz + m22 * dz
-            inv_zc = 1.0 / zc
-            xn = (bx + c * sx + m02 * dz) * inv_zc
-            yn = (by + c * sy + m12 * dz) * inv_zc
-            x, y = to_pixel(cam, xn, yn)
-            ok_row[c] = (zc > 0.0) & (xn * xn + yn * yn <= fold_r2) & (x >= 0.0) & (y >= 0.0) & (x < width) & \
-                (y < height)
+            x, y, zc, ok = _affine_pixel(row, c, z_row[c], res, steps, z_centre, inv_r, cam, limits)
+            ok_row[c] = ok
             x_row[c] = x
             y_row[c] = y
             zc_row[c] = zc
@@ -735,33 +755,23 @@ def _zbuffer_test_affine(tile, frame, zbuffer, occluded, near_share):
     positions differ from the anchors' interpolation in the last bits only). ``occluded`` set, never cleared; and
     there ``near_share`` as ``_zbuffer_test_maps`` (where the march looks first)."""
     heights, x0, y0, res = tile
-    centre, M, cam, fold_r2, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits.fold_r2, frame.inv_radius
-    width, height = frame.width_px, frame.height_px
+    centre, M, cam, inv_r = frame.centre_m, frame.M, frame.cam, frame.inv_radius
+    limits = (frame.limits.fold_r2, frame.width_px, frame.height_px)
     zbuf, cell_px, tolerance_m = zbuffer
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     inv_cell = 1.0 / cell_px
-    m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
-    sx, sy, sz = M[0, 0] * res, M[1, 0] * res, M[2, 0] * res
+    steps = (M[0, 0] * res, M[1, 0] * res, M[2, 0] * res, M[0, 2], M[1, 2], M[2, 2])
+    z_centre = centre[2]
     cell_i = np.empty(cols, np.int32)
     cell_j = np.empty(cols, np.int32)
     zcs = np.empty(cols, np.float64)
     oks = np.empty(cols, np.bool_)
     for r in range(rows):
-        dx0 = x0 - centre[0]
-        dy = y0 - r * res - centre[1]
-        bx = M[0, 1] * dy + M[0, 0] * dx0
-        by = M[1, 1] * dy + M[1, 0] * dx0
-        bz = M[2, 1] * dy + M[2, 0] * dx0
+        row = _affine_row(x0, y0, r, res, centre, M)
         z_row = heights[r]
         for c in range(cols):
-            dz = earth_dz(dx0 + c * res, dy, np.float64(z_row[c]) - centre[2], inv_r)
-            zc = bz + c * sz + m22 * dz
-            inv_zc = 1.0 / zc
-            xn = (bx + c * sx + m02 * dz) * inv_zc
-            yn = (by + c * sy + m12 * dz) * inv_zc
-            x, y = to_pixel(cam, xn, yn)
-            ok = (zc > 0.0) & (xn * xn + yn * yn <= fold_r2) & (x >= 0.0) & (y >= 0.0) & (x < width) & (y < height)
+            x, y, zc, ok = _affine_pixel(row, c, z_row[c], res, steps, z_centre, inv_r, cam, limits)
             oks[c] = ok
             # (a select, not a branch: the loop stays vectorised; NaN or far positions never reach the conversion)
             cell_i[c] = min(np.int32((y if ok else 0.0) * inv_cell), zh - 1)

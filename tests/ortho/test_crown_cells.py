@@ -111,3 +111,83 @@ def test_crowns_file_errors_name_the_file(tmp_path):
                  crs="EPSG:32611")
     with pytest.raises(InputError, match="no field y_m"):
         read_crowns(tmp_path / "n.gpkg", crs)
+
+
+def _crown_sub_cells_per_tree(crowns, *, x0_m, y_top_m, res_m, shape, sub, reach_m=1.0, window=None):
+    """``crown_sub_cells`` as it was (a numpy pass per tree, up to 126fd31): the reference of the compiled one."""
+    w_r0, w_c0, w_rows, w_cols = window if window is not None else (0, 0, *shape)
+    off = (np.arange(sub) + 0.5) / sub
+    cells, margins, bases, tops = [], [], [], []
+    for t in range(len(crowns)):
+        cx, cy, r = crowns.x_m[t], crowns.y_m[t], crowns.radius_m[t]
+        r0 = max(w_r0, int((y_top_m - cy - r - reach_m) / res_m))
+        r1 = min(w_r0 + w_rows, int((y_top_m - cy + r + reach_m) / res_m) + 1)
+        c0 = max(w_c0, int((cx - r - reach_m - x0_m) / res_m))
+        c1 = min(w_c0 + w_cols, int((cx + r + reach_m - x0_m) / res_m) + 1)
+        if r1 <= r0 or c1 <= c0:
+            continue
+        rr, cc = np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), indexing="ij")
+        ys = y_top_m - (rr.ravel()[:, None, None] + off[None, :, None]) * res_m
+        xs = x0_m + (cc.ravel()[:, None, None] + off[None, None, :]) * res_m
+        m = r - np.hypot(xs - cx, ys - cy)
+        cells.append(rr.ravel() * shape[1] + cc.ravel())
+        margins.append(m)
+        covers = (np.round(m * 100.0) >= 0).any(axis=(1, 2))
+        bases.append(np.where(covers, crowns.base_m[t], np.inf))
+        tops.append(np.where(covers, crowns.top_m[t], -np.inf))
+    if not cells:
+        e = np.zeros(0, np.int64)
+        return e, e, np.zeros((0, sub, sub), np.int16), np.zeros(0, np.float32), np.zeros(0, np.float32)
+    flat = np.concatenate(cells)
+    order = np.argsort(flat, kind="stable")
+    flat = flat[order]
+    first = np.flatnonzero(np.concatenate([[True], flat[1:] != flat[:-1]]))
+    margin = np.maximum.reduceat(np.concatenate(margins)[order], first, axis=0)
+    base = np.minimum.reduceat(np.concatenate(bases)[order], first)
+    top = np.maximum.reduceat(np.concatenate(tops)[order], first)
+    rows, cols = np.divmod(flat[first], shape[1])
+    cm = np.clip(np.round(margin * 100.0), -32000, 32000).astype(np.int16)
+    return (rows, cols, cm, np.where(np.isfinite(base), base, np.nan).astype(np.float32),
+            np.where(np.isfinite(top), top, np.nan).astype(np.float32))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_compiled_crown_sub_cells_are_the_per_tree_numpy_ones_bit_for_bit(seed):
+    """``aerotri.geom.crown_disks.crown_sub_cells`` (compiled: the ortho calls it once a frame) gives the arrays of
+    the numpy pass per tree it replaced, dtype and bits: 300 overlapping crowns (some beyond the grid's edges, on
+    both sides of its origin), cell sizes 0.25 .. 1 m, 3 or 5 sub-cells, reach 0 and 1 m, the whole grid and
+    windows."""
+    from aerotri.geom.crown_disks import TreeCrowns, crown_sub_cells
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    x, y = rng.uniform(-20.0, 120.0, n), rng.uniform(-20.0, 100.0, n)
+    crowns = TreeCrowns(x, y, rng.uniform(0.4, 6.5, n), rng.uniform(8.0, 25.0, n), rng.uniform(1.0, 6.0, n),
+                        np.zeros(n, np.int64), np.zeros(n, bool), 0.0)
+    checked = 0
+    for res, sub, reach, window in [(0.5, 5, 0.0, None), (0.25, 3, 1.0, None), (1.0, 5, 1.0, (10, 20, 40, 30)),
+                                    (0.5, 5, 0.0, (37, 3, 61, 99))]:
+        shape = (int(80 / res), int(100 / res))
+        kw = dict(x0_m=0.3, y_top_m=80.7, res_m=res, shape=shape, sub=sub, reach_m=reach, window=window)
+        new, old = crown_sub_cells(crowns, **kw), _crown_sub_cells_per_tree(crowns, **kw)
+        for a, b in zip(new, old):
+            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b, equal_nan=True)
+        checked += len(new[0])
+    assert checked > 20_000
+
+
+def test_the_crowns_put_in_the_frames_own_occluder_are_the_same_as_in_a_copy():
+    """``with_crown_disks(..., own=True)`` (the frame's occluder changed in place, not copied) gives the arrays of
+    the copy; without ``own`` the occluder given is left as it was."""
+    from ortho.crown_cells import with_crown_disks
+    from ortho.footprints import with_crown_base
+
+    top, crowns = _disk_window()
+    given = with_crown_base(None, top, np.full(top.shape, np.nan, np.float32))
+    before = [a.copy() for a in (given.base_m, given.slab_top_m, given.sub_index)]
+    copied = with_crown_disks(given, top, 0.0, 1.5, 0.5, crowns, SUB, TOL_M)
+    assert all(np.array_equal(a, b) for a, b in zip(before, (given.base_m, given.slab_top_m, given.sub_index)))
+    in_place = with_crown_disks(given, top, 0.0, 1.5, 0.5, crowns, SUB, TOL_M, own=True)
+    for name in ("base_m", "slab_top_m", "sub_index", "sub_masks", "sub_margin_cm"):
+        assert np.array_equal(getattr(copied, name), getattr(in_place, name)), name
+    assert in_place.base_m is given.base_m and copied.sub_index[1, 1] == 0

@@ -273,3 +273,35 @@ def test_an_eave_is_an_overhang_wherever_the_window_rows_fall():
     assert south.sum() == north.sum() > 15
     assert np.isfinite(occ.base_m[south]).all() and np.isfinite(occ.base_m[north]).all()
     assert np.allclose(occ.base_m[south], ROOF_M - OVERHANG_SLAB_M)
+
+
+def test_the_roof_candidates_made_once_give_the_same_occluder_and_heights_by_side():
+    """``roof_candidates`` of a window, made once a frame (``ortho.block._frame_occluder``) and handed to the occluder
+    and the heights by the roof outlines, give both the arrays each makes alone; candidates of another window are
+    refused. Three box buildings, pitched roofs (the eave line a quantile), the window cutting one of them."""
+    from ortho.footprints import outline_heights, roof_candidates
+
+    n_r, n_c = int(50 / RES_M), int(60 / RES_M)
+    X, Y = np.meshgrid((np.arange(n_c) + 0.5) * RES_M, 50.0 - (np.arange(n_r) + 0.5) * RES_M)
+    walls = [shapely.box(10.2, 10.2, 20.0, 20.0), shapely.box(30.05, 28.3, 41.7, 36.0),
+             shapely.affinity.rotate(shapely.box(40.0, 8.0, 52.0, 18.0), 20.0)]
+    z = np.zeros((n_r, n_c), np.float32)
+    for k, w in enumerate(walls):
+        roof = shapely.contains_xy(w.buffer(EAVE_M, join_style="mitre"), X, Y)
+        z[roof] = ROOF_M + 2.0 * k + 0.1 * (X[roof] - X[roof].min())
+    ground = np.zeros_like(z)
+    cells = footprint_cells(0.0, 50.0, RES_M, z.shape, np.array(walls, dtype=object))
+    for r0, c0, h, w in [(0, 0, n_r, n_c), (0, 0, 35, 90)]:
+        dsm = HeightRaster(z[r0:r0 + h, c0:c0 + w].copy(), c0 * RES_M, 50.0 - r0 * RES_M, RES_M, CRS_UTM, "DSM")
+        win, g = cells.window(r0, c0, h, w), ground[r0:r0 + h, c0:c0 + w]
+        cand = roof_candidates(win, dsm.heights_m, g, RES_M)
+        assert cand.over.sum() > 40
+        alone, shared = occluder_of_cells(dsm, g, win), occluder_of_cells(dsm, g, win, candidates=cand)
+        for name in ("base_m", "slab_top_m", "sub_index", "sub_masks", "sub_margin_cm"):
+            assert np.array_equal(getattr(alone, name), getattr(shared, name)), name
+        a, b = outline_heights(dsm, g, win), outline_heights(dsm, g, win, candidates=cand)
+        assert np.array_equal(a.ground.heights_m, b.ground.heights_m)
+        assert np.array_equal(a.roof.heights_m, b.roof.heights_m)
+        assert all(x.equals(y) for x, y in zip(a.outlines, b.outlines)) and len(a.outlines) == len(b.outlines)
+    with pytest.raises(ValueError, match="another window"):
+        occluder_of_cells(dsm, g, win, candidates=roof_candidates(cells, z, ground, RES_M))
