@@ -18,8 +18,13 @@ truth_on_grid.npz and surface_clearance.npz) for one or more of its true-ortho p
 (``true_ortho_dsm_<spec>``). Usage:
 
     python bench/eval_true_ortho_fill_causes.py --work DIR --block demo7 --specs 'lidar+occn+fp10+crowns' [--key K]
+        [--remosaic-into DIR2 --label +remosaic_NAME [--hole-margin-m M]] [--spacing 'STRIPS/*.laz']
 
-Writes bench/results/true_ortho_fill.json key K (``fill_causes`` by default), block NAME.
+With ``--remosaic-into`` the projects' frame orthos are mosaicked again (copies in DIR2) by the checkout the script
+runs from (main's mosaic: the script run from a ``git archive`` of main, with this checkout's venv), the same DOMs'
+truth; also the DOM's ghosts and roofs. ``--spacing``: the crown model's point spacing of the block's classified
+strips from their box and from occupied cells. Writes bench/results/true_ortho_fill.json key K (``fill_causes`` by
+default), block NAME (the 2026-11-30 run: ``fill_causes9``).
 """
 
 from __future__ import annotations
@@ -86,7 +91,8 @@ def causes(work: Path, name: str, project: Path) -> dict:
     kind, ground, roof, vis, foot_nadir = cached_truth(E, work / name, conv, grid)
     truth = E.Truth(conv)
     cells = {}
-    fill = measure_block(work, name, true_ortho=project, truth=truth, truth_arrays=(kind, ground, roof, vis, foot_nadir),
+    fill = measure_block(work, name, true_ortho=project, truth=truth,
+                         truth_arrays=(kind, ground, roof, vis, foot_nadir),
                          cells_out=cells)
     vis = np.stack(vis)
     codes = np.load(work / name / "surface_clearance.npz")["codes"]
@@ -113,7 +119,8 @@ def causes(work: Path, name: str, project: Path) -> dict:
            "filled_from_a_frame_that_sees": fill["filled_from_a_frame_that_sees"],
            "ghosts_building": way["ghosts"]["building"], "ghosts_tree": way["ghosts"]["tree"],
            "ghosts_building_beyond_1m_of_a_roof": way["ghosts"]["building_beyond_1m_of_a_roof"],
-           "roofs_rms_gsd": roofs["rms_gsd"], "roofs_median_gsd": roofs["median_gsd"], "roof_corners": roofs["measured"],
+           "roofs_rms_gsd": roofs["rms_gsd"], "roofs_median_gsd": roofs["median_gsd"],
+           "roof_corners": roofs["measured"],
            "misses": int(miss.sum())}
     # over-masked: the 2.5D blocker of the seeing frames
     rr, cc = np.nonzero(over)
