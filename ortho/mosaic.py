@@ -1467,7 +1467,8 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
                   tw: int, out: np.ndarray, valid: np.ndarray) -> None:
     """Fill the tile's pixels ``need`` (flat indices; ascending) in ``out`` and ``valid`` from the valid frame of the
     nearest nadir point (distances in float64; of equal ones the first frame), a frame with holes valid away from
-    them; pixels every frame has only near its holes from the nearest frame that has them after all. ``frame(k, y0,
+    them; pixels every frame has only near its holes from the frame that has them farthest from its holes
+    (``_hole_distance_px``), of equal distances the nearest nadir point. ``frame(k, y0,
     y1, x0, x1)``: the tile's reading of frame k (its validity away from holes), ``raw``: the validity of such
     readings of frames with holes. A frame decoded in memory is looked up at the pixels, no window copied; a frame
     read from its file is read over the box of the pixels."""
@@ -1529,11 +1530,24 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
         take_nearer(k, inside(k), True)
     got = winner >= 0
     if not got.all():
-        # pixels every frame has only near its holes: the valid frame of the nearest nadir point after all
+        # pixels every frame has only near its holes: the valid frame whose pixel lies farthest from its own holes
+        # (its mask's edge errs there: ghosts lie within a cell of it), of equal distances the nearest nadir point
+        far = np.full(len(need), -1.0)
         for k in over.tolist():
             if has_holes(k):
                 sub = inside(k)
-                take_nearer(k, sub[~got[sub]], False)
+                sub = sub[~got[sub]]
+                if not len(sub):
+                    continue
+                src = source(k)
+                sub = sub[src[2].take(at(src, sub))]
+                if not len(sub):
+                    continue
+                dh = _hole_distance_px(ctx, readers, k, rows[sub] + r0, cols[sub] + c0)
+                d = np.hypot(xs[sub] - ctx.nadir[k, 0], ys[sub] - ctx.nadir[k, 1])
+                better = (dh > far[sub]) | ((dh == far[sub]) & (d < best[sub]))
+                sub = sub[better]
+                far[sub], best[sub], winner[sub] = dh[better], d[better], k
         got = winner >= 0
     flat_out = out.reshape(out.shape[0], -1)
     for k in np.flatnonzero(np.bincount(winner[got])).tolist():  # the winning frames, ascending
@@ -1667,6 +1681,24 @@ def _hole_margin(ctx: _BlendContext, readers, k: int, *, row: int, col: int, h: 
         return (img[:, inner[0], inner[1]], valid), valid
     near = cv2.dilate(hole.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m_px + 1,) * 2))
     return (img[:, inner[0], inner[1]], valid & (near[inner] == 0)), valid
+
+
+def _hole_distance_px(ctx: _BlendContext, readers, k: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The distance (px, float32: OpenCV's 3 x 3 L2 mask, to 0.01 px) of the mosaic pixels (``rows``, ``cols``) from
+    frame k's nearest hole pixel (``FrameHoles``), seen within ``ctx.hole_margin_px`` + 1 of them (farther: that
+    bound)."""
+    m_px = ctx.hole_margin_px + 1
+    fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
+    ya, yb, xa, xb = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+    h, w = yb - ya + 2 * m_px, xb - xa + 2 * m_px
+    frame = readers.decoded(ctx.files[k])
+    if frame is not None:
+        ok = mask_window(frame.valid, xa - m_px - fc, ya - m_px - fr, w, h)
+    else:
+        ok = readers.window(ctx.files[k], xa - m_px - fc, ya - m_px - fr, w, h)[1]
+    hole = ctx.holes[k].pixels(ok, ya - m_px, xa - m_px, ctx.factor)
+    d = cv2.distanceTransform((~hole).view(np.uint8), cv2.DIST_L2, 3)
+    return np.minimum(np.round(d[rows - ya + m_px, cols - xa + m_px], 2), np.float32(m_px)).astype(np.float32)
 
 
 def _mixed_boxes(mask: np.ndarray, strip_px: int = 64, gap_px: int = 32) -> list:

@@ -146,3 +146,66 @@ def test_tie_points_above_the_dem_are_not_warned_of_but_above_the_dsm_they_are(b
                                   "--dsm", str(root / "dem_m.tif"), "--frames", "s01_001"])
     assert r.exit_code == 0, r.output
     assert "lie 3.00 m above the DSM" in r.stderr, r.stderr
+
+
+
+def _trees(block, tmp_path):
+    """The block's truth DSM with 12 trees on open ground (flat crowns 12 m over the ground, radius 4 m) in metres
+    and in feet, and the crowns' disks (base 5 m over the ground: the lines of sight beneath them reach the ground)
+    in metres and in feet (lidarctl rasters writes them in the clouds' height unit, the DSM's)."""
+    import shapely
+
+    from aerotri.core.project import Project
+    from aerotri.core.vector_files import VectorLayer, write_layers
+
+    with rasterio.open(block / "truth" / "dsm.tif") as ds:
+        dsm, prof = ds.read(1).astype(np.float64), ds.profile
+    with rasterio.open(block / "truth" / "dem.tif") as ds:
+        dem = ds.read(1).astype(np.float64)
+    tf, radius_m = prof["transform"], 4.0
+    rows, cols = np.mgrid[0:dsm.shape[0], 0:dsm.shape[1]]
+    X, Y = tf * (cols + 0.5, rows + 0.5)
+    fields = {k: [] for k in ("x_m", "y_m", "radius_m", "top_m", "base_m")}
+    for r in np.linspace(0.25, 0.75, 3) * dsm.shape[0]:
+        for c in np.linspace(0.2, 0.8, 4) * dsm.shape[1]:
+            x, y = tf * (c, r)
+            near = np.hypot(X - x, Y - y)
+            if (dsm - dem)[near < 3 * radius_m].max() > 0.5:   # on open ground only
+                continue
+            canopy = near < radius_m
+            top = dem[canopy].max() + 12.0
+            dsm[canopy] = top
+            for k, v in zip(fields, (x, y, radius_m, top + 0.05, dem[canopy].min() + 5.0)):
+                fields[k].append(v)
+    fields = {k: np.array(v) for k, v in fields.items()}
+    assert len(fields["x_m"]) >= 8
+    disks = [shapely.Point(x, y).buffer(radius_m) for x, y in zip(fields["x_m"], fields["y_m"])]
+    for feet in (False, True):
+        unit = "ft" if feet else "m"
+        prof.update(crs=rasterio.crs.CRS.from_wkt(_compound_wkt(feet)), dtype="float32", nodata=np.nan)
+        with rasterio.open(tmp_path / f"dsm_trees_{unit}.tif", "w", **prof) as out:
+            out.write((dsm / FOOT_M if feet else dsm).astype(np.float32), 1)
+        heights = {k: fields[k] / FOOT_M if feet else fields[k] for k in ("top_m", "base_m")}
+        write_layers(tmp_path / f"crowns_{unit}.gpkg", [VectorLayer("crowns", "Polygon", disks, {**fields, **heights})],
+                     crs=Project.open(block).crs)
+
+
+def test_crowns_beside_a_dsm_in_feet_occlude_as_beside_the_dsm_in_metres(block, tmp_path):
+    """``--crowns`` with a DSM in feet (the crowns' heights in feet too, as lidarctl rasters writes them beside it):
+    the crowns' heights go through the occlusion DSM's own height operation, so the true orthos are those of the
+    DSM and crowns in metres (to 1 DN, the same cells valid). Before (review of b59af49) the crowns' feet were
+    compared with the DSM's metres: every crown base (~1,000 "m") above its top, the crowns dropped without a word."""
+    _trees(block, tmp_path)
+    common = ("--dem", block / "dem_m.tif", "--true-ortho", "--res-m", "0.4")
+    _, plain = _rectified(block, tmp_path, "plain", *common, "--dsm", tmp_path / "dsm_trees_m.tif")
+    _, metres = _rectified(block, tmp_path, "m", *common, "--dsm", tmp_path / "dsm_trees_m.tif",
+                           "--crowns", tmp_path / "crowns_m.gpkg")
+    index_ft, feet = _rectified(block, tmp_path, "ft", *common, "--dsm", tmp_path / "dsm_trees_ft.tif",
+                                "--crowns", tmp_path / "crowns_ft.gpkg")
+    assert index_ft["dsm_height_operation"] is not None
+    # the crowns let through the lines of sight beside their disks in the cells at their rims (55 pixels here)
+    gained = sum(int((metres[k][1] & ~plain[k][1]).sum()) for k in plain)
+    assert gained >= 40, gained
+    _assert_same_orthos(metres, feet)
+    differ = sum(int((metres[k][1] != feet[k][1]).sum()) for k in plain)
+    assert differ <= gained // 5, (differ, gained)   # the crowns in feet occluded as those in metres (was: none)
