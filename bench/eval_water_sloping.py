@@ -1,0 +1,75 @@
+"""What the sloping-surface water rule (``water_sloping_surface``, i44-water) moves on every labelled set
+but Autzen -> bench/results/water_sloping.json.
+
+Each set is classified with the shipped settings twice, the rule on and off (main's water rule), and the
+returns whose class differs are counted, with the water PA / UA against the set's own class 9 where it has
+one (lidR Topography: the choice set of issue 44's water rules; AHN3 Delft: its canals). Sets: lidR
+Topography, the 7 ISPRS samples, AHN3 Delft (EPSG:7415 heights), lidR MixedConifer, laspy Nebraska. Where
+nothing changes, every figure computed from these classes with the shipped settings (the ISPRS nested
+estimate's default run, MixedConifer's ground figures, AHN3's canals in bench/eval_water_edge.py) is
+unchanged by construction. Autzen, the set the rule was written for, is scored in
+bench/eval_water_autzen.py.
+
+    AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/eval_water_sloping.py
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from lidar_common import DATA, REPO, SAMPLES  # noqa: E402
+from eval_water import classify_cloud, read  # noqa: E402
+
+from lidarctl.classify import pipeline as classify  # noqa: E402
+
+
+def sets() -> dict:
+    s = {"lidr_topography": (DATA / "lidr_topography" / "Topography.laz",)}
+    s.update({f"isprs_{k}": (DATA / "isprs_filtertest" / f"{k}-utm.laz",) for k in SAMPLES})
+    s.update({"ahn3_delft": (DATA / "ahn3_delft" / "ahn3_cropped_1.laz",),
+              "lidr_mixedconifer": (DATA / "lidr_mixedconifer" / "MixedConifer.laz",),
+              "laspy_nebraska": (DATA / "laspy_nebraska" / "file_with_both_wkt_and_geotiff_vlrs.las",)})
+    return {k: v for k, v in s.items() if all(p.is_file() for p in v)}
+
+
+def water_scores(pred_water, truth_water) -> dict:
+    found = int(np.sum(pred_water & truth_water))
+    return {"truth_water": int(truth_water.sum()), "called_water": int(pred_water.sum()), "found": found,
+            "pa_pct": round(100.0 * found / truth_water.sum(), 2) if truth_water.any() else None,
+            "ua_pct": round(100.0 * found / pred_water.sum(), 2) if pred_water.any() else None}
+
+
+def main() -> int:
+    t0 = time.perf_counter()
+    out = {}
+    for name, paths in sets().items():
+        c = read(name, paths)
+        on = classify_cloud(c)
+        off = classify_cloud(c, water_sloping_surface=False)
+        t = np.asarray(c.classification) == classify.WATER
+        row = {"points": len(on), "classes_changed": int(np.sum(on != off)),
+               "water_on": int(np.sum(on == classify.WATER)), "water_off": int(np.sum(off == classify.WATER))}
+        if t.any():
+            row["water_rule_on"] = water_scores(on == classify.WATER, t)
+            row["water_rule_off"] = water_scores(off == classify.WATER, t)
+        out[name] = row
+        print(name, row, flush=True)
+    res = {"command": "AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/eval_water_sloping.py",
+           "what": __doc__.split("\n\n")[1].replace("\n", " "), "sets": out,
+           "seconds": round(time.perf_counter() - t0, 1)}
+    path = REPO / "bench" / "results" / "water_sloping.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(res, indent=2) + "\n")
+    tmp.replace(path)
+    print("wrote", path)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
