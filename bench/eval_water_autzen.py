@@ -117,6 +117,8 @@ def main() -> int:
                     row[tname]["truth_by_class"] = {int(k): int(v) for k, v in zip(*np.unique(cls[t],
                                                                                                return_counts=True))}
                 row["road_returns"] = int(np.sum(cls == ROAD))
+                # docs/new-user-trial.md's count: road returns below 413 ft (the river's surface, 407-413 ft)
+                row["road_returns_below_413_ft"] = int(np.sum((cls == ROAD) & (np.asarray(res.z) < 413.0)))
                 row["water_outside_outline"] = int(np.sum((cls == WATER) & ~inside))
                 row["water_outside_outline_and_band"] = int(np.sum((cls == WATER) & ~inside & ~band))
                 out.setdefault(rule, {})[name] = row
