@@ -97,7 +97,8 @@ def main() -> int:
     args = ap.parse_args()
     t0 = time.perf_counter()
     path = REPO / "bench" / "results" / "water_sloping.json"
-    out = json.loads(path.read_text())["sets"] if args.only_demo else {}
+    old = json.loads(path.read_text()) if path.is_file() else {}
+    out = old["sets"] if args.only_demo else {}
     for name, paths in ({} if args.only_demo else sets()).items():
         c = read(name, paths)
         on = classify_cloud(c)
@@ -114,6 +115,8 @@ def main() -> int:
            "what": __doc__.split("\n\n")[1].replace("\n", " "), "sets": out}
     if args.demo is not None:
         res["demo"] = {"project": str(args.demo), **demo(args.demo)}
+    elif "demo" in old:
+        res["demo"] = old["demo"]   # not re-run
     res["seconds"] = round(time.perf_counter() - t0, 1)
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(res, indent=2) + "\n")

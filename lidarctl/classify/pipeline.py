@@ -869,9 +869,9 @@ def water_surface(x, y, z, tol_m: float, max_slope: float, min_points: int):
     water surface ``max_slope`` over a riffle), so one level holds only a reach. The returns are cut into
     reaches of ``L = tol_m / max_slope`` (the length over which the steepest water surface falls by the
     level tolerance: within a reach one level holds to ``tol_m``); each reach with at least ``min_points``
-    returns gets its ``water_level``. Reaches whose level differs from a neighbour's (4-connected) by more
-    than the steepest surface's fall between them plus ``tol_m`` are dropped with their returns' levels
-    (NaN): a step there is a bank or a quay, not water. The level at a return is the bilinear interpolation
+    returns gets its ``water_level``. Where a reach's level differs from a neighbour's (4-connected) by more
+    than the steepest surface's fall between them plus ``tol_m``, the step is a bank or a quay, not water:
+    of the two, the reach further from the median reach level is dropped, its returns' levels NaN. The level at a return is the bilinear interpolation
     of the reach levels at the reach centres (missing reaches take the nearest reach's level), so a
     surface sloping at ``max_slope`` leaves no step at the reach borders.
     """
@@ -895,22 +895,17 @@ def water_surface(x, y, z, tol_m: float, max_slope: float, min_points: int):
     ok = np.isfinite(lev)
     if ok.sum() < 2:
         return None
+    # A step between two neighbouring reaches is a bank or a quay: the reach further from the gap's median
+    # level is dropped.
     step = max_slope * reach_m + tol_m
-    bad = np.zeros_like(ok)
+    far = np.abs(lev - np.median(lev[ok]))
+    bank = np.zeros_like(ok)
     for a, b in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
                  ((slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
         jump = ok[a] & ok[b] & (np.abs(lev[a] - lev[b]) > step)
-        bad[a] |= jump
-        bad[b] |= jump
-    # The step is between two reaches; the one further from the surface's median level is the bank.
-    med = np.median(lev[ok])
-    far = np.abs(lev - med)
-    for a, b in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
-                 ((slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
-        jump = ok[a] & ok[b] & (np.abs(lev[a] - lev[b]) > step)
-        bad[a] &= ~(jump & (far[a] < far[b]))
-        bad[b] &= ~(jump & (far[b] < far[a]))
-    ok &= ~bad
+        bank[a] |= jump & (far[a] >= far[b])
+        bank[b] |= jump & (far[b] > far[a])
+    ok &= ~bank
     if ok.sum() < 1:
         return None
     filled = lev[tuple(ndimage.distance_transform_edt(~ok, return_distances=False, return_indices=True))]
@@ -1062,7 +1057,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
             if n_level < p.water_min_points or n_level < p.water_flat_fraction * len(zg):
                 continue
             near_res = np.abs(res[np.abs(res) <= 0.5 * tol])
-            sigma_m = 1.4826 * float(np.median(near_res))
+            sigma_m = 1.4826 * float(np.median(near_res)) if len(near_res) else tol
             level_z = surface
             on_surface = np.isfinite(surface)
             level_of = _NearestLevel(x[members][on_surface], y[members][on_surface], surface[on_surface])
