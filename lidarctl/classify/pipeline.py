@@ -56,7 +56,11 @@ Pipeline (``classify_points``):
    ``water_level_tol_m`` and at least ``water_min_points`` (b) that is horizontal (LSQ plane
    slope <= ``water_max_slope``) and not above the ground on its banks (the bed test: the median
    ground height of the rim cells, the DEM just across the gap, is not more than
-   ``water_level_tol_m`` below the level);
+   ``water_level_tol_m`` below the level). A river is not at one level: a gap failing (a) is judged
+   against its sloping surface when ``water_sloping_surface`` (``water_surface``: reaches of
+   ``water_level_tol_m / water_max_slope`` each at its own level, bilinear between them, a step between
+   reaches a bank), each return and bank cell against the level beside it (Autzen's Willamette, 1.3 m of fall
+   across the crop, bench/results/water_autzen.json);
    (c) are dark: the lower quartile of their intensity is below ``water_intensity_ratio`` of the
    cloud's median ground intensity (skipped when the cloud carries no intensity; specular
    returns near nadir are bright, hence the quartile); and (d) the gap is not an occlusion
@@ -871,9 +875,9 @@ def water_surface(x, y, z, tol_m: float, max_slope: float, min_points: int):
     level tolerance: within a reach one level holds to ``tol_m``); each reach with at least ``min_points``
     returns gets its ``water_level``. Where a reach's level differs from a neighbour's (4-connected) by more
     than the steepest surface's fall between them plus ``tol_m``, the step is a bank or a quay, not water:
-    of the two, the reach further from the median reach level is dropped, its returns' levels NaN. The level at a return is the bilinear interpolation
-    of the reach levels at the reach centres (missing reaches take the nearest reach's level), so a
-    surface sloping at ``max_slope`` leaves no step at the reach borders.
+    of the two, the reach further from the median reach level is dropped, its returns' levels NaN. The level
+    at a return is the bilinear interpolation of the reach levels at the reach centres (missing reaches take
+    the nearest reach's level), so a surface sloping at ``max_slope`` leaves no step at the reach borders.
     """
     reach_m = tol_m / max_slope if max_slope > 0 else np.inf
     n = len(z)
