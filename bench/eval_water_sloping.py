@@ -4,10 +4,11 @@ but Autzen -> bench/results/water_sloping.json.
 Each set is classified with the shipped settings twice, the rule on and off (main's water rule), and the
 returns whose class differs are counted, with the water PA / UA against the set's own class 9 where it has
 one (lidR Topography: the choice set of issue 44's water rules; AHN3 Delft: its canals). Sets: lidR
-Topography, the 7 ISPRS samples, AHN3 Delft (EPSG:28992 given, as bench/eval_water.py), lidR MixedConifer, laspy Nebraska. Where
-nothing changes, every figure computed from these classes with the shipped settings (the ISPRS nested
-estimate's default run, MixedConifer's ground figures, AHN3's canals in bench/eval_water_edge.py) is
-unchanged by construction. Autzen, the set the rule was written for, is scored in
+Topography, the 7 ISPRS samples, AHN3 Delft (EPSG:28992 given, as bench/eval_water.py), lidR MixedConifer,
+laspy Nebraska. Where nothing changes, every figure computed from these classes with the shipped settings
+(MixedConifer's ground figures, AHN3's and Topography's water layers in bench/eval_water_edge.py) is unchanged
+by construction (the ISPRS nested estimate runs the noise and ground filters alone, before any water rule).
+Autzen, the set the rule was written for, is scored in
 bench/eval_water_autzen.py.
 
 The fusion's water-rim test (``FusionSettings.road_max_water_rim_share``: a road-shaped patch whose rim is
