@@ -17,8 +17,11 @@ Rules (ASPRS codes):
    ``road_roughness_m``) is a road candidate; candidate cells (``road_cell_m``, small gaps closed: road
    markings are bright) form connected regions, and a region is road surface (11) when it is shaped
    like a road: mean width 2 A / P between ``road_min_width_m`` and ``road_max_width_m`` and elongation
-   P^2 / (4 A) at least ``road_min_elongation`` (a long strip L x w: about L / w; a square: 4). Points
-   of the other ground stay bare ground (2). Water (9) stays water.
+   P^2 / (4 A) at least ``road_min_elongation`` (a long strip L x w: about L / w; a square: 4), and it is
+   bounded by land: a region more than ``road_max_water_rim_share`` of whose rim cells with returns hold
+   water returns lies in the water (a riffle or rapid the LiDAR water rule left as ground: dark, smooth, not
+   green, shaped by the river) and stays ground (``in_water``). Points of the other ground stay bare
+   ground (2). Water (9) stays water.
 3. Building confirmation, per candidate (a connected region of building cells of ``road_cell_m``):
    a. mostly green (share of its points above ``building_max_green``): a tree the roof test took for a
       plane;
@@ -78,6 +81,9 @@ class FusionSettings:
     road_min_width_m: float = 2.5
     road_max_width_m: float = 30.0
     road_min_elongation: float = 6.0
+    # A road is bounded by land (verges, kerbs, quays); a road-shaped patch whose border is mostly water lies in
+    # the water (a riffle's returns the LiDAR water rule left as ground): a majority, no fitted value.
+    road_max_water_rim_share: float = 0.5
     building_max_green: float = 0.5
     building_max_fml_m: float = 2.0
     building_max_fml_share: float = 0.3
@@ -227,6 +233,28 @@ def road_shaped(mask: np.ndarray, cell_m: float, p: FusionSettings = FusionSetti
         elong = perim ** 2 / (4.0 * area)
     ok = (width >= p.road_min_width_m) & (width <= p.road_max_width_m) & (elong >= p.road_min_elongation)
     return np.r_[False, ok][labels]
+
+
+def in_water(regions: np.ndarray, row, col, cls, max_share: float) -> np.ndarray:
+    """Cells of the 8-connected regions of ``regions`` lying in water: more than ``max_share`` of the
+    cells with returns on their rim (two cells wide) hold a water return (class 9; cells without returns,
+    dropouts and the data's edge, say nothing)."""
+    labels, n = ndimage.label(regions, structure=_EIGHT)
+    if n == 0:
+        return np.zeros_like(regions, bool)
+    occupied = np.zeros(regions.shape, bool)
+    occupied[row, col] = True
+    wet = np.zeros(regions.shape, bool)
+    w = cls == WATER
+    wet[row[w], col[w]] = True
+    # the nearest region of each cell within two cells (rim cells of two regions go to one of them)
+    near = ndimage.grey_dilation(labels, footprint=np.ones((5, 5), bool))
+    rim = (labels == 0) & (near > 0) & occupied
+    total = np.bincount(near[rim], minlength=n + 1)
+    on_water = np.bincount(near[rim], weights=wet[rim], minlength=n + 1)
+    keep = on_water > max_share * np.maximum(total, 1)
+    keep[0] = False
+    return keep[labels]
 
 
 def read_grey(img: ImageSource, xmin: float, ymin: float, xmax: float, ymax: float):
@@ -427,5 +455,7 @@ def fuse(x, y, z, hag, cls, intensity, *, img: ImageSource, p: FusionSettings = 
         # close the gaps of road markings (bright) and missing points
         cells = ndimage.binary_closing(cells, structure=_EIGHT, iterations=1) | cells
         road = road_shaped(cells, c, p)
+        if np.any(cls == WATER) and road.any():
+            road &= ~in_water(road, row, col, cls, p.road_max_water_rim_share)
         cls[bare & road[row, col]] = ROAD
     return cls

@@ -56,7 +56,11 @@ Pipeline (``classify_points``):
    ``water_level_tol_m`` and at least ``water_min_points`` (b) that is horizontal (LSQ plane
    slope <= ``water_max_slope``) and not above the ground on its banks (the bed test: the median
    ground height of the rim cells, the DEM just across the gap, is not more than
-   ``water_level_tol_m`` below the level);
+   ``water_level_tol_m`` below the level). A river is not at one level: a gap failing (a) is judged
+   against its sloping surface when ``water_sloping_surface`` (``water_surface``: reaches of
+   ``water_level_tol_m / water_max_slope`` each at its own level, bilinear between them, a step between
+   reaches a bank), each return and bank cell against the level beside it (Autzen's Willamette, 1.3 m of fall
+   across the crop, bench/results/water_autzen.json);
    (c) are dark: the lower quartile of their intensity is below ``water_intensity_ratio`` of the
    cloud's median ground intensity (skipped when the cloud carries no intensity; specular
    returns near nadir are bright, hence the quartile); and (d) the gap is not an occlusion
@@ -171,6 +175,9 @@ class ClassifySettings:
     water_min_points: int = setting(5, min=1, help="Fewest returns on a water body's level.")
     water_max_slope: float = setting(0.01, min=0.0, help="Steepest water surface (gradient of its fitted plane, "
                                                          "dimensionless).")
+    water_sloping_surface: bool = setting(True, help="A dropout gap whose returns are not at one level may be a river "
+                                                     "falling along its course: reaches of water_level_tol_m / "
+                                                     "water_max_slope each at their own level, joined without steps.")
     water_intensity_ratio: float = setting(0.5, min=0.0, help="Water returns are darker than this share of the "
                                                               "ground's median intensity.")
     water_shadow_fraction: float = setting(0.2, min=0.0, max=1.0, help="A dropout whose rim is more than this share "
@@ -858,6 +865,79 @@ def water_level(z, tol_m: float) -> tuple[float, float]:
     return level, sigma_m
 
 
+def water_surface(x, y, z, tol_m: float, max_slope: float, min_points: int):
+    """Level (m) of a water surface that slopes along its course, at every return (``x``, ``y``, ``z``: a gap's
+    returns, metres), or None when the returns give no surface.
+
+    A river is not at one level: it falls along its course (cm per 100 m in a pool, up to the steepest
+    water surface ``max_slope`` over a riffle), so one level holds only a reach. The returns are cut into
+    reaches of ``L = tol_m / max_slope`` (the length over which the steepest water surface falls by the
+    level tolerance: within a reach one level holds to ``tol_m``); each reach with at least ``min_points``
+    returns gets its ``water_level``. Where a reach's level differs from a neighbour's (4-connected) by more
+    than the steepest surface's fall between them plus ``tol_m``, the step is a bank or a quay, not water:
+    of the two, the reach further from the median reach level is dropped, its returns' levels NaN. The level
+    at a return is the bilinear interpolation of the reach levels at the reach centres (missing reaches take
+    the nearest reach's level), so a surface sloping at ``max_slope`` leaves no step at the reach borders.
+    """
+    reach_m = tol_m / max_slope if max_slope > 0 else np.inf
+    n = len(z)
+    if not np.isfinite(reach_m) or max(np.ptp(x), np.ptp(y)) <= reach_m:
+        return None
+    x0, y0 = float(x.min()), float(y.min())
+    ix = ((x - x0) // reach_m).astype(np.int64)
+    iy = ((y - y0) // reach_m).astype(np.int64)
+    nr, nc = int(iy.max()) + 1, int(ix.max()) + 1
+    cell = iy * nc + ix
+    order = np.argsort(cell, kind="stable")
+    starts = np.flatnonzero(np.r_[True, cell[order][1:] != cell[order][:-1]])
+    lev = np.full(nr * nc, np.nan)
+    for s, e in zip(starts, np.r_[starts[1:], n]):
+        members = order[s:e]
+        if len(members) >= min_points:
+            lev[cell[members[0]]] = water_level(z[members], tol_m)[0]
+    lev = lev.reshape(nr, nc)
+    ok = np.isfinite(lev)
+    if ok.sum() < 2:
+        return None
+    # A step between two neighbouring reaches is a bank or a quay: the reach further from the gap's median
+    # level is dropped.
+    step = max_slope * reach_m + tol_m
+    far = np.abs(lev - np.median(lev[ok]))
+    bank = np.zeros_like(ok)
+    for a, b in (((slice(None), slice(0, -1)), (slice(None), slice(1, None))),
+                 ((slice(0, -1), slice(None)), (slice(1, None), slice(None)))):
+        jump = ok[a] & ok[b] & (np.abs(lev[a] - lev[b]) > step)
+        bank[a] |= jump & (far[a] >= far[b])
+        bank[b] |= jump & (far[b] > far[a])
+    ok &= ~bank
+    if ok.sum() < 1:
+        return None
+    filled = lev[tuple(ndimage.distance_transform_edt(~ok, return_distances=False, return_indices=True))]
+    # Bilinear interpolation between reach centres.
+    fx = np.clip((x - x0) / reach_m - 0.5, 0.0, nc - 1.0)
+    fy = np.clip((y - y0) / reach_m - 0.5, 0.0, nr - 1.0)
+    jx, jy = np.minimum(fx.astype(np.int64), max(nc - 2, 0)), np.minimum(fy.astype(np.int64), max(nr - 2, 0))
+    tx, ty = fx - jx, fy - jy
+    jx1, jy1 = np.minimum(jx + 1, nc - 1), np.minimum(jy + 1, nr - 1)
+    level = ((1 - ty) * ((1 - tx) * filled[jy, jx] + tx * filled[jy, jx1])
+             + ty * ((1 - tx) * filled[jy1, jx] + tx * filled[jy1, jx1]))
+    level[~ok[iy, ix]] = np.nan
+    return level
+
+
+class _NearestLevel:
+    """The level (m) of a sloping water surface at any place: that of the nearest water return."""
+
+    def __init__(self, x, y, level):
+        self._tree = cKDTree(np.column_stack([x, y]))
+        self._level = np.asarray(level, float)
+
+    def __call__(self, x, y) -> np.ndarray:
+        if len(x) == 0:
+            return np.zeros(0)
+        return self._level[self._tree.query(np.column_stack([x, y]))[1]]
+
+
 @dataclasses.dataclass
 class DropoutGrid:
     """The water grid of step 5 (cells of ``c`` m): the cell id of every point, the returns per
@@ -923,7 +1003,8 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
     canopy = {}
 
     def open_sky(idx, level):
-        """Mask over ``idx``: no return more than ``low_veg_max_m`` above ``level`` within ``c``."""
+        """Mask over ``idx``: no return more than ``low_veg_max_m`` above ``level`` (m, one or one per
+        point of ``idx``) within ``c``."""
         if len(idx) == 0:
             return np.zeros(0, bool)
         if not canopy:
@@ -937,7 +1018,9 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
             return np.ones(len(idx), bool)
         nb = canopy["idx"][np.concatenate([np.asarray(v, np.int64) for v in near])]
         high = np.zeros(len(idx), bool)
-        np.logical_or.at(high, np.repeat(np.arange(len(idx)), lens), z[nb] > level + p.low_veg_max_m)
+        owner = np.repeat(np.arange(len(idx)), lens)
+        above = np.broadcast_to(np.asarray(level, float), (len(idx),))[owner] + p.low_veg_max_m
+        np.logical_or.at(high, owner, z[nb] > above)
         return ~high
 
     ground_cell_z = g.ground_cell_z(x, y, z, is_ground)
@@ -965,14 +1048,32 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
             continue
         level, sigma_m = water_level(zg, tol)
         n_level = int(np.sum(np.abs(zg - level) <= tol))
+        level_of = None   # the level at a point (m) where the surface slopes along a river's course
         if n_level < p.water_min_points or n_level < p.water_flat_fraction * len(zg):
-            continue
+            if not p.water_sloping_surface:
+                continue
+            # Not at one level: a river falls along its course (``water_surface``).
+            surface = water_surface(x[members], y[members], zg, tol, p.water_max_slope, p.water_min_points)
+            if surface is None:
+                continue
+            res = zg - surface
+            n_level = int(np.sum(np.abs(res) <= tol))
+            if n_level < p.water_min_points or n_level < p.water_flat_fraction * len(zg):
+                continue
+            near_res = np.abs(res[np.abs(res) <= 0.5 * tol])
+            sigma_m = 1.4826 * float(np.median(near_res)) if len(near_res) else tol
+            level_z = surface
+            on_surface = np.isfinite(surface)
+            level_of = _NearestLevel(x[members][on_surface], y[members][on_surface], surface[on_surface])
+        else:
+            level_z = np.full(len(zg), level)
         # The water returns' own spread (sensor noise, waves) sets how far from the level they lie.
         on_tol = np.clip(3.0 * sigma_m, 0.25 * tol, tol)
-        on_level = members[np.abs(zg - level) <= on_tol]
+        on = np.abs(zg - level_z) <= on_tol
+        on_level = members[on]
         # Open water has nothing above it: returns under a crown (any return more than
         # ``low_veg_max_m`` above the level within one cell) are not water.
-        on_level = on_level[open_sky(on_level, level)]
+        on_level = on_level[open_sky(on_level, level_z[on] if level_of is not None else level)]
         if len(on_level) < p.water_min_points:
             continue
         # Horizontal: least-squares plane through the level returns.
@@ -995,6 +1096,11 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
             continue
         # Water lies in its bed: the ground on the banks is not below the water level.
         bank_z = ground_cell_z[win][rim]
+        if level_of is not None:
+            # Each bank cell against the river's level beside it.
+            rr, cc = np.nonzero(rim & np.isfinite(ground_cell_z[win]))
+            bank_z = ground_cell_z[win][rr, cc] - level_of(g.x0 + (cc + c0 + 0.5) * c,
+                                                           g.y0 + (rr + r0 + 0.5) * c) + level
         bank_z = bank_z[np.isfinite(bank_z)]
         if len(bank_z) and np.median(bank_z) < level - tol:
             continue
@@ -1005,8 +1111,15 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
         i, j = shore_row - r0, shore_col - c0
         inside = (i >= 0) & (i < shore.shape[0]) & (j >= 0) & (j < shore.shape[1])
         inside[inside] = shore[i[inside], j[inside]]
-        near = shore_cand[inside & (np.abs(z[shore_cand] - level) <= on_tol)]
-        near = near[open_sky(near, level)]
+        if level_of is None:
+            near = shore_cand[inside & (np.abs(z[shore_cand] - level) <= on_tol)]
+            near = near[open_sky(near, level)]
+        else:
+            near = shore_cand[inside]
+            near_level = level_of(x[near], y[near])
+            keep = np.abs(z[near] - near_level) <= on_tol
+            near, near_level = near[keep], near_level[keep]
+            near = near[open_sky(near, near_level)]
         if use_intensity:
             # As dark as the body's own returns (dark asphalt beside a pond is not water).
             dark = min(p.water_intensity_ratio * ground_intensity,

@@ -178,3 +178,33 @@ def test_building_confirmation_by_lines_and_penetration(tmp_path):
     grey, (_, _, px_m) = fusion.read_grey(img, X0, Y0, X0 + 60, Y0 + 60)
     seg = fusion.line_segments(grey, px_m)
     assert len(seg) >= 4 and np.all(np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]) * px_m >= 2.0)
+
+
+def test_a_road_shaped_patch_in_the_river_is_not_road(tmp_path):
+    """60 x 60 m at 0.5 m spacing: a river (y 15-45 m, water returns) holding a riffle the LiDAR rule left as
+    ground (40 x 6 m, dark, grey in the image: road-shaped) and a quay road along its south bank (x 5-55 m,
+    y 9-15 m) on grass. The riffle's rim is all water: not road; the quay road (water on one side) stays road."""
+    g = np.arange(0.25, 60, 0.5)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    river = (y > 15) & (y < 45)
+    riffle = river & (x > 10) & (x < 50) & (y > 27) & (y < 33)
+    quay = (x > 5) & (x < 55) & (y > 9) & (y < 15)
+    cls = np.where(river & ~riffle, 9, 2).astype(np.uint8)
+    hag = np.zeros(len(x))
+    z = np.where(river, 99.0, 100.0)
+    intensity = np.where(river | quay, 20, 400).astype(np.uint16)
+    rows = 119 - np.floor(y / 0.5).astype(int)
+    cols = np.floor(x / 0.5).astype(int)
+    rgb = np.zeros((120, 120, 3), np.uint8)
+    rgb[:] = GREEN
+    for mask, colour in ((river, (60, 70, 75)), (riffle | quay, GREY)):
+        rgb[rows[mask], cols[mask]] = colour
+    _image(tmp_path / "dom.tif", rgb)
+    out = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
+    assert np.mean(out[quay] == 11) > 0.95
+    assert not np.any(out[riffle] == 11) and np.all(out[riffle] == 2)
+    assert np.all(out[river & ~riffle] == 9)
+    # without the rim test (main's rule) the riffle is road
+    off = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"),
+                      p=fusion.FusionSettings(road_max_water_rim_share=1.0))
+    assert np.mean(off[riffle] == 11) > 0.95
