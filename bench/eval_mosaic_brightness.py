@@ -73,7 +73,8 @@ def through(x: np.ndarray, g: np.ndarray, rolloff, white: int, top: int) -> np.n
     none), as the mosaic's lookup."""
     v = x * g[:, None]
     if rolloff is not None:
-        (rolloff if isinstance(rolloff, mosaic_now.HighlightRolloff) else mosaic_now.HighlightRolloff(**rolloff)).apply(v)
+        curve = rolloff if isinstance(rolloff, mosaic_now.HighlightRolloff) else mosaic_now.HighlightRolloff(**rolloff)
+        curve.apply(v)
     return np.clip(np.rint(v), 0, min(white, top))
 
 
@@ -94,8 +95,8 @@ def per_frame_rolloffs(root: Path, names, gains: np.ndarray, white: int) -> list
 
 
 def overlap_differences(root: Path, names, white: int, runs: dict, step: int) -> dict:
-    """Per run (label -> (gains (frames, bands), roll-off record, None, or a list of them per frame)) the pixel RMS and the pair-mean RMS of
-    the differences across overlaps (module doc)."""
+    """Per run (label -> (gains (frames, bands), roll-off record, None, or a list of them per frame)) the pixel RMS
+    and the pair-mean RMS of the differences across overlaps (module doc)."""
     with rasterio.open(root / "ortho" / "mosaic.tif") as M:
         mt = M.transform
     grids = []

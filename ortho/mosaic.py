@@ -901,8 +901,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         gains, limited, rolloff = gains_of()
     for k, b, g0, g1, own, would in limited:
         logger.warning("frame %s band %d: gain %.4g lowered to %.4g so that no unsaturated sample of the frame goes "
-                       "beyond what the highlight roll-off brings below white (the frame's own saturated share %.2f %%; "
-                       "the gain would have saturated %.2f %% without the roll-off)", red.names[k], b + 1, g0, g1,
+                       "beyond what the highlight roll-off brings below white (the frame's own saturated share "
+                       "%.2f %%; the gain would have saturated %.2f %% without the roll-off)", red.names[k], b + 1, g0, g1,
                        100 * own, 100 * would)
     if rolloff is not None:
         logger.info("highlight roll-off: gained values above %.1f compressed so that %.1f becomes %.2f (white %d)",
