@@ -12,9 +12,12 @@ Steps (``mosaic_block``):
    (``seamlines=``, ``ortho mosaic --seamlines EDITED.gpkg``) their polygons, checked, are the seams.
 3. Gain balancing: per band, log-gains g_k minimising sum over overlapping pairs of
    n_ij (log m_i + g_i - log m_j - g_j)^2 + lambda sum g_k^2, with m_i the mean of frame i over the
-   common overlap (linear least squares, normal equations: n frames, not n^2 pairs, in memory), under
-   g_k <= log((white - 0.5) / the frame's largest unsaturated sample) (``gain_caps``; bounded least squares): no
-   unsaturated sample of a frame reaches the white level, and a saturated one stays at it whatever the gain (``hold``).
+   common overlap (linear least squares, normal equations: n frames, not n^2 pairs, in memory; the prior keeps the
+   block's level: the mean log-gain is 0). A highlight roll-off after the gains, one curve for the block
+   (``HighlightRolloff``: identity up to a knee, then a quadratic to white - 0.5), brings every unsaturated sample
+   below the white level; only a frame whose brightest unsaturated sample would go beyond what it takes is held, by
+   g_k <= log(1.5 (white - 0.5) / that sample) (``gain_caps``; bounded least squares). A saturated sample stays at
+   the white level whatever the gain (``hold``).
 4. Blending, tile by tile (``_blend_tile``): a tile whose seam cells, with the feather's reach around it,
    all belong to one frame is that frame's window through its gains (a lookup table for 8- and 16-bit
    samples); elsewhere the frame weights are the label masks blurred across the seam (feather width),
@@ -491,11 +494,13 @@ def largest_unsaturated(hist: SampleHistogram, band: int, white: int) -> int | N
     return None if nz.size == 0 else min(int((nz[-1] + 1) * width - 1), int(white) - 1)
 
 
-def gain_caps(histograms, bands: int, white: int | None = None) -> np.ndarray:
-    """(frames, bands) the largest gain under which no unsaturated sample of the frame reaches the white level
-    ``white`` (default the type's maximum): (white - 0.5) / its largest unsaturated sample, so that it rounds to at
-    most white - 1 (a hair below, for float32 products); inf for frames without a histogram (other types, or a frame
-    kept decoded whose gains are all <= 1, which no cap binds: every cap is above 1)."""
+def gain_caps(histograms, bands: int, white: int | None = None, headroom: float = 1.0) -> np.ndarray:
+    """(frames, bands) the largest gain under which no unsaturated sample of the frame goes beyond ``headroom`` x
+    (white - 0.5) (``white``: default the type's maximum): ``headroom`` x (white - 0.5) / its largest unsaturated
+    sample (a hair below, for float32 products); with ``headroom`` 1 it rounds to at most white - 1, with
+    ``ROLLOFF_HEADROOM`` the highlight roll-off (``HighlightRolloff``) brings it there. inf for frames without a
+    histogram (other types, or a frame kept decoded whose gains are all <= 1, which no cap binds: every cap is above
+    1)."""
     caps = np.full((len(histograms), bands), np.inf)
     for k, hist in enumerate(histograms):
         if hist is None:
@@ -504,17 +509,17 @@ def gain_caps(histograms, bands: int, white: int | None = None) -> np.ndarray:
         for b in range(hist.counts.shape[0]):
             m = largest_unsaturated(hist, b, top)
             if m is not None and m > 0:
-                caps[k, b] = (top - 0.5) / m * (1.0 - 1e-6)
+                caps[k, b] = headroom * (top - 0.5) / m * (1.0 - 1e-6)
     return caps
 
 
-def limit_gains(gains: np.ndarray, histograms, white: int | None = None):
-    """Gains (n_frames, bands) lowered to ``gain_caps``: no unsaturated sample of a frame reaches the white level
-    ``white`` (default the type's maximum; ``WhiteLevel``), from the frame's ``SampleHistogram`` (None for types
-    without one). Returns (gains, [(frame index, band, gain before, after, saturated share of the frame, share the
-    gain before would have saturated)])."""
+def limit_gains(gains: np.ndarray, histograms, white: int | None = None, headroom: float = 1.0):
+    """Gains (n_frames, bands) lowered to ``gain_caps`` (of ``headroom``): no unsaturated sample of a frame goes beyond
+    ``headroom`` x (white - 0.5) (``white``: default the type's maximum; ``WhiteLevel``), from the frame's
+    ``SampleHistogram`` (None for types without one). Returns (gains, [(frame index, band, gain before, after,
+    saturated share of the frame, share the gain before would have saturated without a roll-off)])."""
     out = np.array(gains, float)
-    caps = gain_caps(histograms, out.shape[1] if out.ndim == 2 else 0, white)
+    caps = gain_caps(histograms, out.shape[1] if out.ndim == 2 else 0, white, headroom)
     limited = []
     for k, b in zip(*np.nonzero(out > caps)):
         hist = histograms[k]
@@ -522,6 +527,55 @@ def limit_gains(gains: np.ndarray, histograms, white: int | None = None):
                         *_saturated_shares(hist, int(b), float(out[k, b]), white)))
         out[k, b] = caps[k, b]
     return out, limited
+
+
+# the highlight roll-off's knee is never below this share of the white level (the midtones are never touched): gains
+# may take a frame's brightest unsaturated sample up to (2 - this) x white, the roll-off brings it below white; a
+# frame that would need more is held there (``gain_caps``). Chosen a priori (a DOM's midtones lie below half of white),
+# not on the benches' blocks
+ROLLOFF_KNEE_MIN = 0.5
+ROLLOFF_HEADROOM = 2.0 - ROLLOFF_KNEE_MIN
+
+
+@dataclasses.dataclass(frozen=True)
+class HighlightRolloff:
+    """A soft knee near white after the gains, one curve for every frame and band (an overlap's two frames go through
+    the same curve, which is 1-Lipschitz: it never widens their differences; a grey stays grey): a gained value
+    v <= ``knee`` is unchanged, one above it becomes knee + d - d^2 / (2 D), d = v - knee clipped to D =
+    ``top_in`` - knee (slope 1 at the knee, 0 at ``top_in``, monotone), so that ``top_in`` (the block's largest
+    unsaturated sample through its gain) becomes knee + D / 2 = ``top_out`` (white - 0.5, a hair below: it rounds
+    below white). ``highlight_rolloff`` sets knee = 2 top_out - top_in, the highest knee of such a curve."""
+
+    knee: float
+    top_in: float
+    top_out: float
+
+    def apply(self, v: np.ndarray) -> np.ndarray:
+        """float32 gained values ``v`` through the roll-off, in place (returned)."""
+        high = v > np.float32(self.knee)
+        if high.any():
+            k, span = np.float32(self.knee), np.float32(self.top_in - self.knee)
+            d = np.minimum(v[high] - k, span)
+            v[high] = np.minimum(k + d - d * d / (np.float32(2) * span), np.float32(self.top_out))
+        return v
+
+    def record(self) -> dict:
+        return {"knee": self.knee, "top_in": self.top_in, "top_out": self.top_out}
+
+
+def highlight_rolloff(gains: np.ndarray, histograms, white: int | None) -> HighlightRolloff | None:
+    """The ``HighlightRolloff`` that brings every unsaturated sample of every frame through its gain (``gains``
+    (frames, bands)) below ``white``: None when none reaches white - 0.5 (or there is no white level)."""
+    if white is None:
+        return None
+    gains = np.asarray(gains, float)
+    caps = gain_caps(histograms, gains.shape[1], white)  # (white - 0.5) / the largest unsaturated sample
+    top_out = (int(white) - 0.5) * (1.0 - 1e-6)
+    ratio = float(np.max(gains / caps)) if gains.size else 0.0
+    if ratio <= 1.0:
+        return None
+    top_in = min(ratio, ROLLOFF_HEADROOM) * top_out  # (the caps hold the gains there)
+    return HighlightRolloff(2.0 * top_out - top_in, top_in, top_out)
 
 
 def _saturated_shares(hist: SampleHistogram, b: int, gain: float, white: int | None) -> tuple[float, float]:
@@ -813,16 +867,21 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     def frame_gains():
         bands = red.rgb[0].shape[2]
 
+        white = red.white_level.value
+
         def caps(g):
-            return gain_caps(red.histograms(g), bands, red.white_level.value)
+            return gain_caps(red.histograms(g), bands, white, ROLLOFF_HEADROOM)
 
         if not balance:
-            return np.ones((len(red.names), bands)), []
-        # colour that does not clip: no unsaturated sample of a frame reaches the white level (the least squares
-        # under each frame's cap); the frames the cap holds are reported with the gain the balance asked of them
+            return np.ones((len(red.names), bands)), [], None
+        # colour that neither clips nor darkens: the gains keep the block's level (mean log-gain 0) and the highlight
+        # roll-off brings every unsaturated sample below white; only a frame whose brightest unsaturated sample would
+        # go beyond what the roll-off takes is held (the least squares under each frame's cap) and reported with the
+        # gain the balance asked of it
         gains, free = balance_gains(red, caps=caps, return_free=True)
-        _, held = limit_gains(free, red.histograms(free), white=red.white_level.value)
-        return gains, [(k, b, g0, float(gains[k, b]), own, would) for k, b, g0, _, own, would in held]
+        _, held = limit_gains(free, red.histograms(free), white=white, headroom=ROLLOFF_HEADROOM)
+        return (gains, [(k, b, g0, float(gains[k, b]), own, would) for k, b, g0, _, own, would in held],
+                highlight_rolloff(gains, red.histograms(gains), white))
 
     # the gains do not depend on the seams: on a thread while this one routes them (OpenCV's masked means and
     # histograms, numpy's solve; the seams are mostly scipy's Dijkstra and numpy)
@@ -850,12 +909,15 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         if edited is not None:
             seams = f"edited ({edited.path})"
         timer.done("seams")
-        gains, limited = gains_of()
+        gains, limited, rolloff = gains_of()
     for k, b, g0, g1, own, would in limited:
-        logger.warning("frame %s band %d: gain %.4g lowered to %.4g so that no unsaturated sample of the frame reaches "
-                       "the white level (the frame's own saturated share %.2f %%; the gain would have saturated %.2f %%)",
-                       red.names[k], b + 1, g0, g1,
+        logger.warning("frame %s band %d: gain %.4g lowered to %.4g so that no unsaturated sample of the frame goes "
+                       "beyond what the highlight roll-off brings below white (the frame's own saturated share "
+                       "%.2f %%; the gain would have saturated %.2f %% without the roll-off)", red.names[k], b + 1, g0, g1,
                        100 * own, 100 * would)
+    if rolloff is not None:
+        logger.info("highlight roll-off: gained values above %.1f compressed so that %.1f becomes %.2f (white %d)",
+                    rolloff.knee, rolloff.top_in, rolloff.top_out, red.white_level.value)
     timer.done("gains")
     # edited seamlines: the tiles their change does not reach are taken from the mosaic they were edited on
     previous = previous_mosaic(root, index, red.names, labels, gains=gains, feather_px=feather_px, factor=factor,
@@ -870,6 +932,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # interrupted run finished are kept in work/mosaic_resume until the commit (an error removes them too)
     with resumable(root / "work" / RESUME_DIR_NAME) as keep, scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red=red, labels=labels, gains=gains,
+                                  rolloff=rolloff,
                                   mosaic=mosaic, factor=factor, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                                   seams=seams, executor=executor, settings_record=resolved.record(), previous=previous,
                                   resume=keep)
@@ -1015,7 +1078,8 @@ def _open_frame(path):
 
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
-                    feather_px, tile_px, seams, executor, settings_record: dict, previous=None, resume=None) -> dict:
+                    feather_px, tile_px, seams, executor, settings_record: dict, previous=None, resume=None,
+                    rolloff=None) -> dict:
     """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
     returns the summary. ``previous``
     (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over. ``resume``
@@ -1047,7 +1111,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                               factor=factor, gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                               executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red), during_cog=stage_preview if early else None,
-                              white_level=red.white_level.value, resume=resume)
+                              white_level=red.white_level.value, resume=resume, rolloff=rolloff)
         with _background(functools.partial(write_seamlines_preview, footprints=footprints),
                          work / "seamlines_preview.png", work / "mosaic.tif", labels, factor,
                          imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
@@ -1060,6 +1124,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                "index_sha1": index_sha1(root),
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
                "white_level": _white_level_record(red),
+               "highlight_rolloff": None if rolloff is None else rolloff.record(),
                "pairs": pairs, **nodata, "settings": settings_record}
     if previous is not None:
         summary["tiles"] = tiles
@@ -1178,6 +1243,8 @@ class _BlendContext:
     hole_margin_px: int = 0
     # the frames' white level (``WhiteLevel.value``; None: the type's maximum)
     white_level: int | None = None
+    # after the gains, below the white level (``HighlightRolloff``; None: none)
+    rolloff: HighlightRolloff | None = None
 
     @functools.cached_property
     def white(self) -> int | None:
@@ -1210,7 +1277,10 @@ class _BlendContext:
         for row in self.gains:
             luts.append([])
             for g in row:
-                lut = np.clip(np.rint(x * np.float32(g)), 0, white).astype(dt)
+                v = x * np.float32(g)
+                if self.rolloff is not None:
+                    self.rolloff.apply(v)
+                lut = np.clip(np.rint(v), 0, white).astype(dt)
                 if self.hold:
                     lut[white:] = white
                 luts[-1].append(lut)
@@ -1218,7 +1288,7 @@ class _BlendContext:
 
 
 def _context(index, frames_dir, mosaic: OrthoGrid, *, factor, halo, gains, nadir, feather_px, bands, dtype, read_cells,
-             seam_shape, holes=None, white_level=None) -> _BlendContext:
+             seam_shape, holes=None, white_level=None, rolloff=None) -> _BlendContext:
     grids = index.grids
     names = list(index.image_ids)
     offsets = np.array([g.offset_in(mosaic) for g in grids], np.int64).reshape(-1, 2)
@@ -1227,7 +1297,7 @@ def _context(index, frames_dir, mosaic: OrthoGrid, *, factor, halo, gains, nadir
     return _BlendContext(names, files, offsets, sizes, np.asarray(gains, np.float64), np.asarray(nadir, np.float64),
                          mosaic, int(factor), int(halo), float(feather_px), int(bands), str(dtype), read_cells,
                          tuple(seam_shape), holes if hole_margin_px(mosaic.res_m) else None,
-                         hole_margin_px(mosaic.res_m) if holes else 0, white_level)
+                         hole_margin_px(mosaic.res_m) if holes else 0, white_level, rolloff)
 
 
 @functools.lru_cache(maxsize=4)
@@ -1251,7 +1321,8 @@ def _load_context(path: str, mtime_ns: int) -> _BlendContext:
             holes = [FrameHoles.from_arrays(z, k) for k in range(len(index.frames))]
     return _context(index, ctx["frames_dir"], mosaic, factor=ctx["factor"], halo=ctx["halo"], gains=ctx["gains"],
                     nadir=ctx["nadir"], feather_px=ctx["feather_px"], bands=ctx["bands"], dtype=ctx["dtype"],
-                    read_cells=read_cells, seam_shape=seam_shape, holes=holes, white_level=ctx.get("white_level"))
+                    read_cells=read_cells, seam_shape=seam_shape, holes=holes, white_level=ctx.get("white_level"),
+                    rolloff=HighlightRolloff(**ctx["rolloff"]) if ctx.get("rolloff") else None)
 
 
 class _FrameReaders:
@@ -1323,12 +1394,15 @@ def _apply_gain(ctx: _BlendContext, k: int, img: np.ndarray) -> np.ndarray:
     return out
 
 
-def _gained(samples: np.ndarray, gain, white: int | None, hold: bool) -> np.ndarray:
-    """float32 ``samples`` x ``gain`` (broadcast) as ``_BlendContext.luts`` has them before rounding: at most
-    ``white`` (None: unclipped), and with ``hold`` ``white`` where the sample is at or above it."""
+def _gained(samples: np.ndarray, gain, white: int | None, hold: bool, rolloff=None) -> np.ndarray:
+    """float32 ``samples`` x ``gain`` (broadcast) as ``_BlendContext.luts`` has them before rounding: through
+    ``rolloff`` (``HighlightRolloff``, None: none), at most ``white`` (None: unclipped), and with ``hold`` ``white``
+    where the sample is at or above it."""
     v = samples * gain
     if white is None:
         return v
+    if rolloff is not None:
+        rolloff.apply(v)
     np.minimum(v, np.float32(white), out=v)
     if hold:
         v[np.broadcast_to(samples >= white, v.shape)] = white
@@ -1336,13 +1410,22 @@ def _gained(samples: np.ndarray, gain, white: int | None, hold: bool) -> np.ndar
 
 
 def _gained_weighted(samples: np.ndarray, gain: np.float32, weight: np.ndarray, white: int | None,
-                     hold: bool) -> np.ndarray:
+                     hold: bool, rolloff=None) -> np.ndarray:
     """``_gained`` x ``weight`` (float32), in the order the weights were always applied (samples x (weight x gain):
-    the same bits wherever nothing is clipped)."""
+    the same bits wherever nothing is clipped or rolled off)."""
     v = samples * (weight * gain)
-    if white is not None and (hold or gain > 1):  # (a gain <= 1 takes no sample above the white level)
-        sat = samples * gain > np.float32(white) if gain > 1 else samples >= white
-        if hold and gain > 1:
+    if white is None:
+        return v
+    clip = gain > 1  # (a gain <= 1 takes no sample above the white level)
+    if rolloff is not None:
+        g = samples * gain
+        high = g > np.float32(rolloff.knee)
+        if high.any():
+            v[high] = rolloff.apply(g[high]) * weight[high]
+        clip = False  # the roll-off brings every gained value below white
+    if hold or clip:
+        sat = samples * gain > np.float32(white) if clip else samples >= white
+        if hold and clip:
             sat |= samples >= white
         if sat.any():
             v[sat] = np.float32(white) * weight[sat]
@@ -1449,7 +1532,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
                 for b in range(bands):
                     acc[b, iy0 - ya:iy1 - ya, ix0 - xa:ix1 - xa] += \
                         _gained_weighted(img[b, iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0], g[b], wk, ctx.white,
-                                         ctx.hold)
+                                         ctx.hold, ctx.rolloff)
             ws = wsum[ya:yb, xa:xb]
             put = mixed[ya:yb, xa:xb] & (ws > 1e-3)
             acc /= np.maximum(ws, 1e-6)
@@ -1554,7 +1637,7 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
         sub = np.flatnonzero(winner == k)
         src = source(k)
         fill = _gained(src[0].take(at(src, sub), axis=1), ctx.gains[k].astype(np.float32)[:, None], ctx.white,
-                       ctx.hold)
+                       ctx.hold, ctx.rolloff)
         flat_out[:, need[sub]] = _to_type(fill, ctx.dtype)
     valid.ravel()[need[got]] = True
 
@@ -1770,7 +1853,7 @@ def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, *, dr: int, d
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, factor, gains, nadir, feather_px, tile_px,
                   executor=None, labels=None, previous=None, decoded=None, holes=None, during_cog=None,
-                  white_level=None, resume=None):
+                  white_level=None, resume=None, rolloff=None):
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
@@ -1810,7 +1893,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                        "seams_path": str(Path(seams_path).resolve()), "factor": int(factor), "halo": halo,
                        "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
                        "feather_px": float(feather_px), "bands": int(bands), "dtype": dtype,
-                       "white_level": white_level}
+                       "white_level": white_level, "rolloff": None if rolloff is None else rolloff.record()}
             context_path = (tmp_dir / "context.json").resolve()
             if holes and any(h is not None for h in holes):
                 holes_path = (tmp_dir / "context_holes.npz").resolve()
@@ -1829,7 +1912,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
 
             ctx = _context(index, frames_dir, mosaic, factor=factor, halo=halo, gains=gains, nadir=nadir,
                            feather_px=feather_px, bands=bands, dtype=dtype, read_cells=read_cells,
-                           seam_shape=labels.shape, holes=holes, white_level=white_level)
+                           seam_shape=labels.shape, holes=holes, white_level=white_level, rolloff=rolloff)
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         rows = {r0: tmp_dir / f"stage_{r0:07d}.tif" for r0 in range(0, mosaic.height, tile_px)}
@@ -1837,7 +1920,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         if resume is not None:
             keys = _row_keys(index, mosaic, rows, labels=labels, seams_path=seams_path, factor=factor, halo=halo,
                              gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px, bands=bands, dtype=dtype,
-                             white_level=white_level, previous=previous)
+                             white_level=white_level, previous=previous, rolloff=rolloff)
             kept = {r0: path for r0, path in rows.items()
                     if _resumed_row(resume, keys[r0], path, (min(tile_px, mosaic.height - r0), mosaic.width))}
             if kept:
@@ -1962,7 +2045,7 @@ class _StageRow:
 
 
 def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, factor, halo, gains, nadir, feather_px,
-              tile_px, bands, dtype, white_level, previous) -> dict:
+              tile_px, bands, dtype, white_level, previous, rolloff=None) -> dict:
     """Key of each row of tiles (row offset px -> sha256): what its samples depend on, the frame orthos (index.json,
     which holds their sizes and hashes), the seam labels, the gains, nadir points, feather, seam grid, tiles, the
     mosaic's grid and type, the white level, the earlier mosaic an edit takes tiles over from, and the version."""
@@ -1980,6 +2063,7 @@ def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, facto
            "factor": int(factor), "halo": int(halo), "feather_px": float(feather_px), "tile_px": int(tile_px),
            "grid": [mosaic.x_left_m, mosaic.y_top_m, mosaic.res_m, mosaic.width, mosaic.height, mosaic.crs.to_wkt()],
            "bands": int(bands), "dtype": str(dtype), "white_level": white_level, "version": aerotri.__version__,
+           **({} if rolloff is None else {"rolloff": rolloff.record()}),
            "previous": None if previous is None else [
                file_stamp(previous.mosaic_path) if previous.mosaic_path.is_file() else None,
                hashlib.sha256(np.packbits(previous.changed)).hexdigest(), previous.why_all]}

@@ -1,7 +1,8 @@
-"""Colour that does not clip (issue 42): the mosaic's gain balancing brings no unsaturated sample of a frame to the
-white level, and a saturated sample stays at it whatever the gain, 8-bit and 16-bit alike (Brighton Beach: 4.6 % of
-the mosaic saturated against at most 0.3 % in every rectified frame before the first limit; 0.110 % newly saturated
-with the 0.1 % allowance that followed, i42-clip)."""
+"""Colour that neither clips nor darkens (issue 42): the mosaic's gain balancing keeps the block's level and a highlight
+roll-off after the gains brings no unsaturated sample of a frame to the white level, and a saturated sample stays at
+it whatever the gain, 8-bit and 16-bit alike (Brighton Beach: 4.6 % of the mosaic saturated against at most 0.3 % in
+every rectified frame before the first limit; 0.110 % newly saturated with the 0.1 % allowance that followed; the
+gains capped at white (i42-clip) made it 27 % darker, i42-bright)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from rasterio.warp import reproject
 from scipy import ndimage
 
 from ortho.cli import main
-from ortho.mosaic import SampleHistogram, _bounded_solve, gain_caps, limit_gains
+from ortho.mosaic import (ROLLOFF_HEADROOM, HighlightRolloff, SampleHistogram, _bounded_solve, gain_caps,
+                          highlight_rolloff, limit_gains)
 from ortho.synthetic import write_synthetic_project
 
 
@@ -73,15 +75,32 @@ def test_bounded_least_squares_matches_bvls():
     assert (np.linalg.solve(n, u) > cap).any()  # the bounds bind
 
 
-def test_the_mosaic_saturates_no_more_than_its_frames(tmp_path):
-    """A frame whose overlaps are darker than its neighbours' but whose middle is bright (a sunlit roof, a white
-    road): the balance asks it a gain of about 1.6 from the overlaps, which would push its middle into saturation."""
+def pooled_mean(paths) -> float:
+    """Mean of every valid sample of the rasters ``paths`` (all bands)."""
+    total = count = 0.0
+    for path in paths:
+        with rasterio.open(path) as ds:
+            a, ok = ds.read(), ds.read_masks(1) > 0
+        total += float(a[:, ok].sum(dtype=np.float64))
+        count += a.shape[0] * float(ok.sum())
+    return total / count
+
+
+@pytest.mark.parametrize("outside", [0.6, 0.4])
+def test_a_bright_frame_neither_clips_nor_darkens_the_mosaic(tmp_path, outside):
+    """A frame whose overlaps are darker than its neighbours' (x ``outside``) but whose middle is bright (a sunlit
+    roof, a white road; its brightest unsaturated sample 254): the balance asks it a gain of about 1.4 (x 0.4: more
+    than 1.5) from the overlaps, which would push its middle into saturation. Capped at 254.5 / 254 (i42-clip) the
+    frame was held at 1.0 and its five neighbours pulled down to 0.66-0.71 (0.47-0.54): the mosaic at 73 % (56 %) of
+    its frames' pooled mean (this failed); now the frame takes its gain, 1.39 (up to ``ROLLOFF_HEADROOM`` x the cap:
+    held at 1.50, the others at 0.70-0.80), the mosaic at 99.4 % (81 %) of that mean, and the roll-off keeps its middle
+    below white."""
     root = tmp_path / "p"
     write_synthetic_project(root, strips=2, frames_per_strip=3, buildings=0, seed=11)
     p = root / "images" / "s01_002.tif"
     img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float32)
     h, w = img.shape[:2]
-    scale = np.full((h, w), 0.6, np.float32)
+    scale = np.full((h, w), outside, np.float32)
     scale[h // 3:2 * h // 3, w // 3:2 * w // 3] = 1.5  # the middle, labelled to this frame: bright
     img = np.clip(np.rint(img * scale[:, :, None]), 0, 254)  # nothing saturated in the frame itself
     cv2.imwrite(str(p), img.astype(np.uint8))
@@ -91,7 +110,10 @@ def test_the_mosaic_saturates_no_more_than_its_frames(tmp_path):
     assert r.exit_code == 0, r.output
     frames = {f.stem: saturated_share(f) for f in sorted((root / "ortho/frames").glob("*.tif"))}
     summary = json.loads((root / "ortho/mosaic.json").read_text())
-    assert "frame s01_002 band" in r.stderr and "lowered" in r.stderr, r.stderr
+    # held only beyond what the roll-off takes
+    assert ("frame s01_002 band" in r.stderr and "lowered" in r.stderr) == (outside == 0.4), r.stderr
+    knee = summary["highlight_rolloff"]["knee"]
+    assert 0.5 * 254.5 * (1 - 1e-5) <= knee < 254 and summary["highlight_rolloff"]["top_out"] < 254.5
     # where the mosaic shows the frame (its seam region, away from the feathered seams), no more of it saturated
     # than in the frame itself (none)
     k = list(summary["gains"]).index("s01_002")
@@ -104,9 +126,19 @@ def test_the_mosaic_saturates_no_more_than_its_frames(tmp_path):
     assert inside.sum() > 10_000
     assert frames["s01_002"] == 0.0 and not (a == 255).any(axis=0)[inside].any()
     assert saturated_share(root / "ortho/mosaic.tif") <= max(frames.values())
-    # the balance still balances: the frame's gain is above 1 (its dark overlaps), the others follow it
+    # the balance still balances (the frame's gain is above 1: its dark overlaps) and keeps the block's level: its
+    # mean log-gain is 0 (bar the held frame), the mosaic's mean that of its frames pooled (i42-clip: 0.73)
     gains = np.array(list(summary["gains"].values()))
-    assert gains[k].min() > 1.0
+    others = np.delete(gains, k, axis=0)
+    mosaic_mean = pooled_mean([root / "ortho/mosaic.tif"])
+    frames_mean = pooled_mean(sorted((root / "ortho/frames").glob("*.tif")))
+    if outside == 0.6:
+        assert gains[k].min() > 1.35 and abs(np.log(gains).mean()) < 1e-9
+        assert others.min() > 0.9
+        assert mosaic_mean / frames_mean == pytest.approx(1.0, abs=0.02)
+    else:  # held at 1.5 x its cap: the others follow it down, less than under i42-clip's cap
+        assert gains[k].min() > 1.45 and gains[k].max() <= ROLLOFF_HEADROOM * 254.5 / 254 and others.min() > 0.65
+        assert mosaic_mean / frames_mean > 0.75
 
 
 def test_12_bit_data_in_16_bit_frames_saturate_at_4095(tmp_path):
@@ -142,10 +174,53 @@ def test_12_bit_data_in_16_bit_frames_saturate_at_4095(tmp_path):
     assert frames["s01_002"][0] > 0.005  # the saturated middle
     # the frame's share as counted at the white level (its largest band's, at least the any-band share's third)
     assert white["saturated_share_frames"]["s01_002"] > 0.3 * frames["s01_002"][0]
-    assert "frame s01_002 band" in r.stderr and "lowered" in r.stderr, r.stderr
+    # the gain of about 1.4 is taken (no longer lowered), the roll-off brings the middle below 4095
+    assert "lowered" not in r.stderr, r.stderr
+    knee = summary["highlight_rolloff"]["knee"]
+    assert 0.5 * 4094.5 * (1 - 1e-5) <= knee < 4094 and summary["highlight_rolloff"]["top_out"] < 4094.5
+    assert np.array(summary["gains"]["s01_002"]).min() > 1.3
     mosaic_share, mosaic_max = share(root / "ortho/mosaic.tif")
     assert mosaic_max <= 4095
     assert mosaic_share <= max(v[0] for v in frames.values()) + 0.001
+    mosaic_mean = pooled_mean([root / "ortho/mosaic.tif"])
+    assert mosaic_mean / pooled_mean(sorted((root / "ortho/frames").glob("*.tif"))) == pytest.approx(1.0, abs=0.02)
+
+
+@pytest.mark.parametrize("dtype,white", [(np.uint8, 255), (np.uint16, 4095)])
+def test_the_highlight_rolloff_is_monotone_and_stops_below_white(dtype, white):
+    """Two frames, one of gain 1.3 whose brightest unsaturated sample is white - 1, one of gain 0.9: one curve for
+    both, identity up to the knee, slope 1 there and 0 at the top, every unsaturated sample below white after rounding,
+    a saturated one held at white; the lookup table, the fill's and the feather's float paths give the same values."""
+    from ortho.mosaic import _BlendContext, _gained, _gained_weighted, sample_histogram
+
+    a = np.full((1, 8, 8), white // 3, dtype)
+    a[0, 0, :3] = white - 1, white, white // 2
+    hist = sample_histogram(a, np.ones((8, 8), bool))
+    gains = np.array([[1.3], [0.9]])
+    roll = highlight_rolloff(gains, [hist, hist], white)
+    top_out = (white - 0.5) * (1 - 1e-6)
+    assert roll.top_in == pytest.approx(1.3 * (white - 1), rel=1e-5)
+    assert roll.knee == pytest.approx(2 * top_out - roll.top_in) and roll.top_out == pytest.approx(top_out)
+    assert highlight_rolloff(np.array([[1.0], [0.9]]), [hist, hist], white) is None  # nothing reaches white
+    assert HighlightRolloff(**json.loads(json.dumps(roll.record()))) == roll  # mosaic.json, a Dask task's context
+    v = np.linspace(0, 1.6 * white, 20001, dtype=np.float32)
+    t = roll.apply(v.copy())
+    assert np.all(np.diff(t) >= 0) and t.max() <= top_out
+    below = v <= roll.knee
+    assert np.array_equal(t[below], v[below])  # the midtones untouched
+    slope = np.diff(t) / np.diff(v)
+    near_knee = (v[:-1] > roll.knee) & (v[:-1] < roll.knee + 0.02 * white)
+    assert slope[near_knee].min() > 0.95  # slope 1 at the knee
+    ctx = _BlendContext([], [], np.zeros((2, 2), np.int64), np.zeros((2, 2), np.int64), gains, np.zeros((2, 2)), None,
+                        1, 0, 1.0, 1, np.dtype(dtype).name, None, (1, 1), white_level=white, rolloff=roll)
+    x = np.arange(white + 1, dtype=np.float32)
+    for k in range(2):
+        lut = ctx.luts[k][0][:white + 1].astype(np.int64)
+        assert lut[white] == white and lut[:white].max() <= white - 1 and np.all(np.diff(lut[:white]) >= 0)
+        fill = np.rint(_gained(x.copy(), np.float32(gains[k, 0]), white, True, roll))
+        half = _gained_weighted(x, np.float32(gains[k, 0]), np.full(x.shape, 0.5, np.float32), white, True, roll)
+        assert np.array_equal(fill, lut) and np.array_equal(np.rint(2 * half), lut)
+    assert ctx.luts[0][0][white - 1] == white - 1  # the brightest unsaturated sample of the gain-1.3 frame
 
 
 def test_a_saturated_sample_stays_at_the_white_level_whatever_the_gain():
