@@ -369,3 +369,22 @@ def test_a_lake_running_out_of_the_data_is_water_by_its_level(tmp_path):
     assert water[0].intersection(truth).area / water[0].union(truth).area > 0.9
     assert water[0].intersection(affinity.translate(notch, X0, Y0)).area < 5.0
     np.testing.assert_allclose(fields["water_z"], 99.0, atol=0.02)
+
+
+def test_a_water_piece_joined_through_a_cell_corner_is_one_valid_polygon():
+    """Eight-neighbour pieces touching through a corner were an invalid ring that fell apart into parts below the
+    layer's minimum area (Autzen's river: ten polygons of 1-17 m2 with --min-area-m2 50)."""
+    from lidarctl.vectors.layers import class_mask, mask_polygons, without_pinches
+
+    # two 8 x 8 m ponds touching at one corner, and a 3-cell spur joined to the second through another corner
+    xy = [(x + 0.5, y + 0.5) for x in range(8) for y in range(8)]
+    xy += [(x + 0.5, y + 0.5) for x in range(8, 16) for y in range(8, 16)]
+    xy += [(16.5, 16.5), (17.5, 16.5), (18.5, 16.5)]
+    mask = class_mask(np.array(xy), 0.0, 20.0, 1.0, (20, 20), min_area_m2=50.0, close_cells=0)
+    assert mask.sum() == 131
+    polys = mask_polygons(without_pinches(mask), 0.0, 20.0, 1.0, 0.01)
+    assert len(polys) == 1 and polys[0].is_valid
+    assert 131 <= polys[0].area <= 133  # a cell added at each of the two corners
+    assert all(p.area >= 50.0 for p in mask_polygons(without_pinches(mask), 0.0, 20.0, 1.0, 0.5))
+    parts = mask_polygons(mask, 0.0, 20.0, 1.0, 0.01)  # what the layer was made of before
+    assert len(parts) == 3 and min(p.area for p in parts) < 50.0
