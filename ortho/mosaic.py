@@ -921,7 +921,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     timer.done("gains")
     # edited seamlines: the tiles their change does not reach are taken from the mosaic they were edited on
     previous = previous_mosaic(root, index, red.names, labels, gains=gains, feather_px=feather_px, factor=factor,
-                               mosaic=mosaic) if edited is not None else None
+                               mosaic=mosaic, rolloff=rolloff) if edited is not None else None
     for name, g in zip(red.names, gains):
         if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
             logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
@@ -1125,7 +1125,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
                "white_level": _white_level_record(red),
                "highlight_rolloff": None if rolloff is None else rolloff.record(),
-               "pairs": pairs, **nodata, "settings": settings_record}
+               "blend_rules": BLEND_RULES, "pairs": pairs, **nodata, "settings": settings_record}
     if previous is not None:
         summary["tiles"] = tiles
         logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],
@@ -2044,6 +2044,12 @@ class _StageRow:
                 self.resume.keep(self.path, self.key, ".tif")
 
 
+# The rules by which a tile's samples are blended and filled from the frames, named in the rows' resume keys and in
+# mosaic.json: a mosaic made by other rules (the package's version does not move with every change of them) is never
+# resumed or taken over by an edited run. Change the name whenever blending, filling or the gains' application changes.
+BLEND_RULES = "feather+fill-farthest-from-holes+rolloff/2026-11-30"
+
+
 def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, factor, halo, gains, nadir, feather_px,
               tile_px, bands, dtype, white_level, previous, rolloff=None) -> dict:
     """Key of each row of tiles (row offset px -> sha256): what its samples depend on, the frame orthos (index.json,
@@ -2063,6 +2069,7 @@ def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, facto
            "factor": int(factor), "halo": int(halo), "feather_px": float(feather_px), "tile_px": int(tile_px),
            "grid": [mosaic.x_left_m, mosaic.y_top_m, mosaic.res_m, mosaic.width, mosaic.height, mosaic.crs.to_wkt()],
            "bands": int(bands), "dtype": str(dtype), "white_level": white_level, "version": aerotri.__version__,
+           "blend_rules": BLEND_RULES,
            **({} if rolloff is None else {"rolloff": rolloff.record()}),
            "previous": None if previous is None else [
                file_stamp(previous.mosaic_path) if previous.mosaic_path.is_file() else None,
@@ -2106,10 +2113,10 @@ class PreviousMosaic:
 
 
 def previous_mosaic(root: Path, index, names, labels, *, gains, feather_px, factor,
-                    mosaic: OrthoGrid) -> PreviousMosaic:
+                    mosaic: OrthoGrid, rolloff=None) -> PreviousMosaic:
     """The mosaic in ``ortho/`` when the edited run would blend its tiles the same away from the edit: made from the
-    same frames (index.json sha1), with the same gains, feather and seam grid; else every tile is blended
-    (``why_all`` says why)."""
+    same frames (index.json sha1), with the same gains, highlight roll-off, feather and seam grid by the same
+    ``BLEND_RULES``; else every tile is blended (``why_all`` says why)."""
     out = root / "ortho"
     old_path, seams_path, summary_path = out / "mosaic.tif", out / "seams.tif", out / "mosaic.json"
     none = np.ones(labels.shape, bool)
@@ -2118,9 +2125,14 @@ def previous_mosaic(root: Path, index, names, labels, *, gains, feather_px, fact
     old = read_json(summary_path)
     same = (old.get("index_sha1") == index_sha1(root) and old.get("seam_factor") == factor
             and old.get("feather_px") == feather_px and (old.get("width"), old.get("height")) == (mosaic.width, mosaic.height)
-            and old.get("gains") == {n: [float(v) for v in g] for n, g in zip(names, gains)})
+            and old.get("gains") == {n: [float(v) for v in g] for n, g in zip(names, gains)}
+            and old.get("highlight_rolloff") == (None if rolloff is None else rolloff.record()))
     if not same:
-        return PreviousMosaic(old_path, none, "the earlier mosaic was made from other frames, gains, feather or seam grid")
+        return PreviousMosaic(old_path, none, "the earlier mosaic was made from other frames, gains, highlight roll-off, "
+                                              "feather or seam grid")
+    if old.get("blend_rules") != BLEND_RULES:
+        return PreviousMosaic(old_path, none, f"the earlier mosaic was blended by other rules "
+                                              f"({old.get('blend_rules') or 'before they were named'}; now {BLEND_RULES})")
     with rasterio.open(seams_path) as sds:
         old_labels = sds.read(1)
     if old_labels.shape != labels.shape:

@@ -284,3 +284,22 @@ def test_the_unedited_geopackage_of_a_true_ortho_is_taken_back(tmp_path):
     doc = json.loads((root / "ortho" / "mosaic.json").read_text())
     assert doc["tiles"]["blended"] == 0, doc["tiles"]
     assert _tile_sums(root / "ortho" / "mosaic.tif") == before
+
+
+def test_a_mosaic_blended_by_other_rules_is_not_taken_over(mosaicked, tmp_path):
+    """The package's version does not move with the blending rules: a mosaic.json of earlier rules (the frame
+    farthest from its holes, the highlight roll-off came later) has every tile blended anew, and says why."""
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    summary_path = root / "ortho" / "mosaic.json"
+    summary = json.loads(summary_path.read_text())
+    assert summary["blend_rules"]
+    del summary["blend_rules"]  # as the earlier rules wrote it
+    summary_path.write_text(json.dumps(summary))
+    same = tmp_path / "same.gpkg"
+    shutil.copy(root / "ortho" / "seamlines.gpkg", same)
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(same), "-v"])
+    assert r.exit_code == 0, r.output
+    tiles = json.loads(summary_path.read_text())["tiles"]
+    assert tiles["taken_over"] == 0 and tiles["blended"] == tiles["total"]
+    assert "blended by other rules" in r.output
