@@ -93,7 +93,8 @@ class StripAdjustSettings:
                                    help="Steepest planar cells used as observations (deg).")
     fixed: str | None = setting(None, help="Strip held fixed (strip model; default: the one with most planar cells).")
     shift_sigma_m: float = setting(0.05, min=0.0, min_open=True,
-                                   help="Prior sigma of each strip's shift (m; with a trajectory: the datum).")
+                                   help="Prior sigma of each strip's shift (m; with a trajectory; without control "
+                                        "the block's mean height is the datum).")
     control_sigma_m: float = setting(0.02, min=0.0, min_open=True,
                                      help="Sigma of a control point's height on its surface (m).")
     huber_k: float = setting(1.5, min=0.5, help="Huber threshold in robust sigmas.")
