@@ -110,9 +110,9 @@ def _adjust_summary(s: StripAdjustResult, outdir) -> str:
         # the overlaps hardly tell the range offset from a common height shift: the free adjustment holds the
         # block's mean height instead of letting it follow the range offset's estimate
         lines.append("datum: the block's mean height as flown (no --control: the mean vertical correction over the "
-                     "strips' planar cells is held at 0; the range offset is told from a common height shift only "
-                     "weakly, check the heights at surveyed points with lidarctl check-heights or adjust with "
-                     "--control)")
+                     "strips' planar cells is held at 0; the overlaps tell the range offset from a common height "
+                     "shift only weakly, see its sigma, and cannot tell the block's true height: check it at "
+                     "surveyed points with lidarctl check-heights, or adjust with --control)")
     if s.strips_without_observations:
         # their parameters above are the prior's (0 +- sigma): say so rather than let them pass as estimates
         lines.append(f"warning: not adjusted, no planar cell shared with another strip: "

@@ -31,8 +31,10 @@ Models (``theta`` and J, all in metres and radians; reported in metres and degre
   cells held at zero (a minimum constraint, ``MEAN_HEIGHT_SIGMA_M``): the overlaps hardly tell a range offset
   from a common height shift (over flat ground both move every strip up alike), so left to the shifts' prior
   the block's height followed the range offset's poorly determined estimate (a simulated block 0.18 m low
-  after the adjustment, 0.06 m before). With control points they hold the height and the range offset is
-  estimated. For a point p with scanner position P and body-to-map rotation R at
+  after the adjustment, 0.06 m before). The z shifts' prior then holds only their deviations from their mean
+  (kept whole it would pull the range offset to 0 along that unseen direction): every estimable quantity
+  (boresight, range offset, scan-angle scale, relative shifts) is the former datum's, only the common height
+  differs. With control points they hold the height (the shifts' full prior as before). For a point p with scanner position P and body-to-map rotation R at
   its GPS time, b = R^T (p - P), scan angle theta = atan2(b_right, b_down):
   e = R (b x w) + dr R b/|b| - k theta |b| R (0, cos theta, -sin theta) + t, i.e. the beam left rotated by
   the boresight error w, at theta (1 + k) where theta was read, and the range was measured dr too long.
@@ -79,7 +81,7 @@ STEP_TOL_SIGMA = 0.1
 REACH_MARGIN_M = 1.0
 N_SENSOR = 5  # boresight roll, pitch, heading, range offset, scan-angle scale
 # sigma of the free adjustment's minimum constraint (the mean vertical correction over the planar cells is 0):
-# a hundredth of a millimetre, far below any observation's, yet the normals stay well conditioned
+# a hundredth of a millimetre, far below any observation's (millimetres): the constraint holds to 1e-5 m
 MEAN_HEIGHT_SIGMA_M = 1e-5
 DATUM_MEAN_HEIGHT = "block mean height held (mean vertical correction 0 over the strips' planar cells)"
 DATUM_CONTROL = "control points"
@@ -498,12 +500,20 @@ def _solve(obs: Observations, model: Model, huber_k: float, iterations: int, the
     theta0 = np.zeros(K) if theta0 is None else np.asarray(theta0, float)
     has_prior = np.isfinite(model.prior_sigma)
     P = np.where(has_prior, 1.0 / np.where(has_prior, model.prior_sigma, 1.0) ** 2, 0.0)
-    # the priors' normal matrix and right-hand side (at step = 0): diagonal, plus the minimum constraint g theta = 0
-    Pm, Pr = np.diag(P), -P * theta0
+    # the priors' normal matrix (diagonal) and right-hand side (at step = 0)
+    Pp = np.diag(P)
+    Pm = Pp
     if mean_height is not None:
+        # the mean height takes the place of the z shifts' prior as the datum: their prior holds only their
+        # deviations from their (prior-weighted) mean, else it would pull the range offset to 0 along the
+        # direction the overlaps cannot see (range offset up, every strip down alike)
+        zc = np.array([i for i, n in enumerate(model.names) if n.endswith(".shift_z_m")], int)
+        pz = P[zc]
+        Pp = Pp.copy()
+        Pp[np.ix_(zc, zc)] = np.diag(pz) - np.outer(pz, pz) / pz.sum()
         g = np.asarray(mean_height, float) / MEAN_HEIGHT_SIGMA_M
-        Pm = Pm + np.outer(g, g)
-        Pr = Pr - g * (g @ theta0)
+        Pm = Pp + np.outer(g, g)
+    Pr = -Pm @ theta0
     w = np.ones(len(obs.y))
     Gn, yn = obs.G / obs.sigma[:, None], obs.y / obs.sigma
     step = np.zeros(K)
@@ -520,7 +530,7 @@ def _solve(obs: Observations, model: Model, huber_k: float, iterations: int, the
     theta = theta0 + step
     r = yn - Gn @ step
     dof = max(len(r) - K + int(has_prior.sum()), 1)
-    sigma0 = float(np.sqrt((np.sum(w * r ** 2) + np.sum(P * theta ** 2)) / dof))
+    sigma0 = float(np.sqrt((np.sum(w * r ** 2) + theta @ Pp @ theta) / dof))
     s = max(chk.NMAD_K * np.median(np.abs(r)), 1e-9)
     inside = np.abs(r) <= huber_k * s
     A = Gn[inside].T @ Gn[inside] + Pm
