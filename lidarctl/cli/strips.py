@@ -106,15 +106,13 @@ def _adjust_summary(s: StripAdjustResult, outdir) -> str:
                      f"{c.rms_after_m:.3f} m")
     if s.fixed_strip:
         lines.append(f"fixed: {s.fixed_strip} (the others are adjusted to it)")
-    ro = s.parameters.get("range_offset_m")
-    if s.control is None and ro is not None:
-        # the overlaps hardly tell the range offset from a common height shift over flat ground, and the shifts'
-        # prior holds only the latter: the corrected block's height follows the range offset's estimate
-        lines.append(f"warning: no --control: the block's height is held by no surveyed point and moves with the "
-                     f"range offset ({ro.value:+.3f} +- {ro.sigma:.3f} m), which the overlaps hardly tell from a "
-                     f"common height shift (a simulated block came out 0.18 m low at its check points, 0.06 m before "
-                     f"the adjustment: bench/results/trial_qa.json); check the heights at surveyed points "
-                     f"(lidarctl check-heights) or adjust with --control")
+    if s.model == "boresight" and s.control is None:
+        # the overlaps hardly tell the range offset from a common height shift: the free adjustment holds the
+        # block's mean height instead of letting it follow the range offset's estimate
+        lines.append("datum: the block's mean height as flown (no --control: the mean vertical correction over the "
+                     "strips' planar cells is held at 0; the overlaps tell the range offset from a common height "
+                     "shift only weakly, see its sigma, and cannot tell the block's true height: check it at "
+                     "surveyed points with lidarctl check-heights, or adjust with --control)")
     if s.strips_without_observations:
         # their parameters above are the prior's (0 +- sigma): say so rather than let them pass as estimates
         lines.append(f"warning: not adjusted, no planar cell shared with another strip: "

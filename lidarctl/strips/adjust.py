@@ -26,8 +26,15 @@ Models (``theta`` and J, all in metres and radians; reported in metres and degre
   surfaces cannot see (e.g. a horizontal shift over flat ground only) stay solvable, with a large sigma.
 - ``boresight`` (with the trajectory of every strip): the boresight angles (roll, pitch, heading of the
   scanner in the body frame x forward, y right, z down), a range offset and a scan-angle scale shared by
-  all strips, and per strip a shift (the GNSS error) with the prior sigma ``shift_sigma_m`` (the datum,
-  unless control points hold it). For a point p with scanner position P and body-to-map rotation R at
+  all strips, and per strip a shift (the GNSS error) with the prior sigma ``shift_sigma_m``. The datum
+  without control points: the block's mean height, i.e. the mean vertical correction over the strips' planar
+  cells held at zero (a minimum constraint, ``MEAN_HEIGHT_SIGMA_M``): the overlaps hardly tell a range offset
+  from a common height shift (over flat ground both move every strip up alike), so left to the shifts' prior
+  the block's height followed the range offset's poorly determined estimate (a simulated block 0.18 m low
+  after the adjustment, 0.06 m before). The z shifts' prior then holds only their deviations from their mean
+  (kept whole it would pull the range offset to 0 along that unseen direction): every estimable quantity
+  (boresight, range offset, scan-angle scale, relative shifts) is the former datum's, only the common height
+  differs. With control points they hold the height (the shifts' full prior as before). For a point p with scanner position P and body-to-map rotation R at
   its GPS time, b = R^T (p - P), scan angle theta = atan2(b_right, b_down):
   e = R (b x w) + dr R b/|b| - k theta |b| R (0, cos theta, -sin theta) + t, i.e. the beam left rotated by
   the boresight error w, at theta (1 + k) where theta was read, and the range was measured dr too long.
@@ -73,6 +80,11 @@ STEP_TOL_SIGMA = 0.1
 # when they were kept plus this (the models are smooth: a 0.05 deg rotation changes a move by 0.9 m per km)
 REACH_MARGIN_M = 1.0
 N_SENSOR = 5  # boresight roll, pitch, heading, range offset, scan-angle scale
+# sigma of the free adjustment's minimum constraint (the mean vertical correction over the planar cells is 0):
+# a hundredth of a millimetre, far below any observation's (millimetres): the constraint holds to 1e-5 m
+MEAN_HEIGHT_SIGMA_M = 1e-5
+DATUM_MEAN_HEIGHT = "block mean height held (mean vertical correction 0 over the strips' planar cells)"
+DATUM_CONTROL = "control points"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,7 +95,8 @@ class StripAdjustSettings:
                                    help="Steepest planar cells used as observations (deg).")
     fixed: str | None = setting(None, help="Strip held fixed (strip model; default: the one with most planar cells).")
     shift_sigma_m: float = setting(0.05, min=0.0, min_open=True,
-                                   help="Prior sigma of each strip's shift (m; with a trajectory: the datum).")
+                                   help="Prior sigma of each strip's shift (m; with a trajectory; without control "
+                                        "the block's mean height is the datum).")
     control_sigma_m: float = setting(0.02, min=0.0, min_open=True,
                                      help="Sigma of a control point's height on its surface (m).")
     huber_k: float = setting(1.5, min=0.5, help="Huber threshold in robust sigmas.")
@@ -177,6 +190,8 @@ class StripAdjustResult:
     seconds_solve: float
     seconds_write: float
     control: ControlSummary | None = None
+    # what holds the block's position: the fixed strip, the control points, or the block's mean height
+    datum: str = ""
     schema_version: int = chk.SCHEMA_VERSION
 
     def to_json(self) -> str:
@@ -467,28 +482,45 @@ class Solution:
 
 
 def solve(obs: Observations, model: Model, huber_k: float = 1.5, iterations: int = 10,
-          theta0: np.ndarray | None = None) -> Solution:
+          theta0: np.ndarray | None = None, mean_height: np.ndarray | None = None) -> Solution:
     """IRLS with Huber weights; the sandwich covariance (module docstring); sigma0 from the weighted residuals,
     priors included. ``theta0``: the correction the observations were made with (strips re-read with it):
-    the solution is theta0 plus the step the observations ask for, the priors apply to the total."""
+    the solution is theta0 plus the step the observations ask for, the priors apply to the total.
+    ``mean_height`` (K,): the row of the mean vertical correction (``mean_height_row``), held at zero for the
+    total like a prior (sigma ``MEAN_HEIGHT_SIGMA_M``; in the normals and both halves of the sandwich)."""
     # G is tall and thin (m x a few dozen): one BLAS thread does G^T G in milliseconds; two threads on a loaded
     # machine wait on each other up to 100x longer (0.3 s against 3 ms for 40 k x 18), most of adjust's time
     with threadpool_limits(1, user_api="blas"):
-        return _solve(obs, model, huber_k, iterations, theta0)
+        return _solve(obs, model, huber_k, iterations, theta0, mean_height)
 
 
-def _solve(obs: Observations, model: Model, huber_k: float, iterations: int, theta0: np.ndarray | None) -> Solution:
+def _solve(obs: Observations, model: Model, huber_k: float, iterations: int, theta0: np.ndarray | None,
+           mean_height: np.ndarray | None = None) -> Solution:
     K = obs.G.shape[1]
     theta0 = np.zeros(K) if theta0 is None else np.asarray(theta0, float)
     has_prior = np.isfinite(model.prior_sigma)
     P = np.where(has_prior, 1.0 / np.where(has_prior, model.prior_sigma, 1.0) ** 2, 0.0)
+    # the priors' normal matrix (diagonal) and right-hand side (at step = 0)
+    Pp = np.diag(P)
+    Pm = Pp
+    if mean_height is not None:
+        # the mean height takes the place of the z shifts' prior as the datum: their prior holds only their
+        # deviations from their (prior-weighted) mean, else it would pull the range offset to 0 along the
+        # direction the overlaps cannot see (range offset up, every strip down alike)
+        zc = np.array([i for i, n in enumerate(model.names) if n.endswith(".shift_z_m")], int)
+        pz = P[zc]
+        Pp = Pp.copy()
+        Pp[np.ix_(zc, zc)] = np.diag(pz) - np.outer(pz, pz) / pz.sum()
+        g = np.asarray(mean_height, float) / MEAN_HEIGHT_SIGMA_M
+        Pm = Pp + np.outer(g, g)
+    Pr = -Pm @ theta0
     w = np.ones(len(obs.y))
     Gn, yn = obs.G / obs.sigma[:, None], obs.y / obs.sigma
     step = np.zeros(K)
     for _ in range(iterations):
-        N = (Gn * w[:, None]).T @ Gn + np.diag(P)
+        N = (Gn * w[:, None]).T @ Gn + Pm
         try:
-            step = np.linalg.solve(N, (Gn * w[:, None]).T @ yn - P * theta0)
+            step = np.linalg.solve(N, (Gn * w[:, None]).T @ yn + Pr)
         except np.linalg.LinAlgError:
             raise SolveError("the normal equations are singular: the overlaps do not determine the parameters") from None
         r = yn - Gn @ step
@@ -498,12 +530,12 @@ def _solve(obs: Observations, model: Model, huber_k: float, iterations: int, the
     theta = theta0 + step
     r = yn - Gn @ step
     dof = max(len(r) - K + int(has_prior.sum()), 1)
-    sigma0 = float(np.sqrt((np.sum(w * r ** 2) + np.sum(P * theta ** 2)) / dof))
+    sigma0 = float(np.sqrt((np.sum(w * r ** 2) + theta @ Pp @ theta) / dof))
     s = max(chk.NMAD_K * np.median(np.abs(r)), 1e-9)
     inside = np.abs(r) <= huber_k * s
-    A = Gn[inside].T @ Gn[inside] + np.diag(P)
+    A = Gn[inside].T @ Gn[inside] + Pm
     g = Gn * (w * r)[:, None]  # psi of the standardised residuals, times s
-    B = g.T @ g * len(r) / max(len(r) - K, 1) + np.diag(P)
+    B = g.T @ g * len(r) / max(len(r) - K, 1) + Pm
     try:
         Ainv = np.linalg.inv(A)
     except np.linalg.LinAlgError:
@@ -612,10 +644,13 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings
     for the correction's move, ``keep_region``: ``REACH_MARGIN_M`` beyond the largest move at a planar cell)
     in memory, and later reads re-grid those (``overlap.regrid``): the same planes in every shared cell, at
     a fraction of the time. A later correction that moves a planar cell further than the margin reads the
-    files again. Returns (solution, observations of the first and of the last read, reads)."""
+    files again. The sensor model without control holds the block's mean height (``mean_height_row`` of the
+    first read's planar cells, the same row on every read). Returns (solution, observations of the first and
+    of the last read, reads)."""
     theta = np.zeros(len(model.names))
+    mh = mean_height_row(model) if model.kind == "boresight" and control is None else None
     obs = first = observations(ss, model, settings.max_slope_deg, control, settings.control_sigma_m)
-    sol = solve(obs, model, settings.huber_k, settings.iterations)
+    sol = solve(obs, model, settings.huber_k, settings.iterations, mean_height=mh)
     before_rms = sol.residual_before_rms_m
     passes = 1
     kept, kept_reach = None, 0.0
@@ -644,10 +679,21 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings
         model.jac = {}  # not the old and the new at once
         model.jac = model.jac_of(ss_i)
         obs = observations(ss_i, model, settings.max_slope_deg, control, settings.control_sigma_m)
-        sol = solve(obs, model, settings.huber_k, settings.iterations, theta0=theta)
+        sol = solve(obs, model, settings.huber_k, settings.iterations, theta0=theta, mean_height=mh)
         passes += 1
     sol.residual_before_rms_m = before_rms
     return sol, first, obs, passes
+
+
+def mean_height_row(model: Model) -> np.ndarray:
+    """(K,) g with g theta the mean vertical correction (m) over every planar cell of every strip (``model.jac``:
+    the cells' effect Jacobians), each cell one sample of the block's surface."""
+    g = np.zeros(len(model.names))
+    n = 0
+    for J, cols in model.jac.values():
+        g[cols] += J[:, 2, :].sum(axis=0)
+        n += len(J)
+    return g / max(n, 1)
 
 
 def control_summary(cps: ctl.ControlPoints, ss: ov.StripSet, first: Observations, theta: np.ndarray) -> ControlSummary:
@@ -713,6 +759,7 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
         fixed = settings.fixed if model.kind == "strip" else None
         if model.kind == "strip" and settings.fixed is None:
             fixed = next((s.name for s in ss.strips if not any(n.startswith(f"{s.name}.") for n in model.names)), None)
+        datum = DATUM_CONTROL if cps is not None else (f"strip {fixed} fixed" if fixed else DATUM_MEAN_HEIGHT)
         summary = StripAdjustResult(
             model=model.kind, fixed_strip=fixed, settings=settings, cell_m=ss.grid.cell_m, points=ss.n_points,
             strips=tuple(s.name for s in ss.strips), observations=int(len(obs.y)), reads=passes,
@@ -728,6 +775,6 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
             files=tuple(p.name for p in corrected),
             seconds=dt, points_per_s=ss.n_points / dt,
             seconds_read=t_read - t0, seconds_solve=t_solve - t_read, seconds_write=t_write - t_solve,
-            control=control_summary(cps, ss, first, sol.theta) if cps is not None else None)
+            control=control_summary(cps, ss, first, sol.theta) if cps is not None else None, datum=datum)
         (tmp / "adjust.json").write_text(summary.to_json())
     return summary

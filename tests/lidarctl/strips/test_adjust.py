@@ -91,10 +91,8 @@ def test_trajectory_model_recovers_boresight_and_relative_shifts(shifted_block, 
         d = p[f"strip_{k}.shift_z_m"].value - p["strip_1.shift_z_m"].value
         assert d == pytest.approx(shifts[k - 1, 2] - shifts[0, 2], abs=0.02)
     assert s.check_after.rms_m < 0.015
-    # the block's height follows the range offset without control: said, with the estimate and its sigma
-    ro = p["range_offset_m"]
-    assert f"warning: no --control: the block's height is held by no surveyed point and moves with the range offset " \
-           f"({ro.value:+.3f} +- {ro.sigma:.3f} m)" in r.output
+    # no control: the block's mean height is the datum, and said
+    assert s.datum.startswith("block mean height held") and "datum: the block's mean height as flown" in r.output
 
 
 def test_trajectory_not_covering_a_strip_is_refused(shifted_block, tmp_path):
@@ -124,3 +122,28 @@ def test_trajectory_model_recovers_the_scan_angle_scale(make_strips, tmp_path):
     # 3e-3 moves the swath edges (+-20 deg at 120 m) by 13 cm; recovered within 3 sigma, and told from zero
     assert abs(k.value - 3e-3) < 3 * k.sigma and k.sigma < 1e-3
     assert abs(p["boresight_roll_deg"].value - 0.03) < 3 * p["boresight_roll_deg"].sigma
+
+
+def test_free_sensor_adjustment_holds_the_blocks_mean_height(make_strips, tmp_path):
+    """Without control the overlaps hardly tell a range offset from a common height shift: the free adjustment
+    holds the block's mean height (the minimum-constraint datum) instead of following the range offset's estimate,
+    yet still removes the boresight and the strips' relative shifts."""
+    block = make_strips("strips_range_offset", [[0.0, 0.0, 0.0], [0.02, -0.03, 0.06], [-0.02, 0.01, -0.04]],
+                        boresight_deg=(0.05, -0.03, 0.04), range_offset_m=0.08)
+    traj = [a for t in block.trajectories for a in ("--trajectory", str(t))]
+    r = _adjust(block.paths, tmp_path / "out", *traj, "--no-png")
+    assert r.exit_code == 0, r.output
+    s = read_strip_adjustment(tmp_path / "out" / "adjust.json")
+    assert s.datum.startswith("block mean height held") and "datum: the block's mean height" in r.output
+    dz = np.concatenate([np.asarray(laspy.read(tmp_path / "out" / p.name).z) - np.asarray(laspy.read(p).z)
+                         for p in block.paths])
+    # every point's height correction averaged over the block (buildings and trees included): within 5 mm of 0
+    assert abs(dz.mean()) < 0.005, dz.mean()  # the old datum (shifts' prior only): +0.169 m
+    assert s.check_after.rms_m < 0.015 < s.check_before.rms_m
+    p = s.parameters
+    assert abs(p["boresight_roll_deg"].value - 0.05) < 3 * p["boresight_roll_deg"].sigma
+    # the range offset is still the overlaps' (weak) estimate, not pulled to 0 by the datum
+    assert abs(p["range_offset_m"].value - 0.08) < 3 * p["range_offset_m"].sigma
+    for k in (2, 3):
+        d = p[f"strip_{k}.shift_z_m"].value - p["strip_1.shift_z_m"].value
+        assert d == pytest.approx(block.errors.shifts_m[k - 1, 2], abs=0.02)
