@@ -48,10 +48,13 @@ _ASPRS_KEY = re.compile(r"^ASPRS2023 H(?P<h>[0-9.]+)cm V(?P<v>[0-9.]+)cm$")
 
 @dataclasses.dataclass(frozen=True)
 class Provenance:
-    """Where a limit comes from; ``confirmed`` False: not checked against the document's own text."""
+    """Where a limit comes from; ``confirmed`` False: not checked against the document's own text; ``nva`` True:
+    a height limit on non-vegetated (open) ground only (an NVA limit: ASPRS 2023, the USGS LBS), so the height
+    check judges it on the non-vegetated points; False: on every surveyed point (the map-scale tables)."""
 
     source: str
     confirmed: bool
+    nva: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,7 +96,7 @@ def _toml(path: Path, what: str = "tolerance table (TOML)") -> dict:
 
 
 def _provenance(d: dict) -> dict:
-    return {k: Provenance(str(v.get("source", "")), bool(v.get("confirmed", False)))
+    return {k: Provenance(str(v.get("source", "")), bool(v.get("confirmed", False)), bool(v.get("nva", False)))
             for k, v in (d.get("provenance") or {}).items() if isinstance(v, dict)}
 
 
@@ -172,7 +175,7 @@ def asprs_table(h_cm: float, v_cm: float) -> tuple[dict, dict, dict]:
         else:
             cls = {"horizontal": h_cm, "vertical": v_cm}[e["of"]]
             limits[k] = round(e["factor"] * cls / 100.0, 4)
-        prov[k] = Provenance(e["source"], bool(e["confirmed"]))
+        prov[k] = Provenance(e["source"], bool(e["confirmed"]), bool(e.get("nva", False)))
     return limits, prov, d["table"]
 
 

@@ -809,7 +809,7 @@ def with_lbs_lidar_limits(table: ToleranceTable, level: str, lidar_only: bool = 
     src = f"USGS Lidar Base Specification {level} (usgs_lbs.toml)"
     limits = {**table.limits, "dem_rmse_m": lv.nva_rmse_m, "strip_rmsdz_m": lv.interswath_rmsdz_m}
     prov = {**table.provenance,
-            "dem_rmse_m": Provenance(f"{src}: NVA RMSEz", "nva_rmse_m" in lv.confirmed),
+            "dem_rmse_m": Provenance(f"{src}: NVA RMSEz", "nva_rmse_m" in lv.confirmed, nva=True),
             "strip_rmsdz_m": Provenance(f"{src}: interswath RMSDz", "interswath_rmsdz_m" in lv.confirmed)}
     if lidar_only:
         return dataclasses.replace(

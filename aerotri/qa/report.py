@@ -277,18 +277,26 @@ def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
     return rows
 
 
-def non_vegetated_dz(dz_m, groups) -> tuple[list[float], str]:
-    """The dz the DEM height RMSE limit is judged on, and the word for them: with land-cover groups
-    (check-heights --groups) only the non-vegetated points ("non-vegetated "), as the compliance section's NVA
-    (``compliance.vegetated``; vegetated points and points without a group left out): the limit is an open-ground
-    (NVA) limit, and vegetated points have their own (LBS VVA p95) or none (ASPRS 2023). Without groups every
-    point ("")."""
+def judged_dz(dz_m, groups, nva: bool) -> tuple[list[float], str]:
+    """The dz the DEM height RMSE limit is judged on, and the word for them. ``nva`` (the table's dem_rmse_m is an
+    NVA limit, ``Provenance.nva``: ASPRS 2023, the USGS LBS) with land-cover groups (check-heights --groups): only
+    the non-vegetated points ("non-vegetated "), as the compliance section's NVA (``compliance.vegetated``;
+    vegetated points and points without a group left out; vegetated points have their own limit (LBS VVA p95) or
+    none (ASPRS 2023)). Otherwise every point (""): the map-scale tables and a user's own table limit the height
+    RMS "of the LiDAR ground against surveyed points", forest points included."""
     from aerotri.qa.compliance import vegetated
 
-    veg = [vegetated(g) for g in groups] if len(groups) == len(dz_m) else []
+    veg = [vegetated(g) for g in groups] if nva and len(groups) == len(dz_m) else []
     if not any(v is not None for v in veg):
         return list(dz_m), ""
     return [d for d, v in zip(dz_m, veg) if v is False], "non-vegetated "
+
+
+def vegetated_dz(dz_m, groups) -> list[float]:
+    """The dz of the points of a vegetated land-cover group (``compliance.vegetated``)."""
+    from aerotri.qa.compliance import vegetated
+
+    return [d for d, g in zip(dz_m, groups) if vegetated(g)] if len(groups) == len(dz_m) else []
 
 
 def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]:
@@ -410,6 +418,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     hc = read_height_check(project.height_check_path) if project.height_check_path.is_file() else None
     ce = read_filter_test(project.classification_eval_path) if project.classification_eval_path.exists() else None
     rows, strips = strip_rows(project, tol)
+    # an NVA limit (ASPRS 2023, the USGS LBS) judges the open ground only; a map-scale or user's table every point
+    nva = bool(getattr(table.provenance.get("dem_rmse_m"), "nva", False))
 
     # LiDAR
     sec = "LiDAR classification"
@@ -428,7 +438,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                                                       "search radius (points in another CRS, or x and "
                                                                       "y swapped?)"))
     elif hc is not None and hc.n_checked:
-        dz, which = non_vegetated_dz(hc.dz_m, hc.dz_groups)
+        dz, which = judged_dz(hc.dz_m, hc.dz_groups, nva)
         rmse = (hc.rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
         rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {len(dz) if which else hc.n_checked} "
                            f"{which}surveyed points", None if rmse is None else round(rmse, 4),
@@ -437,15 +447,21 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             lim = 3.0 * tol["dem_rmse_m"]
             pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
             rows.append(_check("height_check_outlier_pct", sec,
-                               f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
+                               f"{which}surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
                                tol.get("height_check_max_outlier_pct"), "%", key="height_check_max_outlier_pct"))
+            if which and (veg := vegetated_dz(hc.dz_m, hc.dz_groups)):
+                # the NVA limit does not judge them (their own limit, if any, is in the compliance section)
+                pct = 100.0 * sum(abs(d) > lim for d in veg) / len(veg)
+                rows.append(_check("height_check_vegetated_outlier_pct", sec,
+                                   f"vegetated surveyed points with |dz| > {lim:.2f} m", round(pct, 2), None, "%",
+                                   note=f"{len(veg)} points; not judged: the limit is a non-vegetated (NVA) one"))
     if hc is not None and hc.dem_n_checked == 0:
         rows.append(_failed("dem_raster_rmse_m", sec, "DEM height check", "no surveyed point lies on valid cells of "
                                                                          f"{hc.dem_path} (points in another CRS?)"))
     elif hc is not None and hc.dem_n_checked:
         # the DEM raster is the product a contract judges (check-heights --dem; without a cloud the only figure)
         name = Path(hc.dem_path).name if hc.dem_path else "the DEM"
-        dz, which = non_vegetated_dz(hc.dem_dz_m, hc.dem_dz_groups)
+        dz, which = judged_dz(hc.dem_dz_m, hc.dem_dz_groups, nva)
         rmse = (hc.dem_rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
         rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at "
                            f"{len(dz) if which else hc.dem_n_checked} {which}surveyed points",
