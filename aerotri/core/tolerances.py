@@ -315,11 +315,14 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
         return cn(given_scale, f"map scale {given_scale} from {'--scale' if scale else QA_SECTION}")
     gsd = block.gsd_m if block is not None else None
     if std == "cn":
+        # named as given (thesis, cn-at, or the old "cn": the thesis tables), with the tables it maps onto
+        cn_why = (f"standard {named} from {'--standard' if standard else QA_SECTION}"
+                  + ("" if named == "cn" else ": the map-scale tables"))
         if gsd is None:
-            return cn(DEFAULT_SCALE, f"standard cn from {'--standard' if standard else QA_SECTION}; "
+            return cn(DEFAULT_SCALE, f"{cn_why}; "
                                      f"{_block_text(block)}: default {DEFAULT_SCALE}")
         s, row = scale_for_gsd(gsd)
-        return cn(s, f"standard cn from {'--standard' if standard else QA_SECTION}; {_block_text(block)}; {row}")
+        return cn(s, f"{cn_why}; {_block_text(block)}; {row}")
     if std == "asprs2023" or (std is None and gsd is not None and (uas or gsd < asprs_gsd_max_m())):
         why = (f"standard asprs2023 from {'--standard' if standard else QA_SECTION}" if std else
                f"{'a UAS block' if uas else f'GSD under {100 * asprs_gsd_max_m():g} cm'} (selection.toml)")

@@ -399,7 +399,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
                          lidar_only=lidar_only)
-    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain)
+    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain, lidar_only)
     if compliance.key == "usgs-lbs":
         table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
     if lidar_only:
@@ -760,14 +760,29 @@ def compliance_row(c: dict) -> list:
             need, acc, verdict, c["finest_class"] or ""]
 
 
+def verdict_class(verdict: str) -> str:
+    """The page's CSS class of a verdict: "not testable" -> "not-testable" (its first word, "not", styled nothing)."""
+    return verdict.split(" (")[0].split(":")[0].strip().replace(" ", "-")
+
+
+def compliance_verdict(comp: dict | None) -> str:
+    """The verdict of ``compliance_headline``: fail, not testable or pass ("" without a standard)."""
+    if not comp or not comp.get("products"):
+        return ""
+    verdicts = [p["verdict"] for p in comp["products"]]
+    return ("fail" if "fail" in verdicts else
+            "not testable" if any(v.startswith("not testable") for v in verdicts) else "pass")
+
+
 def _compliance_section(comp: dict | None) -> dict | None:
     """The compliance section: standard, class and why; per product the verdict and the finest class met; every
     check with its figure, limit (source in the title, * unconfirmed), check points and verdict."""
     if not comp:
         return None
     checks = [dict(cells=[str(x) for x in compliance_row(c)], limit_source=c["limit_source"] or "",
-                   note=c["checkpoints_note"] or "", verdict_class=c["verdict"].split()[0]) for c in comp["checks"]]
-    return dict(name=comp["name"], class_tested=comp["class_tested"], reason=comp["reason"], products=comp["products"],
+                   note=c["checkpoints_note"] or "", verdict_class=verdict_class(c["verdict"])) for c in comp["checks"]]
+    products = [{**p, "verdict_class": verdict_class(p["verdict"])} for p in comp["products"]]
+    return dict(name=comp["name"], class_tested=comp["class_tested"], reason=comp["reason"], products=products,
                 header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]))
 
 
@@ -780,7 +795,7 @@ def compliance_headline(comp: dict | None) -> str:
         return ""
     fails = [p["product"] for p in comp["products"] if p["verdict"] == "fail"]
     untested = [p["product"] for p in comp["products"] if p["verdict"].startswith("not testable")]
-    verdict = "fail" if fails else ("not testable" if untested else "pass")
+    verdict = compliance_verdict(comp)
     named = fails or untested
     return (f"compliance with {comp['name']}, class {comp['class_tested']}: {verdict}"
             + (f" ({', '.join(named)})" if named else ""))
@@ -828,7 +843,7 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
                   tolerance_table=rep["tolerance_table"], terrain=rep["terrain"],
                   reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
                   compliance_headline=compliance_headline(rep.get("compliance")),
-                  compliance_verdict=compliance_headline(rep.get("compliance")).split(": ")[-1].split(" (")[0],
+                  compliance_verdict=verdict_class(compliance_verdict(rep.get("compliance"))),
                   passed=rep["passed"], failed=rep["failed"], verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
                   stage_images=list(stage_images), figures=list(figures or []),
@@ -885,8 +900,12 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         fig.text(0.04, 0.905, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
         headline = compliance_headline(rep.get("compliance"))
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
-                             f"({rep['passed']} passed, {rep['failed']} failed)"
-                 + (f"; {headline}" if headline else ""), fontsize=10 if not headline else 8)
+                             f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10, va="top")
+        # the compliance verdict on its own lines, wrapped: one line cut it off after a long standard's name (cn-at)
+        lines = textwrap.wrap(headline[:1].upper() + headline[1:], 125) if headline else []
+        if lines:
+            fig.text(0.04, 0.862, "\n".join(lines), fontsize=9, weight="bold", va="top", linespacing=1.3)
+        top = 0.875 - (0.012 + 0.0215 * len(lines) if lines else 0.0)
         cells, colours = [], []
         for r in rep["checks"]:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
@@ -894,7 +913,7 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
                           r["verdict"] or ""])
             c = {"pass": "#ccffcc", "fail": "#ffcccc"}.get(r["verdict"], "white")
             colours.append(["white"] * 5 + [c])
-        ax = fig.add_axes([0.03, 0.03, 0.94, 0.85])
+        ax = fig.add_axes([0.03, 0.03, 0.94, top - 0.03])
         ax.axis("off")
         if cells:
             t = ax.table(cellText=cells, cellColours=colours, colLabels=["section", "quantity", "value", "limit", "unit",

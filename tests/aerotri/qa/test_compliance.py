@@ -438,6 +438,10 @@ def test_map_scale_and_own_tables_judge_the_dem_rmse_on_every_surveyed_point(tmp
         row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
         assert row.value == pytest.approx(all_m, abs=1e-4) and row.limit == 0.5 and row.verdict == "fail", kw
         assert "at 40 surveyed points" in row.quantity and rep.overall == "fail", kw
+    # the thesis' compliance section judges its table's DEM limit on the same 40 points
+    rep = write_qa_report(tmp_path, standard="thesis")
+    (dem,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert dem["measured"] == pytest.approx(all_m, abs=1e-4) and dem["n_points"] == 40 and dem["verdict"] == "fail"
     # an own table that declares its DEM limit an NVA one ([provenance.dem_rmse_m] nva = true) judges the open ground
     own.write_text(own.read_text().replace("[provenance.dem_rmse_m]\n", "[provenance.dem_rmse_m]\nnva = true\n"))
     rep = write_qa_report(tmp_path, tolerance_file=own)
@@ -480,6 +484,40 @@ def test_the_headline_gives_the_compliance_verdict_beside_the_overall_one(tmp_pa
     html = (tmp_path / "reports" / "index.html").read_text()
     assert "compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)</b> (below)" in html
     rep = write_qa_report(tmp_path)                   # no standard named: the one the table chose (docs/standards.md)
+    # review1: a LiDAR-only folder headlined the AT standard cn-at, "not testable (LiDAR DEM)": now the thesis
+    # tables, whose 1:5000 table judges the verdict table too
     assert console_summary(rep).splitlines()[-1].endswith(
-        "compliance with Chinese specifications for digital aerial triangulation (GB/T 23236, GB/T 7930, GB/T 13990), "
-        "class 1:5000 flat: not testable (LiDAR DEM)")
+        "compliance with the thesis' map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml), "
+        "class 1:5000 flat: pass"), console_summary(rep)
+    assert "a LiDAR-only project" in rep.compliance["reason"]
+    # the page's class of "not testable" was its first word, "not"
+    write_qa_report(tmp_path, standard="cn-at")
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert '<b class="not-testable">compliance with Chinese' in html and "<td class='not-testable'>" in html
+    assert 'class="not"' not in html and "class='not'" not in html
+
+
+def test_the_density_is_counted_only_for_a_standard_with_a_density_row(tmp_path, monkeypatch):
+    # review1: every report, under every standard, decompressed every LiDAR file for the usgs-lbs density
+    import aerotri.qa.compliance as C
+
+    calls = []
+    real = C.lidar_density
+    monkeypatch.setattr(C, "lidar_density", lambda project: calls.append(project) or real(project))
+    _dem_checked_alone(tmp_path)
+    for standard, cls in ((None, None), ("thesis", None), ("cn-at", None), ("asprs2023", "H10 V10")):
+        write_qa_report(tmp_path, standard=standard, accuracy_class=cls)
+    assert calls == []
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    assert len(calls) == 1
+    (dens,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"]
+    assert dens["checkpoints_note"].startswith("not measured: no LAS/LAZ strips")
+
+
+def test_the_thesis_table_reason_names_the_standard_given(tmp_path):
+    # review1: --standard thesis gave the reason "standard cn from --standard"
+    _dem_checked_alone(tmp_path)
+    for standard in ("thesis", "cn-at"):
+        rep = write_qa_report(tmp_path, standard=standard)
+        reason = json.loads((tmp_path / "reports" / "summary.json").read_text())["table"]["reason"]
+        assert f"standard {standard} from --standard" in reason and "standard cn " not in reason, reason
