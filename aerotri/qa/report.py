@@ -863,7 +863,9 @@ def _pdf_table(pdf, plt, title: str, *, header: list, rows: list, widths: list, 
     """One A4-landscape page (or more, 34 rows each) with a table."""
     for start in range(0, max(len(rows), 1), 34):
         fig = plt.figure(figsize=(11.69, 8.27))
-        fig.text(0.04, 0.95, title + (" (continued)" if start else ""), fontsize=14, weight="bold")
+        # a long title (a standard's full name) on two lines, not cut off at the page's edge
+        lines = textwrap.wrap(title + (" (continued)" if start else ""), 95)
+        fig.text(0.04, 0.975, "\n".join(lines), fontsize=14 if len(lines) == 1 else 12, weight="bold", va="top")
         ax = fig.add_axes([0.03, 0.03, 0.94, 0.88])
         ax.axis("off")
         chunk = rows[start:start + 34]
@@ -893,11 +895,11 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
     with atomic_path(path) as tmp, PdfPages(tmp, metadata={"Title": f"Accuracy report {rep['project']}",
                                                            "CreationDate": None}) as pdf:
         fig = plt.figure(figsize=(11.69, 8.27))
-        fig.text(0.04, 0.95, f"Accuracy report: {rep['project']}", fontsize=16, weight="bold")
+        fig.text(0.04, 0.957, f"Accuracy report: {rep['project']}", fontsize=16, weight="bold")
         t = rep.get("table") or {}
         head = (f"tolerances: {t.get('name') or rep['map_scale']} ({rep['tolerance_table']}), terrain {rep['terrain']}; "
                 f"chosen because {t.get('reason', 'given')}")
-        fig.text(0.04, 0.905, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
+        fig.text(0.04, 0.898, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
         headline = compliance_headline(rep.get("compliance"))
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
                              f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10, va="top")
@@ -915,20 +917,26 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             colours.append(["white"] * 5 + [c])
         ax = fig.add_axes([0.03, 0.03, 0.94, top - 0.03])
         ax.axis("off")
+        header, widths = ["section", "quantity", "value", "limit", "unit", "verdict"], [0.14, 0.52, 0.1, 0.08, 0.05, 0.07]
+        # the rows the page holds under the headline (a row at scale 1.1 takes 0.0222 of the page's height,
+        # measured on the demo's page; the header one): the rest on the next pages, not cut off at the page's foot
+        fit = max(int((top - 0.04) / 0.0225) - 1, 1)
         if cells:
-            t = ax.table(cellText=cells, cellColours=colours, colLabels=["section", "quantity", "value", "limit", "unit",
-                                                                          "verdict"],
-                         colWidths=[0.14, 0.52, 0.1, 0.08, 0.05, 0.07], loc="upper left", cellLoc="left")
+            t = ax.table(cellText=cells[:fit], cellColours=colours[:fit], colLabels=header, colWidths=widths,
+                         loc="upper left", cellLoc="left")
             t.auto_set_font_size(False)
             t.set_fontsize(7.5)
-            t.scale(1, 1.25)
+            t.scale(1, 1.1)
         pdf.savefig(fig)
         plt.close(fig)
+        if len(cells) > fit:
+            _pdf_table(pdf, plt, "Verdict table (continued)", header=header, rows=cells[fit:], widths=widths,
+                       colours=colours[fit:])
         comp = rep.get("compliance")
         if comp:
             rows = [compliance_row(c) for c in comp["checks"]]
             colours = [["white"] * 8 + [VERDICT_COLOURS.get(c["verdict"], "white"), "white"] for c in comp["checks"]]
-            _pdf_table(pdf, plt, f"Compliance: {comp['name']}, class {comp['class_tested']}"[:110],
+            _pdf_table(pdf, plt, f"Compliance: {comp['name']}, class {comp['class_tested']}",
                        header=COMPLIANCE_HEADER, rows=rows,
                        widths=[0.09, 0.26, 0.08, 0.05, 0.05, 0.06, 0.06, 0.05, 0.2, 0.06], colours=colours)
             why = textwrap.wrap(f"Chosen because: {comp['reason']}", 150)

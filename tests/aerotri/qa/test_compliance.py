@@ -521,3 +521,34 @@ def test_the_thesis_table_reason_names_the_standard_given(tmp_path):
         rep = write_qa_report(tmp_path, standard=standard)
         reason = json.loads((tmp_path / "reports" / "summary.json").read_text())["table"]["reason"]
         assert f"standard {standard} from --standard" in reason and "standard cn " not in reason, reason
+
+
+def test_the_pdf_first_page_gives_the_whole_headline_and_every_row(tmp_path, monkeypatch):
+    # review1: the PDF's first page put the compliance verdict at the end of one unwrapped line, cut off under
+    # cn-at after "...(GB/T 23236, GB/T 7930, GB/T 13990),"; and verdict rows past the page's foot were cut off
+    import matplotlib.axes
+    import matplotlib.figure
+
+    from aerotri.core.project import Project
+    from aerotri.qa.report import compliance_headline, write_pdf
+
+    texts, tables = [], []
+    real_text, real_table = matplotlib.figure.Figure.text, matplotlib.axes.Axes.table
+    monkeypatch.setattr(matplotlib.figure.Figure, "text",
+                        lambda self, x, y, s, *a, **k: texts.append(s) or real_text(self, x, y, s, *a, **k))
+    monkeypatch.setattr(matplotlib.axes.Axes, "table",
+                        lambda self, *a, **k: tables.append(k.get("cellText")) or real_table(self, *a, **k))
+    _dem_checked_alone(tmp_path)
+    write_qa_report(tmp_path, standard="cn-at")
+    rep = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    headline = compliance_headline(rep["compliance"])
+    assert len(headline) > 140 and headline.endswith("not testable (LiDAR DEM)")
+    rep["checks"] = rep["checks"] * 45                 # a block with many rows
+    texts.clear(), tables.clear()
+    write_pdf(tmp_path / "r.pdf", rep, Project.open(tmp_path), [])
+    own, title = [t for t in texts if "GB/T 13990" in t]   # the headline; the compliance page's title
+    assert " ".join(title.split("\n")) == f"Compliance: {rep['compliance']['name']}, class 1:5000 flat"
+    assert " ".join(own.split("\n")) == headline[:1].upper() + headline[1:]
+    assert max(len(line) for line in own.split("\n")) <= 125
+    verdict_rows = [r for t in tables if t and len(t[0]) == 6 for r in t]
+    assert len(verdict_rows) == 45 and len(tables[0]) < 45   # every row, the rest on the following pages
