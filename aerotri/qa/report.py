@@ -917,7 +917,8 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             colours.append(["white"] * 5 + [c])
         ax = fig.add_axes([0.03, 0.03, 0.94, top - 0.03])
         ax.axis("off")
-        header, widths = ["section", "quantity", "value", "limit", "unit", "verdict"], [0.14, 0.52, 0.1, 0.08, 0.05, 0.07]
+        header = ["section", "quantity", "value", "limit", "unit", "verdict"]
+        widths = [0.14, 0.52, 0.1, 0.08, 0.05, 0.07]
         # the rows the page holds under the headline (a row at scale 1.1 takes 0.0222 of the page's height,
         # measured on the demo's page; the header one): the rest on the next pages, not cut off at the page's foot
         fit = max(int((top - 0.04) / 0.0225) - 1, 1)
