@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import logging
 from pathlib import Path
 
 import laspy
@@ -30,11 +31,13 @@ import numpy as np
 import pyproj
 
 from aerotri.core.atomic import atomic_path, refuse_input_as_output
-from aerotri.core.errors import InputError
+from aerotri.core.errors import CrsError, InputError
 from aerotri.geom import las
 from aerotri.geom.crs.definition import horizontal_crs, parse_crs
 from aerotri.core.limits import check_allocation
 from lidarctl.units import METRE, UNKNOWN, LengthUnits, units_of
+
+log = logging.getLogger(__name__)
 
 
 CHUNK_POINTS = 2_000_000
@@ -79,11 +82,19 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
     """(horizontal CRS, linear units) of a file: its CRS records, else ``crs_arg`` (``--crs``:
     ``EPSG:xxxx``, a code, WKT or PROJ text); never guessed.
 
-    A file without any CRS is an InputError with ``require_crs``, else (None, UNKNOWN). A
-    geographic CRS is a CrsError (lidarctl needs lengths). The vertical unit comes from a compound
-    CRS, else from the GeoTIFF vertical keys, else it is the horizontal unit.
+    A file without any CRS is an InputError with ``require_crs``, else (None, UNKNOWN). A CRS record
+    present but unreadable (e.g. user-defined linear units without their size) is a CrsError naming it,
+    unless ``crs_arg`` is given: then ``crs_arg`` replaces it (a warning says so). A geographic CRS is a
+    CrsError (lidarctl needs lengths). The vertical unit comes from a compound CRS, else from the GeoTIFF
+    vertical keys, else it is the horizontal unit.
     """
-    file_crs = las.read_header_crs(path, header, hint="pass --crs")
+    try:
+        file_crs = las.read_header_crs(path, header, hint="pass --crs EPSG:<code> to use that CRS instead")
+    except CrsError as exc:
+        if crs_arg is None or str(crs_arg).strip() == "":
+            raise
+        log.warning("%s; --crs %s used in its place", exc, crs_arg)
+        file_crs = None
     if file_crs is not None:
         crs, source = file_crs, f"{path}: CRS record"
         vertical = None if file_crs.is_compound else las.geokey_vertical_unit_m(header)

@@ -48,10 +48,13 @@ _ASPRS_KEY = re.compile(r"^ASPRS2023 H(?P<h>[0-9.]+)cm V(?P<v>[0-9.]+)cm$")
 
 @dataclasses.dataclass(frozen=True)
 class Provenance:
-    """Where a limit comes from; ``confirmed`` False: not checked against the document's own text."""
+    """Where a limit comes from; ``confirmed`` False: not checked against the document's own text; ``nva`` True:
+    a height limit on non-vegetated (open) ground only (an NVA limit: ASPRS 2023, the USGS LBS), so the height
+    check judges it on the non-vegetated points; False: on every surveyed point (the map-scale tables)."""
 
     source: str
     confirmed: bool
+    nva: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,7 +96,7 @@ def _toml(path: Path, what: str = "tolerance table (TOML)") -> dict:
 
 
 def _provenance(d: dict) -> dict:
-    return {k: Provenance(str(v.get("source", "")), bool(v.get("confirmed", False)))
+    return {k: Provenance(str(v.get("source", "")), bool(v.get("confirmed", False)), bool(v.get("nva", False)))
             for k, v in (d.get("provenance") or {}).items() if isinstance(v, dict)}
 
 
@@ -172,7 +175,7 @@ def asprs_table(h_cm: float, v_cm: float) -> tuple[dict, dict, dict]:
         else:
             cls = {"horizontal": h_cm, "vertical": v_cm}[e["of"]]
             limits[k] = round(e["factor"] * cls / 100.0, 4)
-        prov[k] = Provenance(e["source"], bool(e["confirmed"]))
+        prov[k] = Provenance(e["source"], bool(e["confirmed"]), bool(e.get("nva", False)))
     return limits, prov, d["table"]
 
 
@@ -312,11 +315,14 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
         return cn(given_scale, f"map scale {given_scale} from {'--scale' if scale else QA_SECTION}")
     gsd = block.gsd_m if block is not None else None
     if std == "cn":
+        # named as given (thesis, cn-at, or the old "cn": the thesis tables), with the tables it maps onto
+        cn_why = (f"standard {named} from {'--standard' if standard else QA_SECTION}"
+                  + ("" if named == "cn" else ": the map-scale tables"))
         if gsd is None:
-            return cn(DEFAULT_SCALE, f"standard cn from {'--standard' if standard else QA_SECTION}; "
+            return cn(DEFAULT_SCALE, f"{cn_why}; "
                                      f"{_block_text(block)}: default {DEFAULT_SCALE}")
         s, row = scale_for_gsd(gsd)
-        return cn(s, f"standard cn from {'--standard' if standard else QA_SECTION}; {_block_text(block)}; {row}")
+        return cn(s, f"{cn_why}; {_block_text(block)}; {row}")
     if std == "asprs2023" or (std is None and gsd is not None and (uas or gsd < asprs_gsd_max_m())):
         why = (f"standard asprs2023 from {'--standard' if standard else QA_SECTION}" if std else
                f"{'a UAS block' if uas else f'GSD under {100 * asprs_gsd_max_m():g} cm'} (selection.toml)")

@@ -20,6 +20,7 @@ Units and scaling to metres belong to the readers of the stages (e.g. ``lidarctl
 from __future__ import annotations
 
 import logging
+import re
 import struct
 from pathlib import Path
 
@@ -332,6 +333,11 @@ def _wkt_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
     return None
 
 
+# the unit at the end of a CRS name: EPSG's "(ftUS)", "(ft)", "(m)" and the names with_linear_unit gives
+_NAME_UNIT = re.compile(r"\s*\((?:ftUS|ftIna|ftCla|ftSe|ft|m|metre|meter|foot|feet|US survey foot|"
+                        r"user-defined unit of [^()]*)\)\s*$")
+
+
 def with_linear_unit(crs: pyproj.CRS, unit_code: int | float) -> pyproj.CRS:
     """Projected ``crs`` with its axes in EPSG unit ``unit_code`` (9001 metre, 9002 foot, 9003 US survey
     foot; a float: a unit of that many metres, a user-defined GeoTIFF unit); the projection's parameters keep their
@@ -351,7 +357,9 @@ def with_linear_unit(crs: pyproj.CRS, unit_code: int | float) -> pyproj.CRS:
     for axis in d["coordinate_system"]["axis"]:
         axis["unit"] = unit
     d.pop("id", None)  # no longer the EPSG code's CRS
-    d["name"] = f"{d.get('name', 'unknown')} ({unit if isinstance(unit, str) else unit['name']})"
+    # a unit the EPSG name already gives ("NAD83 / North Carolina (ftUS)") is replaced, not followed by the new one
+    name = _NAME_UNIT.sub("", str(d.get("name", "unknown")))
+    d["name"] = f"{name} ({unit if isinstance(unit, str) else unit['name']})"
     return pyproj.CRS.from_json_dict(d)
 
 

@@ -32,6 +32,7 @@ from aerotri.qa.standards import STANDARD_KEYS, asprs2023, cn_at, usgs_lbs
 from aerotri.qa.standards import formulas as F
 
 NOT_TESTABLE = "not testable"
+DENSITY_STANDARDS = ("usgs-lbs",)  # the standards with a LiDAR density row (the others do not read the clouds)
 PRODUCTS = ("Aerotriangulation", "DOM", "Line map (DLG)", "LiDAR DEM", "LiDAR swath overlaps", "LiDAR density")
 CN_TERRAINS = ("flat", "hilly", "mountainous", "high_mountain")
 _ASPRS_CLASS = re.compile(r"^\s*H\s*([0-9.]+)\s*(?:cm)?\s*[, ]\s*V\s*([0-9.]+)\s*(?:cm)?\s*$", re.I)
@@ -72,6 +73,8 @@ class LidarFigures:
     swath_note: str = ""
     anpd_per_m2: float | None = None
     density_note: str = ""
+    rmse_all_m: float | None = None  # RMSE at every surveyed point, vegetated too (a map-scale table's DEM figure)
+    n_all: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,7 +244,7 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
             note = f"{source}; no land-cover groups (check-heights --groups): every point taken as non-vegetated"
         kw.update(nva_rmse_m=F.rmse(dz[nv]) if nv.any() else None, n_nva=int(nv.sum()),
                   vva_p95_m=F.vva_p95(dz[vg]) if vg.any() else None, vva_rmse_m=F.rmse(dz[vg]) if vg.any() else None,
-                  n_vva=int(vg.sum()), grouping_note=note)
+                  n_vva=int(vg.sum()), grouping_note=note, rmse_all_m=F.rmse(dz), n_all=len(dz))
     a = strips.get("all_pairs") or {}
     if a.get("rms_m") is not None:
         kw.update(swath_rmsdz_m=float(a["rms_m"]), swath_p95_m=a.get("p95_abs_m"),
@@ -329,14 +332,15 @@ def _dom_check_stale(project: Project) -> bool:
     return path.is_file() and read_dom_check(path).stale_for(project.mosaic_path, path)
 
 
-def project_figures(project: Project) -> Figures:
-    """The measurements of every product present in the project folder."""
+def project_figures(project: Project, density: bool = True) -> Figures:
+    """The measurements of every product present in the project folder; ``density`` False: not the LiDAR density
+    (it reads every point of every cloud: only for a standard with a density row, ``DENSITY_STANDARDS``)."""
     qa = project.qa
     at = _json(project.adjustment_report_path)
     adjusted = project.strips_adjust_path.is_file()
     strips = _json(project.strips_check_after_path if adjusted else project.strips_check_path)
     lidar = lidar_figures(_json(project.height_check_path), strips,
-                          lidar_density(project), qa,
+                          lidar_density(project) if density else (None, "not measured: no density row"), qa,
                           " (after the strip adjustment)" if adjusted else "")
     vec = project.vectors_check_path
     return Figures(at=at_checks(at, project.control_points),
@@ -407,18 +411,22 @@ def asprs_class_cm(text: str | None) -> tuple[float, float] | None:
     return (float(m[1]), float(m[2])) if m else None
 
 
-def choose(standard: str | None, class_text: str | None, table: ToleranceTable, block, qa, terrain: str | None) -> Choice:
+def choose(standard: str | None, class_text: str | None, table: ToleranceTable, block, qa, terrain: str | None,
+           lidar_only: bool = False) -> Choice:
     """The standard and class to test, and why: the arguments (command line), else ``[qa]`` standard /
     accuracy_class (and horizontal_class_cm, vertical_class_cm, map_scale, terrain), else the report's
-    tolerance table (chosen by platform and GSD)."""
+    tolerance table (chosen by platform and GSD): an ASPRS table asprs2023, a map-scale table cn-at, or for a
+    ``lidar_only`` project thesis (the map-scale table's own LiDAR limits; cn-at has none at 1:5000-1:10000)."""
     std_src = "--standard" if standard else "project.toml [qa] standard"
     std = standard or qa.standard
     std = {"cn": "cn-at"}.get(std, std)
     table_key, _ = split_key(table.key)
     if std is None:
-        std = "asprs2023" if table_key.startswith("ASPRS2023") else "cn-at"
+        std = "asprs2023" if table_key.startswith("ASPRS2023") else "thesis" if lidar_only else "cn-at"
         # the table's own reason follows once, where its class or map scale is taken (not twice)
-        std_src = f"the report's tolerance table {table.name!r}"
+        std_src = f"the report's tolerance table {table.name!r}" + (
+            " (a LiDAR-only project: the table's own LiDAR limits; cn-at, the AT standard, has none for its DEM or "
+            "swath overlaps)" if std == "thesis" else "")
     if std not in STANDARD_KEYS:
         raise ConfigError(f"standard {std!r}: expected one of {', '.join(STANDARD_KEYS)}")
     cls_src = "--class" if class_text else "project.toml [qa] accuracy_class"
@@ -750,8 +758,13 @@ def _thesis(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             out.append(ch)
     lf = figs.lidar
     if lf is not None:
-        for key, meas, n, q, note in (("dem_rmse_m", lf.nva_rmse_m, lf.n_nva, "ground height RMSE at non-vegetated check "
-                                       "points", lf.grouping_note),
+        # the thesis tables limit the RMS "of the LiDAR ground against surveyed points": every point, forest too
+        # (the NVA only when the table says its limit is one, Provenance.nva), as the verdict table
+        nva = bool(getattr(t.provenance.get("dem_rmse_m"), "nva", False))
+        dem = ((lf.nva_rmse_m, lf.n_nva, "ground height RMSE at non-vegetated check points", lf.grouping_note) if nva
+               else (lf.rmse_all_m, lf.n_all, "ground height RMSE at every surveyed point (vegetated too)",
+                     lf.grouping_note.replace("; points without a group left out", "")))
+        for key, meas, n, q, note in (("dem_rmse_m", *dem),
                                       ("strip_rmsdz_m", lf.swath_rmsdz_m, None, "swath-to-swath RMSDz on smooth surfaces",
                                        lf.swath_note)):
             if meas is None:
@@ -809,7 +822,7 @@ def with_lbs_lidar_limits(table: ToleranceTable, level: str, lidar_only: bool = 
     src = f"USGS Lidar Base Specification {level} (usgs_lbs.toml)"
     limits = {**table.limits, "dem_rmse_m": lv.nva_rmse_m, "strip_rmsdz_m": lv.interswath_rmsdz_m}
     prov = {**table.provenance,
-            "dem_rmse_m": Provenance(f"{src}: NVA RMSEz", "nva_rmse_m" in lv.confirmed),
+            "dem_rmse_m": Provenance(f"{src}: NVA RMSEz", "nva_rmse_m" in lv.confirmed, nva=True),
             "strip_rmsdz_m": Provenance(f"{src}: interswath RMSDz", "interswath_rmsdz_m" in lv.confirmed)}
     if lidar_only:
         return dataclasses.replace(
@@ -824,8 +837,9 @@ def with_lbs_lidar_limits(table: ToleranceTable, level: str, lidar_only: bool = 
 
 
 def project_compliance(project: Project, table: ToleranceTable, block, standard: str | None = None,
-                       class_text: str | None = None, terrain: str | None = None) -> Compliance:
+                       class_text: str | None = None, terrain: str | None = None,
+                       lidar_only: bool = False) -> Compliance:
     """The compliance section of a project's report (``table``: the report's tolerance table, ``block``: its
-    BlockScale)."""
-    choice = choose(standard, class_text, table, block, project.qa, terrain)
-    return judge(project_figures(project), choice)
+    BlockScale; ``lidar_only``: a project without frames, ``lidar_only_project``)."""
+    choice = choose(standard, class_text, table, block, project.qa, terrain, lidar_only)
+    return judge(project_figures(project, density=choice.key in DENSITY_STANDARDS), choice)

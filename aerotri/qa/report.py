@@ -277,18 +277,26 @@ def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
     return rows
 
 
-def non_vegetated_dz(dz_m, groups) -> tuple[list[float], str]:
-    """The dz the DEM height RMSE limit is judged on, and the word for them: with land-cover groups
-    (check-heights --groups) only the non-vegetated points ("non-vegetated "), as the compliance section's NVA
-    (``compliance.vegetated``; vegetated points and points without a group left out): the limit is an open-ground
-    (NVA) limit, and vegetated points have their own (LBS VVA p95) or none (ASPRS 2023). Without groups every
-    point ("")."""
+def judged_dz(dz_m, groups, nva: bool) -> tuple[list[float], str]:
+    """The dz the DEM height RMSE limit is judged on, and the word for them. ``nva`` (the table's dem_rmse_m is an
+    NVA limit, ``Provenance.nva``: ASPRS 2023, the USGS LBS) with land-cover groups (check-heights --groups): only
+    the non-vegetated points ("non-vegetated "), as the compliance section's NVA (``compliance.vegetated``;
+    vegetated points and points without a group left out; vegetated points have their own limit (LBS VVA p95) or
+    none (ASPRS 2023)). Otherwise every point (""): the map-scale tables and a user's own table limit the height
+    RMS "of the LiDAR ground against surveyed points", forest points included."""
     from aerotri.qa.compliance import vegetated
 
-    veg = [vegetated(g) for g in groups] if len(groups) == len(dz_m) else []
+    veg = [vegetated(g) for g in groups] if nva and len(groups) == len(dz_m) else []
     if not any(v is not None for v in veg):
         return list(dz_m), ""
     return [d for d, v in zip(dz_m, veg) if v is False], "non-vegetated "
+
+
+def vegetated_dz(dz_m, groups) -> list[float]:
+    """The dz of the points of a vegetated land-cover group (``compliance.vegetated``)."""
+    from aerotri.qa.compliance import vegetated
+
+    return [d for d, g in zip(dz_m, groups) if vegetated(g)] if len(groups) == len(dz_m) else []
 
 
 def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]:
@@ -391,7 +399,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
                          lidar_only=lidar_only)
-    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain)
+    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain, lidar_only)
     if compliance.key == "usgs-lbs":
         table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
     if lidar_only:
@@ -410,6 +418,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     hc = read_height_check(project.height_check_path) if project.height_check_path.is_file() else None
     ce = read_filter_test(project.classification_eval_path) if project.classification_eval_path.exists() else None
     rows, strips = strip_rows(project, tol)
+    # an NVA limit (ASPRS 2023, the USGS LBS) judges the open ground only; a map-scale or user's table every point
+    nva = bool(getattr(table.provenance.get("dem_rmse_m"), "nva", False))
 
     # LiDAR
     sec = "LiDAR classification"
@@ -428,7 +438,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                                                       "search radius (points in another CRS, or x and "
                                                                       "y swapped?)"))
     elif hc is not None and hc.n_checked:
-        dz, which = non_vegetated_dz(hc.dz_m, hc.dz_groups)
+        dz, which = judged_dz(hc.dz_m, hc.dz_groups, nva)
         rmse = (hc.rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
         rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {len(dz) if which else hc.n_checked} "
                            f"{which}surveyed points", None if rmse is None else round(rmse, 4),
@@ -437,15 +447,21 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             lim = 3.0 * tol["dem_rmse_m"]
             pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
             rows.append(_check("height_check_outlier_pct", sec,
-                               f"surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
+                               f"{which}surveyed points with |dz| > {lim:.2f} m (3 x the RMSE limit)", round(pct, 2),
                                tol.get("height_check_max_outlier_pct"), "%", key="height_check_max_outlier_pct"))
+            if which and (veg := vegetated_dz(hc.dz_m, hc.dz_groups)):
+                # the NVA limit does not judge them (their own limit, if any, is in the compliance section)
+                pct = 100.0 * sum(abs(d) > lim for d in veg) / len(veg)
+                rows.append(_check("height_check_vegetated_outlier_pct", sec,
+                                   f"vegetated surveyed points with |dz| > {lim:.2f} m", round(pct, 2), None, "%",
+                                   note=f"{len(veg)} points; not judged: the limit is a non-vegetated (NVA) one"))
     if hc is not None and hc.dem_n_checked == 0:
         rows.append(_failed("dem_raster_rmse_m", sec, "DEM height check", "no surveyed point lies on valid cells of "
                                                                          f"{hc.dem_path} (points in another CRS?)"))
     elif hc is not None and hc.dem_n_checked:
         # the DEM raster is the product a contract judges (check-heights --dem; without a cloud the only figure)
         name = Path(hc.dem_path).name if hc.dem_path else "the DEM"
-        dz, which = non_vegetated_dz(hc.dem_dz_m, hc.dem_dz_groups)
+        dz, which = judged_dz(hc.dem_dz_m, hc.dem_dz_groups, nva)
         rmse = (hc.dem_rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
         rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at "
                            f"{len(dz) if which else hc.dem_n_checked} {which}surveyed points",
@@ -744,14 +760,29 @@ def compliance_row(c: dict) -> list:
             need, acc, verdict, c["finest_class"] or ""]
 
 
+def verdict_class(verdict: str) -> str:
+    """The page's CSS class of a verdict: "not testable" -> "not-testable" (its first word, "not", styled nothing)."""
+    return verdict.split(" (")[0].split(":")[0].strip().replace(" ", "-")
+
+
+def compliance_verdict(comp: dict | None) -> str:
+    """The verdict of ``compliance_headline``: fail, not testable or pass ("" without a standard)."""
+    if not comp or not comp.get("products"):
+        return ""
+    verdicts = [p["verdict"] for p in comp["products"]]
+    return ("fail" if "fail" in verdicts else
+            "not testable" if any(v.startswith("not testable") for v in verdicts) else "pass")
+
+
 def _compliance_section(comp: dict | None) -> dict | None:
     """The compliance section: standard, class and why; per product the verdict and the finest class met; every
     check with its figure, limit (source in the title, * unconfirmed), check points and verdict."""
     if not comp:
         return None
     checks = [dict(cells=[str(x) for x in compliance_row(c)], limit_source=c["limit_source"] or "",
-                   note=c["checkpoints_note"] or "", verdict_class=c["verdict"].split()[0]) for c in comp["checks"]]
-    return dict(name=comp["name"], class_tested=comp["class_tested"], reason=comp["reason"], products=comp["products"],
+                   note=c["checkpoints_note"] or "", verdict_class=verdict_class(c["verdict"])) for c in comp["checks"]]
+    products = [{**p, "verdict_class": verdict_class(p["verdict"])} for p in comp["products"]]
+    return dict(name=comp["name"], class_tested=comp["class_tested"], reason=comp["reason"], products=products,
                 header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]))
 
 
@@ -764,7 +795,7 @@ def compliance_headline(comp: dict | None) -> str:
         return ""
     fails = [p["product"] for p in comp["products"] if p["verdict"] == "fail"]
     untested = [p["product"] for p in comp["products"] if p["verdict"].startswith("not testable")]
-    verdict = "fail" if fails else ("not testable" if untested else "pass")
+    verdict = compliance_verdict(comp)
     named = fails or untested
     return (f"compliance with {comp['name']}, class {comp['class_tested']}: {verdict}"
             + (f" ({', '.join(named)})" if named else ""))
@@ -812,7 +843,7 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
                   tolerance_table=rep["tolerance_table"], terrain=rep["terrain"],
                   reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
                   compliance_headline=compliance_headline(rep.get("compliance")),
-                  compliance_verdict=compliance_headline(rep.get("compliance")).split(": ")[-1].split(" (")[0],
+                  compliance_verdict=verdict_class(compliance_verdict(rep.get("compliance"))),
                   passed=rep["passed"], failed=rep["failed"], verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
                   stage_images=list(stage_images), figures=list(figures or []),
@@ -832,7 +863,9 @@ def _pdf_table(pdf, plt, title: str, *, header: list, rows: list, widths: list, 
     """One A4-landscape page (or more, 34 rows each) with a table."""
     for start in range(0, max(len(rows), 1), 34):
         fig = plt.figure(figsize=(11.69, 8.27))
-        fig.text(0.04, 0.95, title + (" (continued)" if start else ""), fontsize=14, weight="bold")
+        # a long title (a standard's full name) on two lines, not cut off at the page's edge
+        lines = textwrap.wrap(title + (" (continued)" if start else ""), 95)
+        fig.text(0.04, 0.975, "\n".join(lines), fontsize=14 if len(lines) == 1 else 12, weight="bold", va="top")
         ax = fig.add_axes([0.03, 0.03, 0.94, 0.88])
         ax.axis("off")
         chunk = rows[start:start + 34]
@@ -862,15 +895,19 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
     with atomic_path(path) as tmp, PdfPages(tmp, metadata={"Title": f"Accuracy report {rep['project']}",
                                                            "CreationDate": None}) as pdf:
         fig = plt.figure(figsize=(11.69, 8.27))
-        fig.text(0.04, 0.95, f"Accuracy report: {rep['project']}", fontsize=16, weight="bold")
+        fig.text(0.04, 0.957, f"Accuracy report: {rep['project']}", fontsize=16, weight="bold")
         t = rep.get("table") or {}
         head = (f"tolerances: {t.get('name') or rep['map_scale']} ({rep['tolerance_table']}), terrain {rep['terrain']}; "
                 f"chosen because {t.get('reason', 'given')}")
-        fig.text(0.04, 0.905, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
+        fig.text(0.04, 0.898, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
         headline = compliance_headline(rep.get("compliance"))
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
-                             f"({rep['passed']} passed, {rep['failed']} failed)"
-                 + (f"; {headline}" if headline else ""), fontsize=10 if not headline else 8)
+                             f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10, va="top")
+        # the compliance verdict on its own lines, wrapped: one line cut it off after a long standard's name (cn-at)
+        lines = textwrap.wrap(headline[:1].upper() + headline[1:], 125) if headline else []
+        if lines:
+            fig.text(0.04, 0.862, "\n".join(lines), fontsize=9, weight="bold", va="top", linespacing=1.3)
+        top = 0.875 - (0.012 + 0.0215 * len(lines) if lines else 0.0)
         cells, colours = [], []
         for r in rep["checks"]:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
@@ -878,22 +915,29 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
                           r["verdict"] or ""])
             c = {"pass": "#ccffcc", "fail": "#ffcccc"}.get(r["verdict"], "white")
             colours.append(["white"] * 5 + [c])
-        ax = fig.add_axes([0.03, 0.03, 0.94, 0.85])
+        ax = fig.add_axes([0.03, 0.03, 0.94, top - 0.03])
         ax.axis("off")
+        header = ["section", "quantity", "value", "limit", "unit", "verdict"]
+        widths = [0.14, 0.52, 0.1, 0.08, 0.05, 0.07]
+        # the rows the page holds under the headline (a row at scale 1.1 takes 0.0222 of the page's height,
+        # measured on the demo's page; the header one): the rest on the next pages, not cut off at the page's foot
+        fit = max(int((top - 0.04) / 0.0225) - 1, 1)
         if cells:
-            t = ax.table(cellText=cells, cellColours=colours, colLabels=["section", "quantity", "value", "limit", "unit",
-                                                                          "verdict"],
-                         colWidths=[0.14, 0.52, 0.1, 0.08, 0.05, 0.07], loc="upper left", cellLoc="left")
+            t = ax.table(cellText=cells[:fit], cellColours=colours[:fit], colLabels=header, colWidths=widths,
+                         loc="upper left", cellLoc="left")
             t.auto_set_font_size(False)
             t.set_fontsize(7.5)
-            t.scale(1, 1.25)
+            t.scale(1, 1.1)
         pdf.savefig(fig)
         plt.close(fig)
+        if len(cells) > fit:
+            _pdf_table(pdf, plt, "Verdict table (continued)", header=header, rows=cells[fit:], widths=widths,
+                       colours=colours[fit:])
         comp = rep.get("compliance")
         if comp:
             rows = [compliance_row(c) for c in comp["checks"]]
             colours = [["white"] * 8 + [VERDICT_COLOURS.get(c["verdict"], "white"), "white"] for c in comp["checks"]]
-            _pdf_table(pdf, plt, f"Compliance: {comp['name']}, class {comp['class_tested']}"[:110],
+            _pdf_table(pdf, plt, f"Compliance: {comp['name']}, class {comp['class_tested']}",
                        header=COMPLIANCE_HEADER, rows=rows,
                        widths=[0.09, 0.26, 0.08, 0.05, 0.05, 0.06, 0.06, 0.05, 0.2, 0.06], colours=colours)
             why = textwrap.wrap(f"Chosen because: {comp['reason']}", 150)

@@ -19,7 +19,7 @@ from lidarctl.corners.roof_corners import CornerSettings, corner_control
 @click_option(CornerSettings, "roof", "--roof")
 @click_option(CornerSettings, "sigma_strip_xy_m", "--sigma-strip-xy-m")
 @click_option(CornerSettings, "sigma_strip_z_m", "--sigma-strip-z-m")
-@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files without one, or with an unreadable one.")
 @click_option(CornerSettings, "figure", "--figure/--no-figure")
 @click_option(CornerSettings, "tile_m", "--tile-m")
 @click_option(CornerSettings, "buffer_m", "--buffer-m")

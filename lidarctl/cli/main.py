@@ -144,7 +144,7 @@ def classify(*, in_paths, out_path, crs, tile_size_m, buffer_m, work_dir, out_fo
 @click_option(RasterSettings, "res_m", "--res-m", required=True, default=None, show_default=False,
               help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF) ([rasters] res_m of "
                    "aerotri run).")
-@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none.")
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files without one, or with an unreadable one.")
 @click.option("--tile-px", type=click.IntRange(min=1), default=DEFAULT_TILE_PX, show_default=True,
               help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer, two tiles at "
                    "a time).")

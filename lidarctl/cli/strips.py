@@ -35,7 +35,7 @@ def strips():
 @click.argument("strip_paths", metavar="STRIP...", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.argument("outdir", type=click.Path(file_okay=False, path_type=Path))
 @surface_options
-@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files without one, or with an unreadable one.")
 @click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
 def check(strip_paths, outdir, crs, png, **kw):
     """Height differences of overlapping strips on smooth single-return surfaces into OUTDIR.
@@ -77,7 +77,7 @@ def check(strip_paths, outdir, crs, png, **kw):
               help="Steepest planar cells the adjustment uses (deg; sloped roofs carry the horizontal information).")
 @click_option(StripAdjustSettings, "shift_sigma_m", "--shift-sigma-m")
 @surface_options
-@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files without one, or with an unreadable one.")
 @click.option("--png/--no-png", default=True, show_default=True, help="Colour maps (PNG) of the differences.")
 def adjust(*, strip_paths, outdir, trajectories, fixed, control, control_sigma_m, adjust_max_slope_deg, shift_sigma_m,
            crs,

@@ -23,7 +23,7 @@ from lidarctl.rasters.trees import TreeSettings
 @click_option(TreeSettings, "smooth_px", "--smooth-px")
 @click_option(TreeSettings, "veg_classes", "--classes", metavar="C1,C2,...")
 @click_option(TreeSettings, "pit_free", "--pit-free/--no-pit-free")
-@click.option("--crs", default=None, help="CRS (EPSG:code) of files that have none; never guessed.")
+@click.option("--crs", default=None, help="CRS (EPSG:code) of files without one, or with an unreadable one.")
 def trees(*, classified, outdir, res_m, max_edge_m, min_height_m, min_stand_area_m2, top_radius_m, top_radius_per_m,
           smooth_px, veg_classes, pit_free, crs):
     """Tree heights of CLASSIFIED LAS/LAZ file(s) (one or more strips in one CRS) into OUTDIR.

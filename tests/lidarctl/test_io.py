@@ -480,3 +480,32 @@ def test_evaluate_names_withheld_points_when_the_counts_differ(files, tmp_path):
     assert r.exit_code == 2 and "200 flagged withheld" in r.output, r.output
     r = CliRunner().invoke(main, ["evaluate", str(withheld), "--truth", str(withheld)])
     assert r.exit_code == 0, r.output
+
+
+def test_crs_option_replaces_an_unreadable_crs_record(files, tmp_path):
+    """review1: ProjLinearUnitsGeoKey 32767 without its size was refused "...; pass --crs", but the header's CRS
+    was read before --crs was looked at, so --crs did not help (exit 2 anyway): now --crs is used in its place."""
+    from aerotri.geom.las import US_SURVEY_FOOT_M
+
+    bad, ref = _ftus_copy(files, tmp_path, "nosize.las", unit_key=32767, size_m=None)
+    with pytest.raises(InputError, match="CRS record present but unreadable"):
+        io.read_cloud(bad)
+    ftus = "+proj=utm +zone=32 +datum=WGS84 +units=us-ft +no_defs"
+    c = io.read_cloud(bad, crs=ftus)
+    assert c.units.xy_m == pytest.approx(US_SURVEY_FOOT_M, rel=1e-12)
+    np.testing.assert_allclose(c.x, ref.x, atol=0.01)
+    r = CliRunner().invoke(main, ["rasters", str(bad), str(tmp_path / "r"), "--res-m", "2", "--crs", ftus])
+    assert r.exit_code == 0, r.output
+    assert "nosize.las: CRS record present but unreadable" in r.output and "--crs" in r.output
+    assert (tmp_path / "r").is_dir()
+
+
+def test_a_unit_already_in_the_crs_name_is_replaced():
+    """review1: EPSG:2264 keyed in metres was named "NAD83 / North Carolina (ftUS) (metre)"."""
+    from aerotri.geom.las import with_linear_unit
+
+    assert with_linear_unit(pyproj.CRS.from_epsg(2264), 9001).name == "NAD83 / North Carolina (metre)"
+    assert with_linear_unit(pyproj.CRS.from_epsg(2994), 9001).name == "NAD83(HARN) / Oregon GIC Lambert (metre)"
+    assert with_linear_unit(pyproj.CRS.from_epsg(32104), 9003).name == "NAD83 / Nebraska (US survey foot)"
+    odd = with_linear_unit(pyproj.CRS.from_epsg(26910), 0.5)
+    assert with_linear_unit(odd, 9002).name == "NAD83 / UTM zone 10N (foot)"

@@ -185,10 +185,10 @@ def test_report_summary_html_and_cli_carry_the_compliance_section(tmp_path):
     assert res.exit_code == 2 and "--class 'QL7'" in res.output
 
 
-def _dem_checked_alone(tmp_path, open_dz_m=0.05):
+def _dem_checked_alone(tmp_path, open_dz_m=0.05, forest_dz_m=0.2):
     """A LiDAR-only folder: project.toml, lidar_out/dem.tif (a plane) and lidar_out/height_check.json of
     `lidarctl check-heights POINTS.csv --dem dem.tif` at 34 open points (dz +-open_dz_m) and 6 forest points
-    (dz 0.2 m)."""
+    (dz forest_dz_m)."""
     import numpy as np
     import rasterio
     from rasterio.transform import from_origin
@@ -208,7 +208,7 @@ def _dem_checked_alone(tmp_path, open_dz_m=0.05):
     lines = ["id,x,y,z,group"]
     for i in range(40):
         x, y = x0 + rng.uniform(10, 90), y0 + rng.uniform(10, 90)
-        dz = open_dz_m * (-1) ** i if i < 34 else 0.2  # open: RMSE open_dz_m; forest: 20 cm
+        dz = open_dz_m * (-1) ** i if i < 34 else forest_dz_m  # open: RMSE open_dz_m
         lines.append(f"P{i},{x:.3f},{y:.3f},{100.0 + 0.01 * (x - 500000.0) - dz:.4f},{'open' if i < 34 else 'forest'}")
     (tmp_path / "points.csv").write_text("\n".join(lines) + "\n")
     check = check_heights_file(None, tmp_path / "points.csv", dem_path=out / "dem.tif")
@@ -423,6 +423,52 @@ def test_verdict_table_judges_the_dem_rmse_on_the_non_vegetated_points(tmp_path)
     assert "at 40 surveyed points" in row.quantity
 
 
+def test_map_scale_and_own_tables_judge_the_dem_rmse_on_every_surveyed_point(tmp_path):
+    # review1: the forest points were dropped under every table, though the map-scale tables (and a contract's own
+    # table) limit "the height RMS of the LiDAR ground against surveyed points": 34 open points at +-0.05 m and 6
+    # forest points 1.5 m off passed at "0.05 m at 34 non-vegetated points" where all 40 give 0.5828 m > 0.5 m
+    from aerotri.core.tolerances import TOLERANCE_DIR
+
+    _dem_checked_alone(tmp_path, open_dz_m=0.05, forest_dz_m=1.5)
+    all_m = math.sqrt((34 * 0.05**2 + 6 * 1.5**2) / 40)
+    own = tmp_path / "contract.toml"
+    own.write_text((TOLERANCE_DIR / "cn_1to5000.toml").read_text())
+    for kw in ({}, {"standard": "thesis"}, {"standard": "cn-at"}, {"tolerance_file": own}):
+        rep = write_qa_report(tmp_path, **kw)
+        row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
+        assert row.value == pytest.approx(all_m, abs=1e-4) and row.limit == 0.5 and row.verdict == "fail", kw
+        assert "at 40 surveyed points" in row.quantity and rep.overall == "fail", kw
+    # the thesis' compliance section judges its table's DEM limit on the same 40 points
+    rep = write_qa_report(tmp_path, standard="thesis")
+    (dem,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert dem["measured"] == pytest.approx(all_m, abs=1e-4) and dem["n_points"] == 40 and dem["verdict"] == "fail"
+    # an own table that declares its DEM limit an NVA one ([provenance.dem_rmse_m] nva = true) judges the open ground
+    own.write_text(own.read_text().replace("[provenance.dem_rmse_m]\n", "[provenance.dem_rmse_m]\nnva = true\n"))
+    rep = write_qa_report(tmp_path, tolerance_file=own)
+    row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
+    assert row.value == pytest.approx(0.05, abs=1e-4) and "at 34 non-vegetated surveyed points" in row.quantity
+
+
+def test_the_outlier_row_counts_the_points_its_label_names(tmp_path):
+    # review1: the outlier row counted the non-vegetated points only under the label "surveyed points with |dz| > .."
+    _dem_checked_alone(tmp_path, open_dz_m=0.05, forest_dz_m=1.8)
+    path = tmp_path / "lidar_out" / "height_check.json"
+    hc = json.loads(path.read_text())   # the same dz as the cloud's (the outlier row is the cloud's)
+    for p in hc["points"]:
+        p["dz_m"] = p["dz_dem_m"]
+    hc["overall"] = {"all": {"n": 40, "rmse_m": math.sqrt((34 * 0.05**2 + 6 * 1.8**2) / 40), "mean_abs_dz_m": 0.3}}
+    path.write_text(json.dumps(hc))
+    rep = write_qa_report(tmp_path)                  # 1:5000: |dz| > 1.5 m at the 6 forest points of 40
+    (out,) = [c for c in rep.checks if c.id == "height_check_outlier_pct"]
+    assert out.quantity.startswith("surveyed points with |dz| > 1.50 m") and out.value == 15.0
+    assert out.verdict == "fail" and not rep.has("height_check_vegetated_outlier_pct")
+    rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL2")  # NVA 0.1 m: 3 x = 0.30 m
+    (out,) = [c for c in rep.checks if c.id == "height_check_outlier_pct"]
+    assert out.quantity.startswith("non-vegetated surveyed points with |dz| > 0.30 m") and out.value == 0.0
+    veg = rep.check("height_check_vegetated_outlier_pct")
+    assert veg.value == 100.0 and veg.limit is None and veg.quantity.startswith("vegetated surveyed points")
+
+
 def test_the_headline_gives_the_compliance_verdict_beside_the_overall_one(tmp_path):
     # a LiDAR-only report under usgs-lbs read "Overall verdict: pass" at its top (console: "index.html: pass") while
     # the standard's VVA failed in the compliance section below: a client reading the headline took it as compliant
@@ -438,6 +484,71 @@ def test_the_headline_gives_the_compliance_verdict_beside_the_overall_one(tmp_pa
     html = (tmp_path / "reports" / "index.html").read_text()
     assert "compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)</b> (below)" in html
     rep = write_qa_report(tmp_path)                   # no standard named: the one the table chose (docs/standards.md)
+    # review1: a LiDAR-only folder headlined the AT standard cn-at, "not testable (LiDAR DEM)": now the thesis
+    # tables, whose 1:5000 table judges the verdict table too
     assert console_summary(rep).splitlines()[-1].endswith(
-        "compliance with Chinese specifications for digital aerial triangulation (GB/T 23236, GB/T 7930, GB/T 13990), "
-        "class 1:5000 flat: not testable (LiDAR DEM)")
+        "compliance with the thesis' map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml), "
+        "class 1:5000 flat: pass"), console_summary(rep)
+    assert "a LiDAR-only project" in rep.compliance["reason"]
+    # the page's class of "not testable" was its first word, "not"
+    write_qa_report(tmp_path, standard="cn-at")
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert '<b class="not-testable">compliance with Chinese' in html and "<td class='not-testable'>" in html
+    assert 'class="not"' not in html and "class='not'" not in html
+
+
+def test_the_density_is_counted_only_for_a_standard_with_a_density_row(tmp_path, monkeypatch):
+    # review1: every report, under every standard, decompressed every LiDAR file for the usgs-lbs density
+    import aerotri.qa.compliance as C
+
+    calls = []
+    real = C.lidar_density
+    monkeypatch.setattr(C, "lidar_density", lambda project: calls.append(project) or real(project))
+    _dem_checked_alone(tmp_path)
+    for standard, cls in ((None, None), ("thesis", None), ("cn-at", None), ("asprs2023", "H10 V10")):
+        write_qa_report(tmp_path, standard=standard, accuracy_class=cls)
+    assert calls == []
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    assert len(calls) == 1
+    (dens,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"]
+    assert dens["checkpoints_note"].startswith("not measured: no LAS/LAZ strips")
+
+
+def test_the_thesis_table_reason_names_the_standard_given(tmp_path):
+    # review1: --standard thesis gave the reason "standard cn from --standard"
+    _dem_checked_alone(tmp_path)
+    for standard in ("thesis", "cn-at"):
+        rep = write_qa_report(tmp_path, standard=standard)
+        reason = json.loads((tmp_path / "reports" / "summary.json").read_text())["table"]["reason"]
+        assert f"standard {standard} from --standard" in reason and "standard cn " not in reason, reason
+
+
+def test_the_pdf_first_page_gives_the_whole_headline_and_every_row(tmp_path, monkeypatch):
+    # review1: the PDF's first page put the compliance verdict at the end of one unwrapped line, cut off under
+    # cn-at after "...(GB/T 23236, GB/T 7930, GB/T 13990),"; and verdict rows past the page's foot were cut off
+    import matplotlib.axes
+    import matplotlib.figure
+
+    from aerotri.core.project import Project
+    from aerotri.qa.report import compliance_headline, write_pdf
+
+    texts, tables = [], []
+    real_text, real_table = matplotlib.figure.Figure.text, matplotlib.axes.Axes.table
+    monkeypatch.setattr(matplotlib.figure.Figure, "text",
+                        lambda self, x, y, s, *a, **k: texts.append(s) or real_text(self, x, y, s, *a, **k))
+    monkeypatch.setattr(matplotlib.axes.Axes, "table",
+                        lambda self, *a, **k: tables.append(k.get("cellText")) or real_table(self, *a, **k))
+    _dem_checked_alone(tmp_path)
+    write_qa_report(tmp_path, standard="cn-at")
+    rep = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    headline = compliance_headline(rep["compliance"])
+    assert len(headline) > 140 and headline.endswith("not testable (LiDAR DEM)")
+    rep["checks"] = rep["checks"] * 45                 # a block with many rows
+    texts.clear(), tables.clear()
+    write_pdf(tmp_path / "r.pdf", rep, Project.open(tmp_path), [])
+    own, title = [t for t in texts if "GB/T 13990" in t]   # the headline; the compliance page's title
+    assert " ".join(title.split("\n")) == f"Compliance: {rep['compliance']['name']}, class 1:5000 flat"
+    assert " ".join(own.split("\n")) == headline[:1].upper() + headline[1:]
+    assert max(len(line) for line in own.split("\n")) <= 125
+    verdict_rows = [r for t in tables if t and len(t[0]) == 6 for r in t]
+    assert len(verdict_rows) == 45 and len(tables[0]) < 45   # every row, the rest on the following pages
