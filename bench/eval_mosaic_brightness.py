@@ -40,7 +40,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
-from eval_mosaic_clipping import copy_project, frames_of, saturation  # noqa: E402
+from eval_mosaic_clipping import copy_project, frames_of, overlap_samples, saturation  # noqa: E402
 from ortho import mosaic as mosaic_now  # noqa: E402
 
 UNBOUNDED = "53b51bd3"  # before i42-clip: gains from the balance alone (clip)
@@ -97,30 +97,7 @@ def per_frame_rolloffs(root: Path, names, gains: np.ndarray, white: int) -> list
 def overlap_differences(root: Path, names, white: int, runs: dict, step: int) -> dict:
     """Per run (label -> (gains (frames, bands), roll-off record, None, or a list of them per frame)) the pixel RMS
     and the pair-mean RMS of the differences across overlaps (module doc)."""
-    with rasterio.open(root / "ortho" / "mosaic.tif") as M:
-        mt = M.transform
-    grids = []
-    for _, a, fm, ft in frames_of(root, names):
-        dc, dr = round((ft.c - mt.c) / mt.a), round((ft.f - mt.f) / mt.e)
-        r0, c0 = (-dr) % step, (-dc) % step
-        sub, ok = a[:, r0::step, c0::step], fm[r0::step, c0::step]
-        ok = ok & ~(sub >= white).any(0)
-        grids.append(((dr + r0) // step, (dc + c0) // step, sub, ok))
-    top = np.iinfo(grids[0][2].dtype).max
-    pairs = []
-    for i in range(len(grids)):
-        ri, ci, ai, oi = grids[i]
-        for j in range(i + 1, len(grids)):
-            rj, cj, aj, oj = grids[j]
-            r0, c0 = max(ri, rj), max(ci, cj)
-            r1, c1 = min(ri + oi.shape[0], rj + oj.shape[0]), min(ci + oi.shape[1], cj + oj.shape[1])
-            if r1 <= r0 or c1 <= c0:
-                continue
-            both = oi[r0 - ri:r1 - ri, c0 - ci:c1 - ci] & oj[r0 - rj:r1 - rj, c0 - cj:c1 - cj]
-            if both.sum() < 100:
-                continue
-            pairs.append((i, j, ai[:, r0 - ri:r1 - ri, c0 - ci:c1 - ci][:, both].astype(np.float32),
-                          aj[:, r0 - rj:r1 - rj, c0 - cj:c1 - cj][:, both].astype(np.float32)))
+    pairs, top = overlap_samples(root, names, white, step)
     out = {}
     for label, (gains, rolloff) in runs.items():
         g = np.asarray(gains, np.float32)

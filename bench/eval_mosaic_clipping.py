@@ -103,46 +103,55 @@ def saturation(root: Path, white: int) -> dict:
             "mosaic_max_sample": int(mos[:, ok].max())}
 
 
-def overlap_differences(root: Path, white: int, gain_sets: dict, step: int) -> dict:
-    """Per gain set the pixel RMS and the pair-mean RMS of the differences across overlaps (module doc)."""
-    summary = json.loads((root / "ortho" / "mosaic.json").read_text())
-    names = list(summary["gains"])
+def overlap_samples(root: Path, names, white: int, step: int) -> tuple[list, int]:
+    """(pairs, the frames' type maximum): every pair of overlapping frame orthos of ``root`` as (i, j, samples of i,
+    samples of j) (bands, n) float32 at every ``step``-th mosaic pixel both have valid and neither at ``white``
+    (pairs sharing fewer than 100 such pixels left out)."""
     with rasterio.open(root / "ortho" / "mosaic.tif") as M:
         mt = M.transform
     grids = []
-    for name, a, fm, ft in frames_of(root, names):
+    for _, a, fm, ft in frames_of(root, names):
         dc, dr = round((ft.c - mt.c) / mt.a), round((ft.f - mt.f) / mt.e)
         # the frame's pixels on mosaic rows/cols that are multiples of step
         r0, c0 = (-dr) % step, (-dc) % step
         sub, ok = a[:, r0::step, c0::step], fm[r0::step, c0::step]
         ok = ok & ~(sub >= white).any(0)
         grids.append(((dr + r0) // step, (dc + c0) // step, sub, ok))
+    pairs = []
+    for i in range(len(grids)):
+        ri, ci, ai, oi = grids[i]
+        for j in range(i + 1, len(grids)):
+            rj, cj, aj, oj = grids[j]
+            r0, c0 = max(ri, rj), max(ci, cj)
+            r1, c1 = min(ri + oi.shape[0], rj + oj.shape[0]), min(ci + oi.shape[1], cj + oj.shape[1])
+            if r1 <= r0 or c1 <= c0:
+                continue
+            both = oi[r0 - ri:r1 - ri, c0 - ci:c1 - ci] & oj[r0 - rj:r1 - rj, c0 - cj:c1 - cj]
+            if both.sum() < 100:
+                continue
+            pairs.append((i, j, ai[:, r0 - ri:r1 - ri, c0 - ci:c1 - ci][:, both].astype(np.float32),
+                          aj[:, r0 - rj:r1 - rj, c0 - cj:c1 - cj][:, both].astype(np.float32)))
+    return pairs, int(np.iinfo(grids[0][2].dtype).max)
+
+
+def overlap_differences(root: Path, white: int, gain_sets: dict, step: int) -> dict:
+    """Per gain set the pixel RMS and the pair-mean RMS of the differences across overlaps (module doc)."""
+    summary = json.loads((root / "ortho" / "mosaic.json").read_text())
+    names = list(summary["gains"])
+    pairs, top = overlap_samples(root, names, white, step)
     out = {}
-    top = np.iinfo(grids[0][2].dtype).max
     for label, gains in gain_sets.items():
         g = np.asarray(gains, np.float32)
         sq = cnt = 0.0
         means, weights = [], []
-        for i in range(len(grids)):
-            ri, ci, ai, oi = grids[i]
-            for j in range(i + 1, len(grids)):
-                rj, cj, aj, oj = grids[j]
-                r0, c0 = max(ri, rj), max(ci, cj)
-                r1, c1 = min(ri + oi.shape[0], rj + oj.shape[0]), min(ci + oi.shape[1], cj + oj.shape[1])
-                if r1 <= r0 or c1 <= c0:
-                    continue
-                both = oi[r0 - ri:r1 - ri, c0 - ci:c1 - ci] & oj[r0 - rj:r1 - rj, c0 - cj:c1 - cj]
-                if both.sum() < 100:
-                    continue
-                xi = ai[:, r0 - ri:r1 - ri, c0 - ci:c1 - ci][:, both].astype(np.float32)
-                xj = aj[:, r0 - rj:r1 - rj, c0 - cj:c1 - cj][:, both].astype(np.float32)
-                vi = np.clip(np.rint(xi * g[i][:, None]), 0, min(white, top))
-                vj = np.clip(np.rint(xj * g[j][:, None]), 0, min(white, top))
-                d = vi - vj
-                sq += float((d * d).sum())
-                cnt += d.size
-                means.append(d.mean(axis=1))
-                weights.append(d.shape[1])
+        for i, j, xi, xj in pairs:
+            vi = np.clip(np.rint(xi * g[i][:, None]), 0, min(white, top))
+            vj = np.clip(np.rint(xj * g[j][:, None]), 0, min(white, top))
+            d = vi - vj
+            sq += float((d * d).sum())
+            cnt += d.size
+            means.append(d.mean(axis=1))
+            weights.append(d.shape[1])
         m, w = np.array(means), np.array(weights, float)
         out[label] = {"pixel_rms_dn": float(np.sqrt(sq / cnt)),
                       "pair_mean_rms_dn": float(np.sqrt((w[:, None] * m * m).sum() / (w.sum() * m.shape[1]))),
