@@ -209,6 +209,11 @@ def test_lidarctl_crowns_refuses_a_missing_nearest_return_dsm(tmp_path):
     r = CliRunner().invoke(main, ["crowns", str(tmp_path / "strip.las"), str(tmp_path / "out")])
     assert r.exit_code == 2 and "dsm_nearest.tif: nearest-return DSM not found" in r.output
     assert "Traceback" not in r.output and not (tmp_path / "out").exists()
+    (tmp_path / "dsm_nearest.tif").write_bytes(b"")
+    r = CliRunner().invoke(main, ["crowns", str(tmp_path / "strip.las"), str(tmp_path / "out"), "--dsm-nearest",
+                                  str(tmp_path / "dsm_nearest.tif"), "--dem", str(tmp_path / "dem.tif")])
+    assert r.exit_code == 2 and "dem.tif: DEM not found (--dem)" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "out").exists()
 
 
 def test_the_tile_files_are_refused_before_they_fill_the_disk(tmp_path, monkeypatch):
