@@ -60,7 +60,9 @@ Pipeline (``classify_points``):
    against its sloping surface when ``water_sloping_surface`` (``water_surface``: reaches of
    ``water_level_tol_m / water_max_slope`` each at its own level, bilinear between them, a step between
    reaches a bank), each return and bank cell against the level beside it (Autzen's Willamette, 1.3 m of fall
-   across the crop, bench/results/water_autzen.json);
+   across the crop, bench/results/water_autzen.json); a sloping surface must also lie in a bed (at least half
+   of the rim's ground cells more than ``water_level_tol_m`` above the level beside them: a draining car park
+   or road does not) and fall one way along its course (``falls_along_course``: an undulating field does not);
    (c) are dark: the lower quartile of their intensity is below ``water_intensity_ratio`` of the
    cloud's median ground intensity (skipped when the cloud carries no intensity; specular
    returns near nadir are bright, hence the quartile); and (d) the gap is not an occlusion
