@@ -19,9 +19,10 @@ Rules (ASPRS codes):
    like a road: mean width 2 A / P between ``road_min_width_m`` and ``road_max_width_m`` and elongation
    P^2 / (4 A) at least ``road_min_elongation`` (a long strip L x w: about L / w; a square: 4), and it is
    bounded by land: a region more than ``road_max_water_rim_share`` of whose rim cells with returns hold
-   water returns lies in the water (a riffle or rapid the LiDAR water rule left as ground: dark, smooth, not
-   green, shaped by the river) and stays ground (``in_water``). Points of the other ground stay bare
-   ground (2). Water (9) stays water.
+   water returns and whose ground lies at the water's level (within ``water_level_tol_m`` of the nearest water
+   return on its rim; a causeway's road stands above it) lies in the water (a riffle or rapid the LiDAR water
+   rule left as ground: dark, smooth, not green, shaped by the river) and stays ground (``in_water``).
+   Points of the other ground stay bare ground (2). Water (9) stays water.
 3. Building confirmation, per candidate (a connected region of building cells of ``road_cell_m``):
    a. mostly green (share of its points above ``building_max_green``): a tree the roof test took for a
       plane;
