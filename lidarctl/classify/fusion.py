@@ -19,9 +19,10 @@ Rules (ASPRS codes):
    like a road: mean width 2 A / P between ``road_min_width_m`` and ``road_max_width_m`` and elongation
    P^2 / (4 A) at least ``road_min_elongation`` (a long strip L x w: about L / w; a square: 4), and it is
    bounded by land: a region more than ``road_max_water_rim_share`` of whose rim cells with returns hold
-   water returns lies in the water (a riffle or rapid the LiDAR water rule left as ground: dark, smooth, not
-   green, shaped by the river) and stays ground (``in_water``). Points of the other ground stay bare
-   ground (2). Water (9) stays water.
+   water returns and whose ground lies at the water's level (within ``water_level_tol_m`` of the nearest water
+   return on its rim; a causeway's road stands above it) lies in the water (a riffle or rapid the LiDAR water
+   rule left as ground: dark, smooth, not green, shaped by the river) and stays ground (``in_water``).
+   Points of the other ground stay bare ground (2). Water (9) stays water.
 3. Building confirmation, per candidate (a connected region of building cells of ``road_cell_m``):
    a. mostly green (share of its points above ``building_max_green``): a tree the roof test took for a
       plane;
@@ -52,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from aerotri.core.errors import CrsError, InputError, OptionError
 from lidarctl.raster_ops import plane_rms
@@ -84,6 +86,8 @@ class FusionSettings:
     # A road is bounded by land (verges, kerbs, quays); a road-shaped patch whose border is mostly water lies in
     # the water (a riffle's returns the LiDAR water rule left as ground): a majority, no fitted value.
     road_max_water_rim_share: float = 0.5
+    # ... and at the water's level (a causeway's road stands above it): the LiDAR rule's water_level_tol_m.
+    water_level_tol_m: float = 0.2
     building_max_green: float = 0.5
     building_max_fml_m: float = 2.0
     building_max_fml_share: float = 0.3
@@ -235,10 +239,12 @@ def road_shaped(mask: np.ndarray, cell_m: float, p: FusionSettings = FusionSetti
     return np.r_[False, ok][labels]
 
 
-def in_water(regions: np.ndarray, row, col, cls, max_share: float) -> np.ndarray:
+def in_water(regions: np.ndarray, row, col, cls, max_share: float, z=None, level_tol_m: float = 0.2) -> np.ndarray:
     """Cells of the 8-connected regions of ``regions`` lying in water: more than ``max_share`` of the
     cells with returns on their rim (two cells wide) hold a water return (class 9; cells without returns,
-    dropouts and the data's edge, say nothing)."""
+    dropouts and the data's edge, say nothing) and, given the returns' heights ``z`` (m), the region lies at
+    the water's level: the median height of its ground returns above the nearest water return on its rim is
+    within ``level_tol_m`` (m) (a road on a causeway or embankment across a lake stands above the water)."""
     labels, n = ndimage.label(regions, structure=_EIGHT)
     if n == 0:
         return np.zeros_like(regions, bool)
@@ -254,6 +260,20 @@ def in_water(regions: np.ndarray, row, col, cls, max_share: float) -> np.ndarray
     on_water = np.bincount(near[rim], weights=wet[rim], minlength=n + 1)
     keep = on_water > max_share * np.maximum(total, 1)
     keep[0] = False
+    if z is not None and keep.any():
+        # each of the region's ground returns against the nearest water return on its rim: a river slopes
+        zz = np.asarray(z, float)
+        lab_pt = labels[row, col]
+        wet_rim_near = np.where(w & rim[row, col], near[row, col], 0)
+        for k in np.flatnonzero(keep):
+            wet_rim = np.flatnonzero(wet_rim_near == k)
+            own = np.flatnonzero((lab_pt == k) & (cls == GROUND))
+            if len(wet_rim) == 0 or len(own) == 0:
+                keep[k] = False
+                continue
+            nearest = cKDTree(np.column_stack([row[wet_rim], col[wet_rim]])).query(
+                np.column_stack([row[own], col[own]]))[1]
+            keep[k] = abs(np.median(zz[own] - zz[wet_rim[nearest]])) <= level_tol_m
     return keep[labels]
 
 
@@ -456,6 +476,6 @@ def fuse(x, y, z, hag, cls, intensity, *, img: ImageSource, p: FusionSettings = 
         cells = ndimage.binary_closing(cells, structure=_EIGHT, iterations=1) | cells
         road = road_shaped(cells, c, p)
         if np.any(cls == WATER) and road.any():
-            road &= ~in_water(road, row, col, cls, p.road_max_water_rim_share)
+            road &= ~in_water(road, row, col, cls, p.road_max_water_rim_share, z, p.water_level_tol_m)
         cls[bare & road[row, col]] = ROAD
     return cls

@@ -60,7 +60,9 @@ Pipeline (``classify_points``):
    against its sloping surface when ``water_sloping_surface`` (``water_surface``: reaches of
    ``water_level_tol_m / water_max_slope`` each at its own level, bilinear between them, a step between
    reaches a bank), each return and bank cell against the level beside it (Autzen's Willamette, 1.3 m of fall
-   across the crop, bench/results/water_autzen.json);
+   across the crop, bench/results/water_autzen.json); a sloping surface must also lie in a bed (at least half
+   of the rim's ground cells more than ``water_level_tol_m`` above the level beside them: a draining car park
+   or road does not) and fall one way along its course (``falls_along_course``: an undulating field does not);
    (c) are dark: the lower quartile of their intensity is below ``water_intensity_ratio`` of the
    cloud's median ground intensity (skipped when the cloud carries no intensity; specular
    returns near nadir are bright, hence the quartile); and (d) the gap is not an occlusion
@@ -101,7 +103,8 @@ from typing import ClassVar
 
 import numba
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, sparse
+from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from aerotri.core.errors import ConfigError
@@ -912,6 +915,9 @@ def water_surface(x, y, z, tol_m: float, max_slope: float, min_points: int):
     ok &= ~bank
     if ok.sum() < 1:
         return None
+    # A river falls along its course: a surface that rises and falls (an undulating field) is no river.
+    if not falls_along_course(lev, ok, np.bincount(cell, minlength=nr * nc).reshape(nr, nc) > 0, tol_m):
+        return None
     filled = lev[tuple(ndimage.distance_transform_edt(~ok, return_distances=False, return_indices=True))]
     # Bilinear interpolation between reach centres.
     fx = np.clip((x - x0) / reach_m - 0.5, 0.0, nc - 1.0)
@@ -923,6 +929,51 @@ def water_surface(x, y, z, tol_m: float, max_slope: float, min_points: int):
              + ty * ((1 - tx) * filled[jy1, jx] + tx * filled[jy1, jx1]))
     level[~ok[iy, ix]] = np.nan
     return level
+
+
+def falls_along_course(lev: np.ndarray, ok: np.ndarray, occupied: np.ndarray, tol_m: float) -> bool:
+    """Whether the water surface of the reach levels ``lev`` (m; a grid of reaches, used where ``ok``) never
+    rises by more than ``tol_m`` going one way along its course.
+
+    Course coordinate of a reach (in reaches): its path length through the reaches holding returns
+    (``occupied``, 8-connected) from the reaches at one end of the principal axis (within one reach of its
+    lowest projection), so a bend is followed round; when some levelled reach is not connected to that end through
+    returns, its projection on the principal axis. A river's cross-section is level, its long profile falls: the
+    profile is the median level of the reaches in each one-reach step of the course, and it must be
+    non-increasing to ``tol_m`` one way (no step stands more than ``tol_m`` above a step upstream of it).
+    A surface that rises and falls (an undulating field) fails; so does a meander folded back on its
+    principal axis far enough that both its ends lie at the low end (a missed river, not a false one)."""
+    rr, cc = np.nonzero(ok)
+    if len(rr) < 3:
+        return True
+    pts = np.column_stack([cc, rr]).astype(float)
+    centred = pts - pts.mean(axis=0)
+    t = centred @ np.linalg.svd(centred, full_matrices=False)[2][0]
+    orr, occ = np.nonzero(occupied | ok)
+    index = np.full(ok.shape, -1, np.int64)
+    index[orr, occ] = np.arange(len(orr))
+    rows, cols, wts = [], [], []
+    h, w = ok.shape
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        r2, c2 = orr + dr, occ + dc
+        inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+        j = np.full(len(orr), -1, np.int64)
+        j[inside] = index[r2[inside], c2[inside]]
+        has = j >= 0
+        rows.append(np.flatnonzero(has))
+        cols.append(j[has])
+        wts.append(np.full(int(has.sum()), float(np.hypot(dr, dc))))
+    graph = sparse.coo_matrix((np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))),
+                              shape=(len(orr), len(orr))).tocsr()
+    mine = index[rr, cc]
+    along = csgraph.dijkstra(graph, directed=False, indices=mine[t - t.min() < 1.0], min_only=True)[mine]
+    if np.all(np.isfinite(along)):
+        t = along
+    step = np.floor(t - t.min()).astype(np.int64)
+    profile = np.array([np.median(lev[rr, cc][step == k]) for k in np.unique(step)])
+    rise_down = float(np.max(profile - np.minimum.accumulate(profile)))
+    rise_up = float(np.max(np.maximum.accumulate(profile) - profile))
+    return min(rise_down, rise_up) <= tol_m
 
 
 class _NearestLevel:
@@ -1103,6 +1154,10 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
                                                            g.y0 + (rr + r0 + 0.5) * c) + level
         bank_z = bank_z[np.isfinite(bank_z)]
         if len(bank_z) and np.median(bank_z) < level - tol:
+            continue
+        # A sloping surface is a river only in a bed: most of its banks stand more than the tolerance above the
+        # level beside them (a car park or road draining at 1 % lies level with, or above, its surroundings).
+        if level_of is not None and (not len(bank_z) or np.mean(bank_z > level + tol) < 0.5):
             continue
         water[on_level] = True
         # Shore: the 3x3 dropout window misses the water returns next to the banks; returns within

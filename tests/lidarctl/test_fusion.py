@@ -208,3 +208,33 @@ def test_a_road_shaped_patch_in_the_river_is_not_road(tmp_path):
     off = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"),
                       p=fusion.FusionSettings(road_max_water_rim_share=1.0))
     assert np.mean(off[riffle] == 11) > 0.95
+
+
+def test_a_road_on_a_causeway_above_the_lake_stays_road(tmp_path):
+    """60 x 60 m at 0.5 m spacing: a lake (y 15-45 m, x 5-55 m, water returns at 99 m) crossed by a road on a
+    causeway 2 m above it (y 27-33 m, joined to land at both ends). Its rim is mostly water, but it does not lie
+    at the water's level (water-fix): it stays road; the share test alone (i44-water) made it ground."""
+    g = np.arange(0.25, 60, 0.5)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    lake = (y > 15) & (y < 45) & (x > 5) & (x < 55)
+    road = (y > 27) & (y < 33)
+    cls = np.where(lake & ~road, 9, 2).astype(np.uint8)
+    z = np.where(lake & ~road, 99.0, np.where(road, 101.0, 100.0))
+    hag = np.zeros(len(x))
+    intensity = np.where(lake | road, 20, 400).astype(np.uint16)
+    rows, cols = 119 - np.floor(y / 0.5).astype(int), np.floor(x / 0.5).astype(int)
+    rgb = np.zeros((120, 120, 3), np.uint8)
+    rgb[:] = GREEN
+    for mask, colour in ((lake, (60, 70, 75)), (road, GREY)):
+        rgb[rows[mask], cols[mask]] = colour
+    _image(tmp_path / "dom.tif", rgb)
+    out = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
+    assert np.mean(out[road & lake] == 11) > 0.95
+    # the rim share alone (no heights) puts it in the water
+    rr, cc = rows, cols
+    region = np.zeros((120, 120), bool)
+    region[rr[road], cc[road]] = True
+    assert fusion.in_water(region, rr, cc, cls, 0.5).any()
+    assert not fusion.in_water(region, rr, cc, cls, 0.5, z, 0.2).any()
+    # at the water's level (a riffle, 0.1 m above the water beside it) it is in the water
+    assert fusion.in_water(region, rr, cc, cls, 0.5, np.where(road, 99.1, z), 0.2)[rr[road], cc[road]].all()
