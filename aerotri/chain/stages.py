@@ -407,9 +407,8 @@ class Chain:
         write_rasters(self.classified(), self.lo, self.options.rasters.res_m, crs=self.project.crs,
                       resume_dir=self.project.work_dir / RASTERS_RESUME_DIR_NAME)
         # the trees' crowns for the true ortho's occlusion test (docs/true-ortho.md, "Tree crowns fitted to their
-        # returns"), after the nearest-return DSM they are cut into; the crowns' cells in the LiDAR's shadow at the
-        # DEM as the DSM's others (docs/true-ortho.md, "The LiDAR's shadow at the DEM")
-        write_crown_model(self.classified(), self.project.dsm_nearest_path, self.lo, dem_path=self.project.dem_path)
+        # returns"), after the nearest-return DSM they are cut into
+        write_crown_model(self.classified(), self.project.dsm_nearest_path, self.lo)
         return R.RastersResult(res_m=self.options.rasters.res_m)
 
     def corner_outputs(self, root) -> list[Path]:

@@ -193,14 +193,10 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
 @click.argument("outdir", type=click.Path(file_okay=False))
 @click.option("--dsm-nearest", "nearest_path", type=click.Path(dir_okay=False), default=None,
               help="The nearest-return DSM the crowns are cut into [OUTDIR/dsm_nearest.tif, of lidarctl rasters].")
-@click.option("--dem", "dem_path", type=click.Path(dir_okay=False), default=None,
-              help="The DEM on the same grid: the crowns' cells with no first return within 1.14 point spacings end "
-                   "at it where it is lower, as dsm_nearest.tif's others [OUTDIR/dem.tif when it is there, of "
-                   "lidarctl rasters].")
 @click.option("--tile-m", "tile_m", type=positive(), default=500.0, show_default=True,
               help="Tile side (m): the returns of a tile and its halo (about 40 m) are held in memory at a time; "
                    "the outputs do not depend on it.")
-def crowns(*, in_paths, outdir, nearest_path, dem_path, tile_m):
+def crowns(*, in_paths, outdir, nearest_path, tile_m):
     """Tree crowns fitted to their returns for the true ortho's occlusion test: crowns.gpkg (a disk, top and crown
     base per tree) and dsm_crowns.tif (the nearest-return DSM with them) into OUTDIR, from classified LAS/LAZ
     file(s) (strips in one CRS, by tiles; docs/true-ortho.md, "Tree crowns fitted to their returns"). The
@@ -215,10 +211,7 @@ def crowns(*, in_paths, outdir, nearest_path, dem_path, tile_m):
     if not nearest.is_file():
         raise InputError(f"{nearest}: nearest-return DSM not found; expected dsm_nearest.tif of lidarctl rasters "
                          "(--dsm-nearest)")
-    if dem_path is not None and not Path(dem_path).is_file():
-        raise InputError(f"{dem_path}: DEM not found (--dem)")
-    dem = Path(dem_path) if dem_path else (Path(outdir) / "dem.tif" if (Path(outdir) / "dem.tif").is_file() else None)
-    for p in write_crown_model(list(in_paths), nearest, outdir, tile_m=tile_m, dem_path=dem):
+    for p in write_crown_model(list(in_paths), nearest, outdir, tile_m=tile_m):
         click.echo(str(p))
 
 

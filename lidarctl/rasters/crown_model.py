@@ -32,7 +32,6 @@ score: the point spacing is the cloud's own (its first returns' area over their 
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 from pathlib import Path
@@ -243,12 +242,9 @@ def crown_surface(crowns: TreeCrowns, x_m, y_m, z_m, classification, return_numb
 
 
 def _crown_surface(crowns, x_m, y_m, z_m, classification, return_number, nearest_m, *, x0_m, y_top_m, res_m, sub,
-                   window=None, sure_m=None, empty=None):
+                   window=None, sure_m=None):
     """``crown_surface`` and the number of its cells whose nearest return that is not vegetation lies farther than
-    ``sure_m`` (per cell: the returns given are all those within it; None: all returns given). ``empty``: (radius
-    in metres, the DEM on ``nearest_m``'s cells in metres, NaN nodata): the crowns' cells with no first return
-    within the radius end at the DEM where it is lower, as ``lidarctl rasters`` leaves dsm_nearest's
-    (``nearest.empty_at_dem``: the LiDAR's shadow beside a wall stays at the ground under a crown's rim too)."""
+    ``sure_m`` (per cell: the returns given are all those within it; None: all returns given)."""
     cls = np.asarray(classification)
     first, _ = _first_masks(cls, return_number)
     w_r0, w_c0 = (window[0], window[1]) if window is not None else (0, 0)
@@ -261,7 +257,7 @@ def _crown_surface(crowns, x_m, y_m, z_m, classification, return_number, nearest
         return out, 0
     cx, cy = x0_m + (cols + 0.5) * res_m, y_top_m - (rows + 0.5) * res_m
     fx, fy, fz, fc = (np.asarray(a)[first] for a in (x_m, y_m, z_m, cls))
-    d_first, j = cKDTree(np.column_stack([fx, fy])).query(np.column_stack([cx, cy]))
+    _, j = cKDTree(np.column_stack([fx, fy])).query(np.column_stack([cx, cy]))
     near_cls = fc[j]
     veg = np.isin(fc, VEGETATION_CLASSES)
     d, k = cKDTree(np.column_stack([fx[veg], fy[veg]])).query(np.column_stack([cx, cy]),
@@ -280,13 +276,6 @@ def _crown_surface(crowns, x_m, y_m, z_m, classification, return_number, nearest
     out[rows[raise_], cols[raise_]] = np.fmax(top[raise_], crown_z[raise_])
     spill = keep & ~covered & np.isin(near_cls, VEGETATION_CLASSES) & np.isfinite(top)
     out[rows[spill], cols[spill]] = other_z[spill]
-    if empty is not None:
-        radius_m, dem_m = empty
-        cells = (rows, cols)
-        dem_c = dem_m[cells]
-        with np.errstate(invalid="ignore"):
-            low = (d_first > radius_m) & (dem_c < out[cells])
-        out[rows[low], cols[low]] = dem_c[low]
     unsure = 0 if sure_m is None else int((spill & ~(d_other <= sure_m)).sum())
     return out, unsure
 
@@ -327,8 +316,7 @@ class CrownRun:
     cells_beyond_halo: int
 
 
-def write_crown_model(paths, nearest_path, outdir, *, tile_m: float | None = TILE_M,
-                      dem_path=None) -> tuple[Path, Path]:
+def write_crown_model(paths, nearest_path, outdir, *, tile_m: float | None = TILE_M) -> tuple[Path, Path]:
     """Fit the trees of classified LAS/LAZ files (``paths``: strips in the CRS of the nearest-return DSM
     ``nearest_path``, every return) and write into ``outdir`` the disks (``CROWNS_FILE``: layer ``crowns``, one
     Polygon of 64 vertices per tree with its centre ``x_m``, ``y_m``, ``radius_m``, ``top_m``, ``base_m``,
@@ -342,16 +330,12 @@ def write_crown_model(paths, nearest_path, outdir, *, tile_m: float | None = TIL
     windows of the DSM. The cloud's spacing and the segmentation grid are the block's (a first pass), so a tree
     whose crown lies within the halo is fitted as untiled, bit for bit. Memory: the tile's returns with their halo
     (about 60 bytes each with the segmentation window and k-d trees, measured on the demo) and its window of the
-    DSM (``bench/crowns_tiled_memory.py``).
-
-    ``dem_path``: the DEM on the DSM's grid (``lidarctl rasters``' dem.tif): the crowns' cells with no first return
-    within ``nearest.EMPTY_RADIUS_SPACINGS`` point spacings end at the DEM where it is lower, as the nearest-return
-    DSM's other cells (None: as the crowns leave them)."""
-    run = write_crown_model_run(paths, nearest_path, outdir, tile_m=tile_m, dem_path=dem_path)
+    DSM (``bench/crowns_tiled_memory.py``)."""
+    run = write_crown_model_run(paths, nearest_path, outdir, tile_m=tile_m)
     return run.crowns_path, run.surface_path
 
 
-def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None = TILE_M, dem_path=None) -> CrownRun:
+def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None = TILE_M) -> CrownRun:
     """``write_crown_model``, with what it did (``CrownRun``)."""
     import shutil
 
@@ -375,16 +359,6 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
             unit, tags = (ds.units[0] if ds.units else None), ds.tags()
     except rasterio.errors.RasterioIOError as e:
         raise InputError(f"{nearest_path}: not a readable nearest-return DSM ({e})") from None
-    if dem_path is not None:
-        try:
-            with rasterio.open(dem_path) as ds:
-                dem_grid = (ds.transform, ds.shape)
-        except rasterio.errors.RasterioIOError as e:
-            raise InputError(f"{dem_path}: not a readable DEM ({e})") from None
-        if dem_grid != (tf, dsm_shape):
-            raise InputError(f"{dem_path}: the DEM is not on the grid of the nearest-return DSM {nearest_path} "
-                             f"(transform {tuple(dem_grid[0])[:6]}, shape {dem_grid[1]}; expected "
-                             f"{tuple(tf)[:6]}, {dsm_shape})")
     if crs is None or not crs.is_projected:
         raise InputError(f"{nearest_path}: the crowns are fitted in a projected CRS; the DSM is in "
                          f"{crs.to_string() if crs else 'no CRS'}")
@@ -498,20 +472,13 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
         working = work / "surface.tif"
         profile = dict(driver="GTiff", width=dsm_shape[1], height=dsm_shape[0], count=1, dtype="float32", crs=crs,
                        transform=tf, nodata=NODATA, tiled=True, blockxsize=512, blockysize=512, bigtiff="IF_SAFER")
-        from lidarctl.rasters import nearest as nearest_returns
-
-        empty_m = nearest_returns.empty_radius_m(spacing)
         with stage_block_cache(SURFACE_CACHE_BYTES), rasterio.open(nearest_path) as src, \
-                (rasterio.open(dem_path) if dem_path is not None else contextlib.nullcontext()) as dem_src, \
                 rasterio.open(working, "w", **profile) as dst, \
                 progress(len(row_runs) * len(col_runs), "crowns: the surface by tile", "tile") as bar:
             for tr, (a0, a1) in row_runs:
                 for tc, (b0, b1) in col_runs:
                     win = Window(b0, a0, b1 - b0, a1 - a0)
                     nearest_m = src.read(1, window=win, masked=True).astype(np.float32).filled(np.nan)
-                    empty = None if dem_src is None else (
-                        empty_m, dem_src.read(1, window=win, masked=True).astype(np.float32).filled(np.nan)
-                        * np.float32(fz))
                     wx0, wx1 = x0d + b0 * resd, x0d + b1 * resd
                     wy1, wy0 = ytd - a0 * resd, ytd - a1 * resd
                     near = ((crowns.x_m + crowns.radius_m + reach >= wx0) & (crowns.x_m - crowns.radius_m - reach <= wx1)
@@ -522,7 +489,7 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
                         np.zeros(0, d) for _, d in _TILE_FIELDS)
                     out, unsure = _crown_surface(sub_crowns, *pts, nearest_m * np.float32(fz), x0_m=x0d, y_top_m=ytd,
                                                  res_m=resd, sub=5, window=(a0, b0, *dsm_shape),
-                                                 sure_m=(halo - 1) * res, empty=empty)
+                                                 sure_m=(halo - 1) * res)
                     beyond += unsure
                     out = out / np.float32(fz)
                     dst.write(np.where(np.isfinite(out), out, NODATA).astype(np.float32), 1, window=win)

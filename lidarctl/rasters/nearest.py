@@ -11,11 +11,6 @@ docs/true-ortho.md). Grids north-up: row 0 at ``y_top_m``, columns from ``x0_m``
 ``lidarctl rasters`` writes it as ``dsm_nearest.tif`` (``FILE``) beside dsm.tif, on its grid: the first returns
 (noise excluded, as dsm.tif takes them), the DSM's value where no return lies within ``SEARCH_RADIUS_M`` of a
 centre, nodata where the DSM is; the chain's true ortho tests occlusion on it (docs/true-ortho.md).
-
-The LiDAR's shadow: the scanner does not see the ground behind a wall, and the return nearest a centre there is the
-roof's (up to half way to the first ground return). A centre with no first return within ``EMPTY_RADIUS_SPACINGS``
-point spacings (``point_spacing_m``: the first returns' bounding box over their count) takes the DEM's height where
-it is lower (``empty_at_dem``); dsm.tif keeps its value.
 """
 
 from __future__ import annotations
@@ -32,59 +27,6 @@ FILE = "dsm_nearest.tif"
 # longest TIN edge the bench's surfaces took (bench/eval_true_ortho_dsm_cell.py); at the LiDAR's 0.75-1.1 m
 # spacing every centre of the covered ground has a return within 1-2 m, so it decides only the gaps.
 SEARCH_RADIUS_M = 5.0
-# A centre with no first return within this many point spacings is empty (the LiDAR's shadow behind a wall, a gap
-# in the strips) and takes the DEM's height where it is lower. Chosen on the simulator's demo seed 7 (issue 42,
-# bench/true_ortho_empty_cells_trial.py; the fill measured on the demo seed and the tall block): a fixed 0.5 m
-# lowered real roof cells in the scan's gaps between lines. In point spacings, so in the cloud's own density.
-EMPTY_RADIUS_SPACINGS = 1.14
-
-
-def point_spacing_m(box_m: tuple[float, float, float, float], n_first: int) -> float:
-    """The cloud's point spacing (m): the area of its first returns' bounding box (min x, max x, min y, max y in
-    metres) over their count, as the crown model takes it (0 for none)."""
-    if n_first <= 0:
-        return 0.0
-    return math.sqrt(max((box_m[1] - box_m[0]) * (box_m[3] - box_m[2]), 1e-9) / n_first)
-
-
-class FirstReturnSpacing:
-    """``point_spacing_m`` of the first returns (``first_return_mask``'s) of chunks of points, added one by one."""
-
-    def __init__(self):
-        self.box_m = [math.inf, -math.inf, math.inf, -math.inf]
-        self.n_first = 0
-
-    def add(self, x, y, cls, return_number) -> None:
-        """A chunk's returns (x, y in metres, class, return number)."""
-        m = first_return_mask(cls, return_number)
-        if m.any():
-            xs, ys = np.asarray(x)[m], np.asarray(y)[m]
-            b = self.box_m
-            self.box_m = [min(b[0], float(xs.min())), max(b[1], float(xs.max())), min(b[2], float(ys.min())),
-                          max(b[3], float(ys.max()))]
-            self.n_first += int(m.sum())
-
-    @property
-    def spacing_m(self) -> float:
-        return point_spacing_m(tuple(self.box_m), self.n_first)
-
-
-def empty_radius_m(spacing_m: float) -> float:
-    """Within this distance (m) of a centre a first return makes the cell not empty (``EMPTY_RADIUS_SPACINGS``)."""
-    return EMPTY_RADIUS_SPACINGS * spacing_m
-
-
-def empty_at_dem(surface: np.ndarray, distance_m: np.ndarray, dem: np.ndarray, radius_m: float,
-                 nodata: float | None = None) -> np.ndarray:
-    """The surface (heights, any unit) lowered in place to the DEM (the same unit) where its centre's nearest first
-    return lies farther than ``radius_m`` (``distance_m``, ``NearestReturns.surface_and_distance``) and the DEM is
-    lower; ``nodata`` (or NaN) in either grid: left as it is. Returns the cells lowered."""
-    with np.errstate(invalid="ignore"):
-        lower = (distance_m > radius_m) & (dem < surface)
-    if nodata is not None:
-        lower &= (surface != nodata) & (dem != nodata)
-    surface[lower] = dem[lower]
-    return lower
 
 
 def first_return_mask(cls: np.ndarray, return_number: np.ndarray) -> np.ndarray:
@@ -166,7 +108,6 @@ def _nearest_in_buckets(pts, start, grid, max_dist):
     # search from ring 0 (ring 1 only where ring 0 left none within half a cell), so the same nearest return.
     x0, y_top, res, nrows, ncols = grid
     out = np.empty((nrows, ncols), np.float32)
-    dist = np.empty((nrows, ncols), np.float32)   # to the nearest return (m), inf for none within max_dist
     reach = int(math.ceil(max_dist / res))
     far = max_dist * max_dist
     ring1, ring2 = ((1 - 0.5) * res) ** 2, ((2 - 0.5) * res) ** 2     # the ring search's bounds, the same floats
@@ -206,8 +147,7 @@ def _nearest_in_buckets(pts, start, grid, max_dist):
                 if reach >= 2 and not ring2 > best and _any_within(start, grid, i, j, reach):
                     best, best_z = _nearest_beyond(pts, start, grid, (i, j), (2, reach), (best, best_z))
             out[i, j] = best_z
-            dist[i, j] = math.sqrt(best) if best_z == best_z else math.inf
-    return out, dist
+    return out
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -281,11 +221,6 @@ class NearestReturns:
 
     def surface(self) -> np.ndarray:
         """``nearest_return_surface`` of the returns added (none if no chunk was added)."""
-        return self.surface_and_distance()[0]
-
-    def surface_and_distance(self) -> tuple[np.ndarray, np.ndarray]:
-        """``surface`` and each centre's distance (m, float32) to its nearest return (inf for none within
-        ``max_dist_m``)."""
         if self._pts is None:
             return _nearest_in_buckets(np.empty((0, 3)), np.zeros(len(self._start) - 1, np.int64), self._grid,
                                        self._max_dist_m)

@@ -13,8 +13,7 @@ description, and the tags ``LINEAR_UNITS``, ``VERTICAL_UNITS`` and ``CELL_SIZE_M
 * dsm.tif: highest first return (noise excluded) per cell; gaps filled as for the DEM.
 * dsm_nearest.tif: height of the first return (noise excluded) nearest each cell centre (``nearest``: the
   surface straight down at the centres, the true ortho's occlusion test); the DSM's value where none lies within
-  ``nearest.SEARCH_RADIUS_M``; the DEM's where it is lower and no first return lies within
-  ``nearest.EMPTY_RADIUS_SPACINGS`` point spacings (the LiDAR's shadow behind walls); nodata where the DSM is.
+  ``nearest.SEARCH_RADIUS_M``; nodata where the DSM is.
 * ndsm.tif: dsm - dem.
 * chm.tif: highest vegetation (classes 4, 5) height above the DEM per cell; nodata where no trees.
 * intensity.tif: mean intensity of first returns (nodata where none).
@@ -208,16 +207,11 @@ class _CellSums:
         return nearest.NearestReturns(x0_m=x0, y_top_m=y0 + nrows * res_m, res_m=res_m, nrows=nrows, ncols=ncols,
                                       max_dist_m=nearest.SEARCH_RADIUS_M)
 
-    def grids(self, dem: np.ndarray, footprint_cells: int, near: tuple[np.ndarray, np.ndarray],
-              empty_radius_m: float) -> RasterGrids:
-        """The grids north-up; ``near``: the nearest-return surface of the grid and its distances
-        (``NearestReturns.surface_and_distance``, metres, NaN for none); ``empty_radius_m``: ``nearest.empty_at_dem``'s
-        radius."""
+    def grids(self, dem: np.ndarray, footprint_cells: int, near: np.ndarray) -> RasterGrids:
+        """The grids north-up; ``near``: the nearest-return surface of the grid (``nearest``, metres, NaN for none)."""
         res_m, x0, y0, nrows, ncols = self.args
         out = {k: v[::-1] for k, v in self.grids_south_up(dem, footprint_cells).items()}   # north-up rows
-        surface, distance_m = near
-        out["dsm_nearest"] = np.where(np.isnan(out["dsm"]) | np.isnan(surface), out["dsm"], surface).astype(np.float32)
-        nearest.empty_at_dem(out["dsm_nearest"], distance_m, out["dem"], empty_radius_m)
+        out["dsm_nearest"] = np.where(np.isnan(out["dsm"]) | np.isnan(near), out["dsm"], near).astype(np.float32)
         return RasterGrids(**out, transform=from_origin(x0, y0 + nrows * res_m, res_m, res_m))
 
 
@@ -249,9 +243,7 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
     near = sums.nearest_returns()
     near.count(x, y, cls, cloud.return_number)
     near.add(x, y, z, cls, cloud.return_number)
-    spacing = nearest.FirstReturnSpacing()
-    spacing.add(x, y, cls, cloud.return_number)
-    return sums.grids(dem, footprint_cells, near.surface_and_distance(), nearest.empty_radius_m(spacing.spacing_m))
+    return sums.grids(dem, footprint_cells, near.surface())
 
 
 def _header_bounds(path, header):
@@ -304,19 +296,16 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
                option="--res-m", hint="use a coarser --res-m (or check the bounds: strips far apart, a wrong CRS?)")
     sums = _CellSums(args)
     near = sums.nearest_returns()
-    spacing = nearest.FirstReturnSpacing()
     for x, y, z, cls, rn, inten in _file_points(path, units, chunk_points):
         sums.add(x, y, z, cls, rn, inten)
         near.count(x, y, cls, rn)
-        spacing.add(x, y, cls, rn)
     if not sums.ground_n.any():
         raise InputError(f"{path}: no ground points (class 2); run 'lidarctl classify' first")
     dem = sums.dem()
     for x, y, z, cls, rn, _ in _file_points(path, units, chunk_points, validate=False):
         sums.add_chm(x, y, z, cls, dem)
         near.add(x, y, z, cls, rn)
-    return (sums.grids(dem, footprint_cells, near.surface_and_distance(), nearest.empty_radius_m(spacing.spacing_m)),
-            int(header.point_count))
+    return sums.grids(dem, footprint_cells, near.surface()), int(header.point_count)
 
 
 def _transform_in_units(t, units: LengthUnits):
@@ -528,19 +517,17 @@ _BLOCK_PX = 512
 _BIN_READ_POINTS = 250_000
 
 
-def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> tuple[np.ndarray, float]:
+def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> np.ndarray:
     """Pass 1: stream every file once and append each tile's points (core + buffer) to its
     files ``tile_<id>_<field>.bin`` (``_BIN_FIELDS``, metres, file order). Tiles are in raster cells: the tile grid's
     coordinates are the global cell indices, so tile membership is exact integer arithmetic and
-    agrees with the cell ``_CellSums`` puts a point in. Returns which tiles hold points and the block's point
-    spacing (m, ``nearest.FirstReturnSpacing``)."""
+    agrees with the cell ``_CellSums`` puts a point in. Returns which tiles hold points."""
     from aerotri.core.log import progress
 
     res_m, x0, y0 = args[:3]
     tile_px, buffer_px = int(grid.tile_m), int(grid.buffer_m)
     lay = _TileLayout(res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols)
     used = np.zeros(grid.n_tiles, bool)
-    spacing = nearest.FirstReturnSpacing()
     n_ground = 0
     read_points = min(chunk_points, _BIN_READ_POINTS)
     chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, read_points))
@@ -548,7 +535,6 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> t
         for x, y, z, cls, rn, inten in _read_ahead(chunks):
             count = np.zeros(grid.n_tiles + 1, np.int64)
             n_members = _membership_count(x, y, lay, count)
-            spacing.add(x, y, cls, rn)
             cols = _ChunkPoints(*(np.empty(n_members, dtype) for _, dtype in _BIN_FIELDS))   # by tile
             # classes contiguous (a strided record field of some files): numba compiles one signature
             n_ground += _gather_columns(cols, count, _ChunkPoints(x, y, z, np.ascontiguousarray(cls), rn, inten), lay)
@@ -560,7 +546,7 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> t
             bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
-    return used, spacing.spacing_m
+    return used
 
 
 # The tiles of a point (its own and the 0 to 3 neighbours whose buffer holds it; the tile grid's
@@ -938,19 +924,17 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     transform = transform_m if units.is_metric else _transform_in_units(transform_m, units)
     tags = _tags(units, res_m)
     key_doc = _tiles_key_doc(inputs, args, grid, chunk_points=chunk_points, footprint_cells=footprint_cells,
-                             dem_fill_radius_px=dem_fill_radius_px,
-                             empty_radius_spacings=nearest.EMPTY_RADIUS_SPACINGS)
+                             dem_fill_radius_px=dem_fill_radius_px)
 
     def write(tmp: Path, keep: ResumeFolder | None) -> None:
         work = tmp / "work"
         work.mkdir()
-        used, spacing_m = _bin_points(inputs, args, grid, work, chunk_points)
+        used = _bin_points(inputs, args, grid, work, chunk_points)
         with contextlib.ExitStack() as working:     # the working GeoTIFFs, closed on errors too
             with rasterio.Env(**_GDAL_THREAD_ENV):
                 gtiffs = _tiles_to_gtiffs(inputs, args, grid, used, work, working, transform=transform, tags=tags,
                                           chunk_points=chunk_points, footprint_cells=footprint_cells,
-                                          dem_fill_radius_px=dem_fill_radius_px,
-                                          empty_radius_m=nearest.empty_radius_m(spacing_m), threads=threads,
+                                          dem_fill_radius_px=dem_fill_radius_px, threads=threads,
                                           in_memory=in_memory, resume=None if keep is None else (keep, key_doc))
 
             # Each task closes its working GeoTIFF first: the windows sit in GDAL's block cache (the demo's six
@@ -1144,10 +1128,9 @@ def _run_threads(tasks) -> None:
 
 
 def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, footprint_cells: int,
-                dem_fill_radius_px: float, empty_radius_m: float, keep: tuple[ResumeFolder, str] | None = None):
+                dem_fill_radius_px: float, keep: tuple[ResumeFolder, str] | None = None):
     """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
     NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``). Runs in a worker thread.
-    ``empty_radius_m``: ``nearest.empty_at_dem``'s radius (the block's).
     ``keep``: (resume folder, key): the grids are kept there for a resumed run (``_keep_tile``)."""
     import os
 
@@ -1168,8 +1151,7 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
-    out["dsm_nearest"] = _tile_nearest(near, near_core, out["dsm"], inputs.units, dem=out["dem"],
-                                       empty_radius_m=empty_radius_m)
+    out["dsm_nearest"] = _tile_nearest(near, near_core, out["dsm"], inputs.units)
     if keep is not None:
         _keep_tile(*keep, out, work, tid)
     return out
@@ -1191,26 +1173,23 @@ def _tile_nearest_returns(args, tile) -> tuple[nearest.NearestReturns, tuple[sli
 
 
 def _tile_nearest(near: nearest.NearestReturns, core: tuple[slice, slice], dsm: np.ndarray,
-                  units: LengthUnits, *, dem: np.ndarray, empty_radius_m: float) -> np.ndarray:
+                  units: LengthUnits) -> np.ndarray:
     """dsm_nearest of a tile's core (north-up float32, CRS units, NODATA) from the nearest returns of its grown core
-    and the core's place in them (``_tile_nearest_returns``, every chunk added) and its ``dsm`` and ``dem`` (the
-    core's, as written): the nearest return, else the DSM's value; the DEM's where it is lower and the nearest
-    return lies farther than ``empty_radius_m`` (``nearest.empty_at_dem``)."""
-    surface, distance_m = near.surface_and_distance()
-    surface, distance_m = surface[core], distance_m[core]
+    and the core's place in them (``_tile_nearest_returns``, every chunk added) and its ``dsm`` (the core's, as
+    written): the nearest return, else the DSM's value."""
+    surface = near.surface()[core]
     if not units.is_metric:   # the arithmetic of ``RasterGrids.in_crs_units``
         surface = (surface.astype(float) / units.z_m).astype(np.float32)
     surface = np.ascontiguousarray(surface)
     fallback = np.isnan(surface)
     fallback |= dsm == NODATA
     surface[fallback] = dsm[fallback]
-    nearest.empty_at_dem(surface, distance_m, dem, empty_radius_m, nodata=NODATA)
     return surface
 
 
 def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: contextlib.ExitStack, *, transform,
-                     tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, empty_radius_m: float,
-                     threads: int = 1, in_memory: bool = False, resume: tuple[ResumeFolder, dict] | None = None):
+                     tags, chunk_points: int, footprint_cells: int, dem_fill_radius_px: float, threads: int = 1,
+                     in_memory: bool = False, resume: tuple[ResumeFolder, dict] | None = None):
     """Pass 2: each tile's grids from its binned points (``_tile_grids``, ``threads`` tiles at a time,
     at most one more waiting, largest first), the core written by window into tiled GeoTIFFs
     (``work/<name>.tif`` in the CRS's units, ``work/dem_m.tif`` the DEM in metres for the hillshade) as each
@@ -1270,7 +1249,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
                         tile = todo.popleft()
                         running[pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
                                             footprint_cells=footprint_cells, dem_fill_radius_px=dem_fill_radius_px,
-                                            empty_radius_m=empty_radius_m, keep=None if resume is None else (resume[0], keys[tile[0]]))] = tile
+                                            keep=None if resume is None else (resume[0], keys[tile[0]]))] = tile
                     if empty:     # tiles without points: nodata, written while the first tiles are computed
                         for window in empty:
                             write(window, {name: np.full((window.height, window.width), NODATA, np.float32)

@@ -209,11 +209,6 @@ def test_lidarctl_crowns_refuses_a_missing_nearest_return_dsm(tmp_path):
     r = CliRunner().invoke(main, ["crowns", str(tmp_path / "strip.las"), str(tmp_path / "out")])
     assert r.exit_code == 2 and "dsm_nearest.tif: nearest-return DSM not found" in r.output
     assert "Traceback" not in r.output and not (tmp_path / "out").exists()
-    (tmp_path / "dsm_nearest.tif").write_bytes(b"")
-    r = CliRunner().invoke(main, ["crowns", str(tmp_path / "strip.las"), str(tmp_path / "out"), "--dsm-nearest",
-                                  str(tmp_path / "dsm_nearest.tif"), "--dem", str(tmp_path / "dem.tif")])
-    assert r.exit_code == 2 and "dem.tif: DEM not found (--dem)" in r.output
-    assert "Traceback" not in r.output and not (tmp_path / "out").exists()
 
 
 def test_the_tile_files_are_refused_before_they_fill_the_disk(tmp_path, monkeypatch):
@@ -305,52 +300,3 @@ def test_strips_in_another_crs_than_the_dsm_are_refused(tmp_path):
     with pytest.raises(InputError, match="strip.las"):
         write_crown_model([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", out)
     assert list(out.iterdir()) == []
-
-
-def test_the_crowns_cells_with_no_return_near_end_at_the_dem(tmp_path):
-    """A hole of 3 x 3 m in the returns at a crown's rim (a LiDAR shadow): with the DEM given, the crowns' cells whose
-    nearest first return lies beyond 1.14 point spacings end at the DEM (as dsm_nearest.tif's other cells,
-    ``nearest.empty_at_dem``), not at the crown the disk would raise them to; the other cells as without it; a
-    DEM on another grid is refused, naming it."""
-    import rasterio
-    from rasterio.transform import from_origin
-    from scipy.spatial import cKDTree
-
-    from aerotri.core.errors import InputError
-    from lidarctl.rasters import nearest
-    from lidarctl.rasters.crown_model import write_crown_model
-
-    x, y, z, cls, rn = _scene(7)
-    hole = (x > 11.0) & (x < 14.0) & (y > 8.5) & (y < 11.5)
-    x, y, z, cls, rn = (a[~hole] for a in (x, y, z, cls, rn))
-    x0, y0 = 500000.0, 4000000.0
-    _write_strip(tmp_path / "strip.las", x, y, z, cls, rn, x0, y0)
-    dsm, _ = _nearest_dsm(x, y, z, cls, rn)
-    tf = from_origin(x0, y0 + 42.0, 0.5, 0.5)
-    for name, a, t in (("dsm_nearest", dsm, tf), ("dem", np.zeros_like(dsm), tf),
-                       ("dem_shifted", np.zeros_like(dsm), from_origin(x0 + 0.5, y0 + 42.0, 0.5, 0.5))):
-        with rasterio.open(tmp_path / f"{name}.tif", "w", driver="GTiff", width=84, height=84, count=1,
-                           dtype="float32", crs="EPSG:32611", transform=t) as ds:
-            ds.write(a, 1)
-    surfaces = {}
-    for dem in (None, "dem"):
-        out = tmp_path / f"out_{dem}"
-        out.mkdir()
-        _, tif = write_crown_model([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", out,
-                                   dem_path=dem and tmp_path / f"{dem}.tif")
-        with rasterio.open(tif) as ds:
-            surfaces[dem] = ds.read(1)
-    first = rn == 1
-    spacing = nearest.point_spacing_m((x[first].min(), x[first].max(), y[first].min(), y[first].max()),
-                                      int(first.sum()))
-    c = (np.arange(84) + 0.5) * 0.5
-    X, Y = np.meshgrid(c, 42.0 - c)
-    d, _ = cKDTree(np.c_[x[first], y[first]]).query(np.c_[X.ravel(), Y.ravel()])
-    empty = d.reshape(84, 84) > nearest.EMPTY_RADIUS_SPACINGS * spacing
-    raised = empty & (surfaces[None] > 0.0)
-    assert raised.sum() >= 2                      # the disk stands them at the crown without the DEM
-    assert (surfaces["dem"][empty] == 0.0).all()  # at the DEM with it
-    np.testing.assert_array_equal(surfaces["dem"][~empty], surfaces[None][~empty])
-    with pytest.raises(InputError, match="dem_shifted.tif: the DEM is not on the grid"):
-        write_crown_model([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", tmp_path / "out_None",
-                          dem_path=tmp_path / "dem_shifted.tif")
