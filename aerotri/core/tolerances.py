@@ -95,9 +95,19 @@ def _toml(path: Path, what: str = "tolerance table (TOML)") -> dict:
         raise InputError(f"{path}: not a valid TOML tolerance table ({e})") from None
 
 
-def _provenance(d: dict) -> dict:
-    return {k: Provenance(str(v.get("source", "")), bool(v.get("confirmed", False)), bool(v.get("nva", False)))
-            for k, v in (d.get("provenance") or {}).items() if isinstance(v, dict)}
+def _provenance(d: dict, path: Path | None = None) -> dict:
+    """Limit key -> ``Provenance`` of the table's ``[provenance.<key>]`` sections; ``confirmed`` and ``nva`` are TOML
+    booleans (a text "false" is true to Python and would judge a DEM limit on the open ground only: refused)."""
+    out = {}
+    for k, v in (d.get("provenance") or {}).items():
+        if not isinstance(v, dict):
+            continue
+        for flag in ("confirmed", "nva"):
+            if flag in v and not isinstance(v[flag], bool):
+                raise ConfigError(f"{path or 'tolerance table'}: [provenance.{k}] {flag} = {v[flag]!r}: expected true "
+                                  f"or false (a TOML boolean, without quotes)")
+        out[k] = Provenance(str(v.get("source", "")), v.get("confirmed", False), v.get("nva", False))
+    return out
 
 
 def split_key(key: str) -> tuple[str, bool]:
@@ -236,7 +246,7 @@ def load_table(scale: str | None = None, terrain: str = "flat", tolerance_file=N
         for k, v in own.items():  # a limit of inf, nan or text passes or fails everything: refused by name
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{path}: [{terrain}]/[general] {k} = {v!r}: expected a finite limit >= 0")
-        limits, prov = dict(own), _provenance(d)
+        limits, prov = dict(own), _provenance(d, path)
         name = (d.get("table") or {}).get("name") or f"{path.name} (user table)"
         name = f"{name}, {terrain}"
     flight, fprov = _flight_limits(uas, own)

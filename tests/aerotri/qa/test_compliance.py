@@ -447,6 +447,12 @@ def test_map_scale_and_own_tables_judge_the_dem_rmse_on_every_surveyed_point(tmp
     rep = write_qa_report(tmp_path, tolerance_file=own)
     row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
     assert row.value == pytest.approx(0.05, abs=1e-4) and "at 34 non-vegetated surveyed points" in row.quantity
+    # review3: a flag in quotes ("false" is true to Python) judged the open ground only: refused, naming the key
+    from aerotri.core.errors import ConfigError
+
+    own.write_text(own.read_text().replace("nva = true\n", 'nva = "false"\n'))
+    with pytest.raises(ConfigError, match=r"\[provenance.dem_rmse_m\] nva = 'false': expected true or false"):
+        write_qa_report(tmp_path, tolerance_file=own)
 
 
 def test_the_outlier_row_counts_the_points_its_label_names(tmp_path):
