@@ -86,8 +86,6 @@ class FusionSettings:
     # A road is bounded by land (verges, kerbs, quays); a road-shaped patch whose border is mostly water lies in
     # the water (a riffle's returns the LiDAR water rule left as ground): a majority, no fitted value.
     road_max_water_rim_share: float = 0.5
-    # ... and at the water's level (a causeway's road stands above it): the LiDAR rule's water_level_tol_m.
-    water_level_tol_m: float = 0.2
     building_max_green: float = 0.5
     building_max_fml_m: float = 2.0
     building_max_fml_share: float = 0.3
@@ -239,12 +237,16 @@ def road_shaped(mask: np.ndarray, cell_m: float, p: FusionSettings = FusionSetti
     return np.r_[False, ok][labels]
 
 
-def in_water(regions: np.ndarray, row, col, cls, max_share: float, z=None, level_tol_m: float = 0.2) -> np.ndarray:
+def in_water(regions: np.ndarray, row, col, cls, max_share: float, z=None, level_tol_m: float | None = None
+             ) -> np.ndarray:
     """Cells of the 8-connected regions of ``regions`` lying in water: more than ``max_share`` of the
     cells with returns on their rim (two cells wide) hold a water return (class 9; cells without returns,
     dropouts and the data's edge, say nothing) and, given the returns' heights ``z`` (m), the region lies at
     the water's level: the median height of its ground returns above the nearest water return on its rim is
-    within ``level_tol_m`` (m) (a road on a causeway or embankment across a lake stands above the water)."""
+    within ``level_tol_m`` (m; the LiDAR water rule's ``water_level_tol_m``) (a road on a causeway or embankment
+    across a lake stands above the water)."""
+    if z is not None and level_tol_m is None:
+        raise ValueError("in_water: the returns' heights z need level_tol_m")
     labels, n = ndimage.label(regions, structure=_EIGHT)
     if n == 0:
         return np.zeros_like(regions, bool)
@@ -392,10 +394,11 @@ class Fusion:
 
 
 def fuse(x, y, z, hag, cls, intensity, *, img: ImageSource, p: FusionSettings = FusionSettings(),
-         return_number=None, number_of_returns=None) -> np.ndarray:
+         water_level_tol_m: float, return_number=None, number_of_returns=None) -> np.ndarray:
     """Classes after the fusion rules (module docstring) for one tile's points (x, y, z in metres; ``hag``:
     height above the ground DEM; ``cls``: the LiDAR-only classes; return numbers for the first-minus-last
-    height, optional). Returns a new array."""
+    height, optional; ``water_level_tol_m``: the LiDAR classification's setting, m).
+    Returns a new array."""
     cls = np.asarray(cls).copy()
     n = len(cls)
     if n == 0:
@@ -476,6 +479,6 @@ def fuse(x, y, z, hag, cls, intensity, *, img: ImageSource, p: FusionSettings = 
         cells = ndimage.binary_closing(cells, structure=_EIGHT, iterations=1) | cells
         road = road_shaped(cells, c, p)
         if np.any(cls == WATER) and road.any():
-            road &= ~in_water(road, row, col, cls, p.road_max_water_rim_share, z, p.water_level_tol_m)
+            road &= ~in_water(road, row, col, cls, p.road_max_water_rim_share, z, water_level_tol_m)
         cls[bare & road[row, col]] = ROAD
     return cls

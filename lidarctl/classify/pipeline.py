@@ -1785,5 +1785,6 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         from lidarctl.classify import fusion as fusion_mod
 
         cls = fusion_mod.fuse(x, y, z, hag, cls, intensity, img=fusion.image, p=fusion.params,
-                              return_number=return_number, number_of_returns=number_of_returns)
+                              return_number=return_number, number_of_returns=number_of_returns,
+                              water_level_tol_m=p.water_level_tol_m)
     return cls

@@ -14,6 +14,12 @@ from lidarctl.classify import pipeline as classify
 from lidarctl.classify import fusion
 from lidarctl.cli.main import main
 
+
+def _fuse(*args, **kw):
+    """``fusion.fuse`` with the LiDAR classification's water level tolerance, as the pipeline runs it."""
+    return fusion.fuse(*args, water_level_tol_m=classify.ClassifySettings().water_level_tol_m, **kw)
+
+
 X0, Y0 = 500000.0, 5400000.0
 GREEN, GREY, BROWN = (60, 140, 50), (120, 120, 125), (150, 120, 80)
 
@@ -70,14 +76,14 @@ def test_fuse_roads_grass_bare_and_green_building(tmp_path):
         nir[rows[mask], cols[mask]] = n
     _image(tmp_path / "dom.tif", rgb, nir)
     img = fusion.open_image(tmp_path / "dom.tif", "4")
-    out = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=img)
+    out = _fuse(x + X0, y + Y0, z, hag, cls, intensity, img=img)
     assert np.mean(out[road] == 11) > 0.95
     assert np.all(out[bare] == 2)
     assert np.all(out[bld] == 5)
     grass = ~road & ~bare & ~bld
     assert np.mean(out[grass] == 3) > 0.99
     # without the NIR band the excess green gives the same classes here
-    out_rgb = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
+    out_rgb = _fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
     assert np.mean(out_rgb == out) > 0.99
 
 
@@ -164,14 +170,14 @@ def test_building_confirmation_by_lines_and_penetration(tmp_path):
     _image(tmp_path / "dom.tif", rgb, res=res)
     img = fusion.open_image(tmp_path / "dom.tif")
     args = (x + X0, y + Y0, 100.0 + hag, hag, cls, np.full(len(x), 300))
-    out = fusion.fuse(*args, img=img, p=fusion.FusionSettings(), return_number=rn, number_of_returns=nr)
+    out = _fuse(*args, img=img, p=fusion.FusionSettings(), return_number=rn, number_of_returns=nr)
     assert np.all(out[inside["A"]] == 6)
     assert np.all(out[inside["B"]] == 5)
     assert np.all(out[inside["C"] & ~under] == 5)
-    kept = fusion.fuse(*args, img=img, p=fusion.FusionSettings(building_min_lines=0), return_number=rn,
+    kept = _fuse(*args, img=img, p=fusion.FusionSettings(building_min_lines=0), return_number=rn,
                        number_of_returns=nr)
     assert np.all(kept[inside["B"]] == 6) and np.all(kept[inside["A"]] == 6)
-    single = fusion.fuse(*args, img=img, p=fusion.FusionSettings(), return_number=np.ones(len(x)),
+    single = _fuse(*args, img=img, p=fusion.FusionSettings(), return_number=np.ones(len(x)),
                          number_of_returns=np.ones(len(x)))
     assert np.all(single[inside["C"] & ~under] == 6)
     # the segments counted are those of 2 m or more, in metres whatever the pixel size
@@ -200,12 +206,12 @@ def test_a_road_shaped_patch_in_the_river_is_not_road(tmp_path):
     for mask, colour in ((river, (60, 70, 75)), (riffle | quay, GREY)):
         rgb[rows[mask], cols[mask]] = colour
     _image(tmp_path / "dom.tif", rgb)
-    out = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
+    out = _fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
     assert np.mean(out[quay] == 11) > 0.95
     assert not np.any(out[riffle] == 11) and np.all(out[riffle] == 2)
     assert np.all(out[river & ~riffle] == 9)
     # without the rim test (main's rule) the riffle is road
-    off = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"),
+    off = _fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"),
                       p=fusion.FusionSettings(road_max_water_rim_share=1.0))
     assert np.mean(off[riffle] == 11) > 0.95
 
@@ -228,7 +234,7 @@ def test_a_road_on_a_causeway_above_the_lake_stays_road(tmp_path):
     for mask, colour in ((lake, (60, 70, 75)), (road, GREY)):
         rgb[rows[mask], cols[mask]] = colour
     _image(tmp_path / "dom.tif", rgb)
-    out = fusion.fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
+    out = _fuse(x + X0, y + Y0, z, hag, cls, intensity, img=fusion.open_image(tmp_path / "dom.tif"))
     assert np.mean(out[road & lake] == 11) > 0.95
     # the rim share alone (no heights) puts it in the water
     rr, cc = rows, cols
