@@ -919,14 +919,8 @@ def water_surface(x, y, z, tol_m: float, max_slope: float, min_points: int):
     if not falls_along_course(lev, ok, np.bincount(cell, minlength=nr * nc).reshape(nr, nc) > 0, tol_m):
         return None
     filled = lev[tuple(ndimage.distance_transform_edt(~ok, return_distances=False, return_indices=True))]
-    # Bilinear interpolation between reach centres.
-    fx = np.clip((x - x0) / reach_m - 0.5, 0.0, nc - 1.0)
-    fy = np.clip((y - y0) / reach_m - 0.5, 0.0, nr - 1.0)
-    jx, jy = np.minimum(fx.astype(np.int64), max(nc - 2, 0)), np.minimum(fy.astype(np.int64), max(nr - 2, 0))
-    tx, ty = fx - jx, fy - jy
-    jx1, jy1 = np.minimum(jx + 1, nc - 1), np.minimum(jy + 1, nr - 1)
-    level = ((1 - ty) * ((1 - tx) * filled[jy, jx] + tx * filled[jy, jx1])
-             + ty * ((1 - tx) * filled[jy1, jx] + tx * filled[jy1, jx1]))
+    # bilinear between the reach centres (rows run with y from the lowest y: sample_bilinear's grid with y0 at row 0)
+    level = sample_bilinear(filled, x, y, cell_m=reach_m, x0=x0, y0=y0)
     level[~ok[iy, ix]] = np.nan
     return level
 
