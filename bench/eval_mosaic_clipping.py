@@ -103,10 +103,10 @@ def saturation(root: Path, white: int) -> dict:
             "mosaic_max_sample": int(mos[:, ok].max())}
 
 
-def overlap_samples(root: Path, names, white: int, step: int) -> tuple[list, int]:
+def overlap_samples(root: Path, names, white: int, step: int, *, without_black: bool = False) -> tuple[list, int]:
     """(pairs, the frames' type maximum): every pair of overlapping frame orthos of ``root`` as (i, j, samples of i,
-    samples of j) (bands, n) float32 at every ``step``-th mosaic pixel both have valid and neither at ``white``
-    (pairs sharing fewer than 100 such pixels left out)."""
+    samples of j) (bands, n) float32 at every ``step``-th mosaic pixel both have valid and neither at ``white`` (nor
+    at 0 with ``without_black``; pairs sharing fewer than 100 such pixels left out)."""
     with rasterio.open(root / "ortho" / "mosaic.tif") as M:
         mt = M.transform
     grids = []
@@ -116,6 +116,8 @@ def overlap_samples(root: Path, names, white: int, step: int) -> tuple[list, int
         r0, c0 = (-dr) % step, (-dc) % step
         sub, ok = a[:, r0::step, c0::step], fm[r0::step, c0::step]
         ok = ok & ~(sub >= white).any(0)
+        if without_black:
+            ok &= ~(sub == 0).any(0)
         grids.append(((dr + r0) // step, (dc + c0) // step, sub, ok))
     pairs = []
     for i in range(len(grids)):

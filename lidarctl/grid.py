@@ -236,6 +236,12 @@ def _counting_sort(cell_id, ncells):
     return order, start
 
 
+def cell_order(cell_id: np.ndarray, ncells: int):
+    """(order, cell_start): the stable permutation sorting points by cell (``np.argsort(cell_id, kind="stable")``)
+    and each cell's first position in it (``ncells + 1`` entries), by one counting sort, O(n + ncells)."""
+    return _counting_sort(np.asarray(cell_id, np.int64), int(ncells))
+
+
 @numba.njit(cache=True)
 def _sort_segments(order, start, key):
     for c in range(len(start) - 1):

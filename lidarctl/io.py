@@ -86,10 +86,16 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
     present but unreadable (e.g. user-defined linear units without their size) is a CrsError naming it,
     unless ``crs_arg`` is given: then ``crs_arg`` replaces it (a warning says so). A geographic CRS is a
     CrsError (lidarctl needs lengths). The vertical unit comes from a compound CRS, else from the GeoTIFF
-    vertical keys, else it is the horizontal unit.
+    vertical keys (a user-defined one without its size, GeogLinearUnitSizeGeoKey, is unreadable as above),
+    else it is the horizontal unit.
     """
+    hint = "pass --crs EPSG:<code> to use that CRS instead"
     try:
-        file_crs = las.read_header_crs(path, header, hint="pass --crs EPSG:<code> to use that CRS instead")
+        file_crs = las.read_header_crs(path, header, hint=hint)
+        # a vertical units key whose size is unknown is refused as the horizontal one (heights in feet were read
+        # in the horizontal unit); --crs replaces both (a compound --crs gives the heights' unit)
+        vertical = None if file_crs is None or file_crs.is_compound else \
+            las.read_vertical_unit_m(path, header, hint=hint + " (a compound CRS for heights in another unit)")
     except CrsError as exc:
         if crs_arg is None or str(crs_arg).strip() == "":
             raise
@@ -97,7 +103,6 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
         file_crs = None
     if file_crs is not None:
         crs, source = file_crs, f"{path}: CRS record"
-        vertical = None if file_crs.is_compound else las.geokey_vertical_unit_m(header)
     elif crs_arg is None or str(crs_arg).strip() == "":
         if not require_crs:
             return None, UNKNOWN

@@ -25,6 +25,8 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from lidarctl.grid import cell_order
+
 # Cell edge as a share of the radius holding k + 1 points at the mean density: 0.5 makes a query
 # scan 2-3 rings (about 25-49 cells of ~k/12 points each) instead of 1-2 rings of crowded cells.
 CELL_SHARE_OF_RADIUS = 0.5
@@ -155,10 +157,7 @@ class BucketGrid:
         radius_m = math.sqrt((k_hint + 1) * w * h / (math.pi * n))
         self.cell_m = max(CELL_SHARE_OF_RADIUS * radius_m, math.sqrt(w * h / n), 1e-6)
         self.ncols, self.nrows = int(w // self.cell_m) + 1, int(h // self.cell_m) + 1
-        cid = self._cells(self.px, self.py)
-        self.order = np.argsort(cid, kind="stable")
-        self.cell_start = np.searchsorted(cid[self.order], np.arange(self.nrows * self.ncols + 1)).astype(np.int64)
-        del cid
+        self.order, self.cell_start = cell_order(self._cells(self.px, self.py), self.nrows * self.ncols)
         self.sx, self.sy = self.px[self.order], self.py[self.order]
         self._tree = None
 
@@ -174,7 +173,7 @@ class BucketGrid:
         qx, qy = np.ascontiguousarray(qx, np.float64), np.ascontiguousarray(qy, np.float64)
         if k < 1:
             raise ValueError("knn needs k >= 1")
-        qorder = np.argsort(self._cells(qx, qy), kind="stable")
+        qorder = cell_order(self._cells(qx, qy), self.nrows * self.ncols)[0]
         ub2 = float(upper_m) * float(upper_m) if np.isfinite(upper_m) else np.inf
         buckets = _Buckets(self.sx, self.sy, self.order, self.cell_start, self.nrows, self.ncols, float(self.x0),
                            float(self.y0), float(self.cell_m))

@@ -271,8 +271,11 @@ def sample_bilinear(a: np.ndarray, x, y, *, cell_m, x0, y0, row0: int = 0, col0:
 
 
 def slope_tan(a: np.ndarray, cell_m: float) -> np.ndarray:
-    """Tangent of the terrain slope (gradient magnitude) of a filled raster."""
-    gy, gx = np.gradient(a, cell_m)
+    """Tangent of the terrain slope (gradient magnitude) of a filled raster; along a side of one cell (a cloud
+    narrower than two cells) the slope across it is unknown and taken as 0."""
+    a = np.asarray(a, float)
+    gy = np.gradient(a, cell_m, axis=0) if a.shape[0] > 1 else np.zeros_like(a)
+    gx = np.gradient(a, cell_m, axis=1) if a.shape[1] > 1 else np.zeros_like(a)
     return np.hypot(gx, gy)
 
 

@@ -10,14 +10,19 @@ Steps (``mosaic_block``):
    per frame plus the seam lines between neighbours), ``seamlines.gpkg`` (one polygon per frame with its ``frame``
    name, for editing in QGIS: ``ortho.seamlines_gpkg``) and the label raster ``seams.tif``. With edited seamlines
    (``seamlines=``, ``ortho mosaic --seamlines EDITED.gpkg``) their polygons, checked, are the seams.
-3. Gain balancing: per band, log-gains g_k minimising sum over overlapping pairs of
-   n_ij (log m_i + g_i - log m_j - g_j)^2 + lambda sum g_k^2, with m_i the mean of frame i over the
-   common overlap (linear least squares, normal equations: n frames, not n^2 pairs, in memory; the prior keeps the
-   block's level: the mean log-gain is 0). A highlight roll-off after the gains, one curve for the block
-   (``HighlightRolloff``: identity up to a knee, then a quadratic to white - 0.5), brings every unsaturated sample
-   below the white level; only a frame whose brightest unsaturated sample would go beyond what it takes is held, by
-   g_k <= log(1.5 (white - 0.5) / that sample) (``gain_caps``; bounded least squares). A saturated sample stays at
-   the white level whatever the gain (``hold``).
+3. Gain (and offset) balancing: by default per band the log-gains of ``balance_gains`` (the pairs' means matched by
+   gains alone); with the setting ``offsets`` a gain g_k = e^x_k and an offset o_k (DN, the frames' own bit depth:
+   haze, a black level, which a gain cannot remove) per frame, one least squares over all overlapping pairs
+   (``balance_gains_offsets``): their means matched (log(g m_i + o) to first order in o) and, weighted by
+   ``SPREAD_WEIGHT``, their standard deviations (which an offset does not change), a weak prior towards g 1 and o 0,
+   the block's mean log-gain and mean offset held at 0 (its level); normal equations of 2 n unknowns, n frames, not
+   n^2 pairs, in memory. An offset is at most ``OFFSET_MAX_SHARE`` of white either way. A highlight roll-off after
+   them, one curve for the block (``HighlightRolloff``: identity up to a knee, then a quadratic to white - 0.5), brings
+   every unsaturated sample below the white level, a shadow toe (``ShadowToe``, its mirror) every one a negative
+   offset would take below 0.5 above it; only a frame whose brightest unsaturated sample would go beyond what the
+   roll-off takes is held, by g_k <= log(1.5 (white - 0.5) / that sample) (``gain_caps``), and the offsets by
+   ``offset_bounds`` (bounded least squares; a warning per frame and band held). A saturated sample stays at the white
+   level whatever the gain, a black one (0) at black whatever the offset (``hold``).
 4. Blending, tile by tile (``_blend_tile``): a tile whose seam cells, with the feather's reach around it,
    all belong to one frame is that frame's window through its gains (a lookup table for 8- and 16-bit
    samples); elsewhere the frame weights are the label masks blurred across the seam (feather width),
@@ -219,13 +224,14 @@ class ReducedFrames:
     def gray(self):
         return [self.gray_of(k) for k in range(len(self.rgb))]
 
-    def histograms(self, gains: np.ndarray) -> list:
+    def histograms(self, gains: np.ndarray, offsets: np.ndarray | None = None) -> list:
         """Per frame its ``SampleHistogram`` (None for types without one), what ``gain_caps`` reads for ``gains``
-        (frames, bands): a frame kept decoded has it made here, and only when one of its gains is above 1 (no cap
-        binds the others, every cap being above 1: None)."""
+        (frames, bands): a frame kept decoded has it made here, and only when one of its gains is above 1 or one of
+        its ``offsets`` (frames, bands; None: none) is not 0 (no cap or bound binds the others: None)."""
         out = list(self.sample_histograms)
         for k, frame in enumerate(self.decoded_frames):
-            if frame is not None and out[k] is None and np.any(np.asarray(gains[k]) > 1.0):
+            if frame is not None and out[k] is None and (np.any(np.asarray(gains[k]) > 1.0) or (
+                    offsets is not None and np.any(np.asarray(offsets[k]) != 0.0))):
                 out[k] = self.sample_histograms[k] = sample_histogram(frame.samples, frame.valid)
         return out
 
@@ -494,6 +500,36 @@ def largest_unsaturated(hist: SampleHistogram, band: int, white: int) -> int | N
     return None if nz.size == 0 else min(int((nz[-1] + 1) * width - 1), int(white) - 1)
 
 
+def smallest_unsaturated(hist: SampleHistogram, band: int, white: int) -> int | None:
+    """The smallest valid sample of ``band`` above black (0) and below ``white`` (at least: the bottom of its histogram
+    bin, and 1; 16-bit bins are 64 values wide, so a frame with samples in the first bin counts as reaching 1); None
+    when there is none."""
+    width = (1 << hist.bits) // hist.counts.shape[1]
+    counts = hist.counts[band]
+    jw = min(int(white) // width, counts.shape[0] - 1)
+    if width == 1:
+        nz = np.flatnonzero(counts[1:jw])
+        return None if nz.size == 0 else int(nz[0]) + 1
+    nz = np.flatnonzero(counts[:jw + 1])
+    return None if nz.size == 0 else max(1, int(nz[0]) * width)
+
+
+def sample_extremes(histograms, bands: int, white: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """(frames, bands) the smallest and the largest unsaturated sample of every frame (``smallest_unsaturated``,
+    ``largest_unsaturated``; nan for frames without a histogram or such a sample)."""
+    lo = np.full((len(histograms), bands), np.nan)
+    hi = np.full((len(histograms), bands), np.nan)
+    for k, hist in enumerate(histograms):
+        if hist is None:
+            continue
+        top = (1 << hist.bits) - 1 if white is None else min(int(white), (1 << hist.bits) - 1)
+        for b in range(hist.counts.shape[0]):
+            m, n = smallest_unsaturated(hist, b, top), largest_unsaturated(hist, b, top)
+            lo[k, b] = np.nan if m is None else m
+            hi[k, b] = np.nan if n is None or n <= 0 else n
+    return lo, hi
+
+
 def gain_caps(histograms, bands: int, white: int | None = None, headroom: float = 1.0) -> np.ndarray:
     """(frames, bands) the largest gain under which no unsaturated sample of the frame goes beyond ``headroom`` x
     (white - 0.5) (``white``: default the type's maximum): ``headroom`` x (white - 0.5) / its largest unsaturated
@@ -563,12 +599,23 @@ class HighlightRolloff:
         return {"knee": self.knee, "top_in": self.top_in, "top_out": self.top_out}
 
 
-def highlight_rolloff(gains: np.ndarray, histograms, white: int | None) -> HighlightRolloff | None:
+def highlight_rolloff(gains: np.ndarray, histograms, white: int | None,
+                      offsets: np.ndarray | None = None) -> HighlightRolloff | None:
     """The ``HighlightRolloff`` that brings every unsaturated sample of every frame through its gain (``gains``
-    (frames, bands)) below ``white``: None when none reaches white - 0.5 (or there is no white level)."""
+    (frames, bands)) and offset (``offsets``, DN; None: none) below ``white``: None when none reaches white - 0.5 (or
+    there is no white level)."""
     if white is None:
         return None
     gains = np.asarray(gains, float)
+    if offsets is not None and np.any(np.asarray(offsets) != 0.0):
+        _, hi = sample_extremes(histograms, gains.shape[1], white)
+        top_out = (int(white) - 0.5) * (1.0 - 1e-6)
+        through = gains * hi + np.asarray(offsets, float)
+        top_in = float(np.nanmax(through)) if np.isfinite(through).any() else 0.0
+        if top_in <= top_out:
+            return None
+        top_in = min(top_in, ROLLOFF_HEADROOM * top_out)  # (the bounds on gains and offsets hold them there)
+        return HighlightRolloff(2.0 * top_out - top_in, top_in, top_out)
     caps = gain_caps(histograms, gains.shape[1], white)  # (white - 0.5) / the largest unsaturated sample
     top_out = (int(white) - 0.5) * (1.0 - 1e-6)
     ratio = float(np.max(gains / caps)) if gains.size else 0.0
@@ -576,6 +623,82 @@ def highlight_rolloff(gains: np.ndarray, histograms, white: int | None) -> Highl
         return None
     top_in = min(ratio, ROLLOFF_HEADROOM) * top_out  # (the caps hold the gains there)
     return HighlightRolloff(2.0 * top_out - top_in, top_in, top_out)
+
+
+# the shadow toe's knee is never above this share of the white level: an offset may take a frame's darkest unsaturated
+# sample down to 2 x 0.5 - this x white, the toe brings it above 0.5 (it rounds to 1, not to black); a frame that would
+# need more is held there (``offset_bounds``). Chosen a priori (haze and black-level differences are a few % of white;
+# the midtones and three quarters of the range are never touched), not on the benches' blocks
+TOE_KNEE_MAX = 0.25
+# an offset is at most this share of the white level either way: haze and black-level differences are a few % of it;
+# the larger offsets an affine fit asks between frames whose tones differ otherwise (a tone curve through another
+# exposure) would move the block's shadows and level (``docs/true-ortho.md``, bench/results/mosaic_offsets.json)
+OFFSET_MAX_SHARE = 0.05
+TOE_BOTTOM_OUT = 0.5 + 1.0 / 64  # a hair above 0.5: rounds to 1 (float32 keeps it above 0.5)
+
+
+@dataclasses.dataclass(frozen=True)
+class ShadowToe:
+    """A soft toe near black after the gains and offsets, the mirror of ``HighlightRolloff``, one curve for every frame
+    and band (1-Lipschitz, monotone): a value v >= ``knee`` is unchanged, one below it becomes knee - d + d^2 / (2 D),
+    d = knee - v clipped to D = knee - ``bottom_in``, so that ``bottom_in`` (the block's smallest unsaturated sample
+    through its gain and offset, below 0.5) becomes knee - D / 2 = ``bottom_out`` (a hair above 0.5: it rounds to 1,
+    not to black); knee = 2 bottom_out - bottom_in."""
+
+    knee: float
+    bottom_in: float
+    bottom_out: float
+
+    def apply(self, v: np.ndarray) -> np.ndarray:
+        """float32 values ``v`` (gained and offset) through the toe, in place (returned)."""
+        low = v < np.float32(self.knee)
+        if low.any():
+            k, span = np.float32(self.knee), np.float32(self.knee - self.bottom_in)
+            d = np.minimum(k - v[low], span)
+            v[low] = np.maximum(k - d + d * d / (np.float32(2) * span), np.float32(self.bottom_out))
+        return v
+
+    def record(self) -> dict:
+        return {"knee": self.knee, "bottom_in": self.bottom_in, "bottom_out": self.bottom_out}
+
+
+def shadow_toe(gains: np.ndarray, offsets: np.ndarray | None, histograms, white: int | None) -> ShadowToe | None:
+    """The ``ShadowToe`` that keeps every unsaturated sample (above black, below white) of every frame through its gain
+    and offset above 0.5: None when no offset takes one below (or there is no white level)."""
+    if white is None or offsets is None or not np.any(np.asarray(offsets) < 0.0):
+        return None
+    gains = np.asarray(gains, float)
+    lo, _ = sample_extremes(histograms, gains.shape[1], white)
+    through = gains * lo + np.asarray(offsets, float)
+    if not np.isfinite(through).any():
+        return None
+    bottom_in = float(np.nanmin(through))
+    if bottom_in >= TOE_BOTTOM_OUT:
+        return None
+    bottom_in = max(bottom_in, 2.0 * TOE_BOTTOM_OUT - TOE_KNEE_MAX * int(white))  # (``offset_bounds`` hold it there)
+    return ShadowToe(2.0 * TOE_BOTTOM_OUT - bottom_in, bottom_in, TOE_BOTTOM_OUT)
+
+
+def offset_bounds(gains: np.ndarray, histograms, white: int | None,
+                  max_share: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(frames, bands) the least and the largest offset (DN) a frame may take after its gains (``gains``): at most
+    ``max_share`` (default ``OFFSET_MAX_SHARE``) x white either way, its darkest unsaturated sample no lower than the
+    toe brings above 0.5 (``TOE_KNEE_MAX``), its brightest no higher than the highlight roll-off brings below white
+    (``ROLLOFF_HEADROOM``); without a white level (float frames) -inf / inf."""
+    gains = np.asarray(gains, float)
+    lower, upper = np.full(gains.shape, -np.inf), np.full(gains.shape, np.inf)
+    if white is None:
+        return lower, upper
+    share = OFFSET_MAX_SHARE if max_share is None else max_share
+    lower, upper = np.full(gains.shape, -share * int(white)), np.full(gains.shape, share * int(white))
+    lo, hi = sample_extremes(histograms, gains.shape[1], white)
+    top_out = (int(white) - 0.5) * (1.0 - 1e-6)
+    # a hair inside, as ``gain_caps``: float32 products
+    up = ROLLOFF_HEADROOM * top_out - gains * hi - 1e-6 * white
+    down = 2.0 * TOE_BOTTOM_OUT - TOE_KNEE_MAX * int(white) - gains * lo + 1e-6 * white
+    upper = np.where(np.isfinite(up), np.minimum(up, upper), upper)
+    lower = np.minimum(np.where(np.isfinite(down), np.maximum(down, lower), lower), upper - 1e-6 * white)
+    return lower, upper
 
 
 def _saturated_shares(hist: SampleHistogram, b: int, gain: float, white: int | None) -> tuple[float, float]:
@@ -599,13 +722,60 @@ def _masked_mean(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return a[mask].mean(axis=0)
 
 
-def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_weight: float = 0.1,
-                  min_cells: int = 20, caps=None, return_free: bool = False):
-    """Per-frame, per-band multiplicative gains (n_frames, bands) from the means of the pairwise overlaps: least
-    squares on the log-gains, a weak prior towards 1; with ``caps`` (a function of the gains giving (n_frames, bands)
-    upper bounds, ``gain_caps``) the least squares under g <= cap (scipy's bounded least squares: a frame held at its
-    cap, its neighbours follow it down rather than clip its highlights).
-    ``return_free``: (gains, the gains without the caps)."""
+def _masked_mean_std(a: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation per band of ``a`` (h, w, bands) where ``mask``."""
+    m = np.ascontiguousarray(mask).view(np.uint8)
+    if a.dtype.type in _RESIZABLE:  # OpenCV's masked mean and deviation: one pass, no gathered copy
+        ms = [cv2.meanStdDev(np.ascontiguousarray(a[:, :, b]), mask=m) for b in range(a.shape[2])]
+        return np.array([float(x[0][0, 0]) for x in ms]), np.array([float(x[1][0, 0]) for x in ms])
+    v = a[mask].astype(np.float64)
+    return v.mean(axis=0), v.std(axis=0)
+
+
+@dataclasses.dataclass(frozen=True)
+class OverlapPairs:
+    """The frames' pairwise overlaps on the seam grid: ``pairs`` (p, 2) frame indices i < j, ``cells`` (p,) their common
+    valid cells, ``mean`` (p, 2, bands) each frame's mean over them and ``std`` (p, 2, bands) its standard deviation
+    (None unless asked for), in the frames' DN."""
+
+    pairs: np.ndarray
+    cells: np.ndarray
+    mean: np.ndarray
+    std: np.ndarray | None
+
+    @property
+    def row_weights2(self) -> np.ndarray:
+        """(p,) the squared weights of the gains' rows, sqrt(cells)^2 as before i42-offsets (cells itself differs
+        from it in the last digits, and so did the gains): the default gains, and mosaic, unchanged."""
+        return np.sqrt(self.cells.astype(float)) ** 2
+
+    def normal_matrix(self, n: int, prior_weight: float) -> np.ndarray:
+        """Normal matrix of rows sqrt(cells) (x_i - x_j) and the prior rows lam x_k (lam = ``prior_weight`` x the rows'
+        RMS weight) over ``n`` frames: the overlaps' Laplacian + lam^2 I (whose solution of any right-hand side from
+        the rows sums to 0: the prior keeps the block's mean)."""
+        w2 = self.row_weights2
+        lam = prior_weight * math.sqrt(float(np.mean(w2)))
+        N = lam * lam * np.eye(n)
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        np.add.at(N, (i, i), w2)
+        np.add.at(N, (j, j), w2)
+        np.add.at(N, (i, j), -w2)
+        np.add.at(N, (j, i), -w2)
+        return N
+
+    def right_hand_side(self, n: int, rhs: np.ndarray) -> np.ndarray:
+        """(n, bands) the normal equations' right-hand side of the rows sqrt(cells) (x_i - x_j) = sqrt(cells) ``rhs``
+        (p, bands)."""
+        w2 = self.row_weights2
+        u = np.zeros((n, rhs.shape[1]))
+        np.add.at(u, self.pairs[:, 0], w2[:, None] * rhs)
+        np.add.at(u, self.pairs[:, 1], -w2[:, None] * rhs)
+        return u
+
+
+def overlap_pairs(red: ReducedFrames, min_cells: int = 20, spread: bool = False) -> OverlapPairs | None:
+    """``OverlapPairs`` of the frames of ``red`` with at least ``min_cells`` common valid cells (None: no pair);
+    ``spread``: with their standard deviations."""
     n = len(red.names)
     bands = red.rgb[0].shape[2]
     off = np.array(red.offsets, np.int64).reshape(n, 2)
@@ -613,7 +783,7 @@ def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_we
     # candidate pairs by their boxes on the seam grid (no n^2 loop in Python for large blocks)
     lo, hi = off, off + size
     cand = np.argwhere(np.triu(np.all((np.maximum(lo[:, None], lo[None]) < np.minimum(hi[:, None], hi[None])), -1), 1))
-    pairs, rhs, wts = [], [], []
+    pairs, cells, means, stds = [], [], [], []
     for i, j in cand:
         (ri, ci), (rj, cj) = red.offsets[i], red.offsets[j]
         r0, c0 = max(ri, rj), max(ci, cj)
@@ -625,26 +795,41 @@ def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_we
         cnt = int(np.count_nonzero(both))
         if cnt < min_cells:
             continue
-        mi = _masked_mean(red.rgb[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci], both)
-        mj = _masked_mean(red.rgb[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj], both)
+        ai, aj = red.rgb[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci], red.rgb[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
+        if spread:
+            (mi, si), (mj, sj) = _masked_mean_std(ai, both), _masked_mean_std(aj, both)
+            stds.append((si, sj))
+        else:
+            mi, mj = _masked_mean(ai, both), _masked_mean(aj, both)
         pairs.append((i, j))
-        rhs.append(np.log(np.maximum(mj, 1.0)) - np.log(np.maximum(mi, 1.0)))
-        wts.append(math.sqrt(cnt))
+        cells.append(cnt)
+        means.append((mi, mj))
     if not pairs:
+        return None
+    return OverlapPairs(np.array(pairs, np.int64), np.array(cells, np.int64),
+                        np.array(means, float).reshape(-1, 2, bands),
+                        np.array(stds, float).reshape(-1, 2, bands) if spread else None)
+
+
+def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_weight: float = 0.1,
+                  min_cells: int = 20, caps=None, return_free: bool = False):
+    """Per-frame, per-band multiplicative gains (n_frames, bands) from the means of the pairwise overlaps: least
+    squares on the log-gains, a weak prior towards 1; with ``caps`` (a function of the gains giving (n_frames, bands)
+    upper bounds, ``gain_caps``) the least squares under g <= cap (scipy's bounded least squares: a frame held at its
+    cap, its neighbours follow it down rather than clip its highlights).
+    ``return_free``: (gains, the gains without the caps)."""
+    n = len(red.names)
+    bands = red.rgb[0].shape[2]
+    ov = overlap_pairs(red, min_cells)
+    if ov is None:
         return (np.ones((n, bands)),) * 2 if return_free else np.ones((n, bands))
-    pairs = np.array(pairs)
-    w2 = np.array(wts) ** 2
-    b = np.array(rhs)
-    lam = prior_weight * math.sqrt(float(np.mean(w2)))
-    # normal equations of rows w (e_i - e_j) . g = w rhs and the prior lam * g = 0
-    N = lam * lam * np.eye(n)
-    np.add.at(N, (pairs[:, 0], pairs[:, 0]), w2)
-    np.add.at(N, (pairs[:, 1], pairs[:, 1]), w2)
-    np.add.at(N, (pairs[:, 0], pairs[:, 1]), -w2)
-    np.add.at(N, (pairs[:, 1], pairs[:, 0]), -w2)
-    u = np.zeros((n, bands))
-    np.add.at(u, pairs[:, 0], w2[:, None] * b)
-    np.add.at(u, pairs[:, 1], -w2[:, None] * b)
+    rhs = np.log(np.maximum(ov.mean[:, 1], 1.0)) - np.log(np.maximum(ov.mean[:, 0], 1.0))
+    return _solve_log_gains(ov.normal_matrix(n, prior_weight), ov.right_hand_side(n, rhs), caps, return_free)
+
+
+def _solve_log_gains(N: np.ndarray, u: np.ndarray, caps, return_free: bool):
+    """Gains exp(x) of the normal equations N x = u (per band, a column of ``u``), under x <= log caps(gains)."""
+    bands = u.shape[1]
     logs = free = np.linalg.solve(N, u)
     if caps is None:
         return (np.exp(logs),) * 2 if return_free else np.exp(logs)
@@ -660,21 +845,143 @@ def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_we
     return (gains, np.exp(free)) if return_free else gains
 
 
-def _bounded_solve(N: np.ndarray, u: np.ndarray, cap: np.ndarray) -> np.ndarray:
-    """argmin x'Nx/2 - u'x subject to x <= cap (N positive definite), as the bounded least squares
-    ||L'x - L^-1 u||^2 (N = LL') by scipy's trust-region reflective solver (an active set adding or releasing one
-    bound at a time took 47 s on 1,000 frames with 300 capped, this 0.7 s; BVLS 134 s)."""
+# the spreads' rows weigh this much against the means' (``balance_gains_offsets``): chosen on the demo with an 8 DN haze
+# on every other frame (the overlaps' tone-quarter RMS 0.6538 / 0.6191 / 0.6185 DN at 0.1 / 0.3 / 1: 0.3 and 1 tie, the
+# pair-mean RMS 0.286 / 0.292 broke it), reported on Brighton (bench/results/mosaic_offsets.json, "choice")
+SPREAD_WEIGHT = 0.3
+# a solution this close to a bound (log-gain; offset / the block's level) is at it (``_bounded_solve`` clips to its
+# bounds: those it held were within 6e-17, the nearest free value 6e-3 away, in test_colour_clipping's x 0.4 block)
+BOUND_TOL = 1e-9
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameRadiometry:
+    """Per frame and band the gain and the offset (DN, the frames' own bit depth) that make a sample v the balanced
+    g v + o (``gains``, ``offsets``: (frames, bands)), and the gains and offsets the overlaps asked before the
+    bounds (``free_gains``, ``free_offsets``); ``gain_held`` (bool (frames, bands)) where the gain is at its cap,
+    ``offset_held`` (int8: -1 at its lower bound, 1 at its upper, 0 free)."""
+
+    gains: np.ndarray
+    offsets: np.ndarray
+    free_gains: np.ndarray
+    free_offsets: np.ndarray
+    gain_held: np.ndarray
+    offset_held: np.ndarray
+
+
+def balance_gains_offsets(red: ReducedFrames, prior_weight: float = 0.1, min_cells: int = 20, caps=None,
+                          bounds=None, spread_weight: float | None = None) -> FrameRadiometry:
+    """Per-frame, per-band gain g = e^x and offset o = m p (DN; m the block's mean level) (``FrameRadiometry``) from
+    the pairwise overlaps' means m_i and standard deviations s_i (``overlap_pairs``), by one least squares over all
+    pairs (not a chain of ratios), per band: for every pair of n_ij common cells, the means
+    n_ij (x_i + m p_i / m_i - x_j - m p_j / m_j - log m_j / m_i)^2 (log(g m_i + o) to first order in o) and, weighted by
+    ``spread_weight``^2 (default ``SPREAD_WEIGHT``), the deviations n_ij (x_i - x_j - log s_j / s_i)^2 (an offset does
+    not change them), a prior lam^2 (x_k^2 + p_k^2) (lam ``prior_weight`` x the rows' RMS weight) and the block's level
+    held: sum x = 0, sum p = 0 (heavy rows, which the free solution meets anyway). ``caps`` (a function of the gains:
+    (frames, bands) upper bounds, ``gain_caps``) and ``bounds`` (a function of the gains and offsets: (lower, upper)
+    (frames, bands) DN, ``offset_bounds``) bound them (scipy's bounded least squares): an offset held at its bound
+    leaves the rest of its means to the gains. Normal equations of 2 n unknowns (n frames, not n^2 pairs)."""
+    n = len(red.names)
+    bands = red.rgb[0].shape[2]
+    spread_weight = SPREAD_WEIGHT if spread_weight is None else spread_weight
+    ov = overlap_pairs(red, min_cells, spread=True)
+    if ov is None:
+        one, zero = np.ones((n, bands)), np.zeros((n, bands))
+        return FrameRadiometry(one, zero, one, zero, np.zeros((n, bands), bool), np.zeros((n, bands), np.int8))
+    i, j = ov.pairs[:, 0], ov.pairs[:, 1]
+    w2 = ov.cells.astype(float)
+    lam2 = prior_weight * prior_weight * float(np.mean(w2))
+    heavy = 1e3 * float(np.sum(w2)) / n
+    level = np.maximum(ov.mean, 1.0)
+    block_level = float(np.mean(level))
+    gains, offsets = np.ones((n, bands)), np.zeros((n, bands))
+    free_gains, free_offsets = np.ones((n, bands)), np.zeros((n, bands))
+    gain_held, offset_held = np.zeros((n, bands), bool), np.zeros((n, bands), np.int8)
+    idx = np.stack([i, j, n + i, n + j], axis=1)  # a pair's unknowns: x_i, x_j, p_i, p_j
+    for b in range(bands):
+        mi, mj = level[:, 0, b], level[:, 1, b]
+        # the means' row of a pair: x_i - x_j + (m / m_i) p_i - (m / m_j) p_j = log m_j / m_i
+        coef = np.stack([np.ones(len(i)), -np.ones(len(i)), block_level / mi, -block_level / mj], axis=1)
+        r = np.log(mj) - np.log(mi)
+        N = np.zeros((2 * n, 2 * n))
+        u = np.zeros(2 * n)
+        for c1 in range(4):
+            np.add.at(u, idx[:, c1], w2 * coef[:, c1] * r)
+            for c2 in range(4):
+                np.add.at(N, (idx[:, c1], idx[:, c2]), w2 * coef[:, c1] * coef[:, c2])
+        # the deviations' row: x_i - x_j = log s_j / s_i
+        sr = np.log(np.maximum(ov.std[:, 1, b], 1.0)) - np.log(np.maximum(ov.std[:, 0, b], 1.0))
+        ws = spread_weight * spread_weight * w2
+        np.add.at(N, (i, i), ws)
+        np.add.at(N, (j, j), ws)
+        np.add.at(N, (i, j), -ws)
+        np.add.at(N, (j, i), -ws)
+        np.add.at(u, i, ws * sr)
+        np.add.at(u, j, -ws * sr)
+        N[np.arange(2 * n), np.arange(2 * n)] += lam2
+        N[:n, :n] += heavy
+        N[n:, n:] += heavy
+        sol = np.linalg.solve(N, u)
+        free_gains[:, b], free_offsets[:, b] = np.exp(sol[:n]), block_level * sol[n:]
+        # the caps and bounds of frames kept decoded are known once their gains are (``ReducedFrames.histograms``):
+        # again until none is passed
+        for _ in range(3 if caps is not None or bounds is not None else 0):
+            g, o = np.ones((n, bands)), np.zeros((n, bands))
+            g[:, b], o[:, b] = np.exp(sol[:n]), block_level * sol[n:]
+            cap, floor = np.full(2 * n, np.inf), np.full(2 * n, -np.inf)
+            if caps is not None:
+                cap[:n] = np.log(np.asarray(caps(g), float)[:, b])
+            if bounds is not None:
+                lo, hi = bounds(g, o)
+                floor[n:], cap[n:] = lo[:, b] / block_level, hi[:, b] / block_level
+            if np.all(sol <= cap + 1e-12) and np.all(sol >= floor - 1e-12):
+                break
+            sol = _bounded_solve(N, u, cap, floor)
+            gain_held[:, b] = np.isfinite(cap[:n]) & (sol[:n] >= cap[:n] - BOUND_TOL)
+            offset_held[:, b] = np.where(np.isfinite(floor[n:]) & (sol[n:] <= floor[n:] + BOUND_TOL), -1,
+                                         np.where(np.isfinite(cap[n:]) & (sol[n:] >= cap[n:] - BOUND_TOL), 1, 0))
+        gains[:, b], offsets[:, b] = np.exp(sol[:n]), block_level * sol[n:]
+    return FrameRadiometry(gains, offsets, free_gains, free_offsets, gain_held, offset_held)
+
+
+_GAIN_LOWERED = ("frame %s band %d: gain %.4g lowered to %.4g so that no unsaturated sample of the frame goes beyond "
+                 "what the highlight roll-off brings below white (the frame's own saturated share %.2f %%; the gain "
+                 "would have saturated %.2f %% without the roll-off)")
+
+
+def held_messages(rad: FrameRadiometry, names) -> list[str]:
+    """A warning per frame and band whose gain ``rad`` holds at its cap (``gain_caps``) or whose offset at a bound
+    (``offset_bounds``), with the gain and offset the overlaps asked without the bounds (the free fit)."""
+    out = []
+    for k, b in zip(*np.nonzero(rad.gain_held | (rad.offset_held != 0))):
+        asked = f"the balance asked gain {rad.free_gains[k, b]:.4g}, offset {rad.free_offsets[k, b]:+.2f} DN"
+        if rad.gain_held[k, b]:
+            out.append(f"frame {names[k]} band {b + 1}: gain {rad.gains[k, b]:.4g} held at its cap ({asked}) so that "
+                       f"no unsaturated sample of the frame goes beyond what the highlight roll-off brings below white")
+        if rad.offset_held[k, b]:
+            out.append(f"frame {names[k]} band {b + 1}: offset {rad.offsets[k, b]:+.2f} DN held at its "
+                       f"{'lower' if rad.offset_held[k, b] < 0 else 'upper'} bound ({asked}): an offset is at most "
+                       f"{100 * OFFSET_MAX_SHARE:g} % of white either way and takes no unsaturated sample of the frame "
+                       f"below what the shadow toe lifts above black nor beyond what the roll-off brings below white")
+    return out
+
+
+def _bounded_solve(N: np.ndarray, u: np.ndarray, cap: np.ndarray, floor: np.ndarray | None = None) -> np.ndarray:
+    """argmin x'Nx/2 - u'x subject to x <= cap (and x >= ``floor``; None: none) (N positive definite), as the bounded
+    least squares ||L'x - L^-1 u||^2 (N = LL') by scipy's trust-region reflective solver (an active set adding or
+    releasing one bound at a time took 47 s on 1,000 frames with 300 capped, this 0.7 s; BVLS 134 s)."""
     from scipy.optimize import lsq_linear
 
     x = np.linalg.solve(N, u)
-    if np.all(x <= cap):
+    if np.all(x <= cap) and (floor is None or np.all(x >= floor)):
         return x
     chol = np.linalg.cholesky(N)
-    lower = np.full(len(u), -np.inf)
-    # the interior method keeps x strictly below cap: a bound that is not finite is none
+    lower = np.full(len(u), -np.inf) if floor is None else np.where(np.isfinite(floor), floor, -np.inf)
+    # the interior method keeps x strictly inside the bounds: a bound that is not finite is none
     x = lsq_linear(chol.T, np.linalg.solve(chol, u), bounds=(lower, np.where(np.isfinite(cap), cap, np.inf)),
                    method="trf", tol=1e-12).x
-    return np.minimum(x, cap)
+    x = np.minimum(x, cap)
+    return x if floor is None else np.maximum(x, floor)
 
 
 def _read_ndsm_on(path, transform, shape, crs, operation=None, ds=None):
@@ -797,10 +1104,16 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     resolved = settings_of(settings, MosaicSettings, Project.open(root) if settings is None else None)
     s = resolved.settings
     seams, ndsm_path, feather_m, balance, tile_px = s.seams, s.ndsm, s.feather_m, s.balance, s.tile_px
+    with_offsets = s.offsets
     if not (isinstance(tile_px, int) and tile_px >= MIN_TILE_PX):
         raise OptionError(f"{tile_px!r}: expected a tile size of at least {MIN_TILE_PX} px", param="--tile-px")
     if feather_m is not None and not (math.isfinite(feather_m) and feather_m >= 0):
         raise OptionError(f"{feather_m!r}: expected a feather width >= 0 m", param="--feather-m")
+    if with_offsets and not balance:  # (the offsets are solved with the gains: without the balance neither is)
+        raise OptionError(f"--offsets / [mosaic] offsets = true ({resolved.sources.get('offsets', 'default')}) needs "
+                          f"the balance, which --no-balance / [mosaic] balance = false "
+                          f"({resolved.sources.get('balance', 'default')}) turns off: give one or the other",
+                          param="--offsets")
     if seamlines is not None:
         if not Path(seamlines).is_file():
             raise InputError(f"{seamlines}: edited seamlines not found (--seamlines)")
@@ -872,16 +1185,28 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         def caps(g):
             return gain_caps(red.histograms(g), bands, white, ROLLOFF_HEADROOM)
 
+        def bounds(g, o):
+            return offset_bounds(g, red.histograms(g, o), white)
+
         if not balance:
-            return np.ones((len(red.names), bands)), [], None
-        # colour that neither clips nor darkens: the gains keep the block's level (mean log-gain 0) and the highlight
-        # roll-off brings every unsaturated sample below white; only a frame whose brightest unsaturated sample would
-        # go beyond what the roll-off takes is held (the least squares under each frame's cap) and reported with the
-        # gain the balance asked of it
-        gains, free = balance_gains(red, caps=caps, return_free=True)
-        _, held = limit_gains(free, red.histograms(free), white=white, headroom=ROLLOFF_HEADROOM)
-        return (gains, [(k, b, g0, float(gains[k, b]), own, would) for k, b, g0, _, own, would in held],
-                highlight_rolloff(gains, red.histograms(gains), white))
+            return np.ones((len(red.names), bands)), None, [], None, None
+        if not with_offsets:  # gains only (before i42-offsets): the means matched by log-gains
+            gains, free = balance_gains(red, caps=caps, return_free=True)
+            _, held = limit_gains(free, red.histograms(free), white=white, headroom=ROLLOFF_HEADROOM)
+            return (gains, None, [_GAIN_LOWERED % (red.names[k], b + 1, g0, float(gains[k, b]), 100 * own, 100 * would)
+                                  for k, b, g0, _, own, would in held],
+                    highlight_rolloff(gains, red.histograms(gains), white), None)
+        # colour that neither clips nor darkens: a gain and an offset per frame and band (haze, a black level: what a
+        # gain cannot remove) keep the block's level (mean log-gain 0, mean offset 0); the highlight roll-off brings
+        # every unsaturated sample below white, the shadow toe above black; only a frame whose brightest unsaturated
+        # sample would go beyond what the roll-off takes is held (the least squares under each frame's cap), an
+        # offset within its bounds; each frame and band the bounded solution holds is reported with the gain and
+        # offset the free fit asked (not the free fit's gains against their caps: its offsets take what they push back)
+        rad = balance_gains_offsets(red, caps=caps, bounds=bounds)
+        gains, offsets = rad.gains, rad.offsets
+        hists = red.histograms(gains, offsets)
+        return (gains, offsets, held_messages(rad, red.names),
+                highlight_rolloff(gains, hists, white, offsets), shadow_toe(gains, offsets, hists, white))
 
     # the gains do not depend on the seams: on a thread while this one routes them (OpenCV's masked means and
     # histograms, numpy's solve; the seams are mostly scipy's Dijkstra and numpy)
@@ -909,19 +1234,19 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         if edited is not None:
             seams = f"edited ({edited.path})"
         timer.done("seams")
-        gains, limited, rolloff = gains_of()
-    for k, b, g0, g1, own, would in limited:
-        logger.warning("frame %s band %d: gain %.4g lowered to %.4g so that no unsaturated sample of the frame goes "
-                       "beyond what the highlight roll-off brings below white (the frame's own saturated share "
-                       "%.2f %%; the gain would have saturated %.2f %% without the roll-off)", red.names[k], b + 1, g0, g1,
-                       100 * own, 100 * would)
+        gains, offsets, held, rolloff, toe = gains_of()
+    for message in held:
+        logger.warning(message)
     if rolloff is not None:
         logger.info("highlight roll-off: gained values above %.1f compressed so that %.1f becomes %.2f (white %d)",
                     rolloff.knee, rolloff.top_in, rolloff.top_out, red.white_level.value)
+    if toe is not None:
+        logger.info("shadow toe: values below %.2f lifted so that %.2f becomes %.3f (above black)", toe.knee,
+                    toe.bottom_in, toe.bottom_out)
     timer.done("gains")
     # edited seamlines: the tiles their change does not reach are taken from the mosaic they were edited on
     previous = previous_mosaic(root, index, red.names, labels, gains=gains, feather_px=feather_px, factor=factor,
-                               mosaic=mosaic, rolloff=rolloff) if edited is not None else None
+                               mosaic=mosaic, rolloff=rolloff, offsets=offsets, toe=toe) if edited is not None else None
     for name, g in zip(red.names, gains):
         if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
             logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
@@ -932,7 +1257,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # interrupted run finished are kept in work/mosaic_resume until the commit (an error removes them too)
     with resumable(root / "work" / RESUME_DIR_NAME) as keep, scratch_dir(out_dir, "mosaic") as work:
         outputs = _mosaic_outputs(Path(work), root, index, frames_dir, red=red, labels=labels, gains=gains,
-                                  rolloff=rolloff,
+                                  rolloff=rolloff, offsets=offsets, toe=toe,
                                   mosaic=mosaic, factor=factor, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                                   seams=seams, executor=executor, settings_record=resolved.record(), previous=previous,
                                   resume=keep)
@@ -1079,7 +1404,7 @@ def _open_frame(path):
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
                     feather_px, tile_px, seams, executor, settings_record: dict, previous=None, resume=None,
-                    rolloff=None) -> dict:
+                    rolloff=None, offsets=None, toe=None) -> dict:
     """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
     returns the summary. ``previous``
     (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over. ``resume``
@@ -1111,7 +1436,8 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                               factor=factor, gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                               executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red), during_cog=stage_preview if early else None,
-                              white_level=red.white_level.value, resume=resume, rolloff=rolloff)
+                              white_level=red.white_level.value, resume=resume, rolloff=rolloff, offsets=offsets,
+                              toe=toe)
         with _background(functools.partial(write_seamlines_preview, footprints=footprints),
                          work / "seamlines_preview.png", work / "mosaic.tif", labels, factor,
                          imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
@@ -1124,7 +1450,9 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                "index_sha1": index_sha1(root),
                "gains": {n: [float(v) for v in g] for n, g in zip(red.names, gains)},
                "white_level": _white_level_record(red),
+               "offsets": _offsets_record(red.names, offsets),
                "highlight_rolloff": None if rolloff is None else rolloff.record(),
+               "shadow_toe": None if toe is None else toe.record(),
                "blend_rules": BLEND_RULES, "pairs": pairs, **nodata, "settings": settings_record}
     if previous is not None:
         summary["tiles"] = tiles
@@ -1245,6 +1573,10 @@ class _BlendContext:
     white_level: int | None = None
     # after the gains, below the white level (``HighlightRolloff``; None: none)
     rolloff: HighlightRolloff | None = None
+    # per frame and band the offset (DN) after the gain (None: none), and the toe that keeps what it darkens above
+    # black (``ShadowToe``; None: none)
+    dn_offsets: np.ndarray | None = None
+    toe: ShadowToe | None = None
 
     @functools.cached_property
     def white(self) -> int | None:
@@ -1263,32 +1595,42 @@ class _BlendContext:
         12-bit data in 16-bit frames were already held at 4095)."""
         return self.white is not None
 
+    def offset(self, k: int) -> np.ndarray | None:
+        """Frame ``k``'s offsets (bands,) float32, None without offsets."""
+        return None if self.dn_offsets is None else self.dn_offsets[k].astype(np.float32)
+
     @functools.cached_property
     def luts(self):
-        """Per frame and band the gain as a lookup table for 8- and 16-bit samples (None for other types): samples
-        clipped to the white level, and (``hold``) a saturated sample stays at it
-        whatever the gain (its brightness is unknown: a gain below 1 turned 4095 into 3836 beside a neighbour's 4095)."""
+        """Per frame and band the gain (and offset) as a lookup table for 8- and 16-bit samples (None for other
+        types): samples clipped to the white level, and (``hold``) a saturated sample stays at it whatever the gain
+        (its brightness is unknown: a gain below 1 turned 4095 into 3836 beside a neighbour's 4095), a black one (0)
+        at black whatever the offset."""
         dt = np.dtype(self.dtype)
         if dt not in (np.dtype(np.uint8), np.dtype(np.uint16)):
             return None
         top, white = np.iinfo(dt).max, self.white
         x = np.arange(top + 1, dtype=np.float32)
         luts = []
-        for row in self.gains:
+        for k, row in enumerate(self.gains):
             luts.append([])
-            for g in row:
+            for b, g in enumerate(row):
                 v = x * np.float32(g)
+                if self.dn_offsets is not None:
+                    v += np.float32(self.dn_offsets[k, b])
                 if self.rolloff is not None:
                     self.rolloff.apply(v)
+                if self.toe is not None:
+                    self.toe.apply(v)
                 lut = np.clip(np.rint(v), 0, white).astype(dt)
                 if self.hold:
                     lut[white:] = white
+                    lut[0] = 0
                 luts[-1].append(lut)
         return luts
 
 
 def _context(index, frames_dir, mosaic: OrthoGrid, *, factor, halo, gains, nadir, feather_px, bands, dtype, read_cells,
-             seam_shape, holes=None, white_level=None, rolloff=None) -> _BlendContext:
+             seam_shape, holes=None, white_level=None, rolloff=None, dn_offsets=None, toe=None) -> _BlendContext:
     grids = index.grids
     names = list(index.image_ids)
     offsets = np.array([g.offset_in(mosaic) for g in grids], np.int64).reshape(-1, 2)
@@ -1297,7 +1639,8 @@ def _context(index, frames_dir, mosaic: OrthoGrid, *, factor, halo, gains, nadir
     return _BlendContext(names, files, offsets, sizes, np.asarray(gains, np.float64), np.asarray(nadir, np.float64),
                          mosaic, int(factor), int(halo), float(feather_px), int(bands), str(dtype), read_cells,
                          tuple(seam_shape), holes if hole_margin_px(mosaic.res_m) else None,
-                         hole_margin_px(mosaic.res_m) if holes else 0, white_level, rolloff)
+                         hole_margin_px(mosaic.res_m) if holes else 0, white_level, rolloff,
+                         None if dn_offsets is None else np.asarray(dn_offsets, np.float64), toe)
 
 
 @functools.lru_cache(maxsize=4)
@@ -1322,7 +1665,8 @@ def _load_context(path: str, mtime_ns: int) -> _BlendContext:
     return _context(index, ctx["frames_dir"], mosaic, factor=ctx["factor"], halo=ctx["halo"], gains=ctx["gains"],
                     nadir=ctx["nadir"], feather_px=ctx["feather_px"], bands=ctx["bands"], dtype=ctx["dtype"],
                     read_cells=read_cells, seam_shape=seam_shape, holes=holes, white_level=ctx.get("white_level"),
-                    rolloff=HighlightRolloff(**ctx["rolloff"]) if ctx.get("rolloff") else None)
+                    rolloff=HighlightRolloff(**ctx["rolloff"]) if ctx.get("rolloff") else None,
+                    dn_offsets=ctx.get("offsets"), toe=ShadowToe(**ctx["toe"]) if ctx.get("toe") else None)
 
 
 class _FrameReaders:
@@ -1381,12 +1725,15 @@ def blend_tile_task(tile: MosaicTile):
 
 
 def _apply_gain(ctx: _BlendContext, k: int, img: np.ndarray) -> np.ndarray:
-    """Frame ``k``'s samples (bands, h, w) through its gains, in the frames' type."""
+    """Frame ``k``'s samples (bands, h, w) through its gains (and offsets), in the frames' type."""
     luts = ctx.luts
     out = np.empty(img.shape, ctx.dtype)
     for b in range(img.shape[0]):
         if luts is None:
-            out[b] = _to_type(img[b] * np.float32(ctx.gains[k, b]), ctx.dtype)
+            v = img[b] * np.float32(ctx.gains[k, b])
+            if ctx.dn_offsets is not None:
+                v += np.float32(ctx.dn_offsets[k, b])
+            out[b] = _to_type(v, ctx.dtype)
         elif img.dtype == np.uint8:
             cv2.LUT(img[b], luts[k][b], dst=out[b])
         else:
@@ -1394,25 +1741,35 @@ def _apply_gain(ctx: _BlendContext, k: int, img: np.ndarray) -> np.ndarray:
     return out
 
 
-def _gained(samples: np.ndarray, gain, white: int | None, hold: bool, rolloff=None) -> np.ndarray:
-    """float32 ``samples`` x ``gain`` (broadcast) as ``_BlendContext.luts`` has them before rounding: through
-    ``rolloff`` (``HighlightRolloff``, None: none), at most ``white`` (None: unclipped), and with ``hold`` ``white``
-    where the sample is at or above it."""
+def _gained(samples: np.ndarray, gain, white: int | None, hold: bool, rolloff=None, offset=None,
+            toe=None) -> np.ndarray:
+    """float32 ``samples`` x ``gain`` (broadcast) + ``offset`` (broadcast; None: none) as ``_BlendContext.luts`` has
+    them before rounding: through ``rolloff`` (``HighlightRolloff``, None: none) and ``toe`` (``ShadowToe``, None:
+    none), at most ``white`` (None: unclipped), and with ``hold`` ``white`` where the sample is at or above it, 0 where
+    it is 0."""
     v = samples * gain
+    if offset is not None:
+        v += offset
     if white is None:
         return v
     if rolloff is not None:
         rolloff.apply(v)
+    if toe is not None:
+        toe.apply(v)
     np.minimum(v, np.float32(white), out=v)
     if hold:
         v[np.broadcast_to(samples >= white, v.shape)] = white
+        if offset is not None:
+            v[np.broadcast_to(samples <= 0, v.shape)] = 0
     return v
 
 
 def _gained_weighted(samples: np.ndarray, gain: np.float32, weight: np.ndarray, white: int | None,
-                     hold: bool, rolloff=None) -> np.ndarray:
+                     hold: bool, rolloff=None, offset=None, toe=None) -> np.ndarray:
     """``_gained`` x ``weight`` (float32), in the order the weights were always applied (samples x (weight x gain):
-    the same bits wherever nothing is clipped or rolled off)."""
+    the same bits wherever nothing is clipped or rolled off; + weight x ``offset``)."""
+    if offset is not None:
+        return _gained(samples, gain, white, hold, rolloff, offset, toe) * weight
     v = samples * (weight * gain)
     if white is None:
         return v
@@ -1528,11 +1885,11 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
                 img, m = frame(k, y0, y1, x0, x1)
                 wk = w * m[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
                 wsum[iy0:iy1, ix0:ix1] += wk
-                g = ctx.gains[k].astype(np.float32)
+                g, o = ctx.gains[k].astype(np.float32), ctx.offset(k)
                 for b in range(bands):
                     acc[b, iy0 - ya:iy1 - ya, ix0 - xa:ix1 - xa] += \
                         _gained_weighted(img[b, iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0], g[b], wk, ctx.white,
-                                         ctx.hold, ctx.rolloff)
+                                         ctx.hold, ctx.rolloff, None if o is None else o[b], ctx.toe)
             ws = wsum[ya:yb, xa:xb]
             put = mixed[ya:yb, xa:xb] & (ws > 1e-3)
             acc /= np.maximum(ws, 1e-6)
@@ -1636,8 +1993,9 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
     for k in np.flatnonzero(np.bincount(winner[got])).tolist():  # the winning frames, ascending
         sub = np.flatnonzero(winner == k)
         src = source(k)
+        o = ctx.offset(k)
         fill = _gained(src[0].take(at(src, sub), axis=1), ctx.gains[k].astype(np.float32)[:, None], ctx.white,
-                       ctx.hold, ctx.rolloff)
+                       ctx.hold, ctx.rolloff, None if o is None else o[:, None], ctx.toe)
         flat_out[:, need[sub]] = _to_type(fill, ctx.dtype)
     valid.ravel()[need[got]] = True
 
@@ -1853,7 +2211,7 @@ def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, *, dr: int, d
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, factor, gains, nadir, feather_px, tile_px,
                   executor=None, labels=None, previous=None, decoded=None, holes=None, during_cog=None,
-                  white_level=None, resume=None, rolloff=None):
+                  white_level=None, resume=None, rolloff=None, offsets=None, toe=None):
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
@@ -1893,7 +2251,9 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                        "seams_path": str(Path(seams_path).resolve()), "factor": int(factor), "halo": halo,
                        "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
                        "feather_px": float(feather_px), "bands": int(bands), "dtype": dtype,
-                       "white_level": white_level, "rolloff": None if rolloff is None else rolloff.record()}
+                       "white_level": white_level, "rolloff": None if rolloff is None else rolloff.record(),
+                       "offsets": None if offsets is None else np.asarray(offsets, float).tolist(),
+                       "toe": None if toe is None else toe.record()}
             context_path = (tmp_dir / "context.json").resolve()
             if holes and any(h is not None for h in holes):
                 holes_path = (tmp_dir / "context_holes.npz").resolve()
@@ -1912,7 +2272,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
 
             ctx = _context(index, frames_dir, mosaic, factor=factor, halo=halo, gains=gains, nadir=nadir,
                            feather_px=feather_px, bands=bands, dtype=dtype, read_cells=read_cells,
-                           seam_shape=labels.shape, holes=holes, white_level=white_level, rolloff=rolloff)
+                           seam_shape=labels.shape, holes=holes, white_level=white_level, rolloff=rolloff,
+                           dn_offsets=offsets, toe=toe)
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
                  for r0 in range(0, mosaic.height, tile_px) for c0 in range(0, mosaic.width, tile_px)]
         rows = {r0: tmp_dir / f"stage_{r0:07d}.tif" for r0 in range(0, mosaic.height, tile_px)}
@@ -1920,7 +2281,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         if resume is not None:
             keys = _row_keys(index, mosaic, rows, labels=labels, seams_path=seams_path, factor=factor, halo=halo,
                              gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px, bands=bands, dtype=dtype,
-                             white_level=white_level, previous=previous, rolloff=rolloff)
+                             white_level=white_level, previous=previous, rolloff=rolloff, offsets=offsets, toe=toe)
             kept = {r0: path for r0, path in rows.items()
                     if _resumed_row(resume, keys[r0], path, (min(tile_px, mosaic.height - r0), mosaic.width))}
             if kept:
@@ -2047,11 +2408,11 @@ class _StageRow:
 # The rules by which a tile's samples are blended and filled from the frames, named in the rows' resume keys and in
 # mosaic.json: a mosaic made by other rules (the package's version does not move with every change of them) is never
 # resumed or taken over by an edited run. Change the name whenever blending, filling or the gains' application changes.
-BLEND_RULES = "feather+fill-farthest-from-holes+rolloff/2026-11-30"
+BLEND_RULES = "feather+fill-farthest-from-holes+rolloff+offsets-toe-black-held/2026-12-01"
 
 
 def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, factor, halo, gains, nadir, feather_px,
-              tile_px, bands, dtype, white_level, previous, rolloff=None) -> dict:
+              tile_px, bands, dtype, white_level, previous, rolloff=None, offsets=None, toe=None) -> dict:
     """Key of each row of tiles (row offset px -> sha256): what its samples depend on, the frame orthos (index.json,
     which holds their sizes and hashes), the seam labels, the gains, nadir points, feather, seam grid, tiles, the
     mosaic's grid and type, the white level, the earlier mosaic an edit takes tiles over from, and the version."""
@@ -2071,6 +2432,8 @@ def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, facto
            "bands": int(bands), "dtype": str(dtype), "white_level": white_level, "version": aerotri.__version__,
            "blend_rules": BLEND_RULES,
            **({} if rolloff is None else {"rolloff": rolloff.record()}),
+           **({} if offsets is None else {"offsets": np.asarray(offsets, float).tolist()}),
+           **({} if toe is None else {"toe": toe.record()}),
            "previous": None if previous is None else [
                file_stamp(previous.mosaic_path) if previous.mosaic_path.is_file() else None,
                hashlib.sha256(np.packbits(previous.changed)).hexdigest(), previous.why_all]}
@@ -2113,7 +2476,7 @@ class PreviousMosaic:
 
 
 def previous_mosaic(root: Path, index, names, labels, *, gains, feather_px, factor,
-                    mosaic: OrthoGrid, rolloff=None) -> PreviousMosaic:
+                    mosaic: OrthoGrid, rolloff=None, offsets=None, toe=None) -> PreviousMosaic:
     """The mosaic in ``ortho/`` when the edited run would blend its tiles the same away from the edit: made from the
     same frames (index.json sha1), with the same gains, highlight roll-off, feather and seam grid by the same
     ``BLEND_RULES``; else every tile is blended (``why_all`` says why)."""
@@ -2123,21 +2486,30 @@ def previous_mosaic(root: Path, index, names, labels, *, gains, feather_px, fact
     if not (old_path.is_file() and seams_path.is_file() and summary_path.is_file()):
         return PreviousMosaic(old_path, none, "no earlier mosaic in ortho/")
     old = read_json(summary_path)
-    same = (old.get("index_sha1") == index_sha1(root) and old.get("seam_factor") == factor
-            and old.get("feather_px") == feather_px and (old.get("width"), old.get("height")) == (mosaic.width, mosaic.height)
-            and old.get("gains") == {n: [float(v) for v in g] for n, g in zip(names, gains)}
-            and old.get("highlight_rolloff") == (None if rolloff is None else rolloff.record()))
-    if not same:
-        return PreviousMosaic(old_path, none, "the earlier mosaic was made from other frames, gains, highlight roll-off, "
-                                              "feather or seam grid")
+    # the rules first: a mosaic of other rules is not the same whatever its gains (which other rules may make
+    # differ in their last digits)
     if old.get("blend_rules") != BLEND_RULES:
         return PreviousMosaic(old_path, none, f"the earlier mosaic was blended by other rules "
                                               f"({old.get('blend_rules') or 'before they were named'}; now {BLEND_RULES})")
+    same = (old.get("index_sha1") == index_sha1(root) and old.get("seam_factor") == factor
+            and old.get("feather_px") == feather_px and (old.get("width"), old.get("height")) == (mosaic.width, mosaic.height)
+            and old.get("gains") == {n: [float(v) for v in g] for n, g in zip(names, gains)}
+            and old.get("highlight_rolloff") == (None if rolloff is None else rolloff.record())
+            and old.get("offsets") == _offsets_record(names, offsets)
+            and old.get("shadow_toe") == (None if toe is None else toe.record()))
+    if not same:
+        return PreviousMosaic(old_path, none, "the earlier mosaic was made from other frames, gains, offsets, "
+                                              "highlight roll-off, shadow toe, feather or seam grid")
     with rasterio.open(seams_path) as sds:
         old_labels = sds.read(1)
     if old_labels.shape != labels.shape:
         return PreviousMosaic(old_path, none, "the earlier seam grid differs")
     return PreviousMosaic(old_path, old_labels != labels)
+
+
+def _offsets_record(names, offsets) -> dict | None:
+    """mosaic.json's "offsets": frame name -> its offsets (DN) per band (None: no offsets)."""
+    return None if offsets is None else {n: [float(v) for v in o] for n, o in zip(names, offsets)}
 
 
 def _stage_profile(mosaic: OrthoGrid, bands: int, dtype) -> dict:

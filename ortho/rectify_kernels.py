@@ -552,12 +552,8 @@ def _fixed_point_kernel_affine(tile, frame, margin, maps):
     ix_row = np.empty(cols, np.int32)
     iy_row = np.empty(cols, np.int32)
     for r in range(rows):
-        dx0 = x0 - centre[0]
-        dy = y0 - r * res - centre[1]
         # camera-frame coordinates are affine along the row: start + c * step + dz * column of M
-        bx = M[0, 1] * dy + M[0, 0] * dx0
-        by = M[1, 1] * dy + M[1, 0] * dx0
-        bz = M[2, 1] * dy + M[2, 0] * dx0
+        dx0, dy, bx, by, bz = _affine_row(x0, y0, r, res, centre, M)
         z_row, mask_row = heights[r], mask[r]
         for c in range(cols):
             dz = np.float64(z_row[c]) - centre[2]

@@ -99,6 +99,8 @@ class MosaicSettings:
     feather_m: float | None = setting(None, min=0.0,
                                       help="Feather width across seams in metres, 0: one pixel (default: 8 GSD).")
     balance: bool = setting(True, help="Gain balancing between frames.")
+    offsets: bool = setting(False, help="With the gains, an offset per frame and band (haze, a black level) by the "
+                                        "same least squares (default: gains only; needs balance).")
     tile_px: int = setting(1024, min=16, help="Mosaic processing tile size (px).")
 
 

@@ -397,9 +397,19 @@ def build_graph(block: Block, opts: SolveSettings, state: State, obs_active, con
         # the prior is the a-priori camera, wherever this solve starts: a prior re-centred on the state of
         # each rebuild (robust rounds, snooping) would let the parameters held fixed drift by a sigma per round
         apriori = cal_from_camera(block.camera)
-        sig[fixed] = fixed_parameter_sigmas(block.camera, apriori)[fixed]
-        g.add(gtsam.PriorFactorCal3DS2(K_KEY, _cal3ds2(apriori), gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        n_unk += int((~fixed).sum())
+        held = fixed_parameter_sigmas(block.camera, apriori)
+        sig[fixed] = held[fixed]
+        info = np.diag(1.0 / sig**2)
+        n_free = int((~fixed).sum())
+        if not fixed[0] and not fixed[1]:
+            # one focal length (square pixels, camera.toml's focal_mm): fx - fy held at the camera's as a fixed
+            # parameter is; free apart, the two took an aspect ratio the written camera has not (NGI: 833.79 / 833.14)
+            a = np.zeros(9)
+            a[0], a[1] = 1.0, -1.0
+            info += np.outer(a, a) / held[0] ** 2
+            n_free -= 1
+        g.add(gtsam.PriorFactorCal3DS2(K_KEY, _cal3ds2(apriori), gtsam.noiseModel.Gaussian.Information(info)))
+        n_unk += n_free
     k = idx[explicit[block.obs_point[idx]]]
     _add_projection_factors(g, block.obs_xy_px[k], block.obs_image[k], block.obs_point[k], noise,
                             None if self_cal else _cal3ds2(state.cal))

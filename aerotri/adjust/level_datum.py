@@ -42,7 +42,8 @@ def height_datum(block: G.Block, state0: G.State, J_local_from_map, sigma_m, giv
     """Pseudo heights for the plan-only control points of a block without GNSS, DEM or 3 height control points
     (see the module docstring); None when the datum has heights. ``given_z``: control index -> local height of
     the point in the image model (else intersected from ``state0``; a single ray: the median of the others').
-    ``J_local_from_map`` (C, 3, 3) and ``sigma_m`` (C, 3) build the covariances. Changes ``block`` in place."""
+    ``J_local_from_map`` (C, 3, 3; the rotation from the grid axes to ENU, metres to metres) and ``sigma_m``
+    (C, 3; metres) build the covariances. Changes ``block`` in place."""
     if block.gnss_local is not None or block.surface is not None or not len(block.control_point):
         return None
     rows = block.control_rows

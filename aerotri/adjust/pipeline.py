@@ -448,7 +448,9 @@ def _control_priors(frame: LocalFrame, ctrl_used: ControlPoints):
     """Given coordinates (ENU), covariances (loose components of horizontal/height points) and the number
     of constrained components of each control point used."""
     given_loc = frame.to_local(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3))
-    J = frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3, 3))
+    # the sigmas are metres along the grid axes (sx_m, sy_m, sz_m), whatever the CRS's unit: turned into ENU by the
+    # rotation, not by the Jacobian d(ENU m)/d(map unit), which read them in feet in a feet CRS (3.3 x too tight)
+    J = frame.rotation_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else np.zeros((0, 3, 3))
     cov_loc, rows = [], []
     for c in range(len(ctrl_used)):
         sig = ctrl_used.sigma_m[c].copy()
@@ -604,7 +606,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         xyz = ctrl_used.xyz_m[c].copy()
         xyz[2] = height_m[c]
         model_z[c] = float(frame.to_local(xyz[None])[0, 2])
-    level = height_datum(block, state0, frame.jacobian_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else None,
+    level = height_datum(block, state0, frame.rotation_local_from_map(ctrl_used.xyz_m) if len(ctrl_used) else None,
                          ctrl_used.sigma_m, model_z)
     if level is not None:
         log.warning(level.note)

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.adjust.report_record import map_unit_m
 from aerotri.core.figures import pyplot
 from aerotri.core.settings import settings_lines
 from aerotri.core.tolerances import load_table, tolerance_path
@@ -112,15 +113,17 @@ def _control_rows(ba, res: _Residuals) -> list[dict]:
 
 
 def _check_rows(ba) -> tuple[list[dict], np.ndarray, np.ndarray]:
-    """Check points: rows, differences (adjusted minus measured) and normalised differences."""
+    """Check points: rows, differences (adjusted minus measured; the CRS's unit) and normalised differences (the
+    given sigmas, metres, turned into the CRS's unit first)."""
     rows, dchk, nchk = [], [], []
+    unit = map_unit_m(getattr(ba, "crs", None))
     for pid, c in ba.check.items():
         d = np.array(c["adjusted_m"]) - np.array(c["measured_m"])
         ok = np.all(np.isfinite(d))
         # a coordinate nobody surveyed (the height of a horizontal point used as a check point) is no check:
         # its difference is None in the row and left out of the RMS (``_rms`` skips NaN)
         d = np.where(np.asarray(c.get("surveyed", (True, True, True)), bool), d, np.nan)
-        sig = np.hypot(np.array(c["sigma_m"]), np.array(c["given_sigma_m"]))
+        sig = np.hypot(np.array(c["sigma_m"]), np.array(c["given_sigma_m"]) / unit)
         rows.append({"id": pid, "rays": c["rays"], "measured_m": _lst(c["measured_m"], 4), "adjusted_m": _lst(c["adjusted_m"], 4),
                      "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4), "given_sigma_m": _lst(c["given_sigma_m"], 4)})
         if ok:
@@ -240,6 +243,36 @@ def _point_lists(ba, res: _Residuals) -> tuple[list, list, list]:
     return worst_points, removed, rejected
 
 
+def _dropped_counts(ba, res: _Residuals, tie_pts) -> dict:
+    """What the counts leave out otherwise: tie points measured but not adjusted and their observations neither used
+    nor removed, by reason (``solve._drop_weak_points``): fewer than two rays left after the removals (the last ray
+    not used), or two rays or more left but so nearly parallel that the point is indeterminate (condition of its
+    normal matrix beyond 1e4-1e5: an intersection angle below about a third of a degree; all its rays not used). The
+    demo: 423 points and 423 rays, so that image observations + removed = 45,025 of the 45,445 measured."""
+    b = ba.block
+    tie_obs = ~np.isin(b.obs_point, b.control_point)
+    dropped = np.setdiff1d(np.unique(b.obs_point[tie_obs]), tie_pts)
+    removed = np.zeros(len(b.obs_point), dtype=bool)
+    removed[[x.obs for x in ba.result.removed]] = True
+    unused = ~res.active & ~removed & np.isin(b.obs_point, dropped)
+    left = np.bincount(b.obs_point[~removed], minlength=b.n_points)[dropped]
+    return {"tie_points_dropped": int(len(dropped)), "observations_unused": int(unused.sum()),
+            "tie_points_dropped_single_ray": int(np.sum(left < 2)),
+            "tie_points_dropped_parallel_rays": int(np.sum(left >= 2))}
+
+
+def _dropped_text(c: dict) -> str:
+    n = c.get("tie_points_dropped")
+    if not n:
+        return ""
+    few, parallel = c.get("tie_points_dropped_single_ray"), c.get("tie_points_dropped_parallel_rays")
+    if few is None or parallel is None:  # a report written before the reasons were counted
+        return f" ({n} more measured, dropped; their {c.get('observations_unused', 0)} remaining rays not used)"
+    why = ([f"{few} with fewer than 2 rays left after the removals"] if few else []) + (
+        [f"{parallel} with rays too nearly parallel to intersect (below about 0.3 deg)"] if parallel else [])
+    return f" ({n} more measured, dropped: {', '.join(why)}; their {c.get('observations_unused', 0)} remaining rays not used)"
+
+
 def _image_residual_summary(res: _Residuals) -> dict:
     """PATB tables of tie and control observations and the control/tie ratio users check (about 4 is
     normal, around 10 points at a systematic error)."""
@@ -301,15 +334,90 @@ def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, *, res_lim) -
     return {
         "rms_control_m": _lst(rms_control, 4) + [xy(rms_control)],
         "rms_check_m": (_lst(_rms(dchk), 4) + [xy(_rms(dchk))]) if len(dchk) else None,
-        "rms_limits_m": _lst(rms_lim, 3) + [None],
-        "max_ground_residual_m": (_lst(_max_abs(cres, axis=0), 4) + [None]) if len(cres) else None,
-        "residual_limits_m": _lst(res_lim, 3) + [None],
+        # the tolerance tables' plan limits are of the plan RMS and the plan residual (sqrt(dX^2 + dY^2): the QA
+        # report's rows): under XY, not under X and Y, where a plan RMS of 0.42 m read as X 0.30 and Y 0.30 passed
+        "rms_limits_m": [None, None, _f(rms_lim[2], 3), _f(rms_lim[0], 3)],
+        "max_ground_residual_m": (_lst(_max_abs(cres, axis=0), 4) + [_max_plan(cres)]) if len(cres) else None,
+        "residual_limits_m": [None, None, _f(res_lim[2], 3), _f(res_lim[0], 3)],
         "mean_std_dev_object_m": _lst(mean_sd_obj, 4) + [xy(mean_sd_obj)],
         "rms_photo_position_m": (_lst(_rms(ba.gnss_residual_m), 4) + [xy(_rms(ba.gnss_residual_m))]) if has_gnss else None,
         "rms_photo_attitude_deg": None,
         "mean_std_dev_photo_position_m": (_lst(np.mean(sig[:, :3], axis=0), 4) + [None]) if sig is not None else None,
         "mean_std_dev_photo_attitude_deg": (_lst(np.mean(sig[:, 3:], axis=0), 5) + [None]) if sig is not None else None,
     }
+
+
+def _max_plan(d) -> float | None:
+    """The largest plan residual sqrt(dX^2 + dY^2) of (n, 3) residuals; None without a plan residual."""
+    e = np.hypot(np.asarray(d, dtype=float)[:, 0], np.asarray(d, dtype=float)[:, 1])
+    e = e[np.isfinite(e)]
+    return _f(float(e.max()), 4) if len(e) else None
+
+
+def tolerance_findings(parameters: dict, unit_m=(1.0, 1.0, 1.0), *, control_residuals=None, check_residuals=None,
+                       n_check: int | None = None, gross_max_pct: float | None = None,
+                       check_points_min: float | None = None) -> list[dict]:
+    """The Parameters table judged by the accuracy report's rules (``aerotri.qa.report``: the same limits and
+    wording): the control and check points' plan (XY) and height (Z) RMS against the RMS limits, the check RMS
+    only with at least ``check_points_min`` check points (``n_check``; fewer: "indicative only" there, no finding
+    here); single residuals (``control_residuals``, ``check_residuals``: (n, 3) in the CRS's unit) beyond the
+    residual limits only when their share exceeds ``gross_max_pct`` (a few gross errors are tolerated, their
+    existence is no finding; without the key none is judged). ``unit_m``: metres per unit of the table's x, y, z
+    values (the project CRS's; ``map_unit_m``), the limits are metres. One dict per excess (``quantity``,
+    ``value_m`` in metres, ``limit_m``; a share: ``value_pct``, ``limit_pct``, ``residual_limit_m``)."""
+    out = []
+    to_m = {2: float(unit_m[2]), 3: float(unit_m[0])}
+    few_checks = check_points_min is not None and n_check is not None and n_check < check_points_min
+    rows = (("control residuals, plan RMS", "rms_control_m", 3),
+            ("control residuals, height RMS", "rms_control_m", 2),
+            ("check points, plan RMS", "rms_check_m", 3),
+            ("check points, height RMS", "rms_check_m", 2))
+    for quantity, key, i in rows:
+        if key == "rms_check_m" and few_checks:
+            continue
+        vals, lims = parameters.get(key), parameters.get("rms_limits_m")
+        v = None if not vals or vals[i] is None else vals[i] * to_m[i]
+        lim = None if not lims else lims[i]
+        if v is not None and lim is not None and math.isfinite(v) and v > lim:
+            out.append({"quantity": quantity, "value_m": round(v, 4), "limit_m": lim})
+    res_lims = parameters.get("residual_limits_m")
+    if gross_max_pct is None or not res_lims:
+        return out
+    for who, d in (("control", control_residuals), ("check", check_residuals)):
+        if d is None or not len(d):
+            continue
+        d = np.asarray(d, dtype=float).reshape(-1, 3)
+        for name, i, e in (("plan", 3, np.hypot(d[:, 0], d[:, 1]) * to_m[3]), ("height", 2, np.abs(d[:, 2]) * to_m[2])):
+            e, lim = e[np.isfinite(e)], res_lims[i]  # heights not surveyed are no residuals
+            if not len(e) or lim is None:
+                continue
+            pct = 100.0 * float(np.sum(e > lim)) / len(e)
+            if pct > gross_max_pct:
+                out.append({"quantity": f"{who} points with a {name} residual beyond {lim:g} m",
+                            "value_pct": round(pct, 2), "limit_pct": float(gross_max_pct), "residual_limit_m": lim,
+                            "count": f"{int(np.sum(e > lim))} of {len(e)}"})
+    return out
+
+
+def _plan_check(parameters: dict | None, unit_m) -> tuple | None:
+    """("check" or "control", plan RMS m, plan RMS limit m) of the Parameters table: the check points' when there
+    are, else the control points'; None without either."""
+    if not parameters:
+        return None
+    lim = (parameters.get("rms_limits_m") or [None] * 4)[3]
+    for who, key in (("check", "rms_check_m"), ("control", "rms_control_m")):
+        vals = parameters.get(key)
+        if vals and vals[3] is not None and math.isfinite(vals[3]):
+            return who, float(vals[3]) * float(unit_m[0]), lim
+    return None
+
+
+def tolerance_text(b: dict) -> str:
+    """A ``tolerance_findings`` excess in words: "check points, plan RMS 0.304 m > 0.140 m", "check points with a
+    plan residual beyond 0.28 m 16.67 % > 5 % (1 of 6)"."""
+    if "value_pct" in b:
+        return f"{b['quantity']} {b['value_pct']:g} % > {b['limit_pct']:g} % ({b['count']})"
+    return f"{b['quantity']} {b['value_m']:.3f} m > {b['limit_m']:.3f} m"
 
 
 def _self_calibration_option(ba) -> str:
@@ -413,6 +521,55 @@ def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
     suspect = tuple((s + 1, term, "ENU"[a], float(v[s, a])) for term, v in terms
                     for s in range(v.shape[0]) for a in range(3) if abs(v[s, a]) > k * sigma_axis[a])
     return GnssCorrectionCheck(tuple(float(x) for x in sigma_axis), round(k, 2), n, suspect, source)
+
+
+def common_height_shift_note(ba, gcc: GnssCorrectionCheck | None, plan_check: tuple | None = None) -> str | None:
+    """When every strip's GNSS height shift is suspect with one sign (two strips or more, within a fifth of their
+    mean), the GNSS heights are off the ground by one offset for the whole block, not one strip's GNSS: its causes,
+    the antenna lever arm or height, the GNSS height datum (ellipsoidal against orthometric heights) and, when
+    camera.toml's focal length is held (not estimated), the focal length (the mean shift as a share of the flying
+    height above the tie points: a focal length that much too long for a negative shift scales the rays so that the
+    cameras sit that much higher above the ground than the GNSS). A lever arm z 1 m off gives the same shifts (the demo:
+    -1.07 / -1.05 / -0.90 m) with no plan error, a focal length 2.5 % long (-10.49 / -10.47 / -9.21 m, 2.19 % of
+    458 m) shifts the check points by 0.625 m in plan as well: the focal length is named the likely cause only when
+    ``plan_check`` (who, plan RMS m, limit m: the check points', else the control points') exceeds its limit
+    (chosen on those two demo runs alone: 0.227 and 0.625 m against 0.35 m). Else None."""
+    if gcc is None or ba.opts.gnss_correction == "offset" or ba.block.n_strips < 2:
+        return None
+    up = {s: v for s, term, axis, v in gcc.suspect if term == "shift" and axis == "U"}
+    if len(up) < ba.block.n_strips:
+        return None
+    v = np.array(list(up.values()))
+    mean = float(v.mean())
+    if np.any(np.sign(v) != np.sign(mean)) or np.any(np.abs(v - mean) > 0.2 * abs(mean)):
+        return None
+    st, b = ba.result.state, ba.block
+    tie = np.setdiff1d(np.unique(b.obs_point[ba.result.obs_active]), b.control_point)
+    if not len(tie):
+        return None
+    height_m = float(np.median(st.centre[:, 2]) - np.median(st.points[tie, 2]))
+    if not height_m > 0:
+        return None
+    pct = 100.0 * mean / height_m
+    text = (f"The height shifts of all {len(v)} strips agree ({', '.join(f'{x:+.2f}' for x in v)} m; mean {mean:+.2f} m): "
+            f"the GNSS heights are off the ground by one offset for the whole block, not one strip's GNSS. Its causes: "
+            f"the antenna lever arm or antenna height (lever_arm_m z off by about {abs(mean):.2f} m), the GNSS height "
+            f"datum (ellipsoidal heights against orthometric ones, [project] heights)")
+    if "focal" in ba.opts.self_calibration:  # estimated: the solve has fitted it, it is no cause left
+        return text + "; not the focal length, which is estimated."
+    focal = f"a focal length {abs(pct):.2f} % too {'long' if pct < 0 else 'short'} in camera.toml"
+    shows = plan_check is not None and all(x is not None and math.isfinite(x) for x in plan_check[1:]) \
+        and plan_check[1] > plan_check[2]
+    if not shows:
+        residuals = (f"The {plan_check[0]} points' plan residuals (within their limit) do not" if plan_check else
+                     "No check or control point plan residuals")
+        return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). "
+                       f"{residuals} tell these apart: check the lever arm, the heights' datum and the calibration "
+                       f"certificate.")
+    return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). The "
+                   f"{plan_check[0]} points' plan RMS {plan_check[1]:.3f} m beyond its {plan_check[2]:.3f} m limit shows "
+                   f"the scale off as well: the focal length is the likely cause (check it against the calibration "
+                   f"certificate, or estimate it: self_calibration \"focal\" with the DEM or height control).")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -528,9 +685,13 @@ def _sigma0_note(ba) -> str | None:
             f"[adjust] image_sigma_px = {r.sigma0 * opts.image_sigma_px:.2f} or image_sigma_from_residuals = true.")
 
 
-def _key_statistics(ba, height_limit_m: float) -> dict:
+def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, tolerances: str = "",
+                    judged: dict | None = None) -> dict:
     """Sigma naught, iterations, and the verdict: "Solution Successful." only when the solve converged and
-    nothing is weak or failed; otherwise "Solution weak." or "Solution failed." naming each finding."""
+    nothing is weak or failed; otherwise "Solution weak." or "Solution failed." naming each finding. ``parameters``:
+    the Parameters table, whose RMS and residuals beyond its own limits (``tolerances``: the table's name) are
+    findings too, by the accuracy report's rules (``judged``: ``tolerance_findings``' residuals, check count and
+    the table's ``gross_error_max_pct`` / ``check_points_min``)."""
     r, opts = ba.result, ba.opts
     s0_um = r.sigma0 * opts.image_sigma_px * ba.camera_apriori.pixel_um
     converged = bool(r.info.converged and math.isfinite(r.sigma0))
@@ -553,6 +714,9 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
                           + _limit(gcc, f"; 1 % false alarms over the block's {gcc.n} estimates") + ": "
                           + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed.")
+        common = common_height_shift_note(ba, gcc, _plan_check(parameters, map_unit_m(getattr(ba, "crs", None))))
+        if common:
+            weaknesses.append(common)
     udc = unmodelled_drift_check(ba)
     if udc is not None and udc.trends:
         advice = "Set [adjust] gnss_correction = \"shift_drift\"."
@@ -563,6 +727,10 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
         weaknesses.append(f"GNSS residuals trend along strips beyond {_limit(udc)} and {udc.k:g} standard errors: a "
                           f"drift the solve does not model (gnss_correction = \"{opts.gnss_correction}\"): "
                           + "; ".join(udc.reasons()) + ". " + advice)
+    beyond = tolerance_findings(parameters, map_unit_m(getattr(ba, "crs", None)), **(judged or {})) if parameters else []
+    if beyond:
+        weaknesses.append(f"Beyond the tolerances of this report, {tolerances}: "
+                          + "; ".join(tolerance_text(b) for b in beyond) + ".")
     optimistic = optimistic_sigmas(_check_rows(ba)[2])
     if optimistic:
         weaknesses.append(optimistic)
@@ -605,6 +773,7 @@ def _key_statistics(ba, height_limit_m: float) -> dict:
         "verdict": verdict,
         "weak_geometry": [g.mode for g, _ in weak],
         "calibration_fixed": [c.group for c in fixed],
+        "tolerances_exceeded": beyond,
         "gnss_corrections_suspect": [] if gcc is None else [
             {"strip": s, "term": term, "axis": axis, "displacement_m": _f(v, 4)} for s, term, axis, v in gcc.suspect],
         "gnss_drift_unmodelled": [] if udc is None else [
@@ -741,15 +910,18 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "local_frame": {"origin_map": [float(v) for v in ba.frame.origin_map],
                         "note": "ENU tangent plane of the adjustment at origin_map (x, y, h in the project CRS)"},
         "options": _options(ba, tolerances),
-        "parameters": _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim=res_lim),
-        "key_statistics": _key_statistics(ba, rms_lim[2]),
+        "parameters": (params := _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim=res_lim)),
+        "key_statistics": _key_statistics(ba, rms_lim[2], params, tolerances, judged=dict(
+            control_residuals=cres, check_residuals=dchk, n_check=len(check_rows),
+            gross_max_pct=tol.get("gross_error_max_pct"), check_points_min=tol.get("check_points_min"))),
         "components": {"adjusted": int(ba.components), "left_out": [{"images": list(lo.image_ids), "reason": lo.reason}
                                                                    for lo in ba.left_out]},
         # what the datum rests on when GNSS does not carry it (approximations from the images, unmeasured heights)
         "datum": list(getattr(ba, "datum_notes", [])),
         "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
                    "control_points": int(len(used_ctrl)), "check_points": int(len(check_rows)),
-                   "image_observations": int(res.active.sum()), "removed_observations": len(removed)},
+                   "image_observations": int(res.active.sum()), "removed_observations": len(removed),
+                   **_dropped_counts(ba, res, tie_pts)},
         "image_residuals": _image_residual_summary(res),
         "control_points": control_rows,
         "rms_control_ground_m": _lst(rms_control, 4),
@@ -909,11 +1081,52 @@ def _self_calibration_txt(sc: dict) -> list[str]:
                          f"{100 * (c['image_field_fraction'] or 0.0):.3f} % by an unmodelled image field")
             if c["reason"]:
                 L.append(f"  {'':11} not determinable: {c['reason']}")
+        note = formal_sigma_note(sc)
+        if note:
+            L.append(f"  ({note})")
     return L
+
+
+def formal_sigma_note(sc: dict) -> str | None:
+    """When the determinability's sigmas (formal: the surface's points as independent) differ from the table's std
+    dev (with the LiDAR strip offsets of SURFACE CONTROL added, the consider covariance) by more than 1 %: the note
+    that says so with the parameters that differ, else None. The demo's k1: 6.6e-05 against the table's 0.000193,
+    both printed as its sigma."""
+    std = sc.get("std_dev") or {}
+    diff = [(n, std[n], c["sigma"][n]) for c in sc.get("determinability") or [] if c["action"] == "estimated"
+            for n in c["sigma"] if std.get(n) and c["sigma"].get(n) and abs(std[n] / c["sigma"][n] - 1.0) > 0.01]
+    if not diff:
+        return None
+    return ("Determinability sigmas formal, the surface's points taken as independent (as BLOCK GEOMETRY's); the "
+            "std dev of the table adds the LiDAR strip offsets of SURFACE CONTROL: "
+            + ", ".join(f"{n} {a:.3g} against {b:.3g}" for n, a, b in diff))
+
+
+_MAP_UNIT_ROWS = ("rms_control_m", "rms_check_m", "max_ground_residual_m", "mean_std_dev_object_m", "rms_photo_position_m")
+
+
+def ground_units(rep: dict) -> tuple[str, str]:
+    """The units of the report's ground coordinates and residuals in plan and height, as labels ("m", "ft", "us-ft")."""
+    from aerotri.geom.crs.definition import length_unit_name
+
+    u = map_unit_m(rep.get("crs"))
+    return length_unit_name(u[0]), length_unit_name(u[2])
+
+
+def ground_unit(rep: dict) -> str:
+    """The unit of the report's ground coordinates and residuals, as a label: "m", "ft", "us-ft" ("ft, Z m" when the
+    heights have another one); the limits and the key statistics' findings are metres whatever it is."""
+    h, z = ground_units(rep)
+    return h if h == z else f"{h}, Z {z}"
+
+
+def _parameter_label(label: str, key: str, unit: str) -> str:
+    return label.replace("(m)", f"({unit})") if key in _MAP_UNIT_ROWS else label
 
 
 def format_txt(rep: dict) -> str:
     o = rep["options"]
+    unit = ground_unit(rep)
     L = [f"Photo-T Parameters and Results for Project {rep['project']}", "", "PhotoT Triangulation Options"]
     for key, name in ISAT_OPTIONS.items():
         L.append(f"  {name} : {o[key]}")
@@ -927,7 +1140,11 @@ def format_txt(rep: dict) -> str:
             ("Mean Std Dev Photo Attitude (deg)", "mean_std_dev_photo_attitude_deg", 4)]
     for label, key, nd in rows:
         vals = rep["parameters"][key] or [None] * 4
-        L.append(f"{label:32}" + "".join(_v(x, 10, nd) for x in vals))
+        L.append(f"{_parameter_label(label, key, unit):32}" + "".join(_v(x, 10, nd) for x in vals))
+    if unit != "m":  # a feet CRS: the ground figures are feet, the tolerance tables' limits metres
+        L.append(f"  (the coordinates, residuals and sigmas of control, check and object points and the GNSS residuals "
+                 f"in the project CRS's unit, {unit}, here and below; limits, the key statistics' findings, photo "
+                 f"position sigmas and image residuals on the ground in metres)")
     k = rep["key_statistics"]
     sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
     L += ["", "Key Statistics", f"  Sigma: {sigma}"]
@@ -955,7 +1172,7 @@ def format_txt(rep: dict) -> str:
         L += _surface_txt(sc)
     vc = rep.get("variance_components")
     if vc:
-        L += ["VARIANCE COMPONENTS (factor on the a-priori sigmas: v'Pv / redundancy; 1 = the sigmas fit)",
+        L += ["VARIANCE COMPONENTS (factor on the a-priori sigmas: sqrt(v'Pv / redundancy); 1 = the sigmas fit)",
               f"  {'group':10}{'obs':>8}{'redundancy':>12}{'factor':>9}{'weighted':>10}{'estimated':>11}  a-priori"]
         for g in vc:
             L.append(f"  {g['group']:10}{g['observations']:8d}{_v(g['redundancy'], 12, 1)}{_v(g['factor'], 9, 3)}"
@@ -995,7 +1212,7 @@ def format_txt(rep: dict) -> str:
             L.append(f"  NOT ADJUSTED ({lo['reason']}): {', '.join(lo['images'])}")
         L.append("")
     c = rep["counts"]
-    L.append(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points {c['control_points']}, "
+    L.append(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}{_dropped_text(c)}, control points {c['control_points']}, "
              f"check points {c['check_points']}, image observations {c['image_observations']}, removed {c['removed_observations']}")
     ir = rep["image_residuals"]
     L += ["", "ROOT MEAN SQUARE VALUES AND CHECKVALUES OF RESIDUALS OF PHOTOGRAMMETRIC OBSERVATIONS"]
@@ -1008,14 +1225,15 @@ def format_txt(rep: dict) -> str:
         L.append(f"  control / tie image residual ratio: {ir['control_to_tie_ratio']:.2f}")
     if ir["warning"]:
         L.append(f"  WARNING: {ir['warning']}")
-    L += ["", "ROOT MEAN SQUARE VALUES AND CHECKVALUES OF RESIDUALS OF NONPHOTOGRAMMETRIC OBSERVATIONS (control, m)"]
+    L += ["", f"ROOT MEAN SQUARE VALUES AND CHECKVALUES OF RESIDUALS OF NONPHOTOGRAMMETRIC OBSERVATIONS (control, {unit})"]
     used = [r for r in rep["control_points"] if r["used"]]
     for a, ax in enumerate("xyz"):
         vals = [r["residual_m"][a] for r in used if r["residual_m"][a] is not None]
         if vals:
-            L.append(f"  obs {ax} = {len(vals):4d}  rms = {np.sqrt(np.mean(np.square(vals))):8.4f} m  chv = {np.max(np.abs(vals)):8.4f} m")
+            L.append(f"  obs {ax} = {len(vals):4d}  rms = {np.sqrt(np.mean(np.square(vals))):8.4f} {unit}  "
+                     f"chv = {np.max(np.abs(vals)):8.4f} {unit}")
     # a table without rows reads as one cut off: say there is none (the HTML leaves the table out)
-    L += ["", "Control points (residual = adjusted - given, m; image rms in um)" if rep["control_points"] else
+    L += ["", f"Control points (residual = adjusted - given, {unit}; image rms in um)" if rep["control_points"] else
           "Control points: none in the adjustment",
           f"{'id':>12} {'kind':>10} {'used':>5} {'rays':>4} {'dX':>9} {'dY':>9} {'dZ':>9} {'img um':>8}"][
         :3 if rep["control_points"] else 2]
@@ -1029,7 +1247,7 @@ def format_txt(rep: dict) -> str:
         L.append(f"  not used (no active image ray; held only by its given coordinates): {', '.join(map(str, no_rays))}")
     if rep["rejected_control"]:
         L += ["", "Control points failing the test (excluded):"] + [f"  {x['id']}  w = {x['w']}" for x in rep["rejected_control"]]
-    L += ["", "Check points (d = adjusted - measured, m)" if rep["check_points"] else
+    L += ["", f"Check points (d = adjusted - measured, {unit})" if rep["check_points"] else
           "Check points: none in the adjustment",
           f"{'id':>12} {'X':>13} {'Y':>13} {'Z':>9} {'X adj':>13} {'Y adj':>13} {'Z adj':>9} {'dX':>8} {'dY':>8} {'dZ':>8}"][
         :3 if rep["check_points"] else 2]
@@ -1065,7 +1283,7 @@ def format_txt(rep: dict) -> str:
             lim = "" if c["limit"] is None else f"{op}{c['limit']:g}"
             L.append(f"  {c['quantity']:48}{_v(c['value'], 9, 2)}{lim:>9} {c['unit']:5} {c['where']:>14}"
                      f"{c['n_fail']:>5} of {c['n']:<3} {c['verdict'] or 'not measured'}")
-    L += ["", "Photos (image residual RMS um; GNSS residual m; std dev of position m)",
+    L += ["", f"Photos (image residual RMS um; GNSS residual {unit}; std dev of position m)",
           f"{'image':>12} {'strip':>5} {'obs':>5} {'rms x':>7} {'rms y':>7} {'gX':>8} {'gY':>8} {'gZ':>8} {'sX':>7} {'sY':>7} {'sZ':>7}"]
     for p in rep["photos"]:
         g = p.get("gnss_residual_m", [None] * 3)
@@ -1160,6 +1378,9 @@ def format_html(rep: dict, ba=None) -> str:
 
     T = RF.table
     o, k = rep["options"], rep["key_statistics"]
+    uh, uz = ground_units(rep)   # ground coordinates and residuals in the CRS's units (photo sigmas in metres)
+    xyz = (f"X {uh}", f"Y {uh}", f"Z {uz}")
+    dxyz = (f"dX {uh}", f"dY {uh}", f"dZ {uz}")
     names = dict(ISAT_OPTIONS, image_sigma_px="Image sigma of the final solve (px)",
                  image_sigma_apriori_px="A-priori image sigma (px)", snooping_alpha="Data snooping alpha")
     rows = [("RMS Control (m)", "rms_control_m"), ("RMS Check (m)", "rms_check_m"), ("RMS Limits (m)", "rms_limits_m"),
@@ -1183,12 +1404,12 @@ def format_html(rep: dict, ba=None) -> str:
         options=T(["option", "value"], [[names.get(n, n.replace("_", " ").capitalize()),
                                          f"{v:g}" if isinstance(v, float) else v] for n, v in o.items()]),
         parameters=T(["", "X/Omega", "Y/Phi", "Z/Kappa", "XY"],
-                     [[label] + list(rep["parameters"][key] or [None] * 4) for label, key in rows], 4),
+                     [[_parameter_label(label, key, ground_unit(rep))] + list(rep["parameters"][key] or [None] * 4) for label, key in rows], 4),
         key_statistics=T(["statistic", "value"], [
             ["Sigma", sigma], ["Number of iterations", k["iterations"]], ["Degrees of Freedom", k["degrees_of_freedom"]],
             ["Result", k["message"]]], num_from=9),
         datum=rep.get("datum") or [],
-        counts=(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}, control points "
+        counts=(f"Images {c['images']} in {c['strips']} strips, tie points {c['tie_points']}{_dropped_text(c)}, control points "
                 f"{c['control_points']}, check points {c['check_points']}, image observations "
                 f"{c['image_observations']}, removed {c['removed_observations']}."),
         image_residuals=T(["points", "axis", "obs", "rms um", "rms m", "check value um"],
@@ -1199,8 +1420,7 @@ def format_html(rep: dict, ba=None) -> str:
         control_to_tie=(f"Control / tie image residual ratio: {ir['control_to_tie_ratio']:.2f} (about 4 is normal, "
                         "around 10 points at a systematic error)." if ir["control_to_tie_ratio"] is not None else ""),
         residual_warning=ir["warning"] or "",
-        control_points=RF.long_table("control points", ["id", "kind", "used", "rays", "dX m", "dY m", "dZ m",
-                                                        "image rms um"],
+        control_points=RF.long_table("control points", ["id", "kind", "used", "rays", *dxyz, "image rms um"],
                                      [[r["id"], r["kind"], r.get("status", r["used"]), r["rays"], *r["residual_m"],
                                        r["image_rms_um"]] for r in rep["control_points"]], 4, num_from=3),
         rejected_control=", ".join(f"{x['id']} (w = {x['w']})" for x in rep["rejected_control"]),
@@ -1217,7 +1437,7 @@ def format_html(rep: dict, ba=None) -> str:
         surface_control=bool(rep.get("surface_control")),
         dem_checks=[dict(role=d["role"], failed=d["failed"], dem=str(d["dem"]), line=_dem_check_line(d))
                     for d in rep.get("dem_checks") or []],
-        photos=RF.long_table("photos", ["image", "strip", "obs", "rms x um", "rms y um", "GNSS res X m", "Y m", "Z m",
+        photos=RF.long_table("photos", ["image", "strip", "obs", "rms x um", "rms y um", f"GNSS res X {uh}", f"Y {uh}", f"Z {uz}",
                                         "sX m", "sY m", "sZ m", "tie obs per von Gruber area"],
                              [[p["image_id"], p["strip"], p["obs"], p["rms_x_um"], p["rms_y_um"],
                                *(p.get("gnss_residual_m") or [None] * 3), *(p.get("sigma_position_m") or [None] * 3),
@@ -1226,7 +1446,7 @@ def format_html(rep: dict, ba=None) -> str:
         image_pairs=T(["left", "right", "points", "in 3+ frames", "rms um", "rms px"],
                       [[x["left"], x["right"], x["tie_points"], x["in_3plus_frames"], x["rms_um"], x["rms_px"]]
                        for x in pairs[:20]], 3, num_from=2),
-        worst_tie_points=T(["point", "rays", "rms um", "X m", "Y m", "Z m"],
+        worst_tie_points=T(["point", "rays", "rms um", *xyz],
                            [[x["point_id"], x["rays"], x["rms_um"], *x["xyz_m"]] for x in rep["worst_tie_points"]], 3),
         n_removed=len(rem),
         removed=RF.long_table("removed observations", ["point", "image", "w", "vx px", "vy px", "round"],
@@ -1235,11 +1455,11 @@ def format_html(rep: dict, ba=None) -> str:
     if rep["check_points"]:
         crow = [[r["id"], r["rays"], *r["measured_m"], *r["adjusted_m"], *r["d_m"]] for r in rep["check_points"]]
         if rep["check_sum_m"]:
-            ctx["check_sums"] = T(["", "points", "dX m", "dY m", "dZ m"],
+            ctx["check_sums"] = T(["", "points", *dxyz],
                                   [["sum", len(crow), *rep["check_sum_m"]], ["rms", len(crow), *rep["check_rms_m"]]], 3)
             crow += [["sum"] + [None] * 7 + list(rep["check_sum_m"]), ["rms"] + [None] * 7 + list(rep["check_rms_m"])]
-        ctx["check_points"] = RF.long_table("check points", ["id", "rays", "X m", "Y m", "Z m", "X adj m", "Y adj m",
-                                                             "Z adj m", "dX m", "dY m", "dZ m"], crow, 3)
+        ctx["check_points"] = RF.long_table("check points", ["id", "rays", *xyz, f"X adj {uh}", f"Y adj {uh}",
+                                                             f"Z adj {uz}", *dxyz], crow, 3)
     if sc:
         ctx["self_calibration"] = dict(
             asked=", ".join(sc["groups"]), estimated=", ".join(sc.get("estimated") or []) or "none",
@@ -1249,7 +1469,8 @@ def format_html(rep: dict, ba=None) -> str:
                 ["group", "action", "corner sigma px", "corner sigma / focal", "partial correlations", "reason"],
                 [[d["group"], d["action"], d["corner_sigma_px"], d["corner_sigma_fraction"],
                   ", ".join(f"{m} {v}" for m, v in d["correlations"].items()), d["reason"] or ""]
-                 for d in sc["determinability"]], 4, num_from=2) if sc.get("determinability") else None)
+                 for d in sc["determinability"]], 4, num_from=2) if sc.get("determinability") else None,
+            note=formal_sigma_note(sc))
     return render("adjust_report.html.j2", **ctx)
 
 

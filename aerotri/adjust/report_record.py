@@ -3,7 +3,8 @@ adjustment (the accuracy report, the chain) take from it.
 
 The adjustment stage owns the file (``aerotri.adjust.report`` writes it); this module owns its reader. Only
 the fields other stages use are typed here; the figures of ``at/report.html`` draw from the whole file.
-Lengths in metres of the project CRS, image quantities in micrometres (``_um``) or pixels (``_px``).
+The file's ground figures are in the project CRS's unit (feet in a feet CRS); the record's ``_m`` fields are
+metres (``map_unit_m``). Image quantities in micrometres (``_um``) or pixels (``_px``).
 """
 
 from __future__ import annotations
@@ -18,15 +19,31 @@ ADJUSTMENT_REPORT = "bundle adjustment report (at/report.json)"
 SCHEMA_VERSION = 1
 
 
-def _xyz(v) -> tuple[float | None, ...] | None:
-    """A list of numbers (or nulls) as a tuple, None when absent."""
+def _xyz(v, unit_m=(1.0, 1.0, 1.0)) -> tuple[float | None, ...] | None:
+    """A list of numbers (or nulls) as a tuple, None when absent; ``unit_m``: metres per unit of x, y, z."""
     if v is None:
         return None
-    return tuple(None if x is None else float(x) for x in v)
+    return tuple(None if x is None else float(x) * u for x, u in zip(v, unit_m))
 
 
 def _number(v) -> float | None:
     return None if v is None else float(v)
+
+
+def map_unit_m(crs) -> tuple[float, float, float]:
+    """Metres per unit of the report's ground coordinates and residuals (x, y, z): the project CRS's horizontal
+    unit and the height unit of its horizontal part (the adjustment's map heights, ``LocalFrame``); 1 where the
+    CRS is absent, unreadable or geographic. A feet CRS: 0.3048 (its "_m" keys are feet, the tolerances metres)."""
+    if not crs:
+        return (1.0, 1.0, 1.0)
+    from aerotri.geom.crs.definition import height_unit_m, horizontal_crs, linear_unit_m, parse_crs
+
+    try:
+        h = horizontal_crs(parse_crs(crs))
+        u = [linear_unit_m(h)] * 2 + [height_unit_m(h)]
+    except Exception:  # noqa: BLE001 - a report of a CRS this PROJ cannot read: judged as metres, as before
+        return (1.0, 1.0, 1.0)
+    return tuple(float(x) if math.isfinite(x) and x > 0 else 1.0 for x in u)
 
 
 @dataclass(frozen=True)
@@ -70,10 +87,10 @@ class AdjustmentRecord:
     gnss_given: bool  # GNSS camera positions observed ("given EO GPS" in the ISAT options)
     image_sigma_px: float | None  # a-priori sigma of an image coordinate
     key_statistics: KeyStatistics | None
-    control_rms_m: tuple[float | None, ...] | None  # X, Y, Z RMS of the control residuals on the ground
+    control_rms_m: tuple[float | None, ...] | None  # X, Y, Z RMS of the control residuals on the ground (metres)
     rejected_control: tuple[str, ...]  # ids of control points the adjustment rejected
-    check_rms_m: tuple[float | None, ...] | None  # X, Y, Z RMS at the check points
-    check_residuals_m: tuple[tuple[float, float, float], ...]  # dX, dY, dZ per check point (NaN: not surveyed)
+    check_rms_m: tuple[float | None, ...] | None  # X, Y, Z RMS at the check points (metres)
+    check_residuals_m: tuple[tuple[float, float, float], ...]  # dX, dY, dZ per check point (metres; NaN: not surveyed)
     check_points: int  # check points in the report (with or without residuals)
     check_normalised_rms: tuple[float | None, ...] | None
     flight_acceptance: dict | None  # the flight acceptance section as written (a ``FlightAcceptance``, asdict)
@@ -125,15 +142,18 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
     rejected = tuple(str(r.get("id", r) if isinstance(r, dict) else r) for r in d.get("rejected_control") or [])
     checks = d.get("check_points") or []
     # a plan-only check point has dZ None (its height was not surveyed): NaN here, left out of height figures
-    residuals = tuple(tuple(math.nan if x is None else float(x) for x in c["d_m"]) for c in checks
+    # the report's ground figures are in the project CRS's unit (feet in a feet CRS): metres here, as the
+    # tolerance tables and the stages after the adjustment read them
+    unit = map_unit_m(d.get("crs"))
+    residuals = tuple(tuple(math.nan if x is None else float(x) * u for x, u in zip(c["d_m"], unit)) for c in checks
                       if c.get("d_m") and any(x is not None for x in c["d_m"]))
     sigma = options.get("image_sigma_px")
     return AdjustmentRecord(
         path=Path(path), project=d.get("project"), counts=dict(d.get("counts") or {}),
         gnss_given=options.get("given_eo_gps") == "Enabled", image_sigma_px=None if sigma is None else float(sigma),
         key_statistics=_key_statistics(d.get("key_statistics") or {}),
-        control_rms_m=_xyz(d.get("rms_control_ground_m")), rejected_control=rejected,
-        check_rms_m=_xyz(d.get("check_rms_m")), check_residuals_m=residuals, check_points=len(checks),
+        control_rms_m=_xyz(d.get("rms_control_ground_m"), unit), rejected_control=rejected,
+        check_rms_m=_xyz(d.get("check_rms_m"), unit), check_residuals_m=residuals, check_points=len(checks),
         check_normalised_rms=_xyz(d.get("check_normalised_rms")), flight_acceptance=d.get("flight_acceptance") or None,
         control_to_tie_ratio=_number((d.get("image_residuals") or {}).get("control_to_tie_ratio")),
         datum_notes=tuple(str(n) for n in d.get("datum") or ()),

@@ -124,7 +124,11 @@ def resumable(folder, *, remove_empty_parent: bool = True):
     False (a user's output folder)."""
     folder = Path(folder)
     try:
-        parent_existed = not remove_empty_parent or any(e.name != folder.name for e in os.scandir(folder.parent))
+        if remove_empty_parent:
+            with os.scandir(folder.parent) as entries:  # closed when any() stops early
+                parent_existed = any(e.name != folder.name for e in entries)
+        else:
+            parent_existed = True
     except OSError:
         parent_existed = False
     try:

@@ -10,8 +10,8 @@ broken file gives the same one-line error (naming the file and the record) in ev
   Records flagged withheld are left out here (``usable``, the one rule: ASPRS says they are not to be
   processed) unless a writer that copies every record asks for them (``withheld=True``).
 - CRS of a header: ``header_crs`` (None when absent or unreadable), ``read_header_crs`` (an
-  unreadable record is an error), ``geokey_vertical_unit_m`` (the vertical unit the GeoTIFF keys
-  state, which laspy's CRS parser ignores) and ``add_crs`` (writes a compound CRS as GeoTIFF keys
+  unreadable record is an error), ``geokey_vertical_unit_m`` / ``read_vertical_unit_m`` (the vertical unit
+  the GeoTIFF keys state, which laspy's CRS parser ignores) and ``add_crs`` (writes a compound CRS as GeoTIFF keys
   with its vertical CRS and unit, so that ``geokey_vertical_unit_m`` reads it back).
 
 Units and scaling to metres belong to the readers of the stages (e.g. ``lidarctl.io``).
@@ -40,6 +40,10 @@ EPSG_UNIT_M = {9001: 1.0, 9002: FOOT_M, 9003: US_SURVEY_FOOT_M}
 VERTICAL_CS_KEY, VERTICAL_UNITS_KEY = 4096, 4099
 PROJ_LINEAR_UNITS_KEY = 3076
 PROJ_LINEAR_UNIT_SIZE_KEY = 3077  # metres per unit of a user-defined ProjLinearUnitsGeoKey (32767), a double
+# metres per unit of a user-defined VerticalUnitsGeoKey (32767), a double: GeoTIFF 1.1 (OGC 19-008r4) annex B,
+# "vertical axis unit through VerticalUnitsGeoKey: ... scaling from SI base unit of meter (through
+# GeogLinearUnitSizeGeoKey)"; there is no VerticalUnitSizeGeoKey (requirement 16.9 forbids 32767 for that reason)
+GEOG_LINEAR_UNIT_SIZE_KEY = 2053
 USER_DEFINED_KEY = 32767
 
 
@@ -370,23 +374,71 @@ def _geo_keys(header: laspy.LasHeader) -> dict | None:
     return None
 
 
+def epsg_linear_unit_m(code: int) -> float | None:
+    """Metres per unit of an EPSG linear unit-of-measure code (9001 metre, 9002 foot, 9003 US survey foot, 1025
+    millimetre ...; PROJ's database); None for a code that is not one."""
+    if code in EPSG_UNIT_M:
+        return EPSG_UNIT_M[code]
+    for unit in pyproj.get_units_map(auth_name="EPSG", category="linear").values():
+        if unit.code == str(code):
+            return float(unit.conv_factor)
+    return None
+
+
 def geokey_vertical_unit_m(header: laspy.LasHeader) -> float | None:
-    """Metres per vertical unit from the GeoTIFF keys: VerticalUnitsGeoKey (4099), else the unit of the
-    EPSG vertical CRS in VerticalCSTypeGeoKey (4096); None when they say nothing (laspy's CRS parser
-    reads neither)."""
+    """Metres per vertical unit from the GeoTIFF keys: VerticalUnitsGeoKey (4099) - an EPSG linear unit, or
+    user-defined (32767) with its size in metres in GeogLinearUnitSizeGeoKey (2053, GeoTIFF 1.1 annex B) -, else
+    the unit of the EPSG vertical CRS in VerticalCSTypeGeoKey (4096); None when they say nothing (laspy's CRS
+    parser reads neither). A units key holding a code that is no EPSG linear unit (a vertical datum's, 5703, from
+    some writers) gives way to the vertical CRS's unit. ValueError for a units key whose size cannot be known
+    (user-defined without its size, a code that is no EPSG linear unit and no vertical CRS): falling back to the
+    horizontal unit read heights in feet as metres. (GDAL reads a user-defined vertical unit as metres: it has no
+    size key of its own.) A readable WKT record (LAS 1.4) is the CRS, as in ``_parse_crs``: keys left beside it
+    (stale, from an older copy) are not read, and the heights' unit is the WKT's (None here)."""
     keys = _geo_keys(header)
-    if keys is None:
+    if keys is None or _wkt_crs(header) is not None:
         return None
+    vcs_unit_m = _vertical_cs_unit_m(keys.get(VERTICAL_CS_KEY))
     units_key = keys.get(VERTICAL_UNITS_KEY)
-    if units_key is not None and units_key.tiff_tag_location == 0 and units_key.value_offset in EPSG_UNIT_M:
-        return EPSG_UNIT_M[units_key.value_offset]
-    vcs = keys.get(VERTICAL_CS_KEY)
+    if units_key is not None and units_key.tiff_tag_location == 0 and units_key.value_offset != 0:
+        code = int(units_key.value_offset)
+        if code == USER_DEFINED_KEY:
+            size = _geo_double(header, keys.get(GEOG_LINEAR_UNIT_SIZE_KEY))
+            if size is None or not (np.isfinite(size) and size > 0):
+                raise ValueError(
+                    "VerticalUnitsGeoKey (4099) is user-defined (32767) but GeogLinearUnitSizeGeoKey (2053), the "
+                    "unit's size in metres (GeoTIFF 1.1 annex B), is missing or not a positive number: the heights' "
+                    "unit is unknown")
+            return float(size)
+        unit_m = epsg_linear_unit_m(code) if code < USER_DEFINED_KEY else None
+        if unit_m is None:
+            # some writers put the vertical datum's code (5703) here: the vertical CRS's unit, when it has one
+            if vcs_unit_m is not None:
+                return vcs_unit_m
+            raise ValueError(f"VerticalUnitsGeoKey (4099) is {code}, not an EPSG linear unit code, and "
+                             "VerticalCSTypeGeoKey (4096) names no EPSG vertical CRS: the heights' unit is unknown")
+        return unit_m
+    return vcs_unit_m
+
+
+def _vertical_cs_unit_m(vcs) -> float | None:
+    """Metres per unit of the EPSG vertical CRS in a VerticalCSTypeGeoKey (None: no key, or not an EPSG CRS)."""
     if vcs is not None and vcs.tiff_tag_location == 0 and 1024 <= vcs.value_offset <= 32766:
         try:
             return float(pyproj.CRS.from_epsg(vcs.value_offset).axis_info[0].unit_conversion_factor)
         except (pyproj.exceptions.CRSError, IndexError):
             return None
     return None
+
+
+def read_vertical_unit_m(path, header: laspy.LasHeader, hint: str = "") -> float | None:
+    """``geokey_vertical_unit_m``, a units key whose size cannot be known a ``CrsError`` naming the file (``hint``:
+    what to do instead, appended after a semicolon)."""
+    try:
+        return geokey_vertical_unit_m(header)
+    except ValueError as exc:
+        raise CrsError(f"{path}: CRS record present but unreadable ({one_line(exc)})"
+                       + (f"; {hint}" if hint else "")) from exc
 
 
 def add_crs(header: laspy.LasHeader, crs: pyproj.CRS) -> None:
@@ -408,12 +460,30 @@ def add_crs(header: laspy.LasHeader, crs: pyproj.CRS) -> None:
     vlr = next((v for v in header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr"), None)
     if vertical is None or vlr is None:
         return
-    unit_m = float(vertical.axis_info[0].unit_conversion_factor)
+    axis = vertical.axis_info[0]
+    unit_m = float(axis.unit_conversion_factor)
     unit_code = next((code for code, f in EPSG_UNIT_M.items() if abs(f - unit_m) < 1e-12), None)
-    keys = [(VERTICAL_CS_KEY, vertical.to_epsg() or 32767), (VERTICAL_UNITS_KEY, unit_code or 32767)]
-    vlr.geo_keys = [k for k in vlr.geo_keys if k.id != 0 and k.id not in (VERTICAL_CS_KEY, VERTICAL_UNITS_KEY)]
-    for key_id, value in keys:
+    if unit_code is None and axis.unit_auth_code == "EPSG" and str(axis.unit_code).isdigit():
+        unit_code = int(axis.unit_code)
+    # (key, location, value): a unit without an EPSG code is user-defined, its size in GeogLinearUnitSizeGeoKey
+    keys = [(VERTICAL_CS_KEY, 0, vertical.to_epsg() or USER_DEFINED_KEY),
+            (VERTICAL_UNITS_KEY, 0, unit_code or USER_DEFINED_KEY)]
+    if unit_code is None:
+        import ctypes
+
+        from laspy.vlrs.known import GeoDoubleParamsVlr
+
+        doubles = next((v for v in header.vlrs if type(v).__name__ == "GeoDoubleParamsVlr"), None)
+        if doubles is None:
+            doubles = GeoDoubleParamsVlr()
+            header.vlrs.append(doubles)
+        doubles.doubles.append(ctypes.c_double(unit_m))
+        keys.append((GEOG_LINEAR_UNIT_SIZE_KEY, 34736, len(doubles.doubles) - 1))
+    ids = (VERTICAL_CS_KEY, VERTICAL_UNITS_KEY, GEOG_LINEAR_UNIT_SIZE_KEY)
+    vlr.geo_keys = [k for k in vlr.geo_keys if k.id != 0 and k.id not in ids]
+    for key_id, location, value in keys:
         k = GeoKeyEntryStruct()
-        k.id, k.tiff_tag_location, k.count, k.value_offset = key_id, 0, 1, value
+        k.id, k.tiff_tag_location, k.count, k.value_offset = key_id, location, 1, value
         vlr.geo_keys.append(k)
+    vlr.geo_keys.sort(key=lambda k: k.id)  # GeoTIFF: keys in ascending order
     vlr.geo_keys_header.number_of_keys = len(vlr.geo_keys)

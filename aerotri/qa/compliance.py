@@ -75,6 +75,15 @@ class LidarFigures:
     density_note: str = ""
     rmse_all_m: float | None = None  # RMSE at every surveyed point, vegetated too (a map-scale table's DEM figure)
     n_all: int = 0
+    # surveyed points without a dz (no valid DEM cell under them, or no ground point within the radius): their ids by
+    # the rows they would have counted in (NVA, VVA, every point; a point of unknown land cover - density group
+    # "unknown", an empty group - in the NVA's and the VVA's), those of unknown land cover, and why they have none
+    # ("with no valid cell of the DEM dem.tif under them")
+    nva_outside: tuple[str, ...] = ()
+    vva_outside: tuple[str, ...] = ()
+    all_outside: tuple[str, ...] = ()
+    unknown_outside: tuple[str, ...] = ()
+    outside_why: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +121,12 @@ class ComplianceCheck:
     dimension: str = ""  # "H" / "V" for ASPRS classes: the finest class is stated per dimension
     finest_rank: float | None = None  # lower = finer, to combine a product's checks
     counted: str = "check points"  # what ``n_points`` counts (the DOM: ground patches, not surveyed check points)
+    n_outside: int = 0  # check points of the row without a dz (no valid DEM cell / no ground), not in ``n_points``
+    outside_ids: tuple[str, ...] = ()
+    judged: bool = True  # False: a figure the standard has reported, never passed or failed (ASPRS's VVA): its row
+    # says "not testable" without points but does not decide the product's verdict
+    outside_why: str = ""  # why they have no dz: "with no valid cell of the DEM dem.tif under them", ...
+    outside_unknown_ids: tuple[str, ...] = ()  # those of ``outside_ids`` whose land cover is unknown
 
 
 @dataclasses.dataclass(frozen=True)
@@ -183,10 +198,12 @@ def dom_checks(dom_all: dict, qa, *, stale: bool = False) -> CheckSet | None:
     d = dom_all.get("displacement") or {}
     if not dom_all:
         return None
+    # what the DOM row counts is ground patches even when there is no figure ("0 check points" said otherwise)
     if stale:
-        return CheckSet(note="the DOM check measured an earlier mosaic (made again since): re-run ortho check")
+        return CheckSet(note="the DOM check measured an earlier mosaic (made again since): re-run ortho check",
+                        points="ground patches")
     if d.get("rms_xy_m") is None:
-        return CheckSet(note="the DOM check measured no patch")
+        return CheckSet(note="the DOM check measured no patch", points="ground patches")
     h, _, src = _survey_accuracy(qa)
     return CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=int(d.get("count") or 0), cp_rmse_h_m=h, cp_source=src,
                     note="ground patches of the DOM matched to the reference orthophoto (phase correlation), not "
@@ -228,20 +245,42 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
     # cloud's ground points around each surveyed point
     key = "dz_dem_m" if any(p.get("dz_dem_m") is not None for p in hc.get("points", [])) else "dz_m"
     pts = [p for p in hc.get("points", []) if p.get(key) is not None]
+    # the points without a dz (off the data, in a DEM gap, no ground near) are not counted, but said (they were
+    # dropped without a word); with land-cover groups one of unknown land cover (density "unknown": no first return
+    # near; an empty group) could be either, so it is named in the NVA's and the VVA's rows
+    off = [p for p in hc.get("points", []) if p.get(key) is None]
+    if off:
+        grouped = any(vegetated(p.get("group")) is not None for p in hc.get("points", []))
+        ids = [(str(p.get("id")), vegetated(p.get("group")) if grouped else False) for p in off]
+        kw.update(nva_outside=tuple(i for i, v in ids if v is not True),
+                  vva_outside=tuple(i for i, v in ids if v is not False),
+                  all_outside=tuple(i for i, _ in ids), unknown_outside=tuple(i for i, v in ids if v is None),
+                  outside_why=(f"with no valid cell of the DEM "
+                               f"{Path((hc.get('dem') or {}).get('path') or 'DEM').name} under them"
+                               if key == "dz_dem_m" else
+                               f"with no ground point within {hc.get('radius_m') or 0:g} m"))
+    source = (f"dz of the DEM raster {Path((hc.get('dem') or {}).get('path') or 'DEM').name}" if key == "dz_dem_m"
+              else "dz of the cloud's ground points")
+
+    def grouping(points, source):
+        veg = [vegetated(p.get("group")) for p in points]
+        if any(x is not None for x in veg):
+            names = sorted({p.get("group") for p, x in zip(points, veg) if x})
+            return veg, (f"{source}; groups {', '.join(sorted({str(p.get('group')) for p in points}))}; vegetated: "
+                         f"{', '.join(names) or 'none'}; points without a group left out")
+        return veg, f"{source}; no land-cover groups (check-heights --groups): every point taken as non-vegetated"
+    if off and not pts:
+        # surveyed points, none with a dz: the note still says how they were grouped (it was empty, and the rows
+        # read "no surveyed check points")
+        kw.update(grouping_note=grouping(off, f"{source}: none of the {len(off)} surveyed points has one")[1])
     if pts:
-        veg = [vegetated(p.get("group")) for p in pts]
+        veg, note = grouping(pts, source)
         dz = np.asarray([p[key] for p in pts], dtype=float)
-        source = (f"dz of the DEM raster {Path((hc.get('dem') or {}).get('path') or 'DEM').name}" if key == "dz_dem_m"
-                  else "dz of the cloud's ground points")
         if any(x is not None for x in veg):
             nv = np.array([x is False for x in veg])
             vg = np.array([x is True for x in veg])
-            names = sorted({p.get("group") for p, x in zip(pts, veg) if x})
-            note = (f"{source}; groups {', '.join(sorted({str(p.get('group')) for p in pts}))}; vegetated: "
-                    f"{', '.join(names) or 'none'}; points without a group left out")
         else:
             nv, vg = np.ones(len(dz), bool), np.zeros(len(dz), bool)
-            note = f"{source}; no land-cover groups (check-heights --groups): every point taken as non-vegetated"
         kw.update(nva_rmse_m=F.rmse(dz[nv]) if nv.any() else None, n_nva=int(nv.sum()),
                   vva_p95_m=F.vva_p95(dz[vg]) if vg.any() else None, vva_rmse_m=F.rmse(dz[vg]) if vg.any() else None,
                   n_vva=int(vg.sum()), grouping_note=note, rmse_all_m=F.rmse(dz), n_all=len(dz))
@@ -365,16 +404,82 @@ def _verdict(figure, limit, n, need, cp_ok, counted: str = "check points") -> tu
     return would, ""
 
 
+def outside_text(ids, why: str = "", unknown=()) -> str:
+    """"3 check points with no valid cell of the DEM dem.tif under them, not counted (P41; land cover unknown: P42,
+    P43)" ("" for none; ``why`` "" says "outside the data")."""
+    if not ids:
+        return ""
+    return (f"{len(ids)} check point{'s' if len(ids) > 1 else ''} {why or 'outside the data'}, not counted "
+            f"({outside_ids_text(ids, unknown)})")
+
+
+def outside_ids_text(ids, unknown=(), shown: int | None = None) -> str:
+    """"P41; land cover unknown: P42, P43": the ids, those of unknown land cover after (the first ``shown`` of
+    each, then how many more)."""
+    unknown = set(unknown)
+    known, unk = [i for i in ids if i not in unknown], [i for i in ids if i in unknown]
+
+    def listed(xs):
+        if shown is None or len(xs) <= shown:
+            return ", ".join(xs)
+        return ", ".join(xs[:shown]) + f" and {len(xs) - shown} more (summary.json)"
+    return "; ".join(([listed(known)] if known else []) + ([f"land cover unknown: {listed(unk)}"] if unk else []))
+
+
+NO_VEGETATED = "no vegetated check points"
+NO_SURVEY = "not measured: no surveyed check points (lidarctl check-heights)"
+
+
+def _none_why(lf: LidarFigures, which: str) -> str:
+    """Why a LiDAR DEM row of ``which`` ("vegetated", "non-vegetated") check points has no figure: no surveyed check
+    point at all (``NO_SURVEY``), none of that land cover, or none of them with a dz ("no vegetated check point with a
+    dz (5 with no ground point within 5 m, and 1 of unknown land cover)")."""
+    outside = lf.vva_outside if which == "vegetated" else lf.nva_outside
+    if max(lf.n_all, lf.n_nva + lf.n_vva) + len(lf.all_outside) == 0:
+        return NO_SURVEY
+    if not outside:
+        return f"no {which} check points"
+    unknown = set(lf.unknown_outside)
+    known, unk = [i for i in outside if i not in unknown], [i for i in outside if i in unknown]
+    why = lf.outside_why or "outside the data"
+    if not known:
+        text = f"{len(unk)} of unknown land cover {why}"
+    else:
+        text = f"{len(known)} {why}" + (f", and {len(unk)} of unknown land cover" if unk else "")
+    return f"no {which} check point with a dz ({text})"
+
+
 def _check(product, quantity, cls, measured, figure, *, limit, unit, n, need, cp_ok, cp_note, confirmed, source,
-           finest=None, rank=None, dimension="", verdict=None, why=None, counted="check points") -> ComplianceCheck:
+           finest=None, rank=None, dimension="", verdict=None, why=None, counted="check points", outside=(),
+           outside_why="", outside_unknown=(), judged=True, none_why=NO_VEGETATED) -> ComplianceCheck:
+    """``outside``: the ids of the row's check points without a dz (``outside_why`` says why: no valid DEM cell under
+    them, no ground point near; ``outside_unknown``: those of unknown land cover), not in ``n``: a minimum number
+    of check points is judged on those used, and the row names the others. ``none_why``: what a VVA row without
+    vegetated points with a dz says (``_none_why``); a row not judged (ASPRS's VVA) stays "reported", ``why`` first."""
+    if n == 0 and quantity.startswith("VVA"):
+        # no vegetated point: nothing measured, so nothing to say of the survey's accuracy (it read "accurate
+        # enough" beside no points) or of a class
+        if judged:
+            verdict, why = NOT_TESTABLE, none_why
+        else:  # reported, never judged: the reason it is not (no pass/fail) stays, and why nothing is reported
+            why = f"{why}; {none_why}" if why else none_why
+        cp_ok, cp_note, finest, rank = None, "", None, None
     if verdict is None:
         verdict, why = _verdict(figure, limit, n, need, cp_ok, counted)
+    outside_unknown = tuple(i for i in outside if i in set(outside_unknown))
+    if outside:
+        text = outside_text(outside, outside_why, outside_unknown)
+        cp_note = f"{cp_note}; {text}" if cp_note else text
+        if verdict == NOT_TESTABLE and need and n is not None and n < need:
+            why = f"{why}; {len(outside)} more {outside_why or 'outside the data'}"
     r = (lambda x: None if x is None or (isinstance(x, float) and math.isnan(x)) else round(float(x), 4))
     return ComplianceCheck(product=product, quantity=quantity, class_tested=cls, measured=r(measured), figure=r(figure),
                            limit=r(limit), unit=unit, n_points=n, n_required=need, checkpoints_accurate=cp_ok,
                            checkpoints_note=cp_note, verdict=verdict, why=why or "", limit_confirmed=confirmed,
                            limit_source=source, finest_class=finest, finest_rank=rank, dimension=dimension,
-                           counted=counted)
+                           counted=counted, n_outside=len(outside), outside_ids=tuple(outside),
+                           outside_why=outside_why if outside else "", outside_unknown_ids=outside_unknown,
+                           judged=judged)
 
 
 def _cp_note(cp_rmse, need_m, src, factor_text, counted: str = "check points") -> tuple[bool | None, str]:
@@ -567,18 +672,23 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         fin, rank = finest(fig, lad_v, 1.0, "V")
         ch = _check("LiDAR DEM", "NVA: RMSE_V at non-vegetated check points", c.class_tested, lf.nva_rmse_m, fig,
                     limit=limit, unit="m", n=lf.n_nva, need=need, cp_ok=cp_ok, cp_note=f"{cp_note}; {lf.grouping_note}",
-                    confirmed=conf, source=source, finest=fin, rank=rank, dimension="V")
+                    confirmed=conf, source=source, finest=fin, rank=rank, dimension="V", outside=lf.nva_outside,
+                    outside_why=lf.outside_why, outside_unknown=lf.unknown_outside)
         if fig is None:
-            ch = dataclasses.replace(ch, verdict=NOT_TESTABLE,
-                                     why="not measured: no surveyed check points (lidarctl check-heights)")
+            ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=_none_why(lf, "non-vegetated"))
         out.append(ch)
         vva = L.vertical_vva
+        # the vegetated points are judged as the NVA's (the V class): their accuracy is known when the survey's is
+        cp_ok, cp_note = (None, "no class") if limit is None else _cp_note(
+            lf.cp_rmse_v_m, limit / factor, lf.cp_source, f"{factor:g} x finer than the class needs <=")
         out.append(_check("LiDAR DEM", "VVA: RMSE_V at vegetated check points", c.class_tested, lf.vva_rmse_m,
                           F.with_checkpoint_accuracy(lf.vva_rmse_m, lf.cp_rmse_v_m) if lf.vva_rmse_m is not None
-                          else None, limit=None, unit="m", n=lf.n_vva, need=None, cp_ok=None, cp_note=lf.grouping_note,
+                          else None, limit=None, unit="m", n=lf.n_vva, need=None, cp_ok=cp_ok,
+                          cp_note=f"{cp_note}; {lf.grouping_note}",
                           confirmed=vva.confirmed,
                           source=f"{src}; {vva.evidence}", verdict="reported",
-                          why="no pass/fail in Edition 2" + ("" if lf.n_vva else "; no vegetated check points")))
+                          why="no pass/fail in Edition 2", outside=lf.vva_outside, outside_why=lf.outside_why,
+                          outside_unknown=lf.unknown_outside, judged=False, none_why=_none_why(lf, "vegetated")))
         if lf.swath_rmsdz_m is not None:
             limit, conf, source = lim("strip_rmsdz_m")
             fin, rank = finest(lf.swath_rmsdz_m, lad_v, 0.8, "V")
@@ -599,14 +709,17 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     if lf is None:
         return out
 
-    def row(key, quantity, fig, n, *, n_need, cp, cp_src, note, lower_is_better=True):
-        """One quality-level row; the finest level is the first of QL0..QL3 whose limit the figure meets."""
+    def row(key, quantity, fig, n, *, n_need, cp, cp_src, note, lower_is_better=True, outside=(), none_why=""):
+        """One quality-level row; the finest level is the first of QL0..QL3 whose limit the figure meets. The
+        check points' accuracy is judged against the level's NVA RMSEz (the vertical accuracy the survey must be
+        finer than, for the vegetated points too: the VVA's limit is a 95th percentile, not an RMSE)."""
         lv = d.level(c.level)
         limit = getattr(lv, key)  # key: a limit of QualityLevel by its name, as the rows and sources name it
         conf = key in lv.confirmed
         source = f"{src} {c.level} {key}; {lv.evidence}"
-        cp_ok, cp_note = (None, note) if cp_src is None else _cp_note(cp, limit / factor, cp_src,
-                                                                     f"{factor:g} x finer (ASPRS, unconfirmed) needs <=")
+        cp_ok, cp_note = (None, note) if cp_src is None else _cp_note(
+            cp, lv.nva_rmse_m / factor, cp_src, f"{factor:g} x finer than the level's NVA RMSEz (ASPRS, unconfirmed) "
+                                                f"needs <=")
         if cp_src is not None and note:
             cp_note = f"{cp_note}; {note}"
         fin, rank = None, None
@@ -618,8 +731,12 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             ch = _check("LiDAR DEM" if key in ("nva_rmse_m", "vva_p95_m") else
                         ("LiDAR swath overlaps" if key.startswith("interswath") else "LiDAR density"),
                         quantity, c.class_tested, fig, fig, limit=limit, unit="m", n=n, need=n_need, cp_ok=cp_ok,
-                        cp_note=cp_note, confirmed=conf, source=source, finest=fin, rank=rank)
-            if fig is None:
+                        cp_note=cp_note, confirmed=conf, source=source, finest=fin, rank=rank, outside=outside,
+                        outside_why=lf.outside_why, outside_unknown=lf.unknown_outside,
+                        none_why=none_why)
+            if fig is None and none_why:  # a DEM row: why none of its points has a dz
+                ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=none_why)
+            elif fig is None:
                 ch = dataclasses.replace(ch, why=f"not measured: {note}" if note else "not measured")
         else:  # a lower limit (density): pass when the figure reaches it
             ok = None if fig is None else fig >= limit
@@ -632,9 +749,13 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     # the DEM rows always: without surveyed points they say so (not testable)
     nopts = "" if lf.grouping_note else "no surveyed check points (lidarctl check-heights)"
     row("nva_rmse_m", "NVA: RMSEz at non-vegetated check points", lf.nva_rmse_m, lf.n_nva, n_need=need,
-        cp=lf.cp_rmse_v_m, cp_src=lf.cp_source, note=lf.grouping_note or nopts)
+        cp=lf.cp_rmse_v_m, cp_src=lf.cp_source, note=lf.grouping_note or nopts, outside=lf.nva_outside,
+        none_why=_none_why(lf, "non-vegetated"))
+    # the VVA's points are surveyed as the NVA's: their accuracy from [qa] survey_sigma_z_m too (it said "accuracy
+    # unknown" with the sigma set)
     row("vva_p95_m", "VVA: 95th percentile of |dz| at vegetated check points", lf.vva_p95_m, lf.n_vva, n_need=None,
-        cp=None, cp_src=None, note=lf.grouping_note or nopts)
+        cp=lf.cp_rmse_v_m, cp_src=lf.cp_source, note=lf.grouping_note or nopts, outside=lf.vva_outside,
+        none_why=_none_why(lf, "vegetated"))
     if lf.swath_rmsdz_m is not None:
         row("interswath_rmsdz_m", "interswath (swath overlap) RMSDz on smooth surfaces", lf.swath_rmsdz_m, None,
             n_need=None, cp=None, cp_src=None, note=lf.swath_note)
@@ -698,10 +819,23 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
         out.append(ch)
         if product == "Aerotriangulation" and cs.rmse_v_m is not None:
+            # the limit the verdict table holds the AT heights to (the design table's, 1:5000 and 1:10000)
+            e = L.check_height_m_small
+            h_lim = e.height_m(c.terrain, c.scale)
+            shipped = [s for s in e.scales if e.height_m(c.terrain, s) is not None]
+            met = [s for s in shipped if cs.rmse_v_m <= e.height_m(c.terrain, s)]
+            # ranked only where it bounds the class: meeting the finest shipped height limit (1:5000) says nothing
+            # of the finer scales, which have none, so the plan rows alone give the finest class (cn-at ranked it
+            # 1:5000 and every product's finest class moved from 1:1000 to 1:5000)
+            rank_v = float(F.scale_denominator(met[0])) if met and met[0] != shipped[0] else None
             out.append(_check(product, f"{cs.points}, height RMS", c.class_tested, cs.rmse_v_m, cs.rmse_v_m,
-                              limit=None, unit="m", n=cs.n_v, need=None, cp_ok=None, cp_note="", confirmed=None,
-                              source=f"{src}: heights of AT points not shipped (not read in any "
-                              f"copy; docs/standards.md)"))
+                              limit=h_lim, unit="m", n=cs.n_v, need=None, cp_ok=None,
+                              cp_note="the specifications set no minimum number of check points",
+                              confirmed=e.confirmed if h_lim is not None else None,
+                              source=f"{src}: {e.what}, {e.clause}; {e.evidence}" if h_lim is not None else
+                              f"{src}: heights of AT points not shipped for {c.scale} (only 1:5000 and 1:10000, "
+                              "the design table's; docs/standards.md)",
+                              finest=met[0] if met else None, rank=rank_v))
     lf = figs.lidar
     if lf is not None and (lf.nva_rmse_m is not None or lf.swath_rmsdz_m is not None):
         e = L.spot_height_m
@@ -715,7 +849,8 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                               confirmed=e.confirmed if lim is not None else None,
                               source=f"{src}: {e.what}, {e.clause}; {e.evidence}",
                               finest=met[0] if met else ("none of 1:500-1:2000" if some else None),
-                              rank=float(F.scale_denominator(met[0])) if met else None))
+                              rank=float(F.scale_denominator(met[0])) if met else None, outside=lf.nva_outside,
+                              outside_why=lf.outside_why, outside_unknown=lf.unknown_outside))
         if lf.swath_rmsdz_m is not None:
             out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,
                               lf.swath_rmsdz_m, lf.swath_rmsdz_m, limit=None, unit="m", n=None, need=None, cp_ok=None,
@@ -761,19 +896,21 @@ def _thesis(figs: Figures, c: Choice) -> list[ComplianceCheck]:
         # the thesis tables limit the RMS "of the LiDAR ground against surveyed points": every point, forest too
         # (the NVA only when the table says its limit is one, Provenance.nva), as the verdict table
         nva = bool(getattr(t.provenance.get("dem_rmse_m"), "nva", False))
-        dem = ((lf.nva_rmse_m, lf.n_nva, "ground height RMSE at non-vegetated check points", lf.grouping_note) if nva
+        dem = ((lf.nva_rmse_m, lf.n_nva, "ground height RMSE at non-vegetated check points", lf.grouping_note,
+                lf.nva_outside) if nva
                else (lf.rmse_all_m, lf.n_all, "ground height RMSE at every surveyed point (vegetated too)",
-                     lf.grouping_note.replace("; points without a group left out", "")))
-        for key, meas, n, q, note in (("dem_rmse_m", *dem),
-                                      ("strip_rmsdz_m", lf.swath_rmsdz_m, None, "swath-to-swath RMSDz on smooth surfaces",
-                                       lf.swath_note)):
+                     lf.grouping_note.replace("; points without a group left out", ""), lf.all_outside))
+        for key, meas, n, q, note, outside in (("dem_rmse_m", *dem),
+                                               ("strip_rmsdz_m", lf.swath_rmsdz_m, None,
+                                                "swath-to-swath RMSDz on smooth surfaces", lf.swath_note, ())):
             if meas is None:
                 continue
             limit, conf, source = lim(key)
             fin, rank = finest(meas, key)
             out.append(_check("LiDAR DEM" if key == "dem_rmse_m" else "LiDAR swath overlaps", q, c.class_tested, meas,
                               meas, limit=limit, unit="m", n=n, need=None, cp_ok=None, cp_note=note, confirmed=conf,
-                              source=source, finest=fin, rank=rank))
+                              source=source, finest=fin, rank=rank, outside=outside, outside_why=lf.outside_why,
+                              outside_unknown=lf.unknown_outside if nva else ()))
     return out
 
 
@@ -788,11 +925,12 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
         cs = [c for c in checks if c.product == product]
         if not cs:
             continue
-        vs = [c.verdict for c in cs if c.verdict != "reported"]
+        vs = [c.verdict for c in cs if c.verdict != "reported" and c.judged]
         verdict = "fail" if "fail" in vs else (NOT_TESTABLE if NOT_TESTABLE in vs or not vs else "pass")
         parts = []
         for dim in dict.fromkeys(c.dimension for c in cs):
-            ranked = [c for c in cs if c.dimension == dim and c.finest_rank is not None and c.verdict != "reported"]
+            ranked = [c for c in cs if c.dimension == dim and c.finest_rank is not None and c.verdict != "reported"
+                      and c.judged]
             if ranked:
                 worst = max(ranked, key=lambda c: c.finest_rank)
                 parts.append(worst.finest_class)

@@ -277,6 +277,21 @@ def flight_rows(fa: dict, tol: dict) -> list[QaCheck]:
     return rows
 
 
+def _outside_note(ids, groups, which: str, why: str) -> str:
+    """The verdict table's note on the surveyed points without a dz (they are not in the RMSE): a row of
+    non-vegetated points (``which``, ``judged_dz``) names those not of a vegetated group, those of unknown land
+    cover marked so."""
+    from aerotri.qa.compliance import vegetated
+
+    veg = [vegetated(g) for g in groups] if len(groups) == len(ids) else [None] * len(ids)
+    keep = [(i, v) for i, v in zip(ids, veg) if not (which and v is True)]
+    # (land cover matters only to a row of non-vegetated points: the others count every point)
+    if len(keep) == 1:  # one point: "1 surveyed point with no valid cell of the DEM dem.tif under it"
+        why = why.replace(" under them", " under it")
+    return (outside_cell([i for i, _ in keep], why, [i for i, v in keep if v is None] if which else (),
+                         noun="surveyed point") if keep else "")
+
+
 def judged_dz(dz_m, groups, nva: bool) -> tuple[list[float], str]:
     """The dz the DEM height RMSE limit is judged on, and the word for them. ``nva`` (the table's dem_rmse_m is an
     NVA limit, ``Provenance.nva``: ASPRS 2023, the USGS LBS) with land-cover groups (check-heights --groups): only
@@ -442,7 +457,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         rmse = (hc.rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
         rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {len(dz) if which else hc.n_checked} "
                            f"{which}surveyed points", None if rmse is None else round(rmse, 4),
-                           tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
+                           tol.get("dem_rmse_m"), "m", key="dem_rmse_m",
+                           note=_outside_note(hc.outside_ids, hc.outside_groups, which,
+                                              f"with no ground point within {hc.radius_m:g} m" if hc.radius_m
+                                              else "with no ground point near")))
         if dz and tol.get("dem_rmse_m"):
             lim = 3.0 * tol["dem_rmse_m"]
             pct = 100.0 * sum(abs(d) > lim for d in dz) / len(dz)
@@ -465,7 +483,9 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         rmse = (hc.dem_rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
         rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at "
                            f"{len(dz) if which else hc.dem_n_checked} {which}surveyed points",
-                           None if rmse is None else round(rmse, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m"))
+                           None if rmse is None else round(rmse, 4), tol.get("dem_rmse_m"), "m", key="dem_rmse_m",
+                           note=_outside_note(hc.dem_outside_ids, hc.dem_outside_groups, which,
+                                              f"with no valid cell of the DEM {name} under them")))
 
     rows += line_map_rows(project, tol)
 
@@ -680,8 +700,10 @@ def detail_blocks(value, depth: int = 0) -> list[DetailBlock]:
     objects as their own small tables under a heading (no JSON)."""
     if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
         cols = list(dict.fromkeys(k for v in value for k in v))
-        return [DetailBlock(RF.table([_label(c) for c in cols], [[_scalar(v.get(c)) for c in cols] for v in value], 3,
-                                     num_from=0))]
+        # floats unrounded into the table's 3 decimals: rounded to 4 first, 0.04749 became 0.0475 and then 0.048
+        return [DetailBlock(RF.table([_label(c) for c in cols],
+                                     [[x if isinstance(x := v.get(c), float) else _scalar(x) for c in cols]
+                                      for v in value], 3, num_from=0))]
     if isinstance(value, dict):
         flat = [[_label(k), _scalar(v)] for k, v in value.items() if not isinstance(v, (dict, list)) or
                 (isinstance(v, list) and all(not isinstance(x, (dict, list)) for x in v))]
@@ -746,14 +768,35 @@ def _num(v, star: bool = False) -> str:
     return "" if v is None else f"{v:.4g}" + ("*" if star else "")
 
 
+OUTSIDE_IDS_SHOWN = 12  # ids of the check points without a dz in a table cell (all in summary.json)
+
+
+def outside_cell(ids, why: str = "", unknown=(), noun: str = "") -> str:
+    """"3 with no valid cell of the DEM dem.tif under them, not counted: P41; land cover unknown: P42, P43" (the
+    first ``OUTSIDE_IDS_SHOWN`` ids of each, then how many more; ``why`` "" - a summary.json of before sf-fixes -
+    says "outside the data"); ``noun`` after the count, plural but for one ("3 surveyed points with ...")."""
+    from aerotri.qa.compliance import outside_ids_text
+
+    ids = list(ids)
+    count = f"{len(ids)} {noun}{'' if len(ids) == 1 else 's'}" if noun else f"{len(ids)}"
+    return (f"{count} {why or 'outside the data'}, not counted: "
+            f"{outside_ids_text(ids, unknown, shown=OUTSIDE_IDS_SHOWN)}")
+
+
+def _row_outside_cell(c: dict) -> str:
+    return outside_cell(c.get("outside_ids") or (), c.get("outside_why") or "", c.get("outside_unknown_ids") or ())
+
+
 def compliance_row(c: dict) -> list:
     """A compliance check as table cells: figure and limit in the check's unit, the limit marked * when its
     number is not confirmed in the standard's text."""
     counted = c.get("counted") or "check points"  # (a summary.json of before it was recorded: check points)
     need = (f"{c['n_points']}" + ("" if counted == "check points" else f" {counted}")
             + (f" ({c['n_required']} check points required)" if c["n_required"] else "")
+            + (f"; {_row_outside_cell(c)}" if c.get("n_outside") else "")
             if c["n_points"] is not None else "")
-    acc = {True: "yes", False: "no", None: "unknown"}[c["checkpoints_accurate"]] if c["n_points"] is not None else ""
+    # (no point: no accuracy to judge)
+    acc = {True: "yes", False: "no", None: "unknown"}[c["checkpoints_accurate"]] if c["n_points"] else ""
     verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
     return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]), _num(c["figure"]),
             _num(c["limit"], c["limit_confirmed"] is False) + (f" {c['unit']}" if c["limit"] is not None else ""),
@@ -812,7 +855,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
         star = "*" if c["limit_confirmed"] is False else ""
         acc = {True: "accurate enough", False: "not accurate enough", None: "accuracy unknown"}[c["checkpoints_accurate"]]
         pts = f"{c['n_points']} {c.get('counted') or 'check points'}" + \
-            (f", {c['n_required']} check points required" if c["n_required"] else "") + f", {acc}" \
+            (f", {c['n_required']} check points required" if c["n_required"] else "") + (f", {acc}" if c["n_points"] else "") + \
+            (f", {_row_outside_cell(c)}" if c.get("n_outside") else "") \
             if c["n_points"] is not None else ""
         unit = f" {c['unit']}" if c.get("unit") else ""
         figure = f"{_num(c['figure'])}{unit}" if c["figure"] is not None else "not measured"
@@ -859,23 +903,81 @@ def _text(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
+PDF_PAGE_IN = (11.69, 8.27)  # A4 landscape
+PDF_TABLE_AXES = (0.03, 0.03, 0.94, 0.88)  # the table's axes on the page (figure fractions)
+PDF_TABLE_PT = 7.5  # the tables' font size
+PDF_ROWS_PER_PAGE = 34  # one-line rows a page holds (a row: matplotlib's 10 pt row height x 1.2 x 1.25)
+_CELL_PAD = 0.1  # matplotlib.table.Cell.PAD: a left-aligned text stands this fraction of the cell's width in
+
+
+def _text_width_pt(text: str, size_pt: float) -> float:
+    """The width of ``text`` in points as the PDF draws it (matplotlib's default font at ``size_pt``)."""
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.textpath import TextToPath
+
+    return TextToPath().get_text_width_height_descent(text, FontProperties(size=size_pt), ismath=False)[0]
+
+
+def wrap_cell(text: str, width_pt: float, size_pt: float = PDF_TABLE_PT) -> str:
+    """``text`` broken into lines no wider than ``width_pt`` points (measured, not counted in characters): at spaces,
+    a word wider than the cell at the character that would cross it (ids, paths)."""
+    out = []
+    for para in str(text).split("\n"):
+        line = ""
+        for word in para.split(" "):
+            trial = f"{line} {word}" if line else word
+            if _text_width_pt(trial, size_pt) <= width_pt:
+                line = trial
+                continue
+            if line:
+                out.append(line)
+            line = word
+            while len(line) > 1 and _text_width_pt(line, size_pt) > width_pt:
+                k = max(1, max(i for i in range(1, len(line) + 1) if _text_width_pt(line[:i], size_pt) <= width_pt)
+                        if _text_width_pt(line[:1], size_pt) <= width_pt else 1)
+                out.append(line[:k])
+                line = line[k:]
+        out.append(line)
+    return "\n".join(out)
+
+
+def _wrapped_rows(rows: list, widths: list) -> tuple[list, list]:
+    """(the rows' cells wrapped to their columns' widths on the page, each row's height in one-line rows)."""
+    # the text starts PAD x the width in from the cell's left edge; 2 pt kept free at its right edge
+    col_pt = [w * PDF_TABLE_AXES[2] * PDF_PAGE_IN[0] * 72.0 * (1.0 - _CELL_PAD) - 2.0 for w in widths]
+    cells = [[wrap_cell(_text(v), col_pt[j]) for j, v in enumerate(r)] for r in rows]
+    # a one-line row is 1.25 x 1.2 x 10 pt high; each further line adds 1.2 x 7.5 pt (0.6 of a row)
+    heights = [1.0 + 0.6 * (max(c.count("\n") for c in r) if r else 0) for r in cells]
+    return cells, heights
+
+
 def _pdf_table(pdf, plt, title: str, *, header: list, rows: list, widths: list, colours=None) -> None:
-    """One A4-landscape page (or more, 34 rows each) with a table."""
-    for start in range(0, max(len(rows), 1), 34):
-        fig = plt.figure(figsize=(11.69, 8.27))
+    """One A4-landscape page (or more) with a table; every cell wrapped to its column (long cells spilled past the
+    page's edge), the rows paged by their heights (``PDF_ROWS_PER_PAGE`` one-line rows a page)."""
+    head, (head_h,) = _wrapped_rows([header], widths)[0][0], _wrapped_rows([header], widths)[1]
+    cells, heights = _wrapped_rows(rows, widths)
+    pages, start, used = [], 0, head_h
+    for i, h in enumerate(heights):
+        if used + h > PDF_ROWS_PER_PAGE and i > start:
+            pages.append((start, i))
+            start, used = i, head_h
+        used += h
+    pages.append((start, len(rows)))
+    for n, (a, b) in enumerate(pages):
+        fig = plt.figure(figsize=PDF_PAGE_IN)
         # a long title (a standard's full name) on two lines, not cut off at the page's edge
-        lines = textwrap.wrap(title + (" (continued)" if start else ""), 95)
+        lines = textwrap.wrap(title + (" (continued)" if n else ""), 95)
         fig.text(0.04, 0.975, "\n".join(lines), fontsize=14 if len(lines) == 1 else 12, weight="bold", va="top")
-        ax = fig.add_axes([0.03, 0.03, 0.94, 0.88])
+        ax = fig.add_axes(list(PDF_TABLE_AXES))
         ax.axis("off")
-        chunk = rows[start:start + 34]
-        if chunk:
-            t = ax.table(cellText=[[_text(v) for v in r] for r in chunk], colLabels=header, colWidths=widths,
-                         loc="upper left", cellLoc="left",
-                         cellColours=colours[start:start + 34] if colours else None)
+        if b > a:
+            t = ax.table(cellText=cells[a:b], colLabels=head, colWidths=widths, loc="upper left", cellLoc="left",
+                         cellColours=colours[a:b] if colours else None)
             t.auto_set_font_size(False)
-            t.set_fontsize(7.5)
+            t.set_fontsize(PDF_TABLE_PT)
             t.scale(1, 1.25)
+            for (r, _), cell in t.get_celld().items():
+                cell.set_height(cell.get_height() * (head_h if r == 0 else heights[a + r - 1]))
         pdf.savefig(fig)
         plt.close(fig)
 
@@ -911,7 +1013,7 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         cells, colours = [], []
         for r in rep["checks"]:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
-            cells.append([r["section"], r["quantity"][:70], _cell(r["value"]), _cell(r["limit"]) + star, r["unit"],
+            cells.append([r["section"], r["quantity"], _cell(r["value"]), _cell(r["limit"]) + star, r["unit"],
                           r["verdict"] or ""])
             c = {"pass": "#ccffcc", "fail": "#ffcccc"}.get(r["verdict"], "white")
             colours.append(["white"] * 5 + [c])
@@ -919,15 +1021,25 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         ax.axis("off")
         header = ["section", "quantity", "value", "limit", "unit", "verdict"]
         widths = [0.14, 0.52, 0.1, 0.08, 0.05, 0.07]
-        # the rows the page holds under the headline (a row at scale 1.1 takes 0.0222 of the page's height,
-        # measured on the demo's page; the header one): the rest on the next pages, not cut off at the page's foot
-        fit = max(int((top - 0.04) / 0.0225) - 1, 1)
+        # every cell wrapped to its column as the other tables' (the quantity was cut at 70 characters); the rows the
+        # page holds under the headline by their heights (a one-line row at scale 1.1 takes 0.0225 of the page's
+        # height, measured on the demo's page, the header one; each further line 1.2 x 7.5 pt of its 1.1 x 1.2 x 10
+        # pt): the rest on the next pages, not cut off at the page's foot
+        wrapped, _ = _wrapped_rows(cells, widths)
+        line = 1.2 * PDF_TABLE_PT / (1.1 * 1.2 * 10.0)
+        heights = [1.0 + line * max(c.count("\n") for c in r) for r in wrapped]
+        room, fit = (top - 0.04) / 0.0225 - 1.0, 0
+        while fit < len(cells) and (fit == 0 or sum(heights[:fit + 1]) <= room):
+            fit += 1
         if cells:
-            t = ax.table(cellText=cells[:fit], cellColours=colours[:fit], colLabels=header, colWidths=widths,
+            t = ax.table(cellText=wrapped[:fit], cellColours=colours[:fit], colLabels=header, colWidths=widths,
                          loc="upper left", cellLoc="left")
             t.auto_set_font_size(False)
-            t.set_fontsize(7.5)
+            t.set_fontsize(PDF_TABLE_PT)
             t.scale(1, 1.1)
+            for (i, _), cell in t.get_celld().items():
+                if i > 0:
+                    cell.set_height(cell.get_height() * heights[i - 1])
         pdf.savefig(fig)
         plt.close(fig)
         if len(cells) > fit:
@@ -939,12 +1051,11 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             colours = [["white"] * 8 + [VERDICT_COLOURS.get(c["verdict"], "white"), "white"] for c in comp["checks"]]
             _pdf_table(pdf, plt, f"Compliance: {comp['name']}, class {comp['class_tested']}",
                        header=COMPLIANCE_HEADER, rows=rows,
-                       widths=[0.09, 0.26, 0.08, 0.05, 0.05, 0.06, 0.06, 0.05, 0.2, 0.06], colours=colours)
-            why = textwrap.wrap(f"Chosen because: {comp['reason']}", 150)
+                       widths=[0.095, 0.19, 0.06, 0.06, 0.05, 0.06, 0.135, 0.055, 0.21, 0.075], colours=colours)
             _pdf_table(pdf, plt, "Compliance per product",
                        header=["product", "verdict", "finest class met"],
                        rows=[[p["product"], p["verdict"], p["finest_class"]] for p in comp["products"]]
-                       + [["", "", ""]] + [[line, "", ""] for line in why], widths=[0.7, 0.1, 0.15])
+                       + [["", "", ""], [f"Chosen because: {comp['reason']}", "", ""]], widths=[0.7, 0.1, 0.15])
         fa = rep.get("flight_acceptance")
         if fa:
             ops = {"max": "<=", "min": ">="}
@@ -953,7 +1064,7 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
                      f"{c['n_fail']} of {c['n']}", c["verdict"] or ""] for c in fa["checks"]]
             colours = [["white"] * 6 + [{"pass": "#ccffcc", "fail": "#ffcccc"}.get(r[-1], "white")] for r in rows]
             _pdf_table(pdf, plt, f"Flight acceptance ({fa['source']}; footprints on {Path(str(fa['terrain'])).name}; "
-                                 f"limits: {str(fa.get('spec') or '')[:80]})",
+                                 f"limits: {fa.get('spec') or 'none'})",
                        header=["check", "worst", "limit", "unit", "at", "failing", "verdict"], rows=rows,
                        widths=[0.36, 0.08, 0.08, 0.05, 0.14, 0.08, 0.07], colours=colours)
             _pdf_table(pdf, plt, "Flight acceptance per strip",

@@ -600,6 +600,11 @@ class HeightCheckRecord:
     dem_path: str | None = None
     dz_groups: tuple[str | None, ...] = ()  # the group of each dz_m (check-heights --groups), None without one
     dem_dz_groups: tuple[str | None, ...] = ()  # the group of each dem_dz_m
+    outside_ids: tuple[str, ...] = ()  # the points without ground in reach (not in dz_m)
+    dem_outside_ids: tuple[str, ...] = ()  # the points off the DEM's valid cells (not in dem_dz_m; a DEM checked)
+    outside_groups: tuple[str | None, ...] = ()  # the group of each outside_ids point
+    dem_outside_groups: tuple[str | None, ...] = ()  # the group of each dem_outside_ids point
+    radius_m: float | None = None  # the search radius for ground points (check-heights --radius-m)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -633,7 +638,16 @@ def _record_of(d: dict) -> HeightCheckRecord:
                              None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]),
                              dem_n_checked=None if not dem else int(dem_all.get("n") or 0),
                              dem_rmse_m=None if dem_all.get("rmse_m") is None else float(dem_all["rmse_m"]),
-                             dem_dz_m=dem_dz, dem_path=dem.get("path"), dz_groups=groups, dem_dz_groups=dem_groups)
+                             dem_dz_m=dem_dz, dem_path=dem.get("path"), dz_groups=groups, dem_dz_groups=dem_groups,
+                             outside_ids=tuple(str(p.get("id")) for p in d.get("points") or []
+                                               if p.get("dz_m") is None) if every else (),
+                             dem_outside_ids=tuple(str(p.get("id")) for p in d.get("points") or []
+                                                   if p.get("dz_dem_m") is None) if dem else (),
+                             outside_groups=tuple(p.get("group") for p in d.get("points") or []
+                                                  if p.get("dz_m") is None) if every else (),
+                             dem_outside_groups=tuple(p.get("group") for p in d.get("points") or []
+                                                      if p.get("dz_dem_m") is None) if dem else (),
+                             radius_m=None if d.get("radius_m") is None else float(d["radius_m"]))
 
 
 def read_height_check(path) -> HeightCheckRecord:

@@ -524,6 +524,10 @@ def vectors(paths, image, dem, contours_path, crs, **_settings):
     counts = ", ".join(f"{k} {getattr(c, k)}" for k in ("buildings", "roads", "road_centrelines", "water",
                                                         "spot_heights", "contours") if getattr(c, k) is not None)
     click.echo(f"{out_path}: {counts} ({s.units.xy_name})")
+    if c.road_points == 0:
+        # the chain's classification has no orthophoto yet: a user expecting roads from --image got 0 unexplained
+        click.echo("roads: the clouds hold no road returns (class 11); roads come from a classification fused with "
+                   "an orthophoto (lidarctl classify ... --image DOM.tif); --image here only draws OUT.png")
 
 
 @main.command("check-vectors")

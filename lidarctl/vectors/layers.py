@@ -92,7 +92,8 @@ class Layer:
 @dataclasses.dataclass(frozen=True)
 class VectorCounts:
     """Features per layer of the line map; ``roof_spacing_m``: the roof points' mean spacing (m; None without
-    buildings); ``contours``: None when no contour layer was made (neither --dem nor --contours)."""
+    buildings); ``contours``: None when no contour layer was made (neither --dem nor --contours); ``road_points``:
+    the clouds' road returns (class 11; 0 unless classified with an orthophoto, ``classify --image``)."""
 
     buildings: int
     roof_spacing_m: float | None
@@ -101,6 +102,7 @@ class VectorCounts:
     water: int
     spot_heights: int
     contours: int | None = None
+    road_points: int | None = None
 
 
 @dataclasses.dataclass
@@ -109,6 +111,7 @@ class MapVectors:
     crs: object  # pyproj CRS
     units: object  # lidarctl.units.LengthUnits
     stats: VectorCounts
+    extent: tuple[float, float, float, float] | None = None  # the points' xmin, ymin, xmax, ymax (CRS units)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,19 +184,26 @@ def class_mask(xy: np.ndarray, x0, y0, cell_m: float, shape, *, min_area_m2: flo
     return m
 
 
+# rim cells holding water whose heights give the level beside a bank cell (``lakes_at_edge``): a few metres of
+# shore at the mask's cell, enough for a median over single cells' noise, short against a river's fall
+LOCAL_LEVEL_CELLS = 8
+
+
 def lakes_at_edge(void: np.ndarray, occupied: np.ndarray, row: np.ndarray, col: np.ndarray, z: np.ndarray,
                   water: np.ndarray, *, tol_m: float, bank_fraction: float) -> np.ndarray:
     """Cells of the lakes that run out of the data: void regions (no return) inside the data's footprint (the
     convex hull of the cells with returns) that reach its edge - so ``class_mask`` cannot tell them from the
     outside - and hold water by the water rule of ``classify.level_water``: they border water returns, and the
     returns on their rim lie in a bed at the water's level (at least ``bank_fraction`` of the rim cells' lowest
-    returns other than water no more than ``tol_m`` below the level, the median height of the water returns on
-    the rim; water cannot stand above the ground beside it). The outside of an irregular footprint is rimmed by whatever the
+    returns other than water no more than ``tol_m`` below the level beside them; water cannot stand above the ground
+    beside it). The level beside a rim cell is the median of the water heights (each cell's median) of its
+    ``LOCAL_LEVEL_CELLS`` nearest rim cells holding water, so a river falling along its course keeps its banks (one
+    level for the whole rim put Autzen's downstream banks below the upstream water). The outside of an irregular footprint is rimmed by whatever the
     survey's edge crosses, ground below a lake's level included. ``row``, ``col``, ``z``, ``water``: cell,
     height (m) and water flag of each return."""
     from rasterio import features
     from scipy import ndimage
-    from scipy.spatial import ConvexHull, QhullError
+    from scipy.spatial import ConvexHull, QhullError, cKDTree
     import shapely
 
     out = np.zeros(void.shape, bool)
@@ -227,6 +237,11 @@ def lakes_at_edge(void: np.ndarray, occupied: np.ndarray, row: np.ndarray, col: 
     water_cells = np.zeros(void.size, bool)
     water_cells[wflat] = True
     water_cells = water_cells.reshape(void.shape)
+    # each water cell's median height (cells in ascending order, ``cell_level`` aligned with ``level_cells``)
+    order = np.lexsort((wz, wflat))
+    sf, sz = wflat[order], wz[order]
+    level_cells, starts, counts = np.unique(sf, return_index=True, return_counts=True)
+    cell_level = 0.5 * (sz[starts + (counts - 1) // 2] + sz[starts + counts // 2])
     for k, sl in enumerate(ndimage.find_objects(lab), start=1):
         if k not in edge_ids:
             continue
@@ -239,12 +254,21 @@ def lakes_at_edge(void: np.ndarray, occupied: np.ndarray, row: np.ndarray, col: 
             continue
         rr, cc = np.nonzero(rim)
         rim_flat = (rr + r0) * ncols + (cc + c0)
-        level = float(np.median(wz[np.isin(wflat, rim_flat[water_cells.ravel()[rim_flat]])]))
+        wet = water_cells.ravel()[rim_flat]
+        wet_level = cell_level[np.searchsorted(level_cells, rim_flat[wet])]
         bank = zmin[rim_flat]
-        bank = bank[np.isfinite(bank)]
-        bed = float(np.mean(bank >= level - tol_m)) if len(bank) else 1.0
-        log.debug("void of %d cells at the data's edge, rim of %d cells: water level %.3f m, %.0f %% of the rim in "
-                  "its bed: %s", region.sum(), len(rim_flat), level, 100 * bed, bed >= bank_fraction)
+        has_bank = np.isfinite(bank)
+        if has_bank.any():
+            k_near = min(LOCAL_LEVEL_CELLS, int(wet.sum()))
+            _, near = cKDTree(np.column_stack([rr[wet], cc[wet]])).query(
+                np.column_stack([rr[has_bank], cc[has_bank]]), k=k_near)
+            level = np.median(wet_level[near.reshape(int(has_bank.sum()), k_near)], axis=1)
+            bed = float(np.mean(bank[has_bank] >= level - tol_m))
+        else:
+            bed = 1.0
+        log.debug("void of %d cells at the data's edge, rim of %d cells: water %.3f-%.3f m, %.0f %% of the rim in "
+                  "its bed: %s", region.sum(), len(rim_flat), wet_level.min(), wet_level.max(), 100 * bed,
+                  bed >= bank_fraction)
         if bed >= bank_fraction:
             out[r0:r1, c0:c1] |= region
     return out
@@ -742,8 +766,10 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
         layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts.crs))
     counts = VectorCounts(buildings=len(polys), roof_spacing_m=bstats.get("point_spacing_m"), roads=len(rpolys),
                           road_centrelines=len(lines), water=len(wpolys), spot_heights=len(sz),
-                          contours=len(layers[-1].geometries) if len(layers) == 6 else None)
-    return MapVectors(layers, pts.crs, units, counts)
+                          contours=len(layers[-1].geometries) if len(layers) == 6 else None,
+                          road_points=int(np.count_nonzero(cls == ROAD)))
+    extent = tuple(float(v) * f_xy for v in (xy[:, 0].min(), xy[:, 1].min(), xy[:, 0].max(), xy[:, 1].max()))
+    return MapVectors(layers, pts.crs, units, counts, extent)
 
 
 def write_vectors(mv: MapVectors, path) -> Path:
@@ -779,11 +805,30 @@ def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSet
     if image is not None:
         _check_raster(Path(image))
     mv = extract_vectors(paths, out_path, params, crs=crs, dem=dem, contours=contours)
+    if image is not None:
+        _image_in_cloud_crs(Path(image), mv.crs)  # before writing: no partial output
     write_vectors(mv, out_path)
     files = [str(out_path)]
     if image is not None:
         files.append(str(preview_png(mv, out_path.with_suffix(".png"), image=image)))
     return VectorsResult(mv.stats, mv.units, tuple(files))
+
+
+def _image_in_cloud_crs(path: Path, cloud_crs) -> None:
+    """OptionError naming --image and both CRSs when the orthophoto's horizontal CRS is not the cloud's (it was
+    drawn in its own coordinates and said "does not cover the data")."""
+    import pyproj
+    import rasterio
+
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
+
+    if cloud_crs is None:
+        return
+    with rasterio.open(path) as src:
+        image_crs = pyproj.CRS.from_user_input(src.crs.to_wkt())
+    if not same_horizontal(image_crs, cloud_crs):
+        raise OptionError(f"{path} is in {crs_label(image_crs)} but the cloud in {crs_label(cloud_crs)}; give an "
+                          "orthophoto in the cloud's CRS (e.g. gdalwarp -t_srs)", param="--image")
 
 
 def _check_raster(path: Path) -> None:
@@ -824,32 +869,87 @@ def draw_layers(ax, layers: dict) -> None:
                     first = False
 
 
+PREVIEW_MARGIN = 0.05  # of the data's larger side, around it in the preview
+
+
+def preview_frame(mv: MapVectors) -> tuple[float, float, float, float] | None:
+    """The preview's xmin, ymin, xmax, ymax (CRS units): the points' extent and every feature's (contours of a
+    larger DEM), with ``PREVIEW_MARGIN`` of the larger side around them; None without either."""
+    boxes = [mv.extent] if mv.extent is not None else []
+    geoms = [g for ly in mv.layers for g in ly.geometries]
+    if geoms:
+        import shapely
+
+        boxes.append(tuple(shapely.total_bounds(np.asarray(geoms, dtype=object))))
+    boxes = [b for b in boxes if np.all(np.isfinite(b))]
+    if not boxes:
+        return None
+    b = np.array(boxes, float)
+    x0, y0, x1, y1 = b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()
+    m = PREVIEW_MARGIN * max(x1 - x0, y1 - y0, 1e-9)
+    return x0 - m, y0 - m, x1 + m, y1 + m
+
+
+def _image_window(image, frame):
+    """The orthophoto's pixels over ``frame`` (at most about 2000 px a side) and their bounds, None when it does not
+    cover any of it (the whole image without a frame)."""
+    import rasterio
+    from rasterio.enums import Resampling
+    from rasterio.windows import Window, from_bounds
+
+    with rasterio.open(image) as src:
+        whole = Window(0, 0, src.width, src.height)
+        if frame is None:
+            win = whole
+        else:
+            w = from_bounds(*frame, transform=src.transform)
+            c0, r0 = int(np.floor(w.col_off)), int(np.floor(w.row_off))  # whole pixels covering the frame
+            win = Window(c0, r0, int(np.ceil(w.col_off + w.width)) - c0, int(np.ceil(w.row_off + w.height)) - r0)
+            try:
+                win = win.intersection(whole)
+            except rasterio.errors.WindowError:
+                return None
+            if win.width < 1 or win.height < 1:
+                return None
+        f = max(1, int(np.ceil(max(win.width, win.height) / 2000)))
+        n = min(3, src.count)
+        data = src.read(indexes=list(range(1, n + 1)), window=win, resampling=Resampling.average,
+                        out_shape=(n, max(1, int(win.height) // f), max(1, int(win.width) // f)))
+        return data, src.window_bounds(win)
+
+
 def preview_png(mv: MapVectors, path, image=None, title: str = "") -> Path:
-    """The layers over the orthophoto ``image`` (when given), with a legend and axes in CRS units."""
+    """The layers over the orthophoto ``image`` (when given), with a legend and axes in CRS units; framed by the
+    data (``preview_frame``: the points and the features, with a margin), the orthophoto clipped to the frame (an
+    orthophoto larger than the LiDAR framed it before: Autzen's features sat in a corner of an empty map)."""
     plt = pyplot()
 
-    fig, ax = plt.subplots(figsize=(10, 10))
+    frame = preview_frame(mv)
+    # the page takes the frame's shape (a 2:1 strip of data on a square page left half of it blank)
+    aspect = 1.0 if frame is None else (frame[3] - frame[1]) / max(frame[2] - frame[0], 1e-9)
+    fig, ax = plt.subplots(figsize=(10, float(np.clip(9.0 * aspect + 1.2, 4.0, 12.0))))
+    note = ""
     if image is not None:
-        import rasterio
-        from rasterio.enums import Resampling
-
-        with rasterio.open(image) as src:
-            f = max(1, int(np.ceil(max(src.width, src.height) / 2000)))
-            data = src.read(indexes=list(range(1, min(3, src.count) + 1)), out_shape=(min(3, src.count),
-                            src.height // f, src.width // f), resampling=Resampling.average)
-            b = src.bounds
-        img = np.moveaxis(data, 0, -1)
-        img = img[..., 0] if img.shape[-1] < 3 else img
-        if img.dtype != np.uint8:
-            img = np.clip(img / max(float(np.nanpercentile(img, 99)), 1e-9), 0, 1)
-        ax.imshow(img, extent=(b.left, b.right, b.bottom, b.top), cmap="gray", alpha=0.6)
+        got = _image_window(image, frame)
+        if got is None:
+            note = " (the orthophoto does not cover the data)"
+        else:
+            data, (left, bottom, right, top) = got
+            img = np.moveaxis(data, 0, -1)
+            img = img[..., 0] if img.shape[-1] < 3 else img
+            if img.dtype != np.uint8:
+                img = np.clip(img / max(float(np.nanpercentile(img, 99)), 1e-9), 0, 1)
+            ax.imshow(img, extent=(left, right, bottom, top), cmap="gray", alpha=0.6)
     draw_layers(ax, {ly.name: ly.geometries for ly in mv.layers})
+    if frame is not None:
+        ax.set_xlim(frame[0], frame[2])
+        ax.set_ylim(frame[1], frame[3])
     ax.set_aspect("equal")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.set_xlabel(f"easting ({mv.units.xy_name})")
     ax.set_ylabel(f"northing ({mv.units.xy_name})")
     ax.legend(loc="upper right", fontsize=8)
-    ax.set_title(title or "DLG layers")
+    ax.set_title((title or "DLG layers") + note)
     fig.tight_layout()
     save_png(fig, path, dpi=100)
     return Path(path)

@@ -253,6 +253,119 @@ def test_vertical_unit_from_the_geotiff_keys(files, tmp_path):
     np.testing.assert_array_equal(c.x, ref.x)
 
 
+def _user_defined_vertical_copy(files, tmp_path, name, size_m):
+    """c12.las (EPSG:32632, metres) with heights in feet, keyed VerticalUnitsGeoKey = 32767 (user-defined) and,
+    when given, GeogLinearUnitSizeGeoKey (2053) = ``size_m`` in a GeoDoubleParams record."""
+    import ctypes
+
+    from laspy.vlrs.known import GeoDoubleParamsVlr
+
+    d, _ = files
+    src = laspy.read(d / "c12.las")
+    las = laspy.LasData(laspy.LasHeader(version="1.2", point_format=src.header.point_format.id))
+    las.header.vlrs = [v for v in src.header.vlrs if type(v).__name__ != "GeoDoubleParamsVlr"]
+    las.header.scales, las.header.offsets = src.header.scales, src.header.offsets
+    for dim in ("classification", "intensity", "return_number", "number_of_returns"):
+        las[dim] = src[dim]
+    las.x, las.y, las.z = src.x, src.y, src.z / FOOT_M
+    vlr = next(v for v in las.header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr")
+    keys = [(4099, 0, 32767)] + ([(2053, 34736, 0)] if size_m is not None else [])
+    for key_id, location, value in keys:
+        key = GeoKeyEntryStruct()
+        key.id, key.tiff_tag_location, key.count, key.value_offset = key_id, location, 1, value
+        vlr.geo_keys.append(key)
+    vlr.geo_keys_header.number_of_keys = len(vlr.geo_keys)
+    if size_m is not None:
+        doubles = GeoDoubleParamsVlr()
+        doubles.doubles = [ctypes.c_double(size_m)]
+        las.header.vlrs.append(doubles)
+    las.write(tmp_path / name)
+    return tmp_path / name
+
+
+def test_user_defined_vertical_units_key_takes_its_size(files, tmp_path):
+    """trial-qa: VerticalUnitsGeoKey 32767 (user-defined) fell back to the horizontal unit: heights in feet read as
+    metres (3.28x too high, silently). Its size is GeogLinearUnitSizeGeoKey's (2053, GeoTIFF 1.1 annex B); without
+    it the file is refused naming the file and the key, and --crs replaces it, as for the horizontal units key."""
+    d, _ = files
+    ref = io.read_cloud(d / "c12.las")
+    c = io.read_cloud(_user_defined_vertical_copy(files, tmp_path, "zft.las", FOOT_M))
+    assert c.units.xy_m == 1.0 and c.units.z_m == pytest.approx(FOOT_M, rel=1e-12)
+    np.testing.assert_allclose(c.z, ref.z, atol=0.01)
+    np.testing.assert_array_equal(c.x, ref.x)
+    bad = _user_defined_vertical_copy(files, tmp_path, "nosize.las", None)
+    with pytest.raises(InputError, match=r"nosize.las: CRS record present but unreadable \(VerticalUnitsGeoKey "
+                                         r"\(4099\) is user-defined \(32767\) but GeogLinearUnitSizeGeoKey \(2053\)"):
+        io.read_cloud(bad)
+    r = CliRunner().invoke(main, ["rasters", str(bad), str(tmp_path / "r"), "--res-m", "2"])
+    assert r.exit_code == 2 and r.output.count("\n") == 1 and "nosize.las" in r.output, r.output
+    assert "GeogLinearUnitSizeGeoKey (2053)" in r.output and "--crs" in r.output and not (tmp_path / "r").exists()
+    # --crs in its place: a compound CRS gives the heights' unit (NAVD88 height (ft), EPSG:8228)
+    c = io.read_cloud(bad, crs="EPSG:32632+8228")
+    assert c.units.z_m == pytest.approx(FOOT_M) and c.units.xy_m == 1.0
+    np.testing.assert_allclose(c.z, ref.z, atol=0.01)
+    r = CliRunner().invoke(main, ["rasters", str(bad), str(tmp_path / "r"), "--res-m", "2", "--crs", "EPSG:32632+8228"])
+    assert r.exit_code == 0 and "--crs EPSG:32632+8228 used in its place" in r.output, r.output
+
+
+def test_a_vertical_unit_without_an_epsg_code_is_written_with_its_size(tmp_path):
+    """add_crs wrote VerticalUnitsGeoKey 32767 without a size for a vertical unit no EPSG code names (now refused
+    when read back): the size goes into GeogLinearUnitSizeGeoKey."""
+    from aerotri.geom.las import add_crs, geokey_vertical_unit_m
+
+    vertical = pyproj.CRS.from_epsg(5703).to_json_dict()   # NAVD88 height, in a unit of 0.5 m
+    for axis in vertical["coordinate_system"]["axis"]:
+        axis["unit"] = {"type": "LinearUnit", "name": "half metre", "conversion_factor": 0.5}
+    vertical.pop("id", None)
+    crs = pyproj.CRS.from_json_dict({"type": "CompoundCRS", "name": "UTM 32N + NAVD88 (half metre)",
+                                     "components": [pyproj.CRS.from_epsg(32632).to_json_dict(), vertical]})
+    header = laspy.LasHeader(version="1.2", point_format=1)
+    add_crs(header, crs)
+    assert geokey_vertical_unit_m(header) == pytest.approx(0.5)
+    header = laspy.LasHeader(version="1.2", point_format=1)
+    add_crs(header, pyproj.CRS("EPSG:32632+6360"))     # NAVD88 height (ftUS): the EPSG code, no size
+    keys = {k.id: k.value_offset for v in header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr" for k in v.geo_keys}
+    assert keys[4099] == 9003 and 2053 not in keys and geokey_vertical_unit_m(header) == pytest.approx(1200 / 3937)
+
+
+def _header_with_keys(crs, **overrides):
+    """A LAS 1.2 header with ``crs``'s GeoTIFF keys, the keys in ``overrides`` (k4099=5703) set to other values."""
+    from aerotri.geom.las import add_crs
+
+    header = laspy.LasHeader(version="1.2", point_format=1)
+    add_crs(header, pyproj.CRS(crs))
+    vlr = next(v for v in header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr")
+    for k in vlr.geo_keys:
+        if f"k{k.id}" in overrides:
+            k.value_offset = overrides[f"k{k.id}"]
+    return header
+
+
+def test_a_datum_code_in_the_vertical_units_key_gives_way_to_the_vertical_crs(tmp_path):
+    """sf-fixes: some writers put the vertical datum's code (5703) in VerticalUnitsGeoKey (4099); small-fixes refused
+    such a file though VerticalCSTypeGeoKey (4096) names the vertical CRS and so its unit. Now that unit is read;
+    without a vertical CRS the file is still refused. An EPSG unit beyond 9001-9003 (1025 millimetre) is read."""
+    from aerotri.geom.las import geokey_vertical_unit_m
+
+    header = _header_with_keys("EPSG:32632+5703", k4099=5703)           # NAVD88 height: metres
+    keys = {k.id: k.value_offset for v in header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr" for k in v.geo_keys}
+    assert keys[4096] == 5703 and keys[4099] == 5703
+    assert geokey_vertical_unit_m(header) == 1.0
+    header = _header_with_keys("EPSG:32632+6360", k4099=5703)           # NAVD88 height (ftUS)
+    assert geokey_vertical_unit_m(header) == pytest.approx(1200 / 3937)
+    las = laspy.LasData(_header_with_keys("EPSG:32632+5703", k4099=5703))
+    las.x, las.y, las.z = [500000.0, 500010.0, 500020.0], [4e6, 4e6 + 10, 4e6], [200.0, 210.0, 205.0]
+    las.classification = np.array([2, 2, 2], np.uint8)
+    las.write(tmp_path / "vk5703.las")
+    c = io.read_cloud(tmp_path / "vk5703.las")
+    assert c.units.z_m == 1.0 and c.units.xy_m == 1.0
+    np.testing.assert_allclose(c.z, [200.0, 210.0, 205.0])
+    with pytest.raises(ValueError, match=r"\(4099\) is 5703, not an EPSG linear unit code, and VerticalCSTypeGeoKey"):
+        geokey_vertical_unit_m(_header_with_keys("EPSG:32632+5703", k4099=5703, k4096=0))
+    header = _header_with_keys("EPSG:32632+5703", k4099=1025)           # millimetre
+    assert geokey_vertical_unit_m(header) == pytest.approx(0.001)
+
+
 def test_a_huge_point_count_is_refused_before_allocating(files, tmp_path):
     """A LAZ file without chunk table (allowed) whose LAS 1.4 header claims 5 billion points: the
     count cannot be checked against the records, but reading it whole would not fit in memory."""

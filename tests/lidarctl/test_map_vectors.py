@@ -53,8 +53,9 @@ def _truth_m():
     return x[keep], y[keep], z[keep], cls[keep]
 
 
-def _write_las(path, crs=M_CRS, unit_m=1.0):
-    x, y, z, cls = _truth_m()
+def _write_las(path, crs=M_CRS, unit_m=1.0, points=None):
+    """The scene's cloud (``points``: x, y, z, classes in metres from the scene's origin; default ``_truth_m()``)."""
+    x, y, z, cls = _truth_m() if points is None else points
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales, header.offsets = np.array([0.001] * 3), np.array([X0 / unit_m, Y0 / unit_m, 0.0])
     if crs:
@@ -354,13 +355,7 @@ def test_a_lake_running_out_of_the_data_is_water_by_its_level(tmp_path):
     shore = in_lake & ~shapely.contains_xy(lake.buffer(-1.5), x, y) & (x > 1.5)  # returns only along its shores
     cls[in_lake], z[in_lake] = 9, 99.0 + rng.normal(0, 0.01, in_lake.sum())
     keep = (~in_lake | shore) & ~shapely.contains_xy(notch, x, y)
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.scales, header.offsets = np.array([0.001] * 3), np.array([X0, Y0, 0.0])
-    header.add_crs(pyproj.CRS(M_CRS))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = X0 + x[keep], Y0 + y[keep], z[keep]
-    las.classification = cls[keep]
-    las.write(tmp_path / "edge.las")
+    _write_las(tmp_path / "edge.las", points=(x[keep], y[keep], z[keep], cls[keep]))
     r = CliRunner().invoke(main, ["vectors", str(tmp_path / "edge.las"), str(tmp_path / "v.gpkg")])
     assert r.exit_code == 0, r.output
     _, water, fields = _layer(tmp_path / "v.gpkg", "water")
@@ -369,6 +364,35 @@ def test_a_lake_running_out_of_the_data_is_water_by_its_level(tmp_path):
     assert water[0].intersection(truth).area / water[0].union(truth).area > 0.9
     assert water[0].intersection(affinity.translate(notch, X0, Y0)).area < 5.0
     np.testing.assert_allclose(fields["water_z"], 99.0, atol=0.02)
+
+
+def test_a_river_falling_along_its_course_out_of_the_data_is_water(tmp_path):
+    """A river crossing the tile (1.6 m of fall over its 80 m) returning only along its shores: its gap without
+    returns reaches both edges of the data, so ``lakes_at_edge`` decides. One level for the whole rim (the median
+    of its water returns) put the downstream banks below the upstream water (Autzen's river: 7 ragged pieces of
+    6,857 m2 in all, one polygon of 20,823 m2 since); the level beside each bank cell is its own stretch of the
+    river's, and the river is one water polygon."""
+    rng = np.random.default_rng(11)
+    river = box(0, 20, 80, 36)
+    gx, gy = np.meshgrid(np.arange(0, 80, SPACING), np.arange(0, 60, SPACING))
+    x = gx.ravel() + rng.uniform(-0.2, 0.2, gx.size)
+    y = gy.ravel() + rng.uniform(-0.2, 0.2, gx.size)
+    level = 99.0 - 0.02 * x
+    from_water = np.maximum(np.maximum(20 - y, y - 36), 0.0)
+    z = level + 0.3 + 0.05 * from_water + rng.normal(0, 0.02, x.size)  # banks rising out of the water
+    cls = np.full(x.size, 2, np.uint8)
+    in_river = shapely.contains_xy(river, x, y)
+    shore = in_river & ~shapely.contains_xy(river.buffer(-1.5), x, y) & (x > 1.5) & (x < 78.5)
+    cls[in_river], z[in_river] = 9, level[in_river] + rng.normal(0, 0.01, in_river.sum())
+    keep = ~in_river | shore
+    _write_las(tmp_path / "river.las", points=(x[keep], y[keep], z[keep], cls[keep]))
+    r = CliRunner().invoke(main, ["vectors", str(tmp_path / "river.las"), str(tmp_path / "v.gpkg")])
+    assert r.exit_code == 0, r.output
+    _, water, fields = _layer(tmp_path / "v.gpkg", "water")
+    truth = affinity.translate(river, X0, Y0)
+    assert len(water) == 1, [w.area for w in water]
+    assert water[0].intersection(truth).area / water[0].union(truth).area > 0.9
+    assert 98.0 < fields["water_z"][0] < 98.6  # the median of a river falling 99.0 -> 97.4 m
 
 
 def test_a_water_piece_joined_through_a_cell_corner_is_one_valid_polygon():
@@ -388,3 +412,85 @@ def test_a_water_piece_joined_through_a_cell_corner_is_one_valid_polygon():
     assert all(p.area >= 50.0 for p in mask_polygons(without_pinches(mask), 0.0, 20.0, 1.0, 0.5))
     parts = mask_polygons(mask, 0.0, 20.0, 1.0, 0.01)  # what the layer was made of before
     assert len(parts) == 3 and min(p.area for p in parts) < 50.0
+
+
+def _ortho(path, left, top, size_px, pixel_m=2.0, crs=M_CRS):
+    import rasterio
+    from rasterio.transform import from_origin
+
+    rgb = np.stack([np.full((size_px, size_px), v, np.uint8) for v in (120, 140, 100)])
+    with rasterio.open(path, "w", driver="GTiff", width=size_px, height=size_px, count=3, dtype="uint8", crs=crs,
+                       transform=from_origin(left, top, pixel_m, pixel_m)) as dst:
+        dst.write(rgb)
+    return path
+
+
+def test_the_preview_is_framed_by_the_data_not_the_orthophoto(made, tmp_path, monkeypatch):
+    # trial (Autzen): the preview took the orthophoto's extent, 3,248 x 4,385 ft around 1,177 x 563 ft of LiDAR: the
+    # features sat in a corner of an empty map. Now the data (points and features) with a 5 % margin, the orthophoto
+    # clipped to it
+    import matplotlib.image
+
+    import lidarctl.vectors.layers as L
+
+    figs = []
+    real = L.save_png
+    monkeypatch.setattr(L, "save_png", lambda fig, path, **k: figs.append(fig) or real(fig, path, **k))
+    _, cloud, _ = made
+    ortho = _ortho(tmp_path / "ortho.tif", X0 - 400.0, Y0 + 700.0, 500)       # 1,000 m square around the 120 x 100 m
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(tmp_path / "v.gpkg"), "--image", str(ortho)])
+    assert r.exit_code == 0, r.output
+    # the points' extent and the features' (the road and water masks reach half a cell beyond the points)
+    x, y, _, _ = _truth_m()
+    geoms = [g for name in ("buildings", "roads", "road_centrelines", "water", "spot_heights")
+             for g in _layer(tmp_path / "v.gpkg", name)[1]]
+    fb = shapely.total_bounds(np.asarray(geoms, dtype=object))
+    data = (min(X0 + x.min(), fb[0]), min(Y0 + y.min(), fb[1]), max(X0 + x.max(), fb[2]), max(Y0 + y.max(), fb[3]))
+    assert data[2] - data[0] < 121.0 and data[3] - data[1] < 101.0
+    m = 0.05 * max(data[2] - data[0], data[3] - data[1])
+    (ax,) = figs[-1].axes
+    np.testing.assert_allclose(ax.get_xlim(), (data[0] - m, data[2] + m), atol=0.01)
+    np.testing.assert_allclose(ax.get_ylim(), (data[1] - m, data[3] + m), atol=0.01)
+    (im,) = [a for a in ax.get_children() if isinstance(a, matplotlib.image.AxesImage)]
+    left, right, bottom, top = im.get_extent()                               # clipped to the frame (whole pixels)
+    assert data[0] - m - 2.0 <= left <= data[0] - m and data[2] + m <= right <= data[2] + m + 2.0
+    assert data[1] - m - 2.0 <= bottom <= data[1] - m and data[3] + m <= top <= data[3] + m + 2.0
+    assert im.get_array().shape[:2] == (round((top - bottom) / 2.0), round((right - left) / 2.0))
+    assert (tmp_path / "v.png").stat().st_size > 10_000
+    # an orthophoto beside the data: said, not drawn
+    far = _ortho(tmp_path / "far.tif", X0 + 5000.0, Y0 + 5000.0, 50)
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(tmp_path / "w.gpkg"), "--image", str(far)])
+    assert r.exit_code == 0, r.output
+    (ax,) = figs[-1].axes
+    assert ax.get_title() == "DLG layers (the orthophoto does not cover the data)"
+    assert not [a for a in ax.get_children() if isinstance(a, matplotlib.image.AxesImage)]
+    np.testing.assert_allclose(ax.get_xlim(), (data[0] - m, data[2] + m), atol=0.01)
+
+
+def test_an_orthophoto_in_another_crs_is_refused_naming_image_and_both_crss(made, tmp_path):
+    # sf-fixes (review of small-fixes): an orthophoto in another CRS (the Autzen one warped to UTM) was drawn in its
+    # own coordinates, the title said "the orthophoto does not cover the data" and the exit code was 0
+    _, cloud, _ = made
+    # the same ground in UTM 33N: far from the data's UTM 32N coordinates, never drawn
+    ortho = _ortho(tmp_path / "ortho33.tif", X0 - 400.0, Y0 + 700.0, 50, crs="EPSG:32633")
+    out = tmp_path / "v.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--image", str(ortho)])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "--image" in r.output and "ortho33.tif" in r.output, r.output
+    assert "32633" in r.output and "32632" in r.output, r.output
+    assert not out.exists() and not out.with_suffix(".png").exists()
+
+
+def test_a_cloud_without_road_returns_says_where_roads_come_from(made, tmp_path):
+    # trial-quick: `lidarctl vectors` of the demo's classified strips with --image printed "roads 0,
+    # road_centrelines 0" and nothing else: the chain classifies without an orthophoto, so no class 11
+    d, cloud, out = made
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(tmp_path / "a.gpkg"), "--spot-spacing-m", "40"])
+    assert r.exit_code == 0 and "no road returns" not in r.output  # the scene's road is class 11
+    x, y, z, cls = _truth_m()
+    cls = np.where(cls == 11, 2, cls).astype(np.uint8)          # the road as plain ground
+    bare = _write_las(tmp_path / "no_roads.las", points=(x, y, z, cls))
+    r = CliRunner().invoke(main, ["vectors", str(bare), str(tmp_path / "b.gpkg"), "--spot-spacing-m", "40"])
+    assert r.exit_code == 0, r.output
+    assert "roads 0, road_centrelines 0" in r.output
+    assert "the clouds hold no road returns (class 11)" in r.output and "classify ... --image DOM.tif" in r.output

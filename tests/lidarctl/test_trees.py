@@ -304,3 +304,39 @@ def test_stands_touching_at_a_corner_are_valid_polygons_of_their_cells():
         assert shapely.is_valid(g), shapely.is_valid_reason(g)
         assert g.geom_type in ("Polygon", "MultiPolygon")
         assert g.area == pytest.approx(float((label == k).sum()))
+
+
+def test_points_off_the_data_under_density_groups_are_named_in_the_nva_and_vva_rows(forest_edge, tmp_path):
+    # sf-fixes (review of small-fixes): under --groups density a surveyed point off the data has no first return
+    # near it, so its group is "unknown" (land cover unknown): it went into neither the NVA's nor the VVA's list of
+    # points not counted (Autzen: NVA row 35 points, n_outside 0 with 4 points 5,000 ft off the data). Now it is in
+    # both, marked "land cover unknown"; the verdict table's non-vegetated row names no vegetated point
+    from aerotri.qa.report import compliance_lines, write_qa_report
+
+    d = forest_edge
+    (tmp_path / "project.toml").write_text('[project]\nname = "edge"\ncrs = "EPSG:32632"\n')
+    (tmp_path / "lidar_out").mkdir()
+    pts = tmp_path / "pts.csv"
+    # 24 points on the DEM (8 dense, 8 sparse, 8 open) and 2 far off the data (no first return within 10 m)
+    pts.write_text((d / "pts.csv").read_text() + f"X0,{X0 - 500:.3f},{Y0 + 30:.3f},100.0\n"
+                   f"X1,{X0 + 30:.3f},{Y0 + 900:.3f},100.0\n")
+    _ok(["check-heights", d / "edge.laz", pts, "--dem", d / "dem.tif", "--groups", "density",
+         "--json", tmp_path / "lidar_out" / "height_check.json"])
+    hc = json.loads((tmp_path / "lidar_out" / "height_check.json").read_text())
+    assert [p["group"] for p in hc["points"][-2:]] == ["unknown", "unknown"]
+    assert [p["dz_dem_m"] for p in hc["points"][-2:]] == [None, None]
+    rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL2")
+    nva, vva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert nva["n_points"] == 8 and vva["n_points"] == 16               # open; sparse and dense
+    for row in (nva, vva):
+        assert row["n_outside"] == 2 and list(row["outside_ids"]) == ["X0", "X1"], row
+        assert list(row["outside_unknown_ids"]) == ["X0", "X1"]
+        assert ("2 check points with no valid cell of the DEM dem.tif under them, not counted (land cover unknown: "
+                "X0, X1)") in row["checkpoints_note"], row["checkpoints_note"]
+    lines = compliance_lines(rep.compliance)
+    assert sum("not counted: land cover unknown: X0, X1" in ln for ln in lines) == 2, lines
+    # the verdict table judges the open points only under the LBS NVA limit: the off-data points named there too
+    row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
+    assert "at 8 non-vegetated surveyed points" in row.quantity
+    assert row.note == ("2 surveyed points with no valid cell of the DEM dem.tif under them, not counted: land cover "
+                        "unknown: X0, X1")

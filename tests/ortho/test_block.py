@@ -59,6 +59,23 @@ def test_outputs_identical_on_every_scheduler(small_block, tmp_path):
         assert (ds.read_masks(1) > 0).mean() > 0.8
 
 
+def test_offsets_identical_on_every_scheduler(small_block, tmp_path):
+    """The mosaic with offsets (i42-offsets: they and the shadow toe go to the Dask tasks in the context file): the same
+    bytes on local threads and as tasks on a local cluster of 2 worker processes."""
+    root = tmp_path / "rectified"
+    shutil.copytree(small_block, root)
+    rectify_block(root)
+    digests = {}
+    for scheduler in (None, "local:2"):
+        copy = tmp_path / str(scheduler).replace(":", "_")
+        shutil.copytree(root, copy)
+        with Executor(scheduler, 2) as ex:
+            mosaic_block(copy, MosaicSettings(tile_px=256, offsets=True), executor=ex)
+        assert json.loads((copy / "ortho" / "mosaic.json").read_text())["offsets"] is not None
+        digests[scheduler] = hashlib.sha256((copy / "ortho" / "mosaic.tif").read_bytes()).hexdigest()
+    assert digests[None] == digests["local:2"]
+
+
 def test_cli_scheduler_option(small_block, tmp_path):
     root = tmp_path / "cli"
     shutil.copytree(small_block, root)

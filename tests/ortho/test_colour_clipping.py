@@ -18,8 +18,8 @@ from rasterio.warp import reproject
 from scipy import ndimage
 
 from ortho.cli import main
-from ortho.mosaic import (ROLLOFF_HEADROOM, HighlightRolloff, SampleHistogram, _bounded_solve, gain_caps,
-                          highlight_rolloff, limit_gains)
+from ortho.mosaic import (OFFSET_MAX_SHARE, ROLLOFF_HEADROOM, HighlightRolloff, SampleHistogram, _bounded_solve,
+                          gain_caps, highlight_rolloff, limit_gains)
 from ortho.synthetic import write_synthetic_project
 
 
@@ -86,15 +86,17 @@ def pooled_mean(paths) -> float:
     return total / count
 
 
+@pytest.mark.parametrize("offsets", [False, True])
 @pytest.mark.parametrize("outside", [0.6, 0.4])
-def test_a_bright_frame_neither_clips_nor_darkens_the_mosaic(tmp_path, outside):
+def test_a_bright_frame_neither_clips_nor_darkens_the_mosaic(tmp_path, outside, offsets):
     """A frame whose overlaps are darker than its neighbours' (x ``outside``) but whose middle is bright (a sunlit
     roof, a white road; its brightest unsaturated sample 254): the balance asks it a gain of about 1.4 (x 0.4: more
     than 1.5) from the overlaps, which would push its middle into saturation. Capped at 254.5 / 254 (i42-clip) the
     frame was held at 1.0 and its five neighbours pulled down to 0.66-0.71 (0.47-0.54): the mosaic at 73 % (56 %) of
     its frames' pooled mean (this failed); now the frame takes its gain, 1.39 (up to ``ROLLOFF_HEADROOM`` x the cap:
     held at 1.50, the others at 0.70-0.80), the mosaic at 99.4 % (81 %) of that mean, and the roll-off keeps its middle
-    below white."""
+    below white. The gains alone (``--no-offsets``); with offsets (i42-offsets) the overlaps' spreads, the bright
+    middle's in them, ask less gain (1.18) and an offset, and the same holds for white, black and the level."""
     root = tmp_path / "p"
     write_synthetic_project(root, strips=2, frames_per_strip=3, buildings=0, seed=11)
     p = root / "images" / "s01_002.tif"
@@ -106,12 +108,27 @@ def test_a_bright_frame_neither_clips_nor_darkens_the_mosaic(tmp_path, outside):
     cv2.imwrite(str(p), img.astype(np.uint8))
     r = CliRunner().invoke(main, ["rectify", str(root)])
     assert r.exit_code == 0, r.output
-    r = CliRunner().invoke(main, ["mosaic", str(root), "--seams", "voronoi"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--seams", "voronoi"] + (["--offsets"] if offsets else []))
     assert r.exit_code == 0, r.output
     frames = {f.stem: saturated_share(f) for f in sorted((root / "ortho/frames").glob("*.tif"))}
     summary = json.loads((root / "ortho/mosaic.json").read_text())
+    assert (summary["offsets"] is not None) == offsets
     # held only beyond what the roll-off takes
-    assert ("frame s01_002 band" in r.stderr and "lowered" in r.stderr) == (outside == 0.4), r.stderr
+    assert offsets or ("frame s01_002 band" in r.stderr and "lowered" in r.stderr) == (outside == 0.4), r.stderr
+    if offsets:  # every gain at its cap and offset at its bound reported with what the free fit asked (offsets-fixes:
+        # none was, the bounded solve's held frames were taken from the free fit's gains)
+        for name, row in summary["offsets"].items():
+            for b, o in enumerate(row):
+                if abs(abs(o) - OFFSET_MAX_SHARE * 255) < 1e-6:
+                    bound = "lower" if o < 0 else "upper"
+                    assert f"frame {name} band {b + 1}: offset {o:+.2f} DN held at its {bound} bound (the balance " \
+                           f"asked gain " in r.stderr, r.stderr
+        held = sum(abs(abs(o) - OFFSET_MAX_SHARE * 255) < 1e-6 for row in summary["offsets"].values() for o in row)
+        assert held == (6 if outside == 0.4 else 9)
+        cap = ROLLOFF_HEADROOM * 254.5 / 254  # (x 0.4: the frame's gains at it, its offsets at the roll-off's bound)
+        for b in range(3):
+            assert (f"frame s01_002 band {b + 1}: gain {cap:.4g} held at its cap (the balance asked gain "
+                    in r.stderr) == (outside == 0.4), r.stderr
     knee = summary["highlight_rolloff"]["knee"]
     assert 0.5 * 254.5 * (1 - 1e-5) <= knee < 254 and summary["highlight_rolloff"]["top_out"] < 254.5
     # where the mosaic shows the frame (its seam region, away from the feathered seams), no more of it saturated
@@ -132,7 +149,12 @@ def test_a_bright_frame_neither_clips_nor_darkens_the_mosaic(tmp_path, outside):
     others = np.delete(gains, k, axis=0)
     mosaic_mean = pooled_mean([root / "ortho/mosaic.tif"])
     frames_mean = pooled_mean(sorted((root / "ortho/frames").glob("*.tif")))
-    if outside == 0.6:
+    if offsets:  # the level kept (mean log-gain and mean offset 0), the frame brightened by a gain and an offset
+        offs = np.array(list(summary["offsets"].values()))
+        assert abs(np.log(gains).mean()) < 1e-4 and abs(offs.mean()) < 0.01  # (held by heavy rows under the bounds)
+        assert gains[k].min() > 1.1 and offs[k].min() > -0.01  # (x 0.4: held at its cap, the offset at 0)
+        assert mosaic_mean / frames_mean == pytest.approx(1.0, abs=0.02 if outside == 0.6 else 0.05)
+    elif outside == 0.6:
         assert gains[k].min() > 1.35 and abs(np.log(gains).mean()) < 1e-9
         assert others.min() > 0.9
         assert mosaic_mean / frames_mean == pytest.approx(1.0, abs=0.02)
@@ -141,7 +163,8 @@ def test_a_bright_frame_neither_clips_nor_darkens_the_mosaic(tmp_path, outside):
         assert mosaic_mean / frames_mean > 0.75
 
 
-def test_12_bit_data_in_16_bit_frames_saturate_at_4095(tmp_path):
+@pytest.mark.parametrize("offsets", [False, True])
+def test_12_bit_data_in_16_bit_frames_saturate_at_4095(tmp_path, offsets):
     """12-bit data in 16-bit frames (the DMC's, no NBITS tag): the white level is 4095 (the smallest 2^n - 1 at or
     above every frame's largest sample), so a frame's saturated middle is counted, the gain limit bites there, no
     sample of the mosaic is above 4095 and none becomes newly saturated (counted at 65535 nothing was saturated,
@@ -158,7 +181,7 @@ def test_12_bit_data_in_16_bit_frames_saturate_at_4095(tmp_path):
         cv2.imwrite(str(p), np.clip(np.rint(img), 0, 4095).astype(np.uint16))
     r = CliRunner().invoke(main, ["rectify", str(root)])
     assert r.exit_code == 0, r.output
-    r = CliRunner().invoke(main, ["mosaic", str(root), "--seams", "voronoi"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--seams", "voronoi"] + (["--offsets"] if offsets else []))
     assert r.exit_code == 0, r.output
     summary = json.loads((root / "ortho/mosaic.json").read_text())
     white = summary["white_level"]
@@ -178,7 +201,7 @@ def test_12_bit_data_in_16_bit_frames_saturate_at_4095(tmp_path):
     assert "lowered" not in r.stderr, r.stderr
     knee = summary["highlight_rolloff"]["knee"]
     assert 0.5 * 4094.5 * (1 - 1e-5) <= knee < 4094 and summary["highlight_rolloff"]["top_out"] < 4094.5
-    assert np.array(summary["gains"]["s01_002"]).min() > 1.3
+    assert np.array(summary["gains"]["s01_002"]).min() > (1.1 if offsets else 1.3)
     mosaic_share, mosaic_max = share(root / "ortho/mosaic.tif")
     assert mosaic_max <= 4095
     assert mosaic_share <= max(v[0] for v in frames.values()) + 0.001

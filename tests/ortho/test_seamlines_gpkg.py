@@ -303,3 +303,44 @@ def test_a_mosaic_blended_by_other_rules_is_not_taken_over(mosaicked, tmp_path):
     tiles = json.loads(summary_path.read_text())["tiles"]
     assert tiles["taken_over"] == 0 and tiles["blended"] == tiles["total"]
     assert "blended by other rules" in r.output
+
+
+def test_a_mosaic_of_other_rules_and_gains_says_the_rules(mosaicked, tmp_path):
+    """A mosaic made before a change of the rules whose gains differ in their last digits (i42-offsets' pair weights
+    cells, not sqrt(cells)^2, did that): the edited run says the rules changed, not that the mosaic was made from other
+    frames or gains (it did, offsets-fixes: the gains were compared first)."""
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    summary_path = root / "ortho" / "mosaic.json"
+    summary = json.loads(summary_path.read_text())
+    summary["blend_rules"] = "feather+fill-farthest-from-holes+rolloff/2026-11-30"  # main before i42-offsets
+    summary["gains"] = {n: [float(np.nextafter(v, 2.0)) for v in g] for n, g in summary["gains"].items()}
+    summary_path.write_text(json.dumps(summary))
+    same = tmp_path / "same.gpkg"
+    shutil.copy(root / "ortho" / "seamlines.gpkg", same)
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(same), "-v"])
+    assert r.exit_code == 0, r.output
+    assert "blended by other rules (feather+fill-farthest-from-holes+rolloff/2026-11-30" in r.output, r.output
+    assert "made from other frames" not in r.output
+
+
+def test_a_mosaic_of_other_offsets_is_not_taken_over(mosaicked, tmp_path):
+    """The offsets (``--offsets``, i42-offsets) are part of what a tile's samples depend on: an edited run with offsets
+    over a mosaic made without them blends every tile anew, and says why; over a mosaic with the same offsets it takes
+    the tiles its edit does not reach over."""
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    summary_path = root / "ortho" / "mosaic.json"
+    assert json.loads(summary_path.read_text())["offsets"] is None
+    same = tmp_path / "same.gpkg"
+    shutil.copy(root / "ortho" / "seamlines.gpkg", same)
+    args = ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(same), "--offsets", "-v"]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    summary = json.loads(summary_path.read_text())
+    assert summary["offsets"] is not None and summary["tiles"]["taken_over"] == 0
+    assert "other frames, gains, offsets" in r.output
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    tiles = json.loads(summary_path.read_text())["tiles"]
+    assert tiles["taken_over"] == tiles["total"] > 0

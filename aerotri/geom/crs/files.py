@@ -31,11 +31,12 @@ import numpy as np
 
 from aerotri.geom import las
 from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
-from aerotri.geom.crs.definition import check_coordinates, crs_label, horizontal_crs, linear_unit_m, parse_crs, same_crs, unit_name
+from aerotri.geom.crs.definition import (check_coordinates, crs_label, height_unit_m, horizontal_crs, length_unit_name,
+                                         linear_unit_m, parse_crs, same_crs, unit_name)
 from aerotri.geom.crs.fit import fit_plane, fit_spatial
 from aerotri.geom.crs.datum import SPATIAL, load_height_model, load_transformation
-from aerotri.geom.crs.transform import CrsTransformer, to_own_geodetic, z_unit_m
-from aerotri.core.errors import InputError, OptionError
+from aerotri.geom.crs.transform import CrsTransformer, to_own_geodetic
+from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.core.log import track_chunks
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.textio import read_text
@@ -350,13 +351,35 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
             # (new scales are derived from them below)
             raise InputError(f"{in_path}: header scale factors {list(hdr.scales)} must be positive numbers")
         file_crs = las.header_crs(hdr)
-        if file_crs is not None and not same_crs(file_crs, transformer.src):
-            units = [c.axis_info[0].unit_name if c.axis_info else "" for c in (file_crs, transformer.src)]
+        src = transformer.src
+        # a compound --from over the file's 2D CRS adds the heights' system to it
+        src_as_file = horizontal_crs(src) if src.is_compound and file_crs is not None and not file_crs.is_compound \
+            else src
+        if file_crs is not None and not same_crs(file_crs, src_as_file):
+            units = [c.axis_info[0].unit_name if c.axis_info else "" for c in (file_crs, src)]
             raise InputError(
-                f"{in_path}: the file's CRS ({file_crs.name}) is not --from {crs_label(transformer.src)}"
+                f"{in_path}: the file's CRS ({file_crs.name}) is not --from {crs_label(src)}"
                 + (f" (the file's coordinates are in {units[0]}, --from's in {units[1]}; leave --from out to use "
                    "the file's CRS)" if units[0] != units[1] else "")
             )
+        # the heights' unit: a compound CRS record's vertical axis, else the GeoTIFF vertical units key read as
+        # lidarctl's readers read it (4099; a user-defined one sized by 2053; one whose size cannot be known is
+        # refused naming the file), else the unit the transformer reads z in for --from (a 2D grid's unit)
+        keys_z_m = None
+        if file_crs is None or not file_crs.is_compound:
+            try:
+                keys_z_m = las.read_vertical_unit_m(
+                    in_path, hdr, hint="give --from a compound CRS (EPSG:<horizontal>+<vertical>) stating it")
+            except CrsError:
+                if not src.is_compound:  # a compound --from states the heights' unit in the key's place
+                    raise
+        if keys_z_m is not None and src.is_compound and abs(keys_z_m - height_unit_m(src)) > 1e-9 * keys_z_m:
+            raise InputError(
+                f"{in_path}: the file's VerticalUnitsGeoKey (4099) gives heights in "
+                f"{length_unit_name(keys_z_m, long=True)}, --from {crs_label(src)} in "
+                f"{length_unit_name(height_unit_m(src), long=True)}")
+        z_in_m = keys_z_m if keys_z_m is not None else height_unit_m(src)
+        z_factor = z_in_m / height_unit_m(src)  # the file's heights -> the unit the transformer reads z in
         out_hdr = laspy.LasHeader(version=hdr.version, point_format=hdr.point_format)
         for vlr in hdr.vlrs:
             # laspy writes the extra-bytes and LASzip records itself from the point format
@@ -371,13 +394,15 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         out_hdr.creation_date = hdr.creation_date
         # Scales for the target units; offsets from the transformed bounding box corners.
         dst = transformer.dst
-        f_in = z_unit_m(transformer.src) if not transformer.src.is_geographic else 111_320.0
-        f_out = z_unit_m(dst) if not dst.is_geographic else 111_320.0
+        # (the horizontal axes' unit: z_unit_m is 1 for any compound CRS, which made a compound --from in feet give
+        # XY scales 3.3x coarser)
+        f_in, f_out = (111_320.0 if horizontal_crs(c).is_geographic else linear_unit_m(c)
+                       for c in (transformer.src, dst))
         sx = _nice_scale(hdr.scales[0] * f_in / f_out)
-        sz = _nice_scale(hdr.scales[2] * z_unit_m(transformer.src) / z_unit_m(dst))
+        sz = _nice_scale(hdr.scales[2] * z_in_m / height_unit_m(dst))
         cx = np.array([hdr.mins[0], hdr.maxs[0], hdr.mins[0], hdr.maxs[0]])
         cy = np.array([hdr.mins[1], hdr.mins[1], hdr.maxs[1], hdr.maxs[1]])
-        cz = np.full(4, 0.5 * (hdr.mins[2] + hdr.maxs[2]))
+        cz = np.full(4, 0.5 * (hdr.mins[2] + hdr.maxs[2]) * z_factor)
         if hdr.point_count == 0:
             raise InputError(f"{in_path}: the file holds no points (nothing to transform)")
         check_coordinates(transformer.src, cx, cy, str(in_path), [f"header bounds corner {i + 1}" for i in range(4)])
@@ -388,7 +413,9 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         out_hdr.offsets = np.array([math.floor(X.min() / unit) * unit, math.floor(Y.min() / unit) * unit,
                                     math.floor(Z.min() / 100.0) * 100.0 if np.isfinite(Z).all() else 0.0])
         out_hdr.scales = np.array([sx, sx, sz])
-        out_hdr.add_crs(dst)
+        # laspy's add_crs drops the copied CRS records (the input's vertical keys with them); a compound --to on
+        # GeoTIFF keys gets its vertical CRS and unit keys (las.add_crs), a 2D one none: heights in its grid unit
+        las.add_crs(out_hdr, dst)
         from aerotri.core.limits import check_task_count
 
         check_task_count(math.ceil(hdr.point_count / chunk_size), f"{in_path}: {hdr.point_count:,} points in chunks of "
@@ -398,7 +425,8 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
             with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:
                 for _, chunk in track_chunks(las.iter_chunks(reader, in_path, chunk_size, withheld=True), hdr.point_count,
                                              f"transform {in_path.name}"):
-                    X, Y, Z = transformer.transform(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
+                    z = np.asarray(chunk.z) * z_factor if z_factor != 1.0 else np.asarray(chunk.z)
+                    X, Y, Z = transformer.transform(np.asarray(chunk.x), np.asarray(chunk.y), z)
                     out = laspy.ScaleAwarePointRecord.zeros(len(chunk), header=out_hdr)
                     out.array[:] = chunk.array  # every dimension bit for bit, then new X, Y, Z
                     _set_scaled(out, "X", X, out_hdr.offsets[0], out_hdr.scales[0], in_path)

@@ -161,7 +161,8 @@ class GroundPlanLimit(PlanLimit):
 
 @dataclasses.dataclass(frozen=True)
 class SpotHeightLimit:
-    """Spot heights' RMS limit (m) by terrain class and map scale; terrain classes without a limit: None."""
+    """A height RMS limit (m; spot heights, AT check points) by terrain class and map scale; terrain classes without
+    a limit: None."""
 
     what: str
     scales: tuple[str, ...]
@@ -187,6 +188,7 @@ class CnAtLimits:
     tie_plan_mm: MapPlanLimit  # common points between adjacent blocks
     feature_plan_mm: MapPlanLimit  # well-defined map features, 1:500-1:2000
     feature_plan_m_small: GroundPlanLimit  # the same, 1:5000 and 1:10000 (the design table's metres)
+    check_height_m_small: SpotHeightLimit  # AT check points' heights, 1:5000 and 1:10000 (the design table's)
     spot_height_m: SpotHeightLimit
 
 

@@ -93,8 +93,10 @@ def test_without_a_dem_the_focal_length_is_fixed_and_the_solution_is_weak(bright
     ba = adjust_project(root, AdjustSettings(self_calibration=("focal", "pp", "radial")))
     focal = {c.group: c for c in ba.calibration_checks}["focal"]
     assert focal.action == "fixed" and not focal.ground_observed["height"]
-    assert focal.correlations["height"] > 0.9  # reported; the focal length is judged by its 3 sigma (10.8 % here)
-    assert focal.reason.startswith("3 standard deviations are") and 3 * focal.sigma_fraction > 0.1
+    # reported; the focal length is judged by its 3 sigma (5.2 % here since one focal length is estimated, fx = fy:
+    # trial-at; 10.8 % for fx and fy apart), against the 1 % limit
+    assert focal.correlations["height"] > 0.9
+    assert focal.reason.startswith("3 standard deviations are") and 3 * focal.sigma_fraction > 0.03
     ks = build_report(ba).key_statistics
     assert ks["verdict"] != "successful" and "focal" in ks["calibration_fixed"]
     assert "Solution Successful" not in ks["message"] and "focal fixed at its a-priori value" in ks["message"]

@@ -116,7 +116,7 @@ def test_report_limits_follow_the_project_map_scale(block_project, tmp_path):
     res = write_outputs(ba, root, html=False)
     rep = json.loads(res.report_path.read_text())
     # no [qa]: a DMC at 1000 m, GSD 10 cm, manned (above 150 m) -> the Chinese table of its GSD, 1:2000 (flat)
-    assert rep["parameters"]["rms_limits_m"][:3] == [0.14, 0.14, 0.4]
+    assert rep["parameters"]["rms_limits_m"] == [None, None, 0.4, 0.14]  # plan limit under XY
     assert "Tolerances : 1:2000 flat (cn_1to2000.toml)" in (root / "at" / "report.txt").read_text()
     assert rep["flight_acceptance"] is None or rep["flight_acceptance"]["limits"]["flight_tilt_max_deg"] == 2.0
     copy = tmp_path / "blk"
@@ -125,8 +125,8 @@ def test_report_limits_follow_the_project_map_scale(block_project, tmp_path):
         f.write('\n[qa]\nmap_scale = "1:2000"\nterrain = "hilly"\n')
     res = write_outputs(ba, copy, html=False)
     rep = json.loads(res.report_path.read_text())
-    assert rep["parameters"]["rms_limits_m"][:3] == [0.14, 0.14, 0.8]
-    assert rep["parameters"]["residual_limits_m"][:3] == [0.28, 0.28, 1.6]
+    assert rep["parameters"]["rms_limits_m"] == [None, None, 0.8, 0.14]
+    assert rep["parameters"]["residual_limits_m"] == [None, None, 1.6, 0.28]
     assert "Tolerances : 1:2000 hilly (cn_1to2000.toml)" in (copy / "at" / "report.txt").read_text()
 
 

@@ -3,6 +3,7 @@ adjustment they report (a small geometric block with check points)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -47,8 +48,71 @@ def test_limits_come_from_the_tolerance_table(ba):
     from aerotri.core.tolerances import load_table
 
     tol = load_table("1:2000", "hilly").limits
-    assert rep["parameters"]["rms_limits_m"][:3] == pytest.approx([tol["rms_xy_m"]] * 2 + [tol["rms_z_m"]])
+    # the tables' plan limits are of the plan RMS and residual: under XY (they stood under X and Y)
+    assert rep["parameters"]["rms_limits_m"] == [None, None, pytest.approx(tol["rms_z_m"]), pytest.approx(tol["rms_xy_m"])]
+    assert rep["parameters"]["residual_limits_m"] == [None, None, pytest.approx(tol["residual_z_m"]),
+                                                      pytest.approx(tol["residual_xy_m"])]
     assert "1:2000 hilly" in rep["options"]["tolerances"]
+
+
+def test_the_verdict_holds_the_parameters_to_their_limits(ba):
+    """"Solution Successful." stood beside an RMS Check over the RMS Limits of the same table (the demo with a 2.5 %
+    wrong focal length: check points plan RMS 0.625 m against 0.35 m, the verdict naming only the GNSS shifts; a block
+    with nothing else wrong said "Successful"). The limits given just below and just above the block's own check
+    plan RMS and its largest control residual in plan (computed here from the rows)."""
+    d = np.array([row["d_m"] for row in to_record(report.build_report(ba))["check_points"]], float)
+    plan_rms = float(np.hypot(*np.sqrt(np.mean(d[:, :2] ** 2, axis=0))))
+    cres = np.array([row["residual_m"] for row in to_record(report.build_report(ba))["control_points"] if row["used"]],
+                    float)
+    max_plan = float(np.nanmax(np.hypot(cres[:, 0], cres[:, 1])))
+    loose = dataclasses.replace(ba.settings, rms_limit_xy_m=plan_rms * 1.01 + 1e-3, residual_limit_m=10.0)
+    rep = to_record(report.build_report(dataclasses.replace(ba, settings=loose)))
+    assert rep["parameters"]["rms_check_m"][3] == pytest.approx(plan_rms, abs=1e-4)
+    assert rep["parameters"]["max_ground_residual_m"][3] == pytest.approx(max_plan, abs=1e-4)
+    assert rep["key_statistics"]["tolerances_exceeded"] == []
+    assert "Beyond the tolerances" not in rep["key_statistics"]["message"]
+    tight = dataclasses.replace(ba.settings, rms_limit_xy_m=plan_rms * 0.99, residual_limit_m=max_plan * 0.99)
+    rep = to_record(report.build_report(dataclasses.replace(ba, settings=tight)))
+    ks = rep["key_statistics"]
+    assert ks["verdict"] == "weak" and ks["message"].startswith("Solution weak.")
+    # single residuals by the accuracy report's rule: their share beyond the limit against gross_error_max_pct (5 %)
+    lim = round(max_plan * 0.99, 3)  # the table's limits as the Parameters table holds them
+    big = int(np.sum(np.hypot(cres[:, 0], cres[:, 1]) > lim))
+    quantities = [b["quantity"] for b in ks["tolerances_exceeded"]]
+    assert quantities[:2] == ["check points, plan RMS", f"control points with a plan residual beyond {lim:g} m"]
+    assert f"check points, plan RMS {plan_rms:.3f} m > {plan_rms * 0.99:.3f} m" in ks["message"]
+    assert (f"control points with a plan residual beyond {lim:g} m {round(100 * big / len(cres), 2):g} % > 5 % "
+            f"({big} of {len(cres)})") in ks["message"]
+    assert "Solution weak." in report.format_txt(rep)
+
+
+def test_the_verdict_follows_the_accuracy_report_rules(ba, tmp_path):
+    """A single control residual beyond its limit made the solution "weak" where the accuracy report tolerates
+    gross_error_max_pct of them, and the check RMS was judged with fewer check points than check_points_min (the
+    accuracy report: "indicative only"). A user's table with the limits below the block's own figures: 1 of 5 control
+    points beyond the residual limit (20 %) passes 25 %, 6 check points do not reach check_points_min = 20."""
+    rep0 = to_record(report.build_report(ba))
+    cres = np.array([row["residual_m"] for row in rep0["control_points"] if row["used"]], float)
+    e = np.sort(np.hypot(cres[:, 0], cres[:, 1]))
+    plan_rms = rep0["parameters"]["rms_check_m"][3]
+    table = tmp_path / "table.toml"
+
+    def write(pct, need):
+        table.write_text(f"[general]\ngross_error_max_pct = {pct}\n" + (f"check_points_min = {need}\n" if need else "")
+                         + f"[flat]\nrms_xy_m = {plan_rms * 0.5:.6f}\nrms_z_m = 10.0\n"
+                         f"residual_xy_m = {(e[-1] + e[-2]) / 2:.6f}\nresidual_z_m = 10.0\n")
+
+    def findings():
+        ks = to_record(report.build_report(ba, tolerance_file=table))["key_statistics"]
+        return {b["quantity"].split(" beyond")[0]: b for b in ks["tolerances_exceeded"]}
+
+    write(25.0, 20)
+    found = findings()  # (the check points' own residuals, 0.05-0.1 m, are beyond the limit: judged as in QA)
+    assert "control points with a plan residual" not in found and "check points, plan RMS" not in found, found
+    write(10.0, None)  # 20 % > 10 %, and with no minimum the check RMS is judged
+    found = findings()
+    assert {"check points, plan RMS", "control points with a plan residual"} <= set(found), found
+    assert found["control points with a plan residual"]["value_pct"] == 20.0
 
 
 def test_text_layout_is_isat_then_patb(ba):
@@ -198,3 +262,82 @@ def test_check_points_given_as_a_comma_separated_list(tmp_path):
     assert r.exit_code == 0, r.output
     ids = {c["id"] for c in json.loads((root / "at" / "report.json").read_text())["check_points"]}
     assert {"gcp04", "gcp05", "chk01", "chk02"} <= ids
+
+
+def test_counts_account_for_every_measured_observation(tmp_path_factory):
+    """Image observations + removed + the unused last rays of dropped points = every measurement; adjusted + dropped
+    tie points = every tie point measured. Before, a tie point whose rays the data snooping removed down to one
+    vanished from the counts with its last ray (the demo: 423 points and 423 rays of 45,445 measurements)."""
+    block = geometric_block(2, 5, seed=11)
+    root = write_block_project(block, tmp_path_factory.mktemp("drop") / "blk")
+    # two-ray points (min_rays=2) with 3 % blunders: a blunder removed leaves its point one ray
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=6, seed=5,
+                             blunder_fraction=0.03, min_rays=2)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
+    rep = to_record(report.build_report(ba))
+    c, b = rep["counts"], ba.block
+    assert c["tie_points_dropped"] > 0 and c["observations_unused"] > 0, c
+    assert c["image_observations"] + c["removed_observations"] + c["observations_unused"] == len(b.obs_point)
+    tie_measured = len(np.setdiff1d(np.unique(b.obs_point), b.control_point))
+    assert c["tie_points"] + c["tie_points_dropped"] == tie_measured
+    assert f"tie points {c['tie_points']} ({c['tie_points_dropped']} more measured, dropped" in report.format_txt(rep)
+
+
+def test_formal_determinability_sigmas_are_said_to_be_formal():
+    """The demo's report gave k1 two sigmas, the table's 0.000193 (with the LiDAR strip offsets) and the
+    determinability's "+- 6.6e-05" (formal), unlabelled; a note now names the difference (the demo's numbers)."""
+    det = {"group": "radial", "action": "estimated", "estimate": {"k1": -0.0041116, "k2": 0.00123194},
+           "apriori": {"k1": 0.0, "k2": 0.0}, "sigma": {"k1": 6.598e-05, "k2": 0.00010196}, "corner_sigma_px": 0.012,
+           "corner_sigma_fraction": 1e-05, "correlations": {"height": 0.5118}, "ground_observed": {"height": True},
+           "reason": None}
+    sc = {"groups": ["radial"], "estimated": ["radial"], "apriori": {"k1": 0.0, "k2": 0.0},
+          "adjusted": {"k1": -0.0041116, "k2": 0.00123194}, "std_dev": {"k1": 0.00019296, "k2": 0.00035143},
+          "determinability": [det]}
+    txt = "\n".join(report._self_calibration_txt(sc))
+    assert "k1 0.000193 against 6.6e-05, k2 0.000351 against 0.000102" in txt and "sigmas formal" in txt
+    same = dict(sc, std_dev={"k1": 6.598e-05, "k2": 0.00010196})
+    assert report.formal_sigma_note(same) is None
+
+
+def test_common_height_shift_names_the_focal_length_only_when_the_plan_shows_it(tmp_path):
+    """A lever arm z 1 m off (no GNSS shifts simulated): every strip's height shift about -1 m. The note said "A focal
+    length 0.22 % too long ... gives this" (the demo with the same lever arm error), also with the focal length
+    estimated. Now: a common height offset with the lever arm, the height datum and the focal length as causes, the
+    focal length the likely one only when the plan residuals show a scale error too, none when it is estimated."""
+    block = geometric_block(2, 5, seed=11, gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0)
+    root = write_block_project(block, tmp_path / "lever")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=6, seed=5)
+    toml = (root / "project.toml").read_text()
+    assert "lever_arm_m = [0.05, -0.12, 1.25]" in toml
+    (root / "project.toml").write_text(toml.replace("lever_arm_m = [0.05, -0.12, 1.25]", "lever_arm_m = [0.05, -0.12, 2.25]"))
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
+    gcc = report.gnss_correction_check(ba)
+    assert sorted(s for s, term, axis, v in gcc.suspect if axis == "U" and abs(v + 1.0) < 0.25) == [1, 2], gcc
+    rep = to_record(report.build_report(ba))
+    plan, lim = rep["parameters"]["rms_check_m"][3], rep["parameters"]["rms_limits_m"][3]
+    assert plan < lim  # a lever arm error leaves the plan alone
+    msg = rep["key_statistics"]["message"]
+    assert "one offset for the whole block" in msg and "lever arm" in msg and "height datum" in msg, msg
+    assert "likely cause" not in msg and "do not tell these apart" in msg, msg
+    note = report.common_height_shift_note(ba, gcc, ("check", 0.625, 0.35))  # the 123 mm demo's check plan RMS
+    assert "the focal length is the likely cause" in note and "0.625 m beyond its 0.350 m limit" in note
+    estimated = dataclasses.replace(ba, opts=dataclasses.replace(ba.opts, self_calibration=("focal",)))
+    note = report.common_height_shift_note(estimated, gcc, ("check", 0.625, 0.35))
+    assert "lever arm" in note and "too long" not in note and "likely" not in note and "not the focal length, which is estimated" in note
+
+
+def test_dropped_tie_points_are_counted_by_reason():
+    """A tie point dropped for nearly parallel rays (``solve._drop_weak_points``: 2 rays or more left) was said to be
+    dropped "with fewer than 2 rays left". Three points: adjusted; one ray removed, one left; three rays, none removed,
+    dropped (parallel)."""
+    from types import SimpleNamespace
+
+    obs_point = np.array([0, 0, 0, 1, 1, 2, 2, 2])
+    active = np.array([1, 1, 1, 0, 0, 0, 0, 0], bool)
+    b = SimpleNamespace(obs_point=obs_point, control_point=np.array([], int), n_points=3)
+    ba = SimpleNamespace(block=b, result=SimpleNamespace(removed=[SimpleNamespace(obs=3)]))
+    c = report._dropped_counts(ba, SimpleNamespace(active=active), np.array([0]))
+    assert c == {"tie_points_dropped": 2, "observations_unused": 4, "tie_points_dropped_single_ray": 1,
+                 "tie_points_dropped_parallel_rays": 1}
+    text = report._dropped_text(c)
+    assert "1 with fewer than 2 rays left after the removals" in text and "1 with rays too nearly parallel" in text

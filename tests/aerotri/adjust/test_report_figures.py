@@ -132,6 +132,32 @@ def test_consolidated_report_has_flight_rows_and_no_json_dumps(adjusted):
     assert pdf.count(b"/Type /Page\n") + pdf.count(b"/Type /Page ") >= 1 + 2 + len(alts)
 
 
+def test_pdf_flight_page_names_the_whole_flight_specification(adjusted, monkeypatch):
+    """trial-quick: the PDF's flight page cut the specification's name at 80 characters ("... (manned aircraft),
+    as tabulated )"); its title wraps to two lines instead, as the other pages' titles."""
+    import matplotlib.figure
+
+    from aerotri.qa.report import write_qa_report
+
+    root, ba, _ = adjusted
+    toml = (root / "project.toml").read_text()
+    if "[flight]" not in toml:   # the test above may have added them (one fixture for the module)
+        with open(root / "project.toml", "a") as f:
+            f.write(f"\n[flight]\nmean_terrain_height_m = {GROUND_M}\n\n[qa]\npdf = true\n")
+    write_outputs(ba, root)
+    texts = []
+    real_text = matplotlib.figure.Figure.text
+    monkeypatch.setattr(matplotlib.figure.Figure, "text",
+                        lambda self, x, y, s_, *a, **k: texts.append(s_) or real_text(self, x, y, s_, *a, **k))
+    rep = write_qa_report(root)
+    fa = rep.flight_acceptance
+    spec = str(fa["spec"])
+    assert len(spec) > 80
+    (title,) = [t for t in texts if t.startswith("Flight acceptance (")]
+    assert " ".join(title.split("\n")).endswith(f"limits: {spec})")
+    assert max(len(line) for line in title.split("\n")) <= 95
+
+
 def _frames_rep(names, nx=6, ny=4, seed=3):
     rng = np.random.default_rng(seed)
     return {"photos": [{"image_id": name, "rms_x_um": 3.0 + k, "rms_y_um": 2.5,

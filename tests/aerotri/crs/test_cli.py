@@ -200,3 +200,27 @@ def test_transform_las_uses_the_file_crs(tmp_path):
     r = _run("transform", src, tmp_path / "o.csv", "--to", "32650")
     assert r.exit_code == 2 and "needs a .las or .laz output" in r.output
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_transform_las_refuses_an_unreadable_vertical_units_key(tmp_path):
+    """small-fixes2 1: a user-defined VerticalUnitsGeoKey without its size: exit 2, one line naming the file, no
+    output (the heights' unit is unknown; it was read as the grid's)."""
+    import laspy
+    import pyproj
+    from laspy.vlrs.known import GeoKeyEntryStruct
+
+    header = laspy.LasHeader(version="1.2", point_format=1)
+    header.offsets, header.scales = np.array([440_000.0, 3_790_000.0, 0.0]), np.array([0.001, 0.001, 0.001])
+    header.add_crs(pyproj.CRS.from_epsg(32649))
+    vlr = next(v for v in header.vlrs if type(v).__name__ == "GeoKeyDirectoryVlr")
+    k = GeoKeyEntryStruct()
+    k.id, k.tiff_tag_location, k.count, k.value_offset = 4099, 0, 1, 32767
+    vlr.geo_keys.append(k)
+    vlr.geo_keys_header.number_of_keys = len(vlr.geo_keys)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.full(10, 440_500.0), np.linspace(3_790_000, 3_790_100, 10), np.full(10, 100.0)
+    src = tmp_path / "nosize.las"
+    las.write(src)
+    r = _run("transform", src, tmp_path / "o.las", "--to", "32650")
+    assert r.exit_code == 2 and "nosize.las" in r.output and "GeogLinearUnitSizeGeoKey (2053)" in r.output, r.output
+    assert r.output.strip().count("\n") == 0 and not (tmp_path / "o.las").exists()

@@ -4,6 +4,7 @@ figures on made-up measurements; the report and its CLI on a tiny project folder
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -118,6 +119,140 @@ def test_one_dom_limit_per_scale_and_standard_and_patches_are_not_called_check_p
                      Choice("asprs2023", "H10 V10", "t", h_cm=10, v_cm=10)), "DOM")
     assert d.quantity == "ground patches, RMSE_H (radial)"
     assert "12 ground patches, 30 check points required (the figure would pass)" in d.why
+
+
+def test_a_stale_dom_check_still_counts_ground_patches_not_check_points():
+    # trial-quick: after `ortho mosaic --offsets` on the demo the stale DOM row read "DOM: check points, plan RMS
+    # (radial) = not measured (...; 0 check points)", the fresh one "ground patches"
+    from aerotri.qa.compliance import dom_checks
+
+    disp = {"displacement": {"rms_xy_m": 0.097, "count": 1231}}
+    for cs in (dom_checks(disp, None, stale=True), dom_checks({"displacement": {"count": 0}}, None)):
+        assert cs.rmse_h_m is None and cs.points == "ground patches"
+        (d,) = _by(judge(Figures(dom=cs), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")), "DOM")
+        assert d.quantity == "ground patches, plan RMS (radial)" and d.verdict == "not testable"
+
+
+def test_one_at_height_limit_per_scale_and_standard():
+    """small-fixes2 2 (trial-at): at 1:5000 flat the compliance section called the AT's height RMS (0.488 m) "not
+    testable: the standard sets no limit" beside the verdict table's 1.0 m (cn_1to5000.toml rms_z_m, the design
+    table's). cn-at now takes the design table's AT height limits at 1:5000 and 1:10000, as its feature limits: one
+    limit per scale and terrain in both sections, with its source; at 1:2000 none is shipped (the verdict table's is
+    the 1:5000 figure scaled, no read limit)."""
+    from aerotri.core.tolerances import load_table
+
+    at = CheckSet(rmse_h_m=0.3, rmse_v_m=0.488, n_h=30, n_v=30)
+    for scale in ("1:5000", "1:10000"):
+        for terrain in ("flat", "hilly", "mountainous"):
+            table = load_table(scale, terrain)
+            (_, h) = _by(judge(Figures(at=at), Choice("cn-at", f"{scale} {terrain}", "t", scale=scale, terrain=terrain)),
+                         "Aerotriangulation")
+            assert h.limit == pytest.approx(table.limits["rms_z_m"]), (scale, terrain)
+            assert h.limit_confirmed is table.provenance["rms_z_m"].confirmed is False
+            assert h.verdict == "pass" and "shared/design/reports.md" in h.limit_source
+    (_, h) = _by(judge(Figures(at=at), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")),
+                 "Aerotriangulation")
+    assert h.quantity == "check points, height RMS" and h.limit == 1.0 and h.finest_class == "1:5000"
+    (_, h) = _by(judge(Figures(at=CheckSet(rmse_h_m=0.3, rmse_v_m=1.5, n_h=30, n_v=30)),
+                       Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")), "Aerotriangulation")
+    assert h.verdict == "fail" and h.finest_class is None
+    (_, h) = _by(judge(Figures(at=at), Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat")),
+                 "Aerotriangulation")
+    assert h.verdict == "not testable" and h.limit is None and "not shipped for 1:2000" in h.limit_source
+
+
+def test_a_vva_row_without_vegetated_points_is_not_testable_and_nothing_else():
+    """small-fixes2 3: with 0 vegetated check points the VVA row judged the survey "accurate enough" (its sigma against
+    the level's NVA) beside no points; now it is "not testable: no vegetated check points", nothing else, under
+    usgs-lbs and asprs2023 (where the VVA is only reported: the DEM's verdict is still the NVA's)."""
+    from aerotri.qa.report import compliance_lines, compliance_row
+
+    lf = LidarFigures(nva_rmse_m=0.04, n_nva=30, n_vva=0, cp_rmse_v_m=0.01, cp_source="[qa] survey_sigma_z_m",
+                      grouping_note="dz of the DEM; groups open; vegetated: none")
+    # s6-fixes 2: asprs2023's VVA is never judged: it stays "reported" and says why (no pass/fail in Edition 2)
+    for choice, dem, verdict, why in (
+            (Choice("usgs-lbs", "QL2", "t", level="QL2"), "not testable", "not testable", "no vegetated check points"),
+            (Choice("asprs2023", "H10 V10", "t", h_cm=10, v_cm=10), "pass", "reported",
+             "no pass/fail in Edition 2; no vegetated check points")):
+        comp = judge(Figures(lidar=lf), choice)
+        (vva,) = [c for c in comp.checks if c.quantity.startswith("VVA")]
+        assert (vva.verdict, vva.why, vva.checkpoints_accurate, vva.checkpoints_note, vva.finest_class) == \
+            (verdict, why, None, "", None), choice.key
+        assert vva.judged is (verdict != "reported")
+        assert {p.product: p.verdict for p in comp.products}["LiDAR DEM"] == dem
+        d = dataclasses.asdict(comp)
+        (row,) = [compliance_row(c) for c in d["checks"] if c["quantity"].startswith("VVA")]
+        assert row[6:9] == ["0", "", f"{verdict}: {why}"]
+        (line,) = [x for x in compliance_lines({**d, "name": "n", "class_tested": "c", "reason": "r"}) if "VVA" in x]
+        assert "accura" not in line and line.strip().startswith(verdict) \
+            and line.endswith(f"0 check points); {why}"), line
+    # with vegetated points the survey is judged as before
+    comp = judge(Figures(lidar=dataclasses.replace(lf, vva_p95_m=0.2, vva_rmse_m=0.1, n_vva=12)),
+                 Choice("usgs-lbs", "QL2", "t", level="QL2"))
+    (vva,) = [c for c in comp.checks if c.quantity.startswith("VVA")]
+    assert vva.verdict == "pass" and vva.checkpoints_accurate is True
+
+
+def test_a_vva_row_without_any_surveyed_points_says_none_were_surveyed():
+    """Without surveyed check points at all (AHN3 Delft's strips), the VVA rows read "no vegetated check points"
+    (as if some had been surveyed) since small-fixes2; they say nothing was measured, as the NVA rows do."""
+    lf = LidarFigures(anpd_per_m2=12.0, grouping_note="no check points")
+    for choice in (Choice("usgs-lbs", "QL2", "t", level="QL2"), Choice("asprs2023", "H10 V10", "t", h_cm=10, v_cm=10)):
+        checks = judge(Figures(lidar=lf), choice).checks
+        (vva,) = [c for c in checks if c.quantity.startswith("VVA")]
+        assert vva.verdict == ("reported" if choice.key == "asprs2023" else "not testable"), choice.key
+        assert vva.why.endswith("not measured: no surveyed check points (lidarctl check-heights)"), vva.why
+        assert "vegetated" not in vva.why
+
+
+def _surveyed(pts):
+    """A height check's points (id, dz m or None, land-cover group), the cloud's dz within 5 m."""
+    from aerotri.core.project import QaSettings
+
+    from aerotri.qa.compliance import lidar_figures
+
+    hc = {"points": [{"id": i, "dz_m": dz, "group": g} for i, dz, g in pts], "radius_m": 5.0}
+    return lidar_figures(hc, {}, (None, ""), QaSettings(survey_sigma_z_m=0.01))
+
+
+_STANDARDS = (Choice("usgs-lbs", "QL2", "t", level="QL2"), Choice("asprs2023", "H10 V10", "t", h_cm=10, v_cm=10))
+
+
+def _dem_rows(lf, choice):
+    checks = judge(Figures(lidar=lf), choice).checks
+    (nva,) = [c for c in checks if c.quantity.startswith("NVA")]
+    (vva,) = [c for c in checks if c.quantity.startswith("VVA")]
+    return nva, vva
+
+
+def test_dem_rows_say_which_surveyed_points_lack_a_dz_not_that_none_were_surveyed():
+    """s6-fixes 1: with check points surveyed but none with a dz (case A: the DEM off the survey) every DEM row said
+    "no surveyed check points"; with the forest points in a gap (case B) the VVA row said "no vegetated check points"
+    beside their ids. Now each row says its points have no dz, and why."""
+    # case A: 20 open and 5 forest points, none with a dz
+    lf = _surveyed([(f"O{i}", None, "open") for i in range(20)] + [(f"F{i}", None, "forest") for i in range(5)])
+    assert "forest" in lf.grouping_note
+    for choice in _STANDARDS:
+        nva, vva = _dem_rows(lf, choice)
+        assert (nva.verdict, nva.why) == ("not testable", "no non-vegetated check point with a dz (20 with no ground "
+                                                          "point within 5 m)"), choice.key
+        assert vva.why.endswith("no vegetated check point with a dz (5 with no ground point within 5 m)"), vva.why
+        assert "no surveyed" not in nva.why + vva.why
+    # case B: 30 open points with a dz, 5 forest and 1 of unknown land cover without
+    lf = _surveyed([(f"O{i}", 0.03 * (-1) ** i, "open") for i in range(30)]
+                   + [(f"F{i}", None, "forest") for i in range(5)] + [("U1", None, "unknown")])
+    for choice in _STANDARDS:
+        nva, vva = _dem_rows(lf, choice)
+        assert nva.verdict == "pass"
+        assert vva.why.endswith("no vegetated check point with a dz (5 with no ground point within 5 m, and 1 of "
+                                "unknown land cover)"), vva.why
+        assert vva.outside_ids == ("F0", "F1", "F2", "F3", "F4", "U1")
+    # only vegetated points, with a dz: the NVA row says none is non-vegetated (lbs said "not measured: dz of ...")
+    lf = _surveyed([(f"F{i}", 0.1 * (-1) ** i, "forest") for i in range(12)])
+    for choice in _STANDARDS:
+        nva, vva = _dem_rows(lf, choice)
+        assert (nva.verdict, nva.why) == ("not testable", "no non-vegetated check points"), choice.key
+        assert vva.n_points == 12 and vva.figure is not None
 
 
 def test_land_cover_groups():
@@ -355,6 +490,21 @@ def test_at_check_points_accuracy_from_their_own_sigmas():
     assert at_checks(old, ControlPointSettings()).cp_rmse_h_m is None
 
 
+def test_the_at_height_row_does_not_coarsen_the_finest_class_where_no_finer_height_limit_is_shipped():
+    """s6-fixes 5: the AT height limits are shipped for 1:5000 and 1:10000 only; the height row was ranked 1:5000, so
+    every AT's finest class met moved from the plan rows' 1:1000 to 1:5000. Meeting 1:5000's height limit says
+    nothing of the finer scales: the plan rows give the class; a height meeting only 1:10000's still bounds it."""
+    at = CheckSet(rmse_h_m=0.05, rmse_v_m=0.488, n_h=30, n_v=30)
+    comp = judge(Figures(at=at), Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat"))
+    (plan, h) = _by(comp, "Aerotriangulation")
+    assert plan.finest_class == "1:500" and h.finest_rank is None
+    assert {p.product: p.finest_class for p in comp.products}["Aerotriangulation"] == "1:500"
+    # hilly: 2.0 m at both scales; a height of 2.5 m meets neither: unranked as before (no finer class claimed)
+    comp = judge(Figures(at=dataclasses.replace(at, rmse_v_m=2.5)),
+                 Choice("cn-at", "1:5000 hilly", "t", scale="1:5000", terrain="hilly"))
+    assert {p.product: p.verdict for p in comp.products}["Aerotriangulation"] == "fail"
+
+
 def test_the_finest_class_met_never_passes_over_a_coarser_class_it_fails():
     """cn-at's feature limits: 0.6 m at 1:1000 and 1.2 m at 1:2000 (GB/T 7931) but 0.5 m at 1:5000 and 1:10000 (the
     design table): a DOM of 0.3 m meets them all (finest 1:1000); one of 0.7 m meets 1:2000's limit but fails the
@@ -558,3 +708,173 @@ def test_the_pdf_first_page_gives_the_whole_headline_and_every_row(tmp_path, mon
     assert max(len(line) for line in own.split("\n")) <= 125
     verdict_rows = [r for t in tables if t and len(t[0]) == 6 for r in t]
     assert len(verdict_rows) == 45 and len(tables[0]) < 45   # every row, the rest on the following pages
+
+
+def test_the_vva_row_judges_the_check_points_by_the_surveys_sigma(tmp_path):
+    # trial-qa: the LBS VVA row said "accuracy unknown" beside an NVA row judged "accurate enough" by the same
+    # [qa] survey_sigma_z_m (the vegetated points are surveyed as the open ones)
+    import numpy as np
+
+    _dem_checked_alone(tmp_path, open_dz_m=0.05)
+    path = tmp_path / "lidar_out" / "height_check.json"
+    hc = json.loads(path.read_text())
+    forest = [p for p in hc["points"] if p["group"] == "forest"]
+    for p, dz in zip(forest, (0.31, -0.12, 0.05, 0.27, -0.40, 0.08)):
+        p["dz_dem_m"] = dz
+    path.write_text(json.dumps(hc))
+    p95 = float(np.percentile(np.abs([p["dz_dem_m"] for p in forest]), 95))   # numpy's linear: 0.3775 m
+    for sigma, accurate, verdict in ((0.01, True, "fail"), (0.06, False, "not testable"), (None, None, "fail")):
+        (tmp_path / "project.toml").write_text(PROJECT + ("" if sigma is None else f"[qa]\nsurvey_sigma_z_m = {sigma}\n"))
+        rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL2")
+        nva, vva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+        assert vva["measured"] == pytest.approx(p95, abs=1e-4) and vva["n_points"] == 6
+        assert vva["checkpoints_accurate"] is accurate is nva["checkpoints_accurate"], sigma
+        assert vva["verdict"] == verdict, (sigma, vva["why"])   # 0.3775 > 0.30; survey 0.06 > 0.10 / 2: not judged
+        if sigma is not None:
+            assert f"check points {sigma:.3f} m ([qa] survey_sigma" in vva["checkpoints_note"]
+            assert "needs <= 0.050 m" in vva["checkpoints_note"]
+        rep = write_qa_report(tmp_path, standard="asprs2023", accuracy_class="H10 V10")   # reported, never judged
+        nva, vva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+        assert vva["verdict"] == "reported" and vva["checkpoints_accurate"] is accurate is nva["checkpoints_accurate"]
+
+
+def test_check_points_outside_the_data_are_counted_out_and_named(tmp_path):
+    # trial-qa: a check point with no DEM under it was dropped from the compliance rows without a word (Autzen: 3
+    # points 5,000 ft outside the data); now each row names its points outside the data, and a minimum number of
+    # check points is judged on those used
+    from aerotri.qa.report import compliance_lines
+    from lidarctl.checks.heights import check_heights_file
+
+    _dem_checked_alone(tmp_path, open_dz_m=0.05)
+    lines = (tmp_path / "points.csv").read_text().splitlines()
+    kept = lines[:1] + lines[1:29] + lines[35:]                       # 28 open, 6 forest points on the DEM
+    off = ["X0,499000.000,3400050.000,100.0,open", "X1,500050.000,3401000.000,100.0,open",
+           "X2,500050.000,3398000.000,100.0,open", "X3,501500.000,3400050.000,100.0,forest"]
+    (tmp_path / "points.csv").write_text("\n".join(kept + off) + "\n")
+    check = check_heights_file(None, tmp_path / "points.csv", dem_path=tmp_path / "lidar_out" / "dem.tif")
+    (tmp_path / "lidar_out" / "height_check.json").write_text(check.to_json())
+    rep = write_qa_report(tmp_path, standard="asprs2023", accuracy_class="H10 V10")
+    nva, vva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert nva["n_points"] == 28 and nva["n_outside"] == 3 and list(nva["outside_ids"]) == ["X0", "X1", "X2"]
+    assert vva["n_points"] == 6 and vva["n_outside"] == 1 and list(vva["outside_ids"]) == ["X3"]
+    # 31 open points in the file, 28 used: the ASPRS minimum of 30 is not met
+    assert nva["verdict"] == "not testable" and nva["why"].startswith("28 check points, 30 required")
+    # (sf-fixes: they were said to be "outside the data", also when in a gap of the DEM: the reason is said)
+    off_dem = "with no valid cell of the DEM dem.tif under them"
+    assert nva["why"].endswith(f"3 more {off_dem}"), nva["why"]
+    assert f"3 check points {off_dem}, not counted (X0, X1, X2)" in nva["checkpoints_note"]
+    assert nva["outside_why"] == off_dem and not nva["outside_unknown_ids"]
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert f"28 (30 check points required); 3 {off_dem}, not counted: X0, X1, X2" in html
+    row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]      # the verdict table's row says so too
+    assert "at 28 non-vegetated surveyed points" in row.quantity
+    # (sf-fixes: the non-vegetated row named the forest point X3 too)
+    assert row.note == f"3 surveyed points {off_dem}, not counted: X0, X1, X2"
+    assert any(f"(limit 0.1 m*; 28 check points, 30 check points required, accuracy unknown, 3 {off_dem}, not "
+               f"counted: X0, X1, X2); 28 check points, 30 required (the figure would pass); 3 more {off_dem}"
+               in ln for ln in compliance_lines(rep.compliance))
+    for standard in ("usgs-lbs", "cn-at"):
+        rep = write_qa_report(tmp_path, standard=standard)
+        nva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"][0]
+        assert nva["n_points"] == 28 and list(nva["outside_ids"]) == ["X0", "X1", "X2"], standard
+    rep = write_qa_report(tmp_path, standard="thesis")                # every point: the forest one too
+    (dem,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert dem["n_points"] == 34 and list(dem["outside_ids"]) == ["X0", "X1", "X2", "X3"]
+    # inside the data: nothing said
+    (tmp_path / "inside").mkdir()
+    rep = write_qa_report(_dem_checked_alone(tmp_path / "inside"), standard="usgs-lbs")
+    assert all(c["n_outside"] == 0 and "not counted" not in c["checkpoints_note"] for c in rep.compliance["checks"])
+
+
+def test_the_pdf_compliance_table_wraps_long_cells_inside_the_page(tmp_path, monkeypatch):
+    # trial-qa: the PDF's compliance table drew each cell on one line: the verdict's reason and the check points'
+    # cell ran over the next columns and past the page's right edge
+    import matplotlib.axes
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from aerotri.core.project import Project
+    from aerotri.qa.report import write_pdf
+
+    tables = []
+    real_table = matplotlib.axes.Axes.table
+    monkeypatch.setattr(matplotlib.axes.Axes, "table",
+                        lambda self, *a, **k: tables.append(t := real_table(self, *a, **k)) or t)
+    _dem_checked_alone(tmp_path)
+    write_qa_report(tmp_path, standard="cn-at")
+    rep = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    for c in rep["compliance"]["checks"]:                     # a long list of ids outside the data
+        c["n_outside"], c["outside_ids"] = 40, [f"far-away-point-{i:03d}" for i in range(40)]
+    write_pdf(tmp_path / "r.pdf", rep, Project.open(tmp_path), [])
+    comp = [t for t in tables if len(t.get_celld()) and t.get_celld()[0, 0].get_text().get_text() == "product"
+            and max(c for _, c in t.get_celld()) == 9]
+    assert comp
+    longest = max(len(c["why"]) + len(c["verdict"]) for c in rep["compliance"]["checks"])
+    assert longest > 100                                      # the verdict cell of one row: "not testable: not ..."
+    n_rows = 0
+    for t in comp:
+        fig = t.figure
+        canvas = FigureCanvasAgg(fig)                        # (the PDF's figures are closed)
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        page = fig.bbox
+        for (r, c), cell in t.get_celld().items():
+            box, text = cell.get_window_extent(renderer), cell.get_text().get_window_extent(renderer)
+            assert box.x0 >= page.x0 and box.x1 <= page.x1 and box.y0 >= page.y0 and box.y1 <= page.y1, (r, c)
+            assert text.x0 >= box.x0 - 0.5 and text.x1 <= box.x1 + 0.5, (r, c, cell.get_text().get_text())
+            assert text.y0 >= box.y0 - 0.5 and text.y1 <= box.y1 + 0.5, (r, c, cell.get_text().get_text())
+        n_rows += max(r for r, _ in t.get_celld())
+    assert n_rows == len(rep["compliance"]["checks"])       # every row, none cut off
+    cells = " ".join(cell.get_text().get_text().replace("\n", " ") for t in comp for cell in t.get_celld().values())
+    assert "40 outside the data, not counted: far-away-point-000" in cells and "and 28 more (summary.json)" in cells
+
+
+def test_the_pdf_verdict_table_wraps_the_quantity_inside_its_cell(tmp_path, monkeypatch):
+    """small-fixes2 4: the first page's verdict table cut the quantity at 70 characters ("... (radial, at the check
+    po"); it wraps it now, as the other tables (``wrap_cell``), and pages the rows by their heights."""
+    import matplotlib.axes
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from aerotri.core.project import Project
+    from aerotri.qa.report import write_pdf
+
+    tables = []
+    real_table = matplotlib.axes.Axes.table
+    monkeypatch.setattr(matplotlib.axes.Axes, "table",
+                        lambda self, *a, **k: tables.append(t := real_table(self, *a, **k)) or t)
+    _dem_checked_alone(tmp_path)
+    write_qa_report(tmp_path, standard="cn-at")
+    rep = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    long = ("LiDAR DEM height RMSE against the surveyed check points, non-vegetated groups only, after the strip "
+            "adjustment, with the survey's own sigma combined (the end of a long quantity)")
+    rep["checks"] = [dict(rep["checks"][0], quantity=f"{long} {i}") for i in range(40)]
+    write_pdf(tmp_path / "r.pdf", rep, Project.open(tmp_path), [])
+    verdict = [t for t in tables if t.get_celld()[0, 1].get_text().get_text() == "quantity"
+               and max(c for _, c in t.get_celld()) == 5]
+    assert len(verdict) >= 2                                  # 40 rows of 3 lines: more than the first page
+    texts, n_rows = [], 0
+    for t in verdict:
+        canvas = FigureCanvasAgg(t.figure)
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        page = t.figure.bbox
+        for (r, c), cell in t.get_celld().items():
+            box, text = cell.get_window_extent(renderer), cell.get_text().get_window_extent(renderer)
+            assert box.x0 >= page.x0 and box.x1 <= page.x1 and box.y0 >= page.y0 and box.y1 <= page.y1, (r, c)
+            assert text.x0 >= box.x0 - 0.5 and text.x1 <= box.x1 + 0.5, (r, c, cell.get_text().get_text())
+            assert text.y0 >= box.y0 - 0.5 and text.y1 <= box.y1 + 0.5, (r, c, cell.get_text().get_text())
+            if c == 1 and r > 0:
+                texts.append(cell.get_text().get_text().replace("\n", " "))
+        n_rows += max(r for r, _ in t.get_celld())
+    assert n_rows == 40 and texts == [f"{long} {i}" for i in range(40)]  # every row, its whole quantity
+
+
+def test_the_verdict_table_note_on_one_point_without_a_dz_is_singular():
+    """s6-fixes 6: one point without a dz read "1 surveyed points with no valid cell of the DEM dem.tif under
+    them"."""
+    from aerotri.qa.report import _outside_note
+
+    why = "with no valid cell of the DEM dem.tif under them"
+    assert _outside_note(["P1"], ["open"], "", why).startswith(
+        "1 surveyed point with no valid cell of the DEM dem.tif under it, not counted: P1")
+    assert _outside_note(["P1", "P2"], ["open", "open"], "", why).startswith(
+        "2 surveyed points with no valid cell of the DEM dem.tif under them, not counted: P1, P2")

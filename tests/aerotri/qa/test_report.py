@@ -426,3 +426,13 @@ def test_two_empty_targets_at_one_place_are_named_once(tmp_path):
     row = write_qa_report(p).check("layout_targets_filled")
     assert row.value == "1 of 3"
     assert row.note == f"1 filled by fallbacks; 2 full targets at 452622 3409261: {empty}"
+
+
+def test_details_tables_round_each_number_once():
+    # trial-quick: the demo's strip pair mean 0.04749 m read 0.048 in the Details (rounded to 4 decimals, then to
+    # 3) beside the verdict note's +0.047
+    from aerotri.qa.report import detail_blocks
+
+    (b,) = detail_blocks([dict(a="strip_01", b="strip_02", n_cells=26895, mean_m=0.047490968964754174,
+                               rms_m=0.05099518472945774, tags=[1, 2])])
+    assert [c.text for c in b.table.rows[0]] == ["strip_01", "strip_02", "26895", "0.047", "0.051", "1, 2"]

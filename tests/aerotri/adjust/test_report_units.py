@@ -1,0 +1,114 @@
+"""The adjustment in a feet CRS: the same block in metres and in feet (coordinates / 0.3048, the sigmas and limits in
+metres as everywhere) gives the same adjustment, the same report verdict and the same accuracy-report rows. Before,
+the control sigmas (metres) went into the adjustment as feet (the control held 3.3 x too tightly: gcp01's height
+residual 0.016 ft = 0.005 m against 0.045 m in metres), and the residuals (feet) were judged against the tolerance
+tables' metre limits (check plan RMS 0.366 "m" > 0.140 m, in metres 0.117 m)."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from aerotri.adjust import report
+from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
+from aerotri.adjust.report_record import map_unit_m, read_adjustment_report
+from aerotri.core.records import to_record
+from aerotri.qa.report import build_qa_report
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+FT = 0.3048
+FT_CRS = "+proj=utm +zone=49 +datum=WGS84 +units=ft +vunits=ft +no_defs +type=crs"
+
+
+def _to_feet(src, dst):
+    """A copy of a UTM 49N (EPSG:32649) project in the same projection in international feet."""
+    shutil.copytree(src, dst)
+    toml = (dst / "project.toml").read_text()
+    assert 'crs = "EPSG:32649"' in toml
+    (dst / "project.toml").write_text(toml.replace('crs = "EPSG:32649"', f'crs = "{FT_CRS}"'))
+    lines = (dst / "gnss.txt").read_text().splitlines()
+    out = [lines[0]] + [" ".join([p[0]] + [f"{float(v) / FT:.5f}" for v in p[1:4]] + p[4:])
+                        for p in (ln.split() for ln in lines[1:] if ln.strip())]
+    (dst / "gnss.txt").write_text("\n".join(out) + "\n")
+    lines = (dst / "control" / "points.csv").read_text().splitlines()
+    out = [lines[0]]
+    for ln in lines[1:]:
+        p = ln.split(",")
+        out.append(",".join(p[:2] + [f"{float(v) / FT:.5f}" for v in p[2:5]] + p[5:]))
+    (dst / "control" / "points.csv").write_text("\n".join(out) + "\n")
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    base = tmp_path_factory.mktemp("units")
+    m = write_block_project(geometric_block(2, 5, seed=11), base / "m")
+    write_truth_observations(m, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=6, seed=5)
+    _to_feet(m, base / "ft")
+    st = AdjustSettings(gnss_correction="shift", image_sigma_px=0.3)
+    return {u: run_adjustment(base / u, st, html=False) for u in ("m", "ft")}
+
+
+def test_map_unit_of_the_report():
+    assert map_unit_m(FT_CRS) == pytest.approx((FT, FT, FT))
+    assert map_unit_m("EPSG:32649") == (1.0, 1.0, 1.0) and map_unit_m(None) == (1.0, 1.0, 1.0)
+
+
+def test_control_sigmas_are_metres_in_a_feet_crs(pair):
+    """The same weights: the control residuals in metres agree to 1 mm (before: 3-9 x smaller in feet)."""
+    res = {}
+    for u, r in pair.items():
+        rows = to_record(report.build_report(r.adjustment))["control_points"]
+        res[u] = np.array([row["residual_m"] for row in rows], float) * (FT if u == "ft" else 1.0)
+    assert np.nanmax(np.abs(res["m"])) > 0.01  # residuals to compare
+    assert np.allclose(res["ft"], res["m"], atol=1e-3, equal_nan=True), (res["m"], res["ft"])
+    assert pair["ft"].adjustment.result.sigma0 == pytest.approx(pair["m"].adjustment.result.sigma0, rel=1e-3)
+
+
+def test_verdict_and_normalised_errors_do_not_depend_on_the_unit(pair):
+    """Limits between the metric check plan RMS and the same number read in feet: no finding in either unit (before:
+    the feet block "weak" with its RMS in feet against metres); limits below it: the same findings, in metres."""
+    ba = {u: r.adjustment for u, r in pair.items()}
+    rep = {u: to_record(report.build_report(b)) for u, b in ba.items()}
+    plan_m = rep["m"]["parameters"]["rms_check_m"][3]
+    assert rep["ft"]["parameters"]["rms_check_m"][3] * FT == pytest.approx(plan_m, abs=2e-4)
+    assert np.allclose(rep["ft"]["check_normalised_rms"], rep["m"]["check_normalised_rms"], atol=0.01)
+    import dataclasses
+
+    for factor, found in ((1.5, False), (0.9, True)):
+        st = dataclasses.replace(ba["m"].settings, rms_limit_xy_m=plan_m * factor, residual_limit_m=10.0)
+        ks = {u: to_record(report.build_report(dataclasses.replace(b, settings=st)))["key_statistics"]
+              for u, b in ba.items()}
+        q = {u: [(x["quantity"], round(x["value_m"], 3)) for x in k["tolerances_exceeded"]] for u, k in ks.items()}
+        assert q["ft"] == q["m"], q
+        assert (("check points, plan RMS", round(plan_m, 3)) in q["m"]) is found
+        assert ks["ft"]["verdict"] == ks["m"]["verdict"]
+    # the Parameters table labels the feet as feet (they stood under "(m)" beside the limits in metres)
+    txt = report.format_txt(rep["ft"])
+    assert "RMS Check (ft)" in txt and "RMS Limits (m)" in txt and "RMS Check (m)" in report.format_txt(rep["m"])
+    # the tables below in the unit of their figures too (they read "m" beside feet)
+    assert "OBSERVATIONS (control, ft)" in txt and "Check points (d = adjusted - measured, ft)" in txt
+    assert "Control points (residual = adjusted - given, ft;" in txt and "GNSS residual ft; std dev of position m" in txt
+    assert " ft  chv = " in txt and " m  chv = " not in txt
+    assert "Check points (d = adjusted - measured, m)" in report.format_txt(rep["m"])
+    html = report.format_html(rep["ft"])
+    assert "dX ft" in html and "dZ ft" in html and "GNSS res X ft" in html and "dX m" not in html
+    assert "dX m" in report.format_html(rep["m"])
+
+
+def test_accuracy_report_judges_metres(pair, tmp_path):
+    """The QA rows of the adjustment (control and check RMS, gross errors) have the same values and verdicts; the
+    record's figures are metres (``aerotri adjust`` prints them under "(m)")."""
+    rec = {u: read_adjustment_report(r.report_path) for u, r in pair.items()}
+    assert np.allclose(rec["ft"].check_rms_m, rec["m"].check_rms_m, atol=2e-4)
+    assert np.allclose(rec["ft"].control_rms_m, rec["m"].control_rms_m, atol=1e-3)
+    rows = {}
+    for u, r in pair.items():
+        qa = build_qa_report(r.report_path.parent.parent, scale="1:2000", terrain="flat")
+        rows[u] = {c.id: c for c in qa.checks if c.section in ("Control points", "Aerotriangulation")
+                   and c.id.startswith(("control_rms", "check_rms", "check_gross"))}
+    assert set(rows["m"]) == set(rows["ft"]) and {"check_rms_xy_m", "control_rms_xy_m"} <= set(rows["m"])
+    for k, c in rows["m"].items():
+        assert rows["ft"][k].verdict == c.verdict, k
+        assert rows["ft"][k].value == pytest.approx(c.value, abs=1e-3), k
