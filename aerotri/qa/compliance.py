@@ -404,13 +404,23 @@ def _verdict(figure, limit, n, need, cp_ok, counted: str = "check points") -> tu
     return would, ""
 
 
-def outside_text(ids, why: str = "", unknown=()) -> str:
+OUTSIDE_IDS_SHOWN = 12  # ids of each kind a table cell or console line names (the note and summary.json: all)
+
+
+def outside_text(ids, why: str = "", unknown=(), *, noun: str = "check point", shown: int | None = None) -> str:
     """"3 check points with no valid cell of the DEM dem.tif under them, not counted (P41; land cover unknown: P42,
-    P43)" ("" for none; ``why`` "" says "outside the data")."""
+    P43)": the one wording of the surveyed points without a dz, in the compliance notes, cells and console lines
+    and the verdict table's note ("" for none). ``why`` "" (a summary.json of before sf-fixes) says "outside the
+    data"; one point: "1 check point ... under it"; ``noun`` (plural but for one) after the count; ``shown``: the
+    first ``shown`` ids of each kind, then how many more (``outside_ids_text``; None: all)."""
+    ids = list(ids)
     if not ids:
         return ""
-    return (f"{len(ids)} check point{'s' if len(ids) > 1 else ''} {why or 'outside the data'}, not counted "
-            f"({outside_ids_text(ids, unknown)})")
+    why = why or "outside the data"
+    if len(ids) == 1:
+        why = why.replace(" under them", " under it")
+    return (f"{len(ids)} {noun}{'' if len(ids) == 1 else 's'} {why}, not counted "
+            f"({outside_ids_text(ids, unknown, shown)})")
 
 
 def outside_ids_text(ids, unknown=(), shown: int | None = None) -> str:
@@ -422,7 +432,7 @@ def outside_ids_text(ids, unknown=(), shown: int | None = None) -> str:
     def listed(xs):
         if shown is None or len(xs) <= shown:
             return ", ".join(xs)
-        return ", ".join(xs[:shown]) + f" and {len(xs) - shown} more (summary.json)"
+        return ", ".join(xs[:shown]) + f" and {len(xs) - shown} more in summary.json"
     return "; ".join(([listed(known)] if known else []) + ([f"land cover unknown: {listed(unk)}"] if unk else []))
 
 
