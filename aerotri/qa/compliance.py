@@ -838,6 +838,13 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             # of the finer scales, which have none, so the plan rows alone give the finest class (cn-at ranked it
             # 1:5000 and every product's finest class moved from 1:1000 to 1:5000)
             rank_v = float(F.scale_denominator(met[0])) if met and met[0] != shipped[0] else None
+            fin_v = met[0] if met else None
+            if shipped and not met:  # beyond even the coarsest class's limit: no class met (it had neither class
+                # nor rank, and the product's finest class came from the plan rows alone)
+                coarsest = shipped[-1]
+                fin_v = (f"none (coarser than {coarsest}, the coarsest class shipped: height RMS {cs.rmse_v_m:.3f} m "
+                         f"> its limit {e.height_m(c.terrain, coarsest):g} m)")
+                rank_v = math.inf
             out.append(_check(product, f"{cs.points}, height RMS", c.class_tested, cs.rmse_v_m, cs.rmse_v_m,
                               limit=h_lim, unit="m", n=cs.n_v, need=None, cp_ok=None,
                               cp_note="the specifications set no minimum number of check points",
@@ -845,7 +852,7 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                               source=f"{src}: {e.what}, {e.clause}; {e.evidence}" if h_lim is not None else
                               f"{src}: heights of AT points not shipped for {c.scale} (only 1:5000 and 1:10000, "
                               "the design table's; docs/standards.md)",
-                              finest=met[0] if met else None, rank=rank_v))
+                              finest=fin_v, rank=rank_v))
     lf = figs.lidar
     if lf is not None and (lf.nva_rmse_m is not None or lf.swath_rmsdz_m is not None):
         e = L.spot_height_m

@@ -153,9 +153,16 @@ def test_one_at_height_limit_per_scale_and_standard():
     (_, h) = _by(judge(Figures(at=at), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")),
                  "Aerotriangulation")
     assert h.quantity == "check points, height RMS" and h.limit == 1.0 and h.finest_class == "1:5000"
-    (_, h) = _by(judge(Figures(at=CheckSet(rmse_h_m=0.3, rmse_v_m=1.5, n_h=30, n_v=30)),
-                       Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")), "Aerotriangulation")
-    assert h.verdict == "fail" and h.finest_class is None
+    # small-fixes 5: beyond both shipped limits (1:5000 and 1:10000 flat, 1.0 m) it had no class and no rank, and the
+    # product's finest class came from its plan row alone (1:1000); now it says it fails the coarsest, and why
+    for scale in ("1:5000", "1:1000"):
+        comp = judge(Figures(at=CheckSet(rmse_h_m=0.3, rmse_v_m=1.5, n_h=30, n_v=30)),
+                     Choice("cn-at", f"{scale} flat", "t", scale=scale, terrain="flat"))
+        (p, h) = _by(comp, "Aerotriangulation")
+        assert h.verdict == ("fail" if scale == "1:5000" else "not testable"), scale
+        none = "none (coarser than 1:10000, the coarsest class shipped: height RMS 1.500 m > its limit 1 m)"
+        assert h.finest_class == none and h.finest_rank == math.inf and p.finest_class == "1:1000"
+        assert {q.product: q.finest_class for q in comp.products}["Aerotriangulation"] == none
     (_, h) = _by(judge(Figures(at=at), Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat")),
                  "Aerotriangulation")
     assert h.verdict == "not testable" and h.limit is None and "not shipped for 1:2000" in h.limit_source
