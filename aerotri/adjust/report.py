@@ -116,7 +116,7 @@ def _check_rows(ba) -> tuple[list[dict], np.ndarray, np.ndarray]:
     """Check points: rows, differences (adjusted minus measured; the CRS's unit) and normalised differences (the
     given sigmas, metres, turned into the CRS's unit first)."""
     rows, dchk, nchk = [], [], []
-    unit = map_unit_m(getattr(ba, "crs", None))
+    unit = map_unit_m(getattr(ba, "crs", None), "project crs")
     for pid, c in ba.check.items():
         d = np.array(c["adjusted_m"]) - np.array(c["measured_m"])
         ok = np.all(np.isfinite(d))
@@ -695,6 +695,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     r, opts = ba.result, ba.opts
     s0_um = r.sigma0 * opts.image_sigma_px * ba.camera_apriori.pixel_um
     converged = bool(r.info.converged and math.isfinite(r.sigma0))
+    unit = map_unit_m(getattr(ba, "crs", None), "project crs")
     weak = _weak_modes(ba, height_limit_m)
     failed, weaknesses = [], []
     if not converged:
@@ -714,7 +715,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
                           + _limit(gcc, f"; 1 % false alarms over the block's {gcc.n} estimates") + ": "
                           + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed.")
-        common = common_height_shift_note(ba, gcc, _plan_check(parameters, map_unit_m(getattr(ba, "crs", None))))
+        common = common_height_shift_note(ba, gcc, _plan_check(parameters, unit))
         if common:
             weaknesses.append(common)
     udc = unmodelled_drift_check(ba)
@@ -727,7 +728,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         weaknesses.append(f"GNSS residuals trend along strips beyond {_limit(udc)} and {udc.k:g} standard errors: a "
                           f"drift the solve does not model (gnss_correction = \"{opts.gnss_correction}\"): "
                           + "; ".join(udc.reasons()) + ". " + advice)
-    beyond = tolerance_findings(parameters, map_unit_m(getattr(ba, "crs", None)), **(judged or {})) if parameters else []
+    beyond = tolerance_findings(parameters, unit, **(judged or {})) if parameters else []
     if beyond:
         weaknesses.append(f"Beyond the tolerances of this report, {tolerances}: "
                           + "; ".join(tolerance_text(b) for b in beyond) + ".")
@@ -1109,7 +1110,7 @@ def ground_units(rep: dict) -> tuple[str, str]:
     """The units of the report's ground coordinates and residuals in plan and height, as labels ("m", "ft", "us-ft")."""
     from aerotri.geom.crs.definition import length_unit_name
 
-    u = map_unit_m(rep.get("crs"))
+    u = map_unit_m(rep.get("crs"), "at/report.json crs")
     return length_unit_name(u[0]), length_unit_name(u[2])
 
 

@@ -9,11 +9,15 @@ metres (``map_unit_m``). Image quantities in micrometres (``_um``) or pixels (``
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from aerotri.core.errors import CrsError, InputError
 from aerotri.core.textio import read_record, record_error
+
+log = logging.getLogger(__name__)
 
 ADJUSTMENT_REPORT = "bundle adjustment report (at/report.json)"
 SCHEMA_VERSION = 1
@@ -30,20 +34,27 @@ def _number(v) -> float | None:
     return None if v is None else float(v)
 
 
-def map_unit_m(crs) -> tuple[float, float, float]:
+def map_unit_m(crs, source: str = "CRS") -> tuple[float, float, float]:
     """Metres per unit of the report's ground coordinates and residuals (x, y, z): the project CRS's horizontal
-    unit and the height unit of its horizontal part (the adjustment's map heights, ``LocalFrame``); 1 where the
-    CRS is absent, unreadable or geographic. A feet CRS: 0.3048 (its "_m" keys are feet, the tolerances metres)."""
-    if not crs:
-        return (1.0, 1.0, 1.0)
-    from aerotri.geom.crs.definition import height_unit_m, horizontal_crs, linear_unit_m, parse_crs
+    unit and the height unit of its horizontal part (the adjustment's map heights, ``LocalFrame``). A feet CRS:
+    0.3048 (its "_m" keys are feet, the tolerances metres).
 
-    try:
-        h = horizontal_crs(parse_crs(crs))
-        u = [linear_unit_m(h)] * 2 + [height_unit_m(h)]
-    except Exception:  # noqa: BLE001 - a report of a CRS this PROJ cannot read: judged as metres, as before
+    ``CrsError`` naming ``source`` (the file and key) when PROJ cannot read the CRS or its map axes have no length
+    unit (geographic, geocentric): the adjustment's CRS is projected or local (``check_block_crs``), and a unit taken
+    as metres would scale every ground figure (a feet report judged 3.3 times too loose). No CRS at all (None or "":
+    the adjustment always writes one, so a hand-made report or a test's block): metres, said in a warning."""
+    if not crs:
+        log.warning(f"{source}: no CRS; its ground coordinates and residuals are read as metres")
         return (1.0, 1.0, 1.0)
-    return tuple(float(x) if math.isfinite(x) and x > 0 else 1.0 for x in u)
+    from aerotri.geom.crs.definition import crs_label, height_unit_m, horizontal_crs, linear_unit_m, parse_crs
+
+    h = horizontal_crs(parse_crs(crs, source))
+    u = (linear_unit_m(h),) * 2 + (height_unit_m(h),)
+    if not all(math.isfinite(x) and x > 0 for x in u):
+        kind = "geographic" if h.is_geographic else "geocentric" if h.is_geocentric else "without a length unit"
+        raise CrsError(f"{source}: {crs_label(h)} ({h.name}) is {kind}; expected a projected or local CRS whose "
+                       "axes are in metres or feet (the ground coordinates and residuals are in its unit)")
+    return tuple(float(x) for x in u)
 
 
 @dataclass(frozen=True)
@@ -144,7 +155,7 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
     # a plan-only check point has dZ None (its height was not surveyed): NaN here, left out of height figures
     # the report's ground figures are in the project CRS's unit (feet in a feet CRS): metres here, as the
     # tolerance tables and the stages after the adjustment read them
-    unit = map_unit_m(d.get("crs"))
+    unit = map_unit_m(d.get("crs"), f"{path}: crs")
     residuals = tuple(tuple(math.nan if x is None else float(x) * u for x, u in zip(c["d_m"], unit)) for c in checks
                       if c.get("d_m") and any(x is not None for x in c["d_m"]))
     sigma = options.get("image_sigma_px")
@@ -168,5 +179,7 @@ def read_adjustment_report(path) -> AdjustmentRecord:
     d = read_record(path, ADJUSTMENT_REPORT, SCHEMA_VERSION)
     try:
         return adjustment_record(d, path)
+    except InputError:  # already names the file and key (a CRS whose unit cannot be read)
+        raise
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, ADJUSTMENT_REPORT, exc) from None

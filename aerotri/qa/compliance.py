@@ -404,13 +404,23 @@ def _verdict(figure, limit, n, need, cp_ok, counted: str = "check points") -> tu
     return would, ""
 
 
-def outside_text(ids, why: str = "", unknown=()) -> str:
+OUTSIDE_IDS_SHOWN = 12  # ids of each kind a table cell or console line names (the note and summary.json: all)
+
+
+def outside_text(ids, why: str = "", unknown=(), *, noun: str = "check point", shown: int | None = None) -> str:
     """"3 check points with no valid cell of the DEM dem.tif under them, not counted (P41; land cover unknown: P42,
-    P43)" ("" for none; ``why`` "" says "outside the data")."""
+    P43)": the one wording of the surveyed points without a dz, in the compliance notes, cells and console lines
+    and the verdict table's note ("" for none). ``why`` "" (a summary.json of before sf-fixes) says "outside the
+    data"; one point: "1 check point ... under it"; ``noun`` (plural but for one) after the count; ``shown``: the
+    first ``shown`` ids of each kind, then how many more (``outside_ids_text``; None: all)."""
+    ids = list(ids)
     if not ids:
         return ""
-    return (f"{len(ids)} check point{'s' if len(ids) > 1 else ''} {why or 'outside the data'}, not counted "
-            f"({outside_ids_text(ids, unknown)})")
+    why = why or "outside the data"
+    if len(ids) == 1:
+        why = why.replace(" under them", " under it")
+    return (f"{len(ids)} {noun}{'' if len(ids) == 1 else 's'} {why}, not counted "
+            f"({outside_ids_text(ids, unknown, shown)})")
 
 
 def outside_ids_text(ids, unknown=(), shown: int | None = None) -> str:
@@ -422,7 +432,7 @@ def outside_ids_text(ids, unknown=(), shown: int | None = None) -> str:
     def listed(xs):
         if shown is None or len(xs) <= shown:
             return ", ".join(xs)
-        return ", ".join(xs[:shown]) + f" and {len(xs) - shown} more (summary.json)"
+        return ", ".join(xs[:shown]) + f" and {len(xs) - shown} more in summary.json"
     return "; ".join(([listed(known)] if known else []) + ([f"land cover unknown: {listed(unk)}"] if unk else []))
 
 
@@ -828,6 +838,13 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             # of the finer scales, which have none, so the plan rows alone give the finest class (cn-at ranked it
             # 1:5000 and every product's finest class moved from 1:1000 to 1:5000)
             rank_v = float(F.scale_denominator(met[0])) if met and met[0] != shipped[0] else None
+            fin_v = met[0] if met else None
+            if shipped and not met:  # beyond even the coarsest class's limit: no class met (it had neither class
+                # nor rank, and the product's finest class came from the plan rows alone)
+                coarsest = shipped[-1]
+                fin_v = (f"none (coarser than {coarsest}, the coarsest class shipped: height RMS {cs.rmse_v_m:.3f} m "
+                         f"> its limit {e.height_m(c.terrain, coarsest):g} m)")
+                rank_v = math.inf
             out.append(_check(product, f"{cs.points}, height RMS", c.class_tested, cs.rmse_v_m, cs.rmse_v_m,
                               limit=h_lim, unit="m", n=cs.n_v, need=None, cp_ok=None,
                               cp_note="the specifications set no minimum number of check points",
@@ -835,7 +852,7 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                               source=f"{src}: {e.what}, {e.clause}; {e.evidence}" if h_lim is not None else
                               f"{src}: heights of AT points not shipped for {c.scale} (only 1:5000 and 1:10000, "
                               "the design table's; docs/standards.md)",
-                              finest=met[0] if met else None, rank=rank_v))
+                              finest=fin_v, rank=rank_v))
     lf = figs.lidar
     if lf is not None and (lf.nva_rmse_m is not None or lf.swath_rmsdz_m is not None):
         e = L.spot_height_m

@@ -281,15 +281,13 @@ def _outside_note(ids, groups, which: str, why: str) -> str:
     """The verdict table's note on the surveyed points without a dz (they are not in the RMSE): a row of
     non-vegetated points (``which``, ``judged_dz``) names those not of a vegetated group, those of unknown land
     cover marked so."""
-    from aerotri.qa.compliance import vegetated
+    from aerotri.qa.compliance import OUTSIDE_IDS_SHOWN, outside_text, vegetated
 
     veg = [vegetated(g) for g in groups] if len(groups) == len(ids) else [None] * len(ids)
     keep = [(i, v) for i, v in zip(ids, veg) if not (which and v is True)]
     # (land cover matters only to a row of non-vegetated points: the others count every point)
-    if len(keep) == 1:  # one point: "1 surveyed point with no valid cell of the DEM dem.tif under it"
-        why = why.replace(" under them", " under it")
-    return (outside_cell([i for i, _ in keep], why, [i for i, v in keep if v is None] if which else (),
-                         noun="surveyed point") if keep else "")
+    return outside_text([i for i, _ in keep], why, [i for i, v in keep if v is None] if which else (),
+                        noun="surveyed point", shown=OUTSIDE_IDS_SHOWN)
 
 
 def judged_dz(dz_m, groups, nva: bool) -> tuple[list[float], str]:
@@ -299,7 +297,7 @@ def judged_dz(dz_m, groups, nva: bool) -> tuple[list[float], str]:
     vegetated points and points without a group left out; vegetated points have their own limit (LBS VVA p95) or
     none (ASPRS 2023)). Otherwise every point (""): the map-scale tables and a user's own table limit the height
     RMS "of the LiDAR ground against surveyed points", forest points included."""
-    from aerotri.qa.compliance import vegetated
+    from aerotri.qa.compliance import OUTSIDE_IDS_SHOWN, outside_text, vegetated
 
     veg = [vegetated(g) for g in groups] if nva and len(groups) == len(dz_m) else []
     if not any(v is not None for v in veg):
@@ -768,23 +766,12 @@ def _num(v, star: bool = False) -> str:
     return "" if v is None else f"{v:.4g}" + ("*" if star else "")
 
 
-OUTSIDE_IDS_SHOWN = 12  # ids of the check points without a dz in a table cell (all in summary.json)
-
-
-def outside_cell(ids, why: str = "", unknown=(), noun: str = "") -> str:
-    """"3 with no valid cell of the DEM dem.tif under them, not counted: P41; land cover unknown: P42, P43" (the
-    first ``OUTSIDE_IDS_SHOWN`` ids of each, then how many more; ``why`` "" - a summary.json of before sf-fixes -
-    says "outside the data"); ``noun`` after the count, plural but for one ("3 surveyed points with ...")."""
-    from aerotri.qa.compliance import outside_ids_text
-
-    ids = list(ids)
-    count = f"{len(ids)} {noun}{'' if len(ids) == 1 else 's'}" if noun else f"{len(ids)}"
-    return (f"{count} {why or 'outside the data'}, not counted: "
-            f"{outside_ids_text(ids, unknown, shown=OUTSIDE_IDS_SHOWN)}")
-
-
 def _row_outside_cell(c: dict) -> str:
-    return outside_cell(c.get("outside_ids") or (), c.get("outside_why") or "", c.get("outside_unknown_ids") or ())
+    """A compliance check's points without a dz, for its table cell and console line (``outside_text``)."""
+    from aerotri.qa.compliance import OUTSIDE_IDS_SHOWN, outside_text
+
+    return outside_text(c.get("outside_ids") or (), c.get("outside_why") or "", c.get("outside_unknown_ids") or (),
+                        shown=OUTSIDE_IDS_SHOWN)
 
 
 def compliance_row(c: dict) -> list:

@@ -193,13 +193,16 @@ class StripAdjustResult:
     # what holds the block's position: the fixed strip, the control points, or the block's mean height
     datum: str = ""
     schema_version: int = chk.SCHEMA_VERSION
+    # what check_before's and check_after's NMAD are (the strip check's, ``chk.NMAD_DEFINITION``); None: an
+    # adjust.json written before it was said
+    nmad_definition: str | None = chk.NMAD_DEFINITION
 
     def to_json(self) -> str:
         """adjust.json's text."""
         out = {"schema_version": self.schema_version}
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if f.name in ("schema_version", "control"):
+            if f.name in ("schema_version", "control") or (f.name == "nmad_definition" and v is None):
                 continue
             if f.name == "settings":
                 v = dataclasses.asdict(v)
@@ -235,7 +238,8 @@ def read_strip_adjustment(path) -> StripAdjustResult:
                                     "strong_correlations": tuple(Correlation(**c) for c in d["strong_correlations"]),
                                     "check_before": chk.DiffStats.of_record(d["check_before"]),
                                     "check_after": chk.DiffStats.of_record(d["check_after"]),
-                                    "files": tuple(d["files"]), "control": control})
+                                    "files": tuple(d["files"]), "control": control,
+                                    "nmad_definition": d.get("nmad_definition")})
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, what, exc) from None
 

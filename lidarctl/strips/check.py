@@ -3,7 +3,8 @@
 Per pair (A, B) the differences dz = z_B - z_A of the common planar cells (``overlap``) with their mean,
 RMS, standard deviation and NMAD (1.4826 x the median absolute deviation from the median: the spread
 without the blunders); per strip the same over the differences of its pairs, signed as "this strip
-minus the other" (a strip that is too high has a positive mean). Against the across-track position
+minus the other" (a strip that is too high has a positive mean), and over all pairs; the NMAD of a strip
+and of all pairs is about each pair's own median (``NMAD_DEFINITION``, strips.json "nmad_definition"). Against the across-track position
 of strip A: the differences binned by A's scan angle, and a line dz = c + s u + q u^2 fitted over the
 across-track position u (m): s (m/m) is the relative roll of the two strips (a roll error tilts a strip
 across its track), q (1/m) its torsion-like bending; s is also given in degrees.
@@ -39,6 +40,9 @@ log.addHandler(logging.NullHandler())
 NMAD_K = 1.4826
 SCAN_BIN_DEG = 2.0
 FILES = ("strips.json", "index.html")
+NMAD_DEFINITION = ("1.4826 x the median of |dz - the median dz of the cell's own pair|: per pair over its cells, per "
+                   "strip over its pairs' cells, for all pairs over every pair's cells (a scan-angle bin: about its "
+                   "own median)")  # strips.json "nmad_definition", adjust.json too
 
 
 SCHEMA_VERSION = 1  # strips.json: the layout of ``StripCheckResult.to_json``
@@ -170,6 +174,9 @@ class StripCheckResult:
     seconds: float | None = None
     points_per_s: float | None = None
     schema_version: int = SCHEMA_VERSION
+    # what the NMADs are (``NMAD_DEFINITION``); None: a strips.json written before it was said (its strips' NMAD
+    # pooled about one median, its all pairs' too before trial-quick)
+    nmad_definition: str | None = NMAD_DEFINITION
 
     def to_json(self) -> str:
         """strips.json's text."""
@@ -193,7 +200,9 @@ def _pair_record(p: PairCheck) -> dict:
 
 
 def _check_record(r: StripCheckResult) -> dict:
-    out = {"schema_version": r.schema_version, "convention": r.convention, "cell_m": r.cell_m, "crs": r.crs,
+    out = {"schema_version": r.schema_version, "convention": r.convention,
+           **({"nmad_definition": r.nmad_definition} if r.nmad_definition is not None else {}),
+           "cell_m": r.cell_m, "crs": r.crs,
            **r.units.as_dict(), "points": r.points,
            "strips": [{**{f.name: getattr(t, f.name) for f in dataclasses.fields(t)},
                        "minus_others": to_record(t.minus_others, drop_none=True)} for t in r.strips],
@@ -222,7 +231,8 @@ def _check_of(d: dict) -> StripCheckResult:
     return StripCheckResult(d["convention"], d["cell_m"], d["crs"], units, d["points"], strips,
                             tuple(_pair_of(p) for p in d["pairs"]), d["skipped_pairs"], DiffStats.of_record(d["all_pairs"]),
                             SurfaceSettings(**d["surface"]), d.get("map_colour_limit_m"), d.get("overview_png"),
-                            d.get("seconds"), d.get("points_per_s"), d.get("schema_version", SCHEMA_VERSION))
+                            d.get("seconds"), d.get("points_per_s"), d.get("schema_version", SCHEMA_VERSION),
+                            d.get("nmad_definition"))
 
 
 def read_strip_check(path) -> StripCheckResult | None:
@@ -264,15 +274,21 @@ def stats(dz: np.ndarray) -> DiffStats:
                      p95_abs_m=float(np.percentile(np.abs(dz), 95)))
 
 
-def all_pairs_stats(dz_per_pair: list[np.ndarray]) -> DiffStats:
-    """``stats`` of every pair's dz together, but the NMAD about each pair's own median: which strip of a pair is
-    a is arbitrary, so pooled signed differences of pairs offset in opposite directions (the demo's +0.047 and
-    -0.043 m) made a bimodal spread whose NMAD (0.061 m) exceeded the RMS and every pair's NMAD (0.018 m)."""
-    pooled = stats(np.concatenate(dz_per_pair))
+def pairs_stats(dz_per_pair: list[np.ndarray]) -> DiffStats:
+    """``stats`` of the pairs' dz together, but the NMAD about each pair's own median (``NMAD_DEFINITION``): the
+    statistics of all pairs and of a strip against the others. Which strip of a pair is a is arbitrary, so pooled
+    signed differences of pairs offset in opposite directions (the demo's +0.047 and -0.043 m) made a bimodal spread
+    whose NMAD (0.061 m) exceeded the RMS and every pair's NMAD (0.018 m); a strip high against one neighbour and
+    low against another made the same of its "minus others"."""
+    dz_per_pair = [np.asarray(d, float) for d in dz_per_pair]
+    pooled = stats(np.concatenate(dz_per_pair) if dz_per_pair else np.zeros(0))
     if pooled.n_cells == 0:
         return pooled
     within = np.concatenate([d - np.median(d) for d in dz_per_pair if len(d)])
     return dataclasses.replace(pooled, nmad_m=float(NMAD_K * np.median(np.abs(within))))
+
+
+all_pairs_stats = pairs_stats  # (its name before the strips' statistics took it too)
 
 
 def scan_profile(dz: np.ndarray, angle_deg: np.ndarray, u_m: np.ndarray, bin_deg: float = SCAN_BIN_DEG) -> ScanProfile:
@@ -434,15 +450,14 @@ def analyse(ss: StripSet, params: SurfaceSettings, paths, min_cells: int = 20) -
                                   pair_offset_3d(by_name[p.a], by_name[p.b]), different_surface_cells=p.apart_cells))
     strip_out = []
     for s in ss.strips:
-        d = np.concatenate(per_strip[s.name]) if per_strip[s.name] else np.zeros(0)
         strip_out.append(StripCheck(s.name, str(s.source.path), s.source.point_source_id, s.n_points,
-                                    int(len(s.ids)), sum(1 for p in pairs if s.name in (p.a, p.b)), stats(d)))
-    all_dz = np.concatenate([p.dz_m for p in pairs])
+                                    int(len(s.ids)), sum(1 for p in pairs if s.name in (p.a, p.b)),
+                                    pairs_stats(per_strip[s.name])))
     summary = StripCheckResult(
-        "dz = z_b - z_a per pair at the cell centres (metres); per strip: this strip minus the others; all pairs: "
-        "NMAD about each pair's own median",
+        "dz = z_b - z_a per pair at the cell centres (metres); per strip: this strip minus the others; NMAD about "
+        "each pair's own median",
         ss.grid.cell_m, ss.crs.to_string() if ss.crs is not None else None, ss.units, ss.n_points, tuple(strip_out),
-        tuple(pair_out), skipped, all_pairs_stats([p.dz_m for p in pairs]),
+        tuple(pair_out), skipped, pairs_stats([p.dz_m for p in pairs]),
         dataclasses.replace(params, cell_m=ss.grid.cell_m))
     return CheckResult(summary, pairs, ss)
 

@@ -891,8 +891,9 @@ def preview_frame(mv: MapVectors) -> tuple[float, float, float, float] | None:
 
 
 def _image_window(image, frame):
-    """The orthophoto's pixels over ``frame`` (at most about 2000 px a side) and their bounds, None when it does not
-    cover any of it (the whole image without a frame)."""
+    """The orthophoto's pixels over ``frame`` (at most about 2000 px a side), where they hold data (its mask:
+    nodata, alpha or the internal mask; False over its nodata margin) and their bounds; None when it does not cover
+    any of it (the whole image without a frame)."""
     import rasterio
     from rasterio.enums import Resampling
     from rasterio.windows import Window, from_bounds
@@ -913,9 +914,11 @@ def _image_window(image, frame):
                 return None
         f = max(1, int(np.ceil(max(win.width, win.height) / 2000)))
         n = min(3, src.count)
+        shape = (max(1, int(win.height) // f), max(1, int(win.width) // f))
         data = src.read(indexes=list(range(1, n + 1)), window=win, resampling=Resampling.average,
-                        out_shape=(n, max(1, int(win.height) // f), max(1, int(win.width) // f)))
-        return data, src.window_bounds(win)
+                        out_shape=(n, *shape))
+        ok = src.dataset_mask(window=win, out_shape=shape, resampling=Resampling.nearest) > 0
+        return data, ok, src.window_bounds(win)
 
 
 def preview_png(mv: MapVectors, path, image=None, title: str = "") -> Path:
@@ -934,12 +937,19 @@ def preview_png(mv: MapVectors, path, image=None, title: str = "") -> Path:
         if got is None:
             note = " (the orthophoto does not cover the data)"
         else:
-            data, (left, bottom, right, top) = got
+            data, ok, (left, bottom, right, top) = got
             img = np.moveaxis(data, 0, -1)
             img = img[..., 0] if img.shape[-1] < 3 else img
             if img.dtype != np.uint8:
-                img = np.clip(img / max(float(np.nanpercentile(img, 99)), 1e-9), 0, 1)
-            ax.imshow(img, extent=(left, right, bottom, top), cmap="gray", alpha=0.6)
+                scale = float(np.nanpercentile(img[ok], 99)) if ok.any() else 1.0
+                img = np.clip(img / max(scale, 1e-9), 0, 1)
+            # the nodata margin transparent (the page's white), as the maps elsewhere: drawn, it was a dark grey
+            # band (black at alpha 0.6) that read as data; the orthophoto's own pixels at alpha 0.6
+            if img.ndim == 2:
+                img = np.ma.masked_array(img, ~ok)
+            else:
+                img = np.dstack([img.astype(float) / (255.0 if img.dtype == np.uint8 else 1.0), ok * 0.6])
+            ax.imshow(img, extent=(left, right, bottom, top), cmap="gray", alpha=None if img.ndim == 3 else 0.6)
     draw_layers(ax, {ly.name: ly.geometries for ly in mv.layers})
     if frame is not None:
         ax.set_xlim(frame[0], frame[2])

@@ -494,3 +494,44 @@ def test_a_cloud_without_road_returns_says_where_roads_come_from(made, tmp_path)
     assert r.exit_code == 0, r.output
     assert "roads 0, road_centrelines 0" in r.output
     assert "the clouds hold no road returns (class 11)" in r.output and "classify ... --image DOM.tif" in r.output
+
+
+@pytest.mark.parametrize("bands", [3, 1])
+def test_the_previews_orthophoto_nodata_is_the_page_not_dark_grey(tmp_path, monkeypatch, bands):
+    # small-fixes 6 (trial-quick: the demo's vectors.png drew the mosaic's nodata margin dark grey, 0 at alpha 0.6,
+    # like data): the orthophoto's nodata is transparent, the page's white; its pixels as before (alpha 0.6)
+    import pyproj
+    import rasterio
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from rasterio.transform import from_origin
+
+    import lidarctl.vectors.layers as L
+    from lidarctl.units import LengthUnits
+
+    figs = []
+    monkeypatch.setattr(L, "save_png", lambda fig, path, **k: figs.append(fig))
+    img = np.zeros((bands, 100, 100), np.uint8)                             # the west half nodata (0)
+    img[:, :, 50:] = np.array([120, 140, 100][:bands], np.uint8)[:, None, None] if bands == 3 else \
+        np.linspace(50, 250, 50).astype(np.uint8)[None, None, :]
+    with rasterio.open(tmp_path / "dom.tif", "w", driver="GTiff", width=100, height=100, count=bands, dtype="uint8",
+                       crs="EPSG:32632", nodata=0, transform=from_origin(1000.0, 2000.0, 1.0, 1.0)) as dst:
+        dst.write(img)
+    mv = L.MapVectors([], pyproj.CRS("EPSG:32632"), LengthUnits(), L.VectorCounts(0, None, 0, 0, 0, 0),
+                      extent=(1010.0, 1910.0, 1090.0, 1990.0))
+    L.preview_png(mv, tmp_path / "v.png", image=tmp_path / "dom.tif")
+    canvas = FigureCanvasAgg(figs[-1])
+    canvas.draw()
+    rgba = np.asarray(canvas.buffer_rgba())
+    (ax,) = figs[-1].axes
+
+    def pixel(x, y):
+        col, row = ax.transData.transform((x, y))
+        return rgba[int(round(rgba.shape[0] - row)), int(round(col)), :3].astype(int)
+
+    for y in (1915.0, 1950.0, 1985.0):
+        assert pixel(1020.0, y).tolist() == [255, 255, 255], y             # was 102 grey
+        if bands == 3:                                                      # 0.6 of the pixel over the white page
+            expected = 255 - 0.6 * (255 - np.array([120, 140, 100]))
+            assert np.abs(pixel(1080.0, y) - expected).max() <= 2, (y, pixel(1080.0, y))
+        else:
+            assert pixel(1080.0, y).max() < 250, y

@@ -334,9 +334,9 @@ def test_points_off_the_data_under_density_groups_are_named_in_the_nva_and_vva_r
         assert ("2 check points with no valid cell of the DEM dem.tif under them, not counted (land cover unknown: "
                 "X0, X1)") in row["checkpoints_note"], row["checkpoints_note"]
     lines = compliance_lines(rep.compliance)
-    assert sum("not counted: land cover unknown: X0, X1" in ln for ln in lines) == 2, lines
+    assert sum("not counted (land cover unknown: X0, X1)" in ln for ln in lines) == 2, lines
     # the verdict table judges the open points only under the LBS NVA limit: the off-data points named there too
     row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
     assert "at 8 non-vegetated surveyed points" in row.quantity
-    assert row.note == ("2 surveyed points with no valid cell of the DEM dem.tif under them, not counted: land cover "
-                        "unknown: X0, X1")
+    assert row.note == ("2 surveyed points with no valid cell of the DEM dem.tif under them, not counted (land cover "
+                        "unknown: X0, X1)")

@@ -232,3 +232,22 @@ def test_overview_halving_is_the_mean_of_the_valid_samples():
     # levels until the coarsest fits one 512 px block, as GDAL's COG driver makes them
     assert overview_factors(2505, 3661) == [2, 4, 8]
     assert overview_factors(512, 300) == [] and overview_factors(513, 10) == [2]
+
+
+def test_the_overlaps_masked_mean_is_opencvs_mean_to_the_bit():
+    """small-fixes 2: ``_masked_mean`` (cv2.mean, the gains) and ``_masked_mean_std`` (cv2.meanStdDev, the offsets'
+    spreads) were twins; the one left gives the gains' means bit for bit as cv2.mean did, so the default gains and
+    mosaics keep their bytes (every type ``reduce_frames`` keeps, random masks)."""
+    from ortho.mosaic import _RESIZABLE, _masked_mean_std
+
+    rng = np.random.default_rng(3)
+    for t in _RESIZABLE:
+        for _ in range(20):
+            h, w = rng.integers(1, 120, 2)
+            a = (rng.random((h, w, 3)) * (200 if np.dtype(t).kind != "f" else 1e5)).astype(t)
+            mask = rng.random((h, w)) < rng.random()
+            mask[0, 0] = True
+            mean, std = _masked_mean_std(a, mask)
+            m8 = mask.view(np.uint8)
+            assert mean.tolist() == [cv2.mean(np.ascontiguousarray(a[:, :, b]), mask=m8)[0] for b in range(3)], t
+            assert np.allclose(std, a[mask].astype(np.float64).std(axis=0), rtol=1e-9, atol=1e-6), t

@@ -6,6 +6,9 @@ tables' metre limits (check plan RMS 0.366 "m" > 0.140 m, in metres 0.117 m)."""
 
 from __future__ import annotations
 
+import json
+import logging
+import re
 import shutil
 
 import numpy as np
@@ -14,6 +17,7 @@ import pytest
 from aerotri.adjust import report
 from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
 from aerotri.adjust.report_record import map_unit_m, read_adjustment_report
+from aerotri.core.errors import CrsError
 from aerotri.core.records import to_record
 from aerotri.qa.report import build_qa_report
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
@@ -50,9 +54,26 @@ def pair(tmp_path_factory):
     return {u: run_adjustment(base / u, st, html=False) for u in ("m", "ft")}
 
 
-def test_map_unit_of_the_report():
+def test_map_unit_of_the_report(caplog):
     assert map_unit_m(FT_CRS) == pytest.approx((FT, FT, FT))
-    assert map_unit_m("EPSG:32649") == (1.0, 1.0, 1.0) and map_unit_m(None) == (1.0, 1.0, 1.0)
+    assert map_unit_m("EPSG:32649") == (1.0, 1.0, 1.0)
+    # no CRS (the adjustment always writes one): metres, said
+    with caplog.at_level(logging.WARNING):
+        assert map_unit_m(None, "r.json: crs") == (1.0, 1.0, 1.0)
+    assert "r.json: crs: no CRS; its ground coordinates and residuals are read as metres" in caplog.text
+
+
+@pytest.mark.parametrize("crs, expected", [("EPSG:99999", "unknown CRS 'EPSG:99999'"),
+                                            ("EPSG:4326", "EPSG:4326 (WGS 84) is geographic; expected a projected")])
+def test_a_report_crs_without_a_known_length_unit_is_refused(tmp_path, crs, expected):
+    """A CRS this PROJ cannot read or in degrees: an error naming the file and key (it was read as metres: a feet
+    report's figures 3.3 x too large against the metre limits)."""
+    with pytest.raises(CrsError, match=re.escape(expected)):
+        map_unit_m(crs, "at/report.json: crs")
+    path = tmp_path / "report.json"
+    path.write_text(json.dumps({"schema_version": 1, "crs": crs, "counts": {}, "check_rms_m": [0.1, 0.1, 0.1]}))
+    with pytest.raises(CrsError, match=re.escape(f"{path}: crs: {expected}")):
+        read_adjustment_report(path)
 
 
 def test_control_sigmas_are_metres_in_a_feet_crs(pair):

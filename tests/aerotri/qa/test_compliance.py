@@ -153,9 +153,16 @@ def test_one_at_height_limit_per_scale_and_standard():
     (_, h) = _by(judge(Figures(at=at), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")),
                  "Aerotriangulation")
     assert h.quantity == "check points, height RMS" and h.limit == 1.0 and h.finest_class == "1:5000"
-    (_, h) = _by(judge(Figures(at=CheckSet(rmse_h_m=0.3, rmse_v_m=1.5, n_h=30, n_v=30)),
-                       Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")), "Aerotriangulation")
-    assert h.verdict == "fail" and h.finest_class is None
+    # small-fixes 5: beyond both shipped limits (1:5000 and 1:10000 flat, 1.0 m) it had no class and no rank, and the
+    # product's finest class came from its plan row alone (1:1000); now it says it fails the coarsest, and why
+    for scale in ("1:5000", "1:1000"):
+        comp = judge(Figures(at=CheckSet(rmse_h_m=0.3, rmse_v_m=1.5, n_h=30, n_v=30)),
+                     Choice("cn-at", f"{scale} flat", "t", scale=scale, terrain="flat"))
+        (p, h) = _by(comp, "Aerotriangulation")
+        assert h.verdict == ("fail" if scale == "1:5000" else "not testable"), scale
+        none = "none (coarser than 1:10000, the coarsest class shipped: height RMS 1.500 m > its limit 1 m)"
+        assert h.finest_class == none and h.finest_rank == math.inf and p.finest_class == "1:1000"
+        assert {q.product: q.finest_class for q in comp.products}["Aerotriangulation"] == none
     (_, h) = _by(judge(Figures(at=at), Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat")),
                  "Aerotriangulation")
     assert h.verdict == "not testable" and h.limit is None and "not shipped for 1:2000" in h.limit_source
@@ -762,17 +769,20 @@ def test_check_points_outside_the_data_are_counted_out_and_named(tmp_path):
     # (sf-fixes: they were said to be "outside the data", also when in a gap of the DEM: the reason is said)
     off_dem = "with no valid cell of the DEM dem.tif under them"
     assert nva["why"].endswith(f"3 more {off_dem}"), nva["why"]
-    assert f"3 check points {off_dem}, not counted (X0, X1, X2)" in nva["checkpoints_note"]
+    # (small-fixes 3: one wording, ``outside_text``, in the note, the cell, the console and the verdict table; the
+    # cell and console read "3 with ..., not counted: X0, X1, X2" beside the note's "3 check points ... (X0, X1, X2)")
+    said = f"3 check points {off_dem}, not counted (X0, X1, X2)"
+    assert said in nva["checkpoints_note"]
     assert nva["outside_why"] == off_dem and not nva["outside_unknown_ids"]
     html = (tmp_path / "reports" / "index.html").read_text()
-    assert f"28 (30 check points required); 3 {off_dem}, not counted: X0, X1, X2" in html
+    assert f"28 (30 check points required); {said}" in html
     row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]      # the verdict table's row says so too
     assert "at 28 non-vegetated surveyed points" in row.quantity
     # (sf-fixes: the non-vegetated row named the forest point X3 too)
-    assert row.note == f"3 surveyed points {off_dem}, not counted: X0, X1, X2"
-    assert any(f"(limit 0.1 m*; 28 check points, 30 check points required, accuracy unknown, 3 {off_dem}, not "
-               f"counted: X0, X1, X2); 28 check points, 30 required (the figure would pass); 3 more {off_dem}"
-               in ln for ln in compliance_lines(rep.compliance))
+    assert row.note == f"3 surveyed points {off_dem}, not counted (X0, X1, X2)"
+    assert any(f"(limit 0.1 m*; 28 check points, 30 check points required, accuracy unknown, {said}); 28 check "
+               f"points, 30 required (the figure would pass); 3 more {off_dem}" in ln
+               for ln in compliance_lines(rep.compliance))
     for standard in ("usgs-lbs", "cn-at"):
         rep = write_qa_report(tmp_path, standard=standard)
         nva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"][0]
@@ -825,7 +835,8 @@ def test_the_pdf_compliance_table_wraps_long_cells_inside_the_page(tmp_path, mon
         n_rows += max(r for r, _ in t.get_celld())
     assert n_rows == len(rep["compliance"]["checks"])       # every row, none cut off
     cells = " ".join(cell.get_text().get_text().replace("\n", " ") for t in comp for cell in t.get_celld().values())
-    assert "40 outside the data, not counted: far-away-point-000" in cells and "and 28 more (summary.json)" in cells
+    assert "40 check points outside the data, not counted (far-away-point-000" in cells
+    assert "and 28 more in summary.json)" in cells
 
 
 def test_the_pdf_verdict_table_wraps_the_quantity_inside_its_cell(tmp_path, monkeypatch):
@@ -875,6 +886,26 @@ def test_the_verdict_table_note_on_one_point_without_a_dz_is_singular():
 
     why = "with no valid cell of the DEM dem.tif under them"
     assert _outside_note(["P1"], ["open"], "", why).startswith(
-        "1 surveyed point with no valid cell of the DEM dem.tif under it, not counted: P1")
+        "1 surveyed point with no valid cell of the DEM dem.tif under it, not counted (P1)")
     assert _outside_note(["P1", "P2"], ["open", "open"], "", why).startswith(
-        "2 surveyed points with no valid cell of the DEM dem.tif under them, not counted: P1, P2")
+        "2 surveyed points with no valid cell of the DEM dem.tif under them, not counted (P1, P2)")
+
+
+def test_points_without_a_dz_are_said_in_one_wording_everywhere():
+    """small-fixes 3: the compliance note said "3 check points ..., not counted (X0, X1, X2)", its table cell and
+    console line "3 ..., not counted: X0, X1, X2" (two helpers), and the note "1 check point ... under them"."""
+    from aerotri.qa.compliance import OUTSIDE_IDS_SHOWN, outside_text
+    from aerotri.qa.report import _outside_note, _row_outside_cell
+
+    why = "with no valid cell of the DEM dem.tif under them"
+    ids = [f"P{i}" for i in range(3)]
+    said = f"3 check points {why}, not counted (P0, P1, P2)"
+    assert outside_text(ids, why) == _row_outside_cell(dict(outside_ids=ids, outside_why=why)) == said
+    assert _outside_note(ids, ["open"] * 3, "", why) == said.replace("check points", "surveyed points")
+    assert outside_text(["P0"], why) == "1 check point with no valid cell of the DEM dem.tif under it, not counted (P0)"
+    # a cell names the first OUTSIDE_IDS_SHOWN of each kind; unknown land cover after; the note all
+    many = [f"P{i}" for i in range(OUTSIDE_IDS_SHOWN + 2)] + ["U0"]
+    cell = _row_outside_cell(dict(outside_ids=many, outside_why="", outside_unknown_ids=["U0"]))
+    assert cell == (f"{len(many)} check points outside the data, not counted ("
+                    + ", ".join(many[:OUTSIDE_IDS_SHOWN]) + " and 2 more in summary.json; land cover unknown: U0)")
+    assert outside_text(many, "", ["U0"]).endswith(", ".join(many[:-1]) + "; land cover unknown: U0)")

@@ -51,6 +51,7 @@ def test_strip_model_brings_the_differences_to_the_noise_level(strip_adjusted, c
     # the check after the adjustment, as its strips.json says, is the one adjust.json quotes
     after = read_strip_check(out / "check_after" / "strips.json")
     assert after.all_pairs == s.check_after
+    assert s.nmad_definition == after.nmad_definition is not None  # and of one NMAD (small-fixes 4)
     # its strips are the corrected files where they are, not in the temporary folder they were written to
     assert [t.file for t in after.strips] == [str(out / f) for f in s.files] and all(Path(t.file).is_file()
                                                                                    for t in after.strips)

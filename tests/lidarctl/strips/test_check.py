@@ -94,6 +94,17 @@ def test_all_pairs_nmad_does_not_mix_pairs_offset_in_opposite_directions(shifted
         within.append(d - np.median(d))
     assert a.nmad_m == pytest.approx(1.4826 * np.median(np.abs(np.concatenate(within))), abs=2e-4)
     assert f"NMAD {a.nmad_m:.3f} m" in r.output
+    # small-fixes 4: so is each strip's "minus the others" (strip 2 is +0.15 m against strip 1 and +0.20 m against
+    # strip 3: pooled about one median its NMAD was 0.037 m against 0.022 m), and strips.json says which NMAD it is
+    s2 = next(t for t in s.strips if t.name == "strip_2").minus_others
+    assert s2.nmad_m == pytest.approx(1.4826 * np.median(np.abs(np.concatenate(within))), abs=2e-4)
+    assert s2.nmad_m <= max(p.diff.nmad_m for p in s.pairs) + 1e-9
+    for t in s.strips:
+        if t.pairs == 1:  # one pair: its own NMAD
+            (p,) = [p for p in s.pairs if t.name in (p.a, p.b)]
+            assert t.minus_others.nmad_m == pytest.approx(p.diff.nmad_m, abs=1e-12)
+    d = json.loads((tmp_path / "out" / "strips.json").read_text())
+    assert d["nmad_definition"] == s.nmad_definition and "the median dz of the cell's own pair" in d["nmad_definition"]
 
 
 def test_one_file_split_by_point_source_id(shifted_block, tmp_path):
