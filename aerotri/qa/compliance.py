@@ -517,11 +517,12 @@ def asprs_class_cm(text: str | None) -> tuple[float, float] | None:
 
 
 def choose(standard: str | None, class_text: str | None, table: ToleranceTable, block, qa, terrain: str | None,
-           lidar_only: bool = False) -> Choice:
+           lidar_only: bool = False, scale: str | None = None) -> Choice:
     """The standard and class to test, and why: the arguments (command line), else ``[qa]`` standard /
     accuracy_class (and horizontal_class_cm, vertical_class_cm, map_scale, terrain), else the report's
     tolerance table (chosen by platform and GSD): an ASPRS table asprs2023, a map-scale table cn-at, or for a
-    ``lidar_only`` project thesis (the map-scale table's own LiDAR limits; cn-at has none at 1:5000-1:10000)."""
+    ``lidar_only`` project thesis (the map-scale table's own LiDAR limits; cn-at has none at 1:5000-1:10000).
+    ``scale``: --scale, the verdict table's map scale, after the class and before ``[qa] map_scale`` (as the table)."""
     std_src = "--standard" if standard else "project.toml [qa] standard"
     std = standard or qa.standard
     std = {"cn": "cn-at"}.get(std, std)
@@ -573,11 +574,15 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
             why += f"; {lbs.default_level_reason}"
         return Choice("usgs-lbs", lvl, why, level=lvl)
     scales = list(cn_at().standard.scales) if std == "cn-at" else list(SCALE_TABLES)
+    given_scale = scale
     if cls:
         scale = cls.strip().replace(" ", "")
         if scale not in scales:
             raise OptionError(f"--class {cls!r}: expected a map scale {', '.join(scales)}", param="--class")
         why += f"; map scale {scale} from {cls_src}"
+    elif given_scale:  # --scale: the verdict table's (it said [qa] map_scale's 1:5000 beside a 1:2000 table)
+        scale = given_scale
+        why += "; map scale from --scale"
     elif qa.map_scale:
         scale = qa.map_scale
         why += "; map scale from project.toml [qa] map_scale"
@@ -976,8 +981,8 @@ def with_lbs_lidar_limits(table: ToleranceTable, level: str, lidar_only: bool = 
 
 def project_compliance(project: Project, table: ToleranceTable, block, standard: str | None = None,
                        class_text: str | None = None, terrain: str | None = None,
-                       lidar_only: bool = False) -> Compliance:
+                       lidar_only: bool = False, scale: str | None = None) -> Compliance:
     """The compliance section of a project's report (``table``: the report's tolerance table, ``block``: its
-    BlockScale; ``lidar_only``: a project without frames, ``lidar_only_project``)."""
-    choice = choose(standard, class_text, table, block, project.qa, terrain, lidar_only)
+    BlockScale; ``lidar_only``: a project without frames, ``lidar_only_project``; ``scale``: --scale)."""
+    choice = choose(standard, class_text, table, block, project.qa, terrain, lidar_only, scale)
     return judge(project_figures(project, density=choice.key in DENSITY_STANDARDS), choice)

@@ -413,8 +413,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     lidar_only = lidar_only_project(project)
     table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
-                         lidar_only=lidar_only)
-    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain, lidar_only)
+                         lidar_only=lidar_only, accuracy_class=accuracy_class)
+    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain, lidar_only, scale)
     if compliance.key == "usgs-lbs":
         table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
     if lidar_only:

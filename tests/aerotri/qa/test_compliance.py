@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.core.errors import OptionError
+from aerotri.core.tolerances import load_table
 from aerotri.qa.compliance import CheckSet, Choice, Figures, LidarFigures, choose, judge, vegetated
 from aerotri.qa.report import write_qa_report
 
@@ -318,6 +319,33 @@ def test_report_summary_html_and_cli_carry_the_compliance_section(tmp_path):
     assert "class 1:1000 flat" in res.output
     res = CliRunner().invoke(main, ["report", str(p), "--standard", "usgs-lbs", "--class", "QL7"])
     assert res.exit_code == 2 and "--class 'QL7'" in res.output
+
+
+def test_map_scale_class_judges_the_verdict_table_at_that_scale(tmp_path):
+    """--standard cn-at --class 1:2000 (and [qa] accuracy_class) chooses the verdict table of 1:2000, as the
+    compliance section's class; --scale the compliance section's scale (trial-qa 2026-12-01: the verdict table
+    stayed at the default 1:5000, AT plan limit 0.35 m, beside a compliance section at 1:2000; --scale 1:2000 beside
+    [qa] map_scale 1:5000 gave a 1:2000 table and a 1:5000 compliance section)."""
+    p = _project(tmp_path, 32)
+    rep = write_qa_report(p, standard="cn-at", accuracy_class="1:2000")
+    assert rep.table["key"] == "1:2000" and "from --class" in rep.table["reason"]
+    assert rep.check("check_rms_xy_m").limit == load_table("1:2000", "flat").limits["rms_xy_m"] == 0.14
+    assert rep.compliance["class_tested"] == "1:2000 flat"
+    # a scale without a table (cn-at 1:1000): the table is chosen as before, and the reason says why
+    rep = write_qa_report(p, standard="cn-at", accuracy_class="1:1000")
+    assert rep.table["key"] == "1:5000" and "class 1:1000 from --class has no map-scale table" in rep.table["reason"]
+    (p / "project.toml").write_text(PROJECT + '[control]\nsigma_xy_m = 0.01\nsigma_z_m = 0.02\n\n[qa]\n'
+                                    'standard = "thesis"\naccuracy_class = "1:10000"\nmap_scale = "1:5000"\n')
+    rep = write_qa_report(p)
+    assert rep.table["key"] == "1:10000" and rep.compliance["class_tested"] == "1:10000 flat"
+    rep = write_qa_report(p, standard="cn-at", scale="1:2000")
+    assert rep.table["key"] == "1:2000"
+    assert rep.compliance["class_tested"] == "1:10000 flat"  # the class still comes first
+    (p / "project.toml").write_text(PROJECT + '[qa]\nmap_scale = "1:5000"\n')
+    rep = write_qa_report(p, standard="cn-at", scale="1:2000")
+    assert rep.table["key"] == "1:2000" and rep.compliance["class_tested"] == "1:2000 flat"
+    rep = write_qa_report(p, standard="cn-at")  # [qa] map_scale with --standard cn-at: the table's scale too
+    assert rep.table["key"] == "1:5000" and rep.compliance["class_tested"] == "1:5000 flat"
 
 
 def _dem_checked_alone(tmp_path, open_dz_m=0.05, forest_dz_m=0.2):
