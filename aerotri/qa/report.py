@@ -1013,14 +1013,16 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         cells, colours = [], []
         for r in rep["checks"]:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
+            # the note as the page's: what was not counted, why a row is not judged (the PDF had no note column:
+            # "1 surveyed point with no valid cell of the DEM under it, not counted: X0" was on the page only)
             cells.append([r["section"], r["quantity"], _cell(r["value"]), _cell(r["limit"]) + star, r["unit"],
-                          r["verdict"] or ""])
+                          r["verdict"] or "", r.get("note") or ""])
             c = {"pass": "#ccffcc", "fail": "#ffcccc"}.get(r["verdict"], "white")
-            colours.append(["white"] * 5 + [c])
+            colours.append(["white"] * 5 + [c, "white"])
         ax = fig.add_axes([0.03, 0.03, 0.94, top - 0.03])
         ax.axis("off")
-        header = ["section", "quantity", "value", "limit", "unit", "verdict"]
-        widths = [0.14, 0.52, 0.1, 0.08, 0.05, 0.07]
+        header = ["section", "quantity", "value", "limit", "unit", "verdict", "note"]
+        widths = [0.11, 0.33, 0.07, 0.06, 0.04, 0.06, 0.29]
         # every cell wrapped to its column as the other tables' (the quantity was cut at 70 characters); the rows the
         # page holds under the headline by their heights (a one-line row at scale 1.1 takes 0.0225 of the page's
         # height, measured on the demo's page, the header one; each further line 1.2 x 7.5 pt of its 1.1 x 1.2 x 10

@@ -734,7 +734,7 @@ def test_the_pdf_first_page_gives_the_whole_headline_and_every_row(tmp_path, mon
     assert " ".join(title.split("\n")) == f"Compliance: {rep['compliance']['name']}, class 1:5000 flat"
     assert " ".join(own.split("\n")) == headline[:1].upper() + headline[1:]
     assert max(len(line) for line in own.split("\n")) <= 125
-    verdict_rows = [r for t in tables if t and len(t[0]) == 6 for r in t]
+    verdict_rows = [r for t in tables if t and len(t[0]) == 7 for r in t]   # (trial-qa: a note column)
     assert len(verdict_rows) == 45 and len(tables[0]) < 45   # every row, the rest on the following pages
 
 
@@ -877,7 +877,7 @@ def test_the_pdf_verdict_table_wraps_the_quantity_inside_its_cell(tmp_path, monk
     rep["checks"] = [dict(rep["checks"][0], quantity=f"{long} {i}") for i in range(40)]
     write_pdf(tmp_path / "r.pdf", rep, Project.open(tmp_path), [])
     verdict = [t for t in tables if t.get_celld()[0, 1].get_text().get_text() == "quantity"
-               and max(c for _, c in t.get_celld()) == 5]
+               and max(c for _, c in t.get_celld()) == 6]
     assert len(verdict) >= 2                                  # 40 rows of 3 lines: more than the first page
     texts, n_rows = [], 0
     for t in verdict:
@@ -894,6 +894,35 @@ def test_the_pdf_verdict_table_wraps_the_quantity_inside_its_cell(tmp_path, monk
                 texts.append(cell.get_text().get_text().replace("\n", " "))
         n_rows += max(r for r, _ in t.get_celld())
     assert n_rows == 40 and texts == [f"{long} {i}" for i in range(40)]  # every row, its whole quantity
+
+
+def test_the_pdf_verdict_table_carries_the_notes(tmp_path, monkeypatch):
+    """trial-qa 2026-12-01: the PDF's verdict table had no note column, so the points a row did not count (Autzen:
+    "1 surveyed point with no valid cell of the DEM dem.tif under it, not counted: X0") and why a row is not judged
+    were on the HTML page only; the client's PDF said "DEM height RMSE at 35 surveyed points" with nothing else."""
+    import matplotlib.axes
+
+    from aerotri.core.project import Project
+    from aerotri.qa.report import write_pdf
+    from lidarctl.checks.heights import check_heights_file
+
+    tables = []
+    real_table = matplotlib.axes.Axes.table
+    monkeypatch.setattr(matplotlib.axes.Axes, "table",
+                        lambda self, *a, **k: tables.append(k.get("cellText")) or real_table(self, *a, **k))
+    _dem_checked_alone(tmp_path)
+    with open(tmp_path / "points.csv", "a") as f:
+        f.write("X0,499000.000,3400050.000,100.0,open\n")
+    check = check_heights_file(None, tmp_path / "points.csv", dem_path=tmp_path / "lidar_out" / "dem.tif")
+    (tmp_path / "lidar_out" / "height_check.json").write_text(check.to_json())
+    write_qa_report(tmp_path, standard="usgs-lbs")
+    rep = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    write_pdf(tmp_path / "r.pdf", rep, Project.open(tmp_path), [])
+    (first,) = [t for t in tables if t and len(t[0]) == 7]
+    notes = {r[1].replace("\n", " "): r[6].replace("\n", " ") for r in first}
+    row = [c for c in rep["checks"] if c["id"] == "dem_raster_rmse_m"][0]
+    assert notes[row["quantity"]] == row["note"] == ("1 surveyed point with no valid cell of the DEM dem.tif under it, "
+                                                     "not counted: X0")
 
 
 def test_the_verdict_table_note_on_one_point_without_a_dz_is_singular():
