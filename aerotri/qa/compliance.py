@@ -162,12 +162,17 @@ def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
     """The adjustment's check points (at/report.json): radial and height RMSE; their own accuracy from their
     standard deviations in control/points.csv (``given_sigma_m`` of the report's rows: radial sqrt(sx^2 + sy^2)
     and sz, RMS over the points), else ``[control]`` sigma_xy_m / sigma_z_m (a report written before the rows
-    carried them)."""
+    carried them). The rows' ``d_m`` are in the project CRS's unit (feet in a feet CRS, ``map_unit_m``): metres here,
+    as the verdict table reads them (``adjustment_record``); their ``given_sigma_m`` are metres."""
+    from aerotri.adjust.report_record import map_unit_m
+
     if not at:
         return None
     rows = [c for c in at.get("check_points", []) if c.get("d_m")]
-    # None: a coordinate not surveyed (the height of a plan-only check point) or not intersected
-    d = np.array([[np.nan if v is None else v for v in c["d_m"]] for c in rows], dtype=float).reshape(-1, 3)
+    # None: a coordinate not surveyed (the height of a plan-only check point) or not intersected; feet to metres (a
+    # feet project's check points were judged in feet as metres: 0.164 "m" beside the verdict table's 0.050 m)
+    d = np.array([[np.nan if v is None else v for v in c["d_m"]] for c in rows], dtype=float).reshape(-1, 3) \
+        * np.asarray(map_unit_m(at.get("crs")), dtype=float)
     h, v = np.isfinite(d[:, :2]).all(axis=1), np.isfinite(d[:, 2])
     if not h.any() and not v.any():
         return CheckSet(note="no check points in the adjustment")

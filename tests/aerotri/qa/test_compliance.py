@@ -348,6 +348,30 @@ def test_map_scale_class_judges_the_verdict_table_at_that_scale(tmp_path):
     assert rep.table["key"] == "1:5000" and rep.compliance["class_tested"] == "1:5000 flat"
 
 
+def test_at_check_points_of_a_feet_project_are_judged_in_metres(tmp_path):
+    """trial-qa 2026-12-01: at/report.json gives the check points' d_m in the project CRS's unit (feet in a feet
+    CRS; the verdict table scales them, ``adjustment_record``); the compliance section took them as metres: 32 check
+    points 0.03 / 0.04 / 0.05 m off in an Oregon Lambert (ft) project gave RMSE_H 0.1647 "m" (fail of H10's 0.05 m at
+    H42.4cm) beside the verdict table's 0.050 m."""
+    ft = 0.3048
+    (tmp_path / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:2994"\n')
+    (tmp_path / "at").mkdir()
+    pts = [dict(id=f"C{i}", d_m=[0.03 / ft * (-1) ** i, 0.04 / ft, 0.05 / ft * (-1) ** i],
+                given_sigma_m=[0.01, 0.01, 0.02]) for i in range(32)]
+    (tmp_path / "at" / "report.json").write_text(json.dumps(dict(
+        project="t", crs="EPSG:2994", check_rms_m=[0.03 / ft, 0.04 / ft, 0.05 / ft], check_points=pts,
+        key_statistics=dict(sigma0_um=5.1, sigma0_px=0.425, success=True, message="Solution Successful."))))
+    rep = write_qa_report(tmp_path, standard="asprs2023", accuracy_class="H10 V10")
+    assert rep.check("check_rms_xy_m").value == pytest.approx(0.05)
+    plan, height = [c for c in rep.compliance["checks"] if c["product"] == "Aerotriangulation"]
+    assert plan["measured"] == pytest.approx(0.05, abs=1e-4) and height["measured"] == pytest.approx(0.05, abs=1e-4)
+    # the check points' sigmas are metres already: sqrt(2) x 1 cm and 2 cm combined
+    assert plan["figure"] == pytest.approx(math.hypot(0.05, math.sqrt(2) * 0.01), abs=1e-4)
+    assert height["figure"] == pytest.approx(math.hypot(0.05, 0.02), abs=1e-4) and height["verdict"] == "pass"
+    rep = write_qa_report(tmp_path, standard="thesis")
+    assert [c["measured"] for c in rep.compliance["checks"]] == pytest.approx([0.05, 0.05], abs=1e-4)
+
+
 def _dem_checked_alone(tmp_path, open_dz_m=0.05, forest_dz_m=0.2):
     """A LiDAR-only folder: project.toml, lidar_out/dem.tif (a plane) and lidar_out/height_check.json of
     `lidarctl check-heights POINTS.csv --dem dem.tif` at 34 open points (dz +-open_dz_m) and 6 forest points
