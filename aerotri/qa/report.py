@@ -381,9 +381,11 @@ def line_map_rows(project: Project, tol: dict) -> list[QaCheck]:
 
 
 def stage_results(project: Project) -> list:
-    """What the stages leave for the report."""
+    """What the stages leave for the report (the strip check too: a LiDAR delivery's swaths and density are judged
+    without surveyed points; AHN3's strips and DEM read "nothing to report yet ... run the adjustment first")."""
     return [project.adjustment_report_path, project.control_transfer_path, project.dom_report_path,
-            project.height_check_path, project.classification_eval_path]
+            project.height_check_path, project.classification_eval_path, project.strips_check_path,
+            project.strips_check_after_path]
 
 
 def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
@@ -402,7 +404,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             f"{root}: nothing to report yet, no stage has left its results "
             f"({', '.join(str(p.relative_to(root)) for p in stage_results(project))}); "
             f"run the adjustment first (aerotri match {root}, then aerotri adjust {root}) or the whole chain "
-            f"(aerotri run {root})")
+            f"(aerotri run {root})"
+            + (f"; a LiDAR delivery alone: lidarctl strips check STRIPS... {project.strips_dir}, and against surveyed "
+               f"points lidarctl check-heights [CLOUD...] POINTS.csv --dem DEM.tif --json {project.height_check_path}"
+               if lidar_only_project(project) else ""))
     cfg = read_qa_config(root)
     if terrain and terrain not in TERRAINS and not (tolerance_file or cfg.tolerances):
         raise InputError(f"terrain class {terrain!r}: expected one of {', '.join(TERRAINS)}")
