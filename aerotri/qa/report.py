@@ -792,6 +792,16 @@ def _row_outside_cell(c: dict) -> str:
     return outside_cell(c.get("outside_ids") or (), c.get("outside_why") or "", c.get("outside_unknown_ids") or ())
 
 
+def checkpoints_accuracy_text(c: dict, words=("yes", "no")) -> str:
+    """Whether a compliance check's check points are accurate enough: ``words`` for True / False; None is "unknown"
+    when their accuracy is not stated (the note says "not stated"), else "not judged": the standard sets no rule
+    for them (the thesis tables, cn-at's LiDAR and AT height rows), whatever survey accuracy project.toml gives (it
+    read "accuracy unknown" beside [qa] survey_sigma_z_m = 0.01)."""
+    if c["checkpoints_accurate"] is not None:
+        return words[0] if c["checkpoints_accurate"] else words[1]
+    return "unknown" if "not stated" in (c.get("checkpoints_note") or "") else "not judged"
+
+
 def compliance_row(c: dict) -> list:
     """A compliance check as table cells: figure and limit in the check's unit, the limit marked * when its
     number is not confirmed in the standard's text."""
@@ -801,7 +811,7 @@ def compliance_row(c: dict) -> list:
             + (f"; {_row_outside_cell(c)}" if c.get("n_outside") else "")
             if c["n_points"] is not None else "")
     # (no point: no accuracy to judge)
-    acc = {True: "yes", False: "no", None: "unknown"}[c["checkpoints_accurate"]] if c["n_points"] else ""
+    acc = checkpoints_accuracy_text(c) if c["n_points"] else ""
     verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
     return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]), _num(c["figure"]),
             _num(c["limit"], c["limit_confirmed"] is False) + (f" {c['unit']}" if c["limit"] is not None else ""),
@@ -858,7 +868,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
         lines.append(f"  {p['verdict']:<12} {p['product']}: finest class met {p['finest_class']}")
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
-        acc = {True: "accurate enough", False: "not accurate enough", None: "accuracy unknown"}[c["checkpoints_accurate"]]
+        acc = checkpoints_accuracy_text(c, ("accurate enough", "not accurate enough"))
+        acc = acc if c["checkpoints_accurate"] is not None else f"accuracy {acc}"
         pts = f"{c['n_points']} {c.get('counted') or 'check points'}" + \
             (f", {c['n_required']} check points required" if c["n_required"] else "") + (f", {acc}" if c["n_points"] else "") + \
             (f", {_row_outside_cell(c)}" if c.get("n_outside") else "") \

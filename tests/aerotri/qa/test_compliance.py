@@ -959,3 +959,23 @@ def test_the_verdict_table_note_on_one_point_without_a_dz_is_singular():
         "1 surveyed point with no valid cell of the DEM dem.tif under it, not counted: P1")
     assert _outside_note(["P1", "P2"], ["open", "open"], "", why).startswith(
         "2 surveyed points with no valid cell of the DEM dem.tif under them, not counted: P1, P2")
+
+
+def test_check_points_accuracy_not_judged_is_not_called_unknown(tmp_path):
+    """trial-qa 2026-12-01: with [qa] survey_sigma_z_m = 0.01 the cn-at and thesis DEM rows (no accuracy rule for the
+    check points) read "accuracy unknown" (table: "unknown"), as if the survey's accuracy were not stated; "not
+    judged" now, "unknown" only where the standard has a rule and the accuracy is not stated."""
+    from aerotri.qa.report import compliance_lines, compliance_row
+
+    _dem_checked_alone(tmp_path)
+    (tmp_path / "project.toml").write_text(PROJECT + "[qa]\nsurvey_sigma_z_m = 0.01\n")
+    for standard in ("cn-at", "thesis"):
+        rep = write_qa_report(tmp_path, standard=standard)
+        (dem,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+        assert dem["checkpoints_accurate"] is None and compliance_row(dem)[7] == "not judged", standard
+        assert any("accuracy not judged" in ln for ln in compliance_lines(rep.compliance))
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    assert [compliance_row(c)[7] for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"] == ["yes", "yes"]
+    (tmp_path / "project.toml").write_text(PROJECT)
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")      # the LBS's rule, the survey's accuracy not stated
+    assert [compliance_row(c)[7] for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"] == ["unknown"] * 2
