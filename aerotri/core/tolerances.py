@@ -312,7 +312,7 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
     # the report's compliance standards (aerotri/qa/compliance.py) map onto the table families: the Chinese ones
     # onto the map-scale tables, the LiDAR specification onto none (chosen by the block)
     named = std
-    std = {"cn-at": "cn", "thesis": "cn", "usgs-lbs": None}.get(std, std)
+    std = {"cn-at": "cn", "thesis": "cn", "usgs-lbs": None, "asprs2014": None}.get(std, std)
     # a map-scale standard's class is a scale: the verdict table is that scale's, as the compliance section's
     # (aerotri.qa.compliance.choose: --class, [qa] accuracy_class, then [qa] map_scale); --standard cn-at --class
     # 1:2000 judged the compliance at 1:2000 and the verdict table at the GSD's 1:5000
@@ -363,6 +363,8 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
         return load_table(asprs_key(h_cm, v_cm, uas), terrain, None, f"{why}; {plat_why}")
     if gsd is None and lidar_only:
         why = (f"the LBS has no table of its own: the default {DEFAULT_SCALE} table" if named == "usgs-lbs" else
+               f"ASPRS Edition 1 has no table of its own: the default {DEFAULT_SCALE} table" if named == "asprs2014"
+               else
                f"no standard named: the default {DEFAULT_SCALE} table (--standard usgs-lbs or asprs2023 --class, or "
                f"[qa] standard, judges by a LiDAR standard)")
         return cn(DEFAULT_SCALE, why)

@@ -28,7 +28,7 @@ from aerotri.core.project import ControlPointSettings, Project
 from aerotri.core.textio import read_json
 from aerotri.core.tolerances import (SCALE_TABLES, Provenance, ToleranceTable, asprs_classes_for_gsd, asprs_table,
                                      load_table, scale_for_gsd, split_key)
-from aerotri.qa.standards import STANDARD_KEYS, asprs2023, cn_at, usgs_lbs
+from aerotri.qa.standards import STANDARD_KEYS, asprs2014, asprs2023, cn_at, usgs_lbs
 from aerotri.qa.standards import formulas as F
 
 NOT_TESTABLE = "not testable"
@@ -545,6 +545,23 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
     terrain = terrain or qa.terrain or table.terrain or "flat"
     gsd = getattr(block, "gsd_m", None)
     why = f"standard {std} from {std_src}"
+    if std == "asprs2014":
+        # Edition 1's classes are per axis (X: RMSE_x, RMSE_y <= X): only as given, never from the Edition 2 table
+        # or Edition 2's GSD classes (radial)
+        if cls:
+            hv = asprs_class_cm(cls)
+            if hv is None:
+                raise OptionError(f"--class {cls!r}: expected ASPRS classes as 'H<cm> V<cm>', e.g. 'H10 V10' "
+                                  "(Edition 1: H per axis)", param="--class")
+            why += f"; classes H{hv[0]:g} V{hv[1]:g} cm (H per axis) from {cls_src}"
+        elif qa.horizontal_class_cm and qa.vertical_class_cm:
+            hv = (qa.horizontal_class_cm, qa.vertical_class_cm)
+            why += "; classes from project.toml [qa] horizontal_class_cm, vertical_class_cm (H per axis)"
+        else:
+            return Choice("asprs2014", "no class", why + "; no class given (--class 'H<cm> V<cm>'; Edition 1's "
+                                                         "classes by GSD are not shipped): only the finest class met "
+                                                         "is stated")
+        return Choice("asprs2014", f"H{hv[0]:g}cm V{hv[1]:g}cm", why, h_cm=hv[0], v_cm=hv[1])
     if std == "asprs2023":
         if cls:
             m = _ASPRS_CLASS.match(cls)
@@ -706,6 +723,100 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                               lf.swath_rmsdz_m, lf.swath_rmsdz_m, limit=limit, unit="m", n=None, need=None, cp_ok=None,
                               cp_note=lf.swath_note, confirmed=conf, source=source, finest=fin, rank=rank,
                               dimension="V"))
+    return out
+
+
+def _asprs2014(figs: Figures, c: Choice) -> list[ComplianceCheck]:
+    """ASPRS Edition 1 (2014): the class H per axis (radial RMSE_r <= 1.414 H), the NVA stated at 95 % (1.96 RMSE_z
+    <= 1.96 V), the VVA judged (95th percentile of |dz| <= 3 V, at least 5 points), 20 check points, check points 3 x
+    as accurate as the class and not combined into the figure (``asprs2014.toml``)."""
+    d = asprs2014()
+    L = d.limits
+    src = d.standard.name
+    need, need_vva = int(L.check_points_min.value), int(L.vva_check_points_min.value)
+    factor = float(L.checkpoint_accuracy_factor.value)
+    rad = float(L.horizontal_radial_factor.value)
+    lad = asprs2023().ladders
+    lad_h, lad_v = [x / 100 for x in lad.horizontal_cm], [x / 100 for x in lad.vertical_cm]
+    h = None if c.h_cm is None else c.h_cm / 100.0
+    v = None if c.v_cm is None else c.v_cm / 100.0
+    fac_text = f"{factor:g} x finer than the limit ({'' if L.checkpoint_accuracy_factor.confirmed else 'unconfirmed '}" \
+               "Edition 1 rule) needs <="
+
+    def finest(fig, ladder, multiple, dim):
+        if fig is None:
+            return None, None
+        f = F.finest_class(fig / multiple, ladder)
+        return (f"{dim}{100 * f:g}cm" if f is not None else "none of the ladder"), (f if f is not None else math.inf)
+
+    def source(*rules):
+        return all(r.confirmed for r in rules), f"{src}; " + "; ".join(f"{r.clause}: {r.evidence}" for r in rules)
+
+    out = []
+    for product, cs, plan_rules, height_rules in (
+            ("Aerotriangulation", figs.at, (L.at_plan_factor, L.horizontal_radial_factor), (L.at_height_factor,)),
+            ("DOM", figs.dom, (L.horizontal_radial_factor,), None),
+            ("Line map (DLG)", figs.line_map, (L.horizontal_radial_factor,), None)):
+        if cs is None:
+            continue
+        for plan, rules in ((True, plan_rules), (False, height_rules)):
+            if rules is None:
+                continue
+            meas, n, cp = (cs.rmse_h_m, cs.n_h, cs.cp_rmse_h_m) if plan else (cs.rmse_v_m, cs.n_v, cs.cp_rmse_v_m)
+            if meas is None and not plan:
+                continue
+            multiple = math.prod(float(r.value) for r in rules)  # of H: AT plan 0.5 x 1.414, products 1.414
+            limit = None if h is None else multiple * h
+            conf, why_src = source(*rules)
+            cp_ok, cp_note = (None, "no class") if limit is None else _cp_note(cp, limit / factor, cs.cp_source,
+                                                                                fac_text, cs.points)
+            if cs.note:
+                cp_note += f"; {cs.note}"
+            fin, rank = finest(meas, lad_h, multiple, "H")
+            quantity = ("RMSE_r (radial; Edition 1: RMSE_x, RMSE_y <= H, so RMSE_r <= 1.414 H)" if plan
+                        else "RMSE_z (AT for orthoimagery: limit from H)")
+            ch = _check(product, f"{cs.points}, {quantity}", c.class_tested, meas, meas, limit=limit, unit="m", n=n,
+                        need=need, cp_ok=cp_ok, cp_note=cp_note, confirmed=conf, source=why_src, finest=fin,
+                        rank=rank, dimension="H", counted=cs.points)
+            if meas is None:
+                ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
+            out.append(ch)
+    lf = figs.lidar
+    if lf is None:
+        return out
+    nva95 = float(L.nva_95_factor.value)
+    conf, why_src = source(L.nva_95_factor)
+    cp_ok, cp_note = (None, "no class") if v is None else _cp_note(lf.cp_rmse_v_m, v / factor, lf.cp_source, fac_text)
+    fig = None if lf.nva_rmse_m is None else nva95 * lf.nva_rmse_m
+    fin, rank = finest(lf.nva_rmse_m, lad_v, 1.0, "V")
+    ch = _check("LiDAR DEM", f"NVA at 95 % confidence: {nva95:g} x RMSE_z at non-vegetated check points",
+                c.class_tested, lf.nva_rmse_m, fig, limit=None if v is None else nva95 * v, unit="m", n=lf.n_nva,
+                need=need, cp_ok=cp_ok, cp_note=f"{cp_note}; {lf.grouping_note}", confirmed=conf, source=why_src,
+                finest=fin, rank=rank, dimension="V", outside=lf.nva_outside, outside_why=lf.outside_why,
+                outside_unknown=lf.unknown_outside)
+    if fig is None:
+        ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=_none_why(lf, "non-vegetated"))
+    out.append(ch)
+    vf = float(L.vva_p95_factor.value)
+    conf, why_src = source(L.vva_p95_factor)
+    fin, rank = finest(lf.vva_p95_m, lad_v, vf, "V")
+    out.append(_check("LiDAR DEM", "VVA: 95th percentile of |dz| at vegetated check points", c.class_tested,
+                      lf.vva_p95_m, lf.vva_p95_m, limit=None if v is None else vf * v, unit="m", n=lf.n_vva,
+                      need=need_vva, cp_ok=cp_ok, cp_note=f"{cp_note}; {lf.grouping_note}", confirmed=conf,
+                      source=why_src, finest=fin, rank=rank, dimension="V", outside=lf.vva_outside,
+                      outside_why=lf.outside_why, outside_unknown=lf.unknown_outside,
+                      none_why=_none_why(lf, "vegetated")))
+    if lf.swath_rmsdz_m is not None:
+        sf = float(L.swath_rmsdz_factor.value)
+        conf, why_src = source(L.swath_rmsdz_factor)
+        fin, rank = finest(lf.swath_rmsdz_m, lad_v, sf, "V")
+        out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,
+                          lf.swath_rmsdz_m, lf.swath_rmsdz_m, limit=None if v is None else sf * v, unit="m", n=None,
+                          need=None, cp_ok=None, cp_note=lf.swath_note, confirmed=conf, source=why_src, finest=fin,
+                          rank=rank, dimension="V"))
+    if c.h_cm is None:  # no class: nothing judged, and not for want of a limit in the standard
+        out = [dataclasses.replace(ch, why="no class given (--class 'H<cm> V<cm>', H per axis)")
+               if ch.verdict == NOT_TESTABLE and ch.limit is None else ch for ch in out]
     return out
 
 
@@ -924,7 +1035,7 @@ def _thesis(figs: Figures, c: Choice) -> list[ComplianceCheck]:
     return out
 
 
-JUDGES = {"asprs2023": _asprs, "usgs-lbs": _lbs, "cn-at": _cn, "thesis": _thesis}
+JUDGES = {"asprs2023": _asprs, "asprs2014": _asprs2014, "usgs-lbs": _lbs, "cn-at": _cn, "thesis": _thesis}
 
 
 def summarise(checks) -> tuple[ProductCompliance, ...]:
@@ -951,7 +1062,8 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
 def judge(figs: Figures, choice: Choice) -> Compliance:
     """The checks of ``figs`` against ``choice`` and their summary per product."""
     checks = tuple(JUDGES[choice.key](figs, choice))
-    names = {"asprs2023": asprs2023().standard.name, "usgs-lbs": usgs_lbs().standard.name,
+    names = {"asprs2023": asprs2023().standard.name, "asprs2014": asprs2014().standard.name,
+             "usgs-lbs": usgs_lbs().standard.name,
              "cn-at": cn_at().standard.name,
              "thesis": "the thesis' map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml)"}
     unconf = tuple(dict.fromkeys(f"{c.product}: {c.quantity}" for c in checks if c.limit_confirmed is False))

@@ -979,3 +979,46 @@ def test_check_points_accuracy_not_judged_is_not_called_unknown(tmp_path):
     (tmp_path / "project.toml").write_text(PROJECT)
     rep = write_qa_report(tmp_path, standard="usgs-lbs")      # the LBS's rule, the survey's accuracy not stated
     assert [compliance_row(c)[7] for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"] == ["unknown"] * 2
+
+
+def test_asprs2014_judges_edition_1(tmp_path):
+    """--standard asprs2014 (trial-qa 2026-12-01: a contract to ASPRS Edition 1 could only be judged by Edition 2):
+    the class H per axis (RMSE_r <= 1.414 H; the AT's 0.5 of it), the NVA at 95 % (1.96 RMSE_z <= 1.96 V), the VVA
+    judged (p95 <= 3 V, 5 points), 20 check points, the check points' accuracy not added to the figure."""
+    import numpy as np
+
+    (tmp_path / "at").mkdir()
+    p = _project(tmp_path / "at", 32)                     # RMSE_x 0.03, RMSE_y 0.04: RMSE_r 0.05 m; RMSE_z 0.05 m
+    rep = write_qa_report(p, standard="asprs2014", accuracy_class="H10 V10")
+    plan, height = [c for c in rep.compliance["checks"] if c["product"] == "Aerotriangulation"]
+    assert plan["figure"] == plan["measured"] == pytest.approx(0.05, abs=1e-4)     # not combined with the sigmas
+    assert plan["limit"] == pytest.approx(0.5 * 1.4142 * 0.10, abs=1e-4) and plan["verdict"] == "pass"
+    assert plan["n_required"] == 20 and plan["checkpoints_accurate"] is True       # 1.41 cm <= 7.07 cm / 3
+    assert height["limit"] == 0.10 and height["verdict"] == "pass"
+    assert rep.compliance["name"] == "ASPRS Positional Accuracy Standards, Edition 1 (2014)"
+    # the same block under Edition 2's radial class: RMSE_H sqrt(0.05^2 + (sqrt(2) 0.01)^2) > 0.5 H: fail
+    assert write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10").compliance["checks"][0]["verdict"] == "fail"
+    # LiDAR: 25 open points (20 required: testable, Edition 2 wants 30) and 6 forest points with p95 above 3 V
+    (tmp_path / "dem").mkdir()
+    root = _dem_checked_alone(tmp_path / "dem", forest_dz_m=0.45)
+    lines = (root / "points.csv").read_text().splitlines()
+    (root / "points.csv").write_text("\n".join(lines[:26] + lines[35:]) + "\n")
+    from lidarctl.checks.heights import check_heights_file
+
+    check = check_heights_file(None, root / "points.csv", dem_path=root / "lidar_out" / "dem.tif")
+    (root / "lidar_out" / "height_check.json").write_text(check.to_json())
+    dz = [q["dz_dem_m"] for q in check.document["points"]]
+    nva_dz, vva_dz = [d for d, q in zip(dz, check.document["points"]) if q["group"] == "open"], dz[25:]
+    rep = write_qa_report(root, standard="asprs2014", accuracy_class="H10 V10")
+    nva, vva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert nva["n_points"] == 25 and nva["measured"] == pytest.approx(np.sqrt(np.mean(np.square(nva_dz))), abs=1e-4)
+    assert nva["figure"] == pytest.approx(1.96 * nva["measured"], abs=1e-4) and nva["limit"] == pytest.approx(0.196)
+    assert nva["verdict"] == "pass"
+    assert vva["measured"] == pytest.approx(np.percentile(np.abs(vva_dz), 95), abs=1e-4) and vva["limit"] == 0.3
+    assert vva["verdict"] == "fail" and vva["n_required"] == 5
+    assert rep.compliance["products"][0]["verdict"] == "fail"
+    rep2023 = write_qa_report(root, standard="asprs2023", accuracy_class="H10 V10").compliance["checks"]
+    assert [c["verdict"] for c in rep2023 if c["product"] == "LiDAR DEM"] == ["not testable", "reported"]
+    # no class: only the finest class met, and the rows say why they are not judged
+    rep = write_qa_report(root, standard="asprs2014")
+    assert all(c["why"].startswith("no class given") for c in rep.compliance["checks"])
