@@ -186,9 +186,16 @@ def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
         cp_h, cp_v = F.checkpoint_rmse_h(control.sigma_xy_m), control.sigma_z_m
         src = ("[control] sigma_xy_m, sigma_z_m (a-priori accuracy of the control/check points)"
                if control.sigma_xy_m is not None or control.sigma_z_m is not None else "not stated ([control] sigma_*)")
+    # check points that are roof corners of the project's own LiDAR (aerotri control) are not surveyed: the row says
+    # so (the demo's 384 "check points" were all LiDAR corners, named so only in the verdict table's control row)
+    lidar = int(at.get("check_points_from_lidar") or 0)
+    note = (f"{lidar} of the {len(rows)} check points are roof corners of the project's LiDAR (aerotri control), not "
+            "surveyed points: they share its strip offsets, so their agreement does not test the LiDAR's datum"
+            if lidar else "")
     return CheckSet(rmse_h_m=F.rmse_h_of_points(d[h, 0], d[h, 1]) if h.any() else None,
                     rmse_v_m=F.rmse(d[v, 2]) if v.any() else None, n_h=int(h.sum()), n_v=int(v.sum()),
-                    cp_rmse_h_m=cp_h, cp_rmse_v_m=cp_v, cp_source=src)
+                    cp_rmse_h_m=cp_h, cp_rmse_v_m=cp_v, cp_source=src, note=note,
+                    points="LiDAR check points" if lidar and lidar >= len(rows) else "check points")
 
 
 def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:

@@ -553,7 +553,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if chk and None not in chk[:2]:  # chk[2] None: plan-only check points (heights not surveyed), no height row
         n = at.check_points
         need = tol.get("check_points_min")
-        npts = f"{n} points"
+        npts = f"{n} points" + (f" ({'all' if at.check_points_from_lidar >= n else at.check_points_from_lidar} LiDAR "
+                                "roof corners, not surveyed)" if at.check_points_from_lidar else "")
         if need:
             short = f"{need:g} required by {table.name.split(':')[0]}"
             npts += f" ({short}: not testable as the standard asks)" if n < need else f" ({short})"

@@ -1022,3 +1022,23 @@ def test_asprs2014_judges_edition_1(tmp_path):
     # no class: only the finest class met, and the rows say why they are not judged
     rep = write_qa_report(root, standard="asprs2014")
     assert all(c["why"].startswith("no class given") for c in rep.compliance["checks"])
+
+
+def test_lidar_check_points_are_not_called_surveyed(tmp_path):
+    """trial-qa 2026-12-01: the demo's 384 AT check points are all roof corners of its own LiDAR (aerotri control);
+    the compliance rows called them "check points" (the standard's surveyed points) and the verdict table "384 points";
+    both say now what they are (the AT report already did)."""
+    p = _project(tmp_path, 32)
+    path = p / "at" / "report.json"
+    doc = json.loads(path.read_text())
+    path.write_text(json.dumps({**doc, "check_points_from_lidar": 32}))
+    rep = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10")
+    plan = rep.compliance["checks"][0]
+    assert plan["quantity"].startswith("LiDAR check points, ") and plan["counted"] == "LiDAR check points"
+    assert "32 of the 32 check points are roof corners of the project's LiDAR" in plan["checkpoints_note"]
+    assert rep.check("check_rms_xy_m").note.startswith("32 points (all LiDAR roof corners, not surveyed)")
+    path.write_text(json.dumps({**doc, "check_points_from_lidar": 12}))     # some surveyed, some from the LiDAR
+    rep = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10")
+    plan = rep.compliance["checks"][0]
+    assert plan["counted"] == "check points" and "12 of the 32 check points are roof corners" in plan["checkpoints_note"]
+    assert rep.check("check_rms_xy_m").note.startswith("32 points (12 LiDAR roof corners, not surveyed)")
