@@ -540,7 +540,7 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
             z = nd.read(1, window=w, out_shape=shape, masked=True, resampling=Resampling.average)
         unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{ndsm_path} CRS"))
         t = nd.window_transform(w) @ Affine.scale(w.width / shape[1], w.height / shape[0])
-    cell_m = abs(t.a)
+        cell_m = abs(t.a) * metres_per_unit(nd)  # (in feet: objects of 50 ft2, 4.6 m2, counted as buildings)
     high = (np.ma.filled(z.astype(np.float32), 0.0) * unit > min_height_m).astype(np.uint8)
     high = cv2.morphologyEx(high, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     contours, _ = cv2.findContours(high, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)

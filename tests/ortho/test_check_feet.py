@@ -49,3 +49,17 @@ def test_surveyed_points_in_a_dom_in_feet_give_metres(tmp_path):
                     out_stem=tmp_path / "dom_report")
     assert rep.displacement.rms_xy_m == pytest.approx(math.sqrt(5.0) * FT, abs=1e-9)
     assert rep.displacement.rms_xy_gsd == pytest.approx(math.sqrt(5.0), abs=1e-9)
+
+
+def test_roof_outlines_of_an_ndsm_in_feet_are_measured_in_square_metres(tmp_path):
+    """roof_corners_from_ndsm's smallest building (50 m2) was compared with areas in square feet: a 10 x 10 ft shed
+    (9.3 m2) counted as a building in an nDSM in feet."""
+    from ortho.check import roof_corners_from_ndsm
+
+    z = np.zeros((200, 200), np.float32)
+    z[20:30, 20:30] = 10.0            # 10 x 10 ft, 10 ft high: a shed, 9.3 m2
+    z[100:140, 100:140] = 20.0        # 40 x 40 ft: 149 m2, a building
+    crs = CRS.from_epsg(2994)
+    write_geotiff(tmp_path / "ndsm.tif", z, 1000000.0, 800000.0, 1.0, crs)
+    xs, ys = roof_corners_from_ndsm(tmp_path / "ndsm.tif", (1000000.0, 799800.0, 1000200.0, 800000.0), crs)
+    assert len(xs) == 4 and (xs > 1000090.0).all() and (ys < 799910.0).all()   # the building's corners only
