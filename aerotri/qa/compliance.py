@@ -53,6 +53,8 @@ class CheckSet:
     cp_source: str = "not stated"
     note: str = ""
     points: str = "check points"  # what was counted: surveyed check points, or the DOM's ground patches ...
+    rmse_x_m: float | None = None  # per axis (east, north), where the check gives them (ASPRS 2014's classes are
+    rmse_y_m: float | None = None  # per axis)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,6 +197,7 @@ def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
     return CheckSet(rmse_h_m=F.rmse_h_of_points(d[h, 0], d[h, 1]) if h.any() else None,
                     rmse_v_m=F.rmse(d[v, 2]) if v.any() else None, n_h=int(h.sum()), n_v=int(v.sum()),
                     cp_rmse_h_m=cp_h, cp_rmse_v_m=cp_v, cp_source=src, note=note,
+                    rmse_x_m=F.rmse(d[h, 0]) if h.any() else None, rmse_y_m=F.rmse(d[h, 1]) if h.any() else None,
                     points="LiDAR check points" if lidar and lidar >= len(rows) else "check points")
 
 
@@ -218,6 +221,7 @@ def dom_checks(dom_all: dict, qa, *, stale: bool = False) -> CheckSet | None:
         return CheckSet(note="the DOM check measured no patch", points="ground patches")
     h, _, src = _survey_accuracy(qa)
     return CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=int(d.get("count") or 0), cp_rmse_h_m=h, cp_source=src,
+                    rmse_x_m=d.get("rms_e_m"), rmse_y_m=d.get("rms_n_m"),
                     note="ground patches of the DOM matched to the reference orthophoto (phase correlation), not "
                          "surveyed check points; the reference's accuracy stands for theirs", points="ground patches")
 
@@ -230,6 +234,7 @@ def line_map_checks(chk: dict, qa) -> CheckSet | None:
         return CheckSet(note="no building corner matched a reference corner")
     h, _, src = _survey_accuracy(qa)
     return CheckSet(rmse_h_m=float(b["rms_xy_corner_m"]), n_h=int(b["n_matched_corners"]), cp_rmse_h_m=h,
+                    rmse_x_m=b.get("rms_x_corner_m"), rmse_y_m=b.get("rms_y_corner_m"),
                     cp_source=src, note="building corners against the reference outlines' corners, not surveyed check "
                                         "points", points="building corners")
 
@@ -772,15 +777,25 @@ def _asprs2014(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             meas, n, cp = (cs.rmse_h_m, cs.n_h, cs.cp_rmse_h_m) if plan else (cs.rmse_v_m, cs.n_v, cs.cp_rmse_v_m)
             if meas is None and not plan:
                 continue
-            multiple = math.prod(float(r.value) for r in rules)  # of H: AT plan 0.5 x 1.414, products 1.414
+            # Edition 1's class is per axis: the larger of RMSE_x, RMSE_y against X (the AT's 0.5 X) where the check
+            # gives both; else the radial RMSE_r against 1.414 X (equal only for equal axes)
+            per_axis = plan and cs.rmse_x_m is not None and cs.rmse_y_m is not None
+            if per_axis:
+                rules = tuple(r for r in rules if r is not L.horizontal_radial_factor)
+                meas = max(cs.rmse_x_m, cs.rmse_y_m)
+                cp = None if cp is None else cp / math.sqrt(2.0)  # the check points' per-axis RMSE (radial / sqrt 2)
+            multiple = math.prod(float(r.value) for r in rules)  # of H: AT plan 0.5 (x 1.414 radial), products 1 (1.414)
             limit = None if h is None else multiple * h
             conf, why_src = source(*rules)
             cp_ok, cp_note = (None, "no class") if limit is None else _cp_note(cp, limit / factor, cs.cp_source,
                                                                                 fac_text, cs.points)
             if cs.note:
                 cp_note += f"; {cs.note}"
+            if per_axis:
+                cp_note += f"; RMSE_x {cs.rmse_x_m:.4f} m, RMSE_y {cs.rmse_y_m:.4f} m, RMSE_r {cs.rmse_h_m:.4f} m"
             fin, rank = finest(meas, lad_h, multiple, "H")
-            quantity = ("RMSE_r (radial; Edition 1: RMSE_x, RMSE_y <= H, so RMSE_r <= 1.414 H)" if plan
+            quantity = ("larger of RMSE_x, RMSE_y (Edition 1: each <= H)" if per_axis else
+                        "RMSE_r (radial; Edition 1: RMSE_x, RMSE_y <= H, so RMSE_r <= 1.414 H)" if plan
                         else "RMSE_z (AT for orthoimagery: limit from H)")
             ch = _check(product, f"{cs.points}, {quantity}", c.class_tested, meas, meas, limit=limit, unit="m", n=n,
                         need=need, cp_ok=cp_ok, cp_note=cp_note, confirmed=conf, source=why_src, finest=fin,

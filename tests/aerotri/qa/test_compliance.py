@@ -991,9 +991,17 @@ def test_asprs2014_judges_edition_1(tmp_path):
     p = _project(tmp_path / "at", 32)                     # RMSE_x 0.03, RMSE_y 0.04: RMSE_r 0.05 m; RMSE_z 0.05 m
     rep = write_qa_report(p, standard="asprs2014", accuracy_class="H10 V10")
     plan, height = [c for c in rep.compliance["checks"] if c["product"] == "Aerotriangulation"]
-    assert plan["figure"] == plan["measured"] == pytest.approx(0.05, abs=1e-4)     # not combined with the sigmas
-    assert plan["limit"] == pytest.approx(0.5 * 1.4142 * 0.10, abs=1e-4) and plan["verdict"] == "pass"
-    assert plan["n_required"] == 20 and plan["checkpoints_accurate"] is True       # 1.41 cm <= 7.07 cm / 3
+    # per axis: the larger of RMSE_x 0.03 and RMSE_y 0.04 against 0.5 H (not RMSE_r 0.05 against 0.5 x 1.414 H)
+    assert plan["quantity"] == "check points, larger of RMSE_x, RMSE_y (Edition 1: each <= H)"
+    assert plan["figure"] == plan["measured"] == pytest.approx(0.04, abs=1e-4)     # not combined with the sigmas
+    assert plan["limit"] == pytest.approx(0.05) and plan["verdict"] == "pass" and plan["finest_class"] == "H10cm"
+    assert plan["n_required"] == 20 and plan["checkpoints_accurate"] is True       # 1 cm per axis <= 5 cm / 3
+    # a check without per-axis figures: RMSE_r against 1.414 H
+    from aerotri.qa.compliance import CheckSet
+
+    (r,) = judge(Figures(dom=CheckSet(rmse_h_m=0.12, n_h=40, points="ground patches")),
+                 Choice("asprs2014", "H10cm V10cm", "t", h_cm=10.0, v_cm=10.0)).checks
+    assert r.limit == pytest.approx(0.1414, abs=1e-4) and r.verdict == "pass" and "RMSE_r" in r.quantity
     assert height["limit"] == 0.10 and height["verdict"] == "pass"
     assert rep.compliance["name"] == "ASPRS Positional Accuracy Standards, Edition 1 (2014)"
     # the same block under Edition 2's radial class: RMSE_H sqrt(0.05^2 + (sqrt(2) 0.01)^2) > 0.5 H: fail
