@@ -1118,6 +1118,29 @@ def with_lbs_lidar_limits(table: ToleranceTable, level: str, lidar_only: bool = 
                                       "the compliance section")
 
 
+def with_asprs2014_lidar_limits(table: ToleranceTable, class_tested: str) -> ToleranceTable:
+    """The report's table (chosen by the block: Edition 1 has none here) with its LiDAR limits from the ASPRS 2014
+    class the compliance section tests: DEM height RMSE = V at the non-vegetated points (the NVA, 1.96 RMSE_z <=
+    1.96 V), strip RMSDz = 0.8 V, so both sections judge the LiDAR by one number (Autzen: the 1:5000 table's 0.5 m
+    at every point beside the class's 0.196 m at 95 % at the open points). A class text that is not 'H.. V..' ("no
+    class"): the table as it is."""
+    hv = asprs_class_cm(class_tested.replace("cm", ""))
+    if hv is None:
+        return table
+    v, L = hv[1] / 100.0, asprs2014().limits
+    src = f"{asprs2014().standard.name}, V{hv[1]:g}cm"
+    limits = {**table.limits, "dem_rmse_m": v, "strip_rmsdz_m": float(L.swath_rmsdz_factor.value) * v}
+    prov = {**table.provenance,
+            "dem_rmse_m": Provenance(f"{src}: NVA RMSE_z <= V (stated at 95 %: 1.96 RMSE_z <= 1.96 V); the class's "
+                                     "definition recalled, as asprs2023.toml's", False, nva=True),
+            "strip_rmsdz_m": Provenance(f"{src}: swath-to-swath RMSDz <= {L.swath_rmsdz_factor.value:g} V",
+                                        L.swath_rmsdz_factor.confirmed)}
+    return dataclasses.replace(table, limits=limits, provenance=prov,
+                               reason=f"{table.reason}; LiDAR limits (DEM height RMSE {v:g} m at the non-vegetated "
+                                      f"points, strip RMSDz {float(L.swath_rmsdz_factor.value) * v:g} m) from "
+                                      f"{src}, the standard of the compliance section")
+
+
 def project_compliance(project: Project, table: ToleranceTable, block, standard: str | None = None,
                        class_text: str | None = None, terrain: str | None = None,
                        lidar_only: bool = False, scale: str | None = None) -> Compliance:

@@ -1025,6 +1025,11 @@ def test_asprs2014_judges_edition_1(tmp_path):
     assert vva["measured"] == pytest.approx(np.percentile(np.abs(vva_dz), 95), abs=1e-4) and vva["limit"] == 0.3
     assert vva["verdict"] == "fail" and vva["n_required"] == 5
     assert rep.compliance["products"][0]["verdict"] == "fail"
+    # the verdict table (chosen by the block: the 1:5000 table) judges the DEM by the class's NVA too, not 0.5 m at
+    # every point
+    row = rep.check("dem_raster_rmse_m")
+    assert row.limit == 0.10 and "at 25 non-vegetated surveyed points" in row.quantity
+    assert row.value == pytest.approx(nva["measured"], abs=1e-4) and "Edition 1 (2014), V10cm" in row.limit_source
     rep2023 = write_qa_report(root, standard="asprs2023", accuracy_class="H10 V10").compliance["checks"]
     assert [c["verdict"] for c in rep2023 if c["product"] == "LiDAR DEM"] == ["not testable", "reported"]
     # no class: only the finest class met, and the rows say why they are not judged
