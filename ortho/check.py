@@ -40,7 +40,7 @@ from aerotri.core.records import to_record
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
-from aerotri.geom.crs.definition import height_unit_m, parse_crs
+from aerotri.geom.crs.definition import height_unit_m, linear_unit_m, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
 from ortho.patches import MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches, parabola_peak
 from ortho.settings import CheckSettings
@@ -382,7 +382,7 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         ndsm = open_north_up(ndsm_path, "nDSM") if ndsm_path else None
         # heights above ground in the nDSM's own unit (its CRS says which); the threshold is in metres
         ndsm_unit_m = height_unit_m(parse_crs(ndsm.crs.to_wkt(), f"{ndsm_path} CRS")) if ndsm is not None else 1.0
-        res = abs(dom.transform.a)
+        res = abs(dom.transform.a) * metres_per_unit(dom)  # metres: the patches' shifts in metres
         pieces = []
         halo = search_px + patch_px
         try:
@@ -426,9 +426,18 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                                   cat("one_direction_row_px"), cat("one_direction_col_px")), (dom.width, dom.height)
 
 
-def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[Displacement, dict]:
+def metres_per_unit(ds) -> float:
+    """Metres per unit of a north-up raster's CRS (0.3048 for a DOM in feet; 1 for metres, or a CRS without a
+    linear unit): the cell size and the displacements are reported in metres, as their ``_m`` keys say (a DOM in
+    feet had its displacements in feet as metres: Autzen's 1 ft orthophoto 2.236 "m" for 0.682 m)."""
+    u = linear_unit_m(parse_crs(ds.crs.to_wkt(), "DOM CRS")) if ds.crs is not None else 1.0
+    return u if math.isfinite(u) and u > 0 else 1.0
+
+
+def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0) -> tuple[Displacement, dict]:
     """Statistics and per-point table for surveyed points measured in the DOM (``dom_bounds``: left, bottom,
-    right, top of the DOM; a point measured outside it is refused by its line)."""
+    right, top of the DOM; a point measured outside it is refused by its line); coordinates in the DOM CRS's unit,
+    ``unit_m`` metres each (the displacements in metres)."""
     pts = read_points_csv(points_path)
     if dom_bounds is not None:
         left, bottom, right, top = dom_bounds
@@ -437,8 +446,8 @@ def check_points(points_path, res_m: float, dom_bounds=None) -> tuple[Displaceme
                 raise InputError(f"{points_path}:{k + 2}: point {pts.id[k]} measured at ({xd:.3f}, {yd:.3f}), "
                                  f"outside the DOM ({left:.1f} .. {right:.1f}, {bottom:.1f} .. {top:.1f}); coordinates "
                                  "of another CRS, zone or place?")
-    de = pts.x_dom - pts.x
-    dn = pts.y_dom - pts.y
+    de = (pts.x_dom - pts.x) * unit_m
+    dn = (pts.y_dom - pts.y) * unit_m
     stats = displacement_statistics(de, dn, res_m)
     table = [{"id": i, "x_m": float(x), "y_m": float(y), "x_dom_m": float(xd), "y_dom_m": float(yd), "de_m": float(a),
               "dn_m": float(b)} for i, x, y, xd, yd, a, b in zip(pts.id, pts.x, pts.y, pts.x_dom, pts.y_dom, de, dn)]
@@ -531,7 +540,7 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
             z = nd.read(1, window=w, out_shape=shape, masked=True, resampling=Resampling.average)
         unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{ndsm_path} CRS"))
         t = nd.window_transform(w) @ Affine.scale(w.width / shape[1], w.height / shape[0])
-    cell_m = abs(t.a)
+        cell_m = abs(t.a) * metres_per_unit(nd)  # (in feet: objects of 50 ft2, 4.6 m2, counted as buildings)
     high = (np.ma.filled(z.astype(np.float32), 0.0) * unit > min_height_m).astype(np.uint8)
     high = cv2.morphologyEx(high, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     contours, _ = cv2.findContours(high, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
@@ -609,7 +618,7 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
     x_m, y_m = np.atleast_1d(np.asarray(x_m, float)), np.atleast_1d(np.asarray(y_m, float))
     with stage_block_cache(CHECK_CACHE_BYTES), open_north_up(dom_path, "DOM") as dom, \
             open_north_up(reference_path, "reference orthophoto") as ref:
-        res = abs(dom.transform.a)
+        res = abs(dom.transform.a) * metres_per_unit(dom)  # metres: the patch size and the shifts in metres
         patch_m = float(patch_m) if patch_m else max(ROOF_PATCH_M, ROOF_PATCH_PX * res)
         n = max(16, int(round(patch_m / res)))
         S = n // 2  # as far as phase correlation of the patch could tell a shift
@@ -753,7 +762,8 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
 
         require_current_frames(root, read_index(root), f"`ortho mosaic {root}` and `ortho check`")
     with open_north_up(dom_path, "DOM") as ds:
-        res = abs(ds.transform.a)
+        unit_m = metres_per_unit(ds)
+        res = abs(ds.transform.a) * unit_m  # the GSD in metres (a DOM in feet: 0.3048 m per foot)
         crs = ds.crs.to_string()
         dom_bounds, dom_crs = tuple(ds.bounds), ds.crs
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
@@ -795,7 +805,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
                                extent_px=max(w, h))
     else:
-        stats, table = check_points(points_path, res, dom_bounds)
+        stats, table = check_points(points_path, res, dom_bounds, unit_m)
         report.update(method="surveyed_points", points_file=str(points_path),
                       displacement=to_record(stats, drop_none=True), points=table["points"])
 

@@ -116,8 +116,9 @@ class QaSettings:
     tolerances: Path | None = setting(None, path=True, help="Your own tolerance table (TOML, the layout of "
                                                             "aerotri/core/tolerance_tables/cn_*.toml).")
     pdf: bool = setting(False, help="Also write reports/report.pdf.")
-    standard: str | None = setting(None, choices=("asprs2023", "usgs-lbs", "cn-at", "thesis", "cn"),
-                                   help="Standard of the report: asprs2023 (classes by GSD unless given), usgs-lbs "
+    standard: str | None = setting(None, choices=("asprs2023", "asprs2014", "usgs-lbs", "cn-at", "thesis", "cn"),
+                                   help="Standard of the report: asprs2023 (classes by GSD unless given), asprs2014 "
+                                        "(Edition 1: classes given, H per axis, the VVA judged), usgs-lbs "
                                         "(LiDAR quality levels), cn-at (Chinese AT specifications by map scale), thesis "
                                         "(the map-scale tables; cn is its old name); default by the block's GSD and "
                                         "platform (docs/standards.md).")
@@ -128,7 +129,8 @@ class QaSettings:
     vertical_class_cm: float | None = setting(None, min=0.0, min_open=True,
                                               help="ASPRS 2023 vertical accuracy class (RMSE_V, cm).")
     accuracy_class: str | None = setting(None, help="Class tested by the compliance section: 'H7.1 V10' (asprs2023, "
-                                                    "cm), QL0-QL3 (usgs-lbs), a map scale 1:500-1:10000 (cn-at, thesis).")
+                                                    "asprs2014 with H per axis; cm), QL0-QL3 (usgs-lbs), a map scale "
+                                                    "1:500-1:10000 (cn-at, thesis).")
     survey_sigma_xy_m: float | None = setting(None, min=0.0, min_open=True,
                                               help="Survey accuracy (per-axis sigma) of the check points of the DOM, line "
                                                    "map and LiDAR checks (ASPRS 2023 includes it in the product figure).")

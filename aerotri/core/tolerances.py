@@ -286,12 +286,14 @@ def _block_text(block: BlockScale | None) -> str:
 def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str | None = None,
                  standard: str | None = None, terrain: str | None = None, tolerance_file=None,
                  horizontal_class_cm: float | None = None, vertical_class_cm: float | None = None,
-                 lidar_only: bool = False) -> ToleranceTable:
+                 lidar_only: bool = False, accuracy_class: str | None = None) -> ToleranceTable:
     """The table that judges a block, and why. The keyword arguments (the command line) override ``cfg``
     (project.toml [qa]); what neither names is chosen from ``block``: a low-altitude (UAS) block, or any block
     with a GSD under ``selection.toml`` [asprs] gsd_max_m, gets the ASPRS 2023 classes of its GSD; a coarser
     manned block the Chinese map-scale table of its GSD; a block of unknown GSD the 1:5000 table.
-    ``lidar_only``: a project without frames (no platform to assume; the reason says so)."""
+    ``lidar_only``: a project without frames (no platform to assume; the reason says so). Under a map-scale
+    standard (cn-at, thesis) the class tested (``accuracy_class``, --class, else ``cfg.accuracy_class``) is a map
+    scale: its table judges the block, as the compliance section judges it at that scale, before ``cfg.map_scale``."""
     platform = cfg.platform or (block.platform if block is not None else None)
     if cfg.platform:
         plat_why = f"platform {cfg.platform} from {QA_SECTION}"
@@ -310,8 +312,18 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
     # the report's compliance standards (aerotri/qa/compliance.py) map onto the table families: the Chinese ones
     # onto the map-scale tables, the LiDAR specification onto none (chosen by the block)
     named = std
-    std = {"cn-at": "cn", "thesis": "cn", "usgs-lbs": None}.get(std, std)
-    given_scale = scale or (None if standard else cfg.map_scale)
+    std = {"cn-at": "cn", "thesis": "cn", "usgs-lbs": None, "asprs2014": None}.get(std, std)
+    # a map-scale standard's class is a scale: the verdict table is that scale's, as the compliance section's
+    # (aerotri.qa.compliance.choose: --class, [qa] accuracy_class, then [qa] map_scale); --standard cn-at --class
+    # 1:2000 judged the compliance at 1:2000 and the verdict table at the GSD's 1:5000
+    cls_text = accuracy_class or cfg.accuracy_class
+    cls_scale = cls_text.strip().replace(" ", "") if std == "cn" and cls_text and not scale else None
+    cls_src = "--class" if accuracy_class else f"{QA_SECTION} accuracy_class"
+    no_table = ""
+    if cls_scale is not None and cls_scale not in SCALE_TABLES:
+        no_table = f"; class {cls_scale} from {cls_src} has no map-scale table ({', '.join(SCALE_TABLES)})"
+        cls_scale = None
+    given_scale = scale or cls_scale or (None if standard and std != "cn" else cfg.map_scale)
     file = tolerance_file or (None if (scale or standard) else cfg.tolerances)
 
     def cn(key, why):
@@ -322,12 +334,13 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
         # the key stays a built-in scale: stages that only pass the key on judge by the built-in table
         return load_table(DEFAULT_SCALE + (UAS_SUFFIX if uas else ""), terrain, file, f"your table ({src}); {plat_why}")
     if given_scale:
-        return cn(given_scale, f"map scale {given_scale} from {'--scale' if scale else QA_SECTION}")
+        src = "--scale" if scale else cls_src if cls_scale else f"{QA_SECTION} map_scale"
+        return cn(given_scale, f"map scale {given_scale} from {src}{no_table}")
     gsd = block.gsd_m if block is not None else None
     if std == "cn":
         # named as given (thesis, cn-at, or the old "cn": the thesis tables), with the tables it maps onto
         cn_why = (f"standard {named} from {'--standard' if standard else QA_SECTION}"
-                  + ("" if named == "cn" else ": the map-scale tables"))
+                  + ("" if named == "cn" else ": the map-scale tables") + no_table)
         if gsd is None:
             return cn(DEFAULT_SCALE, f"{cn_why}; "
                                      f"{_block_text(block)}: default {DEFAULT_SCALE}")
@@ -350,6 +363,8 @@ def choose_table(cfg: QaSettings, block: BlockScale | None = None, *, scale: str
         return load_table(asprs_key(h_cm, v_cm, uas), terrain, None, f"{why}; {plat_why}")
     if gsd is None and lidar_only:
         why = (f"the LBS has no table of its own: the default {DEFAULT_SCALE} table" if named == "usgs-lbs" else
+               f"ASPRS Edition 1 has no table of its own: the default {DEFAULT_SCALE} table" if named == "asprs2014"
+               else
                f"no standard named: the default {DEFAULT_SCALE} table (--standard usgs-lbs or asprs2023 --class, or "
                f"[qa] standard, judges by a LiDAR standard)")
         return cn(DEFAULT_SCALE, why)

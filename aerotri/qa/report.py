@@ -37,7 +37,8 @@ from aerotri.core.figures import pyplot
 from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
                                      split_key)
 from aerotri.geom.block_scale import planned_terrain_height, project_block_scale
-from aerotri.qa.compliance import asprs_class_cm, lidar_only_project, project_compliance, with_lbs_lidar_limits
+from aerotri.qa.compliance import (asprs_class_cm, lidar_only_project, project_compliance,
+                                   with_asprs2014_lidar_limits, with_lbs_lidar_limits)
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
 from lidarctl.vectors.settings import VectorsSettings
@@ -379,9 +380,11 @@ def line_map_rows(project: Project, tol: dict) -> list[QaCheck]:
 
 
 def stage_results(project: Project) -> list:
-    """What the stages leave for the report."""
+    """What the stages leave for the report (the strip check too: a LiDAR delivery's swaths and density are judged
+    without surveyed points; AHN3's strips and DEM read "nothing to report yet ... run the adjustment first")."""
     return [project.adjustment_report_path, project.control_transfer_path, project.dom_report_path,
-            project.height_check_path, project.classification_eval_path]
+            project.height_check_path, project.classification_eval_path, project.strips_check_path,
+            project.strips_check_after_path]
 
 
 def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
@@ -400,7 +403,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             f"{root}: nothing to report yet, no stage has left its results "
             f"({', '.join(str(p.relative_to(root)) for p in stage_results(project))}); "
             f"run the adjustment first (aerotri match {root}, then aerotri adjust {root}) or the whole chain "
-            f"(aerotri run {root})")
+            f"(aerotri run {root})"
+            + (f"; a LiDAR delivery alone: lidarctl strips check STRIPS... {project.strips_dir}, and against surveyed "
+               f"points lidarctl check-heights [CLOUD...] POINTS.csv --dem DEM.tif --json {project.height_check_path}"
+               if lidar_only_project(project) else ""))
     cfg = read_qa_config(root)
     if terrain and terrain not in TERRAINS and not (tolerance_file or cfg.tolerances):
         raise InputError(f"terrain class {terrain!r}: expected one of {', '.join(TERRAINS)}")
@@ -411,10 +417,12 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     lidar_only = lidar_only_project(project)
     table = choose_table(cfg, block, scale=scale, standard=standard, terrain=terrain, tolerance_file=tolerance_file,
                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
-                         lidar_only=lidar_only)
-    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain, lidar_only)
+                         lidar_only=lidar_only, accuracy_class=accuracy_class)
+    compliance = project_compliance(project, table, block, standard, accuracy_class, terrain, lidar_only, scale)
     if compliance.key == "usgs-lbs":
         table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
+    elif compliance.key == "asprs2014":
+        table = with_asprs2014_lidar_limits(table, compliance.class_tested)
     if lidar_only:
         table = lidar_limits(table)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
@@ -546,7 +554,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if chk and None not in chk[:2]:  # chk[2] None: plan-only check points (heights not surveyed), no height row
         n = at.check_points
         need = tol.get("check_points_min")
-        npts = f"{n} points"
+        npts = f"{n} points" + (f" ({'all' if at.check_points_from_lidar >= n else at.check_points_from_lidar} LiDAR "
+                                "roof corners, not surveyed)" if at.check_points_from_lidar else "")
         if need:
             short = f"{need:g} required by {table.name.split(':')[0]}"
             npts += f" ({short}: not testable as the standard asks)" if n < need else f" ({short})"
@@ -774,6 +783,16 @@ def _row_outside_cell(c: dict) -> str:
                         shown=OUTSIDE_IDS_SHOWN)
 
 
+def checkpoints_accuracy_text(c: dict, words=("yes", "no")) -> str:
+    """Whether a compliance check's check points are accurate enough: ``words`` for True / False; None is "unknown"
+    when their accuracy is not stated (the note says "not stated"), else "not judged": the standard sets no rule
+    for them (the thesis tables, cn-at's LiDAR and AT height rows), whatever survey accuracy project.toml gives (it
+    read "accuracy unknown" beside [qa] survey_sigma_z_m = 0.01)."""
+    if c["checkpoints_accurate"] is not None:
+        return words[0] if c["checkpoints_accurate"] else words[1]
+    return "unknown" if "not stated" in (c.get("checkpoints_note") or "") else "not judged"
+
+
 def compliance_row(c: dict) -> list:
     """A compliance check as table cells: figure and limit in the check's unit, the limit marked * when its
     number is not confirmed in the standard's text."""
@@ -783,7 +802,7 @@ def compliance_row(c: dict) -> list:
             + (f"; {_row_outside_cell(c)}" if c.get("n_outside") else "")
             if c["n_points"] is not None else "")
     # (no point: no accuracy to judge)
-    acc = {True: "yes", False: "no", None: "unknown"}[c["checkpoints_accurate"]] if c["n_points"] else ""
+    acc = checkpoints_accuracy_text(c) if c["n_points"] else ""
     verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
     return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]), _num(c["figure"]),
             _num(c["limit"], c["limit_confirmed"] is False) + (f" {c['unit']}" if c["limit"] is not None else ""),
@@ -840,7 +859,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
         lines.append(f"  {p['verdict']:<12} {p['product']}: finest class met {p['finest_class']}")
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
-        acc = {True: "accurate enough", False: "not accurate enough", None: "accuracy unknown"}[c["checkpoints_accurate"]]
+        acc = checkpoints_accuracy_text(c, ("accurate enough", "not accurate enough"))
+        acc = acc if c["checkpoints_accurate"] is not None else f"accuracy {acc}"
         pts = f"{c['n_points']} {c.get('counted') or 'check points'}" + \
             (f", {c['n_required']} check points required" if c["n_required"] else "") + (f", {acc}" if c["n_points"] else "") + \
             (f", {_row_outside_cell(c)}" if c.get("n_outside") else "") \
@@ -1000,14 +1020,16 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         cells, colours = [], []
         for r in rep["checks"]:
             star = "*" if r.get("limit_confirmed") is False and r["limit"] is not None else ""
+            # the note as the page's: what was not counted, why a row is not judged (the PDF had no note column:
+            # "1 surveyed point with no valid cell of the DEM under it, not counted: X0" was on the page only)
             cells.append([r["section"], r["quantity"], _cell(r["value"]), _cell(r["limit"]) + star, r["unit"],
-                          r["verdict"] or ""])
+                          r["verdict"] or "", r.get("note") or ""])
             c = {"pass": "#ccffcc", "fail": "#ffcccc"}.get(r["verdict"], "white")
-            colours.append(["white"] * 5 + [c])
+            colours.append(["white"] * 5 + [c, "white"])
         ax = fig.add_axes([0.03, 0.03, 0.94, top - 0.03])
         ax.axis("off")
-        header = ["section", "quantity", "value", "limit", "unit", "verdict"]
-        widths = [0.14, 0.52, 0.1, 0.08, 0.05, 0.07]
+        header = ["section", "quantity", "value", "limit", "unit", "verdict", "note"]
+        widths = [0.11, 0.33, 0.07, 0.06, 0.04, 0.06, 0.29]
         # every cell wrapped to its column as the other tables' (the quantity was cut at 70 characters); the rows the
         # page holds under the headline by their heights (a one-line row at scale 1.1 takes 0.0225 of the page's
         # height, measured on the demo's page, the header one; each further line 1.2 x 7.5 pt of its 1.1 x 1.2 x 10

@@ -1,5 +1,5 @@
 """The accuracy standards a delivery is judged against, as data: one TOML file per standard in this folder
-(``asprs2023.toml``, ``usgs_lbs.toml``, ``cn_at.toml``), every limit with its source and whether its number
+(``asprs2023.toml``, ``asprs2014.toml``, ``usgs_lbs.toml``, ``cn_at.toml``), every limit with its source and whether its number
 was confirmed in the document (docs/standards.md lists them). The "thesis" standard is the project's
 map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml), read through aerotri.core.tolerances.
 
@@ -20,8 +20,9 @@ from pathlib import Path
 from aerotri.core.settings import from_table
 
 STANDARDS_DIR = Path(__file__).parent
-STANDARD_FILES = {"asprs2023": "asprs2023.toml", "usgs-lbs": "usgs_lbs.toml", "cn-at": "cn_at.toml"}
-STANDARD_KEYS = ("asprs2023", "usgs-lbs", "cn-at", "thesis")
+STANDARD_FILES = {"asprs2023": "asprs2023.toml", "asprs2014": "asprs2014.toml", "usgs-lbs": "usgs_lbs.toml",
+                  "cn-at": "cn_at.toml"}
+STANDARD_KEYS = ("asprs2023", "asprs2014", "usgs-lbs", "cn-at", "thesis")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +74,29 @@ class Asprs2023:
     standard: StandardInfo
     limits: AsprsLimits
     ladders: AsprsLadders
+
+
+# -- ASPRS Positional Accuracy Standards, Edition 1 (2014) ---------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Asprs2014Limits:
+    """Edition 1's rules a compliance report uses (``asprs2014.toml``): the check points required (NVA, VVA), how
+    much more accurate than the class they must be, and the multiples of the per-axis class X."""
+
+    check_points_min: AsprsLimit
+    vva_check_points_min: AsprsLimit
+    checkpoint_accuracy_factor: AsprsLimit
+    horizontal_radial_factor: AsprsLimit  # RMSE_r <= this x X (X per axis)
+    nva_95_factor: AsprsLimit  # NVA at 95 % = this x RMSE_z
+    vva_p95_factor: AsprsLimit  # VVA: 95th percentile of |dz| <= this x X
+    swath_rmsdz_factor: AsprsLimit
+    at_plan_factor: AsprsLimit  # AT RMSE_x, RMSE_y <= this x the product's
+    at_height_factor: AsprsLimit  # AT RMSE_z <= this x the product's RMSE_x (orthoimagery)
+
+
+@dataclasses.dataclass(frozen=True)
+class Asprs2014:
+    standard: StandardInfo
+    limits: Asprs2014Limits
 
 
 # -- USGS Lidar Base Specification -----------------------------------------------------------------------
@@ -233,6 +257,12 @@ def _read(key: str) -> dict:
 def asprs2023() -> Asprs2023:
     """The ASPRS 2023 table (``asprs2023.toml``)."""
     return from_table(Asprs2023, _read("asprs2023"), STANDARD_FILES["asprs2023"])
+
+
+@lru_cache(maxsize=None)
+def asprs2014() -> Asprs2014:
+    """The ASPRS 2014 (Edition 1) table (``asprs2014.toml``)."""
+    return from_table(Asprs2014, _read("asprs2014"), STANDARD_FILES["asprs2014"])
 
 
 @lru_cache(maxsize=None)

@@ -124,11 +124,18 @@ def test_accuracy_report_judges_metres(pair, tmp_path):
     rec = {u: read_adjustment_report(r.report_path) for u, r in pair.items()}
     assert np.allclose(rec["ft"].check_rms_m, rec["m"].check_rms_m, atol=2e-4)
     assert np.allclose(rec["ft"].control_rms_m, rec["m"].control_rms_m, atol=1e-3)
-    rows = {}
+    rows, comp = {}, {}
     for u, r in pair.items():
         qa = build_qa_report(r.report_path.parent.parent, scale="1:2000", terrain="flat")
         rows[u] = {c.id: c for c in qa.checks if c.section in ("Control points", "Aerotriangulation")
                    and c.id.startswith(("control_rms", "check_rms", "check_gross"))}
+        comp[u] = [c for c in qa.compliance["checks"] if c["product"] == "Aerotriangulation"]
+    # the compliance section too (trial-qa 2026-12-01: it read at/report.json's d_m, feet in the feet project, as
+    # metres: 3.28 x the verdict table's figure)
+    assert len(comp["m"]) == len(comp["ft"]) == 2
+    for a, b in zip(comp["m"], comp["ft"]):
+        assert b["measured"] == pytest.approx(a["measured"], abs=1e-3) and b["verdict"] == a["verdict"], b["quantity"]
+    assert comp["m"][0]["measured"] == pytest.approx(rows["m"]["check_rms_xy_m"].value, abs=1e-3)
     assert set(rows["m"]) == set(rows["ft"]) and {"check_rms_xy_m", "control_rms_xy_m"} <= set(rows["m"])
     for k, c in rows["m"].items():
         assert rows["ft"][k].verdict == c.verdict, k

@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from aerotri.core.errors import OptionError
+from aerotri.core.tolerances import load_table
 from aerotri.qa.compliance import CheckSet, Choice, Figures, LidarFigures, choose, judge, vegetated
 from aerotri.qa.report import write_qa_report
 
@@ -325,6 +326,57 @@ def test_report_summary_html_and_cli_carry_the_compliance_section(tmp_path):
     assert "class 1:1000 flat" in res.output
     res = CliRunner().invoke(main, ["report", str(p), "--standard", "usgs-lbs", "--class", "QL7"])
     assert res.exit_code == 2 and "--class 'QL7'" in res.output
+
+
+def test_map_scale_class_judges_the_verdict_table_at_that_scale(tmp_path):
+    """--standard cn-at --class 1:2000 (and [qa] accuracy_class) chooses the verdict table of 1:2000, as the
+    compliance section's class; --scale the compliance section's scale (trial-qa 2026-12-01: the verdict table
+    stayed at the default 1:5000, AT plan limit 0.35 m, beside a compliance section at 1:2000; --scale 1:2000 beside
+    [qa] map_scale 1:5000 gave a 1:2000 table and a 1:5000 compliance section)."""
+    p = _project(tmp_path, 32)
+    rep = write_qa_report(p, standard="cn-at", accuracy_class="1:2000")
+    assert rep.table["key"] == "1:2000" and "from --class" in rep.table["reason"]
+    assert rep.check("check_rms_xy_m").limit == load_table("1:2000", "flat").limits["rms_xy_m"] == 0.14
+    assert rep.compliance["class_tested"] == "1:2000 flat"
+    # a scale without a table (cn-at 1:1000): the table is chosen as before, and the reason says why
+    rep = write_qa_report(p, standard="cn-at", accuracy_class="1:1000")
+    assert rep.table["key"] == "1:5000" and "class 1:1000 from --class has no map-scale table" in rep.table["reason"]
+    (p / "project.toml").write_text(PROJECT + '[control]\nsigma_xy_m = 0.01\nsigma_z_m = 0.02\n\n[qa]\n'
+                                    'standard = "thesis"\naccuracy_class = "1:10000"\nmap_scale = "1:5000"\n')
+    rep = write_qa_report(p)
+    assert rep.table["key"] == "1:10000" and rep.compliance["class_tested"] == "1:10000 flat"
+    rep = write_qa_report(p, standard="cn-at", scale="1:2000")
+    assert rep.table["key"] == "1:2000"
+    assert rep.compliance["class_tested"] == "1:10000 flat"  # the class still comes first
+    (p / "project.toml").write_text(PROJECT + '[qa]\nmap_scale = "1:5000"\n')
+    rep = write_qa_report(p, standard="cn-at", scale="1:2000")
+    assert rep.table["key"] == "1:2000" and rep.compliance["class_tested"] == "1:2000 flat"
+    rep = write_qa_report(p, standard="cn-at")  # [qa] map_scale with --standard cn-at: the table's scale too
+    assert rep.table["key"] == "1:5000" and rep.compliance["class_tested"] == "1:5000 flat"
+
+
+def test_at_check_points_of_a_feet_project_are_judged_in_metres(tmp_path):
+    """trial-qa 2026-12-01: at/report.json gives the check points' d_m in the project CRS's unit (feet in a feet
+    CRS; the verdict table scales them, ``adjustment_record``); the compliance section took them as metres: 32 check
+    points 0.03 / 0.04 / 0.05 m off in an Oregon Lambert (ft) project gave RMSE_H 0.1647 "m" (fail of H10's 0.05 m at
+    H42.4cm) beside the verdict table's 0.050 m."""
+    ft = 0.3048
+    (tmp_path / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:2994"\n')
+    (tmp_path / "at").mkdir()
+    pts = [dict(id=f"C{i}", d_m=[0.03 / ft * (-1) ** i, 0.04 / ft, 0.05 / ft * (-1) ** i],
+                given_sigma_m=[0.01, 0.01, 0.02]) for i in range(32)]
+    (tmp_path / "at" / "report.json").write_text(json.dumps(dict(
+        project="t", crs="EPSG:2994", check_rms_m=[0.03 / ft, 0.04 / ft, 0.05 / ft], check_points=pts,
+        key_statistics=dict(sigma0_um=5.1, sigma0_px=0.425, success=True, message="Solution Successful."))))
+    rep = write_qa_report(tmp_path, standard="asprs2023", accuracy_class="H10 V10")
+    assert rep.check("check_rms_xy_m").value == pytest.approx(0.05)
+    plan, height = [c for c in rep.compliance["checks"] if c["product"] == "Aerotriangulation"]
+    assert plan["measured"] == pytest.approx(0.05, abs=1e-4) and height["measured"] == pytest.approx(0.05, abs=1e-4)
+    # the check points' sigmas are metres already: sqrt(2) x 1 cm and 2 cm combined
+    assert plan["figure"] == pytest.approx(math.hypot(0.05, math.sqrt(2) * 0.01), abs=1e-4)
+    assert height["figure"] == pytest.approx(math.hypot(0.05, 0.02), abs=1e-4) and height["verdict"] == "pass"
+    rep = write_qa_report(tmp_path, standard="thesis")
+    assert [c["measured"] for c in rep.compliance["checks"]] == pytest.approx([0.05, 0.05], abs=1e-4)
 
 
 def _dem_checked_alone(tmp_path, open_dz_m=0.05, forest_dz_m=0.2):
@@ -713,7 +765,7 @@ def test_the_pdf_first_page_gives_the_whole_headline_and_every_row(tmp_path, mon
     assert " ".join(title.split("\n")) == f"Compliance: {rep['compliance']['name']}, class 1:5000 flat"
     assert " ".join(own.split("\n")) == headline[:1].upper() + headline[1:]
     assert max(len(line) for line in own.split("\n")) <= 125
-    verdict_rows = [r for t in tables if t and len(t[0]) == 6 for r in t]
+    verdict_rows = [r for t in tables if t and len(t[0]) == 7 for r in t]   # (trial-qa: a note column)
     assert len(verdict_rows) == 45 and len(tables[0]) < 45   # every row, the rest on the following pages
 
 
@@ -860,7 +912,7 @@ def test_the_pdf_verdict_table_wraps_the_quantity_inside_its_cell(tmp_path, monk
     rep["checks"] = [dict(rep["checks"][0], quantity=f"{long} {i}") for i in range(40)]
     write_pdf(tmp_path / "r.pdf", rep, Project.open(tmp_path), [])
     verdict = [t for t in tables if t.get_celld()[0, 1].get_text().get_text() == "quantity"
-               and max(c for _, c in t.get_celld()) == 5]
+               and max(c for _, c in t.get_celld()) == 6]
     assert len(verdict) >= 2                                  # 40 rows of 3 lines: more than the first page
     texts, n_rows = [], 0
     for t in verdict:
@@ -877,6 +929,35 @@ def test_the_pdf_verdict_table_wraps_the_quantity_inside_its_cell(tmp_path, monk
                 texts.append(cell.get_text().get_text().replace("\n", " "))
         n_rows += max(r for r, _ in t.get_celld())
     assert n_rows == 40 and texts == [f"{long} {i}" for i in range(40)]  # every row, its whole quantity
+
+
+def test_the_pdf_verdict_table_carries_the_notes(tmp_path, monkeypatch):
+    """trial-qa 2026-12-01: the PDF's verdict table had no note column, so the points a row did not count (Autzen:
+    "1 surveyed point with no valid cell of the DEM dem.tif under it, not counted: X0") and why a row is not judged
+    were on the HTML page only; the client's PDF said "DEM height RMSE at 35 surveyed points" with nothing else."""
+    import matplotlib.axes
+
+    from aerotri.core.project import Project
+    from aerotri.qa.report import write_pdf
+    from lidarctl.checks.heights import check_heights_file
+
+    tables = []
+    real_table = matplotlib.axes.Axes.table
+    monkeypatch.setattr(matplotlib.axes.Axes, "table",
+                        lambda self, *a, **k: tables.append(k.get("cellText")) or real_table(self, *a, **k))
+    _dem_checked_alone(tmp_path)
+    with open(tmp_path / "points.csv", "a") as f:
+        f.write("X0,499000.000,3400050.000,100.0,open\n")
+    check = check_heights_file(None, tmp_path / "points.csv", dem_path=tmp_path / "lidar_out" / "dem.tif")
+    (tmp_path / "lidar_out" / "height_check.json").write_text(check.to_json())
+    write_qa_report(tmp_path, standard="usgs-lbs")
+    rep = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    write_pdf(tmp_path / "r.pdf", rep, Project.open(tmp_path), [])
+    (first,) = [t for t in tables if t and len(t[0]) == 7]
+    notes = {r[1].replace("\n", " "): r[6].replace("\n", " ") for r in first}
+    row = [c for c in rep["checks"] if c["id"] == "dem_raster_rmse_m"][0]
+    assert notes[row["quantity"]] == row["note"] == ("1 surveyed point with no valid cell of the DEM dem.tif under it, "
+                                                     "not counted: X0")
 
 
 def test_the_verdict_table_note_on_one_point_without_a_dz_is_singular():
@@ -909,3 +990,99 @@ def test_points_without_a_dz_are_said_in_one_wording_everywhere():
     assert cell == (f"{len(many)} check points outside the data, not counted ("
                     + ", ".join(many[:OUTSIDE_IDS_SHOWN]) + " and 2 more in summary.json; land cover unknown: U0)")
     assert outside_text(many, "", ["U0"]).endswith(", ".join(many[:-1]) + "; land cover unknown: U0)")
+
+
+def test_check_points_accuracy_not_judged_is_not_called_unknown(tmp_path):
+    """trial-qa 2026-12-01: with [qa] survey_sigma_z_m = 0.01 the cn-at and thesis DEM rows (no accuracy rule for the
+    check points) read "accuracy unknown" (table: "unknown"), as if the survey's accuracy were not stated; "not
+    judged" now, "unknown" only where the standard has a rule and the accuracy is not stated."""
+    from aerotri.qa.report import compliance_lines, compliance_row
+
+    _dem_checked_alone(tmp_path)
+    (tmp_path / "project.toml").write_text(PROJECT + "[qa]\nsurvey_sigma_z_m = 0.01\n")
+    for standard in ("cn-at", "thesis"):
+        rep = write_qa_report(tmp_path, standard=standard)
+        (dem,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+        assert dem["checkpoints_accurate"] is None and compliance_row(dem)[7] == "not judged", standard
+        assert any("accuracy not judged" in ln for ln in compliance_lines(rep.compliance))
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    assert [compliance_row(c)[7] for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"] == ["yes", "yes"]
+    (tmp_path / "project.toml").write_text(PROJECT)
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")      # the LBS's rule, the survey's accuracy not stated
+    assert [compliance_row(c)[7] for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"] == ["unknown"] * 2
+
+
+def test_asprs2014_judges_edition_1(tmp_path):
+    """--standard asprs2014 (trial-qa 2026-12-01: a contract to ASPRS Edition 1 could only be judged by Edition 2):
+    the class H per axis (RMSE_r <= 1.414 H; the AT's 0.5 of it), the NVA at 95 % (1.96 RMSE_z <= 1.96 V), the VVA
+    judged (p95 <= 3 V, 5 points), 20 check points, the check points' accuracy not added to the figure."""
+    import numpy as np
+
+    (tmp_path / "at").mkdir()
+    p = _project(tmp_path / "at", 32)                     # RMSE_x 0.03, RMSE_y 0.04: RMSE_r 0.05 m; RMSE_z 0.05 m
+    rep = write_qa_report(p, standard="asprs2014", accuracy_class="H10 V10")
+    plan, height = [c for c in rep.compliance["checks"] if c["product"] == "Aerotriangulation"]
+    # per axis: the larger of RMSE_x 0.03 and RMSE_y 0.04 against 0.5 H (not RMSE_r 0.05 against 0.5 x 1.414 H)
+    assert plan["quantity"] == "check points, larger of RMSE_x, RMSE_y (Edition 1: each <= H)"
+    assert plan["figure"] == plan["measured"] == pytest.approx(0.04, abs=1e-4)     # not combined with the sigmas
+    assert plan["limit"] == pytest.approx(0.05) and plan["verdict"] == "pass" and plan["finest_class"] == "H10cm"
+    assert plan["n_required"] == 20 and plan["checkpoints_accurate"] is True       # 1 cm per axis <= 5 cm / 3
+    # a check without per-axis figures: RMSE_r against 1.414 H
+    from aerotri.qa.compliance import CheckSet
+
+    (r,) = judge(Figures(dom=CheckSet(rmse_h_m=0.12, n_h=40, points="ground patches")),
+                 Choice("asprs2014", "H10cm V10cm", "t", h_cm=10.0, v_cm=10.0)).checks
+    assert r.limit == pytest.approx(0.1414, abs=1e-4) and r.verdict == "pass" and "RMSE_r" in r.quantity
+    assert height["limit"] == 0.10 and height["verdict"] == "pass"
+    assert rep.compliance["name"] == "ASPRS Positional Accuracy Standards, Edition 1 (2014)"
+    # the same block under Edition 2's radial class: RMSE_H sqrt(0.05^2 + (sqrt(2) 0.01)^2) > 0.5 H: fail
+    assert write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10").compliance["checks"][0]["verdict"] == "fail"
+    # LiDAR: 25 open points (20 required: testable, Edition 2 wants 30) and 6 forest points with p95 above 3 V
+    (tmp_path / "dem").mkdir()
+    root = _dem_checked_alone(tmp_path / "dem", forest_dz_m=0.45)
+    lines = (root / "points.csv").read_text().splitlines()
+    (root / "points.csv").write_text("\n".join(lines[:26] + lines[35:]) + "\n")
+    from lidarctl.checks.heights import check_heights_file
+
+    check = check_heights_file(None, root / "points.csv", dem_path=root / "lidar_out" / "dem.tif")
+    (root / "lidar_out" / "height_check.json").write_text(check.to_json())
+    dz = [q["dz_dem_m"] for q in check.document["points"]]
+    nva_dz, vva_dz = [d for d, q in zip(dz, check.document["points"]) if q["group"] == "open"], dz[25:]
+    rep = write_qa_report(root, standard="asprs2014", accuracy_class="H10 V10")
+    nva, vva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert nva["n_points"] == 25 and nva["measured"] == pytest.approx(np.sqrt(np.mean(np.square(nva_dz))), abs=1e-4)
+    assert nva["figure"] == pytest.approx(1.96 * nva["measured"], abs=1e-4) and nva["limit"] == pytest.approx(0.196)
+    assert nva["verdict"] == "pass"
+    assert vva["measured"] == pytest.approx(np.percentile(np.abs(vva_dz), 95), abs=1e-4) and vva["limit"] == 0.3
+    assert vva["verdict"] == "fail" and vva["n_required"] == 5
+    assert rep.compliance["products"][0]["verdict"] == "fail"
+    # the verdict table (chosen by the block: the 1:5000 table) judges the DEM by the class's NVA too, not 0.5 m at
+    # every point
+    row = rep.check("dem_raster_rmse_m")
+    assert row.limit == 0.10 and "at 25 non-vegetated surveyed points" in row.quantity
+    assert row.value == pytest.approx(nva["measured"], abs=1e-4) and "Edition 1 (2014), V10cm" in row.limit_source
+    rep2023 = write_qa_report(root, standard="asprs2023", accuracy_class="H10 V10").compliance["checks"]
+    assert [c["verdict"] for c in rep2023 if c["product"] == "LiDAR DEM"] == ["not testable", "reported"]
+    # no class: only the finest class met, and the rows say why they are not judged
+    rep = write_qa_report(root, standard="asprs2014")
+    assert all(c["why"].startswith("no class given") for c in rep.compliance["checks"])
+
+
+def test_lidar_check_points_are_not_called_surveyed(tmp_path):
+    """trial-qa 2026-12-01: the demo's 384 AT check points are all roof corners of its own LiDAR (aerotri control);
+    the compliance rows called them "check points" (the standard's surveyed points) and the verdict table "384 points";
+    both say now what they are (the AT report already did)."""
+    p = _project(tmp_path, 32)
+    path = p / "at" / "report.json"
+    doc = json.loads(path.read_text())
+    path.write_text(json.dumps({**doc, "check_points_from_lidar": 32}))
+    rep = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10")
+    plan = rep.compliance["checks"][0]
+    assert plan["quantity"].startswith("LiDAR check points, ") and plan["counted"] == "LiDAR check points"
+    assert "32 of the 32 check points are roof corners of the project's LiDAR" in plan["checkpoints_note"]
+    assert rep.check("check_rms_xy_m").note.startswith("32 points (all LiDAR roof corners, not surveyed)")
+    path.write_text(json.dumps({**doc, "check_points_from_lidar": 12}))     # some surveyed, some from the LiDAR
+    rep = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10")
+    plan = rep.compliance["checks"][0]
+    assert plan["counted"] == "check points" and "12 of the 32 check points are roof corners" in plan["checkpoints_note"]
+    assert rep.check("check_rms_xy_m").note.startswith("32 points (12 LiDAR roof corners, not surveyed)")
