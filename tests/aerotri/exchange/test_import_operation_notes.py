@@ -1,7 +1,7 @@
-"""An import through a datum change says how accurate the coordinate operation is: EPSG's WGS 84 -> NAD83(2011)
-is a null transformation stated accurate to 2 m (no ballpark, so the CRS policy takes it), which a user of a
-NAD83(2011) project (US drone surveys: EPSG:6344) was not told; and the operation notes the policy made (a missing
-grid: a less accurate operation) never reached the import's console or imports.json."""
+"""What an import's coordinates go through, said: EPSG's WGS 84 -> NAD83(2011) is a null transformation stated
+accurate to 2 m (no ballpark, so the CRS policy takes it), which a user of a NAD83(2011) project (US drone surveys:
+EPSG:6344) was not told; the operation notes the policy made (a missing grid: a less accurate operation) never
+reached the import's console or imports.json; and a Web Mercator project's metres are no ground metres."""
 
 from __future__ import annotations
 
@@ -54,3 +54,14 @@ def test_import_into_a_nad83_2011_project_says_the_operation_is_good_to_2_m(tmp_
     # the same file into a WGS 84 project: no operation, nothing said about one
     _, output, notes = _import(tmp_path, "EPSG:32615")
     assert not [n for n in notes if "accurate to" in n] and "accurate to" not in output
+
+
+def test_a_web_mercator_project_is_told_its_metres_are_no_ground_metres(tmp_path):
+    """EPSG:3857 (a web map's Pseudo-Mercator), which `init` and `import` took without a word: at Duluth (46.84 N) a
+    ground metre is 1/cos(46.84 deg) = 1.462 of its metres, so a 0.015 m ortho pixel would be 1.0 cm on the ground."""
+    _, output, notes = _import(tmp_path, "EPSG:3857")
+    said = [n for n in notes if "scale factor" in n]
+    assert len(said) == 1 and "scale factor of 1.462" in said[0] and "EPSG:32615" in said[0] and said[0] in output
+    for crs in ("EPSG:32615", "EPSG:6344"):  # survey grids: within 0.1 % of 1, nothing said
+        _, output, notes = _import(tmp_path, crs)
+        assert not [n for n in notes if "scale factor" in n]
