@@ -141,7 +141,8 @@ class _ProjLeg:
         elif not group.best_available and missing:
             self.notes.append(f"{crs_label(src)} -> {crs_label(dst)}: a less accurate operation{stated} is used "
                               "because " + grid_advice(missing))
-        elif acc is not None and acc >= COARSE_OPERATION_M and not any(op.grids for op in self.transformer.operations or []):
+        elif (acc is not None and acc >= COARSE_OPERATION_M
+              and not any(op.grids for op in self.transformer.operations or [])):  # a geoid states its own
             # EPSG's null or Helmert operations between WGS 84 and a national datum (NAD83(2011): 2 m, ETRS89:
             # 1 m) are no ballpark, but a GNSS position of centimetres comes out no better than that
             self.notes.append(
