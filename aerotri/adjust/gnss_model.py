@@ -33,10 +33,11 @@ def sigma_source(project, per_record: bool) -> str:
 
 
 def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m, offset_source: str,
-              shift_m: np.ndarray | None = None) -> str:
+              shift_m: np.ndarray | None = None, observed: bool = True) -> str:
     """The GNSS model in one paragraph. ``correction``: the solve's GNSS model (``graph.GNSS_MODELS``);
     ``sigma_m`` (N, 3) the positions' sigmas; ``offset_sigma_m`` (3,) or None the shifts' a-priori sigma;
-    ``shift_m`` (S, 3) the estimated shifts (ENU, m)."""
+    ``shift_m`` (S, 3) the estimated shifts (ENU, m); ``observed``: the solve has control points or a surface
+    (DEM, roof planes), without which nothing but the GNSS positions themselves says where the block is."""
     med = np.median(np.asarray(sigma_m, dtype=float), axis=0)
     weights = f"positions weighted with {med[0]:.3g} / {med[2]:.3g} m (plan / height; {source})"
     if correction == "none":
@@ -52,8 +53,12 @@ def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m,
     text = f"GNSS: {weights} between frames, and {what}, {prior}"
     if shift_m is not None and correction == "offset":
         e, n, u = np.asarray(shift_m, dtype=float)[0]
-        text += f"; estimated E {e:+.2f} N {n:+.2f} U {u:+.2f} m"
-    if offset_sigma_m is not None:
+        if observed:
+            text += f"; estimated E {e:+.2f} N {n:+.2f} U {u:+.2f} m"
+        else:  # the offset moves every position alike: without control or a surface it stays at its prior mean
+            text += (f"; not estimated: without control points or a DEM nothing observes it, and E {e:+.2f} N "
+                     f"{n:+.2f} U {u:+.2f} m is its a-priori value, not a measurement of the receiver")
+    if offset_sigma_m is not None and not observed:
         text += (". Without control or a DEM the block's height is held by that a-priori sigma (BLOCK "
                  "GEOMETRY)")
     return text + "."

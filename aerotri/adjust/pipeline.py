@@ -667,7 +667,8 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
         b = prepared.block
         prepared.datum_notes.append(gnss_model.statement(
             prepared.opts.gnss_correction, b.gnss_sigma_m, prepared.gnss_sigma_source, b.gnss_offset_sigma_m,
-            f"{prepared.project.config_path.name} [gnss] offset_sigma_xy_m, offset_sigma_z_m", result.state.shift))
+            f"{prepared.project.config_path.name} [gnss] offset_sigma_xy_m, offset_sigma_z_m", result.state.shift,
+            observed=len(b.control_point) > 0 or b.surface is not None))
     ba = finish(prepared, result)
     ba.self_calibration_requested = requested
     ba.calibration_checks = [checks[g] for g in requested if g in checks]

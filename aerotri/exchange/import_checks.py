@@ -34,6 +34,9 @@ log = logging.getLogger(__name__)
 
 NEAR_M = 50_000.0  # imported positions this far (or twice the project's extent) from the project's: refused
 EXIF_FRAMES = 3  # frames whose GNSS tags stand for the project's position when it has no position file
+# a project CRS whose scale factor at the block is off 1 by more than this gets a note: survey grids keep it within
+# 0.1 % (UTM: 0.9996-1.001 in its zone); a web map's Pseudo-Mercator is 1.15 at 30 degrees latitude, 1.46 at 47
+SCALE_LIMIT = 0.01
 
 
 def _listing(ids, n: int = 10) -> str:
@@ -214,11 +217,38 @@ def check_point_ids(project: Project, block: ImportedBlock, replaced: set) -> No
                          f"not control points in {where}")
 
 
+def scale_note(project: Project, block: ImportedBlock) -> list[str]:
+    """A note when the project CRS's point scale factor where the imported positions lie is off 1 by more than
+    ``SCALE_LIMIT`` (Web Mercator at Brighton Beach: 1.462): its metres are then no ground metres."""
+    import pyproj
+
+    from aerotri.geom.crs.definition import crs_label, horizontal_crs, project_crs
+    from aerotri.geom.crs.transform import to_own_geodetic
+
+    found = _imported_positions(block)
+    crs = project_crs(project)
+    if not found or crs.is_engineering or not horizontal_crs(crs).is_projected:
+        return []
+    xyz = np.median(np.vstack([f[2] for f in found]), axis=0)
+    lon, lat, _ = to_own_geodetic(crs, np.array([xyz[0]]), np.array([xyz[1]]), np.array([0.0]))
+    f = pyproj.Proj(horizontal_crs(crs)).get_factors(float(lon[0]), float(lat[0]))
+    k = float(np.sqrt(f.meridional_scale * f.parallel_scale))
+    if not np.isfinite(k) or abs(k - 1.0) <= SCALE_LIMIT:
+        return []
+    zone = int((float(lon[0]) + 180.0) // 6.0) + 1
+    utm = f"EPSG:{32600 + zone if lat[0] >= 0 else 32700 + zone}"
+    return [f"project CRS {crs_label(crs)} has a scale factor of {k:.3f} where the block is (lat {float(lat[0]):.2f}, "
+            f"lon {float(lon[0]):.2f}): a ground metre is {k:.3f} of its units, so pixel sizes (ortho rectify "
+            f"--res-m), GSDs and accuracy limits in them are no ground measures; a map grid made for measuring, e.g. "
+            f"the block's UTM zone {utm}, keeps it within 0.1 % ([project] crs in {project.config_path.name})"]
+
+
 def check_import(project: Project, block: ImportedBlock, replaced: set) -> list[str]:
     """Every check of the module docstring; returns the notes to print (``replaced``: the project files
     this import writes, which do not stand for the project's position)."""
     notes = check_project_crs(project, block)
     check_positions(project, block, replaced)
+    notes += scale_note(project, block)
     check_image_ids(project, block)
     check_camera_size(project, block)
     check_point_ids(project, block, replaced)

@@ -16,7 +16,8 @@ from typing import Callable
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.exchange import colmap, exif, metashape, micmac, odm, opensfm, orthority, patb
-from aerotri.exchange.imported import ImportedBlock, ImportSettings, WrittenFile, write_imported
+from aerotri.exchange.imported import (ImportedBlock, ImportSettings, WrittenFile, collecting_operation_notes,
+                                      write_imported)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,7 +82,9 @@ def import_files(root, format_name: str, files, options: ImportSettings | None =
                           param="--as-gnss")
     project = Project.open(root)
     check_block_crs(project.crs, f"{project.config_path} [project] crs")  # before reading: no degrees, no geocentric
-    block = importer.read(files, project, options)
+    with collecting_operation_notes() as operation_notes:
+        block = importer.read(files, project, options)
+    block.notes += operation_notes
     if importer.positions == "reconstruction" and block.eo is not None and block.gnss is None \
             and not any("--as-gnss" in n for n in block.notes):
         block.notes.append(f"positions: the {len(block.eo)} projection centres are another program's solution: "

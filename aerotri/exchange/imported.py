@@ -28,9 +28,12 @@ are written or none (:func:`aerotri.exchange.commit.write_together`).
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
 import json
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -108,19 +111,40 @@ class WrittenFile:
         return f"{self.path}: {self.count} {self.holds} (from {self.source})"
 
 
+# the notes of the coordinate operations an import goes through (a missing grid, an operation of metres),
+# collected by import_files around the importer's read: to_project_crs is called from every format's reader,
+# some of them with no block at hand (rotation Jacobians)
+_OPERATION_NOTES: contextvars.ContextVar[list[str] | None] = contextvars.ContextVar("operation_notes", default=None)
+
+
+@contextlib.contextmanager
+def collecting_operation_notes() -> Iterator[list[str]]:
+    """The notes (each once) of every coordinate operation ``to_project_crs`` applies inside the block."""
+    notes: list[str] = []
+    token = _OPERATION_NOTES.set(notes)
+    try:
+        yield notes
+    finally:
+        _OPERATION_NOTES.reset(token)
+
+
 def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray:
     """(N, 3) coordinates of ``from_crs`` in the project CRS (and height system), through the toolkit's
-    coordinate-operation policy (no silent ballpark transform)."""
+    coordinate-operation policy (no silent ballpark transform; the operation's notes go to
+    :func:`collecting_operation_notes`)."""
     from aerotri.geom.crs.definition import parse_crs, project_crs, project_heights, same_crs
-    from aerotri.geom.crs.transform import transform_points
+    from aerotri.geom.crs.transform import CrsTransformer
 
     xyz = np.asarray(xyz_m, float).reshape(-1, 3)
     src = parse_crs(from_crs, source)
     dst = project_crs(project)
     if same_crs(src, dst):
         return xyz.copy()
-    x, y, z = transform_points(xyz[:, 0], xyz[:, 1], xyz[:, 2], from_crs=src, to_crs=dst,
-                               heights=project_heights(project))
+    operation = CrsTransformer(src, dst, heights=project_heights(project))
+    x, y, z = operation.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+    sink = _OPERATION_NOTES.get()
+    if sink is not None:
+        sink += [f"{source}: {w}" for w in operation.warnings if f"{source}: {w}" not in sink]
     return np.column_stack([x, y, z])
 
 

@@ -44,6 +44,11 @@ from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation, outside_e
 from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 
 
+# A PROJ operation whose stated accuracy (EPSG's, metres) is this or coarser is named in the notes: a datum
+# change of metres (EPSG:4979 -> NAD83(2011) 2 m, -> ETRS89 1 m) where a conversion within a datum states 0
+COARSE_OPERATION_M = 0.5
+
+
 class BallparkRefused(CrsError):
     """PROJ would ignore a datum shift; parameters from common points (or a missing grid) are needed."""
 
@@ -124,14 +129,27 @@ class _ProjLeg:
                     "with --allow-ballpark"
                 )
             self.ballpark = True
-        elif not group.best_available and missing:
-            self.notes.append(f"{crs_label(src)} -> {crs_label(dst)}: a less accurate operation is used because "
-                              + grid_advice(missing))
         self.transformer = pyproj.Transformer.from_crs(s3, d3, always_xy=True, allow_ballpark=self.ballpark)
+        acc = self.transformer.accuracy
+        stated = (f" ({self.transformer.description}, stated accurate to {acc:g} m)"
+                  if acc is not None and acc > 0 else "")
         if self.ballpark:
             self.notes.append(
                 f"{crs_label(src)} -> {crs_label(dst)}: BALLPARK transformation accepted by the user "
                 f"({self.transformer.description}); the datum shift is ignored"
+            )
+        elif not group.best_available and missing:
+            self.notes.append(f"{crs_label(src)} -> {crs_label(dst)}: a less accurate operation{stated} is used "
+                              "because " + grid_advice(missing))
+        elif (acc is not None and acc >= COARSE_OPERATION_M
+              and not any(op.grids for op in self.transformer.operations or [])):  # a geoid states its own
+            # EPSG's null or Helmert operations between WGS 84 and a national datum (NAD83(2011): 2 m, ETRS89:
+            # 1 m) are no ballpark, but a GNSS position of centimetres comes out no better than that
+            self.notes.append(
+                f"{crs_label(src)} -> {crs_label(dst)}: PROJ's operation{stated} changes the datum without a grid "
+                "or parameters of this area: coordinates come out no better than that (for centimetres give them "
+                "in the target datum, or fit parameters from common points: aerotri crs fit, aerotri crs transform "
+                "--params)"
             )
 
     def record(self) -> dict:

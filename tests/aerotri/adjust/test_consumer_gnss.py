@@ -66,6 +66,9 @@ def test_the_flight_offset_model_states_metres_where_the_survey_model_claims_cen
     assert rep["key_statistics"]["verdict"] == "weak" and "block height held only by" in rep["key_statistics"]["message"]
     note = next(n for n in rep["datum"] if n.startswith("GNSS:"))
     assert "one 3-D offset for the whole flight" in note and "offset_sigma_xy_m" in note and "[gnss] sigma_xy_m" in note
+    # the receiver is 2.5 / -2.0 / 3.0 m off and nothing observes it: the offset's prior mean (0) is no estimate
+    # (the note read "estimated E -0.00 N +0.00 U +0.00 m")
+    assert "estimated E" not in note and "its a-priori value, not a measurement of the receiver" in note
     # the settings block lists gnss_correction = none (no per-strip correction) and says the flight's offset is estimated
     from aerotri.adjust.pipeline import project_settings
     from aerotri.core.project import Project
@@ -83,7 +86,10 @@ def test_with_a_dem_the_height_offset_is_estimated(consumer_block):
     assert abs(err[2]) < 0.3 and sig[2] < 0.3 and np.all(np.abs(err / sig) < 3.0), (err, sig)
     # the estimated offset (GNSS minus the adjusted antenna, common part) recovers the simulated height offset
     assert ba.result.state.shift[0][2] == pytest.approx(OFFSET_M[2], abs=0.3)
-    assert build_report(ba).key_statistics["gnss_corrections_suspect"] == []  # 3 m within the 3 / 5 m a priori
+    rep = build_report(ba)
+    assert rep.key_statistics["gnss_corrections_suspect"] == []  # 3 m within the 3 / 5 m a priori
+    note = next(n for n in to_record(rep)["datum"] if n.startswith("GNSS:"))  # the DEM observes it: estimated
+    assert f"estimated E {ba.result.state.shift[0][0]:+.2f}" in note and "not a measurement" not in note
 
 
 def test_per_strip_shifts_need_no_control_with_the_offset_sigma(consumer_block):
