@@ -957,7 +957,7 @@ def test_the_pdf_verdict_table_carries_the_notes(tmp_path, monkeypatch):
     notes = {r[1].replace("\n", " "): r[6].replace("\n", " ") for r in first}
     row = [c for c in rep["checks"] if c["id"] == "dem_raster_rmse_m"][0]
     assert notes[row["quantity"]] == row["note"] == ("1 surveyed point with no valid cell of the DEM dem.tif under it, "
-                                                     "not counted: X0")
+                                                     "not counted (X0)")
 
 
 def test_the_verdict_table_note_on_one_point_without_a_dz_is_singular():
