@@ -578,7 +578,7 @@ def cell_count_histogram(task: CellCountTask) -> np.ndarray:
     ci, cj = np.divmod(cells, ncols)
     row, col = task.grid.core_rc(task.x0_m + (cj + j0 + 0.5) * c, task.y0_m + (ci + i0 + 0.5) * c)
     own = (row == task.row) & (col == task.col)
-    hist = np.bincount(counts[cells[own]])
+    hist = np.bincount(counts[cells[own]], minlength=1)
     hist[0] = 0
     return hist.astype(np.int64)
 
