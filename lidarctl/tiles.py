@@ -22,6 +22,11 @@ Three passes, memory bounded by the chunk size and the tile size, never by the f
    ``io.read_cloud`` does, and append each tile's points (core + buffer, file order; the fields the
    classifier reads, ``TILE_DTYPE``: 28 bytes a point, raw, no LAS writer) to a temporary file
    ``tile_R_C.pts`` plus their indices in the input file (``tile_R_C.index``, int64).
+   Before the tiles are classified, two light passes over the tile files (``water_grid``: each tile counts the
+   returns of the cells whose centre lies in its core) give the whole cloud's water grid (``pipeline.WaterGrid``:
+   its water cell from the whole cloud's mean point spacing, its origin, the median returns per occupied cell), so
+   that every tile judges pulse dropouts on the whole cloud's cells and density and what is water does not depend
+   on the tile size (issue 44: a window that a wide river fills had its dropout threshold lowered below the water).
 2. ``classify_tile`` (one executor task per tile, see ``aerotri.core.executor``): read the tile file,
    run ``classify.classify_points`` and write the classes of the core points with their input
    indices (``tile_R_C.classes.npy``, ``tile_R_C.core.npy``). Returns small statistics.
@@ -220,6 +225,9 @@ class TileTask:
     numba_threads: int = 0  # threads of numba's parallel loops in this task (0: numba's default)
     units: LengthUnits = METRE  # the input's units: tile files hold coordinates in them
     fusion: object = None   # lidarctl.classify.fusion.Fusion: the orthophoto's rules after the LiDAR classes
+    # lidarctl.classify.pipeline.WaterGrid: the whole cloud's water cells and density (``water_grid``), so that
+    # what is water does not depend on the tile size (issue 44); None: the tile's own
+    water_grid: object = None
     # per-tile resume: the finished tile's classes and core indices are kept in ``resume_dir`` under ``resume_key``
     # (everything they depend on, ``_tiles_key_doc``) until the set commits (aerotri.core.resume)
     resume_dir: str | None = None
@@ -325,7 +333,8 @@ def _assign_points(x, y, layout):
 
 
 def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: int = io.CHUNK_POINTS,
-                     records_paths=None, *, units: LengthUnits = METRE, withheld: list | None = None):
+                     records_paths=None, *, units: LengthUnits = METRE, withheld: list | None = None,
+                     lowest: list | None = None):
     """Pass 1: stream the input file(s) and append each tile's points to its points file (``TILE_DTYPE``);
     list of TileTask.
 
@@ -339,7 +348,7 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
     (points are assigned to tiles in metres; the tile files hold coordinates in these units, on the
     first file's scales and offsets, ``_tile_points``). Records flagged withheld (``las.usable``) go to no
     tile (the records copy keeps them); ``withheld``: a list that gets (point indices, delivered classes) of
-    them, for the output to keep.
+    them, for the output to keep. ``lowest``: a list that gets the lowest x and y (m) of the points classified.
     """
     in_paths = [Path(in_paths)] if isinstance(in_paths, (str, Path)) else [Path(q) for q in in_paths]
     work_dir = Path(work_dir)
@@ -348,6 +357,7 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
     has_core = np.zeros(grid.n_tiles, bool)
     offset = 0
     n_withheld, first_withheld = [0] * len(in_paths), {}
+    low_xy = None
     with progress(sum(h.point_count for h in headers), "tiles: split", "pt", unit_scale=True) as bar:
         for k, (in_path, header) in enumerate(zip(in_paths, headers)):
             records = open(records_paths[k], "wb") if records_paths is not None else None
@@ -370,6 +380,9 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
                     x, y = np.asarray(chunk.x), np.asarray(chunk.y)
                     io.validate_xyz(in_path, x, y, np.asarray(chunk.z), first, units)
                     x, y = units.xy_to_m(x), units.xy_to_m(y)
+                    if len(x):
+                        low = (float(np.min(x)), float(np.min(y)))
+                        low_xy = low if low_xy is None else (min(low_xy[0], low[0]), min(low_xy[1], low[1]))
                     ids, pos, own = grid.memberships(x, y)
                     has_core |= own
                     del x, y
@@ -394,6 +407,8 @@ def split_into_tiles(in_paths, grid: TileGrid, work_dir, params, chunk_points: i
             if n_withheld[k]:
                 las.note_withheld(in_path, n_withheld[k], header.point_count, first_withheld[k])
             offset += header.point_count
+    if lowest is not None and low_xy is not None:
+        lowest.extend(low_xy)
     tasks = []
     for tid in np.flatnonzero(has_core):
         r, c = divmod(int(tid), grid.ncols)
@@ -502,9 +517,13 @@ def _classify_tile(task: TileTask) -> TileResult:
     del rec
     row, col = task.grid.core_rc(x, y)
     core = (row == task.row) & (col == task.col)
+    water_grid = task.water_grid
+    if water_grid is not None:
+        water_grid = dataclasses.replace(water_grid, window_m=_window_m(task.grid, task.row, task.col))
     if len(x) >= 10:
         with _numba_threads(task.numba_threads):
-            classes = cl.classify_points(x, y, z, rn, nr, intensity, params=task.params, fusion=task.fusion)[core]
+            classes = cl.classify_points(x, y, z, rn, nr, intensity, params=task.params, fusion=task.fusion,
+                                         water_grid=water_grid)[core]
     else:
         # Too few points for any neighbourhood statistics (a stray point at the edge of the grid).
         classes = np.full(int(core.sum()), cl.UNCLASSIFIED, np.uint8)
@@ -513,6 +532,93 @@ def _classify_tile(task: TileTask) -> TileResult:
     with atomic_path(task.core_index_path) as tmp:
         np.save(tmp, index[core])
     return TileResult(task.row, task.col, int(len(x)), int(core.sum()), time.perf_counter() - t0)
+
+
+def _window_m(grid: TileGrid, row: int, col: int):
+    """A tile's buffered box (xmin, ymin, xmax, ymax; m), infinite where it has no neighbour (the points beyond
+    the grid's outer edges belong to its edge tiles)."""
+    x0, y0, x1, y1 = grid.core_box(row, col)
+    b = grid.buffer_m
+    return (x0 - b if col > 0 else -np.inf, y0 - b if row > 0 else -np.inf,
+            x1 + b if col < grid.ncols - 1 else np.inf, y1 + b if row < grid.nrows - 1 else np.inf)
+
+
+@dataclasses.dataclass(frozen=True)
+class CellCountTask:
+    """Returns per cell of a grid over the whole cloud (cells of ``cell_m`` from its lowest x, y ``x0_m``,
+    ``y0_m``), counted in one tile: the cells whose centre lies in the tile's core (each cell in one tile), from
+    the tile's points with their buffer (a cell wholly inside when the buffer is at least half a cell)."""
+
+    row: int
+    col: int
+    points_path: str
+    grid: TileGrid
+    units: LengthUnits
+    x0_m: float
+    y0_m: float
+    cell_m: float
+
+
+def cell_count_histogram(task: CellCountTask) -> np.ndarray:
+    """How many of the tile's cells (``CellCountTask``) hold k returns, k = 0, 1, ... (index 0 stays 0: the
+    empty cells are not counted); int64."""
+    rec = np.fromfile(task.points_path, dtype=TILE_DTYPE)
+    x, y = task.units.xy_to_m(np.ascontiguousarray(rec["x"])), task.units.xy_to_m(np.ascontiguousarray(rec["y"]))
+    del rec
+    if not len(x):
+        return np.zeros(1, np.int64)
+    c = task.cell_m
+    j = np.floor((x - task.x0_m) / c).astype(np.int64)
+    i = np.floor((y - task.y0_m) / c).astype(np.int64)
+    del x, y
+    i0, j0 = int(i.min()), int(j.min())
+    ncols = int(j.max()) - j0 + 1
+    counts = np.bincount((i - i0) * ncols + (j - j0))
+    cells = np.flatnonzero(counts)
+    ci, cj = np.divmod(cells, ncols)
+    row, col = task.grid.core_rc(task.x0_m + (cj + j0 + 0.5) * c, task.y0_m + (ci + i0 + 0.5) * c)
+    own = (row == task.row) & (col == task.col)
+    hist = np.bincount(counts[cells[own]], minlength=1)
+    hist[0] = 0
+    return hist.astype(np.int64)
+
+
+def _median_of_histogram(hist: np.ndarray) -> float:
+    """``np.median`` of the values k repeated hist[k] times (0.0 when empty)."""
+    n = int(hist.sum())
+    if n == 0:
+        return 0.0
+    cum = np.cumsum(hist)
+    lo = int(np.searchsorted(cum, (n - 1) // 2, side="right"))
+    hi = int(np.searchsorted(cum, n // 2, side="right"))
+    return 0.5 * (lo + hi)
+
+
+def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUnits = METRE):
+    """The whole cloud's ``WaterGrid`` from its tiles (before they are classified): the mean point spacing as
+    ``grid.mean_spacing_m`` gives it for the whole cloud (occupied 10 m cells from its lowest x, y), the water
+    cell from it (``water_cell_m`` or max(1 m, 2 spacings), as ``classify_points`` takes it) and the median
+    returns per occupied water cell; two passes over the tile files, each tile counting the cells whose centre
+    lies in its core (memory of one tile)."""
+    from lidarctl.classify import pipeline as cl
+
+    x0, y0 = lowest
+
+    def histogram(cell_m, desc):
+        jobs = [CellCountTask(t.row, t.col, t.points_path, grid, units, x0, y0, cell_m) for t in tasks]
+        total = np.zeros(1, np.int64)
+        for h in executor.map(cell_count_histogram, jobs, desc=desc, unit="tile"):
+            if len(h) > len(total):
+                h, total = total, h
+            total[:len(h)] += h
+        return total
+
+    occupied = histogram(10.0, "tiles: density")
+    n = int((occupied * np.arange(len(occupied))).sum())
+    spacing = float(np.sqrt(int(occupied.sum()) * 100.0 / max(n, 1)))
+    c = params.water_cell_m or max(1.0, 2.0 * spacing)
+    return cl.WaterGrid(cell_m=float(c), x0_m=float(x0), y0_m=float(y0),
+                        median_count=_median_of_histogram(histogram(c, "tiles: water cells")))
 
 
 def _direct_classes(in_paths, crs, params, chunk_points, fusion=None):
@@ -773,11 +879,15 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
     tmp_dir = temporary_dir(work_parent, f"{tiles_name}.tiles")
     try:
         records_paths = [tmp_dir / f"records_{k}.bin" for k in range(len(in_paths))]
-        withheld = []
+        withheld, lowest = [], []
         tasks = split_into_tiles(in_paths, grid, tmp_dir, params, chunk_points, records_paths, units=units,
-                                 withheld=withheld)
+                                 withheld=withheld, lowest=lowest)
         if fusion is not None:
             tasks = [dataclasses.replace(t, fusion=fusion) for t in tasks]
+        if lowest and len(tasks) > 1:
+            # what is water is decided on the whole cloud's water cells and density (issue 44)
+            wg = water_grid(tasks, grid, params, lowest, executor, units)
+            tasks = [dataclasses.replace(t, water_grid=wg) for t in tasks]
         resumed = {}
         if resume is not None:
             doc = _tiles_key_doc(in_paths, grid, params, units, fusion)

@@ -80,6 +80,11 @@ Pipeline (``classify_points``):
    only in patches along its shores; level patches at one level (within ``level_water_tol_m``) that
    border the same dropout gap (cells without any return) are one body
    (``level_water_across_dropouts``; the lidR Topography lakes, bench/results/water.json).
+   *Tiles* (``lidarctl.tiles``): a tile takes the whole cloud's water cell, grid origin and returns per cell
+   (``WaterGrid``), its cells cut by the buffer's edge are neither dropouts nor banks, a gap that one level holds is
+   judged first on its sloping surface when that holds most of the returns the level leaves off, and a sloping
+   surface's banks are the rim of the gap with its holes filled: a river seen in a tile's window is judged as the
+   whole cloud judges it (bench/results/water_tiles.json).
 6. Bridge decks (17, ``bridge_decks``): ground between two open-water-sized dropout gaps (not
    occlusion shadows) at most ``bridge_max_width_m`` apart along a grid direction within 30 degrees
    of a gap's long axis (a watercourse runs on under the deck), standing more than
@@ -1000,13 +1005,49 @@ class _NearestLevel:
         return self._level[self._tree.query(np.column_stack([x, y]))[1]]
 
 
+@dataclasses.dataclass(frozen=True)
+class WaterGrid:
+    """The whole cloud's water grid, for a tile classified apart from the rest of its cloud (``lidarctl.tiles``,
+    issue 44): the cell (m: ``water_cell_m`` or 2 mean point spacings of the whole cloud), the origin of the
+    whole cloud's grid (its lowest x, y, m) and the reference returns per cell (the median over the whole
+    cloud's occupied cells). A tile's water cells are then the whole cloud's cells, judged against the whole
+    cloud's density: a window that a river fills (most of its occupied cells holding the water's few returns)
+    no longer lowers the dropout threshold below the water. ``window_m``: the tile's buffered box (xmin, ymin,
+    xmax, ymax; infinite at the cloud's own edges); a cell whose 3 x 3 window is not wholly inside it (the
+    buffer's edge cuts it, so it holds part of its returns) is no dropout."""
+
+    cell_m: float
+    x0_m: float
+    y0_m: float
+    median_count: float
+    window_m: tuple = (-np.inf, -np.inf, np.inf, np.inf)
+
+    def cell_ids(self, x, y):
+        """``grid.cell_ids`` of the points on this grid, its origin moved to the cell holding their lowest x, y."""
+        c = self.cell_m
+        x0 = self.x0_m + np.floor((float(np.min(x)) - self.x0_m) / c) * c
+        y0 = self.y0_m + np.floor((float(np.min(y)) - self.y0_m) / c) * c
+        return grid.cell_ids(x, y, c, x0, y0)
+
+    def inside(self, nrows: int, ncols: int, x0: float, y0: float) -> np.ndarray:
+        """Cells (nrows x ncols from x0, y0) whose 3 x 3 window lies inside ``window_m``."""
+        c = self.cell_m
+        xmin, ymin, xmax, ymax = self.window_m
+        jx = x0 + np.arange(ncols) * c
+        iy = y0 + np.arange(nrows) * c
+        ok_x = (jx - c >= xmin) & (jx + 2 * c <= xmax)
+        ok_y = (iy - c >= ymin) & (iy + 2 * c <= ymax)
+        return ok_y[:, None] & ok_x[None, :]
+
+
 @dataclasses.dataclass
 class DropoutGrid:
     """The water grid of step 5 (cells of ``c`` m): the cell id of every point, the returns per
     cell, the 8-connected pulse-dropout regions (3x3-window return count below
     ``water_density_ratio`` of the median occupied cell, so single empty cells in a sparse scan do
-    not count; labels 1..nlab, 0 elsewhere) with their areas (m2), and the cells holding building
-    points (for the occlusion-shadow test at a region's rim)."""
+    not count; labels 1..nlab, 0 elsewhere) with their areas (m2), the cells holding building
+    points (for the occlusion-shadow test at a region's rim) and the cells whose returns are all known
+    (``known``: all but those at a tile's buffer edge, ``WaterGrid.inside``; no rim or bank there)."""
 
     c: float
     flat: np.ndarray
@@ -1020,6 +1061,12 @@ class DropoutGrid:
     nlab: int
     area_m2: np.ndarray
     building_cell: np.ndarray
+    known: np.ndarray | None = None
+
+    def rim(self, win, region) -> np.ndarray:
+        """The rim (two cells wide) of ``region`` (a mask over the window ``win`` of the grid), known cells only."""
+        rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
+        return rim if self.known is None else rim & self.known[win]
 
     def ground_cell_z(self, x, y, z, is_ground) -> np.ndarray:
         """Mean height (m) of the ``is_ground`` points per cell (NaN without)."""
@@ -1027,18 +1074,32 @@ class DropoutGrid:
                            nrows=self.nrows, ncols=self.ncols, how="mean")
 
 
-def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings) -> DropoutGrid:
-    """The ``DropoutGrid`` of the cloud (cell ``water_cell_m``, default max(1 m, 2 point spacings))."""
-    c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
-    flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
+def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings,
+                 water_grid: WaterGrid | None = None) -> DropoutGrid:
+    """The ``DropoutGrid`` of the cloud (cell ``water_cell_m``, default max(1 m, 2 point spacings)); with
+    ``water_grid`` (a tile of a larger cloud) its cell, origin and reference count."""
+    if water_grid is None:
+        c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
+        flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
+    else:
+        c = water_grid.cell_m
+        flat, nrows, ncols, x0, y0 = water_grid.cell_ids(x, y)
     count = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols).astype(float)
     occupied = count > 0
-    median_count = float(np.median(count[occupied])) if occupied.any() else 0.0
+    if water_grid is None:
+        median_count = float(np.median(count[occupied])) if occupied.any() else 0.0
+    else:
+        median_count = water_grid.median_count
     dropout = ndimage.uniform_filter(count, 3, mode="nearest") < p.water_density_ratio * median_count
+    known = None
+    if water_grid is not None:
+        known = water_grid.inside(nrows, ncols, x0, y0)
+        dropout &= known
     labels, nlab = ndimage.label(dropout, np.ones((3, 3), int))
     area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
     building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
-    return DropoutGrid(c, flat, nrows, ncols, x0, y0, count, median_count, labels, nlab, area_m2, building_cell)
+    return DropoutGrid(c, flat, nrows, ncols, x0, y0, count, median_count, labels, nlab, area_m2, building_cell,
+                       known)
 
 
 def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spacing_m: float,
@@ -1103,25 +1164,13 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
     lab_c = lab_pt[cand]
     starts = np.flatnonzero(np.r_[True, lab_c[1:] != lab_c[:-1]])
     tol = p.water_level_tol_m
-    for members in np.split(cand, starts[1:]):
-        k = int(lab_pt[members[0]])
+    def judge(members, k, level, sigma_m, surface):
+        """The water returns of gap ``k`` (its ``members``) at one ``level`` (``surface`` None) or on the sloping
+        ``surface`` (m at each member; ``level`` the gap's one level), or None when the gap is not water."""
         zg = z[members]
-        if len(zg) < p.water_min_points:
-            continue
-        level, sigma_m = water_level(zg, tol)
-        n_level = int(np.sum(np.abs(zg - level) <= tol))
         level_of = None   # the level at a point (m) where the surface slopes along a river's course
-        if n_level < p.water_min_points or n_level < p.water_flat_fraction * len(zg):
-            if not p.water_sloping_surface:
-                continue
-            # Not at one level: a river falls along its course (``water_surface``).
-            surface = water_surface(x[members], y[members], zg, tol, p.water_max_slope, p.water_min_points)
-            if surface is None:
-                continue
+        if surface is not None:
             res = zg - surface
-            n_level = int(np.sum(np.abs(res) <= tol))
-            if n_level < p.water_min_points or n_level < p.water_flat_fraction * len(zg):
-                continue
             near_res = np.abs(res[np.abs(res) <= 0.5 * tol])
             sigma_m = 1.4826 * float(np.median(near_res)) if len(near_res) else tol
             level_z = surface
@@ -1137,40 +1186,42 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
         # ``low_veg_max_m`` above the level within one cell) are not water.
         on_level = on_level[open_sky(on_level, level_z[on] if level_of is not None else level)]
         if len(on_level) < p.water_min_points:
-            continue
+            return None
         # Horizontal: least-squares plane through the level returns.
         a = np.column_stack([x[on_level] - x[on_level].mean(), y[on_level] - y[on_level].mean(),
                              np.ones(len(on_level))])
         coef = np.linalg.lstsq(a, z[on_level], rcond=None)[0]
         if np.hypot(coef[0], coef[1]) > p.water_max_slope:
-            continue
+            return None
         if use_intensity and np.percentile(inten[on_level], 25) \
                 >= p.water_intensity_ratio * ground_intensity:
-            continue
+            return None
         # The region's bounding box, padded for the rim and the shore (whole-grid work per region
         # would cost O(regions x cells)).
         pad = shore_cells + 1
         r0, c0 = max(boxes[k - 1][0].start - pad, 0), max(boxes[k - 1][1].start - pad, 0)
         win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
         region = labels[win] == k
-        rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
+        rim = g.rim(win, region)
         if rim.any() and building_cell[win][rim].mean() > p.water_shadow_fraction:
-            continue
+            return None
         # Water lies in its bed: the ground on the banks is not below the water level.
         bank_z = ground_cell_z[win][rim]
         if level_of is not None:
-            # Each bank cell against the river's level beside it.
+            # Each bank cell against the river's level beside it. The banks are the rim of the gap with its holes
+            # filled: cells inside it that hold returns (foam on a riffle, a patch that returned the pulse) are
+            # the river, not its bank (as many of them as a tile's window holds, issue 44).
+            rim = g.rim(win, ndimage.binary_fill_holes(region))
             rr, cc = np.nonzero(rim & np.isfinite(ground_cell_z[win]))
             bank_z = ground_cell_z[win][rr, cc] - level_of(g.x0 + (cc + c0 + 0.5) * c,
                                                            g.y0 + (rr + r0 + 0.5) * c) + level
         bank_z = bank_z[np.isfinite(bank_z)]
         if len(bank_z) and np.median(bank_z) < level - tol:
-            continue
+            return None
         # A sloping surface is a river only in a bed: most of its banks stand more than the tolerance above the
         # level beside them (a car park or road draining at 1 % lies level with, or above, its surroundings).
         if level_of is not None and (not len(bank_z) or np.mean(bank_z > level + tol) < 0.5):
-            continue
-        water[on_level] = True
+            return None
         # Shore: the 3x3 dropout window misses the water returns next to the banks; returns within
         # ``water_shore_m`` of the body at its level join when they are dark too.
         shore = ndimage.binary_dilation(region, np.ones((3, 3), bool), shore_cells)
@@ -1193,7 +1244,35 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
             near = near[inten[near] < dark]
         else:
             near = near[count.ravel()[flat[near]] < p.water_density_ratio * median_count]
-        water[near] = True
+        return on_level, near
+
+    for members in np.split(cand, starts[1:]):
+        k = int(lab_pt[members[0]])
+        zg = z[members]
+        if len(zg) < p.water_min_points:
+            continue
+        level, sigma_m = water_level(zg, tol)
+        n_level = int(np.sum(np.abs(zg - level) <= tol))
+        one_level = n_level >= p.water_min_points and n_level >= p.water_flat_fraction * len(zg)
+        tries = [None] if one_level else []
+        if p.water_sloping_surface and (not one_level or len(zg) - n_level >= p.water_min_points):
+            # Not all at one level: a river falls along its course (``water_surface``). It is judged on its
+            # sloping surface when that holds the flat share of the returns and, where one level holds the
+            # gap too, more than half of the returns that level leaves off (a piece of a river short enough
+            # for one level still falls: a tile that sees a shorter piece of it than the whole cloud must
+            # not see less water, issue 44); that failing, the one level's verdict.
+            surface = water_surface(x[members], y[members], zg, tol, p.water_max_slope, p.water_min_points)
+            if surface is not None:
+                n_surface = int(np.sum(np.abs(zg - surface) <= tol))
+                if n_surface >= p.water_min_points and n_surface >= p.water_flat_fraction * len(zg) and \
+                        (not one_level or n_surface - n_level > 0.5 * (len(zg) - n_level)):
+                    tries.insert(0, surface)
+        for surface in tries:
+            found = judge(members, k, level, sigma_m, surface)
+            if found is not None:
+                water[found[0]] = True
+                water[found[1]] = True
+                break
     return water
 
 
@@ -1201,7 +1280,7 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
 # over a large area; terrain is not (it drains, so it slopes), and a level floor (a car park, a
 # square) ends at a curb or a street below it, where water stands in a bed whose banks rise above it.
 def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifySettings, solid=None,
-                number_of_returns=None) -> np.ndarray:
+                number_of_returns=None, water_grid: WaterGrid | None = None) -> np.ndarray:
     """Water returns (mask) of calm water bodies that returned the pulse (no dropout needed).
 
     On the water grid (``water_cell_m``, default max(1 m, 2 point spacings)) a cell is level when its
@@ -1215,15 +1294,20 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
     through crowns is never water); (d) where the cloud records returns per pulse, at most 5 % of its
     returns are from split pulses (nothing beneath a water surface). Shore: candidate returns within
     ``water_shore_m`` of the body at its level (within ``level_water_tol_m``) are water, those above
-    it are the bank -- the level decides, not the distance.
+    it are the bank -- the level decides, not the distance. ``water_grid``: the whole cloud's cell and origin
+    for a tile of it (``WaterGrid``).
     """
     n = len(x)
     water = np.zeros(n, bool)
     tol = p.level_water_tol_m
     if p.level_water_min_area_m2 <= 0 or not candidate.any():
         return water
-    c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
-    flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
+    if water_grid is None:
+        c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
+        flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
+    else:
+        c = water_grid.cell_m
+        flat, nrows, ncols, x0, y0 = water_grid.cell_ids(x, y)
     ci = np.flatnonzero(candidate)
     order = ci[np.lexsort((z[ci], flat[ci]))]
     cell = flat[order]
@@ -1412,7 +1496,7 @@ def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):
     for k in np.flatnonzero(area_m2[1:] >= p.water_min_area_m2) + 1:
         win = tuple(slice(max(b.start - 2, 0), b.stop + 2) for b in boxes[k - 1])
         region = labels[win] == k
-        rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
+        rim = g.rim(win, region)
         keep[k] = not rim.any() or building_cell[win][rim].mean() <= p.water_shadow_fraction
         bz = ground_z[win][rim]
         if np.isfinite(bz).any():
@@ -1582,9 +1666,11 @@ def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: Classi
 
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
-                    *, params: ClassifySettings | None = None, fusion=None) -> np.ndarray:
+                    *, params: ClassifySettings | None = None, fusion=None,
+                    water_grid: WaterGrid | None = None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
-    (``lidarctl.classify.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check)."""
+    (``lidarctl.classify.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check).
+    ``water_grid``: for a tile of a larger cloud, the whole cloud's water grid (``WaterGrid``; None: this cloud's)."""
     p = params or ClassifySettings()
     n = len(x)
     if n < 10:
@@ -1784,12 +1870,12 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     cls[high] = HIGH_VEG
 
     # water
-    gaps = dropout_grid(x, y, is_building, spacing, p)
+    gaps = dropout_grid(x, y, is_building, spacing, p, water_grid)
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
                          is_building, is_ground=is_ground, spacing_m=spacing, p=p, solid=clean, dropout=gaps)
     cls[water] = WATER
     cls[level_water(x, y, z, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG), is_ground, spacing, p=p,
-                    solid=clean, number_of_returns=number_of_returns)] = WATER
+                    solid=clean, number_of_returns=number_of_returns, water_grid=water_grid)] = WATER
     cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p=p, dropout=gaps)] = BRIDGE_DECK
     cls[spanning_decks(x, y, z, cls == BUILDING, cls == GROUND, gaps, p=p)] = BRIDGE_DECK
     if fusion is not None:
