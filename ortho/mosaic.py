@@ -1067,7 +1067,7 @@ def _bounded_solve(N, u: np.ndarray, cap: np.ndarray, floor: np.ndarray | None =
     if low_rank is not None:
         diag = diag + np.sum(low_rank * low_rank, axis=1)
     up, lo = x > upper, x < lower
-    seen = set()
+    seen, it = set(), 0
     for it in range(1, max_iter + 1):
         seen.add((up.tobytes(), lo.tobytes()))
         x = np.where(up, upper, np.where(lo, lower, 0.0))

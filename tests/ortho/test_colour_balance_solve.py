@@ -133,3 +133,26 @@ def test_float_frames_in_0_to_1_are_balanced(offsets):
     gains = balance_gains_offsets(red).gains if offsets else balance_gains(red)
     ratio = gains * truth[:, None]  # balanced: the same for every frame (the block's level)
     assert np.ptp(np.log(ratio), axis=0).max() < 0.02  # before: every gain 1 (means floored to 1.0), ptp 0.3
+
+
+def test_a_bounded_solve_that_does_not_converge_is_a_warning(monkeypatch):
+    red, caps, bounds = _block(4)
+    real = om._bounded_solve
+
+    def stopped_short(*a, **k):
+        res = real(*a, **k)
+        return om.BoundedSolution(res.x, False, res.iterations)
+
+    monkeypatch.setattr(om, "_bounded_solve", stopped_short)
+    rad = balance_gains_offsets(red, caps=caps, bounds=bounds)
+    assert not rad.converged.any()
+    messages = om.held_messages(rad, red.names)
+    assert sum("the bounded colour balance did not converge" in m for m in messages) == 3
+    # the fallback (the trust-region solver, when the active set cycles; here given no active-set iteration) converges
+    # to the same solution
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(40, 10))
+    n, u = a.T @ a + 0.1 * np.eye(10), rng.normal(size=10) * 5
+    cap, floor = np.full(10, 0.01), np.full(10, -0.01)
+    fallback, exact = real(n, u, cap, floor, max_iter=0), real(n, u, cap, floor)
+    assert fallback.converged and exact.converged and np.allclose(fallback.x, exact.x, atol=1e-6)
