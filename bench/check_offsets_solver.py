@@ -4,7 +4,7 @@ offsets held at their bounds, as Brighton's 38 of 54), against scipy's trust-reg
 convergence (max_iter 5000) on the dense normal equations for the small blocks; the time of the gains alone and with
 offsets; bench/results/offsets_solver.json.
 
-    nice .venv/bin/python bench/check_offsets_solver.py --sides 10 20 32 --reference-max 10
+    nice .venv/bin/python bench/check_offsets_solver.py --sides 6 10 20 25 32 --reference-max 10
 """
 from __future__ import annotations
 
