@@ -767,9 +767,11 @@ class OverlapPairs:
         return u
 
 
-def overlap_pairs(red: ReducedFrames, min_cells: int = 20, spread: bool = False) -> OverlapPairs | None:
+def overlap_pairs(red: ReducedFrames, min_cells: int = 20, spread: bool = False,
+                  white: float | None = None) -> OverlapPairs | None:
     """``OverlapPairs`` of the frames of ``red`` with at least ``min_cells`` common valid cells (None: no pair);
-    ``spread``: with their standard deviations."""
+    ``spread``: with their standard deviations; ``white`` (None: every cell): without the cells either frame has at
+    ``white`` or at black (0) in any band (a clipped sample's frame shows neither its gain nor its offset there)."""
     n = len(red.names)
     bands = red.rgb[0].shape[2]
     off = np.array(red.offsets, np.int64).reshape(n, 2)
@@ -786,10 +788,12 @@ def overlap_pairs(red: ReducedFrames, min_cells: int = 20, spread: bool = False)
         vi = red.valid[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci]
         vj = red.valid[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
         both = vi & vj
+        ai, aj = red.rgb[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci], red.rgb[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
+        if white is not None:
+            both = both & ~np.any((ai >= white) | (ai <= 0) | (aj >= white) | (aj <= 0), axis=2)
         cnt = int(np.count_nonzero(both))
         if cnt < min_cells:
             continue
-        ai, aj = red.rgb[i][r0 - ri:r1 - ri, c0 - ci:c1 - ci], red.rgb[j][r0 - rj:r1 - rj, c0 - cj:c1 - cj]
         (mi, si), (mj, sj) = _masked_mean_std(ai, both), _masked_mean_std(aj, both)
         if spread:
             stds.append((si, sj))
@@ -803,19 +807,40 @@ def overlap_pairs(red: ReducedFrames, min_cells: int = 20, spread: bool = False)
                         np.array(stds, float).reshape(-1, 2, bands) if spread else None)
 
 
+def level_floor(means: np.ndarray, dtype) -> float:
+    """The smallest overlap mean (and deviation) the balance takes the log of: 1 DN for integer samples (as before),
+    for float samples one 8-bit step of the block's brightest overlap mean, at most 1 (offsets-fixes2: frames in
+    0..1 had every mean floored to 1, every gain 1 and nothing said so; frames in 0..255 or more keep 1)."""
+    if np.issubdtype(np.dtype(dtype), np.integer):
+        return 1.0
+    top = float(np.max(means)) if np.size(means) else 0.0
+    return min(1.0, top / 255.0) if top > 0 else 1.0
+
+
+def _clip_white(red: ReducedFrames) -> float | None:
+    """The value of ``red``'s samples at white (its ``white_level``; for 8- and 16-bit frames without one the type's
+    maximum), None for float frames (no white: no cell is left out)."""
+    if red.white_level.value is not None:
+        return float(red.white_level.value)
+    dtype = np.dtype(red.rgb[0].dtype) if red.rgb else None
+    return float(np.iinfo(dtype).max) if dtype in _HISTOGRAM_TYPES else None
+
+
 def balance_gains(red: ReducedFrames, labels: np.ndarray | None = None, prior_weight: float = 0.1,
-                  min_cells: int = 20, caps=None, return_free: bool = False):
+                  min_cells: int = 20, caps=None, return_free: bool = False, exclude_clipped: bool = False):
     """Per-frame, per-band multiplicative gains (n_frames, bands) from the means of the pairwise overlaps: least
     squares on the log-gains, a weak prior towards 1; with ``caps`` (a function of the gains giving (n_frames, bands)
-    upper bounds, ``gain_caps``) the least squares under g <= cap (scipy's bounded least squares: a frame held at its
+    upper bounds, ``gain_caps``) the least squares under g <= cap (``_bounded_solve``: a frame held at its
     cap, its neighbours follow it down rather than clip its highlights).
-    ``return_free``: (gains, the gains without the caps)."""
+    ``return_free``: (gains, the gains without the caps). ``exclude_clipped``: the overlaps without the cells either
+    frame has at white or black (as the offsets'; off by default: no clear gain, bench/eval_gains_clipped.py)."""
     n = len(red.names)
     bands = red.rgb[0].shape[2]
-    ov = overlap_pairs(red, min_cells)
+    ov = overlap_pairs(red, min_cells, white=_clip_white(red) if exclude_clipped else None)
     if ov is None:
         return (np.ones((n, bands)),) * 2 if return_free else np.ones((n, bands))
-    rhs = np.log(np.maximum(ov.mean[:, 1], 1.0)) - np.log(np.maximum(ov.mean[:, 0], 1.0))
+    floor_dn = level_floor(ov.mean, red.rgb[0].dtype)
+    rhs = np.log(np.maximum(ov.mean[:, 1], floor_dn)) - np.log(np.maximum(ov.mean[:, 0], floor_dn))
     return _solve_log_gains(ov.normal_matrix(n, prior_weight), ov.right_hand_side(n, rhs), caps, return_free)
 
 
@@ -829,7 +854,11 @@ def _solve_log_gains(N: np.ndarray, u: np.ndarray, caps, return_free: bool):
     # until no new frame is capped
     c = np.log(np.asarray(caps(np.exp(logs)), float))
     for _ in range(4):
-        logs = np.stack([_bounded_solve(N, u[:, b], c[:, b]) for b in range(bands)], axis=1)
+        sols = [_bounded_solve(N, u[:, b], c[:, b]) for b in range(bands)]
+        for b, s in enumerate(sols):
+            if not s.converged:
+                logger.warning(_NOT_CONVERGED, b + 1)
+        logs = np.stack([s.x for s in sols], axis=1)
         c = np.log(np.asarray(caps(np.exp(logs)), float))
         if np.all(logs <= c + 1e-9):
             break
@@ -841,9 +870,13 @@ def _solve_log_gains(N: np.ndarray, u: np.ndarray, caps, return_free: bool):
 # on every other frame (the overlaps' tone-quarter RMS 0.6538 / 0.6191 / 0.6185 DN at 0.1 / 0.3 / 1: 0.3 and 1 tie, the
 # pair-mean RMS 0.286 / 0.292 broke it), reported on Brighton (bench/results/mosaic_offsets.json, "choice")
 SPREAD_WEIGHT = 0.3
-# a solution this close to a bound (log-gain; offset / the block's level) is at it (``_bounded_solve`` clips to its
-# bounds: those it held were within 6e-17, the nearest free value 6e-3 away, in test_colour_clipping's x 0.4 block)
-BOUND_TOL = 1e-9
+# a gain within this (relative) of its cap, an offset within this many DN of its bound is held there (offsets-fixes2:
+# the bounded solution holds them exactly, ``_bounded_solve``; before, a solver stopped short left held offsets up to
+# 2 DN from their bounds, unflagged): far below what a sample's rounding shows (1 DN of 255 is 4e-3)
+GAIN_HELD_TOL = 1e-6
+OFFSET_HELD_TOL_DN = 1e-3
+_NOT_CONVERGED = ("band %d: the bounded colour balance did not converge: its gains (and offsets) are within their "
+                  "bounds but not the bounded least squares' solution")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -859,10 +892,12 @@ class FrameRadiometry:
     free_offsets: np.ndarray
     gain_held: np.ndarray
     offset_held: np.ndarray
+    converged: np.ndarray | None = None  # (bands,) bool: the bounded solve converged (None: all)
 
 
 def balance_gains_offsets(red: ReducedFrames, prior_weight: float = 0.1, min_cells: int = 20, caps=None,
-                          bounds=None, spread_weight: float | None = None) -> FrameRadiometry:
+                          bounds=None, spread_weight: float | None = None,
+                          exclude_clipped: bool = True) -> FrameRadiometry:
     """Per-frame, per-band gain g = e^x and offset o = m p (DN; m the block's mean level) (``FrameRadiometry``) from
     the pairwise overlaps' means m_i and standard deviations s_i (``overlap_pairs``), by one least squares over all
     pairs (not a chain of ratios), per band: for every pair of n_ij common cells, the means
@@ -871,12 +906,14 @@ def balance_gains_offsets(red: ReducedFrames, prior_weight: float = 0.1, min_cel
     not change them), a prior lam^2 (x_k^2 + p_k^2) (lam ``prior_weight`` x the rows' RMS weight) and the block's level
     held: sum x = 0, sum p = 0 (heavy rows, which the free solution meets anyway). ``caps`` (a function of the gains:
     (frames, bands) upper bounds, ``gain_caps``) and ``bounds`` (a function of the gains and offsets: (lower, upper)
-    (frames, bands) DN, ``offset_bounds``) bound them (scipy's bounded least squares): an offset held at its bound
-    leaves the rest of its means to the gains. Normal equations of 2 n unknowns (n frames, not n^2 pairs)."""
+    (frames, bands) DN, ``offset_bounds``) bound them (``_bounded_solve``): an offset held at its bound
+    leaves the rest of its means to the gains. Normal equations of 2 n unknowns (n frames, not n^2 pairs), sparse.
+    ``exclude_clipped``: the overlaps without the cells either frame has at white or black (``overlap_pairs``;
+    offsets-fixes2: clipping shrank a hazy frame's spread and its means, 12 DN of haze on a bright block read 14.2)."""
     n = len(red.names)
     bands = red.rgb[0].shape[2]
     spread_weight = SPREAD_WEIGHT if spread_weight is None else spread_weight
-    ov = overlap_pairs(red, min_cells, spread=True)
+    ov = overlap_pairs(red, min_cells, spread=True, white=_clip_white(red) if exclude_clipped else None)
     if ov is None:
         one, zero = np.ones((n, bands)), np.zeros((n, bands))
         return FrameRadiometry(one, zero, one, zero, np.zeros((n, bands), bool), np.zeros((n, bands), np.int8))
@@ -884,36 +921,43 @@ def balance_gains_offsets(red: ReducedFrames, prior_weight: float = 0.1, min_cel
     w2 = ov.cells.astype(float)
     lam2 = prior_weight * prior_weight * float(np.mean(w2))
     heavy = 1e3 * float(np.sum(w2)) / n
-    level = np.maximum(ov.mean, 1.0)
+    floor_dn = level_floor(ov.mean, red.rgb[0].dtype)
+    level = np.maximum(ov.mean, floor_dn)
     block_level = float(np.mean(level))
     gains, offsets = np.ones((n, bands)), np.zeros((n, bands))
     free_gains, free_offsets = np.ones((n, bands)), np.zeros((n, bands))
     gain_held, offset_held = np.zeros((n, bands), bool), np.zeros((n, bands), np.int8)
     idx = np.stack([i, j, n + i, n + j], axis=1)  # a pair's unknowns: x_i, x_j, p_i, p_j
+    # the heavy rows sum x = 0 and sum p = 0 as V V' (V = sqrt(heavy) [1 on x, 1 on p]): N = S + V V', S sparse (a
+    # frame's overlaps and its prior: the normal equations of 1,000 frames solved in milliseconds, not dense)
+    V = np.zeros((2 * n, 2))
+    V[:n, 0] = V[n:, 1] = math.sqrt(heavy)
+    converged = np.ones(bands, bool)
+    import scipy.sparse as sp
+
     for b in range(bands):
         mi, mj = level[:, 0, b], level[:, 1, b]
         # the means' row of a pair: x_i - x_j + (m / m_i) p_i - (m / m_j) p_j = log m_j / m_i
         coef = np.stack([np.ones(len(i)), -np.ones(len(i)), block_level / mi, -block_level / mj], axis=1)
         r = np.log(mj) - np.log(mi)
-        N = np.zeros((2 * n, 2 * n))
         u = np.zeros(2 * n)
+        rows, cols, vals = [np.arange(2 * n)], [np.arange(2 * n)], [np.full(2 * n, lam2)]
         for c1 in range(4):
             np.add.at(u, idx[:, c1], w2 * coef[:, c1] * r)
             for c2 in range(4):
-                np.add.at(N, (idx[:, c1], idx[:, c2]), w2 * coef[:, c1] * coef[:, c2])
+                rows.append(idx[:, c1])
+                cols.append(idx[:, c2])
+                vals.append(w2 * coef[:, c1] * coef[:, c2])
         # the deviations' row: x_i - x_j = log s_j / s_i
-        sr = np.log(np.maximum(ov.std[:, 1, b], 1.0)) - np.log(np.maximum(ov.std[:, 0, b], 1.0))
+        sr = np.log(np.maximum(ov.std[:, 1, b], floor_dn)) - np.log(np.maximum(ov.std[:, 0, b], floor_dn))
         ws = spread_weight * spread_weight * w2
-        np.add.at(N, (i, i), ws)
-        np.add.at(N, (j, j), ws)
-        np.add.at(N, (i, j), -ws)
-        np.add.at(N, (j, i), -ws)
+        rows += [i, j, i, j]
+        cols += [i, j, j, i]
+        vals += [ws, ws, -ws, -ws]
         np.add.at(u, i, ws * sr)
         np.add.at(u, j, -ws * sr)
-        N[np.arange(2 * n), np.arange(2 * n)] += lam2
-        N[:n, :n] += heavy
-        N[n:, n:] += heavy
-        sol = np.linalg.solve(N, u)
+        S = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(2 * n, 2 * n))
+        sol = _spd_solve(S, V, np.ones(2 * n, bool), u)
         free_gains[:, b], free_offsets[:, b] = np.exp(sol[:n]), block_level * sol[n:]
         # the caps and bounds of frames kept decoded are known once their gains are (``ReducedFrames.histograms``):
         # again until none is passed
@@ -928,12 +972,16 @@ def balance_gains_offsets(red: ReducedFrames, prior_weight: float = 0.1, min_cel
                 floor[n:], cap[n:] = lo[:, b] / block_level, hi[:, b] / block_level
             if np.all(sol <= cap + 1e-12) and np.all(sol >= floor - 1e-12):
                 break
-            sol = _bounded_solve(N, u, cap, floor)
-            gain_held[:, b] = np.isfinite(cap[:n]) & (sol[:n] >= cap[:n] - BOUND_TOL)
-            offset_held[:, b] = np.where(np.isfinite(floor[n:]) & (sol[n:] <= floor[n:] + BOUND_TOL), -1,
-                                         np.where(np.isfinite(cap[n:]) & (sol[n:] >= cap[n:] - BOUND_TOL), 1, 0))
+            res = _bounded_solve(S, u, cap, floor, low_rank=V)
+            sol, converged[b] = res.x, res.converged
+            # held: within GAIN_HELD_TOL (relative) of its cap, OFFSET_HELD_TOL_DN of a bound
+            gain_held[:, b] = np.isfinite(cap[:n]) & (cap[:n] - sol[:n] <= GAIN_HELD_TOL)
+            offset_held[:, b] = np.where(np.isfinite(floor[n:]) & ((sol[n:] - floor[n:]) * block_level
+                                                                   <= OFFSET_HELD_TOL_DN), -1,
+                                         np.where(np.isfinite(cap[n:]) & ((cap[n:] - sol[n:]) * block_level
+                                                                          <= OFFSET_HELD_TOL_DN), 1, 0))
         gains[:, b], offsets[:, b] = np.exp(sol[:n]), block_level * sol[n:]
-    return FrameRadiometry(gains, offsets, free_gains, free_offsets, gain_held, offset_held)
+    return FrameRadiometry(gains, offsets, free_gains, free_offsets, gain_held, offset_held, converged)
 
 
 _GAIN_LOWERED = ("frame %s band %d: gain %.4g lowered to %.4g so that no unsaturated sample of the frame goes beyond "
@@ -944,7 +992,7 @@ _GAIN_LOWERED = ("frame %s band %d: gain %.4g lowered to %.4g so that no unsatur
 def held_messages(rad: FrameRadiometry, names) -> list[str]:
     """A warning per frame and band whose gain ``rad`` holds at its cap (``gain_caps``) or whose offset at a bound
     (``offset_bounds``), with the gain and offset the overlaps asked without the bounds (the free fit)."""
-    out = []
+    out = [] if rad.converged is None else [_NOT_CONVERGED % (b + 1) for b in np.flatnonzero(~rad.converged)]
     for k, b in zip(*np.nonzero(rad.gain_held | (rad.offset_held != 0))):
         asked = f"the balance asked gain {rad.free_gains[k, b]:.4g}, offset {rad.free_offsets[k, b]:+.2f} DN"
         if rad.gain_held[k, b]:
@@ -958,22 +1006,91 @@ def held_messages(rad: FrameRadiometry, names) -> list[str]:
     return out
 
 
-def _bounded_solve(N: np.ndarray, u: np.ndarray, cap: np.ndarray, floor: np.ndarray | None = None) -> np.ndarray:
-    """argmin x'Nx/2 - u'x subject to x <= cap (and x >= ``floor``; None: none) (N positive definite), as the bounded
-    least squares ||L'x - L^-1 u||^2 (N = LL') by scipy's trust-region reflective solver (an active set adding or
-    releasing one bound at a time took 47 s on 1,000 frames with 300 capped, this 0.7 s; BVLS 134 s)."""
+@dataclasses.dataclass(frozen=True)
+class BoundedSolution:
+    """``_bounded_solve``'s solution ``x``, whether the method converged (the bounds it holds stable and every
+    multiplier pushing against its bound: the Karush-Kuhn-Tucker conditions to rounding) and its ``iterations``."""
+
+    x: np.ndarray
+    converged: bool
+    iterations: int
+
+
+def _spd_solve(N, low_rank, free: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """The solution of (N + V V')[free, free] y = ``rhs`` (N dense or scipy sparse, V = ``low_rank`` (m, k) or None):
+    a dense solve, or a sparse LU of N's rows and columns ``free`` and the Woodbury identity for V's k columns (the
+    heavy rows of the block's level, which would make N dense)."""
+    import scipy.sparse as sp
+
+    if not sp.issparse(N):
+        A = N[np.ix_(free, free)]
+        if low_rank is not None:
+            A = A + low_rank[free] @ low_rank[free].T
+        return np.linalg.solve(A, rhs)
+    from scipy.sparse.linalg import splu
+
+    lu = splu(sp.csc_matrix(N[free][:, free]))
+    y = lu.solve(rhs)
+    if low_rank is None:
+        return y
+    V = low_rank[free]
+    Z = lu.solve(np.ascontiguousarray(V))
+    return y - Z @ np.linalg.solve(np.eye(V.shape[1]) + V.T @ Z, V.T @ y)
+
+
+def _bounded_solve(N, u: np.ndarray, cap: np.ndarray, floor: np.ndarray | None = None, low_rank=None,
+                   max_iter: int = 200) -> BoundedSolution:
+    """argmin x'Mx/2 - u'x subject to ``floor`` <= x <= ``cap`` (None, or a bound not finite: none), M = N + V V'
+    positive definite (N dense or scipy sparse: a block's normal equations, V = ``low_rank`` (m, k) or None), by the
+    primal-dual active set method (Hintermueller, Ito & Kunisch 2002): the bounds the last solution passes or whose
+    multipliers push against them held, the others solved exactly, until the held set no longer changes: then every
+    value is within its bounds and every held one's multiplier of the right sign (converged). A held set met before
+    (a cycle, possible when M is not an M-matrix) or ``max_iter`` is not converged: then scipy's trust-region
+    reflective bounded least squares, given 20 iterations per unknown, whose status says. Replaced (offsets-fixes2)
+    the reflective solver alone that stopped at its 100 iterations on blocks of 100 frames and more (100 frames:
+    offsets 1.95 DN off) and took 35 s on 400 frames' dense 800 unknowns with offsets."""
+    import scipy.sparse as sp
+
+    m = len(u)
+    upper = np.where(np.isfinite(cap), cap, np.inf)
+    lower = np.full(m, -np.inf) if floor is None else np.where(np.isfinite(floor), floor, -np.inf)
+    everything = np.ones(m, bool)
+    x = _spd_solve(N, low_rank, everything, u)
+    if np.all(x <= upper) and np.all(x >= lower):
+        return BoundedSolution(x, True, 0)
+
+    def times(v):  # M v
+        out = np.asarray(N @ v).ravel()
+        return out if low_rank is None else out + low_rank @ (low_rank.T @ v)
+
+    diag = (N.diagonal() if sp.issparse(N) else np.diag(N)).astype(float)
+    if low_rank is not None:
+        diag = diag + np.sum(low_rank * low_rank, axis=1)
+    up, lo = x > upper, x < lower
+    seen, it = set(), 0
+    for it in range(1, max_iter + 1):
+        seen.add((up.tobytes(), lo.tobytes()))
+        x = np.where(up, upper, np.where(lo, lower, 0.0))
+        free = ~(up | lo)
+        if free.any():
+            x[free] = _spd_solve(N, low_rank, free, (u - times(x))[free])
+        push = (u - times(x)) / diag  # the multipliers, in x's units: > 0 pushes up, < 0 down
+        new_lo = push + (x - lower) < 0
+        new_up = (push + (x - upper) > 0) & ~new_lo
+        if np.array_equal(new_up, up) and np.array_equal(new_lo, lo):
+            return BoundedSolution(x, True, it)
+        up, lo = new_up, new_lo
+        if (up.tobytes(), lo.tobytes()) in seen:
+            break
     from scipy.optimize import lsq_linear
 
-    x = np.linalg.solve(N, u)
-    if np.all(x <= cap) and (floor is None or np.all(x >= floor)):
-        return x
-    chol = np.linalg.cholesky(N)
-    lower = np.full(len(u), -np.inf) if floor is None else np.where(np.isfinite(floor), floor, -np.inf)
-    # the interior method keeps x strictly inside the bounds: a bound that is not finite is none
-    x = lsq_linear(chol.T, np.linalg.solve(chol, u), bounds=(lower, np.where(np.isfinite(cap), cap, np.inf)),
-                   method="trf", tol=1e-12).x
-    x = np.minimum(x, cap)
-    return x if floor is None else np.maximum(x, floor)
+    dense = N.toarray() if sp.issparse(N) else np.array(N, float)
+    if low_rank is not None:
+        dense += low_rank @ low_rank.T
+    chol = np.linalg.cholesky(dense)
+    res = lsq_linear(chol.T, np.linalg.solve(chol, u), bounds=(lower, upper), method="trf", tol=1e-12,
+                     max_iter=20 * m)
+    return BoundedSolution(np.clip(res.x, lower, upper), bool(res.status > 0), it + int(res.nit))
 
 
 def _read_ndsm_on(path, transform, shape, crs, operation=None, ds=None):

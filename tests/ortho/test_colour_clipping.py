@@ -68,7 +68,7 @@ def test_bounded_least_squares_matches_bvls():
     a = rng.normal(size=(30, 8))
     n, u = a.T @ a + 0.1 * np.eye(8), rng.normal(size=8) * 3
     cap = np.full(8, 0.05)
-    x = _bounded_solve(n, u, cap)
+    x = _bounded_solve(n, u, cap).x
     chol = np.linalg.cholesky(n)
     ref = lsq_linear(chol.T, np.linalg.solve(chol, u), bounds=(-np.inf, cap), method="bvls").x  # exact, small n
     assert np.all(x <= cap + 1e-12) and np.allclose(x, ref, atol=1e-6)
@@ -124,11 +124,11 @@ def test_a_bright_frame_neither_clips_nor_darkens_the_mosaic(tmp_path, outside, 
                     assert f"frame {name} band {b + 1}: offset {o:+.2f} DN held at its {bound} bound (the balance " \
                            f"asked gain " in r.stderr, r.stderr
         held = sum(abs(abs(o) - OFFSET_MAX_SHARE * 255) < 1e-6 for row in summary["offsets"].values() for o in row)
-        assert held == (6 if outside == 0.4 else 9)
-        cap = ROLLOFF_HEADROOM * 254.5 / 254  # (x 0.4: the frame's gains at it, its offsets at the roll-off's bound)
-        for b in range(3):
-            assert (f"frame s01_002 band {b + 1}: gain {cap:.4g} held at its cap (the balance asked gain "
-                    in r.stderr) == (outside == 0.4), r.stderr
+        # (offsets-fixes2: the overlaps without the cells at black, which x 0.4 makes many of the frame's darks: its
+        # offsets, 0 before, are held at their upper bound and take what its gain, at its cap before, no longer asks)
+        assert held == 9
+        cap = ROLLOFF_HEADROOM * 254.5 / 254
+        assert max(summary["gains"]["s01_002"]) < cap - 1e-3 and "held at its cap" not in r.stderr
     knee = summary["highlight_rolloff"]["knee"]
     assert 0.5 * 254.5 * (1 - 1e-5) <= knee < 254 and summary["highlight_rolloff"]["top_out"] < 254.5
     # where the mosaic shows the frame (its seam region, away from the feathered seams), no more of it saturated
@@ -152,7 +152,7 @@ def test_a_bright_frame_neither_clips_nor_darkens_the_mosaic(tmp_path, outside, 
     if offsets:  # the level kept (mean log-gain and mean offset 0), the frame brightened by a gain and an offset
         offs = np.array(list(summary["offsets"].values()))
         assert abs(np.log(gains).mean()) < 1e-4 and abs(offs.mean()) < 0.01  # (held by heavy rows under the bounds)
-        assert gains[k].min() > 1.1 and offs[k].min() > -0.01  # (x 0.4: held at its cap, the offset at 0)
+        assert gains[k].min() > 1.1 and offs[k].min() > -0.01  # (x 0.4: the offset at its upper bound)
         assert mosaic_mean / frames_mean == pytest.approx(1.0, abs=0.02 if outside == 0.6 else 0.05)
     elif outside == 0.6:
         assert gains[k].min() > 1.35 and abs(np.log(gains).mean()) < 1e-9
