@@ -38,7 +38,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
-from eval_real_blocks import Runner, _add_flight_height, _takeoff_height  # noqa: E402
+from eval_real_blocks import Runner, _flight_height_from_import  # noqa: E402
 
 
 def saturated_share(path: Path, block_px: int = 2048) -> dict:
@@ -173,10 +173,7 @@ def adjust(r: Runner, P: Path, D: Path, lidar: Path) -> None:
     """The block adjusted with the cloud's DEM as surface control (docs/real-blocks.md), from the data folder."""
     r.run("aerotri", "init", P, "--images", D / "images", "--crs", "EPSG:32615")
     _, out = r.run("aerotri", "import", P, "--format", "exif", P / "images")
-    takeoff = _takeoff_height(out)
-    if takeoff is not None:
-        _add_flight_height(P, takeoff)
-        r.edit(f"brighton/project.toml: [flight] mean_terrain_height_m = {takeoff:g} (the import's note)")
+    _flight_height_from_import(r, P, out)
     r.run("aerotri", "match", P)
     r.run("lidarctl", "classify", D / "model.laz", lidar / "model_classified.laz")
     r.run("lidarctl", "rasters", lidar / "model_classified.laz", lidar, "--res-m", "0.5")
