@@ -1079,7 +1079,8 @@ JUDGES = {"asprs2023": _asprs, "asprs2014": _asprs2014, "usgs-lbs": _lbs, "cn-at
 
 def summarise(checks) -> tuple[ProductCompliance, ...]:
     """Per product: fail if any check fails, else not testable if any class test is, else pass (checks that are
-    only reported do not count); the finest class met by all its checks (per dimension for ASPRS)."""
+    only reported do not count); the finest class met by all its checks (per dimension for ASPRS), "not
+    established" when one of them is not testable (with the class the rows tested meet)."""
     out = []
     for product in PRODUCTS:
         cs = [c for c in checks if c.product == product]
@@ -1087,14 +1088,22 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
             continue
         vs = [c.verdict for c in cs if c.verdict != "reported" and c.judged]
         verdict = "fail" if "fail" in vs else (NOT_TESTABLE if NOT_TESTABLE in vs or not vs else "pass")
-        parts = []
+        parts, meets_none = [], False
         for dim in dict.fromkeys(c.dimension for c in cs):
             ranked = [c for c in cs if c.dimension == dim and c.finest_rank is not None and c.verdict != "reported"
                       and c.judged]
             if ranked:
                 worst = max(ranked, key=lambda c: c.finest_rank)
                 parts.append(worst.finest_class)
-        out.append(ProductCompliance(product, verdict, " ".join(parts) if parts else "not measured"))
+                meets_none |= worst.finest_rank == math.inf
+        finest = " ".join(parts) if parts else "not measured"
+        untested = list(dict.fromkeys(c.quantity for c in cs if c.verdict == NOT_TESTABLE and c.judged))
+        if untested and not meets_none:
+            # a class is met when every row meets it: with a row not testable none is established (unless a row
+            # meets no class at all: then none is, whatever the untested rows)
+            finest = (f"not established ({'; '.join(untested)}: not testable)"
+                      + (f"; the rows tested meet {' '.join(parts)}" if parts else ""))
+        out.append(ProductCompliance(product, verdict, finest))
     return tuple(out)
 
 

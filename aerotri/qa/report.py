@@ -856,7 +856,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
         return []
     lines = [f"compliance: {comp['name']}, class {comp['class_tested']} ({comp['reason']})"]
     for p in comp["products"]:
-        lines.append(f"  {p['verdict']:<12} {p['product']}: finest class met {p['finest_class']}")
+        met = "" if p["finest_class"].startswith("not established") else "met "
+        lines.append(f"  {p['verdict']:<12} {p['product']}: finest class {met}{p['finest_class']}")
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
         acc = checkpoints_accuracy_text(c, ("accurate enough", "not accurate enough"))
