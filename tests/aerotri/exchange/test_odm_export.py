@@ -248,8 +248,14 @@ def test_plan_only_control_is_never_given_a_height_of_0(adjusted_tiny, tmp_path)
     path.write_text("\n".join([head] + rows) + "\n")
     cp = read_control_points(path)
     full = set(cp.id[cp.kind == "full"])
+    report = json.loads((root / "at" / "report.json").read_text())  # as the adjustment writes plan-only control
+    for c in report["control_points"]:
+        if c["id"] in plan:
+            c["kind"], c["given_m"][2], c["residual_m"][2] = "horizontal", 0.0, None
+    (root / "at" / "report.json").write_text(json.dumps(report))
+    adjusted_z = {c["id"]: c["adjusted_m"][2] for c in report["control_points"]}
     r = CliRunner().invoke(aerotri_cli, ["export", str(root), "--format", "odm", "--format", "metashape",
-                                         "--format", "micmac", "--out", str(tmp_path / "x")])
+                                         "--format", "micmac", "--format", "gpkg", "--out", str(tmp_path / "x")])
     assert r.exit_code == 0, r.output
     assert f"2 plan-only control points ({', '.join(plan)}) have no height" in r.output
     odm = tmp_path / "x" / "odm"
@@ -266,3 +272,11 @@ def test_plan_only_control_is_never_given_a_height_of_0(adjusted_tiny, tmp_path)
     micmac = ET.parse(tmp_path / "x" / "micmac" / "gcp.xml").getroot()
     sz = {o.findtext("NamePt"): o.findtext("Incertitude").split()[2] for o in micmac.iter("OneAppuisDAF")}
     assert all(sz[p] == "-1" for p in plan) and all(sz[p] != "-1" for p in full)
+    from pyogrio.raw import read as read_layer
+
+    _, _, geom, fields = read_layer(tmp_path / "x" / "layers" / "block.gpkg", layer="control_points",
+                                    return_fids=False)
+    import shapely
+
+    z = {pid: shapely.from_wkb(g).z for pid, g in zip(fields[0], geom)}  # point_id is the first field
+    assert all(z[p] == pytest.approx(adjusted_z[p], abs=1e-3) and abs(z[p]) > 1.0 for p in plan)
