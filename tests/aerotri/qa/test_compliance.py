@@ -1112,3 +1112,26 @@ def test_no_finest_class_is_stated_beside_a_row_not_testable():
     tested = judge(Figures(lidar=dataclasses.replace(lf, vva_p95_m=0.2, vva_rmse_m=0.1, n_vva=12)),
                    Choice("usgs-lbs", "QL2", "t", level="QL2"))
     assert {p.product: p.finest_class for p in tested.products}["LiDAR DEM"] in ("QL0", "QL1", "QL2", "QL3")
+
+
+def test_cn_at_judges_the_dem_by_one_rule_in_both_sections(tmp_path):
+    """trial-qa: under cn-at 1:2000 the compliance section judged the DEM at the open points against the spot-height
+    limit (0.5 m, read in a source: cn_at.toml C2, confirmed) while the verdict table judged every point, forest too,
+    against the 1:2000 table's 0.4 m (a project default, no clause): Autzen 0.0596 m at 35 points beside 0.1492 m at
+    43. One rule now, the sourced one: the verdict table's DEM row is the open points' RMS against 0.5 m, the
+    compliance row's figure; at 1:5000, where cn-at sets no DEM limit, the table's own row as before."""
+    import numpy as np
+
+    root = _dem_checked_alone(tmp_path, open_dz_m=0.3, forest_dz_m=1.2)  # all 40: RMS 0.56 m; open: 0.30 m
+    rep = write_qa_report(root, standard="cn-at", accuracy_class="1:2000")
+    (nva,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert nva["limit"] == 0.5 and nva["n_points"] == 34 and nva["measured"] == pytest.approx(0.3, abs=1e-3)
+    row = rep.check("dem_raster_rmse_m")
+    assert row.limit == 0.5 and "at 34 non-vegetated surveyed points" in row.quantity
+    assert row.value == pytest.approx(nva["measured"], abs=1e-4) and row.verdict == nva["verdict"] == "pass"
+    assert "spot heights" in row.limit_source and row.limit_confirmed is True
+    every = np.sqrt((34 * 0.3 ** 2 + 6 * 1.2 ** 2) / 40)
+    assert every > 0.5  # judged at every point against the table's 0.4 m it failed beside the compliance's pass
+    rep = write_qa_report(root, standard="cn-at", accuracy_class="1:5000")
+    assert rep.check("dem_raster_rmse_m").limit == 0.5 and "spot heights" not in (rep.check("dem_raster_rmse_m")
+                                                                                    .limit_source or "")
