@@ -92,6 +92,8 @@ def dem(project, res_m, min_rays, out):
                f"({s.outliers} outliers out; cells measured {s.cells_measured}, interpolated "
                f"{s.cells_interpolated}, extended {s.cells_extrapolated}), heights {s.height_range_m[0]:.2f} to "
                f"{s.height_range_m[1]:.2f} -> {s.file}")
+    if s.cells_extrapolated:
+        click.echo(f"  {s.extension_words()}")
 
 
 @main.command()

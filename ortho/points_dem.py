@@ -8,7 +8,9 @@ binned into a north-up grid in the project CRS:
 2. each cell takes the median height of its points;
 3. empty cells inside the points' hull are interpolated linearly between the filled cells (Delaunay), and cells
    outside it, up to the frames' footprints, take the height of the nearest filled cell: the frames' edges reach
-   beyond the tie points, and a flat continuation is the best guess there (the report counts these cells).
+   beyond the tie points, and a flat continuation is the best guess there (the console, ``<out>.json`` and the
+   GeoTIFF's tags give their share, the farthest one's distance and how far the grid reaches beyond the points to
+   the north, east, south and west; a warning when they are more than half of the DEM).
 
 The result is a surface of the visible tops (roofs, trees: a DSM where the tie points are on them), as dense as
 the tie points; its heights are those of the adjustment (relative ones when the control had no heights). Written
@@ -52,6 +54,10 @@ class PointsDem:
     cells_measured: int  # cells with points
     cells_interpolated: int  # empty cells inside the points' hull
     cells_extrapolated: int  # cells outside it, within the footprints
+    # where the extended cells are: the farthest one's distance from a cell of the data (measured or interpolated),
+    # and how far the grid reaches beyond the data's extent to the north, east, south and west (m)
+    extrapolated_max_distance_m: float = 0.0
+    extended_beyond_nesw_m: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 def _cell_index(x, y, x0, y0, res, shape):
@@ -132,11 +138,15 @@ def points_dem(xyz_m: np.ndarray, res_m: float, bounds=None, min_tolerance_m: fl
         except QhullError:  # the points on one line: no hull, only the nearest cell
             pass
     still = ~np.isfinite(grid)
+    far_m, beyond = 0.0, (0.0, 0.0, 0.0, 0.0)
     if still.any():
-        _, (ir, ic) = distance_transform_edt(still, return_indices=True)
+        dist, (ir, ic) = distance_transform_edt(still, return_indices=True)
         grid[still] = grid[ir[still], ic[still]]
+        far_m = float(dist[still].max() * res_m)
+        dr, dc = np.nonzero(~still)  # the data's extent in cells
+        beyond = tuple(float(v * res_m) for v in (dr.min(), shape[1] - 1 - dc.max(), shape[0] - 1 - dr.max(), dc.min()))
     return PointsDem(grid.astype(np.float32), float(x0), float(y1), float(res_m), int(keep.sum()), int((~keep).sum()),
-                     int(measured.sum()), n_interp, int(still.sum()))
+                     int(measured.sum()), n_interp, int(still.sum()), far_m, beyond)
 
 
 def default_resolution(xyz_m: np.ndarray, points_per_cell: float = 4.0) -> float:
@@ -191,6 +201,9 @@ class PointsDemResult:
     cells_measured: int
     cells_interpolated: int
     cells_extrapolated: int
+    extrapolated_percent: float  # of all cells: filled beyond the data, a flat continuation of the nearest cell
+    extrapolated_max_distance_m: float  # the farthest extended cell from the data
+    extended_beyond_nesw_m: tuple[float, float, float, float]  # the grid beyond the data's extent: N, E, S, W
     height_range_m: tuple[float, float]
     source: str
     note: str = ("median height of the adjusted tie points per cell (3-sigma neighbourhood outliers out), linear "
@@ -199,6 +212,15 @@ class PointsDemResult:
     def to_json(self) -> str:
         """The ``<out>.json`` text."""
         return json.dumps(dataclasses.asdict(self), indent=1) + "\n"
+
+    def extension_words(self) -> str:
+        """What share of the DEM is extended beyond the tie points and where, in words."""
+        sides = ", ".join(f"{name} {m:.0f} m" for name, m in zip(("north", "east", "south", "west"),
+                                                                  self.extended_beyond_nesw_m) if m > 0)
+        return (f"{self.extrapolated_percent:.0f} % of the cells ({self.cells_extrapolated} of "
+                f"{self.width * self.height}) extended beyond the tie points (the nearest cell's height, not measured), "
+                f"up to {self.extrapolated_max_distance_m:.0f} m from them" + (f"; the grid reaches {sides} beyond "
+                                                                              "their extent" if sides else ""))
 
 
 def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int = 3) -> PointsDemResult:
@@ -233,6 +255,9 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
         file=str(out), crs=project.crs, res_m=dem.res_m, width=int(data.shape[1]), height=int(data.shape[0]),
         points=dem.n_points, outliers=dem.n_outliers, min_rays=min_rays, cells_measured=dem.cells_measured,
         cells_interpolated=dem.cells_interpolated, cells_extrapolated=dem.cells_extrapolated,
+        extrapolated_percent=round(100.0 * dem.cells_extrapolated / data.size, 1),
+        extrapolated_max_distance_m=round(dem.extrapolated_max_distance_m, 2),
+        extended_beyond_nesw_m=tuple(round(v, 2) for v in dem.extended_beyond_nesw_m),
         height_range_m=(float(np.nanmin(dem.heights_m)), float(np.nanmax(dem.heights_m))),
         source=str(project.object_points_path))
     with rasterio.MemoryFile() as mem:
@@ -241,8 +266,17 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
             ds.set_band_description(1, "height of the adjusted tie points (median per cell)")
             ds.update_tags(SOURCE="aerotri adjusted tie points (ortho dem)", CELLS_MEASURED=str(dem.cells_measured),
                            CELLS_INTERPOLATED=str(dem.cells_interpolated),
-                           CELLS_EXTRAPOLATED=str(dem.cells_extrapolated))
+                           CELLS_EXTRAPOLATED=str(dem.cells_extrapolated),
+                           CELLS_EXTRAPOLATED_PERCENT=f"{stats.extrapolated_percent:.1f}",
+                           EXTRAPOLATED_MAX_DISTANCE_M=f"{stats.extrapolated_max_distance_m:.2f}",
+                           EXTENDED_BEYOND_NESW_M=" ".join(f"{v:.2f}" for v in stats.extended_beyond_nesw_m),
+                           EXTRAPOLATION=stats.extension_words())
         with mem.open() as src, atomic_path(out) as tmp:
             rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average")
     write_text_atomic(out.with_suffix(".json"), stats.to_json())
+    if 2 * stats.cells_extrapolated > data.size:  # most of the DEM is no measurement
+        _log.warning(f"{out}: most of this DEM ({stats.extrapolated_percent:.0f} % of the cells, up to "
+                     f"{stats.extrapolated_max_distance_m:.0f} m from the tie points) is a flat continuation beyond "
+                     "them: orthophotos there stand on no measured height (a DEM from LiDAR, or --min-rays 2, "
+                     "reaches farther)")
     return stats

@@ -606,7 +606,8 @@ class Chain:
         s = write_points_dem(root, self.tie_point_dem_path)
         return R.TiePointDemResult(res_m=s.res_m, points=s.points, cells_measured=s.cells_measured,
                                    notes=("no LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie "
-                                          f"points ({self.tie_point_dem_path})",))
+                                          f"points ({self.tie_point_dem_path})",)
+                                   + ((s.extension_words(),) if s.cells_extrapolated else ()))
 
     # -- orthophotos ----------------------------------------------------------------------------
     def dsm_path(self) -> Path | None:

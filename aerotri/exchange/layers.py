@@ -7,7 +7,8 @@ Layers (the same in both files):
 - ``control_points``: the control and check points of the adjustment report (``at/report.json``) at their
   given coordinates, attributes ``point_id``, ``kind`` (full, horizontal, height, check), ``used`` (1: in the
   adjustment as control), ``rays`` and the ground residuals ``dx_m``, ``dy_m``, ``dz_m`` = adjusted - given
-  (project CRS axes, metres; a coordinate the point does not control has no residual: NULL);
+  (project CRS axes, metres; a coordinate the point does not control has no residual: NULL); plan-only
+  (horizontal) control has no given height: its point stands at its adjusted height, never at 0;
 - ``footprints``: each frame's outline on the ground (``image_id``, ``omega_deg``, ``phi_deg``, ``kappa_deg``):
   ``EDGE_POINTS`` points along each image edge (pixel-area corners included), their rays through the adjusted
   camera and orientation (``at/eo.txt``) intersected with the project's DEM (``footprint_dem``: the LiDAR
@@ -144,8 +145,11 @@ def _control_rows(project: Project) -> list[dict]:
         if given is None:
             raise InputError(f"{project.adjustment_report_path}: control point {c.get('id')!r} has no given_m")
         res = c.get("residual_m") or ([a - g for a, g in zip(adjusted, given)] if adjusted else [None] * 3)
+        xyz = list(given)
+        if c.get("kind") == "horizontal":  # plan-only: no given height (its stored 0 is none), the adjusted one
+            xyz[2] = adjusted[2] if adjusted else float("nan")
         rows.append({"id": str(c["id"]), "kind": str(c.get("kind", "full")), "used": int(bool(c.get("used", True))),
-                     "rays": int(c.get("rays", 0)), "xyz": given, "d": res})
+                     "rays": int(c.get("rays", 0)), "xyz": xyz, "d": res})
     for c in report.get("check_points", []):
         rows.append({"id": str(c["id"]), "kind": "check", "used": 0, "rays": int(c.get("rays", 0)),
                      "xyz": c["measured_m"], "d": c.get("d_m") or [None] * 3})

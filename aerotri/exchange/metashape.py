@@ -28,8 +28,9 @@ Conventions (Metashape manual, appendix "Camera models"):
 - distortion: x' = x (1 + K1 r2 + K2 r4 + K3 r6) + P1 (r2 + 2 x2) + 2 P2 x y, y' = ... + P2 (r2 + 2 y2) +
   2 P1 x y: Metashape's P1 is OpenCV's (our) p2 and its P2 our p1 (swapped here). b1, b2, K4, P3, P4 are
   not in our model (the import refuses non-zero values);
-- markers: ``enabled="true"`` = control, ``"false"`` = check point (the import reads every enabled marker
-  as full XYZ control: horizontal and height control come back as full, noted); marker projections:
+- markers: ``enabled="true"`` = control, ``"false"`` = check point; plan-only (horizontal) control is written
+  with x y and no z (its stored 0 is no height; the import reads it back as horizontal), height-only control as
+  a marker without reference coordinates (Metashape has no height-only marker), both named in a warning; marker projections:
   the control points' measured pixels (control/image_points.csv, as measured).
 
 Import: the sensor -> camera.toml (a frame sensor only: fisheye, spherical, ... are refused; its adjusted
@@ -47,6 +48,7 @@ Metashape reads the heights N (the geoid undulation) off.
 
 from __future__ import annotations
 
+import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -63,6 +65,8 @@ from aerotri.geom.camera import BrownCamera, Camera
 from aerotri.geom.local_frame import LocalFrame
 from aerotri.geom.observations import ControlPoints, ImageObservations, read_control_points, read_image_points
 from aerotri.geom.rotation import FLIP_YZ
+
+log = logging.getLogger(__name__)
 
 
 def _fmt(v: float) -> str:
@@ -111,8 +115,20 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
         markers = ET.SubElement(chunk, "markers", next_id=str(len(control)), next_group_id="0")
         for n, (pid, kind, xyz, sig) in enumerate(zip(control.id, control.kind, control.xyz_m, control.sigma_m)):
             m = ET.SubElement(markers, "marker", id=str(n), label=str(pid), reference="true")
-            ET.SubElement(m, "reference", x=_fmt(xyz[0]), y=_fmt(xyz[1]), z=_fmt(xyz[2]), sx=_fmt(sig[0]),
-                          sy=_fmt(sig[1]), sz=_fmt(sig[2]), enabled="false" if kind == "check" else "true")
+            if kind == "height":  # no plan position to give: a marker without reference coordinates
+                continue
+            # plan-only control: x y without z (its stored 0 is no height)
+            ref = {"x": _fmt(xyz[0]), "y": _fmt(xyz[1]), "z": _fmt(xyz[2]), "sx": _fmt(sig[0]), "sy": _fmt(sig[1]),
+                   "sz": _fmt(sig[2]), "enabled": "false" if kind == "check" else "true"}
+            if kind == "horizontal":
+                del ref["z"], ref["sz"]
+            ET.SubElement(m, "reference", ref)
+        for what, k in (("plan-only", "horizontal"), ("height-only", "height")):
+            ids = [str(p) for p, kk in zip(control.id, control.kind) if kk == k]
+            if ids:
+                log.warning(f"metashape export: {len(ids)} {what} control points ({', '.join(ids)}) written "
+                            + ("with x y and no z" if k == "horizontal" else "as markers without reference "
+                               "coordinates (Metashape has no height-only marker)"))
         if project.control_image_points_path.is_file():
             obs = read_image_points(project.control_image_points_path)
             marker_of = {str(p): n for n, p in enumerate(control.id)}

@@ -6,8 +6,9 @@
 | ``odm/opensfm/reference_lla.json`` | the reference point alone (what OpenSfM datasets older than ``reference_lla`` in the reconstruction read) |
 | ``odm/cameras.json`` | the camera, OpenSfM's ``camera_models.json`` layout (ODM's ``--cameras``) |
 | ``odm/gcp_list.txt`` | the control points the adjustment used and their measurements it kept (``aerotri.exchange.odm`` documents the layout); none for a block without control |
-| ``odm/opensfm/ground_control_points.json`` | the same control in OpenSfM's own GCP format (WGS84, normalised image coordinates) |
+| ``odm/opensfm/ground_control_points.json`` | the same control in OpenSfM's own GCP format (WGS84, normalised image coordinates), plus the plan-only control without ``altitude`` (OpenSfM: ``has_altitude`` false) |
 | ``odm/gcp_list_check.txt`` | check points and their measurements, gcp_list.txt layout (ODM has no check points: in gcp_list.txt they would become control) |
+| ``odm/gcp_list_plan_only.txt`` | plan-only (horizontal) control and its measurements, gcp_list.txt layout with ``geo_z`` NaN (OpenSfM's reader: no altitude); not in gcp_list.txt, where ODM's own reader may turn NaN into a height of 0; a warning names the points. Height-only control is left out of every ODM file (the layout has no plan-free point), also named in a warning |
 | ``odm/gcp_list_rejected.txt`` | measurements of control points the adjustment did not use: removed by data snooping (w), of a control point it rejected, or of a point it never had; gcp_list.txt layout, the reason in the extra fields; each also printed as a warning |
 
 The reference point is the adjustment's local-frame origin (``at/report.json``) in WGS84 through the
@@ -41,25 +42,28 @@ def _crs_line(crs_text: str) -> str:
     return f"EPSG:{code}" if code else crs.to_proj4()
 
 
-def _gcp_rows(obs: ImageObservations, xyz: dict, names: dict, extras=None) -> list[str]:
+def _gcp_rows(obs: ImageObservations, xyz: dict, names: dict, extras=None, plan_only=frozenset()) -> list[str]:
+    """gcp_list.txt lines; the points of ``plan_only`` get geo_z NaN (no height), never their stored 0."""
     rows = []
     for n, (p, i, (x, y)) in enumerate(zip(obs.point_id.astype(str), obs.image_id.astype(str), obs.xy_px)):
         X, Y, Z = xyz[p]
-        rows.append(f"{X:.4f}\t{Y:.4f}\t{Z:.4f}\t{x:.3f}\t{y:.3f}\t{names.get(i, i)}\t{p}"
+        z = "NaN" if p in plan_only else f"{Z:.4f}"
+        rows.append(f"{X:.4f}\t{Y:.4f}\t{z}\t{x:.3f}\t{y:.3f}\t{names.get(i, i)}\t{p}"
                     + (f"\t{extras[n]}" if extras is not None else ""))
     return rows
 
 
 def _measurements(block: AdjustedBlock, project: Project):
     """(control measurements kept, check measurements, rejected measurements, their reasons, all control
-    coordinates by id): the file's pixel coordinates (as measured)."""
+    coordinates by id, control kinds by id): the file's pixel coordinates (as measured)."""
     empty = ImageObservations(np.zeros(0, object), np.zeros(0, object), np.zeros((0, 2)))
     if not project.control_points_path.is_file():
-        return empty, empty, empty, [], {}
+        return empty, empty, empty, [], {}, {}
     control = read_control_points(project.control_points_path)
     xyz = {str(p): v for p, v in zip(control.id, control.xyz_m)}
+    kind = {str(p): str(k) for p, k in zip(control.id, control.kind)}
     if not project.control_image_points_path.is_file():
-        return empty, empty, empty, [], xyz
+        return empty, empty, empty, [], xyz, kind
     obs = read_image_points(project.control_image_points_path)
     report = read_json(project.adjustment_report_path, "adjustment report")
     removed = {(r["point_id"], r["image_id"]): r.get("w") for r in report.get("removed_observations", [])}
@@ -87,12 +91,13 @@ def _measurements(block: AdjustedBlock, project: Project):
             else:
                 reasons.append("point not in the adjustment")
     pick = lambda ks: obs.subset(np.isin(np.arange(len(obs)), ks))  # noqa: E731
-    return pick(keep), pick(is_check), pick(rejected), reasons, xyz
+    return pick(keep), pick(is_check), pick(rejected), reasons, xyz, kind
 
 
 def _ground_control_points_json(obs: ImageObservations, ids, xyz: dict, project: Project, block: AdjustedBlock,
-                                names: dict) -> str:
-    """OpenSfM's ground_control_points.json: WGS84 positions through the CRS policy, projections normalised."""
+                                names: dict, plan_only=frozenset()) -> str:
+    """OpenSfM's ground_control_points.json: WGS84 positions through the CRS policy, projections normalised; the
+    points of ``plan_only`` without ``altitude`` (OpenSfM reads has_altitude = "altitude" in position)."""
     from aerotri.geom.crs.definition import parse_crs, project_heights
     from aerotri.geom.crs.transform import transform_points
 
@@ -105,8 +110,10 @@ def _ground_control_points_json(obs: ImageObservations, ids, xyz: dict, project:
     points = []
     for n, p in enumerate(ids):
         m = obs.point_id.astype(str) == p
-        points.append({"id": p, "position": {"latitude": float(lat[n]), "longitude": float(lon[n]),
-                                             "altitude": float(h[n])},
+        position = {"latitude": float(lat[n]), "longitude": float(lon[n])}
+        if p not in plan_only:
+            position["altitude"] = float(h[n])
+        points.append({"id": p, "position": position,
                        "observations": [{"shot_id": names.get(i, i),
                                          "projection": [(x + 0.5 - w / 2) / s, (y + 0.5 - h_px / 2) / s]}
                                         for i, (x, y) in zip(obs.image_id[m].astype(str), obs.xy_px[m])]})
@@ -128,21 +135,45 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
     out = [ExportFile("odm/opensfm/reconstruction.json", json.dumps([rec], indent=2) + "\n"),
            ExportFile("odm/opensfm/reference_lla.json", json.dumps(reference, indent=2) + "\n"),
            ExportFile("odm/cameras.json", json.dumps({cam_id: rec["cameras"][cam_id]}, indent=2) + "\n")]
-    kept, check, rejected, reasons, xyz = _measurements(block, project)
+    kept, check, rejected, reasons, xyz, kind = _measurements(block, project)
     head = _crs_line(block.crs)
-    ids = list(dict.fromkeys(kept.point_id.astype(str)))
+    # plan-only control has no height to give (control/points.csv holds 0 there): gcp_list.txt would make it
+    # a point at height 0 (ODM's reader may turn NaN into 0), so it goes to a file of its own with NaN and to the
+    # JSON without altitude; height-only control has no plan position the layouts could leave out
+    pid = kept.point_id.astype(str)
+    plan = np.array([kind.get(p) == "horizontal" for p in pid], bool)
+    height = np.array([kind.get(p) == "height" for p in pid], bool)
+    plan_ids = list(dict.fromkeys(pid[plan]))
+    no_z = frozenset(p for p, k in kind.items() if k == "horizontal")
+    height_ids = list(dict.fromkeys(pid[height]))
+    full = kept.subset(~plan & ~height)
+    ids = list(dict.fromkeys(full.point_id.astype(str)))
     if ids:
-        out.append(ExportFile("odm/gcp_list.txt", "\n".join([head] + _gcp_rows(kept, xyz, names)) + "\n"))
+        out.append(ExportFile("odm/gcp_list.txt", "\n".join([head] + _gcp_rows(full, xyz, names)) + "\n"))
+    if ids or plan_ids:
+        with_plan = kept.subset(~height)
         out.append(ExportFile("odm/opensfm/ground_control_points.json",
-                              _ground_control_points_json(kept, ids, xyz, project, block, names)))
-    else:
+                              _ground_control_points_json(with_plan, ids + plan_ids, xyz, project, block, names,
+                                                          frozenset(plan_ids))))
+    if plan_ids:
+        out.append(ExportFile("odm/gcp_list_plan_only.txt", "\n".join(
+            [head] + _gcp_rows(kept.subset(plan), xyz, names, plan_only=no_z)) + "\n"))
+        log.warning(f"odm export: {len(plan_ids)} plan-only control points ({', '.join(plan_ids)}) have no height: "
+                    "left out of odm/gcp_list.txt (ODM would hold them at a height of 0); written to "
+                    "odm/gcp_list_plan_only.txt (geo_z NaN) and odm/opensfm/ground_control_points.json without "
+                    "altitude")
+    if height_ids:
+        log.warning(f"odm export: {len(height_ids)} height-only control points ({', '.join(height_ids)}) have no "
+                    "plan position: left out of odm/gcp_list.txt and ground_control_points.json (the layouts have "
+                    "no height-only point)")
+    if not ids and not plan_ids:
         log.warning(f"{project.root}: no control point measurements the adjustment used; no odm/gcp_list.txt "
                     "(the reconstruction is georeferenced by itself)")
     if len(check):
         out.append(ExportFile("odm/gcp_list_check.txt", "\n".join([head] + _gcp_rows(check, xyz, names)) + "\n"))
     if len(rejected):
         out.append(ExportFile("odm/gcp_list_rejected.txt",
-                              "\n".join([head] + _gcp_rows(rejected, xyz, names, reasons)) + "\n"))
+                              "\n".join([head] + _gcp_rows(rejected, xyz, names, reasons, no_z)) + "\n"))
         for p, i, why in zip(rejected.point_id, rejected.image_id, reasons):
             log.warning(f"odm export: measurement of {p} in {i} left out of gcp_list.txt: {why} "
                         "(listed in odm/gcp_list_rejected.txt)")

@@ -33,4 +33,9 @@ def match(project, scheduler, workers, **_settings):
 
     settings = resolve(MatchSettings, Project.open(project), click.get_current_context())
     with executor_for(scheduler, workers) as ex:
-        click.echo(match_project(project, settings, executor=ex).summary_line())
+        report = match_project(project, settings, executor=ex)
+    click.echo(report.summary_line())
+    from aerotri.match.weak import weak_model_words
+
+    for line in weak_model_words(report.models, len(report.densified.models), settings.settings.min_per_region):
+        click.echo(line)

@@ -97,3 +97,45 @@ def analyse(plan: BlockPlan, camera: BrownCamera, track, image, xy_px, *, min_pe
         n = sum(1 for s in track_strips.values() if a in s and b in s)
         cross.append(StripTies(strip_a=int(a) + 1, strip_b=int(b) + 1, ties=n, weak=n < min_strip_ties))
     return BlockStrength(models, cross)
+
+
+_ACROSS = ("right", "middle", "left")  # rows of the regions: v points left of the base (frame i -> j)
+_ALONG = ("first", "middle", "last")  # columns: along the base, from frame i's side
+
+
+def _short_regions(m: ModelStrength, min_per_region: int) -> str:
+    """Where a weak model lacks ties, in words: whole thirds across or along the base when they are empty, else the
+    number of short regions."""
+    c = np.asarray(m.regions)
+    short = c < min_per_region
+    if short.all():
+        return f"under {min_per_region} in every region"
+    rows = [_ACROSS[r] for r in range(3) if short[r].all()]
+    cols = [_ALONG[k] for k in range(3) if short[:, k].all()]
+    if rows and len(rows) * 3 == int(short.sum()):
+        return f"under {min_per_region} in the {' and '.join(rows)} third{'s' if len(rows) > 1 else ''} across the base"
+    if cols and len(cols) * 3 == int(short.sum()):
+        return f"under {min_per_region} in the {' and '.join(cols)} third{'s' if len(cols) > 1 else ''} along the base"
+    return f"{int(short.sum())} of 9 regions under {min_per_region}"
+
+
+def weak_model_words(models: list[ModelStrength], densified_models: int, min_per_region: int,
+                     show: int = 4) -> list[str]:
+    """What the weak models are, which they are, why and what they mean for the adjustment (console lines of
+    ``aerotri match``); no lines when none is weak."""
+    weak = [m for m in models if m.weak]
+    if not weak:
+        return []
+    lines = [f"{len(weak)} of {len(models)} stereo models (consecutive frames of a strip) are weak: fewer than "
+             f"{min_per_region} tie points in some of the 9 regions (3 x 3, along and across the base) of their "
+             "overlap" + (f", after {densified_models} were matched again with dense features" if densified_models
+                          else "") + ":"]
+    lines += [f"  {m.left}-{m.right}: {m.ties} ties, {_short_regions(m, min_per_region)}" for m in weak[:show]]
+    if len(weak) > show:
+        lines.append(f"  ... and {len(weak) - show} more (at/connectivity.json weak_models, red in connectivity.png)")
+    lines.append("  Ties on part of the overlap only determine the two frames' relative orientation (their tilt about "
+                 "the base above all) weakly: the adjustment leans on the GNSS, control or a DEM there and may call "
+                 "the solution weak. "
+                 "Water, snow or uniform fields give no ties; elsewhere add overlap, control or a DEM "
+                 "(aerotri adjust --dem) where the regions are empty.")
+    return lines

@@ -1079,7 +1079,8 @@ JUDGES = {"asprs2023": _asprs, "asprs2014": _asprs2014, "usgs-lbs": _lbs, "cn-at
 
 def summarise(checks) -> tuple[ProductCompliance, ...]:
     """Per product: fail if any check fails, else not testable if any class test is, else pass (checks that are
-    only reported do not count); the finest class met by all its checks (per dimension for ASPRS)."""
+    only reported do not count); the finest class met by all its checks (per dimension for ASPRS), "not
+    established" when one of them is not testable (with the class the rows tested meet)."""
     out = []
     for product in PRODUCTS:
         cs = [c for c in checks if c.product == product]
@@ -1087,14 +1088,21 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
             continue
         vs = [c.verdict for c in cs if c.verdict != "reported" and c.judged]
         verdict = "fail" if "fail" in vs else (NOT_TESTABLE if NOT_TESTABLE in vs or not vs else "pass")
-        parts = []
+        parts, meets_none = [], False
         for dim in dict.fromkeys(c.dimension for c in cs):
             ranked = [c for c in cs if c.dimension == dim and c.finest_rank is not None and c.verdict != "reported"
                       and c.judged]
             if ranked:
                 worst = max(ranked, key=lambda c: c.finest_rank)
                 parts.append(worst.finest_class)
-        out.append(ProductCompliance(product, verdict, " ".join(parts) if parts else "not measured"))
+                meets_none |= worst.finest_rank == math.inf
+        finest = " ".join(parts) if parts else "not measured"
+        untested = list(dict.fromkeys(c.quantity for c in cs if c.verdict == NOT_TESTABLE and c.judged))
+        if untested and parts and not meets_none:
+            # a class is met when every row meets it: with a row not testable none is established (unless a row
+            # meets no class at all: then none is, whatever the untested rows)
+            finest = f"not established ({'; '.join(untested)}: not testable); the rows tested meet {' '.join(parts)}"
+        out.append(ProductCompliance(product, verdict, finest))
     return tuple(out)
 
 
@@ -1156,6 +1164,26 @@ def with_asprs2014_lidar_limits(table: ToleranceTable, class_tested: str) -> Tol
                                reason=f"{table.reason}; LiDAR limits (DEM height RMSE {v:g} m at the non-vegetated "
                                       f"points, strip RMSDz {float(L.swath_rmsdz_factor.value) * v:g} m) from "
                                       f"{src}, the standard of the compliance section")
+
+
+def with_cn_at_lidar_limits(table: ToleranceTable, class_tested: str) -> ToleranceTable:
+    """The report's table with its DEM limit from cn-at's spot-height limit of the class the compliance section
+    tests (``"1:2000 flat"``), judged at the non-vegetated points, so that both sections judge the DEM by one
+    rule: the spot-height limit is read in a source (cn_at.toml C2, confirmed), the map-scale tables' dem_rmse_m
+    is a project default with no clause (1:2000 flat 0.4 m, unconfirmed), and the spot heights are those of open
+    ground (GB/T 7930's relaxation for hidden areas is not shipped). Where cn-at has no such limit (1:5000,
+    1:10000; mountainous terrain) the table as it is."""
+    scale, _, terrain = class_tested.partition(" ")
+    e = cn_at().limits.spot_height_m
+    lim = e.height_m(terrain, scale) if terrain in CN_TERRAINS else None
+    if lim is None:
+        return table
+    src = f"{cn_at().standard.name}, {class_tested}: {e.what}, {e.clause}; {e.evidence}"
+    return dataclasses.replace(
+        table, limits={**table.limits, "dem_rmse_m": lim},
+        provenance={**table.provenance, "dem_rmse_m": Provenance(src, e.confirmed, nva=True)},
+        reason=f"{table.reason}; DEM height RMS limit {lim:g} m at the non-vegetated points from cn-at's spot "
+               f"heights ({class_tested}), the standard of the compliance section")
 
 
 def project_compliance(project: Project, table: ToleranceTable, block, standard: str | None = None,

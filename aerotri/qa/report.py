@@ -38,7 +38,8 @@ from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, ch
                                      split_key)
 from aerotri.geom.block_scale import planned_terrain_height, project_block_scale
 from aerotri.qa.compliance import (asprs_class_cm, lidar_only_project, project_compliance,
-                                   with_asprs2014_lidar_limits, with_lbs_lidar_limits)
+                                   with_asprs2014_lidar_limits, with_cn_at_lidar_limits,
+                                   with_lbs_lidar_limits)
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
 from lidarctl.vectors.settings import VectorsSettings
@@ -423,6 +424,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
     elif compliance.key == "asprs2014":
         table = with_asprs2014_lidar_limits(table, compliance.class_tested)
+    elif compliance.key == "cn-at":
+        table = with_cn_at_lidar_limits(table, compliance.class_tested)
     if lidar_only:
         table = lidar_limits(table)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
@@ -856,7 +859,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
         return []
     lines = [f"compliance: {comp['name']}, class {comp['class_tested']} ({comp['reason']})"]
     for p in comp["products"]:
-        lines.append(f"  {p['verdict']:<12} {p['product']}: finest class met {p['finest_class']}")
+        met = "" if p["finest_class"].startswith("not established") else "met "
+        lines.append(f"  {p['verdict']:<12} {p['product']}: finest class {met}{p['finest_class']}")
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
         acc = checkpoints_accuracy_text(c, ("accurate enough", "not accurate enough"))

@@ -297,9 +297,18 @@ def group_order(labels) -> list[str]:
 
 
 def _group_stats_document(dz: np.ndarray, labels, exclude_m: float) -> dict:
-    """``_stats_document`` per group (``group_order``), as height_check.json holds them."""
+    """``_stats_document`` per group (``group_order``), as height_check.json holds them, with ``n_points``: the
+    group's points, those without a dz (off the data, no ground in range) included (the statistics' n leaves them
+    out)."""
     labels_a = np.array(labels)
-    return {g: _stats_document(dz[labels_a == g], exclude_m) for g in group_order(labels)}
+    return {g: {**_stats_document(dz[labels_a == g], exclude_m), "n_points": int((labels_a == g).sum())}
+            for g in group_order(labels)}
+
+
+def _without_dz(s: dict) -> str:
+    """"k of n points without a dz" for a group some of whose points have none, else ""."""
+    k = s.get("n_points", s["all"]["n"]) - s["all"]["n"]
+    return f"{k} of {s['n_points']} points without a dz (no statistics from them)" if k > 0 else ""
 
 
 def _near_points(px_m, py_m, radius_m: float):
@@ -519,8 +528,11 @@ def _group_table(title: str, overall: dict, groups: dict) -> list[str]:
     for name, s in [*groups.items(), ("all", overall)]:
         a = s["all"]
         fmt = (lambda v: "-" if v is None else f"{v:.3f}")
-        lines.append(f"  {name:<10}{a['n']:>6}" + "".join(f"{b['percent']:>11.1f}%" for b in s["abs_bins"])
-                     + f"{fmt(a['mean_abs_dz_m']):>11}{fmt(a['rmse_m']):>8}")
+        bins = ("".join(f"{b['percent']:>11.1f}%" for b in s["abs_bins"]) if a["n"]
+                else "".join(f"{'-':>12}" for _ in s["abs_bins"]))  # no dz: no share of anything
+        note = _without_dz(s)
+        lines.append(f"  {name:<10}{a['n']:>6}" + bins + f"{fmt(a['mean_abs_dz_m']):>11}{fmt(a['rmse_m']):>8}"
+                     + (f"  ({note})" if note else ""))
     return lines
 
 
@@ -540,14 +552,14 @@ def format_report(check: HeightCheck) -> str:
             lines[-1:-1] = [f"heights in {zu} (the cloud's vertical unit); dz and statistics in m"]
         lines += _format_block("All points", result["overall"])
         for g, s in result["groups"].items():
-            lines += [""] + _format_block(f"Group: {g}", s)
+            lines += [""] + _format_block(f"Group: {g}" + (f" ({_without_dz(s)})" if _without_dz(s) else ""), s)
     if dem is not None:
         lines += ([""] if lines else []) + [
             f"DEM height check (dz = Z_dem - Z_surveyed, in metres): {dem['path']}, {dem['n_points']} points, "
             f"{dem['n_without_dem']} off the DEM or next to nodata", ""]
         lines += _format_block("All points (DEM)", dem["overall"])
         for g, s in dem["groups"].items():
-            lines += [""] + _format_block(f"Group: {g} (DEM)", s)
+            lines += [""] + _format_block(f"Group: {g} (DEM" + (f"; {_without_dz(s)})" if _without_dz(s) else ")"), s)
     if result.get("density"):
         d = result["density"]
         lines += ["", f"groups by canopy cover (first returns more than {d['canopy_height_m']:g} m above the ground "

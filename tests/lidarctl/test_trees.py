@@ -320,11 +320,20 @@ def test_points_off_the_data_under_density_groups_are_named_in_the_nva_and_vva_r
     # 24 points on the DEM (8 dense, 8 sparse, 8 open) and 2 far off the data (no first return within 10 m)
     pts.write_text((d / "pts.csv").read_text() + f"X0,{X0 - 500:.3f},{Y0 + 30:.3f},100.0\n"
                    f"X1,{X0 + 30:.3f},{Y0 + 900:.3f},100.0\n")
-    _ok(["check-heights", d / "edge.laz", pts, "--dem", d / "dem.tif", "--groups", "density",
-         "--json", tmp_path / "lidar_out" / "height_check.json"])
+    r = _ok(["check-heights", d / "edge.laz", pts, "--dem", d / "dem.tif", "--groups", "density",
+             "--json", tmp_path / "lidar_out" / "height_check.json"])
     hc = json.loads((tmp_path / "lidar_out" / "height_check.json").read_text())
     assert [p["group"] for p in hc["points"][-2:]] == ["unknown", "unknown"]
     assert [p["dz_dem_m"] for p in hc["points"][-2:]] == [None, None]
+    # fixes2 4: the group tables listed "unknown 0" (and 0.0 % in every bin) beside the 2 unknown points: they have
+    # no dz; the tables say so, and height_check.json counts the group's points
+    unknown = hc["dem"]["groups"]["unknown"]
+    assert unknown["all"]["n"] == 0 and unknown["n_points"] == 2 and hc["dem"]["groups"]["open"]["n_points"] == 8
+    rows = [ln for ln in r.output.splitlines() if ln.startswith("  unknown ")]
+    assert len(rows) == 2  # the ground points' table and the DEM's
+    assert all("%" not in x and x.split()[1] == "0" and x.endswith("(2 of 2 points without a dz (no statistics "
+                                                                   "from them))") for x in rows), rows
+    assert "Group: unknown (DEM; 2 of 2 points without a dz" in r.output
     rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL2")
     nva, vva = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
     assert nva["n_points"] == 8 and vva["n_points"] == 16               # open; sparse and dense

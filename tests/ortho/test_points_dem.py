@@ -118,3 +118,46 @@ def test_a_dem_from_enough_tie_points_is_not_warned_of(tiny_project, tmp_path, c
     with caplog.at_level("WARNING"):
         write_points_dem(p, min_rays=3)
     assert not [m for m in caplog.messages if "tie points seen in" in m], caplog.messages
+
+
+def test_the_extended_share_and_where_are_said(tiny_project, tmp_path, caplog):
+    """Brighton's DEM was 85 % extension beyond the tie points and said so in counts only. Tie points over a known
+    square inside the frames: the grid's reach beyond them to N, E, S, W is the footprints' bounds minus the
+    square (to a cell), the farthest extended cell lies at least that far out, and the share, the distance and the
+    sides are in the console line, at/dem.json and the GeoTIFF's tags; a DEM mostly extended is warned of."""
+    import json
+    import shutil
+
+    import rasterio
+    from click.testing import CliRunner
+
+    from aerotri.geom.eo import read_eo
+    from ortho.cli import main as ortho_main
+    from ortho.points_dem import _footprint_bounds
+
+    p = shutil.copytree(tiny_project, tmp_path / "p", ignore=shutil.ignore_patterns("lidar", "work", "at"))
+    (p / "at").mkdir()
+    shutil.copy(p / "truth" / "eo.txt", p / "at" / "eo.txt")
+    eo = read_eo(p / "at" / "eo.txt")
+    c = eo.centre_m[:, :2].mean(axis=0)
+    gx, gy = np.meshgrid(np.linspace(-60, 60, 41), np.linspace(-60, 60, 41))  # a 120 m square, 3 m apart
+    rows = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
+    rows += [f"T{k:07d},tie,{c[0] + a:.3f},{c[1] + b:.3f},310.0,0.1,0.1,0.1,3,0.1"
+             for k, (a, b) in enumerate(zip(gx.ravel(), gy.ravel()))]
+    (p / "at" / "object_points.csv").write_text("\n".join(rows) + "\n")
+    r = CliRunner().invoke(ortho_main, ["dem", str(p), "--res-m", "6"])
+    assert r.exit_code == 0, r.output
+    rec = json.loads((p / "at" / "dem.json").read_text())
+    x0, y0, x1, y1 = _footprint_bounds(p, 310.0, 310.0, margin_m=12.0)
+    want = (y1 - (c[1] + 60), x1 - (c[0] + 60), (c[1] - 60) - y0, (c[0] - 60) - x0)
+    assert min(want) > 50  # the frames reach well beyond the square
+    assert np.allclose(rec["extended_beyond_nesw_m"], want, atol=6.0 + 1e-6)
+    assert rec["extrapolated_max_distance_m"] >= max(want) - 6.0
+    share = 100.0 * rec["cells_extrapolated"] / (rec["width"] * rec["height"])
+    assert rec["extrapolated_percent"] == pytest.approx(share, abs=0.05) and share > 50
+    assert f"{share:.0f} % of the cells ({rec['cells_extrapolated']} of" in r.output
+    assert "extended beyond the tie points" in r.output and "most of this DEM (" in r.output and "is a flat continuation" in r.output
+    with rasterio.open(p / "at" / "dem.tif") as ds:
+        tags = ds.tags()
+    assert float(tags["CELLS_EXTRAPOLATED_PERCENT"]) == pytest.approx(share, abs=0.05)
+    assert "north" in tags["EXTRAPOLATION"] and len(tags["EXTENDED_BEYOND_NESW_M"].split()) == 4

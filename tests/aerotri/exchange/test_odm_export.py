@@ -224,3 +224,59 @@ def test_tuniu_imported_and_written_again(shared_data, tmp_path):
         R0, R1 = (Rotation.from_rotvec(s["rotation"]).as_matrix()[None] for s in (s0, s1))
         assert _rotation_deg(R0, R1)[0] < 1e-6  # measured 4e-8
         assert np.abs(-R1[0].T @ np.array(s1["translation"]) + R0[0].T @ np.array(s0["translation"])).max() < 1e-6
+
+
+def test_plan_only_control_is_never_given_a_height_of_0(adjusted_tiny, tmp_path):
+    """Plan-only control (the kite's targets: control/points.csv holds z = 0, kind horizontal) is written as each
+    format allows, never as a height of 0: ODM's gcp_list.txt leaves it out (ODM's reader may turn NaN into 0) and
+    the console names the points, odm/gcp_list_plan_only.txt gives geo_z NaN, OpenSfM's JSON no altitude,
+    Metashape x y without z, MicMac sZ = -1; the full control keeps its heights."""
+    import xml.etree.ElementTree as ET
+
+    src, _ = adjusted_tiny
+    root = tmp_path / "p"
+    shutil.copytree(src, root)
+    path = root / "control" / "points.csv"
+    head, *rows = path.read_text().splitlines()
+    plan = []
+    for k, row in enumerate(rows):
+        f = row.split(",")
+        if f[1] == "full" and len(plan) < 2:
+            f[1], f[4] = "horizontal", "0"
+            plan.append(f[0])
+            rows[k] = ",".join(f)
+    path.write_text("\n".join([head] + rows) + "\n")
+    cp = read_control_points(path)
+    full = set(cp.id[cp.kind == "full"])
+    report = json.loads((root / "at" / "report.json").read_text())  # as the adjustment writes plan-only control
+    for c in report["control_points"]:
+        if c["id"] in plan:
+            c["kind"], c["given_m"][2], c["residual_m"][2] = "horizontal", 0.0, None
+    (root / "at" / "report.json").write_text(json.dumps(report))
+    adjusted_z = {c["id"]: c["adjusted_m"][2] for c in report["control_points"]}
+    r = CliRunner().invoke(aerotri_cli, ["export", str(root), "--format", "odm", "--format", "metashape",
+                                         "--format", "micmac", "--format", "gpkg", "--out", str(tmp_path / "x")])
+    assert r.exit_code == 0, r.output
+    assert f"2 plan-only control points ({', '.join(plan)}) have no height" in r.output
+    odm = tmp_path / "x" / "odm"
+    listed = [ln.split("\t") for ln in (odm / "gcp_list.txt").read_text().splitlines()[1:]]
+    assert {x[6] for x in listed} == full
+    plan_rows = [ln.split("\t") for ln in (odm / "gcp_list_plan_only.txt").read_text().splitlines()[1:]]
+    assert {x[6] for x in plan_rows} == set(plan) and all(x[2] == "NaN" for x in plan_rows)
+    gcps = json.loads((odm / "opensfm" / "ground_control_points.json").read_text())["points"]
+    assert {g["id"] for g in gcps} == full | set(plan)
+    assert all(("altitude" in g["position"]) == (g["id"] in full) for g in gcps)
+    markers = ET.parse(tmp_path / "x" / "metashape" / "cameras.xml").getroot().findall(".//markers/marker")
+    refs = {m.get("label"): m.find("reference") for m in markers if m.find("reference") is not None}
+    assert all("z" not in refs[p].attrib for p in plan) and all("z" in refs[p].attrib for p in full)
+    micmac = ET.parse(tmp_path / "x" / "micmac" / "gcp.xml").getroot()
+    sz = {o.findtext("NamePt"): o.findtext("Incertitude").split()[2] for o in micmac.iter("OneAppuisDAF")}
+    assert all(sz[p] == "-1" for p in plan) and all(sz[p] != "-1" for p in full)
+    from pyogrio.raw import read as read_layer
+
+    _, _, geom, fields = read_layer(tmp_path / "x" / "layers" / "block.gpkg", layer="control_points",
+                                    return_fids=False)
+    import shapely
+
+    z = {pid: shapely.from_wkb(g).z for pid, g in zip(fields[0], geom)}  # point_id is the first field
+    assert all(z[p] == pytest.approx(adjusted_z[p], abs=1e-3) and abs(z[p]) > 1.0 for p in plan)

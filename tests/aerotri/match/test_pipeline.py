@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
@@ -213,3 +214,44 @@ def test_gnss_without_a_terrain_height_pairs_by_retrieval(tiny_project, tmp_path
     err = tie_point_errors(p)
     assert err.observations > 1500
     assert err.off_fraction < 0.01 and err.median_residual_px < 0.25
+
+
+def test_weak_models_are_said_in_words(tiny_project, tmp_path):
+    """Brighton's "12 weak models" came with no word of what they are: the console names the weak models, why
+    (where their overlap lacks ties) and what it means for the adjustment. Every model of the tiny block made
+    weak by its own [match] min_per_region (more ties a region than it has)."""
+    p = shutil.copytree(tiny_project, tmp_path / "p", ignore=shutil.ignore_patterns("at", "work"))
+    with open(p / "project.toml", "a") as f:
+        f.write("\n[match]\nmin_per_region = 100000\n")
+    res = CliRunner().invoke(aerotri_main, ["match", str(p), "--no-densify"])
+    assert res.exit_code == 0, res.output
+    rep = json.loads((p / "at" / "connectivity.json").read_text())
+    n = len(rep["models"])
+    assert n >= 2 and len(rep["weak_models"]) == n
+    assert f"{n} of {n} stereo models (consecutive frames of a strip) are weak: fewer than 100000 tie points" in res.output
+    left, right = rep["weak_models"][0]
+    ties = next(m["ties"] for m in rep["models"] if (m["left"], m["right"]) == (left, right))
+    assert f"  {left}-{right}: {ties} ties, under 100000 in every region" in res.output
+    assert ("more (at/connectivity.json weak_models" in res.output) == (n > 4) and "relative orientation" in res.output
+
+
+def test_weak_model_words_say_where_the_ties_are_missing():
+    """The regions of Brighton's models (at/connectivity.json of the trial): ties in the right third across the
+    base only; ties missing along the base; scattered short regions; none weak, no words."""
+    from aerotri.match.weak import ModelStrength, weak_model_words
+
+    def model(regions):
+        flat = [v for r in regions for v in r]
+        return ModelStrength("a", "b", 0, 1, sum(flat), regions, min(flat) < 3)
+
+    across = model([[49, 58, 52], [0, 0, 0], [0, 0, 0]])
+    along = model([[0, 40, 40], [1, 40, 40], [2, 40, 40]])
+    scattered = model([[0, 0, 0], [50, 5, 0], [8, 0, 0]])
+    strong = model([[9, 9, 9]] * 3)
+    lines = weak_model_words([across, along, scattered, strong], 2, 3, show=2)
+    assert lines[0].startswith("3 of 4 stereo models") and "after 2 were matched again" in lines[0]
+    assert lines[1] == "  a-b: 159 ties, under 3 in the middle and left thirds across the base"
+    assert lines[2] == "  a-b: 243 ties, under 3 in the first third along the base"
+    assert lines[3] == "  ... and 1 more (at/connectivity.json weak_models, red in connectivity.png)"
+    assert weak_model_words([scattered], 0, 3)[1] == "  a-b: 63 ties, 6 of 9 regions under 3"
+    assert weak_model_words([strong], 0, 3) == []

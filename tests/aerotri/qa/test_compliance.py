@@ -191,7 +191,8 @@ def test_a_vva_row_without_vegetated_points_is_not_testable_and_nothing_else():
         d = dataclasses.asdict(comp)
         (row,) = [compliance_row(c) for c in d["checks"] if c["quantity"].startswith("VVA")]
         assert row[6:9] == ["0", "", f"{verdict}: {why}"]
-        (line,) = [x for x in compliance_lines({**d, "name": "n", "class_tested": "c", "reason": "r"}) if "VVA" in x]
+        (line,) = [x for x in compliance_lines({**d, "name": "n", "class_tested": "c", "reason": "r"})
+                   if "VVA" in x and "finest class" not in x]
         assert "accura" not in line and line.strip().startswith(verdict) \
             and line.endswith(f"0 check points); {why}"), line
     # with vegetated points the survey is judged as before
@@ -557,7 +558,10 @@ def test_the_at_height_row_does_not_coarsen_the_finest_class_where_no_finer_heig
     comp = judge(Figures(at=at), Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat"))
     (plan, h) = _by(comp, "Aerotriangulation")
     assert plan.finest_class == "1:500" and h.finest_rank is None
-    assert {p.product: p.finest_class for p in comp.products}["Aerotriangulation"] == "1:500"
+    # fixes2 4: the height row is not testable at 1:2000, so the product's class is not established; the plan rows'
+    # 1:500 is said as what the rows tested meet
+    assert {p.product: p.finest_class for p in comp.products}["Aerotriangulation"] == \
+        f"not established ({h.quantity}: not testable); the rows tested meet 1:500"
     # hilly: 2.0 m at both scales; a height of 2.5 m meets neither: unranked as before (no finer class claimed)
     comp = judge(Figures(at=dataclasses.replace(at, rmse_v_m=2.5)),
                  Choice("cn-at", "1:5000 hilly", "t", scale="1:5000", terrain="hilly"))
@@ -1086,3 +1090,48 @@ def test_lidar_check_points_are_not_called_surveyed(tmp_path):
     plan = rep.compliance["checks"][0]
     assert plan["counted"] == "check points" and "12 of the 32 check points are roof corners" in plan["checkpoints_note"]
     assert rep.check("check_rms_xy_m").note.startswith("32 points (12 LiDAR roof corners, not surveyed)")
+
+
+def test_no_finest_class_is_stated_beside_a_row_not_testable():
+    """trial-qa: the demo under usgs-lbs read "not testable LiDAR DEM: finest class met QL0" (NVA tested, VVA not
+    testable: no vegetated points). A class is met when every row meets it: with a row not testable the product's
+    finest class is "not established", naming the row, with the class the rows tested meet; a row that meets no
+    class at all settles it ("none", test_one_at_height_limit_per_scale_and_standard); all rows tested: the class."""
+    from aerotri.qa.report import compliance_lines
+
+    lf = LidarFigures(nva_rmse_m=0.04, n_nva=30, n_vva=0, grouping_note="dz of the DEM; groups open; vegetated: none")
+    comp = judge(Figures(lidar=lf), Choice("usgs-lbs", "QL2", "t", level="QL2"))
+    (vva,) = [c for c in comp.checks if c.quantity.startswith("VVA")]
+    (nva,) = [c for c in comp.checks if c.quantity.startswith("NVA")]
+    assert vva.verdict == "not testable" and nva.verdict == "pass" and nva.finest_class == "QL0"  # 0.04 m <= QL0's 0.05 m
+    dem = {p.product: p for p in comp.products}["LiDAR DEM"]
+    assert dem.verdict == "not testable"
+    assert dem.finest_class == f"not established ({vva.quantity}: not testable); the rows tested meet QL0"
+    lines = compliance_lines({**dataclasses.asdict(comp), "name": "n", "class_tested": "c", "reason": "r"})
+    assert any(x.startswith(f"  not testable LiDAR DEM: finest class not established ({vva.quantity}") for x in lines)
+    tested = judge(Figures(lidar=dataclasses.replace(lf, vva_p95_m=0.2, vva_rmse_m=0.1, n_vva=12)),
+                   Choice("usgs-lbs", "QL2", "t", level="QL2"))
+    assert {p.product: p.finest_class for p in tested.products}["LiDAR DEM"] in ("QL0", "QL1", "QL2", "QL3")
+
+
+def test_cn_at_judges_the_dem_by_one_rule_in_both_sections(tmp_path):
+    """trial-qa: under cn-at 1:2000 the compliance section judged the DEM at the open points against the spot-height
+    limit (0.5 m, read in a source: cn_at.toml C2, confirmed) while the verdict table judged every point, forest too,
+    against the 1:2000 table's 0.4 m (a project default, no clause): Autzen 0.0596 m at 35 points beside 0.1492 m at
+    43. One rule now, the sourced one: the verdict table's DEM row is the open points' RMS against 0.5 m, the
+    compliance row's figure; at 1:5000, where cn-at sets no DEM limit, the table's own row as before."""
+    import numpy as np
+
+    root = _dem_checked_alone(tmp_path, open_dz_m=0.3, forest_dz_m=1.2)  # all 40: RMS 0.56 m; open: 0.30 m
+    rep = write_qa_report(root, standard="cn-at", accuracy_class="1:2000")
+    (nva,) = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR DEM"]
+    assert nva["limit"] == 0.5 and nva["n_points"] == 34 and nva["measured"] == pytest.approx(0.3, abs=1e-3)
+    row = rep.check("dem_raster_rmse_m")
+    assert row.limit == 0.5 and "at 34 non-vegetated surveyed points" in row.quantity
+    assert row.value == pytest.approx(nva["measured"], abs=1e-4) and row.verdict == nva["verdict"] == "pass"
+    assert "spot heights" in row.limit_source and row.limit_confirmed is True
+    every = np.sqrt((34 * 0.3 ** 2 + 6 * 1.2 ** 2) / 40)
+    assert every > 0.5  # judged at every point against the table's 0.4 m it failed beside the compliance's pass
+    rep = write_qa_report(root, standard="cn-at", accuracy_class="1:5000")
+    assert rep.check("dem_raster_rmse_m").limit == 0.5 and "spot heights" not in (rep.check("dem_raster_rmse_m")
+                                                                                    .limit_source or "")
