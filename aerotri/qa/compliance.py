@@ -160,12 +160,13 @@ def _json(path: Path) -> dict:
     return d if isinstance(d, dict) else {}
 
 
-def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
+def at_checks(at: dict, control: ControlPointSettings, source: str = "at/report.json") -> CheckSet | None:
     """The adjustment's check points (at/report.json): radial and height RMSE; their own accuracy from their
     standard deviations in control/points.csv (``given_sigma_m`` of the report's rows: radial sqrt(sx^2 + sy^2)
     and sz, RMS over the points), else ``[control]`` sigma_xy_m / sigma_z_m (a report written before the rows
     carried them). The rows' ``d_m`` are in the project CRS's unit (feet in a feet CRS, ``map_unit_m``): metres here,
-    as the verdict table reads them (``adjustment_record``); their ``given_sigma_m`` are metres."""
+    as the verdict table reads them (``adjustment_record``); their ``given_sigma_m`` are metres. ``source``: the
+    file, named in an error about its ``crs``."""
     from aerotri.adjust.report_record import map_unit_m
 
     if not at:
@@ -173,8 +174,11 @@ def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
     rows = [c for c in at.get("check_points", []) if c.get("d_m")]
     # None: a coordinate not surveyed (the height of a plan-only check point) or not intersected; feet to metres (a
     # feet project's check points were judged in feet as metres: 0.164 "m" beside the verdict table's 0.050 m)
+    # without a crs: metres, and no warning here: the accuracy report reads the same file (``read_adjustment_report``)
+    # and says it, naming the file (two warnings before, one naming only "CRS")
+    unit = map_unit_m(at["crs"], f"{source}: crs") if at.get("crs") else (1.0, 1.0, 1.0)
     d = np.array([[np.nan if v is None else v for v in c["d_m"]] for c in rows], dtype=float).reshape(-1, 3) \
-        * np.asarray(map_unit_m(at.get("crs")), dtype=float)
+        * np.asarray(unit, dtype=float)
     h, v = np.isfinite(d[:, :2]).all(axis=1), np.isfinite(d[:, 2])
     if not h.any() and not v.any():
         return CheckSet(note="no check points in the adjustment")
@@ -399,7 +403,7 @@ def project_figures(project: Project, density: bool = True) -> Figures:
                           lidar_density(project) if density else (None, "not measured: no density row"), qa,
                           " (after the strip adjustment)" if adjusted else "")
     vec = project.vectors_check_path
-    return Figures(at=at_checks(at, project.control_points),
+    return Figures(at=at_checks(at, project.control_points, str(project.adjustment_report_path)),
                    dom=dom_checks(_json(project.dom_report_path), qa, stale=_dom_check_stale(project)),
                    line_map=line_map_checks(_json(vec) if vec.is_file() else {}, qa), lidar=lidar)
 

@@ -1086,3 +1086,27 @@ def test_lidar_check_points_are_not_called_surveyed(tmp_path):
     plan = rep.compliance["checks"][0]
     assert plan["counted"] == "check points" and "12 of the 32 check points are roof corners" in plan["checkpoints_note"]
     assert rep.check("check_rms_xy_m").note.startswith("32 points (12 LiDAR roof corners, not surveyed)")
+
+
+def test_the_compliance_check_points_name_the_report_in_a_crs_error_and_warn_once(caplog, tmp_path):
+    """Reviewer 8: at_checks read the report's crs without its source: "CRS: EPSG:4326 ..." instead of the file, and a
+    report without a crs warned "CRS: no CRS" beside the reader's warning naming the file."""
+    import logging
+
+    from aerotri.adjust.report_record import read_adjustment_report
+    from aerotri.core.errors import CrsError
+    from aerotri.core.project import ControlPointSettings
+    from aerotri.qa.compliance import at_checks
+
+    rows = [{"id": "a", "d_m": [0.1, 0.2, 0.3]}]
+    path = tmp_path / "at" / "report.json"
+    with pytest.raises(CrsError, match=f"^{path}: crs: EPSG:4326 \\(WGS 84\\) is geographic"):
+        at_checks({"crs": "EPSG:4326", "check_points": rows}, ControlPointSettings(), str(path))
+    path.parent.mkdir()
+    path.write_text(json.dumps({"schema_version": 1, "counts": {}, "check_points": rows}))
+    with caplog.at_level(logging.WARNING):
+        cs = at_checks(json.loads(path.read_text()), ControlPointSettings(), str(path))
+        read_adjustment_report(path)  # the accuracy report reads the same file after the compliance section
+    assert cs.rmse_v_m == pytest.approx(0.3)  # metres
+    warned = [r.getMessage() for r in caplog.records if "no CRS" in r.getMessage()]
+    assert warned == [f"{path}: crs: no CRS; its ground coordinates and residuals are read as metres"]
