@@ -1110,3 +1110,12 @@ def test_the_compliance_check_points_name_the_report_in_a_crs_error_and_warn_onc
     assert cs.rmse_v_m == pytest.approx(0.3)  # metres
     warned = [r.getMessage() for r in caplog.records if "no CRS" in r.getMessage()]
     assert warned == [f"{path}: crs: no CRS; its ground coordinates and residuals are read as metres"]
+
+
+@pytest.mark.parametrize("v_cm, rmsdz", [(10, "0.08"), (15, "0.12"), (5, "0.04"), (20, "0.16")])
+def test_the_asprs2014_strip_limit_prints_as_its_value(v_cm, rmsdz):
+    """Reviewer 8: 0.8 x V printed as 0.08000000000000002 on the console and in summary.json (rounded where computed)."""
+    from aerotri.qa.compliance import with_asprs2014_lidar_limits
+
+    t = with_asprs2014_lidar_limits(load_table("1:5000", "flat"), f"H{v_cm}cm V{v_cm}cm")
+    assert str(t.limits["strip_rmsdz_m"]) == rmsdz and json.dumps(t.limits["strip_rmsdz_m"]) == rmsdz
