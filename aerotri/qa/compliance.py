@@ -623,6 +623,15 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
         return Choice("usgs-lbs", lvl, why, level=lvl)
     scales = list(cn_at().standard.scales) if std == "cn-at" else list(SCALE_TABLES)
     given_scale = scale
+    # a map-scale standard's class is a map scale, and --scale the verdict table's: two scales on the command line
+    # judged the compliance at the class and the verdict table at --scale (--class 1:2000 --scale 1:5000)
+    if class_text and scale and class_text.strip().replace(" ", "") != scale.strip().replace(" ", ""):
+        raise OptionError(f"--class {class_text!r} and --scale {scale!r}: two map scales; under {std} the class is "
+                          "the map scale that judges both the verdict table and the compliance section: give one of "
+                          "them, or the same scale", param="--class")
+    if scale and not class_text and cls:  # the command line before project.toml, as the verdict table's choice
+        why += f"; project.toml [qa] accuracy_class {cls!r} left for --scale"
+        cls = None
     if cls:
         scale = cls.strip().replace(" ", "")
         if scale not in scales:

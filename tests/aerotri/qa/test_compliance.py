@@ -347,7 +347,9 @@ def test_map_scale_class_judges_the_verdict_table_at_that_scale(tmp_path):
     assert rep.table["key"] == "1:10000" and rep.compliance["class_tested"] == "1:10000 flat"
     rep = write_qa_report(p, standard="cn-at", scale="1:2000")
     assert rep.table["key"] == "1:2000"
-    assert rep.compliance["class_tested"] == "1:10000 flat"  # the class still comes first
+    # --scale before [qa] accuracy_class in both sections (s8-fixes: the compliance section stayed at 1:10000)
+    assert rep.compliance["class_tested"] == "1:2000 flat"
+    assert "[qa] accuracy_class '1:10000' left for --scale" in rep.compliance["reason"]
     (p / "project.toml").write_text(PROJECT + '[qa]\nmap_scale = "1:5000"\n')
     rep = write_qa_report(p, standard="cn-at", scale="1:2000")
     assert rep.table["key"] == "1:2000" and rep.compliance["class_tested"] == "1:2000 flat"
@@ -1119,3 +1121,16 @@ def test_the_asprs2014_strip_limit_prints_as_its_value(v_cm, rmsdz):
 
     t = with_asprs2014_lidar_limits(load_table("1:5000", "flat"), f"H{v_cm}cm V{v_cm}cm")
     assert str(t.limits["strip_rmsdz_m"]) == rmsdz and json.dumps(t.limits["strip_rmsdz_m"]) == rmsdz
+
+
+def test_a_map_scale_class_and_another_scale_are_refused_together(tmp_path):
+    """Reviewer 8: --standard cn-at --class 1:2000 --scale 1:5000 judged the compliance at 1:2000 and the verdict
+    table at 1:5000; now refused naming both options (exit 2, nothing written); the same scale twice is accepted."""
+    from aerotri.cli import main
+
+    p = _project(tmp_path, 32)
+    res = CliRunner().invoke(main, ["report", str(p), "--standard", "cn-at", "--class", "1:2000", "--scale", "1:5000"])
+    assert res.exit_code == 2 and "--class '1:2000' and --scale '1:5000': two map scales" in res.output
+    assert not (p / "reports").exists()
+    rep = write_qa_report(p, standard="cn-at", accuracy_class="1:2000", scale="1:2000")
+    assert rep.table["key"] == "1:2000" and rep.compliance["class_tested"] == "1:2000 flat"
