@@ -40,7 +40,7 @@ from aerotri.core.records import to_record
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
-from aerotri.geom.crs.definition import height_unit_m, linear_unit_m, parse_crs
+from aerotri.geom.crs.definition import height_unit_m, map_axes_unit_m, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
 from ortho.patches import MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches, parabola_peak
 from ortho.settings import CheckSettings
@@ -426,12 +426,12 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                                   cat("one_direction_row_px"), cat("one_direction_col_px")), (dom.width, dom.height)
 
 
-def metres_per_unit(ds) -> float:
-    """Metres per unit of a north-up raster's CRS (0.3048 for a DOM in feet; 1 for metres, or a CRS without a
-    linear unit): the cell size and the displacements are reported in metres, as their ``_m`` keys say (a DOM in
-    feet had its displacements in feet as metres: Autzen's 1 ft orthophoto 2.236 "m" for 0.682 m)."""
-    u = linear_unit_m(parse_crs(ds.crs.to_wkt(), "DOM CRS")) if ds.crs is not None else 1.0
-    return u if math.isfinite(u) and u > 0 else 1.0
+def metres_per_unit(ds, what: str = "DOM") -> float:
+    """Metres per unit of a north-up raster's CRS (0.3048 for a DOM in feet): the cell size and the displacements
+    are reported in metres, as their ``_m`` keys say (a DOM in feet had its displacements in feet as metres:
+    Autzen's 1 ft orthophoto 2.236 "m" for 0.682 m). ``CrsError`` naming the file when the CRS has no length unit
+    (geographic, geocentric: ``map_axes_unit_m``; a DOM in degrees read as metres: "RMS 0.000 m")."""
+    return map_axes_unit_m(ds.crs, f"{ds.name}: the {what}'s CRS")[0]
 
 
 def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0) -> tuple[Displacement, dict]:
@@ -540,7 +540,7 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
             z = nd.read(1, window=w, out_shape=shape, masked=True, resampling=Resampling.average)
         unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{ndsm_path} CRS"))
         t = nd.window_transform(w) @ Affine.scale(w.width / shape[1], w.height / shape[0])
-        cell_m = abs(t.a) * metres_per_unit(nd)  # (in feet: objects of 50 ft2, 4.6 m2, counted as buildings)
+        cell_m = abs(t.a) * metres_per_unit(nd, "nDSM")  # (in feet: objects of 50 ft2, 4.6 m2, counted as buildings)
     high = (np.ma.filled(z.astype(np.float32), 0.0) * unit > min_height_m).astype(np.uint8)
     high = cv2.morphologyEx(high, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     contours, _ = cv2.findContours(high, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)

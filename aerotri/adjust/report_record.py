@@ -40,21 +40,16 @@ def map_unit_m(crs, source: str = "CRS") -> tuple[float, float, float]:
     0.3048 (its "_m" keys are feet, the tolerances metres).
 
     ``CrsError`` naming ``source`` (the file and key) when PROJ cannot read the CRS or its map axes have no length
-    unit (geographic, geocentric): the adjustment's CRS is projected or local (``check_block_crs``), and a unit taken
-    as metres would scale every ground figure (a feet report judged 3.3 times too loose). No CRS at all (None or "":
-    the adjustment always writes one, so a hand-made report or a test's block): metres, said in a warning."""
+    unit (geographic, geocentric: ``map_axes_unit_m``): the adjustment's CRS is projected or local
+    (``check_block_crs``), and a unit taken as metres would scale every ground figure (a feet report judged 3.3
+    times too loose). No CRS at all (None or "": the adjustment always writes one, so a hand-made report or a test's
+    block): metres, said in a warning."""
     if not crs:
         log.warning(f"{source}: no CRS; its ground coordinates and residuals are read as metres")
         return (1.0, 1.0, 1.0)
-    from aerotri.geom.crs.definition import crs_label, height_unit_m, horizontal_crs, linear_unit_m, parse_crs
+    from aerotri.geom.crs.definition import map_axes_unit_m
 
-    h = horizontal_crs(parse_crs(crs, source))
-    u = (linear_unit_m(h),) * 2 + (height_unit_m(h),)
-    if not all(math.isfinite(x) and x > 0 for x in u):
-        kind = "geographic" if h.is_geographic else "geocentric" if h.is_geocentric else "without a length unit"
-        raise CrsError(f"{source}: {crs_label(h)} ({h.name}) is {kind}; expected a projected or local CRS whose "
-                       "axes are in metres or feet (the ground coordinates and residuals are in its unit)")
-    return tuple(float(x) for x in u)
+    return map_axes_unit_m(crs, source)
 
 
 @dataclass(frozen=True)

@@ -160,12 +160,13 @@ def _json(path: Path) -> dict:
     return d if isinstance(d, dict) else {}
 
 
-def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
+def at_checks(at: dict, control: ControlPointSettings, source: str = "at/report.json") -> CheckSet | None:
     """The adjustment's check points (at/report.json): radial and height RMSE; their own accuracy from their
     standard deviations in control/points.csv (``given_sigma_m`` of the report's rows: radial sqrt(sx^2 + sy^2)
     and sz, RMS over the points), else ``[control]`` sigma_xy_m / sigma_z_m (a report written before the rows
     carried them). The rows' ``d_m`` are in the project CRS's unit (feet in a feet CRS, ``map_unit_m``): metres here,
-    as the verdict table reads them (``adjustment_record``); their ``given_sigma_m`` are metres."""
+    as the verdict table reads them (``adjustment_record``); their ``given_sigma_m`` are metres. ``source``: the
+    file, named in an error about its ``crs``."""
     from aerotri.adjust.report_record import map_unit_m
 
     if not at:
@@ -173,8 +174,11 @@ def at_checks(at: dict, control: ControlPointSettings) -> CheckSet | None:
     rows = [c for c in at.get("check_points", []) if c.get("d_m")]
     # None: a coordinate not surveyed (the height of a plan-only check point) or not intersected; feet to metres (a
     # feet project's check points were judged in feet as metres: 0.164 "m" beside the verdict table's 0.050 m)
+    # without a crs: metres, and no warning here: the accuracy report reads the same file (``read_adjustment_report``)
+    # and says it, naming the file (two warnings before, one naming only "CRS")
+    unit = map_unit_m(at["crs"], f"{source}: crs") if at.get("crs") else (1.0, 1.0, 1.0)
     d = np.array([[np.nan if v is None else v for v in c["d_m"]] for c in rows], dtype=float).reshape(-1, 3) \
-        * np.asarray(map_unit_m(at.get("crs")), dtype=float)
+        * np.asarray(unit, dtype=float)
     h, v = np.isfinite(d[:, :2]).all(axis=1), np.isfinite(d[:, 2])
     if not h.any() and not v.any():
         return CheckSet(note="no check points in the adjustment")
@@ -399,7 +403,7 @@ def project_figures(project: Project, density: bool = True) -> Figures:
                           lidar_density(project) if density else (None, "not measured: no density row"), qa,
                           " (after the strip adjustment)" if adjusted else "")
     vec = project.vectors_check_path
-    return Figures(at=at_checks(at, project.control_points),
+    return Figures(at=at_checks(at, project.control_points, str(project.adjustment_report_path)),
                    dom=dom_checks(_json(project.dom_report_path), qa, stale=_dom_check_stale(project)),
                    line_map=line_map_checks(_json(vec) if vec.is_file() else {}, qa), lidar=lidar)
 
@@ -619,6 +623,15 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
         return Choice("usgs-lbs", lvl, why, level=lvl)
     scales = list(cn_at().standard.scales) if std == "cn-at" else list(SCALE_TABLES)
     given_scale = scale
+    # a map-scale standard's class is a map scale, and --scale the verdict table's: two scales on the command line
+    # judged the compliance at the class and the verdict table at --scale (--class 1:2000 --scale 1:5000)
+    if class_text and scale and class_text.strip().replace(" ", "") != scale.strip().replace(" ", ""):
+        raise OptionError(f"--class {class_text!r} and --scale {scale!r}: two map scales; under {std} the class is "
+                          "the map scale that judges both the verdict table and the compliance section: give one of "
+                          "them, or the same scale", param="--class")
+    if scale and not class_text and cls:  # the command line before project.toml, as the verdict table's choice
+        why += f"; project.toml [qa] accuracy_class {cls!r} left for --scale"
+        cls = None
     if cls:
         scale = cls.strip().replace(" ", "")
         if scale not in scales:
@@ -1154,7 +1167,9 @@ def with_asprs2014_lidar_limits(table: ToleranceTable, class_tested: str) -> Tol
         return table
     v, L = hv[1] / 100.0, asprs2014().limits
     src = f"{asprs2014().standard.name}, V{hv[1]:g}cm"
-    limits = {**table.limits, "dem_rmse_m": v, "strip_rmsdz_m": float(L.swath_rmsdz_factor.value) * v}
+    # rounded to 1e-9 m where computed: 0.8 x 0.1 is 0.08000000000000002 in floating point, and the console, the
+    # verdict table and summary.json print the limit as it is
+    limits = {**table.limits, "dem_rmse_m": v, "strip_rmsdz_m": round(float(L.swath_rmsdz_factor.value) * v, 9)}
     prov = {**table.provenance,
             "dem_rmse_m": Provenance(f"{src}: NVA RMSE_z <= V (stated at 95 %: 1.96 RMSE_z <= 1.96 V); the class's "
                                      "definition recalled, as asprs2023.toml's", False, nva=True),

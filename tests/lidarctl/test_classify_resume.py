@@ -292,3 +292,20 @@ def test_lidarctl_classify_one_file_resumes_beside_it(strips, tmp_path, monkeypa
     assert n >= 4 and f"tiles: resumed 2 of {n} tiles an interrupted run finished ({keep})" in r.stderr
     assert out.read_bytes() == (tmp_path / "ref.laz").read_bytes()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.laz", "ref.laz"]
+
+
+def test_tiles_kept_before_a_rule_change_are_not_reused(strips, tmp_path, monkeypatch, caplog):
+    """Reviewer 8: the key held the toolkit's version (0.1.0) only: tiles kept before a rule change (i44-water) were
+    reused after it. The rules' version (``lidarctl.classify.RULES_VERSION``) is in the key: bumped, nothing resumes."""
+    import lidarctl.classify
+
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    with pytest.raises(KeyboardInterrupt):
+        _classify(strips, tmp_path)
+    assert len(list((tmp_path / "work" / "classify_resume").glob("*.json"))) == 2
+    monkeypatch.setattr(lidarctl.classify, "RULES_VERSION", lidarctl.classify.RULES_VERSION + 1)
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):
+        _classify(strips, tmp_path)
+    assert count.done == 4 and "resumed" not in caplog.text

@@ -63,3 +63,20 @@ def test_roof_outlines_of_an_ndsm_in_feet_are_measured_in_square_metres(tmp_path
     write_geotiff(tmp_path / "ndsm.tif", z, 1000000.0, 800000.0, 1.0, crs)
     xs, ys = roof_corners_from_ndsm(tmp_path / "ndsm.tif", (1000000.0, 799800.0, 1000200.0, 800000.0), crs)
     assert len(xs) == 4 and (xs > 1000090.0).all() and (ys < 799910.0).all()   # the building's corners only
+
+
+@pytest.mark.parametrize("epsg, kind", [(4326, "geographic"), (4978, "geocentric")])
+def test_a_dom_whose_crs_has_no_map_length_unit_is_refused(tmp_path, epsg, kind):
+    """Reviewer 8: a DOM in degrees was read as metres ("RMS 0.000 m", exit 0): now refused, naming the file, its CRS
+    and what is expected, nothing written."""
+    from aerotri.core.errors import CrsError
+
+    ref = textured_orthophoto(40, 40, 1, seed=5)[:, :, 0]
+    write_geotiff(tmp_path / "dom.tif", ref, 114.0, 23.01, 1e-5, CRS.from_epsg(epsg))
+    (tmp_path / "proj").mkdir()
+    (tmp_path / "points.csv").write_text("id,x,y,x_dom,y_dom\nP1,114.0001,23.0099,114.00011,23.00991\n")
+    with pytest.raises(CrsError, match=f"dom.tif: the DOM's CRS: EPSG:{epsg} .* is {kind}; expected a projected or "
+                                        "local CRS whose axes are in metres or feet"):
+        run_check(tmp_path / "proj", points_path=tmp_path / "points.csv", dom_path=tmp_path / "dom.tif",
+                  out_stem=tmp_path / "dom_report")
+    assert not list(tmp_path.glob("dom_report*"))

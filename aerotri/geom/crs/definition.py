@@ -179,6 +179,21 @@ def height_unit_m(crs: pyproj.CRS) -> float:
     return 1.0 if np.isnan(f) else f
 
 
+def map_axes_unit_m(crs, source: str = "CRS") -> tuple[float, float, float]:
+    """Metres per unit of a map's x, y and heights (``linear_unit_m``, ``height_unit_m``): 0.3048 for a feet CRS.
+
+    ``CrsError`` naming ``source`` (the file or key) when the CRS's map axes have no length unit: geographic
+    (degrees), geocentric (X, Y, Z of the earth's centre, not map axes) or without any unit. Ground figures read
+    in such a unit as metres would be silently wrong (a DOM in degrees: "RMS 0.000 m")."""
+    h = horizontal_crs(parse_crs(crs, source))
+    u = (linear_unit_m(h),) * 2 + (height_unit_m(h),) if h.axis_info and not h.is_geocentric else (math.nan,) * 3
+    if not all(math.isfinite(x) and x > 0 for x in u):
+        kind = "geographic" if h.is_geographic else "geocentric" if h.is_geocentric else "without a length unit"
+        raise CrsError(f"{source}: {crs_label(h)} ({h.name}) is {kind}; expected a projected or local CRS whose "
+                       "axes are in metres or feet")
+    return tuple(float(x) for x in u)
+
+
 def check_stored_crs(requested: pyproj.CRS, stored, where: str, x, y, tolerance: float) -> None:
     """``CrsError`` naming ``where`` unless the CRS a GeoTIFF holds (``stored``: rasterio's CRS or None) is
     ``requested``. GDAL may rewrite a definition into an equivalent one (polar stereographic variant A

@@ -140,3 +140,9 @@ def test_accuracy_report_judges_metres(pair, tmp_path):
     for k, c in rows["m"].items():
         assert rows["ft"][k].verdict == c.verdict, k
         assert rows["ft"][k].value == pytest.approx(c.value, abs=1e-3), k
+
+
+def test_a_geocentric_report_crs_is_refused():
+    """Reviewer 8: the docstring said geocentric CRSs were refused, but EPSG:4978 (metre axes) was read as a map."""
+    with pytest.raises(CrsError, match=re.escape("at/report.json: crs: EPSG:4978 (WGS 84) is geocentric; expected")):
+        map_unit_m("EPSG:4978", "at/report.json: crs")

@@ -348,7 +348,9 @@ def test_map_scale_class_judges_the_verdict_table_at_that_scale(tmp_path):
     assert rep.table["key"] == "1:10000" and rep.compliance["class_tested"] == "1:10000 flat"
     rep = write_qa_report(p, standard="cn-at", scale="1:2000")
     assert rep.table["key"] == "1:2000"
-    assert rep.compliance["class_tested"] == "1:10000 flat"  # the class still comes first
+    # --scale before [qa] accuracy_class in both sections (s8-fixes: the compliance section stayed at 1:10000)
+    assert rep.compliance["class_tested"] == "1:2000 flat"
+    assert "[qa] accuracy_class '1:10000' left for --scale" in rep.compliance["reason"]
     (p / "project.toml").write_text(PROJECT + '[qa]\nmap_scale = "1:5000"\n')
     rep = write_qa_report(p, standard="cn-at", scale="1:2000")
     assert rep.table["key"] == "1:2000" and rep.compliance["class_tested"] == "1:2000 flat"
@@ -1135,3 +1137,49 @@ def test_cn_at_judges_the_dem_by_one_rule_in_both_sections(tmp_path):
     rep = write_qa_report(root, standard="cn-at", accuracy_class="1:5000")
     assert rep.check("dem_raster_rmse_m").limit == 0.5 and "spot heights" not in (rep.check("dem_raster_rmse_m")
                                                                                     .limit_source or "")
+
+
+def test_the_compliance_check_points_name_the_report_in_a_crs_error_and_warn_once(caplog, tmp_path):
+    """Reviewer 8: at_checks read the report's crs without its source: "CRS: EPSG:4326 ..." instead of the file, and a
+    report without a crs warned "CRS: no CRS" beside the reader's warning naming the file."""
+    import logging
+
+    from aerotri.adjust.report_record import read_adjustment_report
+    from aerotri.core.errors import CrsError
+    from aerotri.core.project import ControlPointSettings
+    from aerotri.qa.compliance import at_checks
+
+    rows = [{"id": "a", "d_m": [0.1, 0.2, 0.3]}]
+    path = tmp_path / "at" / "report.json"
+    with pytest.raises(CrsError, match=f"^{path}: crs: EPSG:4326 \\(WGS 84\\) is geographic"):
+        at_checks({"crs": "EPSG:4326", "check_points": rows}, ControlPointSettings(), str(path))
+    path.parent.mkdir()
+    path.write_text(json.dumps({"schema_version": 1, "counts": {}, "check_points": rows}))
+    with caplog.at_level(logging.WARNING):
+        cs = at_checks(json.loads(path.read_text()), ControlPointSettings(), str(path))
+        read_adjustment_report(path)  # the accuracy report reads the same file after the compliance section
+    assert cs.rmse_v_m == pytest.approx(0.3)  # metres
+    warned = [r.getMessage() for r in caplog.records if "no CRS" in r.getMessage()]
+    assert warned == [f"{path}: crs: no CRS; its ground coordinates and residuals are read as metres"]
+
+
+@pytest.mark.parametrize("v_cm, rmsdz", [(10, "0.08"), (15, "0.12"), (5, "0.04"), (20, "0.16")])
+def test_the_asprs2014_strip_limit_prints_as_its_value(v_cm, rmsdz):
+    """Reviewer 8: 0.8 x V printed as 0.08000000000000002 on the console and in summary.json (rounded where computed)."""
+    from aerotri.qa.compliance import with_asprs2014_lidar_limits
+
+    t = with_asprs2014_lidar_limits(load_table("1:5000", "flat"), f"H{v_cm}cm V{v_cm}cm")
+    assert str(t.limits["strip_rmsdz_m"]) == rmsdz and json.dumps(t.limits["strip_rmsdz_m"]) == rmsdz
+
+
+def test_a_map_scale_class_and_another_scale_are_refused_together(tmp_path):
+    """Reviewer 8: --standard cn-at --class 1:2000 --scale 1:5000 judged the compliance at 1:2000 and the verdict
+    table at 1:5000; now refused naming both options (exit 2, nothing written); the same scale twice is accepted."""
+    from aerotri.cli import main
+
+    p = _project(tmp_path, 32)
+    res = CliRunner().invoke(main, ["report", str(p), "--standard", "cn-at", "--class", "1:2000", "--scale", "1:5000"])
+    assert res.exit_code == 2 and "--class '1:2000' and --scale '1:5000': two map scales" in res.output
+    assert not (p / "reports").exists()
+    rep = write_qa_report(p, standard="cn-at", accuracy_class="1:2000", scale="1:2000")
+    assert rep.table["key"] == "1:2000" and rep.compliance["class_tested"] == "1:2000 flat"
