@@ -32,6 +32,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 FIELDS = ("x", "y", "z", "rn", "nr", "intensity")
+# the DMC clouds (strips, easting range in m) of each block: the 3 x 8 subset's strips run 2.8 km east; the
+# 2 x 2 subset's 1.24 km (x 452,000-453,236), so its 10 M points are four strips (their overlaps as a tile's)
+DMC_CROPS = {"3x8": {"dmc_tile": ((1, 2), (453000.0, 453800.0)), "dmc_10m": ((1, 2), (452000.0, 454100.0))},
+             "2x2": {"dmc_tile": ((1, 2), (452200.0, 453000.0)), "dmc_10m": ((1, 2, 3, 4), (452000.0, 453100.0))}}
 
 
 def _rss_mb() -> float:
@@ -92,10 +96,17 @@ def prepare(args) -> dict[str, Path]:
     work.mkdir(parents=True, exist_ok=True)
     out = {}
     dmc = Path(args.dmc)
-    strips = [(dmc / f"strip_0{k}.laz", None) for k in (1, 2)]
+    crops = DMC_CROPS[args.dmc_crops]
+
+    def strips(name):
+        return [(dmc / f"strip_0{k}.laz", None) for k in crops[name][0]]
+
+    def box(name):
+        return (*crops[name][1], -np.inf, np.inf)
+
     todo = {"demo": lambda: {"demo": _cloud([(p, None) for p in sorted(Path(args.demo).glob("*.las"))])},
-            "dmc_tile": lambda: {"dmc_tile": _cloud(strips, (453000.0, 453800.0, -np.inf, np.inf))},
-            "dmc_10m": lambda: {"dmc_10m": _cloud(strips, (452000.0, 454100.0, -np.inf, np.inf))}}
+            "dmc_tile": lambda: {"dmc_tile": _cloud(strips("dmc_tile"), box("dmc_tile"))},
+            "dmc_10m": lambda: {"dmc_10m": _cloud(strips("dmc_10m"), box("dmc_10m"))}}
     for name, make in todo.items():
         if args.only and name not in args.only:
             continue   # not run: not prepared either
@@ -125,6 +136,8 @@ def main() -> None:
     ap.add_argument("--before-src", required=True, help="source tree of the code before (main)")
     ap.add_argument("--work", required=True, help="scratch folder (inputs as .npz, classes)")
     ap.add_argument("--dmc", default="/work/bench_blocks/dmc_block_subset_3x8/lidar")
+    ap.add_argument("--dmc-crops", choices=list(DMC_CROPS), default="3x8",
+                    help="the DMC clouds' strips and easting ranges for the block --dmc is of")
     ap.add_argument("--demo", default="/work/ref/demo_chain/project/lidar")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "classify_speed.json"))
     ap.add_argument("--only", nargs="*", help="inputs to run (demo, dmc_tile, dmc_10m, small)")
