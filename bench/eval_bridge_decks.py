@@ -13,7 +13,8 @@ the synthetic bridge scenes of tests/lidarctl/test_classify_bridge.py at seeds o
   git archive f930f728 lidarctl aerotri ortho | tar -x -C /tmp/main_src   (the base: main with i44-water)
   AEROTRI_SHARED_DATA=/work/shared/data PYTHONPATH=/tmp/main_src nice .venv/bin/python bench/eval_bridge_decks.py \
       --label main --demo /work/demo7/out/demo/project --sim /work/tmp/i44b/simtiny7 ...
-(each label's rows are replaced, the other's kept).
+(each label's rows are replaced, the other's kept); ``--others``: the remaining real sets only (ISPRS's 7 samples, lidR
+Topography and MixedConifer, laspy Nebraska: deck returns and the classes' SHA-256).
 """
 
 from __future__ import annotations
@@ -97,14 +98,38 @@ def synthetic() -> dict:
     return out
 
 
+def others() -> dict:
+    """Bridge-deck returns and the classes' SHA-256 on the remaining real sets (no bridges known)."""
+    import hashlib
+
+    from lidar_common import SAMPLES
+
+    paths = {**{f"isprs_{k}": DATA / "isprs_filtertest" / f"{k}-utm.laz" for k in SAMPLES},
+             "lidr_topography": DATA / "lidr_topography" / "Topography.laz",
+             "lidr_mixedconifer": DATA / "lidr_mixedconifer" / "MixedConifer.laz",
+             "laspy_nebraska": DATA / "laspy_nebraska" / "file_with_both_wkt_and_geotiff_vlrs.las"}
+    rows = {}
+    for name, path in paths.items():
+        c, cls, sec = real(path)
+        rows[name] = {"points": len(cls), "bridge_deck": int(np.sum(cls == classify.BRIDGE_DECK)),
+                      "sha256": hashlib.sha256(cls.tobytes()).hexdigest()}
+        print(name, rows[name], flush=True)
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--label", required=True)
     ap.add_argument("--demo", type=Path)
     ap.add_argument("--sim", type=Path, action="append", default=[],
                     help="Other simulated projects (aerotri sim --preset P --seed S DIR), scored as the demo.")
+    ap.add_argument("--others", action="store_true", help="only the remaining real sets (ISPRS, Topography, "
+                                                               "MixedConifer, Nebraska), stored under others")
     args = ap.parse_args()
     res = {"code": str(Path(classify.__file__).parent)}
+    if args.others:
+        res = {"others": others()}
+        return store(args.label, res)
     if args.demo:
         res["demo"] = demo(args.demo)
         print("demo", res["demo"], flush=True)
@@ -125,10 +150,15 @@ def main() -> int:
     print("autzen", res["autzen"], flush=True)
     res["synthetic"] = synthetic()
     print("synthetic", res["synthetic"], flush=True)
+    return store(args.label, res)
+
+
+def store(label: str, res: dict) -> int:
+    """Merge ``res`` into the label's rows of OUT (written atomically)."""
     old = json.loads(OUT.read_text()) if OUT.exists() else {}
     old.setdefault("what", __doc__.splitlines()[0])
     old.setdefault("command", "see the docstring of bench/eval_bridge_decks.py (--label main and --label branch)")
-    old[args.label] = res
+    old.setdefault(label, {}).update(res)
     tmp = OUT.with_suffix(".tmp")
     tmp.write_text(json.dumps(old, indent=1) + "\n")
     tmp.replace(OUT)
