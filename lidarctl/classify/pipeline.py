@@ -87,7 +87,9 @@ Pipeline (``classify_points``):
    whole cloud judges it (bench/results/water_tiles.json).
 6. Bridge decks (17, ``bridge_decks``): ground between two open-water-sized dropout gaps (not
    occlusion shadows) at most ``bridge_max_width_m`` apart along a grid direction within 30 degrees
-   of a gap's long axis (a watercourse runs on under the deck), standing more than
+   of a gap's long axis (a watercourse runs on under the deck), two gaps, not one (a deck cuts the water
+   into the reach upstream and downstream of it; ground with one gap on both sides is a tongue of land into
+   it, such as the ragged edge of the survey's coverage: the demo's 190 false deck returns), standing more than
    ``bridge_min_clearance_m`` above the lower of the two gaps' banks (median ground of their rims),
    on spans (the connected cells between the two gaps) of at least ``bridge_min_deck_m2`` whose ground
    stands that clear almost everywhere (``bridge_min_clear_share``: a level deck, not a sloping shore).
@@ -1512,8 +1514,8 @@ def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, *, p: Classi
                  dropout: DropoutGrid | None = None) -> np.ndarray:
     """Ground points on bridge decks (mask): ground between two water gaps at most
     ``bridge_max_width_m`` apart along one of the four grid directions, running along a
-    watercourse (within 30 degrees of the long axis of a gap on at least one side), and standing
-    more than ``bridge_min_clearance_m`` above the lower bank of the two gaps.
+    watercourse (within 30 degrees of the long axis of a gap on at least one side), two distinct gaps
+    (labels), and standing more than ``bridge_min_clearance_m`` above the lower bank of the two gaps.
 
     A bridge carries a road across a watercourse, so along the watercourse the deck has open water
     (a dropout gap, ``dropout_gaps``) on both sides, only as far apart as the road is wide, and it
@@ -1552,6 +1554,10 @@ def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, *, p: Classi
         unit = np.array([dr, dc]) / np.hypot(dr, dc)
         along = np.abs(axis @ unit) >= cos_tol   # per label: this direction runs along its axis
         spans &= along[hit_label[1]] | along[hit_label[-1]]
+        # A deck cuts the watercourse: the water on its two sides is two gaps (upstream, downstream). Ground
+        # with one gap on both sides is a tongue of land into it: the ragged edge of the survey's coverage
+        # (the demo's 190 false deck returns) or a spit into a lake.
+        spans &= hit_label[1] != hit_label[-1]
         top = np.fmin(bank[hit_label[1]], bank[hit_label[-1]])
         need = np.where(spans & np.isfinite(top), np.fmin(need, top), need)
     gi = np.flatnonzero(is_ground)

@@ -135,3 +135,29 @@ def test_autzen_footbridge_is_not_a_building(shared_data):
     corridor = (np.abs(across) < 4.0) & (along > 0) & (along < np.linalg.norm(p1 - p0))
     assert np.sum(cls == classify.BUILDING) == 0
     assert np.sum(cls[corridor] == classify.BRIDGE_DECK) > 1000
+
+
+def ragged_edge_scene(seed=7):
+    """The demo's false decks (190 ground returns, i44-bridge): the ragged edge of a survey's coverage. A field
+    (200 x 100 m, 3 returns/m2) rising 2 m per 100 m along u, covered for v < 80 m and, by a cross strip, for
+    u > 170 m; the corner beyond (u < 170, v > 80: no returns, a long dropout gap along u) reaches into the
+    last covered metres in teeth (2.5 m wide, every 12 m, down to v = 77.5 m). The ground between two teeth has
+    the same gap on both sides along u, less than ``bridge_max_width_m`` apart, and stands above the gap's
+    bank (the median of its rim): the old rule took it for decks."""
+    rng = np.random.default_rng(seed)
+    n = 200 * 100 * 3
+    u, v = rng.uniform(0, 200, n), rng.uniform(0, 100, n)
+    z = 0.02 * u + rng.normal(0, 0.02, n)
+    tooth = (v > 77.5) & (np.mod(u, 12.0) < 2.5)
+    keep = (u > 170) | ((v < 80) & ~tooth)
+    edge = (v > 77.5) & (u < 170)
+    return u[keep] + X0, v[keep] + Y0, z[keep], edge[keep]
+
+
+def test_ground_between_teeth_of_one_gap_at_the_coverage_edge_is_no_deck():
+    x, y, z, edge = ragged_edge_scene()
+    ground = np.ones(len(x), bool)
+    spacing = 1 / np.sqrt(3.0)
+    found = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, p=classify.ClassifySettings())
+    assert edge.sum() > 500   # the ground between the teeth is there to be judged
+    assert not found.any()
