@@ -3,5 +3,6 @@
 # The version of the classification rules: the tiled classification's resume key holds it (``lidarctl.tiles``), so
 # tiles kept by a run before a rule changed are classified again, not reused (the toolkit's version, 0.1.0, never
 # changed with them). Bump it with every change of what class a point gets at the same settings.
-# 1: before i44-water; 2: i44-water (water from the whole cloud's water grid, sloping surfaces, filled banks).
-RULES_VERSION = 2
+# 1: before i44-water; 2: i44-water (water from the whole cloud's water grid, sloping surfaces, filled banks);
+# 3: i44-bridge (a deck separates two different gaps).
+RULES_VERSION = 3

@@ -1042,6 +1042,15 @@ class WaterGrid:
         return ok_y[:, None] & ok_x[None, :]
 
 
+def water_cells(x, y, spacing_m: float, p: ClassifySettings, water_grid: WaterGrid | None = None):
+    """The water grid's cell (m) and ``grid.cell_ids`` of the points on it: ``water_cell_m`` or 2 point spacings
+    (at least 1 m) from the cloud's lowest x, y; with ``water_grid`` (a tile) the whole cloud's cell and origin."""
+    if water_grid is None:
+        c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
+        return c, grid.cell_ids(x, y, c)
+    return water_grid.cell_m, water_grid.cell_ids(x, y)
+
+
 @dataclasses.dataclass
 class DropoutGrid:
     """The water grid of step 5 (cells of ``c`` m): the cell id of every point, the returns per
@@ -1080,12 +1089,7 @@ def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings,
                  water_grid: WaterGrid | None = None) -> DropoutGrid:
     """The ``DropoutGrid`` of the cloud (cell ``water_cell_m``, default max(1 m, 2 point spacings)); with
     ``water_grid`` (a tile of a larger cloud) its cell, origin and reference count."""
-    if water_grid is None:
-        c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
-        flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
-    else:
-        c = water_grid.cell_m
-        flat, nrows, ncols, x0, y0 = water_grid.cell_ids(x, y)
+    c, (flat, nrows, ncols, x0, y0) = water_cells(x, y, spacing_m, p, water_grid)
     count = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols).astype(float)
     occupied = count > 0
     if water_grid is None:
@@ -1304,12 +1308,7 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
     tol = p.level_water_tol_m
     if p.level_water_min_area_m2 <= 0 or not candidate.any():
         return water
-    if water_grid is None:
-        c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
-        flat, nrows, ncols, x0, y0 = grid.cell_ids(x, y, c)
-    else:
-        c = water_grid.cell_m
-        flat, nrows, ncols, x0, y0 = water_grid.cell_ids(x, y)
+    c, (flat, nrows, ncols, x0, y0) = water_cells(x, y, spacing_m, p, water_grid)
     ci = np.flatnonzero(candidate)
     order = ci[np.lexsort((z[ci], flat[ci]))]
     cell = flat[order]
