@@ -513,8 +513,10 @@ def _rectify_frame_task(task: FrameTask) -> dict:
 def _resume_key(task: FrameTask, inputs: dict) -> str:
     """sha256 (32 hex digits) of what a frame's ortho depends on: the task but where it is written and its
     threads, the camera's parameters, the size and modification time of its image, DEM, DSM, footprints and crown
-    bases, the block's inputs (EO, camera, DEM hashes) and the toolkit's version."""
+    bases, the block's inputs (EO, camera, DEM hashes), the rectification's version
+    (``ortho.rectify.RECTIFY_VERSION``) and the toolkit's version."""
     import aerotri
+    from ortho.rectify import RECTIFY_VERSION
 
     doc = {}
     for f in dataclasses.fields(task):
@@ -528,7 +530,7 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
         path = getattr(task, f)
         if path:
             doc[f"{f}_size_mtime"] = file_stamp(path)
-    doc["inputs"], doc["version"] = inputs, aerotri.__version__
+    doc["inputs"], doc["version"], doc["rectify_version"] = inputs, aerotri.__version__, RECTIFY_VERSION
     if task.footprints_path:  # the footprints' rules change frame orthos within a version (a run resumed on newer code)
         doc["footprint_rules"] = {"heights_by_outline": HEIGHTS_BY_OUTLINE,
                                   "outlines_of_the_occlusion_test": OUTLINES_OF_THE_OCCLUSION_TEST}

@@ -54,6 +54,12 @@ if TYPE_CHECKING:
     from ortho.dem import HeightRaster
     from ortho.footprints import FootprintOccluder, OutlineHeights
 
+# The version of a frame's orthorectification (this module's kernels, the true ortho's visibility): a frame's
+# resume key (``ortho.block._resume_key``) and the chain's rectify stamp hold it, so frames kept (and stages stamped)
+# before a change of a frame's samples are rectified again. Bump it when a frame ortho changes at the same inputs and
+# settings. 1: resume-keys (the rectification as of main 195def90).
+RECTIFY_VERSION = 1
+
 INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "bilinear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}
 
 

@@ -1,7 +1,9 @@
 """The resumable stage runner: stamps, skipping what is up to date, the summary table.
 
 A stage is skipped when its stamp (``work/stages/<stage>.json``) records the same input files (content
-hash; size and modification time for files over 64 MiB) and options as now and all its outputs exist;
+hash; size and modification time for files over 64 MiB), options and algorithm versions (``Stage.versions``: the
+constants next to the code, e.g. ``lidarctl.classify.RULES_VERSION``, bumped when its outputs change; a stamp written
+before they were recorded is not re-run for them) as now and all its outputs exist;
 otherwise it runs and writes its outputs and its stamp as one commit (``aerotri.core.atomic.commit_outputs``:
 a stage that fails leaves every output of its earlier run as it was). Killing a run leaves finished
 stages stamped and the interrupted stage without a stamp and without partial outputs (the next run rolls
@@ -42,9 +44,15 @@ class Stage:
     run: Callable[[Path], StageResult]  # does the work, returns its key numbers for the summary
     options: dict | Callable[[Path], dict] = dataclasses.field(default_factory=dict)  # settings that re-run it
     skip: Callable[[Path], str | None] | None = None  # a reason to leave the stage out, asked when its turn comes
+    # the versions of the algorithms that decide its outputs (name -> constant next to the code, "bump when outputs
+    # change"): a new version re-runs the stage, the same one keeps it up to date; a callable imports them lazily
+    versions: dict | Callable[[], dict] = dataclasses.field(default_factory=dict)
 
     def options_now(self, root: Path) -> dict:
         return self.options(root) if callable(self.options) else self.options
+
+    def versions_now(self) -> dict:
+        return _plain(self.versions() if callable(self.versions) else self.versions)
 
 
 def _key(p: Path, root: Path) -> str:
@@ -119,8 +127,9 @@ def is_current(root: Path, st: Stage) -> bool:
 
 
 def stale_reason(root: Path, st: Stage) -> str | None:
-    """Why the stage must run (None: up to date): no stamp, an output missing, the inputs or the options that
-    changed since its stamp (by name: a new key of a newer version's settings re-runs a stage too)."""
+    """Why the stage must run (None: up to date): no stamp, an output missing, the inputs, the options or the
+    algorithm versions that changed since its stamp (by name: a new key of a newer version's settings re-runs a stage
+    too; a stamp without versions, written before they were recorded, is not re-run for them)."""
     sp = stamp_path(root, st.name)
     if not sp.exists():
         return "not run before"
@@ -138,6 +147,12 @@ def stale_reason(root: Path, st: Stage) -> str | None:
     options = _differing(stamp.get("options") or {}, _plain(st.options_now(root), root))
     if options:
         reasons.append(f"options changed: {options}")
+    if "versions" in stamp:  # (a stamp without them: written before they were recorded)
+        before, now = stamp["versions"] or {}, st.versions_now()
+        changed = [f"{k} {before.get(k, 'none')} -> {now.get(k, 'none')}" for k in sorted(set(before) | set(now))
+                   if before.get(k) != now.get(k)]
+        if changed:
+            reasons.append(f"code changed: {', '.join(changed)}")
     return "; ".join(reasons) or None
 
 
@@ -189,6 +204,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
         log(f"[{st.name}] running ({why})")
         _remove_stale_temporaries(st.outputs(root))
         options = _plain(st.options_now(root), root)  # before the run: the stage may change what they depend on
+        versions = st.versions_now()
         # the stage's outputs and its stamp are one commit: all new, or (an error, a kill) all as before;
         # a separate commit, final when the stage ends, so that a killed run resumes after its last stage
         with doing(st.name), commit_outputs(root, join=False):
@@ -200,8 +216,8 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
             if missing:
                 raise RuntimeError(f"stage {st.name} finished without writing {', '.join(missing)}")
             write_text_atomic(stamp_path(root, st.name), json.dumps(
-                dict(inputs=_signature(st.inputs(root), root), options=options, result=result, seconds=round(dt, 2),
-                     usage=usage.record()), indent=1, default=str) + "\n")
+                dict(inputs=_signature(st.inputs(root), root), options=options, versions=versions, result=result,
+                     seconds=round(dt, 2), usage=usage.record()), indent=1, default=str) + "\n")
         rows.append(dict(stage=st.name, status="skipped" if done.why else "done", seconds=round(dt, 1),
                          **_usage_columns(usage.record()), **result))
         for note in done.notes:

@@ -61,6 +61,44 @@ def adjustment_result(rec: AdjustmentRecord, **more) -> R.AdjustResult:
                           rms_check_z_m=chk[2] if plan else None, **more)
 
 
+# The algorithm versions each stage's stamp holds (``aerotri.chain.runner.Stage.versions``): the constants next to the
+# code that decides the stage's outputs, each bumped when those outputs change; imported when the stage's turn comes.
+def _classify_versions() -> dict:
+    from lidarctl.classify import RULES_VERSION
+
+    return {"classify rules": RULES_VERSION}
+
+
+def _rasters_versions() -> dict:
+    from lidarctl.rasters.products import RASTERS_VERSION
+
+    return {"rasters": RASTERS_VERSION}
+
+
+def _match_versions() -> dict:
+    from aerotri.match.settings import FEATURES_VERSION, MATCH_VERSION
+
+    return {"features": FEATURES_VERSION, "matching": MATCH_VERSION}
+
+
+def _control_versions() -> dict:
+    from aerotri.control.measure import MEASURE_VERSION
+
+    return {"measurement": MEASURE_VERSION}
+
+
+def _rectify_versions() -> dict:
+    from ortho.rectify import RECTIFY_VERSION
+
+    return {"rectify": RECTIFY_VERSION}
+
+
+def _mosaic_versions() -> dict:
+    from ortho.mosaic import BLEND_RULES
+
+    return {"blend rules": BLEND_RULES}
+
+
 @dataclasses.dataclass
 class Chain:
     """The stages of one project; ``stages()`` lists them in order (see the module docstring)."""
@@ -282,11 +320,12 @@ class Chain:
             Stage("strips", self.strips_inputs, self.strips_outputs, self.run_strips,
                   options=dict(to_table(o.strips), crs=self.project.crs), skip=self.no_lidar),
             Stage("classify", lambda r: self.classify_inputs(), self.classified, self.run_classify,
-                  options=dict(to_table(o.classify), crs=self.project.crs), skip=self.no_lidar),
+                  options=dict(to_table(o.classify), crs=self.project.crs), skip=self.no_lidar,
+                  versions=_classify_versions),
             Stage("rasters", self.classified,
                   lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif", "dsm_nearest.tif", "crowns.gpkg",
                                               "dsm_crowns.tif")], self.run_rasters,
-                  options=to_table(o.rasters), skip=self.no_lidar),
+                  options=to_table(o.rasters), skip=self.no_lidar, versions=_rasters_versions),
             Stage("corners", self.classified, self.corner_outputs, self.run_corners,
                   options=to_table(o.corners), skip=self.no_lidar),
         ]
@@ -299,14 +338,14 @@ class Chain:
                   lambda r: [self.project.tiepoints_path], self.run_match,
                   # [flight] terrain height and [gnss] lever arm place the footprints of the pairs
                   options=dict(to_table(o.match), flight=to_table(self.project.flight),
-                               gnss=to_table(self.project.gnss))),
+                               gnss=to_table(self.project.gnss)), versions=_match_versions),
             # project.toml carries the [gnss] sigmas, [adjust] options and the [qa] limits of the report
             Stage("adjust_first", lambda r: self.adjust_inputs(r, control=False),
                   lambda r: [first / "eo.txt", first / "camera.toml"], self.run_adjust_first,
                   options=lambda r: to_table(self.first_settings().settings), skip=self.no_first_adjustment),
             Stage("control", self.control_inputs,
                   lambda r: [self.project.control_points_path, self.project.control_image_points_path], self.run_control,
-                  options=to_table(o.control), skip=self.no_corners),
+                  options=to_table(o.control), skip=self.no_corners, versions=_control_versions),
             Stage("adjust_final", self.adjust_inputs, self.adjust_final_outputs,
                   self.run_adjust_final, options=lambda r: to_table(self.final_settings().settings)),
             # a block without GNSS, LiDAR or DEM: the DEM of its adjusted tie points
@@ -315,9 +354,10 @@ class Chain:
             # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
             Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.true_ortho_dsm() + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
-                  options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem),
+                  options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem,
+                  versions=_rectify_versions),
             Stage("mosaic", lambda r: [self.project.frames_index_path], lambda r: [self.project.mosaic_path],
-                  self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem),
+                  self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem, versions=_mosaic_versions),
         ]
         # always planned: without --reference it is skipped with why (an earlier run's check is not dropped silently)
         stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path]

@@ -31,6 +31,12 @@ from scipy import ndimage
 
 from aerotri.control.settings import MeasureSettings
 
+# The version of the corner measurement in a frame (``measure_in_image``, ``predict``): the control transfer's
+# per-frame resume key (``aerotri.control.pipeline._frame_keys``) and the chain's control stamp hold it, so frames
+# measured before a change are measured again. Bump it when a frame's measurements change at the same settings.
+# 1: resume-keys (the measurement as of main 195def90).
+MEASURE_VERSION = 1
+
 REASONS = ("outside_frame", "no_edges", "occluded", "ambiguous", "poor_edge_fit")  # no_edges: no contrast or hidden
 
 

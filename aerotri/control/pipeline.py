@@ -21,7 +21,7 @@ import numpy as np
 from aerotri.control.consistency import check_rays
 from aerotri.control.corners import LidarCorners, ManualMeasurements, read_corners, read_manual
 from aerotri.control.layout import LayoutTarget, candidate_tiers, empty_target_text, select_control
-from aerotri.control.measure import Measurement, corner_points, measure_in_image, predict
+from aerotri.control.measure import MEASURE_VERSION, Measurement, corner_points, measure_in_image, predict
 from aerotri.control.settings import ControlSettings
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.log import track
@@ -140,7 +140,8 @@ def _frame_keys(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientat
                 *, images_dir: Path, s: ControlSettings, crs) -> list[str]:
     """Key of each frame's measurements of the corners ``idx`` (``aerotri.core.resume``): the frame's image (name,
     size, modification time) and orientation, the camera, the corners' points in the frames' Cartesian frame and
-    roof angles, the measurement settings, the CRS and the toolkit's version."""
+    roof angles, the measurement settings, the measurement's version (``aerotri.control.measure.MEASURE_VERSION``),
+    the CRS and the toolkit's version."""
     import hashlib
 
     import aerotri
@@ -149,7 +150,8 @@ def _frame_keys(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientat
     for a in (idx, points.xyz, points.along_edges, points.by_sigma, corners.angle_deg[idx]):
         h.update(np.ascontiguousarray(a, dtype=float).tobytes())
     block = {"corners": h.hexdigest(), "camera": repr(camera), "measure": repr(s.measure),
-             "crs": crs.to_wkt() if crs is not None else None, "version": aerotri.__version__}
+             "crs": crs.to_wkt() if crs is not None else None, "measure_version": MEASURE_VERSION,
+             "version": aerotri.__version__}
     keys = []
     for i, iid in enumerate(eo.image_id):
         path = find_image(images_dir, iid)

@@ -202,14 +202,16 @@ def _match_task(item) -> tuple[int, np.ndarray]:
 
 def _pair_key(tag: str, fa: _FrameItem, fb: _FrameItem, camera: BrownCamera, p: M.PairMatchSettings,
               guide) -> str:
-    """Key of a pair's verified matches: its two frames' feature keys, the camera, the match settings, the flight
-    plan's guide (None: unguided) and the toolkit's version."""
+    """Key of a pair's verified matches: its two frames' feature keys (they hold ``FEATURES_VERSION``), the camera,
+    the match settings, the flight plan's guide (None: unguided), the matching's version (``MATCH_VERSION``) and the
+    toolkit's version."""
     import aerotri
+    from aerotri.match.settings import MATCH_VERSION
 
     g = None if guide is None else [guide.centre_m.tolist(), guide.kappa_deg.tolist(), guide.terrain_height_m,
                                     guide.footprint_a.wkb_hex, guide.footprint_b.wkb_hex]
     return resume_key({"pair": tag, "a": fa.key, "b": fb.key, "camera": repr(camera), "settings": p.key(),
-                       "guide": g, "version": aerotri.__version__})
+                       "guide": g, "match_version": MATCH_VERSION, "version": aerotri.__version__})
 
 
 @dataclasses.dataclass

@@ -19,6 +19,9 @@ from aerotri.core.settings import setting
 FEATURES_VERSION = 3  # 2: keypoints on the image content (SIFT precise upscale, pyramid levels without offset);
 # 3: frames read by windows, deep (12/16-bit) samples scaled by their significant bits; tile_px (detection by
 # tiles) joins the key through the settings
+MATCH_VERSION = 1  # pair matching and its verification (``aerotri.match.matching``): the pair's resume key and the
+# matches' cache name hold it (through ``aerotri.match.pipeline._pair_key``), as does the chain's match stamp. Bump it
+# when the matches of a pair change at the same settings. 1: resume-keys (the matching as of main 195def90)
 
 
 def _key(params, version: int | None = None) -> str:

@@ -962,15 +962,23 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
         return _write_set(outdir, lambda tmp: write(tmp, keep))
 
 
+# The version of the tile grids' algorithm (``_tile_grids``: DEM, DSM, nDSM, CHM, intensity, nearest DSM of a tile):
+# the tile resume key and the chain's rasters stamp hold it, so tiles kept (and stages stamped) before a change of
+# what a cell gets at the same settings are computed again (the toolkit's version, 0.1.0, never changes with them).
+# Bump it when the grids' values change. 1: resume-keys (the algorithm as of main 195def90).
+RASTERS_VERSION = 1
+
+
 def _tiles_key_doc(inputs: _Inputs, args, grid, **settings) -> dict:
     """What every tile's grids depend on but its place in the grid: the files in order (name, size, modification
-    time), the raster grid and the tiles, the CRS and units, the settings, the toolkit's version (not the threads:
-    the grids do not depend on them)."""
+    time), the raster grid and the tiles, the CRS and units, the settings, the grids' algorithm version
+    (``RASTERS_VERSION``) and the toolkit's version (not the threads: the grids do not depend on them)."""
     import aerotri
 
     return {"files": [[p.name, file_stamp(p)] for p in inputs.paths], "raster": [float(a) for a in args],
             "tiles": dataclasses.asdict(grid), "crs": str(inputs.crs), "surface_crs": str(inputs.surface_crs),
-            "units": repr(inputs.units), "settings": settings, "version": aerotri.__version__}
+            "units": repr(inputs.units), "settings": settings, "rasters_version": RASTERS_VERSION,
+            "version": aerotri.__version__}
 
 
 # What a kept tile holds (``_keep_tile``): its core's grids of ``_tile_grids`` in this order, one float32 array.

@@ -121,3 +121,23 @@ def test_rasters_sigkill_then_resume(strips, reference, tmp_path, monkeypatch):
     assert _tree(out) == reference
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
     assert not [p for p in tmp_path.rglob("*") if ".part-" in p.name or ".commit-" in p.name]
+
+
+def test_tiles_kept_before_an_algorithm_change_are_not_reused(strips, reference, tmp_path, monkeypatch, one_thread):
+    """resume-keys: the key held the toolkit's version (0.1.0, never bumped) only, so tiles kept before a change of
+    the grids' algorithm were reused after it. ``products.RASTERS_VERSION`` is in the key: bumped, no tile resumes;
+    the same version resumes the kept tiles."""
+    out, keep = tmp_path / "r", tmp_path / "r.resume"
+    monkeypatch.setattr(products, "_tile_grids", _Tiles(at=3))
+    assert _rasters(strips, out).exit_code == 130 and _kept(keep) == 2
+    monkeypatch.setattr(products, "RASTERS_VERSION", products.RASTERS_VERSION + 1)
+    monkeypatch.setattr(products, "_tile_grids", _Tiles(at=4))
+    r = _rasters(strips, out)
+    assert r.exit_code == 130 and "resumed" not in r.stderr and _kept(keep) == 2 + 3  # the old two stay unused
+
+    count = _Tiles()
+    monkeypatch.setattr(products, "_tile_grids", count)
+    r = _rasters(strips, out)  # the same (bumped) version: its three tiles resume
+    assert r.exit_code == 0, r.output
+    assert count.done == 13 and f"tiles: resumed 3 of 16 tiles an interrupted run finished ({keep})" in r.stderr
+    assert _tree(out) == reference

@@ -396,6 +396,44 @@ def test_a_rerun_resumes_the_frames_an_interrupted_run_finished(project, monkeyp
     assert len(calls) == 6, calls
 
 
+
+def test_frames_kept_before_a_rectification_change_are_rectified_again(project, monkeypatch):
+    """resume-keys: a frame's key held the toolkit's version (0.1.0, never bumped) only, so frame orthos kept before a
+    change of the rectification were reused after it. ``ortho.rectify.RECTIFY_VERSION`` is in the key: bumped, no
+    frame resumes; the same version resumes the frames it kept."""
+    import ortho.block as B
+    import ortho.rectify
+
+    before = tree(project / "ortho" / "frames")
+    calls = []
+    real = B._rectify_frame
+
+    def breaks_at_the_fourth(task):
+        calls.append(task.image_id)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return real(task)
+
+    monkeypatch.setattr(B, "_rectify_frame", breaks_at_the_fourth)
+    assert run("rectify", project, "--workers", 1).exit_code != 0
+    finished = len(list((project / "work" / "rectify_resume").glob("*.tif")))
+    assert 3 <= finished <= 5
+    monkeypatch.setattr(ortho.rectify, "RECTIFY_VERSION", ortho.rectify.RECTIFY_VERSION + 1)
+    calls.clear()
+    r = run("rectify", project, "--workers", 1)
+    # a resume would have left 6 - finished frames to rectify: the kept ones are rectified again
+    assert r.exit_code != 0 and "resumed" not in r.stderr and len(calls) >= 4 > 6 - finished, calls
+    bumped = len(list((project / "work" / "rectify_resume").glob("*.tif"))) - finished
+    assert 3 <= bumped <= 5
+    calls.clear()
+    monkeypatch.setattr(B, "_rectify_frame", lambda task: (calls.append(task.image_id), real(task))[1])
+    r = run("rectify", project, "--workers", 1)  # the same (bumped) version: its frames resume
+    assert r.exit_code == 0, r.output
+    assert len(calls) == 6 - bumped and f"resumed {bumped} of 6 frames" in r.stderr, r.stderr
+    after = tree(project / "ortho" / "frames")
+    before.pop("index.json"), after.pop("index.json")
+    assert after == before
+
 def test_an_error_leaves_no_frames_kept_for_a_resume(project, monkeypatch):
     """An error (bad input, a bad frame) leaves nothing behind, not even the frames kept for a resumed run: only a
     kill or Ctrl-C keeps them."""

@@ -304,3 +304,56 @@ def test_the_log_says_why_a_stage_runs(tmp_path):
     lines.clear()
     run_stages(tmp_path, stages({"k": 2, "surface": {"a": 1, "b": 0}, "new": True}), force=True, log=lines.append)
     assert "[add] running (--force)" in lines
+
+
+def test_a_bumped_algorithm_version_reruns_its_stage_and_the_same_one_stays_up_to_date(tmp_path):
+    """resume-keys: a stamp held inputs and options only, so a stage whose code changed its outputs (a bumped
+    ``RULES_VERSION``) stayed up to date. The stamp holds the stage's algorithm versions: bumped, it runs again."""
+    (tmp_path / "in.txt").write_text("3")
+
+    def stages(calls, version):
+        st = _stages(calls)
+        st[0] = dataclasses.replace(st[0], versions=lambda: {"doubling": version})
+        return st
+
+    calls, logged = [], []
+    run_stages(tmp_path, stages(calls, 1), log=lambda m: None)
+    assert calls == ["double", "add"]
+    assert json.loads(stamp_path(tmp_path, "double").read_text())["versions"] == {"doubling": 1}
+    calls.clear()
+    run_stages(tmp_path, stages(calls, 1), log=lambda m: None)
+    assert calls == []
+    run_stages(tmp_path, stages(calls, 2), log=logged.append)
+    assert calls == ["double"]  # its output is the same: the next stage stays up to date
+    assert "[double] running (code changed: doubling 1 -> 2)" in logged
+    # a stamp written before versions were recorded is not re-run for them
+    sp = stamp_path(tmp_path, "double")
+    doc = json.loads(sp.read_text())
+    del doc["versions"]
+    sp.write_text(json.dumps(doc))
+    calls.clear()
+    run_stages(tmp_path, stages(calls, 3), log=lambda m: None)
+    assert calls == []
+
+
+def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path):
+    """Each stage with an algorithm version constant declares it (what its stamp then holds)."""
+    import lidarctl.classify
+    import lidarctl.rasters.products
+    import ortho.mosaic
+    import ortho.rectify
+    from aerotri.chain import stages as S
+    from aerotri.control import measure
+    from aerotri.match import settings
+
+    assert S._classify_versions() == {"classify rules": lidarctl.classify.RULES_VERSION}
+    assert S._rasters_versions() == {"rasters": lidarctl.rasters.products.RASTERS_VERSION}
+    assert S._match_versions() == {"features": settings.FEATURES_VERSION, "matching": settings.MATCH_VERSION}
+    assert S._control_versions() == {"measurement": measure.MEASURE_VERSION}
+    assert S._rectify_versions() == {"rectify": ortho.rectify.RECTIFY_VERSION}
+    assert S._mosaic_versions() == {"blend rules": ortho.mosaic.BLEND_RULES}
+    (tmp_path / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n')
+    versions = {st.name: st.versions_now() for st in S.chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
+    assert versions["classify"] == S._classify_versions() and versions["rasters"] == S._rasters_versions()
+    assert versions["match"] == S._match_versions() and versions["control"] == S._control_versions()
+    assert versions["rectify"] == S._rectify_versions() and versions["mosaic"] == S._mosaic_versions()

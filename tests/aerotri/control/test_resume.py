@@ -75,3 +75,30 @@ def test_an_error_leaves_the_project_as_it_was_and_nothing_to_resume(tiny_projec
     assert r.exit_code == 2 and "broken on purpose" in r.output, r.output
     assert tree(root) == {k: v for k, v in before.items() if not k.startswith("work/control_resume/")}
     assert not (root / "work").exists()  # the interrupted run made it for the kept frames only
+
+
+def test_frames_measured_before_a_measurement_change_are_measured_again(tiny_project, tmp_path, monkeypatch):
+    """resume-keys: a frame's key held the toolkit's version (0.1.0, never bumped) only, so measurements kept before
+    a change of the measurement were reused after it. ``MEASURE_VERSION`` is in the key: bumped, no frame resumes;
+    the same version resumes the frames it kept."""
+    root = project_copy(tiny_project, tmp_path)
+    keep = root / "work" / "control_resume"
+    count = _Windows()
+    monkeypatch.setattr(P, "FrameWindows", count)
+    assert run(root).exit_code == 0
+    measured, want = count.opened, tree(root / "control")
+    shutil.rmtree(root / "control")
+
+    monkeypatch.setattr(P, "FrameWindows", _Windows(at=4))
+    assert run(root).exit_code != 0 and len(list(keep.glob("*.json"))) == 3
+    monkeypatch.setattr(P, "MEASURE_VERSION", P.MEASURE_VERSION + 1)
+    monkeypatch.setattr(P, "FrameWindows", _Windows(at=4))
+    r = run(root)
+    assert r.exit_code != 0 and "resumed" not in r.stderr and len(list(keep.glob("*.json"))) == 3 + 3, r.stderr
+
+    count = _Windows()
+    monkeypatch.setattr(P, "FrameWindows", count)
+    r = run(root)  # the same (bumped) version: its three frames resume
+    assert r.exit_code == 0, r.output
+    assert count.opened == measured - 3 and "control transfer: resumed 3 of 6 frames" in r.stderr, r.stderr
+    assert tree(root / "control") == want

@@ -160,3 +160,28 @@ def test_a_changed_image_is_not_resumed(block, tmp_path, monkeypatch):
     r = run(p)
     assert r.exit_code == 0, r.output
     assert extract.calls == 6 - done + 1 and f"resumed {done - 1} of 6 frames" in r.stderr, r.stderr
+
+
+def test_pairs_kept_before_a_matching_change_are_matched_again(block, tmp_path, monkeypatch):
+    """resume-keys: a pair's key held the toolkit's version (0.1.0, never bumped) only, so matches kept before a
+    change of the matching were reused after it. ``MATCH_VERSION`` is in the key: bumped, every pair is matched
+    again, while the frames' features (the same ``FEATURES_VERSION``) resume."""
+    from aerotri.match import settings
+
+    inputs, ref = block
+    p = shutil.copytree(inputs, tmp_path / "p")
+    keep = p / "work" / "match_resume"
+    n_pairs = len(list((ref / "work" / "matches").glob("*.npy")))
+    monkeypatch.setattr(M, "match_pair", _Breaks(M.match_pair, at=5))
+    assert run(p).exit_code != 0
+    assert len(list(keep.glob("*.npz"))) == 6 and len(list(keep.glob("*.npy"))) >= 4
+
+    monkeypatch.setattr(settings, "MATCH_VERSION", settings.MATCH_VERSION + 1)
+    extract, matcher = _Breaks(F.extract_level), _Breaks(M.match_pair)
+    monkeypatch.setattr(F, "extract_level", extract)
+    monkeypatch.setattr(M, "match_pair", matcher)
+    r = run(p)
+    assert r.exit_code == 0, r.output
+    assert extract.calls == 0 and "features: resumed 6 of 6 frames" in r.stderr, r.stderr
+    assert matcher.calls == n_pairs and "matching: resumed" not in r.stderr, r.stderr
+    assert (p / "at" / "tiepoints.csv").read_bytes() == (ref / "at" / "tiepoints.csv").read_bytes()
