@@ -1049,8 +1049,8 @@ def _bounded_solve(N, u: np.ndarray, cap: np.ndarray, floor: np.ndarray | None =
     least squares, given 20 iterations per unknown. Either way ``converged`` is decided on the returned x by the
     optimality conditions (``_kkt_holds``), not by the method's own stop: the reflective solver's status 2 / 3 say
     only that the cost or x stopped changing (s9-fixes: 1,000 frames, status 2, offsets 0.32 DN off). Replaced
-    (offsets-fixes2) the reflective solver alone that stopped at its 100 iterations on blocks of 100 frames and more (100 frames:
-    offsets 1.95 DN off) and took 35 s on 400 frames' dense 800 unknowns with offsets."""
+    (offsets-fixes2) the reflective solver alone that stopped at its 100 iterations on blocks of 100 frames and more
+    (100 frames: offsets 1.95 DN off) and took 35 s on 400 frames' dense 800 unknowns with offsets."""
     import scipy.sparse as sp
 
     m = len(u)
