@@ -160,9 +160,9 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
                                                           frozenset(plan_ids))))
     if plan_ids:
         log.warning(f"odm export: {len(plan_ids)} plan-only control points ({', '.join(plan_ids)}) have no height: "
-                    "left out of odm/gcp_list.txt (its layout needs a height: their stored 0 would be taken as one); plan-only "
-                    "control goes to OpenSfM through odm/opensfm/ground_control_points.json (without altitude: "
-                    "has_altitude false)")
+                    "left out of odm/gcp_list.txt (its layout needs a height: their stored 0 would be taken as one); "
+                    "plan-only control goes to OpenSfM through odm/opensfm/ground_control_points.json (without "
+                    "altitude: has_altitude false)")
     if height_ids:
         log.warning(f"odm export: {len(height_ids)} height-only control points ({', '.join(height_ids)}) have no "
                     "plan position: left out of odm/gcp_list.txt and ground_control_points.json (the layouts have "
