@@ -6,9 +6,8 @@
 | ``odm/opensfm/reference_lla.json`` | the reference point alone (what OpenSfM datasets older than ``reference_lla`` in the reconstruction read) |
 | ``odm/cameras.json`` | the camera, OpenSfM's ``camera_models.json`` layout (ODM's ``--cameras``) |
 | ``odm/gcp_list.txt`` | the control points the adjustment used and their measurements it kept (``aerotri.exchange.odm`` documents the layout); none for a block without control |
-| ``odm/opensfm/ground_control_points.json`` | the same control in OpenSfM's own GCP format (WGS84, normalised image coordinates), plus the plan-only control without ``altitude`` (OpenSfM: ``has_altitude`` false) |
+| ``odm/opensfm/ground_control_points.json`` | the same control in OpenSfM's own GCP format (WGS84, normalised image coordinates), plus the plan-only control without ``altitude`` (OpenSfM: ``has_altitude`` false), the only ODM file that holds it: gcp_list.txt leaves it out (a warning names the points). Height-only control is left out of every ODM file (the layouts have no plan-free point), also named in a warning |
 | ``odm/gcp_list_check.txt`` | check points and their measurements, gcp_list.txt layout (ODM has no check points: in gcp_list.txt they would become control) |
-| ``odm/gcp_list_plan_only.txt`` | plan-only (horizontal) control and its measurements, gcp_list.txt layout with ``geo_z`` NaN (OpenSfM's reader: no altitude); not in gcp_list.txt, where ODM's own reader may turn NaN into a height of 0; a warning names the points. Height-only control is left out of every ODM file (the layout has no plan-free point), also named in a warning |
 | ``odm/gcp_list_rejected.txt`` | measurements of control points the adjustment did not use: removed by data snooping (w), of a control point it rejected, or of a point it never had; gcp_list.txt layout, the reason in the extra fields; each also printed as a warning |
 
 The reference point is the adjustment's local-frame origin (``at/report.json``) in WGS84 through the
@@ -43,7 +42,8 @@ def _crs_line(crs_text: str) -> str:
 
 
 def _gcp_rows(obs: ImageObservations, xyz: dict, names: dict, extras=None, plan_only=frozenset()) -> list[str]:
-    """gcp_list.txt lines; the points of ``plan_only`` get geo_z NaN (no height), never their stored 0."""
+    """gcp_list.txt lines; the points of ``plan_only`` get geo_z NaN (no height), never their stored 0: only in
+    gcp_list_rejected.txt, a listing no ODM reader takes (see ``files``)."""
     rows = []
     for n, (p, i, (x, y)) in enumerate(zip(obs.point_id.astype(str), obs.image_id.astype(str), obs.xy_px)):
         X, Y, Z = xyz[p]
@@ -137,9 +137,12 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
            ExportFile("odm/cameras.json", json.dumps({cam_id: rec["cameras"][cam_id]}, indent=2) + "\n")]
     kept, check, rejected, reasons, xyz, kind = _measurements(block, project)
     head = _crs_line(block.crs)
-    # plan-only control has no height to give (control/points.csv holds 0 there): gcp_list.txt would make it
-    # a point at height 0 (ODM's reader may turn NaN into 0), so it goes to a file of its own with NaN and to the
-    # JSON without altitude; height-only control has no plan position the layouts could leave out
+    # plan-only control has no height to give (control/points.csv holds 0 there): gcp_list.txt would make it a
+    # point at height 0, and no text file can carry it: OpenSfM's reader (opensfm/io.py _read_gcp_list_lines)
+    # groups a file's lines into points by (easting, northing, altitude), and with altitude NaN no two lines
+    # compare equal, so each measurement would be a GCP of one observation, unused. The JSON, whose points hold
+    # their observations and read has_altitude from "altitude" in the position, is its only ODM file. Height-only
+    # control has no plan position the layouts could leave out.
     pid = kept.point_id.astype(str)
     plan = np.array([kind.get(p) == "horizontal" for p in pid], bool)
     height = np.array([kind.get(p) == "height" for p in pid], bool)
@@ -156,12 +159,10 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
                               _ground_control_points_json(with_plan, ids + plan_ids, xyz, project, block, names,
                                                           frozenset(plan_ids))))
     if plan_ids:
-        out.append(ExportFile("odm/gcp_list_plan_only.txt", "\n".join(
-            [head] + _gcp_rows(kept.subset(plan), xyz, names, plan_only=no_z)) + "\n"))
         log.warning(f"odm export: {len(plan_ids)} plan-only control points ({', '.join(plan_ids)}) have no height: "
-                    "left out of odm/gcp_list.txt (ODM would hold them at a height of 0); written to "
-                    "odm/gcp_list_plan_only.txt (geo_z NaN) and odm/opensfm/ground_control_points.json without "
-                    "altitude")
+                    "left out of odm/gcp_list.txt (its layout needs a height: their stored 0 would be taken as one); "
+                    "plan-only control goes to OpenSfM through odm/opensfm/ground_control_points.json (without "
+                    "altitude: has_altitude false)")
     if height_ids:
         log.warning(f"odm export: {len(height_ids)} height-only control points ({', '.join(height_ids)}) have no "
                     "plan position: left out of odm/gcp_list.txt and ground_control_points.json (the layouts have "

@@ -228,9 +228,11 @@ def test_tuniu_imported_and_written_again(shared_data, tmp_path):
 
 def test_plan_only_control_is_never_given_a_height_of_0(adjusted_tiny, tmp_path):
     """Plan-only control (the kite's targets: control/points.csv holds z = 0, kind horizontal) is written as each
-    format allows, never as a height of 0: ODM's gcp_list.txt leaves it out (ODM's reader may turn NaN into 0) and
-    the console names the points, odm/gcp_list_plan_only.txt gives geo_z NaN, OpenSfM's JSON no altitude,
-    Metashape x y without z, MicMac sZ = -1; the full control keeps its heights."""
+    format allows, never as a height of 0: ODM's gcp_list.txt leaves it out and the console names the points, no
+    NaN text file is written (OpenSfM's text reader groups lines by (x, y, z): with z NaN each measurement would be
+    a point of its own, unused), OpenSfM's JSON gives it without altitude and each plan-only point, as OpenSfM's
+    JSON reader groups it (one point per entry, its observations inside), with every measurement the adjustment
+    kept of it; Metashape x y without z, MicMac sZ = -1; the full control keeps its heights."""
     import xml.etree.ElementTree as ET
 
     src, _ = adjusted_tiny
@@ -261,11 +263,20 @@ def test_plan_only_control_is_never_given_a_height_of_0(adjusted_tiny, tmp_path)
     odm = tmp_path / "x" / "odm"
     listed = [ln.split("\t") for ln in (odm / "gcp_list.txt").read_text().splitlines()[1:]]
     assert {x[6] for x in listed} == full
-    plan_rows = [ln.split("\t") for ln in (odm / "gcp_list_plan_only.txt").read_text().splitlines()[1:]]
-    assert {x[6] for x in plan_rows} == set(plan) and all(x[2] == "NaN" for x in plan_rows)
+    assert not (odm / "gcp_list_plan_only.txt").exists()
+    assert "NaN" not in "".join(f.read_text() for f in odm.glob("*.txt") if f.name != "gcp_list_rejected.txt")
+    assert "ground_control_points.json (without altitude" in r.output
     gcps = json.loads((odm / "opensfm" / "ground_control_points.json").read_text())["points"]
-    assert {g["id"] for g in gcps} == full | set(plan)
+    assert {g["id"] for g in gcps} == full | set(plan) and len(gcps) == len(full | set(plan))
     assert all(("altitude" in g["position"]) == (g["id"] in full) for g in gcps)
+    measured = read_image_points(Project.open(root).control_image_points_path)
+    removed = {(x["point_id"], x["image_id"]) for x in report["removed_observations"]}
+    for g in gcps:
+        if g["id"] in plan:  # OpenSfM's JSON reader: has_altitude = "altitude" in position, observations inside
+            images = [i for p, i in zip(measured.point_id.astype(str), measured.image_id.astype(str))
+                      if p == g["id"] and (p, i) not in removed]
+            shots = [o["shot_id"] for o in g["observations"]]
+            assert len(shots) == len(images) >= 2 and len(set(shots)) == len(shots), (g["id"], shots, images)
     markers = ET.parse(tmp_path / "x" / "metashape" / "cameras.xml").getroot().findall(".//markers/marker")
     refs = {m.get("label"): m.find("reference") for m in markers if m.find("reference") is not None}
     assert all("z" not in refs[p].attrib for p in plan) and all("z" in refs[p].attrib for p in full)
