@@ -219,6 +219,7 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-ahn3", action="store_true")
     a = ap.parse_args(argv)
     a.work.mkdir(parents=True, exist_ok=True)
+    a.results.mkdir(parents=True, exist_ok=True)
     for name, fn, skip in (("demo", demo, a.skip_demo), ("ngi", ngi, a.skip_ngi), ("ahn3", ahn3, a.skip_ahn3)):
         if skip:
             continue
