@@ -362,7 +362,8 @@ def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path)
     assert S._rasters_versions() == {"rasters": lidarctl.rasters.products.RASTERS_VERSION,
                                      "crown model": lidarctl.rasters.crown_model.CROWNS_VERSION}
     assert S._corners_versions() == {"roof corners": roof_corners.CORNERS_VERSION}
-    assert S._adjust_versions() == {"adjustment": pipeline.ADJUST_VERSION, "relative orientation": relative.RELATIVE_VERSION}
+    assert S._adjust_versions() == {"adjustment": pipeline.ADJUST_VERSION,
+                                    "relative orientation": relative.RELATIVE_VERSION}
     assert S._match_versions() == {"features": settings.FEATURES_VERSION, "matching": settings.MATCH_VERSION}
     assert S._control_versions() == {"measurement": measure.MEASURE_VERSION}
     assert S._rectify_versions() == {"rectify": ortho.rectify.RECTIFY_VERSION,
