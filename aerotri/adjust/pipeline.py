@@ -56,6 +56,13 @@ from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
 log = logging.getLogger(__name__)
 
+# The version of the adjustment (approximations, the bundle solve, the datum, gross-error handling) the chain's
+# adjust_first and adjust_final stamps hold beside ``aerotri.adjust.relative.RELATIVE_VERSION``: orientations
+# adjusted by earlier code are adjusted again. Bump it when eo.txt, object_points.csv or the report change at the
+# same inputs and settings. 1: s10-fixes (the algorithm as of main e4b26d8e).
+ADJUST_VERSION = 1
+
+
 @dataclasses.dataclass(kw_only=True)
 class BlockAdjustment:
     """Everything the reports and exports need (project CRS where it says _map)."""

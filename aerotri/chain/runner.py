@@ -3,7 +3,7 @@
 A stage is skipped when its stamp (``work/stages/<stage>.json``) records the same input files (content
 hash; size and modification time for files over 64 MiB), options and algorithm versions (``Stage.versions``: the
 constants next to the code, e.g. ``lidarctl.classify.RULES_VERSION``, bumped when its outputs change; a stamp written
-before they were recorded is not re-run for them) as now and all its outputs exist;
+before they were recorded runs again, its code unknown) as now and all its outputs exist;
 otherwise it runs and writes its outputs and its stamp as one commit (``aerotri.core.atomic.commit_outputs``:
 a stage that fails leaves every output of its earlier run as it was). Killing a run leaves finished
 stages stamped and the interrupted stage without a stamp and without partial outputs (the next run rolls
@@ -129,7 +129,7 @@ def is_current(root: Path, st: Stage) -> bool:
 def stale_reason(root: Path, st: Stage) -> str | None:
     """Why the stage must run (None: up to date): no stamp, an output missing, the inputs, the options or the
     algorithm versions that changed since its stamp (by name: a new key of a newer version's settings re-runs a stage
-    too; a stamp without versions, written before they were recorded, is not re-run for them)."""
+    too; a stamp without versions, written before they were recorded, runs again if the stage declares versions)."""
     sp = stamp_path(root, st.name)
     if not sp.exists():
         return "not run before"
@@ -147,8 +147,14 @@ def stale_reason(root: Path, st: Stage) -> str | None:
     options = _differing(stamp.get("options") or {}, _plain(st.options_now(root), root))
     if options:
         reasons.append(f"options changed: {options}")
-    if "versions" in stamp:  # (a stamp without them: written before they were recorded)
-        before, now = stamp["versions"] or {}, st.versions_now()
+    now = st.versions_now()
+    if "versions" not in stamp:
+        # written before versions were recorded: which code made its outputs is unknown (an old project kept
+        # outputs of rules since replaced for ever), so a stage that declares versions runs again
+        if now:
+            reasons.append("code versions not recorded: run again")
+    else:
+        before = stamp["versions"] or {}
         changed = [f"{k} {before.get(k, 'none')} -> {now.get(k, 'none')}" for k in sorted(set(before) | set(now))
                    if before.get(k) != now.get(k)]
         if changed:

@@ -70,9 +70,23 @@ def _classify_versions() -> dict:
 
 
 def _rasters_versions() -> dict:
+    from lidarctl.rasters.crown_model import CROWNS_VERSION
     from lidarctl.rasters.products import RASTERS_VERSION
 
-    return {"rasters": RASTERS_VERSION}
+    return {"rasters": RASTERS_VERSION, "crown model": CROWNS_VERSION}
+
+
+def _corners_versions() -> dict:
+    from lidarctl.corners.roof_corners import CORNERS_VERSION
+
+    return {"roof corners": CORNERS_VERSION}
+
+
+def _adjust_versions() -> dict:
+    from aerotri.adjust.pipeline import ADJUST_VERSION
+    from aerotri.adjust.relative import RELATIVE_VERSION
+
+    return {"adjustment": ADJUST_VERSION, "relative orientation": RELATIVE_VERSION}
 
 
 def _match_versions() -> dict:
@@ -88,15 +102,18 @@ def _control_versions() -> dict:
 
 
 def _rectify_versions() -> dict:
+    from ortho.block import HEIGHTS_BY_OUTLINE, OUTLINES_OF_THE_OCCLUSION_TEST
     from ortho.rectify import RECTIFY_VERSION
 
-    return {"rectify": RECTIFY_VERSION}
+    # the footprint rules the frames' resume key holds (ortho.block._resume_key's footprint_rules)
+    return {"rectify": RECTIFY_VERSION, "heights by outline": HEIGHTS_BY_OUTLINE,
+            "outlines of the occlusion test": OUTLINES_OF_THE_OCCLUSION_TEST}
 
 
 def _mosaic_versions() -> dict:
-    from ortho.mosaic import BLEND_RULES
+    from ortho.mosaic import BLEND_RULES, RADIOMETRY_SEAMS_VERSION
 
-    return {"blend rules": BLEND_RULES}
+    return {"blend rules": BLEND_RULES, "gains, offsets and seamlines": RADIOMETRY_SEAMS_VERSION}
 
 
 @dataclasses.dataclass
@@ -327,7 +344,7 @@ class Chain:
                                               "dsm_crowns.tif")], self.run_rasters,
                   options=to_table(o.rasters), skip=self.no_lidar, versions=_rasters_versions),
             Stage("corners", self.classified, self.corner_outputs, self.run_corners,
-                  options=to_table(o.corners), skip=self.no_lidar),
+                  options=to_table(o.corners), skip=self.no_lidar, versions=_corners_versions),
         ]
         if o.vectors.enabled:
             # optional ([vectors] enabled): the line map of the classified strips and its check
@@ -342,12 +359,14 @@ class Chain:
             # project.toml carries the [gnss] sigmas, [adjust] options and the [qa] limits of the report
             Stage("adjust_first", lambda r: self.adjust_inputs(r, control=False),
                   lambda r: [first / "eo.txt", first / "camera.toml"], self.run_adjust_first,
-                  options=lambda r: to_table(self.first_settings().settings), skip=self.no_first_adjustment),
+                  options=lambda r: to_table(self.first_settings().settings), skip=self.no_first_adjustment,
+                  versions=_adjust_versions),
             Stage("control", self.control_inputs,
                   lambda r: [self.project.control_points_path, self.project.control_image_points_path], self.run_control,
                   options=to_table(o.control), skip=self.no_corners, versions=_control_versions),
             Stage("adjust_final", self.adjust_inputs, self.adjust_final_outputs,
-                  self.run_adjust_final, options=lambda r: to_table(self.final_settings().settings)),
+                  self.run_adjust_final, options=lambda r: to_table(self.final_settings().settings),
+                  versions=_adjust_versions),
             # a block without GNSS, LiDAR or DEM: the DEM of its adjusted tie points
             Stage("dem", lambda r: [self.project.object_points_path, self.project.eo_path],
                   lambda r: [self.tie_point_dem_path], self.run_tie_point_dem, skip=self.no_tie_point_dem),

@@ -6,7 +6,7 @@
 | ``odm/opensfm/reference_lla.json`` | the reference point alone (what OpenSfM datasets older than ``reference_lla`` in the reconstruction read) |
 | ``odm/cameras.json`` | the camera, OpenSfM's ``camera_models.json`` layout (ODM's ``--cameras``) |
 | ``odm/gcp_list.txt`` | the control points the adjustment used and their measurements it kept (``aerotri.exchange.odm`` documents the layout); none for a block without control |
-| ``odm/opensfm/ground_control_points.json`` | the same control in OpenSfM's own GCP format (WGS84, normalised image coordinates), plus the plan-only control without ``altitude`` (OpenSfM: ``has_altitude`` false), the only ODM file that holds it: gcp_list.txt leaves it out (a warning names the points). Height-only control is left out of every ODM file (the layouts have no plan-free point), also named in a warning |
+| ``odm/opensfm/ground_control_points.json`` | the plan-only control only, in OpenSfM's own GCP format (WGS84, normalised image coordinates) without ``altitude`` (OpenSfM: ``has_altitude`` false): gcp_list.txt leaves it out (a warning names the points and says where each file goes). Not the control gcp_list.txt holds: OpenSfM reads both files of its dataset folder and adds them up (``DataSet.load_ground_control_points``: ``gcp + pcs``), and ODM copies ``--gcp`` to ``opensfm/gcp_list.txt``, so a point in both would count twice. Not written without plan-only control. Height-only control is left out of every ODM file (the layouts have no plan-free point), also named in a warning |
 | ``odm/gcp_list_check.txt`` | check points and their measurements, gcp_list.txt layout (ODM has no check points: in gcp_list.txt they would become control) |
 | ``odm/gcp_list_rejected.txt`` | measurements of control points the adjustment did not use: removed by data snooping (w), of a control point it rejected, or of a point it never had; gcp_list.txt layout, the reason in the extra fields; each also printed as a warning |
 
@@ -142,7 +142,9 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
     # groups a file's lines into points by (easting, northing, altitude), and with altitude NaN no two lines
     # compare equal, so each measurement would be a GCP of one observation, unused. The JSON, whose points hold
     # their observations and read has_altitude from "altitude" in the position, is its only ODM file. Height-only
-    # control has no plan position the layouts could leave out.
+    # control has no plan position the layouts could leave out. The JSON holds the plan-only points only: OpenSfM
+    # (opensfm/dataset.py load_ground_control_points) returns gcp_list.txt's points plus the JSON's, and ODM copies
+    # --gcp to opensfm/gcp_list.txt beside it, so a 3D point in both files would be counted twice.
     pid = kept.point_id.astype(str)
     plan = np.array([kind.get(p) == "horizontal" for p in pid], bool)
     height = np.array([kind.get(p) == "height" for p in pid], bool)
@@ -153,16 +155,24 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
     ids = list(dict.fromkeys(full.point_id.astype(str)))
     if ids:
         out.append(ExportFile("odm/gcp_list.txt", "\n".join([head] + _gcp_rows(full, xyz, names)) + "\n"))
-    if ids or plan_ids:
-        with_plan = kept.subset(~height)
-        out.append(ExportFile("odm/opensfm/ground_control_points.json",
-                              _ground_control_points_json(with_plan, ids + plan_ids, xyz, project, block, names,
-                                                          frozenset(plan_ids))))
     if plan_ids:
+        out.append(ExportFile("odm/opensfm/ground_control_points.json",
+                              _ground_control_points_json(kept.subset(plan), plan_ids, xyz, project, block, names,
+                                                          frozenset(plan_ids))))
         log.warning(f"odm export: {len(plan_ids)} plan-only control points ({', '.join(plan_ids)}) have no height: "
                     "left out of odm/gcp_list.txt (its layout needs a height: their stored 0 would be taken as one); "
                     "plan-only control goes to OpenSfM through odm/opensfm/ground_control_points.json (without "
-                    "altitude: has_altitude false)")
+                    "altitude: has_altitude false), which holds only them" + (
+                        ": OpenSfM adds the points of the JSON to those of gcp_list.txt in its dataset folder, each "
+                        "point once. ODM: --gcp odm/gcp_list.txt (ODM copies it to opensfm/gcp_list.txt) and keep the "
+                        "JSON in the project's opensfm/ folder; OpenSfM alone: gcp_list.txt and the JSON side by side "
+                        "in the dataset folder" if ids else
+                        " (no 3D control: no gcp_list.txt). OpenSfM alone: the JSON in the dataset folder, with "
+                        "bundle_use_gcp: yes in its config.yaml; ODM writes that setting only with --gcp (a "
+                        "gcp_list.txt)"))
+    if ids:
+        log.info("odm export: ODM takes the control as --gcp odm/gcp_list.txt (OpenSfM alone: gcp_list.txt in "
+                 "its dataset folder)")
     if height_ids:
         log.warning(f"odm export: {len(height_ids)} height-only control points ({', '.join(height_ids)}) have no "
                     "plan position: left out of odm/gcp_list.txt and ground_control_points.json (the layouts have "

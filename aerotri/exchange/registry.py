@@ -44,7 +44,8 @@ EXPORT_FORMATS = {
     "micmac": Exporter("micmac", "MicMac ground control and image measurement XML (micmac/gcp.xml, check.xml, "
                                  "measures.xml)", micmac.files),
     "odm": Exporter("odm", "OpenDroneMap/OpenSfM: orientations, camera and points (odm/opensfm/reconstruction.json, "
-                           "odm/cameras.json), ground control (odm/gcp_list.txt, odm/opensfm/ground_control_points.json), "
+                           "odm/cameras.json), ground control (odm/gcp_list.txt; plan-only control: "
+                           "odm/opensfm/ground_control_points.json), "
                            "check points and rejected measurements (odm/gcp_list_check.txt, gcp_list_rejected.txt)",
                     lambda block, project: odm_export.files(block, project, _image_names(project))),
     "pix4d": Exporter("pix4d", "Pix4D image geolocation and orientation file: X Y Z omega phi kappa and accuracies "

@@ -137,6 +137,10 @@ MARGIN_BYTES_PER_CELL = 40
 NDSM_BYTES_PER_CELL = 96
 MARGIN_CELL_M = 2.0
 SCHEMA_VERSION = 1  # corners.json: the layout of ``CornerControlResult.to_json``
+# The version of the roof-corner extraction (segments, outlines, corners, their scores and sigmas): the chain's
+# corners stamp holds it, so corners extracted by earlier rules are extracted again. Bump it when the corners (or
+# roof planes) found at the same settings change. 1: s10-fixes (the algorithm as of main e4b26d8e).
+CORNERS_VERSION = 1
 
 
 @dataclasses.dataclass(frozen=True)

@@ -52,6 +52,10 @@ TRIM_SPACINGS = 1.0  # rim samples further than this off the first circle are dr
 MIN_RIM_SAMPLES = 6
 MIN_ARC_DEG = 180.0  # the rim samples' angular span around the fitted centre for the circle fit to stand
 MIN_TREE_RETURNS = 3  # vegetation first returns a crown needs (fewer: a stray return, left to the DSM)
+# The version of the crown model (trees, rims, disks, crown bases and the surface dsm_crowns.tif made of them):
+# the chain's rasters stamp holds it beside ``RASTERS_VERSION``. Bump it when crowns.gpkg or dsm_crowns.tif change
+# at the same inputs. 1: s10-fixes (the algorithm as of main e4b26d8e).
+CROWNS_VERSION = 1
 
 
 def segment_grid(x_m: np.ndarray, y_m: np.ndarray, res_m: float = SEGMENT_RES_M):

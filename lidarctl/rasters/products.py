@@ -27,6 +27,7 @@ import dataclasses
 import functools
 from typing import ClassVar, NamedTuple
 import logging
+import sys
 from pathlib import Path
 
 import numba
@@ -1052,13 +1053,16 @@ def _freed_memory_kept():
     The C library is the one the process runs on (``CDLL(None)``), not looked up with ``ctypes.util.find_library``:
     that runs ``ldconfig -p`` in a child process, and a child started by vfork then exec reports the parent's peak
     RSS as its own, which the chain's stage record added as a worker's (the 2 x 2 DMC block's rasters: 4.50 GB
-    recorded as 7.09)."""
+    recorded as 7.09). Linux only: glibc's tunables; ``CDLL(None)`` raises TypeError on Windows (Python 3.11)."""
     import ctypes
 
+    if not sys.platform.startswith("linux"):
+        yield
+        return
     try:
         libc = ctypes.CDLL(None)
         mallopt, malloc_trim = libc.mallopt, libc.malloc_trim
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):  # TypeError: a ctypes that takes no None (Windows) all the same
         yield
         return
     # both set, not short-circuited: a threshold set alone (the other refused) is still put back afterwards

@@ -26,3 +26,23 @@ def test_freed_memory_kept_starts_no_child_and_sets_glibc_back():
     """)
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0 and run.stdout.strip() == "ok", run.stderr
+
+
+def _windows_cdll(name, *args, **kwargs):
+    # what ctypes.CDLL(None) does on Windows, Python 3.11 (reviewer 10): the rasters stage crashed on it
+    raise TypeError("LoadLibrary() argument 1 must be str, not None")
+
+
+def test_freed_memory_kept_leaves_other_platforms_alone(monkeypatch):
+    import ctypes
+
+    import numpy as np
+
+    from lidarctl.rasters.products import _freed_memory_kept
+
+    monkeypatch.setattr(ctypes, "CDLL", _windows_cdll)
+    for platform in ("win32", "linux"):  # Windows: not asked; a ctypes that refuses None on Linux: caught
+        monkeypatch.setattr(sys, "platform", platform)
+        with _freed_memory_kept():
+            a = np.ones(1000)
+        assert a.sum() == 1000.0

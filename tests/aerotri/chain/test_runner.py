@@ -326,34 +326,55 @@ def test_a_bumped_algorithm_version_reruns_its_stage_and_the_same_one_stays_up_t
     run_stages(tmp_path, stages(calls, 2), log=logged.append)
     assert calls == ["double"]  # its output is the same: the next stage stays up to date
     assert "[double] running (code changed: doubling 1 -> 2)" in logged
-    # a stamp written before versions were recorded is not re-run for them
-    sp = stamp_path(tmp_path, "double")
-    doc = json.loads(sp.read_text())
-    del doc["versions"]
-    sp.write_text(json.dumps(doc))
+    # a stamp written before versions were recorded (reviewer 10: an old project kept the outputs of replaced rules
+    # for ever) runs again when the stage declares versions; one that declares none stays up to date
+    for name in ("double", "add"):
+        sp = stamp_path(tmp_path, name)
+        doc = json.loads(sp.read_text())
+        del doc["versions"]
+        sp.write_text(json.dumps(doc))
     calls.clear()
-    run_stages(tmp_path, stages(calls, 3), log=lambda m: None)
+    logged.clear()
+    run_stages(tmp_path, stages(calls, 2), log=logged.append)
+    assert calls == ["double"]
+    assert "[double] running (code versions not recorded: run again)" in logged
+    assert json.loads(stamp_path(tmp_path, "double").read_text())["versions"] == {"doubling": 2}
+    calls.clear()
+    run_stages(tmp_path, stages(calls, 2), log=lambda m: None)
     assert calls == []
 
 
 def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path):
     """Each stage with an algorithm version constant declares it (what its stamp then holds)."""
     import lidarctl.classify
+    import lidarctl.rasters.crown_model
     import lidarctl.rasters.products
+    import ortho.block
     import ortho.mosaic
     import ortho.rectify
     from aerotri.chain import stages as S
+    from aerotri.adjust import pipeline, relative
     from aerotri.control import measure
     from aerotri.match import settings
+    from lidarctl.corners import roof_corners
 
     assert S._classify_versions() == {"classify rules": lidarctl.classify.RULES_VERSION}
-    assert S._rasters_versions() == {"rasters": lidarctl.rasters.products.RASTERS_VERSION}
+    assert S._rasters_versions() == {"rasters": lidarctl.rasters.products.RASTERS_VERSION,
+                                     "crown model": lidarctl.rasters.crown_model.CROWNS_VERSION}
+    assert S._corners_versions() == {"roof corners": roof_corners.CORNERS_VERSION}
+    assert S._adjust_versions() == {"adjustment": pipeline.ADJUST_VERSION,
+                                    "relative orientation": relative.RELATIVE_VERSION}
     assert S._match_versions() == {"features": settings.FEATURES_VERSION, "matching": settings.MATCH_VERSION}
     assert S._control_versions() == {"measurement": measure.MEASURE_VERSION}
-    assert S._rectify_versions() == {"rectify": ortho.rectify.RECTIFY_VERSION}
-    assert S._mosaic_versions() == {"blend rules": ortho.mosaic.BLEND_RULES}
+    assert S._rectify_versions() == {"rectify": ortho.rectify.RECTIFY_VERSION,
+                                     "heights by outline": ortho.block.HEIGHTS_BY_OUTLINE,
+                                     "outlines of the occlusion test": ortho.block.OUTLINES_OF_THE_OCCLUSION_TEST}
+    assert S._mosaic_versions() == {"blend rules": ortho.mosaic.BLEND_RULES,
+                                    "gains, offsets and seamlines": ortho.mosaic.RADIOMETRY_SEAMS_VERSION}
     (tmp_path / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n')
     versions = {st.name: st.versions_now() for st in S.chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
     assert versions["classify"] == S._classify_versions() and versions["rasters"] == S._rasters_versions()
     assert versions["match"] == S._match_versions() and versions["control"] == S._control_versions()
     assert versions["rectify"] == S._rectify_versions() and versions["mosaic"] == S._mosaic_versions()
+    assert versions["corners"] == S._corners_versions()
+    assert versions["adjust_first"] == versions["adjust_final"] == S._adjust_versions()

@@ -57,13 +57,21 @@ def test_round_trip_through_gcp_list(adjusted_tiny, tmp_path):
 
 def test_ground_control_points_json_is_opensfm_s(adjusted_tiny, tmp_path):
     """WGS84 positions back through pyproj equal the control coordinates; projections denormalised with
-    OpenSfM's formula equal the measurements."""
+    OpenSfM's formula equal the measurements. The export of a block whose control is all 3D writes no JSON:
+    gcp_list.txt holds every point, and OpenSfM adds the JSON's points to gcp_list.txt's (reviewer 10)."""
     from pyproj import CRS, Transformer
+
+    from aerotri.core.project import Project
+    from aerotri.exchange.odm_export import _ground_control_points_json, _measurements
 
     root, _ = adjusted_tiny
     export_project(root, ["odm"], tmp_path)
-    doc = json.loads((tmp_path / "odm" / "opensfm" / "ground_control_points.json").read_text())
+    assert (tmp_path / "odm" / "gcp_list.txt").is_file()
+    assert not (tmp_path / "odm" / "opensfm" / "ground_control_points.json").exists()
     blk = read_adjusted_block(root)
+    kept = _measurements(blk, Project.open(root))[0]
+    xyz = dict(zip(blk.control_id, blk.control_xyz_m))
+    doc = json.loads(_ground_control_points_json(kept, list(blk.control_id), xyz, Project.open(root), blk, {}))
     want = dict(zip(blk.control_id, blk.control_xyz_m))
     t = Transformer.from_crs(CRS("EPSG:4979"), CRS("EPSG:32649").to_3d(), always_xy=True)
     obs = read_image_points(root / "control" / "image_points.csv")

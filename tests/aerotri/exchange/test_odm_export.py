@@ -266,9 +266,14 @@ def test_plan_only_control_is_never_given_a_height_of_0(adjusted_tiny, tmp_path)
     assert not (odm / "gcp_list_plan_only.txt").exists()
     assert "NaN" not in "".join(f.read_text() for f in odm.glob("*.txt") if f.name != "gcp_list_rejected.txt")
     assert "ground_control_points.json (without altitude" in r.output
+    assert "ODM: --gcp odm/gcp_list.txt" in r.output and "OpenSfM alone: gcp_list.txt and the JSON" in r.output
     gcps = json.loads((odm / "opensfm" / "ground_control_points.json").read_text())["points"]
-    assert {g["id"] for g in gcps} == full | set(plan) and len(gcps) == len(full | set(plan))
-    assert all(("altitude" in g["position"]) == (g["id"] in full) for g in gcps)
+    # only the points gcp_list.txt lacks: OpenSfM's load_ground_control_points returns gcp_list.txt's points plus
+    # the JSON's, and ODM copies --gcp to opensfm/gcp_list.txt beside it (reviewer 10: every 3D point twice)
+    assert {g["id"] for g in gcps} == set(plan) and len(gcps) == len(plan)
+    assert not any("altitude" in g["position"] for g in gcps)
+    read_by_opensfm = [x[6] for x in listed] + [g["id"] for g in gcps]
+    assert set(read_by_opensfm) == full | set(plan) and not ({x[6] for x in listed} & {g["id"] for g in gcps})
     measured = read_image_points(Project.open(root).control_image_points_path)
     removed = {(x["point_id"], x["image_id"]) for x in report["removed_observations"]}
     for g in gcps:
