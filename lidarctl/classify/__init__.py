@@ -4,5 +4,6 @@
 # tiles kept by a run before a rule changed are classified again, not reused (the toolkit's version, 0.1.0, never
 # changed with them). Bump it with every change of what class a point gets at the same settings.
 # 1: before i44-water; 2: i44-water (water from the whole cloud's water grid, sloping surfaces, filled banks);
-# 3: i44-bridge (a deck separates two different gaps).
-RULES_VERSION = 3
+# 3: i44-bridge (a deck separates two different gaps); 4: i44-bridge2 (or crosses one gap for at least 4 m: its
+# reaches may be one gap).
+RULES_VERSION = 4

@@ -87,9 +87,10 @@ Pipeline (``classify_points``):
    whole cloud judges it (bench/results/water_tiles.json).
 6. Bridge decks (17, ``bridge_decks``): ground between two open-water-sized dropout gaps (not
    occlusion shadows) at most ``bridge_max_width_m`` apart along a grid direction within 30 degrees
-   of a gap's long axis (a watercourse runs on under the deck), two gaps, not one (a deck cuts the water
-   into the reach upstream and downstream of it; ground with one gap on both sides is a tongue of land into
-   it, such as the ragged edge of the survey's coverage: the demo's 190 false deck returns), standing more than
+   of a gap's long axis (a watercourse runs on under the deck), two gaps (the reaches upstream and
+   downstream) or one gap it crosses for at least ``BRIDGE_MIN_CROSSING_M`` (reaches joined elsewhere; ground
+   between the teeth of a ragged gap edge, such as the survey's coverage, has one gap on both sides only as
+   deep as the teeth: the demo's 190 false deck returns), standing more than
    ``bridge_min_clearance_m`` above the lower of the two gaps' banks (median ground of their rims),
    on spans (the connected cells between the two gaps) of at least ``bridge_min_deck_m2`` whose ground
    stands that clear almost everywhere (``bridge_min_clear_share``: a level deck, not a sloping shore).
@@ -1509,12 +1510,21 @@ def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):
     return labels, bank, axis, flat, c
 
 
+# A deck with one dropout gap on both sides (its reaches join elsewhere) crosses at least this much of it (m,
+# across the watercourse, and at least two grid cells); ground between the teeth of a ragged dropout edge
+# (2.5 m deep in the tests' scene, one 1.23 m cell in the demo) spans less. Chosen on the demo and the
+# ragged-edge test scene (2.5-10 m reject their false decks and keep reviewer 10's joined-reach decks).
+BRIDGE_MIN_CROSSING_M = 4.0
+
+
 def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, *, p: ClassifySettings,
                  dropout: DropoutGrid | None = None) -> np.ndarray:
     """Ground points on bridge decks (mask): ground between two water gaps at most
     ``bridge_max_width_m`` apart along one of the four grid directions, running along a
     watercourse (within 30 degrees of the long axis of a gap on at least one side), two distinct gaps
-    (labels), and standing more than ``bridge_min_clearance_m`` above the lower bank of the two gaps.
+    (labels) or one gap it crosses for at least ``BRIDGE_MIN_CROSSING_M`` across that direction (the
+    reaches join elsewhere: a moat, a dropout band along a bank, the survey's edge beyond the deck), and
+    standing more than ``bridge_min_clearance_m`` above the lower bank of the two gaps.
 
     A bridge carries a road across a watercourse, so along the watercourse the deck has open water
     (a dropout gap, ``dropout_gaps``) on both sides, only as far apart as the road is wide, and it
@@ -1553,10 +1563,18 @@ def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, *, p: Classi
         unit = np.array([dr, dc]) / np.hypot(dr, dc)
         along = np.abs(axis @ unit) >= cos_tol   # per label: this direction runs along its axis
         spans &= along[hit_label[1]] | along[hit_label[-1]]
-        # A deck cuts the watercourse: the water on its two sides is two gaps (upstream, downstream). Ground
-        # with one gap on both sides is a tongue of land into it: the ragged edge of the survey's coverage
-        # (the demo's 190 false deck returns) or a spit into a lake.
-        spans &= hit_label[1] != hit_label[-1]
+        # A deck cuts the watercourse: the water on its two sides is two gaps (upstream, downstream), or, where
+        # the reaches join elsewhere (a moat, a dropout band along a bank, the survey's edge beyond the deck),
+        # one gap that the deck crosses for at least BRIDGE_MIN_CROSSING_M (across this direction, gap on
+        # both sides all along). Ground between the teeth of a ragged gap edge (the survey's coverage: the
+        # demo's 190 false deck returns) has one gap on both sides only as deep as the teeth reach.
+        # At least two cells: on a coarse grid (ISPRS samp71's 4.7 m cells) one cell is as deep as a tooth.
+        n_cross = max(2, int(np.ceil(BRIDGE_MIN_CROSSING_M / step_m - 1e-9)))
+        if dr and dc:   # perpendicular to (1, 1): (1, -1), the anti-diagonal; to (1, -1): (1, 1)
+            across = np.eye(n_cross, dtype=bool)[:, ::-1] if dc == 1 else np.eye(n_cross, dtype=bool)
+        else:
+            across = np.ones((n_cross, 1) if dc else (1, n_cross), bool)
+        spans = (spans & (hit_label[1] != hit_label[-1])) | ndimage.binary_opening(spans, structure=across)
         top = np.fmin(bank[hit_label[1]], bank[hit_label[-1]])
         need = np.where(spans & np.isfinite(top), np.fmin(need, top), need)
     gi = np.flatnonzero(is_ground)

@@ -161,3 +161,46 @@ def test_ground_between_teeth_of_one_gap_at_the_coverage_edge_is_no_deck():
     found = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), spacing, p=classify.ClassifySettings())
     assert edge.sum() > 500   # the ground between the teeth is there to be judged
     assert not found.any()
+
+
+def joined_reaches_scene(case, seed=5):
+    """Reviewer 10's cases (i44-bridge2): the canal scene's deck (canal A, v 40-55 m, the 10 m road at u 90-100
+    m), its reaches upstream and downstream joined into one dropout gap elsewhere: ``ring`` a moat (a loop back
+    round, v 10-20 m and two connectors, the road on the island side only), ``band`` a dropout band 4 m wide
+    (a strip gap) along the far bank, across the road (v 52-56 m), ``edge`` the survey's coverage ending across
+    the deck 3 m short of the far bank (no returns v > 52 m for u < 180 m; a cross strip covers u > 180 m).
+    Returns x, y, z and the deck's returns (mask)."""
+    rng = np.random.default_rng(seed)
+    n = 200 * 100 * 3
+    u, v = rng.uniform(0, 200, n), rng.uniform(0, 100, n)
+    canal = (v > 40) & (v < 55)
+    road = (u > 90) & (u < 100)
+    if case == "ring":
+        canal |= (((v > 10) & (v < 20) & (u > 30) & (u < 170)) | ((u > 30) & (u < 45) & (v > 10) & (v < 55))
+                  | ((u > 155) & (u < 170) & (v > 10) & (v < 55)))
+        road &= v > 25
+    deck = road & canal
+    water = canal & ~road
+    if case == "band":
+        water |= (v > 52) & (v < 56)
+    if case == "edge":
+        water |= (v > 52) & (u < 180)
+    deck &= ~water
+    z = rng.normal(0, 0.02, n)
+    ramp = np.clip(1.0 - np.maximum(25.0 - v, v - 70.0) / 15.0, 0.0, 1.0)
+    z += np.where(road, 1.2 * np.where(canal, 1.0, np.where((v > 25) & (v < 70), ramp, 0.0)), 0.0)
+    keep = ~water
+    return u[keep] + X0, v[keep] + Y0, z[keep], deck[keep]
+
+
+@pytest.mark.parametrize("case", ["ring", "band", "edge"])
+def test_deck_is_found_when_the_reaches_on_its_two_sides_join_elsewhere(case):
+    # i44-bridge's test (two different gap labels ahead and behind) found none of these decks: the gap labels
+    # are connected over the whole cloud. The deck crosses the water all the same.
+    x, y, z, deck = joined_reaches_scene(case)
+    ground = np.ones(len(x), bool)
+    found = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), 1 / np.sqrt(3.0),
+                                  p=classify.ClassifySettings())
+    assert deck.sum() > 300
+    assert found[deck].mean() > 0.9
+    assert not found[~deck].any()
