@@ -905,7 +905,8 @@ def _directions_dict(c) -> dict | None:
                    "along_turning_m": _f(p.along_turning_m, 4), "along_sigma_m": _f(p.along_sigma_m, 4),
                    "across_turning_m": _f(p.across_turning_m, 4), "across_sigma_m": _f(p.across_sigma_m, 4),
                    "along_significant": p.along_significant, "across_significant": p.across_significant,
-                   "lag_s": _f(p.lag_s, 4), "lag_sigma_s": _f(p.lag_sigma_s, 4)} for p in c.pairs],
+                   "lag_s": _f(p.lag_s, 4), "lag_sigma_s": _f(p.lag_sigma_s, 4),
+                   "critical_along": _f(p.k_along, 2), "critical_across": _f(p.k_across, 2)} for p in c.pairs],
         "findings": c.findings(), "note": c.blind_note(),
     }
 
@@ -927,7 +928,7 @@ def directions_txt(g: dict | None) -> list[str]:
         lag = "" if p["lag_s"] is None else f"; time lag {p['lag_s']:+.4f} +- {p['lag_sigma_s']:.4f} s"
         L.append(f"  {p['headings_deg'][0]:.0f} / {p['headings_deg'][1]:.0f} deg: turning with the heading along "
                  f"{p['along_turning_m']:+.3f} +- {p['along_sigma_m']:.3f}, across {p['across_turning_m']:+.3f} +- "
-                 f"{p['across_sigma_m']:.3f} (limit {g['k']:g} sigma){lag}: "
+                 f"{p['across_sigma_m']:.3f} (limits {p['critical_along']:g} / {p['critical_across']:g} sigma){lag}: "
                  + ("SIGNIFICANT" if p["along_significant"] or p["across_significant"] else "not significant"))
     L += [f"  {f}" for f in g["findings"]]
     if not g["findings"]:
