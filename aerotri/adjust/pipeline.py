@@ -863,7 +863,7 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     positions = (ba.eo_map.centre_m, "the adjusted projection centres")
     qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2], camera=camera, positions=positions))
     built = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances,
-                                project_terrain(project, dem=ba.settings.dem))
+                                project_terrain(project, dem=ba.settings.dem), speed_mps=project.flight.speed_mps)
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
     rep = to_record(dataclasses.replace(built, settings=settings_record))

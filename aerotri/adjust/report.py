@@ -686,7 +686,7 @@ def _sigma0_note(ba) -> str | None:
 
 
 def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, tolerances: str = "",
-                    judged: dict | None = None) -> dict:
+                    judged: dict | None = None, direction=None) -> dict:
     """Sigma naught, iterations, and the verdict: "Solution Successful." only when the solve converged and
     nothing is weak or failed; otherwise "Solution weak." or "Solution failed." naming each finding. ``parameters``:
     the Parameters table, whose RMS and residuals beyond its own limits (``tolerances``: the table's name) are
@@ -728,6 +728,8 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         weaknesses.append(f"GNSS residuals trend along strips beyond {_limit(udc)} and {udc.k:g} standard errors: a "
                           f"drift the solve does not model (gnss_correction = \"{opts.gnss_correction}\"): "
                           + "; ".join(udc.reasons()) + ". " + advice)
+    if direction is not None and direction.significant:  # gnss_direction.DirectionCheck: a time lag or lever arm
+        weaknesses += direction.findings()
     beyond = tolerance_findings(parameters, unit, **(judged or {})) if parameters else []
     if beyond:
         weaknesses.append(f"Beyond the tolerances of this report, {tolerances}: "
@@ -779,6 +781,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
             {"strip": s, "term": term, "axis": axis, "displacement_m": _f(v, 4)} for s, term, axis, v in gcc.suspect],
         "gnss_drift_unmodelled": [] if udc is None else [
             {"strip": s, "axis": a, "displacement_m": _f(v, 4), "standard_errors": _f(t, 1)} for s, a, v, t in udc.trends],
+        "gnss_direction_flip": bool(direction is not None and direction.significant),
         "dem_check_failed": [d.role for d in dem_failed],
         # gtsam's CheiralityException lines (a point behind a camera at some iterate), counted, not printed
         "points_behind_camera": {"messages": int(lines), "point_camera_pairs": int(pairs)},
@@ -875,6 +878,7 @@ class AdjustmentReport:
     worst_tie_points: list
     self_calibration: dict | None
     gnss_strips: list | None
+    gnss_directions: dict | None  # GNSS discrepancies by flight direction (gnss_direction: time lag, lever arm)
     surface_control: dict | None
     dem_checks: list
     variance_components: list | None
@@ -884,11 +888,80 @@ class AdjustmentReport:
     settings: dict | None = None  # last in the file
 
 
+def _directions_dict(c) -> dict | None:
+    """report.json ``gnss_directions`` of a ``gnss_direction.DirectionCheck`` (None: no GNSS)."""
+    if c is None:
+        return None
+
+    def d(m):
+        return {"heading_deg": _f(m.heading_deg, 1), "strips": list(m.strips), "photos": m.n_photos,
+                "along_m": _f(m.along_m, 4), "along_se_m": _f(m.along_se_m, 4), "across_m": _f(m.across_m, 4),
+                "across_se_m": _f(m.across_se_m, 4)}
+
+    return {
+        "testable": c.testable, "reason": c.reason, "k": _f(c.k, 2), "speed_mps": _f(c.speed_mps, 2),
+        "speed_source": c.speed_source, "base_m": _f(c.base_m, 2), "directions": [d(m) for m in c.directions],
+        "pairs": [{"headings_deg": [_f(p.forward.heading_deg, 1), _f(p.backward.heading_deg, 1)],
+                   "along_turning_m": _f(p.along_turning_m, 4), "along_sigma_m": _f(p.along_sigma_m, 4),
+                   "across_turning_m": _f(p.across_turning_m, 4), "across_sigma_m": _f(p.across_sigma_m, 4),
+                   "along_significant": p.along_significant, "across_significant": p.across_significant,
+                   "lag_s": _f(p.lag_s, 4), "lag_sigma_s": _f(p.lag_sigma_s, 4),
+                   "critical_along": _f(p.k_along, 2), "critical_across": _f(p.k_across, 2)} for p in c.pairs],
+        "findings": c.findings(), "note": c.blind_note(),
+    }
+
+
+def directions_txt(g: dict | None) -> list[str]:
+    """The report.txt lines of ``gnss_directions`` (also the html's paragraph)."""
+    if not g:
+        return []
+    L = [f"GNSS residuals by flight direction (adjusted antenna - GNSS before the solve's corrections, m; along + "
+         f"ahead, across + right of each direction's heading)"]
+    for m in g["directions"]:
+        L.append(f"  heading {m['heading_deg']:5.0f} deg  strips {', '.join(str(s) for s in m['strips']):10} "
+                 f"{m['photos']:4d} photos  along {m['along_m']:+.3f} +- {m['along_se_m']:.3f}  across "
+                 f"{m['across_m']:+.3f} +- {m['across_se_m']:.3f}")
+    if not g["testable"]:
+        L.append(f"  {g['reason']}")
+        return L
+    for p in g["pairs"]:
+        lag = "" if p["lag_s"] is None else f"; time lag {p['lag_s']:+.4f} +- {p['lag_sigma_s']:.4f} s"
+        L.append(f"  {p['headings_deg'][0]:.0f} / {p['headings_deg'][1]:.0f} deg: turning with the heading along "
+                 f"{p['along_turning_m']:+.3f} +- {p['along_sigma_m']:.3f}, across {p['across_turning_m']:+.3f} +- "
+                 f"{p['across_sigma_m']:.3f} (limits {p['critical_along']:g} / {p['critical_across']:g} sigma){lag}: "
+                 + ("SIGNIFICANT" if p["along_significant"] or p["across_significant"] else "not significant"))
+    L += [f"  {f}" for f in g["findings"]]
+    if not g["findings"]:
+        L.append(f"  (not significant; {g['note']})")
+    return L
+
+
+def _directions_html(g: dict | None, T) -> dict | None:
+    """The html's tables of ``gnss_directions`` (``T``: ``report_figures.table``) and its sentences."""
+    if not g:
+        return None
+    directions = T(["heading deg", "strips", "photos", "along m", "+- m", "across m", "+- m"],
+                   [[m["heading_deg"], ", ".join(str(s) for s in m["strips"]), m["photos"], m["along_m"],
+                     m["along_se_m"], m["across_m"], m["across_se_m"]] for m in g["directions"]], 3)
+    pairs = T(["headings deg", "along turning m", "sigma m", "across turning m", "sigma m", "lag s", "sigma s",
+               "verdict"],
+              [[" / ".join(f"{h:.0f}" for h in p["headings_deg"]), p["along_turning_m"], p["along_sigma_m"],
+                p["across_turning_m"], p["across_sigma_m"], p["lag_s"], p["lag_sigma_s"],
+                "fail" if p["along_significant"] or p["across_significant"] else "pass"] for p in g["pairs"]],
+              4, verdict_col=7) if g["pairs"] else None
+    text = ([g["reason"]] if not g["testable"] else []) + list(g["findings"]) + (
+        [f"Not significant at {g['k']:g} sigma; {g['note']}."] if g["testable"] and not g["findings"] else [])
+    return {"directions": directions, "pairs": pairs, "text": text}
+
+
 def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None,
-                 ground=None) -> AdjustmentReport:
+                 ground=None, speed_mps: float | None = None) -> AdjustmentReport:
     """All report numbers as an ``AdjustmentReport`` (keys with units). RMS and residual limits come from the
     tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them.
-    ``ground``: a ``flight_acceptance.Terrain`` for the flight acceptance section (None: no section)."""
+    ``ground``: a ``flight_acceptance.Terrain`` for the flight acceptance section (None: no section);
+    ``speed_mps``: the ground speed ([flight] speed_mps) the direction check turns an along-track flip into a lag by."""
+    from aerotri.adjust.gnss_direction import direction_check
+
     r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
     tol = load_table(map_scale, terrain, tolerance_file).limits
     tol_table = tolerance_path(map_scale, tolerance_file).name
@@ -914,7 +987,11 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "parameters": (params := _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim=res_lim)),
         "key_statistics": _key_statistics(ba, rms_lim[2], params, tolerances, judged=dict(
             control_residuals=cres, check_residuals=dchk, n_check=len(check_rows),
-            gross_max_pct=tol.get("gross_error_max_pct"), check_points_min=tol.get("check_points_min"))),
+            gross_max_pct=tol.get("gross_error_max_pct"), check_points_min=tol.get("check_points_min")),
+            direction=(dirc := direction_check(
+                b, r.state, speed_mps, self_calibration=opts.self_calibration,
+                strip_shift_sigma_m=st.gnss_shift_sigma_m if opts.gnss_correction in ("shift", "shift_drift")
+                else 0.0))),
         "components": {"adjusted": int(ba.components), "left_out": [{"images": list(lo.image_ids), "reason": lo.reason}
                                                                    for lo in ba.left_out]},
         # what the datum rests on when GNSS does not carry it (approximations from the images, unmeasured heights)
@@ -940,6 +1017,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "self_calibration": _self_calibration(ba),
         "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4)}
                         for s in range(G.n_shifts(b, opts.gnss_correction))] if opts.gnss_correction != "none" else None,
+        "gnss_directions": _directions_dict(dirc),
         "surface_control": _surface_control(ba),
         "dem_checks": [_dem_check_dict(d) for d in getattr(ba, "dem_checks", []) or []],
         "variance_components": _variance_components(ba),
@@ -1273,6 +1351,8 @@ def format_txt(rep: dict) -> str:
         if sus:
             L.append("  suspect (beyond the a-priori limit, key statistics): " + ", ".join(
                 f"{suspect_label(x['strip'], x['term'])} {x['axis']} {x['displacement_m']:+.3f} m" for x in sus))
+    if rep.get("gnss_directions"):
+        L += [""] + directions_txt(rep["gnss_directions"])
     fa = rep.get("flight_acceptance")
     if fa:
         from aerotri.adjust.flight_acceptance import LIMIT_KEYS
@@ -1429,6 +1509,7 @@ def format_html(rep: dict, ba=None) -> str:
         gnss=gnss, gnss_strips=T(["strip", "shift X m", "shift Y m", "shift Z m", "drift X m/km", "drift Y m/km",
                                   "drift Z m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]
                                                     for s in rep["gnss_strips"]], 4) if rep.get("gnss_strips") else None,
+        gnss_directions=_directions_html(rep.get("gnss_directions"), T),
         flight_tables=RF.flight_tables(fa) if fa else None,
         self_calibration=None,
         variance_components=T(["group", "obs", "redundancy", "factor", "weighted", "estimated", "a-priori"],

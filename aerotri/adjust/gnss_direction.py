@@ -1,0 +1,237 @@
+"""GNSS residuals by flight direction: the signature of a GNSS/camera time lag or a lever-arm error.
+
+A lag between the exposure and the GNSS epoch given to it shifts every position along the track by ground speed x
+lag, with the sign of the heading; a lever-arm (or boresight) error in the body frame moves with the heading too.
+In a fixed map axis both flip between opposite flight directions, and a receiver offset common to the flight does
+not. So per flight direction (the strips' headings from their first to last frame; strips within 30 deg of one
+axis, the two senses paired) the photos' GNSS discrepancies (adjusted antenna minus GNSS, local east / north / up,
+metres, before any strip or flight correction of the solve: a per-strip shift would absorb the lag) are resolved
+along track (positive: ahead in that direction's own heading) and across track (positive: to its right). The sum
+of the two directions' means in their own axes is the part that turns with the heading (a common offset cancels):
+tested against its standard error (each mean's from its photos' scatter) at ``DIRECTION_ALPHA`` two-sided,
+Bonferroni over the block's tests, by Student's t with the Welch-Satterthwaite degrees of freedom (a few photos per
+direction estimate their scatter poorly: Brighton's 3 + 3 frames of the real-data test read 2.9 standard errors
+along track, beyond the normal quantile 2.24, within t's 4.63 at 2.6 degrees of freedom). On simulated blocks (bench/eval_gnss_direction.py, 20 seeds each) it raised no
+alarm without a lag and the camera known, and 18 of 20 when camera.toml's principal point was 0.015 mm off along
+the flight axis and not estimated: that error flips with the heading as well (a boresight pitch, in effect).
+
+The residuals show only the part of a lag the images resolve: a strip's frames shifted along the track and pitched
+by shift / height keep their rays on flat ground, so the adjustment takes much of the offset into the pitch (on a
+simulated 3 x 6 DMC block at 1,000 m, 60 m of relief, 0.05 m GNSS: 20-29 % of a lag of 0.004 or 0.01 s at 70 m/s
+was left in the residuals, 20 seeds) and nearly all of it into a principal point estimated on the flight axis (the
+camera turns with the heading). The lag stated is therefore a lower bound, far below the lag when "pp" is
+self-calibrated (the report says so).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from aerotri.geom.rotation import FLIP_YZ
+
+DIRECTION_ALPHA = 0.05  # family-wise false alarm rate of the check (the brief's 95 % level)
+AXIS_TOLERANCE_DEG = 30.0  # strips whose headings are within this of one axis (either sense) share it
+MIN_PHOTOS = 3  # per direction: fewer give no scatter to judge the mean by
+
+
+@dataclasses.dataclass(frozen=True)
+class DirectionMean:
+    """The GNSS discrepancies of one flight direction: mean along / across track (m) with standard errors."""
+
+    heading_deg: float  # mean heading of the direction's strips, from north (local frame), clockwise
+    strips: tuple  # 1-based
+    n_photos: int
+    along_m: float  # + ahead (in this direction's heading): adjusted antenna ahead of the GNSS position
+    along_se_m: float
+    across_m: float  # + right of the track
+    across_se_m: float
+    along_scatter_var_m2: float = 0.0  # the photos' scatter's share of along_se_m^2 (n - 1 degrees of freedom)
+    across_scatter_var_m2: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class DirectionPair:
+    """Two opposite directions: the discrepancy that turns with the heading (sum of their own-axis means, m) and its
+    standard error; ``lag_s`` when significant and the ground speed is known."""
+
+    forward: DirectionMean
+    backward: DirectionMean
+    along_turning_m: float  # forward.along + backward.along: 2 x the along-track offset that turns with heading
+    along_sigma_m: float
+    across_turning_m: float
+    across_sigma_m: float
+    along_significant: bool
+    across_significant: bool
+    lag_s: float | None  # the GNSS positions' epoch minus the exposure (s): + the positions taken late
+    lag_sigma_s: float | None
+    k_along: float = 0.0  # the critical values (standard errors): Student t of the Welch degrees of freedom
+    k_across: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class DirectionCheck:
+    """The check's result: ``testable`` False with ``reason`` (one flight direction, too few photos), else the pairs
+    of opposite directions and ``k`` the largest of their critical values (standard errors)."""
+
+    testable: bool
+    reason: str
+    directions: tuple  # DirectionMean, every direction found
+    pairs: tuple  # DirectionPair
+    k: float
+    speed_mps: float | None
+    speed_source: str
+    base_m: float  # median spacing of consecutive frames in a strip (m)
+    pp_estimated: bool = False  # the principal point self-calibrated: it takes up an along-track flip
+
+    def blind_note(self) -> str:
+        """Why the along-track test may miss a lag (or understate it): the images absorb it."""
+        if self.pp_estimated:
+            return ("the principal point is self-calibrated: it takes up most of an along-track offset that flips "
+                    "with the flight direction (the camera turns with the heading; on simulated blocks 1-4 % of a lag "
+                    "stayed in the residuals), so a lag may be far larger than the residuals show")
+        return ("the residuals show only the part of an along-track offset the images tell from the photos' pitch "
+                "(on flat ground none of it): a lag may be larger than the residuals say")
+
+    @property
+    def significant(self) -> bool:
+        return any(p.along_significant or p.across_significant for p in self.pairs)
+
+    def findings(self) -> list[str]:
+        """One sentence per significant pair, stating the lag it equals and the alternative."""
+        out = []
+        for p in self.pairs:
+            if not (p.along_significant or p.across_significant):
+                continue
+            f, b = p.forward, p.backward
+            head = (f"GNSS residuals flip with the flight direction (strips {_strips(f)} heading {f.heading_deg:.0f} "
+                    f"deg against {_strips(b)} heading {b.heading_deg:.0f} deg)")
+            parts = []
+            if p.along_significant:
+                ahead = -p.along_turning_m / 2  # GNSS ahead of the adjusted antenna, in each direction's heading
+                lag = (f"a time lag of {p.lag_s:+.3f} +- {p.lag_sigma_s:.3f} s (GNSS epoch after the exposure when "
+                       f"positive) at {self.speed_mps:.1f} m/s ({self.speed_source})" if p.lag_s is not None else
+                       f"a time lag of {ahead:+.3f} m / ground speed ({self.speed_source})")
+                parts.append(f"along track {p.along_turning_m:+.3f} +- {p.along_sigma_m:.3f} m "
+                             f"({abs(p.along_turning_m) / p.along_sigma_m:.1f} sigma): the GNSS positions "
+                             f"{abs(ahead):.3f} m {'ahead of' if ahead > 0 else 'behind'} the projection centres in "
+                             f"both directions, {lag}, or a lever-arm error of {ahead:+.3f} m along the camera's "
+                             f"flight axis, or a boresight pitch (or principal point) error along it")
+            if p.across_significant:
+                right = -p.across_turning_m / 2
+                parts.append(f"across track {p.across_turning_m:+.3f} +- {p.across_sigma_m:.3f} m "
+                             f"({abs(p.across_turning_m) / p.across_sigma_m:.1f} sigma): the GNSS positions "
+                             f"{abs(right):.3f} m to the {'right' if right > 0 else 'left'} of the track in both "
+                             f"directions, a lever-arm error across the camera (or a boresight roll)")
+            out.append(head + ": " + "; ".join(parts) + ". Which of these it is the block cannot tell: check the "
+                       "exposure event timing and the lever arm ([gnss] lever_arm_m)"
+                       + (f"; {self.blind_note()}." if p.along_significant else "."))
+        return out
+
+
+def _strips(d: DirectionMean) -> str:
+    return ", ".join(str(s) for s in d.strips)
+
+
+def _heading_deg(v) -> float:
+    return float(np.degrees(np.arctan2(v[0], v[1])) % 360.0)
+
+
+def direction_check(block, state, speed_mps: float | None = None, alpha: float = DIRECTION_ALPHA,
+                    self_calibration=(), strip_shift_sigma_m: float = 0.0) -> DirectionCheck | None:
+    """``DirectionCheck`` of an adjusted block with GNSS (None without): ``block`` a ``graph.Block`` (positions in
+    flight order, local ENU metres), ``state`` the adjusted ``graph.State``; ``speed_mps`` the ground speed
+    ([flight] speed_mps; None: the lag is stated per unit speed); ``self_calibration`` the groups estimated;
+    ``strip_shift_sigma_m`` the a-priori sigma of a strip's GNSS shift when the solve estimates one per strip
+    (``gnss_shift_sigma_m``): the strips then differ by such shifts, so a direction's mean varies by it over
+    sqrt(its strips) besides the photos' scatter (without it a sound block with 0.05 m shifts was flagged)."""
+    from scipy.stats import norm
+    from scipy.stats import t as t_dist
+
+    g = block.gnss_local
+    if g is None:
+        return None
+    g = np.asarray(g, dtype=float)
+    # adjusted antenna minus GNSS without the solve's shift/drift/offset: a per-strip shift would take the lag in
+    lever_cv = FLIP_YZ @ np.asarray(block.lever_arm_m, dtype=float)
+    v = np.asarray(state.centre, dtype=float) + np.asarray(state.R_cv) @ lever_cv - g
+    strip = np.asarray(block.strip, dtype=int)
+    units, bases = [], []
+    for s in np.unique(strip):
+        idx = np.flatnonzero(strip == s)
+        if len(idx) < 2:
+            continue
+        d = g[idx[-1], :2] - g[idx[0], :2]
+        if np.linalg.norm(d) <= 0:
+            continue
+        units.append((int(s), idx, d / np.linalg.norm(d)))
+        bases.extend(np.hypot(*np.diff(g[idx, :2], axis=0).T))
+    base_m = float(np.median(bases)) if bases else float("nan")
+    speed_source = ("[flight] speed_mps" if speed_mps else
+                    f"no ground speed: the project holds no exposure times and no [flight] speed_mps; the frames are "
+                    f"{base_m:.1f} m apart, so speed = {base_m:.1f} m / the frame interval")
+    # axes: the first strip's heading (either sense) gathers the strips within AXIS_TOLERANCE_DEG of it, and so on
+    axes = []  # [reference unit, [(strip, idx, unit, sense)]]
+    for s, idx, u in units:
+        for ax in axes:
+            c = float(u @ ax[0])
+            if abs(c) >= math.cos(math.radians(AXIS_TOLERANCE_DEG)):
+                ax[1].append((s, idx, u, 1 if c > 0 else -1))
+                break
+        else:
+            axes.append([u, [(s, idx, u, 1)]])
+
+    def mean_of(members) -> DirectionMean | None:
+        idx = np.concatenate([m[1] for m in members]) if members else np.zeros(0, dtype=int)
+        if len(idx) < MIN_PHOTOS:
+            return None
+        h = np.mean([m[2] for m in members], axis=0)
+        h = h / (np.linalg.norm(h) or 1.0)
+        right = np.array([h[1], -h[0]])
+        a, c = v[idx, :2] @ h, v[idx, :2] @ right
+        n, between = len(idx), strip_shift_sigma_m**2 / len(members)
+        va, vc = float(a.var(ddof=1)) / n, float(c.var(ddof=1)) / n
+        return DirectionMean(round(_heading_deg(h), 1), tuple(m[0] + 1 for m in members), n, float(a.mean()),
+                             math.sqrt(va + between), float(c.mean()), math.sqrt(vc + between), va, vc)
+
+    def critical(m: int, *parts) -> float:
+        """t quantile for the sum's standard error: ``parts`` (scatter variance, photos) of the two means, the strip
+        shifts' share known a priori (infinite degrees of freedom)."""
+        total = sum(m_.along_se_m**2 if which == "a" else m_.across_se_m**2 for m_, which in parts)
+        scatter = [(m_.along_scatter_var_m2 if which == "a" else m_.across_scatter_var_m2, m_.n_photos)
+                   for m_, which in parts]
+        den = sum(s2 * s2 / (n - 1) for s2, n in scatter)
+        dof = total * total / den if den > 0 else float("inf")
+        return float(t_dist.isf(alpha / 2 / m, dof)) if math.isfinite(dof) else float(norm.isf(alpha / 2 / m))
+
+    directions, raw_pairs = [], []
+    for _, members in axes:
+        fw = mean_of([m for m in members if m[3] > 0])
+        bw = mean_of([m for m in members if m[3] < 0])
+        directions += [d for d in (fw, bw) if d is not None]
+        if fw is not None and bw is not None:
+            raw_pairs.append((fw, bw))
+    n_tests = max(2 * len(raw_pairs), 1)
+    pairs = []
+    for fw, bw in raw_pairs:
+        at, asg = fw.along_m + bw.along_m, math.hypot(fw.along_se_m, bw.along_se_m)
+        ct, csg = fw.across_m + bw.across_m, math.hypot(fw.across_se_m, bw.across_se_m)
+        ka, kc = critical(n_tests, (fw, "a"), (bw, "a")), critical(n_tests, (fw, "c"), (bw, "c"))
+        a_sig, c_sig = abs(at) > ka * asg, abs(ct) > kc * csg
+        lag = lag_sigma = None
+        if speed_mps:
+            # adjusted antenna behind the GNSS position by v x lag when the GNSS epoch is lag s after the exposure
+            lag, lag_sigma = -at / (2 * speed_mps), asg / (2 * speed_mps)
+        pairs.append(DirectionPair(fw, bw, at, asg, ct, csg, bool(a_sig), bool(c_sig), lag, lag_sigma, ka, kc))
+    k = max([max(p.k_along, p.k_across) for p in pairs], default=float(norm.isf(alpha / 2 / n_tests)))
+    if not directions:
+        reason = "not testable: too few photos with GNSS in a strip"
+    elif not pairs:
+        reason = ("not testable: one flight direction" if len(directions) == 1 or len(axes) == len(directions)
+                  else "not testable: no two opposite directions with photos enough")
+    else:
+        reason = ""
+    return DirectionCheck(bool(pairs), reason, tuple(directions), tuple(pairs), round(k, 2), speed_mps or None,
+                          speed_source, base_m, "pp" in tuple(self_calibration))

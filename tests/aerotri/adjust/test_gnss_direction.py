@@ -1,0 +1,103 @@
+"""GNSS residuals that flip with the flight direction (aerotri.adjust.gnss_direction): a GNSS/camera time lag puts
+every position ahead along the track by ground speed x lag. Truth from the simulator: a 3 x 6 block flown east-west
+in alternating directions with the lag injected into gnss.txt by direction, adjusted; the recovered lag must be
+a significant lower bound of it (the images take much of an along-track offset into the pitch), and blocks without
+a lag (a few seeds) must raise no alarm."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from aerotri.adjust.gnss_direction import direction_check
+from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+from aerotri.adjust.report import build_report, format_html, format_txt
+from aerotri.core.records import to_record
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+SPEED_MPS = 70.0
+LAG_S = 0.01  # 0.7 m along track at 70 m/s
+SETTINGS = AdjustSettings(image_sigma_px=0.3, use_control=False, point_covariances=False)
+
+
+def _block(seed: int, lag_s: float, camera_known: bool = True, feet: bool = False):
+    """``camera_known``: camera.toml the true camera (otherwise the nominal one, its principal point 0.015 mm off
+    along the flight axis: a boresight-like error that flips with the heading as a lag does)."""
+    where = dict(crs="EPSG:2229", origin_map=(6_400_000.0, 1_900_000.0, 500.0)) if feet else {}  # CA zone 5, ftUS
+    block = geometric_block(3, 6, seed=seed, gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0,
+                            lever_arm_m=(0.0, 0.0, 0.0), **where)
+    if camera_known:
+        block.camera_nominal = block.camera_true
+    east = np.asarray(block.strip) % 2 == 0  # strips 1 and 3 fly east, 2 west
+    # the GNSS epoch lag_s after the exposure: the positions ahead along the track by speed x lag
+    block.gnss_local = block.gnss_local + np.outer(np.where(east, 1.0, -1.0) * SPEED_MPS * lag_s, [1.0, 0.0, 0.0])
+    return block
+
+
+def _adjusted(tmp_path, seed: int, lag_s: float, camera_known: bool = True, feet: bool = False):
+    root = write_block_project(_block(seed, lag_s, camera_known, feet), tmp_path / f"b{seed}")
+    with open(root / "project.toml", "a") as f:
+        f.write(f"\n[flight]\nspeed_mps = {SPEED_MPS}\n")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=0, n_check=0, points_per_image=60, seed=seed)
+    return adjust_project(root, SETTINGS)
+
+
+def test_a_feet_crs_gives_the_same_lag(tmp_path):
+    """The same block in CA zone 5 (ftUS): the check works in the local frame's metres, so the lag is the same,
+    not 3.28 times it."""
+    lags = [direction_check(ba.block, ba.result.state, SPEED_MPS).pairs[0].lag_s
+            for ba in (_adjusted(tmp_path / "m", 3, LAG_S), _adjusted(tmp_path / "ft", 3, LAG_S, feet=True))]
+    assert lags[1] == pytest.approx(lags[0], rel=0.05), lags
+
+
+def test_an_injected_time_lag_is_recovered_within_its_sigma_and_reported(tmp_path):
+    ba = _adjusted(tmp_path, 3, LAG_S)
+    rep = to_record(build_report(ba, speed_mps=SPEED_MPS))
+    g = rep["gnss_directions"]
+    assert g["testable"] and len(g["pairs"]) == 1
+    p = g["pairs"][0]
+    assert p["along_significant"] and not p["across_significant"]
+    # the images take most of an along-track offset into the pitch (flat ground cannot tell them apart): the lag the
+    # residuals show is a lower bound, significant and of the right sign 
+    assert 3 * p["lag_sigma_s"] < p["lag_s"] < LAG_S, p
+    assert sorted(p["headings_deg"]) == pytest.approx([90.0, 270.0], abs=5.0)
+    k = rep["key_statistics"]
+    assert k["gnss_direction_flip"] and "time lag of +0.00" in k["message"] and "lever-arm" in k["message"]
+    assert "a lag may be larger" in k["message"]
+    txt = format_txt(rep)
+    assert "GNSS residuals by flight direction" in txt and "SIGNIFICANT" in txt
+    html = format_html(rep, ba)
+    assert "GNSS residuals by flight direction" in html and "<pre" not in html and "time lag of +0.00" in html
+
+
+@pytest.mark.parametrize("seed", [4, 5, 6])
+def test_a_block_without_lag_raises_no_alarm(tmp_path, seed):
+    ba = _adjusted(tmp_path, seed, 0.0)
+    c = direction_check(ba.block, ba.result.state, SPEED_MPS)
+    assert c.testable and not c.significant, c.pairs
+    assert abs(c.pairs[0].lag_s) < 3 * c.pairs[0].lag_sigma_s
+
+
+def test_lag_without_speed_and_one_direction():
+    """Straight from the simulator's truth (no adjustment): the check's arithmetic, and its limits."""
+    sim = geometric_block(3, 6, seed=1, gnss_sigma_m=(0.02, 0.02, 0.05), gnss_shift_sigma_m=0.0,
+                          gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0.0, 0.0, 0.0))
+    east = np.asarray(sim.strip) % 2 == 0
+    # GNSS 0.5 m ahead in both directions, and 1 / -2 m off in east / north for the whole flight
+    gnss = sim.gnss_local + np.outer(np.where(east, 0.5, -0.5), [1.0, 0.0, 0.0]) + [1.0, -2.0, 0.0]
+
+    def check(keep, speed):
+        n = int(keep.sum())
+        block = SimpleNamespace(gnss_local=gnss[keep], strip=np.asarray(sim.strip)[keep], lever_arm_m=np.zeros(3))
+        state = SimpleNamespace(centre=sim.centre_local[keep], R_cv=np.tile(np.eye(3), (n, 1, 1)))
+        return direction_check(block, state, speed)
+
+    c = check(np.ones(len(gnss), bool), None)
+    p = c.pairs[0]
+    assert c.significant and p.lag_s is None and not p.across_significant
+    assert p.along_turning_m == pytest.approx(-1.0, abs=4 * p.along_sigma_m)  # the flight's offset cancels
+    assert " m ahead of the projection centres" in c.findings()[0] and "no ground speed" in c.findings()[0]
+    c = check(np.asarray(sim.strip) != 1, SPEED_MPS)  # strips 1 and 3: east only
+    assert not c.testable and c.reason == "not testable: one flight direction" and not c.findings()
