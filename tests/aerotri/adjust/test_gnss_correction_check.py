@@ -111,6 +111,36 @@ def test_unmodelled_drift_is_flagged(sound, tmp_path):
     assert "does not model" not in build_report(ba).key_statistics["message"]
 
 
+def test_the_drift_check_reads_a_feet_project_s_residuals_in_metres(sound, tmp_path):
+    """The photos' GNSS residuals are in the project CRS's unit; the drift check compared feet with its metre
+    sigma (a feet project's trends 3.28 x too large). The same adjustment in US survey feet (EPSG:2229): the same
+    trends in metres, the same verdict."""
+    import dataclasses
+    import shutil
+
+    from aerotri.adjust.report import unmodelled_drift_check
+
+    _, root = sound
+    p = shutil.copytree(root, tmp_path / "blk")
+    g = read_gnss(p / "gnss.txt")
+    strip2 = np.flatnonzero([i.startswith("s02") for i in g.image_id])
+    pos = g.position_m.copy()
+    pos[strip2, 1] += np.linspace(-0.2, 0.2, len(strip2))   # 0.2 m: 0.66 ft, beyond a 0.5 m sigma only in feet
+    write_gnss(p / "gnss.txt", type(g)(g.image_id, pos, g.sigma_m))
+    ba = adjust_project(p, _settings(gnss_shift_sigma_m=0.5))
+    us_ft = 1200 / 3937
+    ba_ft = dataclasses.replace(ba, crs="EPSG:2229", gnss_residual_m=ba.gnss_residual_m / us_ft)
+    m, ft = unmodelled_drift_check(ba), unmodelled_drift_check(ba_ft)
+    assert m.trends == ft.trends == ()
+    ba_ft = dataclasses.replace(ba, crs="EPSG:2229", gnss_residual_m=ba.gnss_residual_m / us_ft,
+                                settings=dataclasses.replace(ba.settings, gnss_shift_sigma_m=0.05))
+    ba_m = dataclasses.replace(ba, settings=dataclasses.replace(ba.settings, gnss_shift_sigma_m=0.05))
+    got_m, got_ft = unmodelled_drift_check(ba_m).trends, unmodelled_drift_check(ba_ft).trends
+    assert [(s, a) for s, a, _, _ in got_m] == [(2, "N")]
+    assert [(s, a) for s, a, _, _ in got_ft] == [(2, "N")]
+    assert got_ft[0][2] == pytest.approx(got_m[0][2], abs=2e-4)   # metres both
+
+
 def test_a_wrong_focal_length_is_named_by_the_strips_common_height_shift(tmp_path_factory):
     """camera.toml's focal length 2 % long, no self-calibration, 4 control points, a shift per strip: every strip's
     GNSS height shift comes out alike and suspect, and the verdict says the GNSS heights are off the ground by one
