@@ -619,7 +619,7 @@ def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUni
     occupied = histogram(10.0, "tiles: density")
     n = int((occupied * np.arange(len(occupied))).sum())
     spacing = float(np.sqrt(int(occupied.sum()) * 100.0 / max(n, 1)))
-    c = params.water_cell_m or max(1.0, 2.0 * spacing)
+    c = cl.water_cell_size_m(spacing, params)
     return cl.WaterGrid(cell_m=float(c), x0_m=float(x0), y0_m=float(y0),
                         median_count=_median_of_histogram(histogram(c, "tiles: water cells")))
 

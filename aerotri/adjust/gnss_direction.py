@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from aerotri.geom.rotation import FLIP_YZ
+from aerotri.adjust.variance_components import antenna_positions
 
 DIRECTION_ALPHA = 0.05  # family-wise false alarm rate of the check (the brief's 95 % level)
 AXIS_TOLERANCE_DEG = 30.0  # strips whose headings are within this of one axis (either sense) share it
@@ -155,8 +155,7 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
         return None
     g = np.asarray(g, dtype=float)
     # adjusted antenna minus GNSS without the solve's shift/drift/offset: a per-strip shift would take the lag in
-    lever_cv = FLIP_YZ @ np.asarray(block.lever_arm_m, dtype=float)
-    v = np.asarray(state.centre, dtype=float) + np.asarray(state.R_cv) @ lever_cv - g
+    v = np.asarray(antenna_positions(block, state), dtype=float) - g
     strip = np.asarray(block.strip, dtype=int)
     units, bases = [], []
     for s in np.unique(strip):

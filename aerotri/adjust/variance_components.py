@@ -38,10 +38,15 @@ class VarianceComponent:
     factor: float | None  # s_k = sqrt(v' P v / r_k); None when r_k < MIN_REDUNDANCY (not estimable)
 
 
+def antenna_positions(block: G.Block, state: G.State) -> np.ndarray:
+    """The antenna positions of the adjusted photos (N, 3, local frame): ``C + R l``, no GNSS shift or drift."""
+    return state.centre + state.R_cv @ (FLIP_YZ @ block.lever_arm_m)
+
+
 def adjusted_gnss(block: G.Block, opts: G.SolveSettings, state: G.State) -> np.ndarray:
-    """The GNSS positions the solution predicts (N, 3, local frame): antenna ``C + R l``, plus the strip's
+    """The GNSS positions the solution predicts (N, 3, local frame): ``antenna_positions``, plus the strip's
     shift (the flight's one offset; and drift times the along-track km) when the solve corrects them."""
-    pred = state.centre + state.R_cv @ (FLIP_YZ @ block.lever_arm_m)
+    pred = antenna_positions(block, state)
     if opts.gnss_correction == "none":
         return pred
     s, t = G.shift_index(block, opts.gnss_correction), np.asarray(block.along_km, dtype=float)

@@ -1043,11 +1043,16 @@ class WaterGrid:
         return ok_y[:, None] & ok_x[None, :]
 
 
+def water_cell_size_m(spacing_m: float, p: ClassifySettings) -> float:
+    """The water grid's cell (m): ``water_cell_m``, or 2 mean point spacings of the cloud and at least 1 m."""
+    return p.water_cell_m or max(1.0, 2.0 * spacing_m)
+
+
 def water_cells(x, y, spacing_m: float, p: ClassifySettings, water_grid: WaterGrid | None = None):
-    """The water grid's cell (m) and ``grid.cell_ids`` of the points on it: ``water_cell_m`` or 2 point spacings
-    (at least 1 m) from the cloud's lowest x, y; with ``water_grid`` (a tile) the whole cloud's cell and origin."""
+    """The water grid's cell (m, ``water_cell_size_m``) and ``grid.cell_ids`` of the points on it from the cloud's
+    lowest x, y; with ``water_grid`` (a tile) the whole cloud's cell and origin."""
     if water_grid is None:
-        c = p.water_cell_m or max(1.0, 2.0 * spacing_m)
+        c = water_cell_size_m(spacing_m, p)
         return c, grid.cell_ids(x, y, c)
     return water_grid.cell_m, water_grid.cell_ids(x, y)
 
