@@ -228,10 +228,11 @@ def _pp_gnss_reasons(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.n
 
 
 def _pp_gnss_fields(pg) -> dict:
+    """``GroupCheck``'s fields of the principal point against the GNSS (plain tuples, None for NaN)."""
     fin = lambda v: tuple(float(x) if math.isfinite(x) else None for x in v)  # noqa: E731
+    shifts = fin(pg.shift_correlation) if np.isfinite(pg.shift_correlation).any() else None
     return dict(gnss_offset_px_per_m=(float(pg.px_per_m[0, 0]), float(pg.px_per_m[1, 1])),
-                gnss_offset_correlation=fin(pg.offset_correlation),
-                gnss_shift_correlation=None if not np.isfinite(pg.shift_correlation).any() else fin(pg.shift_correlation),
+                gnss_offset_correlation=fin(pg.offset_correlation), gnss_shift_correlation=shifts,
                 orientation_correlation=fin(pg.orientation_correlation))
 
 

@@ -1006,7 +1006,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
             direction=(dirc := direction_check(
                 b, r.state, speed_mps, self_calibration=opts.self_calibration,
                 strip_shift_sigma_m=st.gnss_shift_sigma_m if opts.gnss_correction in ("shift", "shift_drift")
-                else 0.0))),
+                else 0.0, pp_share=_pp_share(r)))),
         "components": {"adjusted": int(ba.components), "left_out": [{"images": list(lo.image_ids), "reason": lo.reason}
                                                                    for lo in ba.left_out]},
         # what the datum rests on when GNSS does not carry it (approximations from the images, unmeasured heights)
@@ -1189,6 +1189,17 @@ def _self_calibration_txt(sc: dict) -> list[str]:
         if note:
             L.append(f"  ({note})")
     return L
+
+
+def _pp_share(r) -> float | None:
+    """The share of a GNSS offset fixed in the camera the self-calibrated principal point takes (its largest px per m
+    times the tie points' depth over the focal length; 1: all, a narrow DMC frame; Brighton's drone frames 0.1 %)."""
+    cc = getattr(r, "calibration", None)
+    pg = getattr(cc, "pp_gnss", None)
+    if pg is None or not np.isfinite(cc.depth_m):
+        return None
+    f = 0.5 * float(r.state.cal[0] + r.state.cal[1])
+    return float(np.max(np.abs(np.diag(pg.px_per_m))) * cc.depth_m / f)
 
 
 def _n3(v, digits: int = 3) -> str:

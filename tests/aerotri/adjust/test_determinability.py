@@ -369,6 +369,12 @@ def test_a_principal_point_a_gnss_lag_moved_is_flagged_without_plan_control(tmp_
     assert "pp estimated but not determinable by this block: v0 moved" in ks["message"]
     txt = format_txt(rep)
     assert "NOT DETERMINABLE (kept, the verdict weak)" in txt and "with a GNSS offset fixed in the camera" in txt
+    # the GNSS direction check's note says how much of such an offset the principal point takes here (a DMC frame's
+    # narrow field: all of it; Brighton's drone frames 0.1 %)
+    import re
+
+    share = re.search(r"here it takes (\d+) % of such an offset", rep["gnss_directions"]["note"])
+    assert share and 95 <= int(share.group(1)) <= 105, rep["gnss_directions"]["note"]
     # the same lag with 4 full control points: the principal point takes it alike (the two are one on flat ground),
     # but the control holds the ground: the check points as without the lag, no alarm
     with_lag, without = _lag_block(tmp_path, 1, LAG_S, n_control=4), _lag_block(tmp_path, 1, 0.0, n_control=4)
