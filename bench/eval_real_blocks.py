@@ -121,7 +121,8 @@ def _key_statistics(root: Path) -> dict:
     if not p.is_file():
         return {}
     ks = json.loads(p.read_text())["key_statistics"]
-    return {k: ks.get(k) for k in ("verdict", "message", "sigma0_px", "weak_geometry", "calibration_fixed")}
+    return {k: ks.get(k) for k in ("verdict", "message", "sigma0_px", "weak_geometry", "calibration_fixed",
+                                   "calibration_flagged")}
 
 
 def _qa(root: Path) -> dict | None:

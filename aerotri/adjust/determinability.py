@@ -55,6 +55,13 @@ from aerotri.adjust import graph as G
 from aerotri.adjust.geometry_modes import CAL_NAMES, MODES, PLAN_MODES, CalibrationCovariance
 
 CORRELATION_LIMIT = 0.9
+# the principal point: a move from its a-priori value beyond this many of its standard deviations is a finding where
+# an offset between the GNSS positions and the projection centres fixed in the camera (a lever-arm error, a time
+# lag) would move it alike (``PrincipalPointGnss.offset_correlation`` over CORRELATION_LIMIT): the block cannot tell
+# the camera's principal point from such an offset, with or without control points (small-fixes3: a 0.7 m lag moved
+# v0 by 6.8 px, 31 sigma, on a flat simulated block, 32 sigma with 4 full control points; seeds 1-4 without a lag
+# or an offset moved 0.1-1.7 sigma; chosen before they were run, not tuned)
+PP_MOVE_SIGMAS = 5.0
 SIGMA_LIMIT_FRACTION = 0.01
 # the focal length: within this fraction of itself at FOCAL_SIGMA_MULTIPLE standard deviations, and moved by no more
 # than that by GNSS heights off by their sigma or by an image-wide error of the residuals' size the camera model does
@@ -90,10 +97,19 @@ class GroupCheck:
     ground_observed: dict  # mode -> whether an observation on the ground fixes it
     determinable: bool
     reason: str | None  # why not (None: determinable)
-    action: str  # "estimated", or "fixed" (at its a-priori value, solved again without it)
+    # "estimated"; "fixed" (at its a-priori value, solved again without it); "flagged" (estimated and kept, but the
+    # block cannot tell it from a GNSS error it does not model: the principal point against a lever arm or time lag)
+    action: str
     sigma_fraction: float | None = None  # focal: its standard deviation over it
     gnss_height_fraction: float | None = None  # focal: its largest change, GNSS heights off by their sigma, over it
     image_field_fraction: float | None = None  # focal: its largest change under an unmodelled image field, over it
+    # pp (u0, v0) against the GNSS (``geometry_modes.PrincipalPointGnss``): its change (px) per metre of a GNSS offset
+    # along the camera's x / y, its correlation with such an offset (lever arm, time lag) had it been estimated, with
+    # the GNSS shifts estimated (None: none), and the largest with one orientation parameter of one frame
+    gnss_offset_px_per_m: tuple | None = None
+    gnss_offset_correlation: tuple | None = None
+    gnss_shift_correlation: tuple | None = None
+    orientation_correlation: tuple | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,6 +200,42 @@ def _focal_reasons(sigma_fraction: float, gnss_fraction: float, field_fraction: 
     return out
 
 
+def _pp_gnss_reasons(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.ndarray) -> list[str]:
+    """Why the principal point is not determinable against the GNSS (``PrincipalPointGnss`` ``pg``): correlated over
+    ``CORRELATION_LIMIT`` with the GNSS shifts the solve estimates (per strip: each strip one heading, its shift moves
+    its ground as a principal-point offset does); or moved over ``PP_MOVE_SIGMAS`` of its standard deviations from
+    its a-priori value while an offset of the GNSS fixed in the camera (lever arm, time lag), which the solve holds,
+    would move it alike (correlation over the limit had it been estimated)."""
+    out = []
+    for a, (name, axis) in enumerate((("u0", "x"), ("v0", "y"))):
+        r = float(pg.shift_correlation[a])
+        if math.isfinite(r) and r > CORRELATION_LIMIT:
+            out.append(f"{name} correlation {r:.3f} with the GNSS shifts the solve estimates (limit "
+                       f"{CORRELATION_LIMIT:g}): a shift per strip moves a strip's ground as a principal-point offset "
+                       "does, and no plan control point holds the ground")
+        i = CAL_NAMES.index(f"{name}_px")
+        move, sd = float(cal[i] - cal_apriori[i]), math.sqrt(max(float(cal_cov[i, i]), 0.0))
+        r = float(pg.offset_correlation[a])
+        k = float(pg.px_per_m[a, a])
+        if sd > 0 and abs(move) > PP_MOVE_SIGMAS * sd and math.isfinite(r) and r > CORRELATION_LIMIT and k != 0:
+            out.append(f"{name} moved {move:+.1f} px ({abs(move) / sd:.0f} standard deviations, limit "
+                       f"{PP_MOVE_SIGMAS:g}) from its a-priori value, as a GNSS position offset of {move / k:+.2f} m "
+                       f"along the camera's {axis} axis would move it ({k:.2f} px per m: a lever-arm error, or a "
+                       f"time lag along the track) and the block cannot tell the two apart (correlation {r:.4f} "
+                       f"with such an offset, limit {CORRELATION_LIMIT:g}), and no plan control point holds the "
+                       "ground")
+    return out
+
+
+def _pp_gnss_fields(pg) -> dict:
+    """``GroupCheck``'s fields of the principal point against the GNSS (plain tuples, None for NaN)."""
+    fin = lambda v: tuple(float(x) if math.isfinite(x) else None for x in v)  # noqa: E731
+    shifts = fin(pg.shift_correlation) if np.isfinite(pg.shift_correlation).any() else None
+    return dict(gnss_offset_px_per_m=(float(pg.px_per_m[0, 0]), float(pg.px_per_m[1, 1])),
+                gnss_offset_correlation=fin(pg.offset_correlation), gnss_shift_correlation=shifts,
+                orientation_correlation=fin(pg.orientation_correlation))
+
+
 def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori: np.ndarray, *, width: int,
                  height: int, ground: GroundObservations) -> list[GroupCheck]:
     """The ``GroupCheck`` of every estimated group (``groups``) at a solution with calibration ``cal`` and its
@@ -203,6 +255,11 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
             if not observed[m] and math.isfinite(r) and r > CORRELATION_LIMIT:
                 reasons.append(f"correlation {r:.3f} with {MODE_NAMES[m]} (limit {CORRELATION_LIMIT:g}), which "
                                f"{_UNOBSERVED_BY[_MODE_GROUND[m]]} observes")
+        # the principal point against the GNSS's systematic errors: a finding of a block without plan control (the
+        # control holds its ground whichever of the two took the offset), the estimate kept (fixed, its offset
+        # would go into the frames' attitudes alike): flagged
+        flags = (_pp_gnss_reasons(cc.pp_gnss, cal, cal_apriori, cc.cal_cov)
+                 if g == "pp" and cc.pp_gnss is not None and not ground.plan else [])
         focal = None
         if g == "focal":  # judged by what determines it (``_focal_reasons``), its sigma test among them
             w = np.zeros(len(CAL_NAMES))
@@ -219,7 +276,9 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
             group=g, estimate={n: float(cal[CAL_NAMES.index(n)]) for n in names},
             apriori={n: float(cal_apriori[CAL_NAMES.index(n)]) for n in names},
             sigma={n: float(sd[CAL_NAMES.index(n)]) for n in names}, corner_sigma_px=sig_px,
-            corner_sigma_fraction=frac, correlations=corr, ground_observed=observed, determinable=not reasons,
-            reason="; ".join(reasons) or None, action="estimated" if not reasons else "fixed",
+            corner_sigma_fraction=frac, correlations=corr, ground_observed=observed,
+            determinable=not (reasons or flags), reason="; ".join(reasons or flags) or None,
+            action="fixed" if reasons else "flagged" if flags else "estimated",
+            **(_pp_gnss_fields(cc.pp_gnss) if g == "pp" and cc.pp_gnss is not None else {}),
             **(dict(zip(("sigma_fraction", "gnss_height_fraction", "image_field_fraction"), focal)) if focal else {})))
     return out

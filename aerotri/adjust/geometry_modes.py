@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import gtsam
 import numpy as np
 
 from aerotri.adjust import graph as G
@@ -88,6 +89,9 @@ class CalibrationCovariance:
     # the focal length's largest change (px) under one image-wide displacement field the camera model does not hold
     # (``UNMODELLED_FIELDS``), as large as the image residuals' sigma at the frame's edge
     focal_image_field_px: float = float("nan")
+    # the principal point against an offset between the GNSS positions and the projection centres fixed in the camera
+    # (a lever-arm error, or a time lag along a track flown at one speed), which the solve holds (``gnss_offset``)
+    pp_gnss: "PrincipalPointGnss | None" = None
 
     def correlation(self, mode: str, param: str | tuple) -> float:
         """Correlation of a mode with a calibration parameter, or with the mean of two (``("fx_px", "fy_px")``)."""
@@ -242,13 +246,76 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     # an image-wide field as large as the residuals' sigma (sigma0 times the a-priori sigma) where it is largest
     field_px = float(np.max(np.abs(fields[:, 0]) / fields[:, 1])) * sigma0 / np.sqrt(pr.weight)
     cc = CalibrationCovariance(cal_cov, cross, mode_var, {g: float(v[-2]) for g, v in share.items()},
-                               float(np.median(depth)) if len(depth) else float("nan"), gnss_z_px, field_px)
+                               float(np.median(depth)) if len(depth) else float("nan"), gnss_z_px, field_px,
+                               pp_gnss_coupling(block, opts, state, rc, pr.pose_offset)
+                               if "pp" in opts.self_calibration else None)
     if any(g == "focal" for g in opts.self_calibration):
         f = 0.5 * (state.cal[0] + state.cal[1])
         sigma_f = float(np.sqrt(max(var[-2], 0.0))) * sigma0
         out.append(GeometryMode("focal_height", sigma_f / f * cc.depth_m, rho, dict(cc.focal_shares),
                                 _held(cc.focal_shares), cc.correlation("height", ("fx_px", "fy_px"))))
     return out, cc
+
+
+@dataclasses.dataclass(frozen=True)
+class PrincipalPointGnss:
+    """How the principal point (u0, v0) couples to the GNSS's systematic errors the solve does not estimate or does.
+
+    ``px_per_m`` (2, 2): the principal point's change (px) were every GNSS position off by 1 m along the camera's x
+    (image right) or y (image down) axis, ``u' A' W R e`` (``u = Sigma e_pp``): a lever-arm error, or a time lag
+    along tracks flown in the camera's y at one speed, both fixed in the camera and so turning with the heading;
+    ``offset_correlation`` (2,): the multiple correlation of u0 and of v0 with such an offset (x and y) had the solve
+    estimated it (``K' S^-1 K / (Sigma_pp + K' S^-1 K)``, ``S`` the offset's information with the rest free);
+    ``shift_correlation`` (2,): with the GNSS shifts the solve estimates (per strip, or one offset; NaN: none);
+    ``orientation_correlation`` (2,): the largest correlation with one orientation parameter of one frame."""
+
+    px_per_m: np.ndarray
+    offset_correlation: np.ndarray
+    shift_correlation: np.ndarray
+    orientation_correlation: np.ndarray
+
+
+def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
+                     pose_offset: np.ndarray) -> PrincipalPointGnss | None:
+    """``PrincipalPointGnss`` at the solution (``rc`` the unit-weight reduced covariance, ``pose_offset`` each frame's
+    first pose scalar in it); None without GNSS."""
+    if block.gnss_local is None:
+        return None
+    k0 = rc.offset[K_KEY]
+    pp = k0 + np.array([3, 4])
+    rows = gnss_rows(block, opts, state)[1]
+    w = 1.0 / np.asarray(block.gnss_sigma_m, dtype=float) ** 2  # (N, 3)
+    # the information between the unknowns and an offset l fixed in the camera: g_i = ... + R_i l (x, y axes)
+    b = np.zeros((rc.n, 2))
+    h = np.zeros((2, 2))
+    for i, row in enumerate(rows):
+        WR = w[i][:, None] * state.R_cv[i][:, :2]
+        h += state.R_cv[i][:, :2].T @ WR
+        for k, J in row:
+            b[rc.offset[k]:rc.offset[k] + J.shape[1]] += J.T @ WR
+    Sb = rc.multiply(b)
+    K = Sb[pp]  # (2 pp, 2 axes)
+    S = h - b.T @ Sb
+    var_pp = rc.entries(pp, pp)
+    try:
+        q = np.einsum("ai,ij,aj->a", K, np.linalg.inv(S), K)
+        offset_corr = np.sqrt(np.clip(q / (var_pp + q), 0.0, 1.0))
+    except np.linalg.LinAlgError:
+        offset_corr = np.ones(2)
+    shift = [k for k in rc.offset if chr(gtsam.Symbol(k).chr()) in "sd"] if opts.gnss_correction != "none" else []
+    shift_corr = np.full(2, np.nan)
+    if shift:
+        idx = np.concatenate([rc.offset[k] + np.arange(rc.dim[k]) for k in shift])
+        c = rc.entries(pp[:, None], idx[None, :])
+        Css = rc.entries(idx[:, None], idx[None, :])
+        r2 = np.einsum("ai,ai->a", c, np.linalg.lstsq(Css, c.T, rcond=None)[0].T) / var_pp
+        shift_corr = np.sqrt(np.clip(r2, 0.0, 1.0))
+    poses = (np.asarray(pose_offset)[:, None] + np.arange(6)).ravel()
+    cov = rc.entries(pp[:, None], poses[None, :])
+    sd = np.sqrt(np.clip(rc.entries(poses, poses), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        orient_corr = np.nanmax(np.abs(cov / (np.sqrt(var_pp)[:, None] * sd[None, :])), axis=1)
+    return PrincipalPointGnss(K, offset_corr, shift_corr, orient_corr)
 
 
 def _gnss_change(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:

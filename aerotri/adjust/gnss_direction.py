@@ -84,14 +84,23 @@ class DirectionCheck:
     speed_mps: float | None
     speed_source: str
     base_m: float  # median spacing of consecutive frames in a strip (m)
-    pp_estimated: bool = False  # the principal point self-calibrated: it takes up an along-track flip
+    pp_estimated: bool = False  # the principal point self-calibrated: it may take up an along-track flip
+    # the share of a GNSS offset fixed in the camera the self-calibrated principal point takes (its px per m times the
+    # tie points' depth over the focal length: ``geometry_modes.PrincipalPointGnss``); None: not computed
+    pp_share: float | None = None
 
     def blind_note(self) -> str:
         """Why the along-track test may miss a lag (or understate it): the images absorb it."""
-        if self.pp_estimated:
+        share = "" if self.pp_share is None else f"; here it takes {100 * self.pp_share:.0f} % of such an offset"
+        if self.pp_estimated and (self.pp_share is None or self.pp_share >= 0.5):
             return ("the principal point is self-calibrated: it takes up most of an along-track offset that flips "
                     "with the flight direction (the camera turns with the heading; on simulated blocks 1-4 % of a lag "
-                    "stayed in the residuals), so a lag may be far larger than the residuals show")
+                    f"stayed in the residuals{share}), so a lag may be far larger than the residuals show")
+        if self.pp_estimated:  # a wide field of view tells the principal point from a rotation: the attitudes take it
+            return (f"the principal point is self-calibrated but takes only {100 * self.pp_share:.1f} % of such an "
+                    "offset here (the frames' perspective tells it from a rotation of the frame); the residuals show "
+                    "the part of an along-track offset the images tell from the photos' pitch: a lag may be larger "
+                    "than the residuals say")
         return ("the residuals show only the part of an along-track offset the images tell from the photos' pitch "
                 "(on flat ground none of it): a lag may be larger than the residuals say")
 
@@ -140,10 +149,12 @@ def _heading_deg(v) -> float:
 
 
 def direction_check(block, state, speed_mps: float | None = None, alpha: float = DIRECTION_ALPHA,
-                    self_calibration=(), strip_shift_sigma_m: float = 0.0) -> DirectionCheck | None:
+                    self_calibration=(), strip_shift_sigma_m: float = 0.0, pp_share: float | None = None
+                    ) -> DirectionCheck | None:
     """``DirectionCheck`` of an adjusted block with GNSS (None without): ``block`` a ``graph.Block`` (positions in
     flight order, local ENU metres), ``state`` the adjusted ``graph.State``; ``speed_mps`` the ground speed
-    ([flight] speed_mps; None: the lag is stated per unit speed); ``self_calibration`` the groups estimated;
+    ([flight] speed_mps; None: the lag is stated per unit speed); ``self_calibration`` the groups estimated
+    (``pp_share``: the share of a camera-fixed offset the principal point takes, ``DirectionCheck.pp_share``);
     ``strip_shift_sigma_m`` the a-priori sigma of a strip's GNSS shift when the solve estimates one per strip
     (``gnss_shift_sigma_m``): the strips then differ by such shifts, so a direction's mean varies by it over
     sqrt(its strips) besides the photos' scatter (without it a sound block with 0.05 m shifts was flagged)."""
@@ -233,4 +244,5 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
     else:
         reason = ""
     return DirectionCheck(bool(pairs), reason, tuple(directions), tuple(pairs), round(k, 2), speed_mps or None,
-                          speed_source, base_m, "pp" in tuple(self_calibration))
+                          speed_source, base_m, "pp" in tuple(self_calibration),
+                          pp_share if "pp" in tuple(self_calibration) else None)

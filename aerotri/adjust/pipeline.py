@@ -654,11 +654,14 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
                            height=prepared.camera.height, ground=ground)
         checks.update({c.group: c for c in now})
         focal_mode = next((g for g in result.geometry or [] if g.mode == "focal_height"), focal_mode)
-        fixed = [c.group for c in now if not c.determinable]
+        for c in now:
+            if c.action == "flagged":
+                log.warning(f"self-calibration: {c.group} estimated, but not determinable by this block: {c.reason}")
+        fixed = [c.group for c in now if c.action == "fixed"]
         if not fixed:
             break
         for c in now:
-            if not c.determinable:
+            if c.action == "fixed":
                 log.warning(f"self-calibration: {c.group} fixed at its a-priori value, not determinable by this block: "
                             f"{c.reason}")
         opts = dataclasses.replace(opts, self_calibration=tuple(g for g in opts.self_calibration if g not in fixed))

@@ -323,6 +323,9 @@ def _check_dict(c) -> dict:
     d["corner_sigma_fraction"] = _f(d["corner_sigma_fraction"], 6)
     for key in ("sigma_fraction", "gnss_height_fraction", "image_field_fraction"):
         d[key] = _f(d[key], 6)
+    for key in ("gnss_offset_px_per_m", "gnss_offset_correlation", "gnss_shift_correlation", "orientation_correlation"):
+        if d.get(key) is not None:
+            d[key] = [_f(v, 4) for v in d[key]]
     return d
 
 
@@ -712,6 +715,12 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     if fixed:
         weaknesses.append("Self-calibration: " + "; ".join(
             f"{c.group} fixed at its a-priori value (not determinable: {c.reason})" for c in fixed) + ".")
+    flagged = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "flagged"]
+    if flagged:
+        weaknesses.append("Self-calibration: " + "; ".join(
+            f"{c.group} estimated but not determinable by this block: {c.reason}" for c in flagged)
+            + ". Control points with plan coordinates hold the ground whichever took it; a measured lever arm and "
+            "exposure timing, or a laboratory calibration of the camera, tell them apart.")
     gcc = gnss_correction_check(ba)
     if gcc is not None and gcc.suspect:
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
@@ -781,6 +790,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         "verdict": verdict,
         "weak_geometry": [g.mode for g, _ in weak],
         "calibration_fixed": [c.group for c in fixed],
+        "calibration_flagged": [c.group for c in flagged],
         "tolerances_exceeded": beyond,
         "gnss_corrections_suspect": [] if gcc is None else [
             {"strip": s, "term": term, "axis": axis, "displacement_m": _f(v, 4)} for s, term, axis, v in gcc.suspect],
@@ -996,7 +1006,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
             direction=(dirc := direction_check(
                 b, r.state, speed_mps, self_calibration=opts.self_calibration,
                 strip_shift_sigma_m=st.gnss_shift_sigma_m if opts.gnss_correction in ("shift", "shift_drift")
-                else 0.0))),
+                else 0.0, pp_share=_pp_share(r)))),
         "components": {"adjusted": int(ba.components), "left_out": [{"images": list(lo.image_ids), "reason": lo.reason}
                                                                    for lo in ba.left_out]},
         # what the datum rests on when GNSS does not carry it (approximations from the images, unmeasured heights)
@@ -1155,14 +1165,24 @@ def _self_calibration_txt(sc: dict) -> list[str]:
                              for m, v in c["correlations"].items() if v is not None)
             est = ", ".join(f"{n} {c['estimate'][n]:.6g} +- {c['sigma'][n]:.3g} (a priori {c['apriori'][n]:.6g})"
                             for n in c["estimate"])
-            L.append(f"  {c['group']:11} {'estimated' if c['action'] == 'estimated' else 'FIXED at its a-priori value'}"
+            state = {"estimated": "estimated", "flagged": "estimated, NOT DETERMINABLE (kept, the verdict weak)"}.get(
+                c["action"], "FIXED at its a-priori value")
+            L.append(f"  {c['group']:11} {state}"
                      f": corner sigma {c['corner_sigma_px']:.2f} px ({100 * c['corner_sigma_fraction']:.3f} % of the "
                      f"focal length); correlation {corr}")
-            L.append(f"  {'':11} {'estimate' if c['action'] == 'estimated' else 'refused estimate'}: {est}")
+            L.append(f"  {'':11} {'refused estimate' if c['action'] == 'fixed' else 'estimate'}: {est}")
             if c.get("sigma_fraction") is not None:
                 L.append(f"  {'':11} over the focal length: sigma {100 * c['sigma_fraction']:.3f} %, moved by up to "
                          f"{100 * (c['gnss_height_fraction'] or 0.0):.3f} % by GNSS heights off by their sigma, "
                          f"{100 * (c['image_field_fraction'] or 0.0):.3f} % by an unmodelled image field")
+            if c.get("gnss_offset_correlation") is not None:
+                oc, k = c["gnss_offset_correlation"], c["gnss_offset_px_per_m"]
+                sc_ = c.get("gnss_shift_correlation")
+                L.append(f"  {'':11} against the GNSS: u0 / v0 correlation {_n3(oc[0])} / {_n3(oc[1])} with a GNSS "
+                         f"offset fixed in the camera (lever arm, time lag; {_n3(k[0], 2)} / {_n3(k[1], 2)} px per m), "
+                         + (f"{_n3(sc_[0])} / {_n3(sc_[1])} with the GNSS shifts estimated, " if sc_ else "")
+                         + f"largest with one frame's orientation {_n3(c['orientation_correlation'][0])} / "
+                         f"{_n3(c['orientation_correlation'][1])}")
             if c["reason"]:
                 L.append(f"  {'':11} not determinable: {c['reason']}")
         note = formal_sigma_note(sc)
@@ -1171,13 +1191,28 @@ def _self_calibration_txt(sc: dict) -> list[str]:
     return L
 
 
+def _pp_share(r) -> float | None:
+    """The share of a GNSS offset fixed in the camera the self-calibrated principal point takes (its largest px per m
+    times the tie points' depth over the focal length; 1: all, a narrow DMC frame; Brighton's drone frames 0.1 %)."""
+    cc = getattr(r, "calibration", None)
+    pg = getattr(cc, "pp_gnss", None)
+    if pg is None or not np.isfinite(cc.depth_m):
+        return None
+    f = 0.5 * float(r.state.cal[0] + r.state.cal[1])
+    return float(np.max(np.abs(np.diag(pg.px_per_m))) * cc.depth_m / f)
+
+
+def _n3(v, digits: int = 3) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
 def formal_sigma_note(sc: dict) -> str | None:
     """When the determinability's sigmas (formal: the surface's points as independent) differ from the table's std
     dev (with the LiDAR strip offsets of SURFACE CONTROL added, the consider covariance) by more than 1 %: the note
     that says so with the parameters that differ, else None. The demo's k1: 6.6e-05 against the table's 0.000193,
     both printed as its sigma."""
     std = sc.get("std_dev") or {}
-    diff = [(n, std[n], c["sigma"][n]) for c in sc.get("determinability") or [] if c["action"] == "estimated"
+    diff = [(n, std[n], c["sigma"][n]) for c in sc.get("determinability") or [] if c["action"] != "fixed"
             for n in c["sigma"] if std.get(n) and c["sigma"].get(n) and abs(std[n] / c["sigma"][n] - 1.0) > 0.01]
     if not diff:
         return None

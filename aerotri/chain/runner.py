@@ -144,7 +144,7 @@ def stale_reason(root: Path, st: Stage) -> str | None:
     inputs = _differing(stamp.get("inputs") or {}, _signature(st.inputs(root), root))
     if inputs:
         reasons.append(f"inputs changed: {inputs}")
-    options = _differing(stamp.get("options") or {}, _plain(st.options_now(root), root))
+    options = _differing(stamp.get("options") or {}, _plain(st.options_now(root), root), values=True)
     if options:
         reasons.append(f"options changed: {options}")
     now = st.versions_now()
@@ -154,11 +154,9 @@ def stale_reason(root: Path, st: Stage) -> str | None:
         if now:
             reasons.append("code versions not recorded: run again")
     else:
-        before = stamp["versions"] or {}
-        changed = [f"{k} {before.get(k, 'none')} -> {now.get(k, 'none')}" for k in sorted(set(before) | set(now))
-                   if before.get(k) != now.get(k)]
-        if changed:
-            reasons.append(f"code changed: {', '.join(changed)}")
+        versions = _differing(stamp["versions"] or {}, now, values=True)
+        if versions:
+            reasons.append(f"code changed: {versions}")
     return "; ".join(reasons) or None
 
 
@@ -167,8 +165,18 @@ def _names(names: list[str], at_most: int = 4) -> str:
     return ", ".join(names[:at_most]) + more
 
 
-def _differing(before: dict, now: dict, prefix: str = "") -> str:
-    """The keys whose values differ, nested keys dotted: ``a (new)``, ``b (dropped)``, ``c``."""
+def _differing(before: dict, now: dict, values: bool = False) -> str:
+    """What differs between a stamp's record and now, in one wording for inputs, options and code versions:
+    ``a (new)``, ``b (dropped)``, nested keys dotted (``surface.b``), a changed value as ``k 1 -> 2`` when ``values``
+    and both are short plain values (input hashes are not worth reading: their names only); at most four named."""
+    return _names(_differing_keys(before, now, "", values))
+
+
+def _short(v) -> bool:
+    return v is None or isinstance(v, (bool, int, float)) or (isinstance(v, str) and len(v) <= 24)
+
+
+def _differing_keys(before: dict, now: dict, prefix: str, values: bool) -> list[str]:
     out = []
     for k in sorted(set(before) | set(now), key=str):
         name = f"{prefix}{k}"
@@ -177,17 +185,15 @@ def _differing(before: dict, now: dict, prefix: str = "") -> str:
         elif k not in now:
             out.append(f"{name} (dropped)")
         elif isinstance(before[k], dict) and isinstance(now[k], dict):
-            inner = _differing(before[k], now[k], f"{name}.")
-            if inner:
-                out.append(inner)
+            out += _differing_keys(before[k], now[k], f"{name}.", values)
         elif isinstance(before[k], list) and isinstance(now[k], list) and len(before[k]) == len(now[k]) and \
                 all(isinstance(a, dict) and isinstance(b, dict) for a, b in zip(before[k], now[k])):
-            inner = [_differing(a, b, f"{name}[{i}].") for i, (a, b) in enumerate(zip(before[k], now[k]))]
-            if any(inner):
-                out.append(", ".join(x for x in inner if x))
+            for i, (a, b) in enumerate(zip(before[k], now[k])):
+                out += _differing_keys(a, b, f"{name}[{i}].", values)
         elif before[k] != now[k]:
-            out.append(name)
-    return _names(", ".join(out).split(", ")) if out else ""
+            shown = values and _short(before[k]) and _short(now[k])
+            out.append(f"{name} {json.dumps(before[k])} -> {json.dumps(now[k])}" if shown else name)
+    return out
 
 
 def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[str], None] = _log.info) -> list[dict]:

@@ -38,7 +38,7 @@ from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, ch
                                      split_key)
 from aerotri.geom.block_scale import planned_terrain_height, project_block_scale
 from aerotri.qa.compliance import (asprs_class_cm, lidar_only_project, project_compliance,
-                                   with_asprs2014_lidar_limits, with_cn_at_lidar_limits,
+                                   with_asprs2014_limits, with_cn_at_lidar_limits,
                                    with_lbs_lidar_limits)
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
@@ -423,7 +423,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if compliance.key == "usgs-lbs":
         table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
     elif compliance.key == "asprs2014":
-        table = with_asprs2014_lidar_limits(table, compliance.class_tested)
+        table = with_asprs2014_limits(table, compliance.class_tested)
     elif compliance.key == "cn-at":
         table = with_cn_at_lidar_limits(table, compliance.class_tested)
     if lidar_only:

@@ -294,7 +294,7 @@ def test_the_log_says_why_a_stage_runs(tmp_path):
     assert "[double] up to date, skipped" in lines
     lines.clear()
     run_stages(tmp_path, stages({"k": 2, "surface": {"a": 1, "b": 0}, "new": True}), log=lines.append)
-    assert "[double] running (options changed: k, new (new), surface.b (new))" in lines
+    assert "[double] running (options changed: k 1 -> 2, new (new), surface.b (new))" in lines
     lines.clear()
     (tmp_path / "in.txt").write_text("4")
     (tmp_path / "out.txt").unlink()
@@ -326,6 +326,15 @@ def test_a_bumped_algorithm_version_reruns_its_stage_and_the_same_one_stays_up_t
     run_stages(tmp_path, stages(calls, 2), log=logged.append)
     assert calls == ["double"]  # its output is the same: the next stage stays up to date
     assert "[double] running (code changed: doubling 1 -> 2)" in logged
+    # after an upgrade the code versions read as the options do (one wording): a new algorithm "(new)", a retired
+    # one "(dropped)", a changed one "old -> new"
+    logged.clear()
+    st = stages(calls, 2)
+    st[0] = dataclasses.replace(st[0], versions=lambda: {"doubling": 3, "rounding": 1})
+    run_stages(tmp_path, st, log=logged.append)
+    assert "[double] running (code changed: doubling 2 -> 3, rounding (new))" in logged
+    run_stages(tmp_path, stages(calls, 2), log=logged.append)
+    assert "[double] running (code changed: doubling 3 -> 2, rounding (dropped))" in logged
     # a stamp written before versions were recorded (reviewer 10: an old project kept the outputs of replaced rules
     # for ever) runs again when the stage declares versions; one that declares none stays up to date
     for name in ("double", "add"):

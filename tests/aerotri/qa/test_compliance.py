@@ -1066,12 +1066,47 @@ def test_asprs2014_judges_edition_1(tmp_path):
     # every point
     row = rep.check("dem_raster_rmse_m")
     assert row.limit == 0.10 and "at 25 non-vegetated surveyed points" in row.quantity
-    assert row.value == pytest.approx(nva["measured"], abs=1e-4) and "Edition 1 (2014), V10cm" in row.limit_source
+    assert row.value == pytest.approx(nva["measured"], abs=1e-4) and "Edition 1 (2014), H10cm V10cm" in row.limit_source
     rep2023 = write_qa_report(root, standard="asprs2023", accuracy_class="H10 V10").compliance["checks"]
     assert [c["verdict"] for c in rep2023 if c["product"] == "LiDAR DEM"] == ["not testable", "reported"]
     # no class: only the finest class met, and the rows say why they are not judged
     rep = write_qa_report(root, standard="asprs2014")
     assert all(c["why"].startswith("no class given") for c in rep.compliance["checks"])
+
+
+@pytest.mark.parametrize("feet", [False, True])
+def test_the_asprs2014_class_sets_the_verdict_tables_at_and_dom_limits(tmp_path, feet):
+    """small-fixes3: under --standard asprs2014 the verdict table's AT and DOM limits stayed the block's table's
+    (1:5000: 0.35 / 0.50 m) while the compliance section judged the class (H10: 0.05 m per axis). They follow the
+    class now, as asprs2023's do, Edition 1's per axis X as RMSE_r <= 1.414 X (the table judges plan radially); a
+    feet project (EPSG:2994, report.json in feet) is judged in metres against the same limits."""
+    unit = 0.3048 if feet else 1.0
+    crs = "EPSG:2994" if feet else "EPSG:32610"
+    (tmp_path / "project.toml").write_text(f'[project]\nname = "t"\ncrs = "{crs}"\n')
+    (tmp_path / "at").mkdir()
+    pts = [dict(id=f"C{i}", d_m=[0.03 / unit * (-1) ** i, 0.04 / unit, 0.05 / unit * (-1) ** i],
+                given_sigma_m=[0.01, 0.01, 0.02]) for i in range(32)]
+    (tmp_path / "at" / "report.json").write_text(json.dumps(dict(
+        project="t", crs=crs, check_rms_m=[0.03 / unit, 0.04 / unit, 0.05 / unit], check_points=pts,
+        key_statistics=dict(sigma0_um=5.1, sigma0_px=0.425, success=True, message="Solution Successful."))))
+    before = write_qa_report(tmp_path)  # the block's table
+    rep = write_qa_report(tmp_path, standard="asprs2014", accuracy_class="H10 V10")
+    plan, height = rep.check("check_rms_xy_m"), rep.check("check_rms_z_m")
+    assert plan.value == pytest.approx(0.05) and height.value == pytest.approx(0.05)
+    assert plan.limit == pytest.approx(0.5 * 1.4142 * 0.10) and plan.limit != before.check("check_rms_xy_m").limit
+    assert height.limit == pytest.approx(0.10) and plan.verdict == height.verdict == "pass"
+    assert "Edition 1 (2014), H10cm V10cm" in plan.limit_source
+    assert rep.tolerances["feature_rms_xy_m"] == pytest.approx(0.14142)
+    assert rep.tolerances["check_points_min"] == 20
+    # the compliance section's plan row: the larger axis 0.04 m <= 0.5 H = 0.05 m; both sections pass
+    at_plan = [c for c in rep.compliance["checks"] if c["product"] == "Aerotriangulation"][0]
+    assert at_plan["measured"] == pytest.approx(0.04, abs=1e-4) and at_plan["verdict"] == "pass"
+    # a finer class: the verdict table's AT fails; the compliance section cannot test it (check points of 1 cm per
+    # axis are not 3 x as accurate as 0.5 x 5 cm)
+    rep = write_qa_report(tmp_path, standard="asprs2014", accuracy_class="H5 V5")
+    assert rep.check("check_rms_xy_m").limit == pytest.approx(0.035355, abs=1e-6)
+    assert rep.check("check_rms_xy_m").verdict == "fail"
+    assert [c for c in rep.compliance["checks"] if c["product"] == "Aerotriangulation"][0]["verdict"] == "not testable"
 
 
 def test_lidar_check_points_are_not_called_surveyed(tmp_path):
@@ -1166,9 +1201,9 @@ def test_the_compliance_check_points_name_the_report_in_a_crs_error_and_warn_onc
 @pytest.mark.parametrize("v_cm, rmsdz", [(10, "0.08"), (15, "0.12"), (5, "0.04"), (20, "0.16")])
 def test_the_asprs2014_strip_limit_prints_as_its_value(v_cm, rmsdz):
     """Reviewer 8: 0.8 x V printed as 0.08000000000000002 on the console and in summary.json (rounded where computed)."""
-    from aerotri.qa.compliance import with_asprs2014_lidar_limits
+    from aerotri.qa.compliance import with_asprs2014_limits
 
-    t = with_asprs2014_lidar_limits(load_table("1:5000", "flat"), f"H{v_cm}cm V{v_cm}cm")
+    t = with_asprs2014_limits(load_table("1:5000", "flat"), f"H{v_cm}cm V{v_cm}cm")
     assert str(t.limits["strip_rmsdz_m"]) == rmsdz and json.dumps(t.limits["strip_rmsdz_m"]) == rmsdz
 
 
