@@ -358,6 +358,11 @@ def test_strips_that_differ_are_refused_naming_the_strip_and_leave_no_output(str
     assert r.exit_code == 0, r.output
     assert "of 3 strips" in r.output and sorted(p.name for p in (tmp_path / "out").iterdir()) == [
         "strip_0.las", "strip_1.las", "strip_2.las"]
+    # the folder is replaced as a whole: a previous run's strips may go, a user's file may not (it went, exit 0)
+    (tmp_path / "out" / "notes.txt").write_text("mine")
+    with pytest.raises(OptionError, match="holds notes.txt, which lidarctl classify did not write"):
+        tiles.classify_files(paths, tmp_path / "out")
+    assert (tmp_path / "out" / "notes.txt").read_text() == "mine" and len(list((tmp_path / "out").iterdir())) == 4
 
 
 def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path):
