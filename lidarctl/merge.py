@@ -1,7 +1,8 @@
 """Merge LAS/LAZ strips into one file, chunk by chunk (bounded memory), every dimension preserved.
 
 Points keep their values; integer coordinates are re-expressed in the first file's scales and
-offsets when the strips differ. ``point_source_id`` keeps telling the strips apart.
+offsets when the strips differ (a strip with finer scales than the first is rounded to them: warned, naming
+it). ``point_source_id`` keeps telling the strips apart.
 
 CRS: with ``crs`` (the project CRS) given, a strip tagged with another horizontal CRS is refused
 (naming the file and both CRSs: it must be transformed first, never silently mixed), a strip without
@@ -11,6 +12,7 @@ must agree among themselves.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import laspy
@@ -20,6 +22,8 @@ from aerotri.core.atomic import atomic_path, refuse_input_as_output
 from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.geom.crs.definition import crs_label, horizontal_crs, parse_crs, same_horizontal, same_vertical, vertical_crs
 from aerotri.geom import las
+
+log = logging.getLogger(__name__)
 
 
 def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
@@ -42,6 +46,12 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     header = laspy.LasHeader(point_format=first.point_format, version=first.version)
     header.scales = first.scales
     header.offsets = first.offsets
+    for p, h in zip(paths[1:], headers[1:]):
+        if (np.asarray(h.scales) < np.asarray(first.scales) * (1 - 1e-9)).any():
+            # a strip of 1 mm records merged after one of 1 cm came out rounded to 1 cm without a word
+            log.warning(f"{p}: its coordinate scales {list(map(float, h.scales))} are finer than those of "
+                        f"{paths[0]} ({list(map(float, first.scales))}), which the merged file keeps: its "
+                        "coordinates are rounded to them (up to half a step); give the finest strip first")
     header.creation_date = first.creation_date
     header.global_encoding = first.global_encoding
     if project_crs is not None:

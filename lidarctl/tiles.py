@@ -77,7 +77,7 @@ import numpy as np
 
 from aerotri.geom import las
 from lidarctl import io
-from aerotri.core.atomic import atomic_dir, atomic_path, refuse_input_as_output, temporary_dir
+from aerotri.core.atomic import atomic_dir, atomic_path, refuse_foreign_contents, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError, ResourceError
 from aerotri.core.executor import local_executor
 from aerotri.core.log import progress
@@ -750,6 +750,9 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
         if out_dir.resolve() == q.resolve() or out_dir.resolve() in q.resolve().parents:
             raise OptionError(f"{q}: the input lies in the output folder {out_dir}, which is replaced as a whole; "
                               "choose another output folder", param="OUT_DIR")
+    # the folder is replaced as a whole: a previous run's classified strips may go, a user's other files may not
+    refuse_foreign_contents(out_dir, lambda e: e.is_file() and e.suffix.lower() in (".las", ".laz"),
+                            "lidarctl classify", "OUT_DIR")
     project_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else None
     check_strips(in_paths, [las.read_header(q) for q in in_paths], project_crs)
     parent = Path(work_dir) if work_dir is not None else out_dir.parent

@@ -560,3 +560,20 @@ def refuse_input_as_output(output, inputs, option: str = "output") -> None:
         if out == src:
             raise OptionError(f"{output}: the output is the input {p} (inputs are never modified; "
                               "choose another output path)", param=option)
+
+
+def refuse_foreign_contents(outdir, owned, what: str, option: str = "OUTDIR") -> None:
+    """``OptionError`` when the folder ``outdir`` (replaced as a whole by ``atomic_dir``) exists and holds an
+    entry that ``owned(entry: Path) -> bool`` does not claim as a previous output of ``what`` (e.g. "lidarctl
+    classify"): replacing it would delete a user's file without a word. A new folder, an empty one and a
+    previous output pass; ``outdir`` a file is refused too."""
+    outdir = Path(outdir)
+    if not outdir.exists():
+        return
+    if not outdir.is_dir():
+        raise OptionError(f"{outdir}: the output folder is a file; choose a new folder", param=option)
+    foreign = sorted(p.name for p in outdir.iterdir() if not owned(p))
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise OptionError(f"{outdir}: the output folder is replaced as a whole, and it holds {shown}, which "
+                          f"{what} did not write; choose a new folder (or empty this one)", param=option)

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.atomic import atomic_path
+from aerotri.core.errors import OptionError
 
 
 GPKG_VERSION = "1.2"  # the driver's VERSION creation option (AUTO, 1.0 ... 1.4)
@@ -73,6 +74,27 @@ def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | N
                   append=i > 0, dataset_options={"VERSION": GPKG_VERSION} if gpkg else None,
                   layer_options={"SPATIAL_INDEX": "YES"} if gpkg else None)
     return path
+
+
+def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> None:
+    """``OptionError`` when the GeoPackage ``path`` exists and holds a layer not in ``layer_names`` (what
+    ``what``, e.g. "lidarctl contours", writes there), or is not a GeoPackage GDAL reads: ``write_layers``
+    replaces the whole file, so a user's other layers would go without a word. Other formats hold one layer
+    and are replaced as before."""
+    import pyogrio
+
+    path = Path(path)
+    if not path.exists() or DRIVERS.get(path.suffix.lower()) != "GPKG":
+        return
+    try:
+        present = [str(name) for name, _ in pyogrio.list_layers(path)]
+    except Exception:  # pyogrio's DataSourceError and kin: not a GeoPackage
+        raise OptionError(f"{path}: exists and is not a GeoPackage GDAL can read; it would be replaced as a "
+                          "whole: choose another file name", param=option) from None
+    foreign = [name for name in present if name not in layer_names]
+    if foreign:
+        raise OptionError(f"{path}: the file is replaced as a whole, and it holds the layer(s) {', '.join(foreign)}, "
+                          f"which {what} does not write; choose another file name", param=option)
 
 
 @contextlib.contextmanager

@@ -727,6 +727,7 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     for p in paths:
         refuse_input_as_output(outdir / p.name, paths, "OUTDIR")
+    chk.refuse_replacing(outdir, paths)
     if len({p.name for p in paths}) < len(paths):
         raise InputError("strips with the same file name: the corrected strips are written under their names")
     # the check's slope limit for the reports; the adjustment reads steeper cells too

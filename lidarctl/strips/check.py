@@ -27,7 +27,8 @@ from typing import Mapping
 import numpy as np
 import pyproj
 
-from aerotri.core.atomic import atomic_dir, refuse_input_as_output
+from aerotri.core.atomic import atomic_dir, refuse_foreign_contents, refuse_input_as_output
+from aerotri.core.errors import OptionError
 from aerotri.core.records import to_record
 from aerotri.core.textio import read_record, record_error
 from aerotri.core.figures import pyplot, save_png
@@ -247,6 +248,28 @@ def read_strip_check(path) -> StripCheckResult | None:
         return _check_of(d)
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, STRIP_CHECK, exc) from None
+
+
+def owned_by_strips(entry: Path) -> bool:
+    """Whether ``entry`` in an OUTDIR of ``strips check`` / ``strips adjust`` (the chain's lidar_out/strips/ holds
+    either) is what one of them writes there: the folder is replaced as a whole, anything else is refused
+    (``aerotri.core.atomic.refuse_foreign_contents``)."""
+    name = entry.name
+    if entry.is_dir():
+        return name in ("check_before", "check_after")
+    return (name in ("index.html", "overview.png", "strips.json", "adjust.json")
+            or (name.startswith("diff_") and entry.suffix in (".tif", ".png"))
+            or entry.suffix.lower() in (".las", ".laz"))  # adjust's corrected strips
+
+
+def refuse_replacing(outdir: Path, paths) -> None:
+    """OptionError when OUTDIR, which is replaced as a whole, holds an input strip or a file neither strips
+    command writes (``lidarctl strips check lidar/*.las lidar`` deleted the strips it had read)."""
+    for q in map(Path, paths):
+        if outdir.resolve() == q.resolve() or outdir.resolve() in q.resolve().parents:
+            raise OptionError(f"{q}: the input lies in the output folder {outdir}, which is replaced as a whole; "
+                              "choose another output folder", param="OUTDIR")
+    refuse_foreign_contents(outdir, owned_by_strips, "lidarctl strips", "OUTDIR")
 
 
 def record_nothing_compared(folder: Path, why: str) -> None:
@@ -470,6 +493,7 @@ def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), *, 
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
     refuse_input_as_output(outdir, paths, "OUTDIR")
+    refuse_replacing(outdir, paths)
     from aerotri.geom.inputs import check_distinct_files
 
     check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice

@@ -364,12 +364,14 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
     ``interval_m`` in metres, traced in the DEM's height unit (its CRS's: 0.3048 m is 1 ft on a DEM in feet).
     Returns the summary (counts, fall-backs, crossings, the interval in the DEM's unit and that unit)."""
     from aerotri.geom.crs.definition import length_in_units, length_unit_name, unit_name
+    from aerotri.core.vector_files import refuse_foreign_layers
     from lidarctl.terrain.dem_io import open_dem
 
     if not (np.isfinite(interval_m) and interval_m > 0):
         raise OptionError(f"the contour interval must be a positive number of metres, got {interval_m}",
                           param="--interval-m")
     dem_path, out_path = Path(dem_path), Path(out_path)
+    refuse_foreign_layers(out_path, ("contours",), "lidarctl contours")
     src, z_m = open_dem(dem_path, out_path)
     interval = length_in_units(interval_m, z_m)
     with src:

@@ -772,6 +772,10 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     return MapVectors(layers, pts.crs, units, counts, extent)
 
 
+# every layer ``extract_vectors`` can write (contours only with --dem or --contours)
+LAYER_NAMES = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours")
+
+
 def write_vectors(mv: MapVectors, path) -> Path:
     """All layers into one GeoPackage, with the CRS on each, written atomically (an empty layer is written
     with its fields, so a reader finds every layer)."""
@@ -802,6 +806,9 @@ def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSet
             raise InputError(f"{q}: no such file")
     if out_path.suffix.lower() != ".gpkg":
         raise OptionError(f"{out_path}: the output must end in .gpkg", param="OUT")
+    from aerotri.core.vector_files import refuse_foreign_layers
+
+    refuse_foreign_layers(out_path, LAYER_NAMES, "lidarctl vectors")
     if image is not None:
         _check_raster(Path(image))
     mv = extract_vectors(paths, out_path, params, crs=crs, dem=dem, contours=contours)

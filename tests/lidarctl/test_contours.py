@@ -252,3 +252,31 @@ def test_a_cell_exactly_at_a_level_gives_no_one_point_line(tmp_path):
     assert r.exit_code == 0, r.output
     g = shapely.from_wkb(pyogrio.raw.read(tmp_path / "c.gpkg", layer="contours")[2])
     assert len(g) and shapely.is_valid(g).all()
+
+
+def test_a_geopackage_with_other_layers_is_not_replaced(tmp_path):
+    """`contours DEM mine.gpkg` replaced the user's GeoPackage with its other layers (trial-lidar: a 'roads'
+    layer gone, exit 0); now refused naming the layers, the file unchanged; its own output is replaced."""
+    import shapely
+    from pyogrio import list_layers
+    from pyogrio.raw import write
+
+    z, t = _dem()
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=500, height=400, count=1, dtype="float32",
+                       crs="EPSG:32631", transform=t, nodata=-9999.0) as d:
+        d.write(np.where(np.isfinite(z), z, -9999.0).astype("float32"), 1)
+    mine = tmp_path / "mine.gpkg"
+    write(str(mine), np.array([shapely.to_wkb(shapely.Point(10.0, 20.0))], dtype=object), field_data=[np.array([1])],
+          fields=["a"], layer="roads", driver="GPKG", geometry_type="Point", crs="EPSG:32631")
+    before = mine.read_bytes()
+    run = ["contours", str(tmp_path / "dem.tif"), None, "--interval-m", "2", "--no-png"]
+    r = CliRunner().invoke(main, [a if a is not None else str(mine) for a in run])
+    assert r.exit_code == 2 and "roads" in r.output and "Traceback" not in r.output
+    assert mine.read_bytes() == before
+    (tmp_path / "junk.gpkg").write_text("not a GeoPackage")
+    r = CliRunner().invoke(main, [a if a is not None else str(tmp_path / "junk.gpkg") for a in run])
+    assert r.exit_code == 2 and "not a GeoPackage" in r.output
+    for _ in range(2):  # a previous contours file is replaced
+        r = CliRunner().invoke(main, [a if a is not None else str(tmp_path / "c.gpkg") for a in run])
+        assert r.exit_code == 0, r.output
+    assert [str(n) for n, _ in list_layers(tmp_path / "c.gpkg")] == ["contours"]

@@ -358,6 +358,11 @@ def test_strips_that_differ_are_refused_naming_the_strip_and_leave_no_output(str
     assert r.exit_code == 0, r.output
     assert "of 3 strips" in r.output and sorted(p.name for p in (tmp_path / "out").iterdir()) == [
         "strip_0.las", "strip_1.las", "strip_2.las"]
+    # the folder is replaced as a whole: a previous run's strips may go, a user's file may not (it went, exit 0)
+    (tmp_path / "out" / "notes.txt").write_text("mine")
+    with pytest.raises(OptionError, match="holds notes.txt, which lidarctl classify did not write"):
+        tiles.classify_files(paths, tmp_path / "out")
+    assert (tmp_path / "out" / "notes.txt").read_text() == "mine" and len(list((tmp_path / "out").iterdir())) == 4
 
 
 def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path):
@@ -385,3 +390,34 @@ def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path
     merged = heights_check.check_heights_file(tmp_path / "merged.las", csv)
     assert heights_check.check_heights_file(classified, csv) == merged and merged.document["overall"]["all"]["n"] > 10
     assert merged.record.n_checked == merged.document["overall"]["all"]["n"]
+
+
+def test_merging_a_finer_strip_after_a_coarser_one_warns_with_the_rounding(strips, tmp_path, caplog):
+    """`lidarctl merge` keeps the first strip's scales: a 1 mm strip after a 1 cm one came out rounded to 1 cm
+    (trial-lidar, Autzen halves: up to 0.004 ft) without a word; now a warning names the strip and both scales."""
+    import logging
+
+    from lidarctl.merge import merge_las
+
+    d, paths = strips
+    fine = laspy.read(paths[1])
+    header = laspy.LasHeader(version=fine.header.version, point_format=fine.header.point_format)
+    header.scales, header.offsets = np.full(3, 0.0001), fine.header.offsets
+    header.vlrs = list(fine.header.vlrs)
+    out = laspy.LasData(header)
+    out.points = laspy.ScaleAwarePointRecord.zeros(len(fine.points), header=header)
+    for name in fine.point_format.dimension_names:
+        if name not in ("X", "Y", "Z"):
+            out[name] = fine[name]
+    out.x, out.y, out.z = fine.x + 0.0003, fine.y, fine.z + 0.0003  # values a 1 mm grid cannot hold
+    out.write(tmp_path / "fine.las")
+    with caplog.at_level(logging.WARNING, logger="lidarctl.merge"):
+        merge_las([paths[0], tmp_path / "fine.las"], tmp_path / "m1.las")
+    assert "fine.las: its coordinate scales [0.0001, 0.0001, 0.0001] are finer" in caplog.text
+    merged = laspy.read(tmp_path / "m1.las")
+    dz = np.asarray(merged.z)[-len(fine.points):] - np.asarray(out.z)
+    assert 0.0002 < np.max(np.abs(dz)) <= 0.0005 + 1e-9  # the rounding the warning speaks of
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="lidarctl.merge"):
+        merge_las([tmp_path / "fine.las", paths[0]], tmp_path / "m2.las")  # finest first: nothing lost, no word
+    assert "finer" not in caplog.text

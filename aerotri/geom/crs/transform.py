@@ -222,6 +222,8 @@ class CrsTransformer:
         self.heights_inverse = heights_inverse  # h = H + zeta (the inverse of a normal-height operation)
         self.n_outside_fit_extent = 0
         self.n_points = 0
+        # the spatial set's change of the ellipsoidal heights (sum, count), said beside a height model
+        self._dh_sum_m, self._dh_n = 0.0, 0
         legs = []
         if params is None:
             legs.append(_ProjLeg(self.src, self.dst, allow_ballpark))
@@ -340,6 +342,10 @@ class CrsTransformer:
                 X, Y, Z = self._legs[1](XYZ[:, 0], XYZ[:, 1], XYZ[:, 2])
             else:
                 lat, lon, h = geocentric_to_geodetic(XYZ[:, 0], XYZ[:, 1], XYZ[:, 2], self._ell_to)
+                if self.heights is not None and not self._p_from.is_geocentric:
+                    dh = h - self._legs[0](x, y, z)[2]
+                    self._dh_sum_m += float(np.sum(dh[np.isfinite(dh)]))
+                    self._dh_n += int(np.count_nonzero(np.isfinite(dh)))
                 X, Y, Z = self._legs[1](lon, lat, h)
         if self.heights is not None:
             if self._height_leg is not None:
@@ -359,6 +365,17 @@ class CrsTransformer:
     @property
     def warnings(self) -> list:
         out = list(self.notes)
+        if self._dh_n:
+            # The same GNSS-levelling model gave right normal heights through a 4-parameter set and 118.8 m wrong
+            # ones through a 7-parameter set (WGS 84 -> Xian 1980 at Yichang, trial-lidar), without a word.
+            dh = self._dh_sum_m / self._dh_n
+            normal = self._p_from if self.heights_inverse else self._p_to  # the side whose heights are normal
+            other = self._p_to if self.heights_inverse else self._p_from
+            out.append(
+                f"heights: the {self.params.model} set changed the ellipsoidal heights by {dh:+.3f} m (mean over "
+                f"{self._dh_n} points); the height model's zeta = h - H is taken with h on the ellipsoid of "
+                f"{normal.datum.name}: a model fitted from h on {other.datum.name} puts the heights {abs(dh):.3f} m "
+                "off (docs/datums.md)")
         if self.n_outside_fit_extent:
             out.append(
                 f"{self.n_outside_fit_extent} of {self.n_points} points lie outside the area of the common points "

@@ -224,3 +224,43 @@ def test_transform_las_refuses_an_unreadable_vertical_units_key(tmp_path):
     r = _run("transform", src, tmp_path / "o.las", "--to", "32650")
     assert r.exit_code == 2 and "nosize.las" in r.output and "GeogLinearUnitSizeGeoKey (2053)" in r.output, r.output
     assert r.output.strip().count("\n") == 0 and not (tmp_path / "o.las").exists()
+
+
+def test_a_height_model_through_a_7_parameter_set_says_on_which_ellipsoid_it_is_taken(tmp_path, common_points):
+    """zeta = h - H from GNSS levelling (h on WGS 84) gave right normal heights through a 4-parameter set and heights
+    118.8 m off through the 7-parameter set of the same common points, exit 0 and no word (trial-lidar): the
+    spatial set moves h onto Xian 1980's ellipsoid before zeta is taken off. The transform now says so, with the
+    change."""
+    import pyproj
+
+    path, _, _ = common_points
+    for model in ("bursa-wolf7", "helmert2d"):
+        assert _run("fit", path, "--model", model, "--from", "32649", "--to", "2361", "-o",
+                    tmp_path / f"{model}.json").exit_code == 0
+    rng = np.random.default_rng(4)
+    lon, lat, h = rng.uniform(109.7, 110.1, 12), rng.uniform(34.1, 34.4, 12), rng.uniform(400, 900, 12)
+    zeta = -12.0 + 0.8 * (lon - 109.9) - 0.5 * (lat - 34.25)  # of WGS 84: the GNSS heights minus the levelled ones
+    e, n = pyproj.Transformer.from_crs(4326, 32649, always_xy=True).transform(lon, lat)
+    T = Transformation("bursa-wolf7", dict(TRUE_BURSA_WOLF7), "EPSG:32649", "EPSG:2361")
+    X, Y, _ = CrsTransformer(32649, 2361, params=T).transform(e, n, h)
+    lev = tmp_path / "levelling.csv"
+    lev.write_text("id,x,y,h,H\n" + "".join(f"L{i},{X[i]:.3f},{Y[i]:.3f},{h[i]:.4f},{h[i] - zeta[i]:.4f}\n"
+                                            for i in range(8)))
+    assert _run("fit-heights", lev, "--model", "plane", "--epsg", "2361", "-o", tmp_path / "zeta.json").exit_code == 0
+    pts = tmp_path / "pts.csv"
+    pts.write_text("id,x,y,z\n" + "".join(f"C{i},{e[i]:.3f},{n[i]:.3f},{h[i]:.4f}\n" for i in range(8, 12)))
+    got = {}
+    for model in ("helmert2d", "bursa-wolf7"):
+        r = _run("transform", pts, tmp_path / f"{model}.csv", "--from", "32649", "--to", "2361", "--params",
+                 tmp_path / f"{model}.json", "--heights", tmp_path / "zeta.json")
+        assert r.exit_code == 0, r.output
+        got[model] = np.array([float(ln.split(",")[3]) for ln in (tmp_path / f"{model}.csv").read_text().splitlines()[1:]])
+        said = "the ellipsoid of Xian 1980" in r.output
+        assert said == (model == "bursa-wolf7"), r.output
+    assert np.max(np.abs(got["helmert2d"] - (h - zeta)[8:])) < 0.01  # h unchanged, the GNSS model fits
+    dh = got["bursa-wolf7"] - (h - zeta)[8:]  # h moved onto Xian's ellipsoid first
+    assert np.all(np.abs(dh) > 50.0)
+    import re
+
+    said = float(re.search(r"changed the ellipsoidal heights by ([-+0-9.]+) m", r.output).group(1))
+    assert abs(said - np.mean(dh)) < 0.01  # the message's number is the error a GNSS model makes

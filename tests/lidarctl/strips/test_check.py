@@ -345,3 +345,30 @@ def test_the_plan_sigmas_are_said_to_be_formal_also_when_unwarned(clean_block, t
     assert sigma_text(0.00049) == "0.0005" and sigma_text(0.0123) == "0.012"
     w = rigid_fit_warning(o)                                          # a 2.3 cm trend: warned
     assert "-0.023 +- 0.0005 m across the overlap" in w and w.endswith(FORMAL_SIGMAS)
+
+
+def test_an_outdir_holding_the_strips_or_a_users_file_is_refused_and_kept(clean_block, tmp_path):
+    """OUTDIR is replaced as a whole: `strips check raw/*.las raw` deleted the strips it had read (trial-lidar,
+    AHN3 split in two), and a user's file in OUTDIR went without a word. Both refused (exit 2), nothing deleted;
+    a previous check or adjustment in OUTDIR is replaced as before."""
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    strips = []
+    for p in clean_block.paths[:2]:
+        strips.append(raw / p.name)
+        strips[-1].write_bytes(p.read_bytes())
+    r = _check(strips, raw)
+    assert r.exit_code == 2 and "the input lies in the output folder" in r.output and "Traceback" not in r.output
+    assert sorted(p.name for p in raw.iterdir()) == sorted(p.name for p in strips)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    for cmd in ("check", "adjust"):
+        r = CliRunner().invoke(main, ["strips", cmd, *map(str, strips), str(out)])
+        assert r.exit_code == 2 and "notes.txt" in r.output and "Traceback" not in r.output, r.output
+        assert (out / "notes.txt").read_text() == "mine" and len(list(out.iterdir())) == 1
+    (out / "notes.txt").unlink()
+    for cmd in ("adjust", "check"):  # the chain's lidar_out/strips/ holds either
+        r = CliRunner().invoke(main, ["strips", cmd, *map(str, strips), str(out)])
+        assert r.exit_code == 0, r.output
+    assert (out / "strips.json").is_file() and not (out / "adjust.json").exists()
