@@ -74,7 +74,8 @@ def _as_3d(crs: pyproj.CRS) -> pyproj.CRS:
 def datum_name(crs: pyproj.CRS) -> str:
     """The name of the geodetic datum (or datum ensemble) of ``crs``: whose ellipsoid its heights h are on."""
     crs = horizontal_crs(crs)
-    return (crs if crs.is_geocentric or crs.geodetic_crs is None else crs.geodetic_crs).datum.name
+    datum = (crs if crs.is_geocentric or crs.geodetic_crs is None else crs.geodetic_crs).datum
+    return crs.name if datum is None else datum.name  # an engineering CRS: no ellipsoid, its own name
 
 
 def is_ballpark(transformer: pyproj.Transformer) -> bool:
