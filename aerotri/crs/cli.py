@@ -77,22 +77,46 @@ def fit_cmd(common_points, model, from_epsg, to_epsg, output):
 @click.argument("points", type=click.Path(dir_okay=False))
 @click.option("--model", type=click.Choice(HEIGHT_MODELS), default="plane", show_default=True)
 @click.option("--epsg", "epsg", help="EPSG code of the points' x, y (a metre grid); recorded in the model file. Without it, 'crs transform' evaluates the model on the output coordinates")
+@click.option("--h-crs", "h_crs", help="geographic CRS (datum) of the points' ellipsoidal heights h, e.g. EPSG:4326 for "
+              "GNSS heights on WGS 84; recorded in the model file, which is then applied on h of that datum "
+              "[the datum of --epsg]")
 @click.option("--smoothing", type=at_least(0.0), default=0.0, show_default=True,
               help="tps smoothing, >= 0 (0 interpolates)")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="model file (JSON); default <input>.<model>.json")
-def fit_heights_cmd(points, model, epsg, smoothing, output):
+def fit_heights_cmd(points, model, epsg, h_crs, smoothing, output):
     """Height anomaly surface zeta = h - H from points with ellipsoidal and normal heights."""
     out = Path(output) if output else Path(points).with_suffix(f".{model}.json")
     refuse_input_as_output(out, [points], "-o")
+    h_geo = _h_crs(h_crs, epsg)
     ids, x, y, h, H = read_height_points(points, epsg)
     label = crs_label(parse_crs(epsg, "--epsg")) if epsg else None
+    h_label = None if h_geo is None else (crs_label(h_geo) if crs_label(h_geo).startswith("EPSG:") else h_geo.to_wkt())
     try:
-        res = fit_height_anomaly(ids, x, y, h, H, model=model, smoothing=smoothing, crs=label)
+        res = fit_height_anomaly(ids, x, y, h, H, model=model, smoothing=smoothing, crs=label, h_crs=h_label)
     except InputError as exc:
         raise InputError(f"{points}: {exc}") from None
     write_text_atomic(out, res.to_json())
     click.echo(_height_fit_table(model, points, ids, res))
+    if h_geo is not None:
+        click.echo(f"h taken as ellipsoidal heights on {h_geo.datum.name} ({crs_label(h_geo)}"
+                   f"{'' if h_crs else ', the datum of --epsg; else give --h-crs'}): the model is applied on h of "
+                   "that datum")
+    else:
+        click.echo("the datum of h is not recorded (no --h-crs or --epsg): the model is applied on the h a "
+                   "transformation ends with (docs/datums.md)")
     click.echo(f"Model written to {out}")
+
+
+def _h_crs(h_crs, epsg):
+    """The geographic CRS of the levelling points' h: --h-crs, else --epsg's own; None without either."""
+    if h_crs is None and epsg is None:
+        return None
+    c = parse_crs(h_crs if h_crs is not None else epsg, "--h-crs" if h_crs is not None else "--epsg")
+    if c.is_geocentric:
+        return c
+    if c.geodetic_crs is None:
+        raise InputError(f"--h-crs {crs_label(c)}: not a CRS with a geodetic datum (expected e.g. EPSG:4326)")
+    return c.geodetic_crs
 
 
 def _height_fit_table(model, points, ids, res) -> str:

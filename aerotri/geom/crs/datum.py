@@ -210,7 +210,9 @@ def height_design_matrix(dx_km, dy_km, model):
 
 @dataclasses.dataclass
 class HeightAnomalyModel:
-    """zeta(x, y) in metres; ``crs`` names the horizontal CRS of x, y (e.g. ``EPSG:2361``)."""
+    """zeta(x, y) in metres; ``crs`` names the horizontal CRS of x, y (e.g. ``EPSG:2361``), ``h_crs`` the geographic
+    CRS whose ellipsoidal heights h the model was fitted on (e.g. ``EPSG:4326``: GNSS heights on WGS 84); None in
+    files written before it was recorded (the operation then takes h on whichever ellipsoid it has them)."""
 
     model: str
     origin_m: tuple
@@ -218,6 +220,7 @@ class HeightAnomalyModel:
     points_m: list | None = None  # tps: [[x, y, zeta], ...]
     smoothing: float = 0.0
     crs: str | None = None
+    h_crs: str | None = None
 
     def __post_init__(self):
         if self.model not in HEIGHT_MODELS:
@@ -242,6 +245,11 @@ class HeightAnomalyModel:
 
     def to_dict(self) -> dict:
         d = {"model": self.model, "crs": self.crs, "origin_m": list(map(float, self.origin_m))}
+        if self.h_crs is not None:
+            import pyproj
+
+            d["h_crs"] = self.h_crs
+            d["h_datum"] = pyproj.CRS(self.h_crs).datum.name  # for the reader; h_crs is what is read
         if self.coefficients is not None:
             d["coefficients"] = [float(c) for c in self.coefficients]
             d["coefficient_units"] = "m, m/km, m/km^2 for 1, dx, dy, dx^2, dx dy, dy^2 (dx, dy in km)"
@@ -260,6 +268,7 @@ class HeightAnomalyModel:
                 points_m=d.get("points_m"),
                 smoothing=float(d.get("smoothing", 0.0)),
                 crs=d.get("crs"),
+                h_crs=d.get("h_crs"),
             )
         except (KeyError, TypeError) as exc:
             raise InputError(f"{source}: not a height anomaly model file ({exc!r})") from None

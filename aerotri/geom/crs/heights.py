@@ -62,8 +62,9 @@ class HeightFitResult:
 
 
 def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothing: float = 0.0,
-                       crs: str | None = None) -> HeightFitResult:
-    """Fit zeta = h - H over the points; see the module docstring for the models."""
+                       crs: str | None = None, h_crs: str | None = None) -> HeightFitResult:
+    """Fit zeta = h - H over the points; see the module docstring for the models. ``crs``: the CRS of x, y;
+    ``h_crs``: the geographic CRS of h (its datum's ellipsoid is the one the model is applied on), recorded."""
     from aerotri.geom.crs.fit import geometry_warnings
 
     if model not in HEIGHT_MODELS:
@@ -94,12 +95,13 @@ def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothi
         with np.errstate(divide="ignore", invalid="ignore"):
             loo = np.where(hat < 1 - 1e-9, res / (1.0 - hat), np.nan)  # exact leave-one-out
         sigma0 = float(np.sqrt(res @ res / r)) if r > 0 else float("nan")
-        hm = HeightAnomalyModel(model, origin, coefficients=c.tolist(), crs=crs)
+        hm = HeightAnomalyModel(model, origin, coefficients=c.tolist(), crs=crs, h_crs=h_crs)
         if r == 0:
             warns.append(f"no redundancy: {n} points is the minimum for {model}; residuals are zero")
     else:
         pts = np.column_stack([x, y, zeta])
-        hm = HeightAnomalyModel(model, origin, points_m=pts.tolist(), smoothing=smoothing, crs=crs)
+        hm = HeightAnomalyModel(model, origin, points_m=pts.tolist(), smoothing=smoothing, crs=crs,
+                                h_crs=h_crs)
         try:
             res = hm.zeta_m(x, y) - zeta
         except (np.linalg.LinAlgError, ValueError) as exc:

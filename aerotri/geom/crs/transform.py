@@ -8,7 +8,10 @@ applied to arrays. It chains
 2. the fitted parameter set (``aerotri.geom.crs.datum.Transformation``, from ``aerotri crs fit``): on grid
    coordinates for the plane models, on geocentric XYZ for the spatial models,
 3. a PROJ operation from the parameter set's target CRS into ``to_crs``,
-4. optionally the height anomaly model (``aerotri crs fit-heights``): H = h - zeta(x, y).
+4. optionally the height anomaly model (``aerotri crs fit-heights``): H = h - zeta(x, y), with h on the
+   ellipsoid the model was fitted on (its ``h_crs``): taken where the chain has h on that datum (the input,
+   before or after the parameter set, the output); a model recorded on a datum the operation has no h of is
+   refused. A model file without the record takes the output's h (the spatial set's change said in a warning).
 
 The policy:
 
@@ -39,7 +42,8 @@ import pyproj
 from pyproj.transformer import TransformerGroup
 
 from aerotri.core.errors import CrsError
-from aerotri.geom.crs.definition import crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal
+from aerotri.geom.crs.definition import (crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m,
+                                         parse_crs, same_horizontal, vertical_crs)
 from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation, outside_extent
 from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 
@@ -65,6 +69,13 @@ def _as_3d(crs: pyproj.CRS) -> pyproj.CRS:
     if crs.is_compound or crs.is_geocentric or len(crs.axis_info) >= 3:
         return crs
     return crs.to_3d()
+
+
+def datum_name(crs: pyproj.CRS) -> str:
+    """The name of the geodetic datum (or datum ensemble) of ``crs``: whose ellipsoid its heights h are on."""
+    crs = horizontal_crs(crs)
+    datum = (crs if crs.is_geocentric or crs.geodetic_crs is None else crs.geodetic_crs).datum
+    return crs.name if datum is None else datum.name  # an engineering CRS: no ellipsoid, its own name
 
 
 def is_ballpark(transformer: pyproj.Transformer) -> bool:
@@ -262,6 +273,33 @@ class CrsTransformer:
             self._heights_crs = self.dst
         self.ballpark = any(leg.ballpark for leg in legs)
         self.notes = [n for leg in legs for n in leg.notes]
+        self._h_stage = self._height_stage() if heights is not None and heights.h_crs else None
+
+    def _height_stage(self) -> str:
+        """Where the chain has ellipsoidal heights on the datum of the height model's h: ``in`` (the input),
+        ``from``/``to`` (before/after the parameter set), ``out`` (the output); CrsError when nowhere."""
+        model_datum = datum_name(parse_crs(self.heights.h_crs, "height model h_crs"))
+        if self.params is None:
+            stages = [("in", self.src), ("out", self.dst)]
+        elif self.params.spatial:
+            stages = [("in", self.src), ("from", self._p_from), ("to", self._p_to), ("out", self.dst)]
+        elif self.heights_inverse:  # a plane set leaves h alone: they are the (ellipsoidal) output side's
+            stages = [("to", self._p_to), ("out", self.dst)]
+        else:
+            stages = [("in", self.src), ("from", self._p_from)]
+        stages = [(name, c) for name, c in stages if vertical_crs(c) is None]  # heights above a geoid are no h
+        for name, c in stages:
+            if datum_name(c) == model_datum:
+                return name
+        have = list(dict.fromkeys(datum_name(c) for _, c in stages))
+        why = ""
+        if self.params is not None and not self.params.spatial:
+            why = (f" (a plane set, {self.params.model}, leaves them unchanged; a spatial set, bursa-wolf7 or "
+                   "translation3, has them on both datums)")
+        raise CrsError(
+            f"height model: fitted on ellipsoidal heights of {model_datum} (h_crs {self.heights.h_crs}), but "
+            f"{crs_label(self.src)} -> {crs_label(self.dst)} has ellipsoidal heights only on {' and '.join(have)}"
+            f"{why}; if the model's h are of another datum, fit it again with --h-crs naming it (crs fit-heights)")
 
     @property
     def identity(self) -> bool:
@@ -306,7 +344,11 @@ class CrsTransformer:
                              "parameters": {k: float(v) for k, v in self.params.parameters.items()}})
         if self.heights is not None:
             steps.append({"step": "height anomaly", "model": self.heights.model,
-                          "formula": "h = H + zeta(x, y)" if self.heights_inverse else "H = h - zeta(x, y)"})
+                          "formula": "h = H + zeta(x, y)" if self.heights_inverse else "H = h - zeta(x, y)",
+                          "h_crs": self.heights.h_crs, "h_taken": {None: "output (h_crs not recorded)",
+                                                                   "in": "input", "from": "before the parameters",
+                                                                   "to": "after the parameters",
+                                                                   "out": "output"}[self._h_stage]})
         # heights go in and out in these units (a 2D foot grid's heights are feet, whatever the PROJ
         # pipeline's own z unit says: the legs scale z around it)
         z_units = {"from": length_unit_name(height_unit_m(self.src), long=True),
@@ -321,10 +363,12 @@ class CrsTransformer:
         z = np.zeros_like(x) if z is None else np.atleast_1d(np.asarray(z, dtype=float))
         x_in, y_in = x, y
         self.n_points += len(x)
+        h_m = {"in": z * z_unit_m(self.src)}  # the ellipsoidal heights along the chain, metres, by stage
         if self.params is None:
             X, Y, Z = self._legs[0](x, y, z)
         elif not self.params.spatial:
             a, b, c = self._legs[0](x, y, z)
+            h_m["from"] = h_m["to"] = c
             self._count_outside(a, b)
             ab = self.params.apply(np.column_stack([a, b]))
             X, Y, Z = self._legs[1](ab[:, 0], ab[:, 1], c)
@@ -334,15 +378,21 @@ class CrsTransformer:
                 self._count_outside(a, b)
             if self._p_from.is_geocentric:
                 XYZ = np.column_stack(self._legs[0](x, y, z))
+                if self._h_stage == "from":
+                    h_m["from"] = geocentric_to_geodetic(XYZ[:, 0], XYZ[:, 1], XYZ[:, 2], self._ell_from)[2]
             else:
                 lon, lat, h = self._legs[0](x, y, z)
+                h_m["from"] = h
                 XYZ = np.column_stack(geodetic_to_geocentric(lat, lon, h, self._ell_from))
             XYZ = self.params.apply(XYZ)
             if self._p_to.is_geocentric:
+                if self._h_stage == "to":
+                    h_m["to"] = geocentric_to_geodetic(XYZ[:, 0], XYZ[:, 1], XYZ[:, 2], self._ell_to)[2]
                 X, Y, Z = self._legs[1](XYZ[:, 0], XYZ[:, 1], XYZ[:, 2])
             else:
                 lat, lon, h = geocentric_to_geodetic(XYZ[:, 0], XYZ[:, 1], XYZ[:, 2], self._ell_to)
-                if self.heights is not None and not self._p_from.is_geocentric:
+                h_m["to"] = h
+                if self.heights is not None and self._h_stage is None and not self._p_from.is_geocentric:
                     dh = h - self._legs[0](x, y, z)[2]
                     self._dh_sum_m += float(np.sum(dh[np.isfinite(dh)]))
                     self._dh_n += int(np.count_nonzero(np.isfinite(dh)))
@@ -355,7 +405,18 @@ class CrsTransformer:
             else:
                 hx, hy = X, Y
             zeta = self.heights.zeta_m(hx, hy) / z_unit_m(self.dst)
-            Z = Z + zeta if self.heights_inverse else Z - zeta
+            if self._h_stage is None:  # a model file without h_crs: on the output's h (the trial's 118.8 m)
+                Z = Z + zeta if self.heights_inverse else Z - zeta
+            else:
+                u = z_unit_m(self.dst)
+                h_m["out"] = Z * u
+                if self.heights_inverse:
+                    # the normal heights went through the chain as if they were h; each step moved them by its
+                    # change of h (independent of h to 1e-5 of zeta): h = H + zeta on the model's datum, then on
+                    # by the steps after that stage
+                    Z = Z + (h_m["in"] - h_m[self._h_stage]) / u + zeta
+                else:
+                    Z = h_m[self._h_stage] / u - zeta
         return X, Y, Z
 
     def _count_outside(self, a, b):

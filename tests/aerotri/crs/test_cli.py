@@ -9,7 +9,7 @@ from click.testing import CliRunner
 from aerotri.crs.cli import crs
 from aerotri.geom.crs.synthetic import TRUE_BURSA_WOLF7, TRUE_HELMERT2D, simulate_plane, simulate_spatial, write_common_points
 from aerotri.geom.crs.transform import CrsTransformer
-from aerotri.geom.crs.datum import Transformation
+from aerotri.geom.crs.datum import Transformation, load_height_model, load_transformation
 
 
 def _run(*args):
@@ -226,11 +226,12 @@ def test_transform_las_refuses_an_unreadable_vertical_units_key(tmp_path):
     assert r.output.strip().count("\n") == 0 and not (tmp_path / "o.las").exists()
 
 
-def test_a_height_model_through_a_7_parameter_set_says_on_which_ellipsoid_it_is_taken(tmp_path, common_points):
-    """zeta = h - H from GNSS levelling (h on WGS 84) gave right normal heights through a 4-parameter set and heights
-    118.8 m off through the 7-parameter set of the same common points, exit 0 and no word (trial-lidar): the
-    spatial set moves h onto Xian 1980's ellipsoid before zeta is taken off. The transform now says so, with the
-    change."""
+@pytest.fixture
+def yichang_levelling(tmp_path, common_points):
+    """The trial's simulated GNSS levelling near Yichang: 12 points with h on WGS 84 and zeta = h - H of WGS 84
+    (truth); 8 make the levelling file (x, y on Xian 1980 zone 37), 4 are held out (WGS 84 UTM 49N, their h).
+    Both parameter sets fitted from the common points. Returns (levelling file, held-out file, h, H of the 4,
+    h on Xian 1980's ellipsoid of the 8)."""
     import pyproj
 
     path, _, _ = common_points
@@ -242,25 +243,135 @@ def test_a_height_model_through_a_7_parameter_set_says_on_which_ellipsoid_it_is_
     zeta = -12.0 + 0.8 * (lon - 109.9) - 0.5 * (lat - 34.25)  # of WGS 84: the GNSS heights minus the levelled ones
     e, n = pyproj.Transformer.from_crs(4326, 32649, always_xy=True).transform(lon, lat)
     T = Transformation("bursa-wolf7", dict(TRUE_BURSA_WOLF7), "EPSG:32649", "EPSG:2361")
-    X, Y, _ = CrsTransformer(32649, 2361, params=T).transform(e, n, h)
+    X, Y, h_xian = CrsTransformer(32649, 2361, params=T).transform(e, n, h)
     lev = tmp_path / "levelling.csv"
     lev.write_text("id,x,y,h,H\n" + "".join(f"L{i},{X[i]:.3f},{Y[i]:.3f},{h[i]:.4f},{h[i] - zeta[i]:.4f}\n"
                                             for i in range(8)))
-    assert _run("fit-heights", lev, "--model", "plane", "--epsg", "2361", "-o", tmp_path / "zeta.json").exit_code == 0
     pts = tmp_path / "pts.csv"
     pts.write_text("id,x,y,z\n" + "".join(f"C{i},{e[i]:.3f},{n[i]:.3f},{h[i]:.4f}\n" for i in range(8, 12)))
+    return lev, pts, h[8:], (h - zeta)[8:], h_xian[:8]
+
+
+def _heights_through(tmp_path, model, pts, zeta_file, to="2361", frm="32649", name="out"):
+    out = tmp_path / f"{model}_{zeta_file.stem}_{name}.csv"
+    r = _run("transform", pts, out, "--from", frm, "--to", to, "--params", tmp_path / f"{model}.json",
+             "--heights", zeta_file)
+    z = None if r.exit_code else np.array([float(ln.split(",")[3]) for ln in out.read_text().splitlines()[1:]])
+    return r, z, out
+
+
+def test_a_height_model_from_gnss_heights_gives_the_same_normal_heights_through_4_and_7_parameters(
+        tmp_path, yichang_levelling):
+    """The model records the datum of its h (--h-crs) and every route takes it on h of that datum: the trial's
+    GNSS model (h on WGS 84) was right through helmert2d and 118.8 m off through bursa-wolf7; now both give the
+    held-out normal heights within 1 cm, back to h as well, and in a foot grid in feet."""
+    lev, pts, h, H, _ = yichang_levelling
+    zeta = tmp_path / "zeta_wgs84.json"
+    r = _run("fit-heights", lev, "--model", "plane", "--epsg", "2361", "--h-crs", "EPSG:4326", "-o", zeta)
+    assert r.exit_code == 0 and "h taken as ellipsoidal heights on World Geodetic System 1984" in r.output, r.output
+    d = json.loads(zeta.read_text())
+    assert d["h_crs"] == "EPSG:4326" and d["crs"] == "EPSG:2361" and "World Geodetic System 1984" in d["h_datum"]
+    for model in ("helmert2d", "bursa-wolf7"):
+        r, got, out = _heights_through(tmp_path, model, pts, zeta)
+        assert r.exit_code == 0 and "changed the ellipsoidal heights" not in r.output, r.output
+        assert np.max(np.abs(got - H)) < 0.01, (model, got - H)
+        # and back (the inverse operation, as crs warp and ortho take it): Xian normal heights -> WGS 84 h
+        XY = np.array([[float(v) for v in ln.split(",")[1:3]] for ln in out.read_text().splitlines()[1:]])
+        op = CrsTransformer(32649, 2361, load_transformation(tmp_path / f"{model}.json"), load_height_model(zeta))
+        back = op.inverse().transform(XY[:, 0], XY[:, 1], got)[2]
+        assert np.max(np.abs(back - h)) < 0.01, (model, back - h)
+    # a grid in US survey feet on Xian 1980: the heights come out in feet, the same normal heights
+    import pyproj
+
+    d = pyproj.CRS.from_epsg(2361).to_json_dict()
+    for ax in d["coordinate_system"]["axis"]:
+        ax["unit"] = {"type": "LinearUnit", "name": "US survey foot", "conversion_factor": 0.304800609601219}
+    d["name"] = "Xian 1980 / 3-degree Gauss-Kruger zone 37 (US survey foot)"
+    d.pop("id")
+    feet = tmp_path / "feet.wkt"
+    feet.write_text(pyproj.CRS.from_json_dict(d).to_wkt())
+    for model in ("helmert2d", "bursa-wolf7"):
+        r, got_ft, _ = _heights_through(tmp_path, model, pts, zeta, to=feet.read_text(), name="feet")
+        assert r.exit_code == 0, r.output
+        assert np.max(np.abs(got_ft * 0.304800609601219 - H)) < 0.01, (model, got_ft)
+
+
+def test_a_height_model_from_h_on_the_target_ellipsoid_goes_through_the_7_parameter_set_only(
+        tmp_path, yichang_levelling):
+    """A model fitted from h on Xian 1980's ellipsoid (--h-crs defaults from --epsg 2361) is taken after the
+    spatial set (right heights); a plane set has no h on Xian 1980 (it leaves WGS 84's): refused, exit 2, no file.
+    A model on Beijing 1954's h (neither side's) is refused through both."""
+    lev, pts, _, H, h_xian = yichang_levelling
+    text = lev.read_text().splitlines()
+    rows = [ln.split(",") for ln in text[1:]]
+    lev_xian = tmp_path / "levelling_xian.csv"
+    lev_xian.write_text(text[0] + "\n" + "".join(f"{r[0]},{r[1]},{r[2]},{hx:.4f},{r[4]}\n"
+                                                  for r, hx in zip(rows, h_xian)))
+    zeta = tmp_path / "zeta_xian.json"
+    r = _run("fit-heights", lev_xian, "--model", "plane", "--epsg", "2361", "-o", zeta)
+    assert r.exit_code == 0 and "on Xian 1980 (EPSG:4610, the datum of --epsg" in r.output, r.output
+    r, got, _ = _heights_through(tmp_path, "bursa-wolf7", pts, zeta)
+    # 8.3 mm at most: the file's h came through the true set, the transform's through the set fitted on 1 cm noise
+    assert r.exit_code == 0 and np.max(np.abs(got - H)) < 0.02, (r.output, got - H)
+    r, _, out = _heights_through(tmp_path, "helmert2d", pts, zeta)
+    assert r.exit_code == 2 and not out.exists(), r.output
+    assert "heights of Xian 1980 (h_crs EPSG:4610)" in r.output and "only on World Geodetic System 1984" in r.output
+    assert "plane set" in r.output and "Traceback" not in r.output
+    beijing = tmp_path / "zeta_beijing.json"
+    assert _run("fit-heights", lev, "--epsg", "2361", "--h-crs", "4214", "-o", beijing).exit_code == 0
+    for model in ("helmert2d", "bursa-wolf7"):
+        r, _, out = _heights_through(tmp_path, model, pts, beijing)
+        assert r.exit_code == 2 and not out.exists() and "heights of Beijing 1954" in r.output, r.output
+        assert r.output.strip().count("\n") == 0
+
+
+def test_an_old_height_model_through_a_7_parameter_set_says_on_which_ellipsoid_it_is_taken(
+        tmp_path, yichang_levelling):
+    """A model file without h_crs (written before it was recorded) keeps the old behaviour: taken on the output's
+    h, right through a 4-parameter set and 118.8 m off through the 7-parameter set (trial-lidar), with the
+    warning that says the change."""
+    lev, pts, _, H, _ = yichang_levelling
+    zeta = tmp_path / "zeta_old.json"
+    assert _run("fit-heights", lev, "--model", "plane", "--epsg", "2361", "-o", zeta).exit_code == 0
+    d = json.loads(zeta.read_text())
+    del d["h_crs"], d["h_datum"]
+    zeta.write_text(json.dumps(d))
     got = {}
     for model in ("helmert2d", "bursa-wolf7"):
-        r = _run("transform", pts, tmp_path / f"{model}.csv", "--from", "32649", "--to", "2361", "--params",
-                 tmp_path / f"{model}.json", "--heights", tmp_path / "zeta.json")
+        r, got[model], _ = _heights_through(tmp_path, model, pts, zeta)
         assert r.exit_code == 0, r.output
-        got[model] = np.array([float(ln.split(",")[3]) for ln in (tmp_path / f"{model}.csv").read_text().splitlines()[1:]])
         said = "the ellipsoid of Xian 1980" in r.output
         assert said == (model == "bursa-wolf7"), r.output
-    assert np.max(np.abs(got["helmert2d"] - (h - zeta)[8:])) < 0.01  # h unchanged, the GNSS model fits
-    dh = got["bursa-wolf7"] - (h - zeta)[8:]  # h moved onto Xian's ellipsoid first
+    assert np.max(np.abs(got["helmert2d"] - H)) < 0.01  # h unchanged, the GNSS model fits
+    dh = got["bursa-wolf7"] - H  # h moved onto Xian's ellipsoid first
     assert np.all(np.abs(dh) > 50.0)
     import re
 
     said = float(re.search(r"changed the ellipsoidal heights by ([-+0-9.]+) m", r.output).group(1))
     assert abs(said - np.mean(dh)) < 0.01  # the message's number is the error a GNSS model makes
+
+
+def test_warp_takes_a_gnss_height_model_on_wgs84_h_through_both_sets(tmp_path, yichang_levelling):
+    """crs warp of a WGS 84 DEM (650 m everywhere) into Xian 1980 with the GNSS model (h on WGS 84): the same
+    normal heights, 650 m - zeta, through the 4- and the 7-parameter set (the latter was 118.8 m off)."""
+    import rasterio
+
+    lev, pts, _, _, _ = yichang_levelling
+    zeta = tmp_path / "zeta_wgs84.json"
+    assert _run("fit-heights", lev, "--epsg", "2361", "--h-crs", "4326", "-o", zeta).exit_code == 0
+    e0, n0 = (float(v) for v in pts.read_text().splitlines()[1].split(",")[1:3])
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(dem, "w", driver="GTiff", width=20, height=20, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=rasterio.Affine(50.0, 0.0, e0, 0.0, -50.0, n0), nodata=-9999.0) as ds:
+        ds.write(np.full((1, 20, 20), 650.0, dtype=np.float32))
+    model = load_height_model(zeta)
+    for params in ("helmert2d", "bursa-wolf7"):
+        out = tmp_path / f"dem_{params}.tif"
+        r = _run("warp", dem, out, "--to", "2361", "--params", tmp_path / f"{params}.json", "--heights", zeta)
+        assert r.exit_code == 0, r.output
+        with rasterio.open(out) as ds:
+            z = ds.read(1, masked=True)
+            rows, cols = np.nonzero(~np.ma.getmaskarray(z))
+            xs, ys = rasterio.transform.xy(ds.transform, rows, cols)
+            assert len(rows) > 300
+            assert np.abs(z[rows, cols] - (650.0 - model.zeta_m(np.array(xs), np.array(ys)))).max() < 0.01, params

@@ -274,3 +274,17 @@ def test_warp_says_when_heights_without_a_vertical_crs_move_with_the_datum(tmp_p
         r = warp_raster(src, tmp_path / "utm_nap.tif", "EPSG:25831+5709", from_crs="EPSG:28992+5709")
     assert abs(r.height_change_m[0]) < 0.01 and abs(r.height_change_m[1]) < 0.01
     assert not [m for m in caplog.messages if "heights changed" in m]
+
+
+def test_ortho_takes_a_height_model_on_the_projects_datum_only():
+    """ortho's DEM in normal heights -> the project's h with a height model: a model recorded on h of the project's
+    datum (WGS 84 for UTM 49N) converts; one recorded on Beijing 1954's h would put them on the wrong ellipsoid:
+    refused, naming both datums."""
+    from aerotri.core.errors import CrsError
+    from ortho.dem import dem_height_operation
+
+    plane = dict(model="plane", origin_m=(452250.0, 3407400.0), coefficients=[-12.0, 0.0, 0.0], crs="EPSG:32649")
+    op = dem_height_operation("EPSG:32649+3855", "EPSG:32649", None, HeightAnomalyModel(**plane, h_crs="EPSG:4326"))
+    assert op.transform([452250.0], [3407400.0], [100.0])[2][0] == pytest.approx(88.0, abs=1e-6)
+    with pytest.raises(CrsError, match="heights of Beijing 1954 .* only on World Geodetic System 1984"):
+        dem_height_operation("EPSG:32649+3855", "EPSG:32649", None, HeightAnomalyModel(**plane, h_crs="EPSG:4214"))
