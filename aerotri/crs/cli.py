@@ -78,8 +78,8 @@ def fit_cmd(common_points, model, from_epsg, to_epsg, output):
 @click.option("--model", type=click.Choice(HEIGHT_MODELS), default="plane", show_default=True)
 @click.option("--epsg", "epsg", help="EPSG code of the points' x, y (a metre grid); recorded in the model file. Without it, 'crs transform' evaluates the model on the output coordinates")
 @click.option("--h-crs", "h_crs", help="geographic CRS (datum) of the points' ellipsoidal heights h, e.g. EPSG:4326 for "
-              "GNSS heights on WGS 84; recorded in the model file, which is then applied on h of that datum "
-              "[the datum of --epsg]")
+              "GNSS heights on WGS 84, EPSG:4490 on CGCS2000; recorded in the model file, which is then applied on h "
+              "of that datum; required with --epsg (a levelling table's grid often differs from its heights' datum)")
 @click.option("--smoothing", type=at_least(0.0), default=0.0, show_default=True,
               help="tps smoothing, >= 0 (0 interpolates)")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="model file (JSON); default <input>.<model>.json")
@@ -98,20 +98,26 @@ def fit_heights_cmd(points, model, epsg, h_crs, smoothing, output):
     write_text_atomic(out, res.to_json())
     click.echo(_height_fit_table(model, points, ids, res))
     if h_geo is not None:
-        click.echo(f"h taken as ellipsoidal heights on {h_geo.datum.name} ({crs_label(h_geo)}"
-                   f"{'' if h_crs else ', the datum of --epsg; else give --h-crs'}): the model is applied on h of "
-                   "that datum")
+        click.echo(f"h taken as ellipsoidal heights on {h_geo.datum.name} ({crs_label(h_geo)}): the model is "
+                   "applied on h of that datum")
     else:
-        click.echo("the datum of h is not recorded (no --h-crs or --epsg): the model is applied on the h a "
+        click.echo("the datum of h is not recorded (no --h-crs): the model is applied on the h a "
                    "transformation ends with (docs/datums.md)")
     click.echo(f"Model written to {out}")
 
 
 def _h_crs(h_crs, epsg):
-    """The geographic CRS of the levelling points' h: --h-crs, else --epsg's own; None without either."""
+    """The geographic CRS of the levelling points' h: --h-crs; None without it and --epsg (nothing recorded).
+
+    Never taken from --epsg: GNSS levelling tables give x, y in the local grid (Xian 1980) and h on the GNSS
+    datum (WGS 84 / CGCS2000), and a model taken on the grid's ellipsoid is about 119 m off near Yichang."""
     if h_crs is None and epsg is None:
         return None
-    c = parse_crs(h_crs if h_crs is not None else epsg, "--h-crs" if h_crs is not None else "--epsg")
+    if h_crs is None:
+        raise InputError(f"--h-crs is required with --epsg {epsg}: the geographic CRS of the points' ellipsoidal "
+                         "heights h (e.g. EPSG:4326 for GNSS heights on WGS 84, EPSG:4490 on CGCS2000, the grid's "
+                         "own datum such as EPSG:4610 for Xian 1980 only when h were computed on its ellipsoid)")
+    c = parse_crs(h_crs, "--h-crs")
     if c.is_geocentric:
         return c
     if c.geodetic_crs is None:

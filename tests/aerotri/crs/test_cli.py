@@ -60,6 +60,8 @@ def test_fit_heights_and_transform_with_heights(tmp_path):
     pts.write_text("id,x,y,h,H\n" + "".join(f"L{i},{x[i]:.3f},{y[i]:.3f},{h[i]:.4f},{h[i] - zeta[i]:.4f}\n" for i in range(12)))
     model = tmp_path / "zeta.json"
     r = _run("fit-heights", pts, "--model", "plane", "--epsg", "2361", "-o", model)
+    assert r.exit_code == 2 and "--h-crs is required with --epsg 2361" in r.output and not model.exists()
+    r = _run("fit-heights", pts, "--model", "plane", "--epsg", "2361", "--h-crs", "4610", "-o", model)
     assert r.exit_code == 0, r.output
     assert "leave-one-out RMS" in r.output
     d = json.loads(model.read_text())
@@ -72,7 +74,7 @@ def test_fit_heights_and_transform_with_heights(tmp_path):
     H = float(out.read_text().split()[3])
     assert H == pytest.approx(600.0 - (-27.0 + 0.02 * -10 - 0.01 * -10), abs=1e-3)
     # a geographic CRS for the anomaly surface, too few points for the model
-    r = _run("fit-heights", pts, "--model", "quadratic", "--epsg", "4326")
+    r = _run("fit-heights", pts, "--model", "quadratic", "--epsg", "4326", "--h-crs", "4326")
     assert r.exit_code == 2 and "projected" in r.output
     few = _write(tmp_path / "few.csv", "id,x,y,h,H\n" + "\n".join(pts.read_text().splitlines()[1:5]) + "\n")
     r = _run("fit-heights", few, "--model", "quadratic")
@@ -298,7 +300,7 @@ def test_a_height_model_from_gnss_heights_gives_the_same_normal_heights_through_
 
 def test_a_height_model_from_h_on_the_target_ellipsoid_goes_through_the_7_parameter_set_only(
         tmp_path, yichang_levelling):
-    """A model fitted from h on Xian 1980's ellipsoid (--h-crs defaults from --epsg 2361) is taken after the
+    """A model fitted from h on Xian 1980's ellipsoid (--h-crs EPSG:4610) is taken after the
     spatial set (right heights); a plane set has no h on Xian 1980 (it leaves WGS 84's): refused, exit 2, no file.
     A model on Beijing 1954's h (neither side's) is refused through both."""
     lev, pts, _, H, h_xian = yichang_levelling
@@ -308,8 +310,8 @@ def test_a_height_model_from_h_on_the_target_ellipsoid_goes_through_the_7_parame
     lev_xian.write_text(text[0] + "\n" + "".join(f"{r[0]},{r[1]},{r[2]},{hx:.4f},{r[4]}\n"
                                                   for r, hx in zip(rows, h_xian)))
     zeta = tmp_path / "zeta_xian.json"
-    r = _run("fit-heights", lev_xian, "--model", "plane", "--epsg", "2361", "-o", zeta)
-    assert r.exit_code == 0 and "on Xian 1980 (EPSG:4610, the datum of --epsg" in r.output, r.output
+    r = _run("fit-heights", lev_xian, "--model", "plane", "--epsg", "2361", "--h-crs", "4610", "-o", zeta)
+    assert r.exit_code == 0 and "on Xian 1980 (EPSG:4610)" in r.output, r.output
     r, got, _ = _heights_through(tmp_path, "bursa-wolf7", pts, zeta)
     # 8.3 mm at most: the file's h came through the true set, the transform's through the set fitted on 1 cm noise
     assert r.exit_code == 0 and np.max(np.abs(got - H)) < 0.02, (r.output, got - H)
@@ -332,7 +334,8 @@ def test_an_old_height_model_through_a_7_parameter_set_says_on_which_ellipsoid_i
     warning that says the change."""
     lev, pts, _, H, _ = yichang_levelling
     zeta = tmp_path / "zeta_old.json"
-    assert _run("fit-heights", lev, "--model", "plane", "--epsg", "2361", "-o", zeta).exit_code == 0
+    assert _run("fit-heights", lev, "--model", "plane", "--epsg", "2361", "--h-crs", "4326", "-o",
+                zeta).exit_code == 0
     d = json.loads(zeta.read_text())
     del d["h_crs"], d["h_datum"]
     zeta.write_text(json.dumps(d))
