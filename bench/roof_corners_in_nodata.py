@@ -41,6 +41,8 @@ def main():
                outside_or_invalid=r.outside_or_invalid, weak=r.weak, in_nodata=r.in_nodata,
                rms_xy_gsd=float(np.sqrt(np.mean(e ** 2)) / res), median_xy_gsd=float(np.median(e) / res),
                max_xy_m=float(e.max()), beyond_1m=int((e > 1.0).sum()),
+               beyond_1m_corners=[[round(float(a), 3), round(float(b), 3), round(float(c), 3)]
+                                  for a, b, c in zip(r.x_m[e > 1.0], r.y_m[e > 1.0], e[e > 1.0])],
                before=dict(count=before.get("count"), rms_xy_gsd=before.get("rms_xy_gsd"),
                            median_xy_gsd=before.get("median_xy_gsd"), max_xy_m=before.get("max_xy_m"),
                            not_measured=before.get("not_measured")),
