@@ -109,6 +109,7 @@ class DomCheck:
     one_direction_pct: float | None = None  # their share (%) of the patches measured and left out
     mosaic_fingerprint: str | None = None  # ``mosaic_fingerprint`` of the project's mosaic checked; None: another DOM,
     # or a report written before it was recorded
+    roofs_in_nodata: int | None = None  # the roofs row: corners not measurable, their evidence in the DOM's nodata
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -158,7 +159,7 @@ def _dom_check_of(d: dict) -> DomCheck:
     one = d.get("left_out_one_direction") or {}
     return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs,
                     row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"), one.get("patches"),
-                    one.get("pct"), d.get("mosaic_fingerprint"))
+                    one.get("pct"), d.get("mosaic_fingerprint"), (row.get("not_measured") or {}).get("in_nodata"))
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:
@@ -474,6 +475,15 @@ ROOF_MIN_VALID = 0.8  # share of the patch's DOM cells with a value (only they a
 ROOF_MIN_NCC = 0.5  # masked-NCC peak below which the patch is not measured (demo's true ortho: 99 % above 0.85)
 ROOF_HEIGHT_M = 2.5  # nDSM above which a cell is a roof (buildings found in the nDSM)
 ROOF_MIN_AREA_M2 = 50.0  # smaller nDSM objects (bushes, cars) are not buildings
+# a corner whose evidence lies in the DOM's nodata (ground no frame sees, beside buildings): its match is ambiguous
+# (the NCC somewhere farther than ROOF_RIVAL_M from the best within ROOF_MIN_MARGIN of it) and the hole made it so
+# (the reference's own chip, masked by the DOM's valid cells, keeps less than ROOF_HOLE_SEPARATION of the separation
+# 1 - rival NCC that the whole chip has between its place and any other). Chosen on the 2 x 2 DMC subset (0.1 m,
+# 1,648 corners: 9 matched more than 1 m off, at margins 0.001-0.017 and separations 0.12-0.34 of the whole
+# chip's), scored on the 2 x 4 (docs/full-size-block.md, "The DOM check's roof corners in the DOM's holes")
+ROOF_RIVAL_M = 1.0
+ROOF_MIN_MARGIN = 0.02
+ROOF_HOLE_SEPARATION = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -489,6 +499,7 @@ class RoofDisplacements:
     outside_or_invalid: int  # patch not whole inside the DOM, or less than ROOF_MIN_VALID of it valid
     weak: int  # NCC peak below ROOF_MIN_NCC, or on the edge of the search (+- half a patch)
     patch_m: float
+    in_nodata: int = 0  # not measurable: the evidence lies in the DOM's nodata (``roof_evidence_in_nodata``)
 
 
 def read_roof_corners(path) -> tuple[np.ndarray, np.ndarray]:
@@ -555,15 +566,15 @@ def roof_corners_from_ndsm(ndsm_path, dom_bounds, dom_crs, min_height_m: float =
     return np.array(xs, float), np.array(ys, float)
 
 
-def masked_ncc_shift(dom, dom_weight, reference, reference_valid, search_px: int,
-                     min_overlap: float = 0.5) -> tuple[float, float, float]:
-    """Shift of a DOM patch against the reference by normalised cross-correlation over the valid cells only
-    (masked NCC after Padfield 2012, by FFT): ``dom`` (n0 x n1) with ``dom_weight`` (0 on cells without a value,
-    e.g. a Hanning window times the mask), ``reference`` (n0 + 2 S x n1 + 2 S, the same centre) with
-    ``reference_valid``; every integer shift within +-``search_px`` (S) correlates the cells valid in both, weighted,
-    and the peak is refined by a parabola in x and y. Returns (dx_px, dy_px, peak NCC), DOM minus reference (x right,
-    y down); NaN shifts when the peak lies on the edge of the search or no shift keeps ``min_overlap`` of the
-    weight. A hole has no value to correlate: unlike a patch mean put in its place, it cannot pull the peak."""
+def masked_ncc_surface(dom, dom_weight, reference, reference_valid, search_px: int,
+                       min_overlap: float = 0.5) -> np.ndarray | None:
+    """Normalised cross-correlation of a DOM patch with the reference over the valid cells only, at every integer
+    shift (masked NCC after Padfield 2012, by FFT): ``dom`` (n0 x n1) with ``dom_weight`` (0 on cells without a
+    value, e.g. a Hanning window times the mask), ``reference`` (n0 + 2 S x n1 + 2 S, the same centre) with
+    ``reference_valid``. Returns the NCC (2 S + 1 x 2 S + 1; [S, S] is no shift, [S + k, S + j] the patch found k
+    rows down and j columns right in the reference), -1 where a shift keeps less than ``min_overlap`` of the weight
+    or either side has no variance; None when either side has no valid cell. A hole has no value to correlate:
+    unlike a patch mean put in its place, it cannot pull the peak."""
     n0, n1 = dom.shape
     S = int(search_px)
     N0, N1 = n0 + 2 * S, n1 + 2 * S
@@ -572,7 +583,7 @@ def masked_ncc_shift(dom, dom_weight, reference, reference_valid, search_px: int
     w = np.where(np.isfinite(dom), np.asarray(dom_weight, np.float64), 0.0)
     v = (np.asarray(reference_valid, bool) & np.isfinite(reference)).astype(np.float64)
     if w.sum() <= 0 or v.sum() <= 0:
-        return math.nan, math.nan, -1.0
+        return None
     t = np.where(w > 0, dom, 0.0).astype(np.float64)
     t = np.where(w > 0, t - (w * t).sum() / w.sum(), 0.0)  # centred: the sums below cancel less
     s = np.where(v > 0, reference, 0.0).astype(np.float64)
@@ -590,9 +601,16 @@ def masked_ncc_shift(dom, dom_weight, reference, reference_valid, search_px: int
         ncc = (sts - st * ss / sw) / np.sqrt(var_t * var_s)
     scale = max(float(np.abs(stt).max()), float(np.abs(sss).max()), 1e-300)
     ok = (sw >= min_overlap * w.sum()) & (var_t > 1e-9 * scale) & (var_s > 1e-9 * scale) & np.isfinite(ncc)
-    if not ok.any():
+    return np.where(ok, ncc, -1.0) if ok.any() else None
+
+
+def ncc_peak_shift(ncc: np.ndarray | None) -> tuple[float, float, float]:
+    """The shift at the peak of a ``masked_ncc_surface``, refined by a parabola in x and y: (dx_px, dy_px, peak
+    NCC), DOM minus reference (x right, y down); NaN shifts when the peak lies on the edge of the search or there
+    is no surface."""
+    if ncc is None:
         return math.nan, math.nan, -1.0
-    ncc = np.where(ok, ncc, -1.0)
+    S = (ncc.shape[0] - 1) // 2
     py, px = np.unravel_index(int(np.argmax(ncc)), ncc.shape)
     peak = float(ncc[py, px])
     if px in (0, 2 * S) or py in (0, 2 * S):
@@ -603,6 +621,46 @@ def masked_ncc_shift(dom, dom_weight, reference, reference_valid, search_px: int
     return -(px + sx - S), -(py + sy - S), peak
 
 
+def masked_ncc_shift(dom, dom_weight, reference, reference_valid, search_px: int,
+                     min_overlap: float = 0.5) -> tuple[float, float, float]:
+    """Shift of a DOM patch against the reference by masked NCC (``masked_ncc_surface``) at its peak, refined by a
+    parabola in x and y (``ncc_peak_shift``): (dx_px, dy_px, peak NCC), DOM minus reference (x right, y down); NaN
+    shifts when the peak lies on the edge of the search (+-``search_px``) or no shift keeps ``min_overlap`` of the
+    weight."""
+    return ncc_peak_shift(masked_ncc_surface(dom, dom_weight, reference, reference_valid, search_px, min_overlap))
+
+
+def rival_peak(ncc: np.ndarray, at_yx, min_distance_px: float) -> float:
+    """The highest NCC of a surface farther than ``min_distance_px`` from the cell ``at_yx``: how well the patch fits
+    anywhere else (a second peak, or a ridge running on from this one: with the corner gone, a roof's straight edge
+    lets the patch slide along it); -1 when there is none."""
+    yy, xx = np.indices(ncc.shape)
+    far = np.hypot(yy - at_yx[0], xx - at_yx[1]) > min_distance_px
+    return float(ncc[far].max()) if far.any() else -1.0
+
+
+def roof_evidence_in_nodata(ncc: np.ndarray, dom_valid, chip, chip_valid, reference, reference_valid, weight,
+                            rival_px: float) -> bool:
+    """Whether a roof corner's match (``ncc``, the DOM patch's ``masked_ncc_surface``) is not measurable because its
+    evidence lies in the DOM's nodata: the match is ambiguous (``rival_peak`` farther than ``rival_px`` within
+    ``ROOF_MIN_MARGIN`` of the best) and the hole makes it so: the reference's own ``chip`` (the patch's cells at
+    no shift, ``chip_valid``) correlated with the ``reference`` over the DOM's valid cells only separates its own
+    place from the best other one (1 - rival NCC) by less than ``ROOF_HOLE_SEPARATION`` of what it does whole. A
+    match made ambiguous by the scene itself (repeated roofs, the whole chip ambiguous too) is not this."""
+    py, px = np.unravel_index(int(np.argmax(ncc)), ncc.shape)
+    if ncc[py, px] - rival_peak(ncc, (py, px), rival_px) >= ROOF_MIN_MARGIN or np.all(dom_valid):
+        return False
+    S = (ncc.shape[0] - 1) // 2
+    masked = masked_ncc_surface(np.where(dom_valid & chip_valid, chip, 0.0), weight * dom_valid * chip_valid,
+                                reference, reference_valid, S)
+    whole = masked_ncc_surface(np.where(chip_valid, chip, 0.0), weight * chip_valid, reference, reference_valid, S)
+    if masked is None or whole is None:
+        return True  # the DOM's valid cells hold nothing of the reference to tell the place by
+    separation_masked = 1.0 - rival_peak(masked, (S, S), rival_px)
+    separation_whole = 1.0 - rival_peak(whole, (S, S), rival_px)
+    return separation_masked < ROOF_HOLE_SEPARATION * separation_whole
+
+
 def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float | None = None,
                          reference_operation=None, block_px: int = 1024) -> RoofDisplacements:
     """The displacement of the DOM against a reference true orthophoto at every roof corner ``x_m, y_m``: a
@@ -610,8 +668,9 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
     the reference averaged onto the DOM's grid, grey values (the mean of the first three bands) correlated over the
     cells valid in both (``masked_ncc_shift``, the DOM patch weighted by a Hanning window, shifts up to half a patch).
     Patches less than ``ROOF_MIN_VALID`` valid or past the DOM's edge, and peaks below ``ROOF_MIN_NCC`` or on the
-    edge of the search, are counted, not measured. The DOM is read by blocks of ``block_px`` (with a patch's halo)
-    that hold corners, the reference resampled once per block (with the search's halo)."""
+    edge of the search, are counted, not measured; so is a corner whose evidence lies in the DOM's nodata (its match
+    ambiguous because of the hole, ``roof_evidence_in_nodata``). The DOM is read by blocks of ``block_px`` (with a
+    patch's halo) that hold corners, the reference resampled once per block (with the search's halo)."""
     from rasterio.enums import Resampling
     from rasterio.windows import Window
 
@@ -628,7 +687,8 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
         cols, rows = inv @ (x_m, y_m)
         r0s, c0s = np.floor(rows).astype(np.int64) - n // 2, np.floor(cols).astype(np.int64) - n // 2
         inside = (r0s >= 0) & (c0s >= 0) & (r0s + n <= dom.height) & (c0s + n <= dom.width)
-        outside, weak = int(np.count_nonzero(~inside)), 0
+        outside, weak, in_nodata = int(np.count_nonzero(~inside)), 0, 0
+        rival_px = ROOF_RIVAL_M / res
         kept = []
         block_of = (r0s // block_px) * (dom.width // block_px + 1) + c0s // block_px
         for b in track(np.unique(block_of[inside]), "DOM check, roofs", "blocks"):
@@ -650,15 +710,19 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
                 if pv.mean() < ROOF_MIN_VALID or rv.mean() < ROOF_MIN_VALID:
                     outside += 1
                     continue
-                dx, dy, peak = masked_ncc_shift(np.where(pv, grey[r:r + n, c:c + n], 0.0), win * pv,
-                                                ref_grey[r:r + n + 2 * S, c:c + n + 2 * S],
-                                                refok[r:r + n + 2 * S, c:c + n + 2 * S], S)
+                ref_big, refok_big = ref_grey[r:r + n + 2 * S, c:c + n + 2 * S], refok[r:r + n + 2 * S, c:c + n + 2 * S]
+                ncc = masked_ncc_surface(np.where(pv, grey[r:r + n, c:c + n], 0.0), win * pv, ref_big, refok_big, S)
+                dx, dy, peak = ncc_peak_shift(ncc)
                 if not (peak >= ROOF_MIN_NCC and math.isfinite(dx)):
                     weak += 1
                     continue
+                if roof_evidence_in_nodata(ncc, pv, ref_big[S:S + n, S:S + n], refok_big[S:S + n, S:S + n], ref_big,
+                                           refok_big, win, rival_px):
+                    in_nodata += 1
+                    continue
                 kept.append((x_m[i], y_m[i], dx * res, -dy * res))  # DOM minus reference: east, north
     k = np.array(kept, float).reshape(-1, 4)
-    return RoofDisplacements(k[:, 0], k[:, 1], k[:, 2], k[:, 3], len(x_m), outside, weak, patch_m)
+    return RoofDisplacements(k[:, 0], k[:, 1], k[:, 2], k[:, 3], len(x_m), outside, weak, patch_m, in_nodata)
 
 
 def _roofs_document(roofs: RoofDisplacements, res_m: float, source: str) -> dict:
@@ -668,7 +732,8 @@ def _roofs_document(roofs: RoofDisplacements, res_m: float, source: str) -> dict
     if stats["count"]:
         stats["median_xy_gsd"] = stats["median_xy_m"] / res_m
     stats.update(corners=roofs.corners, corners_from=source, patch_m=roofs.patch_m,
-                 not_measured={"outside_or_invalid": roofs.outside_or_invalid, "weak": roofs.weak})
+                 not_measured={"outside_or_invalid": roofs.outside_or_invalid, "weak": roofs.weak,
+                               "in_nodata": roofs.in_nodata})
     return stats
 
 

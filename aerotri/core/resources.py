@@ -5,11 +5,16 @@ CPU seconds are user + system of this process, of the children it reaped during 
 and of the worker processes still alive at the end (a Dask ``local:N`` cluster; ``psutil``), less what
 those had used before. Peak RSS: on Linux the high-water mark of this process is reset before the work
 (``5`` into ``/proc/self/clear_refs``) and read after (``VmHWM`` in ``/proc/self/status``); the worker
-processes' marks likewise (their sum: an upper bound of what they held together), and children that ended
-during the work count with the ``ru_maxrss`` of ``RUSAGE_CHILDREN`` when it grew (the largest of them; a
-smaller one is not seen). Elsewhere, or when the mark cannot be reset, the process's lifetime peak
-(``resource.getrusage``) stands in and ``rss_reset`` is False; without ``resource`` either, no peak (None).
-Without ``psutil`` live workers are not counted. Sizes in MiB.
+processes' marks likewise (their sum: an upper bound of what they held together). Other processes are seen
+alive: every ``SAMPLE_S`` during the work a thread reads the marks of all live descendants, and the workers'
+peak is the largest sum of one reading (the last reading, at the end, takes the workers still alive). A child
+that ended during the work counts with the mark it was last seen with; one that lived less than ``SAMPLE_S``
+(a helper such as ``ldconfig``, ``true``) may not be seen at all. Not ``RUSAGE_CHILDREN``'s ``ru_maxrss``: for a
+child started by fork or vfork that then execs, Linux keeps the old address space's high-water mark, which is
+this process's at the fork, so any short helper added this process's memory again as a "worker". Elsewhere, or
+when the mark cannot be reset, the process's lifetime peak (``resource.getrusage``) stands in and ``rss_reset``
+is False; without ``resource`` either, no peak (None). Without ``psutil`` no other process is counted. Sizes in
+MiB.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import contextlib
 import dataclasses
 import os
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -33,6 +39,7 @@ except ImportError:  # pragma: no cover - not on Windows
     resource = None
 
 _MIB = 1024.0 * 1024.0
+SAMPLE_S = 0.2  # how often the live descendants' high-water marks are read during the work (1.6 ms a reading)
 
 
 @dataclasses.dataclass
@@ -110,6 +117,45 @@ def _cpu_self_and_reaped() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
+class _Sampler:
+    """Reads the high-water marks of the live descendants every ``SAMPLE_S`` in a thread: ``peak_mb`` is the
+    largest sum of one reading (a child caught between its fork and its exec would show this process's mark: the
+    window is microseconds against ``SAMPLE_S``)."""
+
+    def __init__(self):
+        self.peak_mb = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="measure-sampler", daemon=True)
+
+    def read(self) -> None:
+        if psutil is None:
+            return
+        total = 0.0
+        try:
+            kids = psutil.Process().children(recursive=True)
+        except psutil.Error:
+            return
+        for p in kids:
+            if (v := _hwm_mb(p.pid)) is not None:
+                total += v
+        self.peak_mb = max(self.peak_mb, total)
+
+    def _run(self) -> None:
+        while not self._stop.wait(SAMPLE_S):
+            self.read()
+
+    def __enter__(self):
+        if psutil is not None:
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        self.read()  # the workers alive at the end, with their whole marks
+
+
 @contextlib.contextmanager
 def measure() -> Iterator[Usage]:
     """``with measure() as usage:`` ... ``usage.wall_s, usage.cpu_s, usage.peak_rss_mb`` afterwards."""
@@ -118,11 +164,12 @@ def measure() -> Iterator[Usage]:
     before = _workers()
     for pid in before:
         _reset_hwm(pid)
-    reaped_rss0 = _maxrss_mb(resource.RUSAGE_CHILDREN) if resource else None
+    sampler = _Sampler()
     cpu0 = _cpu_self_and_reaped()
     t0 = time.perf_counter()
     try:
-        yield usage
+        with sampler:
+            yield usage
     finally:
         usage.wall_s = time.perf_counter() - t0
         after = _workers()
@@ -135,8 +182,4 @@ def measure() -> Iterator[Usage]:
         hwm = _hwm_mb() if reset else None
         usage.rss_reset = hwm is not None
         usage.peak_rss_mb = hwm if hwm is not None else _maxrss_mb(resource.RUSAGE_SELF if resource else None)
-        usage.workers_peak_rss_mb = sum(v for pid in after if (v := _hwm_mb(pid)) is not None)
-        # children that ended during the work: the largest of them, when it is larger than any reaped before
-        reaped_rss = _maxrss_mb(resource.RUSAGE_CHILDREN) if resource else None
-        if reaped_rss is not None and reaped_rss0 is not None and reaped_rss > reaped_rss0:
-            usage.workers_peak_rss_mb += reaped_rss
+        usage.workers_peak_rss_mb = sampler.peak_mb

@@ -190,9 +190,12 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
         return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", None, None, "m",
                       note=f"none measured ({why})")
     gsd = r.rms_xy_gsd if r.rms_xy_gsd is not None else float("nan")
+    # corners whose evidence lies in the DOM's nodata: counted, not measured (``ortho.check.roof_evidence_in_nodata``)
+    in_nodata = f" ({dom_check.roofs_in_nodata} not measurable: in the DOM's nodata)" if dom_check.roofs_in_nodata else ""
     median_gsd = r.median_xy_m / r.gsd_m if r.median_xy_m is not None and r.gsd_m else float("nan")
     return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", round(r.rms_xy_m, 4), None,
-                  "m", note=f"{r.count} of {dom_check.roof_corners} corners, {gsd:.2f} GSD, median {median_gsd:.2f} GSD; "
+                  "m", note=f"{r.count} of {dom_check.roof_corners} corners{in_nodata}, {gsd:.2f} GSD, median "
+                  f"{median_gsd:.2f} GSD; "
                   f"corners: {source}{kind}; not judged")
 
 

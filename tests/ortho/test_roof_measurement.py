@@ -127,3 +127,51 @@ def test_measure_roof_patches_reads_the_known_shift_of_a_dom_with_holes(tmp_path
     assert got.corners == len(corners) and len(got.de_m) == inside.sum() > 30 and got.weak == 0
     # measured: within 0.07 px (east) and 0.26 px (north: the holes take the roofs' south edges) of the shift
     assert np.abs(got.de_m / res - dx).max() < 0.15 and np.abs(-got.dn_m / res - dy).max() < 0.35, (got.de_m, got.dn_m)
+
+
+def _write(path, img, transform, hole=None):
+    profile = dict(driver="GTiff", width=img.shape[1], height=img.shape[0], count=3, dtype="uint8",
+                   crs="EPSG:32650", transform=transform, nodata=0)
+    a = np.clip(img, 1, 255).astype(np.uint8)
+    if hole is not None:
+        a[hole] = 0
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write(np.repeat(a[None], 3, axis=0))
+
+
+def test_a_corner_whose_evidence_lies_in_the_doms_hole_is_counted_not_measured(tmp_path):
+    """Issue 41/42 (the full-size DMC blocks: corners matched up to 6 m off where the DOM's nodata took the roof's
+    corner): a scene repeating every 12 px but for one roof, whose corner the DOM's hole covers. The DOM's valid
+    cells match the reference equally well 12 px away: not measurable, counted as ``in_nodata``. The same corner
+    without the hole, and the repeating scene with a hole elsewhere (the scene, not the hole, is ambiguous there),
+    are not counted so."""
+    res, size = 0.4, 240
+    rng = np.random.default_rng(11)
+    tile = ndimage.gaussian_filter(rng.normal(size=(12, 12)), 1.0, mode="wrap")
+    scene = np.tile(tile, (size // 12, size // 12)) * 400 + 110
+    r, c = 120, 120  # the roof's south-east corner
+    scene[r - 14:r, c - 14:c] = 210
+    scene[r - 6:r - 2, c - 6:c - 2] = 150  # a mark near the corner: the only thing that tells the roof's place
+    scene = ndimage.gaussian_filter(scene, 0.6)
+    transform = from_origin(500000.0, 4000000.0, res, res)
+    _write(tmp_path / "reference.tif", scene, transform)
+    dom = scene + np.random.default_rng(12).normal(size=scene.shape) * 2.0
+    x, y = transform @ (float(c), float(r))
+    hole = np.zeros(scene.shape, bool)
+    hole[r - 17:r + 3, c - 17:c + 3] = True  # the roof and its corner: 11 % of the patch
+    _write(tmp_path / "dom_hole.tif", dom, transform, hole)
+    got = measure_roof_patches(tmp_path / "dom_hole.tif", tmp_path / "reference.tif", [x], [y])
+    assert (got.in_nodata, got.weak, got.outside_or_invalid, len(got.de_m)) == (1, 0, 0, 0)
+    _write(tmp_path / "dom.tif", dom, transform)
+    got = measure_roof_patches(tmp_path / "dom.tif", tmp_path / "reference.tif", [x], [y])
+    assert got.in_nodata == 0 and len(got.de_m) == 1
+    assert np.hypot(got.de_m[0], got.dn_m[0]) < 0.2 * res
+    # the repeating scene alone: ambiguous by itself; a hole in the patch's corner does not make it "in the nodata"
+    plain = ndimage.gaussian_filter(np.tile(tile, (size // 12, size // 12)) * 400 + 110, 0.6)
+    _write(tmp_path / "plain_ref.tif", plain, transform)
+    hole = np.zeros(scene.shape, bool)
+    hole[r + 18:r + 28, c + 18:c + 28] = True
+    _write(tmp_path / "plain_dom.tif", plain + np.random.default_rng(13).normal(size=scene.shape) * 2.0, transform,
+           hole)
+    got = measure_roof_patches(tmp_path / "plain_dom.tif", tmp_path / "plain_ref.tif", [x], [y])
+    assert got.in_nodata == 0

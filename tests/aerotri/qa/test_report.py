@@ -256,6 +256,11 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
                         "conventional ortho (roofs lean); not judged")
     assert json.loads((p / "reports" / "summary.json").read_text())["overall"] == "pass"
     assert "displacement at roof corners" in (p / "reports" / "index.html").read_text()
+    # corners whose evidence lies in the DOM's nodata: counted in the note (issue 41/42)
+    dom["roofs"]["not_measured"]["in_nodata"] = 9
+    (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
+    assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
+        "412 of 1156 corners (9 not measurable: in the DOM's nodata), 8.14 GSD, median 4.45 GSD; ")
     dom["roofs"] = dict(count=0, why="the nDSM is in another CRS than the DOM")
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     row = write_qa_report(p).check("dom_roofs_rms_xy_m")
