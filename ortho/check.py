@@ -109,6 +109,9 @@ class DomCheck:
     one_direction_pct: float | None = None  # their share (%) of the patches measured and left out
     mosaic_fingerprint: str | None = None  # ``mosaic_fingerprint`` of the project's mosaic checked; None: another DOM,
     # or a report written before it was recorded
+    dom_crs: str | None = None  # the DOM's CRS as checked (a contract's CRS may not be the project's)
+    reference_operation: str | None = None  # DOM CRS -> reference CRS, when they differ (its description)
+    reference_ballpark: bool = False  # that operation is PROJ's ballpark: the datum shift was ignored
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -158,7 +161,9 @@ def _dom_check_of(d: dict) -> DomCheck:
     one = d.get("left_out_one_direction") or {}
     return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs,
                     row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"), one.get("patches"),
-                    one.get("pct"), d.get("mosaic_fingerprint"))
+                    one.get("pct"), d.get("mosaic_fingerprint"), d.get("crs"),
+                    (d.get("reference_operation") or {}).get("description"),
+                    bool((d.get("reference_operation") or {}).get("ballpark")))
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:

@@ -196,6 +196,29 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
                   f"corners: {source}{kind}; not judged")
 
 
+def _dom_crs_note(dom_check, project: Project) -> str:
+    """(the DOM rows) the DOM's CRS when it is not the project's (a contract's grid), and the operation the reference
+    was read through, a ballpark one named as such: the figure then holds the datum shift it ignored."""
+    note = ""
+    crs = dom_check.dom_crs
+    if crs and project.info.crs:
+        from aerotri.core.errors import CrsError
+        from aerotri.geom.crs.definition import same_horizontal
+
+        try:
+            other = not same_horizontal(crs, str(project.info.crs))
+        except CrsError:  # a CRS the report cannot compare is named, not judged
+            other = True
+        if other:
+            note += f"; DOM in {crs}"
+    if dom_check.reference_operation:
+        note += f"; reference through {dom_check.reference_operation}"
+        if dom_check.reference_ballpark:
+            note += " (PROJ's ballpark operation, accepted with --allow-ballpark: the datum shift between them is " \
+                    "ignored and is in the figure)"
+    return note
+
+
 def _holes_row(section: str, project: Project) -> QaCheck:
     """The DOM's cells inside the block that no frame sees (ortho/mosaic.json): nodata in the delivered mosaic (a
     true ortho's ground occluded in every frame, or DEM nodata). Shown, not judged: no table has a limit."""
@@ -593,8 +616,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if dom and dom.rms_xy_m is not None:
         gsd = dom.rms_xy_gsd if dom.rms_xy_gsd is not None else float("nan")
         rows.append(_check("dom_rms_xy_m", sec, "displacement on ground patches, plan RMS", round(dom.rms_xy_m, 4),
-                           tol.get("feature_rms_xy_m"), "m", note=f"{dom.count} patches, {gsd:.2f} GSD",
-                           key="feature_rms_xy_m"))
+                           tol.get("feature_rms_xy_m"), "m", note=f"{dom.count} patches, {gsd:.2f} GSD"
+                           f"{_dom_crs_note(dom_check, project)}", key="feature_rms_xy_m"))
         if dom.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
             largest = dom.max_xy_m if dom.max_xy_m is not None else float("nan")

@@ -96,3 +96,22 @@ def test_antialiased_read_equals_gdal_bilinear(tmp_path):
     rms = lambda a: float(np.sqrt(np.mean((a[:, ok] - gdal[:, ok]) ** 2)))  # noqa: E731
     assert ok.mean() > 0.95
     assert rms(smooth) < 0.25 * rms(sharp) and rms(smooth) < 1.0
+
+
+def test_the_report_names_the_dom_crs_and_a_ballpark_reference(tmp_path):
+    """The accuracy report's DOM row said "1258 patches, 0.25 GSD, pass" of a DOM in Gauss-Krueger checked through
+    PROJ's ballpark operation (the datum shift ignored, in the figure): it names both now."""
+    from types import SimpleNamespace
+
+    from aerotri.qa.report import _dom_crs_note
+    from ortho.check import read_dom_check
+
+    ref, _ = _reference(tmp_path)
+    dom = _dom_in(tmp_path, ref, GK, "dom_gk.tif")
+    run_check(tmp_path / "proj", reference_path=tmp_path / "truth" / "ortho.tif", dom_path=dom,
+              out_stem=tmp_path / "report", allow_ballpark=True)
+    check = read_dom_check(tmp_path / "report.json")
+    assert check.dom_crs == "EPSG:4546" and check.reference_ballpark
+    note = _dom_crs_note(check, SimpleNamespace(info=SimpleNamespace(crs="EPSG:32649")))
+    assert note.startswith("; DOM in EPSG:4546; reference through EPSG:4546 -> EPSG:32649") and "ballpark" in note
+    assert _dom_crs_note(check, SimpleNamespace(info=SimpleNamespace(crs="EPSG:4546"))).startswith("; reference")
