@@ -40,7 +40,7 @@ from aerotri.core.records import to_record
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
-from aerotri.geom.crs.definition import height_unit_m, map_axes_unit_m, parse_crs
+from aerotri.geom.crs.definition import height_unit_m, map_axes_unit_m, map_axis_signs, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
 from ortho.patches import MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches, parabola_peak
 from ortho.settings import CheckSettings
@@ -430,7 +430,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                 ndsm.close()
         cat = lambda f: np.concatenate([getattr(q, f) for q in pieces]) if pieces else np.zeros(0)
         return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res,
-                                  cat("one_direction_row_px"), cat("one_direction_col_px")), (dom.width, dom.height)
+                                  cat("one_direction_row_px"), cat("one_direction_col_px"),
+                                  *map_axis_signs(dom.crs)), (dom.width, dom.height)
 
 
 def metres_per_unit(ds, what: str = "DOM") -> float:
@@ -441,7 +442,8 @@ def metres_per_unit(ds, what: str = "DOM") -> float:
     return map_axes_unit_m(ds.crs, f"{ds.name}: the {what}'s CRS")[0]
 
 
-def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0) -> tuple[Displacement, dict]:
+def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0,
+                 dom_crs=None) -> tuple[Displacement, dict]:
     """Statistics and per-point table for surveyed points measured in the DOM (``dom_bounds``: left, bottom,
     right, top of the DOM; a point measured outside it is refused by its line); coordinates in the DOM CRS's unit,
     ``unit_m`` metres each (the displacements in metres)."""
@@ -453,8 +455,9 @@ def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0
                 raise InputError(f"{points_path}:{k + 2}: point {pts.id[k]} measured at ({xd:.3f}, {yd:.3f}), "
                                  f"outside the DOM ({left:.1f} .. {right:.1f}, {bottom:.1f} .. {top:.1f}); coordinates "
                                  "of another CRS, zone or place?")
-    de = (pts.x_dom - pts.x) * unit_m
-    dn = (pts.y_dom - pts.y) * unit_m
+    sx, sy = (1.0, 1.0) if dom_crs is None else map_axis_signs(dom_crs)  # a westing / southing grid: east, north
+    de = sx * (pts.x_dom - pts.x) * unit_m
+    dn = sy * (pts.y_dom - pts.y) * unit_m
     stats = displacement_statistics(de, dn, res_m)
     table = [{"id": i, "x_m": float(x), "y_m": float(y), "x_dom_m": float(xd), "y_dom_m": float(yd), "de_m": float(a),
               "dn_m": float(b)} for i, x, y, xd, yd, a, b in zip(pts.id, pts.x, pts.y, pts.x_dom, pts.y_dom, de, dn)]
@@ -663,8 +666,11 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
                 if not (peak >= ROOF_MIN_NCC and math.isfinite(dx)):
                     weak += 1
                     continue
-                kept.append((x_m[i], y_m[i], dx * res, -dy * res))  # DOM minus reference: east, north
+                kept.append((x_m[i], y_m[i], dx * res, -dy * res))  # DOM minus reference along the DOM's x, y
+        sx, sy = map_axis_signs(dom.crs)
     k = np.array(kept, float).reshape(-1, 4)
+    k[:, 2] *= sx  # east and north (a south-oriented grid's x runs west, its y south)
+    k[:, 3] *= sy
     return RoofDisplacements(k[:, 0], k[:, 1], k[:, 2], k[:, 3], len(x_m), outside, weak, patch_m)
 
 
@@ -819,7 +825,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
                                extent_px=max(w, h))
     else:
-        stats, table = check_points(points_path, res, dom_bounds, unit_m)
+        stats, table = check_points(points_path, res, dom_bounds, unit_m, dom_crs)
         report.update(method="surveyed_points", points_file=str(points_path),
                       displacement=to_record(stats, drop_none=True), points=table["points"])
 
