@@ -804,7 +804,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         tie_points_off_surface(block, dem_path, "DEM", project_crs, height_op, res_in_m)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
     inputs = _rectify_inputs_document(block, dem_path, _recorded_inputs(out_dir))
-    old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
+    old_index = _compatible_old_index(out_dir, res, out_crs, inputs, frames) if frames else None
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
     # GDAL's block cache bounded for the whole stage, set here before the frame tasks start on their threads
@@ -1098,17 +1098,26 @@ def require_current_frames(root, index: FrameIndex, then: str) -> None:
                          "the old orientation)")
 
 
-def _compatible_old_index(out_dir: Path, res: float, out_crs, inputs: dict) -> FrameIndex | None:
+def _compatible_old_index(out_dir: Path, res: float, out_crs, inputs: dict, frames=()) -> FrameIndex | None:
     """The index of the frames rectified earlier onto the same grid (resolution and CRS), checked against
     its files, or None (no earlier run, or another grid: a subset re-run then replaces them all)."""
     if not (out_dir / "index.json").exists():
         return None
     old = read_index(out_dir.parent.parent)
+    # said as a warning: the earlier frames go (hours of rectification on a full-size block), which an operator
+    # re-rectifying one frame at another --res-m did not see (an info line: "rectified 1 frames")
+    others = len(set(old.image_ids) - set(frames))
+    gone = f"{others} other frame ortho{'s' if others != 1 else ''} of the earlier run in {out_dir} " \
+           f"{'are' if others != 1 else 'is'} removed; only the frames given with --frames remain (rectify without " \
+           "--frames for the whole block)"
     if old.res_m != res or old.crs_wkt != out_crs.to_wkt():
+        what = f"pixel {old.res_m:g} -> {res:g}" if old.res_m != res else "another CRS"
+        if others:
+            _log.warning(f"another grid than the earlier frames' ({what}): the {gone}")
         return None
     if not _same_inputs(old.inputs, inputs):  # the other frames are stale: never brought along
-        _log.info(f"{out_dir / 'index.json'}: the earlier frames were made from other inputs; only the frames "
-                  "given with --frames are kept")
+        if others:
+            _log.warning(f"the earlier frames were made from another orientation, camera or DEM: the {gone}")
         return None
     verify_index(out_dir, old)
     return old
