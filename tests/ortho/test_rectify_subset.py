@@ -45,3 +45,17 @@ def test_a_subset_on_another_grid_warns_that_the_other_frames_go(tmp_path, warni
     assert sorted(p.stem for p in (root / "ortho" / "frames").glob("*.tif")) == ["s01_002"]
     assert any("the 1 other frame ortho of the earlier run" in m and "removed" in m for m in warnings_of_ortho), \
         warnings_of_ortho
+
+
+def test_an_output_grid_far_from_its_central_meridian_is_warned_of(tmp_path, warnings_of_ortho):
+    """trial-ortho: the demo (lon 110.5 E) rectified into CGCS2000 GK CM 123E (EPSG:4550, a neighbouring province's
+    zone) without a word: scale factor 1.0178, a 0.5 m pixel 0.491 m on the ground. Its own zone (CM 111E) is not."""
+    from ortho.settings import RectifySettings
+
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=2, seed=3)
+    rectify_block(root, RectifySettings(crs="gk3:cgcs2000"), frames=["s01_001"], allow_ballpark=True)
+    assert not any("scale factor" in m for m in warnings_of_ortho), warnings_of_ortho
+    rectify_block(root, RectifySettings(crs="EPSG:4550"), frames=["s01_001"], allow_ballpark=True)
+    assert any("EPSG:4550" in m and "scale factor of 1.01" in m and "EPSG:32649" in m for m in warnings_of_ortho), \
+        warnings_of_ortho
