@@ -25,6 +25,7 @@ import contextlib
 import csv
 import dataclasses
 import json
+import logging
 import math
 import os
 from pathlib import Path
@@ -112,6 +113,9 @@ class DomCheck:
     dom_crs: str | None = None  # the DOM's CRS as checked (a contract's CRS may not be the project's)
     reference_operation: str | None = None  # DOM CRS -> reference CRS, when they differ (its description)
     reference_ballpark: bool = False  # that operation is PROJ's ballpark: the datum shift was ignored
+    of_project_mosaic: bool | None = None  # the check measured the project's ortho/mosaic.tif (False: another DOM
+    # given with --dom; None: a report written before it was recorded)
+    dom: str | None = None  # the DOM checked, as the command named it
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -120,6 +124,8 @@ class DomCheck:
         ``report_path``; False when it cannot tell."""
         if not Path(mosaic_path).is_file():
             return False
+        if self.of_project_mosaic is False:  # another DOM (--dom) measured into the project's dom_report.json
+            return True
         if self.mosaic_fingerprint is not None:
             return mosaic_fingerprint(mosaic_path) != self.mosaic_fingerprint
         return report_path is not None and Path(report_path).is_file() and \
@@ -163,7 +169,8 @@ def _dom_check_of(d: dict) -> DomCheck:
                     row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"), one.get("patches"),
                     one.get("pct"), d.get("mosaic_fingerprint"), d.get("crs"),
                     (d.get("reference_operation") or {}).get("description"),
-                    bool((d.get("reference_operation") or {}).get("ballpark")))
+                    bool((d.get("reference_operation") or {}).get("ballpark")), d.get("dom_is_project_mosaic"),
+                    d.get("dom"))
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:
@@ -761,6 +768,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         raise OptionError(f"{max_ndsm_m!r}: expected a height in metres", param="--max-ndsm-m")
     check_block_memory(patch_px, search_px)
     dom_path = Path(dom_path) if dom_path else root / "ortho" / "mosaic.tif"
+    out_default = not out_stem
     out_stem = Path(out_stem) if out_stem else root / "ortho" / "dom_report"
     for suffix in (".json", ".png"):
         refuse_input_as_output(out_stem.with_suffix(suffix), [dom_path, reference_path, points_path, ndsm_path,
@@ -782,7 +790,14 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         crs = ds.crs.to_string()
         dom_bounds, dom_crs = tuple(ds.bounds), ds.crs
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
-    if _same_file(dom_path, paths.mosaic_path):  # the report tells a check of an earlier mosaic by it
+    # the accuracy report takes the project's dom_report.json for its mosaic: a check of another DOM (--dom) says so
+    # (its figures were shown as the project DOM's, "true ortho on the DSM" beside a conventional DOM's roofs)
+    report["dom_is_project_mosaic"] = _same_file(dom_path, paths.mosaic_path)
+    if out_default and not report["dom_is_project_mosaic"]:
+        logging.getLogger(__name__).warning(
+            f"{dom_path} is not the project's mosaic {paths.mosaic_path}: its check goes to {out_stem}.json, which the "
+            "accuracy report (aerotri report) then does not take for the project's DOM; give --out for another DOM")
+    if report["dom_is_project_mosaic"]:  # the report tells a check of an earlier mosaic by it
         report["mosaic_fingerprint"] = mosaic_fingerprint(dom_path)
     _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs)
     if reference_path is not None:

@@ -459,7 +459,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
            if project.control_transfer_path.is_file() else None)
     dom_check = read_dom_check(project.dom_report_path) if project.dom_report_path.exists() else None
     dom_check_stale = dom_check is not None and dom_check.stale_for(project.mosaic_path, project.dom_report_path)
-    if dom_check_stale:  # its figures are of a mosaic that no longer exists: not shown as the DOM's
+    other_dom = dom_check.dom if dom_check_stale and dom_check.of_project_mosaic is False else None
+    if dom_check_stale:  # its figures are of a mosaic that no longer exists (or of another DOM): not the DOM's
         dom_check = None
     dom = dom_check.displacement if dom_check else None
     hc = read_height_check(project.height_check_path) if project.height_check_path.is_file() else None
@@ -625,7 +626,12 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                round(dom.p95_xy_m, 4), 2 * tol["feature_rms_xy_m"], "m",
                                note=f"largest {largest:.3f} m; " "limit 2 x the RMS limit (at most 5 % gross errors)",
                                key="feature_rms_xy_m"))
-    if dom_check_stale:
+    if dom_check_stale and other_dom:
+        rows.append(_failed("dom_check_stale", sec, "DOM check of another DOM",
+                            f"the DOM was not checked: {project.dom_report_path} measured {other_dom} (ortho check "
+                            f"--dom), not {project.mosaic_path}; re-run ortho check {root} --reference REF.tif (give "
+                            "--out for the check of another DOM)"))
+    elif dom_check_stale:
         rows.append(_failed("dom_check_stale", sec, "DOM check of an earlier mosaic",
                             f"the DOM was not checked: {project.dom_report_path} measured an earlier "
                             f"{project.mosaic_path} (the mosaic was made again since, e.g. by aerotri run without "
