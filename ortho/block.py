@@ -787,6 +787,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     if crs is None and transformation is not None:
         crs = transformation.to_crs
     out_crs = resolve_output_crs(crs, project_crs, centre_xy)
+    if out_crs != project_crs:
+        _warn_output_scale(project_crs, out_crs, centre_xy, res)
     res_in_m = res * linear_unit_m(out_crs)  # nan for degrees: no comparison
     if res_m is not None and res_in_m < 0.5 * gsd_res:
         _log.warning(f"--res-m {res:g} ({res_in_m:.3g} m) is finer than half the block's ground sample distance "
@@ -804,7 +806,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         tie_points_off_surface(block, dem_path, "DEM", project_crs, height_op, res_in_m)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
     inputs = _rectify_inputs_document(block, dem_path, _recorded_inputs(out_dir))
-    old_index = _compatible_old_index(out_dir, res, out_crs, inputs) if frames else None
+    old_index = _compatible_old_index(out_dir, res, out_crs, inputs, frames) if frames else None
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
     # GDAL's block cache bounded for the whole stage, set here before the frame tasks start on their threads
@@ -830,6 +832,33 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             index["settings"] = resolved.record()
             write_text_atomic(tmp_dir / "index.json", json.dumps(index, indent=1) + "\n")
     return _rectified_frames(frame_index(index, out_dir / "index.json"))
+
+
+def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
+    """A warning when the output CRS's point scale factor at the block's centre is off 1 by more than
+    ``aerotri.exchange.import_checks.SCALE_LIMIT`` (1 %): a grid far from its central meridian (the demo in
+    CGCS2000 GK CM 123E, EPSG:4550, 11.5 degrees east of it: 1.0151, 15 mm per metre) makes pixels and distances
+    that are no ground measures, most often a zone chosen by mistake; names the block's own 3-degree zone."""
+    import pyproj
+
+    from aerotri.exchange.import_checks import SCALE_LIMIT
+    from aerotri.geom.crs.definition import crs_label, horizontal_crs
+    from aerotri.geom.crs.transform import to_own_geodetic
+
+    h = horizontal_crs(out_crs)
+    if not h.is_projected or horizontal_crs(project_crs).is_engineering:
+        return
+    lon, lat, _ = to_own_geodetic(project_crs, np.array([centre_xy[0]]), np.array([centre_xy[1]]), np.array([0.0]))
+    f = pyproj.Proj(h).get_factors(float(lon[0]), float(lat[0]))
+    k = float(np.sqrt(f.meridional_scale * f.parallel_scale))
+    if not np.isfinite(k) or abs(k - 1.0) <= SCALE_LIMIT:
+        return
+    zone = int((float(lon[0]) + 180.0) // 6.0) + 1
+    utm = f"EPSG:{32600 + zone if lat[0] >= 0 else 32700 + zone}"
+    _log.warning(f"the output CRS {crs_label(out_crs)} ({h.name}) has a scale factor of {k:.4f} where the block is "
+                 f"(lon {float(lon[0]):.2f}, lat {float(lat[0]):.2f}): a pixel of {res:g} grid units is "
+                 f"{res / k:.4g} m on the ground ({abs(k - 1.0) * 1000:.0f} mm per metre); is it the contract's zone? "
+                 f"The block's UTM zone is {utm}; --crs gk3:cgcs2000 takes its 3-degree Gauss-Krueger zone")
 
 
 TIE_POINTS_MIN = 20  # tie points on the surface for its offset from the block to be told
@@ -1098,17 +1127,26 @@ def require_current_frames(root, index: FrameIndex, then: str) -> None:
                          "the old orientation)")
 
 
-def _compatible_old_index(out_dir: Path, res: float, out_crs, inputs: dict) -> FrameIndex | None:
+def _compatible_old_index(out_dir: Path, res: float, out_crs, inputs: dict, frames=()) -> FrameIndex | None:
     """The index of the frames rectified earlier onto the same grid (resolution and CRS), checked against
     its files, or None (no earlier run, or another grid: a subset re-run then replaces them all)."""
     if not (out_dir / "index.json").exists():
         return None
     old = read_index(out_dir.parent.parent)
+    # said as a warning: the earlier frames go (hours of rectification on a full-size block), which an operator
+    # re-rectifying one frame at another --res-m did not see (an info line: "rectified 1 frames")
+    others = len(set(old.image_ids) - set(frames))
+    gone = f"{others} other frame ortho{'s' if others != 1 else ''} of the earlier run in {out_dir} " \
+           f"{'are' if others != 1 else 'is'} removed; only the frames given with --frames remain (rectify without " \
+           "--frames for the whole block)"
     if old.res_m != res or old.crs_wkt != out_crs.to_wkt():
+        what = f"pixel {old.res_m:g} -> {res:g}" if old.res_m != res else "another CRS"
+        if others:
+            _log.warning(f"another grid than the earlier frames' ({what}): the {gone}")
         return None
     if not _same_inputs(old.inputs, inputs):  # the other frames are stale: never brought along
-        _log.info(f"{out_dir / 'index.json'}: the earlier frames were made from other inputs; only the frames "
-                  "given with --frames are kept")
+        if others:
+            _log.warning(f"the earlier frames were made from another orientation, camera or DEM: the {gone}")
         return None
     verify_index(out_dir, old)
     return old

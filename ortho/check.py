@@ -25,6 +25,7 @@ import contextlib
 import csv
 import dataclasses
 import json
+import logging
 import math
 import os
 from pathlib import Path
@@ -40,7 +41,7 @@ from aerotri.core.records import to_record
 from aerotri.core.settings import COMMAND_LINE, Resolved, settings_of
 from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
-from aerotri.geom.crs.definition import height_unit_m, map_axes_unit_m, parse_crs
+from aerotri.geom.crs.definition import height_unit_m, map_axes_unit_m, map_axis_signs, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
 from ortho.patches import MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches, parabola_peak
 from ortho.settings import CheckSettings
@@ -110,6 +111,12 @@ class DomCheck:
     mosaic_fingerprint: str | None = None  # ``mosaic_fingerprint`` of the project's mosaic checked; None: another DOM,
     # or a report written before it was recorded
     roofs_in_nodata: int | None = None  # the roofs row: corners not measurable, their evidence in the DOM's nodata
+    dom_crs: str | None = None  # the DOM's CRS as checked (a contract's CRS may not be the project's)
+    reference_operation: str | None = None  # DOM CRS -> reference CRS, when they differ (its description)
+    reference_ballpark: bool = False  # that operation is PROJ's ballpark: the datum shift was ignored
+    of_project_mosaic: bool | None = None  # the check measured the project's ortho/mosaic.tif (False: another DOM
+    # given with --dom; None: a report written before it was recorded)
+    dom: str | None = None  # the DOM checked, as the command named it
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -118,6 +125,8 @@ class DomCheck:
         ``report_path``; False when it cannot tell."""
         if not Path(mosaic_path).is_file():
             return False
+        if self.of_project_mosaic is False:  # another DOM (--dom) measured into the project's dom_report.json
+            return True
         if self.mosaic_fingerprint is not None:
             return mosaic_fingerprint(mosaic_path) != self.mosaic_fingerprint
         return report_path is not None and Path(report_path).is_file() and \
@@ -159,7 +168,10 @@ def _dom_check_of(d: dict) -> DomCheck:
     one = d.get("left_out_one_direction") or {}
     return DomCheck(Displacement.of_record(d["displacement"]), seams.get("rms_px"), seams.get("patches"), roofs,
                     row.get("corners"), row.get("corners_from"), row.get("why"), d.get("json"), one.get("patches"),
-                    one.get("pct"), d.get("mosaic_fingerprint"), (row.get("not_measured") or {}).get("in_nodata"))
+                    one.get("pct"), d.get("mosaic_fingerprint"), (row.get("not_measured") or {}).get("in_nodata"),
+                    d.get("crs"), (d.get("reference_operation") or {}).get("description"),
+                    bool((d.get("reference_operation") or {}).get("ballpark")), d.get("dom_is_project_mosaic"),
+                    d.get("dom"))
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:
@@ -310,8 +322,10 @@ def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, *,
     if operation is not None or not same_horizontal(ds.crs, crs):
         op = operation or CrsTransformer(crs, ds.crs)
         maximum = resampling == rasterio.enums.Resampling.max
+        # antialiased like GDAL's bilinear below: a point-sampled reference read the same DOM in a contract CRS
+        # 0.148 m RMS against 0.101 m in the project CRS (demo at 0.5 m on its 0.25 m truth; docs/new-user-trial.md)
         return read_on_grid(ds, window_transform.c, window_transform.f, window_transform.a, shape, op,
-                            resampling="bilinear", bands=idx, maximum=maximum)
+                            resampling="bilinear", bands=idx, maximum=maximum, antialias=not maximum)
     out = np.full((len(idx),) + shape, np.nan, np.float32)
     valid = np.zeros(shape, np.uint8)
     src = _source_window(ds, window_transform, shape)
@@ -424,7 +438,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                 ndsm.close()
         cat = lambda f: np.concatenate([getattr(q, f) for q in pieces]) if pieces else np.zeros(0)
         return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res,
-                                  cat("one_direction_row_px"), cat("one_direction_col_px")), (dom.width, dom.height)
+                                  cat("one_direction_row_px"), cat("one_direction_col_px"),
+                                  *map_axis_signs(dom.crs)), (dom.width, dom.height)
 
 
 def metres_per_unit(ds, what: str = "DOM") -> float:
@@ -435,7 +450,8 @@ def metres_per_unit(ds, what: str = "DOM") -> float:
     return map_axes_unit_m(ds.crs, f"{ds.name}: the {what}'s CRS")[0]
 
 
-def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0) -> tuple[Displacement, dict]:
+def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0,
+                 dom_crs=None) -> tuple[Displacement, dict]:
     """Statistics and per-point table for surveyed points measured in the DOM (``dom_bounds``: left, bottom,
     right, top of the DOM; a point measured outside it is refused by its line); coordinates in the DOM CRS's unit,
     ``unit_m`` metres each (the displacements in metres)."""
@@ -447,8 +463,9 @@ def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0
                 raise InputError(f"{points_path}:{k + 2}: point {pts.id[k]} measured at ({xd:.3f}, {yd:.3f}), "
                                  f"outside the DOM ({left:.1f} .. {right:.1f}, {bottom:.1f} .. {top:.1f}); coordinates "
                                  "of another CRS, zone or place?")
-    de = (pts.x_dom - pts.x) * unit_m
-    dn = (pts.y_dom - pts.y) * unit_m
+    sx, sy = (1.0, 1.0) if dom_crs is None else map_axis_signs(dom_crs)  # a westing / southing grid: east, north
+    de = sx * (pts.x_dom - pts.x) * unit_m
+    dn = sy * (pts.y_dom - pts.y) * unit_m
     stats = displacement_statistics(de, dn, res_m)
     table = [{"id": i, "x_m": float(x), "y_m": float(y), "x_dom_m": float(xd), "y_dom_m": float(yd), "de_m": float(a),
               "dn_m": float(b)} for i, x, y, xd, yd, a, b in zip(pts.id, pts.x, pts.y, pts.x_dom, pts.y_dom, de, dn)]
@@ -720,8 +737,11 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
                                            refok_big, win, rival_px):
                     in_nodata += 1
                     continue
-                kept.append((x_m[i], y_m[i], dx * res, -dy * res))  # DOM minus reference: east, north
+                kept.append((x_m[i], y_m[i], dx * res, -dy * res))  # DOM minus reference along the DOM's x, y
+        sx, sy = map_axis_signs(dom.crs)
     k = np.array(kept, float).reshape(-1, 4)
+    k[:, 2] *= sx  # east and north (a south-oriented grid's x runs west, its y south)
+    k[:, 3] *= sy
     return RoofDisplacements(k[:, 0], k[:, 1], k[:, 2], k[:, 3], len(x_m), outside, weak, patch_m, in_nodata)
 
 
@@ -795,9 +815,11 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         # not stand in the way of a check against surveyed points (no roofs are measured there)
         if reference_path is not None or resolved.sources.get("roof_corners") == COMMAND_LINE:
             roof_corners_path = s.roof_corners
+    corners_in_reference_crs = False  # the simulator's corners are in its truth's CRS, given ones in the DOM's
     if roof_corners_path is None and (simulated := simulator_roof_corners(reference_path)) is not None:
         # against the simulator's true orthophoto: the roof corners that belong to it
         roof_corners_path = simulated
+        corners_in_reference_crs = True
         resolved = resolved.replace("roof_corners", roof_corners_path, resolved.sources.get("roof_corners", "default"),
                                     "the simulator's roof corners beside its true orthophoto, the reference")
     if ndsm_path is None and reference_path is not None and project_paths(root).ndsm_path.is_file():
@@ -811,6 +833,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         raise OptionError(f"{max_ndsm_m!r}: expected a height in metres", param="--max-ndsm-m")
     check_block_memory(patch_px, search_px)
     dom_path = Path(dom_path) if dom_path else root / "ortho" / "mosaic.tif"
+    out_default = not out_stem
     out_stem = Path(out_stem) if out_stem else root / "ortho" / "dom_report"
     for suffix in (".json", ".png"):
         refuse_input_as_output(out_stem.with_suffix(suffix), [dom_path, reference_path, points_path, ndsm_path,
@@ -832,11 +855,23 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         crs = ds.crs.to_string()
         dom_bounds, dom_crs = tuple(ds.bounds), ds.crs
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
-    if _same_file(dom_path, paths.mosaic_path):  # the report tells a check of an earlier mosaic by it
+    # the accuracy report takes the project's dom_report.json for its mosaic: a check of another DOM (--dom) says so
+    # (its figures were shown as the project DOM's, "true ortho on the DSM" beside a conventional DOM's roofs)
+    report["dom_is_project_mosaic"] = _same_file(dom_path, paths.mosaic_path)
+    if out_default and not report["dom_is_project_mosaic"]:
+        logging.getLogger(__name__).warning(
+            f"{dom_path} is not the project's mosaic {paths.mosaic_path}: its check goes to {out_stem}.json, which the "
+            "accuracy report (aerotri report) then does not take for the project's DOM; give --out for another DOM")
+    if report["dom_is_project_mosaic"]:  # the report tells a check of an earlier mosaic by it
         report["mosaic_fingerprint"] = mosaic_fingerprint(dom_path)
     _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs)
     if reference_path is not None:
         ref_op = _operation_to(dom_path, reference_path, params, allow_ballpark, "reference orthophoto")
+        if corners is not None and corners_in_reference_crs and ref_op is not None:
+            # a DOM delivered in another CRS than the simulator's truth: its corners read as DOM coordinates lay
+            # kilometres off (the demo in Gauss-Krueger: 0 of 1,156 measured, "none measurable")
+            cx, cy, _ = ref_op.inverse().transform(*corners)
+            corners = (cx, cy)
         ndsm_op = _operation_to(dom_path, ndsm_path, params, allow_ballpark, "nDSM") if ndsm_path else None
         patches, (w, h) = check_against_reference(dom_path, reference_path, ndsm_path, max_ndsm_m, patch_px=patch_px,
                                                   step_px=patch_px, search_px=search_px, reference_operation=ref_op,
@@ -870,7 +905,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
                                extent_px=max(w, h))
     else:
-        stats, table = check_points(points_path, res, dom_bounds, unit_m)
+        stats, table = check_points(points_path, res, dom_bounds, unit_m, dom_crs)
         report.update(method="surveyed_points", points_file=str(points_path),
                       displacement=to_record(stats, drop_none=True), points=table["points"])
 
@@ -906,5 +941,13 @@ def _roofs_row(dom_path, reference_path, *, ref_op, corners, corners_path, ndsm_
                   f"{ROOF_MIN_AREA_M2:g} m2")
     else:
         return None
+    xs, ys = np.asarray(xs, float), np.asarray(ys, float)
+    left, bottom, right, top = dom_bounds
+    if corners is not None and len(xs) and not np.any((xs >= left) & (xs <= right) & (ys >= bottom) & (ys <= top)):
+        crs = dom_crs.to_string() if hasattr(dom_crs, "to_string") else str(dom_crs)
+        return {"count": 0, "corners": int(len(xs)), "corners_from": source,
+                "why": f"none of the {len(xs)} roof corners of {corners_path} lies on the DOM (x {xs.min():.1f} .. "
+                       f"{xs.max():.1f}, y {ys.min():.1f} .. {ys.max():.1f}; the DOM {left:.1f} .. {right:.1f}, "
+                       f"{bottom:.1f} .. {top:.1f}): give them in the DOM's CRS ({crs})"}
     measured = measure_roof_patches(dom_path, reference_path, xs, ys, reference_operation=ref_op)
     return _roofs_document(measured, res_m, source)

@@ -71,7 +71,10 @@ def rectify(*, project, params_path, heights_path, allow_ballpark, eo_path, came
         done = rectify_block(project, _settings(RectifySettings, project), eo_path=eo_path, camera_path=camera_path,
                               frames=frames.split(",") if frames else None, executor=executor, params=params_path,
                               heights=heights_path, allow_ballpark=allow_ballpark)
-    click.echo(f"rectified {len(done.image_ids)} frames at {done.res_m} m in {crs_label(parse_crs(done.crs_wkt))}"
+    given = len(set(frames.split(","))) if frames else len(done.image_ids)
+    kept = len(done.image_ids) - given  # a subset re-run brings the earlier frames of the same grid along
+    count = f"{given} frame{'s' if given != 1 else ''}" + (f" ({kept} earlier kept)" if kept > 0 else "")
+    click.echo(f"rectified {count} at {done.res_m} m in {crs_label(parse_crs(done.crs_wkt))}"
                f"{' (' + done.operation + ')' if done.operation else ''} -> {Path(project) / 'ortho' / 'frames'}")
 
 

@@ -34,19 +34,23 @@ class PatchDisplacements:
     # (``MIN_TEXTURE_RATIO``): counted, not measured
     one_direction_row_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     one_direction_col_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    # +1, or -1 where the DOM's x runs west / its y south (a south-oriented grid: ``map_axis_signs``)
+    east_sign: float = 1.0
+    north_sign: float = 1.0
 
     @property
     def de_m(self):
-        return self.dx_px * self.res_m
+        return self.east_sign * self.dx_px * self.res_m
 
     @property
     def dn_m(self):
-        return -self.dy_px * self.res_m
+        return -self.north_sign * self.dy_px * self.res_m
 
     def select(self, keep) -> "PatchDisplacements":
         keep = np.asarray(keep, bool)
         return PatchDisplacements(self.row_px[keep], self.col_px[keep], self.dx_px[keep], self.dy_px[keep],
-                                  self.ncc[keep], self.res_m, self.one_direction_row_px, self.one_direction_col_px)
+                                  self.ncc[keep], self.res_m, self.one_direction_row_px, self.one_direction_col_px,
+                                  self.east_sign, self.north_sign)
 
     def __len__(self):
         return len(self.dx_px)

@@ -282,7 +282,42 @@ class Chain:
             raise ConfigError(f"{self.project.config_path} [rectify] true_ortho = true: no DSM for it (no LiDAR strips "
                               "to make lidar_out/dsm.tif); give one with [rectify] dsm = \"DSM.tif\" or set "
                               "true_ortho = false")
+        self._check_output_crs()
         self._check_stage_inputs()
+
+    def _check_output_crs(self) -> None:
+        """(``check_files``) [rectify] crs reached from the project CRS as ``ortho rectify`` will, before the first
+        stage: the chain has no datum parameters or ``--allow-ballpark``, and a contract's grid on another datum
+        (CGCS2000 Gauss-Krueger for a WGS 84 UTM project) stopped it at the orthophotos, after minutes to hours of
+        matching and adjustment, naming options `aerotri run` does not have."""
+        from aerotri.core.errors import ConfigError
+        from aerotri.geom.crs.definition import project_crs
+        from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer
+        import numpy as np
+
+        from aerotri.geom.eo import read_gnss
+        from ortho.grid import resolve_output_crs
+
+        spec = self.options.rectify.crs
+        p = self.project
+        if spec is None:
+            return
+        pcrs = project_crs(p)
+        if str(spec).lower().startswith("gk3"):
+            if not p.gnss_path.is_file():
+                return  # the zone needs the block's centre: ortho rectify finds it from the orientations
+            centre = np.median(read_gnss(p.gnss_path, pcrs).position_m[:, :2], axis=0)
+        else:
+            centre = (0.0, 0.0)
+        out = resolve_output_crs(spec, pcrs, centre)
+        try:
+            CrsTransformer(pcrs, out)
+        except BallparkRefused as exc:
+            raise ConfigError(
+                f"{p.config_path} [rectify] crs = {spec!r}: {exc}. `aerotri run` takes no datum parameters: run the "
+                f"chain in the project's CRS (without [rectify] crs), then `ortho rectify {p.root} --crs {spec} "
+                f"--params FILE` (or --allow-ballpark), `ortho mosaic {p.root}` and `ortho check {p.root} --reference "
+                "REF.tif` with the same --params / --allow-ballpark") from None
 
     def _check_stage_inputs(self) -> None:
         """(``check_files``) the project's own inputs of the stages, each with its stage's reader."""

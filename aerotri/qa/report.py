@@ -199,6 +199,29 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
                   f"corners: {source}{kind}; not judged")
 
 
+def _dom_crs_note(dom_check, project: Project) -> str:
+    """(the DOM rows) the DOM's CRS when it is not the project's (a contract's grid), and the operation the reference
+    was read through, a ballpark one named as such: the figure then holds the datum shift it ignored."""
+    note = ""
+    crs = dom_check.dom_crs
+    if crs and project.info.crs:
+        from aerotri.core.errors import CrsError
+        from aerotri.geom.crs.definition import same_horizontal
+
+        try:
+            other = not same_horizontal(crs, str(project.info.crs))
+        except CrsError:  # a CRS the report cannot compare is named, not judged
+            other = True
+        if other:
+            note += f"; DOM in {crs}"
+    if dom_check.reference_operation:
+        note += f"; reference through {dom_check.reference_operation}"
+        if dom_check.reference_ballpark:
+            note += " (PROJ's ballpark operation, accepted with --allow-ballpark: the datum shift between them is " \
+                    "ignored and is in the figure)"
+    return note
+
+
 def _holes_row(section: str, project: Project) -> QaCheck:
     """The DOM's cells inside the block that no frame sees (ortho/mosaic.json): nodata in the delivered mosaic (a
     true ortho's ground occluded in every frame, or DEM nodata). Shown, not judged: no table has a limit."""
@@ -439,7 +462,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
            if project.control_transfer_path.is_file() else None)
     dom_check = read_dom_check(project.dom_report_path) if project.dom_report_path.exists() else None
     dom_check_stale = dom_check is not None and dom_check.stale_for(project.mosaic_path, project.dom_report_path)
-    if dom_check_stale:  # its figures are of a mosaic that no longer exists: not shown as the DOM's
+    other_dom = dom_check.dom if dom_check_stale and dom_check.of_project_mosaic is False else None
+    if dom_check_stale:  # its figures are of a mosaic that no longer exists (or of another DOM): not the DOM's
         dom_check = None
     dom = dom_check.displacement if dom_check else None
     hc = read_height_check(project.height_check_path) if project.height_check_path.is_file() else None
@@ -596,8 +620,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if dom and dom.rms_xy_m is not None:
         gsd = dom.rms_xy_gsd if dom.rms_xy_gsd is not None else float("nan")
         rows.append(_check("dom_rms_xy_m", sec, "displacement on ground patches, plan RMS", round(dom.rms_xy_m, 4),
-                           tol.get("feature_rms_xy_m"), "m", note=f"{dom.count} patches, {gsd:.2f} GSD",
-                           key="feature_rms_xy_m"))
+                           tol.get("feature_rms_xy_m"), "m", note=f"{dom.count} patches, {gsd:.2f} GSD"
+                           f"{_dom_crs_note(dom_check, project)}", key="feature_rms_xy_m"))
         if dom.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
             largest = dom.max_xy_m if dom.max_xy_m is not None else float("nan")
@@ -605,7 +629,12 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                round(dom.p95_xy_m, 4), 2 * tol["feature_rms_xy_m"], "m",
                                note=f"largest {largest:.3f} m; " "limit 2 x the RMS limit (at most 5 % gross errors)",
                                key="feature_rms_xy_m"))
-    if dom_check_stale:
+    if dom_check_stale and other_dom:
+        rows.append(_failed("dom_check_stale", sec, "DOM check of another DOM",
+                            f"the DOM was not checked: {project.dom_report_path} measured {other_dom} (ortho check "
+                            f"--dom), not {project.mosaic_path}; re-run ortho check {root} --reference REF.tif (give "
+                            "--out for the check of another DOM)"))
+    elif dom_check_stale:
         rows.append(_failed("dom_check_stale", sec, "DOM check of an earlier mosaic",
                             f"the DOM was not checked: {project.dom_report_path} measured an earlier "
                             f"{project.mosaic_path} (the mosaic was made again since, e.g. by aerotri run without "

@@ -194,6 +194,15 @@ def map_axes_unit_m(crs, source: str = "CRS") -> tuple[float, float, float]:
     return tuple(float(x) for x in u)
 
 
+def map_axis_signs(crs) -> tuple[float, float]:
+    """(+1 or -1, +1 or -1): the sign that turns a step along a map's x, y (GIS order: the east-west axis first) into
+    a step east and north. -1 for a south-oriented grid's westing and southing (South Africa's Lo grids, EPSG:2046
+    to 2055): a displacement in its units read as east and north points the other way."""
+    h = horizontal_crs(parse_crs(crs.to_wkt() if hasattr(crs, "to_wkt") else crs))
+    directions = {a.direction.lower() for a in h.axis_info}
+    return (-1.0 if "west" in directions else 1.0), (-1.0 if "south" in directions else 1.0)
+
+
 def check_stored_crs(requested: pyproj.CRS, stored, where: str, x, y, tolerance: float) -> None:
     """``CrsError`` naming ``where`` unless the CRS a GeoTIFF holds (``stored``: rasterio's CRS or None) is
     ``requested``. GDAL may rewrite a definition into an equivalent one (polar stereographic variant A

@@ -387,3 +387,26 @@ def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path)
     assert versions["rectify"] == S._rectify_versions() and versions["mosaic"] == S._mosaic_versions()
     assert versions["corners"] == S._corners_versions()
     assert versions["adjust_first"] == versions["adjust_final"] == S._adjust_versions()
+
+
+def test_a_contract_crs_on_another_datum_is_refused_before_any_stage(tmp_path):
+    """trial-ortho: `[rectify] crs = "gk3:cgcs2000"` in a WGS 84 UTM project stopped `aerotri run` at the orthophotos
+    (4.5 min into the demo's chain) naming --params / --allow-ballpark, which it does not take; now before any stage,
+    saying how to make the contract's DOM. The same datum (another UTM zone) passes."""
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain
+    from aerotri.core.errors import ConfigError
+    from aerotri.core.project import Project
+
+    toml = '[project]\ncrs = "EPSG:32649"\n'
+    (tmp_path / "gnss.txt").write_text("s01_001 452500.0 3408800.0 1200.0\ns01_002 452700.0 3408800.0 1200.0\n")
+    for crs, refused in (("gk3:cgcs2000", True), ("EPSG:4546", True), ("EPSG:32650", False)):
+        (tmp_path / "project.toml").write_text(toml + f'[rectify]\ncrs = "{crs}"\n')
+        p = Project.open(tmp_path)
+        chain = Chain(p, read_options(p))
+        if refused:
+            with pytest.raises(ConfigError, match=rf"project.toml \[rectify\] crs = '{crs}': .*ballpark.*`aerotri run` "
+                                                  r"takes no datum parameters: .*ortho rectify .* --crs"):
+                chain._check_output_crs()
+        else:
+            chain._check_output_crs()

@@ -441,3 +441,22 @@ def test_details_tables_round_each_number_once():
     (b,) = detail_blocks([dict(a="strip_01", b="strip_02", n_cells=26895, mean_m=0.047490968964754174,
                                rms_m=0.05099518472945774, tags=[1, 2])])
     assert [c.text for c in b.table.rows[0]] == ["strip_01", "strip_02", "26895", "0.047", "0.051", "1, 2"]
+
+
+def test_a_dom_check_of_another_dom_is_not_the_projects(tmp_path):
+    """trial-ortho: `ortho check P --dom OTHER.tif --reference REF` wrote P/ortho/dom_report.json, and the accuracy
+    report passed P's DOM by OTHER's figures (a conventional DOM's roofs, 4.24 m, under "true ortho on the DSM"). A check
+    that records another DOM is not taken; one of the project's mosaic (or written before it was recorded) is."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    (p / "ortho" / "mosaic.tif").write_bytes(b"II*\0")
+    check = p / "ortho" / "dom_report.json"
+    doc = json.loads(check.read_text())
+    check.write_text(json.dumps(dict(doc, dom="/elsewhere/other_dom.tif", dom_is_project_mosaic=False)))
+    rep = write_qa_report(p)
+    row = rep.check("dom_check_stale")
+    assert row.quantity == "DOM check of another DOM" and row.verdict == "fail"
+    assert "/elsewhere/other_dom.tif" in row.note and "ortho/mosaic.tif" in row.note
+    assert not rep.has("dom_rms_xy_m") and rep.overall == "fail"
+    check.write_text(json.dumps(dict(doc, dom=str(p / "ortho" / "mosaic.tif"), dom_is_project_mosaic=True)))
+    rep = write_qa_report(p)
+    assert rep.has("dom_rms_xy_m") and not rep.has("dom_check_stale") and rep.overall == "pass"

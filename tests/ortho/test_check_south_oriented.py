@@ -1,0 +1,44 @@
+"""The DOM check of a DOM in a south-oriented grid (trial-ortho 2026-12-01): South Africa's Lo grids (EPSG:2046-2055)
+count westing and southing. The NGI mosaic in Lo25 (EPSG:2051) against a reference placed 12 m east and 6 m north of
+it read "mean +12.0 m east, +6.0 m north" (the same mosaic in the project's Lo25 of east/north axes: -12.0, -6.0);
+an operator moving the DOM by it would double the error. Now east and north whatever the grid's axes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pyproj import CRS
+
+from ortho.check import check_points, measure_roof_patches, run_check
+from ortho.synthetic import textured_orthophoto, write_geotiff
+
+SHIFT_PX = 3  # the DOM shows the reference's content 3 cells further right (higher column) in the image
+
+
+def _pair(tmp_path, crs, x_left, y_top):
+    ref = textured_orthophoto(240, 240, 1, seed=5)[:, :, 0]
+    dom = np.concatenate([np.repeat(ref[:, :1], SHIFT_PX, axis=1), ref[:, :-SHIFT_PX]], axis=1)
+    write_geotiff(tmp_path / "ref.tif", ref, x_left, y_top, 1.0, crs)
+    write_geotiff(tmp_path / "dom.tif", dom, x_left, y_top, 1.0, crs)
+    (tmp_path / "proj").mkdir(exist_ok=True)
+
+
+# x grows with the column in both; in UTM 35S that is east, in Lo25 west (westing)
+@pytest.mark.parametrize("epsg, x_left, y_top, east", [(32735, 300000.0, 6300000.0, 1.0),
+                                                        (2051, 53130.0, 3735156.0, -1.0)])
+def test_displacements_are_east_and_north_in_a_south_oriented_grid(tmp_path, epsg, x_left, y_top, east):
+    crs = CRS.from_epsg(epsg)
+    _pair(tmp_path, crs, x_left, y_top)
+    rep = run_check(tmp_path / "proj", reference_path=tmp_path / "ref.tif", dom_path=tmp_path / "dom.tif",
+                    out_stem=tmp_path / "dom_report")
+    assert rep.displacement.count >= 9
+    assert rep.displacement.mean_e_m == pytest.approx(east * SHIFT_PX, abs=0.05)
+    assert rep.displacement.mean_n_m == pytest.approx(0.0, abs=0.05)
+    roofs = measure_roof_patches(tmp_path / "dom.tif", tmp_path / "ref.tif", [x_left + 120.0], [y_top - 120.0])
+    assert roofs.de_m[0] == pytest.approx(east * SHIFT_PX, abs=0.1) and abs(roofs.dn_m[0]) < 0.1
+    # a point surveyed at (x, y) and measured in the DOM 2 units further along x and 1 further along y
+    (tmp_path / "points.csv").write_text(f"id,x,y,x_dom,y_dom\nP1,{x_left + 50},{y_top - 50},{x_left + 52},"
+                                         f"{y_top - 49}\n")
+    stats, table = check_points(tmp_path / "points.csv", 1.0, None, 1.0, crs)
+    north = 1.0 if epsg == 32735 else -1.0
+    assert table["points"][0]["de_m"] == pytest.approx(2.0 * east) and table["points"][0]["dn_m"] == pytest.approx(north)

@@ -1,0 +1,61 @@
+"""`ortho rectify --frames` after a whole block (trial-ortho 2026-12-01): re-rectifying one NGI frame at another pixel
+size removed the 3 other frame orthos with no word above the info level, and the line said "rectified 4 frames" of a
+subset that kept 3 earlier frames. Now the removal is a warning and the line counts the frames given and kept."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+from click.testing import CliRunner
+
+from ortho.block import rectify_block
+from ortho.cli import main
+from ortho.synthetic import write_synthetic_project
+
+
+@pytest.fixture
+def warnings_of_ortho():
+    messages: list[str] = []
+
+    class Collect(logging.Handler):
+        def emit(self, record):
+            messages.append(record.getMessage())
+
+    handler = Collect(logging.WARNING)
+    logging.getLogger("ortho").addHandler(handler)  # the CLIs' logging set-up may stop propagation
+    yield messages
+    logging.getLogger("ortho").removeHandler(handler)
+
+
+def test_a_subset_on_another_grid_warns_that_the_other_frames_go(tmp_path, warnings_of_ortho):
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=2, seed=3)
+    gsd = rectify_block(root).res_m
+    assert len(list((root / "ortho" / "frames").glob("*.tif"))) == 2
+
+    out = CliRunner().invoke(main, ["rectify", str(root), "--frames", "s01_002"])
+    assert out.exit_code == 0, out.output
+    assert "rectified 1 frame (1 earlier kept) at" in out.output
+    assert not any("removed" in m for m in warnings_of_ortho)
+
+    out = CliRunner().invoke(main, ["rectify", str(root), "--frames", "s01_002", "--res-m", f"{1.5 * gsd:.4f}"])
+    assert out.exit_code == 0, out.output
+    assert "rectified 1 frame at" in out.output
+    assert sorted(p.stem for p in (root / "ortho" / "frames").glob("*.tif")) == ["s01_002"]
+    assert any("the 1 other frame ortho of the earlier run" in m and "removed" in m for m in warnings_of_ortho), \
+        warnings_of_ortho
+
+
+def test_an_output_grid_far_from_its_central_meridian_is_warned_of(tmp_path, warnings_of_ortho):
+    """trial-ortho: the demo (lon 110.5 E) rectified into CGCS2000 GK CM 123E (EPSG:4550, a neighbouring province's
+    zone) without a word: scale factor 1.0178, a 0.5 m pixel 0.491 m on the ground. Its own zone (CM 111E) is not."""
+    from ortho.settings import RectifySettings
+
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=2, seed=3)
+    rectify_block(root, RectifySettings(crs="gk3:cgcs2000"), frames=["s01_001"], allow_ballpark=True)
+    assert not any("scale factor" in m for m in warnings_of_ortho), warnings_of_ortho
+    rectify_block(root, RectifySettings(crs="EPSG:4550"), frames=["s01_001"], allow_ballpark=True)
+    assert any("EPSG:4550" in m and "scale factor of 1.01" in m and "EPSG:32649" in m for m in warnings_of_ortho), \
+        warnings_of_ortho
