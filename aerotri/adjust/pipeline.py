@@ -656,7 +656,9 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
         focal_mode = next((g for g in result.geometry or [] if g.mode == "focal_height"), focal_mode)
         for c in now:
             if c.action == "flagged":
-                log.warning(f"self-calibration: {c.group} estimated, but not determinable by this block: {c.reason}")
+                log.warning(f"self-calibration: {c.group} estimated, but this block cannot tell it from a GNSS offset "
+                            f"fixed in the camera (the estimate holds any such offset: do not reuse it as the camera's "
+                            f"calibration): {c.reason}")
         fixed = [c.group for c in now if c.action == "fixed"]
         if not fixed:
             break

@@ -715,12 +715,9 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     if fixed:
         weaknesses.append("Self-calibration: " + "; ".join(
             f"{c.group} fixed at its a-priori value (not determinable: {c.reason})" for c in fixed) + ".")
+    # not a weakness: the ground is the same whichever of the principal point and a GNSS offset fixed in the camera
+    # took it (review 12a); the self-calibration section and the console say the estimate is not one to reuse
     flagged = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "flagged"]
-    if flagged:
-        weaknesses.append("Self-calibration: " + "; ".join(
-            f"{c.group} estimated but not determinable by this block: {c.reason}" for c in flagged)
-            + ". Control points with plan coordinates hold the ground whichever took it; a measured lever arm and "
-            "exposure timing, or a laboratory calibration of the camera, tell them apart.")
     gcc = gnss_correction_check(ba)
     if gcc is not None and gcc.suspect:
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
@@ -1165,7 +1162,8 @@ def _self_calibration_txt(sc: dict) -> list[str]:
                              for m, v in c["correlations"].items() if v is not None)
             est = ", ".join(f"{n} {c['estimate'][n]:.6g} +- {c['sigma'][n]:.3g} (a priori {c['apriori'][n]:.6g})"
                             for n in c["estimate"])
-            state = {"estimated": "estimated", "flagged": "estimated, NOT DETERMINABLE (kept, the verdict weak)"}.get(
+            state = {"estimated": "estimated", "flagged": "estimated, HOLDS ANY GNSS OFFSET FIXED IN THE CAMERA (not a "
+                     "calibration to reuse)"}.get(
                 c["action"], "FIXED at its a-priori value")
             L.append(f"  {c['group']:11} {state}"
                      f": corner sigma {c['corner_sigma_px']:.2f} px ({100 * c['corner_sigma_fraction']:.3f} % of the "
@@ -1184,7 +1182,8 @@ def _self_calibration_txt(sc: dict) -> list[str]:
                          + f"largest with one frame's orientation {_n3(c['orientation_correlation'][0])} / "
                          f"{_n3(c['orientation_correlation'][1])}")
             if c["reason"]:
-                L.append(f"  {'':11} not determinable: {c['reason']}")
+                L.append(f"  {'':11} {'not told from the GNSS' if c['action'] == 'flagged' else 'not determinable'}: "
+                         f"{c['reason']}")
         note = formal_sigma_note(sc)
         if note:
             L.append(f"  ({note})")
