@@ -24,7 +24,8 @@ sloping surface tried where one level holds too, must move nothing there).
 ``--big-lake`` (i44-edge): a level lake 340 m across in a 480 m square (2 returns / m2; banks 1 m over 1 m, then
 2 %), returning the pulse (``lake``) or mirroring 95 % of it away (``pond``), with a dark level car park standing 0.15 m
 above its surroundings (50 x 30 m) and a level forest floor 0.3 m below them (50 x 50 m) under crowns (45 % of the
-pulses split on a crown 12-18 m up; ``tests/lidarctl/test_classify_water_tiles.py::big_lake_scene``), classified whole and in 100 m tiles with 20 m and 40 m buffers: water PA / UA against the scene's
+pulses split on a crown 12-18 m up; ``tests/lidarctl/test_classify_water_tiles.py::big_lake_scene``), classified
+whole and in 100 m tiles with 20 m and 40 m buffers: water PA / UA against the scene's
 truth, the car park's and the forest floor's water returns, the returns whose water class differs from the whole
 run's -> ``big_lake_<label>``; ``lake_alone`` / ``pond_alone``: the same without the car park and the forest.
 
