@@ -27,6 +27,9 @@ Three passes, memory bounded by the chunk size and the tile size, never by the f
    its water cell from the whole cloud's mean point spacing, its origin, the median returns per occupied cell), so
    that every tile judges pulse dropouts on the whole cloud's cells and density and what is water does not depend
    on the tile size (issue 44: a window that a wide river fills had its dropout threshold lowered below the water).
+   The same passes give the survey's footprint (its occupied 10 m cells: emptiness beyond it is no gap), the whole
+   cloud's level water bodies (from each water cell's lowest, median and highest return) and the land's reflectance
+   (the median intensity of each cell's lowest return), for a lake larger than a tile's window (i44-edge).
 2. ``classify_tile`` (one executor task per tile, see ``aerotri.core.executor``): read the tile file,
    run ``classify.classify_points`` and write the classes of the core points with their input
    indices (``tile_R_C.classes.npy``, ``tile_R_C.core.npy``). Returns small statistics.
@@ -560,16 +563,25 @@ class CellCountTask:
     x0_m: float
     y0_m: float
     cell_m: float
+    # also return the tile's occupied cells (row, column on the whole grid; the survey's footprint)
+    with_cells: bool = False
+    # also return the lowest, median and highest return (m) of each of those cells (the whole cloud's level water)
+    with_heights: bool = False
 
 
-def cell_count_histogram(task: CellCountTask) -> np.ndarray:
+def cell_count_histogram(task: CellCountTask):
     """How many of the tile's cells (``CellCountTask``) hold k returns, k = 0, 1, ... (index 0 stays 0: the
-    empty cells are not counted); int64."""
+    empty cells are not counted); int64. ``with_cells``: (histogram, (k, 2) int64 row and column of the occupied
+    cells on the whole cloud's grid)."""
     rec = np.fromfile(task.points_path, dtype=TILE_DTYPE)
     x, y = task.units.xy_to_m(np.ascontiguousarray(rec["x"])), task.units.xy_to_m(np.ascontiguousarray(rec["y"]))
+    z = task.units.z_to_m(np.ascontiguousarray(rec["z"])) if task.with_heights else None
+    inten = np.ascontiguousarray(rec["intensity"]) if task.with_heights else None
     del rec
     if not len(x):
-        return np.zeros(1, np.int64)
+        if task.with_heights:
+            return np.zeros(1, np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 3)), np.zeros(0)
+        return (np.zeros(1, np.int64), np.zeros((0, 2), np.int64)) if task.with_cells else np.zeros(1, np.int64)
     c = task.cell_m
     j = np.floor((x - task.x0_m) / c).astype(np.int64)
     i = np.floor((y - task.y0_m) / c).astype(np.int64)
@@ -583,6 +595,18 @@ def cell_count_histogram(task: CellCountTask) -> np.ndarray:
     own = (row == task.row) & (col == task.col)
     hist = np.bincount(counts[cells[own]], minlength=1)
     hist[0] = 0
+    ij = np.column_stack([ci[own] + i0, cj[own] + j0]).astype(np.int64)
+    if task.with_heights:
+        flat = (i - i0) * ncols + (j - j0)
+        order = np.lexsort((z, flat))
+        start = np.r_[0, np.cumsum(counts[cells])[:-1]]
+        cnt = counts[cells]
+        zs = z[order]
+        lo, hi = zs[start], zs[start + cnt - 1]
+        med = 0.5 * (zs[start + (cnt - 1) // 2] + zs[start + cnt // 2])
+        return hist.astype(np.int64), ij, np.column_stack([lo, med, hi])[own], inten[order[start]][own]
+    if task.with_cells:
+        return hist.astype(np.int64), ij
     return hist.astype(np.int64)
 
 
@@ -607,21 +631,41 @@ def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUni
 
     x0, y0 = lowest
 
-    def histogram(cell_m, desc):
-        jobs = [CellCountTask(t.row, t.col, t.points_path, grid, units, x0, y0, cell_m) for t in tasks]
-        total = np.zeros(1, np.int64)
+    def histogram(cell_m, desc, with_cells=False, with_heights=False):
+        jobs = [CellCountTask(t.row, t.col, t.points_path, grid, units, x0, y0, cell_m, with_cells, with_heights)
+                for t in tasks]
+        total, cells, heights, lowest_i = np.zeros(1, np.int64), [], [], []
         for h in executor.map(cell_count_histogram, jobs, desc=desc, unit="tile"):
+            if with_heights:
+                h, ij, zz, ii = h
+                heights.append(zz)
+                lowest_i.append(ii)
+            if with_cells or with_heights:
+                h, ij = (h, ij) if with_heights else h
+                cells.append(ij)
             if len(h) > len(total):
                 h, total = total, h
             total[:len(h)] += h
-        return total
+        if with_heights:
+            return total, np.concatenate(cells), np.concatenate(heights), np.concatenate(lowest_i)
+        return (total, np.concatenate(cells)) if with_cells else total
 
-    occupied = histogram(10.0, "tiles: density")
+    occupied, ij = histogram(cl.COVERAGE_CELL_M, "tiles: density", with_cells=True)
     n = int((occupied * np.arange(len(occupied))).sum())
-    spacing = float(np.sqrt(int(occupied.sum()) * 100.0 / max(n, 1)))
+    spacing = float(np.sqrt(int(occupied.sum()) * cl.COVERAGE_CELL_M ** 2 / max(n, 1)))
     c = cl.water_cell_size_m(spacing, params)
-    return cl.WaterGrid(cell_m=float(c), x0_m=float(x0), y0_m=float(y0),
-                        median_count=_median_of_histogram(histogram(c, "tiles: water cells")))
+    # the survey's footprint on the same 10 m cells, for the water rules' "beyond the coverage" (issue 44)
+    occ = np.zeros(tuple(ij.max(axis=0) + 1) if len(ij) else (1, 1), bool)
+    occ[ij[:, 0], ij[:, 1]] = True
+    wg = cl.WaterGrid(cell_m=float(c), x0_m=float(x0), y0_m=float(y0), median_count=0.0,
+                      footprint_10m=cl.survey_footprint(occ))
+    # the water cells: their returns per cell, lowest, median and highest return and the lowest one's intensity
+    hist, cells, heights, lowest_intensity = histogram(c, "tiles: water cells", with_heights=True)
+    wg = dataclasses.replace(wg, median_count=_median_of_histogram(hist), land_intensity=float(
+        np.median(lowest_intensity)) if len(lowest_intensity) else float("nan"))
+    if params.level_water_min_area_m2 <= 0:
+        return wg
+    return dataclasses.replace(wg, level_bodies=cl.whole_level_bodies(cells, heights, wg, params))
 
 
 def _direct_classes(in_paths, crs, params, chunk_points, fusion=None):

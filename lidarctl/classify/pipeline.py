@@ -204,6 +204,15 @@ class ClassifySettings:
                                                 "along its shores).")
     level_water_bank_fraction: float = setting(0.8, min=0.0, max=1.0, help="Level water: share of the ground cells on "
                                                                            "its rim standing above the level (a bed).")
+    # Beyond the survey's coverage the water grid is as empty as a lake that mirrors every pulse. Where emptiness is
+    # the only evidence (level patches joined across a gap, a deck between gaps) it counts only inside the coverage
+    # (issue 44, i44-edge); the dropout rule judges a gap by its returns (dark, level, in a bed) and keeps it all: a
+    # river running off a crop's edge (Autzen's, 20 m without a return) is by occupancy a band beyond a strip.
+    # Physics, no fitted value (the 10 m cells are those of the mean spacing; the one-cell closing keeps canals).
+    water_survey_coverage: bool = setting(True, help="Empty water cells beyond the survey's coverage (its occupied "
+                                          "10 m cells, closed by one cell, with their holes filled; the empty cells of "
+                                          "its ragged edge joined to the outside) are no gap that level water is "
+                                          "joined across or a bridge deck spans.")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
     # across the water): a two-lane road with pavements is ~15 m. 0 disables the bridge rule.
     bridge_max_width_m: float = setting(20.0, min=0.0, help="A bridge deck is at most this long along the water it "
@@ -1024,6 +1033,14 @@ class WaterGrid:
     y0_m: float
     median_count: float
     window_m: tuple = (-np.inf, -np.inf, np.inf, np.inf)
+    # The survey's footprint: the whole cloud's 10 m cells (``COVERAGE_CELL_M`` from x0_m, y0_m) holding returns,
+    # holes filled (``survey_footprint``); None: the tile's own points decide (as a whole cloud's do).
+    footprint_10m: np.ndarray | None = dataclasses.field(default=None, compare=False)
+    # The whole cloud's level water bodies (``whole_level_bodies``), for the level regions a tile's window cuts.
+    level_bodies: LevelBodies | None = dataclasses.field(default=None, compare=False)
+    # The median intensity of the lowest return of the whole cloud's water cells (the land's reflectance, for a
+    # window that open water fills; NaN: none).
+    land_intensity: float = float("nan")
 
     def cell_ids(self, x, y):
         """``grid.cell_ids`` of the points on this grid, its origin moved to the cell holding their lowest x, y."""
@@ -1041,6 +1058,120 @@ class WaterGrid:
         ok_x = (jx - c >= xmin) & (jx + 2 * c <= xmax)
         ok_y = (iy - c >= ymin) & (iy + 2 * c <= ymax)
         return ok_y[:, None] & ok_x[None, :]
+
+
+@dataclasses.dataclass(frozen=True)
+class LevelBodies:
+    """Water cells of the whole cloud's level water bodies (``whole_level_bodies``): row and column on the whole
+    cloud's water grid (``WaterGrid``: its cell and origin), flat keys ``row * ncols + col`` (sorted) and the
+    level of each cell's body (m)."""
+
+    ncols: int
+    keys: np.ndarray
+    level_m: np.ndarray
+
+    def level_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The body's level (m) at whole-grid cells ``rows``, ``cols`` (NaN: in no body)."""
+        out = np.full(len(rows), np.nan)
+        if not len(self.keys) or not len(rows):
+            return out
+        key = rows.astype(np.int64) * self.ncols + cols
+        ok = (rows >= 0) & (cols >= 0) & (cols < self.ncols)
+        pos = np.clip(np.searchsorted(self.keys, key), 0, len(self.keys) - 1)
+        hit = ok & (self.keys[pos] == key)
+        out[hit] = self.level_m[pos[hit]]
+        return out
+
+
+def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p: ClassifySettings) -> LevelBodies:
+    """The level water bodies of a whole cloud from its water cells alone (the tiles' pass, ``tiles.water_grid``):
+    ``cells`` (k, 2) row and column on the whole grid of ``wg``, ``heights`` (k, 3) each cell's lowest, median and
+    highest return (m). ``level_water`` judges them as three returns a cell at its centre: every return a
+    candidate (a cell whose returns span at most 2 ``level_water_tol_m`` is level: over open water all are
+    candidates; a crown in a cell spans more), the median the ground (the banks: a shore cell's mean ground lies
+    above the water, its lowest return on it), the highest the open-sky test's;
+    no split-pulse test (the tile applies it). A body whose area or bed lies partly beyond a tile's window is then
+    judged as a whole (issue 44, i44-edge)."""
+    if not len(cells):
+        return LevelBodies(1, np.zeros(0, np.int64), np.zeros(0))
+    c = wg.cell_m
+    px = np.repeat(wg.x0_m + (cells[:, 1] + 0.5) * c, 3)
+    py = np.repeat(wg.y0_m + (cells[:, 0] + 0.5) * c, 3)
+    pz = np.asarray(heights, float).ravel()
+    middle = np.zeros(len(pz), bool)
+    middle[1::3] = True
+    whole = dataclasses.replace(wg, window_m=(-np.inf, -np.inf, np.inf, np.inf), level_bodies=None)
+    water = level_water(px, py, pz, np.ones(len(pz), bool), middle, c / 2.0, p=p, water_grid=whole)
+    if not water.any():
+        return LevelBodies(1, np.zeros(0, np.int64), np.zeros(0))
+    ncols = int(cells[:, 1].max()) + 1
+    nrows = int(cells[:, 0].max()) + 1
+    k = np.flatnonzero(water) // 3
+    key = np.unique(cells[k, 0] * ncols + cells[k, 1])
+    mask = np.zeros(nrows * ncols, bool)
+    mask[key] = True
+    lab, nlab = ndimage.label(mask.reshape(nrows, ncols), np.ones((3, 3), int))
+    wkey = cells[np.flatnonzero(water) // 3, 0] * ncols + cells[np.flatnonzero(water) // 3, 1]
+    body_level = np.atleast_1d(ndimage.median(pz[water], lab.ravel()[wkey], np.arange(1, nlab + 1)))
+    return LevelBodies(ncols, key, np.asarray(body_level, float)[lab.ravel()[key] - 1])
+
+
+# The cells of the survey's footprint (m): those of ``grid.mean_spacing_m`` (and of the tiles' first water-grid pass).
+COVERAGE_CELL_M = 10.0
+
+
+def occupied_10m(x, y, x0: float, y0: float) -> np.ndarray:
+    """The ``COVERAGE_CELL_M`` cells from x0, y0 (rows along y) holding a return (bool, up to the points' largest
+    cell)."""
+    j = np.floor((np.asarray(x, float) - x0) / COVERAGE_CELL_M).astype(np.int64)
+    i = np.floor((np.asarray(y, float) - y0) / COVERAGE_CELL_M).astype(np.int64)
+    occ = np.zeros((int(i.max()) + 1, int(j.max()) + 1), bool)
+    occ[i, j] = True
+    return occ
+
+
+def survey_footprint(occupied: np.ndarray) -> np.ndarray:
+    """The survey's footprint on the 10 m cells: the cells holding returns, closed by one cell (3 x 3; the cloud's
+    edge counts as empty), with their holes filled. A lake that mirrored every pulse lies inside, enclosed by its
+    shores; so does a channel one 10 m cell wide that runs off the cloud's edge (a canal 10-20 m wide whose calm
+    water returned nothing: its banks reach the edge on both sides); the band beyond a strip's end or side is open
+    to the cloud's edge along its length and stays outside."""
+    closed = ndimage.binary_closing(np.pad(occupied, 2), np.ones((3, 3), bool))[2:-2, 2:-2]
+    return ndimage.binary_fill_holes(closed | occupied)
+
+
+def beyond_coverage(count: np.ndarray, c: float, x0: float, y0: float, footprint: np.ndarray,
+                    fx0: float, fy0: float) -> np.ndarray:
+    """Cells of a water grid (returns per cell ``count``, cells of ``c`` m from ``x0``, ``y0``) beyond the survey's
+    coverage: the empty cells whose centre lies in a 10 m cell outside ``footprint`` (cells from ``fx0``,
+    ``fy0``; beyond its extent is outside), and the empty cells joined to those (8-connected) within one 10 m cell
+    of them -- the coverage's ragged edge, where the last scan lines end between the 10 m cells' centres."""
+    nrows, ncols = count.shape
+    outside = np.pad(~footprint, 1, constant_values=True)
+    fringe = ndimage.binary_dilation(outside, np.ones((3, 3), bool))
+    i = np.clip(np.floor((y0 + (np.arange(nrows) + 0.5) * c - fy0) / COVERAGE_CELL_M).astype(np.int64) + 1,
+                0, outside.shape[0] - 1)
+    j = np.clip(np.floor((x0 + (np.arange(ncols) + 0.5) * c - fx0) / COVERAGE_CELL_M).astype(np.int64) + 1,
+                0, outside.shape[1] - 1)
+    empty = count == 0
+    near = empty & fringe[np.ix_(i, j)]
+    lab, nlab = ndimage.label(near, np.ones((3, 3), int))
+    if nlab == 0:
+        return near
+    seeded = np.zeros(nlab + 1, bool)
+    seeded[lab[near & outside[np.ix_(i, j)]]] = True
+    seeded[0] = False
+    return seeded[lab]
+
+
+def survey_beyond(x, y, count: np.ndarray, c: float, x0: float, y0: float,
+                  water_grid: WaterGrid | None = None) -> np.ndarray:
+    """``beyond_coverage`` of a water grid of the points ``x``, ``y``: the footprint of the whole cloud's 10 m cells
+    (``water_grid``, a tile) or of these points (from their lowest x, y)."""
+    if water_grid is not None and water_grid.footprint_10m is not None:
+        return beyond_coverage(count, c, x0, y0, water_grid.footprint_10m, water_grid.x0_m, water_grid.y0_m)
+    fx0, fy0 = float(np.min(x)), float(np.min(y))
+    return beyond_coverage(count, c, x0, y0, survey_footprint(occupied_10m(x, y, fx0, fy0)), fx0, fy0)
 
 
 def water_cell_size_m(spacing_m: float, p: ClassifySettings) -> float:
@@ -1079,6 +1210,8 @@ class DropoutGrid:
     area_m2: np.ndarray
     building_cell: np.ndarray
     known: np.ndarray | None = None
+    # cells beyond the survey's coverage (``survey_beyond``; None: not asked): no gap a deck spans
+    beyond: np.ndarray | None = None
 
     def rim(self, win, region) -> np.ndarray:
         """The rim (two cells wide) of ``region`` (a mask over the window ``win`` of the grid), known cells only."""
@@ -1103,6 +1236,7 @@ def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings,
     else:
         median_count = water_grid.median_count
     dropout = ndimage.uniform_filter(count, 3, mode="nearest") < p.water_density_ratio * median_count
+    beyond = survey_beyond(x, y, count, c, x0, y0, water_grid) if p.water_survey_coverage else None
     known = None
     if water_grid is not None:
         known = water_grid.inside(nrows, ncols, x0, y0)
@@ -1111,17 +1245,19 @@ def dropout_grid(x, y, is_building, spacing_m: float, p: ClassifySettings,
     area_m2 = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
     building_cell = np.bincount(flat[is_building], minlength=nrows * ncols).reshape(nrows, ncols) > 0
     return DropoutGrid(c, flat, nrows, ncols, x0, y0, count, median_count, labels, nlab, area_m2, building_cell,
-                       known)
+                       known, beyond)
 
 
 def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spacing_m: float,
-                 p: ClassifySettings, solid=None, dropout: DropoutGrid | None = None) -> np.ndarray:
+                 p: ClassifySettings, solid=None, dropout: DropoutGrid | None = None,
+                 land_intensity: float | None = None) -> np.ndarray:
     """Water returns (mask) by pulse-dropout water detection; see the module docstring, step 5.
 
     ``candidate``: points that may be water returns (ground, unclassified, low vegetation);
     ``is_building`` / ``is_ground``: class masks for the occlusion-shadow and bank tests;
     ``solid``: the points that are not noise (default all), for the canopy test; ``dropout``: the
-    cloud's ``dropout_grid`` when the caller has it.
+    cloud's ``dropout_grid`` when the caller has it; ``land_intensity``: a tile's whole cloud's reference
+    (``WaterGrid.land_intensity``), taken when most of the window's ground lies in open-water-sized gaps.
     Heights in metres; intensity in the sensor's units (only ratios to the cloud's median are used).
     """
     n = len(x)
@@ -1159,12 +1295,18 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
         return ~high
 
     ground_cell_z = g.ground_cell_z(x, y, z, is_ground)
+    lab_pt = labels.ravel()[flat]
     # Clouds without intensity (a constant field) skip the reflectance test.
     use_intensity = intensity is not None and is_ground.any() and np.ptp(np.asarray(intensity)[is_ground]) > 0
     if use_intensity:
         inten = np.asarray(intensity, float)
         ground_intensity = float(np.median(inten[is_ground]))
-    lab_pt = labels.ravel()[flat]
+        if land_intensity is not None and np.isfinite(land_intensity):
+            # A tile's window that open water fills (most of its ground returns in open-water-sized gaps) has no
+            # land to measure the darkness against: the whole cloud's (issue 44, a lake larger than a tile).
+            gap_ground = is_ground & (lab_pt > 0) & (area_m2[lab_pt] >= p.water_min_area_m2)
+            if gap_ground.sum() > 0.5 * is_ground.sum():
+                ground_intensity = float(land_intensity)
     cand = np.flatnonzero(candidate & (lab_pt > 0) & (area_m2[lab_pt] >= p.water_min_area_m2))
     if len(cand) == 0:
         return water
@@ -1355,6 +1497,19 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
     if multi is not None and not multi.any():
         multi = None
     shore_cells = max(1, int(np.ceil(p.water_shore_m / c)))
+    # A tile of a larger cloud: the level of the whole cloud's level water body at each cell (NaN: none), and the
+    # cells near the window's cut edge (a region reaching them has area and banks beyond the window).
+    outer, cut = None, None
+    if water_grid is not None and water_grid.level_bodies is not None and len(water_grid.level_bodies.keys):
+        cut = ~water_grid.inside(nrows, ncols, x0, y0)
+        if cut.any():
+            rr, cc = np.divmod(np.arange(nrows * ncols), ncols)
+            r_off = int(round((y0 - water_grid.y0_m) / c))
+            c_off = int(round((x0 - water_grid.x0_m) / c))
+            outer = water_grid.level_bodies.level_at(rr + r_off, cc + c_off).reshape(nrows, ncols)
+            if not np.isfinite(outer).any():
+                outer = None
+            cut = ndimage.binary_dilation(cut, np.ones((3, 3), bool), shore_cells + 2)
 
     def bodies(lab, joined: bool) -> np.ndarray:
         """Water returns of the level regions ``lab`` (region id per cell) that are water bodies."""
@@ -1382,17 +1537,31 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
         area = np.bincount(labels.ravel(), minlength=nlab + 1) * c * c
         boxes = ndimage.find_objects(labels)
         lab_pt = labels.ravel()[flat]
-        for k in np.flatnonzero(area[1:] >= p.level_water_min_area_m2) + 1:
+        judged = area >= p.level_water_min_area_m2
+        in_whole = np.zeros(nlab + 1, bool)
+        if outer is not None:
+            # Regions the window cuts that lie in a whole-cloud body (most of their cells): their area and bed
+            # are the whole body's (issue 44: a lake larger than a tile and its buffer).
+            ids = np.arange(1, nlab + 1)
+            in_whole[1:] = (ndimage.maximum(cut, labels, ids) > 0) & \
+                (ndimage.mean(np.isfinite(outer), labels, ids) > 0.5)
+            judged |= in_whole
+        judged[0] = False
+        for k in np.flatnonzero(judged):
             pad = shore_cells + 2
             r0, c0 = max(boxes[k - 1][0].start - pad, 0), max(boxes[k - 1][1].start - pad, 0)
             win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
             region = labels[win] == k
             level = float(np.median(med[win][region]))
-            rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
-            bank = ground_cell_z[win][rim]
-            bank = bank[np.isfinite(bank)]
-            if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
-                continue
+            whole_body = in_whole[k] and abs(float(np.nanmedian(outer[win][region])) - level) <= tol
+            if not whole_body:
+                if area[k] < p.level_water_min_area_m2:
+                    continue
+                rim = ndimage.binary_dilation(region, np.ones((3, 3), bool), 2) & ~region
+                bank = ground_cell_z[win][rim]
+                bank = bank[np.isfinite(bank)]
+                if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
+                    continue
             members = np.flatnonzero(candidate & (lab_pt == k))
             members = members[np.abs(z[members] - level) <= tol]
             if multi is not None and np.mean(multi[members]) > 0.05:
@@ -1425,7 +1594,11 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
         small = np.bincount(lab) * c * c < p.level_water_min_area_m2
         small[0] = False
         patches = np.where(small[lab], lab, 0)
-        joined = _join_across_dropouts(patches, med, np.bincount(flat, minlength=nrows * ncols) == 0, tol)
+        cnt = np.bincount(flat, minlength=nrows * ncols)
+        void = cnt == 0
+        if p.water_survey_coverage:   # beyond the survey is no gap a lake's shores border
+            void &= ~survey_beyond(x, y, cnt.reshape(nrows, ncols), c, x0, y0, water_grid).ravel()
+        joined = _join_across_dropouts(patches, med, void, tol)
         if joined is not patches:
             # Only the bodies made of two or more patches: the others were judged above.
             pairs = np.unique(np.column_stack([joined, patches])[patches > 0], axis=0)
@@ -1512,6 +1685,10 @@ def dropout_gaps(x, y, z, is_ground, g: DropoutGrid, p: ClassifySettings):
         if evals[1] >= 9.0 * max(evals[0], 1e-9):   # axes 3:1
             axis[k] = evecs[:, 1]
     labels = np.where(keep[labels], labels, 0)
+    if g.beyond is not None:
+        # Emptiness beyond the survey's coverage is no water a deck crosses (issue 44, i44-edge: the demo's ragged
+        # northern edge): only the gaps' cells inside the coverage.
+        labels = np.where(g.beyond, 0, labels)
     return labels, bank, axis, flat, c
 
 
@@ -1900,7 +2077,8 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     # water
     gaps = dropout_grid(x, y, is_building, spacing, p, water_grid)
     water = detect_water(x, y, z, intensity, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG),
-                         is_building, is_ground=is_ground, spacing_m=spacing, p=p, solid=clean, dropout=gaps)
+                         is_building, is_ground=is_ground, spacing_m=spacing, p=p, solid=clean, dropout=gaps,
+                         land_intensity=None if water_grid is None else water_grid.land_intensity)
     cls[water] = WATER
     cls[level_water(x, y, z, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG), is_ground, spacing, p=p,
                     solid=clean, number_of_returns=number_of_returns, water_grid=water_grid)] = WATER

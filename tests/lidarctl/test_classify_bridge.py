@@ -167,9 +167,10 @@ def joined_reaches_scene(case, seed=5):
     """Reviewer 10's cases (i44-bridge2): the canal scene's deck (canal A, v 40-55 m, the 10 m road at u 90-100
     m), its reaches upstream and downstream joined into one dropout gap elsewhere: ``ring`` a moat (a loop back
     round, v 10-20 m and two connectors, the road on the island side only), ``band`` a dropout band 4 m wide
-    (a strip gap) along the far bank, across the road (v 52-56 m), ``edge`` the survey's coverage ending across
-    the deck 3 m short of the far bank (no returns v > 52 m for u < 180 m; a cross strip covers u > 180 m).
-    Returns x, y, z and the deck's returns (mask)."""
+    (a strip gap) along the far bank, across the road (v 52-56 m), ``edge`` the survey's coverage ending 3 m
+    beyond the far bank (no returns v > 58 m for u < 180 m; a cross strip covers u > 180 m), ``edge_short`` 3 m
+    short of it (v > 52 m: reviewer 10's case; the canal's water and the band beyond the survey are one
+    emptiness, i44-edge). Returns x, y, z and the deck's returns (mask)."""
     rng = np.random.default_rng(seed)
     n = 200 * 100 * 3
     u, v = rng.uniform(0, 200, n), rng.uniform(0, 100, n)
@@ -184,6 +185,8 @@ def joined_reaches_scene(case, seed=5):
     if case == "band":
         water |= (v > 52) & (v < 56)
     if case == "edge":
+        water |= (v > 58) & (u < 180)
+    if case == "edge_short":
         water |= (v > 52) & (u < 180)
     deck &= ~water
     z = rng.normal(0, 0.02, n)
@@ -204,3 +207,18 @@ def test_deck_is_found_when_the_reaches_on_its_two_sides_join_elsewhere(case):
     assert deck.sum() > 300
     assert found[deck].mean() > 0.9
     assert not found[~deck].any()
+
+
+def test_deck_into_the_band_beyond_the_survey_is_no_deck():
+    # The coverage ending 3 m short of the far bank (i44-bridge2 found the deck): the canal's empty water on both
+    # sides of the road runs into the band beyond the survey without land between, so by the returns the road is a
+    # pier into the unsurveyed (i44-edge: emptiness beyond the survey's coverage is no gap); with the survey's
+    # coverage mask off it is a deck again.
+    x, y, z, deck = joined_reaches_scene("edge_short")
+    ground = np.ones(len(x), bool)
+    found = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), 1 / np.sqrt(3.0),
+                                  p=classify.ClassifySettings())
+    assert not found.any()
+    off = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), 1 / np.sqrt(3.0),
+                                p=classify.ClassifySettings(water_survey_coverage=False))
+    assert off[deck].mean() > 0.9 and not off[~deck].any()
