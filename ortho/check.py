@@ -473,6 +473,7 @@ ROOF_PATCH_PX = 48
 ROOF_MIN_VALID = 0.8  # share of the patch's DOM cells with a value (only they are correlated)
 ROOF_MIN_NCC = 0.5  # masked-NCC peak below which the patch is not measured (demo's true ortho: 99 % above 0.85)
 ROOF_HEIGHT_M = 2.5  # nDSM above which a cell is a roof (buildings found in the nDSM)
+DOM_CHECK_VERSION = 1  # the chain's dom_check stage stamp: bump when dom_report.json changes at the same inputs
 ROOF_MIN_AREA_M2 = 50.0  # smaller nDSM objects (bushes, cars) are not buildings
 
 

@@ -164,7 +164,13 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
     b = ba.block
     sig = ba.eo_map.sigma
     photos = []
-    corr = None
+    corr = offset = None
+    if ba.gnss_residual_m is not None:
+        from aerotri.adjust.variance_components import antenna_positions
+
+        # GNSS minus the adjusted antenna in the local frame (east, north, up, metres) as the strip's correction
+        # is: gnss_residual_m is in map axes and the project's units (feet in a feet project)
+        offset = np.asarray(b.gnss_local, dtype=float) - antenna_positions(b, ba.result.state)
     if ba.gnss_residual_m is not None and ba.opts.gnss_correction != "none":
         s, t = G.shift_index(b, ba.opts.gnss_correction), np.asarray(b.along_km, dtype=float)
         st = ba.result.state
@@ -180,10 +186,10 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
                "along_km": _f(b.along_km[i], 4)}
         if ba.gnss_residual_m is not None:
             row["gnss_residual_m"] = _lst(ba.gnss_residual_m[i], 4)
-            # GNSS minus the adjusted antenna: the strip's correction minus the residual (local east,
-            # north, up; the correction is zero when the solve corrects none)
+            # GNSS minus the adjusted antenna (local east, north, up, metres), beside the strip's correction (zero
+            # when the solve corrects none): their difference is the photo's residual in metres
             c = corr[i] if corr is not None else np.zeros(3)
-            row["gnss_offset_m"] = _lst(c - ba.gnss_residual_m[i], 4)
+            row["gnss_offset_m"] = _lst(offset[i], 4)
             row["gnss_correction_m"] = _lst(c, 4)
         row.update(_frame_grids(ba, res, obs))
         if sig is not None:

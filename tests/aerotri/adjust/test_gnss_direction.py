@@ -47,10 +47,16 @@ def _adjusted(tmp_path, seed: int, lag_s: float, camera_known: bool = True, feet
 
 def test_a_feet_crs_gives_the_same_lag(tmp_path):
     """The same block in CA zone 5 (ftUS): the check works in the local frame's metres, so the lag is the same,
-    not 3.28 times it."""
-    lags = [direction_check(ba.block, ba.result.state, SPEED_MPS).pairs[0].lag_s
-            for ba in (_adjusted(tmp_path / "m", 3, LAG_S), _adjusted(tmp_path / "ft", 3, LAG_S, feet=True))]
+    not 3.28 times it; so are the report's photo rows' GNSS offsets (GNSS minus the adjusted antenna, metres: they
+    were the map residuals in feet, 3.28 times too large), and they hold the injected lag (truth)."""
+    bas = (_adjusted(tmp_path / "m", 3, LAG_S), _adjusted(tmp_path / "ft", 3, LAG_S, feet=True))
+    lags = [direction_check(ba.block, ba.result.state, SPEED_MPS).pairs[0].lag_s for ba in bas]
     assert lags[1] == pytest.approx(lags[0], rel=0.05), lags
+    offsets = [np.array([p["gnss_offset_m"] for p in to_record(build_report(ba))["photos"]]) for ba in bas]
+    assert np.sqrt(np.mean((offsets[1] - offsets[0]) ** 2)) < 0.01 * np.sqrt(np.mean(offsets[0] ** 2))
+    east = np.asarray(bas[0].block.strip) % 2 == 0  # the GNSS 0.7 m ahead each way: a part stays in the offsets
+    ahead = np.where(east, offsets[0][:, 0], -offsets[0][:, 0])
+    assert 0.05 < ahead.mean() < SPEED_MPS * LAG_S, ahead.mean()
 
 
 def test_an_injected_time_lag_is_recovered_within_its_sigma_and_reported(tmp_path):
