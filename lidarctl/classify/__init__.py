@@ -5,5 +5,6 @@
 # changed with them). Bump it with every change of what class a point gets at the same settings.
 # 1: before i44-water; 2: i44-water (water from the whole cloud's water grid, sloping surfaces, filled banks);
 # 3: i44-bridge (a deck separates two different gaps); 4: i44-bridge2 (or crosses one gap for at least 4 m: its
-# reaches may be one gap).
-RULES_VERSION = 4
+# reaches may be one gap); 5: s11-fixes (such a one-gap deck needs both ends on land across the water and sides that
+# drop to it: jetties, breakwaters, earth causeways are ground).
+RULES_VERSION = 5
