@@ -491,6 +491,7 @@ ROOF_PATCH_PX = 48
 ROOF_MIN_VALID = 0.8  # share of the patch's DOM cells with a value (only they are correlated)
 ROOF_MIN_NCC = 0.5  # masked-NCC peak below which the patch is not measured (demo's true ortho: 99 % above 0.85)
 ROOF_HEIGHT_M = 2.5  # nDSM above which a cell is a roof (buildings found in the nDSM)
+DOM_CHECK_VERSION = 1  # the chain's dom_check stage stamp: bump when dom_report.json changes at the same inputs
 ROOF_MIN_AREA_M2 = 50.0  # smaller nDSM objects (bushes, cars) are not buildings
 # a corner whose evidence lies in the DOM's nodata (ground no frame sees, beside buildings): its match is ambiguous
 # (the NCC somewhere farther than ROOF_RIVAL_M from the best within ROOF_MIN_MARGIN of it) and the hole made it so

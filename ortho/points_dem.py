@@ -39,6 +39,7 @@ from aerotri.geom.crs.definition import project_crs
 from ortho.tie_points import read_tie_points
 
 NODATA = -9999.0
+POINTS_DEM_VERSION = 1  # the chain's dem stage stamp: bump when at/dem.tif changes at the same tie points and EO
 
 
 @dataclasses.dataclass(frozen=True)

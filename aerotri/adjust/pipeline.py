@@ -59,8 +59,10 @@ log = logging.getLogger(__name__)
 # The version of the adjustment (approximations, the bundle solve, the datum, gross-error handling) the chain's
 # adjust_first and adjust_final stamps hold beside ``aerotri.adjust.relative.RELATIVE_VERSION``: orientations
 # adjusted by earlier code are adjusted again. Bump it when eo.txt, object_points.csv or the report change at the
-# same inputs and settings. 1: s10-fixes (the algorithm as of main e4b26d8e).
-ADJUST_VERSION = 1
+# same inputs and settings. 1: s10-fixes (the algorithm as of main e4b26d8e). 2: s11-fixes: at/report.* holds the
+# GNSS direction check (gnss-direction, 4dfc338f; judged by the strips' spread since s11-fixes) and the unmodelled
+# drift in metres (c03bf566), which stamps of version 1 (since 086020cd) kept as up to date.
+ADJUST_VERSION = 2
 
 
 @dataclasses.dataclass(kw_only=True)

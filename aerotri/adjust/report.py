@@ -164,7 +164,13 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
     b = ba.block
     sig = ba.eo_map.sigma
     photos = []
-    corr = None
+    corr = offset = None
+    if ba.gnss_residual_m is not None:
+        from aerotri.adjust.variance_components import antenna_positions
+
+        # GNSS minus the adjusted antenna in the local frame (east, north, up, metres) as the strip's correction
+        # is: gnss_residual_m is in map axes and the project's units (feet in a feet project)
+        offset = np.asarray(b.gnss_local, dtype=float) - antenna_positions(b, ba.result.state)
     if ba.gnss_residual_m is not None and ba.opts.gnss_correction != "none":
         s, t = G.shift_index(b, ba.opts.gnss_correction), np.asarray(b.along_km, dtype=float)
         st = ba.result.state
@@ -180,10 +186,10 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
                "along_km": _f(b.along_km[i], 4)}
         if ba.gnss_residual_m is not None:
             row["gnss_residual_m"] = _lst(ba.gnss_residual_m[i], 4)
-            # GNSS minus the adjusted antenna: the strip's correction minus the residual (local east,
-            # north, up; the correction is zero when the solve corrects none)
+            # GNSS minus the adjusted antenna (local east, north, up, metres), beside the strip's correction (zero
+            # when the solve corrects none): their difference is the photo's residual in metres
             c = corr[i] if corr is not None else np.zeros(3)
-            row["gnss_offset_m"] = _lst(c - ba.gnss_residual_m[i], 4)
+            row["gnss_offset_m"] = _lst(offset[i], 4)
             row["gnss_correction_m"] = _lst(c, 4)
         row.update(_frame_grids(ba, res, obs))
         if sig is not None:
@@ -918,8 +924,9 @@ def _directions_dict(c) -> dict | None:
                    "across_turning_m": _f(p.across_turning_m, 4), "across_sigma_m": _f(p.across_sigma_m, 4),
                    "along_significant": p.along_significant, "across_significant": p.across_significant,
                    "lag_s": _f(p.lag_s, 4), "lag_sigma_s": _f(p.lag_sigma_s, 4),
-                   "critical_along": _f(p.k_along, 2), "critical_across": _f(p.k_across, 2)} for p in c.pairs],
-        "findings": c.findings(), "note": c.blind_note(),
+                   "critical_along": _f(p.k_along, 2), "critical_across": _f(p.k_across, 2),
+                   "separable": p.separable, "strip_dof": p.strip_dof} for p in c.pairs],
+        "findings": c.findings(), "not_separable": c.not_separable(), "note": c.blind_note(),
     }
 
 
@@ -941,9 +948,10 @@ def directions_txt(g: dict | None) -> list[str]:
         L.append(f"  {p['headings_deg'][0]:.0f} / {p['headings_deg'][1]:.0f} deg: turning with the heading along "
                  f"{p['along_turning_m']:+.3f} +- {p['along_sigma_m']:.3f}, across {p['across_turning_m']:+.3f} +- "
                  f"{p['across_sigma_m']:.3f} (limits {p['critical_along']:g} / {p['critical_across']:g} sigma){lag}: "
-                 + ("SIGNIFICANT" if p["along_significant"] or p["across_significant"] else "not significant"))
-    L += [f"  {f}" for f in g["findings"]]
-    if not g["findings"]:
+                 + ("SIGNIFICANT" if p["along_significant"] or p["across_significant"] else
+                    "not significant" if p.get("separable", True) else "not separable (one strip each way)"))
+    L += [f"  {f}" for f in g["findings"]] + [f"  {f}" for f in g.get("not_separable", [])]
+    if not g["findings"] and any(p.get("separable", True) for p in g["pairs"]):
         L.append(f"  (not significant; {g['note']})")
     return L
 
@@ -959,10 +967,12 @@ def _directions_html(g: dict | None, T) -> dict | None:
                "verdict"],
               [[" / ".join(f"{h:.0f}" for h in p["headings_deg"]), p["along_turning_m"], p["along_sigma_m"],
                 p["across_turning_m"], p["across_sigma_m"], p["lag_s"], p["lag_sigma_s"],
-                "fail" if p["along_significant"] or p["across_significant"] else "pass"] for p in g["pairs"]],
+                "fail" if p["along_significant"] or p["across_significant"] else
+                "pass" if p.get("separable", True) else "not separable"] for p in g["pairs"]],
               4, verdict_col=7) if g["pairs"] else None
-    text = ([g["reason"]] if not g["testable"] else []) + list(g["findings"]) + (
-        [f"Not significant at {g['k']:g} sigma; {g['note']}."] if g["testable"] and not g["findings"] else [])
+    text = ([g["reason"]] if not g["testable"] else []) + list(g["findings"]) + list(g.get("not_separable", [])) + (
+        [f"Not significant at {g['k']:g} sigma; {g['note']}."] if g["testable"] and not g["findings"]
+        and any(p.get("separable", True) for p in g["pairs"]) else [])
     return {"directions": directions, "pairs": pairs, "text": text}
 
 

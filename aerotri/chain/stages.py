@@ -110,6 +110,50 @@ def _rectify_versions() -> dict:
             "outlines of the occlusion test": OUTLINES_OF_THE_OCCLUSION_TEST}
 
 
+def _strips_versions() -> dict:
+    from lidarctl.strips.adjust import STRIP_ADJUST_VERSION
+    from lidarctl.strips.check import STRIP_CHECK_VERSION
+
+    return {"strip check": STRIP_CHECK_VERSION, "strip adjustment": STRIP_ADJUST_VERSION}
+
+
+def _vectors_versions() -> dict:
+    from lidarctl.checks.vectors import VECTOR_CHECK_VERSION
+    from lidarctl.vectors.layers import VECTORS_VERSION
+
+    return {"vectors": VECTORS_VERSION, "vector check": VECTOR_CHECK_VERSION}
+
+
+def _dem_versions() -> dict:
+    from ortho.points_dem import POINTS_DEM_VERSION
+
+    return {"tie point DEM": POINTS_DEM_VERSION}
+
+
+def _dom_check_versions() -> dict:
+    from ortho.check import DOM_CHECK_VERSION
+
+    return {"DOM check": DOM_CHECK_VERSION}
+
+
+def _height_check_versions() -> dict:
+    from lidarctl.checks.heights import HEIGHT_CHECK_VERSION
+
+    return {"height check": HEIGHT_CHECK_VERSION}
+
+
+def _lidar_eval_versions() -> dict:
+    from lidarctl.checks.classes import EVAL_VERSION
+
+    return {"classification evaluation": EVAL_VERSION}
+
+
+def _report_versions() -> dict:
+    from aerotri.qa.report import QA_REPORT_VERSION
+
+    return {"accuracy report": QA_REPORT_VERSION}
+
+
 def _mosaic_versions() -> dict:
     from ortho.mosaic import BLEND_RULES, RADIOMETRY_SEAMS_VERSION
 
@@ -182,6 +226,27 @@ class Chain:
         if self.has_lidar:
             return self.project.dem_path
         return self.tie_point_dem_path if self.tie_point_dem() else None
+
+    def mosaic_ndsm(self) -> list[Path]:
+        """The nDSM the mosaic's seamlines avoid objects by (``ortho.mosaic.mosaic_block``'s choice): [mosaic] ndsm,
+        else lidar_out/ndsm.tif when it is there (listed either way: one written later is a change)."""
+        given = self.options.mosaic.ndsm
+        return [Path(given) if given is not None else self.project.ndsm_path]
+
+    def dom_check_ndsm(self) -> list[Path]:
+        """The nDSM of the DOM check (``ortho.check.run_check``'s choice): [dom_check] ndsm, else with a reference
+        lidar_out/ndsm.tif when it is there (its ground patches; the roofs it finds); listed either way."""
+        given = self.options.dom_check.ndsm
+        if given is not None:
+            return [Path(given)]
+        return [self.project.ndsm_path] if self.reference_ortho is not None else []
+
+    def qa_tolerances(self) -> list[Path]:
+        """A user's tolerance table ([qa] tolerances), which the adjustment's and the accuracy report judge by."""
+        from aerotri.core.tolerances import read_qa_config
+
+        tol = read_qa_config(self.root).tolerances
+        return [Path(tol)] if tol else []
 
     @property
     def tie_point_dem_path(self) -> Path:
@@ -370,7 +435,8 @@ class Chain:
         stages = [
             # only reads the strips unless [strips] adjust (then classify takes the corrected ones)
             Stage("strips", self.strips_inputs, self.strips_outputs, self.run_strips,
-                  options=dict(to_table(o.strips), crs=self.project.crs), skip=self.no_lidar),
+                  options=dict(to_table(o.strips), crs=self.project.crs), skip=self.no_lidar,
+                  versions=_strips_versions),
             Stage("classify", lambda r: self.classify_inputs(), self.classified, self.run_classify,
                   options=dict(to_table(o.classify), crs=self.project.crs), skip=self.no_lidar,
                   versions=_classify_versions),
@@ -384,7 +450,8 @@ class Chain:
         if o.vectors.enabled:
             # optional ([vectors] enabled): the line map of the classified strips and its check
             stages.append(Stage("vectors", self.vectors_inputs, self.vectors_outputs, self.run_vectors,
-                                options=dict(to_table(o.vectors), qa=to_table(self.project.qa)), skip=self.no_lidar))
+                                options=dict(to_table(o.vectors), qa=to_table(self.project.qa)), skip=self.no_lidar,
+                                versions=_vectors_versions))
         stages += [
             Stage("match", lambda r: self.images() + [self.project.gnss_path, self.project.camera_path],
                   lambda r: [self.project.tiepoints_path], self.run_match,
@@ -404,28 +471,32 @@ class Chain:
                   versions=_adjust_versions),
             # a block without GNSS, LiDAR or DEM: the DEM of its adjusted tie points
             Stage("dem", lambda r: [self.project.object_points_path, self.project.eo_path],
-                  lambda r: [self.tie_point_dem_path], self.run_tie_point_dem, skip=self.no_tie_point_dem),
+                  lambda r: [self.tie_point_dem_path], self.run_tie_point_dem, skip=self.no_tie_point_dem,
+                  versions=_dem_versions),
             # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
             Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.true_ortho_dsm() + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
                   options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem,
                   versions=_rectify_versions),
-            Stage("mosaic", lambda r: [self.project.frames_index_path], lambda r: [self.project.mosaic_path],
+            # the nDSM the seamlines avoid objects by ([mosaic] ndsm, else the LiDAR stages' when there is one)
+            Stage("mosaic", lambda r: [self.project.frames_index_path] + self.mosaic_ndsm(),
+                  lambda r: [self.project.mosaic_path],
                   self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem, versions=_mosaic_versions),
         ]
         # always planned: without --reference it is skipped with why (an earlier run's check is not dropped silently)
         stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path]
                             + ([Path(self.reference_ortho)] if self.reference_ortho is not None else [])
-                            + ([self.roof_corners_path()] if self.roof_corners_path() else []),
+                            + ([self.roof_corners_path()] if self.roof_corners_path() else []) + self.dom_check_ndsm(),
                             lambda r: [self.project.dom_report_path], self.run_dom_check,
-                            options=to_table(o.dom_check), skip=self.no_dom_check))
+                            options=to_table(o.dom_check), skip=self.no_dom_check, versions=_dom_check_versions))
         if self.surveyed_points is not None:
             stages.append(Stage("height_check", lambda r: self.classified() + [Path(self.surveyed_points)],
-                                lambda r: [self.project.height_check_path], self.run_height_check, skip=self.no_lidar))
+                                lambda r: [self.project.height_check_path], self.run_height_check, skip=self.no_lidar,
+                                versions=_height_check_versions))
         if self.truth_classes:
             stages.append(Stage("lidar_eval", lambda r: self.classified() + self.project.truth_strips(),
                                 lambda r: [self.project.classification_eval_path],
-                                self.run_lidar_eval, skip=self.no_lidar))
+                                self.run_lidar_eval, skip=self.no_lidar, versions=_lidar_eval_versions))
         report_inputs = [self.project.config_path, self.project.strips_check_path, self.project.strips_adjust_path,
                          self.project.strips_check_after_path, self.project.adjustment_report_path,
                          self.project.control_transfer_path, self.project.dom_report_path,
@@ -433,8 +504,9 @@ class Chain:
                          self.project.vectors_check_path]
         if self.options.vectors.check_json is not None:
             report_inputs.append(Path(self.options.vectors.check_json))
+        report_inputs += self.qa_tolerances()  # a user's tolerance table judges the block
         stages.append(Stage("report", lambda r: report_inputs, lambda r: [self.project.report_index_path],
-                            self.run_report))
+                            self.run_report, versions=_report_versions))
         return stages
 
     # -- LiDAR ----------------------------------------------------------------------------------
@@ -595,7 +667,9 @@ class Chain:
         s = self.first_settings().settings if not control else self.final_settings().settings
         if s.initial_eo is not None:
             files.append(Path(s.initial_eo))
-        files += [Path(p) for p in (s.dem, s.ndsm) if p is not None]
+        files += [Path(p) for p in (s.dem, s.ndsm, s.check_dem) if p is not None]
+        if control:  # the final adjustment's report judges the block by [qa] (a user's tolerance table)
+            files += self.qa_tolerances()
         if s.planes is not None:  # a corners folder or the file itself
             files.append(Path(s.planes) / "roof_planes.geojson" if Path(s.planes).is_dir() else Path(s.planes))
         return files

@@ -44,6 +44,10 @@ from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
 from lidarctl.vectors.settings import VectorsSettings
 
+# the chain's report stage stamp: bump when the accuracy report (qa/) changes at the same inputs
+QA_REPORT_VERSION = 1
+
+
 @dataclass(frozen=True)
 class QaCheck:
     """One row of the verdict table. ``id``: stable (scripts and tests find rows by it, not by the English

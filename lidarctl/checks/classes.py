@@ -68,6 +68,7 @@ def read_same_points(pred_path, truth_path):
 
 SCHEMA_VERSION = 1  # classification_eval.json (``evaluate_strips``; written without a version so far)
 CLASSIFICATION_EVAL = "classification evaluation (classification_eval.json)"  # the record's name in messages
+EVAL_VERSION = 1  # the chain's lidar_eval stage stamp: bump when classification_eval.json changes at the same inputs
 
 
 @dataclasses.dataclass(frozen=True)

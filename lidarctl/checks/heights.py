@@ -594,6 +594,7 @@ def format_report(check: HeightCheck) -> str:
 
 
 HEIGHT_CHECK = "LiDAR height check (height_check.json)"
+HEIGHT_CHECK_VERSION = 1  # the chain's height_check stage stamp: bump when its numbers change at the same inputs
 
 
 @dataclasses.dataclass(frozen=True)

@@ -35,6 +35,7 @@ log.addHandler(logging.NullHandler())
 CORNER_MIN_TURN_DEG = 30.0
 POLYGON_LAYERS = ("buildings", "roads", "water")
 LINE_LAYERS = ("road_centrelines", "contours")
+VECTOR_CHECK_VERSION = 1  # the chain's vectors stage stamp: bump when the check's numbers change at the same inputs
 
 
 @dataclasses.dataclass(frozen=True)

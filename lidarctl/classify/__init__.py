@@ -6,5 +6,7 @@
 # 1: before i44-water; 2: i44-water (water from the whole cloud's water grid, sloping surfaces, filled banks);
 # 3: i44-bridge (a deck separates two different gaps); 4: i44-bridge2 (or crosses one gap for at least 4 m: its
 # reaches may be one gap); 5: i44-edge (a tile's level regions and darkness from the whole cloud's level bodies and
-# land; emptiness beyond the survey's coverage is no gap for the level-water join or a deck).
-RULES_VERSION = 5
+# land; emptiness beyond the survey's coverage is no gap for the level-water join or a deck); 6: s11-fixes (such a
+# one-gap deck needs both ends on land across the water and sides that drop to it: jetties, breakwaters, earth
+# causeways are ground).
+RULES_VERSION = 6

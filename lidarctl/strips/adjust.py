@@ -83,6 +83,7 @@ N_SENSOR = 5  # boresight roll, pitch, heading, range offset, scan-angle scale
 # sigma of the free adjustment's minimum constraint (the mean vertical correction over the planar cells is 0):
 # a hundredth of a millimetre, far below any observation's (millimetres): the constraint holds to 1e-5 m
 MEAN_HEIGHT_SIGMA_M = 1e-5
+STRIP_ADJUST_VERSION = 1  # the chain's strips stage stamp: bump when the corrected strips change at the same inputs
 DATUM_MEAN_HEIGHT = "block mean height held (mean vertical correction 0 over the strips' planar cells)"
 DATUM_CONTROL = "control points"
 

@@ -61,6 +61,7 @@ BREAKLINE_CLEAR_M = 3.0
 # is 5-8 m2 in the BGT of Delft).
 CELL_BUILDING_MIN_M2 = 4.0
 LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours")
+VECTORS_VERSION = 1  # the chain's vectors stage stamp: bump when the line map changes at the same inputs
 
 
 @dataclasses.dataclass(frozen=True)

@@ -222,3 +222,40 @@ def test_deck_into_the_band_beyond_the_survey_is_no_deck():
     off = classify.bridge_decks(x, y, z, ground, np.zeros(len(x), bool), 1 / np.sqrt(3.0),
                                 p=classify.ClassifySettings(water_survey_coverage=False))
     assert off[deck].mean() > 0.9 and not off[~deck].any()
+
+
+def into_the_lake_scene(kind, seed=5):
+    """Reviewer 11's scenes: ground into one lake (160 x 50 m, v 30-80 m, no returns; the shore at 0.2 m), one
+    dropout gap round it, so only the one-gap crossing rule could call it a deck. ``jetty``: 6 m wide, 35 m into
+    the lake, 1.2 m above the water (vertical sides); ``breakwater``: 12 m crest at 2 m, 30 m long; ``causeway``:
+    an earth embankment (crest 12 m wide at 1.5 m, side slopes 1:1.5 with returns down to the water) to an island
+    (u 80-120, v 60-72 m). Returns x, y, z and the ground over the lake (mask)."""
+    rng = np.random.default_rng(seed)
+    n = 200 * 100 * 3
+    u, v = rng.uniform(0, 200, n), rng.uniform(0, 100, n)
+    lake = (u > 20) & (u < 180) & (v > 30) & (v < 80)
+    z = 0.2 + rng.normal(0, 0.02, n)
+    if kind == "causeway":
+        off = np.abs(u - 100.0)
+        crest = np.where(off < 6.0, 1.5, 1.5 - (off - 6.0) / 1.5)   # 1:1.5 slopes down to the water (0.2 m)
+        island = (u > 80) & (u < 120) & (v > 60) & (v < 72)
+        obj = ((off < 7.95) & (v > 25) & (v < 60)) | island
+        z = np.where(island, 1.5, np.where(obj, crest, 0.2)) + rng.normal(0, 0.02, n)
+    else:
+        obj = (u > 95) & (u < 101) & (v > 25) & (v < 65) if kind == "jetty" else (u > 90) & (u < 102) & (v > 25) & (v < 60)
+        z = np.where(obj, 1.2 if kind == "jetty" else 2.0, 0.2) + rng.normal(0, 0.02, n)
+    keep = ~(lake & ~obj)
+    return u[keep] + X0, v[keep] + Y0, z[keep], (obj & lake)[keep]
+
+
+@pytest.mark.parametrize("kind", ["jetty", "breakwater", "causeway"])
+def test_ground_into_a_lake_is_no_deck(kind):
+    """A jetty or breakwater ends in the water (no land across it within BRIDGE_END_WATER_M); an earth causeway's
+    fill has returns down its slopes (no drop from deck to water). i44-bridge2 called 618/623, 1082/1088 and
+    1183/2872 of these returns bridge decks. (With vertical sides a causeway to an island is a moat's deck in
+    everything the returns show: reviewer 11's scene, 1243/2796, stays one.)"""
+    x, y, z, over = into_the_lake_scene(kind)
+    found = classify.bridge_decks(x, y, z, np.ones(len(x), bool), np.zeros(len(x), bool), 1 / np.sqrt(3.0),
+                                  p=classify.ClassifySettings())
+    assert over.sum() > 500
+    assert not found.any(), found[over].sum()

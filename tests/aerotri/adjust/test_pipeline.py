@@ -73,9 +73,12 @@ def test_outputs_and_report(block_project):
         assert label in txt
     js = json.loads((at / "report.json").read_text())
     assert js["key_statistics"]["sigma0_um"] == res.record.key_statistics.sigma0_um
-    # its random strip shifts (N 0.77, -0.61, 0.16 m) flip across the track with the heading at 3.1 sigma: reported
-    # in the direction section, but a free shift per strip absorbs a lever arm or lag: no weakness of the solution
-    assert js["key_statistics"]["gnss_direction_flip"] and js["gnss_directions"]["testable"]
+    # its random strip shifts (N 0.77, -0.61, 0.16 m) are GNSS errors shared within a strip, not a direction effect:
+    # judged by the strips' spread (1 degree of freedom: strips 1, 3 against 2) they raise no alarm (judged by the
+    # photos' scatter they read 3.1 sigma across the track); the message has no direction finding either way
+    p = js["gnss_directions"]["pairs"][0]
+    assert js["gnss_directions"]["testable"] and p["separable"] and p["strip_dof"] == 1
+    assert not js["key_statistics"]["gnss_direction_flip"]
     assert "flip with the flight direction" not in js["key_statistics"]["message"]
     assert res.report_path == at / "report.json" and res.adjustment is ba
     assert js["counts"]["images"] == 18 and js["counts"]["check_points"] == 12

@@ -387,6 +387,8 @@ def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path)
     assert versions["rectify"] == S._rectify_versions() and versions["mosaic"] == S._mosaic_versions()
     assert versions["corners"] == S._corners_versions()
     assert versions["adjust_first"] == versions["adjust_final"] == S._adjust_versions()
+    assert versions["strips"] == S._strips_versions() and versions["dom_check"] == S._dom_check_versions()
+    assert versions["dem"] == S._dem_versions() and versions["report"] == S._report_versions()
 
 
 def test_a_contract_crs_on_another_datum_is_refused_before_any_stage(tmp_path):
@@ -410,3 +412,38 @@ def test_a_contract_crs_on_another_datum_is_refused_before_any_stage(tmp_path):
                 chain._check_output_crs()
         else:
             chain._check_output_crs()
+
+
+def test_the_stage_keys_hold_every_file_a_stage_reads(tmp_path):
+    """The mosaic's and the DOM check's nDSM (lidar_out/ndsm.tif, or [mosaic] / [dom_check] ndsm), the adjustment's
+    check DEM ([adjust] check_dem) and a user's tolerance table ([qa] tolerances, judging adjust_final and the
+    report) are inputs: a changed one makes the stage stale (before s11-fixes none was in the key); the stages
+    without versions so far declare them."""
+    from aerotri.chain import stages as S
+    from aerotri.chain.runner import _plain, _signature, stale_reason, stamp_path
+
+    (tmp_path / "tol.toml").write_text("# a user's table\n")
+    (tmp_path / "check_dem.tif").write_bytes(b"dem")
+    (tmp_path / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n[qa]\ntolerances = "tol.toml"\n'
+                                           '[adjust]\ncheck_dem = "check_dem.tif"\n')
+    (tmp_path / "lidar_out").mkdir()
+    (tmp_path / "lidar_out" / "ndsm.tif").write_bytes(b"ndsm")
+    stages = {st.name: st for st in S.chain_stages(tmp_path, dem=tmp_path / "dem.tif", reference_ortho=tmp_path / "r.tif")}
+    ndsm, tol, cdem = tmp_path / "lidar_out" / "ndsm.tif", (tmp_path / "tol.toml").resolve(), tmp_path / "check_dem.tif"
+    assert ndsm in stages["mosaic"].inputs(tmp_path) and ndsm in stages["dom_check"].inputs(tmp_path)
+    assert tol in stages["adjust_final"].inputs(tmp_path) and tol in stages["report"].inputs(tmp_path)
+    assert cdem in [p.resolve() for p in stages["adjust_final"].inputs(tmp_path)]
+    for name in ("strips", "dom_check", "report"):
+        assert stages[name].versions_now(), name
+    for name, changed in (("mosaic", ndsm), ("report", tol), ("adjust_final", cdem)):
+        st = stages[name]
+        for o in st.outputs(tmp_path):
+            o.parent.mkdir(parents=True, exist_ok=True)
+            o.exists() or o.write_text("")
+        stamp_path(tmp_path, name).parent.mkdir(parents=True, exist_ok=True)
+        stamp_path(tmp_path, name).write_text(json.dumps(dict(
+            inputs=_signature(st.inputs(tmp_path), tmp_path), options=_plain(st.options_now(tmp_path), tmp_path),
+            versions=st.versions_now())))
+        assert stale_reason(tmp_path, st) is None, name
+        changed.write_bytes(changed.read_bytes() + b" changed")
+        assert "inputs changed" in (stale_reason(tmp_path, st) or ""), name
