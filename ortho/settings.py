@@ -102,6 +102,12 @@ class MosaicSettings:
     offsets: bool = setting(False, help="With the gains, an offset per frame and band (haze, a black level) by the "
                                         "same least squares (default: gains only; needs balance).")
     tile_px: int = setting(1024, min=16, help="Mosaic processing tile size (px).")
+    output_bits: int | None = setting(
+        None, choices=(8,),
+        help="8: write the DOM with 8-bit samples, the balanced samples mapped linearly from the frames' white level "
+             "(0 .. white, e.g. 0 .. 4095 for 12-bit DMC data in 16-bit TIFF) to 0 .. 255, one mapping for the block, "
+             "recorded in the DOM's tags and mosaic.json; nodata stays in the mask (default: the frames' own type, "
+             "16-bit in, 16-bit out).")
 
 
 @dataclasses.dataclass(frozen=True)
