@@ -187,9 +187,28 @@ def test_project_toml_asks_for_the_8_bit_dom(block12, tmp_path):
     r = CliRunner().invoke(main, ["mosaic", str(root), "--seams", "voronoi", "--tile-px", str(TILE_PX)])
     assert r.exit_code == 0, r.output
     s = json.loads((root / "ortho/mosaic.json").read_text())
-    assert s["settings"]["output_bits"] == {"value": 8, "source": "project.toml"} and s["output"]["mapping"]["bits"] == 8
+    assert s["settings"]["output_bits"] == {"value": 8, "source": "project.toml"}
+    assert s["output"]["mapping"]["bits"] == 8
     with rasterio.open(root / "ortho/mosaic.tif") as ds:
         assert ds.dtypes[0] == "uint8"
     toml.write_text(text + "\n[mosaic]\noutput_bits = 16\n")
     r = CliRunner().invoke(main, ["mosaic", str(root)])
     assert r.exit_code == 2 and "output_bits" in r.output and "project.toml" in r.output, r.output
+
+
+def test_dask_tasks_map_the_tiles_as_local_threads_do(block12, tmp_path):
+    """The tiles blended as Dask tasks are mapped by the writer: the same 8-bit DOM as on local threads."""
+    from aerotri.core.executor import Executor
+    from ortho.mosaic import mosaic_block
+    from ortho.settings import MosaicSettings
+
+    root = tmp_path / "p"
+    shutil.copytree(block12, root)
+    digests = {}
+    for scheduler in (None, "local:2"):
+        with Executor(scheduler, 2) as ex:
+            mosaic_block(root, MosaicSettings(seams="voronoi", tile_px=256, output_bits=8), executor=ex)
+        digests[scheduler] = (_read(root / "ortho/mosaic.tif"), json.loads((root / "ortho/mosaic.json").read_text()))
+    (a, s), (b, t) = digests[None], digests["local:2"]
+    assert a[0].dtype == np.uint8 and np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    assert s["output"] == t["output"] and s["output"]["blended_pixels"] == int(a[1].sum())
