@@ -1245,6 +1245,10 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     with_offsets = s.offsets
     if s.output_bits not in (None, 8):
         raise OptionError(f"{s.output_bits!r}: expected 8 (default: the frames' own type)", param="--output-bits")
+    if s.output_range != "white-level" and s.output_bits is None:  # (a mapping to 8 bits: without them none)
+        raise OptionError(f"--output-range / [mosaic] output_range = {s.output_range} "
+                          f"({resolved.sources.get('output_range', 'default')}) maps the DOM to 8 bits: it needs "
+                          f"--output-bits 8 / [mosaic] output_bits = 8", param="--output-range")
     if not (isinstance(tile_px, int) and tile_px >= MIN_TILE_PX):
         raise OptionError(f"{tile_px!r}: expected a tile size of at least {MIN_TILE_PX} px", param="--tile-px")
     if feather_m is not None and not (math.isfinite(feather_m) and feather_m >= 0):
@@ -1308,7 +1312,6 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
             decoded_bytes(index, bands, itemsize) <= DECODED_FRAMES_MAX_BYTES
         timer.trim = not keep
         red = reduce_frames(frames_dir, index, mosaic, factor, keep_decoded=keep)
-        out_map = output_mapping(s.output_bits, red.white_level)
         if importer is not None:
             importer.join()
         timer.done("seam grid")
@@ -1384,6 +1387,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     if toe is not None:
         logger.info("shadow toe: values below %.2f lifted so that %.2f becomes %.3f (above black)", toe.knee,
                     toe.bottom_in, toe.bottom_out)
+    out_map = output_mapping(s.output_bits, red.white_level, s.output_range, red, gains=gains, offsets=offsets,
+                             rolloff=rolloff, toe=toe)
     timer.done("gains")
     # edited seamlines: the tiles their change does not reach are taken from the mosaic they were edited on
     previous = previous_mosaic(root, index, red.names, labels, gains=gains, feather_px=feather_px, factor=factor,
@@ -1461,14 +1466,74 @@ class OutputMapping:
                 "DOM_SOURCE_HIGH_DN": f"{self.high_dn:g}", "DOM_SOURCE_RANGE_FROM": self.source}
 
 
-def output_mapping(bits: int | None, white) -> OutputMapping | None:
-    """The ``OutputMapping`` to ``bits`` (None: the frames' own type, no mapping) from the frames' ``WhiteLevel``."""
+# the pooled percentiles of ``output_range = "percentiles"``: set a priori (a DOM's darkest and brightest thousandth
+# clipped, as a viewer's default stretch does), not tuned on a block
+STRETCH_PERCENTILES = (0.1, 99.9)
+
+
+def output_mapping(bits: int | None, white, range_from: str = "white-level", red=None, *, gains=None, offsets=None,
+                   rolloff=None, toe=None) -> OutputMapping | None:
+    """The ``OutputMapping`` to ``bits`` (None: the frames' own type, no mapping) from the frames' ``WhiteLevel``
+    (``range_from`` "white-level": 0 .. white) or from the pooled ``STRETCH_PERCENTILES`` of the balanced samples
+    ("percentiles": ``balanced_percentiles`` of ``red``'s histograms through ``gains``, ``offsets``, ``rolloff`` and
+    ``toe``)."""
     if bits is None:
         return None
     if white.value is None:
         raise OptionError(f"--output-bits {bits} / [mosaic] output_bits = {bits}: the frames' samples have no white "
                           f"level (they are floats): expected 8- or 16-bit frames", param="--output-bits")
+    if range_from == "percentiles":
+        lo, hi = balanced_percentiles(red, gains, offsets, rolloff, toe, white.value, STRETCH_PERCENTILES)
+        return OutputMapping(int(bits), lo, hi, f"pooled percentiles {STRETCH_PERCENTILES[0]:g} / "
+                                                f"{STRETCH_PERCENTILES[1]:g} of the balanced samples (white level "
+                                                f"{white.value}, {white.source})")
     return OutputMapping(int(bits), 0.0, float(white.value), f"white level ({white.source}, {white.bits} bits)")
+
+
+def balanced_percentiles(red: ReducedFrames, gains, offsets, rolloff, toe, white: int, percentiles) -> tuple:
+    """(low, high) DN: the ``percentiles`` (%) of every frame's valid samples, all bands pooled (one mapping: a grey
+    stays grey), through its gains (and offsets), the roll-off and the toe, as the blending has them; a saturated
+    sample held at white. From the frames' histograms (a frame kept decoded: made here): a bin's samples spread evenly
+    over its values (16-bit bins are 64 DN wide), each bin's ends through the frame's transform (monotone), pooled on
+    a 1 DN grid; rounded to whole DN."""
+    cells = np.zeros(int(white) + 2, np.float64)  # difference array of the pooled density on [0, white]
+    for k, hist in enumerate(red.sample_histograms):
+        if hist is None and red.decoded_frames[k] is not None:
+            hist = sample_histogram(red.decoded_frames[k].samples, red.decoded_frames[k].valid)
+        if hist is None:
+            raise OptionError(f"frame {red.names[k]}: no histogram of its samples for the percentiles: use "
+                              f"output_range = white-level", param="--output-range")
+        width = (1 << hist.bits) // hist.counts.shape[1]
+        edges = np.minimum(np.arange(hist.counts.shape[1] + 1, dtype=np.float32) * width, np.float32(white + 1))
+        for b in range(hist.counts.shape[0]):
+            counts = hist.counts[b].astype(np.float64)
+            sat = hist.saturated(b, int(white))
+            jw = int(white) // width
+            counts[jw] = max(0.0, counts[jw] - (sat - counts[jw + 1:].sum()))  # saturated: held at white
+            counts[jw + 1:] = 0
+            v = edges * np.float32(gains[k, b])
+            if offsets is not None:
+                v += np.float32(offsets[k, b])
+            if rolloff is not None:
+                rolloff.apply(v)
+            if toe is not None:
+                toe.apply(v)
+            v = np.clip(v, 0, white)
+            a, z = np.floor(v[:-1]).astype(np.int64), np.maximum(np.ceil(v[1:]).astype(np.int64), 1)
+            z = np.maximum(z, a + 1)
+            dens = counts / (z - a)
+            np.add.at(cells, a, dens)
+            np.add.at(cells, np.minimum(z, len(cells) - 1), -dens)
+            cells[int(white)] += sat
+            cells[int(white) + 1] -= sat
+    density = np.cumsum(cells)[:-1]
+    cdf = np.cumsum(density)
+    if cdf[-1] <= 0:
+        raise OptionError("the frames have no valid sample for the percentiles", param="--output-range")
+    lo, hi = (float(np.searchsorted(cdf, p / 100.0 * cdf[-1])) for p in percentiles)
+    if hi <= lo:
+        hi = lo + 1.0
+    return lo, hi
 
 
 MIN_TILE_PX = 16

@@ -120,6 +120,8 @@ def test_edited_runs_take_tiles_over_only_from_a_dom_of_the_same_mapping(block12
 def test_output_bits_other_than_8_is_refused(block12):
     r = CliRunner().invoke(main, ["mosaic", str(block12), "--output-bits", "12"])
     assert r.exit_code == 2 and "output-bits" in r.output and "Traceback" not in r.output, r.output
+    r = CliRunner().invoke(main, ["mosaic", str(block12), "--output-range", "percentiles"])  # without the 8 bits
+    assert r.exit_code == 2 and "needs --output-bits 8" in r.output and "Traceback" not in r.output, r.output
 
 
 def _moved_edge_gpkg(root, out):
@@ -212,3 +214,39 @@ def test_dask_tasks_map_the_tiles_as_local_threads_do(block12, tmp_path):
     (a, s), (b, t) = digests[None], digests["local:2"]
     assert a[0].dtype == np.uint8 and np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
     assert s["output"] == t["output"] and s["output"]["blended_pixels"] == int(a[1].sum())
+
+
+
+def test_the_percentile_stretch_clips_about_its_share_and_says_so(tmp_path):
+    """--output-range percentiles: the balanced samples' pooled 0.1 / 99.9 percentiles (all frames and bands) to 0 .. 255:
+    on a 12-bit block whose data span 600 .. 3100 DN (with noise) the 8-bit DOM is the 16-bit DOM mapped by the recorded low and
+    high, and what the stretch clips at each end is about its share, stated (the DOM's pixels are not the frames'
+    pooled samples: the seams choose one frame of each overlap)."""
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=2, frames_per_strip=2, buildings=0, seed=5)
+    rng = np.random.default_rng(5)
+    for p in sorted((root / "images").glob("*.tif")):  # smooth tails: sensor noise of 150 DN
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float32) * np.float32(2500 / 255) + np.float32(600)
+        img += rng.normal(0, 150, img.shape).astype(np.float32)
+        cv2.imwrite(str(p), np.clip(np.rint(img), 0, 4095).astype(np.uint16))
+    for args in (["rectify", str(root)], ["mosaic", str(root), "--seams", "voronoi"]):
+        r = CliRunner().invoke(main, args)
+        assert r.exit_code == 0, r.output
+    a16, ok16, *_ = _read(root / "ortho/mosaic.tif")
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--seams", "voronoi", "--output-bits", "8",
+                                  "--output-range", "percentiles"])
+    assert r.exit_code == 0, r.output
+    a8, ok8, tags, *_ = _read(root / "ortho/mosaic.tif")
+    s = json.loads((root / "ortho/mosaic.json").read_text())
+    out, m = s["output"], s["output"]["mapping"]
+    assert m["from"].startswith("pooled percentiles 0.1 / 99.9") and tags["DOM_SAMPLE_MAPPING"] == m["formula"]
+    # near the 16-bit DOM's own pooled 0.1 / 99.9 percentiles (within a 16-bit histogram bin of 64 DN)
+    lo16, hi16 = np.percentile(a16[:, ok16], [0.1, 99.9])
+    assert 100 <= m["low_dn"] < m["high_dn"] <= 3600, m
+    assert abs(m["low_dn"] - lo16) < 64 and abs(m["high_dn"] - hi16) < 64, (m, lo16, hi16)
+    expected = np.clip(np.rint((a16.astype(np.float64) - m["low_dn"]) * 255 / (m["high_dn"] - m["low_dn"])), 0, 255)
+    assert np.array_equal(ok8, ok16) and np.abs(a8[:, ok8].astype(int) - expected[:, ok8]).max() == 0
+    # nothing at white before; at 255 only what the stretch clips, at 0 likewise: each about its 0.1 % of samples
+    # (a pixel counts when any of its three bands is clipped: up to about three times that)
+    assert out["blended_share_at_white"] == 0 and out["clipped_by_mapping_share"] == out["share_at_255"]
+    assert 0.0002 < out["share_at_255"] < 0.004 and 0.0002 < out["share_at_0"] < 0.004
