@@ -107,6 +107,8 @@ def dem(project, res_m, min_rays, out):
 @click_option(MosaicSettings, "balance", "--balance/--no-balance")
 @click_option(MosaicSettings, "offsets", "--offsets/--no-offsets")
 @click_option(MosaicSettings, "tile_px", "--tile-px")
+@click_option(MosaicSettings, "output_bits", "--output-bits")
+@click_option(MosaicSettings, "output_range", "--output-range")
 @click.option("--seamlines", "seamlines", type=click.Path(path_type=Path),
               help="edited seamlines: a GeoPackage of one polygon per frame (field 'frame'), as ortho/seamlines.gpkg; "
                    "its polygons are the seams (checked for gaps, overlaps and frames that do not cover them)")
