@@ -836,13 +836,12 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
 
 def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
     """A warning when the output CRS's point scale factor at the block's centre is off 1 by more than
-    ``aerotri.exchange.import_checks.SCALE_LIMIT`` (1 %): a grid far from its central meridian (the demo in
+    ``aerotri.geom.crs.definition.GRID_SCALE_LIMIT`` (1 %): a grid far from its central meridian (the demo in
     CGCS2000 GK CM 123E, EPSG:4550, 11.5 degrees east of it: 1.0151, 15 mm per metre) makes pixels and distances
     that are no ground measures, most often a zone chosen by mistake; names the block's own 3-degree zone."""
     import pyproj
 
-    from aerotri.exchange.import_checks import SCALE_LIMIT
-    from aerotri.geom.crs.definition import crs_label, horizontal_crs
+    from aerotri.geom.crs.definition import GRID_SCALE_LIMIT, crs_label, horizontal_crs
     from aerotri.geom.crs.transform import to_own_geodetic
 
     h = horizontal_crs(out_crs)
@@ -851,7 +850,7 @@ def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
     lon, lat, _ = to_own_geodetic(project_crs, np.array([centre_xy[0]]), np.array([centre_xy[1]]), np.array([0.0]))
     f = pyproj.Proj(h).get_factors(float(lon[0]), float(lat[0]))
     k = float(np.sqrt(f.meridional_scale * f.parallel_scale))
-    if not np.isfinite(k) or abs(k - 1.0) <= SCALE_LIMIT:
+    if not np.isfinite(k) or abs(k - 1.0) <= GRID_SCALE_LIMIT:
         return
     zone = int((float(lon[0]) + 180.0) // 6.0) + 1
     utm = f"EPSG:{32600 + zone if lat[0] >= 0 else 32700 + zone}"

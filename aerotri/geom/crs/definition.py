@@ -142,6 +142,10 @@ def unit_name(crs: pyproj.CRS) -> str:
     return length_unit_name(linear_unit_m(h))
 
 
+# a grid whose point scale factor at the block is off 1 by more than this is no ground measure (import note, ortho
+# warning): survey grids keep it within 0.1 % (UTM: 0.9996-1.001 in its zone); a web map's Pseudo-Mercator is 1.15 at
+# 30 degrees latitude, 1.46 at 47
+GRID_SCALE_LIMIT = 0.01
 _LONG_NAMES = {"deg": "degree", "m": "metre", "ft": "foot", "us-ft": "US survey foot"}
 
 
