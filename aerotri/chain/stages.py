@@ -245,10 +245,14 @@ class Chain:
             from ortho.check import read_dom_check
 
             try:
-                stale = read_dom_check(report).stale_for(self.project.mosaic_path, report)
+                check = read_dom_check(report)
+                stale = check.stale_for(self.project.mosaic_path, report)
             except InputError as e:  # not this run's business: the report names it
                 return f"{why}; {report.name} of an earlier run is unreadable ({e})"
-            if stale:
+            if stale and check.of_project_mosaic is False:
+                why += (f"; {report.name} measured another DOM ({check.dom}, ortho check --dom): the report says the "
+                        "DOM was not checked")
+            elif stale:
                 why += (f"; {report.name} of an earlier run measured an earlier mosaic: the report says the DOM was "
                         "not checked")
             else:
