@@ -25,7 +25,6 @@ import contextlib
 import csv
 import dataclasses
 import json
-import logging
 import math
 import os
 from pathlib import Path
@@ -122,11 +121,13 @@ class DomCheck:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
         since, e.g. by a new ``ortho mosaic`` or ``aerotri run`` without a reference): by the fingerprint, or for a
         check without one (written before it was recorded) when the mosaic is newer than the check's file
-        ``report_path``; False when it cannot tell."""
-        if not Path(mosaic_path).is_file():
-            return False
+        ``report_path``; False when it cannot tell. True for a check of another DOM (``of_project_mosaic`` False,
+        written into the project's dom_report.json before 12c), with or without the project's mosaic: it never
+        stands for the project's DOM."""
         if self.of_project_mosaic is False:  # another DOM (--dom) measured into the project's dom_report.json
             return True
+        if not Path(mosaic_path).is_file():
+            return False
         if self.mosaic_fingerprint is not None:
             return mosaic_fingerprint(mosaic_path) != self.mosaic_fingerprint
         return report_path is not None and Path(report_path).is_file() and \
@@ -834,8 +835,19 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         raise OptionError(f"{max_ndsm_m!r}: expected a height in metres", param="--max-ndsm-m")
     check_block_memory(patch_px, search_px)
     dom_path = Path(dom_path) if dom_path else root / "ortho" / "mosaic.tif"
-    out_default = not out_stem
-    out_stem = Path(out_stem) if out_stem else root / "ortho" / "dom_report"
+    paths = project_paths(root)
+    project_stem = root / "ortho" / "dom_report"
+    of_project = _same_file(dom_path, paths.mosaic_path) or dom_path.resolve() == paths.mosaic_path.resolve()
+    if not out_stem:
+        # another DOM's check beside that DOM (``<dom>_dom_report.json``): the project's dom_report.json is the
+        # project's mosaic's (review 12c: a check of another DOM replaced the project's passing one)
+        out_stem = project_stem if of_project else dom_path.with_name(f"{dom_path.stem}_dom_report")
+    out_stem = Path(out_stem)
+    if not of_project and (root / "project.toml").is_file() and \
+            out_stem.with_suffix(".json").resolve() == project_stem.with_suffix(".json").resolve():
+        raise OptionError(f"{out_stem.with_suffix('.json')} is the project's DOM check (of {paths.mosaic_path}): the "
+                          f"check of {dom_path} goes elsewhere (give another --out, or leave it out: "
+                          f"{dom_path.with_name(dom_path.stem + '_dom_report.json')})", param="--out")
     for suffix in (".json", ".png"):
         refuse_input_as_output(out_stem.with_suffix(suffix), [dom_path, reference_path, points_path, ndsm_path,
                                                               roof_corners_path, root / "ortho" / "mosaic.json"], "--out")
@@ -843,7 +855,6 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         raise OptionError("the roofs are measured against a reference orthophoto: give --reference with --roof-corners",
                           param="--roof-corners")
     corners = read_roof_corners(roof_corners_path) if roof_corners_path is not None else None
-    paths = project_paths(root)
     seams = seams and paths.seamlines_path.exists() and paths.frames_index_path.exists()
     # a DOM made from frames of an older adjustment is refused (the mosaic, and the seams measured on the frames)
     if paths.frames_index_path.exists() and (seams or _same_file(dom_path, paths.mosaic_path)):
@@ -858,11 +869,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
     # the accuracy report takes the project's dom_report.json for its mosaic: a check of another DOM (--dom) says so
     # (its figures were shown as the project DOM's, "true ortho on the DSM" beside a conventional DOM's roofs)
-    report["dom_is_project_mosaic"] = _same_file(dom_path, paths.mosaic_path)
-    if out_default and not report["dom_is_project_mosaic"]:
-        logging.getLogger(__name__).warning(
-            f"{dom_path} is not the project's mosaic {paths.mosaic_path}: its check goes to {out_stem}.json, which the "
-            "accuracy report (aerotri report) then does not take for the project's DOM; give --out for another DOM")
+    report["dom_is_project_mosaic"] = of_project
     if report["dom_is_project_mosaic"]:  # the report tells a check of an earlier mosaic by it
         report["mosaic_fingerprint"] = mosaic_fingerprint(dom_path)
     _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs)

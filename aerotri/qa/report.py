@@ -636,8 +636,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if dom_check_stale and other_dom:
         rows.append(_failed("dom_check_stale", sec, "DOM check of another DOM",
                             f"the DOM was not checked: {project.dom_report_path} measured {other_dom} (ortho check "
-                            f"--dom), not {project.mosaic_path}; re-run ortho check {root} --reference REF.tif (give "
-                            "--out for the check of another DOM)"))
+                            f"--dom), not {project.mosaic_path}; re-run ortho check {root} --reference REF.tif (a "
+                            "check of another DOM now goes beside that DOM)"))
     elif dom_check_stale:
         rows.append(_failed("dom_check_stale", sec, "DOM check of an earlier mosaic",
                             f"the DOM was not checked: {project.dom_report_path} measured an earlier "

@@ -460,3 +460,8 @@ def test_a_dom_check_of_another_dom_is_not_the_projects(tmp_path):
     check.write_text(json.dumps(dict(doc, dom=str(p / "ortho" / "mosaic.tif"), dom_is_project_mosaic=True)))
     rep = write_qa_report(p)
     assert rep.has("dom_rms_xy_m") and not rep.has("dom_check_stale") and rep.overall == "pass"
+    # review 12c: without the project's mosaic, another DOM's check was shown as the project's
+    (p / "ortho" / "mosaic.tif").unlink()
+    check.write_text(json.dumps(dict(doc, dom="/elsewhere/other_dom.tif", dom_is_project_mosaic=False)))
+    rep = write_qa_report(p)
+    assert rep.check("dom_check_stale").quantity == "DOM check of another DOM" and not rep.has("dom_rms_xy_m")
