@@ -471,8 +471,12 @@ def write_text_atomic(path, text: str) -> None:
 def atomic_dir(path):
     """Yield a temporary folder next to ``path``; it replaces ``path`` only if the block succeeds (as part
     of the open commit that covers ``path``; otherwise as a commit of its own, so that even a kill
-    between moving the old folder away and the new one in leaves the old one)."""
+    between moving the old folder away and the new one in leaves the old one). ``path`` a link to a folder: the
+    folder it points to is replaced (the link stays; replacing the link by a real folder left the old output at
+    the target, where whoever made the link looks)."""
     path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = temporary_dir(path.parent, path.name)

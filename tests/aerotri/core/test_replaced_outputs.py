@@ -98,7 +98,7 @@ def test_our_geopackage_is_marked_and_keeps_qgis_styles_a_users_warns_or_is_refu
     with caplog.at_level(logging.WARNING):
         refuse_foreign_layers(path, ("contours",), "lidarctl contours")
         write_layers(path, _contours(), crs="EPSG:32649")
-    assert not caplog.records, [r.getMessage() for r in caplog.records]
+    assert not [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
     assert [str(n) for n, _ in pyogrio.list_layers(path)] == ["contours", "layer_styles"]
     with sqlite3.connect(path) as db:
         assert db.execute("SELECT f_table_name, styleQML FROM layer_styles").fetchall() == [("contours", "<qgis/>")]
@@ -113,3 +113,24 @@ def test_our_geopackage_is_marked_and_keeps_qgis_styles_a_users_warns_or_is_refu
                       layer="parcels", driver="GPKG", crs="EPSG:32649", geometry_type="Point", append=True)
     with pytest.raises(OptionError, match="holds the layer.s. parcels.*move the file"):
         refuse_foreign_layers(user, ("contours",), "lidarctl contours")
+
+
+def test_a_linked_output_folder_is_replaced_through_the_link(tmp_path):
+    """Review 12b: OUTDIR a link to a folder (on another disk) was replaced by a real folder, the old output left at
+    the link's target. Now the target's contents are replaced and the link stays."""
+    target = tmp_path / "disk2" / "strips"
+    target.mkdir(parents=True)
+    (target / "old.las").write_bytes(b"old")
+    link = tmp_path / "project" / "strips"
+    link.parent.mkdir()
+    link.symlink_to(target, target_is_directory=True)
+    with atomic_dir(link) as tmp:
+        (tmp / "new.las").write_bytes(b"new")
+    assert link.is_symlink() and sorted(p.name for p in target.iterdir()) == ["new.las"]
+    assert sorted(p.name for p in target.parent.iterdir()) == ["strips"]  # no temporary left beside it
+    (tmp_path / "gone").mkdir()
+    broken = tmp_path / "project" / "broken"
+    broken.symlink_to(tmp_path / "gone", target_is_directory=True)
+    (tmp_path / "gone").rmdir()
+    with pytest.raises(OptionError, match="broken: the output folder is a broken link"):
+        refuse_foreign_contents(broken, _las_only, "lidarctl classify")
