@@ -196,6 +196,8 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
     gsd = r.rms_xy_gsd if r.rms_xy_gsd is not None else float("nan")
     # corners whose evidence lies in the DOM's nodata: counted, not measured (``ortho.check.roof_evidence_in_nodata``)
     in_nodata = f" ({dom_check.roofs_in_nodata} not measurable: in the DOM's nodata)" if dom_check.roofs_in_nodata else ""
+    if dom_check.roofs_in_nodata_warning:  # the rule may be hiding roofs that moved (``ROOF_MAX_IN_NODATA_PCT``)
+        in_nodata += f" (warning: {dom_check.roofs_in_nodata_warning})"
     median_gsd = r.median_xy_m / r.gsd_m if r.median_xy_m is not None and r.gsd_m else float("nan")
     return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", round(r.rms_xy_m, 4), None,
                   "m", note=f"{r.count} of {dom_check.roof_corners} corners{in_nodata}, {gsd:.2f} GSD, median "

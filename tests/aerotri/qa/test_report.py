@@ -261,6 +261,12 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
         "412 of 1156 corners (9 not measurable: in the DOM's nodata), 8.14 GSD, median 4.45 GSD; ")
+    # too many of them (review 12b: roofs moved beside holes are counted so): the note carries the check's warning
+    dom["roofs"]["in_nodata_warning"] = "9 of 421 roof corners (2.1 %) ... look at those corners"
+    (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
+    assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
+        "412 of 1156 corners (9 not measurable: in the DOM's nodata) (warning: 9 of 421 roof corners (2.1 %) ... "
+        "look at those corners), 8.14 GSD")
     dom["roofs"] = dict(count=0, why="the nDSM is in another CRS than the DOM")
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     row = write_qa_report(p).check("dom_roofs_rms_xy_m")
