@@ -136,13 +136,22 @@ class CrossingsSummary:
 class _Sampler:
     """A height raster sampled at points of the mosaic's CRS (nearest cell), read by 512-cell windows."""
 
-    def __init__(self, path, mosaic_crs, operation=None):
+    def __init__(self, path, mosaic_crs, operation=None, what: str = "nDSM"):
         import rasterio
 
+        from aerotri.core.errors import InputError
         from aerotri.geom.crs.definition import height_unit_m, parse_crs, same_horizontal
         from aerotri.geom.crs.transform import CrsTransformer
 
-        self.ds = rasterio.open(path)
+        self.path, self.what = path, what
+        try:
+            self.ds = rasterio.open(path)
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{path}: cannot read the {what} ({exc}); expected a height raster as lidarctl rasters "
+                             "writes (remake it, or move it away)") from None
+        if self.ds.crs is None:
+            self.ds.close()
+            raise InputError(f"{path}: the {what} has no CRS; expected the project's")
         self.unit = float(height_unit_m(parse_crs(self.ds.crs.to_wkt(), f"{path} CRS")))
         self.to = None if operation is None and same_horizontal(self.ds.crs, mosaic_crs) else \
             (operation or CrsTransformer(mosaic_crs, self.ds.crs))
@@ -152,7 +161,10 @@ class _Sampler:
         self.ds.close()
 
     def __call__(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        import rasterio
         from rasterio.windows import Window
+
+        from aerotri.core.errors import InputError
 
         if self.to is not None:
             x, y = self.to.transform(x, y)[:2]
@@ -167,7 +179,10 @@ class _Sampler:
             sel = inside & (keys == key)
             r0, c0 = int(row[sel][0] // B * B), int(col[sel][0] // B * B)
             w = Window(c0, r0, min(B, self.ds.width - c0), min(B, self.ds.height - r0))
-            a = self.ds.read(1, window=w, masked=True)
+            try:
+                a = self.ds.read(1, window=w, masked=True)
+            except rasterio.errors.RasterioIOError as exc:
+                raise InputError(f"{self.path}: cannot read the {self.what} (truncated or corrupt? {exc})") from None
             v = np.ma.filled(a.astype(np.float32), np.nan)[row[sel] - r0, col[sel] - c0]
             out[sel] = np.nan_to_num(v, nan=0.0) * self.unit
         return out
@@ -258,7 +273,12 @@ def check_seam_crossings(labels: np.ndarray, automatic: np.ndarray, transform, n
     cell_m = abs(transform.a)
     chm_path = Path(ndsm_path).with_name("chm.tif")
     ndsm = _Sampler(ndsm_path, mosaic_crs, operation)
-    chm = _Sampler(chm_path, mosaic_crs, operation) if chm_path.is_file() else None
+    try:
+        chm = _Sampler(chm_path, mosaic_crs, operation, "CHM (beside the nDSM: trees vs buildings)") \
+            if chm_path.is_file() else None
+    except BaseException:
+        ndsm.close()
+        raise
     try:
         step_m = SAMPLE_STEP_CELLS * min(cell_m, ndsm.cell or cell_m)
         join = max(1, int(round(cell_m / step_m)))

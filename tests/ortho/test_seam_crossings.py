@@ -154,6 +154,13 @@ def test_the_unedited_copy_has_nothing_new_and_without_an_ndsm_the_check_is_not_
         assert p["seam_m"] == p["automatic_seam_m"] and p["building_m"] == p["automatic_building_m"]
     assert summary["tiles"]["blended"] == 0 and (root / "ortho" / "mosaic.tif").read_bytes() == before
     assert (root / "ortho" / "seam_crossings.gpkg").is_file()
+    # a CHM beside the nDSM that cannot be read: one line naming it, exit 2, nothing written
+    (root / "lidar_out" / "chm.tif").write_bytes(b"not a raster")
+    stamp = (root / "ortho" / "mosaic.json").stat().st_mtime_ns
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(same)])
+    assert r.exit_code == 2 and "chm.tif: cannot read the CHM" in r.output and "Traceback" not in r.output, r.output
+    assert (root / "ortho" / "mosaic.json").stat().st_mtime_ns == stamp
+    (root / "lidar_out" / "chm.tif").unlink()
     # no nDSM: said, in the log and mosaic.json; no crossings file (the earlier one removed with the commit)
     (root / "lidar_out" / "ndsm.tif").unlink()
     summary, warnings = _mosaic(root, same, caplog)
