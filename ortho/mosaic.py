@@ -9,7 +9,9 @@ Steps (``mosaic_block``):
    avoiding objects of the nDSM and image differences. Written as ``seamlines.geojson`` (one polygon
    per frame plus the seam lines between neighbours), ``seamlines.gpkg`` (one polygon per frame with its ``frame``
    name, for editing in QGIS: ``ortho.seamlines_gpkg``) and the label raster ``seams.tif``. With edited seamlines
-   (``seamlines=``, ``ortho mosaic --seamlines EDITED.gpkg``) their polygons, checked, are the seams.
+   (``seamlines=``, ``ortho mosaic --seamlines EDITED.gpkg``) their polygons, checked, are the seams; the automatic
+   seams are routed all the same, to say where the edited ones cross buildings and trees that they do not
+   (``ortho.seam_crossings``: warnings, mosaic.json ``seam_crossings``, ``seam_crossings.gpkg``).
 3. Gain (and offset) balancing: by default per band the log-gains of ``balance_gains`` (the pairs' means matched by
    gains alone); with the setting ``offsets`` a gain g_k = e^x_k and an offset o_k (DN, the frames' own bit depth:
    haze, a black level, which a gain cannot remove) per frame, one least squares over all overlapping pairs
@@ -84,7 +86,7 @@ from rasterio.windows import Window
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import progress
-from aerotri.core.atomic import atomic_path, commit_outputs, move_into, scratch_dir, write_text_atomic
+from aerotri.core.atomic import atomic_path, commit_outputs, move_into, remove_output, scratch_dir, write_text_atomic
 from aerotri.core.limits import check_allocation, check_grid, check_task_count
 from aerotri.core.project import Project
 from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
@@ -95,6 +97,7 @@ from ortho.block import (FrameIndex, frame_index, index_operation, operation_tag
 from ortho.grid import OrthoGrid, overview_factors
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
+from ortho.seam_crossings import FILE as CROSSINGS_FILE, CrossingsSummary
 from ortho.seamlines_preview import preview_shape, write_seamlines_preview
 from ortho.unseen import unseen_cells
 from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_objects_whole, label_polygons,
@@ -1182,7 +1185,7 @@ def _write_labels(path, labels, transform, crs):
 class MosaicSummary:
     """What ``mosaic_block`` made: the COG (``path``), its size (px) and pixel size, the frames blended, how the seams
     were made, the feather (px), every frame's band gains (name, gains), the cells inside the block no frame sees,
-    and ``summary_path``, ortho/mosaic.json (the record with the seam pairs, tiles and settings as well)."""
+    an edited run's seam crossings, and ``summary_path``, ortho/mosaic.json (the record with the seam pairs, tiles and settings as well)."""
 
     path: Path
     summary_path: Path
@@ -1196,13 +1199,15 @@ class MosaicSummary:
     cells_seen_by_no_frame: int
     area_seen_by_no_frame_m2: float
     share_seen_by_no_frame: float | None = None  # of the block's cells (None: a record written before it was kept)
+    seam_crossings: CrossingsSummary | None = None  # an edited run's check (``ortho.seam_crossings``); None: not edited
 
 
 def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
     return MosaicSummary(Path(doc["path"]), summary_path, doc["width"], doc["height"], doc["frames"], doc["res_m"],
                          doc["seams"], doc["feather_px"], tuple((n, tuple(g)) for n, g in doc["gains"].items()),
                          doc["cells_seen_by_no_frame"], doc["area_seen_by_no_frame_m2"],
-                         doc.get("share_seen_by_no_frame"))
+                         doc.get("share_seen_by_no_frame"),
+                         CrossingsSummary.from_record(doc["seam_crossings"]) if doc.get("seam_crossings") else None)
 
 
 def read_mosaic_summary(path) -> MosaicSummary:
@@ -1301,7 +1306,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # and so are the modules the writers of the vector files import (shapely, pyogrio: 0.05 CPU-s), which were imported
     # by this thread before the frames were read
     importer = None
-    if seams == "least-cost" and seamlines is None:
+    if seams == "least-cost":  # (an edited run routes them too: the automatic seams its check compares with)
         importer = threading.Thread(target=_import_quietly, args=(_import_seam_modules,), name="mosaic-import",
                                     daemon=True)
         importer.start()
@@ -1361,25 +1366,35 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
 
             edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, labels_shape=red.shape,
                                            transform=red.transform, valid=red.valid, offsets=red.offsets)
-            labels = edited.labels
-        else:
-            # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
-            # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
-            # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
-            # whose outline, along the walls and across the roofs between the streets, was a seam)
-            covers = [footprint(v) for v in red.valid]
-            labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
-        if seams == "least-cost" and edited is None:
+        # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
+        # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
+        # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
+        # whose outline, along the walls and across the roofs between the streets, was a seam); an edited run
+        # routes them as well, as the figure its crossings are compared with (the edited seams are not touched)
+        covers = [footprint(v) for v in red.valid]
+        labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
+        if seams == "least-cost":
             # a seam end may slide along the overlap border by up to end_reach_m to get round a building
             labels = least_cost_seams(labels, covers, red.offsets, gray=red.gray_of, object_mask=objects,
                                       end_reach_cells=end_reach_m / (res * factor), seen=red.valid)
             if objects is not None:
                 labels = keep_objects_whole(labels, objects, covers, red.offsets)
+        crossings = None
         if edited is not None:
+            from ortho.seam_crossings import check_seam_crossings
+
+            crossings = check_seam_crossings(edited.labels, labels, red.transform, red.names, mosaic.crs,
+                                             ndsm_path=ndsm_path, operation=index_operation(index),
+                                             feature_of_frame=edited.feature_of_frame)
+            labels = edited.labels
             seams = f"edited ({edited.path})"
         timer.done("seams")
         gains, offsets, held, rolloff, toe = gains_of()
     for message in held:
+        logger.warning(message)
+    if crossings is not None and not crossings.checked:
+        logger.warning("edited seamlines: %s", crossings.why)
+    for message in () if crossings is None else crossings.warnings:
         logger.warning(message)
     if rolloff is not None:
         logger.info("highlight roll-off: gained values above %.1f compressed so that %.1f becomes %.2f (white %d)",
@@ -1407,12 +1422,18 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                                   rolloff=rolloff, offsets=offsets, toe=toe,
                                   mosaic=mosaic, factor=factor, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                                   seams=seams, executor=executor, settings_record=resolved.record(), previous=previous,
-                                  resume=keep, output=out_map)
+                                  resume=keep, output=out_map, crossings=crossings)
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all new, or (a failure, a kill) all as before
             for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "seamlines_preview.png", "mosaic.tif",
                          "mosaic.json"):
                 move_into(Path(work) / name, out_dir / name)
+            # where the edited seams cross buildings and trees (an edited run with an nDSM); any other run leaves
+            # none, so that an earlier edit's crossings are not taken for this run's
+            if (Path(work) / CROSSINGS_FILE).exists():
+                move_into(Path(work) / CROSSINGS_FILE, out_dir / CROSSINGS_FILE)
+            elif (out_dir / CROSSINGS_FILE).exists():
+                remove_output(out_dir / CROSSINGS_FILE)
     return outputs
 
 
@@ -1671,7 +1692,7 @@ def _open_frame(path):
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
                     feather_px, tile_px, seams, executor, settings_record: dict, previous=None, resume=None,
-                    rolloff=None, offsets=None, toe=None, output=None) -> dict:
+                    rolloff=None, offsets=None, toe=None, output=None, crossings=None) -> dict:
     """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
     returns the summary. ``previous``
     (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over. ``resume``
@@ -1728,6 +1749,12 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                     "the mapping, %.4f %% clipped by it), %.4f %% at 0", output.formula, output.source,
                     100 * o["share_at_255"], 100 * (o["blended_share_at_white"] or 0.0),
                     100 * (o["clipped_by_mapping_share"] or 0.0), 100 * o["share_at_0"])
+    if crossings is not None:  # an edited run: where its seams cross buildings and trees (ortho.seam_crossings)
+        summary["seam_crossings"] = crossings.record()
+        if crossings.checked:
+            from ortho.seam_crossings import write_crossings_gpkg
+
+            write_crossings_gpkg(work / CROSSINGS_FILE, crossings, crs)
     if previous is not None:
         summary["tiles"] = tiles
         logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],

@@ -240,6 +240,26 @@ def _holes_row(section: str, project: Project) -> QaCheck:
                   "in every frame (true ortho) or over DEM nodata; hatched in ortho/seamlines_preview.png; not judged")
 
 
+def _seam_crossings_row(section: str, project: Project) -> QaCheck | None:
+    """Where a mosaic of edited seamlines cuts buildings and trees that its automatic seams did not (ortho/mosaic.json
+    "seam_crossings", ``ortho.seam_crossings``): the new crossings' length, m. Shown, not judged (the operator
+    decides; roofs and crowns tear there). None for a mosaic of automatic seams."""
+    from ortho.mosaic import read_mosaic_summary
+
+    c = read_mosaic_summary(project.mosaic_summary_path).seam_crossings
+    if c is None:
+        return None
+    name = "edited seams: new crossings of buildings and trees"
+    if not c.checked:
+        return _check("dom_edited_seam_crossings_m", section, name, None, None, "m", note=f"{c.why}; not judged")
+    kinds = (f"buildings {c.building_m:.1f} m, trees {c.tree_m:.1f} m (automatic seams {c.automatic_building_m:.1f} / "
+             f"{c.automatic_tree_m:.1f} m)") if c.with_chm else (
+        f"raised objects {c.building_m:.1f} m (automatic seams {c.automatic_building_m:.1f} m)")
+    return _check("dom_edited_seam_crossings_m", section, name, round(c.new_m, 1), None, "m",
+                  note=f"{c.new_crossings} new crossing(s) on {c.pairs_with_new_crossings} seam(s); all crossings: "
+                       f"{kinds}; ortho/seam_crossings.gpkg; not judged")
+
+
 def _sigma_basis(at) -> str | None:
     """What the adjustment's reported sigmas contain, for the reader who trusts them: with surface control, whether
     the surface's systematic error (the LiDAR's strip offsets) is in them or they are formal."""
@@ -661,6 +681,9 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                 f"{why}; re-run ortho rectify, ortho mosaic and ortho check"))
     if project.mosaic_summary_path.is_file():
         rows.append(_holes_row(sec, project))
+        crossings = _seam_crossings_row(sec, project)
+        if crossings is not None:
+            rows.append(crossings)
     if dom_check and dom_check.seams_rms_px is not None:
         rows.append(_check("seam_misalignment_rms_px", sec, "misalignment across seamlines, RMS",
                            round(dom_check.seams_rms_px, 3), tol.get("seam_misalignment_rms_px"), "px",
