@@ -25,6 +25,7 @@ import contextlib
 import csv
 import dataclasses
 import json
+import logging
 import math
 import os
 from pathlib import Path
