@@ -795,8 +795,10 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
             raise OptionError(f"{q}: the input lies in the output folder {out_dir}, which is replaced as a whole; "
                               "choose another output folder", param="OUT_DIR")
     # the folder is replaced as a whole: a previous run's classified strips may go, a user's other files may not
+    # provenance: the names this run derives from its inputs; other LAS/LAZ files (a previous run on other strips,
+    # or a user's) are replaced with a warning naming them; anything else is refused
     refuse_foreign_contents(out_dir, lambda e: e.is_file() and e.suffix.lower() in (".las", ".laz"),
-                            "lidarctl classify", "OUT_DIR")
+                            "lidarctl classify", "OUT_DIR", proven=lambda e: e.name in names)
     project_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else None
     check_strips(in_paths, [las.read_header(q) for q in in_paths], project_crs)
     parent = Path(work_dir) if work_dir is not None else out_dir.parent

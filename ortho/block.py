@@ -836,29 +836,77 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
 
 def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
     """A warning when the output CRS's point scale factor at the block's centre is off 1 by more than
-    ``aerotri.exchange.import_checks.SCALE_LIMIT`` (1 %): a grid far from its central meridian (the demo in
-    CGCS2000 GK CM 123E, EPSG:4550, 11.5 degrees east of it: 1.0151, 15 mm per metre) makes pixels and distances
-    that are no ground measures, most often a zone chosen by mistake; names the block's own 3-degree zone."""
+    ``aerotri.geom.crs.definition.GRID_SCALE_LIMIT`` (1 %): a grid far from its central meridian (the demo, lon
+    110.5 E, in CGCS2000 GK CM 123E, EPSG:4550: 1.0178, 18 mm per metre) makes pixels and distances that are no
+    ground measures, most often a zone chosen by mistake. Names the zone of the block's longitude in the same family
+    of grids (``_zone_of_same_family``) and the block's UTM zone; Web Mercator (EPSG:3857, k = 1 / cos(lat): 1.16 at
+    30 degrees, 1.74 at 55) is said to be no mapping grid at all."""
     import pyproj
 
-    from aerotri.exchange.import_checks import SCALE_LIMIT
-    from aerotri.geom.crs.definition import crs_label, horizontal_crs
+    from aerotri.geom.crs.definition import GRID_SCALE_LIMIT, crs_label, horizontal_crs
     from aerotri.geom.crs.transform import to_own_geodetic
 
     h = horizontal_crs(out_crs)
     if not h.is_projected or horizontal_crs(project_crs).is_engineering:
         return
     lon, lat, _ = to_own_geodetic(project_crs, np.array([centre_xy[0]]), np.array([centre_xy[1]]), np.array([0.0]))
-    f = pyproj.Proj(h).get_factors(float(lon[0]), float(lat[0]))
-    k = float(np.sqrt(f.meridional_scale * f.parallel_scale))
-    if not np.isfinite(k) or abs(k - 1.0) <= SCALE_LIMIT:
+    lon, lat = float(lon[0]), float(lat[0])
+    k = _point_scale(h, lon, lat)
+    if not np.isfinite(k) or abs(k - 1.0) <= GRID_SCALE_LIMIT:
         return
-    zone = int((float(lon[0]) + 180.0) // 6.0) + 1
-    utm = f"EPSG:{32600 + zone if lat[0] >= 0 else 32700 + zone}"
-    _log.warning(f"the output CRS {crs_label(out_crs)} ({h.name}) has a scale factor of {k:.4f} where the block is "
-                 f"(lon {float(lon[0]):.2f}, lat {float(lat[0]):.2f}): a pixel of {res:g} grid units is "
-                 f"{res / k:.4g} m on the ground ({abs(k - 1.0) * 1000:.0f} mm per metre); is it the contract's zone? "
-                 f"The block's UTM zone is {utm}; --crs gk3:cgcs2000 takes its 3-degree Gauss-Krueger zone")
+    zone = int((lon + 180.0) // 6.0) + 1
+    utm = f"EPSG:{32600 + zone if lat >= 0 else 32700 + zone}"
+    said = (f"the output CRS {crs_label(out_crs)} ({h.name}) has a scale factor of {k:.4f} where the block is "
+            f"(lon {lon:.2f}, lat {lat:.2f}): a pixel of {res:g} grid units is {res / k:.4g} m on the ground "
+            f"({abs(k - 1.0) * 1000:.0f} mm per metre)")
+    method = (h.coordinate_operation.method_name if h.coordinate_operation is not None else "").lower()
+    if "pseudo mercator" in method or "popular visualisation" in method:
+        _log.warning(f"{said}; Web Mercator is a web map's display grid, not a mapping grid for measured products "
+                     f"(its scale is 1 / cos(latitude) everywhere): deliver in the contract's grid or the block's "
+                     f"UTM zone {utm}")
+        return
+    own = _zone_of_same_family(h, lon, lat, GRID_SCALE_LIMIT)
+    advice = (f"the block's zone in this family of grids is {crs_label(own)} ({own.name})" if own is not None
+              else "no grid of the same family and datum covers the block")
+    gk3 = ""
+    if h.geodetic_crs.datum.name in ("China 2000", "China Geodetic Coordinate System 2000") and 73.0 <= lon <= 136.0:
+        gk3 = "; --crs gk3:cgcs2000 takes its 3-degree Gauss-Krueger zone"
+    _log.warning(f"{said}; is it the contract's zone? {advice}; the block's UTM zone is {utm}{gk3}")
+
+
+def _point_scale(h, lon: float, lat: float) -> float:
+    """The point scale factor (geometric mean of meridional and parallel) of the projected CRS ``h`` at a point."""
+    import pyproj
+
+    f = pyproj.Proj(h).get_factors(lon, lat)
+    return float(np.sqrt(f.meridional_scale * f.parallel_scale))
+
+
+def _zone_of_same_family(h, lon: float, lat: float, limit: float):
+    """The EPSG projected CRS of the family of ``h`` (the same name but for its numbers: "ETRS89 / UTM zone 33N" ->
+    zone 32N, "CGCS2000 / 3-degree Gauss-Kruger CM 123E" -> CM 111E; the same projection method and datum) whose
+    scale factor at (lon, lat) is nearest 1 and within ``limit``; None when none is."""
+    import re
+
+    import pyproj
+    from pyproj.aoi import AreaOfInterest
+    from pyproj.enums import PJType
+
+    pattern = re.sub(r"\d+", "#", h.name)
+    method = h.coordinate_operation.method_name if h.coordinate_operation is not None else None
+    best, best_dk = None, limit
+    for info in pyproj.database.query_crs_info(auth_name="EPSG", pj_types=PJType.PROJECTED_CRS,
+                                               area_of_interest=AreaOfInterest(lon, lat, lon, lat)):
+        if info.deprecated or re.sub(r"\d+", "#", info.name) != pattern:
+            continue
+        c = pyproj.CRS.from_epsg(int(info.code))
+        if c.coordinate_operation is None or c.coordinate_operation.method_name != method or \
+                not c.geodetic_crs.equals(h.geodetic_crs, ignore_axis_order=True):
+            continue
+        dk = abs(_point_scale(c, lon, lat) - 1.0)
+        if dk <= best_dk:
+            best, best_dk = c, dk
+    return best
 
 
 TIE_POINTS_MIN = 20  # tie points on the surface for its offset from the block to be told

@@ -107,9 +107,12 @@ def dem(project, res_m, min_rays, out):
 @click_option(MosaicSettings, "balance", "--balance/--no-balance")
 @click_option(MosaicSettings, "offsets", "--offsets/--no-offsets")
 @click_option(MosaicSettings, "tile_px", "--tile-px")
+@click_option(MosaicSettings, "output_bits", "--output-bits")
+@click_option(MosaicSettings, "output_range", "--output-range")
 @click.option("--seamlines", "seamlines", type=click.Path(path_type=Path),
               help="edited seamlines: a GeoPackage of one polygon per frame (field 'frame'), as ortho/seamlines.gpkg; "
-                   "its polygons are the seams (checked for gaps, overlaps and frames that do not cover them)")
+                   "its polygons are the seams (checked for gaps, overlaps and frames that do not cover them; where "
+                   "they cross buildings or trees the automatic seams do not: a warning, ortho/seam_crossings.gpkg)")
 @click.option("--crs", "crs", help="the product CRS the frames must be in (as given to ortho rectify); the mosaic never "
                                     "resamples twice, so frames in another CRS are refused [the frames' CRS]")
 @scheduler_options

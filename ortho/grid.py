@@ -51,8 +51,9 @@ def gk3_zone_crs(lon_deg: float, datum: str = "cgcs2000") -> CRS:
     return CRS.from_epsg(first + (cm - 75) // 3)
 
 
-def resolve_output_crs(spec: str | None, project_crs: CRS, centre_xy_m) -> CRS:
+def resolve_output_crs(spec: str | None, project_crs: CRS, centre_xy_m, source: str = "--crs") -> CRS:
     """Output CRS from ``--crs``: None (project CRS), an EPSG/WKT, or ``gk3:<datum>`` (zone by block centre).
+    ``source``: where the value came from, as errors name it (``aerotri run``: project.toml [rectify] crs).
 
     Ortho products need a projected CRS in metres (their pixel size is a ground distance)."""
     if spec is None:
@@ -61,17 +62,20 @@ def resolve_output_crs(spec: str | None, project_crs: CRS, centre_xy_m) -> CRS:
         datum = spec.split(":", 1)[1] if ":" in spec else "cgcs2000"
         geographic = horizontal_crs(project_crs).geodetic_crs  # same datum: a conversion, no shift
         lon, _, _ = CrsTransformer(project_crs, geographic).transform(float(centre_xy_m[0]), float(centre_xy_m[1]))
-        crs = gk3_zone_crs(float(lon[0]), datum)
+        try:
+            crs = gk3_zone_crs(float(lon[0]), datum)
+        except CrsError as exc:
+            raise CrsError(str(exc).replace("--crs", source, 1), param=source) from None
     else:
-        crs = parse_crs(spec, "--crs")
+        crs = parse_crs(spec, source)
     h = horizontal_crs(crs)
     if not h.is_projected:
-        raise CrsError(f"--crs {crs_label(crs)} ({h.name}) is not a projected CRS: ortho products have square "
+        raise CrsError(f"{source} {crs_label(crs)} ({h.name}) is not a projected CRS: ortho products have square "
                        "pixels of a ground size in metres; choose a projected CRS (a UTM or Gauss-Krueger zone) "
-                       "and reproject the delivered mosaic afterwards if degrees are required", param="--crs")
+                       "and reproject the delivered mosaic afterwards if degrees are required", param=source)
     if abs(linear_unit_m(h) - 1.0) > 1e-12:
-        raise CrsError(f"--crs {crs_label(crs)} ({h.name}) has axes in {h.axis_info[0].unit_name}; ortho products "
-                       "are written in metre grids", param="--crs")
+        raise CrsError(f"{source} {crs_label(crs)} ({h.name}) has axes in {h.axis_info[0].unit_name}; ortho products "
+                       "are written in metre grids", param=source)
     return crs
 
 

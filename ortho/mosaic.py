@@ -9,7 +9,9 @@ Steps (``mosaic_block``):
    avoiding objects of the nDSM and image differences. Written as ``seamlines.geojson`` (one polygon
    per frame plus the seam lines between neighbours), ``seamlines.gpkg`` (one polygon per frame with its ``frame``
    name, for editing in QGIS: ``ortho.seamlines_gpkg``) and the label raster ``seams.tif``. With edited seamlines
-   (``seamlines=``, ``ortho mosaic --seamlines EDITED.gpkg``) their polygons, checked, are the seams.
+   (``seamlines=``, ``ortho mosaic --seamlines EDITED.gpkg``) their polygons, checked, are the seams; the automatic
+   seams are routed all the same, to say where the edited ones cross buildings and trees that they do not
+   (``ortho.seam_crossings``: warnings, mosaic.json ``seam_crossings``, ``seam_crossings.gpkg``).
 3. Gain (and offset) balancing: by default per band the log-gains of ``balance_gains`` (the pairs' means matched by
    gains alone); with the setting ``offsets`` a gain g_k = e^x_k and an offset o_k (DN, the frames' own bit depth:
    haze, a black level, which a gain cannot remove) per frame, one least squares over all overlapping pairs
@@ -35,7 +37,9 @@ Steps (``mosaic_block``):
    strips of rows. A VRT joins the stage's rows and its overviews, and GDAL's COG driver copies it into the COG
    (ZSTD level 1 with the horizontal predictor, 512 px blocks, BigTIFF when it may pass 4 GB, the
    overviews as made here): the full resolution is compressed once for the COG, no overview is made
-   from it again, and memory is bounded by the tiles, not by the mosaic.
+   from it again, and memory is bounded by the tiles, not by the mosaic. With ``[mosaic] output_bits = 8``
+   (``--output-bits 8``) each blended tile is mapped to 8 bits as it is written, by one mapping for the block (the
+   frames' white level to 255: ``OutputMapping``), recorded in the DOM's tags and mosaic.json ``output``.
 
 Speed (``bench/mosaic_speed.py``, ``bench/results/mosaic_speed*.json``, ``docs/performance.md``): seams and
 blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam paths), the tiles on all
@@ -82,7 +86,7 @@ from rasterio.windows import Window
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import progress
-from aerotri.core.atomic import atomic_path, commit_outputs, move_into, scratch_dir, write_text_atomic
+from aerotri.core.atomic import atomic_path, commit_outputs, move_into, remove_output, scratch_dir, write_text_atomic
 from aerotri.core.limits import check_allocation, check_grid, check_task_count
 from aerotri.core.project import Project
 from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
@@ -93,6 +97,7 @@ from ortho.block import (FrameIndex, frame_index, index_operation, operation_tag
 from ortho.grid import OrthoGrid, overview_factors
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
+from ortho.seam_crossings import FILE as CROSSINGS_FILE, CrossingsSummary
 from ortho.seamlines_preview import preview_shape, write_seamlines_preview
 from ortho.unseen import unseen_cells
 from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_objects_whole, label_polygons,
@@ -1180,7 +1185,7 @@ def _write_labels(path, labels, transform, crs):
 class MosaicSummary:
     """What ``mosaic_block`` made: the COG (``path``), its size (px) and pixel size, the frames blended, how the seams
     were made, the feather (px), every frame's band gains (name, gains), the cells inside the block no frame sees,
-    and ``summary_path``, ortho/mosaic.json (the record with the seam pairs, tiles and settings as well)."""
+    an edited run's seam crossings, and ``summary_path``, ortho/mosaic.json (the record with the seam pairs, tiles and settings as well)."""
 
     path: Path
     summary_path: Path
@@ -1194,13 +1199,15 @@ class MosaicSummary:
     cells_seen_by_no_frame: int
     area_seen_by_no_frame_m2: float
     share_seen_by_no_frame: float | None = None  # of the block's cells (None: a record written before it was kept)
+    seam_crossings: CrossingsSummary | None = None  # an edited run's check (``ortho.seam_crossings``); None: not edited
 
 
 def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
     return MosaicSummary(Path(doc["path"]), summary_path, doc["width"], doc["height"], doc["frames"], doc["res_m"],
                          doc["seams"], doc["feather_px"], tuple((n, tuple(g)) for n, g in doc["gains"].items()),
                          doc["cells_seen_by_no_frame"], doc["area_seen_by_no_frame_m2"],
-                         doc.get("share_seen_by_no_frame"))
+                         doc.get("share_seen_by_no_frame"),
+                         CrossingsSummary.from_record(doc["seam_crossings"]) if doc.get("seam_crossings") else None)
 
 
 def read_mosaic_summary(path) -> MosaicSummary:
@@ -1241,6 +1248,12 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     s = resolved.settings
     seams, ndsm_path, feather_m, balance, tile_px = s.seams, s.ndsm, s.feather_m, s.balance, s.tile_px
     with_offsets = s.offsets
+    if s.output_bits not in (None, 8):
+        raise OptionError(f"{s.output_bits!r}: expected 8 (default: the frames' own type)", param="--output-bits")
+    if s.output_range != "white-level" and s.output_bits is None:  # (a mapping to 8 bits: without them none)
+        raise OptionError(f"--output-range / [mosaic] output_range = {s.output_range} "
+                          f"({resolved.sources.get('output_range', 'default')}) maps the DOM to 8 bits: it needs "
+                          f"--output-bits 8 / [mosaic] output_bits = 8", param="--output-range")
     if not (isinstance(tile_px, int) and tile_px >= MIN_TILE_PX):
         raise OptionError(f"{tile_px!r}: expected a tile size of at least {MIN_TILE_PX} px", param="--tile-px")
     if feather_m is not None and not (math.isfinite(feather_m) and feather_m >= 0):
@@ -1293,7 +1306,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # and so are the modules the writers of the vector files import (shapely, pyogrio: 0.05 CPU-s), which were imported
     # by this thread before the frames were read
     importer = None
-    if seams == "least-cost" and seamlines is None:
+    if seams == "least-cost":  # (an edited run routes them too: the automatic seams its check compares with)
         importer = threading.Thread(target=_import_quietly, args=(_import_seam_modules,), name="mosaic-import",
                                     daemon=True)
         importer.start()
@@ -1353,25 +1366,35 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
 
             edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, labels_shape=red.shape,
                                            transform=red.transform, valid=red.valid, offsets=red.offsets)
-            labels = edited.labels
-        else:
-            # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
-            # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
-            # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
-            # whose outline, along the walls and across the roofs between the streets, was a seam)
-            covers = [footprint(v) for v in red.valid]
-            labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
-        if seams == "least-cost" and edited is None:
+        # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
+        # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
+        # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
+        # whose outline, along the walls and across the roofs between the streets, was a seam); an edited run
+        # routes them as well, as the figure its crossings are compared with (the edited seams are not touched)
+        covers = [footprint(v) for v in red.valid]
+        labels = voronoi_labels(covers, red.offsets, nadir_rc, red.shape)
+        if seams == "least-cost":
             # a seam end may slide along the overlap border by up to end_reach_m to get round a building
             labels = least_cost_seams(labels, covers, red.offsets, gray=red.gray_of, object_mask=objects,
                                       end_reach_cells=end_reach_m / (res * factor), seen=red.valid)
             if objects is not None:
                 labels = keep_objects_whole(labels, objects, covers, red.offsets)
+        crossings = None
         if edited is not None:
+            from ortho.seam_crossings import check_seam_crossings
+
+            crossings = check_seam_crossings(edited.labels, labels, red.transform, red.names, mosaic.crs,
+                                             ndsm_path=ndsm_path, operation=index_operation(index),
+                                             feature_of_frame=edited.feature_of_frame)
+            labels = edited.labels
             seams = f"edited ({edited.path})"
         timer.done("seams")
         gains, offsets, held, rolloff, toe = gains_of()
     for message in held:
+        logger.warning(message)
+    if crossings is not None and not crossings.checked:
+        logger.warning("edited seamlines: %s", crossings.why)
+    for message in () if crossings is None else crossings.warnings:
         logger.warning(message)
     if rolloff is not None:
         logger.info("highlight roll-off: gained values above %.1f compressed so that %.1f becomes %.2f (white %d)",
@@ -1379,10 +1402,13 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     if toe is not None:
         logger.info("shadow toe: values below %.2f lifted so that %.2f becomes %.3f (above black)", toe.knee,
                     toe.bottom_in, toe.bottom_out)
+    out_map = output_mapping(s.output_bits, red.white_level, s.output_range, red, gains=gains, offsets=offsets,
+                             rolloff=rolloff, toe=toe)
     timer.done("gains")
     # edited seamlines: the tiles their change does not reach are taken from the mosaic they were edited on
     previous = previous_mosaic(root, index, red.names, labels, gains=gains, feather_px=feather_px, factor=factor,
-                               mosaic=mosaic, rolloff=rolloff, offsets=offsets, toe=toe) if edited is not None else None
+                               mosaic=mosaic, rolloff=rolloff, offsets=offsets, toe=toe,
+                               output=out_map) if edited is not None else None
     for name, g in zip(red.names, gains):
         if np.any(np.abs(np.log(g)) > math.log(1.3)):  # beyond exposure differences between frames of one flight
             logger.warning("frame %s needs gains %s to match its neighbours: check its exposure, or how its image "
@@ -1396,13 +1422,139 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                                   rolloff=rolloff, offsets=offsets, toe=toe,
                                   mosaic=mosaic, factor=factor, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                                   seams=seams, executor=executor, settings_record=resolved.record(), previous=previous,
-                                  resume=keep)
+                                  resume=keep, output=out_map, crossings=crossings)
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all new, or (a failure, a kill) all as before
             for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "seamlines_preview.png", "mosaic.tif",
                          "mosaic.json"):
                 move_into(Path(work) / name, out_dir / name)
+            # where the edited seams cross buildings and trees (an edited run with an nDSM); any other run leaves
+            # none, so that an earlier edit's crossings are not taken for this run's
+            if (Path(work) / CROSSINGS_FILE).exists():
+                move_into(Path(work) / CROSSINGS_FILE, out_dir / CROSSINGS_FILE)
+            elif (out_dir / CROSSINGS_FILE).exists():
+                remove_output(out_dir / CROSSINGS_FILE)
     return outputs
+
+
+@dataclasses.dataclass(frozen=True)
+class OutputMapping:
+    """The block's map of the balanced samples (the frames' own bit depth, after gains, offsets, roll-off and toe) to
+    the DOM's 8-bit samples (``[mosaic] output_bits = 8``): v8 = clip(rint((v - ``low_dn``) x 255 / (``high_dn`` -
+    ``low_dn``)), 0, 255), the same for every pixel of the block (never per frame or tile: a seam or a tile edge would
+    show; an edited run's tiles map as a whole run's). ``low_dn`` 0 and ``high_dn`` the frames' white level (4095 for
+    12-bit data in 16-bit frames): nothing beyond what the frames saturate is clipped, and a value within half an 8-bit
+    step of white (white / 510 DN) rounds to 255. Nodata stays in the mask (a valid black pixel is 0 and valid)."""
+
+    bits: int
+    low_dn: float
+    high_dn: float
+    source: str  # how the range was found: "white level (<its source>)"
+
+    @property
+    def scale(self) -> float:
+        """8-bit steps per DN of the frames."""
+        return 255.0 / (self.high_dn - self.low_dn)
+
+    def apply(self, samples: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """(bands, h, w) samples of the frames' type -> uint8, 0 where not ``valid``: a lookup table for 8- and 16-bit
+        samples, float32 arithmetic for other types (the same values)."""
+        if samples.dtype in _HISTOGRAM_TYPES:
+            out = np.take(self._lut(samples.dtype), samples)
+        else:
+            v = (samples.astype(np.float32) - np.float32(self.low_dn)) * np.float32(self.scale)
+            out = np.clip(np.rint(v), 0, 255).astype(np.uint8)
+        out[:, ~valid] = 0
+        return out
+
+    @functools.lru_cache(maxsize=2)
+    def _lut(self, dtype) -> np.ndarray:
+        x = np.arange(int(np.iinfo(dtype).max) + 1, dtype=np.float32)
+        return np.clip(np.rint((x - np.float32(self.low_dn)) * np.float32(self.scale)), 0, 255).astype(np.uint8)
+
+    def record(self) -> dict:
+        """mosaic.json's "output" mapping (and what an edited run's earlier mosaic must have been made with)."""
+        return {"bits": self.bits, "low_dn": self.low_dn, "high_dn": self.high_dn, "scale": self.scale,
+                "from": self.source, "formula": self.formula}
+
+    @property
+    def formula(self) -> str:
+        return f"v8 = clip(round((v - {self.low_dn:g}) * 255 / {self.high_dn - self.low_dn:g}), 0, 255)"
+
+    def tags(self) -> dict:
+        """The DOM's metadata tags stating the mapping (GDAL metadata of the COG)."""
+        return {"DOM_SAMPLE_MAPPING": self.formula, "DOM_SOURCE_LOW_DN": f"{self.low_dn:g}",
+                "DOM_SOURCE_HIGH_DN": f"{self.high_dn:g}", "DOM_SOURCE_RANGE_FROM": self.source}
+
+
+# the pooled percentiles of ``output_range = "percentiles"``: set a priori (a DOM's darkest and brightest thousandth
+# clipped, as a viewer's default stretch does), not tuned on a block
+STRETCH_PERCENTILES = (0.1, 99.9)
+
+
+def output_mapping(bits: int | None, white, range_from: str = "white-level", red=None, *, gains=None, offsets=None,
+                   rolloff=None, toe=None) -> OutputMapping | None:
+    """The ``OutputMapping`` to ``bits`` (None: the frames' own type, no mapping) from the frames' ``WhiteLevel``
+    (``range_from`` "white-level": 0 .. white) or from the pooled ``STRETCH_PERCENTILES`` of the balanced samples
+    ("percentiles": ``balanced_percentiles`` of ``red``'s histograms through ``gains``, ``offsets``, ``rolloff`` and
+    ``toe``)."""
+    if bits is None:
+        return None
+    if white.value is None:
+        raise OptionError(f"--output-bits {bits} / [mosaic] output_bits = {bits}: the frames' samples have no white "
+                          f"level (they are floats): expected 8- or 16-bit frames", param="--output-bits")
+    if range_from == "percentiles":
+        lo, hi = balanced_percentiles(red, gains, offsets, rolloff, toe, white.value, STRETCH_PERCENTILES)
+        return OutputMapping(int(bits), lo, hi, f"pooled percentiles {STRETCH_PERCENTILES[0]:g} / "
+                                                f"{STRETCH_PERCENTILES[1]:g} of the balanced samples (white level "
+                                                f"{white.value}, {white.source})")
+    return OutputMapping(int(bits), 0.0, float(white.value), f"white level ({white.source}, {white.bits} bits)")
+
+
+def balanced_percentiles(red: ReducedFrames, gains, offsets, rolloff, toe, white: int, percentiles) -> tuple:
+    """(low, high) DN: the ``percentiles`` (%) of every frame's valid samples, all bands pooled (one mapping: a grey
+    stays grey), through its gains (and offsets), the roll-off and the toe, as the blending has them; a saturated
+    sample held at white. From the frames' histograms (a frame kept decoded: made here): a bin's samples spread evenly
+    over its values (16-bit bins are 64 DN wide), each bin's ends through the frame's transform (monotone), pooled on
+    a 1 DN grid; rounded to whole DN."""
+    cells = np.zeros(int(white) + 2, np.float64)  # difference array of the pooled density on [0, white]
+    for k, hist in enumerate(red.sample_histograms):
+        if hist is None and red.decoded_frames[k] is not None:
+            hist = sample_histogram(red.decoded_frames[k].samples, red.decoded_frames[k].valid)
+        if hist is None:
+            raise OptionError(f"frame {red.names[k]}: no histogram of its samples for the percentiles: use "
+                              f"output_range = white-level", param="--output-range")
+        width = (1 << hist.bits) // hist.counts.shape[1]
+        edges = np.minimum(np.arange(hist.counts.shape[1] + 1, dtype=np.float32) * width, np.float32(white + 1))
+        for b in range(hist.counts.shape[0]):
+            counts = hist.counts[b].astype(np.float64)
+            sat = hist.saturated(b, int(white))
+            jw = int(white) // width
+            counts[jw] = max(0.0, counts[jw] - (sat - counts[jw + 1:].sum()))  # saturated: held at white
+            counts[jw + 1:] = 0
+            v = edges * np.float32(gains[k, b])
+            if offsets is not None:
+                v += np.float32(offsets[k, b])
+            if rolloff is not None:
+                rolloff.apply(v)
+            if toe is not None:
+                toe.apply(v)
+            v = np.clip(v, 0, white)
+            a, z = np.floor(v[:-1]).astype(np.int64), np.maximum(np.ceil(v[1:]).astype(np.int64), 1)
+            z = np.maximum(z, a + 1)
+            dens = counts / (z - a)
+            np.add.at(cells, a, dens)
+            np.add.at(cells, np.minimum(z, len(cells) - 1), -dens)
+            cells[int(white)] += sat
+            cells[int(white) + 1] -= sat
+    density = np.cumsum(cells)[:-1]
+    cdf = np.cumsum(density)
+    if cdf[-1] <= 0:
+        raise OptionError("the frames have no valid sample for the percentiles", param="--output-range")
+    lo, hi = (float(np.searchsorted(cdf, p / 100.0 * cdf[-1])) for p in percentiles)
+    if hi <= lo:
+        hi = lo + 1.0
+    return lo, hi
 
 
 MIN_TILE_PX = 16
@@ -1540,7 +1692,7 @@ def _open_frame(path):
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
                     feather_px, tile_px, seams, executor, settings_record: dict, previous=None, resume=None,
-                    rolloff=None, offsets=None, toe=None) -> dict:
+                    rolloff=None, offsets=None, toe=None, output=None, crossings=None) -> dict:
     """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
     returns the summary. ``previous``
     (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over. ``resume``
@@ -1573,7 +1725,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                               executor=executor, labels=labels, previous=previous,
                               decoded=red.decoded, holes=frame_holes(red), during_cog=stage_preview if early else None,
                               white_level=red.white_level.value, resume=resume, rolloff=rolloff, offsets=offsets,
-                              toe=toe)
+                              toe=toe, output=output)
         with _background(functools.partial(write_seamlines_preview, footprints=footprints),
                          work / "seamlines_preview.png", work / "mosaic.tif", labels, factor,
                          imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
@@ -1590,6 +1742,19 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                "highlight_rolloff": None if rolloff is None else rolloff.record(),
                "shadow_toe": None if toe is None else toe.record(),
                "blend_rules": BLEND_RULES, "pairs": pairs, **nodata, "settings": settings_record}
+    if output is not None:
+        summary["output"] = _output_record(output, tiles.pop("output_counts"), summary["white_level"])
+        o = summary["output"]
+        logger.info("8-bit DOM: %s (%s); %.4f %% of its pixels at 255 (of the blended tiles' %.4f %% at white before "
+                    "the mapping, %.4f %% clipped by it), %.4f %% at 0", output.formula, output.source,
+                    100 * o["share_at_255"], 100 * (o["blended_share_at_white"] or 0.0),
+                    100 * (o["clipped_by_mapping_share"] or 0.0), 100 * o["share_at_0"])
+    if crossings is not None:  # an edited run: where its seams cross buildings and trees (ortho.seam_crossings)
+        summary["seam_crossings"] = crossings.record()
+        if crossings.checked:
+            from ortho.seam_crossings import write_crossings_gpkg
+
+            write_crossings_gpkg(work / CROSSINGS_FILE, crossings, crs)
     if previous is not None:
         summary["tiles"] = tiles
         logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],
@@ -1600,6 +1765,25 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                        100 * summary["share_seen_by_no_frame"])
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+def _output_record(output: OutputMapping, counts: dict, white_record: dict) -> dict:
+    """mosaic.json's "output": the 8-bit mapping (``OutputMapping.record``) and what it clipped, counted on the DOM's
+    valid pixels (a pixel with any band at 255, or at 0), beside the frames' largest saturated share: the white-level
+    mapping clips nothing more than the frames saturate but the values within half an 8-bit step of white."""
+    valid, blended = counts["valid"], counts["blended_valid"]
+    shares = [v for v in (white_record.get("saturated_share_frames") or {}).values() if v is not None]
+    at_white = counts["blended_at_white"] / blended if blended else None
+    at_255 = counts["blended_at_255"] / blended if blended else None
+    return {"mapping": output.record(), "valid_pixels": valid,
+            "share_at_255": counts["at_255"] / valid if valid else 0.0,
+            "share_at_0": counts["at_0"] / valid if valid else 0.0,
+            # on the tiles this run blended (all of them but an edited run's taken-over ones): the pixels with a
+            # band at white before the mapping (saturated in the frames, held there) and at 255 after it; the
+            # difference is what the mapping clipped (rounded up from within white / 510 DN of white)
+            "blended_pixels": blended, "blended_share_at_white": at_white, "blended_share_at_255": at_255,
+            "clipped_by_mapping_share": None if blended == 0 else at_255 - at_white,
+            "frames_saturated_share_max": max(shares) if shares else None}
 
 
 def _white_level_record(red: ReducedFrames) -> dict:
@@ -1763,6 +1947,15 @@ class _BlendContext:
                     lut[0] = 0
                 luts[-1].append(lut)
         return luts
+
+
+def _context_white(dtype, white_level) -> int | None:
+    """``_BlendContext.white`` of frames of ``dtype`` and ``white_level``."""
+    dt = np.dtype(dtype)
+    if dt not in _HISTOGRAM_TYPES:
+        return None
+    top = int(np.iinfo(dt).max)
+    return top if white_level is None else min(top, int(white_level))
 
 
 def _context(index, frames_dir, mosaic: OrthoGrid, *, factor, halo, gains, nadir, feather_px, bands, dtype, read_cells,
@@ -2347,7 +2540,7 @@ def _weight_boxes(ctx: _BlendContext, cells: np.ndarray, ks: list, *, dr: int, d
 
 def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, factor, gains, nadir, feather_px, tile_px,
                   executor=None, labels=None, previous=None, decoded=None, holes=None, during_cog=None,
-                  white_level=None, resume=None, rolloff=None, offsets=None, toe=None):
+                  white_level=None, resume=None, rolloff=None, offsets=None, toe=None, output=None):
     """Blend the output tiles into a tiled stage GeoTIFF and its overviews, then copy those to the COG
     (module doc, step 5). On local threads (or synchronous) the tiles are computed ahead of this thread,
     which writes them in tile order (``labels``: the seam labels in memory, else read from ``seams_path``);
@@ -2362,7 +2555,11 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
 
     The stage is one GeoTIFF per row of tiles (joined by a VRT): with ``resume`` (``aerotri.core.resume.ResumeFolder``)
     each row, once written, is hard-linked there under a key of everything its tiles depend on (``_row_keys``), and
-    the rows an interrupted run kept are linked back instead of blended (their samples read for the overview)."""
+    the rows an interrupted run kept are linked back instead of blended (their samples read for the overview).
+
+    ``output`` (``OutputMapping``, None: the frames' type): every blended tile mapped to 8 bits as it is made, before
+    its overview (a taken-over tile is the earlier mosaic's, made with the same mapping: ``previous_mosaic``); the
+    valid pixels at 255 and at 0 counted (``output_counts`` in the result)."""
     from aerotri.core.executor import local_executor
     from ortho.rectify import ordered_thread_map
 
@@ -2370,6 +2567,9 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
     with rasterio.open(Path(frames_dir) / index.frames[0].file) as ds:
         bands, dtype = ds.count, ds.dtypes[0]
         colorinterp = ds.colorinterp
+    frames_dtype = dtype  # the blending's; the DOM's is ``dtype``
+    if output is not None:
+        dtype = "uint8"
     halo = int(math.ceil(2.0 * feather_px)) + factor
     check_task_count(math.ceil(mosaic.height / tile_px) * math.ceil(mosaic.width / tile_px),
                      f"mosaic of {mosaic.width} x {mosaic.height} px in tiles of {tile_px} px", "--tile-px",
@@ -2386,7 +2586,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                                   "width": mosaic.width, "height": mosaic.height},
                        "seams_path": str(Path(seams_path).resolve()), "factor": int(factor), "halo": halo,
                        "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
-                       "feather_px": float(feather_px), "bands": int(bands), "dtype": dtype,
+                       "feather_px": float(feather_px), "bands": int(bands), "dtype": frames_dtype,
                        "white_level": white_level, "rolloff": None if rolloff is None else rolloff.record(),
                        "offsets": None if offsets is None else np.asarray(offsets, float).tolist(),
                        "toe": None if toe is None else toe.record()}
@@ -2407,7 +2607,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                 return cells[r:r + h, c:c + w]
 
             ctx = _context(index, frames_dir, mosaic, factor=factor, halo=halo, gains=gains, nadir=nadir,
-                           feather_px=feather_px, bands=bands, dtype=dtype, read_cells=read_cells,
+                           feather_px=feather_px, bands=bands, dtype=frames_dtype, read_cells=read_cells,
                            seam_shape=labels.shape, holes=holes, white_level=white_level, rolloff=rolloff,
                            dn_offsets=offsets, toe=toe)
         tiles = [(r0, c0, min(tile_px, mosaic.height - r0), min(tile_px, mosaic.width - c0))
@@ -2417,7 +2617,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         if resume is not None:
             keys = _row_keys(index, mosaic, rows, labels=labels, seams_path=seams_path, factor=factor, halo=halo,
                              gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px, bands=bands, dtype=dtype,
-                             white_level=white_level, previous=previous, rolloff=rolloff, offsets=offsets, toe=toe)
+                             white_level=white_level, previous=previous, rolloff=rolloff, offsets=offsets, toe=toe,
+                             output=output)
             kept = {r0: path for r0, path in rows.items()
                     if _resumed_row(resume, keys[r0], path, (min(tile_px, mosaic.height - r0), mosaic.width))}
             if kept:
@@ -2427,6 +2628,23 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         todo = [t for t in tiles if t[0] not in kept]
         stage = tmp_dir / "stage.vrt"  # the rows of tiles as one raster
         counts = {"taken_over": 0}
+        shares = {"valid": 0, "at_255": 0, "at_0": 0, "blended_valid": 0, "blended_at_white": 0, "blended_at_255": 0}
+        shares_lock = threading.Lock()
+        white = _context_white(frames_dtype, white_level)
+
+        def mapped(result):  # a blended tile in the DOM's type; its pixels at white before and at 255 after counted
+            if output is None:
+                return result
+            out, valid = result
+            out8 = output.apply(out, valid)
+            n = (int(np.count_nonzero(valid)),
+                 int(np.count_nonzero((out >= white).any(axis=0) & valid)) if white is not None else 0,
+                 int(np.count_nonzero((out8 == 255).any(axis=0) & valid)))
+            with shares_lock:
+                shares["blended_valid"] += n[0]
+                shares["blended_at_white"] += n[1]
+                shares["blended_at_255"] += n[2]
+            return out8, valid
         stack = contextlib.ExitStack()
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
         readers = _FrameReaders(None if executor.distributed else decoded)
@@ -2439,9 +2657,9 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
 
                 def results():
                     for i in range(0, len(todo), batch):
-                        yield from executor.map(blend_tile_task, [MosaicTile(str(context_path), *t)
-                                                                  for t in todo[i:i + batch]],
-                                                desc="mosaic tiles", unit="tile")
+                        yield from map(mapped, executor.map(blend_tile_task, [MosaicTile(str(context_path), *t)
+                                                                              for t in todo[i:i + batch]],
+                                                            desc="mosaic tiles", unit="tile"))
                 made = results()
             else:
                 threads = 1 if executor.scheduler == "synchronous" else max(1, executor.workers)
@@ -2451,14 +2669,14 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
 
                     def tile(t):
                         if previous.touched(*t, halo, factor):
-                            return _blend_tile(ctx, readers, *t)
+                            return mapped(_blend_tile(ctx, readers, *t))
                         w = Window(t[1], t[0], t[3], t[2])
                         with lock:  # one dataset, read by the tile threads in turn
                             counts["taken_over"] += 1
                             return old.read(window=w), old.read_masks(1, window=w) > 0
                 else:
                     def tile(t):
-                        return _blend_tile(ctx, readers, *t)
+                        return mapped(_blend_tile(ctx, readers, *t))
 
                 def tile_and_half(t):
                     # the tile's 2 x 2 average for the first overview made on the tile's thread too (OpenCV): the
@@ -2477,14 +2695,19 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                         row = _StageRow(r0, rows[r0], kept.get(r0), dict(profile, height=th, transform=Affine(
                             t.a, t.b, t.c + t.b * r0, t.d, t.e, t.f + t.e * r0)), colorinterp, resume, keys.get(r0))
                     w = Window(c0, 0, tw, th)
-                    if row.src is not None:  # kept: its samples only for the first overview
-                        if pyramid.first is not None:
-                            pyramid.add_tile(r0, c0, row.src.read(window=w), row.src.read_masks(1, window=w) > 0)
+                    if row.src is not None:  # kept: its samples only for the first overview (and the 8-bit counts)
+                        if pyramid.first is not None or output is not None:
+                            out, valid = row.src.read(window=w), row.src.read_masks(1, window=w) > 0
+                            pyramid.add_tile(r0, c0, out, valid)
                     else:
                         out, valid, *half = next(made)
                         row.dst.write(out, window=w)
                         row.dst.write_mask(valid.view(np.uint8) * np.uint8(255), window=w)
                         pyramid.add_tile(r0, c0, out, valid, *half)
+                    if output is not None:
+                        shares["valid"] += int(np.count_nonzero(valid))
+                        shares["at_255"] += int(np.count_nonzero((out == 255).any(axis=0) & valid))
+                        shares["at_0"] += int(np.count_nonzero((out == 0).any(axis=0) & valid))
                     bar.update(1)
                 row.close()
                 row = None
@@ -2505,7 +2728,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         timer.done("overviews")
         vrt = tmp_dir / "mosaic.vrt"
         write_vrt(vrt, row_parts, pyramid.paths, mosaic, bands=bands, dtype=dtype, colorinterp=colorinterp,
-                  tags=operation_tags(index.coordinate_operation, index.height_operation))
+                  tags={**operation_tags(index.coordinate_operation, index.height_operation),
+                        **({} if output is None else output.tags())})
         with contextlib.ExitStack() as during:
             waits = during.enter_context(_background(during_cog, {1: stage, **dict(zip(levels, pyramid.paths))},
                                                      imports=False)) if during_cog else None
@@ -2517,7 +2741,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
     if previous is not None and executor.distributed:
         previous.why_all = "the tiles run as Dask tasks: every tile blended"
     return {"total": len(tiles), "blended": len(tiles) - counts["taken_over"], "taken_over": counts["taken_over"],
-            **({"why_all_blended": previous.why_all} if previous is not None and previous.why_all else {})}
+            **({"why_all_blended": previous.why_all} if previous is not None and previous.why_all else {}),
+            **({} if output is None else {"output_counts": shares})}
 
 
 class _StageRow:
@@ -2553,7 +2778,7 @@ RADIOMETRY_SEAMS_VERSION = 1
 
 
 def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, factor, halo, gains, nadir, feather_px,
-              tile_px, bands, dtype, white_level, previous, rolloff=None, offsets=None, toe=None) -> dict:
+              tile_px, bands, dtype, white_level, previous, rolloff=None, offsets=None, toe=None, output=None) -> dict:
     """Key of each row of tiles (row offset px -> sha256): what its samples depend on, the frame orthos (index.json,
     which holds their sizes and hashes), the seam labels, the gains, nadir points, feather, seam grid, tiles, the
     mosaic's grid and type, the white level, the earlier mosaic an edit takes tiles over from, and the version."""
@@ -2575,6 +2800,7 @@ def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, facto
            **({} if rolloff is None else {"rolloff": rolloff.record()}),
            **({} if offsets is None else {"offsets": np.asarray(offsets, float).tolist()}),
            **({} if toe is None else {"toe": toe.record()}),
+           **({} if output is None else {"output": output.record()}),
            "previous": None if previous is None else [
                file_stamp(previous.mosaic_path) if previous.mosaic_path.is_file() else None,
                hashlib.sha256(np.packbits(previous.changed)).hexdigest(), previous.why_all]}
@@ -2617,7 +2843,7 @@ class PreviousMosaic:
 
 
 def previous_mosaic(root: Path, index, names, labels, *, gains, feather_px, factor,
-                    mosaic: OrthoGrid, rolloff=None, offsets=None, toe=None) -> PreviousMosaic:
+                    mosaic: OrthoGrid, rolloff=None, offsets=None, toe=None, output=None) -> PreviousMosaic:
     """The mosaic in ``ortho/`` when the edited run would blend its tiles the same away from the edit: made from the
     same frames (index.json sha1), with the same gains, highlight roll-off, feather and seam grid by the same
     ``BLEND_RULES``; else every tile is blended (``why_all`` says why)."""
@@ -2641,6 +2867,10 @@ def previous_mosaic(root: Path, index, names, labels, *, gains, feather_px, fact
     if not same:
         return PreviousMosaic(old_path, none, "the earlier mosaic was made from other frames, gains, offsets, "
                                               "highlight roll-off, shadow toe, feather or seam grid")
+    # an 8-bit DOM's tiles are taken over only into an 8-bit DOM of the same mapping, a 16-bit DOM's into a 16-bit one
+    if (old.get("output") or {}).get("mapping") != (None if output is None else output.record()):
+        return PreviousMosaic(old_path, none, "the earlier mosaic's samples were mapped otherwise (output_bits or its "
+                                              "mapping differ)")
     with rasterio.open(seams_path) as sds:
         old_labels = sds.read(1)
     if old_labels.shape != labels.shape:

@@ -102,6 +102,18 @@ class MosaicSettings:
     offsets: bool = setting(False, help="With the gains, an offset per frame and band (haze, a black level) by the "
                                         "same least squares (default: gains only; needs balance).")
     tile_px: int = setting(1024, min=16, help="Mosaic processing tile size (px).")
+    output_bits: int | None = setting(
+        None, choices=(8,),
+        help="8: write the DOM with 8-bit samples, the balanced samples mapped linearly to 0 .. 255 by one mapping for "
+             "the block (output_range; by default from the frames' white level: 0 .. 4095 for 12-bit DMC data in 16-bit "
+             "TIFF), recorded in the DOM's tags and mosaic.json with what it clips; nodata stays in the mask (default: "
+             "the frames' own type, 16-bit in, 16-bit out).")
+    output_range: str = setting(
+        "white-level", choices=("white-level", "percentiles"),
+        help="With output_bits: the frames' data range mapped to 0 .. 255: white-level (0 .. the frames' white level: "
+             "nothing clipped but what the frames saturate) or percentiles (the balanced samples' pooled 0.1 and 99.9 "
+             "percentiles, all bands and frames: a contrast stretch that clips about 0.1 % at each end, counted in "
+             "mosaic.json).")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -310,10 +310,14 @@ class Chain:
             from ortho.check import read_dom_check
 
             try:
-                stale = read_dom_check(report).stale_for(self.project.mosaic_path, report)
+                check = read_dom_check(report)
+                stale = check.stale_for(self.project.mosaic_path, report)
             except InputError as e:  # not this run's business: the report names it
                 return f"{why}; {report.name} of an earlier run is unreadable ({e})"
-            if stale:
+            if stale and check.of_project_mosaic is False:
+                why += (f"; {report.name} measured another DOM ({check.dom}, ortho check --dom): the report says the "
+                        "DOM was not checked")
+            elif stale:
                 why += (f"; {report.name} of an earlier run measured an earlier mosaic: the report says the DOM was "
                         "not checked")
             else:
@@ -356,8 +360,8 @@ class Chain:
         (CGCS2000 Gauss-Krueger for a WGS 84 UTM project) stopped it at the orthophotos, after minutes to hours of
         matching and adjustment, naming options `aerotri run` does not have."""
         from aerotri.core.errors import ConfigError
-        from aerotri.geom.crs.definition import project_crs
-        from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer
+        from aerotri.geom.crs.definition import crs_label, project_crs
+        from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer, grid_advice
         import numpy as np
 
         from aerotri.geom.eo import read_gnss
@@ -374,10 +378,14 @@ class Chain:
             centre = np.median(read_gnss(p.gnss_path, pcrs).position_m[:, :2], axis=0)
         else:
             centre = (0.0, 0.0)
-        out = resolve_output_crs(spec, pcrs, centre)
+        out = resolve_output_crs(spec, pcrs, centre, f"{p.config_path} [rectify] crs =")
         try:
             CrsTransformer(pcrs, out)
         except BallparkRefused as exc:
+            if exc.missing_grids:  # a geoid or datum grid not installed: the grid is the fix, not parameters
+                raise ConfigError(
+                    f"{p.config_path} [rectify] crs = {spec!r}: {crs_label(pcrs)} -> {crs_label(out)} ({out.name}): "
+                    f"{grid_advice(list(exc.missing_grids))}; then run again") from None
             raise ConfigError(
                 f"{p.config_path} [rectify] crs = {spec!r}: {exc}. `aerotri run` takes no datum parameters: run the "
                 f"chain in the project's CRS (without [rectify] crs), then `ortho rectify {p.root} --crs {spec} "

@@ -38,6 +38,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -46,6 +47,8 @@ import time
 from pathlib import Path
 
 from aerotri.core.errors import OptionError
+
+log = logging.getLogger(__name__)
 
 
 TEMP_MARKER = ".part-"
@@ -468,8 +471,12 @@ def write_text_atomic(path, text: str) -> None:
 def atomic_dir(path):
     """Yield a temporary folder next to ``path``; it replaces ``path`` only if the block succeeds (as part
     of the open commit that covers ``path``; otherwise as a commit of its own, so that even a kill
-    between moving the old folder away and the new one in leaves the old one)."""
+    between moving the old folder away and the new one in leaves the old one). ``path`` a link to a folder: the
+    folder it points to is replaced (the link stays; replacing the link by a real folder left the old output at
+    the target, where whoever made the link looks)."""
     path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = temporary_dir(path.parent, path.name)
@@ -562,18 +569,44 @@ def refuse_input_as_output(output, inputs, option: str = "output") -> None:
                               "choose another output path)", param=option)
 
 
-def refuse_foreign_contents(outdir, owned, what: str, option: str = "OUTDIR") -> None:
+# what the OS and file browsers add to any folder they show (Finder, Explorer, a Mac's copy onto a FAT/SMB
+# share: "._name" AppleDouble files): not a user's work; they go with the replaced output
+OS_CLUTTER = frozenset({".ds_store", "thumbs.db", "ehthumbs.db", "desktop.ini", ".localized"})
+
+
+def os_clutter(entry) -> bool:
+    """Whether the folder entry ``entry`` (a Path or a name) is a file the OS or a file browser adds by itself."""
+    name = Path(entry).name
+    return name.lower() in OS_CLUTTER or name.startswith("._")
+
+
+def refuse_foreign_contents(outdir, owned, what: str, option: str = "OUTDIR", proven=None) -> None:
     """``OptionError`` when the folder ``outdir`` (replaced as a whole by ``atomic_dir``) exists and holds an
     entry that ``owned(entry: Path) -> bool`` does not claim as a previous output of ``what`` (e.g. "lidarctl
-    classify"): replacing it would delete a user's file without a word. A new folder, an empty one and a
-    previous output pass; ``outdir`` a file is refused too."""
+    classify"): replacing it would delete a user's file without a word. A new folder, an empty one, a previous
+    output and the OS's clutter (``os_clutter``: .DS_Store, Thumbs.db, ...) pass; ``outdir`` a file is refused.
+
+    ``proven(entry) -> bool`` (None: every owned entry is proven): whether the entry is ours by provenance (the
+    folder holds our record, the name derives from this run's inputs), not by its name alone; owned entries that
+    are not proven (an output written before the records, or a user's file with one of our names) are replaced
+    with a warning naming them."""
     outdir = Path(outdir)
+    if outdir.is_symlink() and not outdir.exists():
+        raise OptionError(f"{outdir}: the output folder is a broken link; remove it or give a folder", param=option)
     if not outdir.exists():
         return
     if not outdir.is_dir():
-        raise OptionError(f"{outdir}: the output folder is a file; choose a new folder", param=option)
-    foreign = sorted(p.name for p in outdir.iterdir() if not owned(p))
+        raise OptionError(f"{outdir}: the output folder is a file; move it (or remove it), or give another "
+                          "folder", param=option)
+    entries = sorted((p for p in outdir.iterdir() if not os_clutter(p)), key=lambda p: p.name)
+    foreign = [p.name for p in entries if not owned(p)]
     if foreign:
         shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
         raise OptionError(f"{outdir}: the output folder is replaced as a whole, and it holds {shown}, which "
-                          f"{what} did not write; choose a new folder (or empty this one)", param=option)
+                          f"{what} did not write: move {'it' if len(foreign) == 1 else 'them'} out of the folder "
+                          f"(or remove {'it' if len(foreign) == 1 else 'them'}) and run again", param=option)
+    unproven = [p.name for p in entries if proven is not None and not proven(p)]
+    if unproven:
+        shown = ", ".join(unproven[:5]) + (f" and {len(unproven) - 5} more" if len(unproven) > 5 else "")
+        log.warning(f"{outdir}: replacing {shown}, taken for a previous output of {what} by name only (no record "
+                    "of it in the folder, or not named after this run's inputs)")

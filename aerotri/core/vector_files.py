@@ -8,7 +8,10 @@ GeoJSON and KML files of the commands that offer them), so that each one is
 - in a CRS (every layer the same; a layer without one is refused), each layer under an explicit name, with a
   spatial index (an R-tree: QGIS pans a large layer without reading it whole);
 - atomic: written under a temporary name next to the output and renamed onto it (``atomic_path``): the layers
-  of one file are all new or all old.
+  of one file are all new or all old;
+- marked as ours (each layer's description in gpkg_contents starts with ``MARK``; QGIS shows it as the
+  layer's abstract): a rerun replaces a file it wrote, and warns before replacing one that merely has layers of
+  our names (``refuse_foreign_layers``); the ``layer_styles`` table QGIS saves styles in is carried over.
 
 The driver follows the suffix (``DRIVERS``); the GeoPackage options apply to .gpkg only.
 """
@@ -17,6 +20,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
+import sqlite3
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -30,6 +35,12 @@ GPKG_VERSION = "1.2"  # the driver's VERSION creation option (AUTO, 1.0 ... 1.4)
 GPKG_APPLICATION_ID = 0x47504B47  # b"GPKG", the SQLite header's application_id of GeoPackage >= 1.2
 GPKG_USER_VERSION = 10200  # the SQLite header's user_version of GeoPackage 1.2.0
 DRIVERS = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON", ".kml": "KML"}
+# the marker of our GeoPackages, in gpkg_contents.description (GDAL's dataset metadata would add a time stamp and
+# a .aux.xml beside the file)
+MARK = "written by aerotri"
+QGIS_STYLES = "layer_styles"  # the attributes table QGIS saves layer styles in ("Save style ... in database")
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,15 +83,44 @@ def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | N
                   fields=list(layer.fields), layer=layer.name, driver=driver, crs=crs,
                   geometry_type=layer.geometry_type, promote_to_multi=layer.geometry_type.startswith("Multi"),
                   append=i > 0, dataset_options={"VERSION": GPKG_VERSION} if gpkg else None,
-                  layer_options={"SPATIAL_INDEX": "YES"} if gpkg else None)
+                  layer_options={"SPATIAL_INDEX": "YES", "DESCRIPTION": MARK} if gpkg else None)
+        if gpkg and path.is_file():
+            _keep_qgis_styles(path, tmp)
     return path
+
+
+def _keep_qgis_styles(old, new) -> None:
+    """Copy QGIS's ``layer_styles`` table (and its gpkg_contents row) from the GeoPackage ``old`` being replaced
+    into ``new``: a user's saved styles of our layers survive a rerun. Nothing when ``old`` has none or is not
+    SQLite; a table that cannot be copied goes with the old file, with a warning."""
+    try:
+        with contextlib.closing(sqlite3.connect(Path(old).resolve().as_uri() + "?mode=ro", uri=True)) as src:
+            row = src.execute("SELECT sql FROM sqlite_master WHERE type='table' AND name=?", (QGIS_STYLES,)).fetchone()
+    except sqlite3.Error:
+        return
+    if row is None:
+        return
+    try:
+        with contextlib.closing(sqlite3.connect(new)) as dst:
+            dst.execute("ATTACH DATABASE ? AS old", (str(old),))
+            dst.execute(row[0])
+            dst.execute(f"INSERT INTO main.{QGIS_STYLES} SELECT * FROM old.{QGIS_STYLES}")
+            dst.execute("INSERT INTO main.gpkg_contents (table_name, data_type, identifier, description, last_change) "
+                        "SELECT table_name, data_type, identifier, description, last_change FROM old.gpkg_contents "
+                        "WHERE table_name=?", (QGIS_STYLES,))
+            dst.commit()
+    except sqlite3.Error as exc:
+        log.warning(f"{old}: QGIS's saved styles ({QGIS_STYLES}) could not be kept in the new file ({exc}); "
+                    "set the layers' styles again")
 
 
 def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> None:
     """``OptionError`` when the GeoPackage ``path`` exists and holds a layer not in ``layer_names`` (what
-    ``what``, e.g. "lidarctl contours", writes there), or is not a GeoPackage GDAL reads: ``write_layers``
-    replaces the whole file, so a user's other layers would go without a word. Other formats hold one layer
-    and are replaced as before."""
+    ``what``, e.g. "lidarctl contours", writes there; QGIS's ``layer_styles`` is kept, ``write_layers``), or
+    is not a GeoPackage GDAL reads: ``write_layers`` replaces the whole file, so a user's other layers would go
+    without a word. A file without our marker (``MARK``: written before the marker, or a user's file with
+    layers of our names) is replaced with a warning naming its layers. Other formats hold one layer and are
+    replaced as before."""
     import pyogrio
 
     path = Path(path)
@@ -88,13 +128,19 @@ def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> 
         return
     try:
         present = [str(name) for name, _ in pyogrio.list_layers(path)]
+        with contextlib.closing(sqlite3.connect(path.resolve().as_uri() + "?mode=ro", uri=True)) as db:
+            marked = {r[0] for r in db.execute("SELECT table_name FROM gpkg_contents WHERE description = ?", (MARK,))}
     except Exception:  # pyogrio's DataSourceError and kin: not a GeoPackage
         raise OptionError(f"{path}: exists and is not a GeoPackage GDAL can read; it would be replaced as a "
-                          "whole: choose another file name", param=option) from None
-    foreign = [name for name in present if name not in layer_names]
+                          "whole: move it (or remove it), or give another file name", param=option) from None
+    foreign = [name for name in present if name not in layer_names and name != QGIS_STYLES]
     if foreign:
         raise OptionError(f"{path}: the file is replaced as a whole, and it holds the layer(s) {', '.join(foreign)}, "
-                          f"which {what} does not write; choose another file name", param=option)
+                          f"which {what} does not write: move the file (or remove it), or give another file name",
+                          param=option)
+    if any(name not in marked for name in present if name != QGIS_STYLES):
+        log.warning(f"{path}: replacing its layer(s) {', '.join(n for n in present if n != QGIS_STYLES) or '(none)'}, "
+                    f"taken for a previous output of {what} by their names only (the file has no mark of ours)")
 
 
 @contextlib.contextmanager

@@ -29,14 +29,13 @@ import numpy as np
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
 from aerotri.exchange.imported import ImportedBlock
+from aerotri.geom.crs.definition import GRID_SCALE_LIMIT
 
 log = logging.getLogger(__name__)
 
 NEAR_M = 50_000.0  # imported positions this far (or twice the project's extent) from the project's: refused
 EXIF_FRAMES = 3  # frames whose GNSS tags stand for the project's position when it has no position file
-# a project CRS whose scale factor at the block is off 1 by more than this gets a note: survey grids keep it within
-# 0.1 % (UTM: 0.9996-1.001 in its zone); a web map's Pseudo-Mercator is 1.15 at 30 degrees latitude, 1.46 at 47
-SCALE_LIMIT = 0.01
+SCALE_LIMIT = GRID_SCALE_LIMIT  # a project CRS whose scale factor at the block is off 1 by more: a note
 
 
 def _listing(ids, n: int = 10) -> str:

@@ -213,11 +213,15 @@ def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:
 
 
 def dom_checks(dom_all: dict, qa, *, stale: bool = False) -> CheckSet | None:
-    """``stale``: the check measured an earlier version of the project's mosaic (``DomCheck.stale_for``)."""
+    """``stale``: the check measured an earlier version of the project's mosaic, or another DOM
+    (``DomCheck.stale_for``; ``dom_is_project_mosaic`` false in the record tells which)."""
     d = dom_all.get("displacement") or {}
     if not dom_all:
         return None
     # what the DOM row counts is ground patches even when there is no figure ("0 check points" said otherwise)
+    if stale and dom_all.get("dom_is_project_mosaic") is False:
+        return CheckSet(note=f"the DOM check measured another DOM ({dom_all.get('dom')}, ortho check --dom), not the "
+                             "project's mosaic: run ortho check without --dom", points="ground patches")
     if stale:
         return CheckSet(note="the DOM check measured an earlier mosaic (made again since): re-run ortho check",
                         points="ground patches")

@@ -270,7 +270,26 @@ def refuse_replacing(outdir: Path, paths) -> None:
         if outdir.resolve() == q.resolve() or outdir.resolve() in q.resolve().parents:
             raise OptionError(f"{q}: the input lies in the output folder {outdir}, which is replaced as a whole; "
                               "choose another output folder", param="OUTDIR")
-    refuse_foreign_contents(outdir, owned_by_strips, "lidarctl strips", "OUTDIR")
+    if has_strips_record(outdir):
+        refuse_foreign_contents(outdir, owned_by_strips, "lidarctl strips", "OUTDIR")
+    else:  # not a previous output, whatever its names (every strips output holds its record): only clutter passes
+        refuse_foreign_contents(outdir, lambda e: False, "lidarctl strips (the folder holds no strips.json or "
+                                "adjust.json of it)", "OUTDIR")
+
+
+def has_strips_record(outdir: Path) -> bool:
+    """Whether ``outdir`` holds the record one of the strips commands writes (strips.json / adjust.json: a JSON
+    object with our ``schema_version``): the folder is then a previous output (provenance, not names: a user's
+    folder of .las files is not ours because its names are); every output of either command holds one (a run that
+    compares nothing too, ``record_nothing_compared``), and the folder is written whole (``atomic_dir``)."""
+    for name in ("strips.json", "adjust.json"):
+        try:
+            d = json.loads((Path(outdir) / name).read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(d, dict) and "schema_version" in d:
+            return True
+    return False
 
 
 def record_nothing_compared(folder: Path, why: str) -> None:

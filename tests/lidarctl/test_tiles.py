@@ -421,3 +421,38 @@ def test_merging_a_finer_strip_after_a_coarser_one_warns_with_the_rounding(strip
     with caplog.at_level(logging.WARNING, logger="lidarctl.merge"):
         merge_las([tmp_path / "fine.las", paths[0]], tmp_path / "m2.las")  # finest first: nothing lost, no word
     assert "finer" not in caplog.text
+
+
+def test_merging_a_strip_with_offsets_off_the_first_grid_warns_naming_both(strips, tmp_path, caplog):
+    """`lidarctl merge` keeps the first strip's offsets: a strip written with PDAL-style offsets (500000.123456)
+    is not on the first strip's grid and every point moved by up to half a step (3.5-4.9 mm in review 12b)
+    without a word; now a warning names both files and the axes; strips on one grid merge without a word."""
+    import logging
+
+    from lidarctl.merge import merge_las
+
+    d, paths = strips
+    src = laspy.read(paths[1])
+    header = laspy.LasHeader(version=src.header.version, point_format=src.header.point_format)
+    header.scales, header.offsets = src.header.scales, src.header.offsets + np.array([0.123456, 0.0, 0.0004])
+    header.vlrs = list(src.header.vlrs)
+    shifted = laspy.LasData(header)
+    shifted.points = laspy.ScaleAwarePointRecord.zeros(len(src.points), header=header)
+    for name in src.point_format.dimension_names:
+        if name not in ("X", "Y", "Z"):
+            shifted[name] = src[name]
+    shifted.x, shifted.y, shifted.z = src.x, src.y, src.z
+    shifted.write(tmp_path / "shifted.las")
+    shifted = laspy.read(tmp_path / "shifted.las")
+    with caplog.at_level(logging.WARNING, logger="lidarctl.merge"):
+        merge_las([paths[0], tmp_path / "shifted.las"], tmp_path / "m1.las")
+    assert "shifted.las: its coordinate offsets" in caplog.text and str(paths[0]) in caplog.text
+    assert "its x/z coordinates are rounded" in caplog.text
+    merged = laspy.read(tmp_path / "m1.las")
+    step = float(merged.header.scales[0])
+    dx = np.asarray(merged.x)[-len(src.points):] - np.asarray(shifted.x)
+    assert 0.1 * step < np.max(np.abs(dx)) <= 0.5 * step + 1e-9  # the rounding the warning speaks of
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="lidarctl.merge"):
+        merge_las(paths, tmp_path / "m2.las")  # the simulator's strips share one grid: no word
+    assert "offsets" not in caplog.text

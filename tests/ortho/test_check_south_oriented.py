@@ -42,3 +42,29 @@ def test_displacements_are_east_and_north_in_a_south_oriented_grid(tmp_path, eps
     stats, table = check_points(tmp_path / "points.csv", 1.0, None, 1.0, crs)
     north = 1.0 if epsg == 32735 else -1.0
     assert table["points"][0]["de_m"] == pytest.approx(2.0 * east) and table["points"][0]["dn_m"] == pytest.approx(north)
+
+
+@pytest.mark.parametrize("crs, signs", [("EPSG:3413", (1.0, 1.0)), ("EPSG:5041", (1.0, 1.0)), ("EPSG:3031", (1.0, 1.0)),
+                                        (CRS.from_epsg(3413).to_wkt("WKT1_GDAL"), (1.0, 1.0)),  # as a GeoTIFF gives it
+                                        ("EPSG:2051", (-1.0, -1.0)),
+                                        (CRS.from_epsg(2051).to_wkt("WKT1_ESRI"), (-1.0, -1.0)),
+                                        ("+proj=tmerc +lon_0=25 +ellps=WGS84 +axis=wsu +units=m", (-1.0, -1.0))])
+def test_polar_grids_are_not_south_oriented(crs, signs):
+    """PROJ labels a polar stereographic grid's axes "south along 45°E" (EPSG:3413, 5041): they still run right and
+    up on the map (review 12c: 3413 read content 3 m south as n +3.02)."""
+    from aerotri.geom.crs.definition import map_axis_signs
+
+    assert map_axis_signs(CRS.from_user_input(crs)) == signs
+
+
+def test_north_polar_dom_check_reads_south_as_south(tmp_path):
+    ref = textured_orthophoto(240, 240, 1, seed=5)[:, :, 0]
+    dom = np.concatenate([np.repeat(ref[:1], SHIFT_PX, axis=0), ref[:-SHIFT_PX]], axis=0)  # content 3 rows lower
+    x_left, y_top, crs = -200000.0, -2500000.0, CRS.from_epsg(3413)
+    write_geotiff(tmp_path / "ref.tif", ref, x_left, y_top, 1.0, crs)
+    write_geotiff(tmp_path / "dom.tif", dom, x_left, y_top, 1.0, crs)
+    (tmp_path / "proj").mkdir()
+    rep = run_check(tmp_path / "proj", reference_path=tmp_path / "ref.tif", dom_path=tmp_path / "dom.tif",
+                    out_stem=tmp_path / "dom_report")
+    assert rep.displacement.mean_n_m == pytest.approx(-SHIFT_PX, abs=0.05)
+    assert rep.displacement.mean_e_m == pytest.approx(0.0, abs=0.05)

@@ -148,10 +148,12 @@ def test_cli_rectify_and_check(project):
     assert r.exit_code == 0, r.output
     import json
 
-    rep = json.loads((project / "ortho" / "dom_report.json").read_text())
+    # a frame is not the project's mosaic: its check goes beside it, not into the project's ortho/dom_report.json
+    assert not (project / "ortho" / "dom_report.json").exists()
+    rep = json.loads((project / "ortho" / "frames" / "s01_001_dom_report.json").read_text())
     assert rep["displacement"]["count"] > 30
     assert rep["displacement"]["rms_xy_gsd"] < 0.1
-    assert (project / "ortho" / "dom_report.png").stat().st_size > 1000
+    assert (project / "ortho" / "frames" / "s01_001_dom_report.png").stat().st_size > 1000
 
 
 def test_cli_check_points(project, tmp_path):

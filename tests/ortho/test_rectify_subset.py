@@ -59,3 +59,25 @@ def test_an_output_grid_far_from_its_central_meridian_is_warned_of(tmp_path, war
     rectify_block(root, RectifySettings(crs="EPSG:4550"), frames=["s01_001"], allow_ballpark=True)
     assert any("EPSG:4550" in m and "scale factor of 1.01" in m and "EPSG:32649" in m for m in warnings_of_ortho), \
         warnings_of_ortho
+
+
+@pytest.mark.parametrize("lon, lat, out, says", [
+    (110.5, 30.5, "EPSG:3857", "not a mapping grid for measured products"),  # k 1.16
+    (8.5, 55.0, "EPSG:3857", "not a mapping grid for measured products"),  # k 1.74
+    (-94.0, 40.0, "EPSG:26917", "family of grids is EPSG:26915 (NAD83 / UTM zone 15N)"),
+    (110.5, 30.5, "EPSG:4550", "family of grids is EPSG:4546 (CGCS2000 / 3-degree Gauss-Kruger CM 111E)")])
+def test_the_wrong_zone_advice_fits_the_grid_and_the_block(lon, lat, out, says, caplog):
+    """review 12c: the advice "is it the contract's zone? ... --crs gk3:cgcs2000" was given for Web Mercator and for
+    blocks outside China; now Web Mercator is said to be no mapping grid, and the zone of the block's longitude in
+    the same family is named (gk3:cgcs2000 only for a CGCS2000 grid over China)."""
+    import logging
+
+    from pyproj import CRS
+
+    from ortho.block import _warn_output_scale
+
+    with caplog.at_level(logging.WARNING, logger="ortho.block"):
+        _warn_output_scale(CRS.from_epsg(4326), CRS.from_user_input(out), (lon, lat), 0.5)
+    (msg,) = [r.getMessage() for r in caplog.records if "scale factor" in r.getMessage()]
+    assert says in msg
+    assert ("gk3:cgcs2000" in msg) == (out == "EPSG:4550")

@@ -175,3 +175,62 @@ def test_a_corner_whose_evidence_lies_in_the_doms_hole_is_counted_not_measured(t
            hole)
     got = measure_roof_patches(tmp_path / "plain_dom.tif", tmp_path / "plain_ref.tif", [x], [y])
     assert got.in_nodata == 0
+
+
+def test_roofs_moved_beside_holes_counted_in_nodata_warn_and_are_listed(tmp_path, caplog):
+    """Review 12b: roofs moved 1.25 m (a lean, a DSM offset) beside holes (the ground they left, and the occluded
+    ground behind them) had 31-44 % of their corners counted "in nodata" by ``roof_evidence_in_nodata`` and left out
+    of the roofs row, hiding a real displacement. Over ``ROOF_MAX_IN_NODATA_PCT`` the check warns (log, the row's
+    ``in_nodata_warning``), and the row lists those corners with their own match's shift, which shows the move; the
+    same scene with the roofs in place warns of nothing."""
+    import logging
+
+    from ortho.check import ROOF_MAX_IN_NODATA_PCT, _dom_check_of, _roofs_document
+
+    res, size, move_m = 0.2, 1000, 1.25  # the reviewer's synthetic town (roof/shifted3.py), 16 roofs, seed 0
+    rng = np.random.default_rng(0)
+    img = ndimage.gaussian_filter(rng.normal(size=(size, size)), 1.2) * 80 + 70
+    roofs = []
+    for r in range(100, size - 200, 200):
+        for c in range(100, size - 200, 200):
+            h, w = rng.integers(50, 100, 2)
+            img[r:r + h, c:c + w] = 180 + ndimage.gaussian_filter(rng.normal(size=(h, w)), 1.0) * 15
+            for _ in range(3):
+                a, b = rng.integers(4, h - 14), rng.integers(4, w - 14)
+                img[r + a:r + a + 10, c + b:c + b + 10] = 120
+            roofs.append((r, c, h, w))
+    img = ndimage.gaussian_filter(img, 0.6)
+    transform = from_origin(500000.0, 4000000.0, res, res)
+    _write(tmp_path / "reference.tif", img, transform)
+    g, hole = np.random.default_rng(1), np.zeros(img.shape, bool)
+    for r, c, h, w in roofs:  # the occluded ground south of each roof
+        hole[r + h:r + h + g.integers(8, 25), c - 5:c + w + g.integers(0, 12)] = True
+    x, y = transform @ (np.array([c + w for _, c, _, w in roofs], float), np.array([r + h for r, _, h, _ in roofs], float))
+    d_px = move_m / res / np.sqrt(2)
+    moved, dom = ndimage.shift(img, (-d_px, d_px), order=3, mode="nearest"), img.copy()
+    for r, c, h, w in roofs:  # the roofs only, moved north-east; the ground they left in nodata
+        old = np.zeros(img.shape, bool)
+        old[r:r + h, c:c + w] = True
+        new = ndimage.shift(old.astype(float), (-d_px, d_px), order=0) > 0.5
+        dom[new] = moved[new]
+        hole |= old & ~new
+    _write(tmp_path / "dom.tif", dom, transform, hole)
+    got = measure_roof_patches(tmp_path / "dom.tif", tmp_path / "reference.tif", x, y)
+    assert got.in_nodata_pct > 6 * ROOF_MAX_IN_NODATA_PCT and len(got.in_nodata_corners) == got.in_nodata
+    with caplog.at_level(logging.WARNING, logger="ortho.check"):
+        row = _roofs_document(got, res, "corners.csv")
+    assert f"{got.in_nodata} of {got.in_nodata + len(got.de_m)} roof corners" in row["in_nodata_warning"]
+    assert "in_nodata_corners" in caplog.text and row["in_nodata_pct"] == round(got.in_nodata_pct, 2)
+    listed = row["in_nodata_corners"]
+    assert len(listed) == got.in_nodata and {"x_m", "y_m", "de_m", "dn_m"} == set(listed[0])
+    # the hidden move shows in the listed shifts: at least one corner within 0.15 m of it, east and north
+    assert max(np.hypot(c["de_m"], c["dn_m"]) for c in listed) > move_m - 0.15
+    dom_check = _dom_check_of({"displacement": {"count": 0}, "roofs": row})
+    assert dom_check.roofs_in_nodata_warning == row["in_nodata_warning"]
+    # the roofs in place: nothing hidden, no warning
+    _write(tmp_path / "dom_in_place.tif", img, transform, hole)
+    caplog.clear()
+    got = measure_roof_patches(tmp_path / "dom_in_place.tif", tmp_path / "reference.tif", x, y)
+    with caplog.at_level(logging.WARNING, logger="ortho.check"):
+        row = _roofs_document(got, res, "corners.csv")
+    assert got.in_nodata_pct <= ROOF_MAX_IN_NODATA_PCT and "in_nodata_warning" not in row and not caplog.text

@@ -142,6 +142,10 @@ def unit_name(crs: pyproj.CRS) -> str:
     return length_unit_name(linear_unit_m(h))
 
 
+# a grid whose point scale factor at the block is off 1 by more than this is no ground measure (import note, ortho
+# warning): survey grids keep it within 0.1 % (UTM: 0.9996-1.001 in its zone); a web map's Pseudo-Mercator is 1.15 at
+# 30 degrees latitude, 1.46 at 47
+GRID_SCALE_LIMIT = 0.01
 _LONG_NAMES = {"deg": "degree", "m": "metre", "ft": "foot", "us-ft": "US survey foot"}
 
 
@@ -197,10 +201,18 @@ def map_axes_unit_m(crs, source: str = "CRS") -> tuple[float, float, float]:
 def map_axis_signs(crs) -> tuple[float, float]:
     """(+1 or -1, +1 or -1): the sign that turns a step along a map's x, y (GIS order: the east-west axis first) into
     a step east and north. -1 for a south-oriented grid's westing and southing (South Africa's Lo grids, EPSG:2046
-    to 2055): a displacement in its units read as east and north points the other way."""
+    to 2055, ``+axis=wsu``): a displacement in its units read as east and north points the other way. An axis that
+    runs along a meridian (polar stereographic grids: EPSG:3413's x "south along 45°E") is not south-oriented: its
+    map x, y still run right and up, so +1."""
     h = horizontal_crs(parse_crs(crs.to_wkt() if hasattr(crs, "to_wkt") else crs))
-    directions = {a.direction.lower() for a in h.axis_info}
-    return (-1.0 if "west" in directions else 1.0), (-1.0 if "south" in directions else 1.0)
+    axes = h.to_json_dict().get("coordinate_system", {}).get("axis", [])
+    directions = [str(a.get("direction", "")).lower() for a in axes]
+    # PROJ labels a polar grid's axes by the meridian they point along ("south along 90°E"), and WKT1 / a GeoTIFF's
+    # CRS drops the meridian but keeps "south, south": two axes of one direction are a polar grid's, not a southing
+    if len(set(directions)) < len(directions):
+        return 1.0, 1.0
+    reversed_dirs = {d for d, a in zip(directions, axes) if "meridian" not in a}
+    return (-1.0 if "west" in reversed_dirs else 1.0), (-1.0 if "south" in reversed_dirs else 1.0)
 
 
 def check_stored_crs(requested: pyproj.CRS, stored, where: str, x, y, tolerance: float) -> None:

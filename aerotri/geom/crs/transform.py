@@ -54,7 +54,13 @@ COARSE_OPERATION_M = 0.5
 
 
 class BallparkRefused(CrsError):
-    """PROJ would ignore a datum shift; parameters from common points (or a missing grid) are needed."""
+    """PROJ would ignore a datum shift; parameters from common points (or a missing grid) are needed.
+    ``missing_grids``: the PROJ grids the rigorous operation needs and this machine lacks ((name, url) pairs, as
+    ``grid_advice`` takes them); empty when PROJ knows no rigorous operation at all."""
+
+    def __init__(self, message: str = "", *, param: str | None = None, missing_grids=()):
+        super().__init__(message, param=param)
+        self.missing_grids = tuple(missing_grids)
 
 
 def z_unit_m(crs: pyproj.CRS) -> float:
@@ -137,7 +143,7 @@ class _ProjLeg:
                     f"{crs_label(src)} ({src.name}) -> {crs_label(dst)} ({dst.name}){purpose}: {why}fit parameters "
                     "from common points known in both systems (aerotri crs fit ... --from/--to) and pass them with "
                     "--params (a height anomaly model with --heights), or accept the ballpark result explicitly "
-                    "with --allow-ballpark"
+                    "with --allow-ballpark", missing_grids=missing or ()
                 )
             self.ballpark = True
         self.transformer = pyproj.Transformer.from_crs(s3, d3, always_xy=True, allow_ballpark=self.ballpark)

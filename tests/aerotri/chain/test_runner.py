@@ -447,3 +447,32 @@ def test_the_stage_keys_hold_every_file_a_stage_reads(tmp_path):
         assert stale_reason(tmp_path, st) is None, name
         changed.write_bytes(changed.read_bytes() + b" changed")
         assert "inputs changed" in (stale_reason(tmp_path, st) or ""), name
+
+
+def test_a_bad_contract_crs_names_project_toml_and_a_missing_grid_is_the_fix(tmp_path, monkeypatch):
+    """review 12c: [rectify] crs in feet or degrees was refused naming --crs, which `aerotri run` does not have; a
+    compound CRS refused for a geoid grid not installed advised --params instead of the grid."""
+    import aerotri.geom.crs.transform as T
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain
+    from aerotri.core.errors import InputError
+    from aerotri.core.project import Project
+
+    def chain(crs):
+        (tmp_path / "project.toml").write_text(f'[project]\ncrs = "EPSG:32649"\n[rectify]\ncrs = "{crs}"\n')
+        p = Project.open(tmp_path)
+        return Chain(p, read_options(p))
+
+    for crs, why in (("EPSG:4326", "is not a projected CRS"), ("EPSG:2240", "has axes in US survey foot")):
+        with pytest.raises(InputError, match=rf"project.toml \[rectify\] crs = EPSG:{crs[5:]} .*{why}") as e:
+            chain(crs)._check_output_crs()
+        assert "--crs" not in str(e.value)
+
+    def refused(src, dst, *a, **k):  # as PROJ refuses WGS 84 -> + EGM96 height without us_nga_egm96_15.tif
+        raise T.BallparkRefused("... --params ...", missing_grids=[("us_nga_egm96_15.tif", "https://cdn.proj.org")])
+
+    monkeypatch.setattr(T, "CrsTransformer", refused)
+    with pytest.raises(InputError, match=r"\[rectify\] crs = 'EPSG:32649\+5773': .*needs the PROJ grid "
+                                         r"us_nga_egm96_15.tif.*pyproj sync --file us_nga_egm96_15.tif") as e:
+        chain("EPSG:32649+5773")._check_output_crs()
+    assert "--params" not in str(e.value) and "ballpark" not in str(e.value)

@@ -261,6 +261,12 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
         "412 of 1156 corners (9 not measurable: in the DOM's nodata), 8.14 GSD, median 4.45 GSD; ")
+    # too many of them (review 12b: roofs moved beside holes are counted so): the note carries the check's warning
+    dom["roofs"]["in_nodata_warning"] = "9 of 421 roof corners (2.1 %) ... look at those corners"
+    (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
+    assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
+        "412 of 1156 corners (9 not measurable: in the DOM's nodata) (warning: 9 of 421 roof corners (2.1 %) ... "
+        "look at those corners), 8.14 GSD")
     dom["roofs"] = dict(count=0, why="the nDSM is in another CRS than the DOM")
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     row = write_qa_report(p).check("dom_roofs_rms_xy_m")
@@ -387,6 +393,28 @@ def test_the_doms_holes_are_a_row_of_the_report(tmp_path):
     assert "ortho/mosaic.json" in str(_raises(lambda: write_qa_report(p)))
 
 
+def test_an_edited_mosaics_seam_crossings_are_a_row_of_the_report(tmp_path):
+    """An edited run's mosaic.json "seam_crossings" (ortho.seam_crossings): the new crossings' length, shown, not
+    judged; a run without an nDSM says the check was not made; a mosaic of automatic seams has no row."""
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    doc = dict(path=str(p / "ortho" / "mosaic.tif"), width=100, height=100, frames=2, res_m=0.1,
+               seams="edited (e.gpkg)", feather_px=8.0, gains={"a": [1.0]}, cells_seen_by_no_frame=0,
+               share_seen_by_no_frame=0.0, area_seen_by_no_frame_m2=0.0)
+    crossings = {"checked": True, "chm": "lidar_out/chm.tif", "new_crossings": 1, "pairs_with_new_crossings": 1,
+                 "warnings": ["edited seam between frames a (feature 1) and b (feature 2) crosses ..."],
+                 "totals": {"building_m": 14.0, "tree_m": 2.5, "automatic_building_m": 0.0, "automatic_tree_m": 2.5,
+                            "new_m": 14.0}}
+    (p / "ortho" / "mosaic.json").write_text(json.dumps({**doc, "seam_crossings": crossings}))
+    row = write_qa_report(p).check("dom_edited_seam_crossings_m")
+    assert row.value == 14.0 and row.unit == "m" and row.limit is None and row.verdict is None
+    assert "1 new crossing(s) on 1 seam(s)" in row.note and "buildings 14.0 m, trees 2.5 m" in row.note
+    (p / "ortho" / "mosaic.json").write_text(json.dumps({**doc, "seam_crossings": {"checked": False, "why": "no nDSM"}}))
+    row = write_qa_report(p).check("dom_edited_seam_crossings_m")
+    assert row.value is None and row.note.startswith("no nDSM")
+    (p / "ortho" / "mosaic.json").write_text(json.dumps(doc))
+    assert "dom_edited_seam_crossings_m" not in {r.id for r in write_qa_report(p).checks}
+
+
 def _raises(f):
     from aerotri.core.errors import InputError
 
@@ -460,3 +488,8 @@ def test_a_dom_check_of_another_dom_is_not_the_projects(tmp_path):
     check.write_text(json.dumps(dict(doc, dom=str(p / "ortho" / "mosaic.tif"), dom_is_project_mosaic=True)))
     rep = write_qa_report(p)
     assert rep.has("dom_rms_xy_m") and not rep.has("dom_check_stale") and rep.overall == "pass"
+    # review 12c: without the project's mosaic, another DOM's check was shown as the project's
+    (p / "ortho" / "mosaic.tif").unlink()
+    check.write_text(json.dumps(dict(doc, dom="/elsewhere/other_dom.tif", dom_is_project_mosaic=False)))
+    rep = write_qa_report(p)
+    assert rep.check("dom_check_stale").quantity == "DOM check of another DOM" and not rep.has("dom_rms_xy_m")

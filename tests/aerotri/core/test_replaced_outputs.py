@@ -1,0 +1,136 @@
+"""Outputs replaced as a whole (review 12b): the OS's clutter (.DS_Store, Thumbs.db, desktop.ini, ._*) and QGIS's
+saved styles do not stop a rerun; a folder or GeoPackage is judged ours by provenance (a strips record, names
+derived from the inputs, the GeoPackage's mark), names alone only with a warning naming what is replaced."""
+
+from __future__ import annotations
+
+import json
+import logging
+import sqlite3
+
+import pytest
+import shapely
+
+from aerotri.core.atomic import atomic_dir, refuse_foreign_contents
+from aerotri.core.errors import InputError, OptionError
+from aerotri.core.vector_files import MARK, VectorLayer, refuse_foreign_layers, write_layers
+
+CLUTTER = (".DS_Store", "Thumbs.db", "desktop.ini", "._strip_0.las")
+
+
+def _las_only(entry) -> bool:
+    return entry.suffix.lower() in (".las", ".laz")
+
+
+def test_os_clutter_goes_with_the_output_and_a_users_file_is_named_to_move(tmp_path):
+    out = tmp_path / "classified"
+    out.mkdir()
+    for name in (*CLUTTER, "strip_0.las"):
+        (out / name).write_bytes(b"x")
+    refuse_foreign_contents(out, _las_only, "lidarctl classify")  # no error: Finder's and Explorer's files pass
+    with atomic_dir(out) as tmp:
+        (tmp / "strip_0.las").write_bytes(b"new")
+    assert sorted(p.name for p in out.iterdir()) == ["strip_0.las"]  # they went with the replaced folder
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(OptionError, match=r"holds notes.txt, which lidarctl classify did not write: move it out "
+                                          r"of the folder \(or remove it\) and run again"):
+        refuse_foreign_contents(out, _las_only, "lidarctl classify")
+    assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_a_strips_folder_is_ours_by_its_record_not_by_names(tmp_path):
+    from lidarctl.strips.check import refuse_replacing
+
+    out = tmp_path / "strips"
+    out.mkdir()
+    for name in ("a.las", "index.html", "overview.png", "diff_1_2.tif", ".DS_Store"):
+        (out / name).write_bytes(b"x")
+    with pytest.raises(OptionError, match="holds a.las, diff_1_2.tif, index.html and 1 more, which lidarctl strips "
+                                          r"\(the folder holds no strips.json or adjust.json of it\) did not write"):
+        refuse_replacing(out, [])
+    (out / "strips.json").write_text(json.dumps({"schema_version": 1, "why": "no overlap"}))
+    refuse_replacing(out, [])  # a previous check: replaced
+    (out / "strips.json").write_text(json.dumps({"my": "notes"}))  # a user's strips.json is no record
+    with pytest.raises(OptionError, match="did not write"):
+        refuse_replacing(out, [])
+    for p in out.iterdir():
+        p.unlink()
+    (out / "Thumbs.db").write_bytes(b"x")
+    refuse_replacing(out, [])  # empty but for clutter
+
+
+def test_classify_claims_the_names_of_its_inputs_others_with_a_warning(tmp_path, caplog):
+    from lidarctl import tiles
+
+    strips = [tmp_path / "in" / f"strip_{i}.las" for i in range(2)]
+    strips[0].parent.mkdir()
+    for p in strips:
+        p.write_bytes(f"not a LAS file: {p.name}".encode())
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("strip_0.las", "strip_1.las", ".DS_Store"):
+        (out / name).write_bytes(b"x")
+    with caplog.at_level(logging.WARNING), pytest.raises(InputError, match="strip_0.las: not a LAS"):
+        tiles.classify_files(strips, out)  # past the folder check (silent), stopped by the fake strips
+    assert not [r for r in caplog.records if "replacing" in r.getMessage()]
+    (out / "old_strip.laz").write_bytes(b"x")
+    with caplog.at_level(logging.WARNING), pytest.raises(InputError, match="strip_0.las: not a LAS"):
+        tiles.classify_files(strips, out)
+    warned = [r.getMessage() for r in caplog.records if "replacing" in r.getMessage()]
+    assert len(warned) == 1 and "old_strip.laz" in warned[0] and "strip_0.las" not in warned[0], warned
+
+
+def _contours():
+    return [VectorLayer("contours", "LineString", [shapely.LineString([(500000, 3400000), (500010, 3400010)])])]
+
+
+def test_our_geopackage_is_marked_and_keeps_qgis_styles_a_users_warns_or_is_refused(tmp_path, caplog):
+    import pyogrio
+
+    path = write_layers(tmp_path / "contours.gpkg", _contours(), crs="EPSG:32649")
+    with sqlite3.connect(path) as db:
+        assert db.execute("SELECT description FROM gpkg_contents WHERE table_name='contours'").fetchone() == (MARK,)
+        # QGIS's "Save style ... in database"
+        db.execute("CREATE TABLE layer_styles (id INTEGER PRIMARY KEY AUTOINCREMENT, f_table_name TEXT, styleQML TEXT)")
+        db.execute("INSERT INTO layer_styles (f_table_name, styleQML) VALUES ('contours', '<qgis/>')")
+        db.execute("INSERT INTO gpkg_contents (table_name, data_type, identifier) VALUES "
+                   "('layer_styles', 'attributes', 'layer_styles')")
+    with caplog.at_level(logging.WARNING):
+        refuse_foreign_layers(path, ("contours",), "lidarctl contours")
+        write_layers(path, _contours(), crs="EPSG:32649")
+    assert not [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert [str(n) for n, _ in pyogrio.list_layers(path)] == ["contours", "layer_styles"]
+    with sqlite3.connect(path) as db:
+        assert db.execute("SELECT f_table_name, styleQML FROM layer_styles").fetchall() == [("contours", "<qgis/>")]
+    # a user's GeoPackage whose only layer has our name: replaced, with a warning naming it
+    user = tmp_path / "mine.gpkg"
+    pyogrio.raw.write(str(user), shapely.to_wkb([shapely.Point(500000, 3400000)]), field_data=[], fields=[],
+                      layer="contours", driver="GPKG", crs="EPSG:32649", geometry_type="Point")
+    with caplog.at_level(logging.WARNING):
+        refuse_foreign_layers(user, ("contours",), "lidarctl contours")
+    assert any("mine.gpkg: replacing its layer(s) contours" in r.getMessage() for r in caplog.records)
+    pyogrio.raw.write(str(user), shapely.to_wkb([shapely.Point(500000, 3400000)]), field_data=[], fields=[],
+                      layer="parcels", driver="GPKG", crs="EPSG:32649", geometry_type="Point", append=True)
+    with pytest.raises(OptionError, match="holds the layer.s. parcels.*move the file"):
+        refuse_foreign_layers(user, ("contours",), "lidarctl contours")
+
+
+def test_a_linked_output_folder_is_replaced_through_the_link(tmp_path):
+    """Review 12b: OUTDIR a link to a folder (on another disk) was replaced by a real folder, the old output left at
+    the link's target. Now the target's contents are replaced and the link stays."""
+    target = tmp_path / "disk2" / "strips"
+    target.mkdir(parents=True)
+    (target / "old.las").write_bytes(b"old")
+    link = tmp_path / "project" / "strips"
+    link.parent.mkdir()
+    link.symlink_to(target, target_is_directory=True)
+    with atomic_dir(link) as tmp:
+        (tmp / "new.las").write_bytes(b"new")
+    assert link.is_symlink() and sorted(p.name for p in target.iterdir()) == ["new.las"]
+    assert sorted(p.name for p in target.parent.iterdir()) == ["strips"]  # no temporary left beside it
+    (tmp_path / "gone").mkdir()
+    broken = tmp_path / "project" / "broken"
+    broken.symlink_to(tmp_path / "gone", target_is_directory=True)
+    (tmp_path / "gone").rmdir()
+    with pytest.raises(OptionError, match="broken: the output folder is a broken link"):
+        refuse_foreign_contents(broken, _las_only, "lidarctl classify")
