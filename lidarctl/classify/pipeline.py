@@ -249,6 +249,16 @@ class ClassifySettings:
     ground_sink_sigma: float = setting(6.0, min=0.0, help="Ground returns more than this many range-noise sigmas (and "
                                        "their neighbours' spread) below their local ground plane, alone at that depth "
                                        "(at most 2 of 12 neighbours), are low noise (0: no sink test).")
+    # Fixed before scoring (sunken-ground2), by what the test is for, not fitted: a return less than half a metre
+    # below its neighbours cannot pit the DEM by more than the 0.5 m a DEM's pits are judged by (a cell's mean is
+    # never below its lowest return), and half the low-outlier test's own gap (gap_m 1 m); drains, gutters and kerbs
+    # (AHN3: 0.04-0.63 m, median 0.17 m, below their neighbours) are terrain.
+    ground_sink_min_depth_m: float = setting(0.5, min=0.0, help="...and more than this below that plane (m): shallower "
+                                             "dips (drains, gutters) are terrain.")
+    # Multipath off glass or water comes back as the pulse's only return; the last of several returns is the
+    # ground under low vegetation or an edge, whose neighbours may stand a little high.
+    ground_sink_single: bool = setting(True, help="Judge single returns only by the sink test (the last of several "
+                                                  "returns stays ground).")
     deep_cell_m: float = setting(5.0, min=0.0, min_open=True, help="Cell of the search for ground returns far below "
                                                                    "the mean ground (m).")
     deep_m: float = setting(5.0, min=0.0, min_open=True, help="Returns more than this (plus the local relief) below the "
@@ -601,8 +611,8 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, in
     return out
 
 
-def sunken_ground(x, y, z, is_ground, spacing_m: float, sink_sigma: float, *, k: int = 12,
-                  max_at_depth: int = 2) -> np.ndarray:
+def sunken_ground(x, y, z, is_ground, spacing_m: float, sink_sigma: float, *, min_depth_m: float = 0.0,
+                  judged=None, k: int = 12, max_at_depth: int = 2) -> np.ndarray:
     """Ground points sunk clear below the local ground surface, alone at their depth: returns from
     below the ground (multipath off glass, water, wet roofs) that the gap tests let through (mask
     over all points).
@@ -616,8 +626,9 @@ def sunken_ground(x, y, z, is_ground, spacing_m: float, sink_sigma: float, *, k:
     more than 2 sigma (or twice their spread) below the plane.
     A real depression (a ditch, a pit, a stream bank, the foot of a stair) is a surface: it holds
     returns at its depth and bends down into it, so neighbours lie below the plane too; a return from
-    below the ground stands alone. 0 or a negative
-    ``sink_sigma`` disables the test.
+    below the ground stands alone. Only points more than ``min_depth_m`` (metres) below the plane, and
+    only points of ``judged`` (None: all; the pipeline passes the single returns), are flagged; the
+    others still serve as neighbours. 0 or a negative ``sink_sigma`` disables the test.
     """
     out = np.zeros(len(x), bool)
     gi = np.flatnonzero(is_ground)
@@ -645,7 +656,9 @@ def sunken_ground(x, y, z, is_ground, spacing_m: float, sink_sigma: float, *, k:
         return out
     sigma_m = 1.4826 * float(np.median(np.abs(dz[ok])))
     pos, nb = np.concatenate(cand_pos), np.concatenate(cand_nb)
-    deep = dz[pos] < -sink_sigma * max(sigma_m, 0.0)
+    deep = dz[pos] < -max(sink_sigma * max(sigma_m, 0.0), min_depth_m)
+    if judged is not None:
+        deep &= np.asarray(judged, bool)[gi[pos]]
     pos, nb = pos[deep], nb[deep]
     for p_i, row in zip(pos, nb):
         q = row[row >= 0]
@@ -2060,7 +2073,11 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     spacing = grid.mean_spacing_m(x, y)
     # Returns from below the ground that the gap tests passed (a neighbour within gap_m + slope x d above
     # them) and the filter kept: alone below the ground plane, they would pit the DEM.
-    sunken = sunken_ground(x, y, z, is_ground, spacing, p.ground_sink_sigma)
+    single = None
+    if p.ground_sink_single and number_of_returns is not None:
+        single = np.asarray(number_of_returns) <= 1
+    sunken = sunken_ground(x, y, z, is_ground, spacing, p.ground_sink_sigma, min_depth_m=p.ground_sink_min_depth_m,
+                           judged=single)
     code[sunken] = noise_mod.LOW
     is_ground &= ~sunken
     # Ground refinement: last returns of low objects that the filter took for bare earth. They
