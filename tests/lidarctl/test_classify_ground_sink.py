@@ -74,8 +74,31 @@ def test_two_low_returns_side_by_side_are_found():
 def test_classification_makes_them_low_noise_and_keeps_them_out_of_the_ground():
     depths = [1.0, 2.0, 3.0] * 3
     x, y, z, n = _with_low_returns(*_ground("flat", seed=3), depths)
-    on = classify.classify_points(x, y, z)
+    on = classify.classify_points(x, y, z, params=classify.ClassifySettings(ground_sink_sigma=6.0))
     off = classify.classify_points(x, y, z, params=classify.ClassifySettings(ground_sink_sigma=0.0))
+    assert np.array_equal(off, classify.classify_points(x, y, z))   # off by default
     assert (on[n:] == classify.LOW_NOISE).all()
     assert (off[n:] == classify.GROUND).sum() > 0          # what the test is for: without it some are ground
     assert np.array_equal(on[:n], off[:n])                  # the ground's own returns keep their classes
+    # The last of two returns is not judged (ground_sink_single): the pulse's own class decides, as off
+    nr = np.r_[np.ones(n, np.uint8), np.full(len(depths), 2, np.uint8)]
+    multi = classify.classify_points(x, y, z, nr, nr, params=classify.ClassifySettings(ground_sink_sigma=6.0))
+    assert np.array_equal(multi, classify.classify_points(x, y, z, nr, nr))
+    assert (multi[n:] == classify.GROUND).sum() > 0
+
+
+def test_floor_in_metres_and_single_returns_spare_shallow_dips_and_multi_return_ground():
+    """0.3 m down is a drain at any sigma with the 0.5 m floor, 1-3 m down is not; a last of several returns is never
+    judged when only single returns are (``judged``), but still counts as a neighbour."""
+    depths = [0.3, 1.0, 2.0, 3.0] * 3
+    x, y, z, n = _with_low_returns(*_ground("flat"), depths)
+    ground = np.ones(len(x), bool)
+    shallow = np.r_[np.zeros(n, bool), np.array(depths) < 0.5]
+    without_floor = classify.sunken_ground(x, y, z, ground, 1.0, 6.0)
+    assert without_floor[n:].all()                                   # 0.3 m is 10 sigma of 3 cm noise
+    with_floor = classify.sunken_ground(x, y, z, ground, 1.0, 6.0, min_depth_m=0.5)
+    assert np.array_equal(with_floor, without_floor & ~shallow)
+    single = np.ones(len(x), bool)
+    single[n::2] = False                                            # every other low return: a last of several
+    judged = classify.sunken_ground(x, y, z, ground, 1.0, 6.0, judged=single)
+    assert np.array_equal(judged, without_floor & single)
