@@ -92,6 +92,9 @@ class CalibrationCovariance:
     # the principal point against an offset between the GNSS positions and the projection centres fixed in the camera
     # (a lever-arm error, or a time lag along a track flown at one speed), which the solve holds (``gnss_offset``)
     pp_gnss: "PrincipalPointGnss | None" = None
+    # half the tie points' height range (their 5th to 95th percentile, local up, m): where a principal-point offset (a
+    # rotation of the bundle) and a GNSS offset (a translation) that agree at the mean height part on the ground
+    relief_half_m: float = float("nan")
 
     def correlation(self, mode: str, param: str | tuple) -> float:
         """Correlation of a mode with a calibration parameter, or with the mean of two (``("fx_px", "fy_px")``)."""
@@ -242,13 +245,15 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     k = np.flatnonzero(~np.isin(block.obs_point, block.control_point) & np.asarray(obs_active, bool))
     depth = np.einsum("kji,kj->ki", state.R_cv[block.obs_image[k]],
                       state.points[block.obs_point[k]] - state.centre[block.obs_image[k]])[:, 2]
+    tie_z = state.points[np.unique(block.obs_point[k]), 2]
+    relief_half_m = float(np.subtract(*np.percentile(tie_z, [95, 5])) / 2) if len(tie_z) else float("nan")
     gnss_z_px = _gnss_heights(block, dg[-2]) if dg is not None else 0.0
     # an image-wide field as large as the residuals' sigma (sigma0 times the a-priori sigma) where it is largest
     field_px = float(np.max(np.abs(fields[:, 0]) / fields[:, 1])) * sigma0 / np.sqrt(pr.weight)
     cc = CalibrationCovariance(cal_cov, cross, mode_var, {g: float(v[-2]) for g, v in share.items()},
                                float(np.median(depth)) if len(depth) else float("nan"), gnss_z_px, field_px,
                                pp_gnss_coupling(block, opts, state, rc, pr.pose_offset)
-                               if "pp" in opts.self_calibration else None)
+                               if "pp" in opts.self_calibration else None, relief_half_m)
     if any(g == "focal" for g in opts.self_calibration):
         f = 0.5 * (state.cal[0] + state.cal[1])
         sigma_f = float(np.sqrt(max(var[-2], 0.0))) * sigma0

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.adjust.determinability import PP_RELIEF_PLAN_FRACTION
 from aerotri.adjust.report_record import map_unit_m
 from aerotri.core.figures import pyplot
 from aerotri.core.settings import settings_lines
@@ -329,6 +330,7 @@ def _check_dict(c) -> dict:
     d["corner_sigma_fraction"] = _f(d["corner_sigma_fraction"], 6)
     for key in ("sigma_fraction", "gnss_height_fraction", "image_field_fraction"):
         d[key] = _f(d[key], 6)
+    d["relief_plan_m"] = _f(d["relief_plan_m"], 4)
     for key in ("gnss_offset_px_per_m", "gnss_offset_correlation", "gnss_shift_correlation", "orientation_correlation"):
         if d.get(key) is not None:
             d[key] = [_f(v, 4) for v in d[key]]
@@ -697,12 +699,13 @@ def _sigma0_note(ba) -> str | None:
 
 
 def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, tolerances: str = "",
-                    judged: dict | None = None, direction=None) -> dict:
+                    judged: dict | None = None, direction=None, plan_limit_m: float = float("nan")) -> dict:
     """Sigma naught, iterations, and the verdict: "Solution Successful." only when the solve converged and
     nothing is weak or failed; otherwise "Solution weak." or "Solution failed." naming each finding. ``parameters``:
     the Parameters table, whose RMS and residuals beyond its own limits (``tolerances``: the table's name) are
     findings too, by the accuracy report's rules (``judged``: ``tolerance_findings``' residuals, check count and
-    the table's ``gross_error_max_pct`` / ``check_points_min``)."""
+    the table's ``gross_error_max_pct`` / ``check_points_min``); ``plan_limit_m``: the plan RMS limit a flagged
+    principal point's predicted effect on ground off the mean height is judged against."""
     r, opts = ba.result, ba.opts
     s0_um = r.sigma0 * opts.image_sigma_px * ba.camera_apriori.pixel_um
     converged = bool(r.info.converged and math.isfinite(r.sigma0))
@@ -721,9 +724,20 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     if fixed:
         weaknesses.append("Self-calibration: " + "; ".join(
             f"{c.group} fixed at its a-priori value (not determinable: {c.reason})" for c in fixed) + ".")
-    # not a weakness: the ground is the same whichever of the principal point and a GNSS offset fixed in the camera
-    # took it (review 12a); the self-calibration section and the console say the estimate is not one to reuse
+    # on flat ground not a weakness: the ground is the same whichever of the principal point and a GNSS offset fixed
+    # in the camera took it (review 12a); the self-calibration section and the console say the estimate is not one to
+    # reuse. With relief they part (a rotation against a translation): a weakness where the predicted plan effect
+    # passes PP_RELIEF_PLAN_FRACTION of the plan limit (pp-relief)
     flagged = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "flagged"]
+    relief = [c for c in flagged if c.relief_plan_m is not None and math.isfinite(plan_limit_m)
+              and c.relief_plan_m > PP_RELIEF_PLAN_FRACTION * plan_limit_m]
+    if relief:
+        weaknesses.append("Self-calibration: " + "; ".join(
+            f"{c.group} took a GNSS offset fixed in the camera (or the camera's own offset: the block cannot tell "
+            f"them apart), and with this block's relief the two differ on the ground by about {c.relief_plan_m:.3f} m "
+            f"in plan, over {PP_RELIEF_PLAN_FRACTION:.2g} of the plan limit {plan_limit_m:.3f} m" for c in relief)
+            + ". A measured lever arm and exposure timing, a laboratory calibration of the camera, or control points "
+            "spread over the block's heights tell them apart.")
     gcc = gnss_correction_check(ba)
     if gcc is not None and gcc.suspect:
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
@@ -794,6 +808,8 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         "weak_geometry": [g.mode for g, _ in weak],
         "calibration_fixed": [c.group for c in fixed],
         "calibration_flagged": [c.group for c in flagged],
+        # flagged and a weakness: the predicted plan effect of the offset off the mean height beyond its share
+        "calibration_relief_weak": [c.group for c in relief],
         "tolerances_exceeded": beyond,
         "gnss_corrections_suspect": [] if gcc is None else [
             {"strip": s, "term": term, "axis": axis, "displacement_m": _f(v, 4)} for s, term, axis, v in gcc.suspect],
@@ -1013,7 +1029,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
             direction=(dirc := direction_check(
                 b, r.state, speed_mps, self_calibration=opts.self_calibration,
                 strip_shift_sigma_m=st.gnss_shift_sigma_m if opts.gnss_correction in ("shift", "shift_drift")
-                else 0.0, pp_share=_pp_share(r)))),
+                else 0.0, pp_share=_pp_share(r))), plan_limit_m=rms_lim[0]),
         "components": {"adjusted": int(ba.components), "left_out": [{"images": list(lo.image_ids), "reason": lo.reason}
                                                                    for lo in ba.left_out]},
         # what the datum rests on when GNSS does not carry it (approximations from the images, unmeasured heights)

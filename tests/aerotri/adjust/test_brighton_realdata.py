@@ -121,12 +121,16 @@ def test_with_the_dem_the_tie_points_lie_on_it(brighton6):
     # small-fixes3: the principal point's u0 moved 12.6 px (17 sigma) where a GNSS offset of 1.04 m fixed in the
     # camera's x would move it alike (correlation 0.98): these 6 frames cannot tell it from a lever-arm error across
     # the camera (the 18 frames' GNSS residuals flip 0.47 m across the track each way): flagged (kept estimated, not
-    # a calibration to reuse), not a weakness (review 12a)
+    # a calibration to reuse), not a weakness (review 12a) on this flat beach
     ks = build_report(ba).key_statistics
     pp = {c.group: c for c in ba.calibration_checks}["pp"]
     assert pp.action == "flagged" and pp.reason.startswith("u0 moved") and pp.gnss_offset_correlation[0] > 0.9
     assert ks["verdict"] == "successful" and ks["calibration_flagged"] == ["pp"] and not ks["calibration_fixed"]
     assert not ks["weak_geometry"] and not ks["gnss_direction_flip"] and not ks["dem_check_failed"]
+    # pp-relief: the beach's 5-95 % height range is 2 m under 36 m depth: the 1.04 m offset and the principal point
+    # part by 0.028 m in plan at 1 m off the mean height, under a third of the 1:5000 plan limit (0.117 m)
+    assert 0.02 < pp.relief_plan_m < 0.035 and "differ in plan by about 0.028 m" in pp.reason
+    assert ks["calibration_relief_weak"] == []
 
 
 def test_consumer_gnss_states_the_datum_in_metres_and_the_dem_places_it(brighton6, tmp_path):
