@@ -1095,7 +1095,10 @@ def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p:
     its centre: every return a candidate (a cell whose returns span at most 2 ``level_water_tol_m`` is level: over
     open water all are candidates; a crown in a cell spans more), the median the ground (the banks: a shore cell's
     mean ground lies above the water, its lowest return on it), the highest the open-sky test's (a return within
-    one cell of a centre: the cell and its four neighbours); no split-pulse test (the tile applies it). A body
+    one cell of a centre: the cell and its four neighbours); no split-pulse test (the tile applies it). Where every
+    return is a candidate, roofs are level cells too: a region cut to its level is relabelled within itself (not
+    joined to a neighbouring region at another level), and a rim cell standing above the steepest bank
+    (``BANK_MAX_SLOPE``) banks on its lowest return or not at all (i44-edge-fixes, a courtyard among roofs). A body
     whose area or bed lies partly beyond a tile's window is then judged as a whole (issue 44, i44-edge). Grid
     arrays over the cells' bounding box, no per-return work (i44-edge-fixes: the cost of a grid pass, where three
     pseudo-returns a cell through ``level_water`` took 7 CPU-s and 1.2 GB per million cells)."""
