@@ -936,10 +936,6 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
                                  withheld=withheld, lowest=lowest)
         if fusion is not None:
             tasks = [dataclasses.replace(t, fusion=fusion) for t in tasks]
-        if lowest and len(tasks) > 1:
-            # what is water is decided on the whole cloud's water cells and density (issue 44)
-            wg = water_grid(tasks, grid, params, lowest, executor, units)
-            tasks = [dataclasses.replace(t, water_grid=wg) for t in tasks]
         resumed = {}
         if resume is not None:
             doc = _tiles_key_doc(in_paths, grid, params, units, fusion)
@@ -950,6 +946,11 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
                 logger.info(f"tiles: resumed {len(resumed)} of {len(tasks)} tiles an interrupted run finished "
                             f"({resume.path})")
         todo = [t for k, t in enumerate(tasks) if k not in resumed]
+        if lowest and len(tasks) > 1 and todo:
+            # what is water is decided on the whole cloud's water cells and density (issue 44); not when every
+            # tile is resumed (two passes over the tile files for nothing: the kept tiles' keys do not hold it)
+            wg = water_grid(tasks, grid, params, lowest, executor, units)
+            todo = [dataclasses.replace(t, water_grid=wg) for t in todo]
         # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
         # numba keeps its default; the classes do not depend on it).
         per_task = executor.cores_per_task(len(todo))

@@ -309,3 +309,30 @@ def test_tiles_kept_before_a_rule_change_are_not_reused(strips, tmp_path, monkey
     with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):
         _classify(strips, tmp_path)
     assert count.done == 4 and "resumed" not in caplog.text
+
+
+def test_every_tile_resumed_skips_the_water_grid(strips, tmp_path, monkeypatch):
+    """Interrupted while writing (all four tiles kept): the re-run classifies no tile and skips the whole cloud's
+    water grid (two passes over the tile files; the kept tiles hold its verdicts), writing the same bytes."""
+    _classify(strips, tmp_path / "ref", resume=False)
+    root = tmp_path / "p"
+    write = io.write_classified
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(io, "write_classified", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _classify(strips, root)
+    assert len(list((root / "work" / "classify_resume").glob("*.json"))) == 4
+    monkeypatch.setattr(io, "write_classified", write)
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+
+    def no_water_grid(*args, **kwargs):
+        raise AssertionError("water_grid computed though every tile was resumed")
+
+    monkeypatch.setattr(tiles, "water_grid", no_water_grid)
+    _classify(strips, root)
+    assert count.done == 0
+    assert _tree(root / "classified") == _tree(tmp_path / "ref" / "classified")

@@ -62,3 +62,37 @@ def test_survey_footprint():
     beyond = classify.beyond_coverage(count, 2.0, 0.0, 0.0, fp, 0.0, 0.0)
     assert beyond[:15, 30:70].all() and not beyond[count > 0].any()
     assert not beyond[30:45, 10:30].any() and not beyond[50:55, :30].any()
+
+
+def river_across_the_survey(width_m: float, seed: int = 5):
+    """A field 300 x 160 m (3 returns / m2) crossed along u by a river ``width_m`` wide whose water returned no pulse,
+    running off both ends of the survey, under a 10 m road deck 1.2 m above the quays at u = 140-150 m (ramps 15 m
+    long). Returns x, y, z and the deck mask (reviewer 12d's scene)."""
+    rng = np.random.default_rng(seed)
+    n = 300 * 160 * 3
+    u, v = rng.uniform(0, 300, n), rng.uniform(0, 160, n)
+    river = (v > 60) & (v < 60 + width_m)
+    road = (u > 140) & (u < 150)
+    ramp = np.clip(1.0 - np.maximum(45 - v, v - (75 + width_m)) / 15.0, 0.0, 1.0)
+    z = rng.normal(0, 0.02, n) + np.where(road, 1.2 * np.where(river, 1.0, np.where((v > 45) & (v < 75 + width_m),
+                                                                                      ramp, 0.0)), 0.0)
+    keep = ~river | road
+    return 85000.0 + u[keep], 447000.0 + v[keep], z[keep], (road & river)[keep]
+
+
+def test_a_river_crossing_the_survey_is_no_band_beyond_it():
+    """A river 30-40 m wide crossing the survey is a channel between its banks, inside the footprint: its deck is
+    found with the coverage mask (reviewer 12d: 0.97 -> 0.00 at 30 m); the ragged edge's band beyond stays out
+    (the test above)."""
+    p = classify.ClassifySettings()
+    assert p.water_survey_coverage
+    for width_m in (30.0, 40.0):
+        x, y, z, deck = river_across_the_survey(width_m)
+        found = classify.bridge_decks(x, y, z, np.ones(len(x), bool), np.zeros(len(x), bool), 1 / np.sqrt(3.0), p=p)
+        assert found[deck].mean() > 0.9 and found[~deck].sum() < 0.05 * deck.sum()
+    # the footprint: the channel is inside but within FOOTPRINT_CHANNEL_CELLS of the cloud's box
+    occ = np.ones((16, 30), bool)
+    occ[6:10, :] = False
+    fp = classify.survey_footprint(occ)
+    r = classify.FOOTPRINT_CHANNEL_CELLS
+    assert fp[6:10, r:-r].all() and not fp[6:10, :2].any() and not fp[6:10, -2:].any()
