@@ -9,6 +9,6 @@
 # land; emptiness beyond the survey's coverage is no gap for the level-water join or a deck); 6: s11-fixes (such a
 # one-gap deck needs both ends on land across the water and sides that drop to it: jetties, breakwaters, earth
 # causeways are ground); 7: i44-edge-fixes (a river up to 100 m wide crossing the survey is inside its footprint;
-# the whole cloud's level bodies: regions at different levels side by side stay apart, roofs and walls are no bank). sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes
-# unchanged by it.
+# the whole cloud's level bodies: regions at different levels side by side stay apart, roofs and walls are no
+# bank). sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
 RULES_VERSION = 7
