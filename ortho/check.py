@@ -401,6 +401,9 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         # heights above ground in the nDSM's own unit (its CRS says which); the threshold is in metres
         ndsm_unit_m = height_unit_m(parse_crs(ndsm.crs.to_wkt(), f"{ndsm_path} CRS")) if ndsm is not None else 1.0
         res = abs(dom.transform.a) * metres_per_unit(dom)  # metres: the patches' shifts in metres
+        white, white_from = dom_white_level(dom, dom_path)
+        min_std = MIN_STD_GREY_8BIT * white / 255.0  # the same patches in an 8- and a 16-bit DOM
+        logging.getLogger(__name__).debug("DOM check: least patch texture %.4g DN (DOM white %g, %s)", min_std, white, white_from)
         pieces = []
         halo = search_px + patch_px
         try:
@@ -426,8 +429,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                                               operation=ndsm_operation)
                     keep = nvalid & (nd[0] * ndsm_unit_m <= max_ndsm_m)
                 p = match_patches(d, np.moveaxis(rimg, 0, -1), dmask, rvalid, res_m=res, patch_px=patch_px,
-                                  step_px=step_px, search_px=search_px, min_ncc=min_ncc, keep=keep,
-                                  min_texture_ratio=min_texture_ratio)
+                                  step_px=step_px, search_px=search_px, min_ncc=min_ncc, min_std=min_std,
+                                  keep=keep, min_texture_ratio=min_texture_ratio)
                 # a patch belongs to the block whose core holds its centre (no duplicates from halos)
                 core = (p.row_px < block_px) & (p.col_px < block_px)
                 one = (p.one_direction_row_px < block_px) & (p.one_direction_col_px < block_px)
@@ -443,6 +446,39 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res,
                                   cat("one_direction_row_px"), cat("one_direction_col_px"),
                                   *map_axis_signs(dom.crs)), (dom.width, dom.height)
+
+
+MIN_STD_GREY_8BIT = 4.0  # a patch's least texture: 4 of the 255 grey levels from black to the DOM's white level
+
+
+def dom_white_level(ds, path) -> tuple[float, str]:
+    """The DOM's sample value at white and where it came from, which ``match_patches``' least texture is scaled by
+    (``MIN_STD_GREY_8BIT`` x white / 255) so that an 8- and a 16-bit DOM of the same block measure the same patches
+    (12-bit data in a 16-bit DOM: 4 grey levels of 8 bits are 64 DN, not 4): 255 for 8 bits; the NBITS tag; a 16-bit
+    project mosaic's white level from the mosaic.json beside it (the frames': 4095 for the DMC's 12-bit data); else
+    for 16 bits the DOM's largest sample (its smallest overview) rounded up to whole bits, 10 to 16, as the mosaic
+    finds the frames'. Other sample types (float): 255, the threshold as given."""
+    dtype = np.dtype(ds.dtypes[0])
+    if dtype == np.uint8:
+        return 255.0, "8-bit samples"
+    nbits = ds.tags(1, ns="IMAGE_STRUCTURE").get("NBITS")
+    if nbits and str(nbits).isdigit():
+        return float((1 << int(nbits)) - 1), f"NBITS {nbits}"
+    if dtype != np.uint16:
+        return 255.0, f"{dtype} samples: the threshold as given"
+    summary = Path(path).with_suffix(".json")
+    if Path(path).name == "mosaic.tif" and summary.is_file():
+        try:
+            white = (json.loads(summary.read_text()).get("white_level") or {}).get("value")
+        except (OSError, ValueError):
+            white = None
+        if isinstance(white, (int, float)) and white > 0:
+            return float(white), f"white level of {summary.name}"
+    ov = ds.overviews(1)
+    f = ov[-1] if ov else max(1, max(ds.width, ds.height) // 1024)
+    biggest = int(ds.read(1, out_shape=(max(1, ds.height // f), max(1, ds.width // f)), masked=True).max() or 0)
+    n = min(16, max(10, biggest.bit_length()))
+    return float((1 << n) - 1), f"largest sample {biggest}: {n} bits"
 
 
 def metres_per_unit(ds, what: str = "DOM") -> float:

@@ -1458,19 +1458,22 @@ class OutputMapping:
 
     def apply(self, samples: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """(bands, h, w) samples of the frames' type -> uint8, 0 where not ``valid``: a lookup table for 8- and 16-bit
-        samples, float32 arithmetic for other types (the same values)."""
+        samples, the same float64 arithmetic for other types (``v8``: the formula's value in float64, rounded half to
+        even, numpy's rint: a float32 table, scale rounded to float32 first, rounded some .5 ties the other way)."""
         if samples.dtype in _HISTOGRAM_TYPES:
             out = np.take(self._lut(samples.dtype), samples)
         else:
-            v = (samples.astype(np.float32) - np.float32(self.low_dn)) * np.float32(self.scale)
-            out = np.clip(np.rint(v), 0, 255).astype(np.uint8)
+            out = self.v8(samples.astype(np.float64))
         out[:, ~valid] = 0
         return out
 
+    def v8(self, v: np.ndarray) -> np.ndarray:
+        """The formula on float64 values: (v - low_dn) x 255 / (high_dn - low_dn), rounded half to even, clipped."""
+        return np.clip(np.rint((v - self.low_dn) * 255.0 / (self.high_dn - self.low_dn)), 0, 255).astype(np.uint8)
+
     @functools.lru_cache(maxsize=2)
     def _lut(self, dtype) -> np.ndarray:
-        x = np.arange(int(np.iinfo(dtype).max) + 1, dtype=np.float32)
-        return np.clip(np.rint((x - np.float32(self.low_dn)) * np.float32(self.scale)), 0, 255).astype(np.uint8)
+        return self.v8(np.arange(int(np.iinfo(dtype).max) + 1, dtype=np.float64))
 
     def record(self) -> dict:
         """mosaic.json's "output" mapping (and what an edited run's earlier mosaic must have been made with)."""
@@ -1479,7 +1482,7 @@ class OutputMapping:
 
     @property
     def formula(self) -> str:
-        return f"v8 = clip(round((v - {self.low_dn:g}) * 255 / {self.high_dn - self.low_dn:g}), 0, 255)"
+        return f"v8 = clip(round((v - {self.low_dn:g}) * 255 / {self.high_dn - self.low_dn:g}), 0, 255)"  # half to even
 
     def tags(self) -> dict:
         """The DOM's metadata tags stating the mapping (GDAL metadata of the COG)."""
@@ -2619,8 +2622,11 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                              gains=gains, nadir=nadir, feather_px=feather_px, tile_px=tile_px, bands=bands, dtype=dtype,
                              white_level=white_level, previous=previous, rolloff=rolloff, offsets=offsets, toe=toe,
                              output=output)
+            # an 8-bit DOM's kept row needs its blended counts (of the samples before the mapping, which the kept
+            # 8-bit row no longer has) for mosaic.json's blended_* figures: a row kept without them is blended again
             kept = {r0: path for r0, path in rows.items()
-                    if _resumed_row(resume, keys[r0], path, (min(tile_px, mosaic.height - r0), mosaic.width))}
+                    if _resumed_row(resume, keys[r0], path, (min(tile_px, mosaic.height - r0), mosaic.width),
+                                    counts=output is not None)}
             if kept:
                 k = sum(t[0] in kept for t in tiles)
                 logger.info(f"mosaic: resumed {k} of {len(tiles)} tiles an interrupted run finished ({len(kept)} of "
@@ -2631,8 +2637,14 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
         shares = {"valid": 0, "at_255": 0, "at_0": 0, "blended_valid": 0, "blended_at_white": 0, "blended_at_255": 0}
         shares_lock = threading.Lock()
         white = _context_white(frames_dtype, white_level)
+        row_blended = {r0: [0, 0, 0] for r0 in rows}  # per row of tiles: kept with the row for a resumed run
+        for r0 in kept if output is not None else ():  # the kept rows' counts, as the interrupted run counted them
+            n = json.loads(resume.kept(keys[r0], BLENDED_COUNTS_SUFFIX).read_text())
+            shares["blended_valid"] += n[0]
+            shares["blended_at_white"] += n[1]
+            shares["blended_at_255"] += n[2]
 
-        def mapped(result):  # a blended tile in the DOM's type; its pixels at white before and at 255 after counted
+        def mapped(result, r0):  # a blended tile in the DOM's type; its pixels at white before and at 255 after counted
             if output is None:
                 return result
             out, valid = result
@@ -2644,6 +2656,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                 shares["blended_valid"] += n[0]
                 shares["blended_at_white"] += n[1]
                 shares["blended_at_255"] += n[2]
+                row_blended[r0] = [a + b for a, b in zip(row_blended[r0], n)]
             return out8, valid
         stack = contextlib.ExitStack()
         pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
@@ -2657,9 +2670,10 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
 
                 def results():
                     for i in range(0, len(todo), batch):
+                        part = todo[i:i + batch]
                         yield from map(mapped, executor.map(blend_tile_task, [MosaicTile(str(context_path), *t)
-                                                                              for t in todo[i:i + batch]],
-                                                            desc="mosaic tiles", unit="tile"))
+                                                                              for t in part],
+                                                            desc="mosaic tiles", unit="tile"), [t[0] for t in part])
                 made = results()
             else:
                 threads = 1 if executor.scheduler == "synchronous" else max(1, executor.workers)
@@ -2669,14 +2683,14 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
 
                     def tile(t):
                         if previous.touched(*t, halo, factor):
-                            return mapped(_blend_tile(ctx, readers, *t))
+                            return mapped(_blend_tile(ctx, readers, *t), t[0])
                         w = Window(t[1], t[0], t[3], t[2])
                         with lock:  # one dataset, read by the tile threads in turn
                             counts["taken_over"] += 1
                             return old.read(window=w), old.read_masks(1, window=w) > 0
                 else:
                     def tile(t):
-                        return mapped(_blend_tile(ctx, readers, *t))
+                        return mapped(_blend_tile(ctx, readers, *t), t[0])
 
                 def tile_and_half(t):
                     # the tile's 2 x 2 average for the first overview made on the tile's thread too (OpenCV): the
@@ -2690,7 +2704,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                 for r0, c0, th, tw in tiles:
                     if row is None or row.r0 != r0:
                         if row is not None:
-                            row.close()
+                            row.close(blended=row_blended[row.r0] if output is not None else None)
                         t = mosaic.transform
                         row = _StageRow(r0, rows[r0], kept.get(r0), dict(profile, height=th, transform=Affine(
                             t.a, t.b, t.c + t.b * r0, t.d, t.e, t.f + t.e * r0)), colorinterp, resume, keys.get(r0))
@@ -2709,7 +2723,7 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                         shares["at_255"] += int(np.count_nonzero((out == 255).any(axis=0) & valid))
                         shares["at_0"] += int(np.count_nonzero((out == 0).any(axis=0) & valid))
                     bar.update(1)
-                row.close()
+                row.close(blended=row_blended[row.r0] if output is not None else None)
                 row = None
         finally:
             if made is not None:  # the tile threads end before their frame datasets are closed
@@ -2757,12 +2771,15 @@ class _StageRow:
             self.dst = rasterio.open(path, "w", **profile)
             self.dst.colorinterp = colorinterp
 
-    def close(self, keep: bool = True) -> None:
+    def close(self, keep: bool = True, blended=None) -> None:
+        """``blended``: an 8-bit DOM's row's blended counts (valid, at white, at 255), kept before the row."""
         if self.src is not None:
             self.src.close()
         if self.dst is not None:
             self.dst.close()
             if keep and self.resume is not None:
+                if blended is not None:
+                    self.resume.put_text(self.key, BLENDED_COUNTS_SUFFIX, json.dumps([int(v) for v in blended]))
                 self.resume.keep(self.path, self.key, ".tif")
 
 
@@ -2807,11 +2824,14 @@ def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, facto
     return {r0: resume_key({**doc, "row": r0}) for r0 in rows}
 
 
-def _resumed_row(resume, key: str, path: Path, shape: tuple[int, int]) -> bool:
-    """Link the row kept under ``key`` to ``path`` when it is whole (``shape``: its rows and columns); False when none
-    is."""
+BLENDED_COUNTS_SUFFIX = ".blended.json"  # a kept row's blended counts (an 8-bit DOM's mosaic.json blended_*)
+
+
+def _resumed_row(resume, key: str, path: Path, shape: tuple[int, int], counts: bool = False) -> bool:
+    """Link the row kept under ``key`` to ``path`` when it is whole (``shape``: its rows and columns) and, with
+    ``counts``, its blended counts were kept with it; False when none is."""
     src = resume.kept(key, ".tif")
-    if src is None:
+    if src is None or (counts and resume.kept(key, BLENDED_COUNTS_SUFFIX) is None):
         return False
     try:
         with rasterio.open(src) as ds:

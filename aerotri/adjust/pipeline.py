@@ -61,8 +61,9 @@ log = logging.getLogger(__name__)
 # adjusted by earlier code are adjusted again. Bump it when eo.txt, object_points.csv or the report change at the
 # same inputs and settings. 1: s10-fixes (the algorithm as of main e4b26d8e). 2: s11-fixes: at/report.* holds the
 # GNSS direction check (gnss-direction, 4dfc338f; judged by the strips' spread since s11-fixes) and the unmodelled
-# drift in metres (c03bf566), which stamps of version 1 (since 086020cd) kept as up to date.
-ADJUST_VERSION = 2
+# drift in metres (c03bf566), which stamps of version 1 (since 086020cd) kept as up to date. 3: s13-fixes: the
+# direction check's means are the strip means' unweighted average, its Bonferroni count the pairs tested.
+ADJUST_VERSION = 3
 
 
 @dataclasses.dataclass(kw_only=True)

@@ -458,8 +458,7 @@ class Chain:
         if o.vectors.enabled:
             # optional ([vectors] enabled): the line map of the classified strips and its check
             stages.append(Stage("vectors", self.vectors_inputs, self.vectors_outputs, self.run_vectors,
-                                options=dict(to_table(o.vectors), qa=to_table(self.project.qa)), skip=self.no_lidar,
-                                versions=_vectors_versions))
+                                options=self.vectors_options, skip=self.no_lidar, versions=_vectors_versions))
         stages += [
             Stage("match", lambda r: self.images() + [self.project.gnss_path, self.project.camera_path],
                   lambda r: [self.project.tiepoints_path], self.run_match,
@@ -505,11 +504,15 @@ class Chain:
             stages.append(Stage("lidar_eval", lambda r: self.classified() + self.project.truth_strips(),
                                 lambda r: [self.project.classification_eval_path],
                                 self.run_lidar_eval, skip=self.no_lidar, versions=_lidar_eval_versions))
+        # every file the report reads: the DOM check is shown only while it measured the mosaic there now
+        # (DomCheck.stale_for, by the mosaic's fingerprint), so a mosaic made again (by hand too) re-runs the report
         report_inputs = [self.project.config_path, self.project.strips_check_path, self.project.strips_adjust_path,
                          self.project.strips_check_after_path, self.project.adjustment_report_path,
                          self.project.control_transfer_path, self.project.dom_report_path,
                          self.project.height_check_path, self.project.classification_eval_path,
-                         self.project.vectors_check_path]
+                         self.project.vectors_check_path, self.project.mosaic_path, self.project.mosaic_summary_path,
+                         self.project.frames_index_path, self.project.dem_path,
+                         self.project.at_dir / "leave_one_out.json"]
         if self.options.vectors.check_json is not None:
             report_inputs.append(Path(self.options.vectors.check_json))
         report_inputs += self.qa_tolerances()  # a user's tolerance table judges the block
@@ -615,7 +618,19 @@ class Chain:
 
     def vectors_inputs(self, root=None) -> list[Path]:
         ref = self.vectors_reference()
-        return self.classified() + ([ref] if ref is not None else [])
+        return self.classified() + ([ref] if ref is not None else []) + self.qa_tolerances()
+
+    def vectors_options(self, root=None) -> dict:
+        """[vectors] and [qa], and the map scale and terrain class the check is judged at (``qa_settings`` of the
+        block's scale: from the camera, the frames' positions and the DEM, which change with the adjustment)."""
+        from aerotri.core.tolerances import qa_settings
+        from aerotri.geom.block_scale import project_block_scale
+
+        out = dict(to_table(self.options.vectors), qa=to_table(self.project.qa))
+        if self.vectors_reference() is not None:  # only the check is judged by the table
+            qa = qa_settings(self.root, project_block_scale(self.project))
+            out["judged_at"] = dict(map_scale=qa.map_scale, terrain=qa.terrain)
+        return out
 
     def vectors_outputs(self, root=None) -> list[Path]:
         return [self.project.vectors_path] + ([self.project.vectors_check_path] if self.vectors_reference() else [])

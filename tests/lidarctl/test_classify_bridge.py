@@ -259,3 +259,23 @@ def test_ground_into_a_lake_is_no_deck(kind):
                                   p=classify.ClassifySettings())
     assert over.sum() > 500
     assert not found.any(), found[over].sum()
+
+
+@pytest.mark.parametrize("band_m, far", [(8.0, True), (10.0, True), (8.0, False)])
+def test_a_wide_dropout_band_over_one_bank_keeps_the_bridge(band_m, far):
+    """Reviewer 13: a dropout band over one bank (3 m into the canal, ``band_m`` wide, across the road) left more than
+    BRIDGE_END_WATER_M = 6 m empty along the deck, and the whole bridge was dropped (330/340 -> 0/340); at 12 m it is
+    found, the jetty and breakwater of reviewer 11 still not (test_ground_into_a_lake_is_no_deck)."""
+    rng = np.random.default_rng(5)
+    n = 200 * 100 * 3
+    u, v = rng.uniform(0, 200, n), rng.uniform(0, 100, n)
+    canal, road = (v > 40) & (v < 55), np.abs(u - 95) < 5
+    water = (canal & ~road) | (((v > 52) & (v < 52 + band_m)) if far else ((v > 43 - band_m) & (v < 43)))
+    deck = road & canal & ~water
+    ramp = np.clip(1.0 - np.maximum(25.0 - v, v - 70.0) / 15.0, 0.0, 1.0)
+    z = rng.normal(0, 0.02, n) + np.where(road, 1.2 * np.where(canal, 1.0, ramp), 0.0)
+    keep = ~water
+    x, y, z, deck = u[keep] + X0, v[keep] + Y0, z[keep], deck[keep]
+    found = classify.bridge_decks(x, y, z, np.ones(len(x), bool), np.zeros(len(x), bool), 1 / np.sqrt(3.0),
+                                  p=classify.ClassifySettings())
+    assert deck.sum() > 300 and found[deck].mean() > 0.9 and not found[~deck].any()

@@ -151,3 +151,44 @@ def test_a_resumed_edited_mosaic_counts_the_kept_rows_tiles_as_one_run(tmp_path,
     r = CliRunner().invoke(main, ["mosaic", str(base), *args])
     assert r.exit_code == 0, r.output
     assert json.loads((base / "ortho" / "mosaic.json").read_text())["tiles"] == want
+
+
+def test_a_resumed_8_bit_dom_counts_the_kept_rows_blended_pixels(project, monkeypatch):
+    """Reviewer 13: a resumed 8-bit run's mosaic.json counted the blended pixels of the rows it blended only (519,507
+    of 745,725): each kept row's counts (of the samples before the mapping) are now kept with it, and the resumed
+    run's mosaic.json is the uninterrupted run's, byte for byte."""
+    def mosaic8(root):
+        return run("mosaic", root, "--seams", "voronoi", "--tile-px", TILE_PX, "--scheduler", "synchronous",
+                   "--output-bits", "8")
+
+    r = mosaic8(project)
+    assert r.exit_code == 0, r.output
+    want = tree(project / "ortho")
+    summary = json.loads((project / "ortho" / "mosaic.json").read_text())
+    assert summary["output"]["blended_pixels"] == summary["output"]["valid_pixels"] > 0
+    cols = -(-summary["width"] // int(TILE_PX))
+    for name in ("mosaic.tif", "mosaic.json", "seams.tif"):
+        (project / "ortho" / name).unlink()
+    monkeypatch.setattr(M, "_blend_tile", _Blend(at=2 * cols + 2))
+    assert mosaic8(project).exit_code != 0
+    keep = project / "work" / "mosaic_resume"
+    assert len(list(keep.glob(f"*{M.BLENDED_COUNTS_SUFFIX}"))) == 2
+    count = _Blend()
+    monkeypatch.setattr(M, "_blend_tile", count)
+    r = mosaic8(project)
+    assert r.exit_code == 0, r.output
+    assert tree(project / "ortho") == want
+
+
+def test_the_8_bit_lookup_table_is_the_recorded_formula_at_half_steps():
+    """Reviewer 13: the table was built in float32 (the scale rounded first): at a .5 tie it could round the other
+    way than the formula mosaic.json records. Now float64, rounded half to even (numpy's rint), as ``v8`` states."""
+    import numpy as np
+
+    m = M.OutputMapping(8, 0.0, 326.0, "test")  # 163 DN -> 127.5 exactly: the float32 table gave 127
+    lut = m._lut(np.dtype(np.uint16))
+    assert lut[163] == 128 and lut[1] == 1 and lut[326] == 255 and lut[65535] == 255
+    x = np.arange(65536, dtype=np.float64)
+    assert np.array_equal(lut, np.clip(np.rint(x * 255 / 326), 0, 255).astype(np.uint8))
+    assert np.array_equal(m.apply(np.arange(400, dtype=np.float32).reshape(1, 1, -1), np.ones((1, 400), bool))[0, 0],
+                          lut[:400])

@@ -139,3 +139,42 @@ def test_one_strip_each_way_is_not_separable():
     c = _truth_check(2, 25, 0.05, 1, ahead_m=0.5)
     assert c.testable and not c.significant and not c.findings()
     assert not c.pairs[0].separable and "not separable" in c.not_separable()[0]
+
+
+def _flown(lengths, headings_deg, strip_bias_m: float, seed: int, ahead_m: float = 0.0):
+    """The check on a truth block of strips of ``lengths`` frames 100 m apart flown at ``headings_deg``, 600 m
+    between strip pairs: GNSS with 0.02 m photo noise, a bias per strip, ``ahead_m`` along each track."""
+    rng = np.random.default_rng(seed)
+    centres, gnss, strip = [], [], []
+    for s, (n, hd) in enumerate(zip(lengths, headings_deg)):
+        h = np.array([np.sin(np.radians(hd)), np.cos(np.radians(hd))])
+        xy = (s // 2) * 600.0 * np.array([h[1], -h[0]]) + np.outer(100.0 * np.arange(n), h)
+        c = np.c_[xy, np.full(n, 1000.0)]
+        centres.append(c)
+        gnss.append(c + rng.normal(0, strip_bias_m, 3) + rng.normal(0, 0.02, (n, 3)) + np.c_[ahead_m * np.tile(h, (n, 1)),
+                                                                                           np.zeros(n)])
+        strip += [s] * n
+    block = SimpleNamespace(gnss_local=np.vstack(gnss), strip=np.array(strip), lever_arm_m=np.zeros(3))
+    state = SimpleNamespace(centre=np.vstack(centres), R_cv=np.tile(np.eye(3), (len(strip), 1, 1)))
+    return direction_check(block, state, SPEED_MPS)
+
+
+def test_strips_of_unequal_length_keep_the_false_alarm_rate():
+    """Reviewer 13: a direction's mean weighted by photos over strips of 60/6/6/6 frames rested on the long strip's
+    bias while its standard error assumed equal-weight strip means: 14 % false alarms at 5 % (1,000 seeds, 0.05 m
+    biases). The strip means are now averaged unweighted: 5.0 % (0.3 m biases: 4.8 %); power unchanged."""
+    lengths, headings = [60, 60, 6, 6, 6, 6, 6, 6], [90, 270] * 4
+    alarms = sum(_flown(lengths, headings, 0.05, seed).significant for seed in range(300))
+    assert alarms <= 27, alarms  # 9 %: 14 % before (42 of 300 expected), 5 % now
+    assert all(_flown(lengths, headings, 0.05, seed, ahead_m=0.35).significant for seed in range(20))
+
+
+def test_a_pair_not_separable_is_not_counted_in_the_bonferroni_correction():
+    """6 strips east-west and 2 cross strips (one each way, not tested): the east-west pair is the one test of each
+    axis along and across, so its critical value is Student's t at 5 % / 2 tests, not / 4."""
+    from scipy.stats import t as t_dist
+
+    c = _flown([25] * 8, [90, 270] * 3 + [0, 180], 0.05, 1)
+    ew, cross = c.pairs
+    assert ew.separable and not cross.separable and ew.strip_dof == 4
+    assert ew.k_along == pytest.approx(t_dist.isf(0.05 / 2 / 2, 4))

@@ -301,6 +301,25 @@ def test_run_without_reference_says_why_the_dom_is_not_checked(run_to_end, tmp_p
     assert row.verdict is None and "no reference orthophoto was given" in row.note and not rep.has("dom_check_stale")
 
 
+def test_a_mosaic_made_again_by_hand_re_runs_the_report_which_drops_the_old_dom_check(run_to_end, tmp_path):
+    """Reviewer 13: the report stage's key missed ortho/mosaic.json (and the mosaic, the frame index, the LiDAR DEM,
+    at/leave_one_out.json), all of which the report reads: after a mosaic made again by hand `aerotri run` kept the
+    report "up to date", still saying the DOM check passed for a mosaic it never measured."""
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p)
+    assert "dom_rms_xy_m" in {c["id"] for c in json.loads((p / "reports" / "summary.json").read_text())["checks"]}
+    from ortho.cli import main as ortho_cli
+
+    r = CliRunner().invoke(ortho_cli, ["mosaic", str(p), "--no-balance"], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rows = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
+    assert "up to date" in rows["mosaic"] and " done " in rows["report"], (rows["mosaic"], rows["report"])
+    ids = {c["id"] for c in json.loads((p / "reports" / "summary.json").read_text())["checks"]}
+    assert "dom_rms_xy_m" not in ids and "dom_check_stale" in ids
+
+
 def test_run_without_lidar_makes_the_tie_point_dem_or_uses_a_dem_from_elsewhere(tiny_project, tmp_path):
     p = tmp_path / "p"
     shutil.copytree(tiny_project, p, ignore=shutil.ignore_patterns("lidar"))
