@@ -10,5 +10,6 @@
 # one-gap deck needs both ends on land across the water and sides that drop to it: jetties, breakwaters, earth
 # causeways are ground); 7: i44-edge-fixes (a river up to 100 m wide crossing the survey is inside its footprint;
 # the whole cloud's level bodies: regions at different levels side by side stay apart, roofs and walls are no
+# bank); 8: s13-fixes (a one-gap deck's ends on land across up to 12 m of water, was 6: a dropout band over one
 # bank). sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
-RULES_VERSION = 7
+RULES_VERSION = 8
