@@ -53,6 +53,18 @@ def test_a_strips_folder_is_ours_by_its_record_not_by_names(tmp_path):
     (out / "strips.json").write_text(json.dumps({"my": "notes"}))  # a user's strips.json is no record
     with pytest.raises(OptionError, match="did not write"):
         refuse_replacing(out, [])
+    # records written before 2026-11-28 have no schema_version: ours by their keys (reviewer 14)
+    for legacy in ({"convention": "b - a", "cell_m": 1.0, "pairs": []}, {"why": "nothing to compare"}):
+        (out / "strips.json").write_text(json.dumps(legacy))
+        refuse_replacing(out, [])
+    (out / "strips.json").unlink()
+    (out / "adjust.json").write_text(json.dumps({"model": "strip", "cell_m": 1.0, "parameters": {}}))
+    refuse_replacing(out, [])
+    (out / "adjust.json").write_text(json.dumps({"cell_m": 1.0}))  # one key of ours is not a record
+    with pytest.raises(OptionError) as err:
+        refuse_replacing(out, [], option=None)  # the chain: the folder named, not OUTDIR
+    assert err.value.param is None and err.value.user_message().startswith(f"Error: {out}: ")
+    (out / "adjust.json").unlink()
     for p in out.iterdir():
         p.unlink()
     (out / "Thumbs.db").write_bytes(b"x")
