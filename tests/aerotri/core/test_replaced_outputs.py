@@ -71,7 +71,10 @@ def test_a_strips_folder_is_ours_by_its_record_not_by_names(tmp_path):
     refuse_replacing(out, [])  # empty but for clutter
 
 
-def test_classify_claims_the_names_of_its_inputs_others_with_a_warning(tmp_path, caplog):
+def test_classify_claims_its_recorded_names_or_without_a_record_those_of_its_inputs(tmp_path, caplog):
+    """Reviewer 14: `lidarctl classify strips... OUT_DIR` deleted a user's LAS/LAZ in OUT_DIR with a warning. Now
+    its record (classify.json) names what it wrote; without one only the names derived from this run's inputs
+    (an output written before the record) are replaced, other LAS/LAZ refused (exit 2, named)."""
     from lidarctl import tiles
 
     strips = [tmp_path / "in" / f"strip_{i}.las" for i in range(2)]
@@ -83,13 +86,21 @@ def test_classify_claims_the_names_of_its_inputs_others_with_a_warning(tmp_path,
     for name in ("strip_0.las", "strip_1.las", ".DS_Store"):
         (out / name).write_bytes(b"x")
     with caplog.at_level(logging.WARNING), pytest.raises(InputError, match="strip_0.las: not a LAS"):
-        tiles.classify_files(strips, out)  # past the folder check (silent), stopped by the fake strips
+        tiles.classify_files(strips, out)  # an old output of exactly our names: past the folder check, silent
     assert not [r for r in caplog.records if "replacing" in r.getMessage()]
-    (out / "old_strip.laz").write_bytes(b"x")
-    with caplog.at_level(logging.WARNING), pytest.raises(InputError, match="strip_0.las: not a LAS"):
+    (out / "users_tile.laz").write_bytes(b"x")
+    with pytest.raises(OptionError, match=r"holds users_tile.laz, which lidarctl classify \(the folder has no "
+                                          r"classify.json"):
         tiles.classify_files(strips, out)
-    warned = [r.getMessage() for r in caplog.records if "replacing" in r.getMessage()]
-    assert len(warned) == 1 and "old_strip.laz" in warned[0] and "strip_0.las" not in warned[0], warned
+    assert (out / "users_tile.laz").read_bytes() == b"x"
+    # with the record: what it names is ours (a run on other strips), nothing else
+    (out / tiles.CLASSIFY_RECORD).write_text(json.dumps({"schema_version": 1, "kind": tiles.CLASSIFY_RECORD_KIND,
+                                                         "files": ["users_tile.laz", "strip_0.las"]}))
+    with pytest.raises(OptionError, match=r"holds strip_1.las, which lidarctl classify did not write"):
+        tiles.classify_files(strips, out)
+    (out / "strip_1.las").unlink()
+    with pytest.raises(InputError, match="strip_0.las: not a LAS"):
+        tiles.classify_files(strips, out)
 
 
 def _contours():
