@@ -157,3 +157,43 @@ def test_a_linked_output_folder_is_replaced_through_the_link(tmp_path):
     (tmp_path / "gone").rmdir()
     with pytest.raises(OptionError, match="broken: the output folder is a broken link"):
         refuse_foreign_contents(broken, _las_only, "lidarctl classify")
+
+
+_KILL_MID_SWAP = """
+import os, signal, sys
+import aerotri.core.atomic as A
+def replace(self, src, dst, kind):  # the old folder moved into the journal, killed before the new one moves in
+    entry = self.record(self.rel(dst), kind)
+    os.replace(os.path.join(self.base, self.rel(dst)), self.backup_path(entry))
+    os.kill(os.getpid(), signal.SIGKILL)
+A._Commit.replace = replace
+with A.atomic_dir(sys.argv[1]) as tmp:
+    (tmp / "strips.json").write_text("{}")
+"""
+
+
+def test_what_a_killed_run_left_beside_a_linked_outputs_target_is_recovered(tmp_path):
+    """Reviewer 14's killswap.py: OUTDIR a link; a run killed between moving the old folder into the commit
+    journal and the new one in left the journal (and temporaries) beside the link's target, never recovered:
+    the link stayed broken. The next command recovers and sweeps there too."""
+    import subprocess
+    import sys
+
+    from click.testing import CliRunner
+
+    from lidarctl.cli.main import main
+
+    target = tmp_path / "disk2" / "strips"
+    target.mkdir(parents=True)
+    (target / "strips.json").write_text('{"why": "old"}')
+    link = tmp_path / "project" / "strips"
+    link.parent.mkdir()
+    link.symlink_to(target, target_is_directory=True)
+    r = subprocess.run([sys.executable, "-c", _KILL_MID_SWAP, str(link)], capture_output=True)
+    assert r.returncode == -9
+    assert not target.exists() and [p.name for p in target.parent.iterdir() if ".commit-" in p.name]
+    assert [p.name for p in target.parent.iterdir() if ".part-" in p.name]  # the new folder's temporary
+    r = CliRunner().invoke(main, ["strips", "check", str(tmp_path / "missing.las"), str(link)])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert sorted(p.name for p in target.parent.iterdir()) == ["strips"]  # journal rolled back, temporary swept
+    assert (link / "strips.json").read_text() == '{"why": "old"}'
