@@ -763,6 +763,38 @@ def classified_names(in_paths, suffix: str | None = None) -> list[str]:
     return list(names)
 
 
+CLASSIFY_RECORD = "classify.json"  # in OUT_DIR: the names classify_files wrote there (provenance for a rerun)
+CLASSIFY_RECORD_KIND = "lidarctl classify"
+
+
+def classified_record_names(out_dir) -> frozenset[str] | None:
+    """The file names the record ``CLASSIFY_RECORD`` in ``out_dir`` says ``classify_files`` wrote there; None:
+    no such record (a folder written before 2026-12-01, a user's folder, or a file of that name not ours)."""
+    try:
+        d = json.loads((Path(out_dir) / CLASSIFY_RECORD).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(d, dict) or d.get("kind") != CLASSIFY_RECORD_KIND or not isinstance(d.get("files"), list):
+        return None
+    return frozenset(str(n) for n in d["files"])
+
+
+def refuse_replacing_classified(out_dir, names) -> None:
+    """OptionError (OUT_DIR) when ``out_dir``, replaced as a whole, holds what ``classify_files`` did not write
+    there. With our record (``CLASSIFY_RECORD``): the files it names are ours; without (an output written before
+    the record, or a user's folder): only LAS/LAZ named as this run's outputs (``names``, derived from the inputs)
+    are, so a user's LAS/LAZ of other names is refused, not deleted (reviewer 14)."""
+    recorded = classified_record_names(out_dir) if Path(out_dir).is_dir() else None
+    if recorded is not None:
+        owned = lambda e: e.is_file() and (e.name == CLASSIFY_RECORD or e.name in recorded)  # noqa: E731
+        what = "lidarctl classify"  # its record names what it wrote
+    else:
+        owned = lambda e: e.is_file() and e.name in names  # noqa: E731
+        what = (f"lidarctl classify (the folder has no {CLASSIFY_RECORD}, and only the classified strips named after "
+                "this run's inputs are taken for its earlier output)")
+    refuse_foreign_contents(out_dir, owned, what, "OUT_DIR")
+
+
 def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | None = None,
                    tile_size_m: float | None = None, buffer_m: float | None = None, executor=None,
                    work_dir=None, chunk_points: int = io.CHUNK_POINTS, fusion=None, resume_dir=None) -> ClassifyStats:
@@ -795,17 +827,16 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
             raise OptionError(f"{q}: the input lies in the output folder {out_dir}, which is replaced as a whole; "
                               "choose another output folder", param="OUT_DIR")
     # the folder is replaced as a whole: a previous run's classified strips may go, a user's other files may not
-    # provenance: the names this run derives from its inputs; other LAS/LAZ files (a previous run on other strips,
-    # or a user's) are replaced with a warning naming them; anything else is refused
-    refuse_foreign_contents(out_dir, lambda e: e.is_file() and e.suffix.lower() in (".las", ".laz"),
-                            "lidarctl classify", "OUT_DIR", proven=lambda e: e.name in names)
+    refuse_replacing_classified(out_dir, names)
     project_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else None
     check_strips(in_paths, [las.read_header(q) for q in in_paths], project_crs)
     parent = Path(work_dir) if work_dir is not None else out_dir.parent
     with _resumable(resume_dir, out_dir) as keep, atomic_dir(out_dir) as tmp:
-        return _classify(in_paths, [tmp / name for name in names], crs, params, tile_size_m=tile_size_m,
-                         buffer_m=buffer_m, executor=executor, work_parent=parent, tiles_name=out_dir.name,
-                         chunk_points=chunk_points, fusion=fusion, resume=keep)
+        st = _classify(in_paths, [tmp / name for name in names], crs, params, tile_size_m=tile_size_m,
+                       buffer_m=buffer_m, executor=executor, work_parent=parent, tiles_name=out_dir.name,
+                       chunk_points=chunk_points, fusion=fusion, resume=keep)
+        (tmp / CLASSIFY_RECORD).write_text(json.dumps({"schema_version": 1, "kind": CLASSIFY_RECORD_KIND, "files": names}, indent=2) + "\n")
+        return st
 
 
 def _union_bounds(headers):

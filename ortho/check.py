@@ -914,6 +914,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     paths = project_paths(root)
     project_stem = root / "ortho" / "dom_report"
     of_project = _same_file(dom_path, paths.mosaic_path) or dom_path.resolve() == paths.mosaic_path.resolve()
+    given_stem = out_stem or None
     if not out_stem:
         # another DOM's check beside that DOM (``<dom>_dom_report.json``): the project's dom_report.json is the
         # project's mosaic's (review 12c: a check of another DOM replaced the project's passing one)
@@ -927,6 +928,12 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
     for suffix in (".json", ".png"):
         refuse_input_as_output(out_stem.with_suffix(suffix), [dom_path, reference_path, points_path, ndsm_path,
                                                               roof_corners_path, root / "ortho" / "mosaic.json"], "--out")
+    # before the work (minutes of matching): a DOM on a read-only disk or share, its report beside it by default
+    folder = next((d for d in (out_stem.absolute().parent, *out_stem.absolute().parents) if d.is_dir()), None)
+    if folder is not None and not os.access(folder, os.W_OK):
+        raise OptionError(f"{out_stem.with_suffix('.json')}: cannot write into {folder} (read-only or not "
+                          f"permitted){' (beside the DOM, by default)' if given_stem is None else ''}: give --out "
+                          "with a report stem in a folder you can write, e.g. --out checks/dom_report", param="--out")
     if roof_corners_path is not None and reference_path is None:
         raise OptionError("the roofs are measured against a reference orthophoto: give --reference with --roof-corners",
                           param="--roof-corners")

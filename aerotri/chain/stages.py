@@ -552,10 +552,10 @@ class Chain:
         try:
             if s.adjust:
                 a = adjust_strips(p.lidar_strips(), p.strips_dir, s.adjustment, s.surface,
-                                  trajectories=self.strip_trajectories(), crs=p.crs, png=s.maps)
+                                  trajectories=self.strip_trajectories(), crs=p.crs, png=s.maps, option=None)
                 return R.StripsResult(model=a.model, rms_before_m=round(a.check_before.rms_m, 4),
                                       rms_after_m=round(a.check_after.rms_m, 4), sigma0=round(a.sigma0, 3))
-            c = check_strips(p.lidar_strips(), p.strips_dir, s.surface, crs=p.crs, png=s.maps)
+            c = check_strips(p.lidar_strips(), p.strips_dir, s.surface, crs=p.crs, png=s.maps, option=None)
         except NothingToCompare as e:
             # recorded, so that the report and a re-run know (the folder holds nothing else)
             why = f"nothing to compare: {e}"

@@ -180,6 +180,12 @@ class Command(click.Command):
         if parent.is_dir():
             recover_commits(parent)
             remove_leftovers(parent, names=[out.name])
+        # a linked output (a link to a folder or file elsewhere) is written beside its target (``atomic_dir``):
+        # what a killed run left there (temporaries, an unfinished commit) is recovered and swept there too
+        real = Path(os.path.realpath(out))
+        if real.parent.is_dir() and real.parent != Path(os.path.realpath(parent)):
+            recover_commits(real.parent)
+            remove_leftovers(real.parent, names=[real.name])
         if out.is_dir():
             remove_leftovers_below(out)
         if not self.per_stage:

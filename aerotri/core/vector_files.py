@@ -9,6 +9,9 @@ GeoJSON and KML files of the commands that offer them), so that each one is
   spatial index (an R-tree: QGIS pans a large layer without reading it whole);
 - atomic: written under a temporary name next to the output and renamed onto it (``atomic_path``): the layers
   of one file are all new or all old;
+- refused while the GeoPackage it replaces has a non-empty SQLite write-ahead log beside it (``<file>-wal``:
+  open for editing in QGIS, or left by a crash): SQLite replays a ``-wal`` onto whatever file bears the name,
+  so the new file would take the old one's pages (``refuse_open_geopackage``);
 - marked as ours (each layer's description in gpkg_contents starts with ``MARK``; QGIS shows it as the
   layer's abstract): a rerun replaces a file it wrote, and warns before replacing one that merely has layers of
   our names (``refuse_foreign_layers``); the ``layer_styles`` table QGIS saves styles in is carried over.
@@ -28,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.atomic import atomic_path
-from aerotri.core.errors import OptionError
+from aerotri.core.errors import InputError, OptionError
 
 
 GPKG_VERSION = "1.2"  # the driver's VERSION creation option (AUTO, 1.0 ... 1.4)
@@ -75,6 +78,8 @@ def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | N
     if not layers or any(not layer.name for layer in layers):
         raise ValueError(f"{path}: every layer needs a name (got {[layer.name for layer in layers]})")
     gpkg = driver == "GPKG"
+    if gpkg:
+        refuse_open_geopackage(path)
     with _gdal_timestamp(pyogrio, timestamp), atomic_path(path) as tmp:
         tmp.unlink(missing_ok=True)  # a new file, not the empty temporary
         for i, layer in enumerate(layers):
@@ -86,6 +91,9 @@ def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | N
                   layer_options={"SPATIAL_INDEX": "YES", "DESCRIPTION": MARK} if gpkg else None)
         if gpkg and path.is_file():
             _keep_qgis_styles(path, tmp)
+            # the read-only look at a file in WAL mode leaves an empty -wal/-shm (only a writer removes them):
+            # removed here, or they would sit beside the new file
+            refuse_open_geopackage(path)
     return path
 
 
@@ -124,7 +132,10 @@ def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> 
     import pyogrio
 
     path = Path(path)
-    if not path.exists() or DRIVERS.get(path.suffix.lower()) != "GPKG":
+    if DRIVERS.get(path.suffix.lower()) != "GPKG":
+        return
+    refuse_open_geopackage(path, option)
+    if not path.exists():
         return
     try:
         present = [str(name) for name, _ in pyogrio.list_layers(path)]
@@ -133,6 +144,7 @@ def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> 
     except Exception:  # pyogrio's DataSourceError and kin: not a GeoPackage
         raise OptionError(f"{path}: exists and is not a GeoPackage GDAL can read; it would be replaced as a "
                           "whole: move it (or remove it), or give another file name", param=option) from None
+    refuse_open_geopackage(path, option)  # the empty -wal/-shm the read-only looks leave at a file in WAL mode
     foreign = [name for name in present if name not in layer_names and name != QGIS_STYLES]
     if foreign:
         raise OptionError(f"{path}: the file is replaced as a whole, and it holds the layer(s) {', '.join(foreign)}, "
@@ -141,6 +153,42 @@ def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> 
     if any(name not in marked for name in present if name != QGIS_STYLES):
         log.warning(f"{path}: replacing its layer(s) {', '.join(n for n in present if n != QGIS_STYLES) or '(none)'}, "
                     f"taken for a previous output of {what} by their names only (the file has no mark of ours)")
+
+
+def refuse_open_geopackage(path, option: str | None = None) -> None:
+    """``InputError`` (``OptionError`` naming ``option`` when given) when the GeoPackage ``path`` has a
+    non-empty write-ahead log beside it (``<path>-wal``: open for editing in QGIS, or left by a crash), or
+    an empty ``-wal``/``-shm`` that another program still holds. SQLite replays a ``-wal`` onto whatever file
+    bears the name, so a file renamed in over the old one would take the old one's pages (``pragma
+    integrity_check`` fails, the old tables reappear). An empty ``-wal`` and a ``-shm`` that nothing holds are
+    removed (SQLite removes both when the last connection closes: we open and close one)."""
+    path = Path(path)
+    wal, shm = Path(f"{path}-wal"), Path(f"{path}-shm")
+    if not wal.exists() and not shm.exists():
+        return
+    error = OptionError if option else InputError
+    advice = (f"save and close it, or remove {wal.name} and {shm.name} if nothing holds it (a crash left them); "
+              "then run again")
+    if wal.exists() and wal.stat().st_size > 0:
+        raise error(f"{path}: open for editing in QGIS (or left by a crash): its SQLite write-ahead log {wal.name} "
+                    f"holds changes that SQLite would replay onto the new file: {advice}", param=option)
+    if path.is_file():
+        # the last connection to close checkpoints the (empty) log and removes -wal and -shm; a program that
+        # holds the file keeps them (and would write its log over the new file)
+        with contextlib.suppress(sqlite3.Error), contextlib.closing(sqlite3.connect(path)) as db:
+            db.execute("SELECT count(*) FROM sqlite_master").fetchone()
+    else:  # no database: the log and index of a file that is gone
+        with contextlib.suppress(OSError):
+            wal.unlink(missing_ok=True)
+    if not wal.exists():  # an index without a log: nothing in WAL mode holds the file
+        with contextlib.suppress(OSError):
+            shm.unlink(missing_ok=True)
+    if wal.exists() and wal.stat().st_size > 0:
+        raise error(f"{path}: open for editing in QGIS (or left by a crash): its SQLite write-ahead log {wal.name} "
+                    f"holds changes that SQLite would replay onto the new file: {advice}", param=option)
+    if wal.exists():
+        raise error(f"{path}: open in another program (QGIS?): its SQLite log {wal.name} is held, and SQLite "
+                    f"would apply it to the new file: {advice}", param=option)
 
 
 @contextlib.contextmanager

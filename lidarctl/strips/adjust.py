@@ -716,19 +716,20 @@ def control_summary(cps: ctl.ControlPoints, ss: ov.StripSet, first: Observations
 
 def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSettings(),
                   surface: ov.SurfaceSettings = ov.SurfaceSettings(), *, trajectories=(), crs=None, png: bool = True,
-                  control=None) -> StripAdjustResult:
+                  control=None, option: str | None = "OUTDIR") -> StripAdjustResult:
     """The stage: estimate, write the corrected strips and the check before and after into OUTDIR
-    (``<strip files>``, ``adjust.json``, ``check_before/``, ``check_after/``). Returns what adjust.json holds."""
+    (``<strip files>``, ``adjust.json``, ``check_before/``, ``check_after/``). Returns what adjust.json holds.
+    ``option``: what a refusal names (None: the folder only, the chain's)."""
     t0 = time.perf_counter()
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
-    refuse_input_as_output(outdir, paths, "OUTDIR")
+    refuse_input_as_output(outdir, paths, option)
     from aerotri.geom.inputs import check_distinct_files
 
     check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
     for p in paths:
-        refuse_input_as_output(outdir / p.name, paths, "OUTDIR")
-    chk.refuse_replacing(outdir, paths)
+        refuse_input_as_output(outdir / p.name, paths, option)
+    chk.refuse_replacing(outdir, paths, option)
     if len({p.name for p in paths}) < len(paths):
         raise InputError("strips with the same file name: the corrected strips are written under their names")
     # the check's slope limit for the reports; the adjustment reads steeper cells too

@@ -263,23 +263,25 @@ def owned_by_strips(entry: Path) -> bool:
             or entry.suffix.lower() in (".las", ".laz"))  # adjust's corrected strips
 
 
-def refuse_replacing(outdir: Path, paths) -> None:
+def refuse_replacing(outdir: Path, paths, option: str | None = "OUTDIR") -> None:
     """OptionError when OUTDIR, which is replaced as a whole, holds an input strip or a file neither strips
-    command writes (``lidarctl strips check lidar/*.las lidar`` deleted the strips it had read)."""
+    command writes (``lidarctl strips check lidar/*.las lidar`` deleted the strips it had read). ``option``: what
+    the message names (None: the folder only, the chain's lidar_out/strips/)."""
     for q in map(Path, paths):
         if outdir.resolve() == q.resolve() or outdir.resolve() in q.resolve().parents:
             raise OptionError(f"{q}: the input lies in the output folder {outdir}, which is replaced as a whole; "
-                              "choose another output folder", param="OUTDIR")
+                              "choose another output folder", param=option)
     if has_strips_record(outdir):
-        refuse_foreign_contents(outdir, owned_by_strips, "lidarctl strips", "OUTDIR")
+        refuse_foreign_contents(outdir, owned_by_strips, "lidarctl strips", option)
     else:  # not a previous output, whatever its names (every strips output holds its record): only clutter passes
         refuse_foreign_contents(outdir, lambda e: False, "lidarctl strips (the folder holds no strips.json or "
-                                "adjust.json of it)", "OUTDIR")
+                                "adjust.json of it)", option)
 
 
 def has_strips_record(outdir: Path) -> bool:
     """Whether ``outdir`` holds the record one of the strips commands writes (strips.json / adjust.json: a JSON
-    object with our ``schema_version``): the folder is then a previous output (provenance, not names: a user's
+    object with our ``schema_version``, or, written before 2026-11-28 without one, with our keys: ``convention``,
+    ``cell_m`` and ``pairs``, adjust.json's ``model``, ``cell_m`` and ``parameters``, or a lone ``why``): the folder is then a previous output (provenance, not names: a user's
     folder of .las files is not ours because its names are); every output of either command holds one (a run that
     compares nothing too, ``record_nothing_compared``), and the folder is written whole (``atomic_dir``)."""
     for name in ("strips.json", "adjust.json"):
@@ -287,7 +289,8 @@ def has_strips_record(outdir: Path) -> bool:
             d = json.loads((Path(outdir) / name).read_text())
         except (OSError, ValueError):
             continue
-        if isinstance(d, dict) and "schema_version" in d:
+        if isinstance(d, dict) and ("schema_version" in d or {"convention", "cell_m", "pairs"} <= d.keys()
+                                    or {"model", "cell_m", "parameters"} <= d.keys() or d.keys() == {"why"}):
             return True
     return False
 
@@ -506,14 +509,16 @@ def analyse(ss: StripSet, params: SurfaceSettings, paths, min_cells: int = 20) -
 
 
 def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), *, crs=None,
-                 title: str = "Strip differences", vmax_m: float | None = None, png: bool = True) -> StripCheckResult:
+                 title: str = "Strip differences", vmax_m: float | None = None, png: bool = True,
+                 option: str | None = "OUTDIR") -> StripCheckResult:
     """The stage: read the strips, analyse the overlaps and write OUTDIR (see the module docstring). Returns
-    what strips.json holds (with ``seconds`` and ``points_per_s``)."""
+    what strips.json holds (with ``seconds`` and ``points_per_s``). ``option``: what a refusal names (None: the
+    folder only, the chain's)."""
     t0 = time.perf_counter()
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
-    refuse_input_as_output(outdir, paths, "OUTDIR")
-    refuse_replacing(outdir, paths)
+    refuse_input_as_output(outdir, paths, option)
+    refuse_replacing(outdir, paths, option)
     from aerotri.geom.inputs import check_distinct_files
 
     check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice

@@ -77,8 +77,8 @@ def test_a_rerun_resumes_the_tiles_an_interrupted_run_finished(strips, tmp_path,
     assert f"tiles: resumed 2 of {n} tiles an interrupted run finished" in caplog.text
     assert _tree(root / "classified") == want
     assert st.run.class_counts == ref.run.class_counts and st.run.tiled_points == ref.run.tiled_points
-    assert not keep.exists() and sorted(p.name for p in root.rglob("*")) == ["classified", "strip_0.laz",
-                                                                               "strip_1.laz", "work"]
+    assert not keep.exists() and sorted(p.name for p in root.rglob("*")) == ["classified", "classify.json",
+                                                                               "strip_0.laz", "strip_1.laz", "work"]
 
 
 def test_a_changed_strip_resumes_nothing(strips, tmp_path, monkeypatch, caplog):

@@ -302,7 +302,10 @@ def test_strips_classified_together_equal_the_merged_file(strips, tmp_path):
     st = tiles.classify_files(paths, tmp_path / "classified", tile_size_m=100.0, buffer_m=40.0)
     assert st.n_files == 3 and st.n_points == merged.n_points and st.run.n_tiles == merged.run.n_tiles == 4
     outs = sorted((tmp_path / "classified").iterdir())
-    assert [p.name for p in outs] == ["strip_0.laz", "strip_1.las", "strip_2.laz"]
+    # and the record of what it wrote (a rerun replaces these, refuses a user's LAS/LAZ)
+    assert [p.name for p in outs] == ["classify.json", "strip_0.laz", "strip_1.las", "strip_2.laz"]
+    assert tiles.classified_record_names(tmp_path / "classified") == {"strip_0.laz", "strip_1.las", "strip_2.laz"}
+    outs = outs[1:]
     classes = []
     for src, out in zip(paths, outs):
         a, b = laspy.read(src), laspy.read(out)
@@ -357,12 +360,12 @@ def test_strips_that_differ_are_refused_naming_the_strip_and_leave_no_output(str
                                   "--tile-size-m", "100", "--buffer-m", "40"])
     assert r.exit_code == 0, r.output
     assert "of 3 strips" in r.output and sorted(p.name for p in (tmp_path / "out").iterdir()) == [
-        "strip_0.las", "strip_1.las", "strip_2.las"]
+        "classify.json", "strip_0.las", "strip_1.las", "strip_2.las"]
     # the folder is replaced as a whole: a previous run's strips may go, a user's file may not (it went, exit 0)
     (tmp_path / "out" / "notes.txt").write_text("mine")
     with pytest.raises(OptionError, match="holds notes.txt, which lidarctl classify did not write"):
         tiles.classify_files(paths, tmp_path / "out")
-    assert (tmp_path / "out" / "notes.txt").read_text() == "mine" and len(list((tmp_path / "out").iterdir())) == 4
+    assert (tmp_path / "out" / "notes.txt").read_text() == "mine" and len(list((tmp_path / "out").iterdir())) == 5
 
 
 def test_strips_evaluated_and_height_checked_as_the_merged_file(strips, tmp_path):

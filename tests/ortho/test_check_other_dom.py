@@ -5,6 +5,7 @@ read as the project's. Another DOM's check now goes beside that DOM, never over 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 from click.testing import CliRunner
@@ -56,3 +57,24 @@ def test_a_check_of_another_dom_is_never_the_projects_even_without_a_mosaic(tmp_
     cs = dom_checks({"displacement": {"rms_xy_m": 0.1, "count": 99}, "dom": "/x/other.tif",
                      "dom_is_project_mosaic": False}, None, stale=True)
     assert cs.rmse_h_m is None and "another DOM (/x/other.tif" in cs.note and "earlier mosaic" not in cs.note
+
+
+def test_a_dom_on_a_read_only_disk_is_refused_before_the_work_pointing_to_out(tmp_path, monkeypatch):
+    """Reviewer 14: `ortho check P --dom X` beside a read-only X matched every patch, then failed writing
+    X_dom_report.json. Now exit 2 before the work, naming --out (os.access stands in for a read-only mount: root
+    writes a chmod 555 folder)."""
+    import os
+
+    import pytest
+
+    import ortho.check as check
+    from aerotri.core.errors import OptionError
+
+    p = _project(tmp_path)
+    real_access = os.access
+    monkeypatch.setattr(check.os, "access", lambda path, mode: Path(path) != tmp_path and real_access(path, mode))
+    monkeypatch.setattr(check, "open_north_up", lambda *a, **k: pytest.fail("the work began"))
+    with pytest.raises(OptionError, match=r"other_dom_report.json: cannot write into .* \(beside the DOM, by "
+                                          r"default\): give --out") as e:
+        run_check(p, reference_path=tmp_path / "ref.tif", dom_path=tmp_path / "other.tif")
+    assert e.value.param == "--out"

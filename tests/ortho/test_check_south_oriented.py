@@ -48,7 +48,9 @@ def test_displacements_are_east_and_north_in_a_south_oriented_grid(tmp_path, eps
                                         (CRS.from_epsg(3413).to_wkt("WKT1_GDAL"), (1.0, 1.0)),  # as a GeoTIFF gives it
                                         ("EPSG:2051", (-1.0, -1.0)),
                                         (CRS.from_epsg(2051).to_wkt("WKT1_ESRI"), (-1.0, -1.0)),
-                                        ("+proj=tmerc +lon_0=25 +ellps=WGS84 +axis=wsu +units=m", (-1.0, -1.0))])
+                                        ("+proj=tmerc +lon_0=25 +ellps=WGS84 +axis=wsu +units=m", (-1.0, -1.0)),
+                                        # a BoundCRS (reviewer 14: (1, 1) from the bound CRS's JSON)
+                                        ("+proj=tmerc +axis=wsu +towgs84=0,0,0", (-1.0, -1.0))])
 def test_polar_grids_are_not_south_oriented(crs, signs):
     """PROJ labels a polar stereographic grid's axes "south along 45°E" (EPSG:3413, 5041): they still run right and
     up on the map (review 12c: 3413 read content 3 m south as n +3.02)."""

@@ -205,6 +205,8 @@ def map_axis_signs(crs) -> tuple[float, float]:
     runs along a meridian (polar stereographic grids: EPSG:3413's x "south along 45°E") is not south-oriented: its
     map x, y still run right and up, so +1."""
     h = horizontal_crs(parse_crs(crs.to_wkt() if hasattr(crs, "to_wkt") else crs))
+    if h.is_bound:  # a BoundCRS (+towgs84): its axes are the source CRS's (the JSON of the bound one has none)
+        h = h.source_crs
     axes = h.to_json_dict().get("coordinate_system", {}).get("axis", [])
     directions = [str(a.get("direction", "")).lower() for a in axes]
     # PROJ labels a polar grid's axes by the meridian they point along ("south along 90°E"), and WKT1 / a GeoTIFF's

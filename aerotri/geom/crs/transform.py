@@ -101,9 +101,16 @@ def _missing_grids(group: TransformerGroup) -> list:
 
 
 def grid_advice(grids) -> str:
-    names = ", ".join(name for name, _ in grids[:3])
+    """How to get the missing grids (``_missing_grids``: those of the operations PROJ could not run, which are
+    alternatives to one another: one of them is enough)."""
     first = grids[0][0]
-    return (f"the rigorous operation needs the PROJ grid {names}, which is not installed: get it with "
+    if len(grids) == 1:
+        needs = f"the PROJ grid {first}, which is not installed"
+    else:  # EGM2008: us_nga_egm08_25.tif or egm08_25.gtx, not both
+        names = [name for name, _ in grids[:3]]
+        alternatives = ", ".join(names[:-1]) + f" or {names[-1]}"
+        needs = f"one of the PROJ grids {alternatives}, none of which is installed"
+    return (f"the rigorous operation needs {needs}: get it with "
             f"`pyproj sync --file {first}` (PROJ's `projsync --file {first}` works too; or set "
             f"PROJ_NETWORK=ON on a machine with internet), or put the file into "
             f"{pyproj.datadir.get_user_data_dir()}")

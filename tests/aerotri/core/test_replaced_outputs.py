@@ -53,13 +53,28 @@ def test_a_strips_folder_is_ours_by_its_record_not_by_names(tmp_path):
     (out / "strips.json").write_text(json.dumps({"my": "notes"}))  # a user's strips.json is no record
     with pytest.raises(OptionError, match="did not write"):
         refuse_replacing(out, [])
+    # records written before 2026-11-28 have no schema_version: ours by their keys (reviewer 14)
+    for legacy in ({"convention": "b - a", "cell_m": 1.0, "pairs": []}, {"why": "nothing to compare"}):
+        (out / "strips.json").write_text(json.dumps(legacy))
+        refuse_replacing(out, [])
+    (out / "strips.json").unlink()
+    (out / "adjust.json").write_text(json.dumps({"model": "strip", "cell_m": 1.0, "parameters": {}}))
+    refuse_replacing(out, [])
+    (out / "adjust.json").write_text(json.dumps({"cell_m": 1.0}))  # one key of ours is not a record
+    with pytest.raises(OptionError) as err:
+        refuse_replacing(out, [], option=None)  # the chain: the folder named, not OUTDIR
+    assert err.value.param is None and err.value.user_message().startswith(f"Error: {out}: ")
+    (out / "adjust.json").unlink()
     for p in out.iterdir():
         p.unlink()
     (out / "Thumbs.db").write_bytes(b"x")
     refuse_replacing(out, [])  # empty but for clutter
 
 
-def test_classify_claims_the_names_of_its_inputs_others_with_a_warning(tmp_path, caplog):
+def test_classify_claims_its_recorded_names_or_without_a_record_those_of_its_inputs(tmp_path, caplog):
+    """Reviewer 14: `lidarctl classify strips... OUT_DIR` deleted a user's LAS/LAZ in OUT_DIR with a warning. Now
+    its record (classify.json) names what it wrote; without one only the names derived from this run's inputs
+    (an output written before the record) are replaced, other LAS/LAZ refused (exit 2, named)."""
     from lidarctl import tiles
 
     strips = [tmp_path / "in" / f"strip_{i}.las" for i in range(2)]
@@ -71,13 +86,21 @@ def test_classify_claims_the_names_of_its_inputs_others_with_a_warning(tmp_path,
     for name in ("strip_0.las", "strip_1.las", ".DS_Store"):
         (out / name).write_bytes(b"x")
     with caplog.at_level(logging.WARNING), pytest.raises(InputError, match="strip_0.las: not a LAS"):
-        tiles.classify_files(strips, out)  # past the folder check (silent), stopped by the fake strips
+        tiles.classify_files(strips, out)  # an old output of exactly our names: past the folder check, silent
     assert not [r for r in caplog.records if "replacing" in r.getMessage()]
-    (out / "old_strip.laz").write_bytes(b"x")
-    with caplog.at_level(logging.WARNING), pytest.raises(InputError, match="strip_0.las: not a LAS"):
+    (out / "users_tile.laz").write_bytes(b"x")
+    with pytest.raises(OptionError, match=r"holds users_tile.laz, which lidarctl classify \(the folder has no "
+                                          r"classify.json"):
         tiles.classify_files(strips, out)
-    warned = [r.getMessage() for r in caplog.records if "replacing" in r.getMessage()]
-    assert len(warned) == 1 and "old_strip.laz" in warned[0] and "strip_0.las" not in warned[0], warned
+    assert (out / "users_tile.laz").read_bytes() == b"x"
+    # with the record: what it names is ours (a run on other strips), nothing else
+    (out / tiles.CLASSIFY_RECORD).write_text(json.dumps({"schema_version": 1, "kind": tiles.CLASSIFY_RECORD_KIND,
+                                                         "files": ["users_tile.laz", "strip_0.las"]}))
+    with pytest.raises(OptionError, match=r"holds strip_1.las, which lidarctl classify did not write"):
+        tiles.classify_files(strips, out)
+    (out / "strip_1.las").unlink()
+    with pytest.raises(InputError, match="strip_0.las: not a LAS"):
+        tiles.classify_files(strips, out)
 
 
 def _contours():
@@ -134,3 +157,43 @@ def test_a_linked_output_folder_is_replaced_through_the_link(tmp_path):
     (tmp_path / "gone").rmdir()
     with pytest.raises(OptionError, match="broken: the output folder is a broken link"):
         refuse_foreign_contents(broken, _las_only, "lidarctl classify")
+
+
+_KILL_MID_SWAP = """
+import os, signal, sys
+import aerotri.core.atomic as A
+def replace(self, src, dst, kind):  # the old folder moved into the journal, killed before the new one moves in
+    entry = self.record(self.rel(dst), kind)
+    os.replace(os.path.join(self.base, self.rel(dst)), self.backup_path(entry))
+    os.kill(os.getpid(), signal.SIGKILL)
+A._Commit.replace = replace
+with A.atomic_dir(sys.argv[1]) as tmp:
+    (tmp / "strips.json").write_text("{}")
+"""
+
+
+def test_what_a_killed_run_left_beside_a_linked_outputs_target_is_recovered(tmp_path):
+    """Reviewer 14's killswap.py: OUTDIR a link; a run killed between moving the old folder into the commit
+    journal and the new one in left the journal (and temporaries) beside the link's target, never recovered:
+    the link stayed broken. The next command recovers and sweeps there too."""
+    import subprocess
+    import sys
+
+    from click.testing import CliRunner
+
+    from lidarctl.cli.main import main
+
+    target = tmp_path / "disk2" / "strips"
+    target.mkdir(parents=True)
+    (target / "strips.json").write_text('{"why": "old"}')
+    link = tmp_path / "project" / "strips"
+    link.parent.mkdir()
+    link.symlink_to(target, target_is_directory=True)
+    r = subprocess.run([sys.executable, "-c", _KILL_MID_SWAP, str(link)], capture_output=True)
+    assert r.returncode == -9
+    assert not target.exists() and [p.name for p in target.parent.iterdir() if ".commit-" in p.name]
+    assert [p.name for p in target.parent.iterdir() if ".part-" in p.name]  # the new folder's temporary
+    r = CliRunner().invoke(main, ["strips", "check", str(tmp_path / "missing.las"), str(link)])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert sorted(p.name for p in target.parent.iterdir()) == ["strips"]  # journal rolled back, temporary swept
+    assert (link / "strips.json").read_text() == '{"why": "old"}'

@@ -103,3 +103,48 @@ def test_no_other_module_writes_vector_files():
              for p in (REPO / pkg).rglob("*.py") for n, line in enumerate(p.read_text().splitlines(), 1)
              if writes.search(line)]
     assert len(found) == 1 and found[0].startswith("aerotri/core/vector_files.py:"), found
+
+
+def test_a_geopackage_with_a_write_ahead_log_is_not_replaced(tmp_path):
+    """Reviewer 14's gp/holdwal.py: QGIS edits the file in WAL mode; a rerun renamed the new file in and SQLite
+    replayed the old -wal onto it (integrity_check failed, the old tables appeared). Now exit 2 (InputError),
+    the old file and its log untouched, while a program holds it and after a crash; and an empty -wal/-shm
+    that nothing holds is removed and the file replaced."""
+    from aerotri.core.errors import InputError, OptionError
+    from aerotri.core.vector_files import refuse_foreign_layers
+
+    path = write_layers(tmp_path / "w.gpkg", _layers(), crs="EPSG:32649")
+    wal, shm = Path(f"{path}-wal"), Path(f"{path}-shm")
+    held = sqlite3.connect(path)  # QGIS editing: pages in the log, not yet checkpointed
+    held.execute("PRAGMA journal_mode=WAL")
+    held.execute("PRAGMA wal_autocheckpoint=0")
+    held.execute("CREATE TABLE scratch(a)")
+    held.executemany("INSERT INTO scratch VALUES (?)", [(bytes(3000),)] * 200)
+    held.commit()
+    assert wal.stat().st_size > 0
+    with pytest.raises(InputError, match=r"open for editing in QGIS.*remove w.gpkg-wal and w.gpkg-shm"):
+        write_layers(path, _layers()[:1], crs="EPSG:32649")
+    with pytest.raises(OptionError, match="open for editing in QGIS") as err:
+        refuse_foreign_layers(path, [layer.name for layer in _layers()], "test", option="OUT")
+    assert err.value.param == "OUT"
+    crashed = wal.read_bytes()  # what a killed QGIS leaves: the log, nobody holding it
+    held.close()
+    assert not wal.exists() and not shm.exists()  # the last connection checkpointed and removed them
+    wal.write_bytes(crashed)
+    with pytest.raises(InputError, match="or left by a crash"):
+        write_layers(path, _layers()[:1], crs="EPSG:32649")
+    wal.unlink()
+    held = sqlite3.connect(path)  # open, not editing: an empty log that a program holds
+    held.execute("SELECT count(*) FROM scratch").fetchone()
+    assert wal.exists()
+    with pytest.raises(InputError, match="open in another program"):
+        write_layers(path, _layers()[:1], crs="EPSG:32649")
+    held.close()
+    wal.write_bytes(b"")  # stale and empty, and an index beside it: removed, the file replaced
+    shm.write_bytes(bytes(32768))
+    write_layers(path, _layers()[:1], crs="EPSG:32649")
+    assert not wal.exists() and not shm.exists()
+    with sqlite3.connect(path) as db:
+        assert db.execute("PRAGMA integrity_check").fetchone() == ("ok",)
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    assert "spot_heights" in tables and "scratch" not in tables and "buildings" not in tables
