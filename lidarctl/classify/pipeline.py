@@ -563,6 +563,23 @@ def _others(dist, nb, points):
     return d, i
 
 
+def _ground_plane_chunks(x, y, z, gi, spacing_m: float, k: int):
+    """Per chunk ``a:b`` of the ground points ``gi``: ``(a, b, dist, nb, dz, spread)``, their ``k`` nearest other
+    ground points (within 6 mean point spacings, at least 1 m; ``dist`` inf where none), each point's height (m)
+    above the robust plane through them and the neighbours' robust spread about it (``_plane_offsets``)."""
+    radius_m = max(1.0, 6.0 * spacing_m)
+    gx, gy = x[gi] - x[gi].min(), y[gi] - y[gi].min()
+    # cKDTree's neighbours from a bucket grid (lidarctl.knn), a fraction of its CPU; in chunks of
+    # queries, so the neighbour arrays (k x 16 bytes a point) stay bounded on large tiles.
+    nbrs = BucketGrid(gx, gy, k + 1)
+    xf, yf, zf = np.asarray(x, float), np.asarray(y, float), np.asarray(z, float)
+    for a in range(0, len(gi), QUERY_CHUNK):
+        b = min(a + QUERY_CHUNK, len(gi))
+        dist, nb, _ = nbrs.query(gx[a:b], gy[a:b], k + 1, radius_m)
+        dist, nb = _others(dist, nb, gi)
+        yield (a, b, dist, nb, *_plane_offsets(xf, yf, zf, gi[a:b], nb, dist, min_points=5, robust=True))
+
+
 def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, intercepted=None,
                   k: int = 12, judge_single: bool = True) -> np.ndarray:
     """Ground points standing clear of the local ground surface under something that intercepted
@@ -586,19 +603,9 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, in
     gi = np.flatnonzero(is_ground)
     if lift_sigma <= 0 or intercepted is None or len(gi) < 4 * k or not (judge_single or np.any(intercepted[gi])):
         return out
-    radius_m = max(1.0, 6.0 * spacing_m)
-    gx, gy = x[gi] - x[gi].min(), y[gi] - y[gi].min()
-    # cKDTree's neighbours from a bucket grid (lidarctl.knn), a fraction of its CPU; in chunks of
-    # queries, so the neighbour arrays (k x 16 bytes a point) stay bounded on large tiles.
-    nbrs = BucketGrid(gx, gy, k + 1)
-    xf, yf, zf = np.asarray(x, float), np.asarray(y, float), np.asarray(z, float)
     dz, spread = np.empty(len(gi)), np.empty(len(gi))
-    for a in range(0, len(gi), QUERY_CHUNK):
-        b = min(a + QUERY_CHUNK, len(gi))
-        dist, nb, _ = nbrs.query(gx[a:b], gy[a:b], k + 1, radius_m)
-        dist, nb = _others(dist, nb, gi)
-        dz[a:b], spread[a:b] = _plane_offsets(xf, yf, zf, gi[a:b], nb, dist, min_points=5, robust=True)
-    del nbrs, dist, nb
+    for a, b, _, _, dz_ab, spread_ab in _ground_plane_chunks(x, y, z, gi, spacing_m, k):
+        dz[a:b], spread[a:b] = dz_ab, spread_ab
     ok = np.isfinite(dz)
     if ok.sum() < 4 * k:
         return out
@@ -638,23 +645,16 @@ def sunken_ground(x, y, z, is_ground, spacing_m: float, sink_sigma: float, *, mi
     gi = np.flatnonzero(is_ground)
     if sink_sigma <= 0 or len(gi) < 4 * k:
         return out
-    radius_m = max(1.0, 6.0 * spacing_m)
-    gx, gy = x[gi] - x[gi].min(), y[gi] - y[gi].min()
-    nbrs = BucketGrid(gx, gy, k + 1)
     xf, yf, zf = np.asarray(x, float), np.asarray(y, float), np.asarray(z, float)
     dz, spread = np.empty(len(gi)), np.empty(len(gi))
     cand_pos, cand_nb = [], []
-    for a in range(0, len(gi), QUERY_CHUNK):
-        b = min(a + QUERY_CHUNK, len(gi))
-        dist, nb, _ = nbrs.query(gx[a:b], gy[a:b], k + 1, radius_m)
-        dist, nb = _others(dist, nb, gi)
-        dz[a:b], spread[a:b] = _plane_offsets(xf, yf, zf, gi[a:b], nb, dist, min_points=5, robust=True)
+    for a, b, dist, nb, dz_ab, spread_ab in _ground_plane_chunks(x, y, z, gi, spacing_m, k):
+        dz[a:b], spread[a:b] = dz_ab, spread_ab
         # Keep the neighbours of the points sunk by more than the spread alone allows (few): the
         # global sigma is known only after the last chunk.
         low = np.flatnonzero(np.nan_to_num(dz[a:b], nan=0.0) < -sink_sigma * np.nan_to_num(spread[a:b], nan=np.inf))
         cand_pos.append(a + low)
         cand_nb.append(np.where(np.isfinite(dist[low]), nb[low], -1))
-    del nbrs
     ok = np.isfinite(dz)
     if ok.sum() < 4 * k:
         return out
