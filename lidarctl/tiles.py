@@ -631,21 +631,30 @@ def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUni
 
     x0, y0 = lowest
 
-    def histogram(cell_m, desc, with_cells=False, with_heights=False):
+    def histogram(cell_m, desc, with_cells=False, with_heights=False, keep_heights=True):
         jobs = [CellCountTask(t.row, t.col, t.points_path, grid, units, x0, y0, cell_m, with_cells, with_heights)
                 for t in tasks]
         total, cells, heights, lowest_i = np.zeros(1, np.int64), [], [], []
+        intensity_hist = np.zeros(1, np.int64)  # without keep_heights: the cells' lowest intensities, counted
         for h in executor.map(cell_count_histogram, jobs, desc=desc, unit="tile"):
             if with_heights:
                 h, ij, zz, ii = h
-                heights.append(zz)
-                lowest_i.append(ii)
-            if with_cells or with_heights:
+                if keep_heights:
+                    heights.append(zz)
+                    lowest_i.append(ii)
+                else:  # memory of one tile, not of the cloud's cells
+                    b = np.bincount(np.asarray(ii, np.int64), minlength=1)
+                    if len(b) > len(intensity_hist):
+                        b, intensity_hist = intensity_hist, b
+                    intensity_hist[:len(b)] += b
+            if with_cells or (with_heights and keep_heights):
                 h, ij = (h, ij) if with_heights else h
                 cells.append(ij)
             if len(h) > len(total):
                 h, total = total, h
             total[:len(h)] += h
+        if with_heights and not keep_heights:
+            return total, intensity_hist
         if with_heights:
             return total, np.concatenate(cells), np.concatenate(heights), np.concatenate(lowest_i)
         return (total, np.concatenate(cells)) if with_cells else total
@@ -659,12 +668,16 @@ def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUni
     occ[ij[:, 0], ij[:, 1]] = True
     wg = cl.WaterGrid(cell_m=float(c), x0_m=float(x0), y0_m=float(y0), median_count=0.0,
                       footprint_10m=cl.survey_footprint(occ))
-    # the water cells: their returns per cell, lowest, median and highest return and the lowest one's intensity
+    # the water cells: their returns per cell and the lowest return's intensity (the land's reflectance); with the
+    # whole cloud's level bodies (``water_whole_level_bodies``) also each cell's lowest, median and highest return
+    bodies = params.water_whole_level_bodies and params.level_water_min_area_m2 > 0
+    if not bodies:
+        hist, intensity_hist = histogram(c, "tiles: water cells", with_heights=True, keep_heights=False)
+        return dataclasses.replace(wg, median_count=_median_of_histogram(hist), land_intensity=float(
+            _median_of_histogram(intensity_hist)) if intensity_hist.sum() else float("nan"))
     hist, cells, heights, lowest_intensity = histogram(c, "tiles: water cells", with_heights=True)
     wg = dataclasses.replace(wg, median_count=_median_of_histogram(hist), land_intensity=float(
         np.median(lowest_intensity)) if len(lowest_intensity) else float("nan"))
-    if params.level_water_min_area_m2 <= 0:
-        return wg
     return dataclasses.replace(wg, level_bodies=cl.whole_level_bodies(cells, heights, wg, params))
 
 

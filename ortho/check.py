@@ -457,13 +457,18 @@ def dom_white_level(ds, path) -> tuple[float, str]:
     (12-bit data in a 16-bit DOM: 4 grey levels of 8 bits are 64 DN, not 4): 255 for 8 bits; the NBITS tag; a 16-bit
     project mosaic's white level from the mosaic.json beside it (the frames': 4095 for the DMC's 12-bit data); else
     for 16 bits the DOM's largest sample (its smallest overview) rounded up to whole bits, 10 to 16, as the mosaic
-    finds the frames'. Other sample types (float): 255, the threshold as given."""
+    finds the frames'. Float samples: 1.0 when the largest is at most 1 (a 0-1 float DOM: review 15, "no usable
+    patches" at 4 of 255), else 255, the threshold as given; other types: 255."""
     dtype = np.dtype(ds.dtypes[0])
     if dtype == np.uint8:
         return 255.0, "8-bit samples"
     nbits = ds.tags(1, ns="IMAGE_STRUCTURE").get("NBITS")
     if nbits and str(nbits).isdigit():
         return float((1 << int(nbits)) - 1), f"NBITS {nbits}"
+    if dtype.kind == "f":
+        biggest = float(_largest_sample(ds))
+        if 0.0 < biggest <= 1.0:
+            return 1.0, f"{dtype} samples in 0-1"
     if dtype != np.uint16:
         return 255.0, f"{dtype} samples: the threshold as given"
     summary = Path(path).with_suffix(".json")
@@ -474,11 +479,16 @@ def dom_white_level(ds, path) -> tuple[float, str]:
             white = None
         if isinstance(white, (int, float)) and white > 0:
             return float(white), f"white level of {summary.name}"
-    ov = ds.overviews(1)
-    f = ov[-1] if ov else max(1, max(ds.width, ds.height) // 1024)
-    biggest = int(ds.read(1, out_shape=(max(1, ds.height // f), max(1, ds.width // f)), masked=True).max() or 0)
+    biggest = int(_largest_sample(ds))
     n = min(16, max(10, biggest.bit_length()))
     return float((1 << n) - 1), f"largest sample {biggest}: {n} bits"
+
+
+def _largest_sample(ds):
+    """The largest valid sample of band 1, read from its smallest overview (or about 1,024 px across)."""
+    ov = ds.overviews(1)
+    f = ov[-1] if ov else max(1, max(ds.width, ds.height) // 1024)
+    return ds.read(1, out_shape=(max(1, ds.height // f), max(1, ds.width // f)), masked=True).max() or 0
 
 
 def metres_per_unit(ds, what: str = "DOM") -> float:

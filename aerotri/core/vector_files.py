@@ -160,18 +160,15 @@ def refuse_open_geopackage(path, option: str | None = None) -> None:
     non-empty write-ahead log beside it (``<path>-wal``: open for editing in QGIS, or left by a crash), or
     an empty ``-wal``/``-shm`` that another program still holds. SQLite replays a ``-wal`` onto whatever file
     bears the name, so a file renamed in over the old one would take the old one's pages (``pragma
-    integrity_check`` fails, the old tables reappear). An empty ``-wal`` and a ``-shm`` that nothing holds are
-    removed (SQLite removes both when the last connection closes: we open and close one)."""
+    integrity_check`` fails, the old tables reappear). A log nothing holds (empty, or left by a crash) is written
+    into the file and removed with its ``-shm`` (SQLite checkpoints and removes both when the last connection
+    closes: we open and close one; removing a crash's log instead would lose what it holds, review 15)."""
     path = Path(path)
     wal, shm = Path(f"{path}-wal"), Path(f"{path}-shm")
     if not wal.exists() and not shm.exists():
         return
     error = OptionError if option else InputError
-    advice = (f"save and close it, or remove {wal.name} and {shm.name} if nothing holds it (a crash left them); "
-              "then run again")
-    if wal.exists() and wal.stat().st_size > 0:
-        raise error(f"{path}: open for editing in QGIS (or left by a crash): its SQLite write-ahead log {wal.name} "
-                    f"holds changes that SQLite would replay onto the new file: {advice}", param=option)
+    advice = "save and close it in the program that holds it, then run again"
     if path.is_file():
         # the last connection to close checkpoints the (empty) log and removes -wal and -shm; a program that
         # holds the file keeps them (and would write its log over the new file)
@@ -184,8 +181,8 @@ def refuse_open_geopackage(path, option: str | None = None) -> None:
         with contextlib.suppress(OSError):
             shm.unlink(missing_ok=True)
     if wal.exists() and wal.stat().st_size > 0:
-        raise error(f"{path}: open for editing in QGIS (or left by a crash): its SQLite write-ahead log {wal.name} "
-                    f"holds changes that SQLite would replay onto the new file: {advice}", param=option)
+        raise error(f"{path}: open for editing in QGIS (another program holds it): its SQLite write-ahead log "
+                    f"{wal.name} holds changes that SQLite would replay onto the new file: {advice}", param=option)
     if wal.exists():
         raise error(f"{path}: open in another program (QGIS?): its SQLite log {wal.name} is held, and SQLite "
                     f"would apply it to the new file: {advice}", param=option)

@@ -11,5 +11,6 @@
 # causeways are ground); 7: i44-edge-fixes (a river up to 100 m wide crossing the survey is inside its footprint;
 # the whole cloud's level bodies: regions at different levels side by side stay apart, roofs and walls are no
 # bank); 8: s13-fixes (a one-gap deck's ends on land across up to 12 m of water, was 6: a dropout band over one
-# bank). sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
-RULES_VERSION = 8
+# bank); 9: the whole cloud's level bodies an option, off by default (review 15: memory by the cloud's bounding
+# box; quays above 2.8 m). sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
+RULES_VERSION = 9

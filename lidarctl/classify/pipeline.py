@@ -218,6 +218,14 @@ class ClassifySettings:
                                           "10 m cells, closed by one cell, with their holes filled; the empty cells of "
                                           "its ragged edge joined to the outside) are no gap that level water is "
                                           "joined across or a bridge deck spans.")
+    # The whole cloud's level water bodies for the level regions a tile's window cuts (i44-edge): a lake larger than a
+    # tile and its buffer judged whole. Off by default (review 15): its grids cover the cloud's bounding box at the
+    # water cell, 69 bytes a cell (a 50 km diagonal corridor at 1.4 m cells: about 44 GB), and its bank rule rejects a
+    # basin whose quays stand 2.8 m or more above the water while a tile's own pass finds it (seams between tiles).
+    water_whole_level_bodies: bool = setting(False, help="Level water in tiles: the level regions a tile's window "
+                                             "cuts judged by the whole cloud's level bodies (a lake larger than a "
+                                             "tile). Memory about 69 bytes per cell of the cloud's bounding box at the "
+                                             "water cell: for compact blocks only.")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
     # across the water): a two-lane road with pavements is ~15 m. 0 disables the bridge rule.
     bridge_max_width_m: float = setting(20.0, min=0.0, help="A bridge deck is at most this long along the water it "

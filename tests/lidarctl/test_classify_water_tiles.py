@@ -86,14 +86,18 @@ def test_lake_larger_than_a_tile_and_its_buffer(tmp_path, kind):
     """A lake 170 m across in 40 m tiles with a 20 m buffer: the middle tiles' windows lie wholly on the water (no
     bank, no land to measure the darkness against). Their level regions take the whole cloud's level bodies
     (``pipeline.whole_level_bodies``) and the darkness the whole cloud's land (``WaterGrid.land_intensity``);
-    before i44-edge the level lake lost 10 % of its returns in tiles (the 340 m bench lake: 20,151 of 182,381)."""
+    before i44-edge the level lake lost 10 % of its returns in tiles (the 340 m bench lake: 20,151 of 182,381). The
+    whole cloud's level bodies are an option (``water_whole_level_bodies``, off by default since review 15: memory by
+    the cloud's bounding box)."""
+    assert not classify.ClassifySettings().water_whole_level_bodies
     cloud, truth, park, forest = big_lake_scene(kind, size_m=240.0, radius_m=85.0, density=1.5)
     src = tmp_path / f"{kind}.laz"
     synthetic.write_las(src, cloud, crs="EPSG:32610")
     whole_cls = classify.classify_points(cloud.x, cloud.y, cloud.z, cloud.return_number, cloud.number_of_returns,
                                          cloud.intensity)
     whole = whole_cls == classify.WATER
-    tiles.classify_file(src, tmp_path / "tiled.laz", tile_size_m=40.0, buffer_m=20.0)
+    tiles.classify_file(src, tmp_path / "tiled.laz", params=classify.ClassifySettings(water_whole_level_bodies=True),
+                        tile_size_m=40.0, buffer_m=20.0)
     tiled_cls = np.asarray(laspy.read(tmp_path / "tiled.laz").classification)
     tiled = tiled_cls == classify.WATER
     for w in (whole, tiled):
@@ -144,6 +148,11 @@ def test_water_grid_of_the_tiles_is_the_whole_clouds(tmp_path):
     from aerotri.core.executor import local_executor
 
     wg = tiles.water_grid(tasks, grid, p, lowest, local_executor())
+    # the land's reflectance without the cells' heights kept (the default) as with them (the level bodies' option)
+    with_bodies = tiles.water_grid(tasks, grid, classify.ClassifySettings(water_whole_level_bodies=True), lowest,
+                                   local_executor())
+    assert np.isfinite(wg.land_intensity) and wg.land_intensity == with_bodies.land_intensity
+    assert wg.level_bodies is None and with_bodies.level_bodies is not None
     assert (wg.x0_m, wg.y0_m) == (g.x0, g.y0)
     assert wg.cell_m == pytest.approx(g.c, rel=1e-12)
     assert wg.median_count == g.median_count

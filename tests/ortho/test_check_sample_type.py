@@ -39,3 +39,17 @@ def test_8_and_16_bit_doms_of_the_same_block_measure_the_same_patches(tmp_path):
         counts[bits] = json.loads(Path(f"{out}.json").read_text())["displacement"]["count"]
     # the same patches up to the 8-bit DOM's rounding at the threshold (163 / 164; before: 268 / 164)
     assert counts[8] > 100 and abs(counts[16] - counts[8]) <= 0.02 * counts[8], counts
+
+
+def test_a_float_dom_in_0_1_is_checked_at_its_own_white(tmp_path):
+    """Review 15: a 0-1 float DOM kept the 8-bit threshold (4 grey levels of 255 in its own units: no patch has that
+    much texture), "No usable patches" with exit 0; its white is 1.0 now."""
+    from rasterio.transform import from_origin
+
+    rng = np.random.default_rng(1)
+    path = tmp_path / "float_dom.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=64, height=64, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=from_origin(500000, 3400000, 0.5, 0.5)) as ds:
+        ds.write(rng.uniform(0.1, 0.9, (1, 64, 64)).astype("float32"))
+    with rasterio.open(path) as ds:
+        assert dom_white_level(ds, path) == (1.0, "float32 samples in 0-1")

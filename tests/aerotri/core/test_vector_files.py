@@ -108,8 +108,9 @@ def test_no_other_module_writes_vector_files():
 def test_a_geopackage_with_a_write_ahead_log_is_not_replaced(tmp_path):
     """Reviewer 14's gp/holdwal.py: QGIS edits the file in WAL mode; a rerun renamed the new file in and SQLite
     replayed the old -wal onto it (integrity_check failed, the old tables appeared). Now exit 2 (InputError),
-    the old file and its log untouched, while a program holds it and after a crash; and an empty -wal/-shm
-    that nothing holds is removed and the file replaced."""
+    the old file and its log untouched, while a program holds it; a log left by a crash (nothing holds it) is
+    written into the old file first (review 15: removing it, as the message advised, lost the file's tables) and the
+    file replaced; an empty -wal/-shm that nothing holds is removed and the file replaced."""
     from aerotri.core.errors import InputError, OptionError
     from aerotri.core.vector_files import refuse_foreign_layers
 
@@ -122,7 +123,7 @@ def test_a_geopackage_with_a_write_ahead_log_is_not_replaced(tmp_path):
     held.executemany("INSERT INTO scratch VALUES (?)", [(bytes(3000),)] * 200)
     held.commit()
     assert wal.stat().st_size > 0
-    with pytest.raises(InputError, match=r"open for editing in QGIS.*remove w.gpkg-wal and w.gpkg-shm"):
+    with pytest.raises(InputError, match=r"open for editing in QGIS.*save and close it"):
         write_layers(path, _layers()[:1], crs="EPSG:32649")
     with pytest.raises(OptionError, match="open for editing in QGIS") as err:
         refuse_foreign_layers(path, [layer.name for layer in _layers()], "test", option="OUT")
@@ -131,11 +132,15 @@ def test_a_geopackage_with_a_write_ahead_log_is_not_replaced(tmp_path):
     held.close()
     assert not wal.exists() and not shm.exists()  # the last connection checkpointed and removed them
     wal.write_bytes(crashed)
-    with pytest.raises(InputError, match="or left by a crash"):
-        write_layers(path, _layers()[:1], crs="EPSG:32649")
-    wal.unlink()
-    held = sqlite3.connect(path)  # open, not editing: an empty log that a program holds
-    held.execute("SELECT count(*) FROM scratch").fetchone()
+    write_layers(path, _layers(), crs="EPSG:32649")  # the crash's log checkpointed into the old file, then replaced
+    assert not wal.exists() and not shm.exists()
+    with sqlite3.connect(path) as db:
+        assert db.execute("PRAGMA integrity_check").fetchone() == ("ok",)
+        assert "scratch" not in {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    held = sqlite3.connect(path)
+    held.execute("PRAGMA journal_mode=WAL")
+    held.execute("PRAGMA wal_checkpoint(TRUNCATE)")  # open, not editing: an empty log that a program holds
+    held.execute("SELECT count(*) FROM sqlite_master").fetchone()
     assert wal.exists()
     with pytest.raises(InputError, match="open in another program"):
         write_layers(path, _layers()[:1], crs="EPSG:32649")
