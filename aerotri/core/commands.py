@@ -184,6 +184,9 @@ class Command(click.Command):
         # what a killed run left there (temporaries, an unfinished commit) is recovered and swept there too
         real = Path(os.path.realpath(out))
         if real.parent.is_dir() and real.parent != Path(os.path.realpath(parent)):
+            # and under the target's own lock: a run writing the target by its real path (or by another link) holds
+            # that one, and its live temporaries must not be swept (review 15)
+            stack.enter_context(hold_lock(real.parent / f".{real.name}.lock", command, wait_s, str(real)))
             recover_commits(real.parent)
             remove_leftovers(real.parent, names=[real.name])
         if out.is_dir():

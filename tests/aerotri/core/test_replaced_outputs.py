@@ -197,3 +197,44 @@ def test_what_a_killed_run_left_beside_a_linked_outputs_target_is_recovered(tmp_
     assert r.exit_code == 2 and "Traceback" not in r.output
     assert sorted(p.name for p in target.parent.iterdir()) == ["strips"]  # journal rolled back, temporary swept
     assert (link / "strips.json").read_text() == '{"why": "old"}'
+
+
+_HOLD_TARGET = """
+import sys, time
+from pathlib import Path
+from aerotri.core.lock import hold_lock
+real = Path(sys.argv[1])
+with hold_lock(real.parent / f".{real.name}.lock", "ortho mosaic", 0, str(real)):
+    (real.parent / f".{real.name}.part-live").mkdir()
+    print("held", flush=True)
+    time.sleep(30)
+"""
+
+
+def test_a_run_through_a_link_waits_for_a_run_on_the_links_target(tmp_path):
+    """Review 15's lk.py: run A writes real/out (its lock and a live temporary beside it); run B writes link/out, a
+    link to real/out. B took only the lock beside the link and swept A's live temporary. B now also takes the
+    target's lock: busy, A's temporary kept."""
+    import contextlib
+    import subprocess
+    import sys
+    import types
+
+    from aerotri.core.commands import Command
+    from aerotri.core.lock import BusyError
+
+    real = tmp_path / "real" / "out"
+    real.mkdir(parents=True)
+    link = tmp_path / "link" / "out"
+    link.parent.mkdir()
+    link.symlink_to(real, target_is_directory=True)
+    a = subprocess.Popen([sys.executable, "-c", _HOLD_TARGET, str(real)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert a.stdout.readline().strip() == "held"
+        ns = types.SimpleNamespace(_writes_to=[], per_stage=True)
+        with pytest.raises(BusyError), contextlib.ExitStack() as stack:
+            Command._lock_output(ns, stack, link, "ortho mosaic", 0, lambda home: None)
+        assert (tmp_path / "real" / ".out.part-live").is_dir()
+    finally:
+        a.kill()
+        a.wait()
