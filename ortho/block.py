@@ -841,9 +841,8 @@ def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
     ground measures, most often a zone chosen by mistake. Names the zone of the block's longitude in the same family
     of grids (``_zone_of_same_family``) and the block's UTM zone; Web Mercator (EPSG:3857, k = 1 / cos(lat): 1.16 at
     30 degrees, 1.74 at 55) is said to be no mapping grid at all."""
-    import pyproj
-
-    from aerotri.geom.crs.definition import GRID_SCALE_LIMIT, crs_label, horizontal_crs
+    from aerotri.geom.crs.definition import (GRID_SCALE_LIMIT, crs_label, horizontal_crs, point_scale_factor,
+                                             utm_zone_label)
     from aerotri.geom.crs.transform import to_own_geodetic
 
     h = horizontal_crs(out_crs)
@@ -851,11 +850,10 @@ def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
         return
     lon, lat, _ = to_own_geodetic(project_crs, np.array([centre_xy[0]]), np.array([centre_xy[1]]), np.array([0.0]))
     lon, lat = float(lon[0]), float(lat[0])
-    k = _point_scale(h, lon, lat)
+    k = point_scale_factor(h, lon, lat)
     if not np.isfinite(k) or abs(k - 1.0) <= GRID_SCALE_LIMIT:
         return
-    zone = int((lon + 180.0) // 6.0) + 1
-    utm = f"EPSG:{32600 + zone if lat >= 0 else 32700 + zone}"
+    utm = utm_zone_label(lon, lat)
     said = (f"the output CRS {crs_label(out_crs)} ({h.name}) has a scale factor of {k:.4f} where the block is "
             f"(lon {lon:.2f}, lat {lat:.2f}): a pixel of {res:g} grid units is {res / k:.4g} m on the ground "
             f"({abs(k - 1.0) * 1000:.0f} mm per metre)")
@@ -874,14 +872,6 @@ def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
     _log.warning(f"{said}; is it the contract's zone? {advice}; the block's UTM zone is {utm}{gk3}")
 
 
-def _point_scale(h, lon: float, lat: float) -> float:
-    """The point scale factor (geometric mean of meridional and parallel) of the projected CRS ``h`` at a point."""
-    import pyproj
-
-    f = pyproj.Proj(h).get_factors(lon, lat)
-    return float(np.sqrt(f.meridional_scale * f.parallel_scale))
-
-
 def _zone_of_same_family(h, lon: float, lat: float, limit: float):
     """The EPSG projected CRS of the family of ``h`` (the same name but for its numbers: "ETRS89 / UTM zone 33N" ->
     zone 32N, "CGCS2000 / 3-degree Gauss-Kruger CM 123E" -> CM 111E; the same projection method and datum) whose
@@ -891,6 +881,8 @@ def _zone_of_same_family(h, lon: float, lat: float, limit: float):
     import pyproj
     from pyproj.aoi import AreaOfInterest
     from pyproj.enums import PJType
+
+    from aerotri.geom.crs.definition import point_scale_factor
 
     pattern = re.sub(r"\d+", "#", h.name)
     method = h.coordinate_operation.method_name if h.coordinate_operation is not None else None
@@ -903,7 +895,7 @@ def _zone_of_same_family(h, lon: float, lat: float, limit: float):
         if c.coordinate_operation is None or c.coordinate_operation.method_name != method or \
                 not c.geodetic_crs.equals(h.geodetic_crs, ignore_axis_order=True):
             continue
-        dk = abs(_point_scale(c, lon, lat) - 1.0)
+        dk = abs(point_scale_factor(c, lon, lat) - 1.0)
         if dk <= best_dk:
             best, best_dk = c, dk
     return best

@@ -219,9 +219,7 @@ def check_point_ids(project: Project, block: ImportedBlock, replaced: set) -> No
 def scale_note(project: Project, block: ImportedBlock) -> list[str]:
     """A note when the project CRS's point scale factor where the imported positions lie is off 1 by more than
     ``SCALE_LIMIT`` (Web Mercator at Brighton Beach: 1.462): its metres are then no ground metres."""
-    import pyproj
-
-    from aerotri.geom.crs.definition import crs_label, horizontal_crs, project_crs
+    from aerotri.geom.crs.definition import crs_label, horizontal_crs, point_scale_factor, project_crs, utm_zone_label
     from aerotri.geom.crs.transform import to_own_geodetic
 
     found = _imported_positions(block)
@@ -230,12 +228,10 @@ def scale_note(project: Project, block: ImportedBlock) -> list[str]:
         return []
     xyz = np.median(np.vstack([f[2] for f in found]), axis=0)
     lon, lat, _ = to_own_geodetic(crs, np.array([xyz[0]]), np.array([xyz[1]]), np.array([0.0]))
-    f = pyproj.Proj(horizontal_crs(crs)).get_factors(float(lon[0]), float(lat[0]))
-    k = float(np.sqrt(f.meridional_scale * f.parallel_scale))
+    k = point_scale_factor(horizontal_crs(crs), lon[0], lat[0])
     if not np.isfinite(k) or abs(k - 1.0) <= SCALE_LIMIT:
         return []
-    zone = int((float(lon[0]) + 180.0) // 6.0) + 1
-    utm = f"EPSG:{32600 + zone if lat[0] >= 0 else 32700 + zone}"
+    utm = utm_zone_label(lon[0], lat[0])
     return [f"project CRS {crs_label(crs)} has a scale factor of {k:.3f} where the block is (lat {float(lat[0]):.2f}, "
             f"lon {float(lon[0]):.2f}): a ground metre is {k:.3f} of its units, so pixel sizes (ortho rectify "
             f"--res-m), GSDs and accuracy limits in them are no ground measures; a map grid made for measuring, e.g. "

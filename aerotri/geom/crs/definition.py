@@ -146,6 +146,21 @@ def unit_name(crs: pyproj.CRS) -> str:
 # warning): survey grids keep it within 0.1 % (UTM: 0.9996-1.001 in its zone); a web map's Pseudo-Mercator is 1.15 at
 # 30 degrees latitude, 1.46 at 47
 GRID_SCALE_LIMIT = 0.01
+
+
+def point_scale_factor(crs, lon_deg: float, lat_deg: float) -> float:
+    """The point scale factor of the projected CRS ``crs`` at (lon, lat) in degrees: the geometric mean of its
+    meridional and parallel scales (1.0004 on a UTM zone's edge, 1.46 for Web Mercator at 47 degrees)."""
+    f = pyproj.Proj(crs).get_factors(float(lon_deg), float(lat_deg))
+    return float(np.sqrt(f.meridional_scale * f.parallel_scale))
+
+
+def utm_zone_label(lon_deg: float, lat_deg: float) -> str:
+    """The WGS 84 UTM zone of (lon, lat) in degrees as an EPSG label (EPSG:326zz north, 327zz south)."""
+    zone = int((float(lon_deg) + 180.0) // 6.0) + 1
+    return f"EPSG:{32600 + zone if lat_deg >= 0 else 32700 + zone}"
+
+
 _LONG_NAMES = {"deg": "degree", "m": "metre", "ft": "foot", "us-ft": "US survey foot"}
 
 
