@@ -334,9 +334,6 @@ def pairs_stats(dz_per_pair: list[np.ndarray]) -> DiffStats:
     return dataclasses.replace(pooled, nmad_m=float(NMAD_K * np.median(np.abs(within))))
 
 
-all_pairs_stats = pairs_stats  # (its name before the strips' statistics took it too)
-
-
 def scan_profile(dz: np.ndarray, angle_deg: np.ndarray, u_m: np.ndarray, bin_deg: float = SCAN_BIN_DEG) -> ScanProfile:
     """dz binned by scan angle (mean, NMAD, n per bin) and the robust fit dz = c + s u + q u^2 over the
     across-track position (Huber-weighted; u in metres)."""
