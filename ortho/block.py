@@ -840,7 +840,8 @@ def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
     110.5 E, in CGCS2000 GK CM 123E, EPSG:4550: 1.0178, 18 mm per metre) makes pixels and distances that are no
     ground measures, most often a zone chosen by mistake. Names the zone of the block's longitude in the same family
     of grids (``_zone_of_same_family``) and the block's UTM zone; Web Mercator (EPSG:3857, k = 1 / cos(lat): 1.16 at
-    30 degrees, 1.74 at 55) is said to be no mapping grid at all."""
+    30 degrees, 1.74 at 55) is said to be no mapping grid at all. A block more than ``OUTSIDE_AREA_OF_USE_DEG``
+    outside the CRS's area of use is warned whatever the scale (a UTM zone one off at 50-60 degrees latitude)."""
     from aerotri.geom.crs.definition import (GRID_SCALE_LIMIT, crs_label, horizontal_crs, point_scale_factor,
                                              utm_zone_label)
     from aerotri.geom.crs.transform import to_own_geodetic
@@ -851,12 +852,15 @@ def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
     lon, lat, _ = to_own_geodetic(project_crs, np.array([centre_xy[0]]), np.array([centre_xy[1]]), np.array([0.0]))
     lon, lat = float(lon[0]), float(lat[0])
     k = point_scale_factor(h, lon, lat)
-    if not np.isfinite(k) or abs(k - 1.0) <= GRID_SCALE_LIMIT:
+    outside_deg = _degrees_outside_area_of_use(h, lon, lat)
+    if not np.isfinite(k) or (abs(k - 1.0) <= GRID_SCALE_LIMIT and outside_deg <= OUTSIDE_AREA_OF_USE_DEG):
         return
     utm = utm_zone_label(lon, lat)
     said = (f"the output CRS {crs_label(out_crs)} ({h.name}) has a scale factor of {k:.4f} where the block is "
             f"(lon {lon:.2f}, lat {lat:.2f}): a pixel of {res:g} grid units is {res / k:.4g} m on the ground "
-            f"({abs(k - 1.0) * 1000:.0f} mm per metre)")
+            f"({abs(k - 1.0) * 1000:.1f} mm per metre)")
+    if outside_deg > OUTSIDE_AREA_OF_USE_DEG:
+        said += f", and the block lies {outside_deg:.1f} degrees outside its area of use ({h.area_of_use.name})"
     method = (h.coordinate_operation.method_name if h.coordinate_operation is not None else "").lower()
     if "pseudo mercator" in method or "popular visualisation" in method:
         _log.warning(f"{said}; Web Mercator is a web map's display grid, not a mapping grid for measured products "
@@ -870,6 +874,24 @@ def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
     if h.geodetic_crs.datum.name in ("China 2000", "China Geodetic Coordinate System 2000") and 73.0 <= lon <= 136.0:
         gk3 = "; --crs gk3:cgcs2000 takes its 3-degree Gauss-Krueger zone"
     _log.warning(f"{said}; is it the contract's zone? {advice}; the block's UTM zone is {utm}{gk3}")
+
+
+# a block centre this far outside the output CRS's area of use (PROJ's) is warned whatever the scale: a UTM zone
+# off by one is 1.0019 at 50 degrees latitude, inside the scale limit, and still most likely a zone chosen by mistake
+OUTSIDE_AREA_OF_USE_DEG = 1.0
+
+
+def _degrees_outside_area_of_use(h, lon: float, lat: float) -> float:
+    """How far (lon, lat) lies outside the area of use of CRS ``h`` in degrees (the larger of the longitude and
+    latitude distances; 0 inside it or when the CRS states none). Longitudes compared modulo 360."""
+    area = h.area_of_use
+    if area is None:
+        return 0.0
+    width = (area.east - area.west) % 360.0 or 360.0  # an area across the antimeridian has west > east
+    east_of_west = (lon - area.west) % 360.0
+    dlon = 0.0 if east_of_west <= width else min(east_of_west - width, 360.0 - east_of_west)
+    dlat = max(area.south - lat, lat - area.north, 0.0)
+    return float(max(dlon, dlat))
 
 
 def _zone_of_same_family(h, lon: float, lat: float, limit: float):

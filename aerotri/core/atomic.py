@@ -52,6 +52,8 @@ log = logging.getLogger(__name__)
 
 
 TEMP_MARKER = ".part-"
+# the work folders an output may have beside it, ``.<name or stem>.<word>.part-*`` (lidarctl.tiles, roof corners)
+WORK_FOLDER_WORDS = ("tiles", "corners")
 COMMIT_MARKER = ".commit-"
 _JOURNAL = "journal"
 _OLD = "old"
@@ -531,8 +533,11 @@ def remove_leftovers(folder, names=None) -> list[Path]:
     if names is None:
         found = folder.glob(f".*{TEMP_MARKER}*")
     else:  # .<name>.part-*, .<stem>.part-*, and the work folders named after them (.<stem>.tiles.part-*)
-        prefixes = {f".{n}." for name in names for n in (Path(name).name, Path(name).stem)}
-        found = [q for q in folder.glob(f".*{TEMP_MARKER}*") if any(q.name.startswith(p) for p in prefixes)]
+        # by whole names: a stem's prefix alone (".ortho.") would take the live temporaries of another output
+        # written at the same time (".ortho.v2.part-*" for ortho.v1, ".mosaic.tif.part-*" for mosaic.json)
+        prefixes = tuple(f".{n}{work}{TEMP_MARKER}" for name in names for n in (Path(name).name, Path(name).stem)
+                         for work in ("", *(f".{w}" for w in WORK_FOLDER_WORDS)))
+        found = [q for q in folder.glob(f".*{TEMP_MARKER}*") if q.name.startswith(prefixes)]
     for q in sorted(found):
         if q.is_dir():
             shutil.rmtree(q, ignore_errors=True)

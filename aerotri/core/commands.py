@@ -183,7 +183,7 @@ class Command(click.Command):
         # a linked output (a link to a folder or file elsewhere) is written beside its target (``atomic_dir``):
         # what a killed run left there (temporaries, an unfinished commit) is recovered and swept there too
         real = Path(os.path.realpath(out))
-        if real.parent.is_dir() and real.parent != Path(os.path.realpath(parent)):
+        if real.parent.is_dir() and real != Path(os.path.realpath(parent)) / out.name:  # a link, in any folder
             # and under the target's own lock: a run writing the target by its real path (or by another link) holds
             # that one, and its live temporaries must not be swept (review 15)
             stack.enter_context(hold_lock(real.parent / f".{real.name}.lock", command, wait_s, str(real)))

@@ -81,3 +81,27 @@ def test_the_wrong_zone_advice_fits_the_grid_and_the_block(lon, lat, out, says, 
     (msg,) = [r.getMessage() for r in caplog.records if "scale factor" in r.getMessage()]
     assert says in msg
     assert ("gk3:cgcs2000" in msg) == (out == "EPSG:4550")
+
+
+@pytest.mark.parametrize("lon, lat, out, warned", [
+    (8.5, 50.0, "EPSG:32633", True),    # one UTM zone off at 50 N: k 1.0019, 2 degrees outside zone 33N
+    (14.9, 60.0, "EPSG:32632", True),   # one zone off at 60 N: k 1.0010, 2.9 degrees outside
+    (12.3, 50.0, "EPSG:32633", False),  # in the zone, 0.3 degrees from its western edge
+    (11.6, 50.0, "EPSG:32633", False),  # a block straddling the zone edge: 0.4 degrees outside
+    (3.0, 46.5, "EPSG:2154", False),    # Lambert-93 over France
+    (-179.5, 10.0, "EPSG:32660", False)])  # zone 60 across the antimeridian (0.5 degrees outside)
+def test_a_block_outside_the_grids_area_of_use_is_warned_whatever_its_scale(lon, lat, out, warned, caplog):
+    """Review 16: a UTM zone chosen one off was never warned (k 1.0010-1.0051 inside the 1 % limit); PROJ's area of
+    use tells it, by more than a degree."""
+    import logging
+
+    from pyproj import CRS
+
+    from ortho.block import _warn_output_scale
+
+    with caplog.at_level(logging.WARNING, logger="ortho.block"):
+        _warn_output_scale(CRS.from_epsg(4326), CRS.from_user_input(out), (lon, lat), 0.5)
+    msgs = [r.getMessage() for r in caplog.records if "scale factor" in r.getMessage()]
+    assert bool(msgs) == warned, msgs
+    if warned:
+        assert "outside its area of use" in msgs[0] and "family of grids is" in msgs[0]

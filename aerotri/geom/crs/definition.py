@@ -157,7 +157,7 @@ def point_scale_factor(crs, lon_deg: float, lat_deg: float) -> float:
 
 def utm_zone_label(lon_deg: float, lat_deg: float) -> str:
     """The WGS 84 UTM zone of (lon, lat) in degrees as an EPSG label (EPSG:326zz north, 327zz south)."""
-    zone = int((float(lon_deg) + 180.0) // 6.0) + 1
+    zone = int(((float(lon_deg) + 180.0) % 360.0) // 6.0) + 1  # 180 E is 180 W (zone 1); 32661 would be UPS North
     return f"EPSG:{32600 + zone if lat_deg >= 0 else 32700 + zone}"
 
 

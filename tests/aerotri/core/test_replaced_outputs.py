@@ -211,10 +211,12 @@ with hold_lock(real.parent / f".{real.name}.lock", "ortho mosaic", 0, str(real))
 """
 
 
-def test_a_run_through_a_link_waits_for_a_run_on_the_links_target(tmp_path):
+@pytest.mark.parametrize("link_at", ["link/out", "real/latest"])
+def test_a_run_through_a_link_waits_for_a_run_on_the_links_target(tmp_path, link_at):
     """Review 15's lk.py: run A writes real/out (its lock and a live temporary beside it); run B writes link/out, a
     link to real/out. B took only the lock beside the link and swept A's live temporary. B now also takes the
-    target's lock: busy, A's temporary kept."""
+    target's lock: busy, A's temporary kept. Review 16: the same with the link beside its target (latest -> out),
+    where B took no target lock at all."""
     import contextlib
     import subprocess
     import sys
@@ -225,8 +227,8 @@ def test_a_run_through_a_link_waits_for_a_run_on_the_links_target(tmp_path):
 
     real = tmp_path / "real" / "out"
     real.mkdir(parents=True)
-    link = tmp_path / "link" / "out"
-    link.parent.mkdir()
+    link = tmp_path / link_at
+    link.parent.mkdir(exist_ok=True)
     link.symlink_to(real, target_is_directory=True)
     a = subprocess.Popen([sys.executable, "-c", _HOLD_TARGET, str(real)], stdout=subprocess.PIPE, text=True)
     try:
@@ -238,3 +240,21 @@ def test_a_run_through_a_link_waits_for_a_run_on_the_links_target(tmp_path):
     finally:
         a.kill()
         a.wait()
+
+
+def test_leftovers_of_an_output_are_its_own_temporaries_only(tmp_path):
+    """Review 16: the sweep of ortho.v1's leftovers matched by the stem's prefix ".ortho." and deleted the live
+    temporaries of ortho.v2 (and mosaic.json's those of mosaic.tif). Now whole names: the output's own, its stem's
+    (the mosaic's scratch ".mosaic.part-*") and their work folders (".<stem>.tiles.part-*")."""
+    from aerotri.core.atomic import remove_leftovers
+
+    mine = [".ortho.v1.part-a", ".ortho.part-b", ".ortho.tiles.part-c", ".ortho.v1.corners.part-d"]
+    others = [".ortho.v2.part-live", ".ortho.v2.tiles.part-live", ".ortho.v10.part-live", ".orthos.part-live"]
+    for name in mine + others:
+        (tmp_path / name).mkdir()
+    gone = remove_leftovers(tmp_path, names=["ortho.v1"])
+    assert sorted(p.name for p in gone) == sorted(mine)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(others)
+    (tmp_path / ".mosaic.tif.part-live").mkdir()
+    assert remove_leftovers(tmp_path, names=["mosaic.json"]) == []
+    assert (tmp_path / ".mosaic.tif.part-live").is_dir()

@@ -134,3 +134,17 @@ def test_crs_label_describes_an_unnamed_crs():
     assert crs_label(parse_crs(parse_crs(lo25).to_wkt())) == want
     assert crs_label(parse_crs("EPSG:32649")) == "EPSG:32649"
     assert crs_label(parse_crs(parse_crs(lo25).to_wkt().replace('"unknown"', '"Lo25"', 1))) == "Lo25"
+
+
+@pytest.mark.parametrize("lon_deg, lat_deg, label", [
+    (-180.0, 10.0, "EPSG:32601"), (180.0, -10.0, "EPSG:32701"), (179.99, 10.0, "EPSG:32660"),
+    (181.0, 10.0, "EPSG:32601"), (3.0, 52.0, "EPSG:32631"), (117.0, 30.0, "EPSG:32650"), (-123.0, 44.0, "EPSG:32610")])
+def test_utm_zone_label_wraps_at_the_antimeridian(lon_deg, lat_deg, label):
+    """Review 16: 180 deg E gave "EPSG:32661" / "EPSG:32761" (UPS North / South), not a UTM zone."""
+    from aerotri.geom.crs.definition import utm_zone_label
+
+    assert utm_zone_label(lon_deg, lat_deg) == label
+    # the label's zone holds the longitude (PROJ's own area of use)
+    area = pyproj.CRS(label).area_of_use
+    lon = (lon_deg + 180.0) % 360.0 - 180.0
+    assert area.west - 1e-9 <= lon <= area.east + 1e-9
