@@ -171,7 +171,8 @@ def warp_cmd(*, input_path, output_path, to_epsg, from_epsg, params, heights, al
 @click.option("--to", "to_epsg", required=True, help="EPSG code of OUT")
 @click.option("--params", type=click.Path(dir_okay=False), help="parameter file from 'crs fit'")
 @click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights': "
-              "ellipsoidal heights h in IN become normal heights H = h - zeta in OUT")
+              "ellipsoidal heights h in IN become normal heights H = h - zeta in OUT (the other way with "
+              "--normal-to-ellipsoidal)")
 @click.option("--normal-to-ellipsoidal", is_flag=True,
               help="IN's heights are normal heights H (levelled, above the quasigeoid): OUT gets ellipsoidal heights "
                    "h = H + zeta of the --heights model (required), on the datum the model records, carried on to "
