@@ -407,7 +407,8 @@ def test_datums_of_h_are_compared_by_what_proj_knows_of_them(model_crs, op_crs, 
 def test_a_gnss_height_model_on_a_wgs84_realization_serves_a_project_in_the_ensemble(tmp_path, yichang_levelling):
     """A model fitted with --h-crs WGS 84 (G1762) or ITRF2014 on the GNSS heights was refused against the WGS 84
     ensemble (EPSG:32649) by datum name: now the same normal heights as the ensemble's model (the h are the same
-    numbers), with a note naming both datums; a CGCS2000 one stays refused (exit 2, no output)."""
+    numbers), with a note naming both datums, and the ensemble's model on points given in WGS 84 (G1762); a CGCS2000
+    one stays refused (exit 2, no output)."""
     lev, pts, _, H, _ = yichang_levelling
     for h_crs in ("EPSG:9057", "EPSG:7912"):
         zeta = tmp_path / f"zeta_{h_crs[5:]}.json"
@@ -416,6 +417,20 @@ def test_a_gnss_height_model_on_a_wgs84_realization_serves_a_project_in_the_ense
             r, got, _ = _heights_through(tmp_path, model, pts, zeta)
             assert r.exit_code == 0 and np.max(np.abs(got - H)) < 0.01, (r.output, got - H)
             assert "World Geodetic System 1984 ensemble" in r.output and "taken as the same heights" in r.output
+    # the other way round: the ensemble's model (h_crs EPSG:4326) on points in WGS 84 (G1762) (EPSG:9057), the only h
+    # the operation has (refused before): H = h - zeta, with the note
+    from aerotri.geom.crs.datum import HeightAnomalyModel
+
+    plane = HeightAnomalyModel("plane", (300_000.0, 3_800_000.0), coefficients=[-12.0, 0.01, -0.005],
+                               crs="EPSG:32649", h_crs="EPSG:4326")
+    op = CrsTransformer("EPSG:9057", "EPSG:9057", heights=plane)
+    lon, lat = np.array([109.8, 110.0]), np.array([34.2, 34.3])
+    got = op.transform(lon, lat, np.array([500.0, 700.0]))[2]
+    import pyproj
+
+    e, n = pyproj.Transformer.from_crs(4326, 32649, always_xy=True).transform(lon, lat)
+    assert np.max(np.abs(got - (np.array([500.0, 700.0]) - plane.zeta_m(e, n)))) < 1e-6
+    assert any("World Geodetic System 1984 (G1762) is a member of the ensemble" in w for w in op.warnings), op.warnings
     zeta = tmp_path / "zeta_cgcs2000.json"
     assert _run("fit-heights", lev, "--epsg", "2361", "--h-crs", "EPSG:4490", "-o", zeta).exit_code == 0
     r, _, out = _heights_through(tmp_path, "helmert2d", pts, zeta)
