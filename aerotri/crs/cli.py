@@ -170,15 +170,23 @@ def warp_cmd(*, input_path, output_path, to_epsg, from_epsg, params, heights, al
 @click.option("--from", "from_epsg", help="EPSG code of IN (LAS/LAZ: default the file's CRS record)")
 @click.option("--to", "to_epsg", required=True, help="EPSG code of OUT")
 @click.option("--params", type=click.Path(dir_okay=False), help="parameter file from 'crs fit'")
-@click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights'")
+@click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights': "
+              "ellipsoidal heights h in IN become normal heights H = h - zeta in OUT (the other way with "
+              "--normal-to-ellipsoidal)")
+@click.option("--normal-to-ellipsoidal", is_flag=True,
+              help="IN's heights are normal heights H (levelled, above the quasigeoid): OUT gets ellipsoidal heights "
+                   "h = H + zeta of the --heights model (required), on the datum the model records, carried on to "
+                   "OUT's")
 @click.option("--allow-ballpark", is_flag=True, help="accept PROJ's ballpark operation that ignores a datum shift")
 @click.option("--chunk-points", "chunk_size", type=at_least(1, int), default=1_000_000, show_default=True,
               help="LAS/LAZ points per chunk")
-def transform_cmd(*, input_path, output_path, from_epsg, to_epsg, params, heights, allow_ballpark, chunk_size):
+def transform_cmd(*, input_path, output_path, from_epsg, to_epsg, params, heights, normal_to_ellipsoidal,
+                  allow_ballpark, chunk_size):
     """Transform a CSV/TXT point list or a LAS/LAZ file (chunked, all point dimensions kept)."""
     t0 = time.perf_counter()
     n, t = transform_points_file(input_path, output_path, from_crs=from_epsg, to_crs=to_epsg, params=params,
-                                 heights=heights, allow_ballpark=allow_ballpark, chunk_size=chunk_size)
+                                 heights=heights, allow_ballpark=allow_ballpark, chunk_size=chunk_size,
+                                 normal_to_ellipsoidal=normal_to_ellipsoidal)
     dt = time.perf_counter() - t0
     for w in t.warnings:
         log.warning(w)

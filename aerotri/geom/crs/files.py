@@ -454,13 +454,19 @@ def transform_file(in_path, out_path, transformer: CrsTransformer, chunk_size: i
 
 
 def transform_points_file(in_path, out_path, *, from_crs=None, to_crs=None, params=None, heights=None,
-                          allow_ballpark: bool = False, chunk_size: int = 1_000_000) -> tuple[int, CrsTransformer]:
+                          allow_ballpark: bool = False, chunk_size: int = 1_000_000,
+                          normal_to_ellipsoidal: bool = False) -> tuple[int, CrsTransformer]:
     """``aerotri crs transform``: a CSV/TXT point list or a LAS/LAZ file from ``from_crs`` (a LAS file's own CRS
     record when None) to ``to_crs``, with an optional fitted transformation (``params`` JSON) and height anomaly
-    model (``heights`` JSON). Returns (points written, the transformer: its description and warnings)."""
+    model (``heights`` JSON): ellipsoidal heights h in, normal heights H = h - zeta out, or with
+    ``normal_to_ellipsoidal`` normal heights in, h = H + zeta out (on the datum the model records, ``h_crs``,
+    carried on to the output's). Returns (points written, the transformer: its description and warnings)."""
     from aerotri.core.atomic import refuse_input_as_output
     from aerotri.geom.crs.definition import parse_crs
 
+    if normal_to_ellipsoidal and not heights:
+        raise OptionError("needs the height anomaly model of the normal heights: give --heights (a model file from "
+                          "'aerotri crs fit-heights')", param="--normal-to-ellipsoidal")
     refuse_input_as_output(out_path, [in_path, params, heights], "OUT")
     if not Path(in_path).exists():
         raise InputError(f"{in_path}: file not found")
@@ -474,6 +480,11 @@ def transform_points_file(in_path, out_path, *, from_crs=None, to_crs=None, para
             raise InputError(f"{in_path}: no CRS record in the file; give --from")
     else:
         src = parse_crs(from_crs, "--from")
-    t = CrsTransformer(src, to_crs, params=load_transformation(params) if params else None,
-                       heights=load_height_model(heights) if heights else None, allow_ballpark=allow_ballpark)
+    model = load_height_model(heights) if heights else None
+    if normal_to_ellipsoidal and not model.crs:
+        # a model without its grid is evaluated where the normal heights are: here the input (the inverse of a
+        # transformation that wrote them into this CRS, as CrsTransformer.inverse takes it)
+        model = dataclasses.replace(model, crs=src.to_wkt())
+    t = CrsTransformer(src, to_crs, params=load_transformation(params) if params else None, heights=model,
+                       allow_ballpark=allow_ballpark, heights_inverse=normal_to_ellipsoidal)
     return transform_file(in_path, out_path, t, chunk_size), t

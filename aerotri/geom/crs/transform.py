@@ -10,8 +10,10 @@ applied to arrays. It chains
 3. a PROJ operation from the parameter set's target CRS into ``to_crs``,
 4. optionally the height anomaly model (``aerotri crs fit-heights``): H = h - zeta(x, y), with h on the
    ellipsoid the model was fitted on (its ``h_crs``): taken where the chain has h on that datum (the input,
-   before or after the parameter set, the output); a model recorded on a datum the operation has no h of is
-   refused. A model file without the record takes the output's h (the spatial set's change said in a warning).
+   before or after the parameter set, the output); a datum PROJ says has the same h at the cm level (an
+   ensemble and its member, WGS 84 (G1762) and ITRF2014: ``compare_h_datums``) counts, with a note; a model
+   recorded on a datum the operation has no h of is refused. A model file without the record takes the output's h
+   (the spatial set's change said in a warning).
 
 The policy:
 
@@ -82,6 +84,124 @@ def datum_name(crs: pyproj.CRS) -> str:
     crs = horizontal_crs(crs)
     datum = (crs if crs.is_geocentric or crs.geodetic_crs is None else crs.geodetic_crs).datum
     return crs.name if datum is None else datum.name  # an engineering CRS: no ellipsoid, its own name
+
+
+# The ellipsoidal heights h of two different datums are taken as the same for a height model (zeta = h - H), with a
+# note, only when PROJ says so: one datum a member of the other's ensemble (PROJ's datum ensembles), or PROJ's
+# rigorous operation between them (between an ensemble's members) changing h by at most this much, its stated
+# accuracy added, at epochs 2000 and 2030. Chosen from EPSG's own statements, not fitted: WGS 84 (G1762) -> ITRF2014
+# is stated accurate to 2 cm and changes h by 5 mm at Yichang (taken), NAD83(2011) -> ITRF2014 by 2.12 m (refused);
+# CGCS2000 and Xian 1980 have no rigorous operation to WGS 84 or ITRF in PROJ (refused).
+SAME_H_TOLERANCE_M = 0.05
+_SAME_H_EPOCHS = (2000.0, 2030.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class HeightDatumMatch:
+    """How the ellipsoidal heights of two datums compare for a height model: ``same`` (usable as one another's),
+    ``exact`` (one datum), ``note`` (why they are taken as the same and by how much they may differ; "" when exact
+    or not the same)."""
+
+    same: bool
+    exact: bool
+    note: str = ""
+
+
+def _geodetic_datum(crs: pyproj.CRS):
+    return horizontal_crs(crs).datum  # not geodetic_crs.datum: pyproj drops the datum's EPSG code there
+
+
+def _frames(datum) -> list:
+    """(name, EPSG datum code or None) of the reference frames ``datum`` stands for: a datum ensemble's members
+    (newest first), else the datum itself."""
+    d = datum.to_json_dict()
+    items = list(reversed(d["members"])) if d.get("members") else [d]
+    out = []
+    for m in items:
+        ident = m.get("id") or {}
+        if ident.get("authority") != "EPSG":  # a datum from WKT without its code: PROJ's of that name, if any
+            try:
+                ident = pyproj.crs.Datum.from_name(m["name"], auth_name="EPSG").to_json_dict().get("id") or {}
+            except pyproj.exceptions.CRSError:
+                ident = {}
+        out.append((m["name"], int(ident["code"]) if ident.get("authority") == "EPSG" else None))
+    return out
+
+
+@functools.lru_cache(maxsize=256)
+def _h_change(code_a: int, code_b: int, lon_deg: float, lat_deg: float):
+    """(largest |change of h| in m at (lon, lat) over the epochs, stated accuracy in m or None, description) of
+    PROJ's best rigorous operation between the 3D geographic CRSs of EPSG datums ``code_a`` and ``code_b``; None
+    when PROJ knows none."""
+    from pyproj.crs import Datum, GeographicCRS
+    from pyproj.crs.coordinate_system import Ellipsoidal3DCS
+
+    try:
+        a, b = (GeographicCRS(name=f"datum {c}", datum=Datum.from_epsg(c), ellipsoidal_cs=Ellipsoidal3DCS())
+                for c in (code_a, code_b))
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Best transformation is not available", category=UserWarning)
+            group = TransformerGroup(a, b, always_xy=True, allow_ballpark=False)
+    except pyproj.exceptions.ProjError:  # a datum PROJ cannot make a geographic CRS of: nothing known
+        return None
+    if not group.transformers:
+        return None
+    t = group.transformers[0]
+    dh = [t.transform(lon_deg, lat_deg, 0.0, epoch, errcheck=False)[2] for epoch in _SAME_H_EPOCHS]
+    if not np.all(np.isfinite(dh)):
+        return None
+    acc = t.accuracy if t.accuracy is not None and t.accuracy >= 0 else None
+    return float(np.max(np.abs(dh))), acc, t.description
+
+
+def compare_h_datums(model_crs: pyproj.CRS, op_crs: pyproj.CRS, lon_deg: float = 0.0,
+                     lat_deg: float = 0.0) -> HeightDatumMatch:
+    """Whether a height model's h (on the datum of ``model_crs``) may be taken as the h of ``op_crs``'s datum, at
+    (lon, lat): the same datum; one a member of the other's datum ensemble; or PROJ's rigorous operation between
+    them (or an ensemble's member) changing h by at most ``SAME_H_TOLERANCE_M``, its stated accuracy included (see
+    there; an operation of unstated accuracy is not taken). Datums are compared by what PROJ knows of them, never by a name alone (a model fitted with --h-crs
+    "WGS 84 (G1762)" on a project in the WGS 84 ensemble was refused)."""
+    da, db = _geodetic_datum(model_crs), _geodetic_datum(op_crs)
+    if da is None or db is None:
+        one = datum_name(model_crs) == datum_name(op_crs)  # an engineering CRS: no datum, its own name
+        return HeightDatumMatch(one, one)
+    if da.name == db.name:
+        return HeightDatumMatch(True, True)
+    fa, fb = _frames(da), _frames(db)
+    acc_of = {d.name: d.to_json_dict().get("accuracy") for d in (da, db) if d.to_json_dict().get("members")}
+
+    def ensemble_said(name):
+        acc = acc_of.get(name)
+        how = "unknown, typically cm" if acc is None else f"up to {float(acc):g} m by PROJ's ensemble accuracy"
+        return f"the realizations of {name} differ by {how}"
+
+    names_a, names_b = [n for n, _ in fa], [n for n, _ in fb]
+    if db.name in names_a or da.name in names_b:  # a datum and an ensemble it belongs to
+        ens, member = (da, db) if db.name in names_a else (db, da)
+        return HeightDatumMatch(True, False, f"h of {da.name} and of {db.name} taken as the same heights "
+                                             f"({member.name} is a member of the ensemble; {ensemble_said(ens.name)})")
+    common = [n for n in names_a if n in names_b]
+    if common:  # two ensembles sharing a member
+        return HeightDatumMatch(True, False, f"h of {da.name} and of {db.name} taken as the same heights (both hold "
+                                             f"{common[0]}; {ensemble_said(da.name)})")
+    lon, lat = round(float(lon_deg), 1), round(float(lat_deg), 1)
+    for na, ca in fa:
+        for nb, cb in fb:
+            if ca is None or cb is None:
+                continue
+            got = _h_change(ca, cb, lon, lat)
+            if got is None:
+                continue
+            dh, acc, _ = got
+            if acc is None or dh + acc > SAME_H_TOLERANCE_M:  # an operation of unstated accuracy says nothing
+                continue
+            via = [f"{n} through its member {m}" for n, m, f in ((da.name, na, fa), (db.name, nb, fb)) if len(f) > 1]
+            ens = [ensemble_said(n) for n in acc_of]
+            return HeightDatumMatch(True, False, (
+                f"h of {da.name} and of {db.name} taken as the same heights: PROJ's operation {na} -> {nb} changes h "
+                f"by {dh:.3f} m at lon {lon:g}, lat {lat:g} (epochs {_SAME_H_EPOCHS[0]:g}-{_SAME_H_EPOCHS[1]:g}), "
+                f"stated accurate to {acc:g} m" + "".join(f"; {t}" for t in via + ens)))
+    return HeightDatumMatch(False, False)
 
 
 def is_ballpark(transformer: pyproj.Transformer) -> bool:
@@ -291,7 +411,8 @@ class CrsTransformer:
     def _height_stage(self) -> str:
         """Where the chain has ellipsoidal heights on the datum of the height model's h: ``in`` (the input),
         ``from``/``to`` (before/after the parameter set), ``out`` (the output); CrsError when nowhere."""
-        model_datum = datum_name(parse_crs(self.heights.h_crs, "height model h_crs"))
+        model_crs = parse_crs(self.heights.h_crs, "height model h_crs")
+        model_datum = datum_name(model_crs)
         if self.params is None:
             stages = [("in", self.src), ("out", self.dst)]
         elif self.params.spatial:
@@ -304,6 +425,12 @@ class CrsTransformer:
         for name, c in stages:
             if datum_name(c) == model_datum:
                 return name
+        lon, lat = self._model_lon_lat()
+        for name, c in stages:  # another datum whose h PROJ says are the same at the cm level (compare_h_datums)
+            match = compare_h_datums(model_crs, c, lon, lat)
+            if match.same:
+                self.notes.append(f"height model (h_crs {self.heights.h_crs}) on {crs_label(c)}: {match.note}")
+                return name
         have = list(dict.fromkeys(datum_name(c) for _, c in stages))
         why = ""
         if self.params is not None and not self.params.spatial:
@@ -313,6 +440,23 @@ class CrsTransformer:
             f"height model: fitted on ellipsoidal heights of {model_datum} (h_crs {self.heights.h_crs}), but "
             f"{crs_label(self.src)} -> {crs_label(self.dst)} has ellipsoidal heights only on {' and '.join(have)}"
             f"{why}; if the model's h are of another datum, fit it again with --h-crs naming it (crs fit-heights)")
+
+    def _model_lon_lat(self) -> tuple[float, float]:
+        """Where the height model is (its origin, degrees on its CRS's own datum), else the centre of the output
+        CRS's area of use: where a change of datum is told in metres of h."""
+        try:
+            if self.heights.crs:
+                hcrs = horizontal_crs(parse_crs(self.heights.crs, "height model crs"))
+                lon, lat, _ = to_own_geodetic(hcrs, np.array([self.heights.origin_m[0]]),
+                                              np.array([self.heights.origin_m[1]]), np.zeros(1))
+                return float(lon[0]), float(lat[0])
+        except CrsError:
+            pass
+        area = horizontal_crs(self.dst).area_of_use
+        if area is None:
+            return 0.0, 0.0
+        east = area.east + 360.0 if area.east < area.west else area.east  # an area across the antimeridian
+        return ((area.west + east) / 2.0 + 180.0) % 360.0 - 180.0, (area.south + area.north) / 2.0
 
     @property
     def identity(self) -> bool:

@@ -378,3 +378,81 @@ def test_warp_takes_a_gnss_height_model_on_wgs84_h_through_both_sets(tmp_path, y
             xs, ys = rasterio.transform.xy(ds.transform, rows, cols)
             assert len(rows) > 300
             assert np.abs(z[rows, cols] - (650.0 - model.zeta_m(np.array(xs), np.array(ys)))).max() < 0.01, params
+
+
+@pytest.mark.parametrize("model_crs, op_crs, same", [
+    ("EPSG:9057", "EPSG:32650", True), ("EPSG:32650", "EPSG:9057", True),  # WGS 84 (G1762) <-> the ensemble
+    ("EPSG:7912", "EPSG:32650", True), ("EPSG:32650", "EPSG:7912", True),  # ITRF2014 <-> the ensemble (a member)
+    ("EPSG:9057", "EPSG:7912", True), ("EPSG:7912", "EPSG:9057", True),  # WGS 84 (G1762) <-> ITRF2014: 2 cm
+    ("EPSG:4490", "EPSG:7908", False), ("EPSG:7908", "EPSG:4490", False),  # CGCS2000 <-> ITRF97: PROJ knows none
+    ("EPSG:4610", "EPSG:4326", False), ("EPSG:4326", "EPSG:4610", False),  # Xian 1980 <-> WGS 84
+    ("EPSG:6319", "EPSG:7912", False), ("EPSG:7912", "EPSG:6319", False),  # NAD83(2011) <-> ITRF2014: 2.1 m in h
+])
+def test_datums_of_h_are_compared_by_what_proj_knows_of_them(model_crs, op_crs, same):
+    """Ensemble and member, and frames PROJ links at the cm level, give the same h, with a note naming both and
+    the size of the difference; datums PROJ does not link (or links metres apart) do not."""
+    import pyproj
+
+    from aerotri.geom.crs.transform import compare_h_datums
+
+    m = compare_h_datums(pyproj.CRS(model_crs), pyproj.CRS(op_crs), 110.0, 34.2)
+    assert m.same == same and not m.exact, m
+    if same:
+        a, b = (pyproj.CRS(c).datum.name for c in (model_crs, op_crs))
+        import re
+
+        assert a in m.note and b in m.note and re.search(r"\d m\b", m.note), m.note  # both named, a size in m
+
+
+def test_a_gnss_height_model_on_a_wgs84_realization_serves_a_project_in_the_ensemble(tmp_path, yichang_levelling):
+    """A model fitted with --h-crs WGS 84 (G1762) or ITRF2014 on the GNSS heights was refused against the WGS 84
+    ensemble (EPSG:32649) by datum name: now the same normal heights as the ensemble's model (the h are the same
+    numbers), with a note naming both datums, and the ensemble's model on points given in WGS 84 (G1762); a CGCS2000
+    one stays refused (exit 2, no output)."""
+    lev, pts, _, H, _ = yichang_levelling
+    for h_crs in ("EPSG:9057", "EPSG:7912"):
+        zeta = tmp_path / f"zeta_{h_crs[5:]}.json"
+        assert _run("fit-heights", lev, "--epsg", "2361", "--h-crs", h_crs, "-o", zeta).exit_code == 0
+        for model in ("helmert2d", "bursa-wolf7"):
+            r, got, _ = _heights_through(tmp_path, model, pts, zeta)
+            assert r.exit_code == 0 and np.max(np.abs(got - H)) < 0.01, (r.output, got - H)
+            assert "World Geodetic System 1984 ensemble" in r.output and "taken as the same heights" in r.output
+    # the other way round: the ensemble's model (h_crs EPSG:4326) on points in WGS 84 (G1762) (EPSG:9057), the only h
+    # the operation has (refused before): H = h - zeta, with the note
+    from aerotri.geom.crs.datum import HeightAnomalyModel
+
+    plane = HeightAnomalyModel("plane", (300_000.0, 3_800_000.0), coefficients=[-12.0, 0.01, -0.005],
+                               crs="EPSG:32649", h_crs="EPSG:4326")
+    op = CrsTransformer("EPSG:9057", "EPSG:9057", heights=plane)
+    lon, lat = np.array([109.8, 110.0]), np.array([34.2, 34.3])
+    got = op.transform(lon, lat, np.array([500.0, 700.0]))[2]
+    import pyproj
+
+    e, n = pyproj.Transformer.from_crs(4326, 32649, always_xy=True).transform(lon, lat)
+    assert np.max(np.abs(got - (np.array([500.0, 700.0]) - plane.zeta_m(e, n)))) < 1e-6
+    assert any("World Geodetic System 1984 (G1762) is a member of the ensemble" in w for w in op.warnings), op.warnings
+    zeta = tmp_path / "zeta_cgcs2000.json"
+    assert _run("fit-heights", lev, "--epsg", "2361", "--h-crs", "EPSG:4490", "-o", zeta).exit_code == 0
+    r, _, out = _heights_through(tmp_path, "helmert2d", pts, zeta)
+    assert r.exit_code == 2 and not out.exists() and "heights of China 2000" in r.output, r.output
+
+
+def test_normal_heights_back_to_ellipsoidal_heights_from_the_cli(tmp_path, yichang_levelling):
+    """crs transform --normal-to-ellipsoidal: h -> H -> h round trip of the held-out Yichang GNSS points through
+    both parameter sets within 0.1 mm (the files' 4 decimals); refused without --heights (exit 2, no output)."""
+    lev, pts, h, _, _ = yichang_levelling
+    zeta = tmp_path / "zeta_wgs84.json"
+    assert _run("fit-heights", lev, "--epsg", "2361", "--h-crs", "EPSG:4326", "-o", zeta).exit_code == 0
+    for model in ("helmert2d", "bursa-wolf7"):
+        r, _, normal = _heights_through(tmp_path, model, pts, zeta)
+        assert r.exit_code == 0, r.output
+        back = tmp_path / f"back_{model}.csv"
+        r = _run("transform", normal, back, "--from", "2361", "--to", "32649", "--params", tmp_path / f"{model}.json",
+                 "--heights", zeta, "--normal-to-ellipsoidal")
+        assert r.exit_code == 0 and "ellipsoidal heights from" in r.output, r.output
+        got = np.array([float(ln.split(",")[3]) for ln in back.read_text().splitlines()[1:]])
+        assert np.max(np.abs(got - h)) <= 1.0001e-4, (model, got - h)
+    out = tmp_path / "no_model.csv"
+    r = _run("transform", pts, out, "--from", "32649", "--to", "2361", "--normal-to-ellipsoidal")
+    assert r.exit_code == 2 and not out.exists() and "--normal-to-ellipsoidal" in r.output and "--heights" in r.output
+    assert r.output.strip().count("\n") == 0, r.output
