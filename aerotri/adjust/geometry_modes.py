@@ -92,9 +92,6 @@ class CalibrationCovariance:
     # the principal point against an offset between the GNSS positions and the projection centres fixed in the camera
     # (a lever-arm error, or a time lag along a track flown at one speed), which the solve holds (``gnss_offset``)
     pp_gnss: "PrincipalPointGnss | None" = None
-    # half the tie points' height range (their 5th to 95th percentile, local up, m): where a principal-point offset (a
-    # rotation of the bundle) and a GNSS offset (a translation) that agree at the mean height part on the ground
-    relief_half_m: float = float("nan")
 
     def correlation(self, mode: str, param: str | tuple) -> float:
         """Correlation of a mode with a calibration parameter, or with the mean of two (``("fx_px", "fy_px")``)."""
@@ -245,15 +242,13 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     k = np.flatnonzero(~np.isin(block.obs_point, block.control_point) & np.asarray(obs_active, bool))
     depth = np.einsum("kji,kj->ki", state.R_cv[block.obs_image[k]],
                       state.points[block.obs_point[k]] - state.centre[block.obs_image[k]])[:, 2]
-    tie_z = state.points[np.unique(block.obs_point[k]), 2]
-    relief_half_m = float(np.subtract(*np.percentile(tie_z, [95, 5])) / 2) if len(tie_z) else float("nan")
     gnss_z_px = _gnss_heights(block, dg[-2]) if dg is not None else 0.0
     # an image-wide field as large as the residuals' sigma (sigma0 times the a-priori sigma) where it is largest
     field_px = float(np.max(np.abs(fields[:, 0]) / fields[:, 1])) * sigma0 / np.sqrt(pr.weight)
     cc = CalibrationCovariance(cal_cov, cross, mode_var, {g: float(v[-2]) for g, v in share.items()},
                                float(np.median(depth)) if len(depth) else float("nan"), gnss_z_px, field_px,
-                               pp_gnss_coupling(block, opts, state, rc, pr.pose_offset)
-                               if "pp" in opts.self_calibration else None, relief_half_m)
+                               pp_gnss_coupling(block, opts, state, rc, pr, sigma0=sigma0)
+                               if "pp" in opts.self_calibration else None)
     if any(g == "focal" for g in opts.self_calibration):
         f = 0.5 * (state.cal[0] + state.cal[1])
         sigma_f = float(np.sqrt(max(var[-2], 0.0))) * sigma0
@@ -272,24 +267,36 @@ class PrincipalPointGnss:
     ``offset_correlation`` (2,): the multiple correlation of u0 and of v0 with such an offset (x and y) had the solve
     estimated it (``K' S^-1 K / (Sigma_pp + K' S^-1 K)``, ``S`` the offset's information with the rest free);
     ``shift_correlation`` (2,): with the GNSS shifts the solve estimates (per strip, or one offset; NaN: none);
-    ``orientation_correlation`` (2,): the largest correlation with one orientation parameter of one frame."""
+    ``orientation_correlation`` (2,): the largest correlation with one orientation parameter of one frame;
+    ``tie_plan_ms`` (2, 2): the tie points' mean square plan change (m^2) under such an offset ``o`` (m, camera x and
+    y) is ``o' tie_plan_ms o``: the whole solution's change ``N^-1 A' W R o`` (the orientations' by the reduced
+    covariance, the points' by back-substitution), so the offset's full effect on the ground with the principal point
+    taking its share, not only the part a rotation and a translation differ by off the mean height (pp-predictor);
+    ``offset_estimate_m``, ``offset_sigma_m`` (2,): such an offset as the block itself would estimate it, one
+    Gauss-Newton step from the solution with it added (``S^-1 R' W (g_observed - g_adjusted)``, ``S`` its information
+    with the rest free, the Schur complement; sigma x sigma0): where the correlation is under the limit the block
+    parts the two, and a significant estimate says the offset is there."""
 
     px_per_m: np.ndarray
     offset_correlation: np.ndarray
     shift_correlation: np.ndarray
     orientation_correlation: np.ndarray
+    tie_plan_ms: np.ndarray = dataclasses.field(default_factory=lambda: np.full((2, 2), np.nan))
+    offset_estimate_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
+    offset_sigma_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
 
 
-def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
-                     pose_offset: np.ndarray) -> PrincipalPointGnss | None:
-    """``PrincipalPointGnss`` at the solution (``rc`` the unit-weight reduced covariance, ``pose_offset`` each frame's
-    first pose scalar in it); None without GNSS."""
+def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, rays: PointRays, *,
+                     sigma0: float = 1.0) -> PrincipalPointGnss | None:
+    """``PrincipalPointGnss`` at the solution (``rc`` the unit-weight reduced covariance, ``rays`` the points'
+    ``covariance.point_rays``, ``sigma0`` the solve's: the offset estimate's sigma); None without GNSS."""
     if block.gnss_local is None:
         return None
     k0 = rc.offset[K_KEY]
     pp = k0 + np.array([3, 4])
-    rows = gnss_rows(block, opts, state)[1]
+    pred, rows = gnss_rows(block, opts, state)
     w = 1.0 / np.asarray(block.gnss_sigma_m, dtype=float) ** 2  # (N, 3)
+    grad = np.einsum("nia,ni->a", state.R_cv[:, :, :2], w * (np.asarray(block.gnss_local) - pred))
     # the information between the unknowns and an offset l fixed in the camera: g_i = ... + R_i l (x, y axes)
     b = np.zeros((rc.n, 2))
     h = np.zeros((2, 2))
@@ -303,10 +310,13 @@ def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
     S = h - b.T @ Sb
     var_pp = rc.entries(pp, pp)
     try:
-        q = np.einsum("ai,ij,aj->a", K, np.linalg.inv(S), K)
+        S_inv = np.linalg.inv(S)
+        q = np.einsum("ai,ij,aj->a", K, S_inv, K)
         offset_corr = np.sqrt(np.clip(q / (var_pp + q), 0.0, 1.0))
+        offset_est, offset_sd = S_inv @ grad, np.sqrt(np.clip(np.diag(S_inv), 0.0, None)) * sigma0
     except np.linalg.LinAlgError:
         offset_corr = np.ones(2)
+        offset_est, offset_sd = np.full(2, np.nan), np.full(2, np.inf)
     shift = [k for k in rc.offset if chr(gtsam.Symbol(k).chr()) in "sd"] if opts.gnss_correction != "none" else []
     shift_corr = np.full(2, np.nan)
     if shift:
@@ -315,12 +325,30 @@ def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
         Css = rc.entries(idx[:, None], idx[None, :])
         r2 = np.einsum("ai,ai->a", c, np.linalg.lstsq(Css, c.T, rcond=None)[0].T) / var_pp
         shift_corr = np.sqrt(np.clip(r2, 0.0, 1.0))
-    poses = (np.asarray(pose_offset)[:, None] + np.arange(6)).ravel()
+    poses = (np.asarray(rays.pose_offset)[:, None] + np.arange(6)).ravel()
     cov = rc.entries(pp[:, None], poses[None, :])
     sd = np.sqrt(np.clip(rc.entries(poses, poses), 0.0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
         orient_corr = np.nanmax(np.abs(cov / (np.sqrt(var_pp)[:, None] * sd[None, :])), axis=1)
-    return PrincipalPointGnss(K, offset_corr, shift_corr, orient_corr)
+    return PrincipalPointGnss(K, offset_corr, shift_corr, orient_corr, _tie_plan_ms(block, rays, Sb), offset_est,
+                              offset_sd)
+
+
+def _tie_plan_ms(block: G.Block, pr: PointRays, dc: np.ndarray) -> np.ndarray:
+    """(2, 2): ``M`` with the tie points' mean square plan change ``o' M o`` under the orientations' (and
+    calibration's) change ``dc o`` (``dc`` (n, 2) in the reduced covariance's scalar order, per unit of ``o``): the
+    points follow by back-substitution, ``dp = -V^-1 W dc`` (one pass over the rays, as ``_apply_q``'s)."""
+    dp = np.zeros((block.n_points, 2, 2))  # point, east / north, offset axis
+    for sl in pr.chunks():
+        _, _, G, idx = pr.rays(sl)
+        Gu = np.einsum("kij,kja->kia", G[:, :2], dc[idx])  # (k, 2, 2): plan only
+        for i in range(2):
+            for a in range(2):
+                dp[:, i, a] -= np.bincount(pr.pt[sl], Gu[:, i, a], block.n_points)
+    tie = pr.used.copy()
+    tie[block.control_point] = False
+    t = dp[tie]
+    return np.einsum("tia,tib->ab", t, t) / max(len(t), 1)
 
 
 def _gnss_change(block: G.Block, opts: G.SolveSettings, state: G.State, rc, u_c: np.ndarray) -> np.ndarray:

@@ -62,8 +62,10 @@ log = logging.getLogger(__name__)
 # same inputs and settings. 1: s10-fixes (the algorithm as of main e4b26d8e). 2: s11-fixes: at/report.* holds the
 # GNSS direction check (gnss-direction, 4dfc338f; judged by the strips' spread since s11-fixes) and the unmodelled
 # drift in metres (c03bf566), which stamps of version 1 (since 086020cd) kept as up to date. 3: s13-fixes: the
-# direction check's means are the strip means' unweighted average, its Bonferroni count the pairs tested.
-ADJUST_VERSION = 3
+# direction check's means are the strip means' unweighted average, its Bonferroni count the pairs tested. 4:
+# pp-predictor: a principal point against a camera-fixed GNSS offset is flagged by the block's own estimate of the
+# offset, its predicted ground effect from the normal equations (the report's verdict may change).
+ADJUST_VERSION = 4
 
 
 @dataclasses.dataclass(kw_only=True)
@@ -659,8 +661,8 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
         focal_mode = next((g for g in result.geometry or [] if g.mode == "focal_height"), focal_mode)
         for c in now:
             if c.action == "flagged":
-                log.warning(f"self-calibration: {c.group} estimated, but this block cannot tell it from a GNSS offset "
-                            f"fixed in the camera (the estimate holds any such offset: do not reuse it as the camera's "
+                log.warning(f"self-calibration: {c.group} estimated, but it may hold a GNSS offset fixed in the "
+                            f"camera, which this block does not reject (do not reuse the estimate as the camera's "
                             f"calibration): {c.reason}")
         fixed = [c.group for c in now if c.action == "fixed"]
         if not fixed:

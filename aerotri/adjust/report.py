@@ -331,7 +331,8 @@ def _check_dict(c) -> dict:
     for key in ("sigma_fraction", "gnss_height_fraction", "image_field_fraction"):
         d[key] = _f(d[key], 6)
     d["relief_plan_m"] = _f(d["relief_plan_m"], 4)
-    for key in ("gnss_offset_px_per_m", "gnss_offset_correlation", "gnss_shift_correlation", "orientation_correlation"):
+    for key in ("gnss_offset_px_per_m", "gnss_offset_correlation", "gnss_shift_correlation", "orientation_correlation",
+                "gnss_offset_estimate_m", "gnss_offset_estimate_sigma_m"):
         if d.get(key) is not None:
             d[key] = [_f(v, 4) for v in d[key]]
     return d
@@ -727,15 +728,15 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     # on flat ground not a weakness: the ground is the same whichever of the principal point and a GNSS offset fixed
     # in the camera took it (review 12a); the self-calibration section and the console say the estimate is not one to
     # reuse. With relief they part (a rotation against a translation): a weakness where the predicted plan effect
-    # passes PP_RELIEF_PLAN_FRACTION of the plan limit (pp-relief)
+    # passes PP_RELIEF_PLAN_FRACTION of the plan limit (pp-relief; the offset's whole effect since pp-predictor)
     flagged = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "flagged"]
     relief = [c for c in flagged if c.relief_plan_m is not None and math.isfinite(plan_limit_m)
               and c.relief_plan_m > PP_RELIEF_PLAN_FRACTION * plan_limit_m]
     if relief:
         weaknesses.append("Self-calibration: " + "; ".join(
-            f"{c.group} took a GNSS offset fixed in the camera (or the camera's own offset: the block cannot tell "
-            f"them apart), and with this block's relief the two differ on the ground by about {c.relief_plan_m:.3f} m "
-            f"in plan, over {PP_RELIEF_PLAN_FRACTION:.2g} of the plan limit {plan_limit_m:.3f} m" for c in relief)
+            f"{c.group} took a GNSS offset fixed in the camera (or the camera's own offset), and with this block's "
+            f"relief such an offset moves the ground by about {c.relief_plan_m:.3f} m RMS in plan, over "
+            f"{PP_RELIEF_PLAN_FRACTION:.2g} of the plan limit {plan_limit_m:.3f} m" for c in relief)
             + ". A measured lever arm and exposure timing, a laboratory calibration of the camera, or control points "
             "spread over the block's heights tell them apart.")
     gcc = gnss_correction_check(ba)
@@ -1207,6 +1208,10 @@ def _self_calibration_txt(sc: dict) -> list[str]:
                          + (f"{_n3(sc_[0])} / {_n3(sc_[1])} with the GNSS shifts estimated, " if sc_ else "")
                          + f"largest with one frame's orientation {_n3(c['orientation_correlation'][0])} / "
                          f"{_n3(c['orientation_correlation'][1])}")
+                oe, os_ = c.get("gnss_offset_estimate_m"), c.get("gnss_offset_estimate_sigma_m")
+                if oe is not None and os_ is not None:
+                    L.append(f"  {'':11} such an offset as the block estimates it (x / y): {_n3(oe[0], 2)} +- "
+                             f"{_n3(os_[0], 2)} / {_n3(oe[1], 2)} +- {_n3(os_[1], 2)} m")
             if c["reason"]:
                 L.append(f"  {'':11} {'not told from the GNSS' if c['action'] == 'flagged' else 'not determinable'}: "
                          f"{c['reason']}")
