@@ -1185,6 +1185,13 @@ class LevelBodies:
 # The steepest bank (rise over run): dry earth rests at up to 35-40 degrees, riprap at about 34; a rim cell standing
 # higher above the water than this over the rim's two cells is a wall, a roof or a crown (``whole_level_bodies``).
 BANK_MAX_SLOPE = 1.0
+# A rim cell standing higher than the steepest bank is a quay's wall when it is the land: it stands no higher above the
+# lowest land within this reach (m; returns above the water, the water body's own aside) than the steepest bank rises
+# across the rim; else it is an object on lower land (a roof, a crown) and no bank. The reach is the diameter of the
+# ground filter's largest opening (2 x ``ground.MorphSettings.max_window_m``, 25 m): an object it leaves out of the
+# ground, the tile's own pass (``level_water``, whose banks are ground cells) does not bank on either
+# (level-bodies-sparse; chosen on that, not fitted).
+WALL_BEHIND_M = 50.0
 
 
 def whole_level_bodies_dense(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid,
@@ -1274,6 +1281,19 @@ def whole_level_bodies_dense(cells: np.ndarray, heights: np.ndarray, wg: WaterGr
             steepest = level + BANK_MAX_SLOPE * 2.0 * c
             bank = ground[win][rim]
             bank = np.where(bank <= steepest, bank, np.where(lo[win][rim] <= steepest, lo[win][rim], np.nan))
+            high = np.isnan(bank) & np.isfinite(ground[win][rim])
+            if high.any():   # a quay's wall (the land) or an object on lower land (``WALL_BEHIND_M``)
+                reach = int(np.ceil(WALL_BEHIND_M / c))
+                ri, ci = np.nonzero(rim)
+                ri, ci = ri[high] + r0, ci[high] + c0
+                e0, f0 = max(int(ri.min()) - reach, 0), max(int(ci.min()) - reach, 0)
+                ext = (slice(e0, int(ri.max()) + reach + 1), slice(f0, int(ci.max()) + reach + 1))
+                with np.errstate(invalid="ignore"):
+                    land = np.where(lo[ext] > level + tol, lo[ext], np.inf)
+                behind = ndimage.minimum_filter(land, size=2 * reach + 1, mode="constant", cval=np.inf)[ri - e0, ci - f0]
+                top = lo[ri, ci]
+                wall = top - behind <= BANK_MAX_SLOPE * 2.0 * c
+                bank[np.flatnonzero(high)[wall]] = top[wall]
             bank = bank[np.isfinite(bank)]
             if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
                 continue
@@ -1595,6 +1615,37 @@ def _pairs_near(g: _Blocks, labels: np.ndarray, keep: np.ndarray, reach: int, oc
     return found // stride, found % stride
 
 
+def _lowest_land_near(g: _Blocks, u: np.ndarray, floor: np.ndarray, reach: int, lo: np.ndarray) -> np.ndarray:
+    """The lowest of ``lo`` (m) above ``floor`` (per cell of ``u``) within ``reach`` cells (Chebyshev) of each cell
+    ``u`` (inf: none): the lowest along each row first (at the cells ``reach`` rows about ``u``, per floor), then
+    along the column."""
+    r, c = g.rc(u)
+    levels, f = np.unique(floor, return_inverse=True)
+    span = np.arange(-reach, reach + 1)
+    ncols, nf = np.int64(g.ncols), np.int64(len(levels))
+
+    def key(rows, cols, fs):
+        return ((rows.astype(np.int64) + reach) * ncols + cols) * nf + fs
+
+    keys = np.unique(key((r[:, None] + span).ravel(), np.repeat(c, len(span)), np.repeat(f, len(span))))
+    fs = keys % nf
+    rows = (keys // nf) // ncols - reach
+    cols = (keys // nf) % ncols
+    along_row = np.full(len(keys), np.inf)
+    for dc in span:
+        w = g.locate(rows, cols + dc)
+        ok = np.flatnonzero(w >= 0)
+        z = lo[w[ok]]
+        with np.errstate(invalid="ignore"):
+            take = z > levels[fs[ok]]
+        ok, z = ok[take], z[take]
+        along_row[ok] = np.minimum(along_row[ok], z)
+    out = np.full(len(u), np.inf)
+    for dr in span:
+        out = np.minimum(out, along_row[np.searchsorted(keys, key(r + dr, c, f))])
+    return out
+
+
 def _active_blocks_near_footprint(nbr: int, nbc: int, side: int, nrows: int, ncols: int, c: float, x0: float,
                                   y0: float, footprint: np.ndarray, fx0: float, fy0: float) -> np.ndarray:
     """Blocks (``nbr`` x ``nbc`` of ``side`` cells) holding a cell whose 10 m cell (as ``beyond_coverage`` finds it)
@@ -1710,6 +1761,11 @@ def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p:
         v, lv = _pairs_near(g, labels, good, 2, occupied)
         steepest = level[lv] + BANK_MAX_SLOPE * 2.0 * c
         bank = np.where(ground[v] <= steepest, ground[v], np.where(lo[v] <= steepest, lo[v], np.nan))
+        high = np.flatnonzero(np.isnan(bank))
+        if len(high):   # a quay's wall (the land) or an object on lower land (``WALL_BEHIND_M``)
+            behind = _lowest_land_near(g, v[high], level[lv[high]] + tol, int(np.ceil(WALL_BEHIND_M / c)), lo)
+            wall = lo[v[high]] - behind <= BANK_MAX_SLOPE * 2.0 * c
+            bank[high[wall]] = lo[v[high[wall]]]
         fin = np.isfinite(bank)
         n_bank = np.bincount(lv[fin], minlength=nlab + 1)
         n_above = np.bincount(lv[fin & (bank > level[lv] + tol)], minlength=nlab + 1)
