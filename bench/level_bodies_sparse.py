@@ -1,6 +1,7 @@
 """The whole cloud's level water bodies on the occupied blocks (``pipeline.whole_level_bodies``, level-bodies-sparse)
 against the grid over the cloud's bounding box (``pipeline.whole_level_bodies_dense``, i44-edge-fixes; review 15:
-69 bytes a cell of the box, ~44 GB for a 50 km diagonal corridor at 1.4 m cells) -> bench/results/level_bodies_sparse.json.
+69 bytes a cell of the box, ~44 GB for a 50 km diagonal corridor at 1.4 m cells)
+-> bench/results/level_bodies_sparse.json.
 
 Scene: ``corridor_cells`` of tests/lidarctl/test_classify_water_level_bodies.py, a corridor 200 m across (along a
 row) on the grid's diagonal, 1.414 m cells, with every 400 m a lake returning the pulse, a lake mirroring it but in a

@@ -219,13 +219,14 @@ class ClassifySettings:
                                           "its ragged edge joined to the outside) are no gap that level water is "
                                           "joined across or a bridge deck spans.")
     # The whole cloud's level water bodies for the level regions a tile's window cuts (i44-edge): a lake larger than a
-    # tile and its buffer judged whole. Off by default (review 15): its grids cover the cloud's bounding box at the
-    # water cell, 69 bytes a cell (a 50 km diagonal corridor at 1.4 m cells: about 44 GB), and its bank rule rejects a
-    # basin whose quays stand 2.8 m or more above the water while a tile's own pass finds it (seams between tiles).
+    # tile and its buffer judged whole. Off by default (review 15: grids over the cloud's bounding box, quays above
+    # 2.8 m no bank). Since level-bodies-sparse it labels the occupied blocks only and banks on a quay's wall, but the
+    # parent still holds every occupied water cell (about 40 bytes each from the tiles, about 100 in the pass): a
+    # 300 M-point block is tens of GB; per-tile labels joined across the tiles' borders would bound it by a tile.
     water_whole_level_bodies: bool = setting(False, help="Level water in tiles: the level regions a tile's window "
                                              "cuts judged by the whole cloud's level bodies (a lake larger than a "
-                                             "tile). Memory about 69 bytes per cell of the cloud's bounding box at the "
-                                             "water cell: for compact blocks only.")
+                                             "tile). Memory about 150-200 bytes per occupied water cell of the whole "
+                                             "cloud, in the parent process.")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
     # across the water): a two-lane road with pavements is ~15 m. 0 disables the bridge rule.
     bridge_max_width_m: float = setting(20.0, min=0.0, help="A bridge deck is at most this long along the water it "
@@ -1197,7 +1198,8 @@ WALL_BEHIND_M = 50.0
 def whole_level_bodies_dense(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid,
                              p: ClassifySettings) -> LevelBodies:
     """``whole_level_bodies`` on grids over the cells' bounding box (i44-edge-fixes; 69 bytes a cell of the box, review
-    15): the reference its sparse version is tested and measured against. The level water bodies of a whole cloud from its water cells alone (the tiles' pass, ``tiles.water_grid``):
+    15): the reference its sparse version is tested and measured against. The level water bodies of a whole cloud
+    from its water cells alone (the tiles' pass, ``tiles.water_grid``):
     ``cells`` (k, 2) row and column on the whole grid of ``wg`` (each cell once), ``heights`` (k, 3) each cell's
     lowest, median and highest return (m). ``level_water``'s rules on grid arrays, each cell as three returns at
     its centre: every return a candidate (a cell whose returns span at most 2 ``level_water_tol_m`` is level: over
@@ -1290,7 +1292,8 @@ def whole_level_bodies_dense(cells: np.ndarray, heights: np.ndarray, wg: WaterGr
                 ext = (slice(e0, int(ri.max()) + reach + 1), slice(f0, int(ci.max()) + reach + 1))
                 with np.errstate(invalid="ignore"):
                     land = np.where(lo[ext] > level + tol, lo[ext], np.inf)
-                behind = ndimage.minimum_filter(land, size=2 * reach + 1, mode="constant", cval=np.inf)[ri - e0, ci - f0]
+                behind = ndimage.minimum_filter(land, size=2 * reach + 1, mode="constant",
+                                                cval=np.inf)[ri - e0, ci - f0]
                 top = lo[ri, ci]
                 wall = top - behind <= BANK_MAX_SLOPE * 2.0 * c
                 bank[np.flatnonzero(high)[wall]] = top[wall]
@@ -1464,8 +1467,9 @@ def survey_beyond(x, y, count: np.ndarray, c: float, x0: float, y0: float,
 
 
 # The side of a block of the sparse water grid (cells; ``whole_level_bodies``): only blocks holding a water cell (and,
-# for the survey's coverage, those near its footprint) are stored. 32 cells: a block of 1.4 m cells is 45 m, so a
-# corridor's strip wastes little beside it, and the block grid of a 50 km diagonal is 1.2 M entries.
+# for the survey's coverage, those holding a cell of its footprint) are stored. 16 cells: a block of 1.4 m cells is
+# 23 m, so a corridor 140 m wide stores 1.4 cells per occupied one (32 cells: 1.8; bench/level_bodies_sparse.py), and
+# the block grid of a 50 km diagonal is 2.4 M entries.
 LEVEL_BODIES_BLOCK_CELLS = 16
 
 

@@ -150,7 +150,8 @@ def quay_cells(freeboard_m: float, s: int = 120, c: float = 1.41):
     lo = np.where(d < 0, 100.0, 100.0 + freeboard_m + 0.01 * np.clip(d, 0, None)) + rng.normal(0, 0.01, s * s)
     span = np.where(d < 0, rng.uniform(0, 0.03, s * s), rng.uniform(0, 0.1, s * s))
     occ = np.ones((int((s + 3) * c / 10) + 2,) * 2, bool)
-    wg = classify.WaterGrid(cell_m=c, x0_m=0.0, y0_m=0.0, median_count=3.0, footprint_10m=classify.survey_footprint(occ))
+    wg = classify.WaterGrid(cell_m=c, x0_m=0.0, y0_m=0.0, median_count=3.0,
+                            footprint_10m=classify.survey_footprint(occ))
     return np.column_stack([ii, jj]) + 3, np.column_stack([lo, lo + span / 2, lo + span]), wg, int(np.sum(d < 0))
 
 
@@ -216,8 +217,10 @@ def corridor_cells(length_km: float, width_m: float = 200.0, seed: int = 0):
     m = feature == 2
     d2 = np.hypot(at, across - width_m / 2)
     keep &= ~(m & (d2 < 50.0))
-    edge_ring = m & (d2 >= 50.0) & (d2 < 54.0) & (np.mod(np.degrees(np.arctan2(across - width_m / 2, at)), 45.0) < 25.0)
-    z = np.where(edge_ring, lake_level, np.where(m & (d2 >= 54.0) & (d2 < 70.0), lake_level + 1.0 + 0.02 * (d2 - 54.0), z))
+    sector = np.mod(np.degrees(np.arctan2(across - width_m / 2, at)), 45.0) < 25.0
+    edge_ring = m & (d2 >= 50.0) & (d2 < 54.0) & sector
+    bank = m & (d2 >= 54.0) & (d2 < 70.0)
+    z = np.where(edge_ring, lake_level, np.where(bank, lake_level + 1.0 + 0.02 * (d2 - 54.0), z))
     level |= edge_ring
     # a courtyard among roofs
     m = feature == 3
