@@ -12,5 +12,7 @@
 # the whole cloud's level bodies: regions at different levels side by side stay apart, roofs and walls are no
 # bank); 8: s13-fixes (a one-gap deck's ends on land across up to 12 m of water, was 6: a dropout band over one
 # bank); 9: the whole cloud's level bodies an option, off by default (review 15: memory by the cloud's bounding
-# box; quays above 2.8 m). sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
-RULES_VERSION = 9
+# box; quays above 2.8 m); 10: level-bodies-sparse (with ``water_whole_level_bodies``: a rim cell above the steepest
+# bank is a quay's wall, a bank, when no lower land lies within 50 m; default settings: classes unchanged).
+# sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
+RULES_VERSION = 10

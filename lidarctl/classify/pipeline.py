@@ -219,13 +219,14 @@ class ClassifySettings:
                                           "its ragged edge joined to the outside) are no gap that level water is "
                                           "joined across or a bridge deck spans.")
     # The whole cloud's level water bodies for the level regions a tile's window cuts (i44-edge): a lake larger than a
-    # tile and its buffer judged whole. Off by default (review 15): its grids cover the cloud's bounding box at the
-    # water cell, 69 bytes a cell (a 50 km diagonal corridor at 1.4 m cells: about 44 GB), and its bank rule rejects a
-    # basin whose quays stand 2.8 m or more above the water while a tile's own pass finds it (seams between tiles).
+    # tile and its buffer judged whole. Off by default (review 15: grids over the cloud's bounding box, quays above
+    # 2.8 m no bank). Since level-bodies-sparse it labels the occupied blocks only and banks on a quay's wall, but the
+    # parent still holds every occupied water cell (about 40 bytes each from the tiles, about 100 in the pass): a
+    # 300 M-point block is tens of GB; per-tile labels joined across the tiles' borders would bound it by a tile.
     water_whole_level_bodies: bool = setting(False, help="Level water in tiles: the level regions a tile's window "
                                              "cuts judged by the whole cloud's level bodies (a lake larger than a "
-                                             "tile). Memory about 69 bytes per cell of the cloud's bounding box at the "
-                                             "water cell: for compact blocks only.")
+                                             "tile). Memory about 150-200 bytes per occupied water cell of the whole "
+                                             "cloud, in the parent process.")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
     # across the water): a two-lane road with pavements is ~15 m. 0 disables the bridge rule.
     bridge_max_width_m: float = setting(20.0, min=0.0, help="A bridge deck is at most this long along the water it "
@@ -1185,10 +1186,20 @@ class LevelBodies:
 # The steepest bank (rise over run): dry earth rests at up to 35-40 degrees, riprap at about 34; a rim cell standing
 # higher above the water than this over the rim's two cells is a wall, a roof or a crown (``whole_level_bodies``).
 BANK_MAX_SLOPE = 1.0
+# A rim cell standing higher than the steepest bank is a quay's wall when it is the land: it stands no higher above the
+# lowest land within this reach (m; returns above the water, the water body's own aside) than the steepest bank rises
+# across the rim; else it is an object on lower land (a roof, a crown) and no bank. The reach is the diameter of the
+# ground filter's largest opening (2 x ``ground.MorphSettings.max_window_m``, 25 m): an object it leaves out of the
+# ground, the tile's own pass (``level_water``, whose banks are ground cells) does not bank on either
+# (level-bodies-sparse; chosen on that, not fitted).
+WALL_BEHIND_M = 50.0
 
 
-def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p: ClassifySettings) -> LevelBodies:
-    """The level water bodies of a whole cloud from its water cells alone (the tiles' pass, ``tiles.water_grid``):
+def whole_level_bodies_dense(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid,
+                             p: ClassifySettings) -> LevelBodies:
+    """``whole_level_bodies`` on grids over the cells' bounding box (i44-edge-fixes; 69 bytes a cell of the box, review
+    15): the reference its sparse version is tested and measured against. The level water bodies of a whole cloud
+    from its water cells alone (the tiles' pass, ``tiles.water_grid``):
     ``cells`` (k, 2) row and column on the whole grid of ``wg`` (each cell once), ``heights`` (k, 3) each cell's
     lowest, median and highest return (m). ``level_water``'s rules on grid arrays, each cell as three returns at
     its centre: every return a candidate (a cell whose returns span at most 2 ``level_water_tol_m`` is level: over
@@ -1272,6 +1283,20 @@ def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p:
             steepest = level + BANK_MAX_SLOPE * 2.0 * c
             bank = ground[win][rim]
             bank = np.where(bank <= steepest, bank, np.where(lo[win][rim] <= steepest, lo[win][rim], np.nan))
+            high = np.isnan(bank) & np.isfinite(ground[win][rim])
+            if high.any():   # a quay's wall (the land) or an object on lower land (``WALL_BEHIND_M``)
+                reach = int(np.ceil(WALL_BEHIND_M / c))
+                ri, ci = np.nonzero(rim)
+                ri, ci = ri[high] + r0, ci[high] + c0
+                e0, f0 = max(int(ri.min()) - reach, 0), max(int(ci.min()) - reach, 0)
+                ext = (slice(e0, int(ri.max()) + reach + 1), slice(f0, int(ci.max()) + reach + 1))
+                with np.errstate(invalid="ignore"):
+                    land = np.where(lo[ext] > level + tol, lo[ext], np.inf)
+                behind = ndimage.minimum_filter(land, size=2 * reach + 1, mode="constant",
+                                                cval=np.inf)[ri - e0, ci - f0]
+                top = lo[ri, ci]
+                wall = top - behind <= BANK_MAX_SLOPE * 2.0 * c
+                bank[np.flatnonzero(high)[wall]] = top[wall]
             bank = bank[np.isfinite(bank)]
             if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
                 continue
@@ -1439,6 +1464,464 @@ def survey_beyond(x, y, count: np.ndarray, c: float, x0: float, y0: float,
         return beyond_coverage(count, c, x0, y0, water_grid.footprint_10m, water_grid.x0_m, water_grid.y0_m)
     fx0, fy0 = float(np.min(x)), float(np.min(y))
     return beyond_coverage(count, c, x0, y0, survey_footprint(occupied_10m(x, y, fx0, fy0)), fx0, fy0)
+
+
+# The side of a block of the sparse water grid (cells; ``whole_level_bodies``): only blocks holding a water cell (and,
+# for the survey's coverage, those holding a cell of its footprint) are stored. 16 cells: a block of 1.4 m cells is
+# 23 m, so a corridor 140 m wide stores 1.4 cells per occupied one (32 cells: 1.8; bench/level_bodies_sparse.py), and
+# the block grid of a 50 km diagonal is 2.4 M entries.
+LEVEL_BODIES_BLOCK_CELLS = 16
+
+
+class _Blocks:
+    """The cells of the active blocks (bool ``active``: blocks of ``side`` x ``side`` cells) of a grid of ``nrows`` x
+    ``ncols`` cells, numbered block by block (index ``slot * side**2 + row_in_block * side + col_in_block``): a grid
+    stored only where it is occupied. ``locate`` gives -1 for a cell beyond the grid, -2 for one in a block not
+    stored."""
+
+    def __init__(self, active: np.ndarray, nrows: int, ncols: int, side: int):
+        self.side, self.nrows, self.ncols = side, nrows, ncols
+        self.block_row, self.block_col = np.nonzero(active)
+        self.slot = np.full(active.shape, -1, np.int64)
+        self.slot[self.block_row, self.block_col] = np.arange(len(self.block_row))
+        self.n = len(self.block_row) * side * side
+
+    def rc(self, u: np.ndarray):
+        """Row and column on the grid of cells ``u``."""
+        s, rem = np.divmod(u, self.side * self.side)
+        rem = rem.astype(np.int32)
+        r = self.block_row[s].astype(np.int32) * self.side + rem // self.side
+        c = self.block_col[s].astype(np.int32) * self.side + rem % self.side
+        return r, c
+
+    def locate(self, r: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """The cells at rows ``r``, columns ``c`` (-1: beyond the grid; -2: in a block not stored)."""
+        side = self.side
+        s = self.slot[np.clip(r // side, 0, self.slot.shape[0] - 1), np.clip(c // side, 0, self.slot.shape[1] - 1)]
+        out = s * (side * side) + (r % side) * side + c % side
+        out[s < 0] = -2
+        out[(r < 0) | (r >= self.nrows) | (c < 0) | (c >= self.ncols)] = -1
+        return out
+
+    def neighbour(self, u: np.ndarray, dr: int, dc: int) -> np.ndarray:
+        r, c = self.rc(u)
+        return self.locate(r + dr, c + dc)
+
+    def block_rows(self) -> np.ndarray:
+        """(stored blocks, side): the grid rows of each stored block's rows."""
+        return self.block_row[:, None] * self.side + np.arange(self.side)
+
+    def block_cols(self) -> np.ndarray:
+        return self.block_col[:, None] * self.side + np.arange(self.side)
+
+    def exists(self) -> np.ndarray:
+        """The stored cells that lie on the grid (a block at its far edges is partly beyond)."""
+        return ((self.block_rows() < self.nrows)[:, :, None] & (self.block_cols() < self.ncols)[:, None, :]).ravel()
+
+
+def _components(g: _Blocks, member: np.ndarray, joins=None) -> np.ndarray:
+    """Labels 1..n of the 8-connected components of the cells ``member`` of ``g`` (neighbours join when
+    ``joins(u, v)`` holds, always without it); 0 elsewhere."""
+    u = np.flatnonzero(member)
+    out = np.zeros(g.n, np.int32)
+    if not len(u):
+        return out
+    r, c = g.rc(u)
+    parent = np.arange(len(u), dtype=np.int32)   # union-find over the members (positions in u)
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        v = g.locate(r + dr, c + dc)
+        k = np.flatnonzero(v >= 0)
+        k = k[member[v[k]]]
+        if joins is not None:
+            k = k[joins(u[k], v[k])]
+        _union(parent, k.astype(np.int32), np.searchsorted(u, v[k]).astype(np.int32))
+        del v, k
+    del r, c
+    out[u] = _root_labels(parent)
+    return out
+
+
+@numba.njit(cache=True)
+def _find(parent, x):
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
+@numba.njit(cache=True)
+def _union(parent, a, b):
+    """Joins the sets of ``a[k]`` and ``b[k]`` (union-find ``parent``, in place)."""
+    for k in range(len(a)):
+        x, y = _find(parent, a[k]), _find(parent, b[k])
+        if x != y:
+            if x < y:
+                parent[y] = x
+            else:
+                parent[x] = y
+
+
+@numba.njit(cache=True)
+def _root_labels(parent):
+    """Labels 1..n of the sets of union-find ``parent`` (in order of their first member)."""
+    out = np.zeros(len(parent), np.int32)
+    n = 0
+    for x in range(len(parent)):
+        root = _find(parent, x)
+        if root == x:
+            n += 1
+            out[x] = n
+        else:
+            out[x] = out[root]
+    return out
+
+
+def _group_median(values: np.ndarray, groups: np.ndarray, n: int) -> np.ndarray:
+    """``np.median`` of ``values`` per group 0..n-1 (the mean of the two middle values; NaN: an empty group)."""
+    order = np.lexsort((values, groups))
+    v = values[order]
+    count = np.bincount(groups, minlength=n)
+    start = np.r_[0, np.cumsum(count)[:-1]]
+    out = np.full(n, np.nan)
+    has = count > 0
+    out[has] = (v[(start + (count - 1) // 2)[has]] + v[(start + count // 2)[has]]) / 2
+    return out
+
+
+def _pairs_near(g: _Blocks, labels: np.ndarray, keep: np.ndarray, reach: int, occupied: np.ndarray):
+    """(cell, label) pairs: the ``occupied`` cells within ``reach`` cells (Chebyshev, as a 3 x 3 dilation repeated)
+    of a cell whose label is kept (``keep[label]``), outside that label; unique, sorted by cell. Only the region's
+    edge cells (an 8-neighbour outside it) are sources: the straight path from any of its cells to a cell outside
+    within reach leaves it at an edge cell within reach too."""
+    src = np.flatnonzero(keep[labels])
+    r, c = g.rc(src)
+    src_lab = labels[src]
+    edge = np.zeros(len(src), bool)
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr or dc:
+                v = g.locate(r + dr, c + dc)
+                edge |= (v < 0) | (labels[np.maximum(v, 0)] != src_lab)
+    src, r, c, src_lab = src[edge], r[edge], c[edge], src_lab[edge]
+    del edge
+    stride = np.int64(labels.max()) + 1
+    found = np.zeros(0, np.int64)   # cell * stride + label
+    for dr in range(-reach, reach + 1):
+        keys = [found]
+        for dc in range(-reach, reach + 1):
+            if dr == dc == 0:
+                continue
+            v = g.locate(r + dr, c + dc)
+            ok = np.flatnonzero(v >= 0)
+            ok = ok[occupied[v[ok]] & (labels[v[ok]] != src_lab[ok])]
+            keys.append(v[ok] * stride + src_lab[ok])
+        found = np.unique(np.concatenate(keys))
+    return found // stride, found % stride
+
+
+def _lowest_land_near(g: _Blocks, u: np.ndarray, floor: np.ndarray, reach: int, lo: np.ndarray) -> np.ndarray:
+    """The lowest of ``lo`` (m) above ``floor`` (per cell of ``u``) within ``reach`` cells (Chebyshev) of each cell
+    ``u`` (inf: none): the lowest along each row first (at the cells ``reach`` rows about ``u``, per floor), then
+    along the column."""
+    r, c = g.rc(u)
+    levels, f = np.unique(floor, return_inverse=True)
+    span = np.arange(-reach, reach + 1)
+    ncols, nf = np.int64(g.ncols), np.int64(len(levels))
+
+    def key(rows, cols, fs):
+        return ((rows.astype(np.int64) + reach) * ncols + cols) * nf + fs
+
+    keys = np.unique(key((r[:, None] + span).ravel(), np.repeat(c, len(span)), np.repeat(f, len(span))))
+    fs = keys % nf
+    rows = (keys // nf) // ncols - reach
+    cols = (keys // nf) % ncols
+    along_row = np.full(len(keys), np.inf)
+    for dc in span:
+        w = g.locate(rows, cols + dc)
+        ok = np.flatnonzero(w >= 0)
+        z = lo[w[ok]]
+        with np.errstate(invalid="ignore"):
+            take = z > levels[fs[ok]]
+        ok, z = ok[take], z[take]
+        along_row[ok] = np.minimum(along_row[ok], z)
+    out = np.full(len(u), np.inf)
+    for dr in span:
+        out = np.minimum(out, along_row[np.searchsorted(keys, key(r + dr, c, f))])
+    return out
+
+
+def _active_blocks_near_footprint(nbr: int, nbc: int, side: int, nrows: int, ncols: int, c: float, x0: float,
+                                  y0: float, footprint: np.ndarray, fx0: float, fy0: float) -> np.ndarray:
+    """Blocks (``nbr`` x ``nbc`` of ``side`` cells) holding a cell whose 10 m cell (as ``beyond_coverage`` finds it)
+    lies in ``footprint``: every cell of another block without returns is outside it, beyond the coverage."""
+    near = np.pad(footprint, 1, constant_values=False)
+    if not near.any():
+        return np.zeros((nbr, nbc), bool)
+    s = np.zeros((near.shape[0] + 1, near.shape[1] + 1), np.int64)
+    s[1:, 1:] = near.cumsum(0).cumsum(1)
+
+    def index(first, last, origin, start, n):
+        f = lambda k: np.clip(np.floor((origin + (k + 0.5) * c - start) / COVERAGE_CELL_M).astype(np.int64) + 1,
+                              0, n - 1)
+        return f(first.astype(float)), f(last.astype(float))
+
+    b = np.arange(nbr)
+    i0, i1 = index(b * side, np.minimum((b + 1) * side, nrows) - 1, y0, fy0, near.shape[0])
+    b = np.arange(nbc)
+    j0, j1 = index(b * side, np.minimum((b + 1) * side, ncols) - 1, x0, fx0, near.shape[1])
+    i0, i1, j0, j1 = i0[:, None], i1[:, None], j0[None, :], j1[None, :]
+    return (s[i1 + 1, j1 + 1] - s[i0, j1 + 1] - s[i1 + 1, j0] + s[i0, j0]) > 0
+
+
+def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p: ClassifySettings) -> LevelBodies:
+    """The level water bodies of a whole cloud from its water cells alone (the tiles' pass, ``tiles.water_grid``):
+    ``cells`` (k, 2) row and column on the whole grid of ``wg`` (each cell once), ``heights`` (k, 3) each cell's
+    lowest, median and highest return (m). The bodies of ``whole_level_bodies_dense`` (the same cells and levels,
+    its rules), on the cells of the occupied blocks of ``LEVEL_BODIES_BLOCK_CELLS`` only (and, for the survey's
+    coverage, of the blocks near its footprint): memory by the occupied cells, not by the cloud's bounding box (a
+    diagonal corridor's box is mostly empty; level-bodies-sparse, review 15). Regions, gaps and bodies are
+    components joined across the blocks (a graph of the cells); the dilations (rim, shore) are pairs of a cell and
+    the region it lies near; a block not stored is beyond the coverage (``water_survey_coverage``) or one empty
+    gap (without it)."""
+    empty = LevelBodies(1, np.zeros(0, np.int64), np.zeros(0))
+    tol = p.level_water_tol_m
+    if not len(cells) or p.level_water_min_area_m2 <= 0:
+        return empty
+    c = wg.cell_m
+    r_min, c_min = (int(v) for v in cells.min(axis=0))
+    ncols_whole = int(cells[:, 1].max()) + 1
+    nrows, ncols = int(cells[:, 0].max()) + 1 - r_min, ncols_whole - c_min
+    rr, cc = cells[:, 0] - r_min, cells[:, 1] - c_min
+    side = LEVEL_BODIES_BLOCK_CELLS
+    nbr, nbc = -(-nrows // side), -(-ncols // side)
+    active = np.zeros((nbr, nbc), bool)
+    active[rr // side, cc // side] = True
+    coverage = p.level_water_across_dropouts and p.water_survey_coverage
+    x0, y0 = wg.x0_m + c_min * c, wg.y0_m + r_min * c
+    if coverage:
+        if wg.footprint_10m is not None:
+            fp, fx0, fy0 = wg.footprint_10m, wg.x0_m, wg.y0_m
+        else:   # the footprint of the cells' centres, as ``survey_beyond`` takes it from the returns
+            xc, yc = x0 + (cc + 0.5) * c, y0 + (rr + 0.5) * c
+            fx0, fy0 = float(xc.min()), float(yc.min())
+            fp = survey_footprint(occupied_10m(xc, yc, fx0, fy0))
+            del xc, yc
+        active |= _active_blocks_near_footprint(nbr, nbc, side, nrows, ncols, c, x0, y0, fp, fx0, fy0)
+    g = _Blocks(active, nrows, ncols, side)
+    u = g.locate(rr, cc)
+    del rr, cc
+    z = []   # lowest, median, highest return per cell (NaN: no returns)
+    for k in range(3):
+        a = np.full(g.n, np.nan)
+        a[u] = heights[:, k]
+        z.append(a)
+    del u
+    lo, ground, hi = z
+    occupied = np.isfinite(ground)
+    med = np.where(hi - lo <= 2.0 * tol, ground, np.nan)   # the level cells' median return
+    ok = np.isfinite(med)
+    if ok.sum() * c * c < p.level_water_min_area_m2:
+        return empty
+    with np.errstate(invalid="ignore"):
+        lab = _components(g, ok, lambda a, b: np.abs(med[a] - med[b]) <= tol)
+    shore_cells = max(1, int(np.ceil(p.water_shore_m / c)))
+    water_bits = np.zeros(g.n, np.uint8)   # bit k: return k (lowest, median, highest) is water
+
+    def bodies(lab: np.ndarray, joined: bool) -> None:
+        """Marks in ``water_bits`` the level regions ``lab`` (region id per cell) that are water bodies."""
+        size = np.bincount(lab)
+        big = size * c * c >= p.level_water_min_area_m2
+        big[0] = False
+        if not big.any():
+            return
+        level_of = np.full(len(size), np.nan)
+        in_big = big[lab]
+        ids = np.flatnonzero(big)
+        level_of[ids] = ndimage.median(med[in_big], lab[in_big], ids)
+        at_level = np.zeros(g.n, bool)
+        k = np.flatnonzero(in_big)
+        at_level[k] = np.abs(med[k] - level_of[lab[k]]) <= tol
+        del in_big, k
+        if joined:
+            present = np.unique(lab[at_level])
+            relabel = np.zeros(len(size), np.int32)
+            relabel[present] = np.arange(1, len(present) + 1)
+            labels = np.where(at_level, relabel[lab], 0)
+        else:   # each region's cells at its level, 8-connected within the region only (``whole_level_bodies_dense``)
+            labels = _components(g, at_level, lambda a, b: lab[a] == lab[b])
+        del at_level
+        nlab = int(labels.max())
+        if nlab == 0:
+            return
+        area = np.bincount(labels, minlength=nlab + 1) * c * c
+        good = area >= p.level_water_min_area_m2
+        good[0] = False
+        if not good.any():
+            return
+        in_good = good[labels]
+        level = _group_median(med[in_good], labels[in_good], nlab + 1)
+        del in_good
+        # The bed: the rim (two cells beyond the region) banks as in ``whole_level_bodies_dense``.
+        v, lv = _pairs_near(g, labels, good, 2, occupied)
+        steepest = level[lv] + BANK_MAX_SLOPE * 2.0 * c
+        bank = np.where(ground[v] <= steepest, ground[v], np.where(lo[v] <= steepest, lo[v], np.nan))
+        high = np.flatnonzero(np.isnan(bank))
+        if len(high):   # a quay's wall (the land) or an object on lower land (``WALL_BEHIND_M``)
+            behind = _lowest_land_near(g, v[high], level[lv[high]] + tol, int(np.ceil(WALL_BEHIND_M / c)), lo)
+            wall = lo[v[high]] - behind <= BANK_MAX_SLOPE * 2.0 * c
+            bank[high[wall]] = lo[v[high[wall]]]
+        fin = np.isfinite(bank)
+        n_bank = np.bincount(lv[fin], minlength=nlab + 1)
+        n_above = np.bincount(lv[fin & (bank > level[lv] + tol)], minlength=nlab + 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            good &= (n_bank > 0) & ~(n_above / n_bank < p.level_water_bank_fraction)
+        del v, lv, bank, fin
+        if not good.any():
+            return
+        # Shore and open sky (the highest return of the cell and of its four neighbours).
+        v, lv = _pairs_near(g, labels, good, shore_cells, occupied)
+        own = np.flatnonzero(good[labels])
+        v, lv = np.r_[own, v], np.r_[labels[own], lv]
+        del own
+        sky = np.where(occupied[v], hi[v], -np.inf)
+        for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            w = g.neighbour(v, dr, dc)
+            h = np.full(len(v), -np.inf)
+            h[w >= 0] = np.nan_to_num(hi[w[w >= 0]], nan=-np.inf)
+            sky = np.maximum(sky, h)
+        covered = sky > level[lv] + p.low_veg_max_m
+        with np.errstate(invalid="ignore"):
+            on = [np.abs(a[v] - level[lv]) <= tol for a in z]
+        region = labels[v] == lv
+        members = sum((o & region).astype(np.int64) for o in on)
+        n_members = np.bincount(lv, weights=members, minlength=nlab + 1)
+        n_covered = np.bincount(lv, weights=members * covered, minlength=nlab + 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            good &= ~((n_members > 0) & (n_covered / n_members > 0.05))   # a level floor under crowns
+        take = good[lv]
+        for bit, o in enumerate(on):
+            m = take & o & ~covered
+            water_bits[v[m]] |= np.uint8(1 << bit)
+
+    bodies(lab, False)
+    if p.level_water_across_dropouts:
+        # Level patches too small to be a body alone, joined across the gaps they border (``level_water``).
+        small = np.bincount(lab) * c * c < p.level_water_min_area_m2
+        small[0] = False
+        patches = np.where(small[lab], lab, 0)
+        exists = g.exists()
+        void = exists & ~occupied
+        if coverage:   # beyond the survey is no gap a lake's shores border (``beyond_coverage`` on the blocks)
+            outside = np.pad(~fp, 1, constant_values=True)
+            fringe = ndimage.binary_dilation(outside, np.ones((3, 3), bool))
+            i = np.clip(np.floor((y0 + (g.block_rows().astype(float) + 0.5) * c - fy0) / COVERAGE_CELL_M)
+                        .astype(np.int64) + 1, 0, outside.shape[0] - 1)[:, :, None]
+            j = np.clip(np.floor((x0 + (g.block_cols().astype(float) + 0.5) * c - fx0) / COVERAGE_CELL_M)
+                        .astype(np.int64) + 1, 0, outside.shape[1] - 1)[:, None, :]
+            near = void & fringe[i, j].ravel()
+            seed = near & outside[i, j].ravel()
+            del i, j
+            # a block not stored lies outside the footprint, its cells beyond: so are the near cells beside it
+            e = np.flatnonzero(near)
+            r, cl = g.rc(e)
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    if dr or dc:
+                        seed[e[g.locate(r + dr, cl + dc) == -2]] = True
+            del e, r, cl
+            nlab_near = _components(g, near)
+            seeded = np.zeros(int(nlab_near.max()) + 1, bool)
+            seeded[nlab_near[seed]] = True
+            seeded[0] = False
+            void &= ~seeded[nlab_near]
+            del near, seed, nlab_near, seeded
+        joined = _join_across_dropouts_blocks(g, patches, med, void, tol, unstored_void=not coverage)
+        del void
+        if joined is not None:
+            part = patches > 0
+            pairs = np.unique(np.column_stack([joined[part], patches[part]]), axis=0)
+            parts = np.bincount(pairs[:, 0], minlength=int(joined.max()) + 1)
+            joined = np.where(parts[joined] >= 2, joined, 0)
+            if joined.any():
+                bodies(joined, True)
+    water = water_bits > 0
+    if not water.any():
+        return empty
+    blab = _components(g, water)
+    nlab = int(blab.max())
+    vals = [z[bit][(water_bits & (1 << bit)) > 0] for bit in range(3)]
+    labs = [blab[(water_bits & (1 << bit)) > 0] for bit in range(3)]
+    body_level = np.atleast_1d(ndimage.median(np.concatenate(vals), np.concatenate(labs), np.arange(1, nlab + 1)))
+    u = np.flatnonzero(water)
+    r, cl = g.rc(u)
+    key = (r + r_min) * ncols_whole + (cl + c_min)
+    order = np.argsort(key)
+    return LevelBodies(ncols_whole, key[order], np.asarray(body_level, float)[blab[u[order]] - 1])
+
+
+def _join_across_dropouts_blocks(g: _Blocks, lab: np.ndarray, med: np.ndarray, void: np.ndarray, tol: float,
+                                 unstored_void: bool):
+    """``_join_across_dropouts`` on the cells of ``g``: the joined region id per cell, or None when nothing
+    joins. ``unstored_void``: the blocks not stored are empty gaps (the survey's coverage off), each group of them
+    (8-connected) one gap with the stored empty cells beside it."""
+    nreg = int(lab.max())
+    unstored = np.zeros(g.slot.shape, bool)
+    if unstored_void:
+        unstored = g.slot < 0
+    if nreg < 2 or not (void.any() or unstored.any()):
+        return None
+    vlab = _components(g, void)
+    nv = int(vlab.max())
+    blab, nb = ndimage.label(unstored, np.ones((3, 3), int))
+    eight = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if dr or dc]
+
+    def gap_of(u):
+        """The gap (1..nv: stored cells; nv+1..: groups of blocks not stored; 0: none) beside cells ``u``, per
+        neighbour direction."""
+        r, c = g.rc(u)
+        for dr, dc in eight:
+            w = g.locate(r + dr, c + dc)
+            gap = np.zeros(len(u), np.int64)
+            s = w >= 0
+            gap[s] = vlab[w[s]]
+            if nb:
+                s = w == -2
+                gap[s] = nv + blab[(r[s] + dr) // g.side, (c[s] + dc) // g.side]
+            yield gap
+
+    if nb:   # the stored gaps beside blocks not stored are one gap with them
+        vs = np.flatnonzero(void)
+        a, b = [], []
+        for gap in gap_of(vs):
+            k = gap > nv
+            a.append(vlab[vs[k]])
+            b.append(gap[k])
+        a, b = np.concatenate(a), np.concatenate(b)
+        m = sparse.coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(nv + nb + 1,) * 2)
+        _, comp = csgraph.connected_components(m, directed=False)
+        gap_id = comp
+    else:
+        gap_id = np.arange(nv + 1)
+    src = np.flatnonzero(lab > 0)
+    pairs = []
+    for gap in gap_of(src):
+        k = gap > 0
+        pairs.append(np.column_stack([gap_id[gap[k]], lab[src[k]]]))
+    pairs = np.unique(np.concatenate(pairs), axis=0)
+    if len(pairs) < 2:
+        return None
+    level = np.zeros(nreg + 1)
+    present = np.unique(lab[src])
+    level[present] = ndimage.median(med[src], lab[src], present)
+    order = np.lexsort((level[pairs[:, 1]], pairs[:, 0]))
+    v, r = pairs[order, 0], pairs[order, 1]
+    link = (v[1:] == v[:-1]) & (np.abs(level[r[1:]] - level[r[:-1]]) <= tol)
+    if not link.any():
+        return None
+    m = sparse.coo_matrix((np.ones(int(link.sum())), (r[:-1][link], r[1:][link])), shape=(nreg + 1,) * 2)
+    _, comp = csgraph.connected_components(m, directed=False)
+    ids = np.unique(comp[1:], return_inverse=True)[1] + 1
+    return np.r_[0, ids].astype(np.int32)[lab]
 
 
 def water_cell_size_m(spacing_m: float, p: ClassifySettings) -> float:
