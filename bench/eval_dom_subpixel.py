@@ -19,6 +19,7 @@ Usage: python bench/eval_dom_subpixel.py RUN_DIR BLOCK_DIR --key demo [--band 98
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -55,27 +56,17 @@ def _stats(d_gsd) -> dict:
                 above_0_5_gsd=int((d > 0.5).sum()), above_1_gsd=int((d > 1.0).sum()))
 
 
-class _Parabolas:
-    """``refine_shift`` switched off within: ``match_patches`` takes the parabolas at the whole-pixel peak."""
-
-    def __enter__(self):
-        self._saved = ortho.patches.refine_shift
+@contextlib.contextmanager
+def _pass(name: str):
+    """"parabolas": ``refine_shift`` switched off within (``match_patches`` keeps the parabolas at the whole-pixel
+    peak, the check as before); "refined": as it is."""
+    saved = ortho.patches.refine_shift
+    if name == "parabolas":
         ortho.patches.refine_shift = lambda *a, **k: None
-
-    def __exit__(self, *exc):
-        ortho.patches.refine_shift = self._saved
-
-
-def _pass(name):
-    return _Parabolas() if name == "parabolas" else _NoOp()
-
-
-class _NoOp:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return None
+    try:
+        yield
+    finally:
+        ortho.patches.refine_shift = saved
 
 
 def known_shifts(run_dir: Path, block: Path, window_px: int) -> dict:
