@@ -1,9 +1,17 @@
 """Patch displacements between two orthoimages on the same grid (DOM checks and seam misalignment).
 
-Each textured square patch of the first image is located in the second by normalised
-cross-correlation (``cv2.matchTemplate``, TM_CCOEFF_NORMED) within a search radius and refined to
-sub-pixel by a parabola through the correlation peak in x and y. The displacement is the first
-image's position minus the second's, in pixels (x right, y down) and in metres (dE east, dN north).
+Each textured square patch of the first image is located in the second by normalised cross-correlation
+(``cv2.matchTemplate``, TM_CCOEFF_NORMED) within a search radius, to the whole pixel; a parabola through the peak in x
+and y (``parabola_peak``) gives a first sub-pixel estimate, and ``refine_shift`` from there the shift maximising the
+NCC with the second image resampled (bicubic) between whole pixels, by Gauss-Newton; where that fails (it leaves the
+search, moves farther than ``MAX_REFINE_PX`` or does not settle) the parabolas' estimate stays. The displacement is
+the first image's position minus the second's, in pixels (x right, y down) and in metres (dE east, dN north).
+
+Why not the parabolas alone: on a patch dominated by thin lines (a road's edge lines at a slant) the NCC surface is a
+narrow ridge along the lines; its samples at whole-pixel shifts are highest where the ridge passes nearest a whole
+pixel, not where the patch fits best, and the parabolas across x and y at that sample keep it: a cross-road shift of
+a fifth of a pixel was read as up to a pixel along the road (the demo DOM's band of 0.6-1 GSD displacements along its
+north-south roads, docs/true-ortho.md "The DOM check's sub-pixel peak on roads").
 
 The aperture problem: a patch whose texture runs in one direction only (a road's edges, a field's furrows) fixes the
 shift across that direction but not along it: the NCC peak slides along the road. Such patches are left out before
@@ -88,6 +96,55 @@ def texture_ratio(patch: np.ndarray) -> float:
     return max(half_trace - root, 0.0) / large if large > 0 else 0.0
 
 
+# Farthest the sub-pixel refinement may move from the parabolas' estimate (px): a slanted ridge's whole-pixel peak lies
+# up to 1/(2 tan a) px along it from the best fit (a the ridge's angle to the pixel axis: 2.8 px at 10 degrees);
+# farther, or not settled in REFINE_ITERATIONS (a ridge converges slowly along itself: the demo's reference against
+# itself moved half a pixel both ways, 80 of 1,418 patches unsettled in 10 iterations, 4 in 20, none in 40), the
+# parabolas' estimate stays
+MAX_REFINE_PX = 3.0
+REFINE_ITERATIONS = 40
+
+
+def refine_shift(template: np.ndarray, window: np.ndarray, x0: float, y0: float,
+                 max_move_px: float = MAX_REFINE_PX, iterations: int = REFINE_ITERATIONS) -> tuple[float, float] | None:
+    """Sub-pixel position (x, y: column and row of its top-left pixel in ``window``) of ``template`` where their
+    normalised cross-correlation is highest, from (``x0``, ``y0``) (the parabolas' estimate at the whole-pixel peak):
+    Gauss-Newton on the difference of the zero-mean, unit-variance template and window, the window resampled
+    bicubically at the shift and its central differences the Jacobian. None when it leaves the window (a peak on the
+    search's edge), moves more than ``max_move_px`` from the start, or does not settle to 0.002 px in ``iterations``."""
+    t = np.asarray(template, np.float32)
+    w = np.asarray(window, np.float32)
+    n0, n1 = t.shape
+    s = float(t.std())
+    if s <= 0:
+        return None
+    tn = (t.astype(np.float64) - float(t.mean())) / s
+    # one pixel around the template's grid: the central differences at its border
+    rows, cols = np.mgrid[-1:n0 + 1, -1:n1 + 1].astype(np.float32)
+    x, y = float(x0), float(y0)
+    x_max, y_max = w.shape[1] - n1, w.shape[0] - n0
+    for _ in range(iterations):
+        warped = cv2.remap(w, cols + np.float32(x), rows + np.float32(y), cv2.INTER_CUBIC,
+                           borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        gx = 0.5 * (warped[1:-1, 2:] - warped[1:-1, :-2])
+        gy = 0.5 * (warped[2:, 1:-1] - warped[:-2, 1:-1])
+        core = warped[1:-1, 1:-1]
+        sd = core.std()
+        if sd <= 0:
+            return None
+        jac = np.stack([(gx - gx.mean()).ravel(), (gy - gy.mean()).ravel()], axis=1) / sd
+        normal = jac.T @ jac
+        if np.linalg.det(normal) <= 1e-12 * float(np.trace(normal)) ** 2:
+            return None
+        step = np.linalg.solve(normal, jac.T @ (tn - (core - core.mean()) / sd).ravel())
+        x, y = x + float(step[0]), y + float(step[1])
+        if not (0.0 < x < x_max and 0.0 < y < y_max) or math.hypot(x - x0, y - y0) > max_move_px:
+            return None
+        if math.hypot(step[0], step[1]) < 2e-3:
+            return x, y
+    return None
+
+
 def parabola_peak(c_m, c_0, c_p):
     """Offset (-0.5 .. 0.5) of the top of the parabola through three neighbouring correlation values; 0 when not
     a maximum."""
@@ -136,8 +193,12 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
             _, peak, _, (px, py) = cv2.minMaxLoc(cc)
             if peak < min_ncc or px in (0, cc.shape[1] - 1) or py in (0, cc.shape[0] - 1):
                 continue
+            # the parabolas at the whole-pixel peak (module doc: biased along a slanted ridge), then the NCC's peak
             sx = parabola_peak(cc[py, px - 1], cc[py, px], cc[py, px + 1])
             sy = parabola_peak(cc[py - 1, px], cc[py, px], cc[py + 1, px])
+            refined = refine_shift(t, ref[r0:r1, c0:c1], px + sx, py + sy)
+            if refined is not None:
+                sx, sy = refined[0] - px, refined[1] - py
             # the DOM patch at (r, c) is found in the reference at (r + py - S, c + px - S):
             # the DOM shows that content displaced by minus that offset
             rows.append(r + (P - 1) / 2.0)
