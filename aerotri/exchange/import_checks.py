@@ -17,7 +17,8 @@
 - **Ids**: when ``images/`` holds frames, every image id of the import must be one of them; every measured
   point must be a control point (of the import, else of control/points.csv). Those that are not are named.
 - **Camera size**: an imported camera has the size of the frames in ``images/`` (a COLMAP or Metashape
-  model made on resized frames is refused at the import, not by ``aerotri match``).
+  model made on resized frames is refused at the import, not by ``aerotri match``), and numbers in the units of
+  its keys (``Camera.check_plausible``: a focal length in metres, a principal point in pixels are refused).
 """
 
 from __future__ import annotations
@@ -245,6 +246,8 @@ def check_import(project: Project, block: ImportedBlock, replaced: set) -> list[
     check_positions(project, block, replaced)
     notes += scale_note(project, block)
     check_image_ids(project, block)
+    if block.camera is not None:
+        block.camera.check_plausible(block.source_of("camera"))
     check_camera_size(project, block)
     check_point_ids(project, block, replaced)
     return notes
