@@ -1606,7 +1606,8 @@ def format_html(rep: dict, ba=None) -> str:
                                   [["sum", len(crow), *rep["check_sum_m"]], ["rms", len(crow), *rep["check_rms_m"]]], 3)
             crow += [["sum"] + [None] * 7 + list(rep["check_sum_m"]), ["rms"] + [None] * 7 + list(rep["check_rms_m"])]
         ctx["check_points"] = RF.long_table("check points", ["id", "rays", *xyz, f"X adj {uh}", f"Y adj {uh}",
-                                                             f"Z adj {uz}", *dxyz], crow, 3)
+                                                             f"Z adj {uz}", *dxyz], crow, 3,
+                                            count=len(rep["check_points"]))
     if sc:
         ctx["self_calibration"] = dict(
             asked=", ".join(sc["groups"]), estimated=", ".join(sc.get("estimated") or []) or "none",

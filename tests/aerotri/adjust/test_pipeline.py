@@ -167,3 +167,16 @@ def test_a_point_without_rays_may_lie_anywhere(block_project, monkeypatch):
     others = np.delete(np.arange(len(ba.points_map)), k)
     assert np.isfinite(ba.points_map[others]).all()
     assert np.isfinite(ba.points_sigma_map[others]).all()
+
+
+def test_the_folded_check_point_table_counts_the_check_points(tmp_path):
+    """report.html folds a long check-point table under "N check points": N counted the table's sum and rms rows
+    too (the demo: "386 check points" over its 384)."""
+    block = geometric_block(2, 5, seed=7)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=60, n_check=45, seed=2)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False))
+    write_outputs(ba, root)
+    n = json.loads((root / "at" / "report.json").read_text())["counts"]["check_points"]
+    html = (root / "at" / "report.html").read_text()
+    assert n > 40 and f"<summary>{n} check points (click to show the table)</summary>" in html
