@@ -1515,6 +1515,9 @@ def report_figures(rep: dict, ba=None) -> list:
     return [f for f in figs if f is not None]
 
 
+REMOVED_SHOWN = 200  # removed observations listed in report.html (report.txt and report.json list all)
+
+
 def format_html(rep: dict, ba=None) -> str:
     """report.html: the ISAT blocks and the RMS, control, check, GNSS, photo and flight tables as HTML
     tables, and the figures with their scale keys (the plain-text layout: report.txt); the page is
@@ -1596,8 +1599,12 @@ def format_html(rep: dict, ba=None) -> str:
         worst_tie_points=T(["point", "rays", "rms um", *xyz],
                            [[x["point_id"], x["rays"], x["rms_um"], *x["xyz_m"]] for x in rep["worst_tie_points"]], 3),
         n_removed=len(rem),
-        removed=RF.long_table("removed observations", ["point", "image", "w", "vx px", "vy px", "round"],
-                              [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]] for x in rem[:200]], 2),
+        # at most REMOVED_SHOWN rows; the summary says so (it read "200 removed observations" under "(1787)")
+        removed=RF.long_table("removed observations" if len(rem) <= REMOVED_SHOWN else
+                              f"of the {len(rem)} removed observations, in the order of the removal rounds (all: "
+                              "report.txt, report.json)", ["point", "image", "w", "vx px", "vy px", "round"],
+                              [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]]
+                               for x in rem[:REMOVED_SHOWN]], 2),
     )
     if rep["check_points"]:
         crow = [[r["id"], r["rays"], *r["measured_m"], *r["adjusted_m"], *r["d_m"]] for r in rep["check_points"]]

@@ -180,3 +180,23 @@ def test_the_folded_check_point_table_counts_the_check_points(tmp_path):
     n = json.loads((root / "at" / "report.json").read_text())["counts"]["check_points"]
     html = (root / "at" / "report.html").read_text()
     assert n > 40 and f"<summary>{n} check points (click to show the table)</summary>" in html
+
+
+def test_the_removed_observations_table_says_it_is_shortened(block_project, monkeypatch):
+    """report.html lists the first REMOVED_SHOWN removed observations under "Removed observations (N)"; its summary
+    said "200 removed observations" under the demo's 1787."""
+    import aerotri.adjust.report as report
+
+    _, root = block_project
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False,
+                                             gnss_shift_sigma_m=0.3, self_calibration=("pp", "radial")))
+    rep = json.loads(write_outputs(ba, root).report_path.read_text())
+    assert rep["removed_observations"]
+    # the small block removes few: its first removal stands for the 60 of a long list (the table's layout only)
+    first = rep["removed_observations"][0]
+    rep["removed_observations"] = [dict(first, point_id=f"{first['point_id']}_{k}") for k in range(60)]
+    n = 60
+    monkeypatch.setattr(report, "REMOVED_SHOWN", 41)
+    html = report.format_html(rep, ba)
+    assert f"<h2>Removed observations ({n})</h2>" in html
+    assert f"<summary>41 of the {n} removed observations, in the order of the removal rounds (all: report.txt, " in html
