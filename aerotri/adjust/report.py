@@ -505,6 +505,26 @@ class GnssCorrectionCheck:
                 f"({abs(v) / sig[axis]:.1f} sigma)" for s, term, axis, v in self.suspect]
 
 
+def pp_shift_note(ba, gcc: GnssCorrectionCheck) -> str | None:
+    """Why suspect plan shifts need not be the GNSS's: the principal point, estimated with them, correlates with them
+    beyond ``determinability.CORRELATION_LIMIT`` (a strip's shift moves its ground as a principal-point offset does).
+    The demo's first strip alone: shifts E -1.32 / N +1.93 m "suspect"
+    (13 / 19 sigma) against true 0.15 / -0.04 m, the principal point 5.6 / 4.2 px from the truth with them, v0
+    correlation 0.994; without pp the shift E -0.34 m, without the shifts the centres 0.18 m from the truth."""
+    from aerotri.adjust.determinability import CORRELATION_LIMIT
+
+    if not any(axis in "EN" and term == "shift" for _, term, axis, _v in gcc.suspect):
+        return None
+    for c in getattr(ba, "calibration_checks", []) or []:
+        r = c.gnss_shift_correlation
+        if c.group == "pp" and r and any(math.isfinite(v) and v > CORRELATION_LIMIT for v in r):
+            return (f"The principal point was estimated with these shifts and correlates with them (u0 / v0 "
+                    f"{r[0]:.3f} / {r[1]:.3f}, limit {CORRELATION_LIMIT:g}): the plan shifts may be the principal "
+                    "point's, not the GNSS's (a shift per strip moves the strip's ground as a principal-point offset "
+                    "does); adjust without pp, or with gnss_correction = \"none\", to tell.")
+    return None
+
+
 def suspect_label(strip: int, term: str) -> str:
     """How a report names a suspect GNSS correction: "strip 2 shift", or "flight offset" (the consumer model's one
     offset, which belongs to no strip)."""
@@ -743,6 +763,9 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
                           + _limit(gcc, f"; 1 % false alarms over the block's {gcc.n} estimates") + ": "
                           + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed.")
+        pp_note = pp_shift_note(ba, gcc)
+        if pp_note:
+            weaknesses.append(pp_note)
         common = common_height_shift_note(ba, gcc, _plan_check(parameters, unit))
         if common:
             weaknesses.append(common)
