@@ -132,7 +132,7 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
     """(N, 3) coordinates of ``from_crs`` in the project CRS (and height system), through the toolkit's
     coordinate-operation policy (no silent ballpark transform; the operation's notes go to
     :func:`collecting_operation_notes`)."""
-    from aerotri.geom.crs.definition import crs_label, parse_crs, project_crs, project_heights, same_crs
+    from aerotri.geom.crs.definition import crs_label, parse_crs, project_crs, project_crs_3d, same_crs
     from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer, grid_advice
 
     xyz = np.asarray(xyz_m, float).reshape(-1, 3)
@@ -141,7 +141,7 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
     if same_crs(src, dst):
         return xyz.copy()
     try:
-        operation = CrsTransformer(src, dst, heights=project_heights(project))
+        operation = CrsTransformer(src, project_crs_3d(project))
     except BallparkRefused as exc:
         # the policy's remedy names --params and --allow-ballpark, which aerotri import does not take
         why = (grid_advice(exc.missing_grids) if exc.missing_grids else
