@@ -224,3 +224,12 @@ def test_points_beyond_the_lens_fold_do_not_project_into_the_frame():
     P = C + d * (100.0 / -d[:, 2:3])
     x, y, _ = cam.project(P, C, R)
     assert np.allclose(x, xs.ravel(), atol=1e-3) and np.allclose(y, ys.ravel(), atol=1e-3)
+
+
+def test_a_camera_file_with_a_focal_length_over_twenty_sides_is_refused(tmp_path):
+    """A pixel size 16 x too small on 1728 px frames (0.6 for 9.6 um): a 200,000 px, 0.5 deg lens."""
+    p = tmp_path / "camera.toml"
+    p.write_text("focal_mm = 120.0\npixel_um = 0.6\nwidth = 1728\nheight = 960\n")
+    with pytest.raises(InputError, match=r"focal_mm = 120 is 200000 px at pixel_um = 0.6: a field of view of 0.5 deg "
+                                         r"across the 1728 px side, expected a focal length of at most 20 x that side"):
+        BrownCamera.read(p)
