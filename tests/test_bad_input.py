@@ -757,6 +757,15 @@ CASES = [
     C("adjust_lever_arm_toml_strings", "aerotri", "adjust {p}", ["project.toml", "lever_arm_m"],
       toml_set("p/project.toml", "gnss", "lever_arm_m", '["a", "b", "c"]')),
     C("adjust_lever_arm_option_nan", "aerotri", "adjust {p} --lever-arm-m nan 0 1", "--lever-arm-m"),
+    # trial-at: a lever arm in millimetres put the camera 1.45 km below its antenna (a numpy traceback), as did
+    # gnss.txt heights of the ground
+    C("adjust_lever_arm_toml_millimetres", "aerotri", "adjust {p}", ["project.toml", "lever_arm_m = 50.0: out of range"],
+      toml_set("p/project.toml", "gnss", "lever_arm_m", "[50.0, -120.0, 1450.0]")),
+    C("adjust_lever_arm_option_millimetres", "aerotri", "adjust {p} --lever-arm-m 0 0 1450", "--lever-arm-m"),
+    C("adjust_gnss_heights_of_the_ground", "aerotri", "adjust {p}", ["gnss.txt", "below the control points' heights"],
+      lambda w: (w / "p/gnss.txt").write_text("\n".join(
+          s if s.startswith("#") else " ".join(f if k != 3 else "0.0" for k, f in enumerate(s.split()))
+          for s in _text(w / "p/gnss.txt").splitlines()) + "\n")),
     C("adjust_gnss_sigma_toml_zero", "aerotri", "adjust {p}", ["project.toml", "sigma_xy_m"],
       all_of(toml_set("p/project.toml", "gnss", "sigma_xy_m", "0.0"),
              lambda w: (w / "p/gnss.txt").write_text("\n".join(" ".join(s.split()[:4]) for s in _text(w / "p/gnss.txt").splitlines()) + "\n"))),

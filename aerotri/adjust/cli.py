@@ -8,7 +8,8 @@ import click
 
 from aerotri.adjust.report_record import AdjustmentRecord
 from aerotri.adjust.settings import AdjustSettings
-from aerotri.core.commands import Command, finite
+from aerotri.core.commands import Command, FiniteFloatRange
+from aerotri.core.project import LEVER_ARM_MAX_M
 from aerotri.core.settings import click_option
 
 
@@ -21,7 +22,8 @@ def _point_ids(ctx, param, values):
 @click.command(cls=Command)
 @click.argument("project", type=click.Path(file_okay=False))
 @click_option(AdjustSettings, "gnss_correction", "--gnss-correction")
-@click_option(AdjustSettings, "lever_arm_m", "--lever-arm-m", nargs=3, type=finite(), default=None, show_default=False,
+@click_option(AdjustSettings, "lever_arm_m", "--lever-arm-m", nargs=3,
+              type=FiniteFloatRange(min=-LEVER_ARM_MAX_M, max=LEVER_ARM_MAX_M), default=None, show_default=False,
               help="Antenna offset from the projection centre in the camera frame (m) (project.toml [adjust] "
                    "lever_arm_m, else [gnss] lever_arm_m, else zero).")
 @click_option(AdjustSettings, "self_calibration", "--self-cal")

@@ -496,6 +496,14 @@ def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image
         ground = float(np.median(given_loc[has_height, 2]))
     else:
         ground = float(np.median(centre0[:, 2]) - _flying_height_guess(centre0, cam))
+    above_m = float(np.median(centre0[:, 2])) - ground
+    if above_m <= 0.0:
+        # no ray reaches the ground below the cameras: the start values' intersection had nothing to average
+        # (gnss.txt heights of the terrain: a numpy reshape traceback)
+        raise InputError(f"{'gnss.txt' if gl is not None else 'the approximate orientations (--eo)'}: the projection "
+                         f"centres lie {-above_m:.1f} m below the control points' heights (medians): heights of the "
+                         "ground, or of another height system than the control's ([project] heights), or a lever arm "
+                         "with the wrong sign; expected the cameras above the ground")
     n_points = block.n_points
     if gl is not None and st.refine_approximations:
         centre0, R0, pts0 = refine_orientations(gl, lever, centre0, R0, obs_point, obs_image, obs_xy_px=obs_xy,

@@ -506,6 +506,26 @@ class GnssCorrectionCheck:
                 f"({abs(v) / sig[axis]:.1f} sigma)" for s, term, axis, v in self.suspect]
 
 
+def pp_shift_note(ba, gcc: GnssCorrectionCheck) -> str | None:
+    """Why suspect plan shifts need not be the GNSS's: the principal point, estimated with them, correlates with them
+    beyond ``determinability.CORRELATION_LIMIT`` (a strip's shift moves its ground as a principal-point offset does).
+    The demo's first strip alone: shifts E -1.32 / N +1.93 m "suspect"
+    (13 / 19 sigma) against true 0.15 / -0.04 m, the principal point 5.6 / 4.2 px from the truth with them, v0
+    correlation 0.994; without pp the shift E -0.34 m, without the shifts the centres 0.18 m from the truth."""
+    from aerotri.adjust.determinability import CORRELATION_LIMIT
+
+    if not any(axis in "EN" and term == "shift" for _, term, axis, _v in gcc.suspect):
+        return None
+    for c in getattr(ba, "calibration_checks", []) or []:
+        r = c.gnss_shift_correlation
+        if c.group == "pp" and r and any(math.isfinite(v) and v > CORRELATION_LIMIT for v in r):
+            return (f"The principal point was estimated with these shifts and correlates with them (u0 / v0 "
+                    f"{r[0]:.3f} / {r[1]:.3f}, limit {CORRELATION_LIMIT:g}): the plan shifts may be the principal "
+                    "point's, not the GNSS's (a shift per strip moves the strip's ground as a principal-point offset "
+                    "does); adjust without pp, or with gnss_correction = \"none\", to tell.")
+    return None
+
+
 def suspect_label(strip: int, term: str) -> str:
     """How a report names a suspect GNSS correction: "strip 2 shift", or "flight offset" (the consumer model's one
     offset, which belongs to no strip)."""
@@ -744,6 +764,9 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
                           + _limit(gcc, f"; 1 % false alarms over the block's {gcc.n} estimates") + ": "
                           + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed.")
+        pp_note = pp_shift_note(ba, gcc)
+        if pp_note:
+            weaknesses.append(pp_note)
         common = common_height_shift_note(ba, gcc, _plan_check(parameters, unit))
         if common:
             weaknesses.append(common)
@@ -1520,6 +1543,9 @@ def report_figures(rep: dict, ba=None) -> list:
     return [f for f in figs if f is not None]
 
 
+REMOVED_SHOWN = 200  # removed observations listed in report.html (report.txt and report.json list all)
+
+
 def format_html(rep: dict, ba=None) -> str:
     """report.html: the ISAT blocks and the RMS, control, check, GNSS, photo and flight tables as HTML
     tables, and the figures with their scale keys (the plain-text layout: report.txt); the page is
@@ -1601,8 +1627,12 @@ def format_html(rep: dict, ba=None) -> str:
         worst_tie_points=T(["point", "rays", "rms um", *xyz],
                            [[x["point_id"], x["rays"], x["rms_um"], *x["xyz_m"]] for x in rep["worst_tie_points"]], 3),
         n_removed=len(rem),
-        removed=RF.long_table("removed observations", ["point", "image", "w", "vx px", "vy px", "round"],
-                              [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]] for x in rem[:200]], 2),
+        # at most REMOVED_SHOWN rows; the summary says so (it read "200 removed observations" under "(1787)")
+        removed=RF.long_table("removed observations" if len(rem) <= REMOVED_SHOWN else
+                              f"of the {len(rem)} removed observations, in the order of the removal rounds (all: "
+                              "report.txt, report.json)", ["point", "image", "w", "vx px", "vy px", "round"],
+                              [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]]
+                               for x in rem[:REMOVED_SHOWN]], 2),
     )
     if rep["check_points"]:
         crow = [[r["id"], r["rays"], *r["measured_m"], *r["adjusted_m"], *r["d_m"]] for r in rep["check_points"]]
@@ -1611,7 +1641,8 @@ def format_html(rep: dict, ba=None) -> str:
                                   [["sum", len(crow), *rep["check_sum_m"]], ["rms", len(crow), *rep["check_rms_m"]]], 3)
             crow += [["sum"] + [None] * 7 + list(rep["check_sum_m"]), ["rms"] + [None] * 7 + list(rep["check_rms_m"])]
         ctx["check_points"] = RF.long_table("check points", ["id", "rays", *xyz, f"X adj {uh}", f"Y adj {uh}",
-                                                             f"Z adj {uz}", *dxyz], crow, 3)
+                                                             f"Z adj {uz}", *dxyz], crow, 3,
+                                            count=len(rep["check_points"]))
     if sc:
         ctx["self_calibration"] = dict(
             asked=", ".join(sc["groups"]), estimated=", ".join(sc.get("estimated") or []) or "none",

@@ -500,11 +500,13 @@ def table(headers: list[str], rows: list[list], nd: int = 3, verdict_col: int | 
     return Table(tuple(headers), tuple(out))
 
 
-def long_table(what: str, headers: list[str], rows: list[list], nd: int = 3, shown: int = 40, **kw) -> Table:
+def long_table(what: str, headers: list[str], rows: list[list], nd: int = 3, shown: int = 40,
+               count: int | None = None, **kw) -> Table:
     """A table; beyond ``shown`` rows it folds into a <details> element (click to open), so that a long
-    per-point list does not push the rest of the report pages down."""
+    per-point list does not push the rest of the report pages down. ``count``: how many ``what`` the summary
+    names when ``rows`` also holds summary rows (the check points' sum and rms), else every row is one."""
     t = table(headers, rows, nd, **kw)
-    return t if len(rows) <= shown else dataclasses.replace(t, folded=f"{len(rows)} {what}")
+    return t if len(rows) <= shown else dataclasses.replace(t, folded=f"{len(rows) if count is None else count} {what}")
 
 
 def strip_fails(fa: dict, strip: dict) -> list:

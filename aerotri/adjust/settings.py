@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from aerotri.core.settings import PROJECT_TOML, DEFAULT, Resolved, setting
+from aerotri.core.project import LEVER_ARM_MAX_M
 
 GNSS_CORRECTIONS = ("none", "shift", "shift_drift")
 # a LiDAR strip's georeferencing error, plan and height (m): lidarctl corners' sigma_strip_xy_m and sigma_strip_z_m
@@ -38,8 +39,9 @@ class AdjustSettings:
                                              "beyond the limit of 1 % false alarms per block are reported as suspect "
                                              "and the solution as weak.")
     lever_arm_m: tuple[float, float, float] | None = setting(
-        None, help="Antenna offset from the projection centre in the camera frame (m); default project.toml [gnss] "
-                   "lever_arm_m, else zero.")
+        None, min=-LEVER_ARM_MAX_M, max=LEVER_ARM_MAX_M,
+        help="Antenna offset from the projection centre in the camera frame (m); default project.toml [gnss] "
+             "lever_arm_m, else zero.")
     self_calibration: tuple[str, ...] = setting((), choices=SELF_CAL_GROUP_NAMES,
                                                 help="Interior orientation groups to estimate.")
     image_sigma_px: float = setting(0.5, min=0.0, min_open=True, help="A-priori image standard deviation (px).")

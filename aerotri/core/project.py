@@ -47,6 +47,11 @@ class CameraSettings:
                                                               "the project folder.")
 
 
+# A lever arm's component beyond this is no aircraft's (decimetres to a few metres): millimetres written as metres
+# ([50, -120, 1450]) put the camera 1.45 km below its antenna and stopped aerotri adjust with a traceback
+LEVER_ARM_MAX_M = 20.0
+
+
 @dataclasses.dataclass(frozen=True)
 class GnssSettings:
     """The GNSS antenna positions of gnss.txt: their a-priori precision and the antenna's lever arm."""
@@ -65,7 +70,9 @@ class GnssSettings:
                                              help="The flight offset's a-priori standard deviation in height (with "
                                                   "offset_sigma_xy_m).")
     lever_arm_m: tuple[float, float, float] = setting(
-        (0.0, 0.0, 0.0), help="Antenna offset from the projection centre in the camera frame (x right, y up, z up).")
+        (0.0, 0.0, 0.0), min=-LEVER_ARM_MAX_M, max=LEVER_ARM_MAX_M,
+        help="Antenna offset from the projection centre in the camera frame (x right, y up, z up), m (a value beyond "
+             f"{LEVER_ARM_MAX_M:g} m is taken for millimetres and refused).")
 
     def __post_init__(self):
         if (self.offset_sigma_xy_m is None) != (self.offset_sigma_z_m is None):

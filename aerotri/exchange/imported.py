@@ -132,15 +132,27 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
     """(N, 3) coordinates of ``from_crs`` in the project CRS (and height system), through the toolkit's
     coordinate-operation policy (no silent ballpark transform; the operation's notes go to
     :func:`collecting_operation_notes`)."""
-    from aerotri.geom.crs.definition import parse_crs, project_crs, project_heights, same_crs
-    from aerotri.geom.crs.transform import CrsTransformer
+    from aerotri.geom.crs.definition import crs_label, parse_crs, project_crs, project_crs_3d, same_crs
+    from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer, grid_advice
 
     xyz = np.asarray(xyz_m, float).reshape(-1, 3)
     src = parse_crs(from_crs, source)
     dst = project_crs(project)
     if same_crs(src, dst):
         return xyz.copy()
-    operation = CrsTransformer(src, dst, heights=project_heights(project))
+    try:
+        operation = CrsTransformer(src, project_crs_3d(project))
+    except BallparkRefused as exc:
+        # the policy's remedy names --params and --allow-ballpark, which aerotri import does not take
+        why = (grid_advice(exc.missing_grids) if exc.missing_grids else
+               "PROJ knows no rigorous transformation between these datums, only a 'ballpark' one that ignores the "
+               "datum shift (errors of decimetres to hundreds of metres)")
+        raise BallparkRefused(
+            f"{source}: {crs_label(src)} ({src.name}) -> project CRS {crs_label(dst)} ({dst.name}): {why}; aerotri "
+            "import applies no datum parameters: transform the coordinates into the project CRS first (aerotri crs "
+            "transform, on an 'id x y z' list, with --params from aerotri crs fit on common points, or "
+            "--allow-ballpark) and import the result with --crs of the project, or choose a project CRS on the "
+            "file's datum", missing_grids=exc.missing_grids) from None
     x, y, z = operation.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
     sink = _OPERATION_NOTES.get()
     if sink is not None:

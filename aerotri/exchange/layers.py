@@ -185,10 +185,10 @@ def _layers(block: AdjustedBlock, project: Project) -> tuple[list, str]:
 def _to_wgs84(geoms, block: AdjustedBlock, project: Project):
     import shapely
 
-    from aerotri.geom.crs.definition import parse_crs, project_heights
+    from aerotri.geom.crs.definition import parse_crs, project_heights, with_heights
     from aerotri.geom.crs.transform import CrsTransformer
 
-    t = CrsTransformer(parse_crs(block.crs), parse_crs("EPSG:4979"), heights=project_heights(project))
+    t = CrsTransformer(with_heights(parse_crs(block.crs), project_heights(project)), parse_crs("EPSG:4979"))
 
     def f(xyz):
         lon, lat, h = t.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])

@@ -98,13 +98,14 @@ def _ground_control_points_json(obs: ImageObservations, ids, xyz: dict, project:
                                 names: dict, plan_only=frozenset()) -> str:
     """OpenSfM's ground_control_points.json: WGS84 positions through the CRS policy, projections normalised; the
     points of ``plan_only`` without ``altitude`` (OpenSfM reads has_altitude = "altitude" in position)."""
-    from aerotri.geom.crs.definition import parse_crs, project_heights
+    from aerotri.geom.crs.definition import parse_crs, project_heights, with_heights
     from aerotri.geom.crs.transform import transform_points
 
     if not ids:
         return json.dumps({"points": []}, indent=2) + "\n"
-    lon, lat, h = transform_points(*np.array([xyz[p] for p in ids]).T, from_crs=parse_crs(block.crs),
-                                   to_crs=parse_crs("EPSG:4979"), heights=project_heights(project))
+    lon, lat, h = transform_points(*np.array([xyz[p] for p in ids]).T,
+                                   from_crs=with_heights(parse_crs(block.crs), project_heights(project)),
+                                   to_crs=parse_crs("EPSG:4979"))
     w, h_px = block.camera.width, block.camera.height
     s = max(w, h_px)
     points = []

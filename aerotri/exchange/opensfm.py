@@ -221,14 +221,14 @@ def project_to_topocentric(ref: dict, project: Project, xyz_map, R_photo_map=Non
     """The inverse of :func:`topocentric_to_project` for a WGS84 ``reference_lla``: (topocentric positions,
     computer-vision camera -> topocentric rotations or None)."""
     from aerotri.exchange.poses import rotation_to_project
-    from aerotri.geom.crs.definition import project_crs, project_heights
+    from aerotri.geom.crs.definition import project_crs_3d
     from aerotri.geom.crs.transform import transform_points
 
     R_et, origin = ecef_from_topocentric(ref)
     geocentric = _geocentric(DEFAULT_CRS, source)
     xyz = np.asarray(xyz_map, float).reshape(-1, 3)
-    ecef = np.column_stack(transform_points(xyz[:, 0], xyz[:, 1], xyz[:, 2], from_crs=project_crs(project),
-                                            to_crs=geocentric, heights=project_heights(project)))
+    ecef = np.column_stack(transform_points(xyz[:, 0], xyz[:, 1], xyz[:, 2], from_crs=project_crs_3d(project),
+                                            to_crs=geocentric))
     topo = (ecef - origin) @ R_et
     if R_photo_map is None:
         return topo, None
@@ -239,12 +239,12 @@ def project_to_topocentric(ref: dict, project: Project, xyz_map, R_photo_map=Non
 
 def reference_of(project: Project, xyz_map) -> dict:
     """``reference_lla`` (WGS84) of a project-CRS point, through the coordinate-operation policy."""
-    from aerotri.geom.crs.definition import parse_crs, project_crs, project_heights
+    from aerotri.geom.crs.definition import parse_crs, project_crs_3d
     from aerotri.geom.crs.transform import transform_points
 
     x, y, z = np.asarray(xyz_map, float).reshape(3)
-    lon, lat, alt = transform_points(np.array([x]), np.array([y]), np.array([z]), from_crs=project_crs(project),
-                                     to_crs=parse_crs(DEFAULT_CRS), heights=project_heights(project))
+    lon, lat, alt = transform_points(np.array([x]), np.array([y]), np.array([z]), from_crs=project_crs_3d(project),
+                                     to_crs=parse_crs(DEFAULT_CRS))
     return {"latitude": float(lat[0]), "longitude": float(lon[0]), "altitude": float(alt[0])}
 
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +102,12 @@ def camera_from_int_param(cam_id: str, p: dict, where: str) -> Camera:
     else:
         # focal length normalised by the image width: only the focal length in pixels is known; keep a
         # nominal pixel of 1 um (every result depends on focal_mm / pixel_um only)
+        if fx > Camera.MAX_FOCAL_PER_SIDE:
+            # focal_len: 120 (mm) with sensor_size left out: a 207,360 px lens on 1728 px frames, written with exit 0
+            raise InputError(f"{where}: focal_len {fx:g} without sensor_size is normalised by the image width "
+                             f"(orthority's convention): {fx * w:.6g} px, a field of view under "
+                             f"{math.degrees(2 * math.atan(0.5 / fx)):.2g} deg; a focal length in mm or pixels needs "
+                             "sensor_size in the same unit (mm, or im_size for pixels)")
         pixel_um, focal_mm = 1.0, fx * w / 1000.0
     scale = max(w, h)
     cx, cy = (number(p.get(k, 0.0), where, k) for k in ("cx", "cy"))

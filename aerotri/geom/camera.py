@@ -310,6 +310,41 @@ class Camera:
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise InputError(f"{source}: {f} must be a finite number, got {v!r}")
 
+    # Widest lens a camera file may hold: focal length >= this share of the longer image side (a field of view of
+    # 157 deg across it); the Brown model's widest real cameras (action cameras) are near 0.45.
+    MIN_FOCAL_PER_SIDE: ClassVar[float] = 0.1
+    # Narrowest: at most this many times the longer side (a 2.9 deg field of view; a 300 mm lens on a 14,204 px,
+    # 3.76 um back is 5.6). A focal length in mm read as one normalised by the image width was 120 x the width
+    MAX_FOCAL_PER_SIDE: ClassVar[float] = 20.0
+
+    def check_plausible(self, source: str = "camera"):
+        """Refuse (``InputError``) a camera read from a file whose numbers are in other units than its keys':
+        a focal length of a tenth of the longer image side or less (in metres, 0.12 for 120 mm: the adjustment
+        stopped on a singular matrix) or over ``MAX_FOCAL_PER_SIDE`` times it, and a principal point outside the
+        frame (in pixels). Only for cameras
+        read from files: self-calibration's intermediate cameras are not held to it."""
+        side_px = max(self.width, self.height)
+        if self.focal_px < self.MIN_FOCAL_PER_SIDE * side_px:
+            fov_deg = 2.0 * math.degrees(math.atan(side_px / 2.0 / self.focal_px))
+            hint = ""
+            if self.focal_px * 1000.0 >= self.MIN_FOCAL_PER_SIDE * side_px and self.focal_mm * 1000.0 <= 1000.0:
+                hint = f"; in metres? {self.focal_mm:g} m = {self.focal_mm * 1000.0:g} mm"
+            raise InputError(f"{source}: focal_mm = {self.focal_mm:g} is {self.focal_px:.4g} px at pixel_um = "
+                             f"{self.pixel_um:g}: a field of view of {fov_deg:.1f} deg across the {side_px} px side, "
+                             f"expected a focal length of at least {self.MIN_FOCAL_PER_SIDE:g} x that side{hint}")
+        if self.focal_px > self.MAX_FOCAL_PER_SIDE * side_px:
+            fov_deg = 2.0 * math.degrees(math.atan(side_px / 2.0 / self.focal_px))
+            raise InputError(f"{source}: focal_mm = {self.focal_mm:g} is {self.focal_px:.6g} px at pixel_um = "
+                             f"{self.pixel_um:g}: a field of view of {fov_deg:.2g} deg across the {side_px} px side, "
+                             f"expected a focal length of at most {self.MAX_FOCAL_PER_SIDE:g} x that side (a pixel "
+                             "size or focal length in other units?)")
+        for key, size_px in (("ppx_mm", self.width), ("ppy_mm", self.height)):
+            half_mm = size_px * self.pixel_um / 2000.0
+            if abs(getattr(self, key)) > half_mm:
+                raise InputError(f"{source}: {key} = {getattr(self, key):g} puts the principal point outside the "
+                                 f"frame (half its side is {half_mm:g} mm); expected the offset from the image "
+                                 f"centre in mm (in pixels? x {self.pixel_um / 1000.0:g} mm/px)")
+
     def to_dict(self) -> dict:
         """The camera file's keys: ``name``, ``model`` and the model's fields."""
         return {"name": self.name, "model": self.MODEL} | {f: getattr(self, f) for f in self.fields()}
@@ -358,6 +393,7 @@ class Camera:
         for f in fields:
             object.__setattr__(cam, f, kwargs.get(f, 0.0))
         cam.validate(source)
+        cam.check_plausible(source)
         return cam
 
     @classmethod

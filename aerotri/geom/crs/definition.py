@@ -386,3 +386,18 @@ def project_crs(project) -> pyproj.CRS:
 def project_heights(project) -> pyproj.CRS | None:
     """The height system of a project folder (``[project] heights``; None: ellipsoidal), checked."""
     return parse_heights(project.info.heights, f"{project.config_path} [project] heights")
+
+
+def with_heights(crs: pyproj.CRS, heights: pyproj.CRS | None) -> pyproj.CRS:
+    """``crs`` with the heights ``heights``: the compound CRS for a vertical CRS, ``crs`` itself for ellipsoidal ones
+    (None: the policy then takes z in the CRS's linear unit, feet in a feet grid, which ``height_crs``'s ``to_3d``
+    would make metres). The CRS to transform project points from or to: ``CrsTransformer``'s ``heights`` is a
+    height anomaly model, not a vertical CRS (the exports to WGS 84 passed EPSG:3855 there and stopped with an
+    AttributeError)."""
+    return crs if heights is None else height_crs(crs, heights)
+
+
+def project_crs_3d(project) -> pyproj.CRS:
+    """The CRS of a project's coordinates with their heights (``with_heights`` of ``[project] crs`` and
+    ``[project] heights``)."""
+    return with_heights(project_crs(project), project_heights(project))

@@ -160,3 +160,23 @@ def test_a_wrong_focal_length_is_named_by_the_strips_common_height_shift(tmp_pat
     assert m, ks["message"]
     assert float(m.group(1)) < 0 and 1.7 < float(m.group(2)) < 2.3 and m.group(2) == m.group(3)
     assert "likely cause" not in ks["message"]
+
+
+def test_suspect_plan_shifts_correlated_with_the_principal_point_say_so(tmp_path):
+    """One strip with the principal point estimated: the strip's plan shift and the principal point cannot be told
+    apart (correlation 0.99), the shifts come out a metre off the block's true GNSS shifts and the verdict blamed the
+    GNSS alone. It now says the shifts may be the principal point's; without pp it does not."""
+    block = geometric_block(1, 8, seed=1)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=80, n_check=6, seed=1)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, self_calibration=("pp",)))
+    gcc = gnss_correction_check(ba)
+    assert any(axis in "EN" for _, _, axis, _ in gcc.suspect)
+    # the estimated plan shift is far from the true one: not a GNSS finding
+    assert np.hypot(*(ba.result.state.shift[0, :2] - block.gnss_shift_m[0, :2])) > 1.0
+    message = build_report(ba).key_statistics["message"]
+    assert "GNSS corrections suspect" in message
+    assert re.search(r"The principal point was estimated with these shifts and correlates with them \(u0 / v0 "
+                     r"0\.9\d\d / 0\.9\d\d, limit 0\.9\): the plan shifts may be the principal point's", message)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX))
+    assert "The principal point was estimated" not in build_report(ba).key_statistics["message"]

@@ -167,3 +167,36 @@ def test_a_point_without_rays_may_lie_anywhere(block_project, monkeypatch):
     others = np.delete(np.arange(len(ba.points_map)), k)
     assert np.isfinite(ba.points_map[others]).all()
     assert np.isfinite(ba.points_sigma_map[others]).all()
+
+
+def test_the_folded_check_point_table_counts_the_check_points(tmp_path):
+    """report.html folds a long check-point table under "N check points": N counted the table's sum and rms rows
+    too (the demo: "386 check points" over its 384)."""
+    block = geometric_block(2, 5, seed=7)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=5, points_per_image=60, n_check=45, seed=2)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False))
+    write_outputs(ba, root)
+    n = json.loads((root / "at" / "report.json").read_text())["counts"]["check_points"]
+    html = (root / "at" / "report.html").read_text()
+    assert n > 40 and f"<summary>{n} check points (click to show the table)</summary>" in html
+
+
+def test_the_removed_observations_table_says_it_is_shortened(block_project, monkeypatch):
+    """report.html lists the first REMOVED_SHOWN removed observations under "Removed observations (N)"; its summary
+    said "200 removed observations" under the demo's 1787."""
+    import aerotri.adjust.report as report
+
+    _, root = block_project
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=SIGMA_PX, point_covariances=False,
+                                             gnss_shift_sigma_m=0.3, self_calibration=("pp", "radial")))
+    rep = json.loads(write_outputs(ba, root).report_path.read_text())
+    assert rep["removed_observations"]
+    # the small block removes few: its first removal stands for the 60 of a long list (the table's layout only)
+    first = rep["removed_observations"][0]
+    rep["removed_observations"] = [dict(first, point_id=f"{first['point_id']}_{k}") for k in range(60)]
+    n = 60
+    monkeypatch.setattr(report, "REMOVED_SHOWN", 41)
+    html = report.format_html(rep, ba)
+    assert f"<h2>Removed observations ({n})</h2>" in html
+    assert f"<summary>41 of the {n} removed observations, in the order of the removal rounds (all: report.txt, " in html

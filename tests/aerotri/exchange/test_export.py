@@ -3,6 +3,8 @@ self-calibration), then exported by ``aerotri export`` from the files alone."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -78,3 +80,32 @@ def test_colmap_model_reprojects_like_the_adjustment(adjusted, tmp_path):
     assert abs(float(np.sqrt(np.mean(err ** 2))) - rms_px) < 0.2 * rms_px
     # pycolmap's own projection of our points through our cameras and poses (the model's consistency)
     assert rec.compute_mean_reprojection_error() < 2.0 * rms_px
+
+
+@pytest.mark.parametrize("fmt", ["odm", "kml"])
+def test_exports_to_wgs84_of_a_project_with_orthometric_heights(adjusted, tmp_path, fmt):
+    """A project with [project] heights = "EPSG:3855" (the NGI block's EGM2008): the exports that go through WGS 84
+    passed the vertical CRS as CrsTransformer's height anomaly model and stopped with "AttributeError: 'CRS' object
+    has no attribute 'crs'". They now transform from the compound CRS: without the geoid grid on this machine the
+    export stops naming it (exit 2, nothing written); the same project with ellipsoidal heights exports."""
+    import shutil
+
+    root, _ = adjusted
+    p = tmp_path / "p"
+    shutil.copytree(root, p, symlinks=True)
+    toml = (p / "project.toml").read_text()
+    assert "heights" not in toml  # ellipsoidal
+    (p / "project.toml").write_text(toml.replace('crs = "EPSG:32649"\n', 'crs = "EPSG:32649"\nheights = "EPSG:3855"\n'))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(aerotri_cli, ["export", str(p), "--format", fmt, "--out", str(out)])
+    assert "Traceback" not in r.output and not isinstance(r.exception, AttributeError), r.output
+    from pyproj.datadir import get_data_dir, get_user_data_dir
+
+    if not any((d / "us_nga_egm08_25.tif").exists() for d in map(Path, (get_data_dir(), get_user_data_dir()))):
+        assert r.exit_code == 2 and "us_nga_egm08_25.tif" in r.output, r.output
+        assert not out.exists() or not any(out.rglob("*.*"))
+    else:
+        assert r.exit_code == 0, r.output
+    (p / "project.toml").write_text(toml)
+    r = CliRunner().invoke(aerotri_cli, ["export", str(p), "--format", fmt, "--out", str(out)])
+    assert r.exit_code == 0, r.output

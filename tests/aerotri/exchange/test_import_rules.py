@@ -181,3 +181,26 @@ def test_import_all_or_none(exported, tmp_path, fresh_project, monkeypatch):
     with pytest.raises(OSError):
         import_files(dst, "colmap", [out / "colmap"])
     assert _listing(dst) == before
+
+
+@pytest.mark.parametrize("table", ["gnss", "adjust"])
+def test_as_gnss_centres_with_a_lever_arm_are_named(exported, tmp_path, table):
+    """Projection centres written to gnss.txt in a project with a lever arm: the adjustment takes them as antenna
+    positions and moves every centre by the lever arm (the demo, [0.05, -0.12, 1.45] m: its check heights 1.64 m RMS
+    off, 4 of 7 control points rejected), so the import says so; OpenSfM's gps_position (GNSS) is not named."""
+    root, out = exported
+    dst = _bare(root, tmp_path)
+    with open(dst / "project.toml", "a") as f:
+        f.write(f"\n[{table}]\nlever_arm_m = [0.05, -0.12, 1.45]\n")
+    r = _import(dst, "colmap", out, "--as-gnss", "--sigma-xyz-m", "0.05", "0.05", "0.08")
+    assert r.exit_code == 0, r.output
+    said = (f"gnss.txt: the 10 positions are projection centres, but project.toml [{table}] lever_arm_m = "
+            "[0.05, -0.12, 1.45] m")
+    assert said in r.output
+    (entry,) = json.loads((dst / "imported" / "imports.json").read_text())["imports"]
+    assert any(said in n for n in entry["notes"])
+    dst2 = _bare(root, tmp_path, "q")
+    with open(dst2 / "project.toml", "a") as f:
+        f.write(f"\n[{table}]\nlever_arm_m = [0.05, -0.12, 1.45]\n")
+    r = _import(dst2, "opensfm", out, "--as-gnss")
+    assert r.exit_code == 0 and "projection centres, but" not in r.output, r.output

@@ -178,6 +178,33 @@ def test_bad_interior(tiny_project, tmp_path, text, match, fresh_project):
         import_files(root, "orthority", [f])
 
 
+def test_interior_in_metres_is_refused_and_nothing_written(tiny_project, tmp_path, fresh_project):
+    """focal_len 0.12 with sensor_size in mm (orthority takes them in one unit): a 0.12 mm lens, 1.25 px on a
+    1728 px side, was written to camera.toml with exit 0 (the adjustment then stopped with a traceback)."""
+    root = fresh_project(tiny_project, tmp_path / "p")
+    f = tmp_path / "int.yaml"
+    f.write_text("cam:\n  type: brown\n  im_size: [1728, 960]\n  focal_len: 0.12\n  sensor_size: [165.888, 92.16]\n")
+    before = sorted(q.relative_to(root) for q in root.rglob("*"))
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "orthority", str(f), "--force"])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "focal_mm = 0.12 is 1.25 px at pixel_um = 96" in r.output and "in metres? 0.12 m = 120 mm" in r.output
+    assert sorted(q.relative_to(root) for q in root.rglob("*")) == before
+
+
+def test_focal_length_in_mm_without_sensor_size_is_refused(tiny_project, tmp_path, fresh_project):
+    """focal_len 120 (mm) with sensor_size left out reads, by orthority's convention, as normalised by the image
+    width: a 207,360 px lens on 1728 px frames (0.48 deg) was written with exit 0 and a note on the pixel size."""
+    root = fresh_project(tiny_project, tmp_path / "p")
+    f = tmp_path / "int.yaml"
+    f.write_text("cam:\n  type: brown\n  im_size: [1728, 960]\n  focal_len: 120.0\n")
+    with pytest.raises(InputError, match=r"focal_len 120 without sensor_size is normalised by the image width "
+                                         r"\(orthority's convention\): 207360 px"):
+        import_files(root, "orthority", [f])
+    f.write_text("cam:\n  type: brown\n  im_size: [1728, 960]\n  focal_len: 0.7234\n")  # normalised: read
+    import_files(root, "orthority", [f])
+    assert read_camera(root / "camera.toml").focal_px == pytest.approx(0.7234 * 1728)
+
+
 def test_bad_geojson_and_cli_exit_code(tiny_project, tmp_path, fresh_project):
     root = fresh_project(tiny_project, tmp_path / "p")
     f = tmp_path / "ext.geojson"

@@ -65,6 +65,34 @@ def test_ori_alone_with_explicit_crs(exported, tmp_path, fresh_project):
     assert np.abs(read_eo(dst / "imported" / "eo.txt").centre_m - read_eo(Project.open(root).eo_path).centre_m).max() < 1e-4
 
 
+def test_control_on_a_datum_proj_cannot_relate_names_what_import_can_do(exported, tmp_path, fresh_project):
+    """Control in CGCS2000 3-degree GK (EPSG:4546) into a WGS 84 / UTM 49N project: PROJ has only a ballpark
+    operation. The refusal told the user to "pass them with --params ... or --allow-ballpark", options aerotri
+    import does not have (exit 2, "No such option"); it names aerotri crs transform and --crs now."""
+    import pyproj
+
+    root, patb = exported
+    crs = Project.open(root).crs
+    t = pyproj.Transformer.from_crs(crs, "EPSG:4546", always_xy=True)
+    lines = []
+    for line in (patb / "block.con").read_text().splitlines():
+        f = line.split()
+        if len(f) == 4:
+            x, y = t.transform(float(f[1]), float(f[2]))
+            line = f"{int(f[0]):16d}{x:16.4f}{y:16.4f}{float(f[3]):16.4f}"
+        lines.append(line)
+    con = tmp_path / "gk.con"
+    con.write_text("\n".join(lines) + "\n")
+    dst = fresh_project(root, tmp_path / "p")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(dst), "--format", "patb", str(con), str(patb / "numbers.txt"),
+                                         "--crs", "EPSG:4546"])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "EPSG:4546 (CGCS2000 / 3-degree Gauss-Kruger CM 111E) -> project CRS" in r.output
+    assert "aerotri import applies no datum parameters" in r.output and "aerotri crs transform" in r.output
+    assert "pass them with --params" not in r.output
+    assert not (dst / "control").exists()
+
+
 ORI_OK = "7 500000.0 4100000.0 1000.0\n 1 0 0 0 1\n 0.0 0 0 1.0\n"
 
 

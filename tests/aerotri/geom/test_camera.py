@@ -66,6 +66,24 @@ def test_camera_file_round_trip_and_unit_errors(tmp_path):
         BrownCamera.read(p)
 
 
+@pytest.mark.parametrize("key, value, match", [
+    # the focal length in metres: 10 px on a 13824 px side; the adjustment stopped on a singular matrix
+    ("focal_mm", "0.12", r"focal_mm = 0.12 is 10 px at pixel_um = 12: a field of view of 179.8 deg .* in metres\? "
+                         r"0.12 m = 120 mm"),
+    # the principal point in pixels: 900 px = 10.8 mm, outside the 7680 px x 12 um = 92.16 mm high frame
+    ("ppy_mm", "-900.0", r"ppy_mm = -900 puts the principal point outside the frame \(half its side is 46.08 mm\)"),
+])
+def test_camera_files_in_other_units_are_refused(tmp_path, key, value, match):
+    good = {"focal_mm": "120.0", "pixel_um": "12.0", "width": "13824", "height": "7680", "ppx_mm": "0.1",
+            "ppy_mm": "-0.2"}
+    p = tmp_path / "camera.toml"
+    p.write_text("".join(f"{k} = {value if k == key else v}\n" for k, v in good.items()))
+    with pytest.raises(InputError, match=match):
+        BrownCamera.read(p)
+    p.write_text("".join(f"{k} = {v}\n" for k, v in good.items()))
+    assert BrownCamera.read(p).focal_px == pytest.approx(10000.0)  # the same file in the keys' units reads
+
+
 # -- the model hierarchy -------------------------------------------------------------------------------
 BROWN = BrownCamera(focal_mm=120, pixel_um=12, width=13824, height=7680, ppx_mm=0.02, ppy_mm=-0.01,
                     k1=-4e-3, k2=1e-3, k3=2e-4, p1=1e-5, p2=-2e-5, name="DMC test")
@@ -206,3 +224,12 @@ def test_points_beyond_the_lens_fold_do_not_project_into_the_frame():
     P = C + d * (100.0 / -d[:, 2:3])
     x, y, _ = cam.project(P, C, R)
     assert np.allclose(x, xs.ravel(), atol=1e-3) and np.allclose(y, ys.ravel(), atol=1e-3)
+
+
+def test_a_camera_file_with_a_focal_length_over_twenty_sides_is_refused(tmp_path):
+    """A pixel size 16 x too small on 1728 px frames (0.6 for 9.6 um): a 200,000 px, 0.5 deg lens."""
+    p = tmp_path / "camera.toml"
+    p.write_text("focal_mm = 120.0\npixel_um = 0.6\nwidth = 1728\nheight = 960\n")
+    with pytest.raises(InputError, match=r"focal_mm = 120 is 200000 px at pixel_um = 0.6: a field of view of 0.5 deg "
+                                         r"across the 1728 px side, expected a focal length of at most 20 x that side"):
+        BrownCamera.read(p)
