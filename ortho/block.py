@@ -860,7 +860,8 @@ def _warn_output_scale(project_crs, out_crs, centre_xy, res: float) -> None:
             f"(lon {lon:.2f}, lat {lat:.2f}): a pixel of {res:g} grid units is {res / k:.4g} m on the ground "
             f"({abs(k - 1.0) * 1000:.1f} mm per metre)")
     if outside_deg > OUTSIDE_AREA_OF_USE_DEG:
-        said += f", and the block lies {outside_deg:.1f} degrees outside its area of use ({h.area_of_use.name})"
+        said += (f", and the block lies {outside_deg:.1f} degrees outside its area of use ({h.area_of_use.name}; "
+                 "expected where a contract extends one zone over a country, e.g. Denmark in UTM 32, Norway in 33)")
     method = (h.coordinate_operation.method_name if h.coordinate_operation is not None else "").lower()
     if "pseudo mercator" in method or "popular visualisation" in method:
         _log.warning(f"{said}; Web Mercator is a web map's display grid, not a mapping grid for measured products "

@@ -111,6 +111,17 @@ def _geodetic_datum(crs: pyproj.CRS):
     return horizontal_crs(crs).datum  # not geodetic_crs.datum: pyproj drops the datum's EPSG code there
 
 
+def _datum_code(datum) -> int | None:
+    """The EPSG code of a datum (or datum ensemble): its own identifier, else PROJ's datum of that name."""
+    ident = datum.to_json_dict().get("id") or {}
+    if ident.get("authority") != "EPSG":
+        try:
+            ident = pyproj.crs.Datum.from_name(datum.name, auth_name="EPSG").to_json_dict().get("id") or {}
+        except pyproj.exceptions.CRSError:
+            return None
+    return int(ident["code"]) if ident.get("authority") == "EPSG" else None
+
+
 def _frames(datum) -> list:
     """(name, EPSG datum code or None) of the reference frames ``datum`` stands for: a datum ensemble's members
     (newest first), else the datum itself."""
@@ -142,12 +153,14 @@ def _h_change(code_a: int, code_b: int, lon_deg: float, lat_deg: float):
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Best transformation is not available", category=UserWarning)
             group = TransformerGroup(a, b, always_xy=True, allow_ballpark=False)
-    except pyproj.exceptions.ProjError:  # a datum PROJ cannot make a geographic CRS of: nothing known
+        if not group.transformers:
+            return None
+        t = group.transformers[0]
+        dh = [t.transform(lon_deg, lat_deg, 0.0, epoch, errcheck=False)[2] for epoch in _SAME_H_EPOCHS]
+    # a datum PROJ cannot make a geographic CRS of, or pyproj's IndexError on some frame pairs (IGS14, IGb14,
+    # SIRGAS: review 17): nothing known, so not taken as the same
+    except (pyproj.exceptions.ProjError, IndexError, ValueError):
         return None
-    if not group.transformers:
-        return None
-    t = group.transformers[0]
-    dh = [t.transform(lon_deg, lat_deg, 0.0, epoch, errcheck=False)[2] for epoch in _SAME_H_EPOCHS]
     if not np.all(np.isfinite(dh)):
         return None
     acc = t.accuracy if t.accuracy is not None and t.accuracy >= 0 else None
@@ -165,8 +178,8 @@ def compare_h_datums(model_crs: pyproj.CRS, op_crs: pyproj.CRS, lon_deg: float =
     if da is None or db is None:
         one = datum_name(model_crs) == datum_name(op_crs)  # an engineering CRS: no datum, its own name
         return HeightDatumMatch(one, one)
-    if da.name == db.name:
-        return HeightDatumMatch(True, True)
+    if da.name == db.name or _datum_code(da) is not None and _datum_code(da) == _datum_code(db):
+        return HeightDatumMatch(True, True)  # by code too: WKT1 names WGS 84's ensemble "World Geodetic System 1984"
     fa, fb = _frames(da), _frames(db)
     acc_of = {d.name: d.to_json_dict().get("accuracy") for d in (da, db) if d.to_json_dict().get("members")}
 
@@ -258,7 +271,12 @@ class _ProjLeg:
             return
         s3, d3 = _as_3d(src), _as_3d(dst)
         self.z_in, self.z_out = z_unit_m(src), z_unit_m(dst)
-        group = _group(s3.to_wkt(), d3.to_wkt())
+        try:
+            group = _group(s3.to_wkt(), d3.to_wkt())
+        except IndexError:  # pyproj's TransformerGroup fails so on some dynamic frames (SIRGAS 2000 -> ITRF2014)
+            raise CrsError(f"PROJ cannot list the operations {crs_label(src)} -> {crs_label(dst)}{purpose} (pyproj "
+                           "fails on this pair of reference frames); transform in two steps through a frame PROJ "
+                           "links to both, or give the parameters of the transformation (--params)") from None
         missing = _missing_grids(group)
         if not group.transformers:
             if not allow_ballpark:

@@ -258,3 +258,9 @@ def test_leftovers_of_an_output_are_its_own_temporaries_only(tmp_path):
     (tmp_path / ".mosaic.tif.part-live").mkdir()
     assert remove_leftovers(tmp_path, names=["mosaic.json"]) == []
     assert (tmp_path / ".mosaic.tif.part-live").is_dir()
+    # review 17: atomic_path's file temporaries carry the stem and the suffix (".out.part-XXXX.tif")
+    for name in (".out.part-live1.tif", ".out.part-dead1.json", ".ortho.part-live2.v2", ".ortho.part-dead2.v1"):
+        (tmp_path / name).write_bytes(b"")
+    gone = remove_leftovers(tmp_path, names=["out.json", "ortho.v1"])
+    assert sorted(p.name for p in gone) == [".ortho.part-dead2.v1", ".out.part-dead1.json"]
+    assert (tmp_path / ".out.part-live1.tif").is_file() and (tmp_path / ".ortho.part-live2.v2").is_file()

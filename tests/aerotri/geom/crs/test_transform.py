@@ -148,3 +148,27 @@ def test_utm_zone_label_wraps_at_the_antimeridian(lon_deg, lat_deg, label):
     area = pyproj.CRS(label).area_of_use
     lon = (lon_deg + 180.0) % 360.0 - 180.0
     assert area.west - 1e-9 <= lon <= area.east + 1e-9
+
+
+def test_h_datums_of_igs_frames_and_wkt1_names_are_compared_without_a_crash():
+    """Review 17: pyproj's TransformerGroup raises IndexError for IGS14 / IGb14 / SIRGAS pairs, which came out as a
+    traceback (exit 1); a WKT1 WGS 84 ("World Geodetic System 1984", EPSG datum 6326) was compared by name with
+    the ensemble, refused after 17 s. Now: nothing known -> not the same (a clean refusal); the same EPSG datum
+    code -> the same datum."""
+    from aerotri.geom.crs.transform import compare_h_datums
+
+    utm50 = pyproj.CRS.from_epsg(32650)
+    for code in (9018, 9379):  # IGS14, IGb14 (geographic 3D)
+        got = compare_h_datums(pyproj.CRS.from_epsg(code), utm50, 111.0, 30.0)
+        assert isinstance(got.same, bool)
+    wkt1 = pyproj.CRS(utm50.to_wkt("WKT1_GDAL"))
+    got = compare_h_datums(pyproj.CRS.from_epsg(4326), wkt1, 111.0, 30.0)
+    assert got.same and got.exact
+
+
+def test_a_frame_pair_pyproj_cannot_list_is_a_clean_crs_error():
+    """Review 17: SIRGAS 2000 -> ITRF2014 raised pyproj's IndexError (a traceback); now a CrsError (exit 2)."""
+    from aerotri.core.errors import CrsError
+
+    with pytest.raises(CrsError, match="PROJ cannot list the operations"):
+        CrsTransformer(pyproj.CRS.from_epsg(31983), pyproj.CRS.from_epsg(7912))
