@@ -375,8 +375,6 @@ def test_a_point_the_last_snooping_left_without_rays_is_no_surface_observation(s
     """The last snooping round can leave a point the surface gate had made a candidate (and used) without rays: it
     is in no solve since, but report.json counted it (the demo: surface control 16,064 used, the variance
     components' surface group 16,063). ``held_by_rays`` leaves it out of the candidates and the used ones."""
-    import dataclasses
-
     from aerotri.adjust.solve import held_by_rays
 
     _, root, dem, _ = surface_block
