@@ -81,7 +81,7 @@ def _chunk_frame(frame: LocalFrame) -> tuple[np.ndarray, np.ndarray]:
 
 # -- export ------------------------------------------------------------------------------------------
 
-def _reference_and_ellipsoidal(project: Project):
+def _reference_and_ellipsoidal(project: Project, cartesian: bool = False):
     """(the ``<reference>`` CRS, a function (N, 3) project coordinates -> the same with ellipsoidal heights).
 
     Metashape's chunk transform reaches geocentric coordinates, which it reads through ``<reference>``: with
@@ -93,7 +93,7 @@ def _reference_and_ellipsoidal(project: Project):
     from aerotri.geom.crs.transform import CrsTransformer
 
     crs = project_crs(project)
-    if project_heights(project) is None:
+    if project_heights(project) is None or cartesian:  # a local engineering CRS: the chunk is its coordinates
         return crs, lambda xyz: np.asarray(xyz, float)
     compound = project_crs_3d(project)
     operation = CrsTransformer(compound, crs)  # z -> ellipsoidal heights; stops naming a missing geoid grid
@@ -125,7 +125,7 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     for k, v in values.items():
         ET.SubElement(cal, k).text = _fmt(v)
     cams = ET.SubElement(chunk, "cameras", next_id=str(len(eo)), next_group_id="0")
-    reference_crs, ellipsoidal_m = _reference_and_ellipsoidal(project)
+    reference_crs, ellipsoidal_m = _reference_and_ellipsoidal(project, frame.cartesian_crs)
     centre_local = frame.to_local(ellipsoidal_m(eo.centre_m))
     R_cv = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations() @ FLIP_YZ
     cam_index = {}
