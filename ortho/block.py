@@ -99,6 +99,22 @@ class BlockInputs:
         return parse_crs(self.project.crs, f"{self.project.root / 'project.toml'}: [project] crs")
 
 
+def _check_given_kappa(project, camera, eo, eo_path, frames) -> None:
+    """Orientations given with ``--eo`` (another program's, imported/eo.txt) are rectified as they are: a frame whose
+    kappa the project's tie points say is off by more than ``KAPPA_LIMIT_DEG`` (180 deg, gon read as degrees) is
+    refused by name (``aerotri.geom.eo_check``); before, it was rectified turned about its nadir, unsaid."""
+    from aerotri.geom.eo_check import check_kappa, ground_guess_m
+    from aerotri.geom.observations import read_image_points
+
+    try:
+        ties = read_image_points(project.tiepoints_path)
+    except InputError as exc:  # the tie points are no input of the rectification: their check is left out
+        _log.info(f"--eo: kappa not checked against the tie points ({exc})")
+        return
+    check_kappa(eo, camera, ties, ground_guess_m(eo, camera, project.flight.mean_terrain_height_m), str(eo_path),
+                frames=frames)
+
+
 def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs:
     """Open a project and check that every selected image has an EO (InputError naming what is missing)."""
     from aerotri.geom.camera import orientations_camera
@@ -146,6 +162,8 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
                              f"{' ...' if len(no_image) > 10 else ''} not found (oriented in {eo_path}); restore it, "
                              "or rectify the others with --frames")
     check_frames(images, camera, camera_source)
+    if eo_given and project.tiepoints_path.is_file():
+        _check_given_kappa(project, camera, eo, eo_path, set(images.image_id))
     return BlockInputs(project, camera, eo, eo_path, images, camera_path=Path(camera_path) if camera_path else None,
                        eo_given=eo_given)
 

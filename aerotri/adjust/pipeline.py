@@ -240,6 +240,30 @@ def project_datum_shortfall(root, settings: AdjustSettings | None = None) -> str
                            project.gnss.offset_sigma_m is not None)
 
 
+def _check_approximate_kappa(eo0, cam, ties, control, with_gnss: bool, path, mean_terrain_m) -> None:
+    """Name the frames of the given approximations (``--eo``) whose kappa the tie points say is off
+    (``aerotri.geom.eo_check``): a warning, or an ``InputError`` when the solve cannot mend them: beyond
+    ``KAPPA_REFUSE_DEG`` without GNSS (the solve starts from them: the demo's one frame 180 deg off "solved" with
+    check points 1,296 m off), or in half the frames or more with GNSS (the resection on the GNSS positions mended one
+    frame 180 deg off; every frame so failed). Before, both went to the solve unnamed."""
+    from aerotri.geom.eo_check import KAPPA_LIMIT_DEG, KAPPA_REFUSE_DEG, ground_guess_m, kappa_errors, kappa_message
+
+    with_height = np.array([k != "horizontal" for k in control.kind], bool) if control is not None else np.zeros(0, bool)
+    ground = (float(np.median(control.xyz_m[with_height, 2])) if with_height.any()
+              else ground_guess_m(eo0, cam, mean_terrain_m))
+    errors = kappa_errors(eo0, cam, ties, ground)
+    off = [e for e in errors if abs(e.error_deg) > KAPPA_LIMIT_DEG]
+    if not off:
+        return
+    wrong = [e for e in off if abs(e.error_deg) > KAPPA_REFUSE_DEG]
+    message = kappa_message(off, len(errors), str(path))
+    if wrong and (not with_gnss or 2 * len(wrong) >= len(errors)):
+        raise InputError(message + (f"; {len(wrong)} beyond {KAPPA_REFUSE_DEG:g} deg, which the adjustment cannot mend "
+                                    + ("in half the block or more" if with_gnss else "without GNSS positions")))
+    log.warning(message + ("; the adjustment starts from them" + (" and mends them by resection on the GNSS positions"
+                                                                    if with_gnss else "")))
+
+
 def _initial_orientations(path, image_ids: list | None, crs=None) -> ExteriorOrientations:
     """Approximate orientations for the adjustment; with ``image_ids`` (GNSS) every image must have one."""
     eo0 = read_eo(path, crs)
@@ -329,6 +353,9 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     validate_references(ties, control, cobs, image_ids, tie_path=project.tiepoints_path,
                         control_path=project.control_points_path, control_obs_path=project.control_image_points_path,
                         camera=cam, block_path=block_path, camera_path=project.camera_path)
+    if st.initial_eo and eo0 is not None:
+        _check_approximate_kappa(eo0, cam, ties, control, gnss is not None, st.initial_eo,
+                                 project.flight.mean_terrain_height_m)
     check_datum(control, gnss is not None, st.gnss_correction, surface=st.dem is not None,
                 gnss_offset=project.gnss.offset_sigma_m is not None)
     # a known k3 is taken off the measurements (Cal3DS2 has no k3; the camera keeps it for the outputs)

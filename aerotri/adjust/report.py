@@ -1186,7 +1186,7 @@ def _dem_check_line(d: dict) -> str:
     """The DemCheck numbers of report.json as one line (point - DEM, metres)."""
     if not d["n"]:
         return "no tie point on the ground inside the DEM"
-    s = f"{d['n']} tie points on the ground: median {d['median_m']:+.3f} m, NMAD {d['nmad_m']:.3f} m"
+    s = f"{d['n']} tie points on the ground (control points not counted): median {d['median_m']:+.3f} m, NMAD {d['nmad_m']:.3f} m"
     if d["limit_m"] is None:
         return s + " (too few to test)"
     return s + (f"; offset sigma {d['sigma_offset_m']:.3f} m (DEM {d['dem_sigma_m']:.3f} m, block height "

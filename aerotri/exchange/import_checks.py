@@ -27,7 +27,7 @@ import logging
 
 import numpy as np
 
-from aerotri.core.errors import CrsError, InputError
+from aerotri.core.errors import CrsError, InputError, id_listing
 from aerotri.core.project import Project
 from aerotri.exchange.imported import ImportedBlock
 from aerotri.geom.crs.definition import GRID_SCALE_LIMIT
@@ -40,8 +40,7 @@ SCALE_LIMIT = GRID_SCALE_LIMIT  # a project CRS whose scale factor at the block 
 
 
 def _listing(ids, n: int = 10) -> str:
-    ids = list(ids)
-    return ", ".join(map(str, ids[:n])) + (f" and {len(ids) - n} more" if len(ids) > n else "")
+    return id_listing(ids, n)
 
 
 def check_project_crs(project: Project, block: ImportedBlock) -> list[str]:

@@ -11,7 +11,7 @@ Layout written (``metashape/cameras.xml``; the elements Metashape's own export h
       <markers><marker id= label=POINT_ID><reference x= y= z= sx= sy= sz= enabled=/></marker>...</markers>
       <frames><frame id="0"><markers><marker marker_id=><location camera_id= pinned="true" x= y=/>...</marker>
       </markers></frame></frames>
-      <reference>WKT of the project CRS</reference>
+      <reference>WKT of the project CRS (compound with [project] heights)</reference>
       <transform><rotation>9</rotation><translation>3</translation><scale>1</scale></transform>
     </chunk></document>
 
@@ -41,9 +41,10 @@ and later): camera -> component ``<transform>`` -> chunk ``<transform>`` -> geoc
 a chunk transform the component's reaches geocentric coordinates. Markers' coordinates go through the whole
 ``<reference>`` CRS: a compound one's vertical part (e.g. EGM96 height) says what their heights are.
 
-Heights: the geocentric coordinates come from the project's heights read as ellipsoidal
-(``aerotri.geom.local_frame``); the round trip is exact, but with ``[project] heights`` a geoid
-Metashape reads the heights N (the geoid undulation) off.
+Heights: Metashape's geocentric coordinates carry ellipsoidal heights. With ``[project] heights`` a vertical CRS
+(e.g. EPSG:3855, EGM2008) the export writes ``<reference>`` as the compound CRS (``COMPD_CS``: markers' z are
+heights of that CRS) and places the chunk with h = H + N through the geoid grid; the import turns the cameras'
+ellipsoidal heights into the project's through the same grid. Without the grid both stop naming it (exit 2).
 """
 
 from __future__ import annotations
@@ -80,6 +81,30 @@ def _chunk_frame(frame: LocalFrame) -> tuple[np.ndarray, np.ndarray]:
 
 # -- export ------------------------------------------------------------------------------------------
 
+def _reference_and_ellipsoidal(project: Project, cartesian: bool = False):
+    """(the ``<reference>`` CRS, a function (N, 3) project coordinates -> the same with ellipsoidal heights).
+
+    Metashape's chunk transform reaches geocentric coordinates, which it reads through ``<reference>``: with
+    ``[project] heights`` a vertical CRS (the NGI block's EGM2008) the reference is the compound CRS (WKT1
+    ``COMPD_CS``, as Metashape writes its own) and the chunk frame is placed with the heights made ellipsoidal
+    through the geoid (h = H + N): its grid is needed, and without it the export stops naming it. Written before
+    with the horizontal CRS alone, the EGM2008 heights were read as ellipsoidal (the block N off, unsaid)."""
+    from aerotri.geom.crs.definition import project_crs, project_crs_3d, project_heights
+    from aerotri.geom.crs.transform import CrsTransformer
+
+    crs = project_crs(project)
+    if project_heights(project) is None or cartesian:  # a local engineering CRS: the chunk is its coordinates
+        return crs, lambda xyz: np.asarray(xyz, float)
+    compound = project_crs_3d(project)
+    operation = CrsTransformer(compound, crs)  # z -> ellipsoidal heights; stops naming a missing geoid grid
+
+    def ellipsoidal_m(xyz):
+        xyz = np.asarray(xyz, float).reshape(-1, 3)
+        return np.column_stack([xyz[:, :2], operation.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])[2]])
+
+    return compound, ellipsoidal_m
+
+
 def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     eo, camera = adjusted_orientations(project)
     frame = block.frame
@@ -100,7 +125,8 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     for k, v in values.items():
         ET.SubElement(cal, k).text = _fmt(v)
     cams = ET.SubElement(chunk, "cameras", next_id=str(len(eo)), next_group_id="0")
-    centre_local = frame.to_local(eo.centre_m)
+    reference_crs, ellipsoidal_m = _reference_and_ellipsoidal(project, frame.cartesian_crs)
+    centre_local = frame.to_local(ellipsoidal_m(eo.centre_m))
     R_cv = frame.rotation_local_from_map(eo.centre_m) @ eo.rotations() @ FLIP_YZ
     cam_index = {}
     for i, iid in enumerate(eo.image_id):
@@ -142,9 +168,7 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
                 for k in ks:
                     ET.SubElement(m, "location", camera_id=str(cam_index[obs.image_id[k]]), pinned="true",
                                   x=_fmt(obs.xy_px[k, 0] + 0.5), y=_fmt(obs.xy_px[k, 1] + 0.5))
-    from aerotri.geom.crs.definition import parse_crs
-
-    ET.SubElement(chunk, "reference").text = parse_crs(project.crs).to_wkt(version="WKT1_GDAL") or parse_crs(project.crs).to_wkt()
+    ET.SubElement(chunk, "reference").text = reference_crs.to_wkt(version="WKT1_GDAL") or reference_crs.to_wkt()
     tr = ET.SubElement(chunk, "transform")
     R, T = _chunk_frame(frame)
     ET.SubElement(tr, "rotation", locked="true").text = " ".join(_fmt(v) for v in R.ravel())
@@ -288,7 +312,9 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     s, Rc, Tc = _similarity(tr, f"{path} chunk transform") if tr is not None else (1.0, np.eye(3), np.zeros(3))
     X = s * centre @ Rc.T + Tc
     R_world = Rc @ R_cv
-    from aerotri.geom.crs.definition import horizontal_crs, parse_crs
+    from aerotri.geom.crs.definition import (horizontal_crs, parse_crs, project_crs, project_heights, same_horizontal,
+                                             with_heights)
+    from aerotri.geom.crs.transform import CrsTransformer
 
     ref_crs = horizontal_crs(parse_crs(crs_text, f"{path} <reference>"))
     frame0 = LocalFrame(ref_crs, [0.0, 0.0, 0.0])
@@ -305,7 +331,18 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         frame = LocalFrame(ref_crs, mean_map)
         centre_map = frame.to_map((X - frame.ecef0) @ frame.R.T)
         R_map = np.transpose(frame.rotation_local_from_map(centre_map), (0, 2, 1)) @ frame.R @ R_world @ FLIP_YZ
-    block.eo = orientations_to_project(ids, centre_map, R_map, ref_crs, project, f"{path} <reference>")
+    eo_crs = ref_crs
+    heights = project_heights(project)
+    if heights is not None and not frame0.cartesian_crs:
+        # the geocentric centres give ellipsoidal heights; the project's are the vertical CRS's (through its geoid
+        # grid; without it the import stops naming it): taken as they are they were N off, unsaid
+        to_heights = with_heights(ref_crs, heights)
+        try:
+            centre_map[:, 2] = CrsTransformer(ref_crs, to_heights).transform(*centre_map.T)[2]
+        except CrsError as exc:
+            raise type(exc)(f"{path}: the camera centres' ellipsoidal heights -> {heights.name}: {exc}") from None
+        eo_crs = ref_crs if same_horizontal(ref_crs, project_crs(project)) else to_heights
+    block.eo = orientations_to_project(ids, centre_map, R_map, eo_crs, project, f"{path} <reference>")
     if options.as_gnss:
         block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options=options, project=project,
                                                          what="camera positions of Metashape's alignment")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, id_listing
 from aerotri.core.textio import read_text
 
 TIE_HEADER = ["point_id", "image_id", "x_px", "y_px"]
@@ -283,7 +283,7 @@ def validate_references(
         if unknown.any():
             k = int(np.argmax(unknown))
             bad = [i for i in np.unique(obs.image_id) if i not in known]
-            raise InputError(f"{obs.where(k, path)}: image id(s) {bad[:5]} are not in the block ({block_path} has "
+            raise InputError(f"{obs.where(k, path)}: image id(s) {id_listing(bad)} are not in the block ({block_path} has "
                              f"{len(known)} image(s))")
         if camera is not None:
             outside = ~camera.inside(obs.xy_px[:, 0], obs.xy_px[:, 1])
@@ -299,11 +299,12 @@ def validate_references(
     measured = set() if control_obs is None else set(np.unique(control_obs.point_id).tolist())
     missing = [p for p in control.id if p not in measured]
     if missing:
-        raise InputError(f"{control_path}: control points {missing} have no image measurement in {control_obs_path}")
+        raise InputError(f"{control_path}: {len(missing)} control point(s) have no image measurement in {control_obs_path}: "
+                         f"{id_listing(missing)}")
     if control_obs is not None:
         orphan = sorted(set(measured) - set(control.id.tolist()))
         if orphan:
-            raise InputError(f"{control_obs_path}: point ids {orphan[:5]} are not in {control_path}")
+            raise InputError(f"{control_obs_path}: point ids {id_listing(orphan)} are not in {control_path}")
     clash = sorted(set(control.id.tolist()) & set(ties.point_id.tolist()))  # a set: no sort of every measurement
     if clash:
-        raise InputError(f"{tie_path}: point ids {clash[:5]} are also control point ids in {control_path}")
+        raise InputError(f"{tie_path}: point ids {id_listing(clash)} are also control point ids in {control_path}")

@@ -5,6 +5,7 @@ bad input."""
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -227,3 +228,91 @@ def test_marker_heights_and_plan_markers(exported, tmp_path, fresh_project):
     control = mine.kind != "check"  # a check point without z is left out (with a note)
     assert list(con.id) == list(mine.id[control]) and set(con.kind) == {"horizontal"}
     assert np.abs(con.xyz_m[:, :2] - mine.xyz_m[control, :2]).max() < 1e-4
+
+
+@pytest.fixture
+def synthetic_geoid(tmp_path):
+    """A made-up EGM2008 grid under EGM2008's file name (N = 30 m + 0.5 m per degree east of 110 E + 0.3 m per degree
+    north of 30 N over 100-120 E, 20-40 N: linear, so PROJ's bilinear reading of it is exact) in a PROJ data folder
+    of this test only; the function N(lon_deg, lat_deg)."""
+    import pyproj
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from aerotri.geom.crs import transform as crs_transform
+
+    def N(lon_deg, lat_deg):
+        return 30.0 + 0.5 * (np.asarray(lon_deg) - 110.0) + 0.3 * (np.asarray(lat_deg) - 30.0)
+
+    step = 0.25
+    lon, lat = 100.0 + step * np.arange(81), 40.0 - step * np.arange(81)
+    with rasterio.open(tmp_path / "us_nga_egm08_25.tif", "w", driver="GTiff", width=81, height=81, count=1,
+                       dtype="float32", crs="EPSG:4326", transform=from_origin(100 - step / 2, 40 + step / 2, step, step)
+                       ) as ds:
+        ds.write(N(lon[None, :], lat[:, None]).astype("float32"), 1)
+    before = pyproj.datadir.get_data_dir()
+    pyproj.datadir.append_data_dir(str(tmp_path))
+    crs_transform._group.cache_clear()  # PROJ's operations were looked up without the grid
+    try:
+        yield N
+    finally:
+        pyproj.datadir.set_data_dir(before)
+        crs_transform._group.cache_clear()
+
+
+def _with_heights(src, dst, heights='heights = "EPSG:3855"\n'):
+    shutil.copytree(src, dst, symlinks=True)
+    toml = (dst / "project.toml").read_text()
+    assert "heights" not in toml
+    (dst / "project.toml").write_text(toml.replace('crs = "EPSG:32649"\n', f'crs = "EPSG:32649"\n{heights}'))
+    return dst
+
+
+def test_orthometric_heights_reach_metashape_as_ellipsoidal(adjusted_tiny, tmp_path, fresh_project, synthetic_geoid):
+    """A project with [project] heights = "EPSG:3855" (the NGI block's EGM2008): the export wrote <reference> as the
+    horizontal CRS alone and placed the chunk with the EGM2008 heights as ellipsoidal, so Metashape read the block N
+    (the geoid undulation, +30 m here) low, unsaid. Now <reference> is the compound CRS (COMPD_CS, as Metashape's own)
+    and the chunk transform gives geocentric coordinates with h = H + N; imported back the heights are the project's."""
+    import pyproj
+
+    root, _ = adjusted_tiny
+    p = _with_heights(root, tmp_path / "p")
+    out = tmp_path / "out"
+    r = CliRunner().invoke(aerotri_cli, ["export", str(p), "--format", "metashape", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    chunk = ET.parse(out / "metashape" / "cameras.xml").getroot().find("chunk")
+    ref = pyproj.CRS.from_wkt(chunk.find("reference").text)
+    assert chunk.find("reference").text.startswith("COMPD_CS[") and ref.sub_crs_list[1].to_epsg() == 3855
+    Rc = np.array(chunk.find("transform/rotation").text.split(), float).reshape(3, 3)
+    Tc = np.array(chunk.find("transform/translation").text.split(), float)
+    X = np.array([Rc @ np.array(c.text.split(), float).reshape(4, 4)[:3, 3] + Tc
+                  for c in chunk.findall("cameras/camera/transform")])
+    lon, lat, h = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*X.T)
+    eo = read_eo(Project.open(p).eo_path)
+    assert np.abs(h - (eo.centre_m[:, 2] + synthetic_geoid(lon, lat))).max() < 1e-3
+    assert 30.0 < float(np.mean(h - eo.centre_m[:, 2])) < 31.5
+    # imported back into a project with the same heights: the heights are the project's again
+    dst = fresh_project(p, tmp_path / "back")
+    import_files(dst, "metashape", [out / "metashape" / "cameras.xml"])
+    back = read_eo(dst / "imported" / "eo.txt")
+    assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4 and np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6
+    con, mine = read_control_points(dst / "control" / "points.csv"), read_control_points(p / "control" / "points.csv")
+    assert np.abs(con.xyz_m - mine.xyz_m).max() < 1e-4
+    # into an ellipsoidal project the cameras come with h = H + N
+    ell = fresh_project(root, tmp_path / "ell")
+    import_files(ell, "metashape", [out / "metashape" / "cameras.xml"])
+    assert np.abs(read_eo(ell / "imported" / "eo.txt").centre_m[:, 2] - h).max() < 1e-3
+
+
+def test_orthometric_heights_without_the_geoid_grid(adjusted_tiny, tmp_path):
+    """Without the geoid grid the export stops naming it (exit 2, nothing written), rather than place the block N off."""
+    from pyproj.datadir import get_data_dir, get_user_data_dir
+
+    if any((d / "us_nga_egm08_25.tif").exists() for d in map(Path, (get_data_dir(), get_user_data_dir()))):
+        pytest.skip("the EGM2008 grid is installed here")
+    root, _ = adjusted_tiny
+    p = _with_heights(root, tmp_path / "p")
+    out = tmp_path / "out"
+    r = CliRunner().invoke(aerotri_cli, ["export", str(p), "--format", "metashape", "--out", str(out)])
+    assert r.exit_code == 2 and "us_nga_egm08_25.tif" in r.output and "Traceback" not in r.output, r.output
+    assert not (out / "metashape" / "cameras.xml").exists()

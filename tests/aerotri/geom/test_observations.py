@@ -64,6 +64,20 @@ def test_control_without_image_measurement(project):
     assert _no_output(project)
 
 
+def test_many_control_points_without_image_measurement_on_one_short_line(project):
+    """The demo's first strip alone with the demo's control file: the 214 unmeasured ids stood on one line of
+    2,400 characters; now the count, the first 10 and "and N more" (as aerotri import lists them)."""
+    ids = [f"gcp{100 + k}" for k in range(214)]
+    _edit(project / "control" / "points.csv",
+          lambda L: L + [f"{i},full,{420000.0 + k},3380000.0,150.0,0.03,0.03,0.05" for k, i in enumerate(ids)])
+    res = _run(project)
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    line = next(x for x in res.output.splitlines() if "no image measurement" in x)
+    assert "214 control point(s)" in line and ", ".join(ids[:10]) + " and 204 more" in line and ids[10] not in line
+    assert len(line) < 400
+    assert _no_output(project)
+
+
 def test_too_few_control_for_datum(project):
     _edit(project / "control" / "points.csv", lambda L: [L[0]] + [x.replace(",full,", ",check,") for x in L[1:]])
     res = _run(project, "--gnss-correction", "shift")

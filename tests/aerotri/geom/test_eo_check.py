@@ -1,0 +1,91 @@
+"""Approximate orientations that cannot be right (aerotri.geom.eo_check): kappa errors read from the tie points of
+a simulated block against its truth; the adjustment and ``ortho rectify --eo`` name the frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from aerotri.cli import main as aerotri_cli
+from aerotri.core.errors import InputError
+from aerotri.core.project import Project
+from aerotri.geom.camera import read_camera
+from aerotri.geom.eo import ExteriorOrientations, read_eo, write_eo
+from aerotri.geom.eo_check import KAPPA_LIMIT_DEG, ground_guess_m, kappa_errors
+from aerotri.geom.observations import read_image_points
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    """(root, truth EO, camera, tie points) of a 3 x 6 block (60 m relief, 1 deg tilts, east-west strips)."""
+    root = write_block_project(geometric_block(3, 6, seed=5), tmp_path_factory.mktemp("kappa") / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=2, seed=6)
+    return (root, read_eo(root / "truth" / "eo.txt"), read_camera(root / "camera.toml"),
+            read_image_points(root / "at" / "tiepoints.csv"))
+
+
+def _with_kappa(eo, kappa_deg, centre_m=None):
+    opk = eo.opk_deg.copy()
+    opk[:, 2] = kappa_deg
+    return ExteriorOrientations(list(eo.image_id), eo.centre_m if centre_m is None else centre_m, opk)
+
+
+def _errors(eo, cam, ties):
+    return {e.image_id: e for e in kappa_errors(eo, cam, ties, ground_guess_m(eo, cam))}
+
+
+def test_kappa_errors_against_the_truth(block):
+    _, truth, cam, ties = block
+    k = truth.opk_deg[:, 2]
+    right = _errors(truth, cam, ties)
+    assert len(right) == len(truth) and max(abs(e.error_deg) for e in right.values()) < 1.0  # 0.53 deg
+    # one frame 180 deg off: that frame alone, with its cause
+    one = _errors(_with_kappa(truth, np.where(np.arange(len(k)) == 7, k + 180.0, k)), cam, ties)
+    bad = {i: e for i, e in one.items() if abs(e.error_deg) > KAPPA_LIMIT_DEG}
+    assert list(bad) == [truth.image_id[7]] and abs(abs(bad[truth.image_id[7]].error_deg) - 180.0) < 3.0
+    assert "180 deg" in bad[truth.image_id[7]].cause
+    # every frame 180 deg off (the neighbours agree in their turn: told by their bases)
+    assert all(abs(abs(e.error_deg) - 180.0) < 5.0 for e in _errors(_with_kappa(truth, k + 180.0), cam, ties).values())
+    # kappa in gon read as degrees: the error is a tenth of kappa, named so where it exceeds the limit
+    gon = _errors(_with_kappa(truth, k / 0.9), cam, ties)
+    assert all(abs(e.error_deg - 0.1 * e.kappa_deg) < 1.0 for e in gon.values())
+    assert all("gon" in e.cause for e in gon.values() if abs(e.error_deg) > KAPPA_LIMIT_DEG)
+    assert any(abs(e.error_deg) > KAPPA_LIMIT_DEG for e in gon.values())
+    # approximations with 5 m in the centres and 3 deg in kappa: each frame's error within 3 deg
+    rng = np.random.default_rng(3)
+    dk = rng.normal(0.0, 3.0, len(k))
+    noisy = _errors(_with_kappa(truth, k + dk, truth.centre_m + rng.normal(0.0, 5.0, truth.centre_m.shape)), cam, ties)
+    assert max(abs(noisy[i].error_deg - d) for i, d in zip(truth.image_id, dk)) < 3.0
+
+
+def test_adjust_names_the_frames(block, tmp_path):
+    """``aerotri adjust --eo`` with every kappa 180 deg off stopped with "Solution failed" (the demo), naming nothing;
+    now refused before the solve naming the frames and the likely cause. One frame so with GNSS: a warning, and the
+    resection on the GNSS positions mends it."""
+    root, truth, _, _ = block
+    k = truth.opk_deg[:, 2]
+    all180, one180 = tmp_path / "all180.txt", tmp_path / "one180.txt"
+    write_eo(all180, _with_kappa(truth, k + 180.0))
+    write_eo(one180, _with_kappa(truth, np.where(np.arange(len(k)) == 7, k + 180.0, k)))
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--eo", str(all180), "--no-html", "--no-exports"])
+    assert r.exit_code == 2 and "180 deg off" in r.output and truth.image_id[0] in r.output, r.output
+    assert not (root / "at" / "eo.txt").exists()
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--eo", str(one180), "--no-html", "--no-exports"])
+    assert r.exit_code == 0 and "180 deg off" in r.output and truth.image_id[7] in r.output, r.output
+
+
+def test_ortho_rectify_refuses_a_given_kappa_off(block, tmp_path):
+    """``ortho rectify --eo imported/eo.txt`` rectified the frames as they were: a kappa 180 deg off (or 10 % off,
+    gon) turned the frame ortho about its nadir. The tie points now name the frame; the truth passes."""
+    from ortho.block import _check_given_kappa
+
+    root, truth, cam, _ = block
+    project = Project.open(root)
+    k = truth.opk_deg[:, 2]
+    _check_given_kappa(project, cam, truth, "truth.txt", set(truth.image_id))
+    bad = _with_kappa(truth, np.where(np.arange(len(k)) == 3, k + 180.0, k))
+    with pytest.raises(InputError, match=f"{truth.image_id[3]}.*180 deg off|180 deg off.*{truth.image_id[3]}"):
+        _check_given_kappa(project, cam, bad, "given.txt", set(truth.image_id))
+    _check_given_kappa(project, cam, bad, "given.txt", set(truth.image_id) - {truth.image_id[3]})  # not rectified
