@@ -473,7 +473,8 @@ def compare_sizes(small: dict, large: dict, dom_gp_per_frame: float | None = Non
     by the line through both (cpu = fixed + per_unit x units; a fixed part below zero: the cost grows faster than
     the units); the projection to 3,000 frames and 2 G points from the larger run with its fixed part counted
     once, beside the plain per-unit one (``projection``); the DOM at ``dom_gp_per_frame`` (default: the larger
-    block's DOM per frame)."""
+    block's DOM per frame). Two runs of one block (two codes: a recheck) have no line through them: the ratio of
+    their per-unit costs alone, the fixed part and the marginal cost None, the projection the plain one."""
     su, lu = small["unit_costs"], large["unit_costs"]
     blk = large["block_numbers"]
     per_frame_gp = blk["image_width_px"] * blk["image_height_px"] / 1e9
@@ -486,17 +487,23 @@ def compare_sizes(small: dict, large: dict, dom_gp_per_frame: float | None = Non
             continue
         ns, nl = su[st]["units"], c["units"]
         cs, cl = su[st]["cpu_s"] * ns, c["cpu_s"] * nl  # the stage's CPU seconds at each size
-        per_unit = (cl - cs) / (nl - ns)
-        fixed = cl - per_unit * nl
         n = target[c["unit"]]
+        plain_h = c["cpu_s"] * n / 3600
+        if nl != ns:
+            per_unit = (cl - cs) / (nl - ns)
+            fixed = cl - per_unit * nl
+        else:  # one block run by two codes: no line through the runs
+            per_unit = fixed = None
         stages[st] = dict(unit=c["unit"], units=[ns, nl], cpu_s=[round(cs, 1), round(cl, 1)],
                           cpu_per_unit_s=[su[st]["cpu_s"], c["cpu_s"]], ratio=round(c["cpu_s"] / su[st]["cpu_s"], 2),
                           within_25_pct=bool(0.75 <= c["cpu_s"] / su[st]["cpu_s"] <= 1.25),
-                          fixed_cpu_s=round(fixed, 1), marginal_cpu_s_per_unit=round(per_unit, 3),
-                          fixed_share_of_large=round(fixed / cl, 2) if cl > 0 else None,
-                          projected_cpu_h=round((fixed + per_unit * n) / 3600, 2),
-                          projected_cpu_h_plain=round(c["cpu_s"] * n / 3600, 2))
-    if "mosaic" in stages and small.get("frames_gp") and large.get("frames_gp"):
+                          fixed_cpu_s=None if fixed is None else round(fixed, 1),
+                          marginal_cpu_s_per_unit=None if per_unit is None else round(per_unit, 3),
+                          fixed_share_of_large=round(fixed / cl, 2) if fixed is not None and cl > 0 else None,
+                          projected_cpu_h=round(plain_h if fixed is None else (fixed + per_unit * n) / 3600, 2),
+                          projected_cpu_h_plain=round(plain_h, 2))
+    if ("mosaic" in stages and small.get("frames_gp") and large.get("frames_gp")
+            and large["frames_gp"] != small["frames_gp"]):
         # the mosaic reads every frame ortho over a DOM pixel (3.6 of them inside a 60/30 % block, fewer at a
         # small block's edges): its cost per GP of frames, beside the one per GP of DOM; not in the sums
         ns, nl = small["frames_gp"], large["frames_gp"]
@@ -517,6 +524,10 @@ def compare_sizes(small: dict, large: dict, dom_gp_per_frame: float | None = Non
                         "frame, LiDAR points) through the two runs; the fixed part once; CPU, not wall (the load)")
 
 
+def _num(v, width: int, digits: int) -> str:
+    return f"{'-':>{width}}" if v is None else f"{v:>{width}.{digits}f}"
+
+
 def print_comparison(results: dict, out: Path, small: str, large: str) -> int:
     """``--compare SMALL LARGE``: ``compare_sizes`` of two entries, stored as ``constancy_LARGE_over_SMALL``."""
     for k in (small, large):
@@ -530,8 +541,8 @@ def print_comparison(results: dict, out: Path, small: str, large: str) -> int:
           f"{'per unit':>9} {'fixed share':>11} {'3,000 fr h':>10} {'plain h':>8}")
     for st, v in c["stages"].items():
         print(f"{st:<14} {v['unit']:<13} {v['cpu_per_unit_s'][0]:>14.3f} {v['cpu_per_unit_s'][1]:>9.3f} "
-              f"{v['ratio']:>6.2f}{' ' if v['within_25_pct'] else '*'}{v['fixed_cpu_s']:>10.1f} "
-              f"{v['marginal_cpu_s_per_unit']:>9.3f} {v['fixed_share_of_large']:>11} {v['projected_cpu_h']:>10.2f} "
+              f"{v['ratio']:>6.2f}{' ' if v['within_25_pct'] else '*'}{_num(v['fixed_cpu_s'], 10, 1)} "
+              f"{_num(v['marginal_cpu_s_per_unit'], 9, 3)} {v['fixed_share_of_large']!s:>11} {v['projected_cpu_h']:>10.2f} "
               f"{v['projected_cpu_h_plain']:>8.2f}")
     for st, v in c["alternatives"].items():
         print(f"  {st}: {v['cpu_per_unit_s'][0]:.3f} / {v['cpu_per_unit_s'][1]:.3f} CPU-s, ratio {v['ratio']:.2f}, "

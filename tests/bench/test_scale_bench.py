@@ -202,6 +202,32 @@ def test_two_sizes_fixed_and_per_unit_parts(scale, tmp_path, capsys):
         scale.main(["--compare", "a", "c", "--out", str(out)])
 
 
+def test_one_block_run_by_two_codes(scale, tmp_path, capsys):
+    """``--compare`` of two runs of one block (a recheck of newer code): the per-unit CPU ratio per stage, no line
+    through the runs (it divided by zero), the projection the plain one."""
+    blk = dict(frames=8, image_width_px=13824, image_height_px=7680, lidar_points=30_000_000)
+
+    def entry(classify_cpu):
+        cpu = dict(classify=classify_cpu, match=12.0, mosaic=30.0)
+        records = [dict(stage=st, status="done", seconds=c, cpu_s=c, peak_rss_mb=1000.0) for st, c in cpu.items()]
+        rows = scale.stage_rows(records, dict(blk, scene_km2=1.0))
+        return dict(block_numbers=blk, dom_gp=0.4, frames_gp=0.849, unit_costs=scale.unit_costs(rows, blk, 0.4))
+
+    before, now = entry(200.0), entry(260.0)
+    c = scale.compare_sizes(before, now)
+    assert c["stages"]["classify"]["ratio"] == pytest.approx(1.3) and not c["stages"]["classify"]["within_25_pct"]
+    assert c["stages"]["match"]["ratio"] == pytest.approx(1.0) and c["stages"]["match"]["within_25_pct"]
+    assert c["stages"]["classify"]["fixed_cpu_s"] is None and c["stages"]["classify"]["marginal_cpu_s_per_unit"] is None
+    # 260 CPU-s for 30 M points: 2 G points take 260 / 30 x 2,000 CPU-s
+    assert c["stages"]["classify"]["projected_cpu_h"] == pytest.approx(260 / 30 * 2000 / 3600, abs=0.01)
+    assert c["alternatives"] == {}
+    out = tmp_path / "scale_dmc.json"
+    out.write_text(json.dumps({"old": before, "new": now}))
+    assert scale.main(["--compare", "old", "new", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["constancy_new_over_old"]["stages"]["classify"]["ratio"] == pytest.approx(1.3)
+    assert "1.30*" in capsys.readouterr().out
+
+
 def test_stage_load_from_the_samples_over_its_interval(scale, tmp_path):
     import os
 
