@@ -156,6 +156,18 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
     ids = list(dict.fromkeys(full.point_id.astype(str)))
     if ids:
         out.append(ExportFile("odm/gcp_list.txt", "\n".join([head] + _gcp_rows(full, xyz, names)) + "\n"))
+        from aerotri.geom.crs.definition import crs_label, project_heights
+
+        heights = project_heights(project)
+        if heights is not None:
+            # OpenSfM (io.py _read_gcp_list_lines) takes geo_z as the altitude of a WGS 84 position and places it
+            # against reference_lla, whose altitude this export gives as an ellipsoidal height (trial-at2, review 21)
+            log.warning(f"odm export: odm/gcp_list.txt holds the project's heights ({crs_label(heights)}, "
+                        f"{heights.name}) under a horizontal CRS line, while reference_lla.json and the "
+                        "reconstruction are on ellipsoidal heights: OpenSfM reads the control's geo_z as ellipsoidal, "
+                        "so in ODM the control would sit the geoid height low; convert geo_z to ellipsoidal heights "
+                        "(aerotri crs transform --normal-to-ellipsoidal with a height model, or the geoid) before "
+                        "giving it to ODM")
     if plan_ids:
         out.append(ExportFile("odm/opensfm/ground_control_points.json",
                               _ground_control_points_json(kept.subset(plan), plan_ids, xyz, project, block, names,
