@@ -12,8 +12,11 @@ judged also against 1:2000 flat (0.14 m). How the prediction scales: relief 15 a
 0-11, 180 m on seeds 0-5. pp-predictor's design was looked at on seeds 0-2 of 60 m and 0-5 of 120 m (the offset
 estimate's limit is PP_MOVE_SIGMAS, not tuned); everything else is scored only. ``camera_off``: no lag, the camera
 file's principal point 0.06 mm (5 px) off the true one along y, 120 m relief, seeds 0-5: the block's own offset
-estimate should find no offset (a flag there is false under 0.9 correlation).
-Writes bench/results/pp_relief.json. Run: .venv/bin/python bench/eval_pp_relief.py (about 2 min)."""
+estimate should find no offset (a flag there is false under 0.9 correlation). s18-fixes, scored only on seeds and
+reliefs review 18 did not look at: ``camera_off_lag`` (the lag and the camera file 5 px off together), ``no_lag``
+(false flags) and ``strip_shifts`` (unmodelled 0.3 m GNSS shifts per strip; the reference the clean block).
+Writes bench/results/pp_relief.json (or the path given). Run: .venv/bin/python bench/eval_pp_relief.py (about 5
+min)."""
 
 from __future__ import annotations
 
@@ -37,10 +40,21 @@ from aerotri.sim.observations import geometric_block, write_block_project, write
 SEEDS = range(12)
 
 
-def solve(seed: int, lag_s: float, relief_m: float, ppy_mm: float = 0.0):
+_SOLVED: dict = {}
+
+
+def solve(seed: int, lag_s: float, relief_m: float, ppy_mm: float = 0.0, shift_sigma_m: float = 0.0):
+    key = (seed, lag_s, relief_m, ppy_mm, shift_sigma_m)
+    if key not in _SOLVED:
+        _SOLVED[key] = _solve(*key)
+    return _SOLVED[key]
+
+
+def _solve(seed: int, lag_s: float, relief_m: float, ppy_mm: float, shift_sigma_m: float):
     with tempfile.TemporaryDirectory() as d:
         block = geometric_block(3, 6, seed=seed, camera_true=dmc_camera(), relief_m=relief_m, tilt_sigma_deg=0.3,
-                                gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0.0, 0.0, 0.0))
+                                gnss_shift_sigma_m=shift_sigma_m, gnss_drift_sigma_m_per_km=0.0,
+                                lever_arm_m=(0.0, 0.0, 0.0))
         block.camera_nominal = dataclasses.replace(dmc_camera(), ppy_mm=ppy_mm)
         east = np.asarray(block.strip) % 2 == 0
         block.gnss_local = block.gnss_local + np.outer(np.where(east, 1.0, -1.0) * T.LAG_SPEED_MPS * lag_s,
@@ -68,8 +82,9 @@ def pp_relief_prediction(ba, pp) -> float | None:
     return round(max(out), 4) if out else None
 
 
-def row(seed: int, relief_m: float, lag_s: float = T.LAG_S, ppy_mm: float = 0.0) -> dict:
-    (ba, ks), (ba0, ks0) = solve(seed, lag_s, relief_m, ppy_mm), solve(seed, 0.0, relief_m)
+def row(seed: int, relief_m: float, lag_s: float = T.LAG_S, ppy_mm: float = 0.0, shift_sigma_m: float = 0.0) -> dict:
+    # the reference: the same block and noise with no lag, the true camera file and no GNSS shifts
+    (ba, ks), (ba0, ks0) = solve(seed, lag_s, relief_m, ppy_mm, shift_sigma_m), solve(seed, 0.0, relief_m)
     pp = {c.group: c for c in ba.calibration_checks}["pp"]
     pp0 = {c.group: c for c in ba0.calibration_checks}["pp"]
     ids = sorted(ba.check)
@@ -89,12 +104,22 @@ def row(seed: int, relief_m: float, lag_s: float = T.LAG_S, ppy_mm: float = 0.0)
             "y_offset_estimate_m": round(pp.gnss_offset_estimate_m[1], 3),
             "y_offset_estimate_sigma_m": round(pp.gnss_offset_estimate_sigma_m[1], 3),
             "y_offset_estimate_without_lag_m": round(pp0.gnss_offset_estimate_m[1], 3),
-            "predicted_plan_m": None if pp.relief_plan_m is None else round(pp.relief_plan_m, 4),
+            "x_offset_estimate_m": round(pp.gnss_offset_estimate_m[0], 3),
+            "x_offset_estimate_sigma_m": round(pp.gnss_offset_estimate_sigma_m[0], 3),
+            "offset_estimate_sigmas_off_zero": [round(abs(e) / s, 1) for e, s in zip(pp.gnss_offset_estimate_m,
+                                                                                     pp.gnss_offset_estimate_sigma_m)],
+            "predicted_plan_m": None if _effect(pp) is None else round(_effect(pp), 4),
             "predicted_plan_m_pp_relief": pp_relief_prediction(ba, pp),
             "measured_plan_change_rms_m": round(float(np.sqrt(np.mean(plan ** 2))), 4),
             "measured_plan_change_p90_m": round(float(np.percentile(plan, 90)), 4),
             "measured_change_rms_enu_m": [round(float(x), 4) for x in np.sqrt(np.mean(adj ** 2, axis=0))],
             "check_rms_enu_m": rms(ba), "check_rms_enu_without_lag_m": rms(ba0)}
+
+
+def _effect(pp) -> float | None:
+    """The flag's predicted plan effect (m; None: no flag or none named), by the field's name before and after
+    s18-fixes (``relief_plan_m`` then ``gnss_offset_plan_effect_m``), so that the bench runs on either."""
+    return getattr(pp, "gnss_offset_plan_effect_m", getattr(pp, "relief_plan_m", None))
 
 
 def case(relief_m: float, seeds=SEEDS, **kw) -> dict:
@@ -143,12 +168,22 @@ def main() -> None:
            # how the prediction scales with the relief
            "scaling": [case(15.0, range(6)), case(30.0, range(6)), case(120.0), case(180.0, range(6))],
            # no lag, the camera file's principal point off by 5 px along y: no offset to find
-           "camera_off": [case(120.0, range(6), lag_s=0.0, ppy_mm=0.06)]}
-    path = Path(__file__).resolve().parent / "results" / "pp_relief.json"
+           "camera_off": [case(120.0, range(6), lag_s=0.0, ppy_mm=0.06)],
+           # s18-fixes, scored only (review 18 looked at seeds 0-5 of 120 and 60 m, 0-19 without a lag): the lag
+           # and the camera file's principal point 5 px off together (the move names the lag's share minus the
+           # camera file's error); no lag on other seeds (false flags); unmodelled 0.3 m GNSS shifts per strip
+           "camera_off_lag": [case(120.0, range(6, 12), ppy_mm=0.06), case(60.0, range(6, 12), ppy_mm=0.06),
+                              case(90.0, range(6), ppy_mm=-0.06), case(180.0, range(6, 12), ppy_mm=0.06)],
+           "no_lag": [case(120.0, range(20, 40), lag_s=0.0), case(60.0, range(20, 30), lag_s=0.0),
+                      case(90.0, range(10), lag_s=0.0)],
+           "strip_shifts": [case(120.0, range(6, 12), lag_s=0.0, shift_sigma_m=0.3),
+                            case(2.0, range(6, 12), lag_s=0.0, shift_sigma_m=0.3)]}
+    path = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parent / "results" / "pp_relief.json"
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(out, indent=1) + "\n")
     tmp.replace(path)
-    for c in out["cases"] + out["scaling"] + out["camera_off"]:
+    for c in out["cases"] + out["scaling"] + out["camera_off"] + out["camera_off_lag"] + out["no_lag"] + out[
+            "strip_shifts"]:
         print({k: v for k, v in c.items() if k != "rows"})
 
 

@@ -197,12 +197,13 @@ def _held(sh: dict) -> bool:
 
 
 def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, rc,
-                   *, sigma0: float, rays: PointRays | None = None
+                   *, sigma0: float, rays: PointRays | None = None, pp_names_offset=None
                    ) -> tuple[list[GeometryMode], CalibrationCovariance | None]:
     """The four modes of the tie points' heights (see the module docstring) at the solution ``state``, and with
     self-calibration its ``CalibrationCovariance`` and the ``focal_height`` mode (when the focal length is
     estimated); ``rc``: the reduced covariance (``covariance.ReducedCovariance``, unit weight); ``rays``: the
-    points' ``covariance.point_rays`` when already at hand."""
+    points' ``covariance.point_rays`` when already at hand; ``pp_names_offset``: ``pp_gnss_coupling``'s
+    ``names_offset``."""
     self_cal = bool(opts.self_calibration)
     pr = rays if rays is not None else point_rays(block, state, obs_active, opts.image_sigma_px, rc, self_cal)
     fun = _functionals(block, state, pr, plan=self_cal)
@@ -247,7 +248,8 @@ def geometry_modes(block: G.Block, opts: G.SolveSettings, state: G.State, obs_ac
     field_px = float(np.max(np.abs(fields[:, 0]) / fields[:, 1])) * sigma0 / np.sqrt(pr.weight)
     cc = CalibrationCovariance(cal_cov, cross, mode_var, {g: float(v[-2]) for g, v in share.items()},
                                float(np.median(depth)) if len(depth) else float("nan"), gnss_z_px, field_px,
-                               pp_gnss_coupling(block, opts, state, rc, pr, sigma0=sigma0)
+                               pp_gnss_coupling(block, opts, state, rc, pr, sigma0=sigma0,
+                                                names_offset=pp_names_offset)
                                if "pp" in opts.self_calibration else None)
     if any(g == "focal" for g in opts.self_calibration):
         f = 0.5 * (state.cal[0] + state.cal[1])
@@ -287,9 +289,13 @@ class PrincipalPointGnss:
 
 
 def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, rays: PointRays, *,
-                     sigma0: float = 1.0) -> PrincipalPointGnss | None:
+                     sigma0: float = 1.0, names_offset=None) -> PrincipalPointGnss | None:
     """``PrincipalPointGnss`` at the solution (``rc`` the unit-weight reduced covariance, ``rays`` the points'
-    ``covariance.point_rays``, ``sigma0`` the solve's: the offset estimate's sigma); None without GNSS."""
+    ``covariance.point_rays``, ``sigma0`` the solve's: the offset estimate's sigma); None without GNSS.
+    ``names_offset(pg, cal, cal_apriori, cal_cov) -> bool`` (``determinability.pp_gnss_names_offset``: whether the
+    flag names an offset, the one use of ``tie_plan_ms``; the a-priori calibration the block camera's, ``cal_cov``
+    the calibration's covariance x sigma0^2): where given and false, ``tie_plan_ms`` (a pass over the rays: 9 CPU-s
+    and 365 MB on 10,000 frames) is not formed (NaN)."""
     if block.gnss_local is None:
         return None
     k0 = rc.offset[K_KEY]
@@ -330,8 +336,13 @@ def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, 
     sd = np.sqrt(np.clip(rc.entries(poses, poses), 0.0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
         orient_corr = np.nanmax(np.abs(cov / (np.sqrt(var_pp)[:, None] * sd[None, :])), axis=1)
-    return PrincipalPointGnss(K, offset_corr, shift_corr, orient_corr, _tie_plan_ms(block, rays, Sb), offset_est,
-                              offset_sd)
+    pg = PrincipalPointGnss(K, offset_corr, shift_corr, orient_corr, offset_estimate_m=offset_est,
+                            offset_sigma_m=offset_sd)
+    k = k0 + np.arange(9)
+    if names_offset is not None and not names_offset(pg, state.cal, G.cal_from_camera(block.camera),
+                                                     rc.entries(k[:, None], k[None, :]) * sigma0**2):
+        return pg
+    return dataclasses.replace(pg, tie_plan_ms=_tie_plan_ms(block, rays, Sb))
 
 
 def _tie_plan_ms(block: G.Block, pr: PointRays, dc: np.ndarray) -> np.ndarray:

@@ -697,8 +697,8 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
         for c in now:
             if c.action == "flagged":
                 log.warning(f"self-calibration: {c.group} estimated, but it may hold a GNSS offset fixed in the "
-                            f"camera, which this block does not reject (do not reuse the estimate as the camera's "
-                            f"calibration): {c.reason}")
+                            f"camera, which this block finds or does not reject (do not reuse the estimate as the "
+                            f"camera's calibration): {c.reason}")
         fixed = [c.group for c in now if c.action == "fixed"]
         if not fixed:
             break

@@ -330,7 +330,7 @@ def _check_dict(c) -> dict:
     d["corner_sigma_fraction"] = _f(d["corner_sigma_fraction"], 6)
     for key in ("sigma_fraction", "gnss_height_fraction", "image_field_fraction"):
         d[key] = _f(d[key], 6)
-    d["relief_plan_m"] = _f(d["relief_plan_m"], 4)
+    d["gnss_offset_plan_effect_m"] = _f(d["gnss_offset_plan_effect_m"], 4)
     for key in ("gnss_offset_px_per_m", "gnss_offset_correlation", "gnss_shift_correlation", "orientation_correlation",
                 "gnss_offset_estimate_m", "gnss_offset_estimate_sigma_m"):
         if d.get(key) is not None:
@@ -748,14 +748,16 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     # on flat ground not a weakness: the ground is the same whichever of the principal point and a GNSS offset fixed
     # in the camera took it (review 12a); the self-calibration section and the console say the estimate is not one to
     # reuse. With relief they part (a rotation against a translation): a weakness where the predicted plan effect
-    # passes PP_RELIEF_PLAN_FRACTION of the plan limit (pp-relief; the offset's whole effect since pp-predictor)
+    # passes PP_RELIEF_PLAN_FRACTION of the plan limit (pp-relief; the offset's whole effect since pp-predictor, not a
+    # relief term: the field is gnss_offset_plan_effect_m since s18-fixes)
     flagged = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "flagged"]
-    relief = [c for c in flagged if c.relief_plan_m is not None and math.isfinite(plan_limit_m)
-              and c.relief_plan_m > PP_RELIEF_PLAN_FRACTION * plan_limit_m]
+    relief = [c for c in flagged if c.gnss_offset_plan_effect_m is not None and math.isfinite(plan_limit_m)
+              and c.gnss_offset_plan_effect_m > PP_RELIEF_PLAN_FRACTION * plan_limit_m]
     if relief:
         weaknesses.append("Self-calibration: " + "; ".join(
-            f"{c.group} took a GNSS offset fixed in the camera (or the camera's own offset), and with this block's "
-            f"relief such an offset moves the ground by about {c.relief_plan_m:.3f} m RMS in plan, over "
+            f"{c.group} holds a GNSS offset fixed in the camera that the solve does not model (or the camera's own "
+            f"offset), and the offset named moves the ground by about {c.gnss_offset_plan_effect_m:.3f} m RMS in "
+            f"plan (the tie points' change under it, from the normal equations), over "
             f"{PP_RELIEF_PLAN_FRACTION:.2g} of the plan limit {plan_limit_m:.3f} m" for c in relief)
             + ". A measured lever arm and exposure timing, a laboratory calibration of the camera, or control points "
             "spread over the block's heights tell them apart.")
@@ -832,7 +834,8 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         "weak_geometry": [g.mode for g, _ in weak],
         "calibration_fixed": [c.group for c in fixed],
         "calibration_flagged": [c.group for c in flagged],
-        # flagged and a weakness: the predicted plan effect of the offset off the mean height beyond its share
+        # flagged and a weakness: the predicted plan effect of the offset named beyond its share (the key's name from
+        # pp-relief, kept for its readers)
         "calibration_relief_weak": [c.group for c in relief],
         "tolerances_exceeded": beyond,
         "gnss_corrections_suspect": [] if gcc is None else [
@@ -1234,7 +1237,8 @@ def _self_calibration_txt(sc: dict) -> list[str]:
                 oe, os_ = c.get("gnss_offset_estimate_m"), c.get("gnss_offset_estimate_sigma_m")
                 if oe is not None and os_ is not None:
                     L.append(f"  {'':11} such an offset as the block estimates it (x / y): {_n3(oe[0], 2)} +- "
-                             f"{_n3(os_[0], 2)} / {_n3(oe[1], 2)} +- {_n3(os_[1], 2)} m")
+                             f"{_n3(os_[0], 2)} / {_n3(oe[1], 2)} +- {_n3(os_[1], 2)} m (sigmas for independent "
+                             "GNSS errors; errors shared along a strip make them several times larger)")
             if c["reason"]:
                 L.append(f"  {'':11} {'not told from the GNSS' if c['action'] == 'flagged' else 'not determinable'}: "
                          f"{c['reason']}")

@@ -19,6 +19,7 @@ from aerotri.adjust.check_points import intersect_with_covariance
 from aerotri.adjust.cpp_output import counting
 from aerotri.adjust import surface_bias as sb
 from aerotri.adjust.covariance import ReducedCovariance, point_rays
+from aerotri.adjust.determinability import pp_gnss_names_offset
 from aerotri.adjust.geometry_modes import geometry_modes
 from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
 from aerotri.adjust.snooping import (
@@ -310,7 +311,7 @@ def _adjust_block(
             if point_unit is not None:
                 point_cov = point_unit * s2
                 geometry, calibration = geometry_modes(block, opts, state, obs_active, control_active, marg,
-                                                       sigma0=sigma0, rays=rays)
+                                                       sigma0=sigma0, rays=rays, pp_names_offset=pp_gnss_names_offset)
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
             bias = _surface_bias(block, opts, state, obs_active=obs_active, control_active=control_active, marg=marg,
