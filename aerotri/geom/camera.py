@@ -365,7 +365,8 @@ class Camera:
         if max(share) > self.PP_MAX_SIDE_FRACTION:
             limit = f"{100 * self.PP_MAX_SIDE_FRACTION:g} %"
             if fields:
-                raise InputError(f"{source}: {fields.pp} put the principal point {off_px[0]:+.1f} / {off_px[1]:+.1f} px "
+                raise InputError(f"{source}: {fields.pp} put the principal point {off_px[0]:+.1f} / "
+                                 f"{off_px[1]:+.1f} px "
                                  f"(x right / y down) from the image centre, {100 * share[0]:.0f} / "
                                  f"{100 * share[1]:.0f} % of the {self.width} x {self.height} px frame (limit {limit}; "
                                  f"a real camera's is near 0): {fields.pp_hint}")

@@ -66,8 +66,9 @@ def test_with_a_geoid_grid_the_tmerc_file_is_not_lowered_by_n(tmp_path):
     lon = 109.0 + d * np.arange(73)
     lat = 32.0 - d * np.arange(73)
     n_m = (10 + 2 * (lon[None, :] - 110) + 5 * (lat[:, None] - 30)).astype("float32")
+    area = from_origin(109.0 - d / 2, 32.0 + d / 2, d, d)  # the grid's point values as area pixels
     with rasterio.open(grids / "us_nga_egm08_25.tif", "w", driver="GTiff", width=73, height=73, count=1,
-                       dtype="float32", crs="EPSG:4979", transform=from_origin(109.0 - d / 2, 32.0 + d / 2, d, d)) as ds:
+                       dtype="float32", crs="EPSG:4979", transform=area) as ds:
         ds.write(n_m, 1)
     root = _project(tmp_path / "tmerc")
     env = dict(os.environ, PROJ_USER_WRITABLE_DIRECTORY=str(grids), PROJ_NETWORK="OFF")
