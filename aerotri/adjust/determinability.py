@@ -136,6 +136,9 @@ class GroupCheck:
     # pp against a GNSS offset fixed in the camera (x, y): the block's own estimate of it (m) and its sigma
     gnss_offset_estimate_m: tuple | None = None
     gnss_offset_estimate_sigma_m: tuple | None = None
+    # pp with GNSS shifts: each shift's (east, north, up, m) part that goes with the principal point's move from its
+    # a-priori value (``PrincipalPointGnss.shift_per_pp_m`` times the move): the shift it would lose were pp held
+    gnss_shift_from_pp_m: tuple | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -317,14 +320,18 @@ def _pp_gnss_reasons(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.n
     return out, effect
 
 
-def _pp_gnss_fields(pg) -> dict:
-    """``GroupCheck``'s fields of the principal point against the GNSS (plain tuples, None for NaN)."""
+def _pp_gnss_fields(pg, pp_move_px: np.ndarray) -> dict:
+    """``GroupCheck``'s fields of the principal point against the GNSS (plain tuples, None for NaN); ``pp_move_px``
+    (u0, v0) its estimate less its a-priori value."""
     fin = lambda v: tuple(float(x) if math.isfinite(x) else None for x in v)  # noqa: E731
     shifts = fin(pg.shift_correlation) if np.isfinite(pg.shift_correlation).any() else None
+    from_pp = (tuple(fin(v) for v in pg.shift_per_pp_m @ np.asarray(pp_move_px, dtype=float))
+               if len(pg.shift_per_pp_m) else None)
     return dict(gnss_offset_px_per_m=(float(pg.px_per_m[0, 0]), float(pg.px_per_m[1, 1])),
                 gnss_offset_correlation=fin(pg.offset_correlation), gnss_shift_correlation=shifts,
                 orientation_correlation=fin(pg.orientation_correlation),
-                gnss_offset_estimate_m=fin(pg.offset_estimate_m), gnss_offset_estimate_sigma_m=fin(pg.offset_sigma_m))
+                gnss_offset_estimate_m=fin(pg.offset_estimate_m), gnss_offset_estimate_sigma_m=fin(pg.offset_sigma_m),
+                gnss_shift_from_pp_m=from_pp)
 
 
 def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori: np.ndarray, *, width: int,
@@ -372,7 +379,9 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
             corner_sigma_fraction=frac, correlations=corr, ground_observed=observed,
             determinable=not (reasons or flags), reason="; ".join(reasons or flags) or None,
             action="fixed" if reasons else "flagged" if flags else "estimated",
-            **(_pp_gnss_fields(cc.pp_gnss) if g == "pp" and cc.pp_gnss is not None else {}),
+            **(_pp_gnss_fields(cc.pp_gnss, [cal[CAL_NAMES.index(n)] - cal_apriori[CAL_NAMES.index(n)]
+                                            for n in ("u0_px", "v0_px")])
+               if g == "pp" and cc.pp_gnss is not None else {}),
             **(dict(gnss_offset_plan_effect_m=plan_effect_m) if flags and math.isfinite(plan_effect_m) else {}),
             **(dict(zip(("sigma_fraction", "gnss_height_fraction", "image_field_fraction"), focal)) if focal else {})))
     return out

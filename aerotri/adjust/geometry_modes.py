@@ -286,6 +286,10 @@ class PrincipalPointGnss:
     tie_plan_ms: np.ndarray = dataclasses.field(default_factory=lambda: np.full((2, 2), np.nan))
     offset_estimate_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
     offset_sigma_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
+    # (n_shifts, 3, 2): each GNSS shift's (east, north, up, m) regression on the principal point (per px of u0, v0),
+    # ``Sigma_sp Sigma_pp^-1``: times the principal point's move, the part of the shift estimate that goes with it
+    # (held at its a-priori value, the shifts change by minus that); empty without shifts
+    shift_per_pp_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 2)))
 
 
 def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, rays: PointRays, *,
@@ -331,13 +335,22 @@ def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, 
         Css = rc.entries(idx[:, None], idx[None, :])
         r2 = np.einsum("ai,ai->a", c, np.linalg.lstsq(Css, c.T, rcond=None)[0].T) / var_pp
         shift_corr = np.sqrt(np.clip(r2, 0.0, 1.0))
+    shift_per_pp = np.zeros((0, 3, 2))
+    s_keys = sorted((k for k in shift if chr(gtsam.Symbol(k).chr()) == "s"), key=lambda k: gtsam.Symbol(k).index())
+    if s_keys:
+        rows = np.stack([rc.offset[k] + np.arange(3) for k in s_keys])  # (n_shifts, 3)
+        C_sp = rc.entries(rows[:, :, None], pp[None, None, :])  # (n_shifts, 3, 2)
+        try:
+            shift_per_pp = C_sp @ np.linalg.inv(rc.entries(pp[:, None], pp[None, :]))
+        except np.linalg.LinAlgError:
+            shift_per_pp = np.full(C_sp.shape, np.nan)
     poses = (np.asarray(rays.pose_offset)[:, None] + np.arange(6)).ravel()
     cov = rc.entries(pp[:, None], poses[None, :])
     sd = np.sqrt(np.clip(rc.entries(poses, poses), 0.0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
         orient_corr = np.nanmax(np.abs(cov / (np.sqrt(var_pp)[:, None] * sd[None, :])), axis=1)
     pg = PrincipalPointGnss(K, offset_corr, shift_corr, orient_corr, offset_estimate_m=offset_est,
-                            offset_sigma_m=offset_sd)
+                            offset_sigma_m=offset_sd, shift_per_pp_m=shift_per_pp)
     k = k0 + np.arange(9)
     if names_offset is not None and not names_offset(pg, state.cal, G.cal_from_camera(block.camera),
                                                      rc.entries(k[:, None], k[None, :]) * sigma0**2):

@@ -519,18 +519,8 @@ def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image
         centre0, R0 = approximate_orientations(gl, lever, strip, obs_point, obs_image, obs_xy)
     given_loc = block.control_local
     has_height = block.control_rows != 2
-    if has_height.any():
-        ground = float(np.median(given_loc[has_height, 2]))
-    else:
-        ground = float(np.median(centre0[:, 2]) - _flying_height_guess(centre0, cam))
-    above_m = float(np.median(centre0[:, 2])) - ground
-    if above_m <= 0.0:
-        # no ray reaches the ground below the cameras: the start values' intersection had nothing to average
-        # (gnss.txt heights of the terrain: a numpy reshape traceback)
-        raise InputError(f"{'gnss.txt' if gl is not None else 'the approximate orientations (--eo)'}: the projection "
-                         f"centres lie {-above_m:.1f} m below the control points' heights (medians): heights of the "
-                         "ground, or of another height system than the control's ([project] heights), or a lever arm "
-                         "with the wrong sign; expected the cameras above the ground")
+    ground = start_ground_height_m(centre0[:, 2], given_loc[has_height, 2], _flying_height_guess(centre0, cam),
+                                   "gnss.txt" if gl is not None else "the approximate orientations (--eo)")
     n_points = block.n_points
     if gl is not None and st.refine_approximations:
         centre0, R0, pts0 = refine_orientations(gl, lever, centre0, R0, obs_point, obs_image, obs_xy_px=obs_xy,
@@ -725,6 +715,28 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     ba.self_calibration_requested = requested
     ba.calibration_checks = [checks[g] for g in requested if g in checks]
     return ba
+
+
+def start_ground_height_m(centre_z_m, control_z_m, flying_height_guess_m: float, source: str) -> float:
+    """The ground height (local z, m) the start values intersect the rays at: the control points' median height when
+    the centres' median lies above it, else the centres' median less the flying-height guess. ``InputError`` only
+    when every centre lies below the lowest control point (no ray reaches the ground: gnss.txt heights of the
+    ground, another height system, a lever arm with the wrong sign). Judged on the medians alone, a terrain-following
+    block over a slope with its control near the top (1,000 m of relief under 300 m of flying height, the control
+    850-1,000 m, the centres' median 800 m) was refused though every camera flew above its ground (review 21)."""
+    centre_z = np.asarray(centre_z_m, dtype=float)
+    control_z = np.asarray(control_z_m, dtype=float)
+    median_z = float(np.median(centre_z))
+    if len(control_z) == 0:
+        return median_z - flying_height_guess_m
+    lowest = float(control_z.min())
+    if float(centre_z.max()) <= lowest:
+        raise InputError(f"{source}: the projection centres lie {lowest - median_z:.1f} m (median; the highest "
+                         f"{lowest - float(centre_z.max()):.1f} m) below the lowest control point: heights of the "
+                         "ground, or of another height system than the control's ([project] heights), or a lever arm "
+                         "with the wrong sign; expected the cameras above the ground")
+    ground = float(np.median(control_z))
+    return ground if median_z > ground else median_z - flying_height_guess_m
 
 
 def _flying_height_guess(centre, cam) -> float:

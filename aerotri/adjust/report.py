@@ -335,6 +335,8 @@ def _check_dict(c) -> dict:
                 "gnss_offset_estimate_m", "gnss_offset_estimate_sigma_m"):
         if d.get(key) is not None:
             d[key] = [_f(v, 4) for v in d[key]]
+    if d.get("gnss_shift_from_pp_m") is not None:
+        d["gnss_shift_from_pp_m"] = [[_f(v, 4) for v in enu] for enu in d["gnss_shift_from_pp_m"]]
     return d
 
 
@@ -506,23 +508,42 @@ class GnssCorrectionCheck:
                 f"({abs(v) / sig[axis]:.1f} sigma)" for s, term, axis, v in self.suspect]
 
 
+# the share of a suspect plan shift the principal point's move must carry for the note (below): chosen on
+# geometric_block seeds 1-3, scored on 4-8 (1 to 4 strips, pp + shift; bench/pp_shift_note_score.py: multi-strip
+# false alarms 13 of 14 -> 0, the one true alarm kept; single strips 8 of 9 right before and after)
+PP_SHIFT_SHARE = 0.5
+
+
 def pp_shift_note(ba, gcc: GnssCorrectionCheck) -> str | None:
-    """Why suspect plan shifts need not be the GNSS's: the principal point, estimated with them, correlates with them
-    beyond ``determinability.CORRELATION_LIMIT`` (a strip's shift moves its ground as a principal-point offset does).
-    The demo's first strip alone: shifts E -1.32 / N +1.93 m "suspect"
-    (13 / 19 sigma) against true 0.15 / -0.04 m, the principal point 5.6 / 4.2 px from the truth with them, v0
-    correlation 0.994; without pp the shift E -0.34 m, without the shifts the centres 0.18 m from the truth."""
+    """Why suspect plan shifts need not be the GNSS's: the principal point, estimated with them in the final solve
+    (``action`` not "fixed"), correlates with them beyond ``determinability.CORRELATION_LIMIT`` and its move from its
+    a-priori value carries at least ``PP_SHIFT_SHARE`` of every suspect plan shift, same sign
+    (``GroupCheck.gnss_shift_from_pp_m``: the shift's regression on the pp times its move). The demo's first strip
+    alone: shifts E -1.32 / N +1.93 m "suspect" (13 / 19 sigma) against true 0.15 / -0.04 m, the principal point
+    5.6 / 4.2 px from the truth with them, v0 correlation 0.994; without pp the shift E -0.34 m. The correlation alone
+    fired on every multi-strip block (review 21: 0.94-0.99 on 2-4 strips whose shifts were the GNSS's, the pp's share
+    of them 0-0.3 m of 0.3-1.2 m)."""
     from aerotri.adjust.determinability import CORRELATION_LIMIT
 
-    if not any(axis in "EN" and term == "shift" for _, term, axis, _v in gcc.suspect):
+    plan = [(s, axis, v) for s, term, axis, v in gcc.suspect if axis in "EN" and term == "shift"]
+    if not plan:
         return None
     for c in getattr(ba, "calibration_checks", []) or []:
-        r = c.gnss_shift_correlation
-        if c.group == "pp" and r and any(math.isfinite(v) and v > CORRELATION_LIMIT for v in r):
-            return (f"The principal point was estimated with these shifts and correlates with them (u0 / v0 "
-                    f"{r[0]:.3f} / {r[1]:.3f}, limit {CORRELATION_LIMIT:g}): the plan shifts may be the principal "
-                    "point's, not the GNSS's (a shift per strip moves the strip's ground as a principal-point offset "
-                    "does); adjust without pp, or with gnss_correction = \"none\", to tell.")
+        r, share = c.gnss_shift_correlation, c.gnss_shift_from_pp_m
+        if c.group != "pp" or c.action == "fixed" or not r or share is None:
+            continue
+        if not any(v is not None and math.isfinite(v) and v > CORRELATION_LIMIT for v in r):
+            continue
+        part = [share[s - 1]["EN".index(axis)] if s - 1 < len(share) else None for s, axis, _v in plan]
+        if not all(p is not None and p * v > 0 and abs(p) >= PP_SHIFT_SHARE * abs(v)
+                   for p, (_s, _a, v) in zip(part, plan)):
+            continue
+        said = ", ".join(f"strip {s} {axis} {v:+.2f} m, {p:+.2f} with the pp" for (s, axis, v), p in zip(plan, part))
+        return (f"The principal point was estimated with these shifts, correlates with them (u0 / v0 "
+                f"{_f(r[0], 3)} / {_f(r[1], 3)}, limit {CORRELATION_LIMIT:g}) and its move carries most of each "
+                f"suspect plan shift ({said}): the plan shifts may be the principal point's, not the GNSS's (a shift "
+                "per strip moves the strip's ground as a principal-point offset does); adjust without pp, or with "
+                "gnss_correction = \"none\", to tell.")
     return None
 
 

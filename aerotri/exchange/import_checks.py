@@ -30,6 +30,7 @@ import numpy as np
 from aerotri.core.errors import CrsError, InputError, id_listing
 from aerotri.core.project import Project
 from aerotri.exchange.imported import ImportedBlock
+from aerotri.geom.camera import CameraFileFields
 from aerotri.geom.crs.definition import GRID_SCALE_LIMIT
 
 log = logging.getLogger(__name__)
@@ -260,15 +261,37 @@ def lever_arm_note(project: Project, block: ImportedBlock) -> list[str]:
             "aerotri adjust --lever-arm-m 0 0 0) for these positions"]
 
 
-def check_import(project: Project, block: ImportedBlock, replaced: set) -> list[str]:
+# each format's names for the camera numbers ``Camera.check_plausible`` judges, and its convention (review 21:
+# COLMAP's cx, cy = 0, 0 and Metashape's corner values in its centre-offset fields passed, named as ppx_mm)
+CAMERA_FILE_FIELDS = {
+    "colmap": CameraFileFields("cameras.txt cx, cy", "COLMAP's cx, cy are pixels from the image's top-left corner, "
+                               "the centre near width / 2, height / 2", "cameras.txt f (fx, fy)",
+                               "COLMAP's focal length is in pixels"),
+    "metashape": CameraFileFields("<calibration> cx, cy", "Metashape's cx, cy are the offset from the image centre "
+                                  "in pixels (near 0), not the pixel position of the centre", "<calibration> f",
+                                  "Metashape's f is in pixels"),
+    "orthority": CameraFileFields("cx, cy", "orthority's cx, cy are the offset from the image centre over the longer "
+                                  "side (near 0; 0.5 is the frame's edge)", "focal_len",
+                                  "orthority's focal_len is in sensor_size's unit (mm), without sensor_size over the "
+                                  "image width"),
+    "opensfm": CameraFileFields("c_x, c_y", "OpenSfM's c_x, c_y are the offset from the image centre over the longer "
+                                "side (near 0)", "focal (focal_x)", "OpenSfM's focal length is over the longer side"),
+    "exif": CameraFileFields("DewarpData cx, cy", "DJI's DewarpData cx, cy are the offset from the image centre in "
+                             "pixels of the full-size frame (near 0)", "DewarpData fx, fy",
+                             "DJI's DewarpData fx, fy are pixels of the full-size frame"),
+}
+
+
+def check_import(project: Project, block: ImportedBlock, replaced: set, format_name: str = "") -> list[str]:
     """Every check of the module docstring; returns the notes to print (``replaced``: the project files
-    this import writes, which do not stand for the project's position)."""
+    this import writes, which do not stand for the project's position; ``format_name``: the camera's fields named in
+    the file's terms, ``CAMERA_FILE_FIELDS``)."""
     notes = check_project_crs(project, block)
     check_positions(project, block, replaced)
     notes += scale_note(project, block)
     check_image_ids(project, block)
     if block.camera is not None:
-        block.camera.check_plausible(block.source_of("camera"))
+        block.camera.check_plausible(block.source_of("camera"), CAMERA_FILE_FIELDS.get(format_name))
     check_camera_size(project, block)
     check_point_ids(project, block, replaced)
     return notes + lever_arm_note(project, block)

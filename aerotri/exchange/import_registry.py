@@ -94,6 +94,6 @@ def import_files(root, format_name: str, files, options: ImportSettings | None =
                                   (project.imported_eo_path, "eo"), (project.control_points_path, "control"),
                                   (project.control_image_points_path, "image_points"))
                 if getattr(block, name) is not None}
-    block.notes += check_import(project, block, replaced)
+    block.notes += check_import(project, block, replaced, format_name)
     plan_only_when_unmeasured(block, options.heights_measured, format_name)
     return write_imported(project.root, block, format_name, overwrite=overwrite)

@@ -132,13 +132,25 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
     """(N, 3) coordinates of ``from_crs`` in the project CRS (and height system), through the toolkit's
     coordinate-operation policy (no silent ballpark transform; the operation's notes go to
     :func:`collecting_operation_notes`)."""
-    from aerotri.geom.crs.definition import crs_label, parse_crs, project_crs, project_crs_3d, same_crs
+    from aerotri.geom.crs.definition import (crs_label, parse_crs, project_crs, project_crs_3d, project_heights,
+                                             same_crs, with_heights)
     from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer, grid_advice
 
     xyz = np.asarray(xyz_m, float).reshape(-1, 3)
     src = parse_crs(from_crs, source)
     dst = project_crs(project)
-    if same_crs(src, dst):
+    sink = _OPERATION_NOTES.get()
+    if not src.is_compound and len(src.axis_info) == 2:
+        # a 2D CRS declares no height system: its z is read in the project's (on an orthometric project, H), the
+        # same reading whether the file's CRS is the project's or another (a tmerc header took z as ellipsoidal
+        # and lowered it by the geoid's N, the project's EPSG code kept it); said, as it is an assumption
+        heights = project_heights(project)
+        note = (f"{source}: {crs_label(src)} is a 2D CRS (no height system): z taken in the project's heights "
+                f"({'ellipsoidal' if heights is None else heights.name}), not converted")
+        if sink is not None and note not in sink:
+            sink.append(note)
+        src = with_heights(src, heights)
+    if same_crs(src, dst) or same_crs(src, project_crs_3d(project)):
         return xyz.copy()
     try:
         operation = CrsTransformer(src, project_crs_3d(project))
@@ -154,7 +166,6 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
             "--allow-ballpark) and import the result with --crs of the project, or choose a project CRS on the "
             "file's datum", missing_grids=exc.missing_grids) from None
     x, y, z = operation.transform(xyz[:, 0], xyz[:, 1], xyz[:, 2])
-    sink = _OPERATION_NOTES.get()
     if sink is not None:
         sink += [f"{source}: {w}" for w in operation.warnings if f"{source}: {w}" not in sink]
     return np.column_stack([x, y, z])

@@ -49,6 +49,10 @@ from aerotri.geom.camera import BrownCamera, Camera, PinholeCamera
 from aerotri.geom.eo import ExteriorOrientations
 
 BROWN_KEYS = ("k1", "k2", "p1", "p2", "k3")
+# a focal length over this many times the longer side, read from focal_len without sensor_size, is said: a drone or
+# aerial lens is 0.5-2 (Tuniu's DJI FC6310R 0.67, the DMC 0.72); focal_len in mm (8.8 on 1728 px frames:
+# 15,206 px) reads as 8.8 sides, which the 100-sides limit of Camera.check_plausible passes
+NORMALISED_FOCAL_WARN = 4.0
 OPTIONAL_KEYS = {"pinhole": ("sensor_size", "cx", "cy"), "brown": ("sensor_size", "cx", "cy") + BROWN_KEYS,
                  "opencv": ("sensor_size", "cx", "cy") + BROWN_KEYS}
 OPENCV_EXTRA = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")  # read only when zero
@@ -297,6 +301,14 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         if chosen[0] in nominal:
             block.notes.append(f"camera {chosen[0]!r} has no sensor_size: focal length in pixels kept, pixel size "
                                "set to a nominal 1 um (edit camera.toml for the physical sensor)")
+            cam = block.camera
+            per_side = cam.focal_px / max(cam.width, cam.height)
+            if per_side > NORMALISED_FOCAL_WARN:
+                fov_deg = math.degrees(2 * math.atan(0.5 / per_side))
+                block.notes.append(
+                    f"camera {chosen[0]!r}: focal_len {cam.focal_px / cam.width:g} without sensor_size is over the "
+                    f"image width (orthority's convention): {cam.focal_px:.6g} px, {per_side:.1f} x the longer side, "
+                    f"a field of view of {fov_deg:.1f} deg; if focal_len is in mm, give sensor_size (mm) as well")
     return block
 
 

@@ -100,6 +100,18 @@ def _fold_radius(camera: "Camera") -> float | None:
 
 
 @dataclasses.dataclass(frozen=True)
+class CameraFileFields:
+    """How another program's camera file names the numbers ``Camera.check_plausible`` judges, for its messages:
+    ``pp`` the principal point's fields (e.g. "cameras.txt cx, cy"), ``focal`` the focal length's, and a hint each
+    in that format's convention (its units, its origin)."""
+
+    pp: str
+    pp_hint: str
+    focal: str
+    focal_hint: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
 class Camera:
     """Interior orientation of a frame camera (units in the field names); the lens model is the subclass.
 
@@ -313,37 +325,57 @@ class Camera:
     # Widest lens a camera file may hold: focal length >= this share of the longer image side (a field of view of
     # 157 deg across it); the Brown model's widest real cameras (action cameras) are near 0.45.
     MIN_FOCAL_PER_SIDE: ClassVar[float] = 0.1
-    # Narrowest: at most this many times the longer side (a 2.9 deg field of view; a 300 mm lens on a 14,204 px,
-    # 3.76 um back is 5.6). A focal length in mm read as one normalised by the image width was 120 x the width
-    MAX_FOCAL_PER_SIDE: ClassVar[float] = 20.0
+    # Narrowest: at most this many times the longer side (a 0.57 deg field of view; a 600 mm lens on an APS-C back,
+    # 23.5 mm wide, is 25.5, which 20 refused). A focal length in mm read as one normalised by the image width was
+    # 120 x the width, one in other units is >= 100 x off
+    MAX_FOCAL_PER_SIDE: ClassVar[float] = 100.0
+    # The principal point at most this share of the image side from the centre: real cameras are near 0 (the shared
+    # data and the demo: DJI FC6310R 0.15 / 0.48 %, DMC and the demo truth under 0.1 %); a corner's pixel position
+    # in a centre-offset field (Metashape cx, cy = 864, 480 on 1728 x 960) is 50 %, COLMAP's cx, cy = 0, 0 likewise
+    PP_MAX_SIDE_FRACTION: ClassVar[float] = 0.25
 
-    def check_plausible(self, source: str = "camera"):
+    def check_plausible(self, source: str = "camera", fields: "CameraFileFields | None" = None):
         """Refuse (``InputError``) a camera read from a file whose numbers are in other units than its keys':
         a focal length of a tenth of the longer image side or less (in metres, 0.12 for 120 mm: the adjustment
-        stopped on a singular matrix) or over ``MAX_FOCAL_PER_SIDE`` times it, and a principal point outside the
-        frame (in pixels). Only for cameras
-        read from files: self-calibration's intermediate cameras are not held to it."""
+        stopped on a singular matrix) or over ``MAX_FOCAL_PER_SIDE`` times it, and a principal point over
+        ``PP_MAX_SIDE_FRACTION`` of the side from the image centre (in pixels, or a corner's position). ``fields``:
+        how another program's file names these numbers, for the message (None: camera.toml's keys). Only for
+        cameras read from files: self-calibration's intermediate cameras are not held to it."""
         side_px = max(self.width, self.height)
+        focal_name = f"focal_mm = {self.focal_mm:g}"
+        if fields:
+            focal_name = f"{fields.focal} ({focal_name})"
+        format_hint = f" ({fields.focal_hint})" if fields and fields.focal_hint else ""
         if self.focal_px < self.MIN_FOCAL_PER_SIDE * side_px:
             fov_deg = 2.0 * math.degrees(math.atan(side_px / 2.0 / self.focal_px))
-            hint = ""
+            hint = format_hint
             if self.focal_px * 1000.0 >= self.MIN_FOCAL_PER_SIDE * side_px and self.focal_mm * 1000.0 <= 1000.0:
-                hint = f"; in metres? {self.focal_mm:g} m = {self.focal_mm * 1000.0:g} mm"
-            raise InputError(f"{source}: focal_mm = {self.focal_mm:g} is {self.focal_px:.4g} px at pixel_um = "
-                             f"{self.pixel_um:g}: a field of view of {fov_deg:.1f} deg across the {side_px} px side, "
-                             f"expected a focal length of at least {self.MIN_FOCAL_PER_SIDE:g} x that side{hint}")
+                hint = f"; in metres? {self.focal_mm:g} m = {self.focal_mm * 1000.0:g} mm{format_hint}"
+            raise InputError(f"{source}: {focal_name} is {self.focal_px:.4g} px at pixel_um = {self.pixel_um:g}: a "
+                             f"field of view of {fov_deg:.1f} deg across the {side_px} px side, expected a focal "
+                             f"length of at least {self.MIN_FOCAL_PER_SIDE:g} x that side{hint}")
         if self.focal_px > self.MAX_FOCAL_PER_SIDE * side_px:
             fov_deg = 2.0 * math.degrees(math.atan(side_px / 2.0 / self.focal_px))
-            raise InputError(f"{source}: focal_mm = {self.focal_mm:g} is {self.focal_px:.6g} px at pixel_um = "
-                             f"{self.pixel_um:g}: a field of view of {fov_deg:.2g} deg across the {side_px} px side, "
-                             f"expected a focal length of at most {self.MAX_FOCAL_PER_SIDE:g} x that side (a pixel "
-                             "size or focal length in other units?)")
-        for key, size_px in (("ppx_mm", self.width), ("ppy_mm", self.height)):
-            half_mm = size_px * self.pixel_um / 2000.0
-            if abs(getattr(self, key)) > half_mm:
-                raise InputError(f"{source}: {key} = {getattr(self, key):g} puts the principal point outside the "
-                                 f"frame (half its side is {half_mm:g} mm); expected the offset from the image "
-                                 f"centre in mm (in pixels? x {self.pixel_um / 1000.0:g} mm/px)")
+            hint = f" (a pixel size or focal length in other units?{';' + format_hint[1:-1] if format_hint else ''})"
+            raise InputError(f"{source}: {focal_name} is {self.focal_px:.6g} px at pixel_um = {self.pixel_um:g}: a "
+                             f"field of view of {fov_deg:.2g} deg across the {side_px} px side, expected a focal "
+                             f"length of at most {self.MAX_FOCAL_PER_SIDE:g} x that side{hint}")
+        off_px = (self.cx_px - (self.width - 1) / 2.0, self.cy_px - (self.height - 1) / 2.0)
+        share = (abs(off_px[0]) / self.width, abs(off_px[1]) / self.height)
+        if max(share) > self.PP_MAX_SIDE_FRACTION:
+            limit = f"{100 * self.PP_MAX_SIDE_FRACTION:g} %"
+            if fields:
+                raise InputError(f"{source}: {fields.pp} put the principal point {off_px[0]:+.1f} / "
+                                 f"{off_px[1]:+.1f} px "
+                                 f"(x right / y down) from the image centre, {100 * share[0]:.0f} / "
+                                 f"{100 * share[1]:.0f} % of the {self.width} x {self.height} px frame (limit {limit}; "
+                                 f"a real camera's is near 0): {fields.pp_hint}")
+            a = 0 if share[0] >= share[1] else 1
+            key, size_px = (("ppx_mm", self.width), ("ppy_mm", self.height))[a]
+            raise InputError(f"{source}: {key} = {getattr(self, key):g} puts the principal point "
+                             f"{100 * share[a]:.0f} % of the {size_px} px side from the image centre (limit {limit}, "
+                             f"{self.PP_MAX_SIDE_FRACTION * size_px * self.pixel_um / 1000.0:g} mm); expected the "
+                             f"offset from the image centre in mm (in pixels? x {self.pixel_um / 1000.0:g} mm/px)")
 
     def to_dict(self) -> dict:
         """The camera file's keys: ``name``, ``model`` and the model's fields."""

@@ -9,6 +9,7 @@ from click.testing import CliRunner
 from pyproj import Transformer
 
 from aerotri.cli import main as aerotri_cli
+from aerotri.core.errors import InputError
 from aerotri.exchange.patb import numbering, orientation_text
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_gnss, read_eo
 
@@ -216,3 +217,45 @@ def test_camera_of_another_size_than_the_frames(tmp_path):
             assert "scaled by 2 would fit" in _import(root, "colmap", [m]).output
         else:
             assert _import(root, "colmap", [m]).exit_code == 0 and (root / "camera.toml").is_file()
+
+
+def test_camera_convention_mistakes_are_refused_in_the_files_terms(tmp_path):
+    """Review 21: COLMAP's cx, cy = 0, 0 put the principal point exactly half the frame off the centre, which the
+    strict "outside the frame" test passed (exit 0, pp at the corner); now over a quarter of the side is refused,
+    naming COLMAP's fields and its convention. Metashape's corner values in its centre-offset fields alike."""
+    root = _project(tmp_path, "EPSG:32610")
+    xyz = _to("EPSG:32610", _lonlat_block(-121.9, 37.4))
+    m = tmp_path / "model"
+    m.mkdir()
+    (m / "images.txt").write_text("".join(f"{n + 1} 1 0 0 0 {-x:.4f} {-y:.4f} {-z:.4f} 1 {i}.jpg\n\n"
+                                          for n, (i, (x, y, z)) in enumerate(zip("abc", xyz))))
+    (m / "georef.txt").write_text("frame crs\ncrs EPSG:32610\n")
+    (m / "cameras.txt").write_text("1 PINHOLE 100 80 120 120 0 0\n")
+    _refused(root, "colmap", [m], "cameras.txt cx, cy put the principal point -50.0 / -40.0 px (x right / y down) "
+             "from the image centre, 50 / 50 % of the 100 x 80 px frame (limit 25 %")
+    assert "COLMAP's cx, cy are pixels from the image's top-left corner" in _import(root, "colmap", [m]).output
+    (m / "cameras.txt").write_text("1 PINHOLE 100 80 120 120 70 50\n")  # 20 / 12.5 % off: a camera, read
+    assert _import(root, "colmap", [m]).exit_code == 0
+    # Metashape: cx, cy are offsets from the centre in px; 864, 480 (the centre's pixel position) on 1728 x 960
+    from aerotri.exchange.import_checks import CAMERA_FILE_FIELDS
+    from aerotri.geom.camera import BrownCamera
+
+    pix = 0.0096  # mm, as metashape.py builds it: ppx_mm = cx * pix, ppy_mm = -cy * pix
+    cam = BrownCamera(focal_mm=120.0, pixel_um=9.6, width=1728, height=960, ppx_mm=864 * pix, ppy_mm=-480 * pix)
+    with pytest.raises(InputError, match=r"cameras.xml: <calibration> cx, cy put the principal point \+864.0 / "
+                                         r"\+480.0 px .* Metashape's cx, cy are the offset from the image centre"):
+        cam.check_plausible("cameras.xml", CAMERA_FILE_FIELDS["metashape"])
+
+
+def test_an_orthority_focal_length_in_mm_without_sensor_size_is_said(tmp_path):
+    """Review 21: focal_len 8.8 (mm) with sensor_size left out reads as 8.8 image widths, a 15,206 px lens on
+    1728 px frames (a 6.5 deg field of view), which passed without a word; the import now says so (over 4 sides)."""
+    root = _project(tmp_path, "EPSG:32610")
+    f = tmp_path / "int_param.yaml"
+    for focal, said in ((8.8, True), (0.67, False)):  # 0.67: Tuniu's DJI FC6310R over its width
+        f.write_text(f"cam:\n  type: pinhole\n  im_size: [1728, 960]\n  focal_len: {focal}\n")
+        r = _import(root, "orthority", [f], "--force")
+        assert r.exit_code == 0, r.output
+        warning = ("focal_len 8.8 without sensor_size is over the image width (orthority's convention): 15206.4 px, "
+                   "8.8 x the longer side, a field of view of 6.5 deg; if focal_len is in mm, give sensor_size")
+        assert (warning in r.output) == said

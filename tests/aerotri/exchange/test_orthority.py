@@ -187,7 +187,8 @@ def test_interior_in_metres_is_refused_and_nothing_written(tiny_project, tmp_pat
     before = sorted(q.relative_to(root) for q in root.rglob("*"))
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "orthority", str(f), "--force"])
     assert r.exit_code == 2 and "Traceback" not in r.output, r.output
-    assert "focal_mm = 0.12 is 1.25 px at pixel_um = 96" in r.output and "in metres? 0.12 m = 120 mm" in r.output
+    assert "focal_len (focal_mm = 0.12) is 1.25 px at pixel_um = 96" in r.output
+    assert "in metres? 0.12 m = 120 mm" in r.output
     assert sorted(q.relative_to(root) for q in root.rglob("*")) == before
 
 

@@ -71,7 +71,10 @@ def test_camera_file_round_trip_and_unit_errors(tmp_path):
     ("focal_mm", "0.12", r"focal_mm = 0.12 is 10 px at pixel_um = 12: a field of view of 179.8 deg .* in metres\? "
                          r"0.12 m = 120 mm"),
     # the principal point in pixels: 900 px = 10.8 mm, outside the 7680 px x 12 um = 92.16 mm high frame
-    ("ppy_mm", "-900.0", r"ppy_mm = -900 puts the principal point outside the frame \(half its side is 46.08 mm\)"),
+    ("ppy_mm", "-900.0", r"ppy_mm = -900 puts the principal point 977 % of the 7680 px side from the image centre "
+                         r"\(limit 25 %, 23.04 mm\); expected the offset from the image centre in mm \(in pixels\?"),
+    # 4,000 px on the 13824 px width: 29 %, inside the frame, which passed
+    ("ppx_mm", "48.0", r"ppx_mm = 48 puts the principal point 29 % of the 13824 px side from the image centre"),
 ])
 def test_camera_files_in_other_units_are_refused(tmp_path, key, value, match):
     good = {"focal_mm": "120.0", "pixel_um": "12.0", "width": "13824", "height": "7680", "ppx_mm": "0.1",
@@ -226,10 +229,25 @@ def test_points_beyond_the_lens_fold_do_not_project_into_the_frame():
     assert np.allclose(x, xs.ravel(), atol=1e-3) and np.allclose(y, ys.ravel(), atol=1e-3)
 
 
-def test_a_camera_file_with_a_focal_length_over_twenty_sides_is_refused(tmp_path):
-    """A pixel size 16 x too small on 1728 px frames (0.6 for 9.6 um): a 200,000 px, 0.5 deg lens."""
+def test_a_camera_file_with_a_focal_length_over_a_hundred_sides_is_refused(tmp_path):
+    """A pixel size 16 x too small on 1728 px frames (0.6 for 9.6 um): a 200,000 px, 0.5 deg lens. A 600 mm lens on
+    an APS-C back (23.5 mm, 6000 px: 25.5 sides), which the former 20 sides refused, reads."""
     p = tmp_path / "camera.toml"
     p.write_text("focal_mm = 120.0\npixel_um = 0.6\nwidth = 1728\nheight = 960\n")
     with pytest.raises(InputError, match=r"focal_mm = 120 is 200000 px at pixel_um = 0.6: a field of view of 0.5 deg "
-                                         r"across the 1728 px side, expected a focal length of at most 20 x that side"):
+                                         r"across the 1728 px side, expected a focal length of at most 100 x that side"):
         BrownCamera.read(p)
+    p.write_text("focal_mm = 600.0\npixel_um = 3.9167\nwidth = 6000\nheight = 4000\n")
+    assert BrownCamera.read(p).focal_px / 6000 == pytest.approx(25.5, abs=0.05)
+
+
+def test_a_principal_point_over_a_quarter_of_the_side_off_the_centre_is_refused():
+    """Exactly half the frame off (COLMAP's cx = 0 read as pixels from the corner) passed the strict "outside the
+    frame" test; the limit is now a quarter of the side, real cameras are near 0."""
+    for share, refused in ((0.5, True), (0.26, True), (0.24, False), (0.0048, False)):
+        cam = BrownCamera(focal_mm=120.0, pixel_um=12.0, width=13824, height=7680, ppy_mm=-share * 7680 * 0.012)
+        if refused:
+            with pytest.raises(InputError, match=r"ppy_mm = .* puts the principal point .* % of the 7680 px side"):
+                cam.check_plausible("camera.toml")
+        else:
+            cam.check_plausible("camera.toml")
