@@ -1854,7 +1854,8 @@ def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p:
     body_level = np.atleast_1d(ndimage.median(np.concatenate(vals), np.concatenate(labs), np.arange(1, nlab + 1)))
     u = np.flatnonzero(water)
     r, cl = g.rc(u)
-    key = (r + r_min) * ncols_whole + (cl + c_min)
+    # int64: the whole grid's flat keys pass 2**31 beyond 46,341 cells square (46 km at 1 m cells, review 19)
+    key = (r.astype(np.int64) + r_min) * ncols_whole + (cl.astype(np.int64) + c_min)
     order = np.argsort(key)
     return LevelBodies(ncols_whole, key[order], np.asarray(body_level, float)[blab[u[order]] - 1])
 

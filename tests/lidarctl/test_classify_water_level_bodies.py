@@ -99,6 +99,23 @@ def test_sparse_bodies_are_the_dense_bodies():
             assert len(sparse.keys) > 900
 
 
+def test_bodies_far_from_the_grids_origin():
+    """A lake 47,000 cells north and east of the whole grid's origin (a 46 km square at 1 m cells: the flat keys
+    ``row * ncols + col`` pass 2**31): every lake cell found by ``level_at``, the keys those of the dense reference
+    (review 19: int32 rows wrapped, 0 of 964 found)."""
+    p = classify.ClassifySettings()
+    cells, heights, wg = lake_cells(seed=1)
+    near = classify.whole_level_bodies(cells, heights, wg, p)
+    off = 47_000
+    wg = dataclasses.replace(wg, footprint_10m=None)   # the footprint of the cells themselves
+    far = classify.whole_level_bodies(cells + off, heights, wg, p)
+    assert far.ncols * int(cells[:, 0].max() + off) > 2**31
+    assert same_bodies(far, classify.whole_level_bodies_dense(cells + off, heights, wg, p))
+    rows, cols = np.divmod(near.keys, near.ncols)
+    assert len(near.keys) > 900
+    assert np.array_equal(far.level_at(rows + off, cols + off), near.level_m)
+
+
 def test_sparse_bodies_memory_by_the_occupied_cells():
     """A diagonal corridor whose bounding box holds 8.8 cells for each occupied one: at most 120 bytes per occupied
     cell (the grid over the box: 69 a cell of the box, about 600 per occupied cell)."""
