@@ -1187,8 +1187,9 @@ class LevelBodies:
 # higher above the water than this over the rim's two cells is a wall, a roof or a crown (``whole_level_bodies``).
 BANK_MAX_SLOPE = 1.0
 # A rim cell standing higher than the steepest bank is a quay's wall when it is the land: it stands no higher above the
-# lowest land within this reach (m; returns above the water, the water body's own aside) than the steepest bank rises
-# across the rim; else it is an object on lower land (a roof, a crown) and no bank. The reach is the diameter of the
+# lowest return within this reach (m; the water body's own cells and its rim aside, any other return however low:
+# a street at the level of a yard among roofs is lower land, review 19) than the steepest bank rises across the rim;
+# else it is an object on lower land (a roof, a crown) and no bank. The reach is the diameter of the
 # ground filter's largest opening (2 x ``ground.MorphSettings.max_window_m``, 25 m): an object it leaves out of the
 # ground, the tile's own pass (``level_water``, whose banks are ground cells) does not bank on either
 # (level-bodies-sparse; chosen on that, not fitted).
@@ -1290,8 +1291,15 @@ def whole_level_bodies_dense(cells: np.ndarray, heights: np.ndarray, wg: WaterGr
                 ri, ci = ri[high] + r0, ci[high] + c0
                 e0, f0 = max(int(ri.min()) - reach, 0), max(int(ci.min()) - reach, 0)
                 ext = (slice(e0, int(ri.max()) + reach + 1), slice(f0, int(ci.max()) + reach + 1))
-                with np.errstate(invalid="ignore"):
-                    land = np.where(lo[ext] > level + tol, lo[ext], np.inf)
+                # the land: any return but the body's own and its rim's (the water's cells beside a wall, whose
+                # lowest return is on the water, are rim cells; a street at the water's level beyond a roof is land)
+                own = labels[ext] == k
+                wr, wc = np.nonzero(rim)
+                wr, wc = wr + r0 - e0, wc + c0 - f0
+                inside = (wr >= 0) & (wc >= 0) & (wr < own.shape[0]) & (wc < own.shape[1])
+                own[wr[inside], wc[inside]] = True
+                land = np.where(np.isfinite(lo[ext]) & ~own, lo[ext], np.inf)
+                del own
                 behind = ndimage.minimum_filter(land, size=2 * reach + 1, mode="constant",
                                                 cval=np.inf)[ri - e0, ci - f0]
                 top = lo[ri, ci]
@@ -1619,14 +1627,16 @@ def _pairs_near(g: _Blocks, labels: np.ndarray, keep: np.ndarray, reach: int, oc
     return found // stride, found % stride
 
 
-def _lowest_land_near(g: _Blocks, u: np.ndarray, floor: np.ndarray, reach: int, lo: np.ndarray) -> np.ndarray:
-    """The lowest of ``lo`` (m) above ``floor`` (per cell of ``u``) within ``reach`` cells (Chebyshev) of each cell
-    ``u`` (inf: none): the lowest along each row first (at the cells ``reach`` rows about ``u``, per floor), then
-    along the column."""
+def _lowest_land_near(g: _Blocks, u: np.ndarray, body: np.ndarray, reach: int, lo: np.ndarray, labels: np.ndarray,
+                      rim: np.ndarray, stride: np.int64) -> np.ndarray:
+    """The lowest of ``lo`` (m) within ``reach`` cells (Chebyshev) of each cell ``u`` (inf: none), the cells of its
+    body ``body`` (per cell of ``u``; ``labels`` per cell) and of that body's rim (``rim``: sorted keys
+    ``cell * stride + body``) aside: the lowest along each row first (at the cells ``reach`` rows about ``u``, per
+    body), then along the column."""
     r, c = g.rc(u)
-    levels, f = np.unique(floor, return_inverse=True)
+    ids, f = np.unique(body, return_inverse=True)
     span = np.arange(-reach, reach + 1)
-    ncols, nf = np.int64(g.ncols), np.int64(len(levels))
+    ncols, nf = np.int64(g.ncols), np.int64(len(ids))
 
     def key(rows, cols, fs):
         return ((rows.astype(np.int64) + reach) * ncols + cols) * nf + fs
@@ -1639,11 +1649,13 @@ def _lowest_land_near(g: _Blocks, u: np.ndarray, floor: np.ndarray, reach: int, 
     for dc in span:
         w = g.locate(rows, cols + dc)
         ok = np.flatnonzero(w >= 0)
-        z = lo[w[ok]]
-        with np.errstate(invalid="ignore"):
-            take = z > levels[fs[ok]]
-        ok, z = ok[take], z[take]
-        along_row[ok] = np.minimum(along_row[ok], z)
+        w, b = w[ok], ids[fs[ok]]
+        take = np.isfinite(lo[w]) & (labels[w] != b)
+        ok, w, b = ok[take], w[take], b[take]
+        pair = w * stride + b
+        take = rim[np.minimum(np.searchsorted(rim, pair), len(rim) - 1)] != pair
+        ok, w = ok[take], w[take]
+        along_row[ok] = np.minimum(along_row[ok], lo[w])
     out = np.full(len(u), np.inf)
     for dr in span:
         out = np.minimum(out, along_row[np.searchsorted(keys, key(r + dr, c, f))])
@@ -1762,12 +1774,14 @@ def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p:
         level = _group_median(med[in_good], labels[in_good], nlab + 1)
         del in_good
         # The bed: the rim (two cells beyond the region) banks as in ``whole_level_bodies_dense``.
-        v, lv = _pairs_near(g, labels, good, 2, occupied)
+        v, lv = _pairs_near(g, labels, good, 2, occupied)   # sorted by cell, then label
         steepest = level[lv] + BANK_MAX_SLOPE * 2.0 * c
         bank = np.where(ground[v] <= steepest, ground[v], np.where(lo[v] <= steepest, lo[v], np.nan))
         high = np.flatnonzero(np.isnan(bank))
         if len(high):   # a quay's wall (the land) or an object on lower land (``WALL_BEHIND_M``)
-            behind = _lowest_land_near(g, v[high], level[lv[high]] + tol, int(np.ceil(WALL_BEHIND_M / c)), lo)
+            stride = np.int64(nlab) + 1
+            behind = _lowest_land_near(g, v[high], lv[high], int(np.ceil(WALL_BEHIND_M / c)), lo, labels,
+                                       v * stride + lv, stride)
             wall = lo[v[high]] - behind <= BANK_MAX_SLOPE * 2.0 * c
             bank[high[wall]] = lo[v[high[wall]]]
         fin = np.isfinite(bank)

@@ -129,14 +129,15 @@ def test_sparse_bodies_memory_by_the_occupied_cells():
     assert peak < 120 * len(cells), peak / len(cells)
 
 
-def courtyard_cells(ring: str, s: int = 150, seed: int = 3):
+def courtyard_cells(ring: str, s: int = 150, seed: int = 3, street_m: float = 1.0, rise: float = 0.02):
     """A level paved courtyard (100 x 100 cells of 2 m, within 3 cm) in an s x s grid, enclosed by a ring 10 cells
-    deep of ``roofs`` (flat, 12 m up, level to 2 cm) or of ``land`` rising 1 m from the yard; beyond it land 1 m
-    above the yard rising 2 % (reviewer 12d's scene: water in tiles, none in the whole run)."""
+    deep of ``roofs`` (flat, 12 m up, level to 2 cm) or of ``land`` rising 1 m from the yard; beyond it land
+    ``street_m`` above the yard rising ``rise`` (reviewer 12d's scene: water in tiles, none in the whole run)."""
     rng = np.random.default_rng(seed)
     ii, jj = np.divmod(np.arange(s * s), s)
     d = np.maximum(np.abs(ii - s / 2 + 0.5), np.abs(jj - s / 2 + 0.5)) - 50   # > 0 outside the yard (cells)
-    lo = np.where(d <= 0, 100.0, 101.0 + 0.02 * CELL_M * np.clip(d - 10, 0, None)) + rng.normal(0, 0.01, s * s)
+    lo = np.where(d <= 0, 100.0, np.where(d <= 10, 101.0, 100.0 + street_m) + rise * CELL_M * np.clip(d - 10, 0, None))
+    lo = lo + rng.normal(0, 0.01, s * s)
     span = np.where(d <= 0, rng.uniform(0, 0.03, s * s), rng.uniform(0, 0.2, s * s))
     if ring == "roofs":
         on_roof = (d > 0) & (d <= 10)
@@ -151,9 +152,14 @@ def courtyard_cells(ring: str, s: int = 150, seed: int = 3):
 def test_a_courtyard_among_roofs_is_no_level_body():
     """A roof ring is no bank (its cells stand higher than any bank rises across the rim, ``BANK_MAX_SLOPE``) and
     its level cells are no part of the yard's region: no body, as in the whole run, where roofs are no ground and
-    no candidates. The same yard in land rising 1 m from it lies in a bed: a body."""
+    no candidates. The same yard in land rising 1 m from it lies in a bed: a body. The roofs are no quay's walls
+    (``WALL_BEHIND_M``) with the street beyond them at the yard's level or below it either (review 19: before, only
+    land above the level counted as lower land, and the 9,604 cells of the yard were a body)."""
     p = classify.ClassifySettings()
-    assert len(classify.whole_level_bodies(*courtyard_cells("roofs"), p).keys) == 0
+    for street_m, rise in ((1.0, 0.02), (0.0, 0.0), (-0.5, 0.0)):   # level streets 30 m wide
+        scene = courtyard_cells("roofs", street_m=street_m, rise=rise)
+        assert len(classify.whole_level_bodies(*scene, p).keys) == 0, street_m
+        assert len(classify.whole_level_bodies_dense(*scene, p).keys) == 0, street_m
     assert len(classify.whole_level_bodies(*courtyard_cells("land"), p).keys) > 0.9 * 100 * 100
 
 
