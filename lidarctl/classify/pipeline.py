@@ -1627,62 +1627,85 @@ def _pairs_near(g: _Blocks, labels: np.ndarray, keep: np.ndarray, reach: int, oc
     return found // stride, found % stride
 
 
+# The cells ``_lowest_land_near`` takes at a time (the rows about each: ~75 keys a cell at 1.41 m cells): its memory
+# is bounded by this, not by the rim cells above the steepest bank (a city of yards among roofs: 493 bytes a cell of
+# the whole call, 70 % here, review 19).
+LOWEST_LAND_CHUNK_CELLS = 4096
+
+
 def _lowest_land_near(g: _Blocks, u: np.ndarray, body: np.ndarray, reach: int, lo: np.ndarray, labels: np.ndarray,
                       rim: np.ndarray, stride: np.int64) -> np.ndarray:
     """The lowest of ``lo`` (m) within ``reach`` cells (Chebyshev) of each cell ``u`` (inf: none), the cells of its
     body ``body`` (per cell of ``u``; ``labels`` per cell) and of that body's rim (``rim``: sorted keys
     ``cell * stride + body``) aside: the lowest along each row first (at the cells ``reach`` rows about ``u``, per
-    body), then along the column."""
+    body), then along the column; ``LOWEST_LAND_CHUNK_CELLS`` cells at a time, in order of body, row, column."""
     r, c = g.rc(u)
-    ids, f = np.unique(body, return_inverse=True)
-    span = np.arange(-reach, reach + 1)
-    ncols, nf = np.int64(g.ncols), np.int64(len(ids))
-
-    def key(rows, cols, fs):
-        return ((rows.astype(np.int64) + reach) * ncols + cols) * nf + fs
-
-    keys = np.unique(key((r[:, None] + span).ravel(), np.repeat(c, len(span)), np.repeat(f, len(span))))
-    fs = keys % nf
-    rows = (keys // nf) // ncols - reach
-    cols = (keys // nf) % ncols
-    along_row = np.full(len(keys), np.inf)
-    for dc in span:
-        w = g.locate(rows, cols + dc)
-        ok = np.flatnonzero(w >= 0)
-        w, b = w[ok], ids[fs[ok]]
-        take = np.isfinite(lo[w]) & (labels[w] != b)
-        ok, w, b = ok[take], w[take], b[take]
-        pair = w * stride + b
-        take = rim[np.minimum(np.searchsorted(rim, pair), len(rim) - 1)] != pair
-        ok, w = ok[take], w[take]
-        along_row[ok] = np.minimum(along_row[ok], lo[w])
+    order = np.lexsort((c, r, body))
     out = np.full(len(u), np.inf)
-    for dr in span:
-        out = np.minimum(out, along_row[np.searchsorted(keys, key(r + dr, c, f))])
+    span = np.arange(-reach, reach + 1)
+    ncols = np.int64(g.ncols)
+    for k in range(0, len(u), LOWEST_LAND_CHUNK_CELLS):
+        sel = order[k:k + LOWEST_LAND_CHUNK_CELLS]
+        rs, cs = r[sel], c[sel]
+        ids, f = np.unique(body[sel], return_inverse=True)
+        nf = np.int64(len(ids))
+
+        def key(rows, cols, fs):
+            return ((rows.astype(np.int64) + reach) * ncols + cols) * nf + fs
+
+        keys = np.unique(key((rs[:, None] + span).ravel(), np.repeat(cs, len(span)), np.repeat(f, len(span))))
+        fs = keys % nf
+        rows = (keys // nf) // ncols - reach
+        cols = (keys // nf) % ncols
+        along_row = np.full(len(keys), np.inf)
+        for dc in span:
+            w = g.locate(rows, cols + dc)
+            ok = np.flatnonzero(w >= 0)
+            w = w[ok]
+            z = lo[w]
+            with np.errstate(invalid="ignore"):
+                take = z < along_row[ok]   # only a lower return changes the minimum (NaN: no return)
+            ok, w, z = ok[take], w[take], z[take]
+            b = ids[fs[ok]]
+            take = labels[w] != b
+            ok, w, z, b = ok[take], w[take], z[take], b[take]
+            pair = w * stride + b
+            take = rim[np.minimum(np.searchsorted(rim, pair), len(rim) - 1)] != pair
+            along_row[ok[take]] = z[take]
+        for dr in span:
+            out[sel] = np.minimum(out[sel], along_row[np.searchsorted(keys, key(rs + dr, cs, f))])
     return out
 
 
 def _active_blocks_near_footprint(nbr: int, nbc: int, side: int, nrows: int, ncols: int, c: float, x0: float,
                                   y0: float, footprint: np.ndarray, fx0: float, fy0: float) -> np.ndarray:
     """Blocks (``nbr`` x ``nbc`` of ``side`` cells) holding a cell whose 10 m cell (as ``beyond_coverage`` finds it)
-    lies in ``footprint``: every cell of another block without returns is outside it, beyond the coverage."""
+    lies in ``footprint``: every cell of another block without returns is outside it, beyond the coverage. Each
+    block's rows of 10 m cells, then its columns, reduced by ``any`` (bool arrays of block rows by 10 m columns, not
+    sums over the footprint's box: int64 running sums were 314 of 366 MB on a 50 km corridor, review 19)."""
     near = np.pad(footprint, 1, constant_values=False)
     if not near.any():
         return np.zeros((nbr, nbc), bool)
-    s = np.zeros((near.shape[0] + 1, near.shape[1] + 1), np.int64)
-    s[1:, 1:] = near.cumsum(0).cumsum(1)
 
     def index(first, last, origin, start, n):
         f = lambda k: np.clip(np.floor((origin + (k + 0.5) * c - start) / COVERAGE_CELL_M).astype(np.int64) + 1,
                               0, n - 1)
         return f(first.astype(float)), f(last.astype(float))
 
+    def any_between(a: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> np.ndarray:
+        """``a[i0[b]:i1[b] + 1].any(axis=0)`` for each b (rows of a, i0 <= i1)."""
+        out = a[i0]
+        for t in range(1, int((i1 - i0).max()) + 1):
+            out |= a[np.minimum(i0 + t, i1)]
+        return out
+
     b = np.arange(nbr)
     i0, i1 = index(b * side, np.minimum((b + 1) * side, nrows) - 1, y0, fy0, near.shape[0])
     b = np.arange(nbc)
     j0, j1 = index(b * side, np.minimum((b + 1) * side, ncols) - 1, x0, fx0, near.shape[1])
-    i0, i1, j0, j1 = i0[:, None], i1[:, None], j0[None, :], j1[None, :]
-    return (s[i1 + 1, j1 + 1] - s[i0, j1 + 1] - s[i1 + 1, j0] + s[i0, j0]) > 0
+    rows = any_between(near, i0, i1)   # (block rows, 10 m columns)
+    del near
+    return any_between(rows.T, j0, j1).T
 
 
 def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p: ClassifySettings) -> LevelBodies:

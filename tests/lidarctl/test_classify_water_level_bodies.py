@@ -178,14 +178,19 @@ def quay_cells(freeboard_m: float, s: int = 120, c: float = 1.41):
     return np.column_stack([ii, jj]) + 3, np.column_stack([lo, lo + span / 2, lo + span]), wg, int(np.sum(d < 0))
 
 
-def test_a_quay_wall_is_a_bank():
+def test_a_quay_wall_is_a_bank(monkeypatch):
     """Quays standing 3-6 m above the water (above the steepest bank across the rim) are the land, not objects on
     lower land: banks, as the ground they are in the tile's own pass (``level_water``). Before: 0 cells of the
-    basin (review 15), the tile's pass all of it -- seams between tiles."""
+    basin (review 15), the tile's pass all of it -- seams between tiles. The same bodies with the land behind the
+    walls looked up a few cells at a time (``LOWEST_LAND_CHUNK_CELLS``) and on the grid (the dense reference)."""
     p = classify.ClassifySettings()
     for freeboard_m in (3.0, 6.0):
         cells, heights, wg, basin = quay_cells(freeboard_m)
         bodies = classify.whole_level_bodies(cells, heights, wg, p)
+        assert same_bodies(bodies, classify.whole_level_bodies_dense(cells, heights, wg, p))
+        with monkeypatch.context() as m:
+            m.setattr(classify, "LOWEST_LAND_CHUNK_CELLS", 37)
+            assert same_bodies(bodies, classify.whole_level_bodies(cells, heights, wg, p))
         _, keys, _ = level_water_bodies(cells, heights, wg, p)
         assert len(bodies.keys) > 0.95 * basin
         # the cells beside the wall: its top is within one cell (open sky), which the returns' KD-tree misses in
