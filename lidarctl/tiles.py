@@ -490,14 +490,14 @@ def _resumed_tile(task: TileTask) -> TileResult | None:
 def _tiles_key_doc(in_paths, grid: TileGrid, params, units: LengthUnits, fusion) -> dict:
     """What every tile's classes depend on but its place in the grid: the strips in order (name, size,
     modification time: they set the points and their indices), the grid, the settings, the units, the fusion's
-    image and rules, the classification rules' version (``lidarctl.classify.RULES_VERSION``: tiles kept before a
-    rule changed are not reused) and the toolkit's version (not the scheduler or the chunk size: the classes do
+    image and rules, the classification rules' version at these settings (``lidarctl.classify.rules_version``:
+    tiles kept before a rule changed are not reused) and the toolkit's version (not the scheduler or the chunk size: the classes do
     not depend on them)."""
     import aerotri
-    from lidarctl.classify import RULES_VERSION
+    from lidarctl.classify import rules_version
 
     doc = {"strips": [[Path(q).name, file_stamp(q)] for q in in_paths], "grid": dataclasses.asdict(grid),
-           "settings": dataclasses.asdict(params), "units": repr(units), "rules_version": RULES_VERSION,
+           "settings": dataclasses.asdict(params), "units": repr(units), "rules_version": rules_version(params),
            "version": aerotri.__version__}
     if fusion is not None:
         img = fusion.image

@@ -63,10 +63,12 @@ def adjustment_result(rec: AdjustmentRecord, **more) -> R.AdjustResult:
 
 # The algorithm versions each stage's stamp holds (``aerotri.chain.runner.Stage.versions``): the constants next to the
 # code that decides the stage's outputs, each bumped when those outputs change; imported when the stage's turn comes.
-def _classify_versions() -> dict:
-    from lidarctl.classify import RULES_VERSION
+def _classify_versions(settings) -> dict:
+    """The rules' version at the stage's settings (``lidarctl.classify.rules_version``: a version whose changes
+    decide classes only with an option on re-runs no project with it off)."""
+    from lidarctl.classify import rules_version
 
-    return {"classify rules": RULES_VERSION}
+    return {"classify rules": rules_version(settings)}
 
 
 def _rasters_versions() -> dict:
@@ -447,7 +449,7 @@ class Chain:
                   versions=_strips_versions),
             Stage("classify", lambda r: self.classify_inputs(), self.classified, self.run_classify,
                   options=dict(to_table(o.classify), crs=self.project.crs), skip=self.no_lidar,
-                  versions=_classify_versions),
+                  versions=lambda: _classify_versions(o.classify)),
             Stage("rasters", self.classified,
                   lambda r: [lo / f for f in ("dem.tif", "dsm.tif", "ndsm.tif", "dsm_nearest.tif", "crowns.gpkg",
                                               "dsm_crowns.tif")], self.run_rasters,

@@ -13,6 +13,22 @@
 # bank); 8: s13-fixes (a one-gap deck's ends on land across up to 12 m of water, was 6: a dropout band over one
 # bank); 9: the whole cloud's level bodies an option, off by default (review 15: memory by the cloud's bounding
 # box; quays above 2.8 m); 10: level-bodies-sparse (with ``water_whole_level_bodies``: a rim cell above the steepest
-# bank is a quay's wall, a bank, when no lower land lies within 50 m; default settings: classes unchanged).
+# bank is a quay's wall, a bank, when no lower land lies within 50 m; default settings: classes unchanged); 11:
+# s19-fixes (with ``water_whole_level_bodies``: land at or below the water's level is lower land too, the body's
+# own cells and rim aside: a roof ring round a yard at street level is no bank).
 # sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
-RULES_VERSION = 10
+RULES_VERSION = 11
+
+# The versions whose changes decide classes only with a setting on (version -> the setting's name): a run with that
+# setting off keeps the version before them (``rules_version``), so its kept tiles and its stage stay up to date
+# (review 19: version 10 re-ran every project, the demo's classification 250 s, a big block hours, for the same
+# classes).
+OPTION_ONLY_VERSIONS = {10: "water_whole_level_bodies", 11: "water_whole_level_bodies"}
+
+
+def rules_version(settings) -> int:
+    """The rules' version of a classification with ``settings`` (``pipeline.ClassifySettings``): ``RULES_VERSION``,
+    less the latest versions whose changes decide classes only with a setting that is off here
+    (``OPTION_ONLY_VERSIONS``)."""
+    return max(v for v in range(1, RULES_VERSION + 1)
+               if v not in OPTION_ONLY_VERSIONS or getattr(settings, OPTION_ONLY_VERSIONS[v]))

@@ -1187,8 +1187,9 @@ class LevelBodies:
 # higher above the water than this over the rim's two cells is a wall, a roof or a crown (``whole_level_bodies``).
 BANK_MAX_SLOPE = 1.0
 # A rim cell standing higher than the steepest bank is a quay's wall when it is the land: it stands no higher above the
-# lowest land within this reach (m; returns above the water, the water body's own aside) than the steepest bank rises
-# across the rim; else it is an object on lower land (a roof, a crown) and no bank. The reach is the diameter of the
+# lowest return within this reach (m; the water body's own cells and its rim aside, any other return however low:
+# a street at the level of a yard among roofs is lower land, review 19) than the steepest bank rises across the rim;
+# else it is an object on lower land (a roof, a crown) and no bank. The reach is the diameter of the
 # ground filter's largest opening (2 x ``ground.MorphSettings.max_window_m``, 25 m): an object it leaves out of the
 # ground, the tile's own pass (``level_water``, whose banks are ground cells) does not bank on either
 # (level-bodies-sparse; chosen on that, not fitted).
@@ -1290,8 +1291,15 @@ def whole_level_bodies_dense(cells: np.ndarray, heights: np.ndarray, wg: WaterGr
                 ri, ci = ri[high] + r0, ci[high] + c0
                 e0, f0 = max(int(ri.min()) - reach, 0), max(int(ci.min()) - reach, 0)
                 ext = (slice(e0, int(ri.max()) + reach + 1), slice(f0, int(ci.max()) + reach + 1))
-                with np.errstate(invalid="ignore"):
-                    land = np.where(lo[ext] > level + tol, lo[ext], np.inf)
+                # the land: any return but the body's own and its rim's (the water's cells beside a wall, whose
+                # lowest return is on the water, are rim cells; a street at the water's level beyond a roof is land)
+                own = labels[ext] == k
+                wr, wc = np.nonzero(rim)
+                wr, wc = wr + r0 - e0, wc + c0 - f0
+                inside = (wr >= 0) & (wc >= 0) & (wr < own.shape[0]) & (wc < own.shape[1])
+                own[wr[inside], wc[inside]] = True
+                land = np.where(np.isfinite(lo[ext]) & ~own, lo[ext], np.inf)
+                del own
                 behind = ndimage.minimum_filter(land, size=2 * reach + 1, mode="constant",
                                                 cval=np.inf)[ri - e0, ci - f0]
                 top = lo[ri, ci]
@@ -1619,58 +1627,85 @@ def _pairs_near(g: _Blocks, labels: np.ndarray, keep: np.ndarray, reach: int, oc
     return found // stride, found % stride
 
 
-def _lowest_land_near(g: _Blocks, u: np.ndarray, floor: np.ndarray, reach: int, lo: np.ndarray) -> np.ndarray:
-    """The lowest of ``lo`` (m) above ``floor`` (per cell of ``u``) within ``reach`` cells (Chebyshev) of each cell
-    ``u`` (inf: none): the lowest along each row first (at the cells ``reach`` rows about ``u``, per floor), then
-    along the column."""
+# The cells ``_lowest_land_near`` takes at a time (the rows about each: ~75 keys a cell at 1.41 m cells): its memory
+# is bounded by this, not by the rim cells above the steepest bank (a city of yards among roofs: 493 bytes a cell of
+# the whole call, 70 % here, review 19).
+LOWEST_LAND_CHUNK_CELLS = 4096
+
+
+def _lowest_land_near(g: _Blocks, u: np.ndarray, body: np.ndarray, reach: int, lo: np.ndarray, labels: np.ndarray,
+                      rim: np.ndarray, stride: np.int64) -> np.ndarray:
+    """The lowest of ``lo`` (m) within ``reach`` cells (Chebyshev) of each cell ``u`` (inf: none), the cells of its
+    body ``body`` (per cell of ``u``; ``labels`` per cell) and of that body's rim (``rim``: sorted keys
+    ``cell * stride + body``) aside: the lowest along each row first (at the cells ``reach`` rows about ``u``, per
+    body), then along the column; ``LOWEST_LAND_CHUNK_CELLS`` cells at a time, in order of body, row, column."""
     r, c = g.rc(u)
-    levels, f = np.unique(floor, return_inverse=True)
-    span = np.arange(-reach, reach + 1)
-    ncols, nf = np.int64(g.ncols), np.int64(len(levels))
-
-    def key(rows, cols, fs):
-        return ((rows.astype(np.int64) + reach) * ncols + cols) * nf + fs
-
-    keys = np.unique(key((r[:, None] + span).ravel(), np.repeat(c, len(span)), np.repeat(f, len(span))))
-    fs = keys % nf
-    rows = (keys // nf) // ncols - reach
-    cols = (keys // nf) % ncols
-    along_row = np.full(len(keys), np.inf)
-    for dc in span:
-        w = g.locate(rows, cols + dc)
-        ok = np.flatnonzero(w >= 0)
-        z = lo[w[ok]]
-        with np.errstate(invalid="ignore"):
-            take = z > levels[fs[ok]]
-        ok, z = ok[take], z[take]
-        along_row[ok] = np.minimum(along_row[ok], z)
+    order = np.lexsort((c, r, body))
     out = np.full(len(u), np.inf)
-    for dr in span:
-        out = np.minimum(out, along_row[np.searchsorted(keys, key(r + dr, c, f))])
+    span = np.arange(-reach, reach + 1)
+    ncols = np.int64(g.ncols)
+    for k in range(0, len(u), LOWEST_LAND_CHUNK_CELLS):
+        sel = order[k:k + LOWEST_LAND_CHUNK_CELLS]
+        rs, cs = r[sel], c[sel]
+        ids, f = np.unique(body[sel], return_inverse=True)
+        nf = np.int64(len(ids))
+
+        def key(rows, cols, fs):
+            return ((rows.astype(np.int64) + reach) * ncols + cols) * nf + fs
+
+        keys = np.unique(key((rs[:, None] + span).ravel(), np.repeat(cs, len(span)), np.repeat(f, len(span))))
+        fs = keys % nf
+        rows = (keys // nf) // ncols - reach
+        cols = (keys // nf) % ncols
+        along_row = np.full(len(keys), np.inf)
+        for dc in span:
+            w = g.locate(rows, cols + dc)
+            ok = np.flatnonzero(w >= 0)
+            w = w[ok]
+            z = lo[w]
+            with np.errstate(invalid="ignore"):
+                take = z < along_row[ok]   # only a lower return changes the minimum (NaN: no return)
+            ok, w, z = ok[take], w[take], z[take]
+            b = ids[fs[ok]]
+            take = labels[w] != b
+            ok, w, z, b = ok[take], w[take], z[take], b[take]
+            pair = w * stride + b
+            take = rim[np.minimum(np.searchsorted(rim, pair), len(rim) - 1)] != pair
+            along_row[ok[take]] = z[take]
+        for dr in span:
+            out[sel] = np.minimum(out[sel], along_row[np.searchsorted(keys, key(rs + dr, cs, f))])
     return out
 
 
 def _active_blocks_near_footprint(nbr: int, nbc: int, side: int, nrows: int, ncols: int, c: float, x0: float,
                                   y0: float, footprint: np.ndarray, fx0: float, fy0: float) -> np.ndarray:
     """Blocks (``nbr`` x ``nbc`` of ``side`` cells) holding a cell whose 10 m cell (as ``beyond_coverage`` finds it)
-    lies in ``footprint``: every cell of another block without returns is outside it, beyond the coverage."""
+    lies in ``footprint``: every cell of another block without returns is outside it, beyond the coverage. Each
+    block's rows of 10 m cells, then its columns, reduced by ``any`` (bool arrays of block rows by 10 m columns, not
+    sums over the footprint's box: int64 running sums were 314 of 366 MB on a 50 km corridor, review 19)."""
     near = np.pad(footprint, 1, constant_values=False)
     if not near.any():
         return np.zeros((nbr, nbc), bool)
-    s = np.zeros((near.shape[0] + 1, near.shape[1] + 1), np.int64)
-    s[1:, 1:] = near.cumsum(0).cumsum(1)
 
     def index(first, last, origin, start, n):
         f = lambda k: np.clip(np.floor((origin + (k + 0.5) * c - start) / COVERAGE_CELL_M).astype(np.int64) + 1,
                               0, n - 1)
         return f(first.astype(float)), f(last.astype(float))
 
+    def any_between(a: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> np.ndarray:
+        """``a[i0[b]:i1[b] + 1].any(axis=0)`` for each b (rows of a, i0 <= i1)."""
+        out = a[i0]
+        for t in range(1, int((i1 - i0).max()) + 1):
+            out |= a[np.minimum(i0 + t, i1)]
+        return out
+
     b = np.arange(nbr)
     i0, i1 = index(b * side, np.minimum((b + 1) * side, nrows) - 1, y0, fy0, near.shape[0])
     b = np.arange(nbc)
     j0, j1 = index(b * side, np.minimum((b + 1) * side, ncols) - 1, x0, fx0, near.shape[1])
-    i0, i1, j0, j1 = i0[:, None], i1[:, None], j0[None, :], j1[None, :]
-    return (s[i1 + 1, j1 + 1] - s[i0, j1 + 1] - s[i1 + 1, j0] + s[i0, j0]) > 0
+    rows = any_between(near, i0, i1)   # (block rows, 10 m columns)
+    del near
+    return any_between(rows.T, j0, j1).T
 
 
 def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p: ClassifySettings) -> LevelBodies:
@@ -1762,12 +1797,14 @@ def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p:
         level = _group_median(med[in_good], labels[in_good], nlab + 1)
         del in_good
         # The bed: the rim (two cells beyond the region) banks as in ``whole_level_bodies_dense``.
-        v, lv = _pairs_near(g, labels, good, 2, occupied)
+        v, lv = _pairs_near(g, labels, good, 2, occupied)   # sorted by cell, then label
         steepest = level[lv] + BANK_MAX_SLOPE * 2.0 * c
         bank = np.where(ground[v] <= steepest, ground[v], np.where(lo[v] <= steepest, lo[v], np.nan))
         high = np.flatnonzero(np.isnan(bank))
         if len(high):   # a quay's wall (the land) or an object on lower land (``WALL_BEHIND_M``)
-            behind = _lowest_land_near(g, v[high], level[lv[high]] + tol, int(np.ceil(WALL_BEHIND_M / c)), lo)
+            stride = np.int64(nlab) + 1
+            behind = _lowest_land_near(g, v[high], lv[high], int(np.ceil(WALL_BEHIND_M / c)), lo, labels,
+                                       v * stride + lv, stride)
             wall = lo[v[high]] - behind <= BANK_MAX_SLOPE * 2.0 * c
             bank[high[wall]] = lo[v[high[wall]]]
         fin = np.isfinite(bank)
@@ -1854,7 +1891,8 @@ def whole_level_bodies(cells: np.ndarray, heights: np.ndarray, wg: WaterGrid, p:
     body_level = np.atleast_1d(ndimage.median(np.concatenate(vals), np.concatenate(labs), np.arange(1, nlab + 1)))
     u = np.flatnonzero(water)
     r, cl = g.rc(u)
-    key = (r + r_min) * ncols_whole + (cl + c_min)
+    # int64: the whole grid's flat keys pass 2**31 beyond 46,341 cells square (46 km at 1 m cells, review 19)
+    key = (r.astype(np.int64) + r_min) * ncols_whole + (cl.astype(np.int64) + c_min)
     order = np.argsort(key)
     return LevelBodies(ncols_whole, key[order], np.asarray(body_level, float)[blab[u[order]] - 1])
 

@@ -311,6 +311,33 @@ def test_tiles_kept_before_a_rule_change_are_not_reused(strips, tmp_path, monkey
     assert count.done == 4 and "resumed" not in caplog.text
 
 
+def test_a_rule_change_under_an_option_that_is_off_reuses_the_tiles(strips, tmp_path, monkeypatch, caplog):
+    """Review 19: RULES_VERSION 10 (level-bodies-sparse, classes changed only with ``water_whole_level_bodies`` on)
+    made every project classify again (the demo 250 s, a big block hours) for the same classes. A version whose
+    changes decide classes only with an option on (``OPTION_ONLY_VERSIONS``) is in the key of runs with it on only:
+    with it off the key holds the version before (9, as the projects made before level-bodies-sparse hold), and the
+    kept tiles resume; with it on, nothing resumes."""
+    import lidarctl.classify
+    from lidarctl.classify import pipeline
+
+    off, on = pipeline.ClassifySettings(), pipeline.ClassifySettings(water_whole_level_bodies=True)
+    assert lidarctl.classify.rules_version(off) == 9
+    assert lidarctl.classify.rules_version(on) == lidarctl.classify.RULES_VERSION
+    monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
+    with pytest.raises(KeyboardInterrupt):
+        _classify(strips, tmp_path)
+    bumped = lidarctl.classify.RULES_VERSION + 1
+    monkeypatch.setattr(lidarctl.classify, "RULES_VERSION", bumped)
+    monkeypatch.setattr(lidarctl.classify, "OPTION_ONLY_VERSIONS",
+                        {**lidarctl.classify.OPTION_ONLY_VERSIONS, bumped: "water_whole_level_bodies"})
+    assert lidarctl.classify.rules_version(off) == 9 and lidarctl.classify.rules_version(on) == bumped
+    count = _Tiles()
+    monkeypatch.setattr(tiles, "_classify_tile", count)
+    with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):
+        _classify(strips, tmp_path)
+    assert count.done == 2 and "resumed 2 of 4 tiles" in caplog.text
+
+
 def test_every_tile_resumed_skips_the_water_grid(strips, tmp_path, monkeypatch):
     """Interrupted while writing (all four tiles kept): the re-run classifies no tile and skips the whole cloud's
     water grid (two passes over the tile files; the kept tiles hold its verdicts), writing the same bytes."""

@@ -99,6 +99,23 @@ def test_sparse_bodies_are_the_dense_bodies():
             assert len(sparse.keys) > 900
 
 
+def test_bodies_far_from_the_grids_origin():
+    """A lake 47,000 cells north and east of the whole grid's origin (a 46 km square at 1 m cells: the flat keys
+    ``row * ncols + col`` pass 2**31): every lake cell found by ``level_at``, the keys those of the dense reference
+    (review 19: int32 rows wrapped, 0 of 964 found)."""
+    p = classify.ClassifySettings()
+    cells, heights, wg = lake_cells(seed=1)
+    near = classify.whole_level_bodies(cells, heights, wg, p)
+    off = 47_000
+    wg = dataclasses.replace(wg, footprint_10m=None)   # the footprint of the cells themselves
+    far = classify.whole_level_bodies(cells + off, heights, wg, p)
+    assert far.ncols * int(cells[:, 0].max() + off) > 2**31
+    assert same_bodies(far, classify.whole_level_bodies_dense(cells + off, heights, wg, p))
+    rows, cols = np.divmod(near.keys, near.ncols)
+    assert len(near.keys) > 900
+    assert np.array_equal(far.level_at(rows + off, cols + off), near.level_m)
+
+
 def test_sparse_bodies_memory_by_the_occupied_cells():
     """A diagonal corridor whose bounding box holds 8.8 cells for each occupied one: at most 120 bytes per occupied
     cell (the grid over the box: 69 a cell of the box, about 600 per occupied cell)."""
@@ -112,14 +129,15 @@ def test_sparse_bodies_memory_by_the_occupied_cells():
     assert peak < 120 * len(cells), peak / len(cells)
 
 
-def courtyard_cells(ring: str, s: int = 150, seed: int = 3):
+def courtyard_cells(ring: str, s: int = 150, seed: int = 3, street_m: float = 1.0, rise: float = 0.02):
     """A level paved courtyard (100 x 100 cells of 2 m, within 3 cm) in an s x s grid, enclosed by a ring 10 cells
-    deep of ``roofs`` (flat, 12 m up, level to 2 cm) or of ``land`` rising 1 m from the yard; beyond it land 1 m
-    above the yard rising 2 % (reviewer 12d's scene: water in tiles, none in the whole run)."""
+    deep of ``roofs`` (flat, 12 m up, level to 2 cm) or of ``land`` rising 1 m from the yard; beyond it land
+    ``street_m`` above the yard rising ``rise`` (reviewer 12d's scene: water in tiles, none in the whole run)."""
     rng = np.random.default_rng(seed)
     ii, jj = np.divmod(np.arange(s * s), s)
     d = np.maximum(np.abs(ii - s / 2 + 0.5), np.abs(jj - s / 2 + 0.5)) - 50   # > 0 outside the yard (cells)
-    lo = np.where(d <= 0, 100.0, 101.0 + 0.02 * CELL_M * np.clip(d - 10, 0, None)) + rng.normal(0, 0.01, s * s)
+    lo = np.where(d <= 0, 100.0, np.where(d <= 10, 101.0, 100.0 + street_m) + rise * CELL_M * np.clip(d - 10, 0, None))
+    lo = lo + rng.normal(0, 0.01, s * s)
     span = np.where(d <= 0, rng.uniform(0, 0.03, s * s), rng.uniform(0, 0.2, s * s))
     if ring == "roofs":
         on_roof = (d > 0) & (d <= 10)
@@ -134,9 +152,14 @@ def courtyard_cells(ring: str, s: int = 150, seed: int = 3):
 def test_a_courtyard_among_roofs_is_no_level_body():
     """A roof ring is no bank (its cells stand higher than any bank rises across the rim, ``BANK_MAX_SLOPE``) and
     its level cells are no part of the yard's region: no body, as in the whole run, where roofs are no ground and
-    no candidates. The same yard in land rising 1 m from it lies in a bed: a body."""
+    no candidates. The same yard in land rising 1 m from it lies in a bed: a body. The roofs are no quay's walls
+    (``WALL_BEHIND_M``) with the street beyond them at the yard's level or below it either (review 19: before, only
+    land above the level counted as lower land, and the 9,604 cells of the yard were a body)."""
     p = classify.ClassifySettings()
-    assert len(classify.whole_level_bodies(*courtyard_cells("roofs"), p).keys) == 0
+    for street_m, rise in ((1.0, 0.02), (0.0, 0.0), (-0.5, 0.0)):   # level streets 30 m wide
+        scene = courtyard_cells("roofs", street_m=street_m, rise=rise)
+        assert len(classify.whole_level_bodies(*scene, p).keys) == 0, street_m
+        assert len(classify.whole_level_bodies_dense(*scene, p).keys) == 0, street_m
     assert len(classify.whole_level_bodies(*courtyard_cells("land"), p).keys) > 0.9 * 100 * 100
 
 
@@ -155,14 +178,19 @@ def quay_cells(freeboard_m: float, s: int = 120, c: float = 1.41):
     return np.column_stack([ii, jj]) + 3, np.column_stack([lo, lo + span / 2, lo + span]), wg, int(np.sum(d < 0))
 
 
-def test_a_quay_wall_is_a_bank():
+def test_a_quay_wall_is_a_bank(monkeypatch):
     """Quays standing 3-6 m above the water (above the steepest bank across the rim) are the land, not objects on
     lower land: banks, as the ground they are in the tile's own pass (``level_water``). Before: 0 cells of the
-    basin (review 15), the tile's pass all of it -- seams between tiles."""
+    basin (review 15), the tile's pass all of it -- seams between tiles. The same bodies with the land behind the
+    walls looked up a few cells at a time (``LOWEST_LAND_CHUNK_CELLS``) and on the grid (the dense reference)."""
     p = classify.ClassifySettings()
     for freeboard_m in (3.0, 6.0):
         cells, heights, wg, basin = quay_cells(freeboard_m)
         bodies = classify.whole_level_bodies(cells, heights, wg, p)
+        assert same_bodies(bodies, classify.whole_level_bodies_dense(cells, heights, wg, p))
+        with monkeypatch.context() as m:
+            m.setattr(classify, "LOWEST_LAND_CHUNK_CELLS", 37)
+            assert same_bodies(bodies, classify.whole_level_bodies(cells, heights, wg, p))
         _, keys, _ = level_water_bodies(cells, heights, wg, p)
         assert len(bodies.keys) > 0.95 * basin
         # the cells beside the wall: its top is within one cell (open sky), which the returns' KD-tree misses in
