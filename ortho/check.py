@@ -4,7 +4,8 @@ Patch matching (``ortho.patches``): the DOM is cut into square patches on a regu
 textured patch is located in the reference orthophoto (resampled onto the DOM grid) by normalised
 cross-correlation. The displacement is DOM position minus reference position, in pixels (x right,
 y down) and in metres (dE east, dN north). Patches whose reference texture runs in one direction only (roads: the
-aperture problem, ``ortho.patches.MIN_TEXTURE_RATIO``) are left out and counted (``left_out_one_direction``).
+aperture problem, ``ortho.patches.MIN_TEXTURE_RATIO``) are left out and counted (``left_out_one_direction``); so are
+those whose sub-pixel refinement fails (``left_out_unsettled``: a periodic texture).
 
 Roofs (against a true orthophoto as the reference): a patch centred on every roof corner (``--roof-corners`` CSV,
 else the outline corners of the nDSM's buildings) correlated with the reference over the cells valid in both
@@ -43,7 +44,8 @@ from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
 from aerotri.geom.crs.definition import height_unit_m, map_axes_unit_m, map_axis_signs, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
-from ortho.patches import MAX_REFINE_PX, MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches, parabola_peak
+from ortho.patches import (MAX_REFINE_PX, MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches,
+                           parabola_peak)
 from ortho.settings import CheckSettings
 
 # GDAL's block cache during check (``aerotri.core.gdal_cache``): the DOM, reference and nDSM blocks of the blocks

@@ -87,3 +87,28 @@ def test_a_periodic_texture_whose_refinement_fails_is_counted_not_measured(shift
     q = match_patches(dom, ref, step_px=24)
     assert len(q) == len(p.unsettled_row_px)
     assert np.hypot(q.dx_px - shift[0], q.dy_px - shift[1]).min() > 0.5
+
+
+def test_dom_check_reports_the_unsettled_patches(tmp_path):
+    """Block by block (halos overlap) each unsettled patch is counted once; dom_report.json says how many and why."""
+    import json
+
+    from pyproj import CRS
+
+    from ortho.check import check_against_reference, run_check
+    from ortho.synthetic import write_geotiff
+
+    ref, dom = crop_rows_image(0.0, 0.0, size_px=192), crop_rows_image(0.5, 0.5, size_px=192)
+    crs = CRS.from_epsg(32649)
+    for name, a in (("ref.tif", ref), ("dom.tif", dom)):
+        write_geotiff(tmp_path / name, np.clip(np.round(a), 0, 255).astype(np.uint8), 500000.0, 3000000.0, 0.2, crs)
+    p, _ = check_against_reference(tmp_path / "dom.tif", tmp_path / "ref.tif", block_px=96)
+    rc = set(zip(p.unsettled_row_px.tolist(), p.unsettled_col_px.tolist()))
+    assert len(rc) == len(p.unsettled_row_px) >= 9 and len(p) <= 1  # none twice from the blocks' halos
+    (tmp_path / "proj").mkdir()
+    run_check(tmp_path / "proj", reference_path=tmp_path / "ref.tif", dom_path=tmp_path / "dom.tif",
+              out_stem=tmp_path / "dom_report")
+    left = json.loads((tmp_path / "dom_report.json").read_text())["left_out_unsettled"]
+    q, _ = check_against_reference(tmp_path / "dom.tif", tmp_path / "ref.tif")  # one block, as run_check reads it
+    assert left["patches"] == len(q.unsettled_row_px) >= 9 and left["max_refine_px"] == 3.0
+    assert left["pct"] == pytest.approx(100.0 * left["patches"] / (left["patches"] + len(q)), abs=0.01)
