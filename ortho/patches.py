@@ -106,7 +106,8 @@ def texture_ratio(patch: np.ndarray) -> float:
 # farther, or not settled in REFINE_ITERATIONS (a ridge converges slowly along itself: the demo's reference against
 # itself moved half a pixel both ways, 80 of 1,418 patches unsettled in 10 iterations, 4 in 20, none in 40), the
 # patch is not measured (``match_patches``). Settled: a step below REFINE_TOLERANCE_PX (0.002 px before review 20:
-# 0.30 -> 0.21 ms a patch on the demo's check, every shift within 0.0065 px of it, the same errors on known shifts)
+# 0.29-0.34 -> 0.22-0.24 ms a patch on the demo's check, every shift within 0.0065 px of it, the same errors on
+# known shifts)
 MAX_REFINE_PX = 3.0
 REFINE_ITERATIONS = 40
 REFINE_TOLERANCE_PX = 0.01
