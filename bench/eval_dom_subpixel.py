@@ -9,7 +9,10 @@ Two measures per pass ("parabolas": ``refine_shift`` switched off, the check as 
   error RMS and largest (px), on roads (``truth/classes.tif`` class 11) and off;
 - the DOM check: ``ortho.check.check_against_reference`` (the run's mosaic against the truth ortho, the run's nDSM):
   patches, RMS / median / largest (GSD), patches above 0.5 and 1 GSD, on roads and off, and in a band of rows
-  (``--band``: the demo's 980-1380, where its largest displacements were), CPU seconds.
+  (``--band``: the demo's 980-1380, where its largest displacements were), CPU seconds; the patches left out as
+  unsettled (``refine_shift`` failed: not measured since review 20);
+- the seams: ``ortho.mosaic.seam_misalignment`` (RMS / largest px, patches measured and left out) at its texture floor
+  and at the DOM check's.
 
 Writes ``bench/results/dom_subpixel.json`` under ``--key``. The run folder is only read.
 
@@ -58,11 +61,11 @@ def _stats(d_gsd) -> dict:
 
 @contextlib.contextmanager
 def _pass(name: str):
-    """"parabolas": ``refine_shift`` switched off within (``match_patches`` keeps the parabolas at the whole-pixel
-    peak, the check as before); "refined": as it is."""
+    """"parabolas": ``refine_shift`` switched off within (it returns its start, the parabolas at the whole-pixel
+    peak: the check as before dom-band); "refined": as it is."""
     saved = ortho.patches.refine_shift
     if name == "parabolas":
-        ortho.patches.refine_shift = lambda *a, **k: None
+        ortho.patches.refine_shift = lambda template, window, x0, y0, **k: (x0, y0)
     try:
         yield
     finally:
@@ -107,7 +110,8 @@ def known_shifts(run_dir: Path, block: Path, window_px: int) -> dict:
                 p = ortho.patches.match_patches(moved, base, valid, valid, keep=keep)
             err = np.hypot(p.dx_px - sx, p.dy_px - sy)
             road = _classes_at(block / "truth" / "classes.tif", t, p.row_px, p.col_px) == ROAD
-            row[name] = dict(patches=int(len(err)), error_rms_px=round(float(np.sqrt(np.mean(err ** 2))), 3),
+            row[name] = dict(patches=int(len(err)), unsettled=int(len(p.unsettled_row_px)),
+                             error_rms_px=round(float(np.sqrt(np.mean(err ** 2))), 3),
                              error_max_px=round(float(err.max()), 3), above_0_5_px=int((err > 0.5).sum()),
                              roads=dict(patches=int(road.sum()),
                                         error_rms_px=round(float(np.sqrt(np.mean(err[road] ** 2))), 3)
@@ -129,13 +133,32 @@ def dom_check(run_dir: Path, block: Path, band) -> dict:
         cpu = time.process_time() - t0
         d = np.hypot(p.dx_px, p.dy_px) * p.res_m / abs(t.a)
         road = _classes_at(block / "truth" / "classes.tif", t, p.row_px, p.col_px) == ROAD
-        e = dict(**_stats(d), mean_e_m=round(float(p.de_m.mean()), 4), mean_n_m=round(float(p.dn_m.mean()), 4),
+        e = dict(**_stats(d), unsettled=int(len(p.unsettled_row_px)), mean_e_m=round(float(p.de_m.mean()), 4),
+                 mean_n_m=round(float(p.dn_m.mean()), 4),
                  roads=_stats(d[road]), off_roads=_stats(d[~road]), cpu_s=round(cpu, 1))
         if band:
             inb = (p.row_px >= band[0]) & (p.row_px <= band[1])
             e.update(band_rows=list(band), band=_stats(d[inb]), outside_band=_stats(d[~inb]),
                      above_0_5_gsd_in_band=int(((d > 0.5) & inb).sum()))
         out[name] = e
+    return out
+
+
+def seams(run_dir: Path) -> dict:
+    """``ortho.mosaic.seam_misalignment`` per pass, at its texture floor (``SEAM_MIN_TEXTURE_RATIO``) and at the DOM
+    check's (``MIN_TEXTURE_RATIO``, the seams' before review 20)."""
+    from ortho.mosaic import SEAM_MIN_TEXTURE_RATIO, seam_misalignment
+
+    out = {}
+    for name in ("parabolas", "refined"):
+        for floor in (SEAM_MIN_TEXTURE_RATIO, ortho.patches.MIN_TEXTURE_RATIO):
+            t0 = time.process_time()
+            with _pass(name):
+                s = seam_misalignment(run_dir, min_texture_ratio=floor)
+            out.setdefault(name, {})[f"min_texture_ratio_{floor}"] = dict(
+                patches=s.patches, rms_px=None if s.rms_px is None else round(s.rms_px, 3),
+                max_px=None if s.max_px is None else round(s.max_px, 3), left_out_texture=s.one_direction,
+                unsettled=s.unsettled, cpu_s=round(time.process_time() - t0, 1))
     return out
 
 
@@ -151,6 +174,7 @@ def main(argv=None) -> int:
     entry = dict(run_dir=str(args.run_dir), block=str(args.block), commit=git_commit(ROOT),
                  known_shifts=known_shifts(args.run_dir, args.block, args.window),
                  dom_check=dom_check(args.run_dir, args.block, args.band),
+                 seams=seams(args.run_dir) if (args.run_dir / "ortho" / "seams.tif").is_file() else None,
                  measured_utc=time.strftime("%Y-%m-%d %H:%M", time.gmtime()))
     store_result(args.out, entry, key=args.key)
     print(json.dumps(entry, indent=1))

@@ -4,7 +4,8 @@ Patch matching (``ortho.patches``): the DOM is cut into square patches on a regu
 textured patch is located in the reference orthophoto (resampled onto the DOM grid) by normalised
 cross-correlation. The displacement is DOM position minus reference position, in pixels (x right,
 y down) and in metres (dE east, dN north). Patches whose reference texture runs in one direction only (roads: the
-aperture problem, ``ortho.patches.MIN_TEXTURE_RATIO``) are left out and counted (``left_out_one_direction``).
+aperture problem, ``ortho.patches.MIN_TEXTURE_RATIO``) are left out and counted (``left_out_one_direction``); so are
+those whose sub-pixel refinement fails (``left_out_unsettled``: a periodic texture).
 
 Roofs (against a true orthophoto as the reference): a patch centred on every roof corner (``--roof-corners`` CSV,
 else the outline corners of the nDSM's buildings) correlated with the reference over the cells valid in both
@@ -43,7 +44,8 @@ from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
 from aerotri.geom.crs.definition import height_unit_m, map_axes_unit_m, map_axis_signs, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
-from ortho.patches import MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches, parabola_peak
+from ortho.patches import (MAX_REFINE_PX, MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches,
+                           parabola_peak)
 from ortho.settings import CheckSettings
 
 # GDAL's block cache during check (``aerotri.core.gdal_cache``): the DOM, reference and nDSM blocks of the blocks
@@ -388,7 +390,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
     A reference or nDSM in another CRS is mapped through ``reference_operation`` / ``ndsm_operation``
     (DOM CRS -> its CRS; ``aerotri.geom.crs.transform.CrsTransformer``), by default PROJ's operation when
     it is rigorous (a ballpark one is refused). Patches of texture in one direction only (``min_texture_ratio``,
-    ``ortho.patches.match_patches``) are left out; their centres are in the result's ``one_direction_*``.
+    ``ortho.patches.match_patches``) are left out; their centres are in the result's ``one_direction_*``; those
+    whose sub-pixel refinement failed in its ``unsettled_*``.
     """
     import rasterio
     from rasterio.enums import Resampling
@@ -434,8 +437,11 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
                 # a patch belongs to the block whose core holds its centre (no duplicates from halos)
                 core = (p.row_px < block_px) & (p.col_px < block_px)
                 one = (p.one_direction_row_px < block_px) & (p.one_direction_col_px < block_px)
+                uns = (p.unsettled_row_px < block_px) & (p.unsettled_col_px < block_px)
                 p = dataclasses.replace(p.select(core), one_direction_row_px=p.one_direction_row_px[one] + r0,
-                                        one_direction_col_px=p.one_direction_col_px[one] + c0)
+                                        one_direction_col_px=p.one_direction_col_px[one] + c0,
+                                        unsettled_row_px=p.unsettled_row_px[uns] + r0,
+                                        unsettled_col_px=p.unsettled_col_px[uns] + c0)
                 p.row_px += r0
                 p.col_px += c0
                 pieces.append(p)
@@ -445,7 +451,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         cat = lambda f: np.concatenate([getattr(q, f) for q in pieces]) if pieces else np.zeros(0)
         return PatchDisplacements(cat("row_px"), cat("col_px"), cat("dx_px"), cat("dy_px"), cat("ncc"), res,
                                   cat("one_direction_row_px"), cat("one_direction_col_px"),
-                                  *map_axis_signs(dom.crs)), (dom.width, dom.height)
+                                  *map_axis_signs(dom.crs), cat("unsettled_row_px"), cat("unsettled_col_px")), \
+            (dom.width, dom.height)
 
 
 MIN_STD_GREY_8BIT = 4.0  # a patch's least texture: 4 of the 255 grey levels from black to the DOM's white level
@@ -991,6 +998,11 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
             "why": "texture in one direction (the aperture problem: the NCC peak slides along a road)",
             "min_texture_ratio": MIN_TEXTURE_RATIO, "patches": left_out,
             "pct": round(100.0 * left_out / max(left_out + len(patches), 1), 2)}
+        unsettled = len(patches.unsettled_row_px)
+        report["left_out_unsettled"] = {
+            "why": "the sub-pixel refinement did not settle within 3 px of the whole-pixel peak (no single NCC peak: "
+                   "a periodic texture, crop rows)", "max_refine_px": MAX_REFINE_PX, "patches": unsettled,
+            "pct": round(100.0 * unsettled / max(unsettled + len(patches), 1), 2)}
         report.update(patches_total=len(patches), patches_listed=len(listed),
                       patches=[{"row_px": float(r), "col_px": float(c), "de_m": float(a), "dn_m": float(b),
                                 "ncc": float(n)}

@@ -3063,11 +3063,25 @@ class SeamPair:
     max_px: float | None
 
 
+# Least texture ratio (``ortho.patches.texture_ratio`` of frame b's patch) of a seam patch measured: two frame orthos
+# are two aliased renderings of the ground, and a road's or a field's edge lines, broken into steps that move along
+# them with each rendering's sub-pixel phase, read as a shift along them that neither frame has. Chosen on the demo
+# (d0d98f7, bench/eval_seam_texture.py: each seam patch against (frame a - truth ortho) - (frame b - truth ortho),
+# their DOM-check patches' medians within 120 px, 446 patches; the true relative shift 0.028 px RMS): the seam
+# reading's error RMS 0.285 / 0.156 / 0.123 / 0.090 / 0.069 / 0.067 px at floors 0.1 / 0.2 / 0.3 / 0.4 / 0.5 / 0.6,
+# the patches below 0.5 (208) reading 0.41 px. Scored on the DMC 2 x 4 (run d0d98f7, 1,118 patches, true relative
+# shift 0.16 px RMS): error RMS 0.228 -> 0.142 px at 0.1 -> 0.5 (its reading 0.262 -> 0.197 px), 236 left out (21 %)
+# reading 0.79 px
+SEAM_MIN_TEXTURE_RATIO = 0.5
+
+
 @dataclasses.dataclass(frozen=True)
 class SeamMisalignment:
     """``seam_misalignment``: the patch size (px), the patches of all seams, their RMS and largest displacement
     (px; None without patches) and every seam's (dom_report.json's ``seams`` is ``to_record`` of it); the patches
-    left out as textured in one direction only (``ortho.patches.MIN_TEXTURE_RATIO``, roads)."""
+    left out as textured too little in two directions (``one_direction``: texture ratio below ``min_texture_ratio``,
+    ``SEAM_MIN_TEXTURE_RATIO``: roads, field edges) and those whose sub-pixel refinement did not settle
+    (``unsettled``)."""
 
     patch_px: int
     patches: int
@@ -3075,15 +3089,20 @@ class SeamMisalignment:
     max_px: float | None
     per_seam: tuple[SeamPair, ...]
     one_direction: int = 0
+    min_texture_ratio: float | None = None  # None: a report written before review 20 (the DOM check's 0.1)
+    unsettled: int = 0
 
 
 def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
-                      ndsm_path=None, max_ndsm_m: float = 0.5) -> SeamMisalignment:
+                      ndsm_path=None, max_ndsm_m: float = 0.5,
+                      min_texture_ratio: float = SEAM_MIN_TEXTURE_RATIO) -> SeamMisalignment:
     """Relative displacement of neighbouring frame orthos across each seam (NCC patches on the seam).
 
     For every seam (pair of frames sharing a boundary in ``ortho/seams.tif``), patches centred on
     seam cells (every ``spacing_cells``) are cut from frame a and matched in frame b; only patches
-    valid in both and, with an nDSM, on the ground. Returns per-seam and overall statistics in pixels.
+    valid in both, textured in two directions (frame b's texture ratio at least ``min_texture_ratio``,
+    ``SEAM_MIN_TEXTURE_RATIO``; those left out counted) and, with an nDSM, on the ground. Returns per-seam and
+    overall statistics in pixels.
     """
     from ortho.patches import match_patches
 
@@ -3108,7 +3127,7 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
     to_project = index_operation(index)
     half = patch_px // 2 + search_px
     size = 2 * half
-    per_seam, all_d, one_direction = [], [], 0
+    per_seam, all_d, one_direction, unsettled = [], [], 0, 0
     for (i, j), rc in seam_samples(labels, spacing_cells):
         # mosaic pixel of each patch's upper-left corner
         R = ((rc[:, 0] + 0.5) * factor).astype(int) - half
@@ -3136,13 +3155,16 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
                     win = (slice(R[s] - r0, R[s] - r0 + size), slice(C[s] - c0, C[s] - c0 + size))
                     p = match_patches(imgs[0][0][win], imgs[1][0][win], imgs[0][1][win], imgs[1][1][win],
                                       res_m=mosaic.res_m, patch_px=patch_px, step_px=patch_px, search_px=search_px,
-                                      min_ncc=min_ncc, keep=None if keep is None else keep[win])
+                                      min_ncc=min_ncc, keep=None if keep is None else keep[win],
+                                      min_texture_ratio=min_texture_ratio)
                     ds_list.extend(np.hypot(p.dx_px, p.dy_px).tolist())
                     one_direction += len(p.one_direction_row_px)
+                    unsettled += len(p.unsettled_row_px)
         d = np.array(ds_list)
         all_d.extend(ds_list)
         per_seam.append(SeamPair(names[i], names[j], int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
                                  float(d.max()) if len(d) else None))
     d = np.array(all_d)
     return SeamMisalignment(patch_px, int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
-                            float(d.max()) if len(d) else None, tuple(per_seam), one_direction)
+                            float(d.max()) if len(d) else None, tuple(per_seam), one_direction, min_texture_ratio,
+                            unsettled)

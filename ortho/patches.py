@@ -3,9 +3,11 @@
 Each textured square patch of the first image is located in the second by normalised cross-correlation
 (``cv2.matchTemplate``, TM_CCOEFF_NORMED) within a search radius, to the whole pixel; a parabola through the peak in x
 and y (``parabola_peak``) gives a first sub-pixel estimate, and ``refine_shift`` from there the shift maximising the
-NCC with the second image resampled (bicubic) between whole pixels, by Gauss-Newton; where that fails (it leaves the
-search, moves farther than ``MAX_REFINE_PX`` or does not settle) the parabolas' estimate stays. The displacement is
-the first image's position minus the second's, in pixels (x right, y down) and in metres (dE east, dN north).
+NCC with the second image resampled (bicubic) between whole pixels, by Gauss-Newton. A patch whose refinement fails
+(it leaves the search, moves farther than ``MAX_REFINE_PX`` or does not settle) is not measured but counted
+(``unsettled_*``): its NCC has no single peak near the parabolas' (a periodic texture, crop rows: the parabolas read
+0.7-1.3 px off on every one), and their estimate is no better. The displacement is the first image's position minus
+the second's, in pixels (x right, y down) and in metres (dE east, dN north).
 
 Why not the parabolas alone: on a patch dominated by thin lines (a road's edge lines at a slant) the NCC surface is a
 narrow ridge along the lines; its samples at whole-pixel shifts are highest where the ridge passes nearest a whole
@@ -45,6 +47,9 @@ class PatchDisplacements:
     # +1, or -1 where the DOM's x runs west / its y south (a south-oriented grid: ``map_axis_signs``)
     east_sign: float = 1.0
     north_sign: float = 1.0
+    # centres of the patches whose sub-pixel refinement failed (``refine_shift`` None): counted, not measured
+    unsettled_row_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    unsettled_col_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     @property
     def de_m(self):
@@ -58,7 +63,7 @@ class PatchDisplacements:
         keep = np.asarray(keep, bool)
         return PatchDisplacements(self.row_px[keep], self.col_px[keep], self.dx_px[keep], self.dy_px[keep],
                                   self.ncc[keep], self.res_m, self.one_direction_row_px, self.one_direction_col_px,
-                                  self.east_sign, self.north_sign)
+                                  self.east_sign, self.north_sign, self.unsettled_row_px, self.unsettled_col_px)
 
     def __len__(self):
         return len(self.dx_px)
@@ -100,18 +105,23 @@ def texture_ratio(patch: np.ndarray) -> float:
 # up to 1/(2 tan a) px along it from the best fit (a the ridge's angle to the pixel axis: 2.8 px at 10 degrees);
 # farther, or not settled in REFINE_ITERATIONS (a ridge converges slowly along itself: the demo's reference against
 # itself moved half a pixel both ways, 80 of 1,418 patches unsettled in 10 iterations, 4 in 20, none in 40), the
-# parabolas' estimate stays
+# patch is not measured (``match_patches``). Settled: a step below REFINE_TOLERANCE_PX (0.002 px before review 20:
+# 0.29-0.34 -> 0.22-0.24 ms a patch on the demo's check, every shift within 0.0065 px of it, the same errors on
+# known shifts)
 MAX_REFINE_PX = 3.0
 REFINE_ITERATIONS = 40
+REFINE_TOLERANCE_PX = 0.01
 
 
 def refine_shift(template: np.ndarray, window: np.ndarray, x0: float, y0: float,
                  max_move_px: float = MAX_REFINE_PX, iterations: int = REFINE_ITERATIONS) -> tuple[float, float] | None:
     """Sub-pixel position (x, y: column and row of its top-left pixel in ``window``) of ``template`` where their
-    normalised cross-correlation is highest, from (``x0``, ``y0``) (the parabolas' estimate at the whole-pixel peak):
-    Gauss-Newton on the difference of the zero-mean, unit-variance template and window, the window resampled
-    bicubically at the shift and its central differences the Jacobian. None when it leaves the window (a peak on the
-    search's edge), moves more than ``max_move_px`` from the start, or does not settle to 0.002 px in ``iterations``."""
+    normalised cross-correlation is approximately highest, from (``x0``, ``y0``) (the parabolas' estimate at the
+    whole-pixel peak): Gauss-Newton on the difference of the zero-mean, unit-variance template and window, the window
+    resampled bicubically at the shift and its central differences the Jacobian (the derivative of the window's
+    normalisation ignored: the fixed point is near the NCC maximum, not exactly on it). None when it leaves the window
+    (a peak on the search's edge), moves more than ``max_move_px`` from the start, or does not settle (a step below
+    ``REFINE_TOLERANCE_PX``) in ``iterations``."""
     t = np.asarray(template, np.float32)
     w = np.asarray(window, np.float32)
     n0, n1 = t.shape
@@ -140,7 +150,7 @@ def refine_shift(template: np.ndarray, window: np.ndarray, x0: float, y0: float,
         x, y = x + float(step[0]), y + float(step[1])
         if not (0.0 < x < x_max and 0.0 < y < y_max) or math.hypot(x - x0, y - y0) > max_move_px:
             return None
-        if math.hypot(step[0], step[1]) < 2e-3:
+        if math.hypot(step[0], step[1]) < REFINE_TOLERANCE_PX:
             return x, y
     return None
 
@@ -161,7 +171,8 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
     from an nDSM). Patches with low texture (std < ``min_std`` grey levels), invalid pixels, a peak on
     the search border or a peak NCC below ``min_ncc`` are discarded; those whose reference patch (same place) has
     texture in one direction only (``texture_ratio`` < ``min_texture_ratio``; 0: none left out) are left out and
-    their centres returned in ``one_direction_row_px``/``_col_px``.
+    their centres returned in ``one_direction_row_px``/``_col_px``; those whose sub-pixel refinement fails
+    (``refine_shift`` None) likewise in ``unsettled_row_px``/``_col_px``.
     """
     g = to_gray(dom)
     ref = to_gray(reference)
@@ -176,7 +187,7 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
     bad = np.pad((~ok).astype(np.int64).cumsum(0).cumsum(1), ((1, 0), (1, 0)))
     H, W = g.shape
     P, S = patch_px, search_px
-    rows, cols, dxs, dys, nccs, one_rows, one_cols = [], [], [], [], [], [], []
+    rows, cols, dxs, dys, nccs, one_rows, one_cols, unsettled_rows, unsettled_cols = [], [], [], [], [], [], [], [], []
     for r in range(S, H - P - S + 1, step_px):
         for c in range(S, W - P - S + 1, step_px):
             r0, r1, c0, c1 = r - S, r + P + S, c - S, c + P + S
@@ -197,8 +208,11 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
             sx = parabola_peak(cc[py, px - 1], cc[py, px], cc[py, px + 1])
             sy = parabola_peak(cc[py - 1, px], cc[py, px], cc[py + 1, px])
             refined = refine_shift(t, ref[r0:r1, c0:c1], px + sx, py + sy)
-            if refined is not None:
-                sx, sy = refined[0] - px, refined[1] - py
+            if refined is None:  # no single NCC peak near the whole-pixel one (module doc): counted, not measured
+                unsettled_rows.append(r + (P - 1) / 2.0)
+                unsettled_cols.append(c + (P - 1) / 2.0)
+                continue
+            sx, sy = refined[0] - px, refined[1] - py
             # the DOM patch at (r, c) is found in the reference at (r + py - S, c + px - S):
             # the DOM shows that content displaced by minus that offset
             rows.append(r + (P - 1) / 2.0)
@@ -207,4 +221,5 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
             dys.append(-(py + sy - S))
             nccs.append(peak)
     a = lambda v: np.asarray(v, dtype=float)
-    return PatchDisplacements(a(rows), a(cols), a(dxs), a(dys), a(nccs), float(res_m), a(one_rows), a(one_cols))
+    return PatchDisplacements(a(rows), a(cols), a(dxs), a(dys), a(nccs), float(res_m), a(one_rows), a(one_cols),
+                              unsettled_row_px=a(unsettled_rows), unsettled_col_px=a(unsettled_cols))

@@ -57,3 +57,58 @@ def test_refine_shift_finds_the_peak_between_whole_pixels_and_gives_up_at_the_ed
     assert refine_shift(t, window, 6.0, 6.0, max_move_px=0.2) is None  # farther than allowed
     assert refine_shift(t, ref[12:61, 12:61], 0.0, 0.0) is None  # the peak beyond the window's edge
     assert refine_shift(np.full((48, 48), 7.0, np.float32), window, 6.0, 6.0) is None  # nothing to fit
+
+
+def crop_rows_image(shift_x_px: float, shift_y_px: float, size_px: int = 144, slant_deg: float = 20.0) -> np.ndarray:
+    """Crop rows 3 px apart, 20 degrees off the x axis, plants 1.3 px apart along them, over soft ground texture,
+    drawn 8 x finer, blurred 0.5 px and averaged into pixels; the scene moved ``shift_x_px`` right and ``shift_y_px``
+    down; float32 grey."""
+    n = size_px * UP
+    y, x = np.mgrid[0:n, 0:n].astype(np.float32) / UP
+    x, y = x - shift_x_px, y - shift_y_px
+    a = math.radians(slant_deg)
+    u, v = x * math.cos(a) + y * math.sin(a), -x * math.sin(a) + y * math.cos(a)
+    g = cv2.GaussianBlur(np.random.default_rng(0).standard_normal((size_px // 4 + 8,) * 2).astype(np.float32),
+                         (0, 0), 1.0)
+    ground = 110.0 + 60.0 * cv2.remap(g, x / 4 + 4, y / 4 + 4, cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    img = np.where(((u / 3.0) % 1.0 < 0.45) & ((v / 1.3) % 1.0 < 0.6), 60.0, ground).astype(np.float32)
+    img = cv2.GaussianBlur(img, (0, 0), 0.5 * UP)
+    return img.reshape(size_px, UP, size_px, UP).mean(axis=(1, 3))
+
+
+@pytest.mark.parametrize("shift", [(-0.45, 0.35), (0.5, 0.5)])
+def test_a_periodic_texture_whose_refinement_fails_is_counted_not_measured(shift, monkeypatch):
+    # crop rows: the NCC has a peak every row, none single near the whole-pixel one; the refinement leaves (more than
+    # 3 px or unsettled) on every patch, and the parabolas it fell back on (before review 20) read 0.7-1.3 px off
+    ref, dom = crop_rows_image(0.0, 0.0), crop_rows_image(*shift)
+    p = match_patches(dom, ref, step_px=24)
+    assert len(p) == 0 and len(p.unsettled_row_px) == len(p.unsettled_col_px) >= 16
+    monkeypatch.setattr("ortho.patches.refine_shift", lambda t, w, x0, y0, **k: (x0, y0))  # the parabolas' estimate
+    q = match_patches(dom, ref, step_px=24)
+    assert len(q) == len(p.unsettled_row_px)
+    assert np.hypot(q.dx_px - shift[0], q.dy_px - shift[1]).min() > 0.5
+
+
+def test_dom_check_reports_the_unsettled_patches(tmp_path):
+    """Block by block (halos overlap) each unsettled patch is counted once; dom_report.json says how many and why."""
+    import json
+
+    from pyproj import CRS
+
+    from ortho.check import check_against_reference, run_check
+    from ortho.synthetic import write_geotiff
+
+    ref, dom = crop_rows_image(0.0, 0.0, size_px=192), crop_rows_image(0.5, 0.5, size_px=192)
+    crs = CRS.from_epsg(32649)
+    for name, a in (("ref.tif", ref), ("dom.tif", dom)):
+        write_geotiff(tmp_path / name, np.clip(np.round(a), 0, 255).astype(np.uint8), 500000.0, 3000000.0, 0.2, crs)
+    p, _ = check_against_reference(tmp_path / "dom.tif", tmp_path / "ref.tif", block_px=96)
+    rc = set(zip(p.unsettled_row_px.tolist(), p.unsettled_col_px.tolist()))
+    assert len(rc) == len(p.unsettled_row_px) >= 9 and len(p) <= 1  # none twice from the blocks' halos
+    (tmp_path / "proj").mkdir()
+    run_check(tmp_path / "proj", reference_path=tmp_path / "ref.tif", dom_path=tmp_path / "dom.tif",
+              out_stem=tmp_path / "dom_report")
+    left = json.loads((tmp_path / "dom_report.json").read_text())["left_out_unsettled"]
+    q, _ = check_against_reference(tmp_path / "dom.tif", tmp_path / "ref.tif")  # one block, as run_check reads it
+    assert left["patches"] == len(q.unsettled_row_px) >= 9 and left["max_refine_px"] == 3.0
+    assert left["pct"] == pytest.approx(100.0 * left["patches"] / (left["patches"] + len(q)), abs=0.01)
