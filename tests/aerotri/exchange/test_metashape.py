@@ -274,11 +274,13 @@ def test_orthometric_heights_reach_metashape_as_ellipsoidal(adjusted_tiny, tmp_p
     assert np.abs(read_eo(ell / "imported" / "eo.txt").centre_m[:, 2] - h).max() < 1e-3
 
 
-def test_markers_in_a_2d_geographic_reference_are_ellipsoidal_as_the_cameras(adjusted_tiny, tmp_path, fresh_project,
-                                                                             synthetic_geoid):
-    """Metashape's markers in an EPSG::4326 <reference> carry ellipsoidal heights, as its cameras' geocentric
-    coordinates do: on an EGM2008-height project both come back in its heights (s21 read the markers' z as the
-    project's, a 2D CRS's rule for formats without a convention: the control N, +30 m here, above the cameras')."""
+@pytest.mark.parametrize("reference", ["EPSG:4326", "EPSG:32649"])
+def test_markers_in_a_2d_reference_are_ellipsoidal_as_the_cameras(adjusted_tiny, tmp_path, fresh_project,
+                                                                  synthetic_geoid, reference):
+    """Metashape's markers in a 2D <reference> (EPSG::4326, or the project's own horizontal CRS) carry ellipsoidal
+    heights, as its cameras' geocentric coordinates do: on an EGM2008-height project both come back in its heights
+    (s21 read the markers' z as the project's, a 2D CRS's rule for formats without a convention: the control N,
+    +30 m here, above the cameras')."""
     import pyproj
 
     root, _ = adjusted_tiny
@@ -288,13 +290,13 @@ def test_markers_in_a_2d_geographic_reference_are_ellipsoidal_as_the_cameras(adj
     xml = out / "metashape" / "cameras.xml"
     tree = ET.parse(xml)
     chunk = tree.getroot().find("chunk")
-    to_lla = pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(chunk.find("reference").text), "EPSG:4979",
-                                         always_xy=True)
+    to_ell = pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(chunk.find("reference").text),
+                                         pyproj.CRS(reference).to_3d(), always_xy=True)
     for r in chunk.findall("markers/marker/reference"):
         if "z" in r.attrib:
-            lon, lat, h = to_lla.transform(*(float(r.get(k)) for k in "xyz"))
-            r.set("x", repr(lon)), r.set("y", repr(lat)), r.set("z", repr(h))
-    chunk.find("reference").text = pyproj.CRS("EPSG:4326").to_wkt("WKT1_GDAL")
+            x, y, h = to_ell.transform(*(float(r.get(k)) for k in "xyz"))
+            r.set("x", repr(x)), r.set("y", repr(y)), r.set("z", repr(h))
+    chunk.find("reference").text = pyproj.CRS(reference).to_wkt("WKT1_GDAL")
     tree.write(xml)
     dst = fresh_project(p, tmp_path / "back")
     import_files(dst, "metashape", [xml])
