@@ -770,13 +770,15 @@ def start_ground_height_m(centre_z_m, control_z_m, flying_height_guess_m: float,
         close = clearance < margin
         if 2 * int(close.sum()) > len(close):
             worst = np.argsort(clearance, kind="stable")[:4]
+            median_clearance = float(np.median(clearance))
             named = ", ".join(f"{seen.control_id[seen.control[k]]} {abs(clearance[k]):.1f} m "
                               f"{'above' if clearance[k] < 0 else 'below'} {seen.frame_id[seen.frame[k]]}'s centre"
                               for k in worst)
             raise InputError(f"{source}: {int(close.sum())} of {len(close)} image measurements of control points lie "
                              f"above their frame or less than {margin:.0f} m below it ({CONTROL_CLEARANCE_FRACTION:g} "
-                             f"of the flying-height guess {flying_height_guess_m:.0f} m; median clearance "
-                             f"{float(np.median(clearance)):.1f} m): {named}" + expected)
+                             f"of the flying-height guess {flying_height_guess_m:.0f} m; the median one "
+                             f"{abs(median_clearance):.1f} m {'above' if median_clearance < 0 else 'below'}): {named}"
+                             + expected)
     elif float(centre_z.max()) <= lowest:
         raise InputError(f"{source}: the projection centres lie {lowest - median_z:.1f} m (median; the highest "
                          f"{lowest - float(centre_z.max()):.1f} m) below the lowest control point" + expected)
