@@ -762,7 +762,8 @@ CASES = [
     C("adjust_lever_arm_toml_millimetres", "aerotri", "adjust {p}", ["project.toml", "lever_arm_m = 50.0: out of range"],
       toml_set("p/project.toml", "gnss", "lever_arm_m", "[50.0, -120.0, 1450.0]")),
     C("adjust_lever_arm_option_millimetres", "aerotri", "adjust {p} --lever-arm-m 0 0 1450", "--lever-arm-m"),
-    C("adjust_gnss_heights_of_the_ground", "aerotri", "adjust {p}", ["gnss.txt", "below the lowest control point"],
+    C("adjust_gnss_heights_of_the_ground", "aerotri", "adjust {p}",
+      ["gnss.txt", "expected each frame above the control"],
       lambda w: (w / "p/gnss.txt").write_text("\n".join(
           s if s.startswith("#") else " ".join(f if k != 3 else "0.0" for k, f in enumerate(s.split()))
           for s in _text(w / "p/gnss.txt").splitlines()) + "\n")),

@@ -277,7 +277,16 @@ def pp_gnss_judgement(pg, cal: np.ndarray, cal_apriori: np.ndarray,
                      f"{PP_MOVE_SIGMAS:g}) from its a-priori value, as a GNSS position offset of {move / k:+.2f} m "
                      f"along the camera's {axis} axis would move it ({k:.2f} px per m: a lever-arm error, or a time "
                      "lag along the track)") if sd > 0 and k != 0 else f"{name}"
-        if found:
+        if found and sd > 0 and abs(move) < sd:
+            # the principal point stayed within its sigma: the finding is the GNSS's, not the camera's (review 22; the
+            # Tuniu block on its surface model: v0 +0.08 +- 0.20 px, an offset of +0.12 +- 0.02 m found)
+            offset[a] = est
+            out.append(f"{name} did not move ({move:+.2f} px, under its standard deviation {sd:.2f} px), but the block "
+                       f"finds a GNSS position offset along the camera's {axis} axis (its own estimate {est:+.2f} +- "
+                       f"{est_sd:.2f} m, {abs(est) / est_sd:.0f} standard deviations off zero, the sigma from the "
+                       f"GNSS's stated sigmas as independent errors; correlation {r:.4f} with it): a finding of the "
+                       "GNSS (a lever-arm error, or a time lag along the track), not of the principal point")
+        elif found:
             offset[a] = est
             out.append(f"{move_text}, and the block finds such an offset along the camera's {axis} axis (its own "
                        f"estimate {est:+.2f} +- {est_sd:.2f} m, {abs(est) / est_sd:.0f} standard deviations off zero, "

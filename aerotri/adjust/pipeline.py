@@ -519,8 +519,14 @@ def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image
         centre0, R0 = approximate_orientations(gl, lever, strip, obs_point, obs_image, obs_xy)
     given_loc = block.control_local
     has_height = block.control_rows != 2
+    # the rays to control points with a height: (frame, control point) of each
+    ctrl_of_point = np.full(block.n_points, -1)
+    ctrl_of_point[block.control_point[has_height]] = np.arange(int(has_height.sum()))
+    ray = ctrl_of_point[obs_point] >= 0
+    seen = ControlRays(obs_image[ray], ctrl_of_point[obs_point[ray]], list(image_ids),
+                       [str(p) for p in block.point_id[block.control_point[has_height]]])
     ground = start_ground_height_m(centre0[:, 2], given_loc[has_height, 2], _flying_height_guess(centre0, cam),
-                                   "gnss.txt" if gl is not None else "the approximate orientations (--eo)")
+                                   "gnss.txt" if gl is not None else "the approximate orientations (--eo)", seen)
     n_points = block.n_points
     if gl is not None and st.refine_approximations:
         centre0, R0, pts0 = refine_orientations(gl, lever, centre0, R0, obs_point, obs_image, obs_xy_px=obs_xy,
@@ -717,24 +723,65 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     return ba
 
 
-def start_ground_height_m(centre_z_m, control_z_m, flying_height_guess_m: float, source: str) -> float:
+# a control point a frame sees lies below it by about the flying height; one closer than this fraction of the flying-
+# height guess (or above the frame) counts against the frames' heights. Chosen on the simulator (DMC, 1,000 m, 120 m
+# of relief, seeds 0-1: gnss.txt heights 950-1,200 m too low put every ray above its frame or within 172 m below it;
+# the right heights every ray 902 m or more below) and review 21's slope (every frame 300 m above its ground): a
+# quarter leaves room for peaks up to 3/4 of the flying height and for the guess's 60 % overlap being 40-80 %.
+CONTROL_CLEARANCE_FRACTION = 0.25
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlRays:
+    """The image measurements of the control points with a height: each one's frame (index into the centres) and
+    control point (index into the control heights), with the ids that name them."""
+
+    frame: np.ndarray  # (K,) int
+    control: np.ndarray  # (K,) int
+    frame_id: list
+    control_id: list
+
+
+def start_ground_height_m(centre_z_m, control_z_m, flying_height_guess_m: float, source: str,
+                          seen: ControlRays | None = None) -> float:
     """The ground height (local z, m) the start values intersect the rays at: the control points' median height when
-    the centres' median lies above it, else the centres' median less the flying-height guess. ``InputError`` only
-    when every centre lies below the lowest control point (no ray reaches the ground: gnss.txt heights of the
-    ground, another height system, a lever arm with the wrong sign). Judged on the medians alone, a terrain-following
-    block over a slope with its control near the top (1,000 m of relief under 300 m of flying height, the control
-    850-1,000 m, the centres' median 800 m) was refused though every camera flew above its ground (review 21)."""
+    the centres' median lies above it, else the centres' median less the flying-height guess.
+
+    ``InputError`` when most control points' image measurements (``seen``) lie above the frame that sees them or
+    less than ``CONTROL_CLEARANCE_FRACTION`` of the flying-height guess below it: gnss.txt heights of the ground,
+    of another height system than the control's, a lever arm with the wrong sign, heights in feet read as metres.
+    Judged by the rays, not the block: every camera below the lowest control point (s21) let through heights
+    1,100 m too low on a block with 120 m of relief (the data snooping then left out all the control, review 22);
+    the centres' and the control's medians (before s21) refused a terrain-following block over a slope with its
+    control near the top, every frame 300 m above its ground (review 21). Without ``seen`` (or no ray to a control
+    point with a height): refused only when every centre lies below the lowest control point."""
     centre_z = np.asarray(centre_z_m, dtype=float)
     control_z = np.asarray(control_z_m, dtype=float)
     median_z = float(np.median(centre_z))
     if len(control_z) == 0:
         return median_z - flying_height_guess_m
     lowest = float(control_z.min())
-    if float(centre_z.max()) <= lowest:
+    expected = ("; expected each frame above the control points it sees, by about the flying height (heights of the "
+                "ground, or of another height system than the control's ([project] heights: ellipsoidal against "
+                "orthometric), a lever arm with the wrong sign, or heights in feet read as metres?)")
+    if seen is not None and len(seen.frame):
+        clearance = centre_z[seen.frame] - control_z[seen.control]
+        margin = CONTROL_CLEARANCE_FRACTION * flying_height_guess_m
+        close = clearance < margin
+        if 2 * int(close.sum()) > len(close):
+            worst = np.argsort(clearance, kind="stable")[:4]
+            median_clearance = float(np.median(clearance))
+            named = ", ".join(f"{seen.control_id[seen.control[k]]} {abs(clearance[k]):.1f} m "
+                              f"{'above' if clearance[k] < 0 else 'below'} {seen.frame_id[seen.frame[k]]}'s centre"
+                              for k in worst)
+            raise InputError(f"{source}: {int(close.sum())} of {len(close)} image measurements of control points lie "
+                             f"above their frame or less than {margin:.0f} m below it ({CONTROL_CLEARANCE_FRACTION:g} "
+                             f"of the flying-height guess {flying_height_guess_m:.0f} m; the median one "
+                             f"{abs(median_clearance):.1f} m {'above' if median_clearance < 0 else 'below'}): {named}"
+                             + expected)
+    elif float(centre_z.max()) <= lowest:
         raise InputError(f"{source}: the projection centres lie {lowest - median_z:.1f} m (median; the highest "
-                         f"{lowest - float(centre_z.max()):.1f} m) below the lowest control point: heights of the "
-                         "ground, or of another height system than the control's ([project] heights), or a lever arm "
-                         "with the wrong sign; expected the cameras above the ground")
+                         f"{lowest - float(centre_z.max()):.1f} m) below the lowest control point" + expected)
     ground = float(np.median(control_z))
     return ground if median_z > ground else median_z - flying_height_guess_m
 

@@ -815,6 +815,13 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     optimistic = optimistic_sigmas(_check_rows(ba)[2])
     if optimistic:
         weaknesses.append(optimistic)
+    # all the control thrown out: the datum is the GNSS's alone, whatever the control said (review 22: gnss.txt
+    # heights 1,100 m too low, 6 of 6 points left out, "Solution Successful" with the ground 1,100 m low)
+    all_control_out = len(ba.control) > 0 and len({c for c, _ in r.rejected_control}) >= len(ba.control)
+    if all_control_out:
+        weaknesses.append(f"All {len(ba.control)} control points left out by the data snooping: the block's datum is "
+                          "the GNSS's alone and disagrees with the control (GNSS or control heights in another "
+                          "height system or unit, a lever arm with the wrong sign, or control of another CRS).")
     if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
         weaknesses.append(f"{n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and "

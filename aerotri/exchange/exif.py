@@ -8,7 +8,8 @@ GDAL-written TIFFs as ``EXIF_*`` items and the XMP packet as the ``xml:XMP`` dom
   references N/S, E/W, above/below). Positions are taken as WGS84 lat/lon with the altitude an
   ellipsoidal height (EPSG:4979) unless ``--crs`` names the CRS they are in (e.g. ``EPSG:4326+3855`` when
   the altitudes are EGM2008 heights; DJI states ellipsoidal heights for RTK fixes, consumer drones often
-  write heights above the geoid); then converted to the project CRS (``to_project_crs``). The antenna to
+  write heights above the geoid; a 2D ``--crs`` such as ``EPSG:4326`` names no height system and the altitudes
+  are taken as ellipsoidal heights too); then converted to the project CRS (``to_project_crs``). The antenna to
   camera offset is not known and not applied.
 - accuracy: DJI RTK ``RtkStdLon``, ``RtkStdLat``, ``RtkStdHgt`` (m) -> gnss.txt sX sY sZ (east, north, up
   taken as the grid axes: the meridian convergence mixes sX and sY by less than their difference matters),
@@ -406,7 +407,9 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         return block
     crs = options.crs or DEFAULT_CRS
     lla = np.array([[m.lon_deg, m.lat_deg, m.alt_m] for m in metas])
-    xyz = to_project_crs(lla, crs, project, f"{metas[0].path.parent} (positions, {crs})")
+    # a 2D --crs (EPSG:4326) names no height system: the altitudes are taken as ellipsoidal, as without --crs and as
+    # before s21 (DJI states ellipsoidal heights for RTK fixes); a compound --crs names the geoid
+    xyz = to_project_crs(lla, crs, project, f"{metas[0].path.parent} (positions, {crs})", ellipsoidal_2d=True)
     if options.crs is None:
         block.notes.append(f"positions: EXIF/XMP latitude, longitude and altitude taken as {DEFAULT_CRS} (WGS84, "
                            f"ellipsoidal heights); give --crs if the altitudes are above the geoid")

@@ -128,10 +128,12 @@ def collecting_operation_notes() -> Iterator[list[str]]:
         _OPERATION_NOTES.reset(token)
 
 
-def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray:
+def to_project_crs(xyz_m, from_crs, project: Project, source: str, *, ellipsoidal_2d: bool = False) -> np.ndarray:
     """(N, 3) coordinates of ``from_crs`` in the project CRS (and height system), through the toolkit's
     coordinate-operation policy (no silent ballpark transform; the operation's notes go to
-    :func:`collecting_operation_notes`)."""
+    :func:`collecting_operation_notes`). A 2D ``from_crs`` declares no height system: its z is read in the project's
+    heights, unless the format has a convention of its own, ``ellipsoidal_2d`` (Metashape's references, DJI/EXIF
+    altitudes): then ellipsoidal heights, converted to the project's."""
     from aerotri.geom.crs.definition import (crs_label, parse_crs, project_crs, project_crs_3d, project_heights,
                                              same_crs, with_heights)
     from aerotri.geom.crs.transform import BallparkRefused, CrsTransformer, grid_advice
@@ -140,7 +142,19 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
     src = parse_crs(from_crs, source)
     dst = project_crs(project)
     sink = _OPERATION_NOTES.get()
-    if not src.is_compound and len(src.axis_info) == 2:
+    convert_z = False
+    if not src.is_compound and len(src.axis_info) == 2 and ellipsoidal_2d:
+        # the format's own convention (review 22): Metashape's markers in an EPSG::4326 reference carry ellipsoidal
+        # heights as its cameras' geocentric coordinates do (read in the project's, markers and cameras disagreed by
+        # N on a geoid-height project); the policy reads a 2D CRS's z as ellipsoidal, so through the operation
+        heights = project_heights(project)
+        convert_z = heights is not None
+        if convert_z:
+            note = (f"{source}: {crs_label(src)} is a 2D CRS: z taken as ellipsoidal heights (the format's "
+                    f"convention), converted to the project's ({heights.name})")
+            if sink is not None and note not in sink:
+                sink.append(note)
+    elif not src.is_compound and len(src.axis_info) == 2:
         # a 2D CRS declares no height system: its z is read in the project's (on an orthometric project, H), the
         # same reading whether the file's CRS is the project's or another (a tmerc header took z as ellipsoidal
         # and lowered it by the geoid's N, the project's EPSG code kept it); said, as it is an assumption
@@ -150,7 +164,7 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str) -> np.ndarray
         if sink is not None and note not in sink:
             sink.append(note)
         src = with_heights(src, heights)
-    if same_crs(src, dst) or same_crs(src, project_crs_3d(project)):
+    if not convert_z and (same_crs(src, dst) or same_crs(src, project_crs_3d(project))):
         return xyz.copy()
     try:
         operation = CrsTransformer(src, project_crs_3d(project))

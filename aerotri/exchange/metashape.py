@@ -384,10 +384,12 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
             block.notes.append(f"{path}: {kinds.count('horizontal')} markers with x y and no z: horizontal control")
         if mid:
             # markers with heights through the full <reference> CRS: a compound one's vertical part says what
-            # their heights are (EGM96 heights are not ellipsoidal ones)
+            # their heights are (EGM96 heights are not ellipsoidal ones); a 2D one's are ellipsoidal, as the
+            # cameras' (Metashape's convention)
             marker_crs = ref_crs if set(kinds) == {"horizontal"} else parse_crs(crs_text, f"{path} <reference>")
             try:
-                marker_xyz = to_project_crs(np.array(xyz), marker_crs, project, f"{path} <reference>")
+                marker_xyz = to_project_crs(np.array(xyz), marker_crs, project, f"{path} <reference>",
+                                            ellipsoidal_2d=True)
             except CrsError as exc:
                 raise type(exc)(f"{path}: the markers' coordinates: {exc}") from None
             block.control = ControlPoints(np.array(mid, object), np.array(kinds, object), marker_xyz,

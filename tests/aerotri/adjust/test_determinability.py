@@ -511,5 +511,8 @@ def test_the_principal_point_against_the_gnss_states_what_it_names():
     assert len(out) == 1 and "no plan effect stated for it" in out[0] and np.isnan(effect)
     out, effect = _pp_gnss_reasons(PrincipalPointGnss(**base, offset_estimate_m=np.array([0.0, -0.5]),
                                                       offset_sigma_m=np.full(2, 0.05)), cal, cal, cov)
-    assert len(out) == 1 and "the block finds such an offset along the camera's y axis" in out[0]
+    # the principal point did not move: the GNSS's finding, not the principal point's (review 22)
+    assert len(out) == 1 and out[0].startswith("v0 did not move (+0.00 px, under its standard deviation 0.20 px), "
+                                               "but the block finds a GNSS position offset along the camera's y axis")
+    assert "a finding of the GNSS" in out[0] and "v0 moved" not in out[0]
     assert effect == pytest.approx(0.1) and "the offset named, -0.50 m, moves the tie points by 0.100 m" in out[0]

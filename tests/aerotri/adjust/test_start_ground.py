@@ -1,43 +1,94 @@
-"""The start values' ground height and the "cameras below the control" refusal (review 21): judged on medians, a
-terrain-following block over a slope with its control near the top was refused though every camera flew 300 m above
-its own ground; now refused only when the centres lie below the lowest control point, the start values' ground then
-from the flying-height guess."""
+"""The start values' ground height and the "cameras below the control" refusal, judged by the rays to the control:
+a control point a frame sees lies below it by about the flying height. Judged on medians (before s21), a terrain-
+following block over a slope with its control near the top was refused though every camera flew 300 m above its own
+ground (review 21); judged by the lowest control point (s21), gnss.txt heights 1,100 m too low on a block with 120 m
+of relief passed, the data snooping left out all the control and the verdict read "Solution Successful" (review 22)."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
 
-from aerotri.adjust.pipeline import start_ground_height_m
+import aerotri.adjust.pipeline as pipeline
+from aerotri.adjust.pipeline import AdjustSettings, ControlRays, adjust_project, start_ground_height_m
+from aerotri.adjust.report import build_report
 from aerotri.core.errors import InputError
+from aerotri.core.records import to_record
+from aerotri.geom.camera import dmc_camera
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 FLYING_M = 300.0
 
 
 def _slope_block():
-    """Five strips over a slope rising 1,000 m across them, each frame 300 m above its ground (terrain following);
-    the five control points near the top of the slope (850-1,000 m)."""
-    ground = np.repeat(np.linspace(0.0, 1000.0, 5), 8) + np.random.default_rng(1).normal(0.0, 5.0, 40)
-    return ground, ground + FLYING_M, np.array([850.0, 900.0, 950.0, 980.0, 1000.0])
+    """Five strips of 8 frames over a slope rising 1,000 m across them, each frame 300 m above its ground (terrain
+    following); five control points near the top of the slope (850-1,000 m), each seen by the frames of the two
+    strips whose ground is nearest its height."""
+    strip_ground = np.linspace(0.0, 1000.0, 5)
+    ground = np.repeat(strip_ground, 8) + np.random.default_rng(1).normal(0.0, 5.0, 40)
+    control_z = np.array([850.0, 900.0, 950.0, 980.0, 1000.0])
+    frame, control = [], []
+    for c, z in enumerate(control_z):
+        for s in np.argsort(np.abs(strip_ground - z), kind="stable")[:2]:
+            frame += list(range(8 * s, 8 * s + 8))
+            control += [c] * 8
+    rays = ControlRays(np.array(frame), np.array(control), [f"f{i:02d}" for i in range(40)],
+                       [f"gcp{c}" for c in range(5)])
+    return ground, ground + FLYING_M, control_z, rays
 
 
 def test_a_terrain_following_block_with_control_near_the_top_is_not_refused():
-    ground, centre_z, control_z = _slope_block()
+    ground, centre_z, control_z, rays = _slope_block()
     assert np.median(centre_z) < np.median(control_z)  # what the medians refused
-    z = start_ground_height_m(centre_z, control_z, FLYING_M, "gnss.txt")
+    z = start_ground_height_m(centre_z, control_z, FLYING_M, "gnss.txt", rays)
     # the flying-height guess: under the centres' median, on the slope
     assert z == pytest.approx(np.median(centre_z) - FLYING_M)
     assert ground.min() < z < ground.max() and z < np.median(centre_z)
     # control around the block's middle: its median, as before
-    assert start_ground_height_m(centre_z, control_z - 500.0, FLYING_M, "gnss.txt") == pytest.approx(450.0)
+    assert start_ground_height_m(centre_z, control_z - 500.0, FLYING_M, "gnss.txt", rays) == pytest.approx(450.0)
 
 
 def test_gnss_heights_of_the_ground_or_zero_are_still_refused():
-    ground, centre_z, control_z = _slope_block()
-    with pytest.raises(InputError, match=r"gnss.txt: the projection centres lie .* below the lowest control point: "
-                                         r"heights of the ground"):
+    ground, centre_z, control_z, rays = _slope_block()
+    # the frames at their ground's height: the control points they see around them, the one seen from the strip
+    # below above it
+    with pytest.raises(InputError, match=r"gnss.txt: \d+ of 80 image measurements of control points lie above their "
+                                         r"frame or less than 75 m below it .*gcp4 [0-9.]+ m above f2\d's centre"):
+        start_ground_height_m(ground, control_z, FLYING_M, "gnss.txt", rays)
+    with pytest.raises(InputError, match="80 of 80 image measurements"):
+        start_ground_height_m(np.zeros(40), control_z, FLYING_M, "the approximate orientations (--eo)", rays)
+    # without rays: refused when every centre lies below the lowest control point
+    with pytest.raises(InputError, match="below the lowest control point; expected each frame above"):
         start_ground_height_m(ground[ground < 700.0], control_z, FLYING_M, "gnss.txt")
-    with pytest.raises(InputError, match="below the lowest control point"):
-        start_ground_height_m(np.zeros(40), control_z, FLYING_M, "the approximate orientations (--eo)")
     # no control with heights: the flying-height guess
     assert start_ground_height_m(np.full(4, 500.0), [], FLYING_M, "gnss.txt") == pytest.approx(200.0)
+
+
+def _low_gnss_project(tmp_path, drop_m: float):
+    """Review 22's block: DMC at 1,000 m over 120 m of relief, 6 control points, gnss.txt heights ``drop_m`` low."""
+    block = geometric_block(3, 6, seed=0, camera_true=dmc_camera(), relief_m=120.0, tilt_sigma_deg=0.3,
+                            gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0, 0, 0))
+    block.camera_nominal = dmc_camera()
+    block.gnss_local = block.gnss_local - np.array([0.0, 0.0, drop_m])
+    root = write_block_project(block, tmp_path / "p")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=6, n_check=20, points_per_image=100, seed=0)
+    return root
+
+
+def test_gnss_heights_1100_m_low_on_a_block_with_relief_are_refused(tmp_path):
+    root = _low_gnss_project(tmp_path, 1100.0)
+    # every camera but one below the highest control point, not all below the lowest: s21's rule let it through
+    with pytest.raises(InputError, match=r"gnss.txt: 12 of 12 image measurements of control points lie above their "
+                                         r"frame or less than 249 m below it"):
+        adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True))
+
+
+def test_all_control_left_out_by_the_data_snooping_is_a_weak_solution(tmp_path, monkeypatch):
+    monkeypatch.setattr(pipeline, "CONTROL_CLEARANCE_FRACTION", -math.inf)  # the refusal off: the solve runs
+    ba = adjust_project(_low_gnss_project(tmp_path, 1100.0), AdjustSettings(image_sigma_px=0.3, use_control=True))
+    assert len({c for c, _ in ba.result.rejected_control}) == len(ba.control) == 6
+    ks = to_record(build_report(ba))["key_statistics"]
+    assert ks["verdict"] == "weak"
+    assert "All 6 control points left out by the data snooping: the block's datum is the GNSS's alone" in ks["message"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import shutil
 
+import numpy as np
 import pytest
 
 from aerotri.adjust.pipeline import AdjustSettings, run_adjustment
@@ -70,3 +71,33 @@ def adjusted_without_control(tmp_path_factory):
     shutil.rmtree(root / "control")
     ba = run_adjustment(root, AdjustSettings(gnss_correction="none", image_sigma_px=SIGMA_PX)).adjustment
     return root, ba
+
+
+@pytest.fixture
+def synthetic_geoid(tmp_path):
+    """A made-up EGM2008 grid under EGM2008's file name (N = 30 m + 0.5 m per degree east of 110 E + 0.3 m per degree
+    north of 30 N over 100-120 E, 20-40 N: linear, so PROJ's bilinear reading of it is exact) in a PROJ data folder
+    of this test only; the function N(lon_deg, lat_deg)."""
+    import pyproj
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from aerotri.geom.crs import transform as crs_transform
+
+    def N(lon_deg, lat_deg):
+        return 30.0 + 0.5 * (np.asarray(lon_deg) - 110.0) + 0.3 * (np.asarray(lat_deg) - 30.0)
+
+    step = 0.25
+    lon, lat = 100.0 + step * np.arange(81), 40.0 - step * np.arange(81)
+    with rasterio.open(tmp_path / "us_nga_egm08_25.tif", "w", driver="GTiff", width=81, height=81, count=1,
+                       dtype="float32", crs="EPSG:4326", transform=from_origin(100 - step / 2, 40 + step / 2, step, step)
+                       ) as ds:
+        ds.write(N(lon[None, :], lat[:, None]).astype("float32"), 1)
+    before = pyproj.datadir.get_data_dir()
+    pyproj.datadir.append_data_dir(str(tmp_path))
+    crs_transform._group.cache_clear()  # PROJ's operations were looked up without the grid
+    try:
+        yield N
+    finally:
+        pyproj.datadir.set_data_dir(before)
+        crs_transform._group.cache_clear()

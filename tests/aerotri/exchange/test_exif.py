@@ -185,6 +185,23 @@ def test_synthetic_frames_read_back(tmp_path):
     assert read_eo(root / "imported" / "eo.txt").opk_deg[0, 2] == pytest.approx(-10.0 + conv, abs=2e-6)
 
 
+def test_a_2d_crs_reads_the_altitudes_as_ellipsoidal(tmp_path, synthetic_geoid):
+    """``--crs EPSG:4326`` names no height system: the altitudes are ellipsoidal heights (DJI's RTK altitudes are),
+    as before s21, converted to the project's EGM2008 heights (s21 took them as the project's: N, 30.9 m here,
+    high). A compound --crs still names the geoid."""
+    lon, lat = 115.0, 24.68  # over the synthetic grid
+    frames = tmp_path / "imgs"
+    frames.mkdir()
+    _frame(frames / "a.tif", EXIF, dict(GOOD, GpsLongtitude=str(lon), GpsLatitude=str(lat)))
+    for crs, z in (("EPSG:4326", 150.5 - float(synthetic_geoid(lon, lat))), ("EPSG:4326+3855", 150.5)):
+        root = _project(tmp_path, "EPSG:32650", name=crs.replace(":", "_").replace("+", "_"))
+        (root / "project.toml").write_text((root / "project.toml").read_text() + 'heights = "EPSG:3855"\n')
+        import_files(root, "exif", [frames], ImportSettings(crs=crs))
+        got = read_eo(root / "imported" / "eo.txt").centre_m[0]
+        assert got[2] == pytest.approx(z, abs=1e-3), crs
+        assert np.abs(got - _utm(lon, lat, got[2], "EPSG:32650")).max() < 1e-3
+
+
 @pytest.mark.parametrize("change, message", [
     (dict(GOOD, DewarpData="2020-01-01;51.0,50.0,1.5"), "DewarpData has 3 values"),
     (dict(GOOD, DewarpData="2020-01-01;51.0,50.0,nan,1,1,1,1,1,1"), "expected 9 finite numbers"),

@@ -230,36 +230,6 @@ def test_marker_heights_and_plan_markers(exported, tmp_path, fresh_project):
     assert np.abs(con.xyz_m[:, :2] - mine.xyz_m[control, :2]).max() < 1e-4
 
 
-@pytest.fixture
-def synthetic_geoid(tmp_path):
-    """A made-up EGM2008 grid under EGM2008's file name (N = 30 m + 0.5 m per degree east of 110 E + 0.3 m per degree
-    north of 30 N over 100-120 E, 20-40 N: linear, so PROJ's bilinear reading of it is exact) in a PROJ data folder
-    of this test only; the function N(lon_deg, lat_deg)."""
-    import pyproj
-    import rasterio
-    from rasterio.transform import from_origin
-
-    from aerotri.geom.crs import transform as crs_transform
-
-    def N(lon_deg, lat_deg):
-        return 30.0 + 0.5 * (np.asarray(lon_deg) - 110.0) + 0.3 * (np.asarray(lat_deg) - 30.0)
-
-    step = 0.25
-    lon, lat = 100.0 + step * np.arange(81), 40.0 - step * np.arange(81)
-    with rasterio.open(tmp_path / "us_nga_egm08_25.tif", "w", driver="GTiff", width=81, height=81, count=1,
-                       dtype="float32", crs="EPSG:4326", transform=from_origin(100 - step / 2, 40 + step / 2, step, step)
-                       ) as ds:
-        ds.write(N(lon[None, :], lat[:, None]).astype("float32"), 1)
-    before = pyproj.datadir.get_data_dir()
-    pyproj.datadir.append_data_dir(str(tmp_path))
-    crs_transform._group.cache_clear()  # PROJ's operations were looked up without the grid
-    try:
-        yield N
-    finally:
-        pyproj.datadir.set_data_dir(before)
-        crs_transform._group.cache_clear()
-
-
 def _with_heights(src, dst, heights='heights = "EPSG:3855"\n'):
     shutil.copytree(src, dst, symlinks=True)
     toml = (dst / "project.toml").read_text()
@@ -302,6 +272,38 @@ def test_orthometric_heights_reach_metashape_as_ellipsoidal(adjusted_tiny, tmp_p
     ell = fresh_project(root, tmp_path / "ell")
     import_files(ell, "metashape", [out / "metashape" / "cameras.xml"])
     assert np.abs(read_eo(ell / "imported" / "eo.txt").centre_m[:, 2] - h).max() < 1e-3
+
+
+@pytest.mark.parametrize("reference", ["EPSG:4326", "EPSG:32649"])
+def test_markers_in_a_2d_reference_are_ellipsoidal_as_the_cameras(adjusted_tiny, tmp_path, fresh_project,
+                                                                  synthetic_geoid, reference):
+    """Metashape's markers in a 2D <reference> (EPSG::4326, or the project's own horizontal CRS) carry ellipsoidal
+    heights, as its cameras' geocentric coordinates do: on an EGM2008-height project both come back in its heights
+    (s21 read the markers' z as the project's, a 2D CRS's rule for formats without a convention: the control N,
+    +30 m here, above the cameras')."""
+    import pyproj
+
+    root, _ = adjusted_tiny
+    p = _with_heights(root, tmp_path / "p")
+    out = tmp_path / "out"
+    export_project(p, ["metashape"], out)
+    xml = out / "metashape" / "cameras.xml"
+    tree = ET.parse(xml)
+    chunk = tree.getroot().find("chunk")
+    to_ell = pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(chunk.find("reference").text),
+                                         pyproj.CRS(reference).to_3d(), always_xy=True)
+    for r in chunk.findall("markers/marker/reference"):
+        if "z" in r.attrib:
+            x, y, h = to_ell.transform(*(float(r.get(k)) for k in "xyz"))
+            r.set("x", repr(x)), r.set("y", repr(y)), r.set("z", repr(h))
+    chunk.find("reference").text = pyproj.CRS(reference).to_wkt("WKT1_GDAL")
+    tree.write(xml)
+    dst = fresh_project(p, tmp_path / "back")
+    import_files(dst, "metashape", [xml])
+    eo, back = read_eo(Project.open(p).eo_path), read_eo(dst / "imported" / "eo.txt")
+    assert np.abs(back.centre_m - eo.centre_m).max() < 1e-3
+    con, mine = read_control_points(dst / "control" / "points.csv"), read_control_points(p / "control" / "points.csv")
+    assert np.abs(con.xyz_m - mine.xyz_m).max() < 1e-3  # s21: z 30.0-31.5 m high
 
 
 def test_orthometric_heights_without_the_geoid_grid(adjusted_tiny, tmp_path):
