@@ -12,13 +12,17 @@ Exterior orientations and DEMs are in the project CRS. When the product CRS diff
 coordinate-operation policy (``aerotri.geom.crs.transform``): a datum change needs the parameter set fitted
 from common points (``--params``), PROJ's ballpark operation is refused unless explicitly allowed. The
 operation is built once; per pixel it is interpolated from an anchor grid whose spacing is halved
-until the interpolation error at the cell centres is below a tolerance (default 1 mm on the ground).
+until the interpolation error at the cell centres is below a tolerance (default 1 mm on the ground), or, where a
+tile's cell centres are affine in the project CRS within a tenth of that (checked against the operation:
+``GridToProject.affine``; two transverse Mercator grids over a tile), the rectifier takes the affine map and the
+project CRS's vectorised kernels.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import numpy as np
 from pyproj import CRS
@@ -149,6 +153,13 @@ def nice_resolution(gsd_m: float) -> float:
     return round(float(min(cands, key=lambda c: abs(math.log(c / gsd_m)))), 12)
 
 
+# The share of ``GridToProject.tolerance_m`` an affine tile must hold (0.1 mm of the default 1 mm): on a DSM wall the
+# image position follows the ground position through the wall's height ramp (20 m per m for 10 m over a 0.5 m cell),
+# so a fit held to 1 mm moved positions there by up to 0.03 px (demo frame s01_002 at 0.4 m, EPSG:4545 and 3857;
+# the anchors themselves come within 0.01-0.09 mm of PROJ); at 0.1 mm they move by under 0.01 px
+AFFINE_SHARE = 0.1
+
+
 class GridToProject:
     """Output-grid coordinates to project-CRS coordinates and back (built once per CRS pair).
 
@@ -160,8 +171,9 @@ class GridToProject:
     """
 
     def __init__(self, output_crs: CRS, project_crs: CRS, tolerance_m: float = 1e-3,
-                 operation: CrsTransformer | None = None, z_m: float = 0.0):
+                 operation: CrsTransformer | None = None, z_m: float = 0.0, affine_tiles: bool = True):
         self.tolerance_m = tolerance_m
+        self.affine_tiles = affine_tiles
         self.z_m = float(z_m)
         self.project_crs = project_crs
         self.identity = CRS(output_crs) == CRS(project_crs) and (operation is None or operation.identity)
@@ -200,6 +212,66 @@ class GridToProject:
         """
         return anchor_grid(self.exact, grid.x_left_m, grid.y_top_m, grid.res_m, grid.width, grid.height,
                            spacing_px=spacing_px, tolerance=self.tolerance_m, affine=self.identity)
+
+    def affine(self, grid: OrthoGrid, check_px: int = 64) -> "GridAffine | None":
+        """The project coordinates of ``grid``'s cell centres as an affine function of (row, col), when one holds
+        within ``AFFINE_SHARE`` of ``tolerance_m`` (the anchors' tolerance), else None (and always None with
+        ``affine_tiles`` off).
+
+        Fitted (least squares) to the exact transform at 3 x 3 cell centres (corners, edge midpoints, centre), then
+        checked at a lattice every ``check_px`` pixels (at least 9 x 9, offset from the fit's points): the largest
+        deviation from the exact transform must be within ``AFFINE_SHARE * tolerance_m``. Between two transverse
+        Mercator grids over a tile of a hundred metres the map is affine to micrometres (its departure goes as the
+        tile's size squared times the distance from the central meridian over the earth's radius squared); a web
+        Mercator or a far zone at a coarse pixel fails the check and the caller takes the anchors (``anchors``)."""
+        if self.identity:
+            return GridAffine(grid.x_left_m + 0.5 * grid.res_m, grid.y_top_m - 0.5 * grid.res_m, grid.res_m, 0.0,
+                              0.0, -grid.res_m, 0.0)
+        if not self.affine_tiles:
+            return None
+        h1, w1 = grid.height - 1, grid.width - 1
+        r, c = np.meshgrid(np.array([0.0, 0.5, 1.0]) * h1, np.array([0.0, 0.5, 1.0]) * w1, indexing="ij")
+        X, Y = self._exact_at(grid, r, c)
+        if not (np.isfinite(X).all() and np.isfinite(Y).all()):
+            return None
+        A = np.column_stack([np.ones(r.size), c.ravel(), r.ravel()])
+        (x0, xc, xr), *_ = np.linalg.lstsq(A, X.ravel(), rcond=None)
+        (y0, yc, yr), *_ = np.linalg.lstsq(A, Y.ravel(), rcond=None)
+        nr = max(9, -(-grid.height // check_px) + 1)
+        nc = max(9, -(-grid.width // check_px) + 1)
+        # lattice nodes at (k + 0.5) / n of the span: none on the fit's points
+        r, c = np.meshgrid((np.arange(nr) + 0.5) / nr * h1, (np.arange(nc) + 0.5) / nc * w1, indexing="ij")
+        X, Y = self._exact_at(grid, r, c)
+        dev = np.hypot(x0 + xc * c + xr * r - X, y0 + yc * c + yr * r - Y)
+        deviation = float(dev.max())
+        if not deviation <= AFFINE_SHARE * self.tolerance_m:  # NaN (outside the operation's domain) fails too
+            return None
+        return GridAffine(float(x0), float(y0), float(xc), float(yc), float(xr), float(yr), deviation)
+
+    def _exact_at(self, grid: OrthoGrid, rows, cols):
+        return self.exact(grid.x_left_m + (cols + 0.5) * grid.res_m, grid.y_top_m - (rows + 0.5) * grid.res_m)
+
+
+class GridAffine(NamedTuple):
+    """Project coordinates of an output grid's cell centres, affine in the cell's (row, col): X = x0_m + col *
+    col_dx_m + row * row_dx_m, Y = y0_m + col * col_dy_m + row * row_dy_m (m); ``deviation_m``: the largest distance
+    from the exact transform where it was checked (``GridToProject.affine``)."""
+
+    x0_m: float
+    y0_m: float
+    col_dx_m: float
+    col_dy_m: float
+    row_dx_m: float
+    row_dy_m: float
+    deviation_m: float
+
+    def anchors(self, width: int, height: int):
+        """The anchor grid (``GridToProject.anchors``' form) that reproduces the affine map exactly: 2 x 2 nodes
+        ``spacing`` apart (bilinear interpolation of an affine function is that function)."""
+        s = max(width, height, 2) - 1
+        r, c = np.meshgrid([0.0, s], [0.0, s], indexing="ij")
+        return (self.x0_m + c * self.col_dx_m + r * self.row_dx_m, self.y0_m + c * self.col_dy_m + r * self.row_dy_m,
+                s)
 
 
 def overview_factors(width: int, height: int, block_px: int = 512) -> list[int]:

@@ -541,7 +541,7 @@ def _fixed_point_kernel_affine(tile, frame, margin, maps):
     the packing into cv2's layout is a second, cheap pass. NaN heights (DEM nodata) make x, y NaN and
     fail the range test.
     """
-    heights, x0, y0, res = tile
+    heights, res = tile.heights_m, tile.col_dx_m  # the project grid's own tile: columns east, rows south
     centre, M, cam, limits, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits, frame.inv_radius
     map_int, map_frac, mask, bounds = maps
     rows, cols = heights.shape
@@ -553,7 +553,7 @@ def _fixed_point_kernel_affine(tile, frame, margin, maps):
     iy_row = np.empty(cols, np.int32)
     for r in range(rows):
         # camera-frame coordinates are affine along the row: start + c * step + dz * column of M
-        dx0, dy, bx, by, bz = _affine_row(x0, y0, r, res, centre, M)
+        dx0, dy, bx, by, bz = _affine_row(tile, r, centre, M)
         z_row, mask_row = heights[r], mask[r]
         for c in range(cols):
             dz = np.float64(z_row[c]) - centre[2]
@@ -564,6 +564,57 @@ def _fixed_point_kernel_affine(tile, frame, margin, maps):
             yn = (by + c * sy + m12 * dze) * inv_zc
             x, y = to_pixel(cam, xn, yn)
             seen = (zc > 0.0) & _within_limits(xn, yn, dx0 + c * res, dy, dz, limits)
+            ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, seen, window, far)
+        _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
+def _fixed_point_kernel_affine_map(affine, dem, frame, margin, maps, height_out):
+    """``_fixed_point_kernel`` where the tile's project coordinates are affine in (row, col) but not the project
+    grid's own (``ortho.grid.GridAffine`` ``affine``: a contract CRS's tile, e.g. Gauss-Krueger from UTM): per row,
+    a scalar pass of the heights (``_dem_height`` on ``HeightGrid`` ``dem``, as the general kernel: the same
+    bilinear heights in float64) into a row array, then the branch-free, vectorised projection of
+    ``_fixed_point_kernel_affine`` with the ground offsets affine along the row in both X and Y."""
+    x0, y0, col_dx, col_dy, row_dx, row_dy = (affine.x0_m, affine.y0_m, affine.col_dx_m, affine.col_dy_m,
+                                              affine.row_dx_m, affine.row_dy_m)
+    centre, M, cam, limits, inv_r = frame.centre_m, frame.M, frame.cam, frame.limits, frame.inv_radius
+    map_int, map_frac, mask, bounds = maps
+    rows, cols = height_out.shape
+    window = (margin, frame.width_px - 1 - margin, margin, frame.height_px - 1 - margin)
+    m02, m12, m22 = M[0, 2], M[1, 2], M[2, 2]
+    # a column's step of the camera-frame coordinates (before the height's share)
+    sx = M[0, 0] * col_dx + M[0, 1] * col_dy
+    sy = M[1, 0] * col_dx + M[1, 1] * col_dy
+    sz = M[2, 0] * col_dx + M[2, 1] * col_dy
+    c0, c1, c2 = centre[0], centre[1], centre[2]
+    far = np.int32(-32768 * INTER_TAB_SIZE)
+    ix_row = np.empty(cols, np.int32)
+    iy_row = np.empty(cols, np.int32)
+    z64 = np.empty(cols, np.float64)
+    for r in range(rows):
+        xr = x0 + r * row_dx
+        yr = y0 + r * row_dy
+        z_row, mask_row = height_out[r], mask[r]
+        for c in range(cols):  # the DEM's gather: scalar, kept out of the projection's loop
+            Z = _dem_height(dem, xr + c * col_dx, yr + c * col_dy)
+            z64[c] = Z
+            z_row[c] = Z
+        dx0 = xr - c0
+        dy0 = yr - c1
+        bx = M[0, 0] * dx0 + M[0, 1] * dy0
+        by = M[1, 0] * dx0 + M[1, 1] * dy0
+        bz = M[2, 0] * dx0 + M[2, 1] * dy0
+        for c in range(cols):
+            dx = dx0 + c * col_dx
+            dy = dy0 + c * col_dy
+            dz = z64[c] - c2
+            dze = earth_dz(dx, dy, dz, inv_r)
+            zc = bz + c * sz + m22 * dze
+            inv_zc = 1.0 / zc
+            xn = (bx + c * sx + m02 * dze) * inv_zc
+            yn = (by + c * sy + m12 * dze) * inv_zc
+            x, y = to_pixel(cam, xn, yn)
+            seen = (zc > 0.0) & _within_limits(xn, yn, dx, dy, dz, limits)
             ix_row[c], iy_row[c], mask_row[c] = _fixed_point_entry(x, y, seen, window, far)
         _pack_fixed_point(ix_row, iy_row, map_int[r], map_frac[r], bounds)
 
@@ -656,25 +707,34 @@ def _fill_gap(p0, p1, flat, cell_px, inv_cell, zbuf):
 
 
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _affine_row(x0, y0, r, res, centre, M):
-    """Row ``r`` of an ``AffineTile`` (first cell centre ``x0``, ``y0``, cells of ``res``) for ``_affine_pixel``: the
-    row's ground offsets from the projection centre (dx of its first column, dy) and its first column's camera-frame
-    coordinates at the centre's height (x, y, z: affine along the row, start + c * step + dz * column of M)."""
-    dx0 = x0 - centre[0]
-    dy = y0 - r * res - centre[1]
+def _affine_row(tile, r, centre, M):
+    """Row ``r`` of an ``AffineTile`` for ``_affine_pixel``: its first column's ground offsets from the projection
+    centre (dx, dy) and camera-frame coordinates at the centre's height (x, y, z: affine along the row, start + c *
+    step + dz * column of M)."""
+    dx0 = tile.x0_m + r * tile.row_dx_m - centre[0]
+    dy = tile.y0_m + r * tile.row_dy_m - centre[1]
     return dx0, dy, M[0, 1] * dy + M[0, 0] * dx0, M[1, 1] * dy + M[1, 0] * dx0, M[2, 1] * dy + M[2, 0] * dx0
 
 
+@numba.njit(cache=True, inline="always")
+def _affine_steps(tile, M):
+    """A column's step of an ``AffineTile``'s camera-frame coordinates (M[:, :2] @ the column's ground step), M's
+    third column and the column's ground step (dx, dy): the ``steps`` of ``_affine_pixel``."""
+    ex, ey = tile.col_dx_m, tile.col_dy_m
+    return (M[0, 0] * ex + M[0, 1] * ey, M[1, 0] * ex + M[1, 1] * ey, M[2, 0] * ex + M[2, 1] * ey,
+            M[0, 2], M[1, 2], M[2, 2], ex, ey)
+
+
 @numba.njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _affine_pixel(row, c, z, res, steps, z_centre, inv_r, cam, limits):
+def _affine_pixel(row, c, z, steps, z_centre, inv_r, cam, limits):
     """Column ``c`` of an ``_affine_row`` ``row`` at height ``z``: image position x, y (px), depth along the optical
     axis zc and whether it is imaged (in front, within the lens fold, inside the frame; branch-free, so that the
-    loops calling it stay vectorised). ``steps``: a column's step of the camera-frame coordinates (M[:, 0] * res)
-    and M's third column; ``limits``: the fold's squared radius, the frame's width and height (px)."""
+    loops calling it stay vectorised). ``steps``: ``_affine_steps``; ``limits``: the fold's squared radius, the
+    frame's width and height (px)."""
     dx0, dy, bx, by, bz = row
-    sx, sy, sz, m02, m12, m22 = steps
+    sx, sy, sz, m02, m12, m22, ex, ey = steps
     fold_r2, width, height = limits
-    dz = earth_dz(dx0 + c * res, dy, np.float64(z) - z_centre, inv_r)
+    dz = earth_dz(dx0 + c * ex, dy + c * ey, np.float64(z) - z_centre, inv_r)
     zc = bz + c * sz + m22 * dz
     inv_zc = 1.0 / zc
     xn = (bx + c * sx + m02 * dz) * inv_zc
@@ -693,15 +753,18 @@ def _zbuffer_scatter_affine(tile, frame, zbuffer):
     (``_fill_gap``). NaN heights fail the range test; points beyond the lens fold (``frame.limits.fold_r2``,
     as ``_zbuffer_kernel``) are not surface points, nor ends of a gap. Tiles must overlap by a row and a column for
     the gaps across their edges."""
-    heights, x0, y0, res = tile
+    heights = tile.heights_m
     centre, M, cam, inv_r = frame.centre_m, frame.M, frame.cam, frame.inv_radius
     limits = (frame.limits.fold_r2, frame.width_px, frame.height_px)
     zbuf, cell_px = zbuffer.depth_m, zbuffer.cell_px
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     inv_cell = 1.0 / cell_px
-    m01, m11, m21 = M[0, 1], M[1, 1], M[2, 1]
-    steps = (M[0, 0] * res, M[1, 0] * res, M[2, 0] * res, M[0, 2], M[1, 2], M[2, 2])
+    # a row's step of the camera-frame coordinates, negated (the step up a row; M's second column in the project
+    # grid's own tile, up to the positive factor res, which the gap test's sign does not see)
+    ux, uy = -tile.row_dx_m, -tile.row_dy_m
+    m01, m11, m21 = M[0, 0] * ux + M[0, 1] * uy, M[1, 0] * ux + M[1, 1] * uy, M[2, 0] * ux + M[2, 1] * uy
+    steps = _affine_steps(tile, M)
     sx, sy, sz = steps[0], steps[1], steps[2]
     z_centre = centre[2]
     xs = np.empty((2, cols), np.float32)
@@ -712,10 +775,10 @@ def _zbuffer_scatter_affine(tile, frame, zbuffer):
         cur = r & 1
         x_row, y_row, zc_row, ok_row = xs[cur], ys[cur], zcs[cur], oks[cur]
         x_up, y_up, zc_up, ok_up = xs[1 - cur], ys[1 - cur], zcs[1 - cur], oks[1 - cur]
-        row = _affine_row(x0, y0, r, res, centre, M)
+        row = _affine_row(tile, r, centre, M)
         z_row = heights[r]
         for c in range(cols):
-            x, y, zc, ok = _affine_pixel(row, c, z_row[c], res, steps, z_centre, inv_r, cam, limits)
+            x, y, zc, ok = _affine_pixel(row, c, z_row[c], steps, z_centre, inv_r, cam, limits)
             ok_row[c] = ok
             x_row[c] = x
             y_row[c] = y
@@ -750,24 +813,24 @@ def _zbuffer_test_affine(tile, frame, zbuffer, occluded, near_share):
     ``_zbuffer_scatter_affine``, then the cell test of ``_zbuffer_kernel`` (the same points tested, the same cells: the
     positions differ from the anchors' interpolation in the last bits only). ``occluded`` set, never cleared; and
     there ``near_share`` as ``_zbuffer_test_maps`` (where the march looks first)."""
-    heights, x0, y0, res = tile
+    heights = tile.heights_m
     centre, M, cam, inv_r = frame.centre_m, frame.M, frame.cam, frame.inv_radius
     limits = (frame.limits.fold_r2, frame.width_px, frame.height_px)
     zbuf, cell_px, tolerance_m = zbuffer
     rows, cols = heights.shape
     zh, zw = zbuf.shape
     inv_cell = 1.0 / cell_px
-    steps = (M[0, 0] * res, M[1, 0] * res, M[2, 0] * res, M[0, 2], M[1, 2], M[2, 2])
+    steps = _affine_steps(tile, M)
     z_centre = centre[2]
     cell_i = np.empty(cols, np.int32)
     cell_j = np.empty(cols, np.int32)
     zcs = np.empty(cols, np.float64)
     oks = np.empty(cols, np.bool_)
     for r in range(rows):
-        row = _affine_row(x0, y0, r, res, centre, M)
+        row = _affine_row(tile, r, centre, M)
         z_row = heights[r]
         for c in range(cols):
-            x, y, zc, ok = _affine_pixel(row, c, z_row[c], res, steps, z_centre, inv_r, cam, limits)
+            x, y, zc, ok = _affine_pixel(row, c, z_row[c], steps, z_centre, inv_r, cam, limits)
             oks[c] = ok
             # (a select, not a branch: the loop stays vectorised; NaN or far positions never reach the conversion)
             cell_i[c] = min(np.int32((y if ok else 0.0) * inv_cell), zh - 1)
@@ -789,25 +852,22 @@ def _zbuffer_test_maps(imaged, tile, frame, zbuffer, occluded, near_share):
     (``mask`` != 0) lies more than ``tolerance_m`` behind its cell's nearest surface (set, never cleared), and
     there ``near_share`` = that surface's depth / the pixel's (where the march looks first)."""
     map_int, mask = imaged
-    heights, x0, y0, res = tile
+    heights = tile.heights_m
     centre, M, inv_r = frame.centre_m, frame.M, frame.inv_radius
     zbuf, cell_px, tolerance_m = zbuffer
     rows, cols = heights.shape
     zh, zw = zbuf.shape
-    sz = M[2, 0] * res
-    m22 = M[2, 2]
+    _, _, sz, _, _, m22, ex, ey = _affine_steps(tile, M)
     # cell of an integer position p >= 0: (p + 0.5) / cell_px lies strictly inside (p // cell_px, + 1), so the
     # float product truncates to the integer division (which would cost tens of cycles per pixel)
     inv_cell = 1.0 / cell_px
     for r in range(rows):
-        dx0 = x0 - centre[0]
-        dy = y0 - r * res - centre[1]
-        bz = M[2, 1] * dy + M[2, 0] * dx0
+        dx0, dy, _, _, bz = _affine_row(tile, r, centre, M)
         z_row, mask_row, occ_row, int_row, near_row = heights[r], mask[r], occluded[r], map_int[r], near_share[r]
         for c in range(cols):
             if mask_row[c] == 0:
                 continue
-            zc = bz + c * sz + m22 * earth_dz(dx0 + c * res, dy, np.float64(z_row[c]) - centre[2], inv_r)
+            zc = bz + c * sz + m22 * earth_dz(dx0 + c * ex, dy + c * ey, np.float64(z_row[c]) - centre[2], inv_r)
             i = min(np.int32((int_row[c, 1] + 0.5) * inv_cell), zh - 1)
             j = min(np.int32((int_row[c, 0] + 0.5) * inv_cell), zw - 1)
             if zc > zbuf[i, j] + tolerance_m:
