@@ -532,9 +532,9 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
     """sha256 (32 hex digits) of what a frame's ortho depends on: the task but where it is written and its
     threads, the camera's parameters, the size and modification time of its image, DEM, DSM, footprints and crown
     bases, the block's inputs (EO, camera, DEM hashes), the rectification's version
-    (``ortho.rectify.RECTIFY_VERSION``) and the toolkit's version."""
+    (``ortho.rectify.rectify_version``: of the grid's CRS) and the toolkit's version."""
     import aerotri
-    from ortho.rectify import RECTIFY_VERSION
+    from ortho.rectify import rectify_version
 
     doc = {}
     for f in dataclasses.fields(task):
@@ -548,7 +548,8 @@ def _resume_key(task: FrameTask, inputs: dict) -> str:
         path = getattr(task, f)
         if path:
             doc[f"{f}_size_mtime"] = file_stamp(path)
-    doc["inputs"], doc["version"], doc["rectify_version"] = inputs, aerotri.__version__, RECTIFY_VERSION
+    doc["inputs"], doc["version"], doc["rectify_version"] = (inputs, aerotri.__version__,
+                                                          rectify_version(task.operation is not None))
     if task.footprints_path:  # the footprints' rules change frame orthos within a version (a run resumed on newer code)
         doc["footprint_rules"] = {"heights_by_outline": HEIGHTS_BY_OUTLINE,
                                   "outlines_of_the_occlusion_test": OUTLINES_OF_THE_OCCLUSION_TEST}

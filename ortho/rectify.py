@@ -62,6 +62,15 @@ if TYPE_CHECKING:
 # affine in the project's: its true ortho's z-buffer fills the gaps of walls as the project CRS's does, 0.09 % more
 # hidden ground masked on a DMC frame; the project CRS's orthos are unchanged).
 RECTIFY_VERSION = 2
+# the last version that changed the orthos of a grid in the project's CRS (``operation`` None): versions after it
+# changed a contract CRS's alone, and a project rectified in its own CRS keeps its frames (no re-rectification)
+PROJECT_CRS_RECTIFY_VERSION = 1
+
+
+def rectify_version(contract_crs: bool) -> int:
+    """The version of the rectification whose frame orthos are the same bytes: ``RECTIFY_VERSION`` for an output
+    grid in another CRS than the project's, ``PROJECT_CRS_RECTIFY_VERSION`` in the project's own."""
+    return RECTIFY_VERSION if contract_crs else PROJECT_CRS_RECTIFY_VERSION
 
 INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "bilinear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}
 

@@ -103,12 +103,13 @@ def _control_versions() -> dict:
     return {"measurement": MEASURE_VERSION}
 
 
-def _rectify_versions() -> dict:
+def _rectify_versions(settings) -> dict:
     from ortho.block import HEIGHTS_BY_OUTLINE, OUTLINES_OF_THE_OCCLUSION_TEST
-    from ortho.rectify import RECTIFY_VERSION
+    from ortho.rectify import rectify_version
 
-    # the footprint rules the frames' resume key holds (ortho.block._resume_key's footprint_rules)
-    return {"rectify": RECTIFY_VERSION, "heights by outline": HEIGHTS_BY_OUTLINE,
+    # the footprint rules the frames' resume key holds (ortho.block._resume_key's footprint_rules); the version of
+    # the rectification in the grid's CRS (a [rectify] crs: a contract grid's)
+    return {"rectify": rectify_version(bool(settings.crs)), "heights by outline": HEIGHTS_BY_OUTLINE,
             "outlines of the occlusion test": OUTLINES_OF_THE_OCCLUSION_TEST}
 
 
@@ -486,7 +487,7 @@ class Chain:
             Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.true_ortho_dsm() + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
                   options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem,
-                  versions=_rectify_versions),
+                  versions=lambda: _rectify_versions(self.rectify_settings().settings)),
             # the nDSM the seamlines avoid objects by ([mosaic] ndsm, else the LiDAR stages' when there is one)
             Stage("mosaic", lambda r: [self.project.frames_index_path] + self.mosaic_ndsm(),
                   lambda r: [self.project.mosaic_path],

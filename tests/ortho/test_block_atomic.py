@@ -418,7 +418,8 @@ def test_frames_kept_before_a_rectification_change_are_rectified_again(project, 
     assert run("rectify", project, "--workers", 1).exit_code != 0
     finished = len(list((project / "work" / "rectify_resume").glob("*.tif")))
     assert 3 <= finished <= 5
-    monkeypatch.setattr(ortho.rectify, "RECTIFY_VERSION", ortho.rectify.RECTIFY_VERSION + 1)
+    # (the project's own CRS: its version is PROJECT_CRS_RECTIFY_VERSION; a contract grid's RECTIFY_VERSION)
+    monkeypatch.setattr(ortho.rectify, "PROJECT_CRS_RECTIFY_VERSION", ortho.rectify.PROJECT_CRS_RECTIFY_VERSION + 1)
     calls.clear()
     r = run("rectify", project, "--workers", 1)
     # a resume would have left 6 - finished frames to rectify: the kept ones are rectified again

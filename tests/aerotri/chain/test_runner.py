@@ -381,16 +381,21 @@ def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path)
                                     "relative orientation": relative.RELATIVE_VERSION}
     assert S._match_versions() == {"features": settings.FEATURES_VERSION, "matching": settings.MATCH_VERSION}
     assert S._control_versions() == {"measurement": measure.MEASURE_VERSION}
-    assert S._rectify_versions() == {"rectify": ortho.rectify.RECTIFY_VERSION,
-                                     "heights by outline": ortho.block.HEIGHTS_BY_OUTLINE,
-                                     "outlines of the occlusion test": ortho.block.OUTLINES_OF_THE_OCCLUSION_TEST}
+    from ortho.settings import RectifySettings
+
+    # contract-crs-speed changed a contract grid's frame orthos only: a project rectified in its own CRS keeps them
+    assert S._rectify_versions(RectifySettings()) == {
+        "rectify": ortho.rectify.PROJECT_CRS_RECTIFY_VERSION, "heights by outline": ortho.block.HEIGHTS_BY_OUTLINE,
+        "outlines of the occlusion test": ortho.block.OUTLINES_OF_THE_OCCLUSION_TEST}
+    assert ortho.rectify.PROJECT_CRS_RECTIFY_VERSION == 1
+    assert S._rectify_versions(RectifySettings(crs="EPSG:4546"))["rectify"] == ortho.rectify.RECTIFY_VERSION == 2
     assert S._mosaic_versions() == {"blend rules": ortho.mosaic.BLEND_RULES,
                                     "gains, offsets and seamlines": ortho.mosaic.RADIOMETRY_SEAMS_VERSION}
     (tmp_path / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n')
     versions = {st.name: st.versions_now() for st in S.chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
     assert versions["classify"] == {"classify rules": 9} and versions["rasters"] == S._rasters_versions()
     assert versions["match"] == S._match_versions() and versions["control"] == S._control_versions()
-    assert versions["rectify"] == S._rectify_versions() and versions["mosaic"] == S._mosaic_versions()
+    assert versions["rectify"] == S._rectify_versions(RectifySettings()) and versions["mosaic"] == S._mosaic_versions()
     assert versions["corners"] == S._corners_versions()
     assert versions["adjust_first"] == versions["adjust_final"] == S._adjust_versions()
     assert versions["strips"] == S._strips_versions() and versions["dom_check"] == S._dom_check_versions()
