@@ -54,10 +54,10 @@ def test_gnss_heights_of_the_ground_or_zero_are_still_refused():
     ground, centre_z, control_z, rays = _slope_block()
     # the frames at their ground's height: the control points they see around them, the one seen from the strip
     # below above it
-    with pytest.raises(InputError, match=r"gnss.txt: \d+ of 80 image measurements of control points lie above their "
-                                         r"frame or less than 75 m below it .*gcp4 [0-9.]+ m above f2\d's centre"):
+    with pytest.raises(InputError, match=r"gnss.txt: \d+ of \d+ control points \(by most of their measurements; "
+                                         r"\d+ of 80 measurements\) lie above their frame or less than 75 m below it .*gcp4 [0-9.]+ m above f2\d's centre"):
         start_ground_height_m(ground, control_z, FLYING_M, "gnss.txt", rays)
-    with pytest.raises(InputError, match="80 of 80 image measurements"):
+    with pytest.raises(InputError, match=r"; 80 of 80 measurements\)"):
         start_ground_height_m(np.zeros(40), control_z, FLYING_M, "the approximate orientations (--eo)", rays)
     # without rays: refused when every centre lies below the lowest control point
     with pytest.raises(InputError, match="below the lowest control point; expected each frame above"):
@@ -80,8 +80,8 @@ def _low_gnss_project(tmp_path, drop_m: float):
 def test_gnss_heights_1100_m_low_on_a_block_with_relief_are_refused(tmp_path):
     root = _low_gnss_project(tmp_path, 1100.0)
     # every camera but one below the highest control point, not all below the lowest: s21's rule let it through
-    with pytest.raises(InputError, match=r"gnss.txt: 12 of 12 image measurements of control points lie above their "
-                                         r"frame or less than 249 m below it"):
+    with pytest.raises(InputError, match=r"gnss.txt: 6 of 6 control points \(by most of their measurements; 12 of 12 "
+                                         r"measurements\) lie above their frame or less than 247 m below it"):
         adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True))
 
 
@@ -92,3 +92,25 @@ def test_all_control_left_out_by_the_data_snooping_is_a_weak_solution(tmp_path, 
     ks = to_record(build_report(ba))["key_statistics"]
     assert ks["verdict"] == "weak"
     assert "All 6 control points left out by the data snooping: the block's datum is the GNSS's alone" in ks["message"]
+
+
+def test_one_mistyped_control_point_or_frames_named_against_the_flight_do_not_refuse_the_block():
+    """Review 23: the vote counted measurements, so one control point typed 150 m high and seen in half the frames
+    refused the block (the data snooping can leave it out); and the flying-height guess took the base between
+    consecutive ids, so frames named against the flight order made it 5,883 m for 997 m and a correct block was
+    refused. Now by points, and the base of each centre to its nearest other one."""
+    from aerotri.adjust.pipeline import ControlRays, _flying_height_guess
+    from aerotri.geom.camera import Camera
+
+    ground, centre_z, control_z, rays = _slope_block()
+    control_z = np.asarray(control_z, dtype=float)
+    one_high = control_z.copy()
+    first = int(rays.control[0])
+    one_high[first] = centre_z.max() + 150.0  # above every frame
+    start_ground_height_m(centre_z, one_high, FLYING_M, "gnss.txt", rays)  # no refusal
+    # frames on a 3 x 6 grid (base 400 m along, 700 m across): the guess does not depend on the ids' order
+    xy = np.array([(400.0 * i, 700.0 * j, 1000.0) for j in range(3) for i in range(6)])
+    cam = Camera(width=13824, height=7680, pixel_um=12.0, focal_mm=120.0)
+    by_flight = _flying_height_guess(xy, cam)
+    shuffled = _flying_height_guess(xy[np.argsort([f"{i:03d}_{j}" for j in range(3) for i in range(6)])], cam)
+    assert by_flight == pytest.approx(shuffled) == pytest.approx(400.0 / 0.4 / (7680 * 12.0 / 120_000.0))
