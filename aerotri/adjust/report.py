@@ -822,6 +822,14 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         weaknesses.append(f"All {len(ba.control)} control points left out by the data snooping: the block's datum is "
                           "the GNSS's alone and disagrees with the control (GNSS or control heights in another "
                           "height system or unit, a lever arm with the wrong sign, or control of another CRS).")
+    # the same for the heights: every control point with a height out while plan-only control stays (review 23: gnss.txt
+    # heights 30 m low, 5 of 6 points out, the plan-only one kept, "Solution Successful" with the ground 30 m low)
+    out = {c for c, _ in r.rejected_control}
+    with_z = np.flatnonzero(ba.control.measured_xyz()[:, 2]) if len(ba.control) else np.zeros(0, int)
+    if not all_control_out and len(with_z) and all(int(c) in out for c in with_z):
+        weaknesses.append(f"All {len(with_z)} control points with a height left out by the data snooping: the block's "
+                          "heights are the GNSS's alone and disagree with the control's (GNSS or control heights in "
+                          "another height system or unit, or a lever arm with the wrong sign).")
     if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
         weaknesses.append(f"{n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and "

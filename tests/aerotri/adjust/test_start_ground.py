@@ -114,3 +114,23 @@ def test_one_mistyped_control_point_or_frames_named_against_the_flight_do_not_re
     by_flight = _flying_height_guess(xy, cam)
     shuffled = _flying_height_guess(xy[np.argsort([f"{i:03d}_{j}" for j in range(3) for i in range(6)])], cam)
     assert by_flight == pytest.approx(shuffled) == pytest.approx(400.0 / 0.4 / (7680 * 12.0 / 120_000.0))
+
+
+def test_all_height_control_left_out_while_plan_control_stays_is_weak(tmp_path):
+    """Review 23: gnss.txt heights 30 m low (a geoid/ellipsoid mix-up), gcp06 plan-only and no check points: gcp01-05
+    left out, gcp06 kept, "Solution Successful" with the ground 30 m low (the all-control rule needs every point
+    out). Every control point with a height out is now a weakness of its own."""
+    root = _low_gnss_project(tmp_path, 30.0)
+    p = root / "control" / "points.csv"
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0]] + [s.replace(",full,", ",horizontal,") if s.startswith("gcp06,full") else s
+                                         for s in lines[1:] if ",check," not in s]) + "\n")
+    q = root / "control" / "image_points.csv"
+    qlines = q.read_text().splitlines()
+    q.write_text("\n".join([qlines[0]] + [s for s in qlines[1:] if not s.startswith("chk")]) + "\n")
+    ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True))
+    out = {str(ba.control.id[c]) for c, _ in ba.result.rejected_control}
+    assert {f"gcp{k:02d}" for k in range(1, 6)} <= out and "gcp06" not in out
+    ks = to_record(build_report(ba))["key_statistics"]
+    assert ks["verdict"] == "weak"
+    assert "All 5 control points with a height left out by the data snooping" in ks["message"]
