@@ -535,14 +535,12 @@ def remove_leftovers(folder, names=None) -> list[Path]:
     else:  # .<name>.part-*, .<stem>.part-*, and the work folders named after them (.<stem>.tiles.part-*)
         # by whole names: a stem's prefix alone (".ortho.") would take the live temporaries of another output
         # written at the same time (".ortho.v2.part-*" for ortho.v1, ".mosaic.tif.part-*" for mosaic.json)
-        # atomic_path's file temporaries are ".<stem>.part-XXXX<suffix>": a stem's file is the output's only with
-        # its suffix (out.json's sweep took the live ".out.part-XXXX.tif" of out.tif: review 17)
+        # atomic_path's file temporaries are ".<stem>.part-XXXX<suffix>", its sidecars' too (ct.gpkg's preview
+        # ".ct.part-XXXX.png"): a stem's are the output's whatever their suffix (so out.json's sweep still takes a
+        # live ".out.part-XXXX.tif" of an out.tif written at the same time: review 17, left)
         def own(q, name):
-            full, stem = (tuple(f".{n}{w}{TEMP_MARKER}" for w in ("", *(f".{w}" for w in WORK_FOLDER_WORDS)))
-                          for n in (Path(name).name, Path(name).stem))
-            if q.name.startswith(full):
-                return True
-            return q.name.startswith(stem) and (q.is_dir() or q.name.endswith(Path(name).suffix or ".tmp"))
+            return q.name.startswith(tuple(f".{n}{w}{TEMP_MARKER}" for n in (Path(name).name, Path(name).stem)
+                                           for w in ("", *(f".{w}" for w in WORK_FOLDER_WORDS))))
 
         found = [q for q in folder.glob(f".*{TEMP_MARKER}*") if any(own(q, name) for name in names)]
     for q in sorted(found):

@@ -258,9 +258,10 @@ def test_leftovers_of_an_output_are_its_own_temporaries_only(tmp_path):
     (tmp_path / ".mosaic.tif.part-live").mkdir()
     assert remove_leftovers(tmp_path, names=["mosaic.json"]) == []
     assert (tmp_path / ".mosaic.tif.part-live").is_dir()
-    # review 17: atomic_path's file temporaries carry the stem and the suffix (".out.part-XXXX.tif")
-    for name in (".out.part-live1.tif", ".out.part-dead1.json", ".ortho.part-live2.v2", ".ortho.part-dead2.v1"):
+    # atomic_path's file temporaries carry the stem and the suffix, a sidecar's its own suffix (ct.gpkg's preview
+    # ".ct.part-XXXX.png"): swept with the output (test_faults' kill of `lidarctl contours`)
+    for name in (".ct.part-dead1.gpkg", ".ct.part-dead2.png", ".cts.part-live.gpkg"):
         (tmp_path / name).write_bytes(b"")
-    gone = remove_leftovers(tmp_path, names=["out.json", "ortho.v1"])
-    assert sorted(p.name for p in gone) == [".ortho.part-dead2.v1", ".out.part-dead1.json"]
-    assert (tmp_path / ".out.part-live1.tif").is_file() and (tmp_path / ".ortho.part-live2.v2").is_file()
+    gone = remove_leftovers(tmp_path, names=["ct.gpkg"])
+    assert sorted(p.name for p in gone) == [".ct.part-dead1.gpkg", ".ct.part-dead2.png"]
+    assert (tmp_path / ".cts.part-live.gpkg").is_file()
