@@ -798,7 +798,9 @@ def _flying_height_guess(centre, cam) -> float:
     for 997 m and a correct block was refused, review 23)."""
     from scipy.spatial import cKDTree
 
-    xy = np.asarray(centre, dtype=float)[:, :2]
+    # one position per station: the heads of a multi-camera rig (or duplicated gnss.txt rows) share theirs, and their
+    # nearest other centre at 0 m left the fixed 100 m base (a 2-head drone block at 60 m refused; review 25)
+    xy = np.unique(np.asarray(centre, dtype=float)[:, :2], axis=0)
     d = cKDTree(xy).query(xy, k=2)[0][:, 1] if len(xy) > 1 else np.zeros(0)
     base = np.median(d[d > 0]) if np.any(d > 0) else 100.0
     return float(base / 0.4 / (min(cam.width, cam.height) * cam.pixel_um / (cam.focal_mm * 1000.0)))

@@ -114,6 +114,8 @@ def test_one_mistyped_control_point_or_frames_named_against_the_flight_do_not_re
     by_flight = _flying_height_guess(xy, cam)
     shuffled = _flying_height_guess(xy[np.argsort([f"{i:03d}_{j}" for j in range(3) for i in range(6)])], cam)
     assert by_flight == pytest.approx(shuffled) == pytest.approx(400.0 / 0.4 / (7680 * 12.0 / 120_000.0))
+    # review 25: the two heads of a rig at every station (one GNSS event): the same base, not the 100 m fallback
+    assert _flying_height_guess(np.repeat(xy, 2, axis=0), cam) == pytest.approx(by_flight)
 
 
 def test_all_height_control_left_out_while_plan_control_stays_is_weak(tmp_path):
