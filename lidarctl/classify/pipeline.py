@@ -1550,18 +1550,12 @@ def _components(g: _Blocks, member: np.ndarray, joins=None) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _find(parent, x):
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
-
-
-@numba.njit(cache=True)
 def _union(parent, a, b):
-    """Joins the sets of ``a[k]`` and ``b[k]`` (union-find ``parent``, in place)."""
+    """Joins the sets of ``a[k]`` and ``b[k]`` (union-find ``parent``, in place; the root of a set is its lowest
+    member, found by ``lidarctl.grid._find``: the edges come a direction at a time, not as ``grid._components``'
+    whole graph, to keep one direction's arrays in memory)."""
     for k in range(len(a)):
-        x, y = _find(parent, a[k]), _find(parent, b[k])
+        x, y = grid._find(parent, a[k]), grid._find(parent, b[k])
         if x != y:
             if x < y:
                 parent[y] = x
@@ -1575,7 +1569,7 @@ def _root_labels(parent):
     out = np.zeros(len(parent), np.int32)
     n = 0
     for x in range(len(parent)):
-        root = _find(parent, x)
+        root = grid._find(parent, x)
         if root == x:
             n += 1
             out[x] = n
