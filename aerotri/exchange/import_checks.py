@@ -40,10 +40,6 @@ EXIF_FRAMES = 3  # frames whose GNSS tags stand for the project's position when 
 SCALE_LIMIT = GRID_SCALE_LIMIT  # a project CRS whose scale factor at the block is off 1 by more: a note
 
 
-def _listing(ids, n: int = 10) -> str:
-    return id_listing(ids, n)
-
-
 def check_project_crs(project: Project, block: ImportedBlock) -> list[str]:
     """Refuse a project CRS a photo block cannot use; notes on a CRS in feet (see the module docstring)."""
     from aerotri.geom.crs.definition import crs_label, linear_unit_m, unit_long_name
@@ -170,9 +166,9 @@ def check_image_ids(project: Project, block: ImportedBlock) -> None:
         missing = sorted({str(i) for i in ids} - set(frames.image_id))
         if missing:
             field = {"orientations": "eo", "positions": "gnss", "control measurements": "image_points"}[what]
-            raise InputError(f"{block.source_of(field)}: {what} of image(s) {_listing(missing)} that are not frames "
+            raise InputError(f"{block.source_of(field)}: {what} of image(s) {id_listing(missing)} that are not frames "
                              f"in {project.images_dir} ({len(frames)} frames, e.g. "
-                             f"{_listing(sorted(frames.image_id), 3)})")
+                             f"{id_listing(sorted(frames.image_id), 3)})")
 
 
 def check_camera_size(project: Project, block: ImportedBlock) -> None:
@@ -213,7 +209,7 @@ def check_point_ids(project: Project, block: ImportedBlock, replaced: set) -> No
                          f"(import the control points with them, or have {project.control_points_path})")
     missing = sorted({str(p) for p in block.image_points.point_id} - known)
     if missing:
-        raise InputError(f"{block.source_of('image_points')}: measurements of point(s) {_listing(missing)} that are "
+        raise InputError(f"{block.source_of('image_points')}: measurements of point(s) {id_listing(missing)} that are "
                          f"not control points in {where}")
 
 
