@@ -3075,10 +3075,11 @@ class SeamPair:
 SEAM_MIN_TEXTURE_RATIO = 0.5
 
 # Least patches of a seam judged on its own (the QA report's worst-seam row): one frame 1 px off shows on its seams
-# only, diluted in the block RMS (demo, review 25: block 0.07 -> 0.30 px, its seams 0.96-1.05 px each), but a seam
-# of one or two patches is one or two readings of a few metres of ground. Chosen on the demo (main d0d98f7, floor
-# 0.5): seams of at least 5 patches read at most 0.19 px unshifted, every seam of 5+ patches of a frame shifted 1 px
-# 0.96-1.05 px (bench/eval_seam_rows.py).
+# only, diluted in the block RMS (demo, review 25: block 0.07 -> 0.25-0.49 px, its seams 0.90-1.12 px), but a seam
+# of one or two patches is one or two readings of a few metres of ground. Chosen on the demo (main 6360cc7c, floor
+# 0.5, bench/eval_seam_rows.py): seams of at least 5 patches read at most 0.19 px as made, those of a frame read 1 px
+# off 0.90-1.12 px (the worst-seam limit, seam_worst_rms_px 0.5 px, between); scored on the DMC 2 x 4 (run 2bfb756):
+# at most 0.31 px as made, 16 of 16 one-frame shifts failed, the block RMS passing all 16 (docs/true-ortho.md).
 SEAM_MIN_PATCHES = 5
 
 
