@@ -3110,7 +3110,8 @@ class SeamMisalignment:
 
     @property
     def least_patches(self) -> int:
-        """A seam's least patches to be judged on its own: this record's, else (an older record) ``SEAM_MIN_PATCHES``."""
+        """A seam's least patches to be judged on its own: this record's, else (an older record)
+        ``SEAM_MIN_PATCHES``."""
         return self.min_patches or SEAM_MIN_PATCHES
 
     def judged(self, min_patches: int | None = None) -> tuple[SeamPair, ...]:

@@ -145,10 +145,11 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
     name = "misalignment across seamlines, RMS"
     if s.patches == 0:
         if s.examined == 0:
-            why = "not measured (no seam patch valid in both frames" + (" on the ground)" if s.per_seam else ": no seam)")
+            why = ("not measured (no seam patch valid in both frames"
+                   + (" on the ground)" if s.per_seam else ": no seam)"))
         elif s.unsettled == 0:
-            why = (f"not measured (0 of {s.examined} patches above the texture floor{floor}): the seams lie over ground "
-                   "textured in one direction or none (fields, water, snow, roads)")
+            why = (f"not measured (0 of {s.examined} patches above the texture floor{floor}): the seams lie over "
+                   "ground textured in one direction or none (fields, water, snow, roads)")
         else:
             why = (f"not measured (0 of {s.examined} patches: {s.one_direction} below the texture floor{floor}, "
                    f"{s.unsettled} above it unsettled)")
@@ -161,7 +162,8 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
                    key="seam_misalignment_rms_px")]
     limit, key, whose = tol.get("seam_worst_rms_px"), "seam_worst_rms_px", ""
     if limit is None and block_limit is not None:
-        limit, key, whose = block_limit, "seam_misalignment_rms_px", "; the table sets no seam_worst_rms_px: its block limit"
+        limit, key = block_limit, "seam_misalignment_rms_px"
+        whose = "; the table sets no seam_worst_rms_px: its block limit"
     n, judged, worst = s.least_patches, s.judged(), s.worst()
     name = "misalignment across the worst seam, RMS"
     if worst is None:

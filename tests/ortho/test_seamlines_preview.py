@@ -11,7 +11,8 @@ from click.testing import CliRunner
 from rasterio.transform import Affine
 
 from ortho.cli import main
-from ortho.seamlines_preview import (HATCH_RGB, _labels, _legend, LEGEND_PX, OUTSIDE_RGB, SEAM_RGB, preview_shape, render_preview,
+from ortho.seamlines_preview import _labels, _legend
+from ortho.seamlines_preview import (HATCH_RGB, LEGEND_PX, OUTSIDE_RGB, SEAM_RGB, preview_shape, render_preview,
                                      seam_pixels, write_seamlines_preview)
 from ortho.synthetic import write_synthetic_project
 
