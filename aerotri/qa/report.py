@@ -167,10 +167,10 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
     n, judged, worst = s.least_patches, s.judged(), s.worst()
     name = "misalignment across the worst seam, RMS"
     if worst is None:
-        most = max(s.per_seam, key=lambda p: p.patches)
+        most = max(s.per_seam, key=lambda p: p.patches, default=None)
         rows.append(QaCheck("seam_worst_rms_px", sec, name, None, limit, "px",
-                            f"not judged: no seam has {n} patches (the most: {most.patches}, {most.image_a} / "
-                            f"{most.image_b})", None, key))
+                            f"not judged: no seam has {n} patches" + (f" (the most: {most.patches}, {most.image_a} / "
+                                                                      f"{most.image_b})" if most else ""), None, key))
         return rows
     over = sorted((p for p in judged if limit is not None and p.rms_px > limit), key=lambda p: -p.rms_px)
     note = (f"{worst.image_a} / {worst.image_b}: {worst.patches} patches, largest {worst.max_px:.2f} px; "

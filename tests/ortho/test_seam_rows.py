@@ -137,3 +137,25 @@ def test_an_older_seams_record_is_read_and_its_worst_seam_found():
     assert s.min_patches is None and s.least_patches == SEAM_MIN_PATCHES and s.examined == 22
     assert s.worst().image_b == "c" and s.worst(min_patches=4).image_b == "b"
     assert SeamMisalignment.of_record(to_record(s)) == s
+
+
+def test_seams_too_short_to_judge_are_said_not_judged(tmp_path):
+    """A block whose seams all have fewer than SEAM_MIN_PATCHES patches: the block row is judged, the worst-seam row
+    says why it is not (the seam with the most patches named)."""
+    (tmp_path / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:32649"\n')
+    (tmp_path / "ortho").mkdir()
+    (tmp_path / "at").mkdir()  # an adjusted block (not LiDAR only: the DOM limits apply)
+    (tmp_path / "at" / "report.json").write_text(json.dumps(dict(
+        project="t", check_rms_m=[0.1, 0.1, 0.5], rms_control_ground_m=[0.02, 0.02, 0.03],
+        key_statistics=dict(sigma0_um=5.1, sigma0_px=0.425, success=True, message="Solution Successful."))))
+    seams = {"patch_px": 32, "patches": 6, "rms_px": 0.2, "max_px": 0.3, "one_direction": 2, "unsettled": 0,
+             "min_texture_ratio": 0.5, "min_patches": 5, "worst_seam": None,
+             "per_seam": [{"image_a": "a", "image_b": "b", "patches": 4, "rms_px": 0.2, "max_px": 0.3},
+                          {"image_a": "b", "image_b": "c", "patches": 2, "rms_px": 0.2, "max_px": 0.25}]}
+    (tmp_path / "ortho" / "dom_report.json").write_text(json.dumps({"displacement": {"count": 10, "rms_xy_m": 0.05},
+                                                                    "seams": seams}))
+    rep = write_qa_report(tmp_path)
+    assert rep.check("seam_misalignment_rms_px").verdict == "pass"
+    row = rep.check("seam_worst_rms_px")
+    assert row.value is None and row.verdict is None and row.limit == 0.5
+    assert row.note == "not judged: no seam has 5 patches (the most: 4, a / b)"
