@@ -30,6 +30,7 @@ import logging
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,6 +48,9 @@ from aerotri.geom.crs.raster_warp import open_north_up
 from ortho.patches import (MAX_REFINE_PX, MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches,
                            parabola_peak)
 from ortho.settings import CheckSettings
+
+if TYPE_CHECKING:  # ortho.mosaic (OpenCV, scipy) is imported only where seams are measured or read
+    from ortho.mosaic import SeamMisalignment
 
 # GDAL's block cache during check (``aerotri.core.gdal_cache``): the DOM, reference and nDSM blocks of the blocks
 # being compared
@@ -120,6 +124,8 @@ class DomCheck:
     # given with --dom; None: a report written before it was recorded)
     dom: str | None = None  # the DOM checked, as the command named it
     roofs_in_nodata_warning: str | None = None  # the roofs row: too many corners in nodata (``roofs_in_nodata_warning``)
+    seams: SeamMisalignment | None = None  # the seam measurement whole (floor, patches left out, every seam's
+    # figures, the worst seam); None: the seamlines were not checked
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -176,7 +182,16 @@ def _dom_check_of(d: dict) -> DomCheck:
                     one.get("pct"), d.get("mosaic_fingerprint"), (row.get("not_measured") or {}).get("in_nodata"),
                     d.get("crs"), (d.get("reference_operation") or {}).get("description"),
                     bool((d.get("reference_operation") or {}).get("ballpark")), d.get("dom_is_project_mosaic"),
-                    d.get("dom"), row.get("in_nodata_warning"))
+                    d.get("dom"), row.get("in_nodata_warning"), _seams_of(d.get("seams")))
+
+
+def _seams_of(d: dict | None):
+    """dom_report.json's ``seams`` typed (``ortho.mosaic.SeamMisalignment``); None without it."""
+    if not d:
+        return None
+    from ortho.mosaic import SeamMisalignment
+
+    return SeamMisalignment.of_record(d)
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:

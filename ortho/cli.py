@@ -164,6 +164,24 @@ def check(*, project, reference_path, points_path, dom_path, out_stem, params_pa
     click.echo(_check_line(report, "patches" if reference_path else "points"))
     if report.roofs is not None:
         click.echo(_roofs_line(report))
+    if report.seams is not None:
+        click.echo(_seams_line(report.seams))
+
+
+def _seams_line(s) -> str:
+    """The seam misalignment: block RMS, texture floor and patches left out, the worst seam (or "not measured")."""
+    floor = f" {s.min_texture_ratio:g}" if s.min_texture_ratio is not None else ""
+    if not s.patches:
+        if s.unsettled:
+            return (f"seams: not measured (0 of {s.examined} patches: {s.one_direction} below the texture "
+                    f"floor{floor}, {s.unsettled} unsettled)")
+        return f"seams: not measured (0 of {s.examined} patches above the texture floor{floor})"
+    worst = s.worst()
+    text = (f"seams: {s.patches} of {s.examined} patches (texture floor{floor}): RMS {s.rms_px:.3f} px; worst seam ")
+    if worst is None:
+        return text + f"not judged (no seam of {s.least_patches} patches)"
+    return text + (f"{worst.image_a} / {worst.image_b} {worst.rms_px:.3f} px ({worst.patches} patches; "
+                   f"{len(s.judged())} of {len(s.per_seam)} seams of {s.least_patches}+ patches)")
 
 
 def _check_line(report: DomCheck, what: str) -> str:

@@ -3074,6 +3074,14 @@ class SeamPair:
 # reading 0.79 px
 SEAM_MIN_TEXTURE_RATIO = 0.5
 
+# Least patches of a seam judged on its own (the QA report's worst-seam row): one frame 1 px off shows on its seams
+# only, diluted in the block RMS (demo, review 25: block 0.07 -> 0.25-0.49 px, its seams 0.90-1.12 px), but a seam
+# of one or two patches is one or two readings of a few metres of ground. Chosen on the demo (main 6360cc7c, floor
+# 0.5, bench/eval_seam_rows.py): seams of at least 5 patches read at most 0.19 px as made, those of a frame read 1 px
+# off 0.90-1.12 px (the worst-seam limit, seam_worst_rms_px 0.5 px, between); scored on the DMC 2 x 4 (run 2bfb756):
+# at most 0.31 px as made, 16 of 16 one-frame shifts failed, the block RMS passing all 16 (docs/true-ortho.md).
+SEAM_MIN_PATCHES = 5
+
 
 @dataclasses.dataclass(frozen=True)
 class SeamMisalignment:
@@ -3081,7 +3089,8 @@ class SeamMisalignment:
     (px; None without patches) and every seam's (dom_report.json's ``seams`` is ``to_record`` of it); the patches
     left out as textured too little in two directions (``one_direction``: texture ratio below ``min_texture_ratio``,
     ``SEAM_MIN_TEXTURE_RATIO``: roads, field edges) and those whose sub-pixel refinement did not settle
-    (``unsettled``)."""
+    (``unsettled``); the worst seam (``worst_seam``: largest RMS of the seams of at least ``min_patches`` patches,
+    ``SEAM_MIN_PATCHES``; None when no seam has that many)."""
 
     patch_px: int
     patches: int
@@ -3091,18 +3100,52 @@ class SeamMisalignment:
     one_direction: int = 0
     min_texture_ratio: float | None = None  # None: a report written before review 20 (the DOM check's 0.1)
     unsettled: int = 0
+    min_patches: int | None = None  # None: a report written before review 25 (no worst seam recorded)
+    worst_seam: SeamPair | None = None
+
+    @property
+    def examined(self) -> int:
+        """Seam patches valid in both frames (and on the ground): measured, or left out by texture or refinement."""
+        return self.patches + self.one_direction + self.unsettled
+
+    @property
+    def least_patches(self) -> int:
+        """A seam's least patches to be judged on its own: this record's, else (an older record)
+        ``SEAM_MIN_PATCHES``."""
+        return self.min_patches or SEAM_MIN_PATCHES
+
+    def judged(self, min_patches: int | None = None) -> tuple[SeamPair, ...]:
+        """The seams of at least ``min_patches`` patches (default ``least_patches``)."""
+        n = min_patches or self.least_patches
+        return tuple(p for p in self.per_seam if p.patches >= n and p.rms_px is not None)
+
+    def worst(self, min_patches: int | None = None) -> SeamPair | None:
+        """The seam of largest RMS among ``judged(min_patches)``; None when none is judged."""
+        return max(self.judged(min_patches), key=lambda p: p.rms_px, default=None)
+
+    @classmethod
+    def of_record(cls, d: dict) -> "SeamMisalignment":
+        """The record ``to_record`` made of it (dom_report.json's ``seams``; keys added since, or left out by a
+        hand-made record, missing: None, patches 0)."""
+        pair = lambda r: SeamPair(**r)
+        names = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{"patch_px": None, "patches": 0, "rms_px": None, "max_px": None,
+                      **{k: v for k, v in d.items() if k in names},
+                      "per_seam": tuple(pair(r) for r in d.get("per_seam") or ()),
+                      "worst_seam": pair(d["worst_seam"]) if d.get("worst_seam") else None})
 
 
 def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
                       ndsm_path=None, max_ndsm_m: float = 0.5,
-                      min_texture_ratio: float = SEAM_MIN_TEXTURE_RATIO) -> SeamMisalignment:
+                      min_texture_ratio: float = SEAM_MIN_TEXTURE_RATIO,
+                      min_patches: int = SEAM_MIN_PATCHES) -> SeamMisalignment:
     """Relative displacement of neighbouring frame orthos across each seam (NCC patches on the seam).
 
     For every seam (pair of frames sharing a boundary in ``ortho/seams.tif``), patches centred on
     seam cells (every ``spacing_cells``) are cut from frame a and matched in frame b; only patches
     valid in both, textured in two directions (frame b's texture ratio at least ``min_texture_ratio``,
     ``SEAM_MIN_TEXTURE_RATIO``; those left out counted) and, with an nDSM, on the ground. Returns per-seam and
-    overall statistics in pixels.
+    overall statistics in pixels, and the worst seam of at least ``min_patches`` patches (``SEAM_MIN_PATCHES``).
     """
     from ortho.patches import match_patches
 
@@ -3165,6 +3208,7 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
         per_seam.append(SeamPair(names[i], names[j], int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
                                  float(d.max()) if len(d) else None))
     d = np.array(all_d)
-    return SeamMisalignment(patch_px, int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
-                            float(d.max()) if len(d) else None, tuple(per_seam), one_direction, min_texture_ratio,
-                            unsettled)
+    out = SeamMisalignment(patch_px, int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
+                           float(d.max()) if len(d) else None, tuple(per_seam), one_direction, min_texture_ratio,
+                           unsettled, min_patches)
+    return dataclasses.replace(out, worst_seam=out.worst())

@@ -4,10 +4,11 @@ seams between the frames' regions in magenta, the cells no frame sees (nodata in
 frame of a true ortho, or over DEM nodata) hatched orange and black, the outside of the block white, and a legend
 strip below the image.
 
-Colours: 8-bit frames as they are; 16-bit samples stretched linearly from their 0.5th to their 99.5th percentile
-(inside the block, all bands together, so colour balance is kept), the range named in the legend: a DMC's 12-bit
-data in 16-bit samples would be black divided by 257, and by its bit depth the balanced DOM of 12-bit frames (gains
-up to 1.05 take it to 4311, 13 bits) was a quarter as bright as the data, dark grey on black; one band as grey.
+Colours: 8- and 16-bit samples stretched linearly from their 0.5th to their 99.5th percentile (inside the block,
+all bands together, so colour balance is kept), the range named in the legend: a DMC's 12-bit data in 16-bit samples
+would be black divided by 257, and by its bit depth the balanced DOM of 12-bit frames (gains up to 1.05 take it to
+4311, 13 bits) was a quarter as bright as the data, dark grey on black; the 8-bit DOM of the same frames
+(``--output-bits 8``, mapped from the white level) was as dim shown as it is (review 25); one band as grey.
 """
 
 from __future__ import annotations
@@ -57,31 +58,33 @@ def stretch_range(img: np.ndarray, valid: np.ndarray | None = None) -> tuple[flo
 
 
 def _to_rgb8(img: np.ndarray, valid: np.ndarray | None = None) -> tuple[np.ndarray, tuple[float, float] | None]:
-    """(bands, h, w) samples -> (h, w, 3) uint8 and the 16-bit stretch (``stretch_range``; None for 8-bit)."""
+    """(bands, h, w) samples -> (h, w, 3) uint8 and the stretch of 8- and 16-bit samples (``stretch_range``; None
+    for floats, clipped to 0-255)."""
     stretch = None
-    if img.dtype == np.uint16:
+    if img.dtype in (np.uint8, np.uint16):
         stretch = lo, hi = stretch_range(img, valid)
         scaled = (img.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo))
         img = np.rint(np.clip(scaled, 0, 255)).astype(np.uint8)
-    elif img.dtype != np.uint8:
+    else:
         img = np.clip(img, 0, 255).astype(np.uint8)
     rgb = img[:3] if img.shape[0] >= 3 else np.repeat(img[:1], 3, axis=0)
     return cv2.merge(list(rgb)), stretch  # interleaved (h, w, 3): OpenCV's copy, faster than numpy's transposed one
 
 
-def _labels(stretch: tuple[float, float] | None) -> list[str]:
+def _labels(stretch: tuple[float, float] | None, bits: int = 16) -> list[str]:
     names = ["seamline", "nodata: no frame sees it", "outside the block"]
     if stretch is not None:
-        names.append(f"grey: 16-bit samples {stretch[0]:.0f}-{stretch[1]:.0f} stretched "
+        names.append(f"grey: {bits}-bit samples {stretch[0]:.0f}-{stretch[1]:.0f} stretched "
                      f"({STRETCH_PERCENT[0]:g}-{STRETCH_PERCENT[1]:g} %)")
     return names
 
 
-def _legend(width: int, stretch: tuple[float, float] | None = None) -> np.ndarray:
-    """A white strip with the three swatches and their names (RGB), and the 16-bit stretch when there is one."""
+def _legend(width: int, stretch: tuple[float, float] | None = None, bits: int = 16) -> np.ndarray:
+    """A white strip with the three swatches and their names (RGB), and the stretch of ``bits``-bit samples when
+    there is one."""
     strip = np.full((LEGEND_PX, width, 3), 255, np.uint8)
     x = 6
-    for label, kind in zip(_labels(stretch), ("seam", "hatch", "outside", "note")):
+    for label, kind in zip(_labels(stretch, bits), ("seam", "hatch", "outside", "note")):
         y0, y1 = 7, LEGEND_PX - 7
         if kind == "seam":
             strip[LEGEND_PX // 2 - 1:LEGEND_PX // 2 + 2, x:x + 16] = SEAM_RGB
@@ -96,8 +99,9 @@ def _legend(width: int, stretch: tuple[float, float] | None = None) -> np.ndarra
     return strip
 
 
-def legend_width(stretch: tuple[float, float] | None = None) -> int:
-    return 6 + sum(22 + cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)[0][0] + 18 for s in _labels(stretch))
+def legend_width(stretch: tuple[float, float] | None = None, bits: int = 16) -> int:
+    return 6 + sum(22 + cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)[0][0] + 18
+                   for s in _labels(stretch, bits))
 
 
 def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX, *,
@@ -126,10 +130,11 @@ def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = P
     seam = seam_pixels(labels.take(rows, axis=0).take(cols, axis=1))  # labels[np.ix_(rows, cols)], taken faster
     seam = cv2.dilate(seam.view(np.uint8), np.ones((2, 2), np.uint8)).view(bool) & ok
     rgb[seam] = SEAM_RGB
-    width = max(w, legend_width(stretch))
+    bits = 8 * img.dtype.itemsize
+    width = max(w, legend_width(stretch, bits))
     out = np.full((h + LEGEND_PX, width, 3), 255, np.uint8)
     out[:h, :w] = rgb
-    out[h:] = _legend(width, stretch)
+    out[h:] = _legend(width, stretch, bits)
     return out
 
 

@@ -124,6 +124,64 @@ def _failed(check_id: str, section: str, name: str, why: str) -> QaCheck:
     return QaCheck(check_id, section, name, None, None, "", why, "fail")
 
 
+SEAM_ROWS_LISTED = 4  # seams above the worst-seam limit named in its note (the rest counted)
+
+
+def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
+    """The DOM check's seam rows: the misalignment across all seams (RMS of every patch measured) with its texture
+    floor and the patches left out, or "not measured" when no patch passed it (seams over fields, water, snow); and
+    the worst seam (largest RMS of the seams of at least ``least_patches`` patches) against ``seam_worst_rms_px``
+    (a table without it: the block's ``seam_misalignment_rms_px``): one frame off shows on its seams only, diluted
+    in the block RMS. Not measured is said, not judged."""
+    s = dom_check.seams
+    block_limit = tol.get("seam_misalignment_rms_px")
+    if s is None:  # a report read without its seams record
+        if dom_check.seams_rms_px is None:
+            return []
+        return [_check("seam_misalignment_rms_px", sec, "misalignment across seamlines, RMS",
+                       round(dom_check.seams_rms_px, 3), block_limit, "px", note=f"{dom_check.seam_patches} patches",
+                       key="seam_misalignment_rms_px")]
+    floor = f" {s.min_texture_ratio:g}" if s.min_texture_ratio is not None else ""
+    name = "misalignment across seamlines, RMS"
+    if s.patches == 0:
+        if s.examined == 0:
+            why = ("not measured (no seam patch valid in both frames"
+                   + (" on the ground)" if s.per_seam else ": no seam)"))
+        elif s.unsettled == 0:
+            why = (f"not measured (0 of {s.examined} patches above the texture floor{floor}): the seams lie over "
+                   "ground textured in one direction or none (fields, water, snow, roads)")
+        else:
+            why = (f"not measured (0 of {s.examined} patches: {s.one_direction} below the texture floor{floor}, "
+                   f"{s.unsettled} above it unsettled)")
+        return [QaCheck("seam_misalignment_rms_px", sec, name, None, block_limit, "px", why, None,
+                        "seam_misalignment_rms_px")]
+    left = f"{s.one_direction} below the texture floor{floor} left out" + (f", {s.unsettled} unsettled" if s.unsettled
+                                                                             else "")
+    rows = [_check("seam_misalignment_rms_px", sec, name, round(s.rms_px, 3), block_limit, "px",
+                   note=f"{s.patches} of {s.examined} patches on {len(s.per_seam)} seams ({left})",
+                   key="seam_misalignment_rms_px")]
+    limit, key, whose = tol.get("seam_worst_rms_px"), "seam_worst_rms_px", ""
+    if limit is None and block_limit is not None:
+        limit, key = block_limit, "seam_misalignment_rms_px"
+        whose = "; the table sets no seam_worst_rms_px: its block limit"
+    n, judged, worst = s.least_patches, s.judged(), s.worst()
+    name = "misalignment across the worst seam, RMS"
+    if worst is None:
+        most = max(s.per_seam, key=lambda p: p.patches, default=None)
+        rows.append(QaCheck("seam_worst_rms_px", sec, name, None, limit, "px",
+                            f"not judged: no seam has {n} patches" + (f" (the most: {most.patches}, {most.image_a} / "
+                                                                      f"{most.image_b})" if most else ""), None, key))
+        return rows
+    over = sorted((p for p in judged if limit is not None and p.rms_px > limit), key=lambda p: -p.rms_px)
+    note = (f"{worst.image_a} / {worst.image_b}: {worst.patches} patches, largest {worst.max_px:.2f} px; "
+            f"{len(judged)} of {len(s.per_seam)} seams with at least {n} patches judged{whose}")
+    if len(over) > 1:
+        named = ", ".join(f"{p.image_a} / {p.image_b} {p.rms_px:.2f}" for p in over[:SEAM_ROWS_LISTED])
+        note += f"; {len(over)} seams above {limit:g} px: {named}" + (", ..." if len(over) > SEAM_ROWS_LISTED else "")
+    rows.append(_check("seam_worst_rms_px", sec, name, round(worst.rms_px, 3), limit, "px", note=note, key=key))
+    return rows
+
+
 def _check(check_id: str, section: str, name: str, value, limit, unit: str, *, note: str = "",
            key: str | None = None) -> QaCheck:
     """A verdict row; ``key``: the tolerance-table key of ``limit`` (its source goes into the report)."""
@@ -684,10 +742,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         crossings = _seam_crossings_row(sec, project)
         if crossings is not None:
             rows.append(crossings)
-    if dom_check and dom_check.seams_rms_px is not None:
-        rows.append(_check("seam_misalignment_rms_px", sec, "misalignment across seamlines, RMS",
-                           round(dom_check.seams_rms_px, 3), tol.get("seam_misalignment_rms_px"), "px",
-                           note=f"{dom_check.seam_patches} patches", key="seam_misalignment_rms_px"))
+    if dom_check:
+        rows += _seam_rows(sec, dom_check, tol)
 
     # Flight acceptance: from the adjustment's report when it has the section, else computed here (before
     # the adjustment: GNSS positions with the nominal attitude)

@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from rasterio.transform import Affine
 
 from ortho.cli import main
+from ortho.seamlines_preview import _labels, _legend
 from ortho.seamlines_preview import (HATCH_RGB, LEGEND_PX, OUTSIDE_RGB, SEAM_RGB, preview_shape, render_preview,
                                      seam_pixels, write_seamlines_preview)
 from ortho.synthetic import write_synthetic_project
@@ -93,7 +94,7 @@ def test_preview_is_reduced_hatches_nodata_inside_and_marks_the_seam(tmp_path):
 
 def test_12_bit_data_in_16_bit_samples_fill_the_preview_range():
     """A DMC's 12-bit data in 16-bit samples fills the preview's range (it would be black divided by 257), as does
-    full 16-bit data; 8-bit data as it is. Invalid cells (their sample says nothing) do not set the stretch."""
+    full 16-bit data and dim 8-bit data. Invalid cells (their sample says nothing) do not set the stretch."""
     from ortho.seamlines_preview import _to_rgb8, stretch_range
 
     twelve = np.tile(np.array([[[0, 1024, 2048, 4095]]], np.uint16), 50)
@@ -102,9 +103,11 @@ def test_12_bit_data_in_16_bit_samples_fill_the_preview_range():
     full = np.tile(np.array([[[0, 4095, 40000, 65535]]], np.uint16), 50)
     assert _to_rgb8(full)[0][0, :4, 0].tolist() == [0, 16, 156, 255]
     assert stretch_range(full, valid=np.tile([True, True, False, False], 50)[None]) == (0.0, 4095.0)
-    eight = np.array([[[0, 200]]], np.uint8)
+    # 8-bit data stretched the same way (review 25: the 8-bit DOM of 12-bit frames, round(v x 255 / 4095), shown as
+    # it is, was as dim as the 16-bit one before its stretch)
+    eight = np.tile(np.array([[[0, 16, 32, 64]]], np.uint8), 50)
     rgb, stretch = _to_rgb8(eight)
-    assert rgb[0, :, 0].tolist() == [0, 200] and stretch is None
+    assert stretch == (0.0, 64.0) and rgb[0, :4, 0].tolist() == [0, 64, 128, 255]
 
 
 def test_balanced_12_bit_dom_is_stretched_not_darkened(tmp_path):
@@ -126,10 +129,21 @@ def test_balanced_12_bit_dom_is_stretched_not_darkened(tmp_path):
     lo, hi = np.percentile(img, [0.5, 99.5])
     assert 80 <= np.median(grey) <= 140
     assert (grey[img[0] <= lo] == 0).all() and (grey[img[0] >= hi] == 255).all()
-    # the legend names the stretch (more text than the 8-bit preview's legend)
-    _write_mosaic(tmp_path / "m8.tif", valid)
+    # the legend names the stretch (more text than a legend without one)
+    assert (rgb[h:] < 128).all(axis=-1).sum() > (_legend(w) < 128).all(axis=-1).sum() + 100
+    # the same DOM made 8-bit from the white level (--output-bits 8: round(v x 255 / 4095), median about 56) is
+    # stretched the same way (review 25: shown as it was, dim), its legend naming its 8-bit range
+    img8 = np.clip(np.rint(img.astype(float) * 255 / 4095), 0, 255).astype(np.uint8)  # as the DOM clips
+    assert np.median(img8) < 70
+    with rasterio.open(tmp_path / "m8.tif", "w", driver="GTiff", width=w, height=h, count=1, dtype="uint8",
+                       crs="EPSG:32649", transform=Affine(0.1, 0.0, 452000.0, 0.0, -0.1, 3407000.0)) as ds:
+        ds.write(img8)
+        ds.write_mask(valid.astype(np.uint8) * 255)
     eight = render_preview(tmp_path / "m8.tif", np.zeros((h // 4, w // 4), np.int32), 4)
-    assert (rgb[h:] < 128).all(axis=-1).sum() > (eight[h:] < 128).all(axis=-1).sum() + 100
+    assert 80 <= np.median(eight[:h, :w, 0]) <= 140
+    assert np.abs(eight[:h, :w, 0].astype(int) - grey).max() <= 12  # the 16-bit preview's greys, to 8-bit steps
+    lo8, hi8 = np.percentile(img8, [0.5, 99.5])
+    assert _labels((lo8, hi8), 8)[-1].startswith(f"grey: 8-bit samples {lo8:.0f}-{hi8:.0f} stretched")
 
 
 def test_the_preview_hatches_the_cells_mosaic_json_counts_as_seen_by_no_frame(tmp_path):
