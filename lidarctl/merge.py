@@ -7,7 +7,7 @@ steps of them from the first's, is rounded to them: warned, naming both files). 
 CRS: with ``crs`` (the project CRS) given, a strip tagged with another horizontal CRS is refused
 (naming the file and both CRSs: it must be transformed first, never silently mixed), a strip without
 a CRS record is taken to be in ``crs``, and the merged file carries ``crs``. Without ``crs`` the strips
-must agree among themselves.
+must agree among themselves: all with one CRS, or none with any (some with and some without one is refused).
 """
 
 from __future__ import annotations
@@ -82,9 +82,11 @@ def check_strips(paths, headers, project_crs=None):
     """The CRS the strips share (None: none has a CRS record and no ``project_crs``): one point format
     (with the same extra bytes), one horizontal CRS and one height system, else an InputError /
     CrsError naming the first file that differs. A strip without a CRS record is taken to be in
-    ``project_crs`` (pyproj CRS or None); without it, the strips must agree among themselves."""
+    ``project_crs`` (pyproj CRS or None); without it, the strips must agree among themselves (a strip without a
+    CRS record beside one with is refused)."""
     first = headers[0]
     reference, reference_name = project_crs, "the project CRS"
+    untagged = []
     for p, h in zip(paths, headers):
         if h.point_count == 0:
             raise InputError(f"{p}: the file holds no points (an empty strip, or the wrong file?)")
@@ -96,6 +98,7 @@ def check_strips(paths, headers, project_crs=None):
                              "convert the strips to one point format first")
         file_crs = las.read_header_crs(p, h)
         if file_crs is None:
+            untagged.append(p)
             continue
         if reference is None:
             reference, reference_name = file_crs, str(p)
@@ -107,6 +110,12 @@ def check_strips(paths, headers, project_crs=None):
                            f"{crs_label(horizontal_crs(reference))}; transform the strip into "
                            f"{crs_label(horizontal_crs(reference))} first (strips are never mixed or reprojected "
                            "silently)")
+    if untagged and reference is not None and project_crs is None:
+        # trial-lidar: a tagged strip first gave the merged file its CRS for the untagged one without a word, an
+        # untagged strip first a merged file with no CRS at all (exit 0 either way)
+        raise CrsError(f"{untagged[0]}: the strip has no CRS record, but {reference_name} is in "
+                       f"{crs_label(horizontal_crs(reference))}; give the CRS of strips without one with --crs "
+                       "(it is never guessed)")
     return reference
 
 
