@@ -47,6 +47,7 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     header.scales = first.scales
     header.offsets = first.offsets
     for p, h in zip(paths[1:], headers[1:]):
+        refuse_off_grid_range(p, h, first, paths[0])
         if (np.asarray(h.scales) < np.asarray(first.scales) * (1 - 1e-9)).any():
             # a strip of 1 mm records merged after one of 1 cm came out rounded to 1 cm without a word
             log.warning(f"{p}: its coordinate scales {list(map(float, h.scales))} are finer than those of "
@@ -73,9 +74,32 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
         with laspy.open(tmp, mode="w", header=header) as w:
             for p in paths:
                 for _, chunk in las.iter_file_chunks(p, chunk_points, withheld=True):
-                    w.write_points(in_scales_of(chunk, header))
+                    try:
+                        w.write_points(in_scales_of(chunk, header))
+                    except OverflowError:  # points beyond the strip's header bounds (a writer's wrong header)
+                        raise InputError(f"{p}: {_RANGE_ADVICE.format(first=paths[0])}") from None
                     total += len(chunk)
     return total
+
+
+_RANGE_ADVICE = ("its coordinates do not fit the merged file's point records (32-bit integer steps of the scales "
+                 "from the offsets of the first strip, {first}, which the merged file keeps); give first a strip "
+                 "whose scales are coarse enough for the whole block, or rewrite the strips with offsets and scales "
+                 "that hold all of them")
+
+
+def refuse_off_grid_range(p, h, first, first_path) -> None:
+    """InputError naming strip ``p`` when its header bounds do not fit 32-bit integers in ``first``'s scales and
+    offsets, the merged file's (trial-lidar: a strip 300 km from a first strip of 0.1 mm records stopped `merge`
+    with a traceback, laspy's OverflowError, exit 1)."""
+    lo = (np.asarray(h.mins, float) - np.asarray(first.offsets, float)) / np.asarray(first.scales, float)
+    hi = (np.asarray(h.maxs, float) - np.asarray(first.offsets, float)) / np.asarray(first.scales, float)
+    bad = [a for a, lo_a, hi_a in zip("xyz", lo, hi) if min(lo_a, hi_a) < -2**31 or max(lo_a, hi_a) > 2**31 - 1]
+    if bad:
+        axes = ", ".join(f"{a} {float(h.mins[i]):.10g} .. {float(h.maxs[i]):.10g}" for i, a in enumerate("xyz")
+                         if a in bad)
+        raise InputError(f"{p}: {_RANGE_ADVICE.format(first=first_path)} ({axes}; scales "
+                         f"{list(map(float, first.scales))}, offsets {list(map(float, first.offsets))})")
 
 
 def check_strips(paths, headers, project_crs=None):
