@@ -78,7 +78,7 @@ class PointCloud:
 
 
 def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
-                      require_crs: bool = True) -> tuple[pyproj.CRS | None, LengthUnits]:
+                      require_crs: bool = True, crs_name: str = "--crs") -> tuple[pyproj.CRS | None, LengthUnits]:
     """(horizontal CRS, linear units) of a file: its CRS records, else ``crs_arg`` (``--crs``:
     ``EPSG:xxxx``, a code, WKT or PROJ text); never guessed.
 
@@ -87,7 +87,8 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
     unless ``crs_arg`` is given: then ``crs_arg`` replaces it (a warning says so). A geographic CRS is a
     CrsError (lidarctl needs lengths). The vertical unit comes from a compound CRS, else from the GeoTIFF
     vertical keys (a user-defined one without its size, GeogLinearUnitSizeGeoKey, is unreadable as above),
-    else it is the horizontal unit.
+    else it is the horizontal unit. A readable CRS record whose horizontal CRS is not ``crs_arg``'s is a CrsError
+    (``crs_arg`` never reprojects; ``crs_name`` names it in the message: the option, or the project's CRS).
     """
     hint = "pass --crs EPSG:<code> to use that CRS instead"
     try:
@@ -103,6 +104,8 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
         file_crs = None
     if file_crs is not None:
         crs, source = file_crs, f"{path}: CRS record"
+        if crs_arg is not None and str(crs_arg).strip() != "":
+            _refuse_other_crs(path, file_crs, parse_crs(crs_arg, crs_name), crs_arg, crs_name)
     elif crs_arg is None or str(crs_arg).strip() == "":
         if not require_crs:
             return None, UNKNOWN
@@ -115,6 +118,24 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
     # Rasters and downstream code work in the horizontal (projected) CRS; the vertical unit is kept
     # in ``units``.
     return horizontal_crs(crs), units
+
+
+def _refuse_other_crs(path, file_crs: pyproj.CRS, given: pyproj.CRS, crs_arg, crs_name: str = "--crs") -> None:
+    """CrsError when ``--crs`` (``crs_name``) names another horizontal CRS than the file's readable record: ``--crs``
+    is the CRS of files without one and never reprojects (trial-lidar: `rasters autzen.laz --crs EPSG:3740` wrote
+    its rasters in the file's EPSG:2994 feet, exit 0, as if asked for UTM metres)."""
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
+
+    if same_horizontal(file_crs, given):
+        return
+    label = crs_label(horizontal_crs(given))
+    named = f"{crs_name} {crs_arg}" if crs_name == "--crs" else crs_name
+    if label != str(crs_arg).strip():
+        named += f" ({label})"
+    why = ("--crs gives the CRS of files without one and never reprojects: leave --crs out to use the file's, or"
+           if crs_name == "--crs" else "LiDAR is never reprojected silently:")
+    raise CrsError(f"{path}: its CRS record says {crs_label(horizontal_crs(file_crs))}, but {named} differs; {why} "
+                   f"transform the file first (aerotri crs transform {path} OUT --to {crs_arg})")
 
 
 def _validate_xyz(path, x, y, z, first_index: int, units: LengthUnits = METRE) -> None:
@@ -244,15 +265,16 @@ def require_same_crs(path, crs, units: LengthUnits, first) -> None:
                          "(aerotri crs transform)")
 
 
-def checked_headers(paths, crs=None):
+def checked_headers(paths, crs=None, crs_name: str = "--crs"):
     """(path, header, CRS, units) of each file of a set of strips, read from the headers only and checked:
-    no empty file, one CRS and units for all (``require_same_crs``); ``crs`` for files without a CRS record."""
+    no empty file, one CRS and units for all (``require_same_crs``); ``crs`` for files without a CRS record (a file
+    tagged with another is refused, naming ``crs_name``)."""
     first = None
     for path in paths:
         header = las.read_header(path)
         if header.point_count == 0:
             raise InputError(f"{path}: the file holds no points")
-        crs_i, units = resolve_crs_units(path, header, crs)
+        crs_i, units = resolve_crs_units(path, header, crs, crs_name=crs_name)
         if first is None:
             first = (path, crs_i, units)
         else:

@@ -7,7 +7,7 @@ steps of them from the first's, is rounded to them: warned, naming both files). 
 CRS: with ``crs`` (the project CRS) given, a strip tagged with another horizontal CRS is refused
 (naming the file and both CRSs: it must be transformed first, never silently mixed), a strip without
 a CRS record is taken to be in ``crs``, and the merged file carries ``crs``. Without ``crs`` the strips
-must agree among themselves.
+must agree among themselves: all with one CRS, or none with any (some with and some without one is refused).
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     header.scales = first.scales
     header.offsets = first.offsets
     for p, h in zip(paths[1:], headers[1:]):
+        refuse_off_grid_range(p, h, first, paths[0])
         if (np.asarray(h.scales) < np.asarray(first.scales) * (1 - 1e-9)).any():
             # a strip of 1 mm records merged after one of 1 cm came out rounded to 1 cm without a word
             log.warning(f"{p}: its coordinate scales {list(map(float, h.scales))} are finer than those of "
@@ -73,18 +74,43 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
         with laspy.open(tmp, mode="w", header=header) as w:
             for p in paths:
                 for _, chunk in las.iter_file_chunks(p, chunk_points, withheld=True):
-                    w.write_points(in_scales_of(chunk, header))
+                    try:
+                        w.write_points(in_scales_of(chunk, header))
+                    except OverflowError:  # points beyond the strip's header bounds (a writer's wrong header)
+                        raise InputError(f"{p}: {_RANGE_ADVICE.format(first=paths[0])}") from None
                     total += len(chunk)
     return total
+
+
+_RANGE_ADVICE = ("its coordinates do not fit the merged file's point records (32-bit integer steps of the scales "
+                 "from the offsets of the first strip, {first}, which the merged file keeps); give first a strip "
+                 "whose scales are coarse enough for the whole block, or rewrite the strips with offsets and scales "
+                 "that hold all of them")
+
+
+def refuse_off_grid_range(p, h, first, first_path) -> None:
+    """InputError naming strip ``p`` when its header bounds do not fit 32-bit integers in ``first``'s scales and
+    offsets, the merged file's (trial-lidar: a strip 300 km from a first strip of 0.1 mm records stopped `merge`
+    with a traceback, laspy's OverflowError, exit 1)."""
+    lo = (np.asarray(h.mins, float) - np.asarray(first.offsets, float)) / np.asarray(first.scales, float)
+    hi = (np.asarray(h.maxs, float) - np.asarray(first.offsets, float)) / np.asarray(first.scales, float)
+    bad = [a for a, lo_a, hi_a in zip("xyz", lo, hi) if min(lo_a, hi_a) < -2**31 or max(lo_a, hi_a) > 2**31 - 1]
+    if bad:
+        axes = ", ".join(f"{a} {float(h.mins[i]):.10g} .. {float(h.maxs[i]):.10g}" for i, a in enumerate("xyz")
+                         if a in bad)
+        raise InputError(f"{p}: {_RANGE_ADVICE.format(first=first_path)} ({axes}; scales "
+                         f"{list(map(float, first.scales))}, offsets {list(map(float, first.offsets))})")
 
 
 def check_strips(paths, headers, project_crs=None):
     """The CRS the strips share (None: none has a CRS record and no ``project_crs``): one point format
     (with the same extra bytes), one horizontal CRS and one height system, else an InputError /
     CrsError naming the first file that differs. A strip without a CRS record is taken to be in
-    ``project_crs`` (pyproj CRS or None); without it, the strips must agree among themselves."""
+    ``project_crs`` (pyproj CRS or None); without it, the strips must agree among themselves (a strip without a
+    CRS record beside one with is refused)."""
     first = headers[0]
     reference, reference_name = project_crs, "the project CRS"
+    untagged = []
     for p, h in zip(paths, headers):
         if h.point_count == 0:
             raise InputError(f"{p}: the file holds no points (an empty strip, or the wrong file?)")
@@ -96,6 +122,7 @@ def check_strips(paths, headers, project_crs=None):
                              "convert the strips to one point format first")
         file_crs = las.read_header_crs(p, h)
         if file_crs is None:
+            untagged.append(p)
             continue
         if reference is None:
             reference, reference_name = file_crs, str(p)
@@ -107,6 +134,12 @@ def check_strips(paths, headers, project_crs=None):
                            f"{crs_label(horizontal_crs(reference))}; transform the strip into "
                            f"{crs_label(horizontal_crs(reference))} first (strips are never mixed or reprojected "
                            "silently)")
+    if untagged and reference is not None and project_crs is None:
+        # trial-lidar: a tagged strip first gave the merged file its CRS for the untagged one without a word, an
+        # untagged strip first a merged file with no CRS at all (exit 0 either way)
+        raise CrsError(f"{untagged[0]}: the strip has no CRS record, but {reference_name} is in "
+                       f"{crs_label(horizontal_crs(reference))}; give the CRS of strips without one with --crs "
+                       "(it is never guessed)")
     return reference
 
 

@@ -49,7 +49,7 @@ from aerotri.core.limits import check_disk
 from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
 from lidarctl.rasters import nearest
-from lidarctl.rasters.cells import CellStats
+from lidarctl.rasters.cells import VEGETATION, CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
 from aerotri.geom.crs.definition import length_unit_name
 from lidarctl.units import METRE, LengthUnits
@@ -530,6 +530,7 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
     lay = _TileLayout(res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols)
     used = np.zeros(grid.n_tiles, bool)
     n_ground = 0
+    per_class = np.zeros(256, np.int64)
     read_points = min(chunk_points, _BIN_READ_POINTS)
     chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, read_points))
     with progress(inputs.n_points, "rasters: bin points into tiles", "pt", unit_scale=True) as bar:
@@ -539,6 +540,7 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
             cols = _ChunkPoints(*(np.empty(n_members, dtype) for _, dtype in _BIN_FIELDS))   # by tile
             # classes contiguous (a strided record field of some files): numba compiles one signature
             n_ground += _gather_columns(cols, count, _ChunkPoints(x, y, z, np.ascontiguousarray(cls), rn, inten), lay)
+            per_class += np.bincount(cls, minlength=256)
             for tid in np.flatnonzero(count[1:] > count[:-1]):
                 used[tid] = True
                 for (name, _), col in zip(_BIN_FIELDS, cols):
@@ -547,6 +549,13 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
             bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
+    if not per_class[list(VEGETATION)].any():
+        # trial-lidar: AHN3 as delivered (its vegetation in class 1) gave a chm.tif of nodata alone, exit 0, without a
+        # word, where `lidarctl trees` refuses the same cloud
+        held = ", ".join(str(c) for c in np.flatnonzero(per_class))
+        log.warning(f"{inputs.names}: no vegetation points (classes {', '.join(map(str, VEGETATION))}; the cloud "
+                    f"holds classes {held}): chm.tif is nodata everywhere; classify the cloud (lidarctl classify) "
+                    "for a canopy height model")
     return used
 
 

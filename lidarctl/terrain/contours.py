@@ -312,12 +312,18 @@ def write_contours(cs: ContourSet, path, crs, z_unit_name: str, z_unit_m: float)
                                            fields)], crs=crs)
 
 
-def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "", xy_unit: str = "") -> Path:
-    """Contours (index lines thicker) over the DEM's hillshade; axes in the CRS's unit ``xy_unit`` (ft, m)."""
+def preview_png(cs: ContourSet, dem: np.ndarray, transform, path, title: str = "", xy_unit: str = "", *,
+                z_unit_m: float = 1.0, xy_unit_m: float = 1.0) -> Path:
+    """Contours (index lines thicker) over the DEM's hillshade; axes in the CRS's unit ``xy_unit`` (ft, m).
+    ``z_unit_m``, ``xy_unit_m``: metres per height / grid unit, so that the slopes are true where they differ."""
     plt = pyplot()
     from lidarctl.rasters.products import hillshade
 
-    hs = hillshade(dem, abs(transform.a))  # slopes from valid cells only: no rim along nodata to trim
+    # slopes from valid cells only: no rim along nodata to trim; in metres over metres (trial-lidar: a DEM of
+    # heights in metres on a foot grid was shaded 3.28x flatter than the same DEM in feet, one in US feet on a
+    # metre grid 3.28x steeper)
+    ratio = z_unit_m / xy_unit_m
+    hs = hillshade(dem * ratio if ratio != 1.0 else dem, abs(transform.a))
     ny, nx = dem.shape
     extent = (transform.c, transform.c + nx * transform.a, transform.f + ny * transform.e, transform.f)
     h_in = min(12.0, 8.0 * ny / max(nx, 1)) + 0.8
@@ -363,7 +369,7 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
     """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it);
     ``interval_m`` in metres, traced in the DEM's height unit (its CRS's: 0.3048 m is 1 ft on a DEM in feet).
     Returns the summary (counts, fall-backs, crossings, the interval in the DEM's unit and that unit)."""
-    from aerotri.geom.crs.definition import length_in_units, length_unit_name, unit_name
+    from aerotri.geom.crs.definition import length_in_units, length_unit_name, linear_unit_m, unit_name
     from aerotri.core.vector_files import refuse_foreign_layers
     from lidarctl.terrain.dem_io import open_dem
 
@@ -389,10 +395,12 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
         raise RuntimeError(f"{n_cross} contour crossings after smoothing (a bug: crossing lines fall back)")
     write_contours(cs, out_path, crs.to_wkt(), unit_name(crs.to_wkt()), z_m)
     written = [str(out_path)]
+    xy_m = linear_unit_m(crs) if np.isfinite(linear_unit_m(crs)) else 1.0  # (degrees: the preview as before)
     if png:
         written.append(str(preview_png(cs, dem, transform, out_path.with_suffix(".png"),
                                        f"{dem_path.name}: every {interval:g} {z_unit} (index {index_every * interval:g} "
-                                       f"{z_unit}), smoothing {smoothing}", unit_name(crs.to_wkt()))))
+                                       f"{z_unit}), smoothing {smoothing}", unit_name(crs.to_wkt()),
+                                       z_unit_m=z_m, xy_unit_m=xy_m)))
     levels = sorted({c.level for c in contours})
     summary = ContoursResult(
         contours=len(contours), levels=len(levels), closed=sum(c.closed for c in contours),

@@ -638,7 +638,10 @@ def _read_contours(path: Path, cloud_crs) -> Layer:
     return Layer("contours", gtype, geoms, cols)
 
 
-def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs) -> Layer:
+def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs, cloud_z_m: float = 1.0) -> Layer:
+    """Contours of the DEM every ``interval_m`` (whole multiples in the DEM's height unit), their ``elevation`` in
+    the cloud's height unit (``cloud_z_m`` metres) as every other height of the GeoPackage (trial-lidar: a DEM in
+    metres beside a cloud in feet gave contours at 124 beside spot heights at 425, the command saying "(ft)")."""
     import shapely
 
     from aerotri.geom.crs.definition import length_in_units
@@ -652,7 +655,7 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs) -> L
         transform = src.transform
     cs = trace(dem, transform, length_in_units(interval_m, z_m), option="--contour-interval-m")
     return Layer("contours", "LineString", [shapely.LineString(c.xy) for c in cs],
-                 {"elevation": np.array([c.level for c in cs], float),
+                 {"elevation": np.array([c.level for c in cs], float) * (z_m / cloud_z_m if z_m != cloud_z_m else 1.0),
                   "elevation_m": np.array([c.level * z_m for c in cs], float),
                   "index": np.array([c.index for c in cs], bool)})
 
@@ -764,7 +767,7 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     if contours is not None:
         layers.append(_read_contours(Path(contours), pts.crs))
     elif dem is not None:
-        layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts.crs))
+        layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts.crs, units.z_m))
     counts = VectorCounts(buildings=len(polys), roof_spacing_m=bstats.get("point_spacing_m"), roads=len(rpolys),
                           road_centrelines=len(lines), water=len(wpolys), spot_heights=len(sz),
                           contours=len(layers[-1].geometries) if len(layers) == 6 else None,

@@ -280,3 +280,25 @@ def test_a_geopackage_with_other_layers_is_not_replaced(tmp_path):
         r = CliRunner().invoke(main, [a if a is not None else str(tmp_path / "c.gpkg") for a in run])
         assert r.exit_code == 0, r.output
     assert [str(n) for n, _ in list_layers(tmp_path / "c.gpkg")] == ["contours"]
+
+
+@pytest.mark.parametrize("crs, z_scale", [("EPSG:2994+5703", 0.3048), ("EPSG:3740+6360", 1 / 0.3048006096)])
+def test_map_shades_a_dem_whose_heights_and_grid_differ_in_unit_by_the_true_slopes(tmp_path, monkeypatch, crs,
+                                                                                    z_scale):
+    """trial-lidar: the contour map's hillshade took the heights in the grid's unit: a DEM of heights in metres on a
+    foot grid (EPSG:2994+5703) was shaded 3.28x flatter than the same terrain in feet, one in US feet on a metre grid
+    3.28x steeper. Now the map is the same as that of the DEM whose heights are in the grid's unit."""
+    from matplotlib.axes import Axes
+
+    z, t = _dem(nodata_band=False)
+    drawn, imshow = [], Axes.imshow
+    monkeypatch.setattr(Axes, "imshow", lambda ax, a, *args, **kw: (drawn.append(np.asarray(a)), imshow(ax, a, *args, **kw))[1])
+    for name, c, values in (("same.tif", crs.split("+")[0], z), ("mixed.tif", crs, z * z_scale)):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", width=500, height=400, count=1, dtype="float32",
+                           crs=c, transform=t, nodata=-9999.0) as d:
+            d.write(values.astype("float32"), 1)
+        r = CliRunner().invoke(main, ["contours", str(tmp_path / name), str(tmp_path / f"{name}.gpkg"),
+                                      "--interval-m", "2"])
+        assert r.exit_code == 0, r.output
+    same, mixed = drawn
+    assert np.ptp(same) > 0.3 and np.allclose(mixed, same, atol=1e-3)

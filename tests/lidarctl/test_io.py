@@ -622,3 +622,30 @@ def test_a_unit_already_in_the_crs_name_is_replaced():
     assert with_linear_unit(pyproj.CRS.from_epsg(32104), 9003).name == "NAD83 / Nebraska (US survey foot)"
     odd = with_linear_unit(pyproj.CRS.from_epsg(26910), 0.5)
     assert with_linear_unit(odd, 9002).name == "NAD83 / UTM zone 10N (foot)"
+
+
+def test_crs_option_naming_another_crs_than_the_files_record_is_refused(files, tmp_path):
+    """``--crs`` is the CRS of files without one and never reprojects: naming another CRS than the file's record was
+    ignored, the products written in the file's CRS with exit 0 (trial-lidar: `rasters autzen.laz --crs EPSG:3740`
+    gave EPSG:2994 rasters in feet). Now refused by every command, naming the file and both CRSs; the same CRS passes."""
+    d, _ = files
+    cloud, points, out = d / "c14.las", d / "points.csv", tmp_path / "out"
+    out.mkdir()
+    commands = {
+        "classify": ["classify", cloud, out / "o.laz"],
+        "rasters": ["rasters", cloud, out / "r", "--res-m", "2"],
+        "trees": ["trees", cloud, out / "t"],
+        "vectors": ["vectors", cloud, out / "v.gpkg"],
+        "corners": ["corners", cloud, out / "co"],
+        "check-heights": ["check-heights", cloud, points, "--json", out / "hc.json"],
+        "strips check": ["strips", "check", cloud, d / "c.laz", out / "s"],
+    }
+    for name, args in commands.items():
+        r = CliRunner().invoke(main, [str(a) for a in args] + ["--crs", "EPSG:32633"])
+        assert r.exit_code == 2, (name, r.output, r.exception)
+        assert r.output.startswith("Error: ") and r.output.count("\n") == 1, (name, r.output)
+        for t in (str(cloud), "EPSG:32632", "--crs EPSG:32633", "never reprojects"):
+            assert t in r.output, (name, t, r.output)
+    assert not any(out.rglob("*")), list(out.rglob("*"))
+    r = CliRunner().invoke(main, ["check-heights", str(cloud), str(points), "--crs", "EPSG:32632"])
+    assert r.exit_code == 0, r.output

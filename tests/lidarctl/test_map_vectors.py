@@ -535,3 +535,28 @@ def test_the_previews_orthophoto_nodata_is_the_page_not_dark_grey(tmp_path, monk
             assert np.abs(pixel(1080.0, y) - expected).max() <= 2, (y, pixel(1080.0, y))
         else:
             assert pixel(1080.0, y).max() < 250, y
+
+
+def test_contours_from_a_dem_in_another_height_unit_are_in_the_clouds(made, tmp_path):
+    """trial-lidar: a DEM whose heights are in another unit than the cloud's (Autzen in feet, a DEM in NAVD88 metres)
+    gave a contours layer at 124 beside spot heights at 425, the command saying "(ft)"; every height of the
+    GeoPackage is in the cloud's unit (the module's contract): here a metre cloud and a DEM in US survey feet."""
+    import rasterio
+
+    _, cloud, _ = made
+    dem = _dem(tmp_path / "dem.tif")
+    with rasterio.open(dem) as src:
+        profile, z = src.profile, src.read(1)
+    profile["crs"] = rasterio.crs.CRS.from_user_input(f"{M_CRS}+6360")  # NAVD88 height (ftUS): a unit, not a datum
+    with rasterio.open(tmp_path / "dem_ftus.tif", "w", **profile) as dst:
+        dst.write(z / 0.3048006096, 1)
+    out = tmp_path / "a.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--dem", str(tmp_path / "dem_ftus.tif"),
+                                  "--contour-interval-m", "0.6096012192"])  # every 2 US survey feet
+    assert r.exit_code == 0, r.output
+    _, lines, f = _layer(out, "contours")
+    assert np.allclose(f["elevation"], f["elevation_m"]) and len(lines) > 3
+    assert np.allclose(f["elevation"] / 0.3048006096 / 2, np.round(f["elevation"] / 0.3048006096 / 2), atol=1e-6)
+    xy = np.vstack([np.asarray(ln.coords) for ln in lines])
+    lv = np.concatenate([np.full(len(ln.coords), e) for ln, e in zip(lines, f["elevation"])])
+    assert np.abs(ground_z(xy[:, 0] - X0, xy[:, 1] - Y0) - lv).max() < 1e-3   # on the plane, in metres

@@ -138,3 +138,20 @@ def test_working_rasters_in_memory_or_on_disk_give_the_same_bytes(strips, tmp_pa
         assert sorted(p.name for p in (tmp_path / str(share)).iterdir()) == sorted(rasters.FILES)
         out[share] = {f: (tmp_path / str(share) / f).read_bytes() for f in rasters.FILES}
     assert out[1.0] == out[0.0]
+
+
+def test_a_cloud_without_vegetation_classes_is_told_its_chm_is_empty(strips, tmp_path):
+    """trial-lidar: AHN3 as delivered (vegetation in class 1) gave a chm.tif of nodata alone with exit 0 and no word
+    (`lidarctl trees` refuses the same cloud): the command now says so, naming the classes the cloud holds."""
+    cloud = io.read_cloud(strips / "east.las")
+    assert np.isin(cloud.classification, (4, 5)).any()
+    r = CliRunner().invoke(main, ["rasters", str(strips / "east.las"), str(tmp_path / "veg"), "--res-m", "4"])
+    assert r.exit_code == 0 and "no vegetation points" not in r.output, r.output
+    cloud.classification[np.isin(cloud.classification, (3, 4, 5))] = 1
+    synthetic.write_las(tmp_path / "delivered.las", cloud, crs="EPSG:32632")
+    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "delivered.las"), str(tmp_path / "r"), "--res-m", "4"])
+    assert r.exit_code == 0, r.output
+    held = ", ".join(map(str, np.unique(cloud.classification)))
+    assert f"delivered.las: no vegetation points (classes 4, 5; the cloud holds classes {held})" in r.output
+    with rasterio.open(tmp_path / "r" / "chm.tif") as ds:
+        assert ds.read(1, masked=True).count() == 0

@@ -137,7 +137,7 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                 for r0, c0 in blocks:
                     h, w = min(block_px, height - r0), min(block_px, width - c0)
                     bx, by = x0 + c0 * res, y0 - r0 * res
-                    data, valid = read_on_grid(ds, bx, by, res, (h, w), inverse, resampling=resampling)
+                    data, valid = read_on_grid(ds, bx, by, res, (h, w), inverse, resampling=resampling, exact_taps=True)
                     if kind == "height" and valid.any():
                         z_new = _heights_through(data[0], valid, inverse, bx, by, res)
                         d = z_new[valid].astype(float) * z_dst_m - data[0][valid].astype(float) * z_src_m

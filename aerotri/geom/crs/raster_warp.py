@@ -78,12 +78,17 @@ def interpolate_anchors(A: np.ndarray, spacing_px: int, height: int, width: int)
 
 def warp_array(src: np.ndarray, src_valid: np.ndarray, src_x_left: float, src_y_top: float, src_res: float,
                *, AX: np.ndarray, AY: np.ndarray, spacing_px: int, height: int, width: int,
-               resampling: str = "bilinear") -> tuple[np.ndarray, np.ndarray]:
+               resampling: str = "bilinear", exact_taps: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Resample ``src`` (rows, cols[, bands]) onto a destination grid whose pixel centres map to source
     coordinates through the anchors (AX, AY, spacing) of ``anchor_grid``.
 
     Returns (dst, valid): a destination pixel is valid where every source pixel the kernel touches is
-    valid (nodata never bleeds into the result); ``dst`` holds 0 elsewhere.
+    valid (nodata never bleeds into the result); ``dst`` holds 0 elsewhere. By default "touches" is the
+    kernel's reach around the nearest source pixel (3 x 3 for bilinear); ``exact_taps`` (bilinear only): the
+    source pixels the interpolation weights, those of weight ``EXACT_TAPS_MAX_INVALID_WEIGHT`` or less left out (the
+    value is the mean of the others by their weights), so a centre on a source centre needs that pixel alone
+    (``aerotri crs warp``: the reach rule took a ring of valid cells off every nodata edge, also where only the
+    heights' unit changed on the source grid, trial-lidar).
     """
     X = interpolate_anchors(AX, spacing_px, height, width)
     Y = interpolate_anchors(AY, spacing_px, height, width)
@@ -98,16 +103,29 @@ def warp_array(src: np.ndarray, src_valid: np.ndarray, src_x_left: float, src_y_
     dst = cv2.remap(work, map_x, map_y, interp, borderMode=cv2.BORDER_REPLICATE)
     if dst.ndim == 2 and src.ndim == 3:
         dst = dst[:, :, None]
-    # validity: nearest neighbour of the mask, eroded by the kernel's reach
-    invalid = (~src_valid).astype(np.uint8)
-    reach = {"nearest": 0, "bilinear": 1, "cubic": 2, "lanczos": 4}[resampling]
-    if reach:
-        invalid = cv2.dilate(invalid, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8))
-    inside = cv2.remap(1 - invalid, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-                       borderValue=0).astype(bool)
+    if exact_taps and resampling == "bilinear":
+        # the valid taps' share of the weight, by the same interpolation as the values
+        weight = cv2.remap(src_valid.astype(np.float32), map_x, map_y, interp, borderMode=cv2.BORDER_REPLICATE)
+        inside = weight >= 1.0 - EXACT_TAPS_MAX_INVALID_WEIGHT
+        # (only where a tap on nodata has weight: elsewhere the values stay those of the reach rule, bit for bit)
+        w = np.where(inside & (weight < 1.0 - 1e-6), weight, 1.0).astype(np.float32)
+        dst = dst / (w[..., None] if dst.ndim == 3 else w)
+    else:
+        # validity: nearest neighbour of the mask, eroded by the kernel's reach
+        invalid = (~src_valid).astype(np.uint8)
+        reach = {"nearest": 0, "bilinear": 1, "cubic": 2, "lanczos": 4}[resampling]
+        if reach:
+            invalid = cv2.dilate(invalid, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8))
+        inside = cv2.remap(1 - invalid, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                           borderValue=0).astype(bool)
     inside &= (map_x >= -0.5) & (map_y >= -0.5) & (map_x <= src.shape[1] - 0.5) & (map_y <= src.shape[0] - 0.5)
     dst[~inside] = 0  # as documented (the replicated border reaches beyond the footprint)
     return cast_to_dtype(dst, src.dtype), inside
+
+
+# ``exact_taps``: a destination pixel whose bilinear taps on nodata weigh at most this is valid, its value the valid
+# taps' mean (float32 positions put a centre on a source centre up to ~1e-4 pixel: the tap beside it had a weight)
+EXACT_TAPS_MAX_INVALID_WEIGHT = 1e-3
 
 
 def cast_to_dtype(a: np.ndarray, dtype) -> np.ndarray:
@@ -183,7 +201,8 @@ def _triangle_prefilter(data: np.ndarray, valid: np.ndarray, cell_px: float):
 
 
 def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=None, *, resampling: str = "bilinear",
-                 bands=None, maximum: bool = False, tolerance: float = 1e-3, antialias: bool = False):
+                 bands=None, maximum: bool = False, tolerance: float = 1e-3, antialias: bool = False,
+                 exact_taps: bool = False):
     """Read an open north-up dataset onto a destination grid (``shape`` rows, cols) whose pixel centres
     are mapped into the dataset's CRS by ``operation`` (destination -> dataset, a ``CrsTransformer``;
     None when both are the same CRS). Returns ((bands, rows, cols) float32, valid mask).
@@ -192,7 +211,8 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
     of the resolution ratio before resampling; used for nDSMs so that objects are never thinned away).
     ``antialias``: a destination cell wider than a source pixel takes a triangle-weighted mean of the source pixels
     it covers (the kernel widened to the cell, as GDAL's bilinear warp does), not a point sample of four: images
-    compared patch by patch (the DOM check's reference) would otherwise alias, the more the coarser the grid."""
+    compared patch by patch (the DOM check's reference) would otherwise alias, the more the coarser the grid.
+    ``exact_taps``: as ``warp_array``'s."""
     bands = list(bands or range(1, ds.count + 1))
     rows, cols = shape
     t = ds.transform
@@ -233,7 +253,7 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
     x0 = t.c + win.col_off * t.a
     y0 = t.f + win.row_off * t.e
     dst, ok = warp_array(np.moveaxis(data, 0, -1), valid, x0, y0, abs(t.a), AX=AX, AY=AY, spacing_px=s, height=rows,
-                         width=cols, resampling="nearest" if maximum else resampling)
+                         width=cols, resampling="nearest" if maximum else resampling, exact_taps=exact_taps)
     return np.moveaxis(dst.reshape(rows, cols, -1), -1, 0), ok
 
 

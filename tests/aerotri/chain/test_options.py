@@ -295,3 +295,31 @@ def test_demo_simulates_again_when_the_project_lacks_the_preset_options(tmp_path
     assert "[adjust] gnss_correction" in _stale_simulation(tmp_path, cfg)
     (tmp_path / "project.toml").write_text(PROJECT + stage_sections_toml(rendered_chain_table(cfg)))
     assert _stale_simulation(tmp_path, cfg) is None
+
+
+def test_merge_refuses_strips_with_and_without_a_crs_record_without_crs(tmp_path):
+    """trial-lidar: without --crs, a strip without a CRS record beside a tagged one was merged silently: the merged
+    file took the first strip's CRS for both, or had none at all when the untagged strip came first (exit 0)."""
+    _strip(tmp_path / "a.las", 32649, seed=0)
+    _strip(tmp_path / "b.las", None, seed=1)
+    for order in (["a.las", "b.las"], ["b.las", "a.las"]):
+        r = CliRunner().invoke(lidarctl_cli, ["merge", *(str(tmp_path / n) for n in order), str(tmp_path / "m.las")])
+        assert r.exit_code == 2, r.output
+        assert f"{tmp_path / 'b.las'}: the strip has no CRS record" in r.stderr and "EPSG:32649" in r.stderr
+        assert "--crs" in r.stderr and not (tmp_path / "m.las").exists()
+    r = CliRunner().invoke(lidarctl_cli, ["merge", str(tmp_path / "b.las"), str(tmp_path / "a.las"),
+                                          str(tmp_path / "m.las"), "--crs", "EPSG:32649"])
+    assert r.exit_code == 0 and laspy.read(tmp_path / "m.las").header.parse_crs().to_epsg() == 32649
+
+
+def test_merge_refuses_a_strip_beyond_the_first_strips_integer_grid(tmp_path):
+    """trial-lidar: a strip whose coordinates do not fit 32-bit integers in the first strip's scales and offsets (the
+    merged file's) stopped `lidarctl merge` with laspy's OverflowError and a traceback (exit 1); now exit 2 naming the
+    strip, its range and the first strip, nothing written."""
+    _strip(tmp_path / "a.las", 32649, seed=0)
+    _strip(tmp_path / "b.las", 32649, x0=452000.0 + 2_500_000.0, seed=1)  # 2,500 km: beyond 2^31 mm steps
+    r = CliRunner().invoke(lidarctl_cli, ["merge", str(tmp_path / "a.las"), str(tmp_path / "b.las"),
+                                          str(tmp_path / "m.las")])
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert f"{tmp_path / 'b.las'}: its coordinates do not fit" in r.stderr and str(tmp_path / "a.las") in r.stderr
+    assert "x 2952" in r.stderr and not (tmp_path / "m.las").exists()
