@@ -51,7 +51,8 @@ from aerotri.core.textio import read_json
 from aerotri.geom.crs.definition import linear_unit_m, parse_heights
 from aerotri.geom.crs.datum import load_height_model, load_transformation
 from aerotri.geom.crs.transform import CrsTransformer, OperationSpec
-from ortho.dem import dem_height_operation, height_range, height_window, open_height_raster, read_height_window
+from ortho.dem import (dem_height_operation, height_range, height_window, open_height_raster, read_height_window,
+                       warn_zero_fill)
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, overview_factors, parse_crs, resolve_output_crs
 from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, footprint_polygon_xy,
@@ -758,8 +759,12 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     project_heights = parse_heights(project.info.heights,
                                     f"{project.root / 'project.toml'}: [project] heights")
     dem_ds = open_height_raster(dem_path, project_crs, "DEM")
+    with _raster_read(dem_path, "DEM"):
+        warn_zero_fill(dem_ds, dem_path, "DEM")
     if true_ortho:
-        open_height_raster(dsm_path, project_crs, "DSM").close()
+        with open_height_raster(dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(dsm_path, "DSM"):
+            if Path(dsm_path).resolve() != Path(dem_path).resolve():
+                warn_zero_fill(dsm_ds, dsm_path, "DSM")
     footprints = Path(s.footprints) if s.footprints and true_ortho else None
     if footprints is not None:  # checked whole before any frame is written
         from ortho.footprints import read_footprints
