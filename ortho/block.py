@@ -56,7 +56,8 @@ from ortho.dem import (dem_height_operation, height_range, height_window, open_h
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, overview_factors, parse_crs, resolve_output_crs
 from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, footprint_polygon_xy,
-                           declares_nodata, frame_validity, grid_around_footprint, heights_on_grid, rectify_frame)
+                           black_corners, declares_nodata, frame_validity, grid_around_footprint, heights_on_grid,
+                           rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -1079,6 +1080,12 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        crown_base_height_operation=spec_of(ops.get("crown_base")) if true_ortho else None,
                        frame_nodata=declares_nodata(path))
              for image_id, path in block.images.pairs()]
+    collared = [t.image_id for t in tasks if not t.frame_nodata and black_corners(t.image_path)]
+    if collared:
+        _log.warning(f"{len(collared)} frame(s) ({', '.join(collared[:5])}{', ...' if len(collared) > 5 else ''}) have "
+                     "a corner black in every band and declare no nodata value or mask: a collar? It is rectified as "
+                     "picture (black in the orthos and the mosaic); declare it (rio edit-info --nodata 0 FRAME, or "
+                     "gdal_edit.py -a_nodata 0 FRAME) and rectify again")
     resumed = {}
     if resume_dir is not None:
         tasks = [dataclasses.replace(t, resume_dir=str(resume_dir), resume_key=_resume_key(t, inputs)) for t in tasks]

@@ -658,6 +658,24 @@ def declares_nodata(path) -> bool:
         return not all(flags == [MaskFlags.all_valid] for flags in ds.mask_flag_enums)
 
 
+COLLAR_CORNER_PX = 16  # the square of a frame's corner that ``black_corners`` reads
+
+
+def black_corners(path) -> int:
+    """How many of the frame's four corners (squares of ``COLLAR_CORNER_PX``) hold 0 in every band and pixel: a
+    collar the frame does not declare (no nodata value or mask; ``declares_nodata``) is rectified as picture, black in
+    the DOM. Ground is never that black over a corner's 256 pixels in every band."""
+    import rasterio
+    from rasterio.windows import Window
+
+    n = 0
+    with rasterio.open(path) as ds:
+        k = min(COLLAR_CORNER_PX, ds.width, ds.height)
+        for c0, r0 in ((0, 0), (ds.width - k, 0), (0, ds.height - k), (ds.width - k, ds.height - k)):
+            n += int(not ds.read(window=Window(c0, r0, k, k)).any())
+    return n
+
+
 def frame_validity(path, interpolation: str = "bilinear") -> np.ndarray | None:
     """The frame's own validity as GDAL gives it (its nodata value, an internal mask or an alpha band: the black
     collar of a scanned or rotated frame), uint8 (rows, cols), 255 where every source pixel the ``interpolation``

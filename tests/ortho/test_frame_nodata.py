@@ -43,9 +43,9 @@ def _with_collar(root, how: str) -> None:
         with rasterio.open(f) as ds:
             a, prof = ds.read(), ds.profile
         collar = _collar(*a.shape[1:])
-        if how == "nodata":
+        if how in ("nodata", "undeclared"):
             a[:, collar] = 0
-            prof.update(nodata=0)
+            prof.update(nodata=0 if how == "nodata" else None)
         else:
             a[:, collar] = np.array(FILL, np.uint8)[:, None]
         f.unlink()
@@ -88,3 +88,22 @@ def test_a_frames_nodata_is_nodata_in_its_ortho_and_the_mosaic(clean, tmp_path, 
         return int((np.abs(a[:, v].astype(int) - fill) <= 8).all(0).sum())
 
     assert like_fill(m, valid) <= like_fill(c, whole)  # no more fill-coloured pixels than the picture has
+
+
+def test_a_collar_not_declared_is_warned_of(clean, tmp_path):
+    """Black corners in a frame that declares no nodata: rectified as picture (the frame's values are all there is),
+    with a warning naming the frames and how to declare it; the clean block has none."""
+    root = tmp_path / "p"
+    shutil.copytree(clean / "images", root / "images")
+    for name in ("project.toml", "camera.toml", "at", "lidar_out"):
+        (shutil.copytree if (clean / name).is_dir() else shutil.copy)(clean / name, root / name)
+    _with_collar(root, "undeclared")
+    r = CliRunner().invoke(main, ["rectify", str(root)])
+    assert r.exit_code == 0, r.output
+    assert "4 frame(s) (s01_001, s01_002, s02_001, s02_002) have a corner black" in r.stderr, r.stderr
+    assert "rio edit-info --nodata 0" in r.stderr
+    plain = tmp_path / "q"
+    shutil.copytree(clean, plain)
+    r = CliRunner().invoke(main, ["rectify", str(plain)])
+    assert r.exit_code == 0, r.output
+    assert "have a corner black" not in r.stderr
