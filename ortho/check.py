@@ -120,6 +120,7 @@ class DomCheck:
     # given with --dom; None: a report written before it was recorded)
     dom: str | None = None  # the DOM checked, as the command named it
     roofs_in_nodata_warning: str | None = None  # the roofs row: too many corners in nodata (``roofs_in_nodata_warning``)
+    method: str | None = None  # "ncc_patches" (against a reference orthophoto) or "surveyed_points" (``--points``)
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -176,7 +177,7 @@ def _dom_check_of(d: dict) -> DomCheck:
                     one.get("pct"), d.get("mosaic_fingerprint"), (row.get("not_measured") or {}).get("in_nodata"),
                     d.get("crs"), (d.get("reference_operation") or {}).get("description"),
                     bool((d.get("reference_operation") or {}).get("ballpark")), d.get("dom_is_project_mosaic"),
-                    d.get("dom"), row.get("in_nodata_warning"))
+                    d.get("dom"), row.get("in_nodata_warning"), d.get("method"))
 
 
 def displacement_statistics(de_m, dn_m, res_m: float) -> Displacement:
