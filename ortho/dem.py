@@ -232,8 +232,8 @@ def warn_zero_fill(ds, path, what: str = "DEM") -> None:
     share, lo, hi = found
     _log.warning(f"{path}: {100 * share:.1f} % of the {what}'s cells hold exactly 0 while its other heights are "
                  f"{lo:.6g} .. {hi:.6g} and it declares no nodata value: a fill (gdalwarp's beyond its source, a "
-                 f"clipped {what})? The orthos there stand on height 0; declare it (gdal_edit.py -a_nodata 0 {path}, or "
-                 f"rio edit-info --nodata 0 {path}) unless it is ground at 0")
+                 f"clipped {what})? The orthos there stand on height 0; declare it (gdal_edit.py -a_nodata 0 "
+                 f"{path}, or rio edit-info --nodata 0 {path}) unless it is ground at 0")
 
 
 def height_range(ds, max_cells: int = 1_000_000) -> tuple[float, float]:

@@ -212,7 +212,8 @@ def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:
     return h, qa.survey_sigma_z_m, src
 
 
-SURVEYED = ("check points", "surveyed points")  # what a ``CheckSet`` counts when its points were surveyed (no reference)
+# what a ``CheckSet`` counts when its points were surveyed (no reference orthophoto stands for them)
+SURVEYED = ("check points", "surveyed points")
 
 
 def dom_points_used_as_control(dom_all: dict, at: dict) -> tuple[str, ...]:
