@@ -669,10 +669,13 @@ def black_corners(path) -> int:
     from rasterio.windows import Window
 
     n = 0
-    with rasterio.open(path) as ds:
-        k = min(COLLAR_CORNER_PX, ds.width, ds.height)
-        for c0, r0 in ((0, 0), (ds.width - k, 0), (0, ds.height - k), (ds.width - k, ds.height - k)):
-            n += int(not ds.read(window=Window(c0, r0, k, k)).any())
+    try:
+        with rasterio.open(path) as ds:
+            k = min(COLLAR_CORNER_PX, ds.width, ds.height)
+            for c0, r0 in ((0, 0), (ds.width - k, 0), (0, ds.height - k), (ds.width - k, ds.height - k)):
+                n += int(not ds.read(window=Window(c0, r0, k, k)).any())
+    except rasterio.errors.RasterioIOError:
+        return n  # a corrupt frame: its rectification names it (``FrameFile.read``, ``read_native``)
     return n
 
 
