@@ -646,6 +646,7 @@ def ordered_thread_map(fn, items, threads: int, ahead: int | None = None):
 # bilinear x..x+1, cubic x-1..x+2, Lanczos x-3..x+4; nearest rounds, x or x+1): a frame's invalid pixels are grown by
 # this much (``frame_validity``), so that no output pixel mixes one in
 _KERNEL_REACH_PX = {"nearest": 1, "bilinear": 1, "cubic": 2, "lanczos": 4}
+_JPEG_BLOCK_PX = 16  # and, in a JPEG-compressed frame with a nodata value, its largest block (a 4:2:0 MCU)
 
 
 def declares_nodata(path) -> bool:
@@ -682,18 +683,25 @@ def black_corners(path) -> int:
 def frame_validity(path, interpolation: str = "bilinear") -> np.ndarray | None:
     """The frame's own validity as GDAL gives it (its nodata value, an internal mask or an alpha band: the black
     collar of a scanned or rotated frame), uint8 (rows, cols), 255 where every source pixel the ``interpolation``
-    kernel reads around a position is valid (the invalid pixels grown by ``_KERNEL_REACH_PX``); None when the frame
+    kernel reads around a position is valid (the invalid pixels grown by ``_KERNEL_REACH_PX``, and by ``_JPEG_BLOCK_PX``
+    in a JPEG-compressed frame whose invalid pixels are those of a nodata value); None when the frame
     declares no invalid pixel (no nodata value, mask or alpha; or one that no pixel holds). ``rectify_frame``
     makes the cells whose samples would read an invalid pixel nodata, as it does cells outside the frame."""
     import rasterio
 
     if not declares_nodata(path):
         return None
+    from rasterio.enums import MaskFlags
+
     with rasterio.open(path) as ds:
         valid = ds.dataset_mask()
+        lossy = ds.driver == "JPEG" or str(getattr(ds.compression, "value", ds.compression) or "").upper() == "JPEG"
+        by_value = any(MaskFlags.nodata in flags for flags in ds.mask_flag_enums)
     if valid.all():
         return None
-    r = _KERNEL_REACH_PX.get(interpolation, 4)
+    # JPEG mixes a collar into every pixel of the blocks its edge crosses (16 x 16 px with 2 x 2 chroma subsampling):
+    # the collar's pixels there are no longer the nodata value, so valid by it (a mask is stored apart, losslessly)
+    r = _KERNEL_REACH_PX.get(interpolation, 4) + (_JPEG_BLOCK_PX if lossy and by_value else 0)
     return cv2.erode(np.where(valid > 0, 255, 0).astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8))
 
 
