@@ -51,11 +51,13 @@ from aerotri.core.textio import read_json
 from aerotri.geom.crs.definition import linear_unit_m, parse_heights
 from aerotri.geom.crs.datum import load_height_model, load_transformation
 from aerotri.geom.crs.transform import CrsTransformer, OperationSpec
-from ortho.dem import dem_height_operation, height_range, height_window, open_height_raster, read_height_window
+from ortho.dem import (dem_height_operation, height_range, height_window, open_height_raster, read_height_window,
+                       warn_zero_fill)
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, overview_factors, parse_crs, resolve_output_crs
 from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, footprint_polygon_xy,
-                           grid_around_footprint, heights_on_grid, rectify_frame)
+                           black_corners, declares_nodata, frame_validity, grid_around_footprint, heights_on_grid,
+                           rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -244,9 +246,9 @@ def add_overviews(path) -> None:
 def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, grid, interpolation, to_project,
                           occlusion_dsm=None, compression: str = "zstd", threads: int | None = None,
                           tags: dict | None = None, max_view_angle_deg: float = 90.0, occluder=None,
-                          sides=None, overviews: bool = False) -> float:
+                          sides=None, overviews: bool = False, source_valid=None) -> float:
     """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory); ``occluder``,
-    ``sides``: as ``rectify_frame``; ``overviews``: internal overviews too (``add_overviews``).
+    ``sides``, ``source_valid``: as ``rectify_frame``; ``overviews``: internal overviews too (``add_overviews``).
 
     The tile threads compute the next tiles while this thread writes (GDAL compresses the blocks on
     all cores). Returns the valid fraction of the grid.
@@ -271,7 +273,8 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
 
             rectify_frame(image, camera, C, R, heights, grid, interpolation=interpolation, to_project=to_project,
                           occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads,
-                          max_view_angle_deg=max_view_angle_deg, occluder=occluder, sides=sides)
+                          max_view_angle_deg=max_view_angle_deg, occluder=occluder, sides=sides,
+                          source_valid=source_valid)
         if overviews:
             add_overviews(tmp)
     return valid[0] / float(grid.width * grid.height)
@@ -323,11 +326,14 @@ class FrameTask:
     dsm_height_operation: OperationSpec | None = None
     occlusion_height_operation: OperationSpec | None = None
     crown_base_height_operation: OperationSpec | None = None
+    # the frame declares invalid pixels (a nodata value, mask or alpha: ``ortho.rectify.declares_nodata``), left out of
+    # its ortho since the ortho trial of 2026-12-01 (before, its collar was rectified as picture)
+    frame_nodata: bool = False
 
 
 # FrameTask fields left out of the resume key while None (the key of a frame kept by code without them)
 _KEY_FIELDS_IF_SET = ("overviews", "dsm_height_operation", "occlusion_height_operation",
-                      "crown_base_height_operation")
+                      "crown_base_height_operation", "frame_nodata")
 
 
 def _frame_image(path, expect_size):
@@ -632,10 +638,15 @@ def _rectify_frame(task: FrameTask) -> dict:
                                      min_cone_radius_m=task.res_m)
     grid = grid_around_footprint(footprint, task.res_m, out_crs)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
+    # the frame's own nodata (a collar declared by its nodata value or mask): nodata in its ortho, never in the mosaic
+    source_valid = frame_validity(task.image_path, task.interpolation) if task.frame_nodata else None
+    if source_valid is not None:
+        _log.info(f"frame {task.image_id}: {100 * np.count_nonzero(source_valid == 0) / source_valid.size:.1f} % of "
+                  "its pixels are its own nodata or beside it (its nodata value or mask): nodata in its ortho")
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
                                            occlusion_dsm=surface if task.dsm_path else None, occluder=occluder,
-                                           sides=sides,
+                                           sides=sides, source_valid=source_valid,
                                            compression=task.compression, threads=task.threads,
                                            max_view_angle_deg=task.max_view_angle_deg, overviews=task.overviews,
                                            tags=operation_tags(to_project.record(),
@@ -749,8 +760,12 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     project_heights = parse_heights(project.info.heights,
                                     f"{project.root / 'project.toml'}: [project] heights")
     dem_ds = open_height_raster(dem_path, project_crs, "DEM")
+    with _raster_read(dem_path, "DEM"):
+        warn_zero_fill(dem_ds, dem_path, "DEM")
     if true_ortho:
-        open_height_raster(dsm_path, project_crs, "DSM").close()
+        with open_height_raster(dsm_path, project_crs, "DSM") as dsm_ds, _raster_read(dsm_path, "DSM"):
+            if Path(dsm_path).resolve() != Path(dem_path).resolve():
+                warn_zero_fill(dsm_ds, dsm_path, "DSM")
     footprints = Path(s.footprints) if s.footprints and true_ortho else None
     if footprints is not None:  # checked whole before any frame is written
         from ortho.footprints import read_footprints
@@ -1062,8 +1077,15 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        crowns_path=str(crowns) if crowns is not None else None,
                        dsm_height_operation=spec_of(ops.get("dsm")) if true_ortho else None,
                        occlusion_height_operation=spec_of(ops.get("occlusion")) if true_ortho else None,
-                       crown_base_height_operation=spec_of(ops.get("crown_base")) if true_ortho else None)
+                       crown_base_height_operation=spec_of(ops.get("crown_base")) if true_ortho else None,
+                       frame_nodata=declares_nodata(path))
              for image_id, path in block.images.pairs()]
+    collared = [t.image_id for t in tasks if not t.frame_nodata and black_corners(t.image_path)]
+    if collared:
+        _log.warning(f"{len(collared)} frame(s) ({', '.join(collared[:5])}{', ...' if len(collared) > 5 else ''}) have "
+                     "a corner black in every band and declare no nodata value or mask: a collar? It is rectified as "
+                     "picture (black in the orthos and the mosaic); declare it (rio edit-info --nodata 0 FRAME, or "
+                     "gdal_edit.py -a_nodata 0 FRAME) and rectify again")
     resumed = {}
     if resume_dir is not None:
         tasks = [dataclasses.replace(t, resume_dir=str(resume_dir), resume_key=_resume_key(t, inputs)) for t in tasks]

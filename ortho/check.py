@@ -126,6 +126,7 @@ class DomCheck:
     roofs_in_nodata_warning: str | None = None  # the roofs row: too many corners in nodata (``roofs_in_nodata_warning``)
     seams: SeamMisalignment | None = None  # the seam measurement whole (floor, patches left out, every seam's
     # figures, the worst seam); None: the seamlines were not checked
+    method: str | None = None  # "ncc_patches" (against a reference orthophoto) or "surveyed_points" (``--points``)
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -182,7 +183,7 @@ def _dom_check_of(d: dict) -> DomCheck:
                     one.get("pct"), d.get("mosaic_fingerprint"), (row.get("not_measured") or {}).get("in_nodata"),
                     d.get("crs"), (d.get("reference_operation") or {}).get("description"),
                     bool((d.get("reference_operation") or {}).get("ballpark")), d.get("dom_is_project_mosaic"),
-                    d.get("dom"), row.get("in_nodata_warning"), _seams_of(d.get("seams")))
+                    d.get("dom"), row.get("in_nodata_warning"), _seams_of(d.get("seams")), d.get("method"))
 
 
 def _seams_of(d: dict | None):

@@ -14,6 +14,7 @@ A raster without a vertical CRS is taken to be in the project's height system.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from pathlib import Path
 
@@ -23,9 +24,12 @@ from pyproj import CRS
 from rasterio.windows import Window, from_bounds
 
 from aerotri.core.errors import CrsError, InputError
-from aerotri.geom.crs.definition import crs_label, height_crs, horizontal_crs, same_horizontal, vertical_crs
+from aerotri.geom.crs.definition import (crs_label, height_crs, height_unit_m, horizontal_crs, same_horizontal,
+                                         vertical_crs)
 from aerotri.geom.crs.raster_warp import anchor_grid, height_change, interpolate_anchors, open_north_up
 from aerotri.geom.crs.transform import CrsTransformer
+
+_log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -185,6 +189,51 @@ def convert_heights(heights: np.ndarray, x_left: float, y_top: float, res: float
 def read_height_raster(path, project_crs: CRS | None = None, what: str = "DEM") -> HeightRaster:
     with open_height_raster(path, project_crs, what) as ds:
         return read_height_window(ds, ds.bounds, what=what)
+
+
+# a DEM's cells at exactly 0 are taken for an undeclared fill when its other heights all lie more than this (m)
+# above 0: gdalwarp fills what lies beyond its source with 0 and declares no nodata for a float DEM unless told; a
+# coast's ground runs down to the sea's 0 (its lowest heights within this), a plateau of 0 beside 400 m does not
+ZERO_FILL_GAP_M = 10.0
+ZERO_FILL_MIN_SHARE = 0.001  # of the valid cells (a decimated read): fewer zeros are not worth a word
+
+
+def zero_fill_share(ds, max_cells: int = 1_000_000) -> tuple[float, float, float] | None:
+    """(share of the valid cells at exactly 0, lowest and highest other height, raster units) of band 1 of the open
+    height raster ``ds`` when that looks like an undeclared fill: no nodata value, mask or alpha declared, at least
+    ``ZERO_FILL_MIN_SHARE`` of the cells at 0, and every other height more than ``ZERO_FILL_GAP_M`` above 0 (below
+    0 too: not a DEM of land above sea level); None otherwise. A decimated read, as ``height_range``."""
+    from rasterio.enums import MaskFlags
+
+    if ds.mask_flag_enums[0] != [MaskFlags.all_valid]:
+        return None
+    step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / max_cells))))
+    v = ds.read(1, out_shape=(max(1, ds.height // step), max(1, ds.width // step)),
+                resampling=rasterio.enums.Resampling.nearest).ravel()
+    v = v[np.isfinite(v)]
+    zero = v == 0
+    n0 = int(np.count_nonzero(zero))
+    if v.size == 0 or n0 < ZERO_FILL_MIN_SHARE * v.size or n0 == v.size:
+        return None
+    other = v[~zero]
+    unit_m = height_unit_m(CRS(ds.crs)) if ds.crs is not None else 1.0
+    lo, hi = float(other.min()), float(other.max())
+    if lo * unit_m <= ZERO_FILL_GAP_M:
+        return None
+    return n0 / v.size, lo, hi
+
+
+def warn_zero_fill(ds, path, what: str = "DEM") -> None:
+    """A warning naming ``path`` when its cells at 0 look like an undeclared fill (``zero_fill_share``): the orthos
+    there stand on height 0."""
+    found = zero_fill_share(ds)
+    if found is None:
+        return
+    share, lo, hi = found
+    _log.warning(f"{path}: {100 * share:.1f} % of the {what}'s cells hold exactly 0 while its other heights are "
+                 f"{lo:.6g} .. {hi:.6g} and it declares no nodata value: a fill (gdalwarp's beyond its source, a "
+                 f"clipped {what})? The orthos there stand on height 0; declare it (gdal_edit.py -a_nodata 0 "
+                 f"{path}, or rio edit-info --nodata 0 {path}) unless it is ground at 0")
 
 
 def height_range(ds, max_cells: int = 1_000_000) -> tuple[float, float]:

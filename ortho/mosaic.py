@@ -1764,8 +1764,8 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                     tiles["total"], tiles["taken_over"], f" ({previous.why_all})" if previous.why_all else "")
     if summary["cells_seen_by_no_frame"]:
         logger.warning("%d cells (%.2f %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
-                       "or over DEM nodata): nodata in the mosaic", summary["cells_seen_by_no_frame"],
-                       100 * summary["share_seen_by_no_frame"])
+                       "over DEM nodata, or over the frames' own nodata): nodata in the mosaic",
+                       summary["cells_seen_by_no_frame"], 100 * summary["share_seen_by_no_frame"])
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
 

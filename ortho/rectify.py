@@ -642,6 +642,69 @@ def ordered_thread_map(fn, items, threads: int, ahead: int | None = None):
                 f.cancel()
 
 
+# source pixels beyond an output pixel's integer source position that its interpolation kernel reads (OpenCV:
+# bilinear x..x+1, cubic x-1..x+2, Lanczos x-3..x+4; nearest rounds, x or x+1): a frame's invalid pixels are grown by
+# this much (``frame_validity``), so that no output pixel mixes one in
+_KERNEL_REACH_PX = {"nearest": 1, "bilinear": 1, "cubic": 2, "lanczos": 4}
+_JPEG_BLOCK_PX = 16  # and, in a JPEG-compressed frame with a nodata value, its largest block (a 4:2:0 MCU)
+
+
+def declares_nodata(path) -> bool:
+    """Whether the frame declares pixels invalid (a nodata value, an internal mask or an alpha band; GDAL's mask
+    flags), whether or not any pixel is."""
+    import rasterio
+    from rasterio.enums import MaskFlags
+
+    with rasterio.open(path) as ds:
+        return not all(flags == [MaskFlags.all_valid] for flags in ds.mask_flag_enums)
+
+
+COLLAR_CORNER_PX = 16  # the square of a frame's corner that ``black_corners`` reads
+
+
+def black_corners(path) -> int:
+    """How many of the frame's four corners (squares of ``COLLAR_CORNER_PX``) hold 0 in every band and pixel: a
+    collar the frame does not declare (no nodata value or mask; ``declares_nodata``) is rectified as picture, black in
+    the DOM. Ground is never that black over a corner's 256 pixels in every band."""
+    import rasterio
+    from rasterio.windows import Window
+
+    n = 0
+    try:
+        with rasterio.open(path) as ds:
+            k = min(COLLAR_CORNER_PX, ds.width, ds.height)
+            for c0, r0 in ((0, 0), (ds.width - k, 0), (0, ds.height - k), (ds.width - k, ds.height - k)):
+                n += int(not ds.read(window=Window(c0, r0, k, k)).any())
+    except rasterio.errors.RasterioIOError:
+        return n  # a corrupt frame: its rectification names it (``FrameFile.read``, ``read_native``)
+    return n
+
+
+def frame_validity(path, interpolation: str = "bilinear") -> np.ndarray | None:
+    """The frame's own validity as GDAL gives it (its nodata value, an internal mask or an alpha band: the black
+    collar of a scanned or rotated frame), uint8 (rows, cols), 255 where every source pixel the ``interpolation``
+    kernel reads around a position is valid (the invalid pixels grown by ``_KERNEL_REACH_PX``, and by ``_JPEG_BLOCK_PX``
+    in a JPEG-compressed frame whose invalid pixels are those of a nodata value); None when the frame
+    declares no invalid pixel (no nodata value, mask or alpha; or one that no pixel holds). ``rectify_frame``
+    makes the cells whose samples would read an invalid pixel nodata, as it does cells outside the frame."""
+    import rasterio
+
+    if not declares_nodata(path):
+        return None
+    from rasterio.enums import MaskFlags
+
+    with rasterio.open(path) as ds:
+        valid = ds.dataset_mask()
+        lossy = ds.driver == "JPEG" or str(getattr(ds.compression, "value", ds.compression) or "").upper() == "JPEG"
+        by_value = any(MaskFlags.nodata in flags for flags in ds.mask_flag_enums)
+    if valid.all():
+        return None
+    # JPEG mixes a collar into every pixel of the blocks its edge crosses (16 x 16 px with 2 x 2 chroma subsampling):
+    # the collar's pixels there are no longer the nodata value, so valid by it (a mask is stored apart, losslessly)
+    r = _KERNEL_REACH_PX.get(interpolation, 4) + (_JPEG_BLOCK_PX if lossy and by_value else 0)
+    return cv2.erode(np.where(valid > 0, 255, 0).astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+
+
 # frames decoded larger than this are read by windows, tile by tile (a 13,824 x 7,680 px DMC frame of 16-bit
 # samples holds 637 MB in RGB, 850 MB in RGBN; two frames at a time on two workers)
 WINDOWED_FRAME_BYTES = 256 * 2 ** 20
@@ -700,7 +763,8 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
                   *, interpolation: str = "bilinear", to_project: GridToProject | None = None,
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
                   sink_bands_first: bool = False, max_view_angle_deg: float = 90.0, earth: bool = True,
-                  occluder: FootprintOccluder | None = None, sides: OutlineHeights | None = None):
+                  occluder: FootprintOccluder | None = None, sides: OutlineHeights | None = None,
+                  source_valid: np.ndarray | None = None):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
 
     ``image`` is (rows, cols[, bands]) in the camera's pixel convention, in memory, or a ``FrameFile``
@@ -719,7 +783,9 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     returns: copy them if they must outlive the call.
 
     Cells whose ray to the projection centre is more than ``max_view_angle_deg`` from the vertical (90: no
-    limit), or beyond the fold of the lens model, are invalid (``RayLimits``, tested in the kernels).
+    limit), or beyond the fold of the lens model, are invalid (``RayLimits``, tested in the kernels); so are the cells
+    whose samples read a pixel the frame itself declares invalid (``source_valid``, uint8 (rows, cols) of the frame,
+    0 there: ``frame_validity``; None: every pixel valid).
 
     Tiles of ``tile_px`` are computed by ``threads`` threads (default: all cores); the result does
     not depend on the number of threads.
@@ -730,6 +796,8 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     """
     if image.shape[0] != camera.height or image.shape[1] != camera.width:
         raise InputError(f"image is {image.shape[1]} x {image.shape[0]} px but the camera is {camera.width} x {camera.height} px")
+    if source_valid is not None and source_valid.shape != tuple(image.shape[:2]):
+        raise ValueError(f"frame validity of {source_valid.shape} px for a frame of {tuple(image.shape[:2])}")
     flag = _interpolation_flag(interpolation)
     to_project = to_project or GridToProject(grid.crs, grid.crs)
     geometry = FrameGeometry(camera, np.asarray(centre_m, float), np.asarray(R, float), float(max_view_angle_deg),
@@ -805,6 +873,13 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
                                           near_share=near, occluder=occluder)
                 m[occluded] = 0
                 map_int[occluded] = -32768
+        if source_valid is not None and m.any():
+            # the frame's own nodata (grown by the kernel's reach): the maps' integer positions, before any shift
+            seen = cv2.remap(source_valid, map_int, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                             borderValue=0)
+            gone = (seen == 0) & (m != 0)
+            m[gone] = 0
+            map_int[gone] = -32768
         if not m.any():
             o[...] = 0
             return r0, c0, handle, o, m
@@ -827,7 +902,8 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
         else:
             cv2.remap(src, map_int, map_frac, flag, dst=o.reshape(tile.height, tile.width, *bands),
                       borderMode=border, borderValue=0)
-        if wide_kernel:  # cubic and Lanczos reach past the valid pixels into the replicated border
+        if wide_kernel or source_valid is not None:
+            # cubic and Lanczos reach past the valid pixels into the replicated border; a frame's own nodata
             if sink_bands_first:
                 o[:, m == 0] = 0
             else:

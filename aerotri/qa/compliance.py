@@ -212,12 +212,42 @@ def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:
     return h, qa.survey_sigma_z_m, src
 
 
-def dom_checks(dom_all: dict, qa, *, stale: bool = False) -> CheckSet | None:
+# what a ``CheckSet`` counts when its points were surveyed (no reference orthophoto stands for them)
+SURVEYED = ("check points", "surveyed points")
+
+
+def dom_points_used_as_control(dom_all: dict, at: dict) -> tuple[str, ...]:
+    """The ids of a DOM check's surveyed points (``ortho check --points``: dom_report.json ``points``) that the
+    adjustment used as control (at/report.json ``control_points``, used, of a kind other than check): the DOM stands on
+    orientations fitted to them, so they are no independent check of it."""
+    if dom_all.get("method") != "surveyed_points":
+        return ()
+    used = {str(c.get("id")) for c in at.get("control_points") or []
+            if isinstance(c, dict) and c.get("used", True) and c.get("kind") != "check"}
+    return tuple(str(p.get("id")) for p in dom_all.get("points") or [] if str(p.get("id")) in used)
+
+
+def dom_checks(dom_all: dict, qa, *, stale: bool = False, at: dict | None = None) -> CheckSet | None:
     """``stale``: the check measured an earlier version of the project's mosaic, or another DOM
-    (``DomCheck.stale_for``; ``dom_is_project_mosaic`` false in the record tells which)."""
+    (``DomCheck.stale_for``; ``dom_is_project_mosaic`` false in the record tells which). A check at surveyed points
+    (``ortho check --points``) counts them as "surveyed points", those the adjustment used as control (``at``:
+    at/report.json) not among them: with any such, not testable (they are no independent check)."""
     d = dom_all.get("displacement") or {}
     if not dom_all:
         return None
+    if dom_all.get("method") == "surveyed_points" and not stale and d.get("rms_xy_m") is not None:
+        h, _, src = _survey_accuracy(qa)
+        n = int(d.get("count") or 0)
+        control = dom_points_used_as_control(dom_all, at or {})
+        if control:
+            more = ", ..." if len(control) > OUTSIDE_IDS_SHOWN else ""
+            return CheckSet(n_h=n - len(control), cp_rmse_h_m=h, cp_source=src, points="surveyed points",
+                            note=f"{len(control)} of the {n} surveyed points were the adjustment's control "
+                                 f"({', '.join(control[:OUTSIDE_IDS_SHOWN])}{more}): no independent check of the DOM; "
+                                 "measure it at check points the adjustment did not use")
+        return CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=n, cp_rmse_h_m=h, cp_source=src,
+                        rmse_x_m=d.get("rms_e_m"), rmse_y_m=d.get("rms_n_m"),
+                        note="surveyed points measured in the DOM (ortho check --points)", points="surveyed points")
     # what the DOM row counts is ground patches even when there is no figure ("0 check points" said otherwise)
     if stale and dom_all.get("dom_is_project_mosaic") is False:
         return CheckSet(note=f"the DOM check measured another DOM ({dom_all.get('dom')}, ortho check --dom), not the "
@@ -408,7 +438,7 @@ def project_figures(project: Project, density: bool = True) -> Figures:
                           " (after the strip adjustment)" if adjusted else "")
     vec = project.vectors_check_path
     return Figures(at=at_checks(at, project.control_points, str(project.adjustment_report_path)),
-                   dom=dom_checks(_json(project.dom_report_path), qa, stale=_dom_check_stale(project)),
+                   dom=dom_checks(_json(project.dom_report_path), qa, stale=_dom_check_stale(project), at=at),
                    line_map=line_map_checks(_json(vec) if vec.is_file() else {}, qa), lidar=lidar)
 
 
@@ -421,10 +451,10 @@ def _verdict(figure, limit, n, need, cp_ok, counted: str = "check points") -> tu
         return NOT_TESTABLE, "not measured"
     would = "pass" if figure <= limit else "fail"
     if need and n is not None and n < need:
-        need_text = f"{need} required" if counted == "check points" else f"{need} check points required"
+        need_text = f"{need} required" if counted in SURVEYED else f"{need} check points required"
         return NOT_TESTABLE, f"{n} {counted}, {need_text} (the figure would {would})"
     if cp_ok is False:
-        who = "the check points are" if counted == "check points" else "the reference is"
+        who = f"the {counted} are" if counted in SURVEYED else "the reference is"
         return NOT_TESTABLE, f"{who} not accurate enough for the class (the figure would {would})"
     return would, ""
 
@@ -519,9 +549,9 @@ def _check(product, quantity, cls, measured, figure, *, limit, unit, n, need, cp
 
 def _cp_note(cp_rmse, need_m, src, factor_text, counted: str = "check points") -> tuple[bool | None, str]:
     """Whether the check points (for patches or corners against a reference: the reference) are accurate enough."""
-    who = "check points" if counted == "check points" else "reference"
+    who = counted if counted in SURVEYED else "reference"
     if cp_rmse is None:
-        return None, f"{who}' accuracy {src}: not judged" if who == "check points" else \
+        return None, f"{who}' accuracy {src}: not judged" if who != "reference" else \
             f"the reference's accuracy {src}: not judged"
     ok = cp_rmse <= need_m + 1e-12
     return ok, f"{who} {cp_rmse:.3f} m ({src}); {factor_text} {need_m:.3f} m"
@@ -709,7 +739,7 @@ def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                                           f"Edition 2 rule) needs <=", cs.points)
             if cp is not None and meas is not None:
                 cp_note += (f"; measured {meas:.3f} m combined with the "
-                            f"{'check points' if cs.points == 'check points' else 'reference'}' {cp:.3f} m")
+                            f"{cs.points if cs.points in SURVEYED else 'reference'}' {cp:.3f} m")
             if cs.note:
                 cp_note += f"; {cs.note}"
             # the finest class: the limit is ``multiple`` x the class (the AT twice as accurate as the product)

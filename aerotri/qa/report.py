@@ -263,6 +263,21 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
                   f"corners: {source}{kind}; not judged")
 
 
+def _dom_points(dom_check, project: Project) -> tuple[str | None, str]:
+    """(None, "on ground patches") for a DOM check against a reference orthophoto; for one at surveyed points (``ortho
+    check --points``) ("" or the note naming those the adjustment used as control, "at surveyed points")."""
+    if dom_check is None or dom_check.method != "surveyed_points":
+        return None, "on ground patches"
+    from aerotri.qa.compliance import _json, dom_points_used_as_control
+
+    control = dom_points_used_as_control(_json(project.dom_report_path), _json(project.adjustment_report_path))
+    if not control:
+        return "", "at surveyed points"
+    more = ", ..." if len(control) > 3 else ""
+    return (f"; {len(control)} of them the adjustment's control ({', '.join(control[:3])}{more}): not independent "
+            "check points", "at surveyed points")
+
+
 def _dom_crs_note(dom_check, project: Project) -> str:
     """(the DOM rows) the DOM's CRS when it is not the project's (a contract's grid), and the operation the reference
     was read through, a ballpark one named as such: the figure then holds the datum shift it ignored."""
@@ -703,13 +718,16 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                             "the reference misses the DOM)"))
     if dom and dom.rms_xy_m is not None:
         gsd = dom.rms_xy_gsd if dom.rms_xy_gsd is not None else float("nan")
-        rows.append(_check("dom_rms_xy_m", sec, "displacement on ground patches, plan RMS", round(dom.rms_xy_m, 4),
-                           tol.get("feature_rms_xy_m"), "m", note=f"{dom.count} patches, {gsd:.2f} GSD"
-                           f"{_dom_crs_note(dom_check, project)}", key="feature_rms_xy_m"))
+        at_surveyed, what = _dom_points(dom_check, project)
+        rows.append(_check("dom_rms_xy_m", sec, f"displacement {what}, plan RMS", round(dom.rms_xy_m, 4),
+                           tol.get("feature_rms_xy_m"), "m",
+                           note=f"{dom.count} {'points' if at_surveyed is not None else 'patches'}, {gsd:.2f} GSD"
+                           f"{at_surveyed or ''}{_dom_crs_note(dom_check, project)}", key="feature_rms_xy_m"))
         if dom.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
             largest = dom.max_xy_m if dom.max_xy_m is not None else float("nan")
-            rows.append(_check("dom_p95_xy_m", sec, "95th percentile of the patch displacements",
+            rows.append(_check("dom_p95_xy_m", sec, "95th percentile of the "
+                               f"{'point' if at_surveyed is not None else 'patch'} displacements",
                                round(dom.p95_xy_m, 4), 2 * tol["feature_rms_xy_m"], "m",
                                note=f"largest {largest:.3f} m; " "limit 2 x the RMS limit (at most 5 % gross errors)",
                                key="feature_rms_xy_m"))

@@ -1,0 +1,63 @@
+"""A DEM whose fill is 0 without a declared nodata value (gdalwarp's output beyond its source, a clipped DEM):
+``ortho rectify`` warns, naming the DEM, the share and how to declare it (new-user trial 2026-12-01, ortho operator:
+the NGI DEM with its eastern 30 % at 0 and no nodata gave frame orthos standing on height 0 there, 400 m below the
+terrain, with no word). A DEM with ground at sea level (a coast: heights running down to 0) is not warned of."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+import rasterio
+from click.testing import CliRunner
+
+from ortho.cli import main
+from ortho.dem import ZERO_FILL_GAP_M, zero_fill_share
+from ortho.synthetic import write_synthetic_project
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    root = tmp_path_factory.mktemp("zero_fill") / "p"
+    write_synthetic_project(root, strips=2, frames_per_strip=2, buildings=0, seed=3)
+    return root
+
+
+def _dem(src, dst, east_share: float, nodata=None, offset_m: float = 0.0):
+    with rasterio.open(src) as ds:
+        a, prof = ds.read(1), ds.profile
+    a = a + np.float32(offset_m)
+    a[:, int(a.shape[1] * (1 - east_share)):] = 0.0
+    prof.update(nodata=nodata)
+    with rasterio.open(dst, "w", **prof) as out:
+        out.write(a, 1)
+    return dst
+
+
+def test_zero_fill_share(block, tmp_path):
+    dem = block / "lidar_out/dem.tif"
+    with rasterio.open(_dem(dem, tmp_path / "z.tif", 0.3)) as ds:
+        share, lo, hi = zero_fill_share(ds)
+    assert 0.25 < share < 0.35 and lo > ZERO_FILL_GAP_M and hi > lo
+    with rasterio.open(_dem(dem, tmp_path / "nd.tif", 0.3, nodata=0.0)) as ds:  # declared: nodata, no fill
+        assert zero_fill_share(ds) is None
+    with rasterio.open(dem) as ds:  # no zero at all
+        assert zero_fill_share(ds) is None
+    # a coast: the land runs down to the sea's 0 (the lowest other heights within the gap): ground, not fill
+    with rasterio.open(dem) as ds:
+        base = float(ds.read(1).min())
+    with rasterio.open(_dem(dem, tmp_path / "coast.tif", 0.3, offset_m=-base + 0.5)) as ds:
+        assert zero_fill_share(ds) is None
+
+
+def test_rectify_warns_of_a_zero_fill(block, tmp_path):
+    root = tmp_path / "p"
+    shutil.copytree(block, root)
+    dem = _dem(block / "lidar_out/dem.tif", tmp_path / "dem_zero.tif", 0.3)
+    r = CliRunner().invoke(main, ["rectify", str(root), "--dem", str(dem)])
+    assert r.exit_code == 0, r.output
+    assert f"{dem}: " in r.stderr and "hold exactly 0" in r.stderr and "-a_nodata 0" in r.stderr, r.stderr
+    r = CliRunner().invoke(main, ["rectify", str(root)])  # the block's own DEM: no such warning
+    assert r.exit_code == 0, r.output
+    assert "hold exactly 0" not in r.stderr
