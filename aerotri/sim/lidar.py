@@ -29,8 +29,9 @@ import math
 import laspy
 import numba
 import numpy as np
-import pyproj
+from laspy.vlrs.known import WktCoordinateSystemVlr
 
+from aerotri.geom.crs.definition import epsg_wkt
 from aerotri.sim import raycast, shading
 from aerotri.sim.config import PresetLidar
 from aerotri.sim.flight import LidarLine
@@ -370,7 +371,10 @@ def las_header(origin_m, epsg: int, creation_date=datetime.date(2026, 1, 1)) -> 
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([0.001, 0.001, 0.001])
     header.offsets = np.floor(np.asarray(origin_m, dtype=float) / 1000.0) * 1000.0
-    header.add_crs(pyproj.CRS.from_epsg(epsg))
+    # the WKT record add_crs writes, with the text PROJ's database gives in a fresh context: this process's PROJ cache
+    # may give the code another (equivalent) definition, and the files other bytes (epsg_wkt)
+    header.vlrs.append(WktCoordinateSystemVlr(epsg_wkt(epsg)))
+    header.global_encoding.wkt = True
     header.creation_date = creation_date
     header.system_identifier = "aerotri simulator"
     header.generating_software = "aerotri sim"

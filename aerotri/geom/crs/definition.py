@@ -7,6 +7,7 @@ feet for metres, eastings without the Gauss-Krueger zone prefix, or a wrong zone
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import math
 
@@ -53,6 +54,23 @@ def crs_label(crs: pyproj.CRS) -> str:
         datum = crs.datum.name if crs.datum is not None else "unknown datum"
         return f"{op.method_name} ({params}), {datum}"
     return crs.name
+
+
+@functools.lru_cache(maxsize=64)
+def epsg_wkt(code: int) -> str:
+    """WKT2:2019 of EPSG ``code`` as PROJ's database defines it, the same text in any process and thread.
+
+    Made in a new thread, so with a new PROJ context (pyproj keeps one per thread) and empty caches: the calling
+    thread's context may hand out another definition of the same code. PROJ 9.5 (pyproj 3.7.2) caches a datum
+    ensemble turned into a plain datum (``DatumEnsemble::asDatum``: identifying a CRS object, or writing it as PROJ
+    text or WKT1) under the code the ensemble is cached under; when that context's cache does not hold the ensemble
+    itself (a context renewed by ``pyproj.datadir.set_data_dir`` while CRS objects made before it live on, as
+    ``parse_crs``'s cache keeps them), every CRS on that ensemble it then makes from the database has the plain
+    datum: WGS 84 CRSs written with ``DATUM["World Geodetic System 1984"]`` for the ensemble (other bytes, same
+    coordinates). Files that carry a CRS as text take it from here."""
+    with concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="epsg-wkt") as pool:
+        # the CRS object stays in that thread: it would outlive the context it was made in
+        return pool.submit(lambda: pyproj.CRS.from_epsg(int(code)).to_wkt()).result()
 
 
 def horizontal_crs(crs: pyproj.CRS) -> pyproj.CRS:

@@ -246,16 +246,52 @@ def _digest(folder):
 
 
 def test_same_seed_same_bytes(tiny_project, tmp_path):
-    """The same seed gives the same bytes, in another process (as `aerotri sim` runs). In the pytest worker itself,
-    after about 1,400 other tests, `simulate` wrote 3 of the 8 LAS files with other bytes in two clean-clone runs of
-    2026-12-01 (the images and rasters the same), while fresh processes (1 or 2 numba threads, the suite's background
-    builder) all agree: a state of that process the simulator's LiDAR depends on, not found yet (CHANGELOG)."""
+    """The same seed gives the same bytes in another process (as `aerotri sim` runs)."""
     import subprocess
     import sys
 
     again = tmp_path / "again"
     subprocess.run([sys.executable, "-c", "import sys; from pathlib import Path; from aerotri.sim import load_preset, "
                     "simulate; simulate(load_preset('tiny'), Path(sys.argv[1]))", str(again)], check=True)
+    assert _digest(again) == _digest(tiny_project)
+
+
+@pytest.fixture
+def proj_cache_without_wgs84_ensemble():
+    """This thread's PROJ context left as the suite's worker had it in CI 64 and 65: a CRS object kept across
+    ``pyproj.datadir.set_data_dir`` (``parse_crs``'s cache keeps them; the geoid fixture renews the context) and
+    identified in the new context, which caches WGS 84's datum ensemble turned into a plain datum
+    (``DatumEnsemble::asDatum``) before the ensemble: EPSG codes on WGS 84 then come from the database with a plain
+    DATUM. Afterwards a new context whose cache holds the ensemble first."""
+    import pyproj
+
+    data_dir = pyproj.datadir.get_data_dir()
+    pyproj.datadir.set_data_dir(data_dir)  # a new context first: the kept CRS has the ensemble whatever ran before
+    kept = pyproj.CRS.from_epsg(32651)
+    pyproj.datadir.set_data_dir(data_dir)
+    try:
+        kept.to_epsg()
+        yield
+    finally:
+        pyproj.datadir.set_data_dir(data_dir)
+        pyproj.CRS.from_epsg(4326)
+
+
+def test_same_bytes_in_a_process_whose_proj_cache_lost_the_wgs84_ensemble(tiny_project, tmp_path,
+                                                                            proj_cache_without_wgs84_ensemble):
+    """In the process itself, with PROJ's cache giving EPSG:32649 a plain DATUM for the WGS 84 ensemble, the
+    simulator writes the bytes of a fresh process: every LAS file's WKT record is PROJ's database text made in a
+    fresh context (``epsg_wkt``). Before, the pytest worker wrote all 8 LAS files with the shorter WKT (points the
+    same) after about 1,400 other tests (CI 64, 65)."""
+    import pyproj
+
+    from aerotri.geom.crs.definition import epsg_wkt
+
+    assert "ENSEMBLE[" not in pyproj.CRS.from_epsg(32649).to_wkt()  # the state this test is about is there
+    epsg_wkt.cache_clear()
+    assert "ENSEMBLE[" in epsg_wkt(32649)
+    again = tmp_path / "again"
+    simulate(load_preset("tiny"), again)
     assert _digest(again) == _digest(tiny_project)
 
 
