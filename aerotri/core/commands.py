@@ -84,6 +84,62 @@ def _exit_cleanly_on_sigterm():
         signal.signal(signal.SIGTERM, previous)
 
 
+class _StdoutToClosedPipe:
+    """``sys.stdout`` while a command runs: a reader that closed the pipe (``... | head``) no longer stops the
+    command. Before, the summary it prints before its outputs are committed raised BrokenPipeError inside the commit,
+    and the finished outputs were rolled back (trial-lidar: ``lidarctl contours ... | head -0`` removed c.gpkg). The
+    rest of what it prints is dropped (sent to the null device, so the exit-time flush is quiet too)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+        self.lost = False
+
+    def _closed(self) -> None:
+        if not self.lost:
+            self.lost = True
+            _logger.debug("standard output closed by its reader; the rest of the command's summary is dropped")
+            try:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, self._stream.fileno())
+                os.close(devnull)
+            except (OSError, ValueError, AttributeError):  # a stream without a descriptor (a test runner's)
+                pass
+
+    def write(self, text):
+        if self.lost:
+            return len(text)
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._closed()
+            return len(text)
+
+    def flush(self):
+        if self.lost:
+            return
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._closed()
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def _stdout_survives_closed_pipe():
+    """``sys.stdout`` as :class:`_StdoutToClosedPipe` while the command runs; the caller's stream afterwards."""
+    previous = sys.stdout
+    if previous is None or isinstance(previous, _StdoutToClosedPipe):
+        yield
+        return
+    sys.stdout = _StdoutToClosedPipe(previous)
+    try:
+        yield
+    finally:
+        sys.stdout = previous
+
+
 class GroupedOption(click.Option):
     """An option that ``--help`` lists under its own heading (``group``), after the other options: e.g.
     the parameters of each ground filter of ``lidarctl classify``."""
@@ -212,8 +268,8 @@ class Command(click.Command):
         _logger.debug("%s started with %s", ctx.command_path,
                       ", ".join(f"{k}={v!r}" for k, v in ctx.params.items()) or "no options")
         try:
-            with _exit_cleanly_on_sigterm(), log.third_party_quiet(), log.native_stderr_to_log(ctx.command_path), \
-                    log.doing(ctx.command_path), self.writing(ctx, wait_s):
+            with _exit_cleanly_on_sigterm(), _stdout_survives_closed_pipe(), log.third_party_quiet(), \
+                    log.native_stderr_to_log(ctx.command_path), log.doing(ctx.command_path), self.writing(ctx, wait_s):
                 result = super().invoke(ctx)
             _logger.debug("%s finished in %.1f s", ctx.command_path, time.perf_counter() - t0)
             return result

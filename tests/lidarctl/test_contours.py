@@ -302,3 +302,24 @@ def test_map_shades_a_dem_whose_heights_and_grid_differ_in_unit_by_the_true_slop
         assert r.exit_code == 0, r.output
     same, mixed = drawn
     assert np.ptp(same) > 0.3 and np.allclose(mixed, same, atol=1e-3)
+
+
+def test_a_reader_that_closes_the_pipe_does_not_undo_the_outputs(tmp_path):
+    """``lidarctl contours ... | head -0``: the summary printed before the commit met a closed pipe; the
+    BrokenPipeError rolled the finished GeoPackage back (trial-lidar). Now the outputs stand, exit 0."""
+    import subprocess
+    import sys
+
+    z, t = _dem(nodata_band=False)
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=500, height=400, count=1,
+                       dtype="float32", crs="EPSG:32631", transform=t) as d:
+        d.write(z.astype("float32"), 1)
+    code = "from lidarctl.cli.main import main; main()"
+    p = subprocess.Popen([sys.executable, "-c", code, "contours", str(tmp_path / "dem.tif"),
+                          str(tmp_path / "c.gpkg"), "--interval-m", "1"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.close()  # the reader is gone before the command prints anything
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) == 0, err
+    assert "Traceback" not in err and "BrokenPipe" not in err
+    assert (tmp_path / "c.gpkg").stat().st_size > 10_000 and (tmp_path / "c.png").exists()
