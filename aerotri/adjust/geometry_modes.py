@@ -299,6 +299,11 @@ class PrincipalPointGnss:
     strip_offset_sigma_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
     strip_chi2: float = float("nan")
     strip_dof: int = 0
+    # the strips' own scatter about one offset (m, camera x and y): a random shift per strip, its standard deviation by
+    # the moments of the per-strip estimates (their spread less what their sigmas explain; 0 where they explain it), and
+    # the one offset's sigma (m) with it: the GNSS errors shared along each strip as an error of their own
+    strip_tau_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
+    offset_sigma_strips_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
 
 
 def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, rays: PointRays, *,
@@ -390,10 +395,17 @@ def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, 
             common = np.linalg.solve(S1, one.T @ Ss @ est_s)
             e = est_s - one @ common
             chi2 = float(e @ Ss @ e) / sigma0**2 if sigma0 > 0 else float("nan")
+            # a random shift per strip (variance tau^2 per axis) by the moments of the estimates about their plain mean
+            C = Ss_inv * sigma0**2
+            centre = np.eye(n_s) - 1.0 / n_s
+            tau2 = np.array([max(0.0, (float(np.sum((centre @ est_s[a::2]) ** 2))
+                                       - float(np.trace(centre @ C[a::2, a::2]))) / (n_s - 1)) for a in range(2)])
+            to_one = np.linalg.solve(S1, one.T @ Ss)  # (2, 2 n_s): the one offset from the per-strip estimates
+            V = to_one @ C @ to_one.T + (to_one * np.tile(tau2, n_s)) @ to_one.T
             pg = dataclasses.replace(pg, strip_offset_m=est_s.reshape(n_s, 2),
-                                     strip_offset_sigma_m=(np.sqrt(np.clip(np.diag(Ss_inv), 0.0, None))
-                                                           * sigma0).reshape(n_s, 2),
-                                     strip_chi2=chi2, strip_dof=2 * (n_s - 1))
+                                     strip_offset_sigma_m=np.sqrt(np.clip(np.diag(C), 0.0, None)).reshape(n_s, 2),
+                                     strip_chi2=chi2, strip_dof=2 * (n_s - 1), strip_tau_m=np.sqrt(tau2),
+                                     offset_sigma_strips_m=np.sqrt(np.clip(np.diag(V), 0.0, None)))
         except np.linalg.LinAlgError:
             pass
         if names_offset is not None and not names_offset(pg, *cal_args):
