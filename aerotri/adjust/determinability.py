@@ -79,6 +79,12 @@ PP_MOVE_SIGMAS = 5.0
 # at most a third of the plan error budget (errors add in quadrature: the rest keeps sqrt(8/9) = 94 % of it). Chosen
 # by that reasoning before any block was scored, not tuned
 PP_RELIEF_PLAN_FRACTION = 1.0 / 3.0
+# the per-strip estimates of that offset (``PrincipalPointGnss.strip_offset_m``) disagree with one offset for all strips
+# beyond this chi-square tail probability: GNSS errors shared along each strip (shifts per strip the solve does not
+# model) are there, and the one offset is judged against its sigma with their scatter (``offset_sigma_strips_m``), not
+# the GNSS's stated sigmas alone (at-verdicts; the s18-fixes review found those 3.5-3.9 times too small with 0.3 m
+# shifts per strip). The report's rate for the GNSS's per-strip checks (report.GNSS_CORRECTION_ALPHA), not tuned
+STRIP_SHIFT_ALPHA = 0.01
 SIGMA_LIMIT_FRACTION = 0.01
 # the focal length: within this fraction of itself at FOCAL_SIGMA_MULTIPLE standard deviations, and moved by no more
 # than that by GNSS heights off by their sigma or by an image-wide error of the residuals' size the camera model does
@@ -139,6 +145,11 @@ class GroupCheck:
     # pp with GNSS shifts: each shift's (east, north, up, m) part that goes with the principal point's move from its
     # a-priori value (``PrincipalPointGnss.shift_per_pp_m`` times the move): the shift it would lose were pp held
     gnss_shift_from_pp_m: tuple | None = None
+    # pp flagged where GNSS strip shifts explain the move (``strip_shift_test``; at-verdicts): the per-strip offsets'
+    # estimates (m, camera x and y per strip), their sigmas, their chi-square against one offset, its degrees of freedom,
+    # the shift per strip's standard deviation and the one offset with its sigma (``_strip_shift_fields``). None: no
+    # such finding
+    gnss_strip_shifts: dict | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -229,6 +240,47 @@ def _focal_reasons(sigma_fraction: float, gnss_fraction: float, field_fraction: 
     return out
 
 
+def strip_shift_test(pg) -> np.ndarray | None:
+    """The one offset's sigma (m, camera x and y) with the strips' own scatter where the per-strip estimates disagree
+    with one offset for all strips beyond ``STRIP_SHIFT_ALPHA`` (GNSS errors shared along the strips), else None (one
+    strip, the estimates not formed, or agreeing within the GNSS's noise)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    c2, dof = float(getattr(pg, "strip_chi2", float("nan"))), int(getattr(pg, "strip_dof", 0))
+    if dof <= 0 or not math.isfinite(c2) or c2 <= float(chi2_dist.isf(STRIP_SHIFT_ALPHA, dof)):
+        return None
+    sd = np.asarray(pg.offset_sigma_strips_m, dtype=float)
+    return np.maximum(sd, np.asarray(pg.offset_sigma_m, dtype=float)) if np.all(np.isfinite(sd)) else None
+
+
+def _xy(v, fmt: str = ".2f") -> str:
+    return f"x {format(float(v[0]), fmt)} y {format(float(v[1]), fmt)}"
+
+
+def _strip_shift_reason(pg, strip_sd: np.ndarray, cal, cal_apriori, cal_cov) -> str:
+    """The flag's reason where GNSS strip shifts, not an offset fixed in the camera, explain the principal point's
+    move (the per-strip estimates listed; the fix an operator has)."""
+    est, sd = np.asarray(pg.strip_offset_m), np.asarray(pg.strip_offset_sigma_m)
+    per = ", ".join(f"strip {s + 1} x {est[s, 0]:+.2f} y {est[s, 1]:+.2f}" for s in range(min(len(est), 8)))
+    moves = []
+    for name in ("u0", "v0"):
+        i = CAL_NAMES.index(f"{name}_px")
+        move, sdp = float(cal[i] - cal_apriori[i]), math.sqrt(max(float(cal_cov[i, i]), 0.0))
+        if sdp > 0:
+            moves.append(f"{name} {move:+.1f} px ({abs(move) / sdp:.0f} standard deviations)")
+    return (f"GNSS strip shifts: the block's estimate of a GNSS position offset fixed in the camera differs strip by "
+            f"strip ({per}{', ...' if len(est) > 8 else ''} m, each +- {float(np.median(sd)):.2f} m; chi-square "
+            f"{pg.strip_chi2:.1f} for {pg.strip_dof} degrees of freedom against one offset for all strips, beyond "
+            f"{STRIP_SHIFT_ALPHA:g}; a shift per strip of {_xy(pg.strip_tau_m)} m standard deviation), and one "
+            f"offset for all ({_xy(pg.offset_estimate_m, '+.2f')} m) is within {PP_MOVE_SIGMAS:g} of its sigma with "
+            f"that scatter ({_xy(strip_sd)} m): GNSS errors shared along each strip that the "
+            f"solve does not model explain it, not the camera (a lever arm or time lag beneath them would be within "
+            f"that scatter: the block cannot tell); the principal point moved with them ({', '.join(moves)}) and is "
+            f"no calibration to reuse. Estimate per-strip GNSS shifts ([adjust] "
+            f"gnss_correction = \"shift\", or \"shift_drift\"; they need control points for the datum) or re-process "
+            f"the trajectory")
+
+
 def pp_gnss_judgement(pg, cal: np.ndarray, cal_apriori: np.ndarray,
                       cal_cov: np.ndarray) -> tuple[list[str], np.ndarray]:
     """Why the principal point is not determinable against the GNSS (``PrincipalPointGnss`` ``pg``, its
@@ -246,7 +298,24 @@ def pp_gnss_judgement(pg, cal: np.ndarray, cal_apriori: np.ndarray,
     - else the principal point moved over ``PP_MOVE_SIGMAS`` of its standard deviations from its a-priori value, as
       such an offset would move it (``pg.px_per_m``), and the estimate does not reject the offset the move names
       (within ``PP_MOVE_SIGMAS`` of its sigma; or the block gives no estimate, its information singular): it cannot
-      tell the two apart; the offset named is the move's."""
+      tell the two apart; the offset named is the move's.
+
+    The estimate's sigma is the GNSS's stated sigmas' (independent errors); where the per-strip estimates disagree
+    with one offset for all strips (``strip_shift_test``: GNSS errors shared along the strips) it is scaled by their
+    own scatter first. Where an offset would be named with the stated sigmas and none is with the scaled one, the
+    move is the GNSS strip shifts': one reason names them (``_strip_shift_reason``), no offset is named."""
+    strip_sd = strip_shift_test(pg)
+    out, offset = _pp_gnss_axes(pg, cal, cal_apriori, cal_cov, strip_sd)
+    if strip_sd is not None and not offset.any() and _pp_gnss_axes(pg, cal, cal_apriori, cal_cov, None)[1].any():
+        out = [t for t in out if "GNSS shifts the solve estimates" in t]
+        out.append(_strip_shift_reason(pg, strip_sd, cal, cal_apriori, cal_cov))
+    return out, offset
+
+
+def _pp_gnss_axes(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.ndarray,
+                  strip_sd: np.ndarray | None) -> tuple[list[str], np.ndarray]:
+    """``pp_gnss_judgement``'s per-axis reasons and offsets; ``strip_sd``: the offset estimate's sigma with the strips'
+    scatter (``strip_shift_test``), None: the GNSS's stated sigmas'."""
     out, offset = [], np.zeros(2)
     for a, (name, axis) in enumerate((("u0", "x"), ("v0", "y"))):
         r = float(pg.shift_correlation[a])
@@ -267,12 +336,15 @@ def pp_gnss_judgement(pg, cal: np.ndarray, cal_apriori: np.ndarray,
         # 0.04-0.07 m found (10-13 sigma apart): not flagged. With both (s18-fixes) the move names the lag's share less
         # the camera file's error, which the estimate rejects while it finds the lag (8.6-23 sigma off zero)
         moved = sd > 0 and abs(move) > PP_MOVE_SIGMAS * sd and k != 0
-        est, est_sd = float(pg.offset_estimate_m[a]), float(pg.offset_sigma_m[a])
+        est = float(pg.offset_estimate_m[a])
+        est_sd = float(pg.offset_sigma_m[a]) if strip_sd is None else float(strip_sd[a])
         estimated = math.isfinite(est) and math.isfinite(est_sd) and est_sd > 0
         # the estimate's sigma takes the GNSS errors as independent (their stated sigmas): errors shared along a strip
         # (a per-strip shift the solve does not model) make it 3.5-3.9 times too small (review 18), so a finding
         # there is the GNSS's error whichever it is (a real one: 0.3 m shifts moved the check points 0.60 m)
         found = estimated and abs(est) > PP_MOVE_SIGMAS * est_sd
+        sigma_src = ("the sigma from the GNSS's stated sigmas as independent errors" if strip_sd is None else
+                     "the sigma with the per-strip estimates' scatter (a shift per strip the solve does not model)")
         move_text = (f"{name} moved {move:+.1f} px ({abs(move) / sd:.0f} standard deviations, limit "
                      f"{PP_MOVE_SIGMAS:g}) from its a-priori value, as a GNSS position offset of {move / k:+.2f} m "
                      f"along the camera's {axis} axis would move it ({k:.2f} px per m: a lever-arm error, or a time "
@@ -283,14 +355,18 @@ def pp_gnss_judgement(pg, cal: np.ndarray, cal_apriori: np.ndarray,
             offset[a] = est
             out.append(f"{name} did not move ({move:+.2f} px, under its standard deviation {sd:.2f} px), but the block "
                        f"finds a GNSS position offset along the camera's {axis} axis (its own estimate {est:+.2f} +- "
-                       f"{est_sd:.2f} m, {abs(est) / est_sd:.0f} standard deviations off zero, the sigma from the "
-                       f"GNSS's stated sigmas as independent errors; correlation {r:.4f} with it): a finding of the "
+                       f"{est_sd:.2f} m, {abs(est) / est_sd:.0f} standard deviations off zero, {sigma_src}; "
+                       f"correlation {r:.4f} with it): a finding of the "
                        "GNSS (a lever-arm error, or a time lag along the track), not of the principal point")
         elif found:
             offset[a] = est
             out.append(f"{move_text}, and the block finds such an offset along the camera's {axis} axis (its own "
                        f"estimate {est:+.2f} +- {est_sd:.2f} m, {abs(est) / est_sd:.0f} standard deviations off zero, "
-                       f"the sigma from the GNSS's stated sigmas as independent errors; correlation {r:.4f} with it)")
+                       f"{sigma_src}; correlation {r:.4f} with it)")
+        elif strip_sd is not None:
+            # GNSS strip shifts the solve does not model: a move and an estimate within the scatter they make are
+            # theirs (the caller names them), not an offset fixed in the camera
+            continue
         elif moved and not estimated:
             offset[a] = move / k
             out.append(f"{move_text}, and the block gives no estimate of such an offset (its information with the "
@@ -327,6 +403,20 @@ def _pp_gnss_reasons(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.n
             out[last] += (f"; the offset named, {offset[offset != 0][0]:+.2f} m, moves the tie points by "
                           f"{effect:.3f} m RMS in plan ({what})")
     return out, effect
+
+
+def _strip_shift_fields(pg, flags: list[str]) -> dict | None:
+    """``GroupCheck.gnss_strip_shifts`` where the flag names GNSS strip shifts (``_strip_shift_reason``), else None
+    (m, camera x and y): the per-strip offsets and their sigmas, the chi-square against one offset and its degrees of
+    freedom, the shift per strip's standard deviation (``strip_tau_m``), the one offset and its sigma with it."""
+    if not any(t.startswith("GNSS strip shifts") for t in flags):
+        return None
+    r = lambda v: round(float(v), 4)  # noqa: E731
+    return {"strip_offset_m": [[r(x) for x in row] for row in np.asarray(pg.strip_offset_m, dtype=float)],
+            "strip_offset_sigma_m": [[r(x) for x in row] for row in np.asarray(pg.strip_offset_sigma_m, dtype=float)],
+            "chi2": round(float(pg.strip_chi2), 2), "dof": int(pg.strip_dof),
+            "shift_sigma_m": [r(x) for x in pg.strip_tau_m], "offset_m": [r(x) for x in pg.offset_estimate_m],
+            "offset_sigma_m": [r(x) for x in strip_shift_test(pg)]}
 
 
 def _pp_gnss_fields(pg, pp_move_px: np.ndarray) -> dict:
@@ -379,6 +469,7 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
         elif not math.isfinite(frac) or frac > SIGMA_LIMIT_FRACTION:
             reasons.append(f"its standard deviation moves the image corner by {sig_px:.1f} px, {100 * frac:.2f} % of "
                            f"the focal length (limit {100 * SIGMA_LIMIT_FRACTION:g} %)")
+        strips = _strip_shift_fields(cc.pp_gnss, flags) if g == "pp" and cc.pp_gnss is not None else None
         names = GROUP_PARAMETERS[g]
         sd = np.sqrt(np.clip(np.diag(cc.cal_cov), 0.0, None))
         out.append(GroupCheck(
@@ -392,5 +483,6 @@ def check_groups(cc: CalibrationCovariance, groups, cal: np.ndarray, cal_apriori
                                             for n in ("u0_px", "v0_px")])
                if g == "pp" and cc.pp_gnss is not None else {}),
             **(dict(gnss_offset_plan_effect_m=plan_effect_m) if flags and math.isfinite(plan_effect_m) else {}),
+            **(dict(gnss_strip_shifts=strips) if strips else {}),
             **(dict(zip(("sigma_fraction", "gnss_height_fraction", "image_field_fraction"), focal)) if focal else {})))
     return out

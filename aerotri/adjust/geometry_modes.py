@@ -290,6 +290,20 @@ class PrincipalPointGnss:
     # ``Sigma_sp Sigma_pp^-1``: times the principal point's move, the part of the shift estimate that goes with it
     # (held at its a-priori value, the shifts change by minus that); empty without shifts
     shift_per_pp_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3, 2)))
+    # such an offset estimated strip by strip (at-verdicts): (n_strips, 2) estimates and sigmas (m; x sigma0, the
+    # GNSS's stated sigmas as independent errors), and ``strip_chi2`` of their disagreement with one offset for all
+    # (``strip_dof`` = 2 (strips - 1) degrees of freedom): an offset fixed in the camera is one for every strip, a GNSS
+    # error shared along each strip (a shift per strip the solve does not model) is not. Empty / NaN: not formed
+    # (one strip, or no offset named)
+    strip_offset_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+    strip_offset_sigma_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+    strip_chi2: float = float("nan")
+    strip_dof: int = 0
+    # the strips' own scatter about one offset (m, camera x and y): a random shift per strip, its standard deviation by
+    # the moments of the per-strip estimates (their spread less what their sigmas explain; 0 where they explain it), and
+    # the one offset's sigma (m) with it: the GNSS errors shared along each strip as an error of their own
+    strip_tau_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
+    offset_sigma_strips_m: np.ndarray = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
 
 
 def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, rays: PointRays, *,
@@ -352,9 +366,50 @@ def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, 
     pg = PrincipalPointGnss(K, offset_corr, shift_corr, orient_corr, offset_estimate_m=offset_est,
                             offset_sigma_m=offset_sd, shift_per_pp_m=shift_per_pp)
     k = k0 + np.arange(9)
-    if names_offset is not None and not names_offset(pg, state.cal, G.cal_from_camera(block.camera),
-                                                     rc.entries(k[:, None], k[None, :]) * sigma0**2):
+    cal_args = (state.cal, G.cal_from_camera(block.camera), rc.entries(k[:, None], k[None, :]) * sigma0**2)
+    if names_offset is not None and not names_offset(pg, *cal_args):
         return pg
+    # an offset named: is it one for every strip (fixed in the camera), or does each strip want its own (GNSS errors
+    # shared along a strip)? The same step with one offset per strip (the offset's columns split by strip)
+    n_s = block.n_strips
+    if n_s >= 2:
+        strip = np.asarray(block.strip, dtype=int)
+        rows = gnss_rows(block, opts, state)[1]  # (the name was reused for the shifts' rows above)
+        bs = np.zeros((rc.n, 2 * n_s))
+        hs = np.zeros((2 * n_s, 2 * n_s))
+        gs = np.zeros(2 * n_s)
+        for i, row in enumerate(rows):
+            c = slice(2 * strip[i], 2 * strip[i] + 2)
+            WR = w[i][:, None] * state.R_cv[i][:, :2]
+            hs[c, c] += state.R_cv[i][:, :2].T @ WR
+            gs[c] += WR.T @ (np.asarray(block.gnss_local[i]) - pred[i])
+            for key, J in row:
+                bs[rc.offset[key]:rc.offset[key] + J.shape[1], c] += J.T @ WR
+        Sbs = rc.multiply(bs)
+        Ss = hs - bs.T @ Sbs
+        try:
+            Ss_inv = np.linalg.inv(Ss)
+            est_s = Ss_inv @ gs
+            one = np.tile(np.eye(2), (n_s, 1))  # (2 n_s, 2): the one offset for all strips
+            S1 = one.T @ Ss @ one
+            common = np.linalg.solve(S1, one.T @ Ss @ est_s)
+            e = est_s - one @ common
+            chi2 = float(e @ Ss @ e) / sigma0**2 if sigma0 > 0 else float("nan")
+            # a random shift per strip (variance tau^2 per axis) by the moments of the estimates about their plain mean
+            C = Ss_inv * sigma0**2
+            centre = np.eye(n_s) - 1.0 / n_s
+            tau2 = np.array([max(0.0, (float(np.sum((centre @ est_s[a::2]) ** 2))
+                                       - float(np.trace(centre @ C[a::2, a::2]))) / (n_s - 1)) for a in range(2)])
+            to_one = np.linalg.solve(S1, one.T @ Ss)  # (2, 2 n_s): the one offset from the per-strip estimates
+            V = to_one @ C @ to_one.T + (to_one * np.tile(tau2, n_s)) @ to_one.T
+            pg = dataclasses.replace(pg, strip_offset_m=est_s.reshape(n_s, 2),
+                                     strip_offset_sigma_m=np.sqrt(np.clip(np.diag(C), 0.0, None)).reshape(n_s, 2),
+                                     strip_chi2=chi2, strip_dof=2 * (n_s - 1), strip_tau_m=np.sqrt(tau2),
+                                     offset_sigma_strips_m=np.sqrt(np.clip(np.diag(V), 0.0, None)))
+        except np.linalg.LinAlgError:
+            pass
+        if names_offset is not None and not names_offset(pg, *cal_args):
+            return pg  # the strips explain it: no offset named, no plan effect formed
     return dataclasses.replace(pg, tie_plan_ms=_tie_plan_ms(block, rays, Sb))
 
 

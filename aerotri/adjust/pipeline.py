@@ -64,8 +64,10 @@ log = logging.getLogger(__name__)
 # drift in metres (c03bf566), which stamps of version 1 (since 086020cd) kept as up to date. 3: s13-fixes: the
 # direction check's means are the strip means' unweighted average, its Bonferroni count the pairs tested. 4:
 # pp-predictor: a principal point against a camera-fixed GNSS offset is flagged by the block's own estimate of the
-# offset, its predicted ground effect from the normal equations (the report's verdict may change).
-ADJUST_VERSION = 4
+# offset, its predicted ground effect from the normal equations (the report's verdict may change). 5: at-verdicts: the
+# height control the data snooping left in is judged against the GNSS heights (``height_datum``), a principal point's
+# flag explained by GNSS strip shifts names them (report.json gains keys; the verdict may turn weak).
+ADJUST_VERSION = 5
 
 
 @dataclasses.dataclass(kw_only=True)

@@ -22,6 +22,7 @@ from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.determinability import pp_gnss_names_offset
 from aerotri.adjust.geometry_modes import geometry_modes
 from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
+from aerotri.adjust.height_datum import height_datum_check
 from aerotri.adjust.snooping import (
     critical_value,
     redundancy_numbers,
@@ -75,6 +76,9 @@ class AdjustmentResult:
     calibration: object | None = None  # geometry_modes.CalibrationCovariance (self-calibration only)
     behind_camera: tuple[int, int] = (0, 0)  # gtsam's CheiralityException lines, (point, camera) pairs (cpp_output)
     surface_bias: object | None = None  # surface_bias.SurfaceBias: the surface's systematic error in the covariances
+    # height_datum.HeightDatumCheck: the height control the data snooping left in against the GNSS heights (None: no
+    # height control left out, or no GNSS)
+    height_datum: object | None = None
 
 
 def adjust_block(block: G.Block, opts: G.SolveSettings, state0: G.State, **kwargs) -> AdjustmentResult:
@@ -265,6 +269,7 @@ def _adjust_block(
 
     pose_cov = point_cov = cal_cov = marg = bias = None
     components, factors, geometry, calibration = None, None, None, None
+    height_datum = None
     if compute_marginals:
         t0 = time.perf_counter()
         marg = _marginals(gr, values, block, obs_active)
@@ -314,6 +319,8 @@ def _adjust_block(
                                                        sigma0=sigma0, rays=rays, pp_names_offset=pp_gnss_names_offset)
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
+            # the height control the snooping left in against the GNSS heights' plane error (at-verdicts)
+            height_datum = height_datum_check(block, opts, state, marg, control_active, sigma0=sigma0, alpha=alpha)
             bias = _surface_bias(block, opts, state, obs_active=obs_active, control_active=control_active, marg=marg,
                                  rays=rays)
             if bias is not None:
@@ -341,6 +348,7 @@ def _adjust_block(
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
         iterations, timings, stats, use, components, factors, block, opts, geometry, calibration, surface_bias=bias,
+        height_datum=height_datum,
     )
 
 
