@@ -1,0 +1,85 @@
+"""The whole cloud's level regions labelled tile by tile (``level_tiles``, level-tiles): the regions, areas and
+levels of the whole cloud's labelling (``pipeline._level_regions`` over all cells) from the tiles' borders and
+spanning regions only -- the parent never holds an array per core cell."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import ndimage
+
+from lidarctl.classify import level_tiles as lt
+from lidarctl.classify import pipeline as classify
+
+from tests.lidarctl.test_classify_water_level_bodies import lake_cells
+
+
+def whole_regions(cells, heights, tol):
+    """Region per cell, its area (cells) and level (``np.median``) from the labelling of all cells at once."""
+    med = lt.level_medians(cells, heights, tol)
+    g = np.full(tuple(cells.max(axis=0) + 1), np.nan)
+    g[cells[:, 0], cells[:, 1]] = med
+    lab = classify._level_regions(g, tol)[cells[:, 0], cells[:, 1]]
+    size = np.bincount(lab)
+    level = np.r_[np.nan, ndimage.median(med[lab > 0], lab[lab > 0], np.arange(1, len(size)))]
+    return lab, size[lab], level[lab]
+
+
+def tiled_regions(cells, heights, tol, side):
+    """The same from the tiles (squares of ``side`` cells): per cell its region (unique over the cloud), area and
+    level, and what each tile sent the parent."""
+    ncols = int(cells[:, 1].max()) + 1
+    tiles = lt.split_into_tiles(cells, side)
+    done = [lt.tile_level_regions(cells[i], heights[i], core, ncols, tol) for i, core in tiles]
+    answers = lt.join_tile_regions([sent for sent, _ in done])
+    region = np.zeros(len(cells), np.int64)
+    area = np.zeros(len(cells), np.int64)
+    level = np.full(len(cells), np.nan)
+    own_id = 1 << 40
+    for (idx, core), (sent, kept), answer in zip(tiles, done, answers):
+        k, lab, m = idx[core], kept.label, sent.n_spanning
+        span, inner = (lab > 0) & (lab <= m), lab > m
+        region[k[span]], area[k[span]], level[k[span]] = (answer.region_id[lab[span]], answer.cells[lab[span]],
+                                                         answer.level_m[lab[span]])
+        region[k[inner]], area[k[inner]], level[k[inner]] = (own_id + lab[inner], kept.cells[lab[inner]],
+                                                            kept.level_m[lab[inner]])
+        own_id += 1 << 20
+    return region, area, level, [sent for sent, _ in done], tiles
+
+
+def test_tiled_regions_are_the_whole_clouds():
+    """A lake larger than a tile (36 cells across; a ring of level patches, land, crowns, 10 % empty cells) in tiles
+    of 17 and 24 cells: the same regions (a one-to-one map of the labels), the same areas, the levels of the regions wholly in
+    a tile exact and of the spanning ones within half a histogram bin."""
+    p = classify.ClassifySettings()
+    cells, heights, _ = lake_cells(seed=1)
+    lab, size, level = whole_regions(cells, heights, p.level_water_tol_m)
+    lake = size[lab > 0].max()
+    assert lake > 24 * 24
+    for side in (17, 24):
+        region, area, lev, _, _ = tiled_regions(cells, heights, p.level_water_tol_m, side)
+        a = lab > 0
+        assert np.array_equal(a, region > 0)
+        pairs = np.unique(np.column_stack([lab[a], region[a]]), axis=0)
+        assert len(pairs) == len(np.unique(lab[a])) == len(np.unique(region[a]))
+        assert np.array_equal(area[a], size[a]) and area.max() == lake
+        inner = a & (region >= 1 << 40)
+        assert np.array_equal(lev[inner], level[inner])
+        assert np.max(np.abs(lev[a] - level[a])) <= lt.LEVEL_BIN_M / 2 + 1e-9
+
+
+def test_the_parent_gets_no_array_per_core_cell():
+    """What a tile hands the parent is its border (the ring of cells about its core and the core's edge cells) and
+    its spanning regions' histograms: at most 12 entries per cell of the core's side on the lake (cores of 40 x 40
+    cells: 1,600 cells, 480 entries at most), never an array of the core's cells."""
+    p = classify.ClassifySettings()
+    cells, heights, _ = lake_cells(seed=1)
+    side = 40
+    _, _, _, sent, tiles = tiled_regions(cells, heights, p.level_water_tol_m, side)
+    for t, (_, core) in zip(sent, tiles):
+        for f in dataclasses.fields(t):
+            v = getattr(t, f.name)
+            if isinstance(v, np.ndarray):
+                assert len(v) <= 12 * side, (f.name, len(v))
+        assert len(t.halo_keys) <= 4 * side + 4 and len(t.edge_keys) <= 4 * side
