@@ -41,9 +41,11 @@ class TileRegions:
     its halo (local labels 1..``n_spanning``) and its border cells, no per-cell arrays of its core.
     ``core_cells[k]``: the region's cells in the core (index 0 unused); ``hist_region``, ``hist_bin``,
     ``hist_count``: its histogram of the cells' median returns over the core (bins of ``LEVEL_BIN_M`` from 0 m);
-    ``halo_keys`` / ``halo_label``: the halo cells in a spanning region (whole-grid keys ``row * ncols + col``);
+    ``row``, ``col``: the tile's place on the tile grid; ``halo_keys`` / ``halo_label``: the halo cells in a spanning region (whole-grid keys ``row * ncols + col``);
     ``edge_keys`` / ``edge_label``: the core's level cells on the edge of its cells' box, sorted by key."""
 
+    row: int
+    col: int
     n_spanning: int
     core_cells: np.ndarray
     hist_region: np.ndarray
@@ -84,11 +86,11 @@ def level_medians(cells: np.ndarray, heights: np.ndarray, tol_m: float) -> np.nd
 
 
 def tile_level_regions(cells: np.ndarray, heights: np.ndarray, core: np.ndarray, ncols_whole: int,
-                       tol_m: float) -> tuple[TileRegions, TileLabels]:
+                       tol_m: float, tile: tuple[int, int] = (0, 0)) -> tuple[TileRegions, TileLabels]:
     """A tile's level regions (in its worker): ``cells`` (k, 2) row and column on the whole grid of the tile's core
     cells (``core``) and of the cells about them (at least the ring one cell wide, from its buffer), ``heights``
     (k, 3) each cell's lowest, median and highest return (m), ``ncols_whole`` the whole grid's columns (for the
-    keys). Memory of the tile's window (a grid over its cells' box). Returns what it hands the parent and what it
+    keys), ``tile`` its (row, col) on the tile grid. Memory of the tile's window (a grid over its cells' box). Returns what it hands the parent and what it
     keeps."""
     core = np.asarray(core, bool)
     med_cell = level_medians(cells, heights, tol_m)
@@ -149,7 +151,7 @@ def tile_level_regions(cells: np.ndarray, heights: np.ndarray, core: np.ndarray,
     hk, hl = keys(halo & (lab > 0) & (lab <= m))
     ek, el = keys(edge)
     o = np.argsort(ek)
-    sent = TileRegions(m, count[:m + 1].copy(), pair[:, 0].copy(), pair[:, 1].copy(), cnt, hk, hl, ek[o], el[o])
+    sent = TileRegions(int(tile[0]), int(tile[1]), m, count[:m + 1].copy(), pair[:, 0].copy(), pair[:, 1].copy(), cnt, hk, hl, ek[o], el[o])
     kept = TileLabels(core_lab, np.where(np.arange(n + 1) > m, count, 0), level)
     return sent, kept
 
@@ -166,6 +168,14 @@ def _union_pairs(parent, a, b):
                 parent[x] = y
 
 
+@numba.njit(cache=True)
+def _roots(parent):
+    out = np.empty(len(parent), np.int64)
+    for k in range(len(parent)):
+        out[k] = grid._find(parent, k)
+    return out
+
+
 def _histogram_median(bins: np.ndarray, counts: np.ndarray) -> float:
     """The median (m) of values in ``LEVEL_BIN_M`` bins ``bins`` (sorted) counted ``counts``: the mean of the two
     middle values' bin centres."""
@@ -176,59 +186,102 @@ def _histogram_median(bins: np.ndarray, counts: np.ndarray) -> float:
     return (0.5 * (a + b) + 0.5) * LEVEL_BIN_M
 
 
-def join_tile_regions(tiles: list[TileRegions]) -> list[RegionDecisions]:
-    """The parent's join of the tiles' spanning regions: union-find on the cells two tiles share (a halo cell of
-    one tile is an edge cell of the tile whose core holds it), the areas and histograms added. Memory of the
-    tiles' borders and spanning regions (their histograms), never of their core cells."""
-    offset = np.r_[0, np.cumsum([t.n_spanning + 1 for t in tiles])]
-    parent = np.arange(int(offset[-1]), dtype=np.int64)
-    edge_keys = np.concatenate([t.edge_keys for t in tiles]) if tiles else np.zeros(0, np.int64)
-    edge_node = np.concatenate([t.edge_label + offset[i] for i, t in enumerate(tiles)]) if tiles else edge_keys
-    o = np.argsort(edge_keys, kind="stable")
-    edge_keys, edge_node = edge_keys[o], edge_node[o]
-    for i, t in enumerate(tiles):
-        if not len(t.halo_keys):
-            continue
-        pos = np.clip(np.searchsorted(edge_keys, t.halo_keys), 0, max(len(edge_keys) - 1, 0))
-        hit = edge_keys[pos] == t.halo_keys
-        # a halo cell in a region here is a level cell of its owner: an edge cell there (its level cells only:
-        # one joined here but not level there cannot be, the cell's values are the same in both tiles)
-        _union_pairs(parent, (t.halo_label[hit] + offset[i]).astype(np.int64), edge_node[pos[hit]])
-    del edge_keys, edge_node
+def _match(keys_a, nodes_a, keys_b, nodes_b):
+    """The node pairs of the keys in both (``keys_b`` unique); and which of ``keys_a`` found none."""
+    if not len(keys_b) or not len(keys_a):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.ones(len(keys_a), bool)
+    o = np.argsort(keys_b)
+    kb, nb = keys_b[o], nodes_b[o]
+    pos = np.minimum(np.searchsorted(kb, keys_a), len(kb) - 1)
+    hit = kb[pos] == keys_a
+    return nodes_a[hit], nb[pos[hit]], ~hit
+
+
+def join_tile_regions(tiles, positions=None) -> list[RegionDecisions]:
+    """The parent's join of the tiles' spanning regions, the tiles (``TileRegions``) taken one at a time as they
+    come (an iterable): union-find on the cells two tiles share (a halo cell of one tile is an edge cell of the
+    tile whose core holds it), the areas and histograms added. ``positions``: every tile's (row, col) on the tile
+    grid, known before the first comes: a tile's halo cells lie in its 8 neighbours' cores, and its border cells are
+    dropped once those have all come (in row order: a row of tiles' borders held; None: all borders to the end).
+    Memory of the spanning regions (a node each, their histograms) and of the pending borders, never of the tiles'
+    core cells."""
+    parent = np.zeros(0, np.int64)
+    cells: list[np.ndarray] = []
+    hists: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    offsets: list[int] = []
+    edges: dict = {}     # tile -> (keys, nodes) of its edge cells, until its neighbours have come
+    halos: dict = {}     # tile -> (keys, nodes) of its halo cells not yet matched
+    arrived: set = set()
+    known = set(positions) if positions is not None else None
+
+    def near(t):
+        if known is None:
+            return [u for u in arrived if u != t]
+        r, c = t
+        return [(r + dr, c + dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr or dc) and (r + dr, c + dc) in known]
+
+    n = 0
+    for t in tiles:
+        pos = (t.row, t.col)
+        off = n
+        offsets.append(off)
+        n += t.n_spanning + 1
+        if n > len(parent):   # grown by doubling: a copy per doubling, not per tile
+            parent = np.r_[parent, np.zeros(max(n, 2 * len(parent)) - len(parent), np.int64)]
+        parent[off:n] = np.arange(off, n)
+        cells.append(t.core_cells)
+        hists.append((t.hist_region + off, t.hist_bin, t.hist_count))
+        hk, hn = t.halo_keys, t.halo_label.astype(np.int64) + off
+        ek, en = t.edge_keys, t.edge_label.astype(np.int64) + off
+        for u in near(pos):
+            if u in edges:   # this tile's halo cells in that tile's core
+                a, b, rest = _match(hk, hn, *edges[u])
+                _union_pairs(parent, a, b)
+                hk, hn = hk[rest], hn[rest]
+            if u in halos:   # that tile's halo cells in this tile's core
+                a, b, rest = _match(*halos[u], ek, en)
+                _union_pairs(parent, a, b)
+                halos[u] = (halos[u][0][rest], halos[u][1][rest])
+        if len(hk):
+            halos[pos] = (hk, hn)
+        edges[pos] = (ek, en)
+        arrived.add(pos)
+        if known is not None:   # borders of the tiles whose neighbours have all come are no longer needed
+            for u in [pos, *near(pos)]:
+                if u in arrived and all(v in arrived for v in near(u)):
+                    edges.pop(u, None)
+                    halos.pop(u, None)
+    del edges, halos
+    parent = parent[:n]
     root = _roots(parent)
-    cells = np.bincount(root, weights=np.concatenate([t.core_cells for t in tiles]).astype(float),
-                        minlength=len(parent)) if tiles else np.zeros(0)
-    hr = np.concatenate([root[t.hist_region + offset[i]] for i, t in enumerate(tiles)])
-    hb = np.concatenate([t.hist_bin for t in tiles])
-    hc = np.concatenate([t.hist_count for t in tiles])
+    area = np.bincount(root, weights=np.concatenate(cells).astype(float), minlength=n) if n else np.zeros(0)
+    del cells
+    hr = np.concatenate([root[h[0]] for h in hists]) if hists else np.zeros(0, np.int64)
+    hb = np.concatenate([h[1] for h in hists]) if hists else np.zeros(0, np.int64)
+    hc = np.concatenate([h[2] for h in hists]) if hists else np.zeros(0, np.int64)
+    del hists
     o = np.lexsort((hb, hr))
     hr, hb, hc = hr[o], hb[o], hc[o]
-    level = np.full(len(parent), np.nan)
+    level = np.full(n, np.nan)
     starts = np.flatnonzero(np.r_[True, hr[1:] != hr[:-1]]) if len(hr) else np.zeros(0, np.int64)
     for s, e in zip(starts, np.r_[starts[1:], len(hr)]):
         level[hr[s]] = _histogram_median(hb[s:e], hc[s:e])
-    ids = np.zeros(len(parent), np.int64)
-    roots = np.unique(root[np.concatenate([np.arange(offset[i] + 1, offset[i + 1]) for i in range(len(tiles))])])
+    spanning = np.ones(n, bool)
+    spanning[offsets] = False
+    ids = np.zeros(n, np.int64)
+    roots = np.unique(root[spanning])
     ids[roots] = np.arange(1, len(roots) + 1)
     out = []
-    for i, t in enumerate(tiles):
-        r = root[offset[i]:offset[i + 1]]
-        out.append(RegionDecisions(np.r_[0, ids[r[1:]]], np.r_[0, cells[r[1:]]].astype(np.int64),
-                                   np.r_[np.nan, level[r[1:]]]))
-    return out
-
-
-@numba.njit(cache=True)
-def _roots(parent):
-    out = np.empty(len(parent), np.int64)
-    for k in range(len(parent)):
-        out[k] = grid._find(parent, k)
+    for off, end in zip(offsets, offsets[1:] + [n]):
+        r = root[off + 1:end]
+        out.append(RegionDecisions(np.r_[0, ids[r]], np.r_[0, area[r]].astype(np.int64), np.r_[np.nan, level[r]]))
     return out
 
 
 def split_into_tiles(cells: np.ndarray, side_cells: int):
     """Test and bench helper: the tiles of a whole cloud's cells in squares of ``side_cells`` cells from row and
-    column 0: per tile (index of its cells among ``cells`` (core and the ring about it), the core mask)."""
+    column 0: per tile ((row, col) on the tile grid, index of its cells among ``cells`` (core and the ring about it),
+    the core mask), in row order."""
     t = cells // side_cells
     tiles = []
     for tr, tc in np.unique(t, axis=0):
@@ -236,5 +289,5 @@ def split_into_tiles(cells: np.ndarray, side_cells: int):
         near = ((cells[:, 0] >= lo_r - 1) & (cells[:, 0] <= lo_r + side_cells) & (cells[:, 1] >= lo_c - 1)
                 & (cells[:, 1] <= lo_c + side_cells))
         idx = np.flatnonzero(near)
-        tiles.append((idx, (t[idx, 0] == tr) & (t[idx, 1] == tc)))
+        tiles.append(((int(tr), int(tc)), idx, (t[idx, 0] == tr) & (t[idx, 1] == tc)))
     return tiles

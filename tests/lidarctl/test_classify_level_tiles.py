@@ -26,18 +26,20 @@ def whole_regions(cells, heights, tol):
     return lab, size[lab], level[lab]
 
 
-def tiled_regions(cells, heights, tol, side):
+def tiled_regions(cells, heights, tol, side, stream=True):
     """The same from the tiles (squares of ``side`` cells): per cell its region (unique over the cloud), area and
-    level, and what each tile sent the parent."""
+    level, and what each tile sent the parent (``stream``: the tiles' borders dropped once their neighbours came;
+    else held to the end)."""
     ncols = int(cells[:, 1].max()) + 1
     tiles = lt.split_into_tiles(cells, side)
-    done = [lt.tile_level_regions(cells[i], heights[i], core, ncols, tol) for i, core in tiles]
-    answers = lt.join_tile_regions([sent for sent, _ in done])
+    done = [lt.tile_level_regions(cells[i], heights[i], core, ncols, tol, pos) for pos, i, core in tiles]
+    answers = lt.join_tile_regions((sent for sent, _ in done),
+                                   positions=[pos for pos, _, _ in tiles] if stream else None)
     region = np.zeros(len(cells), np.int64)
     area = np.zeros(len(cells), np.int64)
     level = np.full(len(cells), np.nan)
     own_id = 1 << 40
-    for (idx, core), (sent, kept), answer in zip(tiles, done, answers):
+    for (_, idx, core), (sent, kept), answer in zip(tiles, done, answers):
         k, lab, m = idx[core], kept.label, sent.n_spanning
         span, inner = (lab > 0) & (lab <= m), lab > m
         region[k[span]], area[k[span]], level[k[span]] = (answer.region_id[lab[span]], answer.cells[lab[span]],
@@ -50,15 +52,15 @@ def tiled_regions(cells, heights, tol, side):
 
 def test_tiled_regions_are_the_whole_clouds():
     """A lake larger than a tile (36 cells across; a ring of level patches, land, crowns, 10 % empty cells) in tiles
-    of 17 and 24 cells: the same regions (a one-to-one map of the labels), the same areas, the levels of the regions wholly in
+    of 17 and 24 cells (the tiles' borders dropped as the tiles come, or held to the end): the same regions (a one-to-one map of the labels), the same areas, the levels of the regions wholly in
     a tile exact and of the spanning ones within half a histogram bin."""
     p = classify.ClassifySettings()
     cells, heights, _ = lake_cells(seed=1)
     lab, size, level = whole_regions(cells, heights, p.level_water_tol_m)
     lake = size[lab > 0].max()
     assert lake > 24 * 24
-    for side in (17, 24):
-        region, area, lev, _, _ = tiled_regions(cells, heights, p.level_water_tol_m, side)
+    for side, stream in ((17, True), (24, True), (24, False)):
+        region, area, lev, _, _ = tiled_regions(cells, heights, p.level_water_tol_m, side, stream)
         a = lab > 0
         assert np.array_equal(a, region > 0)
         pairs = np.unique(np.column_stack([lab[a], region[a]]), axis=0)
@@ -77,7 +79,7 @@ def test_the_parent_gets_no_array_per_core_cell():
     cells, heights, _ = lake_cells(seed=1)
     side = 40
     _, _, _, sent, tiles = tiled_regions(cells, heights, p.level_water_tol_m, side)
-    for t, (_, core) in zip(sent, tiles):
+    for t, (_, _, core) in zip(sent, tiles):
         for f in dataclasses.fields(t):
             v = getattr(t, f.name)
             if isinstance(v, np.ndarray):
