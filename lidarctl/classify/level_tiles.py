@@ -90,10 +90,20 @@ def tile_level_regions(cells: np.ndarray, heights: np.ndarray, core: np.ndarray,
     """A tile's level regions (in its worker): ``cells`` (k, 2) row and column on the whole grid of the tile's core
     cells (``core``) and of the cells about them (at least the ring one cell wide, from its buffer), ``heights``
     (k, 3) each cell's lowest, median and highest return (m), ``ncols_whole`` the whole grid's columns (for the
-    keys), ``tile`` its (row, col) on the tile grid. Memory of the tile's window (a grid over its cells' box). Returns what it hands the parent and what it
-    keeps."""
+    keys), ``tile`` its (row, col) on the tile grid. Memory of the tile's window (a grid over its cells' box).
+    Returns what it hands the parent and what it keeps."""
+    med = level_medians(cells, heights, tol_m)
+    return tile_components(cells, med, tol_m, med[:, None], core, ncols_whole, tile)
+
+
+def tile_components(cells: np.ndarray, join_value: np.ndarray, join_tol: float, values: np.ndarray,
+                    core: np.ndarray, ncols_whole: int, tile: tuple[int, int] = (0, 0)) -> tuple[TileRegions,
+                                                                                                 TileLabels]:
+    """``tile_level_regions`` for any components: the cells with a finite ``join_value`` joined to their 8
+    neighbours whose value differs by at most ``join_tol`` (a label as the value, tolerance 0.5: the cells of one
+    label), each component's median over ``values`` (k, m) of its core cells (NaN: not counted)."""
     core = np.asarray(core, bool)
-    med_cell = level_medians(cells, heights, tol_m)
+    med_cell = join_value
     r0, c0 = cells.min(axis=0)
     nrows, ncols = (cells.max(axis=0) - (r0, c0) + 1).astype(int)
     rr, cc = cells[:, 0] - r0, cells[:, 1] - c0
@@ -101,7 +111,7 @@ def tile_level_regions(cells: np.ndarray, heights: np.ndarray, core: np.ndarray,
     med[rr, cc] = med_cell
     incore = np.zeros((nrows, ncols), bool)
     incore[rr[core], cc[core]] = True
-    lab = cl._level_regions(med, tol_m)
+    lab = cl._level_regions(med, join_tol)
     del med
     # the halo: cells beside a core cell, outside the core; only those in a region with core cells count
     ring = np.zeros((nrows + 2, ncols + 2), bool)
@@ -133,15 +143,18 @@ def tile_level_regions(cells: np.ndarray, heights: np.ndarray, core: np.ndarray,
     lab = relabel[lab]
     n = len(order)
     core_lab = lab[rr[core], cc[core]]
-    core_med = med_cell[core]
-    lv = core_lab > 0
     count = np.bincount(core_lab, minlength=n + 1)
+    vals = np.asarray(values, float)[core]
+    vl = np.repeat(core_lab, vals.shape[1])
+    vals = vals.ravel()
+    take = (vl > 0) & np.isfinite(vals)
+    vl, vals = vl[take], vals[take]
     level = np.full(n + 1, np.nan)
-    level[m + 1:] = cl._group_median(core_med[lv], core_lab[lv], n + 1)[m + 1:]
+    level[m + 1:] = cl._group_median(vals, vl, n + 1)[m + 1:]
     # the spanning regions' histograms over the core
-    sp = lv & (core_lab <= m)
-    b = np.floor(core_med[sp] / LEVEL_BIN_M).astype(np.int64)
-    pair, cnt = np.unique(np.column_stack([core_lab[sp], b]), axis=0, return_counts=True) if sp.any() else (
+    sp = vl <= m
+    b = np.floor(vals[sp] / LEVEL_BIN_M).astype(np.int64)
+    pair, cnt = np.unique(np.column_stack([vl[sp], b]), axis=0, return_counts=True) if sp.any() else (
         np.zeros((0, 2), np.int64), np.zeros(0, np.int64))
 
     def keys(mask):
@@ -151,7 +164,8 @@ def tile_level_regions(cells: np.ndarray, heights: np.ndarray, core: np.ndarray,
     hk, hl = keys(halo & (lab > 0) & (lab <= m))
     ek, el = keys(edge)
     o = np.argsort(ek)
-    sent = TileRegions(int(tile[0]), int(tile[1]), m, count[:m + 1].copy(), pair[:, 0].copy(), pair[:, 1].copy(), cnt, hk, hl, ek[o], el[o])
+    sent = TileRegions(int(tile[0]), int(tile[1]), m, count[:m + 1].copy(), pair[:, 0].copy(), pair[:, 1].copy(),
+                       cnt, hk, hl, ek[o], el[o])
     kept = TileLabels(core_lab, np.where(np.arange(n + 1) > m, count, 0), level)
     return sent, kept
 
@@ -291,3 +305,206 @@ def split_into_tiles(cells: np.ndarray, side_cells: int):
         idx = np.flatnonzero(near)
         tiles.append(((int(tr), int(tc)), idx, (t[idx, 0] == tr) & (t[idx, 1] == tc)))
     return tiles
+
+
+@dataclasses.dataclass(frozen=True)
+class _Window:
+    """A tile's window in ``whole_level_bodies_tiled`` (what its worker reads): the index of its cells among the
+    whole cloud's (core and ``halo`` cells about it, as the tile's buffer and its neighbours' spooled cells hold
+    them), which are in the core, which in the core and the ring one cell wide about it."""
+
+    tile: tuple
+    index: np.ndarray
+    core: np.ndarray
+    near: np.ndarray
+
+
+def _windows(cells: np.ndarray, side: int, halo: int) -> list[_Window]:
+    t = cells // side
+    out = []
+    order = np.lexsort((cells[:, 1], cells[:, 0]))
+    rows = cells[order, 0]
+    for tr, tc in np.unique(t, axis=0):
+        r0, c0 = tr * side, tc * side
+        a, b = np.searchsorted(rows, [r0 - halo, r0 + side + halo])
+        idx = order[a:b]
+        idx = np.sort(idx[(cells[idx, 1] >= c0 - halo) & (cells[idx, 1] < c0 + side + halo)])
+        rr, cc = cells[idx, 0] - r0, cells[idx, 1] - c0
+        core = (rr >= 0) & (rr < side) & (cc >= 0) & (cc < side)
+        near = (rr >= -1) & (rr <= side) & (cc >= -1) & (cc <= side)
+        out.append(_Window((int(tr), int(tc)), idx, core, near))
+    return out
+
+
+def _label_round(cells, windows, join_value, join_tol, values, ncols_whole):
+    """One labelling round: every tile's components on its core and ring, the parent's join; per cell (the
+    tiles' spooled core labels) the component's id over the cloud (0: none), and per id its cells and median."""
+    done = [tile_components(cells[w.index[w.near]], join_value[w.index[w.near]], join_tol,
+                            values[w.index[w.near]], w.core[w.near], ncols_whole, w.tile) for w in windows]
+    answers = join_tile_regions((s for s, _ in done), positions=[w.tile for w in windows])
+    n_span = max((int(a.region_id.max(initial=0)) for a in answers), default=0)
+    gid = np.zeros(len(cells), np.int64)
+    area, level = [np.zeros(n_span + 1, np.int64)], [np.full(n_span + 1, np.nan)]
+    for a in answers:
+        area[0][a.region_id[1:]] = a.cells[1:]
+        level[0][a.region_id[1:]] = a.level_m[1:]
+    nxt = n_span + 1
+    for w, (s, kept), a in zip(windows, done, answers):
+        lab = kept.label
+        m, n = s.n_spanning, len(kept.cells) - 1
+        ids = np.r_[a.region_id, np.arange(nxt, nxt + n - m)]
+        gid[w.index[w.near][w.core[w.near]]] = ids[lab]
+        area.append(kept.cells[m + 1:])
+        level.append(kept.level_m[m + 1:])
+        nxt += n - m
+    return gid, np.concatenate(area), np.concatenate(level)
+
+
+def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side_cells: int):
+    """``pipeline.whole_level_bodies`` without the join across dropouts (``level_water_across_dropouts`` off),
+    tile by tile (squares of ``side_cells`` cells): each round is a pass of the tiles over their windows (core and
+    a halo of the wall rule's reach and the rim: what their buffers and their neighbours' spooled cells hold) and
+    a reduction of per-region sums in the parent. Rounds: (1) the level regions, their areas and levels; (2) each
+    large region's cells at its level, relabelled within it, areas and levels; (3) the banks across the rim (a
+    quay's wall: the lowest land within ``WALL_BEHIND_M``), counted per region; (4) shore and open sky, counted;
+    (5) the water cells; (6) the bodies (components of the water cells) and their levels. The levels of regions
+    spanning tiles are histogram medians (``LEVEL_BIN_M``), the rest is exact. A check of the decomposition (the
+    whole cloud's cells are held here as the tiles would hold theirs), not yet the tiles' pass."""
+    empty = cl.LevelBodies(1, np.zeros(0, np.int64), np.zeros(0))
+    tol = p.level_water_tol_m
+    if not len(cells) or p.level_water_min_area_m2 <= 0:
+        return empty
+    c = wg.cell_m
+    reach = int(np.ceil(cl.WALL_BEHIND_M / c))
+    shore_cells = max(1, int(np.ceil(p.water_shore_m / c)))
+    halo = max(reach, shore_cells) + 4
+    ncols_whole = int(cells[:, 1].max()) + 1
+    windows = _windows(cells, side_cells, halo)
+    lo, ground, hi = heights[:, 0], heights[:, 1], heights[:, 2]
+    med = level_medians(cells, heights, tol)
+    min_cells = p.level_water_min_area_m2 / (c * c)
+    # (1) level regions
+    gid1, area1, level1 = _label_round(cells, windows, med, tol, med[:, None], ncols_whole)
+    big = area1 >= min_cells
+    big[0] = False
+    # (2) each large region's cells at its level, 8-connected within it
+    with np.errstate(invalid="ignore"):
+        at_level = big[gid1] & (np.abs(med - level1[gid1]) <= tol)
+    gid, area, level = _label_round(cells, windows, np.where(at_level, gid1.astype(float), np.nan), 0.5,
+                                    med[:, None], ncols_whole)
+    good = area >= min_cells
+    good[0] = False
+    if not good.any():
+        return empty
+
+    def window_grid(w):
+        """The tile's window as ``pipeline._Blocks`` (its box's blocks holding cells), its cells' slots there and
+        the window's arrays."""
+        rc = cells[w.index]
+        r0, c0 = rc.min(axis=0)
+        nr, nc = (rc.max(axis=0) - (r0, c0) + 1).astype(int)
+        side = cl.LEVEL_BODIES_BLOCK_CELLS
+        act = np.zeros((-(-nr // side), -(-nc // side)), bool)
+        act[(rc[:, 0] - r0) // side, (rc[:, 1] - c0) // side] = True
+        g = cl._Blocks(act, nr, nc, side)
+        u = g.locate(rc[:, 0] - r0, rc[:, 1] - c0)
+        arrays = []
+        for a in (lo, ground, hi):
+            x = np.full(g.n, np.nan)
+            x[u] = a[w.index]
+            arrays.append(x)
+        ids, local = np.unique(np.r_[0, gid[w.index]], return_inverse=True)   # the window's regions, 0 first
+        lab = np.zeros(g.n, np.int64)
+        lab[u] = local[1:]
+        incore = np.zeros(g.n, bool)
+        incore[u[w.core]] = True
+        return g, u, arrays, ids, lab, incore
+
+    # (3) the banks: per region, the rim cells (two cells about it) with a bank and those above the level
+    n_bank = np.zeros(len(good), np.int64)
+    n_above = np.zeros(len(good), np.int64)
+    for w in windows:
+        g, u, (wlo, wground, whi), ids, lab, incore = window_grid(w)
+        ok = good[ids]
+        if not ok[1:].any():
+            continue
+        occupied = np.isfinite(wground)
+        v, lv = cl._pairs_near(g, lab, ok, 2, occupied)
+        lvl = level[ids[lv]]
+        steepest = lvl + cl.BANK_MAX_SLOPE * 2.0 * c
+        bank = np.where(wground[v] <= steepest, wground[v], np.where(wlo[v] <= steepest, wlo[v], np.nan))
+        high = np.flatnonzero(np.isnan(bank) & incore[v])
+        if len(high):
+            stride = np.int64(len(ids)) + 1
+            behind = cl._lowest_land_near(g, v[high], lv[high], reach, wlo, lab, v * stride + lv, stride)
+            wall = wlo[v[high]] - behind <= cl.BANK_MAX_SLOPE * 2.0 * c
+            bank[high[wall]] = wlo[v[high[wall]]]
+        fin = np.isfinite(bank) & incore[v]
+        n_bank += np.bincount(ids[lv[fin]], minlength=len(good))
+        n_above += np.bincount(ids[lv[fin & (bank > lvl + tol)]], minlength=len(good))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        good &= (n_bank > 0) & ~(n_above / n_bank < p.level_water_bank_fraction)
+    if not good.any():
+        return empty
+
+    def shore(w, good):
+        """The (cell, region) pairs of the shore and the region's own cells in the tile's core, whether each
+        return is on the level and whether open sky is over it."""
+        g, u, z, ids, lab, incore = window_grid(w)
+        ok = good[ids]
+        if not ok[1:].any():
+            return None
+        occupied = np.isfinite(z[1])
+        v, lv = cl._pairs_near(g, lab, ok, shore_cells, occupied)
+        own = np.flatnonzero(ok[lab])
+        v, lv = np.r_[own, v], np.r_[lab[own], lv]
+        k = incore[v]
+        v, lv = v[k], lv[k]
+        sky = np.where(occupied[v], z[2][v], -np.inf)
+        for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            nb = g.neighbour(v, dr, dc)
+            h = np.full(len(v), -np.inf)
+            h[nb >= 0] = np.nan_to_num(z[2][nb[nb >= 0]], nan=-np.inf)
+            sky = np.maximum(sky, h)
+        lvl = level[ids[lv]]
+        covered = sky > lvl + p.low_veg_max_m
+        with np.errstate(invalid="ignore"):
+            on = [np.abs(a[v] - lvl) <= tol for a in z]
+        # the slots back to the whole cloud's cells
+        slot = np.full(g.n, -1, np.int64)
+        slot[u] = w.index
+        return slot[v], ids[lv], ids[lab[v]] == ids[lv], on, covered
+
+    # (4) shore and open sky: a level floor under crowns is forest floor
+    n_members = np.zeros(len(good))
+    n_covered = np.zeros(len(good))
+    for w in windows:
+        s = shore(w, good)
+        if s is None:
+            continue
+        _, region_id, region, on, covered = s
+        members = sum((o & region).astype(np.int64) for o in on)
+        n_members += np.bincount(region_id, weights=members, minlength=len(good))
+        n_covered += np.bincount(region_id, weights=members * covered, minlength=len(good))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        good &= ~((n_members > 0) & (n_covered / n_members > 0.05))
+    # (5) the water returns of the bodies
+    bits = np.zeros(len(cells), np.uint8)
+    for w in windows:
+        s = shore(w, good)
+        if s is None:
+            continue
+        cell, region_id, _, on, covered = s
+        take = good[region_id]
+        for bit, o in enumerate(on):
+            m = take & o & ~covered
+            np.bitwise_or.at(bits, cell[m], np.uint8(1 << bit))
+    water = bits > 0
+    if not water.any():
+        return empty
+    # (6) the bodies and their levels: the median of their water returns
+    z = np.where((bits[:, None] & (1 << np.arange(3))) > 0, heights, np.nan)
+    body, _, body_level = _label_round(cells, windows, np.where(water, 0.0, np.nan), 0.5, z, ncols_whole)
+    key = cells[water, 0].astype(np.int64) * ncols_whole + cells[water, 1]
+    order = np.argsort(key)
+    return cl.LevelBodies(ncols_whole, key[order], body_level[body[water]][order])
