@@ -25,6 +25,7 @@ import dataclasses
 
 import numba
 import numpy as np
+from scipy import ndimage
 
 from lidarctl import grid
 from lidarctl.classify import pipeline as cl
@@ -123,7 +124,8 @@ def tile_components(cells: np.ndarray, join_value: np.ndarray, join_tol: float, 
     # beyond this tile's core, so beyond that box; the box's edge, not the empty cells within, bounds them)
     i, j = np.nonzero(incore)
     edge = np.zeros((nrows, ncols), bool)
-    edge[i.min(), :] = edge[i.max(), :] = edge[:, j.min()] = edge[:, j.max()] = True
+    if len(i):
+        edge[i.min(), :] = edge[i.max(), :] = edge[:, j.min()] = edge[:, j.max()] = True
     edge &= incore & (lab > 0)
     del ring, i, j
     n = int(lab.max())
@@ -314,6 +316,7 @@ class _Window:
     them), which are in the core, which in the core and the ring one cell wide about it."""
 
     tile: tuple
+    side: int
     index: np.ndarray
     core: np.ndarray
     near: np.ndarray
@@ -332,7 +335,7 @@ def _windows(cells: np.ndarray, side: int, halo: int) -> list[_Window]:
         rr, cc = cells[idx, 0] - r0, cells[idx, 1] - c0
         core = (rr >= 0) & (rr < side) & (cc >= 0) & (cc < side)
         near = (rr >= -1) & (rr <= side) & (cc >= -1) & (cc <= side)
-        out.append(_Window((int(tr), int(tc)), idx, core, near))
+        out.append(_Window((int(tr), int(tc)), side, idx, core, near))
     return out
 
 
@@ -360,16 +363,103 @@ def _label_round(cells, windows, join_value, join_tol, values, ncols_whole):
     return gid, np.concatenate(area), np.concatenate(level)
 
 
+def _sum_round(cells, windows, ids, values, n):
+    """A reduction round: per id (1..n-1; ``ids`` per cell, 0: none) its cells and the median of ``values`` (k, m)
+    of its cells (NaN: not counted), from each tile's counts and histograms over its core (the medians of ids
+    wholly in one tile's core exact: their histograms sent all the same here, a check of the spanning case)."""
+    count = np.zeros(n, np.int64)
+    hists = []
+    for w in windows:
+        k = w.index[w.core]
+        idc = ids[k]
+        count += np.bincount(idc, minlength=n)
+        v = np.asarray(values, float)[k]
+        vl = np.repeat(idc, v.shape[1])
+        v = v.ravel()
+        take = (vl > 0) & np.isfinite(v)
+        if take.any():
+            pair, cnt = np.unique(np.column_stack([vl[take], np.floor(v[take] / LEVEL_BIN_M).astype(np.int64)]),
+                                  axis=0, return_counts=True)
+            hists.append((pair, cnt))
+    level = np.full(n, np.nan)
+    if hists:
+        pair = np.concatenate([h[0] for h in hists])
+        cnt = np.concatenate([h[1] for h in hists])
+        o = np.lexsort((pair[:, 1], pair[:, 0]))
+        pair, cnt = pair[o], cnt[o]
+        starts = np.flatnonzero(np.r_[True, pair[1:, 0] != pair[:-1, 0]])
+        for s0, e in zip(starts, np.r_[starts[1:], len(pair)]):
+            level[pair[s0, 0]] = _histogram_median(pair[s0:e, 1], cnt[s0:e])
+    return count, level
+
+
+def _void_cells(cells, windows, box):
+    """Per tile, the empty cells of its core and the ring about it within the cloud's box (``box``: rows, columns
+    first and last): rows and columns, and which are in the core (the tile's own cells tell them: bounded by a
+    tile)."""
+    out = []
+    r_lo, c_lo, r_hi, c_hi = box
+    for w in windows:
+        tr, tc = w.tile
+        side = w.side
+        r0, c0 = tr * side - 1, tc * side - 1
+        occ = np.zeros((side + 2, side + 2), bool)
+        near = cells[w.index[w.near]]
+        occ[near[:, 0] - r0, near[:, 1] - c0] = True
+        i, j = np.nonzero(~occ)
+        r, c = i + r0, j + c0
+        inside = (r >= r_lo) & (r <= r_hi) & (c >= c_lo) & (c <= c_hi)
+        r, c, i, j = r[inside], c[inside], i[inside], j[inside]
+        out.append((np.column_stack([r, c]), (i >= 1) & (i <= side) & (j >= 1) & (j <= side)))
+    return out
+
+
+def _void_round(voids, windows, member, ncols_whole):
+    """Components of the empty cells ``member`` (per tile, per its void cells): per tile its void cells' ids over
+    the cloud (0: not a member) for the core and the ring, from the labelling round of ``tile_components``."""
+    done = []
+    for (vc, vcore), w, mem in zip(voids, windows, member):
+        if not len(vc):
+            done.append(None)
+            continue
+        done.append(tile_components(vc, np.where(mem, 0.0, np.nan), 0.5, np.zeros((len(vc), 0)), vcore,
+                                    ncols_whole, w.tile))
+    present = [d for d in done if d is not None]
+    answers = iter(join_tile_regions((s for s, _ in present),
+                                     positions=[w.tile for w, d in zip(windows, done) if d is not None]))
+    n_span = 0
+    per_tile = []
+    for d in done:
+        per_tile.append(None if d is None else next(answers))
+    for a in per_tile:
+        if a is not None:
+            n_span = max(n_span, int(a.region_id.max(initial=0)))
+    nxt = n_span + 1
+    ids_core = []
+    for d, a in zip(done, per_tile):
+        if d is None:
+            ids_core.append(np.zeros(0, np.int64))
+            continue
+        s, kept = d
+        m, n = s.n_spanning, len(kept.cells) - 1
+        ids = np.r_[a.region_id, np.arange(nxt, nxt + n - m)]
+        ids_core.append(ids[kept.label])
+        nxt += n - m
+    return ids_core, nxt
+
+
 def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side_cells: int):
-    """``pipeline.whole_level_bodies`` without the join across dropouts (``level_water_across_dropouts`` off),
-    tile by tile (squares of ``side_cells`` cells): each round is a pass of the tiles over their windows (core and
-    a halo of the wall rule's reach and the rim: what their buffers and their neighbours' spooled cells hold) and
-    a reduction of per-region sums in the parent. Rounds: (1) the level regions, their areas and levels; (2) each
-    large region's cells at its level, relabelled within it, areas and levels; (3) the banks across the rim (a
-    quay's wall: the lowest land within ``WALL_BEHIND_M``), counted per region; (4) shore and open sky, counted;
-    (5) the water cells; (6) the bodies (components of the water cells) and their levels. The levels of regions
-    spanning tiles are histogram medians (``LEVEL_BIN_M``), the rest is exact. A check of the decomposition (the
-    whole cloud's cells are held here as the tiles would hold theirs), not yet the tiles' pass."""
+    """``pipeline.whole_level_bodies`` tile by tile (squares of ``side_cells`` cells): each round is a pass of the
+    tiles over their windows (core and a halo of the wall rule's reach and the rim: what their buffers and their
+    neighbours' spooled cells hold) and a reduction of per-region sums in the parent. Rounds: (1) the level
+    regions, their areas and levels; (2) each large region's cells at its level, relabelled within it, areas and
+    levels; (3) the banks across the rim (a quay's wall: the lowest land within ``WALL_BEHIND_M``), counted per
+    region; (4) shore and open sky, counted; (5) the water cells; then the join across dropouts: (6) the empty
+    cells near the survey's edge and those seeded beyond it (``water_survey_coverage``), (7) the gaps, the
+    (gap, patch) pairs to the parent, which links the patches by level; (2)-(5) again for the joined bodies; (8)
+    the bodies (components of the water cells) and their levels. The levels of regions spanning tiles are
+    histogram medians (``LEVEL_BIN_M``), the rest is exact. A check of the decomposition (the whole cloud's cells
+    are held here as the tiles would hold theirs, each tile reading only its window), not yet the tiles' pass."""
     empty = cl.LevelBodies(1, np.zeros(0, np.int64), np.zeros(0))
     tol = p.level_water_tol_m
     if not len(cells) or p.level_water_min_area_m2 <= 0:
@@ -382,22 +472,14 @@ def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side
     windows = _windows(cells, side_cells, halo)
     lo, ground, hi = heights[:, 0], heights[:, 1], heights[:, 2]
     med = level_medians(cells, heights, tol)
+    if np.isfinite(med).sum() * c * c < p.level_water_min_area_m2:
+        return empty
     min_cells = p.level_water_min_area_m2 / (c * c)
     # (1) level regions
     gid1, area1, level1 = _label_round(cells, windows, med, tol, med[:, None], ncols_whole)
-    big = area1 >= min_cells
-    big[0] = False
-    # (2) each large region's cells at its level, 8-connected within it
-    with np.errstate(invalid="ignore"):
-        at_level = big[gid1] & (np.abs(med - level1[gid1]) <= tol)
-    gid, area, level = _label_round(cells, windows, np.where(at_level, gid1.astype(float), np.nan), 0.5,
-                                    med[:, None], ncols_whole)
-    good = area >= min_cells
-    good[0] = False
-    if not good.any():
-        return empty
+    bits = np.zeros(len(cells), np.uint8)
 
-    def window_grid(w):
+    def window_grid(w, gid):
         """The tile's window as ``pipeline._Blocks`` (its box's blocks holding cells), its cells' slots there and
         the window's arrays."""
         rc = cells[w.index]
@@ -420,91 +502,204 @@ def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side
         incore[u[w.core]] = True
         return g, u, arrays, ids, lab, incore
 
-    # (3) the banks: per region, the rim cells (two cells about it) with a bank and those above the level
-    n_bank = np.zeros(len(good), np.int64)
-    n_above = np.zeros(len(good), np.int64)
-    for w in windows:
-        g, u, (wlo, wground, whi), ids, lab, incore = window_grid(w)
-        ok = good[ids]
-        if not ok[1:].any():
-            continue
-        occupied = np.isfinite(wground)
-        v, lv = cl._pairs_near(g, lab, ok, 2, occupied)
-        lvl = level[ids[lv]]
-        steepest = lvl + cl.BANK_MAX_SLOPE * 2.0 * c
-        bank = np.where(wground[v] <= steepest, wground[v], np.where(wlo[v] <= steepest, wlo[v], np.nan))
-        high = np.flatnonzero(np.isnan(bank) & incore[v])
-        if len(high):
-            stride = np.int64(len(ids)) + 1
-            behind = cl._lowest_land_near(g, v[high], lv[high], reach, wlo, lab, v * stride + lv, stride)
-            wall = wlo[v[high]] - behind <= cl.BANK_MAX_SLOPE * 2.0 * c
-            bank[high[wall]] = wlo[v[high[wall]]]
-        fin = np.isfinite(bank) & incore[v]
-        n_bank += np.bincount(ids[lv[fin]], minlength=len(good))
-        n_above += np.bincount(ids[lv[fin & (bank > lvl + tol)]], minlength=len(good))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        good &= (n_bank > 0) & ~(n_above / n_bank < p.level_water_bank_fraction)
-    if not good.any():
-        return empty
-
-    def shore(w, good):
-        """The (cell, region) pairs of the shore and the region's own cells in the tile's core, whether each
-        return is on the level and whether open sky is over it."""
-        g, u, z, ids, lab, incore = window_grid(w)
-        ok = good[ids]
-        if not ok[1:].any():
-            return None
-        occupied = np.isfinite(z[1])
-        v, lv = cl._pairs_near(g, lab, ok, shore_cells, occupied)
-        own = np.flatnonzero(ok[lab])
-        v, lv = np.r_[own, v], np.r_[lab[own], lv]
-        k = incore[v]
-        v, lv = v[k], lv[k]
-        sky = np.where(occupied[v], z[2][v], -np.inf)
-        for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-            nb = g.neighbour(v, dr, dc)
-            h = np.full(len(v), -np.inf)
-            h[nb >= 0] = np.nan_to_num(z[2][nb[nb >= 0]], nan=-np.inf)
-            sky = np.maximum(sky, h)
-        lvl = level[ids[lv]]
-        covered = sky > lvl + p.low_veg_max_m
+    def bodies(region, area_r, level_r, joined: bool):
+        """Rounds (2)-(5): marks in ``bits`` the water returns of the regions ``region`` (id per cell; their cells
+        ``area_r`` and levels ``level_r`` per id) that are level water bodies."""
+        big = area_r >= min_cells
+        big[0] = False
+        if not big.any():
+            return
         with np.errstate(invalid="ignore"):
-            on = [np.abs(a[v] - lvl) <= tol for a in z]
-        # the slots back to the whole cloud's cells
-        slot = np.full(g.n, -1, np.int64)
-        slot[u] = w.index
-        return slot[v], ids[lv], ids[lab[v]] == ids[lv], on, covered
+            at_level = big[region] & (np.abs(med - level_r[region]) <= tol)
+        if joined:   # one body even where its level cells do not touch
+            gid = np.where(at_level, region, 0)
+            area, level = _sum_round(cells, windows, gid, med[:, None], len(area_r))
+        else:
+            gid, area, level = _label_round(cells, windows, np.where(at_level, region.astype(float), np.nan), 0.5,
+                                            med[:, None], ncols_whole)
+        good = area >= min_cells
+        good[0] = False
+        if not good.any():
+            return
+        # (3) the banks: per region, the rim cells (two cells about it) with a bank and those above the level
+        n_bank = np.zeros(len(good), np.int64)
+        n_above = np.zeros(len(good), np.int64)
+        for w in windows:
+            g, u, (wlo, wground, whi), ids, lab, incore = window_grid(w, gid)
+            ok = good[ids]
+            if not ok[1:].any():
+                continue
+            occupied = np.isfinite(wground)
+            v, lv = cl._pairs_near(g, lab, ok, 2, occupied)
+            lvl = level[ids[lv]]
+            steepest = lvl + cl.BANK_MAX_SLOPE * 2.0 * c
+            bank = np.where(wground[v] <= steepest, wground[v], np.where(wlo[v] <= steepest, wlo[v], np.nan))
+            high = np.flatnonzero(np.isnan(bank) & incore[v])
+            if len(high):
+                stride = np.int64(len(ids)) + 1
+                behind = cl._lowest_land_near(g, v[high], lv[high], reach, wlo, lab, v * stride + lv, stride)
+                wall = wlo[v[high]] - behind <= cl.BANK_MAX_SLOPE * 2.0 * c
+                bank[high[wall]] = wlo[v[high[wall]]]
+            fin = np.isfinite(bank) & incore[v]
+            n_bank += np.bincount(ids[lv[fin]], minlength=len(good))
+            n_above += np.bincount(ids[lv[fin & (bank > lvl + tol)]], minlength=len(good))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            good &= (n_bank > 0) & ~(n_above / n_bank < p.level_water_bank_fraction)
+        if not good.any():
+            return
 
-    # (4) shore and open sky: a level floor under crowns is forest floor
-    n_members = np.zeros(len(good))
-    n_covered = np.zeros(len(good))
-    for w in windows:
-        s = shore(w, good)
-        if s is None:
-            continue
-        _, region_id, region, on, covered = s
-        members = sum((o & region).astype(np.int64) for o in on)
-        n_members += np.bincount(region_id, weights=members, minlength=len(good))
-        n_covered += np.bincount(region_id, weights=members * covered, minlength=len(good))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        good &= ~((n_members > 0) & (n_covered / n_members > 0.05))
-    # (5) the water returns of the bodies
-    bits = np.zeros(len(cells), np.uint8)
-    for w in windows:
-        s = shore(w, good)
-        if s is None:
-            continue
-        cell, region_id, _, on, covered = s
-        take = good[region_id]
-        for bit, o in enumerate(on):
-            m = take & o & ~covered
-            np.bitwise_or.at(bits, cell[m], np.uint8(1 << bit))
+        def shore(w, good):
+            """The (cell, region) pairs of the shore and the region's own cells in the tile's core, whether each
+            return is on the level and whether open sky is over it."""
+            g, u, z, ids, lab, incore = window_grid(w, gid)
+            ok = good[ids]
+            if not ok[1:].any():
+                return None
+            occupied = np.isfinite(z[1])
+            v, lv = cl._pairs_near(g, lab, ok, shore_cells, occupied)
+            own = np.flatnonzero(ok[lab])
+            v, lv = np.r_[own, v], np.r_[lab[own], lv]
+            k = incore[v]
+            v, lv = v[k], lv[k]
+            sky = np.where(occupied[v], z[2][v], -np.inf)
+            for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+                nb = g.neighbour(v, dr, dc)
+                h = np.full(len(v), -np.inf)
+                h[nb >= 0] = np.nan_to_num(z[2][nb[nb >= 0]], nan=-np.inf)
+                sky = np.maximum(sky, h)
+            lvl = level[ids[lv]]
+            covered = sky > lvl + p.low_veg_max_m
+            with np.errstate(invalid="ignore"):
+                on = [np.abs(a[v] - lvl) <= tol for a in z]
+            slot = np.full(g.n, -1, np.int64)   # the slots back to the whole cloud's cells
+            slot[u] = w.index
+            return slot[v], ids[lv], ids[lab[v]] == ids[lv], on, covered
+
+        # (4) shore and open sky: a level floor under crowns is forest floor
+        n_members = np.zeros(len(good))
+        n_covered = np.zeros(len(good))
+        for w in windows:
+            s = shore(w, good)
+            if s is None:
+                continue
+            _, region_id, own, on, covered = s
+            members = sum((o & own).astype(np.int64) for o in on)
+            n_members += np.bincount(region_id, weights=members, minlength=len(good))
+            n_covered += np.bincount(region_id, weights=members * covered, minlength=len(good))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            good &= ~((n_members > 0) & (n_covered / n_members > 0.05))
+        # (5) the water returns of the bodies
+        for w in windows:
+            s = shore(w, good)
+            if s is None:
+                continue
+            cell, region_id, _, on, covered = s
+            take = good[region_id]
+            for bit, o in enumerate(on):
+                m = take & o & ~covered
+                np.bitwise_or.at(bits, cell[m], np.uint8(1 << bit))
+
+    bodies(gid1, area1, level1, False)
+    if p.level_water_across_dropouts:
+        joined = _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols_whole)
+        if joined is not None:
+            area_j, level_j = _sum_round(cells, windows, joined, med[:, None], int(joined.max()) + 1)
+            bodies(joined, area_j, level_j, True)
     water = bits > 0
     if not water.any():
         return empty
-    # (6) the bodies and their levels: the median of their water returns
+    # (8) the bodies and their levels: the median of their water returns
     z = np.where((bits[:, None] & (1 << np.arange(3))) > 0, heights, np.nan)
     body, _, body_level = _label_round(cells, windows, np.where(water, 0.0, np.nan), 0.5, z, ncols_whole)
     key = cells[water, 0].astype(np.int64) * ncols_whole + cells[water, 1]
     order = np.argsort(key)
     return cl.LevelBodies(ncols_whole, key[order], body_level[body[water]][order])
+
+
+def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols_whole):
+    """Rounds (6)-(7): the level patches (regions smaller than a body) joined across the gaps they border
+    (``pipeline._join_across_dropouts``): joined id per cell (0: none; only joins of two patches or more), or None.
+    The gaps are the empty cells of the cloud's box but those beyond the survey (``water_survey_coverage``:
+    ``pipeline.beyond_coverage``'s near cells in components seeded outside the footprint)."""
+    c, tol = wg.cell_m, p.level_water_tol_m
+    small = area1 < min_cells
+    small[0] = False
+    if small.sum() < 2:
+        return None
+    box = (*cells.min(axis=0), *cells.max(axis=0))
+    voids = _void_cells(cells, windows, box)
+    member = [np.ones(len(vc), bool) for vc, _ in voids]
+    if p.water_survey_coverage:
+        if wg.footprint_10m is not None:
+            fp, fx0, fy0 = wg.footprint_10m, wg.x0_m, wg.y0_m
+        else:   # the footprint of the cells' centres (``whole_level_bodies``)
+            xc, yc = wg.x0_m + (cells[:, 1] + 0.5) * c, wg.y0_m + (cells[:, 0] + 0.5) * c
+            fx0, fy0 = float(xc.min()), float(yc.min())
+            fp = cl.survey_footprint(cl.occupied_10m(xc, yc, fx0, fy0))
+        outside = np.pad(~fp, 1, constant_values=True)
+        fringe = ndimage.binary_dilation(outside, np.ones((3, 3), bool))
+
+        def at(a, rc):
+            i = np.clip(np.floor((wg.y0_m + (rc[:, 0] + 0.5) * c - fy0) / cl.COVERAGE_CELL_M).astype(np.int64) + 1,
+                        0, a.shape[0] - 1)
+            j = np.clip(np.floor((wg.x0_m + (rc[:, 1] + 0.5) * c - fx0) / cl.COVERAGE_CELL_M).astype(np.int64) + 1,
+                        0, a.shape[1] - 1)
+            return a[i, j]
+
+        near = [at(fringe, vc) for vc, _ in voids]
+        near_ids, n = _void_round(voids, windows, near, ncols_whole)
+        seeded = np.zeros(n, bool)   # the parent's OR of the tiles' seeded components
+        for (vc, vcore), ids, nr in zip(voids, near_ids, near):
+            seeded[ids[(at(outside, vc[vcore]) & nr[vcore])]] = True
+        seeded[0] = False
+        # the ring's cells take their owner's answer: the spooled ids of the neighbours' cores
+        key_all = np.concatenate([vc[vcore, 0] * ncols_whole + vc[vcore, 1] for vc, vcore in voids])
+        beyond_all = np.concatenate([seeded[ids] for ids in near_ids])
+        o = np.argsort(key_all)
+        key_all, beyond_all = key_all[o], beyond_all[o]
+        member = []
+        for vc, _ in voids:
+            k = vc[:, 0] * ncols_whole + vc[:, 1]
+            member.append(~beyond_all[np.searchsorted(key_all, k)])
+    gap_ids, _ = _void_round(voids, windows, member, ncols_whole)
+    # the gaps' ids of every void cell (core and ring), as the tiles' spooled ids give them
+    key_all = np.concatenate([vc[vcore, 0] * ncols_whole + vc[vcore, 1] for vc, vcore in voids])
+    gap_all = np.concatenate(gap_ids)
+    if not gap_all.any():
+        return None
+    o = np.argsort(key_all)
+    key_all, gap_all = key_all[o], gap_all[o]
+    # (7) per tile the (gap, patch) pairs of its core's patch cells
+    patch = np.where(small[gid1], gid1, 0)
+    pairs = []
+    for w in windows:
+        k = w.index[w.core]
+        k = k[patch[k] > 0]
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                if dr or dc:
+                    key = (cells[k, 0] + dr).astype(np.int64) * ncols_whole + cells[k, 1] + dc
+                    ok = (cells[k, 1] + dc >= 0) & (cells[k, 1] + dc < ncols_whole)
+                    pos = np.minimum(np.searchsorted(key_all, key), len(key_all) - 1)
+                    hit = ok & (key_all[pos] == key) & (gap_all[pos] > 0)
+                    pairs.append(np.column_stack([gap_all[pos[hit]], patch[k[hit]]]))
+    pairs = np.unique(np.concatenate(pairs), axis=0) if pairs else np.zeros((0, 2), np.int64)
+    if len(pairs) < 2:
+        return None
+    # the parent: per gap, its patches in order of level; neighbours in that order within tol join
+    order = np.lexsort((level1[pairs[:, 1]], pairs[:, 0]))
+    v, r = pairs[order, 0], pairs[order, 1]
+    link = (v[1:] == v[:-1]) & (np.abs(level1[r[1:]] - level1[r[:-1]]) <= tol)
+    if not link.any():
+        return None
+    parent = np.arange(len(area1), dtype=np.int64)
+    _union_pairs(parent, r[:-1][link].astype(np.int64), r[1:][link].astype(np.int64))
+    root = _roots(parent)
+    parts = np.bincount(root[np.unique(pairs[:, 1])], minlength=len(area1))
+    ids = np.zeros(len(area1), np.int64)
+    multi = np.unique(root[small & (parts[root] >= 2)])
+    ids[multi] = np.arange(1, len(multi) + 1)
+    joined = ids[root]
+    joined[~small] = 0
+    out = joined[gid1]
+    return out if out.any() else None
