@@ -34,6 +34,9 @@ from lidarctl.classify import pipeline as cl
 # 1/200 of the default ``level_water_tol_m`` (5 cm); exact for heights on a LAS quantum of 1 mm (medians of two
 # returns: multiples of 0.5 mm).
 LEVEL_BIN_M = 0.0005
+# The parent merges the tiles' histograms by their regions' roots whenever the entries come to twice those left by
+# the last merge and this many (its memory by the bins of the regions, not of the tiles they span).
+HISTOGRAM_MERGE_ENTRIES = 65536
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,11 +75,16 @@ class TileLabels:
 @dataclasses.dataclass(frozen=True)
 class RegionDecisions:
     """The parent's answer to one tile (``join_tile_regions``): for its spanning regions 1..n (index 0 unused) the
-    region's id across the cloud (1..), its area (cells) and level (m: the histogram's median)."""
+    region's id across the cloud (1..), its area (cells) and level (m: the histogram's median, within half a bin;
+    ``exact_levels`` makes it ``np.median``'s); ``median_bins`` (n + 1, 2): the bins holding the region's two
+    middle values, whose values the tile sends for the exact median (``values_in_median_bins``), and
+    ``median_ranks`` (n + 1, 2): the two middle values' ranks among the values in those bins."""
 
     region_id: np.ndarray
     cells: np.ndarray
     level_m: np.ndarray
+    median_bins: np.ndarray
+    median_ranks: np.ndarray
 
 
 def level_medians(cells: np.ndarray, heights: np.ndarray, tol_m: float) -> np.ndarray:
@@ -192,6 +200,17 @@ def _roots(parent):
     return out
 
 
+def _median_bins(bins: np.ndarray, counts: np.ndarray):
+    """The bins (sorted ``bins``, ``counts`` values each) of the two middle values and their ranks among the values
+    in those two bins (the bins between them are empty)."""
+    cum = np.cumsum(counts)
+    n = int(cum[-1])
+    i1 = int(np.searchsorted(cum, (n - 1) // 2, side="right"))
+    i2 = int(np.searchsorted(cum, n // 2, side="right"))
+    below = int(cum[i1 - 1]) if i1 else 0
+    return bins[i1], bins[i2], (n - 1) // 2 - below, n // 2 - below
+
+
 def _histogram_median(bins: np.ndarray, counts: np.ndarray) -> float:
     """The median (m) of values in ``LEVEL_BIN_M`` bins ``bins`` (sorted) counted ``counts``: the mean of the two
     middle values' bin centres."""
@@ -200,6 +219,33 @@ def _histogram_median(bins: np.ndarray, counts: np.ndarray) -> float:
     a = bins[np.searchsorted(cum, (n - 1) // 2, side="right")]
     b = bins[np.searchsorted(cum, n // 2, side="right")]
     return (0.5 * (a + b) + 0.5) * LEVEL_BIN_M
+
+
+def _merge_histograms(parent, hists):
+    """The histograms ``hists`` ((node, bin, count) arrays) merged by the nodes' roots in union-find ``parent``:
+    one (root, bin, count) per root and bin, sorted by root and bin. A lake's bins recur in every tile it spans
+    (merged: tens of bins, not tens a tile); a region creeping along a slope keeps about a bin a cell."""
+    # one int64 key a (root, bin): roots below 2**31, bins of +-2**31 half-millimetres (+-1,000 km)
+    key = _find_all(parent, np.concatenate([h[0] for h in hists])) << np.int64(32)
+    key += np.concatenate([h[1] for h in hists]) + np.int64(1 << 31)
+    count = np.concatenate([h[2] for h in hists])
+    if not len(key):
+        return key, key.copy(), count.astype(np.int64)
+    o = np.argsort(key, kind="stable")
+    key, count = key[o], count[o]
+    del o
+    first = np.r_[True, key[1:] != key[:-1]]
+    total = np.add.reduceat(count, np.flatnonzero(first))
+    key = key[first]
+    return key >> np.int64(32), (key & np.int64(0xFFFFFFFF)) - np.int64(1 << 31), total.astype(np.int64)
+
+
+@numba.njit(cache=True)
+def _find_all(parent, nodes):
+    out = np.empty(len(nodes), np.int64)
+    for k in range(len(nodes)):
+        out[k] = grid._find(parent, nodes[k])
+    return out
 
 
 def _match(keys_a, nodes_a, keys_b, nodes_b):
@@ -224,6 +270,7 @@ def join_tile_regions(tiles, positions=None) -> list[RegionDecisions]:
     parent = np.zeros(0, np.int64)
     cells: list[np.ndarray] = []
     hists: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    compacted = 0
     offsets: list[int] = []
     edges: dict = {}     # tile -> (keys, nodes) of its edge cells, until its neighbours have come
     halos: dict = {}     # tile -> (keys, nodes) of its halo cells not yet matched
@@ -247,6 +294,10 @@ def join_tile_regions(tiles, positions=None) -> list[RegionDecisions]:
         parent[off:n] = np.arange(off, n)
         cells.append(t.core_cells)
         hists.append((t.hist_region + off, t.hist_bin, t.hist_count))
+        pending = sum(len(h[0]) for h in hists)
+        if pending > 2 * compacted + HISTOGRAM_MERGE_ENTRIES:   # merged by the regions' roots so far
+            hists = [_merge_histograms(parent, hists)]
+            compacted = len(hists[0][0])
         hk, hn = t.halo_keys, t.halo_label.astype(np.int64) + off
         ek, en = t.edge_keys, t.edge_label.astype(np.int64) + off
         for u in near(pos):
@@ -272,16 +323,17 @@ def join_tile_regions(tiles, positions=None) -> list[RegionDecisions]:
     root = _roots(parent)
     area = np.bincount(root, weights=np.concatenate(cells).astype(float), minlength=n) if n else np.zeros(0)
     del cells
-    hr = np.concatenate([root[h[0]] for h in hists]) if hists else np.zeros(0, np.int64)
-    hb = np.concatenate([h[1] for h in hists]) if hists else np.zeros(0, np.int64)
-    hc = np.concatenate([h[2] for h in hists]) if hists else np.zeros(0, np.int64)
+    hr, hb, hc = _merge_histograms(parent, hists) if hists else (np.zeros(0, np.int64),) * 3
     del hists
-    o = np.lexsort((hb, hr))
-    hr, hb, hc = hr[o], hb[o], hc[o]
     level = np.full(n, np.nan)
+    mbins = np.zeros((n, 2), np.int64)
+    mranks = np.zeros((n, 2), np.int64)
     starts = np.flatnonzero(np.r_[True, hr[1:] != hr[:-1]]) if len(hr) else np.zeros(0, np.int64)
     for s, e in zip(starts, np.r_[starts[1:], len(hr)]):
         level[hr[s]] = _histogram_median(hb[s:e], hc[s:e])
+        b1, b2, k1, k2 = _median_bins(hb[s:e], hc[s:e])
+        mbins[hr[s]] = b1, b2
+        mranks[hr[s]] = k1, k2
     spanning = np.ones(n, bool)
     spanning[offsets] = False
     ids = np.zeros(n, np.int64)
@@ -290,8 +342,43 @@ def join_tile_regions(tiles, positions=None) -> list[RegionDecisions]:
     out = []
     for off, end in zip(offsets, offsets[1:] + [n]):
         r = root[off + 1:end]
-        out.append(RegionDecisions(np.r_[0, ids[r]], np.r_[0, area[r]].astype(np.int64), np.r_[np.nan, level[r]]))
+        out.append(RegionDecisions(np.r_[0, ids[r]], np.r_[0, area[r]].astype(np.int64), np.r_[np.nan, level[r]],
+                                   np.vstack([np.zeros((1, 2), np.int64), mbins[r]]),
+                                   np.vstack([np.zeros((1, 2), np.int64), mranks[r]])))
     return out
+
+
+def values_in_median_bins(label: np.ndarray, values: np.ndarray, answer: RegionDecisions):
+    """A tile's second answer for the exact medians (in its worker): the values (``values`` (k, m) of its core
+    cells, NaN: not counted; ``label`` their local labels, 1..n the spanning regions of ``answer``) that fall in
+    their region's two middle bins: (region id over the cloud, value) pairs."""
+    n = len(answer.region_id) - 1
+    lab = np.repeat(label, values.shape[1])
+    v = np.asarray(values, float).ravel()
+    take = (lab > 0) & (lab <= n) & np.isfinite(v)
+    lab, v = lab[take], v[take]
+    b = np.floor(v / LEVEL_BIN_M).astype(np.int64)
+    take = (b == answer.median_bins[lab, 0]) | (b == answer.median_bins[lab, 1])
+    return answer.region_id[lab[take]], v[take]
+
+
+def exact_levels(answers: list[RegionDecisions], sent) -> list[RegionDecisions]:
+    """The parent's exact medians of the spanning regions (``np.median``'s: the mean of the two middle values) from
+    the values the tiles sent from the regions' middle bins (``sent``: per tile ``values_in_median_bins``);
+    the answers with those levels. Memory of the values of two bins a region."""
+    rid = np.concatenate([s[0] for s in sent]) if sent else np.zeros(0, np.int64)
+    val = np.concatenate([s[1] for s in sent]) if sent else np.zeros(0)
+    o = np.lexsort((val, rid))
+    rid, val = rid[o], val[o]
+    n = max((int(a.region_id.max(initial=0)) for a in answers), default=0) + 1
+    start = np.searchsorted(rid, np.arange(n))
+    has = np.bincount(rid, minlength=n) > 0   # (a region without values has no level)
+    level = np.full(n, np.nan)
+    for a in answers:
+        k = np.flatnonzero(has[a.region_id[1:]]) + 1
+        ids = a.region_id[k]
+        level[ids] = (val[start[ids] + a.median_ranks[k, 0]] + val[start[ids] + a.median_ranks[k, 1]]) / 2
+    return [dataclasses.replace(a, level_m=np.r_[np.nan, level[a.region_id[1:]]]) for a in answers]
 
 
 def split_into_tiles(cells: np.ndarray, side_cells: int):
@@ -322,12 +409,20 @@ class _Window:
     near: np.ndarray
 
 
-def _windows(cells: np.ndarray, side: int, halo: int) -> list[_Window]:
+def _windows(cells: np.ndarray, side: int, halo: int, every: bool = False) -> list[_Window]:
+    """The tiles' windows (squares of ``side`` cells from row and column 0, a halo of ``halo`` cells), in row
+    order: of the tiles holding cells, or (``every``) of every tile in the box of those (the empty cells of a tile
+    without returns -- a lake larger than a tile that mirrored every pulse -- are a gap too)."""
     t = cells // side
     out = []
     order = np.lexsort((cells[:, 1], cells[:, 0]))
     rows = cells[order, 0]
-    for tr, tc in np.unique(t, axis=0):
+    if every:
+        (r0, c0), (r1, c1) = t.min(axis=0), t.max(axis=0)
+        places = np.stack(np.meshgrid(np.arange(r0, r1 + 1), np.arange(c0, c1 + 1), indexing="ij"), -1).reshape(-1, 2)
+    else:
+        places = np.unique(t, axis=0)
+    for tr, tc in places:
         r0, c0 = tr * side, tc * side
         a, b = np.searchsorted(rows, [r0 - halo, r0 + side + halo])
         idx = order[a:b]
@@ -345,6 +440,8 @@ def _label_round(cells, windows, join_value, join_tol, values, ncols_whole):
     done = [tile_components(cells[w.index[w.near]], join_value[w.index[w.near]], join_tol,
                             values[w.index[w.near]], w.core[w.near], ncols_whole, w.tile) for w in windows]
     answers = join_tile_regions((s for s, _ in done), positions=[w.tile for w in windows])
+    answers = exact_levels(answers, [values_in_median_bins(kept.label, values[w.index[w.near]][w.core[w.near]], a)
+                                     for w, (_, kept), a in zip(windows, done, answers)])
     n_span = max((int(a.region_id.max(initial=0)) for a in answers), default=0)
     gid = np.zeros(len(cells), np.int64)
     area, level = [np.zeros(n_span + 1, np.int64)], [np.full(n_span + 1, np.nan)]
@@ -381,16 +478,24 @@ def _sum_round(cells, windows, ids, values, n):
             pair, cnt = np.unique(np.column_stack([vl[take], np.floor(v[take] / LEVEL_BIN_M).astype(np.int64)]),
                                   axis=0, return_counts=True)
             hists.append((pair, cnt))
-    level = np.full(n, np.nan)
-    if hists:
-        pair = np.concatenate([h[0] for h in hists])
-        cnt = np.concatenate([h[1] for h in hists])
-        o = np.lexsort((pair[:, 1], pair[:, 0]))
-        pair, cnt = pair[o], cnt[o]
-        starts = np.flatnonzero(np.r_[True, pair[1:, 0] != pair[:-1, 0]])
-        for s0, e in zip(starts, np.r_[starts[1:], len(pair)]):
-            level[pair[s0, 0]] = _histogram_median(pair[s0:e, 1], cnt[s0:e])
-    return count, level
+    if not hists:
+        return count, np.full(n, np.nan)
+    pair = np.concatenate([h[0] for h in hists])
+    cnt = np.concatenate([h[1] for h in hists])
+    o = np.lexsort((pair[:, 1], pair[:, 0]))
+    pair, cnt = pair[o], cnt[o]
+    mbins = np.zeros((n, 2), np.int64)
+    mranks = np.zeros((n, 2), np.int64)
+    starts = np.flatnonzero(np.r_[True, pair[1:, 0] != pair[:-1, 0]])
+    for s0, e in zip(starts, np.r_[starts[1:], len(pair)]):
+        b1, b2, k1, k2 = _median_bins(pair[s0:e, 1], cnt[s0:e])
+        mbins[pair[s0, 0]] = b1, b2
+        mranks[pair[s0, 0]] = k1, k2
+    # the second pass: the values of each id's two middle bins (the parent: exact medians)
+    answer = RegionDecisions(np.arange(n), count, np.full(n, np.nan), mbins, mranks)
+    sent = [values_in_median_bins(ids[w.index[w.core]], np.asarray(values, float)[w.index[w.core]], answer)
+            for w in windows]
+    return count, exact_levels([answer], sent)[0].level_m
 
 
 def _void_cells(cells, windows, box):
@@ -627,7 +732,8 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
     if small.sum() < 2:
         return None
     box = (*cells.min(axis=0), *cells.max(axis=0))
-    voids = _void_cells(cells, windows, box)
+    every = _windows(cells, windows[0].side, 1, every=True)
+    voids = _void_cells(cells, every, box)
     member = [np.ones(len(vc), bool) for vc, _ in voids]
     if p.water_survey_coverage:
         if wg.footprint_10m is not None:
@@ -647,7 +753,7 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
             return a[i, j]
 
         near = [at(fringe, vc) for vc, _ in voids]
-        near_ids, n = _void_round(voids, windows, near, ncols_whole)
+        near_ids, n = _void_round(voids, every, near, ncols_whole)
         seeded = np.zeros(n, bool)   # the parent's OR of the tiles' seeded components
         for (vc, vcore), ids, nr in zip(voids, near_ids, near):
             seeded[ids[(at(outside, vc[vcore]) & nr[vcore])]] = True
@@ -661,7 +767,7 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
         for vc, _ in voids:
             k = vc[:, 0] * ncols_whole + vc[:, 1]
             member.append(~beyond_all[np.searchsorted(key_all, k)])
-    gap_ids, _ = _void_round(voids, windows, member, ncols_whole)
+    gap_ids, _ = _void_round(voids, every, member, ncols_whole)
     # the gaps' ids of every void cell (core and ring), as the tiles' spooled ids give them
     key_all = np.concatenate([vc[vcore, 0] * ncols_whole + vc[vcore, 1] for vc, vcore in voids])
     gap_all = np.concatenate(gap_ids)
