@@ -30,10 +30,12 @@ from scipy import ndimage
 from lidarctl import grid
 from lidarctl.classify import pipeline as cl
 
-# The bins (m) of the level histograms of the regions that span tiles: a median within 0.25 mm of ``np.median``'s,
-# 1/200 of the default ``level_water_tol_m`` (5 cm); exact for heights on a LAS quantum of 1 mm (medians of two
-# returns: multiples of 0.5 mm).
-LEVEL_BIN_M = 0.0005
+# The bins (m) of the level histograms of the regions that span tiles: the tiles' first answer in bins of 0.1 m (a
+# region creeping along a slope: a bin per 0.1 m of its rise, not one per cell), then within the two middle bins in
+# bins of 0.5 mm, then the values of the two middle bins of those: ``np.median``'s median to the last bit in three
+# answers, each of a few entries a region.
+LEVEL_BINS_M = (0.1, 0.0005)
+LEVEL_BIN_M = LEVEL_BINS_M[0]
 # The parent merges the tiles' histograms by their regions' roots whenever the entries come to twice those left by
 # the last merge and this many (its memory by the bins of the regions, not of the tiles they span).
 HISTOGRAM_MERGE_ENTRIES = 65536
@@ -75,10 +77,10 @@ class TileLabels:
 @dataclasses.dataclass(frozen=True)
 class RegionDecisions:
     """The parent's answer to one tile (``join_tile_regions``): for its spanning regions 1..n (index 0 unused) the
-    region's id across the cloud (1..), its area (cells) and level (m: the histogram's median, within half a bin;
-    ``exact_levels`` makes it ``np.median``'s); ``median_bins`` (n + 1, 2): the bins holding the region's two
-    middle values, whose values the tile sends for the exact median (``values_in_median_bins``), and
-    ``median_ranks`` (n + 1, 2): the two middle values' ranks among the values in those bins."""
+    region's id across the cloud (1..), its area (cells) and level (m: the first histogram's median, within half a
+    bin; ``refine_medians`` and ``exact_levels`` make it ``np.median``'s); ``median_bins`` (n + 1, k, 2): per
+    histogram so far (bins of ``LEVEL_BINS_M[j]``) the bins holding the region's two middle values (the values
+    within all k hold both), and ``median_ranks`` (n + 1, 2): the two middle values' ranks among those values."""
 
     region_id: np.ndarray
     cells: np.ndarray
@@ -343,23 +345,82 @@ def join_tile_regions(tiles, positions=None) -> list[RegionDecisions]:
     for off, end in zip(offsets, offsets[1:] + [n]):
         r = root[off + 1:end]
         out.append(RegionDecisions(np.r_[0, ids[r]], np.r_[0, area[r]].astype(np.int64), np.r_[np.nan, level[r]],
-                                   np.vstack([np.zeros((1, 2), np.int64), mbins[r]]),
+                                   np.vstack([np.zeros((1, 2), np.int64), mbins[r]])[:, None, :],
                                    np.vstack([np.zeros((1, 2), np.int64), mranks[r]])))
     return out
 
 
-def values_in_median_bins(label: np.ndarray, values: np.ndarray, answer: RegionDecisions):
-    """A tile's second answer for the exact medians (in its worker): the values (``values`` (k, m) of its core
-    cells, NaN: not counted; ``label`` their local labels, 1..n the spanning regions of ``answer``) that fall in
-    their region's two middle bins: (region id over the cloud, value) pairs."""
+def _in_median_bins(lab: np.ndarray, v: np.ndarray, answer: RegionDecisions) -> np.ndarray:
+    """Which values ``v`` (of regions ``lab``) lie in their region's middle bins of every histogram so far."""
+    take = np.ones(len(v), bool)
+    for j in range(answer.median_bins.shape[1]):
+        b = np.floor(v / LEVEL_BINS_M[j]).astype(np.int64)
+        take &= (b >= answer.median_bins[lab, j, 0]) & (b <= answer.median_bins[lab, j, 1])
+    return take
+
+
+def _core_values(label, values, answer):
     n = len(answer.region_id) - 1
-    lab = np.repeat(label, values.shape[1])
+    lab = np.repeat(label, np.asarray(values).shape[1])
     v = np.asarray(values, float).ravel()
     take = (lab > 0) & (lab <= n) & np.isfinite(v)
     lab, v = lab[take], v[take]
-    b = np.floor(v / LEVEL_BIN_M).astype(np.int64)
-    take = (b == answer.median_bins[lab, 0]) | (b == answer.median_bins[lab, 1])
-    return answer.region_id[lab[take]], v[take]
+    take = _in_median_bins(lab, v, answer)
+    return lab[take], v[take]
+
+
+def median_histogram(label: np.ndarray, values: np.ndarray, answer: RegionDecisions):
+    """A tile's answer for the next histogram (in its worker): over the values (``values`` (k, m) of its core cells,
+    NaN: not counted; ``label`` their local labels, 1..n the spanning regions of ``answer``) within their region's
+    middle bins so far, bins of the next width (``LEVEL_BINS_M``): (region id over the cloud, bin, count)."""
+    lab, v = _core_values(label, values, answer)
+    b = np.floor(v / LEVEL_BINS_M[answer.median_bins.shape[1]]).astype(np.int64)
+    if not len(b):
+        return np.zeros((0, 2), np.int64), np.zeros(0, np.int64)
+    return np.unique(np.column_stack([answer.region_id[lab], b]), axis=0, return_counts=True)
+
+
+def refine_medians(answers: list[RegionDecisions], sent) -> list[RegionDecisions]:
+    """The parent's next histogram of the spanning regions' middle values (``sent``: per tile
+    ``median_histogram``): the answers with those bins' two middle bins and the ranks within them."""
+    pair = np.concatenate([s[0] for s in sent]) if sent else np.zeros((0, 2), np.int64)
+    cnt = np.concatenate([s[1] for s in sent]) if sent else np.zeros(0, np.int64)
+    key = pair[:, 0] << np.int64(32)
+    key += pair[:, 1] + np.int64(1 << 31)
+    ukey, inv = np.unique(key, return_inverse=True)
+    cnt = np.bincount(inv.ravel(), weights=cnt).astype(np.int64)
+    rid, b = ukey >> np.int64(32), (ukey & np.int64(0xFFFFFFFF)) - np.int64(1 << 31)
+    n = max((int(a.region_id.max(initial=0)) for a in answers), default=0) + 1
+    ranks = np.zeros((n, 2), np.int64)
+    for a in answers:
+        ranks[a.region_id[1:]] = a.median_ranks[1:]
+    new_bins = np.zeros((n, 2), np.int64)
+    new_ranks = np.zeros((n, 2), np.int64)
+    starts = np.flatnonzero(np.r_[True, rid[1:] != rid[:-1]]) if len(rid) else np.zeros(0, np.int64)
+    for s0, e in zip(starts, np.r_[starts[1:], len(rid)]):
+        r = rid[s0]
+        cum = np.cumsum(cnt[s0:e])
+        i1 = int(np.searchsorted(cum, ranks[r, 0], side="right"))
+        i2 = int(np.searchsorted(cum, ranks[r, 1], side="right"))
+        below = int(cum[i1 - 1]) if i1 else 0
+        new_bins[r] = b[s0 + i1], b[s0 + i2]
+        new_ranks[r] = ranks[r, 0] - below, ranks[r, 1] - below
+    out, done = [], {}
+    for a in answers:
+        if id(a) not in done:
+            ids = a.region_id
+            done[id(a)] = dataclasses.replace(
+                a, median_bins=np.concatenate([a.median_bins, new_bins[ids][:, None, :]], axis=1),
+                median_ranks=np.r_[a.median_ranks[:1], new_ranks[ids[1:]]])
+        out.append(done[id(a)])
+    return out
+
+
+def values_in_median_bins(label: np.ndarray, values: np.ndarray, answer: RegionDecisions):
+    """A tile's last answer for the exact medians (in its worker): its core cells' values (as ``median_histogram``)
+    within their region's middle bins of every histogram: (region id over the cloud, value) pairs."""
+    lab, v = _core_values(label, values, answer)
+    return answer.region_id[lab], v
 
 
 def exact_levels(answers: list[RegionDecisions], sent) -> list[RegionDecisions]:
@@ -378,7 +439,11 @@ def exact_levels(answers: list[RegionDecisions], sent) -> list[RegionDecisions]:
         k = np.flatnonzero(has[a.region_id[1:]]) + 1
         ids = a.region_id[k]
         level[ids] = (val[start[ids] + a.median_ranks[k, 0]] + val[start[ids] + a.median_ranks[k, 1]]) / 2
-    return [dataclasses.replace(a, level_m=np.r_[np.nan, level[a.region_id[1:]]]) for a in answers]
+    done = {}
+    for a in answers:
+        if id(a) not in done:
+            done[id(a)] = dataclasses.replace(a, level_m=np.r_[np.nan, level[a.region_id[1:]]])
+    return [done[id(a)] for a in answers]
 
 
 def split_into_tiles(cells: np.ndarray, side_cells: int):
@@ -440,8 +505,8 @@ def _label_round(cells, windows, join_value, join_tol, values, ncols_whole):
     done = [tile_components(cells[w.index[w.near]], join_value[w.index[w.near]], join_tol,
                             values[w.index[w.near]], w.core[w.near], ncols_whole, w.tile) for w in windows]
     answers = join_tile_regions((s for s, _ in done), positions=[w.tile for w in windows])
-    answers = exact_levels(answers, [values_in_median_bins(kept.label, values[w.index[w.near]][w.core[w.near]], a)
-                                     for w, (_, kept), a in zip(windows, done, answers)])
+    answers = _exact(answers, [(kept.label, values[w.index[w.near]][w.core[w.near]]) for w, (_, kept) in
+                               zip(windows, done)])
     n_span = max((int(a.region_id.max(initial=0)) for a in answers), default=0)
     gid = np.zeros(len(cells), np.int64)
     area, level = [np.zeros(n_span + 1, np.int64)], [np.full(n_span + 1, np.nan)]
@@ -491,11 +556,20 @@ def _sum_round(cells, windows, ids, values, n):
         b1, b2, k1, k2 = _median_bins(pair[s0:e, 1], cnt[s0:e])
         mbins[pair[s0, 0]] = b1, b2
         mranks[pair[s0, 0]] = k1, k2
-    # the second pass: the values of each id's two middle bins (the parent: exact medians)
-    answer = RegionDecisions(np.arange(n), count, np.full(n, np.nan), mbins, mranks)
-    sent = [values_in_median_bins(ids[w.index[w.core]], np.asarray(values, float)[w.index[w.core]], answer)
-            for w in windows]
-    return count, exact_levels([answer], sent)[0].level_m
+    # the next passes: the finer histograms and the values of each id's two middle bins (the parent: exact medians)
+    answer = RegionDecisions(np.arange(n), count, np.full(n, np.nan), mbins[:, None, :], mranks)
+    answers = _exact([answer] * len(windows), [(ids[w.index[w.core]], np.asarray(values, float)[w.index[w.core]])
+                                               for w in windows])
+    return count, answers[0].level_m
+
+
+def _exact(answers, label_values):
+    """The tiles' further answers and the parent's exact medians (``refine_medians``, ``exact_levels``):
+    ``label_values`` per tile its core cells' labels and values."""
+    for _ in LEVEL_BINS_M[1:]:
+        answers = refine_medians(answers, [median_histogram(lab, v, a) for (lab, v), a in
+                                           zip(label_values, answers)])
+    return exact_levels(answers, [values_in_median_bins(lab, v, a) for (lab, v), a in zip(label_values, answers)])
 
 
 def _void_cells(cells, windows, box):

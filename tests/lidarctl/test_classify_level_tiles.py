@@ -35,10 +35,11 @@ def tiled_regions(cells, heights, tol, side, stream=True, exact=False):
     done = [lt.tile_level_regions(cells[i], heights[i], core, ncols, tol, pos) for pos, i, core in tiles]
     answers = lt.join_tile_regions((sent for sent, _ in done),
                                    positions=[pos for pos, _, _ in tiles] if stream else None)
-    if exact:
+    if exact:   # the tiles' further answers: a finer histogram, then the values of the middle bins
         med = lt.level_medians(cells, heights, tol)[:, None]
-        answers = lt.exact_levels(answers, [lt.values_in_median_bins(kept.label, med[i][core], a)
-                                            for (_, i, core), (_, kept), a in zip(tiles, done, answers)])
+        mine = [(kept.label, med[i][core]) for (_, i, core), (_, kept) in zip(tiles, done)]
+        answers = lt.refine_medians(answers, [lt.median_histogram(lab, v, a) for (lab, v), a in zip(mine, answers)])
+        answers = lt.exact_levels(answers, [lt.values_in_median_bins(lab, v, a) for (lab, v), a in zip(mine, answers)])
     region = np.zeros(len(cells), np.int64)
     area = np.zeros(len(cells), np.int64)
     level = np.full(len(cells), np.nan)
@@ -58,8 +59,8 @@ def test_tiled_regions_are_the_whole_clouds(monkeypatch):
     """A lake larger than a tile (36 cells across; a ring of level patches, land, crowns, 10 % empty cells) in tiles
     of 17 and 24 cells (the tiles' borders dropped as the tiles come or held to the end; the histograms merged as
     they come or at the end): the same regions (a one-to-one map of the labels), the same areas, the levels of the
-    regions wholly in a tile exact and of the spanning ones within half a histogram bin, exact to the last bit from
-    the values of their two middle bins (``exact_levels``)."""
+    regions wholly in a tile exact and of the spanning ones within half a bin of the first histogram, to the last bit
+    after a finer histogram of the two middle bins and the values of its two middle bins (``exact_levels``)."""
     p = classify.ClassifySettings()
     cells, heights, _ = lake_cells(seed=1)
     lab, size, level = whole_regions(cells, heights, p.level_water_tol_m)
