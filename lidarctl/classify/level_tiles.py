@@ -203,13 +203,14 @@ def _roots(parent):
 
 
 def _median_bins(bins: np.ndarray, counts: np.ndarray):
-    """The bins (sorted ``bins``, ``counts`` values each) of the two middle values and their ranks among the values
-    in those two bins (the bins between them are empty)."""
+    """The bins (sorted ``bins``, a bin may come more than once: ``counts`` values each) of the two middle values and
+    their ranks among the values in those two bins (the bins between them are empty)."""
     cum = np.cumsum(counts)
     n = int(cum[-1])
     i1 = int(np.searchsorted(cum, (n - 1) // 2, side="right"))
     i2 = int(np.searchsorted(cum, n // 2, side="right"))
-    below = int(cum[i1 - 1]) if i1 else 0
+    first = int(np.searchsorted(bins, bins[i1]))   # the values below the bin, not below this entry of it
+    below = int(cum[first - 1]) if first else 0
     return bins[i1], bins[i2], (n - 1) // 2 - below, n // 2 - below
 
 

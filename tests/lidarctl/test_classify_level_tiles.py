@@ -111,3 +111,25 @@ def test_tiled_bodies_are_the_whole_clouds():
             tiled = lt.whole_level_bodies_tiled(cells, heights, wg, p, 24)
             assert len(whole.keys) > 900 and np.array_equal(whole.keys, tiled.keys)
             assert np.array_equal(whole.level_m, tiled.level_m)
+
+
+def test_medians_from_the_tiles_histograms_are_exact():
+    """Values of one region in five tiles (their histograms not merged: a bin comes once a tile): the middle bins and
+    ranks, a finer histogram of them, then their values give ``np.median`` to the last bit (a bin counted from its
+    tile's entry rather than from its first lost 5 of 44 joined bodies' levels on Topography, by up to 29 mm)."""
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 7, 400, 401):
+        v = 800.0 + rng.normal(0, 0.3, n)
+        part = rng.integers(0, 5, n)
+        bins = [np.floor(v[part == k] / lt.LEVEL_BINS_M[0]).astype(np.int64) for k in range(5)]
+        entries = [np.unique(b, return_counts=True) for b in bins]
+        b = np.concatenate([e[0] for e in entries])
+        c = np.concatenate([e[1] for e in entries])
+        o = np.argsort(b, kind="stable")
+        b1, b2, k1, k2 = lt._median_bins(b[o], c[o])
+        answer = lt.RegionDecisions(np.arange(2), np.r_[0, n], np.full(2, np.nan),
+                                    np.array([[[0, 0]], [[b1, b2]]], np.int64), np.array([[0, 0], [k1, k2]]))
+        tiles = [(np.ones(int(np.sum(part == k)), np.int64), v[part == k][:, None]) for k in range(5)]
+        answers = lt.refine_medians([answer] * 5, [lt.median_histogram(lab, x, answer) for lab, x in tiles])
+        answers = lt.exact_levels(answers, [lt.values_in_median_bins(lab, x, a) for (lab, x), a in zip(tiles, answers)])
+        assert answers[0].level_m[1] == np.median(v), n
