@@ -2,9 +2,10 @@
 labelling of all cells at once, on the water cells a tiled run's parent collects with ``water_whole_level_bodies``
 on (each cell's lowest, median and highest return; the run is stopped once they are collected): the same regions
 and areas (a one-to-one map of the labels), the same levels (the medians of the regions that span tiles from three
-answers of the tiles: ``LEVEL_BINS_M``), what the tiles hand the parent (entries and bytes against the occupied cells, against the ~150-200
-bytes a cell the parent holds today; the exact medians' answers apart), the parent's join's tracemalloc peak, and CPU of the tiles' labelling and the
-join against the whole labelling -> bench/results/level_tiles_regions.json.
+answers of the tiles: ``LEVEL_BINS_M``), what the tiles hand the parent (entries and bytes against the occupied
+cells, against the ~150-200 bytes a cell the parent holds today; the exact medians' answers apart), the parent's
+join's tracemalloc peak, and CPU of the tiles' labelling and the join against the whole labelling ->
+bench/results/level_tiles_regions.json.
 
 Sets: Autzen, AHN3 Delft, lidR Topography (``AEROTRI_SHARED_DATA``), the big lake and pond of
 ``tests/lidarctl/test_classify_water_tiles.py::big_lake_scene``, the demo's strips (``--demo PROJECT``), synthetic

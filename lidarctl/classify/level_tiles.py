@@ -1,23 +1,21 @@
-"""The whole cloud's level regions labelled tile by tile (issue 44, level-tiles): the first step of
-``pipeline.whole_level_bodies`` -- the level cells (returns spanning at most 2 ``level_water_tol_m``) joined to
-their 8 neighbours whose median return differs by at most the tolerance, each region's area and level (the median
-of its cells' median returns) -- with the parent's memory bounded by the tiles' borders, not by the cloud's cells.
+"""The whole cloud's level water bodies (``pipeline.whole_level_bodies``) tile by tile (issue 44, level-tiles): the
+same bodies with the parent holding the tiles' borders and per-region answers, not every occupied cell.
 
-Each tile (in its worker) labels its own cells (those whose centre lies in its core) and the ring of cells about
-its core (the halo: its buffer holds them), and hands the parent only (``TileRegions``): the regions that reach
-the halo (they continue in another tile), with their area and level histogram over the tile's core cells, the
-halo cells they hold and the tile's own edge cells (keys on the whole grid and local labels). A region that
-reaches no halo cell is wholly in the core: the tile decides its area and exact level itself. The parent joins the
-regions across the tiles' borders by union-find on the cells two tiles share (a halo cell of one is an edge cell
-of its owner), adds their areas and histograms (``join_tile_regions``) and gives each tile back its regions'
-area and level only (``RegionDecisions``).
+Labelling (``tile_components``, ``tile_level_regions``): each tile labels its own cells (those whose centre lies in
+its core) and the ring of cells about its core, and hands the parent only (``TileRegions``) the regions that reach
+the ring (they continue in another tile) with their core cells and level histogram, the ring cells they hold and
+its own edge cells (keys on the whole grid and local labels). A region that reaches no ring cell is wholly in the
+core: the tile decides its area and exact level itself. The parent joins the regions across the tiles' borders by
+union-find on the cells two tiles share (a ring cell of one is an edge cell of its owner), adds their areas and
+histograms (``join_tile_regions``) and gives each tile back its regions' id, area and level (``RegionDecisions``).
 
-Exact: the regions (the same partition of the cells as ``pipeline._components``) and their areas. Not exact: the
-level of a region spanning tiles, the median of a histogram of ``LEVEL_BIN_M`` bins (the mean of the two middle
-values' bin centres: within half a bin of ``np.median``; exact where the heights are on a LAS quantum of twice the
-bin). Not done yet: the rest of ``whole_level_bodies`` (each region cut to its level, the rim's banks and a quay's
-wall within ``WALL_BEHIND_M``, shore and open sky, the join across dropouts and the bodies' own medians) on the
-same pattern; until then the option ``water_whole_level_bodies`` keeps the parent's pass on every occupied cell."""
+Medians exact in three answers (``LEVEL_BINS_M``: ``refine_medians``, ``values_in_median_bins``,
+``exact_levels``). Sums and looks within a reach (rim, shore, open sky, a quay's land within ``WALL_BEHIND_M``)
+exact by ownership: the tile whose core holds a cell counts its (cell, region) pairs over a window with a halo of
+that reach. ``whole_level_bodies_tiled`` runs every step of ``whole_level_bodies`` so: the same cells and levels
+bit for bit (bench/level_tiles_bodies.py). It holds the whole cloud's cells itself, each step reading one tile's
+window: a check of the decomposition; the tiles' pass (workers spooling their cells and labels) is not done, and
+the option ``water_whole_level_bodies`` keeps the parent's pass on every occupied cell."""
 
 from __future__ import annotations
 
@@ -47,7 +45,8 @@ class TileRegions:
     its halo (local labels 1..``n_spanning``) and its border cells, no per-cell arrays of its core.
     ``core_cells[k]``: the region's cells in the core (index 0 unused); ``hist_region``, ``hist_bin``,
     ``hist_count``: its histogram of the cells' median returns over the core (bins of ``LEVEL_BIN_M`` from 0 m);
-    ``row``, ``col``: the tile's place on the tile grid; ``halo_keys`` / ``halo_label``: the halo cells in a spanning region (whole-grid keys ``row * ncols + col``);
+    ``row``, ``col``: the tile's place on the tile grid; ``halo_keys`` / ``halo_label``: the ring cells (about the
+    core) in a spanning region (whole-grid keys ``row * ncols + col``);
     ``edge_keys`` / ``edge_label``: the core's level cells on the edge of its cells' box, sorted by key."""
 
     row: int

@@ -66,7 +66,7 @@ def test_tiled_regions_are_the_whole_clouds(monkeypatch):
     lab, size, level = whole_regions(cells, heights, p.level_water_tol_m)
     lake = size[lab > 0].max()
     assert lake > 24 * 24
-    for side, stream, merge in ((17, True, 1), (24, True, 1 << 20), (24, False, 1)):
+    for side, stream, merge in ((17, True, 1), (24, False, 1 << 20)):
         monkeypatch.setattr(lt, "HISTOGRAM_MERGE_ENTRIES", merge)
         region, area, lev, _, _ = tiled_regions(cells, heights, p.level_water_tol_m, side, stream)
         a = lab > 0
@@ -101,12 +101,12 @@ def test_tiled_bodies_are_the_whole_clouds():
     """``whole_level_bodies_tiled`` (rounds over the tiles' windows and the parent's per-region sums) finds the bodies
     of ``whole_level_bodies`` cell for cell in tiles of 24 cells: the lake (36 cells across, larger than a tile) and
     the ring of patches joined across a dropout, the survey's coverage on and off; a basin with 3 m quays (a wall's
-    land behind it across the tiles); the levels to the last bit (the medians of regions spanning tiles from the
+    land behind it across the tiles; coverage on); the levels to the last bit (the medians of regions spanning tiles from the
     values of their two middle histogram bins; the histogram's median alone lost the big pond of
     ``bench/level_tiles_bodies.py``, its bank fraction 0.793 against 0.8)."""
-    for coverage in (True, False):
+    for coverage, scenes in ((True, (lake_cells(seed=1), quay_cells(3.0)[:3])), (False, (lake_cells(seed=1),))):
         p = dataclasses.replace(classify.ClassifySettings(), water_survey_coverage=coverage)
-        for cells, heights, wg in (lake_cells(seed=1), quay_cells(3.0)[:3]):
+        for cells, heights, wg in scenes:
             whole = classify.whole_level_bodies(cells, heights, wg, p)
             tiled = lt.whole_level_bodies_tiled(cells, heights, wg, p, 24)
             assert len(whole.keys) > 900 and np.array_equal(whole.keys, tiled.keys)
