@@ -806,10 +806,10 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
     if small.sum() < 2:
         return None
     box = (*cells.min(axis=0), *cells.max(axis=0))
-    every = _windows(cells, windows[0].side, 1, every=True)
-    voids = _void_cells(cells, every, box)
-    member = [np.ones(len(vc), bool) for vc, _ in voids]
-    if p.water_survey_coverage:
+    side = windows[0].side
+    every = _windows(cells, side, 1, every=True)
+    coverage = p.water_survey_coverage
+    if coverage:
         if wg.footprint_10m is not None:
             fp, fx0, fy0 = wg.footprint_10m, wg.x0_m, wg.y0_m
         else:   # the footprint of the cells' centres (``whole_level_bodies``)
@@ -819,20 +819,56 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
         outside = np.pad(~fp, 1, constant_values=True)
         fringe = ndimage.binary_dilation(outside, np.ones((3, 3), bool))
 
-        def at(a, rc):
+        def index(rc, a):
             i = np.clip(np.floor((wg.y0_m + (rc[:, 0] + 0.5) * c - fy0) / cl.COVERAGE_CELL_M).astype(np.int64) + 1,
                         0, a.shape[0] - 1)
             j = np.clip(np.floor((wg.x0_m + (rc[:, 1] + 0.5) * c - fx0) / cl.COVERAGE_CELL_M).astype(np.int64) + 1,
                         0, a.shape[1] - 1)
-            return a[i, j]
+            return i, j
+
+        def at(a, rc):
+            return a[index(rc, a)]
+
+        # A tile without a return whose cells all lie in 10 m cells outside the footprint is beyond the survey as a
+        # whole (the sparse pass's blocks not stored): no tile reads it, and the empty cells beside it are seeded
+        # (a diagonal corridor's box is mostly such tiles).
+        skipped = set()
+        for w in every:
+            if len(w.index) == 0:
+                tr, tc = w.tile
+                (i0, i1), (j0, j1) = (index(np.array([[tr * side, tc * side], [tr * side + side - 1,
+                                                                                tc * side + side - 1]]), outside))
+                if outside[i0:i1 + 1, j0:j1 + 1].all():
+                    skipped.add(w.tile)
+        every = [w for w in every if w.tile not in skipped]
+    voids = _void_cells(cells, every, box)
+    member = [np.ones(len(vc), bool) for vc, _ in voids]
+    if coverage:
+        # the skipped tiles on the tiles' grid (padded by one tile: the ring of an edge tile lies beyond the box)
+        t0 = box[0] // side - 1, box[1] // side - 1
+        skip_grid = np.zeros((box[2] // side - t0[0] + 2, box[3] // side - t0[1] + 2), bool)
+        for tr, tc in skipped:
+            skip_grid[tr - t0[0], tc - t0[1]] = True
+
+        def beside_skipped(rc):
+            """Which cells ``rc`` are in, or beside, a tile skipped as beyond the survey."""
+            out = np.zeros(len(rc), bool)
+            if skipped:
+                for dr in (-1, 0, 1):
+                    for dc in (-1, 0, 1):
+                        t = (rc + (dr, dc)) // side - t0
+                        out |= skip_grid[t[:, 0], t[:, 1]]
+            return out
 
         near = [at(fringe, vc) for vc, _ in voids]
         near_ids, n = _void_round(voids, every, near, ncols_whole)
         seeded = np.zeros(n, bool)   # the parent's OR of the tiles' seeded components
         for (vc, vcore), ids, nr in zip(voids, near_ids, near):
-            seeded[ids[(at(outside, vc[vcore]) & nr[vcore])]] = True
+            seed = (at(outside, vc[vcore]) | beside_skipped(vc[vcore])) & nr[vcore]
+            seeded[ids[seed]] = True
         seeded[0] = False
-        # the ring's cells take their owner's answer: the spooled ids of the neighbours' cores
+        # the ring's cells take their owner's answer: the spooled ids of the neighbours' cores (a skipped tile's
+        # cells: beyond)
         key_all = np.concatenate([vc[vcore, 0] * ncols_whole + vc[vcore, 1] for vc, vcore in voids])
         beyond_all = np.concatenate([seeded[ids] for ids in near_ids])
         o = np.argsort(key_all)
@@ -840,7 +876,9 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
         member = []
         for vc, _ in voids:
             k = vc[:, 0] * ncols_whole + vc[:, 1]
-            member.append(~beyond_all[np.searchsorted(key_all, k)])
+            pos = np.minimum(np.searchsorted(key_all, k), len(key_all) - 1)
+            owned = key_all[pos] == k
+            member.append(owned & ~beyond_all[pos])
     gap_ids, _ = _void_round(voids, every, member, ncols_whole)
     # the gaps' ids of every void cell (core and ring), as the tiles' spooled ids give them
     key_all = np.concatenate([vc[vcore, 0] * ncols_whole + vc[vcore, 1] for vc, vcore in voids])

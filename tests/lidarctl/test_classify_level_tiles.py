@@ -12,7 +12,7 @@ from scipy import ndimage
 from lidarctl.classify import level_tiles as lt
 from lidarctl.classify import pipeline as classify
 
-from tests.lidarctl.test_classify_water_level_bodies import lake_cells, quay_cells
+from tests.lidarctl.test_classify_water_level_bodies import corridor_cells, lake_cells, quay_cells
 
 
 def whole_regions(cells, heights, tol):
@@ -101,14 +101,16 @@ def test_tiled_bodies_are_the_whole_clouds():
     """``whole_level_bodies_tiled`` (rounds over the tiles' windows and the parent's per-region sums) finds the bodies
     of ``whole_level_bodies`` cell for cell in tiles of 24 cells: the lake (36 cells across, larger than a tile) and
     the ring of patches joined across a dropout, the survey's coverage on and off; a basin with 3 m quays (a wall's
-    land behind it across the tiles; coverage on); the levels to the last bit (the medians of regions spanning tiles from the
+    land behind it across the tiles; coverage on); a diagonal corridor 0.8 km long (tiles of 30 cells: the 133 of
+    its box's 224 without a return all skipped as beyond the survey; coverage on); the levels to the last bit (the medians of regions spanning tiles from the
     values of their two middle histogram bins; the histogram's median alone lost the big pond of
     ``bench/level_tiles_bodies.py``, its bank fraction 0.793 against 0.8)."""
-    for coverage, scenes in ((True, (lake_cells(seed=1), quay_cells(3.0)[:3])), (False, (lake_cells(seed=1),))):
+    lake = lake_cells(seed=1)
+    for coverage, scenes in ((True, (lake, quay_cells(3.0)[:3], corridor_cells(0.8))), (False, (lake,))):
         p = dataclasses.replace(classify.ClassifySettings(), water_survey_coverage=coverage)
         for cells, heights, wg in scenes:
             whole = classify.whole_level_bodies(cells, heights, wg, p)
-            tiled = lt.whole_level_bodies_tiled(cells, heights, wg, p, 24)
+            tiled = lt.whole_level_bodies_tiled(cells, heights, wg, p, 24 if len(cells) < 20_000 else 30)
             assert len(whole.keys) > 900 and np.array_equal(whole.keys, tiled.keys)
             assert np.array_equal(whole.level_m, tiled.level_m)
 
