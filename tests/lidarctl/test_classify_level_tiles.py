@@ -102,9 +102,9 @@ def test_tiled_bodies_are_the_whole_clouds():
     of ``whole_level_bodies`` cell for cell in tiles of 24 cells: the lake (36 cells across, larger than a tile) and
     the ring of patches joined across a dropout, the survey's coverage on and off; a basin with 3 m quays (a wall's
     land behind it across the tiles; coverage on); a diagonal corridor 0.8 km long (tiles of 30 cells: the 133 of
-    its box's 224 without a return all skipped as beyond the survey; coverage on); the levels to the last bit (the medians of regions spanning tiles from the
-    values of their two middle histogram bins; the histogram's median alone lost the big pond of
-    ``bench/level_tiles_bodies.py``, its bank fraction 0.793 against 0.8)."""
+    its box's 224 without a return all skipped as beyond the survey; coverage on); the levels to the last bit (the
+    medians of regions spanning tiles from three answers of the tiles; a histogram's median alone lost the big
+    pond of ``bench/level_tiles_bodies.py``, its bank fraction 0.793 against 0.8)."""
     lake = lake_cells(seed=1)
     for coverage, scenes in ((True, (lake, quay_cells(3.0)[:3], corridor_cells(0.8))), (False, (lake,))):
         p = dataclasses.replace(classify.ClassifySettings(), water_survey_coverage=coverage)
