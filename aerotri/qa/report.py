@@ -86,6 +86,9 @@ class QaReport:
     flight_acceptance: dict | None
     compliance: dict
     html: str | None = None  # reports/index.html once written
+    # the rows with a limit but no verdict (not measured, not judged: "said, not judged" like dom_not_checked, whose
+    # row has no limit): the overall verdict does not cover them (review 26: a seam row not measured read "pass")
+    not_judged: tuple[str, ...] = ()
 
     def check(self, check_id: str) -> QaCheck:
         """The row with this id (KeyError naming the ids there are)."""
@@ -827,7 +830,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                     block=dataclasses.asdict(block), checks=rows,
                     overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
                     passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info,
-                    flight_acceptance=fa, compliance=dataclasses.asdict(compliance))
+                    flight_acceptance=fa, compliance=dataclasses.asdict(compliance),
+                    not_judged=tuple(r.id for r in rows if r.verdict is None and r.limit is not None))
 
 
 def _cell(v) -> str:
@@ -1054,7 +1058,8 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
                   reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
                   compliance_headline=compliance_headline(rep.get("compliance")),
                   compliance_verdict=verdict_class(compliance_verdict(rep.get("compliance"))),
-                  passed=rep["passed"], failed=rep["failed"], verdicts=verdicts,
+                  passed=rep["passed"], failed=rep["failed"], not_judged=len(rep.get("not_judged") or ()),
+                  verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
                   stage_images=list(stage_images), figures=list(figures or []),
                   flight_tables=RF.flight_tables(fa) if fa else None, flight_spec=str((fa or {}).get("spec") or ""),
@@ -1303,6 +1308,7 @@ def console_summary(report: QaReport) -> str:
     verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
     judged_by = t["name"] if t.get("lidar_only") else f"{report.map_scale} {report.terrain}"
     headline = compliance_headline(report.compliance)
-    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; {judged_by})"
+    unjudged = f", {len(report.not_judged)} with a limit not judged" if report.not_judged else ""
+    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed{unjudged}; {judged_by})"
                  + (f"; {headline}" if headline else ""))
     return "\n".join(lines)

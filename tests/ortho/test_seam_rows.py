@@ -212,7 +212,10 @@ def test_a_record_measured_before_the_texture_floor_leaves_the_worst_seam_unjudg
     assert block.verdict == "pass" and "measured before the texture floor" in block.note and "0.1" in block.note
     assert worst.value is None and worst.verdict is None and worst.limit == 0.5
     assert worst.note == "not judged: measured before the texture floor; re-run ortho check"
-    assert rep.overall == "pass"
+    assert rep.overall == "pass" and rep.not_judged == ("seam_worst_rms_px",)
+    assert json.loads((tmp_path / "reports" / "summary.json").read_text())["not_judged"] == ["seam_worst_rms_px"]
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert f"({rep.passed} passed, 0 failed, 1 with a limit not judged)" in html
 
 
 def test_seams_whose_textured_patches_all_found_no_match_fail_not_unmeasured(tmp_path):
@@ -237,4 +240,4 @@ def test_seams_whose_textured_patches_all_found_no_match_fail_not_unmeasured(tmp
     block = rep.check("seam_misalignment_rms_px")
     assert block.verdict is None and block.note == ("not measured (0 of 33 patches: 30 below the texture floor 0.5, "
                                                     "3 above it without a match)")
-    assert not rep.has("seam_worst_rms_px")
+    assert not rep.has("seam_worst_rms_px") and rep.not_judged == ("seam_misalignment_rms_px",)
