@@ -3098,7 +3098,7 @@ SEAM_SEARCH_PX = 4  # a seam patch's search in frame b, +- px: frames off by mor
 
 # Largest share of a seam's textured patches (above the texture floor; seams of at least SEAM_MIN_PATCHES of them)
 # that may find no match (NCC peak below 0.7 or on the edge of the search): a frame SEAM_SEARCH_PX or more off does
-# not read its shift on its seams, their patches drop out instead (review 26: demo s02_002 moved 4 px, its seams 18
+# not read its shift on its seams, their patches drop out instead (review 26: demo s02_002 moved 4 px, its 6 seams 27
 # -> 0 patches, the worst seam 0.19 px and the block 0.065 px: a pass). "Most": as made, 0 % of any seam on the demo
 # (main 6360cc7c) and at most 7.4 % on the DMC 2 x 4 (run 2bfb756: s01_001 / s02_004, 4 of 54); one frame moved 4 or
 # 6 px in x or 4 px in y: 92-100 % of its seams' patches on the demo (51 of 54 shifts of its 18 frames fail; the
@@ -3114,7 +3114,9 @@ class SeamMisalignment:
     left out as textured too little in two directions (``one_direction``: texture ratio below ``min_texture_ratio``,
     ``SEAM_MIN_TEXTURE_RATIO``: roads, field edges) and those whose sub-pixel refinement did not settle
     (``unsettled``); the worst seam (``worst_seam``: largest RMS of the seams of at least ``min_patches`` patches,
-    ``SEAM_MIN_PATCHES``; None when no seam has that many)."""
+    ``SEAM_MIN_PATCHES``; None when no seam has that many); the textured patches that found no match (``unmatched``)
+    and the largest share of them a seam may have (``max_unmatched_share``, ``SEAM_MAX_UNMATCHED_SHARE``;
+    ``unmatched_seams``)."""
 
     patch_px: int
     patches: int
