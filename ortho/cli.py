@@ -169,19 +169,28 @@ def check(*, project, reference_path, points_path, dom_path, out_stem, params_pa
 
 
 def _seams_line(s) -> str:
-    """The seam misalignment: block RMS, texture floor and patches left out, the worst seam (or "not measured")."""
+    """The seam misalignment: block RMS, texture floor and patches left out, the worst seam (or "not measured"), the
+    seams most of whose textured patches found no match."""
     floor = f" {s.min_texture_ratio:g}" if s.min_texture_ratio is not None else ""
+    lost = s.unmatched_seams()
+    lost_text = ""
+    if lost:
+        named = ", ".join(f"{p.image_a} / {p.image_b} {p.unmatched} of {p.textured}" for p in lost[:4])
+        lost_text = (f"; {len(lost)} seams did not match ({named}{', ...' if len(lost) > 4 else ''}): frames off by "
+                     "more than the search?")
     if not s.patches:
-        if s.unsettled:
-            return (f"seams: not measured (0 of {s.examined} patches: {s.one_direction} below the texture "
-                    f"floor{floor}, {s.unsettled} unsettled)")
+        if s.unsettled or s.unmatched:
+            counts = (f"{s.one_direction} below the texture floor{floor}, {s.unmatched or 0} without a match, "
+                      f"{s.unsettled} unsettled")
+            return (f"seams: 0 of {s.examined} patches matched ({counts})" + lost_text if lost
+                    else f"seams: not measured (0 of {s.examined} patches: {counts})")
         return f"seams: not measured (0 of {s.examined} patches above the texture floor{floor})"
     worst = s.worst()
     text = (f"seams: {s.patches} of {s.examined} patches (texture floor{floor}): RMS {s.rms_px:.3f} px; worst seam ")
     if worst is None:
-        return text + f"not judged (no seam of {s.least_patches} patches)"
+        return text + f"not judged (no seam of {s.least_patches} patches)" + lost_text
     return text + (f"{worst.image_a} / {worst.image_b} {worst.rms_px:.3f} px ({worst.patches} patches; "
-                   f"{len(s.judged())} of {len(s.per_seam)} seams of {s.least_patches}+ patches)")
+                   f"{len(s.judged())} of {len(s.per_seam)} seams of {s.least_patches}+ patches)") + lost_text
 
 
 def _check_line(report: DomCheck, what: str) -> str:

@@ -3054,13 +3054,25 @@ def seam_samples(labels: np.ndarray, spacing_cells: int):
 @dataclasses.dataclass(frozen=True)
 class SeamPair:
     """One seam's misalignment: the two frames, the patches matched, RMS and largest displacement (px; None
-    without patches)."""
+    without patches), and the textured patches (above the texture floor) that found no match (``unmatched``: NCC
+    peak below 0.7 or on the edge of the +-4 px search; None: a record written before review 26)."""
 
     image_a: str
     image_b: str
     patches: int
     rms_px: float | None
     max_px: float | None
+    unmatched: int | None = None
+
+    @property
+    def textured(self) -> int:
+        """The seam's patches above the texture floor that were matched or found no match (unsettled ones aside)."""
+        return self.patches + (self.unmatched or 0)
+
+    @property
+    def unmatched_share(self) -> float | None:
+        """``unmatched`` of ``textured``; None without textured patches or an older record."""
+        return self.unmatched / self.textured if self.unmatched is not None and self.textured else None
 
 
 # Least texture ratio (``ortho.patches.texture_ratio`` of frame b's patch) of a seam patch measured: two frame orthos
@@ -3082,6 +3094,18 @@ SEAM_MIN_TEXTURE_RATIO = 0.5
 # at most 0.31 px as made, 16 of 16 one-frame shifts failed, the block RMS passing all 16 (docs/true-ortho.md).
 SEAM_MIN_PATCHES = 5
 
+SEAM_SEARCH_PX = 4  # a seam patch's search in frame b, +- px: frames off by more do not match (below)
+
+# Largest share of a seam's textured patches (above the texture floor; seams of at least SEAM_MIN_PATCHES of them)
+# that may find no match (NCC peak below 0.7 or on the edge of the search): a frame SEAM_SEARCH_PX or more off does
+# not read its shift on its seams, their patches drop out instead (review 26: demo s02_002 moved 4 px, its 6 seams 27
+# -> 0 patches, the worst seam 0.19 px and the block 0.065 px: a pass). "Most": as made, 0 % of any seam on the demo
+# (main 6360cc7c) and at most 7.4 % on the DMC 2 x 4 (run 2bfb756: s01_001 / s02_004, 4 of 54); one frame moved 4 or
+# 6 px in x or 4 px in y: 92-100 % of its seams' patches on the demo (51 of 54 shifts of its 18 frames fail; the
+# 3 others move s01_005, which has no seam of 5 textured patches), 85-100 % on the DMC (8 of 8 frames moved 4 px
+# fail). Half lies far from both (docs/true-ortho.md review 26).
+SEAM_MAX_UNMATCHED_SHARE = 0.5
+
 
 @dataclasses.dataclass(frozen=True)
 class SeamMisalignment:
@@ -3090,7 +3114,9 @@ class SeamMisalignment:
     left out as textured too little in two directions (``one_direction``: texture ratio below ``min_texture_ratio``,
     ``SEAM_MIN_TEXTURE_RATIO``: roads, field edges) and those whose sub-pixel refinement did not settle
     (``unsettled``); the worst seam (``worst_seam``: largest RMS of the seams of at least ``min_patches`` patches,
-    ``SEAM_MIN_PATCHES``; None when no seam has that many)."""
+    ``SEAM_MIN_PATCHES``; None when no seam has that many); the textured patches that found no match (``unmatched``)
+    and the largest share of them a seam may have (``max_unmatched_share``, ``SEAM_MAX_UNMATCHED_SHARE``;
+    ``unmatched_seams``)."""
 
     patch_px: int
     patches: int
@@ -3102,11 +3128,23 @@ class SeamMisalignment:
     unsettled: int = 0
     min_patches: int | None = None  # None: a report written before review 25 (no worst seam recorded)
     worst_seam: SeamPair | None = None
+    unmatched: int | None = None  # None: a report written before review 26 (patches without a match not counted)
+    max_unmatched_share: float | None = None  # None: likewise (``SEAM_MAX_UNMATCHED_SHARE`` applies)
 
     @property
     def examined(self) -> int:
-        """Seam patches valid in both frames (and on the ground): measured, or left out by texture or refinement."""
-        return self.patches + self.one_direction + self.unsettled
+        """Seam patches valid in both frames (and on the ground): measured, or left out by texture, by finding no
+        match or by refinement."""
+        return self.patches + self.one_direction + self.unsettled + (self.unmatched or 0)
+
+    def unmatched_seams(self) -> tuple[SeamPair, ...]:
+        """The seams of at least ``least_patches`` textured patches more than ``max_unmatched_share``
+        (``SEAM_MAX_UNMATCHED_SHARE``) of which found no match, most unmatched first: frames off by more than the
+        search (their seams lose their patches instead of reading the shift) or not the same ground there."""
+        share = self.max_unmatched_share if self.max_unmatched_share is not None else SEAM_MAX_UNMATCHED_SHARE
+        seams = (p for p in self.per_seam if p.unmatched is not None and p.textured >= self.least_patches
+                 and p.unmatched_share > share)
+        return tuple(sorted(seams, key=lambda p: (-p.unmatched_share, -p.unmatched)))
 
     @property
     def least_patches(self) -> int:
@@ -3135,10 +3173,11 @@ class SeamMisalignment:
                       "worst_seam": pair(d["worst_seam"]) if d.get("worst_seam") else None})
 
 
-def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_cells: int = 4, min_ncc: float = 0.7,
+def seam_misalignment(root, *, patch_px: int = 32, search_px: int = SEAM_SEARCH_PX, spacing_cells: int = 4, min_ncc: float = 0.7,
                       ndsm_path=None, max_ndsm_m: float = 0.5,
                       min_texture_ratio: float = SEAM_MIN_TEXTURE_RATIO,
-                      min_patches: int = SEAM_MIN_PATCHES) -> SeamMisalignment:
+                      min_patches: int = SEAM_MIN_PATCHES,
+                      max_unmatched_share: float = SEAM_MAX_UNMATCHED_SHARE) -> SeamMisalignment:
     """Relative displacement of neighbouring frame orthos across each seam (NCC patches on the seam).
 
     For every seam (pair of frames sharing a boundary in ``ortho/seams.tif``), patches centred on
@@ -3170,12 +3209,12 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
     to_project = index_operation(index)
     half = patch_px // 2 + search_px
     size = 2 * half
-    per_seam, all_d, one_direction, unsettled = [], [], 0, 0
+    per_seam, all_d, one_direction, unsettled, unmatched = [], [], 0, 0, 0
     for (i, j), rc in seam_samples(labels, spacing_cells):
         # mosaic pixel of each patch's upper-left corner
         R = ((rc[:, 0] + 0.5) * factor).astype(int) - half
         C = ((rc[:, 1] + 0.5) * factor).astype(int) - half
-        ds_list = []
+        ds_list, seam_unmatched = [], 0
         with _open_frame(frames_dir / f"{names[i]}.tif") as fa, _open_frame(frames_dir / f"{names[j]}.tif") as fb:
             # the patches of one seam are read by groups under one window (one read per frame and group,
             # not one per patch); the nDSM likewise
@@ -3203,12 +3242,14 @@ def seam_misalignment(root, *, patch_px: int = 32, search_px: int = 4, spacing_c
                     ds_list.extend(np.hypot(p.dx_px, p.dy_px).tolist())
                     one_direction += len(p.one_direction_row_px)
                     unsettled += len(p.unsettled_row_px)
+                    seam_unmatched += len(p.unmatched_row_px)
         d = np.array(ds_list)
         all_d.extend(ds_list)
+        unmatched += seam_unmatched
         per_seam.append(SeamPair(names[i], names[j], int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
-                                 float(d.max()) if len(d) else None))
+                                 float(d.max()) if len(d) else None, seam_unmatched))
     d = np.array(all_d)
     out = SeamMisalignment(patch_px, int(len(d)), float(np.sqrt(np.mean(d ** 2))) if len(d) else None,
                            float(d.max()) if len(d) else None, tuple(per_seam), one_direction, min_texture_ratio,
-                           unsettled, min_patches)
+                           unsettled, min_patches, None, unmatched, max_unmatched_share)
     return dataclasses.replace(out, worst_seam=out.worst())

@@ -50,6 +50,11 @@ class PatchDisplacements:
     # centres of the patches whose sub-pixel refinement failed (``refine_shift`` None): counted, not measured
     unsettled_row_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     unsettled_col_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    # centres of the textured patches (above the texture floor) that found no match: NCC peak below ``min_ncc`` or on
+    # the edge of the +-search_px search (the two images off by more than it, or not the same ground there):
+    # counted, not measured
+    unmatched_row_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    unmatched_col_px: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     @property
     def de_m(self):
@@ -63,7 +68,8 @@ class PatchDisplacements:
         keep = np.asarray(keep, bool)
         return PatchDisplacements(self.row_px[keep], self.col_px[keep], self.dx_px[keep], self.dy_px[keep],
                                   self.ncc[keep], self.res_m, self.one_direction_row_px, self.one_direction_col_px,
-                                  self.east_sign, self.north_sign, self.unsettled_row_px, self.unsettled_col_px)
+                                  self.east_sign, self.north_sign, self.unsettled_row_px, self.unsettled_col_px,
+                                  self.unmatched_row_px, self.unmatched_col_px)
 
     def __len__(self):
         return len(self.dx_px)
@@ -172,7 +178,8 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
     the search border or a peak NCC below ``min_ncc`` are discarded; those whose reference patch (same place) has
     texture in one direction only (``texture_ratio`` < ``min_texture_ratio``; 0: none left out) are left out and
     their centres returned in ``one_direction_row_px``/``_col_px``; those whose sub-pixel refinement fails
-    (``refine_shift`` None) likewise in ``unsettled_row_px``/``_col_px``.
+    (``refine_shift`` None) likewise in ``unsettled_row_px``/``_col_px``, and the textured ones whose peak is below
+    ``min_ncc`` or on the search border in ``unmatched_row_px``/``_col_px``.
     """
     g = to_gray(dom)
     ref = to_gray(reference)
@@ -188,6 +195,7 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
     H, W = g.shape
     P, S = patch_px, search_px
     rows, cols, dxs, dys, nccs, one_rows, one_cols, unsettled_rows, unsettled_cols = [], [], [], [], [], [], [], [], []
+    unmatched_rows, unmatched_cols = [], []
     for r in range(S, H - P - S + 1, step_px):
         for c in range(S, W - P - S + 1, step_px):
             r0, r1, c0, c1 = r - S, r + P + S, c - S, c + P + S
@@ -203,6 +211,8 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
             cc = cv2.matchTemplate(ref[r0:r1, c0:c1], t, cv2.TM_CCOEFF_NORMED)
             _, peak, _, (px, py) = cv2.minMaxLoc(cc)
             if peak < min_ncc or px in (0, cc.shape[1] - 1) or py in (0, cc.shape[0] - 1):
+                unmatched_rows.append(r + (P - 1) / 2.0)
+                unmatched_cols.append(c + (P - 1) / 2.0)
                 continue
             # the parabolas at the whole-pixel peak (module doc: biased along a slanted ridge), then the NCC's peak
             sx = parabola_peak(cc[py, px - 1], cc[py, px], cc[py, px + 1])
@@ -222,4 +232,5 @@ def match_patches(dom, reference, dom_valid=None, reference_valid=None, *, res_m
             nccs.append(peak)
     a = lambda v: np.asarray(v, dtype=float)
     return PatchDisplacements(a(rows), a(cols), a(dxs), a(dys), a(nccs), float(res_m), a(one_rows), a(one_cols),
-                              unsettled_row_px=a(unsettled_rows), unsettled_col_px=a(unsettled_cols))
+                              unsettled_row_px=a(unsettled_rows), unsettled_col_px=a(unsettled_cols),
+                              unmatched_row_px=a(unmatched_rows), unmatched_col_px=a(unmatched_cols))

@@ -8,7 +8,8 @@ Colours: 8- and 16-bit samples stretched linearly from their 0.5th to their 99.5
 all bands together, so colour balance is kept), the range named in the legend: a DMC's 12-bit data in 16-bit samples
 would be black divided by 257, and by its bit depth the balanced DOM of 12-bit frames (gains up to 1.05 take it to
 4311, 13 bits) was a quarter as bright as the data, dark grey on black; the 8-bit DOM of the same frames
-(``--output-bits 8``, mapped from the white level) was as dim shown as it is (review 25); one band as grey.
+(``--output-bits 8``, mapped from the white level) was as dim shown as it is (review 25); one band as grey. A DOM of
+(nearly) one value, whose percentiles collapse, is shown in its samples' full range (``full_range``), not black.
 """
 
 from __future__ import annotations
@@ -50,11 +51,32 @@ def seam_pixels(labels: np.ndarray) -> np.ndarray:
 STRETCH_PERCENT = (0.5, 99.5)
 
 
+# Least span of the stretch, a share of the samples' full range (``full_range``): percentiles closer together (a
+# uniform block, or one value on more than 99 % of it: lo = hi) would show it black (review 26); the full range then
+STRETCH_MIN_SPAN = 1.0 / 64.0  # 4 of the 255 levels of 8-bit samples, 64 of 12-bit's 4095
+
+
+FULL_SCALES = (2 ** 8, 2 ** 12, 2 ** 13, 2 ** 14, 2 ** 15, 2 ** 16)  # ``full_range`` + 1
+
+
+def full_range(img: np.ndarray) -> float:
+    """The samples' full scale: 255 for 8-bit; for 16-bit that of their bit depth (the least of 12 to 16 bits holding
+    the largest sample: 4095 for a DMC's 12-bit data, 8191 for its balanced DOM up to 4311)."""
+    if img.dtype == np.uint8:
+        return 255.0
+    bits = min(16, max(12, int(img.max()).bit_length())) if img.size else 16
+    return float(2 ** bits - 1)
+
+
 def stretch_range(img: np.ndarray, valid: np.ndarray | None = None) -> tuple[float, float]:
-    """(low, high): the ``STRETCH_PERCENT`` percentiles of the (bands, h, w) samples on the valid cells."""
+    """(low, high): the ``STRETCH_PERCENT`` percentiles of the (bands, h, w) samples on the valid cells; 0 and the
+    samples' ``full_range`` when those lie less than ``STRETCH_MIN_SPAN`` of it apart."""
     samples = img[:, valid] if valid is not None and valid.any() else img.reshape(len(img), -1)
     lo, hi = (float(v) for v in np.percentile(samples, STRETCH_PERCENT))
-    return lo, max(hi, lo + 1.0)
+    full = full_range(samples)
+    if hi - lo < STRETCH_MIN_SPAN * full:
+        return 0.0, full
+    return lo, hi
 
 
 def _to_rgb8(img: np.ndarray, valid: np.ndarray | None = None) -> tuple[np.ndarray, tuple[float, float] | None]:
@@ -74,8 +96,9 @@ def _to_rgb8(img: np.ndarray, valid: np.ndarray | None = None) -> tuple[np.ndarr
 def _labels(stretch: tuple[float, float] | None, bits: int = 16) -> list[str]:
     names = ["seamline", "nodata: no frame sees it", "outside the block"]
     if stretch is not None:
-        names.append(f"grey: {bits}-bit samples {stretch[0]:.0f}-{stretch[1]:.0f} stretched "
-                     f"({STRETCH_PERCENT[0]:g}-{STRETCH_PERCENT[1]:g} %)")
+        how = ("full range" if stretch[0] == 0 and int(stretch[1]) + 1 in FULL_SCALES else
+               f"stretched ({STRETCH_PERCENT[0]:g}-{STRETCH_PERCENT[1]:g} %)")
+        names.append(f"grey: {bits}-bit samples {stretch[0]:.0f}-{stretch[1]:.0f} {how}")
     return names
 
 

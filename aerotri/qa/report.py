@@ -86,6 +86,9 @@ class QaReport:
     flight_acceptance: dict | None
     compliance: dict
     html: str | None = None  # reports/index.html once written
+    # the rows with a limit but no verdict (not measured, not judged: "said, not judged" like dom_not_checked, whose
+    # row has no limit): the overall verdict does not cover them (review 26: a seam row not measured read "pass")
+    not_judged: tuple[str, ...] = ()
 
     def check(self, check_id: str) -> QaCheck:
         """The row with this id (KeyError naming the ids there are)."""
@@ -132,9 +135,14 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
     floor and the patches left out, or "not measured" when no patch passed it (seams over fields, water, snow); and
     the worst seam (largest RMS of the seams of at least ``least_patches`` patches) against ``seam_worst_rms_px``
     (a table without it: the block's ``seam_misalignment_rms_px``): one frame off shows on its seams only, diluted
-    in the block RMS. Not measured is said, not judged."""
+    in the block RMS. A seam most of whose textured patches found no match (``unmatched_seams``: frames off by more
+    than the search) fails the worst-seam row (and the block row when nothing matched). A record measured before the
+    texture floor (review 20) leaves the worst seam unjudged. Not measured is said, not judged."""
     s = dom_check.seams
     block_limit = tol.get("seam_misalignment_rms_px")
+    if s is not None:  # the seams record was read: ortho.mosaic (OpenCV) is loaded already
+        from ortho.mosaic import SEAM_SEARCH_PX
+        from ortho.patches import MIN_TEXTURE_RATIO
     if s is None:  # a report read without its seams record
         if dom_check.seams_rms_px is None:
             return []
@@ -143,29 +151,53 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
                        key="seam_misalignment_rms_px")]
     floor = f" {s.min_texture_ratio:g}" if s.min_texture_ratio is not None else ""
     name = "misalignment across seamlines, RMS"
+    lost = s.unmatched_seams()
+    off = f"frames off by more than the +-{SEAM_SEARCH_PX} px search, or not the same ground in the two"
     if s.patches == 0:
         if s.examined == 0:
             why = ("not measured (no seam patch valid in both frames"
                    + (" on the ground)" if s.per_seam else ": no seam)"))
-        elif s.unsettled == 0:
+        elif not s.unsettled and not s.unmatched:
             why = (f"not measured (0 of {s.examined} patches above the texture floor{floor}): the seams lie over "
                    "ground textured in one direction or none (fields, water, snow, roads)")
         else:
-            why = (f"not measured (0 of {s.examined} patches: {s.one_direction} below the texture floor{floor}, "
-                   f"{s.unsettled} above it unsettled)")
-        return [QaCheck("seam_misalignment_rms_px", sec, name, None, block_limit, "px", why, None,
-                        "seam_misalignment_rms_px")]
-    left = f"{s.one_direction} below the texture floor{floor} left out" + (f", {s.unsettled} unsettled" if s.unsettled
-                                                                             else "")
-    rows = [_check("seam_misalignment_rms_px", sec, name, round(s.rms_px, 3), block_limit, "px",
-                   note=f"{s.patches} of {s.examined} patches on {len(s.per_seam)} seams ({left})",
-                   key="seam_misalignment_rms_px")]
+            counts = ", ".join([f"{s.one_direction} below the texture floor{floor}"]
+                               + ([f"{s.unmatched} above it without a match"] if s.unmatched else [])
+                               + ([f"{s.unsettled} above it unsettled"] if s.unsettled else []))
+            why = (f"0 of {s.examined} patches matched ({counts}): {_unmatched_note(lost)}: {off}" if lost
+                   else f"not measured (0 of {s.examined} patches: {counts})")
+        rows = [QaCheck("seam_misalignment_rms_px", sec, name, None, block_limit, "px", why,
+                        "fail" if lost else None, "seam_misalignment_rms_px")]
+        if not lost:
+            return rows
+    else:
+        left = ", ".join([f"{s.one_direction} below the texture floor{floor} left out"]
+                         + ([f"{s.unmatched} without a match"] if s.unmatched else [])
+                         + ([f"{s.unsettled} unsettled"] if s.unsettled else []))
+        note = f"{s.patches} of {s.examined} patches on {len(s.per_seam)} seams ({left})"
+        if s.min_texture_ratio is None:
+            note = (f"{s.patches} of {s.examined} patches on {len(s.per_seam)} seams, measured before the texture "
+                    f"floor (a record before review 20: the DOM check's floor {MIN_TEXTURE_RATIO:g}, roads and field "
+                    f"edges in; {s.one_direction} left out); re-run ortho check")
+        rows = [_check("seam_misalignment_rms_px", sec, name, round(s.rms_px, 3), block_limit, "px", note=note,
+                       key="seam_misalignment_rms_px")]
     limit, key, whose = tol.get("seam_worst_rms_px"), "seam_worst_rms_px", ""
     if limit is None and block_limit is not None:
         limit, key = block_limit, "seam_misalignment_rms_px"
         whose = "; the table sets no seam_worst_rms_px: its block limit"
     n, judged, worst = s.least_patches, s.judged(), s.worst()
     name = "misalignment across the worst seam, RMS"
+    if s.min_texture_ratio is None:  # roads read up to 0.4 px off each: not comparable with the 0.5 px limit
+        rows.append(QaCheck("seam_worst_rms_px", sec, name, None, limit, "px",
+                            "not judged: measured before the texture floor; re-run ortho check", None, key))
+        return rows
+    if lost:
+        note = f"{_unmatched_note(lost)}: {off}"
+        if worst is not None:
+            note += f"; of the seams matched: {worst.image_a} / {worst.image_b} {worst.rms_px:.3f} px"
+        rows.append(QaCheck("seam_worst_rms_px", sec, name, None if worst is None else round(worst.rms_px, 3), limit,
+                            "px", note + whose, "fail", key))
+        return rows
     if worst is None:
         most = max(s.per_seam, key=lambda p: p.patches, default=None)
         rows.append(QaCheck("seam_worst_rms_px", sec, name, None, limit, "px",
@@ -180,6 +212,15 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
         note += f"; {len(over)} seams above {limit:g} px: {named}" + (", ..." if len(over) > SEAM_ROWS_LISTED else "")
     rows.append(_check("seam_worst_rms_px", sec, name, round(worst.rms_px, 3), limit, "px", note=note, key=key))
     return rows
+
+
+def _unmatched_note(lost) -> str:
+    """The seams most of whose textured patches found no match, the first ``SEAM_ROWS_LISTED`` named."""
+    named = ", ".join(f"{p.image_a} / {p.image_b} {p.unmatched} of {p.textured}" + (" textured patches unmatched"
+                                                                                   if not k else "")
+                      for k, p in enumerate(lost[:SEAM_ROWS_LISTED]))
+    return (f"{len(lost)} seam{'s' if len(lost) > 1 else ''} did not match ({named}"
+            + (", ..." if len(lost) > SEAM_ROWS_LISTED else "") + ")")
 
 
 def _check(check_id: str, section: str, name: str, value, limit, unit: str, *, note: str = "",
@@ -807,7 +848,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                     block=dataclasses.asdict(block), checks=rows,
                     overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
                     passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info,
-                    flight_acceptance=fa, compliance=dataclasses.asdict(compliance))
+                    flight_acceptance=fa, compliance=dataclasses.asdict(compliance),
+                    not_judged=tuple(r.id for r in rows if r.verdict is None and r.limit is not None))
 
 
 def _cell(v) -> str:
@@ -1034,7 +1076,8 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
                   reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
                   compliance_headline=compliance_headline(rep.get("compliance")),
                   compliance_verdict=verdict_class(compliance_verdict(rep.get("compliance"))),
-                  passed=rep["passed"], failed=rep["failed"], verdicts=verdicts,
+                  passed=rep["passed"], failed=rep["failed"], not_judged=len(rep.get("not_judged") or ()),
+                  verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
                   stage_images=list(stage_images), figures=list(figures or []),
                   flight_tables=RF.flight_tables(fa) if fa else None, flight_spec=str((fa or {}).get("spec") or ""),
@@ -1283,6 +1326,7 @@ def console_summary(report: QaReport) -> str:
     verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
     judged_by = t["name"] if t.get("lidar_only") else f"{report.map_scale} {report.terrain}"
     headline = compliance_headline(report.compliance)
-    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed; {judged_by})"
+    unjudged = f", {len(report.not_judged)} with a limit not judged" if report.not_judged else ""
+    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed{unjudged}; {judged_by})"
                  + (f"; {headline}" if headline else ""))
     return "\n".join(lines)

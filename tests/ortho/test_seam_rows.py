@@ -1,6 +1,8 @@
 """The seam rows of the accuracy report a QA reader can trust (review 25, issue 42): one frame 1 px off fails the
-worst-seam row while the block RMS, diluted by the other seams, would pass; a block whose seams lie over ground
-textured in one direction only says "not measured" with the floor and the count, not nothing."""
+worst-seam row while the block RMS, diluted by the other seams, would pass; one frame more than the search off, whose
+seams' patches find no match, fails it too (review 26); a block whose seams lie over ground textured in one direction
+only says "not measured" with the floor and the count, not nothing; a record measured before the texture floor
+leaves the worst seam unjudged."""
 
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ from aerotri.core.records import to_record
 from aerotri.qa.report import write_qa_report
 from ortho.check import read_dom_check, run_check
 from ortho.cli import main
-from ortho.mosaic import SEAM_MIN_PATCHES, SEAM_MIN_TEXTURE_RATIO, SeamMisalignment, seam_misalignment
+from ortho.mosaic import (SEAM_MAX_UNMATCHED_SHARE, SEAM_MIN_PATCHES, SEAM_MIN_TEXTURE_RATIO, SEAM_SEARCH_PX,
+                          SeamMisalignment, seam_misalignment)
 
 RES_M = 0.2  # the synthetic block's GSD
 SHIFTED = "s02_002"  # a frame with two seams of at least SEAM_MIN_PATCHES patches (and two shorter ones)
@@ -49,19 +52,21 @@ def _move_frame(root, frame: str, de_m: float) -> None:
 
 @pytest.fixture(scope="module")
 def blocks(tmp_path_factory):
-    """(as made, SHIFTED moved 1 px east and both orthos made again)."""
+    """(as made, SHIFTED moved 1 px east, SHIFTED moved 6 px east: beyond the seams' search); orthos made again."""
     base = tmp_path_factory.mktemp("seam_rows")
     good = base / "good"
     _block(good)
-    bad = base / "bad"
-    shutil.copytree(good, bad)
-    _move_frame(bad, SHIFTED, RES_M)
-    _ortho(bad)
-    return good, bad
+    moved = []
+    for name, px in (("bad", 1), ("far", 6)):
+        moved.append(base / name)
+        shutil.copytree(good, moved[-1])
+        _move_frame(moved[-1], SHIFTED, px * RES_M)
+        _ortho(moved[-1])
+    return good, *moved
 
 
 def test_one_frame_1_px_off_fails_the_worst_seam_while_the_block_rms_would_pass(blocks, tmp_path):
-    good, bad = blocks
+    good, bad, _ = blocks
     before, after = seam_misalignment(good), seam_misalignment(bad)
     assert before.min_patches == SEAM_MIN_PATCHES and before.min_texture_ratio == SEAM_MIN_TEXTURE_RATIO
     # as made: every seam within a tenth of a pixel (truth orientation)
@@ -95,6 +100,34 @@ def test_one_frame_1_px_off_fails_the_worst_seam_while_the_block_rms_would_pass(
     rep = write_qa_report(good)
     assert rep.check("seam_misalignment_rms_px").verdict == "pass"
     assert rep.check("seam_worst_rms_px").verdict == "pass"
+    assert before.unmatched == 0 and not before.unmatched_seams()
+
+
+def test_one_frame_off_by_more_than_the_search_fails_the_worst_seam_by_its_unmatched_patches(blocks):
+    """SHIFTED 6 px off: its seams' textured patches find no match (peak on the edge of the +-4 px search) and drop
+    out, so the seams matched are all good (worst 0.02 px, block 0.01 px: both rows passed, review 26); counted per
+    seam, the seams most of whose textured patches found no match fail the worst-seam row, named."""
+    _, _, far = blocks
+    s = seam_misalignment(far)
+    assert s.worst_seam is not None and s.worst_seam.rms_px < 0.1 and s.rms_px < 0.1  # the seams matched: good
+    lost = s.unmatched_seams()
+    assert lost and all(SHIFTED in (p.image_a, p.image_b) for p in lost)
+    assert all(p.textured >= SEAM_MIN_PATCHES and p.unmatched_share > SEAM_MAX_UNMATCHED_SHARE for p in lost)
+    assert s.examined == s.patches + s.one_direction + s.unsettled + s.unmatched
+    run_check(far, reference_path=far / "truth" / "ortho.tif")
+    doc = json.loads((far / "ortho" / "dom_report.json").read_text())["seams"]
+    assert doc["unmatched"] == s.unmatched and doc["max_unmatched_share"] == SEAM_MAX_UNMATCHED_SHARE
+    assert sum(p["unmatched"] for p in doc["per_seam"]) == s.unmatched
+    rep = write_qa_report(far)
+    block, worst = rep.check("seam_misalignment_rms_px"), rep.check("seam_worst_rms_px")
+    assert block.verdict == "pass" and f"{s.unmatched} without a match" in block.note
+    assert worst.verdict == "fail" and worst.limit == 0.5 and rep.overall == "fail"
+    p = lost[0]
+    assert worst.note.startswith(f"{len(lost)} seams did not match ({p.image_a} / {p.image_b} {p.unmatched} of "
+                                 f"{p.textured} textured patches unmatched")
+    assert f"): frames off by more than the +-{SEAM_SEARCH_PX} px search" in worst.note
+    r = CliRunner().invoke(main, ["check", str(far), "--reference", str(far / "truth" / "ortho.tif")])
+    assert r.exit_code == 0 and f"{len(lost)} seams did not match ({p.image_a} / {p.image_b}" in r.output
 
 
 def _rows_stripes(height: int, width: int, bands: int = 3, seed: int = 0) -> np.ndarray:
@@ -139,23 +172,72 @@ def test_an_older_seams_record_is_read_and_its_worst_seam_found():
     assert SeamMisalignment.of_record(to_record(s)) == s
 
 
+def _report_of(root, seams: dict):
+    """The accuracy report of an adjusted block (not LiDAR only: the DOM limits apply) whose dom_report.json has
+    ``seams``."""
+    (root / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:32649"\n')
+    (root / "ortho").mkdir()
+    (root / "at").mkdir()
+    (root / "at" / "report.json").write_text(json.dumps(dict(
+        project="t", check_rms_m=[0.1, 0.1, 0.5], rms_control_ground_m=[0.02, 0.02, 0.03],
+        key_statistics=dict(sigma0_um=5.1, sigma0_px=0.425, success=True, message="Solution Successful."))))
+    (root / "ortho" / "dom_report.json").write_text(json.dumps({"displacement": {"count": 10, "rms_xy_m": 0.05},
+                                                                "seams": seams}))
+    return write_qa_report(root)
+
+
 def test_seams_too_short_to_judge_are_said_not_judged(tmp_path):
     """A block whose seams all have fewer than SEAM_MIN_PATCHES patches: the block row is judged, the worst-seam row
     says why it is not (the seam with the most patches named)."""
-    (tmp_path / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:32649"\n')
-    (tmp_path / "ortho").mkdir()
-    (tmp_path / "at").mkdir()  # an adjusted block (not LiDAR only: the DOM limits apply)
-    (tmp_path / "at" / "report.json").write_text(json.dumps(dict(
-        project="t", check_rms_m=[0.1, 0.1, 0.5], rms_control_ground_m=[0.02, 0.02, 0.03],
-        key_statistics=dict(sigma0_um=5.1, sigma0_px=0.425, success=True, message="Solution Successful."))))
     seams = {"patch_px": 32, "patches": 6, "rms_px": 0.2, "max_px": 0.3, "one_direction": 2, "unsettled": 0,
              "min_texture_ratio": 0.5, "min_patches": 5, "worst_seam": None,
              "per_seam": [{"image_a": "a", "image_b": "b", "patches": 4, "rms_px": 0.2, "max_px": 0.3},
                           {"image_a": "b", "image_b": "c", "patches": 2, "rms_px": 0.2, "max_px": 0.25}]}
-    (tmp_path / "ortho" / "dom_report.json").write_text(json.dumps({"displacement": {"count": 10, "rms_xy_m": 0.05},
-                                                                    "seams": seams}))
-    rep = write_qa_report(tmp_path)
+    rep = _report_of(tmp_path, seams)
     assert rep.check("seam_misalignment_rms_px").verdict == "pass"
     row = rep.check("seam_worst_rms_px")
     assert row.value is None and row.verdict is None and row.limit == 0.5
     assert row.note == "not judged: no seam has 5 patches (the most: 4, a / b)"
+
+
+def test_a_record_measured_before_the_texture_floor_leaves_the_worst_seam_unjudged(tmp_path):
+    """dom_report.json from before review 20 (no min_texture_ratio: the DOM check's floor 0.1, roads in, each read up
+    to 0.4 px off): its seams are not comparable with the 0.5 px limit (the demo's read 1 over it as made, review
+    26); the worst seam is said unjudged, the block row names the record's basis."""
+    seams = {"patch_px": 32, "patches": 40, "rms_px": 0.3, "max_px": 1.4, "one_direction": 3,
+             "per_seam": [{"image_a": "a", "image_b": "b", "patches": 25, "rms_px": 0.62, "max_px": 1.4},
+                          {"image_a": "b", "image_b": "c", "patches": 15, "rms_px": 0.2, "max_px": 0.4}]}
+    rep = _report_of(tmp_path, seams)
+    block, worst = rep.check("seam_misalignment_rms_px"), rep.check("seam_worst_rms_px")
+    assert block.verdict == "pass" and "measured before the texture floor" in block.note and "0.1" in block.note
+    assert worst.value is None and worst.verdict is None and worst.limit == 0.5
+    assert worst.note == "not judged: measured before the texture floor; re-run ortho check"
+    assert rep.overall == "pass" and rep.not_judged == ("seam_worst_rms_px",)
+    assert json.loads((tmp_path / "reports" / "summary.json").read_text())["not_judged"] == ["seam_worst_rms_px"]
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert f"({rep.passed} passed, 0 failed, 1 with a limit not judged)" in html
+
+
+def test_seams_whose_textured_patches_all_found_no_match_fail_not_unmeasured(tmp_path):
+    """Every frame off by more than the search: patches above the texture floor, none matched. Not "not measured (0
+    of N patches above the texture floor)", which blamed the ground: both rows fail with the counts (review 26)."""
+    seams = {"patch_px": 32, "patches": 0, "rms_px": None, "max_px": None, "one_direction": 30, "unsettled": 0,
+             "unmatched": 21, "min_texture_ratio": 0.5, "min_patches": 5, "max_unmatched_share": 0.5,
+             "per_seam": [{"image_a": "a", "image_b": "b", "patches": 0, "rms_px": None, "max_px": None,
+                           "unmatched": 18},
+                          {"image_a": "b", "image_b": "c", "patches": 0, "rms_px": None, "max_px": None,
+                           "unmatched": 3}]}
+    rep = _report_of(tmp_path, seams)
+    block, worst = rep.check("seam_misalignment_rms_px"), rep.check("seam_worst_rms_px")
+    assert block.value is None and block.verdict == "fail"
+    assert block.note.startswith("0 of 51 patches matched (30 below the texture floor 0.5, 21 above it without a "
+                                 "match): 1 seam did not match (a / b 18 of 18 textured patches unmatched): frames off")
+    assert worst.value is None and worst.verdict == "fail" and worst.note.startswith("1 seam did not match (a / b")
+    # too few textured patches to judge a seam by (3 of 5): said, with the counts, not judged
+    seams["unmatched"], seams["per_seam"] = 3, seams["per_seam"][1:]
+    (tmp_path / "few").mkdir()
+    rep = _report_of(tmp_path / "few", seams)
+    block = rep.check("seam_misalignment_rms_px")
+    assert block.verdict is None and block.note == ("not measured (0 of 33 patches: 30 below the texture floor 0.5, "
+                                                    "3 above it without a match)")
+    assert not rep.has("seam_worst_rms_px") and rep.not_judged == ("seam_misalignment_rms_px",)

@@ -110,6 +110,27 @@ def test_12_bit_data_in_16_bit_samples_fill_the_preview_range():
     assert stretch == (0.0, 64.0) and rgb[0, :4, 0].tolist() == [0, 64, 128, 255]
 
 
+def test_a_dom_of_one_value_is_shown_in_its_full_range_not_black():
+    """A uniform DOM, or one value on more than 99 % of it (snow, water, a fill), collapses the percentile stretch
+    (lo = hi: everything at that value black, review 26); the samples' full range is used then, and named."""
+    from ortho.seamlines_preview import _to_rgb8
+
+    rgb, stretch = _to_rgb8(np.full((3, 40, 50), 120, np.uint8))
+    assert stretch == (0.0, 255.0) and (rgb == 120).all()
+    mostly = np.full((1, 100, 100), 120, np.uint8)
+    mostly[0, 0, :50] = (0, 255) * 25  # 0.5 % of the cells other values
+    rgb, stretch = _to_rgb8(mostly)
+    assert stretch == (0.0, 255.0) and rgb[50, 50].tolist() == [120] * 3 and rgb[0, 1].tolist() == [255] * 3
+    # 16-bit: the full range of the data's bit depth (a DMC's 12 bits: 2000 mid-grey; 13 bits above 4095)
+    rgb, stretch = _to_rgb8(np.full((1, 30, 30), 2000, np.uint16))
+    assert stretch == (0.0, 4095.0) and (rgb == 125).all()
+    assert _to_rgb8(np.full((1, 30, 30), 4311, np.uint16))[1] == (0.0, 8191.0)
+    assert _labels((0.0, 255.0), 8)[-1] == "grey: 8-bit samples 0-255 full range"
+    # a spread of a few levels is still stretched (the percentiles 4 levels apart or more)
+    spread = np.tile(np.arange(110, 130, dtype=np.uint8), (1, 20, 1))
+    assert _to_rgb8(spread)[1] == (110.0, 129.0)
+
+
 def test_balanced_12_bit_dom_is_stretched_not_darkened(tmp_path):
     """The 2 x 2 DMC block's DOM (trial 8): 12-bit frames balanced by gains up to 1.05 reach 4311, more than 12 bits;
     by the fewest bits holding the largest sample (14) the preview was a quarter as bright (median grey 14 of 255,
