@@ -115,9 +115,34 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
     else:
         crs, source, vertical = parse_crs(crs_arg, "--crs"), f"--crs {crs_arg}", None
     units = units_of(crs, source, vertical)
+    if file_crs is not None and crs_arg is not None and str(crs_arg).strip() != "":
+        _note_unused_vertical(path, file_crs, parse_crs(crs_arg, crs_name), crs_arg, crs_name, units)
     # Rasters and downstream code work in the horizontal (projected) CRS; the vertical unit is kept
     # in ``units``.
     return horizontal_crs(crs), units
+
+
+_VERTICAL_NOTED: set = set()
+
+
+def _note_unused_vertical(path, file_crs: pyproj.CRS, given: pyproj.CRS, crs_arg, crs_name: str,
+                          units: LengthUnits) -> None:
+    """A warning (once per file and ``--crs``) when a compound ``--crs`` names a vertical CRS the file's readable
+    record does not: the record is used, its heights' unit with it (s27: Autzen with `--crs EPSG:2994+5703`, NAVD88
+    height in metres, still read its heights in feet, silently)."""
+    from aerotri.geom.crs.definition import crs_label, vertical_crs
+
+    v = vertical_crs(given)
+    fv = vertical_crs(file_crs)
+    if v is None or (fv is not None and fv.equals(v)) or (str(path), str(crs_arg)) in _VERTICAL_NOTED:
+        return
+    _VERTICAL_NOTED.add((str(path), str(crs_arg)))
+    record = crs_label(file_crs) + ("" if fv is not None else ", a 2D CRS")
+    vname = f"{v.name}, {v.axis_info[0].unit_name}" if v.axis_info else v.name
+    log.warning("%s: the vertical part of %s, %s (%s), is not used: the file's CRS record (%s) is, heights read in %s; "
+                "if they are in fact %s, re-tag the file (aerotri crs assign %s OUT --crs %s)", path, crs_name,
+                crs_label(v), vname, record, units.z_name, vname, path,
+                crs_label(given) if len(str(crs_arg)) > 40 else str(crs_arg).strip())
 
 
 def _refuse_other_crs(path, file_crs: pyproj.CRS, given: pyproj.CRS, crs_arg, crs_name: str = "--crs") -> None:
