@@ -409,6 +409,14 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         X, Y, Z = transformer.transform(cx, cy, cz)
         transformer.n_points -= 4  # corners are not points of the file
         transformer.n_outside_fit_extent = 0
+        try:
+            # s27: RD New coordinates tagged UTM 31N (plausible there, at 4 deg N) came out at x = -660,124 in RD New,
+            # exit 0, without a word. A warning, not a refusal: a transform into a neighbouring zone far off is legal
+            check_coordinates(dst, X, Y, str(in_path), [f"header bounds corner {i + 1} transformed" for i in range(4)])
+        except InputError as exc:
+            transformer.notes.append(
+                f"{exc}; is the file's CRS ({crs_label(src)}) right? A file whose CRS record is wrong is re-tagged, no "
+                f"point moved, with aerotri crs assign {in_path} OUT --crs <its CRS>")
         unit = 1.0 if dst.is_geographic else 1000.0
         out_hdr.offsets = np.array([math.floor(X.min() / unit) * unit, math.floor(Y.min() / unit) * unit,
                                     math.floor(Z.min() / 100.0) * 100.0 if np.isfinite(Z).all() else 0.0])

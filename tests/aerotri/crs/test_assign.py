@@ -136,3 +136,16 @@ def test_refusal_names_a_datum_realisation_and_a_wkt_crs_by_its_name(tmp_path):
                              crs_name="[project] crs")
     msg = str(e.value)
     assert "[project] crs = EPSG:25832 differs" in msg and "[project] crs is itself wrong" in msg
+
+
+def test_transform_of_a_wrongly_tagged_file_warns_where_its_points_land(tmp_path):
+    """s27: the old advice, `crs transform W_wrong_14.las OUT --to EPSG:28992`, wrote x = -660,124 with exit 0 and no
+    word; it now warns that the transformed bounds lie outside EPSG:28992's area of use and names crs assign."""
+    src = _cloud(tmp_path / "wrong.las", "1.4", 6, crs="EPSG:32631")
+    r = _run("transform", src, tmp_path / "t.las", "--to", "EPSG:28992")
+    assert r.exit_code == 0, r.output
+    assert "outside the area of use of EPSG:28992" in r.output and "aerotri crs assign" in r.output
+    fixed = tmp_path / "fixed.las"
+    assert _run("assign", src, fixed, "--crs", "EPSG:28992").exit_code == 0
+    r = _run("transform", fixed, tmp_path / "t2.las", "--to", "EPSG:25831")
+    assert r.exit_code == 0 and "area of use" not in r.output, r.output
