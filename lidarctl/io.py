@@ -115,27 +115,67 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
     else:
         crs, source, vertical = parse_crs(crs_arg, "--crs"), f"--crs {crs_arg}", None
     units = units_of(crs, source, vertical)
+    if file_crs is not None and crs_arg is not None and str(crs_arg).strip() != "":
+        _note_unused_vertical(path, file_crs, parse_crs(crs_arg, crs_name), crs_arg, crs_name, units)
     # Rasters and downstream code work in the horizontal (projected) CRS; the vertical unit is kept
     # in ``units``.
     return horizontal_crs(crs), units
 
 
+_VERTICAL_NOTED: set = set()
+
+
+def _note_unused_vertical(path, file_crs: pyproj.CRS, given: pyproj.CRS, crs_arg, crs_name: str,
+                          units: LengthUnits) -> None:
+    """A warning (once per file and ``--crs``) when a compound ``--crs`` names a vertical CRS the file's readable
+    record does not: the record is used, its heights' unit with it (s27: Autzen with `--crs EPSG:2994+5703`, NAVD88
+    height in metres, still read its heights in feet, silently)."""
+    from aerotri.geom.crs.definition import crs_label, vertical_crs
+
+    v = vertical_crs(given)
+    fv = vertical_crs(file_crs)
+    if v is None or (fv is not None and fv.equals(v)) or (str(path), str(crs_arg)) in _VERTICAL_NOTED:
+        return
+    _VERTICAL_NOTED.add((str(path), str(crs_arg)))
+    record = crs_label(file_crs) + ("" if fv is not None else ", a 2D CRS")
+    vname = f"{v.name}, {v.axis_info[0].unit_name}" if v.axis_info else v.name
+    log.warning("%s: the vertical part of %s, %s (%s), is not used: the file's CRS record (%s) is, heights read in %s; "
+                "if they are in fact %s, re-tag the file (aerotri crs assign %s OUT --crs %s)", path, crs_name,
+                crs_label(v), vname, record, units.z_name, vname, path,
+                crs_label(given) if len(str(crs_arg)) > 40 else str(crs_arg).strip())
+
+
 def _refuse_other_crs(path, file_crs: pyproj.CRS, given: pyproj.CRS, crs_arg, crs_name: str = "--crs") -> None:
     """CrsError when ``--crs`` (``crs_name``) names another horizontal CRS than the file's readable record: ``--crs``
     is the CRS of files without one and never reprojects (trial-lidar: `rasters autzen.laz --crs EPSG:3740` wrote
-    its rasters in the file's EPSG:2994 feet, exit 0, as if asked for UTM metres)."""
-    from aerotri.geom.crs.definition import crs_label, same_horizontal
+    its rasters in the file's EPSG:2994 feet, exit 0, as if asked for UTM metres). The message names the three ways
+    out (s27-fixes): the record is wrong (``aerotri crs assign`` re-tags the file without moving a point), ``--crs``
+    is wrong (leave it out), or the points must move (``aerotri crs transform``); a WKT or PROJJSON ``--crs`` is
+    named by its label, not echoed."""
+    from aerotri.geom.crs.definition import crs_label, other_realisation, same_horizontal, without_bound
 
     if same_horizontal(file_crs, given):
         return
-    label = crs_label(horizontal_crs(given))
-    named = f"{crs_name} {crs_arg}" if crs_name == "--crs" else crs_name
-    if label != str(crs_arg).strip():
-        named += f" ({label})"
-    why = ("--crs gives the CRS of files without one and never reprojects: leave --crs out to use the file's, or"
-           if crs_name == "--crs" else "LiDAR is never reprojected silently:")
-    raise CrsError(f"{path}: its CRS record says {crs_label(horizontal_crs(file_crs))}, but {named} differs; {why} "
-                   f"transform the file first (aerotri crs transform {path} OUT --to {crs_arg})")
+    given_h = horizontal_crs(given)
+    label, file_label = crs_label(given_h), crs_label(horizontal_crs(file_crs))
+    text = str(crs_arg).strip()
+    short = len(text) <= 40 and not any(ch in text for ch in "[{\n")
+    # what to type: the option's own text when short, else the EPSG code PROJ finds for it, else its label quoted
+    code = without_bound(given_h).to_epsg(min_confidence=70) if not short else None
+    typed = text if short else (f"EPSG:{code}" if code else f"'<the same CRS text as {label}>'")
+    opt = crs_name if crs_name == "--crs" else f"{crs_name} ="
+    named = f"{opt} {text}" + (f" ({label})" if label != text else "") if short else f"{opt} {label}"
+    realisation = other_realisation(file_crs, given)
+    differs = (f"differs: the same projection on another datum realisation (the record's {realisation[0]}, "
+               f"{crs_name}'s {realisation[1]}), coordinates centimetres to metres apart" if realisation else "differs")
+    never = "--crs gives the CRS of files without one and" if crs_name == "--crs" else "the chain"
+    fix_option = ("if --crs is wrong, leave it out to use the file's CRS" if crs_name == "--crs"
+                  else f"if {crs_name} is itself wrong, correct it in project.toml")
+    raise CrsError(
+        f"{path}: its CRS record says {file_label}, but {named} {differs}; {never} never reprojects LiDAR. "
+        f"If the record is wrong (the coordinates are in fact in {label}), re-tag the file without moving a point: "
+        f"aerotri crs assign {path} OUT --crs {typed}; {fix_option}; if the points must move into {label}: "
+        f"aerotri crs transform {path} OUT --to {typed}")
 
 
 def _validate_xyz(path, x, y, z, first_index: int, units: LengthUnits = METRE) -> None:

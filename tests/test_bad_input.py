@@ -904,6 +904,20 @@ CASES = [
     C("crs_transform_mismatched_from", "aerotri",
       "crs transform {w}/las/cloud.las {w}/out.las --from 32650 --to 32633", "cloud.las"),
     C("crs_transform_unknown_to", "aerotri", "crs transform {w}/las/cloud.las {w}/out.las --to EPSG:999999", "--to"),
+    # aerotri crs assign (s27-fixes): re-tags a LAS/LAZ without moving a point
+    C("crs_assign_truncated_laz", "aerotri", "crs assign {w}/las/cloud.laz {w}/out.laz --crs 32649",
+      "cloud.laz", truncate("las/cloud.laz", 0.6)),
+    C("crs_assign_wrong_signature", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs 32649",
+      "cloud.las", patch_bytes("las/cloud.las", 0, b"LASX")),
+    C("crs_assign_empty_las", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs 32649",
+      "cloud.las", empty("las/cloud.las")),
+    C("crs_assign_unknown_crs", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs EPSG:999999", "--crs"),
+    C("crs_assign_implausible_crs", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs EPSG:28992",
+      ["cloud.las", "outside the area of use of EPSG:28992", "not re-tagged"]),
+    C("crs_assign_output_is_input", "aerotri", "crs assign {w}/las/cloud.las {w}/las/cloud.las --crs 32649",
+      "cloud.las"),
+    C("crs_assign_point_list", "aerotri", "crs assign {w}/las/pts.csv {w}/out.las --crs 32649",
+      ["pts.csv", ".las or .laz"]),
     # a 3D projected CRS (vertical axis in US feet): GeoTIFF cannot store it, the product would have no CRS
     C("crs_warp_to_crs_geotiff_cannot_store", "aerotri",
       ["crs", "warp", "{w}/p/lidar_out/dem.tif", "{w}/dem_lcc.tif", "--to", "+proj=lcc +lat_1=30 +lat_2=32 +lat_0=29 "

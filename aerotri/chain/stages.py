@@ -407,7 +407,7 @@ class Chain:
         if self.has_lidar:
             from lidarctl.io import checked_headers
 
-            for _ in checked_headers(p.lidar_strips(), crs=p.crs, crs_name="the project CRS ([project] crs)"):
+            for _ in checked_headers(p.lidar_strips(), crs=p.crs, crs_name="[project] crs"):
                 pass
             if o.strips.adjust and o.strips.use_trajectory:
                 from lidarctl.strips.trajectory import read_trajectory

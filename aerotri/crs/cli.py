@@ -14,7 +14,7 @@ from aerotri.core.commands import Group, at_least, positive
 import numpy as np
 
 from aerotri.geom.crs.definition import crs_label, parse_crs
-from aerotri.geom.crs.files import fit_common_points, read_height_points, transform_points_file
+from aerotri.geom.crs.files import assign_las, fit_common_points, read_height_points, transform_points_file
 from aerotri.geom.crs.datum import HEIGHT_MODELS, MODELS, PARAMETER_NAMES, load_height_model, load_transformation
 from aerotri.geom.crs.heights import fit_height_anomaly
 from aerotri.geom.crs.raster import KINDS, warp_raster
@@ -191,3 +191,19 @@ def transform_cmd(*, input_path, output_path, from_epsg, to_epsg, params, height
     for w in t.warnings:
         log.warning(w)
     click.echo(f"{n} points {t.description}: {output_path} ({dt:.2f} s)")
+
+
+@crs.command("assign")
+@click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--crs", "crs_text", required=True, help="the CRS IN's coordinates are in (EPSG code, WKT or PROJ string)")
+@click.option("--chunk-points", "chunk_size", type=at_least(1, int), default=1_000_000, show_default=True,
+              help="LAS/LAZ points per chunk")
+def assign_cmd(*, input_path, output_path, crs_text, chunk_size):
+    """Re-tag a LAS/LAZ file whose CRS record is wrong or missing: OUT is IN with the CRS record of --crs, no point
+    moved (as PDAL's override_srs, gdal_edit -a_srs). Refused when IN's header bounds cannot lie in --crs. To move
+    the points into another CRS use 'crs transform'."""
+    t0 = time.perf_counter()
+    r = assign_las(input_path, output_path, crs_text, chunk_size=chunk_size)
+    click.echo(f"{r.n_points} points re-tagged {r.old or 'no CRS record'} -> {r.new}, coordinates unchanged: "
+               f"{output_path} ({time.perf_counter() - t0:.2f} s)")

@@ -243,7 +243,7 @@ def crowns(*, in_paths, outdir, nearest_path, tile_m):
 @click.option("--within", default=None,
               help="--reference: score only inside the polygons of this file, or 'hull': inside the convex hulls "
                    "of the reference polygons' blocks (a reference that maps only part of the area).")
-@click.option("--crs", default=None, help="--reference: CRS (EPSG:code) of inputs that have none.")
+@click.option("--crs", default=None, help="--reference only: CRS (EPSG:code) of inputs that have none.")
 def evaluate(*, pred_paths, truth_path, reference_path, json_path, map_pred, map_truth, res_m, class_field,
              reference_class, min_overlap, min_building_m2, within, crs):
     """Accuracy of the classification PRED_PATHS (one file; --reference: also classified strips).
@@ -261,6 +261,12 @@ def evaluate(*, pred_paths, truth_path, reference_path, json_path, map_pred, map
     from aerotri.core.atomic import write_text_atomic
 
     _check_evaluate_paths(pred_paths, truth_path, reference_path, json_path, within)
+    if crs is not None and reference_path is None:
+        from aerotri.core.errors import OptionError
+
+        # s27: it was ignored without a word; the truth is compared point by point, by record
+        raise OptionError("applies to --reference only: --truth compares the two clouds point by point (record by "
+                          "record), not by their coordinates; leave --crs out", param="--crs")
     maps = _parse_map(map_pred, "--map-pred"), _parse_map(map_truth, "--map-truth")
     if reference_path is not None:
         text, json_text = _evaluate_map(pred_paths, reference_path, MapEvalSettings(

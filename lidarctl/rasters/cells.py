@@ -17,6 +17,7 @@ import numpy as np
 NOT_VALID = (7, 18)      # noise classes: not in the occupancy, the DSM or the intensity
 GROUND = (2, 9)          # ground and water: the DEM
 VEGETATION = (4, 5)      # medium and high vegetation: the CHM
+LOW_VEGETATION = 3       # not in the CHM (grass and crops are no canopy)
 
 
 # columns of the per-cell records (one record per cell: a point touches one or two cache lines, not seven)

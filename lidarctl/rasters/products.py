@@ -49,7 +49,7 @@ from aerotri.core.limits import check_disk
 from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
 from lidarctl.rasters import nearest
-from lidarctl.rasters.cells import VEGETATION, CellStats
+from lidarctl.rasters.cells import LOW_VEGETATION, VEGETATION, CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
 from aerotri.geom.crs.definition import length_unit_name
 from lidarctl.units import METRE, LengthUnits
@@ -553,9 +553,16 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
         # trial-lidar: AHN3 as delivered (its vegetation in class 1) gave a chm.tif of nodata alone, exit 0, without a
         # word, where `lidarctl trees` refuses the same cloud
         held = ", ".join(str(c) for c in np.flatnonzero(per_class))
-        log.warning(f"{inputs.names}: no vegetation points (classes {', '.join(map(str, VEGETATION))}; the cloud "
-                    f"holds classes {held}): chm.tif is nodata everywhere; classify the cloud (lidarctl classify) "
-                    "for a canopy height model")
+        veg = ", ".join(map(str, VEGETATION))
+        if per_class[LOW_VEGETATION]:
+            # s27: a classified cloud with low vegetation only was told to classify the cloud
+            log.warning(f"{inputs.names}: no medium or high vegetation points (classes {veg}; the cloud holds "
+                        f"classes {held}): chm.tif is nodata everywhere; class {LOW_VEGETATION}, low vegetation, is "
+                        "not a canopy")
+        else:
+            log.warning(f"{inputs.names}: no vegetation points (classes {veg}; the cloud holds classes {held}): "
+                        "chm.tif is nodata everywhere; classify the cloud (lidarctl classify) for a canopy height "
+                        "model")
     return used
 
 

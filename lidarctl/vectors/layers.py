@@ -616,12 +616,19 @@ def _same_crs(path: Path, crs_wkt, cloud_crs) -> None:
                        "(aerotri crs transform)")
 
 
-def _read_contours(path: Path, cloud_crs) -> Layer:
+def _read_contours(path: Path, cloud_crs, cloud_z_m: float = 1.0) -> Layer:
+    """The contour lines of ``path`` (a GeoPackage's ``contours`` layer, else its first), their ``elevation`` in the
+    cloud's height unit (``cloud_z_m`` metres) as every other height of the GeoPackage (s27: contours in metres were
+    copied beside spot heights in feet). The contours' unit: their ``elevation_m`` (``lidarctl contours`` writes it),
+    else the height unit of the file's CRS (a compound CRS's vertical unit, a 2D one's horizontal unit, as for LAS);
+    a file with ``elevation`` but neither is refused beside a cloud whose heights are not metres."""
     import shapely
     from pyogrio.errors import DataLayerError, DataSourceError
     from pyogrio.raw import read
 
     import pyogrio
+
+    from aerotri.geom.crs.definition import height_unit_m, length_unit_name
 
     try:
         names = [str(n) for n, _ in pyogrio.list_layers(path)]
@@ -634,6 +641,25 @@ def _read_contours(path: Path, cloud_crs) -> Layer:
     if any(g is None or g.geom_type not in ("LineString", "MultiLineString") for g in geoms):
         raise InputError(f"{path}: contours must be lines")
     cols = {str(n): np.asarray(v) for n, v in zip(meta["fields"], fields)}
+    if "elevation" in cols and cloud_crs is not None:
+        if "elevation_m" in cols:
+            elevation_m, how = np.asarray(cols["elevation_m"], float), "their elevation_m"
+        elif meta.get("crs"):
+            z_m = height_unit_m(meta["crs"])
+            elevation_m, how = np.asarray(cols["elevation"], float) * z_m, \
+                f"the height unit of the file's CRS, {length_unit_name(z_m)}"
+        elif abs(cloud_z_m - 1.0) > 1e-12:
+            raise InputError(f"{path}: the contours' elevation has no unit (no elevation_m field, no CRS) and the "
+                             f"cloud's heights are in {length_unit_name(cloud_z_m)}; give contours with a CRS (e.g. "
+                             "from lidarctl contours)")
+        else:
+            elevation_m, how = None, ""
+        if elevation_m is not None:
+            elevation = elevation_m / cloud_z_m
+            if not np.allclose(elevation, np.asarray(cols["elevation"], float), rtol=0, atol=1e-6):
+                log.info("%s: contour elevation in the cloud's height unit (%s), from %s", path,
+                         length_unit_name(cloud_z_m), how)
+            cols["elevation"], cols["elevation_m"] = elevation, elevation_m
     gtype = "MultiLineString" if any(g.geom_type == "MultiLineString" for g in geoms) else "LineString"
     return Layer("contours", gtype, geoms, cols)
 
@@ -765,7 +791,7 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
                         {"z": sz * f_z, "z_m": sz}))
 
     if contours is not None:
-        layers.append(_read_contours(Path(contours), pts.crs))
+        layers.append(_read_contours(Path(contours), pts.crs, units.z_m))
     elif dem is not None:
         layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts.crs, units.z_m))
     counts = VectorCounts(buildings=len(polys), roof_spacing_m=bstats.get("point_spacing_m"), roads=len(rpolys),

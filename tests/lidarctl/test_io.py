@@ -649,3 +649,22 @@ def test_crs_option_naming_another_crs_than_the_files_record_is_refused(files, t
     assert not any(out.rglob("*")), list(out.rglob("*"))
     r = CliRunner().invoke(main, ["check-heights", str(cloud), str(points), "--crs", "EPSG:32632"])
     assert r.exit_code == 0, r.output
+
+
+def test_the_vertical_part_of_crs_is_not_dropped_silently(files, tmp_path, caplog):
+    """s27: Autzen with `--crs EPSG:2994+5703` (NAVD88 height, metres) still read its heights in feet, without a word:
+    a compound --crs over a file's 2D record now warns, naming the record and the heights' unit used. And
+    `evaluate --truth --crs` (ignored) is refused."""
+    d, _ = files
+    cloud = d / "c14.las"
+    with caplog.at_level("WARNING", logger="lidarctl.io"):
+        io.read_cloud(cloud, crs="EPSG:32632+5773")
+    msg = caplog.text
+    assert str(cloud) in msg and "vertical part of --crs, EPSG:5773 (EGM96 height, metre), is not used" in msg
+    assert "EPSG:32632, a 2D CRS" in msg and "heights read in m" in msg and "aerotri crs assign" in msg
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="lidarctl.io"):
+        io.read_cloud(cloud, crs="EPSG:32632")
+    assert "vertical part" not in caplog.text
+    r = CliRunner().invoke(main, ["evaluate", str(cloud), "--truth", str(d / "c.laz"), "--crs", "EPSG:32632"])
+    assert r.exit_code == 2 and "--crs" in r.output and "--reference only" in r.output, r.output

@@ -560,3 +560,33 @@ def test_contours_from_a_dem_in_another_height_unit_are_in_the_clouds(made, tmp_
     xy = np.vstack([np.asarray(ln.coords) for ln in lines])
     lv = np.concatenate([np.full(len(ln.coords), e) for ln, e in zip(lines, f["elevation"])])
     assert np.abs(ground_z(xy[:, 0] - X0, xy[:, 1] - Y0) - lv).max() < 1e-3   # on the plane, in metres
+
+
+def test_copied_contours_take_the_clouds_height_unit(tmp_path):
+    """s27: `vectors --contours` copied the contours' elevation as it was: heights in metres beside spot heights in
+    feet. Now converted as --dem is: from their elevation_m, else the file's CRS's height unit; refused without
+    either beside a cloud in feet."""
+    from pyogrio.raw import write
+
+    cloud = _write_las(tmp_path / "ft.las", FT_CRS, FOOT_M)
+    x0, y0 = X0 / FOOT_M, Y0 / FOOT_M
+    lines = [shapely.LineString([(x0 + 10, y0 + 10 + i), (x0 + 300, y0 + 10 + i)]) for i in range(3)]
+    wkb = np.array([shapely.to_wkb(g) for g in lines], dtype=object)
+    level_m = np.array([100.0, 101.0, 102.0])
+    cases = {"compound.gpkg": (f"{FT_CRS}+5703", {"elevation": level_m}),             # NAVD88 height in metres
+             "elev_m.gpkg": (FT_CRS, {"elevation": level_m, "elevation_m": level_m}),  # lidarctl contours' fields
+             "no_unit.gpkg": (None, {"elevation": level_m})}
+    for name, (crs, fields) in cases.items():
+        write(tmp_path / name, wkb, layer="contours", driver="GPKG", geometry_type="LineString", crs=crs,
+              fields=list(fields), field_data=list(fields.values()))
+    for name in ("compound.gpkg", "elev_m.gpkg"):
+        out = tmp_path / f"v_{name}"
+        r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--contours", str(tmp_path / name)])
+        assert r.exit_code == 0, (name, r.output)
+        _, got, f = _layer(out, "contours")
+        assert len(got) == 3
+        np.testing.assert_allclose(f["elevation"], level_m / FOOT_M, rtol=1e-12)   # 328.08 ft, like z of spot heights
+        np.testing.assert_allclose(f["elevation_m"], level_m, rtol=1e-12)
+    out = tmp_path / "v_no_unit.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--contours", str(tmp_path / "no_unit.gpkg")])
+    assert r.exit_code == 2 and "no_unit.gpkg" in r.output and "no unit" in r.output and not out.exists(), r.output

@@ -155,3 +155,10 @@ def test_a_cloud_without_vegetation_classes_is_told_its_chm_is_empty(strips, tmp
     assert f"delivered.las: no vegetation points (classes 4, 5; the cloud holds classes {held})" in r.output
     with rasterio.open(tmp_path / "r" / "chm.tif") as ds:
         assert ds.read(1, masked=True).count() == 0
+    # s27: classified, low vegetation only (classes 2, 3): not told to classify the cloud
+    cloud.classification[cloud.classification == 1] = 3
+    synthetic.write_las(tmp_path / "low.las", cloud, crs="EPSG:32632")
+    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "low.las"), str(tmp_path / "r3"), "--res-m", "4"])
+    assert r.exit_code == 0, r.output
+    assert "low.las: no medium or high vegetation points (classes 4, 5; the cloud holds classes 2, 3" in r.output
+    assert "class 3, low vegetation, is not a canopy" in r.output and "lidarctl classify" not in r.output

@@ -91,12 +91,24 @@ def vertical_crs(crs: pyproj.CRS) -> pyproj.CRS | None:
     return None
 
 
+def without_bound(crs: pyproj.CRS) -> pyproj.CRS:
+    """A "bound" CRS (WKT1 with TOWGS84, PROJ string with +towgs84: a CRS with its transformation to WGS 84 attached)
+    as the CRS it is bound to (its ``source_crs``), in a compound CRS part by part; any other CRS as it is. The
+    coordinates are those of the source CRS: the attached transformation only says how to reach WGS 84."""
+    if crs.is_bound and crs.source_crs is not None:
+        return crs.source_crs
+    if crs.is_compound and any(c.is_bound for c in crs.sub_crs_list):
+        return pyproj.crs.CompoundCRS(crs.name, [without_bound(c) for c in crs.sub_crs_list])
+    return crs
+
+
 def same_crs(a, b) -> bool:
     """True when two CRSs are the same (axis order ignored; definitions that differ only in naming but
-    carry the same EPSG identity agree); None equals only None."""
+    carry the same EPSG identity agree; a bound CRS, WKT1 with TOWGS84, is its source CRS: s27-fixes, RD New with
+    TOWGS84 was not EPSG:28992); None equals only None."""
     if a is None or b is None:
         return a is None and b is None
-    a, b = parse_crs(a), parse_crs(b)
+    a, b = without_bound(parse_crs(a)), without_bound(parse_crs(b))
     if a.equals(b, ignore_axis_order=True):
         return True
     ea, eb = a.to_epsg(min_confidence=70), b.to_epsg(min_confidence=70)
@@ -106,6 +118,20 @@ def same_crs(a, b) -> bool:
 def same_horizontal(a, b) -> bool:
     """True when two CRSs have the same horizontal part (compound CRSs compared by their parts)."""
     return same_crs(horizontal_crs(a), horizontal_crs(b))
+
+
+def other_realisation(a, b) -> tuple[str, str] | None:
+    """When two horizontal CRSs are the same projection (conversion and axis units) on two datums, the datums'
+    names (a's, b's: "World Geodetic System 1984 (G1762)", "... ensemble"): a datum realisation against its ensemble
+    or another realisation (ETRF2000 against ETRS89), coordinates that differ by centimetres to metres; else None."""
+    a, b = without_bound(horizontal_crs(a)), without_bound(horizontal_crs(b))
+    if not (a.is_projected and b.is_projected) or a.datum is None or b.datum is None:
+        return None
+    units_a = [ax.unit_conversion_factor for ax in a.axis_info]
+    units_b = [ax.unit_conversion_factor for ax in b.axis_info]
+    if a.coordinate_operation != b.coordinate_operation or units_a != units_b or a.datum == b.datum:
+        return None
+    return a.datum.name, b.datum.name
 
 
 def same_vertical(a, b) -> bool:

@@ -409,6 +409,14 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         X, Y, Z = transformer.transform(cx, cy, cz)
         transformer.n_points -= 4  # corners are not points of the file
         transformer.n_outside_fit_extent = 0
+        try:
+            # s27: RD New coordinates tagged UTM 31N (plausible there, at 4 deg N) came out at x = -660,124 in RD New,
+            # exit 0, without a word. A warning, not a refusal: a transform into a neighbouring zone far off is legal
+            check_coordinates(dst, X, Y, str(in_path), [f"header bounds corner {i + 1} transformed" for i in range(4)])
+        except InputError as exc:
+            transformer.notes.append(
+                f"{exc}; is the file's CRS ({crs_label(src)}) right? A file whose CRS record is wrong is re-tagged, no "
+                f"point moved, with aerotri crs assign {in_path} OUT --crs <its CRS>")
         unit = 1.0 if dst.is_geographic else 1000.0
         out_hdr.offsets = np.array([math.floor(X.min() / unit) * unit, math.floor(Y.min() / unit) * unit,
                                     math.floor(Z.min() / 100.0) * 100.0 if np.isfinite(Z).all() else 0.0])
@@ -435,6 +443,75 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
                     writer.write_points(out)
                     n += len(chunk)
     return n
+
+
+_CRS_RECORDS = ("WktCoordinateSystemVlr", "GeoKeyDirectoryVlr", "GeoAsciiParamsVlr", "GeoDoubleParamsVlr")
+
+
+@dataclasses.dataclass(frozen=True)
+class AssignResult:
+    """``assign_las``: points copied, the CRS record replaced (``old``: its label, None when the file had none)."""
+
+    n_points: int
+    old: str | None
+    new: str
+
+
+def assign_las(in_path, out_path, crs, chunk_size: int = 1_000_000) -> AssignResult:
+    """``aerotri crs assign``: a copy of a LAS/LAZ file tagged with ``crs``, no point moved (PDAL's override_srs,
+    ``gdal_edit -a_srs``): for a file whose CRS record is wrong or missing. The point records, the header's scales,
+    offsets and bounds and every VLR and EVLR but the CRS records (WKT, GeoTIFF keys) are copied as they are; the
+    CRS record is ``crs``'s (WKT for point formats >= 6, else GeoTIFF keys, which hold EPSG CRSs only). Refused
+    (InputError) when the header bounds, read in ``crs``'s units, fall outside its area of use
+    (``check_coordinates``: a cheap test of the corners that catches another zone, degrees or feet; a wrong CRS whose
+    area holds the numbers passes). Atomic."""
+    import laspy
+    from laspy.vlrs.vlrlist import VLRList
+
+    from aerotri.core.atomic import refuse_input_as_output
+
+    in_path, out_path = Path(in_path), Path(out_path)
+    for p, name in ((in_path, "IN"), (out_path, "OUT")):
+        if p.suffix.lower() not in LAS_SUFFIXES:
+            raise InputError(f"{p}: {name} of 'crs assign' must be a .las or .laz file")
+    refuse_input_as_output(out_path, [in_path], "OUT")
+    if chunk_size < 1:
+        raise OptionError(f"{chunk_size}: expected at least 1 point per chunk", param="--chunk-points")
+    new = parse_crs(crs, "--crs")
+    label = crs_label(new)
+    with las.open_las(in_path) as reader:
+        hdr = reader.header
+        if hdr.point_count == 0:
+            raise InputError(f"{in_path}: the file holds no points (no coordinates to check against {label})")
+        old = las.header_crs(hdr)
+        cx = np.array([hdr.mins[0], hdr.maxs[0], hdr.mins[0], hdr.maxs[0]])
+        cy = np.array([hdr.mins[1], hdr.mins[1], hdr.maxs[1], hdr.maxs[1]])
+        try:
+            check_coordinates(new, cx, cy, str(in_path), [f"header bounds corner {i + 1}" for i in range(4)])
+        except InputError as exc:
+            raise InputError(f"{exc}; not re-tagged: the coordinates cannot be {label}'s (give the CRS they are in)") \
+                from None
+        out_hdr = copy.deepcopy(hdr)
+        out_hdr.vlrs = VLRList([v for v in hdr.vlrs if type(v).__name__ not in _CRS_RECORDS])
+        evlrs = [v for v in (hdr.evlrs or []) if type(v).__name__ not in _CRS_RECORDS]
+        out_hdr.evlrs = VLRList(evlrs) if hdr.evlrs is not None else None
+        out_hdr.global_encoding.wkt = False  # add_crs sets it again when it writes a WKT record
+        try:
+            las.add_crs(out_hdr, new)
+        except RuntimeError as exc:  # laspy: GeoTIFF keys hold EPSG projected CRSs only
+            raise InputError(f"{in_path}: LAS {hdr.version} point format {hdr.point_format.id} carries its CRS as "
+                             f"GeoTIFF keys, which cannot hold {label} ({las.one_line(exc)}); give an EPSG code") \
+                from None
+        n = 0
+        with atomic_path(out_path) as tmp:
+            with laspy.open(tmp, mode="w", header=out_hdr, do_compress=out_path.suffix.lower() == ".laz") as writer:
+                for _, chunk in track_chunks(las.iter_chunks(reader, in_path, chunk_size, withheld=True),
+                                             hdr.point_count, f"assign {in_path.name}"):
+                    writer.write_points(chunk)  # the records as they are
+                    n += len(chunk)
+                if evlrs:
+                    writer.write_evlrs(VLRList(evlrs))
+    return AssignResult(n, None if old is None else crs_label(old), label)
 
 
 def _set_scaled(record, dim: str, values, offset, scale, path):

@@ -1,0 +1,151 @@
+"""``aerotri crs assign`` (s27-fixes): a LAS/LAZ file whose CRS record is wrong is re-tagged without moving a point;
+the refusal of a ``--crs`` that differs from a file's record names it; a WKT1 with TOWGS84 is its own EPSG code."""
+
+import numpy as np
+import laspy
+import pyproj
+import pytest
+from click.testing import CliRunner
+from laspy.vlrs.known import WktCoordinateSystemVlr
+
+from aerotri.crs.cli import crs
+from aerotri.geom import las
+from aerotri.geom.crs.definition import same_crs, same_horizontal
+
+# EPSG:28992 as WKT1 with TOWGS84 (what many writers put in LAS 1.4 files): pyproj makes it a "bound" CRS
+RD_TOWGS84 = (
+    'PROJCS["Amersfoort / RD New",GEOGCS["Amersfoort",DATUM["Amersfoort",SPHEROID["Bessel 1841",6377397.155,'
+    '299.1528128,AUTHORITY["EPSG","7004"]],TOWGS84[565.417,50.3319,465.552,-0.398957,0.343988,-1.8774,4.0725],'
+    'AUTHORITY["EPSG","6289"]],PRIMEM["Greenwich",0,AUTHORITY["EPSG","8901"]],UNIT["degree",0.0174532925199433,'
+    'AUTHORITY["EPSG","9122"]],AUTHORITY["EPSG","4289"]],PROJECTION["Oblique_Stereographic"],'
+    'PARAMETER["latitude_of_origin",52.15616055555555],PARAMETER["central_meridian",5.38763888888889],'
+    'PARAMETER["scale_factor",0.9999079],PARAMETER["false_easting",155000],PARAMETER["false_northing",463000],'
+    'UNIT["metre",1,AUTHORITY["EPSG","9001"]],AXIS["X",EAST],AXIS["Y",NORTH]]')
+
+
+def _run(*args):
+    return CliRunner().invoke(crs, [str(a) for a in args])
+
+
+def _cloud(path, version, fmt, crs=None, wkt=None, extra=False, n=500):
+    """Amersfoort / RD New coordinates (Utrecht area), tagged with ``crs`` (or the WKT text ``wkt``)."""
+    h = laspy.LasHeader(version=version, point_format=fmt)
+    h.scales, h.offsets = [0.01] * 3, [85000.0, 445000.0, 0.0]
+    if crs is not None:
+        las.add_crs(h, pyproj.CRS(crs))
+    if wkt is not None:
+        h.vlrs.append(WktCoordinateSystemVlr(wkt))
+        h.global_encoding.wkt = True
+    if extra:
+        h.vlrs.append(laspy.VLR("acme", 7, "flight notes", b"strip 1..12"))
+    rng = np.random.default_rng(3)
+    d = laspy.LasData(h)
+    d.x, d.y, d.z = 85000 + rng.uniform(0, 100, n), 445000 + rng.uniform(0, 100, n), rng.uniform(0, 10, n)
+    d.classification = rng.choice([2, 5], n).astype(np.uint8)
+    d.intensity = rng.integers(0, 4000, n).astype(np.uint16)
+    if extra and version == "1.4":
+        from laspy.vlrs.vlrlist import VLRList
+
+        d.evlrs = VLRList([laspy.VLR("acme", 8, "long notes", b"x" * 100)])
+    d.write(path)
+    return path
+
+
+@pytest.mark.parametrize("version,fmt,suffix,target", [("1.4", 6, ".las", "EPSG:28992"),
+                                                       ("1.4", 6, ".laz", "EPSG:7415"),
+                                                       ("1.2", 3, ".las", "EPSG:28992+5709")])
+def test_assign_retags_a_wrong_crs_record_without_moving_a_point(tmp_path, version, fmt, suffix, target):
+    """trial-lidar's W_wrong_14.las: RD coordinates tagged UTM 31N were refused with --crs EPSG:28992, and the advice
+    (crs transform --to EPSG:28992) wrote x = -660,124 with exit 0. assign keeps every record and byte but the CRS."""
+    from lidarctl import io
+
+    src = _cloud(tmp_path / f"wrong{suffix}", version, fmt, crs="EPSG:32631", extra=True)
+    with pytest.raises(io.CrsError, match="aerotri crs assign"):
+        io.read_cloud(src, crs="EPSG:28992")
+    out = tmp_path / f"fixed{suffix}"
+    r = _run("assign", src, out, "--crs", target)
+    assert r.exit_code == 0, r.output
+    assert "EPSG:32631 ->" in r.output and "coordinates unchanged" in r.output
+    a, b = laspy.read(src), laspy.read(out)
+    assert a.points.array.tobytes() == b.points.array.tobytes()
+    for k in ("scales", "offsets", "mins", "maxs", "point_count"):
+        np.testing.assert_array_equal(getattr(a.header, k), getattr(b.header, k))
+    assert same_crs(b.header.parse_crs(), target)
+    crs_records = ("WktCoordinateSystemVlr", "GeoKeyDirectoryVlr", "GeoAsciiParamsVlr", "GeoDoubleParamsVlr")
+    others = [[(v.user_id, v.record_id, bytes(v.record_data)) for v in x.header.vlrs + list(x.header.evlrs or [])
+               if type(v).__name__ not in crs_records] for x in (a, b)]
+    assert others[0] == others[1] and others[0]
+    cloud = io.read_cloud(out, crs="EPSG:28992")  # the file's record now agrees
+    np.testing.assert_allclose(cloud.x, np.asarray(a.x), atol=0)
+
+
+def test_assign_refuses_a_crs_the_coordinates_cannot_be_in(tmp_path):
+    """The header bounds against the CRS's area of use: RD coordinates are no ETRS89 / UTM 32N (lat 4 deg N) and no
+    degrees; exit 2, no output."""
+    src = _cloud(tmp_path / "wrong.las", "1.4", 6, crs="EPSG:32631")
+    for target, why in (("EPSG:25832", "outside the area of use of EPSG:25832"), ("EPSG:4326", "not a longitude")):
+        r = _run("assign", src, tmp_path / "o.las", "--crs", target)
+        assert r.exit_code == 2 and r.output.startswith("Error: ") and r.output.count("\n") == 1, r.output
+        assert str(src) in r.output and why in r.output and "not re-tagged" in r.output
+    r = _run("assign", src, tmp_path / "o.csv", "--crs", "EPSG:28992")
+    assert r.exit_code == 2 and ".las or .laz" in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["wrong.las"]
+
+
+def test_a_wkt1_with_towgs84_is_its_own_epsg_code(tmp_path):
+    """s27 (regression of trial-lidar's refusal): RD New as WKT1 with TOWGS84 (pyproj's bound CRS) was refused against
+    --crs EPSG:28992, EPSG:7415, its ESRI WKT and PROJJSON, and the other way round."""
+    from lidarctl import io
+
+    towgs = _cloud(tmp_path / "towgs.las", "1.4", 6, wkt=RD_TOWGS84)
+    assert las.read_header_crs(towgs, las.read_header(towgs)).is_bound
+    for given in ("EPSG:28992", "EPSG:7415", pyproj.CRS(28992).to_wkt("WKT1_ESRI"), pyproj.CRS(7415).to_json()):
+        assert io.read_cloud(towgs, crs=given).units.xy_m == 1.0
+    plain = _cloud(tmp_path / "plain.las", "1.2", 3, crs="EPSG:28992")
+    assert len(io.read_cloud(plain, crs=RD_TOWGS84)) == 500
+    assert same_horizontal(pyproj.CRS(RD_TOWGS84), "EPSG:7415")
+    assert not same_horizontal(pyproj.CRS(RD_TOWGS84), "EPSG:32631")
+
+
+def test_refusal_names_a_datum_realisation_and_a_wkt_crs_by_its_name(tmp_path):
+    """WGS 84 (G1762) / UTM 32N is no EPSG:32632 (the ensemble): still refused, saying the realisation differs; a
+    WKT --crs is named once, by its name, not echoed whole."""
+    from pyproj.crs import ProjectedCRS
+    from pyproj.crs.coordinate_operation import UTMConversion
+
+    from aerotri.geom.crs.definition import other_realisation
+    from lidarctl import io
+
+    g1762 = ProjectedCRS(UTMConversion(32), name="WGS 84 (G1762) / UTM zone 32N", geodetic_crs=pyproj.CRS(9057))
+    assert other_realisation(g1762, "EPSG:32632") == ("World Geodetic System 1984 (G1762)",
+                                                      "World Geodetic System 1984 ensemble")
+    assert other_realisation("EPSG:32632", "EPSG:32633") is None
+    h = laspy.LasHeader(version="1.4", point_format=6)
+    h.offsets = [500000.0, 5500000.0, 0.0]
+    h.add_crs(pyproj.CRS(32632))
+    d = laspy.LasData(h)
+    d.x, d.y, d.z = 500000 + np.arange(10.0), 5500000 + np.arange(10.0), np.zeros(10)
+    d.write(tmp_path / "u.las")
+    with pytest.raises(io.CrsError) as e:
+        io.read_cloud(tmp_path / "u.las", crs=g1762.to_wkt())
+    msg = str(e.value)
+    assert "another datum realisation" in msg and "G1762" in msg and "aerotri crs assign" in msg
+    assert "crs transform" in msg and "PROJCRS[" not in msg and msg.count("WGS 84 (G1762) / UTM zone 32N") >= 1
+    with pytest.raises(io.CrsError) as e:
+        io.resolve_crs_units(tmp_path / "u.las", las.read_header(tmp_path / "u.las"), "EPSG:25832",
+                             crs_name="[project] crs")
+    msg = str(e.value)
+    assert "[project] crs = EPSG:25832 differs" in msg and "[project] crs is itself wrong" in msg
+
+
+def test_transform_of_a_wrongly_tagged_file_warns_where_its_points_land(tmp_path):
+    """s27: the old advice, `crs transform W_wrong_14.las OUT --to EPSG:28992`, wrote x = -660,124 with exit 0 and no
+    word; it now warns that the transformed bounds lie outside EPSG:28992's area of use and names crs assign."""
+    src = _cloud(tmp_path / "wrong.las", "1.4", 6, crs="EPSG:32631")
+    r = _run("transform", src, tmp_path / "t.las", "--to", "EPSG:28992")
+    assert r.exit_code == 0, r.output
+    assert "outside the area of use of EPSG:28992" in r.output and "aerotri crs assign" in r.output
+    fixed = tmp_path / "fixed.las"
+    assert _run("assign", src, fixed, "--crs", "EPSG:28992").exit_code == 0
+    r = _run("transform", fixed, tmp_path / "t2.las", "--to", "EPSG:25831")
+    assert r.exit_code == 0 and "area of use" not in r.output, r.output
