@@ -31,6 +31,7 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 import rasterio
 from pyproj import CRS
@@ -639,9 +640,10 @@ def _rectify_frame(task: FrameTask) -> dict:
     grid = grid_around_footprint(footprint, task.res_m, out_crs)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     # the frame's own nodata (a collar declared by its nodata value or mask): nodata in its ortho, never in the mosaic
-    source_valid = frame_validity(task.image_path, task.interpolation) if task.frame_nodata else None
+    source_valid = frame_validity(task.image_path, task.interpolation, image, band_order) if task.frame_nodata else None
     if source_valid is not None:
-        _log.info(f"frame {task.image_id}: {100 * np.count_nonzero(source_valid == 0) / source_valid.size:.1f} % of "
+        invalid_share = 1.0 - cv2.countNonZero(source_valid) / source_valid.size
+        _log.info(f"frame {task.image_id}: {100 * invalid_share:.1f} % of "
                   "its pixels are its own nodata or beside it (its nodata value or mask): nodata in its ortho")
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
