@@ -60,11 +60,13 @@ if TYPE_CHECKING:
 # before a change of a frame's samples are rectified again. Bump it when a frame ortho changes at the same inputs and
 # settings. 1: resume-keys (the rectification as of main 195def90). 2: contract-crs-speed (a contract CRS's tiles
 # affine in the project's: its true ortho's z-buffer fills the gaps of walls as the project CRS's does, 0.09 % more
-# hidden ground masked on a DMC frame; the project CRS's orthos are unchanged).
-RECTIFY_VERSION = 2
+# hidden ground masked on a DMC frame; the project CRS's orthos are unchanged). 3: trial-ortho and s28-fixes (a
+# frame's own nodata, its collar, nodata in its ortho: frames declaring a nodata value, an internal mask or alpha;
+# the others the same bytes), in every CRS.
+RECTIFY_VERSION = 3
 # the last version that changed the orthos of a grid in the project's CRS (``operation`` None): versions after it
 # changed a contract CRS's alone, and a project rectified in its own CRS keeps its frames (no re-rectification)
-PROJECT_CRS_RECTIFY_VERSION = 1
+PROJECT_CRS_RECTIFY_VERSION = 3
 
 
 def rectify_version(contract_crs: bool) -> int:
