@@ -670,21 +670,18 @@ def declares_nodata(path) -> bool:
 COLLAR_CORNER_PX = 16  # the square of a frame's corner that ``black_corners`` reads
 
 
-def black_corners(path) -> int:
+def black_corners(image) -> int:
     """How many of the frame's four corners (squares of ``COLLAR_CORNER_PX``) hold 0 in every band and pixel: a
     collar the frame does not declare (no nodata value or mask; ``declares_nodata``) is rectified as picture, black in
-    the DOM. Ground is never that black over a corner's 256 pixels in every band."""
-    import rasterio
-    from rasterio.windows import Window
-
+    the DOM. Ground is never that black over a corner's 256 pixels in every band. ``image``: the frame as decoded for
+    its rectification (rows, cols[, bands]), or a ``FrameFile`` (its corners read by windows): taken in the frame's
+    task, not by decoding every frame again before the first starts (285 ms a Brighton JPEG; 14 min for 3,000)."""
+    rows, cols = image.shape[:2]
+    k = min(COLLAR_CORNER_PX, rows, cols)
     n = 0
-    try:
-        with rasterio.open(path) as ds:
-            k = min(COLLAR_CORNER_PX, ds.width, ds.height)
-            for c0, r0 in ((0, 0), (ds.width - k, 0), (0, ds.height - k), (ds.width - k, ds.height - k)):
-                n += int(not ds.read(window=Window(c0, r0, k, k)).any())
-    except rasterio.errors.RasterioIOError:
-        return n  # a corrupt frame: its rectification names it (``FrameFile.read``, ``read_native``)
+    for c0, r0 in ((0, 0), (cols - k, 0), (0, rows - k), (cols - k, rows - k)):
+        corner = image.read(c0, c0 + k, r0, r0 + k) if isinstance(image, FrameFile) else image[r0:r0 + k, c0:c0 + k]
+        n += int(not corner.any())
     return n
 
 
