@@ -757,7 +757,8 @@ def frame_validity(path, interpolation: str = "bilinear", image: np.ndarray | No
     JPEG-compressed frame the value's pixels are joined over ``_JPEG_JOIN_PX`` before, and the collar grown by
     ``_JPEG_BLOCK_PX`` after: the value inside the picture is not. ``image`` (rows, cols[, bands]) with its
     ``band_order`` (1-based band of each channel): the frame as decoded for the rectification, whose nodata value is
-    read from it rather than decoded again. Memory: two uint8 planes of the frame (101 MiB each for a DMC frame)."""
+    read from it rather than decoded again. Memory: one uint8 plane of the frame (101 MiB for a DMC frame), worked in
+    place, and a strip of its blocks."""
     import rasterio
     from rasterio.enums import MaskFlags
 
