@@ -31,6 +31,7 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 import rasterio
 from pyproj import CRS
@@ -638,10 +639,12 @@ def _rectify_frame(task: FrameTask) -> dict:
                                      min_cone_radius_m=task.res_m)
     grid = grid_around_footprint(footprint, task.res_m, out_crs)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
+    corners = 0 if task.frame_nodata else black_corners(image)  # (an undeclared collar: warned of by _rectify_into)
     # the frame's own nodata (a collar declared by its nodata value or mask): nodata in its ortho, never in the mosaic
-    source_valid = frame_validity(task.image_path, task.interpolation) if task.frame_nodata else None
+    source_valid = frame_validity(task.image_path, task.interpolation, image, band_order) if task.frame_nodata else None
     if source_valid is not None:
-        _log.info(f"frame {task.image_id}: {100 * np.count_nonzero(source_valid == 0) / source_valid.size:.1f} % of "
+        invalid_share = 1.0 - cv2.countNonZero(source_valid) / source_valid.size
+        _log.info(f"frame {task.image_id}: {100 * invalid_share:.1f} % of "
                   "its pixels are its own nodata or beside it (its nodata value or mask): nodata in its ortho")
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
@@ -665,6 +668,7 @@ def _rectify_frame(task: FrameTask) -> dict:
         "height_covered_share": round(covered, 4),
         "footprint_xy_m": np.round(footprint[::4], 2).tolist(),
         **to_record(file_fingerprint(task.out_path)),
+        **({"black_corners": corners} if corners else {}),  # (taken out of the index by _rectify_into)
     }
 
 
@@ -1080,12 +1084,6 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                        crown_base_height_operation=spec_of(ops.get("crown_base")) if true_ortho else None,
                        frame_nodata=declares_nodata(path))
              for image_id, path in block.images.pairs()]
-    collared = [t.image_id for t in tasks if not t.frame_nodata and black_corners(t.image_path)]
-    if collared:
-        _log.warning(f"{len(collared)} frame(s) ({', '.join(collared[:5])}{', ...' if len(collared) > 5 else ''}) have "
-                     "a corner black in every band and declare no nodata value or mask: a collar? It is rectified as "
-                     "picture (black in the orthos and the mosaic); declare it (rio edit-info --nodata 0 FRAME, or "
-                     "gdal_edit.py -a_nodata 0 FRAME) and rectify again")
     resumed = {}
     if resume_dir is not None:
         tasks = [dataclasses.replace(t, resume_dir=str(resume_dir), resume_key=_resume_key(t, inputs)) for t in tasks]
@@ -1096,6 +1094,13 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
     done = dict(zip((t.image_id for t in todo), executor.map(_rectify_frame_task, todo, desc="rectify", unit="frame")
                     if todo else []))
     entries = [resumed.get(t.image_id) or done[t.image_id] for t in tasks]
+    # frames with black corners that declare no nodata (each frame's task looks at its decoded corners)
+    collared = [e["image_id"] for e in entries if e.pop("black_corners", 0)]
+    if collared:
+        _log.warning(f"{len(collared)} frame(s) ({', '.join(collared[:5])}{', ...' if len(collared) > 5 else ''}) have "
+                     "a corner black in every band and declare no nodata value or mask: a collar? It was rectified "
+                     "as picture (black in the orthos and the mosaic); declare it (rio edit-info --nodata 0 FRAME, or "
+                     "gdal_edit.py -a_nodata 0 FRAME) and rectify again")
     return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),

@@ -198,10 +198,27 @@ ZERO_FILL_GAP_M = 10.0
 ZERO_FILL_MIN_SHARE = 0.001  # of the valid cells (a decimated read): fewer zeros are not worth a word
 
 
-def zero_fill_share(ds, max_cells: int = 1_000_000) -> tuple[float, float, float] | None:
-    """(share of the valid cells at exactly 0, lowest and highest other height, raster units) of band 1 of the open
-    height raster ``ds`` when that looks like an undeclared fill: no nodata value, mask or alpha declared, at least
-    ``ZERO_FILL_MIN_SHARE`` of the cells at 0, and every other height more than ``ZERO_FILL_GAP_M`` above 0 (below
+# below 0, the values software writes for "no height" when it declares none (ESRI's and surveyors' -9999, -999, -99;
+# a 16-bit DEM's -32767 / -32768): taken for an undeclared fill when they are the raster's lowest value, with the other
+# heights more than ``ZERO_FILL_GAP_M`` above. Beyond -1000 m they are refused anyway (``aerotri.geom.inputs.check_height_values``);
+# -999 and -99 lie within them and were neither refused nor warned of (review 28)
+NEGATIVE_FILL_VALUES = (-99.0, -999.0, -9999.0, -99999.0, -32767.0, -32768.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class UndeclaredFill:
+    """A height raster's cells that look like an undeclared nodata fill: ``value`` (raster units), their ``share`` of
+    the valid cells, the lowest and highest other heights ``lo``, ``hi`` (raster units)."""
+    value: float
+    share: float
+    lo: float
+    hi: float
+
+
+def undeclared_fill(ds, max_cells: int = 1_000_000) -> UndeclaredFill | None:
+    """The cells of band 1 of the open height raster ``ds`` that look like an undeclared fill: no nodata value, mask or
+    alpha declared, at least ``ZERO_FILL_MIN_SHARE`` of the cells at exactly 0 or at one of ``NEGATIVE_FILL_VALUES``
+    (the raster's lowest value), and every other height more than ``ZERO_FILL_GAP_M`` above it (0 with heights below
     0 too: not a DEM of land above sea level); None otherwise. A decimated read, as ``height_range``."""
     from rasterio.enums import MaskFlags
 
@@ -211,29 +228,35 @@ def zero_fill_share(ds, max_cells: int = 1_000_000) -> tuple[float, float, float
     v = ds.read(1, out_shape=(max(1, ds.height // step), max(1, ds.width // step)),
                 resampling=rasterio.enums.Resampling.nearest).ravel()
     v = v[np.isfinite(v)]
-    zero = v == 0
-    n0 = int(np.count_nonzero(zero))
-    if v.size == 0 or n0 < ZERO_FILL_MIN_SHARE * v.size or n0 == v.size:
+    if v.size == 0:
         return None
-    other = v[~zero]
+    lowest = float(v.min())
     unit_m = height_unit_m(CRS(ds.crs)) if ds.crs is not None else 1.0
-    lo, hi = float(other.min()), float(other.max())
-    if lo * unit_m <= ZERO_FILL_GAP_M:
-        return None
-    return n0 / v.size, lo, hi
+    for value in (0.0, lowest):
+        if value != 0.0 and value not in NEGATIVE_FILL_VALUES:
+            continue
+        fill = v == value
+        n = int(np.count_nonzero(fill))
+        if n < ZERO_FILL_MIN_SHARE * v.size or n == v.size:
+            continue
+        other = v[~fill]
+        lo, hi = float(other.min()), float(other.max())
+        if (lo - value) * unit_m > ZERO_FILL_GAP_M:
+            return UndeclaredFill(value, n / v.size, lo, hi)
+    return None
 
 
 def warn_zero_fill(ds, path, what: str = "DEM") -> None:
-    """A warning naming ``path`` when its cells at 0 look like an undeclared fill (``zero_fill_share``): the orthos
-    there stand on height 0."""
-    found = zero_fill_share(ds)
+    """A warning naming ``path`` when its cells at 0, or at a negative fill value (``NEGATIVE_FILL_VALUES``), look
+    like an undeclared fill (``undeclared_fill``): the orthos there stand on that height."""
+    found = undeclared_fill(ds)
     if found is None:
         return
-    share, lo, hi = found
-    _log.warning(f"{path}: {100 * share:.1f} % of the {what}'s cells hold exactly 0 while its other heights are "
-                 f"{lo:.6g} .. {hi:.6g} and it declares no nodata value: a fill (gdalwarp's beyond its source, a "
-                 f"clipped {what})? The orthos there stand on height 0; declare it (gdal_edit.py -a_nodata 0 "
-                 f"{path}, or rio edit-info --nodata 0 {path}) unless it is ground at 0")
+    v = f"{found.value:g}"
+    _log.warning(f"{path}: {100 * found.share:.1f} % of the {what}'s cells hold exactly {v} while its other heights "
+                 f"are {found.lo:.6g} .. {found.hi:.6g} and it declares no nodata value: a fill (gdalwarp's beyond its "
+                 f"source, a clipped {what})? The orthos there stand on height {v}; declare it (gdal_edit.py "
+                 f"-a_nodata {v} {path}, or rio edit-info --nodata {v} {path}) unless it is ground at {v}")
 
 
 def height_range(ds, max_cells: int = 1_000_000) -> tuple[float, float]:

@@ -216,15 +216,48 @@ def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:
 SURVEYED = ("check points", "surveyed points")
 
 
+def point_id_key(point_id) -> str:
+    """A surveyed point's id as matched between files: case ignored ("GCP06" is "gcp06"), and the leading zeros of
+    a numeric id ("06" is "6", the number 6 too); "GCP06" is not "GCP6"."""
+    key = str(point_id).strip().casefold()
+    return (key.lstrip("0") or "0") if key.isdigit() else key
+
+
 def dom_points_used_as_control(dom_all: dict, at: dict) -> tuple[str, ...]:
     """The ids of a DOM check's surveyed points (``ortho check --points``: dom_report.json ``points``) that the
-    adjustment used as control (at/report.json ``control_points``, used, of a kind other than check): the DOM stands on
-    orientations fitted to them, so they are no independent check of it."""
+    adjustment used as control (at/report.json ``control_points``, used, of a kind other than check; ids matched by
+    ``point_id_key``): the DOM stands on orientations fitted to them, so they are no independent check of it."""
     if dom_all.get("method") != "surveyed_points":
         return ()
-    used = {str(c.get("id")) for c in at.get("control_points") or []
+    used = {point_id_key(c.get("id")) for c in at.get("control_points") or []
             if isinstance(c, dict) and c.get("used", True) and c.get("kind") != "check"}
-    return tuple(str(p.get("id")) for p in dom_all.get("points") or [] if str(p.get("id")) in used)
+    return tuple(str(p.get("id")) for p in dom_all.get("points") or [] if point_id_key(p.get("id")) in used)
+
+
+@dataclasses.dataclass(frozen=True)
+class IndependentPoints:
+    """A DOM check's displacements (m, DOM minus surveyed, east and north) at the surveyed points the adjustment did
+    not use as control: the RMSEs the compliance row judges; ``n`` 0 when none is left."""
+    n: int
+    rmse_xy_m: float | None
+    rmse_e_m: float | None
+    rmse_n_m: float | None
+
+
+def dom_independent_points(dom_all: dict, control: tuple[str, ...]) -> IndependentPoints:
+    """RMSEs (m) of dom_report.json's per-point ``de_m``, ``dn_m`` at the points not in ``control``."""
+    left_out = {point_id_key(i) for i in control}
+    de, dn = [], []
+    for p in dom_all.get("points") or []:
+        e, n = p.get("de_m"), p.get("dn_m")
+        if point_id_key(p.get("id")) in left_out or e is None or n is None or not math.isfinite(e + n):
+            continue
+        de.append(float(e))
+        dn.append(float(n))
+    if not de:
+        return IndependentPoints(0, None, None, None)
+    e2, n2 = float(np.mean(np.square(de))), float(np.mean(np.square(dn)))
+    return IndependentPoints(len(de), math.sqrt(e2 + n2), math.sqrt(e2), math.sqrt(n2))
 
 
 def dom_checks(dom_all: dict, qa, *, stale: bool = False, at: dict | None = None) -> CheckSet | None:
@@ -241,10 +274,19 @@ def dom_checks(dom_all: dict, qa, *, stale: bool = False, at: dict | None = None
         control = dom_points_used_as_control(dom_all, at or {})
         if control:
             more = ", ..." if len(control) > OUTSIDE_IDS_SHOWN else ""
-            return CheckSet(n_h=n - len(control), cp_rmse_h_m=h, cp_source=src, points="surveyed points",
-                            note=f"{len(control)} of the {n} surveyed points were the adjustment's control "
-                                 f"({', '.join(control[:OUTSIDE_IDS_SHOWN])}{more}): no independent check of the DOM; "
-                                 "measure it at check points the adjustment did not use")
+            named = f"{', '.join(control[:OUTSIDE_IDS_SHOWN])}{more}"
+            ind = dom_independent_points(dom_all, control)
+            if ind.n == 0:  # nothing independent: no figure, so not testable (never a pass)
+                return CheckSet(n_h=0, cp_rmse_h_m=h, cp_source=src, points="surveyed points",
+                                note=f"{len(control)} of the {n} surveyed points were the adjustment's control "
+                                     f"({named}): no independent check of the DOM; measure it at check points the "
+                                     "adjustment did not use")
+            # the RMSE at the independent points alone (the control ones left out: the DOM stands on them)
+            return CheckSet(rmse_h_m=ind.rmse_xy_m, n_h=ind.n, cp_rmse_h_m=h, cp_source=src,
+                            rmse_x_m=ind.rmse_e_m, rmse_y_m=ind.rmse_n_m, points="surveyed points",
+                            note=f"surveyed points measured in the DOM (ortho check --points): the {ind.n} the "
+                                 f"adjustment did not use; {len(control)} of the {n} left out, the adjustment's "
+                                 f"control ({named})")
         return CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=n, cp_rmse_h_m=h, cp_source=src,
                         rmse_x_m=d.get("rms_e_m"), rmse_y_m=d.get("rms_n_m"),
                         note="surveyed points measured in the DOM (ortho check --points)", points="surveyed points")

@@ -309,14 +309,18 @@ def _dom_points(dom_check, project: Project) -> tuple[str | None, str]:
     check --points``) ("" or the note naming those the adjustment used as control, "at surveyed points")."""
     if dom_check is None or dom_check.method != "surveyed_points":
         return None, "on ground patches"
-    from aerotri.qa.compliance import _json, dom_points_used_as_control
+    from aerotri.qa.compliance import _json, dom_independent_points, dom_points_used_as_control
 
-    control = dom_points_used_as_control(_json(project.dom_report_path), _json(project.adjustment_report_path))
+    dom_all = _json(project.dom_report_path)
+    control = dom_points_used_as_control(dom_all, _json(project.adjustment_report_path))
     if not control:
         return "", "at surveyed points"
     more = ", ..." if len(control) > 3 else ""
+    ind = dom_independent_points(dom_all, control)
+    judged = (f", left out of the compliance row: {ind.rmse_xy_m:.3f} m RMSE at the {ind.n} others" if ind.n
+              else ", and no other")
     return (f"; {len(control)} of them the adjustment's control ({', '.join(control[:3])}{more}): not independent "
-            "check points", "at surveyed points")
+            f"check points{judged}", "at surveyed points")
 
 
 def _dom_crs_note(dom_check, project: Project) -> str:

@@ -13,7 +13,7 @@ import rasterio
 from click.testing import CliRunner
 
 from ortho.cli import main
-from ortho.dem import ZERO_FILL_GAP_M, zero_fill_share
+from ortho.dem import ZERO_FILL_GAP_M, undeclared_fill
 from ortho.synthetic import write_synthetic_project
 
 
@@ -24,31 +24,31 @@ def block(tmp_path_factory):
     return root
 
 
-def _dem(src, dst, east_share: float, nodata=None, offset_m: float = 0.0):
+def _dem(src, dst, east_share: float, nodata=None, offset_m: float = 0.0, fill: float = 0.0):
     with rasterio.open(src) as ds:
         a, prof = ds.read(1), ds.profile
     a = a + np.float32(offset_m)
-    a[:, int(a.shape[1] * (1 - east_share)):] = 0.0
+    a[:, int(a.shape[1] * (1 - east_share)):] = fill
     prof.update(nodata=nodata)
     with rasterio.open(dst, "w", **prof) as out:
         out.write(a, 1)
     return dst
 
 
-def test_zero_fill_share(block, tmp_path):
+def test_undeclared_zero_fill(block, tmp_path):
     dem = block / "lidar_out/dem.tif"
     with rasterio.open(_dem(dem, tmp_path / "z.tif", 0.3)) as ds:
-        share, lo, hi = zero_fill_share(ds)
-    assert 0.25 < share < 0.35 and lo > ZERO_FILL_GAP_M and hi > lo
+        f = undeclared_fill(ds)
+    assert f.value == 0 and 0.25 < f.share < 0.35 and f.lo > ZERO_FILL_GAP_M and f.hi > f.lo
     with rasterio.open(_dem(dem, tmp_path / "nd.tif", 0.3, nodata=0.0)) as ds:  # declared: nodata, no fill
-        assert zero_fill_share(ds) is None
+        assert undeclared_fill(ds) is None
     with rasterio.open(dem) as ds:  # no zero at all
-        assert zero_fill_share(ds) is None
+        assert undeclared_fill(ds) is None
     # a coast: the land runs down to the sea's 0 (the lowest other heights within the gap): ground, not fill
     with rasterio.open(dem) as ds:
         base = float(ds.read(1).min())
     with rasterio.open(_dem(dem, tmp_path / "coast.tif", 0.3, offset_m=-base + 0.5)) as ds:
-        assert zero_fill_share(ds) is None
+        assert undeclared_fill(ds) is None
 
 
 def test_rectify_warns_of_a_zero_fill(block, tmp_path):
@@ -61,3 +61,20 @@ def test_rectify_warns_of_a_zero_fill(block, tmp_path):
     r = CliRunner().invoke(main, ["rectify", str(root)])  # the block's own DEM: no such warning
     assert r.exit_code == 0, r.output
     assert "hold exactly 0" not in r.stderr
+
+
+def test_an_undeclared_negative_fill_is_warned_of(block, tmp_path):
+    """review 28: -999 (within -1000 .. 10000 m, so not refused) was neither refused nor warned of; -9999 is refused."""
+    dem = block / "lidar_out/dem.tif"
+    with rasterio.open(_dem(dem, tmp_path / "m999.tif", 0.3, fill=-999.0)) as ds:
+        f = undeclared_fill(ds)
+    assert f.value == -999.0 and 0.25 < f.share < 0.35 and f.lo > 0
+    with rasterio.open(_dem(dem, tmp_path / "m998.tif", 0.3, fill=-998.0)) as ds:  # not a fill value: ground
+        assert undeclared_fill(ds) is None
+    with rasterio.open(_dem(dem, tmp_path / "m999nd.tif", 0.3, fill=-999.0, nodata=-999.0)) as ds:  # declared
+        assert undeclared_fill(ds) is None
+    root = tmp_path / "p"
+    shutil.copytree(block, root)
+    r = CliRunner().invoke(main, ["rectify", str(root), "--dem", str(tmp_path / "m999.tif")])
+    assert r.exit_code == 0, r.output
+    assert "hold exactly -999 while" in r.stderr and "-a_nodata -999" in r.stderr, r.stderr

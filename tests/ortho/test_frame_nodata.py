@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import shutil
 
+import cv2
 import numpy as np
 import pytest
 import rasterio
@@ -128,3 +129,70 @@ def test_a_jpeg_frames_nodata_value_leaves_no_collar_in_its_ortho(clean, tmp_pat
             darker = (a.read().astype(int) - b.read().astype(int)).max(0)[vb]
             assert darker.max() <= 60, (ref.name, int((darker > 60).sum()))  # JPEG's own error (46 DN), no collar
             assert 0.05 < (va & ~vb).sum() / va.sum() < 0.4, ref.name
+
+
+def _shadowed_frame(path, how: str) -> tuple[np.ndarray, np.ndarray]:
+    """A 240 x 320 px frame with the collar (0, declared by ``nodata=0`` or, "mask", an internal mask) and a shadow
+    clipped at 0 inside the picture: one pixel and a 12 x 12 px patch, 0 in every band. Returns (collar, shadow)."""
+    rng = np.random.default_rng(3)  # ground: smooth as a photograph's (JPEG leaves the collar 0 but at its edge)
+    a = np.stack([cv2.GaussianBlur(rng.uniform(40, 216, (240, 320)), (0, 0), 3) for _ in range(3)]).astype(np.uint8)
+    collar = np.zeros((240, 320), bool)
+    collar[:, :20] = True  # a strip along the left edge
+    collar[np.add.outer(np.arange(240), np.arange(320)) < 40] = True  # and a corner triangle
+    shadow = np.zeros_like(collar)
+    shadow[120, 200] = True
+    shadow[60:72, 100:112] = True
+    a[:, collar | shadow] = 0
+    prof = dict(driver="GTiff", width=320, height=240, count=3, dtype="uint8", tiled=True, blockxsize=64, blockysize=64)
+    if how == "jpeg":
+        prof.update(compress="jpeg", photometric="ycbcr", nodata=0)
+    elif how == "nodata":
+        prof.update(compress="deflate", nodata=0)
+    with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(path, "w", **prof) as out:
+        out.write(a)
+        if how == "mask":
+            out.write_mask(np.where(collar | shadow, 0, 255).astype(np.uint8))
+    return collar, shadow
+
+
+def _near(region: np.ndarray, r: int) -> np.ndarray:
+    return cv2.dilate(region.astype(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0
+
+
+@pytest.mark.parametrize("how", ["nodata", "jpeg", "mask"])
+def test_the_nodata_value_inside_the_picture_stays_picture(tmp_path, how):
+    """review 28: a nodata value masked every picture pixel holding it, grown by the kernel (+16 px in a JPEG
+    frame): one 0 pixel in a shadow made a 35 x 35 px hole, NGI frames darkened gave a mosaic 11 % nodata. Only the
+    value's regions touching the frame's edge (a collar) are nodata; an internal mask is taken as it is."""
+    from aerotri.geom.images import read_native
+    from ortho.rectify import frame_validity
+
+    path = tmp_path / f"{how}.tif"
+    collar, shadow = _shadowed_frame(path, how)
+    image, order = read_native(path)
+    for valid in (frame_validity(path, "bilinear"), frame_validity(path, "bilinear", image, order)):
+        invalid = valid == 0
+        reach = 1 + (16 if how == "jpeg" else 0)
+        assert invalid[collar].all()
+        if how == "mask":  # as it is, grown by the kernel's reach
+            assert np.array_equal(invalid, _near(collar | shadow, 1))
+        else:
+            assert not invalid[~_near(collar, reach)].any()  # the collar, grown, and only it
+            assert not invalid[shadow].any() and not invalid[_near(shadow, reach) & ~_near(collar, reach)].any()
+            if how == "nodata":  # (JPEG leaves the collar's pixels at its edge off 0: grown from the others)
+                assert np.array_equal(invalid, _near(collar, 1))
+
+
+def test_black_corners_are_taken_from_the_decoded_frame(tmp_path):
+    """review 28: ``black_corners`` decoded every frame in the main process before the first frame started (285 ms a
+    Brighton JPEG, 14 min for 3,000 frames): it now looks at the frame its task decoded, or reads the corners of a
+    ``FrameFile`` by windows; the same count either way."""
+    from aerotri.geom.images import read_native
+    from ortho.rectify import FrameFile, black_corners
+
+    path = tmp_path / "f.tif"
+    _shadowed_frame(path, "nodata")  # the collar's strip along the left edge: the two left corners
+    frame = FrameFile(path)
+    assert black_corners(read_native(path)[0]) == black_corners(frame) == 2
+    frame.close()
+    assert black_corners(np.full((30, 40, 3), 7, np.uint8)) == 0
