@@ -1,4 +1,4 @@
-"""JPEG-compressed TIFF frames: which decoders agree, what the NGI frame orthos lose or gain, what GDAL costs (jpeg-decode).
+"""JPEG-compressed TIFF frames: which decoders agree, how the NGI frame orthos change, what GDAL costs (jpeg-decode).
 
 Review 28 found that a JPEG-YCbCr TIFF frame decoded whole (OpenCV) and by windows (GDAL) gave other pixels. Since
 jpeg-decode every reader decodes JPEG-compressed TIFFs through GDAL (``aerotri.geom.images._opencv_reads``). This
@@ -12,12 +12,13 @@ script measures, on real frames and without writing into the repository but this
    4:2:0: GDAL against OpenCV (the IDCT and colour conversion agree; 4:2:0 chroma upsampling does not);
 3. ``ngi_orthos``: ``ortho rectify`` of the NGI block (orthority's orientation, 5 m) with OpenCV's decode (main),
    GDAL whole (now) and GDAL by windows (``WINDOWED_FRAME_BYTES`` = 0): cells that differ per frame;
-4. ``cost``: CPU seconds and peak RSS (VmHWM; and its rise over the imports) of decoding one frame whole, each in its own process, OpenCV vs
-   ``read_native`` (GDAL), on a Brighton-sized frame (4000 x 2250, DJI_0018.JPG as a JPEG-YCbCr tiled TIFF,
-   quality 90) and a full-size DMC-sized one (13824 x 7680, the same picture resized; frames this large are read
-   by windows in rectify anyway): the best of ``--repeat`` runs.
+4. ``cost``: CPU seconds and peak RSS (VmHWM; and its rise over the imports) of decoding one frame whole, each in
+   its own process, OpenCV vs ``read_native`` (GDAL), on a Brighton-sized frame (4000 x 2250, DJI_0018.JPG as a
+   JPEG-YCbCr tiled TIFF, quality 90) and a full-size DMC-sized one (13824 x 7680, the same picture resized; frames
+   this large are read by windows in rectify anyway): the best of ``--repeat`` runs.
 
-    AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/jpeg_decode.py --scratch /work/tmp/jpeg-decode/bench
+    AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/jpeg_decode.py \\
+        --scratch /work/tmp/jpeg-decode/bench
 
 Writes bench/results/jpeg_decode.json.
 """
@@ -106,7 +107,8 @@ def why(frame: Path, scratch: Path) -> dict:
     prof = dict(driver="GTiff", width=a.shape[2], height=a.shape[1], dtype="uint8", tiled=True, blockxsize=256,
                 blockysize=256, compress="jpeg")
     res = {}
-    for tag, kw, arr in (("tiff_grey", dict(count=1), a[:1]), ("tiff_photometric_rgb", dict(count=3, photometric="rgb"), a),
+    for tag, kw, arr in (("tiff_grey", dict(count=1), a[:1]),
+                         ("tiff_photometric_rgb", dict(count=3, photometric="rgb"), a),
                          ("tiff_ycbcr_420", dict(count=3, photometric="ycbcr"), a)):
         p = scratch / f"{tag}.tif"
         with rasterio.open(p, "w", **prof, **kw) as o:
@@ -200,7 +202,8 @@ def cost(brighton: Path, scratch: Path, repeat: int) -> dict:
     img = cv2.imread(str(brighton))[:, :, ::-1]
     prof = dict(driver="GTiff", dtype="uint8", count=3, compress="jpeg", photometric="ycbcr", tiled=True,
                 blockxsize=256, blockysize=256, jpeg_quality=90)
-    frames = {"brighton_4000x2250": img, "dmc_13824x7680": cv2.resize(img, (13824, 7680), interpolation=cv2.INTER_LINEAR)}
+    frames = {"brighton_4000x2250": img,
+              "dmc_13824x7680": cv2.resize(img, (13824, 7680), interpolation=cv2.INTER_LINEAR)}
     res = {}
     for name, a in frames.items():
         p = scratch / f"{name}.tif"
@@ -209,8 +212,9 @@ def cost(brighton: Path, scratch: Path, repeat: int) -> dict:
         del a
         res[name] = {}
         for how in ("opencv", "gdal_read_native"):
-            runs = [json.loads(subprocess.run([sys.executable, "-c", _COST, str(p), how], check=True, capture_output=True,
-                                              text=True, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}).stdout)
+            env = {**os.environ, "PYTHONPATH": str(REPO)}
+            runs = [json.loads(subprocess.run([sys.executable, "-c", _COST, str(p), how], check=True,
+                                              capture_output=True, text=True, cwd=REPO, env=env).stdout)
                     for _ in range(repeat)]
             res[name][how] = {"cpu_s": round(min(r["cpu_s"] for r in runs), 3),
                               "peak_rss_mb": round(min(r["peak_rss_mb"] for r in runs), 1),
@@ -223,7 +227,8 @@ def cost(brighton: Path, scratch: Path, repeat: int) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", type=Path, default=Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data")))
+    ap.add_argument("--data", type=Path,
+                    default=Path(os.environ.get("AEROTRI_SHARED_DATA", REPO.parent / "shared" / "data")))
     ap.add_argument("--scratch", type=Path, required=True)
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args()
@@ -232,7 +237,8 @@ def main() -> None:
     if not (ngi / "dem.tif").is_file():
         sys.exit(f"{ngi}: NGI DMC frames not found (give --data or AEROTRI_SHARED_DATA)")
     out = {"libraries": {"rasterio": rasterio.__version__, "gdal": rasterio.__gdal_version__, "opencv": cv2.__version__,
-                         "opencv_jpeg": "libjpeg-turbo (bundled)", "rasterio_jpeg": "IJG libjpeg 9 (rasterio.libs/libjpeg*.so.9)"},
+                         "opencv_jpeg": "libjpeg-turbo (bundled)",
+                         "rasterio_jpeg": "IJG libjpeg 9 (rasterio.libs/libjpeg*.so.9)"},
            "decoders": decoders(ngi), "why": why(ngi / "3324c_2015_1004_05_0182_RGB.tif", a.scratch),
            "ngi_orthos": ngi_orthos(ngi, a.scratch),
            "cost": cost(a.data / "brighton_beach" / "images" / "DJI_0018.JPG", a.scratch, a.repeat),
