@@ -14,7 +14,11 @@ alpha). Readers, all refusing an unreadable file or a frame whose size differs f
 How a file is read: an uncompressed pixel-interleaved TIFF is memory-mapped (no decoding, no copy;
 channels in file order); other files are decoded by OpenCV (channels B, G, R) where it reads the layout
 as stored, else through GDAL: OpenCV garbles band-interleaved (planar) 16-bit RGB and reads 3 or 4
-samples not tagged RGB as one grey band. EXIF orientation tags are ignored everywhere: pixel
+samples not tagged RGB as one grey band. JPEG-compressed TIFFs are always decoded by GDAL, as the
+readers by windows (``FrameWindows``, ``read_gray_level``, ``ortho.rectify.FrameFile``) decode them:
+OpenCV's libjpeg-turbo and the IJG libjpeg 9 of rasterio's GDAL upsample 4:2:0 chroma differently
+(``_opencv_reads``), so a frame would have two sets of pixels. Plain JPEG files are decoded by OpenCV
+in every reader but ``FrameFile``. EXIF orientation tags are ignored everywhere: pixel
 coordinates refer to the grid as stored, the grid whose size ``check_frames`` checks.
 """
 
@@ -206,10 +210,16 @@ _OPENCV_CANNOT_DECODE = {"zstd", "lerc", "lerc_deflate", "lerc_zstd", "webp", "j
 
 
 def _opencv_reads(path) -> bool:
-    """Whether OpenCV reads this frame as stored. It does not for TIFFs compressed as it cannot decode
-    (``_OPENCV_CANNOT_DECODE``), nor for multi-band TIFFs that are band-interleaved
-    (16-bit planar RGB comes out garbled: band means of 67-120 DN for 112-152) or not tagged RGB (3 or 4
-    MINISBLACK samples come out as one grey band); those are read through GDAL."""
+    """Whether OpenCV reads this frame, as stored and as the readers by windows (GDAL) decode it. It does not for
+    TIFFs compressed as it cannot decode (``_OPENCV_CANNOT_DECODE``), nor for multi-band TIFFs that are
+    band-interleaved (16-bit planar RGB comes out garbled: band means of 67-120 DN for 112-152) or not tagged RGB
+    (3 or 4 MINISBLACK samples come out as one grey band); those are read through GDAL. Nor for JPEG-compressed
+    TIFFs: OpenCV decodes them with libjpeg-turbo, which upsamples 4:2:0 chroma by its triangle ("fancy") filter,
+    GDAL (rasterio's wheel) with IJG libjpeg 9, which upsamples it in the IDCT; the same IDCT and colour
+    conversion otherwise (grey, 4:4:4 and photometric-RGB JPEG decode the same in both). On the NGI DMC frames
+    (YCbCr 4:2:0) 36 % of the pixels differed, by up to 21 DN: GDAL decodes them here too, so that a frame read
+    whole and one read by windows (a frame larger than ``ortho.rectify.WINDOWED_FRAME_BYTES``, match's pyramid,
+    control's chips) are the same pixels."""
     import rasterio
 
     if Path(path).suffix.lower() not in (".tif", ".tiff"):
@@ -217,6 +227,8 @@ def _opencv_reads(path) -> bool:
     try:
         with _open_raster(path) as ds:
             if ds.compression is not None and ds.compression.name.lower() in _OPENCV_CANNOT_DECODE:
+                return False
+            if "JPEG" in ds.tags(ns="IMAGE_STRUCTURE").get("COMPRESSION", "").upper():  # JPEG, YCbCr JPEG, OJPEG
                 return False
             if ds.count == 1:
                 return True
@@ -227,16 +239,29 @@ def _opencv_reads(path) -> bool:
         return True  # let the readers name the problem
 
 
+_GDAL_READ_ROWS = 1024  # rows ``_read_gdal`` decodes at a time (rounded to the file's blocks)
+
+
 def _read_gdal(path) -> np.ndarray:
-    """(rows, cols[, bands]) in file band order, decoded by GDAL."""
+    """(rows, cols[, bands]) in file band order, decoded by GDAL into one pixel-interleaved array (as OpenCV gives a
+    frame, so the resampling reads it without a copy): GDAL's band-first rows are interleaved a band of rows at a
+    time, so memory is the frame and one band of rows, not twice the frame."""
     import rasterio
+    from rasterio.windows import Window
 
     try:
         with _open_raster(path) as ds:
-            img = np.moveaxis(ds.read(), 0, -1)
+            bands = ds.count
+            img = np.empty((ds.height, ds.width) + ((bands,) if bands > 1 else ()), np.dtype(ds.dtypes[0]))
+            block_rows = max(1, ds.block_shapes[0][0])
+            step = max(block_rows, _GDAL_READ_ROWS // block_rows * block_rows)
+            for r0 in range(0, ds.height, step):
+                h = min(step, ds.height - r0)
+                part = ds.read(window=Window(0, r0, ds.width, h))
+                img[r0:r0 + h] = np.moveaxis(part, 0, -1) if bands > 1 else part[0]
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(f"{path}: cannot read the image ({exc})") from None
-    return img[:, :, 0] if img.shape[2] == 1 else img
+    return img
 
 
 def _check_size(path, img: np.ndarray, expect_size) -> None:

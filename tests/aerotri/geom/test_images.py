@@ -76,6 +76,30 @@ def test_every_layout_reads_as_the_same_rgb(tmp_path, dtype, layout):
     assert np.array_equal(read_gray(path), cv2.imread(str(ref), cv2.IMREAD_GRAYSCALE))
 
 
+def test_a_jpeg_ycbcr_tiff_reads_as_the_windowed_readers_decode_it(tmp_path, monkeypatch):
+    """Review 28: OpenCV (libjpeg-turbo) and GDAL (IJG libjpeg 9) upsample a JPEG's 4:2:0 chroma differently; the
+    readers of whole frames decoded a JPEG-YCbCr TIFF by OpenCV, those by windows by GDAL. Every reader now gives
+    GDAL's pixels (read a band of rows at a time: a band of 32 rows here, the file's tiles)."""
+    import aerotri.geom.images as images
+    from aerotri.geom.images import FrameWindows, read_gray_level
+
+    monkeypatch.setattr(images, "_GDAL_READ_ROWS", 40)
+    a = cv2.GaussianBlur(_rgb(np.uint8, h=100, w=120), (0, 0), 1.5)
+    path = tmp_path / "ycbcr.tif"
+    _write(path, a, interleave="pixel", photometric="YCBCR", compress="jpeg", tiled=True, blockxsize=32,
+           blockysize=32)
+    with rasterio.open(path) as ds:
+        gdal = np.moveaxis(ds.read(), 0, -1)
+    assert (np.abs(cv2.imread(str(path))[:, :, ::-1].astype(int) - gdal).max(2) > 0).mean() > 0.05  # the two decoders
+    native, order = read_native(path, (120, 100))
+    assert order == [1, 2, 3] and native.flags.c_contiguous and np.array_equal(native, gdal)
+    assert np.array_equal(read_rgb8(path), gdal)
+    with FrameWindows(path) as frame:
+        assert np.array_equal(frame[10:90, 7:111], gdal[10:90, 7:111])
+    assert np.array_equal(read_gray(path), read_gray_level(path, 0))
+    assert np.array_equal(read_gray_level(path, 1, band_rows=32), cv2.pyrDown(read_gray(path)))
+
+
 def test_alpha_is_kept_in_rgb_and_dropped_in_rgb8(tmp_path):
     a = _rgb(np.uint8, bands=4)
     path = tmp_path / "rgba.png"
