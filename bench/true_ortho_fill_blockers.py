@@ -45,13 +45,14 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 from results_json import store_result  # noqa: E402
 
-from ortho.rectify_kernels import _cell_stops, _continuous_patch, _dda_step, _dem_height, _next_boundary  # noqa: E402
+from ortho.rectify_kernels import (_cell_stops, _continuous_patch, _dda_step, _dem_height, _next_boundary,  # noqa: E402
+                                   _patch_height)
 
 
 @numba.njit
 def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, wall_rise_m, Z=np.nan):
     """The march's ray from (X, Y) at height ``Z`` (NaN: the DSM's bilinear height; its own column's top where that
-    lies more than ``own_column_m`` below, off continuous surface) to ``C``: the first cell (i, j) ``_cell_stops`` (walls
+    lies more than ``own_column_m`` below, unless on continuous surface) to ``C``: the first cell (i, j) ``_cell_stops`` (walls
     beyond a rise of ``wall_rise_m``) says stops it and where
     the ray enters it (s, cells), and (Z, rise, gx, gy, ex, ey); i = -1 for none."""
     dsm, x0, y0, res = grid
@@ -64,8 +65,9 @@ def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, wall_ri
     gy = math.floor((y0 - Y) / res * 1024.0 + 0.5) / 1024.0
     ex, ey = vx / hd, -vy / hd
     j, i = int(math.floor(gx)), int(math.floor(gy))
-    if dsm[i, j] < Z - own_column_m and not _continuous_patch(dsm, int(math.floor(gy - 0.5)), int(math.floor(gx - 0.5)),
-                                                             wall_rise_m):
+    a, b = int(math.floor(gy - 0.5)), int(math.floor(gx - 0.5))
+    if dsm[i, j] < Z - own_column_m and not (_continuous_patch(dsm, a, b, wall_rise_m) and
+                                             Z <= _patch_height(dsm, a, b, gx - b - 0.5, gy - a - 0.5) + own_column_m):
         Z = dsm[i, j]
     rise = (C[2] - Z) / hd * res
     step = (1 if ey > 0 else -1, 1 if ex > 0 else -1)

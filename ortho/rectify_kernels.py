@@ -349,6 +349,16 @@ def _continuous_patch(dsm, a, b, wall_rise_m):
             and abs(h11 - h01) <= wall_rise_m)
 
 
+@numba.njit(cache=True, inline="always")
+def _patch_height(dsm, a, b, u, v):
+    """The bilinear height within the patch of ``_continuous_patch`` at (``u``, ``v``) cells east and south of the
+    centre of cell (a, b)."""
+    h00 = dsm[a, b]
+    h01 = dsm[a, b + 1]
+    h10 = dsm[a + 1, b]
+    return h00 + (h01 - h00) * u + (h10 - h00) * v + (dsm[a + 1, b + 1] - h01 - h10 + h00) * u * v
+
+
 @numba.njit(cache=True)
 def _surface_blocks(dsm, wall_rise_m, i, j, ray, span):
     """Whether the surface of DSM cell (i, j), whose column (``_cell_blocks``) stops the ray, stops it: over each
@@ -530,12 +540,17 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
                 # the point at the top of its own column where the bilinear height lies more than own_column_m above
                 # it: a ground point within half a cell of a wall is part way up the wall there, and a ray from there
                 # passes over the roof that hides the ground (smaller steps, the DSM's noise and roof slopes, kept)
-                # (not on continuous surface, ``_continuous_patch``: a slope's ground stands on its bilinear surface)
+                # (not a point that stands on continuous surface, ``_continuous_patch``, within own_column_m of its
+                # bilinear height: a slope's ground; a point of another height raster well above the occlusion DSM
+                # there, e.g. beneath a crown, is lowered as before)
                 zo = dsm[i_own, j_own]
-                if zo < Z - own_column_m and not _continuous_patch(dsm, int(math.floor(gy - 0.5)),
-                                                                   int(math.floor(gx - 0.5)), wall_rise_m):
-                    Z = zo
-                    vz = centre[2] - Z
+                if zo < Z - own_column_m:
+                    a = int(math.floor(gy - 0.5))
+                    b = int(math.floor(gx - 0.5))
+                    if not (_continuous_patch(dsm, a, b, wall_rise_m)
+                            and Z <= _patch_height(dsm, a, b, gx - (b + 0.5), gy - (a + 0.5)) + own_column_m):
+                        Z = zo
+                        vz = centre[2] - Z
             rise = vz / hd * dsm_res  # metres of ray height per cell horizontally
             if hinted and near_share[r, c] > 0.0:
                 # the ray's depth falls linearly to 0 at the centre: it reaches the near surface's depth after a
