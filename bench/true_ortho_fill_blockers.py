@@ -45,13 +45,15 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 from results_json import store_result  # noqa: E402
 
-from ortho.rectify_kernels import _cell_blocks, _dda_step, _dem_height, _next_boundary  # noqa: E402
+from ortho.rectify_kernels import (_cell_stops, _continuous_patch, _dda_step, _dem_height, _next_boundary,  # noqa: E402
+                                   _patch_height)
 
 
 @numba.njit
-def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, Z=np.nan):
+def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, wall_rise_m, Z=np.nan):
     """The march's ray from (X, Y) at height ``Z`` (NaN: the DSM's bilinear height; its own column's top where that
-    lies more than ``own_column_m`` below) to ``C``: the first cell (i, j) ``_cell_blocks`` says stops it and where
+    lies more than ``own_column_m`` below, unless on continuous surface) to ``C``: the first cell (i, j) ``_cell_stops`` (walls
+    beyond a rise of ``wall_rise_m``) says stops it and where
     the ray enters it (s, cells), and (Z, rise, gx, gy, ex, ey); i = -1 for none."""
     dsm, x0, y0, res = grid
     if Z != Z:
@@ -63,14 +65,16 @@ def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, Z=np.na
     gy = math.floor((y0 - Y) / res * 1024.0 + 0.5) / 1024.0
     ex, ey = vx / hd, -vy / hd
     j, i = int(math.floor(gx)), int(math.floor(gy))
-    if dsm[i, j] < Z - own_column_m:
+    a, b = int(math.floor(gy - 0.5)), int(math.floor(gx - 0.5))
+    if dsm[i, j] < Z - own_column_m and not (_continuous_patch(dsm, a, b, wall_rise_m) and
+                                             Z <= _patch_height(dsm, a, b, gx - b - 0.5, gy - a - 0.5) + own_column_m):
         Z = dsm[i, j]
     rise = (C[2] - Z) / hd * res
     step = (1 if ey > 0 else -1, 1 if ex > 0 else -1)
     between = (1.0 / abs(ex) if abs(ex) > 1e-12 else 1e30, 1.0 / abs(ey) if abs(ey) > 1e-12 else 1e30)
     s, sx, sy, i, j = _dda_step((_next_boundary(gx, ex, j), _next_boundary(gy, ey, i)), between, (i, j), step)
     while i >= 0 and j >= 0 and i < dh and j < dw:
-        if _cell_blocks(dsm[i, j], i, j, (Z, rise, gx, gy, ex, ey, tolerance_m), (s, min(sx, sy)), walls):
+        if _cell_stops(dsm, wall_rise_m, i, j, (Z, rise, gx, gy, ex, ey, tolerance_m), (s, min(sx, sy)), walls):
             return i, j, s, min(sx, sy), Z, rise, gx, gy, ex, ey
         s, sx, sy, i, j = _dda_step((sx, sy), between, (i, j), step)
     return -1, -1, 0.0, 0.0, Z, rise, gx, gy, ex, ey
@@ -84,7 +88,7 @@ def main() -> None:
     from eval_true_ortho_dsm_cell import CLEAR
     from ortho.block import read_index
     from ortho.grid import OrthoGrid
-    from ortho.rectify import OWN_COLUMN_M, _height_grid
+    from ortho.rectify import OWN_COLUMN_M, WALL_SLOPE_DEG, _height_grid
     from ortho.settings import RectifySettings
 
     from aerotri.sim.scene import KIND_ROOF, KIND_TERRAIN, KIND_TREE
@@ -163,7 +167,8 @@ def main() -> None:
         walls = (True, occ.base_m, occ.slab_top_m, occ.sub_index, occ.sub_masks, occ.sub) + \
             ((occ.sub_margin_cm,) if hasattr(occ, "sub_margin_cm") else ())  # (main's march: no margins)
         i, j, s_in, s_out, Z, rise, gx, gy, ex, ey = first_blocking_cell(float(xs[c]), float(ys[r]), _height_grid(h),
-                                                                         walls, C, 0.3, OWN_COLUMN_M, Z)
+                                                                         walls, C, 0.3, OWN_COLUMN_M,
+                                                                         h.res_m * math.tan(math.radians(WALL_SLOPE_DEG)), Z)
         if i < 0:
             kinds["none"] += 1
             continue

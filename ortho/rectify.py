@@ -60,9 +60,11 @@ if TYPE_CHECKING:
 # before a change of a frame's samples are rectified again. Bump it when a frame ortho changes at the same inputs and
 # settings. 1: resume-keys (the rectification as of main 195def90). 2: contract-crs-speed (a contract CRS's tiles
 # affine in the project's: its true ortho's z-buffer fills the gaps of walls as the project CRS's does, 0.09 % more
-# hidden ground masked on a DMC frame; the project CRS's orthos are unchanged). 3: trial-ortho and s28-fixes (a
-# frame's own nodata, its collar, nodata in its ortho: frames declaring a nodata value, an internal mask or alpha;
-# the others the same bytes), in every CRS.
+# hidden ground masked on a DMC frame; the project CRS's orthos are unchanged). 3 (one bump for the session of
+# 2026-12-01, in every CRS): trial-ortho and s28-fixes (a frame's own nodata, its collar, nodata in its ortho: frames
+# declaring a nodata value, an internal mask or alpha), jpeg-decode (JPEG-compressed TIFF frames decoded by GDAL in
+# every path) and slope-occlusion (the march takes continuous surface as its bilinear one, ``WALL_SLOPE_DEG``: true
+# orthos mask less on slopes).
 RECTIFY_VERSION = 3
 # the last version that changed the orthos of a grid in the project's CRS (``operation`` None): versions after it
 # changed a contract CRS's alone, and a project rectified in its own CRS keeps its frames (no re-rectification)
@@ -158,7 +160,8 @@ class ZBufferArgs(NamedTuple):
 
 class MarchArgs(NamedTuple):
     """The march's bounds (``MarchBound``) and settings: the highest DSM height, the highest heights by blocks of
-    ``block`` and of ``coarse`` cells, the tolerance (m) and ``OWN_COLUMN_M``."""
+    ``block`` and of ``coarse`` cells, the tolerance (m), ``OWN_COLUMN_M`` and the rise between neighbouring DSM
+    cells beyond which they are a wall (m, ``WALL_SLOPE_DEG``)."""
 
     max_m: float
     block_max_m: np.ndarray
@@ -167,6 +170,7 @@ class MarchArgs(NamedTuple):
     coarse: int
     tolerance_m: float
     own_column_m: float
+    wall_rise_m: float
 
 
 class FootprintWalls(NamedTuple):
@@ -385,6 +389,14 @@ MARCH_BLOCK_CELLS = (16, 128)
 # (a ground point within half a cell of a wall, part way up the wall's bilinear ramp: from there the ray passes
 # over the roof that hides the ground)
 OWN_COLUMN_M = 1.0
+# the march takes two neighbouring DSM cells for a wall (each its flat-topped column) where the height between their
+# centres rises more steeply than this, else for continuous surface (the bilinear one the ground points stand on, no
+# column's top above it: ``ortho.rectify_kernels._surface_blocks``). A column's top lies up to half the cell's rise
+# above that surface, and masked visible ground on slopes facing away from the camera (stripes along the DSM's rows)
+# once the rise passed twice the march's tolerance. 60 deg: steeper than natural slopes outside cliffs, while a
+# building wall in a DSM rises its whole height within one cell (on 0.5 m cells a rise of 0.87 m is a wall already,
+# a third of a storey); chosen so, not fitted to any block.
+WALL_SLOPE_DEG = 60.0
 CELL_FACTOR = 1.25
 
 
@@ -433,7 +445,7 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     points = TilePoints(heights_m.astype(np.float32), np.ones(occ.shape, np.bool_) if candidates is None else candidates,
                         np.zeros((1, 1), np.float32) if near_share is None else near_share)
     march = MarchArgs(bound.max_m, bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
-                      float(tolerance_m), float(OWN_COLUMN_M))
+                      float(tolerance_m), float(OWN_COLUMN_M), float(dsm.res_m * math.tan(math.radians(WALL_SLOPE_DEG))))
     walls = _NO_WALLS if occluder is None else FootprintWalls(occluder.base_m, occluder.slab_top_m,
                                                               occluder.sub_index, occluder.sub_masks, int(occluder.sub),
                                                               occluder.sub_margin_cm)

@@ -383,11 +383,11 @@ def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path)
     assert S._control_versions() == {"measurement": measure.MEASURE_VERSION}
     from ortho.settings import RectifySettings
 
-    # contract-crs-speed changed a contract grid's frame orthos only: a project rectified in its own CRS keeps them
+    # contract-crs-speed changed a contract grid's frame orthos only (2), slope-occlusion every true ortho's (3)
     assert S._rectify_versions(RectifySettings()) == {
         "rectify": ortho.rectify.PROJECT_CRS_RECTIFY_VERSION, "heights by outline": ortho.block.HEIGHTS_BY_OUTLINE,
         "outlines of the occlusion test": ortho.block.OUTLINES_OF_THE_OCCLUSION_TEST}
-    # trial-ortho's frame nodata (review 28) changed the frames declaring nodata in every CRS: both bumped
+    # trial-ortho's frame nodata (review 28), jpeg-decode and slope-occlusion changed frame orthos in every CRS
     assert ortho.rectify.PROJECT_CRS_RECTIFY_VERSION == 3
     assert S._rectify_versions(RectifySettings(crs="EPSG:4546"))["rectify"] == ortho.rectify.RECTIFY_VERSION == 3
     assert S._mosaic_versions() == {"blend rules": ortho.mosaic.BLEND_RULES,
