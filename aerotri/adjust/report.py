@@ -835,13 +835,28 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     # estimates too loose in some directions for their spread to show it) whose check points were 0.40-0.57 m off
     strip_shifts = [c for c in flagged if c.gnss_strip_shifts]
     if strip_shifts:
+        from aerotri.adjust.determinability import tau_interval
+
+        # review 29: the shift's size from few strips is rough (2 strips: 0.51-16 times it at 90 %); a block without
+        # control gets the GNSS weights as its fix, not per-strip shifts it has no datum for
+        def _size(c):
+            n = c.gnss_strip_shifts.get("n_strips", 0)
+            lo, hi = tau_interval(n) if n >= 2 else (math.nan, math.nan)
+            return (f"a shift per strip of about {max(c.gnss_strip_shifts['shift_sigma_m']):.2f} m standard deviation"
+                    + (f" from {n} strips' spread, {lo:.2g} to {hi:.2g} times that at 90 %" if n >= 2 else ""))
+
+        if len(ba.control) > len({c for c, _ in r.rejected_control}):
+            advice = ("Estimate per-strip GNSS shifts ([adjust] gnss_correction = \"shift\", the control points "
+                      "holding the datum) or re-process the trajectory.")
+        else:
+            advice = ("Without control points to hold per-strip GNSS shifts' datum, weight the GNSS by what it holds "
+                      "over a strip ([gnss] sigma_xy_m, sigma_z_m; a drone's receiver: the EXIF import's consumer "
+                      "model, decimetres between frames and one offset for the flight) or re-process the trajectory.")
         weaknesses.append("GNSS strip shifts: " + "; ".join(
             f"the GNSS positions' offsets differ strip by strip beyond their stated sigmas (chi-square "
-            f"{c.gnss_strip_shifts['chi2']:.1f} for {c.gnss_strip_shifts['dof']} degrees of freedom, a shift per "
-            f"strip of about {max(c.gnss_strip_shifts['shift_sigma_m']):.2f} m standard deviation; the {c.group} flag "
-            f"names them)" for c in strip_shifts) + ": the ground follows each strip's GNSS error, which the solve "
-            "does not model. Estimate per-strip GNSS shifts ([adjust] gnss_correction = \"shift\", with control "
-            "points for the datum) or re-process the trajectory.")
+            f"{c.gnss_strip_shifts['chi2']:.1f} for {c.gnss_strip_shifts['dof']} degrees of freedom, {_size(c)}; the "
+            f"{c.group} flag names them)" for c in strip_shifts) + ": the ground follows each strip's GNSS error, "
+            "which the solve does not model. " + advice)
     gcc = gnss_correction_check(ba)
     if gcc is not None and gcc.suspect:
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
