@@ -10,6 +10,12 @@ over 120 m of relief (review 22's, ``geometric_block``), known truth.
    data snooping's alpha 1e-4 throughout): R1 Baarda's MDB (4.73 sigma) at the far corner over the limit, or the
    plane's chi-square (the code's); R2 3 sigma instead of the MDB; R3 R1 or more than half of the height control
    left out; R4 / R5 the MDB or the chi-square alone. Seeds 0-5 looked at, 6-17 scored.
+   Correction-on variant (s29-fixes, review 29: with ``gnss_correction`` the plane's offset was the correction's, the
+   check singular and every block with one control height left out weak): 0.08 m GNSS shifts per strip, corrected
+   by a shift / shift_drift / offset, one control height (the farthest from gcp01) typed 2 m off (``corr_*_typo1``),
+   the GNSS heights 1 m low too (``corr_*_bias_typo1``), 4 typos with the nearest 2 kept (``corr_*_typo_keep2``).
+   ``SURVIVING_SHARE`` was set by reasoning (0.1 between about 1 % and 50 %), not on these seeds: 0-5 and 6-17 both
+   scored (``--correction``: this variant alone, about 1 min).
 2. Unmodelled 0.3 m GNSS shifts per strip against a camera-fixed offset (0.7 m lag) and clean blocks, GNSS only,
    pp estimated (``determinability.strip_shift_test``, ``STRIP_SHIFT_ALPHA`` 0.01 not tuned): what the pp flag names.
    Seeds 0-5 looked at, 6-17 scored.
@@ -45,10 +51,10 @@ ALPHA = 1e-4
 
 
 def height_run(seed: int, case: str, bias_m: float = 0.0, typo_m: float = 0.0, keep: int = 2,
-               tilt_m: float = 0.0) -> dict:
+               tilt_m: float = 0.0, correction: str = "none", shift_m: float = 0.0, typo_far: int = 0) -> dict:
     with tempfile.TemporaryDirectory() as d:
         block = geometric_block(3, 6, seed=seed, camera_true=dmc_camera(), relief_m=120.0, tilt_sigma_deg=0.3,
-                                gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0, 0, 0))
+                                gnss_shift_sigma_m=shift_m, gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0, 0, 0))
         block.camera_nominal = dmc_camera()
         block.gnss_local = block.gnss_local - np.array([0.0, 0.0, bias_m])
         if tilt_m:
@@ -63,13 +69,14 @@ def height_run(seed: int, case: str, bias_m: float = 0.0, typo_m: float = 0.0, k
             rows = [s.split(",") for s in lines[1:]]
             gcp = [r for r in rows if r[0].startswith("gcp")]
             xy = np.array([[float(r[head.index("x")]), float(r[head.index("y")])] for r in gcp])
-            kept = set(np.argsort(np.hypot(*(xy - xy[0]).T))[:keep].tolist())
+            order = np.argsort(np.hypot(*(xy - xy[0]).T))
+            kept = set(order[:len(order) - typo_far].tolist()) if typo_far else set(order[:keep].tolist())
             rng = np.random.default_rng(seed + 100)
             for i, r in enumerate(gcp):
                 if i not in kept:
                     r[head.index("z")] = f"{float(r[head.index('z')]) + typo_m * rng.choice([-1, 1]) * rng.uniform(1, 2):.4f}"
             p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
-        ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True))
+        ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True, gnss_correction=correction))
         rep = to_record(build_report(ba))
     hd = ba.result.height_datum
     dz = np.array([c["d_m"][2] for c in rep["check_points"]], dtype=float)
@@ -77,7 +84,11 @@ def height_run(seed: int, case: str, bias_m: float = 0.0, typo_m: float = 0.0, k
             "left_out": sorted(str(ba.control.id[c]) for c, _ in ba.result.rejected_control),
             "check_rms_z_m": round(float(np.sqrt(np.mean(dz ** 2))), 4), "check_mean_dz_m": round(float(dz.mean()), 4),
             "height_control_not_held": rep["key_statistics"]["height_control_not_held"],
-            "check": None if hd is None else {"corner_sigma_m": round(hd.corner_sigma_m, 4),
+            # the rule's own finding, whatever the check points say (they decide the verdict since s29-fixes)
+            "rule_not_held": bool(hd is not None and len(ba.result.rejected_control) < len(ba.control)
+                                  and not hd.held(LIMIT_Z_M)),
+            "verdict": rep["key_statistics"]["verdict"], "message": rep["key_statistics"]["message"][:400],
+            "check": None if hd is None else {"terms": hd.terms, "corner_sigma_m": round(hd.corner_sigma_m, 4),
                                               "corner_estimate_m": round(hd.corner_estimate_m, 4)
                                               if math.isfinite(hd.corner_estimate_m) else None,
                                               "chi2": round(hd.chi2, 2) if math.isfinite(hd.chi2) else None,
@@ -96,13 +107,24 @@ def height_specs(seeds) -> list[dict]:
     return out
 
 
+def correction_specs(seeds) -> list[dict]:
+    out = []
+    for s in seeds:
+        for c in ("shift", "shift_drift", "offset"):
+            k = dict(seed=s, correction=c, shift_m=0.08, typo_m=2.0)
+            out += [dict(k, case=f"corr_{c}_typo1", typo_far=1), dict(k, case=f"corr_{c}_bias_typo1", typo_far=1,
+                                                                        bias_m=1.0),
+                    dict(k, case=f"corr_{c}_typo_keep2", keep=2, typo_m=1.0)]
+    return out
+
+
 def height_rules(r: dict) -> dict | None:
     c = r["check"]
     if c is None:
         return None
     sd, ch = c["corner_sigma_m"], c["chi2"] if c["chi2"] is not None else float("nan")
     n_out = len(r["left_out"])
-    disagree = math.isfinite(ch) and ch > float(chi2_dist.isf(ALPHA, 3))
+    disagree = math.isfinite(ch) and ch > float(chi2_dist.isf(ALPHA, c.get("terms", 3)))
     mdb = mdb_sigmas(ALPHA) * sd > LIMIT_Z_M
     return {"R1 mdb or chi2 (code)": mdb or disagree, "R2 3 sigma or chi2": 3 * sd > LIMIT_Z_M or disagree,
             "R3 R1 or majority out": mdb or disagree or n_out > (n_out + len(c["left"])) / 2,
@@ -128,10 +150,27 @@ def height_score(rows: list[dict]) -> dict:
             out[tn][rule] = dict(c)
     by_case = collections.defaultdict(collections.Counter)
     for r in rows:
-        by_case[r["case"]]["weak" if r["height_control_not_held"] else "held"] += 1
+        by_case[r["case"]]["weak" if r["rule_not_held"] else "held"] += 1
         by_case[r["case"]]["Ta"] += r["check_rms_z_m"] > LIMIT_Z_M
     out["by_case"] = {k: dict(v) for k, v in by_case.items()}
     return out
+
+
+def correction_score(rows: list[dict]) -> dict:
+    """Per case: runs, the check made (a term left after the correction), the rule not holding the heights, the
+    verdict weak (by any finding: the check points' too), the check points' height RMS over the limit (Ta) and their
+    largest height RMS."""
+    by = collections.defaultdict(collections.Counter)
+    worst = collections.defaultdict(float)
+    for r in rows:
+        c = by[r["case"]]
+        c["runs"] += 1
+        c["checked"] += r["check"] is not None
+        c["rule_not_held"] += r["rule_not_held"]
+        c["verdict_weak"] += r["verdict"] != "successful"
+        c["Ta"] += r["check_rms_z_m"] > LIMIT_Z_M
+        worst[r["case"]] = max(worst[r["case"]], r["check_rms_z_m"])
+    return {k: {**dict(v), "check_rms_z_max_m": worst[k]} for k, v in by.items()}
 
 
 def strip_run(seed: int, case: str, lag_s: float = 0.0, relief: float = 120.0, ppy_mm: float = 0.0,
@@ -188,14 +227,25 @@ def strip_score(rows: list[dict]) -> dict:
 
 def main() -> None:
     logging.disable(logging.WARNING)
+    path = Path(__file__).resolve().parent / "results" / "at_verdicts.json"
+    if "--correction" in sys.argv[1:]:
+        out = json.loads(path.read_text())
+        for name, seeds in (("design", DESIGN), ("scored", SCORED)):
+            rows = [height_run(**s) for s in correction_specs(seeds)]
+            out[name]["correction"] = {"score": correction_score(rows), "rows": rows}
+            print(name, json.dumps(out[name]["correction"]["score"], indent=1), flush=True)
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(out, indent=1) + "\n")
+        tmp.replace(path)
+        return
     out = {"height_limit_m": LIMIT_Z_M, "alpha": ALPHA, "strip_chi2_limit_dof4": round(float(chi2_dist.isf(0.01, 4)), 2)}
     for name, seeds in (("design", DESIGN), ("scored", SCORED)):
         h = [height_run(**s) for s in height_specs(seeds)]
         st = [strip_run(**s) for s in strip_specs(seeds)]
+        cr = [height_run(**s) for s in correction_specs(seeds)]
         out[name] = {"seeds": [seeds.start, seeds.stop - 1], "height": height_score(h), "strips": strip_score(st),
-                     "height_rows": h, "strip_rows": st}
+                     "height_rows": h, "strip_rows": st, "correction": {"score": correction_score(cr), "rows": cr}}
         print(name, json.dumps({"height": out[name]["height"], "strips": out[name]["strips"]}, indent=1), flush=True)
-    path = Path(__file__).resolve().parent / "results" / "at_verdicts.json"
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(out, indent=1) + "\n")
     tmp.replace(path)

@@ -257,11 +257,48 @@ def _xy(v, fmt: str = ".2f") -> str:
     return f"x {format(float(v[0]), fmt)} y {format(float(v[1]), fmt)}"
 
 
+def strip_differences(pg) -> tuple[float, np.ndarray, np.ndarray]:
+    """The per-strip estimates' largest correlation between two strips on one axis, and each strip's estimate less
+    strip 1's with its sigma ((n_strips - 1, 2) each, m): what the chi-square against one offset judges (review 29:
+    Brighton's two strips x +1.75 / +0.71 +- 0.33-0.37 m, their difference known to about a tenth of that).
+    NaN / empty without the covariance."""
+    C = np.asarray(getattr(pg, "strip_offset_cov_m2", np.zeros((0, 0))), dtype=float)
+    est = np.asarray(pg.strip_offset_m, dtype=float)
+    n = len(est)
+    if n < 2 or C.shape != (2 * n, 2 * n):
+        return float("nan"), np.zeros((0, 2)), np.zeros((0, 2))
+    sd = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    r = [abs(C[2 * i + a, 2 * j + a]) / (sd[2 * i + a] * sd[2 * j + a]) for a in range(2) for i in range(n)
+         for j in range(i + 1, n) if sd[2 * i + a] > 0 and sd[2 * j + a] > 0]
+    d = est[1:] - est[0]
+    var = np.array([[C[2 * s + a, 2 * s + a] + C[a, a] - 2 * C[2 * s + a, a] for a in range(2)] for s in range(1, n)])
+    return (max(r) if r else float("nan")), d, np.sqrt(np.clip(var, 0.0, None))
+
+
+def tau_interval(n_strips: int, level: float = 0.9) -> tuple[float, float]:
+    """The factors of a shift per strip's standard deviation estimated from ``n_strips`` strips' spread (their moments:
+    ``n_strips - 1`` degrees of freedom per axis) that bound it at ``level`` (chi-square; 2 strips: 0.51-16)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    k, q = n_strips - 1, (1.0 - level) / 2.0
+    return math.sqrt(k / chi2_dist.isf(q, k)), math.sqrt(k / chi2_dist.ppf(q, k))
+
+
 def _strip_shift_reason(pg, strip_sd: np.ndarray, cal, cal_apriori, cal_cov) -> str:
     """The flag's reason where GNSS strip shifts, not an offset fixed in the camera, explain the principal point's
-    move (the per-strip estimates listed; the fix an operator has)."""
+    move (the per-strip estimates listed, their correlation and differences; the fix an operator has)."""
     est, sd = np.asarray(pg.strip_offset_m), np.asarray(pg.strip_offset_sigma_m)
     per = ", ".join(f"strip {s + 1} x {est[s, 0]:+.2f} y {est[s, 1]:+.2f}" for s in range(min(len(est), 8)))
+    r, d, dsd = strip_differences(pg)
+    diff = ""
+    if len(d):  # review 29: the one offset outside the strips' estimates, and a chi-square beside their sigmas
+        diff = (f"; the estimates are correlated (up to {r:.2f}: the principal point and the orientations take their "
+                "common part), so their differences are known better than each ("
+                + ", ".join(f"strip {s + 2} - strip 1 x {d[s, 0]:+.2f} +- {dsd[s, 0]:.2f} y {d[s, 1]:+.2f} +- "
+                            f"{dsd[s, 1]:.2f}" for s in range(min(len(d), 4)))
+                + f"{', ...' if len(d) > 4 else ''} m), and one offset for all, their combination weighted by that "
+                "correlation, can lie outside them")
+    lo, hi = tau_interval(len(est))
     moves = []
     for name in ("u0", "v0"):
         i = CAL_NAMES.index(f"{name}_px")
@@ -271,14 +308,16 @@ def _strip_shift_reason(pg, strip_sd: np.ndarray, cal, cal_apriori, cal_cov) -> 
     return (f"GNSS strip shifts: the block's estimate of a GNSS position offset fixed in the camera differs strip by "
             f"strip ({per}{', ...' if len(est) > 8 else ''} m, each +- {float(np.median(sd)):.2f} m; chi-square "
             f"{pg.strip_chi2:.1f} for {pg.strip_dof} degrees of freedom against one offset for all strips, beyond "
-            f"{STRIP_SHIFT_ALPHA:g}; a shift per strip of {_xy(pg.strip_tau_m)} m standard deviation), and one "
+            f"{STRIP_SHIFT_ALPHA:g}{diff}; a shift per strip of {_xy(pg.strip_tau_m)} m standard deviation, from "
+            f"the spread of {len(est)} strips: {lo:.2g} to {hi:.2g} times that at 90 %), and one "
             f"offset for all ({_xy(pg.offset_estimate_m, '+.2f')} m) is within {PP_MOVE_SIGMAS:g} of its sigma with "
             f"that scatter ({_xy(strip_sd)} m): GNSS errors shared along each strip that the "
             f"solve does not model explain it, not the camera (a lever arm or time lag beneath them would be within "
             f"that scatter: the block cannot tell); the principal point moved with them ({', '.join(moves)}) and is "
-            f"no calibration to reuse. Estimate per-strip GNSS shifts ([adjust] "
-            f"gnss_correction = \"shift\", or \"shift_drift\"; they need control points for the datum) or re-process "
-            f"the trajectory")
+            f"no calibration to reuse. With control points estimate per-strip GNSS shifts ([adjust] "
+            f"gnss_correction = \"shift\", or \"shift_drift\"; they need the control for the datum); without, weight "
+            f"the GNSS by what it holds over a strip ([gnss] sigma_xy_m, sigma_z_m; a drone's receiver: the EXIF "
+            f"import's consumer model); or re-process the trajectory")
 
 
 def pp_gnss_judgement(pg, cal: np.ndarray, cal_apriori: np.ndarray,
@@ -416,7 +455,7 @@ def _strip_shift_fields(pg, flags: list[str]) -> dict | None:
             "strip_offset_sigma_m": [[r(x) for x in row] for row in np.asarray(pg.strip_offset_sigma_m, dtype=float)],
             "chi2": round(float(pg.strip_chi2), 2), "dof": int(pg.strip_dof),
             "shift_sigma_m": [r(x) for x in pg.strip_tau_m], "offset_m": [r(x) for x in pg.offset_estimate_m],
-            "offset_sigma_m": [r(x) for x in strip_shift_test(pg)]}
+            "offset_sigma_m": [r(x) for x in strip_shift_test(pg)], "n_strips": len(pg.strip_offset_m)}
 
 
 def _pp_gnss_fields(pg, pp_move_px: np.ndarray) -> dict:

@@ -299,6 +299,10 @@ class PrincipalPointGnss:
     strip_offset_sigma_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
     strip_chi2: float = float("nan")
     strip_dof: int = 0
+    # (2 n_strips, 2 n_strips): the per-strip estimates' covariance (m^2, x sigma0^2; strip-major, x then y): they are
+    # correlated (the principal point and the orientations take their common part), so their differences, which the
+    # chi-square judges, are known better than each, and the one offset (their combination by it) may lie outside them
+    strip_offset_cov_m2: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
     # the strips' own scatter about one offset (m, camera x and y): a random shift per strip, its standard deviation by
     # the moments of the per-strip estimates (their spread less what their sigmas explain; 0 where they explain it), and
     # the one offset's sigma (m) with it: the GNSS errors shared along each strip as an error of their own
@@ -404,7 +408,8 @@ def pp_gnss_coupling(block: G.Block, opts: G.SolveSettings, state: G.State, rc, 
             V = to_one @ C @ to_one.T + (to_one * np.tile(tau2, n_s)) @ to_one.T
             pg = dataclasses.replace(pg, strip_offset_m=est_s.reshape(n_s, 2),
                                      strip_offset_sigma_m=np.sqrt(np.clip(np.diag(C), 0.0, None)).reshape(n_s, 2),
-                                     strip_chi2=chi2, strip_dof=2 * (n_s - 1), strip_tau_m=np.sqrt(tau2),
+                                     strip_chi2=chi2, strip_dof=2 * (n_s - 1), strip_offset_cov_m2=C,
+                                     strip_tau_m=np.sqrt(tau2),
                                      offset_sigma_strips_m=np.sqrt(np.clip(np.diag(V), 0.0, None)))
         except np.linalg.LinAlgError:
             pass

@@ -547,13 +547,55 @@ def test_per_strip_offsets_that_disagree_name_gnss_strip_shifts_not_the_camera()
     assert out[0].startswith("GNSS strip shifts: the block's estimate of a GNSS position offset fixed in the camera "
                              "differs strip by strip (strip 1 x +0.10 y -0.90, strip 2 x -0.20 y +0.50")
     assert "chi-square 60.0 for 4 degrees of freedom" in out[0] and "not the camera" in out[0]
-    assert "a shift per strip of x 0.10 y 0.35 m standard deviation" in out[0]
+    assert "a shift per strip of x 0.10 y 0.35 m standard deviation, from the spread of 3 strips: 0.58 to 4.4 times " \
+        "that at 90 %" in out[0]
+    assert "correlated" not in out[0]  # no covariance given: no differences stated
     assert "one offset for all (x +0.00 y -0.30 m) is within 5 of its sigma with that scatter (x 0.05 y 0.20 m)" \
         in out[0]
     assert "v0 -8.0 px (40 standard deviations)" in out[0] and 'gnss_correction = "shift"' in out[0]
     fields = _strip_shift_fields(strips, out)
     assert fields["chi2"] == 60.0 and fields["dof"] == 4 and fields["strip_offset_m"][1] == [-0.2, 0.5]
     assert fields["shift_sigma_m"] == [0.1, 0.35] and fields["offset_sigma_m"] == [0.05, 0.2]
+    assert fields["n_strips"] == 3
+
+
+def test_correlated_strip_estimates_state_their_differences():
+    """Review 29 (Brighton, 2 strips: x +1.75 / +0.71 +- 0.37 / 0.34 m, one offset for all -1.75, chi-square 448 for
+    2): strip estimates correlated 0.97 in x have a difference known to 0.09 m, so the chi-square is large beside their
+    sigmas and their correlation-weighted combination (the one offset) lies outside them; the reason says so. The
+    chi-square recomputed from the difference and its covariance equals the one against one offset (2 strips)."""
+    from aerotri.adjust.determinability import _strip_shift_reason, strip_differences, tau_interval
+    from aerotri.adjust.geometry_modes import PrincipalPointGnss
+
+    sd = np.array([0.37, 0.33, 0.34, 0.31])  # strip 1 x, y, strip 2 x, y
+    R = np.eye(4)
+    R[0, 2] = R[2, 0] = 0.97
+    R[1, 3] = R[3, 1] = 0.95
+    C = R * np.outer(sd, sd)
+    est = np.array([1.75, -0.23, 0.71, -0.94])
+    one = np.tile(np.eye(2), (2, 1))
+    Ci = np.linalg.inv(C)
+    common = np.linalg.solve(one.T @ Ci @ one, one.T @ Ci @ est)
+    e = est - one @ common
+    chi2 = float(e @ Ci @ e)
+    pg = PrincipalPointGnss(px_per_m=np.diag([10.0, 10.0]), offset_correlation=np.array([0.99, 0.99]),
+                            shift_correlation=np.full(2, np.nan), orientation_correlation=np.array([0.5, 0.5]),
+                            offset_estimate_m=common, offset_sigma_m=np.full(2, 0.05),
+                            strip_offset_m=est.reshape(2, 2), strip_offset_sigma_m=sd.reshape(2, 2), strip_chi2=chi2,
+                            strip_dof=2, strip_offset_cov_m2=C, strip_tau_m=np.array([0.73, 0.5]),
+                            offset_sigma_strips_m=np.array([2.5, 2.1]))
+    r, d, dsd = strip_differences(pg)
+    assert r == pytest.approx(0.97) and d[0] == pytest.approx([-1.04, -0.71])
+    assert dsd[0, 0] == pytest.approx(np.sqrt(0.37**2 + 0.34**2 - 2 * 0.97 * 0.37 * 0.34))
+    # the chi-square is the differences' (x and y correlated between strips only): sum of (d / sigma)^2 here
+    assert chi2 == pytest.approx(float(np.sum((d[0] / dsd[0]) ** 2)), rel=1e-9)
+    assert not (min(est[0], est[2]) <= common[0] <= max(est[0], est[2]))  # the one offset outside the two
+    assert tau_interval(2) == pytest.approx((0.51, 15.95), abs=0.01)
+    cal = np.array([1e4, 1e4, 0.0, 500.0, 382.0, 0, 0, 0, 0])
+    text = _strip_shift_reason(pg, np.array([2.5, 2.1]), cal, cal, np.eye(9) * 0.04)
+    assert "correlated (up to 0.97" in text and "strip 2 - strip 1 x -1.04 +- 0.09 y -0.71 +- 0.10" in text
+    assert "can lie outside them" in text and "from the spread of 2 strips: 0.51 to 16 times that at 90 %" in text
+    assert "without, weight the GNSS by what it holds over a strip ([gnss] sigma_xy_m" in text
 
 
 def test_unmodelled_gnss_strip_shifts_are_named_and_weak(tmp_path):
@@ -572,4 +614,7 @@ def test_unmodelled_gnss_strip_shifts_are_named_and_weak(tmp_path):
     ks = to_record(build_report(ba))["key_statistics"]
     assert ks["verdict"] == "weak"
     assert "GNSS strip shifts: the GNSS positions' offsets differ strip by strip" in ks["message"]
-    assert 'gnss_correction = "shift"' in ks["message"] and "re-process the trajectory" in ks["message"]
+    assert "re-process the trajectory" in ks["message"] and "from 3 strips' spread, 0.58 to 4.4 times" in ks["message"]
+    # no control: the GNSS weights, not per-strip shifts it has no datum for (review 29)
+    assert "weight the GNSS by what it holds over a strip ([gnss] sigma_xy_m" in ks["message"]
+    assert "Estimate per-strip GNSS shifts" not in ks["message"]

@@ -15,27 +15,30 @@ from aerotri.geom.camera import dmc_camera
 from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
 
 
-def _project(tmp_path, *, low_m: float = 0.0, mistyped: int = 0):
-    """Review 22's block (DMC at 1,000 m over 120 m of relief, 3 x 6 frames, seed 0), 6 full control points and no
-    check points; gnss.txt heights ``low_m`` low; the heights of the ``mistyped`` control points farthest from gcp01
-    typed 1-2 m off."""
+def _project(tmp_path, *, low_m: float = 0.0, mistyped: int = 0, correction: str = "none", shift_m: float = 0.0,
+             n_check: int = 0, typo_m: float = 1.0):
+    """Review 22's block (DMC at 1,000 m over 120 m of relief, 3 x 6 frames, seed 0), 6 full control points and
+    ``n_check`` check points; gnss.txt heights ``low_m`` low, shifted per strip by ``shift_m`` (standard deviation) and
+    corrected by ``correction``; the heights of the ``mistyped`` control points farthest from gcp01 typed ``typo_m``
+    to twice that off (alternating signs)."""
     block = geometric_block(3, 6, seed=0, camera_true=dmc_camera(), relief_m=120.0, tilt_sigma_deg=0.3,
-                            gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0, 0, 0))
+                            gnss_shift_sigma_m=shift_m, gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0, 0, 0))
     block.camera_nominal = dmc_camera()
     block.gnss_local = block.gnss_local - np.array([0.0, 0.0, low_m])
     root = write_block_project(block, tmp_path / "p")
-    write_truth_observations(root, tie_sigma_px=0.3, n_control=6, n_check=0, points_per_image=100, seed=0)
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=6, n_check=n_check, points_per_image=100, seed=0)
     if mistyped:
         p = root / "control" / "points.csv"
         lines = p.read_text().splitlines()
         head = lines[0].split(",")
         rows = [s.split(",") for s in lines[1:]]
-        xy = np.array([[float(r[head.index("x")]), float(r[head.index("y")])] for r in rows])
-        far = np.argsort(np.hypot(*(xy - xy[0]).T))[len(rows) - mistyped:]
+        gcp = [r for r in rows if r[0].startswith("gcp")]
+        xy = np.array([[float(r[head.index("x")]), float(r[head.index("y")])] for r in gcp])
+        far = np.argsort(np.hypot(*(xy - xy[0]).T))[len(gcp) - mistyped:]
         for k, i in enumerate(far):
-            rows[i][head.index("z")] = f"{float(rows[i][head.index('z')]) + (-1) ** k * (1.0 + 0.2 * k):.4f}"
+            gcp[i][head.index("z")] = f"{float(gcp[i][head.index('z')]) + (-1) ** k * (1.0 + 0.2 * k) * typo_m:.4f}"
         p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
-    ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True))
+    ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True, gnss_correction=correction))
     return ba, to_record(build_report(ba))["key_statistics"]
 
 
@@ -52,9 +55,13 @@ def test_gnss_heights_1_m_low_with_most_height_control_left_out_are_weak(tmp_pat
     assert len(hd.height_control_out) == 4 and len(hd.height_control_left) == 2
     assert hd.disagrees() and hd.corner_estimate_m == pytest.approx(-1.0, abs=0.3)
     assert ks["verdict"] == "weak" and ks["height_control_not_held"]
-    assert "Height control left out by the data snooping: 4 of 6 points with a height" in ks["message"]
+    assert "Height control: 4 of 6 points with a height left out" in ks["message"]
     assert f"the 2 left ({', '.join(hd.height_control_left)}) disagree with the GNSS heights" in ks["message"]
     assert "the block's heights follow the GNSS's, not the control's" in ks["message"]
+    # the 4 out all off the same way (the GNSS heights' error): they may be the right ones, named once (review 29)
+    assert hd.out_agree() and "the points left out, all off the same way, may be the right ones" in ks["message"]
+    assert all(ks["message"].count(i) == 1 for i in hd.height_control_out)
+    assert ks["message"].index("Control left out by the data snooping") < ks["message"].index("Height control: 4")
 
 
 def test_two_mistyped_heights_left_out_with_four_spread_points_left_hold_the_heights(tmp_path):
@@ -76,3 +83,31 @@ def test_four_mistyped_heights_left_out_with_two_left_along_an_edge_do_not_hold_
     assert ks["verdict"] == "weak" and ks["height_control_not_held"]
     assert "the 2 left (gcp01, gcp04) would not detect the GNSS heights off by less than" in ks["message"]
     assert "the block's heights are the GNSS's, unchecked" in ks["message"]
+    # typed off both ways: not "the right ones" (review 29)
+    assert not hd.out_agree() and "may be the right ones" not in ks["message"]
+
+
+def test_with_check_points_with_a_height_they_decide_not_the_rule(tmp_path):
+    """Review 29: the same 2 left along the south edge, 20 check points with a height passing: the rule's "unchecked"
+    finding is not a weakness (the check points check the heights); the message names their result."""
+    ba, ks = _project(tmp_path, mistyped=4, n_check=20)
+    hd = ba.result.height_datum
+    assert hd is not None and not hd.held(1.0)
+    assert not ks["height_control_not_held"] and "unchecked" not in ks["message"]
+    assert "the 20 check points with a height decide the heights: RMS Z 0." in ks["message"]
+
+
+@pytest.mark.parametrize("correction, terms", [("shift_drift", None), ("shift", 1), ("offset", 2)])
+def test_one_mistyped_height_left_out_under_a_gnss_correction_is_not_weak(tmp_path, correction, terms):
+    """Review 29 (the demo, shift_drift, one control height typed 1 m off: weak "cannot determine a plane ... one
+    point, or points on a line" with 6 spread points left; 18 of 18 simulated blocks): the correction takes the GNSS
+    heights' offset (and the tilt across the strips; a drift the tilt along them too): only the rest is judged, and
+    5 spread points hold it (one control height typed 2 m off, 0.08 m GNSS shifts per strip)."""
+    ba, ks = _project(tmp_path, mistyped=1, correction=correction, shift_m=0.08, typo_m=2.0)
+    hd = ba.result.height_datum
+    assert len(ba.result.rejected_control) == 1
+    if terms is None:
+        assert hd is None
+    else:
+        assert hd.terms == terms and hd.layout == "spread" and hd.held(1.0)
+    assert not ks["height_control_not_held"] and "on a line" not in ks["message"]
