@@ -182,18 +182,6 @@ def tile_components(cells: np.ndarray, join_value: np.ndarray, join_tol: float, 
 
 
 @numba.njit(cache=True)
-def _union_pairs(parent, a, b):
-    """Joins the sets of ``a[k]`` and ``b[k]`` (union-find ``parent``, in place; roots by ``lidarctl.grid._find``)."""
-    for k in range(len(a)):
-        x, y = grid._find(parent, a[k]), grid._find(parent, b[k])
-        if x != y:
-            if x < y:
-                parent[y] = x
-            else:
-                parent[x] = y
-
-
-@numba.njit(cache=True)
 def _roots(parent):
     out = np.empty(len(parent), np.int64)
     for k in range(len(parent)):
@@ -305,11 +293,11 @@ def join_tile_regions(tiles, positions=None) -> list[RegionDecisions]:
         for u in near(pos):
             if u in edges:   # this tile's halo cells in that tile's core
                 a, b, rest = _match(hk, hn, *edges[u])
-                _union_pairs(parent, a, b)
+                cl._union(parent, a, b)
                 hk, hn = hk[rest], hn[rest]
             if u in halos:   # that tile's halo cells in this tile's core
                 a, b, rest = _match(*halos[u], ek, en)
-                _union_pairs(parent, a, b)
+                cl._union(parent, a, b)
                 halos[u] = (halos[u][0][rest], halos[u][1][rest])
         if len(hk):
             halos[pos] = (hk, hn)
@@ -911,7 +899,7 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
     if not link.any():
         return None
     parent = np.arange(len(area1), dtype=np.int64)
-    _union_pairs(parent, r[:-1][link].astype(np.int64), r[1:][link].astype(np.int64))
+    cl._union(parent, r[:-1][link].astype(np.int64), r[1:][link].astype(np.int64))
     root = _roots(parent)
     parts = np.bincount(root[np.unique(pairs[:, 1])], minlength=len(area1))
     ids = np.zeros(len(area1), np.int64)
