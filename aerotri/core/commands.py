@@ -90,13 +90,26 @@ class _StdoutToClosedPipe:
     and the finished outputs were rolled back (trial-lidar: ``lidarctl contours ... | head -0`` removed c.gpkg). The
     rest of what it prints is dropped (sent to the null device, so the exit-time flush is quiet too)."""
 
-    def __init__(self, stream):
+    def __init__(self, stream, text: "_StdoutToClosedPipe | None" = None):
         self._stream = stream
-        self.lost = False
+        self._text = text  # the text stream whose ``buffer`` this is (they lose the pipe together)
+        self._lost = False
+
+    @property
+    def lost(self) -> bool:
+        return self._text.lost if self._text is not None else self._lost
+
+    @property
+    def buffer(self):
+        """The binary stream under it (``sys.stdout.buffer.write``), dropping the same way (review 29)."""
+        return _StdoutToClosedPipe(self._stream.buffer, self)
 
     def _closed(self) -> None:
-        if not self.lost:
-            self.lost = True
+        if self._text is not None:
+            self._text._closed()
+            return
+        if not self._lost:
+            self._lost = True
             _logger.debug("standard output closed by its reader; the rest of the command's summary is dropped")
             try:
                 devnull = os.open(os.devnull, os.O_WRONLY)
