@@ -63,7 +63,8 @@ def with_crown_sub_cells(occluder: FootprintOccluder | None, top_m: np.ndarray, 
 @dataclasses.dataclass(frozen=True)
 class CrownDisks:
     """Tree crowns as disks (``lidarctl rasters``' lidar_out/crowns.gpkg): centre ``x_m``, ``y_m``, ``radius_m``,
-    ``top_m`` and crown base ``base_m`` (project CRS, metres; heights in the DSM's system)."""
+    ``top_m`` and crown base ``base_m`` in the units of the grid they meet (``read_crowns``: lengths in the project
+    CRS's unit, as the occlusion DSM's cells; heights in the DSM's height unit and system)."""
 
     x_m: np.ndarray
     y_m: np.ndarray
@@ -78,16 +79,23 @@ class CrownDisks:
 CROWN_FIELDS = ("x_m", "y_m", "radius_m", "top_m", "base_m")
 
 
-def read_crowns(path, project_crs) -> CrownDisks:
+def read_crowns(path, project_crs, height_unit_m: float | None = None) -> CrownDisks:
     """The crowns of the GeoPackage ``path`` (its first layer, in ``project_crs``, with the fields
-    ``CROWN_FIELDS``); ``InputError`` naming the file and what was expected otherwise."""
+    ``CROWN_FIELDS``) in the grid's units: lengths in ``project_crs``'s unit, heights in ``height_unit_m`` metres
+    per unit (None: the height unit of the file's CRS, the DSM's the crowns were fitted on: its vertical CRS's, else
+    its horizontal unit). The fields hold metres (``aerotri.geom.crown_disks.CROWNS_IN_METRES_NOTE``); a file in a
+    CRS whose lengths or heights are not metres without that note in its layer's description was written before
+    (main up to 2026-12-01) and holds them in its CRS's units: read so. ``InputError`` naming the file and what
+    was expected otherwise."""
     from pathlib import Path
 
     import pyogrio
     from pyproj import CRS as _CRS
 
     from aerotri.core.errors import InputError
-    from aerotri.geom.crs.definition import same_horizontal
+    from aerotri.geom.crown_disks import CROWNS_IN_METRES_NOTE
+    from aerotri.geom.crs.definition import height_unit_m as _height_unit_m
+    from aerotri.geom.crs.definition import linear_unit_m, same_horizontal
 
     path = Path(path)
     what = (f"expected the tree crowns of lidarctl rasters (lidar_out/crowns.gpkg: fields {', '.join(CROWN_FIELDS)}) "
@@ -106,6 +114,20 @@ def read_crowns(path, project_crs) -> CrownDisks:
     if missing:
         raise InputError(f"{path}: no field {', '.join(missing)}; {what}")
     cols = {f: np.asarray(fields[names.index(f)], np.float64) for f in CROWN_FIELDS}
+    file_crs = _CRS.from_user_input(meta["crs"])
+    try:
+        description = (pyogrio.read_info(str(path)).get("layer_metadata") or {}).get("DESCRIPTION") or ""
+    except Exception:  # (read above: not expected; a file without a description is read as one written before)
+        description = ""
+    # the fields' units: metres, or the file CRS's (a file written before the note, in a CRS not in metres)
+    xy_m, z_m = ((1.0, 1.0) if CROWNS_IN_METRES_NOTE in description else
+                 (linear_unit_m(file_crs), _height_unit_m(file_crs)))
+    grid_xy_m = linear_unit_m(project_crs)
+    grid_z_m = height_unit_m if height_unit_m is not None else _height_unit_m(file_crs)
+    if xy_m != grid_xy_m:  # (the same units: the numbers as read)
+        cols.update({k: cols[k] * xy_m / grid_xy_m for k in ("x_m", "y_m", "radius_m")})
+    if z_m != grid_z_m:
+        cols.update({k: cols[k] * z_m / grid_z_m for k in ("top_m", "base_m")})
     bad = ~np.all([np.isfinite(v) for v in cols.values()], axis=0) | (cols["radius_m"] <= 0)
     if bad.any():
         raise InputError(f"{path}: crown {int(np.flatnonzero(bad)[0]) + 1} has a missing value or a radius <= 0; "

@@ -57,6 +57,14 @@ class VectorLayer:
     geometry_type: str
     geometries: Sequence
     fields: Mapping[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    # more of the layer's description after ``MARK`` ("written by aerotri; <note>"): what its fields hold, for a
+    # reader to tell file versions apart (QGIS shows it as the abstract); "": the mark alone
+    note: str = ""
+
+
+def layer_description(note: str = "") -> str:
+    """A layer's description in gpkg_contents: ``MARK``, then ``note`` after "; " when there is one."""
+    return f"{MARK}; {note}" if note else MARK
 
 
 def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | None = None) -> Path:
@@ -88,7 +96,8 @@ def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | N
                   fields=list(layer.fields), layer=layer.name, driver=driver, crs=crs,
                   geometry_type=layer.geometry_type, promote_to_multi=layer.geometry_type.startswith("Multi"),
                   append=i > 0, dataset_options={"VERSION": GPKG_VERSION} if gpkg else None,
-                  layer_options={"SPATIAL_INDEX": "YES", "DESCRIPTION": MARK} if gpkg else None)
+                  layer_options={"SPATIAL_INDEX": "YES", "DESCRIPTION": layer_description(layer.note)}
+                  if gpkg else None)
         if gpkg and path.is_file():
             _keep_qgis_styles(path, tmp)
             # the read-only look at a file in WAL mode leaves an empty -wal/-shm (only a writer removes them):
@@ -140,7 +149,8 @@ def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> 
     try:
         present = [str(name) for name, _ in pyogrio.list_layers(path)]
         with contextlib.closing(sqlite3.connect(path.resolve().as_uri() + "?mode=ro", uri=True)) as db:
-            marked = {r[0] for r in db.execute("SELECT table_name FROM gpkg_contents WHERE description = ?", (MARK,))}
+            marked = {r[0] for r in db.execute("SELECT table_name FROM gpkg_contents WHERE description = ? "
+                                               "OR description LIKE ?", (MARK, layer_description("%")))}
     except Exception:  # pyogrio's DataSourceError and kin: not a GeoPackage
         raise OptionError(f"{path}: exists and is not a GeoPackage GDAL can read; it would be replaced as a "
                           "whole: move it (or remove it), or give another file name", param=option) from None

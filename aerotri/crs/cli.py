@@ -76,7 +76,9 @@ def fit_cmd(common_points, model, from_epsg, to_epsg, output):
 @crs.command("fit-heights", outputs=_default_output("points"))
 @click.argument("points", type=click.Path(dir_okay=False))
 @click.option("--model", type=click.Choice(HEIGHT_MODELS), default="plane", show_default=True)
-@click.option("--epsg", "epsg", help="EPSG code of the points' x, y (a metre grid); recorded in the model file. Without it, 'crs transform' evaluates the model on the output coordinates")
+@click.option("--epsg", "epsg", help="EPSG code of the points' x, y (a metre grid; a grid in feet is refused: the model "
+              "file holds metres); recorded in the model file. Without it, 'crs transform' evaluates the model on the "
+              "output coordinates")
 @click.option("--h-crs", "h_crs", help="geographic CRS (datum) of the points' ellipsoidal heights h, e.g. EPSG:4326 for "
               "GNSS heights on WGS 84, EPSG:4490 on CGCS2000; recorded in the model file, which is then applied on h "
               "of that datum; required with --epsg (a levelling table's grid often differs from its heights' datum)")

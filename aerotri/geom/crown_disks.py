@@ -11,6 +11,12 @@ import dataclasses
 import numba
 import numpy as np
 
+# crowns.gpkg (``lidarctl.rasters.crown_model.write_crown_model``) holds its fields x_m, y_m, radius_m, top_m, base_m
+# in metres (lengths by the CRS's horizontal unit, heights by the clouds' height unit); a file in a CRS whose lengths
+# or heights are not metres says so with this note in its layer's description. Such a file without it was written
+# before (main up to 2026-12-01) and holds them in the CRS's units (``ortho.crown_cells.read_crowns`` reads both).
+CROWNS_IN_METRES_NOTE = "crowns: x_m, y_m, radius_m, top_m, base_m in metres"
+
 
 @dataclasses.dataclass(frozen=True)
 class TreeCrowns:

@@ -40,7 +40,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from aerotri.geom.crown_disks import TreeCrowns, crown_sub_cells  # noqa: F401  (the disks' geometry, shared with ortho)
+from aerotri.geom.crown_disks import (CROWNS_IN_METRES_NOTE, TreeCrowns,  # noqa: F401  (shared with ortho)
+                                      crown_sub_cells)
 
 VEGETATION_CLASSES = (3, 4, 5)
 NOISE_CLASSES = (7, 18)
@@ -324,9 +325,10 @@ def write_crown_model(paths, nearest_path, outdir, *, tile_m: float | None = TIL
     """Fit the trees of classified LAS/LAZ files (``paths``: strips in the CRS of the nearest-return DSM
     ``nearest_path``, every return) and write into ``outdir`` the disks (``CROWNS_FILE``: layer ``crowns``, one
     Polygon of 64 vertices per tree with its centre ``x_m``, ``y_m``, ``radius_m``, ``top_m``, ``base_m``,
-    ``returns``, ``circle_fit``; despite the names in the CRS's units, as the DSM) and the occlusion surface
-    (``SURFACE_FILE``: ``crown_surface`` of the DSM, on its grid), both atomically; their paths. The fit is made in
-    metres (a CRS in feet scaled by its unit; heights taken in the same unit).
+    ``returns``, ``circle_fit``; the fields in metres, the polygons in the CRS's units; a CRS not in metres notes
+    ``CROWNS_IN_METRES_NOTE`` in the layer's description) and the occlusion surface (``SURFACE_FILE``:
+    ``crown_surface`` of the DSM, on its grid, in its height unit), both atomically; their paths. The fit is made in
+    metres (lengths by the CRS's unit, heights by the clouds' height unit).
 
     By tiles of ``tile_m`` metres (None: one tile, the whole block in memory): the returns are binned on disk into
     the tiles with a halo of ``crown_halo_m`` (36 m at the demo's spacing), each tile's trees segmented and
@@ -511,18 +513,19 @@ def write_crown_model_run(paths, nearest_path, outdir, *, tile_m: float | None =
                 "crowns: %d cells beside a crown found no ground return within the tiles' halo (%.0f m); their "
                 "height is that of the nearest one within it", beyond, halo_m)
 
-        crowns = dataclasses.replace(crowns, **{k: getattr(crowns, k) / f for k in ("x_m", "y_m", "radius_m")},
-                                     **{k: getattr(crowns, k) / fz for k in ("top_m", "base_m")})
+        # the fields in metres, as named (a QGIS user reads them so); the polygons in the CRS's units. A file whose
+        # CRS is not in metres says so in its description: one without it was written in the CRS's units before
         angles = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
         import shapely
 
         geoms = [shapely.Polygon(np.column_stack([cx + rr * np.cos(angles), cy + rr * np.sin(angles)]))
-                 for cx, cy, rr in zip(crowns.x_m, crowns.y_m, crowns.radius_m)]
+                 for cx, cy, rr in zip(crowns.x_m / f, crowns.y_m / f, crowns.radius_m / f)]
         gpkg = outdir / CROWNS_FILE
         write_layers(gpkg, [VectorLayer("crowns", "Polygon", geoms, {
             "x_m": crowns.x_m, "y_m": crowns.y_m, "radius_m": crowns.radius_m, "top_m": crowns.top_m,
             "base_m": crowns.base_m, "returns": crowns.returns.astype(np.int64),
-            "circle_fit": crowns.circle_fit.astype(np.int64)})], crs=crs.to_wkt(),
+            "circle_fit": crowns.circle_fit.astype(np.int64)},
+            note=CROWNS_IN_METRES_NOTE if (f, fz) != (1.0, 1.0) else "")], crs=crs.to_wkt(),
             timestamp="2000-01-01T00:00:00.000Z")
         tif = outdir / SURFACE_FILE
         with stage_block_cache(SURFACE_CACHE_BYTES), rasterio.open(working) as src, \

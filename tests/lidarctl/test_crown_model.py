@@ -281,6 +281,54 @@ def test_crown_heights_in_the_clouds_height_unit_beside_metre_lengths(tmp_path):
     np.testing.assert_allclose(sf * ft, sm, atol=0.01)
 
 
+@pytest.mark.parametrize(("crs_text", "xy_unit", "z_unit", "noted"), [
+    ("EPSG:32611", 1.0, 1.0, False), ("EPSG:2263", 0.30480060960121924, 0.30480060960121924, True),
+    ("EPSG:32611+6360", 1.0, 0.30480060960121924, True)])
+def test_crowns_file_fields_hold_metres(tmp_path, crs_text, xy_unit, z_unit, noted):
+    """The _m fields of crowns.gpkg in metres whatever the CRS's units (a cloud in feet held feet there: Autzen's
+    radius_m 24.17 for a 7.4 m crown); the polygons in the CRS's units; a CRS not all in metres notes it in the
+    layer's description (the metre file's bytes as before: the mark alone)."""
+    import laspy
+    import pyogrio
+    import rasterio
+    import shapely
+    from pyproj import CRS
+    from rasterio.transform import from_origin
+
+    from aerotri.core.vector_files import MARK
+    from aerotri.geom.crown_disks import CROWNS_IN_METRES_NOTE
+    from lidarctl.rasters.crown_model import write_crown_model
+
+    x, y, z, cls, rn = _scene(6)
+    x0, y0 = 500000.0, 4000000.0
+    crs = CRS.from_user_input(crs_text)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = [0.001] * 3, [x0, y0, 0.0]
+    header.add_crs(crs)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x / xy_unit + x0, y / xy_unit + y0, z / z_unit
+    las.classification, las.return_number, las.number_of_returns = cls, rn, np.where(rn == 1, 1, 2)
+    las.write(tmp_path / "strip.las")
+    dsm, _ = _nearest_dsm(x, y, z, cls, rn)
+    with rasterio.open(tmp_path / "dsm_nearest.tif", "w", driver="GTiff", width=84, height=84, count=1,
+                       dtype="float32", crs=rasterio.crs.CRS.from_wkt(crs.to_wkt()),
+                       transform=from_origin(x0, y0 + 42.0 / xy_unit, 0.5 / xy_unit, 0.5 / xy_unit)) as ds:
+        ds.write(dsm / z_unit, 1)
+    gpkg, _ = write_crown_model([tmp_path / "strip.las"], tmp_path / "dsm_nearest.tif", tmp_path)
+    meta, _, geoms, fields = pyogrio.raw.read(str(gpkg))
+    f = dict(zip(meta["fields"], fields))
+    order = np.argsort(f["x_m"])
+    np.testing.assert_allclose(f["x_m"][order] - x0 * xy_unit, [10.0, 30.3], atol=0.3)
+    np.testing.assert_allclose(f["radius_m"][order], [3.0, 2.2], atol=0.3)
+    np.testing.assert_allclose(f["top_m"][order], [12.0, 8.0], atol=0.05)
+    assert (f["base_m"] < f["top_m"]).all() and (f["base_m"] > 0.5).all()
+    bounds = shapely.bounds(shapely.from_wkb(geoms))  # the polygons in the CRS's units: the disks' boxes
+    np.testing.assert_allclose((bounds[:, 2] - bounds[:, 0]) / 2 * xy_unit, f["radius_m"], rtol=1e-9)
+    np.testing.assert_allclose((bounds[:, 2] + bounds[:, 0]) / 2 * xy_unit, f["x_m"], rtol=1e-9)
+    description = pyogrio.read_info(str(gpkg))["layer_metadata"]["DESCRIPTION"]
+    assert description == (f"{MARK}; {CROWNS_IN_METRES_NOTE}" if noted else MARK)
+
+
 def test_strips_in_another_crs_than_the_dsm_are_refused(tmp_path):
     """Strips in UTM 12N beside a DSM in UTM 11N: an InputError naming the strip, nothing written."""
     import rasterio

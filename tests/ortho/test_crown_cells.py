@@ -191,3 +191,36 @@ def test_the_crowns_put_in_the_frames_own_occluder_are_the_same_as_in_a_copy():
     for name in ("base_m", "slab_top_m", "sub_index", "sub_masks", "sub_margin_cm"):
         assert np.array_equal(getattr(copied, name), getattr(in_place, name)), name
     assert in_place.base_m is given.base_m and copied.sub_index[1, 1] == 0
+
+
+def test_crowns_in_metres_read_in_the_grids_units_and_files_of_before_as_they_were(tmp_path):
+    """crowns.gpkg holds metres in its _m fields (noted in a foot CRS's file); ``read_crowns`` gives the grid's
+    units (Oregon's international-foot grid, heights in feet: 7.4 m radius -> 24.28 ft). A file of a foot CRS
+    without the note was written before, in feet: read as it was."""
+    import shapely
+    from pyproj import CRS
+
+    from aerotri.core.vector_files import VectorLayer, write_layers
+    from aerotri.geom.crown_disks import CROWNS_IN_METRES_NOTE
+    from ortho.crown_cells import read_crowns
+
+    ft = 0.3048
+    crs = CRS.from_epsg(2994)  # NAD83(HARN) / Oregon GIC Lambert (ft), Autzen's
+    x_ft, y_ft = 637000.0, 853000.0
+    disk = shapely.Point(x_ft, y_ft).buffer(7.4 / ft)
+    metres = {"x_m": np.array([x_ft * ft]), "y_m": np.array([y_ft * ft]), "radius_m": np.array([7.4]),
+              "top_m": np.array([158.6]), "base_m": np.array([130.0])}
+    feet = {k: v / ft for k, v in metres.items()}
+    write_layers(tmp_path / "new.gpkg", [VectorLayer("crowns", "Polygon", [disk], metres, note=CROWNS_IN_METRES_NOTE)],
+                 crs=crs)
+    write_layers(tmp_path / "old.gpkg", [VectorLayer("crowns", "Polygon", [disk], feet)], crs=crs)
+    for name in ("new", "old"):
+        c = read_crowns(tmp_path / f"{name}.gpkg", crs)
+        np.testing.assert_allclose([c.x_m[0], c.y_m[0]], [x_ft, y_ft], rtol=0, atol=1e-6)
+        np.testing.assert_allclose([c.radius_m[0], c.top_m[0], c.base_m[0]], [7.4 / ft, 158.6 / ft, 130.0 / ft],
+                                   rtol=1e-12)
+    # heights asked in metres (a DSM in metres on the foot grid): the new file's as held, the old file's converted
+    for name in ("new", "old"):
+        c = read_crowns(tmp_path / f"{name}.gpkg", crs, height_unit_m=1.0)
+        np.testing.assert_allclose([c.top_m[0], c.base_m[0]], [158.6, 130.0], rtol=1e-12)
+        assert abs(c.radius_m[0] - 7.4 / ft) < 1e-9

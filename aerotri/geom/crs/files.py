@@ -255,6 +255,13 @@ def read_height_points(path, crs=None):
         c = parse_crs(crs, "--epsg")
         if not c.is_projected:
             raise InputError(f"--epsg {crs_label(c)}: height anomaly models need a projected (metre) CRS")
+        if abs(linear_unit_m(c) - 1.0) > 1e-12:
+            # the model file keeps its origin in metres and its slopes per km (origin_m, "m/km"): a foot grid's x, y
+            # would put feet under those names (the heights it gives would be right, its file wrong)
+            raise InputError(f"--epsg {crs_label(c)} ({c.name}): x, y in {unit_name(c)}; height anomaly models "
+                             "need a metre grid (the model file holds its origin in metres, slopes in m/km): give "
+                             "the points' x, y in one (e.g. the UTM zone; h and H stay in metres) with its EPSG code. "
+                             "'crs transform --heights' evaluates the model in its grid whatever CRS it writes")
         rec = [f"line {ln} (id {pid})" for ln, pid in zip(table.line_numbers, ids)]
         check_coordinates(c, v["x"], v["y"], str(table.path), rec)
     return ids, v["x"], v["y"], v["h"], v["H"]

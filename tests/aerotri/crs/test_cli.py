@@ -81,6 +81,28 @@ def test_fit_heights_and_transform_with_heights(tmp_path):
     assert r.exit_code == 2 and f"{few}: height model quadratic needs at least 6 points, got 4" in r.output
 
 
+def test_fit_heights_refuses_a_foot_grid_and_reads_old_foot_models(tmp_path):
+    """--epsg of a grid in feet (Autzen's EPSG:2994): refused, naming it and the metre grid it needs (the model file
+    would hold feet under origin_m and slopes per 1,000 ft under "m/km"); a model file written so before still
+    loads and gives the same zeta."""
+    x = np.array([636100.0, 637100.0, 636500.0, 636900.0])
+    y = np.array([849000.0, 849100.0, 849450.0, 849300.0])
+    h = np.array([100.0, 101.0, 102.0, 103.0])
+    zeta = -21.0 + 0.002 * (x - 636650.0) / 1000.0
+    pts = _write(tmp_path / "lev.csv", "id,x,y,h,H\n" + "".join(
+        f"L{i},{x[i]:.2f},{y[i]:.2f},{h[i]:.4f},{h[i] - zeta[i]:.4f}\n" for i in range(4)))
+    model = tmp_path / "zeta.json"
+    r = _run("fit-heights", pts, "--epsg", "2994", "--h-crs", "EPSG:4326", "-o", model)
+    assert r.exit_code == 2 and "--epsg EPSG:2994" in r.output and "x, y in ft" in r.output
+    assert "metre grid" in r.output and "Traceback" not in r.output and not model.exists()
+    old = _write(tmp_path / "old.json", json.dumps({  # as main up to 2026-12-01 wrote it for that table
+        "model": "plane", "crs": "EPSG:2994", "origin_m": [636650.0, 849212.5], "h_crs": "EPSG:4326",
+        "coefficients": [-21.0, 0.002, 0.0], "coefficient_units": "m, m/km, m/km^2 for 1, dx, dy, dx^2, dx dy, "
+        "dy^2 (dx, dy in km)"}))
+    m = load_height_model(old)
+    np.testing.assert_allclose(m.zeta_m(x, y), zeta, atol=1e-9)
+
+
 def test_transform_refuses_ballpark_without_output(tmp_path):
     pts = tmp_path / "pts.csv"
     pts.write_text("id,x,y,z\nA,441000.0,3791000.0,500.0\n")
