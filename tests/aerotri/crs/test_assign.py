@@ -80,16 +80,83 @@ def test_assign_retags_a_wrong_crs_record_without_moving_a_point(tmp_path, versi
 
 
 def test_assign_refuses_a_crs_the_coordinates_cannot_be_in(tmp_path):
-    """The header bounds against the CRS's area of use: RD coordinates are no ETRS89 / UTM 32N (lat 4 deg N) and no
-    degrees; exit 2, no output."""
+    """Only what the CRS cannot hold is refused: RD coordinates are no degrees (EPSG:4326), no Gauss-Krueger zone 3
+    eastings (no prefix 3); exit 2, no output. Outside the area of use (RD in UTM 32N, lat 4 deg N) is a warning."""
     src = _cloud(tmp_path / "wrong.las", "1.4", 6, crs="EPSG:32631")
-    for target, why in (("EPSG:25832", "outside the area of use of EPSG:25832"), ("EPSG:4326", "not a longitude")):
+    for target, why in (("EPSG:4326", "not a longitude"), ("EPSG:31467", "zone prefix 3")):
         r = _run("assign", src, tmp_path / "o.las", "--crs", target)
         assert r.exit_code == 2 and r.output.startswith("Error: ") and r.output.count("\n") == 1, r.output
         assert str(src) in r.output and why in r.output and "not re-tagged" in r.output
     r = _run("assign", src, tmp_path / "o.csv", "--crs", "EPSG:28992")
     assert r.exit_code == 2 and ".las or .laz" in r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["wrong.las"]
+    r = _run("assign", src, tmp_path / "o.las", "--crs", "EPSG:25832")
+    assert r.exit_code == 0 and "outside the area of use of EPSG:25832" in r.output and "all the same" in r.output
+
+
+@pytest.mark.parametrize("target,lon,lat", [("EPSG:25833", 10.7, 59.9), ("EPSG:25833", 5.3, 60.4),
+                                            ("EPSG:25832", 14.9, 51.2), ("EPSG:25831", 7.1, 53.2),
+                                            ("EPSG:32633", 19.5, 47.5)])
+def test_assign_takes_a_national_grid_past_its_zones_area(tmp_path, target, lon, lat):
+    """Review 31: Oslo and Bergen in EPSG:25833 (Norway's grid), Goerlitz in 25832 (Germany's), Groningen in 25831,
+    Budapest in 32633 lie 1.5-6.7 deg past the zone's area of use (+1 deg margin) and were refused: re-tagged now,
+    the warning names the area of use."""
+    x0, y0 = pyproj.Transformer.from_crs("EPSG:4326", target, always_xy=True).transform(lon, lat)
+    h = laspy.LasHeader(version="1.2", point_format=3)
+    h.scales, h.offsets = [0.01] * 3, [round(x0, -3), round(y0, -3), 0.0]
+    d = laspy.LasData(h)
+    d.x, d.y, d.z = x0 + np.arange(20.0), y0 + np.arange(20.0), np.zeros(20)
+    d.write(tmp_path / "c.las")
+    r = _run("assign", tmp_path / "c.las", tmp_path / "o.las", "--crs", target)
+    assert r.exit_code == 0 and f"outside the area of use of {target}" in r.output, r.output
+    assert same_crs(laspy.read(tmp_path / "o.las").header.parse_crs(), target)
+
+
+def test_check_coordinates_warn_refuses_only_points_the_crs_cannot_hold():
+    """``outside_area="warn"``: a northing beyond the pole (UTM 33N, 12,000 km: PROJ takes it to lon -165), a point
+    outside the projection's domain (not finite) are refused; Bergen in UTM 33 is the returned warning."""
+    from aerotri.core.errors import InputError
+    from aerotri.geom.crs.definition import check_coordinates, impossible_in, parse_crs
+
+    utm33 = parse_crs("EPSG:25833")
+    assert impossible_in(utm33, [259544.0, -28666.0, -3e6], [6648086.0, 6689498.0, 5e6]) is None
+    assert impossible_in(utm33, [259544.0, 500000.0], [6648086.0, 12e6]) == 1
+    assert impossible_in(utm33, [4e7], [5e6]) == 0
+    for x, y in ((500000.0, 12e6), (4e7, 5e6)):
+        with pytest.raises(InputError, match="cannot be a point of EPSG:25833"):
+            check_coordinates(utm33, [x], [y], "f", outside_area="warn")
+    msg = check_coordinates(utm33, [-28666.0], [6689498.0], "f", outside_area="warn")
+    assert msg.startswith("f: point 1: (-28666.000, 6689498.000) lies outside the area of use of EPSG:25833")
+    with pytest.raises(InputError, match="outside the area of use"):
+        check_coordinates(utm33, [-28666.0], [6689498.0], "f")  # the other commands: refused as before
+    assert check_coordinates(utm33, [500000.0], [6.6e6], "f", outside_area="warn") is None
+
+
+def test_copc_input_is_refused_by_name_and_merge_writes_it_plain(tmp_path):
+    """Review 31: a COPC LAZ to crs assign / transform stopped with laspy's NotImplementedError traceback (exit 1);
+    refused now (exit 2, no output), naming COPC and lidarctl merge, which writes a plain LAZ of every point."""
+    from lidarctl.merge import merge_las
+
+    h = laspy.LasHeader(version="1.4", point_format=6)
+    h.scales, h.offsets = [0.01] * 3, [85000.0, 445000.0, 0.0]
+    las.add_crs(h, pyproj.CRS(28992))
+    h.vlrs.append(laspy.VLR("copc", 1, "copc info", bytes(160)))
+    d = laspy.LasData(h)
+    d.x, d.y, d.z = 85000 + np.arange(50.0), 445000 + np.arange(50.0), np.zeros(50)
+    d.write(tmp_path / "c.copc.laz")
+    src = tmp_path / "c.copc.laz"
+    assert las.is_copc(las.read_header(src))
+    for args in (("assign", src, tmp_path / "o.laz", "--crs", "EPSG:28992"),
+                 ("transform", src, tmp_path / "o.laz", "--to", "EPSG:25831")):
+        r = _run(*args)
+        assert r.exit_code == 2 and r.output.startswith("Error: ") and "a COPC file" in r.output, r.output
+        assert "lidarctl merge" in r.output and r.output.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.copc.laz"]
+    assert merge_las([src], tmp_path / "plain.laz") == 50
+    assert not las.is_copc(las.read_header(tmp_path / "plain.laz"))
+    r = _run("assign", tmp_path / "plain.laz", tmp_path / "o.laz", "--crs", "EPSG:28992")
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(laspy.read(tmp_path / "o.laz").x, d.x)
 
 
 def test_a_wkt1_with_towgs84_is_its_own_epsg_code(tmp_path):
