@@ -102,17 +102,72 @@ def without_bound(crs: pyproj.CRS) -> pyproj.CRS:
     return crs
 
 
+# A bound CRS (TOWGS84) is its source CRS when PROJ's transformation from one to the other (what CrsTransformer does
+# with them) moves no point of the area by more than this: RD New's usual TOWGS84 against EPSG:28992 moves none (0.000
+# m), a wrong one (review 31: 593.16,26.15,...) 48.6 m, a PROJ string's +towgs84 against the EPSG CRS 45-86 m
+BOUND_SAME_M = 0.1
+
+
 def same_crs(a, b) -> bool:
     """True when two CRSs are the same (axis order ignored; definitions that differ only in naming but
-    carry the same EPSG identity agree; a bound CRS, WKT1 with TOWGS84, is its source CRS: s27-fixes, RD New with
-    TOWGS84 was not EPSG:28992); None equals only None."""
+    carry the same EPSG identity agree); None equals only None. A bound CRS (WKT1 with TOWGS84, PROJ text with
+    +towgs84) is the same as another that agrees with its source CRS only when PROJ's transformation between the two,
+    which ``CrsTransformer`` applies, moves points of the area by under ``BOUND_SAME_M`` (s27-fixes: RD New with its
+    usual TOWGS84 is EPSG:28992; review 31: one with another TOWGS84 is not, its points would move 48.6 m): the
+    same CRS is never transformed, another never left unshifted."""
     if a is None or b is None:
         return a is None and b is None
-    a, b = without_bound(parse_crs(a)), without_bound(parse_crs(b))
+    a, b = parse_crs(a), parse_crs(b)
+    if a.equals(b, ignore_axis_order=True):
+        return True
+    ua, ub = without_bound(a), without_bound(b)
+    if not _same_unbound(ua, ub):
+        return False
+    if ua is a and ub is b:
+        return True
+    return _bound_shift_m(horizontal_crs(a), horizontal_crs(b)) < BOUND_SAME_M
+
+
+def _same_unbound(a: pyproj.CRS, b: pyproj.CRS) -> bool:
     if a.equals(b, ignore_axis_order=True):
         return True
     ea, eb = a.to_epsg(min_confidence=70), b.to_epsg(min_confidence=70)
     return ea is not None and ea == eb
+
+
+@functools.lru_cache(maxsize=64)
+def _bound_shift_m(a: pyproj.CRS, b: pyproj.CRS) -> float:
+    """The largest horizontal move (m; inf when PROJ fails) of PROJ's transformation from ``a`` to ``b`` at the
+    corners and centre of the area of use of either (else around the projection's origin), given in ``a``."""
+    base = without_bound(a)
+    aou = next((c.area_of_use for c in (without_bound(b), base, b, a) if c.area_of_use is not None), None)
+    if aou is not None and aou.east > aou.west:
+        lon = np.array([aou.west, aou.east, aou.west, aou.east, 0.5 * (aou.west + aou.east)])
+        lat = np.array([aou.south, aou.south, aou.north, aou.north, 0.5 * (aou.south + aou.north)])
+        # 0.1 of the way in: an area's corners may lie past a projection's domain (UTM's 84 deg N)
+        lon = lon + 0.1 * (lon[4] - lon)
+        lat = lat + 0.1 * (lat[4] - lat)
+    else:
+        op = base.coordinate_operation
+        params = {p.name.lower(): p.value for p in op.params} if op is not None else {}
+        lon0 = next((v for k, v in params.items() if k.startswith("longitude of")), 0.0)
+        lat0 = next((v for k, v in params.items() if k.startswith("latitude of")), 0.0)
+        lon = lon0 + np.array([-1.0, 1.0, -1.0, 1.0, 0.0])
+        lat = np.clip(lat0 + np.array([-1.0, -1.0, 1.0, 1.0, 0.0]), -89.0, 89.0)
+    try:
+        with np.errstate(all="ignore"):
+            x, y = pyproj.Transformer.from_crs(base.geodetic_crs, base, always_xy=True).transform(lon, lat)
+            X, Y = pyproj.Transformer.from_crs(a, b, always_xy=True).transform(x, y)
+    except pyproj.exceptions.ProjError:
+        return math.inf
+    if base.is_geographic:
+        dx = (np.asarray(X) - x) * 111_320.0 * np.cos(np.radians(lat))
+        dy = (np.asarray(Y) - y) * 111_320.0
+    else:
+        dx = (np.asarray(X) - x) * linear_unit_m(base)
+        dy = (np.asarray(Y) - y) * linear_unit_m(base)
+    shift = np.hypot(dx, dy)
+    return float(shift.max()) if np.all(np.isfinite(shift)) else math.inf
 
 
 def same_horizontal(a, b) -> bool:

@@ -174,6 +174,42 @@ def test_a_wkt1_with_towgs84_is_its_own_epsg_code(tmp_path):
     assert not same_horizontal(pyproj.CRS(RD_TOWGS84), "EPSG:32631")
 
 
+GK3 = "+proj=tmerc +lat_0=0 +lon_0=9 +k=1 +x_0=3500000 +y_0=0 +ellps=bessel +units=m +no_defs"
+UTM32 = "+proj=utm +zone=32 +ellps=GRS80 +units=m"
+RD_PROJ = ("+proj=sterea +lat_0=52.15616055555555 +lon_0=5.38763888888889 +k=0.9999079 +x_0=155000 +y_0=463000 "
+           "+ellps=bessel +units=m")
+
+
+@pytest.mark.parametrize("a,b,same", [
+    (RD_TOWGS84, "EPSG:28992", True),  # RD New's usual TOWGS84: PROJ moves no point
+    # review 31's raster (WKT1 of GDAL, no authority codes): 48.6 m. (With RD_TOWGS84's EPSG codes in it PROJ takes
+    # the CRS for EPSG:28992 and ignores any TOWGS84 between the two: same, no move)
+    (pyproj.CRS(RD_PROJ + " +towgs84=593.16,26.15,478.54,-6.3239,-0.5008,-5.5487,4.0775").to_wkt("WKT1_GDAL"),
+     "EPSG:28992", False),
+    (RD_PROJ + " +towgs84=565.417,50.3319,465.552,-0.398957,0.343988,-1.8774,4.0725", "EPSG:28992", True),
+    (RD_PROJ + " +towgs84=598.1,73.7,418.2,0.202,0.045,-2.455,6.7", "EPSG:28992", False),  # DHDN's: 45 m
+    (UTM32 + " +towgs84=0,0,0", "EPSG:25832", True),
+    (UTM32 + " +towgs84=100,100,100", "EPSG:25832", False),  # 86 m
+    (GK3 + " +towgs84=598.1,73.7,418.2,0.202,0.045,-2.455,6.7",
+     GK3 + " +towgs84=577.326,90.129,463.919,5.137,1.474,5.297,2.4232", False),  # DHDN against MGI: 60 m
+])
+def test_a_bound_crs_is_its_base_only_when_its_towgs84_moves_no_point(a, b, same):
+    """Review 31: same_crs called every bound CRS its base CRS while CrsTransformer applied the TOWGS84 (a raster warp
+    kept the grid and cropped the picture 48.6 m off; imports skipped the shift). One rule now: same exactly when
+    the transformation CrsTransformer applies moves the points by under BOUND_SAME_M (0.1 m)."""
+    from aerotri.geom.crs.definition import BOUND_SAME_M
+    from aerotri.geom.crs.transform import CrsTransformer
+
+    assert same_crs(a, b) is same and same_crs(b, a) is same
+    src = pyproj.CRS(a)
+    base = src.source_crs if src.is_bound else src
+    lon, lat = (9.5, 50.0) if "tmerc" in a or "utm" in a else (5.2, 52.1)
+    x, y = pyproj.Transformer.from_crs(base.geodetic_crs, base, always_xy=True).transform(lon, lat)
+    X, Y, _ = CrsTransformer(a, b, allow_ballpark=True).transform(np.array([x]), np.array([y]), np.array([0.0]))
+    moved = float(np.hypot(X[0] - x, Y[0] - y))
+    assert (moved < BOUND_SAME_M) is same, moved
+
+
 def test_refusal_names_a_datum_realisation_and_a_wkt_crs_by_its_name(tmp_path):
     """WGS 84 (G1762) / UTM 32N is no EPSG:32632 (the ensemble): still refused, saying the realisation differs; a
     WKT --crs is named once, by its name, not echoed whole."""
