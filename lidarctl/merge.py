@@ -65,10 +65,12 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     header.global_encoding = first.global_encoding
     if project_crs is not None:
         # the merged file states the project CRS (strips without a CRS record are taken to be in it)
-        header.vlrs = [v for v in first.vlrs if not _is_crs_vlr(v)]
+        header.vlrs = [v for v in las.copc_free(first.vlrs) if not _is_crs_vlr(v)]
         header.add_crs(project_crs)
     else:
-        header.vlrs = list(first.vlrs)
+        # a COPC strip's records point into its own chunks: the merged file is a plain LAS/LAZ (laspy writes no COPC:
+        # a traceback, review 31)
+        header.vlrs = las.copc_free(first.vlrs)
     total = 0
     with atomic_path(out_path) as tmp:
         with laspy.open(tmp, mode="w", header=header) as w:

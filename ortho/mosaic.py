@@ -3137,11 +3137,16 @@ class SeamMisalignment:
         match or by refinement."""
         return self.patches + self.one_direction + self.unsettled + (self.unmatched or 0)
 
+    @property
+    def unmatched_limit(self) -> float:
+        """The largest unmatched share a seam may have: this record's, else ``SEAM_MAX_UNMATCHED_SHARE``."""
+        return self.max_unmatched_share if self.max_unmatched_share is not None else SEAM_MAX_UNMATCHED_SHARE
+
     def unmatched_seams(self) -> tuple[SeamPair, ...]:
         """The seams of at least ``least_patches`` textured patches more than ``max_unmatched_share``
         (``SEAM_MAX_UNMATCHED_SHARE``) of which found no match, most unmatched first: frames off by more than the
         search (their seams lose their patches instead of reading the shift) or not the same ground there."""
-        share = self.max_unmatched_share if self.max_unmatched_share is not None else SEAM_MAX_UNMATCHED_SHARE
+        share = self.unmatched_limit
         seams = (p for p in self.per_seam if p.unmatched is not None and p.textured >= self.least_patches
                  and p.unmatched_share > share)
         return tuple(sorted(seams, key=lambda p: (-p.unmatched_share, -p.unmatched)))

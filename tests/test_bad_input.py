@@ -912,8 +912,12 @@ CASES = [
     C("crs_assign_empty_las", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs 32649",
       "cloud.las", empty("las/cloud.las")),
     C("crs_assign_unknown_crs", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs EPSG:999999", "--crs"),
-    C("crs_assign_implausible_crs", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs EPSG:28992",
-      ["cloud.las", "outside the area of use of EPSG:28992", "not re-tagged"]),
+    # outside the area of use is a warning (national grids past their zone, review 31); a CRS the coordinates cannot
+    # be in is refused: UTM eastings are no Gauss-Krueger zone 3 ones (no prefix 3), no degrees
+    C("crs_assign_implausible_crs", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs EPSG:31467",
+      ["cloud.las", "zone prefix 3", "not re-tagged"]),
+    C("crs_assign_degrees_crs", "aerotri", "crs assign {w}/las/cloud.las {w}/out.las --crs EPSG:4326",
+      ["cloud.las", "not a longitude", "not re-tagged"]),
     C("crs_assign_output_is_input", "aerotri", "crs assign {w}/las/cloud.las {w}/las/cloud.las --crs 32649",
       "cloud.las"),
     C("crs_assign_point_list", "aerotri", "crs assign {w}/las/pts.csv {w}/out.las --crs 32649",

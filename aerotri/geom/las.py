@@ -80,6 +80,28 @@ def open_las(path, decompression_selection=None):
     return reader
 
 
+def is_copc(header: laspy.LasHeader) -> bool:
+    """Whether the header has a COPC record (user id "copc": the COPC info VLR, the hierarchy EVLR)."""
+    return any(getattr(v, "user_id", "") == "copc" for v in list(header.vlrs) + list(header.evlrs or []))
+
+
+def refuse_copc(path, header: laspy.LasHeader, command: str) -> None:
+    """InputError for a COPC (cloud-optimized point cloud) file given to ``command``, which rewrites the points in
+    chunks of its own: the COPC records' octree hierarchy points at byte offsets of the input's chunks, wrong in the
+    output (and laspy writes no COPC: its info record raised NotImplementedError, a traceback, review 31)."""
+    if is_copc(header):
+        raise InputError(
+            f"{path}: a COPC file (cloud-optimized point cloud): {command} writes the points in other LAZ chunks, so "
+            "its COPC hierarchy (byte offsets of the input's chunks) would be wrong; write it as a plain LAZ first "
+            f"(lidarctl merge {path} PLAIN.laz keeps every point and dimension and drops the COPC records; or "
+            "pdal translate), then give that")
+
+
+def copc_free(vlrs) -> list:
+    """``vlrs`` without the COPC records (a file rewritten chunk by chunk is a plain LAS/LAZ file)."""
+    return [v for v in vlrs if getattr(v, "user_id", "") != "copc"]
+
+
 def read_header(path) -> laspy.LasHeader:
     """The checked header of a LAS/LAZ file (``open_las``)."""
     with open_las(path) as reader:

@@ -136,7 +136,8 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
     the worst seam (largest RMS of the seams of at least ``least_patches`` patches) against ``seam_worst_rms_px``
     (a table without it: the block's ``seam_misalignment_rms_px``): one frame off shows on its seams only, diluted
     in the block RMS. A seam most of whose textured patches found no match (``unmatched_seams``: frames off by more
-    than the search) fails the worst-seam row (and the block row when nothing matched). A record measured before the
+    than the search) fails the worst-seam row (and the block row when nothing matched), with no value (the unmatched
+    share in the note) and only against a limit (none: reported, not judged). A record measured before the
     texture floor (review 20) leaves the worst seam unjudged. Not measured is said, not judged."""
     s = dom_check.seams
     block_limit = tol.get("seam_misalignment_rms_px")
@@ -167,7 +168,7 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
             why = (f"0 of {s.examined} patches matched ({counts}): {_unmatched_note(lost)}: {off}" if lost
                    else f"not measured (0 of {s.examined} patches: {counts})")
         rows = [QaCheck("seam_misalignment_rms_px", sec, name, None, block_limit, "px", why,
-                        "fail" if lost else None, "seam_misalignment_rms_px")]
+                        "fail" if lost and block_limit is not None else None, "seam_misalignment_rms_px")]
         if not lost:
             return rows
     else:
@@ -192,11 +193,15 @@ def _seam_rows(sec: str, dom_check, tol: dict) -> list[QaCheck]:
                             "not judged: measured before the texture floor; re-run ortho check", None, key))
         return rows
     if lost:
-        note = f"{_unmatched_note(lost)}: {off}"
+        # no value: the matched seams' worst RMS under the limit beside "fail" read as a pass failed (Brighton: 1.895
+        # px against 2.5, review 31); the fail is the unmatched share, said in the note. No limit: not judged
+        share = (f"; the worst seam's unmatched share {100 * lost[0].unmatched_share:.0f} % of its textured patches "
+                 f"(more than {100 * s.unmatched_limit:.0f} % fails the seam)")
+        note = f"{_unmatched_note(lost)}: {off}{share}"
         if worst is not None:
-            note += f"; of the seams matched: {worst.image_a} / {worst.image_b} {worst.rms_px:.3f} px"
-        rows.append(QaCheck("seam_worst_rms_px", sec, name, None if worst is None else round(worst.rms_px, 3), limit,
-                            "px", note + whose, "fail", key))
+            note += f"; of the seams matched the worst: {worst.image_a} / {worst.image_b} {worst.rms_px:.3f} px"
+        rows.append(QaCheck("seam_worst_rms_px", sec, name, None, limit, "px", note + whose,
+                            "fail" if limit is not None else None, key))
         return rows
     if worst is None:
         most = max(s.per_seam, key=lambda p: p.patches, default=None)

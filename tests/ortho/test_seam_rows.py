@@ -241,3 +241,35 @@ def test_seams_whose_textured_patches_all_found_no_match_fail_not_unmeasured(tmp
     assert block.verdict is None and block.note == ("not measured (0 of 33 patches: 30 below the texture floor 0.5, "
                                                     "3 above it without a match)")
     assert not rep.has("seam_worst_rms_px") and rep.not_judged == ("seam_misalignment_rms_px",)
+
+
+def test_unmatched_seams_fail_only_against_a_limit_and_show_no_passing_value():
+    """Review 31 (Brighton): a seam all of whose textured patches found no match failed the worst-seam row showing the
+    matched seams' worst, 1.895 px, under its 2.5 px limit, and failed it with no limit at all. The row now has no
+    value (the unmatched share in the note) and fails against a limit only; the block row likewise."""
+    import types
+
+    from aerotri.qa.report import _seam_rows
+
+    seams = {"patch_px": 32, "patches": 12, "rms_px": 1.9, "max_px": 3.0, "one_direction": 4, "unsettled": 0,
+             "unmatched": 8, "min_texture_ratio": 0.5, "min_patches": 5, "max_unmatched_share": 0.5,
+             "per_seam": [{"image_a": "a", "image_b": "b", "patches": 0, "rms_px": None, "max_px": None,
+                           "unmatched": 8},
+                          {"image_a": "b", "image_b": "c", "patches": 12, "rms_px": 1.895, "max_px": 3.0,
+                           "unmatched": 0}]}
+    s = SeamMisalignment.of_record(seams)
+    dom = types.SimpleNamespace(seams=s, seams_rms_px=s.rms_px, seam_patches=s.patches)
+    block, worst = _seam_rows("DOM", dom, {"seam_misalignment_rms_px": 2.5})
+    assert block.verdict == "pass" and block.value == 1.9
+    assert worst.value is None and worst.limit == 2.5 and worst.verdict == "fail"
+    assert "the worst seam's unmatched share 100 % of its textured patches (more than 50 % fails" in worst.note
+    assert "of the seams matched the worst: b / c 1.895 px" in worst.note
+    block, worst = _seam_rows("DOM", dom, {})
+    assert block.verdict is None and worst.verdict is None and worst.value is None and worst.limit is None
+    assert worst.note.startswith("1 seam did not match (a / b 8 of 8 textured patches unmatched)")
+    # nothing matched and no limit: the block row says so, unjudged
+    seams.update(patches=0, rms_px=None, max_px=None, per_seam=seams["per_seam"][:1])
+    s = SeamMisalignment.of_record(seams)
+    rows = _seam_rows("DOM", types.SimpleNamespace(seams=s, seams_rms_px=None, seam_patches=0), {})
+    assert [(r.value, r.verdict) for r in rows] == [(None, None), (None, None)]
+    assert rows[0].note.startswith("0 of 12 patches matched")

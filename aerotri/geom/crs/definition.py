@@ -102,17 +102,72 @@ def without_bound(crs: pyproj.CRS) -> pyproj.CRS:
     return crs
 
 
+# A bound CRS (TOWGS84) is its source CRS when PROJ's transformation from one to the other (what CrsTransformer does
+# with them) moves no point of the area by more than this: RD New's usual TOWGS84 against EPSG:28992 moves none (0.000
+# m), a wrong one (review 31: 593.16,26.15,...) 48.6 m, a PROJ string's +towgs84 against the EPSG CRS 45-86 m
+BOUND_SAME_M = 0.1
+
+
 def same_crs(a, b) -> bool:
     """True when two CRSs are the same (axis order ignored; definitions that differ only in naming but
-    carry the same EPSG identity agree; a bound CRS, WKT1 with TOWGS84, is its source CRS: s27-fixes, RD New with
-    TOWGS84 was not EPSG:28992); None equals only None."""
+    carry the same EPSG identity agree); None equals only None. A bound CRS (WKT1 with TOWGS84, PROJ text with
+    +towgs84) is the same as another that agrees with its source CRS only when PROJ's transformation between the two,
+    which ``CrsTransformer`` applies, moves points of the area by under ``BOUND_SAME_M`` (s27-fixes: RD New with its
+    usual TOWGS84 is EPSG:28992; review 31: one with another TOWGS84 is not, its points would move 48.6 m): the
+    same CRS is never transformed, another never left unshifted."""
     if a is None or b is None:
         return a is None and b is None
-    a, b = without_bound(parse_crs(a)), without_bound(parse_crs(b))
+    a, b = parse_crs(a), parse_crs(b)
+    if a.equals(b, ignore_axis_order=True):
+        return True
+    ua, ub = without_bound(a), without_bound(b)
+    if not _same_unbound(ua, ub):
+        return False
+    if ua is a and ub is b:
+        return True
+    return _bound_shift_m(horizontal_crs(a), horizontal_crs(b)) < BOUND_SAME_M
+
+
+def _same_unbound(a: pyproj.CRS, b: pyproj.CRS) -> bool:
     if a.equals(b, ignore_axis_order=True):
         return True
     ea, eb = a.to_epsg(min_confidence=70), b.to_epsg(min_confidence=70)
     return ea is not None and ea == eb
+
+
+@functools.lru_cache(maxsize=64)
+def _bound_shift_m(a: pyproj.CRS, b: pyproj.CRS) -> float:
+    """The largest horizontal move (m; inf when PROJ fails) of PROJ's transformation from ``a`` to ``b`` at the
+    corners and centre of the area of use of either (else around the projection's origin), given in ``a``."""
+    base = without_bound(a)
+    aou = next((c.area_of_use for c in (without_bound(b), base, b, a) if c.area_of_use is not None), None)
+    if aou is not None and aou.east > aou.west:
+        lon = np.array([aou.west, aou.east, aou.west, aou.east, 0.5 * (aou.west + aou.east)])
+        lat = np.array([aou.south, aou.south, aou.north, aou.north, 0.5 * (aou.south + aou.north)])
+        # 0.1 of the way in: an area's corners may lie past a projection's domain (UTM's 84 deg N)
+        lon = lon + 0.1 * (lon[4] - lon)
+        lat = lat + 0.1 * (lat[4] - lat)
+    else:
+        op = base.coordinate_operation
+        params = {p.name.lower(): p.value for p in op.params} if op is not None else {}
+        lon0 = next((v for k, v in params.items() if k.startswith("longitude of")), 0.0)
+        lat0 = next((v for k, v in params.items() if k.startswith("latitude of")), 0.0)
+        lon = lon0 + np.array([-1.0, 1.0, -1.0, 1.0, 0.0])
+        lat = np.clip(lat0 + np.array([-1.0, -1.0, 1.0, 1.0, 0.0]), -89.0, 89.0)
+    try:
+        with np.errstate(all="ignore"):
+            x, y = pyproj.Transformer.from_crs(base.geodetic_crs, base, always_xy=True).transform(lon, lat)
+            X, Y = pyproj.Transformer.from_crs(a, b, always_xy=True).transform(x, y)
+    except pyproj.exceptions.ProjError:
+        return math.inf
+    if base.is_geographic:
+        dx = (np.asarray(X) - x) * 111_320.0 * np.cos(np.radians(lat))
+        dy = (np.asarray(Y) - y) * 111_320.0
+    else:
+        dx = (np.asarray(X) - x) * linear_unit_m(base)
+        dy = (np.asarray(Y) - y) * linear_unit_m(base)
+    shift = np.hypot(dx, dy)
+    return float(shift.max()) if np.all(np.isfinite(shift)) else math.inf
 
 
 def same_horizontal(a, b) -> bool:
@@ -332,7 +387,31 @@ def geotiff_crs(crs: pyproj.CRS, where: str, x, y, tolerance: float):
     return rio
 
 
-def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0) -> None:
+def impossible_in(crs: pyproj.CRS, x, y, tolerance_m: float = 1.0) -> int | None:
+    """The index of the first point of projected ``crs`` (x, y in its units) that cannot be one of its points, else
+    None: its inverse projection is not finite, or projecting that back misses the point by over ``tolerance_m``
+    (outside the projection's domain), or, for a transverse Mercator, it lands over 90 deg of longitude from the
+    central meridian (a northing beyond the pole: PROJ takes it over the pole to the far side of the globe)."""
+    h = without_bound(horizontal_crs(crs))
+    if not h.is_projected:
+        return None
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    with np.errstate(all="ignore"):
+        lon, lat = pyproj.Transformer.from_crs(h, h.geodetic_crs, always_xy=True).transform(x, y, errcheck=False)
+        X, Y = pyproj.Transformer.from_crs(h.geodetic_crs, h, always_xy=True).transform(lon, lat, errcheck=False)
+        miss_m = np.hypot(np.asarray(X) - x, np.asarray(Y) - y) * linear_unit_m(h)
+    bad = ~(np.isfinite(lon) & np.isfinite(lat) & np.isfinite(miss_m)) | ~(miss_m <= tolerance_m)
+    op = h.coordinate_operation
+    if op is not None and "transverse mercator" in op.method_name.lower():
+        lon_0 = next((p.value for p in op.params if "longitude" in p.name.lower()), None)
+        if lon_0 is not None:
+            with np.errstate(all="ignore"):
+                bad |= np.abs((np.asarray(lon) - lon_0 + 180.0) % 360.0 - 180.0) > 90.0
+    return int(np.argmax(bad)) if bad.any() else None
+
+
+def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0,
+                      outside_area: str = "refuse") -> str | None:
     """Raise ``InputError`` naming the first record whose coordinates cannot belong to ``crs``.
 
     Geographic CRSs need longitude/latitude in range; projected CRSs need points that fall, once
@@ -340,6 +419,12 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
     grid bounding box widened by 5 % (at least 10 km). Zone-prefixed
     Gauss-Krueger eastings must carry their zone number. ``records`` labels the points (e.g. line
     numbers or ids) in the messages.
+
+    ``outside_area="warn"`` (``crs assign``): points outside the area of use are no refusal but the returned
+    message (else None) -- national grids are used beyond their zone's area (Norway in UTM 33, all Germany in UTM 32,
+    Groningen in UTM 31: 1-4.5 deg past it, review 31); only what the CRS cannot hold is refused: not finite, a
+    longitude/latitude out of range, a Gauss-Krueger easting without its zone, a projected point the projection
+    cannot take back (``impossible_in``).
     """
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -353,7 +438,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
         raise InputError(f"{where(int(np.argmax(bad)))}: coordinates are not finite numbers")
     h = horizontal_crs(crs)
     if h.is_geocentric:
-        return
+        return None
     if h.is_geographic:
         bad = (np.abs(y) > 90.0) | (x < -180.0) | (x > 360.0)
         if bad.any():
@@ -362,7 +447,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) is not a longitude/latitude in degrees, which {label} "
                 "expects (x = longitude, y = latitude); metres given for a geographic CRS? (mixed units)"
             )
-        return
+        return None
     # Zone-prefixed Gauss-Krueger: the millions of the easting are the zone number.
     op = h.coordinate_operation
     fe = None
@@ -379,9 +464,17 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"(expected {zone}xxxxxx.xxx m; eastings without prefix belong to a 'CM' grid, "
                 "degrees or another zone are mixed units/zones)"
             )
+    if outside_area == "warn":
+        i = impossible_in(h, x, y)
+        if i is not None:
+            raise InputError(
+                f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) cannot be a point of {label} ({h.name}): the projection does "
+                f"not take it back to a longitude/latitude (beyond the pole, the far "
+                f"side of the globe or outside its domain); wrong CRS or mixed units? {label} expects "
+                f"{unit_name(h)} in x = easting, y = northing order")
     aou = h.area_of_use
     if aou is None:
-        return
+        return None
     to_geo = pyproj.Transformer.from_crs(h, h.geodetic_crs, always_xy=True)
     with np.errstate(all="ignore"):
         lon, lat = to_geo.transform(x, y, errcheck=False)
@@ -415,11 +508,15 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
         bad |= (x < xmin - mx) | (x > xmax + mx) | (y < ymin - my) | (y > ymax + my)
     if bad.any():
         i = int(np.argmax(bad))
-        raise InputError(
+        message = (
             f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) lies outside the area of use of {label} ({h.name}, "
             f"lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); wrong CRS or mixed units "
             f"(degrees, feet or metres)? {label} expects {unit_name(h)} in x = easting, y = northing order"
         )
+        if outside_area == "warn":
+            return message
+        raise InputError(message)
+    return None
 
 
 def project_crs(project) -> pyproj.CRS:

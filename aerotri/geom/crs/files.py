@@ -354,6 +354,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         raise OptionError(f"{chunk_size}: expected at least 1 point per chunk", param="--chunk-points")
     with las.open_las(in_path) as reader:
         hdr = reader.header
+        las.refuse_copc(in_path, hdr, "crs transform")
         if not (np.asarray(hdr.scales) > 0).all():
             # (new scales are derived from them below)
             raise InputError(f"{in_path}: header scale factors {list(hdr.scales)} must be positive numbers")
@@ -412,7 +413,11 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         cz = np.full(4, 0.5 * (hdr.mins[2] + hdr.maxs[2]) * z_factor)
         if hdr.point_count == 0:
             raise InputError(f"{in_path}: the file holds no points (nothing to transform)")
-        check_coordinates(transformer.src, cx, cy, str(in_path), [f"header bounds corner {i + 1}" for i in range(4)])
+        # outside the area of use: said, not refused (national grids past their zone's area, review 31)
+        far = check_coordinates(transformer.src, cx, cy, str(in_path),
+                                [f"header bounds corner {i + 1}" for i in range(4)], outside_area="warn")
+        if far:
+            transformer.notes.append(f"{far}; transformed all the same (a CRS used past its area of use)")
         X, Y, Z = transformer.transform(cx, cy, cz)
         transformer.n_points -= 4  # corners are not points of the file
         transformer.n_outside_fit_extent = 0
@@ -462,6 +467,7 @@ class AssignResult:
     n_points: int
     old: str | None
     new: str
+    warnings: tuple[str, ...] = ()  # the header bounds outside the CRS's area of use (not refused)
 
 
 def assign_las(in_path, out_path, crs, chunk_size: int = 1_000_000) -> AssignResult:
@@ -469,9 +475,10 @@ def assign_las(in_path, out_path, crs, chunk_size: int = 1_000_000) -> AssignRes
     ``gdal_edit -a_srs``): for a file whose CRS record is wrong or missing. The point records, the header's scales,
     offsets and bounds and every VLR and EVLR but the CRS records (WKT, GeoTIFF keys) are copied as they are; the
     CRS record is ``crs``'s (WKT for point formats >= 6, else GeoTIFF keys, which hold EPSG CRSs only). Refused
-    (InputError) when the header bounds, read in ``crs``'s units, fall outside its area of use
-    (``check_coordinates``: a cheap test of the corners that catches another zone, degrees or feet; a wrong CRS whose
-    area holds the numbers passes). Atomic."""
+    (InputError) when the header bounds cannot be coordinates of ``crs`` (``check_coordinates``, ``outside_area=
+    "warn"``: degrees out of range, a Gauss-Krueger zone not theirs, beyond the projection's domain); bounds outside
+    its area of use (widened by 1 deg) are a warning (``warnings``): a national grid used past its zone's area is
+    common, another zone, degrees or feet are said. A COPC file is refused (``las.refuse_copc``). Atomic."""
     import laspy
     from laspy.vlrs.vlrlist import VLRList
 
@@ -488,13 +495,17 @@ def assign_las(in_path, out_path, crs, chunk_size: int = 1_000_000) -> AssignRes
     label = crs_label(new)
     with las.open_las(in_path) as reader:
         hdr = reader.header
+        las.refuse_copc(in_path, hdr, "crs assign")
         if hdr.point_count == 0:
             raise InputError(f"{in_path}: the file holds no points (no coordinates to check against {label})")
         old = las.header_crs(hdr)
         cx = np.array([hdr.mins[0], hdr.maxs[0], hdr.mins[0], hdr.maxs[0]])
         cy = np.array([hdr.mins[1], hdr.mins[1], hdr.maxs[1], hdr.maxs[1]])
         try:
-            check_coordinates(new, cx, cy, str(in_path), [f"header bounds corner {i + 1}" for i in range(4)])
+            # outside the area of use: a warning (Oslo in UTM 33, Berlin in UTM 32: grids used past their zone's area,
+            # review 31); only coordinates the CRS cannot hold are refused
+            far = check_coordinates(new, cx, cy, str(in_path), [f"header bounds corner {i + 1}" for i in range(4)],
+                                    outside_area="warn")
         except InputError as exc:
             raise InputError(f"{exc}; not re-tagged: the coordinates cannot be {label}'s (give the CRS they are in)") \
                 from None
@@ -518,7 +529,9 @@ def assign_las(in_path, out_path, crs, chunk_size: int = 1_000_000) -> AssignRes
                     n += len(chunk)
                 if evlrs:
                     writer.write_evlrs(VLRList(evlrs))
-    return AssignResult(n, None if old is None else crs_label(old), label)
+    warnings = () if not far else (f"{far}; re-tagged all the same (a CRS used past its area of use); check that "
+                                    f"{label} is the CRS the coordinates are in",)
+    return AssignResult(n, None if old is None else crs_label(old), label, warnings)
 
 
 def _set_scaled(record, dim: str, values, offset, scale, path):

@@ -80,16 +80,83 @@ def test_assign_retags_a_wrong_crs_record_without_moving_a_point(tmp_path, versi
 
 
 def test_assign_refuses_a_crs_the_coordinates_cannot_be_in(tmp_path):
-    """The header bounds against the CRS's area of use: RD coordinates are no ETRS89 / UTM 32N (lat 4 deg N) and no
-    degrees; exit 2, no output."""
+    """Only what the CRS cannot hold is refused: RD coordinates are no degrees (EPSG:4326), no Gauss-Krueger zone 3
+    eastings (no prefix 3); exit 2, no output. Outside the area of use (RD in UTM 32N, lat 4 deg N) is a warning."""
     src = _cloud(tmp_path / "wrong.las", "1.4", 6, crs="EPSG:32631")
-    for target, why in (("EPSG:25832", "outside the area of use of EPSG:25832"), ("EPSG:4326", "not a longitude")):
+    for target, why in (("EPSG:4326", "not a longitude"), ("EPSG:31467", "zone prefix 3")):
         r = _run("assign", src, tmp_path / "o.las", "--crs", target)
         assert r.exit_code == 2 and r.output.startswith("Error: ") and r.output.count("\n") == 1, r.output
         assert str(src) in r.output and why in r.output and "not re-tagged" in r.output
     r = _run("assign", src, tmp_path / "o.csv", "--crs", "EPSG:28992")
     assert r.exit_code == 2 and ".las or .laz" in r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["wrong.las"]
+    r = _run("assign", src, tmp_path / "o.las", "--crs", "EPSG:25832")
+    assert r.exit_code == 0 and "outside the area of use of EPSG:25832" in r.output and "all the same" in r.output
+
+
+@pytest.mark.parametrize("target,lon,lat", [("EPSG:25833", 10.7, 59.9), ("EPSG:25833", 5.3, 60.4),
+                                            ("EPSG:25832", 14.9, 51.2), ("EPSG:25831", 7.1, 53.2),
+                                            ("EPSG:32633", 19.5, 47.5)])
+def test_assign_takes_a_national_grid_past_its_zones_area(tmp_path, target, lon, lat):
+    """Review 31: Oslo and Bergen in EPSG:25833 (Norway's grid), Goerlitz in 25832 (Germany's), Groningen in 25831,
+    Budapest in 32633 lie 1.5-6.7 deg past the zone's area of use (+1 deg margin) and were refused: re-tagged now,
+    the warning names the area of use."""
+    x0, y0 = pyproj.Transformer.from_crs("EPSG:4326", target, always_xy=True).transform(lon, lat)
+    h = laspy.LasHeader(version="1.2", point_format=3)
+    h.scales, h.offsets = [0.01] * 3, [round(x0, -3), round(y0, -3), 0.0]
+    d = laspy.LasData(h)
+    d.x, d.y, d.z = x0 + np.arange(20.0), y0 + np.arange(20.0), np.zeros(20)
+    d.write(tmp_path / "c.las")
+    r = _run("assign", tmp_path / "c.las", tmp_path / "o.las", "--crs", target)
+    assert r.exit_code == 0 and f"outside the area of use of {target}" in r.output, r.output
+    assert same_crs(laspy.read(tmp_path / "o.las").header.parse_crs(), target)
+
+
+def test_check_coordinates_warn_refuses_only_points_the_crs_cannot_hold():
+    """``outside_area="warn"``: a northing beyond the pole (UTM 33N, 12,000 km: PROJ takes it to lon -165), a point
+    outside the projection's domain (not finite) are refused; Bergen in UTM 33 is the returned warning."""
+    from aerotri.core.errors import InputError
+    from aerotri.geom.crs.definition import check_coordinates, impossible_in, parse_crs
+
+    utm33 = parse_crs("EPSG:25833")
+    assert impossible_in(utm33, [259544.0, -28666.0, -3e6], [6648086.0, 6689498.0, 5e6]) is None
+    assert impossible_in(utm33, [259544.0, 500000.0], [6648086.0, 12e6]) == 1
+    assert impossible_in(utm33, [4e7], [5e6]) == 0
+    for x, y in ((500000.0, 12e6), (4e7, 5e6)):
+        with pytest.raises(InputError, match="cannot be a point of EPSG:25833"):
+            check_coordinates(utm33, [x], [y], "f", outside_area="warn")
+    msg = check_coordinates(utm33, [-28666.0], [6689498.0], "f", outside_area="warn")
+    assert msg.startswith("f: point 1: (-28666.000, 6689498.000) lies outside the area of use of EPSG:25833")
+    with pytest.raises(InputError, match="outside the area of use"):
+        check_coordinates(utm33, [-28666.0], [6689498.0], "f")  # the other commands: refused as before
+    assert check_coordinates(utm33, [500000.0], [6.6e6], "f", outside_area="warn") is None
+
+
+def test_copc_input_is_refused_by_name_and_merge_writes_it_plain(tmp_path):
+    """Review 31: a COPC LAZ to crs assign / transform stopped with laspy's NotImplementedError traceback (exit 1);
+    refused now (exit 2, no output), naming COPC and lidarctl merge, which writes a plain LAZ of every point."""
+    from lidarctl.merge import merge_las
+
+    h = laspy.LasHeader(version="1.4", point_format=6)
+    h.scales, h.offsets = [0.01] * 3, [85000.0, 445000.0, 0.0]
+    las.add_crs(h, pyproj.CRS(28992))
+    h.vlrs.append(laspy.VLR("copc", 1, "copc info", bytes(160)))
+    d = laspy.LasData(h)
+    d.x, d.y, d.z = 85000 + np.arange(50.0), 445000 + np.arange(50.0), np.zeros(50)
+    d.write(tmp_path / "c.copc.laz")
+    src = tmp_path / "c.copc.laz"
+    assert las.is_copc(las.read_header(src))
+    for args in (("assign", src, tmp_path / "o.laz", "--crs", "EPSG:28992"),
+                 ("transform", src, tmp_path / "o.laz", "--to", "EPSG:25831")):
+        r = _run(*args)
+        assert r.exit_code == 2 and r.output.startswith("Error: ") and "a COPC file" in r.output, r.output
+        assert "lidarctl merge" in r.output and r.output.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.copc.laz"]
+    assert merge_las([src], tmp_path / "plain.laz") == 50
+    assert not las.is_copc(las.read_header(tmp_path / "plain.laz"))
+    r = _run("assign", tmp_path / "plain.laz", tmp_path / "o.laz", "--crs", "EPSG:28992")
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(laspy.read(tmp_path / "o.laz").x, d.x)
 
 
 def test_a_wkt1_with_towgs84_is_its_own_epsg_code(tmp_path):
@@ -105,6 +172,42 @@ def test_a_wkt1_with_towgs84_is_its_own_epsg_code(tmp_path):
     assert len(io.read_cloud(plain, crs=RD_TOWGS84)) == 500
     assert same_horizontal(pyproj.CRS(RD_TOWGS84), "EPSG:7415")
     assert not same_horizontal(pyproj.CRS(RD_TOWGS84), "EPSG:32631")
+
+
+GK3 = "+proj=tmerc +lat_0=0 +lon_0=9 +k=1 +x_0=3500000 +y_0=0 +ellps=bessel +units=m +no_defs"
+UTM32 = "+proj=utm +zone=32 +ellps=GRS80 +units=m"
+RD_PROJ = ("+proj=sterea +lat_0=52.15616055555555 +lon_0=5.38763888888889 +k=0.9999079 +x_0=155000 +y_0=463000 "
+           "+ellps=bessel +units=m")
+
+
+@pytest.mark.parametrize("a,b,same", [
+    (RD_TOWGS84, "EPSG:28992", True),  # RD New's usual TOWGS84: PROJ moves no point
+    # review 31's raster (WKT1 of GDAL, no authority codes): 48.6 m. (With RD_TOWGS84's EPSG codes in it PROJ takes
+    # the CRS for EPSG:28992 and ignores any TOWGS84 between the two: same, no move)
+    (pyproj.CRS(RD_PROJ + " +towgs84=593.16,26.15,478.54,-6.3239,-0.5008,-5.5487,4.0775").to_wkt("WKT1_GDAL"),
+     "EPSG:28992", False),
+    (RD_PROJ + " +towgs84=565.417,50.3319,465.552,-0.398957,0.343988,-1.8774,4.0725", "EPSG:28992", True),
+    (RD_PROJ + " +towgs84=598.1,73.7,418.2,0.202,0.045,-2.455,6.7", "EPSG:28992", False),  # DHDN's: 45 m
+    (UTM32 + " +towgs84=0,0,0", "EPSG:25832", True),
+    (UTM32 + " +towgs84=100,100,100", "EPSG:25832", False),  # 86 m
+    (GK3 + " +towgs84=598.1,73.7,418.2,0.202,0.045,-2.455,6.7",
+     GK3 + " +towgs84=577.326,90.129,463.919,5.137,1.474,5.297,2.4232", False),  # DHDN against MGI: 60 m
+])
+def test_a_bound_crs_is_its_base_only_when_its_towgs84_moves_no_point(a, b, same):
+    """Review 31: same_crs called every bound CRS its base CRS while CrsTransformer applied the TOWGS84 (a raster warp
+    kept the grid and cropped the picture 48.6 m off; imports skipped the shift). One rule now: same exactly when
+    the transformation CrsTransformer applies moves the points by under BOUND_SAME_M (0.1 m)."""
+    from aerotri.geom.crs.definition import BOUND_SAME_M
+    from aerotri.geom.crs.transform import CrsTransformer
+
+    assert same_crs(a, b) is same and same_crs(b, a) is same
+    src = pyproj.CRS(a)
+    base = src.source_crs if src.is_bound else src
+    lon, lat = (9.5, 50.0) if "tmerc" in a or "utm" in a else (5.2, 52.1)
+    x, y = pyproj.Transformer.from_crs(base.geodetic_crs, base, always_xy=True).transform(lon, lat)
+    X, Y, _ = CrsTransformer(a, b, allow_ballpark=True).transform(np.array([x]), np.array([y]), np.array([0.0]))
+    moved = float(np.hypot(X[0] - x, Y[0] - y))
+    assert (moved < BOUND_SAME_M) is same, moved
 
 
 def test_refusal_names_a_datum_realisation_and_a_wkt_crs_by_its_name(tmp_path):
