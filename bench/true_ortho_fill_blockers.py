@@ -50,10 +50,10 @@ from ortho.rectify_kernels import (_cell_stops, _continuous_patch, _dda_step, _d
 
 
 @numba.njit
-def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, wall_rise_m, Z=np.nan):
+def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, wall_rise_m, ground, Z=np.nan):
     """The march's ray from (X, Y) at height ``Z`` (NaN: the DSM's bilinear height; its own column's top where that
     lies more than ``own_column_m`` below, unless on continuous surface) to ``C``: the first cell (i, j) ``_cell_stops`` (walls
-    beyond a rise of ``wall_rise_m``) says stops it and where
+    beyond a rise of ``wall_rise_m``, continuous surface over the cells ``ground`` alone) says stops it and where
     the ray enters it (s, cells), and (Z, rise, gx, gy, ex, ey); i = -1 for none."""
     dsm, x0, y0, res = grid
     if Z != Z:
@@ -66,7 +66,7 @@ def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, wall_ri
     ex, ey = vx / hd, -vy / hd
     j, i = int(math.floor(gx)), int(math.floor(gy))
     a, b = int(math.floor(gy - 0.5)), int(math.floor(gx - 0.5))
-    if dsm[i, j] < Z - own_column_m and not (_continuous_patch(dsm, a, b, wall_rise_m) and
+    if dsm[i, j] < Z - own_column_m and not (_continuous_patch(dsm, ground, a, b, wall_rise_m) and
                                              Z <= _patch_height(dsm, a, b, gx - b - 0.5, gy - a - 0.5) + own_column_m):
         Z = dsm[i, j]
     rise = (C[2] - Z) / hd * res
@@ -74,7 +74,7 @@ def first_blocking_cell(X, Y, grid, walls, C, tolerance_m, own_column_m, wall_ri
     between = (1.0 / abs(ex) if abs(ex) > 1e-12 else 1e30, 1.0 / abs(ey) if abs(ey) > 1e-12 else 1e30)
     s, sx, sy, i, j = _dda_step((_next_boundary(gx, ex, j), _next_boundary(gy, ey, i)), between, (i, j), step)
     while i >= 0 and j >= 0 and i < dh and j < dw:
-        if _cell_stops(dsm, wall_rise_m, i, j, (Z, rise, gx, gy, ex, ey, tolerance_m), (s, min(sx, sy)), walls):
+        if _cell_stops(dsm, ground, wall_rise_m, i, j, (Z, rise, gx, gy, ex, ey, tolerance_m), (s, min(sx, sy)), walls):
             return i, j, s, min(sx, sy), Z, rise, gx, gy, ex, ey
         s, sx, sy, i, j = _dda_step((sx, sy), between, (i, j), step)
     return -1, -1, 0.0, 0.0, Z, rise, gx, gy, ex, ey
@@ -88,7 +88,7 @@ def main() -> None:
     from eval_true_ortho_dsm_cell import CLEAR
     from ortho.block import read_index
     from ortho.grid import OrthoGrid
-    from ortho.rectify import OWN_COLUMN_M, WALL_SLOPE_DEG, _height_grid
+    from ortho.rectify import OWN_COLUMN_M, WALL_SLOPE_DEG, _height_grid, ground_cells
     from ortho.settings import RectifySettings
 
     from aerotri.sim.scene import KIND_ROOF, KIND_TERRAIN, KIND_TREE
@@ -117,7 +117,8 @@ def main() -> None:
         out = inner(task, surface, dem, crs, crown, *rest)
         occ, sides = out if isinstance(out, tuple) else (out, None)  # main's before the heights by side: occ alone
         # the occlusion test's DSM window, the heights' (the DSM's bilinear heights without sides), the centre
-        kept[task.image_id] = (surface, occ, sides, rest[0] if rest else surface, np.asarray(task.centre_m, float))
+        kept[task.image_id] = (surface, occ, sides, rest[0] if rest else surface, np.asarray(task.centre_m, float),
+                               ground_cells(surface, dem))
         return out
 
     made = json.loads((dom / "made.json").read_text())
@@ -157,7 +158,7 @@ def main() -> None:
     columns, column_excess, crown_gap = collections.Counter(), collections.defaultdict(list), collections.defaultdict(list)
     crowns = np.array([(c[0], c[1], ac[0]) for c, ac in zip(truth.scene.tree_c, truth.scene.tree_ac)]).reshape(-1, 3)
     for f, r, c in pairs:
-        h, occ, sides, hz, C = kept[ids[f]]
+        h, occ, sides, hz, C, ground = kept[ids[f]]
         # the point's height as the true ortho puts it: by its side of the roof outline with ``sides``, else the
         # bilinear height of the DSM of the heights (``hz``: dsm.tif where the occlusion test has its own raster)
         p = shapely.Point(float(xs[c]), float(ys[r]))
@@ -168,7 +169,8 @@ def main() -> None:
             ((occ.sub_margin_cm,) if hasattr(occ, "sub_margin_cm") else ())  # (main's march: no margins)
         i, j, s_in, s_out, Z, rise, gx, gy, ex, ey = first_blocking_cell(float(xs[c]), float(ys[r]), _height_grid(h),
                                                                          walls, C, 0.3, OWN_COLUMN_M,
-                                                                         h.res_m * math.tan(math.radians(WALL_SLOPE_DEG)), Z)
+                                                                         h.res_m * math.tan(math.radians(WALL_SLOPE_DEG)),
+                                                                         ground, Z)
         if i < 0:
             kinds["none"] += 1
             continue

@@ -57,8 +57,8 @@ from ortho.dem import (dem_height_operation, height_range, height_window, open_h
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, overview_factors, parse_crs, resolve_output_crs
 from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, footprint_polygon_xy,
-                           black_corners, declares_nodata, frame_validity, grid_around_footprint, heights_on_grid,
-                           rectify_frame)
+                           black_corners, declares_nodata, frame_validity, grid_around_footprint, ground_cells,
+                           heights_on_grid, rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -247,9 +247,10 @@ def add_overviews(path) -> None:
 def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, grid, interpolation, to_project,
                           occlusion_dsm=None, compression: str = "zstd", threads: int | None = None,
                           tags: dict | None = None, max_view_angle_deg: float = 90.0, occluder=None,
-                          sides=None, overviews: bool = False, source_valid=None) -> float:
+                          sides=None, overviews: bool = False, source_valid=None, ground=None) -> float:
     """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory); ``occluder``,
-    ``sides``, ``source_valid``: as ``rectify_frame``; ``overviews``: internal overviews too (``add_overviews``).
+    ``sides``, ``source_valid``, ``ground``: as ``rectify_frame``; ``overviews``: internal overviews too
+    (``add_overviews``).
 
     The tile threads compute the next tiles while this thread writes (GDAL compresses the blocks on
     all cores). Returns the valid fraction of the grid.
@@ -275,7 +276,7 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
             rectify_frame(image, camera, C, R, heights, grid, interpolation=interpolation, to_project=to_project,
                           occlusion_dsm=occlusion_dsm, sink=sink, sink_bands_first=True, threads=threads,
                           max_view_angle_deg=max_view_angle_deg, occluder=occluder, sides=sides,
-                          source_valid=source_valid)
+                          source_valid=source_valid, ground=ground)
         if overviews:
             add_overviews(tmp)
     return valid[0] / float(grid.width * grid.height)
@@ -650,6 +651,8 @@ def _rectify_frame(task: FrameTask) -> dict:
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
                                            occlusion_dsm=surface if task.dsm_path else None, occluder=occluder,
                                            sides=sides, source_valid=source_valid,
+                                           # continuous surface over the ground alone (the DEM's window)
+                                           ground=ground_cells(surface, dem) if task.dsm_path else None,
                                            compression=task.compression, threads=task.threads,
                                            max_view_angle_deg=task.max_view_angle_deg, overviews=task.overviews,
                                            tags=operation_tags(to_project.record(),

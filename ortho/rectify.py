@@ -64,7 +64,7 @@ if TYPE_CHECKING:
 # 2026-12-01, in every CRS): trial-ortho and s28-fixes (a frame's own nodata, its collar, nodata in its ortho: frames
 # declaring a nodata value, an internal mask or alpha), jpeg-decode (JPEG-compressed TIFF frames decoded by GDAL in
 # every path) and slope-occlusion (the march takes continuous surface as its bilinear one, ``WALL_SLOPE_DEG``: true
-# orthos mask less on slopes).
+# orthos mask less on slopes; s30-fixes: over the ground alone, ``ground_cells``, objects keep their columns).
 RECTIFY_VERSION = 3
 # the last version that changed the orthos of a grid in the project's CRS (``operation`` None): versions after it
 # changed a contract CRS's alone, and a project rectified in its own CRS keeps its frames (no re-rectification)
@@ -160,8 +160,9 @@ class ZBufferArgs(NamedTuple):
 
 class MarchArgs(NamedTuple):
     """The march's bounds (``MarchBound``) and settings: the highest DSM height, the highest heights by blocks of
-    ``block`` and of ``coarse`` cells, the tolerance (m), ``OWN_COLUMN_M`` and the rise between neighbouring DSM
-    cells beyond which they are a wall (m, ``WALL_SLOPE_DEG``)."""
+    ``block`` and of ``coarse`` cells, the tolerance (m), ``OWN_COLUMN_M``, the rise between neighbouring DSM
+    cells beyond which they are a wall (m, ``WALL_SLOPE_DEG``) and which cells are the ground (uint8 per DSM cell,
+    ``ground_cells``; (1, 1): none is), the only ones continuous surface joins."""
 
     max_m: float
     block_max_m: np.ndarray
@@ -171,6 +172,7 @@ class MarchArgs(NamedTuple):
     tolerance_m: float
     own_column_m: float
     wall_rise_m: float
+    ground: np.ndarray
 
 
 class FootprintWalls(NamedTuple):
@@ -191,6 +193,7 @@ class FootprintWalls(NamedTuple):
 _NO_WALLS = FootprintWalls(np.full((1, 1), -np.inf, np.float32), np.full((1, 1), -np.inf, np.float32),
                            np.full((1, 1), -1, np.int32),
                            np.zeros((1, 1, 1), np.uint8), 1, np.zeros((1, 1, 1), np.int16))
+_NO_GROUND = np.zeros((1, 1), np.uint8)  # ``MarchArgs.ground``: no cell is the ground
 
 
 class TilePoints(NamedTuple):
@@ -397,6 +400,14 @@ OWN_COLUMN_M = 1.0
 # building wall in a DSM rises its whole height within one cell (on 0.5 m cells a rise of 0.87 m is a wall already,
 # a third of a storey); chosen so, not fitted to any block.
 WALL_SLOPE_DEG = 60.0
+# ... and only where all four cells of the square are the ground (``ground_cells``): within this of the rectify's DEM
+# at the cell's centre, plus half the DEM's rise across the cell in each direction (a DSM cell of bare sloping ground
+# holds a height from anywhere within the cell: its highest, mean or a point). An object on the ground (a car, hedge,
+# shed, bungalow) keeps its flat-topped columns whatever its rise per cell: 60 deg alone took a 1.6 m car on 1 m
+# cells or a 2 m hedge on 2 m cells for a ramp and left the ground behind it valid (review 30). 0.5 m: the nDSM
+# height up to which the seamlines and ``ortho check`` take a cell for ground (``max_ndsm_m``), the DSM's and the
+# DEM's noise; not fitted.
+GROUND_NDSM_M = 0.5
 CELL_FACTOR = 1.25
 
 
@@ -428,15 +439,38 @@ def march_bound(dsm: HeightRaster, blocks: tuple[int, int] = MARCH_BLOCK_CELLS,
     return MarchBound(float(fine_max.max()) if seen else math.nan, fine_max, fine, coarse_max, coarse)
 
 
+def ground_cells(dsm: HeightRaster, dem: HeightRaster) -> np.ndarray:
+    """Which cells of ``dsm`` are the ground (uint8 per cell, 1: the ground): within ``GROUND_NDSM_M`` plus half
+    the DEM's rise across the cell (along rows plus along columns) of ``dem`` (the same CRS and heights) at the
+    cell's centre; NaN in either: not the ground. Once per DSM window (the march's continuous surface,
+    ``occlusion_mask``); ``dem`` the DSM itself (or its copy): every cell with a height is the ground."""
+    h, w = dsm.heights_m.shape
+    ground_m = heights_on_grid(dem, OrthoGrid(dsm.crs, dsm.x_left_m, dsm.y_top_m, dsm.res_m, w, h))
+    # (the resampling leaves NaN within half a DEM cell of its edge, where the DEM's own bilinear heights hold: the
+    # last row and column of a DSM window on the DEM's grid, ``--dsm dem.tif``)
+    r, c = np.nonzero(np.isnan(ground_m))
+    if r.size:
+        ground_m[r, c] = dem.sample(dsm.x_left_m + (c + 0.5) * dsm.res_m, dsm.y_top_m - (r + 0.5) * dsm.res_m)
+    slack_m = np.full((h, w), GROUND_NDSM_M, np.float32)
+    # the DEM's rise per DSM cell (central differences; one-sided at the edges)
+    for axis in (0, 1):
+        if ground_m.shape[axis] > 1:
+            slack_m += 0.5 * np.abs(np.gradient(ground_m, axis=axis))
+    with np.errstate(invalid="ignore"):
+        return (np.abs(dsm.heights_m - ground_m) <= slack_m).astype(np.uint8)
+
+
 def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, heights_m: np.ndarray, anchors, *,
                    tolerance_m: float = 0.3, candidates: np.ndarray | None = None,
                    bound: MarchBound | None = None, near_share: np.ndarray | None = None,
-                   occluder: FootprintOccluder | None = None) -> np.ndarray:
+                   occluder: FootprintOccluder | None = None, ground: np.ndarray | None = None) -> np.ndarray:
     """True where the ground point (grid pixel at ``heights_m``) is hidden from the camera by the DSM (a march
     along its ray; only where ``candidates``, e.g. the points the z-buffer puts behind a nearer surface).
     ``near_share`` (``zbuffer_occlusion_from_maps``): where the march looks first; the result is the same.
     ``occluder`` (``ortho.footprints.footprint_occluder`` of the same ``dsm``): building footprints, under whose
-    roof overhangs a ray may pass; None: every DSM cell a solid column."""
+    roof overhangs a ray may pass; None: every DSM cell a solid column. ``ground`` (``ground_cells`` of ``dsm``):
+    the cells continuous surface may join (``WALL_SLOPE_DEG``); None: none, every cell its flat-topped column (as
+    where no DEM tells the ground from the objects on it)."""
     AX, AY, s = anchors
     occ = np.zeros((grid.height, grid.width), dtype=np.bool_)
     bound = bound or march_bound(dsm, occluder=occluder, tolerance_m=tolerance_m)
@@ -445,7 +479,10 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     points = TilePoints(heights_m.astype(np.float32), np.ones(occ.shape, np.bool_) if candidates is None else candidates,
                         np.zeros((1, 1), np.float32) if near_share is None else near_share)
     march = MarchArgs(bound.max_m, bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
-                      float(tolerance_m), float(OWN_COLUMN_M), float(dsm.res_m * math.tan(math.radians(WALL_SLOPE_DEG))))
+                      float(tolerance_m), float(OWN_COLUMN_M), float(dsm.res_m * math.tan(math.radians(WALL_SLOPE_DEG))),
+                      _NO_GROUND if ground is None else np.ascontiguousarray(ground, np.uint8))
+    if ground is not None and ground.shape != dsm.heights_m.shape:
+        raise ValueError(f"ground flags of {ground.shape} cells for a DSM of {dsm.heights_m.shape}")
     walls = _NO_WALLS if occluder is None else FootprintWalls(occluder.base_m, occluder.slab_top_m,
                                                               occluder.sub_index, occluder.sub_masks, int(occluder.sub),
                                                               occluder.sub_margin_cm)
@@ -860,7 +897,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
                   occlusion_dsm: HeightRaster | None = None, tile_px: int = 1024, sink=None, threads: int | None = None,
                   sink_bands_first: bool = False, max_view_angle_deg: float = 90.0, earth: bool = True,
                   occluder: FootprintOccluder | None = None, sides: OutlineHeights | None = None,
-                  source_valid: np.ndarray | None = None):
+                  source_valid: np.ndarray | None = None, ground: np.ndarray | None = None):
     """Orthorectify one frame onto ``grid``; returns (ortho (H, W[, bands]) of image dtype, mask uint8 255/0).
 
     ``image`` is (rows, cols[, bands]) in the camera's pixel convention, in memory, or a ``FrameFile``
@@ -870,7 +907,8 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     (default: identical). With ``occlusion_dsm`` pixels hidden by the DSM are masked (true ortho); ``occluder``
     (``ortho.footprints.footprint_occluder`` of that DSM): building footprints in the occlusion test; ``sides``
     (``ortho.footprints.outline_heights`` of that DSM): each cell's height from its own side of the roof outlines
-    (``fixed_point_maps``).
+    (``fixed_point_maps``); ``ground`` (``ground_cells`` of that DSM and the DEM): where the occlusion test takes
+    the DSM for continuous surface (``occlusion_mask``; None: nowhere).
     With ``sink(row0, col0, ortho_tile, mask_tile)`` the tiles are handed over in row-major order as
     they are made (e.g. written to a file, overlapping with the computation of the next tiles)
     instead of assembled: the returned ortho and mask are then None. With ``sink_bands_first`` the sink gets
@@ -966,7 +1004,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
                 behind = zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
             if behind.any():
                 occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind, bound=bound,
-                                          near_share=near, occluder=occluder)
+                                          near_share=near, occluder=occluder, ground=ground)
                 m[occluded] = 0
                 map_int[occluded] = -32768
         if source_valid is not None and m.any():

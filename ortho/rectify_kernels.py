@@ -333,12 +333,16 @@ def _cell_blocks(top, i, j, ray, span, walls):
 
 
 @numba.njit(cache=True, inline="always")
-def _continuous_patch(dsm, a, b, wall_rise_m):
+def _continuous_patch(dsm, ground, a, b, wall_rise_m):
     """Whether the bilinear patch between the centres of DSM cells (a, b), (a, b + 1), (a + 1, b), (a + 1, b + 1) is
-    continuous surface: all four within the DSM and heights, and none of its four sides rising more than
-    ``wall_rise_m`` (else a wall: the cells' columns)."""
+    continuous surface: all four within the DSM, heights and the ground (``ground``, uint8 per DSM cell,
+    ``ortho.rectify.ground_cells``; another shape: no cell is), and none of its four sides rising more than
+    ``wall_rise_m`` (else a wall, or an object on the ground: the cells' columns)."""
     dh, dw = dsm.shape
     if a < 0 or b < 0 or a + 1 >= dh or b + 1 >= dw:
+        return False
+    if ground.shape[0] != dh or ground.shape[1] != dw or not (ground[a, b] and ground[a, b + 1] and ground[a + 1, b]
+                                                              and ground[a + 1, b + 1]):
         return False
     h00 = dsm[a, b]
     h01 = dsm[a, b + 1]
@@ -360,7 +364,7 @@ def _patch_height(dsm, a, b, u, v):
 
 
 @numba.njit(cache=True)
-def _surface_blocks(dsm, wall_rise_m, i, j, ray, span):
+def _surface_blocks(dsm, ground, wall_rise_m, i, j, ray, span):
     """Whether the surface of DSM cell (i, j), whose column (``_cell_blocks``) stops the ray, stops it: over each
     quarter of the cell within a continuous bilinear patch (``_continuous_patch``) the lower of the column's top and
     the bilinear surface (on which the ground points stand), elsewhere the column. ``ray`` and ``span`` as in
@@ -384,7 +388,7 @@ def _surface_blocks(dsm, wall_rise_m, i, j, ray, span):
         sm = 0.5 * (s0 + s1)
         b = j if gx + ex * sm >= j + 0.5 else j - 1
         a = i if gy + ey * sm >= i + 0.5 else i - 1
-        if not _continuous_patch(dsm, a, b, wall_rise_m):
+        if not _continuous_patch(dsm, ground, a, b, wall_rise_m):
             return True  # the column, more than the tolerance above the ray here
         h00 = dsm[a, b]
         du = dsm[a, b + 1] - h00
@@ -408,7 +412,7 @@ def _surface_blocks(dsm, wall_rise_m, i, j, ray, span):
 
 
 @numba.njit(cache=True)
-def _cell_stops(dsm, wall_rise_m, i, j, ray, span, walls):
+def _cell_stops(dsm, ground, wall_rise_m, i, j, ray, span, walls):
     """Whether DSM cell (i, j) stops the ray, as ``_occlusion_kernel`` decides it: ``_cell_blocks``, and for a cell
     without a slab (no footprint, no crown) ``_surface_blocks`` too. (The kernel spells this out at its two calls: a
     function of the arrays inlined there made the march 50-80 % slower on the demo, measured.)"""
@@ -416,7 +420,7 @@ def _cell_stops(dsm, wall_rise_m, i, j, ray, span, walls):
         return False
     if walls[0] and walls[1][i, j] != -np.inf:
         return True
-    return _surface_blocks(dsm, wall_rise_m, i, j, ray, span)
+    return _surface_blocks(dsm, ground, wall_rise_m, i, j, ray, span)
 
 
 @numba.njit(cache=True, inline="always")
@@ -465,7 +469,8 @@ def _log2_exact(n):
 def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
     """Mark ground points whose ray to the projection centre passes below the DSM surface (``HeightGrid``
     ``grid``): the points of a tile (``AnchorGrid`` ``anchors``) at heights ``points.heights_m`` (``TilePoints``), the
-    ``MarchArgs`` ``march`` (bounds, ``tolerance_m``, ``own_column_m``), the ``FootprintWalls`` ``walls`` (building
+    ``MarchArgs`` ``march`` (bounds, ``tolerance_m``, ``own_column_m``, ``wall_rise_m`` and ``ground``: continuous
+    surface, ``_continuous_patch``), the ``FootprintWalls`` ``walls`` (building
     footprints: overhang cells block only within a slab under their top, ``_cell_blocks``; none: (1, 1) arrays),
     into ``occluded``.
 
@@ -494,7 +499,7 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
     anchor_x, anchor_y = anchors.x_m, anchors.y_m
     height_tile, candidates, near_share = points
     dsm, dsm_x0, dsm_y0, dsm_res = grid
-    dsm_max, block_max, block, coarse_max, coarse, tolerance_m, own_column_m, wall_rise_m = march
+    dsm_max, block_max, block, coarse_max, coarse, tolerance_m, own_column_m, wall_rise_m, ground = march
     base_m, slab_top_m, sub_index, sub_masks, sub, sub_margin_cm = walls
     footprinted = base_m.shape[0] == dsm.shape[0] and base_m.shape[1] == dsm.shape[1]
     cell_walls = (footprinted, base_m, slab_top_m, sub_index, sub_masks, sub, sub_margin_cm)
@@ -547,7 +552,7 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
                 if zo < Z - own_column_m:
                     a = int(math.floor(gy - 0.5))
                     b = int(math.floor(gx - 0.5))
-                    if not (_continuous_patch(dsm, a, b, wall_rise_m)
+                    if not (_continuous_patch(dsm, ground, a, b, wall_rise_m)
                             and Z <= _patch_height(dsm, a, b, gx - (b + 0.5), gy - (a + 0.5)) + own_column_m):
                         Z = zo
                         vz = centre[2] - Z
@@ -577,7 +582,7 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
                     ray = (Z, rise, gx, gy, ex, ey, tolerance_m)
                     if _cell_blocks(dsm[i, j], i, j, ray, (s_in, s_out), cell_walls) and (
                             footprinted and base_m[i, j] != -np.inf
-                            or _surface_blocks(dsm, wall_rise_m, i, j, ray, (s_in, s_out))):
+                            or _surface_blocks(dsm, ground, wall_rise_m, i, j, ray, (s_in, s_out))):
                         hit = True
                         break
                 if hit:
@@ -623,7 +628,7 @@ def _occlusion_kernel(anchors, points, grid, march, walls, centre, occluded):
                 ray = (Z, rise, gx, gy, ex, ey, tolerance_m)
                 if _cell_blocks(dsm[i, j], i, j, ray, (s, min(sx, sy)), cell_walls) and (
                         footprinted and base_m[i, j] != -np.inf
-                        or _surface_blocks(dsm, wall_rise_m, i, j, ray, (s, min(sx, sy)))):
+                        or _surface_blocks(dsm, ground, wall_rise_m, i, j, ray, (s, min(sx, sy)))):
                     occluded[r, c] = True
                     break
                 s, sx, sy, i, j = _dda_step((sx, sy), (dsx, dsy), (i, j), (step_i, step_j))
