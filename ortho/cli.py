@@ -194,10 +194,13 @@ def _seams_line(s) -> str:
 
 
 def _check_line(report: DomCheck, what: str) -> str:
-    s = report.displacement
+    s, u = report.displacement, report.unmatched
+    # the textured patches that found no match (``ortho.check.UnmatchedPatches``): failing, or counted
+    lost = f" (FAILS: {u.note()})" if u is not None and u.fails() else (
+        f" ({u.patches} of {u.textured} textured without a match)" if u is not None and u.patches else "")
     if not s.count:
-        return f"no usable {what} -> {report.json_path}"
-    return (f"{s.count} {what}: RMS {s.rms_xy_m:.3f} m ({s.rms_xy_gsd:.2f} GSD), max {s.max_xy_m:.3f} m "
+        return f"no usable {what}{lost} -> {report.json_path}"
+    return (f"{s.count} {what}: RMS {s.rms_xy_m:.3f} m ({s.rms_xy_gsd:.2f} GSD), max {s.max_xy_m:.3f} m{lost} "
             f"-> {report.json_path}")
 
 

@@ -762,8 +762,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
 
     # DOM
     sec = "DOM"
+    lost = dom_check.unmatched if dom_check else None  # textured patches without a match (None: an older report)
     if dom and dom.count == 0:
         rows.append(_failed("dom_rms_xy_m", sec, "displacement of the DOM",
+                            f"the check found no usable patch: {lost.note()}" if lost and lost.patches else
                             "the check found no usable patch or point (no texture, no ground under --max-ndsm-m, or "
                             "the reference misses the DOM)"))
     if dom and dom.rms_xy_m is not None:
@@ -773,6 +775,13 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                            tol.get("feature_rms_xy_m"), "m",
                            note=f"{dom.count} {'points' if at_surveyed is not None else 'patches'}, {gsd:.2f} GSD"
                            f"{at_surveyed or ''}{_dom_crs_note(dom_check, project)}", key="feature_rms_xy_m"))
+        if lost is not None and lost.fails():
+            # the RMS is of the patches matched: a DOM (or a frame's region) off by more than the search lost its
+            # patches there, and the rest passed (``ortho.check.UnmatchedPatches``)
+            rows[-1] = dataclasses.replace(rows[-1], verdict="fail", note=f"{lost.note()}; {rows[-1].note}")
+        elif lost is not None and lost.patches:
+            rows[-1] = dataclasses.replace(rows[-1], note=f"{rows[-1].note}; {lost.patches} of {lost.textured} "
+                                                          "textured patches without a match")
         if dom.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
             largest = dom.max_xy_m if dom.max_xy_m is not None else float("nan")

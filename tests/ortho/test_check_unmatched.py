@@ -1,0 +1,110 @@
+"""The DOM check counts the textured patches that found no match in the reference (issue 42): a frame's region of the
+mosaic off by more than the +-6 px search lost its patches there and the RMS of the rest passed; counted by frame
+region, more than ``DOM_MAX_UNMATCHED_SHARE`` of a region's textured patches unmatched fails the DOM row. A
+dom_report.json written before they were counted still reads (no counts, the row as before)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+from click.testing import CliRunner
+
+import ortho.synthetic as synthetic
+from aerotri.qa.report import write_qa_report
+from ortho.check import (DOM_MAX_UNMATCHED_SHARE, DOM_MIN_REGION_PATCHES, UnmatchedPatches, read_dom_check,
+                         run_check)
+from ortho.cli import main
+
+RES_M = 0.2  # the synthetic block's GSD
+SHIFTED = "s01_001"  # a frame whose region of the mosaic holds enough textured patches to be judged on its own
+
+
+def _ortho(root) -> None:
+    for args in (["rectify", root], ["mosaic", root, "--seams", "voronoi"]):
+        r = CliRunner().invoke(main, [str(a) for a in args])
+        assert r.exit_code == 0, r.output
+
+
+def _move_frame(root, frame: str, de_m: float) -> None:
+    """The frame's projection centre moved ``de_m`` east in at/eo.txt: its ortho moves that far (flat ground)."""
+    eo = root / "at" / "eo.txt"
+    lines = []
+    for line in eo.read_text().splitlines():
+        f = line.split()
+        if f and f[0] == frame:
+            f[1] = f"{float(f[1]) + de_m:.4f}"
+            line = " ".join(f)
+        lines.append(line)
+    eo.write_text("\n".join(lines) + "\n")
+
+
+@pytest.fixture(scope="module")
+def blocks(tmp_path_factory):
+    """(as made, SHIFTED moved 8 px east: beyond the DOM check's +-6 px search); orthos made, checked."""
+    base = tmp_path_factory.mktemp("dom_unmatched")
+    good, far = base / "good", base / "far"
+    synthetic.write_synthetic_project(good, strips=2, frames_per_strip=3, buildings=0, seed=11)
+    _ortho(good)
+    shutil.copytree(good, far)
+    _move_frame(far, SHIFTED, 8 * RES_M)
+    _ortho(far)
+    for root in (good, far):
+        run_check(root, reference_path=root / "truth" / "ortho.tif", seams=False)
+    return good, far
+
+
+def test_a_frame_region_off_by_more_than_the_search_fails_the_dom_row(blocks):
+    good, far = blocks
+    before = read_dom_check(good / "ortho" / "dom_report.json")
+    after = read_dom_check(far / "ortho" / "dom_report.json")
+    # as made: every textured patch matched, the DOM row passes
+    u = before.unmatched
+    assert u.regions_by == "frame" and u.textured == before.displacement.count + u.patches
+    assert u.share <= 0.05 and not u.fails()
+    assert write_qa_report(good).check("dom_rms_xy_m").verdict == "pass"
+    # moved: the patches matched (the other frames) pass the RMS, the frame's region lost its patches
+    u = after.unmatched
+    assert after.displacement.rms_xy_m < 0.5 * RES_M
+    assert u.share < DOM_MAX_UNMATCHED_SHARE  # the whole DOM's share alone would pass
+    lost = u.lost_regions()
+    assert [r.name for r in lost] == [SHIFTED]
+    assert lost[0].textured >= DOM_MIN_REGION_PATCHES and lost[0].unmatched_share > 0.9
+    assert sum(r.unmatched for r in u.per_region) == u.patches and sum(r.textured for r in u.per_region) == u.textured
+    doc = json.loads((far / "ortho" / "dom_report.json").read_text())["unmatched"]
+    assert doc["patches"] == u.patches and doc["max_share"] == DOM_MAX_UNMATCHED_SHARE
+    assert UnmatchedPatches.of_record(doc) == u
+    row = write_qa_report(far).check("dom_rms_xy_m")
+    assert row.verdict == "fail" and row.value < row.limit
+    assert f"1 frame region more than {100 * DOM_MAX_UNMATCHED_SHARE:g} % unmatched ({SHIFTED} " in row.note
+    r = CliRunner().invoke(main, ["check", str(far), "--reference", str(far / "truth" / "ortho.tif")])
+    assert r.exit_code == 0 and f"(FAILS: {u.patches} of {u.textured} textured patches" in r.output
+
+
+def test_another_dom_off_by_more_than_the_search_is_counted_by_tile(blocks, tmp_path):
+    """A DOM given with --dom (no seamlines of its own): by tile; the whole DOM 8 px off matches nothing."""
+    import rasterio
+
+    good, _ = blocks
+    dom = tmp_path / "moved.tif"
+    with rasterio.open(good / "ortho" / "mosaic.tif") as ds:
+        profile, img = ds.profile, ds.read()
+        t = ds.transform
+    profile.update(transform=rasterio.Affine(t.a, t.b, t.c + 8 * t.a, t.d, t.e, t.f))
+    with rasterio.open(dom, "w", **profile) as out:
+        out.write(img)
+    report = run_check(good, reference_path=good / "truth" / "ortho.tif", dom_path=dom, seams=False)
+    u = report.unmatched
+    assert u.regions_by == "tile" and u.per_region[0].name.startswith("rows 0-2047, cols 0-2047")
+    assert report.displacement.count == 0 and u.patches == u.textured > 0 and u.fails()
+
+
+def test_a_report_before_the_counts_still_reads(blocks, tmp_path):
+    good, _ = blocks
+    path = good / "ortho" / "dom_report.json"
+    doc = json.loads(path.read_text())
+    old = tmp_path / "dom_report.json"
+    old.write_text(json.dumps({k: v for k, v in doc.items() if k != "unmatched"}))
+    check = read_dom_check(old)
+    assert check.unmatched is None and check.displacement == read_dom_check(path).displacement
