@@ -410,6 +410,11 @@ def impossible_in(crs: pyproj.CRS, x, y, tolerance_m: float = 1.0) -> int | None
     return int(np.argmax(bad)) if bad.any() else None
 
 
+# ``check_coordinates(outside_area="warn")``: beyond this distance from a CRS's area of use (degrees of longitude or
+# latitude) a point is refused even so; grids used past their zone reach 1-4.5 deg beyond it (review 31)
+FAR_OUTSIDE_AREA_DEG = 10.0
+
+
 def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0,
                       outside_area: str = "refuse") -> str | None:
     """Raise ``InputError`` naming the first record whose coordinates cannot belong to ``crs``.
@@ -506,6 +511,18 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
         mx = max(0.05 * (xmax - xmin), 10_000.0 / linear_unit_m(h))
         my = max(0.05 * (ymax - ymin), 10_000.0 / linear_unit_m(h))
         bad |= (x < xmin - mx) | (x > xmax + mx) | (y < ymin - my) | (y > ymax + my)
+    if outside_area == "warn":
+        # national grids used past their zone reach 1-4.5 deg beyond its area (review 31); a record tens of degrees
+        # away is a wrong CRS, not such a use (review 33: Autzen's Oregon feet assigned the Swiss grid, 22 deg off)
+        beyond = np.maximum.reduce([west - lon, lon - east, aou.south - lat, lat - aou.north, np.zeros_like(lon)])
+        far = ~np.isfinite(beyond) | (beyond > FAR_OUTSIDE_AREA_DEG)
+        if far.any():
+            i = int(np.argmax(far))
+            raise InputError(
+                f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) lies more than {FAR_OUTSIDE_AREA_DEG:g} deg outside the area "
+                f"of use of {label} ({h.name}, lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}.."
+                f"{aou.north:.1f}): not a use of it beyond its zone but another CRS; {label} expects "
+                f"{unit_name(h)} in x = easting, y = northing order")
     if bad.any():
         i = int(np.argmax(bad))
         message = (

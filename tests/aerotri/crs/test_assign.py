@@ -90,8 +90,9 @@ def test_assign_refuses_a_crs_the_coordinates_cannot_be_in(tmp_path):
     r = _run("assign", src, tmp_path / "o.csv", "--crs", "EPSG:28992")
     assert r.exit_code == 2 and ".las or .laz" in r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["wrong.las"]
+    # RD coordinates read in UTM 32N fall near 4 deg N, 32 deg south of its area: another CRS (review 33; was a warning)
     r = _run("assign", src, tmp_path / "o.las", "--crs", "EPSG:25832")
-    assert r.exit_code == 0 and "outside the area of use of EPSG:25832" in r.output and "all the same" in r.output
+    assert r.exit_code == 2 and "more than 10 deg outside the area of use of EPSG:25832" in r.output, r.output
 
 
 @pytest.mark.parametrize("target,lon,lat", [("EPSG:25833", 10.7, 59.9), ("EPSG:25833", 5.3, 60.4),
@@ -110,6 +111,22 @@ def test_assign_takes_a_national_grid_past_its_zones_area(tmp_path, target, lon,
     r = _run("assign", tmp_path / "c.las", tmp_path / "o.las", "--crs", target)
     assert r.exit_code == 0 and f"outside the area of use of {target}" in r.output, r.output
     assert same_crs(laspy.read(tmp_path / "o.las").header.parse_crs(), target)
+
+
+def test_assign_refuses_a_crs_whose_area_lies_tens_of_degrees_away(tmp_path):
+    """Review 33: Oregon coordinates re-tagged as the Swiss grid (22 deg outside its area) were only a warning;
+    beyond ``FAR_OUTSIDE_AREA_DEG`` (10 deg) it is another CRS: refused, nothing written."""
+    x0, y0 = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32610", always_xy=True).transform(-123.1, 44.05)
+    h = laspy.LasHeader(version="1.2", point_format=3)
+    h.scales, h.offsets = [0.01] * 3, [round(x0, -3), round(y0, -3), 0.0]
+    d = laspy.LasData(h)
+    d.x, d.y, d.z = x0 + np.arange(20.0), y0 + np.arange(20.0), np.zeros(20)
+    d.write(tmp_path / "c.las")
+    r = _run("assign", tmp_path / "c.las", tmp_path / "o.las", "--crs", "EPSG:2056")
+    assert r.exit_code == 2 and "more than 10 deg outside the area of use of EPSG:2056" in r.output, r.output
+    assert not (tmp_path / "o.las").exists()
+    r = _run("assign", tmp_path / "c.las", tmp_path / "o.las", "--crs", "EPSG:32610")
+    assert r.exit_code == 0, r.output
 
 
 def test_check_coordinates_warn_refuses_only_points_the_crs_cannot_hold():
