@@ -299,6 +299,12 @@ def dom_checks(dom_all: dict, qa, *, stale: bool = False, at: dict | None = None
                         points="ground patches")
     if d.get("rms_xy_m") is None:
         return CheckSet(note="the DOM check measured no patch", points="ground patches")
+    if dom_all.get("unmatched"):
+        from ortho.check import UnmatchedPatches
+
+        lost = UnmatchedPatches.of_record(dom_all["unmatched"])
+        if lost.fails():  # the RMSE is of the patches left where regions lost theirs: no class from it (review 34)
+            return CheckSet(note=f"not testable: {lost.note()}", points="ground patches")
     h, _, src = _survey_accuracy(qa)
     return CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=int(d.get("count") or 0), cp_rmse_h_m=h, cp_source=src,
                     rmse_x_m=d.get("rms_e_m"), rmse_y_m=d.get("rms_n_m"),

@@ -777,8 +777,21 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                            f"{at_surveyed or ''}{_dom_crs_note(dom_check, project)}", key="feature_rms_xy_m"))
         if lost is not None and lost.fails():
             # the RMS is of the patches matched: a DOM (or a frame's region) off by more than the search lost its
-            # patches there, and the rest passed (``ortho.check.UnmatchedPatches``)
-            rows[-1] = dataclasses.replace(rows[-1], verdict="fail", note=f"{lost.note()}; {rows[-1].note}")
+            # patches there, and the rest passed (``ortho.check.UnmatchedPatches``). A fail only where the search
+            # reaches the limit (a patch beyond it is then beyond the limit), and only against a limit (review 34)
+            limit = tol.get("feature_rms_xy_m")
+            gsd_m = dom.rms_xy_m / dom.rms_xy_gsd if dom.rms_xy_gsd else float("nan")
+            search_m = lost.search_px * gsd_m
+            reach = f" (+-{search_m:.3f} m)" if math.isfinite(search_m) else ""
+            if limit is None:
+                verdict, why = None, ""
+            elif math.isfinite(search_m) and search_m < limit:
+                verdict, why = None, (f"; not judged: the search{reach} is shorter than the limit {limit:g} m, so a "
+                                      "patch beyond it may still be within the limit")
+            else:
+                verdict, why = "fail", ""
+            rows[-1] = dataclasses.replace(rows[-1], verdict=verdict,
+                                           note=f"{lost.note()}{reach}{why}; {rows[-1].note}")
         elif lost is not None and lost.patches:
             rows[-1] = dataclasses.replace(rows[-1], note=f"{rows[-1].note}; {lost.patches} of {lost.textured} "
                                                           "textured patches without a match")
