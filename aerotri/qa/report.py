@@ -1352,7 +1352,8 @@ def console_summary(report: QaReport) -> str:
     for r in report.checks:
         if r.verdict:
             star = "*" if r.limit_confirmed is False and r.limit is not None else ""
-            lines.append(f"  {r.verdict:<5} {r.section}: {r.quantity} = {r.value} {r.unit} (limit {r.limit}{star})")
+            value = f"{r.value} {r.unit}" if r.value is not None else "no value (see the report's note)"
+            lines.append(f"  {r.verdict:<5} {r.section}: {r.quantity} = {value} (limit {r.limit}{star})")
     lines += compliance_lines(report.compliance)
     verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
     judged_by = t["name"] if t.get("lidar_only") else f"{report.map_scale} {report.terrain}"
