@@ -27,10 +27,16 @@ With a GNSS correction estimated (``gnss_correction`` shift, shift_drift, offset
 the correction's, and the control carries the datum (the geometry modes judge whether it can): only the part of the
 plane the correction cannot take is judged (s29-fixes: the offset, and the tilt across parallel strips, are a
 shift's; the tilt along them a drift's too). Judged is each direction of the plane of which more than
-``SURVIVING_SHARE`` survives the correction (weighted least squares over the GNSS heights); none: no check. Before,
+``SURVIVING_SHARE`` survives the correction (weighted least squares over the GNSS heights); none: no plane. Before,
 the plane's offset was the correction's too, the plane singular, and every such block with one control height
 left out was "weak" ("one point, or points on a line": 18 of 18 simulated blocks, and the demo with one height
 typed 1 m off).
+
+Under a correction per strip (shift, shift_drift) the GNSS heights are free per strip and the control left carries
+the heights alone (s32-fixes, review 32): each strip's vertical correction is judged by its standard deviation at the
+strip's worse end (``strip_sigma_m``: not held when its MDB exceeds the height limit), and more than one point left
+out, all off the solution the same way, is not held either (``out_unchecked``: the data snooping, one blunder at a
+time, may have kept mistyped heights and left out right ones; the strips' sigmas stay 0.1-0.2 m there).
 """
 
 from __future__ import annotations
