@@ -27,10 +27,16 @@ With a GNSS correction estimated (``gnss_correction`` shift, shift_drift, offset
 the correction's, and the control carries the datum (the geometry modes judge whether it can): only the part of the
 plane the correction cannot take is judged (s29-fixes: the offset, and the tilt across parallel strips, are a
 shift's; the tilt along them a drift's too). Judged is each direction of the plane of which more than
-``SURVIVING_SHARE`` survives the correction (weighted least squares over the GNSS heights); none: no check. Before,
+``SURVIVING_SHARE`` survives the correction (weighted least squares over the GNSS heights); none: no plane. Before,
 the plane's offset was the correction's too, the plane singular, and every such block with one control height
 left out was "weak" ("one point, or points on a line": 18 of 18 simulated blocks, and the demo with one height
 typed 1 m off).
+
+Under a correction per strip (shift, shift_drift) the GNSS heights are free per strip and the control left carries
+the heights alone (s32-fixes, review 32): each strip's vertical correction is judged by its standard deviation at the
+strip's worse end (``strip_sigma_m``: not held when its MDB exceeds the height limit), and more than one point left
+out, all off the solution the same way, is not held either (``out_unchecked``: the data snooping, one blunder at a
+time, may have kept mistyped heights and left out right ones; the strips' sigmas stay 0.1-0.2 m there).
 """
 
 from __future__ import annotations
@@ -51,6 +57,10 @@ POWER = 0.8  # Baarda's detection power: the minimal detectable bias is (critica
 # tilt under one offset at about 50 %): a fixed order-of-magnitude cut between the two, not fitted to any block
 SURVIVING_SHARE = 0.1
 COLLINEAR_SHARE = 0.05  # control points whose plan spread across their line is below this share of it: on a line
+# check points with a height decide the heights instead of the rule only when they spread over the block: "spread"
+# (``_layout``) and their standard deviation across their narrowest direction at least this share of the block's
+# radius (points uniform over the 3 x 6 simulated block: 0.3-0.4; 3 in one corner: below 0.1; review 32)
+CHECK_SPREAD_SHARE = 0.2
 
 
 def mdb_sigmas(alpha: float) -> float:
@@ -72,6 +82,26 @@ class HeightDatumCheck:
     correction: str = "none"  # the solve's gnss_correction
     layout: str = "spread"  # the height control left in plan: "one point", "on a line", "spread"
     out_dz_m: tuple = ()  # the left-out points' given minus adjusted height (local up, m), as height_control_out
+    # each strip's vertical GNSS correction (shift, and drift at the strip's ends) as the solution determines it:
+    # (strip 1-based, its largest standard deviation at a strip end, m); empty without a correction per strip
+    strip_sigma_m: tuple = ()
+    block_radius_m: float = math.nan  # the GNSS positions' largest distance from their centre in plan (m)
+
+    def checks_spread(self, xy_m: np.ndarray) -> bool:
+        """Do check points at plan positions ``xy_m`` (n, 2; metres) spread over the block: "spread" (``_layout``)
+        and their standard deviation across their narrowest direction at least ``CHECK_SPREAD_SHARE`` of its
+        radius?"""
+        xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+        if len(xy) < 3 or _layout(xy) != "spread" or not math.isfinite(self.block_radius_m):
+            return False
+        narrow = np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False)[1] / math.sqrt(len(xy))
+        return bool(narrow >= CHECK_SPREAD_SHARE * self.block_radius_m)
+
+    def strips_not_held(self, height_limit_m: float) -> tuple:
+        """(strip 1-based, minimal detectable bias m) of the strips whose vertical correction the control left
+        would not detect off by the height limit (``mdb_sigmas`` times its sigma at the strip's worse end)."""
+        lam = mdb_sigmas(self.alpha)
+        return tuple((s, lam * sd) for s, sd in self.strip_sigma_m if lam * sd > height_limit_m)
 
     def out_agree(self) -> bool:
         """More than one point out, all off the solution the same way: they may hold a datum the GNSS's is not."""
@@ -85,16 +115,24 @@ class HeightDatumCheck:
     def disagrees(self) -> bool:
         return math.isfinite(self.chi2) and self.chi2 > float(chi2_dist.isf(self.alpha, self.terms))
 
+    def out_unchecked(self) -> bool:
+        """Under a GNSS correction per strip (the GNSS heights free per strip: the control left carries the heights
+        alone), several points left out all off the same way: the data snooping, which takes one blunder at a time,
+        may have left out the right ones and kept mistyped ones that tilt the block (review 32)."""
+        return self.correction in ("shift", "shift_drift") and self.out_agree()
+
     def held(self, height_limit_m: float) -> bool:
-        return self.mdb_m <= height_limit_m and not self.disagrees()
+        return (self.mdb_m <= height_limit_m and not self.disagrees() and not self.strips_not_held(height_limit_m)
+                and not self.out_unchecked())
 
 
 def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc, control_active, *, sigma0: float,
                        alpha: float) -> HeightDatumCheck | None:
     """``HeightDatumCheck`` at the solution (``rc`` the unit-weight reduced covariance) when the data snooping left
     out some of the control points with a height and kept others (all out: the report's own finding); None without
-    GNSS (the control alone carries the datum: the geometry modes judge it), without such a loss, or where the GNSS
-    correction takes the whole plane (shift_drift over parallel strips)."""
+    GNSS (the control alone carries the datum: the geometry modes judge it) or without such a loss. Where the GNSS
+    correction takes the whole plane (shift_drift over parallel strips) only the strips' corrections are judged
+    (``terms`` 0)."""
     if block.gnss_local is None or not len(block.control_rows):
         return None
     rows_kind = np.asarray(block.control_rows)
@@ -111,8 +149,14 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
     rho = max(float(np.max(np.linalg.norm(xy, axis=1))), 1e-9)
     P = np.column_stack([np.ones(len(g)), xy / rho])  # (N, 3): offset, east, north at each GNSS position
     P = _beyond_correction(block, opts, P, w[:, 2])
-    if P.shape[1] == 0:
-        return None
+    lo = (tuple(str(ids[c]) for c in np.flatnonzero(left)), tuple(str(ids[c]) for c in np.flatnonzero(out)))
+    cl = np.asarray(block.control_local, dtype=float)
+    dz = [float(cl[c, 2] - state.points[block.control_point[c]][2]) for c in np.flatnonzero(out)]
+    more = dict(terms=P.shape[1], correction=opts.gnss_correction, layout=_layout(cl[np.flatnonzero(left), :2]),
+                out_dz_m=tuple(dz), strip_sigma_m=_strip_sigmas(block, opts, rc, sigma0),
+                block_radius_m=rho)
+    if P.shape[1] == 0:  # the correction takes the whole plane: its strips' own sigmas alone
+        return HeightDatumCheck(0.0, math.nan, math.nan, alpha, *lo, **more)
     h = np.einsum("n,na,nb->ab", w[:, 2], P, P)
     grad = P.T @ (w[:, 2] * (g[:, 2] - pred[:, 2]))
     b = np.zeros((rc.n, P.shape[1]))
@@ -120,11 +164,6 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
         for k, J in row:
             b[rc.offset[k]:rc.offset[k] + J.shape[1]] += np.outer(J[2], w[i, 2] * P[i])
     S = h - b.T @ rc.multiply(b)
-    lo = (tuple(str(ids[c]) for c in np.flatnonzero(left)), tuple(str(ids[c]) for c in np.flatnonzero(out)))
-    cl = np.asarray(block.control_local, dtype=float)
-    dz = [float(cl[c, 2] - state.points[block.control_point[c]][2]) for c in np.flatnonzero(out)]
-    more = dict(terms=P.shape[1], correction=opts.gnss_correction, layout=_layout(cl[np.flatnonzero(left), :2]),
-                out_dz_m=tuple(dz))
     # singular where the control left cannot fix the plane (one point, points on a line): relative to h's scale
     ev = np.linalg.eigvalsh(0.5 * (S + S.T))
     if not (ev[0] > 1e-9 * max(ev[-1], 1e-300)):
@@ -135,6 +174,36 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
     i = int(np.argmax(sd))
     c2 = float(est @ S @ est) / sigma0**2 if sigma0 > 0 else math.nan
     return HeightDatumCheck(float(sd[i]), float(P[i] @ est), c2, alpha, *lo, **more)
+
+
+def _strip_sigmas(block: G.Block, opts: G.SolveSettings, rc, sigma0: float) -> tuple:
+    """(strip 1-based, m) each strip's vertical GNSS correction's standard deviation at its worse end (the shift's,
+    with a drift ``shift + t drift`` at the strip's first and last image, ``t`` along-track km) from the solution's
+    covariance ``rc`` (unit weight) times ``sigma0``; () without a correction per strip (review 32: a strip whose
+    shift only its a-priori sigma bounds takes the GNSS heights' error unchecked)."""
+    if opts.gnss_correction not in ("shift", "shift_drift") or not math.isfinite(sigma0):
+        return ()
+    from aerotri.adjust.keys import D, S
+
+    drift = opts.gnss_correction == "shift_drift"
+    strip = np.asarray(block.strip, dtype=int)
+    along = np.asarray(block.along_km, dtype=float)
+    out = []
+    for s in range(G.n_shifts(block, opts.gnss_correction)):
+        if S(s) not in rc.offset:
+            continue
+        if drift and D(s) in rc.offset:
+            t = along[strip == s]
+            keys = [(S(s), 2), (D(s), 2)]
+            idx = np.array([rc.offset[k] + a for k, a in keys])
+            C = rc.entries(idx[:, None], idx[None, :])
+            ends = np.array([[1.0, t.min()], [1.0, t.max()]]) if len(t) else np.array([[1.0, 0.0]])
+            var = float(np.max(np.einsum("na,ab,nb->n", ends, C, ends)))
+        else:
+            i = rc.offset[S(s)] + 2
+            var = float(rc.entries(np.array([i]), np.array([i]))[0])
+        out.append((s + 1, math.sqrt(max(var, 0.0)) * sigma0))
+    return tuple(out)
 
 
 def _beyond_correction(block: G.Block, opts: G.SolveSettings, P: np.ndarray, w_z: np.ndarray) -> np.ndarray:

@@ -711,6 +711,21 @@ def height_datum_text(hd, height_limit_m: float) -> str:
             why += " (one point: three not on a line are needed)"
         elif hd.layout == "on a line":
             why += " (they lie on a line: three not on a line are needed)"
+    elif hd.terms == 0 or (not hd.disagrees() and hd.mdb_m <= height_limit_m):
+        # the plane held (or all the correction's): a strip's correction not held, or the points out all one way
+        not_held = hd.strips_not_held(height_limit_m)
+        parts = []
+        if not_held:
+            parts.append("would not detect the vertical GNSS correction of " + ", ".join(
+                f"strip {s} off by less than {m:.2f} m" for s, m in not_held) + " at the strip's worse end (Baarda's "
+                f"minimal detectable bias from the solution's covariance) against the {height_limit_m:.2f} m height "
+                "limit")
+        if hd.out_unchecked():
+            parts.append(f"carry the heights alone ({_CORRECTION_TAKES.get(hd.correction, hd.correction)} frees the "
+                         f"GNSS heights), and the {len(out)} points left out are all off the same way "
+                         f"({', '.join(f'{d:+.2f}' for d in hd.out_dz_m[:6])} m given minus adjusted): the data "
+                         "snooping, one blunder at a time, may have left out the right ones and kept mistyped ones")
+        why = "; and ".join(parts) + ": the block's heights are unchecked"
     elif hd.disagrees():
         why = (f"disagree with the GNSS heights ({what} fitted to them: chi-square {hd.chi2:.1f}, {hd.terms} "
                f"degrees of freedom, alpha {hd.alpha:g}; {hd.corner_estimate_m:+.2f} +- {hd.corner_sigma_m:.2f} m at "
@@ -723,7 +738,8 @@ def height_datum_text(hd, height_limit_m: float) -> str:
     # several out, all off the same way: they may hold a datum the GNSS's and the rest are not in (review 29: not for
     # one point out, the mistyped point the sentence before names as the usual cause)
     right = (", and the points left out, all off the same way, may be the right ones (GNSS or control heights in "
-             "another height system, an antenna height or lever arm off)" if hd.out_agree() else "")
+             "another height system, an antenna height or lever arm off)" if hd.out_agree() and not hd.out_unchecked()
+             else "")
     return head + why + right + ". Survey or re-measure the points left out, or add check points."
 
 
@@ -913,9 +929,15 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     hd = getattr(r, "height_datum", None)
     hd_text, height_datum_weak = None, False
     if hd is not None and not all_control_out and not hd.held(height_limit_m):
-        dz = _check_rows(ba)[1][:, 2] * np.asarray(unit, dtype=float).reshape(-1)[-1]  # metres
-        dz = dz[np.isfinite(dz)]
-        if len(dz) >= HEIGHT_CHECKS_MIN:
+        d_chk = _check_rows(ba)[1]
+        dz = d_chk[:, 2] * np.asarray(unit, dtype=float).reshape(-1)[-1]  # metres
+        # ... only when they spread over the block (review 32: 3 check points in one corner, RMS Z 0.2-0.5 m, while
+        # all 20 gave 1.0-1.5 m: 6 of 12 "Successful")
+        xy_m = np.array([c["measured_m"][:2] for c in ba.check.values()
+                         if np.all(np.isfinite(np.array(c["adjusted_m"]) - np.array(c["measured_m"])))],
+                        dtype=float).reshape(-1, 2) * np.asarray(unit, dtype=float).reshape(-1)[0]
+        xy_m, dz = xy_m[np.isfinite(dz)], dz[np.isfinite(dz)]
+        if len(dz) >= HEIGHT_CHECKS_MIN and hd.checks_spread(xy_m):
             hd_text = height_checks_text(hd, len(dz), float(np.sqrt(np.mean(dz**2))), height_limit_m)
         else:
             hd_text = height_datum_text(hd, height_limit_m)
