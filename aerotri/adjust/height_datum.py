@@ -57,10 +57,17 @@ POWER = 0.8  # Baarda's detection power: the minimal detectable bias is (critica
 # tilt under one offset at about 50 %): a fixed order-of-magnitude cut between the two, not fitted to any block
 SURVIVING_SHARE = 0.1
 COLLINEAR_SHARE = 0.05  # control points whose plan spread across their line is below this share of it: on a line
-# check points with a height decide the heights instead of the rule only when they spread over the block: "spread"
-# (``_layout``) and their standard deviation across their narrowest direction at least this share of the block's
-# radius (points uniform over the 3 x 6 simulated block: 0.3-0.4; 3 in one corner: below 0.1; review 32)
+# check points with a height decide the heights instead of the rule only when they spread over the block: their
+# standard deviation along each of the block's principal directions at least this share of the block's own there
+# (points uniform over a block: about 1; 3 in one corner or a line along a wide block: below 0.2; review 32, 35)
 CHECK_SPREAD_SHARE = 0.2
+
+
+def _block_axes(xy: np.ndarray) -> dict:
+    """The principal directions of the block's centred plan positions ``xy`` and the standard deviation along each."""
+    _, sv, vt = np.linalg.svd(xy, full_matrices=False)
+    return dict(block_axes=tuple(float(v) for v in vt.ravel()),
+                block_spread_m=tuple(float(v) for v in sv / math.sqrt(max(len(xy), 1))))
 
 
 def mdb_sigmas(alpha: float) -> float:
@@ -86,16 +93,20 @@ class HeightDatumCheck:
     # (strip 1-based, its largest standard deviation at a strip end, m); empty without a correction per strip
     strip_sigma_m: tuple = ()
     block_radius_m: float = math.nan  # the GNSS positions' largest distance from their centre in plan (m)
+    block_axes: tuple | None = None  # the GNSS positions' principal directions in plan (2 x 2 flat, rows unit)
+    block_spread_m: tuple = (math.nan, math.nan)  # their standard deviation along each (m)
 
     def checks_spread(self, xy_m: np.ndarray) -> bool:
-        """Do check points at plan positions ``xy_m`` (n, 2; metres) spread over the block: "spread" (``_layout``)
-        and their standard deviation across their narrowest direction at least ``CHECK_SPREAD_SHARE`` of its
-        radius?"""
+        """Do check points at plan positions ``xy_m`` (n, 2; metres) spread over the block: their standard deviation
+        along each of the block's principal directions (its GNSS positions') at least ``CHECK_SPREAD_SHARE`` of the
+        block's own there? Measured on the block's axes, so a corridor's check points along it decide (review 35:
+        against the block's radius they never could across it), a line of them along a wide block does not."""
         xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
-        if len(xy) < 3 or _layout(xy) != "spread" or not math.isfinite(self.block_radius_m):
+        if len(xy) < 3 or self.block_axes is None:
             return False
-        narrow = np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False)[1] / math.sqrt(len(xy))
-        return bool(narrow >= CHECK_SPREAD_SHARE * self.block_radius_m)
+        axes = np.asarray(self.block_axes, dtype=float).reshape(2, 2)  # rows: the block's principal directions
+        spread = np.std((xy - xy.mean(axis=0)) @ axes.T, axis=0)
+        return bool(np.all(spread >= CHECK_SPREAD_SHARE * np.asarray(self.block_spread_m, dtype=float)))
 
     def strips_not_held(self, height_limit_m: float) -> tuple:
         """(strip 1-based, minimal detectable bias m) of the strips whose vertical correction the control left
@@ -154,7 +165,7 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
     dz = [float(cl[c, 2] - state.points[block.control_point[c]][2]) for c in np.flatnonzero(out)]
     more = dict(terms=P.shape[1], correction=opts.gnss_correction, layout=_layout(cl[np.flatnonzero(left), :2]),
                 out_dz_m=tuple(dz), strip_sigma_m=_strip_sigmas(block, opts, rc, sigma0),
-                block_radius_m=rho)
+                block_radius_m=rho, **_block_axes(xy))
     if P.shape[1] == 0:  # the correction takes the whole plane: its strips' own sigmas alone
         return HeightDatumCheck(0.0, math.nan, math.nan, alpha, *lo, **more)
     h = np.einsum("n,na,nb->ab", w[:, 2], P, P)

@@ -204,8 +204,9 @@ def transform_cmd(*, input_path, output_path, from_epsg, to_epsg, params, height
 def assign_cmd(*, input_path, output_path, crs_text, chunk_size):
     """Re-tag a LAS/LAZ file whose CRS record is wrong or missing: OUT is IN with the CRS record of --crs, no point
     moved (as PDAL's override_srs, gdal_edit -a_srs). Refused when IN's header bounds cannot be --crs coordinates
-    (degrees out of range, another Gauss-Krueger zone, beyond the projection); a warning when they lie outside its area
-    of use. To move the points into another CRS use 'crs transform'."""
+    (degrees out of range, another Gauss-Krueger zone, beyond the projection, or more than 10 degrees from its area of
+    use); a warning when they lie outside its area of use by less. To move the points into another CRS use 'crs
+    transform'."""
     t0 = time.perf_counter()
     r = assign_las(input_path, output_path, crs_text, chunk_size=chunk_size)
     for w in r.warnings:

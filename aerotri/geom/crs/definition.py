@@ -410,8 +410,9 @@ def impossible_in(crs: pyproj.CRS, x, y, tolerance_m: float = 1.0) -> int | None
     return int(np.argmax(bad)) if bad.any() else None
 
 
-# ``check_coordinates(outside_area="warn")``: beyond this distance from a CRS's area of use (degrees of longitude or
-# latitude) a point is refused even so; grids used past their zone reach 1-4.5 deg beyond it (review 31)
+# ``check_coordinates(outside_area="warn")``: beyond this distance from a CRS's area of use (degrees of a great circle,
+# about: the longitude gap times the cos of the latitude, and the latitude gap) a point is refused even so; grids used
+# past their zone reach 1-4.5 deg beyond it (review 31), Finnmark in UTM 33 about 4 (review 35)
 FAR_OUTSIDE_AREA_DEG = 10.0
 
 
@@ -514,7 +515,13 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
     if outside_area == "warn":
         # national grids used past their zone reach 1-4.5 deg beyond its area (review 31); a record tens of degrees
         # away is a wrong CRS, not such a use (review 33: Autzen's Oregon feet assigned the Swiss grid, 22 deg off)
-        beyond = np.maximum.reduce([west - lon, lon - east, aou.south - lat, lat - aou.north, np.zeros_like(lon)])
+        # the longitude gap modulo 360 (areas across or ending at the antimeridian, review 35) and shortened by
+        # the cos of the latitude (Finnmark in UTM 33: 11-12 deg of longitude past the zone, about 460 km at 70 N)
+        width = (aou.east - aou.west) % 360.0 or 360.0
+        rel = (lon - aou.west) % 360.0
+        gap_lon = np.where(rel <= width, 0.0, np.minimum(rel - width, 360.0 - rel))
+        gap_lat = np.maximum.reduce([aou.south - lat, lat - aou.north, np.zeros_like(lat)])
+        beyond = np.hypot(gap_lon * np.cos(np.radians(np.clip(lat, -90.0, 90.0))), gap_lat)
         far = ~np.isfinite(beyond) | (beyond > FAR_OUTSIDE_AREA_DEG)
         if far.any():
             i = int(np.argmax(far))

@@ -129,6 +129,19 @@ def test_assign_refuses_a_crs_whose_area_lies_tens_of_degrees_away(tmp_path):
     assert r.exit_code == 0, r.output
 
 
+@pytest.mark.parametrize("target,lon,lat", [("EPSG:32760", -179.5, -18.0), ("EPSG:32601", 175.0, 60.0),
+                                            ("EPSG:26940", 168.0, 53.0), ("EPSG:3338", 165.0, 55.0),
+                                            ("EPSG:25833", 30.0, 70.4)])
+def test_far_outside_is_measured_across_the_antimeridian_and_shortened_at_high_latitude(target, lon, lat):
+    """Review 35: Fiji's Lau group in UTM 60S, 175 E in UTM 1N, the Aleutians west of 180 in Alaska's grids, Vardoe
+    in UTM 33 (12 deg of longitude past the zone at 70 N, about 4 of a great circle): warned, not refused."""
+    from aerotri.geom.crs.definition import check_coordinates, parse_crs
+
+    crs = parse_crs(target)
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
+    assert check_coordinates(crs, [x], [y], "c.las", outside_area="warn") is not None
+
+
 def test_check_coordinates_warn_refuses_only_points_the_crs_cannot_hold():
     """``outside_area="warn"``: a northing beyond the pole (UTM 33N, 12,000 km: PROJ takes it to lon -165), a point
     outside the projection's domain (not finite) are refused; Bergen in UTM 33 is the returned warning."""
