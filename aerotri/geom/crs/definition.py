@@ -460,7 +460,10 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
     if op is not None and "transverse mercator" in op.method_name.lower():
         params = {p.name.lower(): p.value for p in op.params}
         fe = float(params.get("false easting", 0.0))
-    if fe is not None and fe >= 1_000_000.0 and abs(linear_unit_m(h) - 1.0) < 1e-12:
+    # a zone prefix is the zone number's millions before a 500 km false easting (3,500,000 DHDN 3; 38,500,000 CGCS2000
+    # 3-degree zone 38): NZTM's 1,600,000 and Fiji's 2,000,000 false eastings are none (review 35: refused there)
+    if (fe is not None and fe >= 1_000_000.0 and abs(fe % 1_000_000.0 - 500_000.0) < 1e-6
+            and abs(linear_unit_m(h) - 1.0) < 1e-12):
         zone = int(fe // 1_000_000)
         bad = np.floor(x / 1_000_000.0).astype(int) != zone
         if bad.any():

@@ -142,6 +142,20 @@ def test_far_outside_is_measured_across_the_antimeridian_and_shortened_at_high_l
     assert check_coordinates(crs, [x], [y], "c.las", outside_area="warn") is not None
 
 
+@pytest.mark.parametrize("target,lon,lat", [("EPSG:2193", 178.0, -38.66), ("EPSG:3460", 178.44, -18.14)])
+def test_a_false_easting_of_whole_millions_is_no_zone_prefix(target, lon, lat):
+    """Review 35: NZTM (false easting 1,600,000) at Gisborne and the Fiji Map Grid (2,000,000) at Suva were refused
+    as "does not carry the zone prefix"; Gauss-Krueger's prefix is the millions before 500 km, still checked."""
+    from aerotri.core.errors import InputError
+    from aerotri.geom.crs.definition import check_coordinates, parse_crs
+
+    crs = parse_crs(target)
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
+    assert check_coordinates(crs, [x], [y], "c.las") is None
+    with pytest.raises(InputError, match="zone prefix 3"):
+        check_coordinates(parse_crs("EPSG:31467"), [500000.0], [5500000.0], "c.las")
+
+
 def test_check_coordinates_warn_refuses_only_points_the_crs_cannot_hold():
     """``outside_area="warn"``: a northing beyond the pole (UTM 33N, 12,000 km: PROJ takes it to lon -165), a point
     outside the projection's domain (not finite) are refused; Bergen in UTM 33 is the returned warning."""
