@@ -92,7 +92,6 @@ class HeightDatumCheck:
     # each strip's vertical GNSS correction (shift, and drift at the strip's ends) as the solution determines it:
     # (strip 1-based, its largest standard deviation at a strip end, m); empty without a correction per strip
     strip_sigma_m: tuple = ()
-    block_radius_m: float = math.nan  # the GNSS positions' largest distance from their centre in plan (m)
     block_axes: tuple | None = None  # the GNSS positions' principal directions in plan (2 x 2 flat, rows unit)
     block_spread_m: tuple = (math.nan, math.nan)  # their standard deviation along each (m)
 
@@ -165,7 +164,7 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
     dz = [float(cl[c, 2] - state.points[block.control_point[c]][2]) for c in np.flatnonzero(out)]
     more = dict(terms=P.shape[1], correction=opts.gnss_correction, layout=_layout(cl[np.flatnonzero(left), :2]),
                 out_dz_m=tuple(dz), strip_sigma_m=_strip_sigmas(block, opts, rc, sigma0),
-                block_radius_m=rho, **_block_axes(xy))
+                **_block_axes(xy))
     if P.shape[1] == 0:  # the correction takes the whole plane: its strips' own sigmas alone
         return HeightDatumCheck(0.0, math.nan, math.nan, alpha, *lo, **more)
     h = np.einsum("n,na,nb->ab", w[:, 2], P, P)
