@@ -16,6 +16,7 @@ from aerotri.qa.report import write_qa_report
 from ortho.check import (DOM_MAX_UNMATCHED_SHARE, DOM_MIN_REGION_PATCHES, UnmatchedPatches, read_dom_check,
                          run_check)
 from ortho.cli import main
+from tests.ortho.test_seam_rows import _move_frame
 
 RES_M = 0.2  # the synthetic block's GSD
 SHIFTED = "s01_001"  # a frame whose region of the mosaic holds enough textured patches to be judged on its own
@@ -25,19 +26,6 @@ def _ortho(root) -> None:
     for args in (["rectify", root], ["mosaic", root, "--seams", "voronoi"]):
         r = CliRunner().invoke(main, [str(a) for a in args])
         assert r.exit_code == 0, r.output
-
-
-def _move_frame(root, frame: str, de_m: float) -> None:
-    """The frame's projection centre moved ``de_m`` east in at/eo.txt: its ortho moves that far (flat ground)."""
-    eo = root / "at" / "eo.txt"
-    lines = []
-    for line in eo.read_text().splitlines():
-        f = line.split()
-        if f and f[0] == frame:
-            f[1] = f"{float(f[1]) + de_m:.4f}"
-            line = " ".join(f)
-        lines.append(line)
-    eo.write_text("\n".join(lines) + "\n")
 
 
 @pytest.fixture(scope="module")
