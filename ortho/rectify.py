@@ -477,8 +477,9 @@ class GroundFlags:
 
 
 def _ground_level(ndsm_m: np.ndarray) -> tuple[float, float, float]:
-    """``GroundFlags``'s ``level_m``, ``level_share``, ``above_share`` of the finite nDSM heights ``ndsm_m`` (1-D)."""
-    v = np.sort(ndsm_m[::max(1, ndsm_m.size // STAND_OFF_SAMPLES)])
+    """``GroundFlags``'s ``level_m``, ``level_share``, ``above_share`` of finite nDSM heights ``ndsm_m`` (1-D, a
+    sample of the window's cells)."""
+    v = np.sort(ndsm_m)
     lo, hi = float(v[0]), float(v[int(STAND_OFF_LOW_SHARE * (v.size - 1))])
     centres = np.arange(lo, hi + 0.05, 0.1)
     counts = (np.searchsorted(v, centres + GROUND_NDSM_M, "right") - np.searchsorted(v, centres - GROUND_NDSM_M))
@@ -511,10 +512,14 @@ def ground_flags(dsm: HeightRaster, dem: HeightRaster) -> GroundFlags:
     ndsm_m = dsm.heights_m - ground_m
     with np.errstate(invalid="ignore"):
         cells = (np.abs(ndsm_m) <= slack_m).astype(np.uint8)
-    seen = ndsm_m[np.isfinite(ndsm_m)]
-    if not seen.size:
+    n_seen = int(np.count_nonzero(np.isfinite(ndsm_m)))
+    if not n_seen:
         return GroundFlags(cells, 0.0, 0.0, 0.0, 0.0)
-    return GroundFlags(cells, int(np.count_nonzero(cells)) / seen.size, *_ground_level(seen))
+    sample = ndsm_m.ravel()[::max(1, ndsm_m.size // STAND_OFF_SAMPLES)]  # (evenly spaced: a window of 50 M cells)
+    sample = sample[np.isfinite(sample)]
+    if not sample.size:
+        sample = ndsm_m[np.isfinite(ndsm_m)]
+    return GroundFlags(cells, int(np.count_nonzero(cells)) / n_seen, *_ground_level(sample))
 
 
 def ground_cells(dsm: HeightRaster, dem: HeightRaster) -> np.ndarray:
