@@ -17,7 +17,7 @@ Per frame, over the ground cells the frame images (its conventional footprint):
 - ``hidden_but_valid`` split by the step that let it through: the march over every pixel (no z-buffer) hides it
   too (``zbuffer_missed``: the z-buffer did not make it a candidate) or not (``march_missed``).
 
-Usage: python bench/eval_true_ortho_masks.py PROJECT [PROJECT ...] [--truth-orientation] [--out FILE]
+Usage: python bench/eval_true_ortho_masks.py PROJECT [PROJECT ...] [--truth-orientation] [--columns] [--out FILE]
 PROJECT is a simulated project with ``truth/`` (``aerotri sim``); the DSM is ``lidar_out/dsm.tif`` when it exists,
 else ``truth/dsm.tif`` (the simulator's exact one, 0.5 m point samples of the surface); the orientation the chain's
 ``at/eo.txt`` when it exists unless ``--truth-orientation`` (then ``truth/eo.txt`` and ``truth/camera.toml``).
@@ -51,12 +51,14 @@ def frame_inputs(project: Path, truth_orientation: bool):
     return load_block(project, **kw)
 
 
-def frame_layers(block, i: int, dsm, dem, res_m: float):
+def frame_layers(block, i: int, dsm, dem, res_m: float, columns: bool = False):
     """For frame ``i``: its grid, the imaged mask on the DSM (no occlusion), the true ortho's mask, the z-buffer's
-    candidates and the march over every imaged pixel, as booleans on the grid."""
+    candidates and the march over every imaged pixel, as booleans on the grid. The march's continuous surface over
+    the ground cells of the DSM on the DEM (``ground_cells``, as ``ortho rectify --true-ortho`` passes them);
+    ``columns``: none, every DSM cell a column (this bench before 2026-12-01)."""
     from ortho.grid import GridToProject
-    from ortho.rectify import (FrameGeometry, fixed_point_maps, frame_grid, frame_zbuffer, occlusion_mask,
-                               rectify_frame, zbuffer_occlusion_from_maps)
+    from ortho.rectify import (FrameGeometry, fixed_point_maps, frame_grid, frame_zbuffer, ground_cells,
+                               occlusion_mask, rectify_frame, zbuffer_occlusion_from_maps)
 
     image_id = block.eo.image_id[i]
     C = block.eo.centre_m[i]
@@ -66,16 +68,17 @@ def frame_layers(block, i: int, dsm, dem, res_m: float):
     to_project = GridToProject(crs, crs)
     grid = frame_grid(cam, C, R, dem, res_m, crs, to_project=to_project, image_id=image_id, partial=True)
     image = np.zeros((cam.height, cam.width), np.uint8)
+    ground = None if columns else ground_cells(dsm, dem)
     t = time.process_time()
     _, mask = rectify_frame(image, cam, C, R, dsm, grid, occlusion_dsm=dsm, tile_px=max(grid.width, grid.height) + 1,
-                            threads=1)
+                            threads=1, ground=ground)
     cpu = time.process_time() - t
     geometry = FrameGeometry(cam, np.asarray(C, float), np.asarray(R, float))
     map_int, _, imaged, z, anchors = fixed_point_maps(geometry, dsm, grid, to_project)
     zb = frame_zbuffer(geometry, dsm, grid, to_project, tile_px=max(grid.width, grid.height) + 1)
     cand = np.zeros(z.shape, bool)
     zbuffer_occlusion_from_maps(geometry, zb, grid, map_int.copy(), imaged, z, out=cand)
-    march = occlusion_mask(geometry, dsm, grid, z, anchors, candidates=imaged > 0)
+    march = occlusion_mask(geometry, dsm, grid, z, anchors, candidates=imaged > 0, ground=ground)
     return image_id, grid, imaged > 0, mask > 0, cand, march, z, cpu
 
 
@@ -132,7 +135,7 @@ def confusion(truth, image_id: str, grid, imaged, valid, cand, march, z_dsm):
     return out, {"hbv": hbv, "vbm": vbm, "hidden": hidden, "sees": sees, "roof": roof, "kind": kind}
 
 
-def run_project(project: Path, truth_orientation: bool, frames=None, keep=None) -> dict:
+def run_project(project: Path, truth_orientation: bool, frames=None, keep=None, columns: bool = False) -> dict:
     from eval_true_ortho_occlusion import Truth
 
     from ortho.block import default_resolution
@@ -152,7 +155,7 @@ def run_project(project: Path, truth_orientation: bool, frames=None, keep=None) 
     truth = Truth(project)
     out = {"project": str(project), "dsm": str(dsm_path.relative_to(project)),
            "orientation": "truth/eo.txt, truth/camera.toml" if truth_orientation else "at/eo.txt",
-           "res_m": res_m, "frames": []}
+           "res_m": res_m, "march": "columns only" if columns else "ground cells of the DSM on the DEM", "frames": []}
     tot = {}
     from ortho.block import _plane_footprint_bounds
 
@@ -165,7 +168,7 @@ def run_project(project: Path, truth_orientation: bool, frames=None, keep=None) 
             dsm = read_height_window(ds, bounds, margin_m=4 * ds.transform.a, what="DSM")
         with open_height_raster(dem_path, block.project_crs, "DEM") as ds:
             dem = read_height_window(ds, bounds, margin_m=4 * ds.transform.a, what="DEM")
-        image_id, grid, imaged, valid, cand, march, z, cpu = frame_layers(block, i, dsm, dem, res_m)
+        image_id, grid, imaged, valid, cand, march, z, cpu = frame_layers(block, i, dsm, dem, res_m, columns)
         row, layers = confusion(truth, image_id, grid, imaged, valid, cand, march, z)
         row["rectify_cpu_s"] = round(cpu, 2)
         if keep is not None:
@@ -190,11 +193,13 @@ def main() -> None:
     ap.add_argument("projects", type=Path, nargs="+")
     ap.add_argument("--truth-orientation", action="store_true")
     ap.add_argument("--frames", default=None)
+    ap.add_argument("--columns", action="store_true", help="no ground cells: every DSM cell a column (as before)")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_masks.json")
     ap.add_argument("--key", default=None, help="key of the result in the JSON (default: the project's name)")
     args = ap.parse_args()
     for p in args.projects:
-        res = run_project(p, args.truth_orientation, args.frames.split(",") if args.frames else None)
+        res = run_project(p, args.truth_orientation, args.frames.split(",") if args.frames else None,
+                          columns=args.columns)
         res["commit"] = git_commit(REPO)
         print(p, json.dumps(res["all_frames"], indent=1))
         store_result(args.out, res, key=args.key or p.name)

@@ -23,6 +23,9 @@ camera, project.toml, at/eo.txt, lidar_out/dem.tif and dsm.tif copied into ``--w
 
 Usage: python bench/true_ortho_cost.py [--demo /work/ref/demo_chain/project]
        [--dmc /work/bench_blocks/dmc_block_subset_3x8_run] [--dmc-frames s02_004,s02_005,s02_006] [--work DIR]
+       python bench/true_ortho_cost.py --demo PROJECT --agreement-only FRAME [--agreement-tile-px 480]
+       (the occlusion agreement alone, on a project with frame orthos: the march over columns only and over the
+       ground cells)
 """
 
 from __future__ import annotations
@@ -132,9 +135,12 @@ def cli(work: Path, name: str, frames: list[str] | None) -> dict:
     return out
 
 
-def occlusion_agreement(project: Path, frame: str, tiles: int = 6, tile_px: int = 1024) -> dict:
+def occlusion_agreement(project: Path, frame: str, tiles: int = 6, tile_px: int = 1024,
+                        columns: bool = False) -> dict:
     """The true ortho's occlusion (z-buffer, then the march for its candidates) against the march over every
-    pixel, on ``tiles`` tiles spread over the frame's grid; and the jumping march against the step-by-step one."""
+    pixel, on ``tiles`` tiles spread over the frame's grid; and the jumping march against the step-by-step one. The
+    march's continuous surface over the ground cells of the DSM on the DEM (lidar_out/dem.tif), as ``ortho rectify
+    --true-ortho`` passes them; ``columns``: none, every DSM cell a column (this bench before 2026-12-01)."""
     from aerotri.geom.rotation import rotation_matrix_opk
     from ortho import rectify as RF
     from ortho.block import _plane_footprint_bounds, load_block
@@ -147,8 +153,11 @@ def occlusion_agreement(project: Path, frame: str, tiles: int = 6, tile_px: int 
     index = json.loads((project / "ortho" / "frames" / "index.json").read_text())
     with open_height_raster(project / "lidar_out" / "dsm.tif", b.project_crs, "DSM") as ds:
         zlo, zhi = float(np.nanmin(ds.read(1, masked=True))), float(np.nanmax(ds.read(1, masked=True)))
-        dsm = read_height_window(ds, _plane_footprint_bounds(b.camera, C, R, zlo - 5.0, zhi + 5.0, frame),
-                                 margin_m=4 * ds.transform.a, what="DSM")
+        bounds = _plane_footprint_bounds(b.camera, C, R, zlo - 5.0, zhi + 5.0, frame)
+        dsm = read_height_window(ds, bounds, margin_m=4 * ds.transform.a, what="DSM")
+    with open_height_raster(project / "lidar_out" / "dem.tif", b.project_crs, "DEM") as ds:
+        dem = read_height_window(ds, bounds, margin_m=4 * ds.transform.a, what="DEM")
+    ground = None if columns else RF.ground_cells(dsm, dem)
     to_project = GridToProject(b.project_crs, b.project_crs)
     grid = RF.frame_grid(b.camera, C, R, dsm, float(index["res_m"]), b.project_crs, to_project=to_project, partial=True)
     geometry = RF.FrameGeometry(b.camera, np.asarray(C, float), np.asarray(R, float))
@@ -168,22 +177,23 @@ def occlusion_agreement(project: Path, frame: str, tiles: int = 6, tile_px: int 
         ok = mask > 0
         behind = RF.zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, mask, z,
                                                 out=np.empty(z.shape, bool))
-        occ = RF.occlusion_mask(geometry, dsm, tile, z, anchors, candidates=behind, bound=bound)
+        occ = RF.occlusion_mask(geometry, dsm, tile, z, anchors, candidates=behind, bound=bound, ground=ground)
         c = time.process_time()
-        full = RF.occlusion_mask(geometry, dsm, tile, z, anchors, bound=bound)
+        full = RF.occlusion_mask(geometry, dsm, tile, z, anchors, bound=bound, ground=ground)
         t_full += time.process_time() - c
         c = time.process_time()
-        jump = RF.occlusion_mask(geometry, dsm, tile, z, anchors, candidates=behind, bound=bound)
+        jump = RF.occlusion_mask(geometry, dsm, tile, z, anchors, candidates=behind, bound=bound, ground=ground)
         t_jump += time.process_time() - c
         c = time.process_time()
-        step = RF.occlusion_mask(geometry, dsm, tile, z, anchors, candidates=behind, bound=stepwise)
+        step = RF.occlusion_mask(geometry, dsm, tile, z, anchors, candidates=behind, bound=stepwise, ground=ground)
         t_step += time.process_time() - c
         imaged += int(ok.sum())
         occluded += int((full & ok).sum())
         candidates += int((behind & ok).sum())
         disagree += int(((occ != full) & ok).sum())
         jump_differs += int(((jump != step) & ok).sum())
-    return {"frame": frame, "tiles": [list(t) for t in picked], "tile_px": tile_px, "imaged_px": imaged,
+    return {"frame": frame, "march": "columns only" if columns else "ground cells of the DSM on the DEM",
+            "tiles": [list(t) for t in picked], "tile_px": tile_px, "imaged_px": imaged,
             "occluded_by_full_march": occluded, "occluded_share": round(occluded / imaged, 5),
             "zbuffer_candidates": candidates, "candidate_share": round(candidates / imaged, 5),
             "differ_from_full_march": disagree, "differ_share": disagree / imaged,
@@ -201,7 +211,25 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_cost")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results" / "true_ortho_cost.json")
     ap.add_argument("--skip-dmc", action="store_true")
+    ap.add_argument("--agreement-only", default=None, metavar="FRAME",
+                    help="only the occlusion agreement on FRAME of --demo (its ortho/frames/index.json), tiles of "
+                         "--agreement-tile-px, with and without the ground cells; merged into --out as "
+                         "occlusion_agreement_<project>")
+    ap.add_argument("--agreement-tile-px", type=int, default=1024)
     args = ap.parse_args()
+    if args.agreement_only:
+        from aerotri.core.atomic import write_text_atomic
+
+        got = {way: occlusion_agreement(args.demo, args.agreement_only, tile_px=args.agreement_tile_px,
+                                        columns=way == "columns_only")
+               for way in ("columns_only", "ground_cells")}
+        got["commit"] = subprocess.run(["git", "-C", str(REPO), "rev-parse", "HEAD"], capture_output=True,
+                                       text=True).stdout.strip()
+        print(json.dumps(got, indent=1), flush=True)
+        doc = json.loads(args.out.read_text()) if args.out.exists() else {}
+        doc[f"occlusion_agreement_{args.demo.parent.name}"] = got
+        write_text_atomic(args.out, json.dumps(doc, indent=1) + "\n")
+        return
     args.work.mkdir(parents=True, exist_ok=True)
     out = {"machine": {"cores": os.cpu_count()}, "note": "CPU = user + sys of every thread of the process (in-process) "
            "or of the child (cli); the first call of each way in-process is not counted"}

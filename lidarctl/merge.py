@@ -8,6 +8,8 @@ CRS: with ``crs`` (the project CRS) given, a strip tagged with another horizonta
 (naming the file and both CRSs: it must be transformed first, never silently mixed), a strip without
 a CRS record is taken to be in ``crs``, and the merged file carries ``crs``. Without ``crs`` the strips
 must agree among themselves: all with one CRS, or none with any (some with and some without one is refused).
+A CRS record may be a VLR or (LAS 1.4) an extended VLR (EVLR): the merged file keeps the first strip's VLRs and
+EVLRs (with ``crs``, none of their CRS records but ``crs``'s), so a CRS held in an EVLR alone is kept.
 """
 
 from __future__ import annotations
@@ -63,9 +65,12 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
                         "offsets on one grid (e.g. whole metres) to keep them exact")
     header.creation_date = first.creation_date
     header.global_encoding = first.global_encoding
+    # the first strip's EVLRs (LAS 1.4: a CRS record there alone was dropped, and the merged file had no CRS)
+    evlrs = las.copc_free(first.evlrs or []) if first.version.minor >= 4 else []
     if project_crs is not None:
         # the merged file states the project CRS (strips without a CRS record are taken to be in it)
         header.vlrs = [v for v in las.copc_free(first.vlrs) if not _is_crs_vlr(v)]
+        evlrs = [v for v in evlrs if not _is_crs_vlr(v)]
         header.add_crs(project_crs)
     else:
         # a COPC strip's records point into its own chunks: the merged file is a plain LAS/LAZ (laspy writes no COPC:
@@ -81,6 +86,10 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
                     except OverflowError:  # points beyond the strip's header bounds (a writer's wrong header)
                         raise InputError(f"{p}: {_RANGE_ADVICE.format(first=paths[0])}") from None
                     total += len(chunk)
+            if evlrs:
+                from laspy.vlrs.vlrlist import VLRList
+
+                w.write_evlrs(VLRList(evlrs))
     return total
 
 

@@ -56,9 +56,9 @@ from ortho.dem import (dem_height_operation, height_range, height_window, open_h
                        warn_zero_fill)
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, overview_factors, parse_crs, resolve_output_crs
-from ortho.rectify import (WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share, footprint_polygon_xy,
-                           black_corners, declares_nodata, frame_validity, grid_around_footprint, ground_cells,
-                           heights_on_grid, rectify_frame)
+from ortho.rectify import (GROUND_NDSM_M, WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share,
+                           footprint_polygon_xy, black_corners, declares_nodata, frame_validity, grid_around_footprint,
+                           ground_flags, heights_on_grid, rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
 
 # the camera and image readers (aerotri.geom.camera compiles its lens model with numba: 0.3 CPU-s to import)
@@ -647,12 +647,13 @@ def _rectify_frame(task: FrameTask) -> dict:
         invalid_share = 1.0 - cv2.countNonZero(source_valid) / source_valid.size
         _log.info(f"frame {task.image_id}: {100 * invalid_share:.1f} % of "
                   "its pixels are its own nodata or beside it (its nodata value or mask): nodata in its ortho")
+    # continuous surface over the ground alone (the DEM's window); a DSM standing off the DEM: told once for the block
+    flags = ground_flags(surface, dem) if task.dsm_path else None
     valid_fraction = rectify_frame_to_file(task.out_path, image, band_order, task.camera, C, R, heights=heights,
                                            grid=grid, interpolation=task.interpolation, to_project=to_project,
                                            occlusion_dsm=surface if task.dsm_path else None, occluder=occluder,
                                            sides=sides, source_valid=source_valid,
-                                           # continuous surface over the ground alone (the DEM's window)
-                                           ground=ground_cells(surface, dem) if task.dsm_path else None,
+                                           ground=flags.cells if flags is not None else None,
                                            compression=task.compression, threads=task.threads,
                                            max_view_angle_deg=task.max_view_angle_deg, overviews=task.overviews,
                                            tags=operation_tags(to_project.record(),
@@ -672,6 +673,9 @@ def _rectify_frame(task: FrameTask) -> dict:
         "footprint_xy_m": np.round(footprint[::4], 2).tolist(),
         **to_record(file_fingerprint(task.out_path)),
         **({"black_corners": corners} if corners else {}),  # (taken out of the index by _rectify_into)
+        # (as black_corners)
+        **({"ground_stand_off": [round(flags.level_m, 2), round(flags.share, 4), round(flags.level_share, 4)]}
+           if flags is not None and flags.stands_off else {}),
     }
 
 
@@ -1049,6 +1053,23 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
                      + (f", {concurrent} frames at a time," if concurrent > 1 else ","), option)
 
 
+def _warn_ground_stand_off(stand_off: dict, n_frames: int, dsm_path, dem_path) -> None:
+    """One warning for the frames whose DSM stands off the DEM (``ortho.rectify.GroundFlags``; ``stand_off``: image id
+    -> [level (m), ground share, share at the level]): their true orthos lost the slope masking unsaid."""
+    if not stand_off:
+        return
+    ids = list(stand_off)
+    level, share, at_level = (float(np.median([v[k] for v in stand_off.values()])) for k in range(3))
+    _log.warning(f"{len(ids)} of {n_frames} frame(s) ({', '.join(ids[:5])}{', ...' if len(ids) > 5 else ''}): the DSM "
+                 f"{dsm_path} stands {abs(level):.2f} m {'above' if level > 0 else 'below'} the DEM {dem_path} where "
+                 f"the ground should be (median over the frames: {100 * share:.1f} % of the cells within "
+                 f"{GROUND_NDSM_M:g} m of the DEM, {100 * at_level:.1f} % within it of {level:+.2f} m): a vertical "
+                 "datum offset between DSM and DEM (ellipsoidal against orthometric heights, another geoid or "
+                 "epoch)? The true orthos' occlusion test found almost no ground and took every DSM cell for a "
+                 "column (no continuous surface on slopes: visible ground on slopes facing away from the camera "
+                 "masked); put both in the same heights (gdalwarp, or their CRSs' vertical datums) and rectify again")
+
+
 def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, project_crs, dem_path, zlo, zhi,
                   interpolation, true_ortho, dsm_path, compression, threads, operation, height_op, executor,
                   inputs: dict, raster_ops: dict | None = None, max_view_angle_deg: float = 90.0, footprints: Path | None = None,
@@ -1104,6 +1125,8 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                      "a corner black in every band and declare no nodata value or mask: a collar? It was rectified "
                      "as picture (black in the orthos and the mosaic); declare it (rio edit-info --nodata 0 FRAME, or "
                      "gdal_edit.py -a_nodata 0 FRAME) and rectify again")
+    _warn_ground_stand_off({e["image_id"]: e.pop("ground_stand_off") for e in entries if "ground_stand_off" in e},
+                           len(entries), dsm_path, dem_path)
     return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
         "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),

@@ -36,7 +36,9 @@ def export(project, formats, out_dir):
 @click.option("--format", "format_name", required=True, type=click.Choice(list(IMPORT_FORMATS)),
               help="Format of FILES.")
 @click.option("--crs", default=None, help="CRS of FILES when they carry none (e.g. EPSG:32611); converted to the "
-                                          "project CRS.")
+                                          "project CRS. For an ODM gcp_list.txt with a 2D header: the header's CRS "
+                                          "with the heights' vertical CRS (EPSG:32611+5703: orthometric heights, "
+                                          "converted through the geoid grid).")
 @click.option("--sigma-xyz-m", "sigma_xyz_m", type=positive(), nargs=3, default=None,
               help="Accuracy (m) of imported positions that come without one.")
 @click.option("--as-gnss", is_flag=True, help="Also write the imported camera positions to gnss.txt as GNSS "

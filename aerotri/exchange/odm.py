@@ -20,6 +20,12 @@ with a warning, unless ``ImportSettings.heights_measured`` (``--heights-measured
 Two different points measured within 2 px of each other in one frame are refused, naming both and their lines
 (``aerotri.geom.observations.check_distinct_points``): one of them is mislabelled.
 
+Heights: a header with a vertical CRS (``EPSG:32611+5703``: orthometric heights) is converted to the project's
+heights through PROJ's geoid grid (refused, naming the grid, when it is not installed); a 2D header (``EPSG:32611``)
+says nothing of them and its z is taken in the project's heights (said in imports.json), unless ``--crs`` gives the
+header's CRS with a vertical one (``--crs EPSG:32611+5703``: the user declares the heights orthometric): then
+converted as that header.
+
 Export (``aerotri export --format odm``): ``aerotri.exchange.odm_export`` (this layout, in the project CRS:
 its EPSG code, else its PROJ string).
 """
@@ -104,6 +110,29 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
     return crs, list(points.items()), obs
 
 
+def _declared_heights(path, file_crs: str, declared: str) -> str:
+    """The CRS of a gcp_list.txt whose 2D header (``file_crs``) the user gave heights with ``--crs`` (``declared``:
+    that CRS with a vertical one, EPSG:32611+5703: the heights orthometric, converted to the project's through PROJ's
+    geoid grid); OptionError for any other ``--crs`` (the file names its CRS)."""
+    from aerotri.geom.crs.definition import crs_label, parse_crs, same_horizontal, vertical_crs
+
+    src, given = parse_crs(file_crs, f"{path}: line 1"), parse_crs(declared, "--crs")
+    if vertical_crs(src) is None and vertical_crs(given) is not None and same_horizontal(src, given):
+        return declared
+    label = crs_label(src)
+    example = f" ({label}+5703 for NAVD88 heights, {label}+3855 for EGM2008)" if label.startswith("EPSG:") else ""
+    raise OptionError(f"{path}: the file names its CRS ({file_crs}); --crs is for files that carry none, or gives "
+                      f"the heights of a 2D header: its CRS with a vertical one{example}, not {declared}",
+                      param="--crs")
+
+
+def _is_2d(crs_text: str) -> bool:
+    from aerotri.geom.crs.definition import parse_crs, vertical_crs
+
+    c = parse_crs(crs_text, "gcp_list.txt")
+    return vertical_crs(c) is None and len(c.axis_info) == 2
+
+
 def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     """The ``odm`` importer: control points and their image measurements of a gcp_list.txt."""
     if len(files) != 1:
@@ -114,8 +143,7 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
                           f"SX SY SZ (m)", param="--sigma-xyz-m")
     crs, points, obs = read_gcp_list(path)
     if options.crs is not None:
-        raise OptionError(f"{path}: the file names its CRS ({crs}); --crs is for files that carry none",
-                          param="--crs")
+        crs = _declared_heights(path, crs, options.crs)
     ids = np.array([p for p, _ in points], dtype=object)
     xyz = np.array([v for _, v in points])
     no_z = ~np.isfinite(xyz[:, 2])
@@ -127,6 +155,10 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         xyz[:, 2] = np.nan
         block.notes.append(f"{path}: {why}: taken as not measured; the {len(ids)} points are horizontal control "
                            "(plan only). If the heights were surveyed, import again with --heights-measured")
+    if options.crs is None and not no_z.all() and _is_2d(crs):
+        block.notes.append(f"{path}: the header {crs} gives no height system: the heights are taken as the "
+                           "project's; if they are orthometric (above a geoid), import with --crs giving the header's "
+                           "CRS with the vertical one (e.g. --crs EPSG:32611+5703) to convert them")
     xyz_fill = xyz.copy()
     xyz_fill[no_z, 2] = 0.0
     xyz_map = to_project_crs(xyz_fill, crs, project, f"{path} (CRS {crs})")

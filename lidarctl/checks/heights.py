@@ -30,15 +30,18 @@ import csv
 import dataclasses
 import io as stringio
 import json
+import re
 from pathlib import Path
 
 import numpy as np
+from pyproj.database import get_units_map
 from scipy.spatial import cKDTree
 
 from aerotri.geom import las
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.textio import read_text
+from aerotri.geom.crs.definition import length_unit_name
 from lidarctl import io
 from lidarctl.units import METRE, LengthUnits
 
@@ -88,17 +91,41 @@ def bin_labels(edges=BIN_EDGES_M) -> list[str]:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SurveyedPoints:
-    """Surveyed points (``read_points_csv``): coordinates in the units of the file (the CRS's), or in metres once
-    scaled (``in_metres``)."""
+    """Surveyed points (``read_points_csv``): coordinates in the units of the file (its header's, ``xy_unit`` and
+    ``z_unit``: None where it names none, the CRS's), in the CRS's once converted (``in_crs_units``), or in metres
+    once scaled (``in_metres``)."""
 
     ids: tuple[str, ...]
     x: np.ndarray
     y: np.ndarray
     z: np.ndarray | None  # None: the file has no z column (``require_z=False``)
     group: tuple[str, ...] | None  # the group column per point, None without one
+    xy_unit: str | None = None  # the header's unit suffix of x and y ('m', 'ft', 'us-ft', 'deg'), None: the CRS's
+    z_unit: str | None = None   # ... of z
 
     def __len__(self) -> int:
         return len(self.x)
+
+    def in_crs_units(self, units: LengthUnits, path) -> "SurveyedPoints":
+        """The points in the units of the CRS (``units``) from those the header names (``x_ft``, ``z_usft``): scaled
+        by pyproj's metres per unit (the US survey foot 1200/3937 m, the international foot 0.3048 m) over the CRS's;
+        InputError naming ``path`` for a unit that no factor converts (degrees against a projected CRS)."""
+        scaled = {}
+        for axis, unit, crs_m in (("x, y", self.xy_unit, units.xy_m), ("z", self.z_unit, units.z_m)):
+            if unit is None or (axis == "z" and self.z is None):
+                continue
+            unit_m = HEADER_UNIT_M.get(unit)
+            if unit_m is None:
+                raise InputError(f"{path}: line 1: {axis} in {unit} (the header's '_{unit}'): no factor converts them "
+                                 f"to the CRS's {length_unit_name(crs_m)}; transform the points into the CRS first "
+                                 "(aerotri crs transform)")
+            if unit_m != crs_m:
+                scaled[axis] = unit_m / crs_m
+        if not scaled:
+            return dataclasses.replace(self, xy_unit=None, z_unit=None)
+        f_xy, f_z = scaled.get("x, y", 1.0), scaled.get("z", 1.0)
+        return dataclasses.replace(self, x=self.x * f_xy, y=self.y * f_xy, z=None if self.z is None else self.z * f_z,
+                                   xy_unit=None, z_unit=None)
 
     def in_metres(self, units: LengthUnits) -> "SurveyedPoints":
         """The points with x, y and z scaled by ``units`` (the CRS's) to metres."""
@@ -107,6 +134,11 @@ class SurveyedPoints:
 
 
 ID_COLUMNS = ("id", "point", "point_id", "pointid", "point id", "name", "pt", "station")
+# a coordinate column's unit suffix (x_ft, easting_usft, z_m; the spellings of ``aerotri crs transform``'s tables)
+_UNIT_SUFFIX = re.compile(r"^(?P<base>.+?)_(?P<unit>m|deg|ft|usft|us-ft|us_ft)$", re.IGNORECASE)
+# metres per unit of the suffixes that name a length, as pyproj (PROJ's database) gives them
+_UNIT_NAMES = {"m": "metre", "ft": "foot", "us-ft": "US survey foot"}
+HEADER_UNIT_M = {short: float(get_units_map(category="linear")[name].conv_factor) for short, name in _UNIT_NAMES.items()}
 
 
 def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
@@ -119,14 +151,21 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
         raise InputError(f"{path}: empty file, expected a header line 'id,x,y,z[,group]'")
     head = [h.strip().lower() for h in rows[0]]
     alias = {"x": ("x", "e", "easting"), "y": ("y", "n", "northing"), "z": ("z", "h", "height", "elevation")}
-    col = {}
+    col, unit = {}, {}
     for key, names in alias.items():
         found = [k for k, h in enumerate(head) if h in names]
+        if not found:  # a unit suffix: x_ft, z_m (converted to the CRS's units by ``in_crs_units``)
+            found = [k for k, h in enumerate(head) if (m := _UNIT_SUFFIX.match(h)) and m["base"] in names]
+            if found:
+                unit[key] = _UNIT_SUFFIX.match(head[found[0]])["unit"].replace("_", "-").replace("usft", "us-ft")
         if not found:
             if key == "z" and not require_z:
                 continue
             raise InputError(f"{path}: line 1: no '{key}' column in header {rows[0]}")
         col[key] = found[0]
+    if unit.get("x") != unit.get("y"):
+        raise InputError(f"{path}: line 1: x in {unit.get('x') or 'the CRS unit'} but y in "
+                         f"{unit.get('y') or 'the CRS unit'} (header {rows[0]}); expected one unit for both")
     # a surveyor's "Point" column: without it the points were numbered 1, 2, ... and the names lost
     col_id = next((head.index(n) for n in ID_COLUMNS if n in head), None)
     col_group = head.index("group") if "group" in head else None
@@ -149,7 +188,7 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
         raise InputError(f"{path}: no surveyed points after the header")
     xyz = np.array(xyz)
     return SurveyedPoints(tuple(ids), xyz[:, 0], xyz[:, 1], xyz[:, 2] if "z" in col else None,
-                          tuple(groups) if col_group is not None else None)
+                          tuple(groups) if col_group is not None else None, unit.get("x"), unit.get("z"))
 
 
 # A plane needs ground points spread in both directions: nearly collinear points (a few returns along a scan
@@ -379,13 +418,17 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
             box = [min(box[0], header.mins[0]), min(box[1], header.mins[1]), max(box[2], header.maxs[0]),
                    max(box[3], header.maxs[1])]
             unit = units.xy_name
+        points = points.in_crs_units(units, points_csv)  # (the strips' one CRS and unit: checked_headers)
         _refuse_points_elsewhere(points, points_csv, box, ", ".join(map(str, paths)), unit)
     elif dem_path is not None:
         from lidarctl.terrain.dem_io import open_dem
+        from lidarctl.units import units_of
 
         src, _ = open_dem(dem_path)
         with src:
             b = src.bounds
+        _, dem_crs, dem_z_m = dem_heights(dem_path, points.x[:1], points.y[:1])
+        points = points.in_crs_units(units_of(dem_crs, source=str(dem_path), vertical_unit_m=dem_z_m), points_csv)
         _refuse_points_elsewhere(points, points_csv, [b.left, b.bottom, b.right, b.top], str(dem_path), "CRS units")
 
     cloud = _read_near(paths, points, radius_m, density.radius_m if with_density else None, crs) if paths else None

@@ -280,6 +280,7 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanChe
         raise OptionError("give the classified cloud(s) before POINTS_CSV", param="CLOUD")
     points = read_points_csv(points_csv, require_z=False)
     crs_found, units, box = _cloud_extent(paths, crs, points_crs)
+    points = points.in_crs_units(units, points_csv)  # (a header's x_ft, x_usft: into the cloud's units)
     inside = (points.x >= box[0]) & (points.x <= box[2]) & (points.y >= box[1]) & (points.y <= box[3])
     if not inside.any():
         raise InputError(f"{points_csv}: none of its {len(inside)} points lies within the extent of "

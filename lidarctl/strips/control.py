@@ -51,7 +51,7 @@ class ControlObservations:
 def read_control(path, units) -> ControlPoints:
     """The control points of ``path`` in metres (``units``: the strips' LengthUnits)."""
     path = Path(path)
-    t = read_points_csv(path)
+    t = read_points_csv(path).in_crs_units(units, path)  # (a header's x_ft, z_usft: into the strips' units)
     xyz = np.column_stack([t.x * units.xy_m, t.y * units.xy_m, t.z * units.z_m])
     seen = set()
     for i in t.ids:

@@ -318,6 +318,44 @@ def test_check_heights_by_chunks_equals_all_ground_points(scenes, tmp_path, monk
     assert [p["n_ground"] for p in streamed["points"]] == [p["n_ground"] for p in whole["points"]]
 
 
+@pytest.mark.parametrize("cloud, header", [
+    ("ft_m", ("x_ft", "y_ft", "z_ft")),              # a metric cloud, the points in international feet
+    ("ft_m", ("easting_usft", "northing_usft", "h_m")),  # ... in US survey feet, heights in metres
+    ("ft", ("x_usft", "y_usft", "z_usft")),          # an international-foot cloud, the points in US survey feet
+    ("ft", ("x_m", "y_m", "z_ft")),
+])
+def test_check_heights_reads_the_units_of_the_points_header(scenes, tmp_path, cloud, header):
+    """check-heights refused x_ft,y_ft,z_m ("no 'x' column"): the header's unit suffix is read and the points
+    converted to the cloud's CRS units by pyproj's factors. The US survey foot is 2 ppm longer than the
+    international foot: 0.4 m at these coordinates (x 633,000 ft), so the reported coordinates tell which one."""
+    d = scenes["dir"]
+    _ok(["classify", d / f"{cloud}.laz", tmp_path / "c.laz"])
+    rng = np.random.default_rng(0)
+    px_m, py_m = X0_M + rng.uniform(10, 150, 20), Y0_M + rng.uniform(10, 150, 20)
+    pz_m = synthetic.terrain_height(px_m - X0_M, py_m - Y0_M) - 0.2     # survey 0.2 m below the terrain
+    unit_m = {"m": 1.0, "ft": FOOT_M, "usft": US_SURVEY_FOOT_M}
+    fxy, fz = unit_m[header[0].rsplit("_", 1)[1]], unit_m[header[2].rsplit("_", 1)[1]]
+    pts = tmp_path / "points.csv"
+    pts.write_text(f"id,{','.join(header)}\n" + "".join(f"P{k},{a / fxy:.4f},{b / fxy:.4f},{c / fz:.4f}\n"
+                                                        for k, (a, b, c) in enumerate(zip(px_m, py_m, pz_m))))
+    _ok(["check-heights", tmp_path / "c.laz", pts, "--radius-m", "3", "--json", tmp_path / "hc.json"])
+    hc = json.loads((tmp_path / "hc.json").read_text())
+    crs_m = 1.0 if cloud == "ft_m" else FOOT_M
+    assert hc["xy_unit"] == ("m" if cloud == "ft_m" else "ft")
+    assert hc["n_without_ground"] < 5 and hc["overall"]["all"]["mean_dz_m"] == pytest.approx(0.2, abs=0.05)
+    p0 = hc["points"][0]
+    assert p0["x"] == pytest.approx(px_m[0] / crs_m, abs=2e-3) and p0["z_survey"] == pytest.approx(pz_m[0] / crs_m,
+                                                                                                   abs=2e-3)
+
+
+def test_check_heights_refuses_points_in_degrees_against_a_projected_crs(scenes, tmp_path):
+    pts = tmp_path / "points.csv"
+    pts.write_text("id,x_deg,y_deg,z_m\nP1,-123.07,44.06,120.0\n")
+    r = _run(["check-heights", scenes["dir"] / "ft_m.laz", pts, "--json", tmp_path / "hc.json"])
+    assert r.exit_code == 2 and "x, y in deg" in r.output and "no factor converts" in r.output, r.output
+    assert "Traceback" not in r.output and not (tmp_path / "hc.json").exists()
+
+
 def test_unit_names_are_the_crs_names():
     """``LengthUnits`` names its units with ``aerotri.geom.crs.definition.length_unit_name``: short names as
     ``unit_name`` gives them for a CRS, long names as GDAL and WKT spell them."""

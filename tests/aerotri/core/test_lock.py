@@ -120,8 +120,15 @@ def test_the_same_process_takes_its_own_lock_again(tmp_path):
 
 # -- two real commands on one project --------------------------------------------------------------
 
-def _aerotri(*args) -> subprocess.Popen:
-    code = "import sys; sys.argv[0] = 'aerotri'; from aerotri.cli import main; sys.exit(main())"
+# the window between creating the lock file and locking it (``hold_lock``: os.open, then flock), held open: under
+# load it was long enough for a second command started on the file's appearance to take the lock first
+SLOW_FLOCK = ("import fcntl, time; _flock = fcntl.flock; "
+              "fcntl.flock = lambda fd, op, _f=_flock: (time.sleep({s}), _f(fd, op))[1]; ")
+
+
+def _aerotri(*args, flock_delay_s: float = 0.0) -> subprocess.Popen:
+    code = (SLOW_FLOCK.format(s=flock_delay_s) if flock_delay_s else "") + \
+        "import sys; sys.argv[0] = 'aerotri'; from aerotri.cli import main; sys.exit(main())"
     return subprocess.Popen([sys.executable, "-c", code, *map(str, args)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=ENV)
 
@@ -131,6 +138,23 @@ def _wait_for(path: Path, proc: subprocess.Popen, timeout_s: float = 120) -> Non
     while not path.exists():
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() - t0 < timeout_s, f"{path} never appeared"
+        time.sleep(0.02)
+
+
+def _wait_for_holder(lock: Path, proc: subprocess.Popen, timeout_s: float = 120) -> None:
+    """Until ``proc`` holds ``lock``: its record (pid) in the file, written just after its flock. The file's
+    appearance is not enough: ``hold_lock`` creates it, then locks it, and a command started in between took the
+    lock first (the first, without --wait, then refused: "... is writing it; give --wait")."""
+    t0 = time.monotonic()
+    while True:
+        try:
+            record = json.loads(lock.read_text())
+        except (OSError, ValueError):
+            record = {}
+        if record.get("pid") == proc.pid:
+            return
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() - t0 < timeout_s, f"{lock} never held by pid {proc.pid}"
         time.sleep(0.02)
 
 
@@ -154,7 +178,7 @@ def test_two_concurrent_commands_second_refuses_first_completes(project):
     from aerotri.cli import main
 
     first = _aerotri("match", project)
-    _wait_for(project / LOCK_NAME, first)
+    _wait_for_holder(project / LOCK_NAME, first)
     r = CliRunner().invoke(main, ["match", str(project)])
     out, err = first.communicate(timeout=600)
     assert first.returncode == 0, err
@@ -169,8 +193,8 @@ def test_two_concurrent_commands_second_refuses_first_completes(project):
 def test_two_concurrent_commands_second_waits_with_wait(project):
     from aerotri.cli import main
 
-    first = _aerotri("match", project)
-    _wait_for(project / LOCK_NAME, first)
+    first = _aerotri("match", project, flock_delay_s=0.5)
+    _wait_for_holder(project / LOCK_NAME, first)
     r = CliRunner().invoke(main, ["match", str(project), "--wait", "600"])
     out, err = first.communicate(timeout=600)
     assert first.returncode == 0, err
@@ -183,7 +207,7 @@ def test_killed_command_leaves_a_stale_lock_the_next_one_takes(project):
     from aerotri.cli import main
 
     first = _aerotri("match", project)
-    _wait_for(project / LOCK_NAME, first)
+    _wait_for_holder(project / LOCK_NAME, first)
     _wait_for(project / "work", first)  # well into its work
     first.send_signal(signal.SIGKILL)
     first.wait()
