@@ -57,14 +57,21 @@ POWER = 0.8  # Baarda's detection power: the minimal detectable bias is (critica
 # tilt under one offset at about 50 %): a fixed order-of-magnitude cut between the two, not fitted to any block
 SURVIVING_SHARE = 0.1
 COLLINEAR_SHARE = 0.05  # control points whose plan spread across their line is below this share of it: on a line
-# check points with a height decide the heights instead of the rule only when they spread over the block: their
-# standard deviation along each of the block's principal directions at least this share of the block's own there
-# (points uniform over a block: about 1; 3 in one corner or a line along a wide block: below 0.2; review 32, 35)
-CHECK_SPREAD_SHARE = 0.2
+# check points with a height decide the heights instead of the rule only when they spread over the block: their plan
+# positions on the block's principal directions, each scaled by the block's own standard deviation there, must spread
+# at least this much in their narrowest direction (the square root of the smaller eigenvalue of that whitened
+# covariance; points uniform over the block: about 1, a line or a corner cluster: near 0). Chosen on seeds 0-5 of
+# bench/eval_check_spread.py (the smallest cut at which at most one subset reads the block's RMS Z less than half
+# while all 20 check points decide in every seed), scored on 6-11 (review 36: the per-axis share 0.2 let 3 check
+# points in a corner and lines along a diagonal decide)
+CHECK_SPREAD_MIN = 0.6
 
 
 def _block_axes(xy: np.ndarray) -> dict:
-    """The principal directions of the block's centred plan positions ``xy`` and the standard deviation along each."""
+    """The principal directions of the block's centred plan positions ``xy`` and the standard deviation along each
+    (None and NaN for fewer than 3 positions: no plan extent to measure check points against)."""
+    if len(xy) < 3:
+        return dict(block_axes=None, block_spread_m=(math.nan, math.nan))
     _, sv, vt = np.linalg.svd(xy, full_matrices=False)
     return dict(block_axes=tuple(float(v) for v in vt.ravel()),
                 block_spread_m=tuple(float(v) for v in sv / math.sqrt(max(len(xy), 1))))
@@ -96,16 +103,24 @@ class HeightDatumCheck:
     block_spread_m: tuple = (math.nan, math.nan)  # their standard deviation along each (m)
 
     def checks_spread(self, xy_m: np.ndarray) -> bool:
-        """Do check points at plan positions ``xy_m`` (n, 2; metres) spread over the block: their standard deviation
-        along each of the block's principal directions (its GNSS positions') at least ``CHECK_SPREAD_SHARE`` of the
-        block's own there? Measured on the block's axes, so a corridor's check points along it decide (review 35:
-        against the block's radius they never could across it), a line of them along a wide block does not."""
+        """Do check points at plan positions ``xy_m`` (n, 2; metres) spread over the block: ``check_spread`` at least
+        ``CHECK_SPREAD_MIN``? A corridor's check points along it decide; a line or a cluster in a corner does not."""
+        return self.check_spread(xy_m) >= CHECK_SPREAD_MIN
+
+    def check_spread(self, xy_m: np.ndarray) -> float:
+        """The check points' spread in their narrowest direction, on the block's principal directions (its GNSS
+        positions') each scaled by the block's own standard deviation there: the square root of the smaller
+        eigenvalue of that whitened covariance (uniform over the block about 1; on a line 0; 0 for fewer than 3
+        points or a block without a plan extent; a corridor's width taken as at least 1 % of its length's spread)."""
         xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
-        if len(xy) < 3 or self.block_axes is None:
-            return False
+        spread = np.asarray(self.block_spread_m, dtype=float)
+        if len(xy) < 3 or self.block_axes is None or not np.all(np.isfinite(spread)) or not spread.max() > 0:
+            return 0.0
+        # a straight corridor has no width to scale by: its narrow side counts as 1 % of its length's spread
+        spread = np.maximum(spread, 0.01 * spread.max())
         axes = np.asarray(self.block_axes, dtype=float).reshape(2, 2)  # rows: the block's principal directions
-        spread = np.std((xy - xy.mean(axis=0)) @ axes.T, axis=0)
-        return bool(np.all(spread >= CHECK_SPREAD_SHARE * np.asarray(self.block_spread_m, dtype=float)))
+        z = ((xy - xy.mean(axis=0)) @ axes.T) / spread
+        return float(math.sqrt(max(float(np.linalg.eigvalsh(z.T @ z / len(z))[0]), 0.0)))
 
     def strips_not_held(self, height_limit_m: float) -> tuple:
         """(strip 1-based, minimal detectable bias m) of the strips whose vertical correction the control left

@@ -156,7 +156,8 @@ def _bound_shift_m(a: pyproj.CRS, b: pyproj.CRS) -> float:
         lat = np.clip(lat0 + np.array([-1.0, -1.0, 1.0, 1.0, 0.0]), -89.0, 89.0)
     try:
         with np.errstate(all="ignore"):
-            x, y = pyproj.Transformer.from_crs(base.geodetic_crs, base, always_xy=True).transform(lon, lat)
+            x, y = pyproj.Transformer.from_crs(base.geodetic_crs, base, always_xy=True).transform(
+                *greenwich_to_geodetic(base.geodetic_crs, lon, lat))
             X, Y = pyproj.Transformer.from_crs(a, b, always_xy=True).transform(x, y)
     except pyproj.exceptions.ProjError:
         return math.inf
@@ -245,6 +246,35 @@ def unit_name(crs: pyproj.CRS) -> str:
 # warning): survey grids keep it within 0.1 % (UTM: 0.9996-1.001 in its zone); a web map's Pseudo-Mercator is 1.15 at
 # 30 degrees latitude, 1.46 at 47
 GRID_SCALE_LIMIT = 0.01
+
+
+def _greenwich_degrees(geodetic: pyproj.CRS) -> tuple[float, float, float]:
+    """(degrees per longitude unit, degrees per latitude unit, prime meridian's longitude east of Greenwich in
+    degrees) of a geographic CRS: (1, 1, 0) for most; NTF (Paris) counts grads from Paris, MGI (Ferro) degrees from
+    Ferro (review 36: their points compared with areas of use in Greenwich degrees were refused in Paris)."""
+    axes = {a.direction.lower(): a.unit_conversion_factor for a in geodetic.axis_info}
+    rad = 180.0 / math.pi
+    pm = geodetic.prime_meridian
+    return (axes.get("east", math.pi / 180.0) * rad, axes.get("north", math.pi / 180.0) * rad,
+            float(pm.longitude) * pm.unit_conversion_factor * rad if pm is not None else 0.0)
+
+
+def geodetic_to_greenwich(geodetic: pyproj.CRS, lon, lat):
+    """(lon_deg, lat_deg) east of Greenwich of coordinates (lon, lat; always_xy order) in geographic CRS
+    ``geodetic``'s own units and prime meridian; longitudes wrapped to [-180, 180)."""
+    f_lon, f_lat, pm_deg = _greenwich_degrees(geodetic)
+    if (f_lon, f_lat, pm_deg) == (1.0, 1.0, 0.0):
+        return lon, lat
+    lon_deg = (np.asarray(lon, dtype=float) * f_lon + pm_deg + 180.0) % 360.0 - 180.0
+    return lon_deg, np.asarray(lat, dtype=float) * f_lat
+
+
+def greenwich_to_geodetic(geodetic: pyproj.CRS, lon_deg, lat_deg):
+    """The inverse of ``geodetic_to_greenwich``: (lon, lat) in ``geodetic``'s own units and prime meridian."""
+    f_lon, f_lat, pm_deg = _greenwich_degrees(geodetic)
+    if (f_lon, f_lat, pm_deg) == (1.0, 1.0, 0.0):
+        return lon_deg, lat_deg
+    return (np.asarray(lon_deg, dtype=float) - pm_deg) / f_lon, np.asarray(lat_deg, dtype=float) / f_lat
 
 
 def point_scale_factor(crs, lon_deg: float, lat_deg: float) -> float:
@@ -486,7 +516,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
         return None
     to_geo = pyproj.Transformer.from_crs(h, h.geodetic_crs, always_xy=True)
     with np.errstate(all="ignore"):
-        lon, lat = to_geo.transform(x, y, errcheck=False)
+        lon, lat = geodetic_to_greenwich(h.geodetic_crs, *to_geo.transform(x, y, errcheck=False))
     lon = np.asarray(lon, dtype=float)
     lat = np.asarray(lat, dtype=float)
     west, east = aou.west, aou.east
@@ -505,9 +535,10 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
     # (degrees, kilometres) that unproject to somewhere near the grid's false origin.
     to_grid = pyproj.Transformer.from_crs(h.geodetic_crs, h, always_xy=True)
     try:
-        xmin, ymin, xmax, ymax = to_grid.transform_bounds(
-            max(aou.west - margin_deg, -180.0), max(aou.south - margin_deg, -90.0),
-            min(aou.east + margin_deg, 180.0), min(aou.north + margin_deg, 90.0), densify_pts=21)
+        (w, e), (so, no) = greenwich_to_geodetic(
+            h.geodetic_crs, np.array([max(aou.west - margin_deg, -180.0), min(aou.east + margin_deg, 180.0)]),
+            np.array([max(aou.south - margin_deg, -90.0), min(aou.north + margin_deg, 90.0)]))
+        xmin, ymin, xmax, ymax = to_grid.transform_bounds(float(w), float(so), float(e), float(no), densify_pts=21)
     except pyproj.exceptions.ProjError:
         xmin = ymin = -np.inf
         xmax = ymax = np.inf

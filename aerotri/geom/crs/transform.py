@@ -44,8 +44,9 @@ import pyproj
 from pyproj.transformer import TransformerGroup
 
 from aerotri.core.errors import CrsError
-from aerotri.geom.crs.definition import (crs_label, height_unit_m, horizontal_crs, length_unit_name, linear_unit_m,
-                                         parse_crs, same_horizontal, vertical_crs)
+from aerotri.geom.crs.definition import (crs_label, geodetic_to_greenwich, greenwich_to_geodetic, height_unit_m,
+                                         horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal,
+                                         vertical_crs)
 from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation, outside_extent
 from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 
@@ -627,13 +628,18 @@ def transform_points(x, y, z=None, *, from_crs, to_crs, params=None, heights=Non
 
 def to_own_geodetic(crs: pyproj.CRS, x, y, z):
     """(lon_deg, lat_deg, h) of coordinates in ``crs`` on its own geodetic CRS: a conversion, never a datum shift
-    (h in metres; z in the height unit of ``crs``, see the module docstring)."""
-    return _ProjLeg(crs, crs.geodetic_crs, allow_ballpark=False)(x, y, z)
+    (degrees east of Greenwich whatever the CRS counts: NTF (Paris)'s grads from Paris too; h in metres; z in the
+    height unit of ``crs``, see the module docstring)."""
+    lon, lat, h = _ProjLeg(crs, crs.geodetic_crs, allow_ballpark=False)(x, y, z)
+    lon, lat = geodetic_to_greenwich(horizontal_crs(crs).geodetic_crs, lon, lat)
+    return lon, lat, h
 
 
 def from_own_geodetic(crs: pyproj.CRS, lon_deg, lat_deg, h_m):
-    """Coordinates in ``crs`` of points given on its own geodetic CRS (the inverse of ``to_own_geodetic``)."""
-    return _ProjLeg(crs.geodetic_crs, crs, allow_ballpark=False)(lon_deg, lat_deg, h_m)
+    """Coordinates in ``crs`` of points given on its own geodetic CRS in degrees east of Greenwich (the inverse of
+    ``to_own_geodetic``)."""
+    lon, lat = greenwich_to_geodetic(horizontal_crs(crs).geodetic_crs, lon_deg, lat_deg)
+    return _ProjLeg(crs.geodetic_crs, crs, allow_ballpark=False)(lon, lat, h_m)
 
 
 def same_datum_geocentric(crs: pyproj.CRS) -> pyproj.CRS:

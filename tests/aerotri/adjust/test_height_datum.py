@@ -151,3 +151,30 @@ def test_check_points_in_one_corner_do_not_decide(tmp_path):
     assert not hd.checks_spread(np.array([xy[k] for k in corner]))
     ks = _verdict_without_checks(ba, keep=corner)
     assert ks["verdict"] == "weak" and ks["height_control_not_held"] and "unchecked" in ks["message"]
+
+
+def test_check_spread_on_the_blocks_own_axes():
+    """Review 36: the check points' narrowest spread on the block's axes, each scaled by the block's spread: uniform
+    points decide, a corner cluster and a line along the diagonal do not, a corridor's points along it do; a block of
+    one or two GNSS positions has no extent to judge against (it raised before)."""
+    from aerotri.adjust.height_datum import CHECK_SPREAD_MIN, HeightDatumCheck, _block_axes
+
+    rng = np.random.default_rng(0)
+
+    def check(g):
+        xy = g - g.mean(axis=0)
+        return HeightDatumCheck(1.0, 0.0, 0.0, 1e-4, ("a",), ("b",), **_block_axes(xy)), xy
+
+    hd, xy = check(np.array([[i * 400.0, j * 1300.0] for j in range(3) for i in range(6)]) + rng.normal(0, 5, (18, 2)))
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    t = np.linspace(0, 1, 10)[:, None]
+    # over the ground the frames cover (400 m beyond the projection centres; 2,000 draws: 5th percentile 0.67)
+    assert hd.checks_spread(lo - 400.0 + rng.uniform(0, 1, (20, 2)) * (hi - lo + 800.0))
+    assert not hd.checks_spread(lo + rng.uniform(0, 0.33, (5, 2)) * (hi - lo))  # a third of the block, one corner
+    assert hd.check_spread(lo + t * (hi - lo)) < 1e-9  # a line along the diagonal
+    assert not hd.checks_spread(lo + t * (hi - lo) + np.outer(np.resize([-1, 1], 10), [150.0, -150.0]))
+    corridor, cxy = check(np.array([[i * 400.0, 0.0] for i in range(14)]))  # a straight corridor, no width
+    assert corridor.check_spread(np.column_stack([cxy[:, 0], np.resize([-300.0, 300.0], 14)])) > CHECK_SPREAD_MIN
+    for n in (1, 2):
+        one, _ = check(np.zeros((n, 2)) + np.arange(n)[:, None])
+        assert not one.checks_spread(lo + rng.uniform(0, 1, (20, 2)) * (hi - lo))

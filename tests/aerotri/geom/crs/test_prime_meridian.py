@@ -1,0 +1,34 @@
+"""CRSs whose geographic CRS counts longitudes from another prime meridian or in other units (NTF (Paris): grads
+from Paris; MGI (Ferro): degrees from Ferro) are compared with their areas of use (Greenwich degrees) in Greenwich
+degrees: Paris in the French Lambert II and Innsbruck in the Austrian Ferro zones were refused as outside their own
+areas (review 36)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyproj
+import pytest
+
+from aerotri.core.errors import InputError
+from aerotri.geom.crs.definition import check_coordinates
+from aerotri.geom.crs.transform import from_own_geodetic, to_own_geodetic
+
+
+@pytest.mark.parametrize("code, lon, lat", [(27572, 2.35, 48.85), (31251, 11.39, 47.26), (31281, 11.39, 47.26),
+                                            (2154, 2.35, 48.85)])
+def test_points_in_their_own_area_pass_and_read_in_greenwich_degrees(code, lon, lat):
+    crs = pyproj.CRS.from_epsg(code)
+    x, y = pyproj.Transformer.from_crs(4326, crs, always_xy=True).transform(lon, lat)  # datum shift: metres
+    for mode in ("refuse", "warn"):
+        assert check_coordinates(crs, np.array([x]), np.array([y]), "points.csv", outside_area=mode) is None
+    lon_deg, lat_deg, h = to_own_geodetic(crs, np.array([x]), np.array([y]), np.array([0.0]))
+    assert lon_deg[0] == pytest.approx(lon, abs=0.01) and lat_deg[0] == pytest.approx(lat, abs=0.01)
+    back = from_own_geodetic(crs, lon_deg, lat_deg, h)
+    assert back[0][0] == pytest.approx(x, abs=1e-6) and back[1][0] == pytest.approx(y, abs=1e-6)
+
+
+def test_a_paris_lambert_point_elsewhere_is_still_refused():
+    crs = pyproj.CRS.from_epsg(27572)
+    x, y = pyproj.Transformer.from_crs(4326, crs, always_xy=True).transform(16.0, 48.2)  # Vienna: 8 deg east
+    with pytest.raises(InputError, match="outside the area of use of EPSG:27572"):
+        check_coordinates(crs, np.array([x]), np.array([y]), "points.csv")
