@@ -503,7 +503,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"(expected {zone}xxxxxx.xxx m; eastings without prefix belong to a 'CM' grid, "
                 "degrees or another zone are mixed units/zones)"
             )
-    if outside_area == "warn":
+    if outside_area == "warn" or h.area_of_use is None:  # a user's own grid states no area (review 36)
         i = impossible_in(h, x, y)
         if i is not None:
             raise InputError(

@@ -32,3 +32,13 @@ def test_a_paris_lambert_point_elsewhere_is_still_refused():
     x, y = pyproj.Transformer.from_crs(4326, crs, always_xy=True).transform(16.0, 48.2)  # Vienna: 8 deg east
     with pytest.raises(InputError, match="outside the area of use of EPSG:27572"):
         check_coordinates(crs, np.array([x]), np.array([y]), "points.csv")
+
+
+def test_a_custom_grid_without_an_area_refuses_what_it_cannot_hold():
+    """A user's own transverse Mercator (no area of use) took a zone-prefixed easting 39,500,000 m (39,000 km east of
+    its central meridian) without a word (review 36); its own points pass."""
+    crs = pyproj.CRS.from_proj4("+proj=tmerc +lat_0=0 +lon_0=117 +k=1 +x_0=500000 +y_0=0 +ellps=GRS80 +units=m")
+    assert crs.area_of_use is None
+    assert check_coordinates(crs, np.array([512_345.0]), np.array([3_400_000.0]), "points.csv") is None
+    with pytest.raises(InputError, match="cannot be a point of"):
+        check_coordinates(crs, np.array([39_512_345.0]), np.array([3_400_000.0]), "points.csv")
