@@ -1056,7 +1056,12 @@ def check_frame_sizes(block: BlockInputs, eo_idx: dict, zlo: float, zhi: float, 
 def _warn_ground_stand_off(stand_off: dict, n_frames: int, dsm_path, dem_path) -> None:
     """One warning for the frames whose DSM stands off the DEM (``ortho.rectify.GroundFlags``; ``stand_off``: image id
     -> [level (m), ground share, share at the level]): their true orthos lost the slope masking unsaid."""
-    if not stand_off:
+    # a datum offset is the block's: in a few frames a level is a crop or flat roofs over most of them (review 37)
+    if not stand_off or 2 * len(stand_off) < n_frames:
+        if stand_off:
+            _log.info(f"{len(stand_off)} of {n_frames} frame(s) ({', '.join(list(stand_off)[:5])}): most of their DSM "
+                      "cells form a level off the DEM (a crop, a meadow or flat roofs?); the others' do not: no "
+                      "datum offset")
         return
     ids = list(stand_off)
     level, share, at_level = (float(np.median([v[k] for v in stand_off.values()])) for k in range(3))

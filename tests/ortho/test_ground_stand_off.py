@@ -61,3 +61,26 @@ def test_rectify_warns_once_when_the_dsm_stands_off_the_dem(block, dz_m):
     else:
         assert r.stderr.count("stands 2.00 m above the DEM") == 1, r.stderr
         assert "2 of 2 frame(s)" in r.stderr and "vertical datum offset" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("crop_m, spread_m", [(0.9, 0.1), (2.5, 0.3)])
+def test_a_crop_over_most_of_a_frame_is_no_stand_off(crop_m, spread_m):
+    """Review 37: wheat at 0.9 m or maize at 2.5 m over 86 % of a correct DSM formed a level off the DEM and was
+    warned as a datum offset (following the advice would have moved every roof); the bare tracks between the fields
+    lie below that level, which a datum offset leaves empty."""
+    from rasterio.crs import CRS
+
+    rng = np.random.default_rng(0)
+    n = 1000
+    yy, xx = np.mgrid[0:n, 0:n]
+    dem = (100.0 + 0.02 * xx).astype(np.float32)
+    field = (xx % 200 < 185) & (yy % 200 < 185)
+    dsm = dem + np.where(field, crop_m + rng.normal(0, spread_m, (n, n)), 0.0) + rng.normal(0, 0.05, (n, n))
+    crs = CRS.from_epsg(32631)
+    flags = ground_flags(HeightRaster(dsm.astype(np.float32), 0, n, 1.0, crs, "dsm"),
+                         HeightRaster(dem, 0, n, 1.0, crs, "dem"))
+    assert flags.level_m > GROUND_NDSM_M and flags.below_share > 0.1
+    assert not flags.stands_off
+    moved = ground_flags(HeightRaster((dem + 2.0 + rng.normal(0, 0.05, (n, n))).astype(np.float32), 0, n, 1.0, crs,
+                                      "dsm"), HeightRaster(dem, 0, n, 1.0, crs, "dem"))
+    assert moved.stands_off and moved.below_share < 0.01
