@@ -117,9 +117,13 @@ def _declared_heights(path, file_crs: str, declared: str) -> str:
     from aerotri.geom.crs.definition import crs_label, parse_crs, same_horizontal, vertical_crs
 
     src, given = parse_crs(file_crs, f"{path}: line 1"), parse_crs(declared, "--crs")
-    if vertical_crs(src) is None and vertical_crs(given) is not None and same_horizontal(src, given):
+    # the header "WGS84" reads as EPSG:4979 (its heights ellipsoidal); orthometric ones are EPSG:4326 with a vertical
+    # CRS (review 37: refused, and the hint named EPSG:4979+3855, which PROJ rejects)
+    plain = parse_crs("EPSG:4326", "WGS84") if src.to_epsg() == 4979 else src
+    if (vertical_crs(src) is None or plain is not src) and vertical_crs(given) is not None and \
+            same_horizontal(plain, given):
         return declared
-    label = crs_label(src)
+    label = crs_label(plain)
     example = f" ({label}+5703 for NAVD88 heights, {label}+3855 for EGM2008)" if label.startswith("EPSG:") else ""
     raise OptionError(f"{path}: the file names its CRS ({file_crs}); --crs is for files that carry none, or gives "
                       f"the heights of a 2D header: its CRS with a vertical one{example}, not {declared}",

@@ -78,3 +78,19 @@ def test_without_the_geoid_grid_orthometric_heights_are_refused_naming_it(tmp_pa
     r = _import(_project(tmp_path / "p"), "EPSG:32649", "--crs", "EPSG:32649+3855")
     assert r.exit_code == 2 and "us_nga_egm08_25.tif" in r.output and "Traceback" not in r.output, r.output
     assert not (tmp_path / "p" / "control").exists()
+
+
+def test_a_wgs84_header_takes_orthometric_heights_as_epsg_4326_with_a_vertical_crs(tmp_path, synthetic_geoid):
+    """Review 37: the header "WGS84" (read as EPSG:4979, ellipsoidal heights) refused --crs EPSG:4326+3855 and its hint
+    named EPSG:4979+3855, which PROJ rejects."""
+    lon, lat = Transformer.from_crs("EPSG:32649", "EPSG:4326", always_xy=True).transform(X, Y)
+    root = _project(tmp_path / "p")
+    f = tmp_path / "gcp_list.txt"
+    f.write_text(f"WGS84\n{lon:.9f} {lat:.9f} {H_M:.4f} 1654.9 575.6 s02_002.tif RC9\n")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(f), "--sigma-xyz-m", "0.1", "0.1",
+                                         "0.1", "--crs", "EPSG:4326+3855"])
+    assert r.exit_code == 0, r.output
+    assert _z(root) == pytest.approx(H_M + _n(synthetic_geoid), abs=1e-3)
+    r = CliRunner().invoke(aerotri_cli, ["import", str(_project(tmp_path / "q")), "--format", "odm", str(f),
+                                         "--sigma-xyz-m", "0.1", "0.1", "0.1", "--crs", "EPSG:32649+3855"])
+    assert r.exit_code == 2 and "EPSG:4326+3855" in r.output and "4979+" not in r.output
