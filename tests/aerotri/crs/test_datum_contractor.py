@@ -1,0 +1,115 @@
+"""trial-datum: a Chinese survey contractor's CGCS2000 / Xian 1980 grids, 7- and 4-parameter sets and 1985 heights.
+
+Truth from pyproj directly (its Helmert step, its Gauss-Krueger grids) and surfaces chosen here; each test failed
+before its fix (silent sign conventions, hand-typed parameter files, height models extrapolated without a word, a
+levelling grid on the input's datum refused, point lists written outside the target's area)."""
+
+import json
+import math
+import re
+
+import numpy as np
+import pyproj
+import pytest
+from click.testing import CliRunner
+from shapely.geometry import MultiPoint, Point
+
+from aerotri.crs.cli import crs
+from aerotri.geom.crs.datum import load_height_model
+
+# CGCS2000 -> Xian 1980, coordinate frame (PROJ's +convention=coordinate_frame): invented, realistic size
+BW = {"x": -24.8, "y": 118.6, "z": 52.3, "rx": 1.85, "ry": -2.42, "rz": 3.15, "s": 2.70}
+
+
+def _run(*args):
+    return CliRunner().invoke(crs, [str(a) for a in args])
+
+
+def _helmert(convention, p):
+    return pyproj.Transformer.from_pipeline(
+        "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad +step +proj=cart +ellps=GRS80 "
+        f"+step +proj=helmert +x={p['x']} +y={p['y']} +z={p['z']} +rx={p['rx']} +ry={p['ry']} +rz={p['rz']} "
+        f"+s={p['s']} +convention={convention} +step +inv +proj=cart +ellps=IAU76 "
+        "+step +proj=unitconvert +xy_in=rad +xy_out=deg")
+
+
+def _points(seed, n, lon=(110.40, 110.62), lat=(30.72, 30.88)):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(*lon, n), rng.uniform(*lat, n), rng.uniform(150, 650, n)
+
+
+@pytest.fixture
+def common(tmp_path):
+    """8 common points CGCS2000 3-degree GK zone 37 (EPSG:4525) -> Xian 1980 zone 37 (EPSG:2361), exact."""
+    lon, lat, h = _points(1, 8)
+    lx, ly, hx = _helmert("coordinate_frame", BW).transform(lon, lat, h)
+    ec, nc = pyproj.Transformer.from_crs(4490, 4525, always_xy=True).transform(lon, lat)
+    ex, nx = pyproj.Transformer.from_crs(4610, 2361, always_xy=True).transform(lx, ly)
+    path = tmp_path / "common.csv"
+    path.write_text("id,x_from,y_from,z_from,x_to,y_to,z_to\n" + "".join(
+        f"K{i},{ec[i]:.4f},{nc[i]:.4f},{h[i]:.4f},{ex[i]:.4f},{nx[i]:.4f},{hx[i]:.4f}\n" for i in range(8)))
+    return path
+
+
+def test_the_fit_report_gives_the_rotation_convention_and_the_position_vector_values(tmp_path, common):
+    out = tmp_path / "bw.json"
+    r = _run("fit", common, "--model", "bursa-wolf7", "--from", "EPSG:4525", "--to", "EPSG:2361", "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "coordinate frame (EPSG method 1032/9607" in r.output
+    d = json.loads(out.read_text())
+    fitted = {k: d["parameters"][k]["value"] for k in d["parameters"]}
+    for k in ("rx", "ry", "rz"):  # the fit is the known set, in its convention
+        assert fitted[f"{k}_arcsec"] == pytest.approx(BW[k], abs=1e-3)
+    # the position-vector values printed, put into PROJ's position-vector Helmert, give the same points
+    pv = dict(zip(("rx", "ry", "rz"), map(float, re.search(
+        r"position vector .*? has rx ([-+\d.]+), ry ([-+\d.]+), rz ([-+\d.]+) arcsec", r.output).groups())))
+    lon, lat, h = _points(9, 5)
+    want = _helmert("coordinate_frame", BW).transform(lon, lat, h)
+    got = _helmert("position_vector", BW | pv).transform(lon, lat, h)
+    assert np.allclose(np.array(got[:2]), np.array(want[:2]), atol=1e-8)  # degrees: < 1 mm
+    assert "conventions_explained" in d and d["convention"] == "coordinate_frame"
+
+
+def test_the_4_parameter_report_gives_the_surveying_form_with_x_northing(tmp_path):
+    """A 4-parameter set in the surveying form X = northing (X' = dX + s (X cos a - Y sin a), ...), a = +100"."""
+    lon, lat, _ = _points(7, 9)
+    E, N = pyproj.Transformer.from_crs(4490, 4546, always_xy=True).transform(lon, lat)
+    a, s, dX, dY = 100.0 / 206264.80624709636, 1 + 15e-6, -3_380_000.0, -420_000.0
+    X = dX + s * (N * math.cos(a) - E * math.sin(a))
+    Y = dY + s * (N * math.sin(a) + E * math.cos(a))
+    path = tmp_path / "four.csv"  # the local grid, as x = easting (Y), y = northing (X), in CGCS2000 CM 111E
+    path.write_text("id,x_from,y_from,x_to,y_to\n" + "".join(
+        f"C{i},{E[i]:.4f},{N[i]:.4f},{Y[i]:.4f},{X[i]:.4f}\n" for i in range(9)))
+    from pyproj.crs import ProjectedCRS
+    from pyproj.crs.coordinate_operation import TransverseMercatorConversion
+
+    local = ProjectedCRS(name="city grid (CGCS2000, CM 110.5E)", geodetic_crs=pyproj.CRS(4490), conversion=(
+        TransverseMercatorConversion(0.0, 110.5, 1.0, 50_000.0, -3_000_000.0))).to_wkt()
+    r = _run("fit", path, "--model", "helmert2d", "--from", "EPSG:4546", "--to", local, "-o", tmp_path / "f.json")
+    assert r.exit_code == 0, r.output
+    m = re.search(r"dX = ([-\d.]+) m, dY = ([-\d.]+) m, a = ([-+\d.]+) arcsec", r.output)
+    assert m, r.output
+    assert float(m[1]) == pytest.approx(dX, abs=0.01) and float(m[2]) == pytest.approx(dY, abs=0.01)
+    assert float(m[3]) == pytest.approx(100.0, abs=0.01)
+    assert re.search(r"rotation_arcsec\s+-100\.00", r.output)  # the toolkit's own: counter-clockwise in (E, N)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.pop("convention"), "needs its rotation convention"),
+    (lambda d: d["parameters"].update(rx_arcsec={"value": 8.97e-6, "unit": "rad"}), "rx_arcsec has unit 'rad'"),
+    (lambda d: d["parameters"].update(scale_ppm={"value": 2.7e-6, "unit": "1"}), "scale_ppm has unit '1'"),
+])
+def test_a_hand_typed_parameter_file_states_convention_and_units(tmp_path, common, edit, message):
+    """A published set typed into a file: without "convention" it was taken as coordinate frame, and "unit"
+    entries were not read (radians as arc-seconds, a ratio as ppm), exit 0."""
+    good = tmp_path / "bw.json"
+    assert _run("fit", common, "--model", "bursa-wolf7", "--from", "4525", "--to", "2361", "-o", good).exit_code == 0
+    d = json.loads(good.read_text())
+    edit(d)
+    typed = tmp_path / "typed.json"
+    typed.write_text(json.dumps(d))
+    pts = tmp_path / "p.csv"
+    pts.write_text("id,x,y,z\nQ1,37450000.0,3409000.0,300.0\n")
+    out = tmp_path / "out.csv"
+    r = _run("transform", pts, out, "--from", "4525", "--to", "2361", "--params", typed)
+    assert r.exit_code == 2 and message in r.output and str(typed) in r.output and not out.exists(), r.output
