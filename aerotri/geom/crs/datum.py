@@ -264,11 +264,36 @@ class HeightAnomalyModel:
     smoothing: float = 0.0
     crs: str | None = None
     h_crs: str | None = None
+    hull_m: list | None = None  # [[x, y], ...] counter-clockwise: the convex hull of the fit points (None before)
 
     def __post_init__(self):
         if self.model not in HEIGHT_MODELS:
             raise InputError(f"unknown height model {self.model!r}; choose one of {', '.join(HEIGHT_MODELS)}")
         self._rbf = None
+        if self.hull_m is None and self.points_m is not None:  # a tps file written before hull_m: its points
+            self.hull_m = convex_hull_m(np.asarray(self.points_m, dtype=float)[:, :2])
+
+    def beyond_hull_m(self, x_m, y_m) -> np.ndarray | None:
+        """Distance (m) of each point from the convex hull of the fit points, 0 inside; None when not recorded."""
+        if self.hull_m is None:
+            return None
+        hull = np.asarray(self.hull_m, dtype=float)
+        p = np.column_stack([np.asarray(x_m, dtype=float).ravel(), np.asarray(y_m, dtype=float).ravel()])
+        inside = np.ones(len(p), dtype=bool)
+        dist = np.full(len(p), np.inf)
+        for a, b in zip(hull, np.roll(hull, -1, axis=0)):  # edge by edge: memory of the points only
+            ab = b - a
+            ap = p - a
+            inside &= ab[0] * ap[:, 1] - ab[1] * ap[:, 0] >= 0.0
+            t = np.clip((ap @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+            dist = np.minimum(dist, np.hypot(ap[:, 0] - t * ab[0], ap[:, 1] - t * ab[1]))
+        return np.where(inside, 0.0, dist)
+
+    def hull_margin_m(self) -> float:
+        """How far past its points' hull the model is taken without a warning: 10 % of the hull's largest
+        extent, at least 100 m (the parameter sets' rule, ``outside_extent``)."""
+        hull = np.asarray(self.hull_m, dtype=float)
+        return max(0.1 * float(np.max(np.ptp(hull, axis=0))), 100.0)
 
     def zeta_m(self, x_m, y_m):
         x = np.asarray(x_m, dtype=float)
@@ -299,6 +324,8 @@ class HeightAnomalyModel:
         if self.points_m is not None:
             d["points_m"] = [[float(v) for v in p] for p in self.points_m]
             d["smoothing"] = float(self.smoothing)
+        if self.hull_m is not None:
+            d["hull_m"] = [[float(v) for v in p] for p in self.hull_m]
         return d
 
     @classmethod
@@ -312,9 +339,24 @@ class HeightAnomalyModel:
                 smoothing=float(d.get("smoothing", 0.0)),
                 crs=d.get("crs"),
                 h_crs=d.get("h_crs"),
+                hull_m=d.get("hull_m"),
             )
         except (KeyError, TypeError) as exc:
             raise InputError(f"{source}: not a height anomaly model file ({exc!r})") from None
+
+
+def convex_hull_m(xy_m) -> list | None:
+    """The convex hull of points (n, 2), counter-clockwise [[x, y], ...]; None when they span no area."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    xy = np.asarray(xy_m, dtype=float)
+    if len(xy) < 3:
+        return None
+    try:
+        h = ConvexHull(xy)
+    except (QhullError, ValueError):
+        return None
+    return xy[h.vertices].tolist()  # scipy: counter-clockwise for 2-D
 
 
 def thin_plate_spline(xy_m, zeta_m, origin_m, smoothing):

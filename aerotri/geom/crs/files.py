@@ -421,6 +421,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         X, Y, Z = transformer.transform(cx, cy, cz)
         transformer.n_points -= 4  # corners are not points of the file
         transformer.n_outside_fit_extent = 0
+        transformer.n_beyond_heights_hull, transformer.beyond_heights_hull_m = 0, 0.0
         try:
             # s27: RD New coordinates tagged UTM 31N (plausible there, at 4 deg N) came out at x = -660,124 in RD New,
             # exit 0, without a word. A warning, not a refusal: a transform into a neighbouring zone far off is legal

@@ -169,6 +169,9 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                     check_stored_crs(dst_crs, written.crs, str(out_path), gx, gy, 1e-3 * res)
     for w in forward.warnings:
         log.warning(w)
+    w = inverse.heights_extrapolation_warning()  # the heights are evaluated through the inverse
+    if w:
+        log.warning(f"{in_path}: {w.replace('points', 'grid points sampled', 1)}")
     dz = (change[0], change[1]) if np.isfinite(change[0]) else None
     src_p = parse_crs(src_crs, "--from")
     if dz and params is None and heights is None and max(abs(dz[0]), abs(dz[1])) > 0.01 and len(src_p.axis_info) < 3:

@@ -384,6 +384,9 @@ class CrsTransformer:
         self.heights_inverse = heights_inverse  # h = H + zeta (the inverse of a normal-height operation)
         self.n_outside_fit_extent = 0
         self.n_points = 0
+        # points where the height model is extrapolated beyond its levelling points' hull (and the farthest, m)
+        self.n_beyond_heights_hull = 0
+        self.beyond_heights_hull_m = 0.0
         # the spatial set's change of the ellipsoidal heights (sum, count), said beside a height model
         self._dh_sum_m, self._dh_n = 0.0, 0
         legs = []
@@ -580,6 +583,12 @@ class CrsTransformer:
             else:
                 hx, hy = X, Y
             zeta = self.heights.zeta_m(hx, hy) / z_unit_m(self.dst)
+            beyond = self.heights.beyond_hull_m(hx, hy)
+            if beyond is not None:
+                far = beyond > self.heights.hull_margin_m()
+                self.n_beyond_heights_hull += int(far.sum())
+                if far.any():
+                    self.beyond_heights_hull_m = max(self.beyond_heights_hull_m, float(beyond.max()))
             if self._h_stage is None:  # a model file without h_crs: on the output's h (the trial's 118.8 m)
                 Z = Z + zeta if self.heights_inverse else Z - zeta
             else:
@@ -612,12 +621,25 @@ class CrsTransformer:
                 f"{self._dh_n} points); the height model's zeta = h - H is taken with h on the ellipsoid of "
                 f"{normal.datum.name}: a model fitted from h on {other.datum.name} puts the heights {abs(dh):.3f} m "
                 "off (docs/datums.md)")
+        w = self.heights_extrapolation_warning()
+        if w:
+            out.append(w)
         if self.n_outside_fit_extent:
             out.append(
                 f"{self.n_outside_fit_extent} of {self.n_points} points lie outside the area of the common points "
                 "used for the parameters (extrapolation; accuracy unknown there)"
             )
         return out
+
+    def heights_extrapolation_warning(self) -> str | None:
+        """Said when the height model was evaluated past its levelling points' hull (by more than
+        ``HeightAnomalyModel.hull_margin_m``; trial-datum: 40 km outside, or x, y swapped, said nothing)."""
+        if not self.n_beyond_heights_hull:
+            return None
+        return (f"height model extrapolated: {self.n_beyond_heights_hull} of {self.n_points} points lie outside the "
+                f"area of its levelling points (convex hull), up to {self.beyond_heights_hull_m / 1000.0:.3f} km "
+                f"beyond it; its {self.heights.model} zeta there is unchecked (accuracy unknown): add levelled "
+                "points there, or check that the model's x, y are easting, northing of the grid it records")
 
 
 def transform_points(x, y, z=None, *, from_crs, to_crs, params=None, heights=None, allow_ballpark=False):

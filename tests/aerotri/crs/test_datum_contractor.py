@@ -113,3 +113,49 @@ def test_a_hand_typed_parameter_file_states_convention_and_units(tmp_path, commo
     out = tmp_path / "out.csv"
     r = _run("transform", pts, out, "--from", "4525", "--to", "2361", "--params", typed)
     assert r.exit_code == 2 and message in r.output and str(typed) in r.output and not out.exists(), r.output
+
+
+@pytest.fixture
+def levelling(tmp_path):
+    """12 GNSS-levelled points, h on CGCS2000, x, y in its zone 37 grid, zeta a plane chosen here."""
+    lon, lat, h = _points(4, 12, lon=(110.42, 110.60), lat=(30.74, 30.86))
+    e, n = pyproj.Transformer.from_crs(4490, 4525, always_xy=True).transform(lon, lat)
+    zeta = -14.2 + 0.02 * (e - 37_450_000.0) / 1000.0 - 0.03 * (n - 3_410_000.0) / 1000.0
+    path = tmp_path / "levelling.csv"
+    path.write_text("id,x,y,h,H\n" + "".join(f"L{i},{e[i]:.4f},{n[i]:.4f},{h[i]:.4f},{h[i] - zeta[i]:.4f}\n"
+                                            for i in range(12)))
+    return path, e, n
+
+
+@pytest.mark.parametrize("model", ["plane", "tps"])
+def test_a_height_model_says_when_it_is_extrapolated(tmp_path, levelling, model):
+    path, e, n = levelling
+    zfile = tmp_path / "zeta.json"
+    r = _run("fit-heights", path, "--model", model, "--epsg", "4525", "--h-crs", "4490", "-o", zfile)
+    assert r.exit_code == 0, r.output
+    assert len(load_height_model(zfile).hull_m) >= 3
+    pts = tmp_path / "p.csv"
+    inside = f"I1,{e.mean():.3f},{n.mean():.3f},400.0\n"
+    pts.write_text("id,x,y,z\n" + inside)
+    r = _run("transform", pts, tmp_path / "o1.csv", "--from", "4525", "--to", "4525", "--heights", zfile)
+    assert r.exit_code == 0 and "extrapolated" not in r.output, r.output
+    pts.write_text("id,x,y,z\n" + inside + f"F1,{e.max() + 40_000.0:.3f},{n.mean():.3f},400.0\n")
+    r = _run("transform", pts, tmp_path / "o2.csv", "--from", "4525", "--to", "4525", "--heights", zfile)
+    assert r.exit_code == 0 and "height model extrapolated: 1 of 2 points" in r.output, r.output
+    beyond = float(re.search(r"up to ([\d.]+) km beyond", r.output)[1])
+    hull = MultiPoint(np.column_stack([e, n])).convex_hull  # truth: shapely's distance from the points' hull
+    assert beyond == pytest.approx(hull.distance(Point(e.max() + 40_000.0, n.mean())) / 1000.0, abs=1e-3)
+
+
+def test_a_levelling_model_with_x_and_y_swapped_is_no_longer_silent(tmp_path, levelling):
+    """X = northing, Y = easting in the levelling file and no --epsg: normal heights ~2 km off, exit 0, no word."""
+    path, e, n = levelling
+    rows = [ln.split(",") for ln in path.read_text().splitlines()[1:]]
+    swapped = tmp_path / "swapped.csv"
+    swapped.write_text("id,x,y,h,H\n" + "".join(f"{r[0]},{r[2]},{r[1]},{r[3]},{r[4]}\n" for r in rows))
+    zfile = tmp_path / "z.json"
+    assert _run("fit-heights", swapped, "--model", "plane", "-o", zfile).exit_code == 0
+    pts = tmp_path / "p.csv"
+    pts.write_text(f"id,x,y,z\nI1,{e.mean():.3f},{n.mean():.3f},400.0\n")
+    r = _run("transform", pts, tmp_path / "o.csv", "--from", "4525", "--to", "4525", "--heights", zfile)
+    assert r.exit_code == 0 and "height model extrapolated: 1 of 1 points" in r.output, r.output
