@@ -418,10 +418,25 @@ class CrsTransformer:
                 legs.append(_ProjLeg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
         self._legs = legs
         self._height_leg = None
+        self._height_leg_from_src = False
         if heights is not None and heights.crs:
             hcrs = parse_crs(heights.crs, "height model crs")
             if hcrs != self.dst and hcrs != self.src:
-                self._height_leg = _ProjLeg(self.dst, hcrs, allow_ballpark=False, purpose=" (height model)")
+                try:
+                    self._height_leg = _ProjLeg(self.dst, hcrs, allow_ballpark=False, purpose=" (height model)")
+                except BallparkRefused as exc:
+                    # the model's grid on the input's datum (levelling in CGCS2000 zone 37, a cloud in CGCS2000 CM
+                    # 111E into Xian 1980 with --params): reached from the input by a conversion (trial-datum: refused,
+                    # "pass --params", which was given)
+                    try:
+                        self._height_leg = _ProjLeg(self.src, hcrs, allow_ballpark=False, purpose=" (height model)")
+                        self._height_leg_from_src = True
+                    except BallparkRefused:
+                        raise BallparkRefused(
+                            f"height model: its grid {crs_label(hcrs)} ({hcrs.name}) is on neither the datum of "
+                            f"{crs_label(self.src)} nor that of {crs_label(self.dst)}, and PROJ knows no rigorous "
+                            f"operation to it from either ({exc}); fit the height model in a grid of the input's or "
+                            "the output's datum (crs fit-heights --epsg)", missing_grids=exc.missing_grids) from None
             self._heights_crs = hcrs
         else:
             self._heights_crs = self.dst
@@ -576,7 +591,9 @@ class CrsTransformer:
                     self._dh_n += int(np.count_nonzero(np.isfinite(dh)))
                 X, Y, Z = self._legs[1](lon, lat, h)
         if self.heights is not None:
-            if self._height_leg is not None:
+            if self._height_leg is not None and self._height_leg_from_src:
+                hx, hy, _ = self._height_leg(x_in, y_in, np.zeros_like(x_in))
+            elif self._height_leg is not None:
                 hx, hy, _ = self._height_leg(X, Y, np.zeros_like(X))
             elif self._heights_crs == self.src and self._heights_crs != self.dst:
                 hx, hy = x_in, y_in

@@ -159,3 +159,26 @@ def test_a_levelling_model_with_x_and_y_swapped_is_no_longer_silent(tmp_path, le
     pts.write_text(f"id,x,y,z\nI1,{e.mean():.3f},{n.mean():.3f},400.0\n")
     r = _run("transform", pts, tmp_path / "o.csv", "--from", "4525", "--to", "4525", "--heights", zfile)
     assert r.exit_code == 0 and "height model extrapolated: 1 of 1 points" in r.output, r.output
+
+
+def test_a_height_model_in_a_grid_of_the_inputs_datum_serves_another_grid_of_it(tmp_path, common, levelling):
+    """Levelling in CGCS2000 zone 37, points in CGCS2000 CM 111E into Xian 1980 with --params: it was refused
+    (Xian 1980 -> CGCS2000 ballpark, "pass --params", which was given); now the model is reached from the input."""
+    path, e, n = levelling
+    zfile, params = tmp_path / "zeta.json", tmp_path / "bw.json"
+    assert _run("fit-heights", path, "--model", "plane", "--epsg", "4525", "--h-crs", "4490", "-o", zfile).exit_code == 0
+    assert _run("fit", common, "--model", "bursa-wolf7", "--from", "4525", "--to", "2361", "-o", params).exit_code == 0
+    x, y = e[:3], n[:3]
+    zone = tmp_path / "zone.csv"
+    zone.write_text("id,x,y,z\n" + "".join(f"Q{i},{x[i]:.4f},{y[i]:.4f},500.0\n" for i in range(3)))
+    cm_e, cm_n = pyproj.Transformer.from_crs(4525, 4546, always_xy=True).transform(x, y)
+    cm = tmp_path / "cm.csv"
+    cm.write_text("id,x,y,z\n" + "".join(f"Q{i},{cm_e[i]:.4f},{cm_n[i]:.4f},500.0\n" for i in range(3)))
+    r1 = _run("transform", zone, tmp_path / "a.csv", "--from", "4525", "--to", "2361", "--params", params,
+              "--heights", zfile)
+    r2 = _run("transform", cm, tmp_path / "b.csv", "--from", "4546", "--to", "2361", "--params", params,
+              "--heights", zfile)
+    assert r1.exit_code == 0 and r2.exit_code == 0, r2.output
+    a, b = (np.array([[float(v) for v in ln.split(",")[1:]] for ln in (tmp_path / f).read_text().splitlines()[1:]])
+            for f in ("a.csv", "b.csv"))
+    assert np.abs(a - b).max() < 2e-4  # the files' 4 decimals
