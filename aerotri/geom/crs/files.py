@@ -302,6 +302,15 @@ def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
     recs = [f"line {ln}" for ln in table.line_numbers]
     check_coordinates(transformer.src, v["x"], v["y"], str(table.path), recs)
     X, Y, Z = transformer.transform(v["x"], v["y"], v.get("z"))
+    # as for LAS/LAZ (below): a point list written outside the target's area of use is said (trial-datum: eo.txt of
+    # UTM 49N into UTM 50N, easting -122,381 m; points at 110.5E into the 3-degree CM 114E grid: without a word)
+    try:
+        far = check_coordinates(transformer.dst, X, Y, f"{table.path} transformed", recs, outside_area="warn")
+    except InputError as exc:
+        far = str(exc)
+    if far:
+        transformer.notes.append(f"{far}; written all the same: is --to {crs_label(transformer.dst)} the grid meant "
+                                 "(zone, 3- or 6-degree, central meridian)?")
     dec = _decimals(transformer.dst)
     out_rows = []
     for r, fields in enumerate(table.rows):

@@ -182,3 +182,14 @@ def test_a_height_model_in_a_grid_of_the_inputs_datum_serves_another_grid_of_it(
     a, b = (np.array([[float(v) for v in ln.split(",")[1:]] for ln in (tmp_path / f).read_text().splitlines()[1:]])
             for f in ("a.csv", "b.csv"))
     assert np.abs(a - b).max() < 2e-4  # the files' 4 decimals
+
+
+def test_a_point_list_written_outside_the_targets_area_is_said(tmp_path):
+    """Points at 110.5E into the 3-degree CM 114E grid (a 3/6-degree or zone mix-up): exit 0 without a word."""
+    pts = tmp_path / "p.csv"
+    pts.write_text("id,x,y,z\nQ1,37450000.0,3409000.0,300.0\n")
+    r = _run("transform", pts, tmp_path / "o.csv", "--from", "EPSG:4525", "--to", "EPSG:4547")
+    assert r.exit_code == 0 and "lies outside the area of use of EPSG:4547" in r.output, r.output
+    assert "is --to EPSG:4547 the grid meant" in r.output
+    r = _run("transform", pts, tmp_path / "o2.csv", "--from", "EPSG:4525", "--to", "EPSG:4546")
+    assert r.exit_code == 0 and "outside the area" not in r.output, r.output
