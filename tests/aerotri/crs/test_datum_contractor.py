@@ -193,3 +193,38 @@ def test_a_point_list_written_outside_the_targets_area_is_said(tmp_path):
     assert "is --to EPSG:4547 the grid meant" in r.output
     r = _run("transform", pts, tmp_path / "o2.csv", "--from", "EPSG:4525", "--to", "EPSG:4546")
     assert r.exit_code == 0 and "outside the area" not in r.output, r.output
+
+
+def test_orientations_turn_with_the_grid(tmp_path):
+    """eo.txt of UTM 49N into UTM 50N at 110.5E: kappa was copied, 3.08 deg off (the convergences differ). Truth:
+    the direction of a ray in the camera is the same in either grid (horizontal offsets taken at the same scale)."""
+    from aerotri.geom.rotation import rotation_matrix_opk
+
+    eo = tmp_path / "eo.txt"
+    frames = [("f1", 452252.8, 3407393.9, 760.4, 0.067, 0.296, -93.94),
+              ("f2", 452900.0, 3409000.0, 802.0, -1.2, 2.5, 87.3),
+              ("f3", 451500.0, 3408200.0, 790.0, 3.0, -2.0, 179.5)]
+    eo.write_text("# image_id X_m Y_m Z_m omega_deg phi_deg kappa_deg\n"
+                  + "".join(" ".join(map(str, f)) + "\n" for f in frames))
+    out = tmp_path / "eo50.txt"
+    r = _run("transform", eo, out, "--from", "EPSG:32649", "--to", "EPSG:32650")
+    assert r.exit_code == 0, r.output
+    rows = [ln.split() for ln in out.read_text().splitlines() if not ln.startswith("#")]
+    t = pyproj.Transformer.from_crs(32649, 32650, always_xy=True)
+    geo = pyproj.Transformer.from_crs(32649, 4326, always_xy=True)
+    p49, p50 = pyproj.Proj(32649), pyproj.Proj(32650)
+    for f, row in zip(frames, rows):
+        CA, RA = np.array(f[1:4]), rotation_matrix_opk(*f[4:7])
+        RB = rotation_matrix_opk(*map(float, row[4:7]))
+        CB = np.array([*t.transform(*CA[:2]), CA[2]])
+        lon, lat = geo.transform(*CA[:2])
+        k = p50.get_factors(lon, lat).meridional_scale / p49.get_factors(lon, lat).meridional_scale
+        for d in ([50.0, 0.0, -800.0], [0.0, 50.0, -800.0], [-40.0, -30.0, -800.0]):
+            PA = CA + d
+            D = np.array([*t.transform(*PA[:2]), PA[2]]) - CB
+            D[:2] /= k
+            u, v = RA.T @ (PA - CA), RB.T @ D
+            assert np.linalg.norm(u / np.linalg.norm(u) - v / np.linalg.norm(v)) < 1e-6
+    eo.write_text("# image_id X_m Y_m Z_m omega_rad phi_rad kappa_rad\nf1 452252.8 3407393.9 760.4 0.001 0.005 -1.6\n")
+    r = _run("transform", eo, tmp_path / "o.txt", "--from", "EPSG:32649", "--to", "EPSG:32650")
+    assert r.exit_code == 2 and "omega_rad" in r.output and "degrees" in r.output, r.output
