@@ -228,3 +228,19 @@ def test_orientations_turn_with_the_grid(tmp_path):
     eo.write_text("# image_id X_m Y_m Z_m omega_rad phi_rad kappa_rad\nf1 452252.8 3407393.9 760.4 0.001 0.005 -1.6\n")
     r = _run("transform", eo, tmp_path / "o.txt", "--from", "EPSG:32649", "--to", "EPSG:32650")
     assert r.exit_code == 2 and "omega_rad" in r.output and "degrees" in r.output, r.output
+
+
+def test_a_7_parameter_fit_into_the_wrong_zone_width_is_called_implausible(tmp_path):
+    """Xian 1980 coordinates in the 3-degree CM 114E grid given as --to the 6-degree CM 117E one (Wuhan): rz -10,792"
+    and -988 ppm with 4 m residuals, no warning; the right grid: no warning."""
+    lon, lat, h = _points(3, 8, lon=(114.15, 114.45), lat=(30.45, 30.65))
+    lx, ly, hx = _helmert("coordinate_frame", BW).transform(lon, lat, h)
+    ec, nc = pyproj.Transformer.from_crs(4490, 4547, always_xy=True).transform(lon, lat)
+    ex, nx = pyproj.Transformer.from_crs(4610, 2383, always_xy=True).transform(lx, ly)
+    path = tmp_path / "wuhan.csv"
+    path.write_text("id,x_from,y_from,z_from,x_to,y_to,z_to\n" + "".join(
+        f"W{i},{ec[i]:.4f},{nc[i]:.4f},{h[i]:.4f},{ex[i]:.4f},{nx[i]:.4f},{hx[i]:.4f}\n" for i in range(8)))
+    r = _run("fit", path, "--model", "bursa-wolf7", "--from", "4547", "--to", "2383", "-o", tmp_path / "ok.json")
+    assert r.exit_code == 0 and "implausible" not in r.output, r.output
+    r = _run("fit", path, "--model", "bursa-wolf7", "--from", "4547", "--to", "2345", "-o", tmp_path / "bad.json")
+    assert r.exit_code == 0 and "implausible datum change" in r.output and "rz -10791" in r.output, r.output
