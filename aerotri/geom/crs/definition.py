@@ -416,15 +416,28 @@ def impossible_in(crs: pyproj.CRS, x, y, tolerance_m: float = 1.0) -> int | None
 FAR_OUTSIDE_AREA_DEG = 10.0
 
 
+def _swapped_hint(h: pyproj.CRS, x: float, y: float) -> str:
+    """"; x and y swapped? ..." when (y, x) is a point of the projected CRS ``h`` (inside its area of use, a zone
+    prefix carried) and (x, y) is not: the surveying order X = northing, Y = easting of Chinese (and German, Russian)
+    lists read as x = easting (trial-datum: the refusal said only that the prefix was missing)."""
+    try:
+        check_coordinates(h, np.array([y]), np.array([x]), "", swapped_hint=False)
+    except InputError:
+        return ""
+    return (f"; x and y swapped? ({y:.3f}, {x:.3f}) is a point of it: lists in the surveying order X = northing, "
+            "Y = easting must name their columns easting, northing (or give x = easting first)")
+
+
 def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0,
-                      outside_area: str = "refuse") -> str | None:
+                      outside_area: str = "refuse", swapped_hint: bool = True) -> str | None:
     """Raise ``InputError`` naming the first record whose coordinates cannot belong to ``crs``.
 
     Geographic CRSs need longitude/latitude in range; projected CRSs need points that fall, once
     unprojected, within the CRS's area of use widened by ``margin_deg``, and within that area's
     grid bounding box widened by 5 % (at least 10 km). Zone-prefixed
     Gauss-Krueger eastings must carry their zone number. ``records`` labels the points (e.g. line
-    numbers or ids) in the messages.
+    numbers or ids) in the messages; ``swapped_hint``: a refused point that is one of ``crs`` with x and y
+    swapped is said to be (``_swapped_hint``).
 
     ``outside_area="warn"`` (``crs assign``): points outside the area of use are no refusal but the returned
     message (else None) -- national grids are used beyond their zone's area (Norway in UTM 33, all Germany in UTM 32,
@@ -472,6 +485,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"{where(i)}: easting {x[i]:.3f} does not carry the zone prefix {zone} of {label} "
                 f"(expected {zone}xxxxxx.xxx m; eastings without prefix belong to a 'CM' grid, "
                 "degrees or another zone are mixed units/zones)"
+                + (_swapped_hint(h, x[i], y[i]) if swapped_hint else "")
             )
     if outside_area == "warn":
         i = impossible_in(h, x, y)
@@ -539,6 +553,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
             f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) lies outside the area of use of {label} ({h.name}, "
             f"lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); wrong CRS or mixed units "
             f"(degrees, feet or metres)? {label} expects {unit_name(h)} in x = easting, y = northing order"
+            + (_swapped_hint(h, x[i], y[i]) if swapped_hint else "")
         )
         if outside_area == "warn":
             return message

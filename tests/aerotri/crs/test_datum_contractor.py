@@ -244,3 +244,18 @@ def test_a_7_parameter_fit_into_the_wrong_zone_width_is_called_implausible(tmp_p
     assert r.exit_code == 0 and "implausible" not in r.output, r.output
     r = _run("fit", path, "--model", "bursa-wolf7", "--from", "4547", "--to", "2345", "-o", tmp_path / "bad.json")
     assert r.exit_code == 0 and "implausible datum change" in r.output and "rz -10791" in r.output, r.output
+
+
+@pytest.mark.parametrize("frm, x, y", [("EPSG:4525", 37446554.443, 3412779.468),  # zone-prefixed
+                                       ("EPSG:4546", 446554.443, 3412779.468)])  # CM 111E
+def test_a_list_in_the_surveying_order_x_northing_is_refused_saying_so(tmp_path, frm, x, y):
+    pts = tmp_path / "XY.csv"
+    pts.write_text(f"点号,X,Y,H\nK09,{y},{x},583.925\n")
+    out = tmp_path / "o.csv"
+    r = _run("transform", pts, out, "--from", frm, "--to", "EPSG:4490")
+    assert r.exit_code == 2 and "x and y swapped?" in r.output and "line 2" in r.output and not out.exists(), r.output
+    pts.write_text(f"点号,northing,easting,H\nK09,{y},{x},583.925\n")  # named: read as they are
+    r = _run("transform", pts, out, "--from", frm, "--to", "EPSG:4490")
+    assert r.exit_code == 0, r.output
+    lon, lat = map(float, out.read_text().splitlines()[1].split(",")[1:3][::-1])
+    assert (lat, lon) == pytest.approx(pyproj.Transformer.from_crs(frm, 4490).transform(y, x), abs=1e-8)
