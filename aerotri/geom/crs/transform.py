@@ -389,9 +389,10 @@ class CrsTransformer:
         self.beyond_heights_hull_m = 0.0
         # the spatial set's change of the ellipsoidal heights (sum, count), said beside a height model
         self._dh_sum_m, self._dh_n = 0.0, 0
+        self._vertical_by_model = None  # a compound CRS's vertical datum whose heights the height model gives
         legs = []
         if params is None:
-            legs.append(_ProjLeg(self.src, self.dst, allow_ballpark))
+            legs.append(self._leg(self.src, self.dst, allow_ballpark))
         else:
             p_from = parse_crs(params.from_crs, "parameter file from_crs")
             p_to = parse_crs(params.to_crs, "parameter file to_crs")
@@ -407,16 +408,20 @@ class CrsTransformer:
                 self._ell_to = Ellipsoid.from_crs(p_to)
                 self._geo_from = p_from if p_from.is_geocentric else p_from.geodetic_crs
                 self._geo_to = p_to if p_to.is_geocentric else p_to.geodetic_crs
-                self._pre_plane = _ProjLeg(self.src, p_from, allow_ballpark, why) if not p_from.is_geocentric else None
-                legs.append(_ProjLeg(self.src, self._geo_from, allow_ballpark, why))
-                legs.append(_ProjLeg(self._geo_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
+                self._pre_plane = self._leg(self.src, p_from, allow_ballpark, why) if not p_from.is_geocentric else None
+                legs.append(self._leg(self.src, self._geo_from, allow_ballpark, why))
+                legs.append(self._leg(self._geo_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
             else:
                 for c, role in ((p_from, "from_crs"), (p_to, "to_crs")):
                     if not horizontal_crs(c).is_projected or abs(linear_unit_m(c) - 1.0) > 1e-12:
                         raise CrsError(f"parameter file {role} {crs_label(c)}: plane models need a metre grid")
-                legs.append(_ProjLeg(self.src, p_from, allow_ballpark, why))
-                legs.append(_ProjLeg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
+                legs.append(self._leg(self.src, p_from, allow_ballpark, why))
+                legs.append(self._leg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
         self._legs = legs
+        self.notes = []
+        if self._vertical_by_model is not None:
+            self.notes.append(f"heights: {self._vertical_by_model} taken as the height model's normal heights "
+                              "(H = h - zeta; PROJ knows no operation into or out of it)")
         self._height_leg = None
         self._height_leg_from_src = False
         if heights is not None and heights.crs:
@@ -441,8 +446,24 @@ class CrsTransformer:
         else:
             self._heights_crs = self.dst
         self.ballpark = any(leg.ballpark for leg in legs)
-        self.notes = [n for leg in legs for n in leg.notes]
+        self.notes += [n for leg in legs for n in leg.notes]
         self._h_stage = self._height_stage() if heights is not None and heights.h_crs else None
+
+    def _leg(self, a, b, allow_ballpark: bool, purpose: str = "") -> "_ProjLeg":
+        """The PROJ leg a -> b; with a height model (recording its h) whose normal heights are a compound CRS's
+        vertical part that PROJ cannot reach (Yellow Sea 1985 height, EPSG:5737: no geoid in PROJ), the leg between the
+        horizontal parts: the model gives those heights, the chain's own height arithmetic does the rest
+        (trial-datum: --to EPSG:2361+5737 --heights zeta.json was refused as ballpark, "pass --heights")."""
+        try:
+            return _ProjLeg(a, b, allow_ballpark, purpose)
+        except BallparkRefused:
+            vert = vertical_crs(b) if vertical_crs(b) is not None else vertical_crs(a)
+            if (self.heights is None or not self.heights.h_crs or vert is None
+                    or abs(height_unit_m(b if vertical_crs(b) is not None else a) - 1.0) > 1e-12):
+                raise
+            leg = _ProjLeg(horizontal_crs(a), horizontal_crs(b), allow_ballpark, purpose)
+            self._vertical_by_model = vert.name
+            return leg
 
     def _height_stage(self) -> str:
         """Where the chain has ellipsoidal heights on the datum of the height model's h: ``in`` (the input),

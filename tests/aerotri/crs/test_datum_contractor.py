@@ -259,3 +259,29 @@ def test_a_list_in_the_surveying_order_x_northing_is_refused_saying_so(tmp_path,
     assert r.exit_code == 0, r.output
     lon, lat = map(float, out.read_text().splitlines()[1].split(",")[1:3][::-1])
     assert (lat, lon) == pytest.approx(pyproj.Transformer.from_crs(frm, 4490).transform(y, x), abs=1e-8)
+
+
+def test_normal_heights_of_the_1985_datum_by_the_height_model_into_a_compound_crs(tmp_path, common, levelling):
+    """--to Xian 1980 zone 37 + Yellow Sea 1985 height (EPSG:2361+5737) with --params and --heights was refused as
+    ballpark ("pass --heights", which was given): PROJ has no geoid for it. Now the model gives those heights: the
+    same numbers as into EPSG:2361, the output tagged with the compound CRS, and back with --normal-to-ellipsoidal."""
+    path, e, n = levelling
+    zfile, params = tmp_path / "zeta.json", tmp_path / "bw.json"
+    assert _run("fit-heights", path, "--model", "plane", "--epsg", "4525", "--h-crs", "4490", "-o", zfile).exit_code == 0
+    assert _run("fit", common, "--model", "bursa-wolf7", "--from", "4525", "--to", "2361", "-o", params).exit_code == 0
+    pts = tmp_path / "p.csv"
+    pts.write_text("id,x,y,z\n" + "".join(f"Q{i},{e[i]:.4f},{n[i]:.4f},{300.0 + i:.4f}\n" for i in range(3)))
+    r0 = _run("transform", pts, tmp_path / "a.csv", "--from", "4525", "--to", "2361", "--params", params, "--heights", zfile)
+    r1 = _run("transform", pts, tmp_path / "b.csv", "--from", "4525", "--to", "EPSG:2361+5737", "--params", params,
+              "--heights", zfile)
+    assert r0.exit_code == 0 and r1.exit_code == 0, r1.output
+    assert "Yellow Sea 1985 height taken as the height model's normal heights" in r1.output
+    assert (tmp_path / "a.csv").read_text() == (tmp_path / "b.csv").read_text()
+    r = _run("transform", tmp_path / "b.csv", tmp_path / "back.csv", "--from", "EPSG:2361+5737", "--to", "4525",
+             "--params", params, "--heights", zfile, "--normal-to-ellipsoidal")
+    assert r.exit_code == 0, r.output
+    back = np.array([[float(v) for v in ln.split(",")[1:]] for ln in (tmp_path / "back.csv").read_text().splitlines()[1:]])
+    assert np.abs(back[:, 2] - (300.0 + np.arange(3))).max() < 2e-4
+    assert np.abs(back[:, 0] - e[:3]).max() < 2e-3 and np.abs(back[:, 1] - n[:3]).max() < 2e-3
+    r = _run("transform", pts, tmp_path / "c.csv", "--from", "4525", "--to", "EPSG:2361+5737", "--params", params)
+    assert r.exit_code == 2 and "ballpark" in r.output and not (tmp_path / "c.csv").exists()  # no model: as before
