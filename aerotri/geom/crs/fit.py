@@ -431,8 +431,8 @@ def _implausible_set_warning(T) -> str | None:
     return (f"implausible datum change: {', '.join(big)} (datum changes rotate by arc-seconds and scale by tens of "
             f"ppm at most; limits {PLAUSIBLE_ROTATION_ARCSEC:g}\" and {PLAUSIBLE_SCALE_PPM:g} ppm): are the "
             f"coordinates of both sides in the grids --from {T.from_crs} and --to {T.to_crs} name? Another zone or "
-            "central meridian on one side (a 3- or 6-degree zone: 3 deg = 10,800\"), x and y swapped, or heights "
-            "that are not ellipsoidal")
+            "central meridian on one side (a 3- or 6-degree zone: 3 deg = 10,800\"), x and y swapped, heights that "
+            "are not ellipsoidal, or a blunder among the points")
 
 
 def _extent(xy):
