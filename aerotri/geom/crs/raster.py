@@ -168,7 +168,8 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                 with rasterio.Env(GDAL_PAM_ENABLED=False), rasterio.open(tmp) as written:  # as a reader sees it
                     check_stored_crs(dst_crs, written.crs, str(out_path), gx, gy, 1e-3 * res)
     for w in forward.warnings:
-        log.warning(w)
+        if w != forward.heights_extrapolation_warning():  # the forward maps the bounds only: said by the inverse
+            log.warning(w)
     w = inverse.heights_extrapolation_warning()  # the heights are evaluated through the inverse
     if w:
         log.warning(f"{in_path}: {w.replace('points', 'grid points sampled', 1)}")

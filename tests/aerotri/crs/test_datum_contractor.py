@@ -12,7 +12,7 @@ import numpy as np
 import pyproj
 import pytest
 from click.testing import CliRunner
-from shapely.geometry import MultiPoint, Point
+from shapely.geometry import MultiPoint, Point, Polygon
 
 from aerotri.crs.cli import crs
 from aerotri.geom.crs.datum import load_height_model
@@ -285,3 +285,27 @@ def test_normal_heights_of_the_1985_datum_by_the_height_model_into_a_compound_cr
     assert np.abs(back[:, 0] - e[:3]).max() < 2e-3 and np.abs(back[:, 1] - n[:3]).max() < 2e-3
     r = _run("transform", pts, tmp_path / "c.csv", "--from", "4525", "--to", "EPSG:2361+5737", "--params", params)
     assert r.exit_code == 2 and "ballpark" in r.output and not (tmp_path / "c.csv").exists()  # no model: as before
+
+
+def test_a_dem_warped_with_a_height_model_from_elsewhere_says_it_once(tmp_path, caplog):
+    """crs warp evaluates the model through the inverse operation: its extrapolation is said once, per grid points."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from aerotri.geom.crs.datum import HeightAnomalyModel
+    from aerotri.geom.crs.raster import warp_raster
+
+    src = tmp_path / "dem.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=40, height=40, count=1, dtype="float32", crs="EPSG:4525",
+                       transform=from_origin(37_450_000.0, 3_410_000.0, 1.0, 1.0), nodata=-9999.0) as ds:
+        ds.write(np.full((40, 40), 300.0, np.float32), 1)
+    hull = [[37_460_000.0, 3_400_000.0], [37_470_000.0, 3_400_000.0], [37_470_000.0, 3_410_000.0]]  # 10 km east
+    far = HeightAnomalyModel("plane", (37_465_000.0, 3_405_000.0), coefficients=[-14.2, 0.0, 0.0], crs="EPSG:4525",
+                             h_crs="EPSG:4490", hull_m=hull)
+    with caplog.at_level("WARNING"):
+        warp_raster(src, tmp_path / "H.tif", "EPSG:4546", heights=far)
+    said = [m for m in caplog.messages if "height model extrapolated" in m]
+    assert len(said) == 1 and "grid points sampled" in said[0] and str(src) in said[0], caplog.messages
+    # the farthest cell centre from the triangle (shapely), within a cell
+    farthest = max(Polygon(hull).distance(Point(37_450_000.5 + c, 3_409_999.5 - r)) for r in (0, 39) for c in (0, 39))
+    assert float(re.search(r"up to ([\d.]+) km", said[0])[1]) == pytest.approx(farthest / 1000.0, abs=2e-3)
