@@ -432,7 +432,7 @@ def _implausible_set_warning(T) -> str | None:
             f"ppm at most; limits {PLAUSIBLE_ROTATION_ARCSEC:g}\" and {PLAUSIBLE_SCALE_PPM:g} ppm): are the "
             f"coordinates of both sides in the grids --from {T.from_crs} and --to {T.to_crs} name? Another zone or "
             "central meridian on one side (a 3- or 6-degree zone: 3 deg = 10,800\"), x and y swapped, heights that "
-            "are not ellipsoidal, or a blunder among the points")
+            "are not ellipsoidal, or a mistyped common point")
 
 
 def _extent(xy):
