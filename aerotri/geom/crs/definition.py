@@ -424,6 +424,9 @@ def _swapped_hint(h: pyproj.CRS, x: float, y: float) -> str:
         check_coordinates(h, np.array([y]), np.array([x]), "", swapped_hint=False)
     except InputError:
         return ""
+    if h.is_geographic:
+        return (f"; x and y swapped? ({y:.6f}, {x:.6f}) is a point of it: lists with the latitude first (B, L) must "
+                "name their columns lat, lon (or give x = longitude first)")
     return (f"; x and y swapped? ({y:.3f}, {x:.3f}) is a point of it: lists in the surveying order X = northing, "
             "Y = easting must name their columns easting, northing (or give x = easting first)")
 
@@ -466,7 +469,27 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) is not a longitude/latitude in degrees, which {label} "
                 "expects (x = longitude, y = latitude); metres given for a geographic CRS? (mixed units)"
             )
-        return None
+        # its area of use too (trial-datum: latitude, longitude in the surveying B, L order at Kashgar, (39.47,
+        # 75.99), passed as a longitude and latitude of CGCS2000, and went into the CM 75E grid at y = 8,720 km)
+        aou = h.area_of_use
+        if aou is None:
+            return None
+        lon = np.where(x > 180.0, x - 360.0, x)
+        west, east = aou.west, aou.east
+        if east < west:  # area crossing the antimeridian
+            east += 360.0
+            lon = np.where(lon < west - margin_deg, lon + 360.0, lon)
+        bad = ~((lon >= west - margin_deg) & (lon <= east + margin_deg) & (y >= aou.south - margin_deg)
+                & (y <= aou.north + margin_deg))
+        if not bad.any():
+            return None
+        i = int(np.argmax(bad))
+        message = (f"{where(i)}: ({x[i]:.6f}, {y[i]:.6f}) lies outside the area of use of {label} ({h.name}, lon "
+                   f"{aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); {label} expects x = "
+                   "longitude, y = latitude in degrees" + (_swapped_hint(h, x[i], y[i]) if swapped_hint else ""))
+        if outside_area == "warn":
+            return message
+        raise InputError(message)
     # Zone-prefixed Gauss-Krueger: the millions of the easting are the zone number.
     op = h.coordinate_operation
     fe = None

@@ -309,3 +309,20 @@ def test_a_dem_warped_with_a_height_model_from_elsewhere_says_it_once(tmp_path, 
     # the farthest cell centre from the triangle (shapely), within a cell
     farthest = max(Polygon(hull).distance(Point(37_450_000.5 + c, 3_409_999.5 - r)) for r in (0, 39) for c in (0, 39))
     assert float(re.search(r"up to ([\d.]+) km", said[0])[1]) == pytest.approx(farthest / 1000.0, abs=2e-3)
+
+
+def test_latitude_first_in_a_geographic_list_is_refused(tmp_path):
+    """B, L order at Kashgar (39.47N 75.99E) header-less in CGCS2000 degrees: read as lon 39.47, lat 75.99 (a
+    geographic CRS's area of use was not checked) and written into the CM 75E grid at y = 8,720 km, exit 0."""
+    pts = tmp_path / "bl.txt"
+    pts.write_text("KS1 39.4700 75.9900 1290.0\n")
+    out = tmp_path / "o.txt"
+    r = _run("transform", pts, out, "--from", "EPSG:4490", "--to", "EPSG:4534")
+    assert r.exit_code == 2 and "outside the area of use of EPSG:4490" in r.output and "lat, lon" in r.output
+    assert not out.exists()
+    pts.write_text("KS1 75.9900 39.4700 1290.0\n")
+    r = _run("transform", pts, out, "--from", "EPSG:4490", "--to", "EPSG:4534")
+    assert r.exit_code == 0, r.output
+    e, n = map(float, out.read_text().split()[1:3])
+    assert (e, n) == pytest.approx(pyproj.Transformer.from_crs(4490, 4534, always_xy=True).transform(75.99, 39.47),
+                                   abs=1e-4)
