@@ -431,6 +431,33 @@ def _swapped_hint(h: pyproj.CRS, x: float, y: float) -> str:
             "Y = easting must name their columns easting, northing (or give x = easting first)")
 
 
+def _other_zone_hint(h: pyproj.CRS, x: float, y: float) -> str:
+    """"; ... is a point of EPSG:4497 (... zone 19) ..." when the easting's prefix is the zone of another Chinese
+    Gauss-Krueger grid of the same datum (the other zone width first) that holds the point: 3- and 6-degree zones
+    mixed up (trial-datum: a 6-degree zone 19 easting given as the 3-degree zone 37 was refused without a hint)."""
+    from aerotri.geom.crs.gauss_kruger import _GK_NAME, gk_epsg
+
+    m = _GK_NAME.match(h.name)
+    if not m or not m["zone"]:
+        return ""
+    width = 3 if m["three"] else 6
+    zone = int(math.floor(x / 1_000_000.0))
+    for w in (9 - width, width):
+        try:
+            code = gk_epsg(m["datum"], zone, w, prefixed=True)
+        except KeyError:
+            continue
+        other = pyproj.CRS.from_epsg(code)
+        try:
+            check_coordinates(other, np.array([x]), np.array([y]), "", swapped_hint=False)
+        except InputError:
+            continue
+        why = (f"{w}-degree zones given for {width}-degree ones?" if w != width else
+               "another zone of the same width (a block across a zone border: one zone per file)")
+        return f"; it is a point of EPSG:{code} ({other.name}): {why}"
+    return ""
+
+
 def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0,
                       outside_area: str = "refuse", swapped_hint: bool = True) -> str | None:
     """Raise ``InputError`` naming the first record whose coordinates cannot belong to ``crs``.
@@ -508,7 +535,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"{where(i)}: easting {x[i]:.3f} does not carry the zone prefix {zone} of {label} "
                 f"(expected {zone}xxxxxx.xxx m; eastings without prefix belong to a 'CM' grid, "
                 "degrees or another zone are mixed units/zones)"
-                + (_swapped_hint(h, x[i], y[i]) if swapped_hint else "")
+                + (_swapped_hint(h, x[i], y[i]) or _other_zone_hint(h, x[i], y[i]) if swapped_hint else "")
             )
     if outside_area == "warn":
         i = impossible_in(h, x, y)

@@ -326,3 +326,19 @@ def test_latitude_first_in_a_geographic_list_is_refused(tmp_path):
     e, n = map(float, out.read_text().split()[1:3])
     assert (e, n) == pytest.approx(pyproj.Transformer.from_crs(4490, 4534, always_xy=True).transform(75.99, 39.47),
                                    abs=1e-4)
+
+
+@pytest.mark.parametrize("frm, x, said", [
+    ("EPSG:4525", 19446554.443, "a point of EPSG:4497 (CGCS2000 / Gauss-Kruger zone 19): 6-degree zones given for "
+                                "3-degree ones?"),
+    ("EPSG:4497", 37446554.443, "a point of EPSG:4525 (CGCS2000 / 3-degree Gauss-Kruger zone 37): 3-degree zones"),
+    ("EPSG:4525", 38330000.000, "a point of EPSG:4526 (CGCS2000 / 3-degree Gauss-Kruger zone 38): another zone"),
+])
+def test_a_zone_prefix_of_the_other_width_or_the_next_zone_is_named(tmp_path, frm, x, said):
+    pts = tmp_path / "p.csv"
+    pts.write_text(f"id,x,y\nK1,{x},3412779.468\n")
+    r = _run("transform", pts, tmp_path / "o.csv", "--from", frm, "--to", "EPSG:4490")
+    assert r.exit_code == 2 and said in r.output and "line 2" in r.output, r.output
+    truth = pyproj.CRS(said.split("point of ")[1].split(" ")[0])  # the grid named holds the point
+    lon, lat = pyproj.Transformer.from_crs(truth, 4490, always_xy=True).transform(x, 3412779.468)
+    assert 109 < lon < 113 and 30 < lat < 31.5
