@@ -292,6 +292,9 @@ def _attitude_columns(table: _Table) -> dict | None:
                 break
             if ln.strip():
                 break
+        # a comment names the columns only when it has a name for each field (not prose that says "phi")
+        if names is not None and len(names) != len(table.rows[0]):
+            return None
     if not names:
         return None
     found = {}

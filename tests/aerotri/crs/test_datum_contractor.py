@@ -225,6 +225,9 @@ def test_orientations_turn_with_the_grid(tmp_path):
             D[:2] /= k
             u, v = RA.T @ (PA - CA), RB.T @ D
             assert np.linalg.norm(u / np.linalg.norm(u) - v / np.linalg.norm(v)) < 1e-6
+    notes = tmp_path / "notes.txt"  # a comment in prose is no header: the columns are x, y, z as ever
+    notes.write_text("# phi and kappa were not measured\nQ1 452252.8 3407393.9 760.4\n")
+    assert _run("transform", notes, tmp_path / "n.txt", "--from", "EPSG:32649", "--to", "EPSG:32650").exit_code == 0
     eo.write_text("# image_id X_m Y_m Z_m omega_rad phi_rad kappa_rad\nf1 452252.8 3407393.9 760.4 0.001 0.005 -1.6\n")
     r = _run("transform", eo, tmp_path / "o.txt", "--from", "EPSG:32649", "--to", "EPSG:32650")
     assert r.exit_code == 2 and "omega_rad" in r.output and "degrees" in r.output, r.output
