@@ -14,7 +14,8 @@ Height points (``crs fit-heights``): header ``id,x,y,h,H`` (h ellipsoidal, H nor
 
 Point lists (``crs transform``): CSV with a header naming ``x``, ``y`` and optionally ``z`` columns
 (case-insensitive; other columns are copied), or header-less whitespace text ``id x y z ...``
-(like gnss.txt). Lines starting with ``#`` are kept as they are.
+(like gnss.txt). Lines starting with ``#`` are kept as they are. Columns omega, phi, kappa (degrees; named by the
+header, or by the comment line above header-less records, as eo.txt writes it) are attitudes: they turn with the grid.
 """
 
 from __future__ import annotations
@@ -319,7 +320,7 @@ def _attitudes_through(transformer: CrsTransformer, path, x, y, omega_deg, phi_d
     rotation at each centre (the meridian convergence of another zone or central meridian, a plane set's
     rotation), taken from its Jacobian by 1 m steps (the rotation of its polar decomposition: exact for conformal
     grids). The vertical is kept (a datum's rotation of arc-seconds tilts it by as much). trial-datum: eo.txt of UTM
-    49N into UTM 50N kept its kappa, 3.07 deg off at 110.5E."""
+    49N into UTM 50N kept its kappa, 3.08 deg off at 110.5E."""
     from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
 
     for c, opt in ((transformer.src, "--from"), (transformer.dst, "--to")):
