@@ -37,6 +37,7 @@ def format_fit_report(result, path) -> str:
         sd = None if t.std_devs is None else t.std_devs.get(n)
         dec = 4 if "_" in n else 10  # unitless affine coefficients need more digits
         lines.append(f"{n:<18}{t.parameters[n]:>22.{dec}f}{'' if sd is None else f'{sd:16.{dec}f}'}")
+    lines += t.convention_lines()
     s0 = "n/a (no redundancy)" if not np.isfinite(result.sigma0_m) else f"{result.sigma0_m:.4f} m"
     lines += ["", f"Sigma0: {s0}   Degrees of freedom: {result.redundancy}", ""]
     v = result.residuals_m

@@ -122,6 +122,31 @@ class Transformation:
         rx, ry, rz = (sign * p[k] / ARCSEC_PER_RAD for k in ("rx_arcsec", "ry_arcsec", "rz_arcsec"))
         return bursa_wolf(coords, np.array([*T, rx, ry, rz, p["scale_ppm"] * 1e-6]))
 
+    def convention_lines(self) -> list:
+        """How the rotations (and the 4 parameters' axes) are to be read, with the values of the other usual
+        convention: a user copying rx, ry, rz into a position-vector tool (PROJ's +towgs84) or a 4-parameter set
+        into a surveying program with X = northing gets the signs flipped otherwise, without a word."""
+        p = self.parameters
+        if self.model == "bursa-wolf7":
+            other = "position_vector" if self.convention == "coordinate_frame" else "coordinate_frame"
+            names = {"coordinate_frame": "coordinate frame (EPSG method 1032/9607, PROJ +convention=coordinate_frame)",
+                     "position_vector": "position vector (EPSG method 1033/9606, PROJ +towgs84 and "
+                                        "+convention=position_vector)"}
+            flipped = ", ".join(f"{k.split('_')[0]} {-p[k]:+.4f}" for k in ("rx_arcsec", "ry_arcsec", "rz_arcsec"))
+            return [f"Rotations in the {names[self.convention]} convention; X' = T + (1 + scale_ppm 1e-6) R X, "
+                    f"geocentric metres, rotations in arc-seconds, scale in ppm.",
+                    f"In the {names[other]} convention the same set has {flipped} arcsec (translations and scale "
+                    "unchanged)."]
+        if self.model == "helmert2d":
+            return ["x = easting, y = northing; rotation counter-clockwise in the (easting, northing) plane: "
+                    "E' = tx + s (E cos t - N sin t), N' = ty + s (E sin t + N cos t), s = 1 + scale_ppm 1e-6.",
+                    "In the surveying form with X = northing, Y = easting (X' = dX + s (X cos a - Y sin a), "
+                    f"Y' = dY + s (X sin a + Y cos a)): dX = {p['ty_m']:.4f} m, dY = {p['tx_m']:.4f} m, "
+                    f"a = {-p['rotation_arcsec']:+.4f} arcsec (the opposite sign), scale the same."]
+        if self.model == "affine2d":
+            return ["x = easting, y = northing: E' = a0 + a1 E + a2 N, N' = b0 + b1 E + b2 N."]
+        return []
+
     # JSON parameter file --------------------------------------------------------------------
     def to_dict(self) -> dict:
         units = {n: (n.rsplit("_", 1)[1] if "_" in n else "1") for n in PARAMETER_NAMES[self.model]}
@@ -134,6 +159,9 @@ class Transformation:
         out = {"model": self.model, "from_crs": self.from_crs, "to_crs": self.to_crs, "parameters": params}
         if self.model == "bursa-wolf7":
             out["convention"] = self.convention
+        lines = self.convention_lines()
+        if lines:  # for the reader; "convention" (bursa-wolf7) is what is read
+            out["conventions_explained"] = " ".join(lines)
         if self.fit_extent is not None:
             out["fit_extent"] = self.fit_extent
         if self.inverted:
@@ -149,6 +177,21 @@ class Transformation:
             sds = {k: float(v["std_dev"]) for k, v in raw.items() if isinstance(v, dict) and "std_dev" in v}
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{source}: not a transformation parameter file ({exc!r})") from None
+        # A parameter set typed from a report (trial-datum): a unit other than the name's (rotations in radians or
+        # seconds of another name, a scale as a ratio) and a 7-parameter set without its rotation convention were
+        # read as arc-seconds, ppm and coordinate frame without a word (a sign flip of 3" moves points ~0.1 m)
+        for k, v in raw.items():
+            unit = v.get("unit") if isinstance(v, dict) else None
+            want = k.rsplit("_", 1)[1] if "_" in k else "1"
+            if unit is not None and str(unit) != want and k in PARAMETER_NAMES.get(model, ()):
+                raise InputError(f"{source}: parameter {k} has unit {unit!r}; {k} is read in {want} (convert the "
+                                 f"value: 1 rad = {ARCSEC_PER_RAD:.3f} arcsec, a scale ratio 1.0000027 or 2.7e-6 is "
+                                 "scale_ppm 2.7)")
+        if model == "bursa-wolf7" and "convention" not in d and any(
+                params.get(k, 0.0) != 0.0 for k in ("rx_arcsec", "ry_arcsec", "rz_arcsec")):
+            raise InputError(f"{source}: a bursa-wolf7 set needs its rotation convention: add \"convention\": "
+                             "\"coordinate_frame\" (EPSG 1032/9607) or \"position_vector\" (EPSG 1033/9606, PROJ "
+                             "+towgs84); the two differ in the sign of rx, ry, rz (aerotri crs fit writes it)")
         try:
             return cls(
                 model,
@@ -221,11 +264,36 @@ class HeightAnomalyModel:
     smoothing: float = 0.0
     crs: str | None = None
     h_crs: str | None = None
+    hull_m: list | None = None  # [[x, y], ...] counter-clockwise: the convex hull of the fit points (None before)
 
     def __post_init__(self):
         if self.model not in HEIGHT_MODELS:
             raise InputError(f"unknown height model {self.model!r}; choose one of {', '.join(HEIGHT_MODELS)}")
         self._rbf = None
+        if self.hull_m is None and self.points_m is not None:  # a tps file written before hull_m: its points
+            self.hull_m = convex_hull_m(np.asarray(self.points_m, dtype=float)[:, :2])
+
+    def beyond_hull_m(self, x_m, y_m) -> np.ndarray | None:
+        """Distance (m) of each point from the convex hull of the fit points, 0 inside; None when not recorded."""
+        if self.hull_m is None:
+            return None
+        hull = np.asarray(self.hull_m, dtype=float)
+        p = np.column_stack([np.asarray(x_m, dtype=float).ravel(), np.asarray(y_m, dtype=float).ravel()])
+        inside = np.ones(len(p), dtype=bool)
+        dist = np.full(len(p), np.inf)
+        for a, b in zip(hull, np.roll(hull, -1, axis=0)):  # edge by edge: memory of the points only
+            ab = b - a
+            ap = p - a
+            inside &= ab[0] * ap[:, 1] - ab[1] * ap[:, 0] >= 0.0
+            t = np.clip((ap @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+            dist = np.minimum(dist, np.hypot(ap[:, 0] - t * ab[0], ap[:, 1] - t * ab[1]))
+        return np.where(inside, 0.0, dist)
+
+    def hull_margin_m(self) -> float:
+        """How far past its points' hull the model is taken without a warning: 10 % of the hull's largest
+        extent, at least 100 m (the parameter sets' rule, ``outside_extent``)."""
+        hull = np.asarray(self.hull_m, dtype=float)
+        return max(0.1 * float(np.max(np.ptp(hull, axis=0))), 100.0)
 
     def zeta_m(self, x_m, y_m):
         x = np.asarray(x_m, dtype=float)
@@ -256,6 +324,8 @@ class HeightAnomalyModel:
         if self.points_m is not None:
             d["points_m"] = [[float(v) for v in p] for p in self.points_m]
             d["smoothing"] = float(self.smoothing)
+        if self.hull_m is not None:
+            d["hull_m"] = [[float(v) for v in p] for p in self.hull_m]
         return d
 
     @classmethod
@@ -269,9 +339,24 @@ class HeightAnomalyModel:
                 smoothing=float(d.get("smoothing", 0.0)),
                 crs=d.get("crs"),
                 h_crs=d.get("h_crs"),
+                hull_m=d.get("hull_m"),
             )
         except (KeyError, TypeError) as exc:
             raise InputError(f"{source}: not a height anomaly model file ({exc!r})") from None
+
+
+def convex_hull_m(xy_m) -> list | None:
+    """The convex hull of points (n, 2), counter-clockwise [[x, y], ...]; None when they span no area."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    xy = np.asarray(xy_m, dtype=float)
+    if len(xy) < 3:
+        return None
+    try:
+        h = ConvexHull(xy)
+    except (QhullError, ValueError):
+        return None
+    return xy[h.vertices].tolist()  # scipy: counter-clockwise for 2-D
 
 
 def thin_plate_spline(xy_m, zeta_m, origin_m, smoothing):

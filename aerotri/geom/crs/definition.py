@@ -446,15 +446,58 @@ def impossible_in(crs: pyproj.CRS, x, y, tolerance_m: float = 1.0) -> int | None
 FAR_OUTSIDE_AREA_DEG = 10.0
 
 
+def _swapped_hint(h: pyproj.CRS, x: float, y: float) -> str:
+    """"; x and y swapped? ..." when (y, x) is a point of the projected CRS ``h`` (inside its area of use, a zone
+    prefix carried) and (x, y) is not: the surveying order X = northing, Y = easting of Chinese (and German, Russian)
+    lists read as x = easting (trial-datum: the refusal said only that the prefix was missing)."""
+    try:
+        check_coordinates(h, np.array([y]), np.array([x]), "", swapped_hint=False)
+    except InputError:
+        return ""
+    if h.is_geographic:
+        return (f"; x and y swapped? ({y:.6f}, {x:.6f}) is a point of it: lists with the latitude first (B, L) must "
+                "name their columns lat, lon (or give x = longitude first)")
+    return (f"; x and y swapped? ({y:.3f}, {x:.3f}) is a point of it: lists in the surveying order X = northing, "
+            "Y = easting must name their columns easting, northing (or give x = easting first)")
+
+
+def _other_zone_hint(h: pyproj.CRS, x: float, y: float) -> str:
+    """"; ... is a point of EPSG:4497 (... zone 19) ..." when the easting's prefix is the zone of another Chinese
+    Gauss-Krueger grid of the same datum (the other zone width first) that holds the point: 3- and 6-degree zones
+    mixed up (trial-datum: a 6-degree zone 19 easting given as the 3-degree zone 37 was refused without a hint)."""
+    from aerotri.geom.crs.gauss_kruger import _GK_NAME, gk_epsg
+
+    m = _GK_NAME.match(h.name)
+    if not m or not m["zone"]:
+        return ""
+    width = 3 if m["three"] else 6
+    zone = int(math.floor(x / 1_000_000.0))
+    for w in (9 - width, width):
+        try:
+            code = gk_epsg(m["datum"], zone, w, prefixed=True)
+        except KeyError:
+            continue
+        other = pyproj.CRS.from_epsg(code)
+        try:
+            check_coordinates(other, np.array([x]), np.array([y]), "", swapped_hint=False)
+        except InputError:
+            continue
+        why = (f"{w}-degree zones given for {width}-degree ones?" if w != width else
+               "another zone of the same width (a block across a zone border: one zone per file)")
+        return f"; it is a point of EPSG:{code} ({other.name}): {why}"
+    return ""
+
+
 def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0,
-                      outside_area: str = "refuse") -> str | None:
+                      outside_area: str = "refuse", swapped_hint: bool = True) -> str | None:
     """Raise ``InputError`` naming the first record whose coordinates cannot belong to ``crs``.
 
     Geographic CRSs need longitude/latitude in range; projected CRSs need points that fall, once
     unprojected, within the CRS's area of use widened by ``margin_deg``, and within that area's
     grid bounding box widened by 5 % (at least 10 km). Zone-prefixed
     Gauss-Krueger eastings must carry their zone number. ``records`` labels the points (e.g. line
-    numbers or ids) in the messages.
+    numbers or ids) in the messages; ``swapped_hint``: a refused point that is one of ``crs`` with x and y
+    swapped is said to be (``_swapped_hint``).
 
     ``outside_area="warn"`` (``crs assign``): points outside the area of use are no refusal but the returned
     message (else None) -- national grids are used beyond their zone's area (Norway in UTM 33, all Germany in UTM 32,
@@ -483,7 +526,27 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) is not a longitude/latitude in degrees, which {label} "
                 "expects (x = longitude, y = latitude); metres given for a geographic CRS? (mixed units)"
             )
-        return None
+        # its area of use too (trial-datum: latitude, longitude in the surveying B, L order at Kashgar, (39.47,
+        # 75.99), passed as a longitude and latitude of CGCS2000, and went into the CM 75E grid at y = 8,720 km)
+        aou = h.area_of_use
+        if aou is None:
+            return None
+        lon = np.where(x > 180.0, x - 360.0, x)
+        west, east = aou.west, aou.east
+        if east < west:  # area crossing the antimeridian
+            east += 360.0
+            lon = np.where(lon < west - margin_deg, lon + 360.0, lon)
+        bad = ~((lon >= west - margin_deg) & (lon <= east + margin_deg) & (y >= aou.south - margin_deg)
+                & (y <= aou.north + margin_deg))
+        if not bad.any():
+            return None
+        i = int(np.argmax(bad))
+        message = (f"{where(i)}: ({x[i]:.6f}, {y[i]:.6f}) lies outside the area of use of {label} ({h.name}, lon "
+                   f"{aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); {label} expects x = "
+                   "longitude, y = latitude in degrees" + (_swapped_hint(h, x[i], y[i]) if swapped_hint else ""))
+        if outside_area == "warn":
+            return message
+        raise InputError(message)
     # Zone-prefixed Gauss-Krueger: the millions of the easting are the zone number.
     op = h.coordinate_operation
     fe = None
@@ -502,6 +565,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"{where(i)}: easting {x[i]:.3f} does not carry the zone prefix {zone} of {label} "
                 f"(expected {zone}xxxxxx.xxx m; eastings without prefix belong to a 'CM' grid, "
                 "degrees or another zone are mixed units/zones)"
+                + (_swapped_hint(h, x[i], y[i]) or _other_zone_hint(h, x[i], y[i]) if swapped_hint else "")
             )
     if outside_area == "warn" or h.area_of_use is None:  # a user's own grid states no area (review 36)
         i = impossible_in(h, x, y)
@@ -570,6 +634,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
             f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) lies outside the area of use of {label} ({h.name}, "
             f"lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); wrong CRS or mixed units "
             f"(degrees, feet or metres)? {label} expects {unit_name(h)} in x = easting, y = northing order"
+            + (_swapped_hint(h, x[i], y[i]) if swapped_hint else "")
         )
         if outside_area == "warn":
             return message

@@ -14,7 +14,8 @@ Height points (``crs fit-heights``): header ``id,x,y,h,H`` (h ellipsoidal, H nor
 
 Point lists (``crs transform``): CSV with a header naming ``x``, ``y`` and optionally ``z`` columns
 (case-insensitive; other columns are copied), or header-less whitespace text ``id x y z ...``
-(like gnss.txt). Lines starting with ``#`` are kept as they are.
+(like gnss.txt). Lines starting with ``#`` are kept as they are. Columns omega, phi, kappa (degrees; named by the
+header, or by the comment line above header-less records, as eo.txt writes it) are attitudes: they turn with the grid.
 """
 
 from __future__ import annotations
@@ -276,6 +277,71 @@ def _decimals(crs) -> int:
     return 9 if unit_name(crs) == "deg" else 4
 
 
+_ANGLE = re.compile(r"^(?P<name>omega|phi|kappa)(?:_(?P<unit>[a-z]+))?$", re.IGNORECASE)
+
+
+def _attitude_columns(table: _Table) -> dict | None:
+    """{"omega": j, "phi": j, "kappa": j}: the columns of an orientation list (eo.txt and the like), named by the
+    header or, header-less, by the comment line just above the records ("# image_id X_m Y_m Z_m omega_deg phi_deg
+    kappa_deg", as eo.txt writes it); None when there are none. Angles in degrees only (``_deg`` or no suffix)."""
+    names = table.header
+    if names is None:
+        first = table.line_numbers[0] - 1  # the raw lines above the first record, nearest first
+        for ln in reversed(table.lines[:first]):
+            if ln.lstrip().startswith("#"):
+                names = ln.lstrip().lstrip("#").split()
+                break
+            if ln.strip():
+                break
+        # a comment names the columns only when it has a name for each field (not prose that says "phi")
+        if names is not None and len(names) != len(table.rows[0]):
+            return None
+    if not names:
+        return None
+    found = {}
+    for j, col in enumerate(names):
+        m = _ANGLE.match(col.strip())
+        if m:
+            if m["unit"] and m["unit"].lower() != "deg":
+                raise InputError(f"{table.path}: column {col}: attitudes are read in degrees (omega_deg, phi_deg, "
+                                 "kappa_deg); convert the column")
+            found[m["name"].lower()] = j
+    if not found:
+        return None
+    if len(found) < 3:
+        raise InputError(f"{table.path}: columns {', '.join(found)} found without all of omega, phi, kappa: an "
+                         "orientation list needs the three")
+    return found
+
+
+def _attitudes_through(transformer: CrsTransformer, path, x, y, omega_deg, phi_deg, kappa_deg):
+    """(omega, phi, kappa) in degrees of orientations (eo.txt: the rotation camera -> grid east, grid north, up at
+    the projection centre, ``aerotri.geom.rotation``) in the output grid: the grid axes turn by the operation's
+    rotation at each centre (the meridian convergence of another zone or central meridian, a plane set's
+    rotation), taken from its Jacobian by 1 m steps (the rotation of its polar decomposition: exact for conformal
+    grids). The vertical is kept (a datum's rotation of arc-seconds tilts it by as much). trial-datum: eo.txt of UTM
+    49N into UTM 50N kept its kappa, 3.08 deg off at 110.5E."""
+    from aerotri.geom.rotation import opk_from_matrix, rotation_matrix_opk
+
+    for c, opt in ((transformer.src, "--from"), (transformer.dst, "--to")):
+        if not horizontal_crs(c).is_projected:
+            raise InputError(f"{path}: an orientation list (omega, phi, kappa) needs projected grids: {opt} "
+                             f"{crs_label(c)} is not one (the angles refer to grid axes)")
+    probe = CrsTransformer(transformer.src, transformer.dst, transformer.params, None, transformer.allow_ballpark)
+    step = 1.0 / linear_unit_m(transformer.src)
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    ex = probe.transform(np.concatenate([x + step, x - step]), np.concatenate([y, y]))
+    ny = probe.transform(np.concatenate([x, x]), np.concatenate([y + step, y - step]))
+    n = len(x)
+    j00, j10 = ex[0][:n] - ex[0][n:], ex[1][:n] - ex[1][n:]  # d(X, Y)/dx
+    j01, j11 = ny[0][:n] - ny[0][n:], ny[1][:n] - ny[1][n:]  # d(X, Y)/dy
+    theta = np.arctan2(j10 - j01, j00 + j11)  # counter-clockwise in (easting, northing)
+    c, s_ = np.cos(theta), np.sin(theta)
+    Rz = np.zeros((n, 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s_, s_, c, 1.0
+    return opk_from_matrix(Rz @ rotation_matrix_opk(omega_deg, phi_deg, kappa_deg))
+
+
 def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
     """Transform a CSV/TXT point list (see module docstring); returns the number of points."""
     table = _read_table(in_path, require_header=False)
@@ -298,10 +364,23 @@ def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
     cols = {"x": (ix, None), "y": (iy, None)}
     if iz is not None:
         cols["z"] = (iz, None)
+    angles = _attitude_columns(table)
+    cols.update({k: (j, None) for k, j in (angles or {}).items()})
     v = _float_columns(table, cols, list(cols))
     recs = [f"line {ln}" for ln in table.line_numbers]
     check_coordinates(transformer.src, v["x"], v["y"], str(table.path), recs)
+    if angles:
+        opk = _attitudes_through(transformer, table.path, v["x"], v["y"], v["omega"], v["phi"], v["kappa"])
     X, Y, Z = transformer.transform(v["x"], v["y"], v.get("z"))
+    # as for LAS/LAZ (below): a point list written outside the target's area of use is said (trial-datum: eo.txt of
+    # UTM 49N into UTM 50N, easting -122,381 m; points at 110.5E into the 3-degree CM 114E grid: without a word)
+    try:
+        far = check_coordinates(transformer.dst, X, Y, f"{table.path} transformed", recs, outside_area="warn")
+    except InputError as exc:
+        far = str(exc)
+    if far:
+        transformer.notes.append(f"{far}; written all the same: is --to {crs_label(transformer.dst)} the grid meant "
+                                 "(zone, 3- or 6-degree, central meridian)?")
     dec = _decimals(transformer.dst)
     out_rows = []
     for r, fields in enumerate(table.rows):
@@ -310,6 +389,9 @@ def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
         f[iy] = f"{Y[r]:.{dec}f}"
         if iz is not None:
             f[iz] = f"{Z[r]:.4f}"
+        if angles:
+            for k, name in enumerate(("omega", "phi", "kappa")):
+                f[angles[name]] = f"{opk[k][r]:.7f}"
         out_rows.append(f)
     # Rebuild the text with comments where they were.
     body_by_line = dict(zip(table.line_numbers, out_rows))
@@ -421,6 +503,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
         X, Y, Z = transformer.transform(cx, cy, cz)
         transformer.n_points -= 4  # corners are not points of the file
         transformer.n_outside_fit_extent = 0
+        transformer.n_beyond_heights_hull, transformer.beyond_heights_hull_m = 0, 0.0
         try:
             # s27: RD New coordinates tagged UTM 31N (plausible there, at 4 deg N) came out at x = -660,124 in RD New,
             # exit 0, without a word. A warning, not a refusal: a transform into a neighbouring zone far off is legal

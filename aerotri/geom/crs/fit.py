@@ -329,6 +329,9 @@ def fit_spatial(model: str, ids, src_XYZ_m, dst_XYZ_m, *, dst_lat_lon_deg=None, 
     corr_warn = _correlation_warning(cov, names, plane)
     if corr_warn:
         warns.append(corr_warn)
+    size_warn = _implausible_set_warning(T)
+    if size_warn:
+        warns.append(size_warn)
     if gm.redundancy == 0:
         warns.append(f"no redundancy: {n} points is the minimum for {model}; no standard deviations")
     if check_blunders:
@@ -404,6 +407,32 @@ def _correlation_warning(cov, names, plane):
         f"{names[j]}): the set works as a whole near the points but single parameters are not meaningful "
         "and extrapolation is unsafe; helmert2d or translation3 may be more robust for small areas"
     )
+
+
+# A datum change between geodetic datums rotates by arc-seconds and scales by tens of ppm at most (EPSG's published
+# Bursa-Wolf sets, and the trial's CGCS2000 -> Xian 1980: 3.2", 2.7 ppm); chosen from those, not fitted: a set 20 times
+# larger is a wrong grid on one side (trial-datum: Xian 1980 CM 114E coordinates with --to the 6-degree CM 117E gave
+# rz -10,792" and -988 ppm, 4 m residuals, no word beyond them)
+PLAUSIBLE_ROTATION_ARCSEC = 60.0
+PLAUSIBLE_SCALE_PPM = 100.0
+
+
+def _implausible_set_warning(T) -> str | None:
+    p = T.parameters
+    if T.model != "bursa-wolf7":
+        return None
+    rot = {k: p[k] for k in ("rx_arcsec", "ry_arcsec", "rz_arcsec")}
+    big = [f"{k.split('_')[0]} {v:+.1f}\" ({v / 3600.0:+.3f} deg)" for k, v in rot.items()
+           if abs(v) > PLAUSIBLE_ROTATION_ARCSEC]
+    if abs(p["scale_ppm"]) > PLAUSIBLE_SCALE_PPM:
+        big.append(f"scale {p['scale_ppm']:+.1f} ppm")
+    if not big:
+        return None
+    return (f"implausible datum change: {', '.join(big)} (datum changes rotate by arc-seconds and scale by tens of "
+            f"ppm at most; limits {PLAUSIBLE_ROTATION_ARCSEC:g}\" and {PLAUSIBLE_SCALE_PPM:g} ppm): are the "
+            f"coordinates of both sides in the grids --from {T.from_crs} and --to {T.to_crs} name? Another zone or "
+            "central meridian on one side (a 3- or 6-degree zone: 3 deg = 10,800\"), x and y swapped, heights that "
+            "are not ellipsoidal, or a mistyped common point")
 
 
 def _extent(xy):

@@ -23,8 +23,8 @@ import json
 import numpy as np
 
 from aerotri.core.errors import InputError
-from aerotri.geom.crs.datum import (HEIGHT_MODELS, MIN_HEIGHT_POINTS, HeightAnomalyModel, height_design_matrix,
-                                    thin_plate_spline)
+from aerotri.geom.crs.datum import (HEIGHT_MODELS, MIN_HEIGHT_POINTS, HeightAnomalyModel, convex_hull_m,
+                                    height_design_matrix, thin_plate_spline)
 
 
 @dataclasses.dataclass
@@ -95,7 +95,8 @@ def fit_height_anomaly(ids, x_m, y_m, h_m, H_m, *, model: str = "plane", smoothi
         with np.errstate(divide="ignore", invalid="ignore"):
             loo = np.where(hat < 1 - 1e-9, res / (1.0 - hat), np.nan)  # exact leave-one-out
         sigma0 = float(np.sqrt(res @ res / r)) if r > 0 else float("nan")
-        hm = HeightAnomalyModel(model, origin, coefficients=c.tolist(), crs=crs, h_crs=h_crs)
+        hm = HeightAnomalyModel(model, origin, coefficients=c.tolist(), crs=crs, h_crs=h_crs,
+                                hull_m=convex_hull_m(np.column_stack([x, y])))
         if r == 0:
             warns.append(f"no redundancy: {n} points is the minimum for {model}; residuals are zero")
     else:

@@ -168,7 +168,11 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                 with rasterio.Env(GDAL_PAM_ENABLED=False), rasterio.open(tmp) as written:  # as a reader sees it
                     check_stored_crs(dst_crs, written.crs, str(out_path), gx, gy, 1e-3 * res)
     for w in forward.warnings:
-        log.warning(w)
+        if w != forward.heights_extrapolation_warning():  # the forward maps the bounds only: said by the inverse
+            log.warning(w)
+    w = inverse.heights_extrapolation_warning()  # the heights are evaluated through the inverse
+    if w:
+        log.warning(f"{in_path}: {w.replace('points', 'grid points sampled', 1)}")
     dz = (change[0], change[1]) if np.isfinite(change[0]) else None
     src_p = parse_crs(src_crs, "--from")
     if dz and params is None and heights is None and max(abs(dz[0]), abs(dz[1])) > 0.01 and len(src_p.axis_info) < 3:

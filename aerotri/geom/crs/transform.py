@@ -385,11 +385,15 @@ class CrsTransformer:
         self.heights_inverse = heights_inverse  # h = H + zeta (the inverse of a normal-height operation)
         self.n_outside_fit_extent = 0
         self.n_points = 0
+        # points where the height model is extrapolated beyond its levelling points' hull (and the farthest, m)
+        self.n_beyond_heights_hull = 0
+        self.beyond_heights_hull_m = 0.0
         # the spatial set's change of the ellipsoidal heights (sum, count), said beside a height model
         self._dh_sum_m, self._dh_n = 0.0, 0
+        self._vertical_by_model = None  # a compound CRS's vertical datum whose heights the height model gives
         legs = []
         if params is None:
-            legs.append(_ProjLeg(self.src, self.dst, allow_ballpark))
+            legs.append(self._leg(self.src, self.dst, allow_ballpark))
         else:
             p_from = parse_crs(params.from_crs, "parameter file from_crs")
             p_to = parse_crs(params.to_crs, "parameter file to_crs")
@@ -405,27 +409,62 @@ class CrsTransformer:
                 self._ell_to = Ellipsoid.from_crs(p_to)
                 self._geo_from = p_from if p_from.is_geocentric else p_from.geodetic_crs
                 self._geo_to = p_to if p_to.is_geocentric else p_to.geodetic_crs
-                self._pre_plane = _ProjLeg(self.src, p_from, allow_ballpark, why) if not p_from.is_geocentric else None
-                legs.append(_ProjLeg(self.src, self._geo_from, allow_ballpark, why))
-                legs.append(_ProjLeg(self._geo_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
+                self._pre_plane = self._leg(self.src, p_from, allow_ballpark, why) if not p_from.is_geocentric else None
+                legs.append(self._leg(self.src, self._geo_from, allow_ballpark, why))
+                legs.append(self._leg(self._geo_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
             else:
                 for c, role in ((p_from, "from_crs"), (p_to, "to_crs")):
                     if not horizontal_crs(c).is_projected or abs(linear_unit_m(c) - 1.0) > 1e-12:
                         raise CrsError(f"parameter file {role} {crs_label(c)}: plane models need a metre grid")
-                legs.append(_ProjLeg(self.src, p_from, allow_ballpark, why))
-                legs.append(_ProjLeg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
+                legs.append(self._leg(self.src, p_from, allow_ballpark, why))
+                legs.append(self._leg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
         self._legs = legs
+        self.notes = []
+        if self._vertical_by_model is not None:
+            self.notes.append(f"heights: {self._vertical_by_model} taken as the height model's normal heights "
+                              "(H = h - zeta; PROJ knows no operation into or out of it)")
         self._height_leg = None
+        self._height_leg_from_src = False
         if heights is not None and heights.crs:
             hcrs = parse_crs(heights.crs, "height model crs")
             if hcrs != self.dst and hcrs != self.src:
-                self._height_leg = _ProjLeg(self.dst, hcrs, allow_ballpark=False, purpose=" (height model)")
+                try:
+                    self._height_leg = _ProjLeg(self.dst, hcrs, allow_ballpark=False, purpose=" (height model)")
+                except BallparkRefused as exc:
+                    # the model's grid on the input's datum (levelling in CGCS2000 zone 37, a cloud in CGCS2000 CM
+                    # 111E into Xian 1980 with --params): reached from the input by a conversion (trial-datum: refused,
+                    # "pass --params", which was given)
+                    try:
+                        self._height_leg = _ProjLeg(self.src, hcrs, allow_ballpark=False, purpose=" (height model)")
+                        self._height_leg_from_src = True
+                    except BallparkRefused:
+                        raise BallparkRefused(
+                            f"height model: its grid {crs_label(hcrs)} ({hcrs.name}) is on neither the datum of "
+                            f"{crs_label(self.src)} nor that of {crs_label(self.dst)}, and PROJ knows no rigorous "
+                            f"operation to it from either ({exc}); fit the height model in a grid of the input's or "
+                            "the output's datum (crs fit-heights --epsg)", missing_grids=exc.missing_grids) from None
             self._heights_crs = hcrs
         else:
             self._heights_crs = self.dst
         self.ballpark = any(leg.ballpark for leg in legs)
-        self.notes = [n for leg in legs for n in leg.notes]
+        self.notes += [n for leg in legs for n in leg.notes]
         self._h_stage = self._height_stage() if heights is not None and heights.h_crs else None
+
+    def _leg(self, a, b, allow_ballpark: bool, purpose: str = "") -> "_ProjLeg":
+        """The PROJ leg a -> b; with a height model (recording its h) whose normal heights are a compound CRS's
+        vertical part that PROJ cannot reach (Yellow Sea 1985 height, EPSG:5737: no geoid in PROJ), the leg between the
+        horizontal parts: the model gives those heights, the chain's own height arithmetic does the rest
+        (trial-datum: --to EPSG:2361+5737 --heights zeta.json was refused as ballpark, "pass --heights")."""
+        try:
+            return _ProjLeg(a, b, allow_ballpark, purpose)
+        except BallparkRefused:
+            vert = vertical_crs(b) if vertical_crs(b) is not None else vertical_crs(a)
+            if (self.heights is None or not self.heights.h_crs or vert is None
+                    or abs(height_unit_m(b if vertical_crs(b) is not None else a) - 1.0) > 1e-12):
+                raise
+            leg = _ProjLeg(horizontal_crs(a), horizontal_crs(b), allow_ballpark, purpose)
+            self._vertical_by_model = vert.name
+            return leg
 
     def _height_stage(self) -> str:
         """Where the chain has ellipsoidal heights on the datum of the height model's h: ``in`` (the input),
@@ -574,13 +613,21 @@ class CrsTransformer:
                     self._dh_n += int(np.count_nonzero(np.isfinite(dh)))
                 X, Y, Z = self._legs[1](lon, lat, h)
         if self.heights is not None:
-            if self._height_leg is not None:
+            if self._height_leg is not None and self._height_leg_from_src:
+                hx, hy, _ = self._height_leg(x_in, y_in, np.zeros_like(x_in))
+            elif self._height_leg is not None:
                 hx, hy, _ = self._height_leg(X, Y, np.zeros_like(X))
             elif self._heights_crs == self.src and self._heights_crs != self.dst:
                 hx, hy = x_in, y_in
             else:
                 hx, hy = X, Y
             zeta = self.heights.zeta_m(hx, hy) / z_unit_m(self.dst)
+            beyond = self.heights.beyond_hull_m(hx, hy)
+            if beyond is not None:
+                far = beyond > self.heights.hull_margin_m()
+                self.n_beyond_heights_hull += int(far.sum())
+                if far.any():
+                    self.beyond_heights_hull_m = max(self.beyond_heights_hull_m, float(beyond.max()))
             if self._h_stage is None:  # a model file without h_crs: on the output's h (the trial's 118.8 m)
                 Z = Z + zeta if self.heights_inverse else Z - zeta
             else:
@@ -613,12 +660,25 @@ class CrsTransformer:
                 f"{self._dh_n} points); the height model's zeta = h - H is taken with h on the ellipsoid of "
                 f"{normal.datum.name}: a model fitted from h on {other.datum.name} puts the heights {abs(dh):.3f} m "
                 "off (docs/datums.md)")
+        w = self.heights_extrapolation_warning()
+        if w:
+            out.append(w)
         if self.n_outside_fit_extent:
             out.append(
                 f"{self.n_outside_fit_extent} of {self.n_points} points lie outside the area of the common points "
                 "used for the parameters (extrapolation; accuracy unknown there)"
             )
         return out
+
+    def heights_extrapolation_warning(self) -> str | None:
+        """Said when the height model was evaluated past its levelling points' hull (by more than
+        ``HeightAnomalyModel.hull_margin_m``; trial-datum: 40 km outside, or x, y swapped, said nothing)."""
+        if not self.n_beyond_heights_hull:
+            return None
+        return (f"height model extrapolated: {self.n_beyond_heights_hull} of {self.n_points} points lie outside the "
+                f"area of its levelling points (convex hull), up to {self.beyond_heights_hull_m / 1000.0:.3f} km "
+                f"beyond it; its {self.heights.model} zeta there is unchecked (accuracy unknown): add levelled "
+                "points there, or check that the model's x, y are easting, northing of the grid it records")
 
 
 def transform_points(x, y, z=None, *, from_crs, to_crs, params=None, heights=None, allow_ballpark=False):
