@@ -531,13 +531,14 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
         aou = h.area_of_use
         if aou is None:
             return None
-        lon = np.where(x > 180.0, x - 360.0, x)
+        lon, lat = geodetic_to_greenwich(h, x, y)  # NTF (Paris): grads from Paris (review 36)
+        lon = np.where(lon > 180.0, lon - 360.0, lon)
         west, east = aou.west, aou.east
         if east < west:  # area crossing the antimeridian
             east += 360.0
             lon = np.where(lon < west - margin_deg, lon + 360.0, lon)
-        bad = ~((lon >= west - margin_deg) & (lon <= east + margin_deg) & (y >= aou.south - margin_deg)
-                & (y <= aou.north + margin_deg))
+        bad = ~((lon >= west - margin_deg) & (lon <= east + margin_deg) & (lat >= aou.south - margin_deg)
+                & (lat <= aou.north + margin_deg))
         if not bad.any():
             return None
         i = int(np.argmax(bad))
@@ -568,7 +569,10 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 + (_swapped_hint(h, x[i], y[i]) or _other_zone_hint(h, x[i], y[i]) if swapped_hint else "")
             )
     if outside_area == "warn" or h.area_of_use is None:  # a user's own grid states no area (review 36)
-        i = impossible_in(h, x, y)
+        try:
+            i = impossible_in(h, x, y)
+        except pyproj.exceptions.ProjError as e:  # a user's own definition PROJ cannot run (a scale factor <= 0)
+            raise InputError(f"{source}: {label} ({h.name}) is no projection PROJ can compute: {e}") from None
         if i is not None:
             raise InputError(
                 f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) cannot be a point of {label} ({h.name}): the projection does "

@@ -84,7 +84,8 @@ def test_the_4_parameter_report_gives_the_surveying_form_with_x_northing(tmp_pat
     from pyproj.crs.coordinate_operation import TransverseMercatorConversion
 
     local = ProjectedCRS(name="city grid (CGCS2000, CM 110.5E)", geodetic_crs=pyproj.CRS(4490), conversion=(
-        TransverseMercatorConversion(0.0, 110.5, 1.0, 50_000.0, -3_000_000.0))).to_wkt()
+        TransverseMercatorConversion(0.0, 110.5, false_easting=50_000.0, false_northing=-3_000_000.0,
+                                     scale_factor_natural_origin=1.0))).to_wkt()
     r = _run("fit", path, "--model", "helmert2d", "--from", "EPSG:4546", "--to", local, "-o", tmp_path / "f.json")
     assert r.exit_code == 0, r.output
     m = re.search(r"dX = ([-\d.]+) m, dY = ([-\d.]+) m, a = ([-+\d.]+) arcsec", r.output)

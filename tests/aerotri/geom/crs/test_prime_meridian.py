@@ -42,3 +42,11 @@ def test_a_custom_grid_without_an_area_refuses_what_it_cannot_hold():
     assert check_coordinates(crs, np.array([512_345.0]), np.array([3_400_000.0]), "points.csv") is None
     with pytest.raises(InputError, match="cannot be a point of"):
         check_coordinates(crs, np.array([39_512_345.0]), np.array([3_400_000.0]), "points.csv")
+
+
+def test_geographic_points_of_ntf_paris_in_grads_pass_in_france():
+    """NTF (Paris) geographic (EPSG:4807) counts grads from Paris: Paris itself is (0, 54.2731) there."""
+    crs = pyproj.CRS.from_epsg(4807)
+    lon_g, lat_g = pyproj.Transformer.from_crs(27572, 4807, always_xy=True).transform(600000.0, 2428000.0)
+    assert abs(lon_g) < 0.1 and 54.0 < lat_g < 54.5
+    assert check_coordinates(crs, np.array([lon_g]), np.array([lat_g]), "points.csv") is None
