@@ -720,11 +720,16 @@ def height_datum_text(hd, height_limit_m: float) -> str:
                 f"strip {s} off by less than {m:.2f} m" for s, m in not_held) + " at the strip's worse end (Baarda's "
                 f"minimal detectable bias from the solution's covariance) against the {height_limit_m:.2f} m height "
                 "limit")
-        if hd.out_unchecked():
+        unchecked = hd.kept_unchecked(height_limit_m)
+        if unchecked:
             parts.append(f"carry the heights alone ({_CORRECTION_TAKES.get(hd.correction, hd.correction)} frees the "
-                         f"GNSS heights), and the {len(out)} points left out are all off the same way "
-                         f"({', '.join(f'{d:+.2f}' for d in hd.out_dz_m[:6])} m given minus adjusted): the data "
-                         "snooping, one blunder at a time, may have left out the right ones and kept mistyped ones")
+                         "GNSS heights), and the data snooping would find a mistyped height only when off by more "
+                         "than " + ", ".join(f"{m:.2f} m at {i} (redundancy {r:.3f})" if math.isfinite(m) else
+                                             f"any amount at {i} (redundancy {r:.3f})" for i, r, m in unchecked[:6])
+                         + (", ..." if len(unchecked) > 6 else "")
+                         + f" (Baarda's minimal detectable bias, beyond the {height_limit_m:.2f} m height limit: a "
+                         "point that holds its strip's heights alone), so it may have kept a mistyped height and "
+                         "left out right ones")
         why = "; and ".join(parts) + ": the block's heights are unchecked"
     elif hd.disagrees():
         why = (f"disagree with the GNSS heights ({what} fitted to them: chi-square {hd.chi2:.1f}, {hd.terms} "
@@ -738,7 +743,8 @@ def height_datum_text(hd, height_limit_m: float) -> str:
     # several out, all off the same way: they may hold a datum the GNSS's and the rest are not in (review 29: not for
     # one point out, the mistyped point the sentence before names as the usual cause)
     right = (", and the points left out, all off the same way, may be the right ones (GNSS or control heights in "
-             "another height system, an antenna height or lever arm off)" if hd.out_agree() and not hd.out_unchecked()
+             "another height system, an antenna height or lever arm off)"
+             if hd.out_agree() and hd.correction not in ("shift", "shift_drift")
              else "")
     return head + why + right + ". Survey or re-measure the points left out, or add check points."
 
