@@ -40,15 +40,17 @@ control height kept, by Baarda's internal reliability (at-reliability, review 35
 been found when its minimal detectable bias ``MDB_i = lambda sigma_i / sqrt(r_i)`` (``sigma_i`` its given height
 sigma, ``r_i = 1 - Q_ii / sigma_i^2`` its redundancy number, ``Q_ii`` its adjusted height's unit-weight variance from
 the solution's reduced covariance) is within the height limit; one that holds its strip alone (``r_i`` 0.004-0.05,
-MDB 1.2-4 m) is not (``kept_mdb_m``, ``kept_unchecked``). Every kept height so checked, the snooping's choice stands,
-whatever the signs of the points out (the sign rule before, ``out_agree``, called "weak" blocks whose snooping
+MDB 1.2-4 m) is not (``kept_mdb_m``, ``kept_unchecked``). Nor are two kept heights mistyped together in one strip,
+which its shift and drift take together and the one-at-a-time tests miss whatever each point's MDB (review 35's kept
+typos: single MDBs 0.6-1.0 m): the smallest bias of both some test would find (``pair_mdb_m``) must be within
+``PAIR_MDB_FACTOR`` times the limit (``pairs_unchecked``). Every kept height and pair so checked, the snooping's
+choice stands, whatever the signs of the points out (the sign rule before, ``out_agree``, called "weak" blocks whose snooping
 rightly left out two heights typed the same way: review 35). One point out is the snooping's usual find and not
 judged so: with 6 control heights under a shift and drift per strip the heights kept have MDBs of 0.7-1.7 m, and
 the rule called 18 of 18 such blocks weak whose one mistyped height was rightly left out (s29-fixes' family).
 ``Q`` leaves out a DEM's considered systematic error (``surface_bias``; a DEM only adds redundancy) and a full
-control point's plan (heights only). ``pair_mdb_m`` (two kept heights mistyped together, which the one-at-a-time
-tests may both miss: review 35's kept typos, single MDBs 0.6-1.0 m) is measured, not judged
-(``bench/eval_at_reliability.py``).
+control point's plan (heights only); pairs are judged while the covariance between the points is formed
+(``JOINT_COLS_MAX``).
 """
 
 from __future__ import annotations
@@ -74,8 +76,13 @@ COLLINEAR_SHARE = 0.05  # control points whose plan spread across their line is 
 # (points uniform over a block: about 1; 3 in one corner or a line along a wide block: below 0.2; review 32, 35)
 CHECK_SPREAD_SHARE = 0.2
 # the kept control heights' covariance between points (``pair_mdb_m``) only while their images' parameters are at
-# most this many (about 200 images: a few MB of entries); above, each point's own variance alone
-JOINT_COLS_MAX = 1200
+# most this many (100 images of 6: the entries between images that share no point take a solve each); above, each
+# point's own variance alone
+JOINT_COLS_MAX = 600
+# a pair of kept control heights mistyped together is unchecked when the smallest such bias (each) the one-at-a-time
+# tests would find exceeds this times the height limit (bench/eval_at_reliability.py, seeds 0-5: 1 called 12 of 16
+# blocks whose typos were rightly out weak, 1.5 and 2 none; 2 taken, the fewer false alarms of the tie)
+PAIR_MDB_FACTOR = 2.0
 
 
 def _block_axes(xy: np.ndarray) -> dict:
@@ -157,9 +164,17 @@ class HeightDatumCheck:
             return ()
         return tuple(k for k in self.kept_mdb_m if not k[2] <= height_limit_m)
 
+    def pairs_unchecked(self, height_limit_m: float) -> tuple:
+        """As ``kept_unchecked``, the pairs of kept heights that, mistyped together, the one-at-a-time tests would
+        not find within ``PAIR_MDB_FACTOR`` times the height limit: (id, id, +1 same way / -1 opposite, MDB m), the
+        worst first (two typos kept in one strip, which its shift and drift take together: review 35)."""
+        if self.correction not in ("shift", "shift_drift") or len(self.height_control_out) < 2:
+            return ()
+        return tuple(k for k in self.pair_mdb_m if not k[3] <= PAIR_MDB_FACTOR * height_limit_m)
+
     def held(self, height_limit_m: float) -> bool:
         return (self.mdb_m <= height_limit_m and not self.disagrees() and not self.strips_not_held(height_limit_m)
-                and not self.kept_unchecked(height_limit_m))
+                and not self.kept_unchecked(height_limit_m) and not self.pairs_unchecked(height_limit_m))
 
 
 def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc, control_active, *, sigma0: float,

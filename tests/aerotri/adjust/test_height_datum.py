@@ -146,7 +146,8 @@ def test_a_kept_mistyped_height_that_holds_its_strip_alone_leaves_the_heights_un
     assert ks["verdict"] == "weak" and ks["height_control_not_held"]
     assert "the 4 left (gcp01, gcp02, gcp04, gcp06) carry the heights alone" in ks["message"]
     assert f"only when off by more than {unchecked['gcp02'][1]:.2f} m at gcp02" in ks["message"]
-    assert "may have kept a mistyped height and left out right ones" in ks["message"]
+    assert "may have kept mistyped heights and left out right ones" in ks["message"]
+    assert "re-measure the points left out and the points named" in ks["message"]
 
 
 def test_two_heights_typed_the_same_way_rightly_left_out_hold_the_heights(tmp_path):
@@ -164,6 +165,27 @@ def test_two_heights_typed_the_same_way_rightly_left_out_hold_the_heights(tmp_pa
     assert not hd.kept_unchecked(1.0) and hd.held(1.0)
     ks = _verdict_without_checks(ba)
     assert ks["verdict"] == "successful" and not ks["height_control_not_held"]
+
+
+def test_two_mistyped_heights_kept_in_one_strip_leave_the_heights_unchecked(tmp_path):
+    """Review 35's silent misses: a shift per strip, 6 control, gcp02 and gcp03 typed 2-2.4 m high, both kept and two
+    right points left out (the 20 check points give RMS Z 1.18 m). Each kept height alone would be found (MDB 0.6-0.7
+    m), but the two together move their strip as its shift does: the one-at-a-time tests would find them only beyond
+    10 m each: weak, naming them."""
+    ba, _ = _project(tmp_path, mistyped=2, correction="shift", shift_m=0.3, typo_m=2.0, seed=9, shift_sigma_m=0.5,
+                     n_check=20, same_way=True)
+    dz = np.array([c["adjusted_m"][2] - c["measured_m"][2] for c in ba.check.values()])
+    assert np.sqrt(np.mean(dz**2)) > 1.0  # the truth: the heights are off beyond the 1 m limit
+    hd = ba.result.height_datum
+    assert set(hd.height_control_out) == {"gcp05", "gcp06"} and not hd.kept_unchecked(1.0)
+    assert all(m < 1.0 for i, _, m in hd.kept_mdb_m if i in ("gcp02", "gcp03"))
+    a, b, sign, mdb = hd.pairs_unchecked(1.0)[0]
+    assert {a, b} == {"gcp02", "gcp03"} and sign == 1 and mdb > 2.0
+    ks = _verdict_without_checks(ba)
+    assert ks["verdict"] == "weak" and ks["height_control_not_held"]
+    assert f"two heights mistyped together only when each is off by more than {mdb:.2f} m at {a} and {b}" in ks[
+        "message"]
+    assert "a strip's shift takes them together" in ks["message"]
 
 
 def test_check_points_in_one_corner_do_not_decide(tmp_path):
