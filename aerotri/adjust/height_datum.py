@@ -44,8 +44,8 @@ MDB 1.2-4 m) is not (``kept_mdb_m``, ``kept_unchecked``). Nor are two kept heigh
 which its shift and drift take together and the one-at-a-time tests miss whatever each point's MDB (review 35's kept
 typos: single MDBs 0.6-1.0 m): the smallest bias of both some test would find (``pair_mdb_m``) must be within
 ``PAIR_MDB_FACTOR`` times the limit (``pairs_unchecked``). Every kept height and pair so checked, the snooping's
-choice stands, whatever the signs of the points out (the sign rule before, ``out_agree``, called "weak" blocks whose snooping
-rightly left out two heights typed the same way: review 35). One point out is the snooping's usual find and not
+choice stands, whatever the signs of the points out (the sign rule before, ``out_agree``, called "weak" blocks whose
+snooping rightly left out two heights typed the same way: review 35). One point out is the snooping's usual find and not
 judged so: with 6 control heights under a shift and drift per strip the heights kept have MDBs of 0.7-1.7 m, and
 the rule called 18 of 18 such blocks weak whose one mistyped height was rightly left out (s29-fixes' family).
 ``Q`` leaves out a DEM's considered systematic error (``surface_bias``; a DEM only adds redundancy) and a full
