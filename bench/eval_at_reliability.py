@@ -1,8 +1,8 @@
 """at-reliability: "heights unchecked" under a GNSS correction per strip by the kept control heights' internal
 reliability (Baarda's MDB of each and of each pair, ``HeightDatumCheck.kept_unchecked``, ``pairs_unchecked``),
-not by the signs of the points left out (the sign rule ``out_agree`` of s32-fixes). Review 35 found the sign rule's false alarm (a shift_drift block, 12
-control, two heights typed off the same way and rightly left out: "weak") and its silent misses (the snooping kept a
-typo, "Successful" with the heights over 1 m off).
+not by the signs of the points left out (the sign rule ``out_agree`` of s32-fixes). Review 35 found the sign rule's
+false alarm (a shift_drift block, 12 control, two heights typed off the same way and rightly left out: "weak") and
+its silent misses (the snooping kept a typo, "Successful" with the heights over 1 m off).
 
 Blocks: review 22's 3 x 6 DMC block at 1,000 m over 120 m of relief (``geometric_block``), GNSS strip shifts
 corrected by a shift and drift per strip (``--shift``: a shift per strip), 6 or 12 full control points, the 2
