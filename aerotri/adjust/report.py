@@ -13,6 +13,7 @@ import numpy as np
 
 from aerotri.adjust import graph as G
 from aerotri.adjust.determinability import PP_RELIEF_PLAN_FRACTION
+from aerotri.adjust.height_datum import PAIR_MDB_FACTOR
 from aerotri.adjust.report_record import map_unit_m
 from aerotri.core.figures import pyplot
 from aerotri.core.settings import settings_lines
@@ -720,11 +721,27 @@ def height_datum_text(hd, height_limit_m: float) -> str:
                 f"strip {s} off by less than {m:.2f} m" for s, m in not_held) + " at the strip's worse end (Baarda's "
                 f"minimal detectable bias from the solution's covariance) against the {height_limit_m:.2f} m height "
                 "limit")
-        if hd.out_unchecked():
+        unchecked, pairs = hd.kept_unchecked(height_limit_m), hd.pairs_unchecked(height_limit_m)
+        if unchecked or pairs:
+            finds = []
+            if unchecked:
+                finds.append("a mistyped height only when off by more than " + ", ".join(
+                    f"{m:.2f} m at {i} (redundancy {r:.3f})" if math.isfinite(m) else
+                    f"any amount at {i} (redundancy {r:.3f})" for i, r, m in unchecked[:6])
+                    + (", ..." if len(unchecked) > 6 else "")
+                    + f" (Baarda's minimal detectable bias, beyond the {height_limit_m:.2f} m height limit: a point "
+                    "that holds its strip's heights alone)")
+            if pairs:
+                finds.append("two heights mistyped together only when each is off by more than " + ", ".join(
+                    f"{m:.2f} m at {a} and {b} ({'the same way' if sg > 0 else 'opposite ways'})"
+                    if math.isfinite(m) else f"any amount at {a} and {b}" for a, b, sg, m in pairs[:3])
+                    + (", ..." if len(pairs) > 3 else "")
+                    + f" (beyond {PAIR_MDB_FACTOR:g} times the limit: "
+                    + ("a strip's shift takes them together)" if hd.correction == "shift" else
+                       "a strip's shift and drift take them together)"))
             parts.append(f"carry the heights alone ({_CORRECTION_TAKES.get(hd.correction, hd.correction)} frees the "
-                         f"GNSS heights), and the {len(out)} points left out are all off the same way "
-                         f"({', '.join(f'{d:+.2f}' for d in hd.out_dz_m[:6])} m given minus adjusted): the data "
-                         "snooping, one blunder at a time, may have left out the right ones and kept mistyped ones")
+                         "GNSS heights), and the data snooping, one blunder at a time, would find " + "; and "
+                         .join(finds) + ", so it may have kept mistyped heights and left out right ones")
         why = "; and ".join(parts) + ": the block's heights are unchecked"
     elif hd.disagrees():
         why = (f"disagree with the GNSS heights ({what} fitted to them: chi-square {hd.chi2:.1f}, {hd.terms} "
@@ -738,9 +755,12 @@ def height_datum_text(hd, height_limit_m: float) -> str:
     # several out, all off the same way: they may hold a datum the GNSS's and the rest are not in (review 29: not for
     # one point out, the mistyped point the sentence before names as the usual cause)
     right = (", and the points left out, all off the same way, may be the right ones (GNSS or control heights in "
-             "another height system, an antenna height or lever arm off)" if hd.out_agree() and not hd.out_unchecked()
+             "another height system, an antenna height or lever arm off)"
+             if hd.out_agree() and hd.correction not in ("shift", "shift_drift")
              else "")
-    return head + why + right + ". Survey or re-measure the points left out, or add check points."
+    named = (" and the points named" if hd.kept_unchecked(height_limit_m) or hd.pairs_unchecked(height_limit_m)
+             else "")
+    return head + why + right + f". Survey or re-measure the points left out{named}, or add check points."
 
 
 def height_checks_text(hd, n_checks: int, rms_z_m: float, height_limit_m: float) -> str:

@@ -320,7 +320,8 @@ def _adjust_block(
             if values.exists(G.K_KEY):
                 cal_cov = marg.marginalCovariance(G.K_KEY) * s2
             # the height control the snooping left in against the GNSS heights' plane error (at-verdicts)
-            height_datum = height_datum_check(block, opts, state, marg, control_active, sigma0=sigma0, alpha=alpha)
+            height_datum = height_datum_check(block, opts, state, marg, control_active, sigma0=sigma0, alpha=alpha,
+                                              obs_active=obs_active)
             bias = _surface_bias(block, opts, state, obs_active=obs_active, control_active=control_active, marg=marg,
                                  rays=rays)
             if bias is not None:

@@ -16,17 +16,20 @@ from aerotri.sim.observations import geometric_block, write_block_project, write
 
 
 def _project(tmp_path, *, low_m: float = 0.0, mistyped: int = 0, correction: str = "none", shift_m: float = 0.0,
-             n_check: int = 0, typo_m: float = 1.0, seed: int = 0, shift_sigma_m: float = 0.1):
+             n_check: int = 0, typo_m: float = 1.0, seed: int = 0, shift_sigma_m: float = 0.1, n_control: int = 6,
+             same_way: bool = False):
     """Review 22's block (DMC at 1,000 m over 120 m of relief, 3 x 6 frames, seed 0), 6 full control points and
     ``n_check`` check points; gnss.txt heights ``low_m`` low, shifted per strip by ``shift_m`` (standard deviation) and
     corrected by ``correction``; the heights of the ``mistyped`` control points farthest from gcp01 typed ``typo_m``
-    to twice that off (alternating signs); ``shift_sigma_m`` the settings' gnss_shift_sigma_m."""
+    to twice that off (alternating signs; ``same_way``: all up); ``shift_sigma_m`` the settings' gnss_shift_sigma_m;
+    ``n_control`` full control points."""
     block = geometric_block(3, 6, seed=seed, camera_true=dmc_camera(), relief_m=120.0, tilt_sigma_deg=0.3,
                             gnss_shift_sigma_m=shift_m, gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0, 0, 0))
     block.camera_nominal = dmc_camera()
     block.gnss_local = block.gnss_local - np.array([0.0, 0.0, low_m])
     root = write_block_project(block, tmp_path / "p")
-    write_truth_observations(root, tie_sigma_px=0.3, n_control=6, n_check=n_check, points_per_image=100, seed=seed)
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=n_control, n_check=n_check, points_per_image=100,
+                             seed=seed)
     if mistyped:
         p = root / "control" / "points.csv"
         lines = p.read_text().splitlines()
@@ -36,7 +39,8 @@ def _project(tmp_path, *, low_m: float = 0.0, mistyped: int = 0, correction: str
         xy = np.array([[float(r[head.index("x")]), float(r[head.index("y")])] for r in gcp])
         far = np.argsort(np.hypot(*(xy - xy[0]).T))[len(gcp) - mistyped:]
         for k, i in enumerate(far):
-            gcp[i][head.index("z")] = f"{float(gcp[i][head.index('z')]) + (-1) ** k * (1.0 + 0.2 * k) * typo_m:.4f}"
+            sign = 1 if same_way else (-1) ** k
+            gcp[i][head.index("z")] = f"{float(gcp[i][head.index('z')]) + sign * (1.0 + 0.2 * k) * typo_m:.4f}"
         p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
     ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True, gnss_correction=correction,
                                              gnss_shift_sigma_m=shift_sigma_m))
@@ -121,22 +125,67 @@ def _verdict_without_checks(ba, keep=()):
     return to_record(build_report(ba))["key_statistics"]
 
 
-def test_points_left_out_all_one_way_under_a_shift_per_strip_do_not_hold_the_heights(tmp_path):
+def test_a_kept_mistyped_height_that_holds_its_strip_alone_leaves_the_heights_unchecked(tmp_path):
     """Review 32: GNSS heights 1 m low, strip shifts of 0.3 m (gnss_shift_sigma_m 0.5), a shift and drift per strip;
-    the 2 control heights farthest from gcp01 typed 2-2.4 m off, one of them kept, and a right one left out with it,
-    both off the solution the same way: "Solution Successful" without check points while the 20 check points give RMS Z
-    1.09 m. The strips' corrections are precise (sigma 0.1 m at their ends) but rest on a mistyped height: weak."""
+    the 2 control heights farthest from gcp01 typed 2-2.4 m off, gcp02 kept, and the right gcp05 left out with gcp03:
+    "Solution Successful" without check points while the 20 check points give RMS Z 1.09 m. The strips' corrections
+    are precise (sigma 0.1 m at their ends) but gcp02 holds its strip alone: its redundancy number 0.03, so the data
+    snooping would find its typo only beyond 1.4 m (Baarda's MDB; at-reliability, review 35): weak, naming it."""
     ba, _ = _project(tmp_path, low_m=1.0, mistyped=2, correction="shift_drift", shift_m=0.3, typo_m=2.0, seed=7,
                      shift_sigma_m=0.5, n_check=20)
     dz = np.array([c["adjusted_m"][2] - c["measured_m"][2] for c in ba.check.values()])
     assert np.sqrt(np.mean(dz**2)) > 1.0  # the truth: the heights are off beyond the 1 m limit
     hd = ba.result.height_datum
-    assert hd.terms == 0 and len(hd.height_control_out) == 2 and hd.out_unchecked()
+    assert hd.terms == 0 and hd.height_control_out == ("gcp03", "gcp05")
     assert not hd.strips_not_held(1.0) and all(sd < 0.2 for _, sd in hd.strip_sigma_m)
+    unchecked = {i: (r, m) for i, r, m in hd.kept_unchecked(1.0)}
+    assert "gcp02" in unchecked and unchecked["gcp02"][0] < 0.05 and unchecked["gcp02"][1] > 1.2  # the kept typo
+    r = dict((i, r) for i, r, _ in hd.kept_mdb_m)
+    assert r["gcp01"] > 0.08  # a point its strip shares holds more redundancy
     ks = _verdict_without_checks(ba)
     assert ks["verdict"] == "weak" and ks["height_control_not_held"]
     assert "the 4 left (gcp01, gcp02, gcp04, gcp06) carry the heights alone" in ks["message"]
-    assert "may have left out the right ones and kept mistyped ones" in ks["message"]
+    assert f"only when off by more than {unchecked['gcp02'][1]:.2f} m at gcp02" in ks["message"]
+    assert "may have kept mistyped heights and left out right ones" in ks["message"]
+    assert "re-measure the points left out and the points named" in ks["message"]
+
+
+def test_two_heights_typed_the_same_way_rightly_left_out_hold_the_heights(tmp_path):
+    """Review 35: a shift and drift per strip, 12 control, the 2 heights farthest from gcp01 typed 2-2.4 m high and
+    rightly left out (the 20 check points give RMS Z 0.1 m): the sign rule (s32-fixes: more than one out, all off the
+    same way) called it weak without check points. Every kept height's MDB is within the 1 m limit (the strips hold
+    3-4 control each): the snooping's choice stands, "Solution Successful"."""
+    ba, _ = _project(tmp_path, mistyped=2, correction="shift_drift", shift_m=0.3, typo_m=2.0, seed=1,
+                     shift_sigma_m=0.5, n_check=20, n_control=12, same_way=True)
+    dz = np.array([c["adjusted_m"][2] - c["measured_m"][2] for c in ba.check.values()])
+    assert np.sqrt(np.mean(dz**2)) < 0.2  # the truth: the heights are right
+    hd = ba.result.height_datum
+    assert set(hd.height_control_out) == {"gcp02", "gcp03"} and hd.out_agree()  # the sign rule's case
+    assert len(hd.kept_mdb_m) == 10 and all(m < 1.0 for _, _, m in hd.kept_mdb_m)
+    assert not hd.kept_unchecked(1.0) and hd.held(1.0)
+    ks = _verdict_without_checks(ba)
+    assert ks["verdict"] == "successful" and not ks["height_control_not_held"]
+
+
+def test_two_mistyped_heights_kept_in_one_strip_leave_the_heights_unchecked(tmp_path):
+    """Review 35's silent misses: a shift per strip, 6 control, gcp02 and gcp03 typed 2-2.4 m high, both kept and two
+    right points left out (the 20 check points give RMS Z 1.18 m). Each kept height alone would be found (MDB 0.6-0.7
+    m), but the two together move their strip as its shift does: the one-at-a-time tests would find them only beyond
+    10 m each: weak, naming them."""
+    ba, _ = _project(tmp_path, mistyped=2, correction="shift", shift_m=0.3, typo_m=2.0, seed=9, shift_sigma_m=0.5,
+                     n_check=20, same_way=True)
+    dz = np.array([c["adjusted_m"][2] - c["measured_m"][2] for c in ba.check.values()])
+    assert np.sqrt(np.mean(dz**2)) > 1.0  # the truth: the heights are off beyond the 1 m limit
+    hd = ba.result.height_datum
+    assert set(hd.height_control_out) == {"gcp05", "gcp06"} and not hd.kept_unchecked(1.0)
+    assert all(m < 1.0 for i, _, m in hd.kept_mdb_m if i in ("gcp02", "gcp03"))
+    a, b, sign, mdb = hd.pairs_unchecked(1.0)[0]
+    assert {a, b} == {"gcp02", "gcp03"} and sign == 1 and mdb > 2.0
+    ks = _verdict_without_checks(ba)
+    assert ks["verdict"] == "weak" and ks["height_control_not_held"]
+    assert f"two heights mistyped together only when each is off by more than {mdb:.2f} m at {a} and {b}" in ks[
+        "message"]
+    assert "a strip's shift takes them together" in ks["message"]
 
 
 def test_check_points_in_one_corner_do_not_decide(tmp_path):
