@@ -280,7 +280,10 @@ def greenwich_to_geodetic(geodetic: pyproj.CRS, lon_deg, lat_deg):
 def point_scale_factor(crs, lon_deg: float, lat_deg: float) -> float:
     """The point scale factor of the projected CRS ``crs`` at (lon, lat) in degrees: the geometric mean of its
     meridional and parallel scales (1.0004 on a UTM zone's edge, 1.46 for Web Mercator at 47 degrees)."""
-    f = pyproj.Proj(crs).get_factors(float(lon_deg), float(lat_deg))
+    # PROJ counts the longitude from the CRS's own prime meridian here (MGI (Ferro): 17.67 deg west; review 38: a
+    # Ferro grid read 1.021 at Vienna for 1.0000001)
+    pm_deg = _greenwich_degrees(horizontal_crs(crs).geodetic_crs)[2]
+    f = pyproj.Proj(crs).get_factors(float(lon_deg) - pm_deg, float(lat_deg))
     return float(np.sqrt(f.meridional_scale * f.parallel_scale))
 
 

@@ -597,6 +597,7 @@ class CrsTransformer:
                     h_m["from"] = geocentric_to_geodetic(XYZ[:, 0], XYZ[:, 1], XYZ[:, 2], self._ell_from)[2]
             else:
                 lon, lat, h = self._legs[0](x, y, z)
+                lon, lat = geodetic_to_greenwich(self._geo_from, lon, lat)
                 h_m["from"] = h
                 XYZ = np.column_stack(geodetic_to_geocentric(lat, lon, h, self._ell_from))
             XYZ = self.params.apply(XYZ)
@@ -611,7 +612,7 @@ class CrsTransformer:
                     dh = h - self._legs[0](x, y, z)[2]
                     self._dh_sum_m += float(np.sum(dh[np.isfinite(dh)]))
                     self._dh_n += int(np.count_nonzero(np.isfinite(dh)))
-                X, Y, Z = self._legs[1](lon, lat, h)
+                X, Y, Z = self._legs[1](*greenwich_to_geodetic(self._geo_to, lon, lat), h)
         if self.heights is not None:
             if self._height_leg is not None and self._height_leg_from_src:
                 hx, hy, _ = self._height_leg(x_in, y_in, np.zeros_like(x_in))

@@ -50,3 +50,35 @@ def test_geographic_points_of_ntf_paris_in_grads_pass_in_france():
     lon_g, lat_g = pyproj.Transformer.from_crs(27572, 4807, always_xy=True).transform(600000.0, 2428000.0)
     assert abs(lon_g) < 0.1 and 54.0 < lat_g < 54.5
     assert check_coordinates(crs, np.array([lon_g]), np.array([lat_g]), "points.csv") is None
+
+
+def test_a_fitted_7_parameter_set_moves_ntf_paris_lambert_points_where_proj_does(tmp_path):
+    """Review 38: the 7-parameter path fed PROJ's grads from Paris to the geocentric conversion as degrees from
+    Greenwich: points fitted to 0.7 mm came out 612 km off, exit 0."""
+    from click.testing import CliRunner
+
+    from aerotri.crs.cli import crs as crs_cli
+
+    rng = np.random.default_rng(1)
+    lon, lat, h = 2.3 + rng.uniform(-0.4, 0.4, 10), 48.8 + rng.uniform(-0.4, 0.4, 10), rng.uniform(50, 150, 10)
+    x2, y2 = pyproj.Transformer.from_crs("EPSG:4171", "EPSG:2154", always_xy=True).transform(lon, lat)
+    x1, y1 = pyproj.Transformer.from_crs("EPSG:4171", "EPSG:27572", always_xy=True).transform(lon, lat)
+    (tmp_path / "common.csv").write_text("id,x_from,y_from,z_from,x_to,y_to,z_to\n" + "".join(
+        f"p{i},{x1[i]:.3f},{y1[i]:.3f},{h[i]:.3f},{x2[i]:.3f},{y2[i]:.3f},{h[i]:.3f}\n" for i in range(10)))
+    (tmp_path / "pts.csv").write_text("id,x,y,z\n" + "".join(f"p{i},{x1[i]:.3f},{y1[i]:.3f},{h[i]:.3f}\n"
+                                                             for i in range(10)))
+    r = CliRunner().invoke(crs_cli, ["fit", str(tmp_path / "common.csv"), "--model", "bursa-wolf7", "--from",
+                                     "EPSG:27572", "--to", "EPSG:2154", "-o", str(tmp_path / "p.json")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(crs_cli, ["transform", str(tmp_path / "pts.csv"), str(tmp_path / "out.csv"), "--from",
+                                     "EPSG:27572", "--to", "EPSG:2154", "--params", str(tmp_path / "p.json")])
+    assert r.exit_code == 0, r.output
+    out = np.genfromtxt(tmp_path / "out.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    assert np.allclose(out["x"], x2, atol=0.01) and np.allclose(out["y"], y2, atol=0.01)
+
+
+def test_the_scale_factor_of_a_ferro_grid_counts_from_its_own_meridian():
+    """Review 38: MGI (Ferro) / Austria GK East at Vienna read 1.0211 (21 mm per metre) for 1.0000001."""
+    from aerotri.geom.crs.definition import point_scale_factor
+
+    assert point_scale_factor(pyproj.CRS.from_epsg(31253), 16.37, 48.21) == pytest.approx(1.0, abs=1e-6)
