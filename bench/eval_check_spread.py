@@ -34,6 +34,17 @@ def _subsets(xy: dict, rng) -> dict:
         for r in range(3):
             out[f"random_{n}_{r}"] = list(rng.choice(sorted(pts), n, replace=False))
     out["all_20"] = sorted(pts)
+    # a surveyor's layout: one point per cell of a regular grid over the check points' area (the nearest to each
+    # cell's centre)
+    P0 = np.array([pts[k] for k in sorted(pts)])
+    lo0, hi0 = P0.min(axis=0), P0.max(axis=0)
+    for nx, ny in ((3, 2), (2, 3), (4, 2), (3, 3)):
+        centres = [lo0 + (hi0 - lo0) * [(i + 0.5) / nx, (j + 0.5) / ny] for i in range(nx) for j in range(ny)]
+        pick = []
+        for c in centres:
+            k = min((q for q in sorted(pts) if q not in pick), key=lambda q: float(np.hypot(*(pts[q] - c))))
+            pick.append(k)
+        out[f"cells_{nx}x{ny}"] = pick
     P = np.array([pts[k] for k in sorted(pts)])
     lo, hi = P.min(axis=0), P.max(axis=0)
     d = (hi - lo) / np.linalg.norm(hi - lo)
@@ -49,6 +60,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", default="0-11")
     ap.add_argument("--out", type=pathlib.Path, default=None)
+    ap.add_argument("--key", default=None, help="the JSON key (default seeds_<seeds>)")
     a = ap.parse_args()
     lo, hi = (int(v) for v in a.seeds.split("-"))
     rows = []
@@ -78,7 +90,7 @@ def main() -> None:
     if a.out:
         a.out.parent.mkdir(parents=True, exist_ok=True)
         old = json.loads(a.out.read_text()) if a.out.exists() else {}
-        old[f"seeds_{a.seeds}"] = res
+        old[a.key or f"seeds_{a.seeds}"] = res
         a.out.write_text(json.dumps(old, indent=1) + "\n")
     for r in rows:
         if "subset" in r:

@@ -72,13 +72,14 @@ POWER = 0.8  # Baarda's detection power: the minimal detectable bias is (critica
 SURVIVING_SHARE = 0.1
 COLLINEAR_SHARE = 0.05  # control points whose plan spread across their line is below this share of it: on a line
 # check points with a height decide the heights instead of the rule only when they spread over the block: their plan
-# positions on the block's principal directions, each scaled by the block's own standard deviation there, must spread
-# at least this much in their narrowest direction (the square root of the smaller eigenvalue of that whitened
-# covariance; points uniform over the block: about 1, a line or a corner cluster: near 0). Chosen on seeds 0-5 of
-# bench/eval_check_spread.py (the smallest cut at which at most one subset reads the block's RMS Z less than half
-# while all 20 check points decide in every seed), scored on 6-11 (review 36: the per-axis share 0.2 let 3 check
-# points in a corner and lines along a diagonal decide)
-CHECK_SPREAD_MIN = 0.6
+# positions on the block's principal directions, each scaled by the spread of points uniform over the block's extent
+# there, must spread at least this much in their narrowest direction (the square root of the smaller eigenvalue of
+# that scaled covariance; uniform over the projection centres' area about 1, a line or a corner cluster near 0).
+# Chosen on seeds 0-5 of bench/eval_check_spread.py (the smallest cut at which at most one subset reads the block's
+# RMS Z less than half while all 20 check points decide in every seed), scored on 6-11 (review 36: a per-axis share
+# 0.2 let 3 check points in a corner decide; review 38: scaled by the GNSS positions' standard deviation a 2-strip
+# block's evenly spread check points read 0.5-0.58 and never decided)
+CHECK_SPREAD_MIN = 0.8
 # the kept control heights' covariance between points (``pair_mdb_m``) only while their images' parameters are at
 # most this many (100 images of 6: the entries between images that share no point take a solve each); above, each
 # point's own variance alone
@@ -90,13 +91,14 @@ PAIR_MDB_FACTOR = 2.0
 
 
 def _block_axes(xy: np.ndarray) -> dict:
-    """The principal directions of the block's centred plan positions ``xy`` and the standard deviation along each
-    (None and NaN for fewer than 3 positions: no plan extent to measure check points against)."""
+    """The principal directions of the block's centred plan positions ``xy`` and their half extent along each (None
+    and NaN for fewer than 3 positions: no plan extent to measure check points against)."""
     if len(xy) < 3:
-        return dict(block_axes=None, block_spread_m=(math.nan, math.nan))
-    _, sv, vt = np.linalg.svd(xy, full_matrices=False)
+        return dict(block_axes=None, block_half_extent_m=(math.nan, math.nan))
+    _, _, vt = np.linalg.svd(xy, full_matrices=False)
+    on_axes = xy @ vt.T
     return dict(block_axes=tuple(float(v) for v in vt.ravel()),
-                block_spread_m=tuple(float(v) for v in sv / math.sqrt(max(len(xy), 1))))
+                block_half_extent_m=tuple(float(v) for v in 0.5 * np.ptp(on_axes, axis=0)))
 
 
 def mdb_sigmas(alpha: float) -> float:
@@ -122,7 +124,7 @@ class HeightDatumCheck:
     # (strip 1-based, its largest standard deviation at a strip end, m); empty without a correction per strip
     strip_sigma_m: tuple = ()
     block_axes: tuple | None = None  # the GNSS positions' principal directions in plan (2 x 2 flat, rows unit)
-    block_spread_m: tuple = (math.nan, math.nan)  # their standard deviation along each (m)
+    block_half_extent_m: tuple = (math.nan, math.nan)  # their half extent along each (m)
     # each control height kept: (id, redundancy number of its height, Baarda's minimal detectable bias m); a point
     # without rays is not in the solution and not listed
     kept_mdb_m: tuple = ()
@@ -137,17 +139,18 @@ class HeightDatumCheck:
 
     def check_spread(self, xy_m: np.ndarray) -> float:
         """The check points' spread in their narrowest direction, on the block's principal directions (its GNSS
-        positions') each scaled by the block's own standard deviation there: the square root of the smaller
-        eigenvalue of that whitened covariance (uniform over the block about 1; on a line 0; 0 for fewer than 3
-        points or a block without a plan extent; a corridor's width taken as at least 1 % of its length's spread)."""
+        positions') each scaled by the standard deviation of points uniform over the block's extent there (half
+        extent / sqrt 3): the square root of the smaller eigenvalue of that scaled covariance (points uniform over
+        the projection centres' area about 1, over the ground the frames cover more; on a line 0; 0 for fewer than 3
+        points or a block without a plan extent; a corridor's width taken as at least 1 % of its length)."""
         xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
-        spread = np.asarray(self.block_spread_m, dtype=float)
-        if len(xy) < 3 or self.block_axes is None or not np.all(np.isfinite(spread)) or not spread.max() > 0:
+        half = np.asarray(self.block_half_extent_m, dtype=float)
+        if len(xy) < 3 or self.block_axes is None or not np.all(np.isfinite(half)) or not half.max() > 0:
             return 0.0
-        # a straight corridor has no width to scale by: its narrow side counts as 1 % of its length's spread
-        spread = np.maximum(spread, 0.01 * spread.max())
+        # a straight corridor has no width to scale by: its narrow side counts as 1 % of its length
+        scale = np.maximum(half, 0.01 * half.max()) / math.sqrt(3.0)
         axes = np.asarray(self.block_axes, dtype=float).reshape(2, 2)  # rows: the block's principal directions
-        z = ((xy - xy.mean(axis=0)) @ axes.T) / spread
+        z = ((xy - xy.mean(axis=0)) @ axes.T) / scale
         return float(math.sqrt(max(float(np.linalg.eigvalsh(z.T @ z / len(z))[0]), 0.0)))
 
     def strips_not_held(self, height_limit_m: float) -> tuple:
