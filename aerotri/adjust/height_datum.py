@@ -131,6 +131,7 @@ class HeightDatumCheck:
     # each pair of them typed off together (id, id, +1 same way / -1 opposite, the smallest such bias of both the
     # data snooping's one-at-a-time tests would find, m), the worst first
     pair_mdb_m: tuple = ()
+    pairs_judged: bool = True  # False: the kept heights' covariance between points not formed (``JOINT_COLS_MAX``)
 
     def checks_spread(self, xy_m: np.ndarray) -> bool:
         """Do check points at plan positions ``xy_m`` (n, 2; metres) spread over the block: ``check_spread`` at least
@@ -223,7 +224,7 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
     dz = [float(cl[c, 2] - state.points[block.control_point[c]][2]) for c in np.flatnonzero(out)]
     more = dict(terms=P.shape[1], correction=opts.gnss_correction, layout=_layout(cl[np.flatnonzero(left), :2]),
                 out_dz_m=tuple(dz), strip_sigma_m=_strip_sigmas(block, opts, rc, sigma0),
-                **dict(zip(("kept_mdb_m", "pair_mdb_m"),
+                **dict(zip(("kept_mdb_m", "pair_mdb_m", "pairs_judged"),
                            _kept_reliability(block, opts, state, rc, np.flatnonzero(left), obs_active, alpha))),
                 **_block_axes(xy))
     if P.shape[1] == 0:  # the correction takes the whole plane: its strips' own sigmas alone
@@ -280,7 +281,9 @@ def _kept_heights_cov(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
             c = np.flatnonzero(H[n])
             Q[n, n] = H[n, c] @ rc.entries(cols[c][:, None], cols[c][None, :]) @ H[n, c]
     Q = Q + np.diag(pr.Vinv[pts, 2, 2])
-    sz = np.sqrt(np.asarray(block.control_cov_local, dtype=float)[kept, 2, 2])
+    # the height's own sigma: a height-only point's loose plan sigma (1 km), rotated into the local frame, leaks into
+    # its covariance's up entry (0.29 m for 0.05 m 1.7 km from the centre: review 39); the conditional one does not
+    sz = 1.0 / np.sqrt(np.linalg.inv(np.asarray(block.control_cov_local, dtype=float)[kept])[:, 2, 2])
     return kept, tuple(str(block.point_id[j]) for j in pts), 0.5 * (Q + Q.T), sz
 
 
@@ -295,10 +298,11 @@ def _kept_reliability(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
       point's test would find with the power of ``lambda``), the worst first (a pair in one strip under a shift and
       drift per strip moves the strip and none of the tests sees it: review 35's kept typos, single MDBs 0.6-1.0 m).
 
-    Infinite where nothing would find it. Heights only: a full control point's plan does not enter."""
+    Infinite where nothing would find it. Heights only: a full control point's plan does not enter. And whether the
+    pairs were judged (not over ``JOINT_COLS_MAX``)."""
     kept, ids, Q, sz = _kept_heights_cov(block, opts, state, rc, np.asarray(kept, dtype=int), obs_active)
     if not len(ids):
-        return (), ()
+        return (), (), True
     lam = mdb_sigmas(alpha)
     M = (np.diag(sz**2) - Q) / np.outer(sz**2, sz**2)  # P Q_v P (P diagonal): the tests' statistics' cofactor
     d = np.sqrt(np.clip(np.diag(M), 0.0, None))
@@ -307,7 +311,7 @@ def _kept_reliability(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
                    for i, rr, s in zip(ids, r, sz))
     pairs = []
     if not np.all(np.isfinite(Q)):  # the covariance between points not formed (``JOINT_COLS_MAX``)
-        return single, ()
+        return single, (), False
     with np.errstate(divide="ignore", invalid="ignore"):
         for a in range(len(ids)):
             for b in range(a + 1, len(ids)):
@@ -317,7 +321,7 @@ def _kept_reliability(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
                     ncp = np.abs(M @ e) / d  # each test's non-centrality per metre of the pair's bias
                     best = float(np.nanmax(np.where(d > 0, ncp, 0.0)))
                     pairs.append((ids[a], ids[b], sign, lam / best if best > 0 else math.inf))
-    return single, tuple(sorted(pairs, key=lambda t: -t[3]))
+    return single, tuple(sorted(pairs, key=lambda t: -t[3])), True
 
 
 def _strip_sigmas(block: G.Block, opts: G.SolveSettings, rc, sigma0: float) -> tuple:

@@ -986,6 +986,12 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
                     "on the wrong target, is the usual cause: look at the largest w first.")
     if hd_text:
         message += " " + hd_text
+    elif (hd is not None and not hd.pairs_judged and hd.correction in ("shift", "shift_drift")
+          and len(hd.height_control_out) > 1):
+        # said, not judged (review 39: on blocks of 30 control and more the pairs went unjudged without a word)
+        message += (f" Height control: {len(hd.height_control_out)} points with a height left out; pairs of the "
+                    f"{len(hd.height_control_left)} kept mistyped together were not judged (their images' "
+                    "orientations too many for the joint covariance): check points over the block would show it.")
     if getattr(ba, "control_rays_left_out", ()):
         from aerotri.adjust.relative import left_out_rays_text
 

@@ -17,7 +17,7 @@ from aerotri.sim.observations import geometric_block, write_block_project, write
 
 def _project(tmp_path, *, low_m: float = 0.0, mistyped: int = 0, correction: str = "none", shift_m: float = 0.0,
              n_check: int = 0, typo_m: float = 1.0, seed: int = 0, shift_sigma_m: float = 0.1, n_control: int = 6,
-             same_way: bool = False):
+             same_way: bool = False, kinds=None):
     """Review 22's block (DMC at 1,000 m over 120 m of relief, 3 x 6 frames, seed 0), 6 full control points and
     ``n_check`` check points; gnss.txt heights ``low_m`` low, shifted per strip by ``shift_m`` (standard deviation) and
     corrected by ``correction``; the heights of the ``mistyped`` control points farthest from gcp01 typed ``typo_m``
@@ -30,6 +30,14 @@ def _project(tmp_path, *, low_m: float = 0.0, mistyped: int = 0, correction: str
     root = write_block_project(block, tmp_path / "p")
     write_truth_observations(root, tie_sigma_px=0.3, n_control=n_control, n_check=n_check, points_per_image=100,
                              seed=seed)
+    if kinds:  # control kinds by id ("height": height-only)
+        p = root / "control" / "points.csv"
+        lines = p.read_text().splitlines()
+        head = lines[0].split(",")
+        rows = [s.split(",") for s in lines[1:]]
+        for r in rows:
+            r[head.index("kind")] = kinds.get(r[head.index("id")], r[head.index("kind")])
+        p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
     if mistyped:
         p = root / "control" / "points.csv"
         lines = p.read_text().splitlines()
@@ -227,3 +235,14 @@ def test_check_spread_on_the_blocks_own_axes():
     for n in (1, 2):
         one, _ = check(np.zeros((n, 2)) + np.arange(n)[:, None])
         assert not one.checks_spread(lo + rng.uniform(0, 1, (20, 2)) * (hi - lo))
+
+
+def test_a_height_only_control_point_far_from_the_centre_has_its_own_height_sigma(tmp_path):
+    """Review 39: a height-only point's loose plan sigma (1 km) rotated into the local frame leaked into its up
+    variance (0.29 m for 0.05 m 1.7 km from the centre): redundancy 0.97 where a re-solve with its height nudged gives
+    0.0085, MDB halved; a false "weak" on an 8 x 25 block. The conditional sigma gives the re-solve's numbers."""
+    ba, _ = _project(tmp_path, low_m=1.0, mistyped=2, correction="shift_drift", shift_m=0.3, typo_m=2.0, seed=7,
+                     shift_sigma_m=0.5, kinds={"gcp01": "horizontal", "gcp04": "height", "gcp06": "height"})
+    kept = {i: (r, m) for i, r, m in ba.result.height_datum.kept_mdb_m}
+    assert kept["gcp04"][0] == pytest.approx(0.0085, abs=0.002) and kept["gcp06"][0] == pytest.approx(0.016, abs=0.003)
+    assert kept["gcp04"][1] == pytest.approx(mdb_sigmas(1e-4) * 0.05 / np.sqrt(kept["gcp04"][0]), rel=1e-6)
