@@ -1137,7 +1137,7 @@ class WaterGrid:
     # holes filled (``survey_footprint``); None: the tile's own points decide (as a whole cloud's do).
     footprint_10m: np.ndarray | None = dataclasses.field(default=None, compare=False)
     # The whole cloud's level water bodies (``whole_level_bodies``), for the level regions a tile's window cuts.
-    level_bodies: LevelBodies | None = dataclasses.field(default=None, compare=False)
+    level_bodies: LevelBodies | None = dataclasses.field(default=None, compare=False)   # or SpooledLevelBodies
     # The median intensity of the lowest return of the whole cloud's water cells (the land's reflectance, for a
     # window that open water fills; NaN: none).
     land_intensity: float = float("nan")
@@ -1169,6 +1169,10 @@ class LevelBodies:
     ncols: int
     keys: np.ndarray
     level_m: np.ndarray
+
+    @property
+    def empty(self) -> bool:
+        return not len(self.keys)
 
     def level_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """The body's level (m) at whole-grid cells ``rows``, ``cols`` (NaN: in no body)."""
@@ -2282,7 +2286,7 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
     # A tile of a larger cloud: the level of the whole cloud's level water body at each cell (NaN: none), and the
     # cells near the window's cut edge (a region reaching them has area and banks beyond the window).
     outer, cut = None, None
-    if water_grid is not None and water_grid.level_bodies is not None and len(water_grid.level_bodies.keys):
+    if water_grid is not None and water_grid.level_bodies is not None and not water_grid.level_bodies.empty:
         cut = ~water_grid.inside(nrows, ncols, x0, y0)
         if cut.any():
             rr, cc = np.divmod(np.arange(nrows * ncols), ncols)

@@ -4,6 +4,7 @@ spanning regions only -- the parent never holds an array per core cell."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -135,3 +136,66 @@ def test_medians_from_the_tiles_histograms_are_exact():
         answers = lt.refine_medians([answer] * 5, [lt.median_histogram(lab, x, answer) for lab, x in tiles])
         answers = lt.exact_levels(answers, [lt.values_in_median_bins(lab, x, a) for (lab, x), a in zip(tiles, answers)])
         assert answers[0].level_m[1] == np.median(v), n
+
+
+def test_tiles_run_finds_the_whole_clouds_bodies_from_the_spool(tmp_path, monkeypatch):
+    """level-wire: in a tiled run (40 m tiles, 20 m buffer) the tiles' workers spool their water cells by level tile
+    and return none of them (no array of the cells to the parent: their lowest intensities counted too); the
+    level bodies found tile by tile over the spool (level tiles of the halo's 40 cells, the lake 170 m across
+    across 5 of them, 8,611 body cells) are those of ``whole_level_bodies`` on every cell, cell for cell and to the last bit, and the
+    tiles read them back from the run's scratch (``SpooledLevelBodies``)."""
+    import laspy
+
+    from aerotri.core.executor import local_executor
+    from lidarctl import synthetic, tiles
+    from tests.lidarctl.test_classify_water_tiles import big_lake_scene
+
+    cloud, *_ = big_lake_scene("lake", size_m=240.0, radius_m=85.0, density=1.5)
+    src = tmp_path / "lake.laz"
+    synthetic.write_las(src, cloud, crs="EPSG:32610")
+    p = classify.ClassifySettings(water_whole_level_bodies=True)
+    with laspy.open(src) as f:
+        grid = tiles.plan_tiles(f.header, tile_size_m=40.0, buffer_m=20.0)
+    lowest = []
+    tasks = tiles.split_into_tiles([src], grid, tmp_path, p, lowest=lowest)
+    monkeypatch.setattr(lt, "LEVEL_TILE_M", 40.0)   # the level tiles as small as the halo allows
+    wired, seen = lt.whole_level_bodies_spooled, {}
+
+    def checked(store, wg, p, footprint=None):
+        cells = np.concatenate([store.get("cells", t) for t in store.tiles])
+        heights = np.concatenate([store.get("heights", t) for t in store.tiles])
+        seen["whole"], seen["n_tiles"] = classify.whole_level_bodies(cells, heights, wg, p), len(store.tiles)
+        seen["cells"] = cells
+        return wired(store, wg, p, footprint)
+
+    monkeypatch.setattr(lt, "whole_level_bodies_spooled", checked)
+
+    class Recorded:
+        def __init__(self):
+            self.inner, self.results = local_executor(), []
+
+        def map(self, fn, items, desc="", unit=""):
+            out = self.inner.map(fn, items, desc=desc, unit=unit)
+            self.results.append((desc, copy.deepcopy(out)))   # (the parent adds into the arrays it gets)
+            return out
+
+    ex = Recorded()
+    wg = tiles.water_grid(tasks, grid, p, lowest, ex, work_dir=tmp_path)
+    (_, water_cells), = [(d, r) for d, r in ex.results if d == "tiles: water cells"]
+    for hist, ij, heights, intensity in water_cells:
+        assert len(ij) == 0 and len(heights) == 0 and intensity.sum() == hist.sum()
+    whole, cells = seen["whole"], seen["cells"]
+    assert seen["n_tiles"] >= 16 and len(whole.keys) > 5_000
+    assert isinstance(wg.level_bodies, lt.SpooledLevelBodies) and not wg.level_bodies.empty
+    keys, levels = [], []
+    for t in sorted(wg.level_bodies.tiles):
+        keys.append(np.load(tmp_path / "level_bodies" / f"out_keys_{t[0]}_{t[1]}.npy"))
+        levels.append(np.load(tmp_path / "level_bodies" / f"out_level_{t[0]}_{t[1]}.npy"))
+    keys, levels = np.concatenate(keys), np.concatenate(levels)
+    o = np.argsort(keys)
+    assert np.array_equal(keys[o], whole.keys) and np.array_equal(levels[o], whole.level_m)
+    rows, cols = cells[:, 0] - 2, cells[:, 1] + 1   # any cells, some beyond the cloud's
+    assert np.array_equal(wg.level_bodies.level_at(rows, cols), whole.level_at(rows, cols), equal_nan=True)
+    # the land's reflectance as without the option (the tiles' counts, not the cells' intensities)
+    assert wg.land_intensity == tiles.water_grid(tasks, grid, classify.ClassifySettings(), lowest,
+                                                 local_executor()).land_intensity
