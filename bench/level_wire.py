@@ -10,7 +10,9 @@ option off and on (``--cpu``). Then the parent's peak against the cell count on 
 bench/results/level_wire.json.
 
 Sets: the big lake and pond (``big_lake_scene`` with the car park and the forest, as ``eval_water_tiles.py
---big-lake``; 100 m tiles, 40 m buffer), lidR Topography, Autzen, AHN3 Delft (100 m tiles, 40 m buffer;
+--big-lake``; 100 m tiles, 40 m buffer), ``small_tiles_lake`` / ``_pond`` (the lake 170 m across of
+``test_lake_larger_than_a_tile_and_its_buffer`` in 40 m tiles, 20 m buffer: windows wholly on the water), lidR
+Topography, Autzen, AHN3 Delft (100 m tiles, 40 m buffer;
 ``AEROTRI_SHARED_DATA``), the demo's strips (``--demo PROJECT``, its default tiles).
 
   AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/level_wire.py [--sets a,b] [--demo PROJECT]
@@ -104,7 +106,9 @@ def wired(store, wg, p, footprint=None):
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     n = sum(len(store.get("cells", t)) for t in store.tiles)
-    CALLS.append({"path": "wired", "cells": n, "level_tiles": len(store.tiles), "side_cells": store.side,
+    disk = sum(f.stat().st_size for f in store.folder.glob("*.npy")) if store.folder is not None else 0
+    CALLS.append({"path": "wired", "cells": n, "spool_bytes_per_cell": round(disk / max(n, 1), 1),
+                  "level_tiles": len(store.tiles), "side_cells": store.side,
                   "cpu_s": round(cpu, 2), "peak_bytes": peak, "peak_bytes_per_cell": round(peak / max(n, 1), 1),
                   "body_cells": len(bodies_of(store)[0])})
     return ncols
@@ -154,9 +158,10 @@ def main():
     ap.add_argument("--cpu", action="store_true", help="also the run with the option off (CPU)")
     ap.add_argument("--corridors", default="")
     ap.add_argument("--out", default="level_wire.json")
+    ap.add_argument("--keep-corridors", action="store_true", help="keep the corridors' rows of the file written")
     a = ap.parse_args()
     on = cl.ClassifySettings(water_whole_level_bodies=True)
-    off = cl.ClassifySettings()
+    off = cl.ClassifySettings(water_whole_level_bodies=False)
     tmp = Path(tempfile.mkdtemp(prefix="level_wire_", dir=os.environ.get("LEVEL_WIRE_TMP")))
     rows = []
     try:
@@ -171,14 +176,20 @@ def main():
                 src = tmp / f"{name}.laz"
                 synthetic.write_las(src, cloud, crs="EPSG:32610")
                 sets.append((name, [src], tiled))
+            elif name.startswith("small_tiles_"):   # the lake of test_lake_larger_than_a_tile_and_its_buffer
+                cloud, *_ = big_lake_scene(name.split("_")[-1], size_m=240.0, radius_m=85.0, density=1.5)
+                src = tmp / f"{name}.laz"
+                synthetic.write_las(src, cloud, crs="EPSG:32610")
+                sets.append((name, [src], {"tile_size_m": 40.0, "buffer_m": 20.0}))
             else:
                 sets.append((name, *known[name]))
         if a.demo is not None:
             sets.append(("demo_default_tiles", sorted((a.demo / "lidar").glob("*.las")), {}))
         for name, paths, tiling in sets:
             row = {"set": name}
+            c_off = None
             if a.cpu:
-                _, row["off_cpu_s"], row["off_wall_s"] = classes(paths, tmp, off, **tiling)
+                c_off, row["off_cpu_s"], row["off_wall_s"] = classes(paths, tmp, off, **tiling)
             CALLS.clear()
             lt.whole_level_bodies_spooled = reference
             c_ref, row["on_whole_cpu_s"], row["on_whole_wall_s"] = classes(paths, tmp, on, **tiling)
@@ -187,6 +198,10 @@ def main():
             lt.whole_level_bodies_spooled = WIRED
             row.update(level_bodies=list(CALLS), water_whole=int((c_ref == 9).sum()),
                        water_wired=int((c_wired == 9).sum()), classes_differ=int(np.sum(c_ref != c_wired)))
+            if c_off is not None:   # what turning the option on by default changes
+                row.update(water_off=int((c_off == 9).sum()), classes_on_differ_from_off=int(np.sum(c_off != c_wired)),
+                           changes_off_to_on={f"{a}->{b}": int(n) for (a, b), n in zip(*np.unique(
+                               np.column_stack([c_off, c_wired])[c_off != c_wired], axis=0, return_counts=True))})
             print(json.dumps(row), flush=True)
             rows.append(row)
         corr = corridors([float(v) for v in a.corridors.split(",") if v], tmp)
@@ -194,6 +209,8 @@ def main():
         lt.whole_level_bodies_spooled = WIRED
         shutil.rmtree(tmp, ignore_errors=True)
     out = REPO / "bench" / "results" / a.out
+    if a.keep_corridors and not corr and out.exists():
+        corr = json.loads(out.read_text()).get("corridors", [])
     tmp_out = out.with_suffix(".tmp")
     tmp_out.write_text(json.dumps({"wired_against_whole": rows, "corridors": corr}, indent=1) + "\n")
     tmp_out.replace(out)

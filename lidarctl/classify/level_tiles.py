@@ -1,5 +1,6 @@
-"""The whole cloud's level water bodies (``pipeline.whole_level_bodies``) tile by tile (issue 44, level-tiles): the
-same bodies with the parent holding the tiles' borders and per-region answers, not every occupied cell.
+"""The whole cloud's level water bodies (``pipeline.whole_level_bodies``) tile by tile (issue 44, level-tiles,
+level-wire): the same bodies with the parent holding the tiles' borders and per-region answers, not every occupied
+cell.
 
 Labelling (``tile_components``, ``tile_level_regions``): each tile labels its own cells (those whose centre lies in
 its core) and the ring of cells about its core, and hands the parent only (``TileRegions``) the regions that reach
@@ -12,13 +13,18 @@ histograms (``join_tile_regions``) and gives each tile back its regions' id, are
 Medians exact in three answers (``LEVEL_BINS_M``: ``refine_medians``, ``values_in_median_bins``,
 ``exact_levels``). Sums and looks within a reach (rim, shore, open sky, a quay's land within ``WALL_BEHIND_M``)
 exact by ownership: the tile whose core holds a cell counts its (cell, region) pairs over a window with a halo of
-that reach. ``whole_level_bodies_tiled`` runs every step of ``whole_level_bodies`` so: the same cells and levels
-bit for bit (bench/level_tiles_bodies.py). It holds the whole cloud's cells itself, each step reading one tile's
-window: a check of the decomposition; the tiles' pass (workers spooling their cells and labels) is not done, and
-the option ``water_whole_level_bodies`` keeps the parent's pass on every occupied cell."""
+that reach.
+
+In a tiled run (level-wire) the run tiles' workers write their water cells by level tile (``spool_cells``:
+squares of ``LEVEL_TILE_M`` on the whole water grid, at least the halo) under the run's scratch; the parent joins
+each level tile's fragments (``CellSpool.from_fragments``) and runs every step of ``whole_level_bodies`` so
+(``whole_level_bodies_spooled``): each round reads one level tile's window at a time (its own and its neighbours'
+files) and writes its core cells' results back to its files; the bodies stay there (``SpooledLevelBodies``), each
+run tile reading its window's. ``whole_level_bodies_tiled``: the same on cells held in memory (tests, benches)."""
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 from pathlib import Path
 
@@ -455,6 +461,8 @@ def split_into_tiles(cells: np.ndarray, side_cells: int):
 # tiles (their cores fall on the water grid's cells unevenly): each run tile's worker writes its core cells by these
 # squares (``spool_cells``).
 LEVEL_TILE_M = 200.0
+# The level tiles whose cells the parent keeps read (``CellSpool``; a window reads its tile's and 8 neighbours').
+CACHED_TILES = 12
 
 
 def level_tile_cells(cell_m: float, p) -> int:
@@ -513,6 +521,7 @@ class CellSpool:
         self.side = int(side)
         self.folder = None if folder is None else Path(folder)
         self._mem: dict = {}
+        self._cache: collections.OrderedDict = collections.OrderedDict()   # the cells last read, a few tiles
         self.tiles: list[tuple[int, int]] = []
         self.box = (0, 0, -1, -1)
 
@@ -526,8 +535,18 @@ class CellSpool:
         """The tile's array ``name`` (None: none written)."""
         if self.folder is None:
             return self._mem.get((name, t))
+        if name in ("cells", "heights"):   # written once: the windows of a row of tiles read them again and again
+            a = self._cache.get((name, t), False)
+            if a is not False:
+                self._cache.move_to_end((name, t))
+                return a
         f = self.folder / f"{name}_{t[0]}_{t[1]}.npy"
-        return np.load(f) if f.exists() else None
+        a = np.load(f) if f.exists() else None
+        if name in ("cells", "heights"):
+            self._cache[(name, t)] = a
+            if len(self._cache) > 2 * CACHED_TILES:
+                self._cache.popitem(last=False)
+        return a
 
     def _add(self, t, cells, heights):
         o = np.lexsort((cells[:, 1], cells[:, 0]))

@@ -140,10 +140,10 @@ def test_medians_from_the_tiles_histograms_are_exact():
 
 def test_tiles_run_finds_the_whole_clouds_bodies_from_the_spool(tmp_path, monkeypatch):
     """level-wire: in a tiled run (40 m tiles, 20 m buffer) the tiles' workers spool their water cells by level tile
-    and return none of them (no array of the cells to the parent: their lowest intensities counted too); the
-    level bodies found tile by tile over the spool (level tiles of the halo's 40 cells, the lake 170 m across
-    across 5 of them, 8,611 body cells) are those of ``whole_level_bodies`` on every cell, cell for cell and to the last bit, and the
-    tiles read them back from the run's scratch (``SpooledLevelBodies``)."""
+    and return none of them (no array of the cells to the parent: their lowest intensities counted too); the level
+    bodies found tile by tile over the spool (level tiles of the halo's 40 cells: the lake, 170 m across, spans 5 of
+    them a side; 8,611 body cells) are those of ``whole_level_bodies`` on every cell, cell for cell and to the last
+    bit, and the tiles read them back from the run's scratch (``SpooledLevelBodies``)."""
     import laspy
 
     from aerotri.core.executor import local_executor
@@ -199,3 +199,37 @@ def test_tiles_run_finds_the_whole_clouds_bodies_from_the_spool(tmp_path, monkey
     # the land's reflectance as without the option (the tiles' counts, not the cells' intensities)
     assert wg.land_intensity == tiles.water_grid(tasks, grid, classify.ClassifySettings(), lowest,
                                                  local_executor()).land_intensity
+
+
+def test_the_parents_memory_is_a_windows_not_the_clouds(tmp_path, monkeypatch):
+    """level-wire: the spooled pass (the store in files, as in a tiled run) holds one level tile's window and the
+    per-region tables: 1 and 4 copies of the lake scene side by side (the lake with its ring of patches joined
+    across a dropout in each: 964 body cells), 4 times the cells and bodies, the pass's tracemalloc peak within 1.5
+    times."""
+    import tracemalloc
+
+    cells, heights, wg = lake_cells()
+    p = classify.ClassifySettings()
+    monkeypatch.setattr(lt, "LEVEL_TILE_M", 40.0)   # level tiles of the halo's 40 cells: a window of 3 x 3 tiles
+    width = int(cells[:, 1].max()) + 4
+    lt.whole_level_bodies_tiled(cells, heights, wg, p, 40)   # compiled before it is measured
+    peaks, bodies = [], []
+    for k in (1, 4):
+        many = np.concatenate([cells + (0, i * width) for i in range(k)])
+        occ = np.ones((int(many[:, 0].max() * wg.cell_m / 10) + 2, int(many[:, 1].max() * wg.cell_m / 10) + 2), bool)
+        wg_k = dataclasses.replace(wg, footprint_10m=classify.survey_footprint(occ))
+        side = lt.level_tile_cells(wg.cell_m, p)
+        folder = tmp_path / str(k)
+        folder.mkdir()
+        lt.spool_cells(folder, side, (0, 0), many, np.tile(heights, (k, 1)))
+        store = lt.CellSpool.from_fragments(folder, side)
+        del many
+        tracemalloc.start()
+        ncols = lt.whole_level_bodies_spooled(store, wg_k, p)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+        keys = np.concatenate([np.load(f) for f in folder.glob("out_keys_*.npy")])
+        bodies.append(len(keys))
+        assert ncols == (k - 1) * width + int(cells[:, 1].max()) + 1
+    assert bodies[0] > 900 and bodies[1] == 4 * bodies[0]
+    assert peaks[1] < 1.5 * peaks[0], peaks
