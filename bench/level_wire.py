@@ -15,8 +15,9 @@ Sets: the big lake and pond (``big_lake_scene`` with the car park and the forest
 Topography, Autzen, AHN3 Delft (100 m tiles, 40 m buffer;
 ``AEROTRI_SHARED_DATA``), the demo's strips (``--demo PROJECT``, its default tiles).
 
-  AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/level_wire.py [--sets a,b] [--demo PROJECT]
-      [--cpu] [--corridors 2,10]
+  AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/level_wire.py --cpu --corridors 2,10,50
+  AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/level_wire.py --cpu --sets "" \
+      --demo PROJECT --out level_wire_demo.json
 """
 
 from __future__ import annotations
@@ -82,7 +83,7 @@ def reference(store, wg, p, footprint=None):
     r, c = np.divmod(whole.keys, ncols)
     for t in store.tiles:
         for name in ("out_keys", "out_level"):
-            f = store.folder / f"{name}_{t[0]}_{t[1]}.npy"
+            f = store.folder / f"{name}_{t[0]}_{t[1]}.bin"
             f.unlink(missing_ok=True)
     tile = np.column_stack([r // store.side, c // store.side])
     for tr, tc in (np.unique(tile, axis=0) if len(tile) else []):
@@ -106,7 +107,7 @@ def wired(store, wg, p, footprint=None):
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     n = sum(len(store.get("cells", t)) for t in store.tiles)
-    disk = sum(f.stat().st_size for f in store.folder.glob("*.npy")) if store.folder is not None else 0
+    disk = sum(f.stat().st_size for f in store.folder.glob("*.bin")) if store.folder is not None else 0
     CALLS.append({"path": "wired", "cells": n, "spool_bytes_per_cell": round(disk / max(n, 1), 1),
                   "level_tiles": len(store.tiles), "side_cells": store.side,
                   "cpu_s": round(cpu, 2), "peak_bytes": peak, "peak_bytes_per_cell": round(peak / max(n, 1), 1),
@@ -154,7 +155,8 @@ def corridors(lengths_km, tmp: Path):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--demo", type=Path)
-    ap.add_argument("--sets", default="big_lake,big_pond,lidr_topography,autzen,ahn3_delft")
+    ap.add_argument("--sets", default="big_lake,big_pond,small_tiles_lake,small_tiles_pond,lidr_topography,autzen,"
+                                      "ahn3_delft")
     ap.add_argument("--cpu", action="store_true", help="also the run with the option off (CPU)")
     ap.add_argument("--corridors", default="")
     ap.add_argument("--out", default="level_wire.json")

@@ -692,7 +692,8 @@ def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUni
         return dataclasses.replace(wg, median_count=_median_of_histogram(hist), land_intensity=float(
             _median_of_histogram(intensity_hist)) if intensity_hist.sum() else float("nan"))
     folder = Path(work_dir if work_dir is not None else Path(tasks[0].points_path).parent) / "level_bodies"
-    folder.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(folder, ignore_errors=True)   # (nothing of an earlier call read as a neighbour's)
+    folder.mkdir(parents=True)
     side = level_tiles.level_tile_cells(float(c), params)
     hist, intensity_hist = histogram(c, "tiles: water cells", with_heights=True, keep_heights=False,
                                      spool=(str(folder), side))

@@ -481,6 +481,8 @@ def spool_cells(folder, side: int, source: tuple[int, int], cells: np.ndarray, h
     """A run tile's worker (``tiles.cell_count_histogram``): its core's water cells (``cells`` (k, 2) row and column
     on the whole grid, ``heights`` (k, 3) lowest, median and highest return, m) written under ``folder`` by the
     level tiles (squares of ``side`` cells) they fall in, one file pair per (level tile, run tile ``source``)."""
+    if not len(cells):   # a tile whose cells' centres all lie in its neighbours' cores
+        return
     folder = Path(folder)
     t = cells // side
     order = np.lexsort((t[:, 1], t[:, 0]))
@@ -488,8 +490,8 @@ def spool_cells(folder, side: int, source: tuple[int, int], cells: np.ndarray, h
     first = np.flatnonzero(np.r_[True, np.any(t[1:] != t[:-1], axis=1)])
     for s, e in zip(first, np.r_[first[1:], len(t)]):
         stem = f"{t[s, 0]}_{t[s, 1]}_{source[0]}_{source[1]}"
-        np.save(folder / f"fc_{stem}.npy", cells[s:e])
-        np.save(folder / f"fh_{stem}.npy", heights[s:e])
+        np.ascontiguousarray(cells[s:e], np.int64).tofile(folder / f"fc_{stem}.bin")
+        np.ascontiguousarray(heights[s:e], np.float64).tofile(folder / f"fh_{stem}.bin")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -522,6 +524,9 @@ class CellSpool:
         self.folder = None if folder is None else Path(folder)
         self._mem: dict = {}
         self._cache: collections.OrderedDict = collections.OrderedDict()   # the cells last read, a few tiles
+        # each name's dtype and shape but the first (raw files: no header to parse; ``np.load``'s ``literal_eval``
+        # left cycles of garbage, megabytes between collections, at a load per tile and round)
+        self._kinds: dict = {"cells": (np.dtype(np.int64), (2,)), "heights": (np.dtype(np.float64), (3,))}
         self.tiles: list[tuple[int, int]] = []
         self.box = (0, 0, -1, -1)
 
@@ -529,7 +534,9 @@ class CellSpool:
         if self.folder is None:
             self._mem[(name, t)] = a
         else:
-            np.save(self.folder / f"{name}_{t[0]}_{t[1]}.npy", a)
+            a = np.ascontiguousarray(a)
+            self._kinds[name] = (a.dtype, a.shape[1:])
+            a.tofile(self.folder / f"{name}_{t[0]}_{t[1]}.bin")
 
     def get(self, name: str, t):
         """The tile's array ``name`` (None: none written)."""
@@ -540,8 +547,11 @@ class CellSpool:
             if a is not False:
                 self._cache.move_to_end((name, t))
                 return a
-        f = self.folder / f"{name}_{t[0]}_{t[1]}.npy"
-        a = np.load(f) if f.exists() else None
+        f = self.folder / f"{name}_{t[0]}_{t[1]}.bin"
+        a = None
+        if name in self._kinds and f.exists():
+            dtype, tail = self._kinds[name]
+            a = np.fromfile(f, dtype).reshape((-1, *tail))
         if name in ("cells", "heights"):
             self._cache[(name, t)] = a
             if len(self._cache) > 2 * CACHED_TILES:
@@ -577,13 +587,14 @@ class CellSpool:
         folder = Path(folder)
         s = cls(side, folder)
         groups: dict = {}
-        for f in folder.glob("fc_*.npy"):
+        for f in folder.glob("fc_*.bin"):
             tr, tc, _, _ = (int(v) for v in f.stem[3:].split("_"))
             groups.setdefault((tr, tc), []).append(f)
         for t in sorted(groups):
             parts = sorted(groups[t])
-            cells = np.concatenate([np.load(f) for f in parts])
-            heights = np.concatenate([np.load(f.with_name("fh_" + f.name[3:])) for f in parts])
+            cells = np.concatenate([np.fromfile(f, np.int64).reshape(-1, 2) for f in parts])
+            heights = np.concatenate([np.fromfile(f.with_name("fh_" + f.name[3:]), np.float64).reshape(-1, 3)
+                                      for f in parts])
             for f in parts:
                 f.unlink()
                 f.with_name("fh_" + f.name[3:]).unlink()
@@ -650,8 +661,8 @@ class SpooledLevelBodies:
         keys, levels = [], []
         for tr, tc in t:
             if (int(tr), int(tc)) in self.tiles:
-                keys.append(np.load(Path(self.folder) / f"out_keys_{tr}_{tc}.npy"))
-                levels.append(np.load(Path(self.folder) / f"out_level_{tr}_{tc}.npy"))
+                keys.append(np.fromfile(Path(self.folder) / f"out_keys_{tr}_{tc}.bin", np.int64))
+                levels.append(np.fromfile(Path(self.folder) / f"out_level_{tr}_{tc}.bin", np.float64))
         if not keys:
             return out
         keys, levels = np.concatenate(keys), np.concatenate(levels)
