@@ -10,6 +10,9 @@ Sets (100 m tiles, 40 m buffer): Autzen, AHN3 Delft, lidR Topography (``AEROTRI_
 pond alone (``tests/lidarctl/test_classify_water_tiles.py::big_lake_scene``), the demo (``--demo PROJECT``, its
 default tiles).
 
+Since level-wire the tiles' run no longer calls ``pipeline.whole_level_bodies`` (it finds the bodies tile by tile over
+its spooled cells): this bench's hook on that call finds none; ``bench/level_wire.py`` measures the wired run.
+
   AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/level_tiles_bodies.py [--demo PROJECT]
 """
 

@@ -12,6 +12,9 @@ Sets: Autzen, AHN3 Delft, lidR Topography (``AEROTRI_SHARED_DATA``), the big lak
 corridors of 2 / 10 / 50 km (``corridor_cells``: 0.12 / 0.62 / 3.1 M cells); tiles of 100 m (whole-grid cells from
 its origin).
 
+Since level-wire the tiles' run no longer calls ``pipeline.whole_level_bodies`` (it finds the bodies tile by tile over
+its spooled cells): this bench's hook on that call finds none; ``bench/level_wire.py`` measures the wired run.
+
   AEROTRI_SHARED_DATA=/work/shared/data nice .venv/bin/python bench/level_tiles_regions.py [--demo PROJECT]
 """
 

@@ -567,6 +567,10 @@ class CellCountTask:
     with_cells: bool = False
     # also return the lowest, median and highest return (m) of each of those cells (the whole cloud's level water)
     with_heights: bool = False
+    # with ``with_heights``: write the cells and their heights under this folder by level tile (``spool_side``
+    # cells; ``level_tiles.spool_cells``) and return none of them (the whole cloud's level bodies, level-wire)
+    spool_dir: str | None = None
+    spool_side: int = 0
 
 
 def cell_count_histogram(task: CellCountTask):
@@ -604,6 +608,14 @@ def cell_count_histogram(task: CellCountTask):
         zs = z[order]
         lo, hi = zs[start], zs[start + cnt - 1]
         med = 0.5 * (zs[start + (cnt - 1) // 2] + zs[start + cnt // 2])
+        if task.spool_dir is not None:
+            from lidarctl.classify import level_tiles
+
+            level_tiles.spool_cells(task.spool_dir, task.spool_side, (task.row, task.col), ij,
+                                    np.column_stack([lo, med, hi])[own])
+            # the lowest returns' intensities counted here: no array of the cells to the parent
+            return hist.astype(np.int64), ij[:0], np.zeros((0, 3)), np.bincount(inten[order[start]][own].astype(
+                np.int64), minlength=1)
         return hist.astype(np.int64), ij, np.column_stack([lo, med, hi])[own], inten[order[start]][own]
     if task.with_cells:
         return hist.astype(np.int64), ij
@@ -621,19 +633,23 @@ def _median_of_histogram(hist: np.ndarray) -> float:
     return 0.5 * (lo + hi)
 
 
-def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUnits = METRE):
+def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUnits = METRE, work_dir=None):
     """The whole cloud's ``WaterGrid`` from its tiles (before they are classified): the mean point spacing as
     ``grid.mean_spacing_m`` gives it for the whole cloud (occupied 10 m cells from its lowest x, y), the water
     cell from it (``water_cell_m`` or max(1 m, 2 spacings), as ``classify_points`` takes it) and the median
     returns per occupied water cell; two passes over the tile files, each tile counting the cells whose centre
-    lies in its core (memory of one tile)."""
+    lies in its core (memory of one tile). With ``water_whole_level_bodies`` the tiles write their water cells
+    under ``work_dir`` (the run's scratch; default: beside the first tile's points) by level tile and the level
+    bodies are found tile by tile there (``level_tiles.whole_level_bodies_spooled``; the parent holds the tiles'
+    summaries, no array per cell); the tiles read their windows' bodies from there (``SpooledLevelBodies``)."""
+    from lidarctl.classify import level_tiles
     from lidarctl.classify import pipeline as cl
 
     x0, y0 = lowest
 
-    def histogram(cell_m, desc, with_cells=False, with_heights=False, keep_heights=True):
-        jobs = [CellCountTask(t.row, t.col, t.points_path, grid, units, x0, y0, cell_m, with_cells, with_heights)
-                for t in tasks]
+    def histogram(cell_m, desc, with_cells=False, with_heights=False, keep_heights=True, spool=(None, 0)):
+        jobs = [CellCountTask(t.row, t.col, t.points_path, grid, units, x0, y0, cell_m, with_cells, with_heights,
+                              *spool) for t in tasks]
         total, cells, heights, lowest_i = np.zeros(1, np.int64), [], [], []
         intensity_hist = np.zeros(1, np.int64)  # without keep_heights: the cells' lowest intensities, counted
         for h in executor.map(cell_count_histogram, jobs, desc=desc, unit="tile"):
@@ -642,8 +658,8 @@ def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUni
                 if keep_heights:
                     heights.append(zz)
                     lowest_i.append(ii)
-                else:  # memory of one tile, not of the cloud's cells
-                    b = np.bincount(np.asarray(ii, np.int64), minlength=1)
+                else:  # memory of one tile, not of the cloud's cells (spooled: counted by the tile)
+                    b = ii if spool[0] is not None else np.bincount(np.asarray(ii, np.int64), minlength=1)
                     if len(b) > len(intensity_hist):
                         b, intensity_hist = intensity_hist, b
                     intensity_hist[:len(b)] += b
@@ -675,10 +691,18 @@ def water_grid(tasks, grid: TileGrid, params, lowest, executor, units: LengthUni
         hist, intensity_hist = histogram(c, "tiles: water cells", with_heights=True, keep_heights=False)
         return dataclasses.replace(wg, median_count=_median_of_histogram(hist), land_intensity=float(
             _median_of_histogram(intensity_hist)) if intensity_hist.sum() else float("nan"))
-    hist, cells, heights, lowest_intensity = histogram(c, "tiles: water cells", with_heights=True)
+    folder = Path(work_dir if work_dir is not None else Path(tasks[0].points_path).parent) / "level_bodies"
+    shutil.rmtree(folder, ignore_errors=True)   # (nothing of an earlier call read as a neighbour's)
+    folder.mkdir(parents=True)
+    side = level_tiles.level_tile_cells(float(c), params)
+    hist, intensity_hist = histogram(c, "tiles: water cells", with_heights=True, keep_heights=False,
+                                     spool=(str(folder), side))
     wg = dataclasses.replace(wg, median_count=_median_of_histogram(hist), land_intensity=float(
-        np.median(lowest_intensity)) if len(lowest_intensity) else float("nan"))
-    return dataclasses.replace(wg, level_bodies=cl.whole_level_bodies(cells, heights, wg, params))
+        _median_of_histogram(intensity_hist)) if intensity_hist.sum() else float("nan"))
+    store = level_tiles.CellSpool.from_fragments(folder, side)
+    ncols = level_tiles.whole_level_bodies_spooled(store, wg, params)
+    found = frozenset(t for t in store.tiles if store.get("out_keys", t) is not None)
+    return dataclasses.replace(wg, level_bodies=level_tiles.SpooledLevelBodies(ncols, side, str(folder), found))
 
 
 def _direct_classes(in_paths, crs, params, chunk_points, fusion=None):
@@ -993,7 +1017,7 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
         if lowest and len(tasks) > 1 and todo:
             # what is water is decided on the whole cloud's water cells and density (issue 44); not when every
             # tile is resumed (two passes over the tile files for nothing: the kept tiles' keys do not hold it)
-            wg = water_grid(tasks, grid, params, lowest, executor, units)
+            wg = water_grid(tasks, grid, params, lowest, executor, units, work_dir=tmp_dir)
             todo = [dataclasses.replace(t, water_grid=wg) for t in todo]
         # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
         # numba keeps its default; the classes do not depend on it).

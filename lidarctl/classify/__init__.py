@@ -15,15 +15,17 @@
 # box; quays above 2.8 m); 10: level-bodies-sparse (with ``water_whole_level_bodies``: a rim cell above the steepest
 # bank is a quay's wall, a bank, when no lower land lies within 50 m; default settings: classes unchanged); 11:
 # s19-fixes (with ``water_whole_level_bodies``: land at or below the water's level is lower land too, the body's
-# own cells and rim aside: a roof ring round a yard at street level is no bank).
+# own cells and rim aside: a roof ring round a yard at street level is no bank); 12: level-wire (the whole cloud's level
+# bodies found tile by tile inside the tiles' run, the same bodies; ``water_whole_level_bodies`` on by default: a
+# lake larger than a tile judged whole; with it off, classes as in 9).
 # sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
-RULES_VERSION = 11
+RULES_VERSION = 12
 
 # The versions whose changes decide classes only with a setting on (version -> the setting's name): a run with that
 # setting off keeps the version before them (``rules_version``), so its kept tiles and its stage stay up to date
 # (review 19: version 10 re-ran every project, the demo's classification 250 s, a big block hours, for the same
 # classes).
-OPTION_ONLY_VERSIONS = {10: "water_whole_level_bodies", 11: "water_whole_level_bodies"}
+OPTION_ONLY_VERSIONS = {10: "water_whole_level_bodies", 11: "water_whole_level_bodies", 12: "water_whole_level_bodies"}
 
 
 def rules_version(settings) -> int:

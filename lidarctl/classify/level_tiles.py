@@ -1,5 +1,6 @@
-"""The whole cloud's level water bodies (``pipeline.whole_level_bodies``) tile by tile (issue 44, level-tiles): the
-same bodies with the parent holding the tiles' borders and per-region answers, not every occupied cell.
+"""The whole cloud's level water bodies (``pipeline.whole_level_bodies``) tile by tile (issue 44, level-tiles,
+level-wire): the same bodies with the parent holding the tiles' borders and per-region answers, not every occupied
+cell.
 
 Labelling (``tile_components``, ``tile_level_regions``): each tile labels its own cells (those whose centre lies in
 its core) and the ring of cells about its core, and hands the parent only (``TileRegions``) the regions that reach
@@ -12,14 +13,20 @@ histograms (``join_tile_regions``) and gives each tile back its regions' id, are
 Medians exact in three answers (``LEVEL_BINS_M``: ``refine_medians``, ``values_in_median_bins``,
 ``exact_levels``). Sums and looks within a reach (rim, shore, open sky, a quay's land within ``WALL_BEHIND_M``)
 exact by ownership: the tile whose core holds a cell counts its (cell, region) pairs over a window with a halo of
-that reach. ``whole_level_bodies_tiled`` runs every step of ``whole_level_bodies`` so: the same cells and levels
-bit for bit (bench/level_tiles_bodies.py). It holds the whole cloud's cells itself, each step reading one tile's
-window: a check of the decomposition; the tiles' pass (workers spooling their cells and labels) is not done, and
-the option ``water_whole_level_bodies`` keeps the parent's pass on every occupied cell."""
+that reach.
+
+In a tiled run (level-wire) the run tiles' workers write their water cells by level tile (``spool_cells``:
+squares of ``LEVEL_TILE_M`` on the whole water grid, at least the halo) under the run's scratch; the parent joins
+each level tile's fragments (``CellSpool.from_fragments``) and runs every step of ``whole_level_bodies`` so
+(``whole_level_bodies_spooled``): each round reads one level tile's window at a time (its own and its neighbours'
+files) and writes its core cells' results back to its files; the bodies stay there (``SpooledLevelBodies``), each
+run tile reading its window's. ``whole_level_bodies_tiled``: the same on cells held in memory (tests, benches)."""
 
 from __future__ import annotations
 
+import collections
 import dataclasses
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -449,81 +456,280 @@ def split_into_tiles(cells: np.ndarray, side_cells: int):
     return tiles
 
 
+# The side (m) of the squares the whole water grid is cut into for the level bodies of a tiled run (at least the
+# halo the sums need, ~56 m at 1.4 m cells): a tile's window reads its own and its neighbours' files. Not the run's
+# tiles (their cores fall on the water grid's cells unevenly): each run tile's worker writes its core cells by these
+# squares (``spool_cells``).
+LEVEL_TILE_M = 200.0
+# The level tiles whose cells the parent keeps read (``CellSpool``; a window reads its tile's and 8 neighbours').
+CACHED_TILES = 12
+
+
+def level_tile_cells(cell_m: float, p) -> int:
+    """The side (cells) of the level bodies' tiles on a water grid of ``cell_m``: ``LEVEL_TILE_M``, at least the
+    halo (``_halo_cells``)."""
+    return max(_halo_cells(cell_m, p), int(round(LEVEL_TILE_M / cell_m)))
+
+
+def _halo_cells(cell_m: float, p) -> int:
+    """The halo (cells) of a tile's window for the sums and looks within a reach: the quay wall's land
+    (``WALL_BEHIND_M``) or the shore, and the rim's two cells and more."""
+    return max(int(np.ceil(cl.WALL_BEHIND_M / cell_m)), max(1, int(np.ceil(p.water_shore_m / cell_m)))) + 4
+
+
+def spool_cells(folder, side: int, source: tuple[int, int], cells: np.ndarray, heights: np.ndarray) -> None:
+    """A run tile's worker (``tiles.cell_count_histogram``): its core's water cells (``cells`` (k, 2) row and column
+    on the whole grid, ``heights`` (k, 3) lowest, median and highest return, m) written under ``folder`` by the
+    level tiles (squares of ``side`` cells) they fall in, one file pair per (level tile, run tile ``source``)."""
+    if not len(cells):   # a tile whose cells' centres all lie in its neighbours' cores
+        return
+    folder = Path(folder)
+    t = cells // side
+    order = np.lexsort((t[:, 1], t[:, 0]))
+    t, cells, heights = t[order], cells[order], heights[order]
+    first = np.flatnonzero(np.r_[True, np.any(t[1:] != t[:-1], axis=1)])
+    for s, e in zip(first, np.r_[first[1:], len(t)]):
+        stem = f"{t[s, 0]}_{t[s, 1]}_{source[0]}_{source[1]}"
+        np.ascontiguousarray(cells[s:e], np.int64).tofile(folder / f"fc_{stem}.bin")
+        np.ascontiguousarray(heights[s:e], np.float64).tofile(folder / f"fh_{stem}.bin")
+
+
 @dataclasses.dataclass(frozen=True)
 class _Window:
-    """A tile's window in ``whole_level_bodies_tiled`` (what its worker reads): the index of its cells among the
-    whole cloud's (core and ``halo`` cells about it, as the tile's buffer and its neighbours' spooled cells hold
-    them), which are in the core, which in the core and the ring one cell wide about it."""
+    """A level tile's window: its core cells (first, in the tile's order) and its neighbours' cells within ``halo``
+    of its core (``parts``: per tile read, which of its cells), ``near``: the core and the ring one cell wide."""
 
     tile: tuple
     side: int
-    index: np.ndarray
-    core: np.ndarray
+    cells: np.ndarray
+    heights: np.ndarray
+    n_core: int
     near: np.ndarray
+    parts: tuple
+
+    @property
+    def core(self) -> np.ndarray:
+        return np.arange(len(self.cells)) < self.n_core
 
 
-def _windows(cells: np.ndarray, side: int, halo: int, every: bool = False) -> list[_Window]:
-    """The tiles' windows (squares of ``side`` cells from row and column 0, a halo of ``halo`` cells), in row
-    order: of the tiles holding cells, or (``every``) of every tile in the box of those (the empty cells of a tile
-    without returns -- a lake larger than a tile that mirrored every pulse -- are a gap too)."""
-    t = cells // side
-    out = []
-    order = np.lexsort((cells[:, 1], cells[:, 0]))
-    rows = cells[order, 0]
-    if every:
-        (r0, c0), (r1, c1) = t.min(axis=0), t.max(axis=0)
-        places = np.stack(np.meshgrid(np.arange(r0, r1 + 1), np.arange(c0, c1 + 1), indexing="ij"), -1).reshape(-1, 2)
-    else:
-        places = np.unique(t, axis=0)
-    for tr, tc in places:
-        r0, c0 = tr * side, tc * side
-        a, b = np.searchsorted(rows, [r0 - halo, r0 + side + halo])
-        idx = order[a:b]
-        idx = np.sort(idx[(cells[idx, 1] >= c0 - halo) & (cells[idx, 1] < c0 + side + halo)])
-        rr, cc = cells[idx, 0] - r0, cells[idx, 1] - c0
-        core = (rr >= 0) & (rr < side) & (cc >= 0) & (cc < side)
+class CellSpool:
+    """The whole cloud's water cells by level tile (squares of ``side`` cells on the whole water grid from row and
+    column 0), and what each round of ``whole_level_bodies_spooled`` wrote per core cell: files under ``folder``
+    (the tiled run's scratch) or, ``folder`` None, in memory (tests, benches). A tile's window reads its own and its
+    neighbours' files (``window``): the memory of a window, never of the cloud's cells. ``tiles``: the tiles holding
+    cells (row order), ``box``: the cells' rows and columns first and last."""
+
+    def __init__(self, side: int, folder=None):
+        self.side = int(side)
+        self.folder = None if folder is None else Path(folder)
+        self._mem: dict = {}
+        self._cache: collections.OrderedDict = collections.OrderedDict()   # the cells last read, a few tiles
+        # each name's dtype and shape but the first (raw files: no header to parse; ``np.load``'s ``literal_eval``
+        # left cycles of garbage, megabytes between collections, at a load per tile and round)
+        self._kinds: dict = {"cells": (np.dtype(np.int64), (2,)), "heights": (np.dtype(np.float64), (3,))}
+        self.tiles: list[tuple[int, int]] = []
+        self.box = (0, 0, -1, -1)
+
+    def put(self, name: str, t, a: np.ndarray) -> None:
+        if self.folder is None:
+            self._mem[(name, t)] = a
+        else:
+            a = np.ascontiguousarray(a)
+            self._kinds[name] = (a.dtype, a.shape[1:])
+            a.tofile(self.folder / f"{name}_{t[0]}_{t[1]}.bin")
+
+    def get(self, name: str, t):
+        """The tile's array ``name`` (None: none written)."""
+        if self.folder is None:
+            return self._mem.get((name, t))
+        if name in ("cells", "heights"):   # written once: the windows of a row of tiles read them again and again
+            a = self._cache.get((name, t), False)
+            if a is not False:
+                self._cache.move_to_end((name, t))
+                return a
+        f = self.folder / f"{name}_{t[0]}_{t[1]}.bin"
+        a = None
+        if name in self._kinds and f.exists():
+            dtype, tail = self._kinds[name]
+            a = np.fromfile(f, dtype).reshape((-1, *tail))
+        if name in ("cells", "heights"):
+            self._cache[(name, t)] = a
+            if len(self._cache) > 2 * CACHED_TILES:
+                self._cache.popitem(last=False)
+        return a
+
+    def _add(self, t, cells, heights):
+        o = np.lexsort((cells[:, 1], cells[:, 0]))
+        self.put("cells", t, cells[o])
+        self.put("heights", t, heights[o])
+        self.tiles.append(t)
+        lo, hi = cells.min(axis=0), cells.max(axis=0)
+        b = self.box
+        self.box = ((int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])) if b[2] < b[0] else
+                    (min(b[0], int(lo[0])), min(b[1], int(lo[1])), max(b[2], int(hi[0])), max(b[3], int(hi[1]))))
+
+    @classmethod
+    def from_cells(cls, cells: np.ndarray, heights: np.ndarray, side: int) -> "CellSpool":
+        """The spool of a whole cloud's cells held in memory (tests, benches)."""
+        s = cls(side)
+        t = cells // side
+        order = np.lexsort((t[:, 1], t[:, 0]))
+        t = t[order]
+        first = np.flatnonzero(np.r_[True, np.any(t[1:] != t[:-1], axis=1)]) if len(t) else np.zeros(0, int)
+        for a, e in zip(first, np.r_[first[1:], len(t)]):
+            s._add((int(t[a, 0]), int(t[a, 1])), cells[order[a:e]], heights[order[a:e]])
+        return s
+
+    @classmethod
+    def from_fragments(cls, folder, side: int) -> "CellSpool":
+        """The spool of the files the run tiles' workers wrote (``spool_cells``) under ``folder``: each level tile's
+        fragments joined into one file pair (one tile in memory at a time), the fragments removed."""
+        folder = Path(folder)
+        s = cls(side, folder)
+        groups: dict = {}
+        for f in folder.glob("fc_*.bin"):
+            tr, tc, _, _ = (int(v) for v in f.stem[3:].split("_"))
+            groups.setdefault((tr, tc), []).append(f)
+        for t in sorted(groups):
+            parts = sorted(groups[t])
+            cells = np.concatenate([np.fromfile(f, np.int64).reshape(-1, 2) for f in parts])
+            heights = np.concatenate([np.fromfile(f.with_name("fh_" + f.name[3:]), np.float64).reshape(-1, 3)
+                                      for f in parts])
+            for f in parts:
+                f.unlink()
+                f.with_name("fh_" + f.name[3:]).unlink()
+            if len(cells):
+                s._add(t, cells, heights)
+        return s
+
+    def window(self, t, halo: int) -> _Window:
+        """Tile ``t``'s window: its core cells and those within ``halo`` cells of its core."""
+        side = self.side
+        k = -(-halo // side)
+        r0, c0 = t[0] * side, t[1] * side
+        cells, heights, parts = [], [], []
+        n_core = 0
+        for dr, dc in [(0, 0)] + [(a, b) for a in range(-k, k + 1) for b in range(-k, k + 1) if a or b]:
+            u = (t[0] + dr, t[1] + dc)
+            cu = self.get("cells", u)
+            if cu is None:
+                continue
+            m = ((cu[:, 0] >= r0 - halo) & (cu[:, 0] < r0 + side + halo) & (cu[:, 1] >= c0 - halo)
+                 & (cu[:, 1] < c0 + side + halo))
+            if not m.any():
+                continue
+            parts.append((u, m))
+            cells.append(cu[m])
+            heights.append(self.get("heights", u)[m])
+            if (dr, dc) == (0, 0):
+                n_core = int(m.sum())
+        cells = np.concatenate(cells) if cells else np.zeros((0, 2), np.int64)
+        heights = np.concatenate(heights) if heights else np.zeros((0, 3))
+        rr, cc = cells[:, 0] - r0, cells[:, 1] - c0
         near = (rr >= -1) & (rr <= side) & (cc >= -1) & (cc <= side)
-        out.append(_Window((int(tr), int(tc)), side, idx, core, near))
-    return out
+        return _Window(t, side, cells, heights, n_core, near, tuple(parts))
+
+    def read(self, w: _Window, name: str, fill=0, dtype=np.int64) -> np.ndarray:
+        """The window's cells' values of ``name`` (``fill`` where a tile wrote none)."""
+        out = []
+        for u, m in w.parts:
+            a = self.get(name, u)
+            out.append(np.full(int(m.sum()), fill, dtype) if a is None else a[m])
+        return np.concatenate(out) if out else np.zeros(0, dtype)
 
 
-def _label_round(cells, windows, join_value, join_tol, values, ncols_whole):
-    """One labelling round: every tile's components on its core and ring, the parent's join; per cell (the
-    tiles' spooled core labels) the component's id over the cloud (0: none), and per id its cells and median."""
-    done = [tile_components(cells[w.index[w.near]], join_value[w.index[w.near]], join_tol,
-                            values[w.index[w.near]], w.core[w.near], ncols_whole, w.tile) for w in windows]
-    answers = join_tile_regions((s for s, _ in done), positions=[w.tile for w in windows])
-    answers = _exact(answers, [(kept.label, values[w.index[w.near]][w.core[w.near]]) for w, (_, kept) in
-                               zip(windows, done)])
+@dataclasses.dataclass(frozen=True)
+class SpooledLevelBodies:
+    """``pipeline.LevelBodies`` kept by level tile in a tiled run's scratch (``whole_level_bodies_spooled``): a run
+    tile's worker reads the level tiles its window falls in (``level_at``); the parent holds the folder's name."""
+
+    ncols: int
+    side: int
+    folder: str
+    tiles: frozenset
+
+    @property
+    def empty(self) -> bool:
+        return not self.tiles
+
+    def level_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The body's level (m) at whole-grid cells ``rows``, ``cols`` (NaN: in no body)."""
+        out = np.full(len(rows), np.nan)
+        if self.empty or not len(rows):
+            return out
+        t = np.unique(np.column_stack([np.asarray(rows) // self.side, np.asarray(cols) // self.side]), axis=0)
+        keys, levels = [], []
+        for tr, tc in t:
+            if (int(tr), int(tc)) in self.tiles:
+                keys.append(np.fromfile(Path(self.folder) / f"out_keys_{tr}_{tc}.bin", np.int64))
+                levels.append(np.fromfile(Path(self.folder) / f"out_level_{tr}_{tc}.bin", np.float64))
+        if not keys:
+            return out
+        keys, levels = np.concatenate(keys), np.concatenate(levels)
+        o = np.argsort(keys)
+        return cl.LevelBodies(self.ncols, keys[o], levels[o]).level_at(rows, cols)
+
+
+def _label_round(store: CellSpool, tiles, name: str, source, join_tol: float, ncols_whole: int, core_values=None):
+    """One labelling round: every tile's components (``source(t)``: its cells -- core and the ring --, which are
+    its core, the join value and the values over them), the parent's join; each tile's core cells' component id
+    over the cloud written as ``name``; per id its cells and (``core_values(t)``: the values of the tile's core
+    cells) exact median. The parent holds the tiles' spanning regions and per-region tables, not their cells."""
+    tiles = list(tiles)
+    wholly_cells, wholly_level, counts = [], [], []
+
+    def sent():
+        for t in tiles:
+            cells, core, jv, vals = source(t)
+            s, kept = tile_components(cells, jv, join_tol, vals, core, ncols_whole, t)
+            store.put("label", t, kept.label)
+            m, n = s.n_spanning, len(kept.cells) - 1
+            wholly_cells.append(kept.cells[m + 1:])
+            wholly_level.append(kept.level_m[m + 1:])
+            counts.append((m, n))
+            yield s
+
+    answers = join_tile_regions(sent(), positions=tiles)
+    if core_values is not None:
+        for _ in LEVEL_BINS_M[1:]:
+            answers = refine_medians(answers, [median_histogram(store.get("label", t), core_values(t), a)
+                                               for t, a in zip(tiles, answers)])
+        answers = exact_levels(answers, [values_in_median_bins(store.get("label", t), core_values(t), a)
+                                         for t, a in zip(tiles, answers)])
     n_span = max((int(a.region_id.max(initial=0)) for a in answers), default=0)
-    gid = np.zeros(len(cells), np.int64)
     area, level = [np.zeros(n_span + 1, np.int64)], [np.full(n_span + 1, np.nan)]
     for a in answers:
         area[0][a.region_id[1:]] = a.cells[1:]
         level[0][a.region_id[1:]] = a.level_m[1:]
     nxt = n_span + 1
-    for w, (s, kept), a in zip(windows, done, answers):
-        lab = kept.label
-        m, n = s.n_spanning, len(kept.cells) - 1
+    for t, (m, n), a in zip(tiles, counts, answers):
         ids = np.r_[a.region_id, np.arange(nxt, nxt + n - m)]
-        gid[w.index[w.near][w.core[w.near]]] = ids[lab]
-        area.append(kept.cells[m + 1:])
-        level.append(kept.level_m[m + 1:])
+        store.put(name, t, ids[store.get("label", t)])
         nxt += n - m
-    return gid, np.concatenate(area), np.concatenate(level)
+    return np.concatenate(area + wholly_cells), np.concatenate(level + wholly_level)
 
 
-def _sum_round(cells, windows, ids, values, n):
-    """A reduction round: per id (1..n-1; ``ids`` per cell, 0: none) its cells and the median of ``values`` (k, m)
-    of its cells (NaN: not counted), from each tile's counts and histograms over its core (the medians of ids
-    wholly in one tile's core exact: their histograms sent all the same here, a check of the spanning case)."""
+def _cell_round(store, tiles, name, make, join_tol, ncols_whole):
+    """``_label_round`` on the cells: ``make(w)`` the join value and the values (k, m) over a window's cells."""
+    def source(t):
+        w = store.window(t, 1)
+        jv, vals = make(w)
+        return w.cells[w.near], w.core[w.near], jv[w.near], vals[w.near]
+
+    def core_values(t):
+        return make(store.window(t, 0))[1]
+
+    return _label_round(store, tiles, name, source, join_tol, ncols_whole, core_values)
+
+
+def _sum_round(store, tiles, make, n):
+    """A reduction round: per id (1..n-1; ``make(w)``: the ids and values (k, m) of a window's cells, 0: none) its
+    cells and the median of the values (NaN: not counted), from each tile's counts and histograms over its core."""
     count = np.zeros(n, np.int64)
     hists = []
-    for w in windows:
-        k = w.index[w.core]
-        idc = ids[k]
+    for t in tiles:
+        idc, v = make(store.window(t, 0))
         count += np.bincount(idc, minlength=n)
-        v = np.asarray(values, float)[k]
         vl = np.repeat(idc, v.shape[1])
         v = v.ravel()
         take = (vl > 0) & np.isfinite(v)
@@ -545,111 +751,76 @@ def _sum_round(cells, windows, ids, values, n):
         mbins[pair[s0, 0]] = b1, b2
         mranks[pair[s0, 0]] = k1, k2
     # the next passes: the finer histograms and the values of each id's two middle bins (the parent: exact medians)
-    answer = RegionDecisions(np.arange(n), count, np.full(n, np.nan), mbins[:, None, :], mranks)
-    answers = _exact([answer] * len(windows), [(ids[w.index[w.core]], np.asarray(values, float)[w.index[w.core]])
-                                               for w in windows])
+    answers = [RegionDecisions(np.arange(n), count, np.full(n, np.nan), mbins[:, None, :], mranks)] * len(tiles)
+    for _ in LEVEL_BINS_M[1:]:
+        answers = refine_medians(answers, [median_histogram(*make(store.window(t, 0)), a)
+                                           for t, a in zip(tiles, answers)])
+    answers = exact_levels(answers, [values_in_median_bins(*make(store.window(t, 0)), a)
+                                     for t, a in zip(tiles, answers)])
     return count, answers[0].level_m
 
 
-def _exact(answers, label_values):
-    """The tiles' further answers and the parent's exact medians (``refine_medians``, ``exact_levels``):
-    ``label_values`` per tile its core cells' labels and values."""
-    for _ in LEVEL_BINS_M[1:]:
-        answers = refine_medians(answers, [median_histogram(lab, v, a) for (lab, v), a in
-                                           zip(label_values, answers)])
-    return exact_levels(answers, [values_in_median_bins(lab, v, a) for (lab, v), a in zip(label_values, answers)])
-
-
-def _void_cells(cells, windows, box):
-    """Per tile, the empty cells of its core and the ring about it within the cloud's box (``box``: rows, columns
-    first and last): rows and columns, and which are in the core (the tile's own cells tell them: bounded by a
-    tile)."""
-    out = []
-    r_lo, c_lo, r_hi, c_hi = box
-    for w in windows:
-        tr, tc = w.tile
-        side = w.side
-        r0, c0 = tr * side - 1, tc * side - 1
-        occ = np.zeros((side + 2, side + 2), bool)
-        near = cells[w.index[w.near]]
-        occ[near[:, 0] - r0, near[:, 1] - c0] = True
-        i, j = np.nonzero(~occ)
-        r, c = i + r0, j + c0
-        inside = (r >= r_lo) & (r <= r_hi) & (c >= c_lo) & (c <= c_hi)
-        r, c, i, j = r[inside], c[inside], i[inside], j[inside]
-        out.append((np.column_stack([r, c]), (i >= 1) & (i <= side) & (j >= 1) & (j <= side)))
-    return out
-
-
-def _void_round(voids, windows, member, ncols_whole):
-    """Components of the empty cells ``member`` (per tile, per its void cells): per tile its void cells' ids over
-    the cloud (0: not a member) for the core and the ring, from the labelling round of ``tile_components``."""
-    done = []
-    for (vc, vcore), w, mem in zip(voids, windows, member):
-        if not len(vc):
-            done.append(None)
-            continue
-        done.append(tile_components(vc, np.where(mem, 0.0, np.nan), 0.5, np.zeros((len(vc), 0)), vcore,
-                                    ncols_whole, w.tile))
-    present = [d for d in done if d is not None]
-    answers = iter(join_tile_regions((s for s, _ in present),
-                                     positions=[w.tile for w, d in zip(windows, done) if d is not None]))
-    n_span = 0
-    per_tile = []
-    for d in done:
-        per_tile.append(None if d is None else next(answers))
-    for a in per_tile:
-        if a is not None:
-            n_span = max(n_span, int(a.region_id.max(initial=0)))
-    nxt = n_span + 1
-    ids_core = []
-    for d, a in zip(done, per_tile):
-        if d is None:
-            ids_core.append(np.zeros(0, np.int64))
-            continue
-        s, kept = d
-        m, n = s.n_spanning, len(kept.cells) - 1
-        ids = np.r_[a.region_id, np.arange(nxt, nxt + n - m)]
-        ids_core.append(ids[kept.label])
-        nxt += n - m
-    return ids_core, nxt
-
-
 def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side_cells: int):
-    """``pipeline.whole_level_bodies`` tile by tile (squares of ``side_cells`` cells): each round is a pass of the
-    tiles over their windows (core and a halo of the wall rule's reach and the rim: what their buffers and their
-    neighbours' spooled cells hold) and a reduction of per-region sums in the parent. Rounds: (1) the level
-    regions, their areas and levels; (2) each large region's cells at its level, relabelled within it, areas and
-    levels; (3) the banks across the rim (a quay's wall: the lowest land within ``WALL_BEHIND_M``), counted per
-    region; (4) shore and open sky, counted; (5) the water cells; then the join across dropouts: (6) the empty
-    cells near the survey's edge and those seeded beyond it (``water_survey_coverage``), (7) the gaps, the
-    (gap, patch) pairs to the parent, which links the patches by level; (2)-(5) again for the joined bodies; (8)
-    the bodies (components of the water cells) and their levels. The levels of regions spanning tiles are
-    histogram medians (``LEVEL_BIN_M``), the rest is exact. A check of the decomposition (the whole cloud's cells
-    are held here as the tiles would hold theirs, each tile reading only its window), not yet the tiles' pass."""
-    empty = cl.LevelBodies(1, np.zeros(0, np.int64), np.zeros(0))
-    tol = p.level_water_tol_m
+    """``whole_level_bodies_spooled`` on a whole cloud's cells held in memory (squares of ``side_cells`` cells; tests
+    and benches): ``pipeline.LevelBodies``."""
     if not len(cells) or p.level_water_min_area_m2 <= 0:
-        return empty
+        return cl.LevelBodies(1, np.zeros(0, np.int64), np.zeros(0))
+    footprint = None
+    if p.water_survey_coverage and wg.footprint_10m is None:   # the footprint of the cells' centres
+        c = wg.cell_m
+        xc, yc = wg.x0_m + (cells[:, 1] + 0.5) * c, wg.y0_m + (cells[:, 0] + 0.5) * c
+        fx0, fy0 = float(xc.min()), float(yc.min())
+        footprint = cl.survey_footprint(cl.occupied_10m(xc, yc, fx0, fy0)), fx0, fy0
+    store = CellSpool.from_cells(cells, heights, side_cells)
+    ncols = whole_level_bodies_spooled(store, wg, p, footprint)
+    keys = [store.get("out_keys", t) for t in store.tiles]
+    keys = [k for k in keys if k is not None]
+    if not keys:
+        return cl.LevelBodies(1, np.zeros(0, np.int64), np.zeros(0))
+    levels = np.concatenate([store.get("out_level", t) for t in store.tiles if store.get("out_keys", t) is not None])
+    keys = np.concatenate(keys)
+    o = np.argsort(keys)
+    return cl.LevelBodies(ncols, keys[o], levels[o])
+
+
+def whole_level_bodies_spooled(store: CellSpool, wg, p, footprint=None) -> int:
+    """``pipeline.whole_level_bodies`` tile by tile on the cells of ``store``: each round a pass of the level tiles
+    over their windows (core and a halo of the wall rule's reach and the rim, read from their own and their
+    neighbours' files), the tiles' per-core-cell results written back to their files, and a reduction of per-region
+    sums in the parent. Rounds: (1) the level regions, their areas and levels; (2) each large region's cells at its
+    level, relabelled within it, areas and levels; (3) the banks across the rim (a quay's wall: the lowest land
+    within ``WALL_BEHIND_M``), counted per region; (4) shore and open sky, counted; (5) the water cells; then the
+    join across dropouts: (6) the empty cells near the survey's edge and those seeded beyond it
+    (``water_survey_coverage``), (7) the gaps, the (gap, patch) pairs to the parent, which links the patches by
+    level; (2)-(5) again for the joined bodies; (8) the bodies (components of the water cells) and their levels,
+    written per tile as ``out_keys`` / ``out_level`` (keys ``row * ncols + col``). Returns ``ncols`` (the whole
+    grid's columns the keys count). The parent holds the tiles' spanning regions, per-region tables and the
+    (gap, patch) pairs, never an array per cell. ``footprint``: the survey's footprint and its origin (10 m cells,
+    x, y of the first; m), None: ``wg.footprint_10m`` from the water grid's origin (a tiled run's)."""
+    tol = p.level_water_tol_m
+    ncols_whole = store.box[3] + 1
+    tiles = store.tiles
+    if not tiles or p.level_water_min_area_m2 <= 0:
+        return ncols_whole
     c = wg.cell_m
     reach = int(np.ceil(cl.WALL_BEHIND_M / c))
     shore_cells = max(1, int(np.ceil(p.water_shore_m / c)))
-    halo = max(reach, shore_cells) + 4
-    ncols_whole = int(cells[:, 1].max()) + 1
-    windows = _windows(cells, side_cells, halo)
-    lo, ground, hi = heights[:, 0], heights[:, 1], heights[:, 2]
-    med = level_medians(cells, heights, tol)
-    if np.isfinite(med).sum() * c * c < p.level_water_min_area_m2:
-        return empty
+    halo = _halo_cells(c, p)
+
+    def med_of(w):
+        return level_medians(w.cells, w.heights, tol)
+
+    n_level = sum(int(np.isfinite(med_of(store.window(t, 0))).sum()) for t in tiles)
+    if n_level * c * c < p.level_water_min_area_m2:
+        return ncols_whole
     min_cells = p.level_water_min_area_m2 / (c * c)
     # (1) level regions
-    gid1, area1, level1 = _label_round(cells, windows, med, tol, med[:, None], ncols_whole)
-    bits = np.zeros(len(cells), np.uint8)
+    area1, level1 = _cell_round(store, tiles, "gid1", lambda w: (med_of(w), med_of(w)[:, None]), tol, ncols_whole)
 
     def window_grid(w, gid):
         """The tile's window as ``pipeline._Blocks`` (its box's blocks holding cells), its cells' slots there and
         the window's arrays."""
-        rc = cells[w.index]
+        rc = w.cells
         r0, c0 = rc.min(axis=0)
         nr, nc = (rc.max(axis=0) - (r0, c0) + 1).astype(int)
         side = cl.LEVEL_BODIES_BLOCK_CELLS
@@ -658,32 +829,45 @@ def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side
         g = cl._Blocks(act, nr, nc, side)
         u = g.locate(rc[:, 0] - r0, rc[:, 1] - c0)
         arrays = []
-        for a in (lo, ground, hi):
+        for k in range(3):
             x = np.full(g.n, np.nan)
-            x[u] = a[w.index]
+            x[u] = w.heights[:, k]
             arrays.append(x)
-        ids, local = np.unique(np.r_[0, gid[w.index]], return_inverse=True)   # the window's regions, 0 first
+        ids, local = np.unique(np.r_[0, gid], return_inverse=True)   # the window's regions, 0 first
         lab = np.zeros(g.n, np.int64)
         lab[u] = local[1:]
         incore = np.zeros(g.n, bool)
-        incore[u[w.core]] = True
+        incore[u[:w.n_core]] = True
         return g, u, arrays, ids, lab, incore
 
-    def bodies(region, area_r, level_r, joined: bool):
-        """Rounds (2)-(5): marks in ``bits`` the water returns of the regions ``region`` (id per cell; their cells
-        ``area_r`` and levels ``level_r`` per id) that are level water bodies."""
+    def bodies(region_of, area_r, level_r, joined: bool):
+        """Rounds (2)-(5): marks in each tile's ``bits`` the water returns of the regions ``region_of(w)`` (id per
+        window cell; their cells ``area_r`` and levels ``level_r`` per id) that are level water bodies."""
         big = area_r >= min_cells
         big[0] = False
         if not big.any():
             return
-        with np.errstate(invalid="ignore"):
-            at_level = big[region] & (np.abs(med - level_r[region]) <= tol)
+
+        def at_level(w):
+            region = region_of(w)
+            with np.errstate(invalid="ignore"):
+                return region, big[region] & (np.abs(med_of(w) - level_r[region]) <= tol)
+
         if joined:   # one body even where its level cells do not touch
-            gid = np.where(at_level, region, 0)
-            area, level = _sum_round(cells, windows, gid, med[:, None], len(area_r))
+            def gid_of(w):
+                region, at = at_level(w)
+                return np.where(at, region, 0)
+
+            area, level = _sum_round(store, tiles, lambda w: (gid_of(w), med_of(w)[:, None]), len(area_r))
         else:
-            gid, area, level = _label_round(cells, windows, np.where(at_level, region.astype(float), np.nan), 0.5,
-                                            med[:, None], ncols_whole)
+            def make(w):
+                region, at = at_level(w)
+                return np.where(at, region.astype(float), np.nan), med_of(w)[:, None]
+
+            area, level = _cell_round(store, tiles, "gid2", make, 0.5, ncols_whole)
+
+            def gid_of(w):
+                return store.read(w, "gid2")
         good = area >= min_cells
         good[0] = False
         if not good.any():
@@ -691,8 +875,9 @@ def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side
         # (3) the banks: per region, the rim cells (two cells about it) with a bank and those above the level
         n_bank = np.zeros(len(good), np.int64)
         n_above = np.zeros(len(good), np.int64)
-        for w in windows:
-            g, u, (wlo, wground, whi), ids, lab, incore = window_grid(w, gid)
+        for t in tiles:
+            w = store.window(t, halo)
+            g, u, (wlo, wground, whi), ids, lab, incore = window_grid(w, gid_of(w))
             ok = good[ids]
             if not ok[1:].any():
                 continue
@@ -716,9 +901,9 @@ def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side
             return
 
         def shore(w, good):
-            """The (cell, region) pairs of the shore and the region's own cells in the tile's core, whether each
-            return is on the level and whether open sky is over it."""
-            g, u, z, ids, lab, incore = window_grid(w, gid)
+            """The (cell, region) pairs of the shore and the region's own cells in the tile's core (cells: index
+            among the core's), whether each return is on the level and whether open sky is over it."""
+            g, u, z, ids, lab, incore = window_grid(w, gid_of(w))
             ok = good[ids]
             if not ok[1:].any():
                 return None
@@ -738,15 +923,15 @@ def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side
             covered = sky > lvl + p.low_veg_max_m
             with np.errstate(invalid="ignore"):
                 on = [np.abs(a[v] - lvl) <= tol for a in z]
-            slot = np.full(g.n, -1, np.int64)   # the slots back to the whole cloud's cells
-            slot[u] = w.index
+            slot = np.full(g.n, -1, np.int64)   # the slots back to the window's cells
+            slot[u] = np.arange(len(u))
             return slot[v], ids[lv], ids[lab[v]] == ids[lv], on, covered
 
         # (4) shore and open sky: a level floor under crowns is forest floor
         n_members = np.zeros(len(good))
         n_covered = np.zeros(len(good))
-        for w in windows:
-            s = shore(w, good)
+        for t in tiles:
+            s = shore(store.window(t, halo), good)
             if s is None:
                 continue
             _, region_id, own, on, covered = s
@@ -756,54 +941,74 @@ def whole_level_bodies_tiled(cells: np.ndarray, heights: np.ndarray, wg, p, side
         with np.errstate(invalid="ignore", divide="ignore"):
             good &= ~((n_members > 0) & (n_covered / n_members > 0.05))
         # (5) the water returns of the bodies
-        for w in windows:
+        for t in tiles:
+            w = store.window(t, halo)
             s = shore(w, good)
             if s is None:
                 continue
             cell, region_id, _, on, covered = s
             take = good[region_id]
+            bits = store.get("bits", t)
+            bits = np.zeros(w.n_core, np.uint8) if bits is None else bits
             for bit, o in enumerate(on):
                 m = take & o & ~covered
                 np.bitwise_or.at(bits, cell[m], np.uint8(1 << bit))
+            store.put("bits", t, bits)
 
-    bodies(gid1, area1, level1, False)
+    bodies(lambda w: store.read(w, "gid1"), area1, level1, False)
     if p.level_water_across_dropouts:
-        joined = _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols_whole)
+        joined = _joined_patches(store, wg, p, area1, level1, min_cells, ncols_whole, footprint)
         if joined is not None:
-            area_j, level_j = _sum_round(cells, windows, joined, med[:, None], int(joined.max()) + 1)
-            bodies(joined, area_j, level_j, True)
-    water = bits > 0
-    if not water.any():
-        return empty
+            def joined_of(w):
+                return joined[store.read(w, "gid1")]
+
+            area_j, level_j = _sum_round(store, tiles, lambda w: (joined_of(w), med_of(w)[:, None]),
+                                         int(joined.max()) + 1)
+            bodies(joined_of, area_j, level_j, True)
+    if not any(b is not None and b.any() for b in (store.get("bits", t) for t in tiles)):
+        return ncols_whole
+
     # (8) the bodies and their levels: the median of their water returns
-    z = np.where((bits[:, None] & (1 << np.arange(3))) > 0, heights, np.nan)
-    body, _, body_level = _label_round(cells, windows, np.where(water, 0.0, np.nan), 0.5, z, ncols_whole)
-    key = cells[water, 0].astype(np.int64) * ncols_whole + cells[water, 1]
-    order = np.argsort(key)
-    return cl.LevelBodies(ncols_whole, key[order], body_level[body[water]][order])
+    def water(w):
+        bits = store.read(w, "bits", 0, np.uint8)
+        z = np.where((bits[:, None] & (1 << np.arange(3))) > 0, w.heights, np.nan)
+        return np.where(bits > 0, 0.0, np.nan), z
+
+    _, body_level = _cell_round(store, tiles, "body", water, 0.5, ncols_whole)
+    for t in tiles:
+        bits = store.get("bits", t)
+        if bits is None or not bits.any():
+            continue
+        cells = store.get("cells", t)[bits > 0]
+        store.put("out_keys", t, cells[:, 0].astype(np.int64) * ncols_whole + cells[:, 1])
+        store.put("out_level", t, body_level[store.get("body", t)[bits > 0]])
+    return ncols_whole
 
 
-def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols_whole):
+def _tile_keys(cells, ncols_whole):
+    return cells[:, 0].astype(np.int64) * ncols_whole + cells[:, 1]
+
+
+def _joined_patches(store, wg, p, area1, level1, min_cells, ncols_whole, footprint):
     """Rounds (6)-(7): the level patches (regions smaller than a body) joined across the gaps they border
-    (``pipeline._join_across_dropouts``): joined id per cell (0: none; only joins of two patches or more), or None.
-    The gaps are the empty cells of the cloud's box but those beyond the survey (``water_survey_coverage``:
-    ``pipeline.beyond_coverage``'s near cells in components seeded outside the footprint)."""
+    (``pipeline._join_across_dropouts``): joined id per region of round (1) (0: none; only joins of two patches or
+    more), or None. The gaps are the empty cells of the cloud's box but those beyond the survey
+    (``water_survey_coverage``: ``pipeline.beyond_coverage``'s near cells in components seeded outside the
+    footprint). Each tile's empty cells (its core and the ring) and their ids are written to its files; a ring
+    cell takes the answer of the tile whose core holds it."""
     c, tol = wg.cell_m, p.level_water_tol_m
     small = area1 < min_cells
     small[0] = False
     if small.sum() < 2:
         return None
-    box = (*cells.min(axis=0), *cells.max(axis=0))
-    side = windows[0].side
-    every = _windows(cells, side, 1, every=True)
+    box = store.box
+    side = store.side
+    have = set(store.tiles)
+    every = [(int(r), int(q)) for r in range(box[0] // side, box[2] // side + 1)
+             for q in range(box[1] // side, box[3] // side + 1)]
     coverage = p.water_survey_coverage
     if coverage:
-        if wg.footprint_10m is not None:
-            fp, fx0, fy0 = wg.footprint_10m, wg.x0_m, wg.y0_m
-        else:   # the footprint of the cells' centres (``whole_level_bodies``)
-            xc, yc = wg.x0_m + (cells[:, 1] + 0.5) * c, wg.y0_m + (cells[:, 0] + 0.5) * c
-            fx0, fy0 = float(xc.min()), float(yc.min())
-            fp = cl.survey_footprint(cl.occupied_10m(xc, yc, fx0, fy0))
+        fp, fx0, fy0 = footprint if footprint is not None else (wg.footprint_10m, wg.x0_m, wg.y0_m)
         outside = np.pad(~fp, 1, constant_values=True)
         fringe = ndimage.binary_dilation(outside, np.ones((3, 3), bool))
 
@@ -821,22 +1026,70 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
         # whole (the sparse pass's blocks not stored): no tile reads it, and the empty cells beside it are seeded
         # (a diagonal corridor's box is mostly such tiles).
         skipped = set()
-        for w in every:
-            if len(w.index) == 0:
-                tr, tc = w.tile
+        for t in every:
+            if t not in have:
+                tr, tc = t
                 (i0, i1), (j0, j1) = (index(np.array([[tr * side, tc * side], [tr * side + side - 1,
                                                                                 tc * side + side - 1]]), outside))
                 if outside[i0:i1 + 1, j0:j1 + 1].all():
-                    skipped.add(w.tile)
-        every = [w for w in every if w.tile not in skipped]
-    voids = _void_cells(cells, every, box)
-    member = [np.ones(len(vc), bool) for vc, _ in voids]
+                    skipped.add(t)
+        every = [t for t in every if t not in skipped]
+    # (6) per tile the empty cells of its core and the ring about it within the cloud's box
+    void_tiles = []
+    r_lo, c_lo, r_hi, c_hi = box
+    for t in every:
+        tr, tc = t
+        r0, c0 = tr * side - 1, tc * side - 1
+        occ = np.zeros((side + 2, side + 2), bool)
+        near = store.window(t, 1)
+        occ[near.cells[:, 0] - r0, near.cells[:, 1] - c0] = True
+        i, j = np.nonzero(~occ)
+        r, q = i + r0, j + c0
+        inside = (r >= r_lo) & (r <= r_hi) & (q >= c_lo) & (q <= c_hi)
+        r, q, i, j = r[inside], q[inside], i[inside], j[inside]
+        if len(r):
+            store.put("void_cells", t, np.column_stack([r, q]))
+            store.put("void_core", t, (i >= 1) & (i <= side) & (j >= 1) & (j <= side))
+            void_tiles.append(t)
+
+    def owners(t, name):
+        """The void cells of the cores of ``t`` and its 8 neighbours: sorted keys and their ``name`` ids."""
+        keys, ids = [], []
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                u = (t[0] + dr, t[1] + dc)
+                vc = store.get("void_cells", u)
+                if vc is None:
+                    continue
+                core = store.get("void_core", u)
+                keys.append(_tile_keys(vc[core], ncols_whole))
+                ids.append(store.get(name, u))
+        if not keys:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        keys, ids = np.concatenate(keys), np.concatenate(ids)
+        o = np.argsort(keys)
+        return keys[o], ids[o]
+
+    def lookup(keys_sorted, ids, k):
+        """``ids`` of keys ``k`` in ``keys_sorted`` (-1: not there)."""
+        if not len(keys_sorted):
+            return np.full(len(k), -1, np.int64)
+        pos = np.minimum(np.searchsorted(keys_sorted, k), len(keys_sorted) - 1)
+        return np.where(keys_sorted[pos] == k, ids[pos], -1)
+
+    def void_round(name, member):
+        def source(t):
+            vc, vcore = store.get("void_cells", t), store.get("void_core", t)
+            return vc, vcore, np.where(member(t, vc, vcore), 0.0, np.nan), np.zeros((len(vc), 0))
+
+        area, _ = _label_round(store, void_tiles, name, source, 0.5, ncols_whole)
+        return len(area)
+
     if coverage:
-        # the skipped tiles on the tiles' grid (padded by one tile: the ring of an edge tile lies beyond the box)
-        t0 = box[0] // side - 1, box[1] // side - 1
-        skip_grid = np.zeros((box[2] // side - t0[0] + 2, box[3] // side - t0[1] + 2), bool)
+        side_t0 = box[0] // side - 1, box[1] // side - 1
+        skip_grid = np.zeros((box[2] // side - side_t0[0] + 2, box[3] // side - side_t0[1] + 2), bool)
         for tr, tc in skipped:
-            skip_grid[tr - t0[0], tc - t0[1]] = True
+            skip_grid[tr - side_t0[0], tc - side_t0[1]] = True
 
         def beside_skipped(rc):
             """Which cells ``rc`` are in, or beside, a tile skipped as beyond the survey."""
@@ -844,51 +1097,50 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
             if skipped:
                 for dr in (-1, 0, 1):
                     for dc in (-1, 0, 1):
-                        t = (rc + (dr, dc)) // side - t0
-                        out |= skip_grid[t[:, 0], t[:, 1]]
+                        tt = (rc + (dr, dc)) // side - side_t0
+                        out |= skip_grid[tt[:, 0], tt[:, 1]]
             return out
 
-        near = [at(fringe, vc) for vc, _ in voids]
-        near_ids, n = _void_round(voids, every, near, ncols_whole)
+        n = void_round("void_near", lambda t, vc, vcore: at(fringe, vc))
         seeded = np.zeros(n, bool)   # the parent's OR of the tiles' seeded components
-        for (vc, vcore), ids, nr in zip(voids, near_ids, near):
-            seed = (at(outside, vc[vcore]) | beside_skipped(vc[vcore])) & nr[vcore]
+        for t in void_tiles:
+            vc, vcore = store.get("void_cells", t), store.get("void_core", t)
+            ids = store.get("void_near", t)
+            seed = (at(outside, vc[vcore]) | beside_skipped(vc[vcore])) & at(fringe, vc[vcore])
             seeded[ids[seed]] = True
         seeded[0] = False
-        # the ring's cells take their owner's answer: the spooled ids of the neighbours' cores (a skipped tile's
-        # cells: beyond)
-        key_all = np.concatenate([vc[vcore, 0] * ncols_whole + vc[vcore, 1] for vc, vcore in voids])
-        beyond_all = np.concatenate([seeded[ids] for ids in near_ids])
-        o = np.argsort(key_all)
-        key_all, beyond_all = key_all[o], beyond_all[o]
-        member = []
-        for vc, _ in voids:
-            k = vc[:, 0] * ncols_whole + vc[:, 1]
-            pos = np.minimum(np.searchsorted(key_all, k), len(key_all) - 1)
-            owned = key_all[pos] == k
-            member.append(owned & ~beyond_all[pos])
-    gap_ids, _ = _void_round(voids, every, member, ncols_whole)
-    # the gaps' ids of every void cell (core and ring), as the tiles' spooled ids give them
-    key_all = np.concatenate([vc[vcore, 0] * ncols_whole + vc[vcore, 1] for vc, vcore in voids])
-    gap_all = np.concatenate(gap_ids)
-    if not gap_all.any():
+
+        def member(t, vc, vcore):
+            # the ring's cells take their owner's answer (a skipped tile's cells: beyond)
+            ids = lookup(*owners(t, "void_near"), _tile_keys(vc, ncols_whole))
+            return (ids >= 0) & ~seeded[np.maximum(ids, 0)]
+    else:
+        def member(t, vc, vcore):
+            return np.ones(len(vc), bool)
+    void_round("void_gap", member)
+    if not any(store.get("void_gap", t).any() for t in void_tiles):
         return None
-    o = np.argsort(key_all)
-    key_all, gap_all = key_all[o], gap_all[o]
     # (7) per tile the (gap, patch) pairs of its core's patch cells
-    patch = np.where(small[gid1], gid1, 0)
     pairs = []
-    for w in windows:
-        k = w.index[w.core]
-        k = k[patch[k] > 0]
+    for t in store.tiles:
+        gap_keys, gap_ids = owners(t, "void_gap")
+        if not len(gap_keys):
+            continue
+        cells = store.get("cells", t)
+        gid = store.get("gid1", t)
+        patch = np.where(small[gid], gid, 0)
+        k = np.flatnonzero(patch > 0)
+        tile_pairs = []
         for dr in (-1, 0, 1):
             for dc in (-1, 0, 1):
                 if dr or dc:
                     key = (cells[k, 0] + dr).astype(np.int64) * ncols_whole + cells[k, 1] + dc
                     ok = (cells[k, 1] + dc >= 0) & (cells[k, 1] + dc < ncols_whole)
-                    pos = np.minimum(np.searchsorted(key_all, key), len(key_all) - 1)
-                    hit = ok & (key_all[pos] == key) & (gap_all[pos] > 0)
-                    pairs.append(np.column_stack([gap_all[pos[hit]], patch[k[hit]]]))
+                    g = lookup(gap_keys, gap_ids, key)
+                    hit = ok & (g > 0)
+                    tile_pairs.append(np.column_stack([g[hit], patch[k[hit]]]))
+        if tile_pairs:
+            pairs.append(np.unique(np.concatenate(tile_pairs), axis=0))
     pairs = np.unique(np.concatenate(pairs), axis=0) if pairs else np.zeros((0, 2), np.int64)
     if len(pairs) < 2:
         return None
@@ -907,5 +1159,4 @@ def _joined_patches(cells, windows, wg, p, gid1, area1, level1, min_cells, ncols
     ids[multi] = np.arange(1, len(multi) + 1)
     joined = ids[root]
     joined[~small] = 0
-    out = joined[gid1]
-    return out if out.any() else None
+    return joined if joined[1:].any() else None

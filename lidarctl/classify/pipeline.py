@@ -219,14 +219,15 @@ class ClassifySettings:
                                           "its ragged edge joined to the outside) are no gap that level water is "
                                           "joined across or a bridge deck spans.")
     # The whole cloud's level water bodies for the level regions a tile's window cuts (i44-edge): a lake larger than a
-    # tile and its buffer judged whole. Off by default (review 15: grids over the cloud's bounding box, quays above
-    # 2.8 m no bank). Since level-bodies-sparse it labels the occupied blocks only and banks on a quay's wall, but the
-    # parent still holds every occupied water cell (about 40 bytes each from the tiles, about 100 in the pass): a
-    # 300 M-point block is tens of GB; per-tile labels joined across the tiles' borders would bound it by a tile.
-    water_whole_level_bodies: bool = setting(False, help="Level water in tiles: the level regions a tile's window "
+    # tile and its buffer judged whole. Off from review 15 (the parent held every occupied water cell: ~150-200 bytes
+    # each, tens of GB for a 300 M-point block) until level-wire: the tiles spool their water cells by level tile on
+    # the run's scratch and the bodies are found tile by tile over windows of a tile and its neighbours
+    # (``level_tiles.whole_level_bodies_spooled``): the parent holds the tiles' borders and per-region tables.
+    water_whole_level_bodies: bool = setting(True, help="Level water in tiles: the level regions a tile's window "
                                              "cuts judged by the whole cloud's level bodies (a lake larger than a "
-                                             "tile). Memory about 150-200 bytes per occupied water cell of the whole "
-                                             "cloud, in the parent process.")
+                                             "tile), found tile by tile over the water cells the tiles write to the "
+                                             "run's scratch (60-150 bytes per occupied water cell on disk; the "
+                                             "parent holds one tile's window and the tiles' borders).")
     # A deck is at most this long along the watercourse it spans (the road's width, not the span
     # across the water): a two-lane road with pavements is ~15 m. 0 disables the bridge rule.
     bridge_max_width_m: float = setting(20.0, min=0.0, help="A bridge deck is at most this long along the water it "
@@ -1137,7 +1138,7 @@ class WaterGrid:
     # holes filled (``survey_footprint``); None: the tile's own points decide (as a whole cloud's do).
     footprint_10m: np.ndarray | None = dataclasses.field(default=None, compare=False)
     # The whole cloud's level water bodies (``whole_level_bodies``), for the level regions a tile's window cuts.
-    level_bodies: LevelBodies | None = dataclasses.field(default=None, compare=False)
+    level_bodies: LevelBodies | None = dataclasses.field(default=None, compare=False)   # or SpooledLevelBodies
     # The median intensity of the lowest return of the whole cloud's water cells (the land's reflectance, for a
     # window that open water fills; NaN: none).
     land_intensity: float = float("nan")
@@ -1169,6 +1170,10 @@ class LevelBodies:
     ncols: int
     keys: np.ndarray
     level_m: np.ndarray
+
+    @property
+    def empty(self) -> bool:
+        return not len(self.keys)
 
     def level_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """The body's level (m) at whole-grid cells ``rows``, ``cols`` (NaN: in no body)."""
@@ -2282,7 +2287,7 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
     # A tile of a larger cloud: the level of the whole cloud's level water body at each cell (NaN: none), and the
     # cells near the window's cut edge (a region reaching them has area and banks beyond the window).
     outer, cut = None, None
-    if water_grid is not None and water_grid.level_bodies is not None and len(water_grid.level_bodies.keys):
+    if water_grid is not None and water_grid.level_bodies is not None and not water_grid.level_bodies.empty:
         cut = ~water_grid.inside(nrows, ncols, x0, y0)
         if cut.any():
             rr, cc = np.divmod(np.arange(nrows * ncols), ncols)

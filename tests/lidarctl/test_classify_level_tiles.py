@@ -4,6 +4,7 @@ spanning regions only -- the parent never holds an array per core cell."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -135,3 +136,104 @@ def test_medians_from_the_tiles_histograms_are_exact():
         answers = lt.refine_medians([answer] * 5, [lt.median_histogram(lab, x, answer) for lab, x in tiles])
         answers = lt.exact_levels(answers, [lt.values_in_median_bins(lab, x, a) for (lab, x), a in zip(tiles, answers)])
         assert answers[0].level_m[1] == np.median(v), n
+
+
+def test_tiles_run_finds_the_whole_clouds_bodies_from_the_spool(tmp_path, monkeypatch):
+    """level-wire: in a tiled run (40 m tiles, 20 m buffer) the tiles' workers spool their water cells by level tile
+    and return none of them (no array of the cells to the parent: their lowest intensities counted too); the level
+    bodies found tile by tile over the spool (level tiles of the halo's 40 cells: the lake, 170 m across, spans 5 of
+    them a side; 8,611 body cells) are those of ``whole_level_bodies`` on every cell, cell for cell and to the last
+    bit, and the tiles read them back from the run's scratch (``SpooledLevelBodies``)."""
+    import laspy
+
+    from aerotri.core.executor import local_executor
+    from lidarctl import synthetic, tiles
+    from tests.lidarctl.test_classify_water_tiles import big_lake_scene
+
+    cloud, *_ = big_lake_scene("lake", size_m=240.0, radius_m=85.0, density=1.5)
+    src = tmp_path / "lake.laz"
+    synthetic.write_las(src, cloud, crs="EPSG:32610")
+    p = classify.ClassifySettings(water_whole_level_bodies=True)
+    with laspy.open(src) as f:
+        grid = tiles.plan_tiles(f.header, tile_size_m=40.0, buffer_m=20.0)
+    lowest = []
+    tasks = tiles.split_into_tiles([src], grid, tmp_path, p, lowest=lowest)
+    monkeypatch.setattr(lt, "LEVEL_TILE_M", 40.0)   # the level tiles as small as the halo allows
+    wired, seen = lt.whole_level_bodies_spooled, {}
+
+    def checked(store, wg, p, footprint=None):
+        cells = np.concatenate([store.get("cells", t) for t in store.tiles])
+        heights = np.concatenate([store.get("heights", t) for t in store.tiles])
+        seen["whole"], seen["n_tiles"] = classify.whole_level_bodies(cells, heights, wg, p), len(store.tiles)
+        seen["cells"] = cells
+        return wired(store, wg, p, footprint)
+
+    monkeypatch.setattr(lt, "whole_level_bodies_spooled", checked)
+
+    class Recorded:
+        def __init__(self):
+            self.inner, self.results = local_executor(), []
+
+        def map(self, fn, items, desc="", unit=""):
+            out = self.inner.map(fn, items, desc=desc, unit=unit)
+            self.results.append((desc, copy.deepcopy(out)))   # (the parent adds into the arrays it gets)
+            return out
+
+    ex = Recorded()
+    wg = tiles.water_grid(tasks, grid, p, lowest, ex, work_dir=tmp_path)
+    (_, water_cells), = [(d, r) for d, r in ex.results if d == "tiles: water cells"]
+    for hist, ij, heights, intensity in water_cells:
+        assert len(ij) == 0 and len(heights) == 0 and intensity.sum() == hist.sum()
+    whole, cells = seen["whole"], seen["cells"]
+    assert seen["n_tiles"] >= 16 and len(whole.keys) > 5_000
+    assert isinstance(wg.level_bodies, lt.SpooledLevelBodies) and not wg.level_bodies.empty
+    keys, levels = [], []
+    for t in sorted(wg.level_bodies.tiles):
+        keys.append(np.fromfile(tmp_path / "level_bodies" / f"out_keys_{t[0]}_{t[1]}.bin", np.int64))
+        levels.append(np.fromfile(tmp_path / "level_bodies" / f"out_level_{t[0]}_{t[1]}.bin"))
+    keys, levels = np.concatenate(keys), np.concatenate(levels)
+    o = np.argsort(keys)
+    assert np.array_equal(keys[o], whole.keys) and np.array_equal(levels[o], whole.level_m)
+    rows, cols = cells[:, 0] - 2, cells[:, 1] + 1   # any cells, some beyond the cloud's
+    assert np.array_equal(wg.level_bodies.level_at(rows, cols), whole.level_at(rows, cols), equal_nan=True)
+    # the land's reflectance as without the option (the tiles' counts, not the cells' intensities)
+    assert wg.land_intensity == tiles.water_grid(tasks, grid, classify.ClassifySettings(), lowest,
+                                                 local_executor()).land_intensity
+
+
+def test_the_parents_memory_is_a_windows_not_the_clouds(tmp_path, monkeypatch):
+    """level-wire: the spooled pass (the store in files, as in a tiled run) holds one level tile's window and the
+    per-region tables: 1 and 4 copies of the lake scene side by side (the lake with its ring of patches joined
+    across a dropout in each: 964 body cells), 4 times the cells and bodies, the pass's tracemalloc peak within 1.5
+    times."""
+    import tracemalloc
+
+    cells, heights, wg = lake_cells()
+    p = classify.ClassifySettings()
+    monkeypatch.setattr(lt, "LEVEL_TILE_M", 40.0)   # level tiles of the halo's 40 cells: a window of 3 x 3 tiles
+    width = int(cells[:, 1].max()) + 4
+    peaks, bodies = [], []
+    for k in (1, 4):
+        many = np.concatenate([cells + (0, i * width) for i in range(k)])
+        occ = np.ones((int(many[:, 0].max() * wg.cell_m / 10) + 2, int(many[:, 1].max() * wg.cell_m / 10) + 2), bool)
+        wg_k = dataclasses.replace(wg, footprint_10m=classify.survey_footprint(occ))
+        side = lt.level_tile_cells(wg.cell_m, p)
+        folder = tmp_path / str(k)
+        folder.mkdir()
+        lt.spool_cells(folder, side, (0, 0), many, np.tile(heights, (k, 1)))
+        store = lt.CellSpool.from_fragments(folder, side)
+        del many
+        peak = []
+        # the lower of two runs (now and then a one-off 2-4 MB more, not the cells'): the second of the small
+        # scene's, of the large one's only when the first is over the bound
+        while len(peak) < 2 and (k == 1 or not peak or peak[0] >= 1.5 * peaks[0]):
+            tracemalloc.start()
+            ncols = lt.whole_level_bodies_spooled(store, wg_k, p)
+            peak.append(tracemalloc.get_traced_memory()[1])
+            tracemalloc.stop()
+        peaks.append(min(peak))
+        keys = np.concatenate([np.fromfile(f, np.int64) for f in folder.glob("out_keys_*.bin")])
+        bodies.append(len(keys))
+        assert ncols == (k - 1) * width + int(cells[:, 1].max()) + 1
+    assert bodies[0] > 900 and bodies[1] == 4 * bodies[0]
+    assert peaks[1] < 1.5 * peaks[0], peaks

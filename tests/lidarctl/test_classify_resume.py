@@ -46,9 +46,9 @@ def _tree(folder) -> dict:
 _Tiles = functools.partial(tile_faults.Tiles, tiles._classify_tile)
 
 
-def _classify(paths, root, resume=True):
+def _classify(paths, root, resume=True, params=None):
     with Executor("synchronous") as ex:  # one tile after the other: the interrupt comes at a known tile
-        return tiles.classify_files(paths, root / "classified", executor=ex, suffix=".laz",
+        return tiles.classify_files(paths, root / "classified", params=params, executor=ex, suffix=".laz",
                                     resume_dir=root / "work" / "classify_resume" if resume else None, **TILING)
 
 
@@ -316,16 +316,16 @@ def test_a_rule_change_under_an_option_that_is_off_reuses_the_tiles(strips, tmp_
     made every project classify again (the demo 250 s, a big block hours) for the same classes. A version whose
     changes decide classes only with an option on (``OPTION_ONLY_VERSIONS``) is in the key of runs with it on only:
     with it off the key holds the version before (9, as the projects made before level-bodies-sparse hold), and the
-    kept tiles resume; with it on, nothing resumes."""
+    kept tiles resume; with it on, nothing resumes. (On by default since level-wire, version 12.)"""
     import lidarctl.classify
     from lidarctl.classify import pipeline
 
-    off, on = pipeline.ClassifySettings(), pipeline.ClassifySettings(water_whole_level_bodies=True)
+    off, on = pipeline.ClassifySettings(water_whole_level_bodies=False), pipeline.ClassifySettings()
     assert lidarctl.classify.rules_version(off) == 9
     assert lidarctl.classify.rules_version(on) == lidarctl.classify.RULES_VERSION
     monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
     with pytest.raises(KeyboardInterrupt):
-        _classify(strips, tmp_path)
+        _classify(strips, tmp_path, params=off)
     bumped = lidarctl.classify.RULES_VERSION + 1
     monkeypatch.setattr(lidarctl.classify, "RULES_VERSION", bumped)
     monkeypatch.setattr(lidarctl.classify, "OPTION_ONLY_VERSIONS",
@@ -334,7 +334,7 @@ def test_a_rule_change_under_an_option_that_is_off_reuses_the_tiles(strips, tmp_
     count = _Tiles()
     monkeypatch.setattr(tiles, "_classify_tile", count)
     with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):
-        _classify(strips, tmp_path)
+        _classify(strips, tmp_path, params=off)
     assert count.done == 2 and "resumed 2 of 4 tiles" in caplog.text
 
 

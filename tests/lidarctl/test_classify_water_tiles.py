@@ -87,9 +87,9 @@ def test_lake_larger_than_a_tile_and_its_buffer(tmp_path, kind):
     bank, no land to measure the darkness against). Their level regions take the whole cloud's level bodies
     (``pipeline.whole_level_bodies``) and the darkness the whole cloud's land (``WaterGrid.land_intensity``);
     before i44-edge the level lake lost 10 % of its returns in tiles (the 340 m bench lake: 20,151 of 182,381). The
-    whole cloud's level bodies are an option (``water_whole_level_bodies``, off by default since review 15: memory by
-    the cloud's bounding box)."""
-    assert not classify.ClassifySettings().water_whole_level_bodies
+    whole cloud's level bodies are an option (``water_whole_level_bodies``, off from review 15 -- the parent held
+    every cell -- until level-wire found them tile by tile over the tiles' spooled cells: on by default)."""
+    assert classify.ClassifySettings().water_whole_level_bodies
     cloud, truth, park, forest = big_lake_scene(kind, size_m=240.0, radius_m=85.0, density=1.5)
     src = tmp_path / f"{kind}.laz"
     synthetic.write_las(src, cloud, crs="EPSG:32610")
@@ -147,10 +147,10 @@ def test_water_grid_of_the_tiles_is_the_whole_clouds(tmp_path):
     tasks = tiles.split_into_tiles([src], grid, tmp_path, p, lowest=lowest)
     from aerotri.core.executor import local_executor
 
+    p = classify.ClassifySettings(water_whole_level_bodies=False)
     wg = tiles.water_grid(tasks, grid, p, lowest, local_executor())
-    # the land's reflectance without the cells' heights kept (the default) as with them (the level bodies' option)
-    with_bodies = tiles.water_grid(tasks, grid, classify.ClassifySettings(water_whole_level_bodies=True), lowest,
-                                   local_executor())
+    # the land's reflectance without the cells spooled as with them (the level bodies' option, the default)
+    with_bodies = tiles.water_grid(tasks, grid, classify.ClassifySettings(), lowest, local_executor())
     assert np.isfinite(wg.land_intensity) and wg.land_intensity == with_bodies.land_intensity
     assert wg.level_bodies is None and with_bodies.level_bodies is not None
     assert (wg.x0_m, wg.y0_m) == (g.x0, g.y0)
