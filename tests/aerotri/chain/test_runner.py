@@ -491,3 +491,24 @@ def test_a_bad_contract_crs_names_project_toml_and_a_missing_grid_is_the_fix(tmp
                                          r"us_nga_egm96_15.tif.*pyproj sync --file us_nga_egm96_15.tif") as e:
         chain("EPSG:32649+5773")._check_output_crs()
     assert "--params" not in str(e.value) and "ballpark" not in str(e.value)
+
+
+def test_an_output_written_again_since_its_stage_re_runs_the_stage(tmp_path):
+    """trial-rerun: at/eo.txt edited by hand (or written again by `aerotri adjust P --image-sigma-px 1` run by hand)
+    kept the adjustment "up to date" with its old numbers in the summary, while the orthophotos were made again from
+    the edited file; a fresh project has the stage's own output. The stamp holds its outputs' signatures."""
+    (tmp_path / "in.txt").write_text("3")
+    run_stages(tmp_path, _stages([]), log=lambda m: None)
+    (tmp_path / "mid.txt").write_text("100")  # an output edited by hand
+    calls, lines = [], []
+    rows = run_stages(tmp_path, _stages(calls), log=lines.append)
+    assert calls == ["double"] and rows[-1]["value"] == 7 and (tmp_path / "out.txt").read_text() == "7"
+    assert "[double] running (outputs changed since this stage wrote them: mid.txt)" in lines
+    # a stamp written before the outputs were recorded is not re-run for them
+    stamp = json.loads(stamp_path(tmp_path, "add").read_text())
+    del stamp["outputs"]
+    stamp_path(tmp_path, "add").write_text(json.dumps(stamp))
+    (tmp_path / "out.txt").write_text("8")
+    calls.clear()
+    run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    assert calls == []
