@@ -124,17 +124,21 @@ def test_skipped_stage_says_why_and_options_rerun_a_stage(tmp_path):
 
 
 def test_chain_stages_list_the_project_files_their_commands_read(tmp_path):
-    """A changed camera, GNSS file or project.toml ([gnss]/[control] sigmas, [qa] limits) re-runs the
-    adjustments; a replaced image re-runs the matching, the control transfer and the rectification."""
+    """A changed camera, GNSS file or project.toml section they read ([gnss]/[control] sigmas, [qa] limits: an
+    option since trial-rerun) re-runs the adjustments; a replaced image re-runs the matching, the control transfer and
+    the rectification."""
     from aerotri.chain import chain_stages
 
     (tmp_path / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n')
     (tmp_path / "images").mkdir()
     (tmp_path / "images" / "a.tif").write_bytes(b"x")
     (tmp_path / "gnss.txt").write_text("")
-    inputs = {st.name: set(st.inputs(tmp_path)) for st in chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
-    for name in ("adjust_first", "adjust_final"):
-        assert {tmp_path / "camera.toml", tmp_path / "gnss.txt", tmp_path / "project.toml"} <= inputs[name], name
+    stages = chain_stages(tmp_path, dem=tmp_path / "dem.tif")
+    inputs = {st.name: set(st.inputs(tmp_path)) for st in stages}
+    for st in stages:
+        if st.name in ("adjust_first", "adjust_final"):
+            assert {tmp_path / "camera.toml", tmp_path / "gnss.txt"} <= inputs[st.name], st.name
+            assert st.options_now(tmp_path)["project_toml"] == {"project": {"crs": "EPSG:32649"}}, st.name
     assert tmp_path / "control" / "points.csv" in inputs["adjust_final"]
     assert tmp_path / "control" / "points.csv" not in inputs["adjust_first"]  # written after it
     for name in ("match", "control", "rectify"):
