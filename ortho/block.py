@@ -850,7 +850,8 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     else:
         tie_points_off_surface(block, dem_path, "DEM", project_crs, height_op, res_in_m)
     threads = executor.cores_per_task(len(block.images))  # tile threads per frame task (None: all)
-    inputs = _rectify_inputs_document(block, dem_path, _recorded_inputs(out_dir))
+    surfaces = {"dsm": dsm_path, "occlusion_dsm": occlusion_dsm} if true_ortho else {}
+    inputs = _rectify_inputs_document(block, dem_path, _recorded_inputs(out_dir), surfaces)
     old_index = _compatible_old_index(out_dir, res, out_crs, inputs, frames) if frames else None
     # all frames or none: the frames are written into a temporary folder next to ortho/frames, which
     # replaces it only when every frame and the index are written (a failed run leaves the old output)
@@ -1174,29 +1175,38 @@ def _in_project(path, root: Path) -> str:
         return str(path)
 
 
-def _rectify_inputs_document(block: BlockInputs, dem_path, earlier: dict | None = None) -> dict:
+def _rectify_inputs_document(block: BlockInputs, dem_path, earlier: dict | None = None,
+                             surfaces: dict | None = None) -> dict:
     """What the frames were made from, for index.json: the EO file (sha256), the camera as used (sha256 of
     its parameters; its file when given with --camera, else the project's choice, see
-    ``aerotri.geom.camera.orientations_camera``) and the DEM (size, modification time, sha256). ``stale_frames`` compares them with the files now.
+    ``aerotri.geom.camera.orientations_camera``), the DEM and, of a true ortho, ``surfaces`` (``dsm``, and
+    ``occlusion_dsm`` when given; size, modification time, sha256). ``stale_frames`` compares them with the files now.
 
-    The DEM's sha256 is taken from ``earlier`` (the ``inputs`` of the index there is now) when that
+    A raster's sha256 is taken from ``earlier`` (the ``inputs`` of the index there is now) when that
     recorded the same file with the same size and modification time, which ``stale_frames`` also takes
     for unchanged: a block's DEM runs to gigabytes, seconds of hashing on every run."""
     root = block.project.root
-    st = Path(dem_path).stat()
-    dem = {"file": _in_project(dem_path, root), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
-    before = earlier.get("dem") if isinstance(earlier, dict) else None
-    if isinstance(before, dict) and all(before.get(k) == v for k, v in dem.items()) \
-            and isinstance(before.get("sha256"), str):
-        dem["sha256"] = before["sha256"]
-    else:
-        dem["sha256"] = _sha256(dem_path)
-    return {
+
+    def raster(key, path) -> dict:
+        st = Path(path).stat()
+        rec = {"file": _in_project(path, root), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+        before = earlier.get(key) if isinstance(earlier, dict) else None
+        if isinstance(before, dict) and all(before.get(k) == v for k, v in rec.items()) \
+                and isinstance(before.get("sha256"), str):
+            rec["sha256"] = before["sha256"]
+        else:
+            rec["sha256"] = _sha256(path)
+        return rec
+
+    out = {
         "eo": {"file": _in_project(block.eo_path, root), "given": block.eo_given, "sha256": _sha256(block.eo_path)},
         "camera": {"file": _in_project(block.camera_path, root) if block.camera_path else None,
                    "sha256": _camera_sha256(block.camera)},
-        "dem": dem,
+        "dem": raster("dem", dem_path),
     }
+    # (trial-rerun: a DSM changed since was not said by ortho mosaic / ortho check, a DEM was)
+    out.update({k: raster(k, p) for k, p in (surfaces or {}).items() if p is not None})
+    return out
 
 
 def _recorded_inputs(out_dir: Path) -> dict | None:
@@ -1247,14 +1257,17 @@ def stale_frames(root, index: FrameIndex) -> str | None:
         return f"{path}: the camera the frames were rectified with cannot be read now ({exc})"
     if _camera_sha256(camera) != rec["camera"]["sha256"]:
         return f"{path}: the frames were rectified with another camera than {source} (it changed since)"
-    # a DEM changed since is said, not refused: the frames stay the last complete output of the orientation
-    # (a failed re-run on a new DEM leaves them for the mosaic)
-    dem = where(rec["dem"]["file"])
-    st = dem.stat() if dem.is_file() else None
-    if st is None or ((st.st_size, st.st_mtime_ns) != (rec["dem"]["size"], rec["dem"]["mtime_ns"])
-                      and _sha256(dem) != rec["dem"]["sha256"]):
-        _log.warning(f"{path}: the frames were rectified on another DEM than {dem} is now (changed or removed "
-                     "since); re-run `ortho rectify` for orthos on the current DEM")
+    # a DEM (or a true ortho's DSM) changed since is said, not refused: the frames stay the last complete output of
+    # the orientation (a failed re-run on a new DEM leaves them for the mosaic)
+    for key, what in (("dem", "DEM"), ("dsm", "DSM"), ("occlusion_dsm", "occlusion DSM")):
+        if not isinstance(rec.get(key), dict):  # no DSM (a conventional ortho), or an index before trial-rerun
+            continue
+        surface = where(rec[key]["file"])
+        st = surface.stat() if surface.is_file() else None
+        if st is None or ((st.st_size, st.st_mtime_ns) != (rec[key]["size"], rec[key]["mtime_ns"])
+                          and _sha256(surface) != rec[key]["sha256"]):
+            _log.warning(f"{path}: the frames were rectified on another {what} than {surface} is now (changed or "
+                         f"removed since); re-run `ortho rectify` for orthos on the current {what}")
     return None
 
 

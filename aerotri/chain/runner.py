@@ -3,7 +3,8 @@
 A stage is skipped when its stamp (``work/stages/<stage>.json``) records the same input files (content
 hash; size and modification time for files over 64 MiB), options and algorithm versions (``Stage.versions``: the
 constants next to the code, e.g. ``lidarctl.classify.RULES_VERSION``, bumped when its outputs change; a stamp written
-before they were recorded runs again, its code unknown) as now and all its outputs exist;
+before they were recorded runs again, its code unknown) as now and all its outputs exist as it wrote them (same
+signature: an output edited or written again by another command since runs the stage again, trial-rerun);
 otherwise it runs and writes its outputs and its stamp as one commit (``aerotri.core.atomic.commit_outputs``:
 a stage that fails leaves every output of its earlier run as it was). Killing a run leaves finished
 stages stamped and the interrupted stage without a stamp and without partial outputs (the next run rolls
@@ -137,10 +138,18 @@ def stale_reason(root: Path, st: Stage) -> str | None:
         stamp = json.loads(sp.read_text())
     except json.JSONDecodeError:
         return f"{_key(sp, root)} unreadable"
-    missing = [_key(p, root) for p in st.outputs(root) if not p.exists()]
+    outputs = st.outputs(root)
+    missing = [_key(p, root) for p in outputs if not p.exists()]
     if missing:
         return f"output missing: {_names(missing)}"
     reasons = []
+    if "outputs" in stamp:  # (stamps before trial-rerun: not recorded, not checked)
+        # an output written since by another command (aerotri adjust or ortho mosaic by hand) or edited (at/eo.txt):
+        # the stamp's numbers no longer describe it and the later stages would build on what project.toml does not
+        # say; a fresh project would have this stage's own output
+        changed = _differing(stamp["outputs"] or {}, _signature(outputs, root))
+        if changed:
+            reasons.append(f"outputs changed since this stage wrote them: {changed}")
     inputs = _differing(stamp.get("inputs") or {}, _signature(st.inputs(root), root))
     if inputs:
         reasons.append(f"inputs changed: {inputs}")
@@ -228,8 +237,8 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
             if missing:
                 raise RuntimeError(f"stage {st.name} finished without writing {', '.join(missing)}")
             write_text_atomic(stamp_path(root, st.name), json.dumps(
-                dict(inputs=_signature(st.inputs(root), root), options=options, versions=versions, result=result,
-                     seconds=round(dt, 2), usage=usage.record()), indent=1, default=str) + "\n")
+                dict(inputs=_signature(st.inputs(root), root), outputs=_signature(st.outputs(root), root),
+                     options=options, versions=versions, result=result, seconds=round(dt, 2), usage=usage.record()), indent=1, default=str) + "\n")
         rows.append(dict(stage=st.name, status="skipped" if done.why else "done", seconds=round(dt, 1),
                          **_usage_columns(usage.record()), **result))
         for note in done.notes:

@@ -468,16 +468,19 @@ class Chain:
                   # [flight] terrain height and [gnss] lever arm place the footprints of the pairs
                   options=dict(to_table(o.match), flight=to_table(self.project.flight),
                                gnss=to_table(self.project.gnss)), versions=_match_versions),
-            # project.toml carries the [gnss] sigmas, [adjust] options and the [qa] limits of the report
+            # project.toml carries the [gnss] sigmas, [adjust] options and the [qa] limits of the report: its sections
+            # the adjustment reads are options (adjust_project_toml), a change of another stage's does not re-run it
             Stage("adjust_first", lambda r: self.adjust_inputs(r, control=False),
                   lambda r: [first / "eo.txt", first / "camera.toml"], self.run_adjust_first,
-                  options=lambda r: to_table(self.first_settings().settings), skip=self.no_first_adjustment,
+                  options=lambda r: dict(to_table(self.first_settings().settings),
+                                         project_toml=self.adjust_project_toml()), skip=self.no_first_adjustment,
                   versions=_adjust_versions),
             Stage("control", self.control_inputs,
                   lambda r: [self.project.control_points_path, self.project.control_image_points_path], self.run_control,
                   options=to_table(o.control), skip=self.no_corners, versions=_control_versions),
             Stage("adjust_final", self.adjust_inputs, self.adjust_final_outputs,
-                  self.run_adjust_final, options=lambda r: to_table(self.final_settings().settings),
+                  self.run_adjust_final, options=lambda r: dict(to_table(self.final_settings().settings),
+                                                              project_toml=self.adjust_project_toml()),
                   versions=_adjust_versions),
             # a block without GNSS, LiDAR or DEM: the DEM of its adjusted tie points
             Stage("dem", lambda r: [self.project.object_points_path, self.project.eo_path],
@@ -687,7 +690,8 @@ class Chain:
         return R.MatchResult(tracks=rep.tracks, observations=rep.observations, components=rep.components)
 
     def adjust_inputs(self, root, control: bool = True) -> list[Path]:
-        files = [self.project.tiepoints_path, self.project.gnss_path, self.project.camera_path, self.project.config_path]
+        # project.toml by its sections the adjustment reads (``adjust_project_toml``, an option), not as a file
+        files = [self.project.tiepoints_path, self.project.gnss_path, self.project.camera_path]
         if control:
             files += [self.project.control_points_path, self.project.control_image_points_path]
         s = self.first_settings().settings if not control else self.final_settings().settings
@@ -699,6 +703,19 @@ class Chain:
         if s.planes is not None:  # a corners folder or the file itself
             files.append(Path(s.planes) / "roof_planes.geojson" if Path(s.planes).is_dir() else Path(s.planes))
         return files
+
+    def adjust_project_toml(self) -> dict:
+        """The sections of project.toml the adjustments read: the project's own ([project], [camera], [gnss],
+        [control], [flight], [qa]), [adjust], and any other but the sections of the stages they do not read. Part of
+        their options instead of project.toml as a file (trial-rerun: [rectify] res_m, [mosaic] seams or any other
+        stage's key re-ran both bundle adjustments, whose at/eo.txt came out the same)."""
+        import tomllib
+
+        from aerotri.core.project import PROJECT_SECTIONS, STAGE_SECTION_NAMES
+
+        not_read = set(STAGE_SECTION_NAMES) - {"adjust"} - set(PROJECT_SECTIONS)
+        with open(self.project.config_path, "rb") as f:
+            return {k: v for k, v in tomllib.load(f).items() if k not in not_read}
 
     def no_first_adjustment(self, root=None) -> str | None:
         why = self.no_corners()

@@ -454,3 +454,27 @@ def test_an_error_leaves_no_frames_kept_for_a_resume(project, monkeypatch):
     assert r.exit_code == 2 and "broken on purpose" in r.stderr, r.output
     assert tree(project) == before
     assert not (project / "work" / "rectify_resume").exists()
+
+
+def test_a_dsm_changed_since_the_true_ortho_is_said(project, caplog):
+    """trial-rerun: index.json recorded the EO, camera and DEM, so `ortho mosaic` said a DEM changed since the frames
+    but nothing of a true ortho's DSM (lidarctl rasters run again by hand): the DSM is recorded and said the same."""
+    import rasterio
+
+    dsm = project / "dsm.tif"
+    shutil.copy(project / "truth" / "dsm.tif", dsm)
+    r = run("rectify", project, "--true-ortho", "--dsm", dsm)
+    assert r.exit_code == 0, r.output
+    rec = json.loads((project / "ortho/frames/index.json").read_text())["inputs"]
+    assert rec["dsm"]["file"] == "dsm.tif" and "occlusion_dsm" not in rec
+    with caplog.at_level("WARNING"):
+        assert run("mosaic", project, "--seams", "voronoi").exit_code == 0
+    assert not any("rectified on another" in m for m in caplog.messages), caplog.messages
+    with rasterio.open(dsm, "r+") as ds:  # the DSM made again, 1 m higher
+        ds.write(ds.read(1) + 1.0, 1)
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        r = run("mosaic", project, "--seams", "voronoi")
+    assert r.exit_code == 0, r.output
+    assert any("rectified on another DSM than" in m and "dsm.tif" in m for m in caplog.messages), caplog.messages
+    assert not any("another DEM" in m for m in caplog.messages)

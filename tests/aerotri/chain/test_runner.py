@@ -124,17 +124,21 @@ def test_skipped_stage_says_why_and_options_rerun_a_stage(tmp_path):
 
 
 def test_chain_stages_list_the_project_files_their_commands_read(tmp_path):
-    """A changed camera, GNSS file or project.toml ([gnss]/[control] sigmas, [qa] limits) re-runs the
-    adjustments; a replaced image re-runs the matching, the control transfer and the rectification."""
+    """A changed camera, GNSS file or project.toml section they read ([gnss]/[control] sigmas, [qa] limits: an
+    option since trial-rerun) re-runs the adjustments; a replaced image re-runs the matching, the control transfer and
+    the rectification."""
     from aerotri.chain import chain_stages
 
     (tmp_path / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n')
     (tmp_path / "images").mkdir()
     (tmp_path / "images" / "a.tif").write_bytes(b"x")
     (tmp_path / "gnss.txt").write_text("")
-    inputs = {st.name: set(st.inputs(tmp_path)) for st in chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
-    for name in ("adjust_first", "adjust_final"):
-        assert {tmp_path / "camera.toml", tmp_path / "gnss.txt", tmp_path / "project.toml"} <= inputs[name], name
+    stages = chain_stages(tmp_path, dem=tmp_path / "dem.tif")
+    inputs = {st.name: set(st.inputs(tmp_path)) for st in stages}
+    for st in stages:
+        if st.name in ("adjust_first", "adjust_final"):
+            assert {tmp_path / "camera.toml", tmp_path / "gnss.txt"} <= inputs[st.name], st.name
+            assert st.options_now(tmp_path)["project_toml"] == {"project": {"crs": "EPSG:32649"}}, st.name
     assert tmp_path / "control" / "points.csv" in inputs["adjust_final"]
     assert tmp_path / "control" / "points.csv" not in inputs["adjust_first"]  # written after it
     for name in ("match", "control", "rectify"):
@@ -493,3 +497,24 @@ def test_a_bad_contract_crs_names_project_toml_and_a_missing_grid_is_the_fix(tmp
                                          r"us_nga_egm96_15.tif.*pyproj sync --file us_nga_egm96_15.tif") as e:
         chain("EPSG:32649+5773")._check_output_crs()
     assert "--params" not in str(e.value) and "ballpark" not in str(e.value)
+
+
+def test_an_output_written_again_since_its_stage_re_runs_the_stage(tmp_path):
+    """trial-rerun: at/eo.txt edited by hand (or written again by `aerotri adjust P --image-sigma-px 1` run by hand)
+    kept the adjustment "up to date" with its old numbers in the summary, while the orthophotos were made again from
+    the edited file; a fresh project has the stage's own output. The stamp holds its outputs' signatures."""
+    (tmp_path / "in.txt").write_text("3")
+    run_stages(tmp_path, _stages([]), log=lambda m: None)
+    (tmp_path / "mid.txt").write_text("100")  # an output edited by hand
+    calls, lines = [], []
+    rows = run_stages(tmp_path, _stages(calls), log=lines.append)
+    assert calls == ["double"] and rows[-1]["value"] == 7 and (tmp_path / "out.txt").read_text() == "7"
+    assert "[double] running (outputs changed since this stage wrote them: mid.txt)" in lines
+    # a stamp written before the outputs were recorded is not re-run for them
+    stamp = json.loads(stamp_path(tmp_path, "add").read_text())
+    del stamp["outputs"]
+    stamp_path(tmp_path, "add").write_text(json.dumps(stamp))
+    (tmp_path / "out.txt").write_text("8")
+    calls.clear()
+    run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    assert calls == []

@@ -301,21 +301,36 @@ def test_run_without_reference_says_why_the_dom_is_not_checked(run_to_end, tmp_p
     assert row.verdict is None and "no reference orthophoto was given" in row.note and not rep.has("dom_check_stale")
 
 
-def test_a_mosaic_made_again_by_hand_re_runs_the_report_which_drops_the_old_dom_check(run_to_end, tmp_path):
+def test_a_mosaic_made_again_by_hand_is_made_again_and_a_new_mosaic_drops_the_old_dom_check(run_to_end, tmp_path):
     """Reviewer 13: the report stage's key missed ortho/mosaic.json (and the mosaic, the frame index, the LiDAR DEM,
-    at/leave_one_out.json), all of which the report reads: after a mosaic made again by hand `aerotri run` kept the
-    report "up to date", still saying the DOM check passed for a mosaic it never measured."""
+    at/leave_one_out.json), all of which the report reads: after a mosaic made again `aerotri run` kept the report
+    "up to date", still saying the DOM check passed for a mosaic it never measured. trial-rerun: a mosaic made again
+    by hand (``ortho mosaic --no-balance``) stayed "up to date" in the chain, options project.toml does not give, unlike
+    a fresh project's; the chain now makes its own mosaic again, which the DOM check did measure."""
     p = tmp_path / "p"
     shutil.copytree(run_to_end[0], p)
     assert "dom_rms_xy_m" in {c["id"] for c in json.loads((p / "reports" / "summary.json").read_text())["checks"]}
+    chain_mosaic = (p / "ortho" / "mosaic.tif").read_bytes()
     from ortho.cli import main as ortho_cli
 
     r = CliRunner().invoke(ortho_cli, ["mosaic", str(p), "--no-balance"], catch_exceptions=False)
     assert r.exit_code == 0, r.output
+    assert (p / "ortho" / "mosaic.tif").read_bytes() != chain_mosaic
     r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     rows = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
-    assert "up to date" in rows["mosaic"] and " done " in rows["report"], (rows["mosaic"], rows["report"])
+    assert " done " in rows["mosaic"] and " done " in rows["report"], (rows["mosaic"], rows["report"])
+    assert "[mosaic] running (outputs changed since this stage wrote them: ortho/mosaic.tif)" in r.output
+    assert (p / "ortho" / "mosaic.tif").read_bytes() == chain_mosaic
+    ids = {c["id"] for c in json.loads((p / "reports" / "summary.json").read_text())["checks"]}
+    assert "dom_rms_xy_m" in ids and "dom_check_stale" not in ids
+    # another mosaic by the chain's settings, without a reference: the report drops the check of the earlier one
+    with open(p / "project.toml", "a") as f:
+        f.write("\n[mosaic]\nbalance = false\n")
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    rows = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
+    assert " done " in rows["mosaic"] and " done " in rows["report"], (rows["mosaic"], rows["report"])
     ids = {c["id"] for c in json.loads((p / "reports" / "summary.json").read_text())["checks"]}
     assert "dom_rms_xy_m" not in ids and "dom_check_stale" in ids
 
@@ -420,3 +435,22 @@ def test_optional_vectors_stage_checks_the_line_map_for_the_report(by_hand, tmp_
     assert row.section == "Line map (DLG)"
     assert row.value == round(b["rms_xy_corner_m"], 4) and row.limit == rep.tolerances["feature_rms_xy_m"]
     assert row.verdict == ("pass" if row.value <= row.limit else "fail")
+
+
+def test_another_stage_s_setting_leaves_the_adjustments_up_to_date(run_to_end, tmp_path):
+    """trial-rerun: project.toml was an input of both adjustments as a file, so [rectify] res_m (a contract GSD) or
+    [mosaic] seams re-ran the bundle adjustment; now the sections the adjustment reads are its options."""
+    from aerotri.chain.runner import stale_reason
+    from aerotri.chain.stages import chain_stages
+
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p, ignore=shutil.ignore_patterns("truth"))
+
+    def why(stage):
+        return stale_reason(p, {s.name: s for s in chain_stages(p)}[stage])
+
+    toml = (p / "project.toml").read_text()
+    (p / "project.toml").write_text(toml + "\n[rectify]\nres_m = 2.0\n\n[mosaic]\nseams = \"voronoi\"\n")
+    assert why("adjust_final") is None and "res_m null -> 2.0" in why("rectify")
+    (p / "project.toml").write_text(toml.replace("sigma_z_m = 0.08", "sigma_z_m = 0.5"))
+    assert "options changed: project_toml.gnss.sigma_z_m 0.08 -> 0.5" in why("adjust_final")
