@@ -413,27 +413,41 @@ def refine_medians(answers: list[RegionDecisions], sent) -> list[RegionDecisions
 
 def values_in_median_bins(label: np.ndarray, values: np.ndarray, answer: RegionDecisions):
     """A tile's last answer for the exact medians (in its worker): its core cells' values (as ``median_histogram``)
-    within their region's middle bins of every histogram: (region id over the cloud, value) pairs."""
+    within their region's middle bins of every histogram: (region id over the cloud, value, count) of each distinct
+    pair (heights stored to 1 cm repeat: review 40's quantised lake sent 45 % of its cells, 25 bytes a cell in the
+    parent; counted, a few entries a region and tile)."""
     lab, v = _core_values(label, values, answer)
-    return answer.region_id[lab], v
+    rid = answer.region_id[lab]
+    o = np.lexsort((v, rid))
+    rid, v = rid[o], v[o]
+    first = np.r_[True, (rid[1:] != rid[:-1]) | (v[1:] != v[:-1])] if len(rid) else np.zeros(0, bool)
+    at = np.flatnonzero(first)
+    return rid[at], v[at], np.diff(np.r_[at, len(rid)])
 
 
 def exact_levels(answers: list[RegionDecisions], sent) -> list[RegionDecisions]:
     """The parent's exact medians of the spanning regions (``np.median``'s: the mean of the two middle values) from
-    the values the tiles sent from the regions' middle bins (``sent``: per tile ``values_in_median_bins``);
-    the answers with those levels. Memory of the values of two bins a region."""
+    the values the tiles sent from the regions' middle bins (``sent``: per tile ``values_in_median_bins``, (region,
+    value, count); a pair without counts counts once); the answers with those levels. Memory of the distinct values
+    of two bins a region."""
     rid = np.concatenate([s[0] for s in sent]) if sent else np.zeros(0, np.int64)
     val = np.concatenate([s[1] for s in sent]) if sent else np.zeros(0)
+    cnt = (np.concatenate([s[2] if len(s) > 2 else np.ones(len(s[0]), np.int64) for s in sent]) if sent
+           else np.zeros(0, np.int64))
     o = np.lexsort((val, rid))
-    rid, val = rid[o], val[o]
+    rid, val, cnt = rid[o], val[o], cnt[o]
     n = max((int(a.region_id.max(initial=0)) for a in answers), default=0) + 1
     start = np.searchsorted(rid, np.arange(n))
     has = np.bincount(rid, minlength=n) > 0   # (a region without values has no level)
+    upto = np.cumsum(cnt)  # the values counted up to and with each entry
+    before = np.r_[0, upto][start]  # each region's values before its first entry
     level = np.full(n, np.nan)
     for a in answers:
         k = np.flatnonzero(has[a.region_id[1:]]) + 1
         ids = a.region_id[k]
-        level[ids] = (val[start[ids] + a.median_ranks[k, 0]] + val[start[ids] + a.median_ranks[k, 1]]) / 2
+        lo = np.searchsorted(upto, before[ids] + a.median_ranks[k, 0], side="right")
+        hi = np.searchsorted(upto, before[ids] + a.median_ranks[k, 1], side="right")
+        level[ids] = (val[lo] + val[hi]) / 2
     done = {}
     for a in answers:
         if id(a) not in done:
