@@ -89,8 +89,8 @@ MIN_TEXTURE_RATIO = 0.1
 def to_gray(image: np.ndarray) -> np.ndarray:
     """(rows, cols[, bands]) -> float32 luminance (mean of the first three bands)."""
     a = np.asarray(image)
-    if a.ndim == 3:
-        a = a[:, :, :3].astype(np.float32).mean(axis=2)
+    if a.ndim == 3:  # one band: itself (its mean; a DMC DOM's block in 2 ms, not 20-70)
+        a = a[:, :, 0] if a.shape[2] == 1 else a[:, :, :3].astype(np.float32).mean(axis=2)
     return a.astype(np.float32)
 
 
