@@ -48,6 +48,9 @@ class Stage:
     # the versions of the algorithms that decide its outputs (name -> constant next to the code, "bump when outputs
     # change"): a new version re-runs the stage, the same one keeps it up to date; a callable imports them lazily
     versions: dict | Callable[[], dict] = dataclasses.field(default_factory=dict)
+    # why outputs changed by hand are the operator's work, to keep (None: made again): an edited-seamline mosaic
+    # (review 41: the next run replaced it with the chain's own, the seam edits lost with one log line)
+    hand_made: Callable[[Path], str | None] | None = None
 
     def options_now(self, root: Path) -> dict:
         return self.options(root) if callable(self.options) else self.options
@@ -95,6 +98,12 @@ def _signature(paths: list[Path], root: Path, hash_limit_bytes: int = 64 << 20) 
         else:
             sig[k] = None
     return sig
+
+
+def _sizes(sig: dict) -> dict:
+    """An outputs' signature with the large files' (size, time) as their size: a new time alone (a backup restored,
+    rsync without -t, touch) is no edit, and re-making a 4 GB DOM or a classified strip for it costs hours (review 41)."""
+    return {k: v[0] if isinstance(v, list) else v for k, v in sig.items()}
 
 
 def _plain(options: dict, root: Path | None = None) -> dict:
@@ -147,8 +156,12 @@ def stale_reason(root: Path, st: Stage) -> str | None:
         # an output written since by another command (aerotri adjust or ortho mosaic by hand) or edited (at/eo.txt):
         # the stamp's numbers no longer describe it and the later stages would build on what project.toml does not
         # say; a fresh project would have this stage's own output
-        changed = _differing(stamp["outputs"] or {}, _signature(outputs, root))
-        if changed:
+        changed = _differing(_sizes(stamp["outputs"] or {}), _sizes(_signature(outputs, root)))
+        kept = st.hand_made(root) if changed and st.hand_made is not None else None
+        if kept:
+            _log.warning(f"[{st.name}] kept: {changed} changed since this stage wrote it ({kept}); the chain makes "
+                         "its own again once it is removed")
+        elif changed:
             reasons.append(f"outputs changed since this stage wrote them: {changed}")
     inputs = _differing(stamp.get("inputs") or {}, _signature(st.inputs(root), root))
     if inputs:

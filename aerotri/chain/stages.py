@@ -230,6 +230,15 @@ class Chain:
             return self.project.dem_path
         return self.tie_point_dem_path if self.tie_point_dem() else None
 
+    def edited_mosaic(self, root) -> str | None:
+        """Why the mosaic on disk is the operator's (``ortho mosaic --seamlines EDITED.gpkg``: its mosaic.json says
+        "edited (...)"), else None."""
+        try:
+            seams = json.loads(self.project.mosaic_summary_path.read_text()).get("seams", "")
+        except (OSError, ValueError):
+            return None
+        return f"re-made with {seams} seamlines by ortho mosaic" if str(seams).startswith("edited") else None
+
     def mosaic_ndsm(self) -> list[Path]:
         """The nDSM the mosaic's seamlines avoid objects by (``ortho.mosaic.mosaic_block``'s choice): [mosaic] ndsm,
         else lidar_out/ndsm.tif when it is there (listed either way: one written later is a change)."""
@@ -494,7 +503,8 @@ class Chain:
             # the nDSM the seamlines avoid objects by ([mosaic] ndsm, else the LiDAR stages' when there is one)
             Stage("mosaic", lambda r: [self.project.frames_index_path] + self.mosaic_ndsm(),
                   lambda r: [self.project.mosaic_path],
-                  self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem, versions=_mosaic_versions),
+                  self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem, versions=_mosaic_versions,
+                  hand_made=self.edited_mosaic),
         ]
         # always planned: without --reference it is skipped with why (an earlier run's check is not dropped silently)
         stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path]

@@ -518,3 +518,37 @@ def test_an_output_written_again_since_its_stage_re_runs_the_stage(tmp_path):
     calls.clear()
     run_stages(tmp_path, _stages(calls), log=lambda m: None)
     assert calls == []
+
+
+def test_an_operators_hand_made_output_is_kept_and_a_new_time_alone_is_no_edit(tmp_path, caplog, monkeypatch):
+    """Review 41: an edited-seamline mosaic (`ortho mosaic P --seamlines EDITED.gpkg`) was replaced by the next
+    `aerotri run` with the chain's own; a stage that says why outputs changed by hand are the operator's keeps them
+    (warned) and the later stages follow them. And a large output (size and time in the stamp) touched, restored from a
+    backup or rsynced without -t re-ran its stage (a classify, a 4 GB DOM): its size decides."""
+    import dataclasses
+    import logging
+    import os
+
+    from aerotri.chain import runner
+
+    (tmp_path / "in.txt").write_text("3")
+    run_stages(tmp_path, _stages([]), log=lambda m: None)
+    (tmp_path / "mid.txt").write_text("100")  # the operator's own
+    stages = _stages(calls := [])
+    stages[0] = dataclasses.replace(stages[0], hand_made=lambda r: "edited by the operator")
+    with caplog.at_level(logging.WARNING):
+        rows = run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["add"] and rows[-1]["value"] == 101
+    assert "[double] kept: mid.txt changed since this stage wrote it (edited by the operator)" in caplog.text
+    # outputs over the hash limit: a new time alone keeps the stage, a new size re-runs it
+    monkeypatch.setattr(runner, "_signature", lambda paths, root, hash_limit_bytes=0: {
+        runner._key(p, root): [p.stat().st_size, p.stat().st_mtime_ns] for p in paths if p.is_file()})
+    run_stages(tmp_path, _stages([]), force=True, log=lambda m: None)
+    st = (tmp_path / "out.txt").stat()
+    os.utime(tmp_path / "out.txt", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    calls.clear()
+    run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    assert calls == []
+    (tmp_path / "out.txt").write_text("12345")
+    run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    assert calls == ["add"]
