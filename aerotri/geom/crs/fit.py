@@ -421,10 +421,17 @@ def _implausible_set_warning(T) -> str | None:
     p = T.parameters
     if T.model != "bursa-wolf7":
         return None
+    sd = T.std_devs or {}
+
+    def beyond(k, limit):
+        # beyond the limit by more than 3 of its own standard deviations: a small site's rotations are poorly
+        # determined (review 38: 0.2 km with 30 mm of noise warned 10 of 20 good fits, blaming the grids)
+        return abs(p[k]) - limit > 3.0 * float(sd.get(k) or 0.0)
+
     rot = {k: p[k] for k in ("rx_arcsec", "ry_arcsec", "rz_arcsec")}
     big = [f"{k.split('_')[0]} {v:+.1f}\" ({v / 3600.0:+.3f} deg)" for k, v in rot.items()
-           if abs(v) > PLAUSIBLE_ROTATION_ARCSEC]
-    if abs(p["scale_ppm"]) > PLAUSIBLE_SCALE_PPM:
+           if beyond(k, PLAUSIBLE_ROTATION_ARCSEC)]
+    if beyond("scale_ppm", PLAUSIBLE_SCALE_PPM):
         big.append(f"scale {p['scale_ppm']:+.1f} ppm")
     if not big:
         return None
