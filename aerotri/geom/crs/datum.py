@@ -46,6 +46,13 @@ PARAMETER_NAMES = {
 # The transformations themselves
 # ----------------------------------------------------------------------------------------------
 
+# parameter units as people write them -> the suffix of the parameter's name
+_UNIT_SPELLINGS = {"m": "m", "metre": "m", "meter": "m", "metres": "m", "meters": "m",
+                   "arcsec": "arcsec", "arc-sec": "arcsec", "arc sec": "arcsec", "arcsecond": "arcsec",
+                   "arc-second": "arcsec", "arcseconds": "arcsec", "arc-seconds": "arcsec", "sec": "arcsec",
+                   '"': "arcsec", "ppm": "ppm", "parts per million": "ppm", "deg": "deg", "degree": "deg",
+                   "degrees": "deg"}
+
 
 @dataclasses.dataclass
 class Transformation:
@@ -183,6 +190,9 @@ class Transformation:
         for k, v in raw.items():
             unit = v.get("unit") if isinstance(v, dict) else None
             want = k.rsplit("_", 1)[1] if "_" in k else "1"
+            # the same unit spelt otherwise is the unit (review 38: "metre" on tx_m, "arc-sec" on rx_arcsec refused)
+            if unit is not None and _UNIT_SPELLINGS.get(str(unit).strip().lower(), str(unit)) == want:
+                continue
             if unit is not None and str(unit) != want and k in PARAMETER_NAMES.get(model, ()):
                 raise InputError(f"{source}: parameter {k} has unit {unit!r}; {k} is read in {want} (convert the "
                                  f"value: 1 rad = {ARCSEC_PER_RAD:.3f} arcsec, a scale ratio 1.0000027 or 2.7e-6 is "

@@ -346,3 +346,18 @@ def test_a_zone_prefix_of_the_other_width_or_the_next_zone_is_named(tmp_path, fr
     truth = pyproj.CRS(said.split("point of ")[1].split(" ")[0])  # the grid named holds the point
     lon, lat = pyproj.Transformer.from_crs(truth, 4490, always_xy=True).transform(x, 3412779.468)
     assert 109 < lon < 113 and 30 < lat < 31.5
+
+
+def test_a_unit_spelt_otherwise_is_that_unit():
+    """Review 38: "metre" on tx_m and "arc-sec" on rx_arcsec were refused as other units; radians still are."""
+    from aerotri.core.errors import InputError
+    from aerotri.geom.crs.datum import Transformation
+
+    d = {"model": "bursa-wolf7", "convention": "coordinate_frame", "from_crs": "EPSG:4326", "to_crs": "EPSG:4326",
+         "parameters": {"tx_m": {"value": 1.0, "unit": "metre"}, "ty_m": 0.0, "tz_m": 0.0,
+                        "rx_arcsec": {"value": 1.0, "unit": "arc-sec"}, "ry_arcsec": 0.0, "rz_arcsec": 0.0,
+                        "scale_ppm": {"value": 1.0, "unit": "ppm"}}}
+    assert Transformation.from_dict(d).parameters["rx_arcsec"] == 1.0
+    d["parameters"]["rx_arcsec"] = {"value": 4.8e-6, "unit": "rad"}
+    with pytest.raises(InputError, match="has unit 'rad'"):
+        Transformation.from_dict(d)
