@@ -491,6 +491,19 @@ def _other_zone_hint(h: pyproj.CRS, x: float, y: float) -> str:
     return ""
 
 
+def _outside_area(aou, lon, lat, margin_deg: float) -> np.ndarray:
+    """Which (lon, lat) (degrees east of Greenwich, -180..180) lie outside the area of use ``aou`` widened by
+    ``margin_deg`` (an area across the antimeridian taken as such); not finite: outside."""
+    lon = np.asarray(lon, dtype=float)
+    lat = np.asarray(lat, dtype=float)
+    west, east = aou.west, aou.east
+    if east < west:  # area crossing the antimeridian
+        east += 360.0
+        lon = np.where(lon < west - margin_deg, lon + 360.0, lon)
+    return ~(np.isfinite(lon) & np.isfinite(lat) & (lon >= west - margin_deg) & (lon <= east + margin_deg)
+             & (lat >= aou.south - margin_deg) & (lat <= aou.north + margin_deg))
+
+
 def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_deg: float = 1.0,
                       outside_area: str = "refuse", swapped_hint: bool = True) -> str | None:
     """Raise ``InputError`` naming the first record whose coordinates cannot belong to ``crs``.
@@ -535,13 +548,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
         if aou is None:
             return None
         lon, lat = geodetic_to_greenwich(h, x, y)  # NTF (Paris): grads from Paris (review 36)
-        lon = np.where(lon > 180.0, lon - 360.0, lon)
-        west, east = aou.west, aou.east
-        if east < west:  # area crossing the antimeridian
-            east += 360.0
-            lon = np.where(lon < west - margin_deg, lon + 360.0, lon)
-        bad = ~((lon >= west - margin_deg) & (lon <= east + margin_deg) & (lat >= aou.south - margin_deg)
-                & (lat <= aou.north + margin_deg))
+        bad = _outside_area(aou, np.where(lon > 180.0, lon - 360.0, lon), lat, margin_deg)
         if not bad.any():
             return None
         i = int(np.argmax(bad))
@@ -590,18 +597,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
         lon, lat = geodetic_to_greenwich(h.geodetic_crs, *to_geo.transform(x, y, errcheck=False))
     lon = np.asarray(lon, dtype=float)
     lat = np.asarray(lat, dtype=float)
-    west, east = aou.west, aou.east
-    if east < west:  # area crossing the antimeridian
-        east += 360.0
-        lon = np.where(lon < west - margin_deg, lon + 360.0, lon)
-    bad = ~(
-        np.isfinite(lon)
-        & np.isfinite(lat)
-        & (lon >= west - margin_deg)
-        & (lon <= east + margin_deg)
-        & (lat >= aou.south - margin_deg)
-        & (lat <= aou.north + margin_deg)
-    )
+    bad = _outside_area(aou, lon, lat, margin_deg)
     # The same area in grid coordinates, widened by 5 % (at least 10 km): catches small numbers
     # (degrees, kilometres) that unproject to somewhere near the grid's false origin.
     to_grid = pyproj.Transformer.from_crs(h.geodetic_crs, h, always_xy=True)
