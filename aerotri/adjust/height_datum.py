@@ -179,7 +179,7 @@ class HeightDatumCheck:
         those whose MDB exceeds it (a kept height that holds its strip alone; the snooping, one blunder at a time,
         may have kept it mistyped and left out right ones). Empty: every kept height is checked, and the points out
         are the snooping's choice, whatever their signs (review 35)."""
-        if self.correction not in ("shift", "shift_drift") or len(self.height_control_out) < 2:
+        if not self.judges_kept():
             return ()
         return tuple(k for k in self.kept_mdb_m if not k[2] <= height_limit_m)
 
@@ -187,9 +187,13 @@ class HeightDatumCheck:
         """As ``kept_unchecked``, the pairs of kept heights that, mistyped together, the one-at-a-time tests would
         not find within ``PAIR_MDB_FACTOR`` times the height limit: (id, id, +1 same way / -1 opposite, MDB m), the
         worst first (two typos kept in one strip, which its shift and drift take together: review 35)."""
-        if self.correction not in ("shift", "shift_drift") or len(self.height_control_out) < 2:
+        if not self.judges_kept():
             return ()
         return tuple(k for k in self.pair_mdb_m if not k[3] <= PAIR_MDB_FACTOR * height_limit_m)
+
+    def judges_kept(self) -> bool:
+        """The kept heights are judged under a correction per strip with more than one control height out."""
+        return self.correction in ("shift", "shift_drift") and len(self.height_control_out) >= 2
 
     def held(self, height_limit_m: float) -> bool:
         return (self.mdb_m <= height_limit_m and not self.disagrees() and not self.strips_not_held(height_limit_m)
@@ -288,7 +292,7 @@ def _kept_heights_cov(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
 
 
 def _kept_reliability(block: G.Block, opts: G.SolveSettings, state: G.State, rc, kept, obs_active,
-                      alpha: float) -> tuple[tuple, tuple]:
+                      alpha: float) -> tuple[tuple, tuple, bool]:
     """Baarda's internal reliability of the control heights ``kept`` (control indices) under the data snooping's
     one-at-a-time tests (``w_k = (P v)_k / sqrt((P Q_v P)_kk)``, ``Q_v = C - Q`` the heights' residual cofactor, ``C``
     their given variances, ``Q`` their adjusted heights' covariance: ``_kept_heights_cov``):
@@ -316,9 +320,7 @@ def _kept_reliability(block: G.Block, opts: G.SolveSettings, state: G.State, rc,
         for a in range(len(ids)):
             for b in range(a + 1, len(ids)):
                 for sign in (1, -1):
-                    e = np.zeros(len(ids))
-                    e[a], e[b] = 1.0, float(sign)
-                    ncp = np.abs(M @ e) / d  # each test's non-centrality per metre of the pair's bias
+                    ncp = np.abs(M[:, a] + sign * M[:, b]) / d  # each test's non-centrality per metre of the bias
                     best = float(np.nanmax(np.where(d > 0, ncp, 0.0)))
                     pairs.append((ids[a], ids[b], sign, lam / best if best > 0 else math.inf))
     return single, tuple(sorted(pairs, key=lambda t: -t[3])), True

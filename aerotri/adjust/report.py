@@ -986,8 +986,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
                     "on the wrong target, is the usual cause: look at the largest w first.")
     if hd_text:
         message += " " + hd_text
-    elif (hd is not None and not hd.pairs_judged and hd.correction in ("shift", "shift_drift")
-          and len(hd.height_control_out) > 1):
+    elif hd is not None and not hd.pairs_judged and hd.judges_kept():
         # said, not judged (review 39: on blocks of 30 control and more the pairs went unjudged without a word)
         message += (f" Height control: {len(hd.height_control_out)} points with a height left out; pairs of the "
                     f"{len(hd.height_control_left)} kept mistyped together were not judged (their images' "
