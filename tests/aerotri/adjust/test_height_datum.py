@@ -30,26 +30,20 @@ def _project(tmp_path, *, low_m: float = 0.0, mistyped: int = 0, correction: str
     root = write_block_project(block, tmp_path / "p")
     write_truth_observations(root, tie_sigma_px=0.3, n_control=n_control, n_check=n_check, points_per_image=100,
                              seed=seed)
-    if kinds:  # control kinds by id ("height": height-only)
-        p = root / "control" / "points.csv"
-        lines = p.read_text().splitlines()
-        head = lines[0].split(",")
-        rows = [s.split(",") for s in lines[1:]]
-        for r in rows:
-            r[head.index("kind")] = kinds.get(r[head.index("id")], r[head.index("kind")])
-        p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    p = root / "control" / "points.csv"
+    lines = p.read_text().splitlines()
+    head = lines[0].split(",")
+    rows = [s.split(",") for s in lines[1:]]
+    for r in rows:  # control kinds by id ("height": height-only)
+        r[head.index("kind")] = (kinds or {}).get(r[head.index("id")], r[head.index("kind")])
     if mistyped:
-        p = root / "control" / "points.csv"
-        lines = p.read_text().splitlines()
-        head = lines[0].split(",")
-        rows = [s.split(",") for s in lines[1:]]
         gcp = [r for r in rows if r[0].startswith("gcp")]
         xy = np.array([[float(r[head.index("x")]), float(r[head.index("y")])] for r in gcp])
         far = np.argsort(np.hypot(*(xy - xy[0]).T))[len(gcp) - mistyped:]
         for k, i in enumerate(far):
             sign = 1 if same_way else (-1) ** k
             gcp[i][head.index("z")] = f"{float(gcp[i][head.index('z')]) + sign * (1.0 + 0.2 * k) * typo_m:.4f}"
-        p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
     ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True, gnss_correction=correction,
                                              gnss_shift_sigma_m=shift_sigma_m))
     return ba, to_record(build_report(ba))["key_statistics"]
