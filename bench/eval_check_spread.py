@@ -25,32 +25,27 @@ LIMIT_M = 1.0
 
 
 def _subsets(xy: dict, rng) -> dict:
-    ids = sorted(xy)
     g0 = xy["__gcp01"]
     pts = {k: v for k, v in xy.items() if not k.startswith("__")}
+    ids = sorted(pts)
     near = sorted(pts, key=lambda k: float(np.hypot(*(pts[k] - g0))))
     out = {f"nearest_gcp01_{k}": near[:k] for k in (3, 5, 8)}
     for n in (5, 10):
         for r in range(3):
-            out[f"random_{n}_{r}"] = list(rng.choice(sorted(pts), n, replace=False))
-    out["all_20"] = sorted(pts)
+            out[f"random_{n}_{r}"] = list(rng.choice(ids, n, replace=False))
+    out["all_20"] = ids
+    P = np.array([pts[k] for k in ids])
+    lo, hi = P.min(axis=0), P.max(axis=0)
     # a surveyor's layout: one point per cell of a regular grid over the check points' area (the nearest to each
     # cell's centre)
-    P0 = np.array([pts[k] for k in sorted(pts)])
-    lo0, hi0 = P0.min(axis=0), P0.max(axis=0)
     for nx, ny in ((3, 2), (2, 3), (4, 2), (3, 3)):
-        centres = [lo0 + (hi0 - lo0) * [(i + 0.5) / nx, (j + 0.5) / ny] for i in range(nx) for j in range(ny)]
         pick = []
-        for c in centres:
-            k = min((q for q in sorted(pts) if q not in pick), key=lambda q: float(np.hypot(*(pts[q] - c))))
-            pick.append(k)
+        for c in (lo + (hi - lo) * [(i + 0.5) / nx, (j + 0.5) / ny] for i in range(nx) for j in range(ny)):
+            pick.append(min((q for q in ids if q not in pick), key=lambda q: float(np.hypot(*(pts[q] - c)))))
         out[f"cells_{nx}x{ny}"] = pick
-    P = np.array([pts[k] for k in sorted(pts)])
-    lo, hi = P.min(axis=0), P.max(axis=0)
     d = (hi - lo) / np.linalg.norm(hi - lo)
     nrm = np.array([-d[1], d[0]])
-    out["diagonal_250m"] = [k for k in sorted(pts) if abs(float((pts[k] - lo) @ nrm)) < 250.0]
-    del ids
+    out["diagonal_250m"] = [k for k in ids if abs(float((pts[k] - lo) @ nrm)) < 250.0]
     return out
 
 
@@ -81,7 +76,8 @@ def main() -> None:
             if len(keep) < 3:
                 continue
             rms = float(np.sqrt(np.mean([dz[k] ** 2 for k in keep])))
-            rows.append(dict(seed=seed, subset=name, n=len(keep), spread=hd.check_spread(np.array([xy[k] for k in keep])),
+            spread = hd.check_spread(np.array([xy[k] for k in keep]))
+            rows.append(dict(seed=seed, subset=name, n=len(keep), spread=spread,
                              rms_z_m=rms, rms_z_all_m=rms_all, rule_held=hd.held(LIMIT_M),
                              wrong_if_decides=bool(rms <= LIMIT_M < rms_all),
                              right_if_decides=bool((rms <= LIMIT_M) == (rms_all <= LIMIT_M))))
@@ -94,7 +90,8 @@ def main() -> None:
         a.out.write_text(json.dumps(old, indent=1) + "\n")
     for r in rows:
         if "subset" in r:
-            print(f"  seed {r['seed']:2d} {r['subset']:18s} n {r['n']:2d} spread {r['spread']:.2f} RMS Z {r['rms_z_m']:.2f}"
+            print(f"  seed {r['seed']:2d} {r['subset']:18s} n {r['n']:2d} spread {r['spread']:.2f} "
+                  f"RMS Z {r['rms_z_m']:.2f}"
                   f" / all {r['rms_z_all_m']:.2f}{'  WRONG if it decides' if r['wrong_if_decides'] else ''}")
 
 

@@ -102,7 +102,8 @@ def _signature(paths: list[Path], root: Path, hash_limit_bytes: int = 64 << 20) 
 
 def _sizes(sig: dict) -> dict:
     """An outputs' signature with the large files' (size, time) as their size: a new time alone (a backup restored,
-    rsync without -t, touch) is no edit, and re-making a 4 GB DOM or a classified strip for it costs hours (review 41)."""
+    rsync without -t, touch) is no edit, and re-making a 4 GB DOM or a classified strip for it costs hours
+    (review 41)."""
     return {k: v[0] if isinstance(v, list) else v for k, v in sig.items()}
 
 
@@ -251,7 +252,8 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
                 raise RuntimeError(f"stage {st.name} finished without writing {', '.join(missing)}")
             write_text_atomic(stamp_path(root, st.name), json.dumps(
                 dict(inputs=_signature(st.inputs(root), root), outputs=_signature(st.outputs(root), root),
-                     options=options, versions=versions, result=result, seconds=round(dt, 2), usage=usage.record()), indent=1, default=str) + "\n")
+                     options=options, versions=versions, result=result, seconds=round(dt, 2),
+                     usage=usage.record()), indent=1, default=str) + "\n")
         rows.append(dict(stage=st.name, status="skipped" if done.why else "done", seconds=round(dt, 1),
                          **_usage_columns(usage.record()), **result))
         for note in done.notes:
