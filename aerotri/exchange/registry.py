@@ -12,6 +12,7 @@ from aerotri.core.project import Project
 from aerotri.exchange import colmap, layers, metashape, micmac, odm_export, orthority, patb, pix4d
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.exchange.commit import ExportFile, write_together
+from aerotri.geom.crs.transform import BallparkRefused
 from aerotri.geom.images import find_images
 
 log = logging.getLogger(__name__)
@@ -59,6 +60,21 @@ EXPORT_FORMATS = {
 DEFAULT_FORMATS = ("patb", "colmap")
 
 
+def _export_refusal(name: str, exc) -> Exception:
+    """The CRS policy's refusal in the export's terms: its remedy names ``--params`` and ``--allow-ballpark``,
+    which aerotri export does not take (a missing geoid grid: the grid is the fix)."""
+    text = str(exc)
+    cut = text.find("; or fit parameters")
+    if cut < 0:
+        cut = text.find("fit parameters from common points")
+    if cut >= 0:
+        text = text[:cut].rstrip("; ")
+    if not exc.missing_grids:
+        text += ("; aerotri export applies no datum parameters: choose a project CRS on a datum PROJ relates to "
+                 "the format's rigorously")
+    return BallparkRefused(f"{name} export: {text}", missing_grids=exc.missing_grids)
+
+
 def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
     """Export the adjusted block of a project folder into ``out_dir`` (default ``at/``); every format's
     files are produced first and written afterwards, all or none. Returns the files written."""
@@ -71,7 +87,11 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
     out = Path(out_dir) if out_dir is not None else project.at_dir
     contents = {}  # (a later format's file of the same name replaces the earlier one's)
     for name in formats:
-        contents.update({out / f.path: f.content for f in EXPORT_FORMATS[name].files(block, project)})
+        try:
+            files = EXPORT_FORMATS[name].files(block, project)
+        except BallparkRefused as exc:
+            raise _export_refusal(name, exc) from None
+        contents.update({out / f.path: f.content for f in files})
     written = write_together(contents)
     log.info(f"exported {', '.join(formats)} of {project.root} -> {out}")
     return written

@@ -318,6 +318,9 @@ def test_orthometric_heights_without_the_geoid_grid(adjusted_tiny, tmp_path):
     r = CliRunner().invoke(aerotri_cli, ["export", str(p), "--format", "metashape", "--out", str(out)])
     assert r.exit_code == 2 and "us_nga_egm08_25.tif" in r.output and "Traceback" not in r.output, r.output
     assert not (out / "metashape" / "cameras.xml").exists()
+    # trial-exchange: the remedy named --params and --allow-ballpark, which aerotri export does not take
+    assert "--params" not in r.output and "--allow-ballpark" not in r.output, r.output
+    assert "metashape export" in r.output, r.output
 
 
 def test_odm_export_of_orthometric_heights_says_gcp_list_is_not_ellipsoidal(adjusted_tiny, tmp_path, synthetic_geoid):
