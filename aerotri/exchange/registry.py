@@ -23,6 +23,13 @@ def _image_names(project: Project) -> dict | None:
     return {k: p.name for k, p in find_images(project.images_dir).pairs()} if project.images_dir.is_dir() else None
 
 
+def _georef_crs(project: Project) -> str:
+    """The CRS of a COLMAP model's georef.txt: the project's with its heights (a vertical CRS: the compound's WKT)."""
+    from aerotri.geom.crs.definition import project_crs_3d, project_heights
+
+    return project.crs if project_heights(project) is None else project_crs_3d(project).to_wkt()
+
+
 @dataclasses.dataclass(frozen=True)
 class Exporter:
     name: str
@@ -35,9 +42,10 @@ EXPORT_FORMATS = {
                              "partial control in their own .con files), the number map and aerotri's camera (patb/"
                              "numbers.txt, block.cam)", patb.files),
     "colmap": Exporter("colmap", "COLMAP text model (colmap/cameras.txt, images.txt, points3D.txt)",
-                       lambda block, project: colmap.files(block, _image_names(project))),
+                       lambda block, project: colmap.files(block, _image_names(project), _georef_crs(project))),
     "colmap-bin": Exporter("colmap-bin", "COLMAP binary model (colmap_bin/cameras.bin, images.bin, points3D.bin)",
-                           lambda block, project: colmap.binary_files(block, _image_names(project))),
+                           lambda block, project: colmap.binary_files(block, _image_names(project),
+                                                                      _georef_crs(project))),
     "orthority": Exporter("orthority", "orthority interior YAML, OPK CSV + .prj and exterior GeoJSON (orthority/)",
                           orthority.files),
     "metashape": Exporter("metashape", "Agisoft Metashape cameras XML with markers (metashape/cameras.xml)",
