@@ -250,3 +250,7 @@ def test_principal_distance_of_the_ori_against_the_camera(exported, tmp_path, fr
     text = " ".join(r.output.split())
     assert r.exit_code == 0 and f"c = {f_mm + 0.5:g} mm" in text and f"f = {f_mm:g} mm" in text, r.output
     assert ".ori:1: photo" in text, r.output
+    # aerotri compare reads the reference as the import does and says the same (it dropped the notes before)
+    r = CliRunner().invoke(aerotri_cli, ["compare", str(root), "--format", "patb", str(with_c(f_mm + 0.5)),
+                                         str(patb / "numbers.txt"), "--crs", Project.open(root).crs])
+    assert r.exit_code == 0 and f"c = {f_mm + 0.5:g} mm" in " ".join(r.output.split()), r.output
