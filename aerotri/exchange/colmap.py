@@ -10,7 +10,8 @@ files cannot::
 
     # aerotri: the world frame of this COLMAP model
     frame local_enu          # world = ENU tangent plane at origin_map (aerotri.geom.local_frame)
-    crs EPSG:32649           # the CRS of origin_map (the rest of the line)
+    crs EPSG:32649           # the CRS of origin_map (the rest of the line; with [project] heights a vertical
+                             # CRS: the compound CRS's WKT, so an import converts the heights)
     origin_map 500000.000 4100000.000 850.000
     pixel_um 12.0            # the sensor's pixel size (COLMAP cameras are in pixels only)
 
@@ -80,17 +81,21 @@ def _matrix_of_quat(q, where: str) -> np.ndarray:
 
 # -- export ------------------------------------------------------------------------------------------
 
-def georef_text(block: AdjustedBlock) -> str:
+def georef_text(block: AdjustedBlock, crs: str | None = None) -> str:
+    """``crs``: the CRS of origin_map with the project's heights (``project_crs_3d``: a compound CRS's WKT when
+    ``[project] heights`` is a vertical CRS); default ``block.crs``. With the horizontal CRS alone a model of
+    EGM2008 heights imported into an ellipsoidal project stood N low (before trial-exchange)."""
     o = block.frame.origin_map
     return ("# aerotri: the world frame of this COLMAP model (ENU tangent plane at origin_map, aerotri.geom.local_frame)\n"
             "frame local_enu\n"
-            f"crs {block.crs}\n"
+            f"crs {crs or block.crs}\n"
             f"origin_map {float(o[0])!r} {float(o[1])!r} {float(o[2])!r}\n"  # in full: poses and points hang on it
             f"pixel_um {block.camera.pixel_um!r}\n")
 
 
-def files(block: AdjustedBlock, image_names: dict | None = None) -> list[ExportFile]:
-    """The text model ``colmap/``; ``image_names``: image id -> file name (default: the id)."""
+def files(block: AdjustedBlock, image_names: dict | None = None, georef_crs: str | None = None) -> list[ExportFile]:
+    """The text model ``colmap/``; ``image_names``: image id -> file name (default: the id); ``georef_crs``: the
+    CRS written to georef.txt (``georef_text``)."""
     cam = block.oriented
     # the camera of the orientations with all of its model (a known k3 too: FULL_OPENCV) and the measurements
     # as measured, so that the model fits the image files (COLMAP's PARAMS start fx fy cx cy in every model)
@@ -124,10 +129,11 @@ def files(block: AdjustedBlock, image_names: dict | None = None) -> list[ExportF
         X, Y, Z = block.points_local[j]
         p3.append(f"{n} {X:.4f} {Y:.4f} {Z:.4f} 128 128 128 {block.point_rms_px[j]:.4f} " + " ".join(track[j]))
     return [ExportFile("colmap/cameras.txt", "\n".join(cams) + "\n"), ExportFile("colmap/images.txt", "\n".join(imgs) + "\n"),
-            ExportFile("colmap/points3D.txt", "\n".join(p3) + "\n"), ExportFile(f"colmap/{GEOREF}", georef_text(block))]
+            ExportFile("colmap/points3D.txt", "\n".join(p3) + "\n"), ExportFile(f"colmap/{GEOREF}", georef_text(block, georef_crs))]
 
 
-def binary_files(block: AdjustedBlock, image_names: dict | None = None) -> list[ExportFile]:
+def binary_files(block: AdjustedBlock, image_names: dict | None = None, georef_crs: str | None = None
+                 ) -> list[ExportFile]:
     """The binary model ``colmap_bin/`` (the text model written by pycolmap) and its georef.txt."""
     import pycolmap
 
@@ -143,7 +149,7 @@ def binary_files(block: AdjustedBlock, image_names: dict | None = None) -> list[
         rec.write_binary(str(bin_))
         for f in sorted(bin_.iterdir()):
             out.append(ExportFile(f"colmap_bin/{f.name}", f.read_bytes()))
-    out.append(ExportFile(f"colmap_bin/{GEOREF}", georef_text(block)))
+    out.append(ExportFile(f"colmap_bin/{GEOREF}", georef_text(block, georef_crs)))
     return out
 
 

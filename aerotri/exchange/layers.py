@@ -164,8 +164,15 @@ def _layers(block: AdjustedBlock, project: Project) -> tuple[list, str]:
     ids, outlines, opk, surface = footprints(project, block)
     nan = float("nan")
 
+    from aerotri.geom.crs.definition import map_axes_unit_m, project_crs
+
+    # the report's residuals are in the project CRS's unit (feet in a feet project); the fields say metres (they
+    # carried feet before trial-exchange)
+    unit_m = map_axes_unit_m(project_crs(project), "[project] crs")
+
     def col(k):
-        return np.array([nan if r["d"][k] is None or not math.isfinite(r["d"][k]) else float(r["d"][k]) for r in rows])
+        return np.array([nan if r["d"][k] is None or not math.isfinite(r["d"][k]) else float(r["d"][k]) * unit_m[k]
+                         for r in rows])
 
     control = ("control_points", "Point Z", [shapely.Point(*r["xyz"]) for r in rows],
                {"point_id": np.array([r["id"] for r in rows], object), "kind": np.array([r["kind"] for r in rows], object),

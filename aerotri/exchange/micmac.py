@@ -14,7 +14,8 @@ Layouts (MicMac's GCPConvert / SaisieAppuis files)::
     </SetOfMesureAppuisFlottants>
 
 (the ``<Global>`` wrapper is optional when reading). Coordinates in the project CRS (MicMac's files carry
-none; ``--crs`` for files in another CRS). An ``Incertitude`` of -1 marks an axis MicMac does not use:
+none; ``--crs`` for files in another CRS). MicMac has no units: ``Incertitude`` is in the unit of ``Pt`` (US
+survey feet in an EPSG:2227 project), converted from and to control/points.csv's metres (sx_m). An ``Incertitude`` of -1 marks an axis MicMac does not use:
 horizontal control is written with sZ = -1, height control with sX = sY = -1, and read back so (the unused
 axis gets the largest used accuracy as a placeholder: control/points.csv needs positive sigmas). MicMac has
 no check-point flag: check points go to a file of their own (``micmac/check.xml``) and a control file whose
@@ -52,14 +53,15 @@ def _fmt(v) -> str:
     return f"{float(v):.4f}"
 
 
-def _gcp_xml(cp: ControlPoints) -> str:
+def _gcp_xml(cp: ControlPoints, unit_m: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> str:
+    """``unit_m``: metres per unit of the coordinates' x, y, z (``Incertitude`` is written in them)."""
     root = ET.Element("Global")
     dico = ET.SubElement(root, "DicoAppuisFlottant")
     for pid, kind, xyz, sig in zip(cp.id, cp.kind, cp.xyz_m, cp.sigma_m):
         one = ET.SubElement(dico, "OneAppuisDAF")
         ET.SubElement(one, "Pt").text = " ".join(_fmt(v) for v in xyz)
         ET.SubElement(one, "NamePt").text = str(pid)
-        s = [float(v) for v in sig]
+        s = [float(v) / u for v, u in zip(sig, unit_m)]
         if kind == "horizontal":
             s[2] = NOT_USED
         elif kind == "height":
@@ -72,13 +74,16 @@ def _gcp_xml(cp: ControlPoints) -> str:
 def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     if not project.control_points_path.is_file():
         return []
+    from aerotri.geom.crs.definition import map_axes_unit_m, project_crs
+
     cp = read_control_points(project.control_points_path)
     out = []
     check = np.array([k == "check" for k in cp.kind], bool)
+    unit_m = map_axes_unit_m(project_crs(project), "[project] crs")  # sx_m (metres) -> Pt's unit
     if (~check).any():
-        out.append(ExportFile("micmac/gcp.xml", _gcp_xml(cp.subset(~check))))
+        out.append(ExportFile("micmac/gcp.xml", _gcp_xml(cp.subset(~check), unit_m)))
     if check.any():
-        out.append(ExportFile("micmac/check.xml", _gcp_xml(cp.subset(check))))
+        out.append(ExportFile("micmac/check.xml", _gcp_xml(cp.subset(check), unit_m)))
     if project.control_image_points_path.is_file():
         obs = read_image_points(project.control_image_points_path)
         frames = find_images(project.images_dir) if project.images_dir.is_dir() else ImageFiles((), ())
@@ -120,6 +125,12 @@ def _vector(el, tag: str, n: int, where: str) -> list[float]:
 
 
 def read_gcp(path: Path, root, project: Project, options: ImportSettings) -> ControlPoints:
+    from aerotri.geom.crs.definition import height_unit_m, linear_unit_m, parse_crs, project_crs
+
+    # Incertitude is in Pt's unit (the file's CRS: --crs, else the project's); control/points.csv's in metres
+    crs = parse_crs(options.crs, "--crs") if options.crs else project_crs(project)
+    unit_m = np.array([linear_unit_m(crs)] * 2 + [height_unit_m(crs)])
+    unit_m = np.where(np.isfinite(unit_m), unit_m, 1.0)  # a geographic --crs: refused later by the import checks
     dico = root if root.tag == "DicoAppuisFlottant" else root.find("DicoAppuisFlottant")
     ids, kinds, xyz, sig = [], [], [], []
     check = "check" in path.stem.lower()
@@ -131,7 +142,7 @@ def read_gcp(path: Path, root, project: Project, options: ImportSettings) -> Con
             raise InputError(f"{where}: duplicate NamePt")
         p = _vector(one, "Pt", 3, where)
         if one.find("Incertitude") is not None:
-            s = _vector(one, "Incertitude", 3, where)
+            s = [v * u if v > 0 else v for v, u in zip(_vector(one, "Incertitude", 3, where), unit_m)]
         elif options.sigma_xyz_m:
             s = list(options.sigma_xyz_m)
         else:

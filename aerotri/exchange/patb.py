@@ -210,11 +210,12 @@ def read_numbers(path: Path) -> tuple[dict, dict, dict]:
     return photos, points, kinds
 
 
-def read_ori(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """(photo numbers, centres (N, 3), rotations (N, 3, 3)) of a PAT-B ``.ori``: per photo ``number [c] X0 Y0
-    Z0`` / ``a11 a12 a13 a21 a22`` / ``a23 a31 a32 a33``; an optional ``-99`` ends the file."""
+def read_ori(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, dict[str, tuple[int, float]]]:
+    """(photo numbers, centres (N, 3), rotations (N, 3, 3), photo number -> (line, principal distance c in mm) of
+    the photos that give one) of a PAT-B ``.ori``: per photo ``number [c] X0 Y0 Z0`` / ``a11 a12 a13 a21 a22`` /
+    ``a23 a31 a32 a33``; an optional ``-99`` ends the file."""
     recs = list(_records(path, "PAT-B orientations (.ori)"))
-    ids, centres, rots, seen, k = [], [], [], {}, 0
+    ids, centres, rots, seen, k, c_mm = [], [], [], {}, 0, {}
     while k < len(recs):
         n, f, _ = recs[k]
         if f == [END]:
@@ -228,6 +229,8 @@ def read_ori(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
         if k + 2 >= len(recs):
             raise InputError(f"{path}:{n}: photo {iid!r} needs 2 more records (a11 a12 a13 a21 a22 / a23 a31 a32 a33)")
         centre = [number(v, f"{path}:{n}", name) for name, v in zip(("X0", "Y0", "Z0"), f[-3:])]
+        if len(f) == 5:
+            c_mm[iid] = (n, number(f[1], f"{path}:{n}", "c"))
         a = []
         for m, names in ((1, ("a11", "a12", "a13", "a21", "a22")), (2, ("a23", "a31", "a32", "a33"))):
             nm, fm, _ = recs[k + m]
@@ -245,7 +248,26 @@ def read_ori(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
         k += 3
     if not ids:
         raise InputError(f"{path}: no photos")
-    return ids, np.array(centres), np.array(rots)
+    return ids, np.array(centres), np.array(rots), c_mm
+
+
+def principal_distance_notes(path: Path, c_mm: dict, camera: Camera | None, camera_source: str) -> list[str]:
+    """Notes on the ``.ori``'s principal distances that differ from the camera the orientations will be used with
+    (by over 1 um: calibration certificates state c to 1 um; the ``.ori`` writes 0.01 um): the orientations were
+    computed with the ``.ori``'s c, and with another focal length the ground they give is scaled by f / c about
+    the projection centres (a 0.5 mm longer focal length at 120 mm puts the ground 0.42 % of the flying height
+    lower). Before trial-exchange the c field was read and dropped, unsaid."""
+    if not c_mm or camera is None:
+        return []
+    f = float(camera.focal_mm)
+    off = {iid: (n, c) for iid, (n, c) in c_mm.items() if abs(abs(c) - f) > 1e-3}
+    if not off:
+        return []
+    iid, (n, c) = next(iter(off.items()))
+    return [f"{path}:{n}: photo {iid!r} gives the principal distance c = {c:g} mm, the camera ({camera_source}) "
+            f"f = {f:g} mm ({len(off)} of {len(c_mm)} photos differ by over 0.001 mm): the orientations were "
+            f"computed with c; used with f, the ground they give is scaled by f / c ({abs(f / c):.6f}) about the "
+            "projection centres: import the camera of the AT (its .cam, or camera.toml with focal_mm = c)"]
 
 
 def read_cam(path: Path) -> Camera:
@@ -361,7 +383,12 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         block.camera = read_cam(by[".cam"])
         block.origin["camera"] = by[".cam"].name
     if ".ori" in by:
-        nums, centre, R = read_ori(by[".ori"])
+        nums, centre, R, c_mm = read_ori(by[".ori"])
+        if block.camera is not None:
+            block.notes += principal_distance_notes(by[".ori"], c_mm, block.camera, by[".cam"].name)
+        elif project.camera_path.is_file():
+            block.notes += principal_distance_notes(by[".ori"], c_mm, Camera.read(project.camera_path),
+                                                    str(project.camera_path))
         ids = [photo_id(v) for v in nums]
         block.eo = orientations_to_project(ids, centre, R, crs, project, "--crs" if options.crs else str(project.config_path))
         block.origin["eo"] = by[".ori"].name

@@ -12,6 +12,7 @@ from aerotri.core.project import Project
 from aerotri.exchange import colmap, layers, metashape, micmac, odm_export, orthority, patb, pix4d
 from aerotri.exchange.adjusted import AdjustedBlock, read_adjusted_block
 from aerotri.exchange.commit import ExportFile, write_together
+from aerotri.geom.crs.transform import BallparkRefused
 from aerotri.geom.images import find_images
 
 log = logging.getLogger(__name__)
@@ -20,6 +21,13 @@ log = logging.getLogger(__name__)
 def _image_names(project: Project) -> dict | None:
     """image id -> file name in images/ (None without images/), as the COLMAP writers take them."""
     return {k: p.name for k, p in find_images(project.images_dir).pairs()} if project.images_dir.is_dir() else None
+
+
+def _georef_crs(project: Project) -> str:
+    """The CRS of a COLMAP model's georef.txt: the project's with its heights (a vertical CRS: the compound's WKT)."""
+    from aerotri.geom.crs.definition import project_crs_3d, project_heights
+
+    return project.crs if project_heights(project) is None else project_crs_3d(project).to_wkt()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,9 +42,10 @@ EXPORT_FORMATS = {
                              "partial control in their own .con files), the number map and aerotri's camera (patb/"
                              "numbers.txt, block.cam)", patb.files),
     "colmap": Exporter("colmap", "COLMAP text model (colmap/cameras.txt, images.txt, points3D.txt)",
-                       lambda block, project: colmap.files(block, _image_names(project))),
+                       lambda block, project: colmap.files(block, _image_names(project), _georef_crs(project))),
     "colmap-bin": Exporter("colmap-bin", "COLMAP binary model (colmap_bin/cameras.bin, images.bin, points3D.bin)",
-                           lambda block, project: colmap.binary_files(block, _image_names(project))),
+                           lambda block, project: colmap.binary_files(block, _image_names(project),
+                                                                      _georef_crs(project))),
     "orthority": Exporter("orthority", "orthority interior YAML, OPK CSV + .prj and exterior GeoJSON (orthority/)",
                           orthority.files),
     "metashape": Exporter("metashape", "Agisoft Metashape cameras XML with markers (metashape/cameras.xml)",
@@ -59,6 +68,21 @@ EXPORT_FORMATS = {
 DEFAULT_FORMATS = ("patb", "colmap")
 
 
+def _export_refusal(name: str, exc) -> Exception:
+    """The CRS policy's refusal in the export's terms: its remedy names ``--params`` and ``--allow-ballpark``,
+    which aerotri export does not take (a missing geoid grid: the grid is the fix)."""
+    text = str(exc)
+    cut = text.find("; or fit parameters")
+    if cut < 0:
+        cut = text.find("fit parameters from common points")
+    if cut >= 0:
+        text = text[:cut].rstrip("; ")
+    if not exc.missing_grids:
+        text += ("; aerotri export applies no datum parameters: choose a project CRS on a datum PROJ relates to "
+                 "the format's rigorously")
+    return BallparkRefused(f"{name} export: {text}", missing_grids=exc.missing_grids)
+
+
 def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
     """Export the adjusted block of a project folder into ``out_dir`` (default ``at/``); every format's
     files are produced first and written afterwards, all or none. Returns the files written."""
@@ -71,7 +95,11 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
     out = Path(out_dir) if out_dir is not None else project.at_dir
     contents = {}  # (a later format's file of the same name replaces the earlier one's)
     for name in formats:
-        contents.update({out / f.path: f.content for f in EXPORT_FORMATS[name].files(block, project)})
+        try:
+            files = EXPORT_FORMATS[name].files(block, project)
+        except BallparkRefused as exc:
+            raise _export_refusal(name, exc) from None
+        contents.update({out / f.path: f.content for f in files})
     written = write_together(contents)
     log.info(f"exported {', '.join(formats)} of {project.root} -> {out}")
     return written

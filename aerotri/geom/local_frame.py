@@ -75,13 +75,18 @@ class LocalFrame:
         return np.stack(self._from_ecef.transform(ecef[:, 0], ecef[:, 1], ecef[:, 2]), axis=-1)
 
     def jacobian_local_from_map(self, xyz_map, step_m: float = 1.0) -> np.ndarray:
-        """d(ENU)/d(x, y, h) at each point (N, 3, 3), by central differences."""
+        """d(ENU)/d(x, y, h) at each point (N, 3, 3), by central differences of about ``step_m`` metres (in a
+        geographic CRS, as Metashape's EPSG:4326 reference, a step in degrees of that length: a step of 1 unit,
+        1 degree, turned the axes up to 0.0001 deg before trial-exchange)."""
         p = np.atleast_2d(np.asarray(xyz_map, dtype=float))
+        step = np.full(3, float(step_m))
+        if self.crs.is_geographic:
+            step[:2] = step_m / 111_000.0
         J = np.empty((len(p), 3, 3))
         for k in range(3):
             d = np.zeros(3)
-            d[k] = step_m
-            J[:, :, k] = (self.to_local(p + d) - self.to_local(p - d)) / (2 * step_m)
+            d[k] = step[k]
+            J[:, :, k] = (self.to_local(p + d) - self.to_local(p - d)) / (2 * step[k])
         return J
 
     def jacobian_map_from_local(self, enu, step_m: float = 1.0) -> np.ndarray:

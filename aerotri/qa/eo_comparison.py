@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -23,6 +24,8 @@ from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.rotation import rotation_matrix_opk
+
+log = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 1
 
@@ -53,6 +56,9 @@ class EoComparison:
     missing: tuple[str, ...]
     extra: tuple[str, ...]
     note: str = ""  # why a figure is no independent check (the reference's centres are the project's GNSS)
+    # what reading the reference said, as aerotri import says it (a 2D CRS's heights taken as the project's, a
+    # datum operation's accuracy, a PAT-B principal distance other than the camera's); printed as warnings
+    reference_notes: tuple[str, ...] = ()
 
 
 # gnss.txt within this of the reference's centres at every common frame: the GNSS came from the reference
@@ -102,16 +108,22 @@ def compare_with_reference(root, format_name: str, files, crs: str | None = None
     from aerotri.exchange.import_registry import importer_and_files
     from aerotri.exchange.imported import ImportSettings
 
+    from aerotri.exchange.imported import collecting_operation_notes
+
     project = Project.open(root)
     importer, files = importer_and_files(format_name, files)
-    block = importer.read(files, project, ImportSettings(crs=crs))
+    with collecting_operation_notes() as operation_notes:  # said by aerotri import, dropped here before trial-exchange
+        block = importer.read(files, project, ImportSettings(crs=crs))
+    notes = tuple(dict.fromkeys(list(block.notes) + list(operation_notes)))
+    for n in notes:
+        log.warning(n)
     if block.eo is None:
         raise InputError(f"{', '.join(str(f) for f in files)}: no orientations in these {format_name} files "
                          f"(expected {importer.files})")
     if not project.eo_path.is_file():
         raise InputError(f"{project.eo_path}: not found (run aerotri adjust first)")
     result = compare_orientations(read_eo(project.eo_path), block.eo, tuple(str(f) for f in files))
-    result = dataclasses.replace(result, note=_gnss_from_reference(project, block.eo))
+    result = dataclasses.replace(result, note=_gnss_from_reference(project, block.eo), reference_notes=notes)
     record = {"schema_version": SCHEMA_VERSION, "kind": "eo comparison", **dataclasses.asdict(result)}
     write_text_atomic(project.root / "reports" / "eo_comparison.json",
                       json.dumps(record, indent=1, allow_nan=False) + "\n")

@@ -234,3 +234,29 @@ def test_georef_origin_in_full(exported, folder):
     root, out = exported
     origin = np.array(read_georef(out / folder).origin_map)
     assert np.abs(origin - read_adjusted_block(root).frame.origin_map).max() < 1e-6
+
+
+def test_georef_states_the_project_heights(adjusted_tiny, tmp_path, fresh_project, synthetic_geoid):
+    """A project with EGM2008 heights (the NGI block's): georef.txt gave the horizontal CRS alone, so the model
+    imported into an ellipsoidal project took H as h, the centres N (+30 m here) low with a warning only, and `aerotri
+    compare` of such a model said dZ 0.000 m (trial-exchange). georef.txt's crs is the compound CRS now: back into
+    the same heights the centres are the project's, into ellipsoidal ones h = H + N through the geoid grid."""
+    import pyproj
+
+    root, _ = adjusted_tiny
+    p = tmp_path / "p"
+    shutil.copytree(root, p, symlinks=True)
+    toml = (p / "project.toml").read_text()
+    (p / "project.toml").write_text(toml.replace('crs = "EPSG:32649"\n', 'crs = "EPSG:32649"\nheights = "EPSG:3855"\n'))
+    out = tmp_path / "out"
+    export_project(p, ["colmap", "colmap-bin"], out)
+    eo = read_eo(Project.open(p).eo_path)
+    lon, lat = pyproj.Transformer.from_crs("EPSG:32649", "EPSG:4326", always_xy=True).transform(*eo.centre_m[:, :2].T)
+    for model in ("colmap", "colmap_bin"):
+        same = fresh_project(p, tmp_path / f"same_{model}")
+        import_files(same, "colmap", [out / model])
+        assert np.abs(read_eo(same / "imported" / "eo.txt").centre_m - eo.centre_m).max() < 1e-4
+        ell = fresh_project(root, tmp_path / f"ell_{model}")
+        import_files(ell, "colmap", [out / model])
+        h = read_eo(ell / "imported" / "eo.txt").centre_m[:, 2]
+        assert np.abs(h - (eo.centre_m[:, 2] + synthetic_geoid(lon, lat))).max() < 1e-3

@@ -168,3 +168,22 @@ def test_a_frame_ortho_dem_in_another_crs_falls_back_to_the_mean_height(adjusted
     z = np.concatenate([shapely.get_coordinates(p, include_z=True)[:, 2] for p in polys])
     assert np.ptp(z) < 1e-6 and abs(z[0] - 100.0) > 1.0  # one height: the points' mean, not the DEM's 100 m
     assert "utm50.tif: DEM in EPSG:32650" in caplog.text
+
+
+def test_residuals_in_metres_in_a_feet_project(adjusted_tiny, tmp_path):
+    """The control_points layer's dx_m dy_m dz_m are metres, as their names say (QGIS shows the names). at/report.json's
+    residual_m and d_m are in the project CRS's unit: in a project in feet the layer carried feet under the _m names
+    (trial-exchange). The same block read in UTM 49N in US survey feet: the residuals are the report's times 0.3048006."""
+    root = _copy(adjusted_tiny, tmp_path)
+    toml = (root / "project.toml").read_text()
+    assert 'crs = "EPSG:32649"' in toml
+    (root / "project.toml").write_text(toml.replace('crs = "EPSG:32649"',
+                                                    'crs = "+proj=utm +zone=49 +datum=WGS84 +units=us-ft +no_defs"'))
+    export_project(root, ["gpkg"], tmp_path / "out")
+    _, _, cols = _read(tmp_path / "out" / "layers" / "block.gpkg", "control_points")
+    report = read_json(root / "at" / "report.json")
+    want = {c["id"]: c["residual_m"] for c in report["control_points"]} | {c["id"]: c["d_m"] for c in report["check_points"]}
+    ft_m = 1200 / 3937
+    for pid, dx, dy, dz in zip(cols["point_id"], cols["dx_m"], cols["dy_m"], cols["dz_m"]):
+        d = np.array([np.nan if v is None else v for v in want[pid]], float) * ft_m
+        assert np.allclose([dx, dy, dz], d, atol=1e-9, equal_nan=True), pid

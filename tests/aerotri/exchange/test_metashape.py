@@ -51,6 +51,27 @@ def test_round_trip(exported, tmp_path, fresh_project):
     assert len(obs) == len(raw) and max(np.abs(xy - key[a, b]).max() for a, b, xy in zip(obs.point_id, obs.image_id, obs.xy_px)) < 1e-3
 
 
+def test_a_geographic_reference_gives_the_same_orientations(exported, tmp_path, fresh_project):
+    """Metashape's usual chunk CRS is EPSG:4326: the geocentric chunk transform is the same, only ``<reference>``
+    differs. The attitudes came back up to 0.0001 deg off (the grid axes of a geographic CRS by central differences
+    of 1 degree; trial-exchange, on the NGI block); now as with the projected reference."""
+    import re
+
+    from pyproj import CRS
+
+    root, xml = exported
+    text = re.sub(r"<reference>.*?</reference>", "<reference>" + CRS("EPSG:4326").to_wkt("WKT1_GDAL") + "</reference>",
+                  xml.read_text(), flags=re.S)
+    text = re.sub(r"<markers.*?</markers>|<frames.*?</frames>", "", text, flags=re.S)  # markers: x y in UTM
+    geo = tmp_path / "cameras_4326.xml"
+    geo.write_text(text)
+    dst = fresh_project(root, tmp_path / "p")
+    import_files(dst, "metashape", [geo])
+    eo, back = read_eo(Project.open(root).eo_path), read_eo(dst / "imported" / "eo.txt")
+    assert np.abs(back.centre_m - eo.centre_m).max() < 1e-4
+    assert np.abs(back.opk_deg - eo.opk_deg).max() < 1e-6
+
+
 def test_metashape_conventions(exported):
     """The chunk transform takes a camera to geocentric coordinates at its place (|X| = earth radius + height);
     the calibration's p1/p2 are ours swapped; cx, cy are pixels from the image centre."""
@@ -318,6 +339,9 @@ def test_orthometric_heights_without_the_geoid_grid(adjusted_tiny, tmp_path):
     r = CliRunner().invoke(aerotri_cli, ["export", str(p), "--format", "metashape", "--out", str(out)])
     assert r.exit_code == 2 and "us_nga_egm08_25.tif" in r.output and "Traceback" not in r.output, r.output
     assert not (out / "metashape" / "cameras.xml").exists()
+    # trial-exchange: the remedy named --params and --allow-ballpark, which aerotri export does not take
+    assert "--params" not in r.output and "--allow-ballpark" not in r.output, r.output
+    assert "metashape export" in r.output, r.output
 
 
 def test_odm_export_of_orthometric_heights_says_gcp_list_is_not_ellipsoidal(adjusted_tiny, tmp_path, synthetic_geoid):

@@ -84,3 +84,30 @@ def test_cli_exit_code(tiny_project, tmp_path, fresh_project):
     f.write_text("<Other/>")
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "micmac", str(f)])
     assert r.exit_code == 2 and "neither DicoAppuisFlottant" in r.output and "Traceback" not in r.output
+
+
+def test_incertitude_in_the_coordinates_unit_of_a_feet_project(tmp_path):
+    """MicMac has no units: ``Incertitude`` is in the unit of ``Pt``. In a project in US survey feet (EPSG:2227)
+    control/points.csv keeps its accuracies in metres (sx_m): the export writes them in feet and the import reads
+    feet back into metres (trial-exchange: 0.05 m was written as 0.05 beside coordinates in feet, and a file's 0.1 ft
+    read as 0.1 m, the control weighted 3.28 x off either way)."""
+    from aerotri.exchange import ImportSettings
+    from aerotri.exchange.micmac import _gcp_xml
+    from aerotri.geom.observations import ControlPoints
+
+    ft_m = 1200 / 3937
+    root = tmp_path / "p"
+    root.mkdir()
+    (root / "project.toml").write_text('[project]\nname = "p"\ncrs = "EPSG:2227"\n')
+    f = tmp_path / "gcp.xml"
+    f.write_text("<Global><DicoAppuisFlottant>"
+                 "<OneAppuisDAF><Pt>6100000 1950000 100</Pt><NamePt>a</NamePt><Incertitude>0.1 0.1 0.2</Incertitude></OneAppuisDAF>"
+                 "<OneAppuisDAF><Pt>6100500 1950000 110</Pt><NamePt>b</NamePt><Incertitude>0.1 0.1 -1</Incertitude></OneAppuisDAF>"
+                 "</DicoAppuisFlottant></Global>")
+    import_files(root, "micmac", [f], ImportSettings(crs="EPSG:2227"))
+    c = read_control_points(root / "control" / "points.csv")
+    assert np.allclose(c.sigma_m, np.array([[0.1, 0.1, 0.2], [0.1, 0.1, 0.1]]) * ft_m, atol=1e-4)  # points.csv: 0.1 mm
+    xml = _gcp_xml(ControlPoints(np.array(["a"], object), np.array(["full"], object), np.array([[6100000.0, 1950000.0, 100.0]]),
+                                 np.array([[0.05, 0.05, 0.1]])), unit_m=(ft_m, ft_m, ft_m))
+    written = [float(v) for v in xml.split("<Incertitude>")[1].split("<")[0].split()]
+    assert np.allclose(written, np.array([0.05, 0.05, 0.1]) / ft_m, rtol=1e-5)  # written to 6 digits

@@ -215,3 +215,42 @@ def test_numbering_keeps_integer_ids():
     assert numbering(["0018", "1002"]).numbers == (1, 2)
     mixed = numbering(["s01_001", "s01_002", "7"])
     assert mixed.numbers == (1, 2, 3) and mixed.number_of("7") == 3
+
+
+def test_principal_distance_of_the_ori_against_the_camera(exported, tmp_path, fresh_project):
+    """MATCH-AT and ISAT write the principal distance c in the .ori's columns 17-32. It was read and dropped: an AT
+    computed with c = f + 0.5 mm imported beside the camera's f gave no word (trial-exchange). Now a warning names
+    the file line, c and f; the same c as the camera's is accepted without one."""
+    root, patb = exported
+    f_mm = read_camera(Project.open(root).camera_path).focal_mm
+    lines = (patb / "block.ori").read_text().splitlines()
+
+    def with_c(c_mm):
+        out = []
+        for n, line in enumerate(lines):
+            if n % 3 == 0 and len(line.split()) == 4:  # a photo's first record: number, 16 blank columns, X0 Y0 Z0
+                line = line[:16] + f"{c_mm:16.5f}" + line[32:]
+            out.append(line)
+        path = tmp_path / f"c{c_mm:.5f}.ori"
+        path.write_text("\n".join(out) + "\n")
+        return path
+
+    def project(name):  # a project with its camera (aerotri init writes one), the AT's orientations imported into it
+        dst = fresh_project(root, tmp_path / name)
+        shutil.copy(Project.open(root).camera_path, dst / "camera.toml")
+        return dst
+
+    same = project("same")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(same), "--format", "patb", str(with_c(f_mm)),
+                                         str(patb / "numbers.txt"), "--crs", Project.open(root).crs])
+    assert r.exit_code == 0 and "principal distance" not in r.output, r.output
+    other = project("other")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(other), "--format", "patb", str(with_c(f_mm + 0.5)),
+                                         str(patb / "numbers.txt"), "--crs", Project.open(root).crs])
+    text = " ".join(r.output.split())
+    assert r.exit_code == 0 and f"c = {f_mm + 0.5:g} mm" in text and f"f = {f_mm:g} mm" in text, r.output
+    assert ".ori:1: photo" in text, r.output
+    # aerotri compare reads the reference as the import does and says the same (it dropped the notes before)
+    r = CliRunner().invoke(aerotri_cli, ["compare", str(root), "--format", "patb", str(with_c(f_mm + 0.5)),
+                                         str(patb / "numbers.txt"), "--crs", Project.open(root).crs])
+    assert r.exit_code == 0 and f"c = {f_mm + 0.5:g} mm" in " ".join(r.output.split()), r.output
