@@ -1856,6 +1856,30 @@ def index_sha1(root) -> str:
     return hashlib.sha1((Path(root) / "ortho" / "frames" / "index.json").read_bytes()).hexdigest()
 
 
+def mosaic_older_than_frames(root) -> str | None:
+    """Why the project's mosaic is not of the frames in ortho/frames now (None: it is, or there is no mosaic or no
+    frames): ``ortho rectify`` run since (by hand: the frames' index.json no longer the one mosaic.json records,
+    ``index_sha1``; a mosaic.json written before it was recorded: older than index.json). leftovers2: the accuracy
+    report described the earlier mosaic after `ortho rectify` by hand, without a word."""
+    root = Path(root)
+    index, summary = root / "ortho" / "frames" / "index.json", root / "ortho" / "mosaic.json"
+    mosaic = root / "ortho" / "mosaic.tif"
+    if not (index.is_file() and summary.is_file() and mosaic.is_file()):
+        return None
+    try:
+        recorded = json.loads(summary.read_text()).get("index_sha1")
+    except (OSError, ValueError, AttributeError):
+        return None  # (the reader of mosaic.json names it)
+    if recorded is not None:
+        older = recorded != index_sha1(root)
+    else:
+        older = summary.stat().st_mtime_ns < index.stat().st_mtime_ns
+    if not older:
+        return None
+    return (f"{mosaic} is older than the frames in {index.parent} (ortho rectify ran since the mosaic was made: its "
+            f"{summary.name} records other frames)")
+
+
 @dataclasses.dataclass(frozen=True)
 class MosaicTile:
     """One output tile of the mosaic as a Dask task: the shared context file and the tile's window."""

@@ -1,7 +1,8 @@
 """The resumable stage runner: stamps, skipping what is up to date, the summary table.
 
 A stage is skipped when its stamp (``work/stages/<stage>.json``) records the same input files (content
-hash; size and modification time for files over 64 MiB), options and algorithm versions (``Stage.versions``: the
+hash, a SQLite file's without the header fields a reader changes; size and modification time for other files over
+64 MiB), options and algorithm versions (``Stage.versions``: the
 constants next to the code, e.g. ``lidarctl.classify.RULES_VERSION``, bumped when its outputs change; a stamp written
 before they were recorded runs again, its code unknown) as now and all its outputs exist as it wrote them (same
 signature: an output edited or written again by another command since runs the stage again, trial-rerun);
@@ -83,21 +84,66 @@ def _content(p: Path) -> bytes:
     return data
 
 
-def _signature(paths: list[Path], root: Path, hash_limit_bytes: int = 64 << 20) -> dict:
+def _signature(paths: list[Path], root: Path, hash_limit_bytes: int = 64 << 20, before: dict | None = None) -> dict:
     """Content hash of each input up to ``hash_limit_bytes`` (timestamps are too coarse to trust),
-    size and modification time beyond that; keys as ``_key`` names them."""
+    size and modification time beyond that; a SQLite file (a GeoPackage) by its content whatever its size
+    (``_sqlite_hash``); keys as ``_key`` names them. ``before``: the stamp's record, whose SQLite files may hold the
+    plain hash (or size and time) of stamps written before ``_sqlite_hash``: kept while the file is as it was then."""
     sig = {}
     for p in sorted(paths, key=str):
         k = _key(p, root)
         if p.is_file():
             st = p.stat()
-            if st.st_size <= hash_limit_bytes:
-                sig[k] = hashlib.sha1(_content(p)).hexdigest()
+            if _is_sqlite(p):
+                sig[k] = _sqlite_hash(p)
+                old = (before or {}).get(k)
+                if old is not None and old != sig[k] and not str(old).startswith(_SQLITE_PREFIX) and \
+                        old == _plain_fingerprint(p, st, hash_limit_bytes):
+                    sig[k] = old  # (a stamp of before: the same file)
             else:
-                sig[k] = [st.st_size, st.st_mtime_ns]
+                sig[k] = _plain_fingerprint(p, st, hash_limit_bytes)
         else:
             sig[k] = None
     return sig
+
+
+def _plain_fingerprint(p: Path, st: os.stat_result, hash_limit_bytes: int) -> str | list:
+    if st.st_size <= hash_limit_bytes:
+        return hashlib.sha1(_content(p)).hexdigest()
+    return [st.st_size, st.st_mtime_ns]
+
+
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+_SQLITE_PREFIX = "sqlite:"  # a SQLite file's signature (a stamp's plain hash of one was written before)
+# bytes of the 100-byte SQLite header that a reader changes without changing a row (sqlite.org/fileformat.html):
+# 18-19 the journal mode (QGIS opens a GeoPackage in WAL mode, and sets it back on closing), 24-27 the file change
+# counter, 92-95 the version-valid-for number, 96-99 the SQLite version that last wrote the file
+_SQLITE_VOLATILE = ((18, 20), (24, 28), (92, 100))
+
+
+def _is_sqlite(p: Path) -> bool:
+    try:
+        with open(p, "rb") as f:
+            return f.read(len(_SQLITE_MAGIC)) == _SQLITE_MAGIC
+    except OSError:
+        return False
+
+
+def _sqlite_hash(p: Path, chunk_bytes: int = 16 << 20) -> str:
+    """The hash of a SQLite file (a GeoPackage: lidar_out/crowns.gpkg, lidar_out/vectors.gpkg) without the header
+    fields a reader changes (``_SQLITE_VOLATILE``): QGIS opening the file switches it to WAL mode (-wal and -shm
+    beside it) and back when it closes, which changed its bytes and re-ran the stage that wrote it (the LiDAR rasters)
+    or read it. Hashed whatever its size: the time of a SQLite file changes by such a read. A change still in the
+    file's -wal (an edit QGIS has not written back) is seen once it is (on closing)."""
+    h = hashlib.sha1()
+    with open(p, "rb") as f:
+        head = bytearray(f.read(100))
+        for a, b in _SQLITE_VOLATILE:
+            head[a:b] = bytes(b - a)
+        h.update(head)
+        while chunk := f.read(chunk_bytes):
+            h.update(chunk)
+    return _SQLITE_PREFIX + h.hexdigest()
 
 
 def _sizes(sig: dict) -> dict:
@@ -157,14 +203,16 @@ def stale_reason(root: Path, st: Stage) -> str | None:
         # an output written since by another command (aerotri adjust or ortho mosaic by hand) or edited (at/eo.txt):
         # the stamp's numbers no longer describe it and the later stages would build on what project.toml does not
         # say; a fresh project would have this stage's own output
-        changed = _differing(_sizes(stamp["outputs"] or {}), _sizes(_signature(outputs, root)))
+        before = stamp["outputs"] or {}
+        changed = _differing(_sizes(before), _sizes(_signature(outputs, root, before=before)))
         kept = st.hand_made(root) if changed and st.hand_made is not None else None
         if kept:
             _log.warning(f"[{st.name}] kept: {changed} changed since this stage wrote it ({kept}); the chain makes "
                          "its own again once it is removed")
         elif changed:
             reasons.append(f"outputs changed since this stage wrote them: {changed}")
-    inputs = _differing(stamp.get("inputs") or {}, _signature(st.inputs(root), root))
+    before = stamp.get("inputs") or {}
+    inputs = _differing(before, _signature(st.inputs(root), root, before=before))
     if inputs:
         reasons.append(f"inputs changed: {inputs}")
     options = _differing(stamp.get("options") or {}, _plain(st.options_now(root), root), values=True)
@@ -233,6 +281,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
         why = "--force" if force else stale_reason(root, st)
         if why is None:
             stamp = json.loads(stamp_path(root, st.name).read_text())
+            _refresh_stamp(root, st, stamp)
             rows.append(dict(stage=st.name, status="skipped (up to date)", seconds=0.0, **stamp.get("result", {})))
             log(f"[{st.name}] up to date, skipped")
             continue
@@ -264,6 +313,25 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     write_text_atomic(project_paths(root).run_summary_path, json.dumps(
         dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")
     return rows
+
+
+def _refresh_stamp(root: Path, st: Stage, stamp: dict) -> None:
+    """Bring the stamp of an up-to-date stage to what stamps record now, without running it (its outputs are the
+    stage's as far as the chain knows): the outputs' signatures when it was written before they were recorded (before
+    trial-rerun; leftovers2: such a stamp was skipped run after run with its outputs never recorded, so a later edit of
+    them was never seen), and a SQLite file's ``_sqlite_hash`` for its plain hash (a stamp of before leftovers2: a
+    reader's touch would re-run the stage once)."""
+    changed = "outputs" not in stamp
+    if changed:
+        stamp["outputs"] = _signature(st.outputs(root), root)
+    for record in (stamp.get("inputs") or {}, stamp["outputs"] or {}):
+        for name, value in record.items():
+            path = Path(root) / name  # (a name outside the project is absolute)
+            if value is not None and not str(value).startswith(_SQLITE_PREFIX) and _is_sqlite(path):
+                record[name] = _sqlite_hash(path)
+                changed = True
+    if changed:
+        write_text_atomic(stamp_path(root, st.name), json.dumps(stamp, indent=1, default=str) + "\n")
 
 
 _USAGE_COLUMNS = ("cpu_s", "peak_rss_mb", "workers_peak_rss_mb")

@@ -48,6 +48,8 @@ def format_fit_report(result, path) -> str:
     rms = result.rms_m
     lines.append(f"{'RMS':<12}{rms.e_m:10.4f}{rms.n_m:10.4f}" + (f"{rms.u_m:10.4f}" if rms.u_m is not None else "")
                  + f"   horizontal {rms.horizontal_m:.4f} m")
+    if result.heights is not None:
+        lines.append(f"Heights: {result.heights}")
     for w in result.warnings:
         lines.append(f"Warning: {w}")
     return "\n".join(lines)
@@ -61,8 +63,10 @@ def _default_output(input_param: str):
 @crs.command("fit", outputs=_default_output("common_points"))
 @click.argument("common_points", type=click.Path(dir_okay=False))
 @click.option("--model", type=click.Choice(MODELS), required=True, help="transformation model")
-@click.option("--from", "from_epsg", required=True, help="EPSG code of the source coordinates (x_from, y_from)")
-@click.option("--to", "to_epsg", required=True, help="EPSG code of the target coordinates (x_to, y_to)")
+@click.option("--from", "from_epsg", required=True,
+              help="CRS of the source coordinates (x_from, y_from): EPSG code, WKT, PROJ string, or a .wkt/.prj file")
+@click.option("--to", "to_epsg", required=True,
+              help="CRS of the target coordinates (x_to, y_to): EPSG code, WKT, PROJ string, or a .wkt/.prj file")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="parameter file (JSON); default <input>.<model>.json")
 def fit_cmd(common_points, model, from_epsg, to_epsg, output):
     """Least-squares transformation parameters from points known in both systems."""
@@ -141,7 +145,7 @@ def _height_fit_table(model, points, ids, res) -> str:
 @crs.command("warp")
 @click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False, path_type=Path))
 @click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--to", "to_epsg", required=True, help="target CRS (EPSG code, WKT or PROJ string)")
+@click.option("--to", "to_epsg", required=True, help="target CRS (EPSG code, WKT, PROJ string, or a .wkt/.prj file)")
 @click.option("--from", "from_epsg", help="CRS of IN when its own is wrong or missing [the raster's CRS]")
 @click.option("--params", type=click.Path(dir_okay=False), help="parameter file from 'crs fit' (a datum change)")
 @click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights' "
@@ -170,8 +174,9 @@ def warp_cmd(*, input_path, output_path, to_epsg, from_epsg, params, heights, al
 @crs.command("transform")
 @click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False))
 @click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False))
-@click.option("--from", "from_epsg", help="EPSG code of IN (LAS/LAZ: default the file's CRS record)")
-@click.option("--to", "to_epsg", required=True, help="EPSG code of OUT")
+@click.option("--from", "from_epsg", help="CRS of IN (EPSG code, WKT, PROJ string, or a .wkt/.prj file; LAS/LAZ: "
+              "default the file's CRS record)")
+@click.option("--to", "to_epsg", required=True, help="CRS of OUT (EPSG code, WKT, PROJ string, or a .wkt/.prj file)")
 @click.option("--params", type=click.Path(dir_okay=False), help="parameter file from 'crs fit'")
 @click.option("--heights", type=click.Path(dir_okay=False), help="height anomaly model from 'crs fit-heights': "
               "ellipsoidal heights h in IN become normal heights H = h - zeta in OUT (the other way with "

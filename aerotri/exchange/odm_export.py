@@ -34,10 +34,10 @@ log = logging.getLogger(__name__)
 
 
 def _crs_line(crs_text: str) -> str:
-    from aerotri.geom.crs.definition import horizontal_crs, parse_crs
+    from aerotri.geom.crs.definition import epsg_code, horizontal_crs, parse_crs
 
     crs = horizontal_crs(parse_crs(crs_text))
-    code = crs.to_epsg(min_confidence=90)
+    code = epsg_code(crs)
     return f"EPSG:{code}" if code else crs.to_proj4()
 
 

@@ -828,6 +828,12 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             rows.append(_failed("dom_stale", sec, "DOM from an older adjustment",
                                 f"{why}; re-run ortho rectify, ortho mosaic and ortho check"))
     if project.mosaic_summary_path.is_file():
+        from ortho.mosaic import mosaic_older_than_frames
+
+        older = mosaic_older_than_frames(root)
+        if older:  # the mosaic's figures (and a check of it) are of frames that were replaced
+            rows.append(_failed("mosaic_stale", sec, "DOM older than its frames",
+                                f"{older}; re-run ortho mosaic {root} (and ortho check), or aerotri run {root}"))
         rows.append(_holes_row(sec, project))
         crossings = _seam_crossings_row(sec, project)
         if crossings is not None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import concurrent.futures
 import functools
 import math
+import re
 
 import numpy as np
 import pyproj
@@ -22,10 +23,15 @@ def _crs_from_code(code: str) -> pyproj.CRS:
     return pyproj.CRS.from_user_input(code)
 
 
-def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
-    """A pyproj CRS from ``4326``, ``"4326"``, ``"EPSG:4326"``, WKT, PROJ text or a pyproj CRS.
+CRS_FILE_SUFFIXES = (".wkt", ".prj")  # a CRS given as the path of a file holding its WKT (ESRI's .prj too)
 
-    ``CrsError`` (an ``InputError``) naming ``source`` (the option, file or key) if PROJ does not know it.
+
+def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
+    """A pyproj CRS from ``4326``, ``"4326"``, ``"EPSG:4326"``, WKT, PROJ text, the path of a .wkt or .prj file
+    holding WKT (``CRS_FILE_SUFFIXES``), or a pyproj CRS.
+
+    ``CrsError`` (an ``InputError``) naming ``source`` (the option, file or key) if PROJ does not know it, or the file
+    when it cannot be read.
     """
     if isinstance(value, pyproj.CRS):
         return value
@@ -34,6 +40,10 @@ def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
     text = str(value).strip()
     if not text:
         raise CrsError(f"{source}: empty CRS (expected e.g. EPSG:32649)")
+    if text.lower().endswith(CRS_FILE_SUFFIXES) and "\n" not in text and "[" not in text:
+        return _crs_from_file(text, source)
+    if text.startswith("+") and _STATED_DATUM.search(text):
+        return _crs_on_stated_datum(text, source)
     if text.isdigit():
         text = f"EPSG:{text}"
     try:
@@ -42,18 +52,127 @@ def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
         raise CrsError(f"{source}: unknown CRS {value!r} (not an EPSG code, WKT or PROJ string PROJ knows)") from None
 
 
-def crs_label(crs: pyproj.CRS) -> str:
-    """``EPSG:nnnn`` when the CRS has an EPSG identity, else its name; a projected CRS without a name (PROJ
-    calls one given as a PROJ string "unknown") by its projection, parameters and datum."""
+# a PROJ string's datum stated by the EPSG code of its geographic CRS (PROJ's +datum takes a few names only, none
+# for CGCS2000): "+proj=tmerc +lon_0=114.5 ... +ellps=GRS80 +datum=EPSG:4490"
+_STATED_DATUM = re.compile(r"\s*\+datum=(?P<code>epsg:\d+)(?=\s|$)", re.IGNORECASE)
+UNKNOWN_DATUM_PREFIX = "Unknown based on "  # PROJ's datum of a definition by its ellipsoid alone (+ellps=GRS80)
+
+
+def _crs_on_stated_datum(text: str, source: str) -> pyproj.CRS:
+    """A PROJ string whose ``+datum=EPSG:nnnn`` states its datum (leftovers2: a local Gauss-Krueger grid, "+proj=tmerc
+    +lon_0=114.5 +k=1 +x_0=500000 +ellps=GRS80", has an ellipsoid and no datum, so PROJ had only a ballpark operation
+    from CGCS2000 to it): its projection on that geographic CRS, exact. Its ellipsoid, when the text gives one, must
+    be the datum's (``CrsError`` naming both otherwise)."""
+    m = _STATED_DATUM.search(text)
+    rest = _STATED_DATUM.sub("", text).strip()
+    try:
+        base = _crs_from_code(m["code"].upper())
+        plain = _crs_from_code(rest)
+    except pyproj.exceptions.CRSError:
+        raise CrsError(f"{source}: unknown CRS {text!r} (a PROJ string with +datum=EPSG:nnnn, the EPSG code of a "
+                       "geographic CRS, e.g. +datum=EPSG:4490 for CGCS2000)") from None
+    if not base.is_geographic:
+        raise CrsError(f"{source}: +datum={m['code']} is {base.name}, not a geographic CRS; give the code of the "
+                       "datum's geographic CRS (e.g. EPSG:4490 for CGCS2000, EPSG:4326 for WGS 84)")
+    if re.search(r"\+(ellps|a|rf|f|b|R)=", rest):
+        e, d = plain.ellipsoid, base.ellipsoid
+        if abs(e.semi_major_metre - d.semi_major_metre) > 1e-4 or \
+                abs(e.inverse_flattening - d.inverse_flattening) > 1e-9 * d.inverse_flattening:
+            raise CrsError(f"{source}: the ellipsoid of {rest!r} ({e.name}: a {e.semi_major_metre} m, 1/f "
+                           f"{e.inverse_flattening}) is not that of +datum={m['code']} ({base.datum.name}: {d.name}, "
+                           f"a {d.semi_major_metre} m, 1/f {d.inverse_flattening}): one of them is wrong")
+    if plain.is_geographic:
+        return base
+    if not plain.is_projected:
+        raise CrsError(f"{source}: +datum=EPSG:nnnn is taken with a projection (+proj=tmerc, +proj=utm, ...) or "
+                       f"+proj=longlat, not {rest!r}")
+    d = plain.to_json_dict()  # the projection, its axes and units on the stated geographic CRS
+    d["base_crs"] = base.to_json_dict()
+    d["name"] = f"{base.name} / {plain.coordinate_operation.method_name} ({rest})"
+    return pyproj.CRS.from_json_dict(d)
+
+
+def unknown_datum_hint(crs: pyproj.CRS, other: pyproj.CRS) -> str | None:
+    """What is missing from ``crs`` when it names an ellipsoid but no datum (a PROJ string with +ellps and neither
+    +datum nor +towgs84), so that PROJ has only a ballpark operation from ``other``: its datum, and how to state it
+    (the datum of ``other`` when its ellipsoid is the same: the likely one). None for a CRS with a datum."""
+    h = horizontal_crs(crs)
+    if h.is_bound or h.datum is None or not h.datum.name.startswith(UNKNOWN_DATUM_PREFIX):
+        return None
+    e = h.ellipsoid
+    words = (f"the definition names the ellipsoid {e.name} but no datum (datums share ellipsoids: GRS 1980 carries "
+             "CGCS2000, ETRS89, NAD83, GDA94 ...), so PROJ cannot know the datum shift")
+    o = horizontal_crs(other)
+    geo = o.geodetic_crs if not o.is_geocentric else None
+    code = geo.to_epsg(min_confidence=70) if geo is not None and geo.is_geographic else None
+    same = (geo is not None and geo.ellipsoid is not None and abs(geo.ellipsoid.semi_major_metre - e.semi_major_metre)
+            < 1e-4 and abs(geo.ellipsoid.inverse_flattening - e.inverse_flattening) < 1e-9 * e.inverse_flattening)
+    if same and code:
+        return (f"{words}: if it is on {geo.datum.name} (the same ellipsoid), state it, and the operation is exact: "
+                f"add +datum=EPSG:{code} to the PROJ string (or give WKT with its DATUM, a .wkt/.prj file)")
+    return (f"{words}: state its datum by the EPSG code of its geographic CRS, +datum=EPSG:nnnn in the PROJ string (or "
+            "give WKT with its DATUM, a .wkt/.prj file)")
+
+
+def _crs_from_file(name: str, source: str) -> pyproj.CRS:
+    """The CRS of a .wkt or .prj file (leftovers2: `--to grid.wkt` was refused as an unknown CRS: only the WKT text
+    was taken, pasted on the command line)."""
+    from pathlib import Path
+
+    path = Path(name).expanduser()
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise CrsError(f"{source}: cannot read the CRS file {path} ({exc.strerror or exc})") from None
+    try:
+        wkt = data.decode("utf-8-sig").strip()
+    except UnicodeDecodeError:
+        wkt = data.decode("latin-1").strip()  # (an ESRI .prj of a Windows program)
+    if not wkt:
+        raise CrsError(f"{source}: the CRS file {path} is empty (expected the WKT of a CRS)")
+    try:
+        return _crs_from_code(wkt)
+    except pyproj.exceptions.CRSError:
+        raise CrsError(f"{source}: the CRS file {path} holds no CRS PROJ knows (expected WKT, as a .prj holds; "
+                       f"it begins {wkt[:40]!r})") from None
+
+
+def epsg_code(crs: pyproj.CRS) -> int | None:
+    """The EPSG code of ``crs`` when it is that code's CRS, else None: PROJ's identification at 90 % confidence, or
+    a lower one (70 %: a PROJ string, "+proj=utm +zone=49 +datum=WGS84", whose datum is WGS 84 and not the WGS 84
+    ensemble of EPSG:32649) and a bound CRS's base (an ODM header "+proj=utm +zone=49 +datum=WGS84
+    +towgs84=0,0,0,0,0,0,0", leftovers2: named "Position Vector transformation (geog2D domain) ()" for EPSG:32649)
+    when ``same_crs`` takes the two for one (a TOWGS84 moving no point by ``BOUND_SAME_M``); not for a definition by
+    its ellipsoid alone (+ellps=GRS80: PROJ's 70 % names an ETRS89 grid for it)."""
     code = crs.to_epsg(min_confidence=90)
     if code:
+        return code
+    base = without_bound(crs)
+    datum = horizontal_crs(base).datum
+    if datum is None or datum.name.startswith(UNKNOWN_DATUM_PREFIX):
+        return None  # a definition by its ellipsoid alone states no datum: named by what it says
+    code = base.to_epsg(min_confidence=70)
+    if code is None:
+        return None
+    try:
+        return code if same_crs(crs, _crs_from_code(f"EPSG:{code}")) else None
+    except (pyproj.exceptions.CRSError, CrsError):
+        return None
+
+
+def crs_label(crs: pyproj.CRS) -> str:
+    """``EPSG:nnnn`` when the CRS has an EPSG identity (``epsg_code``), else its name; a projected CRS without a name
+    (PROJ calls one given as a PROJ string "unknown") by its projection, parameters and datum."""
+    code = epsg_code(crs)
+    if code:
         return f"EPSG:{code}"
-    op = crs.coordinate_operation
-    if crs.name in ("", "unknown") and op is not None:
+    base = without_bound(crs) if crs.is_bound else crs  # (a bound CRS's operation is its TOWGS84, not its projection)
+    op = base.coordinate_operation
+    if base.name in ("", "unknown") and op is not None:
         params = ", ".join(f"{p.name} {p.value:g}" for p in op.params if p.value)
-        datum = crs.datum.name if crs.datum is not None else "unknown datum"
+        datum = base.datum.name if base.datum is not None else "unknown datum"
         return f"{op.method_name} ({params}), {datum}"
-    return crs.name
+    return base.name
 
 
 @functools.lru_cache(maxsize=64)

@@ -33,7 +33,7 @@ import numpy as np
 from aerotri.geom import las
 from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 from aerotri.geom.crs.definition import (check_coordinates, crs_label, height_unit_m, horizontal_crs, length_unit_name,
-                                         linear_unit_m, parse_crs, same_crs, unit_name)
+                                         linear_unit_m, parse_crs, same_crs, unit_name, vertical_crs)
 from aerotri.geom.crs.fit import fit_plane, fit_spatial
 from aerotri.geom.crs.datum import SPATIAL, load_height_model, load_transformation
 from aerotri.geom.crs.transform import CrsTransformer, to_own_geodetic
@@ -172,7 +172,14 @@ class CommonPoints:
 
 def read_common_points(path, from_crs, to_crs, need_z: bool = False) -> CommonPoints:
     table = _read_table(path, require_header=True)
-    wanted = {n: (n,) for n in ("id", "x_from", "y_from", "z_from", "x_to", "y_to", "z_to")}
+    normal = [c for c in table.header if (_UNIT_SUFFIX.match(c)["base"] if _UNIT_SUFFIX.match(c) else c)
+              in ("H_from", "H_to")]
+    if normal:  # (before "h_to": the spellings are matched without case)
+        raise InputError(f"{table.path}: line 1: column {normal[0]} holds normal heights (H); the common points' "
+                         f"heights are ellipsoidal heights h of each side's datum (z_from, z_to or h_from, h_to): "
+                         f"{NORMAL_HEIGHTS_ADVICE}")
+    wanted = {n: (n,) + ((n.replace("z_", "h_"),) if n.startswith("z_") else ())
+              for n in ("id", "x_from", "y_from", "z_from", "x_to", "y_to", "z_to")}
     cols = _columns(table, wanted, optional=("z_from", "z_to"))
     has_z = "z_from" in cols and "z_to" in cols
     if need_z and not has_z:
@@ -189,6 +196,30 @@ def read_common_points(path, from_crs, to_crs, need_z: bool = False) -> CommonPo
     src = [v["x_from"], v["y_from"]] + ([v["z_from"]] if has_z else [])
     dst = [v["x_to"], v["y_to"]] + ([v["z_to"]] if has_z else [])
     return CommonPoints(ids, np.column_stack(src), np.column_stack(dst), has_z)
+
+
+# what to do with common points whose heights are normal heights (leftovers2: a bursa-wolf7 fit on z_to = 1985
+# heights took up the height anomaly in its translation, rotations and scale, with centimetre residuals, and
+# `crs transform --heights` then subtracted the anomaly a second time)
+NORMAL_HEIGHTS_ADVICE = ("a spatial set (bursa-wolf7, translation3) fitted on normal heights takes up the height "
+                         "anomaly (tens of metres, tilted) in its translation, rotations and scale, and --heights "
+                         "would subtract it a second time. Give ellipsoidal heights on both sides with 2D "
+                         "--from/--to, or fit the plane with --model helmert2d and the heights with crs fit-heights")
+
+
+def _geocentric_of_heights(crs_obj, x, y, z, opt: str):
+    """``geocentric_of`` for ``crs fit``: a CRS whose vertical part PROJ cannot take to ellipsoidal heights (the 1985
+    heights of China, EPSG:5737: no geoid) is refused saying what its z are."""
+    try:
+        return geocentric_of(crs_obj, x, y, z)
+    except CrsError:
+        v = vertical_crs(crs_obj)
+        if v is None:
+            raise
+        side = "z_to" if opt == "--to" else "z_from"
+        raise InputError(f"{opt} {crs_label(crs_obj)}: {side} are heights of {v.name} (above a geoid, not "
+                         f"ellipsoidal), and PROJ has no geoid model of them to make ellipsoidal heights: "
+                         f"{NORMAL_HEIGHTS_ADVICE}") from None
 
 
 def geocentric_of(crs_obj, x, y, z):
@@ -220,14 +251,27 @@ def fit_common_points(path, model: str, from_crs, to_crs):
             return fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], from_crs=src_label, to_crs=dst_label)
         except InputError as exc:
             raise InputError(f"{path}: {exc}") from None
-    XYZ_s, _ = geocentric_of(src_crs, cp.src[:, 0], cp.src[:, 1], cp.src[:, 2])
-    XYZ_d, ll_d = geocentric_of(dst_crs, cp.dst[:, 0], cp.dst[:, 1], cp.dst[:, 2])
+    XYZ_s, _ = _geocentric_of_heights(src_crs, cp.src[:, 0], cp.src[:, 1], cp.src[:, 2], "--from")
+    XYZ_d, ll_d = _geocentric_of_heights(dst_crs, cp.dst[:, 0], cp.dst[:, 1], cp.dst[:, 2], "--to")
     plane = cp.src[:, :2] if horizontal_crs(src_crs).is_projected and linear_unit_m(src_crs) == 1.0 else None
     try:
-        return fit_spatial(model, cp.ids, XYZ_s, XYZ_d, dst_lat_lon_deg=ll_d, from_crs=src_label, to_crs=dst_label,
-                           src_plane_m=plane)
+        res = fit_spatial(model, cp.ids, XYZ_s, XYZ_d, dst_lat_lon_deg=ll_d, from_crs=src_label, to_crs=dst_label,
+                          src_plane_m=plane)
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
+    return dataclasses.replace(res, heights=_fit_heights_words(src_crs, dst_crs))
+
+
+def _fit_heights_words(src_crs, dst_crs) -> str:
+    """What the z columns of a spatial fit were taken as (said by ``crs fit`` and kept in the parameter file)."""
+    def side(c, col):
+        v = vertical_crs(c)
+        datum = horizontal_crs(c).geodetic_crs.datum.name
+        if v is None:
+            return f"{col} ellipsoidal heights h on {datum}"
+        return f"{col} heights of {v.name}, taken to ellipsoidal heights on {datum} through PROJ's geoid model"
+    return (f"{side(src_crs, 'z_from')}; {side(dst_crs, 'z_to')} (normal heights in a column of a 2D CRS would be "
+            "taken up by the set: give them with a compound --from/--to)")
 
 
 def read_height_points(path, crs=None):

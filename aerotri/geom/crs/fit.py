@@ -95,6 +95,8 @@ class FitResult:
     redundancy: int
     covariance: np.ndarray | None  # in the units of PARAMETER_NAMES
     warnings: list
+    # what the z columns held (a spatial set: "ellipsoidal heights h ..."), in the report and the parameter file
+    heights: str | None = None
 
     @property
     def rms_m(self) -> ResidualRms:
@@ -127,6 +129,8 @@ class FitResult:
         corr = self.correlation
         d["correlation"] = None if corr is None else np.round(corr, 6).tolist()
         d["warnings"] = list(self.warnings)
+        if self.heights is not None:
+            d["heights"] = self.heights
         return json.dumps(d, indent=2, allow_nan=False) + "\n"
 
 

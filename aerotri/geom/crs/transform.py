@@ -46,7 +46,7 @@ from pyproj.transformer import TransformerGroup
 from aerotri.core.errors import CrsError
 from aerotri.geom.crs.definition import (crs_label, geodetic_to_greenwich, greenwich_to_geodetic, height_unit_m,
                                          horizontal_crs, length_unit_name, linear_unit_m, parse_crs, same_horizontal,
-                                         vertical_crs)
+                                         unknown_datum_hint, vertical_crs)
 from aerotri.geom.crs.datum import HeightAnomalyModel, Transformation, outside_extent
 from aerotri.geom.crs.ellipsoid import Ellipsoid, geocentric_to_geodetic, geodetic_to_geocentric
 
@@ -285,6 +285,10 @@ class _ProjLeg:
                                                                           "between these datums, only a 'ballpark' "
                                                                           "one that ignores the datum shift (errors "
                                                                           "of decimetres to hundreds of metres); ")
+                # a definition by its ellipsoid alone (+ellps=GRS80): what is missing is its datum (leftovers2)
+                stated = unknown_datum_hint(dst, src) or unknown_datum_hint(src, dst)
+                if stated:
+                    why = f"{why}{stated}; otherwise "
                 raise BallparkRefused(
                     f"{crs_label(src)} ({src.name}) -> {crs_label(dst)} ({dst.name}){purpose}: {why}fit parameters "
                     "from common points known in both systems (aerotri crs fit ... --from/--to) and pass them with "

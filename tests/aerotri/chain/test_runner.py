@@ -510,14 +510,85 @@ def test_an_output_written_again_since_its_stage_re_runs_the_stage(tmp_path):
     rows = run_stages(tmp_path, _stages(calls), log=lines.append)
     assert calls == ["double"] and rows[-1]["value"] == 7 and (tmp_path / "out.txt").read_text() == "7"
     assert "[double] running (outputs changed since this stage wrote them: mid.txt)" in lines
-    # a stamp written before the outputs were recorded is not re-run for them
+    # a stamp written before the outputs were recorded is not re-run for them, but records them now (leftovers2: such
+    # a stamp stayed without outputs run after run, so a later edit of out.txt was never seen)
     stamp = json.loads(stamp_path(tmp_path, "add").read_text())
     del stamp["outputs"]
     stamp_path(tmp_path, "add").write_text(json.dumps(stamp))
     (tmp_path / "out.txt").write_text("8")
     calls.clear()
     run_stages(tmp_path, _stages(calls), log=lambda m: None)
-    assert calls == []
+    assert calls == [] and list(json.loads(stamp_path(tmp_path, "add").read_text())["outputs"]) == ["out.txt"]
+    (tmp_path / "out.txt").write_text("9")
+    run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    assert calls == ["add"] and (tmp_path / "out.txt").read_text() == "7"
+
+
+def test_a_geopackage_opened_by_a_reader_is_no_change(tmp_path):
+    """leftovers2: QGIS opening lidar_out/crowns.gpkg switches it to WAL mode (-wal and -shm beside it, header bytes
+    18-19) and back on closing (change counter, SQLite version): its bytes changed, so the next run re-ran the LiDAR
+    rasters that wrote it and every stage that read it. A SQLite file's signature leaves those header fields out; an
+    edited row re-runs the stage, and a stamp with the file's plain hash (written before) stays up to date."""
+    import contextlib
+    import sqlite3
+
+    from aerotri.chain import runner
+
+    def write(r):
+        calls.append("write")
+        (r / "crowns.gpkg").unlink(missing_ok=True)
+        with contextlib.closing(sqlite3.connect(r / "crowns.gpkg")) as db:
+            db.execute("CREATE TABLE crowns (id INTEGER PRIMARY KEY, radius_m REAL)")
+            db.executemany("INSERT INTO crowns (radius_m) VALUES (?)", [(2.5,), (3.0,)])
+            db.commit()
+        return StageResult()
+
+    def read(r):
+        calls.append("read")
+        (r / "n.txt").write_text("2")
+        return StageResult()
+
+    stages = [Stage("rasters", lambda r: [], lambda r: [r / "crowns.gpkg"], write),
+              Stage("rectify", lambda r: [r / "crowns.gpkg"], lambda r: [r / "n.txt"], read)]
+    calls = []
+    run_stages(tmp_path, stages, log=lambda m: None)
+    gpkg = tmp_path / "crowns.gpkg"
+    before = gpkg.read_bytes()
+    with contextlib.closing(sqlite3.connect(gpkg)) as db:  # as QGIS opens and closes it
+        assert db.execute("PRAGMA journal_mode=WAL").fetchone() == ("wal",)
+        db.execute("SELECT * FROM crowns").fetchall()
+        assert (tmp_path / "crowns.gpkg-wal").exists()
+        assert gpkg.read_bytes() != before
+        rows = run_stages(tmp_path, stages, log=lambda m: None)  # while it is open
+        db.execute("PRAGMA journal_mode=DELETE")
+    assert gpkg.read_bytes() != before and not (tmp_path / "crowns.gpkg-wal").exists()
+    rows += run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["write", "read"] and all(r["status"] == "skipped (up to date)" for r in rows)
+    # a stamp of before holds the plain hash: up to date while the file is the same, and brought to the new record
+    def record(name):
+        return json.loads(stamp_path(tmp_path, name).read_text())["outputs" if name == "rasters" else "inputs"]
+
+    for name in ("rasters", "rectify"):
+        stamp = json.loads(stamp_path(tmp_path, name).read_text())
+        key = "outputs" if name == "rasters" else "inputs"
+        assert stamp[key]["crowns.gpkg"].startswith("sqlite:")
+        stamp[key]["crowns.gpkg"] = runner.hashlib.sha1(gpkg.read_bytes()).hexdigest()
+        stamp_path(tmp_path, name).write_text(json.dumps(stamp))
+    run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["write", "read"] and all(record(n)["crowns.gpkg"].startswith("sqlite:") for n in ("rasters",
+                                                                                                       "rectify"))
+    with contextlib.closing(sqlite3.connect(gpkg)) as db:
+        db.execute("PRAGMA journal_mode=WAL")
+    run_stages(tmp_path, stages, log=lambda m: None)
+    assert calls == ["write", "read"]
+    with contextlib.closing(sqlite3.connect(gpkg)) as db:  # an edit
+        db.execute("UPDATE crowns SET radius_m = 4.0 WHERE id = 1")
+        db.commit()
+    lines = []
+    run_stages(tmp_path, stages, log=lines.append)
+    # the stage makes its own again, the crowns the reader read: it stays up to date
+    assert calls == ["write", "read", "write"]
+    assert "[rasters] running (outputs changed since this stage wrote them: crowns.gpkg)" in lines
 
 
 def test_an_operators_hand_made_output_is_kept_and_a_new_time_alone_is_no_edit(tmp_path, caplog, monkeypatch):
@@ -541,7 +612,7 @@ def test_an_operators_hand_made_output_is_kept_and_a_new_time_alone_is_no_edit(t
     assert calls == ["add"] and rows[-1]["value"] == 101
     assert "[double] kept: mid.txt changed since this stage wrote it (edited by the operator)" in caplog.text
     # outputs over the hash limit: a new time alone keeps the stage, a new size re-runs it
-    monkeypatch.setattr(runner, "_signature", lambda paths, root, hash_limit_bytes=0: {
+    monkeypatch.setattr(runner, "_signature", lambda paths, root, hash_limit_bytes=0, before=None: {
         runner._key(p, root): [p.stat().st_size, p.stat().st_mtime_ns] for p in paths if p.is_file()})
     run_stages(tmp_path, _stages([]), force=True, log=lambda m: None)
     st = (tmp_path / "out.txt").stat()

@@ -478,3 +478,101 @@ def test_normal_heights_back_to_ellipsoidal_heights_from_the_cli(tmp_path, yicha
     r = _run("transform", pts, out, "--from", "32649", "--to", "2361", "--normal-to-ellipsoidal")
     assert r.exit_code == 2 and not out.exists() and "--normal-to-ellipsoidal" in r.output and "--heights" in r.output
     assert r.output.strip().count("\n") == 0, r.output
+
+
+def test_a_spatial_fit_knows_which_heights_its_z_columns_hold(tmp_path, common_points):
+    """leftovers2: bursa-wolf7 fitted on z_to = 1985 normal heights took up the height anomaly (tilted, 12 m here) with
+    1 cm residuals, and `crs transform --heights` subtracted it again. A compound --to whose heights PROJ cannot take to
+    ellipsoidal ones (1985: no geoid) and an H_to column are refused saying what the z are; h_to declares ellipsoidal
+    heights (the same set as z_to); the report and the parameter file say what the z were taken as."""
+    path, src, dst = common_points
+    header, *rows = path.read_text().splitlines()
+    out = tmp_path / "p.json"
+    r = _run("fit", path, "--model", "bursa-wolf7", "--from", "32649", "--to", "EPSG:2361+5737", "-o", out)
+    assert r.exit_code == 2 and not out.exists(), r.output
+    assert "--to" in r.output and "z_to are heights of Yellow Sea 1985" in r.output
+    assert "--heights would subtract it a second time" in r.output and "fit-heights" in r.output
+    normal = _write(tmp_path / "normal.csv", "\n".join([header.replace("z_to", "H_to")] + rows) + "\n")
+    r = _run("fit", normal, "--model", "bursa-wolf7", "--from", "32649", "--to", "2361", "-o", out)
+    assert r.exit_code == 2 and not out.exists() and "column H_to holds normal heights" in r.output, r.output
+    declared = _write(tmp_path / "h.csv", "\n".join([header.replace("z_", "h_")] + rows) + "\n")
+    for f, o in ((path, tmp_path / "z.json"), (declared, tmp_path / "h.json")):
+        r = _run("fit", f, "--model", "bursa-wolf7", "--from", "32649", "--to", "2361", "-o", o)
+        assert r.exit_code == 0, r.output
+        assert "Heights: z_from ellipsoidal heights h on World Geodetic System 1984" in r.output
+        assert "z_to ellipsoidal heights h on Xian 1980" in r.output
+    z, h = (json.loads((tmp_path / n).read_text()) for n in ("z.json", "h.json"))
+    assert z["parameters"] == h["parameters"] and z["heights"].startswith("z_from ellipsoidal heights h")
+
+
+def test_to_and_from_take_a_wkt_or_prj_file(tmp_path):
+    """leftovers2: `--to grid.wkt` was refused as an unknown CRS (only WKT pasted on the command line was taken). A
+    .wkt or .prj path (ESRI's WKT too) is read; a file that cannot be read, or holds no CRS, is named (exit 2, no
+    output)."""
+    import pyproj
+
+    pts = _write(tmp_path / "pts.csv", "id,x,y,z\nA,441000.0,3791000.0,500.0\n")
+    want = tmp_path / "want.csv"
+    assert _run("transform", pts, want, "--from", "32649", "--to", "32650").exit_code == 0
+    (tmp_path / "utm50.wkt").write_text(pyproj.CRS.from_epsg(32650).to_wkt())
+    (tmp_path / "utm49.prj").write_text(pyproj.CRS.from_epsg(32649).to_wkt("WKT1_ESRI"))
+    out = tmp_path / "out.csv"
+    r = _run("transform", pts, out, "--from", tmp_path / "utm49.prj", "--to", tmp_path / "utm50.wkt")
+    assert r.exit_code == 0, r.output
+    assert out.read_text() == want.read_text()
+    _write(tmp_path / "bad.prj", "PROJCS[nonsense")
+    for to, message in ((tmp_path / "missing.wkt", f"--to: cannot read the CRS file {tmp_path / 'missing.wkt'}"),
+                        (tmp_path / "bad.prj", f"--to: the CRS file {tmp_path / 'bad.prj'} holds no CRS PROJ knows")):
+        r = _run("transform", pts, tmp_path / "o.csv", "--from", "32649", "--to", to)
+        assert r.exit_code == 2 and message in r.output and not (tmp_path / "o.csv").exists(), r.output
+
+
+LOCAL_GK = "+proj=tmerc +lat_0=0 +lon_0=114.5 +k=1 +x_0=500000 +y_0=0 +ellps=GRS80 +units=m +no_defs"
+
+
+def test_a_local_gauss_krueger_grid_on_grs80_takes_its_stated_datum(tmp_path):
+    """leftovers2: a user's local Gauss-Krueger grid of CGCS2000, "+proj=tmerc +lon_0=114.5 ... +ellps=GRS80", names an
+    ellipsoid and no datum, so PROJ offers only a ballpark operation from CGCS2000 / 3-degree GK CM 114E (EPSG:4547)
+    and it was refused as that, with the advice to fit parameters. The refusal now says what is missing (its datum:
+    +datum=EPSG:4490, CGCS2000 having GRS 1980's ellipsoid); stated, the operation is exact (a change of projection on
+    one datum: PROJ's own conversion through EPSG:4490's coordinates); an ellipsoid other than the stated datum's is
+    refused naming both."""
+    import pyproj
+
+    pts = _write(tmp_path / "pts.csv", "id,x,y,z\nA,480000.0,3400000.0,50.0\nB,520000.0,3450000.0,80.0\n")
+    out = tmp_path / "out.csv"
+    r = _run("transform", pts, out, "--from", "EPSG:4547", "--to", LOCAL_GK)
+    assert r.exit_code == 2 and not out.exists(), r.output
+    assert "names the ellipsoid GRS 1980 but no datum" in r.output and "+datum=EPSG:4490" in r.output
+    r = _run("transform", pts, out, "--from", "EPSG:4547", "--to", LOCAL_GK + " +datum=EPSG:4490")
+    assert r.exit_code == 0 and "BALLPARK" not in r.output, r.output
+    got = np.array([[float(v) for v in ln.split(",")[1:3]] for ln in out.read_text().splitlines()[1:]])
+    lon, lat = pyproj.Transformer.from_crs(4547, 4490, always_xy=True).transform([480000.0, 520000.0],
+                                                                                [3400000.0, 3450000.0])
+    want = np.column_stack(pyproj.Proj(LOCAL_GK)(lon, lat))  # the same latitudes and longitudes, projected
+    assert np.abs(got - want).max() < 1e-3 and np.abs(got[:, 0] - [480000.0, 520000.0]).min() > 1000  # moved 0.5 deg
+    r = _run("transform", pts, tmp_path / "o.csv", "--from", "EPSG:4547", "--to",
+             LOCAL_GK.replace("GRS80", "krass") + " +datum=EPSG:4490")
+    assert r.exit_code == 2 and "Krassovsky" in r.output and "China 2000" in r.output, r.output
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_an_odm_header_with_a_null_towgs84_is_its_epsg_code(tmp_path):
+    """leftovers2: OpenDroneMap's header "+proj=utm +zone=49 +datum=WGS84 +towgs84=0,0,0,0,0,0,0" was taken for the
+    same coordinates as EPSG:32649 but named "Position Vector transformation (geog2D domain) ()" in every message
+    and imports.json (and "+datum=WGS84" without TOWGS84 by its projection parameters); both are EPSG:32649 now,
+    and a TOWGS84 that moves the points (173 m) is not."""
+    from aerotri.exchange.odm_export import _crs_line
+    from aerotri.geom.crs.definition import crs_label, parse_crs, same_crs
+
+    odm = "+proj=utm +zone=49 +datum=WGS84 +towgs84=0,0,0,0,0,0,0 +units=m +no_defs"
+    for text in (odm, "+proj=utm +zone=49 +datum=WGS84 +towgs84=0,0,0", "+proj=utm +zone=49 +datum=WGS84 +units=m"):
+        assert crs_label(parse_crs(text)) == "EPSG:32649" and same_crs(text, "EPSG:32649"), text
+        assert _crs_line(text) == "EPSG:32649"
+    # (PROJ applies no TOWGS84 to a datum named WGS84: such a header is the same whatever it says; on the ellipsoid
+    # alone, a shift of 100 m in each axis)
+    moved = "+proj=utm +zone=49 +ellps=WGS84 +towgs84=100,100,100 +units=m"
+    assert crs_label(parse_crs(moved)) != "EPSG:32649" and not same_crs(moved, "EPSG:32649")
+    assert crs_label(parse_crs(moved)).startswith("Transverse Mercator (Longitude of natural origin 111")
+    # an ellipsoid alone states no datum: not named by the ETRS89 grid PROJ finds for it at 70 %
+    assert crs_label(parse_crs("+proj=utm +zone=32 +ellps=GRS80 +units=m")) != "EPSG:25832"

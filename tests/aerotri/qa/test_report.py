@@ -493,3 +493,36 @@ def test_a_dom_check_of_another_dom_is_not_the_projects(tmp_path):
     check.write_text(json.dumps(dict(doc, dom="/elsewhere/other_dom.tif", dom_is_project_mosaic=False)))
     rep = write_qa_report(p)
     assert rep.check("dom_check_stale").quantity == "DOM check of another DOM" and not rep.has("dom_rms_xy_m")
+
+
+def test_a_mosaic_older_than_its_frames_fails_the_report(tmp_path):
+    """leftovers2: `ortho rectify` run by hand after the chain replaced ortho/frames, and the report went on describing
+    (and passing) the earlier mosaic. mosaic.json records the frames' index it was made from (``index_sha1``); one
+    written before that is older than index.json by its time."""
+    import hashlib
+    import os
+
+    p = _project(tmp_path, [0.1, 0.1, 0.5], 0.18)
+    (p / "ortho" / "frames").mkdir()
+    index = p / "ortho" / "frames" / "index.json"
+    index.write_text('{"crs": "EPSG:32649", "res_m": 0.1, "frames": []}\n')
+    (p / "ortho" / "mosaic.tif").write_bytes(b"II*\0")
+    os.utime(p / "ortho" / "mosaic.tif", (800_000_000, 800_000_000))  # before its DOM check
+    doc = dict(path=str(p / "ortho" / "mosaic.tif"), width=100, height=100, frames=2, res_m=0.1, seams="least-cost",
+               feather_px=8.0, gains={"a": [1.0]}, cells_seen_by_no_frame=0, share_seen_by_no_frame=0.0,
+               area_seen_by_no_frame_m2=0.0, index_sha1=hashlib.sha1(index.read_bytes()).hexdigest())
+    (p / "ortho" / "mosaic.json").write_text(json.dumps(doc))
+    rep = write_qa_report(p)
+    assert not rep.has("mosaic_stale") and rep.overall == "pass"
+    index.write_text('{"crs": "EPSG:32649", "res_m": 0.2, "frames": []}\n')  # ortho rectify again, by hand
+    rep = write_qa_report(p)
+    row = rep.check("mosaic_stale")
+    assert row.verdict == "fail" and rep.overall == "fail"
+    assert "mosaic.tif is older than the frames" in row.note and "re-run ortho mosaic" in row.note
+    # a mosaic.json of before (no index_sha1): by time
+    del doc["index_sha1"]
+    (p / "ortho" / "mosaic.json").write_text(json.dumps(doc))
+    os.utime(p / "ortho" / "mosaic.json", (1_000_000_000, 1_000_000_000))
+    assert write_qa_report(p).check("mosaic_stale").verdict == "fail"
+    os.utime(index, (900_000_000, 900_000_000))
+    assert not write_qa_report(p).has("mosaic_stale")
