@@ -2814,7 +2814,7 @@ class _StageRow:
 # The rules by which a tile's samples are blended and filled from the frames, named in the rows' resume keys and in
 # mosaic.json: a mosaic made by other rules (the package's version does not move with every change of them) is never
 # resumed or taken over by an edited run. Change the name whenever blending, filling or the gains' application changes.
-BLEND_RULES = "feather+fill-farthest-from-holes+rolloff+offsets-toe-black-held/2026-12-01"
+BLEND_RULES = "feather+fill-farthest-from-holes+holes-inside-footprint+rolloff+offsets-toe-black-held/2026-12-01"
 # The version of what the blending is given: the frames' gains and offsets (their solve over the overlaps) and the
 # seamlines. The chain's mosaic stamp holds it beside ``BLEND_RULES`` (the rows' resume keys hold the gains, offsets
 # and seam labels themselves). Bump it when the gains, offsets or seamlines change at the same inputs and settings.
