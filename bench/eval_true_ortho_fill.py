@@ -70,6 +70,27 @@ def seen_with_clearance(truth, image_id: str, x: np.ndarray, y: np.ndarray, r_m:
     return ok
 
 
+WHOLE_CELL_SAMPLES = 5  # per side of a DOM cell: the straight-down rays that say whether all of it is ground
+
+
+def whole_ground(truth, x: np.ndarray, y: np.ndarray, cell_m: float, n: int = WHOLE_CELL_SAMPLES) -> np.ndarray:
+    """True where the straight-down surface is the terrain at all n x n points of the DOM cell of side ``cell_m``
+    centred at (x, y) (local metres; points at the centres of its n x n sub-cells): a cell no roof, wall or crown
+    enters in plan. A cell whose centre is ground but which a roof edge crosses is a mixed pixel: every frame's sample
+    there blends the roof with the ground at the frame's own resolution, and whether its centre is seen is decided
+    within a fraction of a cell of the wall."""
+    from aerotri.sim.scene import KIND_TERRAIN
+
+    o = (np.arange(n) + 0.5) / n * cell_m - cell_m / 2
+    ox, oy = (a.ravel() for a in np.meshgrid(o, o))
+    out = np.ones(len(x), bool)
+    for a in range(0, len(x), 100_000):
+        X, Y = x[a:a + 100_000], y[a:a + 100_000]
+        kind, _, _ = truth.surface((X[:, None] + ox).ravel(), (Y[:, None] + oy).ravel())
+        out[a:a + 100_000] = (kind.reshape(len(X), -1) == KIND_TERRAIN).all(1)
+    return out
+
+
 def measure_block(work: Path, name: str, *, true_ortho: Path | None = None, truth=None,
                   truth_arrays: tuple | None = None, cells_out: dict | None = None) -> dict:
     """The figures of one block: its DOMs in ``work/name/conventional`` and ``work/name/true_ortho`` (or the true
@@ -170,7 +191,25 @@ def measure_block(work: Path, name: str, *, true_ortho: Path | None = None, trut
             "misses": int((robust & ~okc).sum()),
             "misses_empty_every_seeing_frame_masks_it": int((robust & overc).sum()),
             "ray_cast_s": round(time.perf_counter() - t, 1)}
+    # the same share over the cells that are ground over their whole area (no roof edge crosses them in plan: not a
+    # mixed pixel; ``whole_ground``)
+    t = time.perf_counter()
+    whole = whole_ground(truth, X, Y, grid.res_m)
+    okc = ok.ravel()[cells]
+    whole_cells = {"samples_per_side": WHOLE_CELL_SAMPLES,
+                   "seen_by_another_frame": int(whole.sum()),
+                   "filled_from_a_frame_that_sees": int((whole & okc).sum()),
+                   "fill_share": float((whole & okc).sum() / max(1, whole.sum())),
+                   "misses": int((whole & ~okc).sum()),
+                   "misses_in_mixed_cells": int((~whole & ~okc).sum()),
+                   "mixed_cells": int((~whole).sum()),
+                   "ray_cast_s": round(time.perf_counter() - t, 1)}
+    if cells_out is not None:
+        w = np.zeros(H * W, bool)
+        w[cells] = whole
+        cells_out.update(whole_ground=w.reshape(H, W))
     return {"dom_cells": int(H * W), "gsd_m": grid.res_m, "ray_cast_s": round(ray_cast_s, 1),
+            "whole_ground_cells": whole_cells,
             "occluded_in_nadir_most_frame": int(occl.sum()),
             "seen_by_another_frame": int(seen_other.sum()),
             "filled_from_a_frame_that_sees": int(ok.sum()),

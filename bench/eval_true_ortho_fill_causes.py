@@ -121,7 +121,9 @@ def causes(work: Path, name: str, project: Path) -> dict:
            "ghosts_building_beyond_1m_of_a_roof": way["ghosts"]["building_beyond_1m_of_a_roof"],
            "roofs_rms_gsd": roofs["rms_gsd"], "roofs_median_gsd": roofs["median_gsd"],
            "roof_corners": roofs["measured"],
-           "misses": int(miss.sum())}
+           "misses": int(miss.sum()),
+           # the same share over the cells ground over their whole area (``eval_true_ortho_fill.whole_ground``)
+           "whole_ground_cells": fill["whole_ground_cells"]}
     # over-masked: the 2.5D blocker of the seeing frames
     rr, cc = np.nonzero(over)
     seeing = codes[:, rr, cc]

@@ -260,12 +260,13 @@ def _cells_reduce(a: np.ndarray, factor: int, op) -> np.ndarray:
 
 
 def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, *, strip_px: int = 1024, keep_decoded=False,
-                  margin_px: int = 0):
+                  margin_px: int = 0, footprint=None):
     """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell, histogram,
     decoded, holes), read by strips of whole cells (memory of the samples set by ``strip_px`` rows, not by the
     frame; the holes need one byte per pixel of the frame); with ``keep_decoded`` the frame is read whole and
     returned as ``decoded`` (``DecodedFrame``; its validity away from the holes cleared ``margin_px`` round them),
-    else that is None. ``holes``: ``FrameHoles`` or None (no invalid pixel enclosed by valid ones). Then the bits its
+    else that is None. ``holes``: ``FrameHoles`` or None (no invalid pixel enclosed by valid ones, nor inside
+    ``footprint``, the frame's ring (x, y) on the ground in the mosaic's CRS, one pixel in). Then the bits its
     file states (``_nbits``, None) and its largest valid sample (None where not read: 8-bit or NBITS frames kept
     decoded), for ``white_level``."""
     c0, r0 = g.offset_in(mosaic)
@@ -307,7 +308,8 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, *, strip_p
             # a cell is valid when all its pixels are (the window is whole cells)
             valid[s:s + n] = _cells_reduce(ok.view(np.uint8), factor, np.bitwise_and).view(bool)
             np.logical_not(ok, out=invalid[1 + s * factor:1 + (s + n) * factor, 1:-1].view(bool))
-    holes = find_holes(invalid, factor, (rc0, cc0))
+    holes = find_holes(invalid, factor, (rc0, cc0),
+                       inside=_inside_footprint(footprint, invalid.shape, mosaic, rc0 * factor - 1, cc0 * factor - 1))
     if decoded is not None:
         away = None
         if holes is not None and margin_px:
@@ -401,7 +403,10 @@ def reduce_frames(frames_dir: Path, index: FrameIndex, mosaic: OrthoGrid, factor
 
     def one(entry):
         e, grid = entry
-        return _reduce_frame(frames_dir / e.file, grid, mosaic, factor, keep_decoded=keep_decoded, margin_px=margin)
+        # a true ortho's occlusion inside the frame's footprint is a hole even where it reaches the frame's edge; a
+        # conventional ortho's few empty pixels along its image's edge inside the ring are not (its blending as before)
+        return _reduce_frame(frames_dir / e.file, grid, mosaic, factor, keep_decoded=keep_decoded, margin_px=margin,
+                             footprint=e.footprint_xy_m if index.true_ortho else None)
 
     names, rgbs, valids, offsets, hists, decoded, holes, frames, nbits, maxima = [], [], [], [], [], {}, [], [], [], []
     with progress(len(entries), "seam grid", "frames") as bar:
@@ -2428,10 +2433,33 @@ class FrameHoles:
                    z[f"holes_partial_{k}"])
 
 
-def find_holes(invalid: np.ndarray, factor: int, offset, strip_cells: int = 256) -> FrameHoles | None:
+def _inside_footprint(ring, shape, mosaic: OrthoGrid, row0: int, col0: int) -> np.ndarray | None:
+    """bool ``shape``: the pixels of a window of the mosaic (its first pixel at mosaic row ``row0``, column ``col0``)
+    inside a frame's footprint ``ring`` ((x, y) in the mosaic's CRS; None: not recorded, None returned), one pixel in
+    (the frame ortho's last pixel along its image's edge may be empty: no sample to interpolate from; as
+    ``ortho.unseen``)."""
+    if not ring:
+        return None
+    xy = np.asarray(ring, float)
+    col = (xy[:, 0] - mosaic.x_left_m) / mosaic.res_m - col0
+    row = (mosaic.y_top_m - xy[:, 1]) / mosaic.res_m - row0
+    inside = np.zeros(shape, np.uint8)
+    # fillPoly takes a pixel whose centre the ring holds; pixel corners -> centres
+    pts = np.round(np.stack([col - 0.5, row - 0.5], axis=-1) * 16).astype(np.int32)
+    cv2.fillPoly(inside, [pts], 1, lineType=cv2.LINE_8, shift=4)
+    return cv2.erode(inside, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0).view(bool)
+
+
+def find_holes(invalid: np.ndarray, factor: int, offset, strip_cells: int = 256,
+               inside: np.ndarray | None = None) -> FrameHoles | None:
     """The holes of a frame (``FrameHoles``) from ``invalid`` (uint8 (h * factor + 2, w * factor + 2): 1 an invalid
-    pixel of its window on whole seam cells, 0 a valid one, framed by 1s; overwritten); None when it has none."""
+    pixel of its window on whole seam cells, 0 a valid one, framed by 1s; overwritten); None when it has none. An
+    invalid pixel is a hole when valid ones enclose it or, with ``inside`` (bool, ``invalid``'s shape: the frame's
+    footprint on the ground), when it lies inside the footprint: a true ortho's occlusion that reaches the frame's
+    edge is joined to the outside, yet its rim errs as an enclosed one's does."""
     cv2.floodFill(invalid, None, (0, 0), 2)  # the invalid pixels joined to the outside (4-connected) become 2
+    if inside is not None:
+        invalid[(invalid == 2) & inside] = 1
     if not (invalid == 1).any():  # a conventional ortho: no hole
         return None
     h, w = (invalid.shape[0] - 2) // factor, (invalid.shape[1] - 2) // factor
@@ -2810,7 +2838,7 @@ class _StageRow:
 # The rules by which a tile's samples are blended and filled from the frames, named in the rows' resume keys and in
 # mosaic.json: a mosaic made by other rules (the package's version does not move with every change of them) is never
 # resumed or taken over by an edited run. Change the name whenever blending, filling or the gains' application changes.
-BLEND_RULES = "feather+fill-farthest-from-holes+rolloff+offsets-toe-black-held/2026-12-01"
+BLEND_RULES = "feather+fill-farthest-from-holes+holes-inside-footprint+rolloff+offsets-toe-black-held/2026-12-01"
 # The version of what the blending is given: the frames' gains and offsets (their solve over the overlaps) and the
 # seamlines. The chain's mosaic stamp holds it beside ``BLEND_RULES`` (the rows' resume keys hold the gains, offsets
 # and seam labels themselves). Bump it when the gains, offsets or seamlines change at the same inputs and settings.

@@ -240,6 +240,16 @@ def true_frames(block, tmp_path_factory):
     return root
 
 
+def _holes(m, ring, mosaic, r0, c0):
+    """A frame's holes as the mosaic takes them: its invalid pixels that valid ones enclose or that lie inside its
+    footprint ``ring`` one pixel in (occlusion reaching the frame's edge); the frame's first pixel at mosaic row
+    ``r0``, column ``c0``."""
+    from ortho.mosaic import _inside_footprint
+
+    inside = _inside_footprint(ring, m.shape, mosaic, r0, c0)
+    return ~m & (_filled(m) | (inside if inside is not None else False))
+
+
 def _taken_near_own_holes(root, margin_px):
     """Of the DOM pixels of a frame's region within ``margin_px`` of a hole of that frame (its ortho empty inside
     its footprint) that another frame has away from its own holes: (their count, the share equal to the region's
@@ -268,7 +278,7 @@ def _taken_near_own_holes(root, margin_px):
         c0, r0 = grids[e.image_id].offset_in(mosaic)
         with rasterio.open(root / "ortho" / "frames" / e.file) as ds:
             img, m = ds.read(), ds.read_masks(1) > 0
-        near = cv2.dilate((~m & _filled(m)).astype(np.uint8), disc) > 0
+        near = cv2.dilate(_holes(m, e.footprint_xy_m, mosaic, r0, c0).astype(np.uint8), disc) > 0
         frames.append((slice(r0, r0 + m.shape[0]), slice(c0, c0 + m.shape[1]), img, m, near))
     clear = np.zeros(lab_px.shape, np.int32)  # frames that have the pixel away from their holes
     for rs, cs, _, m, near in frames:
@@ -325,7 +335,8 @@ def test_the_mosaic_takes_a_true_ortho_frame_away_from_its_holes_where_another_f
     assert made["none"][0] > 1000  # pixels near the frames' holes that another frame has clear
     assert made["none"][2] > 0.7 * made["none"][0]  # most of them told apart by their samples
     # of those whose samples tell the source: 99.2 % from the region's frame without the margin, none with it
-    # (measured: 0 of 5,326 pixels; seed 11: 95.9 % and 0 of 5,322). With the holes found on the seam grid, whose
+    # (measured: 0 of 5,326 pixels; seed 11: 95.9 % and 0 of 5,322; since fill3's holes inside the footprint, also
+    # occlusion that runs off a frame's edge: 96.6 % and 0 of 4,488). With the holes found on the seam grid, whose
     # partly valid cells at a frame's edge join a hole there to the outside, 1.5 % (seed 11: 6.8 %) came from the
     # region's frame. Counted over all of them, ties included, the share was 21.1 % (seed 11: 21.5 %): the ties, a
     # fifth of the pixels, count as the region's frame's whichever frame gave them; the limit on the pixels told
@@ -368,7 +379,7 @@ def test_a_pixel_every_frame_has_near_its_holes_comes_from_the_frame_farthest_fr
         c0, r0 = grids[e.image_id].offset_in(mosaic)
         with rasterio.open(root / "ortho" / "frames" / e.file) as ds:
             img, m = ds.read(), ds.read_masks(1) > 0
-        hole = ~m & _filled(m)
+        hole = _holes(m, e.footprint_xy_m, mosaic, r0, c0)
         d = np.minimum(np.round(cv2.distanceTransform((~hole).view(np.uint8), cv2.DIST_L2, 3), 2), margin_px + 1)
         rs, cs = slice(r0, r0 + m.shape[0]), slice(c0, c0 + m.shape[1])
         dist[k, rs, cs] = np.where(m, d, -1.0)
@@ -433,6 +444,50 @@ def test_the_mosaic_finds_a_frames_holes_pixel_by_pixel():
     invalid = np.ones((ch * factor + 2, cw * factor + 2), np.uint8)
     invalid[1 + r:1 + r + h, 1 + c:1 + c + w] = 0
     assert find_holes(invalid, factor, (sr, sc)) is None
+
+
+def test_occlusion_that_reaches_the_frames_edge_is_a_hole_inside_its_footprint():
+    """An occlusion that reaches the frame ortho's edge is joined to the outside, so valid pixels do not enclose it;
+    inside the frame's footprint (``FrameEntry.footprint_xy_m``, one pixel in) it is a hole all the same: the hole
+    margin and the farthest-from-holes rule act round it (on the tall seed 20261130 a third of the frames' invalid
+    pixels inside their footprints were such occlusion, joined to the outside: docs/true-ortho.md "Occlusion that
+    reaches a frame's edge"). Outside the footprint the invalid pixels stay the frame's outside."""
+    from pyproj import CRS
+
+    from ortho.grid import OrthoGrid
+    from ortho.mosaic import _inside_footprint, find_holes
+
+    factor, (h, w) = 4, (40, 36)
+    mosaic = OrthoGrid(CRS.from_epsg(32632), 500000.0, 4000000.0, 0.5, 60, 60)
+    offset_px = (8, 12)  # the frame's first pixel in the mosaic (row, col)
+    m = np.zeros((h, w), bool)
+    m[2:38, 3:33] = True  # the frame's ground: its footprint
+    m[10:16, 20:33] = False  # a building's occlusion running off the frame's right edge
+    m[25:28, 8:11] = False  # an enclosed hole
+    # the footprint ring round the valid rectangle's pixel edges, in the mosaic's CRS
+    x0 = mosaic.x_left_m + (offset_px[1] + 3) * mosaic.res_m
+    x1 = mosaic.x_left_m + (offset_px[1] + 33) * mosaic.res_m
+    y0 = mosaic.y_top_m - (offset_px[0] + 2) * mosaic.res_m
+    y1 = mosaic.y_top_m - (offset_px[0] + 38) * mosaic.res_m
+    ring = ((x0, y0), (x1, y0), (x1, y1), (x0, y1))
+    (sr, sc) = (offset_px[0] // factor, offset_px[1] // factor)
+    ch, cw = -(-(offset_px[0] + h) // factor) - sr, -(-(offset_px[1] + w) // factor) - sc
+    r, c = offset_px[0] - sr * factor, offset_px[1] - sc * factor
+
+    def framed():
+        invalid = np.ones((ch * factor + 2, cw * factor + 2), np.uint8)
+        invalid[1 + r:1 + r + h, 1 + c:1 + c + w] = ~m
+        return invalid
+
+    inside = _inside_footprint(ring, (ch * factor + 2, cw * factor + 2), mosaic, sr * factor - 1, sc * factor - 1)
+    got = find_holes(framed(), factor, (sr, sc), inside=inside).pixels(m, *offset_px, factor)
+    enclosed = find_holes(framed(), factor, (sr, sc)).pixels(m, *offset_px, factor)  # without the footprint
+    assert enclosed.sum() == 9 and not enclosed[10:16, 20:33].any()
+    # the occlusion is a hole up to the footprint's edge (its ring on the pixel edges, taken one pixel in); the
+    # enclosed hole as before; nothing outside the footprint
+    assert got[10:16, 20:32].all() and got[25:28, 8:11].all() and got.sum() in (6 * 12 + 9, 6 * 13 + 9)
+    assert not got[:, 33:].any() and not got[:2].any() and not got[38:].any() and not got[:, :3].any()
+    assert _inside_footprint(None, (4, 4), mosaic, 0, 0) is None
 
 
 def test_a_decoded_frames_hole_margin_is_that_of_its_file_windows(true_frames):
