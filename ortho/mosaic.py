@@ -2152,7 +2152,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     labelled = present[present >= 0]
     fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
     reads = {}
-
+    whole = {}  # frame k read from its file -> ``_TileFrame``
     raw = {}
 
     def frame(k, y0=0, y1=th, x0=0, x1=tw):
@@ -2160,12 +2160,21 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         away from them; its validity itself in ``raw``)."""
         key = (k, y0, y1, x0, x1)
         if key not in reads:
-            if ctx.holes is not None and ctx.holes[k] is not None:
+            if readers.decoded(ctx.files[k]) is None:
+                # read from its file: once for the tile, whatever boxes of it the weights and the fill ask for
+                if k not in whole:
+                    whole[k] = _TileFrame.read(ctx, readers, k, r0=r0, c0=c0, th=th, tw=tw)
+                reads[key], raw[key] = whole[k].box(y0, y1, x0, x1)
+            elif ctx.holes is not None and ctx.holes[k] is not None:
                 reads[key], raw[key] = _hole_margin(ctx, readers, k, row=r0 + y0, col=c0 + x0, h=y1 - y0, w=x1 - x0)
             else:
                 reads[key] = readers.window(ctx.files[k], c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]), x1 - x0,
                                             y1 - y0)
         return reads[key]
+
+    def holes_near(k, row, col, h, w):
+        """Frame k's hole pixels over the mosaic window (row, col, h, w) from its tile read (None: not read so)."""
+        return whole[k].holes(row - r0, col - c0, h, w) if k in whole else None
 
     if len(labelled) == 1 and present[0] >= 0:
         k = int(labelled[0])
@@ -2177,7 +2186,8 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         out = np.zeros((ctx.bands, th, tw), np.dtype(ctx.dtype))
         np.copyto(out, _apply_gain(ctx, k, img), where=m[None])
         valid = m.copy()
-        _fill_nearest(ctx, readers, frame, raw, np.flatnonzero(~m), r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid)
+        _fill_nearest(ctx, readers, frame, raw, np.flatnonzero(~m), r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid,
+                      holes_near=holes_near)
         return out, valid
     bands = ctx.bands
     ks = labelled.tolist()
@@ -2231,19 +2241,21 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         # holes and their margin)
         need = np.flatnonzero(mixed & ~(wsum > 1e-3))
         if len(need):
-            _fill_nearest(ctx, readers, frame, raw, need, r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid)
+            _fill_nearest(ctx, readers, frame, raw, need, r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid,
+                          holes_near=holes_near)
     return out, valid
 
 
 def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarray, *, r0: int, c0: int, th: int,
-                  tw: int, out: np.ndarray, valid: np.ndarray) -> None:
+                  tw: int, out: np.ndarray, valid: np.ndarray, holes_near=None) -> None:
     """Fill the tile's pixels ``need`` (flat indices; ascending) in ``out`` and ``valid`` from the valid frame of the
     nearest nadir point (distances in float64; of equal ones the first frame), a frame with holes valid away from
     them; pixels every frame has only near its holes from the frame that has them farthest from its holes
     (``_hole_distance_px``), of equal distances the nearest nadir point. ``frame(k, y0,
     y1, x0, x1)``: the tile's reading of frame k (its validity away from holes), ``raw``: the validity of such
     readings of frames with holes. A frame decoded in memory is looked up at the pixels, no window copied; a frame
-    read from its file is read over the box of the pixels."""
+    read from its file is read over the box of the pixels. ``holes_near(k, row, col, h, w)``: frame k's hole pixels
+    over a mosaic window as the tile found them (None: not found, ``_hole_distance_px`` reads the frame)."""
     rows, cols = np.divmod(need, tw)
     ya, yb, xa, xb = int(rows[0]), int(rows[-1]) + 1, int(cols.min()), int(cols.max()) + 1
     ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
@@ -2315,7 +2327,8 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
                 sub = sub[src[2].take(at(src, sub))]
                 if not len(sub):
                     continue
-                dh = _hole_distance_px(ctx, readers, k, rows[sub] + r0, cols[sub] + c0)
+                dh = _hole_distance_px(ctx, readers, k, rows[sub] + r0, cols[sub] + c0,
+                                       holes_near=None if holes_near is None else functools.partial(holes_near, k))
                 d = np.hypot(xs[sub] - ctx.nadir[k, 0], ys[sub] - ctx.nadir[k, 1])
                 better = (dh > far[sub]) | ((dh == far[sub]) & (d < best[sub]))
                 sub = sub[better]
@@ -2456,22 +2469,121 @@ def _hole_margin(ctx: _BlendContext, readers, k: int, *, row: int, col: int, h: 
     return (img[:, inner[0], inner[1]], valid & (near[inner] == 0)), valid
 
 
-def _hole_distance_px(ctx: _BlendContext, readers, k: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+@dataclasses.dataclass(frozen=True)
+class _TileFrame:
+    """A frame read from its file once for a mosaic tile: over the tile's part of the frame's grid, with a halo of
+    ``hole_margin_px`` + 1 for a frame with holes (what ``_hole_margin`` and ``_hole_distance_px`` look at around a
+    pixel); ``row``, ``col`` its first pixel in the tile. ``samples`` (bands, h, w), ``valid`` (h, w) bool; for a frame
+    with holes ``hole`` (its hole pixels, ``FrameHoles.pixels``) and ``away`` (valid and not within the hole margin of
+    a hole), else None. Every box of the tile cut from it has the samples and masks a read of that box alone gives:
+    each is a function of the pixel and of the pixels within the margin (a hole pixel of the cells and the pixel's own
+    validity; the margin a dilation by ``hole_margin_px``), and beyond the frame's grid nothing is valid or a hole."""
+
+    row: int
+    col: int
+    samples: np.ndarray
+    valid: np.ndarray
+    reach: tuple = (0, 0, 0, 0)  # (y0, y1, x0, x1): the tile and its halo, where this read looked (in tile pixels)
+    hole: np.ndarray | None = None
+    away: np.ndarray | None = None
+
+    @classmethod
+    def read(cls, ctx: _BlendContext, readers, k: int, *, r0: int, c0: int, th: int, tw: int) -> _TileFrame:
+        holes = ctx.holes[k] if ctx.holes is not None else None
+        halo = ctx.hole_margin_px + 1 if holes is not None else 0
+        fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
+        fw, fh = int(ctx.sizes[k, 0]), int(ctx.sizes[k, 1])
+        # the tile and its halo within the frame's grid, in tile pixels
+        ya, yb = max(-halo, fr - r0), min(th + halo, fr + fh - r0)
+        xa, xb = max(-halo, fc - c0), min(tw + halo, fc + fw - c0)
+        yb, xb = max(ya, yb), max(xa, xb)
+        img, ok = readers.window(ctx.files[k], c0 + xa - fc, r0 + ya - fr, xb - xa, yb - ya) if yb > ya and xb > xa \
+            else (np.zeros((ctx.bands, 0, 0), np.dtype(ctx.dtype)), np.zeros((0, 0), bool))
+        reach = (-halo, th + halo, -halo, tw + halo)
+        if holes is None:
+            return cls(ya, xa, img, ok, reach)
+        hole = holes.pixels(ok, r0 + ya, c0 + xa, ctx.factor) if ok.size else ok.copy()
+        away = ok
+        rows, cols = np.flatnonzero(hole.any(axis=1)), np.flatnonzero(hole.any(axis=0))
+        if len(rows):
+            # dilated only over the box of the hole pixels and the margin round it: nothing beyond is near a hole
+            m_px = ctx.hole_margin_px
+            a, b = max(0, int(rows[0]) - m_px), min(hole.shape[0], int(rows[-1]) + 1 + m_px)
+            c, d = max(0, int(cols[0]) - m_px), min(hole.shape[1], int(cols[-1]) + 1 + m_px)
+            near = cv2.dilate(np.ascontiguousarray(hole[a:b, c:d]).view(np.uint8),
+                              cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m_px + 1,) * 2))
+            away = ok.copy()
+            away[a:b, c:d] &= near == 0
+        return cls(ya, xa, img, ok, reach, hole, away)
+
+    def box(self, y0: int, y1: int, x0: int, x1: int):
+        """((samples, validity away from holes), validity) over rows y0:y1, columns x0:x1 of the tile (copies)."""
+        img, ok = window_of(self.samples, self.valid, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)
+        away = ok if self.away is None else mask_window(self.away, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)
+        return (img, away), ok
+
+    def holes(self, y0: int, x0: int, h: int, w: int) -> np.ndarray | None:
+        """The hole pixels over h x w tile pixels from (y0, x0) (None: a frame without holes, or the window reaches
+        beyond the tile's halo, where this read did not look)."""
+        ry0, ry1, rx0, rx1 = self.reach
+        if self.hole is None or y0 < ry0 or x0 < rx0 or y0 + h > ry1 or x0 + w > rx1:
+            return None
+        return mask_window(self.hole, x0 - self.col, y0 - self.row, w, h)
+
+
+def _hole_distance_px(ctx: _BlendContext, readers, k: int, rows: np.ndarray, cols: np.ndarray,
+                      holes_near=None) -> np.ndarray:
     """The distance (px, float32: OpenCV's 3 x 3 L2 mask, to 0.01 px) of the mosaic pixels (``rows``, ``cols``) from
     frame k's nearest hole pixel (``FrameHoles``), seen within ``ctx.hole_margin_px`` + 1 of them (farther: that
-    bound)."""
+    bound). ``holes_near(row, col, h, w)``: the hole pixels of a mosaic window found already (the tile's read of the
+    frame), or None (found here)."""
     m_px = ctx.hole_margin_px + 1
     fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
     ya, yb, xa, xb = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
     h, w = yb - ya + 2 * m_px, xb - xa + 2 * m_px
-    frame = readers.decoded(ctx.files[k])
-    if frame is not None:
-        ok = mask_window(frame.valid, xa - m_px - fc, ya - m_px - fr, w, h)
-    else:
-        ok = readers.window(ctx.files[k], xa - m_px - fc, ya - m_px - fr, w, h)[1]
-    hole = ctx.holes[k].pixels(ok, ya - m_px, xa - m_px, ctx.factor)
-    d = cv2.distanceTransform((~hole).view(np.uint8), cv2.DIST_L2, 3)
-    return np.minimum(np.round(d[rows - ya + m_px, cols - xa + m_px], 2), np.float32(m_px)).astype(np.float32)
+    hole = None if holes_near is None else holes_near(ya - m_px, xa - m_px, h, w)
+    if hole is None:
+        frame = readers.decoded(ctx.files[k])
+        if frame is not None:
+            ok = mask_window(frame.valid, xa - m_px - fc, ya - m_px - fr, w, h)
+        else:
+            ok = readers.window(ctx.files[k], xa - m_px - fc, ya - m_px - fr, w, h)[1]
+        hole = ctx.holes[k].pixels(ok, ya - m_px, xa - m_px, ctx.factor)
+    d = _chamfer_at((~hole).view(np.uint8), rows - ya + m_px, cols - xa + m_px, m_px)
+    # (capped before rounding: a window without a hole pixel holds OpenCV's largest distance)
+    return np.minimum(np.round(np.minimum(d, np.float32(m_px + 1)), 2), np.float32(m_px)).astype(np.float32)
+
+
+# OpenCV's 3 x 3 mask for DIST_L2: a step across costs this much (and 1.3693 diagonally), the least per pixel of
+# Chebyshev distance
+_CHAMFER_STEP = 0.955
+
+
+def _chamfer_at(free: np.ndarray, rows: np.ndarray, cols: np.ndarray, reach_px: float, block_px: int = 128):
+    """``cv2.distanceTransform(free, cv2.DIST_L2, 3)[rows, cols]`` (float32) wherever that is at most ``reach_px``
+    (elsewhere more than it), computed only round the blocks of ``block_px`` holding the pixels: the 3 x 3 chamfer
+    distance to the nearest zero of ``free`` is the length of a path within the box of the two pixels, so a window
+    holding every pixel within ``reach_px`` / ``_CHAMFER_STEP`` of a block gives its pixels the same distance as the whole
+    array. OpenCV adds the steps in float32, in an order that depends on the window: a distance n a + m b may differ in
+    its last bits (a few ulps; the straight ones, m = 0, are summed alike in any window), never by 1e-4, so it rounds
+    to 0.01 the same (a value n a + m b with m > 0 lies at least 1e-4 from a rounding boundary)."""
+    h, w = free.shape
+    margin = int(reach_px / _CHAMFER_STEP) + 1
+    if len(rows) == 0 or (h <= block_px + 2 * margin and w <= block_px + 2 * margin):
+        return cv2.distanceTransform(free, cv2.DIST_L2, 3)[rows, cols]
+    out = np.empty(len(rows), np.float32)
+    nb = -(-w // block_px)
+    block = (rows // block_px) * nb + cols // block_px
+    order = np.argsort(block, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(block[order]) != 0])
+    for s, e in zip(starts.tolist(), np.r_[starts[1:], len(order)].tolist()):
+        idx = order[s:e]
+        br, bc = divmod(int(block[idx[0]]), nb)
+        y0, x0 = max(0, br * block_px - margin), max(0, bc * block_px - margin)
+        y1, x1 = min(h, (br + 1) * block_px + margin), min(w, (bc + 1) * block_px + margin)
+        d = cv2.distanceTransform(np.ascontiguousarray(free[y0:y1, x0:x1]), cv2.DIST_L2, 3)
+        out[idx] = d[rows[idx] - y0, cols[idx] - x0]
+    return out
 
 
 def _mixed_boxes(mask: np.ndarray, strip_px: int = 64, gap_px: int = 32) -> list:
