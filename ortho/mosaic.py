@@ -2019,6 +2019,20 @@ class _FrameReaders:
             return window_of(frame.samples, frame.valid, col_off, row_off, width, height)
         return read_planar(self.get(path), col_off, row_off, width, height)
 
+    def mask(self, path: str, col_off: int, row_off: int, width: int, height: int) -> np.ndarray:
+        """The validity (bool) of a window of frame ``path`` read from its file (the window within the frame)."""
+        try:
+            return self.get(path).read_masks(1, window=Window(col_off, row_off, width, height)) > 0
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{path}: cannot read the raster (truncated or corrupt? {exc})") from None
+
+    def samples(self, path: str, col_off: int, row_off: int, width: int, height: int) -> np.ndarray:
+        """The samples (bands, h, w) of a window of frame ``path`` read from its file (the window within the frame)."""
+        try:
+            return self.get(path).read(window=Window(col_off, row_off, width, height))
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{path}: cannot read the raster (truncated or corrupt? {exc})") from None
+
     def decoded(self, path: str) -> DecodedFrame | None:
         """Frame ``path`` decoded in memory, or None (read from its file)."""
         return self._decoded.get(path)
@@ -2162,15 +2176,22 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         if key not in reads:
             if readers.decoded(ctx.files[k]) is None:
                 # read from its file: once for the tile, whatever boxes of it the weights and the fill ask for
-                if k not in whole:
-                    whole[k] = _TileFrame.read(ctx, readers, k, r0=r0, c0=c0, th=th, tw=tw)
-                reads[key], raw[key] = whole[k].box(y0, y1, x0, x1)
+                reads[key], raw[key] = tile_frame(k).box(y0, y1, x0, x1)
             elif ctx.holes is not None and ctx.holes[k] is not None:
                 reads[key], raw[key] = _hole_margin(ctx, readers, k, row=r0 + y0, col=c0 + x0, h=y1 - y0, w=x1 - x0)
             else:
                 reads[key] = readers.window(ctx.files[k], c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]), x1 - x0,
                                             y1 - y0)
         return reads[key]
+
+    def tile_frame(k):
+        """Frame k read from its file for this tile (``_TileFrame``: its masks now, its samples when asked for); None
+        for a frame kept decoded."""
+        if readers.decoded(ctx.files[k]) is not None:
+            return None
+        if k not in whole:
+            whole[k] = _TileFrame(ctx, readers, k, r0=r0, c0=c0, th=th, tw=tw)
+        return whole[k]
 
     def holes_near(k, row, col, h, w):
         """Frame k's hole pixels over the mosaic window (row, col, h, w) from its tile read (None: not read so)."""
@@ -2187,7 +2208,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         np.copyto(out, _apply_gain(ctx, k, img), where=m[None])
         valid = m.copy()
         _fill_nearest(ctx, readers, frame, raw, np.flatnonzero(~m), r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid,
-                      holes_near=holes_near)
+                      holes_near=holes_near, tile_frame=tile_frame)
         return out, valid
     bands = ctx.bands
     ks = labelled.tolist()
@@ -2242,12 +2263,12 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         need = np.flatnonzero(mixed & ~(wsum > 1e-3))
         if len(need):
             _fill_nearest(ctx, readers, frame, raw, need, r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid,
-                          holes_near=holes_near)
+                          holes_near=holes_near, tile_frame=tile_frame)
     return out, valid
 
 
 def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarray, *, r0: int, c0: int, th: int,
-                  tw: int, out: np.ndarray, valid: np.ndarray, holes_near=None) -> None:
+                  tw: int, out: np.ndarray, valid: np.ndarray, holes_near=None, tile_frame=None) -> None:
     """Fill the tile's pixels ``need`` (flat indices; ascending) in ``out`` and ``valid`` from the valid frame of the
     nearest nadir point (distances in float64; of equal ones the first frame), a frame with holes valid away from
     them; pixels every frame has only near its holes from the frame that has them farthest from its holes
@@ -2255,7 +2276,9 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
     y1, x0, x1)``: the tile's reading of frame k (its validity away from holes), ``raw``: the validity of such
     readings of frames with holes. A frame decoded in memory is looked up at the pixels, no window copied; a frame
     read from its file is read over the box of the pixels. ``holes_near(k, row, col, h, w)``: frame k's hole pixels
-    over a mosaic window as the tile found them (None: not found, ``_hole_distance_px`` reads the frame)."""
+    over a mosaic window as the tile found them (None: not found, ``_hole_distance_px`` reads the frame);
+    ``tile_frame(k)``: frame k's ``_TileFrame`` (None: kept decoded), whose samples are decoded only for a frame that
+    fills a pixel."""
     rows, cols = np.divmod(need, tw)
     ya, yb, xa, xb = int(rows[0]), int(rows[-1]) + 1, int(cols.min()), int(cols.max()) + 1
     ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
@@ -2280,12 +2303,26 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
             else:  # read over the box of the pixels within the frame's grid
                 y0, x0 = max(ya, int(fr[k]) - r0), max(xa, int(fc[k]) - c0)
                 y1, x1 = min(yb, int(fr[k] + ctx.sizes[k, 1]) - r0), min(xb, int(fc[k] + ctx.sizes[k, 0]) - c0)
-                img, away = frame(k, y0, y1, x0, x1)
-                ok = raw.get((k, y0, y1, x0, x1), away)
-                img, away, ok = np.ascontiguousarray(img), np.ascontiguousarray(away), np.ascontiguousarray(ok)
+                tf = None if tile_frame is None else tile_frame(k)
+                if tf is not None:  # its masks now, its samples only if it wins a pixel (``samples_of``)
+                    away, ok = tf.masks(y0, y1, x0, x1)
+                    img = functools.partial(tf.box, y0, y1, x0, x1)
+                else:
+                    img, away = frame(k, y0, y1, x0, x1)
+                    ok = raw.get((k, y0, y1, x0, x1), away)
+                    img = np.ascontiguousarray(img)
+                away, ok = np.ascontiguousarray(away), np.ascontiguousarray(ok)
             w = away.shape[1]
-            sources[k] = (img.reshape(img.shape[0], -1), away.ravel(), ok.ravel(), y0, x0, w)
+            sources[k] = [img.reshape(img.shape[0], -1) if isinstance(img, np.ndarray) else img, away.ravel(),
+                          ok.ravel(), y0, x0, w]
         return sources[k]
+
+    def samples_of(src):
+        """The flat samples (bands, n) of a source, decoded now if they were left for later."""
+        if not isinstance(src[0], np.ndarray):
+            img = np.ascontiguousarray(src[0]()[0][0])
+            src[0] = img.reshape(img.shape[0], -1)
+        return src[0]
 
     def inside(k):
         """The pixels (indices into ``need``) inside frame k's grid (rows ascending: a range of them)."""
@@ -2339,7 +2376,7 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
         sub = np.flatnonzero(winner == k)
         src = source(k)
         o = ctx.offset(k)
-        fill = _gained(src[0].take(at(src, sub), axis=1), ctx.gains[k].astype(np.float32)[:, None], ctx.white,
+        fill = _gained(samples_of(src).take(at(src, sub), axis=1), ctx.gains[k].astype(np.float32)[:, None], ctx.white,
                        ctx.hold, ctx.rolloff, None if o is None else o[:, None], ctx.toe)
         flat_out[:, need[sub]] = _to_type(fill, ctx.dtype)
     valid.ravel()[need[got]] = True
@@ -2469,26 +2506,17 @@ def _hole_margin(ctx: _BlendContext, readers, k: int, *, row: int, col: int, h: 
     return (img[:, inner[0], inner[1]], valid & (near[inner] == 0)), valid
 
 
-@dataclasses.dataclass(frozen=True)
 class _TileFrame:
     """A frame read from its file once for a mosaic tile: over the tile's part of the frame's grid, with a halo of
     ``hole_margin_px`` + 1 for a frame with holes (what ``_hole_margin`` and ``_hole_distance_px`` look at around a
-    pixel); ``row``, ``col`` its first pixel in the tile. ``samples`` (bands, h, w), ``valid`` (h, w) bool; for a frame
-    with holes ``hole`` (its hole pixels, ``FrameHoles.pixels``) and ``away`` (valid and not within the hole margin of
-    a hole), else None. Every box of the tile cut from it has the samples and masks a read of that box alone gives:
-    each is a function of the pixel and of the pixels within the margin (a hole pixel of the cells and the pixel's own
-    validity; the margin a dilation by ``hole_margin_px``), and beyond the frame's grid nothing is valid or a hole."""
+    pixel); ``row``, ``col`` its first pixel in the tile. ``valid`` (h, w) bool; for a frame with holes ``hole`` (its
+    hole pixels, ``FrameHoles.pixels``) and ``away`` (valid and not within the hole margin of a hole), else None; the
+    samples (bands, h, w) decoded only when asked for (a frame the fill looks at may give it no pixel). Every box of the
+    tile cut from it has the samples and masks a read of that box alone gives: each is a function of the pixel and of
+    the pixels within the margin (a hole pixel of the cells and the pixel's own validity; the margin a dilation by
+    ``hole_margin_px``), and beyond the frame's grid nothing is valid or a hole."""
 
-    row: int
-    col: int
-    samples: np.ndarray
-    valid: np.ndarray
-    reach: tuple = (0, 0, 0, 0)  # (y0, y1, x0, x1): the tile and its halo, where this read looked (in tile pixels)
-    hole: np.ndarray | None = None
-    away: np.ndarray | None = None
-
-    @classmethod
-    def read(cls, ctx: _BlendContext, readers, k: int, *, r0: int, c0: int, th: int, tw: int) -> _TileFrame:
+    def __init__(self, ctx: _BlendContext, readers, k: int, *, r0: int, c0: int, th: int, tw: int):
         holes = ctx.holes[k] if ctx.holes is not None else None
         halo = ctx.hole_margin_px + 1 if holes is not None else 0
         fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
@@ -2497,11 +2525,14 @@ class _TileFrame:
         ya, yb = max(-halo, fr - r0), min(th + halo, fr + fh - r0)
         xa, xb = max(-halo, fc - c0), min(tw + halo, fc + fw - c0)
         yb, xb = max(ya, yb), max(xa, xb)
-        img, ok = readers.window(ctx.files[k], c0 + xa - fc, r0 + ya - fr, xb - xa, yb - ya) if yb > ya and xb > xa \
-            else (np.zeros((ctx.bands, 0, 0), np.dtype(ctx.dtype)), np.zeros((0, 0), bool))
-        reach = (-halo, th + halo, -halo, tw + halo)
+        self.row, self.col = ya, xa
+        self.reach = (-halo, th + halo, -halo, tw + halo)  # where this read looked (tile pixels)
+        self._read = (readers, ctx.files[k], c0 + xa - fc, r0 + ya - fr, xb - xa, yb - ya)
+        self._samples = None if yb > ya and xb > xa else np.zeros((ctx.bands, 0, 0), np.dtype(ctx.dtype))
+        ok = readers.mask(*self._read[1:]) if self._samples is None else np.zeros((0, 0), bool)
+        self.valid, self.hole, self.away = ok, None, None
         if holes is None:
-            return cls(ya, xa, img, ok, reach)
+            return
         hole = holes.pixels(ok, r0 + ya, c0 + xa, ctx.factor) if ok.size else ok.copy()
         away = ok
         rows, cols = np.flatnonzero(hole.any(axis=1)), np.flatnonzero(hole.any(axis=0))
@@ -2514,12 +2545,24 @@ class _TileFrame:
                               cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m_px + 1,) * 2))
             away = ok.copy()
             away[a:b, c:d] &= near == 0
-        return cls(ya, xa, img, ok, reach, hole, away)
+        self.hole, self.away = hole, away
+
+    @property
+    def samples(self) -> np.ndarray:
+        if self._samples is None:
+            readers, path, col, row, w, h = self._read
+            self._samples = readers.samples(path, col, row, w, h)
+        return self._samples
+
+    def masks(self, y0: int, y1: int, x0: int, x1: int):
+        """(validity away from holes, validity) over rows y0:y1, columns x0:x1 of the tile (copies)."""
+        ok = mask_window(self.valid, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)
+        return (ok if self.away is None else mask_window(self.away, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)), ok
 
     def box(self, y0: int, y1: int, x0: int, x1: int):
         """((samples, validity away from holes), validity) over rows y0:y1, columns x0:x1 of the tile (copies)."""
-        img, ok = window_of(self.samples, self.valid, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)
-        away = ok if self.away is None else mask_window(self.away, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)
+        away, ok = self.masks(y0, y1, x0, x1)
+        img = window_of(self.samples, self.valid, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)[0]
         return (img, away), ok
 
     def holes(self, y0: int, x0: int, h: int, w: int) -> np.ndarray | None:
