@@ -75,7 +75,8 @@ preview and the summary after the COG).
 
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
        [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--check-by HH:MM] [--peer-deadline HH:MM]
-       [--min-free-gb 7] [--subset S,F ...] [--block DIR ...] [--block-repeats N] [--out FILE] [--label KEY] [--before-src DIR] [--bytecode] [--phases N] [--floor N]
+       [--min-free-gb 7] [--subset S,F ...] [--block DIR ...] [--block-repeats N] [--out FILE] [--label KEY]
+       [--before-src DIR] [--bytecode] [--phases N] [--floor N]
 """
 
 from __future__ import annotations

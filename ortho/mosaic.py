@@ -43,12 +43,14 @@ Steps (``mosaic_block``):
 
 Speed (``bench/mosaic_speed.py``, ``bench/results/mosaic_speed*.json``, ``docs/performance.md``): seams and
 blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam paths), the tiles on all
-cores while this thread writes, no float64 intermediates; a seam tile reads each frame only over the box
+cores while this thread writes, no float64 intermediates; a seam tile weights each frame only over the box
 its weight reaches and blends its feather zone in dense windows round the seams (``_mixed_boxes``), and the
 frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by the seam grid, and blended from
 memory, a true ortho's frame with its validity away from its holes made once, whole (``DecodedFrame``); the pixels no
-weight reaches are filled by looking the frames up at them (``_fill_nearest``). The tile order, the tile results and so the files do not depend
-on the scheduler or the number of threads.
+weight reaches are filled by looking the frames up at them (``_fill_nearest``). A frame of a larger block is read from
+its file once per tile (``_TileFrame``: its masks, holes and hole margin over the tile's part of its grid; its samples
+only when a weight or a filled pixel needs them), whatever boxes of it the weights and the fill use. The tile order,
+the tile results and so the files do not depend on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
 against the memory; seams.tif, seamlines.geojson, seamlines.gpkg, seamlines_preview.png (the seams over the DOM:
@@ -2606,8 +2608,8 @@ def _chamfer_at(free: np.ndarray, rows: np.ndarray, cols: np.ndarray, reach_px: 
     """``cv2.distanceTransform(free, cv2.DIST_L2, 3)[rows, cols]`` (float32) wherever that is at most ``reach_px``
     (elsewhere more than it), computed only round the blocks of ``block_px`` holding the pixels: the 3 x 3 chamfer
     distance to the nearest zero of ``free`` is the length of a path within the box of the two pixels, so a window
-    holding every pixel within ``reach_px`` / ``_CHAMFER_STEP`` of a block gives its pixels the same distance as the whole
-    array. OpenCV adds the steps in float32, in an order that depends on the window: a distance n a + m b may differ in
+    holding every pixel within ``reach_px`` / ``_CHAMFER_STEP`` of a block gives its pixels the same distance as the
+    whole array. OpenCV adds the steps in float32, in an order that depends on the window: a distance n a + m b may differ in
     its last bits (a few ulps; the straight ones, m = 0, are summed alike in any window), never by 1e-4, so it rounds
     to 0.01 the same (a value n a + m b with m > 0 lies at least 1e-4 from a rounding boundary)."""
     h, w = free.shape
