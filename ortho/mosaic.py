@@ -2610,8 +2610,8 @@ def _chamfer_at(free: np.ndarray, rows: np.ndarray, cols: np.ndarray, reach_px: 
     distance to the nearest zero of ``free`` is the length of a path within the box of the two pixels, so a window
     holding every pixel within ``reach_px`` / ``_CHAMFER_STEP`` of a block gives its pixels the same distance as the
     whole array. OpenCV adds the steps in float32, in an order that depends on the window: a distance n a + m b may
-    differ in its last bits (a few ulps; the straight ones, m = 0, are summed alike in any window), never by 1e-4, so it rounds
-    to 0.01 the same (a value n a + m b with m > 0 lies at least 1e-4 from a rounding boundary)."""
+    differ in its last bits (a few ulps; the straight ones, m = 0, are summed alike in any window), never by 1e-4, so it
+    rounds to 0.01 the same (a value n a + m b with m > 0 lies at least 1e-4 from a rounding boundary)."""
     h, w = free.shape
     margin = int(reach_px / _CHAMFER_STEP) + 1
     if len(rows) == 0 or (h <= block_px + 2 * margin and w <= block_px + 2 * margin):
