@@ -2602,6 +2602,8 @@ def _hole_distance_px(ctx: _BlendContext, readers, k: int, rows: np.ndarray, col
 # OpenCV's 3 x 3 mask for DIST_L2: a step across costs this much (and 1.3693 diagonally), the least per pixel of
 # Chebyshev distance
 _CHAMFER_STEP = 0.955
+# (0.955 n + 1.3693 m) * 1e4 is 50 mod 100 (x.xx5: a rounding boundary at 0.01) only for m = 0 or m >= 50 diagonal steps
+_CHAMFER_EXACT_PX = 50 * 1.3693
 
 
 def _chamfer_at(free: np.ndarray, rows: np.ndarray, cols: np.ndarray, reach_px: float, block_px: int = 128):
@@ -2611,10 +2613,11 @@ def _chamfer_at(free: np.ndarray, rows: np.ndarray, cols: np.ndarray, reach_px: 
     holding every pixel within ``reach_px`` / ``_CHAMFER_STEP`` of a block gives its pixels the same distance as the
     whole array. OpenCV adds the steps in float32, in an order that depends on the window: a distance n a + m b may
     differ in its last bits (a few ulps; the straight ones, m = 0, are summed alike in any window), never by 1e-4, so it
-    rounds to 0.01 the same (a value n a + m b with m > 0 lies at least 1e-4 from a rounding boundary)."""
+    rounds to 0.01 the same: a value n a + m b with 0 < m < 50 (under ``_CHAMFER_EXACT_PX``) lies at least 1e-4 from a
+    rounding boundary. A longer reach is computed over the whole array."""
     h, w = free.shape
     margin = int(reach_px / _CHAMFER_STEP) + 1
-    if len(rows) == 0 or (h <= block_px + 2 * margin and w <= block_px + 2 * margin):
+    if len(rows) == 0 or reach_px >= _CHAMFER_EXACT_PX or (h <= block_px + 2 * margin and w <= block_px + 2 * margin):
         return cv2.distanceTransform(free, cv2.DIST_L2, 3)[rows, cols]
     out = np.empty(len(rows), np.float32)
     nb = -(-w // block_px)

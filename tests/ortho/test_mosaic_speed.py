@@ -210,7 +210,7 @@ def test_feather_zone_by_boxes_is_the_blend_over_the_whole_tile(tmp_path, monkey
     assert shas[0] == shas[1]
 
 
-@pytest.mark.parametrize("reach_px", [3.0, 9.0, 22.0])
+@pytest.mark.parametrize("reach_px", [3.0, 9.0, 22.0, 41.0])
 def test_chamfer_by_blocks_rounds_as_the_whole_distance_transform(reach_px):
     """``_chamfer_at`` (the distance transform by blocks round the pixels asked for) gives the pixels within reach the
     distance of OpenCV's transform of the whole array as ``_hole_distance_px`` uses it (rounded to 0.01 px, capped at
