@@ -45,6 +45,10 @@ if it can start before that UTC time.
 On the demo, the DOM check against the truth orthophoto (accuracy before and after this mosaic, from the
 demo's own ``ortho/dom_report.json``).
 
+With ``--block DIR`` (repeatable; ``--block-repeats``, default 1) the frame orthos of a chain project ``DIR`` (e.g. a
+full-size DMC block run; read only): a project of links to its inputs in the work folder (``link_project``, nothing
+copied), ours (and ``--before-src``'s, with the two mosaics' sha256) and the peer on it, under ``block_<name>``.
+
 With ``--subset S,F`` (repeatable) the large set is measured on parts of its frames instead: the first F
 frames of the first S strips (a project of links to the frames), smallest first, so that time and peak memory
 per gigapixel can be compared across DOM sizes; ``--subset all`` is the whole set.
@@ -71,7 +75,8 @@ preview and the summary after the COG).
 
 Usage: python bench/mosaic_speed.py [--demo DIR] [--work DIR] [--gp 4.2] [--repeats N] [--large-repeats N]
        [--skip-demo] [--skip-large] [--keep-large] [--large-check] [--check-by HH:MM] [--peer-deadline HH:MM]
-       [--min-free-gb 7] [--subset S,F ...] [--out FILE] [--label KEY] [--before-src DIR] [--bytecode] [--phases N] [--floor N]
+       [--min-free-gb 7] [--subset S,F ...] [--block DIR ...] [--block-repeats N] [--out FILE] [--label KEY]
+       [--before-src DIR] [--bytecode] [--phases N] [--floor N]
 """
 
 from __future__ import annotations
@@ -475,6 +480,21 @@ def subset_project(large: Path, work: Path, strips: int, per_strip: int) -> Path
     return work
 
 
+def link_project(src: Path, work: Path) -> Path:
+    """A project in ``work`` of links to what ``ortho mosaic`` reads of the chain project ``src`` (project.toml,
+    camera.toml, at, lidar_out, ortho/frames); its outputs go to ``work/ortho``, ``src`` is not changed."""
+    if not (src / "ortho" / "frames" / "index.json").is_file():
+        raise SystemExit(f"{src}: no ortho/frames/index.json (a project after `ortho rectify`)")
+    if work.exists():
+        shutil.rmtree(work)
+    (work / "ortho").mkdir(parents=True)
+    for name in ("project.toml", "camera.toml", "at", "lidar_out"):
+        if (src / name).exists():
+            os.symlink((src / name).resolve(), work / name)
+    os.symlink((src / "ortho" / "frames").resolve(), work / "ortho" / "frames")
+    return work
+
+
 def per_gp(result: dict) -> dict:
     """Wall and CPU seconds per gigapixel of DOM of the medians (ours and the peer)."""
     gp, m = result["mosaic_px"] / 1e9, result["median"]
@@ -608,6 +628,9 @@ def main() -> None:
     ap.add_argument("--skip-large", action="store_true")
     ap.add_argument("--subset", action="append", default=[],
                     help="S,F: the first F frames of the first S strips of the large set ('all': every frame)")
+    ap.add_argument("--block", type=Path, action="append", default=[],
+                    help="a chain project whose frame orthos are measured too (read only, through links)")
+    ap.add_argument("--block-repeats", type=int, default=1)
     ap.add_argument("--keep-large", action="store_true")
     ap.add_argument("--large-check", action="store_true", help="also ortho check the large DOM (long): after gdalwarp "
                     "when our DOM could be kept through it (--min-free-gb), else before gdalwarp")
@@ -701,6 +724,18 @@ def main() -> None:
                                                    "rms_xy_gsd": before["rms_xy_gsd"], "max_xy_m": before["max_xy_m"],
                                                    "source": "the demo's ortho/dom_report.json"}}
     save()
+    for block in a.block:
+        key = f"block_{block.name}"
+        proj = link_project(block, a.work / key)
+        n = len(json.loads((proj / "ortho" / "frames" / "index.json").read_text())["frames"])
+        print(f"{key}: {n} frame orthos of {block}", flush=True)
+        result[key] = {"source": str(block), "frames": n,
+                       **compare(proj, a.block_repeats, key, before_src=a.before_src)}
+        result[key]["per_gp"] = per_gp(result[key])
+        save()
+        for f in (proj / "ortho").glob("*"):  # the outputs (the frames are links)
+            if f.name != "frames":
+                shutil.rmtree(f) if f.is_dir() else f.unlink()
     if not a.skip_large:
         large = a.work / "large"
         print(f"large: making the synthetic frame orthos for {a.gp} GP", flush=True)

@@ -43,12 +43,14 @@ Steps (``mosaic_block``):
 
 Speed (``bench/mosaic_speed.py``, ``bench/results/mosaic_speed*.json``, ``docs/performance.md``): seams and
 blending in compiled or vectorised code (OpenCV; scipy's Dijkstra for the seam paths), the tiles on all
-cores while this thread writes, no float64 intermediates; a seam tile reads each frame only over the box
+cores while this thread writes, no float64 intermediates; a seam tile weights each frame only over the box
 its weight reaches and blends its feather zone in dense windows round the seams (``_mixed_boxes``), and the
 frames of a small block (``DECODED_FRAMES_MAX_BYTES``) are decoded once, by the seam grid, and blended from
 memory, a true ortho's frame with its validity away from its holes made once, whole (``DecodedFrame``); the pixels no
-weight reaches are filled by looking the frames up at them (``_fill_nearest``). The tile order, the tile results and so the files do not depend
-on the scheduler or the number of threads.
+weight reaches are filled by looking the frames up at them (``_fill_nearest``). A frame of a larger block is read from
+its file once per tile (``_TileFrame``: its masks, holes and hole margin over the tile's part of its grid; its samples
+only when a weight or a filled pixel needs them), whatever boxes of it the weights and the fill use. The tile order,
+the tile results and so the files do not depend on the scheduler or the number of threads.
 
 The frames are checked against ``ortho/frames/index.json`` first (sizes and hashes), the tile size
 against the memory; seams.tif, seamlines.geojson, seamlines.gpkg, seamlines_preview.png (the seams over the DOM:
@@ -2048,6 +2050,20 @@ class _FrameReaders:
             return window_of(frame.samples, frame.valid, col_off, row_off, width, height)
         return read_planar(self.get(path), col_off, row_off, width, height)
 
+    def mask(self, path: str, col_off: int, row_off: int, width: int, height: int) -> np.ndarray:
+        """The validity (bool) of a window of frame ``path`` read from its file (the window within the frame)."""
+        try:
+            return self.get(path).read_masks(1, window=Window(col_off, row_off, width, height)) > 0
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{path}: cannot read the raster (truncated or corrupt? {exc})") from None
+
+    def samples(self, path: str, col_off: int, row_off: int, width: int, height: int) -> np.ndarray:
+        """The samples (bands, h, w) of a window of frame ``path`` read from its file (the window within the frame)."""
+        try:
+            return self.get(path).read(window=Window(col_off, row_off, width, height))
+        except rasterio.errors.RasterioIOError as exc:
+            raise InputError(f"{path}: cannot read the raster (truncated or corrupt? {exc})") from None
+
     def decoded(self, path: str) -> DecodedFrame | None:
         """Frame ``path`` decoded in memory, or None (read from its file)."""
         return self._decoded.get(path)
@@ -2181,7 +2197,7 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
     labelled = present[present >= 0]
     fc, fr = ctx.offsets[:, 0], ctx.offsets[:, 1]
     reads = {}
-
+    whole = {}  # frame k read from its file -> ``_TileFrame``
     raw = {}
 
     def frame(k, y0=0, y1=th, x0=0, x1=tw):
@@ -2189,12 +2205,28 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         away from them; its validity itself in ``raw``)."""
         key = (k, y0, y1, x0, x1)
         if key not in reads:
-            if ctx.holes is not None and ctx.holes[k] is not None:
+            if readers.decoded(ctx.files[k]) is None:
+                # read from its file: once for the tile, whatever boxes of it the weights and the fill ask for
+                reads[key], raw[key] = tile_frame(k).box(y0, y1, x0, x1)
+            elif ctx.holes is not None and ctx.holes[k] is not None:
                 reads[key], raw[key] = _hole_margin(ctx, readers, k, row=r0 + y0, col=c0 + x0, h=y1 - y0, w=x1 - x0)
             else:
                 reads[key] = readers.window(ctx.files[k], c0 + x0 - int(fc[k]), r0 + y0 - int(fr[k]), x1 - x0,
                                             y1 - y0)
         return reads[key]
+
+    def tile_frame(k):
+        """Frame k read from its file for this tile (``_TileFrame``: its masks now, its samples when asked for); None
+        for a frame kept decoded."""
+        if readers.decoded(ctx.files[k]) is not None:
+            return None
+        if k not in whole:
+            whole[k] = _TileFrame(ctx, readers, k, r0=r0, c0=c0, th=th, tw=tw)
+        return whole[k]
+
+    def holes_near(k, row, col, h, w):
+        """Frame k's hole pixels over the mosaic window (row, col, h, w) from its tile read (None: not read so)."""
+        return whole[k].holes(row - r0, col - c0, h, w) if k in whole else None
 
     if len(labelled) == 1 and present[0] >= 0:
         k = int(labelled[0])
@@ -2206,7 +2238,8 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         out = np.zeros((ctx.bands, th, tw), np.dtype(ctx.dtype))
         np.copyto(out, _apply_gain(ctx, k, img), where=m[None])
         valid = m.copy()
-        _fill_nearest(ctx, readers, frame, raw, np.flatnonzero(~m), r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid)
+        _fill_nearest(ctx, readers, frame, raw, np.flatnonzero(~m), r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid,
+                      holes_near=holes_near, tile_frame=tile_frame)
         return out, valid
     bands = ctx.bands
     ks = labelled.tolist()
@@ -2260,19 +2293,23 @@ def _blend_tile(ctx: _BlendContext, readers, r0: int, c0: int, th: int, tw: int)
         # holes and their margin)
         need = np.flatnonzero(mixed & ~(wsum > 1e-3))
         if len(need):
-            _fill_nearest(ctx, readers, frame, raw, need, r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid)
+            _fill_nearest(ctx, readers, frame, raw, need, r0=r0, c0=c0, th=th, tw=tw, out=out, valid=valid,
+                          holes_near=holes_near, tile_frame=tile_frame)
     return out, valid
 
 
 def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarray, *, r0: int, c0: int, th: int,
-                  tw: int, out: np.ndarray, valid: np.ndarray) -> None:
+                  tw: int, out: np.ndarray, valid: np.ndarray, holes_near=None, tile_frame=None) -> None:
     """Fill the tile's pixels ``need`` (flat indices; ascending) in ``out`` and ``valid`` from the valid frame of the
     nearest nadir point (distances in float64; of equal ones the first frame), a frame with holes valid away from
     them; pixels every frame has only near its holes from the frame that has them farthest from its holes
     (``_hole_distance_px``), of equal distances the nearest nadir point. ``frame(k, y0,
     y1, x0, x1)``: the tile's reading of frame k (its validity away from holes), ``raw``: the validity of such
     readings of frames with holes. A frame decoded in memory is looked up at the pixels, no window copied; a frame
-    read from its file is read over the box of the pixels."""
+    read from its file is read over the box of the pixels. ``holes_near(k, row, col, h, w)``: frame k's hole pixels
+    over a mosaic window as the tile found them (None: not found, ``_hole_distance_px`` reads the frame);
+    ``tile_frame(k)``: frame k's ``_TileFrame`` (None: kept decoded), whose samples are decoded only for a frame that
+    fills a pixel."""
     rows, cols = np.divmod(need, tw)
     ya, yb, xa, xb = int(rows[0]), int(rows[-1]) + 1, int(cols.min()), int(cols.max()) + 1
     ys = ctx.mosaic.y_top_m - (r0 + rows + 0.5) * ctx.mosaic.res_m
@@ -2297,12 +2334,26 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
             else:  # read over the box of the pixels within the frame's grid
                 y0, x0 = max(ya, int(fr[k]) - r0), max(xa, int(fc[k]) - c0)
                 y1, x1 = min(yb, int(fr[k] + ctx.sizes[k, 1]) - r0), min(xb, int(fc[k] + ctx.sizes[k, 0]) - c0)
-                img, away = frame(k, y0, y1, x0, x1)
-                ok = raw.get((k, y0, y1, x0, x1), away)
-                img, away, ok = np.ascontiguousarray(img), np.ascontiguousarray(away), np.ascontiguousarray(ok)
+                tf = None if tile_frame is None else tile_frame(k)
+                if tf is not None:  # its masks now, its samples only if it wins a pixel (``samples_of``)
+                    away, ok = tf.masks(y0, y1, x0, x1)
+                    img = functools.partial(tf.box, y0, y1, x0, x1)
+                else:
+                    img, away = frame(k, y0, y1, x0, x1)
+                    ok = raw.get((k, y0, y1, x0, x1), away)
+                    img = np.ascontiguousarray(img)
+                away, ok = np.ascontiguousarray(away), np.ascontiguousarray(ok)
             w = away.shape[1]
-            sources[k] = (img.reshape(img.shape[0], -1), away.ravel(), ok.ravel(), y0, x0, w)
+            sources[k] = [img.reshape(img.shape[0], -1) if isinstance(img, np.ndarray) else img, away.ravel(),
+                          ok.ravel(), y0, x0, w]
         return sources[k]
+
+    def samples_of(src):
+        """The flat samples (bands, n) of a source, decoded now if they were left for later."""
+        if not isinstance(src[0], np.ndarray):
+            img = np.ascontiguousarray(src[0]()[0][0])
+            src[0] = img.reshape(img.shape[0], -1)
+        return src[0]
 
     def inside(k):
         """The pixels (indices into ``need``) inside frame k's grid (rows ascending: a range of them)."""
@@ -2344,7 +2395,8 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
                 sub = sub[src[2].take(at(src, sub))]
                 if not len(sub):
                     continue
-                dh = _hole_distance_px(ctx, readers, k, rows[sub] + r0, cols[sub] + c0)
+                dh = _hole_distance_px(ctx, readers, k, rows[sub] + r0, cols[sub] + c0,
+                                       holes_near=None if holes_near is None else functools.partial(holes_near, k))
                 d = np.hypot(xs[sub] - ctx.nadir[k, 0], ys[sub] - ctx.nadir[k, 1])
                 better = (dh > far[sub]) | ((dh == far[sub]) & (d < best[sub]))
                 sub = sub[better]
@@ -2355,7 +2407,7 @@ def _fill_nearest(ctx: _BlendContext, readers, frame, raw: dict, need: np.ndarra
         sub = np.flatnonzero(winner == k)
         src = source(k)
         o = ctx.offset(k)
-        fill = _gained(src[0].take(at(src, sub), axis=1), ctx.gains[k].astype(np.float32)[:, None], ctx.white,
+        fill = _gained(samples_of(src).take(at(src, sub), axis=1), ctx.gains[k].astype(np.float32)[:, None], ctx.white,
                        ctx.hold, ctx.rolloff, None if o is None else o[:, None], ctx.toe)
         flat_out[:, need[sub]] = _to_type(fill, ctx.dtype)
     valid.ravel()[need[got]] = True
@@ -2508,22 +2560,130 @@ def _hole_margin(ctx: _BlendContext, readers, k: int, *, row: int, col: int, h: 
     return (img[:, inner[0], inner[1]], valid & (near[inner] == 0)), valid
 
 
-def _hole_distance_px(ctx: _BlendContext, readers, k: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+class _TileFrame:
+    """A frame read from its file once for a mosaic tile: over the tile's part of the frame's grid, with a halo of
+    ``hole_margin_px`` + 1 for a frame with holes (what ``_hole_margin`` and ``_hole_distance_px`` look at around a
+    pixel); ``row``, ``col`` its first pixel in the tile. ``valid`` (h, w) bool; for a frame with holes ``hole`` (its
+    hole pixels, ``FrameHoles.pixels``) and ``away`` (valid and not within the hole margin of a hole), else None; the
+    samples (bands, h, w) decoded only when asked for (a frame the fill looks at may give it no pixel). Every box of the
+    tile cut from it has the samples and masks a read of that box alone gives: each is a function of the pixel and of
+    the pixels within the margin (a hole pixel of the cells and the pixel's own validity; the margin a dilation by
+    ``hole_margin_px``), and beyond the frame's grid nothing is valid or a hole."""
+
+    def __init__(self, ctx: _BlendContext, readers, k: int, *, r0: int, c0: int, th: int, tw: int):
+        holes = ctx.holes[k] if ctx.holes is not None else None
+        halo = ctx.hole_margin_px + 1 if holes is not None else 0
+        fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
+        fw, fh = int(ctx.sizes[k, 0]), int(ctx.sizes[k, 1])
+        # the tile and its halo within the frame's grid, in tile pixels
+        ya, yb = max(-halo, fr - r0), min(th + halo, fr + fh - r0)
+        xa, xb = max(-halo, fc - c0), min(tw + halo, fc + fw - c0)
+        yb, xb = max(ya, yb), max(xa, xb)
+        self.row, self.col = ya, xa
+        self.reach = (-halo, th + halo, -halo, tw + halo)  # where this read looked (tile pixels)
+        self._read = (readers, ctx.files[k], c0 + xa - fc, r0 + ya - fr, xb - xa, yb - ya)
+        self._samples = None if yb > ya and xb > xa else np.zeros((ctx.bands, 0, 0), np.dtype(ctx.dtype))
+        ok = readers.mask(*self._read[1:]) if self._samples is None else np.zeros((0, 0), bool)
+        self.valid, self.hole, self.away = ok, None, None
+        if holes is None:
+            return
+        hole = holes.pixels(ok, r0 + ya, c0 + xa, ctx.factor) if ok.size else ok.copy()
+        away = ok
+        rows, cols = np.flatnonzero(hole.any(axis=1)), np.flatnonzero(hole.any(axis=0))
+        if len(rows):
+            # dilated only over the box of the hole pixels and the margin round it: nothing beyond is near a hole
+            m_px = ctx.hole_margin_px
+            a, b = max(0, int(rows[0]) - m_px), min(hole.shape[0], int(rows[-1]) + 1 + m_px)
+            c, d = max(0, int(cols[0]) - m_px), min(hole.shape[1], int(cols[-1]) + 1 + m_px)
+            near = cv2.dilate(np.ascontiguousarray(hole[a:b, c:d]).view(np.uint8),
+                              cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * m_px + 1,) * 2))
+            away = ok.copy()
+            away[a:b, c:d] &= near == 0
+        self.hole, self.away = hole, away
+
+    @property
+    def samples(self) -> np.ndarray:
+        if self._samples is None:
+            readers, path, col, row, w, h = self._read
+            self._samples = readers.samples(path, col, row, w, h)
+        return self._samples
+
+    def masks(self, y0: int, y1: int, x0: int, x1: int):
+        """(validity away from holes, validity) over rows y0:y1, columns x0:x1 of the tile (copies)."""
+        ok = mask_window(self.valid, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)
+        return (ok if self.away is None else mask_window(self.away, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)), ok
+
+    def box(self, y0: int, y1: int, x0: int, x1: int):
+        """((samples, validity away from holes), validity) over rows y0:y1, columns x0:x1 of the tile (copies)."""
+        away, ok = self.masks(y0, y1, x0, x1)
+        img = window_of(self.samples, self.valid, x0 - self.col, y0 - self.row, x1 - x0, y1 - y0)[0]
+        return (img, away), ok
+
+    def holes(self, y0: int, x0: int, h: int, w: int) -> np.ndarray | None:
+        """The hole pixels over h x w tile pixels from (y0, x0) (None: a frame without holes, or the window reaches
+        beyond the tile's halo, where this read did not look)."""
+        ry0, ry1, rx0, rx1 = self.reach
+        if self.hole is None or y0 < ry0 or x0 < rx0 or y0 + h > ry1 or x0 + w > rx1:
+            return None
+        return mask_window(self.hole, x0 - self.col, y0 - self.row, w, h)
+
+
+def _hole_distance_px(ctx: _BlendContext, readers, k: int, rows: np.ndarray, cols: np.ndarray,
+                      holes_near=None) -> np.ndarray:
     """The distance (px, float32: OpenCV's 3 x 3 L2 mask, to 0.01 px) of the mosaic pixels (``rows``, ``cols``) from
     frame k's nearest hole pixel (``FrameHoles``), seen within ``ctx.hole_margin_px`` + 1 of them (farther: that
-    bound)."""
+    bound). ``holes_near(row, col, h, w)``: the hole pixels of a mosaic window found already (the tile's read of the
+    frame), or None (found here)."""
     m_px = ctx.hole_margin_px + 1
     fc, fr = int(ctx.offsets[k, 0]), int(ctx.offsets[k, 1])
     ya, yb, xa, xb = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
     h, w = yb - ya + 2 * m_px, xb - xa + 2 * m_px
-    frame = readers.decoded(ctx.files[k])
-    if frame is not None:
-        ok = mask_window(frame.valid, xa - m_px - fc, ya - m_px - fr, w, h)
-    else:
-        ok = readers.window(ctx.files[k], xa - m_px - fc, ya - m_px - fr, w, h)[1]
-    hole = ctx.holes[k].pixels(ok, ya - m_px, xa - m_px, ctx.factor)
-    d = cv2.distanceTransform((~hole).view(np.uint8), cv2.DIST_L2, 3)
-    return np.minimum(np.round(d[rows - ya + m_px, cols - xa + m_px], 2), np.float32(m_px)).astype(np.float32)
+    hole = None if holes_near is None else holes_near(ya - m_px, xa - m_px, h, w)
+    if hole is None:
+        frame = readers.decoded(ctx.files[k])
+        if frame is not None:
+            ok = mask_window(frame.valid, xa - m_px - fc, ya - m_px - fr, w, h)
+        else:
+            ok = readers.window(ctx.files[k], xa - m_px - fc, ya - m_px - fr, w, h)[1]
+        hole = ctx.holes[k].pixels(ok, ya - m_px, xa - m_px, ctx.factor)
+    d = _chamfer_at((~hole).view(np.uint8), rows - ya + m_px, cols - xa + m_px, m_px)
+    # (capped before rounding: a window without a hole pixel holds OpenCV's largest distance)
+    return np.minimum(np.round(np.minimum(d, np.float32(m_px + 1)), 2), np.float32(m_px)).astype(np.float32)
+
+
+# OpenCV's 3 x 3 mask for DIST_L2: a step across costs this much (and 1.3693 diagonally), the least per pixel of
+# Chebyshev distance
+_CHAMFER_STEP = 0.955
+# (0.955 n + 1.3693 m) * 1e4 is 50 mod 100 (x.xx5: a rounding boundary at 0.01) only for m = 0 or m >= 50 diagonal steps
+_CHAMFER_EXACT_PX = 50 * 1.3693
+
+
+def _chamfer_at(free: np.ndarray, rows: np.ndarray, cols: np.ndarray, reach_px: float, block_px: int = 128):
+    """``cv2.distanceTransform(free, cv2.DIST_L2, 3)[rows, cols]`` (float32) wherever that is at most ``reach_px``
+    (elsewhere more than it), computed only round the blocks of ``block_px`` holding the pixels: the 3 x 3 chamfer
+    distance to the nearest zero of ``free`` is the length of a path within the box of the two pixels, so a window
+    holding every pixel within ``reach_px`` / ``_CHAMFER_STEP`` of a block gives its pixels the same distance as the
+    whole array. OpenCV adds the steps in float32, in an order that depends on the window: a distance n a + m b may
+    differ in its last bits (a few ulps; the straight ones, m = 0, are summed alike in any window), never by 1e-4, so it
+    rounds to 0.01 the same: a value n a + m b with 0 < m < 50 (under ``_CHAMFER_EXACT_PX``) lies at least 1e-4 from a
+    rounding boundary. A longer reach is computed over the whole array."""
+    h, w = free.shape
+    margin = int(reach_px / _CHAMFER_STEP) + 1
+    if len(rows) == 0 or reach_px >= _CHAMFER_EXACT_PX or (h <= block_px + 2 * margin and w <= block_px + 2 * margin):
+        return cv2.distanceTransform(free, cv2.DIST_L2, 3)[rows, cols]
+    out = np.empty(len(rows), np.float32)
+    nb = -(-w // block_px)
+    block = (rows // block_px) * nb + cols // block_px
+    order = np.argsort(block, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(block[order]) != 0])
+    for s, e in zip(starts.tolist(), np.r_[starts[1:], len(order)].tolist()):
+        idx = order[s:e]
+        br, bc = divmod(int(block[idx[0]]), nb)
+        y0, x0 = max(0, br * block_px - margin), max(0, bc * block_px - margin)
+        y1, x1 = min(h, (br + 1) * block_px + margin), min(w, (bc + 1) * block_px + margin)
+        d = cv2.distanceTransform(np.ascontiguousarray(free[y0:y1, x0:x1]), cv2.DIST_L2, 3)
+        out[idx] = d[rows[idx] - y0, cols[idx] - x0]
+    return out
 
 
 def _mixed_boxes(mask: np.ndarray, strip_px: int = 64, gap_px: int = 32) -> list:

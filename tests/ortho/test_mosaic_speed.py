@@ -208,3 +208,88 @@ def test_feather_zone_by_boxes_is_the_blend_over_the_whole_tile(tmp_path, monkey
         shas.append(_pixels_sha(root / "ortho" / "mosaic.tif"))
     assert sum(z > 0 for z in zones) >= 3  # tiles with a feather zone
     assert shas[0] == shas[1]
+
+
+@pytest.mark.parametrize("reach_px", [3.0, 9.0, 22.0, 41.0])
+def test_chamfer_by_blocks_rounds_as_the_whole_distance_transform(reach_px):
+    """``_chamfer_at`` (the distance transform by blocks round the pixels asked for) gives the pixels within reach the
+    distance of OpenCV's transform of the whole array as ``_hole_distance_px`` uses it (rounded to 0.01 px, capped at
+    the reach), the others more than the reach; holes sparse, clustered and none."""
+    rng = np.random.default_rng(int(reach_px))
+    for density in (0.0, 2e-4, 5e-3, 0.05):
+        h, w = (int(v) for v in rng.integers(300, 700, 2))
+        hole = rng.random((h, w)) < density
+        hole = cv2.dilate(hole.view(np.uint8), np.ones((5, 5), np.uint8)) > 0 if density < 1e-3 else hole
+        free = (~hole).view(np.uint8)
+        rows, cols = rng.integers(0, h, 4000), rng.integers(0, w, 4000)
+        whole = cv2.distanceTransform(free, cv2.DIST_L2, 3)[rows, cols]
+        got = mosaic_mod._chamfer_at(free, rows, cols, reach_px, block_px=64)
+
+        def as_used(d):
+            return np.minimum(np.round(np.minimum(d, np.float32(reach_px + 1)), 2), np.float32(reach_px))
+
+        assert np.array_equal(as_used(got), as_used(whole))
+        near = whole <= reach_px
+        assert np.allclose(got[near], whole[near], rtol=0, atol=1e-5)
+        assert (got[~near] > reach_px).all()
+        if density:
+            assert near.sum() > 20  # pixels within reach were checked
+
+
+def test_tile_frame_boxes_are_the_reads_of_the_boxes(tmp_path):
+    """A true ortho's frame read once for a tile (``_TileFrame``: masks, holes and their margin found once, samples on
+    demand) gives every box of the tile the samples, validity and validity away from holes that reading that box
+    (``_hole_margin``, as the blend did before) gives, and the hole pixels ``FrameHoles.pixels`` finds on a read of the
+    window; tiles over the frame's edges, a margin of 3 px."""
+    from rasterio.windows import Window
+
+    rng = np.random.default_rng(5)
+    factor, m_px, fw, fh, fc, fr = 5, 3, 230, 190, 37, 23
+    ok = np.zeros((fh, fw), np.uint8)
+    cv2.fillPoly(ok, [np.array([[10, 4], [225, 15], [214, 186], [3, 170]], np.int32)], 1)
+    for _ in range(25):  # occlusion holes: small blobs inside the footprint
+        y, x = int(rng.integers(20, 170)), int(rng.integers(20, 210))
+        ok[y:y + int(rng.integers(1, 12)), x:x + int(rng.integers(1, 12))] = 0
+    samples = rng.integers(1, 4096, (1, fh, fw)).astype(np.uint16) * ok
+    grid = OrthoGrid(rasterio.crs.CRS.from_epsg(32649), 0.0, 0.0, 0.1, fc + fw + 40, fr + fh + 30)
+    path = tmp_path / "frame.tif"
+    with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(
+            path, "w", driver="GTiff", width=fw, height=fh, count=1, dtype="uint16", tiled=True, blockxsize=64,
+            blockysize=64, compress="zstd", transform=Affine(0.1, 0, fc * 0.1, 0, -0.1, -fr * 0.1)) as dst:
+        dst.write(samples)
+        dst.write_mask(ok * np.uint8(255))
+    # the frame's holes as ``_reduce_frame`` finds them (its window on whole seam cells, framed by invalid pixels)
+    rc0, cc0 = fr // factor, fc // factor
+    h, w = -(-(fr + fh) // factor) - rc0, -(-(fc + fw) // factor) - cc0
+    invalid = np.ones((h * factor + 2, w * factor + 2), np.uint8)
+    dy, dx = fr - rc0 * factor, fc - cc0 * factor
+    invalid[1 + dy:1 + dy + fh, 1 + dx:1 + dx + fw] = ok == 0
+    holes = mosaic_mod.find_holes(invalid, factor, (rc0, cc0))
+    assert holes is not None
+    ctx = mosaic_mod._BlendContext(["f"], [str(path)], np.array([[fc, fr]]), np.array([[fw, fh]]), np.ones((1, 1)),
+                                   np.zeros((1, 2)), grid, factor, 20, 8.0, 1, "uint16", None, (0, 0), [holes], m_px)
+    readers = mosaic_mod._FrameReaders()
+    try:
+        checked_near = 0
+        for r0, c0, th, tw in [(0, 0, 128, 128), (128, 128, 128, 128), (0, 128, 100, 170), (200, 0, 43, 300),
+                               (60, 20, 97, 161)]:
+            tf = mosaic_mod._TileFrame(ctx, readers, 0, r0=r0, c0=c0, th=th, tw=tw)
+            for _ in range(12):
+                y0, x0 = int(rng.integers(0, th - 1)), int(rng.integers(0, tw - 1))
+                y1, x1 = int(rng.integers(y0 + 1, th + 1)), int(rng.integers(x0 + 1, tw + 1))
+                (img, away), valid = tf.box(y0, y1, x0, x1)
+                (ref_img, ref_away), ref_valid = mosaic_mod._hole_margin(ctx, readers, 0, row=r0 + y0, col=c0 + x0,
+                                                                          h=y1 - y0, w=x1 - x0)
+                assert np.array_equal(img, ref_img) and np.array_equal(valid, ref_valid)
+                assert np.array_equal(away, ref_away)
+                assert np.array_equal(tf.masks(y0, y1, x0, x1)[0], ref_away)
+                checked_near += int(np.count_nonzero(valid & ~away))
+                # the hole pixels round the box, as ``_hole_distance_px`` looks at them
+                ya, xa, hh, ww = y0 - m_px - 1, x0 - m_px - 1, y1 - y0 + 2 * m_px + 2, x1 - x0 + 2 * m_px + 2
+                ref_ok = mosaic_mod.read_planar(readers.get(str(path)), c0 + xa - fc, r0 + ya - fr, ww, hh)[1]
+                assert np.array_equal(tf.holes(ya, xa, hh, ww), holes.pixels(ref_ok, r0 + ya, c0 + xa, factor))
+        assert checked_near > 500  # boxes with pixels in a hole margin
+        with rasterio.open(path) as ds:  # (the samples came from the file)
+            assert np.array_equal(ds.read(window=Window(0, 0, fw, fh)), samples)
+    finally:
+        readers.close()
