@@ -255,7 +255,7 @@ def simulate(cfg: Preset, outdir, force: bool = False, on_phase=None) -> SimTrut
             _write_project_files(tmp, cfg, plan=plan, cam_true=cam_true, cam_nominal=cam_nominal, origin=origin,
                                  epsg=epsg, gains=gains)
             corners = scene.roof_corners()
-            _write_truth_corners(tmp / "truth", scene, corners, origin)
+            _write_truth_corners(tmp / "truth", scene, corners, origin, epsg)
             write_footprints_gpkg(tmp / "truth" / "buildings.geojson", tmp / "truth" / "footprints.gpkg",
                                   f"EPSG:{epsg}")
             targets = _write_check_targets(tmp / "truth", scene=scene, accel=accel, plan=plan, cam_true=cam_true,
@@ -512,14 +512,14 @@ def rendered_chain_table(cfg: Preset) -> dict:
     return chain
 
 
-def _write_truth_corners(truth_dir: Path, scene, corners: list[dict], origin) -> None:
-    """truth/roof_corners.csv (every eave outline corner) and truth/buildings.geojson."""
+def _write_truth_corners(truth_dir: Path, scene, corners: list[dict], origin, epsg: int) -> None:
+    """truth/roof_corners.csv (every eave outline corner) and truth/buildings.geojson (in EPSG:``epsg``)."""
     _csv(truth_dir / "roof_corners.csv",
          ["id", "x", "y", "z", "roof", "building_id", "shape", "angle_deg", "length_m", "width_m"],
          [(f"RC{k + 1:05d}", c["x"] + origin[0], c["y"] + origin[1], c["z"] + origin[2], c["roof"],
            c["building_id"], c["shape"], round(c["angle_deg"], 2), round(c["length_m"], 2), round(c["width_m"], 2))
           for k, c in enumerate(corners)])
-    _write_buildings_geojson(truth_dir / "buildings.geojson", scene, origin)
+    _write_buildings_geojson(truth_dir / "buildings.geojson", scene, origin, epsg)
 
 
 def _write_check_targets(truth_dir: Path, *, scene, accel, plan, cam_true, origin, earth: SimEarth) -> _CheckTargets:
@@ -650,7 +650,7 @@ def _check_plan(plan, scene, cfg):
                          f"{low:.0f} m do not clear the highest point of the scene ({z_top:.0f} m)")
 
 
-def _write_buildings_geojson(path, scene, origin):
+def _write_buildings_geojson(path, scene, origin, epsg: int):
     feats = []
     for b in scene.buildings:
         for name, poly in (("footprint", b.footprint), ("roof_outline", b.outline)):
@@ -660,11 +660,14 @@ def _write_buildings_geojson(path, scene, origin):
                               properties=dict(building_id=b.building_id, part=name, roof=b.roof, shape=b.shape,
                                               eave_z_m=round(b.eave_z_m + origin[2], 3),
                                               ridge_z_m=round(b.ridge_z_m + origin[2], 3))))
-    path.write_text(json.dumps(dict(type="FeatureCollection", features=feats)) + "\n")
+    # the legacy crs member: the coordinates are the project's grid, not RFC 7946's WGS 84 (GDAL and QGIS honour it;
+    # without it they read UTM metres as degrees)
+    crs = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{epsg}"}}
+    path.write_text(json.dumps(dict(type="FeatureCollection", crs=crs, features=feats)) + "\n")
 
 
 def write_footprints_gpkg(buildings_geojson, out, crs: str) -> int:
-    """The buildings' wall lines (part "footprint" of ``truth/buildings.geojson``, which carries no CRS) as a
+    """The buildings' wall lines (part "footprint" of ``truth/buildings.geojson``) as a
     GeoPackage in ``crs`` (the project's): layer ``footprints``, one Polygon per building with its ``building_id``,
     the cadastral footprints ``ortho rectify --true-ortho --footprints`` takes (stand-ins for BGT or OSM buildings).
     Written atomically; returns the number of footprints."""

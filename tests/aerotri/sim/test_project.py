@@ -353,3 +353,14 @@ def test_land_cover_truth_beside_the_true_ortho(tiny_project):
     assert np.mean(classes[~roof] == 6) < 0.005
     mean_nir = {k: nir[classes == k].mean() for k in (3, 5, 6, 11)}
     assert min(mean_nir[3], mean_nir[5]) > 1.3 * max(mean_nir[6], mean_nir[11])
+
+
+def test_buildings_geojson_opens_in_the_projects_crs(tiny_project):
+    """truth/buildings.geojson holds grid coordinates: GDAL (and so QGIS) must read it in the project's CRS, not
+    as RFC 7946's WGS 84 degrees."""
+    import pyogrio
+    import pyproj
+
+    crs = tomllib.loads((tiny_project / "project.toml").read_text())["project"]["crs"]
+    info = pyogrio.read_info(tiny_project / "truth" / "buildings.geojson")
+    assert pyproj.CRS(info["crs"]) == pyproj.CRS(crs)
