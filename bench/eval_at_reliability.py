@@ -101,6 +101,7 @@ def run(seed: int, n_control: int, shift_sigma_m: float, sign: int, correction: 
     dz = np.array([c["adjusted_m"][2] - c["measured_m"][2] for c in ba.check.values()], dtype=float)
     ba.check = {}  # the verdict without check points
     hd = ba.result.height_datum
+    hd = hd if hd is not None and hd.height_control_out else None  # some out (at-noout: it runs with none out)
     out = sorted(str(ba.control.id[c]) for c, _ in ba.result.rejected_control)
     family = "none" if hd is None else "out" if set(typed) <= set(out) else "kept"
     return {"seed": seed, "n_control": n_control, "gnss_shift_sigma_m": shift_sigma_m, "signs": "+-"[sign < 0],

@@ -48,6 +48,9 @@ choice stands, whatever the signs of the points out (the sign rule before, ``out
 snooping rightly left out two heights typed the same way: review 35). One point out is the snooping's usual find and not
 judged so: with 6 control heights under a shift and drift per strip the heights kept have MDBs of 0.7-1.7 m, and
 the rule called 18 of 18 such blocks weak whose one mistyped height was rightly left out (s29-fixes' family).
+With none or one control height out (any correction; at-noout) a kept height whose MDB exceeds
+``ALONE_MDB_FACTOR`` times the limit is one no other observation checks (3 full control under a shift and drift per
+strip: MDBs 5-54 m, "Successful" before, the check not run with nothing out), and the heights are unchecked.
 ``Q`` leaves out a DEM's considered systematic error (``surface_bias``; a DEM only adds redundancy) and a full
 control point's plan (heights only); pairs are judged while the covariance between the points is formed
 (``JOINT_COLS_MAX``).
@@ -88,6 +91,12 @@ JOINT_COLS_MAX = 600
 # tests would find exceeds this times the height limit (bench/eval_at_reliability.py, seeds 0-5: 1 called 12 of 16
 # blocks whose typos were rightly out weak, 1.5 and 2 none; 2 taken, the fewer false alarms of the tie)
 PAIR_MDB_FACTOR = 2.0
+# with none or one control height out (the check ran only with some out before at-noout: 3 full control under a shift
+# and drift per strip, MDBs 5-54 m, "Successful") a kept height nothing else checks is unchecked when its MDB exceeds
+# this times the height limit: a bias there moves about its strip, one of three, a block RMS near the limit at about
+# 1.7 times it (as ``PAIR_MDB_FACTOR``). bench/eval_at_noout.py seeds 0-5: the smallest factor at which no block of
+# 6 or 12 full control turns weak by it (their MDBs 0.30-1.68 m; 1.5: 6 more, one height out); scored on 6-13
+ALONE_MDB_FACTOR = 2.0
 
 
 def _block_axes(xy: np.ndarray) -> dict:
@@ -178,7 +187,10 @@ class HeightDatumCheck:
         snooping would not detect within the height limit: (id, redundancy number, minimal detectable bias m) of
         those whose MDB exceeds it (a kept height that holds its strip alone; the snooping, one blunder at a time,
         may have kept it mistyped and left out right ones). Empty: every kept height is checked, and the points out
-        are the snooping's choice, whatever their signs (review 35)."""
+        are the snooping's choice, whatever their signs (review 35). With none or one out (any correction), those
+        whose MDB exceeds ``ALONE_MDB_FACTOR`` times the limit: heights nothing else checks (at-noout)."""
+        if self.judges_alone():
+            return tuple(k for k in self.kept_mdb_m if not k[2] <= ALONE_MDB_FACTOR * height_limit_m)
         if not self.judges_kept():
             return ()
         return tuple(k for k in self.kept_mdb_m if not k[2] <= height_limit_m)
@@ -195,6 +207,10 @@ class HeightDatumCheck:
         """The kept heights are judged under a correction per strip with more than one control height out."""
         return self.correction in ("shift", "shift_drift") and len(self.height_control_out) >= 2
 
+    def judges_alone(self) -> bool:
+        """The kept heights are judged by ``ALONE_MDB_FACTOR`` with none or one control height out (at-noout)."""
+        return len(self.height_control_out) < 2
+
     def held(self, height_limit_m: float) -> bool:
         return (self.mdb_m <= height_limit_m and not self.disagrees() and not self.strips_not_held(height_limit_m)
                 and not self.kept_unchecked(height_limit_m) and not self.pairs_unchecked(height_limit_m))
@@ -202,9 +218,10 @@ class HeightDatumCheck:
 
 def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc, control_active, *, sigma0: float,
                        alpha: float, obs_active=None) -> HeightDatumCheck | None:
-    """``HeightDatumCheck`` at the solution (``rc`` the unit-weight reduced covariance) when the data snooping left
-    out some of the control points with a height and kept others (all out: the report's own finding); None without
-    GNSS (the control alone carries the datum: the geometry modes judge it) or without such a loss. Where the GNSS
+    """``HeightDatumCheck`` at the solution (``rc`` the unit-weight reduced covariance) when the data snooping kept
+    some of the control points with a height (all out: the report's own finding); None without GNSS (the control
+    alone carries the datum: the geometry modes judge it). With none out only the kept heights' reliability and the
+    strips' corrections are judged (at-noout: ``corner_sigma_m`` 0, no plane). Where the GNSS
     correction takes the whole plane (shift_drift over parallel strips) only the strips' corrections are judged
     (``terms`` 0). ``obs_active``: the image observations in use (None: all), for the kept heights' redundancy."""
     if block.gnss_local is None or not len(block.control_rows):
@@ -213,7 +230,7 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
     active = np.asarray(control_active, dtype=bool)
     with_z = rows_kind != 2  # the constrained components: 3 full, 1 height, 2 plan only
     left, out = with_z & active, with_z & ~active
-    if not out.any() or not left.any():
+    if not left.any():
         return None
     ids = [block.point_id[j] for j in block.control_point]
     pred, rows = gnss_rows(block, opts, state)
@@ -231,6 +248,8 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
                 **dict(zip(("kept_mdb_m", "pair_mdb_m", "pairs_judged"),
                            _kept_reliability(block, opts, state, rc, np.flatnonzero(left), obs_active, alpha))),
                 **_block_axes(xy))
+    if not out.any():  # nothing out: the kept heights' own reliability alone (at-noout), the plane all the control's
+        return HeightDatumCheck(0.0, math.nan, math.nan, alpha, *lo, **more)
     if P.shape[1] == 0:  # the correction takes the whole plane: its strips' own sigmas alone
         return HeightDatumCheck(0.0, math.nan, math.nan, alpha, *lo, **more)
     h = np.einsum("n,na,nb->ab", w[:, 2], P, P)

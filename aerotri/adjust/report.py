@@ -13,7 +13,7 @@ import numpy as np
 
 from aerotri.adjust import graph as G
 from aerotri.adjust.determinability import PP_RELIEF_PLAN_FRACTION
-from aerotri.adjust.height_datum import PAIR_MDB_FACTOR
+from aerotri.adjust.height_datum import ALONE_MDB_FACTOR, PAIR_MDB_FACTOR
 from aerotri.adjust.report_record import map_unit_m
 from aerotri.core.figures import pyplot
 from aerotri.core.settings import settings_lines
@@ -704,8 +704,9 @@ def height_datum_text(hd, height_limit_m: float) -> str:
     if hd.terms < 3:  # the GNSS correction takes the rest (s29-fixes)
         what = (f"the GNSS heights' tilt that {_CORRECTION_TAKES.get(hd.correction, hd.correction)} does not take "
                 f"({hd.terms} of the plane's 3 terms)")
-    head = (f"Height control: {len(out)} of {n} points with a height left out; the {len(left)} left "
-            f"({', '.join(left[:6])}{', ...' if len(left) > 6 else ''}) ")
+    head = (f"Height control: {len(out) or 'none'} of {n} points with a height left out; the {len(left)}"
+            f"{' left' if out else ''} ({', '.join(left[:6])}{', ...' if len(left) > 6 else ''}) ")
+    names_kept = False  # the text names kept points (the closing advice then names them too)
     if not math.isfinite(hd.corner_sigma_m):
         why = f"cannot determine {what}"
         if hd.layout == "one point":
@@ -722,7 +723,16 @@ def height_datum_text(hd, height_limit_m: float) -> str:
                 f"minimal detectable bias from the solution's covariance) against the {height_limit_m:.2f} m height "
                 "limit")
         unchecked, pairs = hd.kept_unchecked(height_limit_m), hd.pairs_unchecked(height_limit_m)
-        if unchecked or pairs:
+        names_kept = bool(unchecked or pairs)
+        if unchecked and hd.judges_alone():  # none or one out: a height nothing else checks (at-noout)
+            parts.append("leave the heights without a check: the data snooping, one blunder at a time, would find a "
+                         "mistyped height only when off by more than " + ", ".join(
+                             f"{m:.2f} m at {i} (redundancy {r:.3f})" if math.isfinite(m) else
+                             f"any amount at {i} (redundancy {r:.3f})" for i, r, m in unchecked[:6])
+                         + (", ..." if len(unchecked) > 6 else "")
+                         + f" (Baarda's minimal detectable bias, beyond {ALONE_MDB_FACTOR:g} times the "
+                         f"{height_limit_m:.2f} m height limit: no other observation checks that height)")
+        elif unchecked or pairs:
             finds = []
             if unchecked:
                 finds.append("a mistyped height only when off by more than " + ", ".join(
@@ -758,14 +768,17 @@ def height_datum_text(hd, height_limit_m: float) -> str:
              "another height system, an antenna height or lever arm off)"
              if hd.out_agree() and hd.correction not in ("shift", "shift_drift")
              else "")
-    named = (" and the points named" if hd.kept_unchecked(height_limit_m) or hd.pairs_unchecked(height_limit_m)
-             else "")
+    named = " and the points named" if names_kept else ""
+    if not out:
+        return (head + why + f". Add control points with a height{' near the points named' if named else ''}, or "
+                "check points spread over the block.")
     return head + why + right + f". Survey or re-measure the points left out{named}, or add check points."
 
 
 def height_checks_text(hd, n_checks: int, rms_z_m: float, height_limit_m: float) -> str:
     """A ``height_datum.HeightDatumCheck`` that would not hold the heights, where check points with a height decide."""
-    return (f"Height control: {len(hd.height_control_out)} of {len(hd.height_control_out) + len(hd.height_control_left)}"
+    return (f"Height control: {len(hd.height_control_out) or 'none'} of "
+            f"{len(hd.height_control_out) + len(hd.height_control_left)}"
             f" points with a height left out; the {n_checks} check points with a height decide the heights: RMS Z "
             f"{rms_z_m:.3f} m against the {height_limit_m:.2f} m height limit"
             + (" (beyond it: see the tolerances)." if rms_z_m > height_limit_m else "."))

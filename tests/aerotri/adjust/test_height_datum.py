@@ -240,3 +240,35 @@ def test_a_height_only_control_point_far_from_the_centre_has_its_own_height_sigm
     kept = {i: (r, m) for i, r, m in ba.result.height_datum.kept_mdb_m}
     assert kept["gcp04"][0] == pytest.approx(0.0085, abs=0.002) and kept["gcp06"][0] == pytest.approx(0.016, abs=0.003)
     assert kept["gcp04"][1] == pytest.approx(mdb_sigmas(1e-4) * 0.05 / np.sqrt(kept["gcp04"][0]), rel=1e-6)
+
+
+def test_three_control_heights_none_left_out_under_a_shift_and_drift_leave_the_heights_unchecked(tmp_path):
+    """at-noout: 3 full control points under a shift and drift per strip (0.3 m strip shifts, gnss_shift_sigma_m 0.5),
+    the 2 heights farthest from gcp01 typed 2-2.4 m high, nothing left out: the check did not run and the verdict read
+    "Solution Successful" without check points while the 20 check points give RMS Z 1.20 m, over the 1 m limit. Each
+    height holds its strip's shift and drift with the others (redundancy about 0, MDBs 29-53 m here, 5-54 m on seeds
+    0-5 of bench/eval_at_noout.py): weak, "unchecked", naming them. 6 full control as surveyed keep "Successful"."""
+    import dataclasses
+
+    ba, _ = _project(tmp_path / "a", mistyped=2, correction="shift_drift", shift_m=0.3, typo_m=2.0, shift_sigma_m=0.5,
+                     n_check=20, n_control=3, same_way=True)
+    dz = np.array([c["adjusted_m"][2] - c["measured_m"][2] for c in ba.check.values()])
+    assert np.sqrt(np.mean(dz**2)) > 1.0  # the truth: the heights are off beyond the 1 m limit
+    hd = ba.result.height_datum
+    assert hd.height_control_out == () and len(hd.kept_mdb_m) == 3
+    assert all(r < 0.01 and m > 10.0 for _, r, m in hd.kept_unchecked(1.0)) and len(hd.kept_unchecked(1.0)) == 3
+    ba.check = {}
+    kept = ba.result
+    ba.result = dataclasses.replace(kept, height_datum=None)  # main before at-noout: no check with nothing out
+    assert to_record(build_report(ba))["key_statistics"]["verdict"] == "successful"
+    ba.result = kept
+    ks = _verdict_without_checks(ba)
+    assert ks["verdict"] == "weak" and ks["height_control_not_held"]
+    assert "Height control: none of 3 points with a height left out" in ks["message"]
+    i, r, m = hd.kept_unchecked(1.0)[0]
+    assert f"only when off by more than {m:.2f} m at {i} (redundancy {r:.3f})" in ks["message"]
+    assert "the block's heights are unchecked" in ks["message"]
+    ba6, _ = _project(tmp_path / "b", correction="shift_drift", shift_m=0.3, shift_sigma_m=0.5, n_check=20)
+    assert ba6.result.height_datum.height_control_out == () and not ba6.result.height_datum.kept_unchecked(1.0)
+    ks6 = _verdict_without_checks(ba6)
+    assert ks6["verdict"] == "successful" and not ks6["height_control_not_held"]
