@@ -239,6 +239,14 @@ class Chain:
             return None
         return f"re-made with {seams} seamlines by ortho mosaic" if str(seams).startswith("edited") else None
 
+    def edited_seamlines(self) -> Path | None:
+        """The operator's edited seamlines GeoPackage the mosaic on disk was re-made with (``edited_mosaic``), while
+        that mosaic is there (removed: the chain routes its own again), else None."""
+        if not self.edited_mosaic(self.root) or not self.project.mosaic_path.exists():
+            return None
+        seams = json.loads(self.project.mosaic_summary_path.read_text())["seams"]
+        return Path(seams[len("edited ("):-1]) if seams.endswith(")") else None
+
     def mosaic_ndsm(self) -> list[Path]:
         """The nDSM the mosaic's seamlines avoid objects by (``ortho.mosaic.mosaic_block``'s choice): [mosaic] ndsm,
         else lidar_out/ndsm.tif when it is there (listed either way: one written later is a change)."""
@@ -887,9 +895,23 @@ class Chain:
         return None
 
     def run_mosaic(self, root) -> R.MosaicResult:
+        from aerotri.core.errors import InputError
         from ortho.mosaic import mosaic_block
 
-        done = mosaic_block(root, self.stage_settings("mosaic"))
+        edited = self.edited_seamlines()
+        if edited is None:
+            done = mosaic_block(root, self.stage_settings("mosaic"))
+        else:
+            # the mosaic must be made again (new frames, settings or blend rules): with the operator's seamlines, not
+            # over them (the edit would be lost without a word)
+            _log.warning(f"[mosaic] made again with the edited seamlines {edited} the mosaic on disk was made with "
+                         f"(remove {_rel(self.project.mosaic_path, self.root)} to have the chain route its own)")
+            try:
+                done = mosaic_block(root, self.stage_settings("mosaic"), seamlines=edited)
+            except InputError as e:
+                raise InputError(f"{e}; the chain re-makes the operator's edited mosaic with these seamlines: fix them, "
+                              f"or remove {_rel(self.project.mosaic_path, self.root)} to have the chain route its "
+                              "own") from None
         return R.MosaicResult(width_px=done.width_px, height_px=done.height_px)
 
     # -- checks and report ----------------------------------------------------------------------

@@ -344,3 +344,37 @@ def test_a_mosaic_of_other_offsets_is_not_taken_over(mosaicked, tmp_path):
     assert r.exit_code == 0, r.output
     tiles = json.loads(summary_path.read_text())["tiles"]
     assert tiles["taken_over"] == tiles["total"] > 0
+
+
+def test_the_chain_makes_an_edited_mosaic_again_with_its_seamlines(mosaicked, tmp_path):
+    """Review 45: the mosaic stage re-runs on new blend rules, frames or settings; over an operator's edited mosaic it
+    must blend with the edited seamlines again (the edit was lost without a word), and say how to get the chain's own;
+    with the mosaic removed the chain routes its own."""
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain
+    from aerotri.core.errors import InputError
+    from aerotri.core.project import Project
+
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
+    edited = tmp_path / "edited.gpkg"
+    _write(edited, names, _moved_edge(names, geoms, lambda k: geoms[k].buffer(50))[0], meta["crs"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--seamlines", str(edited)])
+    assert r.exit_code == 0, r.output
+    operators = hashlib.sha1((root / "ortho" / "mosaic.tif").read_bytes()).hexdigest()
+
+    project = Project.open(root)
+    chain = Chain(project, read_options(project))
+    assert chain.edited_seamlines() == edited
+    chain.run_mosaic(root)
+    assert json.loads((root / "ortho" / "mosaic.json").read_text())["seams"] == f"edited ({edited})"
+    assert hashlib.sha1((root / "ortho" / "mosaic.tif").read_bytes()).hexdigest() == operators
+
+    edited.unlink()  # the edit gone while its mosaic is there: said, nothing routed over it
+    with pytest.raises(InputError, match="edited.gpkg.*remove ortho/mosaic.tif"):
+        chain.run_mosaic(root)
+    (root / "ortho" / "mosaic.tif").unlink()
+    assert chain.edited_seamlines() is None
+    chain.run_mosaic(root)
+    assert json.loads((root / "ortho" / "mosaic.json").read_text())["seams"] == "least-cost"
