@@ -24,8 +24,8 @@ from pyproj import CRS
 from rasterio.windows import Window, from_bounds
 
 from aerotri.core.errors import CrsError, InputError
-from aerotri.geom.crs.definition import (crs_label, height_crs, height_unit_m, horizontal_crs, same_horizontal,
-                                         vertical_crs)
+from aerotri.geom.crs.definition import (crs_label, height_crs, height_unit_m, heights_in_unit, horizontal_crs,
+                                         same_horizontal, vertical_crs)
 from aerotri.geom.crs.raster_warp import anchor_grid, height_change, interpolate_anchors, open_north_up
 from aerotri.geom.crs.transform import CrsTransformer
 
@@ -119,11 +119,14 @@ def dem_height_operation(raster_crs, project_crs, project_heights=None, height_m
     ``HeightAnomalyModel`` relating ellipsoidal and normal heights (used when PROJ has no geoid grid).
     Refuses (``CrsError``) what would be a silent ballpark height change, naming the grid to install."""
     vertical = vertical_crs(CRS(raster_crs))
-    if vertical is None or (project_heights is not None and vertical == CRS(project_heights)):
-        return None
     horizontal = horizontal_crs(CRS(project_crs))
+    # the project's heights are in its grid's unit (``with_heights``): EPSG:3855 beside a feet grid is EGM2008 in
+    # feet, and a raster of EPSG:3855 in metres there is converted (review 43: taken as the project's, 3.28x)
+    ours = None if project_heights is None else heights_in_unit(CRS(project_heights), height_unit_m(horizontal))
+    if vertical is None or (ours is not None and vertical == ours):
+        return None
     src = height_crs(horizontal, vertical)
-    dst = height_crs(horizontal, project_heights)
+    dst = height_crs(horizontal, ours)
     if height_model is not None and project_heights is None:
         # normal heights -> ellipsoidal by h = H + zeta: the model is the inverse of its H = h - zeta
         return CrsTransformer(dst, dst, heights=height_model).inverse()

@@ -135,7 +135,8 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
     import rasterio
     from rasterio.windows import from_bounds
 
-    from aerotri.geom.crs.definition import crs_label, parse_crs, same_horizontal, same_vertical, vertical_crs
+    from aerotri.geom.crs.definition import (crs_label, height_unit_m, heights_in_unit, horizontal_crs, parse_crs,
+                                             same_horizontal, vertical_crs)
     from aerotri.geom.crs.raster_warp import open_north_up
 
     path = Path(path)
@@ -145,8 +146,13 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
             raise CrsError(f"{path}: the {what} is in {crs_label(crs)}, the project in {crs_label(project_crs)}; "
                            f"warp it first (aerotri crs warp)")
         dem_v = vertical_crs(crs)
-        if dem_v is not None and (project_heights is None or not same_vertical(dem_v, project_heights)):
-            theirs = crs_label(project_heights) if project_heights is not None else "ellipsoidal heights"
+        # the project's heights in its grid's unit (``with_heights``): a DEM of EPSG:3855 in metres beside a feet
+        # grid of EPSG:3855 heights is not the project's (review 43: its metres were read as feet); compared as
+        # vertical CRSs (same_vertical takes compound ones: given the bare [project] heights it said "same" always)
+        ours = (None if project_heights is None else
+                heights_in_unit(project_heights, height_unit_m(horizontal_crs(project_crs))))
+        if dem_v is not None and (ours is None or not dem_v.equals(ours)):
+            theirs = crs_label(ours) if ours is not None else "ellipsoidal heights"
             raise CrsError(f"{path}: the {what}'s heights are in {crs_label(dem_v)}, the project's in {theirs} "
                            "([project] heights); convert the heights first (aerotri crs warp)")
         if dem_v is None:

@@ -77,9 +77,14 @@ def _export_refusal(name: str, exc) -> Exception:
         cut = text.find("fit parameters from common points")
     if cut >= 0:
         text = text[:cut].rstrip("; ")
+    # the policy's "<state the datum>; otherwise fit parameters ..." (a definition by its ellipsoid alone) lost its
+    # alternative with the cut: the "otherwise" goes with the export's own (review 43: "...file); otherwise; aerotri")
+    otherwise = text.endswith("otherwise")
+    if otherwise:
+        text = text[:-len("otherwise")].rstrip("; ")
     if not exc.missing_grids:
-        text += ("; aerotri export applies no datum parameters: choose a project CRS on a datum PROJ relates to "
-                 "the format's rigorously")
+        text += ("; aerotri export applies no datum parameters: " + ("otherwise, " if otherwise else "")
+                 + "choose a project CRS on a datum PROJ relates to the format's rigorously")
     return BallparkRefused(f"{name} export: {text}", missing_grids=exc.missing_grids)
 
 

@@ -209,3 +209,24 @@ def test_crowns_beside_a_dsm_in_feet_occlude_as_beside_the_dsm_in_metres(block, 
     _assert_same_orthos(metres, feet)
     differ = sum(int((metres[k][1] != feet[k][1]).sum()) for k in plain)
     assert differ <= gained // 5, (differ, gained)   # the crowns in feet occluded as those in metres (was: none)
+
+
+def test_a_feet_projects_egm2008_heights_are_in_feet_for_the_dem():
+    """[project] heights = "EPSG:3855" beside a US-feet grid: project heights are EGM2008 in US feet (docs/project.md:
+    z in the project CRS's unit). A DEM declaring EPSG:3855 (metres) is converted to feet (review 43: taken as the
+    project's, its metres read as feet), one declaring EGM2008 in US feet is taken as it is (was divided by 3.28)."""
+    import pyproj
+
+    from aerotri.geom.crs.definition import heights_in_unit
+    from ortho.dem import dem_height_operation
+
+    us_ft_m = 1200 / 3937
+    grid = pyproj.CRS("+proj=utm +zone=49 +datum=WGS84 +units=us-ft +no_defs")
+    egm2008 = pyproj.CRS("EPSG:3855")
+    in_metres = pyproj.crs.CompoundCRS("UTM 49N US ft + EGM2008 height", [grid, egm2008])
+    in_feet = pyproj.crs.CompoundCRS("UTM 49N US ft + EGM2008 height (ftUS)", [grid, heights_in_unit(egm2008, us_ft_m)])
+    x, y = 1484747.6, 11179048.4  # the demo block's
+    op = dem_height_operation(in_metres, grid, egm2008)
+    assert op is not None and abs(op.transform(x, y, 100.0)[2] - 100.0 / us_ft_m) < 1e-6
+    same = dem_height_operation(in_feet, grid, egm2008)
+    assert same is None or abs(same.transform(x, y, 100.0)[2] - 100.0) < 1e-9

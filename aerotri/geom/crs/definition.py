@@ -774,16 +774,46 @@ def project_heights(project) -> pyproj.CRS | None:
     return parse_heights(project.info.heights, f"{project.config_path} [project] heights")
 
 
+@functools.lru_cache(maxsize=64)
+def heights_in_unit(heights: pyproj.CRS, unit_m: float, source: str = "[project] heights") -> pyproj.CRS:
+    """The vertical CRS ``heights`` with its height axis in the unit of ``unit_m`` metres: the same vertical datum
+    (PROJ relates the two by a unit conversion, and reaches the datum's geoid model through the original), named
+    "<name> (<unit>)"; ``heights`` itself when already in that unit. A vertical CRS PROJ cannot restate (a bound
+    one) in another unit is refused naming both units."""
+    have_m = float(heights.axis_info[0].unit_conversion_factor)
+    if abs(have_m - unit_m) <= 1e-12 * unit_m:
+        return heights
+    unit = length_unit_name(unit_m, long=True)
+    doc = heights.to_json_dict()
+    if doc.get("type") != "VerticalCRS" or len(doc.get("coordinate_system", {}).get("axis", [])) != 1:
+        raise CrsError(f"{source}: {crs_label(heights)} ({heights.name}) gives heights in "
+                       f"{length_unit_name(have_m, long=True)}, the project CRS's unit is {unit}: project heights are "
+                       f"in the project CRS's unit; give a vertical CRS in {unit}")
+    doc.pop("id", None)
+    doc.pop("ids", None)
+    doc["name"] = f"{heights.name} ({unit})"
+    doc["coordinate_system"]["axis"][0]["unit"] = ("metre" if unit_m == 1.0 else
+                                                   {"type": "LinearUnit", "name": unit, "conversion_factor": unit_m})
+    return pyproj.CRS.from_json_dict(doc)
+
+
 def with_heights(crs: pyproj.CRS, heights: pyproj.CRS | None) -> pyproj.CRS:
     """``crs`` with the heights ``heights``: the compound CRS for a vertical CRS, ``crs`` itself for ellipsoidal ones
     (None: the policy then takes z in the CRS's linear unit, feet in a feet grid, which ``height_crs``'s ``to_3d``
     would make metres). The CRS to transform project points from or to: ``CrsTransformer``'s ``heights`` is a
     height anomaly model, not a vertical CRS (the exports to WGS 84 passed EPSG:3855 there and stopped with an
-    AttributeError)."""
-    return crs if heights is None else height_crs(crs, heights)
+    AttributeError).
+
+    The heights are in ``crs``'s unit as a 2D CRS's z is (``height_unit_m``: a feet grid's in feet, a geographic
+    CRS's in metres; docs/project.md: project z is "in the project CRS and its unit"), whatever the vertical CRS's
+    own unit: EPSG:3855 (EGM2008, metres) beside a US-feet grid is EGM2008 in US feet (review 43: with the vertical
+    CRS's metres, feet were read as metres, a point 3.28x off between two such projects)."""
+    if heights is None:
+        return crs
+    return height_crs(crs, heights_in_unit(heights, height_unit_m(horizontal_crs(crs))))
 
 
 def project_crs_3d(project) -> pyproj.CRS:
     """The CRS of a project's coordinates with their heights (``with_heights`` of ``[project] crs`` and
-    ``[project] heights``)."""
+    ``[project] heights``: the heights in the project CRS's unit)."""
     return with_heights(project_crs(project), project_heights(project))

@@ -387,3 +387,35 @@ def test_a_point_the_last_snooping_left_without_rays_is_no_surface_observation(s
     active = r.obs_active & (b.obs_point != j)
     cand, used = held_by_rays(b, active, r.surface_use > 0, r.surface_use == 1)
     assert not cand[j] and not used[j] and used.sum() == np.sum(r.surface_use == 1) - 1
+
+
+
+@pytest.mark.parametrize("grid, dem_heights, ours", [
+    ("+proj=utm +zone=49 +datum=WGS84 +units=us-ft +no_defs", "EPSG:3855", r"EGM2008 height \(US survey foot\)"),
+    ("EPSG:32649", "EPSG:3855", None),
+    ("EPSG:32649", "EPSG:5773", "EPSG:3855")])
+def test_a_dem_is_taken_only_in_the_projects_heights_and_their_unit(tmp_path, grid, dem_heights, ours):
+    """[project] heights = "EPSG:3855": beside a US-feet grid the project's heights are EGM2008 in US feet (docs/
+    project.md), a DEM declaring EPSG:3855 (metres) is refused naming both (review 43: its metres were read as feet);
+    beside UTM in metres it is the project's; a DEM of EGM96 heights (EPSG:5773) is refused (was taken: the check
+    compared the bare vertical CRS as a compound one, "same" whatever it was)."""
+    import pyproj
+
+    from aerotri.adjust import surface
+    from aerotri.core.errors import CrsError
+    from aerotri.geom.crs.definition import parse_crs
+
+    grid = parse_crs(grid, "crs")
+    egm2008 = pyproj.CRS("EPSG:3855")
+    dem_crs = pyproj.crs.CompoundCRS("dem", [grid, pyproj.CRS(dem_heights)])
+    x, y = pyproj.Transformer.from_crs("EPSG:32649", grid, always_xy=True).transform(452555.0, 3407828.0)
+    path = tmp_path / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=20, height=30, count=1, dtype="float32",
+                       crs=rasterio.crs.CRS.from_wkt(dem_crs.to_wkt()), transform=from_origin(x, y, 3.0, 3.0),
+                       nodata=-9999.0) as ds:
+        ds.write(np.full((30, 20), 1000.0, np.float32), 1)
+    if ours is None:
+        assert np.all(surface.read_height_grid(path, grid, egm2008).z == 1000.0)
+    else:
+        with pytest.raises(CrsError, match=rf"heights are in {dem_heights}, the project's in {ours} "):
+            surface.read_height_grid(path, grid, egm2008)

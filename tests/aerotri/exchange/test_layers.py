@@ -123,6 +123,26 @@ def test_kml_in_wgs84(adjusted_tiny, tmp_path):
     assert len(polys) == 10 and all(p.is_valid for p in polys)
 
 
+def test_kml_of_a_grid_without_datum_is_refused_in_one_sentence(adjusted_tiny, tmp_path):
+    """A project CRS by its ellipsoid alone (+ellps=GRS80, no datum): the KML export stops, exit 2, no output, saying
+    to state the datum, otherwise to choose a project CRS on a datum PROJ relates to WGS 84 (review 43: the policy's
+    "otherwise fit parameters" was cut after "otherwise": "...a .wkt/.prj file); otherwise; aerotri export ...")."""
+    from click.testing import CliRunner
+
+    from aerotri.cli import main as aerotri_cli
+
+    root = _copy(adjusted_tiny, tmp_path)
+    toml = (root / "project.toml").read_text()
+    assert 'crs = "EPSG:32649"\n' in toml
+    (root / "project.toml").write_text(toml.replace(
+        'crs = "EPSG:32649"', 'crs = "+proj=tmerc +lon_0=111 +k=0.9996 +x_0=500000 +ellps=GRS80 +units=m +no_defs"'))
+    r = CliRunner().invoke(aerotri_cli, ["export", str(root), "--format", "kml", "--out", str(tmp_path / "out")])
+    assert r.exit_code == 2 and not (tmp_path / "out").exists()
+    assert ("(or give WKT with its DATUM, a .wkt/.prj file); aerotri export applies no datum parameters: otherwise, "
+            "choose a project CRS on a datum PROJ relates to the format's rigorously" in " ".join(r.output.split()))
+    assert "otherwise;" not in r.output and "Traceback" not in r.output
+
+
 def test_unadjusted_project_is_refused(tmp_path, adjusted_tiny):
     root = tmp_path / "p"
     root.mkdir()
