@@ -62,9 +62,17 @@ def _crs_on_stated_datum(text: str, source: str) -> pyproj.CRS:
     """A PROJ string whose ``+datum=EPSG:nnnn`` states its datum (leftovers2: a local Gauss-Krueger grid, "+proj=tmerc
     +lon_0=114.5 +k=1 +x_0=500000 +ellps=GRS80", has an ellipsoid and no datum, so PROJ had only a ballpark operation
     from CGCS2000 to it): its projection on that geographic CRS, exact. Its ellipsoid, when the text gives one, must
-    be the datum's (``CrsError`` naming both otherwise)."""
+    be the datum's; a datum stated twice (+towgs84, +nadgrids or another +datum beside it) and a 3D geographic CRS
+    as the datum are refused (``CrsError`` naming them; review 44: +towgs84 dropped the stated datum, without +ellps
+    ending on WGS 84). +vunits (the heights' unit) and +geoidgrids (heights above that geoid: a compound CRS) keep
+    the meaning PROJ gives them (review 44: +vunits was dropped, +geoidgrids an AttributeError)."""
     m = _STATED_DATUM.search(text)
     rest = _STATED_DATUM.sub("", text).strip()
+    twice = re.search(r"\+(towgs84|nadgrids|datum)=\S*", rest)
+    if twice:
+        raise CrsError(f"{source}: {text!r} states its datum twice, +datum={m['code']} and {twice[0]}: give one (the "
+                       f"datum by the EPSG code of its geographic CRS, +datum={m['code']}, exact; or +towgs84 / "
+                       "+nadgrids, the shift of an unnamed datum to WGS 84)")
     try:
         base = _crs_from_code(m["code"].upper())
         plain = _crs_from_code(rest)
@@ -74,22 +82,43 @@ def _crs_on_stated_datum(text: str, source: str) -> pyproj.CRS:
     if not base.is_geographic:
         raise CrsError(f"{source}: +datum={m['code']} is {base.name}, not a geographic CRS; give the code of the "
                        "datum's geographic CRS (e.g. EPSG:4490 for CGCS2000, EPSG:4326 for WGS 84)")
+    if len(base.axis_info) == 3:
+        two_d = base.to_2d().to_epsg(min_confidence=90)
+        raise CrsError(f"{source}: +datum={m['code']} is {base.name}, a 3D geographic CRS (with ellipsoidal "
+                       "heights); give the code of the datum's 2D geographic CRS"
+                       + (f", EPSG:{two_d}" if two_d else " (e.g. EPSG:4490 for CGCS2000, EPSG:4326 for WGS 84)")
+                       + " (heights: +vunits, +geoidgrids)")
+    # (+geoidgrids: PROJ makes a compound CRS, the heights above the geoid its vertical part)
+    horiz, vert = (plain.sub_crs_list[0], plain.sub_crs_list[1]) if plain.is_compound else (plain, None)
     if re.search(r"\+(ellps|a|rf|f|b|R)=", rest):
-        e, d = plain.ellipsoid, base.ellipsoid
+        e, d = horiz.ellipsoid, base.ellipsoid
         if abs(e.semi_major_metre - d.semi_major_metre) > 1e-4 or \
                 abs(e.inverse_flattening - d.inverse_flattening) > 1e-9 * d.inverse_flattening:
             raise CrsError(f"{source}: the ellipsoid of {rest!r} ({e.name}: a {e.semi_major_metre} m, 1/f "
                            f"{e.inverse_flattening}) is not that of +datum={m['code']} ({base.datum.name}: {d.name}, "
                            f"a {d.semi_major_metre} m, 1/f {d.inverse_flattening}): one of them is wrong")
-    if plain.is_geographic:
-        return base
-    if not plain.is_projected:
+    three_d = len(horiz.axis_info) == 3  # (+vunits: the ellipsoidal heights' unit, a third axis)
+    if horiz.is_geographic:
+        if not three_d:
+            h = base
+        else:
+            d = horiz.to_json_dict()  # its axes and units (+vunits), on the stated datum
+            for k in ("datum", "datum_ensemble"):
+                d.pop(k, None)
+            d.update({k: v for k, v in base.to_json_dict().items() if k in ("datum", "datum_ensemble")})
+            d["name"] = base.name
+            h = pyproj.CRS.from_json_dict(d)
+    elif not horiz.is_projected:
         raise CrsError(f"{source}: +datum=EPSG:nnnn is taken with a projection (+proj=tmerc, +proj=utm, ...) or "
                        f"+proj=longlat, not {rest!r}")
-    d = plain.to_json_dict()  # the projection, its axes and units on the stated geographic CRS
-    d["base_crs"] = base.to_json_dict()
-    d["name"] = f"{base.name} / {plain.coordinate_operation.method_name} ({rest})"
-    return pyproj.CRS.from_json_dict(d)
+    else:
+        d = horiz.to_json_dict()  # the projection, its axes and units on the stated geographic CRS
+        d["base_crs"] = (base.to_3d() if three_d else base).to_json_dict()
+        d["name"] = f"{base.name} / {horiz.coordinate_operation.method_name} ({rest})"
+        h = pyproj.CRS.from_json_dict(d)
+    if vert is None:
+        return h
+    return pyproj.crs.CompoundCRS(name=f"{h.name} + {vert.name}", components=[h, vert])
 
 
 def unknown_datum_hint(crs: pyproj.CRS, other: pyproj.CRS) -> str | None:

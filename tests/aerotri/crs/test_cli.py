@@ -505,6 +505,31 @@ def test_a_spatial_fit_knows_which_heights_its_z_columns_hold(tmp_path, common_p
     assert z["parameters"] == h["parameters"] and z["heights"].startswith("z_from ellipsoidal heights h")
 
 
+def test_normal_height_columns_are_refused_in_any_case_and_only_for_the_spatial_models(tmp_path, common_points):
+    """Review 44: the H_from/H_to refusal was case-sensitive while columns match without case (H_TO got past it and
+    bursa-wolf7 took normal heights for ellipsoidal ones), and it also refused the plane models, which read no
+    heights (helmert2d on a file with H columns: exit 0 before leftovers2, then exit 2). The capital H marks them."""
+    path, src, dst = common_points
+    header, *rows = path.read_text().splitlines()
+    out = tmp_path / "p.json"
+    for name in ("H_TO", "H_To_m"):
+        f = _write(tmp_path / "upper.csv", "\n".join([header.replace("z_to", name)] + rows) + "\n")
+        r = _run("fit", f, "--model", "bursa-wolf7", "--from", "32649", "--to", "2361", "-o", out)
+        assert r.exit_code == 2 and not out.exists() and f"column {name} holds normal heights" in r.output, r.output
+    plane = _write(tmp_path / "plane.csv", "\n".join(
+        [",".join(c for c in header.split(",") if not c.startswith("z_"))]
+        + [",".join(v for c, v in zip(header.split(","), row.split(",")) if not c.startswith("z_")) for row in rows])
+        + "\n")
+    normal = _write(tmp_path / "normal.csv", "\n".join([header.replace("z_", "H_")] + rows) + "\n")
+    fits = []
+    for f in (plane, normal):
+        o = tmp_path / f"{f.stem}.json"
+        r = _run("fit", f, "--model", "helmert2d", "--from", "32649", "--to", "2361", "-o", o)
+        assert r.exit_code == 0, r.output
+        fits.append(json.loads(o.read_text())["parameters"])
+    assert fits[0] == fits[1]
+
+
 def test_to_and_from_take_a_wkt_or_prj_file(tmp_path):
     """leftovers2: `--to grid.wkt` was refused as an unknown CRS (only WKT pasted on the command line was taken). A
     .wkt or .prj path (ESRI's WKT too) is read; a file that cannot be read, or holds no CRS, is named (exit 2, no
@@ -555,6 +580,42 @@ def test_a_local_gauss_krueger_grid_on_grs80_takes_its_stated_datum(tmp_path):
              LOCAL_GK.replace("GRS80", "krass") + " +datum=EPSG:4490")
     assert r.exit_code == 2 and "Krassovsky" in r.output and "China 2000" in r.output, r.output
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_stated_datum_refuses_a_second_datum_and_keeps_the_heights_unit_and_geoid():
+    """Review 44: "+datum=EPSG:4490" beside +towgs84 dropped the stated datum (without +ellps ending on WGS 84), beside
+    +geoidgrids stopped with an AttributeError traceback, beside +vunits dropped the heights' unit, and a 3D CRS
+    (EPSG:4979) was taken as the datum. A second datum and a 3D one are refused naming them; +vunits and +geoidgrids
+    mean what PROJ makes of them (feet heights; heights above the geoid, a compound CRS)."""
+    import pyproj
+
+    from aerotri.core.errors import CrsError
+    from aerotri.geom.crs.definition import height_unit_m, horizontal_crs, parse_crs, same_horizontal, vertical_crs
+
+    gk = LOCAL_GK.replace(" +no_defs", "")
+    for extra, message in ((" +towgs84=10,20,30", r"states its datum twice, \+datum=EPSG:4490 and \+towgs84=10,20,30"),
+                           (" +nadgrids=@null", r"states its datum twice"),
+                           (" +datum=WGS84", r"states its datum twice")):
+        for text in (gk + " +datum=EPSG:4490" + extra, gk.replace(" +ellps=GRS80", "") + " +datum=EPSG:4490" + extra):
+            with pytest.raises(CrsError, match=message):
+                parse_crs(text, "--to")
+    with pytest.raises(CrsError, match=r"--to: \+datum=EPSG:4979 is WGS 84, a 3D geographic CRS .*EPSG:4326"):
+        parse_crs(gk + " +datum=EPSG:4979", "--to")
+    plain = parse_crs(gk + " +datum=EPSG:4490")
+    lon, lat, h = 114.6, 30.4, 100.0
+    feet = parse_crs(gk + " +datum=EPSG:4490 +vunits=ft")
+    assert height_unit_m(feet) == pytest.approx(0.3048) and feet.datum.name == "China 2000"
+    e, n, z = pyproj.Transformer.from_crs(pyproj.CRS(4490).to_3d(), feet, always_xy=True).transform(lon, lat, h)
+    assert z == pytest.approx(h / 0.3048) and (e, n) == pytest.approx(pyproj.Proj(LOCAL_GK)(lon, lat), abs=1e-6)
+    geoid = parse_crs(gk + " +datum=EPSG:4490 +geoidgrids=egm96_15.gtx", "--to")
+    assert geoid.is_compound and vertical_crs(geoid) is not None and same_horizontal(horizontal_crs(geoid), plain)
+    assert horizontal_crs(geoid).datum.name == "China 2000"
+    # the heights above the grid's geoid, as PROJ takes the same text on the ellipsoid alone (the grid's heights in
+    # feet with +vunits=ft)
+    for extra in (" +geoidgrids=egm96_15.gtx", " +geoidgrids=egm96_15.gtx +vunits=ft"):
+        geoid = parse_crs(gk + " +datum=EPSG:4490" + extra, "--to")
+        assert vertical_crs(geoid) == pyproj.CRS(gk + extra).sub_crs_list[1], extra
+    assert height_unit_m(geoid) == pytest.approx(0.3048)
 
 
 def test_an_odm_header_with_a_null_towgs84_is_its_epsg_code(tmp_path):
