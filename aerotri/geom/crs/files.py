@@ -258,9 +258,10 @@ def fit_common_points(path, model: str, from_crs, to_crs):
                     "use bursa-wolf7 or translation3 for geographic/geocentric coordinates"
                 )
         try:
-            return fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], from_crs=src_label, to_crs=dst_label)
+            res = fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], from_crs=src_label, to_crs=dst_label)
         except InputError as exc:
             raise InputError(f"{path}: {exc}") from None
+        return _with_crs_wkt(res, src_crs, dst_crs)
     XYZ_s, _ = _geocentric_of_heights(src_crs, cp.src[:, 0], cp.src[:, 1], cp.src[:, 2], "--from")
     XYZ_d, ll_d = _geocentric_of_heights(dst_crs, cp.dst[:, 0], cp.dst[:, 1], cp.dst[:, 2], "--to")
     plane = cp.src[:, :2] if horizontal_crs(src_crs).is_projected and linear_unit_m(src_crs) == 1.0 else None
@@ -269,7 +270,14 @@ def fit_common_points(path, model: str, from_crs, to_crs):
                           src_plane_m=plane)
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
-    return dataclasses.replace(res, heights=_fit_heights_words(src_crs, dst_crs))
+    return dataclasses.replace(_with_crs_wkt(res, src_crs, dst_crs), heights=_fit_heights_words(src_crs, dst_crs))
+
+
+def _with_crs_wkt(res, src_crs, dst_crs):
+    """The fit with its CRSs as WKT in the parameter set (what ``crs transform --params`` parses: review 44, the
+    labels of a PROJ string, a +datum=EPSG:nnnn grid or a .prj file's CRS were "unknown CRS" there)."""
+    t = dataclasses.replace(res.transformation, from_crs_wkt=src_crs.to_wkt(), to_crs_wkt=dst_crs.to_wkt())
+    return dataclasses.replace(res, transformation=t)
 
 
 def _fit_heights_words(src_crs, dst_crs) -> str:

@@ -618,6 +618,48 @@ def test_a_stated_datum_refuses_a_second_datum_and_keeps_the_heights_unit_and_ge
     assert height_unit_m(geoid) == pytest.approx(0.3048)
 
 
+def test_a_parameter_file_keeps_its_crs_as_wkt_so_any_crs_fitted_is_applied(tmp_path):
+    """Review 44: the parameter file recorded from_crs/to_crs as labels and `crs transform --params` parsed them
+    again: a PROJ string's, a stated datum's (+datum=EPSG:4490) and a .prj file's labels were "unknown CRS". The file
+    keeps the CRSs as WKT beside the labels; a file of before (labels only) is read as it was."""
+    import pyproj
+
+    rng = np.random.default_rng(4)
+    e, n = rng.uniform(470000, 530000, 8), rng.uniform(3380000, 3460000, 8)
+    local = LOCAL_GK + " +datum=EPSG:4490"
+    x, y = pyproj.Transformer.from_crs(4547, pyproj.CRS(LOCAL_GK), always_xy=True).transform(e, n)
+    x, y = x + 1.5 + rng.normal(0, 0.01, 8), y - 2.0 + rng.normal(0, 0.01, 8)  # a local shift to fit
+    pts = _write(tmp_path / "cp.csv", "id,x_from,y_from,x_to,y_to\n" + "".join(
+        f"P{i},{a:.3f},{b:.3f},{c:.3f},{d:.3f}\n" for i, (a, b, c, d) in enumerate(zip(e, n, x, y))))
+    (tmp_path / "local.prj").write_text(pyproj.CRS(local.replace(" +datum=EPSG:4490", "")).to_wkt("WKT1_ESRI"))
+    one = _write(tmp_path / "one.csv", f"id,x,y\nA,{e[0]:.3f},{n[0]:.3f}\n")
+    for k, to in enumerate((local, "+proj=tmerc +lon_0=114.5 +x_0=500000 +datum=NAD83", tmp_path / "local.prj")):
+        par, out = tmp_path / f"p{k}.json", tmp_path / f"o{k}.csv"
+        r = _run("fit", pts, "--model", "helmert2d", "--from", "EPSG:4547", "--to", to, "-o", par)
+        assert r.exit_code == 0, r.output
+        d = json.loads(par.read_text())
+        assert pyproj.CRS(d["to_crs_wkt"]) == parse_to(to) and pyproj.CRS(d["from_crs_wkt"]).to_epsg() == 4547
+        r = _run("transform", one, out, "--from", "EPSG:4547", "--to", to, "--params", par)
+        assert r.exit_code == 0 and out.is_file(), r.output
+        if k == 0:  # the fitted set applied: the point where the fit put it (observed plus its residual)
+            got = [float(v) for v in out.read_text().splitlines()[1].split(",")[1:3]]
+            res = d["residuals"][0]
+            assert abs(got[0] - (x[0] + res["de_m"])) < 2e-3 and abs(got[1] - (y[0] + res["dn_m"])) < 2e-3, res
+    d = json.loads((tmp_path / "p1.json").read_text())  # a file of before: labels only
+    del d["from_crs_wkt"], d["to_crs_wkt"]
+    d["to_crs"] = "EPSG:4547"
+    (tmp_path / "old.json").write_text(json.dumps(d))
+    r = _run("transform", one, tmp_path / "old.csv", "--from", "EPSG:4547", "--to", "EPSG:4547", "--params",
+             tmp_path / "old.json")
+    assert r.exit_code == 0, r.output
+
+
+def parse_to(text):
+    from aerotri.geom.crs.definition import parse_crs
+
+    return parse_crs(str(text))
+
+
 def test_an_odm_header_with_a_null_towgs84_is_its_epsg_code(tmp_path):
     """leftovers2: OpenDroneMap's header "+proj=utm +zone=49 +datum=WGS84 +towgs84=0,0,0,0,0,0,0" was taken for the
     same coordinates as EPSG:32649 but named "Position Vector transformation (geog2D domain) ()" in every message
