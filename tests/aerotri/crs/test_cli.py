@@ -607,6 +607,11 @@ def test_a_stated_datum_refuses_a_second_datum_and_keeps_the_heights_unit_and_ge
     assert height_unit_m(feet) == pytest.approx(0.3048) and feet.datum.name == "China 2000"
     e, n, z = pyproj.Transformer.from_crs(pyproj.CRS(4490).to_3d(), feet, always_xy=True).transform(lon, lat, h)
     assert z == pytest.approx(h / 0.3048) and (e, n) == pytest.approx(pyproj.Proj(LOCAL_GK)(lon, lat), abs=1e-6)
+    assert len(feet.geodetic_crs.axis_info) == 3  # (its base the 3D geographic CRS of the datum, as the axes say)
+    geographic = parse_crs("+proj=longlat +datum=EPSG:4490 +vunits=ft")  # (was EPSG:4490 itself: heights in metres)
+    assert geographic.datum.name == "China 2000" and height_unit_m(geographic) == pytest.approx(0.3048)
+    assert pyproj.Transformer.from_crs(pyproj.CRS(4490).to_3d(), geographic, always_xy=True).transform(
+        lon, lat, h) == pytest.approx((lon, lat, h / 0.3048))
     geoid = parse_crs(gk + " +datum=EPSG:4490 +geoidgrids=egm96_15.gtx", "--to")
     assert geoid.is_compound and vertical_crs(geoid) is not None and same_horizontal(horizontal_crs(geoid), plain)
     assert horizontal_crs(geoid).datum.name == "China 2000"
