@@ -71,7 +71,8 @@ class Transformation:
     fit_extent: dict | None = None  # {"xmin_m", "ymin_m", "xmax_m", "ymax_m"} of the fit points, from_crs
     inverted: bool = False  # apply backwards (from_crs/to_crs are then already swapped)
     # the CRSs themselves (WKT; ``crs fit`` writes them beside the labels): a label names a PROJ string, a stated
-    # datum (+datum=EPSG:nnnn) or a .prj file's CRS for people, and did not parse back (review 44); "" in files of before
+    # datum (+datum=EPSG:nnnn) or a .prj file's CRS for people, and did not parse back (review 44); "" in files of
+    # before
     from_crs_wkt: str = ""
     to_crs_wkt: str = ""
 

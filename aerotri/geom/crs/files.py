@@ -202,7 +202,8 @@ def read_common_points(path, from_crs, to_crs, need_z: bool = False) -> CommonPo
 
 def _is_normal_height_column(col: str) -> bool:
     """A common-point column of normal heights: H_from, H_to (any unit suffix; the rest of the name without case, as
-    columns are matched: H_FROM too, review 44). The capital H is the convention's mark; h_from, h_to are ellipsoidal."""
+    columns are matched: H_FROM too, review 44). The capital H is the convention's mark; h_from, h_to are
+    ellipsoidal."""
     m = _UNIT_SUFFIX.match(col)
     base = m["base"] if m else col
     return base[:1] == "H" and base.lower() in ("h_from", "h_to")
