@@ -830,7 +830,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         dem_ds.close()
     centre_xy = np.median(eo_sel.centre_m[:, :2], axis=0)
     if crs is None and transformation is not None:
-        crs = transformation.to_crs
+        crs = transformation.to_crs_def
     out_crs = resolve_output_crs(crs, project_crs, centre_xy)
     if out_crs != project_crs:
         _warn_output_scale(project_crs, out_crs, centre_xy, res)

@@ -39,9 +39,11 @@ class RectifySettings:
     dem: Path | None = setting(None, path=True, help="DEM GeoTIFF (default: lidar_out/dem.tif of the LiDAR stages).")
     res_m: float | None = setting(None, min=0.0, min_open=True,
                                   help="Output pixel size in metres (default: the median nadir GSD, rounded).")
-    crs: str | None = setting(None, help="Output CRS: an EPSG code (e.g. EPSG:4546), or gk3:cgcs2000 / gk3:xian1980 "
-                                         "for the 3-degree Gauss-Krueger zone nearest the block centre (default: the "
-                                         "target CRS of the datum parameters, else the project CRS).")
+    crs: str | None = setting(None, crs=True,
+                              help="Output CRS: an EPSG code (e.g. EPSG:4546), WKT, PROJ text or a .wkt/.prj file (in "
+                                   "project.toml: in the project folder), or gk3:cgcs2000 / gk3:xian1980 for the "
+                                   "3-degree Gauss-Krueger zone nearest the block centre (default: the target CRS of "
+                                   "the datum parameters, else the project CRS).")
     interpolation: str = setting("bilinear", choices=tuple(INTERPOLATION), help="Resampling of the frames.")
     true_ortho: bool = setting(False, help="Rectify on the DSM and mask pixels occluded by it.")
     dsm: Path | None = setting(None, path=True, help="DSM GeoTIFF of the true ortho (the heights it is rectified on).")

@@ -133,8 +133,10 @@ def _sqlite_hash(p: Path, chunk_bytes: int = 16 << 20) -> str:
     """The hash of a SQLite file (a GeoPackage: lidar_out/crowns.gpkg, lidar_out/vectors.gpkg) without the header
     fields a reader changes (``_SQLITE_VOLATILE``): QGIS opening the file switches it to WAL mode (-wal and -shm
     beside it) and back when it closes, which changed its bytes and re-ran the stage that wrote it (the LiDAR rasters)
-    or read it. Hashed whatever its size: the time of a SQLite file changes by such a read. A change still in the
-    file's -wal (an edit QGIS has not written back) is seen once it is (on closing)."""
+    or read it. Hashed whatever its size: the time of a SQLite file changes by such a read. A non-empty "<file>-wal"
+    beside it joins the signature (its size and hash): an edit QGIS has not written back into the file (QGIS still
+    open, or a crash left it) is what every reader of the file sees (review 44: rasters and rectify said up to date);
+    a reader alone leaves the -wal empty."""
     h = hashlib.sha1()
     with open(p, "rb") as f:
         head = bytearray(f.read(100))
@@ -143,7 +145,17 @@ def _sqlite_hash(p: Path, chunk_bytes: int = 16 << 20) -> str:
         h.update(head)
         while chunk := f.read(chunk_bytes):
             h.update(chunk)
-    return _SQLITE_PREFIX + h.hexdigest()
+    sig = _SQLITE_PREFIX + h.hexdigest()
+    wal = p.with_name(p.name + "-wal")
+    try:
+        with open(wal, "rb") as f:
+            w, size = hashlib.sha1(), 0
+            while chunk := f.read(chunk_bytes):
+                w.update(chunk)
+                size += len(chunk)
+    except OSError:  # (no -wal: the usual case)
+        return sig
+    return f"{sig} wal:{size}:{w.hexdigest()}" if size else sig
 
 
 def _sizes(sig: dict) -> dict:
@@ -199,12 +211,19 @@ def stale_reason(root: Path, st: Stage) -> str | None:
     if missing:
         return f"output missing: {_names(missing)}"
     reasons = []
-    if "outputs" in stamp:  # (stamps before trial-rerun: not recorded, not checked)
-        # an output written since by another command (aerotri adjust or ortho mosaic by hand) or edited (at/eo.txt):
-        # the stamp's numbers no longer describe it and the later stages would build on what project.toml does not
-        # say; a fresh project would have this stage's own output
+    # an output written since by another command (aerotri adjust or ortho mosaic by hand) or edited (at/eo.txt):
+    # the stamp's numbers no longer describe it and the later stages would build on what project.toml does not
+    # say; a fresh project would have this stage's own output
+    if "outputs" in stamp:
         before = stamp["outputs"] or {}
         changed = _differing(_sizes(before), _sizes(_signature(outputs, root, before=before)))
+    else:
+        # a stamp written before outputs were recorded (before trial-rerun): an output newer than the stamp was
+        # written after the stage (the stage writes its stamp last). Review 44: such a stamp found up to date has
+        # its outputs recorded (``_refresh_stamp``), which blessed a hand edit made before (at/eo.txt X +5 m)
+        stamped_ns = sp.stat().st_mtime_ns
+        changed = _names([_key(p, root) for p in outputs if p.stat().st_mtime_ns > stamped_ns])
+    if changed:
         kept = st.hand_made(root) if changed and st.hand_made is not None else None
         if kept:
             _log.warning(f"[{st.name}] kept: {changed} changed since this stage wrote it ({kept}); the chain makes "

@@ -733,7 +733,11 @@ class Chain:
 
         not_read = set(STAGE_SECTION_NAMES) - {"adjust"} - set(PROJECT_SECTIONS)
         with open(self.project.config_path, "rb") as f:
-            return {k: v for k, v in tomllib.load(f).items() if k not in not_read}
+            table = {k: v for k, v in tomllib.load(f).items() if k not in not_read}
+        if isinstance(table.get("project"), dict) and "crs" in table["project"]:
+            # the CRS itself, not the name of a .prj file holding it (review 44: an edited grid.prj re-ran nothing)
+            table["project"] = dict(table["project"], crs=self.project.crs)
+        return table
 
     def no_first_adjustment(self, root=None) -> str | None:
         why = self.no_corners()

@@ -32,7 +32,7 @@ class ProjectSettings:
 
     SECTION: ClassVar[str] = "project"
     crs: str | None = setting(None, help="Projected CRS of every coordinate of the project (EPSG:code, WKT or PROJ "
-                                         "text), a metre grid; required.")
+                                         "text, or a .wkt/.prj file in the project folder), a metre grid; required.")
     name: str | None = setting(None, help="Project name in reports (default: the folder's name).")
     heights: str = setting("ellipsoidal", help="Heights of the EO, GNSS and DEMs: ellipsoidal, or a vertical CRS "
                                                "such as EPSG:3855 (EGM2008).")
@@ -240,7 +240,11 @@ class Project:
 
     @property
     def crs(self) -> str:
-        return str(self.info.crs)
+        """[project] crs as CRS text: a .wkt/.prj file's WKT, its name relative to the project folder
+        (``crs_setting_text``; not the current directory, review 44)."""
+        from aerotri.geom.crs.definition import crs_setting_text
+
+        return str(crs_setting_text(self.info.crs, self.root, f"{self.config_path} [project] crs"))
 
     def source_of(self, section: str, key: str) -> str:
         """Where a project section's setting came from: ``project.toml`` when the file gives it, else ``default``."""

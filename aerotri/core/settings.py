@@ -56,14 +56,15 @@ class Constraints:
     min_open: bool = False
     max_open: bool = False
     path: bool = False
+    crs: bool = False  # a CRS: a .wkt/.prj file's name is relative to the project folder, its WKT the value
     help: str = ""
 
 
 def setting(default=dataclasses.MISSING, *, default_factory=dataclasses.MISSING, choices=None, min=None, max=None,
-            min_open: bool = False, max_open: bool = False, path: bool = False, help: str = ""):
+            min_open: bool = False, max_open: bool = False, path: bool = False, crs: bool = False, help: str = ""):
     """A dataclass field with its constraints (see the module docstring)."""
     meta = {_KEY: Constraints(choices=tuple(choices) if choices is not None else None, min=min, max=max,
-                              min_open=min_open, max_open=max_open, path=path, help=help)}
+                              min_open=min_open, max_open=max_open, path=path, crs=crs, help=help)}
     if default_factory is not dataclasses.MISSING:
         return dataclasses.field(default_factory=default_factory, metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -166,6 +167,10 @@ def _convert(value, tp, cons: Constraints, where: str, base_dir):
         if not isinstance(value, str):
             raise ConfigError(f"{where} = {value!r}: expected text")
         check_value(value, cons, where)
+        if cons.crs and base_dir is not None:  # (a file's WKT, so that stamps and index.json record the CRS itself)
+            from aerotri.geom.crs.definition import crs_setting_text
+
+            value = crs_setting_text(value, base_dir, where)
         return value
     if tp is Path:
         return _convert(value, str, dict(cons, path=True), where, base_dir)

@@ -338,7 +338,7 @@ def _dom_crs_note(dom_check, project: Project) -> str:
         from aerotri.geom.crs.definition import same_horizontal
 
         try:
-            other = not same_horizontal(crs, str(project.info.crs))
+            other = not same_horizontal(crs, project.crs)
         except CrsError:  # a CRS the report cannot compare is named, not judged
             other = True
         if other:

@@ -70,6 +70,11 @@ class Transformation:
     convention: str = "coordinate_frame"
     fit_extent: dict | None = None  # {"xmin_m", "ymin_m", "xmax_m", "ymax_m"} of the fit points, from_crs
     inverted: bool = False  # apply backwards (from_crs/to_crs are then already swapped)
+    # the CRSs themselves (WKT; ``crs fit`` writes them beside the labels): a label names a PROJ string, a stated
+    # datum (+datum=EPSG:nnnn) or a .prj file's CRS for people, and did not parse back (review 44); "" in files of
+    # before
+    from_crs_wkt: str = ""
+    to_crs_wkt: str = ""
 
     def __post_init__(self):
         if self.model not in MODELS:
@@ -84,10 +89,21 @@ class Transformation:
     def spatial(self) -> bool:
         return SPATIAL[self.model]
 
+    @property
+    def from_crs_def(self) -> str:
+        """The source CRS to parse: its WKT when the file records it, else its label (files of before)."""
+        return self.from_crs_wkt or self.from_crs
+
+    @property
+    def to_crs_def(self) -> str:
+        """The target CRS to parse: its WKT when the file records it, else its label (files of before)."""
+        return self.to_crs_wkt or self.to_crs
+
     def inverse(self) -> "Transformation":
         """The set applied from ``to_crs`` to ``from_crs`` (the fit extent does not carry over)."""
         return dataclasses.replace(self, from_crs=self.to_crs, to_crs=self.from_crs, fit_extent=None,
-                                   inverted=not self.inverted)
+                                   inverted=not self.inverted, from_crs_wkt=self.to_crs_wkt,
+                                   to_crs_wkt=self.from_crs_wkt)
 
     def matrix(self) -> tuple[np.ndarray, np.ndarray]:
         """(A, t) of the forward model ``x' = A x + t`` (2x2 or 3x3 and 2 or 3)."""
@@ -163,7 +179,10 @@ class Transformation:
             if self.std_devs is not None and self.std_devs.get(n) is not None:
                 entry["std_dev"] = float(self.std_devs[n])
             params[n] = entry
-        out = {"model": self.model, "from_crs": self.from_crs, "to_crs": self.to_crs, "parameters": params}
+        out = {"model": self.model, "from_crs": self.from_crs, "to_crs": self.to_crs}
+        if self.from_crs_wkt or self.to_crs_wkt:  # (what is read; the labels are for people)
+            out |= {"from_crs_wkt": self.from_crs_wkt, "to_crs_wkt": self.to_crs_wkt}
+        out["parameters"] = params
         if self.model == "bursa-wolf7":
             out["convention"] = self.convention
         lines = self.convention_lines()
@@ -208,6 +227,8 @@ class Transformation:
                 params,
                 from_crs=str(d.get("from_crs", "")),
                 to_crs=str(d.get("to_crs", "")),
+                from_crs_wkt=str(d.get("from_crs_wkt") or ""),
+                to_crs_wkt=str(d.get("to_crs_wkt") or ""),
                 std_devs=sds or None,
                 convention=d.get("convention", "coordinate_frame"),
                 fit_extent=d.get("fit_extent"),

@@ -40,7 +40,7 @@ def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
     text = str(value).strip()
     if not text:
         raise CrsError(f"{source}: empty CRS (expected e.g. EPSG:32649)")
-    if text.lower().endswith(CRS_FILE_SUFFIXES) and "\n" not in text and "[" not in text:
+    if is_crs_file(text):
         return _crs_from_file(text, source)
     if text.startswith("+") and _STATED_DATUM.search(text):
         return _crs_on_stated_datum(text, source)
@@ -62,9 +62,17 @@ def _crs_on_stated_datum(text: str, source: str) -> pyproj.CRS:
     """A PROJ string whose ``+datum=EPSG:nnnn`` states its datum (leftovers2: a local Gauss-Krueger grid, "+proj=tmerc
     +lon_0=114.5 +k=1 +x_0=500000 +ellps=GRS80", has an ellipsoid and no datum, so PROJ had only a ballpark operation
     from CGCS2000 to it): its projection on that geographic CRS, exact. Its ellipsoid, when the text gives one, must
-    be the datum's (``CrsError`` naming both otherwise)."""
+    be the datum's; a datum stated twice (+towgs84, +nadgrids or another +datum beside it) and a 3D geographic CRS
+    as the datum are refused (``CrsError`` naming them; review 44: +towgs84 dropped the stated datum, without +ellps
+    ending on WGS 84). +vunits (the heights' unit) and +geoidgrids (heights above that geoid: a compound CRS) keep
+    the meaning PROJ gives them (review 44: +vunits was dropped, +geoidgrids an AttributeError)."""
     m = _STATED_DATUM.search(text)
     rest = _STATED_DATUM.sub("", text).strip()
+    twice = re.search(r"\+(towgs84|nadgrids|datum)=\S*", rest)
+    if twice:
+        raise CrsError(f"{source}: {text!r} states its datum twice, +datum={m['code']} and {twice[0]}: give one (the "
+                       f"datum by the EPSG code of its geographic CRS, +datum={m['code']}, exact; or +towgs84 / "
+                       "+nadgrids, the shift of an unnamed datum to WGS 84)")
     try:
         base = _crs_from_code(m["code"].upper())
         plain = _crs_from_code(rest)
@@ -74,22 +82,43 @@ def _crs_on_stated_datum(text: str, source: str) -> pyproj.CRS:
     if not base.is_geographic:
         raise CrsError(f"{source}: +datum={m['code']} is {base.name}, not a geographic CRS; give the code of the "
                        "datum's geographic CRS (e.g. EPSG:4490 for CGCS2000, EPSG:4326 for WGS 84)")
+    if len(base.axis_info) == 3:
+        two_d = base.to_2d().to_epsg(min_confidence=90)
+        raise CrsError(f"{source}: +datum={m['code']} is {base.name}, a 3D geographic CRS (with ellipsoidal "
+                       "heights); give the code of the datum's 2D geographic CRS"
+                       + (f", EPSG:{two_d}" if two_d else " (e.g. EPSG:4490 for CGCS2000, EPSG:4326 for WGS 84)")
+                       + " (heights: +vunits, +geoidgrids)")
+    # (+geoidgrids: PROJ makes a compound CRS, the heights above the geoid its vertical part)
+    horiz, vert = (plain.sub_crs_list[0], plain.sub_crs_list[1]) if plain.is_compound else (plain, None)
     if re.search(r"\+(ellps|a|rf|f|b|R)=", rest):
-        e, d = plain.ellipsoid, base.ellipsoid
+        e, d = horiz.ellipsoid, base.ellipsoid
         if abs(e.semi_major_metre - d.semi_major_metre) > 1e-4 or \
                 abs(e.inverse_flattening - d.inverse_flattening) > 1e-9 * d.inverse_flattening:
             raise CrsError(f"{source}: the ellipsoid of {rest!r} ({e.name}: a {e.semi_major_metre} m, 1/f "
                            f"{e.inverse_flattening}) is not that of +datum={m['code']} ({base.datum.name}: {d.name}, "
                            f"a {d.semi_major_metre} m, 1/f {d.inverse_flattening}): one of them is wrong")
-    if plain.is_geographic:
-        return base
-    if not plain.is_projected:
+    three_d = len(horiz.axis_info) == 3  # (+vunits: the ellipsoidal heights' unit, a third axis)
+    if horiz.is_geographic:
+        if not three_d:
+            h = base
+        else:
+            d = horiz.to_json_dict()  # its axes and units (+vunits), on the stated datum
+            for k in ("datum", "datum_ensemble"):
+                d.pop(k, None)
+            d.update({k: v for k, v in base.to_json_dict().items() if k in ("datum", "datum_ensemble")})
+            d["name"] = base.name
+            h = pyproj.CRS.from_json_dict(d)
+    elif not horiz.is_projected:
         raise CrsError(f"{source}: +datum=EPSG:nnnn is taken with a projection (+proj=tmerc, +proj=utm, ...) or "
                        f"+proj=longlat, not {rest!r}")
-    d = plain.to_json_dict()  # the projection, its axes and units on the stated geographic CRS
-    d["base_crs"] = base.to_json_dict()
-    d["name"] = f"{base.name} / {plain.coordinate_operation.method_name} ({rest})"
-    return pyproj.CRS.from_json_dict(d)
+    else:
+        d = horiz.to_json_dict()  # the projection, its axes and units on the stated geographic CRS
+        d["base_crs"] = (base.to_3d() if three_d else base).to_json_dict()
+        d["name"] = f"{base.name} / {horiz.coordinate_operation.method_name} ({rest})"
+        h = pyproj.CRS.from_json_dict(d)
+    if vert is None:
+        return h
+    return pyproj.crs.CompoundCRS(name=f"{h.name} + {vert.name}", components=[h, vert])
 
 
 def unknown_datum_hint(crs: pyproj.CRS, other: pyproj.CRS) -> str | None:
@@ -114,9 +143,20 @@ def unknown_datum_hint(crs: pyproj.CRS, other: pyproj.CRS) -> str | None:
             "give WKT with its DATUM, a .wkt/.prj file)")
 
 
+def is_crs_file(text: str) -> bool:
+    """``text`` names a .wkt or .prj file (``CRS_FILE_SUFFIXES``) rather than being a CRS itself."""
+    text = str(text).strip()
+    return text.lower().endswith(CRS_FILE_SUFFIXES) and "\n" not in text and "[" not in text
+
+
 def _crs_from_file(name: str, source: str) -> pyproj.CRS:
     """The CRS of a .wkt or .prj file (leftovers2: `--to grid.wkt` was refused as an unknown CRS: only the WKT text
     was taken, pasted on the command line)."""
+    return _read_crs_file(name, source)[1]
+
+
+def _read_crs_file(name, source: str) -> tuple[str, pyproj.CRS]:
+    """(the WKT text, the CRS) of a .wkt or .prj file; ``CrsError`` naming ``source`` and the file."""
     from pathlib import Path
 
     path = Path(name).expanduser()
@@ -131,10 +171,26 @@ def _crs_from_file(name: str, source: str) -> pyproj.CRS:
     if not wkt:
         raise CrsError(f"{source}: the CRS file {path} is empty (expected the WKT of a CRS)")
     try:
-        return _crs_from_code(wkt)
+        return wkt, _crs_from_code(wkt)
     except pyproj.exceptions.CRSError:
         raise CrsError(f"{source}: the CRS file {path} holds no CRS PROJ knows (expected WKT, as a .prj holds; "
                        f"it begins {wkt[:40]!r})") from None
+
+
+def crs_setting_text(value, base_dir, source: str):
+    """A CRS setting of project.toml ([project] crs, [rectify] crs) as the CRS text every command uses: the WKT a
+    .wkt/.prj file holds, the file's name taken relative to ``base_dir`` (the project folder), else ``value`` as
+    given. Review 44: `crs = "grid.prj"` was read from the current directory (exit 2 from outside the project, another
+    grid.prj taken in silence) and the stamps recorded only the name, so a changed file re-ran nothing; the WKT
+    itself is what they record now. ``CrsError`` naming ``source`` and the file when it cannot be read."""
+    if value is None or not is_crs_file(str(value)):
+        return value
+    from pathlib import Path
+
+    path = Path(str(value).strip()).expanduser()
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    return _read_crs_file(path, source)[0]
 
 
 def epsg_code(crs: pyproj.CRS) -> int | None:

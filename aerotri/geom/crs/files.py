@@ -94,11 +94,13 @@ def _is_number(s: str) -> bool:
         return False
 
 
-def _columns(table: _Table, wanted: dict, optional=()) -> dict:
-    """Map logical names to column indices; ``wanted`` maps a name to accepted header spellings.
-    Returns {name: (index, unit or None)}."""
+def _columns(table: _Table, wanted: dict, optional=(), skip=()) -> dict:
+    """Map logical names to column indices; ``wanted`` maps a name to accepted header spellings (matched without
+    case), the columns ``skip`` (indices) left out. Returns {name: (index, unit or None)}."""
     found = {}
     for j, col in enumerate(table.header):
+        if j in skip:
+            continue
         m = _UNIT_SUFFIX.match(col)
         base, unit = (m["base"], m["unit"].lower().replace("usft", "us-ft")) if m else (col, None)
         for name, spellings in wanted.items():
@@ -172,15 +174,15 @@ class CommonPoints:
 
 def read_common_points(path, from_crs, to_crs, need_z: bool = False) -> CommonPoints:
     table = _read_table(path, require_header=True)
-    normal = [c for c in table.header if (_UNIT_SUFFIX.match(c)["base"] if _UNIT_SUFFIX.match(c) else c)
-              in ("H_from", "H_to")]
-    if normal:  # (before "h_to": the spellings are matched without case)
-        raise InputError(f"{table.path}: line 1: column {normal[0]} holds normal heights (H); the common points' "
-                         f"heights are ellipsoidal heights h of each side's datum (z_from, z_to or h_from, h_to): "
-                         f"{NORMAL_HEIGHTS_ADVICE}")
+    normal = [j for j, c in enumerate(table.header) if _is_normal_height_column(c)]
+    if normal and need_z:
+        raise InputError(f"{table.path}: line 1: column {table.header[normal[0]]} holds normal heights (H); the "
+                         f"common points' heights are ellipsoidal heights h of each side's datum (z_from, z_to or "
+                         f"h_from, h_to): {NORMAL_HEIGHTS_ADVICE}")
     wanted = {n: (n,) + ((n.replace("z_", "h_"),) if n.startswith("z_") else ())
               for n in ("id", "x_from", "y_from", "z_from", "x_to", "y_to", "z_to")}
-    cols = _columns(table, wanted, optional=("z_from", "z_to"))
+    # a plane model reads no heights: normal ones are left as any other column (review 44: helmert2d was refused)
+    cols = _columns(table, wanted, optional=("z_from", "z_to"), skip=normal)
     has_z = "z_from" in cols and "z_to" in cols
     if need_z and not has_z:
         raise InputError(f"{table.path}: the spatial models need ellipsoidal heights in columns z_from and z_to")
@@ -196,6 +198,15 @@ def read_common_points(path, from_crs, to_crs, need_z: bool = False) -> CommonPo
     src = [v["x_from"], v["y_from"]] + ([v["z_from"]] if has_z else [])
     dst = [v["x_to"], v["y_to"]] + ([v["z_to"]] if has_z else [])
     return CommonPoints(ids, np.column_stack(src), np.column_stack(dst), has_z)
+
+
+def _is_normal_height_column(col: str) -> bool:
+    """A common-point column of normal heights: H_from, H_to (any unit suffix; the rest of the name without case, as
+    columns are matched: H_FROM too, review 44). The capital H is the convention's mark; h_from, h_to are
+    ellipsoidal."""
+    m = _UNIT_SUFFIX.match(col)
+    base = m["base"] if m else col
+    return base[:1] == "H" and base.lower() in ("h_from", "h_to")
 
 
 # what to do with common points whose heights are normal heights (leftovers2: a bursa-wolf7 fit on z_to = 1985
@@ -248,9 +259,10 @@ def fit_common_points(path, model: str, from_crs, to_crs):
                     "use bursa-wolf7 or translation3 for geographic/geocentric coordinates"
                 )
         try:
-            return fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], from_crs=src_label, to_crs=dst_label)
+            res = fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], from_crs=src_label, to_crs=dst_label)
         except InputError as exc:
             raise InputError(f"{path}: {exc}") from None
+        return _with_crs_wkt(res, src_crs, dst_crs)
     XYZ_s, _ = _geocentric_of_heights(src_crs, cp.src[:, 0], cp.src[:, 1], cp.src[:, 2], "--from")
     XYZ_d, ll_d = _geocentric_of_heights(dst_crs, cp.dst[:, 0], cp.dst[:, 1], cp.dst[:, 2], "--to")
     plane = cp.src[:, :2] if horizontal_crs(src_crs).is_projected and linear_unit_m(src_crs) == 1.0 else None
@@ -259,7 +271,14 @@ def fit_common_points(path, model: str, from_crs, to_crs):
                           src_plane_m=plane)
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
-    return dataclasses.replace(res, heights=_fit_heights_words(src_crs, dst_crs))
+    return dataclasses.replace(_with_crs_wkt(res, src_crs, dst_crs), heights=_fit_heights_words(src_crs, dst_crs))
+
+
+def _with_crs_wkt(res, src_crs, dst_crs):
+    """The fit with its CRSs as WKT in the parameter set (what ``crs transform --params`` parses: review 44, the
+    labels of a PROJ string, a +datum=EPSG:nnnn grid or a .prj file's CRS were "unknown CRS" there)."""
+    t = dataclasses.replace(res.transformation, from_crs_wkt=src_crs.to_wkt(), to_crs_wkt=dst_crs.to_wkt())
+    return dataclasses.replace(res, transformation=t)
 
 
 def _fit_heights_words(src_crs, dst_crs) -> str:

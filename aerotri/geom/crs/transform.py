@@ -399,8 +399,8 @@ class CrsTransformer:
         if params is None:
             legs.append(self._leg(self.src, self.dst, allow_ballpark))
         else:
-            p_from = parse_crs(params.from_crs, "parameter file from_crs")
-            p_to = parse_crs(params.to_crs, "parameter file to_crs")
+            p_from = parse_crs(params.from_crs_def, "parameter file from_crs")
+            p_to = parse_crs(params.to_crs_def, "parameter file to_crs")
             if (same_horizontal(p_to, self.src) and same_horizontal(p_from, self.dst)
                     and not same_horizontal(p_from, self.src)):
                 # a parameter set fitted the other way round: one file serves both directions

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 import pytest
 
 from aerotri.chain import Stage, StageResult, format_summary, run_stages, stamp_path
+from aerotri.chain.runner import stale_reason
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -510,18 +512,32 @@ def test_an_output_written_again_since_its_stage_re_runs_the_stage(tmp_path):
     rows = run_stages(tmp_path, _stages(calls), log=lines.append)
     assert calls == ["double"] and rows[-1]["value"] == 7 and (tmp_path / "out.txt").read_text() == "7"
     assert "[double] running (outputs changed since this stage wrote them: mid.txt)" in lines
-    # a stamp written before the outputs were recorded is not re-run for them, but records them now (leftovers2: such
-    # a stamp stayed without outputs run after run, so a later edit of out.txt was never seen)
-    stamp = json.loads(stamp_path(tmp_path, "add").read_text())
-    del stamp["outputs"]
-    stamp_path(tmp_path, "add").write_text(json.dumps(stamp))
+    # a stamp written before the outputs were recorded is not re-run for outputs older than itself, but records them
+    # now (leftovers2: such a stamp stayed without outputs run after run, so a later edit of out.txt was never seen)
+    def old_stamp(output_after_stamp_s):
+        stamp = json.loads(stamp_path(tmp_path, "add").read_text())
+        del stamp["outputs"]
+        stamp_path(tmp_path, "add").write_text(json.dumps(stamp))
+        t_ns = stamp_path(tmp_path, "add").stat().st_mtime_ns + int(output_after_stamp_s * 1e9)
+        os.utime(tmp_path / "out.txt", ns=(t_ns, t_ns))
+
     (tmp_path / "out.txt").write_text("8")
+    old_stamp(-1.0)
     calls.clear()
     run_stages(tmp_path, _stages(calls), log=lambda m: None)
     assert calls == [] and list(json.loads(stamp_path(tmp_path, "add").read_text())["outputs"]) == ["out.txt"]
     (tmp_path / "out.txt").write_text("9")
     run_stages(tmp_path, _stages(calls), log=lambda m: None)
     assert calls == ["add"] and (tmp_path / "out.txt").read_text() == "7"
+    # review 44: an output edited after such a stamp, before the first run with this code (at/eo.txt X +5 m), was
+    # recorded as it was found and blessed; an output newer than a stamp without outputs is a changed one
+    (tmp_path / "out.txt").write_text("12")
+    old_stamp(+1.0)
+    calls.clear()
+    lines = []
+    run_stages(tmp_path, _stages(calls), log=lines.append)
+    assert calls == ["add"] and (tmp_path / "out.txt").read_text() == "7"
+    assert "[add] running (outputs changed since this stage wrote them: out.txt)" in lines
 
 
 def test_a_geopackage_opened_by_a_reader_is_no_change(tmp_path):
@@ -623,3 +639,78 @@ def test_an_operators_hand_made_output_is_kept_and_a_new_time_alone_is_no_edit(t
     (tmp_path / "out.txt").write_text("12345")
     run_stages(tmp_path, _stages(calls), log=lambda m: None)
     assert calls == ["add"]
+
+
+def test_a_crs_file_in_project_toml_is_read_in_the_project_folder_and_its_content_is_stamped(tmp_path, monkeypatch):
+    """Review 44: `crs = "grid.prj"` ([project] or [rectify]) was read from the current directory (exit 2 from outside
+    the project, another grid.prj there taken in silence) and the stamps recorded only the name. Now the name is
+    relative to the project folder and the stamps hold the CRS itself: an edited grid.prj re-runs the stages."""
+    import pyproj
+
+    from aerotri.chain import chain_stages
+    from aerotri.core.errors import CrsError
+    from aerotri.core.project import Project
+    from aerotri.geom.crs.definition import project_crs
+
+    root, elsewhere = tmp_path / "p", tmp_path / "cwd"
+    root.mkdir(), elsewhere.mkdir()
+    (root / "project.toml").write_text('[project]\ncrs = "grid.prj"\n[rectify]\ncrs = "out.prj"\n')
+    (root / "grid.prj").write_text(pyproj.CRS("EPSG:32649").to_wkt("WKT1_ESRI"))
+    (root / "out.prj").write_text(pyproj.CRS("EPSG:32650").to_wkt())
+    (elsewhere / "grid.prj").write_text(pyproj.CRS("EPSG:32650").to_wkt("WKT1_ESRI"))  # the wrong one
+    monkeypatch.chdir(elsewhere)
+    assert project_crs(Project.open(root)).to_epsg() == 32649
+
+    def options():
+        stages = {st.name: st for st in chain_stages(root, dem=root / "dem.tif")}
+        return {n: stages[n].options_now(root) for n in ("strips", "classify", "adjust_final", "rectify")}
+
+    before = options()
+    assert pyproj.CRS(before["rectify"]["crs"]).to_epsg() == 32650
+    assert pyproj.CRS(before["strips"]["crs"]).to_epsg() == 32649
+    (root / "grid.prj").write_text(pyproj.CRS("EPSG:32648").to_wkt("WKT1_ESRI"))
+    (root / "out.prj").write_text(pyproj.CRS("EPSG:32651").to_wkt())
+    after = options()
+    for name in before:
+        assert before[name] != after[name], name  # (the stage re-runs)
+    monkeypatch.chdir(root)
+    (root / "out.prj").unlink()
+    with pytest.raises(CrsError, match=r"project.toml \[rectify\] crs: cannot read the CRS file .*out.prj"):
+        options()
+
+
+def test_an_edit_still_in_the_geopackages_wal_file_re_runs_the_stages(tmp_path):
+    """Review 44: an edit QGIS has not written back (still in crowns.gpkg-wal: QGIS open, or a crash left it) is what
+    every reader of the file sees, but the signature hashed the file alone: the stage that wrote it and the one that
+    reads it said up to date. A non-empty -wal joins the signature; a reader alone leaves it empty."""
+    import contextlib
+    import sqlite3
+
+    def write(r):
+        calls.append("write")
+        with contextlib.closing(sqlite3.connect(r / "crowns.gpkg")) as db:
+            db.execute("CREATE TABLE crowns (id INTEGER PRIMARY KEY, radius_m REAL)")
+            db.executemany("INSERT INTO crowns (radius_m) VALUES (?)", [(2.5,), (3.0,)])
+            db.commit()
+        return StageResult()
+
+    def read(r):
+        calls.append("read")
+        (r / "n.txt").write_text("2")
+        return StageResult()
+
+    rasters = Stage("rasters", lambda r: [], lambda r: [r / "crowns.gpkg"], write)
+    rectify = Stage("rectify", lambda r: [r / "crowns.gpkg"], lambda r: [r / "n.txt"], read)
+    calls = []
+    run_stages(tmp_path, [rasters, rectify], log=lambda m: None)
+    with contextlib.closing(sqlite3.connect(tmp_path / "crowns.gpkg")) as db:  # QGIS, open
+        db.execute("PRAGMA journal_mode=WAL")
+        db.execute("PRAGMA wal_autocheckpoint=0")
+        db.execute("SELECT * FROM crowns").fetchall()
+        assert stale_reason(tmp_path, rasters) is None and stale_reason(tmp_path, rectify) is None  # a reader
+        db.execute("DELETE FROM crowns WHERE id = 1")  # a false crown deleted and saved
+        db.commit()
+        assert (tmp_path / "crowns.gpkg-wal").stat().st_size > 0
+        assert "outputs changed since this stage wrote them: crowns.gpkg" in stale_reason(tmp_path, rasters)
+        assert "inputs changed: crowns.gpkg" in stale_reason(tmp_path, rectify)
+    assert calls == ["write", "read"]

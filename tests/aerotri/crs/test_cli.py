@@ -505,6 +505,31 @@ def test_a_spatial_fit_knows_which_heights_its_z_columns_hold(tmp_path, common_p
     assert z["parameters"] == h["parameters"] and z["heights"].startswith("z_from ellipsoidal heights h")
 
 
+def test_normal_height_columns_are_refused_in_any_case_and_only_for_the_spatial_models(tmp_path, common_points):
+    """Review 44: the H_from/H_to refusal was case-sensitive while columns match without case (H_TO got past it and
+    bursa-wolf7 took normal heights for ellipsoidal ones), and it also refused the plane models, which read no
+    heights (helmert2d on a file with H columns: exit 0 before leftovers2, then exit 2). The capital H marks them."""
+    path, src, dst = common_points
+    header, *rows = path.read_text().splitlines()
+    out = tmp_path / "p.json"
+    for name in ("H_TO", "H_To_m"):
+        f = _write(tmp_path / "upper.csv", "\n".join([header.replace("z_to", name)] + rows) + "\n")
+        r = _run("fit", f, "--model", "bursa-wolf7", "--from", "32649", "--to", "2361", "-o", out)
+        assert r.exit_code == 2 and not out.exists() and f"column {name} holds normal heights" in r.output, r.output
+    plane = _write(tmp_path / "plane.csv", "\n".join(
+        [",".join(c for c in header.split(",") if not c.startswith("z_"))]
+        + [",".join(v for c, v in zip(header.split(","), row.split(",")) if not c.startswith("z_")) for row in rows])
+        + "\n")
+    normal = _write(tmp_path / "normal.csv", "\n".join([header.replace("z_", "H_")] + rows) + "\n")
+    fits = []
+    for f in (plane, normal):
+        o = tmp_path / f"{f.stem}.json"
+        r = _run("fit", f, "--model", "helmert2d", "--from", "32649", "--to", "2361", "-o", o)
+        assert r.exit_code == 0, r.output
+        fits.append(json.loads(o.read_text())["parameters"])
+    assert fits[0] == fits[1]
+
+
 def test_to_and_from_take_a_wkt_or_prj_file(tmp_path):
     """leftovers2: `--to grid.wkt` was refused as an unknown CRS (only WKT pasted on the command line was taken). A
     .wkt or .prj path (ESRI's WKT too) is read; a file that cannot be read, or holds no CRS, is named (exit 2, no
@@ -555,6 +580,89 @@ def test_a_local_gauss_krueger_grid_on_grs80_takes_its_stated_datum(tmp_path):
              LOCAL_GK.replace("GRS80", "krass") + " +datum=EPSG:4490")
     assert r.exit_code == 2 and "Krassovsky" in r.output and "China 2000" in r.output, r.output
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_stated_datum_refuses_a_second_datum_and_keeps_the_heights_unit_and_geoid():
+    """Review 44: "+datum=EPSG:4490" beside +towgs84 dropped the stated datum (without +ellps ending on WGS 84), beside
+    +geoidgrids stopped with an AttributeError traceback, beside +vunits dropped the heights' unit, and a 3D CRS
+    (EPSG:4979) was taken as the datum. A second datum and a 3D one are refused naming them; +vunits and +geoidgrids
+    mean what PROJ makes of them (feet heights; heights above the geoid, a compound CRS)."""
+    import pyproj
+
+    from aerotri.core.errors import CrsError
+    from aerotri.geom.crs.definition import height_unit_m, horizontal_crs, parse_crs, same_horizontal, vertical_crs
+
+    gk = LOCAL_GK.replace(" +no_defs", "")
+    for extra, message in ((" +towgs84=10,20,30", r"states its datum twice, \+datum=EPSG:4490 and \+towgs84=10,20,30"),
+                           (" +nadgrids=@null", r"states its datum twice"),
+                           (" +datum=WGS84", r"states its datum twice")):
+        for text in (gk + " +datum=EPSG:4490" + extra, gk.replace(" +ellps=GRS80", "") + " +datum=EPSG:4490" + extra):
+            with pytest.raises(CrsError, match=message):
+                parse_crs(text, "--to")
+    with pytest.raises(CrsError, match=r"--to: \+datum=EPSG:4979 is WGS 84, a 3D geographic CRS .*EPSG:4326"):
+        parse_crs(gk + " +datum=EPSG:4979", "--to")
+    plain = parse_crs(gk + " +datum=EPSG:4490")
+    lon, lat, h = 114.6, 30.4, 100.0
+    feet = parse_crs(gk + " +datum=EPSG:4490 +vunits=ft")
+    assert height_unit_m(feet) == pytest.approx(0.3048) and feet.datum.name == "China 2000"
+    e, n, z = pyproj.Transformer.from_crs(pyproj.CRS(4490).to_3d(), feet, always_xy=True).transform(lon, lat, h)
+    assert z == pytest.approx(h / 0.3048) and (e, n) == pytest.approx(pyproj.Proj(LOCAL_GK)(lon, lat), abs=1e-6)
+    assert len(feet.geodetic_crs.axis_info) == 3  # (its base the 3D geographic CRS of the datum, as the axes say)
+    geographic = parse_crs("+proj=longlat +datum=EPSG:4490 +vunits=ft")  # (was EPSG:4490 itself: heights in metres)
+    assert geographic.datum.name == "China 2000" and height_unit_m(geographic) == pytest.approx(0.3048)
+    assert pyproj.Transformer.from_crs(pyproj.CRS(4490).to_3d(), geographic, always_xy=True).transform(
+        lon, lat, h) == pytest.approx((lon, lat, h / 0.3048))
+    geoid = parse_crs(gk + " +datum=EPSG:4490 +geoidgrids=egm96_15.gtx", "--to")
+    assert geoid.is_compound and vertical_crs(geoid) is not None and same_horizontal(horizontal_crs(geoid), plain)
+    assert horizontal_crs(geoid).datum.name == "China 2000"
+    # the heights above the grid's geoid, as PROJ takes the same text on the ellipsoid alone (the grid's heights in
+    # feet with +vunits=ft)
+    for extra in (" +geoidgrids=egm96_15.gtx", " +geoidgrids=egm96_15.gtx +vunits=ft"):
+        geoid = parse_crs(gk + " +datum=EPSG:4490" + extra, "--to")
+        assert vertical_crs(geoid) == pyproj.CRS(gk + extra).sub_crs_list[1], extra
+    assert height_unit_m(geoid) == pytest.approx(0.3048)
+
+
+def test_a_parameter_file_keeps_its_crs_as_wkt_so_any_crs_fitted_is_applied(tmp_path):
+    """Review 44: the parameter file recorded from_crs/to_crs as labels and `crs transform --params` parsed them
+    again: a PROJ string's, a stated datum's (+datum=EPSG:4490) and a .prj file's labels were "unknown CRS". The file
+    keeps the CRSs as WKT beside the labels; a file of before (labels only) is read as it was."""
+    import pyproj
+
+    rng = np.random.default_rng(4)
+    e, n = rng.uniform(470000, 530000, 8), rng.uniform(3380000, 3460000, 8)
+    local = LOCAL_GK + " +datum=EPSG:4490"
+    x, y = pyproj.Transformer.from_crs(4547, pyproj.CRS(LOCAL_GK), always_xy=True).transform(e, n)
+    x, y = x + 1.5 + rng.normal(0, 0.01, 8), y - 2.0 + rng.normal(0, 0.01, 8)  # a local shift to fit
+    pts = _write(tmp_path / "cp.csv", "id,x_from,y_from,x_to,y_to\n" + "".join(
+        f"P{i},{a:.3f},{b:.3f},{c:.3f},{d:.3f}\n" for i, (a, b, c, d) in enumerate(zip(e, n, x, y))))
+    (tmp_path / "local.prj").write_text(pyproj.CRS(local.replace(" +datum=EPSG:4490", "")).to_wkt("WKT1_ESRI"))
+    one = _write(tmp_path / "one.csv", f"id,x,y\nA,{e[0]:.3f},{n[0]:.3f}\n")
+    for k, to in enumerate((local, "+proj=tmerc +lon_0=114.5 +x_0=500000 +datum=NAD83", tmp_path / "local.prj")):
+        par, out = tmp_path / f"p{k}.json", tmp_path / f"o{k}.csv"
+        r = _run("fit", pts, "--model", "helmert2d", "--from", "EPSG:4547", "--to", to, "-o", par)
+        assert r.exit_code == 0, r.output
+        d = json.loads(par.read_text())
+        assert pyproj.CRS(d["to_crs_wkt"]) == parse_to(to) and pyproj.CRS(d["from_crs_wkt"]).to_epsg() == 4547
+        r = _run("transform", one, out, "--from", "EPSG:4547", "--to", to, "--params", par)
+        assert r.exit_code == 0 and out.is_file(), r.output
+        if k == 0:  # the fitted set applied: the point where the fit put it (observed plus its residual)
+            got = [float(v) for v in out.read_text().splitlines()[1].split(",")[1:3]]
+            res = d["residuals"][0]
+            assert abs(got[0] - (x[0] + res["de_m"])) < 2e-3 and abs(got[1] - (y[0] + res["dn_m"])) < 2e-3, res
+    d = json.loads((tmp_path / "p1.json").read_text())  # a file of before: labels only
+    del d["from_crs_wkt"], d["to_crs_wkt"]
+    d["to_crs"] = "EPSG:4547"
+    (tmp_path / "old.json").write_text(json.dumps(d))
+    r = _run("transform", one, tmp_path / "old.csv", "--from", "EPSG:4547", "--to", "EPSG:4547", "--params",
+             tmp_path / "old.json")
+    assert r.exit_code == 0, r.output
+
+
+def parse_to(text):
+    from aerotri.geom.crs.definition import parse_crs
+
+    return parse_crs(str(text))
 
 
 def test_an_odm_header_with_a_null_towgs84_is_its_epsg_code(tmp_path):
