@@ -242,7 +242,7 @@ class Project:
     def crs(self) -> str:
         """[project] crs as CRS text: a .wkt/.prj file's WKT, its name relative to the project folder
         (``crs_setting_text``; not the current directory, review 44)."""
-        from aerotri.geom.crs.definition import crs_setting_text
+        from aerotri.core.crs_files import crs_setting_text
 
         return str(crs_setting_text(self.info.crs, self.root, f"{self.config_path} [project] crs"))
 

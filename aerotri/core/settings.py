@@ -168,7 +168,7 @@ def _convert(value, tp, cons: Constraints, where: str, base_dir):
             raise ConfigError(f"{where} = {value!r}: expected text")
         check_value(value, cons, where)
         if cons.crs and base_dir is not None:  # (a file's WKT, so that stamps and index.json record the CRS itself)
-            from aerotri.geom.crs.definition import crs_setting_text
+            from aerotri.core.crs_files import crs_setting_text
 
             value = crs_setting_text(value, base_dir, where)
         return value

@@ -15,15 +15,13 @@ import re
 import numpy as np
 import pyproj
 
+from aerotri.core.crs_files import is_crs_file, read_crs_file
 from aerotri.core.errors import CrsError, InputError
 
 
 @functools.lru_cache(maxsize=256)
 def _crs_from_code(code: str) -> pyproj.CRS:
     return pyproj.CRS.from_user_input(code)
-
-
-CRS_FILE_SUFFIXES = (".wkt", ".prj")  # a CRS given as the path of a file holding its WKT (ESRI's .prj too)
 
 
 def parse_crs(value, source: str = "CRS") -> pyproj.CRS:
@@ -143,54 +141,10 @@ def unknown_datum_hint(crs: pyproj.CRS, other: pyproj.CRS) -> str | None:
             "give WKT with its DATUM, a .wkt/.prj file)")
 
 
-def is_crs_file(text: str) -> bool:
-    """``text`` names a .wkt or .prj file (``CRS_FILE_SUFFIXES``) rather than being a CRS itself."""
-    text = str(text).strip()
-    return text.lower().endswith(CRS_FILE_SUFFIXES) and "\n" not in text and "[" not in text
-
-
 def _crs_from_file(name: str, source: str) -> pyproj.CRS:
     """The CRS of a .wkt or .prj file (leftovers2: `--to grid.wkt` was refused as an unknown CRS: only the WKT text
     was taken, pasted on the command line)."""
-    return _read_crs_file(name, source)[1]
-
-
-def _read_crs_file(name, source: str) -> tuple[str, pyproj.CRS]:
-    """(the WKT text, the CRS) of a .wkt or .prj file; ``CrsError`` naming ``source`` and the file."""
-    from pathlib import Path
-
-    path = Path(name).expanduser()
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise CrsError(f"{source}: cannot read the CRS file {path} ({exc.strerror or exc})") from None
-    try:
-        wkt = data.decode("utf-8-sig").strip()
-    except UnicodeDecodeError:
-        wkt = data.decode("latin-1").strip()  # (an ESRI .prj of a Windows program)
-    if not wkt:
-        raise CrsError(f"{source}: the CRS file {path} is empty (expected the WKT of a CRS)")
-    try:
-        return wkt, _crs_from_code(wkt)
-    except pyproj.exceptions.CRSError:
-        raise CrsError(f"{source}: the CRS file {path} holds no CRS PROJ knows (expected WKT, as a .prj holds; "
-                       f"it begins {wkt[:40]!r})") from None
-
-
-def crs_setting_text(value, base_dir, source: str):
-    """A CRS setting of project.toml ([project] crs, [rectify] crs) as the CRS text every command uses: the WKT a
-    .wkt/.prj file holds, the file's name taken relative to ``base_dir`` (the project folder), else ``value`` as
-    given. Review 44: `crs = "grid.prj"` was read from the current directory (exit 2 from outside the project, another
-    grid.prj taken in silence) and the stamps recorded only the name, so a changed file re-ran nothing; the WKT
-    itself is what they record now. ``CrsError`` naming ``source`` and the file when it cannot be read."""
-    if value is None or not is_crs_file(str(value)):
-        return value
-    from pathlib import Path
-
-    path = Path(str(value).strip()).expanduser()
-    if not path.is_absolute() and base_dir is not None:
-        path = Path(base_dir) / path
-    return _read_crs_file(path, source)[0]
+    return read_crs_file(name, source)[1]
 
 
 def epsg_code(crs: pyproj.CRS) -> int | None:
