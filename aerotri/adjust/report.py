@@ -695,6 +695,21 @@ _CORRECTION_TAKES = {"shift": "a shift per strip", "shift_drift": "a shift and d
 HEIGHT_CHECKS_MIN = 3  # check points with a height that decide instead (three not on a line check a plane)
 
 
+def _mdb_at(point: str, redundancy: float, mdb_m: float) -> str:
+    """A kept control height's minimal detectable bias in the verdict's words; its redundancy number to two
+    significant digits (0.0013, not 0.001 or 0.000 beside a finite MDB: review 46). None left (redundancy at or below
+    0, MDB not finite: a point the adjustment cannot check at all, or a plan left undetermined that leaks into its
+    cofactor) is said so, not printed as a negative redundancy."""
+    if not (math.isfinite(mdb_m) and redundancy > 0):
+        return f"any amount at {point} (no redundancy: nothing checks its height)"
+    return f"{mdb_m:.2f} m at {point} (redundancy {_two_digits(redundancy)})"
+
+
+def _two_digits(x: float) -> str:
+    """``x`` with two significant digits, positional (0.000044, 0.033, 0.97)."""
+    return np.format_float_positional(x, precision=2, unique=False, fractional=False, trim="-")
+
+
 def height_datum_text(hd, height_limit_m: float) -> str:
     """The verdict's finding of a ``height_datum.HeightDatumCheck`` that does not hold the heights: it follows the
     "Control left out by the data snooping" sentence, which names the points out with their w."""
@@ -725,10 +740,8 @@ def height_datum_text(hd, height_limit_m: float) -> str:
         unchecked, pairs = hd.kept_unchecked(height_limit_m), hd.pairs_unchecked(height_limit_m)
         names_kept = bool(unchecked or pairs)
         if unchecked and hd.judges_alone():  # none or one out: a height nothing else checks (at-noout)
-            parts.append("leave the heights without a check: the data snooping, one blunder at a time, would find a "
-                         "mistyped height only when off by more than " + ", ".join(
-                             f"{m:.2f} m at {i} (redundancy {r:.3f})" if math.isfinite(m) else
-                             f"any amount at {i} (redundancy {r:.3f})" for i, r, m in unchecked[:6])
+            parts.append("hold the heights, but the data snooping, one blunder at a time, would find a mistyped "
+                         "height only when off by more than " + ", ".join(_mdb_at(*k) for k in unchecked[:6])
                          + (", ..." if len(unchecked) > 6 else "")
                          + f" (Baarda's minimal detectable bias, beyond {ALONE_MDB_FACTOR:g} times the "
                          f"{height_limit_m:.2f} m height limit: no other observation checks that height)")
@@ -736,8 +749,7 @@ def height_datum_text(hd, height_limit_m: float) -> str:
             finds = []
             if unchecked:
                 finds.append("a mistyped height only when off by more than " + ", ".join(
-                    f"{m:.2f} m at {i} (redundancy {r:.3f})" if math.isfinite(m) else
-                    f"any amount at {i} (redundancy {r:.3f})" for i, r, m in unchecked[:6])
+                    _mdb_at(*k) for k in unchecked[:6])
                     + (", ..." if len(unchecked) > 6 else "")
                     + f" (Baarda's minimal detectable bias, beyond the {height_limit_m:.2f} m height limit: a point "
                     "that holds its strip's heights alone)")
