@@ -265,7 +265,8 @@ def _reduce_frame(path, g: OrthoGrid, mosaic: OrthoGrid, factor: int, *, strip_p
                   margin_px: int = 0, footprint=None):
     """One frame on the seam grid: (rgb (h, w, bands), valid (h, w), (row, col) of its first cell, histogram,
     decoded, holes), read by strips of whole cells (memory of the samples set by ``strip_px`` rows, not by the
-    frame; the holes need one byte per pixel of the frame); with ``keep_decoded`` the frame is read whole and
+    frame; the holes need one byte per pixel of the frame, two with ``footprint``: review 45, 255 against 127 MB
+    on a 132 MP frame ortho); with ``keep_decoded`` the frame is read whole and
     returned as ``decoded`` (``DecodedFrame``; its validity away from the holes cleared ``margin_px`` round them),
     else that is None. ``holes``: ``FrameHoles`` or None (no invalid pixel enclosed by valid ones, nor inside
     ``footprint``, the frame's ring (x, y) on the ground in the mosaic's CRS, one pixel in). Then the bits its
