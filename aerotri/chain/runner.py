@@ -51,6 +51,9 @@ class Stage:
     # why outputs changed by hand are the operator's work, to keep (None: made again): an edited-seamline mosaic
     # (review 41: the next run replaced it with the chain's own, the seam edits lost with one log line)
     hand_made: Callable[[Path], str | None] | None = None
+    # why files an output lists (not outputs themselves: ortho/frames/index.json's frame orthos) are not there as it
+    # records them (None: they are): trial-overnight, 18 frame orthos deleted kept rectify "up to date", exit 0
+    listed_missing: Callable[[Path], str | None] | None = None
 
     def options_now(self, root: Path) -> dict:
         return self.options(root) if callable(self.options) else self.options
@@ -152,6 +155,9 @@ def stale_reason(root: Path, st: Stage) -> str | None:
     missing = [_key(p, root) for p in outputs if not p.exists()]
     if missing:
         return f"output missing: {_names(missing)}"
+    gone = st.listed_missing(root) if st.listed_missing is not None else None
+    if gone:
+        return gone
     reasons = []
     if "outputs" in stamp:  # (stamps before trial-rerun: not recorded, not checked)
         # an output written since by another command (aerotri adjust or ortho mosaic by hand) or edited (at/eo.txt):
