@@ -552,3 +552,30 @@ def test_an_operators_hand_made_output_is_kept_and_a_new_time_alone_is_no_edit(t
     (tmp_path / "out.txt").write_text("12345")
     run_stages(tmp_path, _stages(calls), log=lambda m: None)
     assert calls == ["add"]
+
+
+def test_a_run_that_stops_leaves_no_earlier_run_summary(tmp_path):
+    """trial-overnight: a run that failed at a stage left work/run_summary.json of the run before it, every stage
+    "done" (bench/scale.py reads it as this run's record). A failed or interrupted run now writes its rows so far and
+    the stage that stopped; a run killed outright leaves none (scale.py then reads the finished stages' stamps)."""
+    (tmp_path / "in.txt").write_text("3")
+    run_stages(tmp_path, _stages([]), log=lambda m: None)
+    summary_path = tmp_path / "work" / "run_summary.json"
+    assert [r["status"] for r in json.loads(summary_path.read_text())["stages"]] == ["done", "done"]
+    (tmp_path / "in.txt").write_text("-3")  # add fails on a negative value
+    with pytest.raises(RuntimeError, match="negative"):
+        run_stages(tmp_path, _stages([]), log=lambda m: None)
+    summary = json.loads(summary_path.read_text())
+    assert summary["stopped"] == "failed"
+    assert [(r["stage"], r["status"]) for r in summary["stages"]] == [("double", "done"), ("add", "failed")]
+    assert summary["stages"][1]["why"] == "negative"
+
+    def interrupted(r):
+        assert not summary_path.exists()  # the earlier run's summary is gone while this one runs
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_stages(tmp_path, [Stage("i", lambda r: [], lambda r: [r / "i.txt"], interrupted)], log=lambda m: None)
+    summary = json.loads(summary_path.read_text())
+    assert summary["stopped"] == "interrupted" and summary["stages"] == [
+        dict(stage="i", status="interrupted", seconds=0.0, why="KeyboardInterrupt")]
