@@ -52,6 +52,9 @@ class Stage:
     # why outputs changed by hand are the operator's work, to keep (None: made again): an edited-seamline mosaic
     # (review 41: the next run replaced it with the chain's own, the seam edits lost with one log line)
     hand_made: Callable[[Path], str | None] | None = None
+    # why files an output lists (not outputs themselves: ortho/frames/index.json's frame orthos) are not there as it
+    # records them (None: they are): trial-overnight, 18 frame orthos deleted kept rectify "up to date", exit 0
+    listed_missing: Callable[[Path], str | None] | None = None
 
     def options_now(self, root: Path) -> dict:
         return self.options(root) if callable(self.options) else self.options
@@ -210,6 +213,9 @@ def stale_reason(root: Path, st: Stage) -> str | None:
     missing = [_key(p, root) for p in outputs if not p.exists()]
     if missing:
         return f"output missing: {_names(missing)}"
+    gone = st.listed_missing(root) if st.listed_missing is not None else None
+    if gone:
+        return gone
     reasons = []
     # an output written since by another command (aerotri adjust or ortho mosaic by hand) or edited (at/eo.txt):
     # the stamp's numbers no longer describe it and the later stages would build on what project.toml does not
@@ -291,6 +297,32 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     root = Path(root)
     rows = []
     load_start = _load_avg()
+    summary_path = project_paths(root).run_summary_path
+    # an earlier run's summary would describe this run if it stops: a run killed (-9) leaves none (bench/scale.py
+    # then reads the stamps of the stages that finished), a failed or interrupted one its rows so far and the
+    # stage that stopped (trial-overnight: a run that failed at rectify left the last run's "rectify done")
+    summary_path.unlink(missing_ok=True)
+    try:
+        _run_each(root, stages, rows, force, log)
+    except BaseException as exc:
+        stopped = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+        done_names = {r["stage"] for r in rows}
+        stage = next((st.name for st in stages if st.name not in done_names), None)
+        if stage is not None:
+            rows.append(dict(stage=stage, status=stopped, seconds=0.0, why=str(exc) or type(exc).__name__))
+        try:
+            write_text_atomic(summary_path, json.dumps(dict(stages=rows, stopped=stopped, load_avg_start=load_start,
+                                                            load_avg_end=_load_avg()), indent=1, default=str) + "\n")
+        except OSError:  # (a full disk: no summary rather than the last run's)
+            pass
+        raise
+    write_text_atomic(summary_path, json.dumps(
+        dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")
+    return rows
+
+
+def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, log: Callable[[str], None]) -> None:
+    """(``run_stages``) each stage in turn, its summary row appended to ``rows``."""
     for st in stages:
         reason = st.skip(root) if st.skip is not None else None
         if reason:
@@ -329,9 +361,6 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
         if done.why:
             log(f"[{st.name}] skipped: {done.why}")
         log(f"[{st.name}] done in {dt:.1f} s")
-    write_text_atomic(project_paths(root).run_summary_path, json.dumps(
-        dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")
-    return rows
 
 
 def _refresh_stamp(root: Path, st: Stage, stamp: dict) -> None:

@@ -507,7 +507,8 @@ class Chain:
             Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.true_ortho_dsm() + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
                   options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem,
-                  versions=lambda: _rectify_versions(self.rectify_settings().settings)),
+                  versions=lambda: _rectify_versions(self.rectify_settings().settings),
+                  listed_missing=lambda r: _frame_orthos_missing(self.project.frames_index_path)),
             # the nDSM the seamlines avoid objects by ([mosaic] ndsm, else the LiDAR stages' when there is one)
             Stage("mosaic", lambda r: [self.project.frames_index_path] + self.mosaic_ndsm(),
                   lambda r: [self.project.mosaic_path],
@@ -986,6 +987,27 @@ def _check_raster(path, what: str) -> None:
         raise InputError(f"{path}: cannot read the {what} ({exc})") from None
     if min(size) < 2:
         raise InputError(f"{path}: the {what} is {size[0]} x {size[1]} px; expected a raster of at least 2 x 2")
+
+
+def _frame_orthos_missing(index_path: Path) -> str | None:
+    """Why the frame orthos ``index_path`` lists are not all there as it records them (missing, or of another size:
+    a stat each, no hashing), None when they are or the index cannot be read (the stage's own checks say why)."""
+    import json
+
+    try:
+        frames = json.loads(index_path.read_text())["frames"]
+        listed = [(index_path.parent / e["file"], e.get("size")) for e in frames]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    missing = [p.name for p, _ in listed if not p.is_file()]
+    if missing:
+        return (f"output missing: {', '.join(missing[:4])}{' ...' if len(missing) > 4 else ''} ({len(missing)} of "
+                f"{len(listed)} frame orthos {index_path.name} lists)")
+    other = [p.name for p, size in listed if size is not None and p.stat().st_size != size]
+    if other:
+        return (f"outputs changed: {', '.join(other[:4])}{' ...' if len(other) > 4 else ''} (frame orthos of another "
+                f"size than {index_path.name} records)")
+    return None
 
 
 def _read_ends(ds, path, what: str) -> None:

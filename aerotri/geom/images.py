@@ -120,10 +120,31 @@ def _open_raster(path):
     return rasterio.open(path)
 
 
+def _tiff_data_end(ds) -> int | None:
+    """The byte just past a TIFF's last block of pixels (the largest offset + byte count of each band's first and
+    last block), None for other formats or when GDAL does not say. A TIFF written header first (GDAL, rasterio:
+    the IFD at byte 8) and cut short by a copy that stopped still opens and reads its first rows: only its block
+    table, read here without decoding a pixel, tells that its end is missing."""
+    if ds.driver != "GTiff":
+        return None
+    bh, bw = ds.block_shapes[0]
+    last = (-(-ds.width // bw) - 1, -(-ds.height // bh) - 1)
+    end = None
+    for band in range(1, ds.count + 1):
+        for x, y in ((0, 0), last):
+            offset = ds.get_tag_item(f"BLOCK_OFFSET_{x}_{y}", "TIFF", bidx=band)
+            size = ds.get_tag_item(f"BLOCK_SIZE_{x}_{y}", "TIFF", bidx=band)
+            if offset is None or size is None:
+                return None
+            if int(offset) > 0:  # 0: a sparse (empty) block, not stored
+                end = max(end or 0, int(offset) + int(size))
+    return end
+
+
 def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.toml") -> None:
     """Every frame is a readable image file of the camera's size, with the bands and sample type of the
-    first frame, checked from the file headers before any work (a folder, an unreadable file, a frame of
-    another size, another band count or another bit depth stops here, naming it: the mosaic blends the
+    first frame, checked from the file headers before any work (a folder, an unreadable file, a TIFF cut short, a
+    frame of another size, another band count or another bit depth stops here, naming it: the mosaic blends the
     frames band by band in one bit depth)."""
     import rasterio
 
@@ -135,9 +156,15 @@ def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.
         try:
             with _open_raster(path) as ds:
                 size, layout = (ds.width, ds.height), (ds.count, ds.dtypes[0])
+                end = _tiff_data_end(ds)
         except (rasterio.errors.RasterioIOError, OSError) as exc:
             raise InputError(f"{path}: cannot read the image ({exc}); replace it, or take it out of "
                              f"{path.parent.name}/ (and its line out of gnss.txt) to go on without it") from None
+        held = path.stat().st_size
+        if end is not None and end > held:
+            raise InputError(f"{path}: truncated: its last block of pixels ends at byte {end:,} but the file holds "
+                             f"{held:,} bytes (a copy that stopped?); copy it again, or take it out of "
+                             f"{path.parent.name}/ (and its line out of gnss.txt) to go on without it")
         if size != (camera.width, camera.height):
             raise InputError(f"{path}: image is {size[0]} x {size[1]} px but {camera_source} says "
                              f"{camera.width} x {camera.height} px")

@@ -714,3 +714,30 @@ def test_an_edit_still_in_the_geopackages_wal_file_re_runs_the_stages(tmp_path):
         assert "outputs changed since this stage wrote them: crowns.gpkg" in stale_reason(tmp_path, rasters)
         assert "inputs changed: crowns.gpkg" in stale_reason(tmp_path, rectify)
     assert calls == ["write", "read"]
+
+
+def test_a_run_that_stops_leaves_no_earlier_run_summary(tmp_path):
+    """trial-overnight: a run that failed at a stage left work/run_summary.json of the run before it, every stage
+    "done" (bench/scale.py reads it as this run's record). A failed or interrupted run now writes its rows so far and
+    the stage that stopped; a run killed outright leaves none (scale.py then reads the finished stages' stamps)."""
+    (tmp_path / "in.txt").write_text("3")
+    run_stages(tmp_path, _stages([]), log=lambda m: None)
+    summary_path = tmp_path / "work" / "run_summary.json"
+    assert [r["status"] for r in json.loads(summary_path.read_text())["stages"]] == ["done", "done"]
+    (tmp_path / "in.txt").write_text("-3")  # add fails on a negative value
+    with pytest.raises(RuntimeError, match="negative"):
+        run_stages(tmp_path, _stages([]), log=lambda m: None)
+    summary = json.loads(summary_path.read_text())
+    assert summary["stopped"] == "failed"
+    assert [(r["stage"], r["status"]) for r in summary["stages"]] == [("double", "done"), ("add", "failed")]
+    assert summary["stages"][1]["why"] == "negative"
+
+    def interrupted(r):
+        assert not summary_path.exists()  # the earlier run's summary is gone while this one runs
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_stages(tmp_path, [Stage("i", lambda r: [], lambda r: [r / "i.txt"], interrupted)], log=lambda m: None)
+    summary = json.loads(summary_path.read_text())
+    assert summary["stopped"] == "interrupted" and summary["stages"] == [
+        dict(stage="i", status="interrupted", seconds=0.0, why="KeyboardInterrupt")]

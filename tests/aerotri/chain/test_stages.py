@@ -454,3 +454,23 @@ def test_another_stage_s_setting_leaves_the_adjustments_up_to_date(run_to_end, t
     assert why("adjust_final") is None and "res_m null -> 2.0" in why("rectify")
     (p / "project.toml").write_text(toml.replace("sigma_z_m = 0.08", "sigma_z_m = 0.5"))
     assert "options changed: project_toml.gnss.sigma_z_m 0.08 -> 0.5" in why("adjust_final")
+
+
+def test_a_frame_ortho_gone_since_rectify_runs_rectify_again(run_to_end, tmp_path):
+    """trial-overnight: frame orthos deleted (a night's disk cleanup) kept rectify "up to date" (its stamp recorded
+    only ortho/frames/index.json) and `aerotri run` exited 0 without them. A frame ortho missing or of another size
+    than index.json records now runs rectify again."""
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p)
+    frame = p / "ortho" / "frames" / "s01_002.tif"
+    whole = frame.read_bytes()
+    frame.unlink()
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    assert "[rectify] running (output missing: s01_002.tif (1 of 6 frame orthos index.json lists))" in r.output
+    assert frame.read_bytes() == whole
+    frame.write_bytes(whole[: len(whole) // 2])  # cut short by hand: another size than index.json records
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    assert "[rectify] running (outputs changed: s01_002.tif (frame orthos of another size" in r.output
+    assert frame.read_bytes() == whole

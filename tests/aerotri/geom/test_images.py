@@ -171,3 +171,27 @@ def test_georeferenced_frames_read_without_opencv_tag_warnings(tmp_path, capfd):
     gray = read_gray(path, (48, 64))
     assert img.shape == (64, 48, 3) and gray.shape == (64, 48)
     assert "TIFF_Warning" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("kw", [dict(tiled=True, blockxsize=64, blockysize=64, compress="zstd"), dict(compress="lzw")])
+def test_a_frame_cut_short_after_its_header_is_refused_before_any_work(tmp_path, kw):
+    """trial-overnight: a half-copied full-size DMC frame (tiled ZSTD, header first) opened and passed the check;
+    the chain ran its LiDAR stages for minutes before a stage read the missing tiles."""
+    from types import SimpleNamespace
+
+    from aerotri.geom.images import ImageFiles, check_frames
+
+    a = _rgb(np.uint16, h=300, w=400, bands=1)[:, :, 0]
+    paths = []
+    for name in ("s01_001.tif", "s01_002.tif"):
+        paths.append(tmp_path / name)
+        _write(paths[-1], a, **kw)
+    camera = SimpleNamespace(width=400, height=300)
+    images = ImageFiles(("s01_001", "s01_002"), tuple(paths))
+    check_frames(images, camera)  # whole: accepted
+    data = paths[1].read_bytes()
+    paths[1].write_bytes(data[: len(data) // 2])
+    with rasterio.open(paths[1]) as ds:  # the header still opens
+        assert ds.width == 400
+    with pytest.raises(InputError, match=r"s01_002.tif: truncated: .* but the file holds"):
+        check_frames(images, camera)
