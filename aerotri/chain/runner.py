@@ -227,8 +227,15 @@ def stale_reason(root: Path, st: Stage) -> str | None:
         # a stamp written before outputs were recorded (before trial-rerun): an output newer than the stamp was
         # written after the stage (the stage writes its stamp last). Review 44: such a stamp found up to date has
         # its outputs recorded (``_refresh_stamp``), which blessed a hand edit made before (at/eo.txt X +5 m)
+        # Review 47: a copy without times (cp -r) makes every output newer, and re-ran 7 of 11 demo stages (hours on a
+        # block) for no edit ("a new time alone is no edit", review 41): said, taken as the stage's, not re-run
         stamped_ns = sp.stat().st_mtime_ns
-        changed = _names([_key(p, root) for p in outputs if p.stat().st_mtime_ns > stamped_ns])
+        newer = _names([_key(p, root) for p in outputs if p.stat().st_mtime_ns > stamped_ns])
+        if newer:
+            _log.warning(f"[{st.name}] {newer} newer than this stage's record, which (written before outputs were "
+                         "recorded) cannot tell an edit from a copy without times (cp -r; cp -a and rsync -t keep "
+                         "them): taken as the stage's own; `aerotri run --force` makes every stage again")
+        changed = None
     if changed:
         kept = st.hand_made(root) if changed and st.hand_made is not None else None
         if kept:
