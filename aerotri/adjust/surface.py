@@ -151,10 +151,22 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
         # vertical CRSs (same_vertical takes compound ones: given the bare [project] heights it said "same" always)
         ours = (None if project_heights is None else
                 heights_in_unit(project_heights, height_unit_m(horizontal_crs(project_crs))))
+        to_ours = 1.0  # project height units per DEM height unit
         if dem_v is not None and (ours is None or not dem_v.equals(ours)):
-            theirs = crs_label(ours) if ours is not None else "ellipsoidal heights"
-            raise CrsError(f"{path}: the {what}'s heights are in {crs_label(dem_v)}, the project's in {theirs} "
-                           "([project] heights); convert the heights first (aerotri crs warp)")
+            our_unit_m = float(ours.axis_info[0].unit_conversion_factor) if ours is not None else None
+            try:  # the project's height system in another unit: scaled, as ortho's DEM operation converts it
+                restated = heights_in_unit(dem_v, our_unit_m, f"{path} vertical CRS") if ours is not None else None
+            except CrsError:
+                restated = None
+            if restated is None or not restated.equals(ours):
+                theirs = f"{ours.name} ({crs_label(ours)})" if ours is not None else "ellipsoidal heights"
+                raise CrsError(f"{path}: the {what}'s heights are in {dem_v.name} ({crs_label(dem_v)}), the "
+                               f"project's in {theirs} ([project] heights): give a {what} in the project's height "
+                               "system (another vertical datum is not converted here)")
+            # review 48: refused although only the unit differs (EPSG:3855 in metres beside a feet grid's EGM2008
+            # in US feet; NAVD88 in feet on a metre project), which ortho converts
+            to_ours = float(dem_v.axis_info[0].unit_conversion_factor) / our_unit_m
+            log.info(f"{path}: the {what}'s heights ({dem_v.name}) converted to the project's unit (x {to_ours:.9g})")
         if dem_v is None:
             log.info(f"{path}: the {what} declares no vertical CRS; its heights are taken as the project's")
         t = ds.transform
@@ -191,9 +203,13 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
                 z = ds.read(1, window=win, out_dtype=dtype)
                 if ds.nodata is not None and MaskFlags.nodata in flags:
                     z[z == ds.nodata if np.isfinite(ds.nodata) else ~np.isfinite(z)] = np.nan
+                if to_ours != 1.0:
+                    z *= to_ours
                 return HeightGrid(z, float(wt.c), float(wt.f), res)
             a = ds.read(1, window=win, masked=True)
         a = (a if a.dtype == dtype else a.astype(dtype)).filled(np.nan)
+    if to_ours != 1.0:
+        a = a * np.asarray(to_ours, a.dtype)
     return HeightGrid(a, float(wt.c), float(wt.f), res)
 
 

@@ -183,8 +183,15 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
     name = name or root.name
     # a CRS given as a PROJ string has no name ("unknown"): its projection and datum instead
     crs_name = c.name if c.name not in ("", "unknown") else crs_label(c)
-    toml = PROJECT_TOML.format(name=name.replace('"', "'"), crs=crs, crs_name=crs_name)
+    # a .wkt/.prj named here (read from the current folder) goes into the project, whose commands read project.toml's
+    # file names in the project folder (review 47: `--crs grid.prj` made a project every command refused)
+    from aerotri.core.crs_files import is_crs_file
+
+    crs_file = Path(str(crs).strip()).expanduser() if is_crs_file(str(crs)) else None
+    toml = PROJECT_TOML.format(name=name.replace('"', "'"), crs=crs_file.name if crs_file else crs, crs_name=crs_name)
     with atomic_dir(root) as tmp:
+        if crs_file is not None:
+            shutil.copyfile(crs_file, tmp / crs_file.name)
         (tmp / "images").mkdir()
         for path in frames.path:
             dst = tmp / "images" / path.name

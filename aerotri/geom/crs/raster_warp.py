@@ -144,10 +144,12 @@ def height_change(operation, x, y, z_lo: float, z_hi: float):
     a datum shift over a few kilometres of height is below a micrometre)."""
     x = np.asarray(x, float).ravel()
     y = np.asarray(y, float).ravel()
+    # a block of one height (a hydro-flattened lake): k from a metre above it, not 0 (review 48: a unit change's k is
+    # not 0, and the inverse taken through it gave 169.52 ft for 328.08)
+    z_hi = z_hi if z_hi > z_lo else z_lo + 1.0
     _, _, z0 = operation.transform(x, y, np.full(x.size, z_lo))
     _, _, z1 = operation.transform(x, y, np.full(x.size, z_hi))
-    span = z_hi - z_lo if z_hi > z_lo else 1.0
-    k = ((z1 - z_hi) - (z0 - z_lo)) / span
+    k = ((z1 - z_hi) - (z0 - z_lo)) / (z_hi - z_lo)
     return (z0 - z_lo) - k * z_lo, k
 
 

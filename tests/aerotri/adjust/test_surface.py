@@ -390,15 +390,16 @@ def test_a_point_the_last_snooping_left_without_rays_is_no_surface_observation(s
 
 
 
-@pytest.mark.parametrize("grid, dem_heights, ours", [
-    ("+proj=utm +zone=49 +datum=WGS84 +units=us-ft +no_defs", "EPSG:3855", r"EGM2008 height \(US survey foot\)"),
-    ("EPSG:32649", "EPSG:3855", None),
-    ("EPSG:32649", "EPSG:5773", "EPSG:3855")])
-def test_a_dem_is_taken_only_in_the_projects_heights_and_their_unit(tmp_path, grid, dem_heights, ours):
+@pytest.mark.parametrize("grid, dem_heights, expected_z", [
+    ("+proj=utm +zone=49 +datum=WGS84 +units=us-ft +no_defs", "EPSG:3855", 1000.0 / 0.3048006096012192),
+    ("EPSG:32649", "EPSG:3855", 1000.0),
+    ("EPSG:32649", "EPSG:5773", None)])
+def test_a_dem_is_taken_only_in_the_projects_heights_and_their_unit(tmp_path, grid, dem_heights, expected_z):
     """[project] heights = "EPSG:3855": beside a US-feet grid the project's heights are EGM2008 in US feet (docs/
-    project.md), a DEM declaring EPSG:3855 (metres) is refused naming both (review 43: its metres were read as feet);
-    beside UTM in metres it is the project's; a DEM of EGM96 heights (EPSG:5773) is refused (was taken: the check
-    compared the bare vertical CRS as a compound one, "same" whatever it was)."""
+    project.md), a DEM declaring EPSG:3855 (metres) is converted to feet (review 43: its metres were read as feet;
+    review 48: then refused although ortho converts it); beside UTM in metres it is the project's; a DEM of EGM96
+    heights (EPSG:5773) is refused naming both (was taken: the check compared the bare vertical CRS as a compound
+    one, "same" whatever it was)."""
     import pyproj
 
     from aerotri.adjust import surface
@@ -414,8 +415,10 @@ def test_a_dem_is_taken_only_in_the_projects_heights_and_their_unit(tmp_path, gr
                        crs=rasterio.crs.CRS.from_wkt(dem_crs.to_wkt()), transform=from_origin(x, y, 3.0, 3.0),
                        nodata=-9999.0) as ds:
         ds.write(np.full((30, 20), 1000.0, np.float32), 1)
-    if ours is None:
-        assert np.all(surface.read_height_grid(path, grid, egm2008).z == 1000.0)
+    if expected_z is not None:
+        z = surface.read_height_grid(path, grid, egm2008).z
+        assert np.allclose(z, expected_z, rtol=1e-6)
     else:
-        with pytest.raises(CrsError, match=rf"heights are in {dem_heights}, the project's in {ours} "):
+        with pytest.raises(CrsError, match=r"heights are in EGM96 height \(EPSG:5773\), the project's in EGM2008 "
+                                           r"height \(EPSG:3855\) \(\[project\] heights\): give a DEM"):
             surface.read_height_grid(path, grid, egm2008)

@@ -50,6 +50,27 @@ def test_init_makes_a_project_that_matches(tiny_project, tmp_path):
     assert snapshot(images) == before
 
 
+def test_init_takes_a_crs_file_into_the_project(tiny_project, tmp_path, monkeypatch):
+    """Review 47: `aerotri init P --crs grid.prj` (the file in the current folder) wrote crs = "grid.prj", which every
+    command reads in the project folder: a project no command ran. The file is copied into the project."""
+    import pyproj
+
+    from aerotri.core.project import Project
+
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "grid.prj").write_text(pyproj.CRS("EPSG:32649").to_wkt("WKT1_ESRI"))
+    monkeypatch.chdir(work)
+    r = run("init", tmp_path / "blk", "--images", tiny_project / "images", "--crs", "grid.prj",
+            "--camera", tiny_project / "camera.toml")
+    assert r.exit_code == 0, r.output
+    p = tmp_path / "blk"
+    assert tomllib.loads((p / "project.toml").read_text())["project"]["crs"] == "grid.prj"
+    assert (p / "grid.prj").read_bytes() == (work / "grid.prj").read_bytes()
+    monkeypatch.chdir(tmp_path)
+    assert pyproj.CRS(Project.open(p).crs).equals(pyproj.CRS("EPSG:32649"))
+
+
 def test_init_copies_with_copy_and_says_what_camera_to_write(tiny_project, tmp_path):
     """--copy: real files; frames without EXIF camera data: no camera.toml, the template with their size."""
     p = tmp_path / "blk"

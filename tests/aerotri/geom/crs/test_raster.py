@@ -276,6 +276,24 @@ def test_warp_says_when_heights_without_a_vertical_crs_move_with_the_datum(tmp_p
     assert not [m for m in caplog.messages if "heights changed" in m]
 
 
+def test_warp_of_a_flat_raster_changes_its_unit(tmp_path):
+    """Review 48: a raster (or a 512-cell block: a hydro-flattened lake) of one height took the height change's slope
+    k as 0, so NAVD88 100 m into NAVD88 (ft) came out 169.52 ft instead of 328.08."""
+    from rasterio.transform import from_origin
+
+    from aerotri.geom.crs.raster import warp_raster
+
+    src = tmp_path / "flat.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=20, height=20, count=1, dtype="float32",
+                       crs=rasterio.crs.CRS.from_wkt(CRS("EPSG:26910+5703").to_wkt()),
+                       transform=from_origin(500_000.0, 5_000_000.0, 10.0, 10.0), nodata=-9999.0) as ds:
+        ds.write(np.full((20, 20), 100.0, np.float32), 1)
+    warp_raster(src, tmp_path / "ft.tif", "EPSG:26910+8228")
+    with rasterio.open(tmp_path / "ft.tif") as ds:
+        z = ds.read(1, masked=True)
+    assert z.count() > 300 and np.allclose(z.compressed(), 100.0 / 0.3048006096012192, atol=1e-3)
+
+
 def test_ortho_takes_a_height_model_on_the_projects_datum_only():
     """ortho's DEM in normal heights -> the project's h with a height model: a model recorded on h of the project's
     datum (WGS 84 for UTM 49N) converts; one recorded on Beijing 1954's h would put them on the wrong ellipsoid:
