@@ -543,15 +543,11 @@ def test_an_output_written_again_since_its_stage_re_runs_the_stage(tmp_path, cap
     assert "[add] out.txt newer than this stage's record" in caplog.text and "cp -r" in caplog.text
 
 
-def test_a_geopackage_opened_by_a_reader_is_no_change(tmp_path):
-    """leftovers2: QGIS opening lidar_out/crowns.gpkg switches it to WAL mode (-wal and -shm beside it, header bytes
-    18-19) and back on closing (change counter, SQLite version): its bytes changed, so the next run re-ran the LiDAR
-    rasters that wrote it and every stage that read it. A SQLite file's signature leaves those header fields out; an
-    edited row re-runs the stage, and a stamp with the file's plain hash (written before) stays up to date."""
+def _crowns_writer_and_reader(calls: list):
+    """Two stage functions: one writes crowns.gpkg (a SQLite file of two rows, made anew), one reads it (writes n.txt);
+    each appends its name to ``calls``."""
     import contextlib
     import sqlite3
-
-    from aerotri.chain import runner
 
     def write(r):
         calls.append("write")
@@ -567,9 +563,24 @@ def test_a_geopackage_opened_by_a_reader_is_no_change(tmp_path):
         (r / "n.txt").write_text("2")
         return StageResult()
 
+    return write, read
+
+
+def test_a_geopackage_opened_by_a_reader_is_no_change(tmp_path):
+    """leftovers2: QGIS opening lidar_out/crowns.gpkg switches it to WAL mode (-wal and -shm beside it, header bytes
+    18-19) and back on closing (change counter, SQLite version): its bytes changed, so the next run re-ran the LiDAR
+    rasters that wrote it and every stage that read it. A SQLite file's signature leaves those header fields out; an
+    edited row re-runs the stage, and a stamp with the file's plain hash (written before) stays up to date."""
+    import contextlib
+    import sqlite3
+
+    from aerotri.chain import runner
+
+    calls = []
+    write, read = _crowns_writer_and_reader(calls)
+
     stages = [Stage("rasters", lambda r: [], lambda r: [r / "crowns.gpkg"], write),
               Stage("rectify", lambda r: [r / "crowns.gpkg"], lambda r: [r / "n.txt"], read)]
-    calls = []
     run_stages(tmp_path, stages, log=lambda m: None)
     gpkg = tmp_path / "crowns.gpkg"
     before = gpkg.read_bytes()
@@ -689,22 +700,11 @@ def test_an_edit_still_in_the_geopackages_wal_file_re_runs_the_stages(tmp_path):
     import contextlib
     import sqlite3
 
-    def write(r):
-        calls.append("write")
-        with contextlib.closing(sqlite3.connect(r / "crowns.gpkg")) as db:
-            db.execute("CREATE TABLE crowns (id INTEGER PRIMARY KEY, radius_m REAL)")
-            db.executemany("INSERT INTO crowns (radius_m) VALUES (?)", [(2.5,), (3.0,)])
-            db.commit()
-        return StageResult()
-
-    def read(r):
-        calls.append("read")
-        (r / "n.txt").write_text("2")
-        return StageResult()
+    calls = []
+    write, read = _crowns_writer_and_reader(calls)
 
     rasters = Stage("rasters", lambda r: [], lambda r: [r / "crowns.gpkg"], write)
     rectify = Stage("rectify", lambda r: [r / "crowns.gpkg"], lambda r: [r / "n.txt"], read)
-    calls = []
     run_stages(tmp_path, [rasters, rectify], log=lambda m: None)
     with contextlib.closing(sqlite3.connect(tmp_path / "crowns.gpkg")) as db:  # QGIS, open
         db.execute("PRAGMA journal_mode=WAL")
