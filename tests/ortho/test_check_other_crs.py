@@ -112,6 +112,6 @@ def test_the_report_names_the_dom_crs_and_a_ballpark_reference(tmp_path):
               out_stem=tmp_path / "report", allow_ballpark=True)
     check = read_dom_check(tmp_path / "report.json")
     assert check.dom_crs == "EPSG:4546" and check.reference_ballpark
-    note = _dom_crs_note(check, SimpleNamespace(info=SimpleNamespace(crs="EPSG:32649")))
+    note = _dom_crs_note(check, SimpleNamespace(info=SimpleNamespace(crs="EPSG:32649"), crs="EPSG:32649"))
     assert note.startswith("; DOM in EPSG:4546; reference through EPSG:4546 -> EPSG:32649") and "ballpark" in note
-    assert _dom_crs_note(check, SimpleNamespace(info=SimpleNamespace(crs="EPSG:4546"))).startswith("; reference")
+    assert _dom_crs_note(check, SimpleNamespace(info=SimpleNamespace(crs="EPSG:4546"), crs="EPSG:4546")).startswith("; reference")
