@@ -1274,6 +1274,9 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     if seamlines is not None:
         if not Path(seamlines).is_file():
             raise InputError(f"{seamlines}: edited seamlines not found (--seamlines)")
+        # absolute in mosaic.json: the chain re-makes an edited mosaic with them from any folder (review 49: a relative
+        # name was looked for in the folder `aerotri run` started in, and another file of that name taken)
+        seamlines = Path(os.path.abspath(seamlines))
         # the run rewrites ortho/seamlines.gpkg: an edited copy, never the file itself, is its input
         out = root / "ortho" / "seamlines.gpkg"
         if out.exists() and os.path.samefile(out, seamlines):

@@ -245,7 +245,16 @@ class Chain:
         if not self.edited_mosaic(self.root) or not self.project.mosaic_path.exists():
             return None
         seams = json.loads(self.project.mosaic_summary_path.read_text())["seams"]
-        return Path(seams[len("edited ("):-1]) if seams.endswith(")") else None
+        path = Path(seams[len("edited ("):-1]) if seams.endswith(")") else None
+        if path is not None and not path.is_absolute():
+            from aerotri.core.errors import InputError
+
+            # (mosaic.json of before review 49: the name as typed, relative to a folder nobody recorded)
+            raise InputError(f"{self.project.mosaic_summary_path}: the mosaic was re-made with the edited seamlines "
+                             f"{path}, a name relative to the folder ortho mosaic ran in: run `ortho mosaic "
+                             f"{self.root} --seamlines <that file>` again (recorded with its whole path), or remove "
+                             f"{_rel(self.project.mosaic_path, self.root)} to have the chain route its own")
+        return path
 
     def mosaic_ndsm(self) -> list[Path]:
         """The nDSM the mosaic's seamlines avoid objects by (``ortho.mosaic.mosaic_block``'s choice): [mosaic] ndsm,
@@ -685,7 +694,7 @@ class Chain:
 
     def truth_outline_reference(self) -> Path:
         """The simulator's roof outlines (truth/buildings.geojson, part "roof_outline": what the LiDAR sees;
-        the GeoJSON carries no CRS) as the "buildings" layer of a GeoPackage in the project's CRS
+        in the project's grid) as the "buildings" layer of a GeoPackage in the project's CRS
         (work/vectors_reference.gpkg)."""
         import numpy as np
         import pyproj

@@ -346,7 +346,7 @@ def test_a_mosaic_of_other_offsets_is_not_taken_over(mosaicked, tmp_path):
     assert tiles["taken_over"] == tiles["total"] > 0
 
 
-def test_the_chain_makes_an_edited_mosaic_again_with_its_seamlines(mosaicked, tmp_path):
+def test_the_chain_makes_an_edited_mosaic_again_with_its_seamlines(mosaicked, tmp_path, monkeypatch):
     """Review 45: the mosaic stage re-runs on new blend rules, frames or settings; over an operator's edited mosaic it
     must blend with the edited seamlines again (the edit was lost without a word), and say how to get the chain's own;
     with the mosaic removed the chain routes its own."""
@@ -360,10 +360,15 @@ def test_the_chain_makes_an_edited_mosaic_again_with_its_seamlines(mosaicked, tm
     meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
     edited = tmp_path / "edited.gpkg"
     _write(edited, names, _moved_edge(names, geoms, lambda k: geoms[k].buffer(50))[0], meta["crs"])
-    r = CliRunner().invoke(main, ["mosaic", str(root), "--seamlines", str(edited)])
+    monkeypatch.chdir(tmp_path)  # the name as typed, relative to where ortho mosaic runs
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--seamlines", "edited.gpkg"])
     assert r.exit_code == 0, r.output
     operators = hashlib.sha1((root / "ortho" / "mosaic.tif").read_bytes()).hexdigest()
 
+    # review 49: the chain looked for the recorded name in the folder `aerotri run` started in (another file of that
+    # name taken in silence): mosaic.json records the whole path
+    monkeypatch.chdir(root)
+    shutil.copy(root / "ortho" / "seamlines.gpkg", root / "edited.gpkg")
     project = Project.open(root)
     chain = Chain(project, read_options(project))
     assert chain.edited_seamlines() == edited
@@ -374,6 +379,10 @@ def test_the_chain_makes_an_edited_mosaic_again_with_its_seamlines(mosaicked, tm
     edited.unlink()  # the edit gone while its mosaic is there: said, nothing routed over it
     with pytest.raises(InputError, match="edited.gpkg.*remove ortho/mosaic.tif"):
         chain.run_mosaic(root)
+    summary = json.loads((root / "ortho" / "mosaic.json").read_text())  # as an ortho mosaic before review 49 wrote it
+    (root / "ortho" / "mosaic.json").write_text(json.dumps({**summary, "seams": "edited (edited.gpkg)"}))
+    with pytest.raises(InputError, match="edited.gpkg, a name relative to the folder ortho mosaic ran in"):
+        chain.edited_seamlines()
     (root / "ortho" / "mosaic.tif").unlink()
     assert chain.edited_seamlines() is None
     chain.run_mosaic(root)
