@@ -105,7 +105,8 @@ def test_our_own_export_read_back_into_its_project_is_not_warned(tmp_path):
     def notes(shift_m):
         csv = tmp_path / "ext_param.csv"
         csv.write_text("filename,x,y,z,omega,phi,kappa\n" + "".join(
-            f"{i},{x:.4f},{y:.4f},{z + shift_m:.4f},{o},{p},{k}\n" for i, (x, y, z), (o, p, k) in zip(ids, centre, opk)))
+            f"{i},{x:.4f},{y:.4f},{z + shift_m:.4f},{o},{p},{k}\n"
+            for i, (x, y, z), (o, p, k) in zip(ids, centre, opk)))
         r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "orthority", "--crs", "EPSG:32649",
                                              str(csv), "--force"])
         assert r.exit_code == 0, r.output
