@@ -17,7 +17,7 @@ from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.exchange import colmap, exif, metashape, micmac, odm, opensfm, orthority, patb
 from aerotri.exchange.imported import (ImportedBlock, ImportSettings, WrittenFile, collecting_operation_notes,
-                                      write_imported)
+                                       heights_note_needed, write_imported)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,7 +84,7 @@ def import_files(root, format_name: str, files, options: ImportSettings | None =
     check_block_crs(project.crs, f"{project.config_path} [project] crs")  # before reading: no degrees, no geocentric
     with collecting_operation_notes() as operation_notes:
         block = importer.read(files, project, options)
-    block.notes += operation_notes
+    block.notes += heights_note_needed(project, block, operation_notes)
     if importer.positions == "reconstruction" and block.eo is not None and block.gnss is None \
             and not any("--as-gnss" in n for n in block.notes):
         block.notes.append(f"positions: the {len(block.eo)} projection centres are another program's solution: "

@@ -117,6 +117,50 @@ class WrittenFile:
 _OPERATION_NOTES: contextvars.ContextVar[list[str] | None] = contextvars.ContextVar("operation_notes", default=None)
 
 
+class HeightsAssumed(str):
+    """The note that a 2D CRS's z were taken in the project's heights (an assumption: the file states none);
+    :func:`heights_note_needed` drops it when the file's heights are the project's already."""
+
+
+# a file's projection centres within this of at/eo.txt's heights at every common frame hold the project's heights:
+# another height system moves them all by its separation (the geoid's N: metres to tens of metres, under 1 cm only
+# where it crosses zero, where the systems agree to that); our exports write at/eo.txt's centres to 0.1 mm or finer
+SAME_HEIGHTS_M = 0.01
+
+
+def heights_note_needed(project: Project, block: ImportedBlock, notes: list[str]) -> list[str]:
+    """``notes`` without the :class:`HeightsAssumed` notes when they say nothing: the block's projection centres
+    agree in height with the project's at/eo.txt within ``SAME_HEIGHTS_M`` at every common frame (our own export read
+    back into its project), and gnss.txt is not those centres (else the project's heights may be the file's own,
+    taken in by an earlier import). Otherwise (no at/eo.txt, no common frame, heights that differ) ``notes``."""
+    from aerotri.geom.crs.definition import height_unit_m, horizontal_crs, project_crs
+    from aerotri.geom.eo import read_eo, read_gnss
+
+    if block.eo is None or not any(isinstance(n, HeightsAssumed) for n in notes) or not project.eo_path.is_file():
+        return notes
+    tol = SAME_HEIGHTS_M / height_unit_m(horizontal_crs(project_crs(project)))  # project z is in the CRS's unit
+    at = read_eo(project.eo_path)
+    index = {iid: k for k, iid in enumerate(at.image_id)}
+    pairs = [(index[iid], n) for n, iid in enumerate(block.eo.image_id) if iid in index]
+    if not pairs:
+        return notes
+    a, b = np.array(pairs).T
+    dz = np.abs(at.centre_m[a, 2] - block.eo.centre_m[b, 2])
+    if dz.max() > tol:
+        return notes
+    if project.gnss_path.is_file():
+        gnss = read_gnss(project.gnss_path)
+        g = {iid: k for k, iid in enumerate(gnss.image_id)}
+        common = [(g[iid], n) for n, iid in enumerate(block.eo.image_id) if iid in g]
+        if common:
+            gi, bi = np.array(common).T
+            if np.linalg.norm(gnss.position_m[gi] - block.eo.centre_m[bi], axis=1).max() <= tol:
+                return notes
+    log.debug("z of %d projection centres within %.4f of at/eo.txt's: the project's heights, as taken", len(a),
+              float(dz.max()))
+    return [n for n in notes if not isinstance(n, HeightsAssumed)]
+
+
 @contextlib.contextmanager
 def collecting_operation_notes() -> Iterator[list[str]]:
     """The notes (each once) of every coordinate operation ``to_project_crs`` applies inside the block."""
@@ -159,8 +203,9 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str, *, ellipsoida
         # same reading whether the file's CRS is the project's or another (a tmerc header took z as ellipsoidal
         # and lowered it by the geoid's N, the project's EPSG code kept it); said, as it is an assumption
         heights = project_heights(project)
-        note = (f"{source}: {crs_label(src)} is a 2D CRS (no height system): z taken in the project's heights "
-                f"({'ellipsoidal' if heights is None else heights.name}), not converted")
+        note = HeightsAssumed(f"{source}: {crs_label(src)} is a 2D CRS (no height system): z taken in the "
+                              f"project's heights ({'ellipsoidal' if heights is None else heights.name}), not "
+                              "converted")
         if sink is not None and note not in sink:
             sink.append(note)
         src = with_heights(src, heights)

@@ -359,6 +359,73 @@ def pixels_of_photo_mm(camera: Camera, xy_mm: np.ndarray) -> np.ndarray:
     return np.column_stack([x_px, y_px])
 
 
+# a .ori's matrices are taken as transposed when, over the points the .im measures in two or more of its photos, the
+# rays as read miss each other by over TRANSPOSED_MIN_PX (median y-parallax, in the camera's pixels) and the rays
+# of the transposed matrices by TRANSPOSED_FACTOR times less: an AT's y-parallaxes are a fraction of a pixel, a
+# matrix written the other way round turns the photo by twice kappa (omega and phi's signs flipped near kappa 0)
+TRANSPOSED_MIN_PX = 5.0
+TRANSPOSED_FACTOR = 5.0
+
+
+def _y_parallax_px(centre: np.ndarray, R: np.ndarray, photo: np.ndarray, point: np.ndarray, xy_mm: np.ndarray,
+                   c_mm: float, pixel_um: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(photo a, photo b, y-parallax px) of every pair of measurements of one point in two photos: the distance by
+    which the two rays (``P - C = s R (x, y, -c)``) miss each other, as an angle from the first photo, in the
+    camera's pixels at c."""
+    rays = np.einsum("nij,nj->ni", R[photo], np.c_[xy_mm, np.full(len(xy_mm), -c_mm)])
+    pa, pb = [], []
+    by_point: dict = {}
+    for k, q in enumerate(point):
+        by_point.setdefault(q, []).append(k)
+    for ks in by_point.values():
+        for i in range(len(ks) - 1):  # consecutive measurements: each photo of the point in a pair
+            pa.append(ks[i])
+            pb.append(ks[i + 1])
+    if not pa:
+        return np.empty(0, int), np.empty(0, int), np.empty(0)
+    a, b = np.array(pa), np.array(pb)
+    ra, rb = rays[a], rays[b]
+    base = centre[photo[b]] - centre[photo[a]]
+    n = np.cross(ra, rb)
+    nn = np.linalg.norm(n, axis=1)
+    miss = np.abs(np.einsum("ij,ij->i", base, n)) / np.maximum(nn, 1e-300)
+    # distance along the first ray to its point nearest the second
+    t = np.einsum("ij,ij->i", np.cross(base, rb), n) / np.maximum(nn ** 2, 1e-300)
+    range_m = np.abs(t) * np.linalg.norm(ra, axis=1)
+    return photo[a], photo[b], miss / np.maximum(range_m, 1e-9) * c_mm * 1000.0 / pixel_um
+
+
+def transposed_rotation_notes(path: Path, im_path: Path, nums: list[str], centre: np.ndarray, R: np.ndarray,
+                              im_photo: list[str], im_point: list[str], xy_mm: np.ndarray, camera: Camera,
+                              photo_id) -> list[str]:
+    """A warning when the ``.ori``'s matrices fit the ``.im``'s measurements transposed and not as read (the file
+    written object -> camera). Only the orientations and the measurements (tie points too) of the two files, in the
+    file's own coordinates; a ``.ori`` without ``.im`` cannot be told (docs/exchange.md)."""
+    index = {v: k for k, v in enumerate(nums)}
+    keep = np.array([p in index for p in im_photo], bool)
+    if keep.sum() < 2:
+        return []
+    photo = np.array([index[p] for p, k in zip(im_photo, keep) if k], int)
+    point = np.array(im_point, object)[keep]
+    c_mm, pixel_um = float(camera.focal_mm), float(camera.pixel_um)
+    a, b, read_px = _y_parallax_px(centre, R, photo, point, xy_mm[keep], c_mm, pixel_um)
+    if len(read_px) == 0:
+        return []
+    _, _, flip_px = _y_parallax_px(centre, R.transpose(0, 2, 1), photo, point, xy_mm[keep], c_mm, pixel_um)
+    med_read, med_flip = float(np.median(read_px)), float(np.median(flip_px))
+    if not (med_read > TRANSPOSED_MIN_PX and med_read > TRANSPOSED_FACTOR * med_flip):
+        return []
+    bad = [nums[k] for k in range(len(nums))
+           if np.any((a == k) | (b == k)) and np.median(read_px[(a == k) | (b == k)]) > TRANSPOSED_MIN_PX
+           and np.median(read_px[(a == k) | (b == k)]) > TRANSPOSED_FACTOR * np.median(flip_px[(a == k) | (b == k)])]
+    names = ", ".join(photo_id(v) for v in bad[:6]) + (" ..." if len(bad) > 6 else "")
+    return [f"{path}: the rotation matrices look transposed (object -> camera; the PAT-B .ori holds camera -> "
+            f"object): the rays of the points {im_path.name} measures in two photos miss each other by {med_read:.1f} "
+            f"px (median y-parallax over {len(read_px)} pairs) as read, {med_flip:.2f} px transposed; "
+            f"{len(bad)} of {len(nums)} photos ({names}): read as written, their omega, phi and kappa come in with "
+            "their signs flipped. Transpose the three matrix records of each photo (a12 <-> a21, a13 <-> a31, a23 <-> a32) and import again"]
+
+
 def read(files: list[Path], project: Project, options: ImportSettings) -> ImportedBlock:
     """``.ori``, ``.cam``, ``.con``, ``.im`` files and ``numbers.txt`` (see the module docstring)."""
     by, cons = {}, []
@@ -389,6 +456,7 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         elif project.camera_path.is_file():
             block.notes += principal_distance_notes(by[".ori"], c_mm, Camera.read(project.camera_path),
                                                     str(project.camera_path))
+        ori = (nums, centre, R)  # (the .con loop below reuses the names)
         ids = [photo_id(v) for v in nums]
         block.eo = orientations_to_project(ids, centre, R, crs, project, "--crs" if options.crs else str(project.config_path))
         block.origin["eo"] = by[".ori"].name
@@ -418,6 +486,10 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     if ".im" in by:
         path = by[".im"]
         pnums, inums, xy_mm, lines = read_im(path)
+        if ".ori" in by and (block.camera is not None or project.camera_path.is_file()):
+            block.notes += transposed_rotation_notes(
+                by[".ori"], path, *ori, inums, pnums, xy_mm,
+                block.camera if block.camera is not None else Camera.read(project.camera_path), photo_id)
         pids, iids = [point_id(v) for v in pnums], [photo_id(v) for v in inums]
         if block.control is not None:
             control_ids = set(block.control.id)

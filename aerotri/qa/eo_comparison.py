@@ -108,13 +108,13 @@ def compare_with_reference(root, format_name: str, files, crs: str | None = None
     from aerotri.exchange.import_registry import importer_and_files
     from aerotri.exchange.imported import ImportSettings
 
-    from aerotri.exchange.imported import collecting_operation_notes
+    from aerotri.exchange.imported import collecting_operation_notes, heights_note_needed
 
     project = Project.open(root)
     importer, files = importer_and_files(format_name, files)
     with collecting_operation_notes() as operation_notes:  # said by aerotri import, dropped here before trial-exchange
         block = importer.read(files, project, ImportSettings(crs=crs))
-    notes = tuple(dict.fromkeys(list(block.notes) + list(operation_notes)))
+    notes = tuple(dict.fromkeys(list(block.notes) + heights_note_needed(project, block, operation_notes)))
     for n in notes:
         log.warning(n)
     if block.eo is None:

@@ -88,3 +88,30 @@ def test_an_ellipsoidal_project_reads_a_2d_file_as_ellipsoidal_and_says_so(tmp_p
     assert r.exit_code == 0, r.output
     z, said = _imported(root)
     assert abs(z - H_M) < 1e-6 and len(said) == 1 and "(ellipsoidal)" in said[0]
+
+
+def test_our_own_export_read_back_into_its_project_is_not_warned(tmp_path):
+    """exchange-fixes2: the 2D-CRS note for an import whose projection centres are at/eo.txt's (to 1 cm) is dropped;
+    a file of another project (no at/eo.txt) or of other heights keeps it."""
+    from aerotri.geom.eo import ExteriorOrientations, format_eo
+
+    root = _project(tmp_path / "p", heights="ellipsoidal")
+    ids = ["s01_001", "s01_002"]
+    centre = np.array([[452252.8226, 3407393.8322, 760.3864], [452373.7895, 3407391.5725, 757.8285]])
+    opk = np.array([[0.08, 0.29, -93.9], [-0.05, 0.0, -92.8]])
+    (root / "at").mkdir()
+    (root / "at" / "eo.txt").write_text(format_eo(ExteriorOrientations(ids, centre, opk)))
+
+    def notes(shift_m):
+        csv = tmp_path / "ext_param.csv"
+        csv.write_text("filename,x,y,z,omega,phi,kappa\n" + "".join(
+            f"{i},{x:.4f},{y:.4f},{z + shift_m:.4f},{o},{p},{k}\n"
+            for i, (x, y, z), (o, p, k) in zip(ids, centre, opk)))
+        r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "orthority", "--crs", "EPSG:32649",
+                                             str(csv), "--force"])
+        assert r.exit_code == 0, r.output
+        return [n for n in json.loads((root / "imported" / "imports.json").read_text())["imports"][-1]["notes"]
+                if "2D CRS" in n]
+
+    assert notes(0.0) == []
+    assert len(notes(-20.0)) == 1

@@ -82,3 +82,30 @@ def test_centres_that_are_the_projects_gnss_are_no_check(tmp_path):
     # GNSS of its own (0.5 m from the reference): a real check, no note
     (root / "gnss.txt").write_text("".join(f"{iid} {x:.4f} {y:.4f} {z:.4f}\n" for iid, (x, y, z) in zip(ids, centre + 0.5)))
     assert "note:" not in CliRunner().invoke(aerotri_cli, args).output
+
+
+def test_the_2d_crs_heights_note_only_when_the_heights_could_differ(tmp_path):
+    """exchange-fixes2: "EPSG:32632 is a 2D CRS ... z taken in the project's heights" was said for our own exports
+    read back into their project (noise beside the real warning). Said now only when the file's centres are not at
+    at/eo.txt's heights (1 cm), or those heights may have come from the file (gnss.txt holds its centres)."""
+    root, ids, centre, opk = _project(tmp_path / "p")
+
+    def said(z_shift_m):
+        ref = tmp_path / "ext_param.csv"
+        rows = ["filename,x,y,z,omega,phi,kappa"] + [f"{iid},{x:.4f},{y:.4f},{z + z_shift_m:.4f},{o:.7f},{p:.7f},"
+                                                     f"{k:.7f}" for iid, (x, y, z), (o, p, k) in zip(ids, centre, opk)]
+        ref.write_text("\n".join(rows) + "\n")
+        r = CliRunner().invoke(aerotri_cli, ["compare", str(root), "--format", "orthority", "--crs", "EPSG:32632",
+                                             str(ref)])
+        assert r.exit_code == 0, r.output
+        notes = json.loads((root / "reports" / "eo_comparison.json").read_text())["reference_notes"]
+        return "is a 2D CRS" in r.output, any("is a 2D CRS" in n for n in notes)
+
+    assert said(0.0) == (False, False)  # our own export: at/eo.txt's heights to 0.1 mm
+    assert said(0.004) == (False, False)
+    assert said(25.0) == (True, True)  # heights of another system (a geoid's N of 25 m)
+    assert said(0.05) == (True, True)  # another AT of the frames: cannot tell
+    # at/eo.txt's heights taken in from the file itself (its centres are the project's GNSS): no confirmation
+    (root / "gnss.txt").write_text("".join(f"{iid} {x:.4f} {y:.4f} {z:.4f} 0.05 0.05 0.05\n"
+                                           for iid, (x, y, z) in zip(ids, centre)))
+    assert said(0.0) == (True, True)
