@@ -373,17 +373,14 @@ def _y_parallax_px(centre: np.ndarray, R: np.ndarray, photo: np.ndarray, point: 
     which the two rays (``P - C = s R (x, y, -c)``) miss each other, as an angle from the first photo, in the
     camera's pixels at c."""
     rays = np.einsum("nij,nj->ni", R[photo], np.c_[xy_mm, np.full(len(xy_mm), -c_mm)])
-    pa, pb = [], []
-    by_point: dict = {}
-    for k, q in enumerate(point):
-        by_point.setdefault(q, []).append(k)
-    for ks in by_point.values():
-        for i in range(len(ks) - 1):  # consecutive measurements: each photo of the point in a pair
-            pa.append(ks[i])
-            pb.append(ks[i + 1])
-    if not pa:
+    # consecutive measurements of a point (in the file's order): each photo of the point in a pair (a block's millions
+    # of measurements: sorted, not looped)
+    code = np.unique(np.asarray(point).astype(str), return_inverse=True)[1].ravel()
+    order = np.argsort(code, kind="stable")
+    same = code[order[1:]] == code[order[:-1]]
+    a, b = order[:-1][same], order[1:][same]
+    if not len(a):
         return np.empty(0, int), np.empty(0, int), np.empty(0)
-    a, b = np.array(pa), np.array(pb)
     ra, rb = rays[a], rays[b]
     base = centre[photo[b]] - centre[photo[a]]
     n = np.cross(ra, rb)
@@ -415,9 +412,13 @@ def transposed_rotation_notes(path: Path, im_path: Path, nums: list[str], centre
     med_read, med_flip = float(np.median(read_px)), float(np.median(flip_px))
     if not (med_read > TRANSPOSED_MIN_PX and med_read > TRANSPOSED_FACTOR * med_flip):
         return []
-    bad = [nums[k] for k in range(len(nums))
-           if np.any((a == k) | (b == k)) and np.median(read_px[(a == k) | (b == k)]) > TRANSPOSED_MIN_PX
-           and np.median(read_px[(a == k) | (b == k)]) > TRANSPOSED_FACTOR * np.median(flip_px[(a == k) | (b == k)])]
+    # per photo, the pairs it is in (grouped once: a test per photo over all pairs was photos x pairs)
+    ph = np.r_[a, b]
+    order = np.argsort(ph, kind="stable")
+    read2, flip2 = np.r_[read_px, read_px][order], np.r_[flip_px, flip_px][order]
+    photos, starts = np.unique(ph[order], return_index=True)
+    bad = [nums[k] for k, r, f in zip(photos.tolist(), np.split(read2, starts[1:]), np.split(flip2, starts[1:]))
+           if np.median(r) > TRANSPOSED_MIN_PX and np.median(r) > TRANSPOSED_FACTOR * np.median(f)]
     names = ", ".join(photo_id(v) for v in bad[:6]) + (" ..." if len(bad) > 6 else "")
     return [f"{path}: the rotation matrices look transposed (object -> camera; the PAT-B .ori holds camera -> "
             f"object): the rays of the points {im_path.name} measures in two photos miss each other by {med_read:.1f} "
