@@ -88,7 +88,8 @@ from rasterio.windows import Window
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import progress
-from aerotri.core.atomic import atomic_path, commit_outputs, move_into, remove_output, scratch_dir, write_text_atomic
+from aerotri.core.atomic import (TEMP_MARKER, annotate_output, atomic_path, commit_outputs, move_into, remove_output,
+                                 scratch_dir, write_text_atomic)
 from aerotri.core.limits import check_allocation, check_grid, check_task_count
 from aerotri.core.project import Project
 from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
@@ -2941,6 +2942,15 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                     bar.update(1)
                 row.close(blended=row_blended[row.r0] if output is not None else None)
                 row = None
+        except BaseException as exc:
+            # name the mosaic, not the project (trial-overnight: "d1: a write was cut short ..."): the rows and the
+            # overview are written in its work folder beside it (``scratch_dir``), on the same file system
+            p = Path(path)
+            annotate_output(exc, p.parent.parent / p.name if TEMP_MARKER in p.parent.name else p)
+            # the first overview, open for writing, closed now: left to the garbage collector, GDAL flushed it after
+            # the error message, its own "_tiffWriteProc: File too large." printed after ours (trial-overnight)
+            pyramid.discard()
+            raise
         finally:
             if made is not None:  # the tile threads end before their frame datasets are closed
                 made.close()
@@ -3181,6 +3191,13 @@ class _Pyramid:
         w = Window(c0 // 2, r0 // 2, h.shape[2], h.shape[1])
         self.first.write(h, window=w)
         self.first.write_mask(v.view(np.uint8) * np.uint8(255), window=w)
+
+    def discard(self) -> None:
+        """Close the first overview after an error (its file is the work folder's, removed with it); a write the
+        disk cuts short fails again in the close, which adds nothing to the error under way."""
+        if self.first is not None:
+            with contextlib.suppress(Exception):
+                self.first.close()
 
     def finish(self, stage: Path) -> None:
         start = 0

@@ -24,6 +24,7 @@ import dataclasses
 import errno
 import hashlib
 import importlib.util
+import json
 import os
 import shutil
 import signal
@@ -321,6 +322,13 @@ def expect_failure(r, w: Path, before: dict, *needles, allow=()):
     # (aerotri run's record of itself: a run that stops writes its rows so far and the stage that stopped, never
     # leaving the last run's "done" rows, trial-overnight; not a product)
     allow = set(allow) | {"p/work/run_summary.json"}
+    # (and the earlier run's report, which says that a run stopped before making its own when the disk takes the
+    # banner: overnight-fixes)
+    marked = {"p/reports/index.html", "p/reports/summary.json"} & set(differences(before, snapshot(w)))
+    if marked:
+        assert "Stale: the run of " in (w / "p" / "reports" / "index.html").read_text()
+        assert "stopped at" in json.loads((w / "p" / "reports" / "summary.json").read_text())["stale"]
+    allow |= marked
     changed = [k for k in differences(before, snapshot(w)) if k not in allow]
     assert not changed, f"changed, added or removed: {changed[:12]}"
     assert leftovers(w) == []
@@ -384,6 +392,8 @@ def test_input_vanishes(wr, workspace, tmp_path, linked_copy):
         # the DEM's absolute path), stay; the mosaic stage that found the frame gone leaves its outputs as they were
         allow |= {k for k in before if k.startswith("p/ortho/frames/")} | {"p/work/stages/rectify.json"}
     line = expect_failure(r, w, before, Path(wr.vanish).name, allow=allow)
+    if wr.id == "run":
+        assert "stopped at mosaic" in json.loads((w / "p" / "reports" / "summary.json").read_text())["stale"]
     assert "not found" in line or "No such file" in line or "cannot read" in line, line
 
 

@@ -26,6 +26,7 @@ import hashlib
 import json
 import logging
 import os
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -309,6 +310,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     # then reads the stamps of the stages that finished), a failed or interrupted one its rows so far and the
     # stage that stopped (trial-overnight: a run that failed at rectify left the last run's "rectify done")
     summary_path.unlink(missing_ok=True)
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     try:
         _run_each(root, stages, rows, force, log)
     except BaseException as exc:
@@ -322,10 +324,33 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
                                                             load_avg_end=_load_avg()), indent=1, default=str) + "\n")
         except OSError:  # (a full disk: no summary rather than the last run's)
             pass
+        reported = any(r["stage"] == "report" and r["status"] in ("done", "skipped (up to date)") for r in rows)
+        if stage is not None and not reported and any(st.name == "report" for st in stages):
+            from aerotri.core.commands import fault_message
+
+            # what the console's error says (a full disk names the file), without what the banner says itself
+            why = (fault_message(exc, f"aerotri run [{stage}]") or "").split("; ")[0] or \
+                (str(exc).splitlines() or [type(exc).__name__])[0]
+            _mark_report(root, f"the run of {started} stopped at {stage} ({stopped}: {why})", log)
         raise
     write_text_atomic(summary_path, json.dumps(
         dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")
     return rows
+
+
+def _mark_report(root: Path, note: str, log: Callable[[str], None]) -> None:
+    """(``run_stages``, a run that stopped before its report stage made a report) mark the earlier run's report stale
+    (``aerotri.qa.report.mark_report_stale``), so that its QA reader is not shown the last good run as this one."""
+    from aerotri.qa.report import mark_report_stale
+
+    try:
+        marked, failed = mark_report_stale(root, note)
+    except Exception as exc:  # (a project unreadable now: the console and the exit code say what stopped the run)
+        marked, failed = [], [f"{root}: {exc}"]
+    if marked:
+        log(f"[report] {', '.join(_key(p, root) for p in marked)} marked stale: {note}")
+    for f in failed:  # (a disk still full): said, so that the reader of the console knows the report is the old one
+        _log.warning(f"[report] the earlier run's report is not marked stale: {f}")
 
 
 def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, log: Callable[[str], None]) -> None:

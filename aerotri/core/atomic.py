@@ -73,16 +73,23 @@ def _umask() -> int:
 
 def _annotate(exc: BaseException, path) -> None:
     """Name the output ``path`` in an error of a failed write: an OSError without a file name (a write() on an
-    open file) or with a temporary's name gets the output's; any other exception (GDAL's through rasterio)
-    carries it as ``aerotri_output`` (the command's handler names it when the error is a full disk)."""
+    open file) or with a temporary's name gets the output's; any other exception (GDAL's through rasterio, an
+    OSError without a disk errno such as rasterio's "Write failed") carries it as ``aerotri_output`` (the
+    command's handler names it when the error is a full disk)."""
     if isinstance(exc, OSError) and exc.errno in DISK_ERRNOS:
         if exc.filename is None or any(m in os.fspath(exc.filename) for m in (TEMP_MARKER, COMMIT_MARKER)):
             exc.filename = str(path)
-    elif not isinstance(exc, OSError) and getattr(exc, "aerotri_output", None) is None:
+    elif getattr(exc, "aerotri_output", None) is None:  # (rasterio's RasterioIOError is an OSError without errno)
         try:
             exc.aerotri_output = str(path)
         except (AttributeError, TypeError):
             pass
+
+
+def annotate_output(exc: BaseException, path) -> None:
+    """Name the output ``path`` in ``exc``, a failed write of it made outside ``atomic_path`` (a work folder's files:
+    the mosaic's rows and overviews), as ``atomic_path`` does (``_annotate``)."""
+    _annotate(exc, path)
 
 
 # ------------------------------------------------------------------------------------------------

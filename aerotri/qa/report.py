@@ -1368,3 +1368,47 @@ def console_summary(report: QaReport) -> str:
     lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed{unjudged}; {judged_by})"
                  + (f"; {headline}" if headline else ""))
     return "\n".join(lines)
+
+
+_STOPPED_BEGIN, _STOPPED_END = "<!-- aerotri:run-stopped -->", "<!-- /aerotri:run-stopped -->"
+
+
+def mark_report_stale(root, note: str) -> tuple[list[Path], list[str]]:
+    """Say in the report of an earlier run that a later ``aerotri run`` stopped before making its own (``note``:
+    when it started, the stage that stopped and why): a banner at the top of reports/index.html (an earlier banner
+    replaced) and ``"stale": note`` in reports/summary.json, each written atomically; reports/report.pdf is left (the
+    banner names it). Trial-overnight: after a failed night run the QA reader found the last good run's report and
+    nothing saying so. The banner changes index.html, so the next run's report stage runs again (its output changed
+    since it wrote it) and a finished run's report has none. Returns the files marked and, for each that could not
+    be (a disk still full), ``"<file>: <why>"``."""
+    import html as _html
+    import re as _re
+
+    project = Project.open(root)
+    marked, failed = [], []
+    index = project.report_index_path
+    if index.is_file():
+        try:
+            text = _re.sub(_re.escape(_STOPPED_BEGIN) + ".*?" + _re.escape(_STOPPED_END), "", index.read_text(),
+                           flags=_re.S)
+            pdf = " and reports/report.pdf are" if project.report_pdf_path.is_file() else " is"
+            banner = (f'{_STOPPED_BEGIN}<p style="background:#fdd;border:2px solid #a00;padding:6px;font-weight:bold">'
+                      f"Stale: {_html.escape(note)}. This report{pdf} of the run before it; the next run that "
+                      f"reaches its report stage writes them again.</p>{_STOPPED_END}")
+            at = text.find("<body>")
+            text = text[:at + 6] + banner + text[at + 6:] if at >= 0 else banner + text
+            write_text_atomic(index, text)
+            marked.append(index)
+        except OSError as e:
+            failed.append(f"{index}: {e.strerror or e}")
+    summary_path = project.report_summary_path
+    if summary_path.is_file():
+        try:
+            summary = json.loads(summary_path.read_text())
+            if isinstance(summary, dict):
+                summary["stale"] = note
+                write_text_atomic(summary_path, json.dumps(summary, indent=1) + "\n")
+                marked.append(summary_path)
+        except (OSError, ValueError) as e:
+            failed.append(f"{summary_path}: {getattr(e, 'strerror', None) or e}")
+    return marked, failed

@@ -474,3 +474,64 @@ def test_a_frame_ortho_gone_since_rectify_runs_rectify_again(run_to_end, tmp_pat
     assert r.exit_code == 0, r.output
     assert "[rectify] running (outputs changed: s01_002.tif (frame orthos of another size" in r.output
     assert frame.read_bytes() == whole
+
+
+def test_a_run_that_stops_marks_the_earlier_report_stale(run_to_end, tmp_path, monkeypatch):
+    """trial-overnight: after a failed night run reports/index.html (and summary.json) were still the last good run's
+    report, nothing saying so. A run that stops before its report stage now marks them: a banner at the top of
+    index.html, ``"stale"`` in summary.json; the next run that reaches the report writes it again without."""
+    import errno
+
+    from aerotri.chain.stages import Chain
+
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p)
+    index, summary = p / "reports" / "index.html", p / "reports" / "summary.json"
+    assert "Stale:" not in index.read_text() and "stale" not in json.loads(summary.read_text())
+    (p / "ortho" / "mosaic.tif").unlink()
+
+    def full(self, root):
+        raise OSError(errno.ENOSPC, "No space left on device", str(root / "ortho" / "mosaic.tif"))
+
+    with monkeypatch.context() as m:
+        m.setattr(Chain, "run_mosaic", full)
+        r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 2, r.output
+    note = json.loads(summary.read_text())["stale"]
+    assert f"stopped at mosaic (failed: {p / 'ortho' / 'mosaic.tif'}: no space left on device)" in note, note
+    html = index.read_text()
+    assert html.count("Stale: the run of ") == 1 and "stopped at mosaic" in html
+    assert html.index("Stale:") < html.index("<h1>")  # at the top, before the verdict
+    assert "marked stale" in r.output
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    assert "Stale:" not in index.read_text() and "stale" not in json.loads(summary.read_text())
+
+
+def test_a_full_disk_in_the_mosaic_names_the_mosaic_and_marks_the_report(run_to_end, tmp_path):
+    """trial-overnight: disk full in the mosaic said "d1: a write was cut short ..." (the project, not the file), and
+    GDAL's "_tiffWriteProc: File too large." came after it (the first overview, left open, flushed at exit). A real
+    process whose files may not grow past the report's size + 64 kB (RLIMIT_FSIZE, as a full disk cuts a write)."""
+    import os
+    import resource
+    import signal
+
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p)
+    (p / "ortho" / "mosaic.tif").unlink()
+    limit = (p / "reports" / "index.html").stat().st_size + (64 << 10)  # the banner fits, the mosaic's rows do not
+
+    def preexec():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) instead of killing
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    code = "import sys; sys.argv[0] = 'aerotri'; from aerotri.cli import main; sys.exit(main())"
+    r = subprocess.run([sys.executable, "-c", code, "run", str(p)], capture_output=True, text=True, preexec_fn=preexec,
+                       env=dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[3])), timeout=300)
+    assert r.returncode == 2, r.stderr
+    errors = [s for s in r.stderr.splitlines() if s.startswith("Error:")]
+    assert len(errors) == 1 and errors[0].startswith(f"Error: {p / 'ortho' / 'mosaic.tif'}: a write was cut short"), \
+        r.stderr
+    assert r.stderr.rstrip().splitlines()[-1] == errors[0] and "_tiffWriteProc" not in r.stderr, r.stderr
+    assert "stopped at mosaic (failed: " in json.loads((p / "reports" / "summary.json").read_text())["stale"]
+    assert "Stale: the run of " in (p / "reports" / "index.html").read_text()

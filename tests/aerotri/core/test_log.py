@@ -79,3 +79,34 @@ def test_eta_from_the_rate_after_the_first_item(monkeypatch):
         clock[0] = t
         p.update()
     assert p._line(clock[0]).endswith("ETA 15 s")
+
+
+def test_a_stage_of_short_phases_logs_a_line_with_the_stage_elapsed(monkeypatch):
+    """trial-overnight: `lidarctl rasters` ran 90 s on the full-size 2 x 2 block without a progress line, each of its
+    phases ending inside the 30 s interval; classify's first line said "34 s elapsed" 86 s into the stage (its tile
+    split not counted). Inside ``doing`` (a command, a stage) the interval and the elapsed time are the block's."""
+    from aerotri.core import log as L
+
+    clock, lines = [0.0], []
+    monkeypatch.setattr(L.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(L._log, "info", lines.append)
+    with L.doing("rasters"):
+        with L.progress(20, "rasters: bin points into tiles", "pt") as bar:  # 0-25 s: 1.25 s a chunk
+            for _ in range(20):
+                clock[0] += 1.25
+                bar.update(1)
+        with L.progress(10, "rasters: tiles", "tile") as bar:  # 25-45 s: 2 s a tile
+            for _ in range(10):
+                clock[0] += 2.0
+                bar.update(1)
+    assert lines == ["rasters: tiles: 3/10 tile (30.0 %), 31 s elapsed, ETA 14 s"], lines
+    lines.clear()
+    with L.doing("classify"):  # a 52 s tile split, then tiles of 40 s: the first tile's line counts the split
+        with L.progress(8, "tiles: split", "pt") as bar:
+            clock[0] += 52.0
+            bar.update(8)
+        lines.clear()  # (the split's own closing line)
+        with L.progress(8, "classify", "tiles") as bar:
+            clock[0] += 40.0
+            bar.update(1)
+    assert lines and lines[0].startswith("classify: 1/8 tiles (12.5 %), 1 min 32 s elapsed, ETA 4 min 40 s"), lines
