@@ -23,14 +23,24 @@ def run_project(project: Project, settings: Resolved | None = None, scheduler=No
     (``aerotri.chain.options.read_options``; None: project.toml's). Files named in project.toml are checked
     before the first stage. Returns the summary rows."""
     from aerotri.chain.options import read_options
-    from aerotri.chain.runner import run_stages
+    from aerotri.chain.runner import mark_stopped_run, run_stages, run_started
+    from aerotri.core.project import project_paths
     from aerotri.chain.stages import Chain
     from aerotri.core.executor import Executor, activate
 
-    chain = Chain(project, settings if settings is not None else read_options(project), **inputs)
-    chain.check_files()
-    stages = chain.stages()
-    with Executor(scheduler, workers) as ex, activate(ex):
+    started = run_started()
+    try:
+        chain = Chain(project, settings if settings is not None else read_options(project), **inputs)
+        chain.check_files()
+        stages = chain.stages()
+        executor = Executor(scheduler, workers)
+    except BaseException as exc:
+        # a frame cut short, a LAZ in another CRS, a scheduler out of reach: most of a night's failures stop here,
+        # and the earlier run's report and summary must not read as this run's (review 51 of overnight-fixes)
+        project_paths(project.root).run_summary_path.unlink(missing_ok=True)
+        mark_stopped_run(project.root, exc, f"the run of {started} stopped at the checks before its first stage")
+        raise
+    with executor as ex, activate(ex):
         log.info(f"tasks run on {ex.describe()}")
         return run_stages(project.root, stages, force=force)
 

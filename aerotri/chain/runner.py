@@ -310,7 +310,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     # then reads the stamps of the stages that finished), a failed or interrupted one its rows so far and the
     # stage that stopped (trial-overnight: a run that failed at rectify left the last run's "rectify done")
     summary_path.unlink(missing_ok=True)
-    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    started = run_started()
     try:
         _run_each(root, stages, rows, force, log)
     except BaseException as exc:
@@ -326,16 +326,31 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
             pass
         reported = any(r["stage"] == "report" and r["status"] in ("done", "skipped (up to date)") for r in rows)
         if stage is not None and not reported and any(st.name == "report" for st in stages):
-            from aerotri.core.commands import fault_message
-
-            # what the console's error says (a full disk names the file), without what the banner says itself
-            why = (fault_message(exc, f"aerotri run [{stage}]") or "").split("; ")[0] or \
-                (str(exc).splitlines() or [type(exc).__name__])[0]
-            _mark_report(root, f"the run of {started} stopped at {stage} ({stopped}: {why})", log)
+            mark_stopped_run(root, exc, f"the run of {started} stopped at {stage}", log)
         raise
     write_text_atomic(summary_path, json.dumps(
         dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")
     return rows
+
+
+def mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[str], None] = _log.info) -> None:
+    """Mark the earlier run's report stale (``_mark_report``) for a run that ``exc`` stopped (``stopped_at``: "the
+    run of <time> stopped at <stage>", or before its first stage: ``aerotri.chain.run``'s checks of the frames and
+    files, where most of a night's failures stop), saying why as the console's error does."""
+    from aerotri.core.commands import fault_message
+
+    stopped = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+    if isinstance(exc, KeyboardInterrupt):
+        why = str(exc) or "Ctrl-C"
+    else:  # what the console's error says (a full disk names the file), without what the banner says itself
+        why = (fault_message(exc, "aerotri run") or "").split("; ")[0] or \
+            (str(exc).splitlines() or [type(exc).__name__])[0]
+    _mark_report(root, f"{stopped_at} ({stopped}: {why})", log)
+
+
+def run_started() -> str:
+    """The start of a run as its stale mark says it (UTC, to the minute)."""
+    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
 
 
 def _mark_report(root: Path, note: str, log: Callable[[str], None]) -> None:

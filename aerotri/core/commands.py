@@ -75,7 +75,7 @@ def _exit_cleanly_on_sigterm():
         return
 
     def _term(signum, frame):
-        raise KeyboardInterrupt
+        raise KeyboardInterrupt("SIGTERM")  # (said so where the run's stop is recorded: not "Ctrl-C")
 
     previous = signal.signal(signal.SIGTERM, _term)
     try:
@@ -352,8 +352,18 @@ def _fault(exc: BaseException) -> tuple[int, str | None] | None:
         if type(exc).__module__.split(".")[0] in _IO_LIBRARIES or isinstance(exc, OSError):
             for needle, code in _GDAL_FAULTS:
                 if needle in text:
-                    output = getattr(exc, "aerotri_output", None) if code != errno.ENOENT else None
-                    return code, output or _path_in(text)
+                    if code == errno.ENOENT:  # (a file not there is no output being written)
+                        return code, _path_in(text)
+                    if code == errno.EACCES:
+                        # a file it could not open, named by GDAL: an input as often as the output (review 51: a frame
+                        # ortho it could not read was blamed on ortho/mosaic.tif)
+                        from aerotri.core.atomic import COMMIT_MARKER, TEMP_MARKER
+
+                        named = _path_in(text)
+                        if named is not None and not any(m in named for m in (TEMP_MARKER, COMMIT_MARKER)):
+                            return code, named
+                        return code, getattr(exc, "aerotri_output", None) or named
+                    return code, getattr(exc, "aerotri_output", None) or _path_in(text)
         exc = exc.__cause__ or exc.__context__
     return None
 

@@ -245,6 +245,7 @@ class _LogProgress:
         self.clock = _CLOCKS[-1] if _CLOCKS else _Clock()
         self.interval_s = interval_s
         self.first = None  # (time, count) when the first items were done
+        self.logged_n = None  # the count of the last line logged
 
     @property
     def t0(self) -> float:
@@ -257,6 +258,7 @@ class _LogProgress:
             self.first = (now, self.n)
         if now - self.clock.last >= self.interval_s:
             self.clock.last = now
+            self.logged_n = self.n
             _log.info(self._line(now))
 
     def _line(self, now) -> str:
@@ -274,7 +276,8 @@ class _LogProgress:
 
     def close(self):
         now = time.monotonic()
-        if self.n and now - self.start >= self.interval_s:
+        # (not again when the last update logged the same count: the stage's clock and the phase's differ)
+        if self.n and now - self.start >= self.interval_s and self.logged_n != self.n:
             self.clock.last = now
             _log.info(self._line(now))
 

@@ -1401,6 +1401,9 @@ def mark_report_stale(root, note: str) -> tuple[list[Path], list[str]]:
             marked.append(index)
         except OSError as e:
             failed.append(f"{index}: {e.strerror or e}")
+            # summary.json is no output of the report stage: marked alone, its mark would outlive the next run that
+            # finds index.html as it wrote it (review 51)
+            return marked, failed
     summary_path = project.report_summary_path
     if summary_path.is_file():
         try:

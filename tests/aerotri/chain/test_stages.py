@@ -535,3 +535,39 @@ def test_a_full_disk_in_the_mosaic_names_the_mosaic_and_marks_the_report(run_to_
     assert r.stderr.rstrip().splitlines()[-1] == errors[0] and "_tiffWriteProc" not in r.stderr, r.stderr
     assert "stopped at mosaic (failed: " in json.loads((p / "reports" / "summary.json").read_text())["stale"]
     assert "Stale: the run of " in (p / "reports" / "index.html").read_text()
+
+
+def test_a_run_stopped_by_its_checks_marks_the_earlier_report_stale(run_to_end, tmp_path, monkeypatch):
+    """Review 51 of overnight-fixes: a run that failed in its checks of the frames and files (a frame cut short, where
+    most of a night's failures stop) left the earlier run's report unmarked and its work/run_summary.json; and a mark
+    that reached summary.json but not index.html (a disk full under the banner) was never cleared."""
+    from aerotri.qa import report as qa_report
+
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p)
+    index, summary = p / "reports" / "index.html", p / "reports" / "summary.json"
+    frame = sorted((p / "images").glob("*.tif"))[0]
+    whole = frame.read_bytes()
+    frame.write_bytes(whole[:len(whole) // 2])
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 2 and frame.name in r.output, r.output
+    note = json.loads(summary.read_text())["stale"]
+    assert "stopped at the checks before its first stage (failed: " in note and frame.name in note, note
+    assert index.read_text().count("Stale: the run of ") == 1
+    assert not (p / "work" / "run_summary.json").exists()
+    frame.write_bytes(whole)
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    assert "Stale:" not in index.read_text() and "stale" not in json.loads(summary.read_text())
+
+    written = qa_report.write_text_atomic
+
+    def full_for_the_index(path, text):
+        if Path(path) == index:
+            raise OSError(28, "No space left on device")
+        written(path, text)
+
+    monkeypatch.setattr(qa_report, "write_text_atomic", full_for_the_index)
+    marked, failed = qa_report.mark_report_stale(p, "the run of now stopped at mosaic (failed: disk full)")
+    assert marked == [] and len(failed) == 1 and str(index) in failed[0]
+    assert "stale" not in json.loads(summary.read_text())  # (its mark would outlive the next run)

@@ -61,3 +61,23 @@ def test_numpy_reservation_failure_is_a_one_line_disk_error():
     msg = fault_message(exc, "stage corners", "P/lidar_out/corners.csv")
     assert msg.startswith("P/lidar_out/corners.csv: no space left on device; stage corners stopped")
     assert fault_message(OSError("something else entirely"), "stage corners") is None
+
+
+def test_a_file_it_could_not_open_is_named_not_the_output_being_written():
+    """Review 51: since a rasterio error (an OSError without errno) inside a write carries the output's name, a frame
+    ortho GDAL could not open ("Permission denied", naming it) was reported as the mosaic; a full disk still names the
+    output, and a permission fault on the output's own temporary names the output."""
+    from rasterio.errors import RasterioIOError
+
+    from aerotri.core.atomic import annotate_output
+    from aerotri.core.commands import fault_message
+
+    exc = RasterioIOError("/p/ortho/frames/s01_002.tif: Permission denied")
+    annotate_output(exc, "/p/ortho/mosaic.tif")
+    assert fault_message(exc, "ortho mosaic").startswith("/p/ortho/frames/s01_002.tif: ")
+    exc = RasterioIOError("/p/ortho/.mosaic.tif.part-1a2b/rows.tif: Permission denied")
+    annotate_output(exc, "/p/ortho/mosaic.tif")
+    assert fault_message(exc, "ortho mosaic").startswith("/p/ortho/mosaic.tif: ")
+    exc = RasterioIOError("_tiffWriteProc: File too large.")
+    annotate_output(exc, "/p/ortho/mosaic.tif")
+    assert fault_message(exc, "ortho mosaic").startswith("/p/ortho/mosaic.tif: ")

@@ -110,3 +110,21 @@ def test_a_stage_of_short_phases_logs_a_line_with_the_stage_elapsed(monkeypatch)
             clock[0] += 40.0
             bar.update(1)
     assert lines and lines[0].startswith("classify: 1/8 tiles (12.5 %), 1 min 32 s elapsed, ETA 4 min 40 s"), lines
+
+
+def test_the_closing_line_is_not_logged_twice(monkeypatch):
+    """Review 51: a phase whose last update logged its 100 % line (on the stage's clock) logged it again when it
+    closed (on its own start): "phase: 4/4 it (100.0 %), 1 min 0 s elapsed" twice."""
+    from aerotri.core import log as L
+
+    clock, lines = [0.0], []
+    monkeypatch.setattr(L.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(L._log, "info", lines.append)
+    with L.doing("stage"):
+        clock[0] += 20.0  # other work of the stage first
+        with L.progress(4, "phase", "it") as bar:
+            for _ in range(4):
+                clock[0] += 10.0
+                bar.update(1)
+    assert sum("4/4" in line for line in lines) == 1, lines
+    assert lines[-1].startswith("phase: 4/4 it (100.0 %), 1 min 0 s elapsed"), lines
