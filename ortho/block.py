@@ -1010,8 +1010,9 @@ def tie_points_off_surface(block: BlockInputs, surface_path, what: str, project_
                      f"{abs(offset):.2f} m {'above' if offset > 0 else 'below'} the {what} {surface_path} (median; "
                      f"NMAD {nmad:.2f} m): the orthos on it stand up to {abs(offset) * corner:.2f} m "
                      f"({abs(offset) * corner / res_m:.0f} px) off toward the frames' corners; orient the block on it "
-                     f"(`aerotri adjust {project.root} --dem {surface_path}`: surface control) or rectify on the "
-                     f"surface it was oriented on")
+                     f"(`aerotri adjust {project.root} --dem {surface_path}`, or for `aerotri run` [adjust] dem = "
+                     f"\"{surface_path}\" in project.toml: surface control) or rectify on the surface it was "
+                     "oriented on")
     return offset
 
 

@@ -48,7 +48,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from aerotri.core.errors import CrsError
+from aerotri.core.errors import CrsError, InputError
 from aerotri.geom.local_frame import LocalFrame, MapAnchors
 
 log = logging.getLogger(__name__)
@@ -174,7 +174,14 @@ def read_height_grid(path, project_crs, project_heights=None, what: str = "DEM",
             xmin, ymin, xmax, ymax = bounds
             pad = 2 * t.a
             win = from_bounds(xmin - pad, ymin - pad, xmax + pad, ymax + pad, t).round_offsets().round_lengths()
-            win = win.intersection(rasterio.windows.Window(0, 0, ds.width, ds.height))
+            try:
+                win = win.intersection(rasterio.windows.Window(0, 0, ds.width, ds.height))
+            except rasterio.errors.WindowError:  # (new-user trial s51: a traceback, exit 1)
+                b = ds.bounds
+                raise InputError(f"{path}: the {what} does not reach the block: it covers x {b.left:.1f} .. "
+                                 f"{b.right:.1f}, y {b.bottom:.1f} .. {b.top:.1f}, the window read under the block "
+                                 f"x {xmin:.1f} .. {xmax:.1f}, y {ymin:.1f} .. {ymax:.1f} (another area, or "
+                                 "positions in other units than the project's CRS?)") from None
         else:
             win = rasterio.windows.Window(0, 0, ds.width, ds.height)
         # heights of a float32 (or 8/16-bit) raster stay float32 (half the memory, nothing lost); a window of more

@@ -825,6 +825,29 @@ class Chain:
             out.append(self.project.at_dir / "leave_one_out.json")
         return out
 
+    def warn_hand_options_dropped(self, r: Resolved) -> None:
+        """Warn when the adjustment on disk (at/report.json) was made by ``aerotri adjust`` with options on its
+        command line that the chain's settings do not repeat: the chain adjusts again by project.toml and replaces
+        it (new-user trial s51: NGI adjusted by hand with ``--dem``, then ``aerotri run``: re-adjusted without the
+        DEM, 0.0128 -> 0.0554 deg from the national AT, with no word)."""
+        from aerotri.core.settings import COMMAND_LINE
+
+        try:
+            before = json.loads(self.project.adjustment_report_path.read_text()).get("settings") or {}
+        except (OSError, ValueError, AttributeError):
+            return
+        def same(a, b) -> bool:  # (a file's name as typed then, relative to that command's folder: by its name)
+            return a == b or (isinstance(a, str) and isinstance(b, str) and Path(a).name == Path(b).name)
+
+        now = r.record()
+        dropped = [f"{k} = {json.dumps(row.get('value'))} (now {json.dumps(now[k]['value'])})"
+                   for k, row in before.items() if isinstance(row, dict) and row.get("source") == COMMAND_LINE
+                   and k in now and not same(now[k].get("value"), row.get("value"))]
+        if dropped:
+            _log.warning(f"{self.project.adjustment_report_path}: the adjustment there was made by `aerotri adjust` "
+                        f"with {', '.join(dropped)} on its command line; the chain adjusts again with project.toml's "
+                        "[adjust] and replaces it: put those in [adjust] to keep them (docs/settings.md)")
+
     def run_adjust_final(self, root) -> R.AdjustResult:
         from aerotri.adjust.pipeline import run_adjustment
 
@@ -832,6 +855,7 @@ class Chain:
 
         settings = self.final_settings()
         notes = self.final_notes(settings)
+        self.warn_hand_options_dropped(settings)
         res = run_adjustment(root, settings)
         export_project(root)  # PATB and COLMAP, read back from at/
         notes = notes + list(res.record.datum_notes)  # no GNSS: what the datum rests on

@@ -95,6 +95,10 @@ def check_block_crs(crs, source: str):
 
     c = parse_crs(crs, source)
     h = horizontal_crs(c)
+    if h.is_vertical:  # (heights only: new-user trial s51, init took EPSG:5703 and match stopped on a traceback)
+        raise CrsError(f"{source}: {crs_label(c)} ({c.name}) is a vertical CRS (heights only); the photo block needs a "
+                       "projected CRS in metres (e.g. the UTM zone, EPSG:326xx) for gnss.txt and the orientations, "
+                       "with the heights' system after a '+' (EPSG:32615+5703) or in [project] heights")
     if h.is_geographic or h.is_geocentric:
         raise CrsError(f"{source}: {crs_label(c)} ({c.name}) is {'geographic' if h.is_geographic else 'geocentric'}; "
                        "the photo block needs a projected CRS in metres (e.g. the UTM zone, EPSG:326xx) for "

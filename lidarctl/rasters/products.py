@@ -455,8 +455,9 @@ def _check_tiling(tile_px: int, buffer_px: int, dem_fill_radius_px: float = 0.0)
     if tile_px < 1:
         raise OptionError(f"--tile-px {tile_px}: must be a positive number of cells", param="--tile-px")
     if not 0 <= buffer_px <= tile_px:
-        raise OptionError(f"--buffer-px {buffer_px}: must be between 0 and the tile size ({tile_px} cells)",
-                          param="--buffer-px")
+        # (new-user trial s51: `--tile-px 7` alone was refused as "--buffer-px 256", an option not given: both named)
+        raise OptionError(f"--buffer-px {buffer_px}: must be between 0 and the tile size (--tile-px {tile_px} cells); "
+                          "give a larger --tile-px or a smaller --buffer-px", param="--buffer-px")
     _check_fill_radius(dem_fill_radius_px)
     if buffer_px < 2 * dem_fill_radius_px + 2:
         log.warning("--buffer-px %d is less than 2 x --dem-fill-radius-px + 2 = %d cells: DEM cells filled "

@@ -422,3 +422,20 @@ def test_a_dem_is_taken_only_in_the_projects_heights_and_their_unit(tmp_path, gr
         with pytest.raises(CrsError, match=r"heights are in EGM96 height \(EPSG:5773\), the project's in EGM2008 "
                                            r"height \(EPSG:3855\) \(\[project\] heights\): give a DEM"):
             surface.read_height_grid(path, grid, egm2008)
+
+
+def test_a_dem_that_does_not_reach_the_block_is_refused_naming_both_extents(tmp_path):
+    """New-user trial s51: NGI's DEM moved 200 km east (or gnss.txt in degrees) stopped `aerotri adjust --dem` with
+    rasterio's "WindowError: Intersection is empty" traceback, exit 1; now an InputError naming the DEM's extent."""
+    from aerotri.adjust import surface
+    from aerotri.core.errors import InputError
+    from aerotri.geom.crs.definition import parse_crs
+
+    path = tmp_path / "far.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=20, height=30, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=from_origin(620000.0, 3380000.0, 10.0, 10.0)) as ds:
+        ds.write(np.zeros((30, 20), np.float32), 1)
+    with pytest.raises(InputError, match=r"far\.tif: the DEM does not reach the block: it covers x 620000\.0 \.\. "
+                                         r"620200\.0, y 3379700\.0 \.\. 3380000\.0"):
+        surface.read_height_grid(path, parse_crs("EPSG:32649", "crs"), bounds=(420000.0, 3370000.0, 421000.0,
+                                                                                  3371000.0))

@@ -120,7 +120,7 @@ def test_init_camera_from_exif(tmp_path):
     assert "From the EXIF of DJI_0000.JPG" in (p / "camera.toml").read_text()
 
 
-@pytest.mark.parametrize("case", ["exists", "geographic", "two_sizes", "no_images", "inside_images"])
+@pytest.mark.parametrize("case", ["exists", "geographic", "vertical", "two_sizes", "no_images", "inside_images"])
 def test_init_refuses(case, tiny_project, tmp_path):
     frames = tmp_path / "frames"
     shutil.copytree(tiny_project / "images", frames)
@@ -131,6 +131,8 @@ def test_init_refuses(case, tiny_project, tmp_path):
         expect = "not an empty folder"
     elif case == "geographic":
         crs, expect = "EPSG:4326", "--crs"
+    elif case == "vertical":  # (heights only: new-user trial s51, taken by init and a traceback in match)
+        crs, expect = "EPSG:5703", "is a vertical CRS (heights only)"
     elif case == "two_sizes":
         _exif_jpeg(frames / "odd.jpg")
         expect = "2 sizes"

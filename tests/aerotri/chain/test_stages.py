@@ -571,3 +571,20 @@ def test_a_run_stopped_by_its_checks_marks_the_earlier_report_stale(run_to_end, 
     marked, failed = qa_report.mark_report_stale(p, "the run of now stopped at mosaic (failed: disk full)")
     assert marked == [] and len(failed) == 1 and str(index) in failed[0]
     assert "stale" not in json.loads(summary.read_text())  # (its mark would outlive the next run)
+
+
+def test_the_chain_says_when_it_replaces_an_adjustment_made_with_other_options(run_to_end, tmp_path):
+    """New-user trial s51: NGI adjusted by hand with `aerotri adjust --dem`, then `aerotri run`: the chain adjusted
+    again by project.toml (no DEM) and replaced at/eo.txt (4x further from the national AT) without a word. It now
+    names the hand run's command-line options it does not repeat, and how to keep them."""
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p)
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(p), "--max-ndsm-m", "2.5"], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    assert "[adjust_final] running" in r.output
+    assert "the adjustment there was made by `aerotri adjust` with max_ndsm_m = 2.5 (now 1.0) on its command line" \
+        in r.output and "put those in [adjust] to keep them" in r.output, r.output
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--force"], catch_exceptions=False)  # the chain's own: no word
+    assert r.exit_code == 0 and "the adjustment there was made by" not in r.output, r.output

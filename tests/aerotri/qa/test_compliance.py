@@ -112,7 +112,7 @@ def test_one_dom_limit_per_scale_and_standard_and_patches_are_not_called_check_p
                 assert d.limit_confirmed == table.provenance["feature_rms_xy_m"].confirmed, (scale, terrain, key)
                 assert d.quantity == "ground patches, plan RMS (radial)" and d.counted == "ground patches"
     (d,) = _by(judge(Figures(dom=dom), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")), "DOM")
-    assert d.limit == 0.5 and d.limit_confirmed is False and "shared/design/reports.md" in d.limit_source
+    assert d.limit == 0.5 and d.limit_confirmed is False and "docs/tolerances.md" in d.limit_source
     assert "check points" not in d.quantity and "reference's accuracy" in d.checkpoints_note
     assert load_table("1:2000", "flat").limits["feature_rms_xy_m"] == 1.2  # 0.6 mm x 2000, confirmed
     # ASPRS: the patches are named, and counted against its check-point minimum as such
@@ -150,7 +150,7 @@ def test_one_at_height_limit_per_scale_and_standard():
                          "Aerotriangulation")
             assert h.limit == pytest.approx(table.limits["rms_z_m"]), (scale, terrain)
             assert h.limit_confirmed is table.provenance["rms_z_m"].confirmed is False
-            assert h.verdict == "pass" and "shared/design/reports.md" in h.limit_source
+            assert h.verdict == "pass" and "docs/tolerances.md" in h.limit_source
     (_, h) = _by(judge(Figures(at=at), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")),
                  "Aerotriangulation")
     assert h.quantity == "check points, height RMS" and h.limit == 1.0 and h.finest_class == "1:5000"
