@@ -482,6 +482,12 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
         log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
                  f"observations, {report.components} component(s), {len(report.weak_models)} weak model(s) -> "
                  f"{project.tiepoints_path}")
+        if len(components) > 1:  # (new-user trial s51: NGI without its terrain height; only `adjust` said so)
+            parts = "; ".join(", ".join(c[:4]) + (f" and {len(c) - 4} more" if len(c) > 4 else "") for c in components)
+            log.warning(f"{project.tiepoints_path}: the block falls apart into {len(components)} parts that no tie "
+                        f"point connects ({parts}); each is adjusted with a datum of its own, or left out without "
+                        "one" + (". Check [flight] mean_terrain_height_m (the pairs are chosen by the footprints on "
+                                 "it) and at/connectivity.png" if plan is not None else ""))
         return report
 
 

@@ -255,3 +255,26 @@ def test_weak_model_words_say_where_the_ties_are_missing():
     assert lines[3] == "  ... and 1 more (at/connectivity.json weak_models, red in connectivity.png)"
     assert weak_model_words([scattered], 0, 3)[1] == "  a-b: 63 ties, 6 of 9 regions under 3"
     assert weak_model_words([strong], 0, 3) == []
+
+
+def test_a_block_in_unconnected_parts_is_warned_by_match(matched, tmp_path, monkeypatch, caplog):
+    """New-user trial s51: NGI without its terrain height matched into 2 parts that no tie point connects; `aerotri
+    match` said "2 component(s)" at info level and only `aerotri adjust` warned. Match now warns, naming the parts."""
+    import logging
+
+    from aerotri.match import pipeline
+
+    p = tmp_path / "tiny"
+    shutil.copytree(matched[0], p)
+    real = pipeline._components
+
+    def split(project, ids, ties_per_pair):
+        whole = real(project, ids, ties_per_pair)[0]
+        return [whole[:3], whole[3:]]
+
+    monkeypatch.setattr(pipeline, "_components", split)
+    with caplog.at_level(logging.WARNING, logger="aerotri.match.pipeline"):
+        rep = match_project(p)
+    assert rep.components == 2
+    warned = [r.getMessage() for r in caplog.records if "falls apart into 2 parts" in r.getMessage()]
+    assert len(warned) == 1 and "mean_terrain_height_m" in warned[0], caplog.text
