@@ -1775,9 +1775,11 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
         logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],
                     tiles["total"], tiles["taken_over"], f" ({previous.why_all})" if previous.why_all else "")
     if summary["cells_seen_by_no_frame"]:
-        logger.warning("%d cells (%.2f %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
+        # (two significant digits: "1608 cells (0.00 % of the block)" read as none, new-user trial s51)
+        pct = 100 * summary["share_seen_by_no_frame"]
+        logger.warning("%d cells (%s %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
                        "over DEM nodata, or over the frames' own nodata): nodata in the mosaic",
-                       summary["cells_seen_by_no_frame"], 100 * summary["share_seen_by_no_frame"])
+                       summary["cells_seen_by_no_frame"], f"{pct:.2f}" if pct >= 0.1 else f"{pct:.2g}")
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
 

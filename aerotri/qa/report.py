@@ -359,8 +359,14 @@ def _holes_row(section: str, project: Project) -> QaCheck:
     m = read_mosaic_summary(project.mosaic_summary_path)
     share = None if m.share_seen_by_no_frame is None else round(100.0 * m.share_seen_by_no_frame, 3)
     return _check("dom_seen_by_no_frame_pct", section, "DOM cells seen by no frame (nodata inside the block)", share,
-                  None, "%", note=f"{m.cells_seen_by_no_frame:,} cells, {m.area_seen_by_no_frame_m2:,.0f} m2; occluded "
+                  None, "%", note=f"{m.cells_seen_by_no_frame:,} cells, {_area_m2(m.area_seen_by_no_frame_m2)}; occluded "
                   "in every frame (true ortho) or over DEM nodata; hatched in ortho/seamlines_preview.png; not judged")
+
+
+def _area_m2(a: float) -> str:
+    """An area in m2 as a reader takes it: whole square metres from 10 up, two significant digits below ("403 cells,
+    0 m2" of a 5 cm DOM, new-user trial s51)."""
+    return f"{a:,.0f} m2" if a >= 10 else f"{a:.2g} m2"
 
 
 def _seam_crossings_row(section: str, project: Project) -> QaCheck | None:
