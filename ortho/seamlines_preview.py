@@ -98,7 +98,8 @@ def _labels(stretch: tuple[float, float] | None, bits: int = 16) -> list[str]:
     if stretch is not None:
         how = ("full range" if stretch[0] == 0 and int(stretch[1]) + 1 in FULL_SCALES else
                f"stretched ({STRETCH_PERCENT[0]:g}-{STRETCH_PERCENT[1]:g} %)")
-        names.append(f"grey: {bits}-bit samples {stretch[0]:.0f}-{stretch[1]:.0f} {how}")
+        # (not "grey": an RGB DOM is shown in its colours, new-user trial s51)
+        names.append(f"shown: {bits}-bit samples {stretch[0]:.0f}-{stretch[1]:.0f} {how}")
     return names
 
 

@@ -125,7 +125,7 @@ def test_a_dom_of_one_value_is_shown_in_its_full_range_not_black():
     rgb, stretch = _to_rgb8(np.full((1, 30, 30), 2000, np.uint16))
     assert stretch == (0.0, 4095.0) and (rgb == 125).all()
     assert _to_rgb8(np.full((1, 30, 30), 4311, np.uint16))[1] == (0.0, 8191.0)
-    assert _labels((0.0, 255.0), 8)[-1] == "grey: 8-bit samples 0-255 full range"
+    assert _labels((0.0, 255.0), 8)[-1] == "shown: 8-bit samples 0-255 full range"
     # a spread of a few levels is still stretched (the percentiles 4 levels apart or more)
     spread = np.tile(np.arange(110, 130, dtype=np.uint8), (1, 20, 1))
     assert _to_rgb8(spread)[1] == (110.0, 129.0)
@@ -164,7 +164,7 @@ def test_balanced_12_bit_dom_is_stretched_not_darkened(tmp_path):
     assert 80 <= np.median(eight[:h, :w, 0]) <= 140
     assert np.abs(eight[:h, :w, 0].astype(int) - grey).max() <= 12  # the 16-bit preview's greys, to 8-bit steps
     lo8, hi8 = np.percentile(img8, [0.5, 99.5])
-    assert _labels((lo8, hi8), 8)[-1].startswith(f"grey: 8-bit samples {lo8:.0f}-{hi8:.0f} stretched")
+    assert _labels((lo8, hi8), 8)[-1].startswith(f"shown: 8-bit samples {lo8:.0f}-{hi8:.0f} stretched")
 
 
 def test_the_preview_hatches_the_cells_mosaic_json_counts_as_seen_by_no_frame(tmp_path):
