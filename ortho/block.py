@@ -1011,8 +1011,8 @@ def tie_points_off_surface(block: BlockInputs, surface_path, what: str, project_
                      f"NMAD {nmad:.2f} m): the orthos on it stand up to {abs(offset) * corner:.2f} m "
                      f"({abs(offset) * corner / res_m:.0f} px) off toward the frames' corners; orient the block on it "
                      f"(`aerotri adjust {project.root} --dem {surface_path}`, or for `aerotri run` [adjust] dem = "
-                     f"\"{surface_path}\" in project.toml: surface control) or rectify on the surface it was "
-                     "oriented on")
+                     f"\"{Path(surface_path).resolve()}\" in project.toml: surface control) or rectify on the "
+                     "surface it was oriented on")
     return offset
 
 

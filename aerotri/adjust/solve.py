@@ -164,6 +164,9 @@ def _adjust_block(
         surface_candidates = block.surface.candidates(state.points)
         block.surface_active = surface_candidates.copy()
         log.info(f"surface control: {int(surface_candidates.sum())} of {block.n_points} points are candidates")
+        if not surface_candidates.any():  # (review 52: a DEM beside the block read "Solution Successful", unsaid)
+            log.warning("surface control: no tie point of the block lies on the surface given (its extent, its nodata "
+                        "and the nDSM leave none): the block is adjusted without it")
     def held_out_test(gr, values) -> np.ndarray:
         """w of each held-out control point against the block the active ones hold."""
         out = np.zeros(len(block.control_point), dtype=bool)

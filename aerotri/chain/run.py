@@ -3,6 +3,7 @@ synthetic block), with the scheduler, the summary rows and the closing words."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import typing
@@ -37,7 +38,8 @@ def run_project(project: Project, settings: Resolved | None = None, scheduler=No
     except BaseException as exc:
         # a frame cut short, a LAZ in another CRS, a scheduler out of reach: most of a night's failures stop here,
         # and the earlier run's report and summary must not read as this run's (review 51 of overnight-fixes)
-        project_paths(project.root).run_summary_path.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # (review 52: a failure here named itself instead of the frame)
+            project_paths(project.root).run_summary_path.unlink(missing_ok=True)
         mark_stopped_run(project.root, exc, f"the run of {started} stopped at the checks before its first stage")
         raise
     with executor as ex, activate(ex):

@@ -340,12 +340,15 @@ def mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[s
     from aerotri.core.commands import fault_message
 
     stopped = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
-    if isinstance(exc, KeyboardInterrupt):
-        why = str(exc) or "Ctrl-C"
-    else:  # what the console's error says (a full disk names the file), without what the banner says itself
-        why = (fault_message(exc, "aerotri run") or "").split("; ")[0] or \
-            (str(exc).splitlines() or [type(exc).__name__])[0]
-    _mark_report(root, f"{stopped_at} ({stopped}: {why})", log)
+    try:
+        if isinstance(exc, KeyboardInterrupt):
+            why = str(exc) or "Ctrl-C"
+        else:  # what the console's error says (a full disk names the file), without what the banner says itself
+            why = (fault_message(exc, "aerotri run") or "").split("; ")[0] or \
+                (str(exc).splitlines() or [type(exc).__name__])[0]
+        _mark_report(root, f"{stopped_at} ({stopped}: {why})", log)
+    except Exception as e:  # (the error that stopped the run is what the console must say, not this one's)
+        _log.warning(f"[report] the earlier run's report is not marked stale: {e}")
 
 
 def run_started() -> str:

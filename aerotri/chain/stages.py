@@ -836,17 +836,36 @@ class Chain:
             before = json.loads(self.project.adjustment_report_path.read_text()).get("settings") or {}
         except (OSError, ValueError, AttributeError):
             return
-        def same(a, b) -> bool:  # (a file's name as typed then, relative to that command's folder: by its name)
-            return a == b or (isinstance(a, str) and isinstance(b, str) and Path(a).name == Path(b).name)
+        if not isinstance(before, dict):  # (review 52: a report.json of another shape stopped the chain)
+            return
+        root = self.project.root
+
+        def files(v) -> list[Path]:  # where a file named then may be: from here, or from the project folder
+            return [q for q in (Path(v), root / v) if q.is_file()] if isinstance(v, str) and v else []
+
+        def same(a, b) -> bool:
+            if a == b:
+                return True
+            if isinstance(a, list) and isinstance(b, list):  # (--self-cal radial,pp is [adjust]'s ["pp", "radial"])
+                return sorted(map(str, a)) == sorted(map(str, b))
+            fa, fb = files(a), files(b)
+            if fa and fb:  # (review 52: another folder's dem.tif is another DEM)
+                return any(x.resolve() == y.resolve() for x in fa for y in fb)
+            # a file's name as typed then, relative to that command's folder and not found from here: by its name
+            return isinstance(a, str) and isinstance(b, str) and Path(a).name == Path(b).name
+
+        def shown(v) -> str:  # (a file by its whole path: [adjust] reads a relative one from the project folder)
+            f = files(v)
+            return json.dumps(str(f[0].resolve()) if f else v)
 
         now = r.record()
-        dropped = [f"{k} = {json.dumps(row.get('value'))} (now {json.dumps(now[k]['value'])})"
+        dropped = [f"{k} = {shown(row.get('value'))} (now {json.dumps(now[k]['value'])})"
                    for k, row in before.items() if isinstance(row, dict) and row.get("source") == COMMAND_LINE
                    and k in now and not same(now[k].get("value"), row.get("value"))]
         if dropped:
             _log.warning(f"{self.project.adjustment_report_path}: the adjustment there was made by `aerotri adjust` "
-                        f"with {', '.join(dropped)} on its command line; the chain adjusts again with project.toml's "
-                        "[adjust] and replaces it: put those in [adjust] to keep them (docs/settings.md)")
+                         f"with {', '.join(dropped)} on its command line; the chain adjusts again with project.toml's "
+                         "[adjust] and replaces it: put those in [adjust] to keep them (docs/settings.md)")
 
     def run_adjust_final(self, root) -> R.AdjustResult:
         from aerotri.adjust.pipeline import run_adjustment

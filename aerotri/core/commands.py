@@ -353,25 +353,35 @@ def _fault(exc: BaseException) -> tuple[int, str | None] | None:
             for needle, code in _GDAL_FAULTS:
                 if needle in text:
                     if code == errno.ENOENT:  # (a file not there is no output being written)
-                        return code, _path_in(text)
+                        return code, _path_in(text, needle)
                     if code == errno.EACCES:
                         # a file it could not open, named by GDAL: an input as often as the output (review 51: a frame
                         # ortho it could not read was blamed on ortho/mosaic.tif)
                         from aerotri.core.atomic import COMMIT_MARKER, TEMP_MARKER
 
-                        named = _path_in(text)
+                        named = _path_in(text, needle)
                         if named is not None and not any(m in named for m in (TEMP_MARKER, COMMIT_MARKER)):
                             return code, named
                         return code, getattr(exc, "aerotri_output", None) or named
-                    return code, getattr(exc, "aerotri_output", None) or _path_in(text)
+                    return code, getattr(exc, "aerotri_output", None) or _path_in(text, needle)
         exc = exc.__cause__ or exc.__context__
     return None
 
 
-def _path_in(text: str) -> str | None:
-    """The first word of a GDAL message that looks like a path ('/x/y.tif: No such file ...')."""
+def _path_in(text: str, needle: str | None = None) -> str | None:
+    """The path a GDAL message names: what stands before ": <needle>" ('sub/y.tif: Permission denied', relative or
+    with spaces: review 52), else the first word that looks like an absolute path ('/x/y.tif: No such file ...')."""
     import re
 
+    if needle is not None:
+        at = text.find(needle)
+        head = text[:at].rstrip() if at > 0 else ""
+        if head.endswith(":"):
+            line = head[:-1].splitlines()[-1].strip().strip("'\"")
+            # (GDAL's own prefix, "TIFFOpen: x.tif", is no part of the path)
+            line = re.sub(r"^[A-Za-z_]+\(?\)?: ", "", line)
+            if line and ("/" in line or "." in Path(line).name):
+                return line
     m = re.search(r"(/[^\s:'\"]+)", text)
     return m.group(1) if m else None
 

@@ -75,6 +75,10 @@ def test_a_file_it_could_not_open_is_named_not_the_output_being_written():
     exc = RasterioIOError("/p/ortho/frames/s01_002.tif: Permission denied")
     annotate_output(exc, "/p/ortho/mosaic.tif")
     assert fault_message(exc, "ortho mosaic").startswith("/p/ortho/frames/s01_002.tif: ")
+    for named in ("p/ortho/frames/s01_002.tif", "/work/my project/s01_002.tif"):  # relative, spaces: review 52
+        exc = RasterioIOError(f"{named}: Permission denied")
+        annotate_output(exc, "p/ortho/mosaic.tif")
+        assert fault_message(exc, "ortho mosaic").startswith(f"{named}: "), named
     exc = RasterioIOError("/p/ortho/.mosaic.tif.part-1a2b/rows.tif: Permission denied")
     annotate_output(exc, "/p/ortho/mosaic.tif")
     assert fault_message(exc, "ortho mosaic").startswith("/p/ortho/mosaic.tif: ")
