@@ -27,8 +27,9 @@ def run_project(project: Project, settings: Resolved | None = None, scheduler=No
     from aerotri.chain.runner import mark_stopped_run, run_stages, run_started
     from aerotri.core.project import project_paths
     from aerotri.chain.stages import Chain
-    from aerotri.core.executor import Executor, activate
+    from aerotri.core.executor import Executor, activate, check_scheduler
 
+    check_scheduler(scheduler)  # (a typo is no stopped run: refused before the frames, the report left unmarked)
     started = run_started()
     try:
         chain = Chain(project, settings if settings is not None else read_options(project), **inputs)

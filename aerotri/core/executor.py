@@ -62,6 +62,27 @@ def _cancelled_when_interrupted(client, futures):
         raise
 
 
+def check_scheduler(scheduler: str | None) -> None:
+    """OptionError when ``scheduler`` is not written as ``--scheduler`` takes it (synchronous, threads, local:N, a Dask
+    scheduler's address): told before any work (``aerotri run`` checks it before the frames), not whether it answers."""
+    import re
+
+    from aerotri.core.limits import check_workers
+
+    if scheduler is None or scheduler in ("threads", "synchronous"):
+        return
+    if scheduler.startswith("local:"):
+        try:
+            n = int(scheduler.split(":", 1)[1])
+        except ValueError:
+            raise OptionError(f"--scheduler {scheduler}: expected local:N with N the number of workers", param="--scheduler") from None
+        # local:0 would start a cluster without workers and wait for them forever
+        check_workers(n, True, "--scheduler")
+    elif not re.fullmatch(r"[a-z]+://[^\s/]+:\d+", str(scheduler)):
+        raise OptionError(f"--scheduler {scheduler}: expected synchronous, local:N or the address of a Dask "
+                          "scheduler such as tcp://host:8786", param="--scheduler")
+
+
 class Executor:
     """Runs independent tasks locally or on a Dask distributed cluster; use as a context manager."""
 
@@ -80,23 +101,14 @@ class Executor:
             from distributed import Client, LocalCluster
         except ImportError as e:  # pragma: no cover - dask[distributed] is a core dependency
             raise OptionError(f"--scheduler {scheduler}: dask.distributed is not installed ({e})", param="--scheduler") from e
+        check_scheduler(scheduler)
         if scheduler.startswith("local:"):
-            try:
-                n = int(scheduler.split(":", 1)[1])
-            except ValueError:
-                raise OptionError(f"--scheduler {scheduler}: expected local:N with N the number of workers", param="--scheduler") from None
-            # local:0 would start a cluster without workers and wait for them forever
-            check_workers(n, True, "--scheduler")
+            n = int(scheduler.split(":", 1)[1])
             self._cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                          dashboard_address=None, silence_logs=50)
             self._client = Client(self._cluster)
             self.workers = n
         else:
-            import re
-
-            if not re.fullmatch(r"[a-z]+://[^\s/]+:\d+", str(scheduler)):
-                raise OptionError(f"--scheduler {scheduler}: expected synchronous, local:N or the address of a Dask "
-                                  "scheduler such as tcp://host:8786", param="--scheduler")
             try:
                 self._client = Client(scheduler, timeout="20s")
             except (OSError, TimeoutError, ValueError) as e:

@@ -559,6 +559,10 @@ def test_a_run_stopped_by_its_checks_marks_the_earlier_report_stale(run_to_end, 
     r = CliRunner().invoke(aerotri_cli, ["run", str(p)], catch_exceptions=False)
     assert r.exit_code == 0, r.output
     assert "Stale:" not in index.read_text() and "stale" not in json.loads(summary.read_text())
+    # a malformed --scheduler is a typo, no stopped run: refused before the frames, nothing marked (review 52)
+    r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--scheduler", "bogus"], catch_exceptions=False)
+    assert r.exit_code == 2 and "--scheduler bogus: expected" in r.output, r.output
+    assert "Stale:" not in index.read_text() and (p / "work" / "run_summary.json").is_file()
 
     written = qa_report.write_text_atomic
 
