@@ -3,7 +3,6 @@ synthetic block), with the scheduler, the summary rows and the closing words."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import typing
@@ -24,26 +23,18 @@ def run_project(project: Project, settings: Resolved | None = None, scheduler=No
     (``aerotri.chain.options.read_options``; None: project.toml's). Files named in project.toml are checked
     before the first stage. Returns the summary rows."""
     from aerotri.chain.options import read_options
-    from aerotri.chain.runner import mark_stopped_run, run_stages, run_started
-    from aerotri.core.project import project_paths
+    from aerotri.chain.runner import run_stages
     from aerotri.chain.stages import Chain
     from aerotri.core.executor import Executor, activate, check_scheduler
 
-    check_scheduler(scheduler)  # (a typo is no stopped run: refused before the frames, the report left unmarked)
-    started = run_started()
-    try:
-        chain = Chain(project, settings if settings is not None else read_options(project), **inputs)
-        chain.check_files()
-        stages = chain.stages()
-        executor = Executor(scheduler, workers)
-    except BaseException as exc:
-        # a frame cut short, a LAZ in another CRS, a scheduler out of reach: most of a night's failures stop here,
-        # and the earlier run's report and summary must not read as this run's (review 51 of overnight-fixes)
-        with contextlib.suppress(OSError):  # (review 52: a failure here named itself instead of the frame)
-            project_paths(project.root).run_summary_path.unlink(missing_ok=True)
-        mark_stopped_run(project.root, exc, f"the run of {started} stopped at the checks before its first stage")
-        raise
-    with executor as ex, activate(ex):
+    # Refusals before the first stage (bad input: a frame cut short, a LAZ in another CRS, a malformed --scheduler)
+    # leave the project as it was, the earlier run's report and summary included: nothing ran, and bad input changes
+    # no file (tests/test_bad_input.py; review 51 had them marked, CI 82 caught it)
+    check_scheduler(scheduler)
+    chain = Chain(project, settings if settings is not None else read_options(project), **inputs)
+    chain.check_files()
+    stages = chain.stages()
+    with Executor(scheduler, workers) as ex, activate(ex):
         log.info(f"tasks run on {ex.describe()}")
         return run_stages(project.root, stages, force=force)
 

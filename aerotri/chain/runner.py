@@ -334,9 +334,9 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
 
 
 def mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[str], None] = _log.info) -> None:
-    """Mark the earlier run's report stale (``_mark_report``) for a run that ``exc`` stopped (``stopped_at``: "the
-    run of <time> stopped at <stage>", or before its first stage: ``aerotri.chain.run``'s checks of the frames and
-    files, where most of a night's failures stop), saying why as the console's error does."""
+    """Mark the earlier run's report stale (``_mark_report``) for a run that ``exc`` stopped in a stage (``stopped_at``:
+    "the run of <time> stopped at <stage>"), saying why as the console's error does; a failure of the marking is
+    warned, never raised over ``exc``. (A refusal before the first stage marks nothing: bad input changes no file.)"""
     from aerotri.core.commands import fault_message
 
     stopped = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
