@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.adjust.height_datum import HeightDatumCheck
-from aerotri.adjust.pipeline import AdjustSettings, adjust_project
 from aerotri.adjust.report import build_report
 from aerotri.core.records import to_record
-from aerotri.geom.camera import dmc_camera
-from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from eval_at_reliability import _Holds, adjusted_block  # noqa: E402
 
 DESIGN, SCORED = range(0, 6), range(6, 14)
 LIMIT_Z_M = 1.0  # the simulated project's height RMS limit (1:5000 flat)
@@ -56,13 +56,6 @@ class _Main(HeightDatumCheck):
         return False
 
 
-class _Holds(HeightDatumCheck):
-    """The height-datum check held: what the verdict is without it."""
-
-    def held(self, height_limit_m: float) -> bool:
-        return True
-
-
 def _verdict_with(ba, hd_new) -> str:
     hd = ba.result.height_datum
     ba.result = dataclasses.replace(ba.result, height_datum=hd_new)
@@ -74,20 +67,8 @@ def _verdict_with(ba, hd_new) -> str:
 
 def run(seed: int, control: str, correction: str, typo: str, shift_sigma_m: float, tmp: Path) -> dict:
     kinds = CONTROLS[control]
-    n_control = len(kinds)
-    with tempfile.TemporaryDirectory(dir=tmp) as d:
-        block = geometric_block(3, 6, seed=seed, camera_true=dmc_camera(), relief_m=120.0, tilt_sigma_deg=0.3,
-                                gnss_shift_sigma_m=0.3 if shift_sigma_m > 0.1 else 0.08,
-                                gnss_drift_sigma_m_per_km=0.0, lever_arm_m=(0, 0, 0))
-        block.camera_nominal = dmc_camera()
-        root = write_block_project(block, Path(d) / "p")
-        write_truth_observations(root, tie_sigma_px=0.3, n_control=n_control, n_check=20, points_per_image=100,
-                                 seed=seed)
-        p = root / "control" / "points.csv"
-        lines = p.read_text().splitlines()
-        head = lines[0].split(",")
-        rows = [s.split(",") for s in lines[1:]]
-        gcp = [r for r in rows if r[head.index("id")].startswith("gcp")]
+
+    def edit(head, gcp):
         for r, kind in zip(gcp, kinds):
             r[head.index("kind")] = kind
         gcp = [r for r in gcp if r[head.index("kind")] != "horizontal"]  # the heights
@@ -104,11 +85,9 @@ def run(seed: int, control: str, correction: str, typo: str, shift_sigma_m: floa
             for k, i in enumerate(far[:2]):
                 gcp[i][head.index("z")] = f"{float(gcp[i][head.index('z')]) + 2.0 * (1 + 0.2 * k):.4f}"
                 typed.append(gcp[i][head.index("id")])
-        p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
-        ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True, gnss_correction=correction,
-                                                 gnss_shift_sigma_m=shift_sigma_m))
-    dz = np.array([c["adjusted_m"][2] - c["measured_m"][2] for c in ba.check.values()], dtype=float)
-    ba.check = {}  # the verdict without check points
+        return typed
+
+    ba, typed, dz = adjusted_block(seed, len(kinds), shift_sigma_m, correction, tmp, edit)
     hd = ba.result.height_datum
     out = sorted(str(ba.control.id[c]) for c, _ in ba.result.rejected_control)
     fields = None if hd is None else {f.name: getattr(hd, f.name) for f in dataclasses.fields(hd)}

@@ -76,7 +76,11 @@ def _verdict_with(ba, cls) -> str:
         ba.result = dataclasses.replace(ba.result, height_datum=hd)
 
 
-def run(seed: int, n_control: int, shift_sigma_m: float, sign: int, correction: str, tmp: Path) -> dict:
+def adjusted_block(seed: int, n_control: int, shift_sigma_m: float, correction: str, tmp: Path, edit):
+    """A 3 x 6 DMC block of ``seed`` (GNSS strip shifts of 0.3 m when ``shift_sigma_m`` > 0.1, else 0.08 m), its
+    control points.csv edited by ``edit(head, gcp_rows) -> typed ids`` (rows of str, in place), adjusted with
+    ``correction``: (adjustment without its check points, typed ids, the check points' height errors in m).
+    bench/eval_at_noout.py builds its blocks with it too."""
     with tempfile.TemporaryDirectory(dir=tmp) as d:
         block = geometric_block(3, 6, seed=seed, camera_true=dmc_camera(), relief_m=120.0, tilt_sigma_deg=0.3,
                                 gnss_shift_sigma_m=0.3 if shift_sigma_m > 0.1 else 0.08,
@@ -89,17 +93,25 @@ def run(seed: int, n_control: int, shift_sigma_m: float, sign: int, correction: 
         lines = p.read_text().splitlines()
         head = lines[0].split(",")
         rows = [s.split(",") for s in lines[1:]]
-        gcp = [r for r in rows if r[head.index("id")].startswith("gcp")]
-        xy = np.array([[float(r[head.index("x")]), float(r[head.index("y")])] for r in gcp])
-        typed = []
-        for k, i in enumerate(np.argsort(-np.hypot(*(xy - xy[0]).T))[:2]):  # the 2 farthest from gcp01, one way
-            gcp[i][head.index("z")] = f"{float(gcp[i][head.index('z')]) + sign**k * 2.0 * (1 + 0.2 * k):.4f}"
-            typed.append(gcp[i][head.index("id")])
+        typed = edit(head, [r for r in rows if r[head.index("id")].startswith("gcp")])
         p.write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
         ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, use_control=True, gnss_correction=correction,
                                                  gnss_shift_sigma_m=shift_sigma_m))
     dz = np.array([c["adjusted_m"][2] - c["measured_m"][2] for c in ba.check.values()], dtype=float)
     ba.check = {}  # the verdict without check points
+    return ba, typed, dz
+
+
+def run(seed: int, n_control: int, shift_sigma_m: float, sign: int, correction: str, tmp: Path) -> dict:
+    def edit(head, gcp):
+        xy = np.array([[float(r[head.index("x")]), float(r[head.index("y")])] for r in gcp])
+        typed = []
+        for k, i in enumerate(np.argsort(-np.hypot(*(xy - xy[0]).T))[:2]):  # the 2 farthest from gcp01, one way
+            gcp[i][head.index("z")] = f"{float(gcp[i][head.index('z')]) + sign**k * 2.0 * (1 + 0.2 * k):.4f}"
+            typed.append(gcp[i][head.index("id")])
+        return typed
+
+    ba, typed, dz = adjusted_block(seed, n_control, shift_sigma_m, correction, tmp, edit)
     hd = ba.result.height_datum
     hd = hd if hd is not None and hd.height_control_out else None  # some out (at-noout: it runs with none out)
     out = sorted(str(ba.control.id[c]) for c, _ in ba.result.rejected_control)
