@@ -19,6 +19,7 @@ from aerotri.exchange import export_project, import_files
 from aerotri.exchange.imported import to_project_crs
 from aerotri.geom.crs.definition import height_unit_m, project_crs_3d, vertical_crs
 from aerotri.geom.eo import read_eo
+from tests.aerotri.exchange.test_metashape import chunk_centres_geodetic
 
 US_FT_M = 1200 / 3937
 UTM_US_FT = "+proj=utm +zone=49 +datum=WGS84 +units=us-ft +no_defs"
@@ -103,11 +104,7 @@ def test_metashape_chunk_of_a_feet_project_is_placed_in_metres(adjusted_tiny, tm
     chunk = ET.parse(out / "metashape" / "cameras.xml").getroot().find("chunk")
     ref = pyproj.CRS.from_wkt(chunk.find("reference").text)
     assert abs(ref.sub_crs_list[1].axis_info[0].unit_conversion_factor - US_FT_M) < 1e-12
-    Rc = np.array(chunk.find("transform/rotation").text.split(), float).reshape(3, 3)
-    Tc = np.array(chunk.find("transform/translation").text.split(), float)
-    X = np.array([Rc @ np.array(c.text.split(), float).reshape(4, 4)[:3, 3] + Tc
-                  for c in chunk.findall("cameras/camera/transform")])
-    lon, lat, h = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*X.T)
+    lon, lat, h = chunk_centres_geodetic(chunk)
     eo = read_eo(Project.open(a).eo_path)
     assert np.abs(h - (eo.centre_m[:, 2] * US_FT_M + synthetic_geoid(lon, lat))).max() < 1e-3
     back = fresh_project(a, tmp_path / "back")

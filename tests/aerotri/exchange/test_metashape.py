@@ -9,6 +9,7 @@ from pathlib import Path
 import xml.etree.ElementTree as ET
 
 import numpy as np
+import pyproj
 import pytest
 from click.testing import CliRunner
 
@@ -20,6 +21,16 @@ from aerotri.geom.camera import oriented_camera
 from aerotri.geom.camera import read_camera
 from aerotri.geom.eo import read_eo
 from aerotri.geom.observations import read_control_points, read_image_points
+
+
+def chunk_centres_geodetic(chunk) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cameras' centres of a Metashape ``<chunk>``, computed here from its transform (not by the importer):
+    longitude, latitude (deg) and ellipsoidal height (m) on WGS 84."""
+    Rc = np.array(chunk.find("transform/rotation").text.split(), float).reshape(3, 3)
+    Tc = np.array(chunk.find("transform/translation").text.split(), float)
+    X = np.array([Rc @ np.array(c.text.split(), float).reshape(4, 4)[:3, 3] + Tc
+                  for c in chunk.findall("cameras/camera/transform")])
+    return pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*X.T)
 
 
 @pytest.fixture(scope="module")
@@ -82,13 +93,7 @@ def test_metashape_conventions(exported):
     cal = chunk.find("sensors/sensor/calibration")
     assert float(cal.find("p1").text) == cam.p2 and float(cal.find("p2").text) == cam.p1
     assert float(cal.find("cx").text) == pytest.approx(cam.cx_px - (cam.width - 1) / 2)
-    Rc = np.array(chunk.find("transform/rotation").text.split(), float).reshape(3, 3)
-    Tc = np.array(chunk.find("transform/translation").text.split(), float)
-    T = np.array(chunk.find("cameras/camera/transform").text.split(), float).reshape(4, 4)
-    X = Rc @ T[:3, 3] + Tc
-    import pyproj
-
-    lon, lat, h = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*X)
+    lon, lat, h = (v[0] for v in chunk_centres_geodetic(chunk))  # the first camera
     e, n = pyproj.Transformer.from_crs("EPSG:4979", p.crs, always_xy=True).transform(lon, lat)
     eo = read_eo(p.eo_path)
     assert np.abs(np.array([e, n, h]) - eo.centre_m[0]).max() < 1e-3
@@ -215,8 +220,6 @@ def test_marker_heights_and_plan_markers(exported, tmp_path, fresh_project):
     """Markers' heights in a compound <reference> (horizontal + EGM96 height) go through its vertical CRS, not
     read as ellipsoidal heights (without the geoid grid: refused, naming the file); markers with x y and no z are
     horizontal control, not dropped."""
-    import pyproj
-
     from aerotri.geom.crs.definition import horizontal_crs, parse_crs
 
     root, xml = exported
@@ -264,8 +267,6 @@ def test_orthometric_heights_reach_metashape_as_ellipsoidal(adjusted_tiny, tmp_p
     horizontal CRS alone and placed the chunk with the EGM2008 heights as ellipsoidal, so Metashape read the block N
     (the geoid undulation, +30 m here) low, unsaid. Now <reference> is the compound CRS (COMPD_CS, as Metashape's own)
     and the chunk transform gives geocentric coordinates with h = H + N; imported back the heights are the project's."""
-    import pyproj
-
     root, _ = adjusted_tiny
     p = _with_heights(root, tmp_path / "p")
     out = tmp_path / "out"
@@ -274,11 +275,7 @@ def test_orthometric_heights_reach_metashape_as_ellipsoidal(adjusted_tiny, tmp_p
     chunk = ET.parse(out / "metashape" / "cameras.xml").getroot().find("chunk")
     ref = pyproj.CRS.from_wkt(chunk.find("reference").text)
     assert chunk.find("reference").text.startswith("COMPD_CS[") and ref.sub_crs_list[1].to_epsg() == 3855
-    Rc = np.array(chunk.find("transform/rotation").text.split(), float).reshape(3, 3)
-    Tc = np.array(chunk.find("transform/translation").text.split(), float)
-    X = np.array([Rc @ np.array(c.text.split(), float).reshape(4, 4)[:3, 3] + Tc
-                  for c in chunk.findall("cameras/camera/transform")])
-    lon, lat, h = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*X.T)
+    lon, lat, h = chunk_centres_geodetic(chunk)
     eo = read_eo(Project.open(p).eo_path)
     assert np.abs(h - (eo.centre_m[:, 2] + synthetic_geoid(lon, lat))).max() < 1e-3
     assert 30.0 < float(np.mean(h - eo.centre_m[:, 2])) < 31.5
@@ -302,8 +299,6 @@ def test_markers_in_a_2d_reference_are_ellipsoidal_as_the_cameras(adjusted_tiny,
     heights, as its cameras' geocentric coordinates do: on an EGM2008-height project both come back in its heights
     (s21 read the markers' z as the project's, a 2D CRS's rule for formats without a convention: the control N,
     +30 m here, above the cameras')."""
-    import pyproj
-
     root, _ = adjusted_tiny
     p = _with_heights(root, tmp_path / "p")
     out = tmp_path / "out"
