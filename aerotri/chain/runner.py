@@ -310,7 +310,7 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     # then reads the stamps of the stages that finished), a failed or interrupted one its rows so far and the
     # stage that stopped (trial-overnight: a run that failed at rectify left the last run's "rectify done")
     summary_path.unlink(missing_ok=True)
-    started = run_started()
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     try:
         _run_each(root, stages, rows, force, log)
     except BaseException as exc:
@@ -326,14 +326,14 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
             pass
         reported = any(r["stage"] == "report" and r["status"] in ("done", "skipped (up to date)") for r in rows)
         if stage is not None and not reported and any(st.name == "report" for st in stages):
-            mark_stopped_run(root, exc, f"the run of {started} stopped at {stage}", log)
+            _mark_stopped_run(root, exc, f"the run of {started} stopped at {stage}", log)
         raise
     write_text_atomic(summary_path, json.dumps(
         dict(stages=rows, load_avg_start=load_start, load_avg_end=_load_avg()), indent=1, default=str) + "\n")
     return rows
 
 
-def mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[str], None] = _log.info) -> None:
+def _mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[str], None] = _log.info) -> None:
     """Mark the earlier run's report stale (``_mark_report``) for a run that ``exc`` stopped in a stage (``stopped_at``:
     "the run of <time> stopped at <stage>"), saying why as the console's error does; a failure of the marking is
     warned, never raised over ``exc``. (A refusal before the first stage marks nothing: bad input changes no file.)"""
@@ -349,11 +349,6 @@ def mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[s
         _mark_report(root, f"{stopped_at} ({stopped}: {why})", log)
     except Exception as e:  # (the error that stopped the run is what the console must say, not this one's)
         _log.warning(f"[report] the earlier run's report is not marked stale: {e}")
-
-
-def run_started() -> str:
-    """The start of a run as its stale mark says it (UTC, to the minute)."""
-    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
 
 
 def _mark_report(root: Path, note: str, log: Callable[[str], None]) -> None:
