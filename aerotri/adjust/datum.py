@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import scipy.optimize
 from scipy.spatial.transform import Rotation
 
 
@@ -80,6 +79,8 @@ def fit_similarity(points_m: np.ndarray, given_m: np.ndarray, cov_m2: np.ndarray
     starts = [np.zeros(7)]
     if s > 0:  # X' = s R (X - c) + c + (s R c + t - c)
         starts.append(np.r_[Rotation.from_matrix(R).as_rotvec(), s * R @ c + t - c, np.log(s)])
+    import scipy.optimize  # here: 0.2 s of every adjustment's start for a block without GNSS's datum
+
     fits = [scipy.optimize.least_squares(residual, x0, method="lm", x_scale="jac", xtol=1e-14, ftol=1e-14, gtol=1e-14)
             for x0 in starts]
     best = min(fits, key=lambda f: f.cost)

@@ -53,6 +53,7 @@ import numpy as np
 
 from aerotri.adjust import graph as G
 from aerotri.adjust.geometry_modes import CAL_NAMES, MODES, PLAN_MODES, CalibrationCovariance
+from aerotri.core.quantiles import chi2_isf, chi2_ppf
 
 CORRELATION_LIMIT = 0.9
 # the principal point: a move from its a-priori value beyond this many of its standard deviations is a finding where
@@ -244,10 +245,8 @@ def strip_shift_test(pg) -> np.ndarray | None:
     """The one offset's sigma (m, camera x and y) with the strips' own scatter where the per-strip estimates disagree
     with one offset for all strips beyond ``STRIP_SHIFT_ALPHA`` (GNSS errors shared along the strips), else None (one
     strip, the estimates not formed, or agreeing within the GNSS's noise)."""
-    from scipy.stats import chi2 as chi2_dist
-
     c2, dof = float(getattr(pg, "strip_chi2", float("nan"))), int(getattr(pg, "strip_dof", 0))
-    if dof <= 0 or not math.isfinite(c2) or c2 <= float(chi2_dist.isf(STRIP_SHIFT_ALPHA, dof)):
+    if dof <= 0 or not math.isfinite(c2) or c2 <= float(chi2_isf(STRIP_SHIFT_ALPHA, dof)):
         return None
     sd = np.asarray(pg.offset_sigma_strips_m, dtype=float)
     return np.maximum(sd, np.asarray(pg.offset_sigma_m, dtype=float)) if np.all(np.isfinite(sd)) else None
@@ -278,10 +277,8 @@ def strip_differences(pg) -> tuple[float, np.ndarray, np.ndarray]:
 def tau_interval(n_strips: int, level: float = 0.9) -> tuple[float, float]:
     """The factors of a shift per strip's standard deviation estimated from ``n_strips`` strips' spread (their moments:
     ``n_strips - 1`` degrees of freedom per axis) that bound it at ``level`` (chi-square; 2 strips: 0.51-16)."""
-    from scipy.stats import chi2 as chi2_dist
-
     k, q = n_strips - 1, (1.0 - level) / 2.0
-    return math.sqrt(k / chi2_dist.isf(q, k)), math.sqrt(k / chi2_dist.ppf(q, k))
+    return math.sqrt(k / chi2_isf(q, k)), math.sqrt(k / chi2_ppf(q, k))
 
 
 def _strip_shift_reason(pg, strip_sd: np.ndarray, cal, cal_apriori, cal_cov) -> str:

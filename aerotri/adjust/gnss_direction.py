@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from aerotri.adjust.variance_components import antenna_positions
+from aerotri.core.quantiles import norm_isf, t_isf
 
 DIRECTION_ALPHA = 0.05  # family-wise false alarm rate of the check (the brief's 95 % level)
 AXIS_TOLERANCE_DEG = 30.0  # strips whose headings are within this of one axis (either sense) share it
@@ -174,9 +175,6 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
     ``strip_shift_sigma_m`` the a-priori sigma of a strip's GNSS shift when the solve estimates one per strip
     (``gnss_shift_sigma_m``): the strips then differ by such shifts, so a direction's mean varies by it over
     sqrt(its strips) besides the photos' scatter (without it a sound block with 0.05 m shifts was flagged)."""
-    from scipy.stats import norm
-    from scipy.stats import t as t_dist
-
     g = block.gnss_local
     if g is None:
         return None
@@ -248,7 +246,7 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
                    for m_, which in parts]
         den = sum(s2 * s2 / (n - 1) for s2, n in scatter)
         dof = total * total / den if den > 0 else float("inf")
-        return float(t_dist.isf(alpha / 2 / m, dof)) if math.isfinite(dof) else float(norm.isf(alpha / 2 / m))
+        return float(t_isf(alpha / 2 / m, dof)) if math.isfinite(dof) else float(norm_isf(alpha / 2 / m))
 
     all_directions, raw_pairs = [], []
     for _, members in axes:
@@ -270,7 +268,7 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
         at, asg = fw.along_m + bw.along_m, math.hypot(fw.along_se_m, bw.along_se_m)
         ct, csg = fw.across_m + bw.across_m, math.hypot(fw.across_se_m, bw.across_se_m)
         if split:  # conservative: the strips' spread's degrees of freedom whichever term the floor kept
-            ka = kc = float(t_dist.isf(alpha / 2 / n_tests, dof))
+            ka = kc = float(t_isf(alpha / 2 / n_tests, dof))
         else:
             ka, kc = critical(n_tests, (fw, "a"), (bw, "a")), critical(n_tests, (fw, "c"), (bw, "c"))
         a_sig, c_sig = bool(split) and abs(at) > ka * asg, bool(split) and abs(ct) > kc * csg
@@ -282,7 +280,7 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
                                    bool(split), dof))
     paired = {id(d) for pair in raw_pairs for d in pair}
     directions += [d for d in all_directions if id(d) not in paired]
-    k = max([max(p.k_along, p.k_across) for p in pairs], default=float(norm.isf(alpha / 2 / n_tests)))
+    k = max([max(p.k_along, p.k_across) for p in pairs], default=float(norm_isf(alpha / 2 / n_tests)))
     if not all_directions:
         reason = "not testable: too few photos with GNSS in a strip"
     elif not pairs:

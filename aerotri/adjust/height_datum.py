@@ -62,11 +62,10 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
-from scipy.stats import norm
 
 from aerotri.adjust import graph as G
 from aerotri.adjust.variance_components import gnss_rows
+from aerotri.core.quantiles import chi2_isf, norm_isf, norm_ppf
 
 POWER = 0.8  # Baarda's detection power: the minimal detectable bias is (critical value + this quantile) sigmas
 # a plane direction of which less survives the GNSS correction is the correction's (a tilt across parallel strips
@@ -112,7 +111,7 @@ def _block_axes(xy: np.ndarray) -> dict:
 
 def mdb_sigmas(alpha: float) -> float:
     """Baarda's lambda: the two-sided critical value of ``alpha`` plus the normal quantile of ``POWER`` (1e-4: 4.73)."""
-    return float(norm.isf(alpha / 2.0) + norm.ppf(POWER))
+    return float(norm_isf(alpha / 2.0) + norm_ppf(POWER))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,7 +178,7 @@ class HeightDatumCheck:
         return mdb_sigmas(self.alpha) * self.corner_sigma_m
 
     def disagrees(self) -> bool:
-        return math.isfinite(self.chi2) and self.chi2 > float(chi2_dist.isf(self.alpha, self.terms))
+        return math.isfinite(self.chi2) and self.chi2 > float(chi2_isf(self.alpha, self.terms))
 
     def kept_unchecked(self, height_limit_m: float) -> tuple:
         """Under a GNSS correction per strip (the GNSS heights free per strip: the control left carries the heights

@@ -16,6 +16,7 @@ from aerotri.adjust.determinability import PP_RELIEF_PLAN_FRACTION
 from aerotri.adjust.height_datum import ALONE_MDB_FACTOR, PAIR_MDB_FACTOR
 from aerotri.adjust.report_record import map_unit_m
 from aerotri.core.figures import pyplot
+from aerotri.core.quantiles import chi2_isf, norm_isf
 from aerotri.core.settings import settings_lines
 from aerotri.core.tolerances import load_table, tolerance_path
 
@@ -556,8 +557,6 @@ def suspect_label(strip: int, term: str) -> str:
 
 def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
     """``GnssCorrectionCheck`` of an adjustment that estimated GNSS corrections, else None."""
-    from scipy.stats import norm
-
     mode = ba.opts.gnss_correction
     if mode == "none" or ba.block.gnss_local is None:
         return None
@@ -571,7 +570,7 @@ def gnss_correction_check(ba) -> GnssCorrectionCheck | None:
         half_km = np.array([np.abs(b.along_km[b.strip == s]).max(initial=0.0) for s in range(b.n_strips)])
         terms.append(("drift", np.asarray(st.drift, dtype=float) * half_km[:, None]))
     n = sum(v.size for _, v in terms)
-    k = float(norm.isf(GNSS_CORRECTION_ALPHA / (2 * n)))
+    k = float(norm_isf(GNSS_CORRECTION_ALPHA / (2 * n)))
     suspect = tuple((s + 1, term, "ENU"[a], float(v[s, a])) for term, v in terms
                     for s in range(v.shape[0]) for a in range(3) if abs(v[s, a]) > k * sigma_axis[a])
     return GnssCorrectionCheck(tuple(float(x) for x in sigma_axis), round(k, 2), n, suspect, source)
@@ -653,8 +652,6 @@ class UnmodelledDriftCheck:
 def unmodelled_drift_check(ba) -> UnmodelledDriftCheck | None:
     """``UnmodelledDriftCheck`` of an adjustment that corrected a GNSS shift (per strip, or the flight's offset)
     and no drift, else None."""
-    from scipy.stats import norm
-
     b, res = ba.block, getattr(ba, "gnss_residual_m", None)
     if ba.opts.gnss_correction not in ("shift", "offset") or res is None or b.gnss_local is None:
         return None
@@ -684,7 +681,7 @@ def unmodelled_drift_check(ba) -> UnmodelledDriftCheck | None:
     else:
         sigma_axis, source = np.full(3, float(ba.settings.gnss_shift_sigma_m)), "gnss_shift_sigma_m"
     sig = dict(zip("ENU", sigma_axis))
-    k = float(norm.isf(GNSS_CORRECTION_ALPHA / (2 * len(fits))))
+    k = float(norm_isf(GNSS_CORRECTION_ALPHA / (2 * len(fits))))
     trends = tuple((s, a, round(v, 4), round(abs(v) / se, 1) if se > 0 else float("inf")) for s, a, v, se in fits
                    if abs(v) > sig[a] and abs(v) > k * se)
     return UnmodelledDriftCheck(tuple(float(x) for x in sigma_axis), round(k, 2), len(fits), trends, source)
@@ -811,8 +808,6 @@ def optimistic_sigmas(normalised: np.ndarray) -> str | None:
     sqrt(sigma_adjusted^2 + sigma_given^2); (n, 3)) show the sigmas too small: a component whose RMS exceeds
     ``OPTIMISTIC_NORMALISED_RMS`` and whose sum of squares fails the chi-square test at ``OPTIMISTIC_ALPHA``
     (at least 5 check points); else None."""
-    from scipy.stats import chi2
-
     nz = np.asarray(normalised, dtype=float).reshape(-1, 3)
     if len(nz) < 5:
         return None
@@ -820,7 +815,7 @@ def optimistic_sigmas(normalised: np.ndarray) -> str | None:
     rms = _rms(nz)
     q = np.nansum(nz**2, axis=0)
     bad = [ax for ax, r, qa, na in zip("XYZ", rms, q, n)
-           if na >= 5 and r > OPTIMISTIC_NORMALISED_RMS and qa > chi2.ppf(1.0 - OPTIMISTIC_ALPHA, na)]
+           if na >= 5 and r > OPTIMISTIC_NORMALISED_RMS and qa > chi2_isf(OPTIMISTIC_ALPHA, na)]
     if not bad:
         return None
     return (f"Sigmas too small: the {len(nz)} check points are off by {' / '.join(f'{r:.2f}' for r in rms)} of their "

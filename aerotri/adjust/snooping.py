@@ -12,14 +12,14 @@ value (type I error ``alpha`` per coordinate), then the block is solved again.
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import norm
 
 from aerotri.adjust.check_points import ray_leverages, refined_normals
+from aerotri.core.quantiles import norm_isf
 
 
 def critical_value(alpha: float = 1e-4) -> float:
     """Two-sided normal quantile for a type I error ``alpha`` per coordinate (1e-4 -> 3.89)."""
-    return float(norm.isf(alpha / 2.0))
+    return float(norm_isf(alpha / 2.0))
 
 
 def redundancy_numbers(obs_point, obs_image, points, centre, R_cv, cal, *, active) -> np.ndarray:

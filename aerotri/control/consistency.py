@@ -13,7 +13,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.stats import chi2
+
+from aerotri.core.quantiles import chi2_isf
 
 
 def intersect_rays(centres_m, dirs):
@@ -83,6 +84,6 @@ def check_rays(camera, frames, images, xy_px, lidar_m, lidar_sigma_m, *, tol_px:
     cov = cov + np.diag(np.asarray(lidar_sigma_m, float) ** 2 + datum_sigma_m**2)
     diff = X_map - lidar_m
     m2 = float(diff @ np.linalg.solve(cov, diff))
-    if m2 > chi2.ppf(1.0 - alpha, 3):
+    if m2 > chi2_isf(alpha, 3):
         return RayCheck(X_map, res, kept, False, "lidar_mismatch", diff, float(np.sqrt(m2)))
     return RayCheck(X_map, res, kept, True, "", diff, float(np.sqrt(m2)))
