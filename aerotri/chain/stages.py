@@ -528,7 +528,9 @@ class Chain:
         stages.append(Stage("dom_check", lambda r: [self.project.mosaic_path]
                             + ([Path(self.reference_ortho)] if self.reference_ortho is not None else [])
                             + ([self.roof_corners_path()] if self.roof_corners_path() else []) + self.dom_check_ndsm(),
-                            lambda r: [self.project.dom_report_path], self.run_dom_check,
+                            # (its plot too: a deleted dom_report.png left the stage up to date)
+                            lambda r: [self.project.dom_report_path, self.project.dom_report_path.with_suffix(".png")],
+                            self.run_dom_check,
                             options=to_table(o.dom_check), skip=self.no_dom_check, versions=_dom_check_versions))
         if self.surveyed_points is not None:
             stages.append(Stage("height_check", lambda r: self.classified() + [Path(self.surveyed_points)],

@@ -477,6 +477,19 @@ def test_a_frame_ortho_gone_since_rectify_runs_rectify_again(run_to_end, tmp_pat
     assert frame.read_bytes() == whole
 
 
+def test_a_deleted_dom_check_plot_runs_the_dom_check_again(run_to_end, tmp_path):
+    """ortho/dom_report.png deleted left the DOM check up to date (its stamp recorded only dom_report.json)."""
+    from aerotri.chain import chain_stages
+    from aerotri.chain.runner import stale_reason
+
+    p = tmp_path / "p"
+    shutil.copytree(run_to_end[0], p)
+    st, = [s for s in chain_stages(p, reference_ortho=p / "truth" / "ortho.tif") if s.name == "dom_check"]
+    assert stale_reason(p, st) is None
+    (p / "ortho" / "dom_report.png").unlink()
+    assert stale_reason(p, st) == "output missing: ortho/dom_report.png"
+
+
 def test_a_run_that_stops_marks_the_earlier_report_stale(run_to_end, tmp_path, monkeypatch):
     """trial-overnight: after a failed night run reports/index.html (and summary.json) were still the last good run's
     report, nothing saying so. A run that stops before its report stage now marks them: a banner at the top of
