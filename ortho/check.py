@@ -45,6 +45,7 @@ from aerotri.core.textio import read_record, read_text, record_error
 from aerotri.core.figures import pyplot, save_png
 from aerotri.geom.crs.definition import height_unit_m, map_axes_unit_m, map_axis_signs, parse_crs
 from aerotri.geom.crs.raster_warp import open_north_up
+from ortho.grid import north_up_flips
 from ortho.patches import (MAX_REFINE_PX, MIN_PATCH_PX, MIN_TEXTURE_RATIO, PatchDisplacements, match_patches,
                            parabola_peak)
 from ortho.settings import CheckSettings
@@ -403,9 +404,11 @@ def read_points_csv(path) -> DomPoints:
 
 
 def plot_displacements(path, patches: PatchDisplacements | None, stats: Displacement, title: str, points=None,
-                       extent_px=None) -> None:
+                       extent_px=None, flips: tuple[bool, bool] = (False, False)) -> None:
     """Vector plot of displacements (exaggerated; at most ``MAX_LISTED`` patches drawn, evenly spread) and a histogram
-    of the lengths of every patch (those the statistics take: its count is the title's n); PNG."""
+    of the lengths of every patch (those the statistics take: its count is the title's n); PNG. ``flips``: the DOM's
+    pixel rows, columns drawn reversed so that north is up (``ortho.grid.north_up_flips``: a westing / southing
+    grid)."""
     plt = pyplot()
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [1.4, 1]})
@@ -416,9 +419,13 @@ def plot_displacements(path, patches: PatchDisplacements | None, stats: Displace
         q = ax.quiver(drawn.col_px, drawn.row_px, drawn.dx_px * scale, drawn.dy_px * scale, d, angles="xy",
                       scale_units="xy", scale=1, cmap="viridis")
         fig.colorbar(q, ax=ax, label="displacement (GSD)")
-        ax.invert_yaxis()
-        ax.set_xlabel("column (px)")
-        ax.set_ylabel("row (px)")
+        if not flips[0]:  # (row 0 at the top; a south-oriented grid's row 0 is its southern edge)
+            ax.invert_yaxis()
+        if flips[1]:
+            ax.invert_xaxis()
+        turned = " (reversed: north up)"
+        ax.set_xlabel("column (px)" + (turned if flips[1] else ""))
+        ax.set_ylabel("row (px)" + (turned if flips[0] else ""))
         if len(drawn) < len(patches):
             title = f"{title}: {len(drawn):,} of {len(patches):,} patches drawn"
         bx.hist(np.hypot(patches.dx_px, patches.dy_px), bins=30)
@@ -1165,6 +1172,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         res = abs(ds.transform.a) * unit_m  # the GSD in metres (a DOM in feet: 0.3048 m per foot)
         crs = ds.crs.to_string()
         dom_bounds, dom_crs = tuple(ds.bounds), ds.crs
+        flips = north_up_flips(ds.transform, ds.crs)
     report = {"dom": str(dom_path), "crs": crs, "gsd_m": res}
     # the accuracy report takes the project's dom_report.json for its mosaic: a check of another DOM (--dom) says so
     # (its figures were shown as the project DOM's, "true ortho on the DSM" beside a conventional DOM's roofs)
@@ -1223,7 +1231,7 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
 
         def plot():
             plot_displacements(out_stem.with_suffix(".png"), patches, stats, f"DOM - reference ({Path(dom_path).name})",
-                               extent_px=max(w, h))
+                               extent_px=max(w, h), flips=flips)
     else:
         stats, table = check_points(points_path, res, dom_bounds, unit_m, dom_crs)
         report.update(method="surveyed_points", points_file=str(points_path),

@@ -29,7 +29,7 @@ from pyproj import CRS
 from rasterio.transform import Affine
 
 from aerotri.core.errors import CrsError, InputError
-from aerotri.geom.crs.definition import crs_label, horizontal_crs, linear_unit_m, parse_crs
+from aerotri.geom.crs.definition import crs_label, horizontal_crs, linear_unit_m, map_axis_signs, parse_crs
 from aerotri.geom.crs.raster_warp import anchor_grid
 from aerotri.geom.crs.transform import CrsTransformer
 
@@ -144,6 +144,17 @@ class OrthoGrid:
         res = grids[0].res_m
         b = np.array([g.bounds for g in grids])
         return cls.snapped(grids[0].crs, (b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()), res)
+
+
+def north_up_flips(transform, crs) -> tuple[bool, bool]:
+    """(rows, columns): which of a raster's pixel axes a picture reverses so that north is up and east right. Both for
+    a south-oriented grid stored as GDAL stores it (westing / southing, South Africa's Lo grids: row 0 the southern
+    edge, column 0 the eastern; ``map_axis_signs``), neither for a north-up grid or without a CRS. Pictures only: the
+    raster itself is stored and georeferenced as it is."""
+    if crs is None:
+        return False, False
+    sx, sy = map_axis_signs(crs)
+    return bool(transform.e * sy > 0), bool(transform.a * sx < 0)
 
 
 def nice_resolution(gsd_m: float) -> float:

@@ -23,6 +23,7 @@ import rasterio
 from rasterio.transform import Affine
 from rasterio.enums import Resampling
 
+from ortho.grid import north_up_flips
 from ortho.unseen import unseen_cells
 
 PREVIEW_MAX_PX = 2000
@@ -93,22 +94,26 @@ def _to_rgb8(img: np.ndarray, valid: np.ndarray | None = None) -> tuple[np.ndarr
     return cv2.merge(list(rgb)), stretch  # interleaved (h, w, 3): OpenCV's copy, faster than numpy's transposed one
 
 
-def _labels(stretch: tuple[float, float] | None, bits: int = 16) -> list[str]:
+# (a westing / southing grid is stored south-up: its preview is turned, and says so; new-user trial NGI, EPSG:2051)
+TURNED_NOTE = "north up: the grid's rows and columns reversed"
+
+
+def _labels(stretch: tuple[float, float] | None, bits: int = 16, turned: bool = False) -> list[str]:
     names = ["seamline", "nodata: no frame sees it", "outside the block"]
     if stretch is not None:
         how = ("full range" if stretch[0] == 0 and int(stretch[1]) + 1 in FULL_SCALES else
                f"stretched ({STRETCH_PERCENT[0]:g}-{STRETCH_PERCENT[1]:g} %)")
         # (not "grey": an RGB DOM is shown in its colours, new-user trial s51)
         names.append(f"shown: {bits}-bit samples {stretch[0]:.0f}-{stretch[1]:.0f} {how}")
-    return names
+    return names + ([TURNED_NOTE] if turned else [])
 
 
-def _legend(width: int, stretch: tuple[float, float] | None = None, bits: int = 16) -> np.ndarray:
-    """A white strip with the three swatches and their names (RGB), and the stretch of ``bits``-bit samples when
-    there is one."""
+def _legend(width: int, stretch: tuple[float, float] | None = None, bits: int = 16, turned: bool = False) -> np.ndarray:
+    """A white strip with the three swatches and their names (RGB), the stretch of ``bits``-bit samples when
+    there is one, and ``TURNED_NOTE`` when ``turned``."""
     strip = np.full((LEGEND_PX, width, 3), 255, np.uint8)
     x = 6
-    for label, kind in zip(_labels(stretch, bits), ("seam", "hatch", "outside", "note")):
+    for label, kind in zip(_labels(stretch, bits, turned), ("seam", "hatch", "outside", "note", "note")):
         y0, y1 = 7, LEGEND_PX - 7
         if kind == "seam":
             strip[LEGEND_PX // 2 - 1:LEGEND_PX // 2 + 2, x:x + 16] = SEAM_RGB
@@ -123,9 +128,9 @@ def _legend(width: int, stretch: tuple[float, float] | None = None, bits: int = 
     return strip
 
 
-def legend_width(stretch: tuple[float, float] | None = None, bits: int = 16) -> int:
+def legend_width(stretch: tuple[float, float] | None = None, bits: int = 16, turned: bool = False) -> int:
     return 6 + sum(22 + cv2.getTextSize(s, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)[0][0] + 18
-                   for s in _labels(stretch, bits))
+                   for s in _labels(stretch, bits, turned))
 
 
 def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = PREVIEW_MAX_PX, *,
@@ -142,6 +147,7 @@ def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = P
         img = ds.read(out_shape=(ds.count, h, w), resampling=Resampling.average)
         ok = ds.read_masks(1, out_shape=(h, w), resampling=Resampling.nearest) > 0
         to_cells = ~(ds.transform @ Affine.scale(ds.width / w, ds.height / h))
+        flip_rows, flip_cols = north_up_flips(ds.transform, ds.crs)
     rgb, stretch = _to_rgb8(img, ok)
     # nodata: inside the block (enclosed, or on the ground a frame images: over DEM nodata, occluded) or outside it
     inside = unseen_cells(ok, to_cells, footprints)
@@ -154,11 +160,13 @@ def render_preview(mosaic_path, labels: np.ndarray, factor: int, max_px: int = P
     seam = seam_pixels(labels.take(rows, axis=0).take(cols, axis=1))  # labels[np.ix_(rows, cols)], taken faster
     seam = cv2.dilate(seam.view(np.uint8), np.ones((2, 2), np.uint8)).view(bool) & ok
     rgb[seam] = SEAM_RGB
+    turned = flip_rows or flip_cols
+    rgb = rgb[::-1 if flip_rows else 1, ::-1 if flip_cols else 1]
     bits = 8 * img.dtype.itemsize
-    width = max(w, legend_width(stretch, bits))
+    width = max(w, legend_width(stretch, bits, turned))
     out = np.full((h + LEGEND_PX, width, 3), 255, np.uint8)
     out[:h, :w] = rgb
-    out[h:] = _legend(width, stretch, bits)
+    out[h:] = _legend(width, stretch, bits, turned)
     return out
 
 

@@ -70,3 +70,27 @@ def test_north_polar_dom_check_reads_south_as_south(tmp_path):
                     out_stem=tmp_path / "dom_report")
     assert rep.displacement.mean_n_m == pytest.approx(-SHIFT_PX, abs=0.05)
     assert rep.displacement.mean_e_m == pytest.approx(0.0, abs=0.05)
+
+
+@pytest.mark.parametrize("epsg, x_left, y_top, flips", [(32735, 300000.0, 6300000.0, (False, False)),
+                                                         (2051, 53130.0, 3735156.0, (True, True))])
+def test_the_plot_of_a_south_oriented_dom_is_drawn_north_up(tmp_path, monkeypatch, epsg, x_left, y_top, flips):
+    """dom_report.png drew a Lo25 DOM's patches by row and column as stored: south-up (new-user trial, NGI). Its rows
+    run up and its columns left now (north up, east right), the axes labelled so."""
+    import ortho.check as check
+
+    axes = {}
+    save = check.save_png
+
+    def keep(fig, path, **kwargs):
+        ax = fig.axes[0]
+        axes.update(rows_down=ax.yaxis_inverted(), cols_left=ax.xaxis_inverted(), y=ax.get_ylabel(), x=ax.get_xlabel())
+        return save(fig, path, **kwargs)
+
+    monkeypatch.setattr(check, "save_png", keep)
+    _pair(tmp_path, CRS.from_epsg(epsg), x_left, y_top)
+    run_check(tmp_path / "proj", reference_path=tmp_path / "ref.tif", dom_path=tmp_path / "dom.tif",
+              out_stem=tmp_path / "dom_report")
+    assert (axes["rows_down"], axes["cols_left"]) == (not flips[0], flips[1])
+    assert ("north up" in axes["y"]) == flips[0] and ("north up" in axes["x"]) == flips[1]
+    assert (tmp_path / "dom_report.png").stat().st_size > 0

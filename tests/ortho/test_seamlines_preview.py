@@ -195,3 +195,27 @@ def test_the_preview_hatches_the_cells_mosaic_json_counts_as_seen_by_no_frame(tm
     counted_m2 = summary["area_seen_by_no_frame_m2"]
     assert summary["share_seen_by_no_frame"] > 0.15   # a large part of the frames' ground has no DEM
     assert abs(hatched_m2 - counted_m2) < 0.05 * counted_m2, (hatched_m2, counted_m2)
+
+
+def test_a_south_oriented_grid_is_previewed_north_up_and_says_so(tmp_path):
+    """New-user trial (NGI in Lo25, EPSG:2051, westing / southing): GDAL stores such a DOM with row 0 at its southern
+    and column 0 at its eastern edge, and the preview showed it so, south-up, without a word. Turned 180 degrees now,
+    the legend says so; a north-up grid's preview is as before."""
+    h, w = 300, 400
+    valid = np.ones((h, w), bool)
+    valid[:60, :80] = False  # a corner outside the block: row 0, column 0 (Lo25: the south-east corner)
+    labels = np.zeros((h // 4, w // 4), np.int32)
+    pictures = {}
+    for crs, x0, y0 in (("EPSG:32649", 452000.0, 3407000.0), ("EPSG:2051", 53130.0, 3735156.0)):
+        path = tmp_path / f"{crs[5:]}.tif"
+        with rasterio.open(path, "w", driver="GTiff", width=w, height=h, count=1, dtype="uint8", crs=crs,
+                           transform=Affine(0.5, 0.0, x0, 0.0, -0.5, y0)) as ds:
+            ds.write(np.full((1, h, w), 120, np.uint8))
+            ds.write_mask(valid.astype(np.uint8) * 255)
+        pictures[crs] = render_preview(path, labels, 4)
+    utm, lo = pictures["EPSG:32649"], pictures["EPSG:2051"]
+    assert _is(utm[:60, :80], OUTSIDE_RGB).all() and not _is(utm[h - 60:h, w - 80:w], OUTSIDE_RGB).any()
+    assert _is(lo[h - 60:h, w - 80:w], OUTSIDE_RGB).all() and not _is(lo[:60, :80], OUTSIDE_RGB).any()  # south-east
+    assert "north up" not in " ".join(_labels(None)) and _labels(None, turned=True)[-1].startswith("north up")
+    # the note is written: the legend strip holds more dark text pixels
+    assert (lo[h:] < 128).all(axis=-1).sum() > (utm[h:] < 128).all(axis=-1).sum() + 100
