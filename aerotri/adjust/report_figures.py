@@ -12,6 +12,7 @@ from __future__ import annotations
 import base64
 import dataclasses
 import math
+import os
 
 import numpy as np
 
@@ -409,6 +410,26 @@ def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
                   f"colour = tie observations per area (colour bar); map scale bar {bar}", fig)
 
 
+_ID_SEPARATORS = "_-. "
+
+
+def short_ids(ids: list[str]) -> tuple[list[str], str, str]:
+    """The image ids without the prefix and suffix they all share, cut at a separator (``_ - .`` or space), so
+    that labels on a map stay short: NGI's "3324c_2015_1004_05_0182_RGB" ... -> "05_0182" ..., prefix
+    "3324c_2015_1004_", suffix "_RGB". One id, or ids that would become empty or equal, are kept whole."""
+    if len(ids) < 2:
+        return list(ids), "", ""
+    prefix = os.path.commonprefix(ids)
+    prefix = prefix[:max(prefix.rfind(c) for c in _ID_SEPARATORS) + 1]
+    suffix = os.path.commonprefix([i[len(prefix):][::-1] for i in ids])[::-1]
+    cut = [suffix.find(c) for c in _ID_SEPARATORS if c in suffix]
+    suffix = suffix[min(cut):] if cut else ""
+    short = [i[len(prefix):len(i) - len(suffix)] for i in ids]
+    if not all(short) or len(set(short)) < len(set(ids)):
+        return list(ids), "", ""
+    return short, prefix, suffix
+
+
 def flight_map(fa: dict) -> Figure | None:
     """Frame footprints on the terrain by strip, frames failing a flight check hatched, with a scale bar."""
     frames = fa.get("frames") or []
@@ -436,9 +457,12 @@ def flight_map(fa: dict) -> Figure | None:
                                          linewidths=[2.0 if frames[k]["strip"] in bad_strips else 0.9 for k in sel]))
     centres = np.array([[f["x_m"], f["y_m"]] for f in frames], float) - o[:2]
     ax.scatter(centres[:, 0], centres[:, 1], marker="+", c=colour, s=36, linewidths=1.0)
-    for f in frames if len(frames) <= 60 else []:
-        ax.annotate(f["image_id"], (f["x_m"] - o[0], f["y_m"] - o[1]), fontsize=6, xytext=(3, 3),
-                    textcoords="offset points")
+    # (long ids printed over each other: NGI's 27-character names, new-user trial s51)
+    labels, prefix, suffix = short_ids([str(f["image_id"]) for f in frames]) if len(frames) <= 60 else ([], "", "")
+    for f, label in zip(frames, labels):
+        ax.annotate(label, (f["x_m"] - o[0], f["y_m"] - o[1]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    shortened = (f" Labels: image ids without their common {' and '.join(repr(a) for a in (prefix, suffix) if a)}."
+                 if prefix or suffix else "")
     allp = np.vstack(fp) - o
     pad = 0.03 * max(float(np.ptp(allp[:, 0])), float(np.ptp(allp[:, 1])), 1.0)  # edges off the frame
     ax.set_xlim(allp[:, 0].min() - pad, allp[:, 0].max() + pad)
@@ -449,7 +473,8 @@ def flight_map(fa: dict) -> Figure | None:
     bar = _map_axes(ax, o, max(np.ptp(allp[:, 0]), np.ptp(allp[:, 1])))
     ax.set_title("Frame footprints on the terrain (hatched: the frame fails a flight check; thick: its strip does)")
     return Figure("Flight: footprints on the terrain",
-                  f"Footprints draped on {fa.get('terrain')}; +: projection centres.", f"map scale bar {bar}", fig)
+                  f"Footprints draped on {fa.get('terrain')}; +: projection centres.{shortened}", f"map scale bar {bar}",
+                  fig)
 
 
 # -- HTML tables (rendered by the templates' ``table`` macro) -------------------------------------

@@ -371,6 +371,28 @@ def test_flight_map_keeps_the_footprints_off_the_frame_and_the_scale_bar():
     assert y0 <= xy[:, 1].min() - oy - 0.05 * span and y1 >= xy[:, 1].max() - oy + 0.02 * span
 
 
+def test_flight_map_labels_frames_by_what_their_ids_do_not_share():
+    """NGI's footprint map printed four 27-character ids ("3324c_2015_1004_05_0182_RGB", ...) over each other (new-user
+    trial s51): labelled without the prefix and suffix they share, which the caption names."""
+    from aerotri.adjust.report_figures import flight_map, short_ids
+
+    ids = ["3324c_2015_1004_05_0182_RGB", "3324c_2015_1004_05_0184_RGB", "3324c_2015_1004_06_0251_RGB",
+           "3324c_2015_1004_06_0253_RGB"]
+    frames = []
+    for k, (x, y) in enumerate(((-60000.0, -3720000.0), (-59300.0, -3720000.0), (-60000.0, -3719000.0),
+                                (-59300.0, -3719000.0))):
+        ring = [(x - 500, y - 400), (x + 500, y - 400), (x + 500, y + 400), (x - 500, y + 400)]
+        frames.append(dict(image_id=ids[k], strip=5 + k // 2, footprint=ring, x_m=x, y_m=y))
+    fig = flight_map(dict(frames=frames, strips=[], terrain="dem.tif"))
+    texts = sorted(t.get_text() for t in fig.fig.axes[0].texts)
+    assert texts == ["05_0182", "05_0184", "06_0251", "06_0253"]
+    assert "'3324c_2015_1004_' and '_RGB'" in fig.caption
+    # ids that share no separated part, or would lose what tells them apart, are kept whole
+    assert short_ids(["s01_001", "s01_002", "s02_001"]) == (["s01_001", "s01_002", "s02_001"], "", "")
+    assert short_ids(["DJI_0001.JPG", "DJI_0002.JPG"]) == (["0001", "0002"], "DJI_", ".JPG")
+    assert short_ids(["x_1", "x_1_b"])[0] == ["1", "1_b"] and short_ids(["ab_1", "ab_2"])[0] == ["1", "2"]
+
+
 def test_surface_control_map_shows_points_on_the_surface_and_keeps_its_legend_off_them():
     """The 2 x 2 DMC block's surface-control map: 1,160 of its used points within a sigma of the DEM were near-white
     dots on white, invisible, and the legend covered the block's south end (trial 8); the used points have a grey
