@@ -116,6 +116,12 @@ def grid_for_bounds(xmin: float, ymin: float, xmax: float, ymax: float, res_m: f
     """(res_m, x0, y0, nrows, ncols) of the raster grid covering the bounds, aligned to multiples of res_m."""
     x0 = np.floor(xmin / res_m) * res_m
     y0 = np.floor(ymin / res_m) * res_m
+    # the product can round above the bound (AHN3 Delft: 447412.8 / 0.2 = 2237064, times 0.2 = 447412.80000000005):
+    # the cell kernels, floor((y - y0) / res_m), then put the lowest points in row -1 (a RuntimeError, new-user trial)
+    if np.floor((xmin - x0) / res_m) < 0:
+        x0 -= res_m
+    if np.floor((ymin - y0) / res_m) < 0:
+        y0 -= res_m
     ncols = int(np.floor((xmax - x0) / res_m)) + 1
     nrows = int(np.floor((ymax - y0) / res_m)) + 1
     return res_m, x0, y0, nrows, ncols

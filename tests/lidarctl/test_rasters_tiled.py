@@ -162,3 +162,29 @@ def test_a_cloud_without_vegetation_classes_is_told_its_chm_is_empty(strips, tmp
     assert r.exit_code == 0, r.output
     assert "low.las: no medium or high vegetation points (classes 4, 5; the cloud holds classes 2, 3" in r.output
     assert "class 3, low vegetation, is not a canopy" in r.output and "lidarctl classify" not in r.output
+
+
+def test_the_grid_holds_the_lowest_points_where_the_origin_rounds_above_them(tmp_path):
+    """AHN3 Delft (ymin 447412.8) at --res-m 0.2 or 0.1: floor(ymin / res) * res rounds to 447412.80000000005, above
+    the lowest points, which the cell kernels put in row -1: "RuntimeError: a point lies outside the raster grid",
+    exit 1 (new-user trial). The origin is a cell lower now; every point's cell is inside the grid."""
+    rng = np.random.default_rng(3)
+    for xmin, ymin, res in [(84808.3, 447412.8, 0.2), (84808.3, 447412.8, 0.1), *[
+            (float(np.round(rng.uniform(1e4, 9e5), 3)), float(np.round(rng.uniform(1e5, 6e6), 3)),
+             float(rng.choice([0.1, 0.2, 0.25, 0.3, 0.5, 1.0]))) for _ in range(2000)]]:
+        xmax, ymax = xmin + 191.7, ymin + 228.5
+        _, x0, y0, nrows, ncols = rasters.grid_for_bounds(xmin, ymin, xmax, ymax, res)
+        for v, v0, n in ((xmin, x0, ncols), (xmax, x0, ncols), (ymin, y0, nrows), (ymax, y0, nrows)):
+            assert 0 <= np.floor((v - v0) / res) < n, (xmin, ymin, res)
+    # the whole command on a cloud whose header starts there
+    cloud, truth = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=2, n_buildings=1, n_trees=4)
+    shifted = io.PointCloud(cloud.x - cloud.x.min() + 84808.3, cloud.y - cloud.y.min() + 447412.8,
+                            *[getattr(cloud, f) for f in FIELDS[2:]], truth)
+    synthetic.write_las(tmp_path / "c.las", shifted, crs="EPSG:28992")
+    import laspy
+
+    assert laspy.read(tmp_path / "c.las").header.mins[1] == 447412.8
+    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "c.las"), str(tmp_path / "out"), "--res-m", "0.2"])
+    assert r.exit_code == 0, r.output
+    with rasterio.open(tmp_path / "out" / "dem.tif") as ds:
+        assert ds.bounds.bottom <= 447412.8 and ds.read(1, masked=True).count() > 0.9 * ds.width * ds.height
