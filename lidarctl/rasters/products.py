@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import math
 from typing import ClassVar, NamedTuple
 import logging
 import sys
@@ -125,6 +126,24 @@ def grid_for_bounds(xmin: float, ymin: float, xmax: float, ymax: float, res_m: f
     ncols = int(np.floor((xmax - x0) / res_m)) + 1
     nrows = int(np.floor((ymax - y0) / res_m)) + 1
     return res_m, x0, y0, nrows, ncols
+
+
+# More cells than this per point (cells finer than a tenth of the points' spacing): said before the work starts
+CELLS_PER_POINT_WARN = 100
+
+
+def warn_cells_finer_than_points(n_points: int, n_cells: int, res_m: float, names: str) -> None:
+    """A warning when the grid has more than ``CELLS_PER_POINT_WARN`` cells a point over the header bounds: such cells
+    measure nothing the points do not (the DEM and DSM interpolate between points), and dsm_nearest searches up to
+    its radius from nearly every cell (0.01 m cells on Autzen's 2 points per m2: 617 M cells, hours, started without
+    a word; new-user trial)."""
+    if n_points <= 0 or n_cells <= CELLS_PER_POINT_WARN * n_points:
+        return
+    spacing_m = res_m * math.sqrt(n_cells / n_points)
+    log.warning(f"{names}: cells of {res_m:g} m on points about {spacing_m:.2g} m apart over the header bounds "
+                f"({n_cells:,} cells, {n_cells / n_points:,.0f} a point): the grids interpolate between the points and "
+                f"take long; cells of half the points' spacing ({spacing_m / 2:.2g} m) show what they measure "
+                "(--res-m)")
 
 
 class _CellSums:
@@ -728,7 +747,10 @@ def _tiled_gtiff(path, shape, transform, crs, *, count: int = 1, dtype: str = "f
                              crs=crs, transform=transform, nodata=nodata)
     return rasterio.open(path, "w", driver="GTiff", width=shape[1], height=shape[0], count=count, dtype=dtype,
                          crs=crs, transform=transform, nodata=nodata, tiled=True, blockxsize=_BLOCK_PX,
-                         blockysize=_BLOCK_PX, bigtiff="IF_SAFER")
+                         blockysize=_BLOCK_PX, bigtiff="IF_SAFER",
+                         # blocks never written are not filled in at close (a stopped run of 0.01 m cells on Autzen
+                         # spent more than 60 s writing 17 GB of nodata into files it then removed); read as nodata
+                         sparse_ok=True)
 
 
 # The working rasters are held in memory (``_tiled_gtiff``'s ``in_memory``) when all of them take at most this share
@@ -929,6 +951,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
         raise InputError(f"{inputs.names}: the points span {nrows} x {ncols} cells (rows x columns) of {res_m:g} m "
                          "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res-m "
                          "coarser than the cloud", param="--res-m")
+    warn_cells_finer_than_points(inputs.n_points, nrows * ncols, res_m, inputs.names)
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
     check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
                option="--tile-px", hint="use a smaller --tile-px")
@@ -1165,12 +1188,24 @@ def _run_threads(tasks) -> None:
             raise
 
 
+class _Stopped(Exception):
+    """A tile's work given up because the run stops (``_tile_grids``' ``stop``): nothing of it is kept."""
+
+
 def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, footprint_cells: int,
-                dem_fill_radius_px: float, keep: tuple[ResumeFolder, str] | None = None):
+                dem_fill_radius_px: float, keep: tuple[ResumeFolder, str] | None = None, stop: np.ndarray | None = None):
     """The grids of one tile's core from its binned points (``_bin_points``): float32 arrays north-up,
     NODATA for no value, in the CRS's units, the DEM also in metres (``dem_m``). Runs in a worker thread.
-    ``keep``: (resume folder, key): the grids are kept there for a resumed run (``_keep_tile``)."""
+    ``keep``: (resume folder, key): the grids are kept there for a resumed run (``_keep_tile``). ``stop``: a
+    one-element bool array the calling thread sets when the run stops: the tile is given up (``_Stopped``) at its
+    next step, and within the nearest-return search."""
     import os
+
+    stop = np.zeros(1, np.bool_) if stop is None else stop
+
+    def check() -> None:
+        if stop[0]:
+            raise _Stopped
 
     res_m, x0, y0 = args[:3]
     tid, (row0, col0, rows, cols), core, _ = tile
@@ -1180,16 +1215,20 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
         sums.add(ch.x, ch.y, ch.z, ch.cls, ch.rn, ch.intensity)
         near.count(ch.x, ch.y, ch.cls, ch.rn)
     grown = tuple(slice(max(c.start - 1, 0), c.stop + 1) for c in core)   # the CHM's bilinear samples
+    check()
     dem = sums.dem(require_ground=False, fill_radius_px=dem_fill_radius_px, needed=grown)
+    check()
     for ch in _bin_chunks(work, tid, chunk_points):
         sums.add_chm(ch.x, ch.y, ch.z, ch.cls, dem)
         near.add(ch.x, ch.y, ch.z, ch.cls, ch.rn)
+    check()
     for name, _ in _BIN_FIELDS:
         os.remove(work / f"tile_{tid}_{name}.bin")
     out = sums.core_grids(dem, footprint_cells, core, inputs.units)
     del sums, dem
     out["dem_m"][~np.isfinite(out["dem_m"])] = NODATA
-    out["dsm_nearest"] = _tile_nearest(near, near_core, out["dsm"], inputs.units)
+    out["dsm_nearest"] = _tile_nearest(near, near_core, out["dsm"], inputs.units, stop)
+    check()   # (an unfinished surface is not kept)
     if keep is not None:
         _keep_tile(*keep, out, work, tid)
     return out
@@ -1211,11 +1250,11 @@ def _tile_nearest_returns(args, tile) -> tuple[nearest.NearestReturns, tuple[sli
 
 
 def _tile_nearest(near: nearest.NearestReturns, core: tuple[slice, slice], dsm: np.ndarray,
-                  units: LengthUnits) -> np.ndarray:
+                  units: LengthUnits, stop: np.ndarray | None = None) -> np.ndarray:
     """dsm_nearest of a tile's core (north-up float32, CRS units, NODATA) from the nearest returns of its grown core
     and the core's place in them (``_tile_nearest_returns``, every chunk added) and its ``dsm`` (the core's, as
     written): the nearest return, else the DSM's value."""
-    surface = near.surface()[core]
+    surface = near.surface(stop)[core]
     if not units.is_metric:   # the arithmetic of ``RasterGrids.in_crs_units``
         surface = (surface.astype(float) / units.z_m).astype(np.float32)
     surface = np.ascontiguousarray(surface)
@@ -1280,6 +1319,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
                     for name, _ in _BIN_FIELDS:
                         (work / f"tile_{t[0]}_{name}.bin").unlink(missing_ok=True)
         running = {}
+        stop = np.zeros(1, np.bool_)   # set when the run stops: the tiles computing give up (``_tile_grids``)
         with progress(grid.n_tiles, "rasters: tiles", "tile") as bar:
             try:
                 while todo or running or empty or kept:
@@ -1287,7 +1327,8 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
                         tile = todo.popleft()
                         running[pool.submit(_tile_grids, inputs, args, tile, work, chunk_points=chunk_points,
                                             footprint_cells=footprint_cells, dem_fill_radius_px=dem_fill_radius_px,
-                                            keep=None if resume is None else (resume[0], keys[tile[0]]))] = tile
+                                            keep=None if resume is None else (resume[0], keys[tile[0]]),
+                                            stop=stop)] = tile
                     if empty:     # tiles without points: nodata, written while the first tiles are computed
                         for window in empty:
                             write(window, {name: np.full((window.height, window.width), NODATA, np.float32)
@@ -1302,6 +1343,7 @@ def _tiles_to_gtiffs(inputs: _Inputs, args, grid, used, work: Path, working: con
                     for future in done:
                         write(running.pop(future)[3], future.result())
             except BaseException:
+                stop[0] = True   # (the pool's exit waits for the tiles computing: minutes each at very fine cells)
                 for f in running:
                     f.cancel()
                 raise

@@ -188,3 +188,68 @@ def test_the_grid_holds_the_lowest_points_where_the_origin_rounds_above_them(tmp
     assert r.exit_code == 0, r.output
     with rasterio.open(tmp_path / "out" / "dem.tif") as ds:
         assert ds.bounds.bottom <= 447412.8 and ds.read(1, masked=True).count() > 0.9 * ds.width * ds.height
+
+
+def test_a_stopped_run_gives_up_the_tiles_it_is_computing(strips, tmp_path, monkeypatch):
+    """Ctrl-C / SIGTERM in `lidarctl rasters` at 0.01 m cells on Autzen: the process lived on more than 150 s, the
+    pool's exit waiting for the tiles computing (minutes each in the nearest-return search), then closing working
+    GeoTIFFs by writing their unwritten blocks. Now the tiles computing see the stop and give up (nothing of them is
+    kept), the working files are sparse: the interrupt ends the run at once."""
+    import threading
+    import time
+
+    seen = {}
+    started = threading.Event()
+
+    def tile_grids(*args, stop=None, **kwargs):
+        if not started.is_set():            # the first tile: a long one, until it is told to stop
+            started.set()
+            t0 = time.monotonic()
+            while not stop[0] and time.monotonic() - t0 < 60:
+                time.sleep(0.01)
+            seen["stopped_after_s"] = time.monotonic() - t0 if stop[0] else None
+            raise rasters._Stopped
+        started.wait(10)
+        time.sleep(0.2)
+        raise KeyboardInterrupt              # what the calling thread gets from a tile: the run stops
+
+    monkeypatch.setattr(rasters, "_tile_threads", lambda cells: 2)
+    monkeypatch.setattr(rasters, "_tile_grids", tile_grids)
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        rasters.write_rasters_tiled([strips / "west.las", strips / "east.las"], tmp_path / "out", 0.5, tile_px=128,
+                                    buffer_px=16)
+    assert seen["stopped_after_s"] is not None and time.monotonic() - t0 < 30
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_nearest_return_search_stops_when_told():
+    from lidarctl.rasters import nearest
+
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(0, 40, (3200, 2))            # 2 points per m2
+    grid = dict(x0_m=0.0, y_top_m=40.0, res_m=0.01, nrows=4000, ncols=4000, max_dist_m=5.0)
+    near = nearest.NearestReturns(**grid)
+    cls, first = np.zeros(len(xy), np.uint8), np.ones(len(xy), np.uint8)
+    near.count(xy[:, 0], xy[:, 1], cls, first)
+    near.add(xy[:, 0], xy[:, 1], rng.uniform(0, 9, len(xy)), cls, first)
+    out = near.surface(np.ones(1, np.bool_))     # stopped before its first row: returns at once, unfinished
+    assert out.shape == (4000, 4000)
+    small = dict(grid, res_m=0.5, nrows=80, ncols=80)
+    z = rng.uniform(0, 9, len(xy))
+    want = nearest.nearest_return_surface(xy[:, 0], xy[:, 1], z, **small)
+    near = nearest.NearestReturns(**small)
+    near.count(xy[:, 0], xy[:, 1], cls, first)
+    near.add(xy[:, 0], xy[:, 1], z, cls, first)
+    assert np.array_equal(near.surface(np.zeros(1, np.bool_)), want, equal_nan=True)
+
+
+def test_cells_far_finer_than_the_points_are_said(caplog):
+    import logging
+
+    with caplog.at_level(logging.WARNING, logger="lidarctl.rasters.products"):
+        rasters.warn_cells_finer_than_points(1_000_000, 617_000_000, 0.01, "autzen.laz")
+        assert "cells of 0.01 m on points about 0.25 m apart" in caplog.text and "617 a point" in caplog.text
+        caplog.clear()
+        rasters.warn_cells_finer_than_points(1_000_000, 4_000_000, 0.5, "autzen.laz")
+        assert caplog.text == ""
