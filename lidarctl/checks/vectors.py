@@ -47,7 +47,8 @@ class VectorCheckSettings:
                                                                "reference corner to pair them.")
     buffer_m: float = setting(2.0, min=0.0, min_open=True, help="Buffer (m) around lines for their completeness and "
                                                                 "correctness.")
-    scale: str = setting("1:10000", help="Map scale of the tolerance table.")
+    scale: str = setting("1:10000", help="Map scale of the tolerance table: 1:2000, 1:5000, 1:10000 or "
+                                        "'ASPRS2023 H<cm>cm V<cm>cm'.")
     terrain: str = setting("flat", help="Terrain class of the tolerance table.")
 
 
@@ -243,7 +244,7 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
             raise OptionError(f"must be a positive number of metres, got {v}", param="--" + name[:-2].replace("_", "-"))
     if params.terrain not in TERRAINS:
         raise OptionError(f"{params.terrain!r}: expected one of {', '.join(TERRAINS)}", param="--terrain")
-    tol = load_table(params.scale, params.terrain).limits.get("feature_rms_xy_m")
+    tol = load_table(params.scale, params.terrain, source="--scale", own_table=None).limits.get("feature_rms_xy_m")
     prod, pcrs, p_m = read_layers(product_path)
     ref, rcrs, r_m = read_layers(reference_path)
     if pcrs is not None and rcrs is not None and not same_horizontal(pcrs, rcrs):

@@ -590,3 +590,24 @@ def test_copied_contours_take_the_clouds_height_unit(tmp_path):
     out = tmp_path / "v_no_unit.gpkg"
     r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--contours", str(tmp_path / "no_unit.gpkg")])
     assert r.exit_code == 2 and "no_unit.gpkg" in r.output and "no unit" in r.output and not out.exists(), r.output
+
+
+@pytest.mark.parametrize("command", ["check-vectors", "check-plan"])
+def test_an_unknown_map_scale_names_the_tables_the_command_can_take(made, tmp_path, command):
+    """Trial: check-vectors --scale 1:1000 advised "give your own with --tolerances FILE", an option neither it nor
+    check-plan has (click: "No such option"). The advice names the built-in tables --scale takes; aerotri report,
+    which has --tolerances, keeps its advice."""
+    from aerotri.core.errors import ConfigError
+    from aerotri.core.tolerances import load_table
+
+    d, cloud, out = made
+    pts = tmp_path / "p.csv"
+    pts.write_text("id,x,y\n1,500020,5400020\n")
+    args = ([str(out), "--reference", str(out)] if command == "check-vectors" else [str(cloud), str(pts)])
+    r = CliRunner().invoke(main, [command, *args, "--scale", "1:1000"])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert "--scale '1:1000': no built-in tolerance table (have 1:2000, 1:5000, 1:10000" in r.output
+    assert "--tolerances" not in r.output
+    with pytest.raises(ConfigError, match="give your own with --tolerances FILE"):
+        load_table("1:1000")
+    assert str(load_table("1:2000", source="--scale", own_table=None).path).endswith("cn_1to2000.toml")
