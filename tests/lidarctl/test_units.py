@@ -365,3 +365,40 @@ def test_unit_names_are_the_crs_names():
     assert comp.describe() == "x, y in metre, z in US survey foot"
     assert LengthUnits(0.5, 0.5).xy_name == "0.5m" and LengthUnits(0.5, 1.0).describe() == "x, y in 0.5 metre, z in metre"
     assert LengthUnits(known=False).describe() == "unknown units (no CRS)"
+
+
+def _survey(path, header_z, z_factor, n=20):
+    """Surveyed points of the scene 0.2 m below its terrain, x, y in the metric twin's metres scaled by ``xy`` of
+    the header, heights written as metres / ``z_factor`` under the column ``header_z``."""
+    rng = np.random.default_rng(0)
+    px_m, py_m = X0_M + rng.uniform(10, 150, n), Y0_M + rng.uniform(10, 150, n)
+    pz_m = synthetic.terrain_height(px_m - X0_M, py_m - Y0_M) - 0.2
+    path.write_text(f"id,x_m,y_m,{header_z}\n" + "".join(f"P{k},{a:.4f},{b:.4f},{c / z_factor:.4f}\n"
+                                                        for k, (a, b, c) in enumerate(zip(px_m, py_m, pz_m))))
+    return path
+
+
+@pytest.mark.parametrize("cloud, z_factor, header", [("ft", 1.0, "z_m"), ("ft_m", FOOT_M, "z_ft")])
+def test_check_heights_says_when_plain_heights_fit_in_the_other_unit(scenes, tmp_path, cloud, z_factor, header):
+    """Trial (Autzen, EPSG:2994): surveyed heights in metres under a plain 'z' against a cloud in feet: mean dz
+    90.167 m, 100 % over 5 m, no hint. The heights are taken in the CRS's unit as before, and a warning says they
+    fit in the other unit (median |dz| 0.2 m, the survey's known offset) and names the header that converts them;
+    with that header, the check is right and says nothing. Also the other way: feet under 'z' against metres."""
+    d = scenes["dir"]
+    c = tmp_path / "c.laz"
+    _ok(["classify", d / f"{cloud}.laz", c])
+    r = _ok(["check-heights", c, _survey(tmp_path / "plain.csv", "z", z_factor), "--radius-m", "3",
+             "--json", tmp_path / "p.json"])
+    hc = json.loads((tmp_path / "p.json").read_text())
+    assert hc["overall"]["all"]["mean_abs_dz_m"] > 5  # the numbers stand: the CRS's unit is assumed, never guessed
+    slip = hc["unit_slip"]
+    assert slip["median_abs_dz_other_unit_m"] == pytest.approx(0.2, abs=0.05) and slip["header"].startswith(header)
+    last = r.output.strip().splitlines()[-1]
+    assert last.startswith("warning: the cloud and the surveyed heights differ by a median |dz| of ")
+    assert f"name the column {header}" in last and "the header's 'z' names no unit" in last
+    r = _ok(["check-heights", c, _survey(tmp_path / "named.csv", header, z_factor), "--radius-m", "3",
+             "--json", tmp_path / "n.json"])
+    hc = json.loads((tmp_path / "n.json").read_text())
+    assert "unit_slip" not in hc and "warning" not in r.output
+    assert hc["overall"]["all"]["mean_dz_m"] == pytest.approx(0.2, abs=0.05)
+
