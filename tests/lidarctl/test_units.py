@@ -402,3 +402,35 @@ def test_check_heights_says_when_plain_heights_fit_in_the_other_unit(scenes, tmp
     assert "unit_slip" not in hc and "warning" not in r.output
     assert hc["overall"]["all"]["mean_dz_m"] == pytest.approx(0.2, abs=0.05)
 
+
+def test_an_intensity_raster_is_refused_as_a_dem_and_a_dem_in_feet_says_the_unit_slip(scenes, tmp_path):
+    """Trial: check-heights --dem r/intensity.tif was accepted (RMSE 91.86 m) and contours traced intensity.
+    lidarctl rasters tags its intensity.tif QUANTITY=intensity (heights: VERTICAL_UNITS); a raster tagged so, or
+    carrying the band description rasters gave intensity.tif before the tag, is refused as a DEM (exit 2, one
+    line naming the file); a DEM of other software without either is read as before. The DEM alone in feet with
+    plain metres: the warning names the DEM."""
+    from lidarctl.rasters.products import DESCRIPTIONS, write_cog
+
+    d = scenes["dir"]
+    _ok(["classify", d / "ft.laz", tmp_path / "c.laz"])
+    _ok(["rasters", tmp_path / "c.laz", tmp_path / "r", "--res-m", "1"])
+    with rasterio.open(tmp_path / "r" / "intensity.tif") as f, rasterio.open(tmp_path / "r" / "dem.tif") as g:
+        assert f.tags()["QUANTITY"] == "intensity" and "QUANTITY" not in g.tags()
+        data, profile = f.read(1), dict(crs=f.crs, transform=f.transform)
+    pts = _survey(tmp_path / "p.csv", "z_m", 1.0)
+    old = tmp_path / "old_intensity.tif"   # written before the tag: the description only
+    write_cog(old, data, profile["transform"], profile["crs"], description=DESCRIPTIONS["intensity"])
+    foreign = tmp_path / "foreign.tif"     # another program's raster: neither
+    write_cog(foreign, data, profile["transform"], profile["crs"])
+    for raster, said in ((tmp_path / "r" / "intensity.tif", "holds intensity (its QUANTITY tag)"),
+                         (old, "holds intensity (its band description")):
+        for args in (["check-heights", pts, "--dem", raster], ["contours", raster, tmp_path / "c.gpkg",
+                                                                "--interval-m", "1"]):
+            r = _run(args)
+            assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+            assert len(r.output.strip().splitlines()) == 1
+            assert f"{raster}: {said}" in r.output and "expected a height raster for the DEM" in r.output
+        assert not (tmp_path / "c.gpkg").exists()
+    assert _run(["check-heights", pts, "--dem", foreign]).exit_code == 0
+    r = _ok(["check-heights", _survey(tmp_path / "plain.csv", "z", 1.0), "--dem", tmp_path / "r" / "dem.tif"])
+    assert "warning: the DEM and the surveyed heights differ" in r.output and "name the column z_m" in r.output
