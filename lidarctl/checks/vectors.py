@@ -142,7 +142,8 @@ def point_offsets(prod: list, ref: list, match_m: float, area=None) -> CornerOff
     pc, rc = corners_of(prod), corners_of(ref)
     if area is not None:
         grown = area.buffer(match_m)
-        pc, rc = pc[shapely.intersects_xy(grown, pc[:, 0], pc[:, 1])], rc[shapely.intersects_xy(grown, rc[:, 0], rc[:, 1])]
+        pc = pc[shapely.intersects_xy(grown, pc[:, 0], pc[:, 1])]
+        rc = rc[shapely.intersects_xy(grown, rc[:, 0], rc[:, 1])]
     none = np.zeros((0, 2))
     if len(pc) == 0 or not ref:
         return CornerOffsets(pc, none, none, none, len(rc))
@@ -438,9 +439,9 @@ def format_report(check: VectorCheck) -> str:
     result = check.document
     tol = result["tolerance_feature_rms_xy_m"]
     within = result.get("within")
+    area = "the hulls of the reference polygons' blocks" if within == "hull" else within
     lines = [f"line-map check: {result['product']} against {result['reference']}"
-             + (f", only inside {'the hulls of the reference polygons' + chr(39) + ' blocks' if within == 'hull' else within}"
-                f" (--within)" if within else ""),
+             + (f", only inside {area} (--within)" if within else ""),
              f"tolerance for well-defined features ({result['map_scale']}, {result['terrain']}): plan RMS "
              f"{tol} m (judged: the corner-to-corner RMS)"]
     warnings = []

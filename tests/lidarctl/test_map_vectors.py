@@ -630,7 +630,8 @@ def test_a_reference_of_part_of_the_area_is_said_and_within_hull_checks_inside_i
     corner-to-outline RMS small. The verdict is the corner-to-corner RMS's, printed after it."""
     _, _, out = made
     ref = _buildings_only(tmp_path / "part.gpkg", [ROOFS[0][0]])
-    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref), "--json", str(tmp_path / "a.json")])
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref),
+                                  "--json", str(tmp_path / "a.json")])
     assert r.exit_code == 0, r.output
     a = json.loads((tmp_path / "a.json").read_text())["layers"]["buildings"]
     assert a["correctness_pct"] == pytest.approx(100 * 384 / (384 + 432), abs=4)
