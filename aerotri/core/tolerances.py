@@ -122,13 +122,21 @@ def asprs_key(h_cm: float, v_cm: float, uas: bool = False) -> str:
     return f"ASPRS2023 H{h_cm:g}cm V{v_cm:g}cm" + (UAS_SUFFIX if uas else "")
 
 
-def _known(source: str, key: str) -> str:
+OWN_TABLE = "--tolerances FILE"  # how the commands that read a tolerance table take a user's own
+
+
+def _known(source: str, key: str, own_table: str | None = OWN_TABLE) -> str:
+    """``own_table``: how the command printing this takes a user's own table (None: it takes none, so the advice
+    names the built-in keys only: lidarctl check-vectors and check-plan have no --tolerances)."""
+    advice = f"give your own with {own_table}" if own_table else "give one of these"
     return (f"{source} {key!r}: no built-in tolerance table (have {', '.join(SCALE_TABLES)} and "
-            f"'ASPRS2023 H<cm>cm V<cm>cm'); give your own with --tolerances FILE")
+            f"'ASPRS2023 H<cm>cm V<cm>cm'); {advice}")
 
 
-def tolerance_path(scale: str | None = None, tolerance_file=None, source: str = "map scale") -> Path:
-    """The file of the table ``scale`` (a table key) or ``tolerance_file``; ``source`` names where the key came from."""
+def tolerance_path(scale: str | None = None, tolerance_file=None, source: str = "map scale",
+                   own_table: str | None = OWN_TABLE) -> Path:
+    """The file of the table ``scale`` (a table key) or ``tolerance_file``; ``source`` names where the key came from,
+    ``own_table`` how the command takes a user's own table (None: it does not; see ``_known``)."""
     if tolerance_file:
         p = Path(tolerance_file)
         if not p.is_file():
@@ -139,7 +147,7 @@ def tolerance_path(scale: str | None = None, tolerance_file=None, source: str = 
         return TOLERANCE_DIR / SCALE_TABLES[table]
     if _ASPRS_KEY.match(table):
         return TOLERANCE_DIR / ASPRS_FILE
-    raise ConfigError(_known(source, table))
+    raise ConfigError(_known(source, table, own_table))
 
 
 def _flight_limits(uas: bool, own: dict) -> tuple[dict, dict]:
@@ -224,13 +232,15 @@ def asprs_gsd_max_m() -> float:
     return float(_toml(TOLERANCE_DIR / SELECTION_FILE)["asprs"]["gsd_max_m"])
 
 
-def load_table(scale: str | None = None, terrain: str = "flat", tolerance_file=None, reason: str = "") -> ToleranceTable:
+def load_table(scale: str | None = None, terrain: str = "flat", tolerance_file=None, reason: str = "", *,
+               source: str = "map scale", own_table: str | None = OWN_TABLE) -> ToleranceTable:
     """The resolved table of a key (``scale``) or a user's file: limits for one terrain class (a map-scale
     table's ``general`` section overlaid by the class's own; ASPRS classes have none), the flight limits of
-    the platform, and where each limit comes from."""
+    the platform, and where each limit comes from. ``source`` / ``own_table``: what an unknown key's error
+    names as its origin and how to give one's own table (``tolerance_path``)."""
     key = scale or DEFAULT_SCALE
     table, uas = split_key(key)
-    path = tolerance_path(key, tolerance_file)
+    path = tolerance_path(key, tolerance_file, source, own_table)
     m = None if tolerance_file else _ASPRS_KEY.match(table)
     if m:
         h_cm, v_cm = float(m["h"]), float(m["v"])

@@ -58,7 +58,8 @@ class PlanCheckSettings:
     min_edge_m: float | None = setting(None, min=0.0, min_open=True, help="LiDAR corners whose two roof edges are at "
                                        "least this long (m), as lidarctl corners --min-edge-m. Default: max(2 m, 8 point "
                                        "spacings) of the measured spacing.")
-    scale: str = setting("1:10000", help="Map scale of the tolerance table.")
+    scale: str = setting("1:10000", help="Map scale of the tolerance table: 1:2000, 1:5000, 1:10000 or "
+                                        "'ASPRS2023 H<cm>cm V<cm>cm'.")
     terrain: str = setting("flat", help="Terrain class of the tolerance table.")
 
     def validate(self) -> None:
@@ -274,7 +275,7 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanChe
     params.validate()
     if params.terrain not in TERRAINS:
         raise OptionError(f"{params.terrain!r}: expected one of {', '.join(TERRAINS)}", param="--terrain")
-    tol = load_table(params.scale, params.terrain).limits.get("feature_rms_xy_m")
+    tol = load_table(params.scale, params.terrain, source="--scale", own_table=None).limits.get("feature_rms_xy_m")
     paths = [Path(p) for p in cloud_paths]
     if not paths:
         raise OptionError("give the classified cloud(s) before POINTS_CSV", param="CLOUD")

@@ -47,8 +47,12 @@ class VectorCheckSettings:
                                                                "reference corner to pair them.")
     buffer_m: float = setting(2.0, min=0.0, min_open=True, help="Buffer (m) around lines for their completeness and "
                                                                 "correctness.")
-    scale: str = setting("1:10000", help="Map scale of the tolerance table.")
+    scale: str = setting("1:10000", help="Map scale of the tolerance table: 1:2000, 1:5000, 1:10000 or "
+                                        "'ASPRS2023 H<cm>cm V<cm>cm'.")
     terrain: str = setting("flat", help="Terrain class of the tolerance table.")
+    within: str | None = setting(None, help="Check only inside the polygons of this file, or 'hull': inside the "
+                                            "convex hulls of the reference polygons' blocks (a reference that maps "
+                                            "only part of the area; as lidarctl evaluate --within).")
 
 
 def read_layers(path: Path) -> tuple[dict, object, float]:
@@ -126,13 +130,20 @@ class Overlap:
     correctness_pct: float | None
 
 
-def point_offsets(prod: list, ref: list, match_m: float) -> CornerOffsets:
+def point_offsets(prod: list, ref: list, match_m: float, area=None) -> CornerOffsets:
     """Offsets (CRS units) of the produced building corners: to the nearest reference outline and to the
-    mutually nearest reference corner within ``match_m``."""
+    mutually nearest reference corner within ``match_m``. ``area`` (a shapely polygon): only the corners of
+    either side within ``match_m`` of it (the outlines keep their own corners: none is made where the area cuts
+    them; a hull's vertices are reference corners on its edge, and a produced corner off that edge is an offset
+    to measure, not a corner to drop)."""
     import shapely
     from scipy.spatial import cKDTree
 
     pc, rc = corners_of(prod), corners_of(ref)
+    if area is not None:
+        grown = area.buffer(match_m)
+        pc = pc[shapely.intersects_xy(grown, pc[:, 0], pc[:, 1])]
+        rc = rc[shapely.intersects_xy(grown, rc[:, 0], rc[:, 1])]
     none = np.zeros((0, 2))
     if len(pc) == 0 or not ref:
         return CornerOffsets(pc, none, none, none, len(rc))
@@ -230,6 +241,69 @@ def _clipped_buffers(lines: np.ndarray, tree, rect: tuple, buffer: float) -> obj
     return shapely.union_all(shapely.buffer(shapely.clip_by_rect(lines[hits], *rect), buffer))
 
 
+# A warning when more than this share of a layer's produced features lies outside the area the reference maps.
+OUTSIDE_WARN_PCT = 10.0
+
+
+def reference_hull(ref: dict, join: float):
+    """The area a partial reference maps: the convex hulls of the blocks of its polygons (every polygon layer;
+    polygons closer than ``join`` CRS units form one block; ``class_grid.block_hulls``, evaluate's --within hull)
+    as one shapely geometry; None when the reference has no polygon."""
+    import shapely
+
+    from lidarctl.classify.class_grid import hulls_of_blocks
+
+    polys = [g for geoms in ref.values() for g in geoms if "Polygon" in g.geom_type]
+    return shapely.union_all(hulls_of_blocks(polys, join)) if polys else None
+
+
+def check_area(within: str | None, ref: dict, ref_crs, reference_path, unit: float):
+    """The area ``--within`` names (one shapely geometry, CRS units) or None (everywhere): 'hull' (``reference_hull``)
+    or the polygons of a vector file in the reference's CRS. OptionError naming --within otherwise."""
+    import shapely
+
+    from aerotri.geom.crs.definition import crs_label, same_horizontal
+    from lidarctl.classify import class_grid as cg
+
+    if within is None:
+        return None
+    if within == "hull":
+        hull = reference_hull(ref, 1.0 / unit)
+        if hull is None:
+            raise OptionError(f"--within hull: {reference_path} has no polygons to take the hulls of; give a polygon "
+                              "file", param="--within")
+        return hull
+    if not Path(within).is_file():
+        raise OptionError(f"{within}: no such file; expected 'hull' or a polygon file (.gpkg/.geojson)",
+                          param="--within")
+    area = cg.read_class_polygons(within, all_class=cg.OTHER)
+    if area.crs is not None and ref_crs is not None and not same_horizontal(area.crs, ref_crs):
+        raise OptionError(f"{within} is in {crs_label(area.crs)} but {reference_path} in {crs_label(ref_crs)}; give "
+                          "both in one CRS", param="--within")
+    if not area.geometries:
+        raise OptionError(f"{within}: no polygons", param="--within")
+    return shapely.union_all(area.geometries)
+
+
+def _inside(geoms: list, area) -> np.ndarray:
+    """Whether each feature lies in ``area`` (by a point inside it: ``representative_point``)."""
+    import shapely
+
+    if not geoms:
+        return np.zeros(0, bool)
+    return shapely.contains(area, shapely.point_on_surface(np.asarray(geoms, dtype=object)))
+
+
+def _clip(geoms: list, area) -> list:
+    """The parts of ``geoms`` inside ``area`` (features outside it dropped)."""
+    import shapely
+
+    if not geoms:
+        return []
+    cut = shapely.intersection(np.asarray(geoms, dtype=object), area)
+    return [g for g in cut if not g.is_empty]
+
+
 def check_vectors(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings()) -> VectorCheck:
     """Accuracy of the DLG ``product_path`` against ``reference_path`` (see the module doc; metres): the typed
     record, the JSON document and the buildings' corner offsets. Raises InputError / CrsError / OptionError
@@ -243,7 +317,7 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
             raise OptionError(f"must be a positive number of metres, got {v}", param="--" + name[:-2].replace("_", "-"))
     if params.terrain not in TERRAINS:
         raise OptionError(f"{params.terrain!r}: expected one of {', '.join(TERRAINS)}", param="--terrain")
-    tol = load_table(params.scale, params.terrain).limits.get("feature_rms_xy_m")
+    tol = load_table(params.scale, params.terrain, source="--scale", own_table=None).limits.get("feature_rms_xy_m")
     prod, pcrs, p_m = read_layers(product_path)
     ref, rcrs, r_m = read_layers(reference_path)
     if pcrs is not None and rcrs is not None and not same_horizontal(pcrs, rcrs):
@@ -259,12 +333,19 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
                               param="--layer")
     if not layers:
         raise InputError(f"{product_path} and {reference_path} share no layer")
+    area = check_area(params.within, ref, rcrs or pcrs, reference_path, unit)
+    # what the reference maps: with --within, the area given; else the hulls of its polygons' blocks, to tell the
+    # user how much of the product it does not cover (counted as false by the correctness)
+    mapped = area if area is not None else reference_hull(ref, 1.0 / unit)
     out = {"product": str(product_path), "reference": str(reference_path), "xy_unit_m": unit,
            "map_scale": params.scale, "terrain": params.terrain, "tolerance_feature_rms_xy_m": tol,
-           "match_m": params.match_m, "buffer_m": params.buffer_m, "layers": {}}
+           "match_m": params.match_m, "buffer_m": params.buffer_m, "within": params.within, "layers": {}}
     offsets = None
     for n in layers:
         P, R = prod[n], ref[n]
+        outside = None if mapped is None else int((~_inside(P, mapped)).sum())
+        if area is not None:
+            P, R = _clip(P, area), _clip(R, area)
         kind = (P or R)[0].geom_type if (P or R) else "Polygon"
         if "Polygon" in kind:
             r = area_overlap(P, R)
@@ -278,8 +359,13 @@ def check_vectors(product_path, reference_path, params: VectorCheckSettings = Ve
                  "n_reference": len(R), "n_product": len(P)}
         else:
             r = {"n_reference": len(R), "n_product": len(P)}
+        # produced features (by a point inside each) outside the --within area, or, without it, outside the hulls of
+        # the reference polygons' blocks (None: a reference without polygons, no hull)
+        r["n_product_outside_reference_area"] = outside
+        r["pct_product_outside_reference_area"] = (100.0 * outside / len(prod[n]) if outside is not None and prod[n]
+                                                   else None)
         if n == "buildings":
-            off = point_offsets(P, R, params.match_m / unit)
+            off = point_offsets(prod[n], ref[n], params.match_m / unit, area)
             tl, tc = off.to_line * unit, off.to_corner * unit
             offsets = off
             r.update(n_corners=len(off.corners), n_reference_corners=off.n_reference_corners,
@@ -351,9 +437,14 @@ def plot_offsets(check: VectorCheck, prod: dict, ref: dict, path, title: str = "
 
 def format_report(check: VectorCheck) -> str:
     result = check.document
-    lines = [f"line-map check: {result['product']} against {result['reference']}",
+    tol = result["tolerance_feature_rms_xy_m"]
+    within = result.get("within")
+    area = "the hulls of the reference polygons' blocks" if within == "hull" else within
+    lines = [f"line-map check: {result['product']} against {result['reference']}"
+             + (f", only inside {area} (--within)" if within else ""),
              f"tolerance for well-defined features ({result['map_scale']}, {result['terrain']}): plan RMS "
-             f"{result['tolerance_feature_rms_xy_m']} m"]
+             f"{tol} m (judged: the corner-to-corner RMS)"]
+    warnings = []
     for n, r in result["layers"].items():
         comp, corr = r.get("completeness_pct"), r.get("correctness_pct")
         s = f"{n:18s} reference {r['n_reference']:5d}  product {r['n_product']:5d}"
@@ -362,12 +453,28 @@ def format_report(check: VectorCheck) -> str:
         lines.append(s)
         if n == "buildings" and r.get("n_corners"):
             f = lambda v: "-" if v is None else f"{v:.3f}"  # noqa: E731
+            verdict = ("" if r["within_tolerance"] is None else
+                       f" -> {'within' if r['within_tolerance'] else 'NOT within'} tolerance {tol:g} m")
             lines.append(f"  corners {r['n_corners']} (reference {r['n_reference_corners']}), matched "
-                         f"{r['n_matched_corners']}: plan RMS corner-to-corner {f(r['rms_xy_corner_m'])} m "
-                         f"(x {f(r['rms_x_corner_m'])}, y {f(r['rms_y_corner_m'])}; mean dx {f(r['mean_dx_corner_m'])}, "
-                         f"dy {f(r['mean_dy_corner_m'])}), corner-to-outline {f(r['rms_xy_to_line_m'])} m -> "
-                         f"{'within' if r['within_tolerance'] else 'NOT within'} tolerance")
-    return "\n".join(lines)
+                         f"{r['n_matched_corners']} (mutually nearest, <= {result['match_m']:g} m): plan RMS "
+                         f"corner-to-corner {f(r['rms_xy_corner_m'])} m (x {f(r['rms_x_corner_m'])}, "
+                         f"y {f(r['rms_y_corner_m'])}; mean dx {f(r['mean_dx_corner_m'])}, "
+                         f"dy {f(r['mean_dy_corner_m'])}){verdict}")
+            lines.append(f"  corner-to-outline (every corner to the nearest reference outline; not judged): RMS "
+                         f"{f(r['rms_xy_to_line_m'])} m, max {f(r['max_offset_to_line_m'])} m")
+        pct = r.get("pct_product_outside_reference_area")
+        if pct is not None and r["n_product_outside_reference_area"]:
+            k, total = r["n_product_outside_reference_area"], round(100 * r["n_product_outside_reference_area"] / pct)
+            if within:
+                lines.append(f"  {k} of {total} produced {n} lie outside --within {within}: left out (the parts "
+                             "of others inside it checked)")
+            elif pct > OUTSIDE_WARN_PCT:
+                warnings.append(
+                    f"warning: {k} of {total} {n} of {result['product']} ({pct:.0f} %) lie outside the area "
+                    f"{result['reference']} maps (the convex hulls of its polygons' blocks): the correctness counts "
+                    f"them as false and the corner-to-outline distances include them; --within hull checks only "
+                    f"inside it")
+    return "\n".join(lines + warnings)
 
 
 def check_files(product_path, reference_path, params: VectorCheckSettings = VectorCheckSettings(), json_path=None,
@@ -375,9 +482,10 @@ def check_files(product_path, reference_path, params: VectorCheckSettings = Vect
     """``check_vectors`` + the JSON and the offset plot (atomic), refusing an input as output."""
     from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 
+    inputs = [product_path, reference_path] + ([params.within] if params.within not in (None, "hull") else [])
     for opt, p in (("--json", json_path), ("--png", png_path)):
         if p is not None:
-            refuse_input_as_output(p, [product_path, reference_path], opt)
+            refuse_input_as_output(p, inputs, opt)
     result = check_vectors(product_path, reference_path, params)
     if png_path is not None:
         prod, _, _ = read_layers(product_path)

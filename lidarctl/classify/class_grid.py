@@ -271,11 +271,16 @@ def rasterize_polygons(polys: ClassPolygons, grid: ClassGrid) -> tuple[np.ndarra
 def block_hulls(polys: ClassPolygons, join_m: float = 1.0) -> list:
     """Convex hulls of the blocks of polygons (polygons closer than ``join_m`` CRS units form one block):
     the area a partial reference (footprints of a few blocks) maps completely."""
+    return hulls_of_blocks(polys.geometries, join_m)
+
+
+def hulls_of_blocks(geometries: list, join: float = 1.0) -> list:
+    """``block_hulls`` of shapely polygons (``join`` in CRS units; lidarctl check-vectors --within hull too)."""
     import shapely
 
-    union = shapely.union_all([g.buffer(join_m / 2, join_style="mitre") for g in polys.geometries])
+    union = shapely.union_all([g.buffer(join / 2, join_style="mitre") for g in geometries])
     parts = list(union.geoms) if hasattr(union, "geoms") else [union]
-    return [p.convex_hull.buffer(-join_m / 2, join_style="mitre") for p in parts]
+    return [p.convex_hull.buffer(-join / 2, join_style="mitre") for p in parts]
 
 
 def rasterize_mask(geometries: list, grid: ClassGrid) -> np.ndarray:

@@ -549,10 +549,13 @@ def vectors(paths, image, dem, contours_path, crs, **_settings):
 @click_option(VectorCheckSettings, "buffer_m", "--buffer-m")
 @click_option(VectorCheckSettings, "scale", "--scale")
 @click_option(VectorCheckSettings, "terrain", "--terrain")
+@click_option(VectorCheckSettings, "within", "--within")
 def check_vectors(product_path, reference_path, json_path, png_path, **_settings):
     """Line-map accuracy of PRODUCT_PATH (lidarctl vectors) against --reference: plan RMS of the building corners
     (to the nearest reference outline and to the matched reference corner), completeness and correctness of
-    each layer by area (polygons) or buffer (lines), with the map scale's tolerance for well-defined features."""
+    each layer by area (polygons) or buffer (lines), with the map scale's tolerance for well-defined features.
+    A reference that maps only part of the area (--within hull, or a polygon file) is said when many produced
+    features lie outside it."""
     from lidarctl.checks import vectors as vc
 
     params = resolve(VectorCheckSettings, None, click.get_current_context()).settings

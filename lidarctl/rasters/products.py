@@ -7,7 +7,8 @@ Units: the grids are computed in metres (clouds in feet are scaled as they are r
 the cloud's CRS and units: in a foot CRS a 1 m cell is 3.2808 ft (3.2808 US survey ft) wide in the
 GeoTIFF transform, and heights (dem, dsm, ndsm, chm) are in the CRS's vertical unit. Every GeoTIFF
 says so: the band's unit type (``metre``, ``foot``, ``US survey foot``; none for intensity), its
-description, and the tags ``LINEAR_UNITS``, ``VERTICAL_UNITS`` and ``CELL_SIZE_M``.
+description, and the tags ``LINEAR_UNITS``, ``VERTICAL_UNITS`` and ``CELL_SIZE_M``; intensity.tif has
+``QUANTITY=intensity`` instead of ``VERTICAL_UNITS`` (given as a DEM, it is refused).
 * dem.tif: mean height of ground (2) and water (9) points per cell; gaps inside the footprint
   filled (pull-push interpolation); nodata outside it.
 * dsm.tif: highest first return (noise excluded) per cell; gaps filled as for the DEM.
@@ -855,8 +856,13 @@ def _tags(units: LengthUnits, res_m: float) -> dict:
 
 
 def _raster_tags(tags: dict, name: str) -> dict:
-    """The stage's tags for raster ``name``: VERTICAL_UNITS only on the height grids (intensity is no length)."""
-    return tags if name in HEIGHT_GRIDS else {k: v for k, v in tags.items() if k != "VERTICAL_UNITS"}
+    """The stage's tags for raster ``name``: VERTICAL_UNITS only on the height grids (intensity is no length), which
+    a grid of another quantity replaces by QUANTITY (its name: refused as a DEM, ``raster_warp.not_heights``)."""
+    from aerotri.geom.crs.raster_warp import QUANTITY_TAG
+
+    if name in HEIGHT_GRIDS:
+        return tags
+    return {**{k: v for k, v in tags.items() if k != "VERTICAL_UNITS"}, QUANTITY_TAG: name}
 
 
 def _unit(name: str, units: LengthUnits) -> str | None:

@@ -590,3 +590,95 @@ def test_copied_contours_take_the_clouds_height_unit(tmp_path):
     out = tmp_path / "v_no_unit.gpkg"
     r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--contours", str(tmp_path / "no_unit.gpkg")])
     assert r.exit_code == 2 and "no_unit.gpkg" in r.output and "no unit" in r.output and not out.exists(), r.output
+
+
+@pytest.mark.parametrize("command", ["check-vectors", "check-plan"])
+def test_an_unknown_map_scale_names_the_tables_the_command_can_take(made, tmp_path, command):
+    """Trial: check-vectors --scale 1:1000 advised "give your own with --tolerances FILE", an option neither it nor
+    check-plan has (click: "No such option"). The advice names the built-in tables --scale takes; aerotri report,
+    which has --tolerances, keeps its advice."""
+    from aerotri.core.errors import ConfigError
+    from aerotri.core.tolerances import load_table
+
+    d, cloud, out = made
+    pts = tmp_path / "p.csv"
+    pts.write_text("id,x,y\n1,500020,5400020\n")
+    args = ([str(out), "--reference", str(out)] if command == "check-vectors" else [str(cloud), str(pts)])
+    r = CliRunner().invoke(main, [command, *args, "--scale", "1:1000"])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert "--scale '1:1000': no built-in tolerance table (have 1:2000, 1:5000, 1:10000" in r.output
+    assert "--tolerances" not in r.output
+    with pytest.raises(ConfigError, match="give your own with --tolerances FILE"):
+        load_table("1:1000")
+    assert str(load_table("1:2000", source="--scale", own_table=None).path).endswith("cn_1to2000.toml")
+
+
+def _buildings_only(path, polys, crs=M_CRS):
+    """A GeoPackage with one layer, buildings: ``polys`` (scene metres) at the scene's origin."""
+    geoms = np.array([affinity.translate(p, X0, Y0) for p in polys], dtype=object)
+    write(path, np.array(shapely.to_wkb(geoms), dtype=object), field_data=[np.arange(len(geoms))], fields=["id"],
+          geometry_type="Polygon", crs=pyproj.CRS(crs).to_wkt(), driver="GPKG", layer="buildings")
+    return path
+
+
+def test_a_reference_of_part_of_the_area_is_said_and_within_hull_checks_inside_it(made, tmp_path):
+    """Trial (Delft, BGT of part of the map's area): correctness 35.48 %, corner-to-outline RMS 37.2 m (max 125 m)
+    "-> within tolerance", without a word that 57 % of the map's buildings lie where the BGT maps nothing.
+    A reference of the first of the scene's two roofs only: the second building is counted false (correctness
+    = 384 / (384 + 432) m2 ~ 47 %) and its corners are metres from any reference outline; the warning says so. With
+    --within hull (as lidarctl evaluate) only the first roof's block is checked: correctness > 90 %, the
+    corner-to-outline RMS small. The verdict is the corner-to-corner RMS's, printed after it."""
+    _, _, out = made
+    ref = _buildings_only(tmp_path / "part.gpkg", [ROOFS[0][0]])
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref),
+                                  "--json", str(tmp_path / "a.json")])
+    assert r.exit_code == 0, r.output
+    a = json.loads((tmp_path / "a.json").read_text())["layers"]["buildings"]
+    assert a["correctness_pct"] == pytest.approx(100 * 384 / (384 + 432), abs=4)
+    assert a["n_product_outside_reference_area"] == 1 and a["pct_product_outside_reference_area"] == 50.0
+    assert a["rms_xy_to_line_m"] > 10
+    assert ("warning: 1 of 2 buildings of " in r.output and "(50 %) lie outside the area" in r.output
+            and "--within hull" in r.output)
+    line = next(ln for ln in r.output.splitlines() if "plan RMS corner-to-corner" in ln)
+    assert line.endswith("-> within tolerance 0.5 m") and "corner-to-outline" not in line
+    assert "corner-to-outline (every corner to the nearest reference outline; not judged)" in r.output
+
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref), "--within", "hull",
+                                  "--json", str(tmp_path / "h.json")])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "h.json").read_text())
+    h = doc["layers"]["buildings"]
+    assert doc["within"] == "hull" and h["n_product"] == 1 and h["n_reference"] == 1
+    assert h["correctness_pct"] > 90 and h["completeness_pct"] == pytest.approx(a["completeness_pct"])
+    assert h["n_corners"] == 4 and h["n_matched_corners"] == 4 and h["rms_xy_to_line_m"] < 0.5
+    assert "warning" not in r.output and "1 of 2 produced buildings lie outside --within hull: left out" in r.output
+
+    # a polygon file: the whole reference, checked only around the second roof
+    full = _buildings_only(tmp_path / "full.gpkg", [p for p, _ in ROOFS])
+    area = _buildings_only(tmp_path / "area.gpkg", [ROOFS[1][0].buffer(5)])
+    res = vc.check_vectors(out, full, vc.VectorCheckSettings(within=str(area))).document["layers"]["buildings"]
+    assert res["n_product"] == 1 and res["n_reference"] == 1 and res["n_matched_corners"] == 4
+    assert res["correctness_pct"] > 90 and res["completeness_pct"] > 90
+
+
+@pytest.mark.parametrize("case", ["missing", "other_crs", "hull_of_lines", "as_json"])
+def test_check_vectors_within_bad_input(made, tmp_path, case):
+    _, _, out = made
+    ref = _buildings_only(tmp_path / "ref.gpkg", [p for p, _ in ROOFS])
+    other = _buildings_only(tmp_path / "ft.gpkg", [box(0, 0, 1, 1)], crs=FT_CRS)
+    lines = tmp_path / "lines.gpkg"
+    write(lines, np.array(shapely.to_wkb(np.array([shapely.LineString([(X0, Y0), (X0 + 50, Y0)])], dtype=object)),
+                          dtype=object), field_data=[np.arange(1)], fields=["id"], geometry_type="LineString",
+          crs=pyproj.CRS(M_CRS).to_wkt(), driver="GPKG", layer="road_centrelines")
+    js = tmp_path / "c.json"
+    args, named = {"missing": ([str(ref), "--within", str(tmp_path / "nope.gpkg")], "nope.gpkg: no such file"),
+                   "other_crs": ([str(ref), "--within", str(other)], "ft.gpkg is in"),
+                   "hull_of_lines": ([str(lines), "--within", "hull"], "lines.gpkg has no polygons"),
+                   "as_json": ([str(ref), "--within", str(js)], "c.json")}[case]
+    if case == "as_json":
+        js.write_bytes(other.read_bytes())
+    before = js.exists()
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", *args, "--json", str(js)])
+    assert r.exit_code == 2 and "Traceback" not in r.output and named in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1
+    assert js.exists() == before

@@ -365,3 +365,72 @@ def test_unit_names_are_the_crs_names():
     assert comp.describe() == "x, y in metre, z in US survey foot"
     assert LengthUnits(0.5, 0.5).xy_name == "0.5m" and LengthUnits(0.5, 1.0).describe() == "x, y in 0.5 metre, z in metre"
     assert LengthUnits(known=False).describe() == "unknown units (no CRS)"
+
+
+def _survey(path, header_z, z_factor, n=20):
+    """Surveyed points of the scene 0.2 m below its terrain, x, y in the metric twin's metres scaled by ``xy`` of
+    the header, heights written as metres / ``z_factor`` under the column ``header_z``."""
+    rng = np.random.default_rng(0)
+    px_m, py_m = X0_M + rng.uniform(10, 150, n), Y0_M + rng.uniform(10, 150, n)
+    pz_m = synthetic.terrain_height(px_m - X0_M, py_m - Y0_M) - 0.2
+    path.write_text(f"id,x_m,y_m,{header_z}\n" + "".join(f"P{k},{a:.4f},{b:.4f},{c / z_factor:.4f}\n"
+                                                        for k, (a, b, c) in enumerate(zip(px_m, py_m, pz_m))))
+    return path
+
+
+@pytest.mark.parametrize("cloud, z_factor, header", [("ft", 1.0, "z_m"), ("ft_m", FOOT_M, "z_ft")])
+def test_check_heights_says_when_plain_heights_fit_in_the_other_unit(scenes, tmp_path, cloud, z_factor, header):
+    """Trial (Autzen, EPSG:2994): surveyed heights in metres under a plain 'z' against a cloud in feet: mean dz
+    90.167 m, 100 % over 5 m, no hint. The heights are taken in the CRS's unit as before, and a warning says they
+    fit in the other unit (median |dz| 0.2 m, the survey's known offset) and names the header that converts them;
+    with that header, the check is right and says nothing. Also the other way: feet under 'z' against metres."""
+    d = scenes["dir"]
+    c = tmp_path / "c.laz"
+    _ok(["classify", d / f"{cloud}.laz", c])
+    r = _ok(["check-heights", c, _survey(tmp_path / "plain.csv", "z", z_factor), "--radius-m", "3",
+             "--json", tmp_path / "p.json"])
+    hc = json.loads((tmp_path / "p.json").read_text())
+    assert hc["overall"]["all"]["mean_abs_dz_m"] > 5  # the numbers stand: the CRS's unit is assumed, never guessed
+    slip = hc["unit_slip"]
+    assert slip["median_abs_dz_other_unit_m"] == pytest.approx(0.2, abs=0.05) and slip["header"].startswith(header)
+    last = r.output.strip().splitlines()[-1]
+    assert last.startswith("warning: the cloud and the surveyed heights differ by a median |dz| of ")
+    assert f"name the column {header}" in last and "the header's 'z' names no unit" in last
+    r = _ok(["check-heights", c, _survey(tmp_path / "named.csv", header, z_factor), "--radius-m", "3",
+             "--json", tmp_path / "n.json"])
+    hc = json.loads((tmp_path / "n.json").read_text())
+    assert "unit_slip" not in hc and "warning" not in r.output
+    assert hc["overall"]["all"]["mean_dz_m"] == pytest.approx(0.2, abs=0.05)
+
+
+def test_an_intensity_raster_is_refused_as_a_dem_and_a_dem_in_feet_says_the_unit_slip(scenes, tmp_path):
+    """Trial: check-heights --dem r/intensity.tif was accepted (RMSE 91.86 m) and contours traced intensity.
+    lidarctl rasters tags its intensity.tif QUANTITY=intensity (heights: VERTICAL_UNITS); a raster tagged so, or
+    carrying the band description rasters gave intensity.tif before the tag, is refused as a DEM (exit 2, one
+    line naming the file); a DEM of other software without either is read as before. The DEM alone in feet with
+    plain metres: the warning names the DEM."""
+    from lidarctl.rasters.products import DESCRIPTIONS, write_cog
+
+    d = scenes["dir"]
+    _ok(["classify", d / "ft.laz", tmp_path / "c.laz"])
+    _ok(["rasters", tmp_path / "c.laz", tmp_path / "r", "--res-m", "1"])
+    with rasterio.open(tmp_path / "r" / "intensity.tif") as f, rasterio.open(tmp_path / "r" / "dem.tif") as g:
+        assert f.tags()["QUANTITY"] == "intensity" and "QUANTITY" not in g.tags()
+        data, profile = f.read(1), dict(crs=f.crs, transform=f.transform)
+    pts = _survey(tmp_path / "p.csv", "z_m", 1.0)
+    old = tmp_path / "old_intensity.tif"   # written before the tag: the description only
+    write_cog(old, data, profile["transform"], profile["crs"], description=DESCRIPTIONS["intensity"])
+    foreign = tmp_path / "foreign.tif"     # another program's raster: neither
+    write_cog(foreign, data, profile["transform"], profile["crs"])
+    for raster, said in ((tmp_path / "r" / "intensity.tif", "holds intensity (its QUANTITY tag)"),
+                         (old, "holds intensity (its band description")):
+        for args in (["check-heights", pts, "--dem", raster], ["contours", raster, tmp_path / "c.gpkg",
+                                                                "--interval-m", "1"]):
+            r = _run(args)
+            assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+            assert len(r.output.strip().splitlines()) == 1
+            assert f"{raster}: {said}" in r.output and "expected a height raster for the DEM" in r.output
+        assert not (tmp_path / "c.gpkg").exists()
+    assert _run(["check-heights", pts, "--dem", foreign]).exit_code == 0
+    r = _ok(["check-heights", _survey(tmp_path / "plain.csv", "z", 1.0), "--dem", tmp_path / "r" / "dem.tif"])
+    assert "warning: the DEM and the surveyed heights differ" in r.output and "name the column z_m" in r.output

@@ -259,11 +259,32 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
     return np.moveaxis(dst.reshape(rows, cols, -1), -1, 0), ok
 
 
+# A raster of another quantity than heights (lidarctl rasters' intensity.tif: sensor units, no length) says so by the
+# dataset tag QUANTITY (its name: "intensity"); written before the tag, by the band description lidarctl rasters
+# gave it. Given as a DEM it was taken for heights (trial: check-heights --dem intensity.tif, RMSE 91.86 m; contours
+# of intensity).
+QUANTITY_TAG = "QUANTITY"
+NOT_HEIGHT_DESCRIPTIONS = {"mean intensity of first returns (sensor units)": "intensity"}
+
+
+def not_heights(ds) -> str | None:
+    """What a raster that holds no heights says it holds (``QUANTITY_TAG``, ``NOT_HEIGHT_DESCRIPTIONS``), as a
+    phrase for a message; None for a height raster or one that says nothing (a DEM of other software)."""
+    quantity = (ds.tags().get(QUANTITY_TAG) or "").strip()
+    if quantity and quantity.lower() not in ("height", "heights", "elevation"):
+        return f"{quantity} (its {QUANTITY_TAG} tag)"
+    desc = ds.descriptions[0] if ds.count >= 1 and ds.descriptions else None
+    if desc in NOT_HEIGHT_DESCRIPTIONS:
+        return f"{NOT_HEIGHT_DESCRIPTIONS[desc]} (its band description {desc!r})"
+    return None
+
+
 def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: bool = False, heights: bool = False):
     """A rasterio dataset of a georeferenced, north-up raster of at least 2 x 2 cells (square pixels if
     ``square``; one band of numbers if ``heights``); InputError naming the file and ``what`` it should be
     when it is missing, unreadable, has no CRS, is rotated, smaller or (``heights``) holds anything but one
-    band of finite, plausible heights with at least one valid cell (``aerotri.geom.inputs``)."""
+    band of finite, plausible heights with at least one valid cell (``aerotri.geom.inputs``), or says it holds
+    another quantity (``not_heights``: lidarctl rasters' intensity.tif)."""
     from pathlib import Path
 
     import rasterio
@@ -283,6 +304,9 @@ def open_north_up(path, what: str = "raster", *, no_crs_hint: str = "", square: 
     if heights and (ds.count != 1 or np.dtype(ds.dtypes[0]).kind not in "iuf"):
         problem = (f"expected one band of heights for the {what}; this file has {ds.count} band(s) of {ds.dtypes[0]} "
                    f"(an orthophoto or a hillshade given as the {what}?)")
+    elif heights and (other := not_heights(ds)):
+        problem = (f"holds {other}, not heights; expected a height raster for the {what} (lidarctl rasters' "
+                   "dem.tif, dsm.tif, ...)")
     elif ds.crs is None:
         problem = f"the {what} has no CRS{no_crs_hint}"
     elif abs(t.b) > 0 or abs(t.d) > 0 or t.e >= 0 or (square and abs(abs(t.a) - abs(t.e)) > 1e-9 * abs(t.a)):
