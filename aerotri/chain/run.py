@@ -42,6 +42,8 @@ def run_project(project: Project, settings: Resolved | None = None, scheduler=No
 def closing_words(rows: list[dict]) -> str | None:
     """One line when the chain could not make the orthophotos (it ran everything else it could)."""
     for r in rows:
+        if r["stage"] == "match" and r["status"] == "skipped":  # a LiDAR-only project: not "after the adjustment"
+            return f"the LiDAR stages only: {r['why']}"
         if r["stage"] == "rectify" and r["status"] == "skipped":
             return f"stopped after the adjustment: {r['why']}"
     return None

@@ -291,6 +291,17 @@ class Chain:
             return None
         return "a DEM is given or made from LiDAR"
 
+    def no_frames(self, root=None) -> str | None:
+        """Why the photo stages (match to the DOM check) are left out: no frames in images/, a LiDAR-only project
+        (it stopped at match, "camera.toml: file not found", once its corners stage was passed)."""
+        if self.images():
+            return None
+        return f"no frames in {self.project.images_dir}: a LiDAR-only project, no photo stages"
+
+    def or_no_frames(self, why):
+        """A skip of a photo stage: no frames first, then ``why``'s reason."""
+        return lambda root=None: self.no_frames() or why(root)
+
     def no_lidar(self, root=None) -> str | None:
         if not self.has_lidar:
             return f"no LiDAR strips (*.las, *.laz) in {self.project.lidar_dir}"
@@ -306,7 +317,10 @@ class Chain:
         from lidarctl.corners.roof_corners import read_corner_summary
 
         path = self.project.corners_summary_path
-        if path.is_file() and read_corner_summary(path).no_usable:
+        summary = read_corner_summary(path) if path.is_file() else None
+        if summary is not None and summary.no_usable:
+            if summary.stats.n_building_points == 0:
+                return f"no building points in the classified cloud, so no roof corner ({self.lo / 'corners.json'})"
             return f"no usable roof corner ({self.lo / 'corners.json'})"
         if not self.has_gnss and self.options.adjust.initial_eo is None:
             return ("no orientations to measure the corners with: no GNSS (gnss.txt) for a first adjustment and "
@@ -493,35 +507,38 @@ class Chain:
                   lambda r: [self.project.tiepoints_path], self.run_match,
                   # [flight] terrain height and [gnss] lever arm place the footprints of the pairs
                   options=dict(to_table(o.match), flight=to_table(self.project.flight),
-                               gnss=to_table(self.project.gnss)), versions=_match_versions),
+                               gnss=to_table(self.project.gnss)), skip=self.no_frames, versions=_match_versions),
             # project.toml carries the [gnss] sigmas, [adjust] options and the [qa] limits of the report: its sections
             # the adjustment reads are options (adjust_project_toml), a change of another stage's does not re-run it
             Stage("adjust_first", lambda r: self.adjust_inputs(r, control=False),
                   lambda r: [first / "eo.txt", first / "camera.toml"], self.run_adjust_first,
                   options=lambda r: dict(to_table(self.first_settings().settings),
-                                         project_toml=self.adjust_project_toml()), skip=self.no_first_adjustment,
+                                         project_toml=self.adjust_project_toml()),
+                  skip=self.or_no_frames(self.no_first_adjustment),
                   versions=_adjust_versions),
             Stage("control", self.control_inputs,
                   lambda r: [self.project.control_points_path, self.project.control_image_points_path], self.run_control,
-                  options=to_table(o.control), skip=self.no_corners, versions=_control_versions),
+                  options=to_table(o.control), skip=self.or_no_frames(self.no_corners), versions=_control_versions),
             Stage("adjust_final", self.adjust_inputs, self.adjust_final_outputs,
                   self.run_adjust_final, options=lambda r: dict(to_table(self.final_settings().settings),
                                                               project_toml=self.adjust_project_toml()),
-                  versions=_adjust_versions),
+                  skip=self.no_frames, versions=_adjust_versions),
             # a block without GNSS, LiDAR or DEM: the DEM of its adjusted tie points
             Stage("dem", lambda r: [self.project.object_points_path, self.project.eo_path],
-                  lambda r: [self.tie_point_dem_path], self.run_tie_point_dem, skip=self.no_tie_point_dem,
+                  lambda r: [self.tie_point_dem_path], self.run_tie_point_dem,
+                  skip=self.or_no_frames(self.no_tie_point_dem),
                   versions=_dem_versions),
             # (the self-calibrated camera in at/report.json changes only with at/eo.txt)
             Stage("rectify", lambda r: [self.project.eo_path, self.dem_path()] + self.true_ortho_dsm() + self.images(),
                   lambda r: [self.project.frames_index_path], self.run_rectify,
-                  options=lambda r: to_table(self.rectify_settings().settings), skip=self.no_dem,
+                  options=lambda r: to_table(self.rectify_settings().settings), skip=self.or_no_frames(self.no_dem),
                   versions=lambda: _rectify_versions(self.rectify_settings().settings),
                   listed_missing=lambda r: _frame_orthos_missing(self.project.frames_index_path)),
             # the nDSM the seamlines avoid objects by ([mosaic] ndsm, else the LiDAR stages' when there is one)
             Stage("mosaic", lambda r: [self.project.frames_index_path] + self.mosaic_ndsm(),
                   lambda r: [self.project.mosaic_path],
-                  self.run_mosaic, options=to_table(o.mosaic), skip=self.no_dem, versions=_mosaic_versions,
+                  self.run_mosaic, options=to_table(o.mosaic), skip=self.or_no_frames(self.no_dem),
+                  versions=_mosaic_versions,
                   hand_made=self.edited_mosaic),
         ]
         # always planned: without --reference it is skipped with why (an earlier run's check is not dropped silently)
@@ -531,7 +548,8 @@ class Chain:
                             # (its plot too: a deleted dom_report.png left the stage up to date)
                             lambda r: [self.project.dom_report_path, self.project.dom_report_path.with_suffix(".png")],
                             self.run_dom_check,
-                            options=to_table(o.dom_check), skip=self.no_dom_check, versions=_dom_check_versions))
+                            options=to_table(o.dom_check), skip=self.or_no_frames(self.no_dom_check),
+                            versions=_dom_check_versions))
         if self.surveyed_points is not None:
             stages.append(Stage("height_check", lambda r: self.classified() + [Path(self.surveyed_points)],
                                 lambda r: [self.project.height_check_path], self.run_height_check, skip=self.no_lidar,
@@ -637,7 +655,10 @@ class Chain:
 
         res = corner_control(self.classified(), self.lo, self.stage_settings("corners"), record_none=True)
         notes = ()
-        if res.no_usable:
+        if res.no_usable and res.stats.n_building_points == 0:
+            # a cloud without buildings (docs/chain.md: as no usable roof corner): no setting gives it corners
+            notes = (f"{res.no_usable}; the chain goes on without LiDAR control",)
+        elif res.no_usable:
             hint = "a smaller min_edge_m"
             if self.options.corners.roof == "flat":
                 hint = "roof = \"any\" or " + hint

@@ -150,6 +150,9 @@ class Compliance:
     checks: tuple[ComplianceCheck, ...]
     products: tuple[ProductCompliance, ...]
     unconfirmed: tuple[str, ...]
+    # the standard was named (--standard, project.toml [qa] standard): a product of it that fails fails the report's
+    # overall verdict; one the tolerance table chose is stated beside it
+    requested: bool = False
 
 
 # ---------------------------------------------------------------------------------------------- measurements
@@ -615,6 +618,7 @@ class Choice:
     level: str | None = None
     scale: str | None = None
     terrain: str = "flat"
+    requested: bool = False  # the standard named (--standard, [qa] standard), not the one the tolerance table chose
 
 
 def _table_reason(table) -> str:
@@ -638,6 +642,7 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
     ``scale``: --scale, the verdict table's map scale, after the class and before ``[qa] map_scale`` (as the table)."""
     std_src = "--standard" if standard else "project.toml [qa] standard"
     std = standard or qa.standard
+    requested = std is not None
     std = {"cn": "cn-at"}.get(std, std)
     table_key, _ = split_key(table.key)
     if std is None:
@@ -668,8 +673,8 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
         else:
             return Choice("asprs2014", "no class", why + "; no class given (--class 'H<cm> V<cm>'; Edition 1's "
                                                          "classes by GSD are not shipped): only the finest class met "
-                                                         "is stated")
-        return Choice("asprs2014", f"H{hv[0]:g}cm V{hv[1]:g}cm", why, h_cm=hv[0], v_cm=hv[1])
+                                                         "is stated", requested=requested)
+        return Choice("asprs2014", f"H{hv[0]:g}cm V{hv[1]:g}cm", why, h_cm=hv[0], v_cm=hv[1], requested=requested)
     if std == "asprs2023":
         if cls:
             m = _ASPRS_CLASS.match(cls)
@@ -690,8 +695,8 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
             why += f"; classes by the block's GSD: {row}"
         else:
             return Choice("asprs2023", "no class", why + "; no class given and the block's GSD unknown: only the "
-                                                         "finest class met is stated")
-        return Choice("asprs2023", f"H{h:g}cm V{v:g}cm", why, h_cm=h, v_cm=v)
+                                                         "finest class met is stated", requested=requested)
+        return Choice("asprs2023", f"H{h:g}cm V{v:g}cm", why, h_cm=h, v_cm=v, requested=requested)
     if std == "usgs-lbs":
         lbs = usgs_lbs()
         if cls:
@@ -702,7 +707,7 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
         else:
             lvl = lbs.default_level
             why += f"; {lbs.default_level_reason}"
-        return Choice("usgs-lbs", lvl, why, level=lvl)
+        return Choice("usgs-lbs", lvl, why, level=lvl, requested=requested)
     scales = list(cn_at().standard.scales) if std == "cn-at" else list(SCALE_TABLES)
     given_scale = scale
     # a map-scale standard's class is a map scale, and --scale the verdict table's: two scales on the command line
@@ -740,7 +745,8 @@ def choose(standard: str | None, class_text: str | None, table: ToleranceTable, 
         raise OptionError(f"terrain {terrain!r}: expected one of {', '.join(CN_TERRAINS)}", param="--terrain")
     if std == "thesis" and terrain == "high_mountain":
         terrain = "mountainous"
-    return Choice(std, f"{scale} {terrain}", why + f"; terrain {terrain}", scale=scale, terrain=terrain)
+    return Choice(std, f"{scale} {terrain}", why + f"; terrain {terrain}", scale=scale, terrain=terrain,
+                  requested=requested)
 
 
 def _asprs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
@@ -1210,7 +1216,7 @@ def judge(figs: Figures, choice: Choice) -> Compliance:
              "thesis": "the thesis' map-scale tolerance tables (aerotri/core/tolerance_tables/cn_1to*.toml)"}
     unconf = tuple(dict.fromkeys(f"{c.product}: {c.quantity}" for c in checks if c.limit_confirmed is False))
     return Compliance(key=choice.key, name=names[choice.key], class_tested=choice.class_tested, reason=choice.reason,
-                      checks=checks, products=summarise(checks), unconfirmed=unconf)
+                      checks=checks, products=summarise(checks), unconfirmed=unconf, requested=choice.requested)
 
 
 def with_lbs_lidar_limits(table: ToleranceTable, level: str, lidar_only: bool = False) -> ToleranceTable:

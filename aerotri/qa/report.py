@@ -889,7 +889,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                     tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol,
                     table=_table_record(table, lidar_only),
                     block=dataclasses.asdict(block), checks=rows,
-                    overall=("fail" if "fail" in verdicts else "pass") if verdicts else None,
+                    overall=overall_verdict(verdicts, dataclasses.asdict(compliance)),
                     passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info,
                     flight_acceptance=fa, compliance=dataclasses.asdict(compliance),
                     not_judged=tuple(r.id for r in rows if r.verdict is None and r.limit is not None))
@@ -1058,6 +1058,27 @@ def _compliance_section(comp: dict | None) -> dict | None:
                 header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]))
 
 
+def standard_fails_report(comp: dict | None) -> bool:
+    """Whether the compliance section fails the report's overall verdict: a standard asked for (--standard, project.toml
+    [qa] standard) with a product that fails ("not testable" does not fail it). A LiDAR-only folder under --standard
+    usgs-lbs read "Overall verdict: pass (3 passed, 0 failed)" beside "compliance ... QL2: fail (LiDAR DEM, LiDAR
+    density)"; a standard the tolerance table chose is stated beside the verdict, as before."""
+    return bool(comp and comp.get("requested") and any(p["verdict"] == "fail" for p in comp.get("products") or ()))
+
+
+def overall_verdict(verdicts: list, comp: dict | None) -> str | None:
+    """The report's overall verdict: "fail" when a row of the verdict table fails or a product of the standard asked
+    for fails (``standard_fails_report``), "pass" when the table's rows pass, None when no row has a verdict."""
+    if "fail" in verdicts or standard_fails_report(comp):
+        return "fail"
+    return "pass" if verdicts else None
+
+
+def standard_fails_note(comp: dict | None) -> str:
+    """Said after the compliance headline when the standard fails the overall verdict (``standard_fails_report``)."""
+    return "the standard asked for: the overall verdict fails with it" if standard_fails_report(comp) else ""
+
+
 def compliance_headline(comp: dict | None) -> str:
     """The compliance section's verdict in one phrase, for beside the verdict table's overall verdict (the two
     judge different things: a LiDAR-only report under usgs-lbs read "Overall verdict: pass" at its top while the
@@ -1118,6 +1139,7 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
                   tolerance_table=rep["tolerance_table"], terrain=rep["terrain"],
                   reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
                   compliance_headline=compliance_headline(rep.get("compliance")),
+                  standard_fails=standard_fails_note(rep.get("compliance")),
                   compliance_verdict=verdict_class(compliance_verdict(rep.get("compliance"))),
                   passed=rep["passed"], failed=rep["failed"], not_judged=len(rep.get("not_judged") or ()),
                   verdicts=verdicts,
@@ -1234,7 +1256,8 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         head = (f"tolerances: {t.get('name') or rep['map_scale']} ({rep['tolerance_table']}), terrain {rep['terrain']}; "
                 f"chosen because {t.get('reason', 'given')}")
         fig.text(0.04, 0.898, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
-        headline = compliance_headline(rep.get("compliance"))
+        headline = "; ".join(x for x in (compliance_headline(rep.get("compliance")),
+                                         standard_fails_note(rep.get("compliance"))) if x)
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
                              f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10, va="top")
         # the compliance verdict on its own lines, wrapped: one line cut it off after a long standard's name (cn-at)
@@ -1369,7 +1392,8 @@ def console_summary(report: QaReport) -> str:
     lines += compliance_lines(report.compliance)
     verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
     judged_by = t["name"] if t.get("lidar_only") else f"{report.map_scale} {report.terrain}"
-    headline = compliance_headline(report.compliance)
+    headline = "; ".join(x for x in (compliance_headline(report.compliance), standard_fails_note(report.compliance))
+                         if x)
     unjudged = f", {len(report.not_judged)} with a limit not judged" if report.not_judged else ""
     lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed{unjudged}; {judged_by})"
                  + (f"; {headline}" if headline else ""))

@@ -152,14 +152,14 @@ class CornerStats:
 
     n_points: int
     n_building_points: int
-    point_spacing_m: float
+    point_spacing_m: float | None  # None: no building points
     n_roofs: int
     n_outlines: int
     n_corners_traced: int
     n_corners: int
     n_usable: int
     n_roof_planes: int
-    min_edge_m: float
+    min_edge_m: float | None  # None: no building points to take it from and none given
     min_edge_rule: str
     roof: str
     sigma_strip_xy_m: float
@@ -175,6 +175,31 @@ class CornerStats:
     def of_record(cls, d: Mapping) -> "CornerStats":
         """From a record holding its keys (``find_roof_corners``' stats, corners.json)."""
         return cls(**{f.name: d[f.name] for f in dataclasses.fields(cls) if f.name in d})
+
+
+class NoRoofs(InputError):
+    """The cloud gives no roof to take corners from: no building points (ASPRS class 6), or no roof outline traced
+    from them. ``lidarctl corners`` stops on it (exit 2, the message); the chain records it in corners.json and goes
+    on without LiDAR control, as with no usable corner (docs/chain.md). ``stats``, ``crs``, ``units``: what the
+    search found, for corners.json (None from the in-memory ``find_roof_corners``)."""
+
+    def __init__(self, message: str, *, stats: "CornerStats | None" = None, crs=None, units=None):
+        super().__init__(message)
+        self.stats, self.crs, self.units = stats, crs, units
+
+
+def no_building_points_message(n_points: int, class_counts) -> str:
+    """Why a cloud without building points gives no roof corners. Only a cloud that looks unclassified (every point
+    class 0 "never classified" or 1 "unclassified") is told to be classified; a classified one simply holds no
+    building (Autzen's trimmed tile, classified by the chain, was told "classify the cloud first").
+    ``class_counts``: points per ASPRS class (index = class), noise left out."""
+    counts = {c: int(n) for c, n in enumerate(np.asarray(class_counts).tolist()) if n}
+    head = f"no building points (ASPRS class {BUILDING}) among {n_points} points"
+    if set(counts) <= {0, 1}:
+        return (f"{head}, all of them unclassified (class 0 or 1): classify the cloud first (lidarctl classify) - "
+                "roof corners need building points")
+    classes = ", ".join(f"class {c}: {n}" for c, n in sorted(counts.items()))
+    return f"{head} of a classified cloud ({classes}): it holds no building to take roof corners from"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -394,10 +419,7 @@ def _roof_clusters(x, y, z, classification, point_source_id, *, spacing_m: float
     is_bldg = cls == BUILDING
     n_bldg = int(is_bldg.sum())
     if n_bldg == 0:
-        raise InputError(
-            f"no building points (ASPRS class {BUILDING}) among {len(xyz)} points: classify the cloud first "
-            "(lidarctl classify) - roof corners need building points"
-        )
+        raise NoRoofs(no_building_points_message(len(xyz), np.bincount(cls.astype(np.int64), minlength=256)))
     bldg_idx = np.flatnonzero(is_bldg)
     if spacing_m is None:
         spacing = point_spacing_m(xyz[bldg_idx, :2])
@@ -697,12 +719,7 @@ def min_roof_m2(min_edge_m: float) -> float:
 def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_roofs, t_start, min_edge_m, roof,
             sigma_strip_xy_m, sigma_strip_z_m, min_edge_auto=False) -> RoofCorners:
     """The reported corners and the stats of the scored corners of all roofs (in roof order)."""
-    if not raw:
-        raise InputError(
-            f"no roof outline could be traced from {n_building_points} building points ({n_roofs} roofs of "
-            f"at least {min_roof_m2(min_edge_m):g} m^2; point spacing {spacing_m:.2f} m)"
-        )
-    corners = _reported_corners(raw, min_edge_m, spacing_m)
+    corners = _reported_corners(raw, min_edge_m, spacing_m) if raw else []
     n_usable = sum(c["usable"] for c in corners)
     stats = CornerStats(**{
         "n_points": int(n_points), "n_building_points": n_building_points, "point_spacing_m": spacing_m,
@@ -720,6 +737,9 @@ def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_r
         ),
         "runtime_s": time.perf_counter() - t_start,
     })
+    if not raw:
+        raise NoRoofs(f"no roof outline could be traced from {n_building_points} building points ({n_roofs} roofs of "
+                      f"at least {min_roof_m2(min_edge_m):g} m^2; point spacing {spacing_m:.2f} m)", stats=stats)
     return RoofCorners(corners, outlines, faces, stats)
 
 
@@ -774,6 +794,7 @@ class _TiledCloud:
     strip_file: np.ndarray  # per strip entry: its file and point_source_id
     strip_sid: np.ndarray
     scratch_bytes: int
+    class_counts: np.ndarray  # non-noise points per ASPRS class (index = class)
 
 
 def _mark_used(used: np.ndarray, grid, tid: int, code: int) -> None:
@@ -829,6 +850,7 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
                f"{names}: the corner search's scratch ({record.itemsize} + 8 bytes a point)")
     parts, strips, file_base = set(), {}, []
     index = n_bldg = 0
+    class_counts = np.zeros(256, np.int64)
     bmin, amin = np.full(2, np.inf), np.full(2, np.inf)
     one_sid = []
     for k, p in enumerate(paths):
@@ -848,6 +870,7 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
             for name in ("X", "Y", "Z"):
                 rec[name] = np.asarray(chunk[name])[keep]
             rec["cls"] = cls[keep]
+            class_counts += np.bincount(rec["cls"], minlength=256)
             sid_values, sid_entry = np.unique(sid[keep], return_inverse=True)
             entries = np.array([strips.setdefault((k, int(s)), len(strips)) for s in sid_values], np.int64)
             if len(strips) > _MAX_STRIPS:
@@ -884,7 +907,7 @@ def _bin_corner_points(paths, crs, work: Path, tile_m: float, buffer_m: float, c
                        len(paths) > 1 and all(one_sid), record, frozenset(parts),
                        np.array([h.scales for h in headers], float), np.array([h.offsets for h in headers], float),
                        np.array(file_base, np.int64), np.array([f for f, _ in pairs], np.uint16).reshape(-1),
-                       np.array([s for _, s in pairs], np.uint16).reshape(-1), scratch_bytes)
+                       np.array([s for _, s in pairs], np.uint16).reshape(-1), scratch_bytes, class_counts)
 
 
 def _metres(tc: _TiledCloud, raw: np.ndarray, file: np.ndarray, axis: int) -> np.ndarray:
@@ -1012,9 +1035,14 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
     try:
         tc = _bin_corner_points(paths, crs, work, tile_m, buffer_m, chunk_points)
         if tc.n_building == 0:
-            raise InputError(
-                f"{names}: no building points (ASPRS class {BUILDING}) among {tc.n_points} points: classify the "
-                "cloud first (lidarctl classify) - roof corners need building points")
+            stats = CornerStats(
+                n_points=tc.n_points, n_building_points=0, point_spacing_m=None, n_roofs=0, n_outlines=0,
+                n_corners_traced=0, n_corners=0, n_usable=0, n_roof_planes=0, min_edge_m=min_edge_m,
+                min_edge_rule="given" if min_edge_m is not None else "none (no building points)", roof=roof,
+                sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m, usable_score=USABLE_SCORE,
+                median_sxy_usable_m=None, runtime_s=time.perf_counter() - t_start)
+            raise NoRoofs(f"{names}: {no_building_points_message(tc.n_points, tc.class_counts)}", stats=stats,
+                          crs=tc.crs, units=tc.units)
         spacing = _global_spacing_m(tc, chunk_points)
         min_edge_auto = min_edge_m is None
         if min_edge_auto:
@@ -1066,6 +1094,9 @@ def find_roof_corners_tiled(paths, crs=None, *, tile_m: float = DEFAULT_TILE_M, 
                          spacing_m=spacing, n_roofs=len(keys), t_start=t_start, min_edge_m=min_edge_m, roof=roof,
                          sigma_strip_xy_m=sigma_strip_xy_m, sigma_strip_z_m=sigma_strip_z_m,
                          min_edge_auto=min_edge_auto)
+    except NoRoofs as exc:
+        raise NoRoofs(f"{names}: {exc}", stats=exc.stats and dataclasses.replace(
+            exc.stats, tiles=len(tiles), tile_m=tile_m, buffer_m=buffer_m), crs=tc.crs, units=tc.units) from None
     except InputError as exc:
         raise InputError(f"{names}: {exc}") from None
     result = dataclasses.replace(result, stats=dataclasses.replace(result.stats, tiles=len(tiles), tile_m=tile_m,
@@ -1387,6 +1418,17 @@ class CornerSettings:
                                                               "largest roof, at most the tile size.")
 
 
+def _record_no_usable(outdir: Path, summary: CornerControlResult) -> CornerControlResult:
+    """corners.json saying why no corner is usable, the corner files (and roof planes) of an earlier run removed."""
+    outdir.mkdir(parents=True, exist_ok=True)
+    from aerotri.core.atomic import remove_output
+
+    for name in ("corners.csv", "corners.geojson", "corners.png", ROOF_PLANES_FILE):
+        remove_output(outdir / name)  # with corners.json, one commit: all old on a failure
+    write_text_atomic(outdir / "corners.json", summary.to_json())
+    return summary
+
+
 @committed(lambda paths, outdir, *a, **k: Path(outdir))
 def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSettings(), crs=None,
                    record_none: bool = False) -> CornerControlResult:
@@ -1398,8 +1440,9 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
     corner is usable as control; x, y, z in the files' CRS and units, sigmas in metres (every length
     setting is in metres, also for clouds in feet). Without a usable corner it writes nothing, or, with
     ``record_none`` (the chain, which goes on without LiDAR control), only corners.json saying why
-    (``n_usable`` 0), and removes the corner files (and roof planes) of an earlier run, so that nothing
-    downstream takes stale corners; the chain then adjusts as ``lidarctl corners``' exit code 2 tells a
+    (``n_usable`` 0; also for a cloud with no roof at all, ``NoRoofs``: no building points, no roof outline,
+    which ``lidarctl corners`` is told by that error), and removes the corner files (and roof planes) of an
+    earlier run, so that nothing downstream takes stale corners; the chain then adjusts as ``lidarctl corners``' exit code 2 tells a
     user to (README), without roof planes. Returns what corners.json holds, with ``no_usable`` the one-line
     reason when no corner is usable (else None).
     """
@@ -1415,11 +1458,18 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
     names = ", ".join(str(p) for p in paths)
     if s.buffer_m > s.tile_m:
         raise OptionError(f"buffer {s.buffer_m:g} m is larger than the tile size {s.tile_m:g} m", param="--buffer-m")
-    result, crs_out, units, figure = find_roof_corners_tiled(
-        paths, crs=crs, tile_m=s.tile_m, buffer_m=s.buffer_m, min_edge_m=s.min_edge_m, roof=s.roof,
-        sigma_strip_xy_m=s.sigma_strip_xy_m, sigma_strip_z_m=s.sigma_strip_z_m,
-        work_dir=next(p for p in (outdir, *outdir.parents) if p.is_dir()),
-        figure_cells=FIGURE_CELLS if s.figure else 0, work_name=f"{outdir.name}.corners")
+    try:
+        result, crs_out, units, figure = find_roof_corners_tiled(
+            paths, crs=crs, tile_m=s.tile_m, buffer_m=s.buffer_m, min_edge_m=s.min_edge_m, roof=s.roof,
+            sigma_strip_xy_m=s.sigma_strip_xy_m, sigma_strip_z_m=s.sigma_strip_z_m,
+            work_dir=next(p for p in (outdir, *outdir.parents) if p.is_dir()),
+            figure_cells=FIGURE_CELLS if s.figure else 0, work_name=f"{outdir.name}.corners")
+    except NoRoofs as exc:  # no roof at all (no building points, no outline): the chain goes on without control
+        if not record_none or exc.stats is None:
+            raise
+        crs_text = exc.crs.to_string() if exc.crs is not None else None
+        summary = CornerControlResult(names, crs_text, exc.units, exc.stats, resolved.record(), no_usable=str(exc))
+        return _record_no_usable(outdir, summary)
     st = result.stats
     crs_text = crs_out.to_string() if crs_out is not None else None
     if st.n_usable == 0:
@@ -1429,13 +1479,7 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
         summary = CornerControlResult(names, crs_text, units, st, resolved.record(), no_usable=reason)
         if not record_none:
             return summary
-        outdir.mkdir(parents=True, exist_ok=True)
-        from aerotri.core.atomic import remove_output
-
-        for name in ("corners.csv", "corners.geojson", "corners.png", ROOF_PLANES_FILE):
-            remove_output(outdir / name)  # with corners.json, one commit: all old on a failure
-        write_text_atomic(outdir / "corners.json", summary.to_json())
-        return summary
+        return _record_no_usable(outdir, summary)
     if s.figure:
         ndsm, extent_m = figure
     out = result.in_crs_units(units)

@@ -93,6 +93,22 @@ def test_cloud_without_buildings_gives_clear_message_and_no_files(tmp_path):
     assert r.exit_code == 2
     assert "no building points" in r.output and "ground.las" in r.output
     assert not out.exists() or not any(out.iterdir())
+    # lead (new-user trial, Autzen): a classified cloud without buildings was told "classify the cloud first"
+    assert "classify the cloud first" not in r.output and "Traceback" not in r.output
+    assert ("no building points (ASPRS class 6) among 3000 points of a classified cloud (class 2: 3000): it holds "
+            "no building to take roof corners from") in r.output
+
+
+def test_an_unclassified_cloud_is_told_to_be_classified_first(tmp_path):
+    rng = np.random.default_rng(2)
+    n = 3000
+    las = tmp_path / "raw.las"
+    cls = np.where(np.arange(n) % 3 == 0, 0, 1)   # never classified (0) and unclassified (1)
+    _write_las(las, rng.uniform(0, 60, n), rng.uniform(0, 60, n), rng.normal(0, 0.05, n), cls, np.ones(n))
+    r = CliRunner().invoke(main, ["corners", str(las), str(tmp_path / "out")])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert ("no building points (ASPRS class 6) among 3000 points, all of them unclassified (class 0 or 1): classify "
+            "the cloud first (lidarctl classify)") in r.output
 
 
 def test_no_usable_corner_gives_clear_message_and_no_files(tmp_path):

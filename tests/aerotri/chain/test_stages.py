@@ -613,3 +613,57 @@ def test_the_chain_says_when_it_replaces_an_adjustment_made_with_other_options(r
     with caplog.at_level(logging.INFO):
         chain.warn_hand_options_dropped(chain.final_settings())
     assert "the adjustment there was made by" not in caplog.text, caplog.text
+
+
+def test_a_lidar_only_project_without_buildings_goes_on_past_the_corners(tmp_path):
+    """lead (new-user trial, Autzen's trimmed tile): `aerotri run` on a LiDAR-only folder classified the cloud, then
+    stopped at the corners stage (exit 2) with "no building points ... classify the cloud first": the cloud simply
+    holds no building. As with no usable roof corner (docs/chain.md) the stage records why and the chain goes on;
+    without frames the photo stages are left out, each saying why."""
+    import laspy
+    import pyproj
+
+    from aerotri.chain import Chain, read_options, run_stages
+    from aerotri.chain.run import closing_words
+    from aerotri.core.project import Project
+    from lidarctl.corners.roof_corners import read_corner_summary
+
+    p = tmp_path / "P"
+    (p / "lidar").mkdir(parents=True)
+    (p / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n')
+    rng = np.random.default_rng(4)
+    n = 4000
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = np.array([0.001, 0.001, 0.001]), np.array([452000.0, 3407000.0, 0.0])
+    header.add_crs(pyproj.CRS.from_epsg(32649))
+    las = laspy.LasData(header)
+    las.x, las.y = 452000.0 + rng.uniform(0, 80, n), 3407000.0 + rng.uniform(0, 80, n)
+    las.z = rng.normal(0, 0.05, n)
+    las.classification = np.where(np.arange(n) % 4 == 0, 5, 2)   # ground and high vegetation: classified, no building
+    las.point_source_id = np.ones(n)
+    las.write(p / "lidar" / "strip_01.laz")
+    project = Project.open(p)
+    (classified,) = project.classified_strips()      # as the classify stage leaves it
+    classified.parent.mkdir(parents=True)
+    shutil.copy(p / "lidar" / "strip_01.laz", classified)
+    chain = Chain(project, read_options(project))
+    stages = [s for s in chain.stages() if s.name not in ("strips", "classify", "rasters", "report")]
+    rows = {r["stage"]: r for r in run_stages(p, stages, log=lambda m: None)}
+    corners = rows["corners"]
+    assert corners["status"] == "done" and corners["usable"] == 0
+    (note,) = corners["notes"]
+    assert "no building points (ASPRS class 6) among 4000 points of a classified cloud (class 2: 3000, class 5: " \
+           "1000): it holds no building to take roof corners from; the chain goes on without LiDAR control" in note
+    assert "classify the cloud first" not in note and "min_edge_m" not in note
+    summary = read_corner_summary(project.corners_summary_path)
+    assert summary.no_usable and summary.stats.n_building_points == 0 and summary.stats.n_points == 4000
+    assert not project.corners_path.exists() and not project.roof_planes_path.exists()
+    for stage in ("match", "adjust_first", "control", "adjust_final", "dem", "rectify", "mosaic", "dom_check"):
+        assert rows[stage]["status"] == "skipped", stage
+        assert rows[stage]["why"] == f"no frames in {project.images_dir}: a LiDAR-only project, no photo stages"
+    assert closing_words(list(rows.values())).startswith("the LiDAR stages only: no frames in ")
+    # with frames (and no building points) the control transfer says why it is left out
+    (p / "images").mkdir()
+    (p / "images" / "f1.tif").write_bytes(b"")
+    assert Chain(project, read_options(project)).no_corners() == (
+        f"no building points in the classified cloud, so no roof corner ({project.lidar_out_dir / 'corners.json'})")

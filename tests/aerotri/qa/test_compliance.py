@@ -697,13 +697,16 @@ def test_the_headline_gives_the_compliance_verdict_beside_the_overall_one(tmp_pa
 
     _dem_checked_alone(tmp_path, open_dz_m=0.05)     # forest |dz| 0.2 m: beyond QL0's VVA 0.15 m
     rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL0")
-    assert rep.overall == "pass"                      # the verdict table: NVA 0.05 <= 0.05
+    assert rep.failed == 0 and rep.passed > 0         # the verdict table: NVA 0.05 <= 0.05
+    assert rep.overall == "fail"                      # lead: the standard asked for fails the overall verdict
     dem = [p for p in rep.compliance["products"] if p["product"] == "LiDAR DEM"][0]
     assert dem["verdict"] == "fail"
     last = console_summary(rep).splitlines()[-1]
-    assert last.endswith("; compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)"), last
+    assert last.endswith("; compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM); "
+                         "the standard asked for: the overall verdict fails with it"), last
     html = (tmp_path / "reports" / "index.html").read_text()
-    assert "compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)</b> (below)" in html
+    assert ("compliance with USGS Lidar Base Specification, class QL0: fail (LiDAR DEM)</b> (below; the standard "
+            "asked for: the overall verdict fails with it)") in html
     rep = write_qa_report(tmp_path)                   # no standard named: the one the table chose (docs/standards.md)
     # review1: a LiDAR-only folder headlined the AT standard cn-at, "not testable (LiDAR DEM)": now the thesis
     # tables, whose 1:5000 table judges the verdict table too
@@ -716,6 +719,38 @@ def test_the_headline_gives_the_compliance_verdict_beside_the_overall_one(tmp_pa
     html = (tmp_path / "reports" / "index.html").read_text()
     assert '<b class="not-testable">compliance with Chinese' in html and "<td class='not-testable'>" in html
     assert 'class="not"' not in html and "class='not'" not in html
+
+
+def test_a_failed_product_of_the_standard_asked_for_fails_the_overall_verdict(tmp_path):
+    # lead (new-user trial, Autzen): `aerotri report P --standard usgs-lbs` on a LiDAR-only folder headlined "Overall
+    # verdict: pass (3 passed, 0 failed)" beside "compliance with USGS Lidar Base Specification, class QL2: fail
+    # (LiDAR DEM, LiDAR density)" (VVA 0.4117 m > 0.3 m, density 1.988 < 2 /m2)
+    from aerotri.qa.report import console_summary
+
+    _dem_checked_alone(tmp_path, open_dz_m=0.05, forest_dz_m=0.4)      # VVA 0.4 m > QL2's 0.3 m
+    rep = write_qa_report(tmp_path, standard="usgs-lbs")
+    products = {p["product"]: p["verdict"] for p in rep.compliance["products"]}
+    assert products["LiDAR DEM"] == "fail" and products["LiDAR density"].startswith("not testable")
+    assert rep.failed == 0 and rep.passed == 1 and rep.overall == "fail"   # the DEM height RMSE: 0.05 <= 0.1 m
+    summary = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    assert summary["overall"] == "fail" and summary["compliance"]["requested"] is True
+    assert console_summary(rep).splitlines()[-1].startswith(f"{rep.html}: fail (1 passed, 0 failed; ")
+    html = (tmp_path / "reports" / "index.html").read_text()
+    assert 'Overall verdict: <b class="fail">fail</b>' in html
+    # named in project.toml [qa] standard: asked for as well
+    (tmp_path / "project.toml").write_text(PROJECT + '[qa]\nstandard = "usgs-lbs"\n')
+    assert write_qa_report(tmp_path).overall == "fail"
+    # a product not testable does not fail it: the VVA passes at 0.2 m, the density is not measured (no strips)
+    (tmp_path / "b").mkdir()
+    _dem_checked_alone(tmp_path / "b", open_dz_m=0.05, forest_dz_m=0.2)
+    rep = write_qa_report(tmp_path / "b", standard="usgs-lbs")
+    products = {p["product"]: p["verdict"] for p in rep.compliance["products"]}
+    assert products["LiDAR DEM"] == "pass" and products["LiDAR density"].startswith("not testable")
+    assert rep.overall == "pass"
+    assert "overall verdict fails" not in (tmp_path / "b" / "reports" / "index.html").read_text()
+    # a standard the tolerance table chose (none named) is stated beside the verdict table's verdict, as before
+    rep = write_qa_report(tmp_path / "b")
+    assert rep.compliance["requested"] is False and rep.overall == "pass"
 
 
 def test_the_density_is_counted_only_for_a_standard_with_a_density_row(tmp_path, monkeypatch):
