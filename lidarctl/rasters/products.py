@@ -957,7 +957,6 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
         raise InputError(f"{inputs.names}: the points span {nrows} x {ncols} cells (rows x columns) of {res_m:g} m "
                          "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res-m "
                          "coarser than the cloud", param="--res-m")
-    warn_cells_finer_than_points(inputs.n_points, nrows * ncols, res_m, inputs.names)
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
     check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
                option="--tile-px", hint="use a smaller --tile-px")
@@ -972,6 +971,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     check_task_count((-(-nrows // tile_px)) * (-(-ncols // tile_px)),
                      f"{inputs.names}: a grid of {nrows:,} x {ncols:,} cells in tiles of {tile_px} cells", "--tile-px",
                      "use a larger --tile-px")
+    # (after the refusals: strips far apart are said as such, not as cells finer than their points)
+    warn_cells_finer_than_points(inputs.n_points, nrows * ncols, res_m, inputs.names)
     grid = TileGrid(0.0, 0.0, float(tile_px), float(buffer_px), -(-nrows // tile_px), -(-ncols // tile_px))
     transform_m = _from_origin(x0, y0 + nrows * res_m, res_m, res_m)
     transform = transform_m if units.is_metric else _transform_in_units(transform_m, units)
