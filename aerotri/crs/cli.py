@@ -167,8 +167,24 @@ def warp_cmd(*, input_path, output_path, to_epsg, from_epsg, params, heights, al
                     params=load_transformation(params) if params else None,
                     heights=load_height_model(heights) if heights else None, allow_ballpark=allow_ballpark,
                     res_m=res_m, res_deg=res_deg, kind=kind, resampling=resampling)
-    click.echo(f"{r.width} x {r.height} cells of {r.res:g} in {r.crs} ({r.kind} raster, {100 * r.valid_fraction:.1f} % "
-               f"valid) {r.operation['description']}: {output_path} ({time.perf_counter() - t0:.1f} s)")
+    click.echo(f"{r.width} x {r.height} cells of {r.res:g} {_grid_unit(output_path)} in {r.crs} ({r.kind} raster, "
+               f"{100 * r.valid_fraction:.1f} % valid) {r.operation['description']}: {output_path} "
+               f"({time.perf_counter() - t0:.1f} s)")
+
+
+def _grid_unit(path) -> str:
+    """The unit of the cells of the raster written at ``path``, by its CRS, for the summary line ("cells of 1 in
+    EPSG:3740" named none)."""
+    import math
+
+    import pyproj
+    import rasterio
+
+    from aerotri.geom.crs.definition import length_unit_name, linear_unit_m
+
+    with rasterio.open(path) as ds:
+        unit_m = linear_unit_m(pyproj.CRS.from_wkt(ds.crs.to_wkt()))
+    return "deg" if math.isnan(unit_m) else length_unit_name(unit_m)
 
 
 @crs.command("transform")

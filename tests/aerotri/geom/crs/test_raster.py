@@ -55,6 +55,7 @@ def test_dem_warp_moves_heights_with_the_datum(dem_and_params, tmp_path):
     r = CliRunner().invoke(aerotri_cli, ["crs", "warp", str(dem), str(out), "--to", XIAN_GK, "--params", str(params)])
     assert r.exit_code == 0, r.output
     assert "height raster" in r.output
+    assert " m in EPSG:2382 (height raster" in r.output, r.output  # the cells' unit (trial: "cells of 1 in EPSG:3740")
     op = CrsTransformer("EPSG:32649", XIAN_GK, params=T)
     rng = np.random.default_rng(5)
     with rasterio.open(dem) as src, rasterio.open(out) as dst:
