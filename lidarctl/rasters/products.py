@@ -54,6 +54,7 @@ from lidarctl.rasters import nearest
 from lidarctl.rasters.cells import LOW_VEGETATION, VEGETATION, CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
 from aerotri.geom.crs.definition import length_unit_name
+from aerotri.geom.crs.raster_warp import INTENSITY_DESCRIPTION, QUANTITY_TAG
 from lidarctl.units import METRE, LengthUnits
 
 log = logging.getLogger(__name__)
@@ -86,7 +87,7 @@ class RasterGrids:
         return dataclasses.replace(self, **heights, transform=_transform_in_units(self.transform, units))
 DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points", "dsm": "DSM: highest first return",
                 "ndsm": "nDSM: DSM - DEM", "chm": "CHM: highest vegetation above the DEM",
-                "intensity": "mean intensity of first returns (sensor units)",
+                "intensity": INTENSITY_DESCRIPTION,   # (by which a DEM reader refuses it: raster_warp.not_heights)
                 "dsm_nearest": "DSM: first return nearest the cell centre"}
 # Memory of a tile per cell of its window at the peak of ``_CellSums`` and the TIN fill (per-cell
 # records, the pull-push pyramid, the triangulation; measured: 1.07 GB peak RSS with one tile of
@@ -858,8 +859,6 @@ def _tags(units: LengthUnits, res_m: float) -> dict:
 def _raster_tags(tags: dict, name: str) -> dict:
     """The stage's tags for raster ``name``: VERTICAL_UNITS only on the height grids (intensity is no length), which
     a grid of another quantity replaces by QUANTITY (its name: refused as a DEM, ``raster_warp.not_heights``)."""
-    from aerotri.geom.crs.raster_warp import QUANTITY_TAG
-
     if name in HEIGHT_GRIDS:
         return tags
     return {**{k: v for k, v in tags.items() if k != "VERTICAL_UNITS"}, QUANTITY_TAG: name}

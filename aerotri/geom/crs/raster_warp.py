@@ -264,7 +264,8 @@ def read_on_grid(ds, x_left: float, y_top: float, res: float, shape, operation=N
 # gave it. Given as a DEM it was taken for heights (trial: check-heights --dem intensity.tif, RMSE 91.86 m; contours
 # of intensity).
 QUANTITY_TAG = "QUANTITY"
-NOT_HEIGHT_DESCRIPTIONS = {"mean intensity of first returns (sensor units)": "intensity"}
+INTENSITY_DESCRIPTION = "mean intensity of first returns (sensor units)"  # (lidarctl rasters writes it from here)
+NOT_HEIGHT_DESCRIPTIONS = {INTENSITY_DESCRIPTION: "intensity"}
 
 
 def not_heights(ds) -> str | None:
