@@ -406,7 +406,6 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
         raise OptionError("nothing to check: give the classified cloud(s) before POINTS_CSV, --dem DEM.tif, or both",
                           param="--dem")
     points = read_points_csv(points_csv)
-    z_header_unit = points.z_unit  # None: the header names none (a plain z), the CRS's unit is assumed
     if grouping == "auto":
         grouping = "column" if points.group is not None else "none"
     if grouping == "column" and points.group is None:
@@ -503,7 +502,7 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
         for p, zd, d in zip(result["points"], z_dem, dz_dem):
             p["z_dem"] = None if not np.isfinite(zd) else float(zd)
             p["dz_dem_m"] = None if not np.isfinite(d) else float(d)
-    if z_header_unit is None:
+    if points.z_unit is None:  # the header names no unit (a plain z): the CRS's unit was assumed
         for key, what in (("dz_m", "cloud"), ("dz_dem_m", "DEM")):
             dz = np.array([np.nan if p.get(key) is None else p[key] for p in result["points"]], float)
             if key in result["points"][0] and (slip := unit_slip(dz, points_m.z, u.z_m, points.z_column)):
@@ -539,8 +538,7 @@ def unit_slip(dz_m: np.ndarray, z_points_m: np.ndarray, z_unit_m: float, z_colum
     med_other = float(np.median(np.abs(surface - z_points_m[ok] * factor)))
     if med_other >= UNIT_SLIP_FRACTION * med:
         return None
-    base = _UNIT_SUFFIX.match(z_column.lower())["base"] if z_column and _UNIT_SUFFIX.match(z_column.lower()) else (
-        z_column or "z")
+    base = z_column or "z"  # (a header without a unit suffix: with one, the heights' unit is not assumed)
     return {"median_abs_dz_m": med, "median_abs_dz_other_unit_m": med_other, "other_unit": other,
             "assumed_unit": length_unit_name(z_unit_m, long=True), "column": z_column or "z",
             "header": f"{base}_{suffix}" + (f" (US survey feet: {base}_usft)" if suffix == "ft" else "")}
