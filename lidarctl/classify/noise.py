@@ -2,8 +2,8 @@
 
 Methods
 -------
-* Isolated points: 3D voxel grid (edge ``voxel_m``); a point whose 3x3x3 voxel neighbourhood holds
-  fewer than ``min_neighbours`` other points is isolated (birds, dust, sensor blunders).
+* Isolated points: a point whose cube of edge ``3 x voxel_m`` centred on it holds fewer than
+  ``min_neighbours`` other points is isolated (birds, dust, sensor blunders).
 * Low outliers (multipath under water, reflections "below ground"): a *gap* test, not a
   "below the local median" test, so that sparse true ground under canopy survives.  A point p is
   supported when some other point q within ``radius_m`` horizontally lies not more than
@@ -42,9 +42,10 @@ ISOLATED, LOW, HIGH = 1, 2, 3
 class NoiseSettings:
     """Noise removal (``[classify.noise]``): isolated points, low and high outliers, low clusters."""
 
-    voxel_m: float = setting(0.0, min=0.0, help="Voxel of the isolation test (m); 0: 2.5 x the mean point spacing, at "
-                                                "least 2 m.")
-    min_neighbours: int = setting(1, min=0, help="A point with fewer other points in its 3 x 3 x 3 voxels is isolated.")
+    voxel_m: float = setting(0.0, min=0.0, help="Voxel of the isolation test (m): its cube is 3 voxels wide, centred on "
+                                                "the point; 0: 2.5 x the mean point spacing, at least 2 m.")
+    min_neighbours: int = setting(1, min=0, help="A point with fewer other points within 1.5 voxel_m on every axis is "
+                                                  "isolated.")
     radius_m: float = setting(0.0, min=0.0, help="Search radius of the low and high outlier tests (m); 0: max(5 m, 5 x "
                                                  "the mean point spacing).")
     gap_m: float = setting(1.0, min=0.0, help="A low point needs another point within radius_m at most this (plus "
@@ -58,48 +59,47 @@ class NoiseSettings:
     cluster_passes: int = setting(3, min=0, help="Passes of the low cluster test.")
 
 
-@numba.njit(cache=True, parallel=True)
-def _voxel_key(vi, vj, vk, nj, nk):
-    out = np.empty(len(vi), np.int64)
-    for k in numba.prange(len(vi)):
-        out[k] = (vi[k] * nj + vj[k]) * nk + vk[k]
-    return out
-
-
-# Voxel grids up to this many cells (64 MB of int32 counts) are counted densely (a 3x3x3 box sum
-# over an array); larger ones (a stray point far above the scene) go through the sorted occupied voxels.
-DENSE_VOXELS = 1 << 24
+# Half-edge of the isolation cube in voxels (1.5: the volume of the 3 x 3 x 3 voxels it replaced).
+CUBE_HALF_EDGE_VOXELS = 1.5
 
 
 def isolated_points(x, y, z, voxel_m: float, min_neighbours: int = 1) -> np.ndarray:
-    """Boolean mask: fewer than ``min_neighbours`` other points in the 3x3x3 voxel neighbourhood."""
-    vi = grid._floor_div(np.asarray(x, float), float(x.min()) - voxel_m, float(voxel_m))
-    vj = grid._floor_div(np.asarray(y, float), float(y.min()) - voxel_m, float(voxel_m))
-    vk = grid._floor_div(np.asarray(z, float), float(z.min()) - voxel_m, float(voxel_m))
-    # Indices start at 1 (0 for a point at a minimum when the division rounds down) and end 2 below
-    # the sizes: the +-1 neighbours never reach a point of another row or column.
-    ni, nj, nk = vi.max() + 2, vj.max() + 2, vk.max() + 2
-    key = _voxel_key(vi, vj, vk, nj, nk)
-    if (ni + 2) * (nj + 2) * (nk + 2) <= DENSE_VOXELS:
-        # One more voxel on every side, so that every point's voxel gets the full box sum.
-        dense = _voxel_key(vi + 1, vj + 1, vk + 1, nj + 2, nk + 2)
-        total = np.bincount(dense, minlength=(ni + 2) * (nj + 2) * (nk + 2)).astype(np.int32)
-        total = total.reshape(ni + 2, nj + 2, nk + 2)
-        for axis in range(3):       # separable 3x3x3 box sum
-            lo, mid, hi = [slice(None)] * 3, [slice(None)] * 3, [slice(None)] * 3
-            lo[axis], mid[axis], hi[axis] = slice(0, -2), slice(1, -1), slice(2, None)
-            box = total.copy()
-            box[tuple(mid)] += total[tuple(lo)] + total[tuple(hi)]
-            total = box
-        return (total.ravel()[dense] - 1) < min_neighbours
+    """Boolean mask: fewer than ``min_neighbours`` other points in the cube of edge ``3 * voxel_m``
+    centred on the point (|dx|, |dy|, |dz| <= 1.5 voxel_m; the volume of 3 x 3 x 3 voxels).
+
+    The cube moves with the point, not with a voxel lattice: a point's verdict does not depend on where
+    the lattice starts, so one stray point far below the scene (which moved a lattice anchored at the
+    data's minimum) or a tile boundary changes no other point's verdict.
+    """
+    x, y, z = (np.asarray(a, float) for a in (x, y, z))
+    isolated = np.zeros(len(x), bool)
+    if min_neighbours <= 0 or len(x) == 0:
+        return isolated
+    # Voxels of edge voxel_m on the global lattice: the points sharing a voxel are within voxel_m of each
+    # other on every axis, inside each other's cube, so only points of voxels holding at most
+    # min_neighbours points can be isolated (CUBE_HALF_EDGE_VOXELS >= 1); their cubes reach two voxels away.
+    v = [np.floor(a / voxel_m).astype(np.int64) for a in (x, y, z)]
+    lo = [a.min() - 3 for a in v]
+    size = [int(a.max() - b) + 4 for a, b in zip(v, lo)]
+    key = ((v[0] - lo[0]) * size[1] + (v[1] - lo[1])) * size[2] + (v[2] - lo[2])
     ukeys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    total = np.zeros(len(ukeys), np.int64)
-    for di in (-1, 0, 1):
-        for dj in (-1, 0, 1):
-            for dk in (-1, 0, 1):
-                pos = grid.neighbour_lookup(ukeys, ukeys + (di * nj + dj) * nk + dk)
-                total += np.where(pos >= 0, counts[np.maximum(pos, 0)], 0)
-    return (total[inverse] - 1) < min_neighbours
+    sparse_voxel = counts <= min_neighbours
+    if not sparse_voxel.any():
+        return isolated
+    reach = int(np.floor(CUBE_HALF_EDGE_VOXELS)) + 1   # one more where a division rounds up
+    steps = np.arange(-reach, reach + 1)
+    offsets = ((steps[:, None, None] * size[1] + steps[None, :, None]) * size[2] + steps[None, None, :]).ravel()
+    near = grid.neighbour_lookup(ukeys, np.unique(ukeys[sparse_voxel][:, None] + offsets[None, :]))
+    in_reach = np.zeros(len(ukeys), bool)
+    in_reach[near[near >= 0]] = True
+    candidate = np.flatnonzero(sparse_voxel[inverse])
+    support = np.flatnonzero(in_reach[inverse])
+    xyz = np.column_stack([x, y, z])
+    origin = xyz[candidate[0]]
+    tree = cKDTree(xyz[support] - origin)
+    found = tree.query_ball_point(xyz[candidate] - origin, r=CUBE_HALF_EDGE_VOXELS * voxel_m, p=np.inf, return_length=True)
+    isolated[candidate] = (found - 1) < min_neighbours
+    return isolated
 
 
 @numba.njit(cache=True)
