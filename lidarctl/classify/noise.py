@@ -82,24 +82,48 @@ def isolated_points(x, y, z, voxel_m: float, min_neighbours: int = 1) -> np.ndar
     lo = [a.min() - 3 for a in v]
     size = [int(a.max() - b) + 4 for a, b in zip(v, lo)]
     key = ((v[0] - lo[0]) * size[1] + (v[1] - lo[1])) * size[2] + (v[2] - lo[2])
-    ukeys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    first = np.flatnonzero(np.r_[True, sorted_key[1:] != sorted_key[:-1]])
+    voxel_start = np.r_[first, len(key)]
+    counts = np.diff(voxel_start)
     sparse_voxel = counts <= min_neighbours
     if not sparse_voxel.any():
         return isolated
+    candidate = order[np.repeat(sparse_voxel, counts)]
     reach = int(np.floor(CUBE_HALF_EDGE_VOXELS)) + 1   # one more where a division rounds up
     steps = np.arange(-reach, reach + 1)
     offsets = ((steps[:, None, None] * size[1] + steps[None, :, None]) * size[2] + steps[None, None, :]).ravel()
-    near = grid.neighbour_lookup(ukeys, np.unique(ukeys[sparse_voxel][:, None] + offsets[None, :]))
-    in_reach = np.zeros(len(ukeys), bool)
-    in_reach[near[near >= 0]] = True
-    candidate = np.flatnonzero(sparse_voxel[inverse])
-    support = np.flatnonzero(in_reach[inverse])
-    xyz = np.column_stack([x, y, z])
-    origin = xyz[candidate[0]]
-    tree = cKDTree(xyz[support] - origin)
-    found = tree.query_ball_point(xyz[candidate] - origin, r=CUBE_HALF_EDGE_VOXELS * voxel_m, p=np.inf, return_length=True)
-    isolated[candidate] = (found - 1) < min_neighbours
+    isolated[candidate] = _fewer_in_cube((x, y, z), candidate, key, (order, sorted_key[first], voxel_start),
+                                         offsets, CUBE_HALF_EDGE_VOXELS * voxel_m, min_neighbours)
     return isolated
+
+
+@numba.njit(cache=True, parallel=True)
+def _fewer_in_cube(xyz, candidate, key, voxels, offsets, half_edge_m, min_neighbours):
+    """For each candidate: fewer than ``min_neighbours`` other points within ``half_edge_m`` on every axis.
+    ``voxels``: the points in key order, each occupied voxel's key and first position (sorted)."""
+    x, y, z = xyz
+    order, voxel_key, voxel_start = voxels
+    out = np.empty(len(candidate), np.bool_)
+    for c in numba.prange(len(candidate)):
+        p = candidate[c]
+        found = 0
+        for o in offsets:
+            if found >= min_neighbours:
+                break
+            v = np.searchsorted(voxel_key, key[p] + o)
+            if v >= len(voxel_key) or voxel_key[v] != key[p] + o:
+                continue
+            for t in range(voxel_start[v], voxel_start[v + 1]):
+                q = order[t]
+                if (q != p and abs(x[q] - x[p]) <= half_edge_m and abs(y[q] - y[p]) <= half_edge_m
+                        and abs(z[q] - z[p]) <= half_edge_m):
+                    found += 1
+                    if found >= min_neighbours:
+                        break
+        out[c] = found < min_neighbours
+    return out
 
 
 @numba.njit(cache=True)
