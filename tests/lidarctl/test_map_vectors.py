@@ -682,3 +682,33 @@ def test_check_vectors_within_bad_input(made, tmp_path, case):
     assert r.exit_code == 2 and "Traceback" not in r.output and named in r.output, r.output
     assert len(r.output.strip().splitlines()) == 1
     assert js.exists() == before
+
+
+def test_a_map_off_by_more_than_the_pairing_distance_is_not_passed_on_chance_pairs(made, tmp_path):
+    """Trial (AHN3 Delft's map moved 16.8 m against BGT): corners are paired within 3 m, so only chance neighbours
+    were paired and their RMS (1.64 m) was "within tolerance 2.5 m" (ASPRS 2023 H250cm). The building areas'
+    cross-correlation finds the offset; corners are paired across it and measured as they lie."""
+    _, _, out = made
+    rng = np.random.default_rng(5)
+    squares = [box(x, y, x + 8, y + 6) for x, y in rng.uniform(0, 200, (40, 2))]
+    est = vc.map_offset([affinity.translate(g, 7.3, -4.1) for g in squares], squares, 0.5)
+    assert est.dx == pytest.approx(-7.3, abs=0.5) and est.dy == pytest.approx(4.1, abs=0.5)
+    assert est.covered_at_offset_pct > 90 > est.covered_as_lies_pct
+
+    scale = "ASPRS2023 H250cm V250cm"
+    for shift, off in (((0.0, 0.0), False), ((12.0, 5.0), True)):
+        ref = _reference(tmp_path / f"ref_{shift[0]:g}.gpkg", shift_m=shift)
+        js = tmp_path / f"c_{shift[0]:g}.json"
+        r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref), "--layer", "buildings",
+                                      "--scale", scale, "--json", str(js)])
+        assert r.exit_code == 0, r.output
+        b = json.loads(js.read_text())["layers"]["buildings"]
+        assert b["paired_across_offset"] is off
+        assert b["map_offset_dx_m"] == pytest.approx(shift[0], abs=0.5)
+        assert b["map_offset_dy_m"] == pytest.approx(shift[1], abs=0.5)
+        if off:
+            assert b["n_matched_corners"] == 8 and b["rms_xy_corner_m"] == pytest.approx(13.0, abs=0.5)
+            assert b["within_tolerance"] is False
+            assert "the map lies 13.0 m off the reference (dx 12.0, dy 5.0 m" in r.output
+        else:
+            assert b["rms_xy_corner_m"] < 0.5 and b["within_tolerance"] is True and "off the reference" not in r.output
