@@ -1341,6 +1341,12 @@ ISSUE39 = _raster_cases() + [
     C("crs_transform_no_points", "aerotri", "crs transform {w}/las/cloud.las {w}/out.las --to 32633",
       ["cloud.las", "no points"], las_edit("las/cloud.las", "empty")),
     C("smooth_output_is_input", "lidarctl", "smooth {w}/lid/r/dem.tif {w}/lid/r/dem.tif", ["dem.tif"]),
+    C("hydro_flatten_water_missing", "lidarctl", "hydro-flatten {w}/lid/r/dem.tif {w}/out.tif --water {w}/nope.gpkg",
+      ["nope.gpkg", "no such file"]),
+    C("hydro_flatten_output_is_input", "lidarctl",
+      "hydro-flatten {w}/lid/r/dem.tif {w}/lid/r/dem.tif --water {w}/nope.gpkg", ["dem.tif"]),
+    C("hydro_flatten_range_zero", "lidarctl",
+      "hydro-flatten {w}/lid/r/dem.tif {w}/out.tif --water {w}/nope.gpkg --max-range-m 0", ["--max-range-m"]),
     C("contours_output_is_input", "lidarctl", "contours {w}/lid/r/dem.tif {w}/lid/r/dem.tif --interval-m 1",
       ["dem.tif"]),
 

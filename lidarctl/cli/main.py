@@ -18,6 +18,7 @@ from lidarctl.checks.map_accuracy import MapEvalSettings
 from lidarctl.vectors.layers import MapVectorSettings
 from lidarctl.checks.plan import PlanCheckSettings
 from lidarctl.checks.vectors import VectorCheckSettings
+from lidarctl.terrain.hydro import HydroSettings
 from lidarctl.rasters.products import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, RasterSettings
 
 
@@ -432,6 +433,25 @@ def smooth(*, dem_path, out_path, order, edge_m, iterations, step, window_px):
     r = smooth_dem(dem_path, out_path, params, window_px)
     click.echo(f"{r.path}: {r.valid_cells:,} of {r.cells:,} cells smoothed ({r.windows} window(s)); "
                f"changes RMS {r.rms_change_m:.3f} m, max {r.max_change_m:.3f} m")
+
+
+@main.command("hydro-flatten")
+@click.argument("dem_path", type=click.Path(dir_okay=False))
+@click.argument("out_path", type=click.Path(dir_okay=False))
+@click.option("--water", "water_path", type=click.Path(dir_okay=False), required=True,
+              help="Water polygons in the DEM's CRS: lidarctl vectors' map (its layer water, with water_z and "
+                   "water_z_range_m) or a file of polygons (levels then from their shores).")
+@click_option(HydroSettings, "max_range_m", "--max-range-m")
+@click_option(HydroSettings, "shore_cells", "--shore-cells")
+@click_option(HydroSettings, "shore_percentile", "--shore-percentile")
+def hydro_flatten(*, dem_path, out_path, water_path, **_settings):
+    """Hydro-flatten DEM_PATH (GeoTIFF) into OUT_PATH (COG): each standing water body of --water at one level, at
+    or below its shore (USGS Lidar Base Specification); flowing water (water returns spanning more than
+    --max-range-m) is left as it is and listed. Nothing else changes."""
+    from lidarctl.terrain.hydro import format_result, hydro_flatten as flatten
+
+    params = resolve(HydroSettings, None, click.get_current_context()).settings
+    click.echo(format_result(flatten(dem_path, water_path, out_path, params)))
 
 
 @main.command()

@@ -23,7 +23,9 @@ heights in CRS units, the ``_m`` attributes in metres):
 * ``water`` (Polygon): cells of water points (class 9) as for roads, with the cells without returns they border
   (water mirrors the pulse away); a gap that runs out of the data's footprint joins by the water rule
   (``lakes_at_edge``: its rim in a bed at the water's level), not by its shape; ``water_z`` the median height of
-  its water returns (a polygon without any is no water feature: never a NaN height).
+  its water returns (a polygon without any is no water feature: never a NaN height), ``water_z_range_m`` their 5th
+  to 95th percentile range in metres (a lake: centimetres; a river falling along its course: more;
+  ``lidarctl hydro-flatten`` leaves such a body as it is).
 * ``spot_heights`` (Point): one per ``spot_spacing_m`` square, at the ground cell of the square with the
   flattest neighbourhood (smallest RMS of a plane over 3 x 3 cells) that is at least ``BREAKLINE_CLEAR_M``
   from any cell that is not open ground (buildings, water, trees, data gaps) - off breaklines; open
@@ -769,7 +771,7 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
                        void=void, join=edge_lakes)
     wpolys = mask_polygons(without_pinches(wmask), x0, y0, p.cell_m, p.simplify_m)
     wxy, wz = xy[cls == WATER], pts.z[cls == WATER]
-    wlevel, kept = [], []
+    wlevel, wrange, kept = [], [], []
     for q in wpolys:
         # its water returns; a piece without any (a void joined across the simplified outline) takes those
         # within a cell of it, and none at all means no water level is known: no water feature
@@ -779,10 +781,13 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
         if inside.any():
             kept.append(q)
             wlevel.append(float(np.median(wz[inside])))
+            lo, hi = np.percentile(wz[inside], [5.0, 95.0])
+            wrange.append(float(hi - lo))
     wpolys = kept
     layers.append(Layer("water", "Polygon", _scale_geoms(wpolys, f_xy),
                         {"area_m2": np.array([q.area for q in wpolys], float),
-                         "water_z": np.array(wlevel, float) * f_z}))
+                         "water_z": np.array(wlevel, float) * f_z,
+                         "water_z_range_m": np.array(wrange, float)}))
 
     # open terrain: ground, road surface and grass (a fused classification labels grassland 3)
     is_g = np.isin(cls, OPEN_GROUND)

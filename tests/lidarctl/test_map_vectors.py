@@ -712,3 +712,12 @@ def test_a_map_off_by_more_than_the_pairing_distance_is_not_passed_on_chance_pai
             assert "the map lies 13.0 m off the reference (dx 12.0, dy 5.0 m" in r.output
         else:
             assert b["rms_xy_corner_m"] < 0.5 and b["within_tolerance"] is True and "off the reference" not in r.output
+
+
+def test_the_water_layer_states_the_spread_of_its_returns(made):
+    """``water_z_range_m``: the 5th to 95th percentile range of a body's water returns (metres), what lidarctl
+    hydro-flatten tells a lake (centimetres) from falling water by; the scene's pond returns all lie at 99 m."""
+    _, _, out = made
+    _, polys, f = _layer(out, "water")
+    assert len(polys) == 1 and f["water_z"][0] == pytest.approx(99.0, abs=0.01)
+    assert 0.0 <= f["water_z_range_m"][0] < 0.01
