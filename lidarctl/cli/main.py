@@ -441,17 +441,20 @@ def smooth(*, dem_path, out_path, order, edge_m, iterations, step, window_px):
 @click.option("--water", "water_path", type=click.Path(dir_okay=False), required=True,
               help="Water polygons in the DEM's CRS: lidarctl vectors' map (its layer water, with water_z and "
                    "water_z_range_m) or a file of polygons (levels then from their shores).")
+@click.option("--water-layer", default=None,
+              help="The layer of --water holding the water polygons [water; a file's only layer when it has a "
+                   "water_z field].")
 @click_option(HydroSettings, "max_range_m", "--max-range-m")
 @click_option(HydroSettings, "shore_cells", "--shore-cells")
 @click_option(HydroSettings, "shore_percentile", "--shore-percentile")
-def hydro_flatten(*, dem_path, out_path, water_path, **_settings):
+def hydro_flatten(*, dem_path, out_path, water_path, water_layer, **_settings):
     """Hydro-flatten DEM_PATH (GeoTIFF) into OUT_PATH (COG): each standing water body of --water at one level, at
     or below its shore (USGS Lidar Base Specification); flowing water (water returns spanning more than
     --max-range-m) is left as it is and listed. Nothing else changes."""
     from lidarctl.terrain.hydro import format_result, hydro_flatten as flatten
 
     params = resolve(HydroSettings, None, click.get_current_context()).settings
-    click.echo(format_result(flatten(dem_path, water_path, out_path, params)))
+    click.echo(format_result(flatten(dem_path, water_path, out_path, params, water_layer)))
 
 
 @main.command()

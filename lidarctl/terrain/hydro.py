@@ -59,12 +59,14 @@ class WaterBody:
     level: float | None
     cells: int
     reason: str = ""
+    empty_cells: int = 0   # cells inside it without data (outside the survey), left empty
 
 
 @dataclasses.dataclass(frozen=True)
 class HydroResult:
     path: Path
     bodies: tuple[WaterBody, ...]
+    height_unit: str = "m"   # of the DEM's heights (levels, water_z)
 
     @property
     def flattened(self) -> tuple[WaterBody, ...]:
@@ -75,7 +77,7 @@ class HydroResult:
         return tuple(b for b in self.bodies if b.level is None)
 
 
-def read_water(path, dem_crs):
+def read_water(path, dem_crs, water_layer: str | None = None):
     """Polygons, water_z and water_z_range_m (None where the file has no such field) of a water layer
     (the layer ``water`` of a GeoPackage, else its only layer); CrsError when its CRS is not the DEM's."""
     import pyogrio
@@ -90,11 +92,16 @@ def read_water(path, dem_crs):
         raise InputError(f"{path}: no such file; expected the water polygons (lidarctl vectors' .gpkg, layer water)")
     try:
         names = [str(n) for n, _ in pyogrio.list_layers(path)]
-        layer = "water" if "water" in names else (names[0] if len(names) == 1 else None)
-        if layer is None:
-            raise InputError(f"{path}: no layer 'water' (layers: {', '.join(names)}); expected lidarctl vectors' "
-                             "map or a file of water polygons")
+        layer = water_layer or ("water" if "water" in names else (names[0] if len(names) == 1 else None))
+        if layer is None or layer not in names:
+            raise InputError(f"{path}: no layer {layer or 'water'!r} (layers: {', '.join(names)}); expected lidarctl "
+                             "vectors' map or a file of water polygons (--water-layer names its layer)")
         meta, _, wkb, fields = read(path, layer=layer)
+        # a file's only layer is taken for water when it says so (its name or a water_z field) or when named: the
+        # building footprints given by mistake were "138 of 160 water bodies flattened"
+        if layer != "water" and water_layer is None and "water_z" not in meta["fields"]:
+            raise InputError(f"{path}: its layer {layer!r} is not named water and has no water_z field; if it holds "
+                             f"water polygons, say so: --water-layer {layer}")
     except (DataSourceError, DataLayerError, OSError) as exc:
         raise InputError(f"{path}: not a readable vector file ({exc})") from None
     import pyproj
@@ -138,7 +145,8 @@ def flatten_window(z: np.ndarray, body: np.ndarray, other_water: np.ndarray, wat
     return shore, level
 
 
-def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroSettings()) -> HydroResult:
+def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroSettings(),
+                  water_layer: str | None = None) -> HydroResult:
     """Hydro-flatten the DEM GeoTIFF ``dem_path`` with the water polygons of ``water_path`` into ``out_path`` (a
     float32 COG; CRS, nodata, band unit and tags kept; atomic). Memory: one body's window at a time."""
     import rasterio
@@ -147,6 +155,7 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
     from rasterio.windows import Window, from_bounds
 
     from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
+    from aerotri.geom.crs.definition import length_unit_name
     from lidarctl.terrain.dem_io import open_dem
 
     if not (math.isfinite(params.max_range_m) and params.max_range_m > 0):
@@ -155,7 +164,7 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
     refuse_input_as_output(out_path, [dem_path, water_path], option="OUT")
     src, z_m = open_dem(dem_path, out_path)
     with src:
-        polys, water_z, ranges = read_water(water_path, src.crs)
+        polys, water_z, ranges = read_water(water_path, src.crs, water_layer)
         nodata = src.nodata if src.nodata is not None else -9999.0
         tmpdir = temporary_dir(out_path.parent if out_path.parent != Path("") else Path("."), out_path.name)
         bodies = []
@@ -200,7 +209,8 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                         continue
                     cells = int((body & np.isfinite(z)).sum())
                     dst.write(np.where(np.isfinite(z), z, nodata).astype(np.float32), 1, window=win)
-                    bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], shore, level, cells))
+                    bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], shore, level, cells,
+                                            empty_cells=int((body & ~np.isfinite(z)).sum())))
             with rasterio.open(work) as tmp_src, atomic_path(out_path) as dst_path:
                 rio_copy(tmp_src, dst_path, driver="COG", compress="DEFLATE", predictor=3,
                          overview_resampling="average", num_threads="ALL_CPUS")
@@ -208,7 +218,7 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
             import shutil
 
             shutil.rmtree(tmpdir, ignore_errors=True)
-    result = HydroResult(out_path, tuple(bodies))
+    result = HydroResult(out_path, tuple(bodies), length_unit_name(z_m))
     log.debug(f"{dem_path} -> {out_path}: {len(result.flattened)} of {len(bodies)} water bodies flattened")
     return result
 
@@ -228,7 +238,8 @@ def _box(transform, shape):
     return shapely.box(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
 
 
-def format_result(result: HydroResult, unit: str = "m") -> str:
+def format_result(result: HydroResult) -> str:
+    unit = result.height_unit
     lines = [f"{result.path}: {len(result.flattened)} of {len(result.bodies)} water bodies flattened"]
     for b in result.bodies:
         head = f"  water {b.index + 1}: {b.area_m2:,.0f} m2"
@@ -240,5 +251,6 @@ def format_result(result: HydroResult, unit: str = "m") -> str:
             parts.append(f"water returns {b.water_z:.2f}")
         if b.shore_level is not None:
             parts.append(f"shore {b.shore_level:.2f}")
-        lines.append(f"{head} at {b.level:.2f} {unit} ({', '.join(parts)}; {b.cells:,} cells)")
+        empty = f", {b.empty_cells:,} without data left empty" if b.empty_cells else ""
+        lines.append(f"{head} at {b.level:.2f} {unit} ({', '.join(parts)}; {b.cells:,} cells{empty})")
     return "\n".join(lines)

@@ -85,6 +85,23 @@ def test_the_level_is_the_shore_where_the_water_returns_lie_above_it_or_are_not_
             assert np.allclose(b.read(1)[lake], want, atol=1e-4), name
 
 
+def test_a_layer_not_named_water_is_taken_only_when_named_and_feet_are_said(tmp_path):
+    """Trial: the BGT building footprints given as --water (one layer, 'pand') were "138 of 160 water bodies
+    flattened"; Autzen's levels in feet were printed "at 407.37 m"."""
+    dem = _dem(tmp_path / "dem.tif", crs="EPSG:2994")
+    meta_crs = "EPSG:2994"
+    pand = tmp_path / "pand.gpkg"
+    write(pand, np.array(shapely.to_wkb(np.array([LAKE], dtype=object)), dtype=object), field_data=[np.arange(1)],
+          fields=["id"], geometry_type="Polygon", crs=pyproj.CRS(meta_crs).to_wkt(), driver="GPKG", layer="pand")
+    r = CliRunner().invoke(main, ["hydro-flatten", str(dem), str(tmp_path / "a.tif"), "--water", str(pand)])
+    assert r.exit_code == 2 and "'pand' is not named water and has no water_z field" in r.output
+    assert "--water-layer pand" in r.output and not (tmp_path / "a.tif").exists()
+    r = CliRunner().invoke(main, ["hydro-flatten", str(dem), str(tmp_path / "a.tif"), "--water", str(pand),
+                                  "--water-layer", "pand"])
+    assert r.exit_code == 0, r.output
+    assert "1 of 1 water bodies flattened" in r.output and " ft (shore " in r.output
+
+
 @pytest.mark.parametrize("case", ["other_crs", "missing", "out_is_dem", "no_polygons"])
 def test_hydro_flatten_bad_input_exit_2_nothing_written(tmp_path, case):
     dem = _dem(tmp_path / "dem.tif")
