@@ -100,7 +100,7 @@ def units_of(crs: pyproj.CRS, source: str = "CRS", vertical_unit_m: float | None
         raise CrsError(
             f"{source}: {crs_label(crs)} ({h.name}) is a {'geographic' if h.is_geographic else 'non-projected'} CRS "
             f"({unit_name(h) if h.is_geographic else 'no map grid'}); lidarctl needs a projected CRS in metres or "
-            "feet: reproject the cloud first (aerotri crs transform)"
+            "feet: reproject it first (aerotri crs transform)"
         )
     xy_m = linear_unit_m(crs)
     if not (np.isfinite(xy_m) and xy_m > 0):

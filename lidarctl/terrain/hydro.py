@@ -109,7 +109,8 @@ def read_water(path, dem_crs, water_layer: str | None = None):
     dem_crs = pyproj.CRS.from_user_input(dem_crs.to_wkt() if hasattr(dem_crs, "to_wkt") else dem_crs)
     crs = pyproj.CRS.from_user_input(meta["crs"]) if meta.get("crs") else None
     if crs is None:
-        raise InputError(f"{path}: no CRS; expected water polygons in the DEM's CRS ({crs_label(dem_crs)})")
+        raise InputError(f"{path}: no CRS; expected water polygons in the DEM's CRS ({crs_label(dem_crs)}), in a "
+                         "format that records it (GeoPackage, GeoJSON, a shapefile with its .prj)")
     if not same_horizontal(crs, dem_crs):
         raise CrsError(f"{path} is in {crs_label(crs)} but the DEM in {crs_label(dem_crs)}; give both in one CRS "
                        "(aerotri crs transform)")
