@@ -23,10 +23,8 @@ Run: nice .venv/bin/python bench/eval_isolation_cube.py [--old-ref d5ebccc5]
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -35,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from lidar_common import DATA, REPO, SAMPLES  # noqa: E402
+from lidar_common import DATA, REPO, SAMPLES, module_at  # noqa: E402
 
 from lidarctl import io, synthetic  # noqa: E402
 from lidarctl.checks import classes as evaluate  # noqa: E402
@@ -44,18 +42,6 @@ from lidarctl.classify import pipeline as classify  # noqa: E402
 
 H_GRID = (1.0, 1.25, 1.5, 1.75, 2.0)
 SEEDS = (11, 12, 13, 14, 15)
-
-
-def old_noise_module(ref: str):
-    src = subprocess.run(["git", "show", f"{ref}:lidarctl/classify/noise.py"], cwd=REPO, check=True,
-                         capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp()) / "noise_lattice.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location("noise_lattice", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["noise_lattice"] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def synthetic_score(mod):
@@ -151,7 +137,7 @@ def main():
     ap.add_argument("--old-ref", default="d5ebccc5")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    old = old_noise_module(args.old_ref)
+    old = module_at(args.old_ref, "lidarctl/classify/noise.py", "noise_lattice", tempfile.mkdtemp())
     best, rows = select_h()
     noise.CUBE_HALF_EDGE_VOXELS = best
     print(f"chosen h = {best}", flush=True)

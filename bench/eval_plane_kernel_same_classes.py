@@ -14,10 +14,8 @@ Writes bench/results/plane_kernel_same_classes.json."""
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -27,22 +25,11 @@ from unittest import mock
 import laspy
 import numpy as np
 
-import lidarctl.classify.pipeline as new
-from lidarctl import tiles
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from lidar_common import REPO, module_at  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def old_module(rev: str, tmp: Path):
-    src = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:lidarctl/classify/pipeline.py"], check=True,
-                         capture_output=True, text=True).stdout
-    path = tmp / "old_pipeline.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location("old_pipeline", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["old_pipeline"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+import lidarctl.classify.pipeline as new  # noqa: E402
+from lidarctl import tiles  # noqa: E402
 
 
 def kernel_outputs(old) -> dict:
@@ -78,7 +65,7 @@ def main(argv=None) -> int:
               "clouds": {}}
     with tempfile.TemporaryDirectory(prefix="plane_kernel_") as tmp:
         tmp = Path(tmp)
-        old = old_module(args.rev, tmp)
+        old = module_at(args.rev, "lidarctl/classify/pipeline.py", "old_pipeline", tmp)
         result["kernel"] = kernel_outputs(old)
         br = laspy.read(data / "brighton_beach" / "model.laz")
         sub = laspy.LasData(br.header)

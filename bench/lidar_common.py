@@ -157,3 +157,19 @@ def baseline_tree(rev: str, work: Path) -> Path:
         dst.mkdir(parents=True, exist_ok=True)
         tarfile.open(fileobj=io.BytesIO(data)).extractall(dst)
     return dst
+
+
+def module_at(rev: str, relpath: str, name: str, tmp: Path):
+    """The module ``relpath`` (e.g. ``lidarctl/classify/noise.py``) as it was at git revision ``rev``, imported
+    under ``name`` from a copy in the folder ``tmp``: a bench's "before" beside the working tree's "after"."""
+    import importlib.util
+
+    src = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:{relpath}"], check=True, capture_output=True,
+                         text=True).stdout
+    path = Path(tmp) / f"{name}.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
