@@ -156,32 +156,38 @@ def align_corners(pc: np.ndarray, rc: np.ndarray, match_m: float, start=(0.0, 0.
     for turn in START_TURNS_DEG:
         a = np.radians(turn)
         found = _icp(pc, rc, tree, match_m, np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]),
-                     pc.mean(axis=0), pc.mean(axis=0) + np.asarray(start, float), iterations, cKDTree)
+                     pc.mean(axis=0), pc.mean(axis=0) + np.asarray(start, float), iterations)
         if best is None or len(found[0]) > len(best[0]):
             best = found
     return best
 
 
-def _icp(pc, rc, tree, match_m, rot, cp, cr, iterations, kdtree):
+def _mutual_pairs(pc, rc, tree, match_m, rot, cp, cr):
+    """The produced corners moved by p -> rot (p - cp) + cr that are mutually nearest to a reference corner within
+    ``match_m`` (``tree``: of ``rc``): (their indices, their reference corners' indices)."""
+    from scipy.spatial import cKDTree
+
+    moved = (pc - cp) @ rot.T + cr
+    d, j = tree.query(moved)
+    _, back = cKDTree(moved).query(rc)
+    mine = np.flatnonzero((back[j] == np.arange(len(pc))) & (d <= match_m))
+    return mine, j[mine]
+
+
+def _icp(pc, rc, tree, match_m, rot, cp, cr, iterations):
+    """``align_corners`` from one start: at most ``iterations`` fits; the pairs under the last motion."""
     last = None
-    for _ in range(iterations):
-        moved = (pc - cp) @ rot.T + cr
-        d, j = tree.query(moved)
-        _, back = kdtree(moved).query(rc)
-        mine = np.flatnonzero((back[j] == np.arange(len(pc))) & (d <= match_m))
-        if len(mine) < 3 or (last is not None and np.array_equal(mine, last)):
+    for k in range(iterations + 1):
+        mine, theirs = _mutual_pairs(pc, rc, tree, match_m, rot, cp, cr)
+        if len(mine) < 3 or k == iterations or (last is not None and np.array_equal(mine, last)):
             break
         last = mine
-        P, Q = pc[mine], rc[j[mine]]
+        P, Q = pc[mine], rc[theirs]
         cp, cr = P.mean(axis=0), Q.mean(axis=0)
         u, _, vt = np.linalg.svd((P - cp).T @ (Q - cr))
         flip = np.diag([1.0, np.sign(np.linalg.det(vt.T @ u.T))])
         rot = vt.T @ flip @ u.T
-    moved = (pc - cp) @ rot.T + cr
-    d, j = tree.query(moved)
-    _, back = kdtree(moved).query(rc)
-    mine = np.flatnonzero((back[j] == np.arange(len(pc))) & (d <= match_m))
-    return mine, j[mine], rot, cp, cr
+    return mine, theirs, rot, cp, cr
 
 
 def point_offsets(prod: list, ref: list, match_m: float, area=None, start=(0.0, 0.0)) -> CornerOffsets:
@@ -197,7 +203,6 @@ def point_offsets(prod: list, ref: list, match_m: float, area=None, start=(0.0, 
     lies, such a map kept chance neighbours only, whose offsets the pairing distance bounds (AHN3 Delft's map moved
     16.8 m read 1.64 m, turned 5 deg 1.48 m)."""
     import shapely
-    from scipy.spatial import cKDTree  # noqa: F401  (align_corners)
 
     pc, rc = corners_of(prod), corners_of(ref)
     if area is not None:

@@ -1,5 +1,6 @@
-"""Opening a DEM GeoTIFF for the terrain products (``lidarctl smooth``, ``contours``): the checks every one of
-them makes before any work, and the metres per height unit its CRS gives."""
+"""Opening a DEM GeoTIFF for the terrain products (``lidarctl smooth``, ``hydro-flatten``, ``contours``): the checks
+every one of them makes before any work, and the metres per height unit its CRS gives; and writing a product DEM
+from its working GeoTIFF."""
 
 from __future__ import annotations
 
@@ -24,3 +25,16 @@ def open_dem(in_path, out_path=None):
     except BaseException:
         src.close()
         raise
+
+
+def write_dem_cog(work, out_path) -> None:
+    """The working GeoTIFF ``work`` as a float COG at ``out_path`` (DEFLATE with the float predictor, averaged
+    overviews), written atomically: the product DEM of ``smooth`` and ``hydro-flatten``."""
+    import rasterio
+    from rasterio.shutil import copy as rio_copy
+
+    from aerotri.core.atomic import atomic_path
+
+    with rasterio.open(work) as src, atomic_path(out_path) as dst_path:
+        rio_copy(src, dst_path, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average",
+                 num_threads="ALL_CPUS")

@@ -79,7 +79,8 @@ class HydroResult:
 
 def read_water(path, dem_crs, water_layer: str | None = None):
     """Polygons, water_z and water_z_range_m (None where the file has no such field) of a water layer
-    (the layer ``water`` of a GeoPackage, else its only layer); CrsError when its CRS is not the DEM's."""
+    (the layer ``water`` of a GeoPackage, else its only layer); CrsError when its CRS is not the DEM's
+    (``dem_crs``: pyproj)."""
     import pyogrio
     import shapely
     from pyogrio.errors import DataLayerError, DataSourceError
@@ -106,7 +107,6 @@ def read_water(path, dem_crs, water_layer: str | None = None):
         raise InputError(f"{path}: not a readable vector file ({exc})") from None
     import pyproj
 
-    dem_crs = pyproj.CRS.from_user_input(dem_crs.to_wkt() if hasattr(dem_crs, "to_wkt") else dem_crs)
     crs = pyproj.CRS.from_user_input(meta["crs"]) if meta.get("crs") else None
     if crs is None:
         raise InputError(f"{path}: no CRS; expected water polygons in the DEM's CRS ({crs_label(dem_crs)}), in a "
@@ -150,14 +150,16 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                   water_layer: str | None = None) -> HydroResult:
     """Hydro-flatten the DEM GeoTIFF ``dem_path`` with the water polygons of ``water_path`` into ``out_path`` (a
     float32 COG; CRS, nodata, band unit and tags kept; atomic). Memory: one body's window at a time."""
+    import pyproj
     import rasterio
+    import shapely
     from rasterio import features
     from rasterio.shutil import copy as rio_copy
-    from rasterio.windows import Window, from_bounds
+    from rasterio.windows import Window, bounds, from_bounds
 
-    from aerotri.core.atomic import atomic_path, refuse_input_as_output, temporary_dir
-    from aerotri.geom.crs.definition import length_unit_name
-    from lidarctl.terrain.dem_io import open_dem
+    from aerotri.core.atomic import refuse_input_as_output, temporary_dir
+    from aerotri.geom.crs.definition import length_unit_name, linear_unit_m
+    from lidarctl.terrain.dem_io import open_dem, write_dem_cog
 
     if not (math.isfinite(params.max_range_m) and params.max_range_m > 0):
         raise OptionError(f"must be a positive number of metres, got {params.max_range_m}", param="--max-range-m")
@@ -165,7 +167,10 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
     refuse_input_as_output(out_path, [dem_path, water_path], option="OUT")
     src, z_m = open_dem(dem_path, out_path)
     with src:
-        polys, water_z, ranges = read_water(water_path, src.crs, water_layer)
+        dem_crs = pyproj.CRS.from_user_input(src.crs.to_wkt())
+        xy_m = linear_unit_m(dem_crs)
+        polys, water_z, ranges = read_water(water_path, dem_crs, water_layer)
+        polys_tree = shapely.STRtree(polys)
         nodata = src.nodata if src.nodata is not None else -9999.0
         tmpdir = temporary_dir(out_path.parent if out_path.parent != Path("") else Path("."), out_path.name)
         bodies = []
@@ -177,11 +182,10 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                 full = Window(0, 0, dst.width, dst.height)
                 pad = params.shore_cells + 1
                 for k, poly in enumerate(polys):
-                    rng_m = ranges[k]
-                    area_m2 = poly.area * _xy_m(src.crs) ** 2
-                    if rng_m is not None and rng_m > params.max_range_m:
+                    area_m2 = poly.area * xy_m ** 2
+                    if ranges[k] is not None and ranges[k] > params.max_range_m:
                         bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], None, None, 0,
-                                                f"water returns span {rng_m:.2f} m (> {params.max_range_m:g} m): "
+                                                f"water returns span {ranges[k]:.2f} m (> {params.max_range_m:g} m): "
                                                 "flowing water, left as it is"))
                         continue
                     win = from_bounds(*poly.bounds, transform=dst.transform)
@@ -197,8 +201,9 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                     z = a.filled(np.nan).astype(np.float64)
                     tr = dst.window_transform(win)
                     body = features.rasterize([poly], out_shape=z.shape, transform=tr, dtype="uint8").astype(bool)
-                    others = [p for p in polys if p.intersects(_box(tr, z.shape))]
-                    water = features.rasterize(others, out_shape=z.shape, transform=tr, dtype="uint8").astype(bool)
+                    near = polys_tree.query(shapely.box(*bounds(win, dst.transform)))
+                    water = features.rasterize([polys[i] for i in near], out_shape=z.shape, transform=tr,
+                                               dtype="uint8").astype(bool)
                     if not (body & np.isfinite(z)).any():
                         bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], None, None, 0,
                                                 "no DEM cell with data has its centre inside it"))
@@ -212,9 +217,7 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                     dst.write(np.where(np.isfinite(z), z, nodata).astype(np.float32), 1, window=win)
                     bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], shore, level, cells,
                                             empty_cells=int((body & ~np.isfinite(z)).sum())))
-            with rasterio.open(work) as tmp_src, atomic_path(out_path) as dst_path:
-                rio_copy(tmp_src, dst_path, driver="COG", compress="DEFLATE", predictor=3,
-                         overview_resampling="average", num_threads="ALL_CPUS")
+            write_dem_cog(work, out_path)
         finally:
             import shutil
 
@@ -222,21 +225,6 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
     result = HydroResult(out_path, tuple(bodies), length_unit_name(z_m))
     log.debug(f"{dem_path} -> {out_path}: {len(result.flattened)} of {len(bodies)} water bodies flattened")
     return result
-
-
-def _xy_m(crs) -> float:
-    from aerotri.geom.crs.definition import linear_unit_m
-
-    return linear_unit_m(crs)
-
-
-def _box(transform, shape):
-    import shapely
-
-    h, w = shape
-    x0, y0 = transform * (0, 0)
-    x1, y1 = transform * (w, h)
-    return shapely.box(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
 
 
 def format_result(result: HydroResult) -> str:

@@ -174,11 +174,10 @@ def smooth_dem(in_path, out_path, params: DiffusionSettings = DiffusionSettings(
     (identical to smoothing it whole). Heights are converted to metres by the raster CRS's height unit for
     the edge test and written back in the input's unit; nodata, CRS, transform, band unit and tags kept."""
     import rasterio
-    from rasterio.shutil import copy as rio_copy
     from rasterio.windows import Window
 
-    from aerotri.core.atomic import atomic_path, temporary_dir
-    from lidarctl.terrain.dem_io import open_dem
+    from aerotri.core.atomic import temporary_dir
+    from lidarctl.terrain.dem_io import open_dem, write_dem_cog
 
     params.validate()
     if window_px < 16:
@@ -227,9 +226,7 @@ def smooth_dem(in_path, out_path, params: DiffusionSettings = DiffusionSettings(
                         res = np.where(ok, oc / z_m, profile["nodata"]).astype(np.float32)
                         dst.write(res, 1, window=Window(c0, r0, w, h))
                         n_windows += 1
-            with rasterio.open(work) as tmp_src, atomic_path(out_path) as dst_path:
-                rio_copy(tmp_src, dst_path, driver="COG", compress="DEFLATE", predictor=3,
-                         overview_resampling="average", num_threads="ALL_CPUS")
+            write_dem_cog(work, out_path)
         finally:
             import shutil
 
