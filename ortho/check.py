@@ -388,7 +388,7 @@ def read_points_csv(path) -> DomPoints:
     need = ["id", "x", "y", "x_dom", "y_dom"]
     if reader.fieldnames is None or any(k not in reader.fieldnames for k in need):
         raise InputError(f"{path}: header must contain {','.join(need)} (got {reader.fieldnames})")
-    ids, vals = [], []
+    ids, vals, first_line = [], [], {}
     for lineno, row in enumerate(reader, start=2):
         try:
             vals.append([float(row[k]) for k in need[1:]])
@@ -396,6 +396,10 @@ def read_points_csv(path) -> DomPoints:
             raise InputError(f"{path}:{lineno}: non-numeric coordinate in {row}") from None
         if not np.all(np.isfinite(vals[-1])):
             raise InputError(f"{path}:{lineno}: NaN or infinite coordinate in {row}")
+        if row["id"] in first_line:  # counted twice it would pass a standard's minimum number of points
+            raise InputError(f"{path}:{lineno}: point {row['id']!r} again (first on line {first_line[row['id']]}); "
+                             "expected each surveyed point once")
+        first_line[row["id"]] = lineno
         ids.append(row["id"])
     if not ids:
         raise InputError(f"{path}: no points")

@@ -991,6 +991,9 @@ CASES = [
       binary("las/points.csv")),
     C("check_heights_points_nan", "lidarctl", "check-heights {w}/las/cloud.las {w}/las/points.csv", "points.csv",
       field("las/points.csv", 3, 3, "nan")),
+    # trial-qa: a point listed twice counted twice against a standard's minimum of check points
+    C("check_heights_points_id_twice", "lidarctl", "check-heights {w}/las/cloud.las {w}/las/points.csv",
+      ["points.csv: line 4", "'P0' again (first on line 2)"], field("las/points.csv", 4, 0, "P0")),
     C("check_heights_points_no_z", "lidarctl", "check-heights {w}/las/cloud.las {w}/las/points.csv", "points.csv",
       line("las/points.csv", 1, "id,x,y,q")),
     C("check_heights_points_directory", "lidarctl", "check-heights {w}/las/cloud.las {w}/las/points.csv",
@@ -1088,6 +1091,9 @@ CASES = [
       all_of(write("pts.csv", "id,x,y,x_dom,y_dom\nA,452200.0,3407300.0,452200.1,3407300.1\n"), utf16("pts.csv"))),
     C("check_points_nan", "ortho", "check {p} --points {w}/pts.csv", "pts.csv:3",
       write("pts.csv", "id,x,y,x_dom,y_dom\nA,452200.0,3407300.0,452200.1,3407300.1\nB,nan,1,2,3\n")),
+    C("check_points_id_twice", "ortho", "check {p} --points {w}/pts.csv", ["pts.csv:3", "'A' again (first on line 2)"],
+      write("pts.csv", "id,x,y,x_dom,y_dom\nA,452200.0,3407300.0,452200.1,3407300.1\n"
+                       "A,452200.0,3407300.0,452200.1,3407300.1\n")),
     C("check_points_missing_column", "ortho", "check {p} --points {w}/pts.csv", "pts.csv",
       write("pts.csv", "id,x,y,x_dom\nA,452200.0,3407300.0,452200.1\n")),
     C("check_out_is_an_output_of_mosaic", "ortho", "check {p} --reference {w}/p/truth/ortho.tif --out {w}/p/ortho/mosaic",

@@ -1635,6 +1635,10 @@ def format_txt(rep: dict) -> str:
         if rep.get("check_points_from_lidar"):
             L.append(f"  {rep['check_points_from_lidar']} check points are corners of the same LiDAR as the surface "
                      "control: they share its strip offsets, so their agreement does not test the LiDAR's datum")
+    unmeasured = [f"{r['id']} ({r['rays']} ray{'s' if r['rays'] != 1 else ''})" for r in rep["check_points"]
+                  if None in (r["adjusted_m"] or [None])[:2]]
+    if unmeasured:  # their rows are blank: say why (trial-qa)
+        L.append(f"  not intersected (fewer than 2 rays; no residual, not in the RMS): {', '.join(unmeasured)}")
     if rep["self_calibration"]:
         L += [""] + _self_calibration_txt(rep["self_calibration"])
     if rep["gnss_strips"]:

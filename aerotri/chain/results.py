@@ -176,7 +176,8 @@ class LidarEvalResult(StageResult):
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class ReportResult(StageResult):
-    """The accuracy report: overall verdict ("pass", "fail"; None: no quantity judged) and the rows counted."""
+    """The accuracy report: overall verdict ("pass", "fail", "not testable": a standard asked for cannot test a
+    product; None: no quantity judged) and the rows counted."""
 
     verdict: str | None
     passed: int

@@ -26,6 +26,7 @@ import numpy as np
 from aerotri.core.errors import ConfigError, OptionError
 from aerotri.core.project import ControlPointSettings, Project
 from aerotri.core.textio import read_json
+from aerotri.qa.rounding import round_on_its_side, within
 from aerotri.core.tolerances import (SCALE_TABLES, Provenance, ToleranceTable, asprs_classes_for_gsd, asprs_table,
                                      load_table, scale_for_gsd, split_key)
 from aerotri.qa.standards import STANDARD_KEYS, asprs2014, asprs2023, cn_at, usgs_lbs
@@ -500,7 +501,7 @@ def _verdict(figure, limit, n, need, cp_ok, counted: str = "check points") -> tu
                              "docs/standards.md)"
     if figure is None or (isinstance(figure, float) and math.isnan(figure)):
         return NOT_TESTABLE, "not measured"
-    would = "pass" if figure <= limit else "fail"
+    would = "pass" if within(figure, limit) else "fail"
     if need and n is not None and n < need:
         need_text = f"{need} required" if counted in SURVEYED else f"{need} check points required"
         return NOT_TESTABLE, f"{n} {counted}, {need_text} (the figure would {would})"
@@ -589,7 +590,12 @@ def _check(product, quantity, cls, measured, figure, *, limit, unit, n, need, cp
         if verdict == NOT_TESTABLE and need and n is not None and n < need:
             why = f"{why}; {len(outside)} more {outside_why or 'outside the data'}"
     r = (lambda x: None if x is None or (isinstance(x, float) and math.isnan(x)) else round(float(x), 4))
-    return ComplianceCheck(product=product, quantity=quantity, class_tested=cls, measured=r(measured), figure=r(figure),
+    # the figure judged against the limit keeps the digits that keep it on its side (0.100028 against 0.1: 0.10003)
+    # (and so does the figure before the check points' own accuracy is added: the same number without it)
+    def shown(x):
+        return r(x) if r(x) is None or limit is None else round_on_its_side(float(x), float(limit), 4)
+    return ComplianceCheck(product=product, quantity=quantity, class_tested=cls, measured=shown(measured),
+                           figure=shown(figure),
                            limit=r(limit), unit=unit, n_points=n, n_required=need, checkpoints_accurate=cp_ok,
                            checkpoints_note=cp_note, verdict=verdict, why=why or "", limit_confirmed=confirmed,
                            limit_source=source, finest_class=finest, finest_rank=rank, dimension=dimension,

@@ -171,6 +171,7 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
     col_id = next((head.index(n) for n in ID_COLUMNS if n in head), None)
     col_group = head.index("group") if "group" in head else None
     ids, xyz, groups = [], [], []
+    first_line: dict[str, int] = {}
     for line_no, row in enumerate(rows[1:], start=2):
         if not row or all(not c.strip() for c in row):
             continue
@@ -182,7 +183,13 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
             raise InputError(f"{path}: line {line_no}: {'/'.join(col)} not numbers: {row}") from None
         if not np.all(np.isfinite(vals)):
             raise InputError(f"{path}: line {line_no}: non-finite coordinate: {row}")
-        ids.append(row[col_id].strip() if col_id is not None else str(line_no - 1))
+        pid = row[col_id].strip() if col_id is not None else str(line_no - 1)
+        # a point listed twice would count twice against a standard's minimum number of check points
+        if pid in first_line:
+            raise InputError(f"{path}: line {line_no}: point {pid!r} again (first on line {first_line[pid]}); "
+                             "expected each surveyed point once")
+        first_line[pid] = line_no
+        ids.append(pid)
         xyz.append(vals)
         groups.append(row[col_group].strip() if col_group is not None else "")
     if not xyz:

@@ -144,6 +144,17 @@ def test_text_says_when_there_are_no_control_or_check_points(ba):
         assert not lines[k + 1].split()[:1] == ["id"]  # no header row under it
     assert "Control points (residual" not in txt and "Check points (d =" not in txt
 
+def test_text_names_the_check_points_not_intersected(ba):
+    """trial-qa: a check point seen in one frame has a blank row in report.txt (no adjusted coordinates, no
+    residual) and no word why; the QA report counted it as a check point."""
+    rep = to_record(report.build_report(ba))
+    assert "not intersected" not in report.format_txt(rep)
+    first = rep["check_points"][0]
+    alone = {**first, "rays": 1, "adjusted_m": [None] * 3, "d_m": [None] * 3}
+    txt = report.format_txt({**rep, "check_points": [alone, *rep["check_points"][1:]]})
+    assert f"  not intersected (fewer than 2 rays; no residual, not in the RMS): {first['id']} (1 ray)" in txt
+
+
 def test_image_pairs_count_shared_points_and_their_residuals(ba):
     """Per pair of frames: the tie points both see, and the RMS of both frames' residuals on them, checked
     against a direct count over the points."""

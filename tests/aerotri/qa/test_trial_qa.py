@@ -1,0 +1,100 @@
+"""What a QA reviewer's trial (trial-qa) found in the accuracy statements: a figure just over its limit passed where
+the verdict table rounded it first, check points not intersected were counted, a standard that cannot test a
+delivery headlined "pass", a bad ASPRS --class was blamed on project.toml."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from aerotri.qa.report import console_summary, write_qa_report
+from aerotri.qa.rounding import round_on_its_side, text_on_its_side, within
+from tests.aerotri.qa.test_compliance import _dem_checked_alone
+from tests.aerotri.qa.test_report import _project
+
+
+def test_rounding_keeps_a_figure_on_its_side_of_the_limit():
+    assert round_on_its_side(0.100028, 0.1, 4) == 0.10003 and text_on_its_side(0.100028, 0.1) == "0.10003"
+    assert round_on_its_side(0.0612345, 0.1, 4) == 0.0612 and text_on_its_side(0.0612345, 0.1) == "0.06123"
+    assert round_on_its_side(0.09999996, 0.1, 4) == 0.1   # on the limit meets it, as the value does
+    assert within(0.05000000000000001, 0.05) and not within(0.05001, 0.05)   # floating-point noise only
+    assert round_on_its_side(0.123456, None, 4) == 0.123456   # no limit: nothing to keep a side of
+
+
+def test_a_figure_just_over_its_limit_fails_in_both_sections_and_reads_over_it(tmp_path):
+    # trial-qa: an NVA RMSEz of 0.100028 m read "pass ... 0.1 m (limit 0.1)" in the verdict table (judged after
+    # rounding) and "fail ... 0.1 m (limit 0.1 m)" in the compliance section; here the DEM gives 0.05001 m
+    _dem_checked_alone(tmp_path, open_dz_m=0.05)
+    rep = write_qa_report(tmp_path, standard="usgs-lbs", accuracy_class="QL0")   # NVA limit 0.05 m
+    row = rep.check("dem_raster_rmse_m")
+    nva = [c for c in rep.compliance["checks"] if c["quantity"].startswith("NVA")][0]
+    assert row.verdict == "fail" == nva["verdict"]
+    assert row.value > 0.05 and nva["figure"] > 0.05 and nva["measured"] > 0.05
+    text = console_summary(rep)
+    assert f"= {row.value} m (limit 0.05" in text and "NVA: RMSEz at non-vegetated check points = 0.05001 m" in text
+    summary = json.loads((tmp_path / "reports" / "summary.json").read_text())
+    assert [c["value"] for c in summary["checks"] if c["id"] == "dem_raster_rmse_m"] == [row.value]
+    assert ">0.05001<" in (tmp_path / "reports" / "index.html").read_text()
+
+
+def test_check_points_not_intersected_are_named_not_counted(tmp_path):
+    # trial-qa: 8 check points, 3 seen in one frame only: the verdict table read "8 points" and "5 of the 8 points
+    # with a surveyed height" over an RMS of 5
+    p = _project(tmp_path, [0.08, 0.1, 0.04], 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    measured = [{"id": f"C{k}", "rays": 3, "measured_m": [0.0, 0.0, 0.0], "adjusted_m": [0.08, 0.1, 0.04],
+                 "d_m": [0.08, 0.1, 0.04]} for k in range(5)]
+    alone = [{"id": f"S{k}", "rays": 1, "measured_m": [0.0, 0.0, 0.0], "adjusted_m": [None] * 3, "d_m": [None] * 3}
+             for k in range(3)]
+    (p / "at" / "report.json").write_text(json.dumps({**rep, "check_points": measured + alone}))
+    rep = write_qa_report(p)
+    plan, height = rep.check("check_rms_xy_m"), rep.check("check_rms_z_m")
+    assert plan.note.startswith("5 points; 3 more of the 8 check points not intersected")
+    assert height.note == plan.note   # all 5 have a height
+
+
+def test_a_standard_that_cannot_test_the_delivery_does_not_headline_pass(tmp_path):
+    # trial-qa: 10 of the 30 check points ASPRS 2023 asks for: "pass (1 passed, 0 failed)", summary.json "pass"
+    from lidarctl.checks.heights import check_heights_file
+
+    _dem_checked_alone(tmp_path, open_dz_m=0.049)   # 34 open points: enough for ASPRS
+    rep = write_qa_report(tmp_path, standard="asprs2023", accuracy_class="H10 V10")
+    assert rep.overall == "pass" and rep.check("dem_raster_rmse_m").note == ""
+    # 10 of them
+    few = tmp_path / "few.csv"
+    few.write_text("\n".join((tmp_path / "points.csv").read_text().splitlines()[:11]) + "\n")
+    check = check_heights_file(None, few, dem_path=tmp_path / "lidar_out" / "dem.tif")
+    (tmp_path / "lidar_out" / "height_check.json").write_text(check.to_json())
+    rep = write_qa_report(tmp_path, standard="asprs2023", accuracy_class="H10 V10")
+    dem = [p for p in rep.compliance["products"] if p["product"] == "LiDAR DEM"][0]
+    assert dem["verdict"].startswith("not testable") and rep.failed == 0 and rep.overall == "not testable"
+    row = rep.check("dem_raster_rmse_m")
+    assert row.verdict == "pass" and row.note.startswith("10 check points, 30 required by ASPRS Positional Accuracy")
+    assert row.note.endswith(": indicative only")
+    assert console_summary(rep).splitlines()[-1].startswith(f"{rep.html}: not testable (")
+    # a standard the tolerance table chose (none asked for) does not make the report not testable
+    rep = write_qa_report(tmp_path)
+    assert rep.compliance["requested"] is False and rep.overall in ("pass", "fail")
+
+
+@pytest.mark.parametrize("given", ["V10", "H0 V10", "QL2", "H10 V10 X"])
+def test_a_bad_asprs_class_names_the_option_and_the_text(tmp_path, given):
+    from aerotri.cli import main as aerotri_cli
+
+    _dem_checked_alone(tmp_path)
+    r = CliRunner().invoke(aerotri_cli, ["report", str(tmp_path), "--standard", "asprs2023", "--class", given])
+    assert r.exit_code == 2 and r.exception is None or isinstance(r.exception, SystemExit)
+    assert f"--class {given!r}: expected ASPRS classes as 'H<cm> V<cm>'" in r.output
+    assert "project.toml" not in r.output
+
+
+def test_the_dom_95th_percentile_row_says_it_is_no_asprs_measure(tmp_path):
+    p = _project(tmp_path, [0.05, 0.05, 0.05], 0.04)
+    dom = json.loads((p / "ortho" / "dom_report.json").read_text())
+    dom["displacement"] |= {"count": 40, "p95_xy_m": 0.07, "max_xy_m": 0.09, "rms_xy_gsd": 0.4}
+    (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
+    asprs = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10").check("dom_p95_xy_m")
+    assert asprs.quantity.endswith("(the gross-error rule, not an ASPRS measure)")
+    assert not write_qa_report(p, standard="cn-at").check("dom_p95_xy_m").quantity.endswith("ASPRS measure)")
