@@ -83,7 +83,7 @@ N_SENSOR = 5  # boresight roll, pitch, heading, range offset, scan-angle scale
 # sigma of the free adjustment's minimum constraint (the mean vertical correction over the planar cells is 0):
 # a hundredth of a millimetre, far below any observation's (millimetres): the constraint holds to 1e-5 m
 MEAN_HEIGHT_SIGMA_M = 1e-5
-STRIP_ADJUST_VERSION = 1  # the chain's strips stage stamp: bump when the corrected strips change at the same inputs
+STRIP_ADJUST_VERSION = 2  # the chain's strips stage stamp: bump when the corrected strips change at the same inputs
 DATUM_MEAN_HEIGHT = "block mean height held (mean vertical correction 0 over the strips' planar cells)"
 DATUM_CONTROL = "control points"
 
@@ -193,6 +193,11 @@ class StripAdjustResult:
     control: ControlSummary | None = None
     # what holds the block's position: the fixed strip, the control points, or the block's mean height
     datum: str = ""
+    # sensor parameters significant only through the shifts' prior (``prior_bound_warnings``), said as warnings
+    warnings: tuple[str, ...] = ()
+    # the parameters' sign (trial-strips found it by experiment)
+    convention: str = ("the parameters are the strips' errors e(p) (shift_*: the strip lies that far off, in metres; "
+                       "angles in degrees): each corrected point is p - e(p)")
     schema_version: int = chk.SCHEMA_VERSION
     # what check_before's and check_after's NMAD are (the strip check's, ``chk.NMAD_DEFINITION``); None: an
     # adjust.json written before it was said
@@ -240,6 +245,7 @@ def read_strip_adjustment(path) -> StripAdjustResult:
                                     "check_before": chk.DiffStats.of_record(d["check_before"]),
                                     "check_after": chk.DiffStats.of_record(d["check_after"]),
                                     "files": tuple(d["files"]), "control": control,
+                                    "warnings": tuple(d.get("warnings") or ()),
                                     "nmad_definition": d.get("nmad_definition")})
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, what, exc) from None
@@ -484,6 +490,17 @@ class Solution:
     residual_before_rms_m: float
     residual_after_rms_m: float
     downweighted: int
+    # per parameter: its sigma with the priors PRIOR_WIDENING times wider over its sigma with them (1: the
+    # overlaps alone determine it; large: the priors do, e.g. a boresight pitch the shifts' prior decides)
+    prior_reliance: np.ndarray | None = None
+
+
+# the priors' sigmas widened by this factor to see what the overlaps alone determine (``Solution.prior_reliance``)
+PRIOR_WIDENING = 10.0
+# a sensor parameter whose sigma grows by more than this with the priors widened rests on them: significant with
+# them (beyond 3 sigma), it is said, not carried as a calibration (trial-strips: one strip moved 0.5 m along track
+# read as a 6-sigma boresight pitch)
+PRIOR_RELIANCE_MAX = 3.0
 
 
 def solve(obs: Observations, model: Model, huber_k: float = 1.5, iterations: int = 10,
@@ -547,8 +564,40 @@ def _solve(obs: Observations, model: Model, huber_k: float, iterations: int, the
         raise SolveError("the normal equations are singular: the overlaps do not determine the parameters") from None
     cov = Ainv @ B @ Ainv
     rm = obs.y - obs.G @ step
+    # the same normals with the priors (not the datum's mean height) PRIOR_WIDENING times wider
+    wide = Gn[inside].T @ Gn[inside] + Pm - Pp * (1.0 - 1.0 / PRIOR_WIDENING ** 2)
+    try:
+        reliance = np.sqrt(np.maximum(np.diag(np.linalg.inv(wide)), 0.0) / np.diag(Ainv))
+    except np.linalg.LinAlgError:
+        reliance = np.full(K, np.inf)
     return Solution(theta, cov, sigma0, w, float(np.sqrt(np.mean(obs.y ** 2))),
-                    float(np.sqrt(np.mean(rm ** 2))), int(np.sum(w < 1.0)))
+                    float(np.sqrt(np.mean(rm ** 2))), int(np.sum(w < 1.0)), reliance)
+
+
+def prior_bound_warnings(model: Model, sol: Solution, shift_sigma_m: float) -> tuple[str, ...]:
+    """The sensor parameters (boresight, range offset, scan-angle scale) beyond 3 sigma whose sigma grows more than
+    ``PRIOR_RELIANCE_MAX`` times with the priors widened: the shifts' prior, not the overlaps, decides them. Strips
+    flown in opposite directions over flat ground show a boresight pitch as along-track shifts of alternate strips
+    (and the heading partly so): one strip 0.5 m off along track read as a 6-sigma pitch and a 5-sigma heading, and
+    moved the three right strips 0.1-0.3 m (trial-strips)."""
+    if sol.prior_reliance is None or model.kind != "boresight":
+        return ()
+    out = []
+    sd = np.sqrt(np.diag(sol.cov))
+    for k, name in enumerate(model.names):
+        if np.isfinite(model.prior_sigma[k]) or not sd[k] > 0:
+            continue
+        z, rel = abs(sol.theta[k]) / sd[k], float(sol.prior_reliance[k])
+        if z > 3.0 and rel > PRIOR_RELIANCE_MAX:
+            v, e = _report_value(name, sol.theta[k]), _report_value(name, sd[k])
+            out.append(f"{name} {v:+.4f} +- {e:.4f} ({z:.1f} sigma) rests on the strips' shift prior "
+                       f"(--shift-sigma-m {shift_sigma_m:g} m): with the prior {PRIOR_WIDENING:g} x wider its sigma "
+                       f"is {rel:.1f} x larger ({e * rel:.4f}); the overlaps hardly tell it from strip shifts (a "
+                       "pitch is an along-track shift of strips flown in opposite directions), so a strip off by "
+                       "more than the prior comes out as this angle. Carry it to other flights only if the GNSS "
+                       "is known within the prior; look for a strip's plan offset in check_before/ (strips.json), "
+                       "or adjust with --control or a cross strip")
+    return tuple(out)
 
 
 def _report_value(name: str, v: float) -> float:
@@ -782,6 +831,9 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
             files=tuple(p.name for p in corrected),
             seconds=dt, points_per_s=ss.n_points / dt,
             seconds_read=t_read - t0, seconds_solve=t_solve - t_read, seconds_write=t_write - t_solve,
-            control=control_summary(cps, ss, first, sol.theta) if cps is not None else None, datum=datum)
+            control=control_summary(cps, ss, first, sol.theta) if cps is not None else None, datum=datum,
+            warnings=prior_bound_warnings(model, sol, settings.shift_sigma_m))
+        for text in summary.warnings:
+            log.warning(text)
         (tmp / "adjust.json").write_text(summary.to_json())
     return summary

@@ -47,7 +47,7 @@ NMAD_DEFINITION = ("1.4826 x the median of |dz - the median dz of the cell's own
 
 
 SCHEMA_VERSION = 1  # strips.json: the layout of ``StripCheckResult.to_json``
-STRIP_CHECK_VERSION = 1  # the chain's strips stage stamp: bump when strips.json changes at the same strips and options
+STRIP_CHECK_VERSION = 2  # the chain's strips stage stamp: bump when strips.json changes at the same strips and options
 STRIP_CHECK = "strip check (strips.json)"  # the record's name in messages
 
 

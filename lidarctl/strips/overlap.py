@@ -79,6 +79,10 @@ class StripSource:
     name: str
     path: Path
     point_source_id: int | None  # None: the whole file
+    # a strip of a file of several: its points and box (x0, y0, x1, y1 in the file's units), for its density (the
+    # file's header counts the overlaps' points twice); None: the file's header says
+    n_points: int | None = None
+    box: tuple[float, float, float, float] | None = None
 
 
 @dataclasses.dataclass
@@ -164,14 +168,26 @@ def strip_sources(paths) -> list[StripSource]:
             names = [f"{i + 1}_{p.stem}" for i, p in enumerate(paths)]
         return [StripSource(n, p, None) for n, p in zip(names, paths)]
     path = paths[0]
-    ids = set()
+    count: dict[int, int] = {}
+    box: dict[int, np.ndarray] = {}
     for _, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
-        ids.update(np.unique(np.asarray(chunk.point_source_id)).tolist())
-    if len(ids) < 2:
-        raise NothingToCompare(f"{path}: one strip only (point_source_id {sorted(ids)}); strip differences need at least "
-                         "two overlapping strips: give several files, or one file whose strips differ in "
-                         "point_source_id")
-    return [StripSource(f"psid{i}", path, int(i)) for i in sorted(ids)]
+        psid = np.asarray(chunk.point_source_id)
+        x, y = np.asarray(chunk.x, float), np.asarray(chunk.y, float)
+        ids, inv = np.unique(psid, return_inverse=True)
+        lo = np.full((len(ids), 2), np.inf)
+        hi = np.full((len(ids), 2), -np.inf)
+        np.minimum.at(lo, inv, np.column_stack([x, y]))
+        np.maximum.at(hi, inv, np.column_stack([x, y]))
+        n = np.bincount(inv, minlength=len(ids))
+        for k, i in enumerate(ids.tolist()):
+            count[i] = count.get(i, 0) + int(n[k])
+            b = np.concatenate([lo[k], hi[k]])
+            box[i] = b if i not in box else np.concatenate([np.minimum(box[i][:2], b[:2]), np.maximum(box[i][2:], b[2:])])
+    if len(count) < 2:
+        raise NothingToCompare(f"{path}: one strip only (point_source_id {sorted(count)}); strip differences need at "
+                               "least two overlapping strips: give several files, or one file whose strips differ "
+                               "in point_source_id")
+    return [StripSource(f"psid{i}", path, int(i), count[i], tuple(float(v) for v in box[i])) for i in sorted(count)]
 
 
 def scan_angle_deg(chunk) -> np.ndarray:
@@ -203,8 +219,8 @@ SPARSE_DENSITY_SHARE = 0.25
 def _default_cell_m(sources, units: LengthUnits) -> float:
     """About 12 points per cell at the lowest density of the files that are not far sparser than most points
     (``SPARSE_DENSITY_SHARE``), density = points / header box (the boxes overestimate the area of a strip that
-    is not axis-aligned: the cell comes out a bit large, never too small; a file of several strips counts the
-    points of its overlaps twice: a bit small there)."""
+    is not axis-aligned: the cell comes out a bit large, never too small; a strip of a file of several by its own
+    points and box)."""
     dens = _densities(sources, units)
     ref = _bulk_density(dens)
     kept = {p: d for p, (n, d) in dens.items() if d >= SPARSE_DENSITY_SHARE * ref}
@@ -216,13 +232,17 @@ def _default_cell_m(sources, units: LengthUnits) -> float:
 
 
 def _densities(sources, units: LengthUnits) -> dict:
-    """File -> (points, point density in points per m2 of its header box)."""
+    """Strip -> (points, point density in points per m2 of its box): a file's header box, or a strip's own in a
+    file of several (the file's would count its overlaps' points twice: trial-strips, the same four strips merged
+    into one file got 4.5 m cells against 5.5 m as four files, and a pooled NMAD 25 % higher)."""
     out = {}
-    for path in dict.fromkeys(s.path for s in sources):
-        h = las.read_header(path)
-        mins, maxs = np.asarray(h.mins, float), np.asarray(h.maxs, float)
-        area = max((maxs[0] - mins[0]) * (maxs[1] - mins[1]) * units.xy_m ** 2, 1e-6)
-        out[path] = (int(h.point_count), h.point_count / area)
+    for s in sources:
+        if s.n_points is not None and s.box is not None:
+            n, (x0, y0, x1, y1) = s.n_points, s.box
+        else:
+            h = las.read_header(s.path)
+            n, (x0, y0), (x1, y1) = int(h.point_count), np.asarray(h.mins, float)[:2], np.asarray(h.maxs, float)[:2]
+        out[s.name] = (int(n), n / max((x1 - x0) * (y1 - y0) * units.xy_m ** 2, 1e-6))
     return out
 
 

@@ -163,3 +163,24 @@ def test_a_range_offset_the_overlaps_cannot_determine_is_warned_about(make_strip
         ro = read_strip_adjustment(tmp_path / f"out{n}" / "adjust.json").parameters["range_offset_m"]
         assert (ro.sigma > 0.5) == warned, (n, ro)
         assert ("warning: 2 strips: one overlap does not tell the range offset" in r.output) == warned, r.output
+
+
+def test_a_boresight_the_shift_prior_decides_is_not_passed_as_a_calibration(make_strips, clean_block, tmp_path):
+    """trial-strips: one strip 0.5 m off along track, the others exact, flown in alternating directions: the sensor
+    model read it as a boresight pitch of 6 sigma (and heading 5 sigma) under the 0.05 m shift prior, moved the exact
+    strips 0.1-0.3 m and said nothing. The overlaps alone hardly determine the pitch there (its sigma grows 5x with
+    the prior 10x wider): said, in the output and in adjust.json."""
+    block = make_strips("strips_along_track", [[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    traj = [a for t in block.trajectories for a in ("--trajectory", str(t))]
+    r = _adjust(block.paths, tmp_path / "out", *traj, "--no-png")
+    assert r.exit_code == 0, r.output
+    s = read_strip_adjustment(tmp_path / "out" / "adjust.json")
+    pitch = s.parameters["boresight_pitch_deg"]
+    assert abs(pitch.value) > 3 * pitch.sigma                  # a "significant" pitch that is not there
+    assert any(w.startswith("boresight_pitch_deg ") and "rests on the strips' shift prior" in w for w in s.warnings)
+    assert "boresight_roll_deg" not in " ".join(s.warnings)   # the roll is the overlaps' own (across-track slopes)
+    # exact strips, the same geometry: nothing significant, nothing said
+    traj = [a for t in clean_block.trajectories for a in ("--trajectory", str(t))]
+    r = _adjust(clean_block.paths, tmp_path / "clean", *traj, "--no-png")
+    assert r.exit_code == 0, r.output
+    assert read_strip_adjustment(tmp_path / "clean" / "adjust.json").warnings == ()

@@ -14,7 +14,9 @@ def test_ahn3_strip_differences_close_around_the_triangle(shared_data):
     params = SurfaceSettings()
     res = analyse(read_strip_planes([path], params, crs="EPSG:28992"), params, [path])
     s = res.summary
-    assert s.cell_m == 1.0  # ~15 points per m^2
+    # about 12 single returns per cell at the strips' own density (5-7 points per m^2 each); the file's header
+    # density (~15 per m^2, the overlaps counted twice) made it 1.0 m before trial-strips
+    assert s.cell_m == 1.5
     pairs = {(p.a, p.b): p.diff for p in s.pairs}
     # psid57140 holds 50 points at the crop's edge: no smooth cell in common with anyone
     assert set(pairs) == {("psid44266", "psid57138"), ("psid44266", "psid57139"), ("psid57138", "psid57139")}
