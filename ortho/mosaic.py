@@ -1279,11 +1279,12 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         # name was looked for in the folder `aerotri run` started in, and another file of that name taken)
         seamlines = Path(os.path.abspath(seamlines))
         # the run rewrites ortho/seamlines.gpkg: an edited copy, never the file itself, is its input
-        out = root / "ortho" / "seamlines.gpkg"
-        if out.exists() and os.path.samefile(out, seamlines):
-            raise OptionError(f"{seamlines}: this is the file the mosaic writes (inputs are never modified); edit a "
-                              f"copy of it (e.g. {out.with_name('seamlines_edited.gpkg')}) and give that",
-                              param="--seamlines")
+        # (and ortho/seamlines.geojson: trial-ortho2's edit of it was read, then overwritten by the run)
+        for out in (root / "ortho" / "seamlines.gpkg", root / "ortho" / "seamlines.geojson"):
+            if out.exists() and os.path.samefile(out, seamlines):
+                raise OptionError(f"{seamlines}: this is a file the mosaic writes (inputs are never modified); edit a "
+                                  f"copy of it (e.g. {out.with_name('seamlines_edited' + out.suffix)}) and give that",
+                                  param="--seamlines")
     index = read_index(root)
     frames_dir = root / "ortho" / "frames"
     if not index.frames:
@@ -1774,6 +1775,9 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
         summary["tiles"] = tiles
         logger.info("edited seamlines: %d of %d tiles blended, %d taken over from the earlier mosaic%s", tiles["blended"],
                     tiles["total"], tiles["taken_over"], f" ({previous.why_all})" if previous.why_all else "")
+        if not tiles["blended"]:  # (trial-ortho2: an edit in a layer not read changed nothing, "edited" unsaid)
+            logger.warning("the edited seamlines change no cell of the earlier mosaic's seams: the mosaic is the "
+                           "earlier one; was the edit saved in the file (and layer) given?")
     if summary["cells_seen_by_no_frame"]:
         # (two significant digits: "1608 cells (0.00 % of the block)" read as none, new-user trial s51)
         pct = 100 * summary["share_seen_by_no_frame"]

@@ -74,8 +74,19 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
         raise InputError(f"{path}: edited seamlines not found (--seamlines)")
     try:
         layers = [name for name, _ in pyogrio.list_layers(path)]
+        if len(layers) > 1:
+            # a second layer (QGIS "Save features as..." into the same file) was passed over for 'seamlines' or the
+            # first one, the edit dropped without a word (trial-ortho2): the layer of polygons named by frame only
+            framed = [n for n in layers if {"frame", "image_id"} & set(pyogrio.read_info(path, layer=n)["fields"])]
+            if len(framed) > 1:
+                raise InputError(f"{path}: {len(framed)} layers of frame polygons ({', '.join(framed)}): expected one "
+                                 "(the mosaic reads one layer: keep the edited polygons in a file of their own, or "
+                                 "delete the other layers)")
+            layers = framed or layers
         layer = LAYER if LAYER in layers else layers[0]
         meta, fids, wkb, fields = pyogrio.raw.read(path, layer=layer, return_fids=True)
+    except InputError:
+        raise
     except Exception as exc:  # pyogrio's errors (DataSourceError, DataLayerError ...) and GDAL's
         raise InputError(f"{path}: cannot read the edited seamlines ({exc}); expected a GeoPackage as ortho mosaic "
                          "writes (ortho/seamlines.gpkg)") from None
@@ -99,7 +110,10 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
     polygons = []
     for fid, name, g in zip(fids, frame_names, geoms):
         where = f"{path}: feature {fid}"
-        if name is None or name not in known:
+        if name is None or not str(name).strip():
+            raise InputError(f"{where}: no frame name (field 'frame' empty); expected one of the mosaic's frames "
+                             f"(ortho/frames/index.json: {len(names)} frames, e.g. {', '.join(names[:3])})")
+        if name not in known:
             raise InputError(f"{where}: frame {name!r} is not a frame of the mosaic (ortho/frames/index.json: "
                              f"{len(names)} frames, e.g. {', '.join(names[:3])})")
         k = known[name]
@@ -107,7 +121,8 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
             raise InputError(f"{where}: frame {name} has a polygon already (feature {feature_of_frame[k]}); one "
                              "(multi)polygon per frame: merge them")
         if g is None or g.is_empty or g.geom_type not in ("Polygon", "MultiPolygon"):
-            raise InputError(f"{where} (frame {name}): expected a polygon, got {'nothing' if g is None else g.geom_type}")
+            got = "nothing" if g is None else f"an empty {g.geom_type}" if g.is_empty else g.geom_type
+            raise InputError(f"{where} (frame {name}): expected a polygon, got {got}")
         if not g.is_valid:
             raise InputError(f"{where} (frame {name}): invalid polygon ({shapely.is_valid_reason(g)})")
         feature_of_frame[k] = int(fid)

@@ -830,6 +830,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                 verdict, why = "fail", ""
             rows[-1] = dataclasses.replace(rows[-1], verdict=verdict,
                                            note=f"{lost.note()}{reach}{why}; {rows[-1].note}")
+        elif lost is not None and lost.unusual():  # (trial-ortho2: a DOM half mirrored, 38 % lost, passed unsaid)
+            rows[-1] = dataclasses.replace(rows[-1], note=f"warning: {lost.unusual_note()}; {rows[-1].note}")
         elif lost is not None and lost.patches:
             rows[-1] = dataclasses.replace(rows[-1], note=f"{rows[-1].note}; {lost.patches} of {lost.textured} "
                                                           "textured patches without a match")

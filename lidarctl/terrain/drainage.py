@@ -669,7 +669,7 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
              "D8 flow direction, ESRI codes 1 E 2 SE 4 S 8 SW 16 W 32 NW 64 N 128 NE")
         _cog(tmp / "accum_cells.tif", np.where(valid, acc, 0).astype(np.uint32), profile, 0, None,
              "flow accumulation, cells (the cell itself included)")
-        _cog(tmp / "accum_m2.tif", np.where(valid, acc * cell_area_m2, -1.0), profile, -1.0, None,
+        _cog(tmp / "accum_m2.tif", np.where(valid, acc * cell_area_m2, -1.0), profile, -1.0, "square metre",
              "upstream area, m2")
         _cog(tmp / "strahler.tif", np.where(valid, net.strahler, 255).astype(np.uint8), profile, 255, None,
              "Strahler order of the stream cells, 0 off the streams")

@@ -348,4 +348,5 @@ def test_points_off_the_data_under_density_groups_are_named_in_the_nva_and_vva_r
     row = [c for c in rep.checks if c.id == "dem_raster_rmse_m"][0]
     assert "at 8 non-vegetated surveyed points" in row.quantity
     assert row.note == ("2 surveyed points with no valid cell of the DEM dem.tif under them, not counted (land cover "
-                        "unknown: X0, X1)")
+                        "unknown: X0, X1); 8 check points, 30 required by USGS Lidar Base Specification: indicative "
+                        "only")   # (trial-qa)

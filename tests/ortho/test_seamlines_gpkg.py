@@ -177,6 +177,37 @@ def test_the_seamlines_geojson_given_back_is_read_by_its_frame_polygons(mosaicke
     assert _tile_sums(root / "ortho" / "mosaic.tif") == before
 
 
+def test_an_edit_in_a_second_layer_or_the_mosaics_own_geojson_is_refused(mosaicked, tmp_path):
+    """trial-ortho2: an edit saved as a second layer of the GeoPackage (QGIS "Save features as...") was passed over for
+    the layer 'seamlines', the mosaic remade unchanged and called edited; ortho/seamlines.geojson given back was read,
+    then overwritten by the run. Both refused (exit 2, nothing written); a file of one framed layer beside other
+    layers is read."""
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    before = _tile_sums(root / "ortho" / "mosaic.tif")
+    meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
+    two = tmp_path / "two.gpkg"
+    shutil.copy(root / "ortho" / "seamlines.gpkg", two)
+    pyogrio.raw.write(str(two), shapely.to_wkb(np.array(geoms, dtype=object)), [np.array(names, dtype=object)],
+                      ["frame"], layer="seamlines_edited", driver="GPKG", geometry_type="MultiPolygon", crs=meta["crs"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(two)])
+    assert r.exit_code == 2 and "2 layers of frame polygons (seamlines, seamlines_edited): expected one" in r.output
+    assert _tile_sums(root / "ortho" / "mosaic.tif") == before
+    # a layer without frame names beside the polygons (a user's notes): the polygons' layer is read
+    other = tmp_path / "other.gpkg"
+    shutil.copy(root / "ortho" / "seamlines.gpkg", other)
+    pyogrio.raw.write(str(other), shapely.to_wkb(np.array([shapely.Point(0, 0)], dtype=object)),
+                      [np.array(["a note"], dtype=object)], ["note"], layer="a_notes", driver="GPKG",
+                      geometry_type="Point", crs=meta["crs"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(other)])
+    assert r.exit_code == 0, r.output
+    assert _tile_sums(root / "ortho" / "mosaic.tif") == before
+    own = root / "ortho" / "seamlines.geojson"
+    text = own.read_bytes()
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(own)])
+    assert r.exit_code == 2 and "this is a file the mosaic writes" in r.output and own.read_bytes() == text
+
+
 @pytest.mark.parametrize("edit, message", [
     ("unknown", "feature {fid}: frame 'no_such_frame' is not a frame of the mosaic"),
     ("overlap", "overlap by"),
