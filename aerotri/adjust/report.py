@@ -842,6 +842,32 @@ def _sigma0_note(ba) -> str | None:
             f"[adjust] image_sigma_px = {r.sigma0 * opts.image_sigma_px:.2f} or image_sigma_from_residuals = true.")
 
 
+# GNSS residuals beyond this many times their stated sigmas (the GNSS group's variance factor over the images'): the
+# solve holds something fixed that is wrong. trial-drone: an RTK drone block (0.03 / 0.05 m) with the focal length
+# 8 % long read "Solution Successful" with its heights 7 m low and sigmas of 0.03 m; its GNSS factor was 4.3, the
+# images' 1.2. A factor of 3 is a variance 9 times the stated: far beyond what a correct block shows (about 1: the
+# factor's own scatter is 1/sqrt(2 r), a few % for a block's hundreds of GNSS coordinates)
+GNSS_FACTOR_MAX = 3.0
+
+
+def gnss_misfit_note(ba) -> str | None:
+    """The weakness when the GNSS positions' variance factor exceeds the images' by more than ``GNSS_FACTOR_MAX``:
+    the GNSS sigmas are too small or the camera (a focal length: with GNSS over flat ground the block's heights follow
+    it), a lever arm or the GNSS heights' unit or datum is wrong. None otherwise or without the components."""
+    comps = {c.group: c.factor for c in (ba.result.variance_components or []) if c.factor is not None}
+    g, i = comps.get("gnss"), comps.get("image")
+    if g is None or g <= GNSS_FACTOR_MAX * max(i or 1.0, 1.0):
+        return None
+    cal = set(ba.opts.self_calibration or ())
+    focal = ("the camera's focal length (held fixed: with GNSS over flat ground the block's heights follow it; "
+             "adjust with --self-cal focal,pp,radial, or give the calibrated value)" if "focal" not in cal else
+             "the camera")
+    return (f"GNSS misfit: the GNSS residuals are {g:.1f} times their stated sigmas (variance component; the images' "
+            f"{i if i is not None else float('nan'):.2f}): the orientations' and points' sigmas are too small, and "
+            f"something the solve holds is wrong: {focal}, a lever arm, the GNSS heights' unit or datum, or the GNSS "
+            "sigmas ([gnss] sigma_xy_m, sigma_z_m).")
+
+
 def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, tolerances: str = "",
                     judged: dict | None = None, direction=None, plan_limit_m: float = float("nan")) -> dict:
     """Sigma naught, iterations, and the verdict: "Solution Successful." only when the solve converged and
@@ -939,6 +965,9 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     # with 3 strips), so there the flip stays a finding of its section, not a weakness of the solution
     if direction is not None and direction.significant and opts.gnss_correction not in ("shift", "shift_drift"):
         weaknesses += direction.findings()
+    gnss_misfit = gnss_misfit_note(ba)
+    if gnss_misfit:
+        weaknesses.append(gnss_misfit)
     beyond = tolerance_findings(parameters, unit, **(judged or {})) if parameters else []
     if beyond:
         weaknesses.append(f"Beyond the tolerances of this report, {tolerances}: "

@@ -1,0 +1,33 @@
+"""The verdict and the GNSS variance factor (trial-drone): an RTK-like block (GNSS 0.05 / 0.08 m, no control) with
+the camera's focal length 8 % long read "Solution Successful", its heights metres off and its sigmas centimetres,
+while its GNSS residuals were 4.3 times their stated sigmas. A GNSS factor beyond ``GNSS_FACTOR_MAX`` times the
+images' is a weakness naming the focal length; the same block with the right camera is not."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+from aerotri.adjust.report import GNSS_FACTOR_MAX, build_report
+from aerotri.core.records import to_record
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+
+@pytest.mark.parametrize("focal_error, misfit", [(0.08, True), (0.0, False)])
+def test_a_wrong_focal_length_under_tight_gnss_is_not_successful(tmp_path, focal_error, misfit):
+    block = geometric_block(3, 6, seed=21, relief_m=2.0, tilt_sigma_deg=0.3, gnss_shift_sigma_m=0.0,
+                            gnss_drift_sigma_m_per_km=0.0)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=0, points_per_image=150, n_check=0, seed=22)
+    cam = block.camera_nominal
+    (root / "camera.toml").write_text(dataclasses.replace(cam, focal_mm=cam.focal_mm * (1 + focal_error)).to_toml())
+    ba = adjust_project(root, AdjustSettings(image_sigma_px=0.3, gnss_correction="none", use_control=False))
+    factors = {c.group: c.factor for c in ba.result.variance_components}
+    ks = to_record(build_report(ba))["key_statistics"]
+    assert (factors["gnss"] > GNSS_FACTOR_MAX * max(factors["image"], 1.0)) == misfit, factors
+    assert ("GNSS misfit" in ks["message"]) == misfit, ks["message"]
+    assert (ks["verdict"] != "successful") if misfit else True
+    if misfit:
+        assert "--self-cal focal,pp,radial" in ks["message"]
