@@ -25,9 +25,11 @@ def _same_side(shown: float, value: float, limit: float) -> bool:
 
 
 def round_on_its_side(value, limit, decimals: int):
-    """``round(value, decimals)``, with more decimals where fewer would move it across ``limit``; ``value``
-    as it is when it or ``limit`` is not a finite number."""
+    """``round(value, decimals)``, with more decimals where fewer would move it across ``limit`` (a limit that is
+    not a finite number: plain rounding; a value that is not: as it is)."""
     if not _judgeable(value, limit):
+        if isinstance(value, float) and math.isfinite(value):
+            return round(value, decimals)
         return value
     for d in range(decimals, MAX_DECIMALS + 1):
         shown = round(float(value), d)

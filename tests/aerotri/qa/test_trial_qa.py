@@ -20,7 +20,7 @@ def test_rounding_keeps_a_figure_on_its_side_of_the_limit():
     assert round_on_its_side(0.0612345, 0.1, 4) == 0.0612 and text_on_its_side(0.0612345, 0.1) == "0.06123"
     assert round_on_its_side(0.09999996, 0.1, 4) == 0.1   # on the limit meets it, as the value does
     assert within(0.05000000000000001, 0.05) and not within(0.05001, 0.05)   # floating-point noise only
-    assert round_on_its_side(0.123456, None, 4) == 0.123456   # no limit: nothing to keep a side of
+    assert round_on_its_side(0.123456, None, 4) == 0.1235   # no limit: plain rounding
 
 
 def test_a_figure_just_over_its_limit_fails_in_both_sections_and_reads_over_it(tmp_path):
