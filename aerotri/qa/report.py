@@ -1043,13 +1043,6 @@ def _num(v, star: bool = False) -> str:
     return "" if v is None else f"{v:.4g}" + ("*" if star else "")
 
 
-def _figure_text(c: dict) -> str:
-    """A compliance row's figure to 4 digits, more where fewer would put it across its limit."""
-    if c["figure"] is None or c["limit"] is None:
-        return _num(c["figure"])
-    return text_on_its_side(c["figure"], c["limit"])
-
-
 def _row_outside_cell(c: dict) -> str:
     """A compliance check's points without a dz, for its table cell and console line (``outside_text``)."""
     from aerotri.qa.compliance import OUTSIDE_IDS_SHOWN, outside_text
@@ -1079,7 +1072,8 @@ def compliance_row(c: dict) -> list:
     # (no point: no accuracy to judge)
     acc = checkpoints_accuracy_text(c) if c["n_points"] else ""
     verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
-    return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]), _figure_text(c),
+    return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]),
+            _value_cell(c["figure"], c["limit"]),
             _num(c["limit"], c["limit_confirmed"] is False) + (f" {c['unit']}" if c["limit"] is not None else ""),
             need, acc, verdict, c["finest_class"] or ""]
 
@@ -1180,7 +1174,7 @@ def compliance_lines(comp: dict | None) -> list[str]:
             (f", {_row_outside_cell(c)}" if c.get("n_outside") else "") \
             if c["n_points"] is not None else ""
         unit = f" {c['unit']}" if c.get("unit") else ""
-        figure = f"{_figure_text(c)}{unit}" if c["figure"] is not None else "not measured"
+        figure = f"{_value_cell(c['figure'], c['limit'])}{unit}" if c["figure"] is not None else "not measured"
         limit = f"limit {_num(c['limit'])}{unit}{star}" if c["limit"] is not None else "no limit"
         lines.append(f"    {c['verdict']:<12} {c['product']}: {c['quantity']} = {figure} "
                      f"({'; '.join(x for x in (limit, pts) if x)})" + (f"; {c['why']}" if c["why"] else ""))

@@ -565,7 +565,7 @@ def _solve(obs: Observations, model: Model, huber_k: float, iterations: int, the
     cov = Ainv @ B @ Ainv
     rm = obs.y - obs.G @ step
     # the same normals with the priors (not the datum's mean height) PRIOR_WIDENING times wider
-    wide = Gn[inside].T @ Gn[inside] + Pm - Pp * (1.0 - 1.0 / PRIOR_WIDENING ** 2)
+    wide = A - Pp * (1.0 - 1.0 / PRIOR_WIDENING ** 2)
     try:
         reliance = np.sqrt(np.maximum(np.diag(np.linalg.inv(wide)), 0.0) / np.diag(Ainv))
     except np.linalg.LinAlgError:

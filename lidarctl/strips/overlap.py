@@ -169,7 +169,8 @@ def strip_sources(paths) -> list[StripSource]:
         return [StripSource(n, p, None) for n, p in zip(names, paths)]
     path = paths[0]
     count: dict[int, int] = {}
-    box: dict[int, np.ndarray] = {}
+    low: dict[int, np.ndarray] = {}  # per point_source_id: the smallest x, y and the largest
+    high: dict[int, np.ndarray] = {}
     for _, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
         psid = np.asarray(chunk.point_source_id)
         x, y = np.asarray(chunk.x, float), np.asarray(chunk.y, float)
@@ -181,13 +182,13 @@ def strip_sources(paths) -> list[StripSource]:
         n = np.bincount(inv, minlength=len(ids))
         for k, i in enumerate(ids.tolist()):
             count[i] = count.get(i, 0) + int(n[k])
-            b = np.concatenate([lo[k], hi[k]])
-            box[i] = b if i not in box else np.concatenate([np.minimum(box[i][:2], b[:2]), np.maximum(box[i][2:], b[2:])])
+            low[i], high[i] = np.minimum(low.get(i, lo[k]), lo[k]), np.maximum(high.get(i, hi[k]), hi[k])
     if len(count) < 2:
         raise NothingToCompare(f"{path}: one strip only (point_source_id {sorted(count)}); strip differences need at "
                                "least two overlapping strips: give several files, or one file whose strips differ "
                                "in point_source_id")
-    return [StripSource(f"psid{i}", path, int(i), count[i], tuple(float(v) for v in box[i])) for i in sorted(count)]
+    return [StripSource(f"psid{i}", path, int(i), count[i], (*map(float, low[i]), *map(float, high[i])))
+            for i in sorted(count)]
 
 
 def scan_angle_deg(chunk) -> np.ndarray:
