@@ -77,6 +77,17 @@ class PointCloud:
         return np.column_stack([self.x, self.y, self.z])
 
 
+GROUND, WATER, ROAD_SURFACE = 2, 9, 11
+
+
+def ground_classes(header: laspy.LasHeader) -> tuple[int, ...]:
+    """The classes of a file that stand on the ground: ground and water, and road surface (11) where the file's LAS
+    version defines it (1.4 R13 on; before, 11 is reserved: lidR's MixedConifer, LAS 1.2, holds five class-11
+    returns 14-23 m up in the canopy, which a DEM took for ground at 22.6 m)."""
+    v = header.version
+    return (GROUND, WATER, ROAD_SURFACE) if (v.major, v.minor) >= (1, 4) else (GROUND, WATER)
+
+
 def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
                       require_crs: bool = True, crs_name: str = "--crs") -> tuple[pyproj.CRS | None, LengthUnits]:
     """(horizontal CRS, linear units) of a file: its CRS records, else ``crs_arg`` (``--crs``:

@@ -224,6 +224,19 @@ class PointsDemResult:
                                                                               "their extent" if sides else ""))
 
 
+def _heights_words(project: Project) -> str:
+    """The DEM's HEIGHTS tag: the project's heights, or relative ones when the adjustment measured none (its report's
+    heights_measured; trial-kite: a plan-only block's dem.tif ran -0.05 .. 1.17 with nothing saying so)."""
+    from aerotri.core.textio import read_json
+
+    path = project.adjustment_report_path
+    rep = read_json(path, "adjustment report") if path.is_file() else {}
+    if rep.get("heights_measured", True) is False:
+        return (f"relative: no height was measured (plan-only control, no GNSS or DEM; {path} DATUM); 0 at the control "
+                "points' median ground")
+    return f"the project's: {project.info.heights} ({project.config_path} [project] heights)"
+
+
 def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int = 3) -> PointsDemResult:
     """``ortho dem``: the DEM of the project's adjusted tie points as a COG (default ``at/dem.tif``) over the frames'
     footprints, and its numbers (``<out>.json``); returns them."""
@@ -271,7 +284,7 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
                            CELLS_EXTRAPOLATED_PERCENT=f"{stats.extrapolated_percent:.1f}",
                            EXTRAPOLATED_MAX_DISTANCE_M=f"{stats.extrapolated_max_distance_m:.2f}",
                            EXTENDED_BEYOND_NESW_M=" ".join(f"{v:.2f}" for v in stats.extended_beyond_nesw_m),
-                           EXTRAPOLATION=stats.extension_words())
+                           EXTRAPOLATION=stats.extension_words(), HEIGHTS=_heights_words(project))
         with mem.open() as src, atomic_path(out) as tmp:
             rio_copy(src, tmp, driver="COG", compress="DEFLATE", predictor=3, overview_resampling="average")
     write_text_atomic(out.with_suffix(".json"), stats.to_json())

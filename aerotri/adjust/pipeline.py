@@ -96,6 +96,8 @@ class BlockAdjustment:
     components: int = 1
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent
     datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS), for the report
+    # False: no height was measured (plan-only control, no GNSS, no DEM): heights relative to the control's ground
+    heights_measured: bool = True
     self_calibration_requested: tuple = ()  # the groups asked for (opts.self_calibration: those estimated)
     calibration_checks: list = dataclasses.field(default_factory=list)  # determinability.GroupCheck, every group
     dem_checks: list = dataclasses.field(default_factory=list)  # dem_check.DemCheck: surface control DEM, check DEM
@@ -896,7 +898,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         points_map=pts_map, points_sigma_map=psig, control=p.control_used,
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
-        left_out=p.left_out, datum_notes=list(p.datum_notes), dem_checks=dem_checks,
+        left_out=p.left_out, datum_notes=list(p.datum_notes), heights_measured=p.level is None, dem_checks=dem_checks,
         check_from_lidar=int(_lidar_control(p.project, chk).sum()) if len(chk) else 0,
         control_rays_left_out=p.control_rays_left_out,
     )

@@ -1149,6 +1149,7 @@ class AdjustmentReport:
     key_statistics: dict
     components: dict
     datum: list
+    heights_measured: bool  # False: relative heights (plan-only control, no GNSS or DEM; ``datum`` says how)
     counts: dict
     image_residuals: dict
     control_points: list
@@ -1287,6 +1288,9 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
                                                                    for lo in ba.left_out]},
         # what the datum rests on when GNSS does not carry it (approximations from the images, unmeasured heights)
         "datum": list(getattr(ba, "datum_notes", [])),
+        # False: the heights are relative (plan-only control, no GNSS or DEM; the datum notes say how): exports and
+        # products made from the adjustment say so
+        "heights_measured": bool(getattr(ba, "heights_measured", True)),
         "counts": {"images": b.n_images, "strips": b.n_strips, "tie_points": int(len(tie_pts)),
                    "control_points": int(len(used_ctrl)), "check_points": int(len(check_rows)),
                    "image_observations": int(res.active.sum()), "removed_observations": len(removed),

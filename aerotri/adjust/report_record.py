@@ -102,6 +102,7 @@ class AdjustmentRecord:
     flight_acceptance: dict | None  # the flight acceptance section as written (a ``FlightAcceptance``, asdict)
     control_to_tie_ratio: float | None = None  # RMS image residual of control over that of the ties
     datum_notes: tuple[str, ...] = ()  # what the datum rests on when GNSS does not carry it
+    heights_measured: bool = True  # False: relative heights, 0 at the control's median ground (report.json)
     surface_control: tuple[SurfaceControlClass, ...] = ()  # per class of ground, or the DEM as one; () without
     # the surface's systematic error (LiDAR strip offsets) as the sigmas carry it: report.json
     # surface_control.systematic ("considered" false: the orientations' and points' sigmas are formal); None without
@@ -163,6 +164,7 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
         check_normalised_rms=_xyz(d.get("check_normalised_rms")), flight_acceptance=d.get("flight_acceptance") or None,
         control_to_tie_ratio=_number((d.get("image_residuals") or {}).get("control_to_tie_ratio")),
         datum_notes=tuple(str(n) for n in d.get("datum") or ()),
+        heights_measured=d.get("heights_measured", True) is not False,
         surface_control=_surface_control(d.get("surface_control")),
         surface_systematic=(d.get("surface_control") or {}).get("systematic"),
         check_points_from_lidar=int(d.get("check_points_from_lidar") or 0))

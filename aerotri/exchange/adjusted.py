@@ -50,6 +50,7 @@ class AdjustedBlock:
     control_id: np.ndarray  # control points in the adjustment, not rejected
     control_kind: np.ndarray
     control_xyz_m: np.ndarray  # (C, 3) given coordinates, project CRS
+    heights_measured: bool = True  # False: relative heights (adjustment report's heights_measured; plan-only control)
 
 
 def _object_points(path):
@@ -126,6 +127,7 @@ def read_adjusted_block(root) -> AdjustedBlock:
         obs_image=np.array([image_index[i] for i in iid[keep]], int), obs_xy_px=xy[keep],
         obs_measured_px=measured[keep], control_id=control_id,
         control_kind=control_kind, control_xyz_m=control_xyz,
+        heights_measured=report.get("heights_measured", True) is not False,
     )
 
 

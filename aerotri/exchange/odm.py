@@ -171,7 +171,8 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     block.control = ControlPoints(ids, kinds, xyz_map, np.tile(np.asarray(options.sigma_xyz_m, float), (len(ids), 1)))
     block.image_points = ImageObservations(np.array([o[0] for o in obs], dtype=object),
                                            np.array([o[1] for o in obs], dtype=object),
-                                           np.array([[o[2], o[3]] for o in obs], float))
+                                           np.array([[o[2], o[3]] for o in obs], float),
+                                           np.array([o[4] for o in obs], int))   # lines: for the checks' messages
     block.notes.append(f"control: {len(ids)} points ({int(no_z.sum())} without height: horizontal), "
                        f"{len(obs)} measurements; pixel coordinates taken as OpenSfM reads them (centre of the "
                        f"top-left pixel at 0, 0)")

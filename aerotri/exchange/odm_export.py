@@ -69,7 +69,9 @@ def _measurements(block: AdjustedBlock, project: Project):
     removed = {(r["point_id"], r["image_id"]): r.get("w") for r in report.get("removed_observations", [])}
     rejected_point = {str(r["id"]): r.get("w") for r in report.get("rejected_control", [])}
     used = set(block.control_id.astype(str))
+    # check points: those control/points.csv calls so and those the adjustment held back (adjust --check ID,...)
     check = {str(p) for p, k in zip(control.id, control.kind) if k == "check"}
+    check |= {str(r["id"]) for r in report.get("check_points", []) if "id" in r}
     images = set(block.image_id)
     pid, iid = obs.point_id.astype(str), obs.image_id.astype(str)
     keep, is_check, reasons, rejected = [], [], [], []

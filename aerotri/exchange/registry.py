@@ -98,6 +98,12 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
     project = Project.open(root)
     block = read_adjusted_block(project.root)
     out = Path(out_dir) if out_dir is not None else project.at_dir
+    if not block.heights_measured:
+        # trial-kite: ODM's reference_lla altitude 20.7 m, read as a WGS 84 height, for a beach about -30 m
+        log.warning(f"{project.root}: no height of this block was measured (plan-only control, no GNSS or DEM; "
+                    f"{project.adjustment_report_path} DATUM): every height exported ({', '.join(formats)}: camera "
+                    "and point heights, ODM's reference_lla altitude) is relative, 0 at the control points' median "
+                    "ground, not an ellipsoidal or orthometric height")
     contents = {}  # (a later format's file of the same name replaces the earlier one's)
     for name in formats:
         try:

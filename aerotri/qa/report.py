@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import logging
 import textwrap
 import json
 import math
@@ -44,6 +45,9 @@ from aerotri.qa.compliance import (NOT_TESTABLE, asprs_class_cm, lidar_only_proj
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
 from lidarctl.vectors.settings import VectorsSettings
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
 
 # the chain's report stage stamp: bump when the accuracy report (qa/) changes at the same inputs
 QA_REPORT_VERSION = 1
@@ -585,6 +589,15 @@ def stage_results(project: Project) -> list:
             project.strips_check_after_path]
 
 
+def _changed_since_adjustment(project: Project) -> list[str]:
+    """The adjustment's inputs (control points and measurements, GNSS, tie points) written after at/report.json, as
+    paths relative to the project (file times: a file written again with the same content counts too)."""
+    made = project.adjustment_report_path.stat().st_mtime_ns
+    inputs = (project.control_points_path, project.control_image_points_path, project.gnss_path,
+              project.tiepoints_path)
+    return [str(p.relative_to(project.root)) for p in inputs if p.is_file() and p.stat().st_mtime_ns > made]
+
+
 def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     standard: str | None = None, horizontal_class_cm: float | None = None,
                     vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> QaReport:
@@ -751,6 +764,19 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             rows.append(_check("sigma0_px", sec, "sigma naught", s0_px, _sigma0_limit_px(tol, ks, s0_px),
                                "px", digits=3, note=f"{ks.sigma0_um:.2f} um" if ks.sigma0_um is not None else "",
                                key="sigma0_max_px" if tol.get("sigma0_max_px") is not None else "sigma0_max_um"))
+    changed = _changed_since_adjustment(project) if at else []
+    if changed:
+        # trial-kite: control re-imported (a target moved 3 m), or an adjustment that failed after it: the report
+        # gave the old check RMS, exit 0; aerotri run adjusts again, aerotri report alone cannot
+        log.warning(f"{project.adjustment_report_path}: {', '.join(changed)} changed after this adjustment: its "
+                    f"figures are of the inputs before; adjust again (aerotri adjust {root})")
+        rows.append(_check("adjustment_current", sec, "adjustment made from the current inputs", False, True, "",
+                           note=f"{', '.join(changed)} written after at/report.json: adjust again"))
+    if at and not at.heights_measured:
+        # trial-kite: the consolidated report said nothing of heights nobody measured (at/report.txt's DATUM did)
+        rows.append(_check("heights_measured", sec, "heights measured", "no", None, "",
+                           note="plan-only control, no GNSS or DEM: every height (EO, DEM, points, exports) is "
+                                "relative, 0 at the control points' median ground; at/report.txt DATUM"))
     if at and at.control_to_tie_ratio is not None:
         # the PATB-table rule of thumb (docs/reports.md): not a contract limit, so reported, not judged
         ratio = at.control_to_tie_ratio

@@ -103,7 +103,7 @@ class Confusion:
 
 @dataclasses.dataclass(frozen=True)
 class ClassificationEvaluation:
-    """``evaluate_strips`` / ``evaluate_files``: the filter test (ground = classes 2, 9) and the confusion matrix.
+    """``evaluate_strips`` / ``evaluate_files``: the filter test (ground = classes 2, 9, and 11 in LAS 1.4) and the confusion matrix.
     Against a truth in a coarser scheme (``_coarse_scheme_map``) the matrix is on the truth's classes:
     ``class_map`` (our class as text -> the truth's class), why (``class_map_reason``) and the matrix of the
     classes as labelled (``confusion_before_map``); all None otherwise."""
@@ -262,7 +262,7 @@ def format_class_map(result: ClassificationEvaluation) -> list[str]:
 
 def evaluate_files(pred_path, truth_path, map_pred: dict | None = None,
                    map_truth: dict | None = None) -> ClassificationEvaluation:
-    """The stage (``lidarctl evaluate``): filter-test errors (ground = classes 2, 9) and the confusion
+    """The stage (``lidarctl evaluate``): filter-test errors (ground = classes 2, 9, and 11 in LAS 1.4) and the confusion
     matrix of a classified file against a truth file with the same points in the same order.
     ``map_pred`` / ``map_truth``: class mappings applied first (e.g. ``{3: 1, 4: 1}``)."""
     return evaluate_strips([pred_path], [truth_path], map_pred, map_truth)
@@ -275,15 +275,22 @@ def evaluate_strips(pred_paths, truth_paths, map_pred: dict | None = None,
     (only the classes of all strips are held, one byte per point each)."""
     if len(pred_paths) != len(truth_paths) or not pred_paths:
         raise InputError(f"{len(pred_paths)} classified strips for {len(truth_paths)} truth strips (one each needed)")
-    preds, truths = [], []
+    preds, truths, pred_ground, true_ground = [], [], [], []
     for pred_path, truth_path in zip(pred_paths, truth_paths):
         pred, truth = read_same_points(pred_path, truth_path)
         preds.append(pred.classification)
         truths.append(truth.classification)
+        # road surface (11) is ground where the file's LAS version defines it (io.ground_classes): a fused LAS 1.4
+        # classification's roads are no type I error; a LAS 1.2 reference's 11 is reserved (MixedConifer: canopy)
+        pred_ground.append(np.isin(pred.classification, io.ground_classes(las.read_header(pred_path))))
+        true_ground.append(np.isin(truth.classification, io.ground_classes(las.read_header(truth_path))))
     pc, tc = np.concatenate(preds).astype(int), np.concatenate(truths).astype(int)
+    pg, tg = np.concatenate(pred_ground), np.concatenate(true_ground)
     for mapping, arr in ((map_pred or {}, pc), (map_truth or {}, tc)):
         _remap(arr, mapping)
-    ft, conf = filter_errors(np.isin(pc, (2, 9)), np.isin(tc, (2, 9))), confusion(pc, tc)
+    if map_pred or map_truth:  # classes mapped: ground by the mapped codes (a mapping names its own classes)
+        pg, tg = np.isin(pc, (2, 9)), np.isin(tc, (2, 9))
+    ft, conf = filter_errors(pg, tg), confusion(pc, tc)
     coarse = {} if map_pred else _coarse_scheme_map(np.unique(pc), np.unique(tc))
     if not coarse:
         return ClassificationEvaluation(ft, conf)

@@ -563,7 +563,7 @@ def _refuse_points_elsewhere(points, points_csv, box, what: str, unit: str) -> N
 
 
 def _read_near(paths, points, radius_m: float, density_radius_m: float | None, crs) -> dict:
-    """The ground points (class 2) within ``radius_m`` (and ``density_radius_m``) of a surveyed point and, with
+    """The ground points (class 2, and road surface 11 of a LAS 1.4 file: ``io.ground_classes``) within ``radius_m`` (and ``density_radius_m``) of a surveyed point and, with
     ``density_radius_m``, the first returns (noise excluded) within it; metres. Streamed by chunks."""
     ground, first_returns, first, n_ground = [], [], None, 0
     reach = max(radius_m, density_radius_m or 0.0)
@@ -571,11 +571,13 @@ def _read_near(paths, points, radius_m: float, density_radius_m: float | None, c
         if first is None:
             first = (path, crs_i, units)
             near = _near_points(units.xy_to_m(points.x), units.xy_to_m(points.y), reach)
+        # ground and road surface (11, in LAS 1.4): where a surveyed point on a road meets the surface; not water
+        on_ground = [c for c in io.ground_classes(las.read_header(path)) if c != io.WATER]
         for first_record, chunk in las.iter_file_chunks(path, io.CHUNK_POINTS):
             cx, cy, cz = np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)
             io.validate_xyz(path, cx, cy, cz, first_record, units)
             cls = np.asarray(chunk.classification)
-            g = cls == 2
+            g = np.isin(cls, on_ground)
             n_ground += int(g.sum())
             gx, gy = units.xy_to_m(cx[g]), units.xy_to_m(cy[g])
             keep = near(gx, gy)
@@ -587,7 +589,7 @@ def _read_near(paths, points, radius_m: float, density_radius_m: float | None, c
                 keep = near(fx, fy)
                 first_returns.append((fx[keep], fy[keep], units.z_to_m(cz[f][keep])))
     if not n_ground:
-        raise InputError(f"{', '.join(map(str, paths))}: no ground points (class 2); run 'lidarctl classify' first")
+        raise InputError(f"{', '.join(map(str, paths))}: no ground points (class 2 or 11); run 'lidarctl classify' first")
     out = {"crs": first[1], "units": first[2],
            "ground": tuple(np.concatenate([gr[k] for gr in ground]) for k in range(3))}
     if density_radius_m is not None:

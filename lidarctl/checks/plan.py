@@ -58,7 +58,8 @@ class PlanCheckSettings:
     min_edge_m: float | None = setting(None, min=0.0, min_open=True, help="LiDAR corners whose two roof edges are at "
                                        "least this long (m), as lidarctl corners --min-edge-m. Default: max(2 m, 8 point "
                                        "spacings) of the measured spacing.")
-    scale: str = setting("1:10000", help="Map scale of the tolerance table: 1:2000, 1:5000, 1:10000 or "
+    scale: str = setting("1:10000", help="Map scale of the tolerance table: 1:500, 1:1000, 1:2000 (GB/T 7931's 0.6 mm "
+                                        "on the map), 1:5000, 1:10000 (the design table's 0.5 m, unconfirmed) or "
                                         "'ASPRS2023 H<cm>cm V<cm>cm'.")
     terrain: str = setting("flat", help="Terrain class of the tolerance table.")
 
@@ -268,14 +269,14 @@ def check_plan_file(cloud_paths, points_csv, params: PlanCheckSettings = PlanChe
     """Plan check of surveyed corners (CSV id,x,y[,z] in the clouds' CRS and units) against the roof corners of
     classified LAS/LAZ file(s) (strips in one CRS). Returns (result, the LiDAR corners in the CRS's units).
     InputError when no surveyed point lies within the clouds' extent (wrong CRS or units, or the wrong area)."""
-    from aerotri.core.tolerances import TERRAINS, load_table
+    from aerotri.core.tolerances import TERRAINS, feature_limit
     from lidarctl.corners.roof_corners import find_roof_corners_tiled
     from lidarctl.checks.heights import read_points_csv
 
     params.validate()
     if params.terrain not in TERRAINS:
         raise OptionError(f"{params.terrain!r}: expected one of {', '.join(TERRAINS)}", param="--terrain")
-    tol = load_table(params.scale, params.terrain, source="--scale", own_table=None).limits.get("feature_rms_xy_m")
+    tol = feature_limit(params.scale, params.terrain).limit_m
     paths = [Path(p) for p in cloud_paths]
     if not paths:
         raise OptionError("give the classified cloud(s) before POINTS_CSV", param="CLOUD")
@@ -362,8 +363,14 @@ def format_report(result: PlanCheckResult) -> str:
         lines.append(f"heights: RMS dz {f(s.rms_z_m)} m, mean dz {f(s.mean_dz_m)} m (LiDAR eave - surveyed)")
     tol = s.tolerance_rms_plan_m
     if tol is not None and s.rms_plan_m is not None:
+        from aerotri.core.tolerances import feature_limit
+
+        limit = feature_limit(result.map_scale, result.terrain)
         lines.append(f"tolerance for well-defined features ({result.map_scale}, {result.terrain}): plan RMS "
-                     f"{tol:g} m -> {'within' if s.within_tolerance else 'NOT within'} tolerance")
+                     f"{tol:g} m -> {'within' if s.within_tolerance else 'NOT within'} tolerance"
+                     + ("" if limit.confirmed else f" (the limit is unconfirmed: {limit.source})"))
+        if limit.note:
+            lines.append(f"  {limit.note}")
     return "\n".join(lines)
 
 

@@ -174,10 +174,12 @@ class CellStats:
             raise RuntimeError("a point lies outside the raster grid")   # a tiling bug, not an input error
 
     def core_grids(self, footprint: np.ndarray, dem: np.ndarray, dsm_filled: np.ndarray, core, *, z_m: float,
-                   metric: bool, nodata: float) -> np.ndarray:
-        """``_core_grids`` of the window's core (row slice, col slice): (6, rows, cols) float32."""
+                   metric: bool, nodata: float, chm: np.ndarray | None = None) -> np.ndarray:
+        """``_core_grids`` of the window's core (row slice, col slice): (6, rows, cols) float32; ``chm``: the CHM
+        per cell to write (default: the cells' own, ``self.chm``)."""
+        chm = self.chm if chm is None else np.ascontiguousarray(chm, float)
         return _core_grids((footprint, np.ascontiguousarray(dem, float), np.ascontiguousarray(dsm_filled, float)),
-                           (self.chm, self._counts, self._sums), (core[0].start, core[0].stop, core[1].start,
+                           (chm, self._counts, self._sums), (core[0].start, core[0].stop, core[1].start,
                                                                   core[1].stop),
                            z_m=float(z_m), metric=bool(metric), nodata=float(nodata))
 

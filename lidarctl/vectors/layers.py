@@ -32,6 +32,8 @@ heights in CRS units, the ``_m`` attributes in metres):
   ground is ground, road surface and low vegetation (2, 11, 3: fused classifications label grass 3);
   ``z`` the mean of those points in the cell.
 * ``contours`` (LineString): copied from ``--contours`` or traced from ``--dem`` (``lidarctl.terrain.contours``).
+* ``coverage`` (Polygon): where the map was made from returns: the cells with points, gaps of about two point
+  spacings closed, and the water polygons; ``lidarctl check-vectors`` judges a reference only inside it.
 
 Cells and lengths of the parameters are metres whatever the CRS; points are read with
 ``corners.read_strips`` (metres) and written back in the CRS units.
@@ -62,8 +64,8 @@ BREAKLINE_CLEAR_M = 3.0
 # Building cells outlined when no regularised outline covers them: pieces from this area (m2; a garden shed
 # is 5-8 m2 in the BGT of Delft).
 CELL_BUILDING_MIN_M2 = 4.0
-LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours")
-VECTORS_VERSION = 1  # the chain's vectors stage stamp: bump when the line map changes at the same inputs
+LAYERS = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours", "coverage")
+VECTORS_VERSION = 2  # the chain's vectors stage stamp: bump when the line map changes at the same inputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -803,12 +805,18 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
                           road_centrelines=len(lines), water=len(wpolys), spot_heights=len(sz),
                           contours=len(layers[-1].geometries) if len(layers) == 6 else None,
                           road_points=int(np.count_nonzero(cls == ROAD)))
+    # where the map is made: cells with returns (small gaps closed, as the water's void) and the water it maps; a
+    # checker leaves a reference's features outside it out (trial-city: BGT past the crop's edge read as missed)
+    covered = ndimage.binary_closing(occupied, structure=np.ones((3, 3), bool), iterations=close) | occupied | wmask
+    cover = mask_polygons(covered, x0, y0, p.cell_m, p.simplify_m)
+    layers.append(Layer("coverage", "Polygon", _scale_geoms(cover, f_xy),
+                        {"area_m2": np.array([q.area for q in cover], float)}))
     extent = tuple(float(v) * f_xy for v in (xy[:, 0].min(), xy[:, 1].min(), xy[:, 0].max(), xy[:, 1].max()))
     return MapVectors(layers, pts.crs, units, counts, extent)
 
 
 # every layer ``extract_vectors`` can write (contours only with --dem or --contours)
-LAYER_NAMES = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours")
+LAYER_NAMES = ("buildings", "roads", "road_centrelines", "water", "spot_heights", "contours", "coverage")
 
 
 def write_vectors(mv: MapVectors, path) -> Path:
@@ -888,7 +896,7 @@ def _check_raster(path: Path) -> None:
 
 
 STYLE = {"buildings": ("firebrick", 1.0), "roads": ("dimgray", 0.8), "road_centrelines": ("gold", 1.0),
-         "water": ("royalblue", 1.0), "contours": ("#8b4513", 0.4)}
+         "water": ("royalblue", 1.0), "contours": ("#8b4513", 0.4), "coverage": ("0.6", 0.5)}
 
 
 def draw_layers(ax, layers: dict) -> None:
@@ -918,7 +926,7 @@ def preview_frame(mv: MapVectors) -> tuple[float, float, float, float] | None:
     """The preview's xmin, ymin, xmax, ymax (CRS units): the points' extent and every feature's (contours of a
     larger DEM), with ``PREVIEW_MARGIN`` of the larger side around them; None without either."""
     boxes = [mv.extent] if mv.extent is not None else []
-    geoms = [g for ly in mv.layers for g in ly.geometries]
+    geoms = [g for ly in mv.layers if ly.name != "coverage" for g in ly.geometries]
     if geoms:
         import shapely
 

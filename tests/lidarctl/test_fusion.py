@@ -9,7 +9,7 @@ import rasterio
 from click.testing import CliRunner
 from rasterio.transform import from_origin
 
-from lidarctl import synthetic
+from lidarctl import io, synthetic
 from lidarctl.classify import pipeline as classify
 from lidarctl.classify import fusion
 from lidarctl.cli.main import main
@@ -110,6 +110,9 @@ def test_classify_with_image_cli_and_bad_input(tmp_path):
     assert r.exit_code == 0, r.output
     r = run(main, ["classify", str(tmp_path / "c.las"), str(tmp_path / "fu.las"), "--image", str(tmp_path / "green.tif")])
     assert r.exit_code == 0, r.output
+    # the lawn's ground returns are grass now: said, with the way to a right DEM (trial-city)
+    said = [line for line in r.output.splitlines() if "are grass (3)" in line]
+    assert len(said) == 1 and "without --image" in said[0] and "classes 2, 9, 11 only" in said[0], r.output
     lo, fu = _classes(tmp_path / "lo.las"), _classes(tmp_path / "fu.las")
     # all green: the LiDAR ground is grass and the building, green on the image, is taken for a tree
     assert np.all(fu[lo == 2] == 3)
@@ -244,3 +247,46 @@ def test_a_road_on_a_causeway_above_the_lake_stays_road(tmp_path):
     assert not fusion.in_water(region, rr, cc, cls, 0.5, z, 0.2).any()
     # at the water's level (a riffle, 0.1 m above the water beside it) it is in the water
     assert fusion.in_water(region, rr, cc, cls, 0.5, np.where(road, 99.1, z), 0.2)[rr[road], cc[road]].all()
+
+
+def test_road_surface_is_ground_in_the_dem_and_the_filter_test(tmp_path):
+    """A fused classification's road surface (11) is ground: the DEM is made of it (not filled across it from the
+    verges), and it is no type I error in ``evaluate --truth`` (trial-city: Autzen's roads left the DEM)."""
+    from lidarctl.checks.classes import evaluate_files
+    from lidarctl.rasters import products as rasters
+
+    cloud, truth = synthetic.synthetic_scene(width_m=80.0, density_per_m2=2.0, n_buildings=0, n_trees=0, seed=3,
+                                             n_low_outliers=0, n_high_outliers=0)
+    u = cloud.x - cloud.x.min()
+    road = (u > 30) & (u < 42) & (truth == 2)
+    cls = truth.copy()
+    cls[road] = 11
+    z = cloud.z + np.where(road, 0.5, 0.0)   # the road half a metre up: a DEM made of it shows it
+    fused = io.PointCloud(cloud.x, cloud.y, z, cloud.intensity, cloud.return_number, cloud.number_of_returns, cls)
+    synthetic.write_las(tmp_path / "fused.las", fused, crs="EPSG:32632")
+    synthetic.write_las(tmp_path / "plain.las", io.PointCloud(cloud.x, cloud.y, cloud.z, cloud.intensity,
+                                                              cloud.return_number, cloud.number_of_returns, truth),
+                        crs="EPSG:32632")
+    dems = {}
+    for name in ("fused", "plain"):
+        rasters.write_rasters([tmp_path / f"{name}.las"], tmp_path / name, 1.0)
+        with rasterio.open(tmp_path / name / "dem.tif") as ds:
+            dems[name] = ds.read(1)
+            cols = np.arange(ds.width) * ds.transform.a + ds.transform.c + 0.5 * ds.transform.a - cloud.x.min()
+    rise = (dems["fused"] - dems["plain"])[5:-5]
+    assert np.nanmedian(rise[:, (cols > 33) & (cols < 39)]) > 0.45           # the road's own heights
+    assert np.nanmax(np.abs(rise[:, (cols < 25) | (cols > 47)])) < 1e-6      # off the road: the same DEM
+    synthetic.write_las(tmp_path / "truth.las", io.PointCloud(cloud.x, cloud.y, z, cloud.intensity,
+                                                              cloud.return_number, cloud.number_of_returns, truth),
+                        crs="EPSG:32632")
+    ev = evaluate_files(tmp_path / "fused.las", tmp_path / "truth.las")
+    assert ev.filter_test.type_i_count == 0 and road.sum() > 500   # the truth calls the road ground (2)
+    # LAS 1.2 reserves class 11 (trial-forest: MixedConifer's five class-11 returns in the canopy made a DEM cell of
+    # 22.6 m): there it is no ground, neither in the DEM nor in a reference
+    synthetic.write_las(tmp_path / "fused12.las", fused, crs="EPSG:32632", version="1.2")
+    rasters.write_rasters([tmp_path / "fused12.las"], tmp_path / "fused12", 1.0)
+    with rasterio.open(tmp_path / "fused12" / "dem.tif") as ds:
+        rise = (ds.read(1) - dems["plain"])[5:-5]
+    assert np.nanmedian(rise[:, (cols > 33) & (cols < 39)]) < 0.1          # the road filled from its verges
+    ev12 = evaluate_files(tmp_path / "truth.las", tmp_path / "fused12.las")  # a 1.2 reference holding 11
+    assert ev12.filter_test.type_ii_count == road.sum()

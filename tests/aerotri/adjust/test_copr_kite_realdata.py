@@ -75,6 +75,19 @@ def test_copr_kite_subset_end_to_end(shared_data, tmp_path):
     assert any("from the images (pycolmap)" in n for n in rep["datum"]) and any("levelled" in n for n in rep["datum"])
     assert rep["rms_control_ground_m"][2] is None  # no height RMS against heights nobody measured
     assert rep["counts"]["images"] == len(FRAMES)
+    # no height was measured: the report says so for scripts, and what is made from it carries it (trial-kite: the
+    # ODM export's reference_lla altitude 20.7 m read as a WGS 84 height, dem.tif without a word)
+    assert rep["heights_measured"] is False
+    r = run.invoke(aerotri_cli, ["export", str(root), "--format", "odm", "--out", str(tmp_path / "x")])
+    assert r.exit_code == 0 and "every height exported (odm: camera and point heights, ODM's reference_lla altitude) " \
+        "is relative" in r.output, r.output
+    from ortho.points_dem import write_points_dem
+
+    write_points_dem(root, tmp_path / "dem.tif")
+    import rasterio
+
+    with rasterio.open(tmp_path / "dem.tif") as ds:
+        assert ds.tags()["HEIGHTS"].startswith("relative: no height was measured")
     loo = json.loads((root / "at" / "leave_one_out.json").read_text())
     assert loo["checked"] == 4 and loo["rms_z_m"] is None
     # the check is bounded by the targets' handheld GNSS: about their scatter, and no worse than 1.5 x it

@@ -114,6 +114,20 @@ def test_copr_kite_gcp_list_imported(shared_data, tmp_path):
     got = {(p, i): xy for p, i, xy in zip(o.point_id, o.image_id, o.xy_px)}
     for r in rows:
         assert np.allclose(got[(r[6].strip(), r[5].rsplit(".", 1)[0])], [float(r[3]), float(r[4])], atol=5e-4)
+    # a measurement off its frame (trial-kite: x 9093.79 in a 4272 px frame was imported) is refused naming its line
+    framed = _fresh(tmp_path, crs="EPSG:32611", name="framed")
+    (framed / "images").symlink_to(shared_data / "copr_kite" / "images")
+    off = tmp_path / "gcp_off.txt"
+    bad = fixed.read_text().splitlines()
+    f = bad[8].split("\t")
+    f[3] = "9093.79"
+    bad[8] = "\t".join(f)
+    off.write_text("\n".join(bad) + "\n")
+    with pytest.raises(InputError, match=r"gcp_off.txt:9: point '\w+' measured at \(9093.79, [0-9.]+\) px in "
+                                         r"'IMG_\d+', off its 4272 x 2848 px frame"):
+        import_files(framed, "odm", [off], ImportSettings(sigma_xyz_m=(0.3, 0.3, 5.0)))
+    assert not (framed / "control").exists()
+    import_files(framed, "odm", [fixed], ImportSettings(sigma_xyz_m=(0.3, 0.3, 5.0)))   # every one on its frame
     # the heights forced: full control with height 0
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(fixed), "--sigma-xyz-m", "0.3", "0.3",
                                          "5", "--force", "--heights-measured"])

@@ -296,3 +296,24 @@ def test_plan_only_control_is_never_given_a_height_of_0(adjusted_tiny, tmp_path)
 
     z = {pid: shapely.from_wkb(g).z for pid, g in zip(fields[0], geom)}  # point_id is the first field
     assert all(z[p] == pytest.approx(adjusted_z[p], abs=1e-3) and abs(z[p]) > 1.0 for p in plan)
+
+
+def test_check_points_held_back_by_the_adjustment_go_to_the_check_list(tmp_path):
+    """Trial-kite: control points held back with `adjust --check ID,...` (control/points.csv still says control)
+    went to gcp_list_rejected.txt as "point not in the adjustment", beside docs/exchange.md's gcp_list_check.txt."""
+    from aerotri.adjust.pipeline import run_adjustment
+    from aerotri.adjust.settings import AdjustSettings
+    from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+    root = write_block_project(geometric_block(2, 5, seed=7), tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=6, points_per_image=80, n_check=0, seed=2)
+    cp = read_control_points(root / "control" / "points.csv")
+    held = tuple(sorted(str(p) for p in cp.id)[:2])
+    run_adjustment(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3, check=held))
+    r = CliRunner().invoke(aerotri_cli, ["export", str(root), "--format", "odm", "--out", str(tmp_path / "x")])
+    assert r.exit_code == 0, r.output
+    odm = tmp_path / "x" / "odm"
+    check = {ln.split("\t")[6] for ln in (odm / "gcp_list_check.txt").read_text().splitlines()[1:]}
+    kept = {ln.split("\t")[6] for ln in (odm / "gcp_list.txt").read_text().splitlines()[1:]}
+    assert check == set(held) and not kept & set(held)
+    assert not (odm / "gcp_list_rejected.txt").exists()

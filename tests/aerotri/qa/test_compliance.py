@@ -1264,3 +1264,25 @@ def test_a_map_scale_class_and_another_scale_are_refused_together(tmp_path):
     assert not (p / "reports").exists()
     rep = write_qa_report(p, standard="cn-at", accuracy_class="1:2000", scale="1:2000")
     assert rep.table["key"] == "1:2000" and rep.compliance["class_tested"] == "1:2000 flat"
+
+
+def test_points_without_land_cover_groups_are_not_called_non_vegetated():
+    """Trial-forest: check-heights without --groups, 37 of 40 points under canopy: the VVA read "no vegetated check
+    points" and the NVA "at non-vegetated check points" with nothing saying the land cover was never determined."""
+    from aerotri.core.project import QaSettings
+    from aerotri.qa.compliance import UNKNOWN_COVER, lidar_figures
+
+    hc = {"points": [{"id": f"p{k}", "dz_m": 0.05 * (-1) ** k} for k in range(40)]}
+    lf = lidar_figures(hc, {}, (None, ""), QaSettings())
+    assert not lf.land_cover_known and lf.n_nva == 40
+    grouped = lidar_figures({"points": [dict(p, group="open") for p in hc["points"]]}, {}, (None, ""), QaSettings())
+    assert grouped.land_cover_known
+    for choice in (Choice("usgs-lbs", "QL2", "t", level="QL2"), Choice("asprs2023", "H10 V10", "t", h_cm=10, v_cm=10),
+                   Choice("asprs2014", "10-cm", "t", v_cm=10)):
+        comp = judge(Figures(lidar=lf), choice)
+        nva = [c for c in comp.checks if c.product == "LiDAR DEM" and c.quantity.startswith("NVA")]
+        vva = [c for c in comp.checks if c.product == "LiDAR DEM" and c.quantity.startswith("VVA")]
+        assert nva and all(c.why.startswith(UNKNOWN_COVER) for c in nva), choice.key
+        assert vva and all(UNKNOWN_COVER in c.why and "no vegetated check points" not in c.why for c in vva), choice.key
+        comp = judge(Figures(lidar=grouped), choice)
+        assert not any(UNKNOWN_COVER in c.why for c in comp.checks), choice.key

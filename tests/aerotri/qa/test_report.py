@@ -526,3 +526,27 @@ def test_a_mosaic_older_than_its_frames_fails_the_report(tmp_path):
     assert write_qa_report(p).check("mosaic_stale").verdict == "fail"
     os.utime(index, (900_000_000, 900_000_000))
     assert not write_qa_report(p).has("mosaic_stale")
+
+
+def test_control_written_after_the_adjustment_fails_the_row_it_reports(tmp_path, caplog):
+    """Trial-kite: control re-imported with a target moved 3 m (or an adjustment that failed after it), and
+    `aerotri report` printed the old check RMS, exit 0. Inputs written after at/report.json: a failing row naming
+    them, and a warning; relative heights (plan-only control, no GNSS) are a row of their own."""
+    import os
+
+    p = _project(tmp_path, [0.3, 0.2, 1.5], 0.45)
+    assert not write_qa_report(p).has("adjustment_current")
+    (p / "control").mkdir()
+    pts = p / "control" / "points.csv"
+    pts.write_text("id,kind,x,y,z,sx,sy,sz\n")
+    made = (p / "at" / "report.json").stat().st_mtime_ns
+    os.utime(pts, ns=(made + 10**9, made + 10**9))
+    with caplog.at_level("WARNING", logger="aerotri.qa.report"):
+        row = write_qa_report(p).check("adjustment_current")
+    assert row.verdict == "fail" and "control/points.csv" in row.note
+    assert any("control/points.csv changed after this adjustment" in m for m in caplog.messages)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    (p / "at" / "report.json").write_text(json.dumps(dict(rep, heights_measured=False)))
+    os.utime(p / "at" / "report.json", ns=(made + 2 * 10**9, made + 2 * 10**9))           # adjusted again: current
+    out = write_qa_report(p)
+    assert not out.has("adjustment_current") and out.check("heights_measured").value == "no"
