@@ -161,7 +161,7 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
         # every oriented frame is rectified: one without its image is an error, never a silent gap in the mosaic
         no_image = [k for k in eo.image_id if k not in images]
         if no_image:
-            raise InputError(f"{project.images_dir / no_image[0]}.tif: image of frame(s) {', '.join(no_image[:10])}"
+            raise InputError(f"{project.images_dir}: no image file of frame(s) {', '.join(no_image[:10])}"
                              f"{' ...' if len(no_image) > 10 else ''} not found (oriented in {eo_path}); restore it, "
                              "or rectify the others with --frames")
     check_frames(images, camera, camera_source)

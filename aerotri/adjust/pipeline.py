@@ -1004,7 +1004,10 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
         raise SolveError(f"{rep['key_statistics']['message']} sigma naught "
                          f"{rep['key_statistics']['sigma0']}; the report of the failed solve is in {failed} "
                          f"(the earlier outputs in {at} are unchanged)")
-    files.update({"eo.txt": format_eo(ba.eo_map), "object_points.csv": object_points_csv(ba),
+    # heights nobody measured (plan-only control, no GNSS or DEM): said where the Z values are (trial-kite)
+    relative = () if ba.heights_measured else ("Z relative: no height was measured (plan-only control, no GNSS or "
+                                               "DEM); 0 at the control points' median ground (report.txt DATUM)",)
+    files.update({"eo.txt": format_eo(ba.eo_map, relative), "object_points.csv": object_points_csv(ba),
                   "camera.toml": _adjusted_camera_toml(ba)})
     for rel, text in files.items():
         write_text_atomic(at / rel, text)

@@ -314,6 +314,11 @@ class Chain:
             return why
         if not self.options.adjust.use_control:
             return f"{self.project.config_path}: [adjust] use_control = false"
+        if self.own_control():
+            # the control stage writes control/: a surveyor's own points there would be replaced (an input lost)
+            return (f"{self.project.control_points_path} is the surveyor's own control (no "
+                    f"{self.project.control_transfer_path.name} beside it): the adjustment takes it, the LiDAR control "
+                    "is not transferred over it (move control/ aside to transfer the LiDAR's)")
         from lidarctl.corners.roof_corners import read_corner_summary
 
         path = self.project.corners_summary_path
@@ -326,6 +331,10 @@ class Chain:
             return ("no orientations to measure the corners with: no GNSS (gnss.txt) for a first adjustment and "
                     "no [adjust] initial_eo")
         return None
+
+    def own_control(self) -> bool:
+        """Whether control/ holds control points that no control transfer made (no control/transfer.json)."""
+        return self.project.control_points_path.is_file() and not self.project.control_transfer_path.is_file()
 
     def true_ortho_dsm(self) -> list[Path]:
         """The DSM the rectify stage reads (none for a conventional ortho)."""
@@ -803,7 +812,12 @@ class Chain:
         r = self.stage_settings("adjust")
         if self.has_lidar:
             why = self.no_corners()
-            if why and r.settings.use_control:
+            if why and r.settings.use_control and self.own_control():
+                # the surveyor's own control/ (no transfer.json: not made from the LiDAR) stays the control (trial-cn:
+                # its check points dropped without a word, "check points 0", where aerotri adjust used them)
+                r = r.replace("use_control", True, "aerotri run",
+                              f"with the control points of {self.project.control_points_path} (no LiDAR control: {why})")
+            elif why and r.settings.use_control:
                 r = r.replace("use_control", False, "aerotri run", f"without LiDAR control: {why}")
         return project_settings(self.project, r)
 

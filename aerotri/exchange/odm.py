@@ -93,7 +93,7 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
         pid = parts[6] if len(parts) > 6 else by_xyz.setdefault(key, f"gcp{len(by_xyz) + 1}")
         if pid in points and not np.array_equal(points[pid], xyz, equal_nan=True):
             raise InputError(f"{path}:{lineno}: point {pid!r} has the coordinates {x} {y} {z} here but "
-                             f"{' '.join(f'{v:g}' for v in points[pid])} on line {first_line[pid]}")
+                             f"{' '.join(repr(float(v)) for v in points[pid])} on line {first_line[pid]}")
         points.setdefault(pid, xyz)
         first_line.setdefault(pid, lineno)
         obs.append((pid, Path(parts[5]).stem, px, py, lineno))

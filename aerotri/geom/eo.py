@@ -127,11 +127,12 @@ def read_eo(path, crs=None) -> ExteriorOrientations:
     return ExteriorOrientations(ids, a[:, :3].copy(), a[:, 3:6].copy(), a[:, 6:12].copy() if a.shape[1] == 12 else None)
 
 
-def format_eo(eo: ExteriorOrientations) -> str:
+def format_eo(eo: ExteriorOrientations, notes: tuple[str, ...] = ()) -> str:
+    """eo.txt's text; ``notes``: comment lines above the header (e.g. that the heights are relative)."""
     head = "# image_id X_m Y_m Z_m omega_deg phi_deg kappa_deg"
     if eo.sigma is not None:
         head += " sX_m sY_m sZ_m somega_deg sphi_deg skappa_deg"
-    lines = [head]
+    lines = [f"# {n}" for n in notes] + [head]
     for i, iid in enumerate(eo.image_id):
         X, Y, Z = eo.centre_m[i]
         o, p, k = eo.opk_deg[i]

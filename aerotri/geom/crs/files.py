@@ -405,6 +405,23 @@ def _attitudes_through(transformer: CrsTransformer, path, x, y, omega_deg, phi_d
     return opk_from_matrix(Rz @ rotation_matrix_opk(omega_deg, phi_deg, kappa_deg))
 
 
+_GEOGRAPHIC_NAMES = ("lon", "lat")
+_GRID_NAMES = ("x", "y", "easting", "northing", "e", "n")
+
+
+def _renamed_header(header: list, ix: int, iy: int, dst) -> list:
+    """``header`` with the x / y columns renamed when the output's kind differs from what their names say: lon,lat
+    for a geographic output of grid columns, x,y for a grid output of lon,lat; other names kept."""
+    out = list(header)
+    geographic = horizontal_crs(dst).is_geographic
+    names = (out[ix].lower(), out[iy].lower())
+    if geographic and any(n in _GRID_NAMES for n in names):
+        out[ix], out[iy] = "lon", "lat"
+    elif not geographic and any(n in _GEOGRAPHIC_NAMES for n in names):
+        out[ix], out[iy] = "x", "y"
+    return out
+
+
 def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
     """Transform a CSV/TXT point list (see module docstring); returns the number of points."""
     table = _read_table(in_path, require_header=False)
@@ -458,6 +475,11 @@ def transform_point_list(in_path, out_path, transformer: CrsTransformer) -> int:
         out_rows.append(f)
     # Rebuild the text with comments where they were.
     body_by_line = dict(zip(table.line_numbers, out_rows))
+    if table.header is not None:
+        # the coordinate columns named for what they hold now (trial-cn: GK eastings written under lon,lat)
+        header_line = next(i for i, ln in enumerate(table.lines, start=1)
+                           if ln.strip() and not ln.lstrip().startswith("#"))
+        body_by_line[header_line] = _renamed_header(table.header, ix, iy, transformer.dst)
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n") if table.delimiter == "," else None
     for i, ln in enumerate(table.lines, start=1):

@@ -375,6 +375,15 @@ def _build(spec: OperationSpec) -> "CrsTransformer":
     return _build_cached(json.dumps(dataclasses.asdict(spec), sort_keys=True))
 
 
+def _same_datum(a, b) -> bool:
+    """Whether two CRSs' horizontal parts lie on one geodetic datum (a datum ensemble and its name; False when either
+    has none, e.g. a local engineering grid)."""
+    from aerotri.geom.crs.definition import horizontal_crs, without_bound
+
+    da, db = (without_bound(horizontal_crs(c)).datum for c in (a, b))
+    return da is not None and db is not None and da == db
+
+
 class CrsTransformer:
     """Build once, call ``transform(x, y, z)`` on arrays (see the module docstring)."""
 
@@ -401,9 +410,13 @@ class CrsTransformer:
         else:
             p_from = parse_crs(params.from_crs_def, "parameter file from_crs")
             p_to = parse_crs(params.to_crs_def, "parameter file to_crs")
-            if (same_horizontal(p_to, self.src) and same_horizontal(p_from, self.dst)
-                    and not same_horizontal(p_from, self.src)):
-                # a parameter set fitted the other way round: one file serves both directions
+            if not same_horizontal(p_from, self.src) and (
+                    same_horizontal(p_to, self.src)
+                    or (_same_datum(self.src, p_to) and not _same_datum(self.src, p_from))):
+                # a parameter set fitted the other way round: one file serves both directions. The input in the set's
+                # target system (or another grid on its datum) goes back through the set, whatever the output (trial-cn:
+                # EPSG:4547 -> EPSG:4326 with a set 32650 -> 4547 was refused, and with --allow-ballpark applied forward,
+                # 274 m off)
                 params = self.params = params.inverse()
                 p_from, p_to = p_to, p_from
             self._p_from, self._p_to = p_from, p_to

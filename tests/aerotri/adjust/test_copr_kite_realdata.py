@@ -78,6 +78,7 @@ def test_copr_kite_subset_end_to_end(shared_data, tmp_path):
     # no height was measured: the report says so for scripts, and what is made from it carries it (trial-kite: the
     # ODM export's reference_lla altitude 20.7 m read as a WGS 84 height, dem.tif without a word)
     assert rep["heights_measured"] is False
+    assert (root / "at" / "eo.txt").read_text().startswith("# Z relative: no height was measured")
     r = run.invoke(aerotri_cli, ["export", str(root), "--format", "odm", "--out", str(tmp_path / "x")])
     assert r.exit_code == 0 and "every height exported (odm: camera and point heights, ODM's reference_lla altitude) " \
         "is relative" in r.output, r.output

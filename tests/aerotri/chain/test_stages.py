@@ -667,3 +667,15 @@ def test_a_lidar_only_project_without_buildings_goes_on_past_the_corners(tmp_pat
     (p / "images" / "f1.tif").write_bytes(b"")
     assert Chain(project, read_options(project)).no_corners() == (
         f"no building points in the classified cloud, so no roof corner ({project.lidar_out_dir / 'corners.json'})")
+    # the surveyor's own control/ (no transfer.json) is the final adjustment's control then (trial-cn: dropped without
+    # a word, "check points 0"); LiDAR control of an earlier run (transfer.json beside it) is not
+    assert Chain(project, read_options(project)).final_settings().settings.use_control is False
+    (p / "control").mkdir()
+    (p / "control" / "points.csv").write_text("id,kind,x,y,z,sx,sy,sz\n")
+    chain = Chain(project, read_options(project))
+    r = chain.final_settings()
+    assert r.settings.use_control is True and "with the control points of" in r.notes["use_control"]
+    # with usable corners too: the control stage would write over them (an input lost); the surveyor's control stays
+    assert "is the surveyor's own control" in chain.no_corners()
+    (p / "control" / "transfer.json").write_text("{}")
+    assert Chain(project, read_options(project)).final_settings().settings.use_control is False

@@ -49,6 +49,19 @@ def test_fit_transform_round_trip(tmp_path, common_points):
     assert r.exit_code == 0, r.output
     got = np.array([[float(v) for v in ln.split(",")[1:]] for ln in out.read_text().splitlines()[1:]])
     assert np.sqrt(np.mean((got[:, :2] - dst[:, :2]) ** 2)) < 0.02
+    # back from the set's target into another CRS of its source datum (trial-cn: EPSG:4547 -> EPSG:4326 with a set
+    # 32650 -> 4547 was refused, and with --allow-ballpark applied forward, 274 m off): through the set inversely
+    back = tmp_path / "pts_back.csv"
+    r = _run("transform", out, back, "--from", "2361", "--to", "4326", "--params", params)
+    assert r.exit_code == 0 and "applied inversely" in r.output, r.output
+    assert back.read_text().splitlines()[0] == "id,lon,lat,z"   # the columns named for what they hold now
+    ll = np.array([[float(v) for v in ln.split(",")[1:]] for ln in back.read_text().splitlines()[1:]])
+    import pyproj
+
+    lon, lat = pyproj.Transformer.from_crs(32649, 4326, always_xy=True).transform(src[:, 0], src[:, 1])
+    de = (ll[:, 0] - lon) * 111_320.0 * np.cos(np.radians(lat))
+    dn = (ll[:, 1] - lat) * 111_320.0
+    assert np.sqrt(np.mean(de ** 2 + dn ** 2)) < 0.03
 
 
 def test_fit_heights_and_transform_with_heights(tmp_path):

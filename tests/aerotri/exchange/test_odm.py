@@ -177,6 +177,9 @@ def test_crs_lines_and_unnamed_points(tmp_path):
     ("EPSG:32611\n235269 3811198 0 4 x a.jpg p\n", InputError, ":2: non-numeric"),
     ("EPSG:32611\nnan 3811198 0 4 5 a.jpg p\n", InputError, ":2: NaN or infinite"),
     ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235270 3811198 0 4 5 b.jpg p\n", InputError, ":3: point 'p' has the coordinates"),
+    # the first line's coordinates as written (trial-kite: '%g' gave "235258 3.81122e+06 0")
+    ("EPSG:32611\n235257.74 3811222.65 0 4 5 a.jpg p\n235262.74 3811222.65 0 4 5 b.jpg p\n", InputError,
+     "but 235257.74 3811222.65 0.0 on line 2"),
     ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235269 3811198 0 6 7 a.jpg p\n", InputError, ":3: point 'p' measured twice"),
     ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235279 3811198 0 5.5 5.5 a.jpg q\n", InputError,
      r":3: points 'p' and 'q' are measured 1.6 px apart in frame 'a' \(lines 2 and 3\)"),
