@@ -166,7 +166,13 @@ def check_image_ids(project: Project, block: ImportedBlock) -> None:
         missing = sorted({str(i) for i in ids} - set(frames.image_id))
         if missing:
             field = {"orientations": "eo", "positions": "gnss", "control measurements": "image_points"}[what]
-            raise InputError(f"{block.source_of(field)}: {what} of image(s) {id_listing(missing)} that are not frames "
+            where = block.source_of(field)
+            obs = block.image_points
+            if field == "image_points" and obs.line is not None:
+                # the first line naming one (trial-kite: a line without its image name read the target as an image)
+                k = next(q for q, i in enumerate(obs.image_id) if str(i) in missing)
+                where = obs.where(k, where)
+            raise InputError(f"{where}: {what} of image(s) {id_listing(missing)} that are not frames "
                              f"in {project.images_dir} ({len(frames)} frames, e.g. "
                              f"{id_listing(sorted(frames.image_id), 3)})")
     if block.image_points is not None and len(block.image_points):

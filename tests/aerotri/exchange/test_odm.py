@@ -127,6 +127,12 @@ def test_copr_kite_gcp_list_imported(shared_data, tmp_path):
                                          r"'IMG_\d+', off its 4272 x 2848 px frame"):
         import_files(framed, "odm", [off], ImportSettings(sigma_xyz_m=(0.3, 0.3, 5.0)))
     assert not (framed / "control").exists()
+    # a line without its image name: the target's name is read as the image, and the line is named (trial-kite)
+    f = fixed.read_text().splitlines()[6].split("\t")
+    noname = tmp_path / "gcp_noname.txt"
+    noname.write_text("\n".join(fixed.read_text().splitlines()[:6] + ["\t".join(f[:5] + f[6:])]) + "\n")
+    with pytest.raises(InputError, match=rf"gcp_noname.txt:7: control measurements of image\(s\) {f[6].strip()} that "):
+        import_files(framed, "odm", [noname], ImportSettings(sigma_xyz_m=(0.3, 0.3, 5.0)))
     import_files(framed, "odm", [fixed], ImportSettings(sigma_xyz_m=(0.3, 0.3, 5.0)))   # every one on its frame
     # the heights forced: full control with height 0
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(fixed), "--sigma-xyz-m", "0.3", "0.3",
