@@ -3,6 +3,12 @@
 Cells are square, ``cell_m`` wide, anchored at the lower-left corner (x0, y0) of the cloud; row
 index ``i`` grows with y, column index ``j`` with x. All functions are vectorised NumPy.
 
+Part of a larger cloud (a tile's window, ``lidarctl.tiles``) is classified on the whole cloud's cells: within
+``whole_cloud(frame)`` (``CloudFrame``: the whole cloud's lowest x, y, mean point spacing and noise) a grid
+anchored at its points' lowest x, y (``origin``, and ``cell_indices`` / ``cell_ids`` without an origin) starts at
+the corner of the whole cloud's cell holding them, and ``cloud_spacing_m`` is the whole cloud's spacing, so that
+the cells, and the cell sizes taken from the spacing, do not depend on how the cloud was cut into tiles.
+
 Grids over a bounding box can be absurdly large when points lie far apart (strips of two UTM zones
 under one CRS, a stray point): ``aerotri.core.limits.check_allocation`` compares a grid's memory with the machine's RAM
 before it is allocated, and ``cell_ids`` applies it to every grid made here.
@@ -10,7 +16,10 @@ before it is allocated, and ``cell_ids`` applies it to every grid made here.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
+import math
 
 import numba
 import numpy as np
@@ -26,6 +35,78 @@ def check_grid(nrows: int, ncols: int, cell_m: float, bytes_per_cell: float, wha
     """``check_allocation`` for a grid of ``nrows`` x ``ncols`` cells of ``cell_m`` metres."""
     check_allocation(float(nrows) * float(ncols) * bytes_per_cell,
                      f"{what}: a grid of {nrows:,} x {ncols:,} cells of {cell_m:g} m", option, hint=hint)
+
+
+@dataclasses.dataclass(frozen=True)
+class CloudFrame:
+    """What a classification of part of a cloud (a tile's window) takes from the whole cloud: the origin of its
+    grids (its lowest x, y; m), its mean point spacing (m, ``mean_spacing_m``: it sets cell sizes) and its noise
+    figures (the ground tolerances)."""
+
+    x0_m: float
+    y0_m: float
+    spacing_m: float
+    # The whole cloud's noise figures, for a tile (None: from the tile's own points): the robust spread (m) of the
+    # ground filter's residuals from its refined surface (``ground.refine_tolerance_m``) and the ground's range
+    # noise (m, ``classify.ground_noise_m``; the lifted-ground test). ``tiles.cloud_noise`` gives them.
+    refine_sigma_m: float | None = None
+    ground_noise_m: float | None = None
+
+    @classmethod
+    def of_points(cls, x, y) -> CloudFrame:
+        """The frame of a whole cloud (its points ``x``, ``y``, m)."""
+        return cls(float(np.min(x)), float(np.min(y)), mean_spacing_m(x, y))
+
+    def cell_corner(self, x_m: float, y_m: float, cell_m: float) -> tuple[float, float]:
+        """The lower-left corner (m) of the cell of the frame's grid of ``cell_m`` cells holding (x_m, y_m)."""
+        def corner(v, v0):
+            c = v0 + math.floor((v - v0) / cell_m) * cell_m
+            return c - cell_m if c > v else c   # (rounding: the point stays in its cell's row / column)
+        return corner(x_m, self.x0_m), corner(y_m, self.y0_m)
+
+
+_WHOLE_CLOUD: contextvars.ContextVar[CloudFrame | None] = contextvars.ContextVar("whole_cloud", default=None)
+
+
+@contextlib.contextmanager
+def whole_cloud(frame: CloudFrame | None):
+    """Within this block, grids over points anchor on ``frame``'s cells and ``cloud_spacing_m`` is its spacing
+    (None: each set of points its own, as outside)."""
+    token = _WHOLE_CLOUD.set(frame)
+    try:
+        yield frame
+    finally:
+        _WHOLE_CLOUD.reset(token)
+
+
+def whole_cloud_frame() -> CloudFrame | None:
+    """The frame of the ``whole_cloud`` block this runs in (None: outside one)."""
+    return _WHOLE_CLOUD.get()
+
+
+def origin(x, y, cell_m: float) -> tuple[float, float]:
+    """The origin (m) of a grid of ``cell_m`` cells over points ``x``, ``y``: their lowest x, y, or within
+    ``whole_cloud`` the corner of the whole cloud's cell holding it."""
+    x0, y0 = float(np.min(x)), float(np.min(y))
+    frame = _WHOLE_CLOUD.get()
+    return (x0, y0) if frame is None else frame.cell_corner(x0, y0, float(cell_m))
+
+
+def lattice_offset(x0: float, y0: float, cell_m: float) -> tuple[int, int]:
+    """(row, col) of a grid's first cell (origin ``x0``, ``y0``, m; from ``origin``) on the whole cloud's grid of
+    ``cell_m`` cells within ``whole_cloud`` ((0, 0) outside one): where its pyramids' blocks start
+    (``raster_ops.fill_nodata``)."""
+    frame = _WHOLE_CLOUD.get()
+    if frame is None:
+        return 0, 0
+    return round((y0 - frame.y0_m) / cell_m), round((x0 - frame.x0_m) / cell_m)
+
+
+def cloud_spacing_m(x, y) -> float:
+    """The mean point spacing (m) of the points ``x``, ``y`` (``mean_spacing_m``), or within ``whole_cloud`` of
+    the whole cloud."""
+    frame = _WHOLE_CLOUD.get()
+    return mean_spacing_m(x, y) if frame is None else frame.spacing_m
 
 
 @numba.njit(cache=True, parallel=True)
@@ -45,11 +126,14 @@ def _flat_ids(i, j, ncols):
 
 
 def cell_indices(x, y, cell_m: float, x0: float | None = None, y0: float | None = None):
-    """Return (i, j, nrows, ncols, x0, y0) for points (x, y) in a grid of ``cell_m`` cells."""
+    """Return (i, j, nrows, ncols, x0, y0) for points (x, y) in a grid of ``cell_m`` cells (origin x0, y0;
+    None: ``origin``)."""
     x = np.asarray(x, float)
     y = np.asarray(y, float)
-    x0 = float(np.min(x)) if x0 is None else x0
-    y0 = float(np.min(y)) if y0 is None else y0
+    if x0 is None or y0 is None:
+        ox, oy = origin(x, y, cell_m)
+        x0 = ox if x0 is None else x0
+        y0 = oy if y0 is None else y0
     j = _floor_div(x, x0, float(cell_m))
     i = _floor_div(y, y0, float(cell_m))
     nrows, ncols = int(i.max()) + 1, int(j.max()) + 1

@@ -207,9 +207,20 @@ def _push_nan(coarse, a):
     return out
 
 
-def fill_nodata(a: np.ndarray) -> np.ndarray:
-    """Fill NaN cells by pull-push (pyramid averaging, then coarse-to-fine fill); smooth and O(n)."""
+def fill_nodata(a: np.ndarray, offset: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """Fill NaN cells by pull-push (pyramid averaging, then coarse-to-fine fill); smooth and O(n). A cell takes
+    the mean of the valid cells of the smallest pyramid block around it that holds any (blocks of 2**k cells from
+    the grid's first cell). ``offset``: (row, col) of the raster's first cell in a larger grid (a tile's window on
+    the whole cloud's grid, ``grid.lattice_offset``): the blocks are then that grid's (empty cells padded before
+    the first), so a cell's fill is the whole grid's wherever its block lies inside the window."""
     a = np.ascontiguousarray(a, float)         # one layout, one compilation of the kernels
+    if a.ndim == 2 and a.size and (offset[0] or offset[1]):
+        block = 1 << max(1, int(np.ceil(np.log2(max(a.shape)))))
+        pad_rows, pad_cols = int(offset[0]) % block, int(offset[1]) % block
+        if (pad_rows or pad_cols) and not np.isfinite(a).all():
+            padded = np.full((a.shape[0] + pad_rows, a.shape[1] + pad_cols), np.nan)
+            padded[pad_rows:, pad_cols:] = a
+            return fill_nodata(padded)[pad_rows:, pad_cols:]
     if a.ndim != 2 or min(a.shape) == 1:
         return _fill_nodata_levels(a)
     n = _finite_count(a)

@@ -432,7 +432,7 @@ def ground_surface_morph(x, y, z, params: MorphSettings | None = None, below: np
     """
     p = params or MorphSettings()
     c = p.cell_m
-    x0, y0 = float(np.min(x)), float(np.min(y))
+    x0, y0 = grid.origin(x, y, c)
     ncols = int(np.floor((np.max(x) - x0) / c)) + 1
     nrows = int(np.floor((np.max(y) - y0) / c)) + 1
     from lidarctl.raster_ops import fill_nodata, reduce_grid
@@ -441,17 +441,18 @@ def ground_surface_morph(x, y, z, params: MorphSettings | None = None, below: np
         x, y, z = x[~below], y[~below], z[~below]
     zmin = reduce_grid(x, y, z, cell_m=c, x0=x0, y0=y0, nrows=nrows, ncols=ncols, how="min")
     empty = ~np.isfinite(zmin)
-    last = fill_nodata(zmin)
+    last = fill_nodata(zmin, grid.lattice_offset(x0, y0, c))
     is_object = np.zeros_like(empty)
     for r in range(1, int(np.ceil(p.max_window_m / c)) + 1):
         this = ndimage.grey_opening(last, size=(2 * r + 1, 2 * r + 1))
         is_object |= (last - this) > p.slope * r * c
         last = this
     prov = np.where(is_object | empty, np.nan, zmin)
-    return fill_nodata(prov), x0, y0, c
+    return fill_nodata(prov, grid.lattice_offset(x0, y0, c)), x0, y0, c
 
 
-def morphological_ground(x, y, z, params: MorphSettings | None = None, return_dem: bool = False):
+def morphological_ground(x, y, z, params: MorphSettings | None = None, return_dem: bool = False,
+                         refine_residuals: list | None = None):
     """Ground mask from the opened DEM, cleaned by a local-surface test, refined against a TIN.
 
     Pass 1: ground = points within ``elevation_threshold_m + elevation_scaler * slope`` of the
@@ -468,6 +469,9 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
     steep slopes between vertices). For dense clouds (at least ``dense_points_per_cell`` ground points
     per refine cell) the mean ground height per cell, bilinearly interpolated, replaces the TIN (same
     surface, linear time; vertices are less than a cell away, so the angle test adds nothing).
+    ``refine_residuals``: a list that gets (indices of the points, their residuals from the refined surface, m),
+    what the tolerance's spread is taken from (within ``grid.whole_cloud`` with a frame's ``refine_sigma_m``, that
+    spread is the whole cloud's).
     """
     from lidarctl.raster_ops import sample_bilinear, slope_tan
 
@@ -499,7 +503,7 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
             # Dense ground: the mean of the ground points per cell is as good as a TIN, and O(n).
             from lidarctl.raster_ops import fill_nodata, reduce_grid
             surf = fill_nodata(reduce_grid(x[g], y[g], z[g], cell_m=p.refine_cell_m, x0=gx0, y0=gy0, nrows=nrows,
-                                           ncols=ncols, how="mean"))
+                                           ncols=ncols, how="mean"), grid.lattice_offset(gx0, gy0, p.refine_cell_m))
             z_ref = sample_bilinear(surf, x, y, cell_m=p.refine_cell_m, x0=gx0, y0=gy0)
         else:
             tri = delaunay_cells(x[lowest], y[lowest], lowest_cell // ncols, lowest_cell % ncols)
@@ -512,8 +516,12 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
                             & (np.abs(d) <= np.sin(np.radians(p.refine_angle_deg)) * vertex_m))
             g = np.setdiff1d(g, lowest, assume_unique=True)  # TIN vertices have no residual
         res = (z - z_ref)[g]
-        res = res[np.isfinite(res)]
-        tol = refine_tolerance_m(res, p.refine_noise_factor, p.refine_min_m, p.refine_threshold_m)
+        g, res = g[np.isfinite(res)], res[np.isfinite(res)]
+        if refine_residuals is not None:
+            refine_residuals.append((g, res))
+        frame = grid.whole_cloud_frame()
+        tol = refine_tolerance_m(res, p.refine_noise_factor, p.refine_min_m, p.refine_threshold_m,
+                                 sigma_m=None if frame is None else frame.refine_sigma_m)
         ground = np.abs(z - z_ref) <= tol + p.refine_scaler * slope
         if near_tin is not None:
             ground |= near_tin
@@ -634,19 +642,28 @@ def surface_outliers(x, y, z, neighbours: int = 16, height_m: float = 0.5, break
     return np.flatnonzero(is_out)
 
 
-def refine_tolerance_m(residuals_m, noise_factor: float, min_m: float, max_m: float) -> float:
+def refine_tolerance_m(residuals_m, noise_factor: float, min_m: float, max_m: float,
+                       sigma_m: float | None = None) -> float:
     """Ground tolerance scaled to the sensor: ``noise_factor`` x the robust spread of the residuals.
 
     The spread is 1.4826 x the median absolute deviation of the first ground set from the refined
     surface (objects near the ground are a minority there and do not inflate it). A precise sensor
     (AHN3: about 2 cm) gets a tight band that leaves kerbs, low walls and low vegetation out; an old
-    noisy one (ISPRS samples: 4-9 cm) keeps its wider band; clipped to [min_m, max_m].
+    noisy one (ISPRS samples: 4-9 cm) keeps its wider band; clipped to [min_m, max_m]. ``sigma_m``: that spread
+    given (a tile: the whole cloud's, ``grid.CloudFrame.refine_sigma_m``).
     """
-    r = np.asarray(residuals_m, float)
-    if len(r) < 10:
-        return float(max_m)
-    sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-    return float(np.clip(noise_factor * sigma, min_m, max_m))
+    if sigma_m is None:
+        r = np.asarray(residuals_m, float)
+        if len(r) < 10:
+            return float(max_m)
+        sigma_m = robust_spread_m(r)
+    return float(np.clip(noise_factor * sigma_m, min_m, max_m))
+
+
+def robust_spread_m(values_m) -> float:
+    """1.4826 x the median absolute deviation from the median (m): the sigma of normal noise, outliers aside."""
+    r = np.asarray(values_m, float)
+    return 1.4826 * float(np.median(np.abs(r - np.median(r))))
 
 
 MORPH_PRESETS = {
@@ -822,9 +839,11 @@ def resolve_options(method: str, preset: str | None, parameter_file=None, option
     return method, preset, checked_overrides(method, overrides, "ground-filter options")
 
 
-def ground_filter(x, y, z, method: str = "morph", preset: str | None = None, **overrides) -> np.ndarray:
+def ground_filter(x, y, z, method: str = "morph", preset: str | None = None, *, refine_residuals: list | None = None,
+                  **overrides) -> np.ndarray:
     """Ground mask with the named filter (``GROUND_FILTERS``) and preset (None = its default
-    parameters); ``overrides``: parameter values (None = keep).
+    parameters); ``overrides``: parameter values (None = keep). ``refine_residuals``: the morphological filter's
+    (``morphological_ground``).
 
     The filter is followed by the raised-plateau test: ground segments standing on walls above
     the surrounding terrain (low, wide roofs the filter window could not lift) become objects.
@@ -833,11 +852,14 @@ def ground_filter(x, y, z, method: str = "morph", preset: str | None = None, **o
     if preset is not None and preset not in f.presets:
         check_method_preset(method, preset)
     params = f.params_for(preset, **overrides)
-    ground = f.run(x, y, z, params)
+    if refine_residuals is not None and f.run is morphological_ground:
+        ground = f.run(x, y, z, params, refine_residuals=refine_residuals)
+    else:
+        ground = f.run(x, y, z, params)
     min_step_m = getattr(params, "plateau_min_step_m", 0.0)
     if min_step_m > 0 and ground.sum() >= 10:
         g = np.flatnonzero(ground)
-        cell_m = max(1.0, 1.5 * grid.mean_spacing_m(x, y))
+        cell_m = max(1.0, 1.5 * grid.cloud_spacing_m(x, y))
         ground[g[raised_plateaus(x[g], y[g], z[g], cell_m, min_step_m, params.plateau_max_area_m2)]] = False
     return ground
 

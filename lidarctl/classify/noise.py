@@ -291,8 +291,7 @@ def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
 
 def _near(x, y, fx, fy, dist_m: float) -> np.ndarray:
     """Mask of points in the ``dist_m`` blocks around any of the points (fx, fy), block size dist_m."""
-    x0, y0 = float(np.min(x)), float(np.min(y))
-    i, j, nrows, ncols, _, _ = grid.cell_indices(x, y, dist_m, x0, y0)
+    i, j, nrows, ncols, x0, y0 = grid.cell_indices(x, y, dist_m)
     fi = np.clip(np.floor((fy - y0) / dist_m).astype(np.int64), 0, nrows - 1)
     fj = np.clip(np.floor((fx - x0) / dist_m).astype(np.int64), 0, ncols - 1)
     hit = np.zeros((nrows + 2, ncols + 2), bool)
@@ -309,7 +308,7 @@ def detect_noise(x, y, z, params: NoiseSettings | None = None) -> np.ndarray:
     pairs that only supported each other through a blunder.
     """
     p = params or NoiseSettings()
-    spacing = grid.mean_spacing_m(x, y)
+    spacing = grid.cloud_spacing_m(x, y)
     voxel = p.voxel_m or max(2.0, 2.5 * spacing)
     radius = p.radius_m or max(5.0, 5.0 * spacing)
     code = np.zeros(len(x), np.uint8)

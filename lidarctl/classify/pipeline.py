@@ -593,7 +593,7 @@ def _ground_plane_chunks(x, y, z, gi, spacing_m: float, k: int):
 
 
 def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, intercepted=None,
-                  k: int = 12, judge_single: bool = True) -> np.ndarray:
+                  k: int = 12, judge_single: bool = True, sigma_m: float | None = None) -> np.ndarray:
     """Ground points standing clear of the local ground surface under something that intercepted
     part of their pulse (mask over all points).
 
@@ -608,20 +608,20 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, in
     (1.4826 MAD) about the plane above it: in the overlap of two strips with a height offset half
     the points stand above the plane through both, with nothing over them (judged against sigma alone, the simulator's unadjusted
     strips, 4-9 cm apart, lost 0.3 % of their ground that way), and that plane's residuals hold
-    the offset. ``intercepted`` None: no point is judged.
+    the offset. ``intercepted`` None: no point is judged. ``sigma_m``: the range noise (m) of a larger cloud these
+    points are part of (a tile's window: the whole cloud's, ``tiles.cloud_noise``; None: of these points).
     0 or a negative ``lift_sigma`` disables the test.
     """
     out = np.zeros(len(x), bool)
     gi = np.flatnonzero(is_ground)
     if lift_sigma <= 0 or intercepted is None or len(gi) < 4 * k or not (judge_single or np.any(intercepted[gi])):
         return out
-    dz, spread = np.empty(len(gi)), np.empty(len(gi))
-    for a, b, _, _, dz_ab, spread_ab in _ground_plane_chunks(x, y, z, gi, spacing_m, k):
-        dz[a:b], spread[a:b] = dz_ab, spread_ab
+    dz, spread = ground_plane_offsets(x, y, z, gi, spacing_m, k)
     ok = np.isfinite(dz)
     if ok.sum() < 4 * k:
         return out
-    sigma_m = 1.4826 * float(np.median(np.abs(dz[ok])))
+    if sigma_m is None:
+        sigma_m = ground_noise_m(dz)
     dz = np.nan_to_num(dz, nan=0.0)
     lifted = intercepted[gi] & (dz > lift_sigma * sigma_m)
     if judge_single:
@@ -632,6 +632,22 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, in
         lifted |= ~intercepted[gi] & (dz > lift_sigma * np.maximum(sigma_m, np.nan_to_num(spread, nan=np.inf)))
     out[gi[ok & lifted]] = True
     return out
+
+
+def ground_plane_offsets(x, y, z, gi, spacing_m: float, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Each ground point's (``gi``) height (m) above the robust plane through its ``k`` nearest other ground points
+    and their robust spread about it (``_ground_plane_chunks``; NaN: too few neighbours)."""
+    dz, spread = np.empty(len(gi)), np.empty(len(gi))
+    for a, b, _, _, dz_ab, spread_ab in _ground_plane_chunks(x, y, z, gi, spacing_m, k):
+        dz[a:b], spread[a:b] = dz_ab, spread_ab
+    return dz, spread
+
+
+def ground_noise_m(plane_offsets_m: np.ndarray) -> float:
+    """The range noise sigma (m) of a ground set: 1.4826 x the median absolute height of its points above their
+    local planes (``ground_plane_offsets``; NaN left out)."""
+    dz = np.asarray(plane_offsets_m, float)
+    return 1.4826 * float(np.median(np.abs(dz[np.isfinite(dz)])))
 
 
 def sunken_ground(x, y, z, is_ground, spacing_m: float, sink_sigma: float, *, min_depth_m: float = 0.0,
@@ -697,7 +713,7 @@ def ground_dem(x, y, z, ground, cell_m, *, x0, y0, nrows, ncols) -> np.ndarray:
     """Filled DEM (mean height of ground points per cell), rows growing with y."""
     dem = reduce_grid(x[ground], y[ground], z[ground], cell_m=cell_m, x0=x0, y0=y0, nrows=nrows, ncols=ncols,
                       how="mean")
-    return fill_nodata(dem)
+    return fill_nodata(dem, grid.lattice_offset(x0, y0, cell_m))
 
 
 def deep_ground_outliers(x, y, z, ground, cell_m: float = 5.0, deep_m: float = 5.0) -> np.ndarray:
@@ -719,7 +735,7 @@ def deep_ground_outliers(x, y, z, ground, cell_m: float = 5.0, deep_m: float = 5
     cc = ndimage.correlate(c, k, mode="constant")
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.where(cc > 0, ss / np.maximum(cc, 1), np.nan)
-    filled = fill_nodata(mean)
+    filled = fill_nodata(mean, grid.lattice_offset(x0, y0, cell_m))
     relief = slope_tan(filled, cell_m) * 1.5 * cell_m
     ref = (filled - relief).ravel()[cid]
     out[gi[z[gi] < ref - deep_m]] = True
@@ -1144,6 +1160,8 @@ class WaterGrid:
     # The median intensity of the lowest return of the whole cloud's water cells (the land's reflectance, for a
     # window that open water fills; NaN: none).
     land_intensity: float = float("nan")
+    # The whole cloud's mean point spacing (m, ``grid.mean_spacing_m``), from which ``cell_m`` (NaN: not given).
+    spacing_m: float = float("nan")
 
     def cell_ids(self, x, y):
         """``grid.cell_ids`` of the points on this grid, its origin moved to the cell holding their lowest x, y."""
@@ -2741,30 +2759,52 @@ def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: Classi
 
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
                     *, params: ClassifySettings | None = None, fusion=None,
-                    water_grid: WaterGrid | None = None) -> np.ndarray:
+                    water_grid: WaterGrid | None = None, frame: grid.CloudFrame | None = None,
+                    bare_earth: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
     (``lidarctl.classify.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check).
-    ``water_grid``: for a tile of a larger cloud, the whole cloud's water grid (``WaterGrid``; None: this cloud's)."""
-    p = params or ClassifySettings()
-    n = len(x)
-    if n < 10:
+    ``water_grid``: for a tile of a larger cloud, the whole cloud's water grid (``WaterGrid``; None: this cloud's).
+    ``frame``: for a tile of a larger cloud, the whole cloud's grid origin, mean point spacing and noise figures
+    (``grid.CloudFrame``; None: this cloud's): every grid is then on the whole cloud's cells, every cell size from
+    its spacing and the ground tolerances from its noise, so that the classes do not depend on the tiling.
+    ``bare_earth``: (noise code, ground mask) per point as ``bare_earth`` found them with the same settings and
+    frame (a tile: ``tiles.cloud_noise``; None: found here)."""
+    if len(x) < 10:
         raise ValueError("classification needs at least 10 points")
-    cls = np.full(n, UNCLASSIFIED, np.uint8)
+    frame = frame or grid.CloudFrame.of_points(x, y)
+    with grid.whole_cloud(frame):
+        return _classify_points(x, y, z, return_number, number_of_returns, intensity, p=params or ClassifySettings(),
+                                fusion=fusion, water_grid=water_grid, ground_noise=frame.ground_noise_m,
+                                found=bare_earth)
 
+
+def bare_earth(x, y, z, return_number=None, number_of_returns=None, *, params: ClassifySettings | None = None,
+               frame: grid.CloudFrame | None = None, refine_residuals: list | None = None):
+    """The first steps of ``classify_points`` (noise, ground filter, sunken returns): (noise code per point,
+    ground mask before the lifted-ground test, last-return mask, the mean point spacing used, m).
+    ``refine_residuals``: a list that gets the ground filter's residuals from its refined surface (the
+    morphological filter's; its last run), as (point indices, residuals in m)."""
+    with grid.whole_cloud(frame or grid.CloudFrame.of_points(x, y)):
+        return _bare_earth(x, y, z, return_number, number_of_returns, params or ClassifySettings(), refine_residuals)
+
+
+def _bare_earth(x, y, z, return_number, number_of_returns, p: ClassifySettings, refine_residuals=None):
+    """``bare_earth`` within ``grid.whole_cloud``: (code, is_ground, last, spacing_m)."""
+    n = len(x)
     # noise
     code = noise_mod.detect_noise(x, y, z, p.noise)
     clean = code == 0
-    # Only a last (or single) return can be bare earth: the pulse went on below the others.
-    last = np.ones(n, bool)
-    if return_number is not None and number_of_returns is not None:
-        last = np.asarray(return_number) >= np.asarray(number_of_returns)
+    last = _last_returns(n, return_number, number_of_returns)
     idx = np.flatnonzero(clean & last)
 
     # ground
     is_ground = np.zeros(n, bool)
     for _ in range(2):
+        residuals = None if refine_residuals is None else []
         g = ground_mod.ground_filter(x[idx], y[idx], z[idx], method=p.ground_method, preset=p.preset,
-                                     **p.ground_params)
+                                     refine_residuals=residuals, **p.ground_params)
+        if residuals:
+            refine_residuals[:] = [(idx[k], r) for k, r in residuals]
         is_ground[:] = False
         is_ground[idx[g]] = True
         deep = deep_ground_outliers(x, y, z, is_ground, p.deep_cell_m, p.deep_m)
@@ -2775,7 +2815,7 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
         is_ground &= ~deep
         idx = idx[code[idx] == 0]
 
-    spacing = grid.mean_spacing_m(x, y)
+    spacing = grid.cloud_spacing_m(x, y)
     # Returns from below the ground that the gap tests passed (a neighbour within gap_m + slope x d above
     # them) and the filter kept: alone below the ground plane, they would pit the DEM.
     single = None
@@ -2785,6 +2825,27 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
                            judged=single)
     code[sunken] = noise_mod.LOW
     is_ground &= ~sunken
+    return code, is_ground, last, spacing
+
+
+def _last_returns(n: int, return_number, number_of_returns) -> np.ndarray:
+    """Only a last (or single) return can be bare earth: the pulse went on below the others (all, without return
+    numbers)."""
+    if return_number is None or number_of_returns is None:
+        return np.ones(n, bool)
+    return np.asarray(return_number) >= np.asarray(number_of_returns)
+
+
+def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p: ClassifySettings, fusion,
+                     water_grid: WaterGrid | None, ground_noise: float | None, found=None) -> np.ndarray:
+    """``classify_points`` within ``grid.whole_cloud`` (``found``: its ``bare_earth``)."""
+    n = len(x)
+    cls = np.full(n, UNCLASSIFIED, np.uint8)
+    if found is None:
+        code, is_ground, last, spacing = _bare_earth(x, y, z, return_number, number_of_returns, p)
+    else:
+        code, is_ground = (np.array(a) for a in found)
+        last, spacing = _last_returns(n, return_number, number_of_returns), grid.cloud_spacing_m(x, y)
     # Ground refinement: last returns of low objects that the filter took for bare earth. They
     # leave the ground class but stay in the DEM (they lie a decimetre or two above it; without
     # them the DEM sags under hedges, the hedges reach building height and roof segments grow
@@ -2794,9 +2855,9 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     if return_number is not None and number_of_returns is not None:
         intercepted = np.asarray(number_of_returns) > 1
     lifted = lifted_ground(x, y, z, is_ground, spacing, p.ground_lift_sigma, intercepted=intercepted,
-                           judge_single=p.ground_lift_single)
+                           judge_single=p.ground_lift_single, sigma_m=ground_noise)
     c = p.cell_m or max(0.5, 2.0 * spacing)
-    x0, y0 = float(x.min()), float(y.min())
+    x0, y0 = grid.origin(x, y, c)
     ncols = int(np.floor((x.max() - x0) / c)) + 1
     nrows = int(np.floor((y.max() - y0) / c)) + 1
     dem = ground_dem(x, y, z, is_ground, c, x0=x0, y0=y0, nrows=nrows, ncols=ncols)
