@@ -340,6 +340,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     notes, model_heights, rays_out, held_out = [], ModelHeights(), (), ()
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
+        _warn_implausible_gnss_sigmas(project.gnss_path, gnss)
         image_ids, approx_pos_map, block_path = list(gnss.image_id), gnss.position_m, project.gnss_path
         if st.initial_eo:
             eo0 = _initial_orientations(st.initial_eo, image_ids, crs)
@@ -902,6 +903,24 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         check_from_lidar=int(_lidar_control(p.project, chk).sum()) if len(chk) else 0,
         control_rays_left_out=p.control_rays_left_out,
     )
+
+
+# a GNSS position's sigma above this (m) is no GNSS accuracy: an orientation file's angles in the sX sY sZ columns
+GNSS_SIGMA_IMPLAUSIBLE_M = 10.0
+
+
+def _warn_implausible_gnss_sigmas(path, gnss) -> None:
+    """A warning when gnss.txt's sigmas are tens of metres (trial-ngi: the national AT's omega, phi, kappa taken as sX
+    sY sZ, sZ 180.9 m; the heights came out 1.15 m off without a word)."""
+    if gnss.sigma_m is None:
+        return
+    big = np.any(gnss.sigma_m > GNSS_SIGMA_IMPLAUSIBLE_M, axis=1)
+    if big.any():
+        k = int(np.flatnonzero(big)[0])
+        log.warning(f"{path}: {int(big.sum())} of {len(big)} positions have a sigma above {GNSS_SIGMA_IMPLAUSIBLE_M:g} m "
+                    f"(image {gnss.image_id[k]}: {' '.join(f'{v:g}' for v in gnss.sigma_m[k])} m): no GNSS accuracy; "
+                    "are these columns an orientation's angles (omega phi kappa)? gnss.txt is image_id X Y Z "
+                    "[sX sY sZ]")
 
 
 def _dem_checks(p: PreparedBlock, result: AdjustmentResult) -> list:

@@ -316,9 +316,7 @@ def read_con(path: Path) -> tuple[list, np.ndarray, list]:
         kinds.append(comment if comment in CONTROL_KINDS else None)
     else:
         raise InputError(f"{path}: no -99 at the end (truncated file?)")
-    if not ids:
-        raise InputError(f"{path}: no control points")
-    return ids, np.array(xyz), kinds
+    return ids, np.array(xyz).reshape(-1, 3), kinds
 
 
 def _kind_of_file(path: Path) -> str:
@@ -466,6 +464,8 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
             block.gnss, block.gnss_holds = positions_as_gnss(ids, block.eo.centre_m, options=options, project=project,
                                                              what="projection centres of the PAT-B orientations")
             block.origin["gnss"] = by[".ori"].name
+    # a .con of no point (aerotri's export of a block without control writes one): nothing to import from it
+    cons = [f for f in cons if len(read_con(f)[0])]
     if cons:
         pid, kind, xyz = [], [], []
         for f in cons:
@@ -498,6 +498,12 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
             from aerotri.geom.observations import read_control_points
 
             control_ids = set(read_control_points(project.control_points_path).id)
+        elif ".ori" in by:
+            # a block without control (the DEM its control): the .im's tie points served the check of the .ori's
+            # matrices, the only reading of them (trial-ngi: refused, so a transposed .ori came in without a word)
+            block.notes.append(f"{path}: no control points to import measurements of; its {len(pnums)} measurements "
+                               f"checked the rotation matrices of {by['.ori'].name}")
+            return block
         else:
             raise InputError(f"{path}: the image coordinates of which points? import the .con with it or have "
                              f"{project.control_points_path}")

@@ -113,7 +113,9 @@ def compare_with_reference(root, format_name: str, files, crs: str | None = None
     project = Project.open(root)
     importer, files = importer_and_files(format_name, files)
     with collecting_operation_notes() as operation_notes:  # said by aerotri import, dropped here before trial-exchange
-        block = importer.read(files, project, ImportSettings(crs=crs))
+        # the orientations are compared, not the control: its accuracy is no input here (trial-ngi: a .con asked for
+        # --sigma-xyz-m, an option compare has not); 1 m stands in for it, unused
+        block = importer.read(files, project, ImportSettings(crs=crs, sigma_xyz_m=(1.0, 1.0, 1.0)))
     notes = tuple(dict.fromkeys(list(block.notes) + heights_note_needed(project, block, operation_notes)))
     for n in notes:
         log.warning(n)
@@ -149,7 +151,7 @@ def _gnss_from_reference(project: Project, reference: ExteriorOrientations) -> s
         return ""
     return (f"the reference's projection centres are this project's GNSS observations (gnss.txt within "
             f"{largest:.3f} m of them at the {len(k)} common frames): the centre differences show how closely the "
-            f"adjustment held its GNSS, they are no independent check; the attitudes are")
+            f"adjustment held its GNSS, they are no independent check; the attitudes are one")
 
 
 def summary_lines(c: EoComparison) -> list[str]:

@@ -237,6 +237,15 @@ def without_bound(crs: pyproj.CRS) -> pyproj.CRS:
 BOUND_SAME_M = 0.1
 
 
+def _axis_order_text(h: pyproj.CRS) -> str:
+    """"x = easting, y = northing", or the CRS's own directions (trial-ngi: South Africa's Lo grids, EPSG:2051, are
+    westing, southing), in the x, y order the toolkit reads (east-west axis first)."""
+    dirs = [str(a.direction).lower() for a in h.axis_info]
+    ew = next((d for d in dirs if d in ("east", "west")), "east")
+    ns = next((d for d in dirs if d in ("north", "south")), "north")
+    return f"x = {ew}ing, y = {ns}ing"
+
+
 def same_crs(a, b) -> bool:
     """True when two CRSs are the same (axis order ignored; definitions that differ only in naming but
     carry the same EPSG identity agree); None equals only None. A bound CRS (WKT1 with TOWGS84, PROJ text with
@@ -717,7 +726,7 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) cannot be a point of {label} ({h.name}): the projection does "
                 f"not take it back to a longitude/latitude (beyond the pole, the far "
                 f"side of the globe or outside its domain); wrong CRS or mixed units? {label} expects "
-                f"{unit_name(h)} in x = easting, y = northing order")
+                f"{unit_name(h)} in {_axis_order_text(h)} order")
     aou = h.area_of_use
     if aou is None:
         return None
@@ -759,13 +768,13 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
                 f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) lies more than {FAR_OUTSIDE_AREA_DEG:g} deg outside the area "
                 f"of use of {label} ({h.name}, lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}.."
                 f"{aou.north:.1f}): not a use of it beyond its zone but another CRS; {label} expects "
-                f"{unit_name(h)} in x = easting, y = northing order")
+                f"{unit_name(h)} in {_axis_order_text(h)} order")
     if bad.any():
         i = int(np.argmax(bad))
         message = (
             f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) lies outside the area of use of {label} ({h.name}, "
             f"lon {aou.west:.1f}..{aou.east:.1f}, lat {aou.south:.1f}..{aou.north:.1f}); wrong CRS or mixed units "
-            f"(degrees, feet or metres)? {label} expects {unit_name(h)} in x = easting, y = northing order"
+            f"(degrees, feet or metres)? {label} expects {unit_name(h)} in {_axis_order_text(h)} order"
             + (_swapped_hint(h, x[i], y[i]) if swapped_hint else "")
         )
         if outside_area == "warn":

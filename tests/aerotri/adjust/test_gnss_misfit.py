@@ -31,3 +31,19 @@ def test_a_wrong_focal_length_under_tight_gnss_is_not_successful(tmp_path, focal
     assert (ks["verdict"] != "successful") if misfit else True
     if misfit:
         assert "--self-cal focal,pp,radial" in ks["message"]
+
+
+def test_gnss_sigmas_of_tens_of_metres_are_said(caplog):
+    """Trial-ngi: the national AT's file as gnss.txt, its angles positive, read as sX sY sZ (sZ 180.9 m): the heights
+    came out 1.15 m off without a word. Sigmas above 10 m are said; metre-level ones are not."""
+    import numpy as np
+
+    from aerotri.adjust.pipeline import _warn_implausible_gnss_sigmas
+    from aerotri.geom.eo import GnssPositions
+
+    angles = GnssPositions(["a", "b"], np.zeros((2, 3)), np.array([[0.35, 0.30, 180.9], [0.4, 0.2, 0.9]]))
+    with caplog.at_level("WARNING", logger="aerotri.adjust.pipeline"):
+        _warn_implausible_gnss_sigmas("gnss.txt", angles)
+        _warn_implausible_gnss_sigmas("gnss.txt", GnssPositions(["a"], np.zeros((1, 3)), np.array([[2.0, 2.0, 5.0]])))
+    (said,) = caplog.messages
+    assert "1 of 2 positions have a sigma above 10 m (image a: 0.35 0.3 180.9 m)" in said and "omega phi kappa" in said

@@ -254,6 +254,16 @@ def test_principal_distance_of_the_ori_against_the_camera(exported, tmp_path, fr
     r = CliRunner().invoke(aerotri_cli, ["compare", str(root), "--format", "patb", str(with_c(f_mm + 0.5)),
                                          str(patb / "numbers.txt"), "--crs", Project.open(root).crs])
     assert r.exit_code == 0 and f"c = {f_mm + 0.5:g} mm" in " ".join(r.output.split()), r.output
+    # with the .con (and .im) beside it: the control's accuracy is no input of a comparison (trial-ngi: it asked for
+    # --sigma-xyz-m, an option compare has not)
+    bare = tmp_path / "bare"
+    shutil.copytree(root, bare)
+    toml = (bare / "project.toml").read_text()
+    (bare / "project.toml").write_text(toml[:toml.index("[control]")])     # no [control] accuracies
+    r = CliRunner().invoke(aerotri_cli, ["compare", str(bare), "--format", "patb", str(patb / "block.ori"),
+                                         *(str(patb / f) for f in ("block.cam", "block.con", "block.im", "numbers.txt")),
+                                         "--crs", Project.open(root).crs])
+    assert r.exit_code == 0 and "sigma-xyz-m" not in r.output, r.output
 
 
 def test_a_transposed_rotation_matrix_is_told_by_the_tie_points(exported, tmp_path, fresh_project):
@@ -282,3 +292,14 @@ def test_a_transposed_rotation_matrix_is_told_by_the_tie_points(exported, tmp_pa
     assert f"{len(nums)} of {len(nums)} photos ({first}," in text, r.output
     m = re.search(r"miss each other by ([\d.]+) px .* as read, ([\d.]+) px transposed", text)
     assert float(m.group(1)) > 5 and float(m.group(2)) < 1, text
+    # a block without control (DEM-controlled; trial-ngi): the .im's tie points alone still tell it, and an empty
+    # .con (what the export writes for such a block) is no error
+    empty_con = tmp_path / "block.con"
+    empty_con.write_text("-99\n")
+    ties = [flipped, patb / "block.cam", empty_con, patb / "block.im", patb / "numbers.txt"]
+    nc = fresh_project(root, tmp_path / "nc")
+    shutil.rmtree(nc / "control", ignore_errors=True)
+    r = CliRunner().invoke(aerotri_cli, ["import", str(nc), "--format", "patb", *map(str, ties)])
+    text = " ".join(r.output.split())
+    assert r.exit_code == 0 and "block.ori: the rotation matrices look transposed" in text, r.output
+    assert "no control points to import measurements of" in text and not (nc / "control").exists(), r.output

@@ -82,3 +82,13 @@ def test_the_scale_factor_of_a_ferro_grid_counts_from_its_own_meridian():
     from aerotri.geom.crs.definition import point_scale_factor
 
     assert point_scale_factor(pyproj.CRS.from_epsg(31253), 16.37, 48.21) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_a_refusal_names_the_crs_own_axis_directions():
+    """Trial-ngi: South Africa's Lo25 (EPSG:2051) is westing, southing; the refusal of a point outside its area said
+    'x = easting, y = northing'."""
+    crs = pyproj.CRS("EPSG:2051")
+    with pytest.raises(InputError, match="in x = westing, y = southing order"):
+        check_coordinates(crs, np.array([-55094.5]), np.array([-3727407.0]), "gnss.txt", ["line 1"])
+    with pytest.raises(InputError, match="in x = easting, y = northing order"):
+        check_coordinates(pyproj.CRS("EPSG:32650"), np.array([5.0e7]), np.array([3.0e6]), "gnss.txt", ["line 1"])
