@@ -25,8 +25,9 @@ demo: $(STAMP)
 	$(BIN)/aerotri demo $(OUT)
 
 # One pytest-xdist worker per core (at most 4), see docs/testing.md; `make test PYTEST_ARGS=tests/ortho` runs a subset.
+# The 15 slowest tests are listed at the end: the suite's 10-minute budget is watched from there.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist worksteal $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist worksteal --durations=15 $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	# headless Chromium and pdftoppm for bench/render_reports.py (what a reviewer sees), gdal_contour for
