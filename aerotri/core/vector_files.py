@@ -83,6 +83,8 @@ def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | N
     if crs is None or (isinstance(crs, str) and not crs.strip()):
         raise ValueError(f"{path}: a vector file is written with its CRS")
     crs = crs if isinstance(crs, str) else crs.to_wkt()
+    if driver == "GeoJSON":
+        refuse_geojson_without_code(path, crs)
     if not layers or any(not layer.name for layer in layers):
         raise ValueError(f"{path}: every layer needs a name (got {[layer.name for layer in layers]})")
     gpkg = driver == "GPKG"
@@ -104,6 +106,21 @@ def write_layers(path, layers: Sequence[VectorLayer], *, crs, timestamp: str | N
             # removed here, or they would sit beside the new file
             refuse_open_geopackage(path)
     return path
+
+
+def refuse_geojson_without_code(path, crs) -> None:
+    """A GeoJSON file names its CRS only by an authority code (GDAL's legacy ``crs`` member; RFC 7946 GeoJSON is WGS 84
+    lon/lat): a CRS without one would be written without it and read back as WGS 84 (trial-hydro: Autzen's contours in
+    Oregon Lambert feet, read by QGIS and by hydro-flatten as EPSG:4326). OptionError naming the output."""
+    import pyproj
+
+    c = pyproj.CRS.from_user_input(crs)
+    if c.to_authority(min_confidence=100) is None:   # what GDAL writes: the definition's own code, none guessed
+        near = c.to_authority(min_confidence=70)
+        raise OptionError(f"{path}: GeoJSON names a CRS only by an authority code, and {c.name} carries none"
+                          + (f" (it resembles {':'.join(near)})" if near else "")
+                          + ": the file would be read as WGS 84 longitude/latitude; write a GeoPackage (.gpkg), which "
+                          "keeps the CRS", param="OUT")
 
 
 def _keep_qgis_styles(old, new) -> None:

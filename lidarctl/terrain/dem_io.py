@@ -7,6 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 
+HYDRO_TAG = "HYDRO_FLATTENED"  # lidarctl hydro-flatten's tag on its DEM: lidarctl smooth warns of it
+
 def open_dem(in_path, out_path=None):
     """(open rasterio dataset, metres per height unit) of a north-up DEM with a CRS, one band of finite,
     plausible heights with at least one valid cell and at least 2 x 2 cells (``aerotri.geom.crs.raster_warp.

@@ -12,6 +12,8 @@ water returns, and ``water_z_range_m``, their 5th to 95th percentile range):
 * its level: the lower of ``water_z`` and the shore's 5th percentile (the water lies at or below the terrain
   around it; a few low shore cells, a ditch or an outlet, do not pull the lake down); a polygon without
   ``water_z`` (hand-digitised) takes the shore's alone;
+* a polygon without ``water_z_range_m`` (hand-digitised) is judged by its shore instead: the low heights of the
+  shore's thirds along the body's long axis differing by more than ``max_range_m`` are flowing water (``shore_fall``);
 * every DEM cell whose centre lies inside it takes the level; nothing else changes.
 
 A body whose water returns span more than ``max_range_m`` is flowing water (a river falling along its course): one
@@ -129,13 +131,35 @@ def read_water(path, dem_crs, water_layer: str | None = None):
     return [geoms[i] for i in keep], column("water_z"), column("water_z_range_m")
 
 
+def shore_ring(z: np.ndarray, body: np.ndarray, other_water: np.ndarray, params: HydroSettings) -> np.ndarray:
+    """The body's shore cells with data: within ``shore_cells`` of it, in no water polygon."""
+    from scipy import ndimage
+
+    return ndimage.binary_dilation(body, iterations=params.shore_cells) & ~body & ~other_water & np.isfinite(z)
+
+
+def shore_fall(z: np.ndarray, body: np.ndarray, ring: np.ndarray, percentile: float) -> float | None:
+    """How far the shore's low heights (``percentile`` of each third of the shore along the body's long axis) differ,
+    in the DEM's unit: a lake's water line lies at one level all round, a river's falls along its course. None
+    for a body too small to tell (fewer than 3 shore cells a third)."""
+    br, bc = np.nonzero(body)
+    rr, cc = np.nonzero(ring)
+    if len(br) < 3 or len(rr) < 9:
+        return None
+    _, vectors = np.linalg.eigh(np.cov(np.vstack([bc, br]).astype(float)))
+    along = (cc - bc.mean()) * vectors[0, -1] + (rr - br.mean()) * vectors[1, -1]
+    a, b = np.linspace(along.min(), along.max(), 4)[1:3]
+    heights = z[rr, cc]
+    lows = [float(np.percentile(heights[m], percentile)) for m in (along <= a, (along > a) & (along <= b), along > b)
+            if m.sum() >= 3]
+    return max(lows) - min(lows) if len(lows) >= 2 else None
+
+
 def flatten_window(z: np.ndarray, body: np.ndarray, other_water: np.ndarray, water_z: float | None,
                    params: HydroSettings) -> tuple[float | None, float | None]:
     """(shore level, level) of one body on a window of DEM heights ``z`` (NaN: nodata): ``body`` its cells,
     ``other_water`` every water cell; the body's valid cells of ``z`` are set to the level in place."""
-    from scipy import ndimage
-
-    ring = ndimage.binary_dilation(body, iterations=params.shore_cells) & ~body & ~other_water & np.isfinite(z)
+    ring = shore_ring(z, body, other_water, params)
     shore = float(np.percentile(z[ring], params.shore_percentile)) if ring.any() else None
     candidates = [v for v in (water_z, shore) if v is not None]
     if not candidates:
@@ -208,6 +232,17 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                         bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], None, None, 0,
                                                 "no DEM cell with data has its centre inside it"))
                         continue
+                    if ranges[k] is None:
+                        # no water returns to tell a lake from a river (a hand-digitised outline): the shore tells it
+                        # (trial-hydro: Autzen's river flattened at its lowest shore, the channel cut up to 3.1 m)
+                        fall = shore_fall(z, body, shore_ring(z, body, water | body, params), params.shore_percentile)
+                        if fall is not None and fall * z_m > params.max_range_m:
+                            bodies.append(WaterBody(k, area_m2, water_z[k], None, None, None, 0,
+                                                    f"no water_z_range_m, and its shore's low heights fall "
+                                                    f"{fall * z_m:.2f} m along it (> {params.max_range_m:g} m): flowing "
+                                                    "water, left as it is (give water_z_range_m to judge it by its "
+                                                    "water returns)"))
+                            continue
                     shore, level = flatten_window(z, body, water | body, water_z[k], params)
                     if level is None:
                         bodies.append(WaterBody(k, area_m2, None, ranges[k], None, None, 0,
@@ -217,6 +252,12 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                     dst.write(np.where(np.isfinite(z), z, nodata).astype(np.float32), 1, window=win)
                     bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], shore, level, cells,
                                             empty_cells=int((body & ~np.isfinite(z)).sum())))
+            from lidarctl.terrain.dem_io import HYDRO_TAG
+
+            flat = [b for b in bodies if b.level is not None]
+            with rasterio.open(work, "r+") as dst:
+                # said to lidarctl smooth, which would move the flat surfaces again (trial-hydro)
+                dst.update_tags(**{HYDRO_TAG: f"{len(flat)} water bodies at one level each (lidarctl hydro-flatten)"})
             write_dem_cog(work, out_path)
         finally:
             import shutil

@@ -207,7 +207,15 @@ def smooth_dem(in_path, out_path, params: DiffusionSettings = DiffusionSettings(
                     dst.units = (src.units[0],)
                 if src.descriptions and src.descriptions[0]:
                     dst.set_band_description(1, src.descriptions[0])
-                dst.update_tags(**src.tags())
+                from lidarctl.terrain.dem_io import HYDRO_TAG
+
+                tags = src.tags()
+                if HYDRO_TAG in tags:
+                    # trial-hydro: the lakes flat at 800.163 m came out 799.58 .. 801.09 m, 8 cells in from the shore
+                    log.warning(f"{in_path} is hydro-flattened ({tags[HYDRO_TAG]}): smoothing moves its flat water "
+                                "surfaces and their shores; smooth first, then hydro-flatten the smoothed DEM")
+                    tags.pop(HYDRO_TAG)
+                dst.update_tags(**tags)
                 for r0 in range(0, src.height, window_px):
                     for c0 in range(0, src.width, window_px):
                         h, w = min(window_px, src.height - r0), min(window_px, src.width - c0)

@@ -323,3 +323,23 @@ def test_a_reader_that_closes_the_pipe_does_not_undo_the_outputs(tmp_path):
     assert p.wait(timeout=120) == 0, err
     assert "Traceback" not in err and "BrokenPipe" not in err
     assert (tmp_path / "c.gpkg").stat().st_size > 10_000 and (tmp_path / "c.png").exists()
+
+
+def test_geojson_is_refused_for_a_crs_without_an_authority_code(tmp_path):
+    """Trial-hydro: Autzen's contours as GeoJSON (Oregon Lambert feet, no code in the file's definition) were written
+    without a CRS and read back as WGS 84 lon/lat (by QGIS and by hydro-flatten). Refused, naming the output and
+    .gpkg; a CRS with its code writes GeoJSON as before."""
+    z, transform = _dem(nodata_band=False)
+    own = ("+proj=lcc +lat_0=41.75 +lon_0=-120.5 +lat_1=43 +lat_2=45.5 +x_0=400000 +y_0=0 +ellps=GRS80 "
+           "+units=m +no_defs")
+    for name, crs in (("own", own), ("epsg", "EPSG:32632")):
+        with rasterio.open(tmp_path / f"{name}.tif", "w", driver="GTiff", width=500, height=400, count=1,
+                           dtype="float32", crs=crs, transform=transform, nodata=-9999.0) as ds:
+            ds.write(z.astype(np.float32), 1)
+    r = CliRunner().invoke(main, ["contours", str(tmp_path / "own.tif"), str(tmp_path / "own.geojson"), "--no-png", "--interval-m", "2"])
+    assert r.exit_code == 2 and "carries none" in r.output and ".gpkg" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "own.geojson").exists()
+    r = CliRunner().invoke(main, ["contours", str(tmp_path / "own.tif"), str(tmp_path / "own.gpkg"), "--no-png", "--interval-m", "2"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(main, ["contours", str(tmp_path / "epsg.tif"), str(tmp_path / "epsg.geojson"), "--no-png", "--interval-m", "2"])
+    assert r.exit_code == 0 and (tmp_path / "epsg.geojson").is_file(), r.output

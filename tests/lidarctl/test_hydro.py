@@ -19,13 +19,13 @@ LAKE = box(X0 + 20, Y0 + 20, X0 + 50, Y0 + 45)
 RIVER = box(X0 + 70, Y0 + 5, X0 + 80, Y0 + 95)
 
 
-def _dem(path, crs="EPSG:32632"):
-    """100 x 100 cells of 1 m: terrain rising to the east (0.05 per m) from 100 m; over the lake the TIN of its
+def _dem(path, crs="EPSG:32632", slope=0.05):
+    """100 x 100 cells of 1 m: terrain rising to the east (``slope`` per m) from 100 m; over the lake the TIN of its
     shores and scattered water returns: 100.6 .. 102.6 m, bumpy; nodata in one corner."""
     rng = np.random.default_rng(2)
     xs, ys = X0 + np.arange(100) + 0.5, Y0 + 100 - (np.arange(100) + 0.5)
     gx, gy = np.meshgrid(xs, ys)
-    z = 100.0 + 0.05 * (gx - X0) + 1.0
+    z = 100.0 + slope * (gx - X0) + 1.0
     inside = shapely.contains_xy(LAKE, gx, gy)
     z[inside] = 100.6 + 2.0 * rng.random(inside.sum())
     z[:5, :5] = -9999.0
@@ -68,7 +68,8 @@ def test_a_lake_is_flat_at_or_below_its_shore_and_a_river_is_left(tmp_path):
 
 
 def test_the_level_is_the_shore_where_the_water_returns_lie_above_it_or_are_not_given(tmp_path):
-    dem = _dem(tmp_path / "dem.tif")
+    # a shore at one level: a lake (on the sloping terrain of the other tests its shore falls 1.5 m along it)
+    dem = _dem(tmp_path / "dem.tif", slope=0.0)
     with rasterio.open(dem) as src:
         z = src.read(1)
         gx, gy = np.meshgrid(X0 + np.arange(100) + 0.5, Y0 + 100 - (np.arange(100) + 0.5))
@@ -83,6 +84,28 @@ def test_the_level_is_the_shore_where_the_water_returns_lie_above_it_or_are_not_
         with rasterio.open(out) as b:
             lake = shapely.contains_xy(LAKE, gx, gy)
             assert np.allclose(b.read(1)[lake], want, atol=1e-4), name
+
+
+def test_an_outline_without_water_returns_whose_shore_falls_is_left(tmp_path):
+    """Trial-hydro: a hand-digitised river (no water_z, no water_z_range_m) was flattened at its lowest shore, the
+    channel cut up to 3.1 m. Without the water returns' range the shore tells a river: its thirds' low heights fall by
+    more than --max-range-m along it; the outline on the sloping terrain (1.5 m along the lake) is left, and the same
+    outline given the returns' range is judged by them."""
+    dem = _dem(tmp_path / "dem.tif")
+    for name, kw, left in (("digitised", {}, True), ("returns", dict(water_z=[101.3], ranges=[0.08]), False)):
+        water = _water(tmp_path / f"{name}.gpkg", [LAKE], **kw)
+        r = CliRunner().invoke(main, ["hydro-flatten", str(dem), str(tmp_path / f"{name}.tif"), "--water", str(water)])
+        assert r.exit_code == 0, r.output
+        said = "its shore's low heights fall 1." in r.output and "flowing water, left as it is" in r.output
+        assert said is left and ("0 of 1 water bodies flattened" in r.output) is left, (name, r.output)
+    r = CliRunner().invoke(main, ["hydro-flatten", str(dem), str(tmp_path / "wide.tif"), "--water",
+                                  str(tmp_path / "digitised.gpkg"), "--max-range-m", "2"])
+    assert r.exit_code == 0 and "1 of 1 water bodies flattened" in r.output, r.output
+    # smoothing a flattened DEM moves its flat water again (trial-hydro: 0.5 m contours inside the lakes): said
+    r = CliRunner().invoke(main, ["smooth", str(tmp_path / "wide.tif"), str(tmp_path / "wide_s.tif")])
+    assert r.exit_code == 0 and "is hydro-flattened" in r.output and "smooth first, then hydro-flatten" in r.output
+    with rasterio.open(tmp_path / "wide_s.tif") as ds:
+        assert "HYDRO_FLATTENED" not in ds.tags()
 
 
 def test_a_layer_not_named_water_is_taken_only_when_named_and_feet_are_said(tmp_path):
