@@ -8,6 +8,21 @@ from pathlib import Path
 
 
 HYDRO_TAG = "HYDRO_FLATTENED"  # lidarctl hydro-flatten's tag on its DEM: lidarctl smooth warns of it
+# metres per height unit by the names a GeoTIFF states them in (its band's unit type, a VERTICAL_UNITS tag)
+_UNIT_NAMES_M = {"m": 1.0, "metre": 1.0, "meter": 1.0, "metres": 1.0, "meters": 1.0, "ft": 0.3048, "foot": 0.3048,
+                 "feet": 0.3048, "international foot": 0.3048, "us-ft": 1200 / 3937, "us survey foot": 1200 / 3937,
+                 "us_survey_foot": 1200 / 3937, "ftus": 1200 / 3937}
+
+
+def stated_height_unit_m(src) -> float | None:
+    """Metres per height unit the raster states itself (its band's unit type, else a VERTICAL_UNITS tag), None when it
+    states none or one not known here."""
+    names = [src.units[0] if src.units else None, src.tags().get("VERTICAL_UNITS")]
+    for name in names:
+        if name and str(name).strip().lower() in _UNIT_NAMES_M:
+            return _UNIT_NAMES_M[str(name).strip().lower()]
+    return None
+
 
 def open_dem(in_path, out_path=None):
     """(open rasterio dataset, metres per height unit) of a north-up DEM with a CRS, one band of finite,
@@ -23,7 +38,21 @@ def open_dem(in_path, out_path=None):
         refuse_input_as_output(Path(out_path), [in_path], option="OUT")
     src = open_north_up(in_path, "DEM", heights=True)
     try:
-        return src, height_unit_m(src.crs.to_wkt())
+        from aerotri.geom.crs.definition import length_unit_name, parse_crs
+
+        crs = parse_crs(src.crs.to_wkt())
+        unit_m = height_unit_m(crs)
+        stated = stated_height_unit_m(src)
+        if stated is not None and not crs.is_compound and len(crs.axis_info) < 3 and abs(stated - unit_m) > 1e-9:
+            # a 2D CRS says nothing of heights (its horizontal unit is assumed): the file's own statement decides
+            # (trial-hydro: metres on a foot grid, tagged metre, read as feet: contours labelled 124-132 ft)
+            import logging
+
+            logging.getLogger(__name__).info(
+                "%s: heights in %s as the file states them (its CRS is 2D, in %s)", in_path,
+                length_unit_name(stated, long=True), length_unit_name(unit_m, long=True))
+            unit_m = stated
+        return src, unit_m
     except BaseException:
         src.close()
         raise

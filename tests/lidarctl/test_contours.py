@@ -343,3 +343,25 @@ def test_geojson_is_refused_for_a_crs_without_an_authority_code(tmp_path):
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(main, ["contours", str(tmp_path / "epsg.tif"), str(tmp_path / "epsg.geojson"), "--no-png", "--interval-m", "2"])
     assert r.exit_code == 0 and (tmp_path / "epsg.geojson").is_file(), r.output
+
+
+def test_a_dem_stating_metres_on_a_foot_grid_is_read_in_metres(tmp_path):
+    """Trial-hydro: heights in metres on a 2D foot CRS, the band's unit and VERTICAL_UNITS saying metre, were read as
+    feet (contours 'every 1 ft ... 124-132 ft', elevation_m 3.28 x too small). A 2D CRS says nothing of heights: the
+    file's own statement decides; without one, the CRS's unit as before."""
+    z, transform = _dem(nodata_band=False)
+    out = {}
+    for name, unit in (("stated", "metre"), ("silent", None)):
+        path = tmp_path / f"{name}.tif"
+        with rasterio.open(path, "w", driver="GTiff", width=500, height=400, count=1, dtype="float32",
+                           crs="EPSG:2994", transform=transform, nodata=-9999.0) as ds:
+            ds.write(z.astype(np.float32), 1)
+            if unit:
+                ds.units = (unit,)
+                ds.update_tags(VERTICAL_UNITS=unit)
+        r = CliRunner().invoke(main, ["contours", str(path), str(tmp_path / f"{name}.gpkg"), "--no-png",
+                                      "--interval-m", "2"])
+        assert r.exit_code == 0, r.output
+        out[name] = r.output
+    assert "every 2 m (the DEM's height unit)" in out["stated"] and "as the file states them" in out["stated"]
+    assert "ft (the DEM's height unit)" in out["silent"] and "as the file states them" not in out["silent"]
