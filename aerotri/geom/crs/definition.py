@@ -676,9 +676,13 @@ def check_coordinates(crs: pyproj.CRS, x, y, source: str, records=None, margin_d
         bad = (np.abs(y) > 90.0) | (x < -180.0) | (x > 360.0)
         if bad.any():
             i = int(np.argmax(bad))
+            # latitude first (the surveying B, L order) reads as a latitude beyond 90: said (trial-cn, trial-kite)
+            swapped = abs(x[i]) <= 90.0 and -180.0 <= y[i] <= 360.0
             raise InputError(
                 f"{where(i)}: ({x[i]:.3f}, {y[i]:.3f}) is not a longitude/latitude in degrees, which {label} "
-                "expects (x = longitude, y = latitude); metres given for a geographic CRS? (mixed units)"
+                "expects (x = longitude, y = latitude); "
+                + ("latitude first? give longitude first (x), then latitude (y)" if swapped else
+                   "metres given for a geographic CRS? (mixed units)")
             )
         # its area of use too (trial-datum: latitude, longitude in the surveying B, L order at Kashgar, (39.47,
         # 75.99), passed as a longitude and latitude of CGCS2000, and went into the CM 75E grid at y = 8,720 km)

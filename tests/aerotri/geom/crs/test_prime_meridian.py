@@ -92,3 +92,12 @@ def test_a_refusal_names_the_crs_own_axis_directions():
         check_coordinates(crs, np.array([-55094.5]), np.array([-3727407.0]), "gnss.txt", ["line 1"])
     with pytest.raises(InputError, match="in x = easting, y = northing order"):
         check_coordinates(pyproj.CRS("EPSG:32650"), np.array([5.0e7]), np.array([3.0e6]), "gnss.txt", ["line 1"])
+
+
+def test_latitude_first_is_named_as_such():
+    """Trial-cn / trial-kite: (30.533, 114.954) given for EPSG:4326 read "metres given for a geographic CRS?"; a pair
+    that swapped is a longitude and latitude says latitude first; a pair that is neither says metres."""
+    with pytest.raises(InputError, match=r"latitude first\? give longitude first"):
+        check_coordinates(pyproj.CRS("EPSG:4326"), np.array([30.533]), np.array([114.954]), "ll.csv", ["line 2"])
+    with pytest.raises(InputError, match="metres given for a geographic CRS"):
+        check_coordinates(pyproj.CRS("EPSG:4326"), np.array([591446.0]), np.array([3379630.0]), "ll.csv", ["line 2"])
