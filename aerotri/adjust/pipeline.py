@@ -1052,6 +1052,10 @@ def run_adjustment(root, settings: AdjustSettings | Resolved | None = None, out_
     into the report."""
     resolved = project_settings(Project.open(root)) if settings is None else settings_of(settings, AdjustSettings)
     ba = adjust_project(root, resolved.settings)
+    from aerotri.adjust.report import check_point_blunders
+
+    for note in check_point_blunders(ba):
+        log.warning(note)
     return write_outputs(ba, root, html=html, out_dir=out_dir, settings_record=resolved.record())
 
 

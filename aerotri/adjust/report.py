@@ -799,6 +799,30 @@ def _limit(check, more: str = "") -> str:
     return f"{p:g} m ({check.source}{more})" if p == h else f"{p:g} / {h:g} m (plan / height; {check.source}{more})"
 
 
+CHECK_BLUNDER_SIGMAS = 5.0  # a check point off by more than this many of its propagated sigmas in X, Y or Z
+
+
+def check_point_blunders(ba) -> list[str]:
+    """One line per check point off by more than ``CHECK_BLUNDER_SIGMAS`` of its propagated sigma (adjusted - measured
+    over sqrt(sigma_adjusted^2 + sigma_given^2)) in a coordinate: a blunder in its survey, its image measurement or its
+    name, which its row of the table alone does not call one (trial-kite: a target moved 25 m, 22.7 sigmas, unsaid).
+    The RMS keeps it: the check figures are what was measured."""
+    out = []
+    unit = map_unit_m(getattr(ba, "crs", None), "project crs")
+    for pid, c in ba.check.items():
+        d = np.array(c["adjusted_m"], float) - np.array(c["measured_m"], float)
+        d = np.where(np.asarray(c.get("surveyed", (True, True, True)), bool), d, np.nan)
+        sig = np.hypot(np.array(c["sigma_m"], float), np.array(c["given_sigma_m"], float) / unit)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.abs(d) / sig
+        if np.any(z > CHECK_BLUNDER_SIGMAS):
+            parts = [f"{ax} {dv:+.3f} ({zv:.1f} sigma)" for ax, dv, zv in zip("XYZ", d, z) if np.isfinite(zv)]
+            out.append(f"check point {pid}: off by {', '.join(parts)}: beyond {CHECK_BLUNDER_SIGMAS:g} of its sigmas, a "
+                       "blunder in its survey, its image measurement or its name more likely than the block's error "
+                       "(it stays in the check RMS)")
+    return out
+
+
 OPTIMISTIC_NORMALISED_RMS = 1.5  # check points off by more than this many of their sigmas (RMS): sigmas too small
 OPTIMISTIC_ALPHA = 0.01  # and the chi-square test of their normalised errors fails at this level
 
@@ -1159,6 +1183,7 @@ class AdjustmentReport:
     check_sum_m: list | None
     check_rms_m: list | None
     check_normalised_rms: list | None
+    check_blunders: list  # check points off by more than CHECK_BLUNDER_SIGMAS of their sigmas (text per point)
     check_points_from_lidar: int  # corners of the surface control's LiDAR: their agreement does not test its datum
     photos: list
     image_pairs: list
@@ -1304,6 +1329,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         if len(dchk) else None,
         "check_rms_m": _lst(_rms(dchk), 4) if len(dchk) else None,
         "check_normalised_rms": _lst(_rms(nchk), 3) if len(nchk) else None,
+        "check_blunders": check_point_blunders(ba),
         "check_points_from_lidar": int(getattr(ba, "check_from_lidar", 0)),
         "photos": _photo_rows(ba, res),
         "image_pairs": _pair_rows(ba, res, ba.camera_apriori.pixel_um),
@@ -1665,6 +1691,7 @@ def format_txt(rep: dict) -> str:
         L.append(f"{'sum':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_sum_m"]))
         L.append(f"{'rms':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_rms_m"]))
         L.append("  normalised check errors (d / sigma), RMS X Y Z: " + " ".join("-" if x is None else f"{x:.2f}" for x in rep["check_normalised_rms"]))
+        L.extend(f"  {b}" for b in rep.get("check_blunders") or [])
         if rep.get("check_points_from_lidar"):
             L.append(f"  {rep['check_points_from_lidar']} check points are corners of the same LiDAR as the surface "
                      "control: they share its strip offsets, so their agreement does not test the LiDAR's datum")

@@ -47,3 +47,31 @@ def test_gnss_sigmas_of_tens_of_metres_are_said(caplog):
         _warn_implausible_gnss_sigmas("gnss.txt", GnssPositions(["a"], np.zeros((1, 3)), np.array([[2.0, 2.0, 5.0]])))
     (said,) = caplog.messages
     assert "1 of 2 positions have a sigma above 10 m (image a: 0.35 0.3 180.9 m)" in said and "omega phi kappa" in said
+
+
+def test_a_check_point_off_by_many_sigmas_is_named(tmp_path, caplog):
+    """Trial-kite: a check point surveyed 25 m off read 24.0 / 15.7 m in its row, 22.7 sigmas, and nothing called it a
+    blunder. Beyond 5 of its sigmas it is named (console and report.txt); the clean block names none."""
+    import json
+
+    from aerotri.adjust.pipeline import run_adjustment
+    from aerotri.adjust.settings import AdjustSettings
+    from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+    root = write_block_project(geometric_block(2, 5, seed=7), tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=4, seed=2)
+    settings = AdjustSettings(gnss_correction="shift", image_sigma_px=0.3)
+    run_adjustment(root, settings, html=False)
+    assert json.loads((root / "at" / "report.json").read_text())["check_blunders"] == []
+    path = root / "control" / "points.csv"
+    head, *rows = path.read_text().splitlines()
+    k = next(n for n, r in enumerate(rows) if r.split(",")[1] == "check")
+    f = rows[k].split(",")
+    f[2] = f"{float(f[2]) + 25.0:.4f}"
+    rows[k] = ",".join(f)
+    path.write_text("\n".join([head] + rows) + "\n")
+    with caplog.at_level("WARNING", logger="aerotri.adjust.pipeline"):
+        run_adjustment(root, settings, html=False)
+    (said,) = json.loads((root / "at" / "report.json").read_text())["check_blunders"]
+    assert said.startswith(f"check point {f[0]}: off by X -25.0") and "a blunder in its survey" in said
+    assert any(m == said for m in caplog.messages) and said in (root / "at" / "report.txt").read_text()
