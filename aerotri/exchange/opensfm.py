@@ -39,6 +39,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pyproj
 
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
@@ -266,6 +267,57 @@ def _pixel_size_um(project: Project, block: ImportedBlock, image, path: Path) ->
     return size, pixel_um
 
 
+# reference_lla within this of whole metres of its UTM grid: ODM's offset (odm_georeferencing/coords.txt), not the
+# mean of the frames' GPS that OpenSfM takes as its topocentric origin (a chance within 1 mm: about 1 in 250,000)
+WHOLE_METRE_TOL_M = 1e-3
+
+
+def utm_offset_frame(ref: dict, centres_m: np.ndarray, gps) -> tuple[int, float, float] | None:
+    """(EPSG code of the UTM zone, easting and northing of the offset) when the reconstruction is ODM's georeferenced
+    one (``opensfm export_geocoords``, written over reconstruction.json, the topocentric kept as
+    reconstruction.topocentric.json): reference_lla on whole metres of the zone's grid, and, where the shots carry
+    ``gps_position`` (topocentric), their centres nearer it read so than read as topocentric. None: topocentric."""
+    lon, lat = float(ref["longitude"]), float(ref["latitude"])
+    zone = int(math.floor((lon + 180.0) / 6.0)) % 60 + 1
+    epsg = (32600 if lat >= 0 else 32700) + zone
+    e0, n0 = pyproj.Transformer.from_crs(4326, epsg, always_xy=True).transform(lon, lat)
+    if abs(e0 - round(e0)) > WHOLE_METRE_TOL_M or abs(n0 - round(n0)) > WHOLE_METRE_TOL_M:
+        return None
+    with_gps = [k for k, g in enumerate(gps) if g is not None]
+    if with_gps:
+        g_topo = np.array([gps[k] for k in with_gps], float)
+        R_et, origin = ecef_from_topocentric(ref)
+        lon_g, lat_g, h_g = pyproj.Transformer.from_crs(4978, 4979, always_xy=True).transform(
+            *(g_topo @ R_et.T + origin).T)
+        e, n = pyproj.Transformer.from_crs(4326, epsg, always_xy=True).transform(lon_g, lat_g)
+        g_offset = np.column_stack([np.asarray(e) - round(e0), np.asarray(n) - round(n0), h_g])
+        c = np.asarray(centres_m, float)[with_gps]
+        if np.median(np.linalg.norm(c - g_offset, axis=1)) >= np.median(np.linalg.norm(c - g_topo, axis=1)):
+            return None
+    return epsg, float(round(e0)), float(round(n0))
+
+
+def _reference_on_ellipsoid(ref: dict, crs: str, source: str) -> tuple[dict, str]:
+    """(reference_lla, its CRS) with the altitude an ellipsoidal height: a ``--crs`` with a vertical datum (EPSG:4326+3855,
+    an altitude above the geoid) has it turned into one through PROJ (the geoid grid, refused naming it when absent);
+    a CRS that is no latitude, longitude (projected, geocentric) is refused (trial-odm: both were taken silently, the
+    geoid's 20 m ignored)."""
+    from aerotri.core.errors import OptionError
+    from aerotri.geom.crs.definition import horizontal_crs, parse_crs, vertical_crs
+    from aerotri.geom.crs.transform import transform_points
+
+    c = parse_crs(crs, "--crs")
+    if not horizontal_crs(c).is_geographic:
+        raise OptionError(f"{crs}: reference_lla is a latitude, longitude and altitude; expected a geographic CRS (e.g. "
+                          "EPSG:4979, or EPSG:4326+3855 for an altitude above the EGM2008 geoid)", param="--crs")
+    if not c.is_compound or vertical_crs(c) is None:
+        return ref, crs
+    lon, lat, h = transform_points(np.array([float(ref["longitude"])]), np.array([float(ref["latitude"])]),
+                                   np.array([float(ref["altitude"])]), from_crs=c, to_crs=parse_crs(DEFAULT_CRS))
+    return ({"latitude": float(lat[0]), "longitude": float(lon[0]), "altitude": float(h[0])},
+            f"{DEFAULT_CRS} (altitude {float(ref['altitude']):g} in {crs}: h {float(h[0]):.3f})")
+
+
 def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     """The ``opensfm`` importer (see the module docstring)."""
     if len(files) != 1:
@@ -289,6 +341,7 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     block.notes += notes
     crs = options.crs or DEFAULT_CRS
     source = f"{path} reference_lla ({crs})"
+    ref, crs = _reference_on_ellipsoid(ref, crs, source)
     centres, R_cv, gps, dop = [], [], [], []
     for sid in shot_ids:
         shot = rec["shots"][sid]
@@ -303,11 +356,28 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         R_cv.append(R_wc.T)
         gps.append(_vector(shot, "gps_position", where) if "gps_position" in shot else None)
         dop.append(_number(shot, "gps_dop", where, positive=True) if "gps_dop" in shot else None)
-    C_map, R_map = topocentric_to_project(ref, crs, project, np.array(centres), np.array(R_cv), source)
     ids = [Path(s).stem for s in shot_ids]
-    block.eo = ExteriorOrientations(ids, C_map, np.stack(opk_from_matrix(R_map), axis=-1))
-    block.notes.append(f"orientations: OpenSfM's solution (topocentric frame at lat {ref['latitude']:.8f}, lon "
-                       f"{ref['longitude']:.8f}, altitude {ref['altitude']:g} taken as {crs})")
+    offset = utm_offset_frame(ref, np.array(centres), gps)
+    if offset is not None:
+        # ODM's reconstruction.json after export_geocoords: UTM minus a whole-metre offset (reference_lla), heights
+        # ellipsoidal; its gps_position stays topocentric (trial-odm: read as topocentric, the Tuniu shots came in
+        # turned 0.856 deg, the grid convergence, and 1.1-2.1 m off their own RTK GNSS)
+        from aerotri.exchange.poses import orientations_to_project
+
+        epsg, e0, n0 = offset
+        utm = pyproj.CRS.from_epsg(epsg).to_3d()
+        block.eo = orientations_to_project(ids, np.array(centres) + [e0, n0, 0.0], np.array(R_cv) @ FLIP_YZ, utm,
+                                           project, f"{path} (EPSG:{epsg} minus {e0:.0f}, {n0:.0f})")
+        block.notes.append(f"orientations: ODM's georeferenced solution (EPSG:{epsg} minus the offset {e0:.0f}, "
+                           f"{n0:.0f} that reference_lla marks, heights above the WGS84 ellipsoid; not OpenSfM's "
+                           "topocentric frame: reference_lla lies on whole metres of the grid"
+                           + (", and the shots' centres agree with their gps_position so read" if any(
+                               g is not None for g in gps) else "") + ")")
+    else:
+        C_map, R_map = topocentric_to_project(ref, crs, project, np.array(centres), np.array(R_cv), source)
+        block.eo = ExteriorOrientations(ids, C_map, np.stack(opk_from_matrix(R_map), axis=-1))
+        block.notes.append(f"orientations: OpenSfM's solution (topocentric frame at lat {ref['latitude']:.8f}, lon "
+                           f"{ref['longitude']:.8f}, altitude {ref['altitude']:g} taken as {crs})")
     with_gps = [g is not None for g in gps]
     if options.as_gnss:
         if not all(with_gps):

@@ -110,6 +110,11 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
             files = EXPORT_FORMATS[name].files(block, project)
         except BallparkRefused as exc:
             raise _export_refusal(name, exc) from None
+        if not files:
+            # trial-odm: "exported micmac" for a block without control, and no file (MicMac's export holds control
+            # only); a format with nothing to write says so
+            log.warning(f"{name}: nothing to write for this block ({EXPORT_FORMATS[name].description}); no {name} "
+                        "files")
         contents.update({out / f.path: f.content for f in files})
     written = write_together(contents)
     log.info(f"exported {', '.join(formats)} of {project.root} -> {out}")

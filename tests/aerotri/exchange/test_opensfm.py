@@ -56,10 +56,12 @@ def _topocentric(xyz_utm, epsg, ref):
 @pytest.mark.realdata
 def test_tuniu_reconstruction_imported_and_reprojected_like_opensfm(shared_data, tmp_path):
     """The reconstruction has no points or tracks; ground points are the ODM surface model's cells inside each
-    frame's field of view. Our projection of them (imported camera and orientation, through the adjustment's
-    local ENU frame, where collinearity holds exactly) against OpenSfM's: measured max 0.0006 px (eo.txt keeps
-    0.1 mm and 1e-7 degrees). Projected in UTM coordinates as if Cartesian (the map's scale factor, 1.00015
-    here, and no earth curvature): max 0.067 px."""
+    frame's field of view. ODM's reconstruction.json is its georeferenced one (trial-odm): UTM 51N minus the whole
+    metres reference_lla marks, so OpenSfM's projection of a ground point is of its UTM coordinates minus that offset.
+    Ours (imported camera and orientation) in UTM coordinates, the same Cartesian grid: exact to eo.txt's 0.1 mm and
+    1e-7 degrees; through the adjustment's local ENU frame (earth curvature and the map's scale, 1.00015 here,
+    between them): within 0.1 px. (Read as OpenSfM's topocentric frame, the import had turned the shots by the grid
+    convergence, 0.856 deg, and put them 1.1-2.1 m off their own RTK GNSS.)"""
     import rasterio
 
     from aerotri.geom.local_frame import LocalFrame
@@ -81,7 +83,12 @@ def test_tuniu_reconstruction_imported_and_reprojected_like_opensfm(shared_data,
         ok = ~np.ma.getmaskarray(z)[rows, cols]
         xs, ys = rasterio.transform.xy(ds.transform, rows[ok], cols[ok])
         ground = np.column_stack([xs, ys, z[rows, cols][ok].filled(np.nan)])
-    topo = _topocentric(ground, "EPSG:32651", rec["reference_lla"])
+    import pyproj
+
+    ref = rec["reference_lla"]
+    e0, n0 = pyproj.Transformer.from_crs(4326, 32651, always_xy=True).transform(ref["longitude"], ref["latitude"])
+    assert abs(e0 - round(e0)) < 1e-6 and abs(n0 - round(n0)) < 1e-6        # the offset: whole metres of the grid
+    topo = ground - [round(e0), round(n0), 0.0]
     # the field of view: rays within the undistorted image corners (beyond, the Brown polynomial folds back)
     xc, yc = cam.pixel_to_normalized(np.array([-0.5, cam.width - 0.5] * 2), np.repeat([-0.5, cam.height - 0.5], 2))
     r_max = np.hypot(xc, yc).max()
@@ -98,8 +105,8 @@ def test_tuniu_reconstruction_imported_and_reprojected_like_opensfm(shared_data,
         local_px.append(np.hypot(x - u, y - v)[seen].max())
         x, y, _ = cam.project(ground, eo.centre_m[i], eo.rotation(i))
         map_px.append(np.hypot(x - u, y - v)[seen].max())
-    assert max(local_px) < 0.002, local_px
-    assert max(map_px) < 0.1, map_px
+    assert max(map_px) < 0.002, map_px
+    assert max(local_px) < 0.1, local_px
 
 
 def _recon(tmp_path, **change):
@@ -172,3 +179,26 @@ def test_unknown_reference_crs_is_refused(tmp_path):
     root = _project(tmp_path)
     with pytest.raises(InputError):
         import_files(root, "opensfm", [_recon(tmp_path)], ImportSettings(crs="EPSG:99999"))
+
+
+def test_a_reference_crs_that_is_no_latitude_longitude_or_needs_a_geoid_is_not_taken_silently(tmp_path):
+    """Trial-odm: `--crs EPSG:32651` (projected) and `--crs EPSG:4326+3855` (an altitude above the geoid) were taken
+    with the altitude as an ellipsoidal height, exit 0. The first is refused naming --crs; the second turns the
+    altitude into an ellipsoidal height through the geoid, or is refused naming the grid PROJ lacks."""
+    from aerotri.core.errors import CrsError, OptionError
+    from aerotri.exchange import ImportSettings
+    from aerotri.geom.eo import read_eo
+
+    root = _project(tmp_path)
+    with pytest.raises(OptionError, match="expected a geographic CRS"):
+        import_files(root, "opensfm", [_recon(tmp_path)], ImportSettings(crs="EPSG:32651"))
+    plain = _project(tmp_path, name="plain")
+    import_files(plain, "opensfm", [_recon(tmp_path)], ImportSettings())
+    geoid = _project(tmp_path, name="geoid")
+    try:
+        import_files(geoid, "opensfm", [_recon(tmp_path)], ImportSettings(crs="EPSG:4326+3855"))
+    except (CrsError, InputError) as exc:   # the EGM2008 grid not installed: named
+        assert "egm08" in str(exc).lower(), exc
+    else:   # with the grid: the geoid's 20 m or so between them
+        dz = read_eo(geoid / "imported" / "eo.txt").centre_m[:, 2] - read_eo(plain / "imported" / "eo.txt").centre_m[:, 2]
+        assert np.all(np.abs(dz) > 5.0), dz
