@@ -338,6 +338,13 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
     gnss = eo0 = None
     notes, model_heights, rays_out, held_out = [], ModelHeights(), (), ()
+    if st.use_gnss and not project.gnss_path.exists() and ("gnss" in project.config or st.gnss_correction != "none"):
+        # trial-scale: gnss.txt deleted, project.toml's [gnss] and gnss_correction = "shift_drift" in place, and the
+        # block adjusted without GNSS, "Solution Successful", only report.txt's "Given EO/GPS: Disabled" telling it
+        log.warning(f"{project.gnss_path}: not found, though {project.config_path} sets up GNSS ("
+                    + ", ".join((["[gnss]"] if "gnss" in project.config else [])
+                                + ([f"gnss_correction = {st.gnss_correction!r}"] if st.gnss_correction != "none"
+                                   else [])) + "): the block is adjusted without GNSS positions")
     if st.use_gnss and project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
         _warn_implausible_gnss_sigmas(project.gnss_path, gnss)

@@ -22,8 +22,12 @@ def critical_value(alpha: float = 1e-4) -> float:
     return float(norm_isf(alpha / 2.0))
 
 
-def redundancy_numbers(obs_point, obs_image, points, centre, R_cv, cal, *, active) -> np.ndarray:
-    """Redundancy numbers (K, 2) of image coordinates, orientations held fixed; NaN for inactive rows."""
+def redundancy_numbers(obs_point, obs_image, points, centre, R_cv, cal, *, active, point_info=None) -> np.ndarray:
+    """Redundancy numbers (K, 2) of image coordinates, orientations held fixed; NaN for inactive rows.
+    ``point_info``: (P, 3, 3) the points' other observations (a surface height) as information in the rays' unit
+    weight (the image sigma, px, squared times the information per m2): a point the
+    DEM holds in height has parallaxes its rays alone would not check (trial-scale: without it a DEM-controlled
+    block of 0 blunders lost 0.6 % of its rays, 605 of 104,425, to the test; 23 without the DEM)."""
     r = np.full((len(obs_point), 2), np.nan)
     k = np.flatnonzero(active)
     if len(k) == 0:
@@ -31,6 +35,8 @@ def redundancy_numbers(obs_point, obs_image, points, centre, R_cv, cal, *, activ
     # the rays' Jacobians in compiled code, ray by ray (numpy's (K, 2, 3) and (K, 3, 3) arrays: GBs at 6.5 M rays)
     _, N = refined_normals(np.zeros((len(k), 2)), obs_point[k], obs_image[k], centre, R_cv, cal, points=points,
                            iterations=0)
+    if point_info is not None:
+        N = N + point_info
     det_ok = np.abs(np.linalg.det(N)) > 0
     Ninv = np.zeros_like(N)
     Ninv[det_ok] = np.linalg.inv(N[det_ok])

@@ -139,7 +139,7 @@ def _adjust_block(
             return tuple(tested[2:])
         v = G.image_residuals(block, st)
         r = redundancy_numbers(block.obs_point, block.obs_image, st.points, st.centre, st.R_cv, st.cal,
-                               active=obs_active)
+                               active=obs_active, point_info=_point_information(block, st, opts.image_sigma_px))
         tested[:] = [st, n_active, v, r, robust_sigma0(v, r, obs_active)]
         return tuple(tested[2:])
 
@@ -418,6 +418,19 @@ def _image_sigma_from_residuals(opts: G.SolveSettings, v_px, r, sigma_px: float,
     log.info(f"image sigma from the robust rounds' residuals: {sigma_px:.3f} px (a priori {opts.image_sigma_px:g} px, "
              f"redundancy {redundancy:.0f}); the final solve weights the images by it")
     return dataclasses.replace(opts, image_sigma_px=sigma_px), factor
+
+
+def _point_information(block: G.Block, st: G.State, sigma_px: float) -> np.ndarray | None:
+    """(P, 3, 3) what a tie point's surface height (the active ones) tells of it, in the rays' unit weight
+    (``sigma_px`` squared times the information per m2), as the solve weighs it; None without surface control.
+    (A control point's rays are tested after the point itself, against its rays alone: a wrong coordinate pulls
+    them, which would otherwise be removed in its place.)"""
+    from aerotri.adjust.surface import whitened
+
+    if block.surface is None or block.surface_active is None or not np.any(block.surface_active):
+        return None
+    _, B, _ = whitened(block.surface, st.points, block.surface_active)
+    return np.einsum("pi,pj->pij", B, B) * float(sigma_px) ** 2
 
 
 def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -> tuple[np.ndarray, np.ndarray]:

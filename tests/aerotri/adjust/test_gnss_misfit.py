@@ -75,3 +75,18 @@ def test_a_check_point_off_by_many_sigmas_is_named(tmp_path, caplog):
     (said,) = json.loads((root / "at" / "report.json").read_text())["check_blunders"]
     assert said.startswith(f"check point {f[0]}: off by X -25.0") and "a blunder in its survey" in said
     assert any(m == said for m in caplog.messages) and said in (root / "at" / "report.txt").read_text()
+
+
+def test_a_missing_gnss_file_is_said_when_the_project_sets_up_gnss(tmp_path, caplog):
+    """Trial-scale: gnss.txt deleted, project.toml's [gnss] in place: adjusted without GNSS, "Solution Successful",
+    only report.txt's "Given EO/GPS: Disabled" telling it. Said now; a project without [gnss] says nothing."""
+    from aerotri.adjust.pipeline import run_adjustment
+    from aerotri.adjust.settings import AdjustSettings
+    from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+    root = write_block_project(geometric_block(2, 5, seed=7), tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=6, points_per_image=80, n_check=0, seed=2)
+    (root / "gnss.txt").unlink()
+    with caplog.at_level("WARNING", logger="aerotri.adjust.pipeline"):
+        run_adjustment(root, AdjustSettings(image_sigma_px=0.3), html=False)
+    assert any("gnss.txt: not found, though" in m and "[gnss]" in m for m in caplog.messages), caplog.messages
