@@ -1014,6 +1014,8 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
     rep = to_record(dataclasses.replace(built, settings=settings_record))
+    for note in rep["check_blunders"]:  # beside the check table of report.txt, and on the console
+        log.warning(note)
     files = {
         "report.txt": report.format_txt(rep),
         "report.json": json.dumps(rep, indent=1, allow_nan=False, default=_json_default),
@@ -1059,10 +1061,6 @@ def run_adjustment(root, settings: AdjustSettings | Resolved | None = None, out_
     into the report."""
     resolved = project_settings(Project.open(root)) if settings is None else settings_of(settings, AdjustSettings)
     ba = adjust_project(root, resolved.settings)
-    from aerotri.adjust.report import check_point_blunders
-
-    for note in check_point_blunders(ba):
-        log.warning(note)
     return write_outputs(ba, root, html=html, out_dir=out_dir, settings_record=resolved.record())
 
 

@@ -115,18 +115,23 @@ def _control_rows(ba, res: _Residuals) -> list[dict]:
     return rows
 
 
+def _check_difference(c: dict, unit: float) -> tuple[np.ndarray, np.ndarray]:
+    """(adjusted - measured, its propagated sigma sqrt(sigma_adjusted^2 + sigma_given^2)) of a check point (X, Y, Z;
+    the CRS's unit, ``unit`` metres per unit). A coordinate nobody surveyed (the height of a horizontal point used as
+    a check point) is no check: NaN, left out of the RMS (``_rms`` skips NaN) and None in its row."""
+    d = np.array(c["adjusted_m"], float) - np.array(c["measured_m"], float)
+    d = np.where(np.asarray(c.get("surveyed", (True, True, True)), bool), d, np.nan)
+    return d, np.hypot(np.array(c["sigma_m"], float), np.array(c["given_sigma_m"], float) / unit)
+
+
 def _check_rows(ba) -> tuple[list[dict], np.ndarray, np.ndarray]:
     """Check points: rows, differences (adjusted minus measured; the CRS's unit) and normalised differences (the
     given sigmas, metres, turned into the CRS's unit first)."""
     rows, dchk, nchk = [], [], []
     unit = map_unit_m(getattr(ba, "crs", None), "project crs")
     for pid, c in ba.check.items():
-        d = np.array(c["adjusted_m"]) - np.array(c["measured_m"])
-        ok = np.all(np.isfinite(d))
-        # a coordinate nobody surveyed (the height of a horizontal point used as a check point) is no check:
-        # its difference is None in the row and left out of the RMS (``_rms`` skips NaN)
-        d = np.where(np.asarray(c.get("surveyed", (True, True, True)), bool), d, np.nan)
-        sig = np.hypot(np.array(c["sigma_m"]), np.array(c["given_sigma_m"]) / unit)
+        ok = np.all(np.isfinite(np.array(c["adjusted_m"], float) - np.array(c["measured_m"], float)))
+        d, sig = _check_difference(c, unit)
         rows.append({"id": pid, "rays": c["rays"], "measured_m": _lst(c["measured_m"], 4), "adjusted_m": _lst(c["adjusted_m"], 4),
                      "d_m": _lst(d, 4), "sigma_m": _lst(c["sigma_m"], 4), "given_sigma_m": _lst(c["given_sigma_m"], 4)})
         if ok:
@@ -810,9 +815,7 @@ def check_point_blunders(ba) -> list[str]:
     out = []
     unit = map_unit_m(getattr(ba, "crs", None), "project crs")
     for pid, c in ba.check.items():
-        d = np.array(c["adjusted_m"], float) - np.array(c["measured_m"], float)
-        d = np.where(np.asarray(c.get("surveyed", (True, True, True)), bool), d, np.nan)
-        sig = np.hypot(np.array(c["sigma_m"], float), np.array(c["given_sigma_m"], float) / unit)
+        d, sig = _check_difference(c, unit)
         with np.errstate(invalid="ignore", divide="ignore"):
             z = np.abs(d) / sig
         if np.any(z > CHECK_BLUNDER_SIGMAS):

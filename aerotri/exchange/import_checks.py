@@ -180,27 +180,26 @@ def check_image_ids(project: Project, block: ImportedBlock) -> None:
 
 
 def _check_measurements_in_frames(block: ImportedBlock, frame_paths: dict) -> None:
-    """Every control measurement lies on its frame (pixel centres at integers: -0.5 .. width - 0.5); one off it (a
-    typo, another frame's size) is refused naming its line (trial-kite: x 9093.79 px in a 4272 px frame was kept
-    until the adjustment dropped it). Frame sizes from the headers of the frames measured."""
+    """Every control measurement lies on its frame; one off it (a typo, another frame's size) is refused naming its
+    line (trial-kite: x 9093.79 px in a 4272 px frame was kept until the adjustment dropped it). The frames' size
+    from the header of the first frame measured (a project's frames are of one camera, ``check_camera_size``)."""
     import rasterio
+
+    from aerotri.geom.camera import inside_frame
 
     obs = block.image_points
     images = obs.image_id.astype(str)
-    for image in np.unique(images):
-        try:
-            with rasterio.open(frame_paths[image]) as ds:
-                w, h = ds.width, ds.height
-        except (KeyError, rasterio.errors.RasterioIOError, OSError):
-            continue  # an unreadable frame is named where frames are read
-        k = np.flatnonzero(images == image)
-        x, y = obs.xy_px[k, 0], obs.xy_px[k, 1]
-        off = (x < -0.5) | (x > w - 0.5) | (y < -0.5) | (y > h - 0.5)
-        if off.any():
-            q = int(k[np.flatnonzero(off)[0]])
-            raise InputError(f"{obs.where(q, block.source_of('image_points'))}: point {str(obs.point_id[q])!r} "
-                             f"measured at ({obs.xy_px[q, 0]:.2f}, {obs.xy_px[q, 1]:.2f}) px in {str(image)!r}, off its "
-                             f"{w} x {h} px frame (x -0.5 .. {w - 0.5:g}, y -0.5 .. {h - 0.5:g})")
+    try:
+        with rasterio.open(frame_paths[images[0]]) as ds:
+            w, h = ds.width, ds.height
+    except (KeyError, rasterio.errors.RasterioIOError, OSError):
+        return  # an unreadable frame is named where frames are read
+    off = ~inside_frame(obs.xy_px[:, 0], obs.xy_px[:, 1], w, h)
+    if off.any():
+        q = int(np.flatnonzero(off)[0])
+        raise InputError(f"{obs.where(q, block.source_of('image_points'))}: point {str(obs.point_id[q])!r} "
+                         f"measured at ({obs.xy_px[q, 0]:.2f}, {obs.xy_px[q, 1]:.2f}) px in {str(images[q])!r}, off its "
+                         f"{w} x {h} px frame (x -0.5 .. {w - 0.5:g}, y -0.5 .. {h - 0.5:g})")
 
 
 def check_camera_size(project: Project, block: ImportedBlock) -> None:

@@ -297,7 +297,7 @@ def utm_offset_frame(ref: dict, centres_m: np.ndarray, gps) -> tuple[int, float,
     return epsg, float(round(e0)), float(round(n0))
 
 
-def _reference_on_ellipsoid(ref: dict, crs: str, source: str) -> tuple[dict, str]:
+def _reference_on_ellipsoid(ref: dict, crs: str) -> tuple[dict, str]:
     """(reference_lla, its CRS) with the altitude an ellipsoidal height: a ``--crs`` with a vertical datum (EPSG:4326+3855,
     an altitude above the geoid) has it turned into one through PROJ (the geoid grid, refused naming it when absent);
     a CRS that is no latitude, longitude (projected, geocentric) is refused (trial-odm: both were taken silently, the
@@ -341,7 +341,7 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     block.notes += notes
     crs = options.crs or DEFAULT_CRS
     source = f"{path} reference_lla ({crs})"
-    ref, crs = _reference_on_ellipsoid(ref, crs, source)
+    ref, crs = _reference_on_ellipsoid(ref, crs)
     centres, R_cv, gps, dop = [], [], [], []
     for sid in shot_ids:
         shot = rec["shots"][sid]

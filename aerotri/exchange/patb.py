@@ -465,11 +465,11 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
                                                              what="projection centres of the PAT-B orientations")
             block.origin["gnss"] = by[".ori"].name
     # a .con of no point (aerotri's export of a block without control writes one): nothing to import from it
-    cons = [f for f in cons if len(read_con(f)[0])]
+    con_files = [(f, con) for f, con in ((f, read_con(f)) for f in cons) if len(con[0])]
+    cons = [f for f, _ in con_files]
     if cons:
         pid, kind, xyz = [], [], []
-        for f in cons:
-            nums, a, said = read_con(f)
+        for f, (nums, a, said) in con_files:
             for v, k in zip(nums, said):
                 p = point_id(v)
                 if p in pid:

@@ -99,6 +99,19 @@ def _fold_radius(camera: "Camera") -> float | None:
     return min(turns) if turns else None
 
 
+def inside_frame(x_px, y_px, width: int, height: int, margin_px: float = 0.0):
+    """Whether pixel positions lie on a frame of ``width`` x ``height`` px (pixel centres at integers: -0.5 ..
+    width - 0.5), ``margin_px`` in from its edges."""
+    x_px = np.asarray(x_px)
+    y_px = np.asarray(y_px)
+    return (
+        (x_px >= -0.5 + margin_px)
+        & (x_px <= width - 0.5 - margin_px)
+        & (y_px >= -0.5 + margin_px)
+        & (y_px <= height - 0.5 - margin_px)
+    )
+
+
 @dataclasses.dataclass(frozen=True)
 class CameraFileFields:
     """How another program's camera file names the numbers ``Camera.check_plausible`` judges, for its messages:
@@ -289,14 +302,7 @@ class Camera:
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def inside(self, x_px, y_px, margin_px: float = 0.0):
-        x_px = np.asarray(x_px)
-        y_px = np.asarray(y_px)
-        return (
-            (x_px >= -0.5 + margin_px)
-            & (x_px <= self.width - 0.5 - margin_px)
-            & (y_px >= -0.5 + margin_px)
-            & (y_px <= self.height - 0.5 - margin_px)
-        )
+        return inside_frame(x_px, y_px, self.width, self.height, margin_px)
 
     # -- validation and files -----------------------------------------------------------------
     @classmethod

@@ -357,8 +357,9 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
     # dropped without a word); with land-cover groups one of unknown land cover (density "unknown": no first return
     # near; an empty group) could be either, so it is named in the NVA's and the VVA's rows
     off = [p for p in hc.get("points", []) if p.get(key) is None]
+    grouped = any(vegetated(p.get("group")) is not None for p in hc.get("points", []))
+    kw.update(land_cover_known=grouped)
     if off:
-        grouped = any(vegetated(p.get("group")) is not None for p in hc.get("points", []))
         ids = [(str(p.get("id")), vegetated(p.get("group")) if grouped else False) for p in off]
         kw.update(nva_outside=tuple(i for i, v in ids if v is not True),
                   vva_outside=tuple(i for i, v in ids if v is not False),
@@ -377,7 +378,6 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
             return veg, (f"{source}; groups {', '.join(sorted({str(p.get('group')) for p in points}))}; vegetated: "
                          f"{', '.join(names) or 'none'}; points without a group left out")
         return veg, f"{source}; no land-cover groups (check-heights --groups): every point taken as non-vegetated"
-    kw.update(land_cover_known=any(vegetated(p.get("group")) is not None for p in hc.get("points", [])))
     if off and not pts:
         # surveyed points, none with a dz: the note still says how they were grouped (it was empty, and the rows
         # read "no surveyed check points")

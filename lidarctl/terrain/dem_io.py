@@ -6,21 +6,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
 HYDRO_TAG = "HYDRO_FLATTENED"  # lidarctl hydro-flatten's tag on its DEM: lidarctl smooth warns of it
-# metres per height unit by the names a GeoTIFF states them in (its band's unit type, a VERTICAL_UNITS tag)
-_UNIT_NAMES_M = {"m": 1.0, "metre": 1.0, "meter": 1.0, "metres": 1.0, "meters": 1.0, "ft": 0.3048, "foot": 0.3048,
-                 "feet": 0.3048, "international foot": 0.3048, "us-ft": 1200 / 3937, "us survey foot": 1200 / 3937,
-                 "us_survey_foot": 1200 / 3937, "ftus": 1200 / 3937}
 
 
 def stated_height_unit_m(src) -> float | None:
     """Metres per height unit the raster states itself (its band's unit type, else a VERTICAL_UNITS tag), None when it
     states none or one not known here."""
-    names = [src.units[0] if src.units else None, src.tags().get("VERTICAL_UNITS")]
-    for name in names:
-        if name and str(name).strip().lower() in _UNIT_NAMES_M:
-            return _UNIT_NAMES_M[str(name).strip().lower()]
+    from aerotri.geom.crs.definition import length_unit_m
+
+    for name in (src.units[0] if src.units else None, src.tags().get("VERTICAL_UNITS")):
+        unit_m = length_unit_m(name)
+        if unit_m is not None:
+            return unit_m
     return None
 
 

@@ -155,11 +155,10 @@ def shore_fall(z: np.ndarray, body: np.ndarray, ring: np.ndarray, percentile: fl
     return max(lows) - min(lows) if len(lows) >= 2 else None
 
 
-def flatten_window(z: np.ndarray, body: np.ndarray, other_water: np.ndarray, water_z: float | None,
+def flatten_window(z: np.ndarray, body: np.ndarray, ring: np.ndarray, water_z: float | None,
                    params: HydroSettings) -> tuple[float | None, float | None]:
-    """(shore level, level) of one body on a window of DEM heights ``z`` (NaN: nodata): ``body`` its cells,
-    ``other_water`` every water cell; the body's valid cells of ``z`` are set to the level in place."""
-    ring = shore_ring(z, body, other_water, params)
+    """(shore level, level) of one body on a window of DEM heights ``z`` (NaN: nodata): ``body`` its cells, ``ring``
+    its shore (``shore_ring``); the body's valid cells of ``z`` are set to the level in place."""
     shore = float(np.percentile(z[ring], params.shore_percentile)) if ring.any() else None
     candidates = [v for v in (water_z, shore) if v is not None]
     if not candidates:
@@ -183,7 +182,7 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
 
     from aerotri.core.atomic import refuse_input_as_output, temporary_dir
     from aerotri.geom.crs.definition import length_unit_name, linear_unit_m
-    from lidarctl.terrain.dem_io import open_dem, write_dem_cog
+    from lidarctl.terrain.dem_io import HYDRO_TAG, open_dem, write_dem_cog
 
     if not (math.isfinite(params.max_range_m) and params.max_range_m > 0):
         raise OptionError(f"must be a positive number of metres, got {params.max_range_m}", param="--max-range-m")
@@ -232,10 +231,11 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                         bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], None, None, 0,
                                                 "no DEM cell with data has its centre inside it"))
                         continue
+                    ring = shore_ring(z, body, water | body, params)
                     if ranges[k] is None:
                         # no water returns to tell a lake from a river (a hand-digitised outline): the shore tells it
                         # (trial-hydro: Autzen's river flattened at its lowest shore, the channel cut up to 3.1 m)
-                        fall = shore_fall(z, body, shore_ring(z, body, water | body, params), params.shore_percentile)
+                        fall = shore_fall(z, body, ring, params.shore_percentile)
                         if fall is not None and fall * z_m > params.max_range_m:
                             bodies.append(WaterBody(k, area_m2, water_z[k], None, None, None, 0,
                                                     f"no water_z_range_m, and its shore's low heights fall "
@@ -243,7 +243,7 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                                                     "water, left as it is (give water_z_range_m to judge it by its "
                                                     "water returns)"))
                             continue
-                    shore, level = flatten_window(z, body, water | body, water_z[k], params)
+                    shore, level = flatten_window(z, body, ring, water_z[k], params)
                     if level is None:
                         bodies.append(WaterBody(k, area_m2, None, ranges[k], None, None, 0,
                                                 "no water_z and no shore cell with data"))
@@ -252,12 +252,9 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
                     dst.write(np.where(np.isfinite(z), z, nodata).astype(np.float32), 1, window=win)
                     bodies.append(WaterBody(k, area_m2, water_z[k], ranges[k], shore, level, cells,
                                             empty_cells=int((body & ~np.isfinite(z)).sum())))
-            from lidarctl.terrain.dem_io import HYDRO_TAG
-
-            flat = [b for b in bodies if b.level is not None]
-            with rasterio.open(work, "r+") as dst:
                 # said to lidarctl smooth, which would move the flat surfaces again (trial-hydro)
-                dst.update_tags(**{HYDRO_TAG: f"{len(flat)} water bodies at one level each (lidarctl hydro-flatten)"})
+                flat = sum(b.level is not None for b in bodies)
+                dst.update_tags(**{HYDRO_TAG: f"{flat} water bodies at one level each (lidarctl hydro-flatten)"})
             write_dem_cog(work, out_path)
         finally:
             import shutil

@@ -448,6 +448,19 @@ def length_unit_name(unit_m: float, long: bool = False) -> str:
     return _LONG_NAMES[short] if long else short
 
 
+# metres per unit by the names files give length units in (a GeoTIFF band's unit type, a VERTICAL_UNITS tag), the
+# names ``length_unit_name`` writes among them
+_UNIT_M_BY_NAME = {"m": 1.0, "metre": 1.0, "meter": 1.0, "metres": 1.0, "meters": 1.0, "ft": 0.3048, "foot": 0.3048,
+                   "feet": 0.3048, "international foot": 0.3048, "us-ft": 1200 / 3937, "us survey foot": 1200 / 3937,
+                   "us_survey_foot": 1200 / 3937, "ftus": 1200 / 3937}
+
+
+def length_unit_m(name) -> float | None:
+    """Metres per unit of a length unit named as ``length_unit_name`` (and GDAL, WKT) spell them ('metre', 'ft',
+    'US survey foot', ...; any case); None for another name."""
+    return _UNIT_M_BY_NAME.get(str(name).strip().lower()) if name else None
+
+
 def unit_long_name(crs: pyproj.CRS) -> str:
     """The horizontal axes' unit as GDAL and WKT spell it: 'degree', 'metre', 'foot', 'US survey foot'."""
     return _LONG_NAMES.get(unit_name(crs)) or length_unit_name(linear_unit_m(crs), long=True)
