@@ -17,6 +17,7 @@ classes; a map-scale table: cn-at at that scale and terrain), so the choice by p
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import re
 from pathlib import Path
@@ -32,12 +33,28 @@ from aerotri.core.tolerances import (SCALE_TABLES, Provenance, ToleranceTable, a
 from aerotri.qa.standards import STANDARD_KEYS, asprs2014, asprs2023, cn_at, usgs_lbs
 from aerotri.qa.standards import formulas as F
 
+logger = logging.getLogger(__name__)
+
 NOT_TESTABLE = "not testable"
 DENSITY_STANDARDS = ("usgs-lbs",)  # the standards with a LiDAR density row (the others do not read the clouds)
 PRODUCTS = ("Aerotriangulation", "DOM", "Line map (DLG)", "LiDAR DEM", "LiDAR swath overlaps", "LiDAR density")
 CN_TERRAINS = ("flat", "hilly", "mountainous", "high_mountain")
 _ASPRS_CLASS = re.compile(r"^\s*H\s*([0-9.]+)\s*(?:cm)?\s*[, ]\s*V\s*([0-9.]+)\s*(?:cm)?\s*$", re.I)
-_VEGETATED = ("veg", "forest", "tree", "shrub", "grass", "crop", "sparse", "dense", "wood", "canopy")
+# Land-cover words of a check point's group (ASPRS 2014/2023 and the USGS LBS: NVA "clear or open, bare earth, low
+# grass, urban"; VVA "tall weeds and crops, brush lands, forested areas"), matched as words after the name is split
+# at anything not a letter: "VVA" and "brush" are vegetated, "NVA" and "non-vegetated" are not (a substring test
+# took "non-vegetated" for vegetation and "VVA" / "brush" for open ground). Grass alone counts as vegetation; low,
+# short or mown grass and lawn as open ground.
+_VEGETATED = frozenset({"vva", "veg", "vegetated", "vegetation", "forest", "forested", "forests", "tree", "trees",
+                        "treed", "wood", "woods", "wooded", "woodland", "shrub", "shrubs", "shrubland", "scrub",
+                        "scrubland", "brush", "brushland", "bush", "bushes", "weeds", "weed", "crop", "crops",
+                        "cropland", "cornfield", "orchard", "grass", "grassland", "canopy", "sparse", "dense",
+                        "vineyard", "hedge", "reeds", "marsh"})
+_NOT_VEGETATED = frozenset({"nva", "open", "bare", "bareearth", "urban", "paved", "pavement", "asphalt", "concrete",
+                            "road", "roads", "street", "gravel", "sand", "beach", "rock", "rocky", "soil", "dirt",
+                            "clear", "lawn", "built", "builtup", "parking", "unvegetated", "nonvegetated"})
+_NEGATIONS = frozenset({"non", "not", "no", "without", "un"})
+_LOW_GRASS = frozenset({"low", "short", "mown", "mowed", "cut"})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -331,13 +348,38 @@ def line_map_checks(chk: dict, qa) -> CheckSet | None:
 
 
 def vegetated(group: str | None) -> bool | None:
-    """A height-check group's land cover: True vegetated, False not, None without a group."""
+    """A height-check group's land cover: True vegetated (VVA), False not (NVA), None without a group. The name's
+    words (split at anything not a letter) are read: a negated vegetation word ("non-vegetated", "no vegetation")
+    and a word of open ground are not vegetated; a vegetation word is; a name without such words (a terrain class
+    such as "steep") counts as non-vegetated, as before (``unplaced_groups`` names them)."""
     if not group:
         return None
-    g = group.lower()
-    if g in ("unknown",):
+    words = [w for w in re.split(r"[^a-z]+", group.lower()) if w]
+    if words in (["unknown"],):
         return None
-    return any(w in g for w in _VEGETATED)
+    for k, w in enumerate(words):
+        if w in _NEGATIONS and k + 1 < len(words) and words[k + 1] in _VEGETATED:
+            return False
+        if w.startswith(("non", "un")) and (w[3:] if w.startswith("non") else w[2:]) in _VEGETATED:
+            return False  # "nonvegetated", "unvegetated"
+    if any(w in ("grass", "grassland") for w in words) and any(w in _LOW_GRASS for w in words):
+        return False
+    if any(w in _VEGETATED for w in words):
+        return True
+    return False
+
+
+def unplaced_groups(groups) -> list[str]:
+    """The group names ``vegetated`` takes as non-vegetated for want of any land-cover word (no vegetation word,
+    no word of open ground): said, since a label such as "class B" may mean either."""
+    out = set()
+    for g in groups:
+        if not g or vegetated(g) is not False:
+            continue
+        words = [w for w in re.split(r"[^a-z]+", g.lower()) if w]
+        if not any(w in _NOT_VEGETATED or w in _NEGATIONS or w in _LOW_GRASS for w in words):
+            out.add(g)
+    return sorted(out)
 
 
 def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa, adjusted_note: str = "") -> \
@@ -375,8 +417,14 @@ def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa,
         veg = [vegetated(p.get("group")) for p in points]
         if any(x is not None for x in veg):
             names = sorted({p.get("group") for p, x in zip(points, veg) if x})
+            unplaced = unplaced_groups({p.get("group") for p in points})
+            if unplaced:
+                logger.warning(f"check-point groups {', '.join(unplaced)} name no land cover: taken as "
+                               "non-vegetated (NVA); name them e.g. NVA / VVA, open / forest")
             return veg, (f"{source}; groups {', '.join(sorted({str(p.get('group')) for p in points}))}; vegetated: "
-                         f"{', '.join(names) or 'none'}; points without a group left out")
+                         f"{', '.join(names) or 'none'}"
+                         + (f"; non-vegetated for want of a land-cover word: {', '.join(unplaced)}" if unplaced
+                            else "") + "; points without a group left out")
         return veg, f"{source}; no land-cover groups (check-heights --groups): every point taken as non-vegetated"
     if off and not pts:
         # surveyed points, none with a dz: the note still says how they were grouped (it was empty, and the rows

@@ -142,9 +142,12 @@ _UNIT_NAMES = {"m": "metre", "ft": "foot", "us-ft": "US survey foot"}
 HEADER_UNIT_M = {short: float(get_units_map(category="linear")[name].conv_factor) for short, name in _UNIT_NAMES.items()}
 
 
+GROUP_COLUMNS = ("group", "landcover", "land_cover", "land cover", "land-cover", "cover", "nva_vva", "lc")
+
+
 def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
     """Surveyed points: header with id, x, y, z (case-insensitive; also point/name/pt for the id, e/easting,
-    n/northing, h/height/elevation) and optional group; without ``require_z`` the z column may be missing (``z``
+    n/northing, h/height/elevation) and optional group (or landcover, land_cover, cover, nva_vva, lc); without ``require_z`` the z column may be missing (``z``
     None). Columns are found by name, so a surveyor's P,N,E,Z,D order reads as it is."""
     path = Path(path)
     rows = list(csv.reader(stringio.StringIO(read_text(path, "surveyed points table (id,x,y,z[,group])"), newline="")))
@@ -169,7 +172,9 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
                          f"{unit.get('y') or 'the CRS unit'} (header {rows[0]}); expected one unit for both")
     # a surveyor's "Point" column: without it the points were numbered 1, 2, ... and the names lost
     col_id = next((head.index(n) for n in ID_COLUMNS if n in head), None)
-    col_group = head.index("group") if "group" in head else None
+    # the land cover under any of its usual names (a "landcover" column was read as no groups, and the report then
+    # judged forest points as open ground)
+    col_group = next((head.index(n) for n in GROUP_COLUMNS if n in head), None)
     ids, xyz, groups = [], [], []
     first_line: dict[str, int] = {}
     for line_no, row in enumerate(rows[1:], start=2):
@@ -416,7 +421,8 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
     if grouping == "auto":
         grouping = "column" if points.group is not None else "none"
     if grouping == "column" and points.group is None:
-        raise OptionError(f"--groups column: {points_csv} has no 'group' column", param="--groups")
+        raise OptionError(f"--groups column: {points_csv} has no group column (expected one of "
+                          f"{', '.join(GROUP_COLUMNS)})", param="--groups")
     if grouping == "density" and not paths:
         raise OptionError("--groups density: the vegetation density comes from the cloud's first returns; give the "
                           "classified cloud(s) before POINTS_CSV", param="--groups")

@@ -268,6 +268,22 @@ def test_check_heights_dem_alone_with_group_column(forest_edge, tmp_path, monkey
     assert hc["dem"]["groups"]["field"]["all"]["n"] == 16
 
 
+@pytest.mark.parametrize("column", ["landcover", "Land_Cover", "cover"])
+def test_check_heights_reads_the_land_cover_under_its_usual_names(forest_edge, tmp_path, column):
+    """trial-us 1b: only a column named "group" was read; a "landcover" column was dropped without a word, and the
+    report judged the forest points as open ground, saying check-heights ran without --groups."""
+    d = forest_edge
+    lines = (d / "pts.csv").read_text().splitlines()
+    pts = tmp_path / "g.csv"
+    pts.write_text("\n".join([lines[0] + f",{column}"] + [f"{ln},{'VVA' if k < 8 else 'NVA'}"
+                                                          for k, ln in enumerate(lines[1:])]) + "\n")
+    _ok(["check-heights", pts, "--dem", d / "dem.tif", "--json", tmp_path / "hc.json"])
+    hc = json.loads((tmp_path / "hc.json").read_text())
+    assert hc["grouping"] == "column"
+    assert hc["dem"]["groups"]["VVA"]["all"]["mean_dz_m"] == pytest.approx(0.7, abs=0.01)
+    assert hc["dem"]["groups"]["NVA"]["all"]["n"] == 16
+
+
 def test_check_heights_dem_bad_input(forest_edge, tmp_path):
     d = forest_edge
     out = tmp_path / "x"

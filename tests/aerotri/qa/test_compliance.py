@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 
 import pytest
@@ -267,6 +268,31 @@ def test_dem_rows_say_which_surveyed_points_lack_a_dz_not_that_none_were_surveye
 def test_land_cover_groups():
     assert vegetated("dense") is True and vegetated("Forest") is True and vegetated("open") is False
     assert vegetated("road") is False and vegetated(None) is None and vegetated("unknown") is None
+
+
+@pytest.mark.parametrize("open_name, veg_name", [("NVA", "VVA"), ("non-vegetated", "vegetated"),
+                                                  ("bare-earth", "brush"), ("Bare Earth", "tall weeds"),
+                                                  ("urban", "forested"), ("low grass", "crops"),
+                                                  ("No vegetation", "Shrub land")])
+def test_asprs_and_usgs_land_cover_names_split_nva_from_vva(open_name, veg_name, caplog):
+    """trial-us 1: the groups were told by substring: "VVA", "brush" and "bare-earth"/"brush" put the vegetated
+    points into the NVA (0.0674 m at 40 points, class V10cm; truth 0.0466 m at 30, V5cm), and "non-vegetated"
+    (holding "veg") made every open point vegetated (NVA not testable). Now the names' words are read."""
+    pts = [(f"O{i}", 0.05 * (-1) ** i, open_name) for i in range(30)]
+    pts += [(f"V{i}", 0.3 * (-1) ** i, veg_name) for i in range(10)]
+    with caplog.at_level(logging.WARNING, logger="aerotri.qa.compliance"):
+        lf = _surveyed(pts)
+    assert (lf.n_nva, lf.n_vva) == (30, 10), (open_name, veg_name)
+    assert lf.nva_rmse_m == pytest.approx(0.05) and lf.vva_rmse_m == pytest.approx(0.3)
+    assert "name no land cover" not in caplog.text
+
+
+def test_a_group_without_a_land_cover_word_is_said_to_be_taken_as_non_vegetated(caplog):
+    with caplog.at_level(logging.WARNING, logger="aerotri.qa.compliance"):
+        lf = _surveyed([("A1", 0.05, "class A"), ("A2", -0.05, "class A"), ("F1", 0.3, "forest")])
+    assert (lf.n_nva, lf.n_vva) == (2, 1)
+    assert "check-point groups class A name no land cover: taken as non-vegetated (NVA)" in caplog.text
+    assert "non-vegetated for want of a land-cover word: class A" in lf.grouping_note
 
 
 class _Qa:
