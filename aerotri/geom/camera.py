@@ -99,6 +99,25 @@ def _fold_radius(camera: "Camera") -> float | None:
     return min(turns) if turns else None
 
 
+def _fold_inside_frame(camera: "Camera") -> tuple[float, float] | None:
+    """(the angle off the axis where the lens model turns back, the frame corner's angle), deg, for the first corner
+    direction the model cannot reach (the distorted position at the fold short of the corner), else None."""
+    params = camera.kernel_params()
+    r = np.linspace(0.0, FOLD_SEARCH_MAX_R, FOLD_SEARCH_STEPS + 1)[1:]
+    for cx, cy in ((0.0, 0.0), (camera.width - 1.0, 0.0), (0.0, camera.height - 1.0),
+                   (camera.width - 1.0, camera.height - 1.0)):
+        ux, uy = (cx - camera.cx_px) / camera.focal_px, (cy - camera.cy_px) / camera.focal_px
+        norm = math.hypot(ux, uy)
+        if norm == 0.0:
+            continue
+        xd, yd = lens_kernels.distort_points(params, r * ux / norm, r * uy / norm)
+        outwards = (xd * ux + yd * uy) / norm
+        turn = np.flatnonzero(np.diff(outwards) <= 0.0)
+        if turn.size and outwards[turn[0]] < norm:
+            return math.degrees(math.atan(r[turn[0]])), math.degrees(math.atan(norm))
+    return None
+
+
 def inside_frame(x_px, y_px, width: int, height: int, margin_px: float = 0.0):
     """Whether pixel positions lie on a frame of ``width`` x ``height`` px (pixel centres at integers: -0.5 ..
     width - 0.5), ``margin_px`` in from its edges."""
@@ -344,7 +363,9 @@ class Camera:
         """Refuse (``InputError``) a camera read from a file whose numbers are in other units than its keys':
         a focal length of a tenth of the longer image side or less (in metres, 0.12 for 120 mm: the adjustment
         stopped on a singular matrix) or over ``MAX_FOCAL_PER_SIDE`` times it, and a principal point over
-        ``PP_MAX_SIDE_FRACTION`` of the side from the image centre (in pixels, or a corner's position). ``fields``:
+        ``PP_MAX_SIDE_FRACTION`` of the side from the image centre (in pixels, or a corner's position), and lens
+        coefficients whose model turns back inside the frame (a certificate's mm-based or table values typed as
+        the normalised coefficients: the adjustment ended on a singular matrix). ``fields``:
         how another program's file names these numbers, for the message (None: camera.toml's keys). Only for
         cameras read from files: self-calibration's intermediate cameras are not held to it."""
         side_px = max(self.width, self.height)
@@ -382,6 +403,15 @@ class Camera:
                              f"{100 * share[a]:.0f} % of the {size_px} px side from the image centre (limit {limit}, "
                              f"{self.PP_MAX_SIDE_FRACTION * size_px * self.pixel_um / 1000.0:g} mm); expected the "
                              f"offset from the image centre in mm (in pixels? x {self.pixel_um / 1000.0:g} mm/px)")
+
+        folds = _fold_inside_frame(self) if any(self.coefficients) else None
+        if folds is not None:
+            lens = ", ".join(f"{c} = {v:g}" for c, v in zip(self.COEFFICIENTS, self.coefficients) if v)
+            raise InputError(f"{source}: the lens coefficients ({lens}) make the lens model turn back "
+                             f"{folds[0]:.1f} deg off the axis, inside the frame (its corner {folds[1]:.1f} deg): "
+                             "expected coefficients on normalised image coordinates (x / f): a certificate's K1, K2 "
+                             "on r in mm are k1 = K1 x f_mm^2, k2 = K2 x f_mm^4; a radial distortion table (um "
+                             "against mm) is fitted first (docs/your-own-block.md)")
 
     def to_dict(self) -> dict:
         """The camera file's keys: ``name``, ``model`` and the model's fields."""

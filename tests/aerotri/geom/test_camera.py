@@ -251,3 +251,20 @@ def test_a_principal_point_over_a_quarter_of_the_side_off_the_centre_is_refused(
                 cam.check_plausible("camera.toml")
         else:
             cam.check_plausible("camera.toml")
+
+
+def test_lens_coefficients_that_turn_back_inside_the_frame_are_refused(tmp_path):
+    """trial-cam F3: a radial table value in um typed as k1 (-12.5 on a Phase One iXM-100 at 50 mm) folds the lens
+    model 9 deg off the axis, inside the frame (corner 29 deg); init and adjust took it and the adjustment ended in a
+    LinAlgError traceback. A DJI lens whose model folds just past its corners (k1 = -0.267) still reads."""
+    p = tmp_path / "camera.toml"
+    p.write_text("focal_mm = 50.0\npixel_um = 3.76\nwidth = 11664\nheight = 8750\nk1 = -12.5\n")
+    with pytest.raises(InputError, match=r"camera.toml: the lens coefficients \(k1 = -12.5\) make the lens model turn "
+                                         r"back 9\.\d deg off the axis, inside the frame \(its corner 2\d\.\d deg\): "
+                                         r"expected coefficients on normalised image coordinates"):
+        BrownCamera.read(p)
+    p.write_text("focal_mm = 50.0\npixel_um = 3.76\nwidth = 11664\nheight = 8750\nk1 = -0.01\nk2 = 0.005\n")
+    assert BrownCamera.read(p).k1 == -0.01
+    dji = BrownCamera(focal_mm=8.77, pixel_um=9.6, width=684, height=456, k1=-0.267, k2=0.112, k3=-0.0332)
+    assert dji.fold_radius() is not None  # 53 deg, past the corners (test_points_beyond_the_lens_fold_...)
+    dji.check_plausible("camera.toml")
