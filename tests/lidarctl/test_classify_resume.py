@@ -20,14 +20,14 @@ from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor
 from lidarctl import io, synthetic, tiles
 
-TILING = dict(tile_size_m=100.0, buffer_m=40.0)  # 2 x 2 tiles over the 200 m scene
+TILING = dict(tile_size_m=70.0, buffer_m=28.0)  # 2 x 2 tiles over the 140 m scene
 
 
 @pytest.fixture(scope="module")
 def strips(tmp_path_factory):
-    """A 200 m scene (2.5 points/m2) cut into two strips along y."""
+    """A 140 m scene (2.5 points/m2) cut into two strips along y."""
     d = tmp_path_factory.mktemp("resume_strips")
-    cloud, _ = synthetic.synthetic_scene(width_m=200.0, density_per_m2=2.5, seed=5, n_buildings=4, n_trees=30)
+    cloud, _ = synthetic.synthetic_scene(width_m=140.0, density_per_m2=2.5, seed=5, n_buildings=4, n_trees=30)
     paths = []
     for k, sel in enumerate((cloud.y < np.median(cloud.y), cloud.y >= np.median(cloud.y))):
         part = io.PointCloud(*(getattr(cloud, f)[sel] for f in ("x", "y", "z", "intensity", "return_number",
@@ -122,7 +122,7 @@ root, paths = Path(sys.argv[1]), sys.argv[2:]
 remove_leftovers(root)  # what a killed run left of its atomic writes, as the chain's classify stage does
 with Executor("synchronous") as ex:
     tiles.classify_files(paths, root / "classified", executor=ex, suffix=".laz",
-                         resume_dir=root / "work" / "classify_resume", tile_size_m=100.0, buffer_m=40.0)
+                         resume_dir=root / "work" / "classify_resume", tile_size_m=70.0, buffer_m=28.0)
 """
 
 
@@ -162,8 +162,10 @@ def test_the_chain_classify_stage_resumes_its_tiles(tiny_project, tmp_path, monk
     from aerotri.chain import chain_stages, run_stages
     from aerotri.core.executor import activate
 
-    plan = tiles.plan_tiles  # tiles of 100 m (+ 50 m buffer): the tiny block's strips fit one tile by default
-    monkeypatch.setattr(tiles, "plan_tiles", lambda header, _t, _b, *a, **k: plan(header, 100.0, 50.0, *a, **k))
+    # tiles of 300 m (+ 30 m buffer): 6 over the tiny block's strips, which fit one tile by default (100 m + 50 m
+    # made 54, each classified three times here)
+    plan = tiles.plan_tiles
+    monkeypatch.setattr(tiles, "plan_tiles", lambda header, _t, _b, *a, **k: plan(header, 300.0, 30.0, *a, **k))
 
     def classify(root):
         with Executor("synchronous") as ex, activate(ex):
@@ -197,7 +199,7 @@ def test_the_chain_classify_stage_resumes_its_tiles(tiny_project, tmp_path, monk
 # ----------------------------------------------------------------------------------------------
 # `lidarctl classify`: the same per tile, in OUT.resume beside the output
 
-CLI_TILING = ["--tile-size-m", "100", "--buffer-m", "40", "--scheduler", "synchronous"]
+CLI_TILING = ["--tile-size-m", "70", "--buffer-m", "28", "--scheduler", "synchronous"]
 
 
 def _cli(paths, out, *options):
@@ -283,7 +285,7 @@ def test_lidarctl_classify_sigkill_then_resume(strips, cli_reference, tmp_path):
 def test_lidarctl_classify_one_file_resumes_beside_it(strips, tmp_path, monkeypatch):
     """One file into OUT.laz: the tiles are kept in OUT.laz.resume; the resumed run writes the bytes of one
     uninterrupted run."""
-    tiling = ["--tile-size-m", "60", "--buffer-m", "30"]  # over CLI_TILING's (the last value wins)
+    tiling = ["--tile-size-m", "40", "--buffer-m", "20"]  # over CLI_TILING's (the last value wins)
     r = _cli(strips[:1], tmp_path / "ref.laz", *tiling)
     assert r.exit_code == 0, r.output
     out, keep = tmp_path / "out.laz", tmp_path / "out.laz.resume"

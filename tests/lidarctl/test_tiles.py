@@ -167,7 +167,7 @@ def test_one_tile_split_equals_direct_path(big, tmp_path):
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     d = tmp_path_factory.mktemp("tiles_small")
-    cloud, _ = _scene(200.0, 2.5, 5, n_buildings=4, n_trees=30)
+    cloud, _ = _scene(140.0, 2.5, 5, n_buildings=4, n_trees=30)  # 2 x 2 tiles of 70 m
     synthetic.write_las(d / "in.laz", cloud, crs="EPSG:32632")
     synthetic.write_las(d / "v12.las", cloud, version="1.2")
     return d
@@ -178,12 +178,12 @@ def test_same_bytes_for_synchronous_threads_and_local_cluster(small):
     outs = []
     for sched in ("synchronous", None, "local:2"):
         out = d / f"out_{sched or 'threads'}.laz".replace(":", "")
-        args = ["classify", str(d / "in.laz"), str(out), "--tile-size-m", "100", "--buffer-m", "40"]
+        args = ["classify", str(d / "in.laz"), str(out), "--tile-size-m", "70", "--buffer-m", "28"]
         if sched:
             args += ["--scheduler", sched]
         r = CliRunner().invoke(main, args)
         assert r.exit_code == 0, r.output
-        assert "4 tiles of 100 m + 40 m buffer" in r.output
+        assert "4 tiles of 70 m + 28 m buffer" in r.output
         outs.append(out.read_bytes())
     assert outs[0] == outs[1] == outs[2]
 
@@ -191,7 +191,7 @@ def test_same_bytes_for_synchronous_threads_and_local_cluster(small):
 def test_las12_input_with_crs_option_tiled(small, tmp_path):
     out = tmp_path / "o.las"
     r = CliRunner().invoke(main, ["classify", str(small / "v12.las"), str(out), "--crs", "EPSG:32632",
-                                  "--tile-size-m", "100", "--buffer-m", "40", "--scheduler", "synchronous"])
+                                  "--tile-size-m", "70", "--buffer-m", "28", "--scheduler", "synchronous"])
     assert r.exit_code == 0, r.output
     src, res = laspy.read(small / "v12.las"), laspy.read(out)
     assert res.header.version == src.header.version and res.header.point_format.id == 1
@@ -215,7 +215,7 @@ def test_bad_input_in_tiled_mode_gives_exit_2_and_no_output(small, tmp_path):
     cloud = io.read_cloud(d / "in.laz")
     cloud.z[len(cloud) - 5] = 1.0e6                                 # late record: found in pass 1
     synthetic.write_las(tmp_path / "absurd.las", cloud, crs="EPSG:32632")
-    tiled = ["--tile-size-m", "100", "--buffer-m", "40"]
+    tiled = ["--tile-size-m", "70", "--buffer-m", "28"]
     _fails(["classify", str(tmp_path / "absurd.las"), str(out), *tiled], out, f"record {len(cloud) - 5}")
     cloud.z[len(cloud) - 5] = 100.0
     cloud.x[7] = np.nan                              # the writer's x offset (floor of the minimum) is NaN
@@ -238,7 +238,7 @@ def test_interrupt_during_tasks_leaves_no_output(small, tmp_path, monkeypatch):
 
     monkeypatch.setattr(tiles, "classify_tile", interrupted)
     with Executor("synchronous") as ex, pytest.raises(KeyboardInterrupt):
-        tiles.classify_file(small / "in.laz", out, tile_size_m=100.0, buffer_m=40.0, executor=ex)
+        tiles.classify_file(small / "in.laz", out, tile_size_m=70.0, buffer_m=28.0, executor=ex)
     assert calls and not out.exists()
     assert not list(tmp_path.iterdir())
 
