@@ -538,6 +538,10 @@ def _classify_tile(task: TileTask) -> TileResult:
             if task.frame is not None and task.frame.ground_noise_m is not None and kept.exists():
                 code_ground = np.load(kept)
                 found = (code_ground[:, 0].copy(), code_ground[:, 1].astype(bool))
+                offsets = Path(_plane_offsets_path(task))
+                if offsets.exists():  # the lifted-ground test's plane offsets of that ground (dz, spread)
+                    dz_spread = np.load(offsets)
+                    found += ((dz_spread[:, 0].copy(), dz_spread[:, 1].copy()),)
             classes = cl.classify_points(x, y, z, rn, nr, intensity, params=task.params, fusion=task.fusion,
                                          water_grid=water_grid, frame=task.frame, bare_earth=found)[core]
     else:
@@ -589,7 +593,9 @@ def core_ground_residuals(task: TileTask, *, figure: str) -> tuple[int, float, f
                 with atomic_path(_bare_earth_path(task)) as tmp:
                     np.save(tmp, np.column_stack([code, is_ground]).astype(np.uint8))
                 ground = np.flatnonzero(is_ground)
-                dz, _ = cl.ground_plane_offsets(x, y, z, ground, spacing_m)
+                dz, spread = cl.ground_plane_offsets(x, y, z, ground, spacing_m)
+                with atomic_path(_plane_offsets_path(task)) as tmp:  # classify_tile's lifted-ground test takes them
+                    np.save(tmp, np.column_stack([dz, spread]))
                 dz = dz[core[ground]]   # the core's ground points (their neighbours from the window)
                 res = np.abs(dz[np.isfinite(dz)])
     with atomic_path(_residuals_path(task)) as tmp:
@@ -599,6 +605,10 @@ def core_ground_residuals(task: TileTask, *, figure: str) -> tuple[int, float, f
 
 def _bare_earth_path(task: TileTask) -> str:
     return task.classes_path.removesuffix(".classes.npy") + ".bare_earth.npy"
+
+
+def _plane_offsets_path(task: TileTask) -> str:
+    return task.classes_path.removesuffix(".classes.npy") + ".plane_offsets.npy"
 
 
 def _residuals_path(task: TileTask) -> str:

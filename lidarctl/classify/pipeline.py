@@ -593,7 +593,8 @@ def _ground_plane_chunks(x, y, z, gi, spacing_m: float, k: int):
 
 
 def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, intercepted=None,
-                  k: int = 12, judge_single: bool = True, sigma_m: float | None = None) -> np.ndarray:
+                  k: int = 12, judge_single: bool = True, sigma_m: float | None = None,
+                  offsets: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Ground points standing clear of the local ground surface under something that intercepted
     part of their pulse (mask over all points).
 
@@ -610,13 +611,14 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, in
     strips, 4-9 cm apart, lost 0.3 % of their ground that way), and that plane's residuals hold
     the offset. ``intercepted`` None: no point is judged. ``sigma_m``: the range noise (m) of a larger cloud these
     points are part of (a tile's window: the whole cloud's, ``tiles.cloud_noise``; None: of these points).
-    0 or a negative ``lift_sigma`` disables the test.
+    ``offsets``: ``ground_plane_offsets(x, y, z, flatnonzero(is_ground), spacing_m, k)`` when already computed
+    (``tiles.cloud_noise`` keeps them). 0 or a negative ``lift_sigma`` disables the test.
     """
     out = np.zeros(len(x), bool)
     gi = np.flatnonzero(is_ground)
     if lift_sigma <= 0 or intercepted is None or len(gi) < 4 * k or not (judge_single or np.any(intercepted[gi])):
         return out
-    dz, spread = ground_plane_offsets(x, y, z, gi, spacing_m, k)
+    dz, spread = offsets if offsets is not None else ground_plane_offsets(x, y, z, gi, spacing_m, k)
     ok = np.isfinite(dz)
     if ok.sum() < 4 * k:
         return out
@@ -2760,7 +2762,7 @@ def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: Classi
 def classify_points(x, y, z, return_number=None, number_of_returns=None, intensity=None,
                     *, params: ClassifySettings | None = None, fusion=None,
                     water_grid: WaterGrid | None = None, frame: grid.CloudFrame | None = None,
-                    bare_earth: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                    bare_earth: tuple | None = None) -> np.ndarray:
     """ASPRS class per point (uint8). Arrays are per point; heights in metres. ``fusion``
     (``lidarctl.classify.fusion.Fusion``): the orthophoto's rules applied last (roads, grass/tree, building check).
     ``water_grid``: for a tile of a larger cloud, the whole cloud's water grid (``WaterGrid``; None: this cloud's).
@@ -2768,7 +2770,9 @@ def classify_points(x, y, z, return_number=None, number_of_returns=None, intensi
     (``grid.CloudFrame``; None: this cloud's): every grid is then on the whole cloud's cells, every cell size from
     its spacing and the ground tolerances from its noise, so that the classes do not depend on the tiling.
     ``bare_earth``: (noise code, ground mask) per point as ``bare_earth`` found them with the same settings and
-    frame (a tile: ``tiles.cloud_noise``; None: found here)."""
+    frame (a tile: ``tiles.cloud_noise``; None: found here), optionally with the ground points' plane offsets and
+    spreads (``ground_plane_offsets`` of that ground mask at the frame's spacing: the lifted-ground test takes them
+    instead of computing them again)."""
     if len(x) < 10:
         raise ValueError("classification needs at least 10 points")
     frame = frame or grid.CloudFrame.of_points(x, y)
@@ -2841,10 +2845,12 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
     """``classify_points`` within ``grid.whole_cloud`` (``found``: its ``bare_earth``)."""
     n = len(x)
     cls = np.full(n, UNCLASSIFIED, np.uint8)
+    offsets = None
     if found is None:
         code, is_ground, last, spacing = _bare_earth(x, y, z, return_number, number_of_returns, p)
     else:
-        code, is_ground = (np.array(a) for a in found)
+        code, is_ground = (np.array(a) for a in found[:2])
+        offsets = found[2] if len(found) > 2 else None
         last, spacing = _last_returns(n, return_number, number_of_returns), grid.cloud_spacing_m(x, y)
     # Ground refinement: last returns of low objects that the filter took for bare earth. They
     # leave the ground class but stay in the DEM (they lie a decimetre or two above it; without
@@ -2855,7 +2861,7 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
     if return_number is not None and number_of_returns is not None:
         intercepted = np.asarray(number_of_returns) > 1
     lifted = lifted_ground(x, y, z, is_ground, spacing, p.ground_lift_sigma, intercepted=intercepted,
-                           judge_single=p.ground_lift_single, sigma_m=ground_noise)
+                           judge_single=p.ground_lift_single, sigma_m=ground_noise, offsets=offsets)
     c = p.cell_m or max(0.5, 2.0 * spacing)
     x0, y0 = grid.origin(x, y, c)
     ncols = int(np.floor((x.max() - x0) / c)) + 1
