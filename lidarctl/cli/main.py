@@ -462,7 +462,8 @@ def hydro_flatten(*, dem_path, out_path, water_path, water_layer, **_settings):
 @click.argument("out_path", type=click.Path(dir_okay=False))
 @click.option("--interval-m", type=positive(), required=True,
               help="Contour interval (m), traced in the DEM's height unit: 0.3048 gives 1 ft on a DEM in feet "
-                   "(0.3048006096 in US survey feet); levels at its whole multiples.")
+                   "(international or US survey: an interval within 10 ppm of a whole number of feet is that "
+                   "number); levels at its whole multiples.")
 @click.option("--index", "index_every", type=click.IntRange(min=0), default=5, show_default=True,
               help="Every N-th level is an index contour (0: none).")
 @click.option("--smooth", "smoothing", type=click.Choice(["none", "bspline", "tension"]), default="none",

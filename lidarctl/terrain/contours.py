@@ -364,12 +364,36 @@ class ContoursResult:
     files: tuple[str, ...]
 
 
+# An interval within this share of a whole unit (or of a half, quarter, fifth or tenth of one) of a DEM in feet is
+# that: 0.3048 m (the international foot) on a DEM in US survey feet is 0.999998 ft, and its levels were traced at
+# 1353.997292 ft where 1354 was meant (trial-us).
+WHOLE_UNIT_SHARE = 1e-5
+
+
+def whole_unit_interval(interval_m: float, unit_m: float) -> float:
+    """The contour interval in the DEM's height unit (``unit_m`` metres): ``length_in_units``, snapped to a whole
+    number of units (or 1/2, 1/4, 1/5, 1/10 of one) within ``WHOLE_UNIT_SHARE`` of it when the unit is not the metre
+    (the foot meant, given in the other foot's metres), said in the log."""
+    from aerotri.geom.crs.definition import length_in_units, length_unit_name
+
+    interval = length_in_units(interval_m, unit_m)
+    if unit_m == 1.0:
+        return interval
+    for den in (1, 2, 4, 5, 10):
+        whole = round(interval * den) / den
+        if whole > 0 and whole != interval and abs(interval - whole) <= WHOLE_UNIT_SHARE * whole:
+            log.info(f"contour interval {interval_m:g} m is {interval:.7g} {length_unit_name(unit_m)}: taken as "
+                     f"{whole:g} {length_unit_name(unit_m)}")
+            return whole
+    return interval
+
+
 def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: int = 5, smoothing: str = "none",
                        tolerance_px: float = 0.5, tension: float = 1.0, png: bool = True) -> ContoursResult:
     """Trace (and smooth) the contours of a DEM GeoTIFF into a GeoPackage/GeoJSON (+ a PNG preview beside it);
     ``interval_m`` in metres, traced in the DEM's height unit (its CRS's: 0.3048 m is 1 ft on a DEM in feet).
     Returns the summary (counts, fall-backs, crossings, the interval in the DEM's unit and that unit)."""
-    from aerotri.geom.crs.definition import length_in_units, length_unit_name, linear_unit_m, unit_name
+    from aerotri.geom.crs.definition import length_unit_name, linear_unit_m, unit_name
     from aerotri.core.vector_files import refuse_foreign_layers
     from lidarctl.terrain.dem_io import open_dem
 
@@ -379,7 +403,7 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
     dem_path, out_path = Path(dem_path), Path(out_path)
     refuse_foreign_layers(out_path, ("contours",), "lidarctl contours")
     src, z_m = open_dem(dem_path, out_path)
-    interval = length_in_units(interval_m, z_m)
+    interval = whole_unit_interval(interval_m, z_m)
     with src:
         # contours are lines over the whole DEM: it is read whole (a 10 x 10 km DEM at 1 m is 400 MB in float32)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)

@@ -168,6 +168,31 @@ def test_feet_dem_levels_at_whole_feet(tmp_path):
     assert all(c.level * 2 == round(c.level * 2) for c in cs)
 
 
+def test_the_international_feet_metres_on_a_us_survey_feet_dem_give_whole_feet(tmp_path):
+    """trial-us 4: --interval-m 0.3048 (the help's example) on a DEM in US survey feet traced levels every 0.999998
+    ft (1353.997292 where 1354 was meant); within 10 ppm of a whole number of feet the interval is that number."""
+    from pyogrio.raw import read
+
+    from lidarctl.terrain.contours import whole_unit_interval
+
+    z, t = _dem(nodata_band=False)
+    z_ft = 406.3 + (z - np.nanmin(z)) * (434.9 - 406.3) / (np.nanmax(z) - np.nanmin(z))
+    dem = tmp_path / "dem_usft.tif"
+    with rasterio.open(dem, "w", driver="GTiff", width=z_ft.shape[1], height=z_ft.shape[0], count=1,
+                       dtype="float32", crs="EPSG:2286", transform=t, nodata=-9999.0) as d:  # Washington S, US ft
+        d.write(z_ft.astype("float32"), 1)
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c.gpkg"), "--interval-m", "0.3048",
+                                  "--no-png"])
+    assert r.exit_code == 0, r.output
+    meta, _, _, fields = read(tmp_path / "c.gpkg", layer="contours")
+    assert set(np.unique(fields[list(meta["fields"]).index("elevation")])) == set(np.arange(407.0, 435.0))
+    us_ft, ft = 1200.0 / 3937.0, 0.3048
+    assert whole_unit_interval(ft, us_ft) == 1.0 and whole_unit_interval(us_ft, ft) == 1.0
+    assert whole_unit_interval(2 * ft, us_ft) == 2.0 and whole_unit_interval(0.1524, us_ft) == 0.5
+    assert whole_unit_interval(0.3, ft) == pytest.approx(0.3 / ft)        # 0.98 ft: meant as it is
+    assert whole_unit_interval(0.3048, 1.0) == 0.3048                     # a metre DEM keeps its metres
+
+
 def test_interval_too_fine_for_the_data_is_refused_fast(tmp_path):
     """A millimetre interval would make millions of lines' vertices (the command hung): refused from the data
     before any tracing, naming the option and the smallest interval that fits, exit 2, nothing written."""
