@@ -1038,6 +1038,9 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         else:
             hd_text = height_datum_text(hd, height_limit_m)
             height_datum_weak = True
+    held_pp = getattr(r, "held_pp", None)
+    if held_pp is not None and held_pp.rejected:
+        weaknesses.append(held_pp.text())
     if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
         weaknesses.append(f"{n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and "

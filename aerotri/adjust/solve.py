@@ -18,6 +18,7 @@ from aerotri.core.errors import SolveError
 from aerotri.adjust.check_points import intersect_with_covariance
 from aerotri.adjust.cpp_output import counting
 from aerotri.adjust import surface_bias as sb
+from aerotri.adjust.held_calibration import held_principal_point
 from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.determinability import pp_gnss_names_offset
 from aerotri.adjust.geometry_modes import geometry_modes
@@ -79,6 +80,9 @@ class AdjustmentResult:
     # height_datum.HeightDatumCheck: the height control the data snooping left in against the GNSS heights (None: no
     # height control left out, or no GNSS)
     height_datum: object | None = None
+    # held_calibration.HeldPrincipalPoint: the principal point held at camera.toml's value against the images (None:
+    # estimated, or no covariances computed)
+    held_pp: object | None = None
 
 
 def adjust_block(block: G.Block, opts: G.SolveSettings, state0: G.State, **kwargs) -> AdjustmentResult:
@@ -269,6 +273,9 @@ def _adjust_block(
         if snoop(state, rnd) == 0:
             break
     sigma0 = float(np.sqrt(info.chi2 / info.dof)) if info.dof > 0 else float("nan")
+    # the principal point held at camera.toml's value tested against the images (trial-cam: a sign flipped on a
+    # small block was absorbed into the frames' kappa, "Solution Successful")
+    held_pp = held_principal_point(block, opts, state, info, obs_active, control_active) if compute_marginals else None
 
     pose_cov = point_cov = cal_cov = marg = bias = None
     components, factors, geometry, calibration = None, None, None, None
@@ -352,7 +359,7 @@ def _adjust_block(
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
         iterations, timings, stats, use, components, factors, block, opts, geometry, calibration, surface_bias=bias,
-        height_datum=height_datum,
+        height_datum=height_datum, held_pp=held_pp,
     )
 
 
