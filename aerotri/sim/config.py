@@ -103,11 +103,22 @@ class PresetCamera:
     height: int = setting(min=16, max=30000, help="frame height in pixels")
     ppx_mm: float = setting(help="principal point offset, x right (camera.toml has none)")
     ppy_mm: float = setting(help="principal point offset, y up")
-    k1: float = setting(help="Brown radial coefficient (r in mm)")
+    k1: float = setting(help="Brown radial coefficient (normalised image coordinates x / f, as camera.toml's)")
     k2: float = setting(help="Brown radial coefficient")
     k3: float = setting(help="Brown radial coefficient")
     p1: float = setting(help="Brown tangential coefficient")
     p2: float = setting(help="Brown tangential coefficient")
+
+    def __post_init__(self):
+        # the frames have square pixels of sensor_width_mm / width: a sensor height that does not match was ignored by
+        # the camera and used by the flight plan (trial-cam F6)
+        along_um = 1000.0 * self.sensor_height_mm / self.height
+        across_um = 1000.0 * self.sensor_width_mm / self.width
+        if abs(along_um - across_um) > 0.005 * across_um:
+            raise ValueError(f"sensor_height_mm = {self.sensor_height_mm:g} over height = {self.height} px is "
+                             f"{along_um:.4g} um a pixel, sensor_width_mm = {self.sensor_width_mm:g} over width = "
+                             f"{self.width} px {across_um:.4g} um: expected square pixels (sensor_height_mm = "
+                             f"{self.height * across_um / 1000.0:.6g})")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

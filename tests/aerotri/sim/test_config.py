@@ -55,6 +55,7 @@ def test_preset_is_typed_and_checked(tmp_path):
     ("lidar.format=\"xyz\"", r"\[lidar\] format = 'xyz': expected one of las, laz"),
     ("render.bits=16", r"\[render\] bits = 16: expected one of 8, 12"),
     ("render.tile_px=100", r"\[render\]: tile_px must be a multiple of 32"),
+    ("camera.sensor_height_mm=40.0", r"\[camera\]: sensor_height_mm = 40 over height = .* expected square pixels"),
     ("scene.building_height_m=[50.0, 5.0]", r"\[scene\] building_height_m = \[50.0, 5.0\]: expected \[min, max\]"),
     ("lidar.height_above_ground_m=150.0", r"\[lidar\] height_above_ground_m = 150.0: does not clear the terrain"),
 ])
