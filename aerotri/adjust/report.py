@@ -889,10 +889,16 @@ def gnss_misfit_note(ba) -> str | None:
     focal = ("the camera's focal length (held fixed: with GNSS over flat ground the block's heights follow it; "
              "adjust with --self-cal focal,pp,radial, or give the calibrated value)" if "focal" not in cal else
              "the camera")
+    # a certificate's lens entered in another convention misfits the GNSS too (trial-cam F2: distortion coefficients
+    # on r in mm, or a correction's sign, were blamed on the focal length, a lever arm or the GNSS heights)
+    lens = [] if "radial" in cal else ["the lens distortion held (camera.toml's k1, k2 on normalised coordinates x / f "
+                                       "as a distortion, not mm-based and not a correction)"]
+    if "pp" not in cal:
+        lens.append("the principal point held (photo coordinates, y up)")
     return (f"GNSS misfit: the GNSS residuals are {g:.1f} times their stated sigmas (variance component; the images' "
             f"{i if i is not None else float('nan'):.2f}): the orientations' and points' sigmas are too small, and "
-            f"something the solve holds is wrong: {focal}, a lever arm, the GNSS heights' unit or datum, or the GNSS "
-            "sigmas ([gnss] sigma_xy_m, sigma_z_m).")
+            f"something the solve holds is wrong: {focal}, {', '.join([*lens, ''])}a lever arm, the GNSS heights' "
+            "unit or datum, or the GNSS sigmas ([gnss] sigma_xy_m, sigma_z_m).")
 
 
 def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, tolerances: str = "",

@@ -90,3 +90,22 @@ def test_a_missing_gnss_file_is_said_when_the_project_sets_up_gnss(tmp_path, cap
     with caplog.at_level("WARNING", logger="aerotri.adjust.pipeline"):
         run_adjustment(root, AdjustSettings(image_sigma_px=0.3), html=False)
     assert any("gnss.txt: not found, though" in m and "[gnss]" in m for m in caplog.messages), caplog.messages
+
+
+@pytest.mark.parametrize("self_cal, named", [((), ("lens distortion held", "principal point held")),
+                                             (("pp", "radial"), ()), (("pp",), ("lens distortion held",))])
+def test_the_misfit_names_the_lens_and_principal_point_when_they_are_held(self_cal, named):
+    """trial-cam F2: distortion coefficients on r in mm (or with a correction's sign) misfit the GNSS 17 m; the
+    weakness named the focal length, a lever arm and the GNSS heights, never the lens or the principal point."""
+    from types import SimpleNamespace
+
+    from aerotri.adjust.report import gnss_misfit_note
+
+    comps = [SimpleNamespace(group="gnss", factor=40.0), SimpleNamespace(group="image", factor=1.1)]
+    ba = SimpleNamespace(result=SimpleNamespace(variance_components=comps),
+                         opts=SimpleNamespace(self_calibration=self_cal))
+    note = gnss_misfit_note(ba)
+    assert note.startswith("GNSS misfit: the GNSS residuals are 40.0 times their stated sigmas")
+    for words in ("lens distortion held", "principal point held"):
+        assert (words in note) == (words in named), note
+    assert "a lever arm, the GNSS heights' unit or datum" in note
