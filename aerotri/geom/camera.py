@@ -79,12 +79,12 @@ FOLD_SEARCH_MAX_R = 10.0
 FOLD_SEARCH_STEPS = 4000
 
 
-@functools.lru_cache(maxsize=64)
-def _fold_radius(camera: "Camera") -> float | None:
-    """``Camera.fold_radius``, computed once per camera (a frozen dataclass: cameras equal in every field share it)."""
+def _corner_folds(camera: "Camera"):
+    """Per frame corner (its normalised distance from the principal point, ``norm``): the normalised radius where the
+    lens model's image position along the corner's direction stops growing outwards (None: it grows up to
+    ``FOLD_SEARCH_MAX_R``) and that position there (normalised)."""
     params = camera.kernel_params()
     r = np.linspace(0.0, FOLD_SEARCH_MAX_R, FOLD_SEARCH_STEPS + 1)[1:]
-    turns = []
     for cx, cy in ((0.0, 0.0), (camera.width - 1.0, 0.0), (0.0, camera.height - 1.0),
                    (camera.width - 1.0, camera.height - 1.0)):
         ux, uy = (cx - camera.cx_px) / camera.focal_px, (cy - camera.cy_px) / camera.focal_px
@@ -92,29 +92,24 @@ def _fold_radius(camera: "Camera") -> float | None:
         if norm == 0.0:
             continue
         xd, yd = lens_kernels.distort_points(params, r * ux / norm, r * uy / norm)
-        outwards = xd * ux + yd * uy  # distorted position along the corner's direction
+        outwards = (xd * ux + yd * uy) / norm  # distorted position along the corner's direction
         turn = np.flatnonzero(np.diff(outwards) <= 0.0)
-        if turn.size:
-            turns.append(float(r[turn[0]]))
+        yield norm, (float(r[turn[0]]), float(outwards[turn[0]])) if turn.size else (None, None)
+
+
+@functools.lru_cache(maxsize=64)
+def _fold_radius(camera: "Camera") -> float | None:
+    """``Camera.fold_radius``, computed once per camera (a frozen dataclass: cameras equal in every field share it)."""
+    turns = [fold for _, (fold, _) in _corner_folds(camera) if fold is not None]
     return min(turns) if turns else None
 
 
 def _fold_inside_frame(camera: "Camera") -> tuple[float, float] | None:
     """(the angle off the axis where the lens model turns back, the frame corner's angle), deg, for the first corner
     direction the model cannot reach (the distorted position at the fold short of the corner), else None."""
-    params = camera.kernel_params()
-    r = np.linspace(0.0, FOLD_SEARCH_MAX_R, FOLD_SEARCH_STEPS + 1)[1:]
-    for cx, cy in ((0.0, 0.0), (camera.width - 1.0, 0.0), (0.0, camera.height - 1.0),
-                   (camera.width - 1.0, camera.height - 1.0)):
-        ux, uy = (cx - camera.cx_px) / camera.focal_px, (cy - camera.cy_px) / camera.focal_px
-        norm = math.hypot(ux, uy)
-        if norm == 0.0:
-            continue
-        xd, yd = lens_kernels.distort_points(params, r * ux / norm, r * uy / norm)
-        outwards = (xd * ux + yd * uy) / norm
-        turn = np.flatnonzero(np.diff(outwards) <= 0.0)
-        if turn.size and outwards[turn[0]] < norm:
-            return math.degrees(math.atan(r[turn[0]])), math.degrees(math.atan(norm))
+    for norm, (fold, reach) in _corner_folds(camera):
+        if fold is not None and reach < norm:
+            return math.degrees(math.atan(fold)), math.degrees(math.atan(norm))
     return None
 
 
