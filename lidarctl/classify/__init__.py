@@ -18,8 +18,11 @@
 # own cells and rim aside: a roof ring round a yard at street level is no bank); 12: level-wire (the whole cloud's level
 # bodies found tile by tile inside the tiles' run, the same bodies; ``water_whole_level_bodies`` on by default: a
 # lake larger than a tile judged whole; with it off, classes as in 9).
+# 13: trial-us (small groups of returns standing more than 50 m above every other return of a 3 x 3 window are high
+# noise: birds, clouds; a river's long profile compares each step with those two or more upstream; water returns beside
+# a deck count as water for ``spanning_decks``; no class changed on ISPRS, AHN3 Delft, Topography, MixedConifer, Autzen).
 # sunken-ground's sink test (``ground_sink_sigma``) is off by default: classes unchanged by it.
-RULES_VERSION = 12
+RULES_VERSION = 13
 
 # The versions whose changes decide classes only with a setting on (version -> the setting's name): a run with that
 # setting off keeps the version before them (``rules_version``), so its kept tiles and its stage stay up to date

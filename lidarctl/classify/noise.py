@@ -19,6 +19,12 @@ Methods
   interpolated from the large components, with no coherent terrain at their height within 50 m,
   are low clusters too. Later passes peel the next layer around what the previous pass flagged.
 * High outliers: the mirrored test, with a larger gap (``high_gap_m``).
+* High outlier clusters (birds, low clouds, smoke: a few returns that support each other in the gap
+  test): in the window of 3 x 3 cells of ``high_cluster_radius_m`` around a cell, the heights sorted
+  from the top; at most ``high_cluster_max_points`` returns standing more than ``high_cluster_gap_m``
+  above the next return below them in that window are noise. The gap is larger than a canopy's layers
+  (a crown base is rarely more than ~40 m up, and a crown holds more returns), and any real structure
+  that high (mast, chimney, pylon, bridge) returns points down its height within the window.
 
 Only the few lowest/highest points of each grid cell can fail the gap test, so only those are
 tested (numba loop over sorted cells, early exit on the z order).
@@ -57,6 +63,13 @@ class NoiseSettings:
                                                        "point spacing).")
     cluster_max_cells: int = setting(400, min=1, help="Low clusters of at most this many cells are noise.")
     cluster_passes: int = setting(3, min=0, help="Passes of the low cluster test.")
+    high_cluster_gap_m: float = setting(50.0, min=0.0, help="High clusters: a small group of returns standing more than "
+                                                            "this above every other return within the window (m); 0: "
+                                                            "no high cluster test.")
+    high_cluster_max_points: int = setting(20, min=1, help="High clusters of at most this many returns in the window "
+                                                           "(3 x 3 cells of high_cluster_radius_m) are noise.")
+    high_cluster_radius_m: float = setting(0.0, min=0.0, help="Cell of the high cluster test's 3 x 3 window (m); 0: "
+                                                              "2 x radius_m.")
 
 
 # Half-edge of the isolation cube in voxels (1.5: the volume of the 3 x 3 x 3 voxels it replaced).
@@ -218,6 +231,60 @@ def high_outliers(x, y, z, radius_m: float, gap_m: float = 10.0, slope: float = 
     return _gap_outliers(x, y, z, radius_m, gap_m, slope, per_cell=candidates_per_cell, sign=-1.0)
 
 
+@numba.njit(cache=True)
+def _high_cluster_floor(zs, cell_start, occupied, nrows, ncols, gap_m, max_points):
+    """Per occupied cell: the lowest height of a group of at most ``max_points`` returns standing more than
+    ``gap_m`` above every other return of the cell's 3 x 3 window (inf: none). ``zs``: heights in cell order,
+    each cell's returns from the highest down."""
+    out = np.full(len(occupied), np.inf)
+    top = np.empty(9 * (max_points + 1))
+    for k in range(len(occupied)):
+        c = occupied[k]
+        ci = c // ncols
+        cj = c - ci * ncols
+        m = 0
+        for di in range(-1, 2):
+            ii = ci + di
+            if ii < 0 or ii >= nrows:
+                continue
+            for dj in range(-1, 2):
+                jj = cj + dj
+                if jj < 0 or jj >= ncols:
+                    continue
+                cc = ii * ncols + jj
+                # a cell's highest max_points + 1 returns: the window's highest max_points + 1 are among them
+                for t in range(cell_start[cc], min(cell_start[cc + 1], cell_start[cc] + max_points + 1)):
+                    top[m] = zs[t]
+                    m += 1
+        w = -np.sort(-top[:m])
+        for i in range(min(m - 1, max_points)):
+            if w[i] - w[i + 1] > gap_m:
+                out[k] = w[i]
+    return out
+
+
+def high_clusters(x, y, z, window_cell_m: float, gap_m: float = 50.0, max_points: int = 20) -> np.ndarray:
+    """Boolean mask of small groups of returns (birds, clouds) standing far above everything around them.
+
+    For every cell of ``window_cell_m`` the heights of its 3 x 3 window are sorted from the top; when at
+    most ``max_points`` returns lie above a gap of more than ``gap_m`` to the next return below, the cell's
+    returns above that gap are noise. Such a group supports itself in the single-point gap test
+    (``high_outliers``); no canopy layer or structure leaves so large an empty height band within the window.
+    """
+    x, y, z = (np.asarray(a, float) for a in (x, y, z))
+    mask = np.zeros(len(x), bool)
+    if len(x) < 2 or gap_m <= 0:
+        return mask
+    cell, nrows, ncols, _, _ = grid.cell_ids(x, y, window_cell_m)
+    order = np.lexsort((-z, cell))
+    cell_start = np.r_[0, np.cumsum(np.bincount(cell, minlength=nrows * ncols))]
+    occupied = np.flatnonzero(np.diff(cell_start) > 0)
+    floor = _high_cluster_floor(z[order], cell_start, occupied, nrows, ncols, float(gap_m), int(max_points))
+    cell_floor = np.full(nrows * ncols, np.inf)
+    cell_floor[occupied] = floor
+    return z >= cell_floor[cell]
+
+
 def low_clusters(x, y, z, cell_m: float, gap_m: float = 1.0, slope: float = 1.2,
                  *, max_cells: int = 400, ring_m: float = 50.0, ring_slope: float = 0.3,
                  patch_max_m2: float = 40.0) -> np.ndarray:
@@ -305,7 +372,8 @@ def detect_noise(x, y, z, params: NoiseSettings | None = None) -> np.ndarray:
     """Noise code per point: 0 clean, 1 isolated, 2 low outlier, 3 high outlier.
 
     Low outliers are tested twice: a first pass removes single blunders, the second catches
-    pairs that only supported each other through a blunder.
+    pairs that only supported each other through a blunder. High outliers: single points, then
+    small clusters (``high_clusters``).
     """
     p = params or NoiseSettings()
     spacing = grid.cloud_spacing_m(x, y)
@@ -336,4 +404,9 @@ def detect_noise(x, y, z, params: NoiseSettings | None = None) -> np.ndarray:
     high = high_outliers(x[keep], y[keep], z[keep], radius, p.high_gap_m, p.slope,
                          candidates_per_cell=p.candidates_per_cell)
     code[keep[high]] = HIGH
+    if p.high_cluster_gap_m > 0:
+        keep = keep[~high]
+        high = high_clusters(x[keep], y[keep], z[keep], p.high_cluster_radius_m or 2.0 * radius,
+                             p.high_cluster_gap_m, p.high_cluster_max_points)
+        code[keep[high]] = HIGH
     return code

@@ -112,6 +112,7 @@ Pipeline (``classify_points``):
 from __future__ import annotations
 
 import dataclasses
+import logging
 from typing import ClassVar
 
 import numba
@@ -127,6 +128,12 @@ from lidarctl.classify import ground as ground_mod
 from lidarctl.classify import noise as noise_mod
 from lidarctl.knn import QUERY_CHUNK, BucketGrid
 from lidarctl.raster_ops import fill_nodata, plane_rms, reduce_grid, rimmed_dropouts, sample_bilinear, slope_tan
+
+log = logging.getLogger(__name__)
+
+# A candidate water body at least this large (m2) that is judged no water is said in the log, with the test it
+# failed and its numbers against the limit (a river or lake lost silently was trial-us's finding 2).
+WATER_REJECT_LOG_M2 = 2500.0
 
 UNCLASSIFIED, GROUND, LOW_VEG, MED_VEG, HIGH_VEG, BUILDING, LOW_NOISE, WATER, HIGH_NOISE = 1, 2, 3, 4, 5, 6, 7, 9, 18
 BRIDGE_DECK = 17
@@ -1089,7 +1096,9 @@ def falls_along_course(lev: np.ndarray, ok: np.ndarray, occupied: np.ndarray, to
     lowest projection), so a bend is followed round; when some levelled reach is not connected to that end through
     returns, its projection on the principal axis. A river's cross-section is level, its long profile falls: the
     profile is the median level of the reaches in each one-reach step of the course, and it must be
-    non-increasing to ``tol_m`` one way (no step stands more than ``tol_m`` above a step upstream of it).
+    non-increasing to ``tol_m`` one way (no step stands more than ``tol_m`` above a step two or more upstream of it:
+    a reach's place on the course is known to one reach, so neighbouring steps' medians at a riffle depend on where
+    the grid cuts it; trial-us: Autzen's river turned to UTM rose 0.2045 m between two neighbouring steps).
     A surface that rises and falls (an undulating field) fails; so does a meander folded back on its
     principal axis far enough that both its ends lie at the low end (a missed river, not a false one)."""
     rr, cc = np.nonzero(ok)
@@ -1120,8 +1129,13 @@ def falls_along_course(lev: np.ndarray, ok: np.ndarray, occupied: np.ndarray, to
         t = along
     step = np.floor(t - t.min()).astype(np.int64)
     profile = np.array([np.median(lev[rr, cc][step == k]) for k in np.unique(step)])
-    rise_down = float(np.max(profile - np.minimum.accumulate(profile)))
-    rise_up = float(np.max(np.maximum.accumulate(profile) - profile))
+    if len(profile) < 3:
+        return True
+    # A step is compared with the steps at least two upstream of it: neighbouring steps' reaches may lie at
+    # nearly the same place on the course (the course coordinate of a reach is known to one reach), so their
+    # medians differ with where the reach grid cuts a riffle, not with the river's fall.
+    rise_down = float(np.max(profile[2:] - np.minimum.accumulate(profile)[:-2]))
+    rise_up = float(np.max(np.maximum.accumulate(profile)[:-2] - profile[2:]))
     return min(rise_down, rise_up) <= tol_m
 
 
@@ -2127,6 +2141,8 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
     lab_c = lab_pt[cand]
     starts = np.flatnonzero(np.r_[True, lab_c[1:] != lab_c[:-1]])
     tol = p.water_level_tol_m
+    why = {}   # gap -> why it is no water (``WATER_REJECT_LOG_M2``)
+
     def judge(members, k, level, sigma_m, surface):
         """The water returns of gap ``k`` (its ``members``) at one ``level`` (``surface`` None) or on the sloping
         ``surface`` (m at each member; ``level`` the gap's one level), or None when the gap is not water."""
@@ -2149,15 +2165,19 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
         # ``low_veg_max_m`` above the level within one cell) are not water.
         on_level = on_level[open_sky(on_level, level_z[on] if level_of is not None else level)]
         if len(on_level) < p.water_min_points:
+            why[k] = f"{len(on_level)} returns on its level under open sky, {p.water_min_points} needed"
             return None
         # Horizontal: least-squares plane through the level returns.
         a = np.column_stack([x[on_level] - x[on_level].mean(), y[on_level] - y[on_level].mean(),
                              np.ones(len(on_level))])
         coef = np.linalg.lstsq(a, z[on_level], rcond=None)[0]
         if np.hypot(coef[0], coef[1]) > p.water_max_slope:
+            why[k] = f"its level returns slope {np.hypot(coef[0], coef[1]):.4f}, at most {p.water_max_slope} allowed"
             return None
         if use_intensity and np.percentile(inten[on_level], 25) \
                 >= p.water_intensity_ratio * ground_intensity:
+            why[k] = (f"its returns are not dark (quartile intensity {np.percentile(inten[on_level], 25):.0f}, "
+                      f"below {p.water_intensity_ratio * ground_intensity:.0f} needed)")
             return None
         # The region's bounding box, padded for the rim and the shore (whole-grid work per region
         # would cost O(regions x cells)).
@@ -2167,6 +2187,8 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
         region = labels[win] == k
         rim = g.rim(win, region)
         if rim.any() and building_cell[win][rim].mean() > p.water_shadow_fraction:
+            why[k] = (f"{building_cell[win][rim].mean():.0%} of its rim is building (a shadow), at most "
+                      f"{p.water_shadow_fraction:.0%} allowed")
             return None
         # Water lies in its bed: the ground on the banks is not below the water level.
         bank_z = ground_cell_z[win][rim]
@@ -2180,10 +2202,13 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
                                                            g.y0 + (rr + r0 + 0.5) * c) + level
         bank_z = bank_z[np.isfinite(bank_z)]
         if len(bank_z) and np.median(bank_z) < level - tol:
+            why[k] = f"its banks lie {level - np.median(bank_z):.2f} m below its level (median)"
             return None
         # A sloping surface is a river only in a bed: most of its banks stand more than the tolerance above the
         # level beside them (a car park or road draining at 1 % lies level with, or above, its surroundings).
         if level_of is not None and (not len(bank_z) or np.mean(bank_z > level + tol) < 0.5):
+            why[k] = (f"on its sloping surface {np.mean(bank_z > level + tol) if len(bank_z) else 0:.0%} of its "
+                      f"banks stand above the level beside them, 50 % needed")
             return None
         # Shore: the 3x3 dropout window misses the water returns next to the banks; returns within
         # ``water_shore_m`` of the body at its level join when they are dark too.
@@ -2230,12 +2255,19 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
                 if n_surface >= p.water_min_points and n_surface >= p.water_flat_fraction * len(zg) and \
                         (not one_level or n_surface - n_level > 0.5 * (len(zg) - n_level)):
                     tries.insert(0, surface)
+        if not tries:
+            why[k] = (f"one level holds {n_level / len(zg):.1%} of its {len(zg):,} returns ({p.water_flat_fraction:.0%} "
+                      "needed) and no sloping water surface fits them")
         for surface in tries:
             found = judge(members, k, level, sigma_m, surface)
             if found is not None:
                 water[found[0]] = True
                 water[found[1]] = True
                 break
+        else:
+            if area_m2[k] >= WATER_REJECT_LOG_M2:
+                log.info("a candidate water body of %.0f m2 (a dropout gap, level %.2f m) is no water: %s", area_m2[k],
+                         level, why.get(k, "no test passed"))
     return water
 
 
@@ -2370,6 +2402,11 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
                 bank = ground_cell_z[win][rim]
                 bank = bank[np.isfinite(bank)]
                 if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
+                    if area[k] >= WATER_REJECT_LOG_M2:
+                        log.info("a level candidate water body of %.0f m2 (level %.2f m) is no water: %.0f %% of the "
+                                 "ground on its rim stands above its level, %.0f %% needed", area[k], level,
+                                 100.0 * np.mean(bank > level + tol) if len(bank) else 0.0,
+                                 100.0 * p.level_water_bank_fraction)
                     continue
             members = np.flatnonzero(candidate & (lab_pt == k))
             members = members[np.abs(z[members] - level) <= tol]
@@ -2684,7 +2721,8 @@ def _walk_hits(mask: np.ndarray, rows: np.ndarray, cols: np.ndarray, step_rc: np
     return hit
 
 
-def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: ClassifySettings) -> np.ndarray:
+def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: ClassifySettings,
+                   is_water=None) -> np.ndarray:
     """Building points that are a bridge deck over water (mask): decks the ground filter left out (a deck
     high over a river is no terrain), which then meet the roof rules (planar, high, single returns).
 
@@ -2694,7 +2732,8 @@ def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: Classi
     ``bridge_max_width_m`` and length at least ``BRIDGE_MIN_ASPECT`` times the width, and at least
     ``bridge_min_deck_m2``; (b) it spans water: at least ``BRIDGE_MIN_OVER_WATER`` of its cells have an
     open-water-sized dropout gap (``dropout_gaps``; the candidates' own cells do not make a gap an
-    occlusion shadow) on both sides across its axis, within its width plus three cells; and (c) it joins
+    occlusion shadow) or water returns (``is_water``: water that returned the pulse) on both sides across its
+    axis, within its width plus three cells; and (c) it joins
     the terrain at an end: the ground within three cells beyond one end of its axis stands less than
     ``building_min_height_m`` below the deck's end (a bridge runs on into its approach; a roof ends in
     walls at least that high). ``bridge_max_width_m`` 0 disables the rule, as it does ``bridge_decks``.
@@ -2728,6 +2767,9 @@ def spanning_decks(x, y, z, is_building, is_ground, g: DropoutGrid, *, p: Classi
     others = g.building_cell & ~np.isin(seg, [cd[0] for cd in cands])
     labels = dropout_gaps(x, y, z, is_ground, dataclasses.replace(g, building_cell=others), p)[0]
     gap = labels > 0
+    if is_water is not None and np.any(is_water):
+        # water that returned the pulse is water beside the deck as much as a dropout gap is
+        gap |= np.bincount(g.flat[is_water], minlength=g.nrows * g.ncols).reshape(g.nrows, g.ncols) > 0
     ground_z = g.ground_cell_z(x, y, z, is_ground)
     b_idx = np.flatnonzero(is_building)
     deck_cells = np.zeros(g.nrows * g.ncols, bool)
@@ -3028,7 +3070,7 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
     cls[level_water(x, y, z, is_ground | (cls == UNCLASSIFIED) | (cls == LOW_VEG), is_ground, spacing, p=p,
                     solid=clean, number_of_returns=number_of_returns, water_grid=water_grid)] = WATER
     cls[bridge_decks(x, y, z, cls == GROUND, is_building, spacing, p=p, dropout=gaps)] = BRIDGE_DECK
-    cls[spanning_decks(x, y, z, cls == BUILDING, cls == GROUND, gaps, p=p)] = BRIDGE_DECK
+    cls[spanning_decks(x, y, z, cls == BUILDING, cls == GROUND, gaps, p=p, is_water=cls == WATER)] = BRIDGE_DECK
     if fusion is not None:
         from lidarctl.classify import fusion as fusion_mod
 

@@ -117,6 +117,30 @@ def test_footbridge_left_out_by_the_ground_filter_is_a_deck_not_a_building():
                                        p=off).any()
 
 
+def test_a_deck_beside_water_that_returned_the_pulse_is_a_deck():
+    """Trial-us (A): the footbridge scene's river, upstream of the deck calm and returning 60 % of the pulses (its
+    returns level water, class 9), downstream 5 % (a dropout gap). The deck spans water on both sides: water that
+    returned the pulse counts beside it as a dropout gap does (was: gap on one side only, under half the deck over
+    water: all of it building; Autzen in UTM 10N lost its footbridge so)."""
+    rng = np.random.default_rng(3)
+    n = 200 * 120 * 4
+    u, v = rng.uniform(0, 200, n), rng.uniform(0, 120, n)
+    z = rng.normal(0, 0.02, n)
+    river = (v > 40) & (v < 70)
+    deck = (np.abs(u - 100) < 2.5) & (v > 35) & (v < 75)
+    d_bank = np.minimum(np.abs(v - 40), np.abs(v - 70))
+    z = np.where(river, -5.0 + rng.normal(0, 0.01, n), z - np.where(d_bank < 5, 5.0 * (1 - d_bank / 5), 0.0))
+    water = river & ~deck & (rng.uniform(size=n) < np.where(u > 102.5, 0.6, 0.05))
+    z = np.where(deck, 0.3 + 2.7 * np.sin(np.pi * np.clip((v - 35) / 40, 0, 1)) + rng.normal(0, 0.02, n), z)
+    z += np.where(deck & (np.abs(u - 100) > 2.3) & (np.arange(n) % 4 == 0), 1.0, 0.0)
+    keep = ~(river & ~deck & ~water)
+    x, y, z, deck, water = u[keep] + X0, v[keep] + Y0, z[keep], deck[keep], water[keep]
+    cls = classify.classify_points(x, y, z)
+    assert np.mean(cls[water] == classify.WATER) > 0.95
+    high = deck & (z > 1.5)
+    assert np.mean(cls[high] == classify.BRIDGE_DECK) > 0.9 and not np.any(cls[deck] == classify.BUILDING)
+
+
 @pytest.mark.realdata
 def test_autzen_footbridge_is_not_a_building(shared_data):
     """The footbridge over the Willamette in the Autzen crop (feet; seen on its 1 ft orthophoto running NNE

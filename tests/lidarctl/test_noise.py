@@ -109,3 +109,34 @@ def test_isolated_points_do_not_depend_on_a_stray_point_or_the_tile():
     tile = x >= x0
     inner = x[tile] >= x0 + 1.5
     np.testing.assert_array_equal(noise.isolated_points(x[tile], y[tile], z[tile], 1.0)[inner], base[tile][inner])
+
+
+def test_high_outlier_clusters_are_removed_tall_mast_kept():
+    """Birds / low clouds: groups of 3-9 returns 0.5-2.5 m apart, 90-120 m above the terrain, support each other in
+    the single-point gap test; the high cluster test flags them all. A 60 m mast (a return every 1.5 m of its
+    height) and a 30 m tree-like column with a 25 m empty band below its crown stay clean."""
+    cloud, truth = _scene(n_low_outliers=0, n_high_outliers=0)
+    rng = np.random.default_rng(7)
+    x0, y0 = cloud.x.min(), cloud.y.min()
+    bx, by, bz = [], [], []
+    for k in range(12):
+        n = int(rng.integers(3, 10))
+        cx, cy = x0 + rng.uniform(10, 140), y0 + rng.uniform(10, 140)
+        h = rng.uniform(90.0, 120.0)
+        bx.append(cx + rng.uniform(-1.5, 1.5, n))
+        by.append(cy + rng.uniform(-1.5, 1.5, n))
+        bz.append(synthetic.terrain_height(cx - x0, cy - y0) + h + rng.uniform(-1.0, 1.0, n))
+    bx, by, bz = np.concatenate(bx), np.concatenate(by), np.concatenate(bz)
+    # a mast: returns every 1.5 m up to 60 m; a crown 30-32 m up over 5 m of bole returns near the ground
+    mz = np.arange(0.0, 60.0, 1.5)
+    mx, my = np.full(len(mz), x0 + 85.0), np.full(len(mz), y0 + 100.0)
+    mz = mz + synthetic.terrain_height(85.0, 100.0)
+    ang = rng.uniform(0, 2 * np.pi, 15)
+    tx = np.r_[x0 + 110 + 2 * np.cos(ang), np.full(3, x0 + 110.0)]
+    ty = np.r_[y0 + 110 + 2 * np.sin(ang), np.full(3, y0 + 110.0)]
+    tz = np.r_[rng.uniform(30.0, 32.0, 15), 1.0, 3.0, 5.0] + synthetic.terrain_height(110.0, 110.0)
+    n0, nb, nm = len(cloud.x), len(bx), len(mx)
+    code = noise.detect_noise(np.r_[cloud.x, bx, mx, tx], np.r_[cloud.y, by, my, ty], np.r_[cloud.z, bz, mz, tz])
+    assert np.all(code[n0:n0 + nb] == noise.HIGH)
+    assert np.all(code[n0 + nb:] == 0)
+    assert np.mean(code[:n0] > 0) < 0.001
