@@ -46,10 +46,10 @@ class HeldPrincipalPoint:
         return self.f_statistic > self.f_limit and float(np.hypot(*self.shift_px)) > PP_MIN_SHIFT_PX
 
     def text(self) -> str:
-        fx, fy = (h + s for h, s in zip(self.held_mm, self.shift_mm))
+        ppx_mm, ppy_mm = (h + s for h, s in zip(self.held_mm, self.shift_mm))
         return (f"The principal point held at camera.toml's ppx_mm = {self.held_mm[0]:g}, ppy_mm = {self.held_mm[1]:g} "
                 f"is not what the images give: estimated, it moves {self.shift_mm[0]:+.4f} / {self.shift_mm[1]:+.4f} mm "
-                f"(x right / y up; {float(np.hypot(*self.shift_px)):.1f} px) to {fx:.4f} / {fy:.4f} mm and sigma0 "
+                f"(x right / y up; {float(np.hypot(*self.shift_px)):.1f} px) to {ppx_mm:.4f} / {ppy_mm:.4f} mm and sigma0 "
                 f"falls from {self.sigma0_held_um:.3f} to {self.sigma0_free_um:.3f} um (F = {self.f_statistic:.1f} > "
                 f"{self.f_limit:.1f}): check the certificate's principal point (photo coordinates, y up; its sign, "
                 "PPA or PBS) or estimate it (self_calibration \"pp\"). Held wrong, it turns the frames and the ground.")
@@ -70,10 +70,10 @@ def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, 
     values, info_free = G.optimize(gr, free)
     if not info_free.dof > 0 or not np.isfinite(info_free.chi2):
         return None
-    freed = G.state_from_values(values, block, free, state, tie=gr.tie)
+    freed_cal = np.asarray(values.atCal3DS2(G.K_KEY).vector(), dtype=float)  # fx fy s u0 v0 ... (px)
     s2 = info_free.chi2 / info_free.dof
     f_stat = max(0.0, info.chi2 - info_free.chi2) / 2.0 / s2
-    shift_px = (float(freed.cal[3] - state.cal[3]), float(freed.cal[4] - state.cal[4]))
+    shift_px = (float(freed_cal[3] - state.cal[3]), float(freed_cal[4] - state.cal[4]))
     pix_mm = block.camera.pixel_um / 1000.0
     um = opts.image_sigma_px * block.camera.pixel_um  # sigma0 (in image sigmas) on the sensor
     test = HeldPrincipalPoint(

@@ -897,7 +897,7 @@ def gnss_misfit_note(ba) -> str | None:
         lens.append("the principal point held (photo coordinates, y up)")
     return (f"GNSS misfit: the GNSS residuals are {g:.1f} times their stated sigmas (variance component; the images' "
             f"{i if i is not None else float('nan'):.2f}): the orientations' and points' sigmas are too small, and "
-            f"something the solve holds is wrong: {focal}, {', '.join([*lens, ''])}a lever arm, the GNSS heights' "
+            f"something the solve holds is wrong: {focal}, {''.join(f'{x}, ' for x in lens)}a lever arm, the GNSS heights' "
             "unit or datum, or the GNSS sigmas ([gnss] sigma_xy_m, sigma_z_m).")
 
 

@@ -347,39 +347,44 @@ def line_map_checks(chk: dict, qa) -> CheckSet | None:
                                         "points", points="building corners")
 
 
-def vegetated(group: str | None) -> bool | None:
-    """A height-check group's land cover: True vegetated (VVA), False not (NVA), None without a group. The name's
-    words (split at anything not a letter) are read: a negated vegetation word ("non-vegetated", "no vegetation")
-    and a word of open ground are not vegetated; a vegetation word is; a name without such words (a terrain class
-    such as "steep") counts as non-vegetated, as before (``unplaced_groups`` names them)."""
-    if not group:
-        return None
-    words = [w for w in re.split(r"[^a-z]+", group.lower()) if w]
-    if words in (["unknown"],):
-        return None
+def _words(group: str) -> list[str]:
+    """A group name's words, lower case, split at anything not a letter."""
+    return [w for w in re.split(r"[^a-z]+", group.lower()) if w]
+
+
+def _land_cover(words: list[str]) -> bool | None:
+    """True: a vegetation word; False: a negated vegetation word ("non-vegetated", "no vegetation"), low grass or a
+    word of open ground; None: no land-cover word (a vegetation word negated by a prefix, "nonforest", without a word
+    of open ground is said as unplaced too)."""
+    open_word = any(w in _NOT_VEGETATED or w in _NEGATIONS or w in _LOW_GRASS for w in words)
     for k, w in enumerate(words):
         if w in _NEGATIONS and k + 1 < len(words) and words[k + 1] in _VEGETATED:
             return False
         if w.startswith(("non", "un")) and (w[3:] if w.startswith("non") else w[2:]) in _VEGETATED:
-            return False  # "nonvegetated", "unvegetated"
+            return False if open_word else None  # "nonvegetated", "unvegetated" are words of open ground
     if any(w in ("grass", "grassland") for w in words) and any(w in _LOW_GRASS for w in words):
         return False
     if any(w in _VEGETATED for w in words):
         return True
-    return False
+    return False if open_word else None
+
+
+def vegetated(group: str | None) -> bool | None:
+    """A height-check group's land cover: True vegetated (VVA), False not (NVA), None without a group. The name's
+    words (``_land_cover``) are read; a name without a land-cover word (a terrain class such as "steep") counts as
+    non-vegetated, as before (``unplaced_groups`` names them)."""
+    if not group:
+        return None
+    words = _words(group)
+    if words == ["unknown"]:
+        return None
+    return bool(_land_cover(words))
 
 
 def unplaced_groups(groups) -> list[str]:
-    """The group names ``vegetated`` takes as non-vegetated for want of any land-cover word (no vegetation word,
-    no word of open ground): said, since a label such as "class B" may mean either."""
-    out = set()
-    for g in groups:
-        if not g or vegetated(g) is not False:
-            continue
-        words = [w for w in re.split(r"[^a-z]+", g.lower()) if w]
-        if not any(w in _NOT_VEGETATED or w in _NEGATIONS or w in _LOW_GRASS for w in words):
-            out.add(g)
-    return sorted(out)
+    """The group names ``vegetated`` takes as non-vegetated for want of any land-cover word: said, since a label
+    such as "class B" may mean either."""
+    return sorted({g for g in groups if g and _words(g) != ["unknown"] and _land_cover(_words(g)) is None})
 
 
 def lidar_figures(hc: dict, strips: dict, density: tuple[float | None, str], qa, adjusted_note: str = "") -> \

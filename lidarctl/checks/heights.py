@@ -140,15 +140,14 @@ _UNIT_SUFFIX = re.compile(r"^(?P<base>.+?)_(?P<unit>m|deg|ft|usft|us-ft|us_ft)$"
 # metres per unit of the suffixes that name a length, as pyproj (PROJ's database) gives them
 _UNIT_NAMES = {"m": "metre", "ft": "foot", "us-ft": "US survey foot"}
 HEADER_UNIT_M = {short: float(get_units_map(category="linear")[name].conv_factor) for short, name in _UNIT_NAMES.items()}
-
-
 GROUP_COLUMNS = ("group", "landcover", "land_cover", "land cover", "land-cover", "cover", "nva_vva", "lc")
 
 
 def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
     """Surveyed points: header with id, x, y, z (case-insensitive; also point/name/pt for the id, e/easting,
-    n/northing, h/height/elevation) and optional group (or landcover, land_cover, cover, nva_vva, lc); without ``require_z`` the z column may be missing (``z``
-    None). Columns are found by name, so a surveyor's P,N,E,Z,D order reads as it is."""
+    n/northing, h/height/elevation) and an optional land-cover group (any name of ``GROUP_COLUMNS``); without
+    ``require_z`` the z column may be missing (``z`` None). Columns are found by name, so a surveyor's P,N,E,Z,D order
+    reads as it is."""
     path = Path(path)
     rows = list(csv.reader(stringio.StringIO(read_text(path, "surveyed points table (id,x,y,z[,group])"), newline="")))
     if not rows:

@@ -2171,14 +2171,16 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
         a = np.column_stack([x[on_level] - x[on_level].mean(), y[on_level] - y[on_level].mean(),
                              np.ones(len(on_level))])
         coef = np.linalg.lstsq(a, z[on_level], rcond=None)[0]
-        if np.hypot(coef[0], coef[1]) > p.water_max_slope:
-            why[k] = f"its level returns slope {np.hypot(coef[0], coef[1]):.4f}, at most {p.water_max_slope} allowed"
+        slope = np.hypot(coef[0], coef[1])
+        if slope > p.water_max_slope:
+            why[k] = f"its level returns slope {slope:.4f}, at most {p.water_max_slope} allowed"
             return None
-        if use_intensity and np.percentile(inten[on_level], 25) \
-                >= p.water_intensity_ratio * ground_intensity:
-            why[k] = (f"its returns are not dark (quartile intensity {np.percentile(inten[on_level], 25):.0f}, "
-                      f"below {p.water_intensity_ratio * ground_intensity:.0f} needed)")
-            return None
+        if use_intensity:
+            quartile = np.percentile(inten[on_level], 25)
+            if quartile >= p.water_intensity_ratio * ground_intensity:
+                why[k] = (f"its returns are not dark (quartile intensity {quartile:.0f}, below "
+                          f"{p.water_intensity_ratio * ground_intensity:.0f} needed)")
+                return None
         # The region's bounding box, padded for the rim and the shore (whole-grid work per region
         # would cost O(regions x cells)).
         pad = shore_cells + 1
@@ -2186,9 +2188,9 @@ def detect_water(x, y, z, intensity, candidate, is_building, *, is_ground, spaci
         win = (slice(r0, boxes[k - 1][0].stop + pad), slice(c0, boxes[k - 1][1].stop + pad))
         region = labels[win] == k
         rim = g.rim(win, region)
-        if rim.any() and building_cell[win][rim].mean() > p.water_shadow_fraction:
-            why[k] = (f"{building_cell[win][rim].mean():.0%} of its rim is building (a shadow), at most "
-                      f"{p.water_shadow_fraction:.0%} allowed")
+        shadow = building_cell[win][rim].mean() if rim.any() else 0.0
+        if shadow > p.water_shadow_fraction:
+            why[k] = f"{shadow:.0%} of its rim is building (a shadow), at most {p.water_shadow_fraction:.0%} allowed"
             return None
         # Water lies in its bed: the ground on the banks is not below the water level.
         bank_z = ground_cell_z[win][rim]
