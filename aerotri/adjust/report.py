@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.adjust.dem_check import BELOW_SHARE_LIMIT
 from aerotri.adjust.determinability import PP_RELIEF_PLAN_FRACTION
 from aerotri.adjust.height_datum import ALONE_MDB_FACTOR, PAIR_MDB_FACTOR
 from aerotri.adjust.report_record import map_unit_m
@@ -918,9 +919,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     if not converged:
         failed.append("the last solve did not converge.")
     dem_failed = [d for d in getattr(ba, "dem_checks", []) or [] if d.failed]
-    for d in dem_failed:
-        failed.append(f"Tie points - DEM ({d.role}, {d.dem}): median {d.median_m:+.3f} m over {d.n} points, beyond "
-                      f"{d.limit_m / d.sigma_offset_m:g} sigma of the offset ({d.limit_m:.3f} m).")
+    failed += [d.failure_text() for d in dem_failed]
     if weak:
         weaknesses.append("Weak geometry: " + "; ".join(why for _, why in weak) + ".")
     fixed = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "fixed"]
@@ -1362,7 +1361,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
 
 
 def _dem_check_dict(d) -> dict:
-    out = dataclasses.asdict(d)
+    out = dataclasses.asdict(d) | {"offset_failed": d.offset_failed, "below_failed": d.below_failed}
     for k in ("median_m", "nmad_m", "dem_sigma_m", "height_sigma_m", "sigma_offset_m", "limit_m"):
         out[k] = _f(out[k], 4)
     return out
@@ -1460,9 +1459,16 @@ def _dem_check_line(d: dict) -> str:
     s = f"{d['n']} tie points on the ground (control points not counted): median {d['median_m']:+.3f} m, NMAD {d['nmad_m']:.3f} m"
     if d["limit_m"] is None:
         return s + " (too few to test)"
+    below = d.get("below_n")
+    # reports written before the points below the DEM were judged: only the offset failed them
+    offset_failed = d.get("offset_failed", d["failed"])
+    verdict = ("passed" if not d["failed"] else "FAILED (a systematic offset)" if offset_failed else
+               "FAILED (points below the DEM)")
     return s + (f"; offset sigma {d['sigma_offset_m']:.3f} m (DEM {d['dem_sigma_m']:.3f} m, block height "
                 f"{d['height_sigma_m'] or 0.0:.3f} m, median {1.2533 * d['nmad_m'] / math.sqrt(d['n']):.3f} m), "
-                f"3 sigma {d['limit_m']:.3f} m: " + ("FAILED (a systematic offset)" if d["failed"] else "passed"))
+                f"3 sigma {d['limit_m']:.3f} m"
+                + (f"; {below} ({100 * below / d['n']:.1f} %) left out below the DEM by the gate (limit "
+                   f"{100 * BELOW_SHARE_LIMIT:g} %)" if below is not None else "") + ": " + verdict)
 
 
 def _self_calibration_txt(sc: dict) -> list[str]:

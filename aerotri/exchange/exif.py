@@ -55,6 +55,8 @@ from aerotri.geom.images import IMAGE_SUFFIXES
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
 log = logging.getLogger(__name__)
+# EXIF FocalPlaneResolutionUnit -> mm: 2 inch, 3 cm (EXIF 2.3), 4 mm, 5 um (TIFF/EP, as ExifTool reads them)
+FOCAL_PLANE_UNIT_MM = {"2": 25.4, "3": 10.0, "4": 1.0, "5": 0.001}
 
 DEFAULT_CRS = "EPSG:4979"  # WGS84 latitude, longitude, ellipsoidal height
 # A consumer drone's GNSS (no RTK, the EXIF states no accuracy), written into project.toml [gnss] by the import:
@@ -228,8 +230,14 @@ def read_frame_metadata(path) -> FrameMetadata:
         m.focal_35mm = _rationals(exif["EXIF_FocalLengthIn35mmFilm"], path, "FocalLengthIn35mmFilm")[0] or None
     if "EXIF_FocalPlaneXResolution" in exif:
         per_unit = _rationals(exif["EXIF_FocalPlaneXResolution"], path, "FocalPlaneXResolution")[0]
-        unit = exif.get("EXIF_FocalPlaneResolutionUnit", "2").strip()
-        m.focal_plane_px_per_mm = per_unit / {"2": 25.4, "3": 10.0, "4": 1.0}.get(unit, 25.4) or None
+        unit = exif.get("EXIF_FocalPlaneResolutionUnit", "2").strip()  # EXIF's default: inches
+        mm_per_unit = FOCAL_PLANE_UNIT_MM.get(unit)
+        if mm_per_unit is None:
+            # 1 is "no absolute unit": a resolution per nothing is no pixel size; the next source is taken
+            log.warning("%s: EXIF FocalPlaneResolutionUnit %s is not a length (2 inch, 3 cm, 4 mm, 5 um): the "
+                        "focal plane resolution is not used", path, unit)
+        else:
+            m.focal_plane_px_per_mm = per_unit / mm_per_unit or None
     m.calibrated_focal_px = _xmp_float(xmp, "drone-dji:CalibratedFocalLength", path)
     m.relative_alt_m = _xmp_float(xmp, "drone-dji:RelativeAltitude", path)
     return m

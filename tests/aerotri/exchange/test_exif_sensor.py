@@ -82,3 +82,17 @@ def test_real_frames_take_their_published_sensor(shared_data, tmp_path):
     pix, source = pixel_size_mm(kite, *kite.full_size)
     assert source == "EXIF focal plane resolution" and 4272 * pix == pytest.approx(22.2, rel=0.01)
     assert np.isclose(sensor_table().width_of(kite.make, kite.model).width_mm, 22.2)
+
+
+def test_focal_plane_resolution_in_micrometres_and_without_a_unit(tmp_path, caplog):
+    """FocalPlaneResolutionUnit 5 is micrometres (TIFF/EP): 0.65 px per um is the 1.54 um pixel. Unit 1 ("no
+    absolute unit") gives no pixel size: the sensor table is taken, with a warning. Both were read as inches
+    (the pixel 25,400x too large; with 4000 per nothing, 6.35 um for the Phantom's 1.54 um)."""
+    tags = dict(PHANTOM3, EXIF_FocalPlaneXResolution="(0.65)", EXIF_FocalPlaneResolutionUnit="5")
+    m = read_frame_metadata(_frame(tmp_path / "um.tif", tags, POSITION, size=(80, 45)))
+    assert pixel_size_mm(m, 4000, 2250) == (pytest.approx(1 / 650), "EXIF focal plane resolution")
+    tags = dict(PHANTOM3, EXIF_FocalPlaneXResolution="(4000)", EXIF_FocalPlaneResolutionUnit="1")
+    m = read_frame_metadata(_frame(tmp_path / "none.tif", tags, POSITION, size=(80, 45)))
+    pix, source = pixel_size_mm(m, 4000, 2250)
+    assert pix == pytest.approx(6.16 / 4000) and "sensor width 6.16 mm" in source
+    assert "FocalPlaneResolutionUnit 1 is not a length" in caplog.text
