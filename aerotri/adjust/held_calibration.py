@@ -21,6 +21,7 @@ import logging
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.core.quantiles import f_isf
 
 log = logging.getLogger(__name__)
 
@@ -60,8 +61,6 @@ def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, 
     """The test of the module docstring for a solution ``state`` (``info``: its final least squares, the principal
     point held), or None when the principal point is estimated, the camera model has none or nothing is left to
     test it with."""
-    from scipy.stats import f as fisher
-
     groups = block.camera.SELF_CAL_GROUPS
     if "pp" in opts.self_calibration or "pp" not in groups or not info.dof > 2 or not info.chi2 > 0:
         return None
@@ -80,7 +79,7 @@ def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, 
         shift_px=shift_px, shift_mm=(shift_px[0] * pix_mm, -shift_px[1] * pix_mm),
         held_mm=(float(block.camera.ppx_mm), float(block.camera.ppy_mm)),
         sigma0_held_um=float(np.sqrt(info.chi2 / info.dof)) * um, sigma0_free_um=float(np.sqrt(s2)) * um,
-        f_statistic=float(f_stat), f_limit=float(fisher.isf(alpha, 2, info_free.dof)))
+        f_statistic=float(f_stat), f_limit=float(f_isf(alpha, 2, info_free.dof)))
     log.info(f"held principal point: freed it moves {shift_px[0]:+.2f} / {shift_px[1]:+.2f} px (x right / y down), "
              f"F = {test.f_statistic:.2f} against {test.f_limit:.2f}")
     return test

@@ -1,4 +1,4 @@
-"""Quantiles of the normal, chi-square and Student t distributions for the statistical tests.
+"""Quantiles of the normal, chi-square, Student t and Fisher F distributions for the statistical tests.
 
 From ``scipy.special``, exact to the last digits of ``scipy.stats``'s: importing ``scipy.stats`` (and with it
 ``scipy.optimize``) costs 0.5-0.7 s of every command's start that tests anything (`aerotri adjust` on a small
@@ -8,7 +8,7 @@ so that small type I errors keep their precision.
 
 from __future__ import annotations
 
-from scipy.special import gammainccinv, gammaincinv, ndtri, stdtrit
+from scipy.special import betaincinv, gammainccinv, gammaincinv, ndtri, stdtrit
 
 
 def norm_isf(q):
@@ -34,3 +34,10 @@ def chi2_ppf(q, dof):
 def t_isf(q, dof):
     """t with P(T > t) = q for Student's T with ``dof`` degrees of freedom (``scipy.stats.t.isf``)."""
     return -stdtrit(dof, q)
+
+
+def f_isf(q, dfn, dfd):
+    """x with P(F > x) = q for Fisher's F with ``dfn``, ``dfd`` degrees of freedom (``scipy.stats.f.isf``): by
+    dfd / (dfd + dfn F) ~ Beta(dfd / 2, dfn / 2), whose lower tail at q is the F's upper tail."""
+    y = betaincinv(0.5 * dfd, 0.5 * dfn, q)
+    return dfd * (1.0 - y) / (dfn * y)
