@@ -1,10 +1,14 @@
 """Leave-one-out check of the control points: each in turn left out of the adjustment and compared with the
 position the block, held by the others, gives it.
 
+Units: the given and adjusted positions are in the project CRS's units (``given``, ``adjusted``); the differences,
+RMS and scatter (``_m``) are metres, converted with the CRS's units (a feet project's were feet under "m" names,
+3.28 times too large in the QA report). ``at/leave_one_out.json`` states its CRS.
+
 For every control point measured in at least 2 frames, the project is adjusted with that point as a check point
 (the same settings otherwise; a block without GNSS orients its images once, ``work/relative/``, and takes its
 datum from the remaining points), the point is intersected with the adjusted orientations and its position is
-compared with the given one: ``d = adjusted - given`` (project CRS, metres). Plan-only control points are
+compared with the given one: ``d = adjusted - given`` (project CRS axes, metres). Plan-only control points are
 compared in plan only (their heights were never measured).
 
 What such a check can show is bounded by the control points' own accuracy: the **scatter of the control points
@@ -20,10 +24,12 @@ import dataclasses
 import logging
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 
 from aerotri.adjust.pipeline import AdjustSettings, BlockAdjustment, adjust_project
+from aerotri.adjust.report_record import map_unit_m
 from aerotri.core.log import track
 
 log = logging.getLogger(__name__)
@@ -31,23 +37,24 @@ log = logging.getLogger(__name__)
 
 @dataclasses.dataclass(frozen=True)
 class LeftOutPoint:
-    """One control point left out: given and adjusted positions (project CRS, m)."""
+    """One control point left out: given and adjusted positions (project CRS units), the difference in metres."""
 
     id: str
     kind: str  # its kind as control: full, horizontal, height
     rays: int  # rays the check intersected (0 or 1: not checked)
-    given_m: tuple[float, float, float]
-    adjusted_m: tuple[float, float, float]  # NaN when not checked
+    given: tuple[float, float, float]  # project CRS units
+    adjusted: tuple[float, float, float]  # NaN when not checked
     sigma_m: tuple[float, float, float]  # of the adjusted position (image noise and orientations)
     seconds: float
+    unit_m: tuple[float, float, float] = (1.0, 1.0, 1.0)  # metres per CRS unit (x, y, z)
 
     @property
     def d_m(self) -> np.ndarray:
-        return np.subtract(self.adjusted_m, self.given_m)
+        return np.subtract(self.adjusted, self.given) * np.asarray(self.unit_m)
 
     @property
     def checked(self) -> bool:
-        return bool(np.all(np.isfinite(self.adjusted_m[:2])))
+        return bool(np.all(np.isfinite(self.adjusted[:2])))
 
 
 
@@ -67,6 +74,7 @@ class LeaveOneOut:
     points: tuple[LeftOutPoint, ...]
     scatter: ControlScatter
     seconds: float
+    crs: str | None = None  # the project CRS of the points' positions
 
     def _d(self, kinds) -> np.ndarray:
         return np.array([p.d_m for p in self.points if p.checked and p.kind in kinds]).reshape(-1, 3)
@@ -130,14 +138,15 @@ def _quiet():
 
 
 def control_scatter(ba: BlockAdjustment) -> ControlScatter:
-    """Plan residuals (adjusted - given, project CRS) of the control points with plan coordinates that the
-    adjustment used, measured in 2 or more frames."""
+    """Plan residuals (adjusted - given, project CRS axes, metres) of the control points with plan coordinates that
+    the adjustment used, measured in 2 or more frames."""
     b, r = ba.block, ba.result
+    unit_xy = np.asarray(map_unit_m(ba.crs, "the adjustment's CRS")[:2])
     rays = np.bincount(b.obs_point[r.obs_active], minlength=b.n_points)
     res = {}
     for c, j in enumerate(b.control_point):
         if r.control_active[c] and ba.control.kind[c] in ("full", "horizontal") and rays[j] >= 2:
-            d = ba.points_map[j, :2] - ba.control.xyz_m[c, :2]
+            d = (ba.points_map[j, :2] - ba.control.xyz_m[c, :2]) * unit_xy
             if np.all(np.isfinite(d)):
                 res[str(ba.control.id[c])] = (float(d[0]), float(d[1]))
     v = np.array(list(res.values())).reshape(-1, 2)
@@ -155,6 +164,7 @@ def leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjus
     if full is None:
         full = adjust_project(root, st)
     rays = np.bincount(full.block.obs_point[full.result.obs_active], minlength=full.block.n_points)
+    unit = map_unit_m(full.crs, "the adjustment's CRS")
     out = []
     # one full adjustment per point, told by nothing else (the runs are quiet): the kite's 9 took 4 of its 6.5 min wall
     for c, pid in track(list(enumerate(full.control.id)), "leave-one-out", "control point"):
@@ -162,17 +172,17 @@ def leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjus
         j = full.block.control_point[c]
         given = tuple(float(v) for v in full.control.xyz_m[c])
         if rays[j] < 2:
-            out.append(LeftOutPoint(pid, kind, int(rays[j]), given, (math.nan,) * 3, (math.nan,) * 3, 0.0))
+            out.append(LeftOutPoint(pid, kind, int(rays[j]), given, (math.nan,) * 3, (math.nan,) * 3, 0.0, unit))
             continue
         t1 = time.perf_counter()
         with _quiet():  # the full adjustment said it all; each run would repeat its warnings
             ba = adjust_project(root, dataclasses.replace(st, check=tuple(st.check) + (pid,), point_covariances=False))
         chk = ba.check[pid]
         out.append(LeftOutPoint(pid, kind, int(chk["rays"]), given, tuple(chk["adjusted_m"]), tuple(chk["sigma_m"]),
-                                time.perf_counter() - t1))
+                                time.perf_counter() - t1, unit))
         d = out[-1].d_m
         log.debug(f"leave-one-out {pid}: dX {d[0]:+.3f} dY {d[1]:+.3f} m ({chk['rays']} rays)")
-    return LeaveOneOut(tuple(out), control_scatter(full), time.perf_counter() - t0)
+    return LeaveOneOut(tuple(out), control_scatter(full), time.perf_counter() - t0, crs=str(full.crs))
 
 
 def run_leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjustment | None = None) -> LeaveOneOut:
@@ -191,8 +201,8 @@ def run_leave_one_out(root, settings: AdjustSettings | None = None, full: BlockA
 
 def _point_record(p: LeftOutPoint) -> dict:
     d = p.d_m
-    return {"id": p.id, "kind": p.kind, "rays": p.rays, "given_m": list(p.given_m),
-            "adjusted_m": _finite(p.adjusted_m), "dx_m": _f(d[0]), "dy_m": _f(d[1]),
+    return {"id": p.id, "kind": p.kind, "rays": p.rays, "given": list(p.given),
+            "adjusted": _finite(p.adjusted), "dx_m": _f(d[0]), "dy_m": _f(d[1]),
             "dz_m": _f(d[2]) if p.kind in ("full", "height") else None, "dxy_m": _f(math.hypot(d[0], d[1])),
             "sigma_m": _finite(p.sigma_m), "seconds": round(p.seconds, 2)}
 
@@ -206,6 +216,7 @@ def _record(loo: LeaveOneOut) -> dict:
     n = loo.n_checked
     rx, ry, rz = loo.rms_m
     return {
+        "crs": loo.crs,
         "checked": int(n), "not_checked": [p.id for p in loo.points if not p.checked],
         "rms_x_m": _f(rx) if n else None,
         "rms_y_m": _f(ry) if n else None,
@@ -214,7 +225,8 @@ def _record(loo: LeaveOneOut) -> dict:
         "control_scatter": _scatter_record(loo.scatter),
         "points": [_point_record(p) for p in loo.points], "seconds": round(loo.seconds, 1),
         "note": "each control point left out in turn; adjusted (intersected with the orientations the others "
-                "hold) minus given, project CRS; plan-only points in plan only. control_scatter: the points' "
+                "hold) minus given, on the project CRS's axes; given and adjusted in the CRS's units, every _m "
+                "figure in metres; plan-only points in plan only. control_scatter: the points' "
                 "plan residuals with all of them in the adjustment, the reference for the plan RMS"}
 
 
@@ -237,8 +249,15 @@ def read_leave_one_out(path) -> LeaveOneOutSummary:
 
     d = read_json(path, "leave-one-out record")
 
+    scale = 1.0
+    if isinstance(d, dict) and "crs" not in d:
+        # written before its figures were metres: they are in the CRS's units, that of the adjustment beside it
+        report = Path(path).parent / "report.json"
+        crs = read_json(report, "adjustment report").get("crs") if report.is_file() else None
+        scale = map_unit_m(crs, f"{report} crs (for {Path(path).name}, which states none)")[0]
+
     def opt(v):
-        return None if v is None else float(v)
+        return None if v is None else float(v) * scale
 
     try:
         s = d["control_scatter"]

@@ -94,6 +94,7 @@ def _residuals(ba) -> _Residuals:
 def _control_rows(ba, res: _Residuals) -> list[dict]:
     """Control points: ground residuals in the project CRS, adjusted minus given."""
     r, b = ba.result, ba.block
+    out = {c for c, _ in r.rejected_control}  # by the control test, or every ray removed by the snooping
     rows = []
     for c, pid in enumerate(ba.control.id):
         j = b.control_point[c]
@@ -103,7 +104,7 @@ def _control_rows(ba, res: _Residuals) -> list[dict]:
         kind = ba.control.kind[c]
         comp = {"full": [1, 1, 1], "horizontal": [1, 1, 0], "height": [0, 0, 1]}[kind]
         d = np.where(np.array(comp, dtype=bool), d, np.nan)
-        rejected = not r.control_active[c]
+        rejected = not r.control_active[c] or c in out
         active = res.active
         rays = int(active[k].sum())
         # a control point no active ray reaches is held only by its own prior: its residual says nothing

@@ -347,6 +347,7 @@ def _adjust_block(
                 marg = sb.ConsideredCovariance(marg, bias, s2)
         timings["marginals_s"] += time.perf_counter() - t0
     v, r, _ = residuals_and_redundancy(state)
+    rejected += rays_removed_control(block, obs_active, control_active, removed, {c for c, _ in rejected})
     timings["total_s"] = time.perf_counter() - t_start
     stats = use = None
     if surface_candidates is not None:
@@ -361,6 +362,25 @@ def _adjust_block(
         iterations, timings, stats, use, components, factors, block, opts, geometry, calibration, surface_bias=bias,
         height_datum=height_datum, held_pp=held_pp,
     )
+
+
+def rays_removed_control(block: G.Block, obs_active, control_active, removed, rejected: set) -> list:
+    """(control index, largest w) of the control points kept by the control test whose image measurements the
+    snooping removed, every one: such a point is out of the block as surely as one the test rejected (trial-api F2:
+    a height mistyped by 2 m lost both its rays, the report said 0 control rejected and its control RMS improved).
+    Its coordinates stay in the solve, held by nothing but themselves."""
+    w_of = {}
+    for x in removed:
+        j = int(block.obs_point[x.obs])
+        w_of[j] = max(w_of.get(j, 0.0), float(x.w))
+    out = []
+    for c, j in enumerate(block.control_point):
+        j = int(j)
+        if c in rejected or not control_active[c] or j not in w_of:
+            continue
+        if not np.any(obs_active[block.obs_point == j]):
+            out.append((c, w_of[j]))
+    return out
 
 
 def held_by_rays(block: G.Block, obs_active, *masks) -> tuple:
