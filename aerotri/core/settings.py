@@ -469,8 +469,46 @@ class Resolved:
         return out
 
 
+def _same(value, default) -> bool:
+    try:
+        return type(value) is type(default) and bool(value == default)
+    except (TypeError, ValueError):  # arrays and the like
+        return False
+
+
+def checked_settings(settings, where: str | None = None):
+    """Settings made in code (``AdjustSettings(alpha=5)``) put through the checks and conversions of ``from_table``:
+    ``ConfigError`` naming the class and the field, else a copy with the values as project.toml would give them
+    (``self_calibration="pp"`` -> ``("pp",)``, which a string's letters were before). The command line and
+    project.toml refused such values while a library call passed them on (trial-api F4: alpha 5, meant as 5 %,
+    switched the data snooping off without a word). None stays None."""
+    cls = type(settings)
+    where = where or cls.__name__
+    hints = typing.get_type_hints(cls)
+    changed = {}
+    for f in dataclasses.fields(cls):
+        value = getattr(settings, f.name)
+        if not f.init or value is None or (f.default is not dataclasses.MISSING and _same(value, f.default)):
+            continue  # a default is allowed by definition (some are no number a table could hold: inf)
+        sub = f"{where}.{f.name}"
+        if dataclasses.is_dataclass(value):
+            new = checked_settings(value, sub)
+        else:
+            new = _convert(to_table(value), hints[f.name], constraints(f), sub, None)
+        if new is not value and new != value or type(new) is not type(value):
+            changed[f.name] = new
+    if not changed:
+        return settings
+    try:
+        return dataclasses.replace(settings, **changed)
+    except (TypeError, ValueError) as exc:  # the dataclass's own checks (__post_init__)
+        raise ConfigError(f"{where}: {exc}") from None
+
+
 def unresolved(settings) -> Resolved:
-    """Settings a library caller made itself: every field's source is ``library call``."""
+    """Settings a library caller made itself (checked as project.toml's are: ``checked_settings``): every field's
+    source is ``library call``."""
+    settings = checked_settings(settings)
     return Resolved(settings, {p: "library call" for p in leaf_paths(type(settings))})
 
 

@@ -333,6 +333,17 @@ def _apply_overrides(cfg: dict, overrides) -> tuple[dict, dict[tuple[str, str], 
     return cfg, given
 
 
+def checked_preset(preset: Preset, source: str = "preset") -> Preset:
+    """A preset made or changed in code (``dataclasses.replace(preset.flight, side_overlap=1.5)``) put through
+    ``load_preset``'s checks: ``ConfigError`` / ``InputError`` naming the table and key. Such a preset was simulated
+    as it stood (trial-api F4: a strip spacing of -207.36 m)."""
+    from aerotri.core.settings import checked_settings
+
+    preset = checked_settings(preset, source)
+    _check_across_tables(preset, source, {})
+    return preset
+
+
 def _check_across_tables(preset: Preset, source: str, given: dict[tuple[str, str], str]) -> None:
     """What no single field can check: the ranges' order, and flying heights that clear the scene (a value set
     with ``--set``, ``given``, named as typed)."""

@@ -25,7 +25,7 @@ from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, writ
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import landcover, raster, raycast, render
-from aerotri.sim.config import Preset, stage_sections_toml
+from aerotri.sim.config import Preset, checked_preset, stage_sections_toml
 from aerotri.sim.earth import SimEarth
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
@@ -201,6 +201,7 @@ def simulate(cfg: Preset, outdir, force: bool = False, on_phase=None) -> SimTrut
 
     ``on_phase``: called with a ``PhaseCost`` after each phase (scene, frames, lidar, truth_rasters, other).
     """
+    cfg = checked_preset(cfg)
     outdir = Path(outdir)
     if outdir.exists() and any(outdir.iterdir()) and not force:
         raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
@@ -802,6 +803,7 @@ def simulate_observations(cfg: Preset, outdir, force: bool = False, *, tie_sigma
     """
     from aerotri.sim.observations import write_truth_observations
 
+    cfg = checked_preset(cfg)
     outdir = Path(outdir)
     if outdir.exists() and any(outdir.iterdir()) and not force:
         raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
