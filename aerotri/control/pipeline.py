@@ -51,7 +51,7 @@ class TransferResult:
     primary: np.ndarray | None = None  # (N,) bool: the set measured anyway (usable + manual); the rest: fallback
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class TransferSummary:
     """Counts and rejection reasons of a control transfer (``summary`` in control/transfer.json)."""
 
