@@ -76,11 +76,12 @@ def test_the_verdict_holds_the_parameters_to_their_limits(ba):
     ks = rep["key_statistics"]
     assert ks["verdict"] == "weak" and ks["message"].startswith("Solution weak.")
     # single residuals by the accuracy report's rule: their share beyond the limit against gross_error_max_pct (5 %)
-    lim = round(max_plan * 0.99, 3)  # the table's limits as the Parameters table holds them
+    lim = round(max_plan * 0.99, 6)  # the table's limits as the Parameters table holds them (to the micrometre)
     big = int(np.sum(np.hypot(cres[:, 0], cres[:, 1]) > lim))
     quantities = [b["quantity"] for b in ks["tolerances_exceeded"]]
     assert quantities[:2] == ["check points, plan RMS", f"control points with a plan residual beyond {lim:g} m"]
-    assert f"check points, plan RMS {plan_rms:.3f} m > {plan_rms * 0.99:.3f} m" in ks["message"]
+    assert "check points, plan RMS {} m > {} m".format(*report.figure_and_limit(plan_rms, round(plan_rms * 0.99, 6))
+                                                        ) in ks["message"]
     assert (f"control points with a plan residual beyond {lim:g} m {round(100 * big / len(cres), 2):g} % > 5 % "
             f"({big} of {len(cres)})") in ks["message"]
     assert "Solution weak." in report.format_txt(rep)
@@ -352,3 +353,17 @@ def test_dropped_tie_points_are_counted_by_reason():
                  "tie_points_dropped_parallel_rays": 1}
     text = report._dropped_text(c)
     assert "1 with fewer than 2 rays left after the removals" in text and "1 with rays too nearly parallel" in text
+
+
+def test_a_height_rms_a_hundredth_of_a_millimetre_beyond_its_limit_is_beyond_it(ba):
+    """Judged on the report's 4 decimals against limits kept to 3, a check height RMS of 1.065617 m passed a 1.0656 m
+    limit and report.txt said "1.066 m against the 1.07 m height limit (beyond it ...)" (trial-audit F3)."""
+    rms_z = to_record(report.build_report(ba))["parameters"]["rms_check_m"][2]
+    limit = rms_z - 3e-6  # below the figure by less than its 4-decimal rounding
+    rep = to_record(report.build_report(dataclasses.replace(ba, settings=dataclasses.replace(
+        ba.settings, rms_limit_z_m=limit, rms_limit_xy_m=10.0, residual_limit_m=10.0))))
+    assert rep["parameters"]["rms_limits_m"][2] == pytest.approx(limit, abs=1e-9)
+    (b,) = [b for b in rep["key_statistics"]["tolerances_exceeded"] if b["quantity"] == "check points, height RMS"]
+    assert b["value_m"] == pytest.approx(rms_z, abs=1e-6) and b["limit_m"] == pytest.approx(limit, abs=1e-9)
+    value, lim = report.figure_and_limit(rms_z, limit)
+    assert value != lim and f"check points, height RMS {value} m > {lim} m" in rep["key_statistics"]["message"]
