@@ -625,13 +625,14 @@ def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]
                    key="strip_rmsdz_m", digits=4)], pairs
 
 
-def line_map_rows(project: Project, tol: dict) -> list[QaCheck]:
+def line_map_rows(project: Project, tol: dict, asprs: Asprs2023Figures | None = None) -> list[QaCheck]:
     """The "Line map (DLG) plan accuracy" row from a check-vectors result: the chain's (lidar_out/
     vectors_check.json, ``[vectors] enabled``), else ``[vectors] check_json`` of project.toml; none without.
 
     The value is the plan RMS of the building corners (well-defined points) to their matched reference
     corners, judged against this report's tolerance for well-defined map features (``feature_rms_xy_m``
-    of the map scale and terrain class), not the one the check was made with."""
+    of the map scale and terrain class), not the one the check was made with; under an ASPRS 2023 limit with the
+    survey's own accuracy combined (``asprs``), as the compliance section."""
     path = project.vectors_check_path
     if not path.is_file():
         path = project.settings(VectorsSettings).check_json  # relative names anchored at the project
@@ -649,8 +650,10 @@ def line_map_rows(project: Project, tol: dict) -> list[QaCheck]:
     note = (f"{b.n_matched_corners} corners within {chk.match_m:g} m of a reference corner; to the nearest "
             f"reference outline {b.rms_xy_to_line_m:.3f} m RMS; buildings complete {b.completeness_pct:.1f} %, "
             f"correct {b.correctness_pct:.1f} %; reference {Path(chk.reference).name}")
-    return [_check(cid, sec, name, b.rms_xy_corner_m, tol.get("feature_rms_xy_m"), "m", note=note,
-                   key="feature_rms_xy_m", digits=4)]
+    asprs = asprs or Asprs2023Figures(frozenset())
+    figure, combined = asprs.figure(b.rms_xy_corner_m, "feature_rms_xy_m")
+    return [_check(cid, sec, name + asprs.quantity_suffix(b.rms_xy_corner_m, "feature_rms_xy_m"), figure,
+                   tol.get("feature_rms_xy_m"), "m", note=_notes(combined, note), key="feature_rms_xy_m", digits=4)]
 
 
 def stage_results(project: Project) -> list:
@@ -798,7 +801,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                                      f"with no valid cell of the DEM {name} under them"),
                                        _too_few_note(len(dz) if which else hc.dem_n_checked, compliance))))
 
-    rows += line_map_rows(project, tol)
+    rows += line_map_rows(project, tol, asprs)
 
     # Control and adjustment
     sec = "Control points"
