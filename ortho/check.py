@@ -137,6 +137,16 @@ class UnmatchedRegion:
 
 
 @dataclasses.dataclass(frozen=True)
+class UnmatchedVerdict:
+    """``UnmatchedPatches.judged_against``: ``verdict`` "fail" or None (not judged), ``reach`` the search in metres
+    (" (+-2.400 m)", "" unknown), ``why`` the reason it is not judged ("" when it is)."""
+
+    verdict: str | None
+    reach: str
+    why: str
+
+
+@dataclasses.dataclass(frozen=True)
 class UnmatchedPatches:
     """dom_report.json's ``unmatched`` (``to_record``): the open-ground patches textured enough to be matched (above
     the DOM's least texture and the texture-ratio floor) whose NCC peak in the reference was below ``min_ncc`` or on
@@ -172,6 +182,26 @@ class UnmatchedPatches:
         """Whether more than ``max_share`` of the textured patches found no match, in the whole DOM (at least one
         textured patch) or in a region judged on its own (``lost_regions``)."""
         return (self.share is not None and self.share > self.max_share) or bool(self.lost_regions())
+
+    def too_few_matched(self) -> bool:
+        """Whether more than ``max_share`` of the whole DOM's textured patches found no match: the few that did are
+        no measure of the DOM (trial audit F6: a DOM 5 m off, 631 of 633 unmatched, read "plan RMS 2.370 m" from 2
+        false matches)."""
+        return self.share is not None and self.share > self.max_share
+
+    def judged_against(self, limit_m: float | None, gsd_m: float | None) -> "UnmatchedVerdict":
+        """The verdict of a check that ``fails`` against a plan limit (m), on a DOM of ``gsd_m``: fail where the
+        +-``search_px`` search reaches the limit (a patch lost beyond it is beyond the limit), not judged where it
+        is shorter (a patch beyond the search may still be within the limit) or without a limit (review 34). The
+        verdict table's DOM row and the compliance section's both read it."""
+        search_m = self.search_px * gsd_m if gsd_m else float("nan")
+        reach = f" (+-{search_m:.3f} m)" if math.isfinite(search_m) else ""
+        if limit_m is None:
+            return UnmatchedVerdict(None, reach, "")
+        if math.isfinite(search_m) and search_m < limit_m:
+            return UnmatchedVerdict(None, reach, f"not judged: the search{reach} is shorter than the limit "
+                                                 f"{limit_m:g} m, so a patch beyond it may still be within the limit")
+        return UnmatchedVerdict("fail", reach, "")
 
     def unusual(self) -> bool:
         """Whether more than ``DOM_UNUSUAL_UNMATCHED_SHARE`` of the textured patches found no match (said, not
@@ -423,8 +453,83 @@ def read_points_csv(path) -> DomPoints:
     return DomPoints(ids, a[:, 0], a[:, 1], a[:, 2], a[:, 3])
 
 
-def plot_displacements(path, patches: PatchDisplacements | None, stats: Displacement, title: str, points=None,
-                       extent_px=None, flips: tuple[bool, bool] = (False, False)) -> None:
+@dataclasses.dataclass(frozen=True)
+class SurveyedPointsDrawn:
+    """The surveyed points of a check at points (``check_points``) as the plot draws them: ids, positions in the DOM
+    CRS's unit (``unit_m`` metres each; ``axis_signs`` +1 / -1 where the grid counts east, north), displacements
+    (m, DOM minus survey, east and north) and which were the adjustment's control (no independent check: drawn
+    apart, ``aerotri.qa.compliance.dom_points_used_as_control``)."""
+
+    ids: tuple[str, ...]
+    x: np.ndarray
+    y: np.ndarray
+    de_m: np.ndarray
+    dn_m: np.ndarray
+    control: np.ndarray  # bool per point
+    unit_m: float = 1.0
+    axis_signs: tuple[float, float] = (1.0, 1.0)
+
+
+POINT_LABELS_MAX = 40  # ids written beside the points up to this many (more would cover the map)
+
+
+def _key_length_m(largest_m: float) -> float:
+    """A round length (1, 2 or 5 x 10^k m) near the largest displacement, for the plot's scale arrow."""
+    if not largest_m > 0:
+        return 0.1
+    k = math.floor(math.log10(largest_m))
+    return max((m * 10.0 ** k for m in (1.0, 2.0, 5.0) if m * 10.0 ** k <= largest_m), default=10.0 ** k)
+
+
+def _plot_points_plan(fig, ax, pts: SurveyedPointsDrawn, title: str) -> str:
+    """Each surveyed point at its map position with its displacement vector, exaggerated by one factor (a scale
+    arrow labelled in metres), the adjustment's control points drawn apart (trial audit F10: the points were drawn
+    along x by list index with a squashed y axis). Returns the title with the exaggeration."""
+    sx, sy = pts.axis_signs
+    d = np.hypot(pts.de_m, pts.dn_m)
+    span = max(float(np.ptp(pts.x)), float(np.ptp(pts.y)), 1e-6)  # map units
+    largest_m = float(d.max()) if len(d) else 0.0
+    # the largest vector a tenth of the points' extent, as the patch plot draws its patches
+    scale = 0.1 * span / (largest_m / pts.unit_m) if largest_m > 0 else 1.0
+    u = sx * pts.de_m / pts.unit_m * scale  # map units along the grid's axes (a westing grid counts x westwards)
+    v = sy * pts.dn_m / pts.unit_m * scale
+    ind = ~pts.control
+    q = None
+    if ind.any():
+        q = ax.quiver(pts.x[ind], pts.y[ind], u[ind], v[ind], d[ind], angles="xy", scale_units="xy", scale=1,
+                      cmap="viridis", width=0.004)
+        fig.colorbar(q, ax=ax, label="displacement (m)")
+        ax.plot(pts.x[ind], pts.y[ind], "o", ms=4, color="k", label=f"check points ({int(ind.sum())})")
+    if pts.control.any():
+        qc = ax.quiver(pts.x[pts.control], pts.y[pts.control], u[pts.control], v[pts.control], angles="xy",
+                  scale_units="xy", scale=1, color="tab:red", width=0.004)
+        ax.plot(pts.x[pts.control], pts.y[pts.control], "^", ms=7, mfc="none", color="tab:red",
+                label=f"the adjustment's control ({int(pts.control.sum())}): not independent")
+    if len(pts.ids) <= POINT_LABELS_MAX:
+        for i, x, y in zip(pts.ids, pts.x, pts.y):
+            ax.annotate(i, (x, y), xytext=(3, 3), textcoords="offset points", fontsize=7)
+    key_m = _key_length_m(largest_m)
+    if largest_m > 0:  # the scale arrow: a round length in metres drawn at the vectors' exaggeration
+        ax.quiverkey(q if q is not None else qc, 0.78, 0.06, key_m / pts.unit_m * scale, f"{key_m:g} m",
+                     labelpos="E", coordinates="axes", color="k")
+    pad = 0.15 * span
+    ax.set_xlim(pts.x.min() - pad, pts.x.max() + pad)
+    ax.set_ylim(pts.y.min() - pad, pts.y.max() + pad)
+    if sx < 0:  # east to the right, north up, whichever way the grid counts
+        ax.invert_xaxis()
+    if sy < 0:
+        ax.invert_yaxis()
+    unit = "m" if pts.unit_m == 1.0 else f"x {pts.unit_m:g} m"
+    ax.set_xlabel(f"x ({unit})" + (" (reversed: east to the right)" if sx < 0 else ""))
+    ax.set_ylabel(f"y ({unit})" + (" (reversed: north up)" if sy < 0 else ""))
+    ax.ticklabel_format(useOffset=False, style="plain")  # whole coordinates, not "+3.407e6"
+    ax.legend(loc="lower left", fontsize=7)
+    return f"{title}: vectors x {scale:.3g}"
+
+
+def plot_displacements(path, patches: PatchDisplacements | None, stats: Displacement, title: str,
+                       points: SurveyedPointsDrawn | None = None, extent_px=None,
+                       flips: tuple[bool, bool] = (False, False)) -> None:
     """Vector plot of displacements (exaggerated; at most ``MAX_LISTED`` patches drawn, evenly spread) and a histogram
     of the lengths of every patch (those the statistics take: its count is the title's n); PNG. ``flips``: the DOM's
     pixel rows, columns drawn reversed so that north is up (``ortho.grid.north_up_flips``: a westing / southing
@@ -449,17 +554,17 @@ def plot_displacements(path, patches: PatchDisplacements | None, stats: Displace
         if len(drawn) < len(patches):
             title = f"{title}: {len(drawn):,} of {len(patches):,} patches drawn"
         bx.hist(np.hypot(patches.dx_px, patches.dy_px), bins=30)
-    elif points is not None:
-        de, dn = points
-        ax.quiver(np.arange(len(de)), np.zeros(len(de)), de, dn)
-        bx.hist(np.hypot(de, dn) / (stats.gsd_m if stats.gsd_m is not None else 1.0), bins=20)
+    elif points is not None and len(points.ids):
+        title = _plot_points_plan(fig, ax, points, title)
+        bx.hist(np.hypot(points.de_m, points.dn_m) / (stats.gsd_m if stats.gsd_m is not None else 1.0), bins=20)
     ax.set_title(title)
     ax.set_aspect("equal")
     bx.set_xlabel("displacement (GSD)")
     bx.set_ylabel("count")
     if stats.count:
+        control = int(points.control.sum()) if points is not None else 0
         bx.set_title(f"RMS {stats.rms_xy_m:.3f} m ({stats.rms_xy_gsd:.2f} GSD), max {stats.max_xy_m:.3f} m, "
-                     f"n={stats.count}")
+                     f"n={stats.count}" + (f"\n({control} of them the adjustment's control)" if control else ""))
     fig.tight_layout()
     save_png(fig, path, dpi=100)
 
@@ -732,6 +837,22 @@ def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0
     table = [{"id": i, "x_m": float(x), "y_m": float(y), "x_dom_m": float(xd), "y_dom_m": float(yd), "de_m": float(a),
               "dn_m": float(b)} for i, x, y, xd, yd, a, b in zip(pts.id, pts.x, pts.y, pts.x_dom, pts.y_dom, de, dn)]
     return stats, {"points": table, "_de": de, "_dn": dn}
+
+
+def _points_drawn(root, report: dict, table: dict, unit_m: float, dom_crs) -> SurveyedPointsDrawn:
+    """``check_points``' table as the plot draws it; the points the project's adjustment (at/report.json, when
+    there is one) used as control marked."""
+    from aerotri.qa.compliance import _json, dom_points_used_as_control
+
+    at_path = project_paths(root).adjustment_report_path
+    control = set(dom_points_used_as_control({**report, "points": table["points"]}, _json(at_path))
+                  if at_path.is_file() else ())
+    rows = table["points"]
+    return SurveyedPointsDrawn(
+        ids=tuple(str(r["id"]) for r in rows), x=np.array([r["x_m"] for r in rows], dtype=float),
+        y=np.array([r["y_m"] for r in rows], dtype=float), de_m=np.asarray(table["_de"], dtype=float),
+        dn_m=np.asarray(table["_dn"], dtype=float), control=np.array([str(r["id"]) in control for r in rows], bool),
+        unit_m=unit_m, axis_signs=(1.0, 1.0) if dom_crs is None else tuple(float(a) for a in map_axis_signs(dom_crs)))
 
 
 def _check_over_dom(reference_path, ndsm_path, dom_bounds, dom_crs) -> None:
@@ -1265,9 +1386,10 @@ def run_check(project_root, settings: CheckSettings | Resolved | None = None, *,
         report.update(method="surveyed_points", points_file=str(points_path),
                       displacement=to_record(stats, drop_none=True), points=table["points"])
 
+        drawn = _points_drawn(root, report, table, unit_m, dom_crs)
+
         def plot():
-            plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey",
-                               points=(table["_de"], table["_dn"]))
+            plot_displacements(out_stem.with_suffix(".png"), None, stats, "DOM - survey", points=drawn)
     if seams:
         from ortho.mosaic import seam_misalignment
 

@@ -73,6 +73,10 @@ class CheckSet:
     points: str = "check points"  # what was counted: surveyed check points, or the DOM's ground patches ...
     rmse_x_m: float | None = None  # per axis (east, north), where the check gives them (ASPRS 2014's classes are
     rmse_y_m: float | None = None  # per axis)
+    # the DOM against a reference: ``ortho.check.UnmatchedPatches`` when too many textured patches found no match
+    # (``fails``), and the DOM's GSD (m) that puts its search in metres: the DOM rows fail on it (``judge``)
+    unmatched: object | None = None
+    gsd_m: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -259,11 +263,14 @@ def dom_points_used_as_control(dom_all: dict, at: dict) -> tuple[str, ...]:
 @dataclasses.dataclass(frozen=True)
 class IndependentPoints:
     """A DOM check's displacements (m, DOM minus surveyed, east and north) at the surveyed points the adjustment did
-    not use as control: the RMSEs the compliance row judges; ``n`` 0 when none is left."""
+    not use as control: the RMSEs the compliance row and the verdict table's DOM rows judge; ``n`` 0 when none is
+    left. ``p95_xy_m``, ``max_xy_m``: of the plan displacements, as ``ortho.check`` states them for every point."""
     n: int
     rmse_xy_m: float | None
     rmse_e_m: float | None
     rmse_n_m: float | None
+    p95_xy_m: float | None = None
+    max_xy_m: float | None = None
 
 
 def dom_independent_points(dom_all: dict, control: tuple[str, ...]) -> IndependentPoints:
@@ -279,7 +286,9 @@ def dom_independent_points(dom_all: dict, control: tuple[str, ...]) -> Independe
     if not de:
         return IndependentPoints(0, None, None, None)
     e2, n2 = float(np.mean(np.square(de))), float(np.mean(np.square(dn)))
-    return IndependentPoints(len(de), math.sqrt(e2 + n2), math.sqrt(e2), math.sqrt(n2))
+    dxy = np.hypot(de, dn)
+    return IndependentPoints(len(de), math.sqrt(e2 + n2), math.sqrt(e2), math.sqrt(n2),
+                             p95_xy_m=float(np.percentile(dxy, 95)), max_xy_m=float(dxy.max()))
 
 
 def dom_checks(dom_all: dict, qa, *, stale: bool = False, at: dict | None = None) -> CheckSet | None:
@@ -321,17 +330,25 @@ def dom_checks(dom_all: dict, qa, *, stale: bool = False, at: dict | None = None
                         points="ground patches")
     if d.get("rms_xy_m") is None:
         return CheckSet(note="the DOM check measured no patch", points="ground patches")
+    h, _, src = _survey_accuracy(qa)
+    patches = CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=int(d.get("count") or 0), cp_rmse_h_m=h, cp_source=src,
+                       rmse_x_m=d.get("rms_e_m"), rmse_y_m=d.get("rms_n_m"),
+                       note="ground patches of the DOM matched to the reference orthophoto (phase correlation), not "
+                            "surveyed check points; the reference's accuracy stands for theirs",
+                       points="ground patches")
     if dom_all.get("unmatched"):
         from ortho.check import UnmatchedPatches
 
         lost = UnmatchedPatches.of_record(dom_all["unmatched"])
-        if lost.fails():  # the RMSE is of the patches left where regions lost theirs: no class from it (review 34)
-            return CheckSet(note=f"not testable: {lost.note()}", points="ground patches")
-    h, _, src = _survey_accuracy(qa)
-    return CheckSet(rmse_h_m=float(d["rms_xy_m"]), n_h=int(d.get("count") or 0), cp_rmse_h_m=h, cp_source=src,
-                    rmse_x_m=d.get("rms_e_m"), rmse_y_m=d.get("rms_n_m"),
-                    note="ground patches of the DOM matched to the reference orthophoto (phase correlation), not "
-                         "surveyed check points; the reference's accuracy stands for theirs", points="ground patches")
+        if lost.fails():
+            # the patches the verdict table measured, and the share that did not match: ``judge`` fails the DOM rows
+            # on it as the table does (trial audit F6: "not measured (0 ground patches) ... not testable" beside the
+            # table's fail at 0.6685 m from 585 patches). With most of the DOM unmatched the few left are no figure.
+            few = lost.too_few_matched()
+            return dataclasses.replace(patches, unmatched=lost, gsd_m=d.get("gsd_m"),
+                                       note=f"{patches.note}; {lost.note()}",
+                                       **(dict(rmse_h_m=None, rmse_x_m=None, rmse_y_m=None) if few else {}))
+    return patches
 
 
 def line_map_checks(chk: dict, qa) -> CheckSet | None:
@@ -1273,9 +1290,29 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
     return tuple(out)
 
 
+def _unmatched_dom_row(c: ComplianceCheck, dom: CheckSet) -> ComplianceCheck:
+    """A DOM row whose check lost too many patches (``ortho.check.UnmatchedPatches.fails``): fail where the search
+    reaches the row's limit (``judged_against``, the verdict table's rule), stating the unmatched share; else not
+    testable. No class from the patches that did match (review 34)."""
+    lost = dom.unmatched
+    v = lost.judged_against(c.limit, dom.gsd_m)
+    figure = (f"; the RMSE of the {dom.n_h} patches that matched would be {c.measured:g} m" if c.measured is not None
+              else f"; the {dom.n_h} patches that matched are too few to measure the DOM (no figure)")
+    if v.verdict == "fail":
+        return dataclasses.replace(c, verdict="fail", why=f"failed because the patches did not match: {lost.note()}"
+                                                          f"{v.reach}{figure}",
+                                   finest_class="none (patches unmatched)", finest_rank=math.inf)
+    why = f"{lost.note()}{v.reach}" + (f"; {v.why}" if v.why else "")
+    return dataclasses.replace(c, verdict=NOT_TESTABLE, why=f"not testable: {why}{figure}", finest_class=None,
+                               finest_rank=None)
+
+
 def judge(figs: Figures, choice: Choice) -> Compliance:
     """The checks of ``figs`` against ``choice`` and their summary per product."""
     checks = tuple(JUDGES[choice.key](figs, choice))
+    if figs.dom is not None and figs.dom.unmatched is not None:
+        checks = tuple(_unmatched_dom_row(c, figs.dom) if c.product == "DOM" and c.judged
+                       and c.verdict != "reported" else c for c in checks)
     if figs.lidar is not None and not figs.lidar.land_cover_known and figs.lidar.n_nva:
         # an NVA over points of unknown land cover: the figure stands, the claim "non-vegetated" does not
         checks = tuple(dataclasses.replace(c, why=f"{UNKNOWN_COVER}; {c.why}" if c.why else UNKNOWN_COVER)

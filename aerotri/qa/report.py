@@ -35,9 +35,10 @@ from aerotri.core.textio import read_record
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
 from aerotri.core.figures import pyplot
-from aerotri.core.tolerances import (TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table, read_qa_config,
-                                     split_key)
+from aerotri.core.tolerances import (ASPRS_FILE, TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table,
+                                     read_qa_config, split_key)
 from aerotri.geom.block_scale import planned_terrain_height, project_block_scale
+from aerotri.qa.standards import formulas as F
 from aerotri.qa.rounding import round_on_its_side, text_on_its_side, within
 from aerotri.qa.compliance import (NOT_TESTABLE, asprs_class_cm, lidar_only_project, project_compliance,
                                    with_asprs2014_limits, with_cn_at_lidar_limits,
@@ -319,23 +320,94 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
                   f"corners: {source}{kind}; not judged")
 
 
-def _dom_points(dom_check, project: Project) -> tuple[str | None, str]:
-    """(None, "on ground patches") for a DOM check against a reference orthophoto; for one at surveyed points (``ortho
-    check --points``) ("" or the note naming those the adjustment used as control, "at surveyed points")."""
+@dataclass(frozen=True)
+class Asprs2023Figures:
+    """The check points' own accuracy (m) ASPRS 2023 combines with a measured RMSE (sqrt(RMSE_measured^2 +
+    RMSE_checkpoints^2), ``formulas.with_checkpoint_accuracy``) for the verdict table's limits that are ASPRS 2023's
+    (``keys``), read as the compliance section reads it (``aerotri.qa.compliance``: the survey's [qa]
+    survey_sigma_*, the AT check points' sx, sy, sz or [control] sigma_*), so that both sections judge one figure
+    (trial audit F5: the table passed a DEM at 0.0998 m, the compliance section failed it at 0.1003 m against 0.1 m
+    with a 0.01 m survey). ``by_key``: (accuracy m, its source) per limit key, None where it is not stated."""
+
+    keys: frozenset
+    by_key: tuple[tuple[str, float | None, str], ...] = ()
+
+    @classmethod
+    def of_project(cls, project: Project, keys: frozenset) -> "Asprs2023Figures":
+        if not keys:
+            return cls(keys)
+        from aerotri.qa.compliance import _json, _survey_accuracy, at_checks
+
+        h, v, src = _survey_accuracy(project.qa)
+        at = at_checks(_json(project.adjustment_report_path), project.control_points,
+                       str(project.adjustment_report_path))
+        at_h, at_v, at_src = (at.cp_rmse_h_m, at.cp_rmse_v_m, at.cp_source) if at is not None else (None, None, "")
+        return cls(keys, (("dem_rmse_m", v, src), ("feature_rms_xy_m", h, src), ("rms_xy_m", at_h, at_src),
+                          ("rms_z_m", at_v, at_src)))
+
+    def _accuracy(self, key: str) -> tuple[float | None, str]:
+        if key not in self.keys:
+            return None, ""
+        return next(((m, src) for k, m, src in self.by_key if k == key), (None, ""))
+
+    def figure(self, measured_m: float | None, key: str) -> tuple[float | None, str]:
+        """(the figure judged against ``key``'s limit, the note saying how it was made: "" when it is the measured
+        one)."""
+        cp_m, src = self._accuracy(key)
+        if measured_m is None or cp_m is None:
+            return measured_m, ""
+        return (F.with_checkpoint_accuracy(measured_m, cp_m),
+                f"ASPRS 2023: measured {measured_m:.4f} m combined with the check points' own {cp_m:.4f} m ({src}), "
+                "as the compliance section")
+
+    def quantity_suffix(self, measured_m: float | None, key: str) -> str:
+        """" (with the check points' own accuracy, ASPRS 2023)" when ``figure`` combines them."""
+        combined = measured_m is not None and self._accuracy(key)[0] is not None
+        return " (with the check points' own accuracy, ASPRS 2023)" if combined else ""
+
+
+@dataclass(frozen=True)
+class DomPointsJudged:
+    """What the verdict table's DOM rows judge of a check at surveyed points (``ortho check --points``): the points
+    the adjustment did not use as control (``aerotri.qa.compliance.dom_independent_points``, the compliance row's
+    figure), as ``displacement`` (the check's ``Displacement`` with their count, RMS, 95th percentile and largest);
+    ``control_ids``: the points left out, ``total``: every point the check measured. The DOM stands on orientations
+    fitted to the control points, so their displacement is no check of it (trial audit F1: 4 control points at 0 m
+    beside 6 others at 0.600 m read 0.4648 m, "pass" against 0.50 m)."""
+
+    displacement: object  # ortho.check.Displacement of the independent points (count 0: none left)
+    control_ids: tuple[str, ...]
+    total: int
+
+    def left_out_note(self) -> str:
+        """"4 of the 10 surveyed points left out, the adjustment's control (RC00322, ...): not independent check
+        points" ("" when none was)."""
+        if not self.control_ids:
+            return ""
+        more = ", ..." if len(self.control_ids) > 3 else ""
+        return (f"{len(self.control_ids)} of the {self.total} surveyed points left out, the adjustment's control "
+                f"({', '.join(self.control_ids[:3])}{more}): not independent check points")
+
+
+def _dom_points(dom_check, project: Project) -> DomPointsJudged | None:
+    """None for a DOM check against a reference orthophoto (ground patches); for one at surveyed points the figures
+    of those the adjustment did not use as control (``DomPointsJudged``)."""
     if dom_check is None or dom_check.method != "surveyed_points":
-        return None, "on ground patches"
+        return None
     from aerotri.qa.compliance import _json, dom_independent_points, dom_points_used_as_control
 
+    dom = dom_check.displacement
     dom_all = _json(project.dom_report_path)
     control = dom_points_used_as_control(dom_all, _json(project.adjustment_report_path))
     if not control:
-        return "", "at surveyed points"
-    more = ", ..." if len(control) > 3 else ""
+        return DomPointsJudged(dom, (), dom.count or 0)
     ind = dom_independent_points(dom_all, control)
-    judged = (f", left out of the compliance row: {ind.rmse_xy_m:.3f} m RMSE at the {ind.n} others" if ind.n
-              else ", and no other")
-    return (f"; {len(control)} of them the adjustment's control ({', '.join(control[:3])}{more}): not independent "
-            f"check points{judged}", "at surveyed points")
+    gsd = (lambda m: m / dom.gsd_m if m is not None and dom.gsd_m else None)
+    judged = dataclasses.replace(dom, count=ind.n, rms_xy_m=ind.rmse_xy_m, rms_e_m=ind.rmse_e_m, rms_n_m=ind.rmse_n_m,
+                                 rms_xy_gsd=gsd(ind.rmse_xy_m), p95_xy_m=ind.p95_xy_m, max_xy_m=ind.max_xy_m,
+                                 max_xy_gsd=gsd(ind.max_xy_m), mean_e_m=None, mean_n_m=None, median_xy_m=None,
+                                 distribution_gsd=None)
+    return DomPointsJudged(judged, tuple(control), dom.count or 0)
 
 
 def _dom_crs_note(dom_check, project: Project) -> str:
@@ -553,13 +625,14 @@ def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]
                    key="strip_rmsdz_m", digits=4)], pairs
 
 
-def line_map_rows(project: Project, tol: dict) -> list[QaCheck]:
+def line_map_rows(project: Project, tol: dict, asprs: Asprs2023Figures | None = None) -> list[QaCheck]:
     """The "Line map (DLG) plan accuracy" row from a check-vectors result: the chain's (lidar_out/
     vectors_check.json, ``[vectors] enabled``), else ``[vectors] check_json`` of project.toml; none without.
 
     The value is the plan RMS of the building corners (well-defined points) to their matched reference
     corners, judged against this report's tolerance for well-defined map features (``feature_rms_xy_m``
-    of the map scale and terrain class), not the one the check was made with."""
+    of the map scale and terrain class), not the one the check was made with; under an ASPRS 2023 limit with the
+    survey's own accuracy combined (``asprs``), as the compliance section."""
     path = project.vectors_check_path
     if not path.is_file():
         path = project.settings(VectorsSettings).check_json  # relative names anchored at the project
@@ -577,8 +650,10 @@ def line_map_rows(project: Project, tol: dict) -> list[QaCheck]:
     note = (f"{b.n_matched_corners} corners within {chk.match_m:g} m of a reference corner; to the nearest "
             f"reference outline {b.rms_xy_to_line_m:.3f} m RMS; buildings complete {b.completeness_pct:.1f} %, "
             f"correct {b.correctness_pct:.1f} %; reference {Path(chk.reference).name}")
-    return [_check(cid, sec, name, b.rms_xy_corner_m, tol.get("feature_rms_xy_m"), "m", note=note,
-                   key="feature_rms_xy_m", digits=4)]
+    asprs = asprs or Asprs2023Figures(frozenset())
+    figure, combined = asprs.figure(b.rms_xy_corner_m, "feature_rms_xy_m")
+    return [_check(cid, sec, name + asprs.quantity_suffix(b.rms_xy_corner_m, "feature_rms_xy_m"), figure,
+                   tol.get("feature_rms_xy_m"), "m", note=_notes(combined, note), key="feature_rms_xy_m", digits=4)]
 
 
 def stage_results(project: Project) -> list:
@@ -638,6 +713,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                          horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
                          lidar_only=lidar_only, accuracy_class=accuracy_class)
     compliance = project_compliance(project, table, block, standard, accuracy_class, terrain, lidar_only, scale)
+    asprs2023_provenance = dict(table.provenance) if table.path == TOLERANCE_DIR / ASPRS_FILE else {}
     if compliance.key == "usgs-lbs":
         table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
     elif compliance.key == "asprs2014":
@@ -647,6 +723,9 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if lidar_only:
         table = lidar_limits(table)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
+    # the limits still ASPRS 2023's (the USGS LBS, Edition 1 or cn-at replaced some for the compliance standard)
+    asprs = Asprs2023Figures.of_project(
+        project, frozenset(k for k, p in asprs2023_provenance.items() if table.provenance.get(k) is p))
     tol_file = None if table.path.parent == TOLERANCE_DIR else table.path  # a user's own table
     at = (read_adjustment_report(project.adjustment_report_path)
           if project.adjustment_report_path.is_file() else None)
@@ -683,9 +762,12 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     elif hc is not None and hc.n_checked:
         dz, which = judged_dz(hc.dz_m, hc.dz_groups, nva)
         rmse = (hc.rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
+        figure, combined = asprs.figure(rmse, "dem_rmse_m")
         rows.append(_check("dem_rmse_m", sec, f"ground height RMSE at {len(dz) if which else hc.n_checked} "
-                           f"{which}surveyed points", rmse, tol.get("dem_rmse_m"), "m", key="dem_rmse_m", digits=4,
-                           note=_notes(_outside_note(hc.outside_ids, hc.outside_groups, which,
+                           f"{which}surveyed points{asprs.quantity_suffix(rmse, 'dem_rmse_m')}", figure,
+                           tol.get("dem_rmse_m"), "m", key="dem_rmse_m", digits=4,
+                           note=_notes(combined,
+                                       _outside_note(hc.outside_ids, hc.outside_groups, which,
                                                      f"with no ground point within {hc.radius_m:g} m" if hc.radius_m
                                                      else "with no ground point near"),
                                        _too_few_note(len(dz) if which else hc.n_checked, compliance))))
@@ -710,14 +792,16 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         name = Path(hc.dem_path).name if hc.dem_path else "the DEM"
         dz, which = judged_dz(hc.dem_dz_m, hc.dem_dz_groups, nva)
         rmse = (hc.dem_rmse_m if not which else math.sqrt(sum(d * d for d in dz) / len(dz)) if dz else None)
+        figure, combined = asprs.figure(rmse, "dem_rmse_m")
         rows.append(_check("dem_raster_rmse_m", sec, f"DEM ({name}) height RMSE at "
-                           f"{len(dz) if which else hc.dem_n_checked} {which}surveyed points",
-                           rmse, tol.get("dem_rmse_m"), "m", key="dem_rmse_m", digits=4,
-                           note=_notes(_outside_note(hc.dem_outside_ids, hc.dem_outside_groups, which,
+                           f"{len(dz) if which else hc.dem_n_checked} {which}surveyed points"
+                           f"{asprs.quantity_suffix(rmse, 'dem_rmse_m')}",
+                           figure, tol.get("dem_rmse_m"), "m", key="dem_rmse_m", digits=4,
+                           note=_notes(combined, _outside_note(hc.dem_outside_ids, hc.dem_outside_groups, which,
                                                      f"with no valid cell of the DEM {name} under them"),
                                        _too_few_note(len(dz) if which else hc.dem_n_checked, compliance))))
 
-    rows += line_map_rows(project, tol)
+    rows += line_map_rows(project, tol, asprs)
 
     # Control and adjustment
     sec = "Control points"
@@ -804,13 +888,17 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             rows.append(_check("check_points_count", sec, "check points for the accuracy assessment", n, None, "",
                                note=f"at least {need:g} required" + (": too few, the RMS rows below are indicative only"
                                                                 if n < need else ""), key="check_points_min"))
-        rows.append(_check("check_rms_xy_m", sec, "check points, plan RMS", math.hypot(chk[0], chk[1]),
-                           tol.get("rms_xy_m"), "m", note=npts, key="rms_xy_m", digits=4))
+        figure, combined = asprs.figure(math.hypot(chk[0], chk[1]), "rms_xy_m")
+        rows.append(_check("check_rms_xy_m", sec, "check points, plan RMS"
+                           f"{asprs.quantity_suffix(math.hypot(chk[0], chk[1]), 'rms_xy_m')}", figure,
+                           tol.get("rms_xy_m"), "m", note=_notes(npts, combined), key="rms_xy_m", digits=4))
         if chk[2] is not None:
             nz = sum(math.isfinite(a) and math.isfinite(b) and math.isfinite(c) for a, b, c in at.check_residuals_m)
-            rows.append(_check("check_rms_z_m", sec, "check points, height RMS", chk[2], tol.get("rms_z_m"), "m",
-                               note=npts if nz == n else f"{nz} with a surveyed height of {npts}", key="rms_z_m",
-                               digits=4))
+            figure, combined = asprs.figure(chk[2], "rms_z_m")
+            rows.append(_check("check_rms_z_m", sec, "check points, height RMS"
+                               f"{asprs.quantity_suffix(chk[2], 'rms_z_m')}", figure, tol.get("rms_z_m"), "m",
+                               note=_notes(npts if nz == n else f"{nz} with a surveyed height of {npts}", combined),
+                               key="rms_z_m", digits=4))
         d = at.check_residuals_m
         # Gross errors: single residuals beyond the residual limit (2 x the RMS limit); a few percent
         # of them is tolerated (their share is limited, not their existence).
@@ -832,45 +920,60 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                             f"the check found no usable patch: {lost.note()}" if lost and lost.patches else
                             "the check found no usable patch or point (no texture, no ground under --max-ndsm-m, or "
                             "the reference misses the DOM)"))
-    if dom and dom.rms_xy_m is not None:
-        gsd = dom.rms_xy_gsd if dom.rms_xy_gsd is not None else float("nan")
-        at_surveyed, what = _dom_points(dom_check, project)
-        rows.append(_check("dom_rms_xy_m", sec, f"displacement {what}, plan RMS", dom.rms_xy_m,
+    at_points = _dom_points(dom_check, project) if dom and dom.rms_xy_m is not None else None
+    if at_points is not None and at_points.displacement.count == 0:
+        # every point the adjustment's control: nothing independent to judge, so no figure (never a pass)
+        rows.append(QaCheck("dom_rms_xy_m", sec, "displacement at surveyed points, plan RMS", None,
+                            tol.get("feature_rms_xy_m"), "m",
+                            f"not testable: {at_points.left_out_note()}, none other; measure the DOM at check points "
+                            f"the adjustment did not use{_dom_crs_note(dom_check, project)}", None, "feature_rms_xy_m"))
+    elif dom and dom.rms_xy_m is not None:
+        # at surveyed points: those the adjustment did not use (the compliance row's figure), the others said
+        judged = at_points.displacement if at_points is not None else dom
+        gsd = judged.rms_xy_gsd if judged.rms_xy_gsd is not None else float("nan")
+        what = "on ground patches" if at_points is None else "at surveyed points"
+        left_out = f"; {at_points.left_out_note()}" if at_points is not None and at_points.control_ids else ""
+        figure, combined = asprs.figure(judged.rms_xy_m, "feature_rms_xy_m")
+        rows.append(_check("dom_rms_xy_m", sec, f"displacement {what}, plan RMS"
+                           f"{asprs.quantity_suffix(judged.rms_xy_m, 'feature_rms_xy_m')}", figure,
                            tol.get("feature_rms_xy_m"), "m", digits=4,
-                           note=f"{dom.count} {'points' if at_surveyed is not None else 'patches'}, {gsd:.2f} GSD"
-                           f"{at_surveyed or ''}{_dom_crs_note(dom_check, project)}", key="feature_rms_xy_m"))
+                           note=f"{judged.count} {'points' if at_points is not None else 'patches'}, {gsd:.2f} GSD"
+                           f"{left_out}{_dom_crs_note(dom_check, project)}" + (f"; {combined}" if combined else ""),
+                           key="feature_rms_xy_m"))
         if lost is not None and lost.fails():
             # the RMS is of the patches matched: a DOM (or a frame's region) off by more than the search lost its
             # patches there, and the rest passed (``ortho.check.UnmatchedPatches``). A fail only where the search
             # reaches the limit (a patch beyond it is then beyond the limit), and only against a limit (review 34)
-            limit = tol.get("feature_rms_xy_m")
-            gsd_m = dom.rms_xy_m / dom.rms_xy_gsd if dom.rms_xy_gsd else float("nan")
-            search_m = lost.search_px * gsd_m
-            reach = f" (+-{search_m:.3f} m)" if math.isfinite(search_m) else ""
-            if limit is None:
-                verdict, why = None, ""
-            elif math.isfinite(search_m) and search_m < limit:
-                verdict, why = None, (f"; not judged: the search{reach} is shorter than the limit {limit:g} m, so a "
-                                      "patch beyond it may still be within the limit")
+            gsd_m = dom.rms_xy_m / dom.rms_xy_gsd if dom.rms_xy_gsd else None
+            judged_lost = lost.judged_against(tol.get("feature_rms_xy_m"), gsd_m)
+            why = f"; {judged_lost.why}" if judged_lost.why else ""
+            if lost.too_few_matched():
+                # most of the DOM matched nothing: the few patches that did (false matches, as likely as not) are no
+                # measure of it, so no figure (trial audit F6: 2 of 633 gave "2.370 m" for a DOM 5 m off)
+                rows[-1] = dataclasses.replace(
+                    rows[-1], value=None, verdict=judged_lost.verdict,
+                    note=f"{'failed because the patches did not match: ' if judged_lost.verdict else ''}{lost.note()}"
+                         f"{judged_lost.reach}{why}; the {dom.count} that matched are too few to measure the DOM "
+                         "(no figure)")
+                judged = dataclasses.replace(judged, p95_xy_m=None)  # nor a 95th percentile of them
             else:
-                verdict, why = "fail", ""
-            rows[-1] = dataclasses.replace(rows[-1], verdict=verdict,
-                                           note=f"{lost.note()}{reach}{why}; {rows[-1].note}")
+                rows[-1] = dataclasses.replace(rows[-1], verdict=judged_lost.verdict,
+                                               note=f"{lost.note()}{judged_lost.reach}{why}; {rows[-1].note}")
         elif lost is not None and lost.unusual():  # (trial-ortho2: a DOM half mirrored, 38 % lost, passed unsaid)
             rows[-1] = dataclasses.replace(rows[-1], note=f"warning: {lost.unusual_note()}; {rows[-1].note}")
         elif lost is not None and lost.patches:
             rows[-1] = dataclasses.replace(rows[-1], note=f"{rows[-1].note}; {lost.patches} of {lost.textured} "
                                                           "textured patches without a match")
-        if dom.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
+        if judged.p95_xy_m is not None and tol.get("feature_rms_xy_m") and tol.get("gross_error_max_pct") == 5.0:
             # 95th percentile within 2 x the RMS limit <=> at most 5 % gross errors.
-            largest = dom.max_xy_m if dom.max_xy_m is not None else float("nan")
+            largest = judged.max_xy_m if judged.max_xy_m is not None else float("nan")
             # under an ASPRS table the row says what it is in its name: ASPRS 2023 states RMSE only, and Edition 1's
             # 95 % figure (1.7308 x RMSE_r) is another limit (trial-qa read this one as ASPRS's)
             asprs = compliance.key.startswith("asprs") or table.key.upper().startswith("ASPRS")
             rows.append(_check("dom_p95_xy_m", sec, "95th percentile of the "
-                               f"{'point' if at_surveyed is not None else 'patch'} displacements"
+                               f"{'point' if at_points is not None else 'patch'} displacements"
                                + (" (the gross-error rule, not an ASPRS measure)" if asprs else ""),
-                               dom.p95_xy_m, 2 * tol["feature_rms_xy_m"], "m", digits=4,
+                               judged.p95_xy_m, 2 * tol["feature_rms_xy_m"], "m", digits=4,
                                note=f"largest {largest:.3f} m; " "limit 2 x the RMS limit (at most 5 % gross errors)",
                                key="feature_rms_xy_m"))
     if dom_check_stale and other_dom:

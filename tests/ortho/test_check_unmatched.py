@@ -66,10 +66,13 @@ def test_a_frame_region_off_by_more_than_the_search_fails_the_dom_row(blocks):
     row = write_qa_report(far).check("dom_rms_xy_m")
     assert row.verdict == "fail" and row.value < row.limit
     assert row.limit <= u.search_px * RES_M  # the search reaches the limit: a lost patch is beyond it
-    # the compliance statement takes no class from the patches left (review 34: "finest class met" beside the fail)
+    # the compliance statement takes no class from the patches left (review 34: "finest class met" beside the fail),
+    # and fails the DOM on them as the verdict table does (trial audit F6: it read "not testable", 0 patches)
     rep = write_qa_report(far, standard="asprs2023", accuracy_class="H10 V10")
     dom = [c for c in rep.compliance["checks"] if c["product"] == "DOM"][0]
-    assert dom["verdict"] == "not testable" and dom.get("measured") is None, dom
+    assert dom["verdict"] == "fail" and dom["n_points"] == after.displacement.count, dom
+    assert dom["why"].startswith(f"failed because the patches did not match: {u.patches} of {u.textured}"), dom
+    assert dom["finest_class"] == "none (patches unmatched)"
     assert f"{SHIFTED} " in json.dumps(dom)
     assert f"1 frame region more than {100 * DOM_MAX_UNMATCHED_SHARE:g} % unmatched ({SHIFTED} " in row.note
     r = CliRunner().invoke(main, ["check", str(far), "--reference", str(far / "truth" / "ortho.tif")])

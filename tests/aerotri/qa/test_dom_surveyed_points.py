@@ -41,8 +41,8 @@ def test_a_dom_checked_at_the_adjustments_control_is_not_independent(tmp_path):
     rep = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10")
     row = rep.check("dom_rms_xy_m")
     assert row.quantity == "displacement at surveyed points, plan RMS"
-    assert row.note.startswith("32 points, 0.50 GSD; 20 of them the adjustment's control (T0, T1, T2, ...): not "
-                               "independent check points"), row.note
+    assert row.note.startswith("12 points, 0.50 GSD; 20 of the 32 surveyed points left out, the adjustment's "
+                               "control (T0, T1, T2, ...): not independent check points"), row.note
     dom = [c for c in rep.compliance["checks"] if c["product"] == "DOM"][0]
     assert dom["counted"] == "surveyed points" and dom["n_points"] == 12  # the independent ones
     assert dom["verdict"] == "not testable", dom  # (12 of the 30 ASPRS asks for)
@@ -59,7 +59,8 @@ def test_the_dom_is_judged_at_its_independent_points(tmp_path):
     assert dom["n_points"] == 30 and dom["verdict"] == "pass", dom
     assert abs(dom["measured"] - 0.05) < 1e-9, dom  # sqrt(0.03² + 0.04²), without T7's 3.6 m
     assert "1 of the 31 left out, the adjustment's control (T7)" in dom["checkpoints_note"], dom
-    assert "0.050 m RMSE at the 30 others" in rep.check("dom_rms_xy_m").note
+    row = rep.check("dom_rms_xy_m")  # the verdict table judges the same 30 points
+    assert row.value == 0.05 and row.note.startswith("30 points") and "1 of the 31 surveyed points left out" in row.note
     # every point the adjustment's control: no figure, never a pass
     rep = write_qa_report(_project(tmp_path / "all", ids, ids), standard="asprs2023", accuracy_class="H10 V10")
     dom = [c for c in rep.compliance["checks"] if c["product"] == "DOM"][0]
@@ -89,3 +90,26 @@ def test_a_dom_checked_at_independent_points(tmp_path):
     assert "control" not in row.note
     dom = [c for c in rep.compliance["checks"] if c["product"] == "DOM"][0]
     assert dom["counted"] == "surveyed points" and dom["n_points"] == 32 and dom["verdict"] == "pass", dom
+
+
+def test_the_verdict_table_judges_the_independent_points_only(tmp_path):
+    """Trial audit F1: 6 independent points 0.600 m off and the adjustment's 4 control points at 0 m read "plan RMS
+    0.4648 m: pass" (limit 0.50 m, 1:5000) over all 10, the compliance row 0.600 m "fail". Both judge the 6 now; with
+    every point the adjustment's control the row is not testable (no figure, never a pass)."""
+    ids = [f"C{i}" for i in range(4)] + [f"P{i}" for i in range(6)]
+    shifts = {i: (0.0, 0.0) for i in ids[:4]} | {i: (0.6, 0.0) for i in ids[4:]}
+    rep = write_qa_report(_project(tmp_path, ids[:4], ids, shifts_m=shifts), scale="1:5000")
+    row = rep.check("dom_rms_xy_m")
+    assert row.limit == 0.5 and row.value == 0.6 and row.verdict == "fail", row
+    assert row.note.startswith("6 points, 6.00 GSD; 4 of the 10 surveyed points left out, the adjustment's control "
+                               "(C0, C1, C2, ...)"), row.note
+    assert rep.check("dom_p95_xy_m").value == 0.6  # of the 6 too
+    assert rep.overall == "fail"
+    dom = [c for c in rep.compliance["checks"] if c["product"] == "DOM"][0]
+    assert dom["measured"] == row.value and dom["verdict"] == "fail", dom
+    # every point the adjustment's control: not testable, with the reason
+    rep = write_qa_report(_project(tmp_path / "all", ids, ids, shifts_m=shifts), scale="1:5000")
+    row = rep.check("dom_rms_xy_m")
+    assert row.value is None and row.verdict is None and row.limit == 0.5, row
+    assert row.note.startswith("not testable: 10 of the 10 surveyed points left out, the adjustment's control"), row
+    assert "dom_rms_xy_m" in rep.not_judged and not rep.has("dom_p95_xy_m")
