@@ -37,6 +37,7 @@ import numpy as np
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import track
+from aerotri.core.point_ids import point_id_key, warn_coincident_points
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.project import Project, project_paths
 from aerotri.core.records import to_record
@@ -434,7 +435,7 @@ def read_points_csv(path) -> DomPoints:
     need = ["id", "x", "y", "x_dom", "y_dom"]
     if reader.fieldnames is None or any(k not in reader.fieldnames for k in need):
         raise InputError(f"{path}: header must contain {','.join(need)} (got {reader.fieldnames})")
-    ids, vals, first_line = [], [], {}
+    ids, vals, lines, first_line = [], [], [], {}
     for lineno, row in enumerate(reader, start=2):
         try:
             vals.append([float(row[k]) for k in need[1:]])
@@ -442,14 +443,21 @@ def read_points_csv(path) -> DomPoints:
             raise InputError(f"{path}:{lineno}: non-numeric coordinate in {row}") from None
         if not np.all(np.isfinite(vals[-1])):
             raise InputError(f"{path}:{lineno}: NaN or infinite coordinate in {row}")
-        if row["id"] in first_line:  # counted twice it would pass a standard's minimum number of points
-            raise InputError(f"{path}:{lineno}: point {row['id']!r} again (first on line {first_line[row['id']]}); "
-                             "expected each surveyed point once")
-        first_line[row["id"]] = lineno
+        # counted twice it would pass a standard's minimum number of points; twice as the report matches ids
+        # (point_id_key: P00 and p00 are one point)
+        key = point_id_key(row["id"])
+        if key in first_line:
+            first_id, first_no = first_line[key]
+            raise InputError(f"{path}:{lineno}: point {row['id']!r} again (first on line {first_no}"
+                             + ("" if first_id == row["id"] else f" as {first_id!r}; ids match without case and a "
+                                "number's leading zeros") + "); expected each surveyed point once")
+        first_line[key] = (row["id"], lineno)
+        lines.append(lineno)
         ids.append(row["id"])
     if not ids:
         raise InputError(f"{path}: no points")
     a = np.array(vals)
+    warn_coincident_points(path, ids, lines, a[:, 0], a[:, 1])
     return DomPoints(ids, a[:, 0], a[:, 1], a[:, 2], a[:, 3])
 
 

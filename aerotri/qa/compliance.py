@@ -26,6 +26,7 @@ import numpy as np
 
 from aerotri.core.errors import ConfigError, OptionError
 from aerotri.core.project import ControlPointSettings, Project
+from aerotri.core.point_ids import point_id_key  # (the tests read it from here too)
 from aerotri.core.textio import read_json
 from aerotri.qa.rounding import round_on_its_side, within
 from aerotri.core.tolerances import (SCALE_TABLES, Provenance, ToleranceTable, asprs_classes_for_gsd, asprs_table,
@@ -240,13 +241,6 @@ def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:
 
 # what a ``CheckSet`` counts when its points were surveyed (no reference orthophoto stands for them)
 SURVEYED = ("check points", "surveyed points")
-
-
-def point_id_key(point_id) -> str:
-    """A surveyed point's id as matched between files: case ignored ("GCP06" is "gcp06"), and the leading zeros of
-    a numeric id ("06" is "6", the number 6 too); "GCP06" is not "GCP6"."""
-    key = str(point_id).strip().casefold()
-    return (key.lstrip("0") or "0") if key.isdigit() else key
 
 
 def dom_points_used_as_control(dom_all: dict, at: dict) -> tuple[str, ...]:

@@ -799,7 +799,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                            figure, tol.get("dem_rmse_m"), "m", key="dem_rmse_m", digits=4,
                            note=_notes(combined, _outside_note(hc.dem_outside_ids, hc.dem_outside_groups, which,
                                                      f"with no valid cell of the DEM {name} under them"),
-                                       _too_few_note(len(dz) if which else hc.dem_n_checked, compliance))))
+                                       _too_few_note(len(dz) if which else hc.dem_n_checked, compliance),
+                                       hc.dem_z_unit_note)))
 
     rows += line_map_rows(project, tol, asprs)
 

@@ -4,7 +4,8 @@ For each surveyed point (X, Y, Z) the cloud's ground height is interpolated from
 (class 2) within ``radius_m`` horizontally: a least-squares plane, inverse-distance weighted
 (1/d^2), evaluated at (X, Y); with fewer than 3 points, or points nearly on a line (spread across
 it below 0.1 radius), the IDW mean. dz = Z_lidar - Z_surveyed (m).
-Statistics: counts per error bin, counts per |dz| bin (seed 004 Tab. 1: < 0.3, 0.3-0.5, 0.5-1, > 1 m),
+Statistics: counts per error bin, counts per |dz| bin (seed 004 Tab. 1: <= 0.3, 0.3-0.5, 0.5-1, > 1 m; dz as printed,
+to the mm, and on an edge in the bin nearer zero),
 mean |dz|, RMSE, mean dz; the same without |dz| > ``exclude_m``; all of it per group.
 
 The DEM raster itself (``dem_path``, ``--dem``) is checked the same way: its bilinear height at each
@@ -21,7 +22,12 @@ above; unknown: no first return in range.
 Units: the surveyed points are in the cloud's CRS (x, y in its horizontal unit, z in its vertical
 unit). Radius, threshold, bins and every ``_m`` key (dz, mean, RMSE) are metres, also for clouds
 in feet; the per-point coordinates (``x``, ``y``, ``z_survey``, ``z_lidar``) are in the CRS's units,
-named by ``xy_unit`` and ``z_unit``.
+named by ``xy_unit`` and ``z_unit``. A DEM whose file declares no height unit (a 2D CRS, no band unit, no
+VERTICAL_UNITS tag) is read in ``--dem-z-unit`` or else in its CRS's horizontal unit, said on the console and in
+``dem.z_unit_note`` (and in the report's DEM row when ``dem.z_unit_consequential``: the CRS is not in metres).
+
+The top-level ``overall`` and ``groups`` are the statistics of the surface named by ``overall_surface``: the cloud's
+when a cloud was checked, else (``--dem`` alone) the DEM's, the same as ``dem.overall`` and ``dem.groups``.
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ from scipy.spatial import cKDTree
 from aerotri.geom import las
 
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.point_ids import point_id_key, warn_coincident_points
 from aerotri.core.textio import read_text
 from aerotri.geom.crs.definition import length_unit_name
 from lidarctl import io
@@ -77,16 +84,45 @@ class DensityGroups:
         return [str(v) for v in np.where(np.isfinite(cover), lab, "unknown")]
 
 
-def bin_labels(edges=BIN_EDGES_M) -> list[str]:
+# Binning: dz is counted as printed, rounded to the mm (a typed 0.3 m is 0.29999999999999716 after the subtraction:
+# printed "+0.300", it was counted "< 0.3"), and a dz on an edge goes to the bin nearer zero on either side, as a
+# limit reads "|dz| <= 0.5" (+0.5 was counted in "0.5 .. 1" but -0.5 in "-0.5 .. 0.5"; 5.0 in "> 5"); the labels
+# say which end is closed
+BIN_RESOLUTION_DECIMALS = 3  # mm, the printed resolution of dz
+
+
+def _bin_index(values: np.ndarray, edges) -> np.ndarray:
+    """The bin (between consecutive ``edges``) of each value rounded to the mm: on an edge, the bin nearer zero."""
+    v = np.round(np.asarray(values, float), BIN_RESOLUTION_DECIMALS)
+    e = np.asarray(edges, float)
+    i = np.where(v < 0, np.searchsorted(e, v, side="right"), np.searchsorted(e, v, side="left")) - 1
+    return np.clip(i, 0, len(e) - 2)
+
+
+def bin_counts(values: np.ndarray, edges) -> np.ndarray:
+    """Counts per bin of ``values`` (metres) between ``edges`` (``_bin_index``)."""
+    return np.bincount(_bin_index(values, edges), minlength=len(edges) - 1)
+
+
+def _edge_labels(edges, var: str) -> list[str]:
+    """Each bin's range with its closed end: the end nearer zero is open, the other closed ("0.5 < dz <= 1",
+    "-1 <= dz < -0.5", "-0.5 <= dz <= 0.5"); a first bin from 0 reads "|dz| <= 0.3"."""
     labels = []
     for lo, hi in zip(edges[:-1], edges[1:]):
+        lo_op, hi_op = ("<=" if lo < 0 else "<"), ("<=" if hi > 0 else "<")
         if np.isinf(lo):
-            labels.append(f"< {hi:g}")
+            labels.append(f"{var} {hi_op} {hi:g}")
         elif np.isinf(hi):
-            labels.append(f"> {lo:g}")
+            labels.append(f"{var} {'>=' if lo < 0 else '>'} {lo:g}")
+        elif lo == 0:
+            labels.append(f"{var} {hi_op} {hi:g}")
         else:
-            labels.append(f"{lo:g} .. {hi:g}")
+            labels.append(f"{lo:g} {lo_op} {var} {hi_op} {hi:g}")
     return labels
+
+
+def bin_labels(edges=BIN_EDGES_M) -> list[str]:
+    return _edge_labels(edges, "dz")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -174,8 +210,8 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
     # the land cover under any of its usual names (a "landcover" column was read as no groups, and the report then
     # judged forest points as open ground)
     col_group = next((head.index(n) for n in GROUP_COLUMNS if n in head), None)
-    ids, xyz, groups = [], [], []
-    first_line: dict[str, int] = {}
+    ids, xyz, groups, lines = [], [], [], []
+    first_line: dict[str, tuple[str, int]] = {}  # point_id_key -> (id as written, line)
     for line_no, row in enumerate(rows[1:], start=2):
         if not row or all(not c.strip() for c in row):
             continue
@@ -188,17 +224,24 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
         if not np.all(np.isfinite(vals)):
             raise InputError(f"{path}: line {line_no}: non-finite coordinate: {row}")
         pid = row[col_id].strip() if col_id is not None else str(line_no - 1)
-        # a point listed twice would count twice against a standard's minimum number of check points
-        if pid in first_line:
-            raise InputError(f"{path}: line {line_no}: point {pid!r} again (first on line {first_line[pid]}); "
-                             "expected each surveyed point once")
-        first_line[pid] = line_no
+        # a point listed twice would count twice against a standard's minimum number of check points; twice is
+        # judged as the report matches ids (point_id_key: P00 and p00 are one point; they were read as two, and
+        # 29 points met ASPRS 2023's minimum of 30)
+        key = point_id_key(pid)
+        if key in first_line:
+            first_id, first_no = first_line[key]
+            raise InputError(f"{path}: line {line_no}: point {pid!r} again (first on line {first_no}"
+                             + ("" if first_id == pid else f" as {first_id!r}; ids match without case and a number's "
+                                "leading zeros") + "); expected each surveyed point once")
+        first_line[key] = (pid, line_no)
+        lines.append(line_no)
         ids.append(pid)
         xyz.append(vals)
         groups.append(row[col_group].strip() if col_group is not None else "")
     if not xyz:
         raise InputError(f"{path}: no surveyed points after the header")
     xyz = np.array(xyz)
+    warn_coincident_points(path, ids, lines, xyz[:, 0], xyz[:, 1])
     return SurveyedPoints(tuple(ids), xyz[:, 0], xyz[:, 1], xyz[:, 2] if "z" in col else None,
                           tuple(groups) if col_group is not None else None, unit.get("x"), unit.get("z"),
                           rows[0][col["z"]].strip() if "z" in col else None)
@@ -287,16 +330,15 @@ def dem_heights(dem_path, x, y):
 
 
 def abs_bin_labels(edges=ABS_BIN_EDGES_M) -> list[str]:
-    e = list(edges)
-    return [f"< {e[0]:g}"] + [f"{a:g} .. {b:g}" for a, b in zip(e[:-1], e[1:])] + [f"> {e[-1]:g}"]
+    return _edge_labels([0.0, *edges, np.inf], "|dz|")
 
 
 def _stats_document(dz: np.ndarray, exclude_m: float, abs_edges=ABS_BIN_EDGES_M) -> dict:
     """dz statistics (metres) as height_check.json holds them: bins, |dz| bins, all, without |dz| > exclude_m."""
     dz = dz[np.isfinite(dz)]
-    counts, _ = np.histogram(dz, bins=np.array(BIN_EDGES_M))
-    abs_counts, _ = np.histogram(np.abs(dz), bins=np.array([0.0, *abs_edges, np.inf]))
-    kept = dz[np.abs(dz) <= exclude_m]
+    counts = bin_counts(dz, BIN_EDGES_M)
+    abs_counts = bin_counts(np.abs(dz), [0.0, *abs_edges, np.inf])
+    kept = dz[np.round(np.abs(dz), BIN_RESOLUTION_DECIMALS) <= exclude_m]  # as the |dz| bins: as printed
     n = len(dz)
 
     def block(d):
@@ -381,7 +423,8 @@ def _near_points(px_m, py_m, radius_m: float):
 
 
 def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclude_m: float = 1.0, crs=None,
-                       dem_path=None, grouping: str = "auto", density: DensityGroups | None = None) -> HeightCheck:
+                       dem_path=None, grouping: str = "auto", density: DensityGroups | None = None,
+                       dem_z_unit: str | None = None) -> HeightCheck:
     """Height check of surveyed points (CSV id,x,y,z[,group], in the CRS and units of the cloud, or of the
     DEM without a cloud) against the ground (class 2) of a classified LAS/LAZ file or of several strips
     (one CRS and unit, else an InputError naming the strip; ``crs`` only for files without CRS), and/or
@@ -391,14 +434,82 @@ def check_heights_file(cloud_paths, points_csv, *, radius_m: float = 5.0, exclud
     cloud's first returns, ``density``), ``none``, or ``auto`` (the column when there is one). The strips are
     read by chunks and only the returns near a surveyed point are kept (memory set by the chunk).
 
+    ``dem_z_unit`` ('m', 'ft', 'us-ft'; ``--dem-z-unit``): the DEM's height unit when the file declares none (no
+    vertical CRS, no band unit or VERTICAL_UNITS tag); without it such heights are taken in the CRS's horizontal
+    unit, and the console, ``dem.z_unit_note`` and the report's row say so.
+
     Returns the typed record (what the accuracy report reads back from the file) and the JSON document."""
     doc = _height_check_document(cloud_paths, points_csv, radius_m=radius_m, exclude_m=exclude_m, crs=crs,
-                                 dem_path=dem_path, grouping=grouping, density=density)
+                                 dem_path=dem_path, grouping=grouping, density=density, dem_z_unit=dem_z_unit)
     return HeightCheck(_record_of(doc), doc)
 
 
+@dataclasses.dataclass(frozen=True)
+class DemHeightsUnit:
+    """The unit the DEM's heights are read in (``unit_m``, metres per unit) and, when the file does not declare it,
+    the note that says where it came from (None: declared by the file)."""
+
+    unit_m: float
+    note: str | None
+    # the CRS's horizontal unit is not the metre: the unit taken for the heights decides the figures (metres under
+    # a metric CRS is the usual case: the note stays on the console and in height_check.json, not in the report)
+    consequential: bool = False
+
+
+DEM_Z_UNITS = ("m", "ft", "us-ft")
+
+
+def _dem_height_unit(dem_path, dem_z_unit: str | None) -> DemHeightsUnit:
+    """The DEM's height unit: the file's (vertical CRS, band unit, VERTICAL_UNITS), else ``dem_z_unit``, else the
+    CRS's horizontal unit, said on the console and in the note (metres under a feet CRS were read as feet without a
+    word: RMSE 0.046 m "meets QL0" for a true 0.150 m that fails QL2). A ``dem_z_unit`` against the file's own is
+    refused: the file's statement and the option cannot both be right."""
+    import logging
+
+    from aerotri.geom.crs.definition import length_unit_name
+    from lidarctl.terrain.dem_io import open_dem_unit
+
+    def units(unit_m):  # "international feet (0.3048 m)": a plural for a sentence, the factor for the feet
+        name = {"metre": "metres", "foot": "international feet", "US survey foot": "US survey feet"}.get(
+            length_unit_name(unit_m, long=True), length_unit_name(unit_m, long=True))
+        return name if unit_m == 1.0 else f"{name} ({unit_m:.7g} m)"
+
+    if dem_z_unit is not None and dem_z_unit not in DEM_Z_UNITS:
+        raise OptionError(f"--dem-z-unit {dem_z_unit!r}: expected one of {', '.join(DEM_Z_UNITS)}",
+                          param="--dem-z-unit")
+    src, unit = open_dem_unit(dem_path)
+    src.close()
+    name = Path(dem_path).name
+    given_m = HEADER_UNIT_M[dem_z_unit] if dem_z_unit is not None else None
+    if unit.declared:
+        if given_m is not None and abs(given_m - unit.unit_m) > 1e-12:
+            raise OptionError(f"--dem-z-unit {dem_z_unit}: {dem_path} declares its heights in "
+                              f"{units(unit.unit_m)} (its vertical CRS, band unit or "
+                              "VERTICAL_UNITS tag); leave the option out, or mend the file", param="--dem-z-unit")
+        return DemHeightsUnit(unit.unit_m, None)
+    log = logging.getLogger(__name__)
+    horizontal = units(unit.horizontal_unit_m)
+    consequential = unit.horizontal_unit_m != 1.0
+    if given_m is not None:
+        note = (f"{name} declares no vertical unit: its heights were taken in "
+                f"{units(given_m)} as --dem-z-unit {dem_z_unit} states (its CRS is in "
+                f"{horizontal})")
+        log.info("%s: heights in %s as --dem-z-unit states (the file declares no vertical unit)", dem_path,
+                 units(given_m))
+        return DemHeightsUnit(given_m, note, consequential)
+    if unit.unit_m == 1.0:  # metres under a metric CRS: the usual case, said briefly
+        note = f"{name} declares no vertical unit: heights taken in metres, as its CRS's axes"
+        log.info("%s", note.replace(name, str(dem_path), 1))
+        return DemHeightsUnit(unit.unit_m, note)
+    note = (f"{name} declares no vertical unit (no vertical CRS, no VERTICAL_UNITS tag): its heights were taken "
+            f"in its CRS's horizontal unit, {horizontal}; if they are in another unit, give check-heights "
+            f"--dem-z-unit (m, ft, us-ft) or tag the raster (gdal_edit -mo VERTICAL_UNITS=metre)")
+    log.warning("%s", note.replace(name, str(dem_path), 1))
+    return DemHeightsUnit(unit.unit_m, note, consequential)
+
+
 def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs, dem_path, grouping,
-                           density) -> dict:
+                           density, dem_z_unit=None) -> dict:
     """height_check.json's content (``check_heights_file``)."""
     if not (np.isfinite(radius_m) and radius_m > 0):
         raise OptionError(f"--radius-m {radius_m}: must be a positive distance in metres", param="--radius-m")
@@ -426,6 +537,7 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
         raise OptionError("--groups density: the vegetation density comes from the cloud's first returns; give the "
                           "classified cloud(s) before POINTS_CSV", param="--groups")
     with_density = grouping == "density"
+    dem_unit = _dem_height_unit(dem_path, dem_z_unit) if dem_path is not None else None
     if paths:
         box, unit = [np.inf, np.inf, -np.inf, -np.inf], ""
         for _, header, _, units in io.checked_headers(paths, crs):
@@ -441,8 +553,9 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
         src, _ = open_dem(dem_path)
         with src:
             b = src.bounds
-        _, dem_crs, dem_z_m = dem_heights(dem_path, points.x[:1], points.y[:1])
-        points = points.in_crs_units(units_of(dem_crs, source=str(dem_path), vertical_unit_m=dem_z_m), points_csv)
+        _, dem_crs, _ = dem_heights(dem_path, points.x[:1], points.y[:1])
+        points = points.in_crs_units(units_of(dem_crs, source=str(dem_path), vertical_unit_m=dem_unit.unit_m),
+                                     points_csv)
         _refuse_points_elsewhere(points, points_csv, [b.left, b.bottom, b.right, b.top], str(dem_path), "CRS units")
 
     cloud = _read_near(paths, points, radius_m, density.radius_m if with_density else None, crs) if paths else None
@@ -451,13 +564,14 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
     else:
         from lidarctl.units import units_of
 
-        _, crs_found, dem_z_m = dem_heights(dem_path, points.x[:1], points.y[:1])
-        u = units_of(crs_found, source=str(dem_path), vertical_unit_m=dem_z_m)
+        _, crs_found, _ = dem_heights(dem_path, points.x[:1], points.y[:1])
+        u = units_of(crs_found, source=str(dem_path), vertical_unit_m=dem_unit.unit_m)
     points_m = points.in_metres(u)
 
     z_dem = dz_dem = dem_z_m = None
     if dem_path is not None:
-        z_dem, dem_crs, dem_z_m = dem_heights(dem_path, points.x, points.y)
+        z_dem, dem_crs, _ = dem_heights(dem_path, points.x, points.y)
+        dem_z_m = dem_unit.unit_m
         if cloud is not None and crs_found is not None:
             from aerotri.core.errors import CrsError
             from aerotri.geom.crs.definition import same_horizontal
@@ -507,13 +621,20 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
     if dem_path is not None:
         labels = points_m.group
         # absolute: the report reads it from another working folder than the one the command ran in
-        result["dem"] = {"path": str(Path(dem_path).resolve()), "z_unit_m": dem_z_m, "n_points": len(dz_dem),
+        result["dem"] = {"path": str(Path(dem_path).resolve()), "z_unit_m": dem_z_m,
+                         "z_unit_note": dem_unit.note, "z_unit_consequential": dem_unit.consequential,
+                         "n_points": len(dz_dem),
                          "n_without_dem": int(np.sum(~np.isfinite(dz_dem))),
                          "overall": _stats_document(dz_dem, exclude_m),
                          "groups": _group_stats_document(dz_dem, labels, exclude_m) if labels else {}}
         for p, zd, d in zip(result["points"], z_dem, dz_dem):
             p["z_dem"] = None if not np.isfinite(zd) else float(zd)
             p["dz_dem_m"] = None if not np.isfinite(d) else float(d)
+    # which surface the top-level overall / groups are of: the DEM's when it was checked alone (they were null and
+    # {} with the figures under dem.overall only: a reader of overall.all.rmse_m, as for a cloud, got nothing)
+    result["overall_surface"] = "cloud" if cloud is not None else "dem"
+    if cloud is None:
+        result["overall"], result["groups"] = result["dem"]["overall"], result["dem"]["groups"]
     if points.z_unit is None:  # the header names no unit (a plain z): the CRS's unit was assumed
         for key, what in (("dz_m", "cloud"), ("dz_dem_m", "DEM")):
             dz = np.array([np.nan if p.get(key) is None else p[key] for p in result["points"]], float)
@@ -603,9 +724,9 @@ def _read_near(paths, points, radius_m: float, density_radius_m: float | None, c
 
 
 def _format_block(title: str, s: dict) -> list[str]:
-    lines = [title, f"  {'error bin (m)':<16}{'count':>8}{'percent':>10}"]
+    lines = [title, f"  {'error bin (m)':<20}{'count':>8}{'percent':>10}"]
     for b in s["bins"]:
-        lines.append(f"  {b['bin_m']:<16}{b['count']:>8}{b['percent']:>9.1f}%")
+        lines.append(f"  {b['bin_m']:<20}{b['count']:>8}{b['percent']:>9.1f}%")
 
     def fmt(v):
         return "-" if v is None else f"{v:.3f}"
@@ -621,13 +742,14 @@ def _format_block(title: str, s: dict) -> list[str]:
 def _group_table(title: str, overall: dict, groups: dict) -> list[str]:
     """Seed 004 Tab. 1: per group the share of points in each |dz| bin, mean |dz|, RMSE and the count."""
     labels = [b["abs_dz_m"] for b in overall["abs_bins"]]
-    head = f"  {'group':<10}{'n':>6}" + "".join(f"{lab:>12}" for lab in labels) + f"{'mean |dz|':>11}{'RMSE':>8}"
+    w = max(12, *(len(lab) + 2 for lab in labels))  # the labels state their closed end ("0.3 < |dz| <= 0.5")
+    head = f"  {'group':<10}{'n':>6}" + "".join(f"{lab:>{w}}" for lab in labels) + f"{'mean |dz|':>11}{'RMSE':>8}"
     lines = [title + " (|dz| bins in m: percent of points; mean |dz| and RMSE in m)", head]
     for name, s in [*groups.items(), ("all", overall)]:
         a = s["all"]
         fmt = (lambda v: "-" if v is None else f"{v:.3f}")
-        bins = ("".join(f"{b['percent']:>11.1f}%" for b in s["abs_bins"]) if a["n"]
-                else "".join(f"{'-':>12}" for _ in s["abs_bins"]))  # no dz: no share of anything
+        bins = ("".join(f"{b['percent']:>{w - 1}.1f}%" for b in s["abs_bins"]) if a["n"]
+                else "".join(f"{'-':>{w}}" for _ in s["abs_bins"]))  # no dz: no share of anything
         note = _without_dz(s)
         lines.append(f"  {name:<10}{a['n']:>6}" + bins + f"{fmt(a['mean_abs_dz_m']):>11}{fmt(a['rmse_m']):>8}"
                      + (f"  ({note})" if note else ""))
@@ -641,8 +763,9 @@ def format_report(check: HeightCheck) -> str:
     zu = result.get("z_unit", "m")
     z_unit_m = result.get("z_unit_m", 1.0)
     dem = result.get("dem")
+    has_lidar = cloud_checked(result)
     lines = []
-    if result["overall"] is not None:
+    if has_lidar:
         lines += ["LiDAR height check (dz = Z_lidar - Z_surveyed, in metres)",
                   f"search radius {result['radius_m']:g} m, {result['n_points']} points, "
                   f"{result['n_without_ground']} without ground points in range", ""]
@@ -655,6 +778,8 @@ def format_report(check: HeightCheck) -> str:
         lines += ([""] if lines else []) + [
             f"DEM height check (dz = Z_dem - Z_surveyed, in metres): {dem['path']}, {dem['n_points']} points, "
             f"{dem['n_without_dem']} off the DEM or next to nodata", ""]
+        if dem.get("z_unit_note"):  # its heights' unit was not the file's own statement
+            lines[-1:-1] = [f"note: {dem['z_unit_note']}"]
         lines += _format_block("All points (DEM)", dem["overall"])
         for g, s in dem["groups"].items():
             lines += [""] + _format_block(f"Group: {g} (DEM" + (f"; {_without_dz(s)})" if _without_dz(s) else ")"), s)
@@ -663,11 +788,10 @@ def format_report(check: HeightCheck) -> str:
         lines += ["", f"groups by canopy cover (first returns more than {d['canopy_height_m']:g} m above the ground "
                   f"within {d['radius_m']:g} m): open < {d['open_below']:.0%}, sparse up to {d['dense_above']:.0%}, "
                   "dense above"]
-    if result["overall"] is not None:
+    if has_lidar:
         lines += [""] + _group_table("Ground points by group", result["overall"], result["groups"])
     if dem is not None:
         lines += [""] + _group_table("DEM by group", dem["overall"], dem["groups"])
-    has_lidar = result["overall"] is not None
     head = f"{'id':<12}{'group':<18}{f'z survey ({zu})':>16}"
     if has_lidar:
         head += f"{f'z lidar ({zu})':>16}{'dz (m)':>9}"
@@ -699,7 +823,9 @@ def format_report(check: HeightCheck) -> str:
 
 
 HEIGHT_CHECK = "LiDAR height check (height_check.json)"
-HEIGHT_CHECK_VERSION = 1  # the chain's height_check stage stamp: bump when its numbers change at the same inputs
+# the chain's height_check stage stamp: bump when its numbers change at the same inputs (2: the bins count dz as
+# printed, an edge in the bin nearer zero, trial-audit F9)
+HEIGHT_CHECK_VERSION = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -723,6 +849,9 @@ class HeightCheckRecord:
     outside_groups: tuple[str | None, ...] = ()  # the group of each outside_ids point
     dem_outside_groups: tuple[str | None, ...] = ()  # the group of each dem_outside_ids point
     radius_m: float | None = None  # the search radius for ground points (check-heights --radius-m)
+    # where the DEM's height unit came from when the file declares none and its CRS is not in metres (the report's
+    # row says it)
+    dem_z_unit_note: str | None = None
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -741,8 +870,14 @@ class HeightCheck:
         return isinstance(other, HeightCheck) and self.document == other.document
 
 
+def cloud_checked(d: dict) -> bool:
+    """Whether height_check.json's top-level overall is the cloud's (of a DEM checked alone it is the DEM's,
+    ``overall_surface`` "dem"; files written before that key hold null there)."""
+    return d.get("overall") is not None and d.get("overall_surface", "cloud") == "cloud"
+
+
 def _record_of(d: dict) -> HeightCheckRecord:
-    overall = d.get("overall") or {}
+    overall = (d.get("overall") or {}) if cloud_checked(d) else {}
     every = overall.get("all") or {}
     dz = tuple(float(p["dz_m"]) for p in d.get("points") or [] if p.get("dz_m") is not None)
     dem = d.get("dem") or {}
@@ -752,7 +887,7 @@ def _record_of(d: dict) -> HeightCheckRecord:
     dem_groups = tuple(p.get("group") for p in d.get("points") or [] if p.get("dz_dem_m") is not None)
     return HeightCheckRecord(None if "n" not in every else int(every["n"]),
                              None if every.get("rmse_m") is None else float(every["rmse_m"]), dz,
-                             overall.get("bins"), dict(d.get("groups") or {}),
+                             overall.get("bins"), dict(d.get("groups") or {}) if overall else {},
                              None if every.get("mean_abs_dz_m") is None else float(every["mean_abs_dz_m"]),
                              dem_n_checked=None if not dem else int(dem_all.get("n") or 0),
                              dem_rmse_m=None if dem_all.get("rmse_m") is None else float(dem_all["rmse_m"]),
@@ -765,7 +900,8 @@ def _record_of(d: dict) -> HeightCheckRecord:
                                                   if p.get("dz_m") is None) if every else (),
                              dem_outside_groups=tuple(p.get("group") for p in d.get("points") or []
                                                       if p.get("dz_dem_m") is None) if dem else (),
-                             radius_m=None if d.get("radius_m") is None else float(d["radius_m"]))
+                             radius_m=None if d.get("radius_m") is None else float(d["radius_m"]),
+                             dem_z_unit_note=dem.get("z_unit_note") if dem.get("z_unit_consequential") else None)
 
 
 def read_height_check(path) -> HeightCheckRecord:

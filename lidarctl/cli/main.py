@@ -357,9 +357,12 @@ def _truth_notes(conf, class_map: dict | None = None) -> list[str]:
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Write the numbers as JSON (dz and statistics in metres, _m keys; per-point coordinates "
                    "in the cloud's units, named by xy_unit and z_unit).")
+@click.option("--dem-z-unit", "dem_z_unit", type=click.Choice(("m", "ft", "us-ft")), default=None,
+              help="The DEM's height unit when the file declares none (no vertical CRS, no VERTICAL_UNITS tag); "
+                   "without it they are taken in its CRS's horizontal unit, with a warning.")
 @click.option("--crs", default=None, help="CRS (EPSG:code) when the file has none.")
 def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radius_m, canopy_height_m, open_below,
-                  dense_above, json_path, crs):
+                  dense_above, json_path, crs, dem_z_unit):
     """Height check against surveyed points (CSV id,x,y,z[,group] in the CRS and units of the cloud, or of the
     DEM): of the cloud's ground (class 2; one file or classified strips) and/or of the DEM raster (--dem);
     dz in metres, error bins, mean |dz| and RMSE overall and per group (seed 004 Tab. 1: by vegetation
@@ -373,7 +376,7 @@ def check_heights(*, paths, dem_path, radius_m, exclude_m, grouping, cover_radiu
     density = hc.DensityGroups(radius_m=cover_radius_m, canopy_height_m=canopy_height_m, open_below=open_below,
                                dense_above=dense_above)
     result = hc.check_heights_file(cloud_paths, points_csv, radius_m=radius_m, exclude_m=exclude_m, crs=crs,
-                                   dem_path=dem_path, grouping=grouping, density=density)
+                                   dem_path=dem_path, grouping=grouping, density=density, dem_z_unit=dem_z_unit)
     click.echo(hc.format_report(result))
     if json_path:
         write_text_atomic(json_path, result.to_json())

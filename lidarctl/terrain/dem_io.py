@@ -4,6 +4,7 @@ from its working GeoTIFF."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 HYDRO_TAG = "HYDRO_FLATTENED"  # lidarctl hydro-flatten's tag on its DEM: lidarctl smooth warns of it
@@ -21,11 +22,28 @@ def stated_height_unit_m(src) -> float | None:
     return None
 
 
+@dataclasses.dataclass(frozen=True)
+class DemHeightUnit:
+    """Metres per height unit of a DEM (``unit_m``) and whether the file declares it (``declared``: a compound or 3D
+    CRS, the band's unit type or a VERTICAL_UNITS tag); False: its CRS is 2D and says nothing of heights, which are
+    taken in its horizontal unit (``horizontal_unit_m``, the LAS convention), an assumption."""
+
+    unit_m: float
+    declared: bool
+    horizontal_unit_m: float
+
+
 def open_dem(in_path, out_path=None):
     """(open rasterio dataset, metres per height unit) of a north-up DEM with a CRS, one band of finite,
     plausible heights with at least one valid cell and at least 2 x 2 cells (``aerotri.geom.crs.raster_warp.
     open_north_up``); refuses ``out_path`` equal to the input (``OptionError`` naming OUT; None: a check that
     writes no raster) and anything else with an ``InputError`` naming the file. The caller closes the dataset."""
+    src, unit = open_dem_unit(in_path, out_path)
+    return src, unit.unit_m
+
+
+def open_dem_unit(in_path, out_path=None):
+    """``open_dem`` with the height unit as a ``DemHeightUnit`` (whether the file declares it)."""
     from aerotri.core.atomic import refuse_input_as_output
     from aerotri.geom.crs.definition import height_unit_m
     from aerotri.geom.crs.raster_warp import open_north_up
@@ -35,11 +53,12 @@ def open_dem(in_path, out_path=None):
         refuse_input_as_output(Path(out_path), [in_path], option="OUT")
     src = open_north_up(in_path, "DEM", heights=True)
     try:
-        from aerotri.geom.crs.definition import length_unit_name, parse_crs
+        from aerotri.geom.crs.definition import length_unit_name, linear_unit_m, parse_crs
 
         crs = parse_crs(src.crs.to_wkt())
         unit_m = height_unit_m(crs)
         stated = stated_height_unit_m(src)
+        vertical_in_crs = crs.is_compound or len(crs.axis_info) >= 3
         if stated is not None and not crs.is_compound and len(crs.axis_info) < 3 and abs(stated - unit_m) > 1e-9:
             # a 2D CRS says nothing of heights (its horizontal unit is assumed): the file's own statement decides
             # (trial-hydro: metres on a foot grid, tagged metre, read as feet: contours labelled 124-132 ft)
@@ -49,7 +68,8 @@ def open_dem(in_path, out_path=None):
                 "%s: heights in %s as the file states them (its CRS is 2D, in %s)", in_path,
                 length_unit_name(stated, long=True), length_unit_name(unit_m, long=True))
             unit_m = stated
-        return src, unit_m
+        return src, DemHeightUnit(float(unit_m), bool(vertical_in_crs or stated is not None),
+                                  float(linear_unit_m(crs)))
     except BaseException:
         src.close()
         raise

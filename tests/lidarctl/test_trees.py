@@ -245,7 +245,7 @@ def test_check_heights_dem_by_vegetation_density(forest_edge):
     assert [b["count"] for b in dem["groups"]["open"]["abs_bins"]] == [0, 8, 0, 0]
     assert [b["count"] for b in dem["groups"]["dense"]["abs_bins"]] == [0, 0, 8, 0]
     assert hc["groups"]["open"]["all"]["rmse_m"] < 0.05            # the ground points: no offset
-    assert "DEM by group" in r.output and "0.3 .. 0.5" in r.output
+    assert "DEM by group" in r.output and "0.3 < |dz| <= 0.5" in r.output
     # the same groups from the cloud's ground planes (no DEM) and with other thresholds
     _ok(["check-heights", d / "edge.laz", d / "pts.csv", "--groups", "density", "--dense-above", "0.95",
          "--json", d / "hc2.json"])
@@ -263,7 +263,7 @@ def test_check_heights_dem_alone_with_group_column(forest_edge, tmp_path, monkey
     _ok(["check-heights", pts, "--dem", "dem.tif", "--json", tmp_path / "hc.json"])
     hc = json.loads((tmp_path / "hc.json").read_text())
     assert hc["dem"]["path"] == str((d / "dem.tif").resolve())  # found again from any other folder
-    assert hc["overall"] is None and hc["grouping"] == "column"
+    assert hc["overall"] == hc["dem"]["overall"] and hc["overall_surface"] == "dem" and hc["grouping"] == "column"
     assert hc["dem"]["groups"]["wood"]["all"]["mean_dz_m"] == pytest.approx(0.7, abs=0.01)
     assert hc["dem"]["groups"]["field"]["all"]["n"] == 16
 

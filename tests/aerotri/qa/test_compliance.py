@@ -708,6 +708,7 @@ def test_the_outlier_row_counts_the_points_its_label_names(tmp_path):
     for p in hc["points"]:
         p["dz_m"] = p["dz_dem_m"]
     hc["overall"] = {"all": {"n": 40, "rmse_m": math.sqrt((34 * 0.05**2 + 6 * 1.8**2) / 40), "mean_abs_dz_m": 0.3}}
+    hc["overall_surface"] = "cloud"   # (a DEM checked alone fills overall with the DEM's: trial-audit F12)
     path.write_text(json.dumps(hc))
     rep = write_qa_report(tmp_path)                  # 1:5000: |dz| > 1.5 m at the 6 forest points of 40
     (out,) = [c for c in rep.checks if c.id == "height_check_outlier_pct"]
