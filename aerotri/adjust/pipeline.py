@@ -66,8 +66,10 @@ log = logging.getLogger(__name__)
 # pp-predictor: a principal point against a camera-fixed GNSS offset is flagged by the block's own estimate of the
 # offset, its predicted ground effect from the normal equations (the report's verdict may change). 5: at-verdicts: the
 # height control the data snooping left in is judged against the GNSS heights (``height_datum``), a principal point's
-# flag explained by GNSS strip shifts names them (report.json gains keys; the verdict may turn weak).
-ADJUST_VERSION = 5
+# flag explained by GNSS strip shifts names them (report.json gains keys; the verdict may turn weak). 6: lead
+# 2026-12-02: tie points left out below the DEM fail its check, a control point whose rays were all removed is
+# rejected by name, the Parameters figures and limits keep micrometres, object_points.csv's sigmas are metres.
+ADJUST_VERSION = 6
 
 
 @dataclasses.dataclass(kw_only=True)
@@ -950,19 +952,24 @@ def _dem_checks(p: PreparedBlock, result: AdjustmentResult) -> list:
 
 
 def object_points_csv(ba: BlockAdjustment) -> str:
-    """``id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px`` for all adjusted points (project CRS)."""
+    """``id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px`` for all adjusted points: x, y, z in the project CRS's units, the
+    standard deviations in metres (as eo.txt's; a feet project's were feet under "_m", trial-api F5)."""
+    from aerotri.adjust.report_record import map_unit_m
+
     b, r = ba.block, ba.result
+    unit = np.asarray(map_unit_m(ba.crs, "the adjustment's CRS"), dtype=float)
+    out = {c for c, _ in r.rejected_control}
     act = r.obs_active
     rays = np.bincount(b.obs_point[act], minlength=b.n_points)
     ss = np.bincount(b.obs_point[act], (r.residual_px[act] ** 2).sum(1), minlength=b.n_points)
     rms = np.sqrt(ss / np.maximum(2 * rays, 1))
     kind = np.array(["tie"] * b.n_points, dtype=object)
     for c, j in enumerate(b.control_point):
-        kind[j] = ba.control.kind[c] if r.control_active[c] else "rejected_control"
+        kind[j] = ba.control.kind[c] if r.control_active[c] and c not in out else "rejected_control"
     lines = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
     for j in np.flatnonzero(rays > 0):
         x, y, z = ba.points_map[j]
-        sx, sy, sz = ba.points_sigma_map[j]
+        sx, sy, sz = ba.points_sigma_map[j] * unit
         lines.append(f"{b.point_id[j]},{kind[j]},{x:.4f},{y:.4f},{z:.4f},{sx:.4f},{sy:.4f},{sz:.4f},{rays[j]},{rms[j]:.3f}")
     return "\n".join(lines) + "\n"
 

@@ -146,3 +146,21 @@ def test_a_geocentric_report_crs_is_refused():
     """Reviewer 8: the docstring said geocentric CRSs were refused, but EPSG:4978 (metre axes) was read as a map."""
     with pytest.raises(CrsError, match=re.escape("at/report.json: crs: EPSG:4978 (WGS 84) is geocentric; expected")):
         map_unit_m("EPSG:4978", "at/report.json: crs")
+
+
+def test_object_point_sigmas_are_metres_in_a_feet_crs(pair):
+    """object_points.csv's sx_m, sy_m, sz_m are metres in both projects, as eo.txt's (trial-api F5: feet under "_m",
+    0.2888 beside the metre project's 0.0880); x, y, z stay in the CRS's units."""
+    import csv
+
+    rows = {u: {r["id"]: r for r in csv.DictReader((p.report_path.parent / "object_points.csv").open())}
+            for u, p in pair.items()}
+    common = sorted(set(rows["m"]) & set(rows["ft"]))
+    assert len(common) > 50
+    for key in ("sx_m", "sy_m", "sz_m"):
+        m = np.array([float(rows["m"][i][key]) for i in common])
+        ft = np.array([float(rows["ft"][i][key]) for i in common])
+        assert m.max() > 0.005 and np.allclose(ft, m, rtol=0.01, atol=2e-4), key
+    x_m = np.array([float(rows["m"][i]["x"]) for i in common])
+    x_ft = np.array([float(rows["ft"][i]["x"]) for i in common])
+    assert np.allclose(x_ft * FT, x_m, atol=1e-3)
