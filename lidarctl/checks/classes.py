@@ -149,6 +149,9 @@ def filter_errors(pred_ground: np.ndarray, true_ground: np.ndarray) -> FilterTes
     pred_ground = np.asarray(pred_ground, bool)
     true_ground = np.asarray(true_ground, bool)
     n = len(true_ground)
+    if n == 0 or len(pred_ground) != n:
+        raise ValueError(f"filter_errors: {len(pred_ground)} predicted and {n} true labels: expected the same number "
+                         "of points, at least one")
     a = int(np.sum(true_ground & pred_ground))      # ground kept
     b = int(np.sum(true_ground & ~pred_ground))     # type I
     c = int(np.sum(~true_ground & pred_ground))     # type II

@@ -159,3 +159,11 @@ def test_two_class_note_repeats_the_coarse_mapping():
     conf = evaluate.confusion(np.array([2, 1, 1, 6]), np.array([2, 1, 1, 1]))
     notes = _truth_notes(conf, {"3": 1, "5": 1})
     assert any("--map-pred 3:1,5:1,6:1 " in n for n in notes)
+
+
+def test_filter_errors_refuses_no_points_and_unequal_masks():
+    # no points raised ZeroDivisionError (trial-api F7)
+    with pytest.raises(ValueError, match="0 predicted and 0 true labels"):
+        evaluate.filter_errors(np.zeros(0, bool), np.zeros(0, bool))
+    with pytest.raises(ValueError, match="2 predicted and 3 true labels"):
+        evaluate.filter_errors(np.ones(2, bool), np.ones(3, bool))
