@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.errors import ConfigError, OptionError
+from aerotri.core.errors import ConfigError, CrsError, OptionError
 from aerotri.core.project import ControlPointSettings, Project
 from aerotri.core.point_ids import point_id_key  # (the tests read it from here too)
 from aerotri.core.textio import read_json
@@ -177,6 +177,8 @@ class Compliance:
     # the standard was named (--standard, project.toml [qa] standard): a product of it that fails fails the report's
     # overall verdict; one the tolerance table chose is stated beside it
     requested: bool = False
+    # per product the standard's accuracy statement for the class it meets, or why none (``aerotri.qa.statements``)
+    statements: tuple = ()
 
 
 # ---------------------------------------------------------------------------------------------- measurements
@@ -1419,5 +1421,17 @@ def project_compliance(project: Project, table: ToleranceTable, block, standard:
                        lidar_only: bool = False, scale: str | None = None) -> Compliance:
     """The compliance section of a project's report (``table``: the report's tolerance table, ``block``: its
     BlockScale; ``lidar_only``: a project without frames, ``lidar_only_project``; ``scale``: --scale)."""
+    from aerotri.adjust.report_record import map_unit_m
+    from aerotri.geom.crs.definition import length_unit_name
+    from aerotri.qa.statements import accuracy_statements
+
     choice = choose(standard, class_text, table, block, project.qa, terrain, lidar_only, scale)
-    return judge(project_figures(project, density=choice.key in DENSITY_STANDARDS), choice)
+    comp = judge(project_figures(project, density=choice.key in DENSITY_STANDARDS), choice)
+    unit_m = 1.0
+    if project.crs:
+        try:  # the statements' feet beside the metres; a CRS the report cannot read is said by the rows that use it
+            unit_m = float(map_unit_m(project.crs, f"{project.config_path} [project] crs")[0])
+        except CrsError:
+            unit_m = 1.0
+    name = {"ft": "ft", "us-ft": "US survey ft"}.get(length_unit_name(unit_m), length_unit_name(unit_m))
+    return dataclasses.replace(comp, statements=accuracy_statements(comp, unit_m, name))

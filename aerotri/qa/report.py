@@ -40,6 +40,7 @@ from aerotri.core.tolerances import (ASPRS_FILE, TERRAINS, TOLERANCE_DIR, Tolera
 from aerotri.geom.block_scale import planned_terrain_height, project_block_scale
 from aerotri.qa.standards import formulas as F
 from aerotri.qa.rounding import round_on_its_side, text_on_its_side, within
+from aerotri.qa.statements import SOURCE_NOTE as STATEMENTS_NOTE
 from aerotri.qa.compliance import (NOT_TESTABLE, asprs_class_cm, lidar_only_project, project_compliance,
                                    with_asprs2014_limits, with_cn_at_lidar_limits,
                                    with_lbs_lidar_limits)
@@ -1231,7 +1232,8 @@ def _compliance_section(comp: dict | None) -> dict | None:
                    note=c["checkpoints_note"] or "", verdict_class=verdict_class(c["verdict"])) for c in comp["checks"]]
     products = [{**p, "verdict_class": verdict_class(p["verdict"])} for p in comp["products"]]
     return dict(name=comp["name"], class_tested=comp["class_tested"], reason=comp["reason"], products=products,
-                header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]))
+                header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]),
+                statements=comp.get("statements") or [], statements_note=STATEMENTS_NOTE)
 
 
 def standard_fails_report(comp: dict | None) -> bool:
@@ -1295,6 +1297,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
     for p in comp["products"]:
         met = "" if p["finest_class"].startswith("not established") else "met "
         lines.append(f"  {p['verdict']:<12} {p['product']}: finest class {met}{p['finest_class']}")
+    for st in comp.get("statements") or ():
+        lines.append(f"  statement, {st['product']}: {st['text'] or st['why']}")
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
         acc = checkpoints_accuracy_text(c, ("accurate enough", "not accurate enough"))

@@ -1,0 +1,64 @@
+"""The standards' accuracy statements for the class a product meets (aerotri.qa.statements): a US contract's QA
+engineer signs the delivery with ASPRS's or the LBS's own sentence, in metres and in the project's feet."""
+
+from __future__ import annotations
+
+import pytest
+
+from aerotri.qa.compliance import Compliance, ComplianceCheck, ProductCompliance
+from aerotri.qa.statements import accuracy_statements
+
+US_FT = 1200 / 3937
+
+
+def _row(quantity, measured, figure, limit, verdict, dimension="V", judged=True):
+    return ComplianceCheck("LiDAR DEM", quantity, "H7.1cm V10cm", measured, figure, limit, "m", 35, 30, True, "",
+                           verdict, "", True, "", None, dimension=dimension, judged=judged)
+
+
+def _comp(key, checks, verdict, finest):
+    return Compliance(key, key, "H7.1cm V10cm", "", tuple(checks), (ProductCompliance("LiDAR DEM", verdict, finest),),
+                      ())
+
+
+def test_asprs2023_states_the_class_met_with_the_figure_judged():
+    comp = _comp("asprs2023", [_row("NVA: RMSE_V at non-vegetated check points", 0.1415, 0.1418, 0.1, "fail"),
+                               _row("VVA: RMSE_V at vegetated check points", 0.4813, 0.4814, None, "reported",
+                                    judged=False)], "fail", "V15cm")
+    (st,) = accuracy_statements(comp)
+    assert st.text.startswith("This data set was tested to meet ASPRS Positional Accuracy Standards for Digital "
+                              "Geospatial Data, Edition 2, Version 1.0 (2023) for a 15 (cm) RMSEV Vertical Accuracy")
+    assert "NVA accuracy was found to be RMSEV = 14.2 cm." in st.text and "RMSEV = 48.1 cm." in st.text
+
+
+def test_asprs2014_states_the_95_percent_figures_in_metres_and_us_feet():
+    comp = _comp("asprs2014", [_row("NVA at 95 % confidence: 1.96 x RMSE_z at non-vegetated check points", 0.1412,
+                                    0.2768, 0.196, "fail"),
+                               _row("VVA: 95th percentile of |dz| at vegetated check points", 0.5246, 0.5246, 0.3,
+                                    "fail")], "fail", "V20cm")
+    (st,) = accuracy_statements(comp, US_FT, "US survey ft")
+    assert "for a 20 (cm) RMSEz Vertical Accuracy Class" in st.text
+    assert f"RMSEz = 14.1 cm ({0.1412 / US_FT:.3f} US survey ft), equating to +/- 27.7 cm" in st.text
+    assert "+/- 52.5 cm (1.721 US survey ft) at the 95th percentile" in st.text
+
+
+@pytest.mark.parametrize("verdict, finest, why", [("fail", "none of the ladder", "no class established"),
+                                                  ("not testable", "not established (NVA: not testable)",
+                                                   "no class established")])
+def test_no_class_met_no_statement_but_why(verdict, finest, why):
+    comp = _comp("asprs2023", [_row("NVA: RMSE_V at non-vegetated check points", 5.0, 5.0, 0.1, verdict)], verdict,
+                 finest)
+    (st,) = accuracy_statements(comp)
+    assert st.text == "" and why in st.why
+
+
+def test_usgs_lbs_states_tested_metres_at_95_percent_only_for_a_pass():
+    rows = [_row("NVA: RMSE_z at non-vegetated check points", 0.08, 0.08, 0.1, "pass"),
+            _row("VVA: 95th percentile of |dz| at vegetated check points", 0.21, 0.21, 0.3, "pass")]
+    (st,) = accuracy_statements(_comp("usgs-lbs", rows, "pass", "QL2"))
+    assert st.text == ("Tested 0.157 meters non-vegetated vertical accuracy (NVA) at 95 percent confidence level "
+                       "(RMSEz 0.080 meters x 1.9600). Tested 0.210 meters vegetated vertical accuracy (VVA) at the "
+                       "95th percentile.")
+    (st,) = accuracy_statements(_comp("usgs-lbs", rows, "fail", "QL3"))
+    assert st.text == "" and "fail" in st.why
+    assert accuracy_statements(_comp("cn-at", rows, "pass", "1:2000")) == ()
