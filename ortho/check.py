@@ -850,10 +850,12 @@ def check_points(points_path, res_m: float, dom_bounds=None, unit_m: float = 1.0
 def _points_drawn(root, report: dict, table: dict, unit_m: float, dom_crs) -> SurveyedPointsDrawn:
     """``check_points``' table as the plot draws it; the points the project's adjustment (at/report.json, when
     there is one) used as control marked."""
-    from aerotri.qa.compliance import _json, dom_points_used_as_control
+    from aerotri.core.point_ids import dom_points_used_as_control
+    from aerotri.core.textio import read_json
 
     at_path = project_paths(root).adjustment_report_path
-    control = set(dom_points_used_as_control({**report, "points": table["points"]}, _json(at_path))
+    at = read_json(at_path, "adjustment report") if at_path.is_file() else {}
+    control = set(dom_points_used_as_control({**report, "points": table["points"]}, at if isinstance(at, dict) else {})
                   if at_path.is_file() else ())
     rows = table["points"]
     return SurveyedPointsDrawn(

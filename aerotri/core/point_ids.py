@@ -36,3 +36,14 @@ def warn_coincident_points(path, ids, lines, x, y, within: float = COINCIDENT_XY
             "%s: points %r (line %d) and %r (line %d) stand at the same x, y (within %g): one point under two ids? "
             "Both are counted as check points", path, ids[i], lines[i], ids[j], lines[j], within)
     return pairs
+
+
+def dom_points_used_as_control(dom_all: dict, at: dict) -> tuple[str, ...]:
+    """The ids of a DOM check's surveyed points (``ortho check --points``: dom_report.json ``points``) that the
+    adjustment used as control (at/report.json ``control_points``, used, of a kind other than check; ids matched by
+    ``point_id_key``): the DOM stands on orientations fitted to them, so they are no independent check of it."""
+    if dom_all.get("method") != "surveyed_points":
+        return ()
+    used = {point_id_key(c.get("id")) for c in at.get("control_points") or []
+            if isinstance(c, dict) and c.get("used", True) and c.get("kind") != "check"}
+    return tuple(str(p.get("id")) for p in dom_all.get("points") or [] if point_id_key(p.get("id")) in used)

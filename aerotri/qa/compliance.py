@@ -26,7 +26,7 @@ import numpy as np
 
 from aerotri.core.errors import ConfigError, CrsError, OptionError
 from aerotri.core.project import ControlPointSettings, Project
-from aerotri.core.point_ids import point_id_key  # (the tests read it from here too)
+from aerotri.core.point_ids import dom_points_used_as_control, point_id_key  # noqa: F401 (read from here too)
 from aerotri.core.textio import read_json
 from aerotri.qa.rounding import round_on_its_side, within
 from aerotri.core.tolerances import (SCALE_TABLES, Provenance, ToleranceTable, asprs_classes_for_gsd, asprs_table,
@@ -243,17 +243,6 @@ def _survey_accuracy(qa) -> tuple[float | None, float | None, str]:
 
 # what a ``CheckSet`` counts when its points were surveyed (no reference orthophoto stands for them)
 SURVEYED = ("check points", "surveyed points")
-
-
-def dom_points_used_as_control(dom_all: dict, at: dict) -> tuple[str, ...]:
-    """The ids of a DOM check's surveyed points (``ortho check --points``: dom_report.json ``points``) that the
-    adjustment used as control (at/report.json ``control_points``, used, of a kind other than check; ids matched by
-    ``point_id_key``): the DOM stands on orientations fitted to them, so they are no independent check of it."""
-    if dom_all.get("method") != "surveyed_points":
-        return ()
-    used = {point_id_key(c.get("id")) for c in at.get("control_points") or []
-            if isinstance(c, dict) and c.get("used", True) and c.get("kind") != "check"}
-    return tuple(str(p.get("id")) for p in dom_all.get("points") or [] if point_id_key(p.get("id")) in used)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import dataclasses
 import re
 
-from aerotri.qa.compliance import Compliance, ComplianceCheck
+# (the compliance section's classes are read, not imported: aerotri.qa.compliance makes the statements)
 
 SOURCE_NOTE = ("wording after the standard's reporting clause, recalled (not read in the standard's text here): check "
                "it against the contract's copy before signing")
@@ -114,7 +114,7 @@ def _lbs(product: str, checks, u: float, un: str) -> str:
     return " ".join(parts)
 
 
-def accuracy_statements(comp: Compliance, unit_m: float = 1.0, unit_name: str = "m") -> tuple[AccuracyStatement, ...]:
+def accuracy_statements(comp: "Compliance", unit_m: float = 1.0, unit_name: str = "m") -> tuple[AccuracyStatement, ...]:
     """The statements of ``comp``'s products under ASPRS 2023 / 2014 and the USGS LBS (none for other standards);
     ``unit_m``, ``unit_name``: metres per unit of the project's CRS and its name, said beside the metres when not
     metres."""
