@@ -107,3 +107,22 @@ def units_of(crs: pyproj.CRS, source: str = "CRS", vertical_unit_m: float | None
         raise CrsError(f"{source}: {crs_label(crs)} has no usable linear unit ({xy_m!r} m per unit)")
     z_m = vertical_unit_m or _vertical_unit_m(crs) or xy_m
     return LengthUnits(float(xy_m), float(z_m))
+
+
+# A length within this share of a whole unit (or of a half, quarter, fifth or tenth of one) of a CRS in feet is
+# that: 0.3048 m (the international foot) in US survey feet is 0.999998 ft, and contours were traced at 1353.997292 ft
+# where 1354 was meant; 0.3048006096 m (a US survey foot typed to 10 digits) made cells of 0.999999999996 ft (trial-us)
+WHOLE_UNIT_SHARE = 1e-5
+
+
+def whole_units(length_m: float, unit_m: float) -> float | None:
+    """``length_m`` in units of ``unit_m`` metres snapped to a whole number of them (or 1/2, 1/4, 1/5, 1/10 of one)
+    when within ``WHOLE_UNIT_SHARE`` of it and the unit is not the metre; None otherwise (no snap)."""
+    if unit_m == 1.0:
+        return None
+    value = length_m / unit_m
+    for den in (1, 2, 4, 5, 10):
+        whole = round(value * den) / den
+        if whole > 0 and abs(value - whole) <= WHOLE_UNIT_SHARE * whole:
+            return whole
+    return None

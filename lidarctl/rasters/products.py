@@ -102,6 +102,20 @@ DEFAULT_TILE_PX = 2048
 DEFAULT_BUFFER_PX = 256
 
 
+def cell_of_units(res_m: float, units: LengthUnits) -> float:
+    """``res_m`` made a whole number of the CRS's horizontal units (or 1/2, 1/4, 1/5, 1/10 of one) when within 10 ppm
+    of it (``lidarctl.units.whole_units``): a US survey foot typed as 0.3048006096 m made cells of 0.999999999996 ft
+    on an origin off the whole foot (trial-us), which no other 1 ft tile lines up with. Said in the log."""
+    from lidarctl.units import whole_units
+
+    whole = whole_units(res_m, units.xy_m)
+    if whole is None or whole * units.xy_m == res_m:
+        return res_m
+    log.info(f"--res-m {res_m:.10g} is {res_m / units.xy_m:.10g} {units.xy_name}: cells of {whole:g} {units.xy_name} "
+             f"({whole * units.xy_m:.10g} m)")
+    return whole * units.xy_m
+
+
 def check_res(res_m: float) -> None:
     if not (np.isfinite(res_m) and res_m > 0):
         raise OptionError(f"--res-m {res_m}: must be a positive cell size in metres", param="--res-m")
@@ -853,6 +867,7 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
     crs, units = cloud.crs, cloud.units
     if crs is None:
         raise ValueError("a CRS is needed for the rasters")
+    res_m = cell_of_units(res_m, units)
     _check_fill_radius(dem_fill_radius_px)
     grids = make_grids(cloud, res_m, dem_fill_radius_px=dem_fill_radius_px)
     # The hillshade needs heights and cell size in one unit: from the metric grids.
@@ -972,6 +987,7 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     for f in FILES:
         refuse_input_as_output(outdir / f, list(inputs.paths), "OUTDIR")
     units = inputs.units
+    res_m = cell_of_units(res_m, units)
     args = grid_for_bounds(*inputs.bounds_m, res_m)
     _, x0, y0, nrows, ncols = args
     if nrows < 2 or ncols < 2:  # a DEM, its slopes and the hillshade need neighbouring cells

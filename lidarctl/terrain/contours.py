@@ -364,28 +364,20 @@ class ContoursResult:
     files: tuple[str, ...]
 
 
-# An interval within this share of a whole unit (or of a half, quarter, fifth or tenth of one) of a DEM in feet is
-# that: 0.3048 m (the international foot) on a DEM in US survey feet is 0.999998 ft, and its levels were traced at
-# 1353.997292 ft where 1354 was meant (trial-us).
-WHOLE_UNIT_SHARE = 1e-5
-
-
 def whole_unit_interval(interval_m: float, unit_m: float) -> float:
     """The contour interval in the DEM's height unit (``unit_m`` metres): ``length_in_units``, snapped to a whole
-    number of units (or 1/2, 1/4, 1/5, 1/10 of one) within ``WHOLE_UNIT_SHARE`` of it when the unit is not the metre
-    (the foot meant, given in the other foot's metres), said in the log."""
+    number of units (or 1/2, 1/4, 1/5, 1/10 of one) when within ``lidarctl.units.WHOLE_UNIT_SHARE`` of it and the
+    unit is not the metre (the foot meant, given in the other foot's metres), said in the log."""
     from aerotri.geom.crs.definition import length_in_units, length_unit_name
+    from lidarctl.units import whole_units
 
     interval = length_in_units(interval_m, unit_m)
-    if unit_m == 1.0:
+    whole = whole_units(interval_m, unit_m)
+    if whole is None or whole == interval:
         return interval
-    for den in (1, 2, 4, 5, 10):
-        whole = round(interval * den) / den
-        if whole > 0 and whole != interval and abs(interval - whole) <= WHOLE_UNIT_SHARE * whole:
-            log.info(f"contour interval {interval_m:g} m is {interval:.7g} {length_unit_name(unit_m)}: taken as "
-                     f"{whole:g} {length_unit_name(unit_m)}")
-            return whole
-    return interval
+    log.info(f"contour interval {interval_m:g} m is {interval:.7g} {length_unit_name(unit_m)}: taken as "
+             f"{whole:g} {length_unit_name(unit_m)}")
+    return whole
 
 
 def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: int = 5, smoothing: str = "none",

@@ -434,3 +434,19 @@ def test_an_intensity_raster_is_refused_as_a_dem_and_a_dem_in_feet_says_the_unit
     assert _run(["check-heights", pts, "--dem", foreign]).exit_code == 0
     r = _ok(["check-heights", _survey(tmp_path / "plain.csv", "z", 1.0), "--dem", tmp_path / "r" / "dem.tif"])
     assert "warning: the DEM and the surveyed heights differ" in r.output and "name the column z_m" in r.output
+
+
+def test_a_us_survey_foot_typed_in_metres_makes_whole_foot_cells(scenes, caplog):
+    """--res-m 0.3048006096 (the US survey foot to 10 digits) on a US-ft cloud made cells of 0.999999999996 ft on an
+    origin off the whole foot (trial-us): within 10 ppm of a whole foot the cell is one, on a whole-foot origin."""
+    import logging
+
+    d = scenes["dir"]
+    _ok(["classify", d / "usft.laz", d / "usft_c.laz"])
+    with caplog.at_level(logging.INFO, logger="lidarctl.rasters.products"):
+        _ok(["rasters", d / "usft_c.laz", d / "r_usft", "--res-m", "0.3048006096"])
+    assert "cells of 1 us-ft" in caplog.text
+    with rasterio.open(d / "r_usft" / "dem.tif") as f:
+        assert f.res == (1.0, 1.0)
+        assert f.transform.c == round(f.transform.c) and f.transform.f == round(f.transform.f)
+        assert f.tags()["CELL_SIZE"] == "1 us-ft"
