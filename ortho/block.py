@@ -802,7 +802,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         _log.info(f"removed {gone.name}, left by an interrupted run")
     try:
         height_op = dem_height_operation(CRS(dem_ds.crs), project_crs, project_heights, height_model, allow_ballpark,
-                                         str(dem_path))
+                                         str(dem_path), model_states_heights=True)
         # every height raster through the operation of its own vertical CRS (a DSM in feet beside a DEM in metres)
         raster_ops = {what: _raster_height_operation(path, project_crs, project_heights, height_model, allow_ballpark)
                       for what, path in (("dsm", dsm_path if true_ortho else None), ("occlusion", occlusion_dsm),

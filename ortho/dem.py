@@ -112,14 +112,28 @@ def require_overlap(ds, path, what: str, bounds, bounds_crs=None, area: str = "t
 
 
 def dem_height_operation(raster_crs, project_crs, project_heights=None, height_model=None,
-                         allow_ballpark: bool = False, source: str = "DEM") -> CrsTransformer | None:
+                         allow_ballpark: bool = False, source: str = "DEM",
+                         model_states_heights: bool = False) -> CrsTransformer | None:
     """The operation that brings a height raster's heights into the project's height system, or None.
 
     ``project_heights``: the project's vertical CRS (None: ellipsoidal heights); ``height_model``: a
     ``HeightAnomalyModel`` relating ellipsoidal and normal heights (used when PROJ has no geoid grid).
-    Refuses (``CrsError``) what would be a silent ballpark height change, naming the grid to install."""
+    ``model_states_heights``: the model was given for this raster (``ortho rectify --heights``, "for a DEM in
+    normal heights"): a raster that declares no vertical CRS (``aerotri crs warp --heights`` writes none) is taken to
+    be in normal heights and converted by it, said in the log (trial-site: the option was dropped for such a DEM, the
+    DOM 5-14 m off under exit 0). Refuses (``CrsError``) what would be a silent ballpark height change, naming the
+    grid to install."""
     vertical = vertical_crs(CRS(raster_crs))
     horizontal = horizontal_crs(CRS(project_crs))
+    if vertical is None and height_model is not None and model_states_heights:
+        if project_heights is not None:
+            _log.warning(f"{source}: declares no vertical CRS, so its heights are taken as the project's "
+                         f"({project_heights.name}); the height model given is not used")
+            return None
+        _log.info(f"{source}: declares no vertical CRS; its heights are taken as normal heights and made "
+                  "ellipsoidal (the project's) by the height model given (--heights)")
+        dst = height_crs(horizontal, None)
+        return CrsTransformer(dst, dst, heights=height_model).inverse()
     # the project's heights are in its grid's unit (``with_heights``): EPSG:3855 beside a feet grid is EGM2008 in
     # feet, and a raster of EPSG:3855 in metres there is converted (review 43: taken as the project's, 3.28x)
     ours = None if project_heights is None else heights_in_unit(CRS(project_heights), height_unit_m(horizontal))

@@ -639,10 +639,45 @@ def common_height_shift_note(ba, gcc: GnssCorrectionCheck | None, plan_check: tu
         return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). "
                        f"{residuals} tell these apart: check the lever arm, the heights' datum and the calibration "
                        f"certificate.")
+    scale = check_scale_pattern(ba)
+    if scale is None or scale[1] < SCALE_PATTERN_SHARE:
+        # a plan RMS beyond its limit is no scale by itself (trial-site: 0.378 m, the same with the heights right,
+        # read as "the scale off as well: the focal length is the likely cause" of a height datum mix-up)
+        pattern = ("too few check points to tell a scale pattern" if scale is None else
+                   f"a scale of {scale[0]:+.0f} ppm about their centre explains {100 * scale[1]:.0f} % of them")
+        return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). "
+                       f"The {plan_check[0]} points' plan RMS {plan_check[1]:.3f} m is beyond its {plan_check[2]:.3f} m "
+                       f"limit, but their plan residuals show no scale ({pattern}): the lever arm or the heights' "
+                       f"datum is the likelier cause; check them first, then the calibration certificate.")
     return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). The "
-                   f"{plan_check[0]} points' plan RMS {plan_check[1]:.3f} m beyond its {plan_check[2]:.3f} m limit shows "
-                   f"the scale off as well: the focal length is the likely cause (check it against the calibration "
+                   f"{plan_check[0]} points' plan RMS {plan_check[1]:.3f} m beyond its {plan_check[2]:.3f} m limit, "
+                   f"{100 * scale[1]:.0f} % of it a scale of {scale[0]:+.0f} ppm about their centre, shows the scale "
+                   f"off as well: the focal length is the likely cause (check it against the calibration "
                    f"certificate, or estimate it: self_calibration \"focal\" with the DEM or height control).")
+
+
+# Share of the check points' plan residual variance (about their mean) a scale about their centre must explain to be
+# called a scale error
+SCALE_PATTERN_SHARE = 0.5
+
+
+def check_scale_pattern(ba) -> tuple[float, float] | None:
+    """(scale ppm, share of the plan residuals' variance about their mean it explains) of the check points' plan
+    residuals (adjusted - measured) fitted as a scale about their centroid, d = s (P - P0) + t; None with fewer than
+    5 check points in plan. A wrong focal length scales the block: its residuals grow outwards from the centre."""
+    rows = [(c["measured_m"][:2], np.subtract(c["adjusted_m"][:2], c["measured_m"][:2]))
+            for c in (getattr(ba, "check", None) or {}).values()
+            if np.all(np.isfinite(c["adjusted_m"][:2])) and (c.get("surveyed") or [1, 1])[0]]
+    if len(rows) < 5:
+        return None
+    P = np.array([r[0] for r in rows], dtype=float)
+    d = np.array([r[1] for r in rows], dtype=float)
+    q = (P - P.mean(axis=0)).ravel()
+    e = (d - d.mean(axis=0)).ravel()
+    if not q @ q > 0 or not e @ e > 0:
+        return None
+    s = float(q @ e / (q @ q))
+    return 1e6 * s, float(1.0 - np.sum((e - s * q) ** 2) / np.sum(e ** 2))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -96,7 +96,10 @@ def fit_heights_cmd(points, model, epsg, h_crs, smoothing, output):
     refuse_input_as_output(out, [points], "-o")
     h_geo = _h_crs(h_crs, epsg)
     ids, x, y, h, H = read_height_points(points, epsg)
-    label = crs_label(parse_crs(epsg, "--epsg")) if epsg else None
+    # an EPSG code as its label, any other CRS (a site grid's PROJ string or .wkt) as its WKT: a label is no CRS the
+    # model's readers can parse (trial-site: "unknown CRS 'Transverse Mercator (...)'" at crs transform / warp)
+    grid = parse_crs(epsg, "--epsg") if epsg else None
+    label = None if grid is None else (crs_label(grid) if crs_label(grid).startswith("EPSG:") else grid.to_wkt())
     h_label = None if h_geo is None else (crs_label(h_geo) if crs_label(h_geo).startswith("EPSG:") else h_geo.to_wkt())
     try:
         res = fit_height_anomaly(ids, x, y, h, H, model=model, smoothing=smoothing, crs=label, h_crs=h_label)

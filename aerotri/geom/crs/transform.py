@@ -504,7 +504,9 @@ class CrsTransformer:
         for name, c in stages:  # another datum whose h PROJ says are the same at the cm level (compare_h_datums)
             match = compare_h_datums(model_crs, c, lon, lat)
             if match.same:
-                self.notes.append(f"height model (h_crs {self.heights.h_crs}) on {crs_label(c)}: {match.note}")
+                self.notes.append(f"height model (h_crs {self.heights.h_crs}) on {crs_label(c)}: "
+                                  + (match.note or f"taken as the same ellipsoidal heights ({model_datum} and "
+                                                   f"{datum_name(c)})"))
                 return name
         have = list(dict.fromkeys(datum_name(c) for _, c in stages))
         why = ""

@@ -94,6 +94,28 @@ def test_fit_heights_and_transform_with_heights(tmp_path):
     assert r.exit_code == 2 and f"{few}: height model quadratic needs at least 6 points, got 4" in r.output
 
 
+def test_a_height_model_on_a_site_grid_without_an_epsg_code_reads_back(tmp_path):
+    """trial-site: `fit-heights --epsg <a site grid's PROJ string>` wrote the grid's label ("Transverse Mercator
+    (...)") as the model's CRS, which `crs transform` / `crs warp` refused as an unknown CRS; its WKT is written."""
+    site = ("+proj=tmerc +lat_0=30.79 +lon_0=110.5 +k=1.0002 +x_0=5000 +y_0=10000 +datum=WGS84 +units=m +no_defs "
+            "+type=crs")
+    rng = np.random.default_rng(6)
+    x, y = rng.uniform(3000, 7000, 8), rng.uniform(8000, 12000, 8)
+    h = rng.uniform(300, 400, 8)
+    zeta = 25.3 + 0.001 * (x - 5000) - 0.0005 * (y - 10000)
+    pts = _write(tmp_path / "lev.csv", "id,x,y,h,H\n" + "".join(
+        f"L{i},{x[i]:.3f},{y[i]:.3f},{h[i]:.4f},{h[i] - zeta[i]:.4f}\n" for i in range(8)))
+    model = tmp_path / "zeta.json"
+    r = _run("fit-heights", pts, "--model", "plane", "--epsg", site, "--h-crs", "EPSG:4326", "-o", model)
+    assert r.exit_code == 0, r.output
+    assert json.loads(model.read_text())["crs"].startswith(("PROJCRS", "PROJCS"))
+    lst = _write(tmp_path / "in.txt", "Q1 5000.0 10000.0 350.0\n")
+    out = tmp_path / "out.txt"
+    r = _run("transform", lst, out, "--from", site, "--to", site, "--heights", model)
+    assert r.exit_code == 0, r.output
+    assert float(out.read_text().split()[3]) == pytest.approx(350.0 - 25.3, abs=1e-3)
+
+
 def test_fit_heights_refuses_a_foot_grid_and_reads_old_foot_models(tmp_path):
     """--epsg of a grid in feet (Autzen's EPSG:2994): refused, naming it and the metre grid it needs (the model file
     would hold feet under origin_m and slopes per 1,000 ft under "m/km"); a model file written so before still

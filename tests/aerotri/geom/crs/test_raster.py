@@ -351,3 +351,20 @@ def test_warp_keeps_every_cell_whose_bilinear_taps_are_valid(tmp_path):
     assert not ok[on & ~need].any()  # nodata never bleeds in
     zz = sum(w * np.where(valid, z, 0.0)[rr, cc] for rr, cc, w in taps) / sum(w * valid[rr, cc] for rr, cc, w in taps)
     assert np.allclose(got.filled(0).ravel()[need] * 0.3048006096, zz[need], atol=2e-3)
+
+
+def test_a_dem_without_a_vertical_crs_given_with_a_height_model_is_in_normal_heights(caplog):
+    """trial-site: `ortho rectify --dem DEM --heights zeta.json` dropped the model for a DEM that declares no vertical
+    CRS (what `aerotri crs warp --heights` writes): the normal heights were taken as ellipsoidal, the DOM 5-14 m off
+    under exit 0. The model given for the DEM now converts it; a DSM beside it (no model stated for it) is left."""
+    from ortho.dem import dem_height_operation
+
+    model = HeightAnomalyModel("plane", (452250.0, 3407400.0), coefficients=[-12.0, 0.0, 0.0], crs="EPSG:32649",
+                               h_crs="EPSG:4326")
+    op = dem_height_operation("EPSG:32649", "EPSG:32649", None, model, model_states_heights=True)
+    assert op.transform([452250.0], [3407400.0], [100.0])[2][0] == pytest.approx(88.0, abs=1e-6)
+    assert "taken as normal heights" in caplog.text
+    assert dem_height_operation("EPSG:32649", "EPSG:32649", None, model) is None  # the DSM's call
+    # a project in normal heights: the DEM is in them, the model unused, said
+    assert dem_height_operation("EPSG:32649", "EPSG:32649", CRS("EPSG:3855"), model, model_states_heights=True) is None
+    assert "the height model given is not used" in caplog.text
