@@ -253,11 +253,12 @@ def fit_common_points(path, model: str, from_crs, to_crs):
     if not SPATIAL[model]:
         for c, opt in ((src_crs, "--from"), (dst_crs, "--to")):
             h = horizontal_crs(c)
-            if not h.is_projected or abs(linear_unit_m(h) - 1.0) > 1e-12:
-                raise InputError(
-                    f"{opt} {crs_label(c)} ({c.name}): {model} works on metre grids (projected CRS); "
-                    "use bursa-wolf7 or translation3 for geographic/geocentric coordinates"
-                )
+            # a site's engineering grid (ENGCRS: a plane in metres, no projection) is the classic 4-parameter case
+            if not (h.is_projected or h.is_engineering) or abs(linear_unit_m(h) - 1.0) > 1e-12:
+                what = ("a grid in another unit than the metre" if h.is_projected or h.is_engineering else
+                        "geographic or geocentric coordinates: use bursa-wolf7 or translation3 for those")
+                raise InputError(f"{opt} {crs_label(c)} ({c.name}): {model} works on metre grids (a projected or "
+                                 f"engineering CRS in metres), this is {what}")
         try:
             res = fit_plane(model, cp.ids, cp.src[:, :2], cp.dst[:, :2], from_crs=src_label, to_crs=dst_label)
         except InputError as exc:

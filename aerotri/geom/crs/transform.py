@@ -431,7 +431,8 @@ class CrsTransformer:
                 legs.append(self._leg(self._geo_to, self.dst, allow_ballpark, " (from the parameter set's target)"))
             else:
                 for c, role in ((p_from, "from_crs"), (p_to, "to_crs")):
-                    if not horizontal_crs(c).is_projected or abs(linear_unit_m(c) - 1.0) > 1e-12:
+                    h = horizontal_crs(c)
+                    if not (h.is_projected or h.is_engineering) or abs(linear_unit_m(c) - 1.0) > 1e-12:
                         raise CrsError(f"parameter file {role} {crs_label(c)}: plane models need a metre grid")
                 legs.append(self._leg(self.src, p_from, allow_ballpark, why))
                 legs.append(self._leg(p_to, self.dst, allow_ballpark, " (from the parameter set's target)"))

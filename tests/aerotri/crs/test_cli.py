@@ -116,6 +116,32 @@ def test_a_height_model_on_a_site_grid_without_an_epsg_code_reads_back(tmp_path)
     assert float(out.read_text().split()[3]) == pytest.approx(350.0 - 25.3, abs=1e-3)
 
 
+def test_a_four_parameter_fit_into_a_sites_engineering_grid(tmp_path):
+    """trial-site F4: helmert2d into an engineering CRS (ENGCRS: a site's plane grid in metres, no projection) was
+    refused "use bursa-wolf7 or translation3 for geographic/geocentric coordinates"; the classic "UTM + 4 parameters"
+    site grid is fitted and applied."""
+    eng = _write(tmp_path / "site.wkt", 'ENGCRS["Dam site grid",EDATUM["Dam site datum"],CS[Cartesian,2],'
+                 'AXIS["easting (E)",east,LENGTHUNIT["metre",1]],AXIS["northing (N)",north,LENGTHUNIT["metre",1]]]')
+    rng = np.random.default_rng(8)
+    x, y = rng.uniform(452000, 455000, 8), rng.uniform(3406000, 3409000, 8)
+    a, b = 1.0002 * np.cos(np.radians(0.25)), 1.0002 * np.sin(np.radians(0.25))
+
+    def to_site(x, y):
+        return 5000 + a * (x - 452000) - b * (y - 3406000), 10000 + b * (x - 452000) + a * (y - 3406000)
+    xs, ys = to_site(x, y)
+    common = _write(tmp_path / "common.csv", "id,x_from,y_from,x_to,y_to\n" + "".join(
+        f"C{i},{x[i]:.4f},{y[i]:.4f},{xs[i]:.4f},{ys[i]:.4f}\n" for i in range(8)))
+    params = tmp_path / "h2d.json"
+    r = _run("fit", common, "--model", "helmert2d", "--from", "EPSG:32649", "--to", eng, "-o", params)
+    assert r.exit_code == 0, r.output
+    pts = _write(tmp_path / "in.txt", "Q1 453500.0 3407500.0 100.0\n")
+    out = tmp_path / "out.txt"
+    r = _run("transform", pts, out, "--from", "EPSG:32649", "--to", eng, "--params", params)
+    assert r.exit_code == 0, r.output
+    got = [float(v) for v in out.read_text().split()[1:3]]
+    assert got == pytest.approx(list(to_site(453500.0, 3407500.0)), abs=1e-3)
+
+
 def test_fit_heights_refuses_a_foot_grid_and_reads_old_foot_models(tmp_path):
     """--epsg of a grid in feet (Autzen's EPSG:2994): refused, naming it and the metre grid it needs (the model file
     would hold feet under origin_m and slopes per 1,000 ft under "m/km"); a model file written so before still
