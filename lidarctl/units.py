@@ -32,6 +32,9 @@ class LengthUnits:
     xy_m: float = 1.0
     z_m: float = 1.0
     known: bool = True
+    # False: the CRS is 2D and no VerticalUnitsGeoKey says the heights' unit; z is taken in the horizontal unit (the LAS
+    # convention), an assumption a check says where it matters (feet). Not compared: the same units either way
+    z_declared: bool = dataclasses.field(default=True, compare=False)
 
     @property
     def xy_name(self) -> str:
@@ -105,8 +108,9 @@ def units_of(crs: pyproj.CRS, source: str = "CRS", vertical_unit_m: float | None
     xy_m = linear_unit_m(crs)
     if not (np.isfinite(xy_m) and xy_m > 0):
         raise CrsError(f"{source}: {crs_label(crs)} has no usable linear unit ({xy_m!r} m per unit)")
-    z_m = vertical_unit_m or _vertical_unit_m(crs) or xy_m
-    return LengthUnits(float(xy_m), float(z_m))
+    declared = vertical_unit_m or _vertical_unit_m(crs)
+    z_m = declared or xy_m
+    return LengthUnits(float(xy_m), float(z_m), z_declared=bool(declared))
 
 
 # A length within this share of a whole unit (or of a half, quarter, fifth or tenth of one) of a CRS in feet is

@@ -36,6 +36,7 @@ import csv
 import dataclasses
 import io as stringio
 import json
+import logging
 import re
 from pathlib import Path
 
@@ -540,10 +541,16 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
     dem_unit = _dem_height_unit(dem_path, dem_z_unit) if dem_path is not None else None
     if paths:
         box, unit = [np.inf, np.inf, -np.inf, -np.inf], ""
-        for _, header, _, units in io.checked_headers(paths, crs):
+        for path, header, _, units in io.checked_headers(paths, crs):
             box = [min(box[0], header.mins[0]), min(box[1], header.mins[1]), max(box[2], header.maxs[0]),
                    max(box[3], header.maxs[1])]
             unit = units.xy_name
+            if not units.z_declared and units.z_m != 1.0:
+                # as for the DEM (trial-audit F2): heights in metres under a foot CRS are read 3.28 x too small
+                logging.getLogger(__name__).warning("%s: declares no height unit (a 2D CRS, no VerticalUnitsGeoKey): its heights are taken in "
+                            "its CRS's horizontal unit, %s; if they are metres, give the cloud a compound CRS "
+                            "(aerotri crs transform --to 'EPSG:<grid>+<vertical>')", path,
+                            length_unit_name(units.z_m, long=True))
         points = points.in_crs_units(units, points_csv)  # (the strips' one CRS and unit: checked_headers)
         _refuse_points_elsewhere(points, points_csv, box, ", ".join(map(str, paths)), unit)
     elif dem_path is not None:

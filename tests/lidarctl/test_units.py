@@ -140,7 +140,7 @@ def test_rasters_in_feet_have_metre_cells_and_say_their_units(scenes):
     assert np.sqrt(np.mean(err_m ** 2)) < 0.15
 
 
-def test_check_heights_in_feet_reports_metres(scenes, tmp_path):
+def test_check_heights_in_feet_reports_metres(scenes, tmp_path, caplog):
     d = scenes["dir"]
     _ok(["classify", d / "ft.laz", d / "ft_h.laz"])
     rng = np.random.default_rng(0)
@@ -158,6 +158,8 @@ def test_check_heights_in_feet_reports_metres(scenes, tmp_path):
     assert p0["x"] == pytest.approx(px_m[0] / FOOT_M, abs=1e-3) and p0["dz_m"] == pytest.approx(0.2, abs=0.1)
     assert p0["z_lidar"] - p0["z_survey"] == pytest.approx(p0["dz_m"] / FOOT_M, abs=1e-6)
     assert "heights in ft" in r.output and "z survey (ft)" in r.output and "dz (m)" in r.output
+    # a 2D foot CRS says nothing of the heights' unit: the feet taken are said (trial-audit F2's cloud half)
+    assert "declares no height unit" in caplog.text and "horizontal unit, foot" in caplog.text
 
 
 def test_evaluate_compares_points_in_metres(scenes, tmp_path):
@@ -399,7 +401,8 @@ def test_check_heights_says_when_plain_heights_fit_in_the_other_unit(scenes, tmp
     r = _ok(["check-heights", c, _survey(tmp_path / "named.csv", header, z_factor), "--radius-m", "3",
              "--json", tmp_path / "n.json"])
     hc = json.loads((tmp_path / "n.json").read_text())
-    assert "unit_slip" not in hc and "warning" not in r.output
+    # no unit slip said (the feet a 2D foot CRS's cloud is taken in are: declares no height unit)
+    assert "unit_slip" not in hc and "warning: the cloud and the surveyed heights" not in r.output
     assert hc["overall"]["all"]["mean_dz_m"] == pytest.approx(0.2, abs=0.05)
 
 
