@@ -15,13 +15,14 @@ It never modifies the frames; the frames must all have one size (one camera).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from aerotri.core.atomic import atomic_dir
+from aerotri.core.atomic import atomic_dir, move_into, temporary_dir
 from aerotri.core.errors import InputError, OptionError
 
 if TYPE_CHECKING:  # geom.images imports OpenCV: the module loads it only to read frames
@@ -164,8 +165,12 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
     from aerotri.geom.crs.definition import crs_label
     from aerotri.geom.eo import check_block_crs
 
+    from aerotri.core.lock import LOCK_NAME
+
     root, images_dir = Path(root), Path(images_dir)
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+    # the command's own lock in an existing empty folder is no content (trial-paths: `aerotri init .` and init into an
+    # empty folder were always refused, the lock made before the check)
+    if root.exists() and (not root.is_dir() or any(p.name != LOCK_NAME for p in root.iterdir())):
         raise OptionError(f"{root}: exists and is not an empty folder; aerotri init makes a new project "
                           "(choose a new folder name)", param="PROJECT")
     c = check_block_crs(crs, "--crs")
@@ -189,7 +194,7 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
 
     crs_file = Path(str(crs).strip()).expanduser() if is_crs_file(str(crs)) else None
     toml = PROJECT_TOML.format(name=name.replace('"', "'"), crs=crs_file.name if crs_file else crs, crs_name=crs_name)
-    with atomic_dir(root) as tmp:
+    with _project_folder(root) as tmp:
         if crs_file is not None:
             shutil.copyfile(crs_file, tmp / crs_file.name)
         (tmp / "images").mkdir()
@@ -204,6 +209,24 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
             (tmp / "camera.toml").write_text(camera_text, encoding="utf-8")
     return InitResult(root, len(frames), not copy, camera_source, camera_missing, tuple(notes),
                       _exif_gnss(frames.path[0]))
+
+
+@contextlib.contextmanager
+def _project_folder(root: Path):
+    """A temporary folder whose content becomes the project folder ``root`` when the block succeeds: it replaces a
+    new ``root`` whole (``atomic_dir``); into an existing empty one (the command's lock in it) its entries move one by
+    one under the command's commit, which covers that folder (replacing the folder itself is no change inside it)."""
+    if not root.is_dir():
+        with atomic_dir(root) as tmp:
+            yield tmp
+        return
+    tmp = temporary_dir(root, "init")
+    try:
+        yield tmp
+        for entry in sorted(tmp.iterdir()):
+            move_into(entry, root / entry.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _inside(path: Path, folder: Path) -> bool:

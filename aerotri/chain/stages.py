@@ -208,6 +208,12 @@ class Chain:
         return self.project.first_adjustment_dir
 
     def images(self) -> list[Path]:
+        from aerotri.core.project import input_files
+        from aerotri.geom.images import IMAGE_SUFFIXES
+
+        # a broken link among the frames (or the folder's own) is refused, not read as a LiDAR-only project
+        # (trial-paths: every frame link broken, the old report kept as "up to date", exit 0)
+        input_files(self.project.images_dir, IMAGE_SUFFIXES, "frames")
         return sorted(p for p in self.project.images_dir.glob("*") if p.is_file())
 
     # -- what the inputs allow -------------------------------------------------------------------

@@ -243,6 +243,10 @@ class Command(click.Command):
         home = _project_above(out)
         if home is not None:
             lock_project(home)
+        if out.is_dir() and (out / "project.toml").is_file():
+            # an output folder that is a project (`aerotri sim --force P`): under the project's lock too, which a
+            # run in it holds (trial-paths: sim replaced P beneath a running `aerotri run P`, which said "done")
+            lock_project(out)
         parent = out.parent if str(out.parent) else Path(".")
         existing = next((d for d in (parent, *parent.parents) if d.is_dir()), Path("."))
         stack.enter_context(hold_lock(existing / f".{out.name}.lock", command, wait_s, str(out)))

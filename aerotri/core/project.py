@@ -275,12 +275,13 @@ class Project:
     trajectory_dir = property(lambda self: self.root / "trajectory")  # scanner trajectories of the strips
 
     def trajectories(self) -> list[Path]:
-        """The strips' trajectory files (``trajectory/*.txt``, lidarctl.strips.trajectory format), sorted."""
-        return sorted(p for p in self.trajectory_dir.glob("*.txt") if p.is_file())
+        """The strips' trajectory files (``trajectory/*.txt``, any case of the suffix, lidarctl.strips.trajectory
+        format), sorted (trial-paths: ``*.TXT`` were passed over, and the strips adjusted by another model)."""
+        return input_files(self.trajectory_dir, (".txt",), "trajectory files")
 
     def lidar_strips(self) -> list[Path]:
         """The LAS/LAZ strips in ``lidar/``, sorted by name."""
-        return sorted(p for p in self.lidar_dir.glob("*") if p.suffix.lower() in (".las", ".laz"))
+        return input_files(self.lidar_dir, (".las", ".laz"), "LiDAR strips")
     # lidar_out/: the LiDAR products
     lidar_out_dir = property(lambda self: self.root / "lidar_out")
     classified_dir = property(lambda self: self.lidar_out_dir / "classified")  # one classified LAZ per strip
@@ -364,3 +365,31 @@ def project_paths(root) -> Project:
     """The paths of a project folder without reading its project.toml (for code that only needs to
     find files, e.g. tools that look at a finished project)."""
     return Project(Path(root), {})
+
+
+def input_files(folder: Path, suffixes: tuple[str, ...], what: str) -> list[Path]:
+    """The files of an input folder with one of ``suffixes`` (any case), sorted; none when the folder is absent.
+    ``InputError`` naming a broken link, the folder's own or a file's of those suffixes: a link that points nowhere (a
+    project copied with relative links, a share not mounted) is no "no LiDAR" (trial-paths: the run went on without
+    the LiDAR, the true ortho became a conventional one on a 25 m tie-point DEM, exit 0)."""
+    import os
+
+    folder = Path(folder)
+    if folder.is_symlink() and not folder.exists():
+        raise InputError(f"{folder}: a link to {os.readlink(folder)}, which does not exist (moved, or a share not "
+                         f"mounted?): its {what} cannot be read; mend the link")
+    if not folder.is_dir():
+        return []
+    found, broken = [], []
+    for p in sorted(folder.iterdir()):
+        if p.suffix.lower() not in suffixes:
+            continue
+        if p.is_symlink() and not p.exists():
+            broken.append(p)
+        elif p.is_file():
+            found.append(p)
+    if broken:
+        raise InputError(f"{folder}: {len(broken)} of its {what} are links to files that do not exist ({broken[0].name} "
+                         f"-> {os.readlink(broken[0])}{', ...' if len(broken) > 1 else ''}: moved, or a share not "
+                         "mounted?); mend the links")
+    return found

@@ -196,6 +196,25 @@ class _CheckTargets:
     image_points: int  # observations of the targets in the frames
 
 
+def refuse_to_replace(outdir: Path, force: bool) -> None:
+    """``InputError`` unless ``outdir`` is absent, empty, or (with ``force``) a dataset the simulator made (its
+    ``truth/`` folder): --force deleted any folder, a real project's gnss.txt, at/ and ortho/ with it (trial-paths)."""
+    from aerotri.core.lock import LOCK_NAME
+
+    if not outdir.exists():
+        return
+    if not outdir.is_dir():
+        raise InputError(f"{outdir}: exists and is not a folder")
+    content = [p for p in outdir.iterdir() if p.name != LOCK_NAME]
+    if not content:
+        return
+    if not force:
+        raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
+    if not (outdir / "truth").is_dir():
+        raise InputError(f"{outdir}: holds no truth/ folder, so no dataset aerotri sim made; --force replaces only "
+                         "those: remove the folder yourself or choose another OUTDIR")
+
+
 def simulate(cfg: Preset, outdir, force: bool = False, on_phase=None) -> SimTruth:
     """Generate the project described by preset ``cfg`` into ``outdir``; returns the truth summary.
 
@@ -203,8 +222,7 @@ def simulate(cfg: Preset, outdir, force: bool = False, on_phase=None) -> SimTrut
     """
     cfg = checked_preset(cfg)
     outdir = Path(outdir)
-    if outdir.exists() and any(outdir.iterdir()) and not force:
-        raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
+    refuse_to_replace(outdir, force)
     t_start = time.perf_counter()
     seed = int(cfg.preset.seed)
     ss = np.random.SeedSequence(seed)
@@ -805,8 +823,7 @@ def simulate_observations(cfg: Preset, outdir, force: bool = False, *, tie_sigma
 
     cfg = checked_preset(cfg)
     outdir = Path(outdir)
-    if outdir.exists() and any(outdir.iterdir()) and not force:
-        raise InputError(f"{outdir}: output folder exists and is not empty (use --force to replace it)")
+    refuse_to_replace(outdir, force)
     t_start = time.perf_counter()
     tie_sigma_px = cfg.observations.tie_sigma_px if tie_sigma_px is None else tie_sigma_px
     tie_points_per_frame = (cfg.observations.tie_points_per_frame if tie_points_per_frame is None

@@ -50,6 +50,23 @@ def test_init_makes_a_project_that_matches(tiny_project, tmp_path):
     assert snapshot(images) == before
 
 
+def test_init_into_an_existing_empty_folder(tiny_project, tmp_path, monkeypatch):
+    """trial-paths: init into an existing empty folder (also `aerotri init .`) was always refused "not an empty
+    folder": the command's own lock file was made in it before the check."""
+    for p, arg in ((tmp_path / "empty", None), (tmp_path / "here", ".")):
+        p.mkdir()
+        if arg:
+            monkeypatch.chdir(p)
+        r = run("init", arg or p, "--images", tiny_project / "images", "--crs", "EPSG:32649", "--camera",
+                tiny_project / "camera.toml")
+        assert r.exit_code == 0, r.output
+        assert (p / "project.toml").is_file() and len(list((p / "images").iterdir())) == 6
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "notes.txt").write_text("mine")
+    r = run("init", tmp_path / "full", "--images", tiny_project / "images", "--crs", "EPSG:32649")
+    assert r.exit_code == 2 and "not an empty folder" in r.output
+
+
 def test_init_takes_a_crs_file_into_the_project(tiny_project, tmp_path, monkeypatch):
     """Review 47: `aerotri init P --crs grid.prj` (the file in the current folder) wrote crs = "grid.prj", which every
     command reads in the project folder: a project no command ran. The file is copied into the project."""
