@@ -350,7 +350,7 @@ def _fault(exc: BaseException) -> tuple[int, str | None] | None:
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
         if isinstance(exc, OSError) and exc.errno is not None and (exc.errno in DISK_ERRNOS or exc.errno in (
-                errno.ENOENT, errno.ENOTDIR, errno.EISDIR)):
+                errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG)):
             return exc.errno, None if exc.filename is None else str(exc.filename)
         text = str(exc)
         if type(exc).__module__.split(".")[0] in _IO_LIBRARIES or isinstance(exc, OSError):
@@ -438,6 +438,11 @@ def fault_message(exc: BaseException, doing: str, writes_to: str | None = None, 
                 "its outputs are as they were")
     if code == errno.EISDIR:
         return f"{where}: is a folder where {doing} expected a file; its outputs are as they were"
+    if code == errno.ENAMETOOLONG:
+        # (trial-paths: a legal 247-252 byte name made a traceback: the temporary and lock names add to it)
+        return (f"{where}: a file name too long for the file system (its limit is 255 bytes a name; {doing} adds up "
+                f"to about 40 for its temporary and lock files beside an output): shorten the name; its outputs are "
+                "as they were")
     return f"{where}: {DISK_ERRNOS.get(code, 'cannot write')}; {doing} stopped and its outputs are as they were"
 
 
