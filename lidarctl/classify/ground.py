@@ -724,7 +724,8 @@ def _coordinates_checked(run: Callable[..., np.ndarray]) -> Callable[..., np.nda
 
     @functools.wraps(run)
     def checked(x, y, z, *args, **kwargs):
-        x, y, z = (np.asarray(v, dtype=float) for v in (x, y, z))
+        # the arrays go on as given (their dtype and layout: a tile's classes equal the whole cloud's to the point)
+        x, y, z = (np.asarray(v) for v in (x, y, z))
         if not x.ndim == y.ndim == z.ndim == 1 or not len(x) == len(y) == len(z):
             raise ValueError(f"ground filter: x, y, z must be 1-D arrays of one length, got shapes {x.shape}, "
                              f"{y.shape}, {z.shape}")
@@ -882,7 +883,7 @@ def ground_filter(x, y, z, method: str = "morph", preset: str | None = None, *, 
     if preset is not None and preset not in f.presets:
         check_method_preset(method, preset)
     params = f.params_for(preset, **overrides)
-    if refine_residuals is not None and f.run is morphological_ground:
+    if refine_residuals is not None and getattr(f.run, "__wrapped__", f.run) is morphological_ground:
         ground = f.run(x, y, z, params, refine_residuals=refine_residuals)
     else:
         ground = f.run(x, y, z, params)
