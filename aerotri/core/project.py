@@ -280,8 +280,17 @@ class Project:
         return input_files(self.trajectory_dir, (".txt",), "trajectory files")
 
     def lidar_strips(self) -> list[Path]:
-        """The LAS/LAZ strips in ``lidar/``, sorted by name."""
-        return input_files(self.lidar_dir, (".las", ".laz"), "LiDAR strips")
+        """The LAS/LAZ strips in ``lidar/``, sorted by name; two of one name (``strip_01.las`` beside
+        ``strip_01.LAZ``: their classified copies would be one file) refused here, before any stage (trial-paths: at
+        classify, after the strips stage had written, naming an option `aerotri run` does not have)."""
+        strips = input_files(self.lidar_dir, (".las", ".laz"), "LiDAR strips")
+        seen: dict[str, Path] = {}
+        for p in strips:
+            other = seen.setdefault(p.stem.casefold(), p)
+            if other is not p:
+                raise InputError(f"{self.lidar_dir}: two strips of one name, {other.name} and {p.name} (their classified "
+                                 "copies are one file): keep one, or rename the other")
+        return strips
     # lidar_out/: the LiDAR products
     lidar_out_dir = property(lambda self: self.root / "lidar_out")
     classified_dir = property(lambda self: self.lidar_out_dir / "classified")  # one classified LAZ per strip

@@ -38,3 +38,11 @@ def test_trajectories_in_upper_case_are_read(tmp_path):
     for name in ("strip_01.TXT", "strip_02.txt", "readme.md"):
         (tmp_path / "trajectory" / name).write_text("x")
     assert [f.name for f in Project(tmp_path, {}).trajectories()] == ["strip_01.TXT", "strip_02.txt"]
+
+
+def test_two_strips_of_one_name_are_refused_before_any_stage(tmp_path):
+    (tmp_path / "lidar").mkdir()
+    for name in ("strip_01.las", "strip_01.LAZ", "strip_02.laz"):
+        (tmp_path / "lidar" / name).write_bytes(b"")
+    with pytest.raises(InputError, match="two strips of one name, strip_01.LAZ and strip_01.las"):
+        Project(tmp_path, {}).lidar_strips()
