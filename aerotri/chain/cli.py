@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import shlex
 from pathlib import Path
 
 import click
@@ -85,10 +86,12 @@ def init(project, images_dir, crs, camera_path, copy):
                + (f", camera.toml from {r.camera_source}" if r.camera_source else ""))
     if r.camera_missing:
         log.warning(r.camera_missing)
+    # quoted as a shell needs them, so that the hint can be pasted (trial-paths: a folder with spaces)
+    root, images = shlex.quote(str(r.root)), shlex.quote(str(r.root / "images"))
     if r.exif_gnss:
-        click.echo(f"next: aerotri import {r.root} --format exif {r.root / 'images'} (the frames' GNSS positions into "
-                   f"gnss.txt), then aerotri run {r.root}")
+        click.echo(f"next: aerotri import {root} --format exif {images} (the frames' GNSS positions into "
+                   f"gnss.txt), then aerotri run {root}")
     else:
         click.echo("next: gnss.txt (image_id X Y Z [sX sY sZ] in the project CRS), or, for a block without GNSS, "
-                   f"control points (aerotri import {r.root} --format odm gcp_list.txt; docs/blocks-without-gnss.md); "
-                   f"then aerotri run {r.root}")
+                   f"control points (aerotri import {root} --format odm gcp_list.txt; docs/blocks-without-gnss.md); "
+                   f"then aerotri run {root}")

@@ -61,6 +61,9 @@ def test_init_into_an_existing_empty_folder(tiny_project, tmp_path, monkeypatch)
                 tiny_project / "camera.toml")
         assert r.exit_code == 0, r.output
         assert (p / "project.toml").is_file() and len(list((p / "images").iterdir())) == 6
+    spaced = tmp_path / "Block A"
+    r = run("init", spaced, "--images", tiny_project / "images", "--crs", "EPSG:32649")
+    assert r.exit_code == 0 and f"aerotri run '{spaced}'" in r.output  # a hint that can be pasted
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "notes.txt").write_text("mine")
     r = run("init", tmp_path / "full", "--images", tiny_project / "images", "--crs", "EPSG:32649")
