@@ -803,8 +803,10 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     try:
         height_op = dem_height_operation(CRS(dem_ds.crs), project_crs, project_heights, height_model, allow_ballpark,
                                          str(dem_path), model_states_heights=True)
-        # every height raster through the operation of its own vertical CRS (a DSM in feet beside a DEM in metres)
-        raster_ops = {what: _raster_height_operation(path, project_crs, project_heights, height_model, allow_ballpark)
+        # every height raster through the operation of its own vertical CRS (a DSM in feet beside a DEM in metres);
+        # the DEM's file given again as the DSM is read as the DEM is (--heights converts it once, for both)
+        raster_ops = {what: (height_op if path is not None and Path(path).resolve() == Path(dem_path).resolve() else
+                             _raster_height_operation(path, project_crs, project_heights, height_model, allow_ballpark))
                       for what, path in (("dsm", dsm_path if true_ortho else None), ("occlusion", occlusion_dsm),
                                          ("crown_base", crown_base))}
         with _raster_read(dem_path, "DEM"):

@@ -125,6 +125,10 @@ def dem_height_operation(raster_crs, project_crs, project_heights=None, height_m
     grid to install."""
     vertical = vertical_crs(CRS(raster_crs))
     horizontal = horizontal_crs(CRS(project_crs))
+    if vertical is None and height_model is not None and not model_states_heights and project_heights is None:
+        _log.warning(f"{source}: declares no vertical CRS: its heights are taken as the project's (ellipsoidal); the "
+                     "height model given (--heights) converts the DEM only: a surface in the DEM's normal heights "
+                     "needs a vertical CRS of its own (or pass the DEM's file itself)")
     if vertical is None and height_model is not None and model_states_heights:
         if project_heights is not None:
             _log.warning(f"{source}: declares no vertical CRS, so its heights are taken as the project's "

@@ -44,7 +44,7 @@ class LeftOutPoint:
     rays: int  # rays the check intersected (0 or 1: not checked)
     given: tuple[float, float, float]  # project CRS units
     adjusted: tuple[float, float, float]  # NaN when not checked
-    sigma_m: tuple[float, float, float]  # of the adjusted position (image noise and orientations)
+    sigma_m: tuple[float, float, float]  # of the adjusted position (image noise and orientations), metres
     seconds: float
     unit_m: tuple[float, float, float] = (1.0, 1.0, 1.0)  # metres per CRS unit (x, y, z)
 
@@ -178,8 +178,9 @@ def leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjus
         with _quiet():  # the full adjustment said it all; each run would repeat its warnings
             ba = adjust_project(root, dataclasses.replace(st, check=tuple(st.check) + (pid,), point_covariances=False))
         chk = ba.check[pid]
-        out.append(LeftOutPoint(pid, kind, int(chk["rays"]), given, tuple(chk["adjusted_m"]), tuple(chk["sigma_m"]),
-                                time.perf_counter() - t1, unit))
+        out.append(LeftOutPoint(pid, kind, int(chk["rays"]), given, tuple(chk["adjusted_m"]),
+                                tuple(float(v) * u for v, u in zip(chk["sigma_m"], unit)), time.perf_counter() - t1,
+                                unit))
         d = out[-1].d_m
         log.debug(f"leave-one-out {pid}: dX {d[0]:+.3f} dY {d[1]:+.3f} m ({chk['rays']} rays)")
     return LeaveOneOut(tuple(out), control_scatter(full), time.perf_counter() - t0, crs=str(full.crs))

@@ -185,7 +185,7 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
                          "one camera")
     size = next(iter(sizes))
     camera_text, camera_source, camera_missing, notes = _camera_text(frames, size, camera_path)
-    name = name or root.name
+    name = name or root.resolve().name  # (`aerotri init .`: the folder's own name, not "")
     # a CRS given as a PROJ string has no name ("unknown"): its projection and datum instead
     crs_name = c.name if c.name not in ("", "unknown") else crs_label(c)
     # a .wkt/.prj named here (read from the current folder) goes into the project, whose commands read project.toml's

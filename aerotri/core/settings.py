@@ -173,7 +173,7 @@ def _convert(value, tp, cons: Constraints, where: str, base_dir):
             value = crs_setting_text(value, base_dir, where)
         return value
     if tp is Path:
-        return _convert(value, str, dict(cons, path=True), where, base_dir)
+        return _convert(value, str, dataclasses.replace(cons, path=True), where, base_dir)
     # anything else (typing.Any, untyped): scalar checks only
     check_value(value, cons, where)
     return value
@@ -469,6 +469,19 @@ class Resolved:
         return out
 
 
+def _plain_numbers(value):
+    """numpy scalars as Python numbers, arrays as lists (of them), through lists; anything else as it is."""
+    import numpy as np
+
+    if isinstance(value, np.ndarray):
+        return [_plain_numbers(v) for v in value.tolist()]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        return [_plain_numbers(v) for v in value]
+    return value
+
+
 def _same(value, default) -> bool:
     try:
         return type(value) is type(default) and bool(value == default)
@@ -494,8 +507,9 @@ def checked_settings(settings, where: str | None = None):
         if dataclasses.is_dataclass(value):
             new = checked_settings(value, sub)
         else:
-            new = _convert(to_table(value), hints[f.name], constraints(f), sub, None)
-        if new is not value and new != value or type(new) is not type(value):
+            # numpy scalars and arrays as the plain values a table holds (a lever arm as an array, alpha as float32)
+            new = _convert(_plain_numbers(to_table(value)), hints[f.name], constraints(f), sub, None)
+        if new is not value and not _same(new, value):
             changed[f.name] = new
     if not changed:
         return settings

@@ -971,10 +971,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             largest = judged.max_xy_m if judged.max_xy_m is not None else float("nan")
             # under an ASPRS table the row says what it is in its name: ASPRS 2023 states RMSE only, and Edition 1's
             # 95 % figure (1.7308 x RMSE_r) is another limit (trial-qa read this one as ASPRS's)
-            asprs = compliance.key.startswith("asprs") or table.key.upper().startswith("ASPRS")
+            under_asprs = compliance.key.startswith("asprs") or table.key.upper().startswith("ASPRS")
             rows.append(_check("dom_p95_xy_m", sec, "95th percentile of the "
                                f"{'point' if at_points is not None else 'patch'} displacements"
-                               + (" (the gross-error rule, not an ASPRS measure)" if asprs else ""),
+                               + (" (the gross-error rule, not an ASPRS measure)" if under_asprs else ""),
                                judged.p95_xy_m, 2 * tol["feature_rms_xy_m"], "m", digits=4,
                                note=f"largest {largest:.3f} m; " "limit 2 x the RMS limit (at most 5 % gross errors)",
                                key="feature_rms_xy_m"))

@@ -334,15 +334,15 @@ def test_common_height_shift_names_the_focal_length_only_when_the_plan_shows_it(
     assert "likely cause" not in msg and "do not tell these apart" in msg, msg
     # a plan RMS beyond its limit is no scale by itself (trial-site: a height datum mix-up blamed on the focal length)
     note = report.common_height_shift_note(ba, gcc, ("check", 0.625, 0.35))  # the 123 mm demo's check plan RMS
-    assert "likely cause" not in note and "show no scale" in note and "0.625 m is beyond its 0.350 m limit" in note
+    assert "likely cause" not in note and "show no scale error" in note and "0.625 m is beyond its 0.350 m limit" in note
     # a focal length 2.5 % too long: the check points' plan residuals grow from the centre (+412 ppm, 74 %)
     t = (root / "camera.toml").read_text()
     focal = re.search(r"(?m)^focal_mm = (.*)$", t)
     (root / "camera.toml").write_text(t.replace(focal.group(0), f"focal_mm = {float(focal.group(1)) * 1.025}"))
     (root / "project.toml").write_text(toml)  # the lever arm right again
     long = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
-    scale_ppm, share = report.check_scale_pattern(long)
-    assert scale_ppm > 200 and share > report.SCALE_PATTERN_SHARE
+    scale_ppm, share, effect_m = report.check_scale_pattern(long)
+    assert scale_ppm > 200 and share > report.SCALE_PATTERN_SHARE and effect_m > 0.1
     msg = to_record(report.build_report(long))["key_statistics"]["message"]
     assert "shows the scale off as well: the focal length is the likely cause" in msg and "too long" in msg, msg
     estimated = dataclasses.replace(ba, opts=dataclasses.replace(ba.opts, self_calibration=("focal",)))
