@@ -4,18 +4,10 @@ median stayed inside its limit and the row said "passed"."""
 
 from __future__ import annotations
 
-import dataclasses
-import re
-import shutil
-
 import pytest
 
 from aerotri.adjust.dem_check import BELOW_SHARE_LIMIT
-from aerotri.adjust.pipeline import adjust_project, project_settings
-from aerotri.adjust.report import build_report
-from aerotri.core.project import Project
-from aerotri.core.records import to_record
-from aerotri.sim.command import simulate_command
+from tests.aerotri.adjust.test_held_principal_point import adjust_with_certificate, certificate_block
 
 # a 50 mm camera on 240 x 320 px frames with strong barrel distortion (k1 on normalised coordinates)
 CAMERA = ("camera.focal_mm=50.0", "camera.sensor_width_mm=32.9", "camera.sensor_height_mm=43.857", "camera.width=240",
@@ -24,26 +16,11 @@ CAMERA = ("camera.focal_mm=50.0", "camera.sensor_width_mm=32.9", "camera.sensor_
 
 @pytest.fixture(scope="module")
 def block(tmp_path_factory):
-    root = tmp_path_factory.mktemp("belowdem") / "blk"
-    simulate_command("tiny", root, seed=11, observations_only=True, tie_points_per_frame=300, tie_sigma_px=0.1,
-                     overrides=CAMERA)
-    return root
-
-
-def _adjust(root, tmp_path, k1=None):
-    root = shutil.copytree(root, tmp_path / "blk")
-    text = (root / "truth" / "camera.toml").read_text()
-    if k1 is not None:
-        text = re.sub(r"(?m)^k1 = .*$", f"k1 = {k1}", text)
-    (root / "camera.toml").write_text(text)
-    settings = dataclasses.replace(project_settings(Project.open(root)).settings, self_calibration=(),
-                                   dem=root / "dem.tif")
-    ba = adjust_project(root, settings)
-    return ba, to_record(build_report(ba))
+    return certificate_block(tmp_path_factory.mktemp("belowdem") / "blk", CAMERA)
 
 
 def test_a_camera_without_its_distortion_puts_the_points_below_the_dem_and_fails(block, tmp_path):
-    ba, rec = _adjust(block, tmp_path, k1=0.0)
+    ba, rec = adjust_with_certificate(block, tmp_path, k1=0.0)
     (check,) = ba.dem_checks
     # the median alone passes (it did, and the verdict blamed 13-43 m GNSS strip shifts)
     assert not check.offset_failed and abs(check.median_m) < check.limit_m
@@ -56,7 +33,7 @@ def test_a_camera_without_its_distortion_puts_the_points_below_the_dem_and_fails
 
 
 def test_the_right_camera_leaves_no_point_below_the_dem(block, tmp_path):
-    ba, rec = _adjust(block, tmp_path)
+    ba, rec = adjust_with_certificate(block, tmp_path)
     (check,) = ba.dem_checks
     assert check.below_n == 0 and not check.failed
     assert rec["key_statistics"]["verdict"] == "successful"

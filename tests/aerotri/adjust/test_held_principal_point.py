@@ -22,20 +22,21 @@ CAMERA = ("camera.focal_mm=50.0", "camera.sensor_width_mm=32.9", "camera.sensor_
           "camera.height=320", "camera.ppx_mm=0.5", "camera.ppy_mm=-0.3", "camera.k1=-0.01", "camera.k2=0.005")
 
 
-@pytest.fixture(scope="module")
-def block(tmp_path_factory):
-    root = tmp_path_factory.mktemp("heldpp") / "blk"
+def certificate_block(root, camera):
+    """A tiny observation-only block of the true camera ``camera`` (--set overrides), 300 tie points a frame at
+    0.1 px."""
     simulate_command("tiny", root, seed=11, observations_only=True, tie_points_per_frame=300, tie_sigma_px=0.1,
-                     overrides=CAMERA)
+                     overrides=camera)
     return root
 
 
-def _adjust(root, tmp_path, ppy_mm=None):
-    # the certificate (the simulator's true camera) as camera.toml, its ppy_mm typed with the other sign or not
+def adjust_with_certificate(root, tmp_path, **typed):
+    """A copy of ``root`` adjusted (DEM surface control, no self-calibration) with the simulator's true camera as
+    camera.toml, its keys ``typed`` (e.g. ppy_mm=0.3) as a user typed them; (adjustment, report record)."""
     root = shutil.copytree(root, tmp_path / "blk")
     text = (root / "truth" / "camera.toml").read_text()
-    if ppy_mm is not None:
-        text = re.sub(r"(?m)^ppy_mm = .*$", f"ppy_mm = {ppy_mm}", text)
+    for key, value in typed.items():
+        text = re.sub(rf"(?m)^{key} = .*$", f"{key} = {value}", text)
     (root / "camera.toml").write_text(text)
     settings = project_settings(Project.open(root)).settings
     settings = dataclasses.replace(settings, self_calibration=(), dem=root / "dem.tif")
@@ -43,8 +44,13 @@ def _adjust(root, tmp_path, ppy_mm=None):
     return ba, to_record(build_report(ba))
 
 
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    return certificate_block(tmp_path_factory.mktemp("heldpp") / "blk", CAMERA)
+
+
 def test_a_principal_point_held_with_its_sign_flipped_makes_the_solution_weak(block, tmp_path):
-    ba, rec = _adjust(block, tmp_path, ppy_mm=0.3)
+    ba, rec = adjust_with_certificate(block, tmp_path, ppy_mm=0.3)
     test = ba.result.held_pp
     assert test.rejected and test.f_statistic > test.f_limit, test
     # freed, it goes most of the way back to the truth's -0.3 mm
@@ -55,7 +61,7 @@ def test_a_principal_point_held_with_its_sign_flipped_makes_the_solution_weak(bl
 
 
 def test_the_right_principal_point_held_passes(block, tmp_path):
-    ba, rec = _adjust(block, tmp_path)
+    ba, rec = adjust_with_certificate(block, tmp_path)
     test = ba.result.held_pp
     assert test is not None and not test.rejected
     assert "principal point held" not in rec["key_statistics"]["message"]
