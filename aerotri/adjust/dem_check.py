@@ -49,9 +49,12 @@ class DemCheck:
     height_sigma_m: float | None  # a-posteriori sigma of the block's height mode
     sigma_offset_m: float | None  # the median's precision (module docstring)
     limit_m: float | None  # OFFSET_SIGMAS x sigma_offset_m
-    failed: bool
     # of the n: left out by the surface control's gate below the DEM (None: a check DEM, which has no gate)
     below_n: int | None = None
+
+    @property
+    def failed(self) -> bool:
+        return self.offset_failed or self.below_failed
 
     @property
     def offset_failed(self) -> bool:
@@ -105,13 +108,12 @@ def tie_dem_check(surface: SurfaceControl, points_local: np.ndarray, ground_tie:
     below = None if gated_out is None else int(np.sum(on & np.asarray(gated_out, dtype=bool) & (e < 0.0)))
     known = dict(dem=dem, role=role, n=n, dem_sigma_m=s_dem, height_sigma_m=height_sigma_m, below_n=below)
     if n == 0:
-        return DemCheck(**known, median_m=None, nmad_m=None, sigma_offset_m=None, limit_m=None, failed=False)
+        return DemCheck(**known, median_m=None, nmad_m=None, sigma_offset_m=None, limit_m=None)
     med = float(np.median(d))
     nmad = float(1.4826 * np.median(np.abs(d - med)))
     if n < MIN_POINTS:
-        return DemCheck(**known, median_m=med, nmad_m=nmad, sigma_offset_m=None, limit_m=None, failed=False)
+        return DemCheck(**known, median_m=med, nmad_m=nmad, sigma_offset_m=None, limit_m=None)
     s_h = height_sigma_m if height_sigma_m is not None and math.isfinite(height_sigma_m) else 0.0
     sigma = math.sqrt(s_h**2 + s_dem**2 + (1.2533 * nmad) ** 2 / n)
     limit = OFFSET_SIGMAS * sigma
-    check = DemCheck(**known, median_m=med, nmad_m=nmad, sigma_offset_m=sigma, limit_m=limit, failed=False)
-    return dataclasses.replace(check, failed=check.offset_failed or check.below_failed)
+    return DemCheck(**known, median_m=med, nmad_m=nmad, sigma_offset_m=sigma, limit_m=limit)

@@ -958,14 +958,14 @@ def object_points_csv(ba: BlockAdjustment) -> str:
 
     b, r = ba.block, ba.result
     unit = np.asarray(map_unit_m(ba.crs, "the adjustment's CRS"), dtype=float)
-    out = {c for c, _ in r.rejected_control}
+    left_out = r.control_left_out()
     act = r.obs_active
     rays = np.bincount(b.obs_point[act], minlength=b.n_points)
     ss = np.bincount(b.obs_point[act], (r.residual_px[act] ** 2).sum(1), minlength=b.n_points)
     rms = np.sqrt(ss / np.maximum(2 * rays, 1))
     kind = np.array(["tie"] * b.n_points, dtype=object)
     for c, j in enumerate(b.control_point):
-        kind[j] = ba.control.kind[c] if r.control_active[c] and c not in out else "rejected_control"
+        kind[j] = "rejected_control" if left_out[c] else ba.control.kind[c]
     lines = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
     for j in np.flatnonzero(rays > 0):
         x, y, z = ba.points_map[j]

@@ -94,7 +94,7 @@ def _residuals(ba) -> _Residuals:
 def _control_rows(ba, res: _Residuals) -> list[dict]:
     """Control points: ground residuals in the project CRS, adjusted minus given."""
     r, b = ba.result, ba.block
-    out = {c for c, _ in r.rejected_control}  # by the control test, or every ray removed by the snooping
+    left_out = r.control_left_out()
     rows = []
     for c, pid in enumerate(ba.control.id):
         j = b.control_point[c]
@@ -104,7 +104,7 @@ def _control_rows(ba, res: _Residuals) -> list[dict]:
         kind = ba.control.kind[c]
         comp = {"full": [1, 1, 1], "horizontal": [1, 1, 0], "height": [0, 0, 1]}[kind]
         d = np.where(np.array(comp, dtype=bool), d, np.nan)
-        rejected = not r.control_active[c] or c in out
+        rejected = bool(left_out[c])
         active = res.active
         rays = int(active[k].sum())
         # a control point no active ray reaches is held only by its own prior: its residual says nothing
@@ -1421,7 +1421,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
 
 
 def _dem_check_dict(d) -> dict:
-    out = dataclasses.asdict(d) | {"offset_failed": d.offset_failed, "below_failed": d.below_failed}
+    out = dataclasses.asdict(d) | {"failed": d.failed, "offset_failed": d.offset_failed, "below_failed": d.below_failed}
     for k in ("median_m", "nmad_m", "dem_sigma_m", "height_sigma_m", "sigma_offset_m", "limit_m"):
         out[k] = _f(out[k], 4)
     return out

@@ -84,6 +84,13 @@ class AdjustmentResult:
     # estimated, or no covariances computed)
     held_pp: object | None = None
 
+    def control_left_out(self) -> np.ndarray:
+        """Per control point: left out of the block, by the control test (``control_active`` off) or by every one of
+        its rays removed (``rejected_control``, ``rays_removed_control``)."""
+        out = ~np.asarray(self.control_active, dtype=bool)
+        out[[c for c, _ in self.rejected_control]] = True
+        return out
+
 
 def adjust_block(block: G.Block, opts: G.SolveSettings, state0: G.State, **kwargs) -> AdjustmentResult:
     """``_adjust_block`` (the same arguments: snooping, alpha, compute_marginals, point_covariances, max_rounds,
