@@ -631,32 +631,29 @@ def common_height_shift_note(ba, gcc: GnssCorrectionCheck | None, plan_check: tu
     if "focal" in ba.opts.self_calibration:  # estimated: the solve has fitted it, it is no cause left
         return text + "; not the focal length, which is estimated."
     focal = f"a focal length {abs(pct):.2f} % too {'long' if pct < 0 else 'short'} in camera.toml"
+    text += f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). "
     shows = plan_check is not None and all(x is not None and math.isfinite(x) for x in plan_check[1:]) \
         and plan_check[1] > plan_check[2]
     if not shows:
         residuals = (f"The {plan_check[0]} points' plan residuals (within their limit) do not" if plan_check else
                      "No check or control point plan residuals")
-        return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). "
-                       f"{residuals} tell these apart: check the lever arm, the heights' datum and the calibration "
+        return text + (f"{residuals} tell these apart: check the lever arm, the heights' datum and the calibration "
                        f"certificate.")
     scale = check_scale_pattern(ba) if plan_check[0] == "check" else None
     beyond = f"The {plan_check[0]} points' plan RMS {plan_check[1]:.3f} m is beyond its {plan_check[2]:.3f} m limit"
     if scale is None:
         # (control points are fitted to the block: their residuals show no scale of it)
-        return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). "
-                       f"{beyond}; too few check points to tell a scale error from the rest: check the lever arm, the "
+        return text + (f"{beyond}; too few check points to tell a scale error from the rest: check the lever arm, the "
                        f"heights' datum and the calibration certificate.")
     ppm, share, effect_m = scale
     if share < SCALE_PATTERN_SHARE or effect_m < SCALE_EFFECT_SHARE * plan_check[1]:
         # a plan RMS beyond its limit is no scale by itself (trial-site: 0.378 m, the same with the heights right,
         # read as "the scale off as well: the focal length is the likely cause" of a height datum mix-up)
-        return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). "
-                       f"{beyond}, but their plan residuals show no scale error (a scale of {ppm:+.0f} ppm about "
+        return text + (f"{beyond}, but their plan residuals show no scale error (a scale of {ppm:+.0f} ppm about "
                        f"their centre explains {100 * share:.0f} % of their spread and moves them {effect_m:.3f} m "
                        f"RMS): the lever arm or the heights' datum is the likelier cause; check them first, then the "
                        f"calibration certificate.")
-    return text + (f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). The "
-                   f"{plan_check[0]} points' plan RMS {plan_check[1]:.3f} m beyond its {plan_check[2]:.3f} m limit, "
+    return text + (f"The {plan_check[0]} points' plan RMS {plan_check[1]:.3f} m beyond its {plan_check[2]:.3f} m limit, "
                    f"{100 * share:.0f} % of its spread a scale of {ppm:+.0f} ppm about their centre ({effect_m:.3f} m "
                    f"RMS), shows the scale off as well: the focal length is the likely cause (check it against the "
                    f"calibration certificate, or estimate it: self_calibration \"focal\" with the DEM or height "

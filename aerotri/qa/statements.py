@@ -71,7 +71,7 @@ def _horizontal(checks):
     return next((c for c in checks if c.dimension == "H" and c.figure is not None and c.judged), None)
 
 
-def _asprs2023(product: str, classes: dict, checks, u: float, un: str) -> str:
+def _asprs2023(classes: dict, checks, u: float, un: str) -> str:
     head = ("This data set was tested to meet ASPRS Positional Accuracy Standards for Digital Geospatial Data, "
             "Edition 2, Version 1.0 (2023) for a ")
     parts = []
@@ -87,7 +87,7 @@ def _asprs2023(product: str, classes: dict, checks, u: float, un: str) -> str:
     return " ".join(parts)
 
 
-def _asprs2014(product: str, classes: dict, checks, u: float, un: str) -> str:
+def _asprs2014(classes: dict, checks, u: float, un: str) -> str:
     head = "This data set was tested to meet ASPRS Positional Accuracy Standards for Digital Geospatial Data (2014) for a "
     parts = []
     if "V" in classes and (nva := _nva(checks)) is not None and nva.measured is not None:
@@ -104,7 +104,7 @@ def _asprs2014(product: str, classes: dict, checks, u: float, un: str) -> str:
     return " ".join(parts)
 
 
-def _lbs(product: str, checks, u: float, un: str) -> str:
+def _lbs(checks, u: float, un: str) -> str:
     parts = []
     if (nva := next((c for c in checks if c.quantity.startswith("NVA") and c.measured is not None), None)) is not None:
         parts.append(f"Tested {_metres(NORMAL_95 * nva.measured, u, un)} non-vegetated vertical accuracy (NVA) at 95 "
@@ -127,13 +127,13 @@ def accuracy_statements(comp: "Compliance", unit_m: float = 1.0, unit_name: str 
             out.append(AccuracyStatement(p.product, "", f"no statement: {p.verdict} against {comp.class_tested}"))
             continue
         if comp.key == "usgs-lbs":
-            text = _lbs(p.product, checks, unit_m, unit_name)
+            text = _lbs(checks, unit_m, unit_name)
         else:
             classes = _classes(p.finest_class)
             if not classes:
                 out.append(AccuracyStatement(p.product, "", f"no statement: no class established ({p.finest_class})"))
                 continue
             fn = _asprs2023 if comp.key == "asprs2023" else _asprs2014
-            text = fn(p.product, classes, checks, unit_m, unit_name)
+            text = fn(classes, checks, unit_m, unit_name)
         out.append(AccuracyStatement(p.product, text, "" if text else "no statement: no figure of the rows it needs"))
     return tuple(out)
