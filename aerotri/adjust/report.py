@@ -669,9 +669,9 @@ SCALE_EFFECT_SHARE = 0.25
 
 def check_scale_pattern(ba) -> tuple[float, float, float] | None:
     """(scale ppm, share of the plan residuals' variance about their mean it explains, RMS of the displacements it
-    makes, m of the CRS) of the check points' plan residuals (adjusted - measured) fitted as a scale about their
-    centroid, d = s (P - P0) + t; None with fewer than 5 check points in plan. A wrong focal length scales the block:
-    its residuals grow outwards from the centre."""
+    makes in metres) of the check points' plan residuals (adjusted - measured, the CRS's units) fitted as a scale about
+    their centroid, d = s (P - P0) + t; None with fewer than 5 check points in plan. A wrong focal length scales the
+    block: its residuals grow outwards from the centre."""
     rows = [(c["measured_m"][:2], np.subtract(c["adjusted_m"][:2], c["measured_m"][:2]))
             for c in (getattr(ba, "check", None) or {}).values()
             if np.all(np.isfinite(c["adjusted_m"][:2])) and (c.get("surveyed") or [1, 1])[0]]
@@ -684,7 +684,8 @@ def check_scale_pattern(ba) -> tuple[float, float, float] | None:
     if not q @ q > 0 or not e @ e > 0:
         return None
     s = float(q @ e / (q @ q))
-    effect = abs(s) * float(np.sqrt(q @ q / len(rows)))
+    # in metres, as the plan RMS it is held against (a feet project's were feet)
+    effect = abs(s) * float(np.sqrt(q @ q / len(rows))) * map_unit_m(getattr(ba, "crs", None), "the adjustment's CRS")[0]
     return 1e6 * s, float(1.0 - np.sum((e - s * q) ** 2) / np.sum(e ** 2)), effect
 
 

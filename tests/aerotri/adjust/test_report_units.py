@@ -164,3 +164,12 @@ def test_object_point_sigmas_are_metres_in_a_feet_crs(pair):
     x_m = np.array([float(rows["m"][i]["x"]) for i in common])
     x_ft = np.array([float(rows["ft"][i]["x"]) for i in common])
     assert np.allclose(x_ft * FT, x_m, atol=1e-3)
+
+
+def test_the_check_points_scale_pattern_is_the_same_in_feet(pair):
+    """The displacement a scale about the check points' centre makes is metres in both projects: it is held against
+    the plan RMS in metres (it was the CRS's feet, 3.28 x larger)."""
+    m, ft = (report.check_scale_pattern(pair[u].adjustment) for u in ("m", "ft"))
+    assert m is not None and ft is not None
+    assert ft[0] == pytest.approx(m[0], abs=1.0) and ft[1] == pytest.approx(m[1], abs=0.01)
+    assert ft[2] == pytest.approx(m[2], rel=0.01, abs=1e-4)
