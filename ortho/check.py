@@ -37,7 +37,7 @@ import numpy as np
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import track
-from aerotri.core.point_ids import point_id_key, warn_coincident_points
+from aerotri.core.point_ids import refuse_repeated_id, warn_coincident_points
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.project import Project, project_paths
 from aerotri.core.records import to_record
@@ -443,15 +443,7 @@ def read_points_csv(path) -> DomPoints:
             raise InputError(f"{path}:{lineno}: non-numeric coordinate in {row}") from None
         if not np.all(np.isfinite(vals[-1])):
             raise InputError(f"{path}:{lineno}: NaN or infinite coordinate in {row}")
-        # counted twice it would pass a standard's minimum number of points; twice as the report matches ids
-        # (point_id_key: P00 and p00 are one point)
-        key = point_id_key(row["id"])
-        if key in first_line:
-            first_id, first_no = first_line[key]
-            raise InputError(f"{path}:{lineno}: point {row['id']!r} again (first on line {first_no}"
-                             + ("" if first_id == row["id"] else f" as {first_id!r}; ids match without case and a "
-                                "number's leading zeros") + "); expected each surveyed point once")
-        first_line[key] = (row["id"], lineno)
+        refuse_repeated_id(first_line, row["id"], lineno, f"{path}:{lineno}")
         lines.append(lineno)
         ids.append(row["id"])
     if not ids:
@@ -855,8 +847,7 @@ def _points_drawn(root, report: dict, table: dict, unit_m: float, dom_crs) -> Su
 
     at_path = project_paths(root).adjustment_report_path
     at = read_json(at_path, "adjustment report") if at_path.is_file() else {}
-    control = set(dom_points_used_as_control({**report, "points": table["points"]}, at if isinstance(at, dict) else {})
-                  if at_path.is_file() else ())
+    control = set(dom_points_used_as_control({**report, "points": table["points"]}, at if isinstance(at, dict) else {}))
     rows = table["points"]
     return SurveyedPointsDrawn(
         ids=tuple(str(r["id"]) for r in rows), x=np.array([r["x_m"] for r in rows], dtype=float),

@@ -17,6 +17,21 @@ def point_id_key(point_id) -> str:
     return (key.lstrip("0") or "0") if key.isdigit() else key
 
 
+def refuse_repeated_id(first_line: dict, point_id: str, line: int, where: str) -> None:
+    """Record ``point_id`` read on ``line`` in ``first_line`` (``point_id_key`` -> (id as written, line)); an
+    ``InputError`` starting with ``where`` (the file and line) when the same point came before: counted twice it
+    would pass a standard's minimum number of check points (P00 and p00 read as two met ASPRS 2023's 30 with 29)."""
+    from aerotri.core.errors import InputError
+
+    key = point_id_key(point_id)
+    if key in first_line:
+        first_id, first_no = first_line[key]
+        raise InputError(f"{where}: point {point_id!r} again (first on line {first_no}"
+                         + ("" if first_id == point_id else f" as {first_id!r}; ids match without case and a number's "
+                            "leading zeros") + "); expected each surveyed point once")
+    first_line[key] = (point_id, line)
+
+
 # Two ids this close in plan (in the file's unit: a millimetre, or a third of one in feet) are one point surveyed
 # or typed twice under two names far more often than two marks: counted twice they fill a standard's minimum number
 COINCIDENT_XY = 0.001

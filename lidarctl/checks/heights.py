@@ -47,11 +47,13 @@ from scipy.spatial import cKDTree
 from aerotri.geom import las
 
 from aerotri.core.errors import InputError, OptionError
-from aerotri.core.point_ids import point_id_key, warn_coincident_points
+from aerotri.core.point_ids import refuse_repeated_id, warn_coincident_points
 from aerotri.core.textio import read_text
 from aerotri.geom.crs.definition import length_unit_name
 from lidarctl import io
 from lidarctl.units import METRE, LengthUnits
+
+log = logging.getLogger(__name__)
 
 BIN_EDGES_M = (-np.inf, -1.0, -0.5, 0.5, 1.0, 1.5, 2.0, 5.0, np.inf)
 ABS_BIN_EDGES_M = (0.3, 0.5, 1.0)
@@ -225,16 +227,7 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
         if not np.all(np.isfinite(vals)):
             raise InputError(f"{path}: line {line_no}: non-finite coordinate: {row}")
         pid = row[col_id].strip() if col_id is not None else str(line_no - 1)
-        # a point listed twice would count twice against a standard's minimum number of check points; twice is
-        # judged as the report matches ids (point_id_key: P00 and p00 are one point; they were read as two, and
-        # 29 points met ASPRS 2023's minimum of 30)
-        key = point_id_key(pid)
-        if key in first_line:
-            first_id, first_no = first_line[key]
-            raise InputError(f"{path}: line {line_no}: point {pid!r} again (first on line {first_no}"
-                             + ("" if first_id == pid else f" as {first_id!r}; ids match without case and a number's "
-                                "leading zeros") + "); expected each surveyed point once")
-        first_line[key] = (pid, line_no)
+        refuse_repeated_id(first_line, pid, line_no, f"{path}: line {line_no}")
         lines.append(line_no)
         ids.append(pid)
         xyz.append(vals)
@@ -465,9 +458,6 @@ def _dem_height_unit(dem_path, dem_z_unit: str | None) -> DemHeightsUnit:
     CRS's horizontal unit, said on the console and in the note (metres under a feet CRS were read as feet without a
     word: RMSE 0.046 m "meets QL0" for a true 0.150 m that fails QL2). A ``dem_z_unit`` against the file's own is
     refused: the file's statement and the option cannot both be right."""
-    import logging
-
-    from aerotri.geom.crs.definition import length_unit_name
     from lidarctl.terrain.dem_io import open_dem_unit
 
     def units(unit_m):  # "international feet (0.3048 m)": a plural for a sentence, the factor for the feet
@@ -488,7 +478,6 @@ def _dem_height_unit(dem_path, dem_z_unit: str | None) -> DemHeightsUnit:
                               f"{units(unit.unit_m)} (its vertical CRS, band unit or "
                               "VERTICAL_UNITS tag); leave the option out, or mend the file", param="--dem-z-unit")
         return DemHeightsUnit(unit.unit_m, None)
-    log = logging.getLogger(__name__)
     horizontal = units(unit.horizontal_unit_m)
     consequential = unit.horizontal_unit_m != 1.0
     if given_m is not None:
@@ -547,7 +536,7 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
             unit = units.xy_name
             if not units.z_declared and units.z_m != 1.0:
                 # as for the DEM (trial-audit F2): heights in metres under a foot CRS are read 3.28 x too small
-                logging.getLogger(__name__).warning("%s: declares no height unit (a 2D CRS, no VerticalUnitsGeoKey): its heights are taken in "
+                log.warning("%s: declares no height unit (a 2D CRS, no VerticalUnitsGeoKey): its heights are taken in "
                             "its CRS's horizontal unit, %s; if they are metres, give the cloud a compound CRS "
                             "(aerotri crs transform --to 'EPSG:<grid>+<vertical>')", path,
                             length_unit_name(units.z_m, long=True))
