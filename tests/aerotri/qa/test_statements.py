@@ -3,6 +3,8 @@ engineer signs the delivery with ASPRS's or the LBS's own sentence, in metres an
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from aerotri.qa.compliance import Compliance, ComplianceCheck, ProductCompliance
@@ -62,3 +64,18 @@ def test_usgs_lbs_states_tested_metres_at_95_percent_only_for_a_pass():
     (st,) = accuracy_statements(_comp("usgs-lbs", rows, "fail", "QL3"))
     assert st.text == "" and "fail" in st.why
     assert accuracy_statements(_comp("cn-at", rows, "pass", "1:2000")) == ()
+
+
+def test_no_statement_for_the_at_nor_for_checks_on_the_projects_own_lidar():
+    """The demo's report (ASPRS 2023) stated its AT "tested to meet ... a 60 (cm) RMSEH class" on 389 roof corners of
+    its own LiDAR: the AT is no deliverable a statement is written for, and corners of the product's own LiDAR are
+    no independent test."""
+    at = dataclasses.replace(_row("LiDAR check points, RMSE_H (radial)", 0.26, 0.26, 0.85, "pass", dimension="H"),
+                             product="Aerotriangulation", counted="LiDAR check points")
+    dem = dataclasses.replace(_row("NVA: RMSE_V at non-vegetated check points", 0.039, 0.039, 0.1, "pass"),
+                              counted="LiDAR check points")
+    comp = Compliance("asprs2023", "asprs2023", "H60cm V10cm", "", (at, dem),
+                      (ProductCompliance("Aerotriangulation", "pass", "H60cm"),
+                       ProductCompliance("LiDAR DEM", "pass", "V5cm")), ())
+    (st,) = accuracy_statements(comp)
+    assert st.product == "LiDAR DEM" and st.text == "" and "own LiDAR, not surveyed" in st.why
