@@ -91,9 +91,10 @@ def test_a_short_helper_process_does_not_count_as_the_parents_memory_again():
 def _worker(tmp_path, cpu_s: float, mb: int) -> tuple[subprocess.Popen, object]:
     """A process alive before and after the work (as a Dask worker is), which burns ``cpu_s`` and holds
     ``mb`` MiB only once ``go`` exists, then writes ``done`` and stays alive."""
-    go, done = tmp_path / "go", tmp_path / "done"
+    go, done, ready = tmp_path / "go", tmp_path / "done", tmp_path / "ready"
     code = ("import numpy as np, os, time, sys\n"
             f"go, done = {str(go)!r}, {str(done)!r}\n"
+            f"open({str(ready)!r}, 'w').close()\n"
             "while not os.path.exists(go): time.sleep(0.01)\n"
             f"a = np.ones({mb} * 1024 * 1024 // 8)\n"
             "t = time.process_time()\n"
@@ -102,7 +103,12 @@ def _worker(tmp_path, cpu_s: float, mb: int) -> tuple[subprocess.Popen, object]:
             "open(done, 'w').close()\n"
             "time.sleep(120)\n")
     proc = subprocess.Popen([sys.executable, "-c", code])
-    time.sleep(0.5)  # started (and its interpreter's start-up CPU spent) before the work
+    # started (its interpreter's and NumPy's start-up CPU spent) before the work: on a loaded machine a fixed
+    # half second was not enough and the start-up counted as work (CI: 1.11 CPU-s for 0.4)
+    deadline = time.monotonic() + 60
+    while not ready.exists() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.1)
     return proc, (go, done)
 
 
