@@ -1253,9 +1253,9 @@ def stale_frames(root, index: FrameIndex) -> str | None:
     cam_file = rec["camera"]["file"]
     from aerotri.geom.camera import orientations_camera
 
-    try:
+    try:  # read to compare with the recorded one only: not judged again (Camera.from_dict)
         camera, source = orientations_camera(project, eo if rec["eo"].get("given") else None,
-                                      where(cam_file) if cam_file else None)
+                                             where(cam_file) if cam_file else None, plausible=False)
     except InputError as exc:
         return f"{path}: the camera the frames were rectified with cannot be read now ({exc})"
     if _camera_sha256(camera) != rec["camera"]["sha256"]:

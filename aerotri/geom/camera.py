@@ -430,9 +430,11 @@ class Camera:
         return f"Lens model {cls.MODEL!r}."
 
     @classmethod
-    def from_dict(cls, d: dict, source: str = "camera") -> "Camera":
+    def from_dict(cls, d: dict, source: str = "camera", *, plausible: bool = True) -> "Camera":
         """The camera of a camera file's keys; its ``model`` key (absent: ``brown``) picks the class in
-        ``MODELS``, whichever class this is called on."""
+        ``MODELS``, whichever class this is called on. ``plausible=False``: not held to ``check_plausible``
+        (a camera read only to compare it with one recorded before, e.g. the frame orthos' staleness check:
+        its lens fold search loads the compiled lens kernels, 0.7 CPU-s, a sixth of the demo's mosaic)."""
         model = d.get("model", DEFAULT_MODEL)
         if model not in MODELS:
             raise InputError(f"{source}: model = {model!r} is not one of {sorted(MODELS)}")
@@ -456,11 +458,12 @@ class Camera:
         for f in fields:
             object.__setattr__(cam, f, kwargs.get(f, 0.0))
         cam.validate(source)
-        cam.check_plausible(source)
+        if plausible:
+            cam.check_plausible(source)
         return cam
 
     @classmethod
-    def read(cls, path) -> "Camera":
+    def read(cls, path, *, plausible: bool = True) -> "Camera":
         """A camera file (TOML); its ``model`` key picks the class (see ``from_dict``)."""
         from aerotri.core.textio import read_text
 
@@ -469,7 +472,7 @@ class Camera:
             d = tomllib.loads(read_text(path, "camera file (TOML)"))
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"{path}: not valid TOML ({exc})") from None
-        return cls.from_dict(d, source=str(path))
+        return cls.from_dict(d, source=str(path), plausible=plausible)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -577,12 +580,12 @@ def dmc_camera() -> BrownCamera:
     return BrownCamera(focal_mm=120.0, pixel_um=12.0, width=13824, height=7680, name="DMC")
 
 
-def project_camera(project) -> Camera:
-    """The nominal camera of a project folder (``camera.toml``)."""
-    return Camera.read(project.camera_path)
+def project_camera(project, *, plausible: bool = True) -> Camera:
+    """The nominal camera of a project folder (``camera.toml``); ``plausible``: see ``Camera.from_dict``."""
+    return Camera.read(project.camera_path, plausible=plausible)
 
 
-def oriented_camera(project) -> tuple[Camera, str]:
+def oriented_camera(project, *, plausible: bool = True) -> tuple[Camera, str]:
     """(camera, source): the camera the project's adjusted orientations (``at/eo.txt``) belong to:
     ``at/camera.toml``, which the adjustment writes beside them (self-calibrated, or the nominal camera it held
     fixed), else the nominal ``camera.toml`` (no adjustment yet). The source says "self-calibrated" when the
@@ -594,22 +597,23 @@ def oriented_camera(project) -> tuple[Camera, str]:
             raise StageOrderError(f"{project.eo_path}: no {path.name} beside it (the camera its orientations belong "
                                   f"to; written by aerotri adjust since 0.1): adjust again (aerotri adjust "
                                   f"{project.root})")
-        return project_camera(project), str(project.camera_path)
-    camera = Camera.read(path)
-    nominal = project_camera(project) if project.camera_path.is_file() else None
+        return project_camera(project, plausible=plausible), str(project.camera_path)
+    camera = Camera.read(path, plausible=plausible)
+    nominal = project_camera(project, plausible=plausible) if project.camera_path.is_file() else None
     if nominal is not None and camera.to_dict() == nominal.to_dict():
         return camera, str(path)
     return camera, f"{path} (self-calibrated)"
 
 
-def orientations_camera(project, eo_path=None, camera_path=None) -> tuple[Camera, str]:
+def orientations_camera(project, eo_path=None, camera_path=None, *, plausible: bool = True) -> tuple[Camera, str]:
     """(camera, source) to project with the orientations of ``eo_path``: ``camera_path`` when given; for the
     project's own adjusted orientations (``eo_path`` None or ``at/eo.txt`` itself) the camera they belong to
     (``oriented_camera``: at/camera.toml); for other orientations (an EO file given with --eo: a truth, an
     import, another adjustment) the nominal ``camera.toml``, as at/camera.toml's self-calibration was
-    estimated with at/eo.txt and belongs to no other orientations. ``project`` may be None with a ``camera_path``."""
+    estimated with at/eo.txt and belongs to no other orientations. ``project`` may be None with a ``camera_path``.
+    ``plausible``: see ``Camera.from_dict``."""
     if camera_path is not None:
-        return Camera.read(camera_path), str(camera_path)
+        return Camera.read(camera_path, plausible=plausible), str(camera_path)
     if eo_path is None or Path(eo_path).resolve() == project.eo_path.resolve():
-        return oriented_camera(project)
-    return project_camera(project), str(project.camera_path)
+        return oriented_camera(project, plausible=plausible)
+    return project_camera(project, plausible=plausible), str(project.camera_path)

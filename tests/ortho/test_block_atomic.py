@@ -478,3 +478,24 @@ def test_a_dsm_changed_since_the_true_ortho_is_said(project, caplog):
     assert r.exit_code == 0, r.output
     assert any("rectified on another DSM than" in m and "dsm.tif" in m for m in caplog.messages), caplog.messages
     assert not any("another DEM" in m for m in caplog.messages)
+
+
+def test_the_staleness_check_compares_the_camera_without_judging_it_again(project, monkeypatch):
+    """``ortho mosaic`` / ``ortho check`` read the camera only to compare it with the one the frames were rectified
+    with: its plausibility check (a lens fold search that loads the compiled lens kernels, 0.7 of the demo mosaic's
+    4.3 CPU-s) is not run again; a camera changed since is still refused."""
+    from aerotri.geom.camera import Camera
+    from ortho.block import read_index, stale_frames
+
+    def judged(self, *args, **kwargs):
+        raise AssertionError("check_plausible called")
+
+    monkeypatch.setattr(Camera, "check_plausible", judged)
+    assert stale_frames(project, read_index(project)) is None
+    monkeypatch.undo()
+    cam = project / "at" / "camera.toml" if (project / "at" / "camera.toml").is_file() else project / "camera.toml"
+    text = cam.read_text()
+    focal = next(line for line in text.splitlines() if line.startswith("focal_mm"))
+    cam.write_text(text.replace(focal, f"focal_mm = {float(focal.split('=')[1]) * 1.01!r}"))
+    r = run("mosaic", project, "--seams", "voronoi")
+    assert r.exit_code == 2 and "another camera" in r.stderr and "ortho rectify" in r.stderr, r.output
