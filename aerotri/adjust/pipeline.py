@@ -694,6 +694,13 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
                               image_sigma_from_residuals=st.image_sigma_from_residuals, control_held_out=held)
         if not opts.self_calibration or result.calibration is None:
             break
+        if not (np.isfinite(result.sigma0) and np.isfinite(result.calibration.cal_cov).all()):
+            # a solve that diverged (trial-messy: one control height typed in feet, 714 m off, and pp fixed): no
+            # covariance to judge the groups by (the check stopped on a LinAlgError traceback); the report says
+            # "Solution failed" for the solve that did not converge
+            log.warning(f"self-calibration: the solve's covariance is not finite (sigma0 {result.sigma0:g}); the "
+                        "determinability of the calibration groups is not checked")
+            break
         # the determinability of each estimated group (determinability.py); the groups the block cannot
         # determine are fixed at their a-priori values and the block solved again without them
         solved = result.opts or opts
