@@ -134,6 +134,12 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
 
     # the projection centres checked against the project CRS (another zone's numbers, swapped X/Y)
     eo = read_eo(eo_path, check_block_crs(project.crs, f"{project.config_path} [project] crs"))
+    if eo_given:  # (an adjustment's own at/eo.txt is in degrees; an import or another program's may not be)
+        from aerotri.geom.eo_check import radians_read_as_degrees
+
+        why = radians_read_as_degrees(eo)
+        if why:
+            _log.warning(f"{eo_path}: {why}")
     images = find_images(project.images_dir)
     oriented = set(eo.image_id)
     if frames:

@@ -32,6 +32,7 @@ from aerotri.core.project import Project
 from aerotri.exchange.imported import ImportedBlock
 from aerotri.geom.camera import CameraFileFields
 from aerotri.geom.crs.definition import GRID_SCALE_LIMIT
+from aerotri.geom.eo_check import radians_read_as_degrees
 
 log = logging.getLogger(__name__)
 
@@ -321,6 +322,12 @@ def check_import(project: Project, block: ImportedBlock, replaced: set, format_n
         block.camera.check_plausible(block.source_of("camera"), CAMERA_FILE_FIELDS.get(format_name))
     check_camera_size(project, block)
     check_point_ids(project, block, replaced)
+    if block.eo is not None:
+        # said, not refused: a drone holding its heading within 3 deg of north on every line looks the same
+        # (trial-messy F13: orthority angles in radians imported silently, the orthos then 176 deg off)
+        why = radians_read_as_degrees(block.eo)
+        if why:
+            log.warning(f"{block.source_of('eo')}: {why}")
     return notes + lever_arm_note(project, block)
 
 

@@ -158,3 +158,40 @@ def check_kappa(eo, camera, ties, ground_height_m: float, source: str, limit_deg
     if bad:
         raise InputError(kappa_message(bad, len(errors), source))
     return errors
+
+
+# Strips whose headings differ by more fly opposite ways; a camera fixed in the aircraft turns with it, so their
+# kappas differ by about 180 deg (crab angles change that by tens of degrees at most). Angles in radians read as
+# degrees differ by at most 2 pi "deg" (the NGI block: 3.1 against 179.3 deg in degrees).
+OPPOSITE_STRIPS_DEG = 150.0
+KAPPA_TURN_MIN_DEG = 90.0
+
+
+def radians_read_as_degrees(eo) -> str | None:
+    """Why the angles of ``eo`` (omega, phi, kappa in degrees as read) look like radians, or None: every angle
+    within +-pi (+ 1e-3) and kappa the same, within ``KAPPA_TURN_MIN_DEG``, on strips flown opposite ways
+    (``strips_from_track`` of the centres in the file's order; strips of two frames or more). A block without
+    opposite strips (one strip, or a drone holding its heading on every line) is not told."""
+    from aerotri.geom.strips import strips_from_track
+
+    opk = np.asarray(eo.opk_deg, float)
+    if len(opk) < 4 or not np.all(np.abs(opk) <= np.pi + 1e-3):
+        return None
+    strip = strips_from_track(eo.centre_m)
+    heads, kappas = [], []
+    for s in np.unique(strip):
+        k = np.flatnonzero(strip == s)
+        if len(k) < 2:
+            continue
+        d = eo.centre_m[k[-1], :2] - eo.centre_m[k[0], :2]
+        heads.append(np.degrees(np.arctan2(d[0], d[1])))
+        kappas.append(float(np.median(opk[k, 2])))
+    turns = [(abs(float(_wrap(heads[a] - heads[b]))), abs(float(_wrap(kappas[a] - kappas[b]))))
+             for a in range(len(heads)) for b in range(a + 1, len(heads))
+             if abs(float(_wrap(heads[a] - heads[b]))) > OPPOSITE_STRIPS_DEG]
+    if not turns or max(t[1] for t in turns) >= KAPPA_TURN_MIN_DEG:
+        return None
+    head = max(t[0] for t in turns)
+    return (f"omega, phi and kappa all within +-{np.pi:.4f}, and kappa differs by at most {max(t[1] for t in turns):.2f} "
+            f"between strips flown opposite ways (headings up to {head:.0f} deg apart; a camera turns with the "
+            f"aircraft, its kappa by about 180 deg): angles in radians? (x 57.2958 for degrees)")

@@ -89,3 +89,42 @@ def test_ortho_rectify_refuses_a_given_kappa_off(block, tmp_path):
     with pytest.raises(InputError, match=f"{truth.image_id[3]}.*180 deg off|180 deg off.*{truth.image_id[3]}"):
         _check_given_kappa(project, cam, bad, "given.txt", set(truth.image_id))
     _check_given_kappa(project, cam, bad, "given.txt", set(truth.image_id) - {truth.image_id[3]})  # not rectified
+
+
+def _two_way_block(kappa_deg_of_heading, strips=3, frames=5, base_m=400.0, spacing_m=800.0):
+    """Centres of ``strips`` east-west strips flown alternately east and west (flight order), omega and phi within
+    1 deg, kappa from the strip's heading (deg)."""
+    from aerotri.geom.eo import ExteriorOrientations
+
+    rng = np.random.default_rng(3)
+    ids, centres, opk = [], [], []
+    for s in range(strips):
+        xs = np.arange(frames) * base_m if s % 2 == 0 else (frames - 1 - np.arange(frames)) * base_m
+        heading = 90.0 if s % 2 == 0 else 270.0
+        for x in xs:
+            ids.append(f"s{s}_{len(ids):03d}")
+            centres.append([500000.0 + x, 3400000.0 + s * spacing_m, 1500.0])
+            kappa = (kappa_deg_of_heading(heading) + rng.uniform(-2, 2) + 180.0) % 360.0 - 180.0  # as files hold it
+            opk.append([rng.uniform(-1, 1), rng.uniform(-1, 1), kappa])
+    return ExteriorOrientations(ids, np.array(centres), np.array(opk))
+
+
+def test_angles_in_radians_are_told_by_a_kappa_that_does_not_turn_with_the_aircraft():
+    """Trial-messy F13: orthority angles in radians imported and rectified without a word (every ortho 176 deg off).
+    A camera turns with the aircraft: strips flown opposite ways differ in kappa by about 180 deg in degrees, by at
+    most 2 pi read from radians."""
+    import dataclasses
+
+    from aerotri.geom.eo_check import radians_read_as_degrees
+
+    deg = _two_way_block(lambda h: 90.0 - h)  # kappa 0 flying east, 180 flying west
+    assert radians_read_as_degrees(deg) is None
+    rad = dataclasses.replace(deg, opk_deg=np.radians(deg.opk_deg))
+    why = radians_read_as_degrees(rad)
+    assert why is not None and "radians" in why and "opposite" in why
+    # near north-south strips in degrees (kappa -3 .. +3 on one way, 177 .. 183 on the other): not told
+    ns = _two_way_block(lambda h: 0.0 if h == 90.0 else 180.0)
+    assert radians_read_as_degrees(ns) is None
+    # one strip: nothing to tell it by
+    one = dataclasses.replace(rad, image_id=rad.image_id[:5], centre_m=rad.centre_m[:5], opk_deg=rad.opk_deg[:5])
+    assert radians_read_as_degrees(one) is None
