@@ -102,8 +102,47 @@ def read_trajectory(path, xy_m: float = 1.0, z_m: float = 1.0) -> Trajectory:
         raise InputError(f"{path}: line {lines[bad[0] + 1]}: time {a[bad[0] + 1, 0]} does not increase "
                          f"(previous {a[bad[0], 0]})")
     rph = a[:, 4:7].copy()
+    xyz = a[:, 1:4] * np.array([xy_m, xy_m, z_m])
+    _check_heading(path, a[:, 0], xyz, rph[:, 2])
     rph[:, 2] = np.degrees(np.unwrap(np.radians(rph[:, 2])))
-    return Trajectory(a[:, 0], a[:, 1:4] * np.array([xy_m, xy_m, z_m]), rph, str(path))
+    return Trajectory(a[:, 0], xyz, rph, str(path))
+
+
+# The heading follows the direction of travel up to the crab angle (tens of degrees at most): a trajectory whose
+# heading is off it by more than HEADING_OFF_DEG on most of its moving epochs holds another quantity (radians: 88 deg
+# off on an east-west line; a heading from east: 90 deg; trial-messy F2, F9: read as degrees, the strip adjustment
+# "improved" the strips by a boresight and scan-angle scale of nothing, corrections 0.14-0.18 m in plan)
+HEADING_OFF_DEG = 45.0
+MOVING_MPS = 5.0  # epochs slower than this (turns on the ground, hovering) say nothing of the heading
+MOVING_EPOCHS_MIN = 10
+
+
+def _check_heading(path, t, xyz_m, heading_deg) -> None:
+    """InputError when the heading is off the direction of travel (clockwise from grid north) by more than
+    ``HEADING_OFF_DEG`` on more than half of the epochs moving faster than ``MOVING_MPS``."""
+    d = np.diff(xyz_m[:, :2], axis=0)
+    speed = np.hypot(d[:, 0], d[:, 1]) / np.diff(t)
+    moving = speed > MOVING_MPS
+    if moving.sum() < MOVING_EPOCHS_MIN:
+        return
+    track = np.degrees(np.arctan2(d[:, 0], d[:, 1]))[moving]
+    mid = 0.5 * (heading_deg[:-1] + heading_deg[1:])[moving]
+
+    def off_share(h):
+        off = np.abs((h - track + 180.0) % 360.0 - 180.0)
+        return float(np.mean(off > HEADING_OFF_DEG)), off
+
+    share, off = off_share(mid)
+    if share <= 0.5:
+        return
+    # the readings that would follow the travel, named when one does
+    readings = {"in radians": np.degrees(mid), "from east, anticlockwise": 90.0 - mid, "anticlockwise": -mid}
+    fits = [name for name, h in readings.items() if off_share(h)[0] <= 0.5]
+    hint = f"it follows the travel read {fits[0]}" if fits else "radians, or another axis or direction?"
+    raise InputError(f"{path}: the heading is more than {HEADING_OFF_DEG:g} deg off the direction of travel on "
+                     f"{100 * share:.0f} % of the {int(moving.sum())} epochs moving faster than {MOVING_MPS:g} m/s "
+                     f"(median {float(np.median(off)):.1f} deg off); expected heading_deg in degrees clockwise from "
+                     f"grid north (90: flying east): {hint}")
 
 
 def read_trajectories(paths, xy_m: float = 1.0, z_m: float = 1.0) -> list[Trajectory]:

@@ -184,3 +184,30 @@ def test_a_boresight_the_shift_prior_decides_is_not_passed_as_a_calibration(make
     r = _adjust(clean_block.paths, tmp_path / "clean", *traj, "--no-png")
     assert r.exit_code == 0, r.output
     assert read_strip_adjustment(tmp_path / "clean" / "adjust.json").warnings == ()
+
+
+def test_a_heading_that_does_not_follow_the_travel_is_refused_with_its_likely_reading(shifted_block, tmp_path):
+    """Trial-messy F2, F9: attitudes in radians, or a heading from east, were read as degrees clockwise from north and
+    the strip adjustment ran (exit 0, corrections of 0.14-0.18 m in plan for a boresight and scan-angle scale of
+    nothing). The heading follows the direction of travel up to the crab angle: refused, naming the reading that fits."""
+    import math
+
+    def variant(name, change):
+        out = []
+        for src in shifted_block.trajectories:
+            dst = tmp_path / name / src.name
+            dst.parent.mkdir(exist_ok=True)
+            lines = [line if line.startswith("#") else " ".join(change(line.split()))
+                     for line in src.read_text().splitlines()]
+            dst.write_text("\n".join(lines) + "\n")
+            out += ["--trajectory", str(dst)]
+        return out
+
+    radians = variant("rad", lambda f: f[:4] + [f"{math.radians(float(a)):.9f}" for a in f[4:7]])
+    from_east = variant("east", lambda f: f[:6] + [f"{(90.0 - float(f[6])) % 360.0:.6f}"])
+    for args, reading in ((radians, "in radians"), (from_east, "from east, anticlockwise")):
+        out = tmp_path / "out"
+        r = _adjust(shifted_block.paths, out, *args)
+        assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+        assert "off the direction of travel" in r.output and f"read {reading}" in r.output, r.output
+        assert not out.exists()
