@@ -41,6 +41,7 @@ import numpy as np
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.project import Project
 from aerotri.core.textio import read_text
+from aerotri.core.point_ids import point_id_key
 from aerotri.exchange.import_checks import unmeasured_heights
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.geom.observations import ControlPoints, ImageObservations, check_distinct_points
@@ -76,6 +77,7 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
     points: dict[str, np.ndarray] = {}
     first_line: dict[str, int] = {}
     by_xyz: dict[tuple, str] = {}
+    spelled: dict[str, str] = {}  # point_id_key -> the id as first written
     obs = []
     for lineno, s in body[1:]:
         parts = s.split()
@@ -91,8 +93,13 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
         xyz = np.array([x, y, z])
         key = (x, y, z if math.isfinite(z) else None)
         pid = parts[6] if len(parts) > 6 else by_xyz.setdefault(key, f"gcp{len(by_xyz) + 1}")
+        # one point however its name is spelled ("gcp01" and "GCP01 ": ids match as the report matches them,
+        # point_id_key); two spellings were two control points of one ray each (trial-messy F16)
+        written = pid
+        pid = spelled.setdefault(point_id_key(pid), pid)
+        as_written = "" if written == pid else f" (written {written!r}: the same id without case or leading zeros)"
         if pid in points and not np.array_equal(points[pid], xyz, equal_nan=True):
-            raise InputError(f"{path}:{lineno}: point {pid!r} has the coordinates {x} {y} {z} here but "
+            raise InputError(f"{path}:{lineno}: point {pid!r}{as_written} has the coordinates {x} {y} {z} here but "
                              f"{' '.join(repr(float(v)) for v in points[pid])} on line {first_line[pid]}")
         points.setdefault(pid, xyz)
         first_line.setdefault(pid, lineno)

@@ -175,6 +175,27 @@ def test_crs_lines_and_unnamed_points(tmp_path):
     assert list(o.point_id) == ["gcp1", "gcp1", "gcp2"] and list(o.image_id) == ["a", "b", "a"]
 
 
+def test_one_point_spelled_two_ways_is_one_control_point(tmp_path):
+    """Trial-messy F16: 'gcp01' on one line and 'GCP01' on another were two control points of one ray each at the same
+    coordinates (the report counted 5 control points for 4 targets). Ids match as the report matches them (case, a
+    number's leading zeros): one point, spelled as first written; at other coordinates refused naming both."""
+    f = tmp_path / "gcp_list.txt"
+    f.write_text("EPSG:32611\n235269.88 3811198.11 12.5 10 20 a.jpg gcp01\n"
+                 "235269.88 3811198.11 12.5 30 40 b.jpg GCP01\n235262.54 3811203.5 11.0 50 60 a.jpg 007\n"
+                 "235262.54 3811203.5 11.0 70 80 b.jpg 7\n")
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    import_files(root, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2)))
+    c = read_control_points(root / "control" / "points.csv")
+    assert list(c.id) == ["gcp01", "007"]
+    o = read_image_points(root / "control" / "image_points.csv")
+    assert list(o.point_id) == ["gcp01", "gcp01", "007", "007"] and list(o.image_id) == ["a", "b", "a", "b"]
+    f.write_text("EPSG:32611\n235269.88 3811198.11 12.5 10 20 a.jpg gcp01\n"
+                 "235279.88 3811198.11 12.5 30 40 b.jpg GCP01\n")
+    root2 = _fresh(tmp_path, crs="EPSG:32611", name="p2")
+    with pytest.raises(InputError, match=r":3: point 'gcp01' \(written 'GCP01'.*has the coordinates"):
+        import_files(root2, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2)))
+
+
 @pytest.mark.parametrize("text, error, message", [
     ("", InputError, "empty"),
     ("UTM somewhere\n1 2 3 4 5 a.jpg p\n", InputError, ":1: first line 'UTM somewhere' is not a CRS"),
