@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import InputError
+from aerotri.core.textio import read_text
 
 HEADER = "# time_s x y z roll_deg pitch_deg heading_deg"
 # north-east-down to the map frame east-north-up
@@ -80,7 +81,8 @@ def read_trajectory(path, xy_m: float = 1.0, z_m: float = 1.0) -> Trajectory:
     if not path.is_file():
         raise InputError(f"{path}: trajectory file not found")
     rows, lines = [], []
-    for no, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+    # the shared reader: a UTF-8 BOM (Windows exports) read like every other input file, not as a line of data
+    for no, line in enumerate(read_text(path, "trajectory file").splitlines(), 1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue

@@ -211,3 +211,14 @@ def test_a_heading_that_does_not_follow_the_travel_is_refused_with_its_likely_re
         assert r.exit_code == 2 and "Traceback" not in r.output, r.output
         assert "off the direction of travel" in r.output and f"read {reading}" in r.output, r.output
         assert not out.exists()
+
+
+def test_a_trajectory_with_a_byte_order_mark_is_read_as_without(shifted_block, tmp_path):
+    """Trial-messy F3: a UTF-8 BOM (a Windows export) made the header line data: "line 1: expected 7 numbers"."""
+    from lidarctl.strips.trajectory import read_trajectory
+
+    src = shifted_block.trajectories[0]
+    bom = tmp_path / src.name
+    bom.write_bytes(b"\xef\xbb\xbf" + src.read_bytes().replace(b"\n", b"\r\n"))
+    a, b = read_trajectory(src), read_trajectory(bom)
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.xyz, b.xyz) and np.array_equal(a.rph_deg, b.rph_deg)
