@@ -57,7 +57,7 @@ import numpy as np
 
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.project import Project
-from aerotri.core.textio import read_text
+from aerotri.core.textio import read_xml
 from aerotri.exchange.adjusted import AdjustedBlock
 from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss
@@ -256,10 +256,7 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     if len(files) != 1 or files[0].suffix.lower() != ".xml":
         raise InputError(f"{', '.join(map(str, files))}: expected one Metashape cameras .xml file")
     path = files[0]
-    try:
-        root = ET.fromstring(read_text(path, "Metashape cameras XML"))
-    except ET.ParseError as exc:
-        raise InputError(f"{path}: not valid XML ({exc})") from None
+    root = read_xml(path, "Metashape cameras XML")
     chunk = root.find("chunk") if root.tag == "document" else None
     if chunk is None:
         raise InputError(f"{path}: expected <document><chunk>... (Metashape's cameras XML)")

@@ -38,7 +38,7 @@ import numpy as np
 
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
-from aerotri.core.textio import read_text
+from aerotri.core.textio import read_xml
 from aerotri.exchange.adjusted import AdjustedBlock
 from aerotri.exchange.commit import ExportFile
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
@@ -104,10 +104,7 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
 # -- import ------------------------------------------------------------------------------------------
 
 def _parse(path: Path):
-    try:
-        return ET.fromstring(read_text(path, "MicMac XML"))
-    except ET.ParseError as exc:
-        raise InputError(f"{path}: not valid XML ({exc})") from None
+    return read_xml(path, "MicMac XML")
 
 
 def _text(el, tag: str, where: str) -> str:

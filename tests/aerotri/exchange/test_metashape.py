@@ -62,6 +62,27 @@ def test_round_trip(exported, tmp_path, fresh_project):
     assert len(obs) == len(raw) and max(np.abs(xy - key[a, b]).max() for a, b, xy in zip(obs.point_id, obs.image_id, obs.xy_px)) < 1e-3
 
 
+def test_an_xml_in_the_encoding_its_declaration_states_is_read(exported, tmp_path, fresh_project):
+    """Trial-messy F11: a cameras.xml declaring encoding="ISO-8859-1" (legal XML) with a Latin-1 character in a label
+    was refused as "not UTF-8 text"; it reads as the UTF-8 file does."""
+    root, xml = exported
+    text = xml.read_text(encoding="utf-8")
+    assert text.startswith("<?xml")
+    declared = text.split("?>", 1)
+    latin = '<?xml version="1.0" encoding="ISO-8859-1"?>' + declared[1].replace("<chunk", "<!-- Gr\u00fcn -->\n<chunk", 1)
+    f = tmp_path / "latin1.xml"
+    f.write_bytes(latin.encode("latin-1"))
+    a, b = fresh_project(root, tmp_path / "a"), fresh_project(root, tmp_path / "b")
+    import_files(a, "metashape", [xml])
+    import_files(b, "metashape", [f])
+    assert (a / "imported" / "eo.txt").read_text() == (b / "imported" / "eo.txt").read_text()
+    # without a declaration a non-UTF-8 byte is still refused by line
+    bad = tmp_path / "bad.xml"
+    bad.write_bytes(declared[1].replace("<chunk", "<!-- Gr\u00fcn -->\n<chunk", 1).encode("latin-1"))
+    with pytest.raises(InputError, match="not UTF-8 text"):
+        import_files(fresh_project(root, tmp_path / "c"), "metashape", [bad])
+
+
 def test_a_geographic_reference_gives_the_same_orientations(exported, tmp_path, fresh_project):
     """Metashape's usual chunk CRS is EPSG:4326: the geocentric chunk transform is the same, only ``<reference>``
     differs. The attitudes came back up to 0.0001 deg off (the grid axes of a geographic CRS by central differences
