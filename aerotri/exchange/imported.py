@@ -230,6 +230,19 @@ def to_project_crs(xyz_m, from_crs, project: Project, source: str, *, ellipsoida
     return np.column_stack([x, y, z])
 
 
+def control_sigma_m(project: Project, options: ImportSettings, path) -> np.ndarray:
+    """(sx, sy, sz) metres of imported control points that carry no accuracies: ``--sigma-xyz-m``, else project.toml's
+    [control] sigma_xy_m and sigma_z_m (``ControlPointSettings``: "imports without accuracies"); an OptionError
+    naming both when neither is given."""
+    if options.sigma_xyz_m:
+        return np.asarray(options.sigma_xyz_m, float)
+    c = project.control_points
+    if c.sigma_xy_m is not None and c.sigma_z_m is not None:
+        return np.array([c.sigma_xy_m, c.sigma_xy_m, c.sigma_z_m], float)
+    raise OptionError(f"{path}: control points without accuracies; give --sigma-xyz-m SX SY SZ (m) or [control] "
+                      f"sigma_xy_m, sigma_z_m in {project.config_path}", param="--sigma-xyz-m")
+
+
 def positions_as_gnss(ids, position_m, *, options: ImportSettings, project: Project, what: str,
                       own_sigma_m=None, own_sigma_name: str = "") -> tuple[GnssPositions, str]:
     """(GNSS positions, what gnss.txt holds in words) of imported positions the user declared GNSS

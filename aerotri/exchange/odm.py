@@ -43,7 +43,7 @@ from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.core.point_ids import point_id_key
 from aerotri.exchange.import_checks import unmeasured_heights
-from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, control_sigma_m, to_project_crs
 from aerotri.geom.observations import ControlPoints, ImageObservations, check_distinct_points
 
 _UTM = re.compile(r"^WGS84\s+UTM\s+(\d{1,2})\s*([NS]?)$", re.IGNORECASE)
@@ -149,9 +149,7 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     if len(files) != 1:
         raise InputError(f"odm expects one gcp_list.txt, got {len(files)} files")
     path = Path(files[0])
-    if options.sigma_xyz_m is None:
-        raise OptionError(f"{path}: gcp_list.txt carries no accuracies; give the control points' with --sigma-xyz-m "
-                          f"SX SY SZ (m)", param="--sigma-xyz-m")
+    sigma_m = control_sigma_m(project, options, path)  # gcp_list.txt carries no accuracies
     crs, points, obs = read_gcp_list(path)
     if options.crs is not None:
         crs = _declared_heights(path, crs, options.crs)
@@ -175,7 +173,7 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     xyz_map = to_project_crs(xyz_fill, crs, project, f"{path} (CRS {crs})")
     xyz_map[no_z, 2] = 0.0
     kinds = np.where(no_z, "horizontal", "full").astype(object)
-    block.control = ControlPoints(ids, kinds, xyz_map, np.tile(np.asarray(options.sigma_xyz_m, float), (len(ids), 1)))
+    block.control = ControlPoints(ids, kinds, xyz_map, np.tile(sigma_m, (len(ids), 1)))
     block.image_points = ImageObservations(np.array([o[0] for o in obs], dtype=object),
                                            np.array([o[1] for o in obs], dtype=object),
                                            np.array([[o[2], o[3]] for o in obs], float),

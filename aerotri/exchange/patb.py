@@ -52,7 +52,7 @@ from aerotri.core.project import Project
 from aerotri.core.textio import read_text
 from aerotri.exchange.adjusted import AdjustedBlock
 from aerotri.exchange.commit import ExportFile
-from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss, to_project_crs
+from aerotri.exchange.imported import ImportedBlock, ImportSettings, control_sigma_m, positions_as_gnss, to_project_crs
 from aerotri.exchange.poses import adjusted_orientations, number, orientations_to_project
 from aerotri.geom.camera import Camera
 from aerotri.geom.observations import CONTROL_KINDS, ControlPoints, ImageObservations
@@ -288,16 +288,6 @@ def read_cam(path: Path) -> Camera:
     return Camera.from_dict(d, source=str(path))
 
 
-def _control_sigma(project: Project, options: ImportSettings, path: Path) -> np.ndarray:
-    if options.sigma_xyz_m:
-        return np.asarray(options.sigma_xyz_m, float)
-    c = project.control_points
-    if c.sigma_xy_m is not None and c.sigma_z_m is not None:
-        return np.array([c.sigma_xy_m, c.sigma_xy_m, c.sigma_z_m], float)
-    raise InputError(f"{path}: control points without accuracies; give --sigma-xyz-m SX SY SZ (m) or [control] "
-                     f"sigma_xy_m, sigma_z_m in {project.config_path}")
-
-
 def read_con(path: Path) -> tuple[list, np.ndarray, list]:
     """(point numbers, (M, 3) X Y Z, kinds a ``* kind`` comment gives (aerotri's earlier files) or None) of a
     ``.con`` file (``-99`` at the end)."""
@@ -481,7 +471,7 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         if options.crs:
             xyz = to_project_crs(xyz, options.crs, project, "--crs")
         block.crs_assumed = options.crs is None
-        sig = np.tile(_control_sigma(project, options, cons[0]), (len(pid), 1))
+        sig = np.tile(control_sigma_m(project, options, cons[0]), (len(pid), 1))
         block.control = ControlPoints(np.array(pid, object), np.array(kind, object), xyz, sig)
         block.origin["control"] = ", ".join(f.name for f in cons)
     if ".im" in by:

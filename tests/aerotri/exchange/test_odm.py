@@ -229,3 +229,20 @@ def test_accuracy_is_required_and_the_command_says_so(tmp_path):
         import_files(root, "odm", [f])
     r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(f)])
     assert r.exit_code == 2 and "--sigma-xyz-m" in r.output and "Traceback" not in r.output
+    assert "[control] sigma_xy_m, sigma_z_m" in r.output
+
+
+def test_the_projects_control_sigmas_stand_in_for_the_missing_accuracies(tmp_path):
+    """Trial-messy F10: with [control] sigma_xy_m / sigma_z_m in project.toml ("imports without accuracies") the ODM
+    import still demanded --sigma-xyz-m; PAT-B took them. Now both; --sigma-xyz-m still decides when given."""
+    f = tmp_path / "gcp_list.txt"
+    f.write_text("EPSG:32611\n235269 3811198 12 4 5 a.jpg p\n235269 3811198 12 6 7 b.jpg p\n")
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    (root / "project.toml").write_text((root / "project.toml").read_text()
+                                       + "\n[control]\nsigma_xy_m = 0.03\nsigma_z_m = 0.05\n")
+    import_files(root, "odm", [f])
+    assert read_control_points(root / "control" / "points.csv").sigma_m.tolist() == [[0.03, 0.03, 0.05]]
+    root2 = _fresh(tmp_path, crs="EPSG:32611", name="p2")
+    (root2 / "project.toml").write_text((root / "project.toml").read_text())
+    import_files(root2, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2)))
+    assert read_control_points(root2 / "control" / "points.csv").sigma_m.tolist() == [[0.1, 0.1, 0.2]]
