@@ -252,7 +252,8 @@ def _check_approximate_kappa(eo0, cam, ties, control, with_gnss: bool, path, mea
     ``KAPPA_REFUSE_DEG`` without GNSS (the solve starts from them: the demo's one frame 180 deg off "solved" with
     check points 1,296 m off), or in half the frames or more with GNSS (the resection on the GNSS positions mended one
     frame 180 deg off; every frame so failed). Before, both went to the solve unnamed."""
-    from aerotri.geom.eo_check import KAPPA_LIMIT_DEG, KAPPA_REFUSE_DEG, ground_guess_m, kappa_errors, kappa_message
+    from aerotri.geom.eo_check import (KAPPA_LIMIT_DEG, KAPPA_REFUSE_DEG, ground_guess_m, kappa_errors, kappa_message,
+                                       radians_read_as_degrees)
 
     with_height = np.array([k != "horizontal" for k in control.kind], bool) if control is not None else np.zeros(0, bool)
     ground = (float(np.median(control.xyz_m[with_height, 2])) if with_height.any()
@@ -263,6 +264,9 @@ def _check_approximate_kappa(eo0, cam, ties, control, with_gnss: bool, path, mea
         return
     wrong = [e for e in off if abs(e.error_deg) > KAPPA_REFUSE_DEG]
     message = kappa_message(off, len(errors), str(path))
+    radians = radians_read_as_degrees(eo0)
+    if radians:  # (trial-messy F8: every frame "x and y swapped?" for angles in radians)
+        message = f"{message}; {radians}"
     if wrong and (not with_gnss or 2 * len(wrong) >= len(errors)):
         raise InputError(message + (f"; {len(wrong)} beyond {KAPPA_REFUSE_DEG:g} deg, which the adjustment cannot mend "
                                     + ("in half the block or more" if with_gnss else "without GNSS positions")))

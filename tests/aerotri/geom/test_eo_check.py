@@ -74,6 +74,13 @@ def test_adjust_names_the_frames(block, tmp_path):
     assert not (root / "at" / "eo.txt").exists()
     r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--eo", str(one180), "--no-html", "--no-exports"])
     assert r.exit_code == 0 and "180 deg off" in r.output and truth.image_id[7] in r.output, r.output
+    # angles in radians (trial-messy F8: "x and y swapped?" for every frame): the cause named
+    import dataclasses
+
+    rad = tmp_path / "rad.txt"
+    write_eo(rad, dataclasses.replace(truth, opk_deg=np.radians((truth.opk_deg + 180.0) % 360.0 - 180.0)))
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--eo", str(rad), "--no-html", "--no-exports"])
+    assert r.exit_code == 2 and "angles in radians?" in r.output, r.output
 
 
 def test_ortho_rectify_refuses_a_given_kappa_off(block, tmp_path):
