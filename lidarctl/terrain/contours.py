@@ -2,7 +2,11 @@
 
 Tracing: marching squares on the cell centres (contourpy, C++), linear interpolation along the cell
 edges, cut cleanly where the DEM has nodata (masked cells); a contour that comes back to its start is
-closed. Levels are whole multiples of the interval. The option gives it in metres, as every length
+closed. A cell exactly at a level (contourpy counts it below the level) is traced ``LEVEL_NUDGE`` x interval
+lower: each of its edges to a higher neighbour would put a vertex on its centre, where two lines (or one twice)
+touch; lowered, the lines keep their course and pass a hair from it (``LEVEL_NUDGE`` x interval / the height step to
+the neighbour, of a cell: under 1 mm on the demo's DEM at 0.5 m cells), so traced contours never meet.
+Levels are whole multiples of the interval. The option gives it in metres, as every length
 option (``--interval-m``); it is converted to the DEM's height unit (the unit of its CRS) to 10 significant
 digits, so 0.3048 m on a DEM in feet (0.3048006096 m in US survey feet) gives levels at whole feet; every
 ``index_every``-th level is an index contour.
@@ -42,6 +46,7 @@ log.addHandler(logging.NullHandler())
 
 SMOOTHING = ("none", "bspline", "tension")
 MAX_VERTICES_PER_CELL = 2.0  # contour vertices per valid DEM cell above which an interval is refused
+LEVEL_NUDGE = 1e-7  # a cell exactly at a level is traced this many intervals lower (below it, as contourpy counts it)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,6 +81,35 @@ def _nice_at_least(v: float) -> float:
     """The smallest 1, 2 or 5 x 10^n not below ``v``."""
     e = 10.0 ** np.floor(np.log10(v))
     return float(next(m * e for m in (1.0, 2.0, 5.0, 10.0) if m * e >= v * (1 - 1e-12)))
+
+
+def _off_the_levels(z: np.ndarray, interval: float) -> tuple[np.ndarray, np.ndarray]:
+    """``z`` (NaN = nodata) with every cell exactly at a level (``_level``, the value traced) lowered by
+    ``LEVEL_NUDGE`` x ``interval``, and the mask of those cells."""
+    with np.errstate(invalid="ignore"):
+        k = np.rint(z / interval)
+        near = np.flatnonzero(np.isfinite(z) & (np.abs(z / interval - k) < 1e-6))
+    exact = np.zeros(z.shape, bool)
+    if near.size:
+        ks, inverse = np.unique(k.flat[near], return_inverse=True)
+        levels = np.array([_level(kk, interval) for kk in ks])[inverse]
+        exact.flat[near[z.flat[near] == levels]] = True
+    out = z.copy()
+    out[exact] -= LEVEL_NUDGE * interval
+    return out, exact
+
+
+def _at_exact_cells(line: np.ndarray, exact: np.ndarray) -> np.ndarray:
+    """``line`` (cell coordinates, centres at i + 0.5) with each vertex nearest the centre of an ``exact`` cell put
+    back on that centre: where it is traced without the nudge (``_off_the_levels``)."""
+    ij = np.rint(line - 0.5).astype(np.int64)  # (col, row) of the nearest centre
+    ny, nx = exact.shape
+    inside = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+    snap = np.zeros(len(line), bool)
+    snap[inside] = exact[ij[inside, 1], ij[inside, 0]]
+    out = line.copy()
+    out[snap] = ij[snap] + 0.5
+    return out
 
 
 def vertex_count(dem: np.ndarray, interval: float) -> float:
@@ -137,16 +171,18 @@ def trace(dem: np.ndarray, transform, interval: float, index_every: int = 5, opt
     check_interval(z.filled(np.nan), interval, option=option)
     ny, nx = z.shape
     cols, rows = np.arange(nx) + 0.5, np.arange(ny) + 0.5
-    gen = contourpy.contour_generator(cols, rows, z, name="serial", line_type=contourpy.LineType.Separate,
-                                      corner_mask=True)
+    off, exact = _off_the_levels(z.filled(np.nan), interval)
+    gen = contourpy.contour_generator(cols, rows, np.ma.masked_invalid(off), name="serial",
+                                      line_type=contourpy.LineType.Separate, corner_mask=True)
     a, b, c, d, e, f = transform.a, transform.b, transform.c, transform.d, transform.e, transform.f
     out = []
     for kf in _level_multiples(z.filled(np.nan), interval):
         k, level = int(kf), _level(kf, interval)
         for line in gen.lines(level):
             # a cell exactly at the level among lower (or higher) ones gives a "line" of one point repeated:
-            # no contour, and an invalid geometry in a GeoPackage
-            if len(line) < 2 or not np.ptp(line, axis=0).any():
+            # no contour, and an invalid geometry in a GeoPackage; lowered by the nudge, one among higher ones
+            # gives a ring a hair wide around its centre instead: judged where it is traced without the nudge
+            if len(line) < 2 or not np.ptp(_at_exact_cells(line, exact) if exact.any() else line, axis=0).any():
                 continue
             # closed in cell coordinates, exactly: contourpy repeats a ring's first point, while an open line
             # from the border back to it may end a fraction of a cell from its start (np.allclose's relative

@@ -390,3 +390,37 @@ def test_a_dem_stating_metres_on_a_foot_grid_is_read_in_metres(tmp_path):
         out[name] = r.output
     assert "every 2 m (the DEM's height unit)" in out["stated"] and "as the file states them" in out["stated"]
     assert "ft (the DEM's height unit)" in out["silent"] and "as the file states them" not in out["silent"]
+
+
+def test_contours_through_a_cell_exactly_at_a_level_do_not_touch(tmp_path):
+    """A DEM cell exactly at a level (the demo's float32 DEM has 231 in an 800 x 800 crop) puts a vertex of every line
+    around it on its centre: at a saddle two lines of the level touched there, around a pass one line touched itself.
+    Smoothing fell back to those traced lines, and `contours --smooth bspline` stopped with "N contour crossings
+    after smoothing" (trial "gis" F6). Now the lines pass a hair from the centre; a pit exactly at a level gives no
+    line, as a peak."""
+    import shapely
+
+    t = from_origin(0.0, 5.0, 1.0, 1.0)
+    r, c = np.mgrid[0:3, 0:3] - 1.0
+    saddle = 10.0 + 0.1 * (r * r - c * c) + 0.013 * r * c  # higher to the north and south, 10.0 at the centre
+    ring = np.full((5, 5), 12.3)  # a pass of 10.0 between two hollows: one ring round both, twice at the centre
+    ring[1:4, 1] = ring[1:4, 3] = 9.4
+    ring[1, 2] = ring[3, 2] = 10.6
+    ring[2, 2] = 10.0
+    for z, centre in ((saddle, (1.5, 3.5)), (ring, (2.5, 2.5))):
+        cs = trace(z, t, 1.0, 5)
+        assert crossings(cs) == 0
+        at = [c for c in cs if c.level == 10.0]
+        assert at and all(0.0 < shapely.LineString(c.xy).distance(shapely.Point(centre)) < 1e-5 for c in at)
+        for method in ("bspline", "tension"):
+            assert crossings(smooth_contours(cs, method, 1.0)[0]) == 0
+    pit = np.full((5, 5), 10.5)
+    pit[2, 2] = 10.0
+    assert trace(pit, t, 1.0, 5) == []
+    path = tmp_path / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=3, count=1, dtype="float32", crs="EPSG:32632",
+                       transform=t, nodata=-9999.0) as ds:
+        ds.write(saddle.astype(np.float32), 1)
+    r = CliRunner().invoke(main, ["contours", str(path), str(tmp_path / "c.gpkg"), "--interval-m", "1",
+                                  "--smooth", "bspline", "--no-png"])
+    assert r.exit_code == 0, r.output
