@@ -40,7 +40,7 @@ from aerotri.adjust.relative import ModelHeights
 from aerotri.core.records import to_record
 from aerotri.adjust.dem_check import tie_dem_check
 from aerotri.adjust.determinability import check_groups, ground_observations
-from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record
+from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record, record_inputs
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
 from aerotri.geom.strips import along_track_km, strips_from_track
@@ -995,14 +995,16 @@ class AdjustStageResult:
     report_path: Path  # report.json as written (with report.txt/html, eo.txt, object_points.csv beside it)
 
 
-@committed(lambda ba, root, html=True, out_dir=None, settings_record=None:
+@committed(lambda ba, root, html=True, out_dir=None, settings_record=None, inputs=None:
            Path(out_dir) if out_dir is not None else Project(Path(root), {}).at_dir)
 def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
-                  settings_record: dict | None = None) -> AdjustStageResult:
+                  settings_record: dict | None = None, inputs: dict | None = None) -> AdjustStageResult:
     """Write at/eo.txt, object_points.csv and report.txt/json/html; returns them as an ``AdjustStageResult``.
 
     ``out_dir``: another folder than the project's ``at/`` (the chain's first adjustment); ``settings_record``:
-    every setting with its source (``core.settings.Resolved.record``), report.json ``settings``. All texts
+    every setting with its source (``core.settings.Resolved.record``), report.json ``settings``; ``inputs``: the
+    input files as the adjustment read them (``report_record.record_inputs``, taken before it read them;
+    None: taken here), report.json ``inputs``. All texts
     are produced first and written afterwards as one commit (``aerotri.core.atomic.commit_outputs``), so
     an error in any of them (or a kill) leaves all the earlier outputs. A failed solve (not converged, or no finite sigma naught) writes only its
     report, into ``work/adjust_failed/``, and raises ``SolveError``: the earlier outputs stay.
@@ -1032,7 +1034,9 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
                                 project_terrain(project, dem=ba.settings.dem), speed_mps=project.flight.speed_mps)
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
-    rep = to_record(dataclasses.replace(built, settings=settings_record))
+    if inputs is None:  # a library caller's own adjustment: its inputs as they are now
+        inputs = record_inputs(project)
+    rep = to_record(dataclasses.replace(built, settings=settings_record, inputs=inputs))
     for note in rep["check_blunders"]:  # beside the check table of report.txt, and on the console
         log.warning(note)
     files = {
@@ -1078,9 +1082,13 @@ def run_adjustment(root, settings: AdjustSettings | Resolved | None = None, out_
     and its report's record. ``aerotri adjust`` and the chain both run this. ``settings``: None, the project's
     (``project_settings``, as ``aerotri adjust P`` without options); a ``Resolved`` carries every setting's source
     into the report."""
-    resolved = project_settings(Project.open(root)) if settings is None else settings_of(settings, AdjustSettings)
+    project = Project.open(root)
+    resolved = project_settings(project) if settings is None else settings_of(settings, AdjustSettings)
+    # the inputs before they are read: one changed during the adjustment differs from the record (the accuracy
+    # report's "adjustment made from the current inputs" compares them by content, not by time: F9)
+    inputs = record_inputs(project)
     ba = adjust_project(root, resolved.settings)
-    return write_outputs(ba, root, html=html, out_dir=out_dir, settings_record=resolved.record())
+    return write_outputs(ba, root, html=html, out_dir=out_dir, settings_record=resolved.record(), inputs=inputs)
 
 
 def _json_default(o):

@@ -1267,6 +1267,9 @@ class AdjustmentReport:
     geometry_modes: list | None
     flight_acceptance: dict | None
     timings_s: dict
+    # the input files as the adjustment read them (``report_record.record_inputs``: path -> size and sha256, null
+    # where absent): the accuracy report judges "adjustment made from the current inputs" by them (None: not attached)
+    inputs: dict | None = None
     settings: dict | None = None  # last in the file
 
 

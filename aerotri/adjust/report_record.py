@@ -108,6 +108,9 @@ class AdjustmentRecord:
     # surface_control.systematic ("considered" false: the orientations' and points' sigmas are formal); None without
     surface_systematic: dict | None = None
     check_points_from_lidar: int = 0  # check points that are corners of the surface control's LiDAR
+    # the adjustment's input files as it read them (report.json "inputs", ``record_inputs``): path relative to the
+    # project -> {"size", "sha256"}, None where the file was absent; None: a report written before it was recorded
+    inputs: dict | None = None
 
     @property
     def sigma0_in_px(self) -> float | None:
@@ -167,7 +170,89 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
         heights_measured=d.get("heights_measured", True) is not False,
         surface_control=_surface_control(d.get("surface_control")),
         surface_systematic=(d.get("surface_control") or {}).get("systematic"),
-        check_points_from_lidar=int(d.get("check_points_from_lidar") or 0))
+        check_points_from_lidar=int(d.get("check_points_from_lidar") or 0),
+        inputs=_inputs(d.get("inputs")))
+
+
+def _inputs(v) -> dict | None:
+    """report.json "inputs" (path -> {"size", "sha256"} or None); None without the key. A ValueError when it is not
+    that (named by ``read_adjustment_report``)."""
+    if v is None:
+        return None
+    if not isinstance(v, dict) or not all(
+            r is None or (isinstance(r, dict) and isinstance(r.get("sha256"), str) and isinstance(r.get("size"), int))
+            for r in v.values()):
+        raise ValueError("inputs: expected file -> {size, sha256} or null")
+    return {str(k): (None if r is None else {"size": int(r["size"]), "sha256": str(r["sha256"])})
+            for k, r in v.items()}
+
+
+def adjustment_input_paths(project) -> tuple[Path, ...]:
+    """The files the adjustment reads whose later change makes its figures those of other inputs: the control
+    points and their image measurements, gnss.txt and the tie points (``aerotri.core.project.Project`` paths)."""
+    return (project.control_points_path, project.control_image_points_path, project.gnss_path,
+            project.tiepoints_path)
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return path.relative_to(root).as_posix()
+    except ValueError:
+        return str(path)
+
+
+def _sha256(path: Path, chunk_bytes: int = 1 << 20) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(chunk_bytes):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def record_inputs(project) -> dict:
+    """report.json "inputs": each of ``adjustment_input_paths`` relative to the project, with its size and sha256
+    (None: absent). ``inputs_changed`` compares the files with it: a copy of the project (``cp -r``, unzip, a
+    download: new modification times in copy order) is the same adjustment."""
+    out = {}
+    for p in adjustment_input_paths(project):
+        try:
+            out[_relative(p, project.root)] = {"size": p.stat().st_size, "sha256": _sha256(p)} if p.is_file() else None
+        except FileNotFoundError:  # (removed meanwhile)
+            out[_relative(p, project.root)] = None
+    return out
+
+
+def inputs_changed(project, record: AdjustmentRecord) -> tuple[list[str], bool]:
+    """The adjustment's inputs (``adjustment_input_paths``) that changed since ``record`` (at/report.json) was made,
+    as paths relative to the project, and whether all of them were judged by content.
+
+    By content when the report records its inputs (``record_inputs``): a file absent then, or of another size or
+    sha256 now. A file not modified after the report (its time not later) and of the recorded size is taken as the
+    same without hashing it; a later time alone (a copy, an unzip, the same content written again) is no change.
+    A report written before the inputs were recorded (or a file its record does not name): by time, a file
+    modified after the report (the same content written again counts too). A file removed since is not counted
+    (a delivery may leave the tie points out)."""
+    made = project.adjustment_report_path.stat().st_mtime_ns
+    changed, by_time = [], False
+    for p in adjustment_input_paths(project):
+        try:
+            st = p.stat()
+        except FileNotFoundError:
+            continue
+        if not p.is_file():
+            continue
+        rel = _relative(p, project.root)
+        if record.inputs is None or rel not in record.inputs:  # not recorded: by time
+            if st.st_mtime_ns > made:
+                changed.append(rel)
+                by_time = True
+            continue
+        was = record.inputs[rel]
+        if was is None or st.st_size != was["size"] or (st.st_mtime_ns > made and _sha256(p) != was["sha256"]):
+            changed.append(rel)
+    return changed, not by_time
 
 
 def read_adjustment_report(path) -> AdjustmentRecord:

@@ -26,7 +26,7 @@ from pathlib import Path
 from aerotri.adjust import report_figures as RF
 from aerotri.adjust.flight_acceptance import LIMIT_KEYS, project_flight_acceptance
 from aerotri.adjust.report_record import (ADJUSTMENT_REPORT, SCHEMA_VERSION, KeyStatistics,
-                                          read_adjustment_report)
+                                          inputs_changed, read_adjustment_report)
 from aerotri.control.layout import empty_target_text
 from aerotri.control.pipeline import read_control_transfer
 from aerotri.core.atomic import atomic_path, write_text_atomic
@@ -665,15 +665,6 @@ def stage_results(project: Project) -> list:
             project.strips_check_after_path]
 
 
-def _changed_since_adjustment(project: Project) -> list[str]:
-    """The adjustment's inputs (control points and measurements, GNSS, tie points) written after at/report.json, as
-    paths relative to the project (file times: a file written again with the same content counts too)."""
-    made = project.adjustment_report_path.stat().st_mtime_ns
-    inputs = (project.control_points_path, project.control_image_points_path, project.gnss_path,
-              project.tiepoints_path)
-    return [str(p.relative_to(project.root)) for p in inputs if p.is_file() and p.stat().st_mtime_ns > made]
-
-
 def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     standard: str | None = None, horizontal_class_cm: float | None = None,
                     vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> QaReport:
@@ -850,14 +841,18 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             rows.append(_check("sigma0_px", sec, "sigma naught", s0_px, _sigma0_limit_px(tol, ks, s0_px),
                                "px", digits=3, note=f"{ks.sigma0_um:.2f} um" if ks.sigma0_um is not None else "",
                                key="sigma0_max_px" if tol.get("sigma0_max_px") is not None else "sigma0_max_um"))
-    changed = _changed_since_adjustment(project) if at else []
+    # by content against the inputs at/report.json records (a copy of the project, new file times, is the same
+    # adjustment: trial-gis F9); a report written before that record: by time
+    changed, by_content = inputs_changed(project, at) if at else ([], False)
     if changed:
         # trial-kite: control re-imported (a target moved 3 m), or an adjustment that failed after it: the report
         # gave the old check RMS, exit 0; aerotri run adjusts again, aerotri report alone cannot
         log.warning(f"{project.adjustment_report_path}: {', '.join(changed)} changed after this adjustment: its "
                     f"figures are of the inputs before; adjust again (aerotri adjust {root})")
         rows.append(_check("adjustment_current", sec, "adjustment made from the current inputs", False, True, "",
-                           note=f"{', '.join(changed)} written after at/report.json: adjust again"))
+                           note=f"{', '.join(changed)} "
+                                + ("changed since the adjustment (not the content at/report.json records)"
+                                   if by_content else "written after at/report.json") + ": adjust again"))
     if at and not at.heights_measured:
         # trial-kite: the consolidated report said nothing of heights nobody measured (at/report.txt's DATUM did)
         rows.append(_check("heights_measured", sec, "heights measured", "no", None, "",

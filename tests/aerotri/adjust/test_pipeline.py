@@ -81,6 +81,12 @@ def test_outputs_and_report(block_project):
     assert not js["key_statistics"]["gnss_direction_flip"]
     assert "flip with the flight direction" not in js["key_statistics"]["message"]
     assert res.report_path == at / "report.json" and res.adjustment is ba
+    # its inputs by content, for the accuracy report's "adjustment made from the current inputs" (trial-gis F9)
+    import hashlib
+
+    assert set(js["inputs"]) == {"control/points.csv", "control/image_points.csv", "gnss.txt", "at/tiepoints.csv"}
+    ties = (at / "tiepoints.csv").read_bytes()
+    assert js["inputs"]["at/tiepoints.csv"] == {"size": len(ties), "sha256": hashlib.sha256(ties).hexdigest()}
     assert js["counts"]["images"] == 18 and js["counts"]["check_points"] == 12
     assert js["counts"]["image_observations"] + js["counts"]["removed_observations"] >= len(ba.block.obs_point) - 5
     from aerotri.geom.eo import read_eo

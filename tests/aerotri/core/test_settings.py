@@ -259,6 +259,8 @@ def test_adjust_without_options_takes_the_project_toml_settings_and_reports_thei
     assert s["self_calibration"] == {"value": ["pp", "radial"], "source": PROJECT_TOML}
     assert s["gnss_correction"] == {"value": "shift", "source": PROJECT_TOML}
     assert s["snooping"] == {"value": True, "source": DEFAULT}
+    # the inputs as read (run_adjustment takes them before the adjustment: trial-gis F9)
+    assert rep["inputs"]["at/tiepoints.csv"]["size"] == (root / "at" / "tiepoints.csv").stat().st_size
     text = (root / "at" / "report.txt").read_text()
     assert "self_calibration" in text and "pp, radial  [project.toml]" in text and "[default]" in text
     # one option given: only it changes, the rest of [adjust] stays

@@ -550,3 +550,79 @@ def test_control_written_after_the_adjustment_fails_the_row_it_reports(tmp_path,
     os.utime(p / "at" / "report.json", ns=(made + 2 * 10**9, made + 2 * 10**9))           # adjusted again: current
     out = write_qa_report(p)
     assert not out.has("adjustment_current") and out.check("heights_measured").value == "no"
+
+
+def _adjusted_with_inputs(tmp_path):
+    """A project whose at/report.json records its inputs (``record_inputs``, as ``aerotri adjust`` writes it)."""
+    from aerotri.adjust.report_record import record_inputs
+    from aerotri.core.project import Project
+
+    p = _project(tmp_path, [0.03, 0.03, 0.05], 0.05)
+    (p / "control").mkdir()
+    (p / "control" / "points.csv").write_text("id,kind,x,y,z,sx,sy,sz\nG1,control,1,2,3,0.02,0.02,0.03\n")
+    (p / "control" / "image_points.csv").write_text("point_id,image_id,x_px,y_px\nG1,a,10.5,20.5\n")
+    (p / "at" / "tiepoints.csv").write_text("point_id,image_id,x_px,y_px\n1,a,1.5,2.5\n1,b,3.5,4.5\n")
+    rep = json.loads((p / "at" / "report.json").read_text())
+    rep["inputs"] = record_inputs(Project.open(p))
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    return p
+
+
+def test_a_copied_project_with_new_file_times_is_the_same_adjustment(tmp_path):
+    """Trial-gis F9: `cp -r` (unzip, a download) of a finished, passing project gives every file a new time in copy
+    order, at/report.json before the inputs; the report said "at/tiepoints.csv written after at/report.json: adjust
+    again" (FAIL) of an adjustment nobody touched. report.json records its inputs' sha256: a later time with the same
+    content is no change."""
+    import os
+
+    p = _adjusted_with_inputs(tmp_path)
+    assert json.loads((p / "at" / "report.json").read_text())["inputs"]["gnss.txt"] is None  # absent when adjusted
+    t = 2_000_000_000 * 10**9
+    for k, rel in enumerate(("at/report.json", "gnss.txt", "at/tiepoints.csv", "control/points.csv",
+                             "control/image_points.csv", "project.toml", "ortho/dom_report.json")):
+        if (p / rel).is_file():
+            os.utime(p / rel, ns=(t + k * 10**9, t + k * 10**9))  # copied later than the report
+    rep = write_qa_report(p)
+    assert not rep.has("adjustment_current") and rep.overall == "pass"
+    # a file the adjustment did not have (gnss.txt absent then) is a change, whatever its time
+    (p / "gnss.txt").write_text("a 1 2 3\n")
+    os.utime(p / "gnss.txt", ns=(t - 10**9, t - 10**9))
+    row = write_qa_report(p).check("adjustment_current")
+    assert row.verdict == "fail" and row.note.startswith("gnss.txt changed since the adjustment")
+
+
+def test_an_input_edited_after_the_adjustment_still_fails_the_row(tmp_path, caplog):
+    """The content decides: a tie point edited in place (the same size) after the adjustment fails the row, named;
+    an older version put back with its old time (``cp -p`` of a backup: a time not later than the report's, another
+    size) too. A report written before the inputs were recorded is judged by time, as before."""
+    import os
+
+    p = _adjusted_with_inputs(tmp_path)
+    ties = p / "at" / "tiepoints.csv"
+    made = (p / "at" / "report.json").stat().st_mtime_ns
+    ties.write_text(ties.read_text().replace("4.5", "9.5"))  # the same size, other content
+    os.utime(ties, ns=(made + 10**9, made + 10**9))
+    with caplog.at_level("WARNING", logger="aerotri.qa.report"):
+        rep = write_qa_report(p)
+    row = rep.check("adjustment_current")
+    assert row.verdict == "fail" and rep.overall == "fail"
+    assert row.note == "at/tiepoints.csv changed since the adjustment (not the content at/report.json records): " \
+                       "adjust again"
+    assert any("at/tiepoints.csv changed after this adjustment" in m for m in caplog.messages)
+    ties.write_text(ties.read_text().replace("9.5", "4.5"))  # put back: the same content again
+    os.utime(ties, ns=(made + 2 * 10**9, made + 2 * 10**9))
+    assert not write_qa_report(p).has("adjustment_current")
+    pts = p / "control" / "points.csv"
+    pts.write_text("id,kind,x,y,z,sx,sy,sz\n")  # an older file with its old time: another size
+    os.utime(pts, ns=(made - 10**9, made - 10**9))
+    assert write_qa_report(p).check("adjustment_current").note.startswith("control/points.csv changed since")
+    # a report of before (no "inputs"): by time; an older file is taken as current, a later one (copied) fails
+    rep = json.loads((p / "at" / "report.json").read_text())
+    del rep["inputs"]
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    os.utime(p / "at" / "report.json", ns=(made, made))
+    os.utime(ties, ns=(made - 10**9, made - 10**9))
+    assert not write_qa_report(p).has("adjustment_current")
+    os.utime(ties, ns=(made + 10**9, made + 10**9))
+    assert write_qa_report(p).check("adjustment_current").note == "at/tiepoints.csv written after at/report.json: " \
+                                                                  "adjust again"
