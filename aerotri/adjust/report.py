@@ -499,9 +499,11 @@ def _weak_modes(ba, height_limit_m: float) -> list:
         if g.held_by_priors:
             out.append((g, f"{_MODE_NAMES[g.mode]} held only by {_holders(g)} (sigma {g.sigma_m:.3f} m)"))
         elif 3 * g.sigma_m > height_limit_m:
-            by = ", ".join(f"{k} {v:.0%}" for k, v in sorted(g.shares.items(), key=lambda kv: -kv[1]) if v >= 0.05)
+            # shares of a variance that is not finite (a diverged solve) are no shares: "image 7727 %" (trial-messy)
+            by = ", ".join(f"{k} {v:.0%}" for k, v in sorted(g.shares.items(), key=lambda kv: -kv[1]) if v >= 0.05) \
+                if math.isfinite(g.sigma_m) else ""
             out.append((g, f"{_MODE_NAMES[g.mode]} sigma {g.sigma_m:.3f} m, 3 sigma ({3 * g.sigma_m:.2f} m) above the {height_limit_m:.2f} m "
-                           f"height limit (determined by {by})"))
+                           f"height limit" + (f" (determined by {by})" if by else "")))
     return out
 
 
