@@ -937,10 +937,15 @@ def _warn_implausible_gnss_sigmas(path, gnss) -> None:
     big = np.any(gnss.sigma_m > GNSS_SIGMA_IMPLAUSIBLE_M, axis=1)
     if big.any():
         k = int(np.flatnonzero(big)[0])
+        # every sigma a whole-ish number of millimetres a survey receiver states (5 mm .. 1 m): typed in mm
+        # (trial-messy F15: 50 50 80 read as metres, check heights 1.23 -> 2.40 m RMS, asked about angles)
+        mm = big.all() and bool(np.all((gnss.sigma_m >= 5.0) & (gnss.sigma_m <= 1000.0)))
+        hint = ("in millimetres? (gnss.txt sigmas are metres: "
+                f"{' '.join(f'{v / 1000.0:g}' for v in gnss.sigma_m[k])} m)" if mm
+                else "are these columns an orientation's angles (omega phi kappa)?")
         log.warning(f"{path}: {int(big.sum())} of {len(big)} positions have a sigma above {GNSS_SIGMA_IMPLAUSIBLE_M:g} m "
                     f"(image {gnss.image_id[k]}: {' '.join(f'{v:g}' for v in gnss.sigma_m[k])} m): no GNSS accuracy; "
-                    "are these columns an orientation's angles (omega phi kappa)? gnss.txt is image_id X Y Z "
-                    "[sX sY sZ]")
+                    f"{hint} gnss.txt is image_id X Y Z [sX sY sZ]")
 
 
 def _dem_checks(p: PreparedBlock, result: AdjustmentResult) -> list:

@@ -47,6 +47,13 @@ def test_gnss_sigmas_of_tens_of_metres_are_said(caplog):
         _warn_implausible_gnss_sigmas("gnss.txt", GnssPositions(["a"], np.zeros((1, 3)), np.array([[2.0, 2.0, 5.0]])))
     (said,) = caplog.messages
     assert "1 of 2 positions have a sigma above 10 m (image a: 0.35 0.3 180.9 m)" in said and "omega phi kappa" in said
+    # every sigma in millimetres (trial-messy F15: 50 50 80 read as metres, asked about angles): said so
+    caplog.clear()
+    mm = GnssPositions(["a", "b"], np.zeros((2, 3)), np.array([[50.0, 50.0, 80.0], [50.0, 50.0, 80.0]]))
+    with caplog.at_level("WARNING", logger="aerotri.adjust.pipeline"):
+        _warn_implausible_gnss_sigmas("gnss.txt", mm)
+    (said,) = caplog.messages
+    assert "in millimetres? (gnss.txt sigmas are metres: 0.05 0.05 0.08 m)" in said and "omega" not in said
 
 
 def test_a_check_point_off_by_many_sigmas_is_named(tmp_path, caplog):
