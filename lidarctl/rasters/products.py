@@ -57,7 +57,7 @@ from lidarctl.io import PointCloud
 from lidarctl.rasters import nearest
 from lidarctl.rasters.cells import LOW_VEGETATION, VEGETATION, CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
-from aerotri.geom.crs.definition import length_unit_name
+from aerotri.geom.crs.definition import length_unit_name, parse_crs
 from aerotri.geom.crs.raster_warp import INTENSITY_DESCRIPTION, QUANTITY_TAG
 from lidarctl.units import METRE, LengthUnits
 
@@ -576,6 +576,11 @@ def _inputs(paths, crs_arg) -> _Inputs:
         if first is None:
             file_crs = las.header_crs(header)
             surface = file_crs if file_crs is not None and file_crs.is_compound else crs
+            if file_crs is None and crs_arg is not None and str(crs_arg).strip():
+                # a file without a CRS record takes --crs whole: a compound one keeps its heights' datum on the DEM
+                # and DSM (trial-gis F10: `--crs EPSG:7415` wrote RD New alone, NAP dropped without a word)
+                given = parse_crs(crs_arg, "--crs")
+                surface = given if given.is_compound else crs
             first = (p, crs, units, surface)
         else:
             io.require_same_crs(p, crs, units, first[:3])

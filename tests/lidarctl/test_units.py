@@ -296,6 +296,32 @@ def test_dem_keeps_the_compound_crs_of_its_cloud(scenes, tmp_path):
         assert not CRS(ndsm.crs).is_compound and CRS(ndsm.crs).to_epsg() == 32610
 
 
+def test_rasters_of_a_cloud_without_a_crs_keep_a_compound_crs_option(scenes, tmp_path):
+    """Trial-gis F10: `rasters --crs EPSG:7415` (RD New + NAP) of a cloud without a CRS record wrote its DEM in RD New
+    alone, the heights' datum dropped without a word; the DEM and DSM now carry the option's compound CRS."""
+    cloud = scenes["cloud"]
+    z_ft = io.PointCloud(**{k: getattr(cloud, k) for k in ("x", "y", "intensity", "return_number",
+                                                            "number_of_returns", "classification")},
+                         z=cloud.z / US_SURVEY_FOOT_M)
+    raw = tmp_path / "nocrs.las"
+    synthetic.write_las(raw, z_ft, version="1.4")
+    _ok(["classify", raw, tmp_path / "out.las", "--crs", "EPSG:32610+6360"])
+    import laspy
+    from laspy.vlrs.vlrlist import VLRList
+
+    las = laspy.read(tmp_path / "out.las")  # classified, its CRS record dropped: a delivery without one
+    crs_records = ("WktCoordinateSystemVlr", "GeoKeyDirectoryVlr", "GeoAsciiParamsVlr", "GeoDoubleParamsVlr")
+    las.header.vlrs = VLRList([v for v in las.header.vlrs if type(v).__name__ not in crs_records])
+    las.header.global_encoding.wkt = False
+    src = tmp_path / "classified_nocrs.las"
+    las.write(src)
+    assert io.read_cloud(src, require_crs=False).crs is None
+    _ok(["rasters", src, tmp_path / "r", "--res-m", "1", "--crs", "EPSG:32610+6360"])
+    with rasterio.open(tmp_path / "r" / "dem.tif") as dem, rasterio.open(tmp_path / "r" / "ndsm.tif") as ndsm:
+        assert CRS(dem.crs).is_compound and "NAVD88" in CRS(dem.crs).sub_crs_list[1].name
+        assert not CRS(ndsm.crs).is_compound and CRS(ndsm.crs).to_epsg() == 32610
+
+
 def test_check_heights_by_chunks_equals_all_ground_points(scenes, tmp_path, monkeypatch):
     """The strips are read by chunks keeping only ground points near a surveyed point: the same
     heights as interpolating from every ground point of the cloud held in memory."""
