@@ -1758,6 +1758,14 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                "highlight_rolloff": None if rolloff is None else rolloff.record(),
                "shadow_toe": None if toe is None else toe.record(),
                "blend_rules": BLEND_RULES, "pairs": pairs, **nodata, "settings": settings_record}
+    # a frame the seams give no cell (the others cover its footprint, nearer nadir or with a cheaper seam) has no
+    # seamline polygon: named, so that the frames of the mosaic and the polygons of the layer reconcile (trial-gis F4:
+    # 18 frames, 17 polygons, nothing said)
+    summary["frames_without_cells"] = frames_without_cells(labels, red.names)
+    if summary["frames_without_cells"]:
+        logger.info("%d of %d frames have no cell of the mosaic (the other frames cover theirs), so no seamline "
+                    "polygon: %s", len(summary["frames_without_cells"]), len(red.names),
+                    ", ".join(summary["frames_without_cells"]))
     if output is not None:
         summary["output"] = _output_record(output, tiles.pop("output_counts"), summary["white_level"])
         o = summary["output"]
@@ -1786,6 +1794,13 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                        summary["cells_seen_by_no_frame"], f"{pct:.2f}" if pct >= 0.1 else f"{pct:.2g}")
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+def frames_without_cells(labels: np.ndarray, names: list) -> list:
+    """The names of the frames (``names[k]`` of seam label k; -1: no frame) that no seam cell of ``labels`` holds."""
+    used = np.zeros(len(names), bool)
+    used[np.unique(labels[labels >= 0])] = True
+    return [names[i] for i in np.flatnonzero(~used)]
 
 
 def _output_record(output: OutputMapping, counts: dict, white_record: dict) -> dict:

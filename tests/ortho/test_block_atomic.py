@@ -499,3 +499,18 @@ def test_the_staleness_check_compares_the_camera_without_judging_it_again(projec
     cam.write_text(text.replace(focal, f"focal_mm = {float(focal.split('=')[1]) * 1.01!r}"))
     r = run("mosaic", project, "--seams", "voronoi")
     assert r.exit_code == 2 and "another camera" in r.stderr and "ortho rectify" in r.stderr, r.output
+
+
+def test_a_frame_the_seams_give_no_cell_is_named_in_mosaic_json(project):
+    """Trial-gis F4: the demo's mosaic.json listed 18 frames and seamlines.gpkg 17 polygons (s01_005 had no cell),
+    nothing said. mosaic.json names such frames (``frames_without_cells``, and an info line: on the demo
+    "1 of 18 frames have no cell of the mosaic ...: s01_005"); here every frame has its cell and polygon."""
+    import pyogrio
+
+    from ortho.mosaic import frames_without_cells
+
+    labels = np.array([[0, 0, 2], [-1, 2, 2]], np.int32)
+    assert frames_without_cells(labels, ["a", "b", "c", "d"]) == ["b", "d"]
+    summary = json.loads((project / "ortho" / "mosaic.json").read_text())
+    assert summary["frames_without_cells"] == []
+    assert pyogrio.read_info(project / "ortho" / "seamlines.gpkg")["features"] == summary["frames"]
