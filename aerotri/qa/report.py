@@ -665,6 +665,39 @@ def stage_results(project: Project) -> list:
             project.strips_check_after_path]
 
 
+def _with_stamp_inputs(project: Project, at):
+    """``at`` (the adjustment's record) with the inputs the chain's adjust_final stamp hashed, when the report records
+    none (written before it did) and the stamp is this report's (its at/report.json hash is the file's): an upgraded
+    project's unchanged inputs were judged by time, 4-161 ms newer than the report, "adjust again" while the chain
+    said adjust_final up to date (trial-upgrade). The stamp's hashes are sha1 of the bytes; ``inputs_changed`` then
+    compares by content. Else ``at`` as it is (by time)."""
+    import hashlib
+
+    from aerotri.adjust.report_record import adjustment_input_paths
+
+    if at.inputs is not None:
+        return at
+    try:
+        stamp = json.loads((project.stages_dir / "adjust_final.json").read_text())
+        made = hashlib.sha1(project.adjustment_report_path.read_bytes()).hexdigest()
+    except (OSError, ValueError):
+        return at
+    if not isinstance(stamp, dict) or (stamp.get("outputs") or {}).get("at/report.json") != made:
+        return at
+    recorded = stamp.get("inputs") or {}
+    inputs = {}
+    for path in adjustment_input_paths(project):
+        rel = path.relative_to(project.root).as_posix()
+        sha1 = recorded.get(rel)
+        if isinstance(sha1, str) and path.is_file():
+            data = path.read_bytes()
+            # in the record's form (size and sha256): the file's own where the bytes are the stamp's, else a size no
+            # file has (changed, whatever its time)
+            same = hashlib.sha1(data).hexdigest() == sha1
+            inputs[rel] = {"size": len(data) if same else -1, "sha256": hashlib.sha256(data).hexdigest()}
+    return dataclasses.replace(at, inputs=inputs) if inputs else at
+
+
 def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, scale: str | None = None,
                     standard: str | None = None, horizontal_class_cm: float | None = None,
                     vertical_class_cm: float | None = None, accuracy_class: str | None = None) -> QaReport:
@@ -843,7 +876,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                key="sigma0_max_px" if tol.get("sigma0_max_px") is not None else "sigma0_max_um"))
     # by content against the inputs at/report.json records (a copy of the project, new file times, is the same
     # adjustment: trial-gis F9); a report written before that record: by time
-    changed, by_content = inputs_changed(project, at) if at else ([], False)
+    changed, by_content = inputs_changed(project, _with_stamp_inputs(project, at)) if at else ([], False)
     if changed:
         # trial-kite: control re-imported (a target moved 3 m), or an adjustment that failed after it: the report
         # gave the old check RMS, exit 0; aerotri run adjusts again, aerotri report alone cannot

@@ -626,3 +626,37 @@ def test_an_input_edited_after_the_adjustment_still_fails_the_row(tmp_path, capl
     os.utime(ties, ns=(made + 10**9, made + 10**9))
     assert write_qa_report(p).check("adjustment_current").note == "at/tiepoints.csv written after at/report.json: " \
                                                                   "adjust again"
+
+
+def test_a_report_without_recorded_inputs_is_judged_by_the_chains_stamp_of_it(tmp_path):
+    """Trial-upgrade: a project adjusted by the chain before at/report.json recorded its inputs, opened by this version:
+    its unchanged inputs, 4-161 ms newer than the report, failed "adjust again" by time while `aerotri run` said
+    adjust_final up to date. The chain's adjust_final stamp of this very report (its at/report.json hash) holds the
+    inputs' sha1: the row judges by it; a stamp of another report is not taken (by time, as before)."""
+    import hashlib
+    import os
+
+    p = _adjusted_with_inputs(tmp_path)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    del rep["inputs"]
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    made = (p / "at" / "report.json").stat().st_mtime_ns
+    rels = ("control/points.csv", "control/image_points.csv", "at/tiepoints.csv")
+    sha1 = {r: hashlib.sha1((p / r).read_bytes()).hexdigest() for r in rels}
+    stages = p / "work" / "stages"
+    stages.mkdir(parents=True)
+    report_sha1 = hashlib.sha1((p / "at" / "report.json").read_bytes()).hexdigest()
+    (stages / "adjust_final.json").write_text(json.dumps({"inputs": sha1, "outputs": {"at/report.json": report_sha1}}))
+    for r in rels:  # written just after the report (the chain's order), unchanged
+        os.utime(p / r, ns=(made + 10**8, made + 10**8))
+    assert not write_qa_report(p).has("adjustment_current")
+    ties = p / "at" / "tiepoints.csv"
+    ties.write_text(ties.read_text().replace("4.5", "9.5"))  # edited since
+    os.utime(ties, ns=(made + 10**9, made + 10**9))
+    assert write_qa_report(p).check("adjustment_current").note.startswith("at/tiepoints.csv changed since")
+    # a stamp of another report: by time
+    ties.write_text(ties.read_text().replace("9.5", "4.5"))
+    os.utime(ties, ns=(made + 10**9, made + 10**9))
+    (stages / "adjust_final.json").write_text(json.dumps({"inputs": sha1, "outputs": {"at/report.json": "0" * 40}}))
+    note = write_qa_report(p).check("adjustment_current").note
+    assert "written after at/report.json" in note and "control/points.csv" in note
