@@ -1209,6 +1209,8 @@ class MosaicSummary:
     area_seen_by_no_frame_m2: float
     share_seen_by_no_frame: float | None = None  # of the block's cells (None: a record written before it was kept)
     seam_crossings: CrossingsSummary | None = None  # an edited run's check (``ortho.seam_crossings``); None: not edited
+    # the frames the seams give no cell, so no seamline polygon (``frames_without_cells``; () in a record before it)
+    frames_without_cells: tuple[str, ...] = ()
 
 
 def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
@@ -1216,7 +1218,8 @@ def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
                          doc["seams"], doc["feather_px"], tuple((n, tuple(g)) for n, g in doc["gains"].items()),
                          doc["cells_seen_by_no_frame"], doc["area_seen_by_no_frame_m2"],
                          doc.get("share_seen_by_no_frame"),
-                         CrossingsSummary.from_record(doc["seam_crossings"]) if doc.get("seam_crossings") else None)
+                         CrossingsSummary.from_record(doc["seam_crossings"]) if doc.get("seam_crossings") else None,
+                         tuple(str(n) for n in doc.get("frames_without_cells") or ()))
 
 
 def read_mosaic_summary(path) -> MosaicSummary:

@@ -513,4 +513,7 @@ def test_a_frame_the_seams_give_no_cell_is_named_in_mosaic_json(project):
     assert frames_without_cells(labels, ["a", "b", "c", "d"]) == ["b", "d"]
     summary = json.loads((project / "ortho" / "mosaic.json").read_text())
     assert summary["frames_without_cells"] == []
+    from ortho.mosaic import read_mosaic_summary
+
+    assert read_mosaic_summary(project / "ortho" / "mosaic.json").frames_without_cells == ()
     assert pyogrio.read_info(project / "ortho" / "seamlines.gpkg")["features"] == summary["frames"]
