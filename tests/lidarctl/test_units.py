@@ -282,7 +282,8 @@ def test_compound_crs_option_keeps_its_vertical_unit_in_the_output(scenes, tmp_p
 
 def test_dem_keeps_the_compound_crs_of_its_cloud(scenes, tmp_path):
     """A cloud in UTM metres + NAVD88 height in US survey feet: the DEM and DSM carry the compound CRS
-    (their heights' datum and unit), the relative rasters the horizontal CRS."""
+    (their heights' datum and unit), the relative rasters the horizontal CRS; the same for a cloud without a CRS
+    record given the compound CRS with --crs."""
     cloud = scenes["cloud"]
     z_ft = io.PointCloud(**{k: getattr(cloud, k) for k in ("x", "y", "intensity", "return_number",
                                                             "number_of_returns", "classification")},
@@ -291,35 +292,22 @@ def test_dem_keeps_the_compound_crs_of_its_cloud(scenes, tmp_path):
     synthetic.write_las(src, z_ft, version="1.4")
     _ok(["classify", src, tmp_path / "out.las", "--crs", "EPSG:32610+6360"])
     _ok(["rasters", tmp_path / "out.las", tmp_path / "r", "--res-m", "1"])
-    with rasterio.open(tmp_path / "r" / "dem.tif") as dem, rasterio.open(tmp_path / "r" / "ndsm.tif") as ndsm:
-        assert CRS(dem.crs).is_compound and "NAVD88" in CRS(dem.crs).sub_crs_list[1].name
-        assert not CRS(ndsm.crs).is_compound and CRS(ndsm.crs).to_epsg() == 32610
-
-
-def test_rasters_of_a_cloud_without_a_crs_keep_a_compound_crs_option(scenes, tmp_path):
-    """Trial-gis F10: `rasters --crs EPSG:7415` (RD New + NAP) of a cloud without a CRS record wrote its DEM in RD New
-    alone, the heights' datum dropped without a word; the DEM and DSM now carry the option's compound CRS."""
-    cloud = scenes["cloud"]
-    z_ft = io.PointCloud(**{k: getattr(cloud, k) for k in ("x", "y", "intensity", "return_number",
-                                                            "number_of_returns", "classification")},
-                         z=cloud.z / US_SURVEY_FOOT_M)
-    raw = tmp_path / "nocrs.las"
-    synthetic.write_las(raw, z_ft, version="1.4")
-    _ok(["classify", raw, tmp_path / "out.las", "--crs", "EPSG:32610+6360"])
+    # the classified cloud without its CRS record, the compound CRS given with --crs (trial-gis F10: `rasters --crs
+    # EPSG:7415` of AHN3's crop wrote RD New alone, the heights' datum dropped without a word)
     import laspy
     from laspy.vlrs.vlrlist import VLRList
 
-    las = laspy.read(tmp_path / "out.las")  # classified, its CRS record dropped: a delivery without one
+    las = laspy.read(tmp_path / "out.las")
     crs_records = ("WktCoordinateSystemVlr", "GeoKeyDirectoryVlr", "GeoAsciiParamsVlr", "GeoDoubleParamsVlr")
     las.header.vlrs = VLRList([v for v in las.header.vlrs if type(v).__name__ not in crs_records])
     las.header.global_encoding.wkt = False
-    src = tmp_path / "classified_nocrs.las"
-    las.write(src)
-    assert io.read_cloud(src, require_crs=False).crs is None
-    _ok(["rasters", src, tmp_path / "r", "--res-m", "1", "--crs", "EPSG:32610+6360"])
-    with rasterio.open(tmp_path / "r" / "dem.tif") as dem, rasterio.open(tmp_path / "r" / "ndsm.tif") as ndsm:
-        assert CRS(dem.crs).is_compound and "NAVD88" in CRS(dem.crs).sub_crs_list[1].name
-        assert not CRS(ndsm.crs).is_compound and CRS(ndsm.crs).to_epsg() == 32610
+    las.write(tmp_path / "classified_nocrs.las")
+    assert io.read_cloud(tmp_path / "classified_nocrs.las", require_crs=False).crs is None
+    _ok(["rasters", tmp_path / "classified_nocrs.las", tmp_path / "r2", "--res-m", "1", "--crs", "EPSG:32610+6360"])
+    for r in ("r", "r2"):
+        with rasterio.open(tmp_path / r / "dem.tif") as dem, rasterio.open(tmp_path / r / "ndsm.tif") as ndsm:
+            assert CRS(dem.crs).is_compound and "NAVD88" in CRS(dem.crs).sub_crs_list[1].name
+            assert not CRS(ndsm.crs).is_compound and CRS(ndsm.crs).to_epsg() == 32610
 
 
 def test_check_heights_by_chunks_equals_all_ground_points(scenes, tmp_path, monkeypatch):
