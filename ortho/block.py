@@ -1268,16 +1268,29 @@ def stale_frames(root, index: FrameIndex) -> str | None:
         return f"{path}: the frames were rectified with another camera than {source} (it changed since)"
     # a DEM (or a true ortho's DSM) changed since is said, not refused: the frames stay the last complete output of
     # the orientation (a failed re-run on a new DEM leaves them for the mosaic)
+    for what, surface in surfaces_changed(root, index):
+        _log.warning(f"{path}: the frames were rectified on another {what} than {surface} is now (changed or "
+                     f"removed since); re-run `ortho rectify` for orthos on the current {what}")
+    return None
+
+
+def surfaces_changed(root, index: FrameIndex) -> list[tuple[str, Path]]:
+    """(what, file) of the surfaces the frames of ``index`` were rectified on (DEM, a true ortho's DSM and occlusion
+    DSM) that changed or went since (content: size and time, else sha256); [] for an index without the record."""
+    rec = index.inputs
+    if not isinstance(rec, dict):
+        return []
+    root = Path(root)
+    out = []
     for key, what in (("dem", "DEM"), ("dsm", "DSM"), ("occlusion_dsm", "occlusion DSM")):
         if not isinstance(rec.get(key), dict):  # no DSM (a conventional ortho), or an index before trial-rerun
             continue
-        surface = where(rec[key]["file"])
+        surface = root / rec[key]["file"] if not Path(rec[key]["file"]).is_absolute() else Path(rec[key]["file"])
         st = surface.stat() if surface.is_file() else None
         if st is None or ((st.st_size, st.st_mtime_ns) != (rec[key]["size"], rec[key]["mtime_ns"])
                           and _sha256(surface) != rec[key]["sha256"]):
-            _log.warning(f"{path}: the frames were rectified on another {what} than {surface} is now (changed or "
-                         f"removed since); re-run `ortho rectify` for orthos on the current {what}")
-    return None
+            out.append((what, surface))
+    return out
 
 
 def require_current_frames(root, index: FrameIndex, then: str) -> None:

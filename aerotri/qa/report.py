@@ -1024,12 +1024,23 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if dom_check and dom_check.roofs is not None:
         rows.append(_roofs_row(sec, dom_check, project))
     if project.frames_index_path.is_file() and (dom_check or project.mosaic_path.is_file()):
-        from ortho.block import read_index, stale_frames
+        from ortho.block import read_index, stale_frames, surfaces_changed
 
-        why = stale_frames(root, read_index(root))
+        index = read_index(root)
+        why = stale_frames(root, index)
         if why:
             rows.append(_failed("dom_stale", sec, "DOM from an older adjustment",
                                 f"{why}; re-run ortho rectify, ortho mosaic and ortho check"))
+        # said, not judged (the DOM and its check are of the surface it was made on; the chain rectifies again): a
+        # DOM on the DSM before `lidarctl rasters` was run again read "true ortho on the DSM" and passed, only the
+        # console said so (trial-upgrade F4)
+        changed = surfaces_changed(root, index)
+        if changed:
+            rows.append(QaCheck("dom_surface_changed", sec, "DOM made on an earlier surface", None, None, "",
+                                "; ".join(f"{f} ({what}) changed since the frames were rectified on it"
+                                          for what, f in changed)
+                                + f": re-run ortho rectify, ortho mosaic and ortho check (or aerotri run {root})",
+                                None))
     if project.mosaic_summary_path.is_file():
         from ortho.mosaic import mosaic_older_than_frames
 

@@ -478,6 +478,15 @@ def test_a_dsm_changed_since_the_true_ortho_is_said(project, caplog):
     assert r.exit_code == 0, r.output
     assert any("rectified on another DSM than" in m and "dsm.tif" in m for m in caplog.messages), caplog.messages
     assert not any("another DEM" in m for m in caplog.messages)
+    # and the accuracy report says it in a row (trial-upgrade F4: only the console did), not judged
+    from aerotri.qa.report import build_qa_report
+
+    r = run("check", project, "--reference", project / "truth/ortho.tif", "--patch-px", "24", "--search-px", "4")
+    assert r.exit_code == 0, r.output
+    rep = build_qa_report(project)
+    row = rep.check("dom_surface_changed")
+    assert row.verdict is None and "dsm.tif (DSM) changed since the frames were rectified" in row.note
+    assert not rep.has("dom_stale")
 
 
 def test_the_staleness_check_compares_the_camera_without_judging_it_again(project, monkeypatch):
