@@ -170,6 +170,15 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
                            "CRS with the vertical one (e.g. --crs EPSG:32611+5703) to convert them")
     xyz_fill = xyz.copy()
     xyz_fill[no_z, 2] = 0.0
+    # checked in the file's CRS first, naming the line: a geographic header with latitude first failed in the
+    # transformation as "point 1 could not be transformed rigorously", no file, no line (trial-messy F4)
+    from aerotri.geom.crs.definition import check_coordinates, parse_crs
+
+    first_line = {}
+    for pid, _, _, _, lineno in obs:
+        first_line.setdefault(pid, lineno)
+    check_coordinates(parse_crs(crs, str(path)), xyz_fill[:, 0], xyz_fill[:, 1], str(path),
+                      records=[f"line {first_line[pid]} (point {pid})" for pid in ids])
     xyz_map = to_project_crs(xyz_fill, crs, project, f"{path} (CRS {crs})")
     xyz_map[no_z, 2] = 0.0
     kinds = np.where(no_z, "horizontal", "full").astype(object)

@@ -211,6 +211,9 @@ def test_one_point_spelled_two_ways_is_one_control_point(tmp_path):
     ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235279 3811198 0 5.5 5.5 a.jpg q\n", InputError,
      r":3: points 'p' and 'q' are measured 1.6 px apart in frame 'a' \(lines 2 and 3\)"),
     ("EPSG:32611\n", InputError, "no measurement lines"),
+    # latitude first under a geographic header (trial-messy F4: "point 1 could not be transformed", no file, no line)
+    ("EPSG:4326\n34.4138 -119.8489 10 4 5 a.jpg p\n34.4138 -119.8489 10 6 7 b.jpg p\n", InputError,
+     r"gcp_list.txt: line 2 \(point p\): \(34.414, -119.849\) is not a longitude/latitude.*latitude first\?"),
 ])
 def test_bad_gcp_lists_are_refused(tmp_path, text, error, message):
     f = tmp_path / "gcp_list.txt"
