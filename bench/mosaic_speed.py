@@ -366,7 +366,8 @@ def make_large(work: Path, demo_src: Path, gp: float, seed: int = 41) -> dict:
     from aerotri.core.project import Project
     from aerotri.core.records import to_record
     from aerotri.geom.camera import orientations_camera
-    from ortho.block import _camera_sha256, _sha256, file_fingerprint, frame_profile
+    from aerotri.core.digest import file_sha256
+    from ortho.block import _camera_sha256, file_fingerprint, frame_profile
     from ortho.grid import OrthoGrid
 
     frames, width, height, per_strip = large_layout(gp)
@@ -428,10 +429,10 @@ def make_large(work: Path, demo_src: Path, gp: float, seed: int = 41) -> dict:
     index = {"crs": crs.to_wkt(), "crs_name": crs.name, "epsg": 32649, "res_m": RES_M, "project_crs": "EPSG:32649",
              "dem": str(dem), "eo": str(work / "at" / "eo.txt"), "true_ortho": False, "dsm": None,
              "interpolation": "bilinear", "coordinate_operation": None, "operation": None, "height_operation": None,
-             "inputs": {"eo": {"file": "at/eo.txt", "given": False, "sha256": _sha256(work / "at" / "eo.txt")},
+             "inputs": {"eo": {"file": "at/eo.txt", "given": False, "sha256": file_sha256(work / "at" / "eo.txt")},
                         "camera": {"file": None, "sha256": _camera_sha256(orientations_camera(project)[0])},
                         "dem": {"file": "lidar_out/dem.tif", "size": st.st_size, "mtime_ns": st.st_mtime_ns,
-                                "sha256": _sha256(dem)}},
+                                "sha256": file_sha256(dem)}},
              "frames": entries}
     (work / "ortho" / "frames" / "index.json").write_text(json.dumps(index, indent=1) + "\n")
     # the reference orthophoto of the check: the same ground at 0.5 m

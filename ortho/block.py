@@ -37,6 +37,7 @@ import rasterio
 from pyproj import CRS
 
 from aerotri.geom.eo import ExteriorOrientations, read_eo
+from aerotri.core.digest import file_sha256
 from aerotri.core.errors import InputError
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
@@ -1159,16 +1160,6 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
     }
 
 
-def _sha256(path) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 22), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _camera_sha256(camera) -> str:
     import hashlib
 
@@ -1204,11 +1195,11 @@ def _rectify_inputs_document(block: BlockInputs, dem_path, earlier: dict | None 
                 and isinstance(before.get("sha256"), str):
             rec["sha256"] = before["sha256"]
         else:
-            rec["sha256"] = _sha256(path)
+            rec["sha256"] = file_sha256(path)
         return rec
 
     out = {
-        "eo": {"file": _in_project(block.eo_path, root), "given": block.eo_given, "sha256": _sha256(block.eo_path)},
+        "eo": {"file": _in_project(block.eo_path, root), "given": block.eo_given, "sha256": file_sha256(block.eo_path)},
         "camera": {"file": _in_project(block.camera_path, root) if block.camera_path else None,
                    "sha256": _camera_sha256(block.camera)},
         "dem": raster("dem", dem_path),
@@ -1235,10 +1226,11 @@ def _same_inputs(a, b) -> bool:
     return all(a.get(k, {}).get("sha256") == b[k]["sha256"] for k in ("eo", "camera", "dem"))
 
 
-def stale_frames(root, index: FrameIndex) -> str | None:
+def stale_frames(root, index: FrameIndex, *, say_surfaces: bool = True) -> str | None:
     """Why the frames of ``index`` no longer belong to the project's orientation (the EO file or the camera
     changed since ``ortho rectify``, e.g. a re-adjustment wrote a new at/eo.txt), or None when they do.
-    A DEM changed since, and an index written before the inputs were recorded, are logged warnings."""
+    A DEM changed since (``say_surfaces``; False: the caller looks at ``surfaces_changed`` itself, which hashes a
+    changed surface), and an index written before the inputs were recorded, are logged warnings."""
     project = Project.open(root)
     root, path = project.root, project.frames_index_path
     rec = index.inputs
@@ -1247,13 +1239,10 @@ def stale_frames(root, index: FrameIndex) -> str | None:
                      "frames cannot be checked against the current at/eo.txt (re-run `ortho rectify` to record them)")
         return None
 
-    def where(f):
-        return root / f if not Path(f).is_absolute() else Path(f)
-
-    eo = where(rec["eo"]["file"])
+    eo = _recorded_path(root, rec["eo"]["file"])
     if not eo.is_file():
         return f"{path}: the frames were rectified from {eo}, which no longer exists"
-    if _sha256(eo) != rec["eo"]["sha256"]:
+    if file_sha256(eo) != rec["eo"]["sha256"]:
         return (f"{path}: the frames were rectified from an older {eo} (the exterior orientation changed since, "
                 "e.g. by a new adjustment)")
     cam_file = rec["camera"]["file"]
@@ -1261,17 +1250,28 @@ def stale_frames(root, index: FrameIndex) -> str | None:
 
     try:  # read to compare with the recorded one only: not judged again (Camera.from_dict)
         camera, source = orientations_camera(project, eo if rec["eo"].get("given") else None,
-                                             where(cam_file) if cam_file else None, plausible=False)
+                                             _recorded_path(root, cam_file) if cam_file else None, plausible=False)
     except InputError as exc:
         return f"{path}: the camera the frames were rectified with cannot be read now ({exc})"
     if _camera_sha256(camera) != rec["camera"]["sha256"]:
         return f"{path}: the frames were rectified with another camera than {source} (it changed since)"
     # a DEM (or a true ortho's DSM) changed since is said, not refused: the frames stay the last complete output of
     # the orientation (a failed re-run on a new DEM leaves them for the mosaic)
-    for what, surface in surfaces_changed(root, index):
-        _log.warning(f"{path}: the frames were rectified on another {what} than {surface} is now (changed or "
-                     f"removed since); re-run `ortho rectify` for orthos on the current {what}")
+    if say_surfaces:
+        say_surfaces_changed(path, surfaces_changed(root, index))
     return None
+
+
+def say_surfaces_changed(index_path, changed: list[tuple[str, Path]]) -> None:
+    """A warning per surface of ``surfaces_changed`` (the frames' index ``index_path`` named)."""
+    for what, surface in changed:
+        _log.warning(f"{index_path}: the frames were rectified on another {what} than {surface} is now (changed or "
+                     f"removed since); re-run `ortho rectify` for orthos on the current {what}")
+
+
+def _recorded_path(root: Path, f) -> Path:
+    """A file the index records: relative to the project folder ``root`` unless absolute."""
+    return Path(root) / f if not Path(f).is_absolute() else Path(f)
 
 
 def surfaces_changed(root, index: FrameIndex) -> list[tuple[str, Path]]:
@@ -1280,15 +1280,14 @@ def surfaces_changed(root, index: FrameIndex) -> list[tuple[str, Path]]:
     rec = index.inputs
     if not isinstance(rec, dict):
         return []
-    root = Path(root)
     out = []
     for key, what in (("dem", "DEM"), ("dsm", "DSM"), ("occlusion_dsm", "occlusion DSM")):
         if not isinstance(rec.get(key), dict):  # no DSM (a conventional ortho), or an index before trial-rerun
             continue
-        surface = root / rec[key]["file"] if not Path(rec[key]["file"]).is_absolute() else Path(rec[key]["file"])
+        surface = _recorded_path(root, rec[key]["file"])
         st = surface.stat() if surface.is_file() else None
         if st is None or ((st.st_size, st.st_mtime_ns) != (rec[key]["size"], rec[key]["mtime_ns"])
-                          and _sha256(surface) != rec[key]["sha256"]):
+                          and file_sha256(surface) != rec[key]["sha256"]):
             out.append((what, surface))
     return out
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from aerotri.core.errors import CrsError, InputError
 from aerotri.core.textio import read_record, record_error
+from aerotri.core.digest import file_sha256
 
 log = logging.getLogger(__name__)
 
@@ -201,16 +202,6 @@ def _relative(path: Path, root: Path) -> str:
         return str(path)
 
 
-def _sha256(path: Path, chunk_bytes: int = 1 << 20) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(chunk_bytes):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def record_inputs(project) -> dict:
     """report.json "inputs": each of ``adjustment_input_paths`` relative to the project, with its size and sha256
     (None: absent). ``inputs_changed`` compares the files with it: a copy of the project (``cp -r``, unzip, a
@@ -218,7 +209,7 @@ def record_inputs(project) -> dict:
     out = {}
     for p in adjustment_input_paths(project):
         try:
-            out[_relative(p, project.root)] = {"size": p.stat().st_size, "sha256": _sha256(p)} if p.is_file() else None
+            out[_relative(p, project.root)] = {"size": p.stat().st_size, "sha256": file_sha256(p)} if p.is_file() else None
         except FileNotFoundError:  # (removed meanwhile)
             out[_relative(p, project.root)] = None
     return out
@@ -250,7 +241,7 @@ def inputs_changed(project, record: AdjustmentRecord) -> tuple[list[str], bool]:
                 by_time = True
             continue
         was = record.inputs[rel]
-        if was is None or st.st_size != was["size"] or (st.st_mtime_ns > made and _sha256(p) != was["sha256"]):
+        if was is None or st.st_size != was["size"] or (st.st_mtime_ns > made and file_sha256(p) != was["sha256"]):
             changed.append(rel)
     return changed, not by_time
 

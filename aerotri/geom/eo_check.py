@@ -186,12 +186,14 @@ def radians_read_as_degrees(eo) -> str | None:
         d = eo.centre_m[k[-1], :2] - eo.centre_m[k[0], :2]
         heads.append(np.degrees(np.arctan2(d[0], d[1])))
         kappas.append(float(np.median(opk[k, 2])))
-    turns = [(abs(float(_wrap(heads[a] - heads[b]))), abs(float(_wrap(kappas[a] - kappas[b]))))
-             for a in range(len(heads)) for b in range(a + 1, len(heads))
-             if abs(float(_wrap(heads[a] - heads[b]))) > OPPOSITE_STRIPS_DEG]
-    if not turns or max(t[1] for t in turns) >= KAPPA_TURN_MIN_DEG:
+    # every pair of strips: how far apart their headings and their kappas are (deg)
+    heads, kappas = np.array(heads), np.array(kappas)
+    a, b = np.triu_indices(len(heads), 1)
+    head_turn, kappa_turn = np.abs(_wrap(heads[a] - heads[b])), np.abs(_wrap(kappas[a] - kappas[b]))
+    opposite = head_turn > OPPOSITE_STRIPS_DEG
+    if not opposite.any() or kappa_turn[opposite].max() >= KAPPA_TURN_MIN_DEG:
         return None
-    head = max(t[0] for t in turns)
-    return (f"omega, phi and kappa all within +-{np.pi:.4f}, and kappa differs by at most {max(t[1] for t in turns):.2f} "
-            f"between strips flown opposite ways (headings up to {head:.0f} deg apart; a camera turns with the "
-            f"aircraft, its kappa by about 180 deg): angles in radians? (x 57.2958 for degrees)")
+    return (f"omega, phi and kappa all within +-{np.pi:.4f}, and kappa differs by at most "
+            f"{kappa_turn[opposite].max():.2f} between strips flown opposite ways (headings up to "
+            f"{head_turn[opposite].max():.0f} deg apart; a camera turns with the aircraft, its kappa by about 180 "
+            f"deg): angles in radians? (x 57.2958 for degrees)")

@@ -1024,10 +1024,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if dom_check and dom_check.roofs is not None:
         rows.append(_roofs_row(sec, dom_check, project))
     if project.frames_index_path.is_file() and (dom_check or project.mosaic_path.is_file()):
-        from ortho.block import read_index, stale_frames, surfaces_changed
+        from ortho.block import read_index, say_surfaces_changed, stale_frames, surfaces_changed
 
         index = read_index(root)
-        why = stale_frames(root, index)
+        why = stale_frames(root, index, say_surfaces=False)  # (the surfaces once, below: a changed one is hashed)
         if why:
             rows.append(_failed("dom_stale", sec, "DOM from an older adjustment",
                                 f"{why}; re-run ortho rectify, ortho mosaic and ortho check"))
@@ -1035,6 +1035,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         # DOM on the DSM before `lidarctl rasters` was run again read "true ortho on the DSM" and passed, only the
         # console said so (trial-upgrade F4)
         changed = surfaces_changed(root, index)
+        if not why:
+            say_surfaces_changed(project.frames_index_path, changed)
         if changed:
             rows.append(QaCheck("dom_surface_changed", sec, "DOM made on an earlier surface", None, None, "",
                                 "; ".join(f"{f} ({what}) changed since the frames were rectified on it"

@@ -330,8 +330,8 @@ def test_an_unchanged_dem_is_not_hashed_again(project, monkeypatch):
     import ortho.block
 
     hashed = []
-    sha256 = ortho.block._sha256
-    monkeypatch.setattr(ortho.block, "_sha256", lambda p: hashed.append(os.path.basename(p)) or sha256(p))
+    sha256 = ortho.block.file_sha256
+    monkeypatch.setattr(ortho.block, "file_sha256", lambda p: hashed.append(os.path.basename(p)) or sha256(p))
     dem = project / "lidar_out/dem.tif"
 
     def recorded():
