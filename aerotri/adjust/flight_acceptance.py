@@ -22,6 +22,7 @@ tilt and kappa are then not measured). Overlaps are areas: overlap / footprint a
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from pathlib import Path
 
@@ -44,6 +45,9 @@ LIMIT_KEYS = {
     "flight_forward_overlap_min_pct": ("forward overlap", "%", "min"),
     "flight_side_overlap_min_pct": ("side overlap", "%", "min"),
 }
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
 DEFAULT_LIMITS = manned_flight_limits()  # the manned aerial photography specification
 DEFAULT_SPEC = "manned aerial photography flight specification (flight_cn_aerial.toml)"
 BORDER_SAMPLES = 8  # points per image side of a draped footprint
@@ -161,6 +165,22 @@ def nominal_attitude(centre_m, strip) -> np.ndarray:
     return opk
 
 
+def in_flight_order(image_id, centre_m, opk_deg, extra_id=(), extra_centre_m=None):
+    """Frames with orientations and ``extra_id`` frames with positions alone (the adjustment left them out, or
+    before it), in image-id order (the flight order, as the adjustment's strips): ids, centres, omega phi kappa
+    (deg; the extra frames' nominal, ``nominal_attitude``), attitude measured per frame, strip (from 0)."""
+    ids = list(image_id) + list(extra_id)
+    c = np.asarray(centre_m, float).reshape(-1, 3)
+    if len(extra_id):
+        c = np.vstack([c, np.asarray(extra_centre_m, float).reshape(-1, 3)])
+    order = np.argsort(np.asarray(ids, dtype=object), kind="stable")
+    ids, c = [ids[i] for i in order], c[order]
+    measured = order < len(image_id)
+    strip = strips_from_track(c)
+    opk = np.vstack([np.asarray(opk_deg, float).reshape(-1, 3), np.zeros((len(extra_id), 3))])[order]
+    return ids, c, np.where(measured[:, None], opk, nominal_attitude(c, strip)), measured, strip
+
+
 def _strip_order(centre_m, strip) -> list:
     """Strip numbers sorted across track (by the centres' mean distance along the normal to the first strip)."""
     ids = list(np.unique(strip))
@@ -195,15 +215,17 @@ def _check(quantity, values, where, key, limits: FlightLimits) -> dict:
 
 
 def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, strip=None, *, limits: dict | None = None,
-                      attitude_measured: bool = True) -> FlightAcceptance:
+                      attitude_measured=True) -> FlightAcceptance:
     """The flight acceptance of frames in flight order (``image_id`` order is the track order when
     ``strip`` is None: ``strips_from_track`` splits it). ``opk_deg`` in the photogrammetric
-    convention; ``attitude_measured`` False for a nominal attitude (tilt and kappa not reported)."""
+    convention; ``attitude_measured`` False for a nominal attitude (tilt and kappa not reported), one
+    bool for all frames or one per frame."""
     import shapely
 
     c = np.asarray(centre_m, float)
     opk = np.asarray(opk_deg, float)
     n = len(c)
+    measured = np.broadcast_to(np.asarray(attitude_measured, bool), (n,))
     strip = strips_from_track(c) + 1 if strip is None else np.asarray(strip)
     limits = limits or {}
     if limits.get("flight_limits_apply", True):
@@ -224,7 +246,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
     for k, s in enumerate(order):
         idx = np.flatnonzero(strip == s)
         for m, i in enumerate(idx):
-            if attitude_measured:
+            if measured[i]:
                 # angle between the camera axis (third column of R) and the vertical
                 frames[i]["tilt_deg"] = _r(math.degrees(math.acos(min(1.0, abs(R[i][2, 2])))), 3)
             if len(idx) > 1:
@@ -233,7 +255,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
                 # image x axis in the ground plane vs the base direction, modulo 90 deg
                 ax = R[i][:2, 0]
                 ang = math.degrees(math.atan2(ax[1], ax[0]) - math.atan2(base[1], base[0]))
-                if attitude_measured:
+                if measured[i]:
                     frames[i]["kappa_deviation_deg"] = _r(abs((ang + 45.0) % 90.0 - 45.0), 3)
             if m > 0:
                 frames[i]["height_step_m"] = _r(abs(c[i, 2] - c[idx[m - 1], 2]), 2)
@@ -295,8 +317,14 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
         _check("side overlap (median over a strip's frames)", [st["side_overlap_median_pct"] for st in strips], sid,
                "flight_side_overlap_min_pct", lim),
     ]
-    source = ("exterior orientations" if attitude_measured else
-              "GNSS positions, nominal attitude (tilt and kappa not measured)")
+    if measured.all():
+        source = "exterior orientations"
+    elif not measured.any():
+        source = "GNSS positions, nominal attitude (tilt and kappa not measured)"
+    else:
+        nominal = [str(image_id[i]) for i in np.flatnonzero(~measured)]
+        source = (f"exterior orientations; {len(nominal)} frames the adjustment left out from GNSS positions, nominal "
+                  f"attitude (tilt and kappa not measured: {', '.join(nominal[:10])}{' ...' if len(nominal) > 10 else ''})")
     return FlightAcceptance(frames, strips, to_record(lim, drop_none=True), source, terrain.source, checks, spec)
 
 
@@ -330,19 +358,45 @@ def project_flight_acceptance(root, limits: dict | None = None, *,
     project = Project.open(root)
     terrain = terrain if terrain is not None else project_terrain(project)
     camera, _ = oriented_camera(project)
+    crs = parse_crs(project.crs)
+    g = read_gnss(project.gnss_path, crs) if project.gnss_path.is_file() else None
     if project.eo_path.is_file():
-        eo = read_eo(project.eo_path, parse_crs(project.crs))
-        ids, c, opk, measured = eo.image_id, eo.centre_m, eo.opk_deg, True
-    elif project.gnss_path.is_file():
-        g = read_gnss(project.gnss_path, parse_crs(project.crs))
-        ids, c = g.image_id, g.position_m
-        opk, measured = None, False
+        eo = read_eo(project.eo_path, crs)
+        # trial-relief F1: frames the adjustment left out (a block split over the mountain) were missing from
+        # the flight checks, which then passed the overlaps that had failed; they come from GNSS
+        have = set(eo.image_id)
+        extra = [i for i, k in enumerate(g.image_id) if k not in have] if g is not None else []
+        ids, c, opk, measured, strip = in_flight_order(eo.image_id, eo.centre_m, eo.opk_deg,
+                                                       [g.image_id[i] for i in extra],
+                                                       np.asarray(g.position_m)[extra] if extra else None)
+    elif g is not None:
+        ids, c, opk, measured, strip = in_flight_order([], np.zeros((0, 3)), np.zeros((0, 3)), g.image_id,
+                                                       g.position_m)
     else:
         return None
-    order = np.argsort(np.asarray(ids))  # image-id order is the flight order (as the adjustment's strips)
-    ids, c = [ids[i] for i in order], np.asarray(c)[order]
-    strip = strips_from_track(c)
-    opk = np.asarray(opk)[order] if measured else nominal_attitude(c, strip)
     if terrain is None:
         return None  # the footprints need a terrain: the caller says the checks were not made
     return flight_acceptance(ids, c, opk, camera, terrain, strip + 1, limits=limits, attitude_measured=measured)
+
+
+def overlap_shortfall(root) -> str:
+    """"the flight's side overlap ... is 3.2 % at strip 1 against the specification's 13 % (...)": the overlaps of
+    the flight acceptance that fail (footprints on the LiDAR DEM, else the planned terrain height), the usual reason
+    a block falls apart into parts no tie point connects (trial-relief F3: a side overlap of 6 % over a mountain, and
+    the split block's warning sent the user to the terrain height). Empty when they pass or cannot be measured."""
+    try:
+        fa = project_flight_acceptance(root)
+    except (InputError, OSError) as e:  # a hint only: the split itself is what the warning is about
+        return f"(the flight's overlaps not measured: {e})"
+    if fa is None:
+        return ""
+    failed = [c for c in fa.failed if c["key"] in ("flight_side_overlap_min_pct", "flight_forward_overlap_min_pct")]
+    return "; ".join(f"the flight's {c['quantity']} is {c['value']} % at {c['where']} against the specification's "
+                     f"{c['limit']:g} % ({fa.terrain})" for c in failed)
+
+
+def say_split_block(root, components: int) -> None:
+    """After matching: when the block fell apart, the overlaps that fail the specification, as a warning (the match
+    stage cannot measure them itself: its layer does not reach the flight acceptance)."""
+    if components > 1 and (text := overlap_shortfall(root)):
+        log.warning(f"{root}: the block falls apart into {components} parts: {text}")

@@ -423,12 +423,18 @@ class _Observations:
     components: int = 1  # components of the block adjusted together
 
 
+def _images(n: int) -> str:
+    return f"{n} image" if n == 1 else f"{n} images"
+
+
 @dataclasses.dataclass
 class LeftOutComponent:
-    """A part of the block no tie point connects to the rest and that has no datum of its own."""
+    """Images the adjustment leaves out, and why: a part of the block no tie point connects to the rest and that
+    has no datum of its own, or images with too few measurements to orient them."""
 
     image_ids: list
     reason: str
+    position_map: np.ndarray | None = None  # (n, 3) their GNSS (or given) positions: the flight checks include them
 
 
 def _component_datum_gap(inp: ProjectInputs, ctrl_used: ControlPoints, ids: list) -> str | None:
@@ -441,13 +447,25 @@ def _component_datum_gap(inp: ProjectInputs, ctrl_used: ControlPoints, ids: list
                            inp.project.gnss.offset_sigma_m is not None)
 
 
-def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations:
-    """Images in flight order (those with measurements), points and observation index arrays; refuses
-    images with fewer than 3 measurements, drops tie points seen once. A block that tie points do not connect
-    is adjusted in its components that have a datum (GNSS, control, DEM); the others are left out, named."""
+def _observations(inp: ProjectInputs, ctrl_used: ControlPoints, already_left: frozenset = frozenset()) -> _Observations:
+    """Images in flight order (those with measurements), points and observation index arrays; drops tie points
+    seen once. An image of the block with no measurement at all, or with fewer than 3, is left out, named (a
+    frame over open water or cloud: the rest of the block is adjusted, and the adjustment is not "Successful").
+    A block that tie points do not connect is adjusted in its components that have a datum (GNSS, control, DEM);
+    the others are left out, named. ``already_left``: images a caller left out before."""
     ties, cobs, image_ids = inp.ties, inp.control_obs, inp.image_ids
     order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
     measured = set(ties.image_id.tolist()) | set(cobs.image_id.tolist())
+    # trial-relief F7: an image with no measurement dropped out of the block without a word (no EO, no ortho,
+    # "Solution Successful" possible); now a left-out part like a component without a datum
+    unmeasured = [image_ids[i] for i in order if image_ids[i] not in measured and image_ids[i] not in already_left]
+    if unmeasured:
+        blank = LeftOutComponent(unmeasured, "no tie point and no control point measured in them (nothing matched: "
+                                             "open water, cloud, a blank or unreadable image?)")
+        log.warning(f"{inp.project.tiepoints_path}: {_images(len(unmeasured))} with no measurement left out "
+                    f"({', '.join(unmeasured[:8])}{' ...' if len(unmeasured) > 8 else ''}): {blank.reason}")
+        ob = _observations(inp, ctrl_used, already_left | frozenset(unmeasured))
+        return dataclasses.replace(ob, left_out=[blank] + ob.left_out)
     order = np.array([i for i in order if image_ids[i] in measured], dtype=int)
     image_ids = [image_ids[i] for i in order]
     img_index = {k: i for i, k in enumerate(image_ids)}
@@ -479,12 +497,13 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations
         if any(gap is not None for gap in gaps):
             left = [LeftOutComponent([image_ids[i] for i in g], gap) for g, gap in zip(comps, gaps) if gap is not None]
             for lo in left:
-                log.warning(f"{tie_path}: {len(lo.image_ids)} images no tie point connects to the rest are left out "
+                log.warning(f"{tie_path}: {_images(len(lo.image_ids))} no tie point connects to the rest left out "
                             f"({', '.join(lo.image_ids[:8])}{' ...' if len(lo.image_ids) > 8 else ''}): {lo.reason}")
             drop = [k for lo in left for k in lo.image_ids]
             kept = dataclasses.replace(inp, ties=inp.ties.subset(~_is_in(inp.ties.image_id, drop)),
                                        control_obs=inp.control_obs.subset(~_is_in(inp.control_obs.image_id, drop)))
-            ob = _observations(kept, ctrl_used.subset(np.isin(ctrl_used.id, kept.control_obs.point_id)))
+            ob = _observations(kept, ctrl_used.subset(np.isin(ctrl_used.id, kept.control_obs.point_id)),
+                               already_left | frozenset(drop))
             return dataclasses.replace(ob, left_out=left + ob.left_out)
         log.warning(f"{tie_path}: the block falls apart into {len(comps)} components that no tie point connects; "
                     "each has a datum of its own and is adjusted")
@@ -495,8 +514,23 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints) -> _Observations
         obs_point, obs_image, obs_xy = obs_point[keep], obs_image[keep], obs_xy[keep]
     per_image = np.bincount(obs_image, minlength=len(image_ids))
     if per_image.min() < 3:
-        i = int(np.argmin(per_image))
-        raise InputError(f"{tie_path}: image {image_ids[i]} has only {per_image[i]} tie measurements (need >= 3)")
+        few_ids = [image_ids[i] for i in np.flatnonzero(per_image < 3)]
+        n_tie_obs = np.bincount(obs_image[obs_point < len(tie_ids)], minlength=len(image_ids))
+        counts = ", ".join(f"{image_ids[i]} {n_tie_obs[i]} tie + {per_image[i] - n_tie_obs[i]} control"
+                           for i in np.flatnonzero(per_image < 3)[:8])
+        if len(few_ids) == len(image_ids):
+            raise InputError(f"{tie_path}, {inp.project.control_image_points_path}: no image has the 3 measurements "
+                             f"(tie points seen in 2 images or more, and control) that orient it: {counts}")
+        # trial-relief F7: one frame over the sea stopped the whole block ("only 2 tie measurements", which were
+        # control); it is left out, named, and the rest adjusted
+        weak = LeftOutComponent(few_ids, f"fewer than the 3 measurements that orient an image ({counts})")
+        log.warning(f"{tie_path}: {_images(len(few_ids))} left out: {weak.reason}")
+        drop = set(few_ids)
+        kept = dataclasses.replace(inp, ties=inp.ties.subset(~_is_in(inp.ties.image_id, list(drop))),
+                                   control_obs=inp.control_obs.subset(~_is_in(inp.control_obs.image_id, list(drop))))
+        ob = _observations(kept, ctrl_used.subset(np.isin(ctrl_used.id, kept.control_obs.point_id)),
+                           already_left | frozenset(drop))
+        return dataclasses.replace(ob, left_out=[weak] + ob.left_out)
     return _Observations(image_ids, order, point_id, ctrl_pos, obs_point, obs_image, obs_xy, len(tie_ids),
                          components=len(comps))
 
@@ -627,6 +661,9 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
     is_check = inp.control.kind == "check"
     ctrl_used, chk = inp.control.subset(~is_check), inp.control.subset(is_check)
     ob = _observations(inp, ctrl_used)
+    row_of = {k: i for i, k in enumerate(inp.image_ids)}
+    for lo in ob.left_out:
+        lo.position_map = inp.approx_position_map[[row_of[k] for k in lo.image_ids]]
     ctrl_used = ctrl_used.subset(np.isin(ctrl_used.id, list(ob.control_position)))  # without left-out parts'
     approx_pos_map = inp.approx_position_map[ob.order]
     frame = LocalFrame.at_centre(project.crs, approx_pos_map)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -630,6 +631,12 @@ def common_height_shift_note(ba, gcc: GnssCorrectionCheck | None, plan_check: tu
             f"the GNSS heights are off the ground by one offset for the whole block, not one strip's GNSS. Its causes: "
             f"the antenna lever arm or antenna height (lever_arm_m z off by about {abs(mean):.2f} m), the GNSS height "
             f"datum (ellipsoidal heights against orthometric ones, [project] heights)")
+    if ba.settings.dem is not None:
+        # trial-relief F5: a DEM 30 m off (another vertical datum, untagged) was blamed on the GNSS alone; the tie
+        # points sit on the DEM, so its datum is as likely a cause as the GNSS's
+        text += (f", the DEM's heights (surface control, {Path(ba.settings.dem).name}: the tie points are held to it; "
+                 f"a DEM in another vertical datum, geoid against ellipsoid, differs by the geoid height, tens of "
+                 f"metres in many places)")
     if "focal" in ba.opts.self_calibration:  # estimated: the solve has fitted it, it is no cause left
         return text + "; not the focal length, which is estimated."
     focal = f"a focal length {abs(pct):.2f} % too {'long' if pct < 0 else 'short'} in camera.toml"
@@ -1108,8 +1115,9 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         weaknesses.append(held_pp.text())
     if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
-        weaknesses.append(f"{n} images in {len(ba.left_out)} part(s) that no tie point connects to the block and "
-                          f"that have no datum of their own are not adjusted (components below).")
+        parts = "; ".join(f"{', '.join(lo.image_ids[:6])}{' ...' if len(lo.image_ids) > 6 else ''}: {lo.reason}"
+                          for lo in ba.left_out)
+        weaknesses.append(f"{n} image{'s are' if n != 1 else ' is'} not adjusted (no orientation, no ortho): {parts}.")
     if failed:
         verdict = "failed"
         message = "Solution failed: " + " ".join(failed + weaknesses)
@@ -1224,8 +1232,18 @@ def _flight(ba, ground, tol: dict) -> dict | None:
     from aerotri.adjust.flight_acceptance import flight_acceptance
 
     eo = ba.eo_map
-    return dataclasses.asdict(flight_acceptance(eo.image_id, eo.centre_m, eo.opk_deg, ba.camera_adjusted, ground,
-                                                np.asarray(ba.block.strip) + 1, limits=tol))
+    left = [(k, xyz) for lo in ba.left_out if lo.position_map is not None for k, xyz in zip(lo.image_ids, lo.position_map)]
+    if not left:
+        return dataclasses.asdict(flight_acceptance(eo.image_id, eo.centre_m, eo.opk_deg, ba.camera_adjusted, ground,
+                                                    np.asarray(ba.block.strip) + 1, limits=tol))
+    # trial-relief F1: the frames the adjustment left out (a block split over a mountain by a side overlap of 6 %)
+    # were missing from these checks, which passed the overlaps that split it; from their GNSS positions here
+    from aerotri.adjust.flight_acceptance import in_flight_order
+
+    ids, c, opk, measured, strip = in_flight_order(eo.image_id, eo.centre_m, eo.opk_deg, [k for k, _ in left],
+                                                   np.array([xyz for _, xyz in left], float))
+    return dataclasses.asdict(flight_acceptance(ids, c, opk, ba.camera_adjusted, ground, strip + 1, limits=tol,
+                                                attitude_measured=measured))
 
 
 @dataclasses.dataclass(frozen=True)

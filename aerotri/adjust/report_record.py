@@ -112,6 +112,8 @@ class AdjustmentRecord:
     # the adjustment's input files as it read them (report.json "inputs", ``record_inputs``): path relative to the
     # project -> {"size", "sha256"}, None where the file was absent; None: a report written before it was recorded
     inputs: dict | None = None
+    # (image id, why) of the images the adjustment left out (report.json components.left_out): no orientation
+    frames_left_out: tuple[tuple[str, str], ...] = ()
 
     @property
     def sigma0_in_px(self) -> float | None:
@@ -172,7 +174,9 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
         surface_control=_surface_control(d.get("surface_control")),
         surface_systematic=(d.get("surface_control") or {}).get("systematic"),
         check_points_from_lidar=int(d.get("check_points_from_lidar") or 0),
-        inputs=_inputs(d.get("inputs")))
+        inputs=_inputs(d.get("inputs")),
+        frames_left_out=tuple((str(k), str(lo.get("reason", ""))) for lo in (d.get("components") or {}).get("left_out")
+                              or () for k in lo.get("images", ())))
 
 
 def _inputs(v) -> dict | None:

@@ -753,6 +753,9 @@ class Chain:
         from aerotri.match import match_project
 
         rep = match_project(root, self.stage_settings("match"))
+        from aerotri.adjust.flight_acceptance import say_split_block
+
+        say_split_block(root, rep.components)
         return R.MatchResult(tracks=rep.tracks, observations=rep.observations, components=rep.components)
 
     def adjust_inputs(self, root, control: bool = True) -> list[Path]:

@@ -35,6 +35,9 @@ def match(project, scheduler, workers, **_settings):
     with executor_for(scheduler, workers) as ex:
         report = match_project(project, settings, executor=ex)
     click.echo(report.summary_line())
+    from aerotri.adjust.flight_acceptance import say_split_block
+
+    say_split_block(project, report.components)
     from aerotri.match.weak import weak_model_words
 
     for line in weak_model_words(report.models, len(report.densified.models), settings.settings.min_per_region):

@@ -487,7 +487,7 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
             log.warning(f"{project.tiepoints_path}: the block falls apart into {len(components)} parts that no tie "
                         f"point connects ({parts}); each is adjusted with a datum of its own, or left out without "
                         "one" + (". Check [flight] mean_terrain_height_m (the pairs are chosen by the footprints on "
-                                 "it) and at/connectivity.png" if plan is not None else ""))
+                         "it) and at/connectivity.png" if plan is not None else ""))
         return report
 
 

@@ -515,6 +515,29 @@ def _sigma0_limit_px(tol: dict, ks: KeyStatistics, s0_px: float) -> float | None
 
 
 
+def _terrain_rows(project: Project, terrain: str | None) -> list[QaCheck]:
+    """The terrain class of the block's DEM (``aerotri.qa.terrain_class``) beside the table's (a Chinese table's
+    limits are per terrain class): failed when the table's class is looser than the DEM's slope gives (a flat block
+    held to the mountainous limits), said otherwise. None without a DEM or a terrain class."""
+    from aerotri.qa.terrain_class import TERRAIN_ORDER, dem_terrain
+
+    if terrain not in TERRAIN_ORDER or not project.dem_path.is_file():
+        return []
+    got = dem_terrain(project.dem_path)
+    if got is None:
+        return []
+    sec, name = "Tolerance table", "terrain class of the DEM"
+    if TERRAIN_ORDER[terrain] > TERRAIN_ORDER[got.terrain]:
+        return [_failed("terrain_class_dem", sec, name, f"{got.text()}; the limits are the {terrain} class's, looser "
+                                                         f"than the terrain's: set [qa] terrain = \"{got.terrain}\"")]
+    if terrain != got.terrain:
+        # trial-relief F4: a block with 420 m of relief (median slope 23 deg) held to the flat limits, no word
+        log.warning(f"{project.dem_path}: {got.text()}, the tolerance table's is {terrain}: the limits are tighter "
+                    f"than the terrain's class; [qa] terrain in project.toml, or --terrain")
+    note = got.text() + ("" if terrain == got.terrain else f"; the table's class is {terrain} (tighter limits)")
+    return [_check("terrain_class_dem", sec, name, got.terrain, None, "", note=note + "; not judged")]
+
+
 def _footprint_terrain(project: Project):
     """The terrain the flight acceptance puts the footprints on when the adjustment did not: the DEM the
     frame orthos were made on (``at/dem.tif`` of a block without LiDAR) or the adjustment's surface-control
@@ -765,6 +788,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     hc = read_height_check(project.height_check_path) if project.height_check_path.is_file() else None
     ce = read_filter_test(project.classification_eval_path) if project.classification_eval_path.exists() else None
     rows, strips = strip_rows(project, tol)
+    rows += _terrain_rows(project, terrain)
     # an NVA limit (ASPRS 2023, the USGS LBS) judges the open ground only; a map-scale or user's table every point
     nva = bool(getattr(table.provenance.get("dem_rmse_m"), "nva", False))
 
@@ -874,6 +898,15 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             rows.append(_check("sigma0_px", sec, "sigma naught", s0_px, _sigma0_limit_px(tol, ks, s0_px),
                                "px", digits=3, note=f"{ks.sigma0_um:.2f} um" if ks.sigma0_um is not None else "",
                                key="sigma0_max_px" if tol.get("sigma0_max_px") is not None else "sigma0_max_um"))
+    if at and at.frames_left_out:
+        # trial-relief F2: half a block left out (a split block, frames over the sea) stood only in the solution's
+        # note; the DOM's "seen by no frame" share is of the oriented frames' extent and missed it
+        left = at.frames_left_out
+        n_all = int(at.counts.get("images") or 0) + len(left)
+        why = "; ".join(dict.fromkeys(r for _, r in left))
+        rows.append(_check("frames_not_oriented", sec, "frames the adjustment left out", len(left), 0, "",
+                           note=f"{', '.join(k for k, _ in left[:10])}{' ...' if len(left) > 10 else ''} "
+                                f"({len(left)} of {n_all}): {why}; no orientation, ortho or DOM cover for them"))
     # by content against the inputs at/report.json records (a copy of the project, new file times, is the same
     # adjustment: trial-gis F9); a report written before that record: by time
     changed, by_content = inputs_changed(project, _with_stamp_inputs(project, at)) if at else ([], False)
@@ -1060,6 +1093,9 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     # Flight acceptance: from the adjustment's report when it has the section, else computed here (before
     # the adjustment: GNSS positions with the nominal attitude)
     fa = at.flight_acceptance if at else None
+    if fa and at.frames_left_out and not {k for k, _ in at.frames_left_out} <= {f.get("image_id") for f in
+                                                                                fa.get("frames") or ()}:
+        fa = None  # written before the left-out frames were in it (trial-relief F1): computed here, with them
     if fa is None and (project.eo_path.is_file() or project.gnss_path.is_file()) and project.camera_path.is_file():
         got = project_flight_acceptance(root, tol, terrain=_footprint_terrain(project))
         fa = dataclasses.asdict(got) if got is not None else None

@@ -348,6 +348,12 @@ def test_common_height_shift_names_the_focal_length_only_when_the_plan_shows_it(
     estimated = dataclasses.replace(ba, opts=dataclasses.replace(ba.opts, self_calibration=("focal",)))
     note = report.common_height_shift_note(estimated, gcc, ("check", 0.625, 0.35))
     assert "lever arm" in note and "too long" not in note and "likely" not in note and "not the focal length, which is estimated" in note
+    # trial-relief F5: with a DEM as surface control its height datum is a cause too (a DEM 30 m off was blamed on
+    # the GNSS alone); without one it is not named
+    assert "DEM" not in report.common_height_shift_note(ba, gcc, ("check", 0.2, 0.35))
+    on_dem = dataclasses.replace(ba, settings=dataclasses.replace(ba.settings, dem=tmp_path / "dem_egm.tif"))
+    assert "the DEM's heights (surface control, dem_egm.tif" in report.common_height_shift_note(on_dem, gcc,
+                                                                                               ("check", 0.2, 0.35))
 
 
 def test_dropped_tie_points_are_counted_by_reason():
