@@ -690,6 +690,32 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs, clou
                   "index": np.array([c.index for c in cs], bool)})
 
 
+def _outside_water(contours: Layer, water: list) -> Layer:
+    """The contour lines cut at the water polygons' outlines, their pieces inside left out: a map's contours stop at
+    the shore (the water's level is the water layer's ``water_z``). A DEM that is not hydro-flattened holds the
+    water returns' waves and the TIN across the voids (trial-relief F8: the demo's ponds, 186 contour lines, 3,070 m
+    of them more than 1 m inside the water at a 0.5 m interval). Each piece a line of its own, with its fields."""
+    import shapely
+
+    if not water or not contours.geometries:
+        return contours
+    lake = shapely.union_all(water)
+    shapely.prepare(lake)
+    geoms, rows = [], []
+    for k, line in enumerate(contours.geometries):
+        if not lake.intersects(line):
+            geoms.append(line)
+            rows.append(k)
+            continue
+        for piece in shapely.get_parts(shapely.line_merge(line.difference(lake))):
+            if piece.length > 0:
+                geoms.append(piece)
+                rows.append(k)
+    rows = np.array(rows, int)
+    return Layer(contours.name, contours.geometry_type, geoms,
+                 {name: np.asarray(v)[rows] for name, v in contours.fields.items()})
+
+
 def _scale_geoms(geoms: list, f: float) -> list:
     import shapely
 
@@ -800,7 +826,8 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     if contours is not None:
         layers.append(_read_contours(Path(contours), pts.crs, units.z_m))
     elif dem is not None:
-        layers.append(_dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts.crs, units.z_m))
+        traced = _dem_contours(Path(dem), Path(out_path), p.contour_interval_m, pts.crs, units.z_m)
+        layers.append(_outside_water(traced, _scale_geoms(wpolys, f_xy)))
     counts = VectorCounts(buildings=len(polys), roof_spacing_m=bstats.get("point_spacing_m"), roads=len(rpolys),
                           road_centrelines=len(lines), water=len(wpolys), spot_heights=len(sz),
                           contours=len(layers[-1].geometries) if len(layers) == 6 else None,

@@ -773,3 +773,26 @@ def test_a_reference_beyond_the_data_is_left_out_by_the_coverage_layer(made, tmp
     assert b["pct_reference_outside_coverage"] == pytest.approx(100 * 600 / (600 + inside), rel=1e-6)
     assert b["completeness_pct"] > 95 and b["reference_area_m2"] == pytest.approx(inside, rel=0.01)
     assert "600 m2 of the reference's buildings" in r.output and "not counted as missed" in r.output
+
+
+def test_contours_traced_from_the_dem_stop_at_the_water():
+    """trial-relief F8: contours of a DEM that is not hydro-flattened ran through the ponds (the water returns' waves
+    and the TIN across the voids: 3,099 m of contour more than 1 m inside the trial's ponds at 0.5 m, 181 m after,
+    in ponds the water layer does not map). A line crossing a lake is cut at its shore into the pieces outside, each
+    with the line's fields; a line off the water is kept as it is."""
+    import shapely
+
+    from lidarctl.vectors.layers import Layer, _outside_water
+
+    lake = shapely.box(10, 10, 20, 20)
+    across = shapely.LineString([(0, 15), (30, 15)])
+    inside = shapely.LineString([(12, 12), (18, 12)])
+    off = shapely.LineString([(0, 0), (5, 5)])
+    layer = Layer("contours", "LineString", [across, inside, off],
+                  {"elevation": np.array([1.0, 2.0, 3.0]), "index": np.array([True, False, False])})
+    out = _outside_water(layer, [lake])
+    assert [g.geom_type for g in out.geometries] == ["LineString"] * 3
+    assert sorted(round(g.length, 6) for g in out.geometries) == sorted([10.0, 10.0, round(off.length, 6)])
+    assert out.fields["elevation"].tolist() == [1.0, 1.0, 3.0] and out.fields["index"].tolist() == [True, True, False]
+    assert not any(g.intersects(shapely.box(10.001, 10.001, 19.999, 19.999)) for g in out.geometries)
+    assert _outside_water(layer, []) is layer
