@@ -180,7 +180,8 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
 
 def _left_out_by_adjustment(project: Project) -> dict:
     """Frame id -> reason, for the frames the project's adjustment left out (``at/report.json``
-    components.left_out): parts of the block that no tie point connects and that have no datum."""
+    components.left_out): parts of the block that no tie point connects and that have no datum, and frames with
+    no measurement or fewer than 3."""
     path = project.adjustment_report_path
     if not path.is_file():
         return {}

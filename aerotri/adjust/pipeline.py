@@ -499,12 +499,7 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints, already_left: fr
             for lo in left:
                 log.warning(f"{tie_path}: {_images(len(lo.image_ids))} no tie point connects to the rest left out "
                             f"({', '.join(lo.image_ids[:8])}{' ...' if len(lo.image_ids) > 8 else ''}): {lo.reason}")
-            drop = [k for lo in left for k in lo.image_ids]
-            kept = dataclasses.replace(inp, ties=inp.ties.subset(~_is_in(inp.ties.image_id, drop)),
-                                       control_obs=inp.control_obs.subset(~_is_in(inp.control_obs.image_id, drop)))
-            ob = _observations(kept, ctrl_used.subset(np.isin(ctrl_used.id, kept.control_obs.point_id)),
-                               already_left | frozenset(drop))
-            return dataclasses.replace(ob, left_out=left + ob.left_out)
+            return _observations_without(inp, ctrl_used, left, already_left)
         log.warning(f"{tie_path}: the block falls apart into {len(comps)} components that no tie point connects; "
                     "each has a datum of its own and is adjusted")
     rays = np.bincount(obs_point, minlength=len(point_id))
@@ -525,14 +520,20 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints, already_left: fr
         # control); it is left out, named, and the rest adjusted
         weak = LeftOutComponent(few_ids, f"fewer than the 3 measurements that orient an image ({counts})")
         log.warning(f"{tie_path}: {_images(len(few_ids))} left out: {weak.reason}")
-        drop = set(few_ids)
-        kept = dataclasses.replace(inp, ties=inp.ties.subset(~_is_in(inp.ties.image_id, list(drop))),
-                                   control_obs=inp.control_obs.subset(~_is_in(inp.control_obs.image_id, list(drop))))
-        ob = _observations(kept, ctrl_used.subset(np.isin(ctrl_used.id, kept.control_obs.point_id)),
-                           already_left | frozenset(drop))
-        return dataclasses.replace(ob, left_out=[weak] + ob.left_out)
+        return _observations_without(inp, ctrl_used, [weak], already_left)
     return _Observations(image_ids, order, point_id, ctrl_pos, obs_point, obs_image, obs_xy, len(tie_ids),
                          components=len(comps))
+
+
+def _observations_without(inp: ProjectInputs, ctrl_used: ControlPoints, left: list, already_left: frozenset
+                          ) -> _Observations:
+    """``_observations`` of the block without the images of ``left`` (LeftOutComponent), which lead its left_out."""
+    drop = [k for lo in left for k in lo.image_ids]
+    kept = dataclasses.replace(inp, ties=inp.ties.subset(~_is_in(inp.ties.image_id, drop)),
+                               control_obs=inp.control_obs.subset(~_is_in(inp.control_obs.image_id, drop)))
+    ob = _observations(kept, ctrl_used.subset(np.isin(ctrl_used.id, kept.control_obs.point_id)),
+                       already_left | frozenset(drop))
+    return dataclasses.replace(ob, left_out=list(left) + ob.left_out)
 
 
 def _control_priors(frame: LocalFrame, ctrl_used: ControlPoints):
