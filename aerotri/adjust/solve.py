@@ -40,6 +40,7 @@ log = logging.getLogger(__name__)
 # on to the snooping with the new gate, and the final solve gates again. Before, a single point at the gate's edge
 # kept the rounds going to ``max_rounds``; the effect on the outputs (demo: 0.004 sigma) in docs/performance.md.
 GATE_CHANGE_SHARE = 0.01
+OFF_DEM_SHARE = 0.2  # of the tie points outside the DEM: warned (the demo 0.1 %, trial-relief F6 37 %)
 UPDATE_SIGMA_FRACTION = 0.1
 
 
@@ -175,6 +176,13 @@ def _adjust_block(
         surface_candidates = block.surface.candidates(state.points)
         block.surface_active = surface_candidates.copy()
         log.info(f"surface control: {int(surface_candidates.sum())} of {block.n_points} points are candidates")
+        off = int(block.surface.off_dem(state.points).sum())
+        if off > OFF_DEM_SHARE * block.n_points and surface_candidates.any():
+            # trial-relief F6: a DEM over 63 % of the tie points; the solve then failed with a message about the
+            # self-calibration and the GNSS, nothing about the DEM
+            log.warning(f"surface control: {off} of {block.n_points} tie points ({100 * off / block.n_points:.0f} %) "
+                        "lie outside the DEM or on its nodata: the DEM covers part of the block, whose other heights "
+                        "rest on GNSS and control alone (a DEM cropped, or of another area?)")
         if not surface_candidates.any():  # (review 52: a DEM beside the block read "Solution Successful", unsaid)
             log.warning("surface control: no tie point of the block lies on the surface given (its extent, its nodata "
                         "and the nDSM leave none): the block is adjusted without it")

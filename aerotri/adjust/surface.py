@@ -492,6 +492,11 @@ class SurfaceControl:
         self.face = self.planes.face_of(m[:, 0], m[:, 1])
         return ok | (self.face >= 0)
 
+    def off_dem(self, coords_local: np.ndarray) -> np.ndarray:
+        """Points outside the DEM or on its nodata (bool per point)."""
+        m, _ = self._map(np.asarray(coords_local, dtype=float), jacobian=False)
+        return ~np.isfinite(self.dem.sample(m[:, 0], m[:, 1])[0])
+
     def point_class(self, n_points: int) -> np.ndarray:
         """0 ground (DEM), 1 roof plane, per point of the block (as ``candidates`` decided)."""
         if self.face is None or len(self.face) != n_points:

@@ -439,3 +439,22 @@ def test_a_dem_that_does_not_reach_the_block_is_refused_naming_both_extents(tmp_
                                          r"620200\.0, y 3379700\.0 \.\. 3380000\.0"):
         surface.read_height_grid(path, parse_crs("EPSG:32649", "crs"), bounds=(420000.0, 3370000.0, 421000.0,
                                                                                   3371000.0))
+
+
+def test_points_off_the_dem_are_counted():
+    """trial-relief F6: a DEM over 63 % of the tie points made the solve fail with a message about the
+    self-calibration and the GNSS; ``off_dem`` counts the points outside it or on its nodata, and the solve warns
+    beyond ``OFF_DEM_SHARE`` of the block's points."""
+    from aerotri.adjust.solve import OFF_DEM_SHARE
+    from aerotri.adjust.surface import SurfaceControl
+    from aerotri.geom.local_frame import LocalFrame
+
+    frame = LocalFrame("EPSG:32631", (500_000.0, 5_700_000.0, 50.0))
+    z = np.full((50, 100), 50.0)
+    z[:, 80:] = np.nan  # nodata over the grid's east fifth
+    sc = SurfaceControl(HeightGrid(z, 499_900.0, 5_700_050.0, 2.0), frame)  # 200 x 100 m, 2 m cells
+    xy = np.array([[499_950.0, 5_700_000.0], [500_000.0, 5_700_000.0], [500_080.0, 5_700_000.0],  # on, on, nodata
+                   [500_500.0, 5_700_000.0]])  # beyond the grid
+    p = frame.to_local(np.column_stack([xy, np.full(4, 50.0)]))
+    assert sc.off_dem(p).tolist() == [False, False, True, True]
+    assert 0.05 <= OFF_DEM_SHARE <= 0.5
