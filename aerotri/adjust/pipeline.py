@@ -619,6 +619,15 @@ def _surface_control(project: Project, st: AdjustSettings, frame: LocalFrame, po
     bias_xy = bias_z = surface_bias_sigma(project, st, planes)
     if st.surface_bias_sigma_m is None and planes is not None:
         bias_xy, bias_z = planes.sigma_strip_xy_m, planes.sigma_strip_z_m
+    measured = measured_strip_sigma(project) if st.surface_bias_sigma_m is None and bias_z > 0 and not check else None
+    if measured is not None and measured[0] > MEASURED_STRIP_FACTOR * max(bias_xy, bias_z):
+        # trial-density F0: strips 0.6 m apart in height by the strip check, the sigmas computed for 0.03 m strip
+        # offsets: orientations 8-10 of their sigmas off, "Solution Successful"
+        log.warning(f"surface control: the LiDAR strip check ({measured[1]}) measured the strips' heights "
+                    f"{measured[2]:.3f} m RMS apart: their offsets are taken as {measured[0]:.3f} m (plan and height) "
+                    f"in the sigmas, not {max(bias_xy, bias_z):.3f} m; adjust the strips (lidarctl strips adjust) "
+                    "or state [adjust] surface_bias_sigma_m")
+        bias_xy = bias_z = measured[0]
     return SurfaceControl(dem, frame, sigma_m=float(st.surface_sigma_m), ndsm=ndsm, max_ndsm_m=float(st.max_ndsm_m),
                           planes=planes, map_unit_m=units, bias_sigma_xy_m=bias_xy, bias_sigma_z_m=bias_z,
                           bias_cell_m=float(st.surface_bias_cell_m) / units[0],
@@ -634,6 +643,33 @@ def surface_bias_sigma(project: Project, st: AdjustSettings, planes=None) -> flo
         return float(st.surface_bias_sigma_m)
     lidar_dem = st.dem is not None and Path(st.dem).resolve() == project.dem_path.resolve()
     return DEFAULT_SURFACE_BIAS_SIGMA_M if lidar_dem or planes is not None else 0.0
+
+
+# the strip check's offsets replace the stated ones beyond this factor: from 2 or 3 strips the estimate is rough
+# (strips offset by the stated 0.03 m measured 0.026-0.046 m on the demo and the trial-density blocks; 3 times the
+# sigma is reached by chance in 3 of 1,000 one-pair blocks), a factor 12 (the trial's 0.375 m) is no chance
+MEASURED_STRIP_FACTOR = 3.0
+
+
+def measured_strip_sigma(project: Project) -> tuple[float, str, float] | None:
+    """(sigma of one strip's height offset (m), the file, RMS of the strip pairs' mean height differences (m)) from
+    the project's LiDAR strip check (after the strip adjustment when there is one): two strips with independent
+    offsets of sigma s differ by s sqrt(2). None without a check or a pair it compared."""
+    import json
+
+    for path in (project.strips_check_after_path, project.strips_check_path):
+        if not path.is_file():
+            continue
+        try:
+            pairs = json.loads(path.read_text()).get("pairs") or []
+            means = np.array([float(q["mean_m"]) for q in pairs if q.get("n_cells") and q.get("mean_m") is not None])
+        except (OSError, ValueError, TypeError, KeyError, AttributeError):
+            return None  # not a strip check this adjustment can read: the defaults stand
+        if not len(means) or not np.isfinite(means).all():
+            return None
+        rms = float(np.sqrt(np.mean(means**2)))
+        return rms / np.sqrt(2.0), str(path.relative_to(project.root)), rms
+    return None
 
 
 def _lidar_control(project: Project, control: ControlPoints) -> np.ndarray:

@@ -68,7 +68,7 @@ from lidarctl.corners.roof_outline import (
     reweight_observations,
     trace_rings,
 )
-from lidarctl.corners.roof_segments import cluster_roofs, point_spacing_m, segment_planes
+from lidarctl.corners.roof_segments import cluster_roofs, effective_spacing_m, point_spacing_m, segment_planes
 from lidarctl.units import LengthUnits
 from aerotri.core.log import track
 from aerotri.core.figures import pyplot, save_png
@@ -424,6 +424,7 @@ def _roof_clusters(x, y, z, classification, point_source_id, *, spacing_m: float
     if spacing_m is None:
         spacing = point_spacing_m(xyz[bldg_idx, :2])
         spacing = point_spacing_m(xyz[bldg_idx, :2], cell_m=max(2.0, 2.0 * spacing))
+        spacing = effective_spacing_m(xyz[bldg_idx, :2], spacing)
     else:
         spacing = spacing_m
     if min_edge_m is None:
@@ -951,6 +952,9 @@ def _tile_points(tc: _TiledCloud, tid: int) -> np.ndarray:
     return rec
 
 
+SCAN_GAP_POINTS = 2_000_000  # building points of one strip the tiled path measures the scan-line gap on
+
+
 def _global_spacing_m(tc: _TiledCloud, chunk_points: int = las_io.CHUNK_POINTS) -> float:
     """``point_spacing_m`` of all building points (as ``_roof_clusters`` computes it), from the
     building points' integer (x, y) the binning kept aside (read by chunks, not the tiles again): occupied
@@ -973,7 +977,17 @@ def _global_spacing_m(tc: _TiledCloud, chunk_points: int = las_io.CHUNK_POINTS) 
     if tc.n_building < 2:
         return float("nan")
     s = spacing(2.0)
-    return spacing(max(2.0, 2.0 * s))
+    s = spacing(max(2.0, 2.0 * s))
+    # the gap between scan lines from the first chunk of building points of a strip (its points in file order lie
+    # together; a strip alone has the gaps that roofs outside the strips' overlaps have)
+    for k in range(len(tc.file_base)):
+        path = tc.work / _BUILDING_XY.format(k)
+        if path.exists():
+            XY = np.fromfile(path, np.int32, count=2 * min(chunk_points, SCAN_GAP_POINTS)).reshape(-1, 2)
+            if len(XY) >= 5:
+                xy = np.column_stack([_metres(tc, XY[:, 0], k, 0), _metres(tc, XY[:, 1], k, 1)])
+                return effective_spacing_m(xy, s)
+    return s
 
 
 def _tile_clusters(tc: _TiledCloud, tid: int, spacing_m: float, min_edge_m: float):

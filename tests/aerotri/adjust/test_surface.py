@@ -458,3 +458,32 @@ def test_points_off_the_dem_are_counted():
     p = frame.to_local(np.column_stack([xy, np.full(4, 50.0)]))
     assert sc.off_dem(p).tolist() == [False, False, True, True]
     assert 0.05 <= OFF_DEM_SHARE <= 0.5
+
+
+def test_the_strip_checks_offsets_size_the_surface_bias(tmp_path):
+    """trial-density F0: strips 0.6 m apart in height by the chain's strip check, the orientations' sigmas computed
+    for 0.03 m strip offsets (8-10 times too small, "Solution Successful"). ``measured_strip_sigma``: one strip's
+    offset sigma from the pairs' mean differences (the check after the strip adjustment first)."""
+    import json
+
+    from aerotri.adjust.pipeline import MEASURED_STRIP_FACTOR, measured_strip_sigma
+    from aerotri.core.project import Project
+
+    root = tmp_path / "p"
+    (root / "lidar_out" / "strips").mkdir(parents=True)
+    (root / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:32649"\n')
+    project = Project.open(root)
+    assert measured_strip_sigma(project) is None
+    pairs = [{"a": "s1", "b": "s2", "n_cells": 9409, "mean_m": 0.599}, {"a": "s2", "b": "s3", "n_cells": 6090,
+                                                                        "mean_m": -0.452},
+             {"a": "s1", "b": "s3", "n_cells": 0, "mean_m": None}]
+    project.strips_check_path.write_text(json.dumps({"pairs": pairs}))
+    sigma, source, rms = measured_strip_sigma(project)
+    assert rms == pytest.approx(np.sqrt((0.599**2 + 0.452**2) / 2)) and sigma == pytest.approx(rms / np.sqrt(2))
+    assert source == "lidar_out/strips/strips.json" and sigma > MEASURED_STRIP_FACTOR * 0.03
+    # after a strip adjustment its check is the one that counts
+    project.strips_check_after_path.parent.mkdir(parents=True)
+    project.strips_check_after_path.write_text(json.dumps({"pairs": [{"n_cells": 10, "mean_m": 0.02}]}))
+    assert measured_strip_sigma(project)[0] == pytest.approx(0.02 / np.sqrt(2))
+    project.strips_check_after_path.write_text("{not json")
+    assert measured_strip_sigma(project) is None
