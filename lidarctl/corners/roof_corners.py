@@ -139,8 +139,10 @@ MARGIN_CELL_M = 2.0
 SCHEMA_VERSION = 1  # corners.json: the layout of ``CornerControlResult.to_json``
 # The version of the roof-corner extraction (segments, outlines, corners, their scores and sigmas): the chain's
 # corners stamp holds it, so corners extracted by earlier rules are extracted again. Bump it when the corners (or
-# roof planes) found at the same settings change. 1: s10-fixes (the algorithm as of main e4b26d8e).
-CORNERS_VERSION = 1
+# roof planes) found at the same settings change. 1: s10-fixes (the algorithm as of main e4b26d8e). 2: the roof work
+# scaled by the gap between scan lines in clouds that have one (trial-density F1; clouds of evenly spread points
+# give the same corners).
+CORNERS_VERSION = 2
 
 
 @dataclasses.dataclass(frozen=True)
