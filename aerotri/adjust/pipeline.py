@@ -653,23 +653,23 @@ MEASURED_STRIP_FACTOR = 3.0
 
 def measured_strip_sigma(project: Project) -> tuple[float, str, float] | None:
     """(sigma of one strip's height offset (m), the file, RMS of the strip pairs' mean height differences (m)) from
-    the project's LiDAR strip check (after the strip adjustment when there is one): two strips with independent
-    offsets of sigma s differ by s sqrt(2). None without a check or a pair it compared."""
+    the project's LiDAR strip check (``Project.strips_check_used_path``: after the strip adjustment when there is
+    one): two strips with independent offsets of sigma s differ by s sqrt(2). None without a check or a pair it
+    compared. (strips.json read as JSON here: the adjustment's layer does not reach lidarctl's reader.)"""
     import json
 
-    for path in (project.strips_check_after_path, project.strips_check_path):
-        if not path.is_file():
-            continue
-        try:
-            pairs = json.loads(path.read_text()).get("pairs") or []
-            means = np.array([float(q["mean_m"]) for q in pairs if q.get("n_cells") and q.get("mean_m") is not None])
-        except (OSError, ValueError, TypeError, KeyError, AttributeError):
-            return None  # not a strip check this adjustment can read: the defaults stand
-        if not len(means) or not np.isfinite(means).all():
-            return None
-        rms = float(np.sqrt(np.mean(means**2)))
-        return rms / np.sqrt(2.0), str(path.relative_to(project.root)), rms
-    return None
+    path = project.strips_check_used_path
+    if not path.is_file():
+        return None
+    try:
+        pairs = json.loads(path.read_text()).get("pairs") or []
+        means = np.array([float(q["mean_m"]) for q in pairs if q.get("n_cells") and q.get("mean_m") is not None])
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return None  # not a strip check this adjustment can read: the defaults stand
+    if not len(means) or not np.isfinite(means).all():
+        return None
+    rms = float(np.sqrt(np.mean(means**2)))
+    return rms / np.sqrt(2.0), str(path.relative_to(project.root)), rms
 
 
 def _lidar_control(project: Project, control: ControlPoints) -> np.ndarray:

@@ -310,6 +310,11 @@ class Project:
     strips_adjust_path = property(lambda self: self.strips_dir / "adjust.json")
     strips_check_after_path = property(lambda self: self.strips_dir / "check_after" / "strips.json")
 
+    @property
+    def strips_check_used_path(self) -> Path:
+        """The strip check of the strips the LiDAR stages use: after the strip adjustment when there is one."""
+        return self.strips_check_after_path if self.strips_adjust_path.is_file() else self.strips_check_path
+
     def adjusted_strips(self) -> list[Path]:
         """The corrected copies of ``lidar_strips()`` a strip adjustment writes (same file names)."""
         return [self.strips_dir / p.name for p in self.lidar_strips()]

@@ -541,7 +541,7 @@ def project_figures(project: Project, density: bool = True) -> Figures:
     qa = project.qa
     at = _json(project.adjustment_report_path)
     adjusted = project.strips_adjust_path.is_file()
-    strips = _json(project.strips_check_after_path if adjusted else project.strips_check_path)
+    strips = _json(project.strips_check_used_path)
     lidar = lidar_figures(_json(project.height_check_path), strips,
                           lidar_density(project) if density else (None, "not measured: no density row"), qa,
                           " (after the strip adjustment)" if adjusted else "")

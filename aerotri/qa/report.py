@@ -626,7 +626,7 @@ def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]
     from lidarctl.strips.check import nothing_compared, read_strip_check
 
     adjusted = project.strips_adjust_path.is_file()
-    path = project.strips_check_after_path if adjusted else project.strips_check_path
+    path = project.strips_check_used_path
     if not path.is_file():
         return [], None
     sec = "LiDAR strip consistency"

@@ -68,7 +68,8 @@ from lidarctl.corners.roof_outline import (
     reweight_observations,
     trace_rings,
 )
-from lidarctl.corners.roof_segments import cluster_roofs, effective_spacing_m, point_spacing_m, segment_planes
+from lidarctl.corners.roof_segments import (SCAN_GAP_POINTS, cluster_roofs, effective_spacing_m, point_spacing_m,
+                                            segment_planes)
 from lidarctl.units import LengthUnits
 from aerotri.core.log import track
 from aerotri.core.figures import pyplot, save_png
@@ -952,9 +953,6 @@ def _tile_points(tc: _TiledCloud, tid: int) -> np.ndarray:
     rec["file"], rec["cls"], rec["core"] = file, raw["cls"][order], np.concatenate(own)[order]
     rec["sid"] = tc.strip_sid[raw["strip"][order]]
     return rec
-
-
-SCAN_GAP_POINTS = 2_000_000  # building points of one strip the tiled path measures the scan-line gap on
 
 
 def _global_spacing_m(tc: _TiledCloud, chunk_points: int = las_io.CHUNK_POINTS) -> float:

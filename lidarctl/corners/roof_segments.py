@@ -35,19 +35,20 @@ def point_spacing_m(xy: np.ndarray, cell_m: float = 2.0) -> float:
 
 SCAN_GAP_SAMPLE = 5000  # points whose neighbourhoods measure the gap between scan lines
 SCAN_GAP_NEIGHBOURS = 40
+SCAN_GAP_POINTS = 2_000_000  # the first points (file order: one strip's, lying together) the gap is measured on
 
 
 def scan_line_gap_m(xy: np.ndarray, percentile: float = 90.0) -> float:
     """The gap a roof's points must be linked across to hold together (m): per point the distance to its nearest
-    neighbour in each of the four quadrants around it, the largest of the four, at ``percentile`` over a seeded
-    sample. A line scanner's points lie close along its scan lines and farther apart across them; the mean
-    spacing (``point_spacing_m``, from the density) is below the gap between lines when the pulse rate is high
-    for the scan rate (the trial's 13 points/m2: spacing 0.28 m, lines up to 0.74 m apart, and roofs linked over
-    2 spacings fell apart into pieces of scan lines). In two of the quadrants the nearest point lies across a line.
-    NaN for fewer than 5 points."""
+    neighbour in each of the four quadrants around it (of the map axes and of the axes turned 45 deg), the largest,
+    at ``percentile`` over a seeded sample of the first ``SCAN_GAP_POINTS`` points. A line scanner's points lie close
+    along its scan lines and farther apart across them; the mean spacing (``point_spacing_m``, from the density) is
+    below the gap between lines when the pulse rate is high for the scan rate (the trial's 13 points/m2: spacing
+    0.28 m, gap 0.85 m, and roofs linked over 2 spacings fell apart into pieces of scan lines). In two of the
+    quadrants the nearest point lies across a line. NaN for fewer than 5 points."""
     from scipy.spatial import cKDTree
 
-    xy = np.asarray(xy, float)
+    xy = np.asarray(xy, float)[:SCAN_GAP_POINTS]
     if len(xy) < 5:
         return float("nan")
     rng = np.random.default_rng(0)

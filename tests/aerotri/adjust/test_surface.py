@@ -483,6 +483,7 @@ def test_the_strip_checks_offsets_size_the_surface_bias(tmp_path):
     assert source == "lidar_out/strips/strips.json" and sigma > MEASURED_STRIP_FACTOR * 0.03
     # after a strip adjustment its check is the one that counts
     project.strips_check_after_path.parent.mkdir(parents=True)
+    project.strips_adjust_path.write_text("{}")
     project.strips_check_after_path.write_text(json.dumps({"pairs": [{"n_cells": 10, "mean_m": 0.02}]}))
     assert measured_strip_sigma(project)[0] == pytest.approx(0.02 / np.sqrt(2))
     project.strips_check_after_path.write_text("{not json")
