@@ -106,8 +106,64 @@ def _sample_bilinear(a, u, v):
             + a[i + 1, j + 1] * fu * fv)
 
 
+SKIP_BLOCK_CELLS = 8  # the march's block of surface cells whose highest point it may skip down to
+
+
+def _block_maxima(heights: np.ndarray, block: int = SKIP_BLOCK_CELLS) -> np.ndarray:
+    """(ceil(h / block), ceil(w / block)) the highest surface value that bilinear samples at positions inside each
+    block of cells can take (the block and 2 cells around it, as a bilinear sample reads the next cell); +inf for a
+    block with a NaN there (a march must sample it: NaN ends the ray)."""
+    from scipy.ndimage import maximum_filter
+
+    h, w = heights.shape
+    a = np.pad(np.where(np.isfinite(heights), heights, np.inf).astype(np.float64), ((2, 2 + block), (2, 2 + block)),
+               mode="edge")  # (the edge once more past the end: each block has its window's centre)
+    size = block + 4  # padded rows i * block .. i * block + block + 3: the window centred at i * block + size // 2
+    m = maximum_filter(a, size=size, mode="nearest")
+    return np.ascontiguousarray(m[size // 2::block, size // 2::block][:-(-h // block), :-(-w // block)])
+
+
+@numba.njit(cache=True, inline="always")
+def _skip_until(t, X, Y, d0, d1, d2, centre, inv_r, dem_x0, dem_y0, dem_res, h, w, maxima, block):
+    """The ray parameter below which the march's samples from ``t`` on cannot meet the surface nor leave its
+    block of cells (``_block_maxima``): its exit from the block and its descent to the block's highest point,
+    less a margin; ``t`` itself (no skip) off the raster, in a block with NaN or when the ray is at that height."""
+    u = (X - dem_x0) / dem_res - 0.5
+    v = (dem_y0 - Y) / dem_res - 0.5
+    if not (u >= 0 and v >= 0 and u <= w - 1 and v <= h - 1):
+        return t
+    bi = int(v) // block
+    bj = int(u) // block
+    top = maxima[bi, bj]
+    if not top < np.inf:
+        return t
+    t_end = np.inf  # leaving the block's cells (and the raster's sampled area)
+    du = d0 / dem_res
+    dv = -d1 / dem_res
+    if du > 0:
+        t_end = min(t_end, t + (min((bj + 1) * block, w - 1) - u) / du)
+    elif du < 0:
+        t_end = min(t_end, t + (bj * block - u) / du)
+    if dv > 0:
+        t_end = min(t_end, t + (min((bi + 1) * block, h - 1) - v) / dv)
+    elif dv < 0:
+        t_end = min(t_end, t + (bi * block - v) / dv)
+    # descent to the top: s d2 > earth_dz(s d0, s d1, top - cz) while A s^2 + d2 s + C > 0 (earth_dz linear in its
+    # height, minus the curvature's drop), its first root by the stable form
+    beta = top - centre[2]
+    gamma = 1.0 - beta * inv_r
+    C = -beta * gamma
+    if C <= 0:
+        return t
+    A = 0.5 * (d0 * d0 + d1 * d1) * inv_r * gamma
+    disc = d2 * d2 - 4.0 * A * C
+    t_top = np.inf if disc < 0 else 2.0 * C / (-d2 + math.sqrt(disc))
+    t_end = min(t_end, t_top)
+    return t_end - 1e-7 * abs(t_end) - 1e-9
+
+
 @numba.njit(parallel=True, cache=True)
-def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march, z_top):
+def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march, z_top, maxima, block):
     """The frame ``out`` (H, W, B) and its ``valid`` mask: each pixel's ray (camera ``pose`` (centre, Rcv: camera
     (cv) to object axes, the earth's 1 / radius: the ray is straight in (dx, dy, ``earth_dz``), see
     ``aerotri.geom.local_frame.CameraOnEarth``), ``cam``: ``Camera.kernel_params``, a NamedTuple: numba's parallel
@@ -117,6 +173,7 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
     ref, ref_x0, ref_y0, ref_res = reference
     dem, dem_x0, dem_y0, dem_res = surface
     centre, Rcv, inv_r = pose
+    dem_h, dem_w = dem.shape
     H, W, B = out.shape
     for r in numba.prange(H):
         for c in range(W):
@@ -137,9 +194,21 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
                 t = (z_top - centre[2]) / d2
                 t_prev = t
                 hit = False
-                for _ in range(200000):
+                n = 0
+                while n < 200000:
                     X = centre[0] + t * d0
                     Y = centre[1] + t * d1
+                    # the samples before t_skip are neither NaN nor under the surface: stepped over on the same
+                    # sequence of t as one by one, so that the frames are the same (a near-nadir ray took about 400
+                    # samples from the top of the buildings down to the ground)
+                    t_skip = _skip_until(t, X, Y, d0, d1, d2, centre, inv_r, dem_x0, dem_y0, dem_res, dem_h, dem_w,
+                                         maxima, block)
+                    if t < t_skip:
+                        while n < 200000 and t < t_skip:
+                            t_prev = t
+                            t += step
+                            n += 1
+                        continue
                     zs = _sample_bilinear(dem, (X - dem_x0) / dem_res - 0.5, (dem_y0 - Y) / dem_res - 0.5)
                     if zs != zs:
                         break
@@ -148,6 +217,7 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
                         break
                     t_prev = t
                     t += step
+                    n += 1
                 if not hit:
                     continue
                 lo = t_prev
@@ -215,7 +285,8 @@ def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRa
     cam = camera.kernel_params()
     _render_kernel((ref, reference_grid.x_left_m, reference_grid.y_top_m, reference_grid.res_m),
                    (dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m), (C, Rcv, float(inv_r)), cam,
-                   out, valid, z_start=z0, march=bool(march), z_top=float(np.nanmax(dem.heights_m)) + 0.1)
+                   out, valid, z_start=z0, march=bool(march), z_top=float(np.nanmax(dem.heights_m)) + 0.1,
+                   maxima=_block_maxima(dem.heights_m) if march else np.zeros((1, 1)), block=SKIP_BLOCK_CELLS)
     return (out if reference.ndim == 3 else out[:, :, 0]), valid
 
 

@@ -56,12 +56,11 @@ def rotation_to_project(from_crs, project: Project, xyz_m, source: str, step_m: 
     step = np.full(3, float(step_m))
     if crs.is_geographic:  # degrees of latitude and longitude: about step_m on the ground
         step[:2] = step_m / 111_000.0
-    J = np.empty((len(xyz), 3, 3))
-    for k in range(3):
-        d = np.zeros(3)
-        d[k] = step[k]
-        J[:, :, k] = (to_project_crs(xyz + d, from_crs, project, source)
-                      - to_project_crs(xyz - d, from_crs, project, source)) / (2 * step[k])
+    # the six shifted copies through one operation (a transformer made once, not six times)
+    shifts = np.concatenate([np.diag(step), -np.diag(step)])            # +x +y +z -x -y -z
+    moved = to_project_crs((xyz[None] + shifts[:, None]).reshape(-1, 3), from_crs, project, source)
+    moved = moved.reshape(6, len(xyz), 3)
+    J = np.moveaxis((moved[:3] - moved[3:]) / (2 * step)[:, None, None], 0, -1)
     U, _, Vt = np.linalg.svd(J)
     return U @ Vt
 

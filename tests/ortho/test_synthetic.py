@@ -43,3 +43,35 @@ def test_tiny_truth_rectify_mosaic_check(tiny_project, tmp_path):
     # without an adjusted EO the stage says what is missing
     r = CliRunner().invoke(main, ["rectify", str(p), "--dem", str(p / "truth/dem.tif")])
     assert r.exit_code == 2 and "at/eo.txt" in r.output and "exterior orientation not found" in r.output
+
+
+def test_the_march_steps_over_cells_it_cannot_hit_and_renders_the_same_frame(monkeypatch):
+    """The renderer's march over a DSM (0.25 cell a step from the top of the buildings) steps over the samples of a
+    block of cells that the ray passes above its highest point (``_block_maxima``), on the same sequence of steps:
+    the same frame as sampling every step, over buildings, a NaN hole in the DSM and the earth's curvature (a tilted
+    camera in a UTM CRS)."""
+    from aerotri.geom.camera import BrownCamera
+    from aerotri.geom.rotation import rotation_matrix_opk
+    from ortho import synthetic as S
+    from ortho.dem import HeightRaster
+    from ortho.grid import OrthoGrid
+
+    e0, n0 = 452000.0, 3407000.0
+    dem = S.smooth_dem((e0, n0, e0 + 160.0, n0 + 120.0), 0.25, base_m=300.0, amplitude_m=6.0, wavelength_m=90.0)
+    dsm, boxes = S.add_box_buildings(HeightRaster(dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m), 8,
+                                     height_m=(8.0, 30.0), seed=3)
+    h = dsm.heights_m.copy()
+    h[200:230, 300:340] = np.nan
+    dsm = HeightRaster(h, dsm.x_left_m, dsm.y_top_m, dsm.res_m, None, "DSM with a hole")
+    grid = OrthoGrid(None, e0, n0 + 120.0, 0.2, 800, 600)
+    ortho = S.textured_orthophoto(grid.height, grid.width, 3, 5)
+    camera = BrownCamera(focal_mm=24.0, pixel_um=24.0, width=240, height=160, k1=-0.02, name="t")
+    R = rotation_matrix_opk(np.array([4.0]), np.array([-3.0]), np.array([20.0]))[0]
+    centre = [e0 + 80.0, n0 + 60.0, 300.0 + 180.0]
+    stepped_over, mask = S.render_frame(ortho, grid, dsm, camera, centre, R, march=True, crs="EPSG:32649")
+    assert len(boxes) == 8 and mask.mean() > 0.9 and (~mask).any()  # the hole (and the edge) left out
+    monkeypatch.setattr(S, "_block_maxima", lambda heights, block=S.SKIP_BLOCK_CELLS: np.full(
+        (-(-heights.shape[0] // block), -(-heights.shape[1] // block)), np.inf))
+    every_step, mask_every = S.render_frame(ortho, grid, dsm, camera, centre, R, march=True, crs="EPSG:32649")
+    np.testing.assert_array_equal(stepped_over, every_step)
+    np.testing.assert_array_equal(mask, mask_every)

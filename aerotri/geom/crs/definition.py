@@ -147,6 +147,7 @@ def _crs_from_file(name: str, source: str) -> pyproj.CRS:
     return read_crs_file(name, source)[1]
 
 
+@functools.lru_cache(maxsize=256)  # PROJ's identification takes 10-50 ms; labels ask it again and again
 def epsg_code(crs: pyproj.CRS) -> int | None:
     """The EPSG code of ``crs`` when it is that code's CRS, else None: PROJ's identification at 90 % confidence, or
     a lower one (70 %: a PROJ string, "+proj=utm +zone=49 +datum=WGS84", whose datum is WGS 84 and not the WGS 84
