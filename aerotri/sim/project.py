@@ -272,7 +272,7 @@ def simulate(cfg: Preset, outdir, force: bool = False, on_phase=None) -> SimTrut
         done("truth_rasters", usage, megapixels=megapixels)
         with measure() as usage:
             _write_project_files(tmp, cfg, plan=plan, cam_true=cam_true, cam_nominal=cam_nominal, origin=origin,
-                                 epsg=epsg, gains=gains)
+                                 epsg=epsg, gains=gains, dem=tmp / "truth" / "dem.tif")
             corners = scene.roof_corners()
             _write_truth_corners(tmp / "truth", scene, corners, origin, epsg)
             write_footprints_gpkg(tmp / "truth" / "buildings.geojson", tmp / "truth" / "footprints.gpkg",
@@ -481,9 +481,15 @@ def _scan_lidar(tmp: Path, cfg: Preset, *, layout, scene, accel, origin, epsg: i
 
 
 def _write_project_files(tmp: Path, cfg: Preset, *, plan, cam_true, cam_nominal, origin, epsg: int, gains,
-                         chain: dict | None = None) -> None:
+                         chain: dict | None = None, dem: Path | None = None) -> None:
     """project.toml, camera.toml, gnss.txt and the flight truth (truth/eo.txt, camera.toml, gnss_truth.toml,
-    frames.csv). ``chain``: the stage sections of project.toml (default: the preset's ``[chain]``)."""
+    frames.csv). ``chain``: the stage sections of project.toml (default: the preset's ``[chain]``). ``[qa] terrain``
+    is the class of the truth terrain ``dem`` (GB/T 7930 by its median slope, ``aerotri.qa.terrain_class``), as
+    a contract over that ground would state it (a 421 m relief block was written "flat", trial-relief)."""
+    from aerotri.qa.terrain_class import dem_terrain
+
+    got = dem_terrain(dem) if dem is not None and Path(dem).is_file() else None
+    terrain = got.terrain if got is not None else "flat"
     g = cfg.gnss
     (tmp / "camera.toml").write_text(cam_nominal.to_toml())
     (tmp / "truth" / "camera.toml").write_text(cam_true.to_toml())
@@ -502,7 +508,7 @@ def _write_project_files(tmp: Path, cfg: Preset, *, plan, cam_true, cam_nominal,
         f"[flight]\n# from the flight plan: mean terrain height (m, ellipsoidal) and speed\n"
         f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg.flight.speed_mps}\n\n"
         f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
-        f'map_scale = "1:5000"\nterrain = "flat"\npdf = true\n'
+        f'map_scale = "1:5000"\nterrain = "{terrain}"\npdf = true\n'
         + stage_sections_toml(rendered_chain_table(cfg) if chain is None else chain)
     )
     (tmp / "truth" / "gnss_truth.toml").write_text(
@@ -842,9 +848,6 @@ def simulate_observations(cfg: Preset, outdir, force: bool = False, *, tie_sigma
              f"truth terrain at {terrain.terrain_res_m:.2f} m")
     with atomic_dir(outdir) as tmp, stage_block_cache(SIM_CACHE_BYTES):
         (tmp / "truth").mkdir(parents=True, exist_ok=True)
-        _write_project_files(tmp, cfg, plan=plan, cam_true=cam_true, cam_nominal=cam_nominal, origin=origin, epsg=epsg,
-                             gains=[1.0] * len(plan.image_id),
-                             chain=_observations_chain_table(cfg, cam_true, cam_nominal))
         res = terrain.terrain_res_m
         nx, ny = int(math.floor(layout.width_m / res)), int(math.floor(layout.height_m / res))
         xs = (np.arange(nx) + 0.5) * res
@@ -856,6 +859,9 @@ def simulate_observations(cfg: Preset, outdir, force: bool = False, *, tie_sigma
         _write_geotiff(tmp / "dem.tif", nx, ny, bands=1, dtype=np.float32,
                        transform=from_origin(origin[0], origin[1] + layout.height_m, res, res), epsg=epsg,
                        rows=dem_rows, nodata=-9999.0, compress=str(cfg.truth.compress))
+        _write_project_files(tmp, cfg, plan=plan, cam_true=cam_true, cam_nominal=cam_nominal, origin=origin, epsg=epsg,
+                             gains=[1.0] * len(plan.image_id),
+                             chain=_observations_chain_table(cfg, cam_true, cam_nominal), dem=tmp / "dem.tif")
         _write_flight_acceptance(tmp / "truth", cfg, plan, cam_true, origin, dem=tmp / "dem.tif")
         summary = write_truth_observations(tmp, tie_sigma_px=tie_sigma_px, n_control=n_control,
                                            blunder_fraction=blunder_fraction, bad_control_shift_m=bad_control_shift_m,

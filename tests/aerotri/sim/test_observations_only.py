@@ -138,3 +138,23 @@ def test_project_toml_has_the_adjust_settings_the_truth_needs(tmp_path):
     res = _sim(flat, "--preset", "tiny", "--set", "flight.frames_per_strip=4", "--set", "gnss.drift_sigma_m_per_s=0.0")
     assert res.exit_code == 0, res.output
     assert tomllib.loads((flat / "project.toml").read_text())["adjust"]["gnss_correction"] == "shift"
+
+
+def test_the_projects_terrain_class_is_that_of_its_terrain(demo_block, tmp_path):
+    """``[qa] terrain`` of a simulated project is the class of its truth terrain (a 421 m relief block was written
+    "flat", and its report then judged a mountain by the flat limits, trial-relief); the demo stays flat."""
+    import tomllib
+
+    from aerotri.qa.terrain_class import dem_terrain
+
+    out, _ = demo_block
+    assert tomllib.loads((out / "project.toml").read_text())["qa"]["terrain"] == "flat"
+    steep = tmp_path / "steep"
+    relief = ["scene.steep_band_m=400", "scene.steep_slope_deg=35", "scene.mountain_relief_m=30",
+              "scene.steep_start_frac=0.35", "flight.height_above_ground_m=900", "flight.strips=2",
+              "flight.frames_per_strip=5"]  # the trial's R1 block
+    res = _sim(steep, "--preset", "demo", *[a for s in relief for a in ("--set", s)])
+    assert res.exit_code == 0, res.output
+    got = dem_terrain(steep / "dem.tif")
+    assert got.terrain == "mountainous" and got.median_slope_deg > 6.0
+    assert tomllib.loads((steep / "project.toml").read_text())["qa"]["terrain"] == "mountainous"
