@@ -534,6 +534,11 @@ def long_table(what: str, headers: list[str], rows: list[list], nd: int = 3, sho
     return t if len(rows) <= shown else dataclasses.replace(t, folded=f"{len(rows) if count is None else count} {what}")
 
 
+def strip_label(strip: dict) -> str:
+    """A strip's number in the flight tables, "(cross)" after a cross strip (no side overlap of its own)."""
+    return f"{strip['strip']} (cross)" if strip.get("cross_strip") else str(strip["strip"])
+
+
 def strip_fails(fa: dict, strip: dict) -> list:
     """The flight limits a strip or any of its frames breaks (tolerance-table keys, in table order)."""
     from aerotri.adjust.flight_acceptance import LIMIT_KEYS
@@ -570,7 +575,7 @@ def flight_tables(fa: dict) -> FlightTables | None:
     strips = table(["strip", "frames", "first", "last", "length m", "curvature %", "height range m",
                     "mean Z m", "above ground m", "forward min %", "forward mean %", "side median %",
                     "max tilt deg", "max kappa deg", "failing"],
-                   [[s["strip"], s["frames"], s["first"], s["last"], s["length_m"], s["curvature_pct"],
+                   [[strip_label(s), s["frames"], s["first"], s["last"], s["length_m"], s["curvature_pct"],
                      s["height_range_m"], s["mean_z_m"], s["mean_height_above_ground_m"], s["forward_overlap_min_pct"],
                      s["forward_overlap_mean_pct"], s["side_overlap_median_pct"], s["max_tilt_deg"],
                      s["max_kappa_deviation_deg"], ", ".join(LIMIT_KEYS[k][0] for k in strip_fails(fa, s))]

@@ -1602,7 +1602,7 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
             _pdf_table(pdf, plt, "Flight acceptance per strip",
                        header=["strip", "frames", "first", "last", "curvature %", "height range m", "forward min %",
                         "side median %", "max tilt deg", "max kappa deg", "failing"],
-                       rows=[[s["strip"], s["frames"], s["first"], s["last"], s["curvature_pct"], s["height_range_m"],
+                       rows=[[RF.strip_label(s), s["frames"], s["first"], s["last"], s["curvature_pct"], s["height_range_m"],
                          s["forward_overlap_min_pct"], s["side_overlap_median_pct"], s["max_tilt_deg"],
                          s["max_kappa_deviation_deg"], ", ".join(LIMIT_KEYS[k][0] for k in RF.strip_fails(fa, s))]
                         for s in fa["strips"]], widths=[0.05, 0.05, 0.1, 0.1, 0.08, 0.08, 0.08, 0.08, 0.08, 0.08, 0.2])

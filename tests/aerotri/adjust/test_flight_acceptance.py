@@ -43,6 +43,29 @@ def test_known_block_overlaps_and_limits():
     assert not fa.failed  # 58.3 % forward, 36.3 % side: within 56 % and 13 %
 
 
+@pytest.mark.parametrize("cross_x_m", [-60.0, 80.0])
+def test_a_cross_strip_is_no_neighbour_across_track(cross_x_m):
+    """A cross strip (north-south over east-west strips, at the west end or through the middle) was sorted in among
+    the parallel strips: at the west end it got a side overlap of its own, 11.7 %, fail, and in the middle it stood
+    between two strips as their neighbour (53.9 % of a true 40.4 %, trial-ew). The parallel strips keep the side
+    overlaps of the block without it; the cross strip is marked and has none."""
+    ids, c, opk, strip = _block(strips=3)
+    plain = flight_acceptance(ids, c, opk, CAM, Terrain(0.0), strip)
+    cy = np.arange(-1, 5) * 40.0
+    ids_x = ids + [f"x_{i + 1:02d}" for i in range(len(cy))]
+    c_x = np.vstack([c, np.column_stack([np.full(len(cy), cross_x_m), cy, np.full(len(cy), 1000.0)])])
+    opk_x = np.vstack([opk, np.zeros((len(cy), 3))])
+    strip_x = np.concatenate([strip, np.full(len(cy), 4)])
+    fa = flight_acceptance(ids_x, c_x, opk_x, CAM, Terrain(0.0), strip_x)
+    got = {st["strip"]: st for st in fa.strips}
+    assert [got[k]["side_overlap_median_pct"] for k in (1, 2, 3)] == [st["side_overlap_median_pct"]
+                                                                       for st in plain.strips]
+    assert got[4]["cross_strip"] and got[4]["side_overlap_median_pct"] is None
+    assert not any(got[k]["cross_strip"] for k in (1, 2, 3))
+    assert not [ch for ch in fa.failed if ch["key"] == "flight_side_overlap_min_pct"]
+    assert all(f["side_overlap_pct"] is None for f in fa.frames if f["strip"] == 4)
+
+
 def test_violations_are_flagged_where_they_happen():
     ids, c, opk, strip = _block()
     opk[2, :2] = (2.0, 2.0)  # tilt acos(cos 2 cos 2) = 2.83 deg
