@@ -121,6 +121,13 @@ def test_optimistic_sigmas_are_a_weakness_of_the_verdict():
     msg = optimistic_sigmas(n * [1.0, 1.0, 2.5])
     assert msg.startswith("Sigmas too small: the 300 check points") and "beyond 1.5 in Z" in msg
     assert optimistic_sigmas(n[:4] * 5) is None  # too few check points to judge
+    # the tie points at their weights: the check points' own measurements named first, not the orientations (trial-ew)
+    for sigma0 in (1.02, 0.30):  # (0.30: the trial's tie points at 0.15 px against an a-priori 0.5)
+        msg = optimistic_sigmas(n * [1.0, 1.0, 2.5], sigma0=sigma0)
+        assert f"sigma0 {sigma0:.2f}" in msg and "check points' own image measurements" in msg
+        assert "precision of the orientations and points claims" not in msg
+    msg = optimistic_sigmas(n * [1.0, 1.0, 2.5], sigma0=1.6)  # the images do not agree with their weights either
+    assert "precision of the orientations and points claims" in msg
 
 
 def test_flight_direction_of_strips_east_west_and_north_south():
