@@ -116,9 +116,9 @@ class DirectionCheck:
 
     def not_separable(self) -> list[str]:
         """One sentence per pair flown one strip each way (not tested: the verdict is left alone)."""
-        return [f"strip {_strips(p.forward)} heading {p.forward.heading_deg:.0f} deg against strip "
-                f"{_strips(p.backward)} heading {p.backward.heading_deg:.0f} deg: a direction effect (time lag, lever "
-                f"arm) is not separable from the strips' own GNSS biases with one strip each way (not tested)"
+        return [f"strip {_strips(p.forward)} heading {heading_text(p.forward.heading_deg)} deg against strip "
+                f"{_strips(p.backward)} heading {heading_text(p.backward.heading_deg)} deg: a direction effect (time "
+                f"lag, lever arm) is not separable from the strips' own GNSS biases with one strip each way (not tested)"
                 for p in self.pairs if not p.separable]
 
     @property
@@ -132,8 +132,8 @@ class DirectionCheck:
             if not (p.along_significant or p.across_significant):
                 continue
             f, b = p.forward, p.backward
-            head = (f"GNSS residuals flip with the flight direction (strips {_strips(f)} heading {f.heading_deg:.0f} "
-                    f"deg against {_strips(b)} heading {b.heading_deg:.0f} deg)")
+            head = (f"GNSS residuals flip with the flight direction (strips {_strips(f)} heading "
+                    f"{heading_text(f.heading_deg)} deg against {_strips(b)} heading {heading_text(b.heading_deg)} deg)")
             parts = []
             if p.along_significant:
                 ahead = -p.along_turning_m / 2  # GNSS ahead of the adjusted antenna, in each direction's heading
@@ -161,8 +161,15 @@ def _strips(d: DirectionMean) -> str:
     return ", ".join(str(s) for s in d.strips)
 
 
+def heading_text(heading_deg: float) -> str:
+    """A heading in whole degrees, 0-359 (359.6 is "0", not "360")."""
+    return f"{round(heading_deg) % 360:d}"
+
+
 def _heading_deg(v) -> float:
-    return float(np.degrees(np.arctan2(v[0], v[1])) % 360.0)
+    """Heading of ``v`` (east, north) from north, clockwise, in [0, 360) at 0.1 deg (359.96 was kept as 360.0 and
+    shown as "360", trial-ew)."""
+    return round(float(np.degrees(np.arctan2(v[0], v[1])) % 360.0), 1) % 360.0
 
 
 def direction_check(block, state, speed_mps: float | None = None, alpha: float = DIRECTION_ALPHA,
@@ -217,7 +224,7 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
         a, c = v[idx, :2] @ h, v[idx, :2] @ right
         n, between = len(idx), strip_shift_sigma_m**2 / len(members)
         va, vc = float(a.var(ddof=1)) / n, float(c.var(ddof=1)) / n
-        return DirectionMean(round(_heading_deg(h), 1), tuple(m[0] + 1 for m in members), n, float(a.mean()),
+        return DirectionMean(_heading_deg(h), tuple(m[0] + 1 for m in members), n, float(a.mean()),
                              math.sqrt(va + between), float(c.mean()), math.sqrt(vc + between), va, vc,
                              tuple(float((v[m[1], :2] @ h).mean()) for m in members),
                              tuple(float((v[m[1], :2] @ right).mean()) for m in members))

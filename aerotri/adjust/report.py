@@ -1330,12 +1330,14 @@ def _directions_dict(c) -> dict | None:
 
 def directions_txt(g: dict | None) -> list[str]:
     """The report.txt lines of ``gnss_directions`` (also the html's paragraph)."""
+    from aerotri.adjust.gnss_direction import heading_text
+
     if not g:
         return []
     L = [f"GNSS residuals by flight direction (adjusted antenna - GNSS before the solve's corrections, m; along + "
          f"ahead, across + right of each direction's heading)"]
     for m in g["directions"]:
-        L.append(f"  heading {m['heading_deg']:5.0f} deg  strips {', '.join(str(s) for s in m['strips']):10} "
+        L.append(f"  heading {heading_text(m['heading_deg']):>5} deg  strips {', '.join(str(s) for s in m['strips']):10} "
                  f"{m['photos']:4d} photos  along {m['along_m']:+.3f} +- {m['along_se_m']:.3f}  across "
                  f"{m['across_m']:+.3f} +- {m['across_se_m']:.3f}")
     if not g["testable"]:

@@ -178,3 +178,11 @@ def test_a_pair_not_separable_is_not_counted_in_the_bonferroni_correction():
     ew, cross = c.pairs
     assert ew.separable and not cross.separable and ew.strip_dof == 4
     assert ew.k_along == pytest.approx(t_dist.isf(0.05 / 2 / 2, 4))
+
+
+def test_a_heading_just_west_of_north_is_0_not_360():
+    """trial-ew: a strip flown north (359.96 deg) was "heading 360 deg" in the GNSS direction table."""
+    from aerotri.adjust.gnss_direction import _heading_deg, heading_text
+
+    assert _heading_deg(np.array([-7e-4, 1.0])) == 0.0 and _heading_deg(np.array([1.0, 0.0])) == 90.0
+    assert [heading_text(h) for h in (359.6, 359.4, 0.2, 90.0)] == ["0", "359", "0", "90"]
