@@ -898,14 +898,16 @@ OPTIMISTIC_NORMALISED_RMS = 1.5  # check points off by more than this many of th
 OPTIMISTIC_ALPHA = 0.01  # and the chi-square test of their normalised errors fails at this level
 
 
-def optimistic_sigmas(normalised: np.ndarray, sigma0: float | None = None) -> str | None:
+def optimistic_sigmas(normalised: np.ndarray, sigma0: float | None = None, *, other_findings: bool = False
+                      ) -> str | None:
     """The verdict's finding when the check points' errors in their propagated sigmas (adjusted - measured over
     sqrt(sigma_adjusted^2 + sigma_given^2); (n, 3)) show the sigmas too small: a component whose RMS exceeds
     ``OPTIMISTIC_NORMALISED_RMS`` and whose sum of squares fails the chi-square test at ``OPTIMISTIC_ALPHA``
     (at least 5 check points); else None. With the adjustment's ``sigma0`` at most the top of ``SIGMA0_PLAUSIBLE`` the
-    tie points measure as their weights say or better, and the finding names the check points' own measurements first
-    (trial-ew: sigma0 0.30, roof-corner check points 1.5 sigmas off in Z, the orientations within theirs against the
-    truth, and the text blamed the orientations)."""
+    tie points measure as their weights say or better, and, unless the verdict has ``other_findings`` (a block that
+    took up a GNSS blunder in its principal point keeps a sigma0 of 0.8 with check points 9 m off), the finding names
+    the check points' own measurements first (trial-ew: sigma0 0.30, roof-corner check points 1.5 sigmas off in Z, the
+    orientations within theirs against the truth, and the text blamed the orientations)."""
     nz = np.asarray(normalised, dtype=float).reshape(-1, 3)
     if len(nz) < 5:
         return None
@@ -919,7 +921,7 @@ def optimistic_sigmas(normalised: np.ndarray, sigma0: float | None = None) -> st
     head = (f"Sigmas too small: the {len(nz)} check points are off by {' / '.join(f'{r:.2f}' for r in rms)} of their "
             f"propagated sigmas (RMS X / Y / Z; about 1 expected, beyond {OPTIMISTIC_NORMALISED_RMS:g} in "
             f"{', '.join(bad)}): ")
-    if sigma0 is not None and math.isfinite(sigma0) and sigma0 <= SIGMA0_PLAUSIBLE[1]:
+    if not other_findings and sigma0 is not None and math.isfinite(sigma0) and sigma0 <= SIGMA0_PLAUSIBLE[1]:
         return head + (f"the tie points measure as well as their weights say or better (sigma0 {sigma0:.2f}, which "
                        "scales every propagated sigma), so the check points' own image measurements (roof corners "
                        "transferred into the frames, targets measured by hand: the propagation gives them the tie "
@@ -1082,7 +1084,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     if beyond:
         weaknesses.append(f"Beyond the tolerances of this report, {tolerances}: "
                           + "; ".join(tolerance_text(b) for b in beyond) + ".")
-    optimistic = optimistic_sigmas(_check_rows(ba)[2], r.sigma0)
+    optimistic = optimistic_sigmas(_check_rows(ba)[2], r.sigma0, other_findings=bool(weaknesses))
     if optimistic:
         weaknesses.append(optimistic)
     # all the control thrown out: the datum is the GNSS's alone, whatever the control said (review 22: gnss.txt

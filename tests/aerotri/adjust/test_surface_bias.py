@@ -128,6 +128,9 @@ def test_optimistic_sigmas_are_a_weakness_of_the_verdict():
         assert "precision of the orientations and points claims" not in msg
     msg = optimistic_sigmas(n * [1.0, 1.0, 2.5], sigma0=1.6)  # the images do not agree with their weights either
     assert "precision of the orientations and points claims" in msg
+    # other findings in the verdict (GNSS shifts, tolerances): the block itself may be off, the general text
+    msg = optimistic_sigmas(n * [1.0, 1.0, 2.5], sigma0=0.8, other_findings=True)
+    assert "precision of the orientations and points claims" in msg
 
 
 def test_flight_direction_of_strips_east_west_and_north_south():
