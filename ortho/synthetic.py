@@ -262,14 +262,15 @@ def _render_kernel(reference, surface, pose, cam, out, valid, *, z_start, march,
 
 
 def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRaster, camera: Camera, centre_m, R,
-                 *, march: bool = False, crs=None):
+                 *, march: bool = False, crs=None, maxima: np.ndarray | None = None):
     """Render a frame (height, width, bands) uint8 and its validity mask from a ground-truth orthophoto.
 
     ``march``: intersect rays by marching (needed for a DSM with vertical walls); otherwise by
     fixed-point iteration on Z (smooth DEMs). The world is in ``crs`` (default the reference grid's; None: map
     coordinates taken as a Cartesian frame): the camera sees it through the ENU frame at its centre, as a camera
     over the earth does and ``ortho.rectify`` maps it (``aerotri.geom.local_frame.CameraOnEarth``), ``R`` referring
-    to the grid axes at the centre as eo.txt does.
+    to the grid axes at the centre as eo.txt does. ``maxima``: ``_block_maxima`` of ``dem`` when the caller renders
+    several frames on it (made here otherwise).
     """
     ref = np.ascontiguousarray(reference if reference.ndim == 3 else reference[:, :, None]).astype(np.float32)
     out = np.zeros((camera.height, camera.width, ref.shape[2]), np.uint8)
@@ -286,7 +287,8 @@ def render_frame(reference: np.ndarray, reference_grid: OrthoGrid, dem: HeightRa
     _render_kernel((ref, reference_grid.x_left_m, reference_grid.y_top_m, reference_grid.res_m),
                    (dem.heights_m, dem.x_left_m, dem.y_top_m, dem.res_m), (C, Rcv, float(inv_r)), cam,
                    out, valid, z_start=z0, march=bool(march), z_top=float(np.nanmax(dem.heights_m)) + 0.1,
-                   maxima=_block_maxima(dem.heights_m) if march else np.zeros((1, 1)), block=SKIP_BLOCK_CELLS)
+                   maxima=(_block_maxima(dem.heights_m) if maxima is None else maxima) if march else np.zeros((1, 1)),
+                   block=SKIP_BLOCK_CELLS)
     return (out if reference.ndim == 3 else out[:, :, 0]), valid
 
 
@@ -367,9 +369,10 @@ def write_synthetic_project(root, *, strips: int = 2, frames_per_strip: int = 3,
     # the camera at/eo.txt belongs to, as an adjustment writes it beside its orientations (the true one)
     write_text_atomic(root / "at" / "camera.toml", camera.to_toml())
     write_eo(root / "truth" / "eo.txt", eo)
+    maxima = _block_maxima(dsm.heights_m) if buildings else None  # one DSM for every frame
     for i, iid in enumerate(ids):
         img, _ = render_frame(ortho_truth, grid, dsm, camera, eo.centre_m[i], eo.rotation(i), march=bool(buildings),
-                              crs=crs)
+                              crs=crs, maxima=maxima)
         cv2.imwrite(str(root / "images" / f"{iid}.tif"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     for name, hr in (("lidar_out/dem.tif", dem), ("truth/dem.tif", dem), ("truth/dsm.tif", dsm)):
         write_geotiff(root / name, hr.heights_m, hr.x_left_m, hr.y_top_m, hr.res_m, crs)

@@ -481,15 +481,15 @@ def _scan_lidar(tmp: Path, cfg: Preset, *, layout, scene, accel, origin, epsg: i
 
 
 def _write_project_files(tmp: Path, cfg: Preset, *, plan, cam_true, cam_nominal, origin, epsg: int, gains,
-                         chain: dict | None = None, dem: Path | None = None) -> None:
+                         dem: Path, chain: dict | None = None) -> None:
     """project.toml, camera.toml, gnss.txt and the flight truth (truth/eo.txt, camera.toml, gnss_truth.toml,
     frames.csv). ``chain``: the stage sections of project.toml (default: the preset's ``[chain]``). ``[qa] terrain``
     is the class of the truth terrain ``dem`` (GB/T 7930 by its median slope, ``aerotri.qa.terrain_class``), as
     a contract over that ground would state it (a 421 m relief block was written "flat", trial-relief)."""
     from aerotri.qa.terrain_class import dem_terrain
 
-    got = dem_terrain(dem) if dem is not None and Path(dem).is_file() else None
-    terrain = got.terrain if got is not None else "flat"
+    got = dem_terrain(dem)
+    terrain = got.terrain if got is not None else "flat"  # (a DEM of fewer than 9 cells of 10 m)
     g = cfg.gnss
     (tmp / "camera.toml").write_text(cam_nominal.to_toml())
     (tmp / "truth" / "camera.toml").write_text(cam_true.to_toml())
