@@ -189,9 +189,12 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
     # adjusted antenna minus GNSS without the solve's shift/drift/offset: a per-strip shift would take the lag in
     v = np.asarray(antenna_positions(block, state), dtype=float) - g
     strip = np.asarray(block.strip, dtype=int)
+    # a position left out (off its flight line: an infinite sigma) is no evidence of a lag
+    sig = getattr(block, "gnss_sigma_m", None)
+    used = np.all(np.isfinite(sig), axis=1) if sig is not None else np.ones(len(g), dtype=bool)
     units, bases = [], []
     for s in np.unique(strip):
-        idx = np.flatnonzero(strip == s)
+        idx = np.flatnonzero((strip == s) & used)
         if len(idx) < 2:
             continue
         d = g[idx[-1], :2] - g[idx[0], :2]

@@ -38,7 +38,8 @@ def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m,
     ``sigma_m`` (N, 3) the positions' sigmas; ``offset_sigma_m`` (3,) or None the shifts' a-priori sigma;
     ``shift_m`` (S, 3) the estimated shifts (ENU, m); ``observed``: the solve has control points or a surface
     (DEM, roof planes), without which nothing but the GNSS positions themselves says where the block is."""
-    med = np.median(np.asarray(sigma_m, dtype=float), axis=0)
+    sigma_m = np.asarray(sigma_m, dtype=float)
+    med = np.median(sigma_m[np.isfinite(sigma_m).all(axis=1)], axis=0)  # of the positions observed
     weights = f"positions weighted with {med[0]:.3g} / {med[2]:.3g} m (plan / height; {source})"
     if correction == "none":
         return (f"GNSS: {weights}, independent between frames, no offset estimated: the datum is as good as these "

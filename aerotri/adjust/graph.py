@@ -102,6 +102,14 @@ class Block:
     def n_strips(self):
         return int(self.strip.max()) + 1 if len(self.strip) else 0
 
+    @property
+    def gnss_used(self) -> np.ndarray | None:
+        """(N,) the GNSS positions observed: a position left out (off its flight line) has an infinite sigma,
+        weight 0, and no factor."""
+        if self.gnss_sigma_m is None:
+            return None
+        return np.all(np.isfinite(self.gnss_sigma_m), axis=1)
+
 
 # the solve's GNSS models: the settings' corrections per strip, and one offset for the whole flight (a consumer
 # receiver's common error; chosen by project.toml [gnss] offset_sigma_xy_m, not by a correction setting)
@@ -418,17 +426,24 @@ def build_graph(block: Block, opts: SolveSettings, state: State, obs_active, con
     # GNSS
     lever_cv = FLIP_YZ @ block.lever_arm_m
     if block.gnss_local is not None:
-        n_eq += 3 * block.n_images
+        used = block.gnss_used
+        n_eq += 3 * int(used.sum())
         if opts.gnss_correction == "none":
-            for i in range(block.n_images):
+            for i in np.flatnonzero(used):
                 g.add(gtsam.GPSFactorArm(X(i), block.gnss_local[i], lever_cv, gtsam.noiseModel.Diagonal.Sigmas(block.gnss_sigma_m[i])))
         else:
             drift = opts.gnss_correction == "shift_drift"
             v.insert(L_KEY, lever_cv)
             g.add(gtsam.PriorFactorPoint3(L_KEY, lever_cv, gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
             n_shift, shift_of = n_shifts(block, opts.gnss_correction), shift_index(block, opts.gnss_correction)
+            observed = np.bincount(shift_of[used], minlength=n_shift) > 0
             for s in range(n_shift):
                 v.insert(S(s), np.asarray(state.shift[s], dtype=float))
+                if not observed[s]:  # every position of the strip left out: its shift (and drift) held at zero
+                    g.add(gtsam.PriorFactorPoint3(S(s), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+                    if drift:
+                        g.add(gtsam.PriorFactorPoint3(D(s), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+                    n_eq += 3 * (2 if drift else 1)
                 if drift:
                     v.insert(D(s), np.asarray(state.drift[s], dtype=float))
                 if block.gnss_offset_sigma_m is not None:  # the receiver's absolute accuracy bounds each shift
@@ -442,6 +457,8 @@ def build_graph(block: Block, opts: SolveSettings, state: State, obs_active, con
                 a = state.centre[i] + state.R_cv[i] @ lever_cv
                 v.insert(A(i), a)
                 g.add(gtsam.ReferenceFrameFactorPoint3Pose3(L_KEY, X(i), A(i), hard))
+                if not used[i]:
+                    continue
                 s, t = int(shift_of[i]), float(block.along_km[i])
                 lin = gtsam.Values()
                 lin.insert(A(i), a)

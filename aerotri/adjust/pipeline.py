@@ -43,7 +43,7 @@ from aerotri.adjust.determinability import check_groups, ground_observations
 from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record, record_inputs
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.variance_components import adjusted_gnss
-from aerotri.geom.strips import along_track_km, strips_from_track
+from aerotri.geom.strips import along_track_km, strips_from_track, track_blunders
 from aerotri.geom.camera import BrownCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.atomic import commit_outputs, committed
@@ -105,6 +105,7 @@ class BlockAdjustment:
     dem_checks: list = dataclasses.field(default_factory=list)  # dem_check.DemCheck: surface control DEM, check DEM
     check_from_lidar: int = 0  # check points that are corners of the project's LiDAR (share its strip offsets)
     control_rays_left_out: tuple = ()  # (point, frame, px): blunders by the image model alone (relative.ray_blunders)
+    gnss_left_out: tuple = ()  # GnssLeftOut: positions off their flight line, not observed (weight 0)
 
 
 def _settings_from_project(project: Project, s: AdjustSettings | None) -> AdjustSettings:
@@ -331,6 +332,7 @@ class PreparedBlock:
     gnss_sigma_source: str = ""  # where the GNSS positions' sigmas came from (gnss_model.sigma_source)
     control_rays_left_out: tuple = ()  # (point, frame, px): blunders by the image model alone (relative.ray_blunders)
     control_held_out: tuple = ()  # ids the datum's robust similarity left out: the adjustment's first rejected
+    gnss_left_out: tuple = ()  # GnssLeftOut: positions off their flight line, not observed (weight 0)
 
 
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
@@ -556,12 +558,14 @@ def _control_priors(frame: LocalFrame, ctrl_used: ControlPoints):
     return given_loc, np.array(cov_loc).reshape(-1, 3, 3), np.array(rows, dtype=int)
 
 
-def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image_ids: list) -> G.State:
+def _approximations(inp: ProjectInputs, frame: LocalFrame, block: G.Block, image_ids: list,
+                    start_gnss: np.ndarray | None = None) -> G.State:
     """Start values: GNSS centres + kappa from the strip direction (or the given EO), then alternating
     space resection and intersection refine the attitudes (GNSS, ``refine_approximations``); given EO
-    without GNSS: intersection only."""
+    without GNSS: intersection only. ``start_gnss``: the GNSS positions to start from (local, (N, 3)) where some
+    are left out (their track's prediction in their place); None: ``block.gnss_local``."""
     st, cam, eo0 = inp.settings, inp.camera, inp.initial_eo
-    gl, lever, strip = block.gnss_local, block.lever_arm_m, block.strip
+    gl, lever, strip = block.gnss_local if start_gnss is None else start_gnss, block.lever_arm_m, block.strip
     obs_point, obs_image, obs_xy = block.obs_point, block.obs_image, block.obs_xy_px
     cal0 = G.cal_from_camera(cam)
     if eo0 is not None:
@@ -703,14 +707,21 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         lo.position_map = inp.approx_position_map[[row_of[k] for k in lo.image_ids]]
     ctrl_used = ctrl_used.subset(np.isin(ctrl_used.id, list(ob.control_position)))  # without left-out parts'
     approx_pos_map = inp.approx_position_map[ob.order]
+    gnss = inp.gnss
+    gnss_left = _gnss_off_track(project, gnss, ob) if gnss is not None else ()
+    if gnss_left:  # the strips, the local frame and the start values from where the neighbours put those frames
+        approx_pos_map = approx_pos_map.copy()
+        approx_pos_map[[g.row for g in gnss_left]] = [g.predicted_m for g in gnss_left]
     frame = LocalFrame.at_centre(project.crs, approx_pos_map)
     strip = strips_from_track(approx_pos_map)
     along = along_track_km(frame.to_local(approx_pos_map), strip)
-    gnss = inp.gnss
     if gnss is not None:  # GNSS in the local frame; sigmas from gnss.txt or project.toml
         gl = frame.to_local(gnss.position_m[ob.order])
         gs = gnss.sigma_m[ob.order] if gnss.sigma_m is not None else \
             np.tile([inp.gnss_sigma_m[0]] * 2 + [inp.gnss_sigma_m[1]], (len(ob.order), 1))
+        if gnss_left:
+            gs = np.array(gs, dtype=float)
+            gs[[g.row for g in gnss_left]] = np.inf  # not observed: weight 0 (graph.Block.gnss_used)
     else:
         gl = gs = None
     given_loc, cov_loc, rows = _control_priors(frame, ctrl_used)
@@ -733,7 +744,11 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         image_sigma_px=float(st.image_sigma_px), gnss_correction=correction,
         self_calibration=tuple(st.self_calibration),
     )
-    state0 = _approximations(inp, frame, block, ob.image_ids)
+    start_gnss = None
+    if gnss_left:
+        start_gnss = gl.copy()
+        start_gnss[[g.row for g in gnss_left]] = frame.to_local(np.array([g.predicted_m for g in gnss_left]))
+    state0 = _approximations(inp, frame, block, ob.image_ids, start_gnss)
     notes = list(inp.datum_notes)
     model_z = {}
     height_m = inp.model_heights.heights_of(ctrl_used.id)
@@ -753,7 +768,7 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
         components=ob.components, left_out=ob.left_out, datum_notes=notes, level=level,
         check_surface=check_surface, control_rays_left_out=inp.control_rays_left_out,
-        control_held_out=inp.control_held_out,
+        control_held_out=inp.control_held_out, gnss_left_out=gnss_left,
         gnss_sigma_source=gnss_model.sigma_source(project, gnss.sigma_m is not None) if gnss is not None else "",
     )
     return prepared, state0
@@ -995,7 +1010,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
         left_out=p.left_out, datum_notes=list(p.datum_notes), heights_measured=p.level is None, dem_checks=dem_checks,
         check_from_lidar=int(_lidar_control(p.project, chk).sum()) if len(chk) else 0,
-        control_rays_left_out=p.control_rays_left_out,
+        control_rays_left_out=p.control_rays_left_out, gnss_left_out=p.gnss_left_out,
     )
 
 
@@ -1020,6 +1035,42 @@ def _warn_implausible_gnss_sigmas(path, gnss) -> None:
         log.warning(f"{path}: {int(big.sum())} of {len(big)} positions have a sigma above {GNSS_SIGMA_IMPLAUSIBLE_M:g} m "
                     f"(image {gnss.image_id[k]}: {' '.join(f'{v:g}' for v in gnss.sigma_m[k])} m): no GNSS accuracy; "
                     f"{hint} gnss.txt is image_id X Y Z [sX sY sZ]")
+
+
+@dataclasses.dataclass(frozen=True)
+class GnssLeftOut:
+    """A GNSS position off its flight line (``strips.track_blunders``): not observed in the adjustment."""
+
+    image_id: str
+    row: int  # in the block (flight order)
+    deviation_m: tuple  # observed - predicted from the neighbouring frames (map axes, the CRS's units)
+    predicted_m: tuple  # where the neighbouring frames put it (map)
+    tolerance_m: float
+
+    def text(self) -> str:
+        d = np.asarray(self.deviation_m)
+        return (f"{self.image_id} {float(np.linalg.norm(d)):.1f} m off (dX dY dZ "
+                f"{' '.join(f'{v:+.1f}' for v in d)}; tolerance {self.tolerance_m:.1f})")
+
+
+def _gnss_off_track(project: Project, gnss, ob) -> tuple:
+    """The GNSS positions off their flight line (``GnssLeftOut``), each named in a warning. A wrong fix or record
+    at the end of a strip is absorbed by a small block without a trace in the GNSS residuals (an 80 m slip of the
+    first of six frames: principal point 41.6 mm, check points 9 m off, residuals 0.02 m): the track is the only
+    redundancy such a position has. Left out (weight 0), the frame is placed by its tie points."""
+    pos = np.asarray(gnss.position_m[ob.order], dtype=float)
+    sig = gnss.sigma_m[ob.order] if gnss.sigma_m is not None else \
+        np.tile([project.gnss.sigma_xy_m] * 2 + [project.gnss.sigma_z_m], (len(pos), 1))
+    tb = track_blunders(pos, sig)
+    out = tuple(GnssLeftOut(str(ob.image_ids[i]), int(i), tuple(float(v) for v in d),
+                            tuple(float(v) for v in q), float(t))
+                for i, d, q, t in zip(tb.index.tolist(), tb.deviation_m, tb.predicted_m, tb.tolerance_m))
+    if out:
+        log.warning(f"{project.gnss_path}: {len(out)} of {len(pos)} positions off the flight line the neighbouring "
+                    f"frames draw, left out of the adjustment (the frames are placed by their tie points): "
+                    + "; ".join(g.text() for g in out[:6]) + ("; ..." if len(out) > 6 else "")
+                    + ". A wrong fix or a record of another frame? Check those records.")
+    return out
 
 
 def _dem_checks(p: PreparedBlock, result: AdjustmentResult) -> list:

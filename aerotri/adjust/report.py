@@ -197,6 +197,7 @@ def _photo_rows(ba, res: _Residuals) -> list[dict]:
                "along_km": _f(b.along_km[i], 4)}
         if ba.gnss_residual_m is not None:
             row["gnss_residual_m"] = _lst(ba.gnss_residual_m[i], 4)
+            row["gnss_left_out"] = not bool(b.gnss_used[i])  # off its flight line: weight 0
             # GNSS minus the adjusted antenna (local east, north, up, metres), beside the strip's correction (zero
             # when the solve corrects none): their difference is the photo's residual in metres
             c = corr[i] if corr is not None else np.zeros(3)
@@ -366,7 +367,9 @@ def _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, *, res_lim) -
         "max_ground_residual_m": (_lst(_max_abs(cres, axis=0), 4) + [_max_plan(cres)]) if len(cres) else None,
         "residual_limits_m": [None, None, _f(res_lim[2], 6), _f(res_lim[0], 6)],
         "mean_std_dev_object_m": _lst(mean_sd_obj, 4) + [xy(mean_sd_obj)],
-        "rms_photo_position_m": (_lst(_rms(ba.gnss_residual_m), 4) + [xy(_rms(ba.gnss_residual_m))]) if has_gnss else None,
+        # of the positions observed: one left out as off its flight line keeps its residual in its photo's row
+        "rms_photo_position_m": (_lst(_rms(ba.gnss_residual_m[ba.block.gnss_used]), 4)
+                                 + [xy(_rms(ba.gnss_residual_m[ba.block.gnss_used]))]) if has_gnss else None,
         "rms_photo_attitude_deg": None,
         "mean_std_dev_photo_position_m": (_lst(np.mean(sig[:, :3], axis=0), 4) + [None]) if sig is not None else None,
         "mean_std_dev_photo_attitude_deg": (_lst(np.mean(sig[:, 3:], axis=0), 5) + [None]) if sig is not None else None,
@@ -732,7 +735,7 @@ def unmodelled_drift_check(ba) -> UnmodelledDriftCheck | None:
     unit = np.asarray(map_unit_m(getattr(ba, "crs", None), "project crs"), dtype=float)
     fits = []
     for s in range(b.n_strips):
-        m = np.flatnonzero(b.strip == s)
+        m = np.flatnonzero((b.strip == s) & b.gnss_used)
         if len(m) < 4:
             continue
         t = np.asarray(b.along_km, dtype=float)[m]
@@ -749,7 +752,7 @@ def unmodelled_drift_check(ba) -> UnmodelledDriftCheck | None:
     if not fits:
         return None
     if b.gnss_offset_sigma_m is not None:  # a consumer receiver: its sigmas between frames (median, per axis)
-        sigma_axis = np.median(np.asarray(b.gnss_sigma_m, dtype=float), axis=0)
+        sigma_axis = np.median(np.asarray(b.gnss_sigma_m, dtype=float)[b.gnss_used], axis=0)
         source = "[gnss] sigma_xy_m, sigma_z_m: the positions' sigmas between frames"
     else:
         sigma_axis, source = np.full(3, float(ba.settings.gnss_shift_sigma_m)), "gnss_shift_sigma_m"
@@ -1156,6 +1159,12 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         message += (f" Height control: {len(hd.height_control_out)} points with a height left out; pairs of the "
                     f"{len(hd.height_control_left)} kept mistyped together were not judged (their images' "
                     "orientations too many for the joint covariance): check points over the block would show it.")
+    if getattr(ba, "gnss_left_out", ()):
+        left = ba.gnss_left_out
+        message += (f" GNSS positions left out as off the flight line their neighbouring frames draw: {len(left)} of "
+                    f"{ba.block.n_images} (" + "; ".join(g.text() for g in left[:6]) + ("; ..." if len(left) > 6 else "")
+                    + "); those frames are placed by their tie points alone: check their gnss.txt records (a wrong "
+                    "fix, or the record of another frame).")
     if getattr(ba, "control_rays_left_out", ()):
         from aerotri.adjust.relative import left_out_rays_text
 
@@ -1185,6 +1194,8 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         "gnss_drift_unmodelled": [] if udc is None else [
             {"strip": s, "axis": a, "displacement_m": _f(v, 4), "standard_errors": _f(t, 1)} for s, a, v, t in udc.trends],
         "gnss_direction_flip": bool(direction is not None and direction.significant),
+        "gnss_left_out": [{"image_id": g.image_id, "deviation_m": _lst(g.deviation_m, 3), "tolerance_m": _f(g.tolerance_m, 3)}
+                          for g in getattr(ba, "gnss_left_out", ())],
         "dem_check_failed": [d.role for d in dem_failed],
         # gtsam's CheiralityException lines (a point behind a camera at some iterate), counted, not printed
         "points_behind_camera": {"messages": int(lines), "point_camera_pairs": int(pairs)},
@@ -1211,7 +1222,7 @@ def _variance_components(ba) -> list | None:
     apriori = {"image": f"{ba.settings.image_sigma_px:g} px" if ba.settings.image_sigma_px else None,
                "surface": f"{ba.settings.surface_sigma_m:g} m (+ slope)" if ba.settings.dem is not None else None}
     if ba.block.gnss_sigma_m is not None:
-        med = np.median(ba.block.gnss_sigma_m, axis=0) / wf.get("gnss", 1.0)
+        med = np.median(ba.block.gnss_sigma_m[ba.block.gnss_used], axis=0) / wf.get("gnss", 1.0)
         apriori["gnss"] = f"{med[0]:.3f} / {med[2]:.3f} m"
     out = []
     for c in r.variance_components:
@@ -1842,7 +1853,8 @@ def format_txt(rep: dict) -> str:
         g = p.get("gnss_residual_m", [None] * 3)
         s = p.get("sigma_position_m", [None] * 3)
         L.append(f"{p['image_id']:>12} {p['strip']:5d} {p['obs']:5d}" + _v(p["rms_x_um"], 8, 2) + _v(p["rms_y_um"], 8, 2)
-                 + "".join(_v(x, 9, 3) for x in g) + "".join(_v(x, 8, 3) for x in s))
+                 + "".join(_v(x, 9, 3) for x in g) + "".join(_v(x, 8, 3) for x in s)
+                 + ("  GNSS left out (off the flight line)" if p.get("gnss_left_out") else ""))
     pairs = rep.get("image_pairs") or []
     L += ["", f"Image pairs ({len(pairs)} sharing tie points; the {min(len(pairs), 20)} weakest; all: report.json)",
           f"{'left':>12} {'right':>12} {'points':>7} {'in 3+':>6} {'rms um':>8} {'rms px':>7}"]

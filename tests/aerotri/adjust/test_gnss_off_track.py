@@ -1,0 +1,102 @@
+"""A GNSS position off its flight line (a wrong fix, the record of another frame) is found on the track, left out of
+the adjustment by name, and the block comes out as without it. Before: an 80 m slip of the first frame of a
+six-frame block was absorbed (principal point -41.6 mm, check points 9 m off, GNSS residuals 0.02 m)."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from aerotri.adjust.pipeline import AdjustSettings, adjust_project, write_outputs
+from aerotri.geom.strips import track_blunders
+from aerotri.sim.observations import geometric_block, write_block_project, write_truth_observations
+
+
+def _track(strips=3, frames=6, base_m=300.0, side_m=900.0, wobble_m=2.0, seed=3):
+    """Antenna positions of a block flown east and west in turn (flight order), with a wobble of ``wobble_m``."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for s in range(strips):
+        x = np.arange(frames) * base_m
+        rows += [[xi if s % 2 == 0 else x[-1] - xi, s * side_m, 1000.0] for xi in x]
+    return np.array(rows) + rng.normal(0.0, wobble_m, (strips * frames, 3))
+
+
+def test_a_sound_track_has_no_blunder():
+    for seed in range(5):
+        assert len(track_blunders(_track(seed=seed), np.full((18, 3), 0.05))) == 0
+
+
+@pytest.mark.parametrize("offset", [(80.0, 0, 0), (-80.0, 0, 0), (0, 70.0, 0), (0, 0, 70.0), (150.0, 90.0, 0)])
+def test_the_blunder_is_the_frame_found_wherever_it_is(offset):
+    # every frame, the strips' ends (next to a turn) too: never a sound neighbour instead
+    p = _track()
+    for k in range(len(p)):
+        q = p.copy()
+        q[k] += offset
+        found = track_blunders(q, np.full((len(q), 3), 0.05))
+        assert found.index.tolist() == [k], (k, offset, found)
+        np.testing.assert_allclose(found.deviation_m[0], offset, atol=12.0)  # 2 m wobble, extrapolated
+
+
+def test_two_blunders_and_neighbours_and_a_tolerance_of_the_sigmas():
+    p = _track(frames=10)
+    q = p.copy()
+    q[3] += (90.0, 0, 0)
+    q[4] += (0, -90.0, 0)  # neighbours: the second is judged without the first
+    assert sorted(track_blunders(q, np.full((len(q), 3), 0.05)).index.tolist()) == [3, 4]
+    # a consumer receiver's sigma of 10 m: 80 m is within its 8 sigma
+    q = p.copy()
+    q[5] += (60.0, 0, 0)
+    assert len(track_blunders(q, np.full((len(q), 3), 10.0))) == 0
+
+
+def test_irregular_tracks_and_short_blocks_are_not_judged():
+    rng = np.random.default_rng(5)
+    kite = rng.uniform(0, 100, (12, 3))  # a kite's or a hand-flown drone's positions: no line to be off
+    assert len(track_blunders(kite)) == 0
+    assert len(track_blunders(_track(strips=1, frames=3))) == 0
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    block = geometric_block(3, 5, seed=11)
+    root = write_block_project(block, tmp_path_factory.mktemp("offtrack") / "blk")
+    write_truth_observations(root, n_control=5, points_per_image=120, n_check=6, seed=12)
+    return root
+
+
+def _check_errors(ba) -> np.ndarray:
+    return np.array([np.subtract(c["adjusted_m"], c["measured_m"]) for c in ba.check.values()])
+
+
+def test_the_position_is_left_out_by_name_and_the_block_is_as_without_it(project, tmp_path, caplog):
+    import shutil
+
+    clean = adjust_project(project, AdjustSettings(gnss_correction="shift"))
+    assert clean.gnss_left_out == ()
+    root = tmp_path / "blk"
+    shutil.copytree(project, root)
+    lines = (root / "gnss.txt").read_text().splitlines()
+    t = lines[1].split()
+    lines[1] = " ".join([t[0], f"{float(t[1]) + 120.0:.4f}", *t[2:]])  # the first frame, a strip's end
+    (root / "gnss.txt").write_text("\n".join(lines) + "\n")
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift"))
+    assert [g.image_id for g in ba.gnss_left_out] == [t[0]]
+    assert any(t[0] in r.message and "off the flight line" in r.message for r in caplog.records)
+    # the check points as without the blunder, one GNSS position fewer (RMS X Y Z 0.050 0.017 0.286 m against
+    # 0.021 0.004 0.328 m); before, "successful" at sigma0 0.62 with the check heights 49.8 m RMS off
+    rms = lambda e: np.sqrt(np.mean(e * e, axis=0))  # noqa: E731
+    np.testing.assert_allclose(rms(_check_errors(ba)), rms(_check_errors(clean)), atol=0.06)
+    assert abs(ba.result.sigma0 - clean.result.sigma0) < 0.02 * clean.result.sigma0
+    i = list(ba.block.image_id).index(t[0])
+    assert abs(ba.gnss_residual_m[i][0] + 120.0) < 1.0  # its residual shows the slip
+    write_outputs(ba, root)
+    rep = json.loads((root / "at/report.json").read_text())
+    ks = rep["key_statistics"]
+    assert [g["image_id"] for g in ks["gnss_left_out"]] == [t[0]]
+    assert re.search(rf"{t[0]} 1[12]\d\.\d m off", ks["message"]) and "off the flight line" in ks["message"]
+    # the photos' GNSS RMS is of the positions observed
+    assert rep["parameters"]["rms_photo_position_m"][0] < 0.2
+    assert "GNSS left out" in (root / "at/report.txt").read_text()
