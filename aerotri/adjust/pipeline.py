@@ -780,11 +780,19 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
     st = prepared.settings
     requested = tuple(prepared.opts.self_calibration)
     opts, checks, focal_mode = prepared.opts, {}, None
+    rays_checked = not st.snooping or prepared.block.gnss_local is None
     while True:
         held = [c for c, pid in enumerate(prepared.control_used.id) if str(pid) in prepared.control_held_out]
         result = adjust_block(prepared.block, opts, state0, snooping=st.snooping, alpha=st.alpha,
                               point_covariances=st.point_covariances, variance_components=st.variance_components,
                               image_sigma_from_residuals=st.image_sigma_from_residuals, control_held_out=held)
+        if not rays_checked:  # once: a frame whose rays the snooping took because its GNSS position is wrong
+            rays_checked = True
+            confirmed = _gnss_against_rays(prepared, opts, state0, result, held)
+            if confirmed:
+                prepared = dataclasses.replace(prepared, block=confirmed[0],
+                                               gnss_left_out=prepared.gnss_left_out + confirmed[1])
+                continue
         if not opts.self_calibration or result.calibration is None:
             break
         if not (np.isfinite(result.sigma0) and np.isfinite(result.calibration.cal_cov).all()):
@@ -1039,18 +1047,82 @@ def _warn_implausible_gnss_sigmas(path, gnss) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class GnssLeftOut:
-    """A GNSS position off its flight line (``strips.track_blunders``): not observed in the adjustment."""
+    """A GNSS position not observed in the adjustment: off its flight line (``strips.track_blunders``), or off
+    where its frame's rays put it (``_gnss_against_rays``). ``deviation_m``: the position minus the prediction."""
 
     image_id: str
     row: int  # in the block (flight order)
     deviation_m: tuple  # observed - predicted from the neighbouring frames (map axes, the CRS's units)
     predicted_m: tuple  # where the neighbouring frames put it (map)
     tolerance_m: float
+    reason: str = "off the flight line"  # or what the frame's rays said (``_gnss_against_rays``)
 
     def text(self) -> str:
         d = np.asarray(self.deviation_m)
         return (f"{self.image_id} {float(np.linalg.norm(d)):.1f} m off (dX dY dZ "
-                f"{' '.join(f'{v:+.1f}' for v in d)}; tolerance {self.tolerance_m:.1f})")
+                f"{' '.join(f'{v:+.1f}' for v in d)}; tolerance {self.tolerance_m:.1f}; {self.reason})")
+
+
+# a frame with GNSS that lost at least this share of its image observations (and RAYS_LOST_MIN of them) to the data
+# snooping: its GNSS position may be what is wrong (a 10 m slip in height of a frame in the middle of a strip of a
+# 3 x 6 block, under the track's 30 m: 86 of its 90 rays rejected, the frame on its GNSS, sigma0 unchanged, check
+# heights 9.2 m RMS off and the principal point blamed)
+RAYS_LOST_SHARE = 0.5
+RAYS_LOST_MIN = 10
+# confirmed when, solved again without that position, the frame keeps all but this share of its observations and
+# its adjusted antenna lies further than GNSS_RAYS_SIGMAS of its sigma from the position
+RAYS_KEPT_SHARE = 0.2
+GNSS_RAYS_SIGMAS = 8.0
+
+
+def _rays_lost(block: G.Block, obs_active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(observations, observations rejected) per frame."""
+    n = np.bincount(block.obs_image, minlength=block.n_images)
+    return n, np.bincount(block.obs_image[~obs_active], minlength=block.n_images)
+
+
+def _gnss_against_rays(prepared: PreparedBlock, opts: G.SolveSettings, state0: G.State, result: AdjustmentResult,
+                       held: list) -> tuple | None:
+    """(the block without the GNSS positions of the frames whose rays the snooping rejected because of them,
+    their ``GnssLeftOut``) or None. A frame that lost most of its rays is solved again with its GNSS position left
+    out; the position is wrong when the frame then keeps its rays and sits well away from it (else the frame's
+    image is what is wrong: cloud, water, a wrong match, and the first solution stands)."""
+    block, st = prepared.block, prepared.settings
+    n, lost = _rays_lost(block, result.obs_active)
+    suspect = np.flatnonzero(block.gnss_used & (lost >= RAYS_LOST_MIN) & (lost >= RAYS_LOST_SHARE * np.maximum(n, 1)))
+    if not len(suspect):
+        return None
+    sigma = np.array(block.gnss_sigma_m, dtype=float)
+    sigma[suspect] = np.inf
+    trial = dataclasses.replace(block, gnss_sigma_m=sigma)
+    log.info(f"GNSS against the rays: {len(suspect)} frames lost most of their rays ("
+             + ", ".join(f"{block.image_id[i]} {lost[i]} of {n[i]}" for i in suspect[:6])
+             + "); solved again without their GNSS positions")
+    again = adjust_block(trial, opts, state0, snooping=st.snooping, alpha=st.alpha, point_covariances=False,
+                         variance_components=False, image_sigma_from_residuals=st.image_sigma_from_residuals,
+                         control_held_out=held, compute_marginals=False)
+    n2, lost2 = _rays_lost(trial, again.obs_active)
+    off = np.asarray(adjusted_gnss(trial, again.opts or opts, again.state), dtype=float) - block.gnss_local
+    confirmed = [int(i) for i in suspect
+                 if lost2[i] <= RAYS_KEPT_SHARE * n2[i]
+                 and np.any(np.abs(off[i]) > GNSS_RAYS_SIGMAS * np.asarray(block.gnss_sigma_m[i]))]
+    if not confirmed:
+        log.info("GNSS against the rays: none of them keeps its rays without its position; the solution stands")
+        return None
+    sigma = np.array(block.gnss_sigma_m, dtype=float)
+    sigma[confirmed] = np.inf
+    frame = prepared.frame
+    obs_map = prepared.gnss_map
+    out = []
+    for i in confirmed:
+        at = frame.to_map(np.asarray(adjusted_gnss(trial, again.opts or opts, again.state))[i:i + 1])[0]
+        out.append(GnssLeftOut(str(block.image_id[i]), i, tuple(float(v) for v in obs_map[i] - at),
+                               tuple(float(v) for v in at), float(GNSS_RAYS_SIGMAS * np.max(block.gnss_sigma_m[i])),
+                               reason=f"its rays: {lost[i]} of {n[i]} rejected with the position, {lost2[i]} without"))
+    log.warning(f"{prepared.project.gnss_path}: {len(out)} positions disagree with their frames' rays, left out of "
+                "the adjustment (the frames are placed by their tie points): " + "; ".join(g.text() for g in out[:6])
+                + ("; ..." if len(out) > 6 else "") + ". A wrong fix or a record of another frame? Check those records.")
+    return dataclasses.replace(block, gnss_sigma_m=sigma), tuple(out)
 
 
 def _gnss_off_track(project: Project, gnss, ob) -> tuple:

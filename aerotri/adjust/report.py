@@ -1161,8 +1161,9 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
                     "orientations too many for the joint covariance): check points over the block would show it.")
     if getattr(ba, "gnss_left_out", ()):
         left = ba.gnss_left_out
-        message += (f" GNSS positions left out as off the flight line their neighbouring frames draw: {len(left)} of "
-                    f"{ba.block.n_images} (" + "; ".join(g.text() for g in left[:6]) + ("; ..." if len(left) > 6 else "")
+        message += (f" GNSS positions left out, off the flight line their neighbouring frames draw or off where "
+                    f"their frames' rays put them: {len(left)} of {ba.block.n_images} ("
+                    + "; ".join(g.text() for g in left[:6]) + ("; ..." if len(left) > 6 else "")
                     + "); those frames are placed by their tie points alone: check their gnss.txt records (a wrong "
                     "fix, or the record of another frame).")
     if getattr(ba, "control_rays_left_out", ()):
@@ -1194,7 +1195,8 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         "gnss_drift_unmodelled": [] if udc is None else [
             {"strip": s, "axis": a, "displacement_m": _f(v, 4), "standard_errors": _f(t, 1)} for s, a, v, t in udc.trends],
         "gnss_direction_flip": bool(direction is not None and direction.significant),
-        "gnss_left_out": [{"image_id": g.image_id, "deviation_m": _lst(g.deviation_m, 3), "tolerance_m": _f(g.tolerance_m, 3)}
+        "gnss_left_out": [{"image_id": g.image_id, "deviation_m": _lst(g.deviation_m, 3),
+                           "tolerance_m": _f(g.tolerance_m, 3), "reason": g.reason}
                           for g in getattr(ba, "gnss_left_out", ())],
         "dem_check_failed": [d.role for d in dem_failed],
         # gtsam's CheiralityException lines (a point behind a camera at some iterate), counted, not printed
@@ -1854,7 +1856,7 @@ def format_txt(rep: dict) -> str:
         s = p.get("sigma_position_m", [None] * 3)
         L.append(f"{p['image_id']:>12} {p['strip']:5d} {p['obs']:5d}" + _v(p["rms_x_um"], 8, 2) + _v(p["rms_y_um"], 8, 2)
                  + "".join(_v(x, 9, 3) for x in g) + "".join(_v(x, 8, 3) for x in s)
-                 + ("  GNSS left out (off the flight line)" if p.get("gnss_left_out") else ""))
+                 + ("  GNSS left out" if p.get("gnss_left_out") else ""))
     pairs = rep.get("image_pairs") or []
     L += ["", f"Image pairs ({len(pairs)} sharing tie points; the {min(len(pairs), 20)} weakest; all: report.json)",
           f"{'left':>12} {'right':>12} {'points':>7} {'in 3+':>6} {'rms um':>8} {'rms px':>7}"]
