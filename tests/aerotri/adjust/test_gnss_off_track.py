@@ -67,36 +67,43 @@ def project(tmp_path_factory):
     return root
 
 
+def _slipped(src, dst, line: int, offset_m) -> str:
+    """A copy of the project ``src`` at ``dst`` with the position on gnss.txt's ``line`` moved by ``offset_m`` (X, Y,
+    Z); the frame's id."""
+    import shutil
+
+    shutil.copytree(src, dst)
+    lines = (dst / "gnss.txt").read_text().splitlines()
+    t = lines[line].split()
+    lines[line] = " ".join([t[0], *(f"{float(v) + d:.4f}" for v, d in zip(t[1:4], offset_m)), *t[4:]])
+    (dst / "gnss.txt").write_text("\n".join(lines) + "\n")
+    return t[0]
+
+
 def _check_errors(ba) -> np.ndarray:
     return np.array([np.subtract(c["adjusted_m"], c["measured_m"]) for c in ba.check.values()])
 
 
 def test_the_position_is_left_out_by_name_and_the_block_is_as_without_it(project, tmp_path, caplog):
-    import shutil
-
     clean = adjust_project(project, AdjustSettings(gnss_correction="shift"))
     assert clean.gnss_left_out == ()
     root = tmp_path / "blk"
-    shutil.copytree(project, root)
-    lines = (root / "gnss.txt").read_text().splitlines()
-    t = lines[1].split()
-    lines[1] = " ".join([t[0], f"{float(t[1]) + 120.0:.4f}", *t[2:]])  # the first frame, a strip's end
-    (root / "gnss.txt").write_text("\n".join(lines) + "\n")
+    iid = _slipped(project, root, 1, (120.0, 0.0, 0.0))  # the first frame, a strip's end
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift"))
-    assert [g.image_id for g in ba.gnss_left_out] == [t[0]]
-    assert any(t[0] in r.message and "off the flight line" in r.message for r in caplog.records)
+    assert [g.image_id for g in ba.gnss_left_out] == [iid]
+    assert any(iid in r.message and "off the flight line" in r.message for r in caplog.records)
     # the check points as without the blunder, one GNSS position fewer (RMS X Y Z 0.050 0.017 0.286 m against
     # 0.021 0.004 0.328 m); before, "successful" at sigma0 0.62 with the check heights 49.8 m RMS off
     rms = lambda e: np.sqrt(np.mean(e * e, axis=0))  # noqa: E731
     np.testing.assert_allclose(rms(_check_errors(ba)), rms(_check_errors(clean)), atol=0.06)
     assert abs(ba.result.sigma0 - clean.result.sigma0) < 0.02 * clean.result.sigma0
-    i = list(ba.block.image_id).index(t[0])
+    i = list(ba.block.image_id).index(iid)
     assert abs(ba.gnss_residual_m[i][0] + 120.0) < 1.0  # its residual shows the slip
     write_outputs(ba, root)
     rep = json.loads((root / "at/report.json").read_text())
     ks = rep["key_statistics"]
-    assert [g["image_id"] for g in ks["gnss_left_out"]] == [t[0]]
-    assert re.search(rf"{t[0]} 1[12]\d\.\d m off", ks["message"]) and "off the flight line" in ks["message"]
+    assert [g["image_id"] for g in ks["gnss_left_out"]] == [iid]
+    assert re.search(rf"{iid} 1[12]\d\.\d m off", ks["message"]) and "off the flight line" in ks["message"]
     # the photos' GNSS RMS is of the positions observed
     assert rep["parameters"]["rms_photo_position_m"][0] < 0.2
     assert "GNSS left out" in (root / "at/report.txt").read_text()
@@ -106,23 +113,16 @@ def test_a_slip_under_the_track_s_tolerance_is_found_by_the_frame_s_rays(tmp_pat
     """A 10 m slip in height in the middle of a strip (the track's tolerance there: 30 m): the snooping took 86 of the
     frame's 90 rays and kept the frame on its GNSS, check heights 9.2 m RMS off, sigma0 unchanged, the principal point
     blamed. Solved again without the position the frame keeps its rays: the position is left out, named."""
-    import shutil
-
     block = geometric_block(3, 6, seed=11)
     root = write_block_project(block, tmp_path / "clean")
     write_truth_observations(root, n_control=5, points_per_image=120, n_check=6, seed=12)
     clean = adjust_project(root, AdjustSettings(gnss_correction="none"))
     assert clean.gnss_left_out == ()
-    slip = tmp_path / "slip"
-    shutil.copytree(root, slip)
-    lines = (slip / "gnss.txt").read_text().splitlines()
-    t = lines[3].split()
-    lines[3] = " ".join([*t[:3], f"{float(t[3]) + 10.0:.4f}", *t[4:]])
-    (slip / "gnss.txt").write_text("\n".join(lines) + "\n")
-    ba = adjust_project(slip, AdjustSettings(gnss_correction="none"))
-    assert [g.image_id for g in ba.gnss_left_out] == [t[0]]
+    iid = _slipped(root, tmp_path / "slip", 3, (0.0, 0.0, 10.0))
+    ba = adjust_project(tmp_path / "slip", AdjustSettings(gnss_correction="none"))
+    assert [g.image_id for g in ba.gnss_left_out] == [iid]
     assert "rays" in ba.gnss_left_out[0].reason
-    i = list(ba.block.image_id).index(t[0])
+    i = list(ba.block.image_id).index(iid)
     assert abs(ba.gnss_residual_m[i][2] + 10.0) < 0.5
     rms = lambda e: np.sqrt(np.mean(e * e, axis=0))  # noqa: E731
     # 0.072 / 0.189 / 0.483 m against 0.084 / 0.195 / 0.483 without the slip
