@@ -1119,8 +1119,8 @@ def _gnss_against_rays(prepared: PreparedBlock, opts: G.SolveSettings, state0: G
         out.append(GnssLeftOut(str(block.image_id[i]), i, tuple(float(v) for v in obs_map[i] - at),
                                tuple(float(v) for v in at), float(GNSS_RAYS_SIGMAS * np.max(block.gnss_sigma_m[i])),
                                reason=f"its rays: {lost[i]} of {n[i]} rejected with the position, {lost2[i]} without"))
-    log.warning(f"{prepared.project.gnss_path}: {len(out)} positions disagree with their frames' rays, left out of "
-                "the adjustment (the frames are placed by their tie points): " + "; ".join(g.text() for g in out[:6])
+    what = "positions disagree with their frames' rays" if len(out) > 1 else "position disagrees with its frame's rays"
+    log.warning(f"{prepared.project.gnss_path}: {len(out)} {what}, left out of the adjustment (the frames are placed by their tie points): " + "; ".join(g.text() for g in out[:6])
                 + ("; ..." if len(out) > 6 else "") + ". A wrong fix or a record of another frame? Check those records.")
     return dataclasses.replace(block, gnss_sigma_m=sigma), tuple(out)
 
