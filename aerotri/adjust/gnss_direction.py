@@ -35,6 +35,7 @@ import math
 
 import numpy as np
 
+from aerotri.adjust.graph import gnss_observed
 from aerotri.adjust.variance_components import antenna_positions
 from aerotri.core.quantiles import norm_isf, t_isf
 
@@ -189,9 +190,9 @@ def direction_check(block, state, speed_mps: float | None = None, alpha: float =
     # adjusted antenna minus GNSS without the solve's shift/drift/offset: a per-strip shift would take the lag in
     v = np.asarray(antenna_positions(block, state), dtype=float) - g
     strip = np.asarray(block.strip, dtype=int)
-    # a position left out (off its flight line: an infinite sigma) is no evidence of a lag
+    # a position left out (an infinite sigma) is no evidence of a lag
     sig = getattr(block, "gnss_sigma_m", None)
-    used = np.all(np.isfinite(sig), axis=1) if sig is not None else np.ones(len(g), dtype=bool)
+    used = gnss_observed(sig) if sig is not None else np.ones(len(g), dtype=bool)
     units, bases = [], []
     for s in np.unique(strip):
         idx = np.flatnonzero((strip == s) & used)

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from aerotri.adjust.graph import gnss_observed
+
 DEFAULT_SOURCE = "the [gnss] defaults, a survey receiver's"
 
 
@@ -39,7 +41,7 @@ def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m,
     ``shift_m`` (S, 3) the estimated shifts (ENU, m); ``observed``: the solve has control points or a surface
     (DEM, roof planes), without which nothing but the GNSS positions themselves says where the block is."""
     sigma_m = np.asarray(sigma_m, dtype=float)
-    med = np.median(sigma_m[np.isfinite(sigma_m).all(axis=1)], axis=0)  # of the positions observed
+    med = np.median(sigma_m[gnss_observed(sigma_m)], axis=0)
     weights = f"positions weighted with {med[0]:.3g} / {med[2]:.3g} m (plan / height; {source})"
     if correction == "none":
         return (f"GNSS: {weights}, independent between frames, no offset estimated: the datum is as good as these "

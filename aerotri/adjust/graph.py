@@ -104,11 +104,14 @@ class Block:
 
     @property
     def gnss_used(self) -> np.ndarray | None:
-        """(N,) the GNSS positions observed: a position left out (off its flight line) has an infinite sigma,
-        weight 0, and no factor."""
-        if self.gnss_sigma_m is None:
-            return None
-        return np.all(np.isfinite(self.gnss_sigma_m), axis=1)
+        """(N,) the GNSS positions observed (``gnss_observed``)."""
+        return None if self.gnss_sigma_m is None else gnss_observed(self.gnss_sigma_m)
+
+
+def gnss_observed(sigma_m) -> np.ndarray:
+    """(N,) which of the positions with sigmas ``sigma_m`` (N, 3) are observed: a position left out (off its flight
+    line, or off its frame's rays: ``pipeline.GnssLeftOut``) has an infinite sigma, weight 0, and no factor."""
+    return np.all(np.isfinite(np.asarray(sigma_m, dtype=float)), axis=1)
 
 
 # the solve's GNSS models: the settings' corrections per strip, and one offset for the whole flight (a consumer

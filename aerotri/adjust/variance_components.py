@@ -91,7 +91,6 @@ def estimate(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, 
         J = np.array([np.hstack([Jk for _, Jk in row]) for row in rows])  # (N, 3, unknowns of a row)
         cov = J @ rc.entries(idx[:, :, None], idx[:, None, :]) @ J.transpose(0, 2, 1)
         n_used = 3 * int(block.gnss_used.sum())  # a left-out position has weight 0 (graph.Block.gnss_used)
-        e = np.where(np.isfinite(w), e, 0.0)
         r = float(n_used - np.einsum("ni,nii->", w, cov))
         out.append(_component("gnss", n_used, r, float(np.sum(e * e * w))))
         others += r
