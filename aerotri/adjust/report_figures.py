@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import dataclasses
+import functools
 import math
 import os
 
@@ -50,9 +51,11 @@ def nice_length(x: float) -> float:
     return max(m for m in (1.0, 2.0, 5.0, 10.0) if m * e <= x * 1.0000001) * e
 
 
+@functools.lru_cache(maxsize=4096)
 def fit_text(text: str, width_in: float, fontsize: float) -> str:
     """``text``, or its start and end with "..." between, as much as is at most ``width_in`` inches wide in
-    the default font at ``fontsize`` points (image names that share a long prefix differ at their ends)."""
+    the default font at ``fontsize`` points (image names that share a long prefix differ at their ends). Cached:
+    a process that writes several reports of one block names the same frames."""
     from matplotlib.textpath import TextPath
 
     def fits(t: str) -> bool:

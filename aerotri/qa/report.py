@@ -15,6 +15,7 @@ limits not confirmed in their source.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import logging
 import textwrap
@@ -1439,12 +1440,29 @@ PDF_ROWS_PER_PAGE = 34  # one-line rows a page holds (a row: matplotlib's 10 pt 
 _CELL_PAD = 0.1  # matplotlib.table.Cell.PAD: a left-aligned text stands this fraction of the cell's width in
 
 
+@functools.lru_cache(maxsize=65536)
 def _text_width_pt(text: str, size_pt: float) -> float:
-    """The width of ``text`` in points as the PDF draws it (matplotlib's default font at ``size_pt``)."""
+    """The width of ``text`` in points as the PDF draws it (matplotlib's default font at ``size_pt``).
+
+    Cached: a report measures the same headers and the growing prefixes of its cells again and again."""
     from matplotlib.font_manager import FontProperties
     from matplotlib.textpath import TextToPath
 
     return TextToPath().get_text_width_height_descent(text, FontProperties(size=size_pt), ismath=False)[0]
+
+
+def _longest_prefix_within(text: str, width_pt: float, size_pt: float) -> int:
+    """The most leading characters of ``text`` (at least 1) no wider than ``width_pt``; ``text`` itself is wider.
+
+    By bisection: a prefix one character longer is wider (each glyph advances more than any kerning takes back)."""
+    lo, hi = 0, len(text)  # text[:lo] fits (or lo = 0), text[:hi] does not
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if _text_width_pt(text[:mid], size_pt) <= width_pt:
+            lo = mid
+        else:
+            hi = mid
+    return max(lo, 1)
 
 
 def wrap_cell(text: str, width_pt: float, size_pt: float = PDF_TABLE_PT) -> str:
@@ -1462,8 +1480,7 @@ def wrap_cell(text: str, width_pt: float, size_pt: float = PDF_TABLE_PT) -> str:
                 out.append(line)
             line = word
             while len(line) > 1 and _text_width_pt(line, size_pt) > width_pt:
-                k = max(1, max(i for i in range(1, len(line) + 1) if _text_width_pt(line[:i], size_pt) <= width_pt)
-                        if _text_width_pt(line[:1], size_pt) <= width_pt else 1)
+                k = _longest_prefix_within(line, width_pt, size_pt)
                 out.append(line[:k])
                 line = line[k:]
         out.append(line)
