@@ -17,6 +17,7 @@ from aerotri.adjust.dem_check import BELOW_SHARE_LIMIT
 from aerotri.adjust.determinability import PP_RELIEF_PLAN_FRACTION
 from aerotri.adjust.height_datum import ALONE_MDB_FACTOR, PAIR_MDB_FACTOR
 from aerotri.adjust.report_record import map_unit_m
+from aerotri.adjust.solve import one_ray_control
 from aerotri.core.figures import pyplot
 from aerotri.core.quantiles import chi2_isf, norm_isf
 from aerotri.core.settings import settings_lines
@@ -1152,6 +1153,13 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
                     + ", ".join(f"{ba.control.id[c]} w = {w:.2f}" for c, w in ranked[:6])
                     + (", ..." if len(ranked) > 6 else "") + "); a mislabelled or mistyped point, or a measurement "
                     "on the wrong target, is the usual cause: look at the largest w first.")
+    one_ray = one_ray_control(ba.block, r.obs_active, r.control_active, r.removed)
+    if one_ray:
+        # trial-api F2 again: a height mistyped by 2 m lost one of its two rays and stayed in the solve unseen
+        message += (f" Control left with one ray by the data snooping: {len(one_ray)} of {len(ba.control)} points ("
+                    + ", ".join(f"{ba.control.id[c]}, its other ray w = {w:.2f}" for c, w in one_ray[:6])
+                    + (", ..." if len(one_ray) > 6 else "") + "); a single ray does not check a point's coordinates: "
+                    "check them, or measure the point in another image.")
     if hd_text:
         message += " " + hd_text
     elif hd is not None and not hd.pairs_judged and hd.judges_kept():

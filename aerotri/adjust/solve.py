@@ -15,7 +15,7 @@ from aerotri.adjust import graph as G
 from aerotri.adjust import variance_components as vce
 from aerotri.adjust.surface import SurfaceStats, surface_stats
 from aerotri.core.errors import SolveError
-from aerotri.adjust.check_points import intersect_with_covariance
+from aerotri.adjust.check_points import intersect, intersect_with_covariance
 from aerotri.adjust.cpp_output import counting
 from aerotri.adjust import surface_bias as sb
 from aerotri.adjust.held_calibration import held_principal_point
@@ -206,6 +206,7 @@ def _adjust_block(
                 take_back(c, w)
             else:
                 rejected.append((c, float(w[c])))
+        _restart_from_rays(block, state, obs_active, block.control_point[[c for c, _ in rejected]])
         held.clear()
 
     rnd = 0
@@ -248,6 +249,7 @@ def _adjust_block(
                 if worst >= 0 and w[worst] > crit:
                     control_active[worst] = False
                     rejected.append((worst, float(w[worst])))
+                    _restart_from_rays(block, state, obs_active, block.control_point[[worst]])
                     continue
             if snoop(state, rnd, with_control=True):
                 continue
@@ -398,6 +400,19 @@ def rays_removed_control(block: G.Block, obs_active, control_active, removed, re
     return out
 
 
+def one_ray_control(block: G.Block, obs_active, control_active, removed) -> list:
+    """(control index, largest w of its rays removed) of the control points in the solve that the snooping left with
+    a single ray: a control point with one ray is not checked by the block (its coordinates, if mistyped, pass into
+    it unseen), and the ray kept may be the wrong one of those that disagreed."""
+    w_of = {}
+    for x in removed:
+        j = int(block.obs_point[x.obs])
+        w_of[j] = max(w_of.get(j, 0.0), float(x.w))
+    rays = np.bincount(block.obs_point[np.asarray(obs_active, bool)], minlength=block.n_points)
+    return [(c, w_of[int(j)]) for c, j in enumerate(block.control_point)
+            if control_active[c] and int(j) in w_of and rays[j] == 1]
+
+
 def held_by_rays(block: G.Block, obs_active, *masks) -> tuple:
     """``masks`` (bool over the points) less the points without two active rays: a point the last snooping left
     without rays is in no solve since (its surface observation neither), but the surface gate before it had made it
@@ -500,6 +515,24 @@ def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -
     e, _, sigma = block.surface.observe(pts, jacobian=False)
     tol = block.surface.gate_sigmas * np.sqrt(sigma**2 + sz2)
     return candidates, candidates & np.isfinite(e) & (np.abs(e) <= tol)
+
+
+def _restart_from_rays(block: G.Block, state: G.State, obs_active: np.ndarray, points: np.ndarray) -> None:
+    """``points`` (indices) restarted at the intersection of their active rays in ``state``, where it is in front of
+    every camera that sees them. A control point the snooping leaves out becomes a tie point; its adjusted
+    coordinate was held towards a wrong given one, which may lie behind its cameras (a height 1,100 m off), where
+    a collinearity factor has no gradient and the next solve starts at an infinite cost."""
+    points = np.unique(np.asarray(points, dtype=np.int64))
+    if len(points) == 0:
+        return
+    k = np.flatnonzero(obs_active & np.isin(block.obs_point, points))
+    row = np.searchsorted(points, block.obs_point[k])
+    meet, _ = intersect(block.obs_xy_px[k], row, block.obs_image[k], state.centre, state.R_cv, state.cal,
+                        n_points=len(points))
+    depth = np.einsum("kj,kj->k", meet[row] - state.centre[block.obs_image[k]], state.R_cv[block.obs_image[k]][:, :, 2])
+    in_front = np.all(np.isfinite(meet), axis=1)
+    in_front[row[~(depth > 0.0)]] = False
+    state.points[points[in_front]] = meet[in_front]
 
 
 def _drop_weak_points(block: G.Block, obs_active, state: G.State | None = None, max_cond: float = 1e5) -> None:
