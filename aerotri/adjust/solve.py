@@ -206,7 +206,7 @@ def _adjust_block(
                 take_back(c, w)
             else:
                 rejected.append((c, float(w[c])))
-        _restart_from_rays(block, state, obs_active, block.control_point[[c for c, _ in rejected]])
+        _restart_from_rays(block, state, obs_active, block.control_point[held])  # those left: the rejected
         held.clear()
 
     rnd = 0
@@ -386,10 +386,7 @@ def rays_removed_control(block: G.Block, obs_active, control_active, removed, re
     snooping removed, every one: such a point is out of the block as surely as one the test rejected (trial-api F2:
     a height mistyped by 2 m lost both its rays, the report said 0 control rejected and its control RMS improved).
     Its coordinates stay in the solve, held by nothing but themselves."""
-    w_of = {}
-    for x in removed:
-        j = int(block.obs_point[x.obs])
-        w_of[j] = max(w_of.get(j, 0.0), float(x.w))
+    w_of = _largest_removed_w(block, removed)
     out = []
     for c, j in enumerate(block.control_point):
         j = int(j)
@@ -400,14 +397,20 @@ def rays_removed_control(block: G.Block, obs_active, control_active, removed, re
     return out
 
 
-def one_ray_control(block: G.Block, obs_active, control_active, removed) -> list:
-    """(control index, largest w of its rays removed) of the control points in the solve that the snooping left with
-    a single ray: a control point with one ray is not checked by the block (its coordinates, if mistyped, pass into
-    it unseen), and the ray kept may be the wrong one of those that disagreed."""
+def _largest_removed_w(block: G.Block, removed) -> dict:
+    """{point index: the largest w of its rays the snooping removed}."""
     w_of = {}
     for x in removed:
         j = int(block.obs_point[x.obs])
         w_of[j] = max(w_of.get(j, 0.0), float(x.w))
+    return w_of
+
+
+def one_ray_control(block: G.Block, obs_active, control_active, removed) -> list:
+    """(control index, largest w of its rays removed) of the control points in the solve that the snooping left with
+    a single ray: a control point with one ray is not checked by the block (its coordinates, if mistyped, pass into
+    it unseen), and the ray kept may be the wrong one of those that disagreed."""
+    w_of = _largest_removed_w(block, removed)
     rays = np.bincount(block.obs_point[np.asarray(obs_active, bool)], minlength=block.n_points)
     return [(c, w_of[int(j)]) for c, j in enumerate(block.control_point)
             if control_active[c] and int(j) in w_of and rays[j] == 1]
