@@ -4,18 +4,21 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out/demo
+# The tested versions (pip -c); `make install CONSTRAINTS=` takes the newest in pyproject's ranges instead
+CONSTRAINTS ?= constraints.txt
+PIP_CONSTRAINTS := $(if $(CONSTRAINTS),-c $(CONSTRAINTS))
 
-.PHONY: demo test bench install clean
+.PHONY: demo test bench install clean constraints
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 
-# Re-install whenever pyproject.toml changes. The bytecode of the installed packages is compiled afterwards on every
-# core (pip compiles its 5949 modules one after another on one core: 13-17 of its 27 CPU-s; docs/testing.md). As with
-# pip, a module that does not compile is left to the interpreter.
-$(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/pip install --quiet --no-compile -e ".[test]"
+# Re-install whenever pyproject.toml or the constraints change. The bytecode of the installed packages is compiled
+# afterwards on every core (pip compiles its 5949 modules one after another on one core: 13-17 of its 27 CPU-s;
+# docs/testing.md). As with pip, a module that does not compile is left to the interpreter.
+$(STAMP): pyproject.toml $(CONSTRAINTS) | $(BIN)/python
+	$(BIN)/pip install --quiet --no-compile $(PIP_CONSTRAINTS) -e ".[test]"
 	$(BIN)/python -m compileall -qq -j 0 $(VENV)/lib || true
 	touch $(STAMP)
 
@@ -34,9 +37,13 @@ bench: $(STAMP)
 	# bench/eval_contours.py; bench only
 	if ! command -v chromium >/dev/null || ! command -v pdftoppm >/dev/null || ! command -v gdal_contour >/dev/null; then \
 		$$( [ "$$(id -u)" = 0 ] || echo sudo ) apt-get install -y chromium poppler-utils gdal-bin; fi
-	$(BIN)/pip install --quiet -e ".[test,bench]"
+	$(BIN)/pip install --quiet $(PIP_CONSTRAINTS) -e ".[test,bench]"
 	$(BIN)/pip install --quiet --no-deps "orthority>=0.4"
 	@for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+# After the suite has passed on .venv: its versions become the tested set (the header lines are kept)
+constraints: $(STAMP)
+	{ grep '^#' constraints.txt; $(BIN)/pip freeze --exclude-editable; } > constraints.txt.tmp && mv constraints.txt.tmp constraints.txt
 
 clean:
 	rm -rf out .pytest_cache

@@ -116,3 +116,31 @@ def test_installed_wheel_simulates_tiny(wheel, tiny_project, tmp_path):
                        text=True)
     assert r.returncode == 0, r.stderr[-2000:]
     assert (out / "project.toml").is_file() and len(list((out / "images").glob("*"))) == 6
+
+
+def test_constraints_pin_every_declared_dependency_inside_its_range():
+    """``constraints.txt`` (what ``make install`` installs, pip's -c) pins one version of every dependency of
+    pyproject.toml and its ``test`` extra, each inside the range pyproject declares: a dependency added to pyproject
+    without its tested version, or a range moved past the pin, fails here rather than on a fresh clone."""
+    import tomllib
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+    from packaging.version import Version
+
+    pins = {}
+    for n, line in enumerate((REPO / "constraints.txt").read_text().splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        name, sep, version = line.partition("==")
+        assert sep and version, f"constraints.txt line {n}: {line!r} is no name==version pin"
+        pins[canonicalize_name(name)] = Version(version)
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    for spec in project["dependencies"] + project["optional-dependencies"]["test"]:
+        req = Requirement(spec)
+        name = canonicalize_name(req.name)
+        assert name in pins, f"{req.name} is declared in pyproject.toml but not pinned in constraints.txt"
+        assert req.specifier.contains(pins[name], prereleases=True), f"{req.name}=={pins[name]} outside {req.specifier}"
+        for extra in req.extras:  # laspy[lazrs]
+            assert canonicalize_name(extra) in pins, f"{req.name}[{extra}]: {extra} not pinned in constraints.txt"
