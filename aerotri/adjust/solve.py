@@ -386,34 +386,27 @@ def rays_removed_control(block: G.Block, obs_active, control_active, removed, re
     snooping removed, every one: such a point is out of the block as surely as one the test rejected (trial-api F2:
     a height mistyped by 2 m lost both its rays, the report said 0 control rejected and its control RMS improved).
     Its coordinates stay in the solve, held by nothing but themselves."""
-    w_of = _largest_removed_w(block, removed)
-    out = []
-    for c, j in enumerate(block.control_point):
-        j = int(j)
-        if c in rejected or not control_active[c] or j not in w_of:
-            continue
-        if not np.any(obs_active[block.obs_point == j]):
-            out.append((c, w_of[j]))
-    return out
+    return [(c, w) for c, rays, w in _control_that_lost_rays(block, obs_active, control_active, removed)
+            if rays == 0 and c not in rejected]
 
 
-def _largest_removed_w(block: G.Block, removed) -> dict:
-    """{point index: the largest w of its rays the snooping removed}."""
+def _control_that_lost_rays(block: G.Block, obs_active, control_active, removed) -> list:
+    """(control index, active rays left, largest w of its rays removed) of the control points in the solve that the
+    snooping removed rays of."""
     w_of = {}
     for x in removed:
         j = int(block.obs_point[x.obs])
         w_of[j] = max(w_of.get(j, 0.0), float(x.w))
-    return w_of
+    rays = np.bincount(block.obs_point[np.asarray(obs_active, bool)], minlength=block.n_points)
+    return [(c, int(rays[j]), w_of[int(j)]) for c, j in enumerate(block.control_point)
+            if control_active[c] and int(j) in w_of]
 
 
 def one_ray_control(block: G.Block, obs_active, control_active, removed) -> list:
     """(control index, largest w of its rays removed) of the control points in the solve that the snooping left with
     a single ray: a control point with one ray is not checked by the block (its coordinates, if mistyped, pass into
     it unseen), and the ray kept may be the wrong one of those that disagreed."""
-    w_of = _largest_removed_w(block, removed)
-    rays = np.bincount(block.obs_point[np.asarray(obs_active, bool)], minlength=block.n_points)
-    return [(c, w_of[int(j)]) for c, j in enumerate(block.control_point)
-            if control_active[c] and int(j) in w_of and rays[j] == 1]
+    return [(c, w) for c, rays, w in _control_that_lost_rays(block, obs_active, control_active, removed) if rays == 1]
 
 
 def held_by_rays(block: G.Block, obs_active, *masks) -> tuple:
