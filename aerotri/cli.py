@@ -61,15 +61,27 @@ def main():
 @click.command(cls=Command, name="settings")
 @click.argument("project", required=False, type=click.Path(file_okay=False, exists=True))
 @click.option("--markdown", is_flag=True, help="Print the reference of every project.toml section (docs/settings.md).")
-def settings(project, markdown):
+@click.option("--set", "items", multiple=True, metavar="SECTION.KEY=VALUE",
+              help="Write a setting into PROJECT's project.toml (TOML syntax, or a bare word), checked as every command "
+                   "checks the file, comments kept, e.g. --set flight.mean_terrain_height_m=411 (repeatable).")
+def settings(project, markdown, items):
     """Every setting of PROJECT with where it came from (default or project.toml), or (--markdown) the reference
-    of every project.toml section: type, unit, default, allowed values, command-line options, meaning."""
+    of every project.toml section: type, unit, default, allowed values, command-line options, meaning. With --set,
+    change settings in PROJECT's project.toml."""
     from aerotri.chain.options import project_settings_text, reference_page
     from aerotri.core.errors import OptionError
     from aerotri.core.project import Project
 
     if markdown == (project is not None):
         raise OptionError("give PROJECT or --markdown", param="--markdown")
+    if items:
+        if markdown:
+            raise OptionError("--set changes a project's project.toml: give PROJECT, not --markdown", param="--set")
+        from aerotri.chain.set_settings import set_in_project
+
+        for line in set_in_project(Project.open(project), items):
+            click.echo(line)
+        return
     click.echo(reference_page(command_groups()) if markdown else project_settings_text(Project.open(project)))
 
 

@@ -179,13 +179,11 @@ def eval_ngi(data: Path, work: Path) -> dict:
     P = work / "ngi"
     r.run("aerotri", "init", P, "--images", D, "--crs", prj, expect=2)  # dem.tif lies beside the frames
     r.edit(f"mkdir {frames}; ln -s DATA/*_RGB.tif {frames}/")
-    r.run("aerotri", "init", P, "--images", frames, "--crs", prj)
     with rasterio.open(D / ngi.DEM_FILE) as ds:
         mean_m = round(float(ds.read(1, masked=True).mean()), 0)
-    toml = (P / "project.toml").read_text().replace('heights = "ellipsoidal"', f'heights = "{ngi.HEIGHTS}"', 1)
-    (P / "project.toml").write_text(toml)
-    _add_flight_height(P, mean_m)
-    r.edit(f'ngi/project.toml: heights = "{ngi.HEIGHTS}"; [flight] mean_terrain_height_m = {mean_m:g} (the DEM\'s mean)')
+    # the GNSS's and the DEM's EGM2008 heights, and the DEM's mean height for the frames' footprints (match pairs by it)
+    r.run("aerotri", "init", P, "--images", frames, "--crs", prj, "--set", f"project.heights={ngi.HEIGHTS}",
+          "--set", f"flight.mean_terrain_height_m={mean_m:g}")
     r.run("aerotri", "import", P, "--format", "orthority", D / "formats" / "ngi_int_param.yaml",
           D / "formats" / "ngi_xyz_opk.csv", "--as-gnss", "--sigma-xyz-m", "0.05", "0.05", "0.05")
     r.run("aerotri", "match", P)

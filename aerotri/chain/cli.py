@@ -75,13 +75,17 @@ def demo(outdir, preset, force, scheduler, workers):
 @click.option("--camera", "camera_path", type=click.Path(dir_okay=False, exists=True, path_type=Path), default=None,
               help="camera.toml of the calibrated camera [default: from the first frame's EXIF].")
 @click.option("--copy", is_flag=True, help="Copy the frames into PROJECT/images [default: symbolic links].")
-def init(project, images_dir, crs, camera_path, copy):
+@click.option("--set", "settings", multiple=True, metavar="SECTION.KEY=VALUE",
+              help="A project.toml setting (TOML syntax, or a bare word), checked as every command checks the file, "
+                   "e.g. --set project.heights=EPSG:3855 --set flight.mean_terrain_height_m=411 (repeatable; "
+                   "`aerotri settings --markdown` lists every key).")
+def init(project, images_dir, crs, camera_path, copy, settings):
     """Make the project folder PROJECT (new, or an empty folder): images/ linking the frames, project.toml
     with [project] crs and the other sections commented, camera.toml from --camera or the EXIF
     (docs/project.md describes the folder and every file)."""
     from aerotri.chain.setup import init_project
 
-    r = init_project(project, images_dir, crs, camera_path, copy=copy)
+    r = init_project(project, images_dir, crs, camera_path, copy=copy, settings=settings)
     click.echo(f"{r.root}: {r.frames} frames {'linked' if r.linked else 'copied'} into images/, project.toml"
                + (f", camera.toml from {r.camera_source}" if r.camera_source else ""))
     if r.camera_missing:

@@ -145,8 +145,10 @@ overrides only its own setting; anything else keeps its default. The order, lowe
 project.toml < command line**. Each stage's report says where each setting came from (`settings` in
 `at/report.json`, `at/connectivity.json`, `control/transfer.json`, `ortho/frames/index.json`,
 `ortho/mosaic.json`, `ortho/dom_report.json`; the "Settings" block of `at/report.txt`); `aerotri settings
-PROJECT` prints them for a project. A key that is not listed here, or a value of the wrong type or out of
-range, stops the command with a message naming the file, the section and the key. Nested tables are
+PROJECT` prints them for a project. `aerotri init P ... --set section.key=value` and `aerotri settings P --set
+section.key=value` write a setting into project.toml (its comments kept) after the same checks. A key that is not
+listed here, or a value of the wrong type or out of range, stops the command with a message naming the file, the
+section and the key. Nested tables are
 sub-sections (`[match.sparse]`); file names are relative to the project folder. Commands over plain files
 (`lidarctl contours DEM OUT`, ...) read no project.toml: their options alone.
 

@@ -4,7 +4,8 @@ What it makes, as one folder that appears whole or not at all (``aerotri.core.at
 
 - ``images/``: one symbolic link per frame to the frame's file (absolute path), or a copy with ``copy``;
 - ``project.toml``: ``[project] name`` and ``crs`` (checked: a projected CRS in metres or feet) and
-  ``heights``, the other sections commented out with what they take;
+  ``heights``, the other sections commented out with what they take, and the settings given as
+  ``section.key=value`` (``aerotri init --set``; checked as every command checks project.toml) as live sections;
 - ``camera.toml``: the camera given (checked, and against the frames' size), else the one the first frame's
   EXIF states (``aerotri.exchange.exif``: DJI's factory calibration, else the nominal focal length and pixel
   size), with a comment saying where it came from; when the EXIF does not say enough, no camera.toml and
@@ -159,9 +160,11 @@ def _camera_text(frames: ImageFiles, size: tuple[int, int], camera_path: Path | 
     return header + cam.to_toml(), f"EXIF of {first.name}", None, list(notes)
 
 
-def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = False, name: str | None = None) -> InitResult:
+def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = False, name: str | None = None,
+                 settings: tuple[str, ...] = ()) -> InitResult:
     """Make the project folder ``root`` (module docstring); ``root`` must not exist or be an empty folder.
-    Returns what was made."""
+    ``settings``: ``section.key=value`` items for project.toml (``aerotri.chain.set_settings``). Returns what was
+    made."""
     from aerotri.geom.crs.definition import crs_label
     from aerotri.geom.eo import check_block_crs
 
@@ -174,6 +177,9 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
         raise OptionError(f"{root}: exists and is not an empty folder; aerotri init makes a new project "
                           "(choose a new folder name)", param="PROJECT")
     c = check_block_crs(crs, "--crs")
+    from aerotri.chain.set_settings import checked_settings
+
+    _, changes = checked_settings(settings, root)
     frames = _frames(images_dir)
     if _inside(root, images_dir):
         raise OptionError(f"{root}: inside the frames' folder {images_dir}; put the project elsewhere", param="PROJECT")
@@ -193,7 +199,7 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
     from aerotri.core.crs_files import is_crs_file
 
     crs_file = Path(str(crs).strip()).expanduser() if is_crs_file(str(crs)) else None
-    toml = PROJECT_TOML.format(name=name.replace('"', "'"), crs=crs_file.name if crs_file else crs, crs_name=crs_name)
+    toml = project_toml(name, crs_file.name if crs_file else crs, crs_name, changes)
     with _project_folder(root) as tmp:
         if crs_file is not None:
             shutil.copyfile(crs_file, tmp / crs_file.name)
@@ -209,6 +215,15 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
             (tmp / "camera.toml").write_text(camera_text, encoding="utf-8")
     return InitResult(root, len(frames), not copy, camera_source, camera_missing, tuple(notes),
                       _exif_gnss(frames.path[0]))
+
+
+def project_toml(name: str, crs: str, crs_name: str, changes=()) -> str:
+    """project.toml's text: the template with ``[project]`` filled in and the ``--set`` ``changes``
+    (``aerotri.chain.set_settings.checked_settings``) written in."""
+    from aerotri.chain.set_settings import with_settings
+
+    text = PROJECT_TOML.format(name=name.replace('"', "'"), crs=crs, crs_name=crs_name)
+    return with_settings(text, changes, "--set") if changes else text
 
 
 @contextlib.contextmanager

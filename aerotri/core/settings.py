@@ -34,6 +34,7 @@ parameter source tells whether it was given); every field's source goes into the
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import types
 import typing
@@ -336,6 +337,32 @@ def toml_key(cls, path: str) -> str:
     section = getattr(cls, "SECTION", None)
     table = ".".join(([section] if section else []) + heads)
     return f"[{table}] {name}" if table else name
+
+
+def toml_value(v) -> str:
+    """A value as TOML text: booleans, numbers, strings (basic strings) and lists of them."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a JSON string is a TOML basic string
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    raise ConfigError(f"cannot write {v!r} as a TOML value")
+
+
+def sections_toml(tables: dict, prefix: str = "") -> str:
+    """Tables ``{section: {key: value}}`` as TOML sections (``[section]``, sub-tables ``[section.sub]``)."""
+    out = []
+    for section, table in tables.items():
+        name = f"{prefix}{section}"
+        plain = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        out.append(f"\n[{name}]\n" + "".join(f"{k} = {toml_value(v)}\n" for k, v in plain.items()))
+        sub = {k: v for k, v in table.items() if isinstance(v, dict)}
+        if sub:
+            out.append(sections_toml(sub, f"{name}."))
+    return "".join(out)
 
 
 # -- the command line ---------------------------------------------------------------------------------

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
 import math
 import os
 import tomllib
@@ -21,7 +20,7 @@ import typing
 from pathlib import Path
 
 from aerotri.core.errors import InputError
-from aerotri.core.settings import default_settings, from_table, setting
+from aerotri.core.settings import default_settings, from_table, sections_toml, setting
 
 def _preset_dir() -> Path:
     """``$AEROTRI_PRESETS``, else the source checkout's datasets/presets, else the installed copy."""
@@ -386,26 +385,5 @@ def preset_reference() -> str:
     return head + markdown_reference(sections, {})
 
 
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)  # a TOML basic string for what presets hold
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise InputError(f"preset [chain]: cannot write {v!r} into project.toml")
-
-
-def stage_sections_toml(chain: dict, prefix: str = "") -> str:
-    """The preset's ``[chain.<stage>]`` tables as project.toml sections (``[<stage>]``, sub-tables nested)."""
-    out = []
-    for section, table in chain.items():
-        name = f"{prefix}{section}"
-        plain = {k: v for k, v in table.items() if not isinstance(v, dict)}
-        out.append(f"\n[{name}]\n" + "".join(f"{k} = {_toml_value(v)}\n" for k, v in plain.items()))
-        sub = {k: v for k, v in table.items() if isinstance(v, dict)}
-        if sub:
-            out.append(stage_sections_toml(sub, f"{name}."))
-    return "".join(out)
+# the preset's [chain.<stage>] tables as project.toml sections ([<stage>], sub-tables nested)
+stage_sections_toml = sections_toml

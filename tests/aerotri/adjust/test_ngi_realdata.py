@@ -152,8 +152,8 @@ def test_the_dem_as_surface_control_brings_the_orientation_to_the_national_solut
 
 def test_the_commands_of_a_dmc_block_with_a_dem(ngi_data, tmp_path):
     """End to end with the commands of docs/your-own-block.md, as a user runs them on the NGI frames: init (the data
-    folder also holds dem.tif, so the frames are linked from a folder of their own; project.toml gets the heights
-    and the DEM's mean height, 411 m), the orthority import of the
+    folder also holds dem.tif, so the frames are linked from a folder of their own; `--set` gives project.toml the
+    heights and the DEM's mean height, 411 m), the orthority import of the
     camera and the national AT's projection centres as GNSS (--as-gnss, 0.05 m: the positions a DMC flight's
     GNSS/IMU gives), match, adjust with the 24 m SUDEM as surface control, report. The attitudes come from the
     images (imported/eo.txt is not read), and are checked against the national AT: measured 0.0086 deg RMS
@@ -176,15 +176,14 @@ def test_the_commands_of_a_dmc_block_with_a_dem(ngi_data, tmp_path):
     prj = (ngi_data / "formats" / "ngi_xyz_opk.prj").read_text().strip()
     r = run("init", p, "--images", ngi_data, "--crs", prj)
     assert r.exit_code == 2 and "frames of 2 sizes" in r.output and "dem" in r.output  # dem.tif is no frame
-    r = run("init", p, "--images", frames, "--crs", prj)
+    # the DEM's heights (EGM2008) and its mean height for the footprints of the match (without it the pairs come
+    # from thumbnail retrieval, which finds neither cross-strip pair of these frames: 2 parts, OPK 0.023 deg off)
+    r = run("init", p, "--images", frames, "--crs", prj, "--set", f"project.heights={ngi.HEIGHTS}",
+            "--set", "flight.mean_terrain_height_m=411")
     assert r.exit_code == 0, r.output
     assert "no camera in the EXIF" in r.output and not (p / "camera.toml").exists()
     # the CRS given as a PROJ string has no name: project.toml's comment says what it is instead of "unknown"
     assert "# Transverse Mercator (Longitude of natural origin 25" in (p / "project.toml").read_text()
-    # the DEM's heights (EGM2008) and its mean height for the footprints of the match (without it the pairs come
-    # from thumbnail retrieval, which finds neither cross-strip pair of these frames: 2 parts, OPK 0.023 deg off)
-    toml = (p / "project.toml").read_text().replace('heights = "ellipsoidal"', f'heights = "{ngi.HEIGHTS}"', 1)
-    (p / "project.toml").write_text(toml + "\n[flight]\nmean_terrain_height_m = 411.0\n")
     r = run("import", p, "--format", "orthority", ngi_data / "formats" / "ngi_int_param.yaml",
             ngi_data / "formats" / "ngi_xyz_opk.csv", "--as-gnss", "--sigma-xyz-m", "0.05", "0.05", "0.05")
     assert r.exit_code == 0, r.output

@@ -140,6 +140,72 @@ def test_init_camera_from_exif(tmp_path):
     assert "From the EXIF of DJI_0000.JPG" in (p / "camera.toml").read_text()
 
 
+def test_init_writes_the_settings_given_with_set(tiny_project, tmp_path):
+    """`--set section.key=value` (TOML values, or a bare word) goes into project.toml as live sections, read back by
+    every command as typed settings with project.toml as their source; `aerotri import` still puts its terrain height
+    under the [flight] header when --set gave none, and keeps the one --set gave."""
+    from aerotri.chain.options import read_options
+    from aerotri.core.project import Project
+
+    p = tmp_path / "blk"
+    r = run("init", p, "--images", tiny_project / "images", "--crs", "EPSG:32649", "--camera",
+            tiny_project / "camera.toml", "--set", "project.heights=EPSG:3855", "--set", "flight.mean_terrain_height_m=411",
+            "--set", "gnss.sigma_xy_m=0.05", "--set", 'adjust.self_calibration=["pp", "radial"]',
+            "--set", "match.sparse.budget=8000", "--set", "rectify.dem=dem.tif", "--set", "flight.speed_mps=60")
+    assert r.exit_code == 0, r.output
+    cfg = tomllib.loads((p / "project.toml").read_text())
+    assert cfg == {"project": {"name": "blk", "crs": "EPSG:32649", "heights": "EPSG:3855"},
+                   "flight": {"mean_terrain_height_m": 411, "speed_mps": 60}, "gnss": {"sigma_xy_m": 0.05},
+                   "adjust": {"self_calibration": ["pp", "radial"]}, "match": {"sparse": {"budget": 8000}},
+                   "rectify": {"dem": "dem.tif"}}
+    project = Project.open(p)
+    assert project.info.heights == "EPSG:3855" and project.flight.mean_terrain_height_m == 411.0
+    assert project.flight.speed_mps == 60.0 and project.gnss.sigma_xy_m == 0.05
+    assert project.source_of("flight", "mean_terrain_height_m") == "project.toml"
+    opts = read_options(project)
+    assert opts.settings.adjust.self_calibration == ("pp", "radial") and opts.settings.match.sparse.budget == 8000
+    assert opts.settings.rectify.dem == p / "dem.tif"
+    # the template's lines stay, comments included: [project] heights replaced in place, the sections appended
+    text = (p / "project.toml").read_text()
+    assert 'heights = "EPSG:3855"  # or a vertical CRS' in text
+    assert text.index("# [gnss]") < text.index("\n[flight]\nspeed_mps = 60\nmean_terrain_height_m = 411\n")
+
+
+def test_init_set_a_bare_word_and_the_last_of_a_key(tiny_project, tmp_path):
+    p = tmp_path / "blk"
+    r = run("init", p, "--images", tiny_project / "images", "--crs", "EPSG:32649", "--camera",
+            tiny_project / "camera.toml", "--set", "qa.map_scale=1:2000", "--set", "flight.speed_mps=50",
+            "--set", "flight.speed_mps=65.5", "--set", 'project.name=block "north"')
+    assert r.exit_code == 0, r.output
+    cfg = tomllib.loads((p / "project.toml").read_text())
+    assert cfg["qa"] == {"map_scale": "1:2000"} and cfg["flight"] == {"speed_mps": 65.5}
+    assert cfg["project"]["name"] == 'block "north"' 
+
+
+@pytest.mark.parametrize("item, expect", [
+    ("flight.mean_terrain_height_m=abc", "--set flight.mean_terrain_height_m=abc [flight] mean_terrain_height_m = 'abc': expected a number"),
+    ("flight.height=400", "--set flight.height=400 [flight]: unknown key 'height'"),
+    ("fligth.speed_mps=60", "--set fligth.speed_mps=60: unknown section [fligth]"),
+    ("match.foo=1", "--set match.foo=1 [match]: unknown key 'foo'"),
+    ("match.sparse=1", "--set match.sparse=1 [match.sparse]: expected a table"),
+    ("adjust.self_calibration=wobble", "expected one of focal, pp, radial, tangential"),
+    ("project.heights=EPSG:32633", "--set project.heights=EPSG:32633: EPSG:32633 (WGS 84 / UTM zone 33N) is not a vertical CRS"),
+    ("project.crs=EPSG:32650", "the project CRS is chosen at aerotri init --crs"),
+    ("heights=EPSG:3855", "expected section.key=value"),
+    ("flight.speed_mps", "expected section.key=value"),
+    ("gnss.sigma_xy_m=-1", "--set gnss.sigma_xy_m=-1 [gnss] sigma_xy_m"),
+])
+def test_init_refuses_a_bad_set(item, expect, tiny_project, tmp_path):
+    """A --set item that project.toml could not hold is refused before anything is made, naming the item."""
+    before = snapshot(tmp_path)
+    r = run("init", tmp_path / "blk", "--images", tiny_project / "images", "--crs", "EPSG:32649", "--camera",
+            tiny_project / "camera.toml", "--set", "flight.speed_mps=60", "--set", item)
+    assert r.exit_code == 2 and "Traceback" not in r.stderr, r.output
+    errors = [s for s in r.stderr.splitlines() if s.startswith("Error:")]
+    assert len(errors) == 1 and expect in errors[0], r.stderr
+    assert snapshot(tmp_path) == before
+
+
 @pytest.mark.parametrize("case", ["exists", "geographic", "vertical", "two_sizes", "no_images", "inside_images"])
 def test_init_refuses(case, tiny_project, tmp_path):
     frames = tmp_path / "frames"
@@ -199,11 +265,11 @@ def test_project_toml_template_shows_the_gnss_defaults(tmp_path):
     said sigma_z_m = 0.08 while the default, which the EXIF import and `aerotri settings` state, is 0.1); the flight
     offset's keys, which have no default (no offset: a survey receiver), show what the EXIF import writes for a
     consumer receiver."""
-    from aerotri.chain.setup import PROJECT_TOML
+    from aerotri.chain.setup import project_toml
     from aerotri.core.project import GnssSettings
     from aerotri.exchange.exif import CONSUMER_GNSS
 
-    text = PROJECT_TOML.format(name="t", crs="EPSG:32615", crs_name="UTM")
+    text = project_toml("t", "EPSG:32615", "UTM")
     gnss = text.split("# [gnss]", 1)[1].split("\n\n", 1)[0]
     shown = tomllib.loads("\n".join(line.removeprefix("# ").split("#")[0] for line in gnss.splitlines()[1:]))
     defaults = GnssSettings()

@@ -1,0 +1,164 @@
+"""Settings given on the command line as ``section.key=value`` (``aerotri init --set``, ``aerotri settings PROJECT
+--set``), checked and written into project.toml.
+
+An item is ``section[.sub].key=value``; the value is TOML (``411``, ``0.05``, ``true``, ``"text"``, ``["pp",
+"radial"]``) or, when it does not parse as TOML, the text as written (a bare ``EPSG:3855`` or ``brown``). Every
+item is checked as the commands check project.toml (``aerotri.core.project.check_sections`` for the project
+sections, each stage's settings class for its section, and ``[project] heights`` as a vertical CRS), in the order
+given, so that an error names the item. ``[project] crs`` is not set this way: it is chosen at ``aerotri init
+--crs`` and every product of a project is in it.
+
+The file's text is edited line by line, its comments and layout kept: a key's line replaced (its comment kept), a
+new key put under its section's header, a new section appended. The edited text must read back as the settings
+asked for, else nothing is written (a multi-line value, an inline table, dotted keys: edit those by hand).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import re
+import tomllib
+from pathlib import Path
+
+from aerotri.core.errors import ConfigError, InputError, OptionError
+
+EXAMPLE = "e.g. flight.mean_terrain_height_m=411 or project.heights=EPSG:3855"
+
+
+def parse_item(item: str) -> tuple[tuple[str, ...], object]:
+    """``section[.sub].key=value`` -> (the key's path, its value)."""
+    key, sep, value = item.partition("=")
+    path = tuple(p.strip() for p in key.split("."))
+    if not sep or len(path) < 2 or not all(path):
+        raise OptionError(f"--set {item!r}: expected section.key=value, {EXAMPLE}", param="--set")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()  # a bare word: EPSG:3855, brown, 1:2000, ...
+    return path, parsed
+
+
+def checked_settings(items, root, config: dict | None = None) -> tuple[dict, list[tuple[tuple[str, ...], object]]]:
+    """``config`` (a project.toml's tables; None: a new project's) with the ``--set`` ``items`` applied, each checked
+    (module docstring; ``root`` anchors relative file names); returns (the new tables, the (path, value) changes in
+    order). ``OptionError`` naming the item."""
+    from aerotri.core.project import PROJECT_SECTIONS, check_sections
+    from aerotri.core.settings import from_table
+    from aerotri.geom.crs.definition import parse_heights
+
+    tables = copy.deepcopy(config) if config is not None else {}
+    changes = []
+    for item in items:
+        path, value = parse_item(item)
+        if path[:2] == ("project", "crs"):
+            raise OptionError(f"--set {item!r}: the project CRS is chosen at aerotri init --crs (every product of the "
+                              "project is in it)", param="--set")
+        where = f"--set {item}"
+        table = tables.setdefault(path[0], {})
+        for head in path[1:-1]:
+            table = table.setdefault(head, {})
+            if not isinstance(table, dict):
+                raise OptionError(f"{where}: {head} is a value, not a section", param="--set")
+        if isinstance(table.get(path[-1]), dict):
+            raise OptionError(f"{where}: {'.'.join(path)} is a section; give one of its keys", param="--set")
+        table[path[-1]] = value
+        try:
+            sections = check_sections(tables, where)
+            if path[0] not in PROJECT_SECTIONS or path[0] == "control":  # [control]: the stage's keys too
+                from aerotri.chain.options import STAGE_SECTIONS
+
+                stage = STAGE_SECTIONS.get(path[0])
+                if stage is not None:
+                    own = tables[path[0]]
+                    if path[0] == "control":  # the project's sigma keys share the section
+                        shared = {f.name for f in dataclasses.fields(PROJECT_SECTIONS["control"])}
+                        own = {k: v for k, v in own.items() if k not in shared}
+                    from_table(stage, own, f"{where} [{path[0]}]", base_dir=Path(root))
+            if path[:2] == ("project", "heights"):
+                parse_heights(sections.project.heights, where)
+        except InputError as exc:
+            raise OptionError(str(exc), param="--set") from None
+        changes.append((path, value))
+    return tables, changes
+
+
+def _header(text: str, section: tuple[str, ...]) -> re.Match | None:
+    name = r"[ \t]*\.[ \t]*".join(re.escape(s) for s in section)
+    return re.search(rf"(?m)^[ \t]*\[[ \t]*{name}[ \t]*\][ \t]*(#[^\n]*)?(\n|\Z)", text)
+
+
+def _value_end(rest: str) -> int | None:
+    """Where the value of ``key = <rest>`` ends on its line (before a comment), or None when it does not end there."""
+    # the first "#" before which the text is a whole value starts the comment (TOML reads "v = 1 # c" too)
+    for i in [m.start() for m in re.finditer("#", rest)] + [len(rest)]:
+        try:
+            tomllib.loads("v = " + rest[:i])
+            return i
+        except tomllib.TOMLDecodeError:
+            continue
+    return None
+
+
+def with_settings(text: str, changes, source: str) -> str:
+    """project.toml's ``text`` with the ``changes`` ((path, value), ``checked_settings``) written in (module
+    docstring); ``ConfigError`` naming ``source`` when a change cannot be written as a line of its own."""
+    from aerotri.core.settings import toml_value
+
+    expected = tomllib.loads(text)
+    for path, value in changes:
+        section, key = path[:-1], path[-1]
+        line = f"{key} = {toml_value(value)}"
+        header = _header(text, section)
+        if header is None:
+            text = text.rstrip("\n") + f"\n\n[{'.'.join(section)}]\n{line}\n"
+        else:
+            body_start = header.end()
+            if not header.group(2):  # the header is the file's last line
+                text, body_start = text + "\n", body_start + 1
+            nxt = re.search(r"(?m)^[ \t]*\[", text[body_start:])
+            body_end = body_start + nxt.start() if nxt else len(text)
+            old = re.search(rf"(?m)^([ \t]*){re.escape(key)}[ \t]*=[ \t]*([^\n]*)$", text[body_start:body_end])
+            if old is None:
+                text = text[:body_start] + line + "\n" + text[body_start:]
+            else:
+                rest = old.group(2)
+                end = _value_end(rest)
+                if end is None:
+                    raise ConfigError(f"{source}: [{'.'.join(section)}] {key} spans several lines; edit it by hand")
+                comment = rest[end:].strip()
+                new = old.group(1) + line + ("  " + comment if comment else "")
+                text = text[:body_start + old.start()] + new + text[body_start + old.end():]
+        target = expected
+        for head in section:
+            target = target.setdefault(head, {})
+        target[key] = value
+    try:
+        ok = tomllib.loads(text) == expected
+    except tomllib.TOMLDecodeError:
+        ok = False
+    if not ok:
+        raise ConfigError(f"{source}: the settings given could not be written as lines of their own (the file gives "
+                          "one of their sections as dotted keys or an inline table); edit it by hand")
+    return text
+
+
+def set_in_project(project, items) -> list[str]:
+    """Write the ``--set`` ``items`` into the project.toml of ``project`` (an ``aerotri.core.project.Project``),
+    each checked first (``checked_settings``: nothing is written when one is refused); returns a line per change
+    saying what the key held before."""
+    from aerotri.core.atomic import write_text_atomic
+    from aerotri.core.settings import toml_value
+
+    _, changes = checked_settings(items, project.root, project.config)
+    path = project.config_path
+    text = with_settings(path.read_text(encoding="utf-8"), changes, str(path))
+    write_text_atomic(path, text)
+    lines = []
+    for keys, value in changes:
+        old: object = project.config
+        for k in keys:
+            old = old.get(k, None) if isinstance(old, dict) else None
+        was = "not given: its default" if old is None else toml_value(old)
+        lines.append(f"{path}: [{'.'.join(keys[:-1])}] {keys[-1]} = {toml_value(value)} (was {was})")
+    return lines

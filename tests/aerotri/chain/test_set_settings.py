@@ -1,0 +1,102 @@
+"""Settings given as ``section.key=value`` (``aerotri init --set``, ``aerotri settings PROJECT --set``): written into
+project.toml line by line with its comments kept, read back as asked, refused (nothing written) when a value is bad
+or the file holds the key in a form that is not a line of its own."""
+
+from __future__ import annotations
+
+import tomllib
+
+import pytest
+from click.testing import CliRunner
+
+from aerotri.chain.set_settings import parse_item, with_settings
+from aerotri.cli import main
+from aerotri.core.errors import ConfigError
+
+TEXT = """\
+# my block
+[project]
+name = "blk"
+crs = "EPSG:32649"
+heights = "ellipsoidal"  # changed when the GNSS is in EGM2008
+
+[flight]   # the flight
+speed_mps = 60 # m/s
+[match.sparse]
+budget = 4000"""
+
+
+def changed(text, *items):
+    return with_settings(text, [parse_item(i) for i in items], "project.toml")
+
+
+def test_a_key_replaced_in_place_with_its_comment():
+    out = changed(TEXT, "project.heights=EPSG:3855", "flight.speed_mps=65.5")
+    assert 'heights = "EPSG:3855"  # changed when the GNSS is in EGM2008\n' in out
+    assert "speed_mps = 65.5  # m/s\n" in out
+    assert out.startswith("# my block\n[project]") and "[flight]   # the flight\n" in out
+    assert len(out.splitlines()) == len(TEXT.splitlines())
+
+
+def test_a_new_key_under_its_header_and_a_new_section_at_the_end():
+    out = changed(TEXT, "flight.mean_terrain_height_m=411", "match.sparse.grid=4", "adjust.gnss_correction=shift",
+                  "match.min_overlap=0.1")
+    cfg = tomllib.loads(out)
+    assert cfg["flight"] == {"mean_terrain_height_m": 411, "speed_mps": 60}
+    assert cfg["match"] == {"sparse": {"budget": 4000, "grid": 4}, "min_overlap": 0.1}
+    assert cfg["adjust"] == {"gnss_correction": "shift"}
+    # the last section's header had no line end: the new key goes beneath it all the same
+    assert "[match.sparse]\ngrid = 4\nbudget = 4000\n" in out
+
+
+def test_a_hash_inside_a_string_is_no_comment():
+    text = '[qa]\nmap_scale = "1:5000 #a"  # the contract\n'
+    out = changed(text, "qa.map_scale=1:2000")
+    assert out == '[qa]\nmap_scale = "1:2000"  # the contract\n'
+
+
+@pytest.mark.parametrize("text", [
+    '[adjust]\nself_calibration = [\n  "pp",\n  "radial",\n]\n',  # a value over several lines
+    'flight.speed_mps = 60\n',  # dotted keys: no [flight] header
+    'flight = { speed_mps = 60 }\n',  # an inline table
+])
+def test_a_key_not_on_a_line_of_its_own_is_refused(text):
+    item = "adjust.self_calibration=pp" if "adjust" in text else "flight.speed_mps=65"
+    with pytest.raises(ConfigError, match="project.toml: .*(edit it by hand)"):
+        changed(text, item)
+
+
+def _project(tiny_project, tmp_path):
+    p = tmp_path / "blk"
+    r = CliRunner().invoke(main, ["init", str(p), "--images", str(tiny_project / "images"), "--crs", "EPSG:32649",
+                                  "--camera", str(tiny_project / "camera.toml")])
+    assert r.exit_code == 0, r.output
+    return p
+
+
+def test_settings_set_changes_the_project(tiny_project, tmp_path):
+    p = _project(tiny_project, tmp_path)
+    r = CliRunner().invoke(main, ["settings", str(p), "--set", "flight.mean_terrain_height_m=310",
+                                  "--set", "project.heights=EPSG:3855", "--set", "mosaic.feather_m=0.8"])
+    assert r.exit_code == 0, r.output
+    assert f"{p / 'project.toml'}: [flight] mean_terrain_height_m = 310 (was not given: its default)" in r.output
+    assert '[project] heights = "EPSG:3855" (was "ellipsoidal")' in r.output
+    r = CliRunner().invoke(main, ["settings", str(p)])
+    assert r.exit_code == 0 and "mean_terrain_height_m : 310.0  [project.toml]" in r.output
+    assert "heights : EPSG:3855  [project.toml]" in r.output
+
+
+@pytest.mark.parametrize("args, expect", [
+    (["--set", "flight.speed_mps=fast"], "--set flight.speed_mps=fast [flight] speed_mps = 'fast': expected a number"),
+    (["--set", "flight.speed_mps=65", "--set", "mosaic.no_such_key=1"], "--set mosaic.no_such_key=1 [mosaic]: unknown key"),
+    (["--set", "project.crs=EPSG:32650"], "the project CRS is chosen at aerotri init --crs"),
+    (["--markdown", "--set", "flight.speed_mps=65"], "--set changes a project's project.toml: give PROJECT"),
+])
+def test_settings_set_refused_leaves_the_file_as_it_was(args, expect, tiny_project, tmp_path):
+    p = _project(tiny_project, tmp_path)
+    before = (p / "project.toml").read_bytes()
+    r = CliRunner().invoke(main, ["settings", *([] if "--markdown" in args else [str(p)]), *args])
+    assert r.exit_code == 2 and "Traceback" not in r.stderr, r.output
+    errors = [s for s in r.stderr.splitlines() if s.startswith("Error:")]
+    assert len(errors) == 1 and expect in errors[0], r.stderr
+    assert (p / "project.toml").read_bytes() == before
