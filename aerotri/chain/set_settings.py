@@ -17,11 +17,14 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import logging
 import re
 import tomllib
 from pathlib import Path
 
 from aerotri.core.errors import ConfigError, InputError, OptionError
+
+log = logging.getLogger(__name__)
 
 EXAMPLE = "e.g. flight.mean_terrain_height_m=411 or project.heights=EPSG:3855"
 
@@ -34,7 +37,11 @@ def parse_item(item: str) -> tuple[tuple[str, ...], object]:
         raise OptionError(f"--set {item!r}: expected section.key=value, {EXAMPLE}", param="--set")
     try:
         parsed = tomllib.loads(f"v = {value.strip()}")["v"]
-    except tomllib.TOMLDecodeError:
+    except tomllib.TOMLDecodeError as exc:
+        if value.strip()[:1] in ("[", "{", '"', "'"):  # meant as a TOML list, table or string, and not one
+            raise OptionError(f"--set {item!r}: {value.strip()} is not a TOML value ({exc}); e.g. "
+                              "'adjust.self_calibration=[\"pp\", \"radial\"]' (quote the whole item for the shell)",
+                              param="--set") from None
         parsed = value.strip()  # a bare word: EPSG:3855, brown, 1:2000, ...
     return path, parsed
 
@@ -65,6 +72,7 @@ def checked_settings(items, root, config: dict | None = None) -> tuple[dict, lis
         table[path[-1]] = value
         try:
             sections = check_sections(tables, where)
+            typed = getattr(sections, path[0]) if path[0] in PROJECT_SECTIONS else None
             if path[0] not in PROJECT_SECTIONS or path[0] == "control":  # [control]: the stage's keys too
                 from aerotri.chain.options import STAGE_SECTIONS
 
@@ -74,13 +82,32 @@ def checked_settings(items, root, config: dict | None = None) -> tuple[dict, lis
                     if path[0] == "control":  # the project's sigma keys share the section
                         shared = {f.name for f in dataclasses.fields(PROJECT_SECTIONS["control"])}
                         own = {k: v for k, v in own.items() if k not in shared}
-                    from_table(stage, own, f"{where} [{path[0]}]", base_dir=Path(root))
+                        if path[1] in shared:
+                            stage = None
+                    if stage is not None:
+                        typed = from_table(stage, own, f"{where} [{path[0]}]", base_dir=Path(root))
+            _warn_missing_file(typed, path[1:], Path(root), where)
             if path[:2] == ("project", "heights"):
                 parse_heights(sections.project.heights, where)
         except InputError as exc:
             raise OptionError(str(exc), param="--set") from None
         changes.append((path, value))
     return tables, changes
+
+
+def _warn_missing_file(typed, path: tuple[str, ...], root: Path, where: str) -> None:
+    """A file setting names a file that is not there (yet): a warning, since the commands look for it when they run
+    (a DEM, a tolerance table or an EO file may be put in later)."""
+    from aerotri.core.settings import get_path
+
+    try:
+        value = get_path(typed, ".".join(path))
+    except AttributeError:
+        return
+    if isinstance(value, Path):
+        where_file = value if value.is_absolute() else root / value
+        if not where_file.exists():
+            log.warning(f"{where}: {where_file} is not there (yet); the commands that read it will look for it")
 
 
 def _header(text: str, section: tuple[str, ...]) -> re.Match | None:
@@ -105,7 +132,15 @@ def with_settings(text: str, changes, source: str) -> str:
     docstring); ``ConfigError`` naming ``source`` when a change cannot be written as a line of its own."""
     from aerotri.core.settings import toml_value
 
-    expected = tomllib.loads(text)
+    bom = "\ufeff" if text.startswith("\ufeff") else ""
+    newline = "\r\n" if "\r\n" in text else "\n"
+    text = text[len(bom):].replace("\r\n", "\n")
+    if text and not text.endswith("\n"):
+        text += "\n"
+    try:
+        expected = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML ({exc})") from None
     for path, value in changes:
         section, key = path[:-1], path[-1]
         line = f"{key} = {toml_value(value)}"
@@ -114,13 +149,13 @@ def with_settings(text: str, changes, source: str) -> str:
             text = text.rstrip("\n") + f"\n\n[{'.'.join(section)}]\n{line}\n"
         else:
             body_start = header.end()
-            if not header.group(2):  # the header is the file's last line
-                text, body_start = text + "\n", body_start + 1
             nxt = re.search(r"(?m)^[ \t]*\[", text[body_start:])
             body_end = body_start + nxt.start() if nxt else len(text)
             old = re.search(rf"(?m)^([ \t]*){re.escape(key)}[ \t]*=[ \t]*([^\n]*)$", text[body_start:body_end])
-            if old is None:
-                text = text[:body_start] + line + "\n" + text[body_start:]
+            if old is None:  # after the section's last key (its comment lines, the template's, stay below)
+                keys = list(re.finditer(r"(?m)^[ \t]*[^#\s][^\n]*$", text[body_start:body_end]))
+                at = body_start + keys[-1].end() + 1 if keys else body_start
+                text = text[:at] + line + "\n" + text[at:]
             else:
                 rest = old.group(2)
                 end = _value_end(rest)
@@ -139,8 +174,9 @@ def with_settings(text: str, changes, source: str) -> str:
         ok = False
     if not ok:
         raise ConfigError(f"{source}: the settings given could not be written as lines of their own (the file gives "
-                          "one of their sections as dotted keys or an inline table); edit it by hand")
-    return text
+                          "one of their keys or sections otherwise: quoted or dotted keys, an inline table, a multi-line "
+                          "string); edit it by hand")
+    return bom + text.replace("\n", newline)
 
 
 def set_in_project(project, items) -> list[str]:
@@ -154,11 +190,14 @@ def set_in_project(project, items) -> list[str]:
     path = project.config_path
     text = with_settings(path.read_text(encoding="utf-8"), changes, str(path))
     write_text_atomic(path, text)
-    lines = []
+    lines, now = [], copy.deepcopy(project.config)
     for keys, value in changes:
-        old: object = project.config
-        for k in keys:
-            old = old.get(k, None) if isinstance(old, dict) else None
+        table: object = now
+        for k in keys[:-1]:
+            table = table.setdefault(k, {}) if isinstance(table, dict) else {}
+        old = table.get(keys[-1]) if isinstance(table, dict) else None
         was = "not given: its default" if old is None else toml_value(old)
         lines.append(f"{path}: [{'.'.join(keys[:-1])}] {keys[-1]} = {toml_value(value)} (was {was})")
+        if isinstance(table, dict):
+            table[keys[-1]] = value
     return lines

@@ -34,7 +34,7 @@ PROJECT_TOML = """\
 [project]
 name = "{name}"
 crs = "{crs}"            # {crs_name}; gnss.txt, control and every product are in it
-heights = "ellipsoidal"  # or a vertical CRS, e.g. "EPSG:3855" (EGM2008 height) when gnss.txt has such heights
+heights = "ellipsoidal"  # "ellipsoidal", or a vertical CRS such as "EPSG:3855" (EGM2008) when gnss.txt has such heights
 
 # [gnss]                 # gnss.txt: image_id X Y Z [sX sY sZ], antenna positions in the project CRS
 # sigma_xy_m = 0.05      # a-priori accuracy of positions without their own sX sY sZ (m)

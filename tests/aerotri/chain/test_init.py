@@ -167,8 +167,8 @@ def test_init_writes_the_settings_given_with_set(tiny_project, tmp_path):
     assert opts.settings.rectify.dem == p / "dem.tif"
     # the template's lines stay, comments included: [project] heights replaced in place, the sections appended
     text = (p / "project.toml").read_text()
-    assert 'heights = "EPSG:3855"  # or a vertical CRS' in text
-    assert text.index("# [gnss]") < text.index("\n[flight]\nspeed_mps = 60\nmean_terrain_height_m = 411\n")
+    assert 'heights = "EPSG:3855"  # "ellipsoidal", or a vertical CRS' in text
+    assert text.index("# [gnss]") < text.index("\n[flight]\nmean_terrain_height_m = 411\nspeed_mps = 60\n")
 
 
 def test_init_set_a_bare_word_and_the_last_of_a_key(tiny_project, tmp_path):

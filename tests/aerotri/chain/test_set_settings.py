@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from aerotri.chain.set_settings import parse_item, with_settings
 from aerotri.cli import main
-from aerotri.core.errors import ConfigError
+from aerotri.core.errors import ConfigError, OptionError
 
 TEXT = """\
 # my block
@@ -45,8 +45,34 @@ def test_a_new_key_under_its_header_and_a_new_section_at_the_end():
     assert cfg["flight"] == {"mean_terrain_height_m": 411, "speed_mps": 60}
     assert cfg["match"] == {"sparse": {"budget": 4000, "grid": 4}, "min_overlap": 0.1}
     assert cfg["adjust"] == {"gnss_correction": "shift"}
-    # the last section's header had no line end: the new key goes beneath it all the same
-    assert "[match.sparse]\ngrid = 4\nbudget = 4000\n" in out
+    # after the section's last key (the last section's header had no line end: beneath it all the same)
+    assert "[match.sparse]\nbudget = 4000\ngrid = 4\n" in out
+    assert "[flight]   # the flight\nspeed_mps = 60 # m/s\nmean_terrain_height_m = 411\n[match.sparse]" in out
+
+
+def test_new_keys_go_after_the_last_key_above_the_comment_lines():
+    text = "[project]\nname = \"a\"\n# heights = \"EPSG:3855\"\n\n# [gnss]\n# sigma_xy_m = 0.05\n"
+    out = changed(text, "project.heights=EPSG:3855", "gnss.sigma_xy_m=0.05")
+    assert out.startswith('[project]\nname = "a"\nheights = "EPSG:3855"\n# heights = "EPSG:3855"\n')
+    assert out.endswith("# sigma_xy_m = 0.05\n\n[gnss]\nsigma_xy_m = 0.05\n")
+
+
+def test_byte_order_mark_line_ends_and_unicode_kept():
+    text = "\ufeff[project]\r\nname = \"a\"  # here\r\n[flight]\r\nspeed_mps = 60\r\n"
+    out = changed(text, "project.name=\u00c9tude \u00e9t\u00e9", "flight.mean_terrain_height_m=411")
+    assert out == ("\ufeff[project]\r\nname = \"\u00c9tude \u00e9t\u00e9\"  # here\r\n[flight]\r\nspeed_mps = 60\r\n"
+                   "mean_terrain_height_m = 411\r\n")
+
+
+def test_a_file_that_is_no_toml_is_refused():
+    with pytest.raises(ConfigError, match="project.toml: not valid TOML"):
+        changed("[flight\nspeed_mps = 60\n", "flight.speed_mps=65")
+
+
+@pytest.mark.parametrize("value", ['[GCP1, GCP2]', '"1:2000', "{a = 1", "'x"])
+def test_a_value_meant_as_toml_that_is_none_is_refused(value):
+    with pytest.raises(OptionError, match="is not a TOML value"):
+        parse_item(f"adjust.check={value}")
 
 
 def test_a_hash_inside_a_string_is_no_comment():
@@ -76,10 +102,14 @@ def _project(tiny_project, tmp_path):
 
 def test_settings_set_changes_the_project(tiny_project, tmp_path):
     p = _project(tiny_project, tmp_path)
-    r = CliRunner().invoke(main, ["settings", str(p), "--set", "flight.mean_terrain_height_m=310",
-                                  "--set", "project.heights=EPSG:3855", "--set", "mosaic.feather_m=0.8"])
+    r = CliRunner().invoke(main, ["settings", str(p), "--set", "flight.mean_terrain_height_m=300",
+                                  "--set", "project.heights=EPSG:3855", "--set", "mosaic.feather_m=0.8",
+                                  "--set", "flight.mean_terrain_height_m=310", "--set", "rectify.dem=dem/lidar.tif"])
     assert r.exit_code == 0, r.output
-    assert f"{p / 'project.toml'}: [flight] mean_terrain_height_m = 310 (was not given: its default)" in r.output
+    assert f"{p / 'project.toml'}: [flight] mean_terrain_height_m = 300 (was not given: its default)" in r.output
+    assert f"{p / 'project.toml'}: [flight] mean_terrain_height_m = 310 (was 300)" in r.output
+    # a file that is not there yet: written, with a warning naming where the commands will look
+    assert f"--set rectify.dem=dem/lidar.tif: {p / 'dem' / 'lidar.tif'} is not there (yet)" in r.stderr
     assert '[project] heights = "EPSG:3855" (was "ellipsoidal")' in r.output
     r = CliRunner().invoke(main, ["settings", str(p)])
     assert r.exit_code == 0 and "mean_terrain_height_m : 310.0  [project.toml]" in r.output
