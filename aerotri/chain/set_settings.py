@@ -8,9 +8,10 @@ sections, each stage's settings class for its section, and ``[project] heights``
 given, so that an error names the item. ``[project] crs`` is not set this way: it is chosen at ``aerotri init
 --crs`` and every product of a project is in it.
 
-The file's text is edited line by line, its comments and layout kept: a key's line replaced (its comment kept), a
-new key put under its section's header, a new section appended. The edited text must read back as the settings
-asked for, else nothing is written (a multi-line value, an inline table, dotted keys: edit those by hand).
+The file's text is edited line by line, its comments, layout, byte-order mark and line ends kept: a key's line
+replaced (its comment kept), a new key put after its section's last key, a new section appended. The edited text must
+read back as the settings asked for, else nothing is written (a multi-line value, an inline table, dotted or quoted
+keys: edit those by hand).
 """
 
 from __future__ import annotations
@@ -46,14 +47,24 @@ def parse_item(item: str) -> tuple[tuple[str, ...], object]:
     return path, parsed
 
 
-def checked_settings(items, root, config: dict | None = None) -> tuple[dict, list[tuple[tuple[str, ...], object]]]:
-    """``config`` (a project.toml's tables; None: a new project's) with the ``--set`` ``items`` applied, each checked
-    (module docstring; ``root`` anchors relative file names); returns (the new tables, the (path, value) changes in
-    order). ``OptionError`` naming the item."""
-    from aerotri.core.project import PROJECT_SECTIONS, check_sections
+@dataclasses.dataclass(frozen=True)
+class SettingChange:
+    """One ``--set`` item, checked: the key's path in project.toml, its new value and the one it had (None: not given)."""
+
+    path: tuple[str, ...]
+    value: object
+    was: object = None
+
+
+def checked_settings(items, root, config: dict | None = None) -> list[SettingChange]:
+    """The ``--set`` ``items`` applied in order to ``config`` (a project.toml's tables; None: a new project's), each
+    checked (module docstring; ``root`` anchors relative file names). ``OptionError`` naming the item."""
+    from aerotri.chain.options import STAGE_SECTIONS
+    from aerotri.core.project import PROJECT_SECTIONS, Project, check_sections
     from aerotri.core.settings import from_table
     from aerotri.geom.crs.definition import parse_heights
 
+    root = Path(root)
     tables = copy.deepcopy(config) if config is not None else {}
     changes = []
     for item in items:
@@ -69,30 +80,22 @@ def checked_settings(items, root, config: dict | None = None) -> tuple[dict, lis
                 raise OptionError(f"{where}: {head} is a value, not a section", param="--set")
         if isinstance(table.get(path[-1]), dict):
             raise OptionError(f"{where}: {'.'.join(path)} is a section; give one of its keys", param="--set")
-        table[path[-1]] = value
+        was, table[path[-1]] = table.get(path[-1]), value
         try:
             sections = check_sections(tables, where)
-            typed = getattr(sections, path[0]) if path[0] in PROJECT_SECTIONS else None
-            if path[0] not in PROJECT_SECTIONS or path[0] == "control":  # [control]: the stage's keys too
-                from aerotri.chain.options import STAGE_SECTIONS
-
-                stage = STAGE_SECTIONS.get(path[0])
-                if stage is not None:
-                    own = tables[path[0]]
-                    if path[0] == "control":  # the project's sigma keys share the section
-                        shared = {f.name for f in dataclasses.fields(PROJECT_SECTIONS["control"])}
-                        own = {k: v for k, v in own.items() if k not in shared}
-                        if path[1] in shared:
-                            stage = None
-                    if stage is not None:
-                        typed = from_table(stage, own, f"{where} [{path[0]}]", base_dir=Path(root))
-            _warn_missing_file(typed, path[1:], Path(root), where)
+            project_cls = PROJECT_SECTIONS.get(path[0])
+            if project_cls is not None and path[1] in {f.name for f in dataclasses.fields(project_cls)}:
+                typed = getattr(sections, path[0])
+            else:  # a stage's key ([control] holds the project's sigmas and the control stage's keys)
+                own = Project(root, tables, sections).stage_table(path[0])
+                typed = from_table(STAGE_SECTIONS[path[0]], own, f"{where} [{path[0]}]", base_dir=root)
+            _warn_missing_file(typed, path[1:], root, where)
             if path[:2] == ("project", "heights"):
                 parse_heights(sections.project.heights, where)
         except InputError as exc:
             raise OptionError(str(exc), param="--set") from None
-        changes.append((path, value))
-    return tables, changes
+        changes.append(SettingChange(path, value, was))
+    return changes
 
 
 def _warn_missing_file(typed, path: tuple[str, ...], root: Path, where: str) -> None:
@@ -127,9 +130,9 @@ def _value_end(rest: str) -> int | None:
     return None
 
 
-def with_settings(text: str, changes, source: str) -> str:
-    """project.toml's ``text`` with the ``changes`` ((path, value), ``checked_settings``) written in (module
-    docstring); ``ConfigError`` naming ``source`` when a change cannot be written as a line of its own."""
+def with_settings(text: str, changes: list[SettingChange], source: str) -> str:
+    """project.toml's ``text`` with the ``changes`` (``checked_settings``) written in (module docstring);
+    ``ConfigError`` naming ``source`` when a change cannot be written as a line of its own."""
     from aerotri.core.settings import toml_value
 
     bom = "\ufeff" if text.startswith("\ufeff") else ""
@@ -141,8 +144,8 @@ def with_settings(text: str, changes, source: str) -> str:
         expected = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML ({exc})") from None
-    for path, value in changes:
-        section, key = path[:-1], path[-1]
+    for change in changes:
+        section, key, value = change.path[:-1], change.path[-1], change.value
         line = f"{key} = {toml_value(value)}"
         header = _header(text, section)
         if header is None:
@@ -186,18 +189,8 @@ def set_in_project(project, items) -> list[str]:
     from aerotri.core.atomic import write_text_atomic
     from aerotri.core.settings import toml_value
 
-    _, changes = checked_settings(items, project.root, project.config)
+    changes = checked_settings(items, project.root, project.config)
     path = project.config_path
-    text = with_settings(path.read_text(encoding="utf-8"), changes, str(path))
-    write_text_atomic(path, text)
-    lines, now = [], copy.deepcopy(project.config)
-    for keys, value in changes:
-        table: object = now
-        for k in keys[:-1]:
-            table = table.setdefault(k, {}) if isinstance(table, dict) else {}
-        old = table.get(keys[-1]) if isinstance(table, dict) else None
-        was = "not given: its default" if old is None else toml_value(old)
-        lines.append(f"{path}: [{'.'.join(keys[:-1])}] {keys[-1]} = {toml_value(value)} (was {was})")
-        if isinstance(table, dict):
-            table[keys[-1]] = value
-    return lines
+    write_text_atomic(path, with_settings(path.read_text(encoding="utf-8"), changes, str(path)))
+    return [f"{path}: [{'.'.join(c.path[:-1])}] {c.path[-1]} = {toml_value(c.value)} "
+            f"(was {'not given: its default' if c.was is None else toml_value(c.was)})" for c in changes]

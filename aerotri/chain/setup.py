@@ -179,7 +179,7 @@ def init_project(root, images_dir, crs: str, camera_path=None, copy: bool = Fals
     c = check_block_crs(crs, "--crs")
     from aerotri.chain.set_settings import checked_settings
 
-    _, changes = checked_settings(settings, root)
+    changes = checked_settings(settings, root)
     frames = _frames(images_dir)
     if _inside(root, images_dir):
         raise OptionError(f"{root}: inside the frames' folder {images_dir}; put the project elsewhere", param="PROJECT")

@@ -20,7 +20,7 @@ import typing
 from pathlib import Path
 
 from aerotri.core.errors import InputError
-from aerotri.core.settings import default_settings, from_table, sections_toml, setting
+from aerotri.core.settings import default_settings, from_table, setting
 
 def _preset_dir() -> Path:
     """``$AEROTRI_PRESETS``, else the source checkout's datasets/presets, else the installed copy."""
@@ -383,7 +383,3 @@ def preset_reference() -> str:
             "of the wrong type or out of range, and flying heights that do not clear the scene stop with the file,\n"
             "the table and the key. See docs/simulator.md for what the simulator makes.\n\n")
     return head + markdown_reference(sections, {})
-
-
-# the preset's [chain.<stage>] tables as project.toml sections ([<stage>], sub-tables nested)
-stage_sections_toml = sections_toml

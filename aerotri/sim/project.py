@@ -25,7 +25,7 @@ from aerotri.geom.eo import ExteriorOrientations, GnssPositions, format_eo, writ
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import rotation_matrix_opk
 from aerotri.sim import landcover, raster, raycast, render
-from aerotri.sim.config import Preset, checked_preset, stage_sections_toml
+from aerotri.sim.config import Preset, checked_preset
 from aerotri.sim.earth import SimEarth
 from aerotri.sim.flight import block_layout, cameras_from_config, lidar_lines, plan_frames
 from aerotri.sim.lidar import las_header, las_record, pulse_chunks, scan_strip, strip_pulses, trajectory
@@ -35,6 +35,7 @@ from aerotri.core.atomic import atomic_dir
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import track
 from aerotri.core.resources import measure
+from aerotri.core.settings import sections_toml
 
 log = logging.getLogger(__name__)
 
@@ -509,7 +510,7 @@ def _write_project_files(tmp: Path, cfg: Preset, *, plan, cam_true, cam_nominal,
         f"mean_terrain_height_m = {origin[2]}\nspeed_mps = {cfg.flight.speed_mps}\n\n"
         f"[qa]\n# tolerance table of the accuracy report (aerotri report): map scale, terrain class, PDF copy\n"
         f'map_scale = "1:5000"\nterrain = "{terrain}"\npdf = true\n'
-        + stage_sections_toml(rendered_chain_table(cfg) if chain is None else chain)
+        + sections_toml(rendered_chain_table(cfg) if chain is None else chain)
     )
     (tmp / "truth" / "gnss_truth.toml").write_text(
         f"lever_arm_m = [{lever}]\n"

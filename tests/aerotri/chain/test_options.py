@@ -102,12 +102,12 @@ def test_the_command_line_and_project_toml_refuse_the_same_values(tmp_path):
 
 @pytest.mark.parametrize("preset", ["tiny", "demo", "dmc"])
 def test_presets_write_valid_stage_options(preset, tmp_path):
-    from aerotri.sim.config import stage_sections_toml
+    from aerotri.core.settings import sections_toml
 
     from aerotri.sim.project import rendered_chain_table
 
     cfg = load_preset(preset)
-    text = PROJECT + stage_sections_toml(rendered_chain_table(cfg))
+    text = PROJECT + sections_toml(rendered_chain_table(cfg))
     o = read_stage_sections(tomllib.loads(text), "project.toml")
     assert o.adjust.self_calibration == ("pp", "radial")  # the true camera differs from camera.toml
     assert o.adjust.gnss_correction == "shift_drift"      # the presets' GNSS shifts and drifts per strip
@@ -281,7 +281,7 @@ def test_camera_with_k3_is_adjusted_with_k3_held_fixed(tmp_path):
 
 def test_demo_simulates_again_when_the_project_lacks_the_preset_options(tmp_path):
     from aerotri.chain.run import stale_simulation as _stale_simulation
-    from aerotri.sim.config import stage_sections_toml
+    from aerotri.core.settings import sections_toml
     from aerotri.sim.project import rendered_chain_table
 
     cfg = load_preset("demo")
@@ -290,10 +290,10 @@ def test_demo_simulates_again_when_the_project_lacks_the_preset_options(tmp_path
     (tmp_path / "truth" / "truth.json").write_text("{}")
     (tmp_path / "project.toml").write_text(PROJECT)  # simulated by an earlier version: no [adjust]
     assert "[adjust] self_calibration" in _stale_simulation(tmp_path, cfg)
-    (tmp_path / "project.toml").write_text(PROJECT + stage_sections_toml(cfg.chain))
+    (tmp_path / "project.toml").write_text(PROJECT + sections_toml(cfg.chain))
     # made before the simulator stated the GNSS correction of its errors
     assert "[adjust] gnss_correction" in _stale_simulation(tmp_path, cfg)
-    (tmp_path / "project.toml").write_text(PROJECT + stage_sections_toml(rendered_chain_table(cfg)))
+    (tmp_path / "project.toml").write_text(PROJECT + sections_toml(rendered_chain_table(cfg)))
     assert _stale_simulation(tmp_path, cfg) is None
 
 

@@ -9,7 +9,7 @@ import tomllib
 import pytest
 from click.testing import CliRunner
 
-from aerotri.chain.set_settings import parse_item, with_settings
+from aerotri.chain.set_settings import SettingChange, parse_item, with_settings
 from aerotri.cli import main
 from aerotri.core.errors import ConfigError, OptionError
 
@@ -27,7 +27,7 @@ budget = 4000"""
 
 
 def changed(text, *items):
-    return with_settings(text, [parse_item(i) for i in items], "project.toml")
+    return with_settings(text, [SettingChange(*parse_item(i)) for i in items], "project.toml")
 
 
 def test_a_key_replaced_in_place_with_its_comment():
