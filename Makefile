@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+KERNELS := $(VENV)/.kernels
 OUT ?= out/demo
 # The tested versions (pip -c); `make install CONSTRAINTS=` takes the newest in pyproject's ranges instead
 CONSTRAINTS ?= constraints.txt
@@ -22,17 +23,24 @@ $(STAMP): pyproject.toml $(CONSTRAINTS) | $(BIN)/python
 	$(BIN)/python -m compileall -qq -j 0 $(VENV)/lib || true
 	touch $(STAMP)
 
-install: $(STAMP)
+# The numba kernels a demo run calls, compiled into their cache (__pycache__ beside each module) before the first
+# run, on every core: else the first run compiles them one after another on one core (aerotri/core/precompile.py,
+# docs/testing.md). A kernel changed later compiles on its next call, as without this step.
+$(KERNELS): $(STAMP) aerotri/core/numba_signatures.txt
+	$(BIN)/python -m aerotri.core.precompile
+	touch $(KERNELS)
 
-demo: $(STAMP)
+install: $(KERNELS)
+
+demo: $(KERNELS)
 	$(BIN)/aerotri demo $(OUT)
 
 # One pytest-xdist worker per core (at most 4), see docs/testing.md; `make test PYTEST_ARGS=tests/ortho` runs a subset.
 # The 15 slowest tests are listed at the end: the suite's 10-minute budget is watched from there.
-test: $(STAMP)
+test: $(KERNELS)
 	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist worksteal --durations=15 $(PYTEST_ARGS)
 
-bench: $(STAMP)
+bench: $(KERNELS)
 	# headless Chromium and pdftoppm for bench/render_reports.py (what a reviewer sees), gdal_contour for
 	# bench/eval_contours.py; bench only
 	if ! command -v chromium >/dev/null || ! command -v pdftoppm >/dev/null || ! command -v gdal_contour >/dev/null; then \
