@@ -172,14 +172,17 @@ def precompile(entries: list[KernelSignature], processes: int | None = None) -> 
         by_module.setdefault(e.module, []).append((e.function, e.signature))
     tasks = sorted(by_module.items(), key=lambda kv: (-len(kv[1]), kv[0]))
     processes = max(1, min(processes or os.cpu_count() or 1, len(tasks) or 1))
+    from aerotri.core.log import track
+
     if processes == 1:
-        results = [_compile_module(t) for t in tasks]
+        results = list(track(map(_compile_module, tasks), "numba kernels", "modules", total=len(tasks)))
     else:
         import multiprocessing
 
         # spawn: a clean interpreter per worker (no threads or numba state inherited from the caller)
         with multiprocessing.get_context("spawn").Pool(processes) as pool:
-            results = list(pool.imap_unordered(_compile_module, tasks))
+            results = list(track(pool.imap_unordered(_compile_module, tasks), "numba kernels", "modules",
+                                 total=len(tasks)))
     failed = tuple(sorted(f for r in results for f in r[3]))
     return PrecompileResult(signatures=len(entries), compiled=sum(r[0] for r in results),
                             with_callers=sum(r[1] for r in results), cached=sum(r[2] for r in results),
