@@ -95,9 +95,16 @@ def loaded_signatures(packages: tuple[str, ...] = PACKAGES) -> list[KernelSignat
         for attr in names.values():
             for sig in getattr(module, attr).signatures:
                 text = "(" + ", ".join(type_text(t) for t in sig) + ("," if len(sig) == 1 else "") + ")"
-                if parse_signature(text) == tuple(sig):  # (a type written otherwise compiles on its first call)
+                if _reads_back(text, tuple(sig)):  # (a type written otherwise compiles on its first call)
                     out.append(KernelSignature(name, attr, text))
     return out
+
+
+def _reads_back(text: str, sig: tuple) -> bool:
+    try:
+        return parse_signature(text) == sig
+    except Exception:  # a type whose repr is no constructor call of numba.core.types
+        return False
 
 
 def type_text(t) -> str:
@@ -118,6 +125,7 @@ def type_text(t) -> str:
 
 
 def _named_tuple_class(where: str) -> type:
+    """The class ``cls("module:qualname")`` names."""
     module, _, qualname = where.partition(":")
     value = importlib.import_module(module)
     for part in qualname.split("."):
@@ -166,14 +174,14 @@ def _compile_module(task: tuple[str, list[tuple[str, str]]]) -> tuple[int, int, 
 def precompile(entries: list[KernelSignature], processes: int | None = None) -> PrecompileResult:
     """Compile ``entries`` into the kernels' caches in ``processes`` worker processes (default: one per core), a
     module per task, the modules with most signatures first."""
+    from aerotri.core.log import track
+
     t0 = time.perf_counter()
     by_module: dict[str, list[tuple[str, str]]] = {}
     for e in entries:
         by_module.setdefault(e.module, []).append((e.function, e.signature))
     tasks = sorted(by_module.items(), key=lambda kv: (-len(kv[1]), kv[0]))
     processes = max(1, min(processes or os.cpu_count() or 1, len(tasks) or 1))
-    from aerotri.core.log import track
-
     if processes == 1:
         results = list(track(map(_compile_module, tasks), "numba kernels", "modules", total=len(tasks)))
     else:

@@ -11,7 +11,8 @@ import pytest
 from numba.core.dispatcher import Dispatcher
 
 from aerotri.core.precompile import (
-    MANIFEST, KernelSignature, loaded_signatures, main, parse_signature, precompile, read_manifest, write_manifest,
+    MANIFEST, KernelSignature, _reads_back, loaded_signatures, main, parse_signature, precompile, read_manifest,
+    write_manifest,
 )
 
 _KERNELS = textwrap.dedent("""
@@ -118,6 +119,12 @@ def test_the_signatures_a_run_called_are_listed_and_read_back(kernel_module, tmp
     assert parse_signature(named.signature) == module.shifted.signatures[0]
     assert {parse_signature(e.signature) for e in found if e.function == "scaled_sum"} == \
         set(module.scaled_sum.signatures)
+    # a type whose text is no constructor call numba reads back is left out when recording, not an error
+    from numba.core import types
+
+    assert _reads_back("(int64, UniTuple(float64, 2))", (types.int64, types.UniTuple(types.float64, 2)))
+    assert not _reads_back("(int64,)", (types.int32,))
+    assert not _reads_back("(Opaque(a thing),)", (types.Opaque("a thing"),))
     path = tmp_path / "signatures.txt"
     write_manifest(found + found, path, header="two lines\nof header")
     assert path.read_text().startswith("# two lines\n# of header\n")
