@@ -48,7 +48,7 @@ from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write
 from aerotri.core.resume import ResumeFolder, file_stamp, resumable, resume_key
 from aerotri.core.resume import link_or_copy as _link_or_copy
 from aerotri.core.errors import OptionError
-from aerotri.core.limits import check_allocation, check_grid
+from aerotri.core.limits import check_allocation, check_grid, usable_cores
 from aerotri.core.textio import read_json
 from aerotri.geom.crs.definition import linear_unit_m, parse_heights
 from aerotri.geom.crs.datum import load_height_model, load_transformation
@@ -1477,7 +1477,7 @@ def verify_index(frames_dir, index: FrameIndex) -> None:
             raise InputError(f"{p}: {p.stat().st_size} bytes, but {frames_dir / 'index.json'} records {e.size}: the "
                              "frame does not belong to this index (changed or left by another run); re-run ortho rectify")
     with_hash = [e for e in index.frames if e.sha1 is not None]
-    with ThreadPoolExecutor(max(1, min(8, os.cpu_count() or 1))) as pool:  # hashlib releases the GIL
+    with ThreadPoolExecutor(min(8, usable_cores())) as pool:  # hashlib releases the GIL
         got = list(pool.map(lambda e: file_fingerprint(frames_dir / e.file).sha1, with_hash))
     for e, h in zip(with_hash, got):
         if h != e.sha1:

@@ -36,6 +36,7 @@ import numpy as np
 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
+from aerotri.core.limits import usable_cores
 from aerotri.core.log import track
 from aerotri.core.point_ids import refuse_repeated_id, warn_coincident_points
 from aerotri.core.atomic import refuse_input_as_output
@@ -628,7 +629,7 @@ def _on_grid(ds, window_transform, shape, crs, resampling, band_indexes=None, *,
     src_transform = window_transform_of(src, ds.transform)
     reproject(ds.read(idx, window=src), out, src_transform=src_transform, src_crs=ds.crs, src_nodata=ds.nodata,
               dst_transform=window_transform, dst_crs=crs, resampling=resampling, dst_nodata=np.nan,
-              init_dest_nodata=True, num_threads=os.cpu_count() or 1)
+              init_dest_nodata=True, num_threads=usable_cores())
     if _all_valid_over(ds, idx, window_transform, shape):
         # no mask and the grid a pixel inside the raster: the mask warped would be valid everywhere (a reference
         # orthophoto: a fifth of the block's warping on the DMC 2 x 4)

@@ -90,7 +90,7 @@ from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import progress
 from aerotri.core.atomic import (TEMP_MARKER, annotate_output, atomic_path, commit_outputs, move_into, remove_output,
                                  scratch_dir, write_text_atomic)
-from aerotri.core.limits import check_allocation, check_grid, check_task_count
+from aerotri.core.limits import check_allocation, check_grid, check_task_count, usable_cores
 from aerotri.core.project import Project
 from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
@@ -414,7 +414,7 @@ def reduce_frames(frames_dir: Path, index: FrameIndex, mosaic: OrthoGrid, factor
 
     names, rgbs, valids, offsets, hists, decoded, holes, frames, nbits, maxima = [], [], [], [], [], {}, [], [], [], []
     with progress(len(entries), "seam grid", "frames") as bar:
-        with contextlib.closing(ordered_thread_map(one, entries, threads or os.cpu_count() or 1)) as made:
+        with contextlib.closing(ordered_thread_map(one, entries, threads or usable_cores())) as made:
             for (e, _), (rgb, valid, off, hist, frame, hole, n, top) in zip(entries, made):
                 names.append(e.image_id)
                 nbits.append(n)

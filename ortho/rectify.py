@@ -34,7 +34,6 @@ import collections
 import contextlib
 import dataclasses
 import math
-import os
 import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -43,6 +42,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import cv2
 import numpy as np
 
+from aerotri.core.limits import usable_cores
 from aerotri.core.errors import InputError
 from aerotri.geom.rotation import FLIP_YZ
 from aerotri.geom.local_frame import CameraOnEarth, FramesOnEarth
@@ -736,7 +736,7 @@ def _remap_bands(image, map1, map2, flag, border):
 
 def default_threads() -> int:
     """Tile threads per frame: the cores of this machine (numba kernels and cv2.remap release the GIL)."""
-    return max(1, os.cpu_count() or 1)
+    return usable_cores()
 
 
 def ordered_thread_map(fn, items, threads: int, ahead: int | None = None):

@@ -11,6 +11,7 @@ creates DONE (the background build)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import subprocess
@@ -167,6 +168,32 @@ def pytest_collection_modifyitems(session, config, items) -> None:
     items.sort(key=key)  # stable: file order within a module
 
 
+_ALL_CORES: set[int] | None = None  # this worker's affinity before pin_worker_to_its_core
+
+
+def pin_worker_to_its_core() -> None:
+    """On an xdist worker with no more workers than cores: run this worker (and the commands it starts) on one core
+    of its own.
+
+    Every pool and kernel sizes itself from the process's affinity (:func:`aerotri.core.limits.usable_cores`, numba,
+    OpenBLAS, OpenCV, GDAL), so a worker no longer starts two threads per pool on a machine whose other core is busy
+    with the other worker (their switching and spin-waiting took 11 % of the suite's CPU, docs/testing.md)."""
+    global _ALL_CORES
+    worker, count = os.environ.get("PYTEST_XDIST_WORKER"), os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if not worker or not count or not hasattr(os, "sched_setaffinity"):
+        return
+    cores = sorted(os.sched_getaffinity(0))
+    if int(count) > len(cores):  # workers sharing cores: leave the scheduler to spread them
+        return
+    _ALL_CORES = set(cores)
+    os.sched_setaffinity(0, {cores[int(worker.removeprefix("gw")) % len(cores)]})
+
+
+def pytest_configure(config) -> None:
+    """:func:`pin_worker_to_its_core` before the collection imports numba (which sizes its pool at import)."""
+    pin_worker_to_its_core()
+
+
 def pytest_sessionstart(session) -> None:
     """On an xdist worker: :func:`share_numba_compilations` in the run's common temporary folder (before the
     collection, which imports the kernels), also for the background builds this worker starts."""
@@ -212,9 +239,13 @@ def pytest_collection_finish(session) -> None:
             if (root / f"{name}.done").is_file():
                 continue
             with open(root / f"{name}.log", "w") as log:
-                _background.append(subprocess.Popen(
+                proc = subprocess.Popen(
                     [sys.executable, "-P", __file__, name, str(root / name), str(root / f"{name}.done")],
-                    pass_fds=(lock.fileno(),), stdout=log, stderr=subprocess.STDOUT, cwd=REPO))
+                    pass_fds=(lock.fileno(),), stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+                if _ALL_CORES:  # the build may run on any core, not only on this worker's
+                    with contextlib.suppress(OSError):
+                        os.sched_setaffinity(proc.pid, _ALL_CORES)
+                _background.append(proc)
         # our copy of the lock's descriptor is closed: the build process holds the lock alone
 
 

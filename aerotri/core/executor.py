@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 from typing import Any, Callable, Iterable
 
 from aerotri.core.errors import OptionError
+from aerotri.core.limits import usable_cores
 from aerotri.core.log import progress
 
 _log = logging.getLogger(__name__)
@@ -92,7 +92,7 @@ class Executor:
         self.scheduler = scheduler
         if workers is not None:
             check_workers(int(workers), False, "--workers")
-        self.workers = workers or os.cpu_count() or 1
+        self.workers = workers or usable_cores()
         self._client = None
         self._cluster = None
         if scheduler is None or scheduler in ("threads", "synchronous"):
@@ -125,7 +125,7 @@ class Executor:
         cores; None on a remote cluster (the worker machines' own cores are unknown here)."""
         if self.distributed and not str(self.scheduler).startswith("local:"):
             return None
-        return max(1, (os.cpu_count() or 1) // max(1, min(self.workers, n_tasks)))
+        return max(1, usable_cores() // max(1, min(self.workers, n_tasks)))
 
     def describe(self) -> str:
         if self._client is not None:

@@ -23,6 +23,16 @@ MAX_PROCESSES_PER_CORE = 4
 MAX_THREADS_PER_CORE = 16
 
 
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity (``taskset``, a batch scheduler's cpuset, a test worker
+    pinned to its core), else the machine's cores. The default number of threads of every pool and kernel; numba,
+    OpenBLAS, OpenCV and GDAL size their own pools from the same affinity."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity on this system (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
 def physical_memory_bytes() -> int:
     """Physical memory of this machine (bytes); 0 when the system does not say."""
     try:

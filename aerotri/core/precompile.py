@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import os
 import sys
 import time
 from collections.abc import Iterable
@@ -174,6 +173,7 @@ def _compile_module(task: tuple[str, list[tuple[str, str]]]) -> tuple[int, int, 
 def precompile(entries: list[KernelSignature], processes: int | None = None) -> PrecompileResult:
     """Compile ``entries`` into the kernels' caches in ``processes`` worker processes (default: one per core), a
     module per task, the modules with most signatures first."""
+    from aerotri.core.limits import usable_cores
     from aerotri.core.log import track
 
     t0 = time.perf_counter()
@@ -181,7 +181,7 @@ def precompile(entries: list[KernelSignature], processes: int | None = None) -> 
     for e in entries:
         by_module.setdefault(e.module, []).append((e.function, e.signature))
     tasks = sorted(by_module.items(), key=lambda kv: (-len(kv[1]), kv[0]))
-    processes = max(1, min(processes or os.cpu_count() or 1, len(tasks) or 1))
+    processes = max(1, min(processes or usable_cores(), len(tasks) or 1))
     if processes == 1:
         results = list(track(map(_compile_module, tasks), "numba kernels", "modules", total=len(tasks)))
     else:

@@ -172,3 +172,22 @@ def test_ctrl_c_waits_for_the_running_tasks_before_the_stage_rolls_back(tmp_path
         signal.signal(signal.SIGINT, before)
     assert len(_STARTED) == 2, f"no task starts after the interrupt: {_STARTED}"
     assert list(out.iterdir()) == [], "nothing written after the roll-back"
+
+
+def test_threads_follow_the_cores_the_process_may_run_on():
+    """A process pinned to one core (``taskset -c 0``, a batch scheduler's cpuset) runs one thread per pool: its
+    executor, the rectify tiles and numba's kernels; the machine's other cores are not its own."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import os; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}); "
+            "import numba; from aerotri.core.executor import Executor; from aerotri.core.limits import usable_cores; "
+            "from ortho.rectify import default_threads; "
+            "print(usable_cores(), Executor().workers, Executor().cores_per_task(4), default_threads(), "
+            "numba.config.NUMBA_NUM_THREADS)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["1"] * 5
+    from aerotri.core.limits import usable_cores
+
+    assert usable_cores() == len(os.sched_getaffinity(0))
