@@ -53,17 +53,10 @@ def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Pa
         out = tmp_path_factory.mktemp(name) / name
         build(out)
         return out
-    import fcntl
+    from tests.shared_builds import built_once_in  # (not at the top: the background build runs this file alone)
 
-    root = tmp_path_factory.getbasetemp().parent  # <basetemp>/popen-gwN -> <basetemp>, common to the workers
-    out, done = root / name, root / f"{name}.done"
-    with open(root / f"{name}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file is closed (or the worker dies)
-        if not done.is_file():
-            shutil.rmtree(out, ignore_errors=True)
-            build(out)
-            done.touch()
-    return out
+    # <basetemp>/popen-gwN -> <basetemp>, common to the workers
+    return built_once_in(tmp_path_factory.getbasetemp().parent, name, build)
 
 
 # where the workers' and the background builds' per-kernel numba locks are (the run's common temporary folder)
@@ -195,11 +188,17 @@ def pytest_configure(config) -> None:
 
 
 def pytest_sessionstart(session) -> None:
-    """On an xdist worker: :func:`share_numba_compilations` in the run's common temporary folder (before the
-    collection, which imports the kernels), also for the background builds this worker starts."""
+    """The run's folder for :mod:`tests.shared_builds` (the workers' common temporary root under xdist). On an xdist
+    worker: :func:`share_numba_compilations` in it (before the collection, which imports the kernels), also for the
+    background builds this worker starts."""
+    from tests.shared_builds import SHARED_DIR_ENV
+
+    basetemp = session.config._tmp_path_factory.getbasetemp()
     if not os.environ.get("PYTEST_XDIST_WORKER"):
+        os.environ[SHARED_DIR_ENV] = str(basetemp)
         return
-    folder = session.config._tmp_path_factory.getbasetemp().parent / "numba-locks"  # as in built_once
+    os.environ[SHARED_DIR_ENV] = str(basetemp.parent)  # as in built_once
+    folder = basetemp.parent / "numba-locks"
     os.environ[NUMBA_LOCKS_ENV] = str(folder)
     share_numba_compilations(folder)
 

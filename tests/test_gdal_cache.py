@@ -37,7 +37,7 @@ from lidarctl.io import PointCloud
 from ortho.block import RECTIFY_CACHE_BYTES
 from ortho.mosaic import MOSAIC_CACHE_BYTES
 from ortho.settings import MosaicSettings
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from rasterio.enums import ColorInterp, MaskFlags
 
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 RGB = [ColorInterp.red, ColorInterp.green, ColorInterp.blue]
 

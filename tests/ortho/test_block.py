@@ -20,7 +20,7 @@ from ortho.block import rectify_block
 from ortho.cli import main
 from ortho.mosaic import mosaic_block
 from ortho.settings import MosaicSettings, RectifySettings
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 @pytest.fixture(scope="module")

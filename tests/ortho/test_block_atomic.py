@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from aerotri.core.errors import ResourceError
 from aerotri.core.limits import check_allocation, check_grid, physical_memory_bytes
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 def run(*args):

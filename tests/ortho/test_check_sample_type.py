@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from ortho.check import dom_white_level
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 def test_8_and_16_bit_doms_of_the_same_block_measure_the_same_patches(tmp_path):

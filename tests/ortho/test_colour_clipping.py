@@ -20,7 +20,7 @@ from scipy import ndimage
 from ortho.cli import main
 from ortho.mosaic import (OFFSET_MAX_SHARE, ROLLOFF_HEADROOM, HighlightRolloff, SampleHistogram, _bounded_solve,
                           gain_caps, highlight_rolloff, limit_gains)
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 def saturated_share(path) -> float:

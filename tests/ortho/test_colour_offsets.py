@@ -18,7 +18,7 @@ from scipy import ndimage
 from ortho.cli import main
 from ortho.mosaic import (TOE_BOTTOM_OUT, OverlapPairs, SampleHistogram, ShadowToe, _gained, offset_bounds,
                           sample_histogram, shadow_toe)
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 HAZE_DN = 12
 

@@ -20,7 +20,7 @@ from ortho.dem import read_height_raster
 from ortho.grid import AFFINE_SHARE, GridToProject, OrthoGrid
 from ortho.rectify import AnchorGrid, FrameGeometry, _height_grid, fixed_point_maps, frame_grid, rectify_frame
 from ortho.rectify_kernels import _backproject_kernel
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 FAR_ZONE = CRS.from_epsg(4545)  # CGCS2000 GK CM 108E, 3 degrees west of the UTM 49N project's CM (111E)
 

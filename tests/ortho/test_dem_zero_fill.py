@@ -14,7 +14,7 @@ from click.testing import CliRunner
 
 from ortho.cli import main
 from ortho.dem import ZERO_FILL_GAP_M, undeclared_fill
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import rasterio
 from click.testing import CliRunner
 
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 TILE_PX = 128
 

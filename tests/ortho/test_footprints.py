@@ -139,7 +139,7 @@ def test_rectify_with_footprints_of_walls_without_overhangs_masks_as_without(tmp
 
     import ortho.block
     from ortho.cli import main
-    from ortho.synthetic import write_synthetic_project
+    from tests.shared_builds import write_synthetic_project
 
     info = write_synthetic_project(tmp_path / "p", strips=1, frames_per_strip=2, buildings=8, seed=3)
     root = info.root

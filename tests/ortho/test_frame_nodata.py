@@ -13,7 +13,7 @@ import rasterio
 from click.testing import CliRunner
 
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 FILL = (255, 0, 255)  # what lies under the internal mask: magenta, so that any of it in an ortho shows
 

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from ortho.cli import main
 from ortho.dem import HeightRaster
 from ortho.rectify import GROUND_NDSM_M, ground_flags
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ import rasterio
 from click.testing import CliRunner
 
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 FOOT_M = 0.3048
 METRES = 'UNIT["metre",1,AUTHORITY["EPSG","9001"]],AXIS["Gravity-related height",UP],AUTHORITY["EPSG","3855"]'

@@ -15,7 +15,7 @@ from scipy import ndimage
 
 from ortho.check import check_against_reference, displacement_statistics
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 @pytest.fixture(scope="module")

@@ -109,7 +109,7 @@ def test_a_resumed_edited_mosaic_counts_the_kept_rows_tiles_as_one_run(tmp_path,
     from click.testing import CliRunner
 
     from ortho.cli import main
-    from ortho.synthetic import write_synthetic_project
+    from tests.shared_builds import write_synthetic_project
     from tests.ortho.test_seamlines_gpkg import TILE_PX as GPKG_TILE_PX
     from tests.ortho.test_seamlines_gpkg import _moved_edge, _read, _write
 

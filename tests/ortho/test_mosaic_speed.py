@@ -16,7 +16,7 @@ from rasterio.transform import Affine
 import ortho.mosaic as mosaic_mod
 from ortho.cli import main
 from ortho.grid import OrthoGrid
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 def _context(factor: int, feather_px: float) -> mosaic_mod._BlendContext:

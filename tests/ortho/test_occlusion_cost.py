@@ -19,7 +19,7 @@ from ortho.dem import HeightRaster, read_height_raster
 from ortho.grid import GridToProject
 from ortho.rectify import (FrameGeometry, fixed_point_maps, frame_grid, frame_zbuffer, heights_on_grid, march_bound,
                            occlusion_mask, zbuffer_occlusion, zbuffer_occlusion_affine)
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 @pytest.fixture(scope="module")

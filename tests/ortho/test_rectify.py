@@ -131,7 +131,7 @@ def test_gauss_krueger_zone_choice():
 
 @pytest.fixture(scope="module")
 def project(tmp_path_factory):
-    from ortho.synthetic import write_synthetic_project
+    from tests.shared_builds import write_synthetic_project
 
     root = tmp_path_factory.mktemp("ortho_project")
     write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=0)
@@ -301,7 +301,7 @@ def test_one_frame_command_imports_only_what_it_uses(tmp_path):
     import sys
     from pathlib import Path
 
-    from ortho.synthetic import write_synthetic_project
+    from tests.shared_builds import write_synthetic_project
 
     repo = Path(__file__).resolve().parents[2]
     write_synthetic_project(tmp_path, strips=1, frames_per_strip=2, buildings=0)

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from ortho.block import rectify_block
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 @pytest.fixture

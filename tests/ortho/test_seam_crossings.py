@@ -19,7 +19,7 @@ from click.testing import CliRunner
 from rasterio import features
 
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 TILE_PX = 128
 

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from rasterio.windows import Window
 
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 TILE_PX = 128
 

@@ -14,7 +14,7 @@ from ortho.cli import main
 from ortho.seamlines_preview import _labels, _legend
 from ortho.seamlines_preview import (HATCH_RGB, LEGEND_PX, OUTSIDE_RGB, SEAM_RGB, preview_shape, render_preview,
                                      seam_pixels, write_seamlines_preview)
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 def _read_png(path):

@@ -75,3 +75,27 @@ def test_the_march_steps_over_cells_it_cannot_hit_and_renders_the_same_frame(mon
     every_step, mask_every = S.render_frame(ortho, grid, dsm, camera, centre, R, march=True, crs="EPSG:32649")
     np.testing.assert_array_equal(stepped_over, every_step)
     np.testing.assert_array_equal(mask, mask_every)
+
+
+def test_the_shared_synthetic_project_is_the_rendered_one_and_each_copy_its_own(tmp_path):
+    """``tests.shared_builds.write_synthetic_project`` (rendered once per run, copied) gives the files and truth of
+    ``ortho.synthetic.write_synthetic_project``; a test changing its copy leaves the next copy as rendered."""
+    import hashlib
+
+    from ortho.synthetic import write_synthetic_project as render
+    from tests.shared_builds import write_synthetic_project as shared
+
+    def digests(root):
+        return {p.relative_to(root).as_posix(): hashlib.sha1(p.read_bytes()).hexdigest()
+                for p in sorted(root.rglob("*")) if p.is_file()}
+
+    options = dict(strips=1, frames_per_strip=2, buildings=2, seed=5)
+    direct = render(tmp_path / "direct", **options)
+    first = shared(tmp_path / "first", **options)
+    assert first.root == tmp_path / "first" and digests(first.root) == digests(direct.root)
+    assert first.buildings == direct.buildings and first.res_m == direct.res_m
+    assert first.eo.image_id == direct.eo.image_id and (first.eo.centre_m == direct.eo.centre_m).all()
+    assert (first.eo.opk_deg == direct.eo.opk_deg).all()
+    (first.root / "images" / "s01_001.tif").write_bytes(b"changed by a test")
+    second = shared(tmp_path / "second", **options)
+    assert digests(second.root) == digests(direct.root)

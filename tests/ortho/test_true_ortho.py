@@ -18,7 +18,7 @@ from ortho.cli import main
 from ortho.dem import read_height_raster
 from ortho.grid import GridToProject
 from ortho.rectify import FrameGeometry, fixed_point_maps, frame_grid, occlusion_mask, rectify_frame
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 @pytest.fixture(scope="module")

@@ -27,7 +27,7 @@ import rasterio
 from click.testing import CliRunner
 
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 MIN_FILL_SHARE = 0.99  # chosen on seed 7 (100 %), shown on seed 11 (99.9 %)
 

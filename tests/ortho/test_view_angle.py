@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from scipy.ndimage import map_coordinates
 
 from ortho.cli import main
-from ortho.synthetic import write_synthetic_project
+from tests.shared_builds import write_synthetic_project
 
 
 def run(*args):
