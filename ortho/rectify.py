@@ -735,7 +735,7 @@ def _remap_bands(image, map1, map2, flag, border):
 
 
 def default_threads() -> int:
-    """Tile threads per frame: the cores of this machine (numba kernels and cv2.remap release the GIL)."""
+    """Tile threads per frame: the cores this process may run on (numba kernels and cv2.remap release the GIL)."""
     return usable_cores()
 
 

@@ -169,7 +169,7 @@ def pin_worker_to_its_core() -> None:
     of its own.
 
     Every pool and kernel sizes itself from the process's affinity (:func:`aerotri.core.limits.usable_cores`, numba,
-    OpenBLAS, OpenCV, GDAL), so a worker no longer starts two threads per pool on a machine whose other core is busy
+    OpenBLAS, OpenCV), so a worker no longer starts two threads per pool on a machine whose other core is busy
     with the other worker (their switching and spin-waiting took 11 % of the suite's CPU, docs/testing.md)."""
     global _ALL_CORES
     worker, count = os.environ.get("PYTEST_XDIST_WORKER"), os.environ.get("PYTEST_XDIST_WORKER_COUNT")

@@ -9,7 +9,7 @@ outputs to the project folder, which every worker must see (a shared file system
 
 Schedulers:
 - ``None`` (default): Dask's local threaded scheduler in this process, ``workers`` threads
-  (default: the number of cores). NumPy, numba, OpenCV and GDAL release the GIL in the hot loops.
+  (default: the cores this process may run on). NumPy, numba, OpenCV and GDAL release the GIL in the hot loops.
   A single task runs in the calling thread, without importing Dask (same result, same errors).
 - ``"synchronous"``: one task after the other in this thread (debugging, profiling).
 - ``"local:N"``: a Dask distributed cluster of N single-threaded worker processes on this machine.

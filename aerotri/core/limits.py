@@ -25,8 +25,8 @@ MAX_THREADS_PER_CORE = 16
 
 def usable_cores() -> int:
     """The cores this process may run on: its CPU affinity (``taskset``, a batch scheduler's cpuset, a test worker
-    pinned to its core), else the machine's cores. The default number of threads of every pool and kernel; numba,
-    OpenBLAS, OpenCV and GDAL size their own pools from the same affinity."""
+    pinned to its core), else the machine's cores. The default number of threads of every pool of ours; numba,
+    OpenBLAS and OpenCV size their own pools from the same affinity (GDAL's ``ALL_CPUS``: not checked)."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):  # no affinity on this system (macOS, Windows)
