@@ -140,11 +140,11 @@ def _frames(datum) -> list:
     return out
 
 
-@functools.lru_cache(maxsize=256)
-def _h_change(code_a: int, code_b: int, lon_deg: float, lat_deg: float):
-    """(largest |change of h| in m at (lon, lat) over the epochs, stated accuracy in m or None, description) of
-    PROJ's best rigorous operation between the 3D geographic CRSs of EPSG datums ``code_a`` and ``code_b``; None
-    when PROJ knows none."""
+@functools.lru_cache(maxsize=64)
+def _h_operation(code_a: int, code_b: int):
+    """PROJ's best rigorous operation between the 3D geographic CRSs of EPSG datums ``code_a`` and ``code_b``; None
+    when PROJ knows none. Made once per pair (a ``TransformerGroup`` costs tens of ms; ``_h_change`` is asked at
+    each block's position)."""
     from pyproj.crs import Datum, GeographicCRS
     from pyproj.crs.coordinate_system import Ellipsoidal3DCS
 
@@ -154,12 +154,23 @@ def _h_change(code_a: int, code_b: int, lon_deg: float, lat_deg: float):
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Best transformation is not available", category=UserWarning)
             group = TransformerGroup(a, b, always_xy=True, allow_ballpark=False)
-        if not group.transformers:
-            return None
-        t = group.transformers[0]
-        dh = [t.transform(lon_deg, lat_deg, 0.0, epoch, errcheck=False)[2] for epoch in _SAME_H_EPOCHS]
     # a datum PROJ cannot make a geographic CRS of, or pyproj's IndexError on some frame pairs (IGS14, IGb14,
     # SIRGAS: review 17): nothing known, so not taken as the same
+    except (pyproj.exceptions.ProjError, IndexError, ValueError):
+        return None
+    return group.transformers[0] if group.transformers else None
+
+
+@functools.lru_cache(maxsize=256)
+def _h_change(code_a: int, code_b: int, lon_deg: float, lat_deg: float):
+    """(largest |change of h| in m at (lon, lat) over the epochs, stated accuracy in m or None, description) of
+    PROJ's best rigorous operation between the 3D geographic CRSs of EPSG datums ``code_a`` and ``code_b``; None
+    when PROJ knows none."""
+    t = _h_operation(code_a, code_b)
+    if t is None:
+        return None
+    try:
+        dh = [t.transform(lon_deg, lat_deg, 0.0, epoch, errcheck=False)[2] for epoch in _SAME_H_EPOCHS]
     except (pyproj.exceptions.ProjError, IndexError, ValueError):
         return None
     if not np.all(np.isfinite(dh)):
@@ -250,6 +261,21 @@ def grid_advice(grids) -> str:
             f"{pyproj.datadir.get_user_data_dir()}")
 
 
+_TRANSFORMERS: dict[tuple[str, str, bool], pyproj.Transformer] = {}
+
+
+def _transformer(s3: pyproj.CRS, d3: pyproj.CRS, key: tuple[str, str, bool]) -> pyproj.Transformer:
+    """PROJ's operation from ``s3`` to ``d3`` (x, y order), made once per pair of definitions (``key``: their WKT and
+    whether a ballpark operation is allowed): making one costs 5-50 ms, and a run makes a ``CrsTransformer`` per
+    frame footprint, control file and check. pyproj's transformers are thread-safe (one PROJ object per thread)."""
+    t = _TRANSFORMERS.get(key)
+    if t is None:
+        if len(_TRANSFORMERS) >= 64:
+            _TRANSFORMERS.clear()
+        t = _TRANSFORMERS[key] = pyproj.Transformer.from_crs(s3, d3, always_xy=True, allow_ballpark=key[2])
+    return t
+
+
 @functools.lru_cache(maxsize=64)
 def _group(s3_wkt: str, d3_wkt: str):
     # pyproj warns "Best transformation is not available due to missing Grid": the caller names the
@@ -272,8 +298,9 @@ class _ProjLeg:
             return
         s3, d3 = _as_3d(src), _as_3d(dst)
         self.z_in, self.z_out = z_unit_m(src), z_unit_m(dst)
+        s3_wkt, d3_wkt = s3.to_wkt(), d3.to_wkt()
         try:
-            group = _group(s3.to_wkt(), d3.to_wkt())
+            group = _group(s3_wkt, d3_wkt)
         except IndexError:  # pyproj's TransformerGroup fails so on some dynamic frames (SIRGAS 2000 -> ITRF2014)
             raise CrsError(f"PROJ cannot list the operations {crs_label(src)} -> {crs_label(dst)}{purpose} (pyproj "
                            "fails on this pair of reference frames); transform in two steps through a frame PROJ "
@@ -296,7 +323,7 @@ class _ProjLeg:
                     "with --allow-ballpark", missing_grids=missing or ()
                 )
             self.ballpark = True
-        self.transformer = pyproj.Transformer.from_crs(s3, d3, always_xy=True, allow_ballpark=self.ballpark)
+        self.transformer = _transformer(s3, d3, (s3_wkt, d3_wkt, self.ballpark))
         acc = self.transformer.accuracy
         stated = (f" ({self.transformer.description}, stated accurate to {acc:g} m)"
                   if acc is not None and acc > 0 else "")
