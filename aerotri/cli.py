@@ -4,49 +4,10 @@ from __future__ import annotations
 
 import click
 
-from aerotri.core.commands import Command, Group
+from aerotri.core.commands import Command, LazyGroup
 
 
-class _LazyGroup(Group):
-    """The ``aerotri`` group: a subcommand's module (and what it imports: the LiDAR stages, gtsam, matplotlib, ...)
-    is imported when that subcommand runs, or when every command is listed (``--help``, ``commands``), not at
-    start-up: ``aerotri adjust`` does not wait for the chain's imports."""
-
-    def __init__(self, *args, lazy: dict[str, str], **kwargs):
-        self._lazy = dict(lazy)  # name -> "module:attribute"
-        super().__init__(*args, **kwargs)
-
-    @property
-    def commands(self) -> dict:
-        for name in list(self._lazy):
-            self._load(name)
-        return self._commands
-
-    @commands.setter
-    def commands(self, value: dict) -> None:
-        self._commands = value
-
-    def _load(self, name: str) -> None:
-        import importlib
-
-        module, attr = self._lazy.pop(name).split(":")
-        self._commands[name] = getattr(importlib.import_module(module), attr)
-
-    def add_command(self, cmd, name=None) -> None:
-        name = name or cmd.name
-        self._lazy.pop(name, None)
-        self._commands[name] = cmd
-
-    def get_command(self, ctx, cmd_name):
-        if cmd_name in self._lazy:
-            self._load(cmd_name)
-        return self._commands.get(cmd_name)
-
-    def list_commands(self, ctx) -> list[str]:
-        return sorted(set(self._commands) | set(self._lazy))
-
-
-@click.group(cls=_LazyGroup, lazy={
+@click.group(cls=LazyGroup, lazy={
     "init": "aerotri.chain.cli:init", "sim": "aerotri.sim.cli:sim", "demo": "aerotri.chain.cli:demo",
     "run": "aerotri.chain.cli:run", "crs": "aerotri.crs.cli:crs", "adjust": "aerotri.adjust.cli:adjust",
     "match": "aerotri.match.cli:match", "control": "aerotri.control.cli:control", "report": "aerotri.qa.cli:report",

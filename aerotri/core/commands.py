@@ -453,6 +453,46 @@ class Group(click.Group):
     group_class = type
 
 
+class LazyGroup(Group):
+    """A group whose subcommands' modules (and what they import: the LiDAR stages, gtsam, matplotlib, ...) are
+    imported when that subcommand runs, or when every command is listed (``--help``, ``commands``), not at
+    start-up: ``aerotri adjust`` does not wait for the chain's imports, ``lidarctl contours`` not for the
+    classifier's. ``lazy``: name -> "module:attribute" of the click command or group."""
+
+    def __init__(self, *args, lazy: dict[str, str], **kwargs):
+        self._lazy = dict(lazy)  # name -> "module:attribute"
+        super().__init__(*args, **kwargs)
+
+    @property
+    def commands(self) -> dict:
+        for name in list(self._lazy):
+            self._load(name)
+        return self._commands
+
+    @commands.setter
+    def commands(self, value: dict) -> None:
+        self._commands = value
+
+    def _load(self, name: str) -> None:
+        import importlib
+
+        module, attr = self._lazy.pop(name).split(":")
+        self._commands[name] = getattr(importlib.import_module(module), attr)
+
+    def add_command(self, cmd, name=None) -> None:
+        name = name or cmd.name
+        self._lazy.pop(name, None)
+        self._commands[name] = cmd
+
+    def get_command(self, ctx, cmd_name):
+        if cmd_name in self._lazy:
+            self._load(cmd_name)
+        return self._commands.get(cmd_name)
+
+    def list_commands(self, ctx) -> list[str]:
+        return sorted(set(self._commands) | set(self._lazy))
+
+
 def scheduler_options(f):
     """Click options ``--scheduler`` and ``--workers`` for commands that scale out."""
     f = click.option("--workers", type=click.IntRange(min=1), default=None,

@@ -78,7 +78,7 @@ def test_evaluate_says_what_a_ground_only_truth_cannot_measure():
     """`lidarctl evaluate --truth` against the ISPRS filter test (labels 2 / 0) printed "overall accuracy 53 %" over
     classes the truth does not label, and against Autzen (class 1 "unclassified", which holds ground too) a total
     error of 55 %, with no word; the notes say so and give the mapping to the two-class matrix."""
-    from lidarctl.cli.main import _truth_notes
+    from lidarctl.cli.evaluate import _truth_notes
 
     isprs = evaluate.confusion(np.array([2, 2, 3, 5, 6, 2]), np.array([2, 2, 0, 0, 0, 0]))
     notes = _truth_notes(isprs)
@@ -154,7 +154,7 @@ def test_evaluate_scores_a_coarser_truth_on_its_own_classes(tmp_path):
 def test_two_class_note_repeats_the_coarse_mapping():
     """Against a truth of ground and class 1 (Autzen) the --map-pred offered for the two-class matrix replaces the
     coarse mapping already applied, so it must hold it too."""
-    from lidarctl.cli.main import _truth_notes
+    from lidarctl.cli.evaluate import _truth_notes
 
     conf = evaluate.confusion(np.array([2, 1, 1, 6]), np.array([2, 1, 1, 1]))
     notes = _truth_notes(conf, {"3": 1, "5": 1})
