@@ -476,8 +476,12 @@ class LazyGroup(Group):
     def _load(self, name: str) -> None:
         import importlib
 
-        module, attr = self._lazy.pop(name).split(":")
+        spec = self._lazy.get(name)
+        if spec is None:  # loaded meanwhile by another thread
+            return
+        module, attr = spec.split(":")
         self._commands[name] = getattr(importlib.import_module(module), attr)
+        self._lazy.pop(name, None)  # after the command is in: a thread asking meanwhile loads it too, never misses it
 
     def add_command(self, cmd, name=None) -> None:
         name = name or cmd.name

@@ -35,3 +35,23 @@ def test_every_subcommand_is_listed_resolves_and_has_its_help():
         assert r.exit_code == 0 and f"Usage: main {name} " in r.output, r.output
     r = CliRunner().invoke(main, ["--help"])
     assert r.exit_code == 0 and all(f"  {n} " in r.output for n in NAMES)
+
+
+def test_threads_resolving_the_same_command_at_once_all_get_it():
+    import threading
+
+    from aerotri.core.commands import LazyGroup
+
+    group = LazyGroup(name="g", lazy={"contours": "lidarctl.cli.terrain:contours"})
+    barrier, found = threading.Barrier(8), []
+
+    def resolve():
+        barrier.wait()
+        found.append(group.get_command(None, "contours"))
+
+    threads = [threading.Thread(target=resolve) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(found) == 8 and all(c is not None and c.name == "contours" for c in found)
