@@ -43,6 +43,13 @@ def shared_data() -> Path:
     return d
 
 
+def _run_root(tmp_path_factory) -> Path:
+    """The run's folder for what the processes of a run share: under xdist the workers' common temporary root
+    (``<basetemp>/popen-gwN`` -> ``<basetemp>``), else this session's ``basetemp``."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
 def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
     """``build(folder)`` once per test run; returns ``folder`` (treat it as read-only).
 
@@ -55,8 +62,7 @@ def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Pa
         return out
     from tests.shared_builds import built_once_in  # (not at the top: the background build runs this file alone)
 
-    # <basetemp>/popen-gwN -> <basetemp>, common to the workers
-    return built_once_in(tmp_path_factory.getbasetemp().parent, name, build)
+    return built_once_in(_run_root(tmp_path_factory), name, build)
 
 
 # where the workers' and the background builds' per-kernel numba locks are (the run's common temporary folder)
@@ -193,12 +199,11 @@ def pytest_sessionstart(session) -> None:
     background builds this worker starts."""
     from tests.shared_builds import SHARED_DIR_ENV
 
-    basetemp = session.config._tmp_path_factory.getbasetemp()
+    root = _run_root(session.config._tmp_path_factory)
+    os.environ[SHARED_DIR_ENV] = str(root)
     if not os.environ.get("PYTEST_XDIST_WORKER"):
-        os.environ[SHARED_DIR_ENV] = str(basetemp)
         return
-    os.environ[SHARED_DIR_ENV] = str(basetemp.parent)  # as in built_once
-    folder = basetemp.parent / "numba-locks"
+    folder = root / "numba-locks"
     os.environ[NUMBA_LOCKS_ENV] = str(folder)
     share_numba_compilations(folder)
 
@@ -226,20 +231,23 @@ def pytest_collection_finish(session) -> None:
         return
     import fcntl
 
-    root = session.config._tmp_path_factory.getbasetemp().parent  # as in built_once
+    from tests.shared_builds import build_paths
+
+    root = _run_root(session.config._tmp_path_factory)
     for name, (_build, fixture) in SHARED_BUILDS.items():
         if not any(fixture in getattr(item, "fixturenames", ()) for item in session.items):
             continue
-        with open(root / f"{name}.lock", "w") as lock:
+        out, lock_path, done = build_paths(root, name)
+        with open(lock_path, "w") as lock:
             try:
                 fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:  # the other worker started it
                 continue
-            if (root / f"{name}.done").is_file():
+            if done.is_file():
                 continue
             with open(root / f"{name}.log", "w") as log:
                 proc = subprocess.Popen(
-                    [sys.executable, "-P", __file__, name, str(root / name), str(root / f"{name}.done")],
+                    [sys.executable, "-P", __file__, name, str(out), str(done)],
                     pass_fds=(lock.fileno(),), stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
                 if _ALL_CORES:  # the build may run on any core, not only on this worker's
                     with contextlib.suppress(OSError):

@@ -17,6 +17,12 @@ from typing import Callable
 SHARED_DIR_ENV = "AEROTRI_TEST_SHARED_DIR"
 
 
+def build_paths(root: Path, name: str) -> tuple[Path, Path, Path]:
+    """(the build's folder, its ``flock`` file, the file that says it is done) under ``root``: the names
+    :func:`built_once_in` and the background builds of ``tests/conftest.py`` agree on."""
+    return root / name, root / f"{name}.lock", root / f"{name}.done"
+
+
 def built_once_in(root: Path, name: str, build: Callable[[Path], None]) -> Path:
     """``build(root / name)`` once across the processes sharing ``root``; returns that folder (read-only).
 
@@ -24,8 +30,8 @@ def built_once_in(root: Path, name: str, build: Callable[[Path], None]) -> Path:
     on the lock and then find it (a folder without ``.done``, of a process that died while building, is built anew)."""
     import fcntl
 
-    out, done = root / name, root / f"{name}.done"
-    with open(root / f"{name}.lock", "w") as lock:
+    out, lock_path, done = build_paths(root, name)
+    with open(lock_path, "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file is closed (or the process dies)
         if not done.is_file():
             shutil.rmtree(out, ignore_errors=True)

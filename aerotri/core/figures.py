@@ -34,13 +34,9 @@ def pyplot():
 def save_png(fig, path, *, dpi: int, tight: bool = False) -> Path:
     """``fig`` as a PNG at ``dpi`` (``tight``: cropped to what is drawn), written atomically; the figure is
     closed."""
-    plt = pyplot()
-    try:
-        png = _drawn_once(fig, dpi, tight)
-        with atomic_path(path) as tmp:
-            Path(tmp).write_bytes(png)
-    finally:
-        plt.close(fig)
+    png = png_bytes(fig, dpi=dpi, tight=tight)  # the figure is closed also when drawing fails
+    with atomic_path(path) as tmp:
+        Path(tmp).write_bytes(png)
     return Path(path)
 
 
