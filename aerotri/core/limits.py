@@ -1,4 +1,5 @@
-"""Physical limits checked before allocating or writing: memory and disk of this machine, raster grid sizes.
+"""Physical limits checked before allocating or writing: memory and disk of this machine (or of the process's
+cgroup: a container's or a batch job's CPU and memory limits), raster grid sizes.
 
 A command whose options ask for more than the machine can hold (``ortho rectify --res-m 0.0005`` over a
 block of 300 m frames is an ortho of 4e11 pixels per frame) stops at once with a ``ResourceError``
@@ -8,7 +9,10 @@ the kernel's out-of-memory killer, minutes later).
 
 from __future__ import annotations
 
+import functools
+import math
 import os
+from pathlib import Path
 
 from aerotri.core.errors import ResourceError
 
@@ -25,12 +29,16 @@ MAX_THREADS_PER_CORE = 16
 
 def usable_cores() -> int:
     """The cores this process may run on: its CPU affinity (``taskset``, a batch scheduler's cpuset, a test worker
-    pinned to its core), else the machine's cores. The default number of threads of every pool of ours; numba,
-    OpenBLAS and OpenCV size their own pools from the same affinity (GDAL's ``ALL_CPUS``: not checked)."""
+    pinned to its core), else the machine's cores; fewer under a cgroup CPU quota (a container started with
+    ``--cpus 2``, a Kubernetes CPU limit, a Slurm job), rounded up as ``nproc`` does. The default number of threads
+    of every pool of ours; numba, OpenBLAS and OpenCV are told the same (``limit_library_threads``); GDAL's
+    ``ALL_CPUS`` reads the affinity and the quota itself."""
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cores = max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):  # no affinity on this system (macOS, Windows)
-        return max(1, os.cpu_count() or 1)
+        cores = max(1, os.cpu_count() or 1)
+    quota = _own_cpu_limit()
+    return cores if quota is None else max(1, min(cores, math.ceil(quota - 1e-9)))
 
 
 def physical_memory_bytes() -> int:
@@ -39,6 +47,136 @@ def physical_memory_bytes() -> int:
         return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
     except (AttributeError, ValueError, OSError):
         return 0
+
+
+def usable_memory_bytes() -> int:
+    """The memory this process may use (bytes): the machine's, or less under a cgroup memory limit (a container's
+    ``--memory``, a batch job's); 0 when the system says neither. What the checks before allocating and the
+    in-memory choices compare with: past a cgroup's limit the kernel kills the process, however much the machine
+    has."""
+    total = physical_memory_bytes()
+    limit = _own_memory_limit()
+    if limit is None:
+        return total
+    return min(total, limit) if total else limit
+
+
+def _cgroup_paths(proc_cgroup: Path) -> dict[str, str]:
+    """``/proc/self/cgroup`` as {controller: path}; the unified (v2) hierarchy under the key ``""``."""
+    paths: dict[str, str] = {}
+    try:
+        text = proc_cgroup.read_text()
+    except OSError:
+        return paths
+    for line in text.splitlines():
+        parts = line.split(":", 2)
+        if len(parts) == 3:
+            for controller in parts[1].split(","):
+                paths[controller] = parts[2]
+    return paths
+
+
+def _cgroup_folders(mount: Path, path: str) -> list[Path]:
+    """The folders of a cgroup and of its ancestors up to the mount's root, the cgroup's first. A container sees
+    its own cgroup as the mount's root while ``/proc/self/cgroup`` names it by the host's path: a path not under the
+    mount is read from the root."""
+    folder = mount / path.strip("/")
+    if not folder.is_dir():
+        return [mount] if mount.is_dir() else []
+    out = [folder]
+    while folder != mount:
+        folder = folder.parent
+        out.append(folder)
+    return out
+
+
+def _read_first_line(path: Path) -> str | None:
+    try:
+        return path.read_text().split("\n", 1)[0].strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def cgroup_cpu_limit(proc_cgroup: str | Path = "/proc/self/cgroup", root: str | Path = "/sys/fs/cgroup") -> float | None:
+    """Cores of CPU time this process's cgroups allow per period (quota / period; the lowest over the cgroup and
+    its ancestors), None when none sets a quota. cgroup v2: ``cpu.max`` ("max 100000" or "200000 100000"); v1:
+    ``cpu.cfs_quota_us`` (-1 without a quota) over ``cpu.cfs_period_us``."""
+    proc_cgroup, root = Path(proc_cgroup), Path(root)
+    paths = _cgroup_paths(proc_cgroup)
+    limits = []
+    if "" in paths:  # v2 (or the unified hierarchy of a hybrid system)
+        mount = root if (root / "cgroup.controllers").is_file() else root / "unified"
+        for folder in _cgroup_folders(mount, paths[""]):
+            line = _read_first_line(folder / "cpu.max")
+            if line:
+                quota, _, period = line.partition(" ")
+                if quota != "max" and _is_positive_number(quota) and _is_positive_number(period or "100000"):
+                    limits.append(float(quota) / float(period or "100000"))
+    if "cpu" in paths:  # v1: the cpu controller, mounted alone or with cpuacct
+        for name in ("cpu", "cpu,cpuacct", "cpuacct,cpu"):
+            mount = root / name
+            if not mount.is_dir():
+                continue
+            for folder in _cgroup_folders(mount, paths["cpu"]):
+                quota, period = (_read_first_line(folder / f) for f in ("cpu.cfs_quota_us", "cpu.cfs_period_us"))
+                if quota and period and _is_positive_number(quota) and _is_positive_number(period):
+                    limits.append(float(quota) / float(period))
+            break
+    return min(limits) if limits else None
+
+
+def cgroup_memory_limit(proc_cgroup: str | Path = "/proc/self/cgroup", root: str | Path = "/sys/fs/cgroup") -> int | None:
+    """Bytes of memory this process's cgroups allow (the lowest over the cgroup and its ancestors), None when none
+    sets a limit. cgroup v2: ``memory.max`` ("max" without one); v1: ``memory.limit_in_bytes`` (a number near
+    2**63 without one)."""
+    proc_cgroup, root = Path(proc_cgroup), Path(root)
+    paths = _cgroup_paths(proc_cgroup)
+    limits = []
+    if "" in paths:
+        mount = root if (root / "cgroup.controllers").is_file() else root / "unified"
+        for folder in _cgroup_folders(mount, paths[""]):
+            line = _read_first_line(folder / "memory.max")
+            if line and line.isdigit():
+                limits.append(int(line))
+    if "memory" in paths:
+        for folder in _cgroup_folders(root / "memory", paths["memory"]):
+            line = _read_first_line(folder / "memory.limit_in_bytes")
+            if line and line.isdigit() and int(line) < 2**62:  # "unlimited" is the largest page multiple below 2**63
+                limits.append(int(line))
+    return min(limits) if limits else None
+
+
+@functools.cache
+def _own_cpu_limit() -> float | None:
+    """``cgroup_cpu_limit`` of this process, read once (a pool is sized many times a run)."""
+    return cgroup_cpu_limit()
+
+
+@functools.cache
+def _own_memory_limit() -> int | None:
+    """``cgroup_memory_limit`` of this process, read once."""
+    return cgroup_memory_limit()
+
+
+def _is_positive_number(text: str) -> bool:
+    try:
+        return float(text) > 0
+    except ValueError:
+        return False
+
+
+def limit_library_threads(environ=None) -> None:
+    """Under a cgroup CPU quota below the cores this process may run on, tell the libraries that size their thread
+    pools from the affinity (numba, OpenMP, OpenBLAS) to use ``usable_cores`` threads: with one thread per
+    core of a 64-core host in a container allowed 2 cores, each parallel loop spends its quota in a few ms and is
+    throttled for the rest of every period. A variable set by the user is kept. Called when the packages are
+    imported, before numba or numpy read them (``environ``: ``os.environ``)."""
+    if _own_cpu_limit() is None:
+        return
+    environ = os.environ if environ is None else environ
+    n = str(usable_cores())
+    for name in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        environ.setdefault(name, n)
 
 
 def format_bytes(n: float) -> str:
@@ -51,16 +189,19 @@ def format_bytes(n: float) -> str:
 
 def check_allocation(n_bytes: float, what: str, option: str | None = None, *, hint: str = "",
                      fraction: float = 0.8) -> None:
-    """``ResourceError`` when ``what`` would need more than ``fraction`` of the physical memory: refuse before
-    allocating rather than fail with a MemoryError (or the out-of-memory killer) minutes later.
+    """``ResourceError`` when ``what`` would need more than ``fraction`` of the memory this process may use
+    (``usable_memory_bytes``): refuse before allocating rather than fail with a MemoryError (or the out-of-memory
+    killer) minutes later.
 
     ``option`` names the option that sets the size (e.g. ``--res-m``); the message gives both sizes and ``hint``
     (what to change). 80 %: the process, its libraries and the system need the rest."""
-    total = physical_memory_bytes()
+    total = usable_memory_bytes()
     if total and n_bytes > fraction * total:
         hint = f"; {hint}" if hint else f"; change {option}" if option else ""
-        raise ResourceError(f"{what} would need {format_bytes(n_bytes)} of memory, more than {fraction:.0%} of this "
-                            f"machine's {format_bytes(total)}{hint}", param=option)
+        whose = (f"the {format_bytes(total)} this process's cgroup allows" if total < physical_memory_bytes()
+                 else f"this machine's {format_bytes(total)}")
+        raise ResourceError(f"{what} would need {format_bytes(n_bytes)} of memory, more than {fraction:.0%} of "
+                            f"{whose}{hint}", param=option)
 
 
 def check_disk(n_bytes: float, folder, what: str, option: str | None = None, *, hint: str = "") -> None:

@@ -823,9 +823,9 @@ WORKING_IN_MEMORY_SHARE = 1 / 16
 
 
 def _working_in_memory(total_bytes: int) -> bool:
-    from aerotri.core.limits import physical_memory_bytes
+    from aerotri.core.limits import usable_memory_bytes
 
-    ram = physical_memory_bytes()     # 0: the system does not say
+    ram = usable_memory_bytes()     # 0: the system does not say
     return bool(ram) and total_bytes <= WORKING_IN_MEMORY_SHARE * ram
 
 
@@ -1221,9 +1221,9 @@ _THREADS = 2
 
 
 def _tile_threads(window_cells: int) -> int:
-    from aerotri.core.limits import physical_memory_bytes
+    from aerotri.core.limits import usable_memory_bytes
 
-    ram = physical_memory_bytes() or float("inf")  # 0: the system does not say
+    ram = usable_memory_bytes() or float("inf")  # 0: the system does not say
     return _THREADS if _THREADS * window_cells * RASTER_BYTES_PER_CELL <= 0.5 * ram else 1
 
 
