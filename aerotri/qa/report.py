@@ -1376,7 +1376,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
         met = "" if p["finest_class"].startswith("not established") else "met "
         lines.append(f"  {p['verdict']:<12} {p['product']}: finest class {met}{p['finest_class']}")
     for st in comp.get("statements") or ():
-        lines.append(f"  statement, {st['product']}: {st['text'] or st['why']}")
+        both = f"{st['text']} ({st['why']})" if st['text'] and st['why'] else st['text'] or st['why']
+        lines.append(f"  statement, {st['product']}: {both}")
     for c in comp["checks"]:
         star = "*" if c["limit_confirmed"] is False else ""
         acc = checkpoints_accuracy_text(c, ("accurate enough", "not accurate enough"))

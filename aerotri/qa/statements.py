@@ -39,7 +39,8 @@ NORMAL_95 = 1.96
 
 @dataclasses.dataclass(frozen=True)
 class AccuracyStatement:
-    """One product's statement (``text``), or why it has none (``text`` empty, ``why``)."""
+    """One product's statement (``text``), or why it has none (``text`` empty, ``why``); both: a class left out of
+    the statement and why (ASPRS 2023 without the check points' own accuracy in one dimension)."""
 
     product: str
     text: str
@@ -76,20 +77,42 @@ def _horizontal(checks):
     return next((c for c in checks if c.dimension == "H" and c.figure is not None and c.judged), None)
 
 
-def _asprs2023(classes: dict, checks, u: float, un: str) -> str:
+def _uncombined(check) -> bool:
+    """A judged row whose check points' own accuracy is not stated (``compliance._cp_note``: not judged, not
+    combined): Edition 2's RMSE includes it, so the row's figure is not the standard's."""
+    return check.limit is not None and check.checkpoints_accurate is None
+
+
+def _survey_option(check) -> str:
+    return "[qa] survey_sigma_z_m" if check.dimension == "V" else "[qa] survey_sigma_xy_m"
+
+
+def _asprs2023(classes: dict, checks, u: float, un: str) -> tuple[str, str]:
+    """The statement and, for a class left out, why: Edition 2 combines the check points' own accuracy with the
+    measured RMSE; where it is not stated the figure found is not the standard's and no class is stated."""
     head = ("This data set was tested to meet ASPRS Positional Accuracy Standards for Digital Geospatial Data, "
             "Edition 2, Version 1.0 (2023) for a ")
-    parts = []
+    parts, left_out = [], []
     if "V" in classes and (nva := _nva(checks)) is not None:
-        s = (f"{head}{classes['V']} (cm) RMSEV Vertical Accuracy Class. NVA accuracy was found to be RMSEV = "
-             f"{_length(nva.figure, u, un)}.")
-        if (vva := _vva(checks)) is not None:
-            s += f" VVA accuracy was found to be RMSEV = {_length(vva.figure, u, un)}."
-        parts.append(s)
+        if _uncombined(nva):
+            left_out.append(f"no vertical class stated: the check points' own accuracy is not stated "
+                            f"({_survey_option(nva)}), and Edition 2's RMSEV combines it with the measured "
+                            f"{_length(nva.figure, u, un)}")
+        else:
+            s = (f"{head}{classes['V']} (cm) RMSEV Vertical Accuracy Class. NVA accuracy was found to be RMSEV = "
+                 f"{_length(nva.figure, u, un)}.")
+            if (vva := _vva(checks)) is not None:
+                s += f" VVA accuracy was found to be RMSEV = {_length(vva.figure, u, un)}."
+            parts.append(s)
     if "H" in classes and (h := _horizontal(checks)) is not None:
-        parts.append(f"{head}{classes['H']} (cm) RMSEH Horizontal Positional Accuracy Class. The tested horizontal "
-                     f"positional accuracy was found to be RMSEH = {_length(h.figure, u, un)}.")
-    return " ".join(parts)
+        if _uncombined(h):
+            left_out.append(f"no horizontal class stated: the check points' own accuracy is not stated "
+                            f"({_survey_option(h)}), and Edition 2's RMSEH combines it with the measured "
+                            f"{_length(h.figure, u, un)}")
+        else:
+            parts.append(f"{head}{classes['H']} (cm) RMSEH Horizontal Positional Accuracy Class. The tested "
+                         f"horizontal positional accuracy was found to be RMSEH = {_length(h.figure, u, un)}.")
+    return " ".join(parts), "; ".join(left_out)
 
 
 def _asprs2014(classes: dict, checks, u: float, un: str) -> str:
@@ -144,7 +167,12 @@ def accuracy_statements(comp: "Compliance", unit_m: float = 1.0, unit_name: str 
             if not classes:
                 out.append(AccuracyStatement(p.product, "", f"no statement: no class established ({p.finest_class})"))
                 continue
-            fn = _asprs2023 if comp.key == "asprs2023" else _asprs2014
-            text = fn(classes, checks, unit_m, unit_name)
+            if comp.key == "asprs2023":
+                text, left_out = _asprs2023(classes, checks, unit_m, unit_name)
+                if left_out:
+                    out.append(AccuracyStatement(p.product, text, left_out if text else f"no statement: {left_out}"))
+                    continue
+            else:
+                text = _asprs2014(classes, checks, unit_m, unit_name)
         out.append(AccuracyStatement(p.product, text, "" if text else "no statement: no figure of the rows it needs"))
     return tuple(out)

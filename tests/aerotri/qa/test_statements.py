@@ -79,3 +79,28 @@ def test_no_statement_for_the_at_nor_for_checks_on_the_projects_own_lidar():
                        ProductCompliance("LiDAR DEM", "pass", "V5cm")), ())
     (st,) = accuracy_statements(comp)
     assert st.product == "LiDAR DEM" and st.text == "" and "own LiDAR, not surveyed" in st.why
+
+
+def test_asprs2023_states_no_class_whose_check_points_accuracy_is_not_stated():
+    """Edition 2's RMSE combines the check points' own accuracy with the measured one: a trial user's DEM, 9.21 cm
+    at 39 check points without ``[qa] survey_sigma_z_m``, was "tested to meet ... a 10 (cm) RMSEV class" while the
+    same row said "accuracy not stated: not judged" (check points surveyed at 4 cm would give 10.04 cm, a fail)."""
+    unknown = dataclasses.replace(_row("NVA: RMSE_V at non-vegetated check points", 0.0921, 0.0921, 0.1, "pass"),
+                                  checkpoints_accurate=None)
+    (st,) = accuracy_statements(_comp("asprs2023", [unknown], "pass", "V10cm"))
+    assert st.text == "" and st.why.startswith("no statement: no vertical class stated")
+    assert "[qa] survey_sigma_z_m" in st.why and "9.2 cm" in st.why
+    stated = _row("NVA: RMSE_V at non-vegetated check points", 0.0921, 0.0950, 0.1, "pass")  # combined: 9.5 cm
+    (st,) = accuracy_statements(_comp("asprs2023", [stated], "pass", "V10cm"))
+    assert "10 (cm) RMSEV Vertical Accuracy Class" in st.text and "RMSEV = 9.5 cm." in st.text and st.why == ""
+    # a DOM stated horizontally, its vertical row without the survey's accuracy: the class it can state, and why not
+    # the other
+    h = _row("RMSE_H (radial)", 0.05, 0.06, 0.1, "pass", dimension="H")
+    (st,) = accuracy_statements(_comp("asprs2023", [unknown, h], "pass", "H10cm V10cm"))
+    assert "RMSEH Horizontal Positional Accuracy Class" in st.text and "RMSEV" not in st.text
+    assert st.why.startswith("no vertical class stated")
+    # Edition 1 never combined them: its statement stays
+    e1 = dataclasses.replace(_row("NVA at 95 % confidence: 1.96 x RMSE_z at non-vegetated check points", 0.0921,
+                                  0.1805, 0.196, "pass"), checkpoints_accurate=None)
+    (st,) = accuracy_statements(_comp("asprs2014", [e1], "pass", "V10cm"))
+    assert "RMSEz = 9.2 cm" in st.text
