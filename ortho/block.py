@@ -842,8 +842,9 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
     if crs is None and transformation is not None:
         crs = transformation.to_crs_def
     out_crs = resolve_output_crs(crs, project_crs, centre_xy)
-    if out_crs != project_crs:
-        _warn_output_scale(project_crs, out_crs, centre_xy, res)
+    # the project's own CRS too: `aerotri import` says it once, the orthophotos are where its pixels become ground
+    # sizes (a trial user's Web Mercator block ran `aerotri run` without a word: 0.02 of its units a pixel, 1.4 cm)
+    _warn_output_scale(project_crs, out_crs, centre_xy, res)
     res_in_m = res * linear_unit_m(out_crs)  # nan for degrees: no comparison
     if res_m is not None and res_in_m < 0.5 * gsd_res:
         _log.warning(f"--res-m {res:g} ({res_in_m:.3g} m) is finer than half the block's ground sample distance "

@@ -61,6 +61,19 @@ def test_an_output_grid_far_from_its_central_meridian_is_warned_of(tmp_path, war
         warnings_of_ortho
 
 
+def test_a_project_in_web_mercator_is_warned_when_its_orthos_are_made(tmp_path, warnings_of_ortho):
+    """new-user trial of 2026-12-04: Brighton Beach with `aerotri init --crs EPSG:3857` was told once, at `aerotri
+    import`, that its metres are no ground metres, then `aerotri run` made its orthos at 0.02 of them (1.4 cm) without
+    a word. The project's own CRS is now checked where the pixel size is chosen, as another output CRS was."""
+    from ortho.settings import RectifySettings
+
+    root = tmp_path / "p"
+    write_synthetic_project(root, strips=1, frames_per_strip=2, buildings=2, seed=3, crs="EPSG:3857")
+    rectify_block(root, RectifySettings(), frames=["s01_001"])
+    said = [m for m in warnings_of_ortho if "scale factor" in m]
+    assert len(said) == 1 and "EPSG:3857" in said[0] and "not a mapping grid for measured products" in said[0], said
+
+
 @pytest.mark.parametrize("lon, lat, out, says", [
     (110.5, 30.5, "EPSG:3857", "not a mapping grid for measured products"),  # k 1.16
     (8.5, 55.0, "EPSG:3857", "not a mapping grid for measured products"),  # k 1.74
