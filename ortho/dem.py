@@ -80,6 +80,10 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: {what} not found (run `lidarctl` to produce it, or pass --dem)")
+    if path.is_dir():  # (new-user trial: "DEM not found" for the folder `lidarctl rasters` wrote)
+        inside = sorted(p.name for p in path.glob("*.tif"))[:4]
+        raise InputError(f"{path}: a folder, expected the {what} GeoTIFF file"
+                         + (f" (it holds {', '.join(inside)})" if inside else ""))
     expected = f"; expected the project CRS {project_crs.to_string()}" if project_crs is not None else ""
     ds = open_north_up(path, what, no_crs_hint=expected, square=True, heights=True)
     if project_crs is not None and not same_horizontal(CRS(ds.crs), CRS(project_crs)):

@@ -1026,6 +1026,8 @@ CASES = [
     C("rectify_dem_binary", "ortho", "rectify {p}", "dem.tif", binary("p/lidar_out/dem.tif")),
     C("rectify_dem_partial", "ortho", "rectify {p}", "dem.tif", dem_part("p/lidar_out/dem.tif")),
     C("rectify_dem_rgb", "ortho", "rectify {p}", "band", dem_as_rgb("p/lidar_out/dem.tif")),
+    C("rectify_dem_a_folder", "ortho", "rectify {p}", ["dem.tif", "a folder, expected the DEM GeoTIFF"],
+      as_dir("p/lidar_out/dem.tif")),
     C("rectify_dem_other_crs", "ortho", "rectify {p}", "dem.tif", raster_crs("p/lidar_out/dem.tif", "EPSG:32650")),
     C("rectify_image_missing", "ortho", "rectify {p}", "s01_002", remove("p/images/s01_002.tif")),
     C("rectify_image_truncated", "ortho", "rectify {p}", "s02_002.tif", truncate("p/images/s02_002.tif", 0.3)),
