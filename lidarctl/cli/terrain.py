@@ -89,7 +89,9 @@ def contours(*, dem_path, out_path, interval_m, index_every, smoothing, toleranc
     click.echo(f"{out_path}: {s.contours} contours on {s.levels} levels every {s.interval:g} {s.unit} "
                f"(the DEM's height unit){span} ({s.closed} closed, "
                f"{s.index_contours} index), smoothing {s.smoothing} ({s.fell_back_to_traced} kept traced "
-               f"to avoid crossings), {s.crossings} crossings")
+               f"to avoid crossings or a collapse), {s.crossings} crossings"
+               + (f"; {s.under_a_tenth_of_a_cell} contours under a tenth of a cell across left out (a level grazing "
+                  f"one cell's height)" if s.under_a_tenth_of_a_cell else ""))
 
 
 @click.command(cls=Command)

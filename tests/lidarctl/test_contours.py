@@ -424,3 +424,37 @@ def test_contours_through_a_cell_exactly_at_a_level_do_not_touch(tmp_path):
     r = CliRunner().invoke(main, ["contours", str(path), str(tmp_path / "c.gpkg"), "--interval-m", "1",
                                   "--smooth", "bspline", "--no-png"])
     assert r.exit_code == 0, r.output
+
+
+def test_a_level_grazing_one_cell_makes_no_contour_and_small_rings_keep_their_size():
+    """new-user trial on Autzen's DEM in feet: 11 of 540 contours at 428 ft were rings 0.001-0.07 ft across (a cell
+    a hair above the level among lower ones), one smoothed by the B-spline to a single point. A ring under a tenth
+    of a cell is left out and counted; a ring of a peak a few cells wide stays, smoothed or not, at its size."""
+    from lidarctl.terrain.contours import MIN_EXTENT_CELLS, trace_counted
+
+    z = np.full((40, 40), 10.1)
+    z[10, 10] = 10.5 + 0.0004  # a hair above the 10.5 level: its ring is 0.002 of a cell across
+    rows, cols = np.mgrid[0:40, 0:40]
+    z += 2.0 * np.exp(-((rows - 28.0) ** 2 + (cols - 28.0) ** 2) / 4.0)  # a peak rising through 10.5 and 11.5
+    t = from_origin(0.0, 40.0, 1.0, 1.0)
+    cs, tiny = trace_counted(z, t, 0.5, 5)
+    assert tiny == 1 and all(np.ptp(c.xy, axis=0).max() >= MIN_EXTENT_CELLS for c in cs)
+    assert sorted(c.level for c in cs) == [10.5, 11.0, 11.5, 12.0]  # the peak's rings (top 12.1)
+    assert all(np.hypot(c.xy[:, 0] - 10.5, c.xy[:, 1] - 29.5).min() > 5.0 for c in cs)  # none at the grazed cell
+    small = [c for c in cs if c.level == 12.0][0]
+    assert MIN_EXTENT_CELLS < np.ptp(small.xy, axis=0).max() < 1.5  # the top's ring: under two cells across
+    for method in ("bspline", "tension"):
+        sm, _ = smooth_contours(cs, method, 1.0, tolerance_px=2.0)  # a tolerance wider than the small ring
+        for a, b in zip(cs, sm):
+            assert np.ptp(b.xy, axis=0).max() >= 0.5 * np.ptp(a.xy, axis=0).max()
+
+
+def test_tension_spline_stays_finite_over_a_segment_far_longer_than_the_median():
+    """Autzen's DEM in feet: `--smooth tension` stopped on a traceback (sinh overflowed: one chord thousands of
+    times the median one). The spline is written with exp(-x), finite for any chord."""
+    from lidarctl.terrain.contours import _tension
+
+    xy = np.vstack([np.column_stack([np.linspace(0.0, 0.05, 51), np.zeros(51)]), [[30.0, 4.0], [31.0, 4.5]]])
+    out = _tension(xy, False, 1.0, 0.5)
+    assert np.isfinite(out).all() and np.array_equal(out[0], xy[0]) and np.array_equal(out[-1], xy[-1])
+    assert np.abs(out[:, 1]).max() < 10.0  # between the vertices' heights, give or take the spline's swing
