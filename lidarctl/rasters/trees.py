@@ -462,33 +462,47 @@ def write_gpkg(model: TreeModel, path, crs_wkt: str, units) -> None:
 
 
 def corner_axis_labels(x0_m: float, y0_m: float, units: LengthUnits) -> tuple[str, str]:
-    """Axis labels of a map drawn in metres from its lower-left corner (``x0_m``, ``y0_m``: metres), the corner
-    given in the CRS's own unit: a cloud in feet reads its own easting, not a metre value found in no file."""
-    return (f"metres east of easting {float(units.xy_from_m(x0_m)):.1f} {units.xy_name}",
-            f"metres north of northing {float(units.xy_from_m(y0_m)):.1f} {units.xy_name}")
+    """Axis labels of a map drawn from its lower-left corner (``x0_m``, ``y0_m``: metres) in the CRS's own unit,
+    the corner given in it too: a cloud in feet reads its own easting and distances in feet (new-user trial: "metres
+    east of easting 636000.7 ft" beside a chm.tif in feet)."""
+    unit = units.xy_name
+    return (f"{unit} east of easting {float(units.xy_from_m(x0_m)):.1f} {unit}",
+            f"{unit} north of northing {float(units.xy_from_m(y0_m)):.1f} {unit}")
 
 
 def preview_png(model: TreeModel, path, title: str, *, units: LengthUnits | None = None) -> None:
-    """CHM (colour key in metres) with the stand outlines and the tree tops, axes in metres from the corner;
-    the corner named in the CRS's unit (``units``; metres when None), as the user's files give it."""
+    """CHM with the stand outlines and the tree tops, in the CRS's units (``units``; metres when None) as chm.tif
+    holds them: axes from the lower-left corner, the colour key in the height unit up to the 99.5th percentile (the
+    key's arrow and label say where the highest cells are)."""
     plt = pyplot()
 
+    units = units or LengthUnits()
+    xy, zu = float(units.xy_m), float(units.z_m)
     g = model.grid
-    w, h = g.ncols * g.res_m, g.nrows * g.res_m
+    w_m, h_m = g.ncols * g.res_m, g.nrows * g.res_m
+    w, h = w_m / xy, h_m / xy
+    chm = model.chm / zu
     fig, ax = plt.subplots(figsize=(9, min(12.0, 8.0 * h / max(w, 1e-9)) + 0.8))
-    vmax = float(np.nanpercentile(model.chm, 99.5)) if np.isfinite(model.chm).any() else 1.0
-    im = ax.imshow(model.chm, cmap="viridis", vmin=0, vmax=vmax, extent=(0, w, 0, h), interpolation="nearest")
-    fig.colorbar(im, ax=ax, shrink=0.8, label="tree height above ground (m)")
+    finite = np.isfinite(chm).any()
+    vmax = float(np.nanpercentile(chm, 99.5)) if finite else 1.0
+    top = float(np.nanmax(chm)) if finite else vmax
+    im = ax.imshow(chm, cmap="viridis", vmin=0, vmax=vmax, extent=(0, w, 0, h), interpolation="nearest")
+    clipped = top > vmax * (1 + 1e-6)
+    label = f"tree height above ground ({units.z_name})"
+    if clipped:  # (trial: a key ending at 15 m beside a summary's 20.6 m said nothing of the cells above it)
+        label += f"\nkey to the 99.5th percentile {vmax:.1f}, highest {top:.1f}"
+    fig.colorbar(im, ax=ax, shrink=0.8, label=label, extend="max" if clipped else "neither")
+    x0, y0 = g.x0, g.y_top - h_m
     for st in model.stands:
         for poly in getattr(st.geometry, "geoms", [st.geometry]):
             xs, ys = poly.exterior.xy
-            ax.plot(np.asarray(xs) - g.x0, np.asarray(ys) - (g.y_top - h), color="k", lw=0.6)
+            ax.plot((np.asarray(xs) - x0) / xy, (np.asarray(ys) - y0) / xy, color="k", lw=0.6)
     t = model.tops
-    ax.plot(t.x - g.x0, t.y - (g.y_top - h), "r.", ms=2.5, label=f"{len(t.x)} tree tops")
+    ax.plot((t.x - x0) / xy, (t.y - y0) / xy, "r.", ms=2.5, label=f"{len(t.x)} tree tops")
     ax.set_xlim(0, w)
     ax.set_ylim(0, h)
     ax.set_aspect("equal")
-    xlabel, ylabel = corner_axis_labels(g.x0, g.y_top - h, units or LengthUnits())
+    xlabel, ylabel = corner_axis_labels(x0, y0, units)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.legend(loc="upper right", fontsize=8)

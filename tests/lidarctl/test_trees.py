@@ -117,12 +117,27 @@ def test_trees_heights_tops_and_stands_against_the_cones(cones_las):
     assert (out / "trees.png").stat().st_size > 10_000
 
 
-def test_trees_in_us_feet_equal_the_metric_run(cones_las):
+def test_trees_in_us_feet_equal_the_metric_run(cones_las, monkeypatch):
     import pyogrio.raw
 
+    from lidarctl.rasters import trees as trees_module
+
+    drawn = []  # the previews' axes: new-user trial, Autzen's map drew metres beside a chm.tif in feet
+    save = trees_module.save_png
+
+    def keep(fig, path, **kw):
+        ax, key = fig.axes
+        drawn.append((ax.get_xlabel(), ax.get_xlim()[1], ax.images[0].get_array().max(), key.get_ylabel()))
+        save(fig, path, **kw)
+
+    monkeypatch.setattr(trees_module, "save_png", keep)
     d, _ = cones_las
     _ok(["trees", d / "cones.laz", d / "m", "--min-stand-area-m2", "5"])
     _ok(["trees", d / "cones_ft.laz", d / "ft", "--min-stand-area-m2", "5"])
+    (xm, wm, zm, km), (xf, wf, zf, kf) = drawn
+    assert xm.startswith("m east of easting") and xf.startswith("us-ft east of easting")
+    assert wf * US_SURVEY_FOOT_M == pytest.approx(wm, rel=0.01) and zf * US_SURVEY_FOOT_M == pytest.approx(zm, abs=0.02)
+    assert km.startswith("tree height above ground (m)") and kf.startswith("tree height above ground (us-ft)")
     sm, sf = (json.loads((d / k / "trees.json").read_text()) for k in ("m", "ft"))
     assert sf["xy_unit"] == "us-ft" and sf["z_unit"] == "us-ft"
     assert sf["forest_area_m2"] == pytest.approx(sm["forest_area_m2"], rel=0.02)
@@ -305,13 +320,14 @@ def test_check_heights_dem_bad_input(forest_edge, tmp_path):
 
 
 def test_the_trees_map_names_its_corner_in_the_crs_unit():
-    """Autzen (international feet): the corner is the easting of the user's files, not its value in metres."""
+    """Autzen (international feet): the corner is the easting of the user's files, not its value in metres, and the
+    distances from it are in feet too (new-user trial: "metres east of easting 636000.7 ft")."""
     from lidarctl.rasters.trees import corner_axis_labels
     from lidarctl.units import LengthUnits
 
     x, y = corner_axis_labels(193853.0, 1502.4, LengthUnits(xy_m=0.3048, z_m=0.3048))
-    assert x == "metres east of easting 636000.7 ft" and y == "metres north of northing 4929.1 ft"
-    assert corner_axis_labels(100.0, 200.0, LengthUnits())[0] == "metres east of easting 100.0 m"
+    assert x == "ft east of easting 636000.7 ft" and y == "ft north of northing 4929.1 ft"
+    assert corner_axis_labels(100.0, 200.0, LengthUnits())[0] == "m east of easting 100.0 m"
 
 
 def test_stands_touching_at_a_corner_are_valid_polygons_of_their_cells():
