@@ -667,6 +667,8 @@ CASES = [
     C("init_images_missing", "aerotri", "init {w}/new --images {w}/nope --crs EPSG:32649", "nope"),
     C("init_images_empty", "aerotri", "init {w}/new --images {w}/empty --crs EPSG:32649", ["empty", "no images"],
       lambda w: (w / "empty").mkdir()),
+    C("init_images_a_dsm", "aerotri", "init {w}/new --images {w}/dsm --crs EPSG:32649", ["dsm.tif", "not a camera frame"],
+      lambda w: ((w / "dsm").mkdir(), shutil.copy(w / "p/truth/dsm.tif", w / "dsm/dsm.tif"))),
     C("init_crs_geographic", "aerotri", "init {w}/new --images {p}/images --crs EPSG:4326", "--crs"),
     C("init_crs_unknown", "aerotri", "init {w}/new --images {p}/images --crs EPSG:999999", "--crs"),
     C("init_into_a_project", "aerotri", "init {p} --images {p}/images --crs EPSG:32649", ["exists", "not an empty"]),

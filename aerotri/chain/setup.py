@@ -126,8 +126,13 @@ def _sizes(frames: ImageFiles) -> dict[tuple[int, int], list[str]]:
         try:
             with rasterio.open(path) as ds:
                 size = (ds.width, ds.height)
+                dtype, crs = ds.dtypes[0], ds.crs
         except (rasterio.errors.RasterioIOError, OSError) as exc:
             raise InputError(f"{path}: cannot read the image ({exc})") from None
+        if dtype.startswith("float"):  # (new-user trial: ODM's DSM folder linked as a block of 1 frame)
+            georef = ", georeferenced" + (f" in EPSG:{crs.to_epsg()}" if crs.to_epsg() else "") if crs else ""
+            raise InputError(f"{path}: a {dtype} raster{georef}: heights or other map data, not a camera frame "
+                             "(frames hold 8- or 16-bit values); --images takes the folder of the aerial frames")
         out.setdefault(size, []).append(image_id)
     return out
 
