@@ -1225,6 +1225,11 @@ class _CheckedClasses:
         return part
 
 
+# output names that are files of another kind, never the folder a block's strips are written into
+_NOT_A_FOLDER_SUFFIXES = (".txt", ".csv", ".xyz", ".pts", ".ply", ".e57", ".tif", ".tiff", ".gpkg", ".geojson",
+                          ".json", ".shp", ".zip", ".asc", ".bin", ".dat", ".copc")
+
+
 def classify_command(in_paths, out_path, keep_classes: bool = False, method: str = "morph", preset: str | None = None,
                      *, crs=None, tile_size_m: float | None = None,
                      buffer_m: float | None = None, work_dir=None, out_format: str | None = None, image_path=None,
@@ -1242,6 +1247,10 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
     from lidarctl.classify import ground
 
     to_folder = len(in_paths) > 1 or Path(out_path).is_dir() or Path(out_path).suffix.lower() not in (".las", ".laz")
+    if to_folder and not Path(out_path).exists() and Path(out_path).suffix.lower() in _NOT_A_FOLDER_SUFFIXES:
+        # (new-user trial: `classify IN c7.txt` made a folder c7.txt holding the classified cloud)
+        raise OptionError(f"{out_path}: a {Path(out_path).suffix} file name; the output is a .las/.laz file (one input) "
+                          "or a folder (strips; a name without a file extension)", param="OUT_PATH")
     if not to_folder:
         refuse_input_as_output(out_path, in_paths, "OUT_PATH")
         if out_format is not None:

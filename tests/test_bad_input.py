@@ -943,6 +943,7 @@ CASES = [
 
     # --- lidarctl
     C("classify_truncated", "lidarctl", "classify {w}/las/raw.las {w}/out.las", "raw.las", truncate("las/raw.las")),
+    C("classify_output_a_text_file", "lidarctl", "classify {w}/las/raw.las {w}/out.txt", ["out.txt", ".las/.laz file"]),
     C("classify_zero_scale", "lidarctl", "classify {w}/las/raw.las {w}/out.las", "raw.las",
       patch_bytes("las/raw.las", 131, struct.pack("<d", 0.0))),
     C("classify_wrong_signature", "lidarctl", "classify {w}/las/raw.las {w}/out.las", "raw.las",
