@@ -218,10 +218,13 @@ class PointsDemResult:
         """What share of the DEM is extended beyond the tie points and where, in words."""
         sides = ", ".join(f"{name} {m:.0f} m" for name, m in zip(("north", "east", "south", "west"),
                                                                   self.extended_beyond_nesw_m) if m > 0)
+        # the three counts together (new-user trial: "cells_measured=7" in the run's table beside "7474 of 7482
+        # extended" read as two counts that disagree; the 8th cell is interpolated)
         return (f"{self.extrapolated_percent:.0f} % of the cells ({self.cells_extrapolated} of "
                 f"{self.width * self.height}) extended beyond the tie points (the nearest cell's height, not measured), "
-                f"up to {self.extrapolated_max_distance_m:.0f} m from them" + (f"; the grid reaches {sides} beyond "
-                                                                              "their extent" if sides else ""))
+                f"up to {self.extrapolated_max_distance_m:.0f} m from them; {self.cells_measured} measured (holding "
+                f"tie points), {self.cells_interpolated} interpolated between them"
+                + (f"; the grid reaches {sides} beyond their extent" if sides else ""))
 
 
 def _heights_words(project: Project) -> str:
