@@ -90,6 +90,11 @@ def _cgroup_folders(mount: Path, path: str) -> list[Path]:
     return out
 
 
+def _unified_mount(root: Path) -> Path:
+    """Where the unified (v2) hierarchy is mounted: ``root`` itself on a v2 system, ``root/unified`` on a hybrid one."""
+    return root if (root / "cgroup.controllers").is_file() else root / "unified"
+
+
 def _read_first_line(path: Path) -> str | None:
     try:
         return path.read_text().split("\n", 1)[0].strip()
@@ -105,7 +110,7 @@ def cgroup_cpu_limit(proc_cgroup: str | Path = "/proc/self/cgroup", root: str | 
     paths = _cgroup_paths(proc_cgroup)
     limits = []
     if "" in paths:  # v2 (or the unified hierarchy of a hybrid system)
-        mount = root if (root / "cgroup.controllers").is_file() else root / "unified"
+        mount = _unified_mount(root)
         for folder in _cgroup_folders(mount, paths[""]):
             line = _read_first_line(folder / "cpu.max")
             if line:
@@ -133,7 +138,7 @@ def cgroup_memory_limit(proc_cgroup: str | Path = "/proc/self/cgroup", root: str
     paths = _cgroup_paths(proc_cgroup)
     limits = []
     if "" in paths:
-        mount = root if (root / "cgroup.controllers").is_file() else root / "unified"
+        mount = _unified_mount(root)
         for folder in _cgroup_folders(mount, paths[""]):
             line = _read_first_line(folder / "memory.max")
             if line and line.isdigit():
