@@ -15,6 +15,10 @@ once, in bytes, from the thread that calls it, around the whole stage (before it
 after they have ended), with ``stage_block_cache``, never inside a task or per writer. Other GDAL options
 (``GDAL_PAM_ENABLED``, ...) are per thread in rasterio (a worker thread's ``rasterio.Env`` sets thread-local
 options) and may still be set by a task.
+
+A stage's size is at most an eighth of the memory the process may use (``aerotri.core.limits.cache_bytes``): the
+256 MiB of ``lidarctl rasters`` were filled by its working rasters' blocks and, with the libraries' 250 MB, took the
+demo's rasters past a 600 MiB batch job's limit at any tile size (killed by the kernel); 75 MiB there.
 """
 
 from __future__ import annotations
@@ -26,11 +30,14 @@ MiB = 2 ** 20
 
 @contextlib.contextmanager
 def stage_block_cache(max_bytes: int):
-    """GDAL's block cache at ``max_bytes`` (bytes) while the block runs, the previous size after it. Enter it
-    in the thread that calls a stage, around the stage, never in a task on a worker thread (module doc)."""
+    """GDAL's block cache at ``max_bytes`` (bytes; at most an eighth of the memory the process may use) while the
+    block runs, the previous size after it. Enter it in the thread that calls a stage, around the stage, never in a
+    task on a worker thread (module doc)."""
     import rasterio
+
+    from aerotri.core.limits import cache_bytes
 
     if max_bytes < MiB:  # a size in MB passed by mistake would leave the cache useless (module doc)
         raise ValueError(f"GDAL block cache of {max_bytes} bytes: expected bytes (at least 1 MiB)")
-    with rasterio.Env(GDAL_CACHEMAX=int(max_bytes)):
+    with rasterio.Env(GDAL_CACHEMAX=max(MiB, cache_bytes(max_bytes))):
         yield

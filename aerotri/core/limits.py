@@ -22,7 +22,7 @@ MAX_GRID_SIDE_PX = 2**31 - 1
 # millisecond of scheduling, reading and writing its border), so far more than this is hours spent on
 # overhead: the work of a tile or chunk option must be bounded by the data, not by the option.
 MAX_TASKS = 1_000_000
-# Worker processes (``--scheduler local:N``) and threads (``--workers``) per core of this machine.
+# Worker processes (``--scheduler local:N``) and threads (``--workers``) per core this process may use (``usable_cores``).
 MAX_PROCESSES_PER_CORE = 4
 MAX_THREADS_PER_CORE = 16
 
@@ -192,21 +192,45 @@ def format_bytes(n: float) -> str:
     return f"{n:.1f} PiB"
 
 
+def resident_bytes() -> int:
+    """The memory this process holds now and cannot give back (bytes): its resident set less the pages of files
+    (libraries' code, files read), which the kernel drops under a limit (``/proc/self/statm``: resident - shared;
+    ``RssAnon`` of ``/proc/self/status``); 0 where the system does not say. The libraries' data (70-140 MB once
+    numpy, numba, GDAL and PROJ are imported) and what a stage has read so far."""
+    try:
+        with open("/proc/self/statm") as fh:
+            fields = fh.read().split()
+        return max(0, int(fields[1]) - int(fields[2])) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (OSError, ValueError, IndexError, AttributeError):
+        return 0
+
+
+def cache_bytes(max_bytes: int, share: float = 1 / 8) -> int:
+    """A cache's size (bytes): ``max_bytes``, or ``share`` of the memory this process may use when that is less (a
+    cache sized for a workstation is most of a 600 MiB batch job's memory)."""
+    total = usable_memory_bytes()
+    return int(max_bytes) if not total else int(min(max_bytes, share * total))
+
+
 def check_allocation(n_bytes: float, what: str, option: str | None = None, *, hint: str = "",
-                     fraction: float = 0.8) -> None:
-    """``ResourceError`` when ``what`` would need more than ``fraction`` of the memory this process may use
+                     fraction: float = 0.9, held_bytes: float | None = None) -> None:
+    """``ResourceError`` when ``what`` would need, with the memory the process holds already (``held_bytes``, by
+    default its resident set now: ``resident_bytes``), more than ``fraction`` of the memory it may use
     (``usable_memory_bytes``): refuse before allocating rather than fail with a MemoryError (or the out-of-memory
     killer) minutes later.
 
-    ``option`` names the option that sets the size (e.g. ``--res-m``); the message gives both sizes and ``hint``
-    (what to change). 80 %: the process, its libraries and the system need the rest."""
+    ``option`` names the option that sets the size (e.g. ``--res-m``); the message gives the sizes and ``hint``
+    (what to change). 90 %: the system and the files' pages need the rest (the process's own libraries are in
+    what it holds)."""
     total = usable_memory_bytes()
-    if total and n_bytes > fraction * total:
+    held = resident_bytes() if held_bytes is None else float(held_bytes)
+    if total and n_bytes + held > fraction * total:
         hint = f"; {hint}" if hint else f"; change {option}" if option else ""
         whose = (f"the {format_bytes(total)} this process's cgroup allows" if total < physical_memory_bytes()
                  else f"this machine's {format_bytes(total)}")
-        raise ResourceError(f"{what} would need {format_bytes(n_bytes)} of memory, more than {fraction:.0%} of "
-                            f"{whose}{hint}", param=option)
+        holds = f" besides the {format_bytes(held)} the process holds already" if held else ""
+        raise ResourceError(f"{what} would need {format_bytes(n_bytes)} of memory{holds}, more than "
+                            f"{fraction:.0%} of {whose}{hint}", param=option)
 
 
 def check_disk(n_bytes: float, folder, what: str, option: str | None = None, *, hint: str = "") -> None:
@@ -234,17 +258,18 @@ def check_task_count(n_tasks: float, what: str, option: str | None = None, hint:
 
 def check_workers(n: int, processes: bool, option: str) -> None:
     """``OptionError`` for a number of workers below 1 (nothing would ever run the tasks: a hang) or far above
-    the cores of this machine (``MAX_PROCESSES_PER_CORE`` processes, ``MAX_THREADS_PER_CORE`` threads)."""
+    the cores this process may use (``usable_cores``: ``MAX_PROCESSES_PER_CORE`` processes, ``MAX_THREADS_PER_CORE``
+    threads a core)."""
     from aerotri.core.errors import OptionError
 
-    cores = os.cpu_count() or 1
+    cores = usable_cores()
     top = cores * (MAX_PROCESSES_PER_CORE if processes else MAX_THREADS_PER_CORE)
     kind = "worker processes" if processes else "worker threads"
     if n < 1:
         raise OptionError(f"{option} {n}: at least 1 of the {kind} is needed (none would run the tasks)", param=option)
     if n > top:
         raise OptionError(f"{option} {n}: more {kind} than {top} ({MAX_PROCESSES_PER_CORE if processes else MAX_THREADS_PER_CORE} "
-                          f"per core of this machine's {cores})", param=option)
+                          f"per core of the {cores} this process may use)", param=option)
 
 
 def check_grid(width: float, height: float, what: str, option: str | None = None) -> None:

@@ -50,7 +50,8 @@ from aerotri.core.resume import ResumeFolder, file_stamp, is_beside, resumable, 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.settings import setting
-from aerotri.core.limits import check_task_count
+from aerotri.core.limits import (cache_bytes, check_allocation, check_task_count, format_bytes, resident_bytes,
+                                 usable_memory_bytes)
 from aerotri.core.limits import check_disk
 from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
@@ -823,8 +824,6 @@ WORKING_IN_MEMORY_SHARE = 1 / 16
 
 
 def _working_in_memory(total_bytes: int) -> bool:
-    from aerotri.core.limits import usable_memory_bytes
-
     ram = usable_memory_bytes()     # 0: the system does not say
     return bool(ram) and total_bytes <= WORKING_IN_MEMORY_SHARE * ram
 
@@ -1019,9 +1018,15 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
                          "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res-m "
                          "coarser than the cloud", param="--res-m")
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
-    check_grid(*win, res_m, RASTER_BYTES_PER_CELL, "rasters: one tile with its buffer",
-               option="--tile-px", hint="use a smaller --tile-px")
     threads = _tile_threads(win[0] * win[1])
+    # the tiles in flight, GDAL's block cache (``stage_block_cache`` below) and the stage's own part, besides what the
+    # process holds
+    cache = cache_bytes(RASTERS_CACHE_BYTES)
+    need = threads * float(win[0]) * float(win[1]) * RASTER_BYTES_PER_CELL + cache + RASTERS_FIXED_BYTES
+    check_allocation(need, f"rasters: {threads} tile{'s' if threads > 1 else ''} of {win[0]:,} x {win[1]:,} cells of "
+                     f"{res_m:g} m (with the buffer), GDAL's block cache of {format_bytes(cache)} and the stage's "
+                     f"{format_bytes(RASTERS_FIXED_BYTES)}", "--tile-px", hint="use a smaller --tile-px or --buffer-px")
+    memory_ample = not usable_memory_bytes() or need + resident_bytes() <= usable_memory_bytes() / 4
     in_memory = _working_in_memory((len(RASTERS) + 1) * nrows * ncols * 4)
     # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
     # is mostly nodata, but the tiles are still visited and written)
@@ -1073,7 +1078,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     # that holds OUTDIR and its OUTDIR.resume is the user's, the chain's work/ goes when an error leaves it empty
     with resumable(resume_dir, remove_empty_parent=not is_beside(resume_dir, outdir)) \
             if resume_dir is not None else contextlib.nullcontext() as keep, \
-            stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice(), _freed_memory_kept(), _older_objects_frozen():
+            stage_block_cache(RASTERS_CACHE_BYTES), _no_hugepage_advice(), _freed_memory_kept(memory_ample), \
+            _older_objects_frozen():
         return _write_set(outdir, lambda tmp: write(tmp, keep))
 
 
@@ -1158,9 +1164,9 @@ _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 
 
 @contextlib.contextmanager
-def _freed_memory_kept():
-    """glibc's allocator keeps freed memory while the tiled rasters are made: arrays up to 1 GiB come from the
-    heap instead of fresh ``mmap`` pages, and freed ones stay there for the next tile's arrays. Why: every tile
+def _freed_memory_kept(keep: bool = True):
+    """With ``keep``, glibc's allocator keeps freed memory while the tiled rasters are made: arrays up to 1 GiB come
+    from the heap instead of fresh ``mmap`` pages, and freed ones stay there for the next tile's arrays. Why: every tile
     allocates window-sized arrays (per-cell records, pull-push pyramid, TIN) that the kernel otherwise zeroes page
     by page at first touch; on the demo's strips 33 % fewer minor page faults, 0.4-0.6 s less system time, 0.2-0.5
     CPU-s less in all (``bench/results/rasters_speed.json`` keys ``i41_rasters6_malloc_env*``), peak RSS +30-60 MB.
@@ -1169,7 +1175,12 @@ def _freed_memory_kept():
     The C library is the one the process runs on (``CDLL(None)``), not looked up with ``ctypes.util.find_library``:
     that runs ``ldconfig -p`` in a child process, and a child started by vfork then exec reports the parent's peak
     RSS as its own, which the chain's stage record added as a worker's (the 2 x 2 DMC block's rasters: 4.50 GB
-    recorded as 7.09). Linux only: glibc's tunables; ``CDLL(None)`` raises TypeError on Windows (Python 3.11)."""
+    recorded as 7.09). Linux only: glibc's tunables; ``CDLL(None)`` raises TypeError on Windows (Python 3.11).
+
+    Without ``keep`` (memory is short: ``write_rasters_tiled``), the other way: blocks of 1 MiB or more are mapped and
+    unmapped, free memory above 1 MiB returned at once. glibc's own sliding thresholds kept about 100 MB of freed chunk
+    arrays on the demo's four strips (anonymous memory after binning 291 MB, 197 MB with a 1 MiB trim threshold), which
+    a 400 MiB batch job cannot spare."""
     import ctypes
 
     if not sys.platform.startswith("linux"):
@@ -1182,7 +1193,8 @@ def _freed_memory_kept():
         yield
         return
     # both set, not short-circuited: a threshold set alone (the other refused) is still put back afterwards
-    changed = bool(mallopt(_M_MMAP_THRESHOLD, 1 << 30)) | bool(mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
+    mmap_bytes, trim_bytes = (1 << 30, 2**31 - 1) if keep else (1 << 20, 1 << 20)
+    changed = bool(mallopt(_M_MMAP_THRESHOLD, mmap_bytes)) | bool(mallopt(_M_TRIM_THRESHOLD, trim_bytes))
     try:
         yield
     finally:
@@ -1221,16 +1233,21 @@ _THREADS = 2
 
 
 def _tile_threads(window_cells: int) -> int:
-    from aerotri.core.limits import usable_memory_bytes
-
+    """``_THREADS`` when that many tiles, GDAL's block cache and what the process holds already take at most half
+    the memory it may use, else 1."""
     ram = usable_memory_bytes() or float("inf")  # 0: the system does not say
-    return _THREADS if _THREADS * window_cells * RASTER_BYTES_PER_CELL <= 0.5 * ram else 1
+    need = _THREADS * window_cells * RASTER_BYTES_PER_CELL + cache_bytes(RASTERS_CACHE_BYTES) + resident_bytes()
+    return _THREADS if need <= 0.5 * ram else 1
 
 
 # GDAL's block cache while the tiled rasters are written (windows written, COGs copied): bounded, not 5 % of
 # the RAM; one size for the process, set once around the stage from its calling thread
 # (``aerotri.core.gdal_cache``), never per thread.
 RASTERS_CACHE_BYTES = 256 * MiB
+# The stage's memory besides its tiles, GDAL's cache and what the process holds before it starts: numba's kernels
+# loaded (about 70 MB) and two COGs written at once with their overviews (80-100 MB). Measured on the demo's four
+# strips (anonymous memory, ``/proc/self/status`` RssAnon, over the run against at the check).
+RASTERS_FIXED_BYTES = 192 * MiB
 # GDAL's configuration in every thread (these options are per thread in rasterio): no .aux.xml files; ZSTD
 # level 1 for the temporary file in which the COG driver computes the overviews (default 9; the COGs are the
 # same bytes, and 1 of 4 CPU-s of the demo's five COGs less).

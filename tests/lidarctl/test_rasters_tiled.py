@@ -253,3 +253,35 @@ def test_cells_far_finer_than_the_points_are_said(caplog):
         caplog.clear()
         rasters.warn_cells_finer_than_points(1_000_000, 4_000_000, 0.5, "autzen.laz")
         assert caplog.text == ""
+
+
+def test_under_a_memory_limit_the_tiles_that_fit_give_the_same_bytes_and_the_others_are_refused(strips, tmp_path,
+                                                                                                  monkeypatch):
+    """A batch job's memory limit (cgroup): the check counts the tiles in flight, GDAL's block cache (an eighth of
+    the limit) and the stage's own part beside what the process holds; before, the demo's strips were killed by the
+    kernel at 600 MiB whatever --tile-px. A run that fits writes the same bytes as one without the limit; one that
+    does not is refused before anything is written, naming --tile-px."""
+    from aerotri.core import limits
+    from aerotri.core.errors import ResourceError
+
+    paths = [strips / "west.las", strips / "east.las"]
+    rasters.write_rasters(paths, tmp_path / "free", 1.0, tile_px=64, buffer_px=16)
+    limit = 400 * 2**20
+    monkeypatch.setattr(limits, "_own_memory_limit", lambda: limit)
+    monkeypatch.setattr(limits, "resident_bytes", lambda: 64 * 2**20)   # the test worker's own is not the point
+    monkeypatch.setattr(rasters, "resident_bytes", lambda: 64 * 2**20)
+    assert limits.cache_bytes(rasters.RASTERS_CACHE_BYTES) == limit // 8
+    kept = []
+    freed = rasters._freed_memory_kept
+    monkeypatch.setattr(rasters, "_freed_memory_kept", lambda keep=True: kept.append(keep) or freed(keep))
+    rasters.write_rasters(paths, tmp_path / "limited", 1.0, tile_px=64, buffer_px=16)
+    assert kept == [False]                    # memory short: freed memory given back, not kept for speed
+    for f in rasters.FILES:
+        assert (tmp_path / "limited" / f).read_bytes() == (tmp_path / "free" / f).read_bytes(), f
+    # 1 tile of 768 x 768 cells (256 + 2 x 256) x 168 bytes + 50 MiB of cache + 192 MiB + 64 MiB held > 90 % of 400 MiB
+    with pytest.raises(ResourceError) as e:
+        rasters.write_rasters(paths, tmp_path / "refused", 0.1, tile_px=256, buffer_px=256)
+    msg = str(e.value)
+    assert "768 x 768 cells" in msg and "block cache of 50.0 MiB" in msg and "64.0 MiB the process holds" in msg
+    assert "400.0 MiB this process's cgroup allows" in msg and e.value.param == "--tile-px"
+    assert not (tmp_path / "refused").exists() and not list(tmp_path.glob("refused*"))

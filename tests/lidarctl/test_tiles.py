@@ -458,3 +458,44 @@ def test_merging_a_strip_with_offsets_off_the_first_grid_warns_naming_both(strip
     with caplog.at_level(logging.WARNING, logger="lidarctl.merge"):
         merge_las(paths, tmp_path / "m2.las")  # the simulator's strips share one grid: no word
     assert "offsets" not in caplog.text
+
+
+def test_tiles_sized_by_the_memory_are_a_ceiling(big):
+    """``at_most`` (a tile size the memory sets): whole tiles cover the extent by smaller tiles, never larger; the
+    default rounding may give an inner tile above the target."""
+    d, _, _ = big
+    header = las_format.read_header(d / "in.laz")
+    density = header.point_count / np.prod(np.asarray(header.maxs[:2]) - np.asarray(header.mins[:2]))
+    for target in (250_000, 200_000, 120_000):
+        rounded = tiles.plan_tiles(header, tile_points=target)
+        ceiling = tiles.plan_tiles(header, tile_points=target, at_most=True)
+        inner = density * (ceiling.tile_m + 2 * ceiling.buffer_m) ** 2
+        assert inner <= target or ceiling.tile_m == 2 * ceiling.buffer_m, (target, ceiling)
+        assert ceiling.tile_m <= rounded.tile_m
+    # 250 k points: the rounded tiles' inner 270 m hold 291 k points, the ceiling's 240 m 230 k
+    assert tiles.plan_tiles(header, tile_points=250_000).tile_m == 150.0
+    assert tiles.plan_tiles(header, tile_points=250_000, at_most=True).tile_m == 120.0
+
+
+def test_under_a_memory_limit_the_tiles_are_smaller_or_the_run_refused_before_any_work(small, tmp_path, monkeypatch):
+    """A batch job's memory limit (cgroup): the default tiles hold what two tasks at once can (the demo's strip was
+    killed by the kernel at 600 MiB in one tile); tiles the user sets that cannot fit are refused naming
+    --tile-size-m, with no output."""
+    from aerotri.core import limits
+
+    monkeypatch.setattr(limits, "resident_bytes", lambda: 64 * 2**20)
+    src = small / "in.laz"
+    free = CliRunner().invoke(main, ["classify", str(src), str(tmp_path / "free.laz")])
+    assert free.exit_code == 0 and "1 tiles of" in free.output, free.output
+    monkeypatch.setattr(limits, "_own_memory_limit", lambda: 400 * 2**20)
+    # one task at a time (a test worker may have one core or two)
+    limited = CliRunner().invoke(main, ["classify", str(src), str(tmp_path / "limited.laz"), "--scheduler",
+                                        "synchronous"])
+    assert limited.exit_code == 0 and "4 tiles of 130 m + 60 m buffer" in limited.output, limited.output
+    assert laspy.read(tmp_path / "limited.laz").header.point_count == laspy.read(src).header.point_count
+    # one tile of the whole cloud (49 k points x 480 bytes) + 192 MiB + 64 MiB held > 90 % of 300 MiB
+    monkeypatch.setattr(limits, "_own_memory_limit", lambda: 300 * 2**20)
+    _fails(["classify", str(src), str(tmp_path / "o.laz"), "--tile-size-m", "140"], tmp_path / "o.laz",
+           "--tile-size-m")
+    r = CliRunner().invoke(main, ["classify", str(src), str(tmp_path / "o.laz"), "--tile-size-m", "140"])
+    assert "classifying 1 tile of about" in r.output and "300.0 MiB this process's cgroup allows" in r.output

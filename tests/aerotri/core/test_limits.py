@@ -7,7 +7,11 @@ the values are what the kernel documents for them (``cpu.max``, ``cpu.cfs_quota_
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+import textwrap
 
+import numpy as np
 import pytest
 
 from aerotri.core import limits
@@ -95,10 +99,15 @@ def test_a_memory_limit_below_the_machine_s_sets_the_allocation_check(monkeypatc
     machine = limits.physical_memory_bytes()
     monkeypatch.setattr(limits, "_own_memory_limit", lambda: 2**30)
     assert limits.usable_memory_bytes() == min(machine, 2**30)
-    limits.check_allocation(0.5 * 2**30, "half a GiB")
+    limits.check_allocation(0.5 * 2**30, "half a GiB", held_bytes=0)
     with pytest.raises(ResourceError) as e:
-        limits.check_allocation(0.9 * 2**30, "the ortho of frame 7", "--res-m")
+        limits.check_allocation(0.95 * 2**30, "the ortho of frame 7", "--res-m", held_bytes=0)
     assert "the 1.0 GiB this process's cgroup allows" in str(e.value) and "--res-m" in e.value.user_message()
+    # what the process holds already counts: half a GiB fits alone, not beside 0.45 GiB held
+    with pytest.raises(ResourceError) as e:
+        limits.check_allocation(0.5 * 2**30, "half a GiB", held_bytes=0.45 * 2**30)
+    assert "besides the 460.8 MiB the process holds already, more than 90% of the 1.0 GiB" in str(e.value)
+    assert limits.cache_bytes(256 * 2**20) == 128 * 2**20              # an eighth of the limit
     monkeypatch.setattr(limits, "_own_memory_limit", lambda: None)
     assert limits.usable_memory_bytes() == machine
 
@@ -112,3 +121,40 @@ def test_library_pools_told_the_quota_s_cores_unless_the_user_set_them(monkeypat
     env = {}
     limits.limit_library_threads(env)
     assert env == {}
+
+
+def test_resident_bytes_counts_what_the_process_holds_and_not_its_files(tmp_path):
+    """The memory a limit cannot take back: an array written into is counted, a file mapped and read is not (the
+    kernel drops its pages under the limit)."""
+    before = limits.resident_bytes()
+    a = np.ones(64 * 2**20 // 8)                     # 64 MiB written
+    held = limits.resident_bytes() - before
+    assert 60 * 2**20 < held < 72 * 2**20, held
+    f = tmp_path / "f.bin"
+    a.tofile(f)
+    del a
+    before = limits.resident_bytes()
+    m = np.memmap(f, dtype=np.float64, mode="r")
+    assert float(m.sum()) == 64 * 2**20 // 8         # every page of the file read
+    assert limits.resident_bytes() - before < 8 * 2**20
+    del m
+
+
+@pytest.mark.parametrize("keep, kept", [(True, True), (False, False)])
+def test_freed_memory_kept_or_given_back(keep, kept):
+    """``lidarctl rasters``' allocator setting: with ``keep`` (memory ample) a freed 50 MB array stays in the process
+    for the next tile; without (memory short) it is given back at once."""
+    code = textwrap.dedent(f"""
+        import numpy as np
+        from aerotri.core.limits import resident_bytes
+        from lidarctl.rasters.products import _freed_memory_kept
+        with _freed_memory_kept({keep}):
+            before = resident_bytes()
+            a = np.ones(50_000_000 // 8)
+            del a
+            print(resident_bytes() - before)
+    """)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    held = int(run.stdout.split()[-1])
+    assert (held > 45_000_000) == kept, held
