@@ -772,6 +772,13 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         raise InputError(f"{dem_path}: DEM not found; the true ortho needs a DEM beside the DSM (the frames' ground "
                          f"extent; with --footprints the ground beneath the eaves): pass --dem, e.g. the DSM itself or "
                          f"the tie points' DEM of `ortho dem {root}` (at/dem.tif)")
+    tie_point_dem = project.at_dir / "dem.tif"
+    if not dem_path.exists() and dem_path == project.dem_path and tie_point_dem.is_file():
+        # (new-user trial 88: a project without LiDAR, after `aerotri run` made at/dem.tif, was told only to run
+        # lidarctl or pass --dem)
+        raise InputError(f"{dem_path}: DEM not found (the project has no LiDAR DEM); the tie points' DEM that "
+                         f"`aerotri run` or `ortho dem` made is {tie_point_dem}: pass --dem {tie_point_dem}, or a DEM "
+                         "from elsewhere", param="--dem")
     if compression not in FRAME_COMPRESSION:
         raise InputError(f"unknown frame compression {compression!r}; expected one of {sorted(FRAME_COMPRESSION)}")
     transformation = load_transformation(params) if params else None

@@ -68,6 +68,11 @@ def test_the_dem_covers_every_frame_where_the_ground_falls_away(tiny_project, tm
     (p / "at" / "object_points.csv").write_text("\n".join(rows) + "\n")
     r = CliRunner().invoke(ortho_main, ["dem", str(p)])
     assert r.exit_code == 0, r.output
+    # without LiDAR and without --dem: the tie points' DEM is named (new-user trial 88), nothing written
+    shutil.rmtree(p / "lidar_out", ignore_errors=True)
+    r = CliRunner().invoke(ortho_main, ["rectify", str(p)])
+    assert r.exit_code == 2 and f"pass --dem {p / 'at' / 'dem.tif'}" in r.output, r.output
+    assert "lidar_out/dem.tif: DEM not found" in r.output and not (p / "ortho").exists()
     r = CliRunner().invoke(ortho_main, ["rectify", str(p), "--dem", str(p / "at" / "dem.tif")])
     assert r.exit_code == 0, r.output
     assert len(list((p / "ortho" / "frames").glob("*.tif"))) == len(eo.image_id)
