@@ -104,17 +104,6 @@ logger = logging.getLogger(__name__)
 # about 1 GB of memory (classify_points needs about 200 bytes per point), so two tasks at a time
 # fit well under 3 GB. Dense clouds get smaller cores (and a larger buffer overhead) than sparse ones.
 DEFAULT_TILE_POINTS = 4_000_000
-# Memory of one classification task a point of its inner tile, and the stage's own besides its tasks and what the
-# process holds before it starts (numba's kernels, the whole cloud's water cells). Measured on the demo's strips
-# (anonymous memory, RssAnon; 67 MB held at the check): strip 1 (1.12 M points) in tiles of 300 and 500 m, two at a
-# time (inner tiles of 262 k and 606 k points), peaks of 406 and 695 MB: 420 bytes a point of each task; the four
-# strips (4.9 M points) in tiles of 280 m + 60 m (about 430 k points): 243 MB before the tiles, 638 MB with two at
-# once, 460 bytes a point. Rounded up: an estimate that errs towards refusing, not towards the kernel's kill.
-CLASSIFY_BYTES_PER_POINT = 480
-CLASSIFY_FIXED_BYTES = 192 * 2**20
-# The split's memory a point of its chunk (records, coordinates, tile memberships, the tiles' rows): the demo's four
-# strips read whole (1.1-1.3 M points a chunk) took the process from 67 to 374 MB.
-SPLIT_BYTES_PER_POINT = 240
 TILE_ROUND_M = 10.0
 # Coarse upper limit on the number of tiles (a lying header with absurd bounds must not explode).
 MAX_TILES = 1_000_000
@@ -193,16 +182,14 @@ def near_code_in_buffer_of(code: int, dr: int, dc: int) -> bool:
 
 def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer_m: float | None = None,
                method: str = "morph", preset: str | None = None, path="input",
-               *, tile_points: int = DEFAULT_TILE_POINTS, units: LengthUnits = METRE, ground_params=None,
-               at_most: bool = False) -> TileGrid:
+               *, tile_points: int = DEFAULT_TILE_POINTS, units: LengthUnits = METRE, ground_params=None) -> TileGrid:
     """Tile grid (metres) over the header bounds (in the file's ``units``). ``header``: a LAS header, or
     anything with ``mins``, ``maxs`` and ``point_count`` (the union of several strips).
 
     Default tile size: an inner tile (core + buffer on all sides) of about ``tile_points`` points
     at the file's mean density (header point count over the bounding-box area), adjusted so that
     whole tiles cover the extent, rounded up to 10 m and at least twice the buffer (else the
-    buffers would cost more than the cores); ``at_most``: ``tile_points`` is a ceiling (set by the memory), the tiles
-    made smaller rather than larger to cover the extent. Default buffer: ``default_buffer_m``.
+    buffers would cost more than the cores). Default buffer: ``default_buffer_m``.
     """
     buffer_m = default_buffer_m(method, preset, ground_params) if buffer_m is None else float(buffer_m)
     if not (buffer_m >= 0 and math.isfinite(buffer_m)):
@@ -220,10 +207,8 @@ def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer
         target_m = math.sqrt(tile_points / max(density, 1e-12)) - 2.0 * buffer_m
         # Whole tiles over the extent (no thin slivers of tiles along the far edges).
         target_m = max(target_m, 2.0 * buffer_m, TILE_ROUND_M)
-        whole = math.ceil if at_most else round
-        tile_m = max(width / max(1, whole(width / target_m)), height / max(1, whole(height / target_m)))
-        tile_m = max(TILE_ROUND_M * (math.floor if at_most else math.ceil)(tile_m / TILE_ROUND_M), 2.0 * buffer_m,
-                     TILE_ROUND_M)
+        tile_m = max(width / max(1, round(width / target_m)), height / max(1, round(height / target_m)))
+        tile_m = max(TILE_ROUND_M * math.ceil(tile_m / TILE_ROUND_M), 2.0 * buffer_m, TILE_ROUND_M)
     else:
         tile_m = float(tile_size_m)
         if not (tile_m > 0 and math.isfinite(tile_m)):
@@ -1051,16 +1036,9 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
     # A CRS record for an input without one: the --crs as given (a compound CRS keeps its vertical unit).
     out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
     bounds = headers[0] if len(headers) == 1 else _union_bounds(headers)
-    tasks = _tasks_at_once(executor)
-    tile_points = _tile_points_for_memory(tasks or 1)
     grid = plan_tiles(bounds, tile_size_m, buffer_m, params.ground_method, params.preset, name, units=units,
-                      ground_params=params.ground_params, tile_points=tile_points,
-                      at_most=tile_points < DEFAULT_TILE_POINTS)
+                      ground_params=params.ground_params)
     n = int(bounds.point_count)
-    if tasks is not None and not params.keep_classes:
-        _check_tile_memory(grid, bounds, units, 1 if grid.n_tiles == 1 else min(tasks, grid.n_tiles), name,
-                           given=tile_size_m is not None)
-    chunk_points = min(chunk_points, _chunk_points_for_memory())
 
     def stats(run):
         return ClassifyStats(n_points=n, grid=grid, units=units, run=run, seconds=time.perf_counter() - t0,
@@ -1093,58 +1071,6 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
         # strips of two zones merged under one CRS).
         raise ResourceError(f"{name}: {exc}", param=exc.param) from exc
     return stats(run)
-
-
-def _tasks_at_once(executor) -> int | None:
-    """Classification tasks that run at once in this process's memory: the executor's workers (1 synchronous); None
-    on a remote Dask cluster (its machines' memory is theirs)."""
-    ex = executor if executor is not None else local_executor()
-    if ex.distributed and not str(ex.scheduler).startswith("local:"):
-        return None
-    return 1 if ex.scheduler == "synchronous" else max(1, int(ex.workers))
-
-
-def _spare_bytes() -> float | None:
-    """What the classification may use beside what the process holds and the stage's own part (bytes; 90 % of the
-    memory the process may use, as ``check_allocation``), None when the system does not say."""
-    from aerotri.core.limits import resident_bytes, usable_memory_bytes
-
-    total = usable_memory_bytes()
-    return 0.9 * total - resident_bytes() - CLASSIFY_FIXED_BYTES if total else None
-
-
-def _chunk_points_for_memory() -> int:
-    """Points a chunk of the tiles' split (pass 1) may hold: ``SPLIT_BYTES_PER_POINT`` each in ``_spare_bytes`` (at
-    least 100,000; ``io.CHUNK_POINTS`` when memory is ample)."""
-    spare = _spare_bytes()
-    return io.CHUNK_POINTS if spare is None else int(max(100_000, min(io.CHUNK_POINTS, spare / SPLIT_BYTES_PER_POINT)))
-
-
-def _tile_points_for_memory(tasks: int) -> int:
-    """The default inner tile's points: ``DEFAULT_TILE_POINTS``, fewer when ``tasks`` of them at once would not fit
-    in ``_spare_bytes`` (a batch job's or a container's memory limit)."""
-    spare = _spare_bytes()
-    if spare is None:
-        return DEFAULT_TILE_POINTS
-    return int(max(0.0, min(DEFAULT_TILE_POINTS, spare / (tasks * CLASSIFY_BYTES_PER_POINT))))
-
-
-def _check_tile_memory(grid: TileGrid, bounds, units: LengthUnits, tasks: int, name, *, given: bool) -> None:
-    """``ResourceError`` before any work when ``tasks`` inner tiles at once (at the cloud's mean density; the whole
-    cloud when it is one tile) would not fit in the memory this process may use."""
-    from aerotri.core.limits import check_allocation
-
-    mins, maxs = np.asarray(bounds.mins, float), np.asarray(bounds.maxs, float)
-    width_m, height_m = (max(float(d), 1e-3) for d in units.xy_to_m(maxs[:2] - mins[:2]))
-    n = int(bounds.point_count)
-    side_m = grid.tile_m + 2.0 * grid.buffer_m
-    points = n if grid.n_tiles == 1 else min(n, int(n / (width_m * height_m) * side_m ** 2))
-    option = "--tile-size-m"
-    hint = "use a smaller --tile-size-m" if given else (f"the smallest tiles for this buffer ({grid.tile_m:g} m + "
-                                                        f"{grid.buffer_m:g} m) do not fit: use a smaller --buffer-m")
-    check_allocation(tasks * points * CLASSIFY_BYTES_PER_POINT + CLASSIFY_FIXED_BYTES,
-                     f"{name}: classifying {tasks} tile{'s' if tasks > 1 else ''} of about {points:,} points at once "
-                     f"({grid.tile_m:g} m + {grid.buffer_m:g} m buffer)", option, hint=hint)
 
 
 def _keep_delivered(in_path, out_path, *, out_crs, units, chunk_points, t0) -> ClassifyRun:

@@ -1022,8 +1022,9 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     # the tiles in flight, GDAL's block cache (``stage_block_cache`` below) and the stage's own part, besides what the
     # process holds
     cache = cache_bytes(RASTERS_CACHE_BYTES)
-    need = threads * float(win[0]) * float(win[1]) * RASTER_BYTES_PER_CELL + cache + RASTERS_FIXED_BYTES
-    check_allocation(need, f"rasters: {threads} tile{'s' if threads > 1 else ''} of {win[0]:,} x {win[1]:,} cells of "
+    in_flight = min(threads, (-(-nrows // tile_px)) * (-(-ncols // tile_px)))
+    need = in_flight * float(win[0]) * float(win[1]) * RASTER_BYTES_PER_CELL + cache + RASTERS_FIXED_BYTES
+    check_allocation(need, f"rasters: {in_flight} tile{'s' if in_flight > 1 else ''} of {win[0]:,} x {win[1]:,} cells of "
                      f"{res_m:g} m (with the buffer), GDAL's block cache of {format_bytes(cache)} and the stage's "
                      f"{format_bytes(RASTERS_FIXED_BYTES)}", "--tile-px", hint="use a smaller --tile-px or --buffer-px")
     memory_ample = not usable_memory_bytes() or need + resident_bytes() <= usable_memory_bytes() / 4
@@ -1245,9 +1246,10 @@ def _tile_threads(window_cells: int) -> int:
 # (``aerotri.core.gdal_cache``), never per thread.
 RASTERS_CACHE_BYTES = 256 * MiB
 # The stage's memory besides its tiles, GDAL's cache and what the process holds before it starts: numba's kernels
-# loaded (about 70 MB) and two COGs written at once with their overviews (80-100 MB). Measured on the demo's four
-# strips (anonymous memory, ``/proc/self/status`` RssAnon, over the run against at the check).
-RASTERS_FIXED_BYTES = 192 * MiB
+# loaded, 67 -> 136 MB of anonymous memory (``/proc/self/status`` RssAnon) on the demo's four strips. Not counted: the
+# COGs written two at a time at the end (+80 MB there over the tiles' peak; how it grows with the raster is not
+# measured): a first version counted 192 MiB for both and refused AHN3 Delft's rasters at 400 MiB, which run there.
+RASTERS_FIXED_BYTES = 64 * MiB
 # GDAL's configuration in every thread (these options are per thread in rasterio): no .aux.xml files; ZSTD
 # level 1 for the temporary file in which the COG driver computes the overviews (default 9; the COGs are the
 # same bytes, and 1 of 4 CPU-s of the demo's five COGs less).

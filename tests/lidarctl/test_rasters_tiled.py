@@ -278,10 +278,12 @@ def test_under_a_memory_limit_the_tiles_that_fit_give_the_same_bytes_and_the_oth
     assert kept == [False]                    # memory short: freed memory given back, not kept for speed
     for f in rasters.FILES:
         assert (tmp_path / "limited" / f).read_bytes() == (tmp_path / "free" / f).read_bytes(), f
-    # 1 tile of 768 x 768 cells (256 + 2 x 256) x 168 bytes + 50 MiB of cache + 192 MiB + 64 MiB held > 90 % of 400 MiB
+    # 1 tile of 1,536 x 1,536 cells (1024 + 2 x 256) x 168 bytes + 50 MiB of cache + 64 MiB of the stage's + 64 MiB
+    # held > 90 % of 400 MiB
     with pytest.raises(ResourceError) as e:
-        rasters.write_rasters(paths, tmp_path / "refused", 0.1, tile_px=256, buffer_px=256)
+        rasters.write_rasters(paths, tmp_path / "refused", 0.1, tile_px=1024, buffer_px=256)
     msg = str(e.value)
-    assert "768 x 768 cells" in msg and "block cache of 50.0 MiB" in msg and "64.0 MiB the process holds" in msg
+    assert "1 tile of 1,536 x 1,536 cells" in msg and "block cache of 50.0 MiB" in msg
+    assert "64.0 MiB the process holds" in msg
     assert "400.0 MiB this process's cgroup allows" in msg and e.value.param == "--tile-px"
     assert not (tmp_path / "refused").exists() and not list(tmp_path.glob("refused*"))
