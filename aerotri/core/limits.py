@@ -215,7 +215,7 @@ def cache_bytes(max_bytes: int, share: float = 1 / 8) -> int:
 def check_allocation(n_bytes: float, what: str, option: str | None = None, *, hint: str = "",
                      fraction: float = 0.9, held_bytes: float | None = None) -> None:
     """``ResourceError`` when ``what`` would need, with the memory the process holds already (``held_bytes``, by
-    default its resident set now: ``resident_bytes``), more than ``fraction`` of the memory it may use
+    default its anonymous memory now: ``resident_bytes``), more than ``fraction`` of the memory it may use
     (``usable_memory_bytes``): refuse before allocating rather than fail with a MemoryError (or the out-of-memory
     killer) minutes later.
 

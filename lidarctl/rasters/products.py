@@ -1018,16 +1018,19 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
                          "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res-m "
                          "coarser than the cloud", param="--res-m")
     win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
+    tile_rows, tile_cols = -(-nrows // tile_px), -(-ncols // tile_px)
     threads = _tile_threads(win[0] * win[1])
     # the tiles in flight, GDAL's block cache (``stage_block_cache`` below) and the stage's own part, besides what the
     # process holds
     cache = cache_bytes(RASTERS_CACHE_BYTES)
-    in_flight = min(threads, (-(-nrows // tile_px)) * (-(-ncols // tile_px)))
+    in_flight = min(threads, tile_rows * tile_cols)
     need = in_flight * float(win[0]) * float(win[1]) * RASTER_BYTES_PER_CELL + cache + RASTERS_FIXED_BYTES
-    check_allocation(need, f"rasters: {in_flight} tile{'s' if in_flight > 1 else ''} of {win[0]:,} x {win[1]:,} cells of "
-                     f"{res_m:g} m (with the buffer), GDAL's block cache of {format_bytes(cache)} and the stage's "
-                     f"{format_bytes(RASTERS_FIXED_BYTES)}", "--tile-px", hint="use a smaller --tile-px or --buffer-px")
-    memory_ample = not usable_memory_bytes() or need + resident_bytes() <= usable_memory_bytes() / 4
+    check_allocation(need, f"rasters: {in_flight} tile{'s' if in_flight > 1 else ''} of {win[0]:,} x {win[1]:,} "
+                     f"cells of {res_m:g} m (with the buffer), GDAL's block cache of {format_bytes(cache)} and the "
+                     f"stage's {format_bytes(RASTERS_FIXED_BYTES)}", "--tile-px",
+                     hint="use a smaller --tile-px or --buffer-px")
+    ram = usable_memory_bytes()     # 0: the system does not say
+    memory_ample = not ram or need + resident_bytes() <= ram / 4
     in_memory = _working_in_memory((len(RASTERS) + 1) * nrows * ncols * 4)
     # the working GeoTIFFs and the COGs, uncompressed float32 at worst (a grid over strips far apart
     # is mostly nodata, but the tiles are still visited and written)
@@ -1035,12 +1038,12 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     check_disk((2.0 if resume_dir is None else 3.0) * 4 * (len(RASTERS) + 1) * nrows * ncols, outdir,
                f"{inputs.names}: rasters over the header bounds, a grid of {nrows:,} x {ncols:,} cells of {res_m:g} m",
                "--res-m", hint="use a coarser --res-m (or are strips far apart?)")
-    check_task_count((-(-nrows // tile_px)) * (-(-ncols // tile_px)),
+    check_task_count(tile_rows * tile_cols,
                      f"{inputs.names}: a grid of {nrows:,} x {ncols:,} cells in tiles of {tile_px} cells", "--tile-px",
                      "use a larger --tile-px")
     # (after the refusals: strips far apart are said as such, not as cells finer than their points)
     warn_cells_finer_than_points(inputs.n_points, nrows * ncols, res_m, inputs.names)
-    grid = TileGrid(0.0, 0.0, float(tile_px), float(buffer_px), -(-nrows // tile_px), -(-ncols // tile_px))
+    grid = TileGrid(0.0, 0.0, float(tile_px), float(buffer_px), tile_rows, tile_cols)
     transform_m = _from_origin(x0, y0 + nrows * res_m, res_m, res_m)
     transform = transform_m if units.is_metric else _transform_in_units(transform_m, units)
     tags = _tags(units, res_m)
