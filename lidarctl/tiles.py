@@ -104,6 +104,12 @@ logger = logging.getLogger(__name__)
 # about 1 GB of memory (classify_points needs about 200 bytes per point), so two tasks at a time
 # fit well under 3 GB. Dense clouds get smaller cores (and a larger buffer overhead) than sparse ones.
 DEFAULT_TILE_POINTS = 4_000_000
+# The memory of a classification task per point of its tile (buffer included), what the tile-by-tile passes
+# (the cloud's noise figures, the classes) hold at their peak: 435-444 bytes measured on the simulator's dmc
+# strips (8.45 M points; 760 m tiles of 2.1 M points one and two at a time, anonymous memory sampled every
+# 0.2 s; docs/scale-out.md). Under a memory limit the default tiles and the tasks run side by side are chosen
+# from it (``tile_points_in_memory``, ``tiles_at_once``); the classes do not depend on either.
+CLASSIFY_BYTES_PER_POINT = 480
 TILE_ROUND_M = 10.0
 # Coarse upper limit on the number of tiles (a lying header with absurd bounds must not explode).
 MAX_TILES = 1_000_000
@@ -194,10 +200,7 @@ def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer
     buffer_m = default_buffer_m(method, preset, ground_params) if buffer_m is None else float(buffer_m)
     if not (buffer_m >= 0 and math.isfinite(buffer_m)):
         raise OptionError(f"--buffer-m {buffer_m}: must be a non-negative distance in metres", param="--buffer-m")
-    mins, maxs = np.asarray(header.mins, float), np.asarray(header.maxs, float)
-    if not units.is_metric:
-        mins, maxs = mins.copy(), maxs.copy()
-        mins[:2], maxs[:2] = units.xy_to_m(mins[:2]), units.xy_to_m(maxs[:2])
+    mins, maxs = _bounds_m(header, units)
     if not (np.isfinite(mins).all() and np.isfinite(maxs).all()) or (maxs[:2] < mins[:2]).any() or \
             (np.abs(np.concatenate([mins[:2], maxs[:2]])) > io.MAX_ABS_XY_M).any():
         raise InputError(f"{path}: absurd bounds in the LAS header (min {mins.tolist()}, max {maxs.tolist()})")
@@ -220,6 +223,52 @@ def plan_tiles(header: laspy.LasHeader, tile_size_m: float | None = None, buffer
     if ncols * nrows > MAX_TILES:
         raise InputError(f"{path}: {ncols} x {nrows} tiles of {tile_m:g} m; use a larger --tile-size-m")
     return TileGrid(float(mins[0]), float(mins[1]), tile_m, buffer_m, nrows, ncols)
+
+
+def _bounds_m(header, units: LengthUnits) -> tuple[np.ndarray, np.ndarray]:
+    """The header's lowest and highest x, y, z with x and y in metres."""
+    mins, maxs = np.array(header.mins, float), np.array(header.maxs, float)
+    if not units.is_metric:
+        mins[:2], maxs[:2] = units.xy_to_m(mins[:2]), units.xy_to_m(maxs[:2])
+    return mins, maxs
+
+
+def window_share(grid: TileGrid, header, units: LengthUnits = METRE) -> float:
+    """The share of the cloud's bounding box that one tile's window (core and buffers) covers at most: the share
+    of its points a tile holds at the mean density."""
+    mins, maxs = _bounds_m(header, units)
+    side = grid.tile_m + 2.0 * grid.buffer_m
+    width, height = max(maxs[0] - mins[0], 1e-3), max(maxs[1] - mins[1], 1e-3)
+    return min(side, width) * min(side, height) / (width * height)
+
+
+def classify_memory_points(held_bytes: float | None = None) -> float:
+    """Tile points (buffers included) whose classification fits, at ``CLASSIFY_BYTES_PER_POINT``, in 90 % of the
+    memory this process may use (``limits.usable_memory_bytes``: a cgroup's limit, else the machine's) beside what
+    it holds (``held_bytes``, default its anonymous memory now); infinite where the system does not say."""
+    from aerotri.core.limits import resident_bytes, usable_memory_bytes
+
+    total = usable_memory_bytes()
+    if not total:
+        return math.inf
+    held = resident_bytes() if held_bytes is None else float(held_bytes)
+    return max(0.0, 0.9 * total - held) / CLASSIFY_BYTES_PER_POINT
+
+
+def tile_points_in_memory(workers: int, fit_points: float) -> int:
+    """The default tile's points (``plan_tiles``' ``tile_points``): ``DEFAULT_TILE_POINTS``, or fewer when
+    ``workers`` tiles of it side by side would not fit in ``fit_points`` (``classify_memory_points``): a batch
+    job's or container's memory limit then sets the tiles, as the tiles set the memory. Smaller tiles cost
+    buffer overhead, never other classes."""
+    share = fit_points / max(1, int(workers))
+    return DEFAULT_TILE_POINTS if share >= DEFAULT_TILE_POINTS else max(1, int(share))
+
+
+def tiles_at_once(tile_points, workers: int, fit_points: float) -> int:
+    """How many tiles are classified side by side: as many of the ``workers`` as the largest tiles (points with
+    their buffers) fit in ``fit_points`` together; at least one."""
+    largest = sorted((int(n) for n in tile_points), reverse=True)[:max(1, int(workers))]
+    return max(1, int(np.searchsorted(np.cumsum(largest), fit_points, side="right")))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -637,7 +686,7 @@ def _median_of_files(paths, n: int, low: float, high: float, transform=None) -> 
     return 0.5 * (middle[0] + middle[1])
 
 
-def cloud_noise(tasks, frame, params, executor):
+def cloud_noise(tasks, frame, params, executor, at_once: int | None = None):
     """``frame`` (``grid.CloudFrame``: the whole cloud's origin and spacing) with the whole cloud's noise figures,
     so that every tile's ground tolerances are those of the whole cloud, whatever the tiling (in a tile's own
     window they were the window's: the lifted-ground sigma 13 to 18 mm on AHN3 Delft's 60 m tiles, the refine
@@ -649,7 +698,7 @@ def cloud_noise(tasks, frame, params, executor):
     def residual_files(frame, figure):
         todo = [dataclasses.replace(t, frame=frame) for t in tasks]
         found = list(executor.map(functools.partial(core_ground_residuals, figure=figure), todo,
-                                  desc=f"tiles: {figure}", unit="tile"))
+                                  desc=f"tiles: {figure}", unit="tile", at_once=at_once))
         n = sum(k for k, _, _ in found)
         low = min((lo for k, lo, _ in found if k), default=0.0)
         high = max((hi for k, _, hi in found if k), default=0.0)
@@ -1038,6 +1087,20 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
     bounds = headers[0] if len(headers) == 1 else _union_bounds(headers)
     grid = plan_tiles(bounds, tile_size_m, buffer_m, params.ground_method, params.preset, name, units=units,
                       ground_params=params.ground_params)
+    side_by_side = _tasks_in_this_memory(executor)
+    if tile_size_m is None and side_by_side is not None:
+        tile_points = tile_points_in_memory(side_by_side, classify_memory_points())
+        smaller = plan_tiles(bounds, None, buffer_m, params.ground_method, params.preset, name, units=units,
+                             ground_params=params.ground_params, tile_points=tile_points)
+        # only where a tile's window holds less than half the cloud: else the buffers would cost more memory than
+        # the smaller cores save (AHN3 Delft's 640 k points at 400 MiB: two windows, each nearly the whole cloud)
+        if tile_points < DEFAULT_TILE_POINTS and window_share(smaller, bounds, units) <= 0.5:
+            from aerotri.core.limits import format_bytes, usable_memory_bytes
+
+            logger.info("tiles of about %s points with their buffers (default %s): %d side by side fit in the %s "
+                        "this process may use", f"{tile_points:,}", f"{DEFAULT_TILE_POINTS:,}", side_by_side,
+                        format_bytes(usable_memory_bytes()))
+            grid = smaller
     n = int(bounds.point_count)
 
     def stats(run):
@@ -1065,12 +1128,49 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
         else:
             run = _classify_tiled(in_paths, out_paths, out_crs=out_crs, units=units, params=params, grid=grid,
                                   executor=executor, work_parent=work_parent, tiles_name=tiles_name,
-                                  chunk_points=chunk_points, t0=t0, fusion=fusion, resume=resume)
+                                  chunk_points=chunk_points, t0=t0, fusion=fusion, resume=resume,
+                                  tile_size_m=tile_size_m)
     except ResourceError as exc:
         # A grid inside the classifier would not fit: name the file (points spread far apart, e.g.
         # strips of two zones merged under one CRS).
         raise ResourceError(f"{name}: {exc}", param=exc.param) from exc
     return stats(run)
+
+
+def _tasks_in_this_memory(executor) -> int | None:
+    """How many classification tasks share this process's memory at most: its executor's workers (the worker
+    processes of a ``local:N`` cluster run under the same limit); None for a remote cluster, whose workers have
+    their own memory."""
+    executor = executor if executor is not None else local_executor()
+    if executor.distributed and not str(executor.scheduler).startswith("local:"):
+        return None
+    return max(1, int(executor.workers))
+
+
+def _checked_tiles_at_once(tasks, executor, tile_size_m) -> int | None:
+    """``tiles_at_once`` of the split tiles under this process's memory (None: as many as the executor runs); a
+    warning when the largest tile alone would not fit (an explicit ``--tile-size-m``, or the smallest tile the
+    buffer allows), naming the option."""
+    side_by_side = _tasks_in_this_memory(executor)
+    if side_by_side is None or not tasks:
+        return None
+    points = [Path(t.points_path).stat().st_size // TILE_DTYPE.itemsize for t in tasks]
+    fit = classify_memory_points()
+    k = tiles_at_once(points, side_by_side, fit)
+    if max(points) > fit:
+        from aerotri.core.limits import format_bytes, usable_memory_bytes
+
+        grid = tasks[0].grid
+        logger.warning("the largest tile (%s points with its %g m buffer) may need %s of memory to classify, more "
+                       "than this process has left of the %s it may use: it runs alone; %s", f"{max(points):,}",
+                       grid.buffer_m, format_bytes(max(points) * CLASSIFY_BYTES_PER_POINT),
+                       format_bytes(usable_memory_bytes()),
+                       "a smaller --tile-size-m keeps it within" if tile_size_m is not None else
+                       "smaller tiles (lidarctl classify --tile-size-m) keep it within where their buffers leave "
+                       "them less than half the cloud")
+    elif k < min(side_by_side, len(tasks)):
+        logger.info("tiles: %d at a time of %d workers (the memory this process may use)", k, side_by_side)
+    return k
 
 
 def _keep_delivered(in_path, out_path, *, out_crs, units, chunk_points, t0) -> ClassifyRun:
@@ -1115,7 +1215,8 @@ def _classify_whole(in_paths, out_paths, *, crs, out_crs, params, chunk_points, 
 
 
 def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, executor, work_parent, tiles_name,
-                    chunk_points, t0, fusion=None, resume: ResumeFolder | None = None) -> ClassifyRun:
+                    chunk_points, t0, fusion=None, resume: ResumeFolder | None = None,
+                    tile_size_m: float | None = None) -> ClassifyRun:
     """In tiles: split all files (pass 1), classify tiles on the executor (pass 2), scatter the core
     classes into a memory-mapped file and write each output from its records copy (pass 3). ``resume``: the
     tiles an interrupted run of the same inputs and settings finished are taken from there (pass 2 skips them),
@@ -1144,20 +1245,22 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
                 logger.info(f"tiles: resumed {len(resumed)} of {len(tasks)} tiles an interrupted run finished "
                             f"({resume.path})")
         todo = [t for k, t in enumerate(tasks) if k not in resumed]
+        # the ground filter's passes over the tiles below hold a tile's points as the classification does
+        at_once = _checked_tiles_at_once(todo, executor, tile_size_m)
         if lowest and len(tasks) > 1 and todo:
             # what is water is decided on the whole cloud's water cells and density (issue 44); not when every
             # tile is resumed (two passes over the tile files for nothing: the kept tiles' keys do not hold it)
             wg = water_grid(tasks, grid, params, lowest, executor, units, work_dir=tmp_dir)
             frame = lidar_grid.CloudFrame(x0_m=wg.x0_m, y0_m=wg.y0_m, spacing_m=wg.spacing_m)
-            frame = cloud_noise(tasks, frame, params, executor)
+            frame = cloud_noise(tasks, frame, params, executor, at_once)
             todo = [dataclasses.replace(t, water_grid=wg, frame=frame) for t in todo]
         # Cores per task: tasks run side by side on the executor's workers (on a remote cluster
         # numba keeps its default; the classes do not depend on it).
-        per_task = executor.cores_per_task(len(todo))
+        per_task = executor.cores_per_task(len(todo), at_once)
         if per_task is not None:
             todo = [dataclasses.replace(t, numba_threads=per_task) for t in todo]
         t1 = time.perf_counter()
-        done = iter(executor.map(classify_tile, todo, desc="tiles: classify", unit="tile"))
+        done = iter(executor.map(classify_tile, todo, desc="tiles: classify", unit="tile", at_once=at_once))
         results = [resumed[k] if k in resumed else next(done) for k in range(len(tasks))]
         t2 = time.perf_counter()
         # 0 is no class classify_points assigns: it marks points no tile core claimed.

@@ -120,12 +120,15 @@ class Executor:
     def distributed(self) -> bool:
         return self._client is not None
 
-    def cores_per_task(self, n_tasks: int) -> int | None:
-        """Cores for each of ``n_tasks`` tasks so that the tasks running at once on this machine share its
-        cores; None on a remote cluster (the worker machines' own cores are unknown here)."""
+    def cores_per_task(self, n_tasks: int, at_once: int | None = None) -> int | None:
+        """Cores for each of ``n_tasks`` tasks (at most ``at_once`` of them running together, see :meth:`map`) so
+        that the tasks running at once on this machine share its cores; None on a remote cluster (the worker
+        machines' own cores are unknown here)."""
         if self.distributed and not str(self.scheduler).startswith("local:"):
             return None
-        return max(1, usable_cores() // max(1, min(self.workers, n_tasks)))
+        running = min(self.workers, n_tasks) if self.distributed or at_once is None else \
+            min(self.workers, n_tasks, max(1, at_once))
+        return max(1, usable_cores() // max(1, running))
 
     def describe(self) -> str:
         if self._client is not None:
@@ -136,8 +139,13 @@ class Executor:
             return "dask synchronous"
         return f"dask local threads ({self.workers})"
 
-    def map(self, fn: Callable, items: Iterable, desc: str = "tasks", unit: str = "task") -> list[Any]:
+    def map(self, fn: Callable, items: Iterable, desc: str = "tasks", unit: str = "task",
+            at_once: int | None = None) -> list[Any]:
         """``[fn(item) for item in items]``, run as Dask tasks; results in the order of ``items``.
+
+        ``at_once``: at most this many tasks run together in this process (tasks whose memory would not fit
+        side by side under the process's limit); the workers of a distributed cluster are processes with their
+        own memory and are not held back.
 
         When tasks fail, the exception of the first failing item in item order is raised (an
         InputError keeps its message), whichever scheduler ran them: after the first failure no
@@ -191,12 +199,13 @@ class Executor:
         # the local schedulers as functions, not by name: a name makes dask import distributed (about
         # 0.3 s) to look for a default client, a tenth of what a one-frame ``ortho rectify`` takes
         with progress(len(items), desc, unit) as bar, _Progress():
-            in_this_thread = self.scheduler == "synchronous" or self.workers == 1
+            threads = self.workers if at_once is None else min(self.workers, max(1, int(at_once)))
+            in_this_thread = self.scheduler == "synchronous" or threads == 1
             try:
                 if in_this_thread:
                     out = list(dask.compute(*tasks, scheduler=get_sync))
                 else:
-                    out = list(dask.compute(*tasks, scheduler=threaded_get, num_workers=self.workers))
+                    out = list(dask.compute(*tasks, scheduler=threaded_get, num_workers=threads))
             except BaseException:
                 # Ctrl-C or SIGTERM in this thread: the pool's threads go on with their tasks, which would write
                 # their files after the caller's roll-back (aerotri.core.atomic), outside any commit. No task

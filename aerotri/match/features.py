@@ -58,6 +58,9 @@ def extract(img: np.ndarray, p: FeatureSettings) -> Features:
 # same pixels of the level in a tile as in the whole level: keypoints of scale up to about the margin / 10 (the
 # descriptor's reach) are the whole level's keypoints with the whole level's descriptors.
 _TILE_MARGIN_PX = 128
+# SIFT's scale space per pixel of its input (float32 octaves of the doubled image; docs/performance.md, "Matching
+# memory": 680 MB for a 2000 x 1500 level, 2.7 GB for 4000 x 3000)
+SIFT_BYTES_PER_PX = 230
 _TILE_ALIGN_PX = 128
 
 
@@ -79,6 +82,15 @@ def _tiles(shape: tuple[int, int], tile_px: int):
         for c0, c1 in zip(ex[:-1], ex[1:]):
             yield ((r0, r1), (c0, c1), (max(0, r0 - _TILE_MARGIN_PX), min(h, r1 + _TILE_MARGIN_PX)),
                    (max(0, c0 - _TILE_MARGIN_PX), min(w, c1 + _TILE_MARGIN_PX)))
+
+
+def extraction_bytes(width_px: int, height_px: int, p: FeatureSettings) -> int:
+    """Memory of one frame's feature extraction (bytes): its detection level (8-bit) and the SIFT scale space of
+    the largest tile of it (``tile_px`` with its margins, at most the level)."""
+    level = pyramid_level(width_px, height_px, p.max_dim_px)
+    w, h = -(-int(width_px) // 2 ** level), -(-int(height_px) // 2 ** level)
+    side = p.tile_px + 2 * _TILE_MARGIN_PX + _TILE_ALIGN_PX
+    return int(w * h + min(w, side) * min(h, side) * SIFT_BYTES_PER_PX)
 
 
 def extract_level(small: np.ndarray, level: int, p: FeatureSettings) -> Features:

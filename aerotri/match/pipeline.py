@@ -296,8 +296,9 @@ class _Matcher:
         """Extract (or find cached) the features of the given frames, one task per frame; their items."""
         items = [self._item(i, p) for i in frames]
         self._say_resumed([it.key for it in items], ".npz", "frame", desc)
+        at_once = _frames_at_once(self.ex, F.extraction_bytes(self.camera.width, self.camera.height, p), desc)
         self.feature_cache_hits += sum(h == _CACHED for h in self.ex.map(_features_task, items, desc=desc,
-                                                                         unit="frame"))
+                                                                         unit="frame", at_once=at_once))
         return items
 
     def features(self, frames, p: F.FeatureSettings, desc: str) -> dict:
@@ -318,6 +319,23 @@ class _Matcher:
         out = self.ex.map(_match_task, items, desc=desc, unit="pair")
         self.match_cache_hits += sum(hit == _CACHED for hit, _ in out)
         return [m for _, m in out]
+
+
+def _frames_at_once(ex, task_bytes: int, desc: str) -> int | None:
+    """How many frames' features are extracted side by side in this process: as many of the executor's workers as
+    fit, each ``task_bytes``, in 90 % of the memory the process may use beside what it holds (a batch job's or
+    container's limit; at least one); None (all the workers) on a cluster or when all fit."""
+    from aerotri.core.limits import format_bytes, resident_bytes, usable_memory_bytes
+
+    total = usable_memory_bytes()
+    if not total or ex.distributed:  # (a cluster's workers: processes of their own, not held back by map)
+        return None
+    k = max(1, int((0.9 * total - resident_bytes()) // max(1, task_bytes)))
+    if k >= ex.workers:
+        return None
+    log.info(f"{desc}: {k} frame(s) at a time of {ex.workers} workers (about {format_bytes(task_bytes)} each, "
+             f"{format_bytes(total)} this process may use)")
+    return k
 
 
 def _retrieved_pairs(mt: _Matcher, s: MatchSettings) -> list[Pair]:

@@ -6,7 +6,8 @@ import click
 
 from aerotri.core.commands import Command, at_least, positive
 from aerotri.core.settings import click_option
-from lidarctl.rasters.products import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, RasterSettings
+from lidarctl.rasters.products import (DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAULT_TIN_FILL_RADIUS_PX, MIN_AUTO_TILE_PX,
+                                      RasterSettings)
 
 
 @click.command(cls=Command)
@@ -16,9 +17,10 @@ from lidarctl.rasters.products import DEFAULT_BUFFER_PX, DEFAULT_TILE_PX, DEFAUL
               help="Cell size in metres, also for clouds in feet (1 m = 3.2808 ft in the GeoTIFF) ([rasters] res_m of "
                    "aerotri run).")
 @click.option("--crs", default=None, help="CRS (EPSG:code) of files without one, or with an unreadable one.")
-@click.option("--tile-px", type=click.IntRange(min=1), default=DEFAULT_TILE_PX, show_default=True,
-              help="Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer, two tiles at "
-                   "a time).")
+@click.option("--tile-px", type=click.IntRange(min=1), default=None,
+              help=f"Tile size in raster cells (memory: about 160 bytes per cell of a tile with its buffer, two tiles "
+                   f"at a time; default {DEFAULT_TILE_PX}, halved down to {MIN_AUTO_TILE_PX} while the tiles would not "
+                   f"fit in the memory the process may use, e.g. a container's limit).")
 @click.option("--buffer-px", type=click.IntRange(min=0), default=DEFAULT_BUFFER_PX, show_default=True,
               help="Overlap buffer around each tile in cells: gaps up to about this size are filled as in one piece.")
 @click.option("--dem-fill-radius-px", type=at_least(0), default=DEFAULT_TIN_FILL_RADIUS_PX,

@@ -103,6 +103,7 @@ RASTER_BYTES_PER_CELL = 168  # (+8: the highest return of any number, ``CellStat
 # (RASTER_BYTES_PER_CELL); both multiples of 256, so the gap filling's pyramid blocks up to 256
 # cells coincide with the whole grid's.
 DEFAULT_TILE_PX = 2048
+MIN_AUTO_TILE_PX = 256  # the smallest tile chosen for a memory limit (``_tile_px_in_memory``)
 DEFAULT_BUFFER_PX = 256
 
 
@@ -862,7 +863,7 @@ def _tile_windows(grid, nrows: int, ncols: int):
         yield tid, (row0, col0, rows, cols), core, Window(c_lo, nrows - r_hi, c_hi - c_lo, r_hi - r_lo)
 
 
-def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
+def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int | None = None,
                   buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
                   dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX, resume_dir=None) -> list[Path]:
     """Write all rasters into ``outdir``; other files there (e.g. the classified cloud) stay.
@@ -874,7 +875,8 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int = DEFAU
     interpolated in the TIN of the ground cells around them where its triangle's circumradius is at
     most this many cells (under buildings, sparse ground under canopy); wider gaps keep the smooth
     pyramid fill. The rasters are in the cloud's CRS and units (see the
-    module docstring). Everything is written into a temporary folder first and moved into place only
+    module docstring). ``tile_px`` None: ``DEFAULT_TILE_PX``, or smaller where the tiles would not fit in the
+    memory the process may use (``write_rasters_tiled``). Everything is written into a temporary folder first and moved into place only
     when all files are complete, so an error leaves no partial set behind. ``resume_dir``: files only, see
     ``write_rasters_tiled``.
     """
@@ -962,7 +964,7 @@ def _write_set(outdir, write, files=FILES, name: str = "rasters") -> list[Path]:
     return [outdir / f for f in files]
 
 
-def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int = DEFAULT_TILE_PX,
+def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int | None = None,
                         buffer_px: int = DEFAULT_BUFFER_PX, chunk_points: int = io.CHUNK_POINTS,
                         footprint_cells: int = 3, dem_fill_radius_px: float = DEFAULT_TIN_FILL_RADIUS_PX,
                         resume_dir=None) -> list[Path]:
@@ -1000,6 +1002,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
     from lidarctl.tiles import TileGrid
 
     check_res(res_m)
+    given_tile_px = tile_px
+    tile_px = DEFAULT_TILE_PX if tile_px is None else tile_px
     _check_tiling(tile_px, buffer_px, dem_fill_radius_px)
     if buffer_px < nearest.reach_px(res_m):
         log.warning("--buffer-px %d is less than the %d cells of dsm_nearest's search radius (%g m): its cells near "
@@ -1017,14 +1021,15 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int =
         raise InputError(f"{inputs.names}: the points span {nrows} x {ncols} cells (rows x columns) of {res_m:g} m "
                          "(header bounds); expected at least 2 x 2: a cloud of one point or one spot, or a --res-m "
                          "coarser than the cloud", param="--res-m")
-    win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
-    tile_rows, tile_cols = -(-nrows // tile_px), -(-ncols // tile_px)
+    if given_tile_px is None:
+        tile_px = _tile_px_in_memory(nrows, ncols, buffer_px)
+        if tile_px < DEFAULT_TILE_PX:
+            log.info("rasters: tiles of %d cells (default %d) to fit in the %s this process may use", tile_px,
+                     DEFAULT_TILE_PX, format_bytes(usable_memory_bytes()))
+    need, in_flight, win = _rasters_need(nrows, ncols, tile_px, buffer_px)
     threads = _tile_threads(win[0] * win[1])
-    # the tiles in flight, GDAL's block cache (``stage_block_cache`` below) and the stage's own part, besides what the
-    # process holds
+    tile_rows, tile_cols = -(-nrows // tile_px), -(-ncols // tile_px)
     cache = cache_bytes(RASTERS_CACHE_BYTES)
-    in_flight = min(threads, tile_rows * tile_cols)
-    need = in_flight * float(win[0]) * float(win[1]) * RASTER_BYTES_PER_CELL + cache + RASTERS_FIXED_BYTES
     check_allocation(need, f"rasters: {in_flight} tile{'s' if in_flight > 1 else ''} of {win[0]:,} x {win[1]:,} "
                      f"cells of {res_m:g} m (with the buffer), GDAL's block cache of {format_bytes(cache)} and the "
                      f"stage's {format_bytes(RASTERS_FIXED_BYTES)}", "--tile-px",
@@ -1165,6 +1170,32 @@ def _older_objects_frozen():
 
 # glibc's mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+
+
+def _rasters_need(nrows: int, ncols: int, tile_px: int, buffer_px: int) -> tuple[float, int, tuple[int, int]]:
+    """Memory of the rasters' tiles (bytes): the tiles in flight (their windows with the buffer; never more than
+    the tiles), GDAL's block cache (``stage_block_cache``) and the stage's own part, besides what the process holds;
+    with the tiles in flight and a window's rows x columns."""
+    win = min(tile_px + 2 * buffer_px, nrows), min(tile_px + 2 * buffer_px, ncols)
+    in_flight = min(_tile_threads(win[0] * win[1]), -(-nrows // tile_px) * -(-ncols // tile_px))
+    need = (in_flight * float(win[0]) * float(win[1]) * RASTER_BYTES_PER_CELL + cache_bytes(RASTERS_CACHE_BYTES)
+            + RASTERS_FIXED_BYTES)
+    return need, in_flight, win
+
+
+def _tile_px_in_memory(nrows: int, ncols: int, buffer_px: int) -> int:
+    """The default tile (``DEFAULT_TILE_PX``), halved while its tiles would not fit in 90 % of the memory the
+    process may use beside what it holds (as ``check_allocation`` judges), down to ``MIN_AUTO_TILE_PX`` and never
+    below the buffer: a batch job's or container's limit sets the tiles. The rasters are the same bytes whatever the
+    tile."""
+    total = usable_memory_bytes()
+    tile_px = DEFAULT_TILE_PX
+    if not total:
+        return tile_px
+    room = 0.9 * total - resident_bytes()
+    while tile_px > max(MIN_AUTO_TILE_PX, buffer_px) and _rasters_need(nrows, ncols, tile_px, buffer_px)[0] > room:
+        tile_px //= 2
+    return max(tile_px, buffer_px, 1)
 
 
 @contextlib.contextmanager

@@ -50,3 +50,58 @@ def test_pull_push_fill_of_a_window_is_the_whole_grid_s_inside_its_blocks():
     # the blocks of 32 cells wholly inside the window: the same values
     np.testing.assert_array_equal(window[32 - 5:, 32 - 3:], filled[32:, 32:])
     assert not np.array_equal(raster_ops.fill_nodata(whole[5:, 3:])[32 - 5:, 32 - 3:], filled[32:, 32:])
+
+
+def test_tiles_side_by_side_as_many_as_the_memory_holds():
+    # the demo-like case: a 6.5 M and a 2.45 M point tile, memory for 8 M points: one at a time
+    assert tiles.tiles_at_once([2_450_351, 6_509_629], 2, 8.0e6) == 1
+    assert tiles.tiles_at_once([2_152_380, 2_125_541, 1_704_432], 2, 4.3e6) == 2
+    assert tiles.tiles_at_once([100, 90, 80], 4, float("inf")) == 3     # never more than the tiles
+    assert tiles.tiles_at_once([5_000_000], 2, 0.0) == 1                 # at least one, whatever the memory
+    assert tiles.tile_points_in_memory(2, float("inf")) == tiles.DEFAULT_TILE_POINTS
+    assert tiles.tile_points_in_memory(2, 9.0e6) == tiles.DEFAULT_TILE_POINTS
+    assert tiles.tile_points_in_memory(2, 3.88e6) == 1_940_000
+
+
+def test_under_a_memory_limit_the_tiles_shrink_and_run_one_at_a_time_with_the_same_classes(tmp_path, monkeypatch,
+                                                                                         caplog):
+    """A process allowed memory for 60,000 tile points beside the 50 MB it holds (a batch job's limit, simulated)
+    classifies a 100,000-point cloud in small tiles, one at a time, instead of the whole cloud at once (the default
+    without a limit), and says so; the classes are the whole cloud's."""
+    import logging
+
+    from aerotri.core import limits
+
+    cloud, _ = synthetic.synthetic_scene(width_m=500.0, density_per_m2=0.4, seed=5, n_buildings=12, n_trees=60)
+    synthetic.write_las(tmp_path / "in.laz", cloud, crs="EPSG:32632")
+    with Executor(workers=2) as ex:
+        whole = tiles.classify_file(tmp_path / "in.laz", tmp_path / "whole.laz", executor=ex)
+        held = 50e6
+        monkeypatch.setattr(limits, "resident_bytes", lambda: int(held))
+        monkeypatch.setattr(limits, "usable_memory_bytes",
+                            lambda: int((held + 60_000 * tiles.CLASSIFY_BYTES_PER_POINT) / 0.9) + 1)
+        with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):
+            limited = tiles.classify_file(tmp_path / "in.laz", tmp_path / "limited.laz", executor=ex)
+    # about 30,000 points a tile asked for at the mean density: 3 x 3 tiles of 170 m with their 60 m buffers
+    assert whole.run.n_tiles == 1 and limited.grid.tile_m == 170.0 and limited.run.n_tiles == 9
+    said = caplog.text
+    assert "tiles of about 30,000 points with their buffers (default 4,000,000): 2 side by side fit" in said
+    # the two largest windows hold more than 60,000 points together: one tile at a time
+    assert "tiles: 1 at a time of 2 workers" in said and limited.run.max_tile_points > 30_000
+    a = np.asarray(laspy.read(tmp_path / "whole.laz").classification)
+    b = np.asarray(laspy.read(tmp_path / "limited.laz").classification)
+    assert np.count_nonzero(a != b) == 0
+
+
+def test_a_small_cloud_under_a_memory_limit_keeps_its_default_tiles(tmp_path, monkeypatch):
+    """Tiles whose buffered windows would each hold more than half the cloud save no memory: the default plan stays
+    (AHN3 Delft's crop at 400 MiB: two tiles each nearly the whole cloud, where the whole cloud fits)."""
+    from aerotri.core import limits
+
+    cloud, _ = synthetic.synthetic_scene(width_m=200.0, density_per_m2=2.5, seed=5, n_buildings=6, n_trees=40)
+    synthetic.write_las(tmp_path / "in.laz", cloud, crs="EPSG:32632")
+    monkeypatch.setattr(limits, "resident_bytes", lambda: 50_000_000)
+    monkeypatch.setattr(limits, "usable_memory_bytes", lambda: 100_000_000)
+    with Executor(workers=2) as ex:
+        run = tiles.classify_file(tmp_path / "in.laz", tmp_path / "out.laz", executor=ex)
+    assert run.run.n_tiles == 1

@@ -287,3 +287,31 @@ def test_under_a_memory_limit_the_tiles_that_fit_give_the_same_bytes_and_the_oth
     assert "64.0 MiB the process holds" in msg
     assert "400.0 MiB this process's cgroup allows" in msg and e.value.param == "--tile-px"
     assert not (tmp_path / "refused").exists() and not list(tmp_path.glob("refused*"))
+
+
+def test_under_a_memory_limit_the_default_tiles_shrink_until_they_fit(strips, tmp_path, monkeypatch, caplog):
+    """Without --tile-px (as the chain's rasters stage runs) the default tile is halved while its tiles would not fit
+    in the memory the process may use: at 400 MiB the 300 m scene at 0.25 m (one 1,200 x 1,200-cell tile by default)
+    is refused when --tile-px 2048 is asked for, and written in smaller tiles when nothing is asked, the same bytes
+    as a run without the limit at that tile size. Before, the demo's chain at 2 GiB stopped in its rasters stage
+    ("use a smaller --tile-px", an option the chain does not have)."""
+    import logging
+    import re
+
+    from aerotri.core import limits
+    from aerotri.core.errors import ResourceError
+
+    paths = [strips / "west.las", strips / "east.las"]
+    monkeypatch.setattr(limits, "_own_memory_limit", lambda: 400 * 2**20)
+    monkeypatch.setattr(limits, "resident_bytes", lambda: 64 * 2**20)
+    monkeypatch.setattr(rasters, "resident_bytes", lambda: 64 * 2**20)
+    with pytest.raises(ResourceError):
+        rasters.write_rasters(paths, tmp_path / "refused", 0.25, tile_px=rasters.DEFAULT_TILE_PX)
+    with caplog.at_level(logging.INFO, logger="lidarctl.rasters.products"):
+        rasters.write_rasters(paths, tmp_path / "limited", 0.25)
+    chosen = re.search(r"rasters: tiles of (\d+) cells \(default 2048\) to fit in the 400.0 MiB", caplog.text)
+    assert chosen and int(chosen[1]) in (256, 512, 1024)
+    monkeypatch.undo()
+    rasters.write_rasters(paths, tmp_path / "free", 0.25, tile_px=int(chosen[1]))
+    for f in rasters.FILES:
+        assert (tmp_path / "limited" / f).read_bytes() == (tmp_path / "free" / f).read_bytes(), f

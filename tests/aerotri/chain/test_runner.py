@@ -226,7 +226,7 @@ def test_stage_cost_without_memory_figures(tmp_path, monkeypatch):
 
     monkeypatch.setattr(resources, "psutil", None)
     monkeypatch.setattr(resources, "resource", None)
-    monkeypatch.setattr(resources, "_reset_hwm", lambda pid="self": False)
+    monkeypatch.setattr(resources, "_status_mb", lambda pid="self", field="VmHWM": None)
     monkeypatch.setattr(resources, "_hwm_mb", lambda pid="self": None)
     stages = [Stage("s", lambda r: [], lambda r: [r / "s.txt"], lambda r: (r / "s.txt").write_text("x") and StageResult())]
     rows = run_stages(tmp_path, stages, log=lambda m: None)

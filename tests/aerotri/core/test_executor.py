@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import threading
+import time
 
 import pytest
 
@@ -191,3 +193,32 @@ def test_threads_follow_the_cores_the_process_may_run_on():
     from aerotri.core.limits import usable_cores
 
     assert usable_cores() == len(os.sched_getaffinity(0))
+
+
+_RUNNING = [0, 0]  # tasks running now, the most at once
+_RUNNING_LOCK = threading.Lock()
+
+
+def _count_running(k: int) -> int:
+    """A task that notes how many tasks run beside it (module level: the executor runs plain functions)."""
+    with _RUNNING_LOCK:
+        _RUNNING[0] += 1
+        _RUNNING[1] = max(_RUNNING[1], _RUNNING[0])
+    time.sleep(0.05)
+    with _RUNNING_LOCK:
+        _RUNNING[0] -= 1
+    return k
+
+
+@pytest.mark.parametrize("at_once, expect", [(None, 3), (2, 2), (1, 1), (0, 1)])
+def test_at_once_bounds_the_tasks_running_together(at_once, expect):
+    """``map(..., at_once=k)``: at most k of the executor's 3 threads run tasks at the same time (tasks whose memory
+    would not fit side by side), results in item order; the cores each task may use follow the tasks running."""
+    _RUNNING[:] = [0, 0]
+    with Executor(workers=3) as ex:
+        assert ex.map(_count_running, range(9), at_once=at_once) == list(range(9))
+        per_task = ex.cores_per_task(9, at_once)
+    assert _RUNNING[1] == expect
+    from aerotri.core.limits import usable_cores
+
+    assert per_task == max(1, usable_cores() // expect)

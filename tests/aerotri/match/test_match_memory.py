@@ -98,3 +98,28 @@ def test_keypoints_leave_descriptors_in_the_cache(tmp_path):
     np.testing.assert_array_equal(nd[0], full.descriptors)
     np.testing.assert_array_equal(nd[1], np.vstack([full.descriptors, full.descriptors[new]]))
     assert list(nd._recent) == [1]
+
+
+def test_frames_extracted_side_by_side_as_many_as_the_memory_holds(monkeypatch):
+    """A full-size DMC frame's sparse features (level 3, 1728 x 960 px, one tile) need about 380 MB, its dense ones
+    (level 2, 3456 x 1920 px, tiles of 2176 px) about 970 MB; under a 1 GiB limit beside 300 MB held one frame is
+    extracted at a time of two workers (a trial user's `aerotri match` at 1 GiB was killed with two), under 3 GiB
+    both workers run (None: the executor's own number)."""
+    from aerotri.core import limits
+    from aerotri.core.executor import Executor
+    from aerotri.match.features import extraction_bytes
+    from aerotri.match.pipeline import _frames_at_once
+    from aerotri.match.settings import MatchSettings
+
+    sparse = extraction_bytes(13824, 7680, MatchSettings().sparse)
+    dense = extraction_bytes(13824, 7680, MatchSettings().dense)
+    assert sparse == 1728 * 960 * 231
+    assert dense == 3456 * 1920 + 2176 * 1920 * 230
+    monkeypatch.setattr(limits, "resident_bytes", lambda: 300 * 2 ** 20)
+    with Executor(workers=2) as ex:
+        monkeypatch.setattr(limits, "usable_memory_bytes", lambda: 2 ** 30)
+        assert _frames_at_once(ex, sparse, "features") == 1
+        assert _frames_at_once(ex, dense, "dense features") == 1  # at least one, though it may not fit
+        monkeypatch.setattr(limits, "usable_memory_bytes", lambda: 3 * 2 ** 30)
+        assert _frames_at_once(ex, sparse, "features") is None
+        assert _frames_at_once(ex, dense, "dense features") is None
