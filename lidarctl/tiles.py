@@ -100,15 +100,17 @@ from lidarctl.units import METRE, LengthUnits
 
 logger = logging.getLogger(__name__)
 
-# An inner tile of about this many points (core + buffer) keeps one classification task under
-# about 1 GB of memory (classify_points needs about 200 bytes per point), so two tasks at a time
-# fit well under 3 GB. Dense clouds get smaller cores (and a larger buffer overhead) than sparse ones.
+# An inner tile of about this many points (core + buffer) keeps one classification task under about 2 GB of
+# memory (``CLASSIFY_BYTES_PER_POINT``; classify_points alone needs about 200 bytes a point), two tasks at a time
+# under 4 GB (the dmc strips' 6.5 M + 2.45 M point tiles: 2.68 GB). Dense clouds get smaller cores (and a larger
+# buffer overhead) than sparse ones.
 DEFAULT_TILE_POINTS = 4_000_000
 # The memory of a classification task per point of its tile (buffer included), what the tile-by-tile passes
 # (the cloud's noise figures, the classes) hold at their peak: 435-444 bytes measured on the simulator's dmc
 # strips (8.45 M points; 760 m tiles of 2.1 M points one and two at a time, anonymous memory sampled every
 # 0.2 s; docs/scale-out.md). Under a memory limit the default tiles and the tasks run side by side are chosen
-# from it (``tile_points_in_memory``, ``tiles_at_once``); the classes do not depend on either.
+# from it (``tile_points_in_memory``, ``tiles_at_once``): the tasks at once never change the classes, smaller tiles
+# a few points (the dmc strips in 2 or 6 tiles: 0 of 8.45 M points; the demo's in 2 or 12: 974 of 4.94 M).
 CLASSIFY_BYTES_PER_POINT = 480
 TILE_ROUND_M = 10.0
 # Coarse upper limit on the number of tiles (a lying header with absurd bounds must not explode).
@@ -242,24 +244,20 @@ def window_share(grid: TileGrid, header, units: LengthUnits = METRE) -> float:
     return min(side, width) * min(side, height) / (width * height)
 
 
-def classify_memory_points(held_bytes: float | None = None) -> float:
-    """Tile points (buffers included) whose classification fits, at ``CLASSIFY_BYTES_PER_POINT``, in 90 % of the
-    memory this process may use (``limits.usable_memory_bytes``: a cgroup's limit, else the machine's) beside what
-    it holds (``held_bytes``, default its anonymous memory now); infinite where the system does not say."""
-    from aerotri.core.limits import resident_bytes, usable_memory_bytes
+def classify_memory_points() -> float:
+    """Tile points (buffers included) whose classification fits, at ``CLASSIFY_BYTES_PER_POINT``, in what this
+    process may still take (``limits.memory_room_bytes``: 90 % of a cgroup's limit, else of the machine's, less what
+    it holds); infinite where the system does not say."""
+    from aerotri.core.limits import memory_room_bytes
 
-    total = usable_memory_bytes()
-    if not total:
-        return math.inf
-    held = resident_bytes() if held_bytes is None else float(held_bytes)
-    return max(0.0, 0.9 * total - held) / CLASSIFY_BYTES_PER_POINT
+    return max(0.0, memory_room_bytes()) / CLASSIFY_BYTES_PER_POINT
 
 
 def tile_points_in_memory(workers: int, fit_points: float) -> int:
     """The default tile's points (``plan_tiles``' ``tile_points``): ``DEFAULT_TILE_POINTS``, or fewer when
     ``workers`` tiles of it side by side would not fit in ``fit_points`` (``classify_memory_points``): a batch
     job's or container's memory limit then sets the tiles, as the tiles set the memory. Smaller tiles cost
-    buffer overhead, never other classes."""
+    buffer overhead, and a few points' classes (see ``CLASSIFY_BYTES_PER_POINT``)."""
     share = fit_points / max(1, int(workers))
     return DEFAULT_TILE_POINTS if share >= DEFAULT_TILE_POINTS else max(1, int(share))
 
@@ -1245,8 +1243,8 @@ def _classify_tiled(in_paths, out_paths, *, out_crs, units, params, grid, execut
                 logger.info(f"tiles: resumed {len(resumed)} of {len(tasks)} tiles an interrupted run finished "
                             f"({resume.path})")
         todo = [t for k, t in enumerate(tasks) if k not in resumed]
-        # the ground filter's passes over the tiles below hold a tile's points as the classification does
-        at_once = _checked_tiles_at_once(todo, executor, tile_size_m)
+        # the ground filter's passes over all the tiles below hold a tile's points as the classification does
+        at_once = _checked_tiles_at_once(tasks if todo else [], executor, tile_size_m)
         if lowest and len(tasks) > 1 and todo:
             # what is water is decided on the whole cloud's water cells and density (issue 44); not when every
             # tile is resumed (two passes over the tile files for nothing: the kept tiles' keys do not hold it)

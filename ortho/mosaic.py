@@ -90,7 +90,7 @@ from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import progress
 from aerotri.core.atomic import (TEMP_MARKER, annotate_output, atomic_path, commit_outputs, move_into, remove_output,
                                  scratch_dir, write_text_atomic)
-from aerotri.core.limits import check_allocation, check_grid, check_task_count, usable_cores
+from aerotri.core.limits import check_allocation, check_grid, check_task_count, release_freed_memory, usable_cores
 from aerotri.core.project import Project
 from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
@@ -1577,28 +1577,6 @@ def balanced_percentiles(red: ReducedFrames, gains, offsets, rolloff, toe, white
 
 
 MIN_TILE_PX = 16
-
-
-@functools.lru_cache(maxsize=1)
-def _malloc_trim():
-    """glibc's ``malloc_trim``, None where the C library has none."""
-    import ctypes
-
-    try:
-        return ctypes.CDLL("libc.so.6").malloc_trim
-    except (OSError, AttributeError):
-        return None
-
-
-def release_freed_memory() -> None:
-    """Hand the memory freed so far back to the system (glibc's ``malloc_trim(0)``; nothing without glibc).
-
-    glibc keeps the freed heap memory of every thread's arena for reuse; the phases of a mosaic allocate
-    differently sized buffers on several threads, so what one phase freed stayed in the process through the
-    next ones: 0.6 GB of a 0.53 GP mosaic's 1.6 GB peak (``bench/results/mosaic_speed_large.json``, "malloc_trim")."""
-    trim = _malloc_trim()
-    if trim is not None:
-        trim(0)
 
 
 class _PhaseTimer:

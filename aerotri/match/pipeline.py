@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import time
 from pathlib import Path
 
@@ -325,12 +326,15 @@ def _frames_at_once(ex, task_bytes: int, desc: str) -> int | None:
     """How many frames' features are extracted side by side in this process: as many of the executor's workers as
     fit, each ``task_bytes``, in 90 % of the memory the process may use beside what it holds (a batch job's or
     container's limit; at least one); None (all the workers) on a cluster or when all fit."""
-    from aerotri.core.limits import format_bytes, resident_bytes, usable_memory_bytes
+    from aerotri.core.limits import format_bytes, memory_room_bytes, usable_memory_bytes
 
-    total = usable_memory_bytes()
-    if not total or ex.distributed:  # (a cluster's workers: processes of their own, not held back by map)
+    if ex.distributed:  # (a cluster's workers: processes of their own, not held back by map)
         return None
-    k = max(1, int((0.9 * total - resident_bytes()) // max(1, task_bytes)))
+    room = memory_room_bytes()
+    if room == math.inf:
+        return None
+    total = usable_memory_bytes()
+    k = max(1, int(room // max(1, task_bytes)))
     if k >= ex.workers:
         return None
     log.info(f"{desc}: {k} frame(s) at a time of {ex.workers} workers (about {format_bytes(task_bytes)} each, "

@@ -50,8 +50,8 @@ from aerotri.core.resume import ResumeFolder, file_stamp, is_beside, resumable, 
 from aerotri.core.errors import InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.settings import setting
-from aerotri.core.limits import (cache_bytes, check_allocation, check_task_count, format_bytes, resident_bytes,
-                                 usable_memory_bytes)
+from aerotri.core.limits import (cache_bytes, check_allocation, check_task_count, format_bytes, memory_room_bytes,
+                                 resident_bytes, usable_memory_bytes)
 from aerotri.core.limits import check_disk
 from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
@@ -1188,11 +1188,8 @@ def _tile_px_in_memory(nrows: int, ncols: int, buffer_px: int) -> int:
     process may use beside what it holds (as ``check_allocation`` judges), down to ``MIN_AUTO_TILE_PX`` and never
     below the buffer: a batch job's or container's limit sets the tiles. The rasters are the same bytes whatever the
     tile."""
-    total = usable_memory_bytes()
     tile_px = DEFAULT_TILE_PX
-    if not total:
-        return tile_px
-    room = 0.9 * total - resident_bytes()
+    room = memory_room_bytes()
     while tile_px > max(MIN_AUTO_TILE_PX, buffer_px) and _rasters_need(nrows, ncols, tile_px, buffer_px)[0] > room:
         tile_px //= 2
     return max(tile_px, buffer_px, 1)

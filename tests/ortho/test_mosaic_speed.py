@@ -14,6 +14,7 @@ from click.testing import CliRunner
 from rasterio.transform import Affine
 
 import ortho.mosaic as mosaic_mod
+from aerotri.core import limits
 from ortho.cli import main
 from ortho.grid import OrthoGrid
 from tests.shared_builds import write_synthetic_project
@@ -150,7 +151,7 @@ def _rss_bytes() -> int:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
-@pytest.mark.skipif(mosaic_mod._malloc_trim() is None or not os.path.exists("/proc/self/statm"),
+@pytest.mark.skipif(limits._malloc_trim() is None or not os.path.exists("/proc/self/statm"),
                     reason="needs glibc's malloc_trim and /proc")
 def test_freed_heap_memory_goes_back_to_the_system():
     """Memory freed below a block still in use stays in the process until release_freed_memory (the mosaic's
@@ -161,7 +162,7 @@ def test_freed_heap_memory_goes_back_to_the_system():
     last = chunks[-1]  # the top of the heap stays in use, so free() cannot shrink the heap by itself
     del chunks
     before = _rss_bytes()
-    mosaic_mod.release_freed_memory()
+    limits.release_freed_memory()
     after = _rss_bytes()
     assert before - after > 100e6, (before, after)
     assert last[0] == 1

@@ -107,6 +107,16 @@ def test_a_memory_limit_below_the_machine_s_sets_the_allocation_check(monkeypatc
     with pytest.raises(ResourceError) as e:
         limits.check_allocation(0.5 * 2**30, "half a GiB", held_bytes=0.45 * 2**30)
     assert "besides the 460.8 MiB the process holds already, more than 90% of the 1.0 GiB" in str(e.value)
+    # a small grid refused because the process holds most of the memory: its own hint (a coarser grid, strips far
+    # apart?) would mislead (trial 90: a 26 MiB grid beside 1.8 GiB held was blamed on "strips far apart")
+    with pytest.raises(ResourceError) as e:
+        limits.check_allocation(26 * 2**20, "the points' extent: a grid of 775 x 741 cells", "--res-m",
+                                hint="are strips far apart?", held_bytes=0.9 * 2**30)
+    assert "strips far apart" not in str(e.value)
+    assert "it is what the process holds already that leaves too little: give the run more memory" in str(e.value)
+    with pytest.raises(ResourceError) as e:  # a large grid keeps its hint
+        limits.check_allocation(0.8 * 2**30, "a grid", "--res-m", hint="are strips far apart?", held_bytes=0.2 * 2**30)
+    assert "are strips far apart?" in str(e.value)
     assert limits.cache_bytes(256 * 2**20) == 128 * 2**20              # an eighth of the limit
     monkeypatch.setattr(limits, "_own_memory_limit", lambda: None)
     assert limits.usable_memory_bytes() == machine
