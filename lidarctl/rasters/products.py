@@ -876,9 +876,9 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int | None 
     most this many cells (under buildings, sparse ground under canopy); wider gaps keep the smooth
     pyramid fill. The rasters are in the cloud's CRS and units (see the
     module docstring). ``tile_px`` None: ``DEFAULT_TILE_PX``, or smaller where the tiles would not fit in the
-    memory the process may use (``write_rasters_tiled``). Everything is written into a temporary folder first and moved into place only
-    when all files are complete, so an error leaves no partial set behind. ``resume_dir``: files only, see
-    ``write_rasters_tiled``.
+    memory the process may use (``write_rasters_tiled``). Everything is written into a temporary folder first and
+    moved into place only when all files are complete, so an error leaves no partial set behind. ``resume_dir``:
+    files only, see ``write_rasters_tiled``.
     """
     check_res(res_m)
     if not isinstance(cloud, PointCloud):
@@ -1186,8 +1186,8 @@ def _rasters_need(nrows: int, ncols: int, tile_px: int, buffer_px: int) -> tuple
 def _tile_px_in_memory(nrows: int, ncols: int, buffer_px: int) -> int:
     """The default tile (``DEFAULT_TILE_PX``), halved while its tiles would not fit in 90 % of the memory the
     process may use beside what it holds (as ``check_allocation`` judges), down to ``MIN_AUTO_TILE_PX`` and never
-    below the buffer: a batch job's or container's limit sets the tiles. The rasters are the same bytes whatever the
-    tile."""
+    below the buffer: a batch job's or container's limit sets the tiles. The rasters are those of ``--tile-px`` at the
+    size chosen (an untiled run's where the gaps are narrower than the buffer)."""
     tile_px = DEFAULT_TILE_PX
     room = memory_room_bytes()
     while tile_px > max(MIN_AUTO_TILE_PX, buffer_px) and _rasters_need(nrows, ncols, tile_px, buffer_px)[0] > room:
