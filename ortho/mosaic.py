@@ -90,7 +90,8 @@ from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.log import progress
 from aerotri.core.atomic import (TEMP_MARKER, annotate_output, atomic_path, commit_outputs, move_into, remove_output,
                                  scratch_dir, write_text_atomic)
-from aerotri.core.limits import check_allocation, check_grid, check_task_count, release_freed_memory, usable_cores
+from aerotri.core.limits import (check_allocation, check_grid, check_task_count, format_bytes, memory_room_bytes,
+                                 release_freed_memory, usable_cores, usable_memory_bytes)
 from aerotri.core.project import Project
 from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
@@ -1300,7 +1301,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     check_grid(mosaic.width, mosaic.height, f"the mosaic of {len(grids)} frames at {res:g} m")
     feather_px = max(1.0, feather_m / res) if feather_m is not None else 8.0
     bands, itemsize = _frame_layout(frames_dir / index.frames[0].file)
-    check_allocation(_tile_bytes(tile_px, feather_px, bands, itemsize) * _tiles_in_flight(executor),
+    tiles_bytes = _tile_bytes(tile_px, feather_px, bands, itemsize) * _tiles_in_flight(executor)
+    check_allocation(tiles_bytes,
                      f"--tile-px {tile_px}: mosaic tiles of {tile_px} x {tile_px} px (with their halo, {bands} band(s))",
                      "--tile-px")
     if ndsm_path is not None and not Path(ndsm_path).is_file():
@@ -1312,6 +1314,13 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
     # seam cells of about seam_cell_m (buildings and roads are metres wide; finer cells only cost time: the
     # seams took 2.5 of the demo's 6 CPU-s on 0.8 m cells), more where the frames would not fit max_seam_cells
     factor = max(2, int(round(seam_cell_m / res)), int(math.ceil(math.sqrt(total_px / max_seam_cells))))
+    # under a memory limit, fewer (coarser) seam cells where the frames' cells would not fit beside the tiles
+    fit_cells = max(MIN_SEAM_CELLS, (memory_room_bytes() - tiles_bytes) / MOSAIC_BYTES_PER_SEAM_CELL)
+    if fit_cells < total_px / factor ** 2:
+        coarser = int(math.ceil(math.sqrt(total_px / fit_cells)))
+        logger.info(f"mosaic: seam cells of {res * coarser:g} m ({res * factor:g} m without the limit) to fit in the "
+                    f"{format_bytes(usable_memory_bytes())} this process may use")
+        factor = coarser
     seam_transform = Affine(res * factor, 0, mosaic.x_left_m, 0, -res * factor, mosaic.y_top_m)
     seam_shape = (-(-mosaic.height // factor), -(-mosaic.width // factor))
     timer.done("checks")
@@ -1577,6 +1586,12 @@ def balanced_percentiles(red: ReducedFrames, gains, offsets, rolloff, toe, white
 
 
 MIN_TILE_PX = 16
+# What a mosaic holds per cell of its frames on the seam grid, through the seams and the tiles (the reduced frames,
+# their grey values, the seams' cost grids and labels): the peak anonymous memory less what the process held before,
+# over the frames' seam cells: (1,944 - 289) MB / 47 M cells = 35 bytes on NGI's 4 frames upsampled to 7,680 x 13,824
+# px (a 13,084 x 22,315 px DOM; sampled every 0.2 s). A memory limit sets the seam grid's cells from it.
+MOSAIC_BYTES_PER_SEAM_CELL = 40
+MIN_SEAM_CELLS = 1_000_000  # the coarsest seam grid a memory limit chooses (about 1,000 x 1,000 cells)
 
 
 class _PhaseTimer:

@@ -294,3 +294,32 @@ def test_tile_frame_boxes_are_the_reads_of_the_boxes(tmp_path):
             assert np.array_equal(ds.read(window=Window(0, 0, fw, fh)), samples)
     finally:
         readers.close()
+
+
+def test_under_a_memory_limit_the_seam_grid_gets_coarser_cells(tmp_path, monkeypatch, caplog):
+    """The frames' cells on the seam grid are sized from what the process may still take, beside the tiles
+    (``MOSAIC_BYTES_PER_SEAM_CELL`` each): with room for about a quarter of them the seam cells are twice as wide
+    (recorded as ``seam_factor`` in mosaic.json, said in the log) and the mosaic is written; without a limit the
+    seam grid is the one it always was. Before, trial 90's 13,084 x 22,315 px DOM was killed at 1 and 1.5 GiB."""
+    import json
+    import logging
+
+    root = tmp_path / "block"
+    write_synthetic_project(root, strips=2, frames_per_strip=2, buildings=6, seed=11)
+    assert CliRunner().invoke(main, ["rectify", str(root)]).exit_code == 0
+    r = CliRunner().invoke(main, ["mosaic", str(root)])
+    assert r.exit_code == 0, r.output
+    free = json.loads((root / "ortho" / "mosaic.json").read_text())
+    index = mosaic_mod.read_index(root)
+    frame_px = sum(g.width * g.height for g in index.grids)
+    cells = frame_px / free["seam_factor"] ** 2
+    monkeypatch.setattr(mosaic_mod, "MIN_SEAM_CELLS", 1000)
+    tiles = mosaic_mod._tile_bytes(1024, 8.0, 3, 1) * mosaic_mod._tiles_in_flight(None)
+    monkeypatch.setattr(mosaic_mod, "memory_room_bytes",
+                        lambda: tiles + cells / 4 * mosaic_mod.MOSAIC_BYTES_PER_SEAM_CELL)
+    with caplog.at_level(logging.INFO, logger="ortho.mosaic"):
+        r = CliRunner().invoke(main, ["mosaic", str(root)])
+    assert r.exit_code == 0, r.output
+    limited = json.loads((root / "ortho" / "mosaic.json").read_text())
+    assert limited["seam_factor"] in (2 * free["seam_factor"], 2 * free["seam_factor"] + 1)
+    assert "without the limit) to fit in the" in caplog.text + r.output
