@@ -81,7 +81,7 @@ import numpy as np
 import rasterio
 import rasterio.shutil
 from pyproj import CRS
-from rasterio.enums import Resampling
+from rasterio.enums import ColorInterp, Resampling
 from rasterio.transform import Affine
 from rasterio.windows import Window
 
@@ -2893,7 +2893,8 @@ def _write_mosaic(path, frames_dir, index, mosaic: OrthoGrid, *, seams_path, fac
                 row_blended[r0] = [a + b for a, b in zip(row_blended[r0], n)]
             return out8, valid
         stack = contextlib.ExitStack()
-        pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0)
+        pyramid = _Pyramid(tmp_dir, mosaic, bands, dtype, levels, per_tile=tile_px % 2 == 0,
+                           colorinterp=colorinterp)
         readers = _FrameReaders(None if executor.distributed else decoded)
         made = row = None
         profile = dict(_stage_profile(mosaic, bands, dtype), width=mosaic.width, height=mosaic.height, count=bands,
@@ -3011,8 +3012,9 @@ class _StageRow:
         self.src = rasterio.open(path) if kept else None
         self.dst = None
         if self.src is None:
-            self.dst = rasterio.open(path, "w", **profile)
-            self.dst.colorinterp = colorinterp
+            self.dst = rasterio.open(path, "w", **_layout_profile(profile, colorinterp))
+            if tuple(self.dst.colorinterp) != tuple(colorinterp):
+                self.dst.colorinterp = colorinterp
 
     def close(self, keep: bool = True, blended=None) -> None:
         """``blended``: an 8-bit DOM's row's blended counts (valid, at white, at 255), kept before the row."""
@@ -3024,6 +3026,24 @@ class _StageRow:
                 if blended is not None:
                     self.resume.put_text(self.key, BLENDED_COUNTS_SUFFIX, json.dumps([int(v) for v in blended]))
                 self.resume.keep(self.path, self.key, ".tif")
+
+
+def _layout_profile(profile: dict, colorinterp) -> dict:
+    """``profile`` (a stage row's or an overview's, with an internal mask) for bands of ``colorinterp``: photometric RGB
+    from the start when the first three bands are red, green and blue, and no GDAL compression threads when the file
+    has extra samples (a fourth band; two or more bands that are not RGB). GDAL 3.10's compression threads copy a
+    file's ExtraSamples into the one-sample mask's blocks and print "ERROR 1: ... Bad value N for "ExtraSamples" tag"
+    (the bytes are right all the same): trial 90's RGB DOM, created grey with two extra samples and made RGB after,
+    printed 24 such lines at a 1.5 GiB limit; RGBN rows print them at any block cache."""
+    rgb = (ColorInterp.red, ColorInterp.green, ColorInterp.blue)
+    out = dict(profile)
+    colour = 1
+    if len(colorinterp) >= 3 and tuple(colorinterp)[:3] == rgb:
+        out["photometric"] = "RGB"
+        colour = 3
+    if len(colorinterp) > colour:
+        out.pop("num_threads", None)
+    return out
 
 
 # The rules by which a tile's samples are blended and filled from the frames, named in the rows' resume keys and in
@@ -3182,11 +3202,12 @@ class _Pyramid:
 
     STRIP_PX = 512
 
-    def __init__(self, folder: Path, mosaic: OrthoGrid, bands: int, dtype: str, factors: list[int], per_tile: bool):
+    def __init__(self, folder: Path, mosaic: OrthoGrid, bands: int, dtype: str, factors: list[int], per_tile: bool,
+                 colorinterp=()):
         self.folder, self.mosaic, self.bands, self.dtype = folder, mosaic, bands, dtype
         self.factors = factors
         self.paths = [folder / f"ovr_{f}.tif" for f in factors]
-        self.base = _stage_profile(mosaic, bands, dtype)
+        self.base = _layout_profile(_stage_profile(mosaic, bands, dtype), colorinterp)
         self.first = None
         if factors and per_tile:
             self.first = rasterio.open(self.paths[0], "w", **self._profile(factors[0]))
