@@ -97,7 +97,7 @@ from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
 from ortho.block import (FrameIndex, frame_index, index_operation, operation_tags, read_index, require_current_frames,
-                         verify_index)
+                         verify_index, without_threads_for_extra_samples)
 from ortho.grid import OrthoGrid, overview_factors
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
@@ -3030,20 +3030,13 @@ class _StageRow:
 
 def _layout_profile(profile: dict, colorinterp) -> dict:
     """``profile`` (a stage row's or an overview's, with an internal mask) for bands of ``colorinterp``: photometric RGB
-    from the start when the first three bands are red, green and blue, and no GDAL compression threads when the file
-    has extra samples (a fourth band; two or more bands that are not RGB). GDAL 3.10's compression threads copy a
-    file's ExtraSamples into the one-sample mask's blocks and print "ERROR 1: ... Bad value N for "ExtraSamples" tag"
-    (the bytes are right all the same): trial 90's RGB DOM, created grey with two extra samples and made RGB after,
-    printed 24 such lines at a 1.5 GiB limit; RGBN rows print them at any block cache."""
+    from the start when the first three bands are red, green and blue (created grey with two extra samples and made
+    RGB after, trial 90's NGI DOM printed 24 GDAL "Bad value 2 for "ExtraSamples" tag" errors at a 1.5 GiB limit), and
+    without GDAL's compression threads when the file has extra samples (``without_threads_for_extra_samples``)."""
     rgb = (ColorInterp.red, ColorInterp.green, ColorInterp.blue)
-    out = dict(profile)
-    colour = 1
     if len(colorinterp) >= 3 and tuple(colorinterp)[:3] == rgb:
-        out["photometric"] = "RGB"
-        colour = 3
-    if len(colorinterp) > colour:
-        out.pop("num_threads", None)
-    return out
+        return without_threads_for_extra_samples(dict(profile, photometric="RGB"), len(colorinterp), 3)
+    return without_threads_for_extra_samples(dict(profile), len(colorinterp), 1)
 
 
 # The rules by which a tile's samples are blended and filled from the frames, named in the rows' resume keys and in

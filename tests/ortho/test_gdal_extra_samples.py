@@ -1,15 +1,18 @@
-"""The mosaic's stage rows and overviews: created with the frames' colour interpretation, without GDAL errors."""
+"""Frame orthos and the mosaic's stage rows with internal masks: written without GDAL errors whatever the bands."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import rasterio
+from rasterio.crs import CRS
 from rasterio.enums import ColorInterp
 from rasterio.transform import Affine
 from rasterio.windows import Window
 
 from aerotri.core.gdal_cache import MiB, stage_block_cache
+from ortho.block import frame_profile
+from ortho.grid import OrthoGrid
 from ortho.mosaic import STAGE_PROFILE, _StageRow, _layout_profile
 
 RGB = (ColorInterp.red, ColorInterp.green, ColorInterp.blue)
@@ -62,3 +65,12 @@ def test_stage_rows_are_written_without_gdal_errors(tmp_path, capfd, colorinterp
         assert ds.read(1, window=Window(0, 0, 64, 64)).max() > 0
         assert not ds.read_masks(1, window=Window(0, 0, 64, 10)).any()
         assert ds.read_masks(1, window=Window(0, 10, 64, 10)).all()
+
+
+def test_frame_orthos_with_extra_samples_are_compressed_without_gdal_threads():
+    grid = OrthoGrid(CRS.from_epsg(32633), 500000.0, 5000000.0, 0.5, 1024, 1024)
+    assert frame_profile(grid, 3, "uint16")["num_threads"] == "ALL_CPUS"
+    assert frame_profile(grid, 1, "uint16")["num_threads"] == "ALL_CPUS"
+    for bands in (2, 4):
+        assert "num_threads" not in frame_profile(grid, bands, "uint16")
+    assert frame_profile(grid, 4, "uint16")["photometric"] == "RGB"
