@@ -40,8 +40,8 @@ def check_grid(nrows: int, ncols: int, cell_m: float, bytes_per_cell: float, wha
 @dataclasses.dataclass(frozen=True)
 class CloudFrame:
     """What a classification of part of a cloud (a tile's window) takes from the whole cloud: the origin of its
-    grids (its lowest x, y; m), its mean point spacing (m, ``mean_spacing_m``: it sets cell sizes) and its noise
-    figures (the ground tolerances)."""
+    grids (its lowest x, y; m), its mean point spacing (m, ``mean_spacing_m``: it sets cell sizes), its noise
+    figures (the ground tolerances) and the ground filter's choice of refined surface."""
 
     x0_m: float
     y0_m: float
@@ -51,6 +51,10 @@ class CloudFrame:
     # noise (m, ``classify.ground_noise_m``; the lifted-ground test). ``tiles.cloud_noise`` gives them.
     refine_sigma_m: float | None = None
     ground_noise_m: float | None = None
+    # Whether the ground filter's refinement takes the grid of mean ground heights rather than the TIN (the whole
+    # cloud's ground points per occupied refinement cell against ``dense_points_per_cell``; ``tiles.cloud_noise``);
+    # None: the points at hand decide (``ground.morphological_ground``).
+    refine_dense: bool | None = None
 
     @classmethod
     def of_points(cls, x, y) -> CloudFrame:

@@ -110,7 +110,8 @@ DEFAULT_TILE_POINTS = 4_000_000
 # strips (8.45 M points; 760 m tiles of 2.1 M points one and two at a time, anonymous memory sampled every
 # 0.2 s; docs/scale-out.md). Under a memory limit the default tiles and the tasks run side by side are chosen
 # from it (``tile_points_in_memory``, ``tiles_at_once``): the tasks at once never change the classes, smaller tiles
-# a few points (the dmc strips in 2 or 6 tiles: 0 of 8.45 M points; the demo's in 2 or 12: 974 of 4.94 M).
+# a few points (the dmc strips in 2 or 6 tiles: 0 of 8.45 M points; the demo's in 2 or 12: 1 of 4.94 M, 974 before
+# the refined ground surface was the whole cloud's choice, ``cloud_noise``).
 CLASSIFY_BYTES_PER_POINT = 480
 TILE_ROUND_M = 10.0
 # Coarse upper limit on the number of tiles (a lying header with absurd bounds must not explode).
@@ -615,18 +616,21 @@ def _tile_window(task):
     return x, y, z, rn, nr, intensity, (row == task.row) & (col == task.col)
 
 
-def core_ground_residuals(task: TileTask, *, figure: str) -> tuple[int, float, float]:
+def core_ground_residuals(task: TileTask, *, figure: str) -> tuple:
     """An executor task of ``cloud_noise``: the residuals (m) of the tile's core points from which the whole
     cloud's noise ``figure`` is taken, as ``classify_points`` finds them in the tile's window with ``task.frame``:
     ``refine_sigma_m``: the ground filter's residuals from its refined surface (``ground.morphological_ground``);
     ``ground_noise_m``: the heights of the ground points above their local planes (``classify.ground_plane_offsets``,
-    absolute). Written to ``_residuals_path``; returns (how many, the lowest, the highest). With ``ground_noise_m``
+    absolute). Written to ``_residuals_path``; returns (how many, the lowest, the highest, ``RefineShare``: with
+    ``refine_sigma_m``, the core's share of what chose the ground filter's refined surface; else None). With
+    ``ground_noise_m``
     (its frame holds the whole cloud's ``refine_sigma_m``), the noise codes and ground the tile's classification
     starts from are kept too (``_bare_earth_path``: ``classify_points(bare_earth=...)`` does not find them again)."""
     from lidarctl.classify import pipeline as cl
 
     x, y, z, rn, nr, _, core = _tile_window(task)
     res = np.zeros(0)
+    share = None
     if len(x) >= 10:
         with _numba_threads(task.numba_threads):
             refine = [] if figure == "refine_sigma_m" else None
@@ -634,8 +638,9 @@ def core_ground_residuals(task: TileTask, *, figure: str) -> tuple[int, float, f
                                                           refine_residuals=refine)
             if refine is not None:
                 if refine:
-                    at, res = refine[0]
+                    at, res, cells = refine[0]
                     res = res[core[at]]
+                    share = _core_refine_share(task, cells, core)
             else:
                 with atomic_path(_bare_earth_path(task)) as tmp:
                     np.save(tmp, np.column_stack([code, is_ground]).astype(np.uint8))
@@ -647,7 +652,34 @@ def core_ground_residuals(task: TileTask, *, figure: str) -> tuple[int, float, f
                 res = np.abs(dz[np.isfinite(dz)])
     with atomic_path(_residuals_path(task)) as tmp:
         np.save(tmp, res)
-    return len(res), float(res.min()) if len(res) else 0.0, float(res.max()) if len(res) else 0.0
+    return len(res), float(res.min()) if len(res) else 0.0, float(res.max()) if len(res) else 0.0, share
+
+
+@dataclasses.dataclass(frozen=True)
+class RefineShare:
+    """A tile core's share of what chooses the ground filter's refined surface (``ground.RefineCells``): its first
+    ground points, the occupied refinement cells whose centre lies in it (each cell of the whole cloud counted in
+    one tile), the choice its window made and the threshold (ground points per cell)."""
+
+    ground_points: int
+    cells: int
+    dense: bool
+    dense_points_per_cell: float
+
+
+def _core_refine_share(task: TileTask, cells, core: np.ndarray) -> RefineShare:
+    """``RefineShare`` of ``task``'s core from its window's ``ground.RefineCells`` (``core``: the window's core
+    mask; the window's ground of its core points and of the cells centred in its core is the whole cloud's, the
+    buffer being at least the filter's reach)."""
+    r0, c0 = cells.offset
+    rows, cols = np.divmod(np.asarray(cells.cells, np.int64), int(cells.ncols))
+    frame = task.frame
+    cx = frame.x0_m + (cols + c0 + 0.5) * cells.cell_m
+    cy = frame.y0_m + (rows + r0 + 0.5) * cells.cell_m
+    row, col = task.grid.core_rc(cx, cy)
+    own = int(np.count_nonzero((row == task.row) & (col == task.col)))
+    return RefineShare(int(np.count_nonzero(core[cells.ground])), own, bool(cells.dense),
+                       float(cells.dense_points_per_cell))
 
 
 def _bare_earth_path(task: TileTask) -> str:
@@ -692,24 +724,44 @@ def cloud_noise(tasks, frame, params, executor, at_once: int | None = None):
     refined surface (``ground.robust_spread_m``), then, with it, ``ground_noise_m``, the lifted-ground test's sigma
     (``classify.ground_noise_m``): each from all the cloud's points, each from the tile whose core holds it
     (``core_ground_residuals``; two passes of the ground filter over the tiles); exact medians in memory of one
-    tile. A figure without residuals stays None (the tile's own)."""
-    def residual_files(frame, figure):
+    tile. A figure without residuals stays None (the tile's own). Before the refine residuals' spread, the refined
+    surface they are taken from is the whole cloud's choice (``refine_dense``: its first ground points per occupied
+    refinement cell, each counted in the tile whose core holds it), and a tile whose window chose the other
+    surface (a window denser or sparser than the cloud) finds its residuals again: before, the demo's strips in 430 m
+    tiles took the grid of means in 6 of 12 windows, the TIN in the others and the whole cloud (its spread 0.0545
+    against the whole cloud's 0.0513 m) and 974 points' classes differed from 2 tiles', all over the block."""
+    def residual_files(frame, figure, found=None, only=None):
         todo = [dataclasses.replace(t, frame=frame) for t in tasks]
-        found = list(executor.map(functools.partial(core_ground_residuals, figure=figure), todo,
-                                  desc=f"tiles: {figure}", unit="tile", at_once=at_once))
-        n = sum(k for k, _, _ in found)
-        low = min((lo for k, lo, _ in found if k), default=0.0)
-        high = max((hi for k, _, hi in found if k), default=0.0)
-        return [_residuals_path(t) for t in todo], n, low, high
+        found = list(found) if found is not None else [None] * len(todo)
+        again = [k for k in range(len(todo)) if only is None or k in only]
+        for k, f in zip(again, executor.map(functools.partial(core_ground_residuals, figure=figure),
+                                            [todo[k] for k in again], desc=f"tiles: {figure}", unit="tile",
+                                            at_once=at_once)):
+            found[k] = f
+        n = sum(f[0] for f in found)
+        low = min((f[1] for f in found if f[0]), default=0.0)
+        high = max((f[2] for f in found if f[0]), default=0.0)
+        return [_residuals_path(t) for t in todo], n, low, high, found
 
-    paths, n, low, high = residual_files(frame, "refine_sigma_m")
+    paths, n, low, high, found = residual_files(frame, "refine_sigma_m")
+    shares = [f[3] for f in found if f[3] is not None]
+    if shares and sum(s.cells for s in shares):
+        # The refined surface (a grid of means or a TIN) as the whole cloud chooses it: its first ground points per
+        # occupied refinement cell. The tiles whose window chose the other surface find their residuals again.
+        dense = sum(s.ground_points for s in shares) >= shares[0].dense_points_per_cell * sum(s.cells for s in shares)
+        frame = dataclasses.replace(frame, refine_dense=dense)
+        other = {k for k, f in enumerate(found) if f[3] is not None and f[3].dense != dense}
+        if other:
+            logger.debug("tiles: %d of %d tiles find their refine residuals again on the whole cloud's %s surface",
+                         len(other), len(tasks), "mean" if dense else "TIN")
+            paths, n, low, high, found = residual_files(frame, "refine_sigma_m", found, other)
     if n:
         med = _median_of_files(paths, n, low, high)
         spread = max(abs(high - med), abs(med - low))
         frame = dataclasses.replace(frame, refine_sigma_m=1.4826 * _median_of_files(
             paths, n, 0.0, spread, transform=lambda v: np.abs(v - med)))
     if params.ground_lift_sigma > 0:
-        paths, n, low, high = residual_files(frame, "ground_noise_m")
+        paths, n, low, high, _ = residual_files(frame, "ground_noise_m")
         if n:
             frame = dataclasses.replace(frame, ground_noise_m=1.4826 * _median_of_files(paths, n, low, high))
     for q in paths:

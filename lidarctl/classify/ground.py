@@ -77,7 +77,7 @@ import dataclasses
 import functools
 import math
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -469,10 +469,13 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
     ``refine_angle_deg`` (the tolerance grows with the distance to the ground points: sparse clouds,
     steep slopes between vertices). For dense clouds (at least ``dense_points_per_cell`` ground points
     per refine cell) the mean ground height per cell, bilinearly interpolated, replaces the TIN (same
-    surface, linear time; vertices are less than a cell away, so the angle test adds nothing).
-    ``refine_residuals``: a list that gets (indices of the points, their residuals from the refined surface, m),
-    what the tolerance's spread is taken from (within ``grid.whole_cloud`` with a frame's ``refine_sigma_m``, that
-    spread is the whole cloud's).
+    surface, linear time; vertices are less than a cell away, so the angle test adds nothing). Within
+    ``grid.whole_cloud`` with a frame's ``refine_dense`` that choice is the whole cloud's (a tile's window may be
+    denser or sparser than the cloud: the demo's strips in 430 m tiles took the means in half of the windows, the
+    TIN in the others and in the whole cloud; 974 classes differed).
+    ``refine_residuals``: a list that gets (indices of the points, their residuals from the refined surface, m,
+    ``RefineCells``), what the tolerance's spread is taken from (within ``grid.whole_cloud`` with a frame's
+    ``refine_sigma_m``, that spread is the whole cloud's) and what chose the surface.
     """
     from lidarctl.raster_ops import sample_bilinear, slope_tan
 
@@ -500,7 +503,13 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
         first = grid.lowest_per_cell(cell, z[g])
         lowest, lowest_cell = g[first], cell[first]
         near_tin = None
-        if len(g) >= p.dense_points_per_cell * len(lowest):
+        frame = grid.whole_cloud_frame()
+        dense = len(g) >= p.dense_points_per_cell * len(lowest)
+        if frame is not None and frame.refine_dense is not None:
+            dense = bool(frame.refine_dense)   # the whole cloud's choice (a tile's window)
+        cells = RefineCells(g, lowest_cell, ncols, grid.lattice_offset(gx0, gy0, p.refine_cell_m), p.refine_cell_m,
+                            dense, p.dense_points_per_cell)
+        if dense:
             # Dense ground: the mean of the ground points per cell is as good as a TIN, and O(n).
             from lidarctl.raster_ops import fill_nodata, reduce_grid
             surf = fill_nodata(reduce_grid(x[g], y[g], z[g], cell_m=p.refine_cell_m, x0=gx0, y0=gy0, nrows=nrows,
@@ -519,8 +528,7 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
         res = (z - z_ref)[g]
         g, res = g[np.isfinite(res)], res[np.isfinite(res)]
         if refine_residuals is not None:
-            refine_residuals.append((g, res))
-        frame = grid.whole_cloud_frame()
+            refine_residuals.append((g, res, cells))
         tol = refine_tolerance_m(res, p.refine_noise_factor, p.refine_min_m, p.refine_threshold_m,
                                  sigma_m=None if frame is None else frame.refine_sigma_m)
         ground = np.abs(z - z_ref) <= tol + p.refine_scaler * slope
@@ -529,6 +537,23 @@ def morphological_ground(x, y, z, params: MorphSettings | None = None, return_de
     if return_dem:
         return ground, (dem, x0, y0, c)
     return ground
+
+
+class RefineCells(NamedTuple):
+    """What chose ``morphological_ground``'s refined surface: the first ground set (point indices ``ground``), its
+    occupied refinement cells (``cells``: flat ids ``row * ncols + col`` on a grid of ``cell_m`` cells whose first
+    cell is (row, col) ``offset`` on the whole cloud's lattice, ``grid.lattice_offset``), whether the grid of means
+    was taken (``dense``) and the ground points per cell above which it is (``dense_points_per_cell``). A tile counts
+    its core's share of them (``tiles.core_ground_residuals``), so that the whole cloud's choice is made for all its
+    tiles (``grid.CloudFrame.refine_dense``)."""
+
+    ground: np.ndarray
+    cells: np.ndarray
+    ncols: int
+    offset: tuple[int, int]
+    cell_m: float
+    dense: bool
+    dense_points_per_cell: float
 
 
 @numba.njit(cache=True)

@@ -2831,7 +2831,8 @@ def bare_earth(x, y, z, return_number=None, number_of_returns=None, *, params: C
     """The first steps of ``classify_points`` (noise, ground filter, sunken returns): (noise code per point,
     ground mask before the lifted-ground test, last-return mask, the mean point spacing used, m).
     ``refine_residuals``: a list that gets the ground filter's residuals from its refined surface (the
-    morphological filter's; its last run), as (point indices, residuals in m)."""
+    morphological filter's; its last run), as (point indices, residuals in m, ``ground.RefineCells`` with point
+    indices)."""
     with grid.whole_cloud(frame or grid.CloudFrame.of_points(x, y)):
         return _bare_earth(x, y, z, return_number, number_of_returns, params or ClassifySettings(), refine_residuals)
 
@@ -2852,7 +2853,7 @@ def _bare_earth(x, y, z, return_number, number_of_returns, p: ClassifySettings, 
         g = ground_mod.ground_filter(x[idx], y[idx], z[idx], method=p.ground_method, preset=p.preset,
                                      refine_residuals=residuals, **p.ground_params)
         if residuals:
-            refine_residuals[:] = [(idx[k], r) for k, r in residuals]
+            refine_residuals[:] = [(idx[k], r, cells._replace(ground=idx[cells.ground])) for k, r, cells in residuals]
         is_ground[:] = False
         is_ground[idx[g]] = True
         deep = deep_ground_outliers(x, y, z, is_ground, p.deep_cell_m, p.deep_m)

@@ -26,6 +26,31 @@ def test_tiled_classes_equal_the_whole_cloud_s(tmp_path):
     assert np.count_nonzero(a != b) == 0
 
 
+def test_a_window_denser_or_sparser_than_the_cloud_refines_the_ground_on_the_whole_cloud_s_surface(tmp_path, caplog):
+    # The ground filter refines on a grid of mean ground heights where the ground holds at least
+    # dense_points_per_cell (3) points per 1 m cell, else on a TIN. A cloud whose western half is thinned to 1.5
+    # points/m2 (east 5): the whole cloud takes the means, the western tiles' windows alone would take the TIN, which
+    # changed the refine residuals' spread (the whole cloud's ground tolerance) and those tiles' ground: 9 points
+    # differed here (the demo's strips in 430 m tiles: 974 of 4.94 M, all over the block). Now the choice is the
+    # whole cloud's (``grid.CloudFrame.refine_dense``) and the western tiles find their residuals again on it.
+    import dataclasses
+    import logging
+
+    cloud, _ = synthetic.synthetic_scene(width_m=200.0, density_per_m2=5.0, seed=5, n_buildings=6, n_trees=40)
+    thin = (cloud.x - cloud.x.min() >= 100.0) | (np.random.default_rng(1).random(len(cloud.x)) < 0.3)
+    cloud = dataclasses.replace(cloud, **{f.name: getattr(cloud, f.name)[thin] for f in dataclasses.fields(cloud)
+                                         if isinstance(getattr(cloud, f.name), np.ndarray)})
+    synthetic.write_las(tmp_path / "in.laz", cloud, crs="EPSG:32632")
+    whole = tiles.classify_file(tmp_path / "in.laz", tmp_path / "whole.laz")
+    with Executor("synchronous") as ex, caplog.at_level(logging.DEBUG, logger="lidarctl.tiles"):
+        tiled = tiles.classify_file(tmp_path / "in.laz", tmp_path / "tiled.laz", tile_size_m=70.0, executor=ex)
+    assert whole.run.n_tiles == 1 and tiled.run.n_tiles == 9
+    assert "3 of 9 tiles find their refine residuals again on the whole cloud's mean surface" in caplog.text
+    a = np.asarray(laspy.read(tmp_path / "whole.laz").classification)
+    b = np.asarray(laspy.read(tmp_path / "tiled.laz").classification)
+    assert np.count_nonzero(a != b) == 0
+
+
 def test_grids_of_a_window_lie_on_the_whole_cloud_s_cells():
     frame = grid.CloudFrame(x0_m=1000.0, y0_m=2000.0, spacing_m=0.3)
     x, y = np.array([1010.37, 1020.0]), np.array([2003.1, 2010.0])
