@@ -1435,7 +1435,8 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
         described = executor.describe()
     counts = ", ".join(f"{cl.CLASS_NAMES.get(c, str(c))} {k:,}" for c, k in stats.run.class_counts.items())
     n, dt, u = stats.n_points, stats.seconds, stats.units
-    what = f"{out_path}: {n} points" + (f" of {stats.n_files} strips" if to_folder else "")
+    what = f"{out_path}: {n} points" + (f" of {stats.n_files} strip{'' if stats.n_files == 1 else 's'}" if to_folder
+                                        else "")
     if params.keep_classes:
         return f"{what}, the delivered classes kept; {counts}"
     if fusion is not None and stats.run.class_counts.get(3, 0):
@@ -1451,5 +1452,6 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
                        "make DEMs, nDSMs and contours from a classification without --image")
     unit_text = "" if u.xy_name == "m" and u.z_name == "m" else \
         f"; coordinates in {u.xy_name}, heights in {u.z_name}, processed in metres"
-    return (f"{what} in {dt:.1f} s ({n / dt:,.0f} points/s; {stats.run.n_tiles} tiles of {stats.grid.tile_m:g} m + "
+    tiles = f"{stats.run.n_tiles} tile{'' if stats.run.n_tiles == 1 else 's'}"
+    return (f"{what} in {dt:.1f} s ({n / dt:,.0f} points/s; {tiles} of {stats.grid.tile_m:g} m + "
             f"{stats.grid.buffer_m:g} m buffer, {described}{unit_text}); {counts}")
