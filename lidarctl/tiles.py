@@ -92,7 +92,7 @@ from lidarctl import io
 from aerotri.core.atomic import atomic_dir, atomic_path, refuse_foreign_contents, refuse_input_as_output, temporary_dir
 from aerotri.core.errors import InputError, OptionError, ResourceError
 from aerotri.core.executor import local_executor
-from aerotri.core.log import progress
+from aerotri.core.log import counted, progress
 from aerotri.core.resume import (ResumeFolder, beside, discard_kept, file_stamp, is_beside, link_or_copy, resumable,
                                  resume_key)
 from aerotri.geom.crs.definition import parse_crs
@@ -616,14 +616,12 @@ def _tile_window(task):
     return x, y, z, rn, nr, intensity, (row == task.row) & (col == task.col)
 
 
-def core_ground_residuals(task: TileTask, *, figure: str) -> tuple:
+def core_ground_residuals(task: TileTask, *, figure: str) -> TileResiduals:
     """An executor task of ``cloud_noise``: the residuals (m) of the tile's core points from which the whole
     cloud's noise ``figure`` is taken, as ``classify_points`` finds them in the tile's window with ``task.frame``:
     ``refine_sigma_m``: the ground filter's residuals from its refined surface (``ground.morphological_ground``);
     ``ground_noise_m``: the heights of the ground points above their local planes (``classify.ground_plane_offsets``,
-    absolute). Written to ``_residuals_path``; returns (how many, the lowest, the highest, ``RefineShare``: with
-    ``refine_sigma_m``, the core's share of what chose the ground filter's refined surface; else None). With
-    ``ground_noise_m``
+    absolute). Written to ``_residuals_path``; returns their ``TileResiduals``. With ``ground_noise_m``
     (its frame holds the whole cloud's ``refine_sigma_m``), the noise codes and ground the tile's classification
     starts from are kept too (``_bare_earth_path``: ``classify_points(bare_earth=...)`` does not find them again)."""
     from lidarctl.classify import pipeline as cl
@@ -652,7 +650,8 @@ def core_ground_residuals(task: TileTask, *, figure: str) -> tuple:
                 res = np.abs(dz[np.isfinite(dz)])
     with atomic_path(_residuals_path(task)) as tmp:
         np.save(tmp, res)
-    return len(res), float(res.min()) if len(res) else 0.0, float(res.max()) if len(res) else 0.0, share
+    return TileResiduals(len(res), float(res.min()) if len(res) else 0.0, float(res.max()) if len(res) else 0.0,
+                         share)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -665,6 +664,18 @@ class RefineShare:
     cells: int
     dense: bool
     dense_points_per_cell: float
+
+
+@dataclasses.dataclass(frozen=True)
+class TileResiduals:
+    """What ``core_ground_residuals`` found in a tile's core (the residuals themselves are in ``_residuals_path``):
+    how many (``count``), the lowest and the highest (m), and with ``refine_sigma_m`` the core's ``RefineShare``
+    (else None)."""
+
+    count: int
+    low_m: float
+    high_m: float
+    share: RefineShare | None = None
 
 
 def _core_refine_share(task: TileTask, cells, core: np.ndarray) -> RefineShare:
@@ -738,19 +749,19 @@ def cloud_noise(tasks, frame, params, executor, at_once: int | None = None):
                                             [todo[k] for k in again], desc=f"tiles: {figure}", unit="tile",
                                             at_once=at_once)):
             found[k] = f
-        n = sum(f[0] for f in found)
-        low = min((f[1] for f in found if f[0]), default=0.0)
-        high = max((f[2] for f in found if f[0]), default=0.0)
+        n = sum(f.count for f in found)
+        low = min((f.low_m for f in found if f.count), default=0.0)
+        high = max((f.high_m for f in found if f.count), default=0.0)
         return [_residuals_path(t) for t in todo], n, low, high, found
 
     paths, n, low, high, found = residual_files(frame, "refine_sigma_m")
-    shares = [f[3] for f in found if f[3] is not None]
+    shares = [f.share for f in found if f.share is not None]
     if shares and sum(s.cells for s in shares):
         # The refined surface (a grid of means or a TIN) as the whole cloud chooses it: its first ground points per
         # occupied refinement cell. The tiles whose window chose the other surface find their residuals again.
         dense = sum(s.ground_points for s in shares) >= shares[0].dense_points_per_cell * sum(s.cells for s in shares)
         frame = dataclasses.replace(frame, refine_dense=dense)
-        other = {k for k, f in enumerate(found) if f[3] is not None and f[3].dense != dense}
+        other = {k for k, f in enumerate(found) if f.share is not None and f.share.dense != dense}
         if other:
             logger.debug("tiles: %d of %d tiles find their refine residuals again on the whole cloud's %s surface",
                          len(other), len(tasks), "mean" if dense else "TIN")
@@ -1435,8 +1446,7 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
         described = executor.describe()
     counts = ", ".join(f"{cl.CLASS_NAMES.get(c, str(c))} {k:,}" for c, k in stats.run.class_counts.items())
     n, dt, u = stats.n_points, stats.seconds, stats.units
-    what = f"{out_path}: {n} points" + (f" of {stats.n_files} strip{'' if stats.n_files == 1 else 's'}" if to_folder
-                                        else "")
+    what = f"{out_path}: {n} points" + (f" of {counted(stats.n_files, 'strip')}" if to_folder else "")
     if params.keep_classes:
         return f"{what}, the delivered classes kept; {counts}"
     if fusion is not None and stats.run.class_counts.get(3, 0):
@@ -1452,6 +1462,5 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
                        "make DEMs, nDSMs and contours from a classification without --image")
     unit_text = "" if u.xy_name == "m" and u.z_name == "m" else \
         f"; coordinates in {u.xy_name}, heights in {u.z_name}, processed in metres"
-    tiles = f"{stats.run.n_tiles} tile{'' if stats.run.n_tiles == 1 else 's'}"
-    return (f"{what} in {dt:.1f} s ({n / dt:,.0f} points/s; {tiles} of {stats.grid.tile_m:g} m + "
-            f"{stats.grid.buffer_m:g} m buffer, {described}{unit_text}); {counts}")
+    return (f"{what} in {dt:.1f} s ({n / dt:,.0f} points/s; {counted(stats.run.n_tiles, 'tile')} of "
+            f"{stats.grid.tile_m:g} m + {stats.grid.buffer_m:g} m buffer, {described}{unit_text}); {counts}")

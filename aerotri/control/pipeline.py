@@ -24,7 +24,7 @@ from aerotri.control.layout import LayoutTarget, candidate_tiers, empty_target_t
 from aerotri.control.measure import MEASURE_VERSION, Measurement, corner_points, measure_in_image, predict
 from aerotri.control.settings import ControlSettings
 from aerotri.core.errors import InputError, OptionError
-from aerotri.core.log import track
+from aerotri.core.log import counted, track
 from aerotri.core.atomic import committed
 from aerotri.core.project import Project, project_paths
 from aerotri.core.resume import file_stamp, resumable, resume_key
@@ -293,10 +293,6 @@ def too_few_rays_cause(frames: Counter, k: int) -> str:
     return {0: "in_no_frame", 1: "in_one_frame"}.get(frames.get(k, 0), "measured_in_under_two")
 
 
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}" if n == 1 else f"{n} {word}s"
-
-
 def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str:
     """One line for the control report: why the layout target ``t`` got no corner (counts of the
     corners within its search radius by what became of them)."""
@@ -339,7 +335,7 @@ def why_empty(res: "TransferResult", t: LayoutTarget, s: ControlSettings) -> str
         if what == TOO_FEW_RAYS_CAUSES["measured_in_under_two"] and in_image:
             what += " (" + ", ".join(f"{reason.replace('_', ' ')} {m}" for reason, m in in_image.most_common(3)) + ")"
         parts.append(f"{n} {what}")
-    return f"{_plural(len(near), 'LiDAR corner')} within {r:.1f} m: " + "; ".join(parts)
+    return f"{counted(len(near), 'LiDAR corner')} within {r:.1f} m: " + "; ".join(parts)
 
 
 def transfer_control(corners: LidarCorners, camera: BrownCamera, eo: ExteriorOrientations, images_dir,

@@ -225,6 +225,11 @@ def _interval_s() -> float:
     return PROGRESS_INTERVAL_S
 
 
+def counted(n: int, word: str) -> str:
+    """``n`` and ``word`` for a message, ``word`` with an s unless ``n`` is 1: "1 tile", "12 tiles"."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
 def _duration(s: float) -> str:
     s = int(round(s))
     if s < 60:

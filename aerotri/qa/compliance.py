@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from aerotri.core.errors import ConfigError, CrsError, OptionError
+from aerotri.core.log import counted
 from aerotri.core.project import ControlPointSettings, Project
 from aerotri.core.point_ids import dom_points_used_as_control, point_id_key  # noqa: F401 (read from here too)
 from aerotri.core.textio import read_json
@@ -583,7 +584,7 @@ def outside_text(ids, why: str = "", unknown=(), *, noun: str = "check point", s
     why = why or "outside the data"
     if len(ids) == 1:
         why = why.replace(" under them", " under it")
-    return (f"{len(ids)} {noun}{'' if len(ids) == 1 else 's'} {why}, not counted "
+    return (f"{counted(len(ids), noun)} {why}, not counted "
             f"({outside_ids_text(ids, unknown, shown)})")
 
 
