@@ -371,6 +371,17 @@ def fbm(x, y, seed, scale, octaves):
     return s / norm
 
 
+@numba.njit(cache=True, inline="always")
+def road_surface(lat, s, w):
+    """Material of a road of width ``w`` (m) at ``lat`` (m) across its axis and ``s`` (m) along it (``|lat| <= w /
+    2``): a dashed centre line (3 m on, 6 m off) and solid edge lines are MARKING, the rest ROAD."""
+    if abs(lat) < 0.2 and (s % 9.0) < 3.0:
+        return MARKING
+    if abs(abs(lat) - (w / 2.0 - 0.6)) < 0.15:
+        return MARKING
+    return ROAD
+
+
 @numba.njit(cache=True)
 def ground_material(x, y, roads, ponds, targets, seed):
     """Material code of the ground at local (x, y)."""
@@ -403,12 +414,7 @@ def ground_material(x, y, roads, ponds, targets, seed):
             continue
         lat = -(x - x0) * ey + (y - y0) * ex
         if abs(lat) <= w / 2.0:
-            # Dashed centre line (3 m on, 6 m off) and solid edge lines.
-            if abs(lat) < 0.2 and (s % 9.0) < 3.0:
-                return MARKING
-            if abs(abs(lat) - (w / 2.0 - 0.6)) < 0.15:
-                return MARKING
-            return ROAD
+            return road_surface(lat, s, w)
     if fbm(x, y, seed + 5, 60.0, 2) > 0.62:
         return SOIL
     return GRASS

@@ -254,11 +254,7 @@ def ground_material(x, y, G):
                 continue
             lat = -(x - x0) * ey + (y - y0) * ex
             if abs(lat) <= w / 2.0:
-                if abs(lat) < 0.2 and (s % 9.0) < 3.0:
-                    return MARKING
-                if abs(abs(lat) - (w / 2.0 - 0.6)) < 0.15:
-                    return MARKING
-                return ROAD
+                return raycast.road_surface(lat, s, w)
     # the soil node grid: SOIL_SUB x the cell coordinates (a power of two: the same bits as x / (cell / SOIL_SUB))
     sx = fx * SOIL_SUB
     sy = fy * SOIL_SUB
