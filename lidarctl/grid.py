@@ -48,7 +48,7 @@ class CloudFrame:
     spacing_m: float
     # The whole cloud's noise figures, for a tile (None: from the tile's own points): the robust spread (m) of the
     # ground filter's residuals from its refined surface (``ground.refine_tolerance_m``) and the ground's range
-    # noise (m, ``classify.ground_noise_m``; the lifted-ground test). ``tiles.cloud_noise`` gives them.
+    # noise (m, ``classify.ground_noise_m``; the lifted-ground test and the rooftop-object rule). ``tiles.cloud_noise`` gives them.
     refine_sigma_m: float | None = None
     ground_noise_m: float | None = None
     # Whether the ground filter's refinement takes the grid of mean ground heights rather than the TIN (the whole

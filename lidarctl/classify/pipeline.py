@@ -652,6 +652,19 @@ def ground_plane_offsets(x, y, z, gi, spacing_m: float, k: int = 12) -> tuple[np
     return dz, spread
 
 
+def _ground_range_noise(x, y, z, is_ground, spacing_m: float, offsets=None, k: int = 12):
+    """(``ground_noise_m`` of the ground points ``is_ground``, ``offsets``: their ``ground_plane_offsets`` with ``k``
+    neighbours, computed here when None); (None, ``offsets``) when the ground has under 4 ``k`` points with a plane
+    (``lifted_ground``'s minimum; the caller falls back to ``range_noise_m``)."""
+    gi = np.flatnonzero(is_ground)
+    if len(gi) < 4 * k:
+        return None, offsets
+    if offsets is None:
+        offsets = ground_plane_offsets(x, y, z, gi, spacing_m, k)
+    ok = np.isfinite(offsets[0])
+    return (ground_noise_m(offsets[0]) if ok.sum() >= 4 * k else None), offsets
+
+
 def ground_noise_m(plane_offsets_m: np.ndarray) -> float:
     """The range noise sigma (m) of a ground set: 1.4826 x the median absolute height of its points above their
     local planes (``ground_plane_offsets``; NaN left out)."""
@@ -950,7 +963,9 @@ def roof_edge_completion(x, y, z, is_building, candidates, p: ClassifySettings) 
 def range_noise_m(x, y, z, surface, k: int = 8, sample: int = 20000) -> float:
     """Range noise (m): the robust spread (1.4826 MAD) of the heights of ``surface`` points (mask;
     the ground) above the LSQ plane of their ``k`` nearest ``surface`` neighbours, on a seeded
-    sample of at most ``sample`` points. 0.05 m when the surface has too few points."""
+    sample of at most ``sample`` points. 0.05 m when the surface has too few points. The rooftop-object rule's
+    fallback where the ground is too small for ``ground_noise_m`` (a sample of a tile's window would make its classes
+    depend on the tiling)."""
     b = np.flatnonzero(surface)
     if len(b) < 4 * k:
         return 0.05
@@ -970,7 +985,7 @@ def rooftop_objects(x, y, z, is_building, spacing_m: float, noise_m: float, *, m
     """Building points that belong to objects standing on a roof (mask over all points).
 
     Building points within 2 point spacings are one surface when their height difference is at
-    most 3 sigma of the range noise (``noise_m``, ``range_noise_m`` of the ground) plus the rise of
+    most 3 sigma of the range noise (``noise_m``, ``ground_noise_m`` of the ground) plus the rise of
     a roof pitched at ``max_pitch_deg`` over their horizontal distance; a rooftop unit, a cable or a crown over the
     roof is cut from the roof by its step. A surface component is an object when its area (point
     count x mean spacing^2) is below ``max_area_m2`` and it stands above the roof next to it: on at
@@ -2905,6 +2920,10 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
     intercepted = None
     if return_number is not None and number_of_returns is not None:
         intercepted = np.asarray(number_of_returns) > 1
+    if ground_noise is None and p.rooftop_object_max_area_m2 > 0:
+        # The ground's range noise of the lifted-ground test serves the rooftop-object rule too: one figure, which a
+        # tile takes from the whole cloud (``tiles.cloud_noise``), so a roof's objects do not depend on the tiling.
+        ground_noise, offsets = _ground_range_noise(x, y, z, is_ground, spacing, offsets)
     lifted = lifted_ground(x, y, z, is_ground, spacing, p.ground_lift_sigma, intercepted=intercepted,
                            judge_single=p.ground_lift_single, sigma_m=ground_noise, offsets=offsets)
     c = p.cell_m or max(0.5, 2.0 * spacing)
@@ -3041,7 +3060,9 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
     if p.rooftop_object_max_area_m2 > 0:
         # The range noise of the sensor, measured on the bare earth (roof plane fits cross ridges
         # and eaves).
-        is_building &= ~rooftop_objects(x, y, z, is_building, spacing, range_noise_m(x, y, z, is_ground),
+        noise_m = ground_noise if ground_noise is not None and np.isfinite(ground_noise) else \
+            range_noise_m(x, y, z, is_ground)
+        is_building &= ~rooftop_objects(x, y, z, is_building, spacing, noise_m,
                                         max_area_m2=p.rooftop_object_max_area_m2, max_pitch_deg=p.roof_max_pitch_deg,
                                         steps_to_roofs_only=p.rooftop_steps_to_roofs_only)
     if p.crown_covered_roofs and has_multi:
