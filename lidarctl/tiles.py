@@ -732,8 +732,8 @@ def cloud_noise(tasks, frame, params, executor, at_once: int | None = None):
     so that every tile's ground tolerances are those of the whole cloud, whatever the tiling (in a tile's own
     window they were the window's: the lifted-ground sigma 13 to 18 mm on AHN3 Delft's 60 m tiles, the refine
     tolerance 0.100 to 0.103 m): ``refine_sigma_m``, the robust spread of the ground filter's residuals from its
-    refined surface (``ground.robust_spread_m``), then, with it, ``ground_noise_m``, the lifted-ground test's sigma
-    (``classify.ground_noise_m``): each from all the cloud's points, each from the tile whose core holds it
+    refined surface (``ground.robust_spread_m``), then, with it, ``ground_noise_m``, the lifted-ground test's and the
+    rooftop-object rule's sigma (``classify.ground_noise_m``): each from all the cloud's points, each from the tile whose core holds it
     (``core_ground_residuals``; two passes of the ground filter over the tiles); exact medians in memory of one
     tile. A figure without residuals stays None (the tile's own). Before the refine residuals' spread, the refined
     surface they are taken from is the whole cloud's choice (``refine_dense``: its first ground points per occupied
@@ -771,7 +771,7 @@ def cloud_noise(tasks, frame, params, executor, at_once: int | None = None):
         spread = max(abs(high - med), abs(med - low))
         frame = dataclasses.replace(frame, refine_sigma_m=1.4826 * _median_of_files(
             paths, n, 0.0, spread, transform=lambda v: np.abs(v - med)))
-    if params.ground_lift_sigma > 0:
+    if params.ground_lift_sigma > 0 or params.rooftop_object_max_area_m2 > 0:   # the two rules' range noise
         paths, n, low, high, _ = residual_files(frame, "ground_noise_m")
         if n:
             frame = dataclasses.replace(frame, ground_noise_m=1.4826 * _median_of_files(paths, n, low, high))
