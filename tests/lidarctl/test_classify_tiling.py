@@ -132,41 +132,14 @@ def test_a_small_cloud_under_a_memory_limit_keeps_its_default_tiles(tmp_path, mo
     assert run.run.n_tiles == 1
 
 
-def test_the_rooftop_rule_takes_the_whole_cloud_s_range_noise(tmp_path, monkeypatch):
+@pytest.mark.parametrize("cloud_kind", ["returns", "single_returns", "lift_test_off"])
+def test_the_rooftop_rule_takes_the_whole_cloud_s_range_noise(tmp_path, monkeypatch, cloud_kind):
     # The rooftop-object rule cuts a roof's objects at steps of 3 sigma of the ground's range noise. It took sigma
     # per window, on a sample of the window's ground: AHN3 Delft in 80 m tiles 0.0104-0.0191 m in its 9 windows
     # against 0.0163 m whole, and 8 building <-> vegetation returns differed from the whole cloud's (2 in 150 m
     # tiles). Now it is the lifted-ground test's figure, which a tile takes from the whole cloud: one value for
-    # every window, the whole cloud's.
-    from lidarctl.classify import pipeline
-
-    seen = []
-    rooftop_objects = pipeline.rooftop_objects
-
-    def spy(x, y, z, is_building, spacing_m, noise_m, **kw):
-        seen.append(noise_m)
-        return rooftop_objects(x, y, z, is_building, spacing_m, noise_m, **kw)
-
-    monkeypatch.setattr(pipeline, "rooftop_objects", spy)
-    cloud, _ = synthetic.synthetic_scene(width_m=200.0, density_per_m2=2.5, seed=5, n_buildings=6, n_trees=40)
-    synthetic.write_las(tmp_path / "in.laz", cloud, crs="EPSG:32632")
-    with Executor("synchronous") as ex:
-        tiles.classify_file(tmp_path / "in.laz", tmp_path / "whole.laz", executor=ex)
-        whole = list(seen)
-        seen.clear()
-        tiles.classify_file(tmp_path / "in.laz", tmp_path / "tiled.laz", tile_size_m=70.0, executor=ex)
-    assert len(whole) == 1 and len(seen) == 9
-    assert seen == pytest.approx([whole[0]] * 9, rel=1e-12)
-    # the figure is the lifted-ground test's: the ground's robust spread about its local planes (1.4826 MAD)
-    las = laspy.read(tmp_path / "whole.laz")
-    assert 0.005 < whole[0] < 0.2
-    assert np.count_nonzero(np.asarray(las.classification) != np.asarray(laspy.read(tmp_path / "tiled.laz").classification)) == 0
-
-
-def test_single_return_clouds_and_the_lift_test_off_keep_the_whole_cloud_s_rooftop_noise(tmp_path, monkeypatch):
-    # Without return numbers (a photogrammetric or single-return cloud) the lifted-ground test judges nothing, and
-    # with ground_lift_sigma 0 it is off; the rooftop-object rule still takes the same figure, the whole cloud's in
-    # every tile (before, such a tile fell back to its own window's).
+    # every window, the whole cloud's; also without return numbers (a photogrammetric or single-return cloud: the
+    # lift test judges nothing) and with the lift test off (ground_lift_sigma 0), where a tile fell back to its own.
     import dataclasses
 
     from lidarctl.classify import pipeline
@@ -180,16 +153,20 @@ def test_single_return_clouds_and_the_lift_test_off_keep_the_whole_cloud_s_rooft
 
     monkeypatch.setattr(pipeline, "rooftop_objects", spy)
     cloud, _ = synthetic.synthetic_scene(width_m=200.0, density_per_m2=2.5, seed=5, n_buildings=6, n_trees=40)
+    if cloud_kind == "single_returns":
+        cloud = dataclasses.replace(cloud, return_number=np.ones_like(cloud.return_number),
+                                    number_of_returns=np.ones_like(cloud.number_of_returns))
+    params = pipeline.ClassifySettings(ground_lift_sigma=0.0) if cloud_kind == "lift_test_off" else \
+        pipeline.ClassifySettings()
     synthetic.write_las(tmp_path / "in.laz", cloud, crs="EPSG:32632")
-    single = dataclasses.replace(cloud, return_number=np.ones_like(cloud.return_number),
-                                 number_of_returns=np.ones_like(cloud.number_of_returns))
-    synthetic.write_las(tmp_path / "single.laz", single, crs="EPSG:32632")
-    for path, params in ((tmp_path / "single.laz", pipeline.ClassifySettings()),
-                         (tmp_path / "in.laz", pipeline.ClassifySettings(ground_lift_sigma=0.0))):
+    with Executor("synchronous") as ex:
+        tiles.classify_file(tmp_path / "in.laz", tmp_path / "whole.laz", executor=ex, params=params)
+        whole = list(seen)
         seen.clear()
-        with Executor("synchronous") as ex:
-            tiles.classify_file(path, tmp_path / "whole.laz", executor=ex, params=params)
-            tiles.classify_file(path, tmp_path / "tiled.laz", tile_size_m=70.0, executor=ex, params=params)
-        assert len(seen) == 10 and seen[1:] == pytest.approx([seen[0]] * 9, rel=1e-12)
-        a = np.asarray(laspy.read(tmp_path / "whole.laz").classification)
-        assert np.count_nonzero(a != np.asarray(laspy.read(tmp_path / "tiled.laz").classification)) == 0
+        tiles.classify_file(tmp_path / "in.laz", tmp_path / "tiled.laz", tile_size_m=70.0, executor=ex, params=params)
+    assert len(whole) == 1 and len(seen) == 9
+    assert seen == pytest.approx([whole[0]] * 9, rel=1e-12)
+    # the figure is the lifted-ground test's: the ground's robust spread about its local planes (1.4826 MAD)
+    assert 0.005 < whole[0] < 0.2
+    a = np.asarray(laspy.read(tmp_path / "whole.laz").classification)
+    assert np.count_nonzero(a != np.asarray(laspy.read(tmp_path / "tiled.laz").classification)) == 0
