@@ -741,6 +741,8 @@ def cloud_noise(tasks, frame, params, executor, at_once: int | None = None):
     surface (a window denser or sparser than the cloud) finds its residuals again: before, the demo's strips in 430 m
     tiles took the grid of means in 6 of 12 windows, the TIN in the others and the whole cloud (its spread 0.0545
     against the whole cloud's 0.0513 m) and 974 points' classes differed from 2 tiles', all over the block."""
+    from lidarctl.classify import pipeline as cl
+
     def residual_files(frame, figure, found=None, only=None):
         todo = [dataclasses.replace(t, frame=frame) for t in tasks]
         found = list(found) if found is not None else [None] * len(todo)
@@ -771,7 +773,7 @@ def cloud_noise(tasks, frame, params, executor, at_once: int | None = None):
         spread = max(abs(high - med), abs(med - low))
         frame = dataclasses.replace(frame, refine_sigma_m=1.4826 * _median_of_files(
             paths, n, 0.0, spread, transform=lambda v: np.abs(v - med)))
-    if params.ground_lift_sigma > 0 or params.rooftop_object_max_area_m2 > 0:   # the two rules' range noise
+    if cl.ground_noise_needed(params):
         paths, n, low, high, _ = residual_files(frame, "ground_noise_m")
         if n:
             frame = dataclasses.replace(frame, ground_noise_m=1.4826 * _median_of_files(paths, n, low, high))

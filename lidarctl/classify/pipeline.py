@@ -623,14 +623,13 @@ def lifted_ground(x, y, z, is_ground, spacing_m: float, lift_sigma: float, *, in
     """
     out = np.zeros(len(x), bool)
     gi = np.flatnonzero(is_ground)
-    if lift_sigma <= 0 or intercepted is None or len(gi) < 4 * k or not (judge_single or np.any(intercepted[gi])):
+    if lift_sigma <= 0 or intercepted is None or not (judge_single or np.any(intercepted[gi])):
         return out
-    dz, spread = offsets if offsets is not None else ground_plane_offsets(x, y, z, gi, spacing_m, k)
-    ok = np.isfinite(dz)
-    if ok.sum() < 4 * k:
-        return out
+    sigma_m, offsets = _ground_range_noise(x, y, z, is_ground, spacing_m, offsets, k, sigma_m=sigma_m)
     if sigma_m is None:
-        sigma_m = ground_noise_m(dz)
+        return out
+    dz, spread = offsets
+    ok = np.isfinite(dz)
     dz = np.nan_to_num(dz, nan=0.0)
     lifted = intercepted[gi] & (dz > lift_sigma * sigma_m)
     if judge_single:
@@ -652,17 +651,25 @@ def ground_plane_offsets(x, y, z, gi, spacing_m: float, k: int = 12) -> tuple[np
     return dz, spread
 
 
-def _ground_range_noise(x, y, z, is_ground, spacing_m: float, offsets=None, k: int = 12):
-    """(``ground_noise_m`` of the ground points ``is_ground``, ``offsets``: their ``ground_plane_offsets`` with ``k``
-    neighbours, computed here when None); (None, ``offsets``) when the ground has under 4 ``k`` points with a plane
-    (``lifted_ground``'s minimum; the caller falls back to ``range_noise_m``)."""
+def _ground_range_noise(x, y, z, is_ground, spacing_m: float, offsets=None, k: int = 12, sigma_m=None):
+    """(the range noise sigma (m) of the ground points ``is_ground``: ``sigma_m`` when given (a tile's whole cloud's),
+    else their ``ground_noise_m``; ``offsets``: their ``ground_plane_offsets`` with ``k`` neighbours, computed here when
+    None). Sigma is None when the ground has under 4 ``k`` points with a plane. The one definition of the figure the
+    lifted-ground test and the rooftop-object rule share."""
     gi = np.flatnonzero(is_ground)
     if len(gi) < 4 * k:
         return None, offsets
     if offsets is None:
         offsets = ground_plane_offsets(x, y, z, gi, spacing_m, k)
-    ok = np.isfinite(offsets[0])
-    return (ground_noise_m(offsets[0]) if ok.sum() >= 4 * k else None), offsets
+    if np.isfinite(offsets[0]).sum() < 4 * k:
+        return None, offsets
+    return (ground_noise_m(offsets[0]) if sigma_m is None else sigma_m), offsets
+
+
+def ground_noise_needed(p: "ClassifySettings") -> bool:
+    """Whether a classification with ``p`` takes the ground's range noise (``_ground_range_noise``): the lifted-ground
+    test's or the rooftop-object rule's (``tiles.cloud_noise`` finds the whole cloud's figure then)."""
+    return p.ground_lift_sigma > 0 or p.rooftop_object_max_area_m2 > 0
 
 
 def ground_noise_m(plane_offsets_m: np.ndarray) -> float:
