@@ -793,6 +793,10 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
         raise InputError(f"{dem_path}: DEM not found (the project has no LiDAR DEM); the tie points' DEM that "
                          f"`aerotri run` or `ortho dem` made is {tie_point_dem}: pass --dem {tie_point_dem}, or a DEM "
                          "from elsewhere", param="--dem")
+    if not dem_path.exists() and dem_path == project.dem_path:
+        # only the project's own DEM gets the hint: a user who typed --dem was told to "pass --dem" (Tuniu trial)
+        raise InputError(f"{dem_path}: DEM not found (the LiDAR stages' DEM: run `lidarctl rasters` to produce it, "
+                         "or pass --dem)", param="--dem")
     if compression not in FRAME_COMPRESSION:
         raise InputError(f"unknown frame compression {compression!r}; expected one of {sorted(FRAME_COMPRESSION)}")
     transformation = load_transformation(params) if params else None

@@ -79,7 +79,7 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
     """Open a height GeoTIFF and check it against the project CRS; returns the rasterio dataset."""
     path = Path(path)
     if not path.exists():
-        raise InputError(f"{path}: {what} not found (run `lidarctl` to produce it, or pass --dem)")
+        raise InputError(f"{path}: {what} not found")
     if path.is_dir():  # (new-user trial: "DEM not found" for the folder `lidarctl rasters` wrote)
         inside = sorted(p.name for p in path.glob("*.tif"))[:4]
         raise InputError(f"{path}: a folder, expected the {what} GeoTIFF file"

@@ -294,6 +294,6 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
     if 2 * stats.cells_extrapolated > data.size:  # most of the DEM is no measurement
         _log.warning(f"{out}: most of this DEM ({stats.extrapolated_percent:.0f} % of the cells, up to "
                      f"{stats.extrapolated_max_distance_m:.0f} m from the tie points) is a flat continuation beyond "
-                     "them: orthophotos there stand on no measured height (a DEM from LiDAR, or --min-rays 2, "
-                     "reaches farther)")
+                     "them: orthophotos there stand on no measured height (a DEM from LiDAR"
+                     + (", or --min-rays 2, " if min_rays > 2 else " ") + "reaches farther)")
     return stats

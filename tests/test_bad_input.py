@@ -337,6 +337,20 @@ def truncate(rel, fraction=0.6):
     return f
 
 
+def _cut_in_its_header(images, out, name):
+    """A copy of the frames with ``name`` rewritten as GDAL writes a tiled TIFF (its IFD first, as the Tuniu frames
+    have it) and cut at 2,000 bytes, inside the tags a camera's EXIF would follow: the file still opens."""
+    import rasterio
+    from rasterio.shutil import copy as rio_copy
+
+    shutil.copytree(images, out)
+    q = out / name
+    rio_copy(images / name, q, driver="GTiff", tiled=True, blockxsize=256, blockysize=256)
+    q.write_bytes(q.read_bytes()[:2000])
+    with rasterio.open(q):  # the case is a file that opens
+        pass
+
+
 def patch_bytes(rel, offset, data):
     def f(w):
         q = w / rel
@@ -669,6 +683,10 @@ CASES = [
       lambda w: (w / "empty").mkdir()),
     C("init_images_a_dsm", "aerotri", "init {w}/new --images {w}/dsm --crs EPSG:32649", ["dsm.tif", "not a camera frame"],
       lambda w: ((w / "dsm").mkdir(), shutil.copy(w / "p/truth/dsm.tif", w / "dsm/dsm.tif"))),
+    # a frame cut inside its header opens, its tags gone: named as cut short, not as "no camera in the EXIF"
+    C("init_image_cut_in_its_header", "aerotri", "init {w}/new --images {w}/cut --crs EPSG:32649",
+      ["s01_002.tif", "truncated", "2,000 bytes"],
+      lambda w: _cut_in_its_header(w / "p/images", w / "cut", "s01_002.tif")),
     C("init_crs_geographic", "aerotri", "init {w}/new --images {p}/images --crs EPSG:4326", "--crs"),
     C("init_crs_unknown", "aerotri", "init {w}/new --images {p}/images --crs EPSG:999999", "--crs"),
     C("init_into_a_project", "aerotri", "init {p} --images {p}/images --crs EPSG:32649", ["exists", "not an empty"]),
@@ -1552,6 +1570,8 @@ ISSUE39 = _raster_cases() + [
     C("run_ndsm_inf", "aerotri", "run {p}", ["ndsm.tif", "inf"],
       all_of(toml_set("p/project.toml", "mosaic", "ndsm", '"lidar_out/ndsm.tif"'), raster("p/lidar_out/ndsm.tif", "inf"))),
     # --- import (the checks of imports are another task of issue 39: EXCHANGE_CASES below)
+    C("import_exif_image_cut_in_its_header", "aerotri", "import {p} --format exif {w}/cut", ["s01_002.tif", "truncated"],
+      lambda w: _cut_in_its_header(w / "p/images", w / "cut", "s01_002.tif")),
     C("import_file_missing", "aerotri", "import {p} --format patb {w}/nope.ori", "nope.ori"),
     C("import_patb_ori_text", "aerotri", "import {p} --format patb {w}/p/at/patb/block.ori --force", "block.ori",
       lambda w: (w / "p/at/patb/block.ori").write_text(_text(w / "p/at/patb/block.ori").replace("452166.6546", "abc"))),

@@ -438,7 +438,28 @@ def _pp_gnss_reasons(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.n
             last = max(i for i, t in enumerate(out) if t.startswith(("u0", "v0")[int(np.flatnonzero(offset)[0])]))
             out[last] += (f"; the offset named, {offset[offset != 0][0]:+.2f} m, moves the tie points by "
                           f"{effect:.3f} m RMS in plan ({what})")
+            other = _other_axis_words(pg, cal, cal_apriori, cal_cov, 1 - int(np.flatnonzero(offset)[0]))
+            if other:
+                out.append(other)
     return out, effect
+
+
+def _other_axis_words(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.ndarray, a: int) -> str:
+    """The principal point's move on the axis ``a`` (0: u0, 1: v0) that names no offset, when it moved over its
+    standard deviation: a user who saw u0 move 1.9 px read a flag of v0 alone as a wrong axis (Tuniu trial)."""
+    name, axis = (("u0", "x"), ("v0", "y"))[a]
+    i = CAL_NAMES.index(f"{name}_px")
+    move, sd = float(cal[i] - cal_apriori[i]), math.sqrt(max(float(cal_cov[i, i]), 0.0))
+    if not (sd > 0 and abs(move) > sd):
+        return ""
+    text = f"{name} moved {move:+.1f} px ({abs(move) / sd:.1f} standard deviations)"
+    k, est, est_sd = float(pg.px_per_m[a, a]), float(pg.offset_estimate_m[a]), float(pg.offset_sigma_m[a])
+    if k != 0 and math.isfinite(est) and math.isfinite(est_sd) and est_sd > 0:
+        text += (f", which a GNSS offset of {move / k:+.2f} m along the camera's {axis} axis would explain; the "
+                 f"block's own estimate of one is {est:+.2f} +- {est_sd:.2f} m")
+        if abs(est - move / k) > PP_MOVE_SIGMAS * est_sd and abs(est) <= PP_MOVE_SIGMAS * est_sd:
+            text += ": no offset there, the move is the camera's own"
+    return text
 
 
 def _strip_shift_fields(pg, flags: list[str]) -> dict | None:

@@ -116,8 +116,11 @@ def _frames(images_dir: Path) -> ImageFiles:
 
 
 def _sizes(frames: ImageFiles) -> dict[tuple[int, int], list[str]]:
-    """Image size (width, height) -> the ids of the frames of that size (from the file headers)."""
+    """Image size (width, height) -> the ids of the frames of that size (from the file headers); a frame cut short
+    stops here, named (its camera and GNSS tags may be what is missing)."""
     import rasterio
+
+    from aerotri.geom.images import check_not_truncated
 
     out: dict[tuple[int, int], list[str]] = {}
     for image_id, path in frames.pairs():
@@ -127,6 +130,7 @@ def _sizes(frames: ImageFiles) -> dict[tuple[int, int], list[str]]:
             with rasterio.open(path) as ds:
                 size = (ds.width, ds.height)
                 dtype, crs = ds.dtypes[0], ds.crs
+                check_not_truncated(ds, path)
         except (rasterio.errors.RasterioIOError, OSError) as exc:
             raise InputError(f"{path}: cannot read the image ({exc})") from None
         if dtype.startswith("float"):  # (new-user trial: ODM's DSM folder linked as a block of 1 frame)

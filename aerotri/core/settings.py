@@ -114,14 +114,16 @@ def _describe(cons: Constraints) -> str:
 
 
 def check_value(value, cons: Constraints, where: str) -> None:
-    """Range and choice checks of one (scalar) value; ``ConfigError`` naming ``where``."""
+    """Range and choice checks of one (scalar) value; ``ConfigError`` naming ``where`` (empty: the value alone,
+    for an option's element, whose option click names)."""
+    what = f"{where} = {value!r}" if where else repr(value)
     if cons.choices is not None and value not in cons.choices:
-        raise ConfigError(f"{where} = {value!r}: expected {_describe(cons)}")
+        raise ConfigError(f"{what}: expected {_describe(cons)}")
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         lo, hi = cons.min, cons.max
         if (lo is not None and (value < lo or (cons.min_open and value == lo))) or \
                 (hi is not None and (value > hi or (cons.max_open and value == hi))):
-            raise ConfigError(f"{where} = {value!r}: out of range, expected {_describe(cons)}")
+            raise ConfigError(f"{what}: out of range, expected {_describe(cons)}")
 
 
 def _convert(value, tp, cons: Constraints, where: str, base_dir):
@@ -407,7 +409,7 @@ def _comma_list(owner, name):
             raise click.BadParameter(f"{value!r}: expected comma-separated {what}", ctx=ctx, param=param) from None
         for v in items:
             try:
-                check_value(v, cons, repr(v))
+                check_value(v, cons, "")
             except ConfigError as exc:
                 raise click.BadParameter(f"{exc} (a comma-separated list)", ctx=ctx, param=param) from None
         return items

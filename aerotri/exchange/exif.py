@@ -51,7 +51,7 @@ from aerotri.core.project import Project
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, to_project_crs
 from aerotri.geom.camera import BrownCamera
 from aerotri.geom.eo import ExteriorOrientations, GnssPositions
-from aerotri.geom.images import IMAGE_SUFFIXES
+from aerotri.geom.images import IMAGE_SUFFIXES, check_not_truncated
 from aerotri.geom.rotation import FLIP_YZ, opk_from_matrix
 
 log = logging.getLogger(__name__)
@@ -123,6 +123,7 @@ def read_tags(path) -> tuple[dict[str, str], dict[str, str]]:
 
     try:
         with rasterio.open(path) as ds:
+            check_not_truncated(ds, path)  # cut in its header, a frame's tags are missing, not absent
             exif = {k: v for k, v in ds.tags().items() if k.startswith("EXIF_")}
             xmp = ds.tags(ns="xml:XMP") if "xml:XMP" in (ds.tag_namespaces() or []) else {}
             size = (ds.width, ds.height)

@@ -141,6 +141,18 @@ def _tiff_data_end(ds) -> int | None:
     return end
 
 
+def check_not_truncated(ds, path) -> None:
+    """Refuse a TIFF frame whose block table points past the file's end (a copy that stopped), naming it: GDAL opens
+    one cut inside its header too, and the EXIF reader then found "no camera in the EXIF" (Tuniu trial)."""
+    path = Path(path)
+    end = _tiff_data_end(ds)
+    held = path.stat().st_size
+    if end is not None and end > held:
+        raise InputError(f"{path}: truncated: its last block of pixels ends at byte {end:,} but the file holds "
+                         f"{held:,} bytes (a copy that stopped?); copy it again, or take it out of "
+                         f"{path.parent.name}/ (and its line out of gnss.txt) to go on without it")
+
+
 def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.toml") -> None:
     """Every frame is a readable image file of the camera's size, with the bands and sample type of the
     first frame, checked from the file headers before any work (a folder, an unreadable file, a TIFF cut short, a
@@ -156,15 +168,10 @@ def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.
         try:
             with _open_raster(path) as ds:
                 size, layout = (ds.width, ds.height), (ds.count, ds.dtypes[0])
-                end = _tiff_data_end(ds)
+                check_not_truncated(ds, path)
         except (rasterio.errors.RasterioIOError, OSError) as exc:
             raise InputError(f"{path}: cannot read the image ({exc}); replace it, or take it out of "
                              f"{path.parent.name}/ (and its line out of gnss.txt) to go on without it") from None
-        held = path.stat().st_size
-        if end is not None and end > held:
-            raise InputError(f"{path}: truncated: its last block of pixels ends at byte {end:,} but the file holds "
-                             f"{held:,} bytes (a copy that stopped?); copy it again, or take it out of "
-                             f"{path.parent.name}/ (and its line out of gnss.txt) to go on without it")
         if size != (camera.width, camera.height):
             raise InputError(f"{path}: image is {size[0]} x {size[1]} px but {camera_source} says "
                              f"{camera.width} x {camera.height} px")

@@ -171,3 +171,8 @@ def test_the_extended_share_and_where_are_said(tiny_project, tmp_path, caplog):
         tags = ds.tags()
     assert float(tags["CELLS_EXTRAPOLATED_PERCENT"]) == pytest.approx(share, abs=0.05)
     assert "north" in tags["EXTRAPOLATION"] and len(tags["EXTENDED_BEYOND_NESW_M"].split()) == 4
+    # the advice names --min-rays 2 only to a user who has not given it (Tuniu trial: advised while given)
+    assert "or --min-rays 2," in r.output
+    r = CliRunner().invoke(ortho_main, ["dem", str(p), "--res-m", "6", "--min-rays", "2"])
+    assert r.exit_code == 0 and "is a flat continuation" in r.output, r.output
+    assert "--min-rays" not in r.output and "(a DEM from LiDAR reaches farther)" in r.output

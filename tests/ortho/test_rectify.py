@@ -207,8 +207,17 @@ def test_error_dem_does_not_cover_frame(project, tmp_path):
 
 
 def test_error_missing_dem(project, tmp_path):
+    """A mistyped --dem is named as not found, without the advice to "pass --dem" the user already followed
+    (Tuniu trial); the project's own DEM, missing, gets that advice."""
     r = CliRunner().invoke(main, ["rectify", str(project), "--dem", str(tmp_path / "nope.tif")])
-    assert r.exit_code == 2 and "DEM not found" in r.output
+    assert r.exit_code == 2 and "nope.tif: DEM not found" in r.output
+    assert "pass --dem" not in r.output and "lidarctl" not in r.output
+    p = tmp_path / "p"
+    shutil.copytree(project, p, ignore=shutil.ignore_patterns("ortho", "dem.tif"))
+    r = CliRunner().invoke(main, ["rectify", str(p)])
+    assert r.exit_code == 2 and "dem.tif: DEM not found" in r.output
+    assert "lidarctl rasters" in r.output and "pass --dem" in r.output
+    assert not (p / "ortho").exists()
 
 
 def test_a_true_ortho_without_a_dem_says_it_needs_one(project, tmp_path):

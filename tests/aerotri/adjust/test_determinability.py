@@ -516,6 +516,16 @@ def test_the_principal_point_against_the_gnss_states_what_it_names():
                                                "but the block finds a GNSS position offset along the camera's y axis")
     assert "a finding of the GNSS" in out[0] and "v0 moved" not in out[0]
     assert effect == pytest.approx(0.1) and "the offset named, -0.50 m, moves the tie points by 0.100 m" in out[0]
+    # Tuniu with --self-cal pp: v0 flagged by the GNSS's finding while u0 moved, and the user read a flag of v0 alone
+    # as the wrong axis; u0's move is stated, and that the block finds no x offset to explain it
+    moved_u0 = cal.copy()
+    moved_u0[3] = 510.0  # +2 px from the a-priori 512 is -2 px here: 510 - 512
+    out, effect = _pp_gnss_reasons(PrincipalPointGnss(**base, offset_estimate_m=np.array([0.0, -0.5]),
+                                                      offset_sigma_m=np.array([0.02, 0.05])), moved_u0, cal, cov)
+    assert len(out) == 2 and out[0].startswith("v0 did not move") and effect == pytest.approx(0.1)
+    assert out[1] == ("u0 moved -2.0 px (10.0 standard deviations), which a GNSS offset of -0.20 m along the camera's "
+                      "x axis would explain; the block's own estimate of one is +0.00 +- 0.02 m: no offset there, the "
+                      "move is the camera's own")
 
 
 def test_per_strip_offsets_that_disagree_name_gnss_strip_shifts_not_the_camera():

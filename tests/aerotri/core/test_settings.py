@@ -295,3 +295,15 @@ def test_from_table_names_a_refused_key_by_the_source_that_gave_it():
         from_table(Flight, {"strips": 3, "speed_mps": 0.5}, "p.toml [flight]", sources=given)
     assert str(exc.value).startswith("p.toml [flight] speed_mps = 0.5: out of range")
     assert from_table(Flight, {"strips": 3}, "p.toml [flight]", sources=given) == Flight(strips=3)
+
+
+def test_a_bad_element_of_a_comma_separated_option_is_named_once(tmp_path):
+    """Tuniu trial: `--self-cal --dem X` (the value forgotten) read "'--dem' = '--dem': expected one of ..."; the
+    element is now named once, and a list names the bad element only."""
+    p = _project(tmp_path)
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(p), "--self-cal", "--dem", "x.tif"])
+    assert r.exit_code == 2
+    assert "Invalid value for '--self-cal': '--dem': expected one of focal, pp, radial, tangential" in r.output, r.output
+    assert "' = '" not in r.output
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(p), "--self-cal", "pp,foc"])
+    assert r.exit_code == 2 and "'foc': expected one of" in r.output and "' = '" not in r.output, r.output
