@@ -657,9 +657,16 @@ def _rectify_frame(task: FrameTask) -> dict:
                                     crowns, own=True)  # (the occluder above is this frame's)
     # the ground the frame images (its border rays on the DEM, as ``frame_grid``): the frame's grid, and (every
     # 4th ray: 16 a side) the ring in index.json by which the mosaic counts the empty cells no frame sees
+    # cut to where both the DEM and the rectification's heights reach (beyond either raster the ortho is nodata;
+    # the windows end at the rasters' edges)
+    within = dem.bounds
+    if heights is not dem:
+        a, b = within, heights.bounds
+        both = (max(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), min(a[3], b[3]))
+        within = both if both[0] < both[2] and both[1] < both[3] else within
     footprint = footprint_polygon_xy(task.camera, C, R, dem, to_project=to_project, image_id=task.image_id,
                                      per_side=64, partial=True, max_view_angle_deg=task.max_view_angle_deg,
-                                     min_cone_radius_m=task.res_m)
+                                     min_cone_radius_m=task.res_m, within_m=within)
     grid = grid_around_footprint(footprint, task.res_m, out_crs)
     image, band_order = _frame_image(task.image_path, (task.camera.width, task.camera.height))
     corners = 0 if task.frame_nodata else black_corners(image)  # (an undeclared collar: warned of by _rectify_into)

@@ -1218,8 +1218,9 @@ def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float,
     (``grid_around_footprint`` of its ``footprint_polygon_xy`` of 64 rays a side).
 
     ``partial``: border rays that miss the raster (a DEM covering part of the frame) count with their
-    point on the plane of the raster's mid height, so the grid holds the whole frame and the uncovered
-    part becomes nodata in the ortho; otherwise such a ray is an InputError. With ``max_view_angle_deg``
+    point on the plane of the raster's mid height, cut to the raster's bounds, so the grid holds what the raster
+    reaches of the frame and the uncovered part within it (nodata cells) becomes nodata in the ortho;
+    otherwise such a ray is an InputError. With ``max_view_angle_deg``
     the footprint is cut to the cone of rays within that angle of the vertical (at the raster's lowest
     height, where the cone is widest): an oblique frame's far field, which the ortho masks, takes no grid. The
     frame's rays over the earth (``intersect_rays_with_heights``) in ``to_project.project_crs``."""
@@ -1237,17 +1238,24 @@ def grid_around_footprint(ring: np.ndarray, res_m: float, output_crs) -> OrthoGr
 
 def footprint_polygon_xy(camera: Camera, centre_m, R, heights: HeightRaster, *, to_project: GridToProject,
                          image_id: str = "frame", per_side: int = 16, partial: bool = False,
-                         max_view_angle_deg: float = 90.0, min_cone_radius_m: float = 0.0) -> np.ndarray:
+                         max_view_angle_deg: float = 90.0, min_cone_radius_m: float = 0.0,
+                         within_m: tuple[float, float, float, float] | None = None) -> np.ndarray:
     """Footprint ring (N, 2) in output-CRS coordinates: the frame's border rays (``per_side`` a side) over the
     earth; ``partial`` and ``max_view_angle_deg`` as in ``frame_grid`` (a ray that misses the raster on the plane
     of its mid height; the ring cut to the cone of rays within that angle of the vertical, of at least
-    ``min_cone_radius_m``)."""
+    ``min_cone_radius_m``). With ``partial`` the ring is also cut to the box ``within_m`` (project CRS; default the
+    raster's bounds, which a window read ends at the raster's edge): beyond the raster the ortho is nodata whatever
+    the grid, and a grid reaching there made the mosaic count 12 % of a drone block "seen by no frame" beyond its DSM
+    (Tuniu trial). Nodata inside the raster stays in the ring: the mosaic counts it as ground no frame sees."""
     x, y = border_pixels(camera, per_side)
     zlo, zhi = heights.finite_range()
     g = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi), image_id=image_id,
                                     uncovered="plane" if partial else "raise", crs=to_project.project_crs)
     if partial:
-        g = g[0]
+        x0, y0, x1, y1 = heights.bounds if within_m is None else within_m
+        g = g[0].copy()
+        g[:, 0] = np.clip(g[:, 0], x0, x1)
+        g[:, 1] = np.clip(g[:, 1], y0, y1)
     if max_view_angle_deg < 90.0:
         r = max((float(centre_m[2]) - zlo) * math.tan(math.radians(max_view_angle_deg)), min_cone_radius_m)
         g = g.copy()

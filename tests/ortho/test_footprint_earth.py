@@ -96,3 +96,27 @@ def test_covered_share_sees_the_dem_edge_where_the_frame_does():
                        dem0.res_m, UTM49, "cut DEM")
     assert covered_share(DMC, C, R, dem, per_side=33) < 1.0
     assert covered_share(DMC, C, R, dem, per_side=33, crs=None) == 1.0
+
+
+def test_a_partly_covered_frame_s_grid_ends_where_the_heights_do():
+    """Tuniu trial: on a DSM ending inside the frames, their grids reached 28-45 m beyond it (rays missing the DSM put
+    on its mid plane) and the mosaic counted that margin as 12 % "seen by no frame". A DEM that ends at the nadir's
+    easting: the partial grid ends at its edge (plus the 2-cell pad), the frame's east edge is kept, nodata cells
+    inside a raster stay in the grid (the mosaic counts them as seen by no frame), and the grid over a whole DEM is
+    unchanged."""
+    res = 0.5
+    C = _centre(PRESETS_ORIGIN)
+    dem0 = _dem(C)
+    east = HeightRaster(dem0.heights_m[:, 160:].copy(), C[0], dem0.y_top_m, dem0.res_m, UTM49, "east DEM")
+    holed = dem0.heights_m.copy()
+    holed[:, :160] = np.nan
+    holed = HeightRaster(holed, dem0.x_left_m, dem0.y_top_m, dem0.res_m, UTM49, "DEM with nodata in its west")
+    kw = dict(to_project=GridToProject(UTM49, UTM49), partial=True)
+    whole = frame_grid(DMC, C, R, dem0, res, UTM49, **kw)
+    cut = frame_grid(DMC, C, R, east, res, UTM49, **kw)
+    assert whole.x_left_m < C[0] - 300.0  # the frame reaches far west of its nadir
+    assert C[0] - 2 * res - 1e-6 <= cut.x_left_m <= C[0] - res
+    assert cut.x_left_m + cut.width * res == pytest.approx(whole.x_left_m + whole.width * res)
+    assert (cut.y_top_m, cut.height) == (whole.y_top_m, whole.height)
+    assert frame_grid(DMC, C, R, holed, res, UTM49, **kw) == whole
+    assert frame_grid(DMC, C, R, dem0, res, UTM49, to_project=GridToProject(UTM49, UTM49)) == whole
