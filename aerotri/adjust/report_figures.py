@@ -405,12 +405,18 @@ def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
     bar = _map_axes(ax, o, extent)
     fig.colorbar(pc, ax=ax, shrink=0.8, label="tie observations per von Gruber area")
     n_weak = int(weak.sum())
-    ax.set_title(f"Von Gruber areas: tie observations per ninth of each frame ({n_weak} areas below {min_per_area})")
+    # the frames drawn smaller than their ground: said where the scale bar is read (Tuniu trial: frames of 150-300 m
+    # drawn 12 m across under a 20 m bar, taken for their size)
+    drawn_pct = f"{100 * shrink:.2g} %"
+    ax.set_title(f"Von Gruber areas: tie observations per ninth of each frame ({n_weak} areas below {min_per_area})\n"
+                 + (f"frames drawn at {drawn_pct} of their ground size about their centres; the scale bar is the map's"
+                    if shrink < 1.0 else "frames drawn at their ground size"), fontsize=10)
     return Figure("Von Gruber tie-point distribution",
                   "Each frame's nine areas where they lie on the ground, the frame shrunk about its centre so that "
-                  "neighbours do not overlap; red outline: "
+                  f"neighbours do not overlap (to {drawn_pct} of its size on the ground); red outline: "
                   f"fewer than {min_per_area} tie observations in that area.",
-                  f"colour = tie observations per area (colour bar); map scale bar {bar}", fig)
+                  f"colour = tie observations per area (colour bar); map scale bar {bar} (positions; frames at "
+                  f"{drawn_pct} of their size)", fig)
 
 
 _ID_SEPARATORS = "_-. "

@@ -40,6 +40,7 @@ import numpy as np
 
 from aerotri.core.atomic import refuse_input_as_output
 from aerotri.core.errors import InputError, OptionError
+from aerotri.core.log import counted
 from aerotri.core.project import Project
 from aerotri.exchange.commit import write_together
 from aerotri.geom.camera import Camera
@@ -395,4 +396,4 @@ def write_imported(root, block: ImportedBlock, format_name: str, overwrite: bool
         log.warning(note)
     log.debug(f"imported {', '.join(block.contents())} ({format_name}) from {', '.join(block.source)} into {project.root}")
     return written + [WrittenFile(path=str(record_path.relative_to(project.root)), holds="record of this import "
-                                  f"({len(written)} files)", count=1, source=format_name)]
+                                  f"({counted(len(written), 'file')} written)", count=1, source=format_name)]

@@ -50,6 +50,11 @@ def test_every_figure_has_its_scale_key(adjusted):
     (fk,) = _artists(frames.fig, QuiverKey)
     assert " um " in fk.text.get_text() and f"{fk.U:g} um" in frames.key
     assert _artists(figs["Von Gruber tie-point distribution"].fig, AnchoredOffsetbox)
+    # the frames are drawn shrunk: the key and the title say by how much, so the bar is not read as their size
+    vg = figs["Von Gruber tie-point distribution"]
+    pct = re.search(r"frames at ([0-9.]+) % of their size", vg.key)
+    assert pct and 0 < float(pct.group(1)) < 100, vg.key
+    assert f"frames drawn at {pct.group(1)} % of their ground size" in vg.fig.axes[0].get_title()
     assert any("von Gruber" in ax.get_ylabel() for ax in figs["Von Gruber tie-point distribution"].fig.axes)  # colour bar
     assert _artists(figs["Flight: footprints on the terrain"].fig, AnchoredOffsetbox)
     assert all("(m)" in ax.get_ylabel() for ax in figs["GNSS shift and drift per strip"].fig.axes if ax.get_ylabel())

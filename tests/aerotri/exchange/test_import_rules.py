@@ -75,7 +75,7 @@ def test_orientations_are_approximations_and_every_file_is_listed(exported, tmp_
         assert line in r.output.splitlines()
     eo_entry = next(f for f in entry["files"] if f["path"] == "imported/eo.txt")
     assert eo_entry["count"] == len(eo.image_id) and "approximate orientations" in eo_entry["holds"]
-    assert f"imported/imports.json: 1 record of this import ({len(paths)} files)" in r.output
+    assert f"imported/imports.json: 1 record of this import ({len(paths)} files written)" in r.output
 
 
 @pytest.mark.parametrize("fmt", [f for f in FORMATS if f != "opensfm"])

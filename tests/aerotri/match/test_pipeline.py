@@ -228,7 +228,7 @@ def test_weak_models_are_said_in_words(tiny_project, tmp_path):
     rep = json.loads((p / "at" / "connectivity.json").read_text())
     n = len(rep["models"])
     assert n >= 2 and len(rep["weak_models"]) == n
-    assert f"{n} of {n} stereo models (consecutive frames of a strip) are weak: fewer than 100000 tie points" in res.output
+    assert f"{n} of {n} stereo models (the pairs of consecutive frames of a strip, of all the pairs matched) are weak: fewer than 100000 tie points" in res.output
     left, right = rep["weak_models"][0]
     ties = next(m["ties"] for m in rep["models"] if (m["left"], m["right"]) == (left, right))
     assert f"  {left}-{right}: {ties} ties, under 100000 in every region" in res.output
