@@ -34,7 +34,10 @@ def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], strength) -> 
     sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, tmax))
     fig.colorbar(sm, ax=ax, label="tie points per pair")
     weak = sum(m.weak for m in strength.models)
-    ax.set_title(f"{len(plan.image_id)} frames, {len(pairs_ties)} pairs, {weak} weak models (red)")
+    # the plan's footprints, not the draped ones of the adjustment report (Tuniu trial: read as the frames' ground)
+    ax.set_title(f"{len(plan.image_id)} frames, {len(pairs_ties)} pairs, {weak} weak models (red)\n"
+                 "grey: footprints as planned for pairing (the frames' corners, approximate orientations, flat "
+                 "ground)", fontsize=10)
     ax.set_aspect("equal")
     ax.set_xlabel("X (m)")
     ax.set_ylabel("Y (m)")

@@ -32,6 +32,8 @@ def test_connectivity_plot_x_labels_do_not_overlap(tmp_path, monkeypatch):
     assert len(boxes) >= 3
     for a, b in zip(boxes, boxes[1:]):
         assert b.x0 - a.x1 > 0.3 * a.height, (a, b)  # a gap of a third of the text height at least
+    # the grey outlines are the pairing plan's, said so (Tuniu trial: compared with the report's draped footprints)
+    assert "footprints as planned for pairing" in ax.get_title()
     plt.close(fig)
 
 
