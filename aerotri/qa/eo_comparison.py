@@ -21,6 +21,7 @@ import numpy as np
 
 from aerotri.core.atomic import write_text_atomic
 from aerotri.core.errors import InputError
+from aerotri.core.log import counted
 from aerotri.core.project import Project
 from aerotri.geom.eo import ExteriorOrientations, read_eo
 from aerotri.geom.rotation import rotation_matrix_opk
@@ -164,11 +165,16 @@ def summary_lines(c: EoComparison) -> list[str]:
     if c.rms_normalised is not None:
         lines.append("  in the adjustment's sigmas (RMS): X Y Z " + " ".join(f"{v:.2f}" for v in c.rms_normalised[:3])
                      + ", omega phi kappa " + " ".join(f"{v:.2f}" for v in c.rms_normalised[3:]))
+        if max(c.rms_normalised) > 3.0:
+            # (Tuniu trial: 4.3 sigma in kappa against OpenSfM read as the adjustment's failure)
+            lines.append("  (the reference's own errors and model are not in these sigmas: about 1 is expected "
+                         "against truth or a reference far more precise; against another solution of the same frames "
+                         "(a peer's SfM, other self-calibration or weights) several sigmas are its difference too)")
     if c.missing:
-        lines.append(f"  not in the reference: {len(c.missing)} frames ({', '.join(c.missing[:5])}"
+        lines.append(f"  not in the reference: {counted(len(c.missing), 'frame')} ({', '.join(c.missing[:5])}"
                      + (" ..." if len(c.missing) > 5 else "") + ")")
     if c.extra:
-        lines.append(f"  only in the reference: {len(c.extra)} frames")
+        lines.append(f"  only in the reference: {counted(len(c.extra), 'frame')}")
     if c.note:
         lines.append(f"  note: {c.note}")
     return lines
