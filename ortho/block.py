@@ -57,7 +57,7 @@ from ortho.dem import (dem_height_operation, height_range, height_window, open_h
                        warn_zero_fill)
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from ortho.grid import GridToProject, OrthoGrid, nice_resolution, overview_factors, parse_crs, resolve_output_crs
-from ortho.rectify import (GROUND_NDSM_M, WINDOWED_FRAME_BYTES, FrameFile, border_pixels, covered_share,
+from ortho.rectify import (GROUND_NDSM_M, WINDOWED_FRAME_BYTES, FrameFile, border_pixels, frame_coverage,
                            footprint_polygon_xy, black_corners, declares_nodata, frame_validity, grid_around_footprint,
                            ground_flags, heights_on_grid, rectify_frame)
 from ortho.settings import FRAME_COMPRESSION, RectifySettings
@@ -376,17 +376,24 @@ def _frame_image(path, expect_size):
 
 
 def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent, crs) -> float:
-    """Share of the frame whose ground the height raster covers (``covered_share``): a warning naming the frame
-    and the share left as nodata when it is partial, an InputError naming the raster's extent when it is none."""
-    share = covered_share(task.camera, C, R, heights, crs=crs)
+    """Share of the frame whose ground the height raster covers (``frame_coverage``): a warning naming the frame
+    and the share left as nodata when it is partial, split into what lies beyond the raster's extent and what falls
+    on its nodata cells (Tuniu on ODM's DSM: the warning named the extent alone, while 9.8 % of the DSM is nodata
+    inside it); an InputError naming the raster's extent when it covers none."""
+    cover = frame_coverage(task.camera, C, R, heights, crs=crs, extent=extent)
+    share = cover.covered
     b = extent
     where = f"its extent: X {b[0]:.1f} .. {b[2]:.1f}, Y {b[1]:.1f} .. {b[3]:.1f} in the project CRS"
     if share == 0.0:
         raise InputError(f"{path}: the {what} covers none of frame {task.image_id} ({where}); give a {what} that "
                          f"covers the frame, or leave it out with --frames")
     if share < 1.0:
+        parts = [f"{100 * v:.1f} % {t}" for v, t in ((cover.beyond, "beyond its extent"),
+                                                      (cover.on_nodata, "on its nodata cells inside it"))
+                 if round(100 * v, 1) > 0]
         _log.warning(f"frame {task.image_id}: the {what} {path} covers {100 * share:.1f} % of it ({where}); "
-                     f"the other {100 * (1 - share):.1f} % is nodata in its ortho")
+                     f"the other {100 * (1 - share):.1f} % ({', '.join(parts) or 'at its edge'}) is nodata in its "
+                     "ortho")
     return share
 
 

@@ -1197,18 +1197,43 @@ def intersect_rays_with_heights(camera: Camera, centre_m, R, x_px, y_px, heights
     return (ground, covered) if uncovered == "plane" else ground
 
 
-def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: int = 33, crs=_HEIGHTS_CRS) -> float:
-    """Share of the frame (a ``per_side`` x ``per_side`` lattice of its pixels) whose rays meet the height
-    raster on valid heights (1.0: all of it; 0.0: none). ``crs``: as ``intersect_rays_with_heights``."""
+@dataclasses.dataclass(frozen=True)
+class FrameCoverage:
+    """Shares of a frame's pixels (a lattice) whose rays meet a height raster on valid heights (``covered``), and
+    whose rays miss it beyond the box ``extent`` given (``beyond``; the rest of the uncovered share falls on its
+    nodata cells inside it)."""
+
+    covered: float
+    beyond: float
+
+    @property
+    def on_nodata(self) -> float:
+        return max(0.0, 1.0 - self.covered - self.beyond)
+
+
+def frame_coverage(camera: Camera, centre_m, R, heights: HeightRaster, per_side: int = 33, crs=_HEIGHTS_CRS,
+                   extent=None) -> FrameCoverage:
+    """``FrameCoverage`` of the frame (a ``per_side`` x ``per_side`` lattice of its pixels) on the height raster;
+    ``extent`` (x0, y0, x1, y1, project CRS; default the raster's bounds) the box beyond which a miss counts as
+    ``beyond`` (the rays that miss on the plane of the raster's mid height). ``crs``: as
+    ``intersect_rays_with_heights``."""
     if not np.isfinite(heights.heights_m).any():
-        return 0.0
+        return FrameCoverage(0.0, 0.0)
     zlo, zhi = heights.finite_range()
     u = np.linspace(0.0, camera.width - 1.0, per_side)
     v = np.linspace(0.0, camera.height - 1.0, per_side)
     x, y = (a.ravel() for a in np.meshgrid(u, v))
-    _, covered = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi),
+    g, covered = intersect_rays_with_heights(camera, centre_m, R, x, y, heights, z_start_m=0.5 * (zlo + zhi),
                                              uncovered="plane", crs=crs)
-    return float(np.mean(covered))
+    x0, y0, x1, y1 = heights.bounds if extent is None else extent
+    outside = ~covered & ((g[:, 0] < x0) | (g[:, 0] > x1) | (g[:, 1] < y0) | (g[:, 1] > y1))
+    return FrameCoverage(float(np.mean(covered)), float(np.mean(outside)))
+
+
+def covered_share(camera: Camera, centre_m, R, heights: HeightRaster, per_side: int = 33, crs=_HEIGHTS_CRS) -> float:
+    """Share of the frame (a ``per_side`` x ``per_side`` lattice of its pixels) whose rays meet the height
+    raster on valid heights (1.0: all of it; 0.0: none). ``crs``: as ``intersect_rays_with_heights``."""
+    return frame_coverage(camera, centre_m, R, heights, per_side, crs).covered
 
 
 def frame_grid(camera: Camera, centre_m, R, heights: HeightRaster, res_m: float, output_crs, *,

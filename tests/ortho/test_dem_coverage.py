@@ -90,6 +90,14 @@ def test_a_partly_covered_frame_is_rectified_where_the_dem_is(full, tmp_path):
         assert t.f + (rows.max() + 0.5) * t.e > extent.bottom - 1.0  # no valid pixel south of the DEM
         assert abs(ratio - shares[frame]) < 0.1  # the ortho's valid share follows the covered share
     assert "%" in r.stderr and "nodata in its ortho" in r.stderr
+    # the shortfall is said to lie beyond the DEM's extent, none on its nodata (it has none)
+    for frame in ("s01_003", "s02_001"):
+        line = next(t for t in r.stderr.splitlines() if f"frame {frame}: the DEM" in t)
+        gone = 100 * (1 - shares[frame])
+        assert f"the other {gone:.1f} % ({gone:.1f} % beyond its extent) is nodata" in line, line
+        # the frame's grid ends at the DEM's southern edge (the 2-cell pad), not on the plane beyond it
+        with rasterio.open(project / f"ortho/frames/{frame}.tif") as ds:
+            assert ds.bounds.bottom >= extent.bottom - 3 * ds.res[0] - 1e-6  # (and the snap to whole cells)
 
 
 def test_a_frame_on_a_nodata_band_is_rectified_around_it(full, tmp_path):
@@ -107,7 +115,9 @@ def test_a_frame_on_a_nodata_band_is_rectified_around_it(full, tmp_path):
     partial = [e for e in index["frames"] if e["height_covered_share"] < 1.0]
     assert partial, "no frame over the nodata band"
     for e in partial:
-        assert f"frame {e['image_id']}: the DEM" in r.stderr
+        line = next(t for t in r.stderr.splitlines() if f"frame {e['image_id']}: the DEM" in t)
+        # inside the DEM's extent: the shortfall is its nodata, not beyond it
+        assert "% on its nodata cells inside it) is nodata" in line and "beyond its extent" not in line, line
         ratio, same, outside, _, _ = _compare_with_full(full, project, e["image_id"])
         assert same > 0.999 and outside == 0 and ratio < 1.0
 
