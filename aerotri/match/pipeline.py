@@ -18,6 +18,7 @@ from scipy.spatial import cKDTree
 from aerotri.core.atomic import committed, write_text_atomic
 from aerotri.core.errors import InputError
 from aerotri.core.executor import Executor, local_executor
+from aerotri.core.log import counted
 from aerotri.core.project import Project
 from aerotri.core.resume import ResumeFolder, file_stamp, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
@@ -502,7 +503,7 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
         report.seconds = round(time.perf_counter() - t0, 2)
         write_text_atomic(project.connectivity_path, json.dumps(dataclasses.asdict(report), indent=1) + "\n")
         log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
-                 f"observations, {report.components} component(s), {len(report.weak_models)} weak model(s) -> "
+                 f"observations, {counted(report.components, 'component')}, {counted(len(report.weak_models), 'weak model')} -> "
                  f"{project.tiepoints_path}")
         if len(components) > 1:  # (new-user trial s51: NGI without its terrain height; only `adjust` said so)
             parts = "; ".join(", ".join(c[:4]) + (f" and {len(c) - 4} more" if len(c) > 4 else "") for c in components)

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from aerotri.core.commands import Command
+from aerotri.core.log import counted
 
 
 @click.command(cls=Command, name="merge")
@@ -22,4 +23,4 @@ def merge(strips, out_path, crs):
     from lidarctl.merge import merge_las
 
     n = merge_las(strips, out_path, crs=parse_crs(crs, "--crs") if crs else None)
-    click.echo(f"{out_path}: {n} points from {len(strips)} strip(s)")
+    click.echo(f"{out_path}: {n} points from {counted(len(strips), 'strip')}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from aerotri.core.commands import Command, FiniteFloatRange, at_least, positive
+from aerotri.core.log import counted
 from aerotri.core.settings import click_option, resolve
 from lidarctl.terrain.hydro import HydroSettings
 
@@ -33,7 +34,7 @@ def smooth(*, dem_path, out_path, order, edge_m, iterations, step, window_px):
     params = DiffusionSettings(order=order, edge_m=edge_m or (1.0 if order == 4 else 0.5),
                                iterations=iterations or (100 if order == 4 else 20), step=step)
     r = smooth_dem(dem_path, out_path, params, window_px)
-    click.echo(f"{r.path}: {r.valid_cells:,} of {r.cells:,} cells smoothed ({r.windows} window(s)); "
+    click.echo(f"{r.path}: {r.valid_cells:,} of {r.cells:,} cells smoothed ({counted(r.windows, 'window')}); "
                f"changes RMS {r.rms_change_m:.3f} m, max {r.max_change_m:.3f} m")
 
 

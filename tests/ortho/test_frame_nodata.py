@@ -103,7 +103,7 @@ def test_a_collar_not_declared_is_warned_of(clean, tmp_path):
     _with_collar(root, "undeclared")
     r = CliRunner().invoke(main, ["rectify", str(root)])
     assert r.exit_code == 0, r.output
-    assert "4 frame(s) (s01_001, s01_002, s02_001, s02_002) have a corner black" in r.stderr, r.stderr
+    assert "4 frames (s01_001, s01_002, s02_001, s02_002) have a corner black" in r.stderr, r.stderr
     assert "rio edit-info --nodata 0" in r.stderr
     plain = tmp_path / "q"
     shutil.copytree(clean, plain)

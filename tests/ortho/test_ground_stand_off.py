@@ -60,7 +60,7 @@ def test_rectify_warns_once_when_the_dsm_stands_off_the_dem(block, dz_m):
         assert "stands" not in r.stderr, r.stderr
     else:
         assert r.stderr.count("stands 2.00 m above the DEM") == 1, r.stderr
-        assert "2 of 2 frame(s)" in r.stderr and "vertical datum offset" in r.stderr, r.stderr
+        assert "2 of 2 frames" in r.stderr and "vertical datum offset" in r.stderr, r.stderr
 
 
 @pytest.mark.parametrize("crop_m, spread_m", [(0.9, 0.1), (2.5, 0.3)])
