@@ -1182,8 +1182,9 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
         one = len(collared) == 1
         _log.warning(f"{counted(len(collared), 'frame')} ({', '.join(collared[:5])}{', ...' if len(collared) > 5 else ''}) "
                      f"{'has' if one else 'have'} a corner black in every band and {'declares' if one else 'declare'} no "
-                     "nodata value or mask: a collar? It was rectified as picture (black in the orthos and the mosaic); declare it (rio edit-info --nodata 0 FRAME, or "
-                     "gdal_edit.py -a_nodata 0 FRAME) and rectify again")
+                     "nodata value or mask: a collar? It was rectified as picture (black in the orthos and the "
+                     "mosaic); declare it (rio edit-info --nodata 0 FRAME, or gdal_edit.py -a_nodata 0 FRAME) and "
+                     "rectify again")
     _warn_ground_stand_off({e["image_id"]: e.pop("ground_stand_off") for e in entries if "ground_stand_off" in e},
                            len(entries), dsm_path, dem_path)
     return {
