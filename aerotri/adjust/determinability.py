@@ -453,7 +453,9 @@ def _other_axis_words(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.
     if not (sd > 0 and abs(move) > sd):
         return ""
     text = f"{name} moved {move:+.1f} px ({abs(move) / sd:.1f} standard deviations)"
-    k, est, est_sd = float(pg.px_per_m[a, a]), float(pg.offset_estimate_m[a]), float(pg.offset_sigma_m[a])
+    strip_sd = strip_shift_test(pg)  # the sigma the judgement took (with the strips' scatter where they disagree)
+    k, est = float(pg.px_per_m[a, a]), float(pg.offset_estimate_m[a])
+    est_sd = float(pg.offset_sigma_m[a] if strip_sd is None else strip_sd[a])
     if k != 0 and math.isfinite(est) and math.isfinite(est_sd) and est_sd > 0:
         text += (f", which a GNSS offset of {move / k:+.2f} m along the camera's {axis} axis would explain; the "
                  f"block's own estimate of one is {est:+.2f} +- {est_sd:.2f} m")
