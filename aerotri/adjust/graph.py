@@ -563,6 +563,8 @@ def _gauss_newton(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Values, int, bo
 # Marquardt damping of the reduced system, relative to diag(N): first value, floor, and the value at which
 # no step lowers the cost (gtsam's LM: 1e-5, 0, 1e5)
 LAMBDA_FIRST, LAMBDA_MIN, LAMBDA_MAX = 1e-6, 1e-9, 1e6
+# at the iteration limit, a solve whose last step lowered the cost by at most this share of it has converged
+LIMIT_RELATIVE_TOLERANCE = 1e-6
 
 
 def _key_diagonal(gfg: gtsam.GaussianFactorGraph) -> dict:
@@ -644,7 +646,7 @@ def _schur_levenberg_marquardt(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Va
     cost = gr.reduced_cost(values, coords)
     if gr.datum is not None:
         values, coords, cost = _datum_step(gr, values, coords, cost)
-    lam = 0.0
+    lam, previous = 0.0, np.inf
     for it in range(1, opts.max_iterations + 1):
         gfg, rs = gr.linearize_reduced(values, coords)
         tp.pose_information = np.array(rs.U)  # a copy: the workspace is overwritten by the next linearisation
@@ -681,7 +683,10 @@ def _schur_levenberg_marquardt(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Va
             values, coords, cost = _datum_step(gr, values, coords, cost)
         if previous - cost <= tol * previous:
             return values, coords, it, True, 2.0 * cost
-    return values, coords, opts.max_iterations, False, 2.0 * cost
+    # stopped by the iteration limit: converged if the last step no longer lowered the cost noticeably, as the gtsam
+    # path judges it (the kite block with 4 of its 10 targets as check points: damped steps along a flat valley, the
+    # cost 8624.69 lowered by 7e-8 of it per step, 0.19 over 100 steps, was "Solution failed")
+    return values, coords, opts.max_iterations, previous - cost <= LIMIT_RELATIVE_TOLERANCE * previous, 2.0 * cost
 
 
 def optimize(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Values, SolveInfo]:
@@ -721,7 +726,7 @@ def _optimize(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Values, SolveInfo]:
                     # stopped by the iteration limit: converged if one more step no longer reduces the error noticeably
                     e0 = opt.error()
                     opt.iterate()
-                    converged = e0 - opt.error() <= 1e-6 * e0
+                    converged = e0 - opt.error() <= LIMIT_RELATIVE_TOLERANCE * e0
                     result = gtsam.Values(opt.values())
     except RuntimeError as exc:
         raise SolveError(
