@@ -351,6 +351,17 @@ def _cut_in_its_header(images, out, name):
         pass
 
 
+def _jpeg_frames_one_cut(images, out, name):
+    """The frames as JPEG (OpenCV), ``name``'s cut at 38 % of its bytes (kite trial: a copy that stopped)."""
+    import cv2
+
+    out.mkdir()
+    for tif in sorted(images.glob("*.tif")):
+        cv2.imwrite(str(out / (tif.stem + ".jpg")), cv2.imread(str(tif), cv2.IMREAD_COLOR))
+    q = out / name
+    q.write_bytes(q.read_bytes()[: int(q.stat().st_size * 0.38)])
+
+
 def patch_bytes(rel, offset, data):
     def f(w):
         q = w / rel
@@ -687,6 +698,9 @@ CASES = [
     C("init_image_cut_in_its_header", "aerotri", "init {w}/new --images {w}/cut --crs EPSG:32649",
       ["s01_002.tif", "truncated", "2,000 bytes"],
       lambda w: _cut_in_its_header(w / "p/images", w / "cut", "s01_002.tif")),
+    C("init_jpeg_cut_short", "aerotri", "init {w}/new --images {w}/jpg --crs EPSG:32649",
+      ["s01_002.jpg", "truncated", "end-of-image marker"],
+      lambda w: _jpeg_frames_one_cut(w / "p/images", w / "jpg", "s01_002.jpg")),
     C("init_crs_geographic", "aerotri", "init {w}/new --images {p}/images --crs EPSG:4326", "--crs"),
     C("init_crs_unknown", "aerotri", "init {w}/new --images {p}/images --crs EPSG:999999", "--crs"),
     C("init_into_a_project", "aerotri", "init {p} --images {p}/images --crs EPSG:32649", ["exists", "not an empty"]),

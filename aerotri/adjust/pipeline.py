@@ -305,6 +305,7 @@ class ProjectInputs:
     model_heights: ModelHeights = dataclasses.field(default_factory=ModelHeights)  # of the control, in the image model
     control_rays_left_out: tuple = ()  # (point, frame, px): blunders by the image model alone (relative.ray_blunders)
     control_held_out: tuple = ()  # ids the datum's robust similarity left out: the adjustment's first rejected
+    unoriented: tuple = ()  # frames the images could not orient (no GNSS, no given orientations): left out
 
 
 @dataclasses.dataclass
@@ -335,6 +336,10 @@ class PreparedBlock:
     gnss_left_out: tuple = ()  # GnssLeftOut: positions off their flight line, not observed (weight 0)
 
 
+UNORIENTED_REASON = ("the images could not orient them (pycolmap's relative orientation registered no pose from their "
+                     "tie points: too few or wrong matches, or a damaged image)")
+
+
 def read_inputs(project: Project, settings: AdjustSettings | None = None) -> ProjectInputs:
     """Read and cross-check the adjustment's inputs (InputError/ConfigError naming file and record)."""
     crs = check_block_crs(project.crs, f"{project.config_path} [project] crs")
@@ -345,7 +350,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     control, cobs = read_project_control(project, st, crs)
     # orientation source: GNSS (with given approximate EO, if any) or given approximate EO alone
     gnss = eo0 = None
-    notes, model_heights, rays_out, held_out = [], ModelHeights(), (), ()
+    notes, model_heights, rays_out, held_out, unoriented = [], ModelHeights(), (), (), ()
     if st.use_gnss and not project.gnss_path.exists() and ("gnss" in project.config or st.gnss_correction != "none"):
         # trial-scale: gnss.txt deleted, project.toml's [gnss] and gnss_correction = "shift_drift" in place, and the
         # block adjusted without GNSS, "Solution Successful", only report.txt's "Given EO/GPS: Disabled" telling it
@@ -367,6 +372,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
         ap, ties, control, cobs, note = _image_approximations(project, cam, ties, control, cobs, crs)
         eo0, model_heights, rays_out = ap.eo, ap.control_heights(control), ap.datum.left_out_rays
         held_out = tuple(p for p, _ in ap.datum.rejected)
+        unoriented = tuple(ap.relative.unregistered)
         image_ids, approx_pos_map, block_path = list(eo0.image_id), eo0.centre_m, project.tiepoints_path
         notes.append(note)
     _check_control_near_block(control, approx_pos_map, project.control_points_path, block_path, crs)
@@ -384,7 +390,7 @@ def read_inputs(project: Project, settings: AdjustSettings | None = None) -> Pro
     return ProjectInputs(project=project, settings=st, camera=cam, ties=ties, control=control, control_obs=cobs,
                          image_ids=image_ids, approx_position_map=approx_pos_map, gnss=gnss, initial_eo=eo0,
                          gnss_sigma_m=gnss_sigma, datum_notes=notes, model_heights=model_heights,
-                         control_rays_left_out=rays_out, control_held_out=held_out)
+                         control_rays_left_out=rays_out, control_held_out=held_out, unoriented=unoriented)
 
 
 def _image_approximations(project: Project, cam, ties: ImageObservations, control: ControlPoints,
@@ -705,6 +711,11 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
     row_of = {k: i for i, k in enumerate(inp.image_ids)}
     for lo in ob.left_out:
         lo.position_map = inp.approx_position_map[[row_of[k] for k in lo.image_ids]]
+    if inp.unoriented:
+        # in the report's left-out parts, which the ortho stages skip by name (kite trial: `ortho rectify` refused
+        # the 3 frames pycolmap had dropped, "no exterior orientation", and said nothing of why)
+        ob = dataclasses.replace(ob, left_out=[LeftOutComponent(list(inp.unoriented), UNORIENTED_REASON)]
+                                 + ob.left_out)
     ctrl_used = ctrl_used.subset(np.isin(ctrl_used.id, list(ob.control_position)))  # without left-out parts'
     approx_pos_map = inp.approx_position_map[ob.order]
     gnss = inp.gnss

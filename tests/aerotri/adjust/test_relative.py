@@ -110,6 +110,34 @@ def test_block_without_gnss_is_oriented_from_its_images(no_gnss_block, tmp_path)
     assert np.abs(ba.eo_map.centre_m - read_eo(root / "at" / "eo.txt").centre_m).max() < 1e-3
 
 
+def test_a_frame_the_images_cannot_orient_is_a_left_out_part_of_the_report(no_gnss_block, tmp_path):
+    """Kite trial: the frames pycolmap could not orient were dropped from the adjustment without a record, and
+    `ortho rectify` then refused them ("no exterior orientation"); they are now a left-out part of the report, which
+    the ortho stages skip by name. The last frame's tie measurements scrambled (matches that agree with no
+    geometry): the rest of the block is adjusted."""
+    block, src = no_gnss_block
+    root = _copy(src, tmp_path / "p")
+    path = root / "at" / "tiepoints.csv"
+    rows = _rows(path)
+    last = sorted({r["image_id"] for r in rows})[-1]
+    rng = np.random.default_rng(3)
+    for r in rows:
+        if r["image_id"] == last:
+            r["x_px"], r["y_px"] = (f"{v:.2f}" for v in rng.uniform(0, 7000, 2))
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--image-sigma-px", str(SIGMA_PX), "--no-exports",
+                                         "--no-html"])
+    assert r.exit_code == 0, r.output
+    assert "pycolmap could not orient 1 of 10 frames" in r.output and last in r.output
+    rep = json.loads((root / "at" / "report.json").read_text())
+    (part,) = rep["components"]["left_out"]
+    assert part["images"] == [last] and "could not orient" in part["reason"]
+    assert last not in read_eo(root / "at" / "eo.txt").image_id
+
+
 def _plan_only(root):
     rows = _rows(root / "control" / "points.csv")
     with open(root / "control" / "points.csv", "w", newline="") as f:
