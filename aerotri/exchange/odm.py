@@ -10,8 +10,8 @@ height). Then one line per image measurement, separated by blanks or tabs::
 Pixel coordinates: OpenSfM, which consumes the file for ODM, normalises them with
 ``(x + 0.5 - width / 2) / max(width, height)``: pixel centres at integers, the origin at the centre of the
 top-left pixel, as ours; they are taken and written unchanged. A point without ``gcp_name`` is named by
-its coordinates (OpenSfM groups measurements by (x, y, z)): ``gcp1``, ``gcp2``, ... in order of first
-appearance. ``geo_z`` NaN (OpenSfM: no altitude) makes the point a horizontal control point. The file
+its coordinates (OpenSfM groups measurements by (x, y, z)): the named point at the same coordinates, else
+``gcp1``, ``gcp2``, ... in order of first appearance (past the names the file uses). ``geo_z`` NaN (OpenSfM: no altitude) makes the point a horizontal control point. The file
 carries no accuracies: ``--sigma-xyz-m`` gives them (required).
 
 Control as measured: a file whose heights are all 0 (or all the same number) has heights nobody measured (ODM
@@ -32,6 +32,7 @@ its EPSG code, else its PROJ string).
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from pathlib import Path
@@ -45,6 +46,8 @@ from aerotri.core.point_ids import point_id_key
 from aerotri.exchange.import_checks import unmeasured_heights
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, control_sigma_m, to_project_crs
 from aerotri.geom.observations import ControlPoints, ImageObservations, check_distinct_points
+
+_log = logging.getLogger(__name__)
 
 _UTM = re.compile(r"^WGS84\s+UTM\s+(\d{1,2})\s*([NS]?)$", re.IGNORECASE)
 
@@ -79,6 +82,18 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
     by_xyz: dict[tuple, str] = {}
     spelled: dict[str, str] = {}  # point_id_key -> the id as first written
     obs = []
+    # the named points by their coordinates: a line without a name at one's coordinates is that point, as OpenSfM
+    # groups lines by coordinates (kite trial: such a line became an 11th point "gcp1" on gcp09's coordinates)
+    named = {}
+    for _, s in body[1:]:
+        parts = s.split()
+        if len(parts) > 6:
+            try:
+                x, y, z = (float(v) for v in parts[:3])
+            except ValueError:
+                continue  # refused below, with its line
+            named.setdefault((x, y, z if math.isfinite(z) else None), parts[6])
+    taken = {point_id_key(n) for n in named.values()}
     for lineno, s in body[1:]:
         parts = s.split()
         if len(parts) < 6:
@@ -92,7 +107,20 @@ def read_gcp_list(path) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[s
             raise InputError(f"{path}:{lineno}: NaN or infinite coordinate in {s!r} (only geo_z may be NaN: no height)")
         xyz = np.array([x, y, z])
         key = (x, y, z if math.isfinite(z) else None)
-        pid = parts[6] if len(parts) > 6 else by_xyz.setdefault(key, f"gcp{len(by_xyz) + 1}")
+        if len(parts) > 6:
+            pid = parts[6]
+        elif key in named:
+            pid = named[key]
+            _log.warning(f"{path}:{lineno}: no gcp_name: taken as point {pid!r}, whose coordinates it has (as OpenSfM "
+                         "groups the lines)")
+        else:
+            if key not in by_xyz:  # gcp1, gcp2, ... in order of first appearance, past the names the file uses
+                k = len(by_xyz) + 1
+                while point_id_key(f"gcp{k}") in taken:
+                    k += 1
+                by_xyz[key] = f"gcp{k}"
+                taken.add(point_id_key(by_xyz[key]))
+            pid = by_xyz[key]
         # one point however its name is spelled ("gcp01" and "GCP01 ": ids match as the report matches them,
         # point_id_key); two spellings were two control points of one ray each (trial-messy F16)
         written = pid

@@ -175,6 +175,25 @@ def test_crs_lines_and_unnamed_points(tmp_path):
     assert list(o.point_id) == ["gcp1", "gcp1", "gcp2"] and list(o.image_id) == ["a", "b", "a"]
 
 
+def test_a_line_without_a_name_at_a_named_point_s_coordinates_is_that_point(tmp_path):
+    """Kite trial: a line whose gcp_name was lost, at gcp09's coordinates, became an 11th point 'gcp1' without a word.
+    It is gcp09 (as OpenSfM groups lines by their coordinates), said on the console naming the line; a nameless line
+    at new coordinates is named past the names the file uses (here 'gcp1' is one: 'gcp2')."""
+    f = tmp_path / "gcp_list.txt"
+    f.write_text("EPSG:32611\n235269.88 3811198.11 12.5 10 20 a.jpg gcp09\n"
+                 "235269.88 3811198.11 12.5 30 40 b.jpg\n235262.54 3811203.5 11.0 50 60 a.jpg gcp1\n"
+                 "235250.00 3811210.0 11.0 70 80 b.jpg\n")
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    r = CliRunner().invoke(aerotri_cli, ["import", str(root), "--format", "odm", str(f), "--sigma-xyz-m", "0.1", "0.1",
+                                         "0.2"])
+    assert r.exit_code == 0, r.output
+    assert "gcp_list.txt:3: no gcp_name: taken as point 'gcp09'" in r.output
+    c = read_control_points(root / "control" / "points.csv")
+    assert list(c.id) == ["gcp09", "gcp1", "gcp2"]
+    o = read_image_points(root / "control" / "image_points.csv")
+    assert list(o.point_id) == ["gcp09", "gcp09", "gcp1", "gcp2"]
+
+
 def test_one_point_spelled_two_ways_is_one_control_point(tmp_path):
     """Trial-messy F16: 'gcp01' on one line and 'GCP01' on another were two control points of one ray each at the same
     coordinates (the report counted 5 control points for 4 targets). Ids match as the report matches them (case, a
