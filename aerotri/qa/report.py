@@ -32,7 +32,7 @@ from aerotri.control.layout import empty_target_text
 from aerotri.control.pipeline import read_control_transfer
 from aerotri.core.atomic import atomic_path, write_text_atomic
 from aerotri.core.errors import ConfigError, InputError, OptionError, StageOrderError
-from aerotri.core.textio import read_record
+from aerotri.core.textio import read_json, read_record
 from aerotri.core.project import Project
 from aerotri.core.records import to_record
 from aerotri.core.figures import pyplot
@@ -920,6 +920,21 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                            note=f"{', '.join(changed)} "
                                 + ("changed since the adjustment (not the content at/report.json records)"
                                    if by_content else "written after at/report.json") + ": adjust again"))
+    failed = project.work_dir / "adjust_failed" / "report.json"
+    if at and failed.is_file() and failed.stat().st_mtime > project.adjustment_report_path.stat().st_mtime:
+        # kite trial: an adjustment with other check points failed after this one, and the report gave the earlier
+        # one's check points and figures without a word
+        why = ""
+        try:
+            message = str(read_json(failed, "failed adjustment report").get("key_statistics", {}).get("message", ""))
+            why = message.split(". ")[0].rstrip(".")  # its first sentence: "Solution failed: ..."
+        except (InputError, AttributeError):
+            pass
+        log.warning(f"{failed}: a later adjustment failed ({why or 'its report there'}); this report's adjustment "
+                    f"figures are of the one before it ({project.adjustment_report_path})")
+        rows.append(_check("adjustment_latest", sec, "the latest adjustment is the one reported", False, True, "",
+                           note=f"a later one failed ({failed.parent}/report.txt"
+                                + (f": {why}" if why else "") + "); these figures are of the one before"))
     if at and not at.heights_measured:
         # trial-kite: the consolidated report said nothing of heights nobody measured (at/report.txt's DATUM did)
         rows.append(_check("heights_measured", sec, "heights measured", "no", None, "",

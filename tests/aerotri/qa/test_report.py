@@ -552,6 +552,27 @@ def test_control_written_after_the_adjustment_fails_the_row_it_reports(tmp_path,
     assert not out.has("adjustment_current") and out.check("heights_measured").value == "no"
 
 
+def test_a_later_failed_adjustment_fails_the_row_it_reports(tmp_path):
+    """Kite trial: `aerotri adjust --check` with other check points failed (work/adjust_failed/), and `aerotri report`
+    gave the earlier adjustment's check points and figures without a word. A failed report newer than at/report.json:
+    a failing row naming it and its first sentence; an adjustment made after it: no row."""
+    import os
+
+    p = _project(tmp_path, [0.3, 0.2, 1.5], 0.45)
+    assert not write_qa_report(p).has("adjustment_latest")
+    failed = p / "work" / "adjust_failed" / "report.json"
+    failed.parent.mkdir(parents=True)
+    failed.write_text(json.dumps({"key_statistics": {"message": "Solution failed: the last solve did not converge. "
+                                                                "Weak geometry: ..."}}))
+    made = (p / "at" / "report.json").stat().st_mtime_ns
+    os.utime(failed, ns=(made + 10**9, made + 10**9))
+    row = write_qa_report(p).check("adjustment_latest")
+    assert row.verdict == "fail" and "a later one failed" in row.note, row.note
+    assert "Solution failed: the last solve did not converge)" in row.note and "Weak geometry" not in row.note
+    os.utime(p / "at" / "report.json", ns=(made + 2 * 10**9, made + 2 * 10**9))  # adjusted again since
+    assert not write_qa_report(p).has("adjustment_latest")
+
+
 def _adjusted_with_inputs(tmp_path):
     """A project whose at/report.json records its inputs (``record_inputs``, as ``aerotri adjust`` writes it)."""
     from aerotri.adjust.report_record import record_inputs
