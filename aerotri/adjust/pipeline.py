@@ -192,6 +192,25 @@ def _empty_control():
             ImageObservations(np.zeros(0, dtype=object), np.zeros(0, dtype=object), np.zeros((0, 2))))
 
 
+def _known_ids(ids, control: ControlPoints, path, option: str) -> list[str]:
+    """The ids given with ``option`` as the control file writes them (matched as the report matches ids:
+    ``point_id_key``); an ``OptionError`` naming the option, the file, its ids and the nearest to each unknown one
+    (kite trial: "control points ['gcp3'] are not in the control point file")."""
+    import difflib
+
+    from aerotri.core.point_ids import point_id_key
+
+    written = {point_id_key(i): str(i) for i in control.id.tolist()}
+    unknown = [i for i in ids if point_id_key(i) not in written]
+    if unknown:
+        listed = sorted(written.values())
+        near = [f"{u} (nearest: {', '.join(m)})" if (m := difflib.get_close_matches(u, listed, n=1)) else u
+                for u in unknown]
+        raise OptionError(f"{'; '.join(near)}: not in {path} ({len(listed)} points: {', '.join(listed[:12])}"
+                          f"{' ...' if len(listed) > 12 else ''})", param=option)
+    return [written[point_id_key(i)] for i in ids]
+
+
 def read_project_control(project: Project, st: AdjustSettings, crs=None) -> tuple[ControlPoints, ImageObservations]:
     """The control and check points the adjustment uses (``control/``, kinds changed by ``st.check`` and
     ``st.control``), and their image measurements; none with ``st.use_control`` off. ``crs``: the
@@ -211,8 +230,8 @@ def read_project_control(project: Project, st: AdjustSettings, crs=None) -> tupl
         # chain, before LiDAR control has been transferred. check_datum refuses the other cases.
         control, cobs = _empty_control()
     _refuse_check_and_control(st)
-    kinds = {pid: "check" for pid in st.check}
-    kinds.update({pid: "full" for pid in st.control})
+    kinds = {pid: "check" for pid in _known_ids(st.check, control, ctrl_path, "--check")}
+    kinds.update({pid: "full" for pid in _known_ids(st.control, control, ctrl_path, "--control")})
     if kinds:
         control = control.with_kinds(kinds)
     return control, cobs

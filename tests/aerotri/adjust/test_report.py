@@ -270,7 +270,15 @@ def test_check_points_given_as_a_comma_separated_list(tmp_path):
     root = write_block_project(block, tmp_path / "blk")
     write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=80, n_check=2, seed=5)
     r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--check", "gcp04,nope", "--image-sigma-px", "0.3"])
-    assert r.exit_code == 2 and "['nope']" in r.output, r.output
+    assert r.exit_code == 2 and "--check: nope: not in " in r.output and "points.csv" in r.output, r.output
+    # kite trial: an id mistyped is named with the option, the file, its ids and the nearest one
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--check", "gcp4", "--image-sigma-px", "0.3"])
+    assert r.exit_code == 2 and "gcp4 (nearest: gcp04): not in" in r.output and "gcp01, gcp02" in r.output, r.output
+    assert "['" not in r.output
+    # ids match as the report matches them: case ignored
+    r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--control", "CHK01", "--image-sigma-px", "0.3",
+                                         "--no-exports", "--no-html"])
+    assert r.exit_code == 0, r.output
     r = CliRunner().invoke(aerotri_cli, ["adjust", str(root), "--check", "gcp04, gcp05", "--image-sigma-px", "0.3"])
     assert r.exit_code == 0, r.output
     ids = {c["id"] for c in json.loads((root / "at" / "report.json").read_text())["check_points"]}
