@@ -66,6 +66,15 @@ def checked_settings(items, root, config: dict | None = None) -> list[SettingCha
 
     root = Path(root)
     tables = copy.deepcopy(config) if config is not None else {}
+    if config is not None:
+        # the file's own errors are named as the file's (kite trial: a key typo already in project.toml was
+        # reported as "--set adjust.leave_one_out=yes [adjust]: unknown key 'self_calibraton'")
+        here = str(root / "project.toml")
+        sections = check_sections(tables, here)
+        for section in dict.fromkeys(parse_item(item)[0][0] for item in items):
+            if section in STAGE_SECTIONS and section in tables:
+                from_table(STAGE_SECTIONS[section], Project(root, tables, sections).stage_table(section),
+                           f"{here} [{section}]", base_dir=root)
     changes = []
     for item in items:
         path, value = parse_item(item)

@@ -130,3 +130,21 @@ def test_settings_set_refused_leaves_the_file_as_it_was(args, expect, tiny_proje
     errors = [s for s in r.stderr.splitlines() if s.startswith("Error:")]
     assert len(errors) == 1 and expect in errors[0], r.stderr
     assert (p / "project.toml").read_bytes() == before
+
+
+def test_a_typo_already_in_project_toml_is_named_as_the_file_s(tiny_project, tmp_path):
+    """Kite trial: `settings --set adjust.leave_one_out=yes` over a project.toml holding `self_calibraton` in [adjust]
+    blamed the --set item for the file's typo. The file's own error is named as the file's; a --set to another
+    section still works."""
+    p = _project(tiny_project, tmp_path)
+    with open(p / "project.toml", "a") as f:
+        f.write('\n[adjust]\nself_calibraton = ["pp"]\n')
+    before = (p / "project.toml").read_bytes()
+    r = CliRunner().invoke(main, ["settings", str(p), "--set", "adjust.leave_one_out=true"])
+    assert r.exit_code == 2, r.output
+    errors = [s for s in r.stderr.splitlines() if s.startswith("Error:")]
+    assert errors == [f"Error: {p / 'project.toml'} [adjust]: unknown key 'self_calibraton' (known: "
+                      + errors[0].split("(known: ")[1]], r.stderr
+    assert "--set" not in errors[0] and (p / "project.toml").read_bytes() == before
+    r = CliRunner().invoke(main, ["settings", str(p), "--set", "mosaic.feather_m=0.8"])
+    assert r.exit_code == 0, r.output
