@@ -133,7 +133,15 @@ def check_positions(project: Project, block: ImportedBlock, replaced: set) -> No
     unit_m = linear_unit_m(crs) if not crs.is_engineering else 1.0
     found = _imported_positions(block)
     for what, labels, xyz in found:
-        check_coordinates(crs, xyz[:, 0], xyz[:, 1], f"{what} in {crs_label(crs)}", [f"{x}" for x in labels])
+        try:
+            check_coordinates(crs, xyz[:, 0], xyz[:, 1], f"{what} in {crs_label(crs)}", [f"{x}" for x in labels])
+        except InputError as exc:
+            if block.crs_assumed:
+                raise
+            # kite trial: the numbers quoted are in no file (UTM 11N targets converted into a UTM 12N project)
+            raise InputError(f"{exc}. These are the file's coordinates converted from the CRS it names (or --crs) "
+                             f"into the project CRS {crs_label(crs)}: if the file is right, the project's CRS is of "
+                             "another zone or area ([project] crs, set at aerotri init --crs)") from None
     if not found:
         return
     ref = _project_positions(project, replaced)

@@ -111,6 +111,9 @@ def test_block_far_in_another_zone_is_refused(tmp_path):
     root = _project(tmp_path, "EPSG:32610")
     f = _opk_csv(tmp_path, _to("EPSG:32611", _lonlat_block(-117.0, 36.0)), "EPSG:32611")
     _refused(root, "orthority", [f], "lies outside the area of use of EPSG:32610")
+    # the numbers quoted are the file's converted into the project CRS, said so (kite trial: read as the file's)
+    _refused(root, "orthority", [f], "These are the file's coordinates converted from the CRS it names (or --crs) "
+                                     "into the project CRS EPSG:32610: if the file is right, the project's CRS")
 
 
 def test_undeclared_coordinates_of_another_zone_are_refused(tmp_path):
