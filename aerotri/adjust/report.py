@@ -1928,7 +1928,7 @@ def report_figures(rep: dict, ba=None) -> list:
         plt = pyplot()
         r = ba.result
         act = r.obs_active
-        fig, axs = plt.subplots(1, 2, figsize=(10, 3.6))
+        fig, axs = plt.subplots(1, 2, figsize=(10, 3.6), layout="constrained")  # (the labels clear of each other)
         for a, ax in enumerate(axs):
             ax.hist(r.residual_px[act, a] * ba.camera_apriori.pixel_um, bins=60, color="tab:blue")
             ax.set_xlabel(f"image residual v{'xy'[a]} (um)")

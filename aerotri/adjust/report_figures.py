@@ -200,7 +200,9 @@ def ground_residual_map(rep: dict) -> Figure | None:
     ax.update_datalim(tips)
     ax.margins(0.06)
     ax.autoscale_view()
-    ax.quiverkey(q, 0.97, 1.015, key_m, f"{_fmt(key_m)} m plan residual", labelpos="W", coordinates="axes")
+    # the key arrow starts at its point and runs right: from the left edge it stays inside the figure (from 0.97 of
+    # the width it reached the figure's edge on the kite block, its head at the border)
+    ax.quiverkey(q, 0.02, 1.015, key_m, f"{_fmt(key_m)} m plan residual", labelpos="E", coordinates="axes")
     bar = _map_axes(ax, o, extent, np.vstack([np.column_stack([x, y]), tips]))
     if has_dz:
         fig.colorbar(sc, ax=ax, shrink=0.8, label="height residual dZ (m)")
