@@ -28,7 +28,7 @@ from aerotri.geom.images import ImageFiles, check_frames, find_images
 from aerotri.match import features as F
 from aerotri.match import matching as M
 from aerotri.match.pairs import BlockPlan, Pair, candidate_pairs, plan_block
-from aerotri.match.report import plot_block, track_lengths
+from aerotri.match.report import plot_block, plot_pair_graph, track_lengths
 from aerotri.match.settings import MatchSettings
 from aerotri.match.tracks import build_tracks, coincident, complete_tracks
 from aerotri.match.weak import BlockStrength, ModelStrength, StripTies, analyse
@@ -499,6 +499,8 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
         )
         if plan is not None:
             plot_block(at / "connectivity.png", plan, ties_per_pair, strength)
+        else:
+            plot_pair_graph(at / "connectivity.png", ids, ties_per_pair, components)
         clock.lap("output")  # the report's own writing is left out of its numbers (milliseconds)
         report.seconds = round(time.perf_counter() - t0, 2)
         write_text_atomic(project.connectivity_path, json.dumps(dataclasses.asdict(report), indent=1) + "\n")
@@ -510,7 +512,7 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
             log.warning(f"{project.tiepoints_path}: the block falls apart into {len(components)} parts that no tie "
                         f"point connects ({parts}); each is adjusted with a datum of its own, or left out without "
                         "one" + (". Check [flight] mean_terrain_height_m (the pairs are chosen by the footprints on "
-                         "it) and at/connectivity.png" if plan is not None else ""))
+                         "it) and at/connectivity.png" if plan is not None else ": at/connectivity.png shows them"))
         return report
 
 

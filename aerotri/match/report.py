@@ -47,6 +47,39 @@ def plot_block(path, plan, pairs_ties: list[tuple[int, int, int]], strength) -> 
     save_png(fig, path, dpi=120, tight=True)
 
 
+def plot_pair_graph(path, image_ids: list[str], pairs_ties: list[tuple[int, int, int]],
+                    components: list[list[str]]) -> None:
+    """The block without positions to draw it at (no GNSS, no given orientations: a kite, a handheld block): its
+    frames on a circle in file order, a chord per matched pair coloured by its ties, each part that no tie point
+    connects to the others in a colour of its own, as PNG (kite trial: such a block got no connectivity figure,
+    and one that fell apart into 2 parts showed it nowhere)."""
+    plt = pyplot()
+    n = len(image_ids)
+    angle = np.pi / 2 - 2 * np.pi * np.arange(n) / max(n, 1)  # clockwise from the top
+    xy = np.column_stack([np.cos(angle), np.sin(angle)])
+    part = {k: i for i, c in enumerate(components) for k in c}
+    fig, ax = plt.subplots(figsize=(8, 8))
+    tmax = max([t for _, _, t in pairs_ties] + [1])
+    for i, j, t in sorted(pairs_ties, key=lambda p: p[2]):  # the strongest on top
+        ax.plot(xy[[i, j], 0], xy[[i, j], 1], color=plt.cm.viridis(t / tmax), lw=0.5 + 3.0 * t / tmax, alpha=0.8)
+    colours = [plt.cm.tab10(part.get(k, 0) % 10) for k in image_ids]
+    ax.scatter(xy[:, 0], xy[:, 1], s=30, c=colours, edgecolors="k", linewidths=0.5, zorder=3)
+    step = max(1, n // 60)  # labels readable up to about 60 frames; every step-th beyond
+    for k in range(0, n, step):
+        side = "left" if xy[k, 0] > 0.2 else "right" if xy[k, 0] < -0.2 else "center"  # outward, clear of the dot
+        ax.annotate(image_ids[k], xy[k] * 1.06, fontsize=6, ha=side, va="center")
+    sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, tmax))
+    fig.colorbar(sm, ax=ax, shrink=0.7, label="tie points per pair")
+    ax.set_title(f"{n} frames, {len(pairs_ties)} pairs, {len(components)} part{'s' if len(components) != 1 else ''} "
+                 "(a colour each)\nno positions before the adjustment: frames on a circle in file order",
+                 fontsize=10)
+    ax.set_aspect("equal")
+    ax.set_xlim(-1.25, 1.25)
+    ax.set_ylim(-1.25, 1.25)
+    ax.axis("off")
+    save_png(fig, path, dpi=120, tight=True)
+
+
 @dataclasses.dataclass(frozen=True)
 class TrackLengths:
     """How long the tracks are: ``rays`` (the frames a track is measured in, ascending, each length that occurs)

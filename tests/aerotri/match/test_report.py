@@ -43,3 +43,26 @@ def test_track_lengths_count_the_tracks_of_each_length():
     assert h.rays.tolist() == [1, 2, 3] and h.tracks.tolist() == [1, 2, 2]
     empty = track_lengths(np.zeros(0, int))
     assert empty.rays.size == 0 and empty.tracks.size == 0
+
+
+def test_a_block_without_positions_gets_a_pair_graph(tmp_path, monkeypatch):
+    """Kite trial: a block without GNSS got no connectivity figure (match draws the footprints the GNSS plans), and a
+    block that fell apart into 2 parts showed it nowhere. The frames on a circle in file order, a chord per pair, a
+    colour per part: the two parts' dots differ in colour, each pair is a line."""
+    import matplotlib.pyplot as plt
+
+    from aerotri.match.report import plot_pair_graph
+
+    ids = [f"IMG_{k:04d}" for k in range(8)]
+    pairs = [(0, 1, 300), (1, 2, 250), (0, 2, 40), (3, 4, 500), (4, 5, 480), (5, 6, 100), (6, 7, 90), (3, 7, 20)]
+    parts = [ids[:3], ids[3:]]
+    shown = []
+    monkeypatch.setattr(plt, "close", lambda fig: shown.append(fig))
+    plot_pair_graph(tmp_path / "c.png", ids, pairs, parts)
+    assert (tmp_path / "c.png").stat().st_size > 0
+    ax = shown[0].axes[0]
+    assert len(ax.get_lines()) == len(pairs) and "2 parts" in ax.get_title()
+    colours = ax.collections[0].get_facecolors()
+    assert (colours[0] == colours[2]).all() and not (colours[0] == colours[3]).all()
+    assert [t.get_text() for t in ax.texts] == ids
+    plt.close(shown[0])
