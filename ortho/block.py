@@ -158,7 +158,8 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
         left = _left_out_by_adjustment(project)
         skipped = [k for k in missing if k in left]
         if skipped:
-            _log.warning(f"{counted(len(skipped), 'frame')} the adjustment left out {'is' if len(skipped) == 1 else 'are'} not rectified ({', '.join(skipped[:8])}"
+            _log.warning(f"{counted(len(skipped), 'frame')} the adjustment left out "
+                         f"{'is' if len(skipped) == 1 else 'are'} not rectified ({', '.join(skipped[:8])}"
                          f"{' ...' if len(skipped) > 8 else ''}): {left[skipped[0]]}")
             images = images.select([k for k in images.image_id if k not in left])
             missing = [k for k in missing if k not in left]
@@ -1112,17 +1113,17 @@ def _warn_ground_stand_off(stand_off: dict, n_frames: int, dsm_path, dem_path) -
     # a datum offset is the block's: in a few frames a level is a crop or flat roofs over most of them (review 37)
     if not stand_off or 2 * len(stand_off) < n_frames:
         if stand_off:
-            _log.info(f"{len(stand_off)} of {counted(n_frames, 'frame')} ({', '.join(list(stand_off)[:5])}): most of their DSM "
-                      "cells form a level off the DEM (a crop, a meadow or flat roofs?); the others' do not: no "
-                      "datum offset")
+            _log.info(f"{len(stand_off)} of {counted(n_frames, 'frame')} ({', '.join(list(stand_off)[:5])}): most of "
+                      "their DSM cells form a level off the DEM (a crop, a meadow or flat roofs?); the others' do "
+                      "not: no datum offset")
         return
     ids = list(stand_off)
     level, share, at_level = (float(np.median([v[k] for v in stand_off.values()])) for k in range(3))
-    _log.warning(f"{len(ids)} of {counted(n_frames, 'frame')} ({', '.join(ids[:5])}{', ...' if len(ids) > 5 else ''}): the DSM "
-                 f"{dsm_path} stands {abs(level):.2f} m {'above' if level > 0 else 'below'} the DEM {dem_path} where "
-                 f"the ground should be (median over the frames: {100 * share:.1f} % of the cells within "
-                 f"{GROUND_NDSM_M:g} m of the DEM, {100 * at_level:.1f} % within it of {level:+.2f} m): a vertical "
-                 "datum offset between DSM and DEM (ellipsoidal against orthometric heights, another geoid or "
+    _log.warning(f"{len(ids)} of {counted(n_frames, 'frame')} ({', '.join(ids[:5])}{', ...' if len(ids) > 5 else ''}"
+                 f"): the DSM {dsm_path} stands {abs(level):.2f} m {'above' if level > 0 else 'below'} the DEM "
+                 f"{dem_path} where the ground should be (median over the frames: {100 * share:.1f} % of the cells "
+                 f"within {GROUND_NDSM_M:g} m of the DEM, {100 * at_level:.1f} % within it of {level:+.2f} m): a "
+                 "vertical datum offset between DSM and DEM (ellipsoidal against orthometric heights, another geoid or "
                  "epoch)? The true orthos' occlusion test found almost no ground and took every DSM cell for a "
                  "column (no continuous surface on slopes: visible ground on slopes facing away from the camera "
                  "masked); put both in the same heights (gdalwarp, or their CRSs' vertical datums) and rectify again")
@@ -1180,11 +1181,11 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
     collared = [e["image_id"] for e in entries if e.pop("black_corners", 0)]
     if collared:
         one = len(collared) == 1
-        _log.warning(f"{counted(len(collared), 'frame')} ({', '.join(collared[:5])}{', ...' if len(collared) > 5 else ''}) "
-                     f"{'has' if one else 'have'} a corner black in every band and {'declares' if one else 'declare'} no "
-                     "nodata value or mask: a collar? It was rectified as picture (black in the orthos and the "
-                     "mosaic); declare it (rio edit-info --nodata 0 FRAME, or gdal_edit.py -a_nodata 0 FRAME) and "
-                     "rectify again")
+        _log.warning(f"{counted(len(collared), 'frame')} ({', '.join(collared[:5])}"
+                     f"{', ...' if len(collared) > 5 else ''}) {'has' if one else 'have'} a corner black in every band "
+                     f"and {'declares' if one else 'declare'} no nodata value or mask: a collar? It was rectified as "
+                     "picture (black in the orthos and the mosaic); declare it (rio edit-info --nodata 0 FRAME, or "
+                     "gdal_edit.py -a_nodata 0 FRAME) and rectify again")
     _warn_ground_stand_off({e["image_id"]: e.pop("ground_stand_off") for e in entries if "ground_stand_off" in e},
                            len(entries), dsm_path, dem_path)
     return {

@@ -92,9 +92,9 @@ def dem(project, res_m, min_rays, out):
 
     s = write_points_dem(project, out, res_m, min_rays)
     click.echo(f"DEM {s.width} x {s.height} cells at {s.res_m} m from {s.points} tie points "
-               f"({s.outliers} outliers out, {100.0 * s.outliers / max(s.points + s.outliers, 1):.0f} %; cells measured {s.cells_measured}, interpolated "
-               f"{s.cells_interpolated}, extended {s.cells_extrapolated}), heights {s.height_range_m[0]:.2f} to "
-               f"{s.height_range_m[1]:.2f} -> {s.file}")
+               f"({s.outliers} outliers out, {100.0 * s.outliers / max(s.points + s.outliers, 1):.0f} %; cells "
+               f"measured {s.cells_measured}, interpolated {s.cells_interpolated}, extended {s.cells_extrapolated}), "
+               f"heights {s.height_range_m[0]:.2f} to {s.height_range_m[1]:.2f} -> {s.file}")
     if s.cells_extrapolated:
         click.echo(f"  {s.extension_words()}")
 

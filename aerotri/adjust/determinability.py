@@ -281,6 +281,12 @@ def tau_interval(n_strips: int, level: float = 0.9) -> tuple[float, float]:
     return math.sqrt(k / chi2_isf(q, k)), math.sqrt(k / chi2_ppf(q, k))
 
 
+def _pp_move(cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.ndarray, name: str) -> tuple[float, float]:
+    """(the principal point's move on ``name``, "u0" or "v0", from its a-priori value, its standard deviation), px."""
+    i = CAL_NAMES.index(f"{name}_px")
+    return float(cal[i] - cal_apriori[i]), math.sqrt(max(float(cal_cov[i, i]), 0.0))
+
+
 def _strip_shift_reason(pg, strip_sd: np.ndarray, cal, cal_apriori, cal_cov) -> str:
     """The flag's reason where GNSS strip shifts, not an offset fixed in the camera, explain the principal point's
     move (the per-strip estimates listed, their correlation and differences; the fix an operator has)."""
@@ -298,8 +304,7 @@ def _strip_shift_reason(pg, strip_sd: np.ndarray, cal, cal_apriori, cal_cov) -> 
     lo, hi = tau_interval(len(est))
     moves = []
     for name in ("u0", "v0"):
-        i = CAL_NAMES.index(f"{name}_px")
-        move, sdp = float(cal[i] - cal_apriori[i]), math.sqrt(max(float(cal_cov[i, i]), 0.0))
+        move, sdp = _pp_move(cal, cal_apriori, cal_cov, name)
         if sdp > 0:
             moves.append(f"{name} {move:+.1f} px ({abs(move) / sdp:.0f} standard deviations)")
     return (f"GNSS strip shifts: the block's estimate of a GNSS position offset fixed in the camera differs strip by "
@@ -360,8 +365,7 @@ def _pp_gnss_axes(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.ndar
                        f"{CORRELATION_LIMIT:g}): a shift per strip moves a strip's ground as a principal-point offset "
                        "does (no plan effect stated for it: the shifts take any GNSS offset fixed in the camera strip "
                        "by strip, and what the two trade is in the standard deviations)")
-        i = CAL_NAMES.index(f"{name}_px")
-        move, sd = float(cal[i] - cal_apriori[i]), math.sqrt(max(float(cal_cov[i, i]), 0.0))
+        move, sd = _pp_move(cal, cal_apriori, cal_cov, name)
         r = float(pg.offset_correlation[a])
         k = float(pg.px_per_m[a, a])
         # the block's own estimate of such an offset (one Gauss-Newton step with it added) tests the offset named
@@ -448,8 +452,7 @@ def _other_axis_words(pg, cal: np.ndarray, cal_apriori: np.ndarray, cal_cov: np.
     """The principal point's move on the axis ``a`` (0: u0, 1: v0) that names no offset, when it moved over its
     standard deviation: a user who saw u0 move 1.9 px read a flag of v0 alone as a wrong axis (Tuniu trial)."""
     name, axis = (("u0", "x"), ("v0", "y"))[a]
-    i = CAL_NAMES.index(f"{name}_px")
-    move, sd = float(cal[i] - cal_apriori[i]), math.sqrt(max(float(cal_cov[i, i]), 0.0))
+    move, sd = _pp_move(cal, cal_apriori, cal_cov, name)
     if not (sd > 0 and abs(move) > sd):
         return ""
     text = f"{name} moved {move:+.1f} px ({abs(move) / sd:.1f} standard deviations)"

@@ -11,8 +11,9 @@ Pixel coordinates: OpenSfM, which consumes the file for ODM, normalises them wit
 ``(x + 0.5 - width / 2) / max(width, height)``: pixel centres at integers, the origin at the centre of the
 top-left pixel, as ours; they are taken and written unchanged. A point without ``gcp_name`` is named by
 its coordinates (OpenSfM groups measurements by (x, y, z)): the named point at the same coordinates, else
-``gcp1``, ``gcp2``, ... in order of first appearance (past the names the file uses). ``geo_z`` NaN (OpenSfM: no altitude) makes the point a horizontal control point. The file
-carries no accuracies: ``--sigma-xyz-m`` gives them (required).
+``gcp1``, ``gcp2``, ... in order of first appearance (past the names the file uses). ``geo_z`` NaN (OpenSfM: no
+altitude) makes the point a horizontal control point. The file carries no accuracies: ``--sigma-xyz-m`` gives them
+(required).
 
 Control as measured: a file whose heights are all 0 (or all the same number) has heights nobody measured (ODM
 writes 0 where a survey gave none: the Coal Oil Point targets); its points are imported as horizontal control,

@@ -154,8 +154,9 @@ def _jpeg_ends(path) -> bool:
 
 
 def check_not_truncated(ds, path) -> None:
-    """Refuse a TIFF frame whose block table points past the file's end (a copy that stopped), naming it: GDAL opens
-    one cut inside its header too, and the EXIF reader then found "no camera in the EXIF" (Tuniu trial)."""
+    """Refuse a frame cut short (a copy that stopped), naming it: a TIFF whose block table points past the file's end
+    (GDAL opens one cut inside its header too, and the EXIF reader then found "no camera in the EXIF": Tuniu trial),
+    a JPEG without its end-of-image marker (``_jpeg_ends``)."""
     path = Path(path)
     held = path.stat().st_size
     if ds.driver == "JPEG" and not _jpeg_ends(path):

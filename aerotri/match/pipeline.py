@@ -505,8 +505,8 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
         report.seconds = round(time.perf_counter() - t0, 2)
         write_text_atomic(project.connectivity_path, json.dumps(dataclasses.asdict(report), indent=1) + "\n")
         log.info(f"{report.frames} frames, {report.pairs} pairs, {report.tracks} tracks, {report.observations} "
-                 f"observations, {counted(report.components, 'component')}, {counted(len(report.weak_models), 'weak model')} -> "
-                 f"{project.tiepoints_path}")
+                 f"observations, {counted(report.components, 'component')}, "
+                 f"{counted(len(report.weak_models), 'weak model')} -> {project.tiepoints_path}")
         if len(components) > 1:  # (new-user trial s51: NGI without its terrain height; only `adjust` said so)
             parts = "; ".join(", ".join(c[:4]) + (f" and {len(c) - 4} more" if len(c) > 4 else "") for c in components)
             log.warning(f"{project.tiepoints_path}: the block falls apart into {len(components)} parts that no tie "

@@ -126,11 +126,11 @@ def weak_model_words(models: list[ModelStrength], densified_models: int, min_per
     weak = [m for m in models if m.weak]
     if not weak:
         return []
-    lines = [f"{len(weak)} of {len(models)} stereo models (the pairs of consecutive frames of a strip, of all the pairs matched) are weak: "
-             f"fewer than "
-             f"{min_per_region} tie points in some of the 9 regions (3 x 3, along and across the base) of their "
-             "overlap" + (f", after {densified_models} were matched again with dense features" if densified_models
-                          else "") + ":"]
+    lines = [f"{len(weak)} of {len(models)} stereo models (the pairs of consecutive frames of a strip, of all the "
+             f"pairs matched) are weak: fewer than {min_per_region} tie points in some of the 9 regions (3 x 3, "
+             "along and across the base) of their overlap"
+             + (f", after {densified_models} were matched again with dense features" if densified_models else "")
+             + ":"]
     lines += [f"  {m.left}-{m.right}: {m.ties} ties, {_short_regions(m, min_per_region)}" for m in weak[:show]]
     if len(weak) > show:
         lines.append(f"  ... and {len(weak) - show} more (at/connectivity.json weak_models, red in connectivity.png)")
