@@ -125,6 +125,7 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
         )
     else:
         crs, source, vertical = parse_crs(crs_arg, "--crs"), f"--crs {crs_arg}", None
+        _check_given_crs(path, header, crs, crs_arg)
     units = units_of(crs, source, vertical)
     if file_crs is not None and crs_arg is not None and str(crs_arg).strip() != "":
         _note_unused_vertical(path, file_crs, parse_crs(crs_arg, crs_name), crs_arg, crs_name, units)
@@ -134,6 +135,31 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
 
 
 _VERTICAL_NOTED: set = set()
+_AREA_NOTED: set = set()
+
+
+def _check_given_crs(path, header: laspy.LasHeader, crs: pyproj.CRS, crs_arg) -> None:
+    """The header's bounds against the area of use of ``--crs`` given for a file without a CRS record, as ``aerotri
+    crs assign`` checks them: coordinates the CRS cannot hold are a CrsError, coordinates outside its area of use a
+    warning (once per file and ``--crs``; national grids are used past their zone's area). New-user trial s94: a
+    UTM 12N cloud classified with ``--crs EPSG:6880`` (Nebraska, US feet; the points at 50 deg N, beyond its area
+    of use at 40-43 deg) was read in feet, the trees 3.28x lower, exit 0 and no word."""
+    from aerotri.geom.crs.definition import check_coordinates, crs_label
+
+    if header.point_count == 0:
+        return
+    cx = np.array([header.mins[0], header.maxs[0], header.mins[0], header.maxs[0]], float)
+    cy = np.array([header.mins[1], header.mins[1], header.maxs[1], header.maxs[1]], float)
+    corners = [f"header bounds corner {i + 1}" for i in range(4)]
+    try:
+        far = check_coordinates(crs, cx, cy, str(path), corners, outside_area="warn")
+    except InputError as exc:
+        raise CrsError(f"{exc}; --crs {crs_arg}: the coordinates cannot be {crs_label(crs)}'s (give the CRS they "
+                       "are in)") from None
+    if far and (str(path), str(crs_arg)) not in _AREA_NOTED:
+        _AREA_NOTED.add((str(path), str(crs_arg)))
+        log.warning("%s; --crs %s used all the same: is it the CRS the coordinates are in (zone, datum, units)?",
+                    far, crs_arg)
 
 
 def _note_unused_vertical(path, file_crs: pyproj.CRS, given: pyproj.CRS, crs_arg, crs_name: str,

@@ -1440,26 +1440,41 @@ def classify_command(in_paths, out_path, keep_classes: bool = False, method: str
     common = dict(crs=crs, params=params, tile_size_m=tile_size_m, buffer_m=buffer_m, work_dir=work_dir, fusion=fusion,
                   resume_dir=resume_dir)
     with executor_for(scheduler, workers) as executor:
+        if not keep_classes:   # (after the options' checks, the executor's among them)
+            from lidarctl.normalised import warn_if_normalised
+
+            warn_if_normalised(in_paths, crs)
         if to_folder:
             stats = classify_files(in_paths, out_path, executor=executor,
                                    suffix=None if out_format is None else f".{out_format}", **common)
         else:
             stats = classify_file(in_paths[0], out_path, executor=executor, **common)
         described = executor.describe()
-    counts = ", ".join(f"{cl.CLASS_NAMES.get(c, str(c))} {k:,}" for c, k in stats.run.class_counts.items())
+    header = las.read_header(in_paths[0])
+    names = dict(cl.CLASS_NAMES)
+    if io.ROAD_SURFACE not in io.ground_classes(header):
+        # delivered class 11 of a file before LAS 1.4 is no road (trial s94: MixedConifer's five canopy returns)
+        names[io.ROAD_SURFACE] = f"class 11 (reserved in LAS {header.version})"
+    counts = ", ".join(f"{names.get(c, str(c))} {k:,}" for c, k in stats.run.class_counts.items())
     n, dt, u = stats.n_points, stats.seconds, stats.units
-    what = f"{out_path}: {n} points" + (f" of {counted(stats.n_files, 'strip')}" if to_folder else "")
+    what = f"{out_path}: {n:,} points" + (f" of {counted(stats.n_files, 'strip')}" if to_folder else "")
+    reserved = [c for c, k in stats.run.class_counts.items() if k and 13 <= c <= 31]
+    if reserved and (header.version.major, header.version.minor) < (1, 4) and not params.keep_classes:
+        # trial s94: AHN3 Delft, LAS 1.2, got 963 bridge-deck (17) returns and a high-noise one (18) without a word
+        logger.warning(f"{out_path}: classes {', '.join(f'{c} ({names.get(c, c)})' for c in reserved)} are ASPRS "
+                       f"LAS 1.4 classes, which LAS {header.version} (the input's version, kept) reserves: its readers "
+                       "may show them as reserved")
     if params.keep_classes:
         return f"{what}, the delivered classes kept; {counts}"
     if fusion is not None and stats.run.class_counts.get(3, 0):
         # The fusion labels a lawn's ground returns grass (3), a land cover; a DEM of ground classes leaves them out
         # (Autzen: 46 % of the ground returns, the DEM 1.42 ft RMS off them against 0.27 ft), and the roads (11) too
         # where the LAS version reserves 11 (before 1.4: io.ground_classes)
-        on_ground = io.ground_classes(las.read_header(in_paths[0]))
+        on_ground = io.ground_classes(header)
         roads = stats.run.class_counts.get(io.ROAD_SURFACE, 0) if io.ROAD_SURFACE not in on_ground else 0
         logger.warning(f"{out_path}: fused with {image_path}: {stats.run.class_counts[3]:,} returns are grass (3), most "
                        "of them on the ground" + (f", and {roads:,} are road surface (11), a class LAS "
-                                                  f"{las.read_header(in_paths[0]).version} reserves" if roads else "")
+                                                  f"{header.version} reserves" if roads else "")
                        + f"; a DEM is made of classes {', '.join(map(str, on_ground))} only (lidarctl rasters), so "
                        "make DEMs, nDSMs and contours from a classification without --image")
     unit_text = "" if u.xy_name == "m" and u.z_name == "m" else \

@@ -714,7 +714,7 @@ class Chain:
         from lidarctl.checks.vectors import VectorCheckSettings, check_files
 
         p = self.project
-        s = vectors_to_file(self.classified(), p.vectors_path, params=MapVectorSettings(), crs=p.crs)
+        s = vectors_to_file(self.classified(), p.vectors_path, params=MapVectorSettings(), crs=p.crs, owned=True)
         c = s.counts
         counts = dict(buildings=c.buildings, roads=c.roads, water=c.water, spot_heights=c.spot_heights)
         ref = self.vectors_reference()

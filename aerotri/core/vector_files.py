@@ -148,13 +148,15 @@ def _keep_qgis_styles(old, new) -> None:
                     "set the layers' styles again")
 
 
-def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> None:
+def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT", owned: bool = False) -> None:
     """``OptionError`` when the GeoPackage ``path`` exists and holds a layer not in ``layer_names`` (what
     ``what``, e.g. "lidarctl contours", writes there; QGIS's ``layer_styles`` is kept, ``write_layers``), or
     is not a GeoPackage GDAL reads: ``write_layers`` replaces the whole file, so a user's other layers would go
-    without a word. A file without our marker (``MARK``: written before the marker, or a user's file with
-    layers of our names) is replaced with a warning naming its layers. Other formats hold one layer and are
-    replaced as before."""
+    without a word. A file without our marker (``MARK``: a user's file with layers of our names, or written before
+    the marker, 2026-12-01) is refused too, naming its layers (trial s94: a copy of the BGT reference, whose one
+    layer ``buildings`` check-vectors asks for, given as ``lidarctl vectors``' OUT went with a warning); ``owned``:
+    the path is a project's own output (the chain's), whose unmarked file is an earlier version's and is replaced.
+    Other formats hold one layer and are replaced as before."""
     import pyogrio
 
     path = Path(path)
@@ -177,9 +179,12 @@ def refuse_foreign_layers(path, layer_names, what: str, option: str = "OUT") -> 
         raise OptionError(f"{path}: the file is replaced as a whole, and it holds the layer(s) {', '.join(foreign)}, "
                           f"which {what} does not write: move the file (or remove it), or give another file name",
                           param=option)
-    if any(name not in marked for name in present if name != QGIS_STYLES):
-        log.warning(f"{path}: replacing its layer(s) {', '.join(n for n in present if n != QGIS_STYLES) or '(none)'}, "
-                    f"taken for a previous output of {what} by their names only (the file has no mark of ours)")
+    unmarked = [name for name in present if name != QGIS_STYLES and name not in marked]
+    if unmarked and not owned:
+        raise OptionError(f"{path}: the file is replaced as a whole, and its layer(s) {', '.join(unmarked)} have the "
+                          f"names {what} writes but not the mark of its outputs (a file of yours, such as a "
+                          "reference, or an output of a version before 2026-12-01): move the file (or remove it), or "
+                          "give another file name", param=option)
 
 
 def refuse_open_geopackage(path, option: str | None = None) -> None:

@@ -443,6 +443,14 @@ def geokey_vertical_unit_m(header: laspy.LasHeader) -> float | None:
     return vcs_unit_m
 
 
+def vertical_keys_beside_wkt(header: laspy.LasHeader) -> bool:
+    """True when a readable WKT record is the CRS and GeoTIFF keys beside it still hold a VerticalUnitsGeoKey
+    (4099) or VerticalCSTypeGeoKey (4096), which ``geokey_vertical_unit_m`` does not read (LAS 1.4: the WKT wins)."""
+    keys = _geo_keys(header)
+    return keys is not None and _wkt_crs(header) is not None and \
+        any(keys.get(k) is not None for k in (VERTICAL_UNITS_KEY, VERTICAL_CS_KEY))
+
+
 def _vertical_cs_unit_m(vcs) -> float | None:
     """Metres per unit of the EPSG vertical CRS in a VerticalCSTypeGeoKey (None: no key, or not an EPSG CRS)."""
     if vcs is not None and vcs.tiff_tag_location == 0 and 1024 <= vcs.value_offset <= 32766:

@@ -1326,7 +1326,8 @@ def _compliance_section(comp: dict | None) -> dict | None:
     products = [{**p, "verdict_class": verdict_class(p["verdict"])} for p in comp["products"]]
     return dict(name=comp["name"], class_tested=comp["class_tested"], reason=comp["reason"], products=products,
                 header=COMPLIANCE_HEADER, checks=checks, unconfirmed="; ".join(comp["unconfirmed"]),
-                statements=comp.get("statements") or [], statements_note=STATEMENTS_NOTE)
+                statements=comp.get("statements") or [], statements_note=STATEMENTS_NOTE,
+                nothing=NOTHING_JUDGED if standard_judges_nothing(comp) else "")
 
 
 def standard_fails_report(comp: dict | None) -> bool:
@@ -1335,6 +1336,20 @@ def standard_fails_report(comp: dict | None) -> bool:
     usgs-lbs read "Overall verdict: pass (3 passed, 0 failed)" beside "compliance ... QL2: fail (LiDAR DEM, LiDAR
     density)"; a standard the tolerance table chose is stated beside the verdict, as before."""
     return bool(comp and comp.get("requested") and any(p["verdict"] == "fail" for p in comp.get("products") or ()))
+
+
+def standard_judges_nothing(comp: dict | None) -> bool:
+    """Whether a standard was asked for and the project holds nothing it judges (no product with a measured figure
+    or a check of it). Trial s94: a LiDAR-only folder with the classification's evaluation alone, `aerotri report P
+    --standard usgs-lbs`, read "pass (1 passed, 0 failed; USGS Lidar Base Specification, QL2)", the compliance
+    section empty: the pass was the project's own ground-filter limit."""
+    return bool(comp and comp.get("requested") and not comp.get("products"))
+
+
+NOTHING_JUDGED = ("nothing it judges was found: aerotriangulation (at/report.json), the DOM check, the line-map "
+                  "check, the LiDAR DEM's height check (lidar_out/height_check.json: lidarctl check-heights ... "
+                  "--json), the strip check (lidar_out/strips/) or the density (lidar_out/dem.tif with the "
+                  "classified cloud)")
 
 
 def standard_untestable(comp: dict | None) -> list[str]:
@@ -1352,7 +1367,7 @@ def overall_verdict(verdicts: list, comp: dict | None) -> str | None:
     rows pass, None when no row has a verdict."""
     if "fail" in verdicts or standard_fails_report(comp):
         return "fail"
-    if standard_untestable(comp):
+    if standard_untestable(comp) or standard_judges_nothing(comp):
         return NOT_TESTABLE
     return "pass" if verdicts else None
 
@@ -1364,6 +1379,8 @@ def standard_fails_note(comp: dict | None) -> str:
         return "the standard asked for: the overall verdict fails with it"
     if standard_untestable(comp):
         return "the standard asked for cannot test it: the overall verdict is not testable"
+    if standard_judges_nothing(comp):
+        return "the standard asked for judges nothing here: the overall verdict is not testable"
     return ""
 
 
@@ -1372,6 +1389,8 @@ def compliance_headline(comp: dict | None) -> str:
     judge different things: a LiDAR-only report under usgs-lbs read "Overall verdict: pass" at its top while the
     standard's VVA and density failed below): "" without a standard; the products that fail (else are not
     testable) named."""
+    if standard_judges_nothing(comp):
+        return f"compliance with {comp['name']}, class {comp['class_tested']}: not testable (nothing it judges found)"
     if not comp or not comp.get("products"):
         return ""
     fails = [p["product"] for p in comp["products"] if p["verdict"] == "fail"]
@@ -1387,6 +1406,8 @@ def compliance_lines(comp: dict | None) -> list[str]:
     if not comp:
         return []
     lines = [f"compliance: {comp['name']}, class {comp['class_tested']} ({comp['reason']})"]
+    if standard_judges_nothing(comp):
+        lines.append(f"  not testable: {NOTHING_JUDGED}")
     for p in comp["products"]:
         met = "" if p["finest_class"].startswith("not established") else "met "
         lines.append(f"  {p['verdict']:<12} {p['product']}: finest class {met}{p['finest_class']}")

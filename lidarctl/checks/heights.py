@@ -536,10 +536,14 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
             unit = units.xy_name
             if not units.z_declared and units.z_m != 1.0:
                 # as for the DEM (trial-audit F2): heights in metres under a foot CRS are read 3.28 x too small
-                log.warning("%s: declares no height unit (a 2D CRS, no VerticalUnitsGeoKey): its heights are taken in "
-                            "its CRS's horizontal unit, %s; if they are metres, give the cloud a compound CRS "
-                            "(aerotri crs transform --to 'EPSG:<grid>+<vertical>')", path,
-                            length_unit_name(units.z_m, long=True))
+                # a vertical key beside a WKT record is not read (LAS 1.4: the WKT is the CRS); said so, not "no key"
+                # (trial s94, laspy's Nebraska file: its keys hold US feet, the message said it had none)
+                why = ("its CRS record, a WKT, is 2D; the GeoTIFF vertical keys beside it are not read, as LAS 1.4 "
+                       "makes the WKT the CRS" if las.vertical_keys_beside_wkt(header)
+                       else "a 2D CRS, no VerticalUnitsGeoKey")
+                log.warning("%s: declares no height unit (%s): its heights are taken in its CRS's horizontal unit, %s; "
+                            "if they are metres, give the cloud a compound CRS (aerotri crs transform --to "
+                            "'EPSG:<grid>+<vertical>')", path, why, length_unit_name(units.z_m, long=True))
         points = points.in_crs_units(units, points_csv)  # (the strips' one CRS and unit: checked_headers)
         _refuse_points_elsewhere(points, points_csv, box, ", ".join(map(str, paths)), unit)
     elif dem_path is not None:
@@ -637,7 +641,28 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
             if key in result["points"][0] and (slip := unit_slip(dz, points_m.z, u.z_m, points.z_column)):
                 result["unit_slip"] = {**slip, "surface": what}
                 break
+    if "unit_slip" not in result:
+        for key, what in (("dz_m", "cloud"), ("dz_dem_m", "DEM")):
+            dz = np.array([np.nan if p.get(key) is None else p[key] for p in result["points"]], float)
+            if key in result["points"][0] and (offset := constant_offset(dz)):
+                result["constant_offset"] = {**offset, "surface": what}
+                break
     return result
+
+
+def constant_offset(dz_m: np.ndarray) -> dict | None:
+    """A height offset common to every point (``dz_m``: surface - survey, metres; NaN: not checked): the median dz
+    beyond ``UNIT_SLIP_MIN_M`` and their spread (1.4826 MAD) within ``UNIT_SLIP_FRACTION`` of it, at least 3 points;
+    else None. New-user trial s94: heights above ground (a normalised cloud) against elevations gave RMSE 2,149.993 m
+    on every point and the report said nothing of why."""
+    ok = dz_m[np.isfinite(dz_m)]
+    if len(ok) < 3:
+        return None
+    med = float(np.median(ok))
+    spread = 1.4826 * float(np.median(np.abs(ok - med)))
+    if abs(med) <= UNIT_SLIP_MIN_M or spread >= UNIT_SLIP_FRACTION * abs(med):
+        return None
+    return {"median_dz_m": med, "spread_m": spread, "n": int(len(ok))}
 
 
 # A plain z (no unit in the header) is taken in the CRS's vertical unit. Surveyed heights in metres against a cloud
@@ -739,7 +764,7 @@ def _group_table(title: str, overall: dict, groups: dict) -> list[str]:
     """Seed 004 Tab. 1: per group the share of points in each |dz| bin, mean |dz|, RMSE and the count."""
     labels = [b["abs_dz_m"] for b in overall["abs_bins"]]
     w = max(12, *(len(lab) + 2 for lab in labels))  # the labels state their closed end ("0.3 < |dz| <= 0.5")
-    head = f"  {'group':<10}{'n':>6}" + "".join(f"{lab:>{w}}" for lab in labels) + f"{'mean |dz|':>11}{'RMSE':>8}"
+    head = f"  {'group':<10}{'n':>6}" + "".join(f"{lab:>{w}}" for lab in labels) + f"{'mean |dz|':>11} {'RMSE':>9}"
     lines = [title + " (|dz| bins in m: percent of points; mean |dz| and RMSE in m)", head]
     for name, s in [*groups.items(), ("all", overall)]:
         a = s["all"]
@@ -747,7 +772,7 @@ def _group_table(title: str, overall: dict, groups: dict) -> list[str]:
         bins = ("".join(f"{b['percent']:>{w - 1}.1f}%" for b in s["abs_bins"]) if a["n"]
                 else "".join(f"{'-':>{w}}" for _ in s["abs_bins"]))  # no dz: no share of anything
         note = _without_dz(s)
-        lines.append(f"  {name:<10}{a['n']:>6}" + bins + f"{fmt(a['mean_abs_dz_m']):>11}{fmt(a['rmse_m']):>8}"
+        lines.append(f"  {name:<10}{a['n']:>6}" + bins + f"{fmt(a['mean_abs_dz_m']):>11} {fmt(a['rmse_m']):>9}"
                      + (f"  ({note})" if note else ""))
     return lines
 
@@ -790,24 +815,33 @@ def format_report(check: HeightCheck) -> str:
         lines += [""] + _group_table("DEM by group", dem["overall"], dem["groups"])
     head = f"{'id':<12}{'group':<18}{f'z survey ({zu})':>16}"
     if has_lidar:
-        head += f"{f'z lidar ({zu})':>16}{'dz (m)':>9}"
+        head += f" {f'z lidar ({zu})':>16} {'dz (m)':>9}"
         if zu != "m":
-            head += f"{f'dz ({zu})':>10}"
+            head += f" {f'dz ({zu})':>10}"
     if dem is not None:
-        head += f"{'z dem':>12}{'dz dem (m)':>12}"
+        head += f" {'z dem':>12} {'dz dem (m)':>12}"
     lines += ["", head]
     for p in result["points"]:
         line = f"{p['id']:<12}{(p['group'] or ''):<18}{p['z_survey']:>16.3f}"
         if has_lidar:
             zl = "-" if p["z_lidar"] is None else f"{p['z_lidar']:.3f}"
             dz = "-" if p["dz_m"] is None else f"{p['dz_m']:+.3f}"
-            line += f"{zl:>16}{dz:>9}"
+            # a space between columns: a dz of metres or more filled its column and ran into the next (trial s94)
+            line += f" {zl:>16} {dz:>9}"
             if zu != "m":
-                line += f"{'-' if p['dz_m'] is None else format(p['dz_m'] / z_unit_m, '+.3f'):>10}"
+                line += f" {'-' if p['dz_m'] is None else format(p['dz_m'] / z_unit_m, '+.3f'):>10}"
         if dem is not None:
-            line += f"{'-' if p['z_dem'] is None else format(p['z_dem'], '.3f'):>12}"
-            line += f"{'-' if p['dz_dem_m'] is None else format(p['dz_dem_m'], '+.3f'):>12}"
+            line += f" {'-' if p['z_dem'] is None else format(p['z_dem'], '.3f'):>12}"
+            line += f" {'-' if p['dz_dem_m'] is None else format(p['dz_dem_m'], '+.3f'):>12}"
         lines.append(line)
+    offset = result.get("constant_offset")
+    if offset:
+        lines += ["", f"warning: the {offset['surface']} and the surveyed heights differ by a nearly constant "
+                  f"{offset['median_dz_m']:+.3f} m on the {offset['n']} points checked (spread "
+                  f"{offset['spread_m']:.3f} m): "
+                  "two height systems (ellipsoidal against orthometric heights differ by the geoid, tens of metres; "
+                  "another vertical datum), or a cloud of heights above the ground (normalised)? The RMSE measures "
+                  "that offset, not the surface's accuracy"]
     slip = result.get("unit_slip")
     if slip:
         lines += ["", f"warning: the {slip['surface']} and the surveyed heights differ by a median |dz| of "

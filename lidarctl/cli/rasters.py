@@ -53,6 +53,9 @@ def rasters(*, in_paths, outdir, res_m, crs, tile_px, buffer_px, dem_fill_radius
         logging.getLogger(__name__).info(
             "%s: %s; cells of %g m = %.6g %s, heights in %s", in_paths[0], units.describe(), res_m,
             res_m / units.xy_m, units.xy_name, units.z_name)
+    from lidarctl.normalised import warn_if_normalised
+
+    warn_if_normalised(in_paths, crs)
     resume_dir = beside(outdir)
     if not resume:
         discard_kept(resume_dir)

@@ -7,6 +7,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from aerotri.core.errors import InputError
+
 HYDRO_TAG = "HYDRO_FLATTENED"  # lidarctl hydro-flatten's tag on its DEM: lidarctl smooth warns of it
 
 
@@ -73,6 +75,20 @@ def open_dem_unit(in_path, out_path=None):
     except BaseException:
         src.close()
         raise
+
+
+# lidarctl rasters' grids of heights above the ground (their band descriptions' starts): no terrain, though heights
+ABOVE_GROUND_DESCRIPTIONS = ("CHM:", "nDSM:")
+
+
+def refuse_above_ground(src, path, command: str) -> None:
+    """InputError when the raster says it holds heights above the ground (lidarctl rasters' chm.tif, ndsm.tif, by
+    their band descriptions), for a ``command`` that needs terrain (trial s94: ``lidarctl drainage chm.tif`` traced
+    streams over the crowns, exit 0, where intensity.tif was refused)."""
+    desc = (src.descriptions[0] if src.count >= 1 and src.descriptions else None) or ""
+    if desc.startswith(ABOVE_GROUND_DESCRIPTIONS):
+        raise InputError(f"{path}: holds heights above the ground (its band description {desc!r}), not terrain; "
+                         f"{command} needs a DEM of the ground (lidarctl rasters' dem.tif)")
 
 
 def write_dem_cog(work, out_path) -> None:

@@ -605,7 +605,7 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
 
     from aerotri.core.atomic import atomic_dir
     from aerotri.geom.crs.definition import height_unit_m, linear_unit_m, unit_long_name, unit_name
-    from lidarctl.terrain.dem_io import open_dem
+    from lidarctl.terrain.dem_io import open_dem, refuse_above_ground
 
     if method not in METHODS:
         raise OptionError(f"depression handling is one of {', '.join(METHODS)}, got {method!r}", param="--fill/--breach")
@@ -622,6 +622,7 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
                           f"a whole; it holds other files)", param="OUTDIR")
     src, z_m = open_dem(dem_path, outdir / "conditioned.tif")
     with src:
+        refuse_above_ground(src, dem_path, "drainage")
         crs = src.crs
         xy_m = linear_unit_m(crs)
         if not np.isfinite(xy_m):

@@ -747,6 +747,11 @@ def extract_vectors(paths, out_path, params: MapVectorSettings = MapVectorSettin
     xy = np.column_stack([pts.x, pts.y])
     if len(xy) == 0:
         raise InputError(f"{', '.join(map(str, paths))}: no points besides noise")
+    if not np.isin(cls, (GROUND, BUILDING)).any():
+        # trial s94: an unclassified cloud gave a GeoPackage of empty layers, exit 0, where rasters refuses it
+        raise InputError(f"{', '.join(map(str, paths))}: no ground (2) or building (6) points, the classes the map is "
+                         f"drawn from (the cloud holds {', '.join(map(str, np.unique(cls)))}); run 'lidarctl "
+                         "classify' first")
     p = params
     f_xy = 1.0 / units.xy_m  # metres -> CRS units
     f_z = 1.0 / units.z_m
@@ -860,9 +865,10 @@ def write_vectors(mv: MapVectors, path) -> Path:
 
 def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSettings(), crs=None, dem=None,
                     contours=None,
-                    image=None) -> VectorsResult:
+                    image=None, owned: bool = False) -> VectorsResult:
     """``extract_vectors`` + ``write_vectors`` (+ a PNG preview beside OUT over ``image`` when given).
-    Returns the summary."""
+    ``owned``: OUT is a project's own output (the chain's), replaced even when an earlier version wrote it without
+    the mark of our GeoPackages (``refuse_foreign_layers``). Returns the summary."""
     from aerotri.core.atomic import refuse_input_as_output
 
     out_path = Path(out_path)
@@ -878,7 +884,7 @@ def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSet
         raise OptionError(f"{out_path}: the output must end in .gpkg", param="OUT")
     from aerotri.core.vector_files import refuse_foreign_layers
 
-    refuse_foreign_layers(out_path, LAYER_NAMES, "lidarctl vectors")
+    refuse_foreign_layers(out_path, LAYER_NAMES, "lidarctl vectors", owned=owned)
     if image is not None:
         _check_raster(Path(image))
     mv = extract_vectors(paths, out_path, params, crs=crs, dem=dem, contours=contours)

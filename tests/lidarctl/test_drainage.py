@@ -246,3 +246,22 @@ def test_map_axes_name_the_crs_unit(tmp_path, monkeypatch):
                                       "--interval-m", "1"])
         assert r.exit_code == 0, r.output
     assert labels == [("easting (m)", "northing (m)")] * 2 + [("easting (ft)", "northing (ft)")] * 2
+
+
+def test_heights_above_the_ground_are_refused(tmp_path):
+    """Trial s94: `lidarctl drainage chm.tif` traced streams over the crowns (exit 0); rasters' chm.tif and ndsm.tif
+    say by their band description that they hold heights above the ground: refused, nothing written."""
+    z, _ = _y_valleys()
+    for name, desc in (("chm", "CHM: highest vegetation above the DEM (metre)"), ("ndsm", "nDSM: DSM - DEM (metre)")):
+        path = tmp_path / f"{name}.tif"
+        _write(path, z, "EPSG:32633", 2.0)
+        with rasterio.open(path, "r+") as d:
+            d.set_band_description(1, desc)
+        r = CliRunner().invoke(main, ["drainage", str(path), str(tmp_path / f"out_{name}")])
+        assert r.exit_code == 2 and "heights above the ground" in r.output and str(path) in r.output
+        assert not (tmp_path / f"out_{name}").exists()
+    path = tmp_path / "dem.tif"  # a DEM whose description says so is not
+    _write(path, z, "EPSG:32633", 2.0)
+    with rasterio.open(path, "r+") as d:
+        d.set_band_description(1, "DEM: mean height of ground and water points (metre)")
+    assert CliRunner().invoke(main, ["drainage", str(path), str(tmp_path / "out_dem")]).exit_code == 0

@@ -146,3 +146,22 @@ def test_a_dem_checked_alone_fills_the_top_level_overall(tmp_path):
     rec = read_height_check(tmp_path / "hc.json")
     assert rec.n_checked is None and rec.rmse_m is None and rec.groups == {} and rec.dem_n_checked == 3
     assert "LiDAR height check (dz = Z_lidar" not in _run(["check-heights", tmp_path / "p.csv", "--dem", dem]).output
+
+
+def test_a_constant_offset_is_said_and_the_columns_stay_apart(tmp_path):
+    """Trial s94: a normalised cloud's heights against elevations, RMSE 2149.993 m on every point and no word of
+    why; the table's large dz ran into the next column ("2149.9932149.993", "dz (m)dz (us-ft)")."""
+    dem = _flat_dem(tmp_path / "dem.tif", "EPSG:32610", 0.1)
+    pts = _points(tmp_path / "p.csv", [-2149.99, -2150.0, -2149.98, -2150.01], 0.1)
+    r = _run(["check-heights", pts, "--dem", dem])
+    assert r.exit_code == 0, r.output
+    assert "nearly constant -2149.995 m on the 4 points checked" in r.output and "geoid" in r.output
+    assert "2149.995 2149.995" in " ".join(r.output.split())  # mean |dz| and RMSE apart
+    row = next(line for line in r.output.splitlines() if line.startswith("P00"))
+    assert row.split()[-2:] == ["0.100", "-2149.990"]
+    doc = check_heights_file(None, pts, dem_path=dem).document
+    assert doc["constant_offset"]["median_dz_m"] == pytest.approx(-2149.995)
+    # an error that varies from point to point is not an offset, nor a small common one
+    for dz in ([-12.0, 3.0, -20.0, 8.0], [0.3, 0.31, 0.29, 0.3]):
+        doc = check_heights_file(None, _points(tmp_path / "q.csv", dz, 0.1), dem_path=dem).document
+        assert "constant_offset" not in doc

@@ -668,3 +668,49 @@ def test_the_vertical_part_of_crs_is_not_dropped_silently(files, tmp_path, caplo
     assert "vertical part" not in caplog.text
     r = CliRunner().invoke(main, ["evaluate", str(cloud), "--truth", str(d / "c.laz"), "--crs", "EPSG:32632"])
     assert r.exit_code == 2 and "--crs" in r.output and "--reference only" in r.output, r.output
+
+
+def test_a_crs_given_for_a_file_without_one_is_checked_against_its_coordinates(tmp_path):
+    """Trial s94: a UTM cloud without a CRS record classified with --crs EPSG:6880 (Nebraska, US feet; the points far
+    outside its area of use) was read in feet, exit 0 and no word. Now outside the area of use is a warning (grids
+    are used past their zone's area), coordinates the CRS cannot hold a refusal; the right CRS is silent."""
+    cloud, truth = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=3, n_buildings=1, n_trees=5)
+    path = tmp_path / "nocrs.las"
+    synthetic.write_las(path, cloud, classification=truth)  # UTM 32N coordinates, no CRS record
+    runner = CliRunner()
+    # Lambert-93 would put them at 36 deg N, 5 deg south of France: said, the rasters written
+    r = runner.invoke(main, ["rasters", str(path), str(tmp_path / "r1"), "--res-m", "2", "--crs", "EPSG:2154"])
+    assert r.exit_code == 0, r.output
+    assert "outside the area of use of EPSG:2154" in r.output and "--crs EPSG:2154 used all the same" in r.output
+    r = runner.invoke(main, ["rasters", str(path), str(tmp_path / "r2"), "--res-m", "2", "--crs", "EPSG:32632"])
+    assert r.exit_code == 0 and "area of use" not in r.output, r.output
+    # the trial's Nebraska feet put them more than 10 deg beyond its area: another CRS, refused, nothing written
+    r = runner.invoke(main, ["classify", str(path), str(tmp_path / "c.las"), "--crs", "EPSG:6880"])
+    assert r.exit_code == 2 and "--crs EPSG:6880: the coordinates cannot be" in r.output, r.output
+    assert "Traceback" not in r.output and not (tmp_path / "c.las").exists()
+
+
+def test_delivered_class_11_of_a_las_1_2_file_is_not_called_road(tmp_path):
+    """Trial s94: `classify --keep-classes` of lidR's MixedConifer (LAS 1.2) printed "road 5"; 11 is reserved
+    before LAS 1.4."""
+    cloud, truth = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=3, n_buildings=1, n_trees=5)
+    truth = truth.copy()
+    truth[:5] = 11
+    for version, name in (("1.2", "class 11 (reserved in LAS 1.2) 5"), ("1.4", "road 5")):
+        path = tmp_path / f"c{version}.las"
+        synthetic.write_las(path, cloud, classification=truth, crs="EPSG:32632", version=version)
+        r = CliRunner().invoke(main, ["classify", "--keep-classes", str(path), str(tmp_path / f"k{version}.las")])
+        assert r.exit_code == 0 and name in r.output, r.output
+
+
+def test_classes_a_las_1_2_file_reserves_are_said(tmp_path):
+    """Trial s94: AHN3 Delft (LAS 1.2) classified got bridge deck (17) and high noise (18), classes LAS 1.2 reserves,
+    without a word; the output keeps the input's version."""
+    cloud, truth = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=3, n_buildings=1, n_trees=5)
+    for version in ("1.2", "1.4"):
+        synthetic.write_las(tmp_path / f"in{version}.las", cloud, classification=truth, crs="EPSG:32632",
+                            version=version)
+        r = CliRunner().invoke(main, ["classify", str(tmp_path / f"in{version}.las"), str(tmp_path / f"o{version}.las")])
+        assert r.exit_code == 0, r.output
+        assert ("18 (high noise) are ASPRS LAS 1.4 classes, which LAS 1.2" in r.output) == (version == "1.2"), r.output
+        assert str(laspy.read(tmp_path / f"o{version}.las").header.version) == version

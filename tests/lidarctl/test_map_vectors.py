@@ -796,3 +796,55 @@ def test_contours_traced_from_the_dem_stop_at_the_water():
     assert out.fields["elevation"].tolist() == [1.0, 1.0, 3.0] and out.fields["index"].tolist() == [True, True, False]
     assert not any(g.intersects(shapely.box(10.001, 10.001, 19.999, 19.999)) for g in out.geometries)
     assert _outside_water(layer, []) is layer
+
+
+def test_a_reference_that_lies_elsewhere_is_refused_one_without_a_crs_said(made, tmp_path, caplog):
+    """Trial s94: BGT footprints moved into another CRS and written without one scored 0 % / 0 % with corner offsets
+    of 4,747 km, exit 0 (lidarctl evaluate refuses the same file); a reference without a CRS was taken in the
+    product's without a word."""
+    import logging
+
+    _, _, out = made
+    ref = _reference(tmp_path / "ref.gpkg")
+    for name, shift in (("nocrs", (0.0, 0.0)), ("far", (3.0e6, 0.0))):
+        path = tmp_path / f"{name}.gpkg"
+        for i, layer in enumerate(("buildings", "roads")):
+            meta, _, geoms, fields = read(ref, layer=layer)
+            moved = [affinity.translate(g, *shift) for g in shapely.from_wkb(geoms)]
+            write(path, np.array(shapely.to_wkb(np.array(moved, dtype=object)), dtype=object), field_data=fields,
+                  fields=meta["fields"], geometry_type=meta["geometry_type"], driver="GPKG", layer=layer,
+                  append=i > 0)
+    with caplog.at_level(logging.WARNING):
+        res = vc.check_vectors(out, tmp_path / "nocrs.gpkg", vc.VectorCheckSettings(layers=("buildings",)))
+    assert res.document["layers"]["buildings"]["completeness_pct"] > 80
+    assert any("nocrs.gpkg: has no CRS; taken in" in r.getMessage() for r in caplog.records)
+    r = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(tmp_path / "far.gpkg"),
+                                  "--json", str(tmp_path / "c.json")])
+    assert r.exit_code == 2 and "lie apart" in r.output and "far.gpkg has no CRS of its own" in r.output
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_an_unclassified_cloud_is_refused(tmp_path):
+    """Trial s94: `lidarctl vectors` of an unclassified cloud wrote a GeoPackage of empty layers, exit 0."""
+    cloud = _write_las(tmp_path / "c.las")
+    pts = laspy.read(cloud)
+    pts.classification = np.zeros(len(pts.x), np.uint8)
+    pts.write(tmp_path / "u.las")
+    r = CliRunner().invoke(main, ["vectors", str(tmp_path / "u.las"), str(tmp_path / "u.gpkg")])
+    assert r.exit_code == 2 and "no ground (2) or building (6) points" in r.output and "classify" in r.output
+    assert not (tmp_path / "u.gpkg").exists()
+
+
+def test_swapped_product_and_reference_are_said(made, tmp_path, caplog):
+    import logging
+
+    _, _, out = made
+    ref = _reference(tmp_path / "ref.gpkg")
+    with caplog.at_level(logging.WARNING):
+        vc.check_vectors(ref, out, vc.VectorCheckSettings(layers=("buildings",)))
+    assert any("ref.gpkg has no coverage layer but" in r.getMessage() and "swapped?" in r.getMessage()
+               for r in caplog.records)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        vc.check_vectors(out, ref, vc.VectorCheckSettings(layers=("buildings",)))
+    assert not any("swapped?" in r.getMessage() for r in caplog.records)

@@ -98,3 +98,32 @@ def test_the_dom_95th_percentile_row_says_it_is_no_asprs_measure(tmp_path):
     asprs = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10").check("dom_p95_xy_m")
     assert asprs.quantity.endswith("(the gross-error rule, not an ASPRS measure)")
     assert not write_qa_report(p, standard="cn-at").check("dom_p95_xy_m").quantity.endswith("ASPRS measure)")
+
+
+def test_a_standard_that_judges_nothing_here_makes_the_verdict_not_testable(tmp_path):
+    """Trial s94: a LiDAR-only folder holding the classification's evaluation alone, `aerotri report P --standard
+    usgs-lbs`, read "pass (1 passed, 0 failed; USGS Lidar Base Specification, QL2)" with an empty compliance section:
+    the pass was the project's own ground-filter limit. Now not testable, saying what the standard looks for; without
+    --standard the same folder passes on its own limits."""
+    from lidarctl import synthetic
+    from lidarctl.cli.main import main as lidarctl_main
+    from aerotri.cli import main as aerotri_main
+
+    cloud, truth = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=3, n_buildings=1, n_trees=5)
+    p = tmp_path / "P"
+    (p / "lidar_out").mkdir(parents=True)
+    (p / "project.toml").write_text('[project]\ncrs = "EPSG:32632"\n')
+    synthetic.write_las(tmp_path / "c.las", cloud, classification=truth, crs="EPSG:32632")
+    r = CliRunner().invoke(lidarctl_main, ["evaluate", str(tmp_path / "c.las"), "--truth", str(tmp_path / "c.las"),
+                                           "--json", str(p / "lidar_out" / "classification_eval.json")])
+    assert r.exit_code == 0, r.output
+    rep = write_qa_report(p, standard="usgs-lbs")
+    assert rep.overall == "not testable" and rep.passed >= 1 and rep.failed == 0
+    text = console_summary(rep)
+    assert "not testable: nothing it judges was found" in text and "lidar_out/height_check.json" in text
+    assert text.splitlines()[-1].endswith("the standard asked for judges nothing here: the overall verdict is not "
+                                          "testable")
+    assert "Not testable: nothing it judges was found" in (p / "reports" / "index.html").read_text()
+    assert write_qa_report(p).overall == "pass"
+    r = CliRunner().invoke(aerotri_main, ["report", str(p), "--standard", "usgs-lbs"])
+    assert r.exit_code == 0 and "not testable (" in r.output, r.output
