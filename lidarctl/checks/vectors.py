@@ -458,8 +458,9 @@ APART_M = 1000.0
 
 def _refuse_apart(prod: dict, ref: dict, layers, product_path, reference_path, pcrs, rcrs, unit: float) -> None:
     """A file without a CRS is taken in the other's (said); an InputError when the compared layers' extents lie more
-    than ``APART_M`` apart (``unit``: metres per CRS unit): files in two CRSs, one without its own (trial s94: BGT footprints in EPSG:3035 without a CRS tag scored 0 %
-    / 0 % with corner offsets of 4,747 km, exit 0, where ``lidarctl evaluate`` refuses the same file)."""
+    than ``APART_M`` apart (``unit``: metres per CRS unit): files in two CRSs, one without its own (trial s94: BGT
+    footprints in EPSG:3035 without a CRS tag scored 0 % / 0 % with corner offsets of 4,747 km, exit 0, where
+    ``lidarctl evaluate`` refuses the same file)."""
     from aerotri.geom.crs.definition import crs_label
 
     for path, crs, other, other_crs in ((product_path, pcrs, reference_path, rcrs),

@@ -710,7 +710,8 @@ def test_classes_a_las_1_2_file_reserves_are_said(tmp_path):
     for version in ("1.2", "1.4"):
         synthetic.write_las(tmp_path / f"in{version}.las", cloud, classification=truth, crs="EPSG:32632",
                             version=version)
-        r = CliRunner().invoke(main, ["classify", str(tmp_path / f"in{version}.las"), str(tmp_path / f"o{version}.las")])
+        r = CliRunner().invoke(main, ["classify", str(tmp_path / f"in{version}.las"),
+                                      str(tmp_path / f"o{version}.las")])
         assert r.exit_code == 0, r.output
         assert ("18 (high noise) are ASPRS LAS 1.4 classes, which LAS 1.2" in r.output) == (version == "1.2"), r.output
         assert str(laspy.read(tmp_path / f"o{version}.las").header.version) == version
