@@ -469,7 +469,11 @@ class Camera:
 
         path = Path(path)
         try:
-            d = tomllib.loads(read_text(path, "camera file (TOML)"))
+            # (trial s94: a project whose frames' EXIF holds no camera stopped `match` on "file not found" alone)
+            d = tomllib.loads(read_text(path, "camera file (TOML)", hint=(
+                "write it with the calibrated camera: aerotri init printed a template, docs/project.md#cameratoml; "
+                "or bring it with the orientations: aerotri import --format orthority|patb|colmap|opensfm|metashape")
+                if path.name == "camera.toml" and path.parent.name != "at" else ""))
         except tomllib.TOMLDecodeError as exc:
             raise InputError(f"{path}: not valid TOML ({exc})") from None
         return cls.from_dict(d, source=str(path), plausible=plausible)

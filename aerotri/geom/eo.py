@@ -63,12 +63,17 @@ def _parse_table(path: Path, min_cols: int, max_cols: int, what: str) -> tuple[l
         if not s or s.startswith("#"):
             continue
         parts = s.split()
+        # (trial s94: a CSV export with its header, 'filename,x,y,z', read "got 1 fields" and nothing more)
+        commas = "; the fields are separated by spaces or tabs, and this line has commas (a CSV: replace them)" \
+            if "," in s and len(s.replace(",", " ").split()) != len(parts) else ""
+        header = "; a header line? start it with # (a comment)" if not ids else ""
         if not (min_cols <= len(parts) <= max_cols):
-            raise InputError(f"{path}:{lineno}: expected {what}, got {len(parts)} fields: {s!r}")
+            raise InputError(f"{path}:{lineno}: expected {what}, got {len(parts)} fields: {s!r}{commas}"
+                             + (header if not commas else ""))
         try:
             vals = [float(p) for p in parts[1:]]
         except ValueError:
-            raise InputError(f"{path}:{lineno}: non-numeric value in {s!r} (expected {what})") from None
+            raise InputError(f"{path}:{lineno}: non-numeric value in {s!r} (expected {what}){header}") from None
         if not all(math.isfinite(v) for v in vals):
             raise InputError(f"{path}:{lineno}: NaN or infinite value in {s!r}")
         if parts[0] in seen:

@@ -232,10 +232,13 @@ def _read_frames(project: Project, crs, camera: BrownCamera, s: MatchSettings) -
     if project.gnss_path.exists():
         gnss = read_gnss(project.gnss_path, crs)
         missing = sorted(set(images.image_id) - set(gnss.image_id))
-        if missing:
-            raise InputError(f"{project.gnss_path}: no GNSS position for frame(s) {', '.join(missing[:10])}"
-                             + (" ..." if len(missing) > 10 else ""))
         no_image = sorted(set(gnss.image_id) - set(images.image_id))
+        if missing:
+            # (trial s94: a typo in gnss.txt's id, 05_184 for 05_0184, named the frame alone, not the record)
+            spare = f"; its records of no frame: {', '.join(no_image[:10])}" + (" ..." if len(no_image) > 10 else "") \
+                + " (a typo in an id?)" if no_image else ""
+            raise InputError(f"{project.gnss_path}: no GNSS position for frame(s) {', '.join(missing[:10])}"
+                             + (" ..." if len(missing) > 10 else "") + spare)
         if no_image:
             raise InputError(f"{project.images_dir}: no image file for GNSS record(s) {', '.join(no_image[:10])} "
                              f"of {project.gnss_path}" + (" ..." if len(no_image) > 10 else "")

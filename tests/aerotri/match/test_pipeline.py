@@ -155,6 +155,7 @@ def _rewrite_frame(path, bands=None, dtype=None):
 
 
 @pytest.mark.parametrize("case", ["unreadable", "one_band", "sixteen_bit", "missing_image", "missing_gnss",
+                                  "gnss_id_typo", "gnss_csv", "gnss_header", "no_camera",
                                   "pixels_focal", "no_overlap"])
 def test_bad_inputs_name_the_culprit(tiny_project, tmp_path, case):
     p = _copy_inputs(tiny_project, tmp_path / "p")
@@ -177,6 +178,23 @@ def test_bad_inputs_name_the_culprit(tiny_project, tmp_path, case):
         lines = (p / "gnss.txt").read_text().splitlines()
         (p / "gnss.txt").write_text("\n".join(l for l in lines if not l.startswith("s02_003")) + "\n")
         expect = "no GNSS position for frame(s) s02_003"
+    elif case == "gnss_id_typo":  # trial s94: the record of a typo'd id was not named
+        text = (p / "gnss.txt").read_text()
+        (p / "gnss.txt").write_text(text.replace("s02_003 ", "s02_03 ", 1))
+        expect = "no GNSS position for frame(s) s02_003; its records of no frame: s02_03 (a typo in an id?)"
+    elif case in ("gnss_csv", "gnss_header"):  # trial s94: a CSV export with its header read "got 1 fields"
+        lines = (p / "gnss.txt").read_text().splitlines()
+        if case == "gnss_csv":
+            (p / "gnss.txt").write_text("\n".join(",".join(l.split()) for l in lines) + "\n")
+            expect = "this line has commas (a CSV: replace them)"
+        else:
+            (p / "gnss.txt").write_text("\n".join(["image_id x y z", *lines]) + "\n")
+            expect = "gnss.txt:1: non-numeric value in 'image_id x y z'"
+            assert "a header line? start it with # (a comment)" in \
+                CliRunner().invoke(aerotri_main, ["match", str(p)]).output
+    elif case == "no_camera":  # trial s94: "file not found" alone
+        (p / "camera.toml").unlink()
+        expect = "aerotri init printed a template"
     elif case == "pixels_focal":
         cam = (p / "camera.toml").read_text().replace("focal_mm = 120.0", "focal_mm = 312.5")
         cam = cam.replace("pixel_um = 384.0", "pixel_um = 1.0")
