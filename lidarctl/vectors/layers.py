@@ -687,7 +687,9 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs, clou
     return Layer("contours", "LineString", [shapely.LineString(c.xy) for c in cs],
                  {"elevation": np.array([c.level for c in cs], float) * (z_m / cloud_z_m if z_m != cloud_z_m else 1.0),
                   "elevation_m": np.array([c.level * z_m for c in cs], float),
-                  "index": np.array([c.index for c in cs], bool)})
+                  "index": np.array([c.index for c in cs], bool),
+                  # as lidarctl contours writes them (trial s94: this layer lacked the field)
+                  "closed": np.array([c.closed for c in cs], bool)})
 
 
 def _outside_water(contours: Layer, water: list) -> Layer:
@@ -712,8 +714,10 @@ def _outside_water(contours: Layer, water: list) -> Layer:
                 geoms.append(piece)
                 rows.append(k)
     rows = np.array(rows, int)
-    return Layer(contours.name, contours.geometry_type, geoms,
-                 {name: np.asarray(v)[rows] for name, v in contours.fields.items()})
+    fields = {name: np.asarray(v)[rows] for name, v in contours.fields.items()}
+    if "closed" in fields:  # a ring cut at the shore is no longer closed
+        fields["closed"] = np.array([g.is_closed for g in geoms], bool)
+    return Layer(contours.name, contours.geometry_type, geoms, fields)
 
 
 def _scale_geoms(geoms: list, f: float) -> list:

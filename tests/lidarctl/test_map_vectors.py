@@ -173,6 +173,8 @@ def test_contours_from_dem_and_copied(made, tmp_path):
     xy = np.vstack([np.asarray(ln.coords) for ln in lines])
     lv = np.concatenate([np.full(len(ln.coords), e) for ln, e in zip(lines, f["elevation"])])
     assert np.abs(ground_z(xy[:, 0] - X0, xy[:, 1] - Y0) - lv).max() < 1e-3   # on the plane
+    # `closed` as lidarctl contours writes it (trial s94: the field was missing here)
+    assert list(f["closed"]) == [ln.is_closed for ln in lines]
     out2 = tmp_path / "b.gpkg"
     r = CliRunner().invoke(main, ["vectors", str(cloud), str(out2), "--contours", str(out)])
     assert r.exit_code == 0, r.output
