@@ -20,6 +20,7 @@ import laspy
 import numpy as np
 
 from aerotri.geom import las
+from lidarctl import grid
 from lidarctl.units import LengthUnits
 
 log = logging.getLogger(__name__)
@@ -32,17 +33,6 @@ MEDIAN_TOLERANCE_M = 0.15
 LOWEST_RANGE_M = (-50.0, CELL_TOLERANCE_M)
 SAMPLE_POINTS = 2_000_000
 MIN_CELLS = 20
-
-
-def lowest_per_cell(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, cell_m: float = CELL_M) -> np.ndarray:
-    """The lowest height (m) of each occupied ``cell_m`` cell of the points (x, y, z in metres)."""
-    i = np.floor((x_m - x_m.min()) / cell_m).astype(np.int64)
-    j = np.floor((y_m - y_m.min()) / cell_m).astype(np.int64)
-    key = i * (int(j.max()) + 1) + j
-    order = np.argsort(key, kind="stable")
-    k = key[order]
-    starts = np.r_[0, np.flatnonzero(np.diff(k)) + 1]
-    return np.minimum.reduceat(z_m[order], starts)
 
 
 def normalised_heights_note(path, header: laspy.LasHeader, units: LengthUnits,
@@ -63,7 +53,9 @@ def normalised_heights_note(path, header: laspy.LasHeader, units: LengthUnits,
                 break
     if n == 0:
         return None
-    lowest = lowest_per_cell(np.concatenate(xs), np.concatenate(ys), np.concatenate(zs))
+    z = np.concatenate(zs)
+    cells, *_ = grid.cell_ids(np.concatenate(xs), np.concatenate(ys), CELL_M)
+    lowest = z[grid.lowest_per_cell(cells, z)]
     share = float(np.mean(np.abs(lowest) <= CELL_TOLERANCE_M))
     median = float(np.median(lowest))
     if len(lowest) < MIN_CELLS or share < CELL_SHARE or abs(median) > MEDIAN_TOLERANCE_M:

@@ -635,16 +635,17 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
     result["overall_surface"] = "cloud" if cloud is not None else "dem"
     if cloud is None:
         result["overall"], result["groups"] = result["dem"]["overall"], result["dem"]["groups"]
+    # each surface's dz per point (NaN: not checked), the cloud's first
+    surfaces = [(what, np.array([np.nan if p.get(key) is None else p[key] for p in result["points"]], float))
+                for key, what in (("dz_m", "cloud"), ("dz_dem_m", "DEM")) if key in result["points"][0]]
     if points.z_unit is None:  # the header names no unit (a plain z): the CRS's unit was assumed
-        for key, what in (("dz_m", "cloud"), ("dz_dem_m", "DEM")):
-            dz = np.array([np.nan if p.get(key) is None else p[key] for p in result["points"]], float)
-            if key in result["points"][0] and (slip := unit_slip(dz, points_m.z, u.z_m, points.z_column)):
+        for what, dz in surfaces:
+            if slip := unit_slip(dz, points_m.z, u.z_m, points.z_column):
                 result["unit_slip"] = {**slip, "surface": what}
                 break
     if "unit_slip" not in result:
-        for key, what in (("dz_m", "cloud"), ("dz_dem_m", "DEM")):
-            dz = np.array([np.nan if p.get(key) is None else p[key] for p in result["points"]], float)
-            if key in result["points"][0] and (offset := constant_offset(dz)):
+        for what, dz in surfaces:
+            if offset := constant_offset(dz):
                 result["constant_offset"] = {**offset, "surface": what}
                 break
     return result
