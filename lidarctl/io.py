@@ -148,8 +148,7 @@ def _check_given_crs(path, header: laspy.LasHeader, crs: pyproj.CRS, crs_arg) ->
 
     if header.point_count == 0:
         return
-    cx = np.array([header.mins[0], header.maxs[0], header.mins[0], header.maxs[0]], float)
-    cy = np.array([header.mins[1], header.mins[1], header.maxs[1], header.maxs[1]], float)
+    cx, cy = las.header_corners(header)
     corners = [f"header bounds corner {i + 1}" for i in range(4)]
     try:
         far = check_coordinates(crs, cx, cy, str(path), corners, outside_area="warn")

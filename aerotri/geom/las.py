@@ -443,6 +443,14 @@ def geokey_vertical_unit_m(header: laspy.LasHeader) -> float | None:
     return vcs_unit_m
 
 
+def header_corners(header: laspy.LasHeader) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) of the four corners of the header's bounds (file units): min/min, max/min, min/max, max/max, which the
+    CRS checks name "header bounds corner 1..4"."""
+    x = np.array([header.mins[0], header.maxs[0], header.mins[0], header.maxs[0]], float)
+    y = np.array([header.mins[1], header.mins[1], header.maxs[1], header.maxs[1]], float)
+    return x, y
+
+
 def vertical_keys_beside_wkt(header: laspy.LasHeader) -> bool:
     """True when a readable WKT record is the CRS and GeoTIFF keys beside it still hold a VerticalUnitsGeoKey
     (4099) or VerticalCSTypeGeoKey (4096), which ``geokey_vertical_unit_m`` does not read (LAS 1.4: the WKT wins)."""

@@ -576,8 +576,7 @@ def transform_las(in_path, out_path, transformer: CrsTransformer, chunk_size: in
                        for c in (transformer.src, dst))
         sx = _nice_scale(hdr.scales[0] * f_in / f_out)
         sz = _nice_scale(hdr.scales[2] * z_in_m / height_unit_m(dst))
-        cx = np.array([hdr.mins[0], hdr.maxs[0], hdr.mins[0], hdr.maxs[0]])
-        cy = np.array([hdr.mins[1], hdr.mins[1], hdr.maxs[1], hdr.maxs[1]])
+        cx, cy = las.header_corners(hdr)
         cz = np.full(4, 0.5 * (hdr.mins[2] + hdr.maxs[2]) * z_factor)
         if hdr.point_count == 0:
             raise InputError(f"{in_path}: the file holds no points (nothing to transform)")
@@ -668,8 +667,7 @@ def assign_las(in_path, out_path, crs, chunk_size: int = 1_000_000) -> AssignRes
         if hdr.point_count == 0:
             raise InputError(f"{in_path}: the file holds no points (no coordinates to check against {label})")
         old = las.header_crs(hdr)
-        cx = np.array([hdr.mins[0], hdr.maxs[0], hdr.mins[0], hdr.maxs[0]])
-        cy = np.array([hdr.mins[1], hdr.mins[1], hdr.maxs[1], hdr.maxs[1]])
+        cx, cy = las.header_corners(hdr)
         try:
             # outside the area of use: a warning (Oslo in UTM 33, Berlin in UTM 32: grids used past their zone's area,
             # review 31); only coordinates the CRS cannot hold are refused
