@@ -475,7 +475,8 @@ POINT_LABELS_MAX = 40  # ids written beside the points up to this many (more wou
 
 
 def _key_length_m(largest_m: float) -> float:
-    """A round length (1, 2 or 5 x 10^k m) near the largest displacement, for the plot's scale arrow."""
+    """A round length (1, 2 or 5 x 10^k, in the unit given: metres, GSD) near the largest displacement, for the
+    plot's scale arrow."""
     if not largest_m > 0:
         return 0.1
     k = math.floor(math.log10(largest_m))
@@ -545,6 +546,11 @@ def plot_displacements(path, patches: PatchDisplacements | None, stats: Displace
         q = ax.quiver(drawn.col_px, drawn.row_px, drawn.dx_px * scale, drawn.dy_px * scale, d, angles="xy",
                       scale_units="xy", scale=1, cmap="viridis")
         fig.colorbar(q, ax=ax, label="displacement (GSD)")
+        # the scale arrow (s95: the colour bar alone gave no length to read an arrow against)
+        key = _key_length_m(float(d.max()))
+        metres = f" ({key * stats.gsd_m:.3g} m)" if stats.gsd_m else ""
+        ax.quiverkey(q, 0.02, 0.04, key * scale, f"{key:g} GSD{metres}", labelpos="E", coordinates="figure", color="k")
+        title = f"{title}: vectors x {scale:.3g}"
         if not flips[0]:  # (row 0 at the top; a south-oriented grid's row 0 is its southern edge)
             ax.invert_yaxis()
         if flips[1]:

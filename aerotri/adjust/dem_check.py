@@ -51,10 +51,23 @@ class DemCheck:
     limit_m: float | None  # OFFSET_SIGMAS x sigma_offset_m
     # of the n: left out by the surface control's gate below the DEM (None: a check DEM, which has no gate)
     below_n: int | None = None
+    # the surface control's: the GNSS heights minus the block height it gives (``gnss_surface``; None: not judged)
+    gnss_offset_m: float | None = None
+    gnss_offset_limit_m: float | None = None
+    heights: str = ""  # the project's height system, for the failure's words
 
     @property
     def failed(self) -> bool:
         return self.offset_failed or self.below_failed
+
+    @property
+    def gnss_significant(self) -> bool:
+        """The GNSS heights off the DEM's block height beyond ``OFFSET_SIGMAS`` (the verdict fails the solution when
+        that is beyond the height limit too: ``gnss_beyond``)."""
+        return self.gnss_offset_m is not None and abs(self.gnss_offset_m) > self.gnss_offset_limit_m
+
+    def gnss_beyond(self, height_limit_m: float) -> bool:
+        return self.gnss_significant and abs(self.gnss_offset_m) > height_limit_m
 
     @property
     def offset_failed(self) -> bool:
@@ -68,14 +81,32 @@ class DemCheck:
         """Why the check failed, one sentence (empty when it passed)."""
         why = []
         if self.offset_failed:
+            system = f"the project's {self.heights}" if self.heights else "the project's height system"
             why.append(f"median {self.median_m:+.3f} m over {self.n} points, beyond {OFFSET_SIGMAS:g} sigma of the "
-                       f"offset ({self.limit_m:.3f} m)")
+                       f"offset ({self.limit_m:.3f} m): the block's heights (the GNSS's, the control's) and the DEM's "
+                       f"disagree: GNSS heights, control or the DEM in another height system than {system}, an "
+                       "antenna height or lever arm off")
         if self.below_failed:
             why.append(f"{self.below_n} of {self.n} points ({100 * self.below_n / self.n:.0f} %, limit "
                        f"{100 * BELOW_SHARE_LIMIT:g} %) left out by the gate below the DEM (NMAD {self.nmad_m:.3f} m): "
                        "the block's heights scatter about the DEM beyond its sigma, as a camera in other units or a "
                        "DEM of another place or datum make them")
         return f"Tie points - DEM ({self.role}, {self.dem}): " + "; ".join(why) + "." if why else ""
+
+    def gnss_text(self, height_limit_m: float) -> str:
+        """Why the GNSS heights fail the solution against the DEM's block height (``gnss_beyond``), one sentence
+        with the usual causes and what to do."""
+        off = self.gnss_offset_m
+        system = f"the project's {self.heights}" if self.heights else "the project's height system"
+        return (f"GNSS heights - DEM ({self.dem}): the GNSS heights lie about {abs(off):.1f} m "
+                f"{'above' if off > 0 else 'below'} the block height the DEM gives ({OFFSET_SIGMAS:g} sigma "
+                f"{self.gnss_offset_limit_m:.2f} m, the height limit {height_limit_m:g} m), which the frames' tilts "
+                f"(and a focal length estimated) took up: the tie points still meet the DEM, the GNSS residuals stay "
+                f"small, the ground moves. GNSS heights in another height system than {system} (ellipsoidal and "
+                "geoid heights differ by the geoid undulation, tens of metres in most places), an antenna height or "
+                "lever arm off, or a DEM of another datum: convert gnss.txt's heights, or let the DEM hold the "
+                "block's height with one GNSS offset for the flight estimated ([gnss] offset_sigma_xy_m = 0.1, "
+                "offset_sigma_z_m = 50).")
 
     @property
     def tested(self) -> bool:
@@ -91,22 +122,31 @@ class DemCheck:
             return s + f" (fewer than {MIN_POINTS}: not tested)"
         below = (f"; {self.below_n} ({100 * self.below_n / self.n:.1f} %) left out below the DEM (limit "
                  f"{100 * BELOW_SHARE_LIMIT:g} %)" if self.below_n is not None else "")
+        gnss = (f"; GNSS heights - the DEM's block height {self.gnss_offset_m:+.3f} m ({OFFSET_SIGMAS:g} sigma "
+                f"{self.gnss_offset_limit_m:.3f} m{': significant' if self.gnss_significant else ''})"
+                if self.gnss_offset_m is not None else "")
         return s + (f"; {OFFSET_SIGMAS:g} sigma of the offset {self.limit_m:.3f} m (DEM {self.dem_sigma_m:.3f} m, "
-                    f"block height {self.height_sigma_m:.3f} m){below}: " + ("FAILED" if self.failed else "passed"))
+                    f"block height {self.height_sigma_m:.3f} m){below}{gnss}: "
+                    + ("FAILED" if self.failed else "passed"))
 
 
 def tie_dem_check(surface: SurfaceControl, points_local: np.ndarray, ground_tie: np.ndarray, dem: str, role: str,
-                  height_sigma_m: float | None, gated_out: np.ndarray | None = None) -> DemCheck:
+                  height_sigma_m: float | None, gated_out: np.ndarray | None = None, gnss_offset=None,
+                  heights: str = "") -> DemCheck:
     """``DemCheck`` of the points ``ground_tie`` (bool mask over ``points_local``, the local frame) against the
     DEM of ``surface`` (its stated sigma ``sigma_m``); ``gated_out``: the points the surface control's gate left
-    out (bool mask; None for a check DEM)."""
+    out (bool mask; None for a check DEM); ``gnss_offset``: the surface control's ``gnss_surface.GnssSurfaceOffset``
+    (``heights``: the project's height system's name)."""
     e, _, _ = surface.observe(np.asarray(points_local, dtype=float), jacobian=False)
     on = np.asarray(ground_tie, dtype=bool) & np.isfinite(e)
     d = e[on]
     n = int(len(d))
     s_dem = float(surface.sigma_m)
     below = None if gated_out is None else int(np.sum(on & np.asarray(gated_out, dtype=bool) & (e < 0.0)))
-    known = dict(dem=dem, role=role, n=n, dem_sigma_m=s_dem, height_sigma_m=height_sigma_m, below_n=below)
+    known = dict(dem=dem, role=role, n=n, dem_sigma_m=s_dem, height_sigma_m=height_sigma_m, below_n=below,
+                 heights=heights)
+    if gnss_offset is not None:
+        known.update(gnss_offset_m=gnss_offset.offset_m, gnss_offset_limit_m=gnss_offset.limit_m)
     if n == 0:
         return DemCheck(**known, median_m=None, nmad_m=None, sigma_offset_m=None, limit_m=None)
     med = float(np.median(d))

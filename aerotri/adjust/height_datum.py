@@ -238,7 +238,7 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
     xy = g[:, :2] - g[:, :2].mean(axis=0)
     rho = max(float(np.max(np.linalg.norm(xy, axis=1))), 1e-9)
     P = np.column_stack([np.ones(len(g)), xy / rho])  # (N, 3): offset, east, north at each GNSS position
-    P = _beyond_correction(block, opts, P, w[:, 2])
+    P = beyond_correction(block, opts, P, w[:, 2])
     lo = (tuple(str(ids[c]) for c in np.flatnonzero(left)), tuple(str(ids[c]) for c in np.flatnonzero(out)))
     cl = np.asarray(block.control_local, dtype=float)
     dz = [float(cl[c, 2] - state.points[block.control_point[c]][2]) for c in np.flatnonzero(out)]
@@ -251,13 +251,7 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
         return HeightDatumCheck(0.0, math.nan, math.nan, alpha, *lo, **more)
     if P.shape[1] == 0:  # the correction takes the whole plane: its strips' own sigmas alone
         return HeightDatumCheck(0.0, math.nan, math.nan, alpha, *lo, **more)
-    h = np.einsum("n,na,nb->ab", w[:, 2], P, P)
-    grad = P.T @ (w[:, 2] * (g[:, 2] - pred[:, 2]))
-    b = np.zeros((rc.n, P.shape[1]))
-    for i, row in enumerate(rows):
-        for k, J in row:
-            b[rc.offset[k]:rc.offset[k] + J.shape[1]] += np.outer(J[2], w[i, 2] * P[i])
-    S = h - b.T @ rc.multiply(b)
+    S, grad = plane_normals(rc, P, w[:, 2], g[:, 2] - pred[:, 2], rows)
     # singular where the control left cannot fix the plane (one point, points on a line): relative to h's scale
     ev = np.linalg.eigvalsh(0.5 * (S + S.T))
     if not (ev[0] > 1e-9 * max(ev[-1], 1e-300)):
@@ -268,6 +262,20 @@ def height_datum_check(block: G.Block, opts: G.SolveSettings, state: G.State, rc
     i = int(np.argmax(sd))
     c2 = float(est @ S @ est) / sigma0**2 if sigma0 > 0 else math.nan
     return HeightDatumCheck(float(sd[i]), float(P[i] @ est), c2, alpha, *lo, **more)
+
+
+def plane_normals(rc, P: np.ndarray, w_z: np.ndarray, misfit_z: np.ndarray, rows) -> tuple[np.ndarray, np.ndarray]:
+    """The plane terms ``P`` (N, k) of the GNSS heights' error added to the solution's normal equations: their
+    Schur complement against every other unknown (``rc`` the unit-weight reduced covariance, ``rows`` the GNSS
+    positions' Jacobians of ``gnss_rows``) and their gradient at the solution (``misfit_z`` GNSS minus adjusted
+    height, ``w_z`` its weight): one Gauss-Newton step estimates the terms as ``S^-1 grad``."""
+    h = np.einsum("n,na,nb->ab", w_z, P, P)
+    grad = P.T @ (w_z * misfit_z)
+    b = np.zeros((rc.n, P.shape[1]))
+    for i, row in enumerate(rows):
+        for k, J in row:
+            b[rc.offset[k]:rc.offset[k] + J.shape[1]] += np.outer(J[2], w_z[i] * P[i])
+    return h - b.T @ rc.multiply(b), grad
 
 
 def _kept_heights_cov(block: G.Block, opts: G.SolveSettings, state: G.State, rc, kept, obs_active):
@@ -374,7 +382,7 @@ def _strip_sigmas(block: G.Block, opts: G.SolveSettings, rc, sigma0: float) -> t
     return tuple(out)
 
 
-def _beyond_correction(block: G.Block, opts: G.SolveSettings, P: np.ndarray, w_z: np.ndarray) -> np.ndarray:
+def beyond_correction(block: G.Block, opts: G.SolveSettings, P: np.ndarray, w_z: np.ndarray) -> np.ndarray:
     """The plane's terms ``P`` (N, 3) less what the GNSS correction's height terms take (weighted least squares over
     the GNSS heights), in the directions of which more than ``SURVIVING_SHARE`` survives: (N, k), k <= 3."""
     if opts.gnss_correction == "none":

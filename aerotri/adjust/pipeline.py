@@ -1216,8 +1216,10 @@ def _dem_checks(p: PreparedBlock, result: AdjustmentResult) -> list:
     out = []
     if block.surface is not None and result.surface_use is not None:
         ground = tie & (result.surface_use > 0) & (block.surface.point_class(block.n_points) == 0)
+        heights = project_heights(p.project)
         out.append(tie_dem_check(block.surface, result.state.points, ground, str(st.dem), "surface control", height,
-                                 gated_out=result.surface_use == 2))
+                                 gated_out=result.surface_use == 2, gnss_offset=result.gnss_surface,
+                                 heights=heights.name if heights is not None else "ellipsoidal heights"))
     if p.check_surface is not None:
         ground = tie & p.check_surface.candidates(result.state.points)
         out.append(tie_dem_check(p.check_surface, result.state.points, ground, str(st.check_dem), "check", height))

@@ -481,7 +481,7 @@ def _options(ba, tolerances: str) -> dict:
         "adjustment_mode": "Absolute" if (len(ba.control) or has_gnss) else "Relative",
         "precision_computation": "Enabled" if r.pose_cov is not None else "Disabled",
         "error_detection": "Enabled" if st.snooping else "Disabled",
-        "camera_calibration": "Enabled",
+        "camera_calibration": "Enabled (the given calibration: camera.toml, a priori)",
         "self_calibration": _self_calibration_option(ba),
         "given_eo_gps": "Enabled" if has_gnss else "Disabled",
         "antenna_offsets": ("Enabled (" + ", ".join(f"{v:.3f}" for v in b.lever_arm_m) + " m)") if has_gnss and np.any(b.lever_arm_m) else "Disabled",
@@ -942,15 +942,16 @@ SIGMA0_PLAUSIBLE = (0.8, 1.25)  # beyond, the a-priori image sigma is off by mor
 
 def _sigma0_note(ba) -> str | None:
     """A note when sigma0 is far from one and the images were weighted by the a-priori sigma: the covariances are
-    scaled by sigma0 squared, and with it the GNSS, control and DEM sigmas (on simulated blocks with 0.3 px of
-    noise and the default 0.5 px, the orientations came out 1.1-1.3 of their sigmas off)."""
+    scaled by sigma0 squared (the sigmas by sigma0), and with it the GNSS, control and DEM sigmas (on simulated
+    blocks with 0.3 px of noise and the default 0.5 px, the orientations came out 1.1-1.3 of their sigmas off)."""
     r, opts = ba.result, ba.opts
     if (not math.isfinite(r.sigma0) or SIGMA0_PLAUSIBLE[0] <= r.sigma0 <= SIGMA0_PLAUSIBLE[1]
             or opts.image_sigma_px != ba.settings.image_sigma_px):
         return None
     return (f"sigma0 {r.sigma0:.2f}: the images measure {r.sigma0 * opts.image_sigma_px:.2f} px, not the a-priori "
-            f"{opts.image_sigma_px:g} px; the orientation sigmas are scaled by sigma0 squared and so are the GNSS, "
-            f"control and DEM weights against the images: {'too small' if r.sigma0 < 1 else 'too large'}. Set "
+            f"{opts.image_sigma_px:g} px; the orientation and point sigmas are scaled by sigma0 (their variances by "
+            f"its square), the GNSS, control and DEM sigmas with them (the projection centres' below the GNSS's own "
+            f"where the GNSS alone holds them): {'too small' if r.sigma0 < 1 else 'too large'}. Set "
             f"[adjust] image_sigma_px = {r.sigma0 * opts.image_sigma_px:.2f} or image_sigma_from_residuals = true.")
 
 
@@ -1004,6 +1005,10 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         failed.append("the last solve did not converge.")
     dem_failed = [d for d in getattr(ba, "dem_checks", []) or [] if d.failed]
     failed += [d.failure_text() for d in dem_failed]
+    # the GNSS heights against the DEM's block height (gnss_surface, s95: gnss.txt 30 m high, the frames tilted to
+    # meet the DEM, tie points on it, orthos 19 m off): beyond the height limit a wrong answer whatever else passed
+    gnss_dem = [d for d in getattr(ba, "dem_checks", []) or [] if d.gnss_beyond(height_limit_m)]
+    failed = [d.gnss_text(height_limit_m) for d in gnss_dem] + failed
     if weak:
         weaknesses.append("Weak geometry: " + "; ".join(why for _, why in weak) + ".")
     fixed = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "fixed"]
@@ -1187,7 +1192,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         "iterations": int(r.iterations_total),
         "degrees_of_freedom": int(r.info.dof), "converged": converged,
         # the products are written only for a converged solve whose checks passed (write_outputs)
-        "success": converged and not dem_failed,
+        "success": converged and not dem_failed and not gnss_dem,
         "verdict": verdict,
         "weak_geometry": [g.mode for g, _ in weak],
         "calibration_fixed": [c.group for c in fixed],
@@ -1207,6 +1212,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
                            "tolerance_m": _f(g.tolerance_m, 3), "reason": g.reason}
                           for g in getattr(ba, "gnss_left_out", ())],
         "dem_check_failed": [d.role for d in dem_failed],
+        "gnss_heights_off_dem": [d.role for d in gnss_dem],
         # gtsam's CheiralityException lines (a point behind a camera at some iterate), counted, not printed
         "points_behind_camera": {"messages": int(lines), "point_camera_pairs": int(pairs)},
         "message": message,
@@ -1478,8 +1484,10 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
 
 
 def _dem_check_dict(d) -> dict:
-    out = dataclasses.asdict(d) | {"failed": d.failed, "offset_failed": d.offset_failed, "below_failed": d.below_failed}
-    for k in ("median_m", "nmad_m", "dem_sigma_m", "height_sigma_m", "sigma_offset_m", "limit_m"):
+    out = dataclasses.asdict(d) | {"failed": d.failed, "offset_failed": d.offset_failed, "below_failed": d.below_failed,
+                                   "gnss_significant": d.gnss_significant}
+    for k in ("median_m", "nmad_m", "dem_sigma_m", "height_sigma_m", "sigma_offset_m", "limit_m", "gnss_offset_m",
+              "gnss_offset_limit_m"):
         out[k] = _f(out[k], 4)
     return out
 
@@ -1581,11 +1589,15 @@ def _dem_check_line(d: dict) -> str:
     offset_failed = d.get("offset_failed", d["failed"])
     verdict = ("passed" if not d["failed"] else "FAILED (a systematic offset)" if offset_failed else
                "FAILED (points below the DEM)")
+    gnss = d.get("gnss_offset_m")
     return s + (f"; offset sigma {d['sigma_offset_m']:.3f} m (DEM {d['dem_sigma_m']:.3f} m, block height "
                 f"{d['height_sigma_m'] or 0.0:.3f} m, median {1.2533 * d['nmad_m'] / math.sqrt(d['n']):.3f} m), "
                 f"3 sigma {d['limit_m']:.3f} m"
                 + (f"; {below} ({100 * below / d['n']:.1f} %) left out below the DEM by the gate (limit "
-                   f"{100 * BELOW_SHARE_LIMIT:g} %)" if below is not None else "") + ": " + verdict)
+                   f"{100 * BELOW_SHARE_LIMIT:g} %)" if below is not None else "")
+                + (f"; GNSS heights - the DEM's block height {gnss:+.3f} m, 3 sigma {d['gnss_offset_limit_m']:.3f} m"
+                   + (" (significant)" if d.get("gnss_significant") else "") if gnss is not None else "")
+                + ": " + verdict)
 
 
 def _self_calibration_txt(sc: dict) -> list[str]:

@@ -333,9 +333,16 @@ def gnss_strip_plot(rep: dict) -> Figure | None:
     lines = (f"lines: the strip's estimated correction ({mode}). A trend the lines miss calls for drift correction."
              if mode.startswith("Enabled") else "no correction per strip was estimated ([adjust] gnss_correction = "
              "\"none\"): a level or a trend of the dots per strip calls for one.")
+    gnss = next((c for c in rep.get("variance_components") or [] if c.get("group") == "gnss"), None)
+    unchecked = ""
+    if gnss is not None and gnss.get("redundancy") is not None and gnss.get("observations"):
+        share = gnss["redundancy"] / gnss["observations"]
+        if share < 0.05:  # s95: residuals of millimetres from a GNSS nothing else checks read like a 2 mm fit
+            unchecked = (f" The GNSS's redundancy is {gnss['redundancy']:.1f} of {gnss['observations']} observations: "
+                         "nothing else in the block checks the positions, so small dots say nothing of their accuracy.")
     return Figure("GNSS shift and drift per strip",
                   "Dots: GNSS antenna position minus the adjusted antenna position per frame (local east, north, "
-                  f"up); {lines}", "vertical axes in metres, horizontal in km along the strip", fig)
+                  f"up); {lines}{unchecked}", "vertical axes in metres, horizontal in km along the strip", fig)
 
 
 VON_GRUBER_MIN_SHRINK = 0.2  # the von Gruber map's frames: at least this share of their ground size

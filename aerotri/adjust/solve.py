@@ -23,6 +23,7 @@ from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.determinability import pp_gnss_names_offset
 from aerotri.adjust.geometry_modes import geometry_modes
 from aerotri.adjust.covariance import point_covariances as point_covariances_rcs
+from aerotri.adjust.gnss_surface import gnss_surface_offset
 from aerotri.adjust.height_datum import height_datum_check
 from aerotri.adjust.snooping import (
     critical_value,
@@ -84,6 +85,9 @@ class AdjustmentResult:
     # held_calibration.HeldPrincipalPoint: the principal point held at camera.toml's value against the images (None:
     # estimated, or no covariances computed)
     held_pp: object | None = None
+    # gnss_surface.GnssSurfaceOffset: the GNSS heights' common offset from the surface control's block height (None:
+    # no surface control, no GNSS, or a GNSS correction that takes the offset)
+    gnss_surface: object | None = None
 
     def control_left_out(self) -> np.ndarray:
         """Per control point: left out of the block, by the control test (``control_active`` off) or by every one of
@@ -296,7 +300,7 @@ def _adjust_block(
 
     pose_cov = point_cov = cal_cov = marg = bias = None
     components, factors, geometry, calibration = None, None, None, None
-    height_datum = None
+    height_datum = gnss_surface = None
     if compute_marginals:
         t0 = time.perf_counter()
         marg = _marginals(gr, values, block, obs_active)
@@ -349,6 +353,8 @@ def _adjust_block(
             # the height control the snooping left in against the GNSS heights' plane error (at-verdicts)
             height_datum = height_datum_check(block, opts, state, marg, control_active, sigma0=sigma0, alpha=alpha,
                                               obs_active=obs_active)
+            gnss_surface = gnss_surface_offset(block, opts, state, marg, sigma0=sigma0,
+                                               obs_active=obs_active, control_active=control_active)
             bias = _surface_bias(block, opts, state, obs_active=obs_active, control_active=control_active, marg=marg,
                                  rays=rays)
             if bias is not None:
@@ -377,7 +383,7 @@ def _adjust_block(
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
         iterations, timings, stats, use, components, factors, block, opts, geometry, calibration, surface_bias=bias,
-        height_datum=height_datum, held_pp=held_pp,
+        height_datum=height_datum, held_pp=held_pp, gnss_surface=gnss_surface,
     )
 
 

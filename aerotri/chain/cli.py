@@ -86,16 +86,17 @@ def init(project, images_dir, crs, camera_path, copy, settings):
     from aerotri.chain.setup import init_project
 
     r = init_project(project, images_dir, crs, camera_path, copy=copy, settings=settings)
-    click.echo(f"{r.root}: {r.frames} frames {'linked' if r.linked else 'copied'} into images/, project.toml"
-               + (f", camera.toml from {r.camera_source}" if r.camera_source else ""))
+    # the summary and the next step are progress, not a result: -q silences them (s95)
+    log.info(f"{r.root}: {r.frames} frames {'linked' if r.linked else 'copied'} into images/, project.toml"
+             + (f", camera.toml from {r.camera_source}" if r.camera_source else ""))
     if r.camera_missing:
         log.warning(r.camera_missing)
     # quoted as a shell needs them, so that the hint can be pasted (trial-paths: a folder with spaces)
     root, images = shlex.quote(str(r.root)), shlex.quote(str(r.root / "images"))
     if r.exif_gnss:
-        click.echo(f"next: aerotri import {root} --format exif {images} (the frames' GNSS positions into "
-                   f"gnss.txt), then aerotri run {root}")
+        log.info(f"next: aerotri import {root} --format exif {images} (the frames' GNSS positions into "
+                 f"gnss.txt), then aerotri run {root}")
     else:
-        click.echo("next: gnss.txt (image_id X Y Z [sX sY sZ] in the project CRS), or, for a block without GNSS, "
-                   f"control points (aerotri import {root} --format odm gcp_list.txt; docs/blocks-without-gnss.md); "
-                   f"then aerotri run {root}")
+        log.info("next: gnss.txt (image_id X Y Z [sX sY sZ] in the project CRS), or, for a block without GNSS, "
+                 f"control points (aerotri import {root} --format odm gcp_list.txt; docs/blocks-without-gnss.md); "
+                 f"then aerotri run {root}")

@@ -447,7 +447,9 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
                                                     str(project.camera_path))
         ori = (nums, centre, R)  # (the .con loop below reuses the names)
         ids = [photo_id(v) for v in nums]
-        block.eo = orientations_to_project(ids, centre, R, crs, project, "--crs" if options.crs else str(project.config_path))
+        # the source named in the notes: the files carry no CRS (s95: the heights note named project.toml)
+        source = "--crs" if options.crs else f"{by['.ori']} (PAT-B states no CRS: the project's, {project.config_path})"
+        block.eo = orientations_to_project(ids, centre, R, crs, project, source)
         block.origin["eo"] = by[".ori"].name
         block.crs_assumed = options.crs is None
         if options.as_gnss:

@@ -145,9 +145,26 @@ def candidate_pairs(plan: BlockPlan, min_overlap: float = 0.15, grow: float = 0.
             pairs.append(Pair(a, b, _kind(plan, a, b), float(ov)))
     pairs.sort(key=lambda p: (p.i, p.j))
     if n > 1 and not pairs:
-        raise InputError("no two frames overlap according to gnss.txt, the camera and the terrain height: "
-                         "check the GNSS positions, the camera file and project.toml [flight] terrain height")
+        raise InputError("no two frames overlap according to gnss.txt, the camera and the terrain height"
+                         + _sizes_text(plan) + ": check the GNSS positions, the camera file (its focal length and "
+                         "pixel size: frames resized need the pixel size scaled with them) and project.toml "
+                         "[flight] terrain height")
     return pairs
+
+
+def _sizes_text(plan: BlockPlan) -> str:
+    """The footprints' size beside the spacing of the frames, for the refusal of a block whose frames do not overlap
+    (s95: the certificate's 12 um pixel on frames downsampled 12 times made footprints of 0.3 km, 2.6 km apart)."""
+    xy = plan.centre_m[:, :2]
+    if len(xy) < 2 or not plan.footprints:
+        return ""
+    d = np.linalg.norm(xy[:, None] - xy[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    spacing = float(np.median(d.min(axis=1)))
+    size = float(np.median([np.sqrt(fp.area) for fp in plan.footprints]))
+    above = float(np.median(plan.centre_m[:, 2])) - plan.terrain_height_m
+    return (f" (footprints about {size:,.0f} across from {above:,.0f} above the terrain, the nearest frames "
+            f"{spacing:,.0f} apart, in the project CRS's units)")
 
 
 def _kind(plan: BlockPlan, a: int, b: int) -> str:

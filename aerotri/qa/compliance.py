@@ -1133,10 +1133,16 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                                    "1/5 of the feature limit (GB/T 7931-2008 6.1) needs <=", cs.points) if f_lim else
                           (None, "no feature limit to judge the check points by"))
         fin, rank = finest(cs.rmse_h_m, keys, c.terrain) if cs.rmse_h_m is not None else (None, None)
+        twin = ""
+        if product == "Aerotriangulation" and limit and c.scale in ("1:5000", "1:10000"):
+            # s95: one report held the AT plan to 0.35 m (verdict table) and 3.5 m (here) with no word between them
+            twin = (f"; the verdict table (cn_1to{c.scale[2:]}.toml, the design table) holds the AT plan to "
+                    f"{limit * 1000.0 / F.scale_denominator(c.scale):g} m, this limit's map millimetres read as "
+                    "metres (docs/standards.md)")
         ch = _check(product, f"{cs.points}, plan RMS (radial)", c.class_tested, cs.rmse_h_m, cs.rmse_h_m,
                     limit=limit, unit="m", n=cs.n_h, need=None, cp_ok=cp_ok,
                     cp_note=cp_note + "; the specifications set no minimum number of check points"
-                    + (f"; {cs.note}" if cs.note else ""),
+                    + (f"; {cs.note}" if cs.note else "") + twin,
                     confirmed=conf, source=source, finest=fin, rank=rank, counted=cs.points)
         if cs.rmse_h_m is None:
             ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")

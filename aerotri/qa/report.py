@@ -520,11 +520,15 @@ def _terrain_rows(project: Project, terrain: str | None) -> list[QaCheck]:
     """The terrain class of the block's DEM (``aerotri.qa.terrain_class``) beside the table's (a Chinese table's
     limits are per terrain class): failed when the table's class is looser than the DEM's slope gives (a flat block
     held to the mountainous limits), said otherwise. None without a DEM or a terrain class."""
+    from aerotri.exchange.layers import footprint_dem
     from aerotri.qa.terrain_class import TERRAIN_ORDER, dem_terrain
 
-    if terrain not in TERRAIN_ORDER or not project.dem_path.is_file():
+    # the LiDAR stages' DEM, else the one the orthos or the adjustment used (s95: an NGI block of 630 m relief held
+    # to the flat limits, its DEM given by `adjust --dem` and `rectify --dem`, no word)
+    dem, _why = footprint_dem(project)
+    if terrain not in TERRAIN_ORDER or dem is None:
         return []
-    got = dem_terrain(project.dem_path)
+    got = dem_terrain(dem)
     if got is None:
         return []
     sec, name = "Tolerance table", "terrain class of the DEM"
@@ -533,7 +537,7 @@ def _terrain_rows(project: Project, terrain: str | None) -> list[QaCheck]:
                                                          f"than the terrain's: set [qa] terrain = \"{got.terrain}\"")]
     if terrain != got.terrain:
         # trial-relief F4: a block with 420 m of relief (median slope 23 deg) held to the flat limits, no word
-        log.warning(f"{project.dem_path}: {got.text()}, the tolerance table's is {terrain}: the limits are tighter "
+        log.warning(f"{dem}: {got.text()}, the tolerance table's is {terrain}: the limits are tighter "
                     f"than the terrain's class; [qa] terrain in project.toml, or --terrain")
     note = got.text() + ("" if terrain == got.terrain else f"; the table's class is {terrain} (tighter limits)")
     return [_check("terrain_class_dem", sec, name, got.terrain, None, "", note=note + "; not judged")]
@@ -874,9 +878,14 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                f"{len(ctl.layout_targets) - len(empty)} of {len(ctl.layout_targets)}", None, "",
                                note=note))
     if at and at.counts.get("control_points") == 0:
-        why = "the datum comes from GNSS alone" if at.gnss_given else "no datum from control"
-        rows.append(_check("control_points_used", sec, "control points in the adjustment", 0, None, "",
-                           note=f"no LiDAR control: {why}"))
+        used = sum(c.used or 0 for c in at.surface_control)
+        if used:  # the DEM (roof planes) held the tie points: the block's height and tilts are the surface's (s95)
+            note = (f"no LiDAR control points; surface control: {used} tie points on the DEM hold the block's "
+                    f"heights{' with the GNSS' if at.gnss_given else ''}")
+        else:
+            note = "no LiDAR control: " + ("the datum comes from GNSS alone" if at.gnss_given else
+                                           "no datum from control")
+        rows.append(_check("control_points_used", sec, "control points in the adjustment", 0, None, "", note=note))
     ctrl = at.control_rms_m if at else None
     # plan and height each when there is one: plan-only control (the kite block's targets) has no height RMS
     if ctrl and None not in ctrl[:2]:

@@ -353,7 +353,9 @@ def height_crs(horizontal: pyproj.CRS, heights: pyproj.CRS | None) -> pyproj.CRS
     h = horizontal_crs(horizontal)
     if heights is None:
         return h.to_3d()
-    return pyproj.crs.CompoundCRS(f"{h.name} + {heights.name}", [h, heights])
+    # a PROJ string's CRS is called "unknown": named by its projection (s95: "unknown + EGM2008 height")
+    name = h.name if h.name not in ("", "unknown") else crs_label(h)
+    return pyproj.crs.CompoundCRS(f"{name} + {heights.name}", [h, heights])
 
 
 def linear_unit_m(crs: pyproj.CRS) -> float:

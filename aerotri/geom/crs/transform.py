@@ -245,6 +245,13 @@ def _missing_grids(group: TransformerGroup) -> list:
     return out
 
 
+def _label_and_name(crs: pyproj.CRS) -> str:
+    """``crs_label`` and, where it says something more, the CRS's own name ("EPSG:25832 (ETRS89 / UTM zone 32N)";
+    a PROJ string's "unknown" and a label that is the name are not repeated)."""
+    label = crs_label(crs)
+    return label if crs.name in ("", "unknown", label) else f"{label} ({crs.name})"
+
+
 def grid_advice(grids) -> str:
     """How to get the missing grids (``_missing_grids``: those of the operations PROJ could not run, which are
     alternatives to one another: one of them is enough)."""
@@ -317,7 +324,7 @@ class _ProjLeg:
                 if stated:
                     why = f"{why}{stated}; otherwise "
                 raise BallparkRefused(
-                    f"{crs_label(src)} ({src.name}) -> {crs_label(dst)} ({dst.name}){purpose}: {why}fit parameters "
+                    f"{_label_and_name(src)} -> {_label_and_name(dst)}{purpose}: {why}fit parameters "
                     "from common points known in both systems (aerotri crs fit ... --from/--to) and pass them with "
                     "--params (a height anomaly model with --heights), or accept the ballpark result explicitly "
                     "with --allow-ballpark", missing_grids=missing or ()

@@ -148,6 +148,39 @@ def test_the_dem_as_surface_control_brings_the_orientation_to_the_national_solut
     _, xyz = ngi.read_object_points(root / "at" / "object_points.csv", "tie")
     h = ngi.height_stats(xyz[:, 2], ngi.sample_dem_bilinear(ngi_data / ngi.DEM_FILE, xyz[:, 0], xyz[:, 1]))
     assert abs(h["median_m"]) < 1.0  # within the DEM's precision (the reference orientation's: -1.5 m)
+    (dem_check,) = report["dem_checks"]  # the GNSS heights agree with the DEM's block height
+    assert not dem_check["gnss_significant"] and abs(dem_check["gnss_offset_m"]) < dem_check["gnss_offset_limit_m"]
+
+
+def test_gnss_heights_30_m_high_against_the_dem_fail_the_solution(ngi_adjusted, ngi_data, tmp_path):
+    """s95 (the NGI trial): gnss.txt's heights 30 m high (ellipsoidal heights in a project of EGM2008 heights). The
+    frames tilted 0.1-0.2 deg until the tie points met the DEM (median -0.001 m, "passed"), the GNSS residuals
+    <= 5 mm, "Solution weak" naming the principal point, orthos 19 m off. Now the solution fails naming the GNSS
+    heights against the DEM's block height, and at/ keeps nothing of it."""
+    import shutil
+
+    from aerotri.adjust.pipeline import run_adjustment
+    from aerotri.adjust.settings import AdjustSettings
+    from aerotri.core.errors import SolveError
+
+    root = tmp_path / "project"
+    shutil.copytree(ngi_adjusted[0], root, symlinks=True)
+    (root / "at" / "eo.txt").unlink()  # the unshifted adjustment's
+    lines = []
+    for line in (root / "gnss.txt").read_text().splitlines():
+        f = line.split()
+        if len(f) >= 4 and not line.lstrip().startswith("#"):
+            f[3] = f"{float(f[3]) + 30.0:.3f}"
+        lines.append(" ".join(f))
+    (root / "gnss.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(SolveError) as e:
+        run_adjustment(root, AdjustSettings(use_control=False, dem=ngi_data / ngi.DEM_FILE), html=False)
+    msg = str(e.value)
+    assert msg.startswith("Solution failed: GNSS heights - DEM (") and "m above the block height the DEM gives" in msg
+    assert "EGM2008 height" in msg and "geoid undulation" in msg
+    size = float(msg.split("the GNSS heights lie about ")[1].split(" m")[0])
+    assert 15.0 < size < 40.0  # about its 30 m (the solve from the tilted frames stops short: 25.0 m)
+    assert not (root / "at" / "eo.txt").exists()
 
 
 def test_the_commands_of_a_dmc_block_with_a_dem(ngi_data, tmp_path):

@@ -449,3 +449,16 @@ def test_the_von_gruber_map_keeps_the_frames_visible_where_two_centres_crowd():
     assert fig is not None
     pct = re.search(r"frames at ([0-9.]+) % of their size", fig.key)
     assert pct and float(pct.group(1)) == pytest.approx(68, abs=1), fig.key
+
+
+def test_the_gnss_figure_says_when_nothing_checks_the_positions():
+    """s95: the NGI block's GNSS residuals of millimetres (redundancy 0.0 of 12) read like a 2 mm fit."""
+    from aerotri.adjust.report_figures import gnss_strip_plot
+
+    photos = [{"strip": 1, "along_km": 2.6 * k, "gnss_offset_m": [0.001, -0.002, 0.003]} for k in range(2)]
+    rep = {"photos": photos, "options": {"gps_shift_drift_correction": "Disabled"},
+           "variance_components": [{"group": "gnss", "observations": 12, "redundancy": 0.0}]}
+    fig = gnss_strip_plot(rep)
+    assert "The GNSS's redundancy is 0.0 of 12 observations: nothing else in the block checks" in fig.caption
+    rep["variance_components"][0]["redundancy"] = 6.0
+    assert "redundancy" not in gnss_strip_plot(rep).caption

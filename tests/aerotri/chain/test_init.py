@@ -50,6 +50,15 @@ def test_init_makes_a_project_that_matches(tiny_project, tmp_path):
     assert snapshot(images) == before
 
 
+def test_init_quiet_prints_nothing(tiny_project, tmp_path):
+    """s95: `init -q` printed its summary and the next step; they are progress, silenced as every command's are."""
+    images = tiny_project / "images"
+    r = run("init", tmp_path / "blk", "--images", images, "--crs", "EPSG:32649", "--camera",
+            tiny_project / "camera.toml", "-q")
+    assert r.exit_code == 0 and r.output == "", r.output
+    assert (tmp_path / "blk" / "project.toml").is_file()
+
+
 def test_init_into_an_existing_empty_folder(tiny_project, tmp_path, monkeypatch):
     """trial-paths: init into an existing empty folder (also `aerotri init .`) was always refused "not an empty
     folder": the command's own lock file was made in it before the check."""

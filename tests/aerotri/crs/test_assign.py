@@ -296,3 +296,15 @@ def test_transform_of_a_wrongly_tagged_file_warns_where_its_points_land(tmp_path
     assert _run("assign", src, fixed, "--crs", "EPSG:28992").exit_code == 0
     r = _run("transform", fixed, tmp_path / "t2.las", "--to", "EPSG:25831")
     assert r.exit_code == 0 and "area of use" not in r.output, r.output
+
+
+def test_a_proj_string_crs_with_heights_is_named_by_its_projection():
+    """s95: the NGI project's "+proj=tmerc ..." CRS with EGM2008 heights was named "unknown + EGM2008 height" in
+    the export's refusal; now by its projection and datum."""
+    from aerotri.geom.crs.definition import height_crs, parse_crs
+
+    c = height_crs(parse_crs("+proj=tmerc +lat_0=0 +lon_0=25 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs"),
+                   parse_crs("EPSG:3855"))
+    assert "unknown" not in c.name and c.name.startswith("Transverse Mercator") and c.name.endswith(" + EGM2008 height")
+    assert height_crs(parse_crs("EPSG:32635"), parse_crs("EPSG:3855")).name == (
+        "WGS 84 / UTM zone 35N + EGM2008 height")

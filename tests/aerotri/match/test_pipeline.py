@@ -209,10 +209,12 @@ def test_bad_inputs_name_the_culprit(tiny_project, tmp_path, case):
             f[1] = f"{float(f[1]) + 5000.0 * k:.4f}"
             out.append(" ".join(f))
         (p / "gnss.txt").write_text("\n".join(out) + "\n")
-        expect = "no two frames overlap"
+        expect = "no two frames overlap"  # with the footprints' size and the frames' spacing (s95)
     res = CliRunner().invoke(aerotri_main, ["match", str(p)])
     assert res.exit_code == 2, res.output
     assert expect in res.output
+    if expect == "no two frames overlap":
+        assert "(footprints about " in res.output and " apart, in the project CRS's units)" in res.output
     assert not (p / "at" / "tiepoints.csv").exists()
 
 

@@ -49,6 +49,7 @@ def test_known_differences_come_back(tmp_path):
     assert np.allclose(rec["rms_normalised"], [1.5, 2.0, 2.0, 1.0, 0.5, 4.0], atol=0.02)
     # kappa 4 sigma: the console says the reference's own errors are not in the sigmas (Tuniu against OpenSfM: 4.3)
     assert "the reference's own errors and model are not in these sigmas" in r.output
+    assert "kappa: the adjustment's sigmas understate these differences" in r.output  # named beyond 2 (s95)
     # the rotation between the attitudes is about the size of the angle differences
     assert 0.003 < rec["rms_rotation_deg"] < 0.0047
 

@@ -190,6 +190,20 @@ def test_a_weak_adjustment_is_not_a_successful_solution(tmp_path):
     assert write_qa_report(p).overall == "pass"
 
 
+def test_surface_control_is_said_where_no_control_point_holds_the_heights(tmp_path):
+    """s95: the NGI block adjusted with its DEM as surface control read "no LiDAR control: the datum comes from GNSS
+    alone" in the verdict table, while 560 tie points on the DEM held its heights."""
+    p = _project(tmp_path, None, 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    rep.update(counts={"control_points": 0}, options={"given_eo_gps": "Enabled"})
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    assert write_qa_report(p).check("control_points_used").note == "no LiDAR control: the datum comes from GNSS alone"
+    rep["surface_control"] = {"used": 560, "rejected": 1, "rms_m": 1.6}
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    assert write_qa_report(p).check("control_points_used").note == (
+        "no LiDAR control points; surface control: 560 tie points on the DEM hold the block's heights with the GNSS")
+
+
 def test_plan_only_control_is_reported_in_plan(tmp_path):
     """The kite block's targets are plan-only control (heights nobody measured): at/report.json has a control RMS of
     [1.34, 0.87, None]; the report gave no control row at all. The plan row is there, no height row."""

@@ -78,3 +78,17 @@ def test_the_same_class_is_said_and_no_table_class_no_row(tmp_path):
     (row,) = _terrain_rows(project, "hilly")
     assert row.verdict is None and row.value == "hilly" and "tighter" not in row.note
     assert _terrain_rows(project, None) == []  # an ASPRS table has no terrain class
+
+
+def test_the_dem_the_adjustment_used_is_classed_without_lidar_out(tmp_path):
+    """s95: the NGI block (630 m of relief) adjusted with `adjust --dem` had no lidar_out/dem.tif, and its report
+    said "1:10000 flat" with no word: the adjustment's surface-control DEM is classed instead."""
+    import json
+
+    root = tmp_path / "p"
+    (root / "at").mkdir(parents=True)
+    (root / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:32631"\n')
+    dem = _dem(tmp_path / "elsewhere" / "dem.tif", 22.0)
+    (root / "at" / "report.json").write_text(json.dumps({"surface_control": {"dem": str(dem.resolve())}}))
+    (row,) = _terrain_rows(Project.open(root), "flat")
+    assert row.value == "mountainous" and "median slope 22.0 deg" in row.note and "dem.tif" in row.note
