@@ -265,7 +265,7 @@ def evaluate_map(pred_paths, ref_path, params: MapEvalSettings = MapEvalSettings
     if not np.any(labelled & (ref != cg.IGNORE)):
         raise InputError(f"{pred_name} and {ref_path} share no labelled cell (do they cover the same area, in one CRS?)")
     conf, bld, n = score_maps(pred, ref, grid.cell_area_m2, ref_ids, params.min_overlap, params.min_building_m2)
-    log.info("%s vs %s: %d cells of %g m", pred_name, ref_path, n, grid.cell_m)
+    log.debug("%s vs %s: %d cells of %g m", pred_name, ref_path, n, grid.cell_m)  # the summary says it (s95: twice)
     return MapAccuracy(conf, bld, grid.cell_m, n, int(pred.size - n), pred_name, str(ref_path))
 
 

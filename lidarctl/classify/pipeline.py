@@ -113,6 +113,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from typing import ClassVar
 
 import numba
@@ -2427,8 +2428,11 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
                 bank = bank[np.isfinite(bank)]
                 if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
                     if area[k] >= WATER_REJECT_LOG_M2:
-                        log.info("a level candidate water body of %.0f m2 (level %.2f m) is no water: %.0f %% of the "
-                                 "ground on its rim stands above its level, %.0f %% needed", area[k], level,
+                        at = lab_pt == k  # where it lies (s95: the note named no place to look at)
+                        log.info("a level candidate water body of %.0f m2 (level %.2f m) about x %.1f y %.1f is no "
+                                 "water: %.0f %% of the ground on its rim stands above its level, %.0f %% needed",
+                                 area[k], level, float(np.mean(x[at])) if at.any() else math.nan,
+                                 float(np.mean(y[at])) if at.any() else math.nan,
                                  100.0 * np.mean(bank > level + tol) if len(bank) else 0.0,
                                  100.0 * p.level_water_bank_fraction)
                     continue
