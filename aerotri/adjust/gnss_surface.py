@@ -9,13 +9,14 @@ points - DEM median -0.001 m ("passed"), GNSS residuals <= 5 mm, "Solution weak"
 orthos 19 m RMS off.
 
 The GNSS heights' common offset is added to the solution's normal equations (``height_datum.plane_normals``: its
-Schur complement against every other unknown, one Gauss-Newton step) and judged against its formal sigma together with
-the surface's stated sigma (taken as wholly systematic, as ``dem_check`` takes it): beyond ``OFFSET_SIGMAS`` of that
-it is significant, and beyond the tolerance table's height limit too it fails the solution (``DemCheck.gnss_beyond``;
-a simulated block's 0.2 m, significant at 1:2000, is a compromise the tie-point check judges, not a height system). Linearised at the solution that absorbed it, the step falls short of a large offset (20.8 m of
-the trial's 30): a significant one is measured again by one solve from there with the GNSS heights' offset for the
-block free (``gnss_correction = "offset"``, the plan held), 25.0 m there (a fresh adjustment with that offset free,
-``[gnss] offset_sigma_z_m``, finds 30.9 m: the solve from the tilted frames stops short, the size is "about").
+Schur complement against every other unknown, one Gauss-Newton step) and judged against its formal sigma together
+with the surface's stated sigma (taken as wholly systematic, as ``dem_check`` takes it): beyond ``OFFSET_SIGMAS`` of
+that it is significant, and beyond the tolerance table's height limit too it fails the solution
+(``DemCheck.gnss_beyond``; a simulated block's 0.2 m, significant at 1:2000, is a compromise the tie-point check
+judges, not a height system). Linearised at the solution that absorbed it, the step falls short of a large offset
+(20.8 m of the trial's 30): a significant one is measured again by one solve from there with the GNSS heights' offset
+for the block free (``gnss_correction = "offset"``, the plan held), 25.0 m there (a fresh adjustment with that offset
+free, ``[gnss] offset_sigma_z_m``, finds 30.9 m: the solve from the tilted frames stops short, the size is "about").
 """
 
 from __future__ import annotations
@@ -27,13 +28,11 @@ import math
 import numpy as np
 
 from aerotri.adjust import graph as G
+from aerotri.adjust.dem_check import OFFSET_SIGMAS  # as the tie-point check's: beyond it systematic, not noise
 from aerotri.adjust.height_datum import beyond_correction, plane_normals
 from aerotri.adjust.variance_components import gnss_rows
 
 log = logging.getLogger(__name__)
-
-OFFSET_SIGMAS = 3.0  # as dem_check's: an offset beyond it is systematic, not the heights' noise
-
 
 @dataclasses.dataclass(frozen=True)
 class GnssSurfaceOffset:
