@@ -549,7 +549,7 @@ def plot_displacements(path, patches: PatchDisplacements | None, stats: Displace
         # the scale arrow (s95: the colour bar alone gave no length to read an arrow against)
         key = _key_length_m(float(d.max()))
         metres = f" ({key * stats.gsd_m:.3g} m)" if stats.gsd_m else ""
-        ax.quiverkey(q, 0.02, 0.04, key * scale, f"{key:g} GSD{metres}", labelpos="E", coordinates="figure", color="k")
+        ax.quiverkey(q, 0.06, 0.04, key * scale, f"{key:g} GSD{metres}", labelpos="E", coordinates="figure", color="k")
         title = f"{title}: vectors x {scale:.3g}"
         if not flips[0]:  # (row 0 at the top; a south-oriented grid's row 0 is its southern edge)
             ax.invert_yaxis()

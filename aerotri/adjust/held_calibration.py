@@ -1,4 +1,4 @@
-"""A test of the principal point held at camera.toml's value (trial-cam F1).
+"""Tests of the principal point and the focal length held at camera.toml's values (trial-cam F1; s95).
 
 A principal point entered with the wrong sign (a certificate's y down read as y up) is absorbed by a small block:
 6 frames in two strips flown each way, GNSS only, turned every frame 2.45 deg in kappa and the ground with it, the GNSS
@@ -11,6 +11,15 @@ of squares (chi2): F = (chi2_held - chi2_free) / 2 / sigma0_free^2 against Fishe
 principal point that the images reject (F beyond the limit) by more than ``PP_MIN_SHIFT_PX`` (what it moves on the
 ground in GSD, for a near-nadir frame) makes the verdict weak, naming the values. Small shifts of a real certificate
 (a few um: a tenth or two of a pixel) are left alone, significant or not.
+
+The focal length the same way (s95, a drone trial: camera.toml's pixel 1.20 um instead of 1.54, the focal length
+3008 px for 2344, adjusted with the DEM of the block's cloud and the EXIF's consumer GNSS: "Solution Successful",
+the projection centres 11.8 m above the GNSS heights, the flying height 48 m for 40; with the focal length asked for,
+the block measured 2379 +- 12 px, 54 sigma off, and fixed it at 3008 as "not determinable", its 3 sigma 1.48 % over
+the 1 % limit): when the focal length is held and the ground's heights are observed (a DEM, control with heights;
+without, the focal length is the flying height's and the test says nothing), the solve is repeated with it free and
+F = (chi2_held - chi2_free) / sigma0_free^2 against F(1, dof). A held focal length the images reject by more than
+``FOCAL_MIN_SHIFT`` of it makes the verdict weak, naming the camera file's values.
 """
 
 from __future__ import annotations
@@ -27,6 +36,9 @@ log = logging.getLogger(__name__)
 
 PP_ALPHA = 1e-3
 PP_MIN_SHIFT_PX = 1.0
+# a held focal length the images reject by less than this share of it is left alone (the determinability check's 1 %:
+# a camera's own focal length is known far better; a nominal EXIF one is off by a few %, which self-calibration takes)
+FOCAL_MIN_SHIFT = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +68,17 @@ class HeldPrincipalPoint:
                 "PPA or PBS) or estimate it (self_calibration \"pp\"). Held wrong, it turns the frames and the ground.")
 
 
+def _freed(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, group: str):
+    """The final least squares once more from ``state`` with the calibration ``group`` free: (Cal3DS2 values fx fy s
+    u0 v0 ... px, its SolveInfo); None without degrees of freedom or a finite chi2."""
+    free = dataclasses.replace(opts, self_calibration=tuple(opts.self_calibration) + (group,))
+    gr = G.build_graph(block, free, state, obs_active, control_active, robust=False)
+    values, info_free = G.optimize(gr, free)
+    if not info_free.dof > 0 or not np.isfinite(info_free.chi2):
+        return None
+    return np.asarray(values.atCal3DS2(G.K_KEY).vector(), dtype=float), info_free
+
+
 def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.SolveInfo, obs_active,
                          control_active, alpha: float = PP_ALPHA) -> HeldPrincipalPoint | None:
     """The test of the module docstring for a solution ``state`` (``info``: its final least squares, the principal
@@ -64,12 +87,10 @@ def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, 
     groups = block.camera.SELF_CAL_GROUPS
     if "pp" in opts.self_calibration or "pp" not in groups or not info.dof > 2 or not info.chi2 > 0:
         return None
-    free = dataclasses.replace(opts, self_calibration=tuple(opts.self_calibration) + ("pp",))
-    gr = G.build_graph(block, free, state, obs_active, control_active, robust=False)
-    values, info_free = G.optimize(gr, free)
-    if not info_free.dof > 0 or not np.isfinite(info_free.chi2):
+    freed = _freed(block, opts, state, obs_active, control_active, "pp")
+    if freed is None:
         return None
-    freed_cal = np.asarray(values.atCal3DS2(G.K_KEY).vector(), dtype=float)  # fx fy s u0 v0 ... (px)
+    freed_cal, info_free = freed
     s2 = info_free.chi2 / info_free.dof
     f_stat = max(0.0, info.chi2 - info_free.chi2) / 2.0 / s2
     shift_px = (float(freed_cal[3] - state.cal[3]), float(freed_cal[4] - state.cal[4]))
@@ -82,4 +103,64 @@ def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, 
         f_statistic=float(f_stat), f_limit=float(f_isf(alpha, 2, info_free.dof)))
     log.info(f"held principal point: freed it moves {shift_px[0]:+.2f} / {shift_px[1]:+.2f} px (x right / y down), "
              f"F = {test.f_statistic:.2f} against {test.f_limit:.2f}")
+    return test
+
+
+@dataclasses.dataclass(frozen=True)
+class HeldFocal:
+    """The held focal length against the images: held and freed (px), the camera's pixel (um), sigma0 held and freed
+    (um on the sensor), the F statistic and its limit."""
+
+    held_px: float
+    free_px: float
+    pixel_um: float
+    focal_mm: float
+    sigma0_held_um: float
+    sigma0_free_um: float
+    f_statistic: float
+    f_limit: float
+
+    @property
+    def shift(self) -> float:
+        """The freed focal length's relative change from the held one."""
+        return self.free_px / self.held_px - 1.0
+
+    @property
+    def rejected(self) -> bool:
+        return self.f_statistic > self.f_limit and abs(self.shift) > FOCAL_MIN_SHIFT
+
+    def text(self, asked: bool = False) -> str:
+        """The finding; ``asked``: the focal length was asked for and fixed as not determinable, so estimating it is
+        no advice (the block measures it well enough to reject the held value, not to 1 %)."""
+        how = ("" if asked else " or estimate it (self_calibration \"focal\")")
+        return (f"The focal length held at camera.toml's {self.held_px:.1f} px (focal_mm = {self.focal_mm:g}, "
+                f"pixel_um = {self.pixel_um:g}) is not what the images give: estimated it is {self.free_px:.1f} px "
+                f"({100 * self.shift:+.1f} %), and sigma0 falls from {self.sigma0_held_um:.3f} to "
+                f"{self.sigma0_free_um:.3f} um (F = {self.f_statistic:.1f} > {self.f_limit:.1f}): check the camera "
+                f"file's focal length and pixel size (frames resized need the pixel size scaled with them: "
+                f"{self.pixel_um * self.held_px / self.free_px:.3g} um would give the estimate){how}. Held wrong, it "
+                "puts the block at the wrong height above the ground.")
+
+
+def held_focal(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.SolveInfo, obs_active, control_active,
+               ground_heights: bool, alpha: float = PP_ALPHA) -> HeldFocal | None:
+    """The focal length's test of the module docstring for a solution ``state`` (``info``: its final least squares,
+    the focal length held); None when it is estimated, nothing observes the ground's heights (``ground_heights``),
+    or nothing is left to test it with."""
+    if ("focal" in opts.self_calibration or "focal" not in block.camera.SELF_CAL_GROUPS or not ground_heights
+            or not info.dof > 1 or not info.chi2 > 0):
+        return None
+    freed = _freed(block, opts, state, obs_active, control_active, "focal")
+    if freed is None:
+        return None
+    freed_cal, info_free = freed
+    s2 = info_free.chi2 / info_free.dof
+    um = opts.image_sigma_px * block.camera.pixel_um
+    test = HeldFocal(held_px=float(state.cal[0]), free_px=float(freed_cal[0]), pixel_um=float(block.camera.pixel_um),
+                     focal_mm=float(block.camera.focal_mm), sigma0_held_um=float(np.sqrt(info.chi2 / info.dof)) * um,
+                     sigma0_free_um=float(np.sqrt(s2)) * um,
+                     f_statistic=float(max(0.0, info.chi2 - info_free.chi2) / s2),
+                     f_limit=float(f_isf(alpha, 1, info_free.dof)))
+    log.info(f"held focal length: freed it moves {100 * test.shift:+.2f} % ({test.held_px:.1f} -> "
+             f"{test.free_px:.1f} px), F = {test.f_statistic:.2f} against {test.f_limit:.2f}")
     return test

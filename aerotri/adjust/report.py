@@ -1132,6 +1132,9 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         else:
             hd_text = height_datum_text(hd, height_limit_m)
             height_datum_weak = True
+    held_f = getattr(r, "held_focal", None)
+    if held_f is not None and held_f.rejected:
+        weaknesses.append(held_f.text(asked=any(c.group == "focal" for c in fixed)))
     held_pp = getattr(r, "held_pp", None)
     if held_pp is not None and held_pp.rejected:
         weaknesses.append(held_pp.text())
@@ -1213,6 +1216,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
                           for g in getattr(ba, "gnss_left_out", ())],
         "dem_check_failed": [d.role for d in dem_failed],
         "gnss_heights_off_dem": [d.role for d in gnss_dem],
+        "focal_held_rejected": bool(held_f is not None and held_f.rejected),
         # gtsam's CheiralityException lines (a point behind a camera at some iterate), counted, not printed
         "points_behind_camera": {"messages": int(lines), "point_camera_pairs": int(pairs)},
         "message": message,

@@ -22,7 +22,8 @@ log = logging.getLogger(__name__)
 @click.option("--points", type=click.Path(dir_okay=False, exists=True, path_type=Path),
               help="Surveyed points (id,x,y,z[,group]) for the LiDAR height check.")
 @click_option(ChainSettings, "rectify.dem", "--dem", type=click.Path(dir_okay=False, exists=True, path_type=Path),
-              help="DEM for the orthophotos (project.toml [rectify] dem; default: the DEM of the LiDAR stages).")
+              help="DEM for the orthophotos (project.toml [rectify] dem; default: the DEM of the LiDAR stages); "
+                   "without LiDAR and [adjust] dem, the adjustment's surface control too.")
 @click.option("--force", is_flag=True, help="Re-run every stage even when it is up to date.")
 @click_option(ChainSettings, "classify.keep_classes", "--keep-lidar-classes", show_default=False,
               help="Keep the classes the LiDAR was delivered with (checked for plausible ground and buildings) "

@@ -828,6 +828,13 @@ class Chain:
                               f"with the control points of {self.project.control_points_path} (no LiDAR control: {why})")
             elif why and r.settings.use_control:
                 r = r.replace("use_control", False, "aerotri run", f"without LiDAR control: {why}")
+        elif r.settings.dem is None and (self.dem is not None or self.options.rectify.dem is not None):
+            # the DEM the orthos go on holds the block too (s95: `aerotri run P --dem DEM.tif` on a drone block left
+            # the tie points 3.56 m below it, the orthos up to 3.48 m off it and 45 % of the mosaic empty; rectify's
+            # own warning said to orient the block on it)
+            dem = Path(self.dem if self.dem is not None else self.options.rectify.dem)
+            r = r.replace("dem", dem, "aerotri run --dem" if self.dem is not None else "[rectify] dem",
+                          f"surface control on {dem}, the DEM of the orthophotos ([adjust] dem unset, no LiDAR)")
         return project_settings(self.project, r)
 
     def final_notes(self, r: Resolved) -> list[str]:
@@ -841,7 +848,8 @@ class Chain:
         elif not self.has_lidar and s.use_control and self.project.control_points_path.is_file():
             notes.append(f"with the control points of {self.project.control_dir / 'points.csv'} (no LiDAR)")
         elif not self.has_lidar:
-            notes.append("no LiDAR and no control/points.csv: the datum comes from GNSS alone")
+            notes.append("no LiDAR and no control/points.csv: the datum comes from GNSS"
+                         + (", the heights from the DEM too" if s.dem is not None else " alone"))
         if "gnss_correction" in r.notes:
             notes.append(f"[adjust] gnss_correction: {r.notes['gnss_correction']}")
         return notes

@@ -43,7 +43,7 @@ from aerotri.qa.standards import formulas as F
 from aerotri.qa.rounding import round_on_its_side, text_on_its_side, within
 from aerotri.qa.statements import SOURCE_NOTE as STATEMENTS_NOTE
 from aerotri.qa.compliance import (NOT_TESTABLE, asprs_class_cm, lidar_only_project, project_compliance,
-                                   with_asprs2014_limits, with_cn_at_lidar_limits,
+                                   with_asprs2014_limits, with_cn_at_limits, with_cn_at_lidar_limits,
                                    with_lbs_lidar_limits)
 from lidarctl.checks.heights import read_height_check
 from lidarctl.checks.vectors import read_vector_check
@@ -771,6 +771,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         table = with_lbs_lidar_limits(table, compliance.class_tested, lidar_only=lidar_only)
     elif compliance.key == "asprs2014":
         table = with_asprs2014_limits(table, compliance.class_tested)
+    elif compliance.key == "cn-at" and compliance.requested:  # the standard asked for sets the AT and DOM limits
+        table = with_cn_at_limits(table, compliance.class_tested)
     elif compliance.key == "cn-at":
         table = with_cn_at_lidar_limits(table, compliance.class_tested)
     if lidar_only:

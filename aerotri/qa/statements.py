@@ -23,6 +23,7 @@ metres (US survey feet when its CRS is)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 
 # (the compliance section's classes are read, not imported: aerotri.qa.compliance makes the statements)
@@ -34,6 +35,7 @@ SOURCE_NOTE = ("wording after the standard's reporting clause, recalled (not rea
 STATED_PRODUCTS = ("DOM", "Line map (DLG)", "LiDAR DEM")
 NOT_INDEPENDENT = ("LiDAR check points",)  # (``compliance.CheckSet.points``) checks the product's own data made
 NSSDA_RADIAL_95 = 1.7308  # NSSDA: accuracy_r at 95 % = 1.7308 RMSE_r (RMSE_x = RMSE_y)
+NSSDA_EQUAL_AXES = 0.6  # NSSDA's approximations hold for RMSE_min / RMSE_max between this and 1
 NORMAL_95 = 1.96
 
 
@@ -115,21 +117,40 @@ def _asprs2023(classes: dict, checks, u: float, un: str) -> tuple[str, str]:
     return " ".join(parts), "; ".join(left_out)
 
 
-def _asprs2014(classes: dict, checks, u: float, un: str) -> str:
-    head = "This data set was tested to meet ASPRS Positional Accuracy Standards for Digital Geospatial Data (2014) for a "
-    parts = []
+def _asprs2014(classes: dict, checks, u: float, un: str) -> tuple[str, str]:
+    """The statement and, for a class left out, why: Edition 1 asks check points three times as accurate as the class
+    (asprs2014.toml checkpoint_accuracy_factor); where their own accuracy is not stated no class is stated (s95: the
+    rows read "accuracy unknown" and the statement was issued, where Edition 2's withheld it)."""
+    head = ("This data set was tested to meet ASPRS Positional Accuracy Standards for Digital Geospatial Data (2014) "
+            "for a ")
+    parts, left_out = [], []
     if "V" in classes and (nva := _nva(checks)) is not None and nva.measured is not None:
-        s = (f"{head}{classes['V']} (cm) RMSEz Vertical Accuracy Class. Actual NVA accuracy was found to be RMSEz = "
-             f"{_length(nva.measured, u, un)}, equating to +/- {_length(NORMAL_95 * nva.measured, u, un)} at 95 % "
-             "confidence level.")
-        if (vva := _vva(checks)) is not None:
-            s += f" Actual VVA accuracy was found to be +/- {_length(vva.figure, u, un)} at the 95th percentile."
-        parts.append(s)
+        if _uncombined(nva):
+            left_out.append(f"no vertical class stated: the check points' own accuracy is not stated "
+                            f"({_survey_option(nva)}), and Edition 1 asks them three times as accurate as the class")
+        else:
+            s = (f"{head}{classes['V']} (cm) RMSEz Vertical Accuracy Class. Actual NVA accuracy was found to be "
+                 f"RMSEz = {_length(nva.measured, u, un)}, equating to +/- "
+                 f"{_length(NORMAL_95 * nva.measured, u, un)} at 95 % confidence level.")
+            if (vva := _vva(checks)) is not None:
+                s += f" Actual VVA accuracy was found to be +/- {_length(vva.figure, u, un)} at the 95th percentile."
+            parts.append(s)
     if "H" in classes and (h := _horizontal(checks)) is not None and h.measured is not None:
-        parts.append(f"{head}{classes['H']} (cm) RMSEx / RMSEy Horizontal Accuracy Class. Actual positional accuracy "
-                     f"was found to be RMSEr = {_length(h.measured, u, un)}, equating to +/- "
-                     f"{_length(NSSDA_RADIAL_95 * h.measured, u, un)} at 95 % confidence level.")
-    return " ".join(parts)
+        if _uncombined(h):
+            left_out.append(f"no horizontal class stated: the check points' own accuracy is not stated "
+                            f"({_survey_option(h)}), and Edition 1 asks them three times as accurate as the class")
+            return " ".join(parts), "; ".join(left_out)
+        # RMSE_r from the axes where the check gives them: the row judges the larger axis, and that read as RMSE_r
+        # under-stated it (s95: 6.3 cm for 7.2, +/- 10.9 for 12.4 cm)
+        r = math.hypot(*h.rmse_axes_m) if h.rmse_axes_m is not None else h.measured
+        s = (f"{head}{classes['H']} (cm) RMSEx / RMSEy Horizontal Accuracy Class. Actual positional accuracy "
+             f"was found to be RMSEr = {_length(r, u, un)}, equating to +/- {_length(NSSDA_RADIAL_95 * r, u, un)} at "
+             "95 % confidence level.")
+        if h.rmse_axes_m is not None and min(h.rmse_axes_m) < NSSDA_EQUAL_AXES * max(h.rmse_axes_m):
+            s += (f" (RMSEx {_length(h.rmse_axes_m[0], u, un)}, RMSEy {_length(h.rmse_axes_m[1], u, un)}: their "
+                  f"ratio below NSSDA's {NSSDA_EQUAL_AXES:g}, for which the 95 % figure is an approximation.)")
+        parts.append(s)
+    return " ".join(parts), "; ".join(left_out)
 
 
 def _lbs(checks, u: float, un: str) -> str:
@@ -167,12 +188,10 @@ def accuracy_statements(comp: "Compliance", unit_m: float = 1.0, unit_name: str 
             if not classes:
                 out.append(AccuracyStatement(p.product, "", f"no statement: no class established ({p.finest_class})"))
                 continue
-            if comp.key == "asprs2023":
-                text, left_out = _asprs2023(classes, checks, unit_m, unit_name)
-                if left_out:
-                    out.append(AccuracyStatement(p.product, text, left_out if text else f"no statement: {left_out}"))
-                    continue
-            else:
-                text = _asprs2014(classes, checks, unit_m, unit_name)
+            text, left_out = (_asprs2023 if comp.key == "asprs2023" else _asprs2014)(classes, checks, unit_m,
+                                                                                       unit_name)
+            if left_out:
+                out.append(AccuracyStatement(p.product, text, left_out if text else f"no statement: {left_out}"))
+                continue
         out.append(AccuracyStatement(p.product, text, "" if text else "no statement: no figure of the rows it needs"))
     return tuple(out)

@@ -174,16 +174,6 @@ class MapPlanLimit(PlanLimit):
 
 
 @dataclasses.dataclass(frozen=True)
-class GroundPlanLimit(PlanLimit):
-    """A plan RMS limit in metres on the ground, the same at each of its scales (a figure given in metres, e.g. by
-    the design table of ../shared/design/reports.md)."""
-
-    def ground_m(self, terrain: str, scale: str) -> float:
-        """The limit (m on the ground) of a terrain class."""
-        return self.by_terrain(terrain)
-
-
-@dataclasses.dataclass(frozen=True)
 class SpotHeightLimit:
     """A height RMS limit (m; spot heights, AT check points) by terrain class and map scale; terrain classes without
     a limit: None."""
@@ -211,7 +201,7 @@ class CnAtLimits:
     control_plan_mm: MapPlanLimit  # AT basic orientation (control) points
     tie_plan_mm: MapPlanLimit  # common points between adjacent blocks
     feature_plan_mm: MapPlanLimit  # well-defined map features, 1:500-1:2000
-    feature_plan_m_small: GroundPlanLimit  # the same, 1:5000 and 1:10000 (the design table's metres)
+    feature_plan_mm_small: MapPlanLimit  # the same, 1:5000 and 1:10000 (the design table's numbers as map mm)
     check_height_m_small: SpotHeightLimit  # AT check points' heights, 1:5000 and 1:10000 (the design table's)
     spot_height_m: SpotHeightLimit
 

@@ -184,3 +184,30 @@ def test_consumer_gnss_states_the_datum_in_metres_and_the_dem_places_it(brighton
     assert d.n > 200 and not d.failed and abs(d.median_m) < 0.3, d
     assert {g["mode"]: g for g in build_report(ba).geometry_modes}["height"]["sigma_m"] < 0.1
     assert abs(ba.result.state.shift[0][2]) > 1.0  # the EXIF heights are metres off the cloud's DEM
+
+
+def test_a_pixel_size_22_percent_short_is_named_with_the_consumer_model_and_the_dem(brighton6, tmp_path):
+    """s95 (a drone trial on the whole block): camera.toml's pixel 1.20 um for the FC300S's 1.54 made the focal length
+    28 % long; with the consumer GNSS model and the cloud's DEM the flight's height offset took it (the centres 11.8 m
+    above the GNSS heights), "Solution Successful". The focal length held is tested against the images."""
+    import re
+    import shutil
+
+    from aerotri.adjust.pipeline import AdjustSettings, adjust_project
+    from aerotri.adjust.report import build_report
+    from aerotri.exchange.exif import consumer_gnss_section
+
+    survey, lidar, _ = brighton6
+    root = tmp_path / "pixel"
+    shutil.copytree(survey, root, symlinks=True)
+    _set_gnss(root, consumer_gnss_section())
+    cam = (root / "camera.toml").read_text()
+    pixel = float(re.search(r"(?m)^pixel_um = (.*)$", cam)[1])
+    (root / "camera.toml").write_text(re.sub(r"(?m)^pixel_um = .*$", f"pixel_um = {pixel * 1.20 / 1.54:.4f}", cam))
+    ba = adjust_project(root, AdjustSettings(self_calibration=("pp", "radial"), dem=lidar / "dem.tif",
+                                             ndsm=lidar / "ndsm.tif"))
+    test = ba.result.held_focal
+    assert test.rejected and -0.25 < test.shift < -0.12, test  # the truth: 1.20 / 1.54 - 1 = -22 %
+    ks = build_report(ba).key_statistics
+    assert ks["verdict"] == "weak" and ks["focal_held_rejected"]
+    assert "The focal length held at camera.toml's" in ks["message"] and "pixel size" in ks["message"]

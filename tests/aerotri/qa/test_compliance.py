@@ -81,9 +81,9 @@ def test_cn_at_limits_in_map_millimetres_by_scale_and_terrain():
     comp = judge(Figures(at=at, dom=dom), Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat"))
     (d,) = _by(comp, "DOM")
     assert d.limit == pytest.approx(1.2) and d.verdict == "pass" and d.limit_confirmed is True  # 0.6 mm x 2000
-    # 0.9 m meets 1:2000's 1.2 m but not the 0.5 m the design table gives 1:5000 and 1:10000: no finer class is
-    # claimed over a coarser one it fails (it read "1:2000" while 1:5000 failed)
-    assert d.finest_class == "none (coarser than 1:10000)"
+    # 0.9 m meets 1:2000's 1.2 m and the coarser scales' 0.5 mm (2.5 m, 5 m; s95: read as 0.5 m on the ground they
+    # were finer than 1:2000's, and 0.9 m met no class)
+    assert d.finest_class == "1:2000"
     assert d.checkpoints_accurate is True  # 0.2 m <= 1/5 of 1.2 m
     plan, height = _by(comp, "Aerotriangulation")
     assert plan.limit == pytest.approx(0.7) and plan.verdict == "pass" and plan.limit_confirmed is False
@@ -97,23 +97,31 @@ def test_cn_at_limits_in_map_millimetres_by_scale_and_terrain():
 def test_one_dom_limit_per_scale_and_standard_and_patches_are_not_called_check_points():
     """Trial 8: at 1:5000 flat the verdict table judged the DOM by 0.5 m (the tolerance table) and the cn-at
     compliance by 2.5 m* (0.5 mm on the map, recalled), and called the DOM's 72,565 phase-correlation patches "check
-    points". Now each shipped scale and terrain has one well-defined-feature limit, the same in the verdict table and
-    the compliance section (the design table of ../shared/design/reports.md at 1:5000 / 1:10000, in metres; GB/T
-    7931-2008 6.1 at 1:2000), with its source; the DOM's row counts ground patches."""
+    points". The thesis standard judges by its tables (the design table of ../shared/design/reports.md, in metres);
+    cn-at by map millimetres at every scale (GB/T 7931-2008 6.1 at 1:500-1:2000; the design table's numbers as mm at
+    1:5000 / 1:10000, s95: as metres they ran finer than 1:2000's), and asked for (--standard cn-at) it sets the
+    verdict table's limit too (``with_cn_at_limits``): one limit per report; the DOM's row counts ground patches."""
     from aerotri.core.tolerances import SCALE_TABLES, load_table
+    from aerotri.qa.compliance import with_cn_at_limits
 
     dom = CheckSet(rmse_h_m=0.097, n_h=1228, note="t", points="ground patches")
     for scale in SCALE_TABLES:
         for terrain in ("flat", "hilly", "mountainous"):
             table = load_table(scale, terrain)
-            for key in ("cn-at", "thesis"):
-                (d,) = _by(judge(Figures(dom=dom), Choice(key, f"{scale} {terrain}", "t", scale=scale, terrain=terrain)),
-                           "DOM")
-                assert d.limit == pytest.approx(table.limits["feature_rms_xy_m"]), (scale, terrain, key)
-                assert d.limit_confirmed == table.provenance["feature_rms_xy_m"].confirmed, (scale, terrain, key)
-                assert d.quantity == "ground patches, plan RMS (radial)" and d.counted == "ground patches"
+            (d,) = _by(judge(Figures(dom=dom), Choice("thesis", f"{scale} {terrain}", "t", scale=scale,
+                                                      terrain=terrain)), "DOM")
+            assert d.limit == pytest.approx(table.limits["feature_rms_xy_m"]), (scale, terrain)
+            assert d.limit_confirmed == table.provenance["feature_rms_xy_m"].confirmed, (scale, terrain)
+            (c,) = _by(judge(Figures(dom=dom), Choice("cn-at", f"{scale} {terrain}", "t", scale=scale,
+                                                      terrain=terrain)), "DOM")
+            asked = with_cn_at_limits(table, f"{scale} {terrain}")
+            assert c.limit == pytest.approx(asked.limits["feature_rms_xy_m"]), (scale, terrain)
+            assert c.limit_confirmed == asked.provenance["feature_rms_xy_m"].confirmed, (scale, terrain)
+            assert c.quantity == "ground patches, plan RMS (radial)" and c.counted == "ground patches"
     (d,) = _by(judge(Figures(dom=dom), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")), "DOM")
-    assert d.limit == 0.5 and d.limit_confirmed is False and "docs/tolerances.md" in d.limit_source
+    assert d.limit == 2.5 and d.limit_confirmed is False and "docs/tolerances.md" in d.limit_source  # 0.5 mm x 5000
+    # the default report (cn-at not asked for) keeps the design table's metres in its verdict table, and says so
+    assert "the verdict table (the design table, cn_1to5000.toml) holds 0.5 m" in d.checkpoints_note
     assert "check points" not in d.quantity and "reference's accuracy" in d.checkpoints_note
     assert load_table("1:2000", "flat").limits["feature_rms_xy_m"] == 1.2  # 0.6 mm x 2000, confirmed
     # ASPRS: the patches are named, and counted against its check-point minimum as such
@@ -363,7 +371,10 @@ def test_map_scale_class_judges_the_verdict_table_at_that_scale(tmp_path):
     p = _project(tmp_path, 32)
     rep = write_qa_report(p, standard="cn-at", accuracy_class="1:2000")
     assert rep.table["key"] == "1:2000" and "from --class" in rep.table["reason"]
-    assert rep.check("check_rms_xy_m").limit == load_table("1:2000", "flat").limits["rms_xy_m"] == 0.14
+    # asked for, cn-at sets the verdict table's AT plan limit too: 0.35 mm x 2000 (s95: the design table's 0.14 m
+    # failed it beside the compliance section's 0.70 m passing it)
+    assert load_table("1:2000", "flat").limits["rms_xy_m"] == 0.14
+    assert rep.check("check_rms_xy_m").limit == 0.7 and "from cn-at (1:2000 flat)" in rep.table["reason"]
     assert rep.compliance["class_tested"] == "1:2000 flat"
     # a scale without a table (cn-at 1:1000): the table is chosen as before, and the reason says why
     rep = write_qa_report(p, standard="cn-at", accuracy_class="1:1000")
@@ -599,9 +610,9 @@ def test_the_at_height_row_does_not_coarsen_the_finest_class_where_no_finer_heig
 
 
 def test_the_finest_class_met_never_passes_over_a_coarser_class_it_fails():
-    """cn-at's feature limits: 0.6 m at 1:1000 and 1.2 m at 1:2000 (GB/T 7931) but 0.5 m at 1:5000 and 1:10000 (the
-    design table): a DOM of 0.3 m meets them all (finest 1:1000); one of 0.7 m meets 1:2000's limit but fails the
-    coarser scales' and meets no class."""
+    """Limits that are not monotonic (cn-at's feature limits before s95: 0.6 m at 1:1000 and 1.2 m at 1:2000 but 0.5
+    m at 1:5000 and 1:10000): a DOM of 0.3 m meets them all (finest 1:1000); one of 0.7 m meets 1:2000's limit but
+    fails the coarser scales' and meets no class. cn-at's own limits now grow with the scale: 0.7 m meets 1:2000."""
     from aerotri.qa.compliance import _finest_scale_met
 
     limits = {"1:1000": 0.6, "1:2000": 1.2, "1:5000": 0.5, "1:10000": 0.5}
@@ -611,7 +622,7 @@ def test_the_finest_class_met_never_passes_over_a_coarser_class_it_fails():
     assert _finest_scale_met(scales, limits.get, 0.5) == "1:1000"
     (d,) = _by(judge(Figures(dom=CheckSet(rmse_h_m=0.7, n_h=12, points="ground patches")),
                      Choice("cn-at", "1:2000 flat", "t", scale="1:2000", terrain="flat")), "DOM")
-    assert d.verdict == "pass" and d.finest_class == "none (coarser than 1:10000)"
+    assert d.verdict == "pass" and d.finest_class == "1:2000"
 
 
 def test_lbs_density_counts_usable_first_returns_not_the_header(tmp_path):

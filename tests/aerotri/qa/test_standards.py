@@ -43,7 +43,7 @@ def test_cn_limits_by_terrain_and_scale():
     heights only for flat and hilly ground at 1:500-1:2000."""
     L = cn_at().limits
     assert (L.feature_plan_mm.mm("flat"), L.feature_plan_mm.mm("mountainous")) == (0.6, 0.8)
-    assert L.feature_plan_mm.confirmed and "1:5000" in L.feature_plan_m_small.scales
+    assert L.feature_plan_mm.confirmed and "1:5000" in L.feature_plan_mm_small.scales
     assert [L.spot_height_m.height_m("flat", s) for s in ("1:500", "1:1000", "1:2000", "1:5000")] == [0.4, 0.5, 0.5, None]
     assert L.spot_height_m.height_m("mountainous", "1:500") is None
     with pytest.raises(KeyError):

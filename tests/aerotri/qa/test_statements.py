@@ -99,8 +99,26 @@ def test_asprs2023_states_no_class_whose_check_points_accuracy_is_not_stated():
     (st,) = accuracy_statements(_comp("asprs2023", [unknown, h], "pass", "H10cm V10cm"))
     assert "RMSEH Horizontal Positional Accuracy Class" in st.text and "RMSEV" not in st.text
     assert st.why.startswith("no vertical class stated")
-    # Edition 1 never combined them: its statement stays
+    # Edition 1 never combined them, but asks them three times as accurate as the class: unknown, no class is stated
+    # either (s95: "accuracy unknown" in the row, the statement issued)
     e1 = dataclasses.replace(_row("NVA at 95 % confidence: 1.96 x RMSE_z at non-vegetated check points", 0.0921,
                                   0.1805, 0.196, "pass"), checkpoints_accurate=None)
     (st,) = accuracy_statements(_comp("asprs2014", [e1], "pass", "V10cm"))
+    assert st.text == "" and st.why.startswith("no statement: no vertical class stated")
+    assert "three times as accurate as the class" in st.why
+    (st,) = accuracy_statements(_comp("asprs2014", [dataclasses.replace(e1, checkpoints_accurate=True)], "pass",
+                                      "V10cm"))
     assert "RMSEz = 9.2 cm" in st.text
+
+
+def test_asprs2014_states_the_radial_rmse_of_its_two_axes():
+    """s95 (a QA reviewer): the DOM's row judges the larger of RMSE_x 6.32 and RMSE_y 3.39 cm, and the statement called
+    that 6.3 cm "RMSEr" (+/- 10.9 cm); RMSE_r is their root sum of squares, 7.2 cm, +/- 12.4 cm at 95 %."""
+    h = dataclasses.replace(_row("larger of RMSE_x, RMSE_y (Edition 1: each <= H)", 0.0632, 0.0632, 0.071, "pass",
+                                 dimension="H"), rmse_axes_m=(0.0632, 0.0339))
+    (st,) = accuracy_statements(_comp("asprs2014", [h], "pass", "H7.1cm"))
+    assert "RMSEr = 7.2 cm, equating to +/- 12.4 cm at 95 % confidence level" in st.text
+    assert "RMSEx 6.3 cm, RMSEy 3.4 cm: their ratio below NSSDA's 0.6" in st.text
+    even = dataclasses.replace(h, rmse_axes_m=(0.05, 0.045))
+    (st,) = accuracy_statements(_comp("asprs2014", [even], "pass", "H7.1cm"))
+    assert "RMSEr = 6.7 cm" in st.text and "NSSDA's 0.6" not in st.text
