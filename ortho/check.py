@@ -692,6 +692,9 @@ def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str)
                               allow_ballpark=allow_ballpark)
 
 
+COARSE_REFERENCE_FACTOR = 2.0  # a reference pixel beyond this many DOM pixels is said (the search is in DOM pixels)
+
+
 def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m: float = 0.5, *, block_px: int = 2048,
                             patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7,
                             reference_operation=None, ndsm_operation=None, min_texture_ratio: float = MIN_TEXTURE_RATIO):
@@ -718,6 +721,16 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         # heights above ground in the nDSM's own unit (its CRS says which); the threshold is in metres
         ndsm_unit_m = height_unit_m(parse_crs(ndsm.crs.to_wkt(), f"{ndsm_path} CRS")) if ndsm is not None else 1.0
         res = abs(dom.transform.a) * metres_per_unit(dom)  # metres: the patches' shifts in metres
+        ref_res = abs(ref.transform.a) * metres_per_unit(ref, "reference orthophoto")
+        if ref_res > COARSE_REFERENCE_FACTOR * res:
+            # s95: a 0.2 m reference against a 0.05 m DOM lost 60 % of its patches as "off by more than the search",
+            # with no word of the reference's pixel
+            logging.getLogger(__name__).warning(
+                f"{reference_path}: its pixel {ref_res:.3g} m is {ref_res / res:.1f} times the DOM's {res:.3g} m: the "
+                "patches are matched on the DOM's grid, where the reference is that much blurred, and its +-"
+                f"{search_px} px search reaches {search_px * res:.3g} m, {search_px * res / ref_res:.1f} reference "
+                "pixels; a reference of about the DOM's resolution, or a DOM made at the reference's (--res-m), "
+                "measures better")
         white, white_from = dom_white_level(dom, dom_path)
         min_std = MIN_STD_GREY_8BIT * white / 255.0  # the same patches in an 8- and a 16-bit DOM
         logging.getLogger(__name__).debug("DOM check: least patch texture %.4g DN (DOM white %g, %s)", min_std, white, white_from)

@@ -1064,7 +1064,11 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     if gcc is not None and gcc.suspect:
         weaknesses.append(f"GNSS corrections suspect, beyond {gcc.k:g} a-priori sigmas of "
                           + _limit(gcc, f"; 1 % false alarms over the block's {gcc.n} estimates") + ": "
-                          + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed.")
+                          + "; ".join(gcc.reasons()) + ". An error of the block's datum or of the GNSS may be absorbed"
+                          # s95: a DEM 30 m off (another height system) under a consumer receiver's offset said no more
+                          + (" (heights: the GNSS's, the DEM's or the control's in another height system than the "
+                             "project's, an antenna height, or the receiver's own absolute error)"
+                             if any(axis == "U" for _, _, axis, _ in gcc.suspect) else "") + ".")
         pp_note = pp_shift_note(ba, gcc)
         if pp_note:
             weaknesses.append(pp_note)

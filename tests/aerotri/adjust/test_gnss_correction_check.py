@@ -78,6 +78,7 @@ def test_absorbed_height_error_is_flagged(sound, tmp_path):
     ks = build_report(ba).key_statistics
     assert ks["verdict"] == "weak" and "Solution Successful" not in ks["message"]
     assert "GNSS corrections suspect" in ks["message"] and f"strip {s} shift U" in ks["message"]
+    assert "another height system than the project's" in ks["message"]  # a height suspect names the systems (s95)
     assert ks["gnss_corrections_suspect"] == [{"strip": s, "term": "shift", "axis": "U",
                                                "displacement_m": pytest.approx(v, abs=1e-3)}]
     # stated a-priori sigma large enough for such shifts: not suspect

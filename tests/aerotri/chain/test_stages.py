@@ -679,3 +679,27 @@ def test_a_lidar_only_project_without_buildings_goes_on_past_the_corners(tmp_pat
     assert "is the surveyor's own control" in chain.no_corners()
     (p / "control" / "transfer.json").write_text("{}")
     assert Chain(project, read_options(project)).final_settings().settings.use_control is False
+
+
+def test_run_dem_holds_the_adjustment_too_without_lidar(tmp_path):
+    """s95 (a drone trial): `aerotri run P --dem DEM.tif` put the orthos on the DEM but adjusted without it: the tie
+    points stood 3.56 m below it and 45 % of the mosaic was empty. Without LiDAR and [adjust] dem the DEM of the
+    orthophotos (--dem, or [rectify] dem) is the final adjustment's surface control, said in its notes."""
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain
+    from aerotri.core.project import Project
+
+    (tmp_path / "project.toml").write_text('[project]\nname = "t"\ncrs = "EPSG:32649"\n')
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(dem, "w", driver="GTiff", width=10, height=10, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=rasterio.transform.from_origin(500000, 3000000, 1, 1)) as ds:
+        ds.write(np.zeros((1, 10, 10), "float32"))
+    project = Project.open(tmp_path)
+    assert Chain(project, read_options(project)).final_settings().settings.dem is None
+    r = Chain(project, read_options(project), dem=dem).final_settings()
+    assert r.settings.dem == dem and r.sources["dem"] == "aerotri run --dem" and "surface control on" in r.notes["dem"]
+    with open(tmp_path / "project.toml", "a") as f:
+        f.write(f'\n[rectify]\ndem = "{dem}"\n')
+    project = Project.open(tmp_path)
+    r = Chain(project, read_options(project)).final_settings()
+    assert r.settings.dem == dem and r.sources["dem"] == "[rectify] dem"

@@ -175,6 +175,17 @@ def test_crs_lines_and_unnamed_points(tmp_path):
     assert list(o.point_id) == ["gcp1", "gcp1", "gcp2"] and list(o.image_id) == ["a", "b", "a"]
 
 
+def test_a_gcp_list_without_its_crs_line_takes_the_crs_given(tmp_path):
+    """s95: `--crs` ("CRS of FILES when they carry none") refused a gcp_list.txt without its header line as "first
+    line ... is not a CRS"."""
+    f = tmp_path / "gcp_list.txt"
+    f.write_text("235269.88 3811198.11 12.5 10 20 a.jpg p\n235269.88 3811198.11 12.5 30 40 b.jpg p\n")
+    root = _fresh(tmp_path, crs="EPSG:32611")
+    import_files(root, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2), crs="EPSG:32611"))
+    c = read_control_points(root / "control" / "points.csv")
+    assert list(c.id) == ["p"] and np.allclose(c.xyz_m[0], [235269.88, 3811198.11, 12.5])
+
+
 def test_a_line_without_a_name_at_a_named_point_s_coordinates_is_that_point(tmp_path):
     """Kite trial: a line whose gcp_name was lost, at gcp09's coordinates, became an 11th point 'gcp1' without a word.
     It is gcp09 (as OpenSfM groups lines by their coordinates), said on the console naming the line; a nameless line
@@ -230,6 +241,9 @@ def test_one_point_spelled_two_ways_is_one_control_point(tmp_path):
     ("EPSG:32611\n235269 3811198 0 4 5 a.jpg p\n235279 3811198 0 5.5 5.5 a.jpg q\n", InputError,
      r":3: points 'p' and 'q' are measured 1.6 px apart in frame 'a' \(lines 2 and 3\)"),
     ("EPSG:32611\n", InputError, "no measurement lines"),
+    # no CRS line and no --crs (s95)
+    ("235269 3811198 0 4 5 a.jpg p\n", InputError, ":1: a point line where the CRS line belongs .* give the CRS "
+     "with --crs"),
     # latitude first under a geographic header (trial-messy F4: "point 1 could not be transformed", no file, no line)
     ("EPSG:4326\n34.4138 -119.8489 10 4 5 a.jpg p\n34.4138 -119.8489 10 6 7 b.jpg p\n", InputError,
      r"gcp_list.txt: line 2 \(point p\): \(34.414, -119.849\) is not a longitude/latitude.*latitude first\?"),
