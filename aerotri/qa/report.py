@@ -1707,7 +1707,9 @@ def write_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     figures = report_figures(rep, project)
     # a DOM check of an earlier mosaic: neither its plot nor its page (the row says the DOM was not checked)
     stale = ("../ortho/dom_report.png", "../ortho/dom_report.json") if _dom_check_stale(summary) else ()
-    present = [(src, alt) for src, alt in STAGE_IMAGES
+    # embedded, as the report's own figures are: reports/ copied for a client keeps them (s95: two figures were
+    # links to ../ortho and ../at, lost in the copy)
+    present = [(_png_data_uri((project.reports_dir / src).resolve()), alt) for src, alt in STAGE_IMAGES
                if (project.reports_dir / src).resolve().is_file() and src not in stale]
     # only the stage pages this project has: a block without LiDAR has no height check or strip page
     links = [(src, text) for src, text in STAGE_LINKS
@@ -1716,6 +1718,13 @@ def write_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     if pdf if pdf is not None else read_qa_config(root).pdf:
         write_pdf(project.report_pdf_path, summary, project, figures)
     return dataclasses.replace(rep, html=str(project.report_index_path))
+
+
+def _png_data_uri(path: Path) -> str:
+    """A PNG file as an ``<img src>`` data URI."""
+    import base64
+
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
 def console_summary(report: QaReport) -> str:

@@ -695,3 +695,19 @@ def test_a_report_without_recorded_inputs_is_judged_by_the_chains_stamp_of_it(tm
     (stages / "adjust_final.json").write_text(json.dumps({"inputs": sha1, "outputs": {"at/report.json": "0" * 40}}))
     note = write_qa_report(p).check("adjustment_current").note
     assert "written after at/report.json" in note and "control/points.csv" in note
+
+
+def test_the_stage_plots_are_embedded_so_reports_can_be_copied(tmp_path):
+    """s95 (a QA reviewer): index.html linked ortho/dom_report.png and at/connectivity.png by relative path, and a copy
+    of reports/ for the client lost both; they are embedded as the report's own figures are."""
+    import base64
+
+    p = _project(tmp_path, [0.1, 0.1, 0.2], 0.2)
+    png = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mP8z8BQDwAEhQGAhKmMIQAAAABJRU5ErkJggg==")
+    (p / "ortho" / "dom_report.png").write_bytes(png)
+    (p / "at" / "connectivity.png").write_bytes(png)
+    write_qa_report(p)
+    page = (p / "reports" / "index.html").read_text()
+    assert "../ortho/dom_report.png" not in page and "../at/connectivity.png" not in page
+    uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+    assert page.count(f'<img src="{uri}"') == 2
