@@ -68,15 +68,39 @@ class HeldPrincipalPoint:
                 "PPA or PBS) or estimate it (self_calibration \"pp\"). Held wrong, it turns the frames and the ground.")
 
 
-def _freed(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, group: str):
-    """The final least squares once more from ``state`` with the calibration ``group`` free: (Cal3DS2 values fx fy s
-    u0 v0 ... px, its SolveInfo); None without degrees of freedom or a finite chi2."""
+@dataclasses.dataclass(frozen=True)
+class _FreedTest:
+    """The held values' test by the drop of chi2 with ``n`` parameters freed: sigma0 held and freed (um on the
+    sensor), F = (chi2_held - chi2_free) / n / sigma0_free^2 and its limit F(n, dof) at alpha; ``cal`` the freed
+    Cal3DS2 values (fx fy s u0 v0 ... px)."""
+
+    cal: np.ndarray
+    sigma0_held_um: float
+    sigma0_free_um: float
+    f_statistic: float
+    f_limit: float
+
+    def fields(self) -> dict:
+        """The test's figures as the Held* results' fields."""
+        return dict(sigma0_held_um=self.sigma0_held_um, sigma0_free_um=self.sigma0_free_um,
+                    f_statistic=self.f_statistic, f_limit=self.f_limit)
+
+
+def _freed(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.SolveInfo, obs_active, control_active,
+           group: str, n: int, alpha: float) -> _FreedTest | None:
+    """The final least squares once more from ``state`` with the calibration ``group`` (``n`` parameters) free,
+    tested against ``info`` (the solve that held it); None without degrees of freedom or a finite chi2."""
     free = dataclasses.replace(opts, self_calibration=tuple(opts.self_calibration) + (group,))
     gr = G.build_graph(block, free, state, obs_active, control_active, robust=False)
     values, info_free = G.optimize(gr, free)
     if not info_free.dof > 0 or not np.isfinite(info_free.chi2):
         return None
-    return np.asarray(values.atCal3DS2(G.K_KEY).vector(), dtype=float), info_free
+    s2 = info_free.chi2 / info_free.dof
+    um = opts.image_sigma_px * block.camera.pixel_um  # sigma0 (in image sigmas) on the sensor
+    return _FreedTest(cal=np.asarray(values.atCal3DS2(G.K_KEY).vector(), dtype=float),
+                      sigma0_held_um=float(np.sqrt(info.chi2 / info.dof)) * um, sigma0_free_um=float(np.sqrt(s2)) * um,
+                      f_statistic=float(max(0.0, info.chi2 - info_free.chi2) / n / s2),
+                      f_limit=float(f_isf(alpha, n, info_free.dof)))
 
 
 def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.SolveInfo, obs_active,
@@ -87,20 +111,14 @@ def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, 
     groups = block.camera.SELF_CAL_GROUPS
     if "pp" in opts.self_calibration or "pp" not in groups or not info.dof > 2 or not info.chi2 > 0:
         return None
-    freed = _freed(block, opts, state, obs_active, control_active, "pp")
+    freed = _freed(block, opts, state, info, obs_active, control_active, "pp", 2, alpha)
     if freed is None:
         return None
-    freed_cal, info_free = freed
-    s2 = info_free.chi2 / info_free.dof
-    f_stat = max(0.0, info.chi2 - info_free.chi2) / 2.0 / s2
-    shift_px = (float(freed_cal[3] - state.cal[3]), float(freed_cal[4] - state.cal[4]))
+    shift_px = (float(freed.cal[3] - state.cal[3]), float(freed.cal[4] - state.cal[4]))
     pix_mm = block.camera.pixel_um / 1000.0
-    um = opts.image_sigma_px * block.camera.pixel_um  # sigma0 (in image sigmas) on the sensor
     test = HeldPrincipalPoint(
         shift_px=shift_px, shift_mm=(shift_px[0] * pix_mm, -shift_px[1] * pix_mm),
-        held_mm=(float(block.camera.ppx_mm), float(block.camera.ppy_mm)),
-        sigma0_held_um=float(np.sqrt(info.chi2 / info.dof)) * um, sigma0_free_um=float(np.sqrt(s2)) * um,
-        f_statistic=float(f_stat), f_limit=float(f_isf(alpha, 2, info_free.dof)))
+        held_mm=(float(block.camera.ppx_mm), float(block.camera.ppy_mm)), **freed.fields())
     log.info(f"held principal point: freed it moves {shift_px[0]:+.2f} / {shift_px[1]:+.2f} px (x right / y down), "
              f"F = {test.f_statistic:.2f} against {test.f_limit:.2f}")
     return test
@@ -150,17 +168,11 @@ def held_focal(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.So
     if ("focal" in opts.self_calibration or "focal" not in block.camera.SELF_CAL_GROUPS or not ground_heights
             or not info.dof > 1 or not info.chi2 > 0):
         return None
-    freed = _freed(block, opts, state, obs_active, control_active, "focal")
+    freed = _freed(block, opts, state, info, obs_active, control_active, "focal", 1, alpha)
     if freed is None:
         return None
-    freed_cal, info_free = freed
-    s2 = info_free.chi2 / info_free.dof
-    um = opts.image_sigma_px * block.camera.pixel_um
-    test = HeldFocal(held_px=float(state.cal[0]), free_px=float(freed_cal[0]), pixel_um=float(block.camera.pixel_um),
-                     focal_mm=float(block.camera.focal_mm), sigma0_held_um=float(np.sqrt(info.chi2 / info.dof)) * um,
-                     sigma0_free_um=float(np.sqrt(s2)) * um,
-                     f_statistic=float(max(0.0, info.chi2 - info_free.chi2) / s2),
-                     f_limit=float(f_isf(alpha, 1, info_free.dof)))
+    test = HeldFocal(held_px=float(state.cal[0]), free_px=float(freed.cal[0]), pixel_um=float(block.camera.pixel_um),
+                     focal_mm=float(block.camera.focal_mm), **freed.fields())
     log.info(f"held focal length: freed it moves {100 * test.shift:+.2f} % ({test.held_px:.1f} -> "
              f"{test.free_px:.1f} px), F = {test.f_statistic:.2f} against {test.f_limit:.2f}")
     return test
