@@ -81,15 +81,17 @@ def _is_point_line(text: str) -> bool:
 
 
 def read_gcp_list(path, crs_given: str | None = None
-                  ) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[str, str, float, float, int]]]:
-    """(CRS text, [(point id, xyz)], [(point id, image id, x_px, y_px, line)]) of a gcp_list.txt; ``crs_given``
-    (--crs): the CRS of a file without its header line (s95: refused as "not a CRS" with --crs given)."""
+                  ) -> tuple[str, list[tuple[str, np.ndarray]], list[tuple[str, str, float, float, int]], bool]:
+    """(CRS text, [(point id, xyz)], [(point id, image id, x_px, y_px, line)], whether the file has its CRS line) of
+    a gcp_list.txt; ``crs_given`` (--crs): the CRS of a file without its header line (s95: refused as "not a CRS"
+    with --crs given)."""
     path = Path(path)
     lines = read_text(path, "ODM gcp_list.txt").splitlines()
     body = [(n, ln.strip()) for n, ln in enumerate(lines, start=1) if ln.strip() and not ln.strip().startswith("#")]
     if not body:
         raise InputError(f"{path}: empty; expected a CRS line and 'geo_x geo_y geo_z im_x im_y image_name [gcp_name]' lines")
-    if _is_point_line(body[0][1]):
+    headed = not _is_point_line(body[0][1])
+    if not headed:
         if crs_given is None:
             raise InputError(f"{path}:{body[0][0]}: a point line where the CRS line belongs (a PROJ string, "
                              "EPSG:nnnn, 'WGS84 UTM <zone>[N|S]' or 'WGS84'): add it, or give the CRS with --crs")
@@ -160,7 +162,7 @@ def read_gcp_list(path, crs_given: str | None = None
         seen[(pid, iid)] = lineno
     check_distinct_points(ImageObservations(np.array([o[0] for o in obs], dtype=object), np.array([o[1] for o in obs], dtype=object),
                                             np.array([[o[2], o[3]] for o in obs], float), np.array([o[4] for o in obs], int)), path)
-    return crs, list(points.items()), obs
+    return crs, list(points.items()), obs, headed
 
 
 def _declared_heights(path, file_crs: str, declared: str) -> str:
@@ -196,8 +198,8 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         raise InputError(f"odm expects one gcp_list.txt, got {len(files)} files")
     path = Path(files[0])
     sigma_m = control_sigma_m(project, options, path)  # gcp_list.txt carries no accuracies
-    crs, points, obs = read_gcp_list(path, options.crs)
-    if options.crs is not None and crs != options.crs:
+    crs, points, obs, headed = read_gcp_list(path, options.crs)
+    if options.crs is not None and headed:
         crs = _declared_heights(path, crs, options.crs)
     ids = np.array([p for p, _ in points], dtype=object)
     xyz = np.array([v for _, v in points])

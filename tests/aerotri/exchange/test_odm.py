@@ -184,6 +184,13 @@ def test_a_gcp_list_without_its_crs_line_takes_the_crs_given(tmp_path):
     import_files(root, "odm", [f], ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2), crs="EPSG:32611"))
     c = read_control_points(root / "control" / "points.csv")
     assert list(c.id) == ["p"] and np.allclose(c.xyz_m[0], [235269.88, 3811198.11, 12.5])
+    # a file with its CRS line still refuses a --crs that only repeats it (the option is for files that carry none)
+    f.write_text("EPSG:32611\n" + f.read_text())
+    from aerotri.core.errors import OptionError
+
+    with pytest.raises(OptionError, match="the file names its CRS"):
+        import_files(_fresh(tmp_path, crs="EPSG:32611", name="headed"), "odm", [f],
+                     ImportSettings(sigma_xyz_m=(0.1, 0.1, 0.2), crs="EPSG:32611"))
 
 
 def test_a_line_without_a_name_at_a_named_point_s_coordinates_is_that_point(tmp_path):
