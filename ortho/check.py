@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from aerotri.core.errors import InputError, OptionError
+from aerotri.core.errors import CrsError, InputError, OptionError
 from aerotri.core.gdal_cache import MiB, stage_block_cache
 from aerotri.core.limits import usable_cores
 from aerotri.core.log import track
@@ -695,6 +695,15 @@ def _operation_to(dom_path, other_path, params, allow_ballpark: bool, what: str)
 COARSE_REFERENCE_FACTOR = 2.0  # a reference pixel beyond this many DOM pixels is said (the search is in DOM pixels)
 
 
+def _pixel_m(ds) -> float | None:
+    """A reference raster's pixel in metres; None for a CRS without a map length unit (a reference in degrees is
+    read through the coordinate operation, and its pixel is not compared)."""
+    try:
+        return abs(ds.transform.a) * metres_per_unit(ds, "reference orthophoto")
+    except CrsError:
+        return None
+
+
 def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m: float = 0.5, *, block_px: int = 2048,
                             patch_px: int = 48, step_px: int = 48, search_px: int = 6, min_ncc: float = 0.7,
                             reference_operation=None, ndsm_operation=None, min_texture_ratio: float = MIN_TEXTURE_RATIO):
@@ -721,8 +730,8 @@ def check_against_reference(dom_path, reference_path, ndsm_path=None, max_ndsm_m
         # heights above ground in the nDSM's own unit (its CRS says which); the threshold is in metres
         ndsm_unit_m = height_unit_m(parse_crs(ndsm.crs.to_wkt(), f"{ndsm_path} CRS")) if ndsm is not None else 1.0
         res = abs(dom.transform.a) * metres_per_unit(dom)  # metres: the patches' shifts in metres
-        ref_res = abs(ref.transform.a) * metres_per_unit(ref, "reference orthophoto")
-        if ref_res > COARSE_REFERENCE_FACTOR * res:
+        ref_res = _pixel_m(ref)
+        if ref_res is not None and ref_res > COARSE_REFERENCE_FACTOR * res:
             # s95: a 0.2 m reference against a 0.05 m DOM lost 60 % of its patches as "off by more than the search",
             # with no word of the reference's pixel
             logging.getLogger(__name__).warning(

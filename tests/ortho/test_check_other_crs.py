@@ -137,3 +137,25 @@ def test_a_reference_coarser_than_the_dom_is_said(tmp_path, caplog):
         run_check(tmp_path / "proj", reference_path=tmp_path / "coarser.tif", dom_path=dom, out_stem=tmp_path / "r2")
     assert any("coarser.tif: its pixel 2 m is 4.0 times the DOM's 0.5 m" in r.message for r in caplog.records), \
         [r.message for r in caplog.records]
+
+
+def test_a_reference_in_degrees_is_measured_through_the_operation(tmp_path):
+    """A reference orthophoto in WGS 84 degrees is read through the coordinate operation; the coarse-reference
+    warning (its pixel in metres) must not refuse it (review of s95: it raised "the reference orthophoto's CRS ... is
+    geographic")."""
+    from rasterio.warp import calculate_default_transform
+
+    ref, _ = _reference(tmp_path)
+    dom = _dom_in(tmp_path, ref, UTM, "dom.tif")
+    h, w = ref.shape[:2]
+    geo = CRS.from_epsg(4326)
+    tr, W, H = calculate_default_transform(UTM, geo, w, h, X0, Y0 - h * REF_RES, X0 + w * REF_RES, Y0)
+    out = np.zeros((3, H, W), np.uint8)
+    reproject(np.moveaxis(ref, -1, 0), out, src_transform=Affine(REF_RES, 0, X0, 0, -REF_RES, Y0), src_crs=UTM,
+              dst_transform=tr, dst_crs=geo, resampling=Resampling.bilinear)
+    with rasterio.open(tmp_path / "geo.tif", "w", driver="GTiff", width=W, height=H, count=3, dtype="uint8",
+                       crs=geo, transform=tr) as ds:
+        ds.write(out)
+    rep = run_check(tmp_path / "proj", reference_path=tmp_path / "geo.tif", dom_path=dom, out_stem=tmp_path / "r",
+                    allow_ballpark=True)
+    assert rep.displacement.count > 10 and rep.displacement.rms_xy_m < 0.05
