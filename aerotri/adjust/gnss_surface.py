@@ -34,6 +34,7 @@ from aerotri.adjust.variance_components import gnss_rows
 
 log = logging.getLogger(__name__)
 
+
 @dataclasses.dataclass(frozen=True)
 class GnssSurfaceOffset:
     """The GNSS heights minus the block height the surface control gives (metres, up; positive: GNSS higher)."""

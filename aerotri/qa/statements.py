@@ -139,18 +139,21 @@ def _asprs2014(classes: dict, checks, u: float, un: str) -> tuple[str, str]:
         if _uncombined(h):
             left_out.append(f"no horizontal class stated: the check points' own accuracy is not stated "
                             f"({_survey_option(h)}), and Edition 1 asks them three times as accurate as the class")
-            return " ".join(parts), "; ".join(left_out)
-        # RMSE_r from the axes where the check gives them: the row judges the larger axis, and that read as RMSE_r
-        # under-stated it (s95: 6.3 cm for 7.2, +/- 10.9 for 12.4 cm)
-        r = math.hypot(*h.rmse_axes_m) if h.rmse_axes_m is not None else h.measured
-        s = (f"{head}{classes['H']} (cm) RMSEx / RMSEy Horizontal Accuracy Class. Actual positional accuracy "
-             f"was found to be RMSEr = {_length(r, u, un)}, equating to +/- {_length(NSSDA_RADIAL_95 * r, u, un)} at "
-             "95 % confidence level.")
-        if h.rmse_axes_m is not None and min(h.rmse_axes_m) < NSSDA_EQUAL_AXES * max(h.rmse_axes_m):
-            s += (f" (RMSEx {_length(h.rmse_axes_m[0], u, un)}, RMSEy {_length(h.rmse_axes_m[1], u, un)}: their "
-                  f"ratio below NSSDA's {NSSDA_EQUAL_AXES:g}, for which the 95 % figure is an approximation.)")
-        parts.append(s)
+        else:
+            parts.append(_asprs2014_horizontal(head + classes["H"], h, u, un))
     return " ".join(parts), "; ".join(left_out)
+
+
+def _asprs2014_horizontal(head: str, h, u: float, un: str) -> str:
+    """Edition 1's horizontal sentence: RMSE_r from the axes where the check gives them (the row judges the larger
+    axis, and that read as RMSE_r under-stated it, s95: 6.3 cm for 7.2, +/- 10.9 for 12.4 cm)."""
+    r = math.hypot(*h.rmse_axes_m) if h.rmse_axes_m is not None else h.measured
+    s = (f"{head} (cm) RMSEx / RMSEy Horizontal Accuracy Class. Actual positional accuracy was found to be RMSEr = "
+         f"{_length(r, u, un)}, equating to +/- {_length(NSSDA_RADIAL_95 * r, u, un)} at 95 % confidence level.")
+    if h.rmse_axes_m is not None and min(h.rmse_axes_m) < NSSDA_EQUAL_AXES * max(h.rmse_axes_m):
+        s += (f" (RMSEx {_length(h.rmse_axes_m[0], u, un)}, RMSEy {_length(h.rmse_axes_m[1], u, un)}: their ratio "
+              f"below NSSDA's {NSSDA_EQUAL_AXES:g}, for which the 95 % figure is an approximation.)")
+    return s
 
 
 def _lbs(checks, u: float, un: str) -> str:
