@@ -30,8 +30,8 @@ from aerotri.core.project import ControlPointSettings, Project
 from aerotri.core.point_ids import dom_points_used_as_control, point_id_key  # noqa: F401 (read from here too)
 from aerotri.core.textio import read_json
 from aerotri.qa.rounding import round_on_its_side, within
-from aerotri.core.tolerances import (SCALE_TABLES, Provenance, ToleranceTable, asprs_classes_for_gsd, asprs_table,
-                                     load_table, scale_for_gsd, split_key)
+from aerotri.core.tolerances import (SCALE_TABLES, TOLERANCE_DIR, Provenance, ToleranceTable, asprs_classes_for_gsd,
+                                     asprs_table, load_table, scale_for_gsd, split_key)
 from aerotri.qa.standards import STANDARD_KEYS, asprs2014, asprs2023, cn_at, usgs_lbs
 from aerotri.qa.standards import formulas as F
 
@@ -690,6 +690,11 @@ class Choice:
     scale: str | None = None
     terrain: str = "flat"
     requested: bool = False  # the standard named (--standard, [qa] standard), not the one the tolerance table chose
+    # the report's verdict table: its file's name, whether it is one the toolkit ships, and its limits (the rows say
+    # where it holds a quantity to another number)
+    verdict_file: str = ""
+    verdict_shipped: bool = False
+    verdict_limits: dict | None = None
 
 
 def _table_reason(table) -> str:
@@ -1137,13 +1142,17 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                                    "1/5 of the feature limit (GB/T 7931-2008 6.1) needs <=", cs.points) if f_lim else
                           (None, "no feature limit to judge the check points by"))
         fin, rank = finest(cs.rmse_h_m, keys, c.terrain) if cs.rmse_h_m is not None else (None, None)
+        # where the report's verdict table holds the quantity to another number (the shipped tables: the design
+        # table's, this limit's map millimetres read as metres; s95: 0.35 m beside 3.5 m, 0.5 m beside 5 m in one
+        # report, no word between them); asked for, cn-at sets the verdict table's (``with_cn_at_limits``)
+        held = (c.verdict_limits or {}).get("rms_xy_m" if product == "Aerotriangulation" else "feature_rms_xy_m")
         twin = ""
-        if limit and not c.requested and c.scale in ("1:5000", "1:10000"):
-            # the default report's verdict table is the design table, whose numbers are these map millimetres read as
-            # metres (s95: 0.35 m beside 3.5 m, 0.5 m beside 5 m in one report, no word between them)
-            twin = (f"; the verdict table (the design table, cn_1to{c.scale[2:]}.toml) holds "
-                    f"{limit * 1000.0 / F.scale_denominator(c.scale):g} m, this limit's map millimetres read as metres "
-                    "(docs/standards.md; --standard cn-at sets this one there too)")
+        if limit and held is not None and not c.requested and not math.isclose(held, limit):
+            twin = (f"; the verdict table (the design table, {c.verdict_file}) holds {held:g} m, this limit's map "
+                    "millimetres read as metres (docs/standards.md; --standard cn-at sets this one there too)"
+                    if c.verdict_shipped else
+                    f"; the verdict table ({c.verdict_file}) holds {held:g} m (--standard cn-at sets this one there "
+                    "too)")
         ch = _check(product, f"{cs.points}, plan RMS (radial)", c.class_tested, cs.rmse_h_m, cs.rmse_h_m,
                     limit=limit, unit="m", n=cs.n_h, need=None, cp_ok=cp_ok,
                     cp_note=cp_note + "; the specifications set no minimum number of check points"
@@ -1460,7 +1469,9 @@ def project_compliance(project: Project, table: ToleranceTable, block, standard:
     from aerotri.geom.crs.definition import length_unit_name
     from aerotri.qa.statements import accuracy_statements
 
-    choice = choose(standard, class_text, table, block, project.qa, terrain, lidar_only, scale)
+    choice = dataclasses.replace(choose(standard, class_text, table, block, project.qa, terrain, lidar_only, scale),
+                                 verdict_file=table.path.name, verdict_shipped=table.path.parent == TOLERANCE_DIR,
+                                 verdict_limits=dict(table.limits))
     comp = judge(project_figures(project, density=choice.key in DENSITY_STANDARDS), choice)
     unit_m = 1.0
     if project.crs:

@@ -118,7 +118,10 @@ def test_one_dom_limit_per_scale_and_standard_and_patches_are_not_called_check_p
             assert c.limit == pytest.approx(asked.limits["feature_rms_xy_m"]), (scale, terrain)
             assert c.limit_confirmed == asked.provenance["feature_rms_xy_m"].confirmed, (scale, terrain)
             assert c.quantity == "ground patches, plan RMS (radial)" and c.counted == "ground patches"
-    (d,) = _by(judge(Figures(dom=dom), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat")), "DOM")
+    design = load_table("1:5000", "flat")  # the default report's verdict table
+    (d,) = _by(judge(Figures(dom=dom), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat",
+                                              verdict_file=design.path.name, verdict_shipped=True,
+                                              verdict_limits=dict(design.limits))), "DOM")
     assert d.limit == 2.5 and d.limit_confirmed is False and "docs/tolerances.md" in d.limit_source  # 0.5 mm x 5000
     # the default report (cn-at not asked for) keeps the design table's metres in its verdict table, and says so
     assert "the verdict table (the design table, cn_1to5000.toml) holds 0.5 m" in d.checkpoints_note
