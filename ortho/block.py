@@ -1337,6 +1337,13 @@ def surfaces_changed(root, index: FrameIndex) -> list[tuple[str, Path]]:
     return out
 
 
+def rectified_on(root, index: FrameIndex) -> list[Path]:
+    """The surfaces whose heights the frames of ``index`` took: the DEM and a true ortho's DSM (not the occlusion
+    DSM, which only hides), as index.json records them; [] for an index without the record."""
+    rec = index.inputs if isinstance(index.inputs, dict) else {}
+    return [_recorded_path(root, rec[k]["file"]) for k in ("dem", "dsm") if isinstance(rec.get(k), dict)]
+
+
 def require_current_frames(root, index: FrameIndex, then: str) -> None:
     """``InputError`` when the frames are stale (``stale_frames``), saying to re-run ortho rectify and
     ``then`` (the commands after it, e.g. "`ortho mosaic P`")."""

@@ -96,14 +96,14 @@ from aerotri.core.project import Project
 from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
-from ortho.block import (FrameIndex, frame_index, index_operation, operation_tags, read_index, require_current_frames,
-                         verify_index, without_threads_for_extra_samples)
+from ortho.block import (FrameIndex, frame_index, index_operation, operation_tags, read_index, rectified_on,
+                         require_current_frames, verify_index, without_threads_for_extra_samples)
 from ortho.grid import OrthoGrid, overview_factors
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import write_seamlines_gpkg
 from ortho.seam_crossings import FILE as CROSSINGS_FILE, CrossingsSummary
 from ortho.seamlines_preview import preview_shape, write_seamlines_preview
-from ortho.unseen import unseen_cells
+from ortho.unseen import unseen_cells, unseen_without_heights
 from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_objects_whole, label_polygons,
                              least_cost_seams, neighbour_pairs, seam_lines, voronoi_labels)
 
@@ -1212,6 +1212,10 @@ class MosaicSummary:
     seam_crossings: CrossingsSummary | None = None  # an edited run's check (``ortho.seam_crossings``); None: not edited
     # the frames the seams give no cell, so no seamline polygon (``frames_without_cells``; () in a record before it)
     frames_without_cells: tuple[str, ...] = ()
+    # of the cells seen by no frame, those where the DEM (or a true ortho's DSM) has no heights, and their share of
+    # the block's cells (``ortho.unseen.unseen_without_heights``; None in a record before it was kept)
+    cells_without_heights: int | None = None
+    share_without_heights: float | None = None
 
 
 def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
@@ -1220,7 +1224,8 @@ def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
                          doc["cells_seen_by_no_frame"], doc["area_seen_by_no_frame_m2"],
                          doc.get("share_seen_by_no_frame"),
                          CrossingsSummary.from_record(doc["seam_crossings"]) if doc.get("seam_crossings") else None,
-                         tuple(str(n) for n in doc.get("frames_without_cells") or ()))
+                         tuple(str(n) for n in doc.get("frames_without_cells") or ()),
+                         doc.get("cells_without_heights"), doc.get("share_without_heights"))
 
 
 def read_mosaic_summary(path) -> MosaicSummary:
@@ -1742,7 +1747,10 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                          work / "seamlines_preview.png", work / "mosaic.tif", labels, factor,
                          imports=False) if not early else contextlib.nullcontext(lambda: None) as preview:
             pairs = [[red.names[i], red.names[j]] for i, j in neighbour_pairs(labels)]
-            nodata = _interior_nodata(work / "mosaic.tif", res, footprints=footprints)
+            surfaces = rectified_on(root, index)
+            nodata = _interior_nodata(work / "mosaic.tif", res, footprints=footprints, surfaces=surfaces)
+            nodata["surfaces_counted"] = [str(p.relative_to(root)) if p.is_relative_to(root) else str(p)
+                                          for p in surfaces]
             preview()
         vectors()
     summary = {"path": str(out_dir / "mosaic.tif"), "width": mosaic.width, "height": mosaic.height,
@@ -1785,9 +1793,13 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
     if summary["cells_seen_by_no_frame"]:
         # (two significant digits: "1608 cells (0.00 % of the block)" read as none, new-user trial s51)
         pct = 100 * summary["share_seen_by_no_frame"]
+        off = 100 * summary["share_without_heights"]
         logger.warning("%d cells (%s %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
-                       "over DEM nodata, or over the frames' own nodata): nodata in the mosaic",
-                       summary["cells_seen_by_no_frame"], f"{pct:.2f}" if pct >= 0.1 else f"{pct:.2g}")
+                       "over DEM nodata, or over the frames' own nodata): nodata in the mosaic; %s %% of the block "
+                       "where the surface the frames were rectified on has no heights (%s)",
+                       summary["cells_seen_by_no_frame"], f"{pct:.2f}" if pct >= 0.1 else f"{pct:.2g}",
+                       f"{off:.2f}" if off >= 0.1 or off == 0 else f"{off:.2g}",
+                       ", ".join(Path(p).name for p in summary["surfaces_counted"]) or "none recorded")
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
 
@@ -1836,7 +1848,7 @@ def _white_level_record(red: ReducedFrames) -> dict:
             "saturated_share_frames": shares}
 
 
-def _interior_nodata(path: Path, res_m: float, *, footprints=(), max_cells: float = 6.4e7) -> dict:
+def _interior_nodata(path: Path, res_m: float, *, footprints=(), surfaces=(), max_cells: float = 6.4e7) -> dict:
     """Cells of the mosaic without a value that lie inside the block: enclosed by valid cells (not connected to
     the mosaic's outer edge), or inside the ground a frame images (``footprints``: per frame its ring (x, y) in the
     mosaic's CRS, ``FrameEntry.footprint_xy_m``; None for an index written before it was recorded). The second
@@ -1844,18 +1856,22 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), max_cells: floa
     frames: Tuniu's mosaic lost 40 % of its cells to it and reported 7.6 %). No frame sees them (occluded in every
     frame, or over DEM nodata). Counted on the mask at full resolution up to ``max_cells`` (64 MB), above it on
     the mask read that large (an overview of a large mosaic, scaled to mosaic cells: the overviews' masks close
-    small holes, the count is then low; the demo's at half resolution read 91,268 of 138,797 enclosed cells)."""
+    small holes, the count is then low; the demo's at half resolution read 91,268 of 138,797 enclosed cells).
+    ``surfaces``: the DEM (and a true ortho's DSM) the frames were rectified on: the unseen cells where one has no
+    heights are counted apart (``..._without_heights``; Brighton on its cloud's DEM: 44.7 % of the block)."""
     with rasterio.open(path) as ds:
         step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / max_cells))))
         shape = (max(1, ds.height // step), max(1, ds.width // step))
         ok = ds.read_masks(1, out_shape=shape, resampling=Resampling.nearest) > 0
         sy, sx = ds.height / shape[0], ds.width / shape[1]
-        to_read_px = ~(ds.transform @ Affine.scale(sx, sy))
-    unseen = unseen_cells(ok, to_read_px, footprints)
+        read_transform, crs = ds.transform @ Affine.scale(sx, sy), ds.crs
+    unseen = unseen_cells(ok, ~read_transform, footprints)
     holes = int(np.count_nonzero(unseen))
     block = holes + int(np.count_nonzero(ok))
+    off = unseen_without_heights(unseen, read_transform, crs, surfaces)
     return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),
-            "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1)}
+            "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1),
+            "cells_without_heights": int(round(off * sx * sy)), "share_without_heights": off / max(1, block)}
 
 
 def _write_seamlines(work: Path, labels, transform, names, crs, write_labels: bool = False) -> None:

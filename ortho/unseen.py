@@ -28,3 +28,26 @@ def unseen_cells(valid: np.ndarray, to_cells, footprints=()) -> np.ndarray:
             cv2.fillPoly(imaged, [pts], 1, lineType=cv2.LINE_8, shift=4)
     unseen |= ~valid & (cv2.erode(imaged, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0)
     return unseen
+
+
+def unseen_without_heights(unseen: np.ndarray, transform, crs, surfaces) -> int:
+    """How many of the ``unseen`` cells (``unseen_cells``; the raster's ``transform`` and ``crs``) lie where a surface
+    the frames were rectified on has no heights: beyond its extent or on its nodata (read through a nearest-neighbour
+    warp onto this grid, one byte a cell). ``surfaces``: the DEM's and a true ortho's DSM's paths; one that cannot be
+    opened is left out (the report says what was counted). The rest of the unseen cells are occluded in every frame
+    (a true ortho) or on the frames' own nodata."""
+    import rasterio
+    from rasterio.enums import Resampling
+    from rasterio.vrt import WarpedVRT
+
+    if not unseen.any():
+        return 0
+    gap = np.zeros(unseen.shape, bool)
+    for path in surfaces:
+        try:
+            with rasterio.open(path) as src, WarpedVRT(src, crs=crs, transform=transform, width=unseen.shape[1],
+                                                       height=unseen.shape[0], resampling=Resampling.nearest) as vrt:
+                gap |= vrt.read_masks(1) == 0
+        except (OSError, rasterio.errors.RasterioError):
+            continue
+    return int(np.count_nonzero(unseen & gap))

@@ -447,6 +447,27 @@ def _holes_row(section: str, project: Project) -> QaCheck:
                   "in every frame (true ortho) or over DEM nodata; hatched in ortho/seamlines_preview.png; not judged")
 
 
+def _without_heights_row(section: str, project: Project, tol: dict) -> QaCheck | None:
+    """Of the DOM's cells no frame sees, those where the DEM (or a true ortho's DSM) the frames were rectified on has
+    no heights (ortho/mosaic.json, ``ortho.unseen.unseen_without_heights``), as a share of the block, judged against
+    the table's ``dom_without_heights_max_pct``: a DOM empty where its surface is (Brighton on its cloud's DEM: 44.7 %
+    of the mosaic empty and "pass", 18 frame warnings alone said so). None for a mosaic.json before it was kept."""
+    from ortho.mosaic import read_mosaic_summary
+
+    m = read_mosaic_summary(project.mosaic_summary_path)
+    if m.share_without_heights is None:
+        return None
+    key = "dom_without_heights_max_pct"
+    share = round(100.0 * m.share_without_heights, 3)
+    note = (f"{m.cells_without_heights:,} cells of the {m.cells_seen_by_no_frame:,} seen by no frame: the surface the "
+            f"frames were rectified on (DEM, a true ortho's DSM) has no heights there, beyond its extent or on its "
+            f"nodata")
+    if share > 0:
+        note += "; a surface that covers the block (or the frames cut to it with --frames) fills them"
+    return _check("dom_without_heights_pct", section, "DOM cells without surface heights (nodata inside the block)",
+                  share, tol.get(key), "%", note=note, key=key if tol.get(key) is not None else None, digits=3)
+
+
 def _area_m2(a: float) -> str:
     """An area in m2 as a reader takes it: whole square metres from 10 up, two significant digits below ("403 cells,
     0 m2" of a 5 cm DOM, new-user trial s51)."""
@@ -1111,6 +1132,9 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             rows.append(_failed("mosaic_stale", sec, "DOM older than its frames",
                                 f"{older}; re-run ortho mosaic {root} (and ortho check), or aerotri run {root}"))
         rows.append(_holes_row(sec, project))
+        without_heights = _without_heights_row(sec, project, tol)
+        if without_heights is not None:
+            rows.append(without_heights)
         crossings = _seam_crossings_row(sec, project)
         if crossings is not None:
             rows.append(crossings)

@@ -403,6 +403,17 @@ def test_the_doms_holes_are_a_row_of_the_report(tmp_path):
     assert row.note.startswith("3,403,268 cells, 34,033 m2;") and "seamlines_preview.png" in row.note
     assert rep.overall == "pass"
     assert "DOM cells seen by no frame" in (p / "reports" / "index.html").read_text()
+    assert not rep.has("dom_without_heights_pct")  # a record before the cells without heights were counted apart
+    # the part of them where the surface has no heights is judged (the table's 1 %): occlusion alone passes
+    for off, verdict in ((0, "pass"), (400_000, "pass"), (3_000_000, "fail")):
+        share = off / 3403268 * doc["share_seen_by_no_frame"]
+        (p / "ortho" / "mosaic.json").write_text(json.dumps(dict(doc, cells_without_heights=off,
+                                                                 share_without_heights=share)))
+        rep = write_qa_report(p)
+        row = rep.check("dom_without_heights_pct")
+        assert row.verdict == verdict and row.value == round(100 * share, 3) and row.limit == 1.0, (off, row)
+        assert row.limit_key == "dom_without_heights_max_pct"
+        assert f"{off:,} cells of the 3,403,268 seen by no frame" in row.note and rep.overall == verdict
     (p / "ortho" / "mosaic.json").write_text("{}")
     assert "ortho/mosaic.json" in str(_raises(lambda: write_qa_report(p)))
 
