@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import codecs
 import json
+import logging
 from pathlib import Path
 
 from aerotri.core.errors import InputError
@@ -42,11 +43,34 @@ def decode_text(data: bytes, path, what: str = "text file") -> str:
         line = data.count(b"\n", 0, nul) + 1
         raise InputError(f"{path}:{line}: binary data (NUL byte at offset {nul}); expected a UTF-8 {what}")
     try:
-        return data.decode("utf-8-sig")
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         line = data.count(b"\n", 0, exc.start) + 1
         raise InputError(f"{path}:{line}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
-                         f"expected a UTF-8 {what}") from None
+                         f"expected a UTF-8 {what} (one saved as GBK: iconv -f GBK -t UTF-8)") from None
+    if not data.isascii() and not data.startswith(codecs.BOM_UTF8):
+        _say_if_gbk(data, text, path)
+    return text
+
+
+def _say_if_gbk(data: bytes, text: str, path) -> None:
+    """Warn when UTF-8 text reads as Chinese in GBK and as no script's letters in UTF-8: GBK pairs of bytes can be
+    valid UTF-8 by chance (a levelling table's "水准G1" read as "ˮ׼G1", trial s96 F5). A file with CJK or Latin
+    letters in UTF-8 is taken as it reads."""
+    try:
+        gbk = data.decode("gb18030")
+    except UnicodeDecodeError:
+        return
+    odd = [c for c in text if ord(c) > 0x7F]
+    if any(0x3000 <= ord(c) <= 0x9FFF or 0xC0 <= ord(c) <= 0x24F or 0x370 <= ord(c) <= 0x4FF for c in odd):
+        return
+    if not any(0x4E00 <= ord(c) <= 0x9FFF for c in gbk):
+        return
+    lines, glines = text.splitlines(), gbk.splitlines()
+    k = next((i for i, (a, b) in enumerate(zip(lines, glines)) if a != b), 0)
+    logging.getLogger("aerotri").warning(
+        f"{path}:{k + 1}: reads as UTF-8 {lines[k][:40]!r}, as GBK {glines[k][:40]!r}: a file saved as GBK "
+        "(Chinese Windows' default) is read wrong; save it as UTF-8 (iconv -f GBK -t UTF-8)")
 
 
 def read_xml(path, what: str = "XML file"):

@@ -136,11 +136,14 @@ def _h_crs(h_crs, epsg):
 
 
 def _height_fit_table(model, points, ids, res) -> str:
-    lines = [f"Height anomaly model {model} from {len(ids)} points ({points}); H = h - zeta",
+    lines = [f"Height anomaly model {model} from {len(ids)} points ({points}); H = h - zeta; residuals are the "
+             "model's zeta minus the point's (loo: the model of the other points)",
              f"{'id':<12}{'zeta m':>10}{'resid m':>10}{'loo m':>10}"]
-    lines += [f"{pid:<12}{z:10.4f}{r:10.4f}{lr:10.4f}"
+    lines += [f"{pid:<12}{z:10.4f}{r:10.4f}" + (f"{lr:10.4f}" if np.isfinite(lr) else f"{'-':>10}")
               for pid, z, r, lr in zip(ids, res.zeta_m, res.residuals_m, res.loo_residuals_m)]
-    lines.append(f"RMS {res.rms_m:.4f} m   leave-one-out RMS {res.loo_rms_m:.4f} m")
+    loo = res.loo_rms_m
+    lines.append(f"RMS {res.rms_m:.4f} m   leave-one-out RMS "
+                 + (f"{loo:.4f} m" if np.isfinite(loo) else "not available (no point can be left out)"))
     lines += [f"Warning: {w}" for w in res.warnings]
     return "\n".join(lines)
 

@@ -355,15 +355,19 @@ BLUNDER_FACTOR = 5.0  # times the others' sigma0 over sqrt(r_i): about 5 sigma o
 BLUNDER_FLOOR_M = 0.005  # below this no discrepancy is called a blunder (exact synthetic data)
 
 
-def blunder_warnings(model: str, ids, redundancy_numbers, others) -> list:
+def blunder_warnings(model: str, ids, redundancy_numbers, others, *, min_points: int | None = None,
+                     axes=("east", "north", "up"), factor: float = BLUNDER_FACTOR,
+                     min_redundancy: float = 0.1) -> list:
     """Points that the others place elsewhere: each point left out in turn, ``others(keep)`` returns its
     discrepancy (transformed minus given, m, per coordinate) under the fit of the rest and that fit's sigma0. A
     point is named when a coordinate's discrepancy exceeds ``BLUNDER_FACTOR`` x sigma0 / sqrt(r_i) (a good point's
     discrepancy has about sigma0 / sqrt(r_i) per coordinate) and ``BLUNDER_FLOOR_M``. One blunder among the
     points spreads into every residual of the fit and raises sigma0 without a warning otherwise (a typo in one
-    coordinate of 7 points: sigma0 3.2 m, its own residual 10.7 m of 13.8 m)."""
+    coordinate of 7 points: sigma0 3.2 m, its own residual 10.7 m of 13.8 m). ``min_points``: the model's minimum
+    (default ``MIN_POINTS[model]``); ``axes``: the names of the discrepancy's coordinates; ``factor`` and
+    ``min_redundancy`` (the floor of r_i) as the caller's statistics need."""
     n = len(ids)
-    if n - 1 < MIN_POINTS[model] + 1:  # the others need redundancy of their own
+    if n - 1 < (MIN_POINTS[model] if min_points is None else min_points) + 1:  # the others need redundancy too
         return []
     out = []
     for i in range(n):
@@ -371,10 +375,10 @@ def blunder_warnings(model: str, ids, redundancy_numbers, others) -> list:
         keep[i] = False
         d, s0 = others(keep)
         d = np.abs(np.asarray(d, dtype=float).reshape(-1))
-        r = max(float(redundancy_numbers[i]), 0.1)
-        if not np.isfinite(s0) or d.max() <= max(BLUNDER_FACTOR * s0 / math.sqrt(r), BLUNDER_FLOOR_M):
+        r = max(float(redundancy_numbers[i]), min_redundancy)
+        if not np.isfinite(s0) or d.max() <= max(factor * s0 / math.sqrt(r), BLUNDER_FLOOR_M):
             continue
-        axis = ("east", "north", "up")[int(np.argmax(d))]
+        axis = axes[int(np.argmax(d))]
         out.append(f"point {ids[i]} lies {d.max():.3f} m ({axis}) from where the other {n - 1} points put it (they "
                    f"fit with sigma0 {s0:.3f} m): a blunder (a typo, swapped digits, another point)? Correct it or "
                    "leave it out and fit again")

@@ -330,6 +330,7 @@ class _ProjLeg:
                     "with --allow-ballpark", missing_grids=missing or ()
                 )
             self.ballpark = True
+            _refuse_ballpark_heights(src, dst, purpose)
         self.transformer = _transformer(s3, d3, (s3_wkt, d3_wkt, self.ballpark))
         acc = self.transformer.accuracy
         stated = (f" ({self.transformer.description}, stated accurate to {acc:g} m)"
@@ -374,6 +375,25 @@ class _ProjLeg:
                 "transformed rigorously (outside the area of the available operations, or not a valid coordinate)"
             )
         return X, Y, Z / self.z_out
+
+
+def _refuse_ballpark_heights(src, dst, purpose: str) -> None:
+    """``BallparkRefused`` for a ballpark between ellipsoidal heights and a vertical datum's (one side compound),
+    whatever ``--allow-ballpark`` says: PROJ's ballpark copies the heights unchanged, and the height anomaly (-12 m
+    near Wuhan, up to 100 m elsewhere) went into a file labelled Yellow Sea 1985 height under exit 0 (trial s96
+    F1). --allow-ballpark is taken for the horizontal datum shift it names; the heights need a model (--heights,
+    whose ``CrsTransformer._leg`` then takes the horizontal parts) or a geoid grid."""
+    v_src, v_dst = vertical_crs(src), vertical_crs(dst)
+    if (v_src is None) == (v_dst is None):
+        return
+    vert, ell = (v_dst, src) if v_dst is not None else (v_src, dst)
+    raise BallparkRefused(
+        f"{_label_and_name(src)} -> {_label_and_name(dst)}{purpose}: PROJ has only a ballpark operation for the "
+        f"heights: it would take the ellipsoidal heights of {crs_label(horizontal_crs(ell))} as {vert.name} "
+        f"({crs_label(vert)}) unchanged, ignoring the height anomaly (geoid undulation) between them, metres to tens of metres; "
+        "--allow-ballpark accepts an ignored horizontal datum shift, not that: give a height anomaly model with "
+        "--heights (aerotri crs fit-heights from levelled points), install the geoid grid PROJ names for it, or "
+        f"transform into the horizontal CRS alone ({crs_label(horizontal_crs(dst))}, ellipsoidal heights kept)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -479,15 +499,19 @@ class CrsTransformer:
         self._height_leg_from_src = False
         if heights is not None and heights.crs:
             hcrs = parse_crs(heights.crs, "height model crs")
-            if hcrs != self.dst and hcrs != self.src:
+            # (x, y alone: the model is evaluated on its grid's plane; a compound output's vertical part has no
+            # operation to the grid's ellipsoidal heights: --to EPSG:2383+5737 with a model in EPSG:2383 was refused
+            # as "on neither datum", trial s96 F4)
+            h_dst, h_src, h_grid = horizontal_crs(self.dst), horizontal_crs(self.src), horizontal_crs(hcrs)
+            if h_grid != h_dst and h_grid != h_src:
                 try:
-                    self._height_leg = _ProjLeg(self.dst, hcrs, allow_ballpark=False, purpose=" (height model)")
+                    self._height_leg = _ProjLeg(h_dst, h_grid, allow_ballpark=False, purpose=" (height model)")
                 except BallparkRefused as exc:
                     # the model's grid on the input's datum (levelling in CGCS2000 zone 37, a cloud in CGCS2000 CM
                     # 111E into Xian 1980 with --params): reached from the input by a conversion (trial-datum: refused,
                     # "pass --params", which was given)
                     try:
-                        self._height_leg = _ProjLeg(self.src, hcrs, allow_ballpark=False, purpose=" (height model)")
+                        self._height_leg = _ProjLeg(h_src, h_grid, allow_ballpark=False, purpose=" (height model)")
                         self._height_leg_from_src = True
                     except BallparkRefused:
                         raise BallparkRefused(

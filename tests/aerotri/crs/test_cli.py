@@ -176,6 +176,56 @@ def test_transform_refuses_ballpark_without_output(tmp_path):
     assert r.exit_code == 0 and "BALLPARK" in r.output and out.exists()
 
 
+def test_a_ballpark_into_a_vertical_datum_is_refused_even_when_accepted(tmp_path):
+    """Trial s96 F1: --allow-ballpark into CGCS2000 GK + Yellow Sea 1985 height copied WGS 84 ellipsoidal heights
+    unchanged into a file labelled normal heights (the anomaly about -12 m near Wuhan), exit 0; the flag is taken for
+    the horizontal shift it names. With a height model (--heights) the horizontal ballpark stays accepted and the
+    heights are the model's; into the 2D grid the ellipsoidal heights are kept."""
+    pts = _write(tmp_path / "pts.csv", "id,x,y,z\nP01,239090.714,3362233.201,28.0425\n")
+    out = tmp_path / "out.csv"
+    r = _run("transform", pts, out, "--from", "32650", "--to", "EPSG:4526+5737", "--allow-ballpark")
+    assert r.exit_code == 2 and not out.exists(), r.output
+    assert "ballpark operation for the heights" in r.output and "Yellow Sea 1985 height (EPSG:5737)" in r.output
+    assert "--heights" in r.output and "EPSG:4526, ellipsoidal heights kept" in r.output
+    r = _run("transform", pts, out, "--from", "32650", "--to", "EPSG:4526", "--allow-ballpark")
+    assert r.exit_code == 0 and float(out.read_text().splitlines()[1].split(",")[3]) == pytest.approx(28.0425)
+
+
+def test_a_height_model_in_the_outputs_grid_serves_its_compound_crs(tmp_path):
+    """Trial s96 F4: a model fitted in EPSG:2383 was refused for --to EPSG:2383+5737 ("its grid is on neither
+    datum"): the model is evaluated on the output's horizontal part; the heights equal those of --to EPSG:2383."""
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(520_000, 540_000, 8), rng.uniform(3_370_000, 3_390_000, 8)
+    zeta = -12.0 + 0.03 * (x - 530_000) / 1000
+    h = rng.uniform(30, 90, 8)
+    lev = _write(tmp_path / "lev.csv", "id,x,y,h,H\n" + "".join(
+        f"L{i},{x[i]:.3f},{y[i]:.3f},{h[i]:.4f},{h[i] - zeta[i]:.4f}\n" for i in range(8)))
+    model = tmp_path / "zeta.json"
+    assert _run("fit-heights", lev, "--model", "plane", "--epsg", "2383", "--h-crs", "4610", "-o", model).exit_code == 0
+    pts = _write(tmp_path / "pts.csv", "id,x,y,z\nQ1,530000.0,3380000.0,60.0\n")
+    got = {}
+    for to in ("EPSG:2383+5737", "EPSG:2383"):
+        out = tmp_path / f"out{len(got)}.csv"
+        r = _run("transform", pts, out, "--from", "2383", "--to", to, "--heights", model)
+        assert r.exit_code == 0, r.output
+        got[to] = float(out.read_text().splitlines()[1].split(",")[3])
+    assert got["EPSG:2383+5737"] == pytest.approx(got["EPSG:2383"], abs=1e-6) == pytest.approx(72.0, abs=1e-3)
+
+
+def test_a_levelling_table_saved_as_gbk_is_said(tmp_path):
+    """Trial s96 F5: GBK bytes of "水准G1" are valid UTF-8 by chance ("ˮ׼G1"): read without a word; the point names
+    garbled in the model file. Said now, naming the line and both readings; UTF-8 Chinese reads as before."""
+    rows = "".join(f"水准G{i},{520000 + 3000 * i}.0,{3370000 + 1700 * i * i % 9000}.0,{50 + i}.0,{62 + i}.0\n"
+                   for i in range(1, 6))
+    gbk = tmp_path / "gbk.csv"
+    gbk.write_bytes(("id,x,y,h,H\n" + rows).encode("gbk"))
+    r = _run("fit-heights", gbk, "--model", "plane", "--epsg", "2383", "--h-crs", "4610", "-o", tmp_path / "g.json")
+    assert f"{gbk}:2: reads as UTF-8" in r.output and "as GBK '水准G1" in r.output and "iconv -f GBK" in r.output
+    utf = _write(tmp_path / "utf.csv", "id,x,y,h,H\n" + rows)
+    r = _run("fit-heights", utf, "--model", "plane", "--epsg", "2383", "--h-crs", "4610", "-o", tmp_path / "u.json")
+    assert r.exit_code == 0 and "GBK" not in r.output and "水准G1" in r.output
+
+
 def _write(path, text):
     path.write_text(text)
     return path
