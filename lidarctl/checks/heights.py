@@ -835,6 +835,13 @@ def format_report(check: HeightCheck) -> str:
             line += f" {'-' if p['z_dem'] is None else format(p['z_dem'], '.3f'):>12}"
             line += f" {'-' if p['dz_dem_m'] is None else format(p['dz_dem_m'], '+.3f'):>12}"
         lines.append(line)
+    if dem is not None and dem["n_points"] and dem["n_without_dem"] > dem["n_points"] / 2:
+        # first: points of another grid land km away, and the few left on the DEM read as a height datum's offset
+        # (trial s96 F7: CGCS2000 GK CM 111E points on a UTM 49N DEM, 24 of 30 off it, "two height systems")
+        lines += ["", f"warning: {dem['n_without_dem']} of {dem['n_points']} points lie off the DEM or next to its "
+                  "nodata: are their x, y in another CRS, zone or grid than the DEM's (a Gauss-Kruger zone's "
+                  "coordinates on a UTM DEM land kilometres away)? The points must be in the DEM's CRS and units "
+                  "(aerotri crs transform); the figures above are of the few that fell on it"]
     offset = result.get("constant_offset")
     if offset:
         lines += ["", f"warning: the {offset['surface']} and the surveyed heights differ by a nearly constant "

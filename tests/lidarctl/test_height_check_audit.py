@@ -165,3 +165,19 @@ def test_a_constant_offset_is_said_and_the_columns_stay_apart(tmp_path):
     for dz in ([-12.0, 3.0, -20.0, 8.0], [0.3, 0.31, 0.29, 0.3]):
         doc = check_heights_file(None, _points(tmp_path / "q.csv", dz, 0.1), dem_path=dem).document
         assert "constant_offset" not in doc
+
+
+def test_points_mostly_off_the_dem_are_said_before_a_height_offset(tmp_path):
+    """Trial s96 F7: check points in a Gauss-Kruger zone on a UTM DEM, 24 of 30 off it; the 6 that fell on it read
+    as "two height systems" (RMSE 97.7 m). Points mostly off the DEM now suggest another CRS, zone or grid first;
+    a few off it (edge points) say nothing of it."""
+    dem = _flat_dem(tmp_path / "dem.tif", "EPSG:32610", 100.0)
+    pts = _points(tmp_path / "p.csv", [0.05] * 10, 100.0)
+    lines = pts.read_text().splitlines()
+    far = [",".join([f.split(",")[0], str(float(f.split(",")[1]) + 5000.0), *f.split(",")[2:]]) for f in lines[4:]]
+    pts.write_text("\n".join(lines[:4] + far) + "\n")   # 7 of the 10 points 5 km east, off the DEM
+    r = _run(["check-heights", pts, "--dem", dem])
+    assert r.exit_code == 0, r.output
+    assert "7 of 10 points lie off the DEM" in r.output and "another CRS, zone or grid" in r.output
+    r = _run(["check-heights", _points(tmp_path / "q.csv", [0.05] * 10, 100.0), "--dem", dem])
+    assert "lie off the DEM" not in r.output

@@ -329,6 +329,15 @@ def fit_spatial(model: str, ids, src_XYZ_m, dst_XYZ_m, *, dst_lat_lon_deg=None, 
         ll = np.asarray(dst_lat_lon_deg, dtype=float)
         R0 = enu_rotation(ll[:, 0].mean(), ll[:, 1].mean())
         plane = ((dst - dst.mean(axis=0)) @ R0.T)[:, :2]
+    if plane is not None and model == "bursa-wolf7" and n >= 3:
+        c = plane - plane.mean(axis=0)
+        across, along = np.sqrt(np.maximum(np.linalg.eigvalsh(c.T @ c / n), 0.0))
+        if across < COLLINEAR_SPREAD_RATIO * along:
+            # the rotation about the line is undetermined: the set fits the line and tilts the rest (trial s96 F3:
+            # rx 963" +- 3044", 131 m of height 10 km off the line, written under exit 0)
+            raise InputError(f"{model}: the {n} common points lie on a line (principal spreads {along:.0f} m along, "
+                             f"{across:.1f} m across): the rotation about it is undetermined; add points off the "
+                             "line (spread over the area), or fit translation3")
     warns = [] if plane is None else geometry_warnings(plane, model, r_pt if gm.redundancy > 0 else None, ids)
     corr_warn = _correlation_warning(cov, names, plane)
     if corr_warn:
@@ -351,6 +360,8 @@ def fit_spatial(model: str, ids, src_XYZ_m, dst_XYZ_m, *, dst_lat_lon_deg=None, 
     return FitResult(T, ids, v, r_pt, gm.sigma0, gm.redundancy, cov, warns)
 
 
+# a 7-parameter set from points spread less than this across their line is refused (rotation about it undetermined)
+COLLINEAR_SPREAD_RATIO = 0.01
 BLUNDER_FACTOR = 5.0  # times the others' sigma0 over sqrt(r_i): about 5 sigma of a good point's discrepancy
 BLUNDER_FLOOR_M = 0.005  # below this no discrepancy is called a blunder (exact synthetic data)
 

@@ -117,6 +117,7 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
         # the grid's corners and centre: where the stored CRS must put the grid as the requested one does
         gx = x0 + res * np.array([0.0, width, 0.0, width, width / 2.0])
         gy = y0 - res * np.array([0.0, 0.0, height, height, height / 2.0])
+        far = _outside_area(dst_crs, gx, gy, in_path)
         out_crs = geotiff_crs(dst_crs, f"--to {to_crs}", gx, gy, 1e-3 * res)
         nodata = ds.nodata
         dtype = ds.dtypes[0]
@@ -170,6 +171,8 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
     for w in forward.warnings:
         if w != forward.heights_extrapolation_warning():  # the forward maps the bounds only: said by the inverse
             log.warning(w)
+    if far:
+        log.warning(far)
     w = inverse.heights_extrapolation_warning()  # the heights are evaluated through the inverse
     if w:
         log.warning(f"{in_path}: {w.replace('points', 'grid points sampled', 1)}")
@@ -183,6 +186,23 @@ def warp_raster(in_path, out_path, to_crs, *, from_crs=None, params=None, height
                     "CRS (EPSG:<code>+<vertical code>, e.g. EPSG:28992+5709) to keep them")
     return WarpResult(out_path, kind, width, height, float(res), crs_label(dst_crs), record,
                       n_valid / float(width * height), dz)
+
+
+def _outside_area(dst_crs, gx, gy, in_path) -> str | None:
+    """The warning for a target grid outside ``dst_crs``'s area of use (a zone not the data's: said, not refused, as
+    point lists and LAS files are; a DEM into a Gauss-Kruger zone 12 deg away was written without a word, trial s96
+    F9), or None."""
+    from aerotri.core.errors import InputError
+    from aerotri.geom.crs.definition import check_coordinates
+
+    try:
+        far = check_coordinates(dst_crs, gx, gy, str(in_path), ["the target grid's corner 1", "corner 2", "corner 3",
+                                                                 "corner 4", "centre"], outside_area="warn",
+                                swapped_hint=False)
+    except InputError as exc:
+        far = str(exc)
+    return None if far is None else (f"{far}; written all the same: is --to {crs_label(dst_crs)} the grid meant (the "
+                                     "zone, 3- or 6-degree, the central meridian)?")
 
 
 def _target_cell(dst_crs, res_m, res_deg) -> tuple[float | None, str]:

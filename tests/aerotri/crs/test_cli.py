@@ -226,6 +226,24 @@ def test_a_levelling_table_saved_as_gbk_is_said(tmp_path):
     assert r.exit_code == 0 and "GBK" not in r.output and "水准G1" in r.output
 
 
+def test_a_raster_warped_into_a_zone_far_from_it_is_said(tmp_path):
+    """Trial s96 F9: a DEM near Wuhan (114 E) into Xian 1980 GK CM 102E was written without a word (point lists and LAS
+    files warn of the area of use); said now, and still written; into its own zone nothing is said."""
+    import rasterio
+    from rasterio.transform import from_origin
+
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(dem, "w", driver="GTiff", width=50, height=50, count=1, dtype="float32", crs="EPSG:32650",
+                       transform=from_origin(239000.0, 3363000.0, 2.0, 2.0)) as ds:
+        ds.write(np.full((1, 50, 50), 30.0, np.float32))
+    far, near = tmp_path / "far.tif", tmp_path / "near.tif"
+    r = _run("warp", dem, far, "--to", "EPSG:2379", "--allow-ballpark")
+    assert r.exit_code == 0 and far.exists(), r.output
+    assert "outside the area of use of EPSG:2379" in r.output and "is --to EPSG:2379 the grid meant" in r.output
+    r = _run("warp", dem, near, "--to", "EPSG:4526", "--allow-ballpark")
+    assert r.exit_code == 0 and "area of use" not in r.output, r.output
+
+
 def _write(path, text):
     path.write_text(text)
     return path

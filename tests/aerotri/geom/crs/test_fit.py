@@ -188,3 +188,23 @@ def test_a_typo_in_one_common_point_is_named(tmp_path, model):
     named = [w for w in res.warnings if "blunder" in w]
     assert len(named) == 1 and named[0].startswith("point K04 lies 13.8")
     assert "(north)" in named[0]
+
+
+def test_a_seven_parameter_set_from_points_on_a_line_is_refused():
+    """Trial s96 F3: 5 common points on a road wrote rx 963" +- 3044" and tx 3885 m under exit 0 (applied 10 km off the
+    line: 131 m of height); the rotation about the line is undetermined. Refused, naming the spreads; points spread
+    over the area fit as before."""
+    t = np.linspace(0.0, 1.0, 5)
+    lon, lat, h = 114.10 + 0.10 * t, 30.50 - 0.01 * t, 40.0 - 4.0 * t
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 4326, 4610, lon_deg=lon, lat_deg=lat, h_m=h, noise_m=0.01, seed=3)
+    XYZ_s = np.column_stack(geodetic_to_geocentric(src[:, 1], src[:, 0], src[:, 2], WGS84))
+    XYZ_d = np.column_stack(geodetic_to_geocentric(dst[:, 1], dst[:, 0], dst[:, 2], IAG75))
+    with pytest.raises(InputError, match=r"the 5 common points lie on a line \(principal spreads \d+ m along"):
+        fit_spatial("bursa-wolf7", range(5), XYZ_s, XYZ_d, dst_lat_lon_deg=dst[:, 1::-1])
+    lon2 = np.r_[lon, 114.15, 114.12]
+    lat2, h2 = np.r_[lat, 30.56, 30.44], np.r_[h, 38.0, 39.0]
+    src, dst, _ = simulate_spatial(TRUE_BURSA_WOLF7, 4326, 4610, lon_deg=lon2, lat_deg=lat2, h_m=h2, noise_m=0.01,
+                                   seed=3)
+    XYZ_s = np.column_stack(geodetic_to_geocentric(src[:, 1], src[:, 0], src[:, 2], WGS84))
+    XYZ_d = np.column_stack(geodetic_to_geocentric(dst[:, 1], dst[:, 0], dst[:, 2], IAG75))
+    assert fit_spatial("bursa-wolf7", range(7), XYZ_s, XYZ_d, dst_lat_lon_deg=dst[:, 1::-1]).rms_m.horizontal_m < 0.05
