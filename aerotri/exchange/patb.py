@@ -43,6 +43,7 @@ documented layout of them was found (the references that list an "ISAT EO file" 
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -222,6 +223,7 @@ def read_ori(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, dict[str, t
             break
         if len(f) not in (4, 5):
             raise InputError(f"{path}:{n}: expected 'photo_number [c] X0 Y0 Z0' opening a photo, got {len(f)} fields")
+        _require_fixed_columns(path, n, recs[k][2], f)
         iid = f[0]
         if iid in seen:
             raise InputError(f"{path}:{n}: duplicate photo {iid!r} (first on line {seen[iid]})")
@@ -249,6 +251,22 @@ def read_ori(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, dict[str, t
     if not ids:
         raise InputError(f"{path}: no photos")
     return ids, np.array(centres), np.array(rots), c_mm
+
+
+def _require_fixed_columns(path: Path, n: int, line: str, fields: list) -> None:
+    """A photo's first record whose fields sit in the I16, F16 columns (each ending at a multiple of 16) is read by
+    them: a 4-field record is ``number X0 Y0 Z0`` only when columns 17-32 are blank. MATCH-AT / ISAT write c there;
+    with Z0 lost such a record read as X0 = c, Y0 = X0, Z0 = Y0 (-3,727,433 m), exit 0 (trial s96 H1)."""
+    ends = [m.end() for m in re.finditer(r"\S+", line.split("*", 1)[0])]
+    if len(fields) != 4 or not ends or any(e % 16 for e in ends):
+        return
+    columns = [e // 16 for e in ends]  # 1: the number, 2: c, 3-5: X0 Y0 Z0
+    if columns != [1, 3, 4, 5]:
+        empty = [name for col, name in zip(range(1, 6), ("photo number", "c", "X0", "Y0", "Z0")) if col not in columns]
+        cols = ", ".join(f"{16 * c - 15}-{16 * c}" for c in range(1, 6) if c not in columns)
+        raise InputError(f"{path}:{n}: the photo's record has its fields in the I16, F16 columns with "
+                         f"{', '.join(empty)} (columns {cols}) empty: expected 'photo_number [c] X0 Y0 Z0' (c in "
+                         "columns 17-32 or blank, X0 Y0 Z0 in 33-80)")
 
 
 def principal_distance_notes(path: Path, c_mm: dict, camera: Camera | None, camera_source: str) -> list[str]:

@@ -303,3 +303,28 @@ def test_a_transposed_rotation_matrix_is_told_by_the_tie_points(exported, tmp_pa
     text = " ".join(r.output.split())
     assert r.exit_code == 0 and "block.ori: the rotation matrices look transposed" in text, r.output
     assert "no control points to import measurements of" in text and not (nc / "control").exists(), r.output
+
+
+def test_a_fixed_column_ori_record_missing_a_field_is_refused_by_its_columns(tmp_path):
+    """Trial s96 H1: MATCH-AT / ISAT write c in columns 17-32; a record that lost Z0 read by blanks as number X0 Y0 Z0
+    put X0 = c (120), Y0 = X0 and Z0 = Y0 (-3,727,433 m) under exit 0. Read by its columns now: refused naming them;
+    the same layout whole, and without c (blank 17-32), read as before."""
+    from aerotri.exchange.patb import read_ori
+
+    rot = ("  1.000000000000  0.000000000000  0.000000000000  0.000000000000  1.000000000000\n"
+           "  0.000000000000  0.000000000000  0.000000000000  1.000000000000\n")
+    whole = f"{1:16d}{120.0:16.5f}{-55094.50448:16.5f}{-3727407.03748:16.5f}{5258.30793:16.5f}\n" + rot
+    no_c = f"{2:16d}{'':16}{-57710.43528:16.5f}{-3727433.89302:16.5f}{5230.0:16.5f}\n" + rot
+    lost = f"{3:16d}{120.0:16.5f}{-57682.68023:16.5f}{-3731579.57171:16.5f}\n" + rot
+    ok = tmp_path / "ok.ori"
+    ok.write_text(whole + no_c)
+    ids, centres, _, c_mm = read_ori(ok)
+    assert ids == ["1", "2"] and centres[1].tolist() == [-57710.43528, -3727433.89302, 5230.0] and set(c_mm) == {"1"}
+    bad = tmp_path / "bad.ori"
+    bad.write_text(whole + lost)
+    with pytest.raises(InputError, match=r"bad.ori:4: .* Z0 \(columns 65-80\) empty"):
+        read_ori(bad)
+    # blank-separated records (no fixed columns) read by their fields as before
+    free = tmp_path / "free.ori"
+    free.write_text("7 -57710.43528 -3727433.89302 5230.0\n1 0 0 0 1\n0 0 0 1\n")
+    assert read_ori(free)[1][0].tolist() == [-57710.43528, -3727433.89302, 5230.0]
