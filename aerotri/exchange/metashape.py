@@ -156,12 +156,16 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
                             + ("with x y and no z" if k == "horizontal" else "as markers without reference "
                                "coordinates (Metashape has no height-only marker)"))
         if project.control_image_points_path.is_file():
+            from aerotri.exchange.odm_export import rejected_pairs
+
             obs = read_image_points(project.control_image_points_path)
+            left_out = rejected_pairs(block, project, "metashape")
             marker_of = {str(p): n for n, p in enumerate(control.id)}
             frames = ET.SubElement(chunk, "frames", next_id="1")
             fm = ET.SubElement(ET.SubElement(frames, "frame", id="0"), "markers")
             for pid in control.id:
-                ks = [k for k in range(len(obs)) if obs.point_id[k] == pid and obs.image_id[k] in cam_index]
+                ks = [k for k in range(len(obs)) if obs.point_id[k] == pid and obs.image_id[k] in cam_index
+                      and (str(pid), str(obs.image_id[k])) not in left_out]
                 if not ks:
                     continue
                 m = ET.SubElement(fm, "marker", marker_id=str(marker_of[str(pid)]))

@@ -85,7 +85,12 @@ def files(block: AdjustedBlock, project: Project) -> list[ExportFile]:
     if check.any():
         out.append(ExportFile("micmac/check.xml", _gcp_xml(cp.subset(check), unit_m)))
     if project.control_image_points_path.is_file():
+        from aerotri.exchange.odm_export import rejected_pairs
+
         obs = read_image_points(project.control_image_points_path)
+        left_out = rejected_pairs(block, project, "micmac")
+        obs = obs.subset(np.array([(str(p), str(i)) not in left_out for p, i in zip(obs.point_id, obs.image_id)],
+                                  bool))
         frames = find_images(project.images_dir) if project.images_dir.is_dir() else ImageFiles((), ())
         root = ET.Element("SetOfMesureAppuisFlottants")
         for iid in dict.fromkeys(obs.image_id):

@@ -53,9 +53,10 @@ def _gcp_rows(obs: ImageObservations, xyz: dict, names: dict, extras=None, plan_
     return rows
 
 
-def _measurements(block: AdjustedBlock, project: Project):
+def control_measurements(block: AdjustedBlock, project: Project):
     """(control measurements kept, check measurements, rejected measurements, their reasons, all control
-    coordinates by id, control kinds by id): the file's pixel coordinates (as measured)."""
+    coordinates by id, control kinds by id): the file's pixel coordinates (as measured). The other exports leave
+    the rejected ones out too (``rejected_pairs``)."""
     empty = ImageObservations(np.zeros(0, object), np.zeros(0, object), np.zeros((0, 2)))
     if not project.control_points_path.is_file():
         return empty, empty, empty, [], {}, {}
@@ -94,6 +95,16 @@ def _measurements(block: AdjustedBlock, project: Project):
                 reasons.append("point not in the adjustment")
     pick = lambda ks: obs.subset(np.isin(np.arange(len(obs)), ks))  # noqa: E731
     return pick(keep), pick(is_check), pick(rejected), reasons, xyz, kind
+
+
+def rejected_pairs(block: AdjustedBlock, project: Project, fmt: str) -> set:
+    """(point id, image id) of the control measurements the adjustment did not use (``control_measurements``), each
+    said in a warning naming the export ``fmt``: written as measurements, a re-adjustment in Metashape or MicMac took
+    the blunders back (demo: w 4.29 and 6.83 pinned; trial s96 M1)."""
+    _, _, rejected, reasons, _, _ = control_measurements(block, project)
+    for p, i, why in zip(rejected.point_id, rejected.image_id, reasons):
+        log.warning(f"{fmt} export: measurement of {p} in {i} left out: {why}")
+    return set(zip(rejected.point_id.astype(str), rejected.image_id.astype(str)))
 
 
 def _ground_control_points_json(obs: ImageObservations, ids, xyz: dict, project: Project, block: AdjustedBlock,
@@ -138,7 +149,7 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
     out = [ExportFile("odm/opensfm/reconstruction.json", json.dumps([rec], indent=2) + "\n"),
            ExportFile("odm/opensfm/reference_lla.json", json.dumps(reference, indent=2) + "\n"),
            ExportFile("odm/cameras.json", json.dumps({cam_id: rec["cameras"][cam_id]}, indent=2) + "\n")]
-    kept, check, rejected, reasons, xyz, kind = _measurements(block, project)
+    kept, check, rejected, reasons, xyz, kind = control_measurements(block, project)
     head = _crs_line(block.crs)
     # plan-only control has no height to give (control/points.csv holds 0 there): gcp_list.txt would make it a
     # point at height 0, and no text file can carry it: OpenSfM's reader (opensfm/io.py _read_gcp_list_lines)

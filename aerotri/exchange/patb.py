@@ -16,7 +16,7 @@ PAT-B (Ackermann's bundle block adjustment, Inpho/Trimble) exchanges fixed-colum
   fields): per photo a record ``I16`` photo number, then ``I16, 2F16.6`` point number, x, y (mm, photo frame
   x right, y up, origin at the principal point, distortion removed with the adjusted camera:
   ``photo_coordinates_mm``), and ``-99`` (``I16``) closing the photo. Every measurement the adjustment
-  kept (tie and control points).
+  kept (tie and control points), and the check points' measurements (control/image_points.csv).
 - ``block.con`` (control): ``I16, 3F16.4`` point number, X, Y, Z (project CRS), ``-99`` at the end: the
   full (XYZ) control points the adjustment used. The other kinds go to files of the same layout a PAT-B
   reader would not take for XYZ control: ``block_horizontal.con`` (Z not used), ``block_height.con``
@@ -65,11 +65,13 @@ CON_FILES = {"full": "block.con", "horizontal": "block_horizontal.con", "height"
              "check": "block_check.con"}
 
 
-def photo_coordinates_mm(block: AdjustedBlock) -> tuple[np.ndarray, np.ndarray, float]:
-    """(x_mm, y_mm, c_mm): undistorted photo coordinates of every measurement and the principal distance."""
+def photo_coordinates_mm(block: AdjustedBlock, xy_px=None) -> tuple[np.ndarray, np.ndarray, float]:
+    """(x_mm, y_mm, c_mm): undistorted photo coordinates of every measurement (or of the pixels ``xy_px``, (N, 2)
+    as measured) and the principal distance."""
     fx, fy, _, u0, v0 = block.cal[:5]
-    xd = (block.obs_xy_px[:, 0] - u0) / fx
-    yd = (block.obs_xy_px[:, 1] - v0) / fy
+    xy = block.obs_xy_px if xy_px is None else np.asarray(xy_px, float).reshape(-1, 2)
+    xd = (xy[:, 0] - u0) / fx
+    yd = (xy[:, 1] - v0) / fy
     xn, yn = block.camera.calibration_camera(block.cal).undistort(xd, yd)
     c_mm = 0.5 * (fx + fy) * block.camera.pixel_um / 1000.0
     return xn * c_mm, -yn * c_mm, c_mm
@@ -142,6 +144,7 @@ def files(block: AdjustedBlock, project: Project | None = None) -> list[ExportFi
     point_ids = [str(p) for p in block.point_id] + [str(p) for p in block.control_id]
     point_ids += [] if check is None else [str(p) for p in check.id]
     point_no = numbering(point_ids)
+    checked = _check_measurements(block, project, check)
     im = []
     by_image = np.argsort(block.obs_image, kind="stable")  # each image's observations in file order, at once
     bounds = np.searchsorted(block.obs_image[by_image], np.arange(len(block.image_id) + 1))
@@ -150,6 +153,8 @@ def files(block: AdjustedBlock, project: Project | None = None) -> list[ExportFi
         for k in by_image[bounds[i]:bounds[i + 1]].tolist():
             im.append(_i16(point_no.number_of(str(block.point_id[block.obs_point[k]]))) + f"{x_mm[k]:{FIELD}.6f}"
                       + f"{y_mm[k]:{FIELD}.6f}")
+        for pid, x, y in checked.get(str(iid), ()):
+            im.append(_i16(point_no.number_of(pid)) + f"{x:{FIELD}.6f}" + f"{y:{FIELD}.6f}")
         im.append(_i16(-99))
     out = [ExportFile("patb/block.im", "\n".join(im) + "\n")]
     kinds = {}
@@ -169,6 +174,26 @@ def files(block: AdjustedBlock, project: Project | None = None) -> list[ExportFi
     nums += [f"photo {n} {i}" for i, n in zip(photo_no.ids, photo_no.numbers)]
     nums += [f"point {n} {p}" + (f" {kinds[p]}" if p in kinds else "") for p, n in zip(point_no.ids, point_no.numbers)]
     out.append(ExportFile("patb/numbers.txt", "\n".join(nums) + "\n"))
+    return out
+
+
+def _check_measurements(block: AdjustedBlock, project: Project | None, check) -> dict:
+    """image id -> [(point id, x_mm, y_mm)] of the check points' measurements (control/image_points.csv, the points of
+    ``block_check.con``), as the adjustment's: undistorted photo coordinates. block_check.con held 390 points and
+    block.im none of their measurements, so MATCH-AT / ISAT could not run them (trial s96 M2)."""
+    if project is None or check is None or not len(check) or not project.control_image_points_path.is_file():
+        return {}
+    from aerotri.geom.observations import read_image_points
+
+    obs = read_image_points(project.control_image_points_path)
+    ids, images = {str(p) for p in check.id}, {str(i) for i in block.image_id}
+    keep = np.array([str(p) in ids and str(i) in images for p, i in zip(obs.point_id, obs.image_id)], bool)
+    if not keep.any():
+        return {}
+    x_mm, y_mm, _ = photo_coordinates_mm(block, obs.xy_px[keep])
+    out: dict = {}
+    for p, i, x, y in zip(obs.point_id[keep], obs.image_id[keep], x_mm, y_mm):
+        out.setdefault(str(i), []).append((str(p), float(x), float(y)))
     return out
 
 

@@ -62,14 +62,14 @@ def test_ground_control_points_json_is_opensfm_s(adjusted_tiny, tmp_path):
     from pyproj import CRS, Transformer
 
     from aerotri.core.project import Project
-    from aerotri.exchange.odm_export import _ground_control_points_json, _measurements
+    from aerotri.exchange.odm_export import _ground_control_points_json, control_measurements
 
     root, _ = adjusted_tiny
     export_project(root, ["odm"], tmp_path)
     assert (tmp_path / "odm" / "gcp_list.txt").is_file()
     assert not (tmp_path / "odm" / "opensfm" / "ground_control_points.json").exists()
     blk = read_adjusted_block(root)
-    kept = _measurements(blk, Project.open(root))[0]
+    kept = control_measurements(blk, Project.open(root))[0]
     xyz = dict(zip(blk.control_id, blk.control_xyz_m))
     doc = json.loads(_ground_control_points_json(kept, list(blk.control_id), xyz, Project.open(root), blk, {}))
     want = dict(zip(blk.control_id, blk.control_xyz_m))

@@ -183,6 +183,13 @@ def test_files_in_the_documented_columns(exported):
     # image coordinates
     x_mm, y_mm, _ = photo_coordinates_mm(blk)
     want = {(blk.image_id[i], str(blk.point_id[j])): (x, y) for i, j, x, y in zip(blk.obs_image, blk.obs_point, x_mm, y_mm)}
+    # and the check points' measurements (trial s96 M2: block_check.con without them in block.im)
+    cp = read_control_points(p.control_points_path)
+    obs = read_image_points(p.control_image_points_path)
+    is_check = np.isin(obs.point_id.astype(str), cp.id[cp.kind == "check"].astype(str))
+    assert is_check.sum() > 0
+    cx, cy, _ = photo_coordinates_mm(blk, obs.xy_px[is_check])
+    want.update({(i, str(q)): (x, y) for q, i, x, y in zip(obs.point_id[is_check], obs.image_id[is_check], cx, cy)})
     got, current = {}, None
     for line in (patb / "block.im").read_text().splitlines():
         if current is None:
@@ -196,7 +203,6 @@ def test_files_in_the_documented_columns(exported):
     assert current is None and got.keys() == want.keys()
     assert max(np.abs(np.subtract(got[k], want[k])).max() for k in want) < 1e-6
     # control: full control in block.con, the check points in block_check.con
-    cp = read_control_points(p.control_points_path)
     for name, ids in (("block.con", blk.control_id[blk.control_kind == "full"]), ("block_check.con", cp.id[cp.kind == "check"])):
         lines = (patb / name).read_text().splitlines()
         assert _i(lines[-1]) == -99 and len(lines[-1]) == 16
