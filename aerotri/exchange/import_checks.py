@@ -318,6 +318,27 @@ CAMERA_FILE_FIELDS = {
 }
 
 
+def frames_left_without(project: Project, block: ImportedBlock) -> list[str]:
+    """The note naming the frames of images/ the import gives no orientation (or position): a COLMAP images.txt cut
+    between two images imported 3 of 18 frames without a word (trial s96 M5); frames another tool did not orient
+    read the same. [] when every frame has one, or images/ holds none."""
+    from aerotri.geom.images import IMAGE_SUFFIXES, find_images
+
+    field, ids = ("eo", block.eo.image_id) if block.eo is not None else (
+        ("gnss", block.gnss.image_id) if block.gnss is not None else (None, None))
+    if ids is None or not project.images_dir.is_dir() or not any(
+            p.suffix.lower() in IMAGE_SUFFIXES for p in project.images_dir.iterdir()):
+        return []
+    frames = find_images(project.images_dir)
+    without = sorted(set(frames.image_id) - {str(i) for i in ids})
+    if not without:
+        return []
+    what = "orientation" if field == "eo" else "position"
+    return [f"{block.source_of(field)}: {len(without)} of {len(frames)} frames in {project.images_dir} get no {what} "
+            f"from it ({id_listing(without)}): a file cut short, or frames the other program did not orient? They "
+            "stay out of the block until they have one"]
+
+
 def check_import(project: Project, block: ImportedBlock, replaced: set, format_name: str = "") -> list[str]:
     """Every check of the module docstring; returns the notes to print (``replaced``: the project files
     this import writes, which do not stand for the project's position; ``format_name``: the camera's fields named in
@@ -326,6 +347,7 @@ def check_import(project: Project, block: ImportedBlock, replaced: set, format_n
     check_positions(project, block, replaced)
     notes += scale_note(project, block)
     check_image_ids(project, block)
+    notes += frames_left_without(project, block)
     if block.camera is not None:
         block.camera.check_plausible(block.source_of("camera"), CAMERA_FILE_FIELDS.get(format_name))
     check_camera_size(project, block)

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import InputError, id_listing
 from aerotri.core.project import Project
 from aerotri.core.textio import read_json
 from aerotri.exchange.imported import ImportedBlock, ImportSettings, positions_as_gnss, to_project_crs
@@ -154,17 +154,20 @@ def camera_from_opensfm(cam: dict, where: str, size, pixel_um: float, name: str 
     return camera, notes
 
 
-def read_reconstruction(path) -> tuple[dict, dict, int]:
-    """(the first reconstruction, its reference lla, how many reconstructions the file holds) of a
-    ``reconstruction.json``."""
+def read_reconstruction(path) -> tuple[dict, dict, list]:
+    """(the reconstruction of most shots, its reference lla, the others' shot names, one list each) of a
+    ``reconstruction.json``. OpenSfM writes the largest first; a merged or edited file need not (trial s96 M3: the
+    first, of 1 shot, was taken over the other of 3)."""
     path = Path(path)
     doc = read_json(path, "OpenSfM reconstruction")
-    if not isinstance(doc, list) or not doc or not isinstance(doc[0], dict):
+    if not isinstance(doc, list) or not doc or not all(isinstance(r, dict) for r in doc):
         raise InputError(f"{path}: expected a list of reconstructions (OpenSfM reconstruction.json)")
-    rec = doc[0]
+    size = [len(r["shots"]) if isinstance(r.get("shots"), dict) else 0 for r in doc]
+    k = max(range(len(doc)), key=lambda i: (size[i], -i))
+    rec = doc[k]
     for key in ("cameras", "shots"):
         if not isinstance(rec.get(key), dict) or not rec[key]:
-            raise InputError(f"{path}: reconstruction 0 has no {key!r}")
+            raise InputError(f"{path}: reconstruction {k} has no {key!r}")
     ref = rec.get("reference_lla")
     if ref is None and (path.parent / "reference_lla.json").is_file():
         ref = read_json(path.parent / "reference_lla.json", "OpenSfM reference_lla.json")
@@ -173,7 +176,8 @@ def read_reconstruction(path) -> tuple[dict, dict, int]:
                          f"topocentric coordinates cannot be placed")
     for key in ("latitude", "longitude", "altitude"):
         _number(ref, key, f"{path} reference_lla")
-    return rec, ref, len(doc)
+    others = [sorted(r["shots"]) if isinstance(r.get("shots"), dict) else [] for i, r in enumerate(doc) if i != k]
+    return rec, ref, others
 
 
 # -- the topocentric frame ---------------------------------------------------------------------------
@@ -325,12 +329,13 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
     path = Path(files[0])
     if path.is_dir():
         path = path / "reconstruction.json"
-    rec, ref, n_reconstructions = read_reconstruction(path)
+    rec, ref, others = read_reconstruction(path)
     block = ImportedBlock(source=[str(path)], origin={"camera": path.name, "eo": path.name, "gnss": path.name})
-    if n_reconstructions > 1:  # in imports.json and on the console, not only in a log line
-        block.notes.append(f"orientations: {path.name} holds {n_reconstructions} reconstructions (OpenSfM could not "
-                           f"join the block); the first imported ({len(rec['shots'])} shots), the other "
-                           f"{n_reconstructions - 1} left out")
+    if others:  # in imports.json and on the console, not only in a log line
+        left = [f"{len(o)} shot{'s' if len(o) != 1 else ''} ({id_listing(o)})" for o in others]
+        block.notes.append(f"orientations: {path.name} holds {len(others) + 1} reconstructions (OpenSfM could not "
+                           f"join the block); the largest imported ({len(rec['shots'])} shots), left out: "
+                           + "; ".join(left))
     if len(rec["cameras"]) != 1:
         raise InputError(f"{path}: {len(rec['cameras'])} cameras; the project holds one (import each camera's "
                          f"shots into their own project)")

@@ -72,6 +72,40 @@ def test_round_trip(exported, tmp_path, folder, fresh_project):
         assert getattr(got, f) == pytest.approx(getattr(cam, f), rel=1e-7, abs=1e-8), f  # 1e-6 px in the file
 
 
+def test_an_images_txt_cut_between_images_names_the_frames_left_without(exported, tmp_path, fresh_project, caplog):
+    """Trial s96 M5: images.txt cut cleanly after 3 of 18 images imported 3 orientations without a word. Said now
+    (the count and the frames); the whole file says nothing of it."""
+    import logging
+    import shutil
+
+    root, out = exported
+    cut = tmp_path / "cut"
+    shutil.copytree(out / "colmap", cut)
+    lines = (cut / "images.txt").read_text().splitlines()
+    head = [ln for ln in lines if ln.startswith("#")]
+    body = [ln for ln in lines if not ln.startswith("#")]
+    (cut / "images.txt").write_text("\n".join(head + body[:6]) + "\n")
+    import cv2
+
+    ids = read_eo(Project.open(root).eo_path).image_id
+    cam = oriented_camera(Project.open(root))[0]
+
+    def with_frames(dst):
+        (dst / "images").mkdir()
+        for i in ids:  # blank frames of the camera's size: the import reads their names and sizes
+            cv2.imwrite(str(dst / "images" / f"{i}.png"), np.zeros((cam.height, cam.width), np.uint8))
+        return dst
+
+    with caplog.at_level(logging.WARNING):
+        import_files(with_frames(fresh_project(root, tmp_path / "p")), "colmap", [cut])
+    n = len(ids)
+    assert f"{n - 3} of {n} frames in" in caplog.text and "get no orientation from it" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        import_files(with_frames(fresh_project(root, tmp_path / "q")), "colmap", [out / "colmap"])
+    assert "get no orientation" not in caplog.text
+
+
 def test_older_export_without_georef_uses_the_header(exported, tmp_path, fresh_project):
     root, out = exported
     model = tmp_path / "m"

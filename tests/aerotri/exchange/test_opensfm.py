@@ -155,7 +155,16 @@ def test_a_file_of_several_reconstructions_says_so_in_the_import_record(tmp_path
     eo = read_eo(root / "imported" / "eo.txt")
     assert list(eo.image_id) == ["a"]
     notes = json.loads((root / "imported" / "imports.json").read_text())["imports"][-1]["notes"]
-    assert any("holds 2 reconstructions" in n and "the other 1 left out" in n for n in notes), notes
+    assert any("holds 2 reconstructions" in n and "left out: 1 shot (b.jpg)" in n for n in notes), notes
+    # the larger one whatever its place (trial s96 M3: the first, of 1 shot, was taken over one of 3)
+    other["shots"]["c.jpg"] = json.loads(json.dumps(other["shots"]["b.jpg"]))
+    path.write_text(json.dumps([rec, other]))
+    (tmp_path / "2").mkdir()
+    root = _project(tmp_path / "2")
+    import_files(root, "opensfm", [path])
+    assert sorted(read_eo(root / "imported" / "eo.txt").image_id) == ["b", "c"]
+    notes = json.loads((root / "imported" / "imports.json").read_text())["imports"][-1]["notes"]
+    assert any("the largest imported (2 shots), left out: 1 shot (a.jpg)" in n for n in notes), notes
 
 
 @pytest.mark.parametrize("change, message", [
