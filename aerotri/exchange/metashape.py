@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerotri.core.errors import CrsError, InputError
+from aerotri.core.errors import CrsError, InputError, id_listing
 from aerotri.core.project import Project
 from aerotri.core.textio import read_xml
 from aerotri.exchange.adjusted import AdjustedBlock
@@ -265,13 +265,21 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
     if chunk is None:
         raise InputError(f"{path}: expected <document><chunk>... (Metashape's cameras XML)")
     block = ImportedBlock(source=[str(path)])
+    chunks = root.findall("chunk")
+    if len(chunks) > 1:  # (trial s96 M4: the first of two imported without a word)
+        def named(c):
+            n = len(c.findall("cameras/camera") + c.findall("cameras/group/camera"))
+            return f"{c.get('label') or 'chunk id=' + str(c.get('id'))!s} ({n} cameras)"
+        block.notes.append(f"{path}: holds {len(chunks)} chunks; the first imported, {named(chunks[0])}; left out: "
+                           + ", ".join(named(c) for c in chunks[1:]) + " (export each chunk's cameras on its own)")
     sensors = {s.get("id"): s for s in chunk.findall("sensors/sensor")}
     cams = chunk.findall("cameras/camera") + chunk.findall("cameras/group/camera")
     aligned = [c for c in cams if c.find("transform") is not None]
     if not aligned:
         raise InputError(f"{path}: no aligned cameras (no <camera> with a <transform>)")
     if len(aligned) < len(cams):
-        block.notes.append(f"{path}: {len(cams) - len(aligned)} cameras without a transform (not aligned) left out")
+        k = len(cams) - len(aligned)
+        block.notes.append(f"{path}: {k} camera{'s' if k != 1 else ''} without a transform (not aligned) left out")
     used = sorted({c.get("sensor_id") for c in aligned})
     if len(used) != 1 or used[0] not in sensors:
         raise InputError(f"{path}: the aligned cameras use sensors {used}; a project has one camera (and the sensor "
@@ -396,6 +404,8 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
             block.control = ControlPoints(np.array(mid, object), np.array(kinds, object), marker_xyz,
                                           np.array(sig, float))
             pids, iids, xy = [], [], []
+            known = {c.get("id") for c in cams}
+            unaligned, unknown = 0, {}
             for m in chunk.findall("frames/frame/markers/marker"):
                 label = label_of.get(m.get("marker_id"))
                 if label is None:
@@ -403,10 +413,22 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
                 for loc in m.findall("location"):
                     where = f"{path} marker_id={m.get('marker_id')} camera_id={loc.get('camera_id')}"
                     if loc.get("camera_id") not in cam_id:
+                        if loc.get("camera_id") in known:
+                            unaligned += 1
+                        else:
+                            unknown[loc.get("camera_id")] = unknown.get(loc.get("camera_id"), 0) + 1
                         continue
                     pids.append(label)
                     iids.append(cam_id[loc.get("camera_id")])
                     xy.append([_attr(loc, "x", where) - 0.5, _attr(loc, "y", where) - 0.5])
             if pids:
                 block.image_points = ImageObservations(np.array(pids, object), np.array(iids, object), np.array(xy))
+            if unaligned:
+                block.notes.append(f"{path}: {unaligned} marker projection{'s' if unaligned != 1 else ''} on cameras "
+                                   "without a transform left out")
+            if unknown:  # (trial s96 M4: 69 projections dropped without a word)
+                k = sum(unknown.values())
+                block.notes.append(f"{path}: {k} marker projection{'s' if k != 1 else ''} on camera ids the chunk does "
+                                   f"not have ({id_listing(sorted(unknown))}) left out: a file edited or of another "
+                                   "chunk?")
     return block

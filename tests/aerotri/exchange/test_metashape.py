@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+import json
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -372,3 +373,29 @@ def test_odm_export_of_orthometric_heights_says_gcp_list_is_not_ellipsoidal(adju
     assert r.exit_code == 0, r.output
     assert (out / "odm" / "gcp_list.txt").is_file()
     assert "the geoid height low" in " ".join(r.output.split()), r.output
+
+
+def test_a_second_chunk_and_projections_on_unknown_cameras_are_said(exported, tmp_path, fresh_project):
+    """Trial s96 M4: a document of two chunks imported the first without a word, and marker projections on a camera
+    id not in the chunk were dropped without one (1,052 -> 983). Both said in the import's notes now."""
+    import copy
+
+    root, xml = exported
+    tree = ET.parse(xml)
+    doc = tree.getroot()
+    first = doc.find("chunk")
+    first.set("label", "east")
+    second = copy.deepcopy(first)
+    second.set("label", "west")
+    doc.append(second)
+    loc = next(first.iter("location"))
+    loc.set("camera_id", "99")
+    two = tmp_path / "two.xml"
+    tree.write(two, encoding="unicode")
+    dst = fresh_project(root, tmp_path / "p")
+    import_files(dst, "metashape", [two])
+    notes = json.loads((dst / "imported" / "imports.json").read_text())["imports"][-1]["notes"]
+    n = len(first.findall("cameras/camera"))
+    assert any(f"holds 2 chunks; the first imported, east ({n} cameras); left out: west ({n} cameras)" in x
+               for x in notes), notes
+    assert any("1 marker projection on camera ids the chunk does not have (99) left out" in x for x in notes), notes
