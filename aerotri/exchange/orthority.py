@@ -32,6 +32,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -47,6 +48,8 @@ from aerotri.exchange.poses import (adjusted_orientations, horizontal_wkt, image
                                     opk_orientations_to_project)
 from aerotri.geom.camera import BrownCamera, Camera, PinholeCamera
 from aerotri.geom.eo import ExteriorOrientations
+
+log = logging.getLogger(__name__)
 
 BROWN_KEYS = ("k1", "k2", "p1", "p2", "k3")
 # a focal length over this many times the longer side, read from focal_len without sensor_size, is said: a drone or
@@ -163,12 +166,22 @@ def _int_param_of(camera: Camera) -> dict:
 # -- exterior parameters -----------------------------------------------------------------------------
 
 def _prj_crs(csv_path: Path, options: ImportSettings) -> tuple[str, str]:
-    """(CRS text, where it came from) of an OPK CSV: its ``.prj`` sidecar, else ``--crs``."""
+    """(CRS text, where it came from) of an OPK CSV: ``--crs`` when given (it overrides a wrong sidecar, said
+    when the two differ: trial s96 M7, the sidecar used and --crs dropped without a word), else its ``.prj``
+    sidecar."""
     prj = csv_path.with_suffix(".prj")
     if prj.is_file():
         text = read_text(prj, "CRS sidecar (.prj)").strip()
         if not text:
             raise CrsError(f"{prj}: empty (expected the CRS of {csv_path.name} as WKT or a PROJ string)")
+        if options.crs:
+            from aerotri.geom.crs.definition import crs_label, parse_crs
+
+            given, sidecar = parse_crs(options.crs, "--crs"), parse_crs(text, str(prj))
+            if given != sidecar:
+                log.warning(f"{csv_path}: --crs {crs_label(given)} taken, not its sidecar {prj.name} "
+                            f"({crs_label(sidecar)}: {sidecar.name})")
+            return options.crs, "--crs"
         return text, str(prj)
     if options.crs:
         return options.crs, "--crs"

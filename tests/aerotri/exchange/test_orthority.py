@@ -132,6 +132,27 @@ def test_crs_is_required_and_checked(tiny_project, tmp_path, fresh_project):
     assert np.allclose(eo.centre_m, [[500100.0, 4100200.0, 900.0]]) and np.allclose(eo.opk_deg, [[0.5, -0.3, 90.0]])
 
 
+def test_crs_given_overrides_a_sidecar_and_says_so(tiny_project, tmp_path, fresh_project, caplog):
+    """Trial s96 M7: with a .prj beside the CSV, --crs was dropped without a word (a user overriding a wrong sidecar
+    would not notice). --crs is taken and a different sidecar named; the same one says nothing."""
+    import logging
+
+    root = fresh_project(tiny_project, tmp_path / "p")
+    f = tmp_path / "ext.csv"
+    f.write_text(GOOD_CSV)
+    (tmp_path / "ext.prj").write_text("EPSG:32735\n")   # wrong: UTM 35S
+    crs = Project.open(root).crs
+    with caplog.at_level(logging.WARNING):
+        import_files(root, "orthority", [f], options=ImportSettings(crs=crs))
+    assert "not its sidecar ext.prj (EPSG:32735" in caplog.text
+    assert np.allclose(read_eo(root / "imported" / "eo.txt").centre_m, [[500100.0, 4100200.0, 900.0]])
+    caplog.clear()
+    (tmp_path / "ext.prj").write_text(f"{crs}\n")
+    with caplog.at_level(logging.WARNING):
+        import_files(root, "orthority", [f], options=ImportSettings(crs=crs), overwrite=True)
+    assert "sidecar" not in caplog.text
+
+
 def test_other_crs_rotates_onto_the_project_grid(tiny_project, tmp_path, fresh_project):
     """A position and attitude in the neighbouring UTM zone: the centre is transformed and the attitude is
     turned by the grid convergence between the zones (kappa changes, the viewing direction does not)."""
