@@ -72,7 +72,8 @@ class BlockScale:
 class ToleranceTable:
     """A resolved table: ``limits`` is what the checks read (key -> number; plus ``flight_spec`` and, for a
     UAS block, ``flight_limits_apply`` False), ``provenance`` the source of each limit, ``reason`` why this
-    table judges the block."""
+    table judges the block, ``limits_from``: the standard and class whose limits replaced some of the table's ("" for
+    none; said beside the verdict, which named the table's scale alone: trial s96 F8)."""
 
     key: str
     name: str
@@ -82,6 +83,7 @@ class ToleranceTable:
     provenance: dict  # limit key -> Provenance
     reason: str
     platform: str | None
+    limits_from: str = ""
 
     @property
     def unconfirmed(self) -> list[str]:

@@ -1205,7 +1205,10 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             out.append(_check("LiDAR swath overlaps", "swath-to-swath RMSDz on smooth surfaces", c.class_tested,
                               lf.swath_rmsdz_m, lf.swath_rmsdz_m, limit=None, unit="m", n=None, need=None, cp_ok=None,
                               cp_note=lf.swath_note, confirmed=None,
-                              source=f"{src}: the AT specifications set no LiDAR limit"))
+                              source=f"{src}: the AT specifications set no LiDAR limit", verdict="reported",
+                              # (a quantity the standard does not regulate: "not testable" made every LiDAR
+                              # project's cn-at verdict not testable, trial s96 F8)
+                              why="the AT specifications regulate no LiDAR swath: reported, not judged"))
     return out
 
 
@@ -1278,6 +1281,8 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
             continue
         vs = [c.verdict for c in cs if c.verdict != "reported" and c.judged]
         verdict = "fail" if "fail" in vs else (NOT_TESTABLE if NOT_TESTABLE in vs or not vs else "pass")
+        if not vs and all(c.verdict == "reported" for c in cs):
+            verdict = "reported"  # a product the standard does not regulate: it decides nothing
         parts, meets_none = [], False
         for dim in dict.fromkeys(c.dimension for c in cs):
             ranked = [c for c in cs if c.dimension == dim and c.finest_rank is not None and c.verdict != "reported"
@@ -1399,7 +1404,7 @@ def with_asprs2014_limits(table: ToleranceTable, class_tested: str) -> Tolerance
                                      "definition recalled, as asprs2023.toml's", False, nva=True),
             "strip_rmsdz_m": Provenance(f"{src}: swath-to-swath RMSDz <= {L.swath_rmsdz_factor.value:g} V",
                                         L.swath_rmsdz_factor.confirmed)}
-    return dataclasses.replace(table, limits=limits, provenance=prov,
+    return dataclasses.replace(table, limits=limits, provenance=prov, limits_from=f"limits of asprs2014 {class_tested}",
                                reason=f"{table.reason}; its limits from {src}, the standard of the compliance "
                                       f"section: AT plan RMS {limits['rms_xy_m']:g} m, height {limits['rms_z_m']:g} m, "
                                       f"DOM plan RMS {limits['feature_rms_xy_m']:g} m, DEM height RMSE {v:g} m at the "
@@ -1422,6 +1427,7 @@ def with_cn_at_lidar_limits(table: ToleranceTable, class_tested: str) -> Toleran
     return dataclasses.replace(
         table, limits={**table.limits, "dem_rmse_m": lim},
         provenance={**table.provenance, "dem_rmse_m": Provenance(src, e.confirmed, nva=True)},
+        limits_from=f"DEM limit of cn-at {class_tested}",
         reason=f"{table.reason}; DEM height RMS limit {lim:g} m at the non-vegetated points from cn-at's spot "
                f"heights ({class_tested}), the standard of the compliance section")
 
@@ -1456,6 +1462,8 @@ def with_cn_at_limits(table: ToleranceTable, class_tested: str) -> ToleranceTabl
     if not said:
         return table
     return dataclasses.replace(table, limits=limits, provenance=prov,
+                               limits_from=f"AT plan, DOM{', DEM' if table.limits_from else ''} limits of cn-at "
+                                           f"{class_tested}",
                                reason=f"{table.reason}; {', '.join(said)} from cn-at ({class_tested}), the standard "
                                       "asked for")
 

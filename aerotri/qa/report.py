@@ -116,7 +116,8 @@ def _table_record(table: ToleranceTable, lidar_only: bool = False) -> dict:
     LiDAR-only (``lidar_only_project``: the table holds its LiDAR limits only)."""
     return dict(key=table.key, name=table.name, file=table.path.name, terrain=table.terrain, reason=table.reason,
                 platform=table.platform, flight_spec=table.limits.get("flight_spec"), unconfirmed=table.unconfirmed,
-                provenance={k: dataclasses.asdict(p) for k, p in table.provenance.items()}, lidar_only=lidar_only)
+                provenance={k: dataclasses.asdict(p) for k, p in table.provenance.items()}, lidar_only=lidar_only,
+                limits_from=table.limits_from)
 
 
 # the limits that can judge a LiDAR-only project: its LiDAR products and a line map drawn from them
@@ -537,7 +538,7 @@ def _sigma0_limit_px(tol: dict, ks: KeyStatistics, s0_px: float) -> float | None
 
 
 
-def _terrain_rows(project: Project, terrain: str | None) -> list[QaCheck]:
+def _terrain_rows(project: Project, terrain: str | None, given: bool = False) -> list[QaCheck]:
     """The terrain class of the block's DEM (``aerotri.qa.terrain_class``) beside the table's (a Chinese table's
     limits are per terrain class): failed when the table's class is looser than the DEM's slope gives (a flat block
     held to the mountainous limits), said otherwise. None without a DEM or a terrain class."""
@@ -555,7 +556,9 @@ def _terrain_rows(project: Project, terrain: str | None) -> list[QaCheck]:
     sec, name = "Tolerance table", "terrain class of the DEM"
     if TERRAIN_ORDER[terrain] > TERRAIN_ORDER[got.terrain]:
         return [_failed("terrain_class_dem", sec, name, f"{got.text()}; the limits are the {terrain} class's, looser "
-                                                         f"than the terrain's: set [qa] terrain = \"{got.terrain}\"")]
+                                                         "than the terrain's: "
+                                                         + (f"--terrain {got.terrain}" if given else
+                                                            f"set [qa] terrain = \"{got.terrain}\""))]
     if terrain != got.terrain:
         # trial-relief F4: a block with 420 m of relief (median slope 23 deg) held to the flat limits, no word
         log.warning(f"{dem}: {got.text()}, the tolerance table's is {terrain}: the limits are tighter "
@@ -798,6 +801,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         table = with_cn_at_lidar_limits(table, compliance.class_tested)
     if lidar_only:
         table = lidar_limits(table)
+    terrain_given = terrain is not None  # (--terrain: the terrain row's advice names the option, not project.toml)
     terrain, tol, tol_path = table.terrain, table.limits, table.path
     # the limits still ASPRS 2023's (the USGS LBS, Edition 1 or cn-at replaced some for the compliance standard)
     asprs = Asprs2023Figures.of_project(
@@ -816,7 +820,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
     hc = read_height_check(project.height_check_path) if project.height_check_path.is_file() else None
     ce = read_filter_test(project.classification_eval_path) if project.classification_eval_path.exists() else None
     rows, strips = strip_rows(project, tol)
-    rows += _terrain_rows(project, terrain)
+    rows += _terrain_rows(project, terrain, given=terrain_given)
     # an NVA limit (ASPRS 2023, the USGS LBS) judges the open ground only; a map-scale or user's table every point
     nva = bool(getattr(table.provenance.get("dem_rmse_m"), "nva", False))
 
@@ -1346,9 +1350,9 @@ def compliance_verdict(comp: dict | None) -> str:
     """The verdict of ``compliance_headline``: fail, not testable or pass ("" without a standard)."""
     if not comp or not comp.get("products"):
         return ""
-    verdicts = [p["verdict"] for p in comp["products"]]
+    verdicts = [p["verdict"] for p in comp["products"] if p["verdict"] != "reported"]  # (regulated by none)
     return ("fail" if "fail" in verdicts else
-            "not testable" if any(v.startswith("not testable") for v in verdicts) else "pass")
+            "not testable" if not verdicts or any(v.startswith("not testable") for v in verdicts) else "pass")
 
 
 def _compliance_section(comp: dict | None) -> dict | None:
@@ -1760,11 +1764,16 @@ def console_summary(report: QaReport) -> str:
     for r in report.checks:
         if r.verdict:
             star = "*" if r.limit_confirmed is False and r.limit is not None else ""
-            value = f"{r.value} {r.unit}" if r.value is not None else "no value (see the report's note)"
-            lines.append(f"  {r.verdict:<5} {r.section}: {r.quantity} = {value} (limit {r.limit}{star})")
+            if r.value is not None:
+                lines.append(f"  {r.verdict:<5} {r.section}: {r.quantity} = {r.value} {r.unit} (limit {r.limit}{star})")
+            else:  # a verdict without a figure: its note is the reason (trial s96 F8: "no value ... (limit None)")
+                lines.append(f"  {r.verdict:<5} {r.section}: {r.quantity}: {r.note or 'no value'}"
+                             + (f" (limit {r.limit}{star})" if r.limit is not None else ""))
     lines += compliance_lines(report.compliance)
     verdict = report.overall or "no verdict (no quantity with a tolerance yet)"
     judged_by = t["name"] if t.get("lidar_only") else f"{report.map_scale} {report.terrain}"
+    if t.get("limits_from"):
+        judged_by += f" with the {t['limits_from']}"
     headline = "; ".join(x for x in (compliance_headline(report.compliance), standard_fails_note(report.compliance))
                          if x)
     unjudged = f", {len(report.not_judged)} with a limit not judged" if report.not_judged else ""

@@ -115,6 +115,8 @@ def test_one_dom_limit_per_scale_and_standard_and_patches_are_not_called_check_p
             (c,) = _by(judge(Figures(dom=dom), Choice("cn-at", f"{scale} {terrain}", "t", scale=scale,
                                                       terrain=terrain)), "DOM")
             asked = with_cn_at_limits(table, f"{scale} {terrain}")
+            # said beside the verdict (trial s96 F8: "1:5000 hilly" headlined 1:500's limits)
+            assert asked.limits_from.startswith("AT plan, DOM") and f"of cn-at {scale} {terrain}" in asked.limits_from
             assert c.limit == pytest.approx(asked.limits["feature_rms_xy_m"]), (scale, terrain)
             assert c.limit_confirmed == asked.provenance["feature_rms_xy_m"].confirmed, (scale, terrain)
             assert c.quantity == "ground patches, plan RMS (radial)" and c.counted == "ground patches"
@@ -1330,3 +1332,21 @@ def test_points_without_land_cover_groups_are_not_called_non_vegetated():
         assert vva and all(UNKNOWN_COVER in c.why and "no vegetated check points" not in c.why for c in vva), choice.key
         comp = judge(Figures(lidar=grouped), choice)
         assert not any(UNKNOWN_COVER in c.why for c in comp.checks), choice.key
+
+
+def test_cn_at_reports_the_lidar_swaths_it_does_not_regulate():
+    """Trial s96 F8: cn-at (an AT standard) sets no LiDAR swath limit, and the row's "not testable" made every
+    LiDAR project's cn-at verdict not testable, whatever the AT and the DOM did. Reported now, deciding nothing:
+    the product reads "reported" and the overall verdict is the others'."""
+    from aerotri.qa.report import compliance_verdict
+
+    dom = CheckSet(rmse_h_m=0.08, n_h=28, cp_rmse_h_m=0.02, cp_source="t")
+    lidar = LidarFigures(nva_rmse_m=0.04, n_nva=30, swath_rmsdz_m=0.05)
+    comp = judge(Figures(dom=dom, lidar=lidar), Choice("cn-at", "1:1000 flat", "t", scale="1:1000", terrain="flat"))
+    (sw,) = _by(comp, "LiDAR swath overlaps")
+    assert sw.verdict == "reported" and sw.limit is None and "regulate no LiDAR swath" in sw.why
+    prods = {p.product: p.verdict for p in comp.products}
+    assert prods["LiDAR swath overlaps"] == "reported" and prods["DOM"] == "pass" and prods["LiDAR DEM"] == "pass"
+    doc = {"products": [{"verdict": v} for v in prods.values()]}
+    assert compliance_verdict(doc) == "pass"
+    assert compliance_verdict({"products": [{"verdict": "reported"}]}) == "not testable"  # nothing judged

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
-from aerotri.qa.report import write_qa_report
+from aerotri.qa.report import QaCheck, write_qa_report
 
 
 PROJECT = '[project]\nname = "t"\ncrs = "EPSG:32649"\n'
@@ -414,6 +415,12 @@ def test_the_doms_holes_are_a_row_of_the_report(tmp_path):
         assert row.verdict == verdict and row.value == round(100 * share, 3) and row.limit == 1.0, (off, row)
         assert row.limit_key == "dom_without_heights_max_pct"
         assert f"{off:,} cells of the 3,403,268 seen by no frame" in row.note and rep.overall == verdict
+    from aerotri.qa.report import console_summary
+
+    # a row judged without a figure prints its note, not "no value (see the report's note) (limit None)" (s96 F8)
+    failed = QaCheck("x", "DOM", "a check", None, None, "", "the reason it failed", "fail", None)
+    lines = [ln.strip() for ln in console_summary(dataclasses.replace(rep, checks=(failed,))).splitlines()]
+    assert "fail  DOM: a check: the reason it failed" in lines
     (p / "ortho" / "mosaic.json").write_text("{}")
     assert "ortho/mosaic.json" in str(_raises(lambda: write_qa_report(p)))
 

@@ -71,6 +71,9 @@ def test_a_flat_block_under_the_mountainous_limits_fails(tmp_path):
     """The other way is the harmful one: looser limits than the terrain allows pass what fails."""
     (row,) = _terrain_rows(_project(tmp_path, 0.5), "mountainous")
     assert row.verdict == "fail" and 'set [qa] terrain = "flat"' in row.note
+    # the class given with --terrain: the advice names the option (trial s96 F8: it named project.toml)
+    (row,) = _terrain_rows(Project.open(tmp_path / "p"), "mountainous", given=True)
+    assert row.note.endswith("looser than the terrain's: --terrain flat")
 
 
 def test_the_same_class_is_said_and_no_table_class_no_row(tmp_path):
