@@ -79,6 +79,11 @@ def _read_table(path, require_header: bool) -> _Table:
     has_header = not _is_number(first[1]) if len(first) > 1 else True
     if require_header and not has_header:
         raise InputError(f"{path}: line {data[0][0]}: a header line naming the columns is required")
+    if len(first) == 1 and (";" in first[0] or "，" in first[0]):
+        # (trial s96 F12: "header ['id;x;y;z'] must name x and y columns", without saying why)
+        sep = "semicolons" if ";" in first[0] else "full-width commas (，)"
+        raise InputError(f"{path}: line {data[0][0]}: the fields are separated by {sep}, not commas or blanks (a "
+                         "spreadsheet's CSV with decimal commas?): save it comma-separated with decimal points")
     header = first if has_header else None
     body = data[1:] if has_header else data
     if not body:
@@ -172,6 +177,11 @@ class CommonPoints:
     has_z: bool
 
 
+# a point table's id column: "id", or as Chinese survey lists name it (点号 point number, 点名 point name; trial s96
+# F12: crs fit refused 点号 that crs transform took)
+ID_COLUMNS = ("id", "点号", "点名")
+
+
 def read_common_points(path, from_crs, to_crs, need_z: bool = False) -> CommonPoints:
     table = _read_table(path, require_header=True)
     normal = [j for j, c in enumerate(table.header) if _is_normal_height_column(c)]
@@ -181,6 +191,7 @@ def read_common_points(path, from_crs, to_crs, need_z: bool = False) -> CommonPo
                          f"h_from, h_to): {NORMAL_HEIGHTS_ADVICE}")
     wanted = {n: (n,) + ((n.replace("z_", "h_"),) if n.startswith("z_") else ())
               for n in ("id", "x_from", "y_from", "z_from", "x_to", "y_to", "z_to")}
+    wanted["id"] = ID_COLUMNS
     # a plane model reads no heights: normal ones are left as any other column (review 44: helmert2d was refused)
     cols = _columns(table, wanted, optional=("z_from", "z_to"), skip=normal)
     has_z = "z_from" in cols and "z_to" in cols
@@ -298,7 +309,7 @@ def read_height_points(path, crs=None):
     """(ids, x, y, h, H) from a header table id,x,y,h,H."""
     table = _read_table(path, require_header=True)
     wanted = {
-        "id": ("id",),
+        "id": ID_COLUMNS,
         "x": ("x", "X", "easting"),
         "y": ("y", "Y", "northing"),
         "h": ("h", "h_ellipsoidal", "h_ell"),

@@ -166,7 +166,8 @@ def geometry_warnings(en_m, model: str, redundancy_numbers=None, ids=None) -> li
         sv = np.sqrt(np.linalg.eigvalsh(c.T @ c / len(en)))  # ascending principal spreads
         spread = float(sv[-1])
         diameter = float(np.max(np.linalg.norm(en[:, None, :] - en[None, :, :], axis=-1)))
-        if len(en) >= 3 and sv[0] < 0.05 * sv[-1]:
+        # (a similarity is fixed by two points, a line of them too: no warning for helmert2d, trial s96 F11)
+        if len(en) >= 3 and sv[0] < 0.05 * sv[-1] and model not in ("helmert2d", "translation3"):
             out.append(
                 f"poor geometry: common points nearly collinear (principal spreads {sv[-1]:.0f} m and "
                 f"{sv[0]:.0f} m); the transformation is weakly determined across that line"

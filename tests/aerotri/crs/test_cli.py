@@ -244,6 +244,24 @@ def test_a_raster_warped_into_a_zone_far_from_it_is_said(tmp_path):
     assert r.exit_code == 0 and "area of use" not in r.output, r.output
 
 
+def test_chinese_id_columns_and_separators_a_spreadsheet_writes(tmp_path, common_points):
+    """Trial s96 F12: crs fit refused an id column named 点号 (crs transform took it); a semicolon- or full-width-comma
+    separated file was refused as "header [...] must name x and y columns" without saying why; a 4-parameter fit of
+    points on a line warned "weakly determined across that line" (two points fix a similarity)."""
+    path, _, _ = common_points
+    cn = _write(tmp_path / "cn.csv", path.read_text().replace("id,", "点号,", 1))
+    r = _run("fit", cn, "--model", "bursa-wolf7", "--from", "32649", "--to", "2361", "-o", tmp_path / "p.json")
+    assert r.exit_code == 0, r.output
+    for sep, name in ((";", "semicolons"), ("，", "full-width commas")):
+        bad = _write(tmp_path / "bad.csv", f"id{sep}x{sep}y{sep}z\nP1{sep}441000,5{sep}3791000,2{sep}500,0\n")
+        r = _run("transform", bad, tmp_path / "o.csv", "--from", "32649", "--to", "32649")
+        assert r.exit_code == 2 and f"separated by {name}" in r.output and not (tmp_path / "o.csv").exists()
+    line = _write(tmp_path / "line.csv", "id,x_from,y_from,x_to,y_to\n" + "".join(
+        f"L{i},{500000 + 1000 * i},{3400000 + 100 * i},{500010 + 1000 * i},{3400020 + 100 * i}\n" for i in range(5)))
+    r = _run("fit", line, "--model", "helmert2d", "--from", "32649", "--to", "32649", "-o", tmp_path / "h.json")
+    assert r.exit_code == 0 and "collinear" not in r.output, r.output
+
+
 def _write(path, text):
     path.write_text(text)
     return path
