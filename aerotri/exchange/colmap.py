@@ -200,9 +200,11 @@ def _read_images_txt(path: Path) -> list[tuple[str, int, np.ndarray, np.ndarray,
         if expect_points:  # the POINTS2D line of the image before (not needed for the orientations)
             expect_points = False
             if len(s.split()) % 3:  # X Y POINT3D_ID triples: not the next image's line taken for points
+                last = n == len(text.splitlines()) and len(s.split()) > 10
                 raise InputError(f"{path}:{n}: expected the POINTS2D line (X Y POINT3D_ID triples, or an empty line) "
-                                 f"of the image on line {seen[out[-1][0]]}, got {len(s.split())} fields: each image "
-                                 "line of images.txt is followed by its points line")
+                                 f"of the image on line {seen[out[-1][0]]}, got {len(s.split())} fields"
+                                 + (", not a multiple of 3 on the file's last line: the file is cut short"
+                                    if last else ": each image line of images.txt is followed by its points line"))
             continue
         if not s:
             continue
@@ -233,7 +235,12 @@ def _read_binary(folder: Path):
     try:
         rec.read_binary(str(folder))
     except Exception as exc:  # pycolmap raises RuntimeError/ValueError for unreadable binary models
-        raise InputError(f"{folder}: not a readable COLMAP binary model ({exc})".replace("\n", " ")) from None
+        sizes = ", ".join(f"{f} {(folder / f).stat().st_size:,} bytes" for f in ("cameras.bin", "images.bin",
+                                                                                   "points3D.bin")
+                          if (folder / f).is_file())
+        raise InputError(f"{folder}: not a readable COLMAP binary model: pycolmap stopped reading it ({exc}); a file "
+                         f"cut short or of another COLMAP version? ({sizes or 'no .bin files'})".replace("\n", " "))\
+            from None
     cams = {int(cid): (c.model.name, int(c.width), int(c.height), [float(v) for v in c.params])
             for cid, c in rec.cameras.items()}
     for cid, (model, *_r, params) in cams.items():
@@ -375,7 +382,10 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         where = str(folder / "images.bin")
     else:
         raise InputError(f"{folder}: no COLMAP model (expected cameras.txt + images.txt or cameras.bin + images.bin)")
-    georef = read_georef(folder) or _header_georef(folder)
+    georef = read_georef(folder)
+    # where the frame was read (trial s96 L2: a model without georef.txt named it in its warnings)
+    georef_from = f"{folder}/{GEOREF}" if georef is not None else f"{folder}/cameras.txt header"
+    georef = georef or _header_georef(folder)
     # pixel size: georef.txt, else the project's camera, else nominal
     if georef is not None and georef.pixel_um is not None:
         pixel_um = georef.pixel_um
@@ -403,10 +413,11 @@ def read(files: list[Path], project: Project, options: ImportSettings) -> Import
         frame = LocalFrame(georef.crs, list(georef.origin_map))
         centre_map = frame.to_map(centre)
         R_map = np.transpose(frame.rotation_local_from_map(centre_map), (0, 2, 1)) @ R_photo
-        block.eo = orientations_to_project(ids, centre_map, R_map, georef.crs, project, f"{folder}/{GEOREF} crs")
+        block.eo = orientations_to_project(ids, centre_map, R_map, georef.crs, project, f"{georef_from} crs")
     elif (georef is not None and georef.crs) or options.crs:
         crs = (georef.crs if georef is not None else None) or options.crs
-        block.eo = orientations_to_project(ids, centre, R_photo, crs, project, "--crs" if georef is None else GEOREF)
+        block.eo = orientations_to_project(ids, centre, R_photo, crs, project,
+                                           "--crs" if georef is None else georef_from)
     else:
         raise CrsError(f"{folder}: the model's world frame is unknown; a foreign COLMAP model must be georeferenced "
                        f"(colmap model_aligner) and its CRS given with --crs, or described in {GEOREF}")

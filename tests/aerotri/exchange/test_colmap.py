@@ -3,6 +3,7 @@ round trip through a fresh project; a foreign georeferenced model with --crs; ba
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
@@ -106,6 +107,29 @@ def test_an_images_txt_cut_between_images_names_the_frames_left_without(exported
     assert "get no orientation" not in caplog.text
 
 
+def test_a_model_cut_mid_line_or_mid_file_is_named_as_cut(exported, tmp_path, fresh_project):
+    """Trial s96 L3: images.txt cut inside a points line read "got 6332 fields" (no word of a cut file); a cut
+    images.bin read "not a readable COLMAP binary model (unordered_map::at)". Both say what was cut now."""
+    import shutil
+
+    root, out = exported
+    for folder, cut in (("colmap", "images.txt"), ("colmap_bin", "images.bin")):
+        bad = tmp_path / folder
+        shutil.copytree(out / folder, bad)
+        data = (bad / cut).read_bytes()
+        if cut.endswith(".txt"):
+            lines = data.decode().splitlines()
+            k = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#")) + 1  # the first points line
+            fields = lines[k].split()
+            (bad / cut).write_text("\n".join(lines[:k] + [" ".join(fields[:len(fields) - 1])]) + "\n")
+            match = r"images.txt:\d+: .*not a multiple of 3 on the file's last line: the file is cut short"
+        else:
+            (bad / cut).write_bytes(data[:len(data) // 2])
+            match = r"not a readable COLMAP binary model: .*cut short or of another COLMAP version\? \(cameras.bin"
+        with pytest.raises(InputError, match=match):
+            import_files(fresh_project(root, tmp_path / f"p_{folder}"), "colmap", [bad])
+
+
 def test_older_export_without_georef_uses_the_header(exported, tmp_path, fresh_project):
     root, out = exported
     model = tmp_path / "m"
@@ -116,6 +140,8 @@ def test_older_export_without_georef_uses_the_header(exported, tmp_path, fresh_p
     import_files(dst, "colmap", [model / "cameras.txt", model / "images.txt"], overwrite=True)
     back, eo = read_eo(dst / "imported" / "eo.txt"), read_eo(Project.open(root).eo_path)
     assert np.abs(back.centre_m - eo.centre_m).max() < 2e-3  # the header keeps the origin to 1 mm
+    notes = json.loads((dst / "imported" / "imports.json").read_text())["imports"][-1]["notes"]
+    assert not any("georef.txt" in n for n in notes), notes  # (trial s96 L2: it named the file that is not there)
 
 
 def _foreign_model(folder, centre, opk_deg, crs_line=None):
