@@ -15,7 +15,7 @@ Layers (the same in both files):
   stages' ``lidar_out/dem.tif``, else the DEM the frame orthos were rectified on, else the adjustment's
   surface-control DEM), else with the mean height of the adjusted points (a frame whose edge rays miss the
   ground has none);
-- ``projection_centres``: the frames' adjusted centres.
+- ``projection_centres``: the frames' adjusted centres (``image_id``, ``omega_deg``, ``phi_deg``, ``kappa_deg``).
 
 In the KML every placemark also has a ``Name`` (its point or image id), which KML viewers show.
 """
@@ -184,8 +184,10 @@ def _layers(block: AdjustedBlock, project: Project) -> tuple[list, str]:
     from aerotri.geom.eo import read_eo
 
     eo = read_eo(project.eo_path)
+    # the attitude beside the centre (trial s96 L6: image_id alone, the angles on the footprints only)
     centres = ("projection_centres", "Point Z", [shapely.Point(*c) for c in eo.centre_m],
-               {"image_id": np.array(eo.image_id, object)})
+               {"image_id": np.array(eo.image_id, object), "omega_deg": eo.opk_deg[:, 0].astype(float),
+                "phi_deg": eo.opk_deg[:, 1].astype(float), "kappa_deg": eo.opk_deg[:, 2].astype(float)})
     return [control, foot, centres], surface
 
 

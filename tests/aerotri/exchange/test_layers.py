@@ -51,6 +51,7 @@ def test_geopackage_points_and_residuals(adjusted_tiny, tmp_path):
     eo = read_eo(root / "at" / "eo.txt")
     assert list(c["image_id"]) == eo.image_id
     assert np.allclose(shapely.get_coordinates(centres, include_z=True), eo.centre_m, atol=1e-9)
+    assert np.allclose(np.column_stack([c["omega_deg"], c["phi_deg"], c["kappa_deg"]]), eo.opk_deg, atol=1e-12)
 
 
 @pytest.mark.parametrize("dem_from", ["lidar_out", "frame_orthos", "surface_control"])
