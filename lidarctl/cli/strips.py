@@ -96,9 +96,14 @@ def adjust(*, strip_paths, outdir, trajectories, fixed, control, control_sigma_m
 
 def _adjust_summary(s: StripAdjustResult, outdir) -> str:
     """What ``lidarctl strips adjust`` prints: the parameters, the control, the strips left out, the check."""
-    lines = []
+    # the sign first (trial s96 F4: +0.071 printed, the points moved -0.071 m; the convention was in adjust.json only)
+    lines = ["parameters: the strips' errors e (the corrected point is p - e: a shift of +0.07 m moves the strip's "
+             "points by -0.07 m), +- their sigmas"]
+    left = set(s.strips_without_observations)
     for name, p in s.parameters.items():
-        lines.append(f"{name:32s} {p.value:+10.4f} +- {p.sigma:.4f}")
+        unadjusted = name.split(".")[0] in left
+        lines.append(f"{name:32s} {p.value:+10.4f} +- {p.sigma:.4f}" + ("  (not adjusted: the prior)" if unadjusted
+                                                                          else ""))
     if s.control is not None:
         c = s.control
         lines.append(f"control: {c.points_used} of {c.points} points on {c.observations} strip planes, mean "

@@ -61,6 +61,7 @@ from aerotri.core.errors import InputError, OptionError, SolveError
 from aerotri.core.textio import read_record, record_error
 from aerotri.core.settings import setting
 from aerotri.geom import las
+from aerotri.geom.crs.definition import parse_crs
 from lidarctl import io
 from lidarctl.strips import check as chk
 from lidarctl.strips import control as ctl
@@ -619,9 +620,10 @@ def parameter_report(model: Model, sol: Solution) -> ParameterReport:
 
 
 def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Path,
-                    chunk_points: int = io.CHUNK_POINTS) -> list[Path]:
+                    chunk_points: int = io.CHUNK_POINTS, crs=None) -> list[Path]:
     """Every input file with corrected X, Y, Z (p - e(p)) into ``folder``, everything else kept: header
-    fields, VLRs, EVLRs, point records (the coordinates re-quantised in the file's own scales and offsets)."""
+    fields, VLRs, EVLRs, point records (the coordinates re-quantised in the file's own scales and offsets); ``crs``
+    (pyproj) recorded in a file without a CRS record."""
     units = ss.units
     by_path: dict[Path, list[ov.StripSource]] = {}
     for s in ss.strips:
@@ -629,7 +631,7 @@ def write_corrected(ss: ov.StripSet, model: Model, theta: np.ndarray, folder: Pa
     out = []
     for path, sources in by_path.items():
         header = las.read_header(path)
-        out_header = io.output_header(header)
+        out_header = io.output_header(header, crs)
         dst = folder / path.name
         with laspy.open(dst, mode="w", header=out_header, do_compress=path.suffix.lower() == ".laz") as w:
             for _, chunk in las.iter_file_chunks(path, chunk_points, withheld=True):  # a copy: every record
@@ -728,8 +730,9 @@ def estimate(paths, ss: ov.StripSet, model: Model, settings: StripAdjustSettings
                                         grid=ss.grid, keep=keep, z_ref=ss.z_ref)
             kept = ss_i if keep is not None else None
             if kept is not None:
-                log.info("strip adjustment: %d points of the overlaps kept for re-gridding (moves up to %.2f m)",
-                         sum(len(k.single) for k in kept.kept.values()), kept_reach)
+                log.info("strip adjustment: %d points of the overlaps kept for re-gridding (within %.2f m of them: "
+                         "the largest correction so far %.3f m and a margin)",
+                         sum(len(k.single) for k in kept.kept.values()), kept_reach, reach)
         model.jac = {}  # not the old and the new at once
         model.jac = model.jac_of(ss_i)
         obs = observations(ss_i, model, settings.max_slope_deg, control, settings.control_sigma_m)
@@ -784,7 +787,10 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     # the check's slope limit for the reports; the adjustment reads steeper cells too
     read_params = dataclasses.replace(surface, max_slope_deg=max(surface.max_slope_deg, settings.max_slope_deg))
     extra, chosen = (None, {})
-    _, units = io.resolve_crs_units(paths[0], las.read_header(paths[0]), crs)
+    resolved, units = io.resolve_crs_units(paths[0], las.read_header(paths[0]), crs)
+    # the CRS record a strip without one gets (--crs as given, a compound keeping its vertical unit), as classify's:
+    # the corrected strips had none, and the next stage refused them (trial s96 F3)
+    out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
     cps = ctl.read_control(control, units) if control is not None else None
     if trajectories:
         trajs = tj.read_trajectories(trajectories, units.xy_m, units.z_m)
@@ -798,7 +804,7 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     model.jac = {}  # the cells' Jacobians are not needed any more
     t_solve = time.perf_counter()
     with atomic_dir(outdir) as tmp:
-        corrected = write_corrected(ss, model, sol.theta, tmp)
+        corrected = write_corrected(ss, model, sol.theta, tmp, crs=out_crs)
         t_write = time.perf_counter()
         ss_after = ov.read_strip_planes(corrected, surface, crs)
         after = chk.analyse(ss_after, surface, corrected)

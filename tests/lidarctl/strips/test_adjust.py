@@ -222,3 +222,22 @@ def test_a_trajectory_with_a_byte_order_mark_is_read_as_without(shifted_block, t
     bom.write_bytes(b"\xef\xbb\xbf" + src.read_bytes().replace(b"\n", b"\r\n"))
     a, b = read_trajectory(src), read_trajectory(bom)
     assert np.array_equal(a.t, b.t) and np.array_equal(a.xyz, b.xyz) and np.array_equal(a.rph_deg, b.rph_deg)
+
+
+def test_strips_without_a_crs_record_get_the_one_given_and_the_sign_is_said(shift_only_block, tmp_path):
+    """Trial s96 F3 / F4: strips adjusted with --crs came out without a CRS record (the next stage refused them);
+    the console printed the strips' errors without their sign convention (+0.071 printed, the points moved -0.071)."""
+    bare = []
+    for p in shift_only_block.paths:
+        las = laspy.read(p)
+        las.header.vlrs = [v for v in las.header.vlrs if v.user_id != "LASF_Projection"]
+        las.header.global_encoding.wkt = False
+        q = tmp_path / "in" / p.name
+        q.parent.mkdir(exist_ok=True)
+        las.write(q)
+        assert laspy.read(q).header.parse_crs() is None
+        bare.append(q)
+    r = _adjust(bare, tmp_path / "out", "--fixed", "strip_1", "--crs", "EPSG:32632")
+    assert r.exit_code == 0, r.output
+    assert all(laspy.read(tmp_path / "out" / q.name).header.parse_crs().to_epsg() == 32632 for q in bare)
+    assert "the corrected point is p - e: a shift of +0.07 m moves the strip's points by -0.07 m" in r.output
