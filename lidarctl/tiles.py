@@ -1144,6 +1144,7 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
     for q, (_, u) in zip(in_paths[1:], crs_units[1:]):
         if u != units:
             raise InputError(f"{q}: {u.describe()}, but {in_paths[0]} {units.describe()}; give strips in one unit")
+    cl.set_place_units(units)
     name = in_paths[0] if len(in_paths) == 1 else f"{in_paths[0]} (+{len(in_paths) - 1} strips)"
     # A CRS record for an input without one: the --crs as given (a compound CRS keeps its vertical unit).
     out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved

@@ -131,6 +131,29 @@ from lidarctl.knn import QUERY_CHUNK, BucketGrid
 from lidarctl.raster_ops import fill_nodata, plane_rms, reduce_grid, rimmed_dropouts, sample_bilinear, slope_tan
 
 log = logging.getLogger(__name__)
+# the classified cloud's units (``lidarctl.units.LengthUnits``), for the places and heights log lines name: set by
+# the classify command (``tiles._classify``); metres when unset (trial s96 F5: a feet cloud's water note named a
+# place in metres, which is no position in its CRS)
+_place_units = None
+
+
+def set_place_units(units) -> None:
+    global _place_units
+    _place_units = units
+
+
+def _place(x_m: float, y_m: float) -> str:
+    u = _place_units
+    if u is None or not u.known or not (math.isfinite(x_m) and math.isfinite(y_m)):
+        return f"x {x_m:.1f} y {y_m:.1f} m"
+    return f"x {float(u.xy_from_m(x_m)):.1f} y {float(u.xy_from_m(y_m)):.1f} {u.xy_name}"
+
+
+def _height(z_m: float) -> str:
+    u = _place_units
+    if u is None or not u.known or u.z_m == 1.0:
+        return f"{z_m:.2f} m"
+    return f"{float(u.z_from_m(z_m)):.2f} {u.z_name} ({z_m:.2f} m)"
 
 # A candidate water body at least this large (m2) that is judged no water is said in the log, with the test it
 # failed and its numbers against the limit (a river or lake lost silently was trial-us's finding 2).
@@ -2429,10 +2452,10 @@ def level_water(x, y, z, candidate, is_ground, spacing_m: float, *, p: ClassifyS
                 if len(bank) == 0 or np.mean(bank > level + tol) < p.level_water_bank_fraction:
                     if area[k] >= WATER_REJECT_LOG_M2:
                         at = lab_pt == k  # where it lies (s95: the note named no place to look at)
-                        log.info("a level candidate water body of %.0f m2 (level %.2f m) about x %.1f y %.1f is no "
+                        log.info("a level candidate water body of %.0f m2 (level %s) about %s is no "
                                  "water: %.0f %% of the ground on its rim stands above its level, %.0f %% needed",
-                                 area[k], level, float(np.mean(x[at])) if at.any() else math.nan,
-                                 float(np.mean(y[at])) if at.any() else math.nan,
+                                 area[k], _height(level), _place(float(np.mean(x[at])) if at.any() else math.nan,
+                                                                 float(np.mean(y[at])) if at.any() else math.nan),
                                  100.0 * np.mean(bank > level + tol) if len(bank) else 0.0,
                                  100.0 * p.level_water_bank_fraction)
                     continue

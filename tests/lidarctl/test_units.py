@@ -468,3 +468,20 @@ def test_a_us_survey_foot_typed_in_metres_makes_whole_foot_cells(scenes, caplog)
         assert f.res == (1.0, 1.0)
         assert f.transform.c == round(f.transform.c) and f.transform.f == round(f.transform.f)
         assert f.tags()["CELL_SIZE"] == "1 us-ft"
+
+
+def test_classify_notes_name_places_and_heights_in_the_clouds_units():
+    """Trial s96 F5: a feet cloud's water note named "x 193918.9 y 258819.9" (its feet in metres: no position in its
+    CRS) and the level in metres. In the cloud's units now, metres beside a height in feet; unset: metres."""
+    from lidarctl.classify import pipeline as cl
+    from lidarctl.units import LengthUnits
+
+    try:
+        cl.set_place_units(LengthUnits(0.3048, 0.3048))
+        assert cl._place(636216.8 * 0.3048, 849146.5 * 0.3048) == "x 636216.8 y 849146.5 ft"
+        assert cl._height(130.47) == "428.05 ft (130.47 m)"
+        cl.set_place_units(LengthUnits())
+        assert cl._place(10.0, 20.0) == "x 10.0 y 20.0 m" and cl._height(5.0) == "5.00 m"
+    finally:
+        cl.set_place_units(None)
+    assert cl._place(1.0, 2.0) == "x 1.0 y 2.0 m"
