@@ -1042,6 +1042,9 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int |
     inputs = _inputs(paths, crs)
     for f in FILES:
         refuse_input_as_output(outdir / f, list(inputs.paths), "OUTDIR")
+    from lidarctl.rasters.trees import refuse_the_other_chm
+
+    refuse_the_other_chm(outdir, "rasters")
     units = inputs.units
     res_m = cell_of_units(res_m, units)
     args = grid_for_bounds(*inputs.bounds_m, res_m)

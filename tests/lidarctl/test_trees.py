@@ -396,3 +396,21 @@ def test_points_off_the_data_under_density_groups_are_named_in_the_nva_and_vva_r
     assert row.note == ("2 surveyed points with no valid cell of the DEM dem.tif under them, not counted (land cover "
                         "unknown: X0, X1); 8 check points, 30 required by USGS Lidar Base Specification: indicative "
                         "only")   # (trial-qa)
+
+
+def test_trees_and_rasters_do_not_replace_each_others_chm(cones_las, tmp_path):
+    """Trial s96 F2: `lidarctl trees` into the folder of `lidarctl rasters` replaced its chm.tif (1 m highest
+    vegetation) by its own (0.5 m pit-free TIN) without a word; the other way round too. Refused, nothing changed."""
+    import hashlib
+
+    d, _ = cones_las
+    out = tmp_path / "r"
+    _ok(["rasters", d / "cones.laz", out, "--res-m", "1"])
+    before = hashlib.sha256((out / "chm.tif").read_bytes()).hexdigest()
+    r = CliRunner().invoke(main, ["trees", str(d / "cones.laz"), str(out)])
+    assert r.exit_code == 2 and "holds the chm.tif of lidarctl rasters (beside dem.tif, dsm.tif, ndsm.tif)" in r.output
+    assert hashlib.sha256((out / "chm.tif").read_bytes()).hexdigest() == before and not (out / "trees.json").exists()
+    t = tmp_path / "t"
+    _ok(["trees", d / "cones.laz", t])
+    r = CliRunner().invoke(main, ["rasters", str(d / "cones.laz"), str(t), "--res-m", "1"])
+    assert r.exit_code == 2 and "holds the chm.tif of lidarctl trees" in r.output and not (t / "dem.tif").exists()
