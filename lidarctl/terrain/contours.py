@@ -437,6 +437,11 @@ def whole_unit_interval(interval_m: float, unit_m: float) -> float:
 
     interval = length_in_units(interval_m, unit_m)
     whole = whole_units(interval_m, unit_m)
+    if whole is None and abs(unit_m - 1.0) > 1e-9 and interval >= 0.5:
+        # (trial s96 F6: a user's "2 ft" as 0.61 m gave contours at 408.268, 410.269 ... ft without a word)
+        n = max(1, round(interval))
+        log.warning(f"contour interval {interval_m:g} m is {interval:.6g} {length_unit_name(unit_m)} on this DEM: its "
+                    f"levels fall at odd heights; for {n} {length_unit_name(unit_m)} give {n * unit_m:.6g} m")
     if whole is None or whole == interval:
         return interval
     log.info(f"contour interval {interval_m:g} m is {interval:.7g} {length_unit_name(unit_m)}: taken as "
@@ -467,6 +472,9 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
     z_unit = length_unit_name(z_m)
     check_interval(dem, interval, z_unit, unit_m=z_m)  # before any work: the interval fits the data
     traced, tiny = trace_counted(dem, transform, interval, index_every)
+    if not traced and np.isfinite(dem).any():  # (trial s96 F12: an empty file, exit 0, no word)
+        log.warning(f"{dem_path}: no level every {interval:g} {z_unit} lies within the DEM's heights "
+                    f"{np.nanmin(dem):.6g} .. {np.nanmax(dem):.6g} {z_unit}: {out_path} holds no contour")
     footprint = data_footprint(np.isfinite(dem), transform) if smoothing != "none" else None
     contours, fell_back = smooth_contours(traced, smoothing, abs(transform.a), tolerance_px, tension, footprint)
     cs = ContourSet(contours, interval, smoothing, fell_back)

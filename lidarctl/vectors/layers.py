@@ -685,7 +685,10 @@ def _read_contours(path: Path, cloud_crs, cloud_z_m: float = 1.0) -> Layer:
             elevation_m, how = None, ""
         if elevation_m is not None:
             elevation = elevation_m / cloud_z_m
-            if not np.allclose(elevation, np.asarray(cols["elevation"], float), rtol=0, atol=1e-6):
+            given = np.asarray(cols["elevation"], float)
+            if np.allclose(elevation, given, rtol=0, atol=1e-6):
+                elevation = given  # the same unit: as written (trial s96 F13: 420.0 ft came back 420.00000000000006)
+            else:
                 log.info("%s: contour elevation in the cloud's height unit (%s), from %s", path,
                          length_unit_name(cloud_z_m), how)
             cols["elevation"], cols["elevation_m"] = elevation, elevation_m
@@ -699,8 +702,7 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs, clou
     metres beside a cloud in feet gave contours at 124 beside spot heights at 425, the command saying "(ft)")."""
     import shapely
 
-    from aerotri.geom.crs.definition import length_in_units
-    from lidarctl.terrain.contours import trace
+    from lidarctl.terrain.contours import trace, whole_unit_interval
     from lidarctl.terrain.dem_io import open_dem
 
     src, z_m = open_dem(path, out_path)
@@ -708,7 +710,8 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs, clou
         _same_crs(path, src.crs.to_wkt(), cloud_crs)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
         transform = src.transform
-    cs = trace(dem, transform, length_in_units(interval_m, z_m), option="--contour-interval-m")
+    # in whole units of the DEM when meant so, said when not (trial s96 F6: Autzen's map contours at 406.824 ft)
+    cs = trace(dem, transform, whole_unit_interval(interval_m, z_m), option="--contour-interval-m")
     return Layer("contours", "LineString", [shapely.LineString(c.xy) for c in cs],
                  {"elevation": np.array([c.level for c in cs], float) * (z_m / cloud_z_m if z_m != cloud_z_m else 1.0),
                   "elevation_m": np.array([c.level * z_m for c in cs], float),

@@ -163,6 +163,14 @@ def test_feet_dem_levels_at_whole_feet(tmp_path):
     levels = np.unique(fields[list(meta["fields"]).index("elevation")])
     assert np.allclose(np.diff(levels), 1 / 0.3048, rtol=1e-9) and levels[0] == pytest.approx(124 / 0.3048)
     assert "every 3.28084 ft" in r.output
+    # an interval near no whole number of feet is said, with the metres of the nearest (trial s96 F6: a user's
+    # "2 ft" as 0.61 m gave levels at 408.268, 410.269 ... without a word), and a run that draws nothing (F12)
+    assert "is 3.28084 ft on this DEM: its levels fall at odd heights; for 3 ft give 0.9144 m" in r.output
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "c2.gpkg"), "--interval-m", "0.61", "--no-png"])
+    assert "for 2 ft give 0.6096 m" in r.output
+    r = CliRunner().invoke(main, ["contours", str(dem), str(tmp_path / "cbig.gpkg"), "--interval-m", "1000",
+                                  "--no-png"])
+    assert r.exit_code == 0 and "no level every 3280.84 ft lies within the DEM's heights 406.3 .. 434.9 ft" in r.output
     # sub-unit intervals land on their own multiples too (no binary noise: 0.1 x 4071 is 407.1)
     cs = trace(z_ft, t, 0.5, 5)
     assert all(c.level * 2 == round(c.level * 2) for c in cs)

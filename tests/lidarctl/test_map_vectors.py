@@ -595,6 +595,15 @@ def test_copied_contours_take_the_clouds_height_unit(tmp_path):
     out = tmp_path / "v_no_unit.gpkg"
     r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--contours", str(tmp_path / "no_unit.gpkg")])
     assert r.exit_code == 2 and "no_unit.gpkg" in r.output and "no unit" in r.output and not out.exists(), r.output
+    # contours in the cloud's unit already are copied as written (trial s96 F13: 420.0 ft came back
+    # 420.00000000000006 through metres)
+    ft = np.array([420.0, 422.0, 424.0])
+    write(tmp_path / "ft.gpkg", wkb, layer="contours", driver="GPKG", geometry_type="LineString", crs=FT_CRS,
+          fields=["elevation", "elevation_m"], field_data=[ft, ft * FOOT_M])
+    out = tmp_path / "v_ft.gpkg"
+    r = CliRunner().invoke(main, ["vectors", str(cloud), str(out), "--contours", str(tmp_path / "ft.gpkg")])
+    assert r.exit_code == 0, r.output
+    assert list(_layer(out, "contours")[2]["elevation"]) == [420.0, 422.0, 424.0]
 
 
 @pytest.mark.parametrize("command", ["check-vectors", "check-plan"])
