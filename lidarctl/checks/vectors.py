@@ -646,14 +646,16 @@ def _unconfirmed(result: dict) -> str:
     return f"; the limit is unconfirmed: {result.get('tolerance_source')}"
 
 
-def format_report(check: VectorCheck) -> str:
+def format_report(check: VectorCheck, scale_given: bool = True) -> str:
+    """The console text; ``scale_given`` False: the map scale is the default, said so beside its tolerance."""
     result = check.document
     tol = result["tolerance_feature_rms_xy_m"]
     within = result.get("within")
     area = "the hulls of the reference polygons' blocks" if within == "hull" else within
+    default = "" if scale_given else " (the default scale: --scale for your map's)"
     lines = [f"line-map check: {result['product']} against {result['reference']}"
              + (f", only inside {area} (--within)" if within else ""),
-             f"tolerance for well-defined features ({result['map_scale']}, {result['terrain']}): plan RMS "
+             f"tolerance for well-defined features ({result['map_scale']}{default}, {result['terrain']}): plan RMS "
              f"{tol} m (judged: the corner-to-corner RMS)" + _unconfirmed(result)]
     if result.get("tolerance_note"):
         lines.append(f"  {result['tolerance_note']}")

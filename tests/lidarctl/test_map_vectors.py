@@ -143,6 +143,10 @@ def test_check_vectors_against_reference(made):
     # ... unconfirmed and tighter than 1:2000's: the verdict says both (trial-city: 1:2000 passed what 1:10000 failed)
     assert res["tolerance_confirmed"] is False and "tighter than 1:2000's 1.2 m" in res["tolerance_note"]
     assert "(unconfirmed limit)" in r.output and "tighter than 1:2000's" in r.output
+    # the scale nobody gave is said as the default (trial s96 F9); given, it is not
+    assert "(1:10000 (the default scale: --scale for your map's), flat)" in r.output
+    r2 = CliRunner().invoke(main, ["check-vectors", str(out), "--reference", str(ref), "--scale", "1:2000"])
+    assert r2.exit_code == 0 and "the default scale" not in r2.output, r2.output
     for name in ("buildings", "roads", "water"):
         assert res["layers"][name]["completeness_pct"] > 85 and res["layers"][name]["correctness_pct"] > 90
     assert res["layers"]["road_centrelines"]["completeness_pct"] > 85
