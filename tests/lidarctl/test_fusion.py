@@ -290,3 +290,31 @@ def test_road_surface_is_ground_in_the_dem_and_the_filter_test(tmp_path):
     assert np.nanmedian(rise[:, (cols > 33) & (cols < 39)]) < 0.1          # the road filled from its verges
     ev12 = evaluate_files(tmp_path / "truth.las", tmp_path / "fused12.las")  # a 1.2 reference holding 11
     assert ev12.filter_test.type_ii_count == road.sum()
+
+
+def test_roads_from_an_image_without_nir_are_said_to_be_unchecked(tmp_path):
+    """Trial s96 F1 (HIGH): Autzen's real orthophoto gave road polygons on grass and a gravel bank, none on the
+    paved path, without a word; the road rule is scored on the simulator alone. Roads labelled from an RGB image
+    (no --nir) are said so; with a NIR band they are not."""
+    cloud = _synthetic_las(tmp_path / "c.las")
+    las = laspy.read(tmp_path / "c.las")
+    x0, y0 = np.floor(cloud.x.min()) - 5, np.floor(cloud.y.min()) - 5
+    road_y = (y0 + 40.0, y0 + 46.0)   # a 6 m strip across the scene: grey in the image, dark in the LiDAR
+    on_road = (np.asarray(las.y) > road_y[0]) & (np.asarray(las.y) < road_y[1])
+    las.intensity = np.where(on_road, 100, 400).astype(np.uint16)
+    las.write(tmp_path / "c.las")
+    img = np.zeros((190, 190, 3), np.uint8)
+    img[:] = GREEN
+    rows = slice(190 - int((road_y[1] - y0) / 0.5), 190 - int((road_y[0] - y0) / 0.5))
+    img[rows] = GREY
+    _image(tmp_path / "rgb.tif", img, x0=x0, y0=y0)
+    nir = np.where(np.all(img == GREY, axis=-1), 60, 200).astype(np.uint8)
+    _image(tmp_path / "rgbn.tif", img, nir=nir, x0=x0, y0=y0)
+    run = CliRunner().invoke
+    r = run(main, ["classify", str(tmp_path / "c.las"), str(tmp_path / "rgb.las"), "--image", str(tmp_path / "rgb.tif")])
+    assert r.exit_code == 0, r.output
+    assert np.count_nonzero(_classes(tmp_path / "rgb.las") == 11) > 100
+    assert "road surface (11) returns from an orthophoto without a near-infrared band" in r.output
+    r = run(main, ["classify", str(tmp_path / "c.las"), str(tmp_path / "nir.las"), "--image", str(tmp_path / "rgbn.tif"),
+                   "--nir", "4"])
+    assert r.exit_code == 0 and "without a near-infrared band" not in r.output, r.output
