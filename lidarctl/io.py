@@ -228,7 +228,7 @@ def _validate_xyz(path, x, y, z, first_index: int, units: LengthUnits = METRE) -
                         f"({MAX_ABS_XY_M:g} m; {MIN_Z_M:g} .. {MAX_Z_M:g} m)")
         raise InputError(
             f"{path}: point record {first_index + i}: absurd or non-finite coordinates "
-            f"({x[i]!r}, {y[i]!r}, {z[i]!r}); expected {expected}"
+            f"({float(x[i])!r}, {float(y[i])!r}, {float(z[i])!r}); expected {expected}"
         )
 
 

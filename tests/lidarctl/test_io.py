@@ -715,3 +715,13 @@ def test_classes_a_las_1_2_file_reserves_are_said(tmp_path):
         assert r.exit_code == 0, r.output
         assert ("18 (high noise) are ASPRS LAS 1.4 classes, which LAS 1.2" in r.output) == (version == "1.2"), r.output
         assert str(laspy.read(tmp_path / f"o{version}.las").header.version) == version
+
+
+def test_absurd_coordinates_are_named_as_numbers():
+    """Trial s96 F14: a corrupt LAZ's refusal printed "(np.float64(273527.612), ...)"; plain numbers now."""
+    from lidarctl.io import _validate_xyz
+
+    x, y, z = np.array([1.0, 273527.612]), np.array([2.0, 5470511.29275]), np.array([3.0, 124194.73375])
+    with pytest.raises(InputError, match=r"point record 8: absurd or non-finite coordinates \(273527\.612, "
+                                         r"5470511\.29275, 124194\.73375\)"):
+        _validate_xyz("f.laz", x, y, z, 7)
