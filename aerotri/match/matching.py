@@ -77,8 +77,11 @@ def verify(xa: np.ndarray, xb: np.ndarray, camera: BrownCamera, p: PairMatchSett
     na = np.column_stack(camera.pixel_to_normalized(xa[:, 0], xa[:, 1]))
     nb = np.column_stack(camera.pixel_to_normalized(xb[:, 0], xb[:, 1]))
     cv2.setRNGSeed(p.seed)
-    E, mask = cv2.findEssentialMat(na, nb, np.eye(3), method=cv2.RANSAC, prob=0.9999,
-                                   threshold=p.ransac_px / camera.focal_px, maxIters=5000)
+    try:
+        E, mask = cv2.findEssentialMat(na, nb, np.eye(3), method=cv2.RANSAC, prob=0.9999,
+                                       threshold=p.ransac_px / camera.focal_px, maxIters=5000)
+    except cv2.error:  # a degenerate sample (no parallax: one picture twice, trial s96 H1): no epipolar geometry
+        return np.zeros(len(xa), bool)
     if E is None or mask is None:
         return np.zeros(len(xa), bool)
     return mask.ravel().astype(bool)

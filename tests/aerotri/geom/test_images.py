@@ -183,9 +183,9 @@ def test_a_frame_cut_short_after_its_header_is_refused_before_any_work(tmp_path,
 
     a = _rgb(np.uint16, h=300, w=400, bands=1)[:, :, 0]
     paths = []
-    for name in ("s01_001.tif", "s01_002.tif"):
+    for k, name in enumerate(("s01_001.tif", "s01_002.tif")):
         paths.append(tmp_path / name)
-        _write(paths[-1], a, **kw)
+        _write(paths[-1], np.roll(a, 7 * k, axis=1), **kw)   # two pictures (one picture twice is refused too)
     camera = SimpleNamespace(width=400, height=300)
     images = ImageFiles(("s01_001", "s01_002"), tuple(paths))
     check_frames(images, camera)  # whole: accepted
@@ -194,4 +194,25 @@ def test_a_frame_cut_short_after_its_header_is_refused_before_any_work(tmp_path,
     with rasterio.open(paths[1]) as ds:  # the header still opens
         assert ds.width == 400
     with pytest.raises(InputError, match=r"s01_002.tif: truncated: .* but the file holds"):
+        check_frames(images, camera)
+
+
+def test_one_picture_under_two_frame_names_is_refused_naming_both(tmp_path):
+    """Trial s96 H1: a delivery mix-up (s02_004's picture copied over s02_003) crashed the match stage in OpenCV
+    (solvePoly, exit 1, no frame named). Refused before any work now, naming both files; two pictures pass."""
+    import shutil
+    from types import SimpleNamespace
+
+    from aerotri.geom.images import ImageFiles, check_frames, content_fingerprint
+
+    a = _rgb(np.uint8, h=300, w=400, bands=3)
+    paths = [tmp_path / f"s02_00{k}.tif" for k in (3, 4, 5)]
+    for k, p in enumerate(paths):
+        _write(p, np.roll(a, 5 * k, axis=1))
+    camera = SimpleNamespace(width=400, height=300)
+    images = ImageFiles(("s02_003", "s02_004", "s02_005"), tuple(paths))
+    check_frames(images, camera)
+    shutil.copy(paths[1], paths[2])
+    assert content_fingerprint(paths[1]) == content_fingerprint(paths[2]) != content_fingerprint(paths[0])
+    with pytest.raises(InputError, match=r"s02_005.tif: the same file content as .*s02_004.tif \(image 's02_005'\)"):
         check_frames(images, camera)

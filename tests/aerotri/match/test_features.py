@@ -107,3 +107,17 @@ def test_keypoints_sit_on_the_image_content(max_dim_px, level):
     assert near.sum() >= 100
     offset = np.median(fa.xy_px[near] - back[j[near]], axis=0) / 2  # half the difference: the offset of one
     assert np.abs(offset).max() < 0.03
+
+
+def test_matches_without_parallax_give_no_epipolar_geometry_and_no_crash():
+    """Trial s96 H1: one picture under two names gave matches at the same pixels, and OpenCV's essential matrix
+    asserted (solvePoly), a traceback with exit 1. No inliers now (the pair unverified)."""
+    from aerotri.geom.camera import BrownCamera
+    from aerotri.match.matching import verify
+    from aerotri.match.settings import PairMatchSettings
+
+    cam = BrownCamera(focal_mm=120.0, pixel_um=12.0, width=1728, height=960, name="DMC-like")
+    rng = np.random.default_rng(3)
+    xy = np.column_stack([rng.uniform(0, 1728, 400), rng.uniform(0, 960, 400)])
+    ok = verify(xy, xy.copy(), cam, PairMatchSettings())
+    assert ok.dtype == bool and len(ok) == 400
