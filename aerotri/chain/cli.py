@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import shlex
+import sys
+import time
 from pathlib import Path
 
 import click
@@ -13,6 +16,15 @@ from aerotri.core.commands import Command, scheduler_options
 from aerotri.core.settings import click_option
 
 log = logging.getLogger(__name__)
+
+
+def report_verdict(root: Path) -> str | None:
+    """The overall verdict of the project's reports/summary.json ("pass", "fail", ...), None without one."""
+    path = Path(root) / "reports" / "summary.json"
+    try:
+        return json.loads(path.read_text()).get("overall") if path.is_file() else None
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 @click.command(cls=Command, name="run", per_stage=True)
@@ -28,8 +40,11 @@ log = logging.getLogger(__name__)
 @click_option(ChainSettings, "classify.keep_classes", "--keep-lidar-classes", show_default=False,
               help="Keep the classes the LiDAR was delivered with (checked for plausible ground and buildings) "
                    "instead of classifying it (project.toml [classify] keep_classes).")
+@click.option("--strict", is_flag=True, help="Exit 3 when the QA verdict of the report is fail (a cron job or CI sees "
+                                             "it; without it the chain exits 0 whatever the verdict, the last line "
+                                             "and reports/summary.json say it).")
 @scheduler_options
-def run(project, reference, points, force, scheduler, workers, **_settings_given):
+def run(project, reference, points, force, strict, scheduler, workers, **_settings_given):
     """The whole chain over PROJECT, resumable: a re-run skips stages whose inputs did not change.
 
     Stage settings come from project.toml, one section per stage ([strips], [classify], [rasters], [corners],
@@ -49,6 +64,12 @@ def run(project, reference, points, force, scheduler, workers, **_settings_given
     click.echo(format_summary(rows))
     if closing_words(rows):
         log.warning(closing_words(rows))
+    # one last line a night's log ends with (trial s96 M4: the verdict only inside the report stage's row)
+    verdict = report_verdict(p.root)
+    click.echo(f"{p.root}: the chain ended {time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime())} UTC; QA verdict "
+               f"{verdict or 'none (no report)'}" + (f" ({p.root / 'reports' / 'index.html'})" if verdict else ""))
+    if strict and verdict == "fail":
+        sys.exit(3)
 
 
 @click.command(cls=Command, per_stage=True)

@@ -5,7 +5,7 @@
   notes go to the debug log, not the console), and one handler maps the error hierarchy
   (``aerotri.core.errors``) to a one-line message on stderr and exit code 2: no traceback. A command that
   runs out of memory, out of disk space, into a read-only folder, or whose input vanishes while it runs
-  says so in one line with the same exit code (:func:`fault_message`); Ctrl-C exits 130.
+  says so in one line with the same exit code (:func:`fault_message`); Ctrl-C exits 130, SIGTERM 143.
 - What a command writes (:meth:`Command.writing`): a command with a ``project`` argument holds the
   project's lock (``aerotri.core.lock``: a second command stops, or waits with ``--wait SECONDS``), rolls
   back what a killed command left there (unfinished commits) and sweeps its temporaries, then commits
@@ -57,8 +57,23 @@ def _logging_params() -> list[click.Option]:
     ]
 
 
+def _to_log_file(level: int, message: str) -> None:
+    """A record for the --log-file alone (the console has the line from click): an error's or an interruption's
+    ERROR line, which the log lacked (a monitor grepping for ERROR found a failed night run's log clean: only a DEBUG
+    "error details" traceback; trial s96 M4)."""
+    for name in ("aerotri", "ortho", "lidarctl"):
+        lg = logging.getLogger(name)
+        record = lg.makeRecord(lg.name, level, __file__, 0, message, None, None)
+        for h in lg.handlers:
+            if isinstance(h, logging.FileHandler):
+                h.handle(record)
+        if any(isinstance(h, logging.FileHandler) for h in lg.handlers):
+            return
+
+
 def report_error(exc: AerotriError) -> None:
     click.echo(exc.user_message(), err=True)
+    _to_log_file(logging.ERROR, exc.user_message())
     _logger.debug("error details", exc_info=exc)
 
 
@@ -294,12 +309,17 @@ class Command(click.Command):
             report_error(exc)
             sys.exit(2)
         except MemoryError:
-            click.echo(f"Error: {ctx.command_path}: out of memory; use a coarser resolution, smaller tiles or "
-                       "fewer workers", err=True)
+            message = (f"Error: {ctx.command_path}: out of memory; use a coarser resolution, smaller tiles or "
+                       "fewer workers")
+            click.echo(message, err=True)
+            _to_log_file(logging.ERROR, message)
             sys.exit(2)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
             click.echo("Interrupted.", err=True)
-            sys.exit(130)
+            # SIGTERM exits 128 + 15 as a shell reports a terminated process, Ctrl-C 130 (trial s96 M4: 130 for both)
+            term = "SIGTERM" in exc.args
+            _to_log_file(logging.ERROR, f"{ctx.command_path}: interrupted ({'SIGTERM' if term else 'Ctrl-C'})")
+            sys.exit(143 if term else 130)
         except Exception as exc:
             writes_to = getattr(self, "_writes_to", [])
             message = fault_message(exc, getattr(exc, "aerotri_doing", None) or ctx.command_path,
@@ -307,6 +327,7 @@ class Command(click.Command):
             if message is None:
                 raise
             click.echo(f"Error: {message}", err=True)
+            _to_log_file(logging.ERROR, f"Error: {message}")
             _logger.debug("error details", exc_info=exc)
             sys.exit(2)
 

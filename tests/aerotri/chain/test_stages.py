@@ -159,6 +159,20 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, run_to_end):
     r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
     assert r.exit_code == 0 and " done " not in r.stdout
+    # the last line says the verdict (trial s96 M4), and --strict exits 3 on a failed one (M2: exit 0 beside a
+    # verdict of fail, 10.9 m check RMS, that cron could not see)
+    last = table.strip().splitlines()[-1]
+    assert last.startswith(f"{p}: the chain ended ") and f"QA verdict {summary['overall']} (" in last, last
+    import aerotri.chain.cli as chain_cli
+
+    for verdict, code in (("fail", 3), ("pass", 0)):
+        chain_cli.report_verdict, kept = (lambda root, v=verdict: v), chain_cli.report_verdict
+        try:
+            r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
+                                                 "--points", str(p / "truth" / "checkpoints.csv"), "--strict"])
+        finally:
+            chain_cli.report_verdict = kept
+        assert r.exit_code == code and f"QA verdict {verdict}" in r.stdout, (verdict, r.output)
 
 
 def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end, tmp_path):

@@ -35,7 +35,7 @@ def test_sigterm_leaves_no_partial_output(tmp_path):
     p.send_signal(signal.SIGTERM)
     t0 = time.time()
     _, err = p.communicate(timeout=30)
-    assert time.time() - t0 < 30 and p.returncode == 130 and "Interrupted." in err and "Traceback" not in err
+    assert time.time() - t0 < 30 and p.returncode == 143 and "Interrupted." in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []  # neither the output nor its temporary
 
 
@@ -85,3 +85,19 @@ def test_a_file_it_could_not_open_is_named_not_the_output_being_written():
     exc = RasterioIOError("_tiffWriteProc: File too large.")
     annotate_output(exc, "/p/ortho/mosaic.tif")
     assert fault_message(exc, "ortho mosaic").startswith("/p/ortho/mosaic.tif: ")
+
+
+def test_an_error_is_an_error_line_of_the_log_file(tmp_path):
+    """Trial s96 M4: a failed night run's --log-file held no ERROR line (the cause only in a DEBUG traceback), so a
+    monitor grepping for ERROR read it as clean. The console's error is the log's ERROR record too."""
+    from click.testing import CliRunner
+
+    from aerotri.cli import main
+
+    log_file = tmp_path / "night.log"
+    (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "project.toml").write_text('[project]\nname = "p"\ncrs = "EPSG:32649"\n')
+    r = CliRunner().invoke(main, ["report", str(tmp_path / "p"), "--log-file", str(log_file)])
+    assert r.exit_code == 2, r.output
+    errors = [ln for ln in log_file.read_text().splitlines() if " ERROR " in ln]
+    assert len(errors) == 1 and "nothing to report yet" in errors[0], log_file.read_text()
