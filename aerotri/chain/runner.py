@@ -312,6 +312,11 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     # stage that stopped (trial-overnight: a run that failed at rectify left the last run's "rectify done")
     summary_path.unlink(missing_ok=True)
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    if any(st.name == "report" for st in stages):
+        # the report of the run before says, until this run's report stage, that a run is under way: one killed
+        # (SIGKILL: the out-of-memory killer) left last night's "pass" unmarked (trial s96 M1)
+        _mark_report(root, f"a run started at {started} and has not ended (still running, or killed: SIGKILL, out "
+                           "of memory, a power cut)", lambda m: _log.debug(m), running=True)
     try:
         _run_each(root, stages, rows, force, log)
     except BaseException as exc:
@@ -352,13 +357,14 @@ def _mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[
         _log.warning(f"[report] the earlier run's report is not marked stale: {e}")
 
 
-def _mark_report(root: Path, note: str, log: Callable[[str], None]) -> None:
+def _mark_report(root: Path, note: str, log: Callable[[str], None], running: bool = False) -> None:
     """(``run_stages``, a run that stopped before its report stage made a report) mark the earlier run's report stale
-    (``aerotri.qa.report.mark_report_stale``), so that its QA reader is not shown the last good run as this one."""
+    (``aerotri.qa.report.mark_report_stale``), so that its QA reader is not shown the last good run as this one;
+    ``running``: the mark of a run under way."""
     from aerotri.qa.report import mark_report_stale
 
     try:
-        marked, failed = mark_report_stale(root, note)
+        marked, failed = mark_report_stale(root, note, running=running)
     except Exception as exc:  # (a project unreadable now: the console and the exit code say what stopped the run)
         marked, failed = [], [f"{root}: {exc}"]
     if marked:
@@ -370,6 +376,10 @@ def _mark_report(root: Path, note: str, log: Callable[[str], None]) -> None:
 def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, log: Callable[[str], None]) -> None:
     """(``run_stages``) each stage in turn, its summary row appended to ``rows``."""
     for st in stages:
+        if st.name == "report":  # the report as its stage wrote it before it is judged up to date (run_stages' mark)
+            from aerotri.qa.report import clear_running_mark
+
+            clear_running_mark(root)
         reason = st.skip(root) if st.skip is not None else None
         if reason:
             rows.append(dict(stage=st.name, status="skipped", seconds=0.0, why=reason))

@@ -19,6 +19,7 @@ import functools
 import io
 import logging
 import textwrap
+import time
 import json
 import math
 from dataclasses import dataclass
@@ -1494,6 +1495,7 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
                   standard_fails=standard_fails_note(rep.get("compliance")),
                   compliance_verdict=verdict_class(compliance_verdict(rep.get("compliance"))),
                   passed=rep["passed"], failed=rep["failed"], not_judged=len(rep.get("not_judged") or ()),
+                  generated=f"{rep.get('generated_utc') or ''} (aerotri {rep.get('aerotri_version') or '?'})",
                   verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
                   stage_images=list(stage_images), figures=list(figures or []),
@@ -1731,6 +1733,12 @@ def write_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                           horizontal_class_cm=horizontal_class_cm, vertical_class_cm=vertical_class_cm,
                           accuracy_class=accuracy_class)
     summary = to_record(rep, exclude=("html",))
+    # when and by what it was made (trial s96 M1: the morning's reader could not tell a report of last night from
+    # one of last week; neither file said)
+    import aerotri
+
+    summary["generated_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    summary["aerotri_version"] = aerotri.__version__
     write_text_atomic(project.report_summary_path, json.dumps(summary, indent=1) + "\n")
     figures = report_figures(rep, project)
     # a DOM check of an earlier mosaic: neither its plot nor its page (the row says the DOM was not checked)
@@ -1783,30 +1791,66 @@ def console_summary(report: QaReport) -> str:
 
 
 _STOPPED_BEGIN, _STOPPED_END = "<!-- aerotri:run-stopped -->", "<!-- /aerotri:run-stopped -->"
+# a run under way (``mark_report_stale(..., running=True)``): what a run killed by SIGKILL leaves (trial s96 M1)
+_RUNNING_BEGIN, _RUNNING_END = "<!-- aerotri:run-running -->", "<!-- /aerotri:run-running -->"
 
 
-def mark_report_stale(root, note: str) -> tuple[list[Path], list[str]]:
+def _without_banners(text: str) -> str:
+    import re as _re
+
+    for a, b in ((_STOPPED_BEGIN, _STOPPED_END), (_RUNNING_BEGIN, _RUNNING_END)):
+        text = _re.sub(_re.escape(a) + ".*?" + _re.escape(b), "", text, flags=_re.S)
+    return text
+
+
+def clear_running_mark(root) -> None:
+    """Take a run's own "running" mark (``mark_report_stale(..., running=True)``) out of the report again, before its
+    report stage decides whether it is up to date: index.html as the report stage wrote it (its stamp's hash), and
+    summary.json's verdict back. Nothing else is touched."""
+    project = Project.open(root)
+    index, summary_path = project.report_index_path, project.report_summary_path
+    if index.is_file():
+        text = index.read_text()
+        if _RUNNING_BEGIN in text:
+            import re as _re
+
+            write_text_atomic(index, _re.sub(_re.escape(_RUNNING_BEGIN) + ".*?" + _re.escape(_RUNNING_END), "",
+                                             text, flags=_re.S))
+    if summary_path.is_file():
+        try:
+            summary = json.loads(summary_path.read_text())
+        except ValueError:
+            return
+        if isinstance(summary, dict) and summary.get("running"):
+            summary.pop("running")
+            summary.pop("stale", None)
+            summary["overall"] = summary.pop("overall_of_that_run", summary.get("overall"))
+            write_text_atomic(summary_path, json.dumps(summary, indent=1) + "\n")
+
+
+def mark_report_stale(root, note: str, running: bool = False) -> tuple[list[Path], list[str]]:
     """Say in the report of an earlier run that a later ``aerotri run`` stopped before making its own (``note``:
     when it started, the stage that stopped and why): a banner at the top of reports/index.html (an earlier banner
     replaced) and ``"stale": note`` in reports/summary.json, each written atomically; reports/report.pdf is left (the
     banner names it). Trial-overnight: after a failed night run the QA reader found the last good run's report and
     nothing saying so. The banner changes index.html, so the next run's report stage runs again (its output changed
     since it wrote it) and a finished run's report has none. Returns the files marked and, for each that could not
-    be (a disk still full), ``"<file>: <why>"``."""
+    be (a disk still full), ``"<file>: <why>"``. ``running``: the mark a run sets when it starts (``note``: "a run
+    started at ... has not ended"), taken out again before its report stage (``clear_running_mark``): a run killed
+    (SIGKILL, out of memory) leaves it."""
     import html as _html
-    import re as _re
 
     project = Project.open(root)
     marked, failed = [], []
     index = project.report_index_path
+    begin, end = (_RUNNING_BEGIN, _RUNNING_END) if running else (_STOPPED_BEGIN, _STOPPED_END)
     if index.is_file():
         try:
-            text = _re.sub(_re.escape(_STOPPED_BEGIN) + ".*?" + _re.escape(_STOPPED_END), "", index.read_text(),
-                           flags=_re.S)
+            text = _without_banners(index.read_text())
             pdf = " and reports/report.pdf are" if project.report_pdf_path.is_file() else " is"
-            banner = (f'{_STOPPED_BEGIN}<p style="background:#fdd;border:2px solid #a00;padding:6px;font-weight:bold">'
+            banner = (f'{begin}<p style="background:#fdd;border:2px solid #a00;padding:6px;font-weight:bold">'
                       f"Stale: {_html.escape(note)}. This report{pdf} of the run before it; the next run that "
-                      f"reaches its report stage writes them again.</p>{_STOPPED_END}")
+                      f"reaches its report stage writes them again.</p>{end}")
             at = text.find("<body>")
             text = text[:at + 6] + banner + text[at + 6:] if at >= 0 else banner + text
             write_text_atomic(index, text)
@@ -1822,6 +1866,15 @@ def mark_report_stale(root, note: str) -> tuple[list[Path], list[str]]:
             summary = json.loads(summary_path.read_text())
             if isinstance(summary, dict):
                 summary["stale"] = note
+                # a script reading "overall" alone read "pass" beside "stale" (trial s96 M1): the verdict of that run
+                # is kept under its own key
+                if summary.get("overall") != "stale":
+                    summary["overall_of_that_run"] = summary.get("overall")
+                summary["overall"] = "stale"
+                if running:
+                    summary["running"] = True
+                else:
+                    summary.pop("running", None)
                 write_text_atomic(summary_path, json.dumps(summary, indent=1) + "\n")
                 marked.append(summary_path)
         except (OSError, ValueError) as e:
