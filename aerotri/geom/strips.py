@@ -103,6 +103,8 @@ def _regular(b, neighbours, block_base, tol_m: float) -> bool:
 # the scatter of a prediction from the neighbours' own (white) scatter: the frames either side (1 + 1/4 + 1/4),
 # the next or previous two extrapolated (1 + 4 + 1); two bases of the track differ by the latter as well
 MID_FACTOR, END_FACTOR = float(np.sqrt(1.5)), float(np.sqrt(6.0))
+# across one missing exposure (a frame taken out of the block): the next two extrapolated two bases, 3 q1 - 2 q2
+GAP_FACTOR = float(np.sqrt(1.0 + 9.0 + 4.0))
 
 
 def _predictions(q: np.ndarray, block_base, regular_m: np.ndarray) -> list:
@@ -127,13 +129,27 @@ def _predictions(q: np.ndarray, block_base, regular_m: np.ndarray) -> list:
         if j + 2 < m and _regular(b[j + 1], (base(j + 2),), block_base, reg):
             t = q[j + 1] - b[j + 1]
             if np.linalg.norm(q[j] - t) <= TRACK_STEP_BASES * np.linalg.norm(b[j + 1]):
-                tests.append((t, END_FACTOR))
+                tests.append(_across_a_gap(q[j], t, -b[j + 1], q[j - 1] if j > 0 else None))
         if j >= 2 and _regular(b[j - 2], (base(j - 3),), block_base, reg):
             t = q[j - 1] + b[j - 2]
             if np.linalg.norm(q[j] - t) <= TRACK_STEP_BASES * np.linalg.norm(b[j - 2]):
-                tests.append((t, END_FACTOR))
+                tests.append(_across_a_gap(q[j], t, b[j - 2], q[j + 1] if j + 1 < m else None))
         out.append(tests)
     return out
+
+
+def _across_a_gap(q, t, step, other) -> tuple:
+    """(prediction, scatter factor) of an extrapolation ``t`` of a frame at ``q`` from the next or previous two:
+    ``t + step`` (one base further on, ``step`` the base pointing from them towards the frame) when the frame lies
+    within half a base of it, nearer than to ``t``, and its neighbour on the other side (``other``, None at a strip's
+    end) is not within half a base of it: an exposure taken out between them, not a blunder (trial s96 M3: the frame
+    before a removed one read 121 m off its line and lost its sound position). A record of that neighbour's position
+    stays a blunder."""
+    gap, half = t + step, 0.5 * np.linalg.norm(step)
+    if np.linalg.norm(q - gap) < min(np.linalg.norm(q - t), half) and (
+            other is None or np.linalg.norm(q - other) > half):
+        return gap, GAP_FACTOR
+    return t, END_FACTOR
 
 
 def track_blunders(position_m, sigma_m=None, *, base_share: float = TRACK_BASE_SHARE,

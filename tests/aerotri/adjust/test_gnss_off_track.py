@@ -164,3 +164,24 @@ def test_a_slip_a_strip_s_drift_spreads_is_found_by_its_residual(tmp_path):
     assert "its rays put the frame" in ba.gnss_left_out[0].reason
     rms = lambda e: np.sqrt(np.mean(e * e, axis=0))  # noqa: E731
     np.testing.assert_allclose(rms(_check_errors(ba)), rms(_check_errors(clean)), atol=0.02)
+
+
+def test_a_frame_taken_out_of_a_strip_leaves_its_neighbours_sound():
+    """Trial s96 M3: after the frame the chain refused was taken out of images/ and gnss.txt (as its message says),
+    its neighbour at the strip's start read 121.4 m off its line (the next two extrapolated across the gap) and lost
+    its sound position. Every frame of every strip taken out in turn: no blunder. A record of the previous frame's
+    position (where a gap's prediction would put it) is still found; beside a gap at a strip's start only the
+    extrapolation across it judges the frame (3 q1 - 2 q2: a tolerance of 92 m at a 300 m base, against 30 m), so a
+    120 m slip there is found and an 80 m one is not."""
+    p = _track(frames=8)
+    for k in range(len(p)):
+        q = np.delete(p, k, axis=0)
+        assert len(track_blunders(q, np.full((len(q), 3), 0.05))) == 0, k
+    dup = p.copy()
+    dup[3] = dup[2]               # s01_004 given s01_003's record: one base back, where a gap would put it
+    assert track_blunders(dup, np.full((len(p), 3), 0.05)).index.tolist() == [3]
+    q = np.delete(p, 2, axis=0)   # s01_003 taken out: s01_002 (index 1) starts the strip's gap
+    for lateral, found in ((120.0, [1]), (80.0, [])):
+        slip = q.copy()
+        slip[1] += (0.0, lateral, 0.0)   # a wrong fix beside the gap
+        assert track_blunders(slip, np.full((len(q), 3), 0.05)).index.tolist() == found, lateral
