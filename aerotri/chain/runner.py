@@ -312,19 +312,22 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     # stage that stopped (trial-overnight: a run that failed at rectify left the last run's "rectify done")
     summary_path.unlink(missing_ok=True)
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    clock = {}  # when the stage under way began (perf_counter): a stopped stage's row gets its seconds
     if any(st.name == "report" for st in stages):
         # the report of the run before says, until this run's report stage, that a run is under way: one killed
         # (SIGKILL: the out-of-memory killer) left last night's "pass" unmarked (trial s96 M1)
         _mark_report(root, f"a run started at {started} and has not ended (still running, or killed: SIGKILL, out "
                            "of memory, a power cut)", lambda m: _log.debug(m), running=True)
     try:
-        _run_each(root, stages, rows, force, log)
+        _run_each(root, stages, rows, force, log, clock)
     except BaseException as exc:
         stopped = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
         done_names = {r["stage"] for r in rows}
         stage = next((st.name for st in stages if st.name not in done_names), None)
         if stage is not None:
-            rows.append(dict(stage=stage, status=stopped, seconds=0.0, why=str(exc) or type(exc).__name__))
+            # (trial s96 L2: 0.0 s for a stage stopped after 11 s)
+            seconds = round(time.perf_counter() - clock["t0"], 1) if "t0" in clock else 0.0
+            rows.append(dict(stage=stage, status=stopped, seconds=seconds, why=str(exc) or type(exc).__name__))
         try:
             write_text_atomic(summary_path, json.dumps(dict(stages=rows, stopped=stopped, load_avg_start=load_start,
                                                             load_avg_end=_load_avg()), indent=1, default=str) + "\n")
@@ -373,9 +376,13 @@ def _mark_report(root: Path, note: str, log: Callable[[str], None], running: boo
         _log.warning(f"[report] the earlier run's report is not marked stale: {f}")
 
 
-def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, log: Callable[[str], None]) -> None:
-    """(``run_stages``) each stage in turn, its summary row appended to ``rows``."""
+def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, log: Callable[[str], None],
+              clock: dict | None = None) -> None:
+    """(``run_stages``) each stage in turn, its summary row appended to ``rows``; ``clock["t0"]``: when the stage
+    under way began."""
+    clock = {} if clock is None else clock
     for st in stages:
+        clock["t0"] = time.perf_counter()
         if st.name == "report":  # the report as its stage wrote it before it is judged up to date (run_stages' mark)
             from aerotri.qa.report import clear_running_mark
 
@@ -389,7 +396,10 @@ def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, lo
         if why is None:
             stamp = json.loads(stamp_path(root, st.name).read_text())
             _refresh_stamp(root, st, stamp)
-            rows.append(dict(stage=st.name, status="skipped (up to date)", seconds=0.0, **stamp.get("result", {})))
+            # the seconds of the run that made it kept beside (trial s96 L3: a night with nothing to do wrote 0.0 s
+            # for every stage over the timings of the run that did the work)
+            rows.append(dict(stage=st.name, status="skipped (up to date)", seconds=0.0, **stamp.get("result", {}),
+                             **({"seconds_when_run": stamp["seconds"]} if "seconds" in stamp else {})))
             log(f"[{st.name}] up to date, skipped")
             continue
         log(f"[{st.name}] running ({why})")

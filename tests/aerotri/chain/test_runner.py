@@ -6,6 +6,7 @@ import dataclasses
 import json
 import logging
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -744,6 +745,15 @@ def test_a_run_that_stops_leaves_no_earlier_run_summary(tmp_path):
     summary = json.loads(summary_path.read_text())
     assert summary["stopped"] == "interrupted" and summary["stages"] == [
         dict(stage="i", status="interrupted", seconds=0.0, why="KeyboardInterrupt")]
+
+    def after_a_while(r):  # (trial s96 L2: a stage stopped after 11 s read 0.0 s)
+        time.sleep(0.3)
+        raise KeyboardInterrupt("SIGTERM")
+
+    with pytest.raises(KeyboardInterrupt):
+        run_stages(tmp_path, [Stage("w", lambda r: [], lambda r: [r / "w.txt"], after_a_while)], log=lambda m: None)
+    (row,) = json.loads(summary_path.read_text())["stages"]
+    assert row["status"] == "interrupted" and row["why"] == "SIGTERM" and 0.3 <= row["seconds"] < 5.0
 
 
 def test_under_a_memory_limit_each_stage_gives_its_freed_memory_back(tmp_path, monkeypatch):

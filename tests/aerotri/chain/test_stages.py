@@ -161,6 +161,10 @@ def test_run_goes_to_the_end_and_equals_the_chain_by_hand(by_hand, run_to_end):
     r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
     assert r.exit_code == 0 and " done " not in r.stdout
+    # a run with nothing to do keeps the seconds of the run that did the work (trial s96 L3: it wrote 0.0 over them)
+    rows = json.loads((p / "work" / "run_summary.json").read_text())["stages"]
+    ran = [x for x in rows if x["status"] == "skipped (up to date)"]
+    assert ran and all(x["seconds_when_run"] >= 0 for x in ran) and max(x["seconds_when_run"] for x in ran) > 0
     # the last line says the verdict (trial s96 M4), and --strict exits 3 on a failed one (M2: exit 0 beside a
     # verdict of fail, 10.9 m check RMS, that cron could not see)
     last = table.strip().splitlines()[-1]
