@@ -1042,8 +1042,6 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int |
     inputs = _inputs(paths, crs)
     for f in FILES:
         refuse_input_as_output(outdir / f, list(inputs.paths), "OUTDIR")
-    from lidarctl.rasters.trees import refuse_the_other_chm
-
     refuse_the_other_chm(outdir, "rasters")
     units = inputs.units
     res_m = cell_of_units(res_m, units)
@@ -1516,3 +1514,20 @@ def _hillshade_png(src, png_path: Path, res_m: float) -> None:
         return hillshade_grey_of_dem(dem, res_m)[r0 - b0: r1 - b0]
 
     _write_png_grey_as_rgba(png_path, read_rows, nrows, ncols)
+
+
+def refuse_the_other_chm(outdir: Path, writer: str) -> None:
+    """``OptionError`` when ``outdir`` holds the chm.tif of the other command (``writer``: "trees" or "rasters"):
+    both write chm.tif, of different models (trees: a pit-free TIN at 0.5 m; rasters: the highest vegetation per
+    cell at its --res-m), and one replaced the other without a word, leaving grids that do not line up (trial s96
+    F2)."""
+    chm = Path(outdir) / "chm.tif"
+    if not chm.is_file():
+        return
+    theirs = [f for f in (("dem.tif", "dsm.tif", "ndsm.tif") if writer == "trees" else ("trees.json", "trees.gpkg"))
+              if (Path(outdir) / f).is_file()]
+    if theirs:
+        other = "rasters" if writer == "trees" else "trees"
+        raise OptionError(f"{outdir}: holds the chm.tif of lidarctl {other} (beside {', '.join(theirs)}); lidarctl "
+                          f"{writer} writes a chm.tif of another model, which would replace it: give {writer} a "
+                          "folder of its own", param="OUTDIR")

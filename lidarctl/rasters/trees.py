@@ -511,23 +511,6 @@ def preview_png(model: TreeModel, path, title: str, *, units: LengthUnits | None
     save_png(fig, path, dpi=110)
 
 
-def refuse_the_other_chm(outdir: Path, writer: str) -> None:
-    """``OptionError`` when ``outdir`` holds the chm.tif of the other command (``writer``: "trees" or "rasters"):
-    both write chm.tif, of different models (trees: a pit-free TIN at 0.5 m; rasters: the highest vegetation per
-    cell at its --res-m), and one replaced the other without a word, leaving grids that do not line up (trial s96
-    F2)."""
-    chm = Path(outdir) / "chm.tif"
-    if not chm.is_file():
-        return
-    theirs = [f for f in (("dem.tif", "dsm.tif", "ndsm.tif") if writer == "trees" else ("trees.json", "trees.gpkg"))
-              if (Path(outdir) / f).is_file()]
-    if theirs:
-        other = "rasters" if writer == "trees" else "trees"
-        raise OptionError(f"{outdir}: holds the chm.tif of lidarctl {other} (beside {', '.join(theirs)}); lidarctl "
-                          f"{writer} writes a chm.tif of another model, which would replace it: give {writer} a "
-                          "folder of its own", param="OUTDIR")
-
-
 def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs=None) -> TreesResult:
     """``tree_model`` of classified LAS/LAZ file(s) (one CRS) written into ``outdir``: chm.tif (COG, heights in
     the CRS's vertical unit), trees.gpkg (layers stands, tree_tops), trees.png, trees.json. All files appear
@@ -549,7 +532,7 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
         refuse_input_as_output(outdir / f, paths, "OUTDIR")
     if outdir.exists() and not outdir.is_dir():
         raise OptionError(f"{outdir}: OUTDIR is a file, expected a folder", param="OUTDIR")
-    refuse_the_other_chm(outdir, "trees")
+    rs.refuse_the_other_chm(outdir, "trees")
     names = ", ".join(map(str, paths))
     (x, y, z, cls, rn), crs_found, units = _read_clouds(paths, crs)
     model = tree_model(x, y, z, cls, rn, s, names)
