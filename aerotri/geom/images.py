@@ -25,6 +25,7 @@ coordinates refer to the grid as stored, the grid whose size ``check_frames`` ch
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import warnings
 from pathlib import Path
@@ -34,6 +35,8 @@ import numpy as np
 
 from aerotri.geom.camera import BrownCamera
 from aerotri.core.errors import InputError
+
+_log = logging.getLogger(__name__)
 
 # OpenCV's libtiff does not know the GeoTIFF tags (33550, 33922, 34735-34737, 42112, 42113) and warns on
 # stderr for each one at every read of a georeferenced frame, outside the toolkit's logging and -q: a
@@ -185,6 +188,10 @@ def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.
         path = Path(path)
         if not path.is_file():
             raise InputError(f"{path}: not a file (image {image_id!r}); expected a TIFF/JPEG/PNG frame")
+        if path.stat().st_size == 0:  # (trial s96 L7: "not recognized as being in a supported file format")
+            raise InputError(f"{path}: an empty file (0 bytes; image {image_id!r}): a copy that never started? "
+                             f"Replace it, or take it out of {path.parent.name}/ (and its line out of gnss.txt)")
+        _say_if_not_its_format(path)
         try:
             with _open_raster(path) as ds:
                 size, layout = (ds.width, ds.height), (ds.count, ds.dtypes[0])
@@ -208,6 +215,26 @@ def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.
             raise InputError(f"{path}: {_layout_text(*layout)}, but {first[0].name} has {_layout_text(*first[1:])}: "
                              "the frames of a block must have the same bands and bit depth (convert this frame, "
                              f"or take it out of {path.parent.name}/ and its line out of gnss.txt)")
+
+
+_MAGIC = {".tif": (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"), ".tiff": (b"II*\x00", b"MM\x00*", b"II+\x00",
+                                                                          b"MM\x00+"),
+          ".jpg": (b"\xff\xd8\xff",), ".jpeg": (b"\xff\xd8\xff",), ".png": (b"\x89PNG",)}
+
+
+def _say_if_not_its_format(path: Path) -> None:
+    """Warn when a frame's bytes are not of the format its name says (a JPEG renamed .tif: read all the same, but a
+    lossy copy where a TIFF was delivered; trial s96 L6)."""
+    magic = _MAGIC.get(path.suffix.lower())
+    if magic is None:
+        return
+    with path.open("rb") as f:
+        head = f.read(8)
+    if not head.startswith(magic):
+        kind = next((k for k, m in _MAGIC.items() if head.startswith(m)), None)
+        _log.warning(f"{path}: named {path.suffix} but its bytes are "
+                     + (f"a {kind.lstrip('.').upper()} file" if kind else "of another format")
+                     + ": read as what it is; was it converted (a lossy re-encode) or renamed?")
 
 
 def content_fingerprint(path, block: int = 1 << 16) -> tuple:

@@ -216,3 +216,28 @@ def test_one_picture_under_two_frame_names_is_refused_naming_both(tmp_path):
     assert content_fingerprint(paths[1]) == content_fingerprint(paths[2]) != content_fingerprint(paths[0])
     with pytest.raises(InputError, match=r"s02_005.tif: the same file content as .*s02_004.tif \(image 's02_005'\)"):
         check_frames(images, camera)
+
+
+def test_an_empty_frame_and_a_jpeg_named_tif_are_said_as_what_they_are(tmp_path, caplog):
+    """Trial s96 L6 / L7: a zero-byte frame read "not recognized as being in a supported file format"; a JPEG renamed
+    .tif ran to the end without a word (a lossy copy where a TIFF was delivered)."""
+    import logging
+    from types import SimpleNamespace
+
+    import cv2
+
+    from aerotri.geom.images import ImageFiles, check_frames
+
+    a = _rgb(np.uint8, h=300, w=400, bands=3)
+    ok, jpg = tmp_path / "s01_001.tif", tmp_path / "s01_002.tif"
+    _write(ok, a)
+    cv2.imwrite(str(tmp_path / "x.jpg"), np.roll(a, 9, axis=1))
+    (tmp_path / "x.jpg").rename(jpg)
+    camera = SimpleNamespace(width=400, height=300)
+    with caplog.at_level(logging.WARNING):
+        check_frames(ImageFiles(("s01_001", "s01_002"), (ok, jpg)), camera)
+    assert "s01_002.tif: named .tif but its bytes are a JPG file" in caplog.text and "s01_001" not in caplog.text
+    empty = tmp_path / "s01_003.tif"
+    empty.write_bytes(b"")
+    with pytest.raises(InputError, match=r"s01_003.tif: an empty file \(0 bytes; image 's01_003'\)"):
+        check_frames(ImageFiles(("s01_001", "s01_003"), (ok, empty)), camera)
