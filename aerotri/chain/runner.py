@@ -206,6 +206,9 @@ def stale_reason(root: Path, st: Stage) -> str | None:
     too; a stamp without versions, written before they were recorded, runs again if the stage declares versions)."""
     sp = stamp_path(root, st.name)
     if not sp.exists():
+        # (trial s96 L1: "not run before", then "resumed 4 of 4 tiles an interrupted run finished")
+        if (Path(root) / "work" / f"{st.name}_resume").is_dir():
+            return "not finished before: an interrupted run's finished parts are taken over"
         return "not run before"
     try:
         stamp = json.loads(sp.read_text())

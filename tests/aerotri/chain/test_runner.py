@@ -786,3 +786,15 @@ def test_memory_limited_only_below_the_machine_s_memory(monkeypatch):
     assert limits.memory_limited() == (machine > 2**30)
     monkeypatch.setattr(limits, "_own_memory_limit", lambda: 2**62)   # a cgroup's "no limit" figure
     assert not limits.memory_limited()
+
+
+def test_a_stage_an_interrupted_run_began_says_it_takes_its_work_over(tmp_path):
+    """Trial s96 L1: after an interrupted rasters stage the log read "[rasters] running (not run before)", then
+    "resumed 4 of 4 tiles": with the stage's resume folder in work/ it says that it takes the finished parts over."""
+    from aerotri.chain.runner import stale_reason
+
+    (tmp_path / "in.txt").write_text("3")
+    st = _stages([])[0]
+    assert stale_reason(tmp_path, st) == "not run before"
+    (tmp_path / "work" / f"{st.name}_resume").mkdir(parents=True)
+    assert stale_reason(tmp_path, st) == "not finished before: an interrupted run's finished parts are taken over"
