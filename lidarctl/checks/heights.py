@@ -835,6 +835,7 @@ def format_report(check: HeightCheck) -> str:
             line += f" {'-' if p['z_dem'] is None else format(p['z_dem'], '.3f'):>12}"
             line += f" {'-' if p['dz_dem_m'] is None else format(p['dz_dem_m'], '+.3f'):>12}"
         lines.append(line)
+    tables = len(lines)  # the warnings below go before the tables (trial s96 F14: read after 40 lines of them)
     if dem is not None and dem["n_points"] and dem["n_without_dem"] > dem["n_points"] / 2:
         # first: points of another grid land km away, and the few left on the DEM read as a height datum's offset
         # (trial s96 F7: CGCS2000 GK CM 111E points on a UTM 49N DEM, 24 of 30 off it, "two height systems")
@@ -857,6 +858,9 @@ def format_report(check: HeightCheck) -> str:
                   f"heights were {slip['other_unit']}: the header's '{slip['column']}' names no unit, so they were "
                   f"taken in the CRS's ({slip['assumed_unit']}); if they are {slip['other_unit']}, name the column "
                   f"{slip['header']}"]
+    warns = [ln for ln in lines[tables:] if ln.startswith("warning: ")]
+    if warns:
+        lines = warns + [""] + lines[:tables]
     return "\n".join(lines)
 
 

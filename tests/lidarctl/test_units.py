@@ -410,9 +410,12 @@ def test_check_heights_says_when_plain_heights_fit_in_the_other_unit(scenes, tmp
     assert hc["overall"]["all"]["mean_abs_dz_m"] > 5  # the numbers stand: the CRS's unit is assumed, never guessed
     slip = hc["unit_slip"]
     assert slip["median_abs_dz_other_unit_m"] == pytest.approx(0.2, abs=0.05) and slip["header"].startswith(header)
-    last = r.output.strip().splitlines()[-1]
-    assert last.startswith("warning: the cloud and the surveyed heights differ by a median |dz| of ")
-    assert f"name the column {header}" in last and "the header's 'z' names no unit" in last
+    # before the tables (trial s96 F14: after them, behind 40 lines of numbers in the wrong unit)
+    out = r.output.strip().splitlines()
+    k = next(i for i, ln in enumerate(out) if ln.startswith("warning: the cloud and the surveyed heights differ by a "
+                                                              "median |dz| of "))
+    assert k < next(i for i, ln in enumerate(out) if ln.startswith("LiDAR height check"))
+    assert f"name the column {header}" in out[k] and "the header's 'z' names no unit" in out[k]
     r = _ok(["check-heights", c, _survey(tmp_path / "named.csv", header, z_factor), "--radius-m", "3",
              "--json", tmp_path / "n.json"])
     hc = json.loads((tmp_path / "n.json").read_text())
