@@ -105,17 +105,26 @@ def export_project(root, formats=DEFAULT_FORMATS, out_dir=None) -> list[Path]:
                     "and point heights, ODM's reference_lla altitude) is relative, 0 at the control points' median "
                     "ground, not an ellipsoidal or orthometric height")
     contents = {}  # (a later format's file of the same name replaces the earlier one's)
+    refused = []  # every format a missing grid stops, named at once (trial s96 L1: one per run, three runs)
     for name in formats:
         try:
             files = EXPORT_FORMATS[name].files(block, project)
         except BallparkRefused as exc:
-            raise _export_refusal(name, exc) from None
+            if not exc.missing_grids:
+                raise _export_refusal(name, exc) from None
+            refused.append((name, exc))
+            continue
         if not files:
             # trial-odm: "exported micmac" for a block without control, and no file (MicMac's export holds control
             # only); a format with nothing to write says so
             log.warning(f"{name}: nothing to write for this block ({EXPORT_FORMATS[name].description}); no {name} "
                         "files")
         contents.update({out / f.path: f.content for f in files})
+    if refused:
+        first = _export_refusal(*refused[0])
+        others = [n for n, _ in refused[1:]]
+        raise BallparkRefused(str(first) + (f" (the same grid stops {', '.join(others)} too)" if others else ""),
+                              missing_grids=first.missing_grids)
     written = write_together(contents)
     log.info(f"exported {', '.join(formats)} of {project.root} -> {out}")
     return written

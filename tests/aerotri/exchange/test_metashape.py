@@ -359,6 +359,11 @@ def test_orthometric_heights_without_the_geoid_grid(adjusted_tiny, tmp_path):
     # trial-exchange: the remedy named --params and --allow-ballpark, which aerotri export does not take
     assert "--params" not in r.output and "--allow-ballpark" not in r.output, r.output
     assert "metashape export" in r.output, r.output
+    # every format the grid stops is named in one run (trial s96 L1: one per run)
+    r = CliRunner().invoke(aerotri_cli, ["export", str(p), "--format", "metashape", "--format", "odm", "--format",
+                                         "kml", "--out", str(out)])
+    assert r.exit_code == 2 and "(the same grid stops odm, kml too)" in " ".join(r.output.split()), r.output
+    assert not out.exists() or not any(out.rglob("*.*"))
 
 
 def test_odm_export_of_orthometric_heights_says_gcp_list_is_not_ellipsoidal(adjusted_tiny, tmp_path, synthetic_geoid):
