@@ -1181,7 +1181,10 @@ def _gnss_against_rays(prepared: PreparedBlock, opts: G.SolveSettings, state0: G
     what = "positions disagree with their frames' rays" if len(out) > 1 else "position disagrees with its frame's rays"
     log.warning(f"{prepared.project.gnss_path}: {len(out)} {what}, left out of the adjustment (the frames are placed "
                 "by their tie points): " + "; ".join(g.text() for g in out[:6]) + ("; ..." if len(out) > 6 else "")
-                + ". A wrong fix or a record of another frame? Check those records.")
+                + ". A wrong fix or a record of another frame, or another frame's picture under this frame's name "
+                "(its rays follow the picture: a position that fits its flight line points at the image; trial s96 "
+                "M2: s01_001's picture under s02_003's name was taken for a GNSS error 564.5 m off)? Check those "
+                "records and images.")
     return dataclasses.replace(block, gnss_sigma_m=sigma), out
 
 
