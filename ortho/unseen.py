@@ -30,24 +30,46 @@ def unseen_cells(valid: np.ndarray, to_cells, footprints=()) -> np.ndarray:
     return unseen
 
 
-def unseen_without_heights(unseen: np.ndarray, transform, crs, surfaces) -> int:
+def unseen_without_heights(unseen: np.ndarray, transform, crs, surfaces, max_samples: int = 2_000_000) -> int:
     """How many of the ``unseen`` cells (``unseen_cells``; the raster's ``transform`` and ``crs``) lie where a surface
-    the frames were rectified on has no heights: beyond its extent or on its nodata (read through a nearest-neighbour
-    warp onto this grid, one byte a cell). ``surfaces``: the DEM's and a true ortho's DSM's paths; one that cannot be
-    opened is left out (the report says what was counted). The rest of the unseen cells are occluded in every frame
-    (a true ortho) or on the frames' own nodata."""
-    import rasterio
-    from rasterio.enums import Resampling
-    from rasterio.vrt import WarpedVRT
+    the frames were rectified on has no heights: beyond its extent or on its nodata, read at the cells' centres
+    (the surface's mask over their bounding box, nearest cell). ``surfaces``: the DEM's and a true ortho's DSM's
+    paths; one that cannot be opened is left out. Above ``max_samples`` cells every k-th is read and the count scaled
+    (the demo: 149,074 cells in 0.05 s; a warp of the whole surface onto the mosaic's grid took 0.74 s of a 4 s mosaic).
+    The rest of the unseen cells are occluded in every frame (a true ortho) or on the frames' own nodata."""
+    import math
 
-    if not unseen.any():
+    import rasterio
+    from rasterio.windows import Window
+
+    if not len(surfaces):
         return 0
-    gap = np.zeros(unseen.shape, bool)
+    rows, cols = np.nonzero(unseen)
+    if not len(rows):
+        return 0
+    step = max(1, math.ceil(len(rows) / max_samples))
+    rows, cols = rows[::step], cols[::step]
+    x, y = transform * (cols + 0.5, rows + 0.5)
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    gap = np.zeros(len(rows), bool)
     for path in surfaces:
         try:
-            with rasterio.open(path) as src, WarpedVRT(src, crs=crs, transform=transform, width=unseen.shape[1],
-                                                       height=unseen.shape[0], resampling=Resampling.nearest) as vrt:
-                gap |= vrt.read_masks(1) == 0
+            with rasterio.open(path) as src:
+                sx, sy = x, y
+                if src.crs is not None and crs is not None and src.crs != crs:
+                    from pyproj import Transformer
+
+                    sx, sy = Transformer.from_crs(crs, src.crs, always_xy=True).transform(x, y)
+                    sx, sy = np.asarray(sx, float), np.asarray(sy, float)
+                c, r = ~src.transform * (sx, sy)
+                r, c = np.floor(r).astype(np.int64), np.floor(c).astype(np.int64)
+                inside = (r >= 0) & (r < src.height) & (c >= 0) & (c < src.width)
+                holes = ~inside
+                if inside.any():
+                    r0, r1, c0, c1 = r[inside].min(), r[inside].max() + 1, c[inside].min(), c[inside].max() + 1
+                    m = src.read_masks(1, window=Window(int(c0), int(r0), int(c1 - c0), int(r1 - r0)))
+                    holes[inside] = m[r[inside] - r0, c[inside] - c0] == 0
+                gap |= holes
         except (OSError, rasterio.errors.RasterioError):
             continue
-    return int(np.count_nonzero(unseen & gap))
+    return int(np.count_nonzero(gap)) * step

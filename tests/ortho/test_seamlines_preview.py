@@ -205,6 +205,7 @@ def test_the_preview_hatches_the_cells_mosaic_json_counts_as_seen_by_no_frame(tm
     assert 0.9 * summary["cells_seen_by_no_frame"] <= summary["cells_without_heights"] \
         <= int(np.count_nonzero(empty[:, east]))
     assert summary["share_without_heights"] > 0.15 and summary["surfaces_counted"] == ["lidar_out/dem.tif"]
+    assert summary["surfaces_cover_every_frame"] is False
     assert "of the block where the surface the frames were rectified on has no heights (dem.tif)" in r.stderr
 
 
@@ -230,3 +231,25 @@ def test_a_south_oriented_grid_is_previewed_north_up_and_says_so(tmp_path):
     assert "north up" not in " ".join(_labels(None)) and _labels(None, turned=True)[-1].startswith("north up")
     # the note is written: the legend strip holds more dark text pixels
     assert (lo[h:] < 128).all(axis=-1).sum() > (utm[h:] < 128).all(axis=-1).sum() + 100
+
+
+def test_cells_without_heights_are_counted_at_their_centres_and_estimated_above_the_sample_cap(tmp_path):
+    """``unseen_without_heights``: the unseen cells over a DEM's nodata or beyond it, read at their centres in the
+    DEM's own grid (another cell size, another origin); above ``max_samples`` every k-th cell, the count scaled."""
+    from ortho.unseen import unseen_without_heights
+
+    dem = tmp_path / "dem.tif"
+    z = np.full((100, 120), 10.0, np.float32)
+    z[:, 60:] = -9999.0   # the eastern half without heights
+    with rasterio.open(dem, "w", driver="GTiff", width=120, height=100, count=1, dtype="float32", crs="EPSG:32649",
+                       transform=Affine(1.0, 0.0, 452000.0, 0.0, -1.0, 3407000.0), nodata=-9999.0) as ds:
+        ds.write(z, 1)
+    # the mosaic's grid: 0.5 m cells, 10 m wider to the east than the DEM (beyond it: no heights either)
+    t = Affine(0.5, 0.0, 452000.0, 0.0, -0.5, 3407000.0)
+    unseen = np.ones((200, 260), bool)
+    x_centre = 452000.0 + (np.arange(260) + 0.5) * 0.5
+    want = int(np.count_nonzero(x_centre >= 452060.0)) * 200
+    assert unseen_without_heights(unseen, t, "EPSG:32649", [dem]) == want
+    est = unseen_without_heights(unseen, t, "EPSG:32649", [dem], max_samples=5_000)
+    assert abs(est - want) <= 0.02 * want
+    assert unseen_without_heights(unseen, t, "EPSG:32649", []) == 0

@@ -97,6 +97,7 @@ def test_the_mosaic_counts_the_cells_no_frame_sees(block, tmp_path):
     assert "seen by no frame" in r.stderr
     # occluded in every frame, not off the surfaces: the DEM and the DSM cover the block
     assert summary["cells_without_heights"] == 0 and len(summary["surfaces_counted"]) == 2
+    assert summary["surfaces_cover_every_frame"]  # (every frame under them: they are not read)
 
 
 def test_the_dom_check_measures_roofs_against_the_true_orthophoto(block, tmp_path):
