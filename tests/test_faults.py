@@ -360,9 +360,12 @@ def test_failure_between_two_files(wr, workspace, tmp_path, linked_copy):
     """The second output cannot be completed after the first was: every output stays as it was."""
     w = prepare(wr, workspace, tmp_path, linked_copy)
     before = snapshot(w)
-    with output_move_fails(w / wr.area, 2) as count:
+    # (aerotri run's first two moves mark the earlier report as under way, reports/index.html and summary.json,
+    # trial s96 M1: a failure there is warned, not the run's; the second move of its first stage's commit fails)
+    nth = 2 + (MARK_MOVES if wr.id == "run" else 0)
+    with output_move_fails(w / wr.area, nth) as count:
         r = run_in_process(wr, w)
-    assert count[0] >= 2, f"only {count[0]} output move(s)"
+    assert count[0] >= nth, f"only {count[0]} output move(s)"
     expect_failure(r, w, before, "no space left on device")
 
 
@@ -447,6 +450,7 @@ def _kill_child(ctx, wr: Writer, w: Path, at: int) -> tuple[int, str]:
 
 
 FULL_RERUN = {"match", "adjust", "run", "rasters", "classify", "mosaic", "corners", "import", "strips_check"}
+MARK_MOVES = 2  # aerotri run's mark of the earlier report (index.html, summary.json) before its first stage
 
 
 def _command(wr: Writer):
@@ -463,7 +467,7 @@ def test_kill_and_rerun(wr, workspace, forkserver, tmp_path, linked_copy):
     changed, sweeps its temporaries and (a full re-run) makes valid products."""
     w = prepare(wr, workspace, tmp_path, linked_copy)
     before = snapshot(w)
-    code, said = _kill_child(forkserver, wr, w, min(2, wr.moves))
+    code, said = _kill_child(forkserver, wr, w, min(2, wr.moves) + (MARK_MOVES if wr.id == "run" else 0))
     assert code == -signal.SIGKILL, f"child exit code {code}: {said}"
     left = leftovers(w)
     assert left, "the kill left nothing to clean up (killed too late?)"
@@ -485,7 +489,9 @@ def test_kill_and_rerun(wr, workspace, forkserver, tmp_path, linked_copy):
              "p/work/classify_resume/", "p/work/rasters_resume/")
     # `aerotri run` may be killed inside any of its stages: whichever stage it was in keeps its finished part
     # (and a killed run leaves no run_summary.json: the last run's would say its stages were done, trial-overnight)
-    resume = chain + ("p/work/run_summary.json",) if wr.id == "run" else resume_of.get(wr.id)
+    # (and its mark on the earlier report stays: a run killed in a stage left last night's "pass" unmarked, s96 M1)
+    resume = chain + ("p/work/run_summary.json", "p/reports/index.html", "p/reports/summary.json") \
+        if wr.id == "run" else resume_of.get(wr.id)
     if resume is not None:
         changed = [c for c in changed if not c.startswith(resume)]
     assert not changed, f"not as before the killed run: {changed[:12]}"
