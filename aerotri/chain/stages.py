@@ -785,6 +785,10 @@ class Chain:
         not_read = set(STAGE_SECTION_NAMES) - {"adjust"} - set(PROJECT_SECTIONS)
         with open(self.project.config_path, "rb") as f:
             table = {k: v for k, v in tomllib.load(f).items() if k not in not_read}
+        if isinstance(table.get("qa"), dict) and "pdf" in table["qa"]:
+            # the accuracy report's PDF is no input of an adjustment (trial s96 L8: qa.pdf = false re-ran
+            # adjust_final, about 11 min on a 10,000-frame block, at/eo.txt the same)
+            table["qa"] = {k: v for k, v in table["qa"].items() if k != "pdf"}
         if isinstance(table.get("project"), dict) and "crs" in table["project"]:
             # the CRS itself, not the name of a .prj file holding it (review 44: an edited grid.prj re-ran nothing)
             table["project"] = dict(table["project"], crs=self.project.crs)

@@ -473,6 +473,11 @@ def test_another_stage_s_setting_leaves_the_adjustments_up_to_date(run_to_end, t
     toml = (p / "project.toml").read_text()
     (p / "project.toml").write_text(toml + "\n[rectify]\nres_m = 2.0\n\n[mosaic]\nseams = \"voronoi\"\n")
     assert why("adjust_final") is None and "res_m null -> 2.0" in why("rectify")
+    # the report's PDF switch is the report's alone (trial s96 L8: it re-ran adjust_final)
+    (p / "project.toml").write_text(toml)
+    r = CliRunner().invoke(aerotri_cli, ["settings", str(p), "--set", "qa.pdf=false"])
+    assert r.exit_code == 0 and "pdf = false" in (p / "project.toml").read_text(), r.output
+    assert why("adjust_final") is None
     (p / "project.toml").write_text(toml.replace("sigma_z_m = 0.08", "sigma_z_m = 0.5"))
     assert "options changed: project_toml.gnss.sigma_z_m 0.08 -> 0.5" in why("adjust_final")
 
