@@ -108,7 +108,11 @@ def contours(*, dem_path, out_path, interval_m, index_every, smoothing, toleranc
 @click.option("--simplify-px", type=at_least(0), default=0.5, show_default=True,
               help="Douglas-Peucker tolerance of the stream lines in cells (0: the D8 path through the cell centres).")
 @click.option("--png/--no-png", default=True, show_default=True, help="drainage.png: streams over the hillshade.")
-def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
+@click.option("--water", "water_path", type=click.Path(dir_okay=False), default=None,
+              help="Water polygons in the DEM's CRS (lidarctl vectors' map, its layer water): the streams end at their "
+                   "shores; their courses through the water (the fill's flat surface) go to a layer through_water.")
+@click.option("--water-layer", default=None, help="The layer of --water holding the water polygons [water].")
+def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png, water_path, water_layer):
     """Drainage network of DEM_PATH (GeoTIFF) into OUTDIR (replaced as a whole; all files or none):
     conditioned.tif, flowdir.tif (D8, ESRI codes 1 E 2 SE 4 S 8 SW 16 W 32 NW 64 N 128 NE), accum_cells.tif,
     accum_m2.tif, strahler.tif (COGs in the DEM's CRS, nodata kept), drainage.gpkg (layers streams with
@@ -118,10 +122,13 @@ def drainage(dem_path, outdir, min_area_m2, fill, simplify_px, png):
     """
     from lidarctl.terrain.drainage import drainage as run
 
-    r = run(dem_path, outdir, min_area_m2, "fill" if fill else "breach", simplify_px, png)
+    r = run(dem_path, outdir, min_area_m2, "fill" if fill else "breach", simplify_px, png, water_path=water_path,
+            water_layer=water_layer)
     click.echo(f"{r.outdir}: {r.valid_cells:,} of {r.cells:,} cells; {r.method}: {r.cells_changed:,} cells changed "
                f"(raised up to {r.raised_max_m:.3f} m, cut up to {r.lowered_max_m:.3f} m); stream threshold "
                f"{r.min_area_m2:,.1f} m2 ({r.min_area_rule}); {r.segments} stream segments up to Strahler order "
-               f"{r.max_order}, {r.basins} basins")
+               f"{r.max_order}, {r.basins} basins"
+               + (f"; {r.segments_through_water} segments cut at the water's shores ({r.length_through_water_m:,.0f} m "
+                  "through water: layer through_water)" if r.segments_through_water is not None else ""))
     if r.no_streams:
         click.echo(r.no_streams)

@@ -525,6 +525,9 @@ class DrainageResult:
     min_area_m2: float = float("nan")
     min_area_rule: str = ""  # "given (--min-area-m2)" or the DEM's rule with its numbers
     no_streams: str | None = None  # why 0 streams and what to change
+    # with --water: the segments cut at its shores and their length through the water (m); None without
+    segments_through_water: int | None = None
+    length_through_water_m: float | None = None
 
 
 FILES = ("conditioned.tif", "flowdir.tif", "accum_cells.tif", "accum_m2.tif", "strahler.tif", "drainage.gpkg",
@@ -538,17 +541,67 @@ def _cog(path, array, profile, nodata, unit=None, description=None):
               dtype=None)
 
 
-def _write_gpkg(path, net: Network, *, sub_ids, sub_geoms, basin_ids, basin_geoms, crs_wkt, cell_area_m2):
+@dataclasses.dataclass(frozen=True)
+class WaterSplit:
+    """The streams cut at water polygons (``split_at_water``): per segment its part on land and its part through
+    water (shapely, map coordinates; empty where none) and their lengths (m)."""
+
+    land: list
+    water: list
+    land_m: np.ndarray
+    water_m: np.ndarray
+
+
+def split_at_water(lines, water_polygons, xy_m: float = 1.0) -> WaterSplit:
+    """Each stream line cut at the water polygons (``--water``): a stream enters a lake and stops at its shore, and
+    its course across the lake (the flow direction over the filled, flattened water surface: straight lines of the
+    fill's epsilon gradient, trial s96 F10) is kept apart, so that the network's topology stays."""
+    import shapely
+
+    water = shapely.union_all(list(water_polygons)) if len(water_polygons) else shapely.Polygon()
+    land = [ln.difference(water) if not water.is_empty else ln for ln in lines]
+    wet = [ln.intersection(water) if not water.is_empty else shapely.LineString() for ln in lines]
+    return WaterSplit(land, wet, np.array([g.length * xy_m for g in land], float),
+                      np.array([g.length * xy_m for g in wet], float))
+
+
+def _multi(g):
+    import shapely
+
+    if g.is_empty:
+        return shapely.MultiLineString()
+    if g.geom_type == "LineString":
+        return shapely.MultiLineString([g])
+    if g.geom_type == "MultiLineString":
+        return g
+    parts = [p for p in getattr(g, "geoms", []) if p.geom_type == "LineString"]  # (a point where a line grazes a shore)
+    return shapely.MultiLineString(parts)
+
+
+def _write_gpkg(path, net: Network, *, sub_ids, sub_geoms, basin_ids, basin_geoms, crs_wkt, cell_area_m2,
+                split: WaterSplit | None = None):
     from aerotri.core.vector_files import VectorLayer, write_layers
 
     seg = np.arange(len(net.lines))
     sub_cells = np.bincount(net.subcatchment[net.subcatchment >= 0], minlength=len(seg))
     basin_cells = np.bincount(net.basin[net.basin >= 0], minlength=len(seg))
+    extra = []
+    if split is None:
+        streams = VectorLayer("streams", "LineString", net.lines,
+                              {"segment": seg, "strahler_order": net.order, "length_m": net.length_m,
+                               "upstream_area_m2": net.upstream_area_m2, "downstream_segment": net.downstream,
+                               "outlet_segment": net.outlet})
+    else:
+        on_land = np.array([not g.is_empty for g in split.land], bool)
+        streams = VectorLayer("streams", "MultiLineString", [_multi(g) for g, k in zip(split.land, on_land) if k],
+                              {"segment": seg[on_land], "strahler_order": net.order[on_land],
+                               "length_m": split.land_m[on_land], "upstream_area_m2": net.upstream_area_m2[on_land],
+                               "downstream_segment": net.downstream[on_land], "outlet_segment": net.outlet[on_land]})
+        wet = np.array([not g.is_empty and g.length > 0 for g in split.water], bool)
+        extra = [VectorLayer("through_water", "MultiLineString", [_multi(g) for g, k in zip(split.water, wet) if k],
+                             {"segment": seg[wet], "strahler_order": net.order[wet], "length_m": split.water_m[wet]})]
     write_layers(path, [
-        VectorLayer("streams", "LineString", net.lines,
-                    {"segment": seg, "strahler_order": net.order, "length_m": net.length_m,
-                     "upstream_area_m2": net.upstream_area_m2, "downstream_segment": net.downstream,
-                     "outlet_segment": net.outlet}),
+        streams, *extra,
         VectorLayer("watersheds", "MultiPolygon", sub_geoms,
                     {"segment": sub_ids, "strahler_order": net.order[sub_ids],
                      "area_m2": sub_cells[sub_ids] * cell_area_m2}),
@@ -595,12 +648,14 @@ def preview_png(dem, transform, net: Network, path, title: str, *, dx_m: float, 
 
 
 def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "fill", simplify_px: float = 0.5,
-             png: bool = True) -> DrainageResult:
+             png: bool = True, water_path=None, water_layer: str | None = None) -> DrainageResult:
     """All drainage products of a DEM GeoTIFF in OUTDIR (replaced as a whole, all files or none; FILES).
 
     Heights and cell sizes are taken to metres by the CRS (a DEM in feet works); the conditioned DEM is
     written in the input's height unit (float64), accumulation in cells and in m2. ``min_area_m2`` None: the
-    stream threshold from the DEM (``default_min_area``)."""
+    stream threshold from the DEM (``default_min_area``). ``water_path``: water polygons in the DEM's CRS (lidarctl
+    vectors' map, ``lidarctl.terrain.hydro.read_water``): the streams end at their shores, their courses through
+    the water in a layer of their own (``split_at_water``)."""
     import json
 
     from aerotri.core.atomic import atomic_dir
@@ -651,6 +706,14 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
                          xy_m=xy_m, simplify_px=simplify_px)
     none = (why_no_streams(acc, valid, transform, cell_area_m2, min_area_m2, unit_long_name(crs))
             if not len(net.lines) else None)
+    split = None
+    if water_path is not None:
+        import pyproj
+
+        from lidarctl.terrain.hydro import read_water
+
+        water, _, _ = read_water(water_path, pyproj.CRS.from_wkt(crs.to_wkt()), water_layer)
+        split = split_at_water(list(net.lines), water, xy_m)
     sub_ids, sub_geoms = polygons(net.subcatchment, transform)
     basin_ids, basin_geoms = polygons(net.basin, transform)
     summary = {"dem": str(dem_path), "method": method, "min_area_m2": min_area_m2, "min_area_rule": rule,
@@ -662,6 +725,10 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
                "basins": int(len(basin_ids)), "stream_length_m": float(net.length_m.sum()),
                "memory_estimate_mb": round(mem_mb, 1),
                "flowdir_codes": {str(k): v for k, v in CODE_NAMES.items()}}
+    if split is not None:
+        summary.update(water=str(water_path), segments_through_water=int(sum(m > 0 for m in split.water_m)),
+                       length_through_water_m=float(split.water_m.sum()),
+                       segments_only_in_water=int(sum(g.is_empty for g in split.land)))
     with atomic_dir(outdir) as tmp:
         cdem = np.where(valid, cond.dem / z_m, -9999.0)
         _cog(tmp / "conditioned.tif", cdem, profile, -9999.0, band_unit or unit_long_name(crs),
@@ -675,7 +742,7 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
         _cog(tmp / "strahler.tif", np.where(valid, net.strahler, 255).astype(np.uint8), profile, 255, None,
              "Strahler order of the stream cells, 0 off the streams")
         _write_gpkg(tmp / "drainage.gpkg", net, sub_ids=sub_ids, sub_geoms=sub_geoms, basin_ids=basin_ids,
-                    basin_geoms=basin_geoms, crs_wkt=crs.to_wkt(), cell_area_m2=cell_area_m2)
+                    basin_geoms=basin_geoms, crs_wkt=crs.to_wkt(), cell_area_m2=cell_area_m2, split=split)
         if png:
             preview_png(dem * z_m, transform, net, tmp / "drainage.png",
                         f"{dem_path.name}: streams >= {min_area_m2:g} m2 ({method}), {len(net.lines)} segments",
@@ -685,4 +752,5 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
     log.debug(f"{dem_path} -> {outdir}: {summary}")
     return DrainageResult(outdir, [outdir / f for f in files], method, int(dem.size), int(valid.sum()),
                           cond.cells_changed, cond.raised_max, cond.lowered_max, int(len(net.lines)),
-                          int(net.order.max(initial=0)), int(len(basin_ids)), mem_mb, float(min_area_m2), rule, none)
+                          int(net.order.max(initial=0)), int(len(basin_ids)), mem_mb, float(min_area_m2), rule, none,
+                          summary.get("segments_through_water"), summary.get("length_through_water_m"))

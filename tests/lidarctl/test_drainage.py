@@ -265,3 +265,37 @@ def test_heights_above_the_ground_are_refused(tmp_path):
     with rasterio.open(path, "r+") as d:
         d.set_band_description(1, "DEM: mean height of ground and water points (metre)")
     assert CliRunner().invoke(main, ["drainage", str(path), str(tmp_path / "out_dem")]).exit_code == 0
+
+
+def test_streams_end_at_the_shores_of_the_water_given(tmp_path):
+    """Trial s96 F10: on a hydro-flattened DEM the streams crossed every lake as straight lines of the fill's epsilon
+    gradient. With --water the streams end at the water polygons' shores and their courses through the water go to a
+    layer of their own (the network's topology kept): no stream part inside the water, the lengths add up."""
+    import shapely
+    from pyogrio.raw import read, write
+
+    z, _ = _y_valleys()
+    z[55:75, 35:65] = np.nanmin(z[55:75, 35:65])   # a flat lake across the southern valley
+    _write(tmp_path / "dem.tif", z, "EPSG:32633", 2.0)
+    x0, y0, cell = 1000.0, 5000.0, 2.0
+    lake = shapely.box(x0 + 35 * cell, y0 - 75 * cell, x0 + 65 * cell, y0 - 55 * cell)
+    write(tmp_path / "map.gpkg", np.array([shapely.to_wkb(lake)], dtype=object), layer="water", driver="GPKG",
+          geometry_type="Polygon", crs="EPSG:32633", fields=["water_z"], field_data=[np.array([float(z[60, 50])])])
+    plain, cut = tmp_path / "plain", tmp_path / "cut"
+    for out, extra in ((plain, []), (cut, ["--water", str(tmp_path / "map.gpkg")])):
+        r = CliRunner().invoke(main, ["drainage", str(tmp_path / "dem.tif"), str(out), "--min-area-m2", "1200", *extra])
+        assert r.exit_code == 0, r.output
+    assert "cut at the water's shores" in r.output and "layer through_water" in r.output
+
+    def lines(path, layer):
+        _, _, wkb, fields = read(path / "drainage.gpkg", layer=layer)
+        return [shapely.from_wkb(b) for b in wkb], fields
+
+    before, _ = lines(plain, "streams")
+    streams, _ = lines(cut, "streams")
+    wet, _ = lines(cut, "through_water")
+    assert sum(g.intersection(lake).length for g in before) > 20 * cell       # the plain network crosses the lake
+    assert sum(g.intersection(lake.buffer(-1e-6)).length for g in streams) == pytest.approx(0.0, abs=1e-6)
+    assert wet and all(lake.buffer(1e-6).contains(g) for g in wet)
+    total = sum(g.length for g in before)
+    assert sum(g.length for g in streams) + sum(g.length for g in wet) == pytest.approx(total, rel=1e-9)
