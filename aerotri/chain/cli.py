@@ -20,7 +20,9 @@ log = logging.getLogger(__name__)
 
 def report_verdict(root: Path) -> str | None:
     """The overall verdict of the project's reports/summary.json ("pass", "fail", ...), None without one."""
-    path = Path(root) / "reports" / "summary.json"
+    from aerotri.core.project import project_paths
+
+    path = project_paths(root).report_summary_path
     try:
         return json.loads(path.read_text()).get("overall") if path.is_file() else None
     except (OSError, ValueError, AttributeError):
@@ -67,7 +69,7 @@ def run(project, reference, points, force, strict, scheduler, workers, **_settin
     # one last line a night's log ends with (trial s96 M4: the verdict only inside the report stage's row)
     verdict = report_verdict(p.root)
     click.echo(f"{p.root}: the chain ended {time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime())} UTC; QA verdict "
-               f"{verdict or 'none (no report)'}" + (f" ({p.root / 'reports' / 'index.html'})" if verdict else ""))
+               f"{verdict or 'none (no report)'}" + (f" ({p.report_index_path})" if verdict else ""))
     if strict and verdict == "fail":
         sys.exit(3)
 

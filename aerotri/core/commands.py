@@ -61,13 +61,13 @@ def _to_log_file(level: int, message: str) -> None:
     """A record for the --log-file alone (the console has the line from click): an error's or an interruption's
     ERROR line, which the log lacked (a monitor grepping for ERROR found a failed night run's log clean: only a DEBUG
     "error details" traceback; trial s96 M4)."""
-    for name in ("aerotri", "ortho", "lidarctl"):
+    for name in ("aerotri", "ortho", "lidarctl"):  # (log.configure gives each package logger the same file handler)
         lg = logging.getLogger(name)
-        record = lg.makeRecord(lg.name, level, __file__, 0, message, None, None)
-        for h in lg.handlers:
-            if isinstance(h, logging.FileHandler):
+        files = [h for h in lg.handlers if isinstance(h, logging.FileHandler)]
+        if files:
+            record = lg.makeRecord(lg.name, level, __file__, 0, message, None, None)
+            for h in files:
                 h.handle(record)
-        if any(isinstance(h, logging.FileHandler) for h in lg.handlers):
             return
 
 

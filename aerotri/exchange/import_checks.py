@@ -159,14 +159,21 @@ def check_positions(project: Project, block: ImportedBlock, replaced: set) -> No
                              f"with --crs, or fix [project] crs")
 
 
-def check_image_ids(project: Project, block: ImportedBlock) -> None:
-    """Every image id of the import is a frame in images/ (when images/ holds frames)."""
+def _project_frames(project: Project):
+    """The frames of the project's images/ (``ImageFiles``), None when it holds none."""
     from aerotri.geom.images import IMAGE_SUFFIXES, find_images
 
     if not project.images_dir.is_dir() or not any(p.suffix.lower() in IMAGE_SUFFIXES
                                                    for p in project.images_dir.iterdir()):
+        return None
+    return find_images(project.images_dir)
+
+
+def check_image_ids(project: Project, block: ImportedBlock, frames=None) -> None:
+    """Every image id of the import is a frame in images/ (``frames``: ``_project_frames``; None: images/ holds
+    none, nothing to check)."""
+    if frames is None:
         return
-    frames = find_images(project.images_dir)
     for what, ids in (("orientations", None if block.eo is None else block.eo.image_id),
                       ("positions", None if block.gnss is None else block.gnss.image_id),
                       ("control measurements", None if block.image_points is None else block.image_points.image_id)):
@@ -318,18 +325,14 @@ CAMERA_FILE_FIELDS = {
 }
 
 
-def frames_left_without(project: Project, block: ImportedBlock) -> list[str]:
-    """The note naming the frames of images/ the import gives no orientation (or position): a COLMAP images.txt cut
-    between two images imported 3 of 18 frames without a word (trial s96 M5); frames another tool did not orient
-    read the same. [] when every frame has one, or images/ holds none."""
-    from aerotri.geom.images import IMAGE_SUFFIXES, find_images
-
+def frames_left_without(project: Project, block: ImportedBlock, frames=None) -> list[str]:
+    """The note naming the frames of images/ (``frames``: ``_project_frames``) the import gives no orientation (or
+    position): a COLMAP images.txt cut between two images imported 3 of 18 frames without a word (trial s96 M5);
+    frames another tool did not orient read the same. [] when every frame has one, or images/ holds none."""
     field, ids = ("eo", block.eo.image_id) if block.eo is not None else (
         ("gnss", block.gnss.image_id) if block.gnss is not None else (None, None))
-    if ids is None or not project.images_dir.is_dir() or not any(
-            p.suffix.lower() in IMAGE_SUFFIXES for p in project.images_dir.iterdir()):
+    if ids is None or frames is None:
         return []
-    frames = find_images(project.images_dir)
     without = sorted(set(frames.image_id) - {str(i) for i in ids})
     if not without:
         return []
@@ -346,8 +349,9 @@ def check_import(project: Project, block: ImportedBlock, replaced: set, format_n
     notes = check_project_crs(project, block)
     check_positions(project, block, replaced)
     notes += scale_note(project, block)
-    check_image_ids(project, block)
-    notes += frames_left_without(project, block)
+    frames = _project_frames(project)
+    check_image_ids(project, block, frames)
+    notes += frames_left_without(project, block, frames)
     if block.camera is not None:
         block.camera.check_plausible(block.source_of("camera"), CAMERA_FILE_FIELDS.get(format_name))
     check_camera_size(project, block)

@@ -217,9 +217,8 @@ def check_frames(images: ImageFiles, camera: BrownCamera, camera_source="camera.
                              f"or take it out of {path.parent.name}/ and its line out of gnss.txt)")
 
 
-_MAGIC = {".tif": (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"), ".tiff": (b"II*\x00", b"MM\x00*", b"II+\x00",
-                                                                          b"MM\x00+"),
-          ".jpg": (b"\xff\xd8\xff",), ".jpeg": (b"\xff\xd8\xff",), ".png": (b"\x89PNG",)}
+_TIFF, _JPEG = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"), (b"\xff\xd8\xff",)  # (classic and Big TIFF)
+_MAGIC = {".tif": _TIFF, ".tiff": _TIFF, ".jpg": _JPEG, ".jpeg": _JPEG, ".png": (b"\x89PNG",)}
 
 
 def _say_if_not_its_format(path: Path) -> None:

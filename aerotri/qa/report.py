@@ -437,26 +437,22 @@ def _dom_crs_note(dom_check, project: Project) -> str:
     return note
 
 
-def _holes_row(section: str, project: Project) -> QaCheck:
-    """The DOM's cells inside the block that no frame sees (ortho/mosaic.json): nodata in the delivered mosaic (a
-    true ortho's ground occluded in every frame, or DEM nodata). Shown, not judged: no table has a limit."""
-    from ortho.mosaic import read_mosaic_summary
-
-    m = read_mosaic_summary(project.mosaic_summary_path)
+def _holes_row(section: str, m) -> QaCheck:
+    """The DOM's cells inside the block that no frame sees (``m``: ortho/mosaic.json, ``MosaicSummary``): nodata in
+    the delivered mosaic (a true ortho's ground occluded in every frame, or DEM nodata). Shown, not judged: no table
+    has a limit."""
     share = None if m.share_seen_by_no_frame is None else round(100.0 * m.share_seen_by_no_frame, 3)
     return _check("dom_seen_by_no_frame_pct", section, "DOM cells seen by no frame (nodata inside the block)", share,
                   None, "%", note=f"{m.cells_seen_by_no_frame:,} cells, {_area_m2(m.area_seen_by_no_frame_m2)}; occluded "
                   "in every frame (true ortho) or over DEM nodata; hatched in ortho/seamlines_preview.png; not judged")
 
 
-def _without_heights_row(section: str, project: Project, tol: dict) -> QaCheck | None:
+def _without_heights_row(section: str, m, tol: dict) -> QaCheck | None:
     """Of the DOM's cells no frame sees, those where the DEM (or a true ortho's DSM) the frames were rectified on has
-    no heights (ortho/mosaic.json, ``ortho.unseen.unseen_without_heights``), as a share of the block, judged against
-    the table's ``dom_without_heights_max_pct``: a DOM empty where its surface is (Brighton on its cloud's DEM: 44.7 %
-    of the mosaic empty and "pass", 18 frame warnings alone said so). None for a mosaic.json before it was kept."""
-    from ortho.mosaic import read_mosaic_summary
-
-    m = read_mosaic_summary(project.mosaic_summary_path)
+    no heights (``m``: ortho/mosaic.json, ``ortho.unseen.unseen_without_heights``), as a share of the block, judged
+    against the table's ``dom_without_heights_max_pct``: a DOM empty where its surface is (Brighton on its cloud's
+    DEM: 44.7 % of the mosaic empty and "pass", 18 frame warnings alone said so). None for a mosaic.json before it
+    was kept."""
     if m.share_without_heights is None:
         return None
     key = "dom_without_heights_max_pct"
@@ -476,13 +472,11 @@ def _area_m2(a: float) -> str:
     return f"{a:,.0f} m2" if a >= 10 else f"{a:.2g} m2"
 
 
-def _seam_crossings_row(section: str, project: Project) -> QaCheck | None:
-    """Where a mosaic of edited seamlines cuts buildings and trees that its automatic seams did not (ortho/mosaic.json
-    "seam_crossings", ``ortho.seam_crossings``): the new crossings' length, m. Shown, not judged (the operator
-    decides; roofs and crowns tear there). None for a mosaic of automatic seams."""
-    from ortho.mosaic import read_mosaic_summary
-
-    c = read_mosaic_summary(project.mosaic_summary_path).seam_crossings
+def _seam_crossings_row(section: str, m) -> QaCheck | None:
+    """Where a mosaic of edited seamlines cuts buildings and trees that its automatic seams did not (``m``:
+    ortho/mosaic.json, its "seam_crossings", ``ortho.seam_crossings``): the new crossings' length, m. Shown, not
+    judged (the operator decides; roofs and crowns tear there). None for a mosaic of automatic seams."""
+    c = m.seam_crossings
     if c is None:
         return None
     name = "edited seams: new crossings of buildings and trees"
@@ -1136,13 +1130,11 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         if older:  # the mosaic's figures (and a check of it) are of frames that were replaced
             rows.append(_failed("mosaic_stale", sec, "DOM older than its frames",
                                 f"{older}; re-run ortho mosaic {root} (and ortho check), or aerotri run {root}"))
-        rows.append(_holes_row(sec, project))
-        without_heights = _without_heights_row(sec, project, tol)
-        if without_heights is not None:
-            rows.append(without_heights)
-        crossings = _seam_crossings_row(sec, project)
-        if crossings is not None:
-            rows.append(crossings)
+        from ortho.mosaic import read_mosaic_summary
+
+        m = read_mosaic_summary(project.mosaic_summary_path)  # (once for its three rows)
+        rows.append(_holes_row(sec, m))
+        rows += [r for r in (_without_heights_row(sec, m, tol), _seam_crossings_row(sec, m)) if r is not None]
     if dom_check:
         rows += _seam_rows(sec, dom_check, tol)
 
@@ -1795,10 +1787,11 @@ _STOPPED_BEGIN, _STOPPED_END = "<!-- aerotri:run-stopped -->", "<!-- /aerotri:ru
 _RUNNING_BEGIN, _RUNNING_END = "<!-- aerotri:run-running -->", "<!-- /aerotri:run-running -->"
 
 
-def _without_banners(text: str) -> str:
+def _without_banners(text: str, banners=((_STOPPED_BEGIN, _STOPPED_END), (_RUNNING_BEGIN, _RUNNING_END))) -> str:
+    """``text`` without the banners (begin, end markers) ``banners`` (default: both kinds)."""
     import re as _re
 
-    for a, b in ((_STOPPED_BEGIN, _STOPPED_END), (_RUNNING_BEGIN, _RUNNING_END)):
+    for a, b in banners:
         text = _re.sub(_re.escape(a) + ".*?" + _re.escape(b), "", text, flags=_re.S)
     return text
 
@@ -1812,10 +1805,7 @@ def clear_running_mark(root) -> None:
     if index.is_file():
         text = index.read_text()
         if _RUNNING_BEGIN in text:
-            import re as _re
-
-            write_text_atomic(index, _re.sub(_re.escape(_RUNNING_BEGIN) + ".*?" + _re.escape(_RUNNING_END), "",
-                                             text, flags=_re.S))
+            write_text_atomic(index, _without_banners(text, ((_RUNNING_BEGIN, _RUNNING_END),)))
     if summary_path.is_file():
         try:
             summary = json.loads(summary_path.read_text())
