@@ -370,6 +370,12 @@ def validate_xyz(path, x, y, z, first_index: int, units: LengthUnits = METRE) ->
     _validate_xyz(path, x, y, z, first_index, units)
 
 
+def record_crs(crs_arg, resolved: pyproj.CRS | None) -> pyproj.CRS | None:
+    """The CRS record a derived file of an input without one gets (``output_header``): ``--crs`` as given (a
+    compound CRS keeps its vertical unit), else the CRS ``resolve_crs_units`` read."""
+    return parse_crs(crs_arg, "--crs") if crs_arg is not None and str(crs_arg).strip() else resolved
+
+
 def output_header(header: laspy.LasHeader, crs: pyproj.CRS | None = None) -> laspy.LasHeader:
     """Copy of an input header for a derived file: same version, point format (with extra bytes),
     scales, offsets, VLRs, EVLRs, system identifier, software, date and GUID; a CRS record is added

@@ -1146,8 +1146,7 @@ def _classify(in_paths, out_paths, crs, params, *, tile_size_m, buffer_m, execut
             raise InputError(f"{q}: {u.describe()}, but {in_paths[0]} {units.describe()}; give strips in one unit")
     cl.set_place_units(units)
     name = in_paths[0] if len(in_paths) == 1 else f"{in_paths[0]} (+{len(in_paths) - 1} strips)"
-    # A CRS record for an input without one: the --crs as given (a compound CRS keeps its vertical unit).
-    out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
+    out_crs = io.record_crs(crs, resolved)
     bounds = headers[0] if len(headers) == 1 else _union_bounds(headers)
     grid = plan_tiles(bounds, tile_size_m, buffer_m, params.ground_method, params.preset, name, units=units,
                       ground_params=params.ground_params)

@@ -61,7 +61,6 @@ from aerotri.core.errors import InputError, OptionError, SolveError
 from aerotri.core.textio import read_record, record_error
 from aerotri.core.settings import setting
 from aerotri.geom import las
-from aerotri.geom.crs.definition import parse_crs
 from lidarctl import io
 from lidarctl.strips import check as chk
 from lidarctl.strips import control as ctl
@@ -788,9 +787,9 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     read_params = dataclasses.replace(surface, max_slope_deg=max(surface.max_slope_deg, settings.max_slope_deg))
     extra, chosen = (None, {})
     resolved, units = io.resolve_crs_units(paths[0], las.read_header(paths[0]), crs)
-    # the CRS record a strip without one gets (--crs as given, a compound keeping its vertical unit), as classify's:
-    # the corrected strips had none, and the next stage refused them (trial s96 F3)
-    out_crs = parse_crs(crs, "--crs") if crs is not None and str(crs).strip() else resolved
+    # the CRS record a strip without one gets, as classify's: the corrected strips had none, and the next stage refused
+    # them (trial s96 F3)
+    out_crs = io.record_crs(crs, resolved)
     cps = ctl.read_control(control, units) if control is not None else None
     if trajectories:
         trajs = tj.read_trajectories(trajectories, units.xy_m, units.z_m)
