@@ -93,16 +93,13 @@ def clear_lines(work: Path, name: str, spec: str, classified: str, empty_radius_
     k_clear = np.argmax(seeing == CLEAR, 0)
     ids = [e.image_id for e in read_index(conv).frames]
     index = json.loads((project / "ortho" / "frames" / "index.json").read_text())
-    occ = Path(index.get("occlusion_dsm") or index["dsm"])
-    if not occ.is_absolute() and not occ.exists():
-        occ = work.parent / occ
+    occ = project / (index.get("occlusion_dsm") or index["dsm"])  # relative to the project unless absolute
     with rasterio.open(occ) as ds:
         D = ds.read(1).astype(np.float64)
         if ds.nodata is not None:
             D[D == ds.nodata] = np.nan
         T = ds.transform
-    dem_path = Path(index["dem"])
-    dem_path = dem_path if dem_path.is_absolute() or dem_path.exists() else work.parent / dem_path
+    dem_path = project / index["dem"]
     dem = None
     for f in (dem_path, work / name / "lidar_rasters" / "dem.tif"):  # the project's, a tall block's LiDAR's
         if f.exists():

@@ -1188,14 +1188,19 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                      "gdal_edit.py -a_nodata 0 FRAME) and rectify again")
     _warn_ground_stand_off({e["image_id"]: e.pop("ground_stand_off") for e in entries if "ground_stand_off" in e},
                            len(entries), dsm_path, dem_path)
+    root = block.project.root
     return {
         "crs": out_crs.to_wkt(), "crs_name": out_crs.name, "epsg": out_crs.to_epsg(), "res_m": res,
-        "project_crs": project_crs.to_string(), "dem": str(dem_path), "eo": str(block.eo_path),
-        "true_ortho": bool(true_ortho), "dsm": str(dsm_path) if dsm_path else None,
-        "footprints": str(footprints) if footprints is not None else None,
-        **({"crown_base": str(crown_base)} if crown_base is not None else {}),
-        **({"crowns": str(crowns)} if crowns is not None else {}),
-        **({"occlusion_dsm": str(occlusion_dsm)} if occlusion_dsm is not None else {}), "interpolation": interpolation,
+        # files relative to the project folder (trial "overnight" L9: as the caller named them, two runs of one
+        # project from two folders wrote two indexes)
+        "project_crs": project_crs.to_string(), "dem": _in_project(dem_path, root),
+        "eo": _in_project(block.eo_path, root), "true_ortho": bool(true_ortho),
+        "dsm": _in_project(dsm_path, root) if dsm_path else None,
+        "footprints": _in_project(footprints, root) if footprints is not None else None,
+        **({"crown_base": _in_project(crown_base, root)} if crown_base is not None else {}),
+        **({"crowns": _in_project(crowns, root)} if crowns is not None else {}),
+        **({"occlusion_dsm": _in_project(occlusion_dsm, root)} if occlusion_dsm is not None else {}),
+        "interpolation": interpolation,
         "coordinate_operation": operation.record() if operation is not None else None,
         "operation": dataclasses.asdict(operation.spec()) if operation is not None else None,
         "height_operation": height_op.record() if height_op is not None else None,

@@ -52,6 +52,11 @@ def test_third_party_output_goes_to_the_debug_log(tmp_path):
     for what in ("Mean of empty slice", "NotGeoreferencedWarning", "CPLE_AppDefined", "85% memory",
                  "CheiralityException", "our own warning"):
         assert what in text, what
+    # trial "overnight" L4: a monitor looking for WARNING lines finds ours only; the libraries' keep their level
+    # in the message
+    warning_lines = [x for x in text.splitlines() if " WARNING " in x or " ERROR " in x]
+    assert len(warning_lines) == 1 and "aerotri.test: our own warning" in warning_lines[0], warning_lines
+    assert "(warning of rasterio._env) CPLE_AppDefined" in text and "(warning of py.warnings)" in text
 
 
 def test_verbose_shows_third_party_details(tmp_path):

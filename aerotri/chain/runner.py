@@ -26,6 +26,7 @@ import hashlib
 import json
 import logging
 import os
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -404,6 +405,11 @@ def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, lo
             rows.append(dict(stage=st.name, status="skipped (up to date)", seconds=0.0, **stamp.get("result", {}),
                              **({"seconds_when_run": stamp["seconds"]} if "seconds" in stamp else {})))
             log(f"[{st.name}] up to date, skipped")
+            # what an interrupted run of it (--force) had finished is of no use beside current outputs (trial s96
+            # L5: work/control_resume stayed through two more runs)
+            leftover = Path(root) / "work" / f"{st.name}_resume"
+            if leftover.is_dir():
+                shutil.rmtree(leftover, ignore_errors=True)
             continue
         log(f"[{st.name}] running ({why})")
         _remove_stale_temporaries(st.outputs(root))

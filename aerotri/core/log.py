@@ -42,6 +42,18 @@ class _StderrFormatter(logging.Formatter):
         return msg
 
 
+class _AsDetail(logging.Filter):
+    """A library's record (any logger outside ``PACKAGES``) (and a Python warning) logged at DEBUG, its own level kept in the message: they are
+    details, and a monitor that looks for WARNING or ERROR lines in a log file should find ours only (trial
+    "overnight" L4: rasterio's PendingDeprecationWarning 7-11 times a run)."""
+
+    def filter(self, record):
+        if record.levelno > logging.DEBUG and record.name.split(".")[0] not in PACKAGES:
+            record.msg = f"({record.levelname.lower()} of {record.name}) {record.msg}"
+            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+        return True
+
+
 def configure(verbosity: int = 0, log_file=None) -> None:
     """Route the packages' loggers to stderr (level from ``verbosity``: -1 quiet, 0 info, 1+ debug) and
     optionally to ``log_file`` (always DEBUG). Replaces what an earlier call installed."""
@@ -58,6 +70,7 @@ def configure(verbosity: int = 0, log_file=None) -> None:
         handlers.append(fh)
     for x in handlers:
         setattr(x, _HANDLER_TAG, True)
+        x.addFilter(_AsDetail())  # on the handler: a logger's filter would miss its children's records
     for name in PACKAGES:
         lg = logging.getLogger(name)
         for old in [x for x in lg.handlers if getattr(x, _HANDLER_TAG, False)]:

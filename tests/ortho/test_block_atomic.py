@@ -250,6 +250,17 @@ def test_index_records_the_inputs_of_the_frames(project):
     assert len(rec["camera"]["sha256"]) == 64
 
 
+def test_index_names_its_files_relative_to_the_project_whatever_the_working_folder(project, monkeypatch):
+    """Trial "overnight" L9: the index recorded the DEM as the caller named it ("term/lidar_out/dem.tif"), so two
+    runs of one project from two folders wrote two different indexes."""
+    monkeypatch.chdir(project.parent)
+    shutil.rmtree(project / "ortho")
+    r = run("rectify", project.name)
+    assert r.exit_code == 0, r.output
+    index = json.loads((project / "ortho/frames/index.json").read_text())
+    assert index["dem"] == "lidar_out/dem.tif" and index["eo"] == "at/eo.txt"
+
+
 def test_frames_of_an_older_adjustment_are_refused(project):
     """The trial's state: ortho rectify, then a new adjustment rewrites at/eo.txt; mosaic, check and the QA
     report must not take the frames of the old orientation."""

@@ -798,3 +798,17 @@ def test_a_stage_an_interrupted_run_began_says_it_takes_its_work_over(tmp_path):
     assert stale_reason(tmp_path, st) == "not run before"
     (tmp_path / "work" / f"{st.name}_resume").mkdir(parents=True)
     assert stale_reason(tmp_path, st) == "not finished before: an interrupted run's finished parts are taken over"
+
+
+def test_an_up_to_date_stage_removes_what_an_interrupted_run_of_it_left(tmp_path):
+    """Trial s96 L5: a --force run killed in control left work/control_resume, which stayed through two more runs
+    that found control up to date."""
+    (tmp_path / "in.txt").write_text("3")
+    calls = []
+    run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    left = tmp_path / "work" / "double_resume"
+    left.mkdir(parents=True)
+    (left / "part.npz").write_bytes(b"x")
+    rows = run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    assert calls == ["double", "add"] and rows[0]["status"] == "skipped (up to date)"
+    assert not left.exists()

@@ -189,10 +189,10 @@ def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end
 
     p0, table = run_to_end
     index = json.loads((p0 / "ortho" / "frames" / "index.json").read_text())
-    assert index["true_ortho"] and Path(index["dsm"]).resolve() == (p0 / "lidar_out" / "dsm.tif").resolve()
+    assert index["true_ortho"] and (p0 / index["dsm"]).resolve() == (p0 / "lidar_out" / "dsm.tif").resolve()
     # its occlusion test on the rasters stage's nearest-return DSM with the trees' fitted crowns
-    assert Path(index["occlusion_dsm"]).resolve() == (p0 / "lidar_out" / "dsm_crowns.tif").resolve()
-    assert Path(index["crowns"]).resolve() == (p0 / "lidar_out" / "crowns.gpkg").resolve()
+    assert (p0 / index["occlusion_dsm"]).resolve() == (p0 / "lidar_out" / "dsm_crowns.tif").resolve()
+    assert (p0 / index["crowns"]).resolve() == (p0 / "lidar_out" / "crowns.gpkg").resolve()
     assert index["settings"]["true_ortho"]["value"] is True and index["settings"]["true_ortho"]["source"] == "aerotri run"
     assert "ortho=true (DSM)" in table and "rectify: true ortho on the DSM lidar_out/dsm.tif" in table
     p = tmp_path / "p"
@@ -370,7 +370,7 @@ def test_run_without_lidar_makes_the_tie_point_dem_or_uses_a_dem_from_elsewhere(
     assert np.abs(eo.centre_m - truth.centre_m).max() < 2.0  # GNSS alone carries the datum
     # a GNSS block without LiDAR or a DEM: the orthophotos on the DEM of the adjusted tie points
     index = json.loads((p / "ortho" / "frames" / "index.json").read_text())
-    assert Path(index["dem"]).resolve() == (p / "at" / "dem.tif").resolve()
+    assert (p / index["dem"]).resolve() == (p / "at" / "dem.tif").resolve()
     assert (p / "ortho" / "mosaic.tif").is_file()
     with rasterio.open(p / "at" / "dem.tif") as tie, rasterio.open(p / "truth" / "dem.tif") as true:
         z_tie = tie.read(1, masked=True)
@@ -387,7 +387,7 @@ def test_run_without_lidar_makes_the_tie_point_dem_or_uses_a_dem_from_elsewhere(
     assert "match              skipped (up to date)" in r.stdout
     assert "dem                skipped" in r.stdout
     index = json.loads((p / "ortho" / "frames" / "index.json").read_text())
-    assert Path(index["dem"]).resolve() == (tmp_path / "elsewhere" / "dem.tif").resolve()
+    assert (p / index["dem"]).resolve() == (tmp_path / "elsewhere" / "dem.tif").resolve()
 
 
 def test_strip_stage_skips_a_single_strip_and_adjusts_when_asked(tiny_project, tmp_path):
