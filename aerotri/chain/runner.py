@@ -385,7 +385,8 @@ def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, lo
     """(``run_stages``) each stage in turn, its summary row appended to ``rows``; ``clock["t0"]``: when the stage
     under way began."""
     clock = {} if clock is None else clock
-    for st in stages:
+    pending = _ForcePending(root, [st.name for st in stages] if force else None)
+    for k, st in enumerate(stages, 1):
         clock["t0"] = time.perf_counter()
         if st.name == "report":  # the report as its stage wrote it before it is judged up to date (run_stages' mark)
             from aerotri.qa.report import clear_running_mark
@@ -395,8 +396,9 @@ def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, lo
         if reason:
             rows.append(dict(stage=st.name, status="skipped", seconds=0.0, why=reason))
             log(f"[{st.name}] skipped: {reason}")
+            pending.done(st.name)
             continue
-        why = "--force" if force else stale_reason(root, st)
+        why = "--force" if force else stale_reason(root, st) or pending.reason(st.name)
         if why is None:
             stamp = json.loads(stamp_path(root, st.name).read_text())
             _refresh_stamp(root, st, stamp)
@@ -435,11 +437,47 @@ def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, lo
             log(f"[{st.name}] note: {note}")
         if done.why:
             log(f"[{st.name}] skipped: {done.why}")
-        log(f"[{st.name}] done in {dt:.1f} s")
+        log(f"[{st.name}] done in {dt:.1f} s (stage {k} of {len(stages)})")  # (trial s96 L10: no stage counter)
+        pending.done(st.name)
         if memory_limited():
             # under a container's or batch job's limit the memory a stage freed goes back to the system, not kept by
             # the allocator for the next stage (the demo at 1 GiB: killed in its lidar_eval stage, 12th of 15)
             release_freed_memory()
+
+
+class _ForcePending:
+    """The stages a ``--force`` run has not re-run yet, in ``work/force_pending.json`` until it ends: a run stopped
+    midway (a kill, Ctrl-C, a failure) leaves them there, and the next run without ``--force`` re-runs them as well
+    (trial s96 L11: it found them "up to date", the operator had to remember to repeat --force)."""
+
+    def __init__(self, root: Path, forced: list[str] | None):
+        self.path = project_paths(root).work_dir / "force_pending.json"
+        if forced is not None:
+            self.started, self.stages = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), list(forced)
+            self._write()
+            return
+        try:
+            record = json.loads(self.path.read_text())
+            self.started, self.stages = str(record["started"]), [str(x) for x in record["stages"]]
+        except (OSError, ValueError, KeyError, TypeError):  # none (the usual case), or unreadable: nothing pending
+            self.started, self.stages = "", []
+
+    def reason(self, stage: str) -> str | None:
+        if stage in self.stages:
+            return f"the --force run of {self.started} stopped before re-running it"
+        return None
+
+    def done(self, stage: str) -> None:
+        if stage in self.stages:
+            self.stages.remove(stage)
+            self._write()
+
+    def _write(self) -> None:
+        if self.stages:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            write_text_atomic(self.path, json.dumps(dict(started=self.started, stages=self.stages)) + "\n")
+        else:
+            self.path.unlink(missing_ok=True)
 
 
 def _refresh_stamp(root: Path, st: Stage, stamp: dict) -> None:

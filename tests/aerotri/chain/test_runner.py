@@ -812,3 +812,29 @@ def test_an_up_to_date_stage_removes_what_an_interrupted_run_of_it_left(tmp_path
     rows = run_stages(tmp_path, _stages(calls), log=lambda m: None)
     assert calls == ["double", "add"] and rows[0]["status"] == "skipped (up to date)"
     assert not left.exists()
+
+
+def test_a_force_run_stopped_midway_is_finished_by_the_next_run(tmp_path):
+    """Trial s96 L11: a --force run killed in control, then a plain run: control and every stage after it were "up
+    to date" (their inputs unchanged), so the forced re-run was silently never finished."""
+    (tmp_path / "in.txt").write_text("3")
+    calls = []
+    run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    assert calls == ["double", "add"]
+
+    def stop(r):
+        raise KeyboardInterrupt
+
+    stopping = _stages(calls)
+    stopping[1] = Stage("add", stopping[1].inputs, stopping[1].outputs, stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_stages(tmp_path, stopping, force=True, log=lambda m: None)
+    assert calls == ["double", "add", "double"]
+    lines = []
+    rows = run_stages(tmp_path, _stages(calls), log=lines.append)
+    assert calls == ["double", "add", "double", "add"]  # add re-run, double not again
+    assert rows[0]["status"] == "skipped (up to date)" and rows[1]["status"] == "done"
+    assert any("[add] running (the --force run of" in x and "stopped before re-running it" in x for x in lines), lines
+    assert not (tmp_path / "work" / "force_pending.json").exists()
+    run_stages(tmp_path, _stages(calls), log=lambda m: None)
+    assert calls == ["double", "add", "double", "add"]  # and then up to date
