@@ -1136,12 +1136,13 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         else:
             hd_text = height_datum_text(hd, height_limit_m)
             height_datum_weak = True
-    held_f = getattr(r, "held_focal", None)
-    if held_f is not None and held_f.rejected:
-        weaknesses.append(held_f.text(asked=any(c.group == "focal" for c in fixed)))
-    held_pp = getattr(r, "held_pp", None)
-    if held_pp is not None and held_pp.rejected:
-        weaknesses.append(held_pp.text())
+    held_f, held_pp, held_k = (getattr(r, k, None) for k in ("held_focal", "held_pp", "held_radial"))
+    # a held calibration value the images reject comes first, the most rejected first: the GNSS shifts, the control
+    # left out and the other terms follow from it (trial s97 M1: lens distortion held near zero, the message named
+    # the GNSS shifts, the control and the principal point first)
+    held = sorted((t for t in (held_f, held_pp, held_k) if t is not None and t.rejected),
+                  key=lambda t: -t.f_statistic / t.f_limit)
+    weaknesses[:0] = [t.text(asked=any(c.group == "focal" for c in fixed)) if t is held_f else t.text() for t in held]
     if ba.left_out:
         n = sum(len(lo.image_ids) for lo in ba.left_out)
         parts = "; ".join(f"{', '.join(lo.image_ids[:6])}{' ...' if len(lo.image_ids) > 6 else ''}: {lo.reason}"
@@ -1221,6 +1222,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
         "dem_check_failed": [d.role for d in dem_failed],
         "gnss_heights_off_dem": [d.role for d in gnss_dem],
         "focal_held_rejected": bool(held_f is not None and held_f.rejected),
+        "radial_held_rejected": bool(held_k is not None and held_k.rejected),
         # gtsam's CheiralityException lines (a point behind a camera at some iterate), counted, not printed
         "points_behind_camera": {"messages": int(lines), "point_camera_pairs": int(pairs)},
         "message": message,

@@ -18,7 +18,7 @@ from aerotri.core.errors import SolveError
 from aerotri.adjust.check_points import intersect, intersect_with_covariance
 from aerotri.adjust.cpp_output import counting
 from aerotri.adjust import surface_bias as sb
-from aerotri.adjust.held_calibration import held_focal, held_principal_point
+from aerotri.adjust.held_calibration import held_focal, held_principal_point, held_radial
 from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.determinability import ground_observations, pp_gnss_names_offset
 from aerotri.adjust.geometry_modes import geometry_modes
@@ -91,6 +91,9 @@ class AdjustmentResult:
     # held_calibration.HeldFocal: the focal length held at camera.toml's value against the images (None: estimated,
     # nothing observes the ground's heights, or no covariances computed)
     held_focal: object | None = None
+    # held_calibration.HeldRadial: the radial distortion held at camera.toml's values against the images (None:
+    # estimated, a model without it, or no covariances computed)
+    held_radial: object | None = None
 
     def control_left_out(self) -> np.ndarray:
         """Per control point: left out of the block, by the control test (``control_active`` off) or by every one of
@@ -305,6 +308,8 @@ def _adjust_block(
     held_f = (held_focal(block, opts, state, info, obs_active, control_active,
                          ground_heights=ground_observations(block, control_active, block.surface_active).height)
               if compute_marginals else None)
+    # and the radial distortion (trial s97 M1: a certificate's K on r in mm typed as k: weak, blaming all but the lens)
+    held_k = held_radial(block, opts, state, info, obs_active, control_active) if compute_marginals else None
 
     pose_cov = point_cov = cal_cov = marg = bias = None
     components, factors, geometry, calibration = None, None, None, None
@@ -391,7 +396,7 @@ def _adjust_block(
     return AdjustmentResult(
         state, info, sigma0, obs_active, control_active, removed, rejected, v, r, pose_cov, point_cov, cal_cov, marg,
         iterations, timings, stats, use, components, factors, block, opts, geometry, calibration, surface_bias=bias,
-        height_datum=height_datum, held_pp=held_pp, gnss_surface=gnss_surface, held_focal=held_f,
+        height_datum=height_datum, held_pp=held_pp, gnss_surface=gnss_surface, held_focal=held_f, held_radial=held_k,
     )
 
 

@@ -62,14 +62,21 @@ def _say_if_gbk(data: bytes, text: str, path) -> None:
     except UnicodeDecodeError:
         return
     odd = [c for c in text if ord(c) > 0x7F]
-    if any(0x3000 <= ord(c) <= 0x9FFF or 0xC0 <= ord(c) <= 0x24F or 0x370 <= ord(c) <= 0x4FF for c in odd):
+    # CJK, Latin letters and symbols (the degree sign of a WKT's area of use: trial s97 L3), Greek, Cyrillic,
+    # punctuation, units and mathematical signs are what UTF-8 files hold; GBK bytes read as UTF-8 by chance
+    # give modifier letters, Hebrew, Arabic and the like
+    if any(0x3000 <= ord(c) <= 0x9FFF or 0xA0 <= ord(c) <= 0x24F or 0x370 <= ord(c) <= 0x4FF
+           or 0x2000 <= ord(c) <= 0x22FF for c in odd):
         return
     if not any(0x4E00 <= ord(c) <= 0x9FFF for c in gbk):
         return
     lines, glines = text.splitlines(), gbk.splitlines()
     k = next((i for i, (a, b) in enumerate(zip(lines, glines)) if a != b), 0)
+    # the excerpts from a little before where the two readings part
+    col = next((i for i, (a, b) in enumerate(zip(lines[k], glines[k])) if a != b), 0) if lines else 0
+    a = max(0, col - 10)
     logging.getLogger("aerotri").warning(
-        f"{path}:{k + 1}: reads as UTF-8 {lines[k][:40]!r}, as GBK {glines[k][:40]!r}: a file saved as GBK "
+        f"{path}:{k + 1}: reads as UTF-8 {lines[k][a:a + 40]!r}, as GBK {glines[k][a:a + 40]!r}: a file saved as GBK "
         "(Chinese Windows' default) is read wrong; save it as UTF-8 (iconv -f GBK -t UTF-8)")
 
 

@@ -467,6 +467,12 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
         clock.lap("matching")
         ties = _ties(plan, camera, sparse, {}, matches, s)
         clock.lap("tracks")
+        if plan is not None:
+            from aerotri.match.image_top import image_top_check
+
+            top = image_top_check(plan, camera, ties.track, ties.image, ties.xy)
+            if top is not None and top.wrong:
+                log.warning(f"{project.root}: {top.text()}")
         densified = Densified()
         if s.densify and plan is not None:
             ties, extra, densified = _densify(mt, plan, sparse, ties, s)

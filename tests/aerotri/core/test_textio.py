@@ -51,3 +51,24 @@ def test_record_error_names_the_file_the_record_and_the_field():
     except KeyError as exc:
         err = record_error("out/strips.json", WHAT, exc)
     assert str(err) == "out/strips.json: not a strip check (strips.json): KeyError 'pairs'"
+
+
+def test_utf8_symbols_are_not_taken_for_gbk(tmp_path, caplog):
+    """Trial s97 L3: our own orthority export's .prj (WKT2 with "Between 108°E and 114°E") re-imported warned of a
+    GBK file, its two excerpts identical (they stopped before the degree sign). Symbols are UTF-8's own; GBK text
+    read as UTF-8 by chance is still said, its excerpts where the readings part."""
+    import logging
+
+    from aerotri.core.textio import read_text
+
+    prj = tmp_path / "ext_param.prj"
+    prj.write_text('PROJCRS["CGCS2000 / 3-degree Gauss-Kruger CM 111E",BASEGEOGCRS["China Geodetic Coordinate '
+                   'System 2000"],USAGE[AREA["China - between 109°30\'E and 112°30\'E"]]] ±0.5 µm 2²\n', encoding="utf-8")
+    with caplog.at_level(logging.WARNING, logger="aerotri"):
+        assert "109°30" in read_text(prj)
+    assert "GBK" not in caplog.text
+    gbk = tmp_path / "levels.csv"
+    gbk.write_bytes(("id,x,y,h\n" + "A" * 60 + ",水准G1,1,2\n").encode("gbk"))
+    with caplog.at_level(logging.WARNING, logger="aerotri"):
+        read_text(gbk)
+    assert "reads as UTF-8 'AAAAAAAAA,ˮ" in caplog.text and "as GBK 'AAAAAAAAA,水准G1" in caplog.text, caplog.text

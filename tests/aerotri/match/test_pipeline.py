@@ -298,3 +298,59 @@ def test_a_block_in_unconnected_parts_is_warned_by_match(matched, tmp_path, monk
     assert rep.components == 2
     warned = [r.getMessage() for r in caplog.records if "falls apart into 2 parts" in r.getMessage()]
     assert len(warned) == 1 and "mean_terrain_height_m" in warned[0], caplog.text
+
+
+def _ties_seen_turned(plan, camera, true_top_deg, step_px=2):
+    """Tie observations (track, image, xy) of neighbouring frames of ``plan``'s strips for frames whose image top is
+    really ``true_top_deg`` from the flight direction (nominal attitude, flat terrain): points of the first frame
+    found on the second by the nearest ground position of a pixel grid of it (within one grid step on the ground)."""
+    from scipy.spatial import cKDTree
+
+    from aerotri.match.pairs import flat_ground_xy
+
+    turn = true_top_deg - plan.image_top_deg
+    gx, gy = np.meshgrid(np.arange(0, camera.width, step_px, dtype=float), np.arange(0, camera.height, step_px,
+                                                                                       dtype=float))
+    grid = np.c_[gx.ravel(), gy.ravel()]
+    rng = np.random.default_rng(3)
+    track, image, xy, t = [], [], [], 0
+    for a in range(len(plan.image_id) - 1):
+        b = a + 1
+        if plan.strip[a] != plan.strip[b]:
+            continue
+        ground = lambda k, p: flat_ground_xy(plan.centre_m[k], plan.kappa_deg[k] + turn, plan.terrain_height_m,  # noqa: E731
+                                             camera, p)
+        pa = rng.uniform([0, 0], [camera.width - 1, camera.height - 1], size=(400, 2))
+        gb = ground(b, grid)
+        dist, k = cKDTree(gb).query(ground(a, pa))
+        ok = dist < np.hypot(*(gb[1] - gb[0])) * 1.5
+        for p, q in zip(pa[ok], grid[k[ok]]):
+            track += [t, t]
+            image += [a, b]
+            xy += [p, q]
+            t += 1
+    return np.array(track), np.array(image), np.array(xy)
+
+
+def test_the_tie_points_tell_a_portrait_camera_flown_with_its_long_side_along_track():
+    """Trial s97 M3: a camera turned 90 deg in the aircraft (portrait frames, long side along track) was planned with
+    its top across the flight (the default from the frame's shape): half the ties, every stereo model weak, and the
+    report blamed water or snow. The ties' ground positions between neighbouring frames agree only turned back."""
+    from aerotri.geom.camera import BrownCamera
+    from aerotri.match.image_top import image_top_check
+
+    cam = BrownCamera(focal_mm=50.0, pixel_um=40.0, width=240, height=320, name="turned")
+    # one strip east at 1000 m over flat ground at 0: footprint 192 x 256 m, long side along track, base 100 m
+    pos = np.array([(x, 0.0, 1000.0) for x in (0, 100, 200, 300, 400)])
+    ids = [f"a{i}" for i in range(5)]
+    planned = plan_block(ids, pos, cam, [0, 0, 0], 0.0)
+    assert planned.image_top_deg == 90.0
+    check = image_top_check(planned, cam, *_ties_seen_turned(planned, cam, true_top_deg=0.0))
+    assert check.wrong and check.pairs == 4, check
+    assert check.misfit_m[0.0] > 50.0 and check.misfit_m[check.best_turn_deg] < 2.0, check
+    assert "image top at 0 deg from the flight direction, not the 90 deg" in check.text()
+    assert "--image-top-deg 0 " in check.text()
+    # planned right: nothing to say
+    right = plan_block(ids, pos, cam, [0, 0, 0], 0.0, image_top_deg=0.0)
+    check = image_top_check(right, cam, *_ties_seen_turned(right, cam, true_top_deg=0.0))
+    assert not check.wrong and check.misfit_m[0.0] < 2.0, check
