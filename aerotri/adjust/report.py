@@ -479,7 +479,9 @@ def _options(ba, tolerances: str) -> dict:
     has_gnss = b.gnss_local is not None
     return {
         "adjustment_mode": "Absolute" if (len(ba.control) or has_gnss) else "Relative",
-        "precision_computation": "Enabled" if r.pose_cov is not None else "Disabled",
+        # (trial s97 M2: "Disabled" where the covariances had failed, nothing having disabled them)
+        "precision_computation": "Enabled" if r.pose_cov is not None else
+        "Failed (the normal matrix too ill-conditioned for its factor)",
         "error_detection": "Enabled" if st.snooping else "Disabled",
         "camera_calibration": "Enabled (the given calibration: camera.toml, a priori)",
         "self_calibration": _self_calibration_option(ba),
@@ -1852,10 +1854,14 @@ def format_txt(rep: dict) -> str:
         if rep.get("check_points_from_lidar"):
             L.append(f"  {rep['check_points_from_lidar']} check points are corners of the same LiDAR as the surface "
                      "control: they share its strip offsets, so their agreement does not test the LiDAR's datum")
-    unmeasured = [f"{r['id']} ({r['rays']} ray{'s' if r['rays'] != 1 else ''})" for r in rep["check_points"]
-                  if None in (r["adjusted_m"] or [None])[:2]]
-    if unmeasured:  # their rows are blank: say why (trial-qa)
-        L.append(f"  not intersected (fewer than 2 rays; no residual, not in the RMS): {', '.join(unmeasured)}")
+    unmeasured = [r for r in rep["check_points"] if None in (r["adjusted_m"] or [None])[:2]]
+    few = [f"{r['id']} ({r['rays']} ray{'s' if r['rays'] != 1 else ''})" for r in unmeasured if r["rays"] < 2]
+    parallel = [f"{r['id']} ({r['rays']} rays)" for r in unmeasured if r["rays"] >= 2]
+    if few:  # their rows are blank: say why (trial-qa)
+        L.append(f"  not intersected (fewer than 2 rays; no residual, not in the RMS): {', '.join(few)}")
+    if parallel:  # (trial s97 H1)
+        L.append("  not intersected (rays too nearly parallel, below about 0.3 deg: frames of one station, a re-flown "
+                 f"strip's; no residual, not in the RMS): {', '.join(parallel)}")
     if rep["self_calibration"]:
         L += [""] + _self_calibration_txt(rep["self_calibration"])
     if rep["gnss_strips"]:

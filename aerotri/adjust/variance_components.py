@@ -73,6 +73,28 @@ def gnss_rows(block: G.Block, opts: G.SolveSettings, state: G.State) -> tuple[np
     return pred, rows
 
 
+def gnss_w_statistics(block: G.Block, opts: G.SolveSettings, state: G.State, rc) -> np.ndarray | None:
+    """(N,) Baarda's w of each GNSS position, the largest of its axes: the residual over its sigma times the square
+    root of its partial redundancy, ``|e| / (sigma sqrt(1 - w cov))`` with the unit-weight covariance ``rc`` of the
+    solution (0 for a position left out or of no redundancy); None without GNSS or covariances. A frame that takes a
+    position's error up shows a small residual of small redundancy: a 2 m slip on a 1,000-frame block left 0.355 m
+    (7.1 sigma, under the raw residuals' 8) at a redundancy of about 0.2 (trial s97 H1)."""
+    if block.gnss_local is None or rc is None:
+        return None
+    pred, rows = gnss_rows(block, opts, state)
+    e = block.gnss_local - pred
+    w = 1.0 / block.gnss_sigma_m**2
+    idx = np.array([np.concatenate([rc.offset[k] + np.arange(J.shape[1]) for k, J in row]) for row in rows])
+    J = np.array([np.hstack([Jk for _, Jk in row]) for row in rows])
+    var = np.einsum("nij,njk,nik->ni", J, rc.entries(idx[:, :, None], idx[:, None, :]), J)  # diagonal of J S J'
+    r = 1.0 - w * var
+    with np.errstate(invalid="ignore", divide="ignore"):
+        stat = np.abs(e) * np.sqrt(w) / np.sqrt(r)
+    stat = np.where(np.isfinite(stat) & (r > 1e-6) & np.isfinite(w) & (w > 0), stat, 0.0)
+    stat[~np.asarray(block.gnss_used, dtype=bool)] = 0.0
+    return stat.max(axis=1)
+
+
 def estimate(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, control_active, rc, *, point_cov_unit,
              dof: int) -> list[VarianceComponent]:
     """The variance components of the groups present in the block at the solution ``state`` (final,

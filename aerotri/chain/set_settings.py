@@ -75,7 +75,7 @@ def checked_settings(items, root, config: dict | None = None) -> list[SettingCha
             if section in STAGE_SECTIONS and section in tables:
                 from_table(STAGE_SECTIONS[section], Project(root, tables, sections).stage_table(section),
                            f"{here} [{section}]", base_dir=root)
-    changes = []
+    changes, deferred = [], []
     for item in items:
         path, value = parse_item(item)
         if path[:2] == ("project", "crs"):
@@ -90,7 +90,8 @@ def checked_settings(items, root, config: dict | None = None) -> list[SettingCha
         if isinstance(table.get(path[-1]), dict):
             raise OptionError(f"{where}: {'.'.join(path)} is a section; give one of its keys", param="--set")
         was, table[path[-1]] = table.get(path[-1]), value
-        try:
+
+        def check(path=path, where=where):
             sections = check_sections(tables, where)
             project_cls = PROJECT_SECTIONS.get(path[0])
             if project_cls is not None and path[1] in {f.name for f in dataclasses.fields(project_cls)}:
@@ -101,9 +102,19 @@ def checked_settings(items, root, config: dict | None = None) -> list[SettingCha
             _warn_missing_file(typed, path[1:], root, where)
             if path[:2] == ("project", "heights"):
                 parse_heights(sections.project.heights, where)
+
+        try:
+            check()
         except InputError as exc:
-            raise OptionError(str(exc), param="--set") from None
+            # a key that needs another (offset_sigma_xy_m with offset_sigma_z_m) is judged again with the items
+            # after it (trial s97 L1: both given in one command, the first was refused "give both ... or neither")
+            deferred.append((check, exc))
         changes.append(SettingChange(path, value, was))
+    for check, exc in deferred:
+        try:
+            check()
+        except InputError:
+            raise OptionError(str(exc), param="--set") from None
     return changes
 
 

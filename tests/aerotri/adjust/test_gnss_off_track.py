@@ -190,3 +190,20 @@ def test_a_frame_taken_out_of_a_strip_leaves_its_neighbours_sound():
         slip = q.copy()
         slip[1] += (0.0, lateral, 0.0)   # a wrong fix beside the gap
         assert track_blunders(slip, np.full((len(q), 3), 0.05)).index.tolist() == found, lateral
+
+
+def test_a_slip_the_frame_takes_up_is_found_by_its_standardised_residual(tmp_path):
+    """Trial s97 H1: a 2 m slip in X (40 of its 0.05 m sigmas) in the middle of a strip of a 1,000-frame block left a
+    residual of 0.355 m (7.1 sigma, under the raw residuals' 8) and the frame 1.56 m and 0.196 deg off, "Solution
+    Successful": its redundancy is small, its w (residual over sigma times the root of the redundancy) 16.2. Here a
+    block of 5 strips of 10 frames (the test needs 50) with a 1 m slip: before, a residual of 0.308 m (6.2 sigma) and
+    nothing named (0.5 and 0.8 m the same); the clean block leaves every position in."""
+    block = geometric_block(5, 10, seed=11)
+    root = write_block_project(block, tmp_path / "clean")
+    write_truth_observations(root, n_control=5, points_per_image=120, n_check=6, seed=12)
+    clean = adjust_project(root, AdjustSettings(gnss_correction="shift_drift"))
+    assert clean.gnss_left_out == ()
+    iid = _slipped(root, tmp_path / "slip", 15, (1.0, 0.0, 0.0))  # the 5th frame of the second strip
+    ba = adjust_project(tmp_path / "slip", AdjustSettings(gnss_correction="shift_drift"))
+    assert [g.image_id for g in ba.gnss_left_out] == [iid]
+    assert abs(ba.gnss_left_out[0].deviation_m[0] - 1.0) < 0.2, ba.gnss_left_out

@@ -121,6 +121,8 @@ def test_settings_set_changes_the_project(tiny_project, tmp_path):
     (["--set", "flight.speed_mps=65", "--set", "mosaic.no_such_key=1"], "--set mosaic.no_such_key=1 [mosaic]: unknown key"),
     (["--set", "project.crs=EPSG:32650"], "the project CRS is chosen at aerotri init --crs"),
     (["--markdown", "--set", "flight.speed_mps=65"], "--set changes a project's project.toml: give PROJECT"),
+    (["--set", "gnss.offset_sigma_xy_m=0.1", "--set", "flight.speed_mps=70"],
+     "--set gnss.offset_sigma_xy_m=0.1 [gnss]: offset_sigma_xy_m and offset_sigma_z_m: give both"),
 ])
 def test_settings_set_refused_leaves_the_file_as_it_was(args, expect, tiny_project, tmp_path):
     p = _project(tiny_project, tmp_path)
@@ -148,3 +150,15 @@ def test_a_typo_already_in_project_toml_is_named_as_the_file_s(tiny_project, tmp
     assert "--set" not in errors[0] and (p / "project.toml").read_bytes() == before
     r = CliRunner().invoke(main, ["settings", str(p), "--set", "mosaic.feather_m=0.8"])
     assert r.exit_code == 0, r.output
+
+
+def test_two_keys_that_go_together_are_set_in_one_command(tiny_project, tmp_path):
+    """Trial s97 L1: `--set gnss.offset_sigma_xy_m=0.1 --set gnss.offset_sigma_z_m=50` was refused ("give both ... or
+    neither"), in either order: each item was checked alone."""
+    for order in ((0, 1), (1, 0)):
+        p = _project(tiny_project, tmp_path / str(order[0]))
+        items = ["gnss.offset_sigma_xy_m=0.1", "gnss.offset_sigma_z_m=50"]
+        r = CliRunner().invoke(main, ["settings", str(p)] + [a for k in order for a in ("--set", items[k])])
+        assert r.exit_code == 0, r.output
+        gnss = tomllib.loads((p / "project.toml").read_text())["gnss"]
+        assert gnss["offset_sigma_xy_m"] == 0.1 and gnss["offset_sigma_z_m"] == 50

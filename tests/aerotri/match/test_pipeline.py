@@ -354,3 +354,27 @@ def test_the_tie_points_tell_a_portrait_camera_flown_with_its_long_side_along_tr
     right = plan_block(ids, pos, cam, [0, 0, 0], 0.0, image_top_deg=0.0)
     check = image_top_check(right, cam, *_ties_seen_turned(right, cam, true_top_deg=0.0))
     assert not check.wrong and check.misfit_m[0.0] < 2.0, check
+
+
+def test_the_flight_plan_takes_the_frames_in_image_id_order_whatever_the_order_of_gnss_txt(tiny_project, tmp_path):
+    """Trial s97 M5: a frame's line put back at the end of gnss.txt broke its strip in two (a false weak model,
+    16,623 tracks for 17,053): the plan takes the frames in image-id order, as the adjustment does."""
+    from aerotri.core.project import Project
+    from aerotri.geom.camera import project_camera
+    from aerotri.geom.eo import check_block_crs
+    from aerotri.match.pipeline import _read_frames
+    from aerotri.match.settings import MatchSettings
+
+    p = tmp_path / "p"
+    shutil.copytree(tiny_project, p)
+    project = Project.open(p)
+    cam, crs = project_camera(project), check_block_crs(project.crs, "crs")
+    before = _read_frames(project, crs, cam, MatchSettings())
+    lines = (p / "gnss.txt").read_text().splitlines()
+    body = [x for x in lines if not x.startswith("#")]
+    moved = body[2:] + body[:2]  # two frames of the first strip appended at the end
+    (p / "gnss.txt").write_text("\n".join([x for x in lines if x.startswith("#")] + moved) + "\n")
+    after = _read_frames(Project.open(p), crs, cam, MatchSettings())
+    assert after.ids == before.ids == sorted(before.ids)
+    assert after.plan.strip.tolist() == before.plan.strip.tolist()
+    assert np.allclose(after.plan.centre_m, before.plan.centre_m)
