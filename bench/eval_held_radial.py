@@ -46,7 +46,8 @@ def main() -> None:
             d.mkdir()
             ba, rec = adjust_with_certificate(t / "blk", d, k1=k1, k2=k2)
             h = ba.result.held_radial
-            runs.append({"seed": seed, "typed": name, "k1": k1, "k2": k2, "corner_shift_px": round(h.corner_shift_px, 3),
+            runs.append({"seed": seed, "typed": name, "k1": k1, "k2": k2,
+                         "corner_shift_px": round(h.corner_shift_px, 3),
                          "free_k1": round(h.free[0], 5), "f_statistic": round(h.f_statistic, 2),
                          "f_limit": round(h.f_limit, 2), "flagged": bool(h.rejected),
                          "verdict": rec["key_statistics"]["verdict"]})

@@ -43,9 +43,9 @@ class _StderrFormatter(logging.Formatter):
 
 
 class _AsDetail(logging.Filter):
-    """A library's record (any logger outside ``PACKAGES``) (and a Python warning) logged at DEBUG, its own level kept in the message: they are
-    details, and a monitor that looks for WARNING or ERROR lines in a log file should find ours only (trial
-    "overnight" L4: rasterio's PendingDeprecationWarning 7-11 times a run)."""
+    """A library's record (any logger outside ``PACKAGES``; a Python warning too) logged at DEBUG, its own level
+    kept in the message: they are details, and a monitor that looks for WARNING or ERROR lines in a log file should
+    find ours only (trial "overnight" L4: rasterio's PendingDeprecationWarning 7-11 times a run)."""
 
     def filter(self, record):
         if record.levelno > logging.DEBUG and record.name.split(".")[0] not in PACKAGES:

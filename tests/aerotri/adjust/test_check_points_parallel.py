@@ -13,14 +13,9 @@ from aerotri.cli import main
 from aerotri.sim.command import simulate_command
 
 
-def test_a_check_point_seen_from_one_station_only_is_left_out_of_the_check(tmp_path):
-    root = tmp_path / "blk"
-    simulate_command("tiny", root, seed=11, observations_only=True)
-    rng = np.random.default_rng(5)
-    obs = (root / "control/image_points.csv").read_text().splitlines()
-    chk = [x for x in obs[1:] if x.startswith("chk01,")]
-    frame = chk[0].split(",")[1]
-    # that frame of chk01 flown again from its station: its GNSS line 2 cm off, its tie points measured again (0.3 px)
+def _reflown(root, frame: str, rng) -> list[str]:
+    """``frame`` of the block at ``root`` flown again from its station: its GNSS line 2 cm off as ``<frame>b``; the
+    lines of at/tiepoints.csv (header first) with the frame's tie points measured again in it (0.3 px)."""
     gnss = (root / "gnss.txt").read_text().splitlines()
     line = next(x for x in gnss if x.startswith(frame + " ")).split()
     line[0], line[1] = frame + "b", f"{float(line[1]) + 0.02:.4f}"
@@ -32,7 +27,17 @@ def test_a_check_point_seen_from_one_station_only_is_left_out_of_the_check(tmp_p
         if i == frame:
             du, dv = rng.normal(0.0, 0.3, 2)
             again.append(f"{p},{frame}b,{float(u) + du:.3f},{float(v) + dv:.3f}")
-    (root / "at/tiepoints.csv").write_text("\n".join(ties + again) + "\n")
+    return ties + again
+
+
+def test_a_check_point_seen_from_one_station_only_is_left_out_of_the_check(tmp_path):
+    root = tmp_path / "blk"
+    simulate_command("tiny", root, seed=11, observations_only=True)
+    rng = np.random.default_rng(5)
+    obs = (root / "control/image_points.csv").read_text().splitlines()
+    chk = [x for x in obs[1:] if x.startswith("chk01,")]
+    frame = chk[0].split(",")[1]
+    (root / "at/tiepoints.csv").write_text("\n".join(_reflown(root, frame, rng)) + "\n")  # that frame of chk01
     # chk01 measured in that frame and its re-flight only
     kept = [x for x in obs if not x.startswith("chk01,")] + [chk[0], chk[0].replace(f",{frame},", f",{frame}b,")]
     (root / "control/image_points.csv").write_text("\n".join(kept) + "\n")
@@ -55,18 +60,9 @@ def test_tie_points_seen_from_one_station_only_do_not_stop_the_adjustment(tmp_pa
     root = tmp_path / "blk"
     simulate_command("tiny", root, seed=11, observations_only=True)
     rng = np.random.default_rng(7)
-    gnss = (root / "gnss.txt").read_text().splitlines()
-    frame = gnss[3].split()[0]
-    line = gnss[3].split()
-    line[0], line[1] = frame + "b", f"{float(line[1]) + 0.02:.4f}"
-    (root / "gnss.txt").write_text("\n".join(gnss + [" ".join(line)]) + "\n")
-    ties = (root / "at/tiepoints.csv").read_text().splitlines()
+    frame = (root / "gnss.txt").read_text().splitlines()[3].split()[0]
+    lines = _reflown(root, frame, rng)
     again = []
-    for x in ties[1:]:
-        p, i, u, v = x.split(",")
-        if i == frame:
-            du, dv = rng.normal(0.0, 0.3, 2)
-            again.append(f"{p},{frame}b,{float(u) + du:.3f},{float(v) + dv:.3f}")
     # and points that only the frame and its re-flight see, 0.3 px apart
     import tomllib
 
@@ -74,7 +70,7 @@ def test_tie_points_seen_from_one_station_only_do_not_stop_the_adjustment(tmp_pa
     for n, (u, v) in enumerate(rng.uniform([0, 0], [cam["width"] - 1, cam["height"] - 1], size=(60, 2))):
         du, dv = rng.normal(0.0, 0.3, 2)
         again += [f"TD{n:05d},{frame},{u:.3f},{v:.3f}", f"TD{n:05d},{frame}b,{u + du:.3f},{v + dv:.3f}"]
-    (root / "at/tiepoints.csv").write_text("\n".join(ties + again) + "\n")
+    (root / "at/tiepoints.csv").write_text("\n".join(lines + again) + "\n")
     r = CliRunner().invoke(main, ["adjust", str(root), "--dem", str(root / "dem.tif")])
     assert r.exit_code == 0, r.output
     rep = json.loads((root / "at/report.json").read_text())

@@ -63,7 +63,8 @@ def test_utf8_symbols_are_not_taken_for_gbk(tmp_path, caplog):
 
     prj = tmp_path / "ext_param.prj"
     prj.write_text('PROJCRS["CGCS2000 / 3-degree Gauss-Kruger CM 111E",BASEGEOGCRS["China Geodetic Coordinate '
-                   'System 2000"],USAGE[AREA["China - between 109°30\'E and 112°30\'E"]]] ±0.5 µm 2²\n', encoding="utf-8")
+                   'System 2000"],USAGE[AREA["China - between 109°30\'E and 112°30\'E"]]] ±0.5 µm 2²\n',
+                   encoding="utf-8")
     with caplog.at_level(logging.WARNING, logger="aerotri"):
         assert "109°30" in read_text(prj)
     assert "GBK" not in caplog.text

@@ -318,8 +318,8 @@ def _ties_seen_turned(plan, camera, true_top_deg, step_px=2):
         b = a + 1
         if plan.strip[a] != plan.strip[b]:
             continue
-        ground = lambda k, p: flat_ground_xy(plan.centre_m[k], plan.kappa_deg[k] + turn, plan.terrain_height_m,  # noqa: E731
-                                             camera, p)
+        def ground(k, p):
+            return flat_ground_xy(plan.centre_m[k], plan.kappa_deg[k] + turn, plan.terrain_height_m, camera, p)
         pa = rng.uniform([0, 0], [camera.width - 1, camera.height - 1], size=(400, 2))
         gb = ground(b, grid)
         dist, k = cKDTree(gb).query(ground(a, pa))
