@@ -325,7 +325,9 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     try:
         _run_each(root, stages, rows, force, log, clock)
     except BaseException as exc:
-        stopped = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+        from aerotri.core.errors import interrupt_of
+
+        stopped = "interrupted" if interrupt_of(exc) is not None else "failed"
         done_names = {r["stage"] for r in rows}
         stage = next((st.name for st in stages if st.name not in done_names), None)
         if stage is not None:
@@ -351,11 +353,12 @@ def _mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[
     "the run of <time> stopped at <stage>"), saying why as the console's error does; a failure of the marking is
     warned, never raised over ``exc``. (A refusal before the first stage marks nothing: bad input changes no file.)"""
     from aerotri.core.commands import fault_message
+    from aerotri.core.errors import interrupt_of
 
-    stopped = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+    stopped = "interrupted" if interrupt_of(exc) is not None else "failed"
     try:
-        if isinstance(exc, KeyboardInterrupt):
-            why = str(exc) or "Ctrl-C"
+        if interrupt_of(exc) is not None:
+            why = str(interrupt_of(exc)) or "Ctrl-C"
         else:  # what the console's error says (a full disk names the file), without what the banner says itself
             why = (fault_message(exc, "aerotri run") or "").split("; ")[0] or \
                 (str(exc).splitlines() or [type(exc).__name__])[0]

@@ -34,7 +34,7 @@ from pathlib import Path
 import click
 
 from aerotri.core import log
-from aerotri.core.errors import AerotriError
+from aerotri.core.errors import AerotriError, interrupt_of
 
 _logger = logging.getLogger("aerotri")
 
@@ -315,12 +315,10 @@ class Command(click.Command):
             _to_log_file(logging.ERROR, message)
             sys.exit(2)
         except KeyboardInterrupt as exc:
-            click.echo("Interrupted.", err=True)
-            # SIGTERM exits 128 + 15 as a shell reports a terminated process, Ctrl-C 130 (trial s96 M4: 130 for both)
-            term = "SIGTERM" in exc.args
-            _to_log_file(logging.ERROR, f"{ctx.command_path}: interrupted ({'SIGTERM' if term else 'Ctrl-C'})")
-            sys.exit(143 if term else 130)
+            _interrupted(ctx, exc)
         except Exception as exc:
+            if interrupt_of(exc) is not None:
+                _interrupted(ctx, interrupt_of(exc))
             writes_to = getattr(self, "_writes_to", [])
             message = fault_message(exc, getattr(exc, "aerotri_doing", None) or ctx.command_path,
                                     ", ".join(map(str, writes_to)) or None, writes_to)
@@ -330,6 +328,14 @@ class Command(click.Command):
             _to_log_file(logging.ERROR, f"Error: {message}")
             _logger.debug("error details", exc_info=exc)
             sys.exit(2)
+
+
+def _interrupted(ctx, exc: KeyboardInterrupt) -> None:
+    click.echo("Interrupted.", err=True)
+    # SIGTERM exits 128 + 15 as a shell reports a terminated process, Ctrl-C 130 (trial s96 M4: 130 for both)
+    term = "SIGTERM" in exc.args
+    _to_log_file(logging.ERROR, f"{ctx.command_path}: interrupted ({'SIGTERM' if term else 'Ctrl-C'})")
+    sys.exit(143 if term else 130)
 
 
 def _inside(path: Path, folder: Path) -> bool:

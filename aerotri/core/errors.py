@@ -69,3 +69,16 @@ class SolveError(AerotriError):
     """The observations are valid but the adjustment cannot be solved (singular, no datum, divergent)."""
 
     label = "Adjustment failed"
+
+
+def interrupt_of(exc: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C (or SIGTERM, raised as one) behind ``exc``: itself, or one in its chain of causes and contexts
+    (numba's compiled functions wrap it in a SystemError "returned a result with an exception set": trial s97 M4, a
+    chained traceback and exit 1 for a Ctrl-C); None."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None

@@ -39,6 +39,30 @@ def test_sigterm_leaves_no_partial_output(tmp_path):
     assert list(tmp_path.iterdir()) == []  # neither the output nor its temporary
 
 
+WRAPPED = textwrap.dedent("""
+    import click
+    from aerotri.core.commands import Command
+
+    @click.command(cls=Command)
+    def numba_like():
+        # what numba's compiled functions raise for a Ctrl-C inside them: the KeyboardInterrupt as the context of a
+        # SystemError "returned a result with an exception set"
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(<function _runs_parallel>) returned a result with an exception set")
+
+    numba_like()
+""")
+
+
+def test_ctrl_c_inside_compiled_code_is_an_interrupt():
+    """Trial s97 M4: Ctrl-C in a numba phase of `aerotri adjust` printed a chained traceback (KeyboardInterrupt ->
+    SystemError -> SystemError) and exited 1; it is "Interrupted.", 130, as elsewhere."""
+    p = subprocess.run([sys.executable, "-c", WRAPPED], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 130 and "Interrupted." in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
 def test_unchained_gdal_write_failure_is_a_one_line_disk_error():
     """rasterio's 'Write failed' of a window (a full disk under a 1 GP mosaic, GDAL's cause not chained) is a
     file-system fault with the output named, not a traceback."""
