@@ -23,6 +23,10 @@ from aerotri.adjust.check_points import intersect_rays, sum_by_index
 from aerotri.adjust.collinearity import pixel_rays
 from aerotri.geom.rotation import FLIP_YZ, rotation_matrix_opk
 
+# no ray of a frame camera reaches this many times its height above the ground: nearly parallel rays meet further
+# (a re-flown frame beside the frame of its station: up to 1e9 m, trial s97 H2), where no map projection takes them
+MAX_REACH_FLYING_HEIGHTS = 10.0
+
 
 def kappa_from_image_motion(gnss_local, strip, obs_point, obs_image, obs_xy_px) -> np.ndarray:
     """Kappa (deg) per frame from tie-point motion to the next (or previous) frame of its strip."""
@@ -158,10 +162,8 @@ def intersect_points(obs_point, obs_image, obs_xy_px, centre, R_cv, cal, *, n_po
     ahead = np.einsum("ki,ki->k", np.nan_to_num(pts[obs_point]) - c, d) > 0
     behind = np.bincount(obs_point, weights=(~ahead).astype(float), minlength=n_points) > 0
     ok &= ~behind & (np.nan_to_num(pts[:, 2], nan=np.inf) < centre[:, 2].min())
-    # nearly parallel rays meet far off (a re-flown frame beside the frame of its station: up to 1e9 m, trial s97
-    # H2): no ray of a frame camera reaches ten times its height above the ground
     reach = np.linalg.norm(np.nan_to_num(pts[obs_point], nan=np.inf) - c, axis=1)
-    too_far = reach > 10.0 * np.maximum(np.abs(c[:, 2] - ground_height_m), 1.0)
+    too_far = reach > MAX_REACH_FLYING_HEIGHTS * np.maximum(np.abs(c[:, 2] - ground_height_m), 1.0)
     ok &= np.bincount(obs_point, weights=too_far.astype(float), minlength=n_points) == 0
     plane = _ground_hits(c, d, obs_point, n_points, ground_height_m)
     return np.where(ok[:, None], pts, plane)

@@ -51,17 +51,23 @@ FOCAL_MIN_SHIFT = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
-class HeldPrincipalPoint:
+class _TestFigures:
+    """What every held-value test gives: sigma0 held and freed (um on the sensor), the F statistic and its limit."""
+
+    sigma0_held_um: float
+    sigma0_free_um: float
+    f_statistic: float
+    f_limit: float
+
+
+@dataclasses.dataclass(frozen=True)
+class HeldPrincipalPoint(_TestFigures):
     """The held principal point against the images: the freed estimate's shift from it (px, x right / y down, and
     mm, x right / y up), sigma0 held and freed (um on the sensor), the F statistic and its limit."""
 
     shift_px: tuple[float, float]
     shift_mm: tuple[float, float]
     held_mm: tuple[float, float]
-    sigma0_held_um: float
-    sigma0_free_um: float
-    f_statistic: float
-    f_limit: float
 
     @property
     def rejected(self) -> bool:
@@ -78,27 +84,26 @@ class HeldPrincipalPoint:
 
 
 @dataclasses.dataclass(frozen=True)
-class _FreedTest:
+class _FreedTest(_TestFigures):
     """The held values' test by the drop of chi2 with ``n`` parameters freed: sigma0 held and freed (um on the
     sensor), F = (chi2_held - chi2_free) / n / sigma0_free^2 and its limit F(n, dof) at alpha; ``cal`` the freed
     Cal3DS2 values (fx fy s u0 v0 ... px)."""
 
     cal: np.ndarray
-    sigma0_held_um: float
-    sigma0_free_um: float
-    f_statistic: float
-    f_limit: float
 
     def fields(self) -> dict:
         """The test's figures as the Held* results' fields."""
-        return dict(sigma0_held_um=self.sigma0_held_um, sigma0_free_um=self.sigma0_free_um,
-                    f_statistic=self.f_statistic, f_limit=self.f_limit)
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(_TestFigures)}
 
 
 def _freed(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.SolveInfo, obs_active, control_active,
            group: str, n: int, alpha: float) -> _FreedTest | None:
     """The final least squares once more from ``state`` with the calibration ``group`` (``n`` parameters) free,
-    tested against ``info`` (the solve that held it); None without degrees of freedom or a finite chi2."""
+    tested against ``info`` (the solve that held it); None when the group is estimated already, the camera model has
+    none, or there are no degrees of freedom or no finite chi2 to test with."""
+    if (group in opts.self_calibration or group not in block.camera.SELF_CAL_GROUPS or not info.dof > n
+            or not info.chi2 > 0):
+        return None
     free = dataclasses.replace(opts, self_calibration=tuple(opts.self_calibration) + (group,))
     gr = G.build_graph(block, free, state, obs_active, control_active, robust=False)
     values, info_free = G.optimize(gr, free)
@@ -117,9 +122,6 @@ def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, 
     """The test of the module docstring for a solution ``state`` (``info``: its final least squares, the principal
     point held), or None when the principal point is estimated, the camera model has none or nothing is left to
     test it with."""
-    groups = block.camera.SELF_CAL_GROUPS
-    if "pp" in opts.self_calibration or "pp" not in groups or not info.dof > 2 or not info.chi2 > 0:
-        return None
     freed = _freed(block, opts, state, info, obs_active, control_active, "pp", 2, alpha)
     if freed is None:
         return None
@@ -134,7 +136,7 @@ def held_principal_point(block: G.Block, opts: G.SolveSettings, state: G.State, 
 
 
 @dataclasses.dataclass(frozen=True)
-class HeldFocal:
+class HeldFocal(_TestFigures):
     """The held focal length against the images: held and freed (px), the camera's pixel (um), sigma0 held and freed
     (um on the sensor), the F statistic and its limit."""
 
@@ -142,10 +144,6 @@ class HeldFocal:
     free_px: float
     pixel_um: float
     focal_mm: float
-    sigma0_held_um: float
-    sigma0_free_um: float
-    f_statistic: float
-    f_limit: float
 
     @property
     def shift(self) -> float:
@@ -174,8 +172,7 @@ def held_focal(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.So
     """The focal length's test of the module docstring for a solution ``state`` (``info``: its final least squares,
     the focal length held); None when it is estimated, nothing observes the ground's heights (``ground_heights``),
     or nothing is left to test it with."""
-    if ("focal" in opts.self_calibration or "focal" not in block.camera.SELF_CAL_GROUPS or not ground_heights
-            or not info.dof > 1 or not info.chi2 > 0):
+    if not ground_heights:
         return None
     freed = _freed(block, opts, state, info, obs_active, control_active, "focal", 1, alpha)
     if freed is None:
@@ -188,7 +185,7 @@ def held_focal(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.So
 
 
 @dataclasses.dataclass(frozen=True)
-class HeldRadial:
+class HeldRadial(_TestFigures):
     """The held radial distortion (k1, k2 of normalised coordinates) against the images: held and freed, the shift
     freeing it makes at the frame's corner (px), sigma0 held and freed (um on the sensor), the F statistic and its
     limit."""
@@ -196,10 +193,6 @@ class HeldRadial:
     held: tuple[float, float]
     free: tuple[float, float]
     corner_shift_px: float
-    sigma0_held_um: float
-    sigma0_free_um: float
-    f_statistic: float
-    f_limit: float
 
     @property
     def rejected(self) -> bool:
@@ -221,13 +214,10 @@ def held_radial(block: G.Block, opts: G.SolveSettings, state: G.State, info: G.S
     """The radial distortion's test of the module docstring for a solution ``state`` (``info``: its final least
     squares, k1 and k2 held); None when they are estimated, the camera model has none or nothing is left to test
     them with."""
-    groups = block.camera.SELF_CAL_GROUPS
-    if "radial" in opts.self_calibration or "radial" not in groups or not info.dof > 2 or not info.chi2 > 0:
-        return None
     freed = _freed(block, opts, state, info, obs_active, control_active, "radial", 2, alpha)
     if freed is None:
         return None
-    k = groups["radial"]
+    k = block.camera.SELF_CAL_GROUPS["radial"]
     held = (float(state.cal[k[0]]), float(state.cal[k[1]]))
     free = (float(freed.cal[k[0]]), float(freed.cal[k[1]]))
     # the corner's radius in normalised coordinates, and what the change of k1, k2 moves it there (px)

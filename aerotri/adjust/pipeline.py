@@ -44,7 +44,7 @@ from aerotri.adjust.report_record import AdjustmentRecord, adjustment_record, re
 from aerotri.adjust.solve import AdjustmentResult, adjust_block, check_point_errors
 from aerotri.adjust.snooping import critical_value
 from aerotri.adjust.variance_components import adjusted_gnss
-from aerotri.geom.strips import along_track_km, strips_from_track, track_blunders
+from aerotri.geom.strips import along_track_km, flight_order, strips_from_track, track_blunders
 from aerotri.geom.camera import BrownCamera, project_camera
 from aerotri.geom.eo import ExteriorOrientations, check_block_crs, read_eo, read_gnss
 from aerotri.core.atomic import commit_outputs, committed
@@ -482,7 +482,7 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints, already_left: fr
     A block that tie points do not connect is adjusted in its components that have a datum (GNSS, control, DEM);
     the others are left out, named. ``already_left``: images a caller left out before."""
     ties, cobs, image_ids = inp.ties, inp.control_obs, inp.image_ids
-    order = np.argsort(np.array(image_ids, dtype=object), kind="stable")
+    order = flight_order(image_ids)
     measured = set(ties.image_id.tolist()) | set(cobs.image_id.tolist())
     # trial-relief F7: an image with no measurement dropped out of the block without a word (no EO, no ortho,
     # "Solution Successful" possible); now a left-out part like a component without a datum
@@ -1131,10 +1131,7 @@ def _gnss_w(block: G.Block, opts: G.SolveSettings, result: AdjustmentResult) -> 
     solution's covariances."""
     from aerotri.adjust.variance_components import gnss_w_statistics
 
-    marg = getattr(result, "marginals", None)
-    if marg is None or not hasattr(marg, "entries"):
-        return None
-    return gnss_w_statistics(block, opts, result.state, marg)
+    return None if result.marginals is None else gnss_w_statistics(block, opts, result.state, result.marginals)
 
 
 def _normalised(off: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -1166,13 +1163,13 @@ def _gnss_against_rays(prepared: PreparedBlock, opts: G.SolveSettings, state0: G
         # the standardised residuals too (Baarda's w, at the images' snooping level): a frame that takes up its
         # position's error leaves a small residual of small redundancy (trial s97 H1: a 2 m slip, 0.355 m left, 7.1
         # of its sigmas, under the raw 8; the frame 1.56 m and 0.196 deg off, "Solution Successful")
-        w = _gnss_w(block, result.opts or opts, result)
         # at the images' snooping level for the block's positions together (Bonferroni over their axes: one a
-        # block at alpha, where every position at alpha left a sound strip end out on 1 of 40 simulated blocks)
+        # block at alpha, where every position at alpha left a sound strip end out on 1 of 40 simulated blocks); only
+        # where the raw residuals name no suspect, on blocks large enough for it
         n_used = int(np.sum(block.gnss_used))
-        crit = critical_value(st.alpha / max(3 * n_used, 1))
-        if (w is not None and n_used >= GNSS_W_MIN_FRAMES and w.max() > crit
-                and res[worst] <= GNSS_RAYS_SIGMAS):
+        w = (_gnss_w(block, result.opts or opts, result)
+             if res[worst] <= GNSS_RAYS_SIGMAS and n_used >= GNSS_W_MIN_FRAMES else None)
+        if w is not None and w.max() > critical_value(st.alpha / (3 * n_used)):
             worst = int(np.argmax(w))
             log.info(f"GNSS against the rays: {block.image_id[worst]}'s position w = {w[worst]:.1f} (its residual "
                      f"{res[worst]:.1f} sigma)")
@@ -1196,7 +1193,8 @@ def _gnss_against_rays(prepared: PreparedBlock, opts: G.SolveSettings, state0: G
     # slips the block took up do not make this one a model error (trial s97 H1: three slips on 1,000 frames, each
     # suspect "not confirmed", all three kept under "Solution Successful"); a model error moves most positions
     rest = np.sort(_normalised(at_local - block.gnss_local, sigma))[::-1]
-    others = float(rest[min(int(0.01 * int(np.sum(block.gnss_used))), len(rest) - 1)]) if len(rest) else 0.0
+    skip = int(0.01 * int(np.sum(block.gnss_used)))  # the others not held to it
+    others = float(rest[min(skip, len(rest) - 1)]) if len(rest) else 0.0
     confirmed = [int(i) for i in suspect if lost2[i] <= RAYS_KEPT_SHARE * n2[i] and off[i] > GNSS_RAYS_SIGMAS
                  and (by_rays or (off[i] > GNSS_CLEAR_FACTOR * others and others <= GNSS_FIT_SIGMAS))]
     if not confirmed:
@@ -1209,7 +1207,7 @@ def _gnss_against_rays(prepared: PreparedBlock, opts: G.SolveSettings, state0: G
                             tuple(float(v) for v in at), float(GNSS_RAYS_SIGMAS * np.max(sigma_m[i])),
                             reason=(f"its rays: {lost[i]} of {n[i]} rejected with the position, {lost2[i]} without"
                                     if by_rays else f"its rays put the frame {off[i]:.0f} sigma from it, every other "
-                                    f"within {others:.1f}" + (" but the largest 1 %" if len(rest) >= 100 else "")))
+                                    f"within {others:.1f}" + (" but the largest 1 %" if skip else "")))
                 for i, at in zip(confirmed, at_map))
     what = "positions disagree with their frames' rays" if len(out) > 1 else "position disagrees with its frame's rays"
     log.warning(f"{prepared.project.gnss_path}: {len(out)} {what}, left out of the adjustment (the frames are placed "

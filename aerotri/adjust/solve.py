@@ -18,6 +18,7 @@ from aerotri.core.errors import SolveError
 from aerotri.adjust.check_points import intersect, intersect_with_covariance
 from aerotri.adjust.cpp_output import counting
 from aerotri.adjust import surface_bias as sb
+from aerotri.adjust.approximate import MAX_REACH_FLYING_HEIGHTS
 from aerotri.adjust.held_calibration import held_focal, held_principal_point, held_radial
 from aerotri.adjust.covariance import ReducedCovariance, point_rays
 from aerotri.adjust.determinability import ground_observations, pp_gnss_names_offset
@@ -232,7 +233,7 @@ def _adjust_block(
             iterations += info.iterations
             state = G.state_from_values(values, block, opts, state, tie=gr.tie)
             log.info(f"robust round {rnd}: {info.iterations} iterations, {obs_active.sum()} observations")
-            if rnd == 1 and block.surface is not None and surface_candidates is not None and surface_candidates.any():
+            if rnd == 1 and surface_candidates is not None and surface_candidates.any():
                 _warn_off_dem(block, state)
             if surface_candidates is not None:
                 surface_candidates, gated = _surface_gate(block, state, obs_active, opts.image_sigma_px)
@@ -525,12 +526,11 @@ def _surface_gate(block: G.Block, state: G.State, obs_active, sigma_px: float) -
     used = rays >= 2
     ev[used] = np.linalg.eigvalsh(N[used])
     ok = used & (ev[:, 0] > 0) & (ev[:, 2] < 1e10 * ev[:, 0])
-    # ... and whose rays alone meet near where the solve holds them: nearly parallel rays (a re-flown frame beside
-    # the frame of its station) met up to 1e9 m away, which no map projection takes (trial s97 H2: "EPSG:4328 ->
-    # EPSG:32649: point 1866 (418575418, 167170763) could not be transformed", the run stopped)
+    # ... and whose rays alone meet near where the solve holds them (trial s97 H2: "EPSG:4328 -> EPSG:32649: point
+    # 1866 (418575418, 167170763) could not be transformed", the run stopped)
     height_m = float(np.median(state.centre[:, 2]) - np.nanmedian(state.points[used, 2])) if used.any() else 0.0
-    ok &= np.all(np.isfinite(pts), axis=1) & (
-        np.linalg.norm(np.nan_to_num(pts - state.points, nan=np.inf), axis=1) <= 10.0 * max(abs(height_m), 1.0))
+    ok &= np.all(np.isfinite(pts), axis=1) & (np.linalg.norm(np.nan_to_num(pts - state.points, nan=np.inf), axis=1)
+                                              <= MAX_REACH_FLYING_HEIGHTS * max(abs(height_m), 1.0))
     pts = np.where(ok[:, None], pts, state.points)
     sz2 = np.full(block.n_points, np.inf)
     sz2[ok] = sigma_px**2 * np.linalg.inv(N[ok])[:, 2, 2]  # local up is the vertical within a block
@@ -687,7 +687,8 @@ def check_point_errors(obs_xy_px, obs_image, obs_point, n_points, state, opts, *
                 k = np.delete(k, int(np.argmax(w)))
                 dropped[j] += 1
                 continue
-            # rays too nearly parallel to intersect (the tie points' test, ``_drop_weak_points``): no position to check
+            # rays too nearly parallel to intersect (the tie points' condition limit, ``_drop_weak_points``', here on
+            # the point's covariance with the orientations'): no position to check
             # (trial s97 H1: a check point left with the two rays of a re-flown strip's frame and the frame of the same
             # station, 0.5 px apart, came 323 m off with sigmas of 20-136 m and made the check RMS 11 m / 16 m)
             ev = np.linalg.eigvalsh(C) if np.all(np.isfinite(C)) else np.array([0.0, 0.0, np.inf])

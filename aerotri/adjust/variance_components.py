@@ -73,6 +73,14 @@ def gnss_rows(block: G.Block, opts: G.SolveSettings, state: G.State) -> tuple[np
     return pred, rows
 
 
+def _position_covariances(rows: list, rc) -> np.ndarray:
+    """(N, 3, 3) unit-weight covariance ``J Sigma J'`` of each adjusted GNSS position from its keys' joint block of
+    ``rc`` (``gnss_rows``' Jacobians), all images in one gather."""
+    idx = np.array([np.concatenate([rc.offset[k] + np.arange(J.shape[1]) for k, J in row]) for row in rows])
+    J = np.array([np.hstack([Jk for _, Jk in row]) for row in rows])  # (N, 3, unknowns of a row)
+    return J @ rc.entries(idx[:, :, None], idx[:, None, :]) @ J.transpose(0, 2, 1)
+
+
 def gnss_w_statistics(block: G.Block, opts: G.SolveSettings, state: G.State, rc) -> np.ndarray | None:
     """(N,) Baarda's w of each GNSS position, the largest of its axes: the residual over its sigma times the square
     root of its partial redundancy, ``|e| / (sigma sqrt(1 - w cov))`` with the unit-weight covariance ``rc`` of the
@@ -84,10 +92,7 @@ def gnss_w_statistics(block: G.Block, opts: G.SolveSettings, state: G.State, rc)
     pred, rows = gnss_rows(block, opts, state)
     e = block.gnss_local - pred
     w = 1.0 / block.gnss_sigma_m**2
-    idx = np.array([np.concatenate([rc.offset[k] + np.arange(J.shape[1]) for k, J in row]) for row in rows])
-    J = np.array([np.hstack([Jk for _, Jk in row]) for row in rows])
-    var = np.einsum("nij,njk,nik->ni", J, rc.entries(idx[:, :, None], idx[:, None, :]), J)  # diagonal of J S J'
-    r = 1.0 - w * var
+    r = 1.0 - w * np.diagonal(_position_covariances(rows, rc), axis1=1, axis2=2)
     with np.errstate(invalid="ignore", divide="ignore"):
         stat = np.abs(e) * np.sqrt(w) / np.sqrt(r)
     stat = np.where(np.isfinite(stat) & (r > 1e-6) & np.isfinite(w) & (w > 0), stat, 0.0)
@@ -108,10 +113,7 @@ def estimate(block: G.Block, opts: G.SolveSettings, state: G.State, obs_active, 
         pred, rows = gnss_rows(block, opts, state)
         e = block.gnss_local - pred
         w = 1.0 / block.gnss_sigma_m**2  # (N, 3)
-        # each position's covariance J Sigma J' from its keys' joint block, all images in one gather
-        idx = np.array([np.concatenate([rc.offset[k] + np.arange(J.shape[1]) for k, J in row]) for row in rows])
-        J = np.array([np.hstack([Jk for _, Jk in row]) for row in rows])  # (N, 3, unknowns of a row)
-        cov = J @ rc.entries(idx[:, :, None], idx[:, None, :]) @ J.transpose(0, 2, 1)
+        cov = _position_covariances(rows, rc)
         n_used = 3 * int(block.gnss_used.sum())  # a left-out position has weight 0 (graph.Block.gnss_used)
         r = float(n_used - np.einsum("ni,nii->", w, cov))
         out.append(_component("gnss", n_used, r, float(np.sum(e * e * w))))

@@ -33,6 +33,7 @@ from pathlib import Path
 
 from aerotri.chain.results import StageResult
 from aerotri.core.atomic import commit_outputs, remove_leftovers, write_text_atomic
+from aerotri.core.errors import interrupt_of
 from aerotri.core.limits import memory_limited, release_freed_memory
 from aerotri.core.log import doing
 from aerotri.core.project import project_paths
@@ -201,6 +202,11 @@ def is_current(root: Path, st: Stage) -> bool:
     return stale_reason(root, st) is None
 
 
+def _resume_dir(root: Path, stage: str) -> Path:
+    """Where the stage keeps what an interrupted run of it finished (``work/<stage>_resume``)."""
+    return project_paths(root).work_dir / f"{stage}_resume"
+
+
 def stale_reason(root: Path, st: Stage) -> str | None:
     """Why the stage must run (None: up to date): no stamp, an output missing, the inputs, the options or the
     algorithm versions that changed since its stamp (by name: a new key of a newer version's settings re-runs a stage
@@ -208,7 +214,7 @@ def stale_reason(root: Path, st: Stage) -> str | None:
     sp = stamp_path(root, st.name)
     if not sp.exists():
         # (trial s96 L1: "not run before", then "resumed 4 of 4 tiles an interrupted run finished")
-        if (Path(root) / "work" / f"{st.name}_resume").is_dir():
+        if _resume_dir(root, st.name).is_dir():
             return "not finished before: an interrupted run's finished parts are taken over"
         return "not run before"
     try:
@@ -325,8 +331,6 @@ def run_stages(root, stages: list[Stage], force: bool = False, log: Callable[[st
     try:
         _run_each(root, stages, rows, force, log, clock)
     except BaseException as exc:
-        from aerotri.core.errors import interrupt_of
-
         stopped = "interrupted" if interrupt_of(exc) is not None else "failed"
         done_names = {r["stage"] for r in rows}
         stage = next((st.name for st in stages if st.name not in done_names), None)
@@ -353,12 +357,12 @@ def _mark_stopped_run(root, exc: BaseException, stopped_at: str, log: Callable[[
     "the run of <time> stopped at <stage>"), saying why as the console's error does; a failure of the marking is
     warned, never raised over ``exc``. (A refusal before the first stage marks nothing: bad input changes no file.)"""
     from aerotri.core.commands import fault_message
-    from aerotri.core.errors import interrupt_of
 
-    stopped = "interrupted" if interrupt_of(exc) is not None else "failed"
+    interrupt = interrupt_of(exc)
+    stopped = "interrupted" if interrupt is not None else "failed"
     try:
-        if interrupt_of(exc) is not None:
-            why = str(interrupt_of(exc)) or "Ctrl-C"
+        if interrupt is not None:
+            why = str(interrupt) or "Ctrl-C"
         else:  # what the console's error says (a full disk names the file), without what the banner says itself
             why = (fault_message(exc, "aerotri run") or "").split("; ")[0] or \
                 (str(exc).splitlines() or [type(exc).__name__])[0]
@@ -412,7 +416,7 @@ def _run_each(root: Path, stages: list[Stage], rows: list[dict], force: bool, lo
             log(f"[{st.name}] up to date, skipped")
             # what an interrupted run of it (--force) had finished is of no use beside current outputs (trial s96
             # L5: work/control_resume stayed through two more runs)
-            leftover = Path(root) / "work" / f"{st.name}_resume"
+            leftover = _resume_dir(root, st.name)
             if leftover.is_dir():
                 shutil.rmtree(leftover, ignore_errors=True)
             continue

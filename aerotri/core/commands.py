@@ -317,8 +317,9 @@ class Command(click.Command):
         except KeyboardInterrupt as exc:
             _interrupted(ctx, exc)
         except Exception as exc:
-            if interrupt_of(exc) is not None:
-                _interrupted(ctx, interrupt_of(exc))
+            interrupt = interrupt_of(exc)
+            if interrupt is not None:
+                _interrupted(ctx, interrupt)
             writes_to = getattr(self, "_writes_to", [])
             message = fault_message(exc, getattr(exc, "aerotri_doing", None) or ctx.command_path,
                                     ", ".join(map(str, writes_to)) or None, writes_to)

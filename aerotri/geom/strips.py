@@ -7,6 +7,12 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def flight_order(image_ids) -> np.ndarray:
+    """The indices that put frames in flight order: image-id order (the order the adjustment and the flight plan
+    take them in, whatever the order of gnss.txt's lines)."""
+    return np.argsort(np.array(list(image_ids), dtype=object), kind="stable")
+
+
 def strips_from_track(position_m, max_turn_deg: float = 30.0, max_gap_factor: float = 3.0) -> np.ndarray:
     """Strip index (0, 1, ...) per frame for positions (N, 3) given in flight order.
 

@@ -73,8 +73,13 @@ def image_top_check(plan: BlockPlan, camera, track: np.ndarray, image: np.ndarra
     turns = (0.0, 90.0, 180.0, 270.0)
     dist = {t: [] for t in turns}
     n_pairs = 0
+    # the observations image by image, sorted once (a scan of all of them per pair: 200 x millions on a large block)
+    by_image = np.argsort(image, kind="stable")
+    bounds = np.searchsorted(image[by_image], np.arange(int(image.max()) + 2 if len(image) else 1))
     for a, b in pairs:
-        in_a, in_b = np.flatnonzero(image == a), np.flatnonzero(image == b)
+        if max(a, b) + 1 >= len(bounds):
+            continue
+        in_a, in_b = by_image[bounds[a]:bounds[a + 1]], by_image[bounds[b]:bounds[b + 1]]
         _, ia, ib = np.intersect1d(track[in_a], track[in_b], assume_unique=False, return_indices=True)
         if len(ia) < 5:
             continue

@@ -25,6 +25,7 @@ from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.camera import BrownCamera, project_camera
 from aerotri.geom.eo import check_block_crs, read_gnss
 from aerotri.geom.images import ImageFiles, check_frames, find_images
+from aerotri.geom.strips import flight_order
 from aerotri.match import features as F
 from aerotri.match import matching as M
 from aerotri.match.pairs import BlockPlan, Pair, candidate_pairs, plan_block
@@ -246,7 +247,7 @@ def _read_frames(project: Project, crs, camera: BrownCamera, s: MatchSettings) -
         # in flight order, image-id order, as the adjustment takes them: in the file's order a frame whose line was
         # appended (a frame put back, a second day) broke its strip in two and made a stereo model of frames that
         # are not neighbours (trial s97 M5: 16,623 tracks and a weak model, 17,053 and none with the file sorted)
-        order = np.argsort(np.array(gnss.image_id, dtype=object), kind="stable")
+        order = flight_order(gnss.image_id)
         ids = [str(gnss.image_id[i]) for i in order]
         positions_m = np.asarray(gnss.position_m, dtype=float)[order]
         lever = project.gnss.lever_arm_m
