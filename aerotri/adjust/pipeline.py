@@ -1120,10 +1120,14 @@ GNSS_W_MIN_FRAMES = 50
 GNSS_ROUNDS = 3  # solves again at most this many times, one suspect (or the frames that lost their rays) a time
 
 
-def _rays_lost(block: G.Block, obs_active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(observations, observations rejected) per frame."""
+def _rays_lost(block: G.Block, result: AdjustmentResult) -> tuple[np.ndarray, np.ndarray]:
+    """(observations, observations rejected) per frame; of a tie point left out whole because the test could not
+    tell its wrong ray (``Removed.whole_point``) only the ray it named counts: its other rays were not blamed (a
+    frame 300 m off took its neighbours' rays in 3-ray points with it, and they became suspects too)."""
     n = np.bincount(block.obs_image, minlength=block.n_images)
-    return n, np.bincount(block.obs_image[~obs_active], minlength=block.n_images)
+    lost = ~result.obs_active
+    lost[[x.obs for x in result.removed if not x.blamed]] = False
+    return n, np.bincount(block.obs_image[lost], minlength=block.n_images)
 
 
 def _gnss_w(block: G.Block, opts: G.SolveSettings, result: AdjustmentResult) -> np.ndarray | None:
@@ -1153,7 +1157,7 @@ def _gnss_against_rays(prepared: PreparedBlock, opts: G.SolveSettings, state0: G
     matches)."""
     block, st = prepared.block, prepared.settings
     sigma_m = np.asarray(block.gnss_sigma_m, dtype=float)
-    n, lost = _rays_lost(block, result.obs_active)
+    n, lost = _rays_lost(block, result)
     suspect = np.flatnonzero(block.gnss_used & (lost >= RAYS_LOST_MIN) & (lost >= RAYS_LOST_SHARE * np.maximum(n, 1)))
     by_rays = len(suspect) > 0
     if not by_rays:
@@ -1186,7 +1190,7 @@ def _gnss_against_rays(prepared: PreparedBlock, opts: G.SolveSettings, state0: G
     again = adjust_block(trial, opts, state0, snooping=st.snooping, alpha=st.alpha, point_covariances=False,
                          variance_components=False, image_sigma_from_residuals=st.image_sigma_from_residuals,
                          control_held_out=held, compute_marginals=False)
-    n2, lost2 = _rays_lost(trial, again.obs_active)
+    n2, lost2 = _rays_lost(trial, again)
     at_local = np.asarray(adjusted_gnss(trial, again.opts or opts, again.state), dtype=float)
     off = _normalised(at_local - block.gnss_local, sigma_m)
     # every other position within GNSS_FIT_SIGMAS but the largest 1 % of them on a block of 100 frames or more: other

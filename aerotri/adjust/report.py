@@ -257,7 +257,8 @@ def _point_lists(ba, res: _Residuals) -> tuple[list, list, list]:
     worst_points = [{"point_id": str(b.point_id[j]), "rays": int(n_rays[j]), "rms_um": _f(pt_rms[j], 2),
                      "xyz_m": _lst(ba.points_map[j], 3)} for j in worst]
     removed = [{"point_id": str(b.point_id[b.obs_point[x.obs]]), "image_id": b.image_id[b.obs_image[x.obs]],
-                "w": _f(x.w, 2), "round": x.round, "residual_px": _lst(r.residual_px[x.obs], 2)} for x in r.removed]
+                "w": _f(x.w, 2), "round": x.round, "residual_px": _lst(r.residual_px[x.obs], 2),
+                **({"whole_point": True} if x.whole_point else {})} for x in r.removed]
     rejected = [{"id": str(ba.control.id[c]), "w": _f(w, 2)} for c, w in r.rejected_control]
     return worst_points, removed, rejected
 
@@ -1904,9 +1905,11 @@ def format_txt(rep: dict) -> str:
     for x in rep["worst_tie_points"]:
         L.append(f"{x['point_id']:>12} {x['rays']:4d} {x['rms_um']:8.2f}" + _v(x["xyz_m"][0], 14, 3) + _v(x["xyz_m"][1], 14, 3)
                  + _v(x["xyz_m"][2], 10, 3))
-    L += ["", f"Removed observations ({len(rep['removed_observations'])}; w = standardised residual)"]
+    L += ["", f"Removed observations ({len(rep['removed_observations'])}; w = standardised residual; * every ray of "
+          "the point removed: the test could not tell which was wrong)"]
     for x in rep["removed_observations"]:
-        L.append(f"  {x['point_id']:>10} {x['image_id']:>12}  w = {x['w']:8.2f}  v = {x['residual_px'][0]:8.2f} {x['residual_px'][1]:8.2f} px  round {x['round']}")
+        L.append(f"  {x['point_id']:>10} {x['image_id']:>12}  w = {x['w']:8.2f}  v = {x['residual_px'][0]:8.2f} "
+                 f"{x['residual_px'][1]:8.2f} px  round {x['round']}{' *' if x.get('whole_point') else ''}")
     return "\n".join(L) + "\n"
 
 
@@ -2059,9 +2062,10 @@ def format_html(rep: dict, ba=None) -> str:
         # at most REMOVED_SHOWN rows; the summary says so (it read "200 removed observations" under "(1787)")
         removed=RF.long_table("removed observations" if len(rem) <= REMOVED_SHOWN else
                               f"of the {len(rem)} removed observations, in the order of the removal rounds (all: "
-                              "report.txt, report.json)", ["point", "image", "w", "vx px", "vy px", "round"],
-                              [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"]]
-                               for x in rem[:REMOVED_SHOWN]], 2),
+                              "report.txt, report.json)",
+                              ["point", "image", "w", "vx px", "vy px", "round", "point out"],
+                              [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"],
+                                "whole" if x.get("whole_point") else ""] for x in rem[:REMOVED_SHOWN]], 2),
     )
     if rep["check_points"]:
         crow = [[r["id"], r["rays"], *r["measured_m"], *r["adjusted_m"], *r["d_m"]] for r in rep["check_points"]]

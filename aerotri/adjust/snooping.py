@@ -54,10 +54,14 @@ def robust_sigma0(v_px, r, active) -> float:
 
 def standardised_residuals(v_px, r, sigma0_px) -> np.ndarray:
     """|w| per observation (K,): the larger of the two coordinates; 0 where r is ~0 (not testable)."""
+    return np.max(coordinate_w(v_px, r, sigma0_px), axis=1)
+
+
+def coordinate_w(v_px, r, sigma0_px) -> np.ndarray:
+    """|w| per image coordinate (K, 2); 0 where r is ~0 (not testable)."""
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.abs(v_px) / (sigma0_px * np.sqrt(r))
-    w = np.where(r > 0.02, w, 0.0)
-    return np.nan_to_num(np.max(w, axis=1), nan=0.0)
+    return np.nan_to_num(np.where(r > 0.02, w, 0.0), nan=0.0)
 
 
 def worst_per_point(w, obs_point, active, critical: float) -> np.ndarray:
@@ -69,4 +73,44 @@ def worst_per_point(w, obs_point, active, critical: float) -> np.ndarray:
     first = np.r_[True, obs_point[order][1:] != obs_point[order][:-1]]
     out = np.zeros(len(w), dtype=bool)
     out[order[first]] = True
+    return out
+
+
+def test_correlations(flagged, obs_point, obs_image, points, centre, R_cv, cal, w_xy, *, active,
+                      point_info=None) -> np.ndarray:
+    """The largest |correlation| (len(flagged),) between the test of each flagged ray (its coordinate of the
+    larger w) and the test of any coordinate of another active ray of the same point, orientations held fixed:
+    ``rho = Q_vv[a, b] / sqrt(Q_vv[a, a] Q_vv[b, b])`` with ``Q_vv = I - A N^-1 A'`` over the point's rays (and
+    its ``point_info``). Near one, a blunder in either ray gives both the same w (Foerstner's separability): the
+    test cannot tell which ray is wrong, e.g. an error along the base in one ray of a 3-ray point of one strip,
+    which has one redundancy in that direction. ``w_xy``: (K, 2) the coordinates' |w|."""
+    from aerotri.adjust.check_points import _ray_point_jacobian
+
+    out = np.zeros(len(flagged))
+    order = np.argsort(obs_point, kind="stable")
+    starts = np.searchsorted(obs_point[order], np.arange(len(points) + 1))
+    cal = np.asarray(cal, dtype=float)
+    xy = np.zeros(2)
+    for n, k in enumerate(flagged):
+        p = obs_point[k]
+        rays = order[starts[p]:starts[p + 1]]
+        rays = rays[active[rays]]
+        if len(rays) < 2:
+            continue
+        A = np.empty((2 * len(rays), 3))
+        J = np.empty((2, 3))
+        for i, ray in enumerate(rays):
+            _ray_point_jacobian(xy, centre[obs_image[ray]], R_cv[obs_image[ray]], points[p], cal, J)
+            A[2 * i:2 * i + 2] = J
+        N = A.T @ A + (point_info[p] if point_info is not None else 0.0)
+        try:
+            Q = np.eye(len(A)) - A @ np.linalg.solve(N, A.T)
+        except np.linalg.LinAlgError:
+            continue
+        i = int(np.flatnonzero(rays == k)[0])
+        a = 2 * i + int(np.argmax(w_xy[k]))
+        d = np.sqrt(np.clip(np.diag(Q), 1e-12, None))
+        rho = np.abs(Q[a]) / (d[a] * d)
+        rho[2 * i:2 * i + 2] = 0.0
+        out[n] = float(rho.max())
     return out
