@@ -102,8 +102,8 @@ def _adjust_summary(s: StripAdjustResult, outdir) -> str:
     left = set(s.strips_without_observations)
     for name, p in s.parameters.items():
         unadjusted = name.split(".")[0] in left
-        lines.append(f"{name:32s} {p.value:+10.4f} +- {p.sigma:.4f}" + ("  (not adjusted: the prior)" if unadjusted
-                                                                          else ""))
+        lines.append(f"{name:32s} {p.value:+10.4f} +- {p.sigma:.4f}" + (
+            "  (not adjusted: the prior)" if unadjusted else "  (held: not determined)" if name in s.held else ""))
     if s.control is not None:
         c = s.control
         lines.append(f"control: {c.points_used} of {c.points} points on {c.observations} strip planes, mean "
@@ -118,16 +118,6 @@ def _adjust_summary(s: StripAdjustResult, outdir) -> str:
                      "strips' planar cells is held at 0; the overlaps tell the range offset from a common height "
                      "shift only weakly, see its sigma, and cannot tell the block's true height: check it at "
                      "surveyed points with lidarctl check-heights, or adjust with --control)")
-        ro = s.parameters.get("range_offset_m")
-        adjusted = len(s.strips) - len(s.strips_without_observations)
-        if ro is not None and adjusted < 3:
-            # two strips (review3): +2.11 +- 0.75 m against a true 0.08, the z shifts following it, the open ground
-            # 0.063 -> 0.097 m RMSE from the truth while the strip differences fell 0.063 -> 0.010 m; three strips:
-            # +0.17 +- 0.19 m and the ground 0.092 -> 0.076 m
-            lines.append(f"warning: {adjusted} strips: one overlap does not tell the range offset from the strips' "
-                         f"heights ({ro.value:+.3f} +- {ro.sigma:.3f} m): the corrections may move the ground while "
-                         f"the strip differences shrink; adjust with --control, or check the adjusted strips at "
-                         f"surveyed points (lidarctl check-heights)")
     if s.strips_without_observations:
         # their parameters above are the prior's (0 +- sigma): say so rather than let them pass as estimates
         lines.append(f"warning: not adjusted, no planar cell shared with another strip: "

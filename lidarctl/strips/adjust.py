@@ -195,6 +195,8 @@ class StripAdjustResult:
     datum: str = ""
     # sensor parameters significant only through the shifts' prior (``prior_bound_warnings``), said as warnings
     warnings: tuple[str, ...] = ()
+    # sensor parameters the overlaps did not determine, held at 0 (``undetermined_sensor``)
+    held: tuple[str, ...] = ()
     # the parameters' sign (trial-strips found it by experiment)
     convention: str = ("the parameters are the strips' errors e(p) (shift_*: the strip lies that far off, in metres; "
                        "angles in degrees): each corrected point is p - e(p)")
@@ -245,7 +247,7 @@ def read_strip_adjustment(path) -> StripAdjustResult:
                                     "check_before": chk.DiffStats.of_record(d["check_before"]),
                                     "check_after": chk.DiffStats.of_record(d["check_after"]),
                                     "files": tuple(d["files"]), "control": control,
-                                    "warnings": tuple(d.get("warnings") or ()),
+                                    "warnings": tuple(d.get("warnings") or ()), "held": tuple(d.get("held") or ()),
                                     "nmad_definition": d.get("nmad_definition")})
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise record_error(path, what, exc) from None
@@ -501,6 +503,17 @@ PRIOR_WIDENING = 10.0
 # them (beyond 3 sigma), it is said, not carried as a calibration (trial-strips: one strip moved 0.5 m along track
 # read as a 6-sigma boresight pitch)
 PRIOR_RELIANCE_MAX = 3.0
+# A sensor parameter whose sigma exceeds its limit is not determined by the strips' overlaps: it is held at zero and
+# the block adjusted again without it, and said. Two strips with trajectories (trial s98): heading +3.35 +- 2.37 deg
+# and pitch -0.73 +- 0.52 deg (correlated -0.99997) from exact strips, applied, moved points up to 19 m (33 m with
+# an injected 0.04 deg heading) while the strip differences read 0.021 -> 0.022 m. Three strips of the same block:
+# sigmas 0.0003 / 0.0037 / 0.0109 deg, 0.19 m, 0.0002. The limits are far above what a boresight calibration
+# carries (hundredths of a degree) and the range offset's sigma of two strips (0.75-2 m; review3: +2.11 +- 0.75 m
+# against a true 0.08 m, the z shifts following it, the open ground 0.063 -> 0.097 m RMSE from the truth while the
+# strip differences fell 0.063 -> 0.010 m; it was warned on the console only).
+UNDETERMINED_SIGMA = {"boresight_roll_deg": 0.1, "boresight_pitch_deg": 0.1, "boresight_heading_deg": 0.1,
+                      "range_offset_m": 0.5, "scan_angle_scale": 1e-3}
+HELD_SIGMA = 1e-9  # the prior sigma (radians, metres, scale) that holds an undetermined parameter at zero
 
 
 def solve(obs: Observations, model: Model, huber_k: float = 1.5, iterations: int = 10,
@@ -598,6 +611,26 @@ def prior_bound_warnings(model: Model, sol: Solution, shift_sigma_m: float) -> t
                        "is known within the prior; look for a strip's plan offset in check_before/ (strips.json), "
                        "or adjust with --control or a cross strip")
     return tuple(out)
+
+
+def undetermined_sensor(model: Model, sol: Solution) -> list[int]:
+    """Indices of the sensor parameters (no prior) whose sigma exceeds ``UNDETERMINED_SIGMA``."""
+    if model.kind != "boresight":
+        return []
+    sd = np.sqrt(np.maximum(np.diag(sol.cov), 0.0))
+    return [k for k, name in enumerate(model.names) if name in UNDETERMINED_SIGMA and not np.isfinite(
+        model.prior_sigma[k]) and _report_value(name, sd[k]) > UNDETERMINED_SIGMA[name]]
+
+
+def held_text(model: Model, sol: Solution, held: list[int], adjusted_strips: int) -> str:
+    """The warning for the parameters ``undetermined_sensor`` found, with their estimates before they were held."""
+    sd = np.sqrt(np.maximum(np.diag(sol.cov), 0.0))
+    what = ", ".join(f"{model.names[k]} {_report_value(model.names[k], sol.theta[k]):+.4f} +- "
+                     f"{_report_value(model.names[k], sd[k]):.4f} (limit {UNDETERMINED_SIGMA[model.names[k]]:g})"
+                     for k in held)
+    return (f"not determined by the overlaps of {adjusted_strips} strips, held at 0 (the strips' shifts take what "
+            f"they would have): {what}. Applied, such an estimate moves points by metres while the strip "
+            "differences shrink; add a strip flown the other way or across, or adjust with --control")
 
 
 def _report_value(name: str, v: float) -> float:
@@ -800,6 +833,17 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     model = boresight_model(ss, chosen, settings.shift_sigma_m) if trajectories else \
         strip_model(ss, settings.fixed, controlled=cps is not None)
     sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs=crs, extra=extra, control=cps)
+    warnings = []
+    held = undetermined_sensor(model, sol)
+    if held:
+        adjusted = len({s for pair in obs.pairs for s in pair if s != "control"})
+        warnings.append(held_text(model, sol, held, adjusted))
+        log.info("strip adjustment: %s held at 0, adjusted again", ", ".join(model.names[k] for k in held))
+        model.prior_sigma = model.prior_sigma.copy()
+        model.prior_sigma[held] = HELD_SIGMA
+        model.jac = model.jac_of(ss)
+        sol, first, obs, passes = estimate(paths, ss, model, settings, read_params, crs=crs, extra=extra,
+                                           control=cps)
     model.jac = {}  # the cells' Jacobians are not needed any more
     t_solve = time.perf_counter()
     with atomic_dir(outdir) as tmp:
@@ -837,7 +881,8 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
             seconds=dt, points_per_s=ss.n_points / dt,
             seconds_read=t_read - t0, seconds_solve=t_solve - t_read, seconds_write=t_write - t_solve,
             control=control_summary(cps, ss, first, sol.theta) if cps is not None else None, datum=datum,
-            warnings=prior_bound_warnings(model, sol, settings.shift_sigma_m))
+            warnings=tuple(warnings) + prior_bound_warnings(model, sol, settings.shift_sigma_m),
+            held=tuple(model.names[k] for k in held))
         for text in summary.warnings:
             log.warning(text)
         (tmp / "adjust.json").write_text(summary.to_json())
