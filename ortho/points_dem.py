@@ -175,11 +175,29 @@ def _footprint_bounds(root: Path, z_lo_m: float, z_hi_m: float, margin_m: float 
             float(b[:, 3].max()) + margin_m)
 
 
+def _sparse(project, n_points: int) -> bool:
+    from aerotri.geom.eo import read_eo
+
+    return n_points < MIN_POINTS_PER_FRAME * len(read_eo(project.eo_path).image_id)
+
+
+def chain_min_rays(root) -> int:
+    """The chain's ``min_rays`` (``aerotri run`` has no option for it): 3, or 2 where the tie points seen in three
+    frames or more are too few to follow the ground (``MIN_POINTS_PER_FRAME`` a frame) and those seen in two are not
+    (docs/your-own-block.md's advice for a few obliques; trial s98: Tuniu's 4 frames, 14 points in three frames, a
+    plane under the orthophotos, and no way to give ``--min-rays 2`` to ``aerotri run``)."""
+    project = Project.open(root)
+    three = len(read_tie_points(project.object_points_path, 3))
+    if _sparse(project, three) and not _sparse(project, len(read_tie_points(project.object_points_path, 2))):
+        return 2
+    return 3
+
+
 def _warn_if_sparse(project, n_points: int, min_rays: int) -> None:
     from aerotri.geom.eo import read_eo
 
-    n_frames = len(read_eo(project.eo_path).image_id)
-    if n_points < MIN_POINTS_PER_FRAME * n_frames:
+    if _sparse(project, n_points):
+        n_frames = len(read_eo(project.eo_path).image_id)
         _log.warning(f"{project.object_points_path}: {n_points} tie points seen in {min_rays} or more frames for "
                      f"{n_frames} frames ({n_points / n_frames:.1f} a frame, fewer than {MIN_POINTS_PER_FRAME}): the "
                      f"DEM follows the plane through them, not the ground's relief; a lower --min-rays or a DEM from "

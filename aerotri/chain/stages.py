@@ -945,12 +945,15 @@ class Chain:
         return adjustment_result(res.record, **loo, notes=tuple(notes))
 
     def run_tie_point_dem(self, root) -> R.TiePointDemResult:
-        from ortho.points_dem import write_points_dem
+        from ortho.points_dem import chain_min_rays, write_points_dem
 
-        s = write_points_dem(root, self.tie_point_dem_path)
+        min_rays = chain_min_rays(root)
+        s = write_points_dem(root, self.tie_point_dem_path, min_rays=min_rays)
         return R.TiePointDemResult(res_m=s.res_m, points=s.points, cells_measured=s.cells_measured,
                                    notes=("no LiDAR or given DEM: the orthophotos on the DEM of the adjusted tie "
                                           f"points ({self.tie_point_dem_path})",)
+                                   + ((f"tie points seen in 2 frames or more: too few in 3 to follow the ground "
+                                       f"({s.points} points used)",) if min_rays == 2 else ())
                                    + ((s.extension_words(),) if s.cells_extrapolated else ()))
 
     # -- orthophotos ----------------------------------------------------------------------------

@@ -176,3 +176,31 @@ def test_the_extended_share_and_where_are_said(tiny_project, tmp_path, caplog):
     r = CliRunner().invoke(ortho_main, ["dem", str(p), "--res-m", "6", "--min-rays", "2"])
     assert r.exit_code == 0 and "is a flat continuation" in r.output, r.output
     assert "--min-rays" not in r.output and "(a DEM from LiDAR reaches farther)" in r.output
+
+
+def test_the_chain_takes_two_ray_tie_points_where_three_ray_ones_are_too_few(tiny_project, tmp_path):
+    """Trial s98 (Tuniu through ``aerotri run``): 14 tie points in three frames made the orthophotos' DEM a plane, and
+    ``aerotri run`` has no ``--min-rays``: the chain takes those seen in two frames when the three-ray ones are under
+    10 a frame and the two-ray ones are not; a block with enough three-ray points keeps 3."""
+    import shutil
+
+    from aerotri.geom.eo import read_eo
+    from ortho.points_dem import chain_min_rays
+
+    p = shutil.copytree(tiny_project, tmp_path / "p", ignore=shutil.ignore_patterns("lidar", "work", "at"))
+    (p / "at").mkdir()
+    shutil.copy(p / "truth" / "eo.txt", p / "at" / "eo.txt")
+    eo = read_eo(p / "at" / "eo.txt")
+    c = eo.centre_m[:, :2].mean(axis=0)
+    n = 10 * len(eo.image_id)
+
+    def write(three: int, two: int) -> int:
+        rows = ["id,kind,x,y,z,sx_m,sy_m,sz_m,rays,rms_px"]
+        rows += [f"T{k:07d},tie,{c[0] + k % 40:.3f},{c[1] + k // 40:.3f},310.0,0.1,0.1,0.1,{3 if k < three else 2},0.1"
+                 for k in range(three + two)]
+        (p / "at" / "object_points.csv").write_text("\n".join(rows) + "\n")
+        return chain_min_rays(p)
+
+    assert write(14, n) == 2  # Tuniu's case
+    assert write(n, n) == 3  # enough seen in three
+    assert write(14, 5) == 3  # two-ray points would not help either
