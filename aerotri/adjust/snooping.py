@@ -76,7 +76,7 @@ def worst_per_point(w, obs_point, active, critical: float) -> np.ndarray:
     return out
 
 
-def test_correlations(flagged, obs_point, obs_image, points, centre, R_cv, cal, w_xy, *, active,
+def w_correlations(flagged, obs_point, obs_image, points, centre, R_cv, cal, w_xy, *, active,
                       point_info=None) -> np.ndarray:
     """The largest |correlation| (len(flagged),) between the test of each flagged ray (its coordinate of the
     larger w) and the test of any coordinate of another active ray of the same point, orientations held fixed:

@@ -33,7 +33,7 @@ from aerotri.adjust.snooping import (
     standardised_residuals,
     worst_per_point,
     coordinate_w,
-    test_correlations,
+    w_correlations,
 )
 
 log = logging.getLogger(__name__)
@@ -59,7 +59,7 @@ class Removed:
     w: float  # standardised residual when removed
     round: int
     # the point left out whole: its worst ray's test correlated beyond SEPARABLE_RHO with another ray's, so the
-    # test could not tell which ray was wrong (``snooping.test_correlations``); every active ray of it is listed
+    # test could not tell which ray was wrong (``snooping.w_correlations``); every active ray of it is listed
     whole_point: bool = False
     blamed: bool = True  # the ray the test named (of a point left out whole: the one of the largest w, not told apart)
 
@@ -184,7 +184,7 @@ def _adjust_block(
         k = k[(rays[block.obs_point[k]] >= 3) & ~is_control_obs[k]]
         if not len(k):
             return k
-        rho = test_correlations(k, block.obs_point, block.obs_image, st.points, st.centre, st.R_cv, st.cal,
+        rho = w_correlations(k, block.obs_point, block.obs_image, st.points, st.centre, st.R_cv, st.cal,
                                 coordinate_w(v, r, s0), active=obs_active,
                                 point_info=_point_information(block, st, opts.image_sigma_px))
         return block.obs_point[k[rho > SEPARABLE_RHO]]
