@@ -130,8 +130,10 @@ def load_block(root, eo_path=None, camera_path=None, frames=None) -> BlockInputs
     eo_given = eo_path is not None
     eo_path = Path(eo_path) if eo_path else project.eo_path
     if not eo_path.exists():
-        raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE, "
-                         f"e.g. --eo {project.truth_dir / 'eo.txt'})")
+        truth = project.truth_dir / "eo.txt"
+        # the simulator's truth only where there is one (docs trial s98 L5: a real block was pointed to truth/)
+        raise InputError(f"{eo_path}: exterior orientation not found (run the aerotri adjustment, or pass --eo FILE"
+                         + (f", e.g. --eo {truth})" if truth.is_file() else ")"))
     from aerotri.geom.eo import check_block_crs
 
     # the projection centres checked against the project CRS (another zone's numbers, swapped X/Y)

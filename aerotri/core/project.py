@@ -210,7 +210,12 @@ class Project:
             raise InputError(f"{root}: project folder not found")
         cfg_path = root / "project.toml"
         if not cfg_path.exists():
-            raise InputError(f"{cfg_path}: missing (every project folder needs project.toml with [project] crs)")
+            # a folder holding the project one level down (docs trial s98 L6: `aerotri run out/demo`, the demo's
+            # project in out/demo/project)
+            inner = sorted(p.parent.name for p in root.glob("*/project.toml"))
+            raise InputError(f"{cfg_path}: missing (every project folder needs project.toml with [project] crs)"
+                             + (f"; {', '.join(str(root / n) for n in inner[:3])} "
+                                f"{'is a project' if len(inner) == 1 else 'are projects'}" if inner else ""))
         try:
             config = tomllib.loads(read_text(cfg_path, "project file (TOML)"))
         except tomllib.TOMLDecodeError as exc:

@@ -47,8 +47,8 @@ def report(*, project, standard, accuracy_class, map_scale, horizontal_class_cm,
 @click.option("--crs", default=None, help="CRS of FILES when they carry none (as aerotri import --crs).")
 def compare(project, files, format_name, crs):
     """The adjusted orientations (at/eo.txt) against a reference AT of the same frames, read as aerotri import
-    reads it (nothing written into the project): centre and omega/phi/kappa differences per frame, RMS, largest,
-    in the adjustment's sigmas; reports/eo_comparison.json."""
+    reads it (the project's inputs and at/ untouched): centre and omega/phi/kappa differences per frame, RMS,
+    largest, in the adjustment's sigmas; written to PROJECT/reports/eo_comparison.json."""
     from aerotri.qa.eo_comparison import compare_with_reference, summary_lines
 
     click.echo("\n".join(summary_lines(compare_with_reference(project, format_name, files, crs))))

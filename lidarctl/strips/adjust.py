@@ -605,12 +605,21 @@ def prior_bound_warnings(model: Model, sol: Solution, shift_sigma_m: float) -> t
             v, e = _report_value(name, sol.theta[k]), _report_value(name, sd[k])
             out.append(f"{name} {v:+.4f} +- {e:.4f} ({z:.1f} sigma) rests on the strips' shift prior "
                        f"(--shift-sigma-m {shift_sigma_m:g} m): with the prior {PRIOR_WIDENING:g} x wider its sigma "
-                       f"is {rel:.1f} x larger ({e * rel:.4f}); the overlaps hardly tell it from strip shifts (a "
-                       "pitch is an along-track shift of strips flown in opposite directions), so a strip off by "
-                       "more than the prior comes out as this angle. Carry it to other flights only if the GNSS "
-                       "is known within the prior; look for a strip's plan offset in check_before/ (strips.json), "
+                       f"is {rel:.1f} x larger ({e * rel:.4f}); the overlaps hardly tell it from strip shifts "
+                       f"({_LIKE_SHIFTS.get(name, 'it moves the strips as their shifts do')}), so a strip off by "
+                       "more than the prior comes out as this parameter. Carry it to other flights only if the GNSS "
+                       "is known within the prior; look for a strip's offset in check_before/ (strips.json), "
                        "or adjust with --control or a cross strip")
     return tuple(out)
+
+
+# how each sensor parameter looks like strip shifts (trial s98 L7: the pitch's words were said of every parameter)
+_LIKE_SHIFTS = {
+    "boresight_pitch_deg": "a pitch is an along-track shift of strips flown in opposite directions",
+    "boresight_heading_deg": "a heading turns each strip's swath, an along-track shift growing across it",
+    "boresight_roll_deg": "a roll tilts each swath, a height shift growing across it",
+    "range_offset_m": "a range offset moves every strip up or down alike, as a common height shift",
+    "scan_angle_scale": "a scan-angle scale widens each swath, a height shift growing towards its edges"}
 
 
 def undetermined_sensor(model: Model, sol: Solution) -> list[int]:

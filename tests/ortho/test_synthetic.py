@@ -43,6 +43,7 @@ def test_tiny_truth_rectify_mosaic_check(tiny_project, tmp_path):
     # without an adjusted EO the stage says what is missing
     r = CliRunner().invoke(main, ["rectify", str(p), "--dem", str(p / "truth/dem.tif")])
     assert r.exit_code == 2 and "at/eo.txt" in r.output and "exterior orientation not found" in r.output
+    assert "e.g. --eo" in r.output and "truth/eo.txt" in r.output  # a simulated block: its truth offered
 
 
 def test_the_march_steps_over_cells_it_cannot_hit_and_renders_the_same_frame(monkeypatch):

@@ -125,3 +125,20 @@ def test_an_error_is_an_error_line_of_the_log_file(tmp_path):
     assert r.exit_code == 2, r.output
     errors = [ln for ln in log_file.read_text().splitlines() if " ERROR " in ln]
     assert len(errors) == 1 and "nothing to report yet" in errors[0], log_file.read_text()
+
+
+def test_a_folder_holding_the_project_one_level_down_names_it(tmp_path):
+    """Docs trial s98 L6: `aerotri run out/demo` where the demo's project is out/demo/project said only that
+    out/demo/project.toml is missing; it names the project inside as well, and says nothing more where none is."""
+    import pytest
+
+    from aerotri.core.errors import InputError
+    from aerotri.core.project import Project
+
+    (tmp_path / "demo" / "project").mkdir(parents=True)
+    (tmp_path / "demo" / "project" / "project.toml").write_text('[project]\ncrs = "EPSG:32633"\n')
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match=r"demo/project.toml: missing .*; .*demo/project is a project$"):
+        Project.open(tmp_path / "demo")
+    with pytest.raises(InputError, match=r"missing \(every project folder needs project.toml with \[project\] crs\)$"):
+        Project.open(tmp_path / "empty")
