@@ -895,4 +895,8 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
         for text in summary.warnings:
             log.warning(text)
         (tmp / "adjust.json").write_text(summary.to_json())
+        from aerotri.core.pages import render
+
+        # the calibration for a QA reader beside the two checks' pages (trial s98: adjust.json and the console only)
+        (tmp / "index.html").write_text(render("strips_adjust.html.j2", package="lidarctl", s=summary))
     return summary

@@ -171,6 +171,10 @@ def test_sensor_parameters_the_overlaps_cannot_determine_are_held(make_strips, t
         assert all(abs(s.parameters[h].value) < 1e-6 for h in s.held)
         assert any(w.startswith("not determined by the overlaps of 2 strips, held at 0") for w in s.warnings)
         assert "not determined by the overlaps of 2 strips" in r.output and "(held: not determined)" in r.output
+        # and on the adjustment's page a QA reader opens (trial s98: adjust.json and the console only)
+        page = (tmp_path / f"out{n}" / "index.html").read_text()
+        assert "not determined by the overlaps of 2 strips" in page and "held: not determined" in page
+        assert 'href="check_after/index.html"' in page and "boresight_roll_deg" in page
         # what is left estimated is within its limit; the roll the one overlap sees is the injected 0.05 deg to
         # 0.0074 (0.0426 +- 0.0014: the held range offset's true 0.08 m goes partly into it)
         assert all(s.parameters[n_].sigma <= lim for n_, lim in UNDETERMINED_SIGMA.items() if n_ not in s.held)
