@@ -77,14 +77,20 @@ def hydro_flatten(*, dem_path, out_path, water_path, water_layer, **_settings):
 @click.option("--tension", type=at_least(0), default=1.0, show_default=True,
               help="Tension spline: 0 is a cubic spline, larger values tend to the traced polyline.")
 @click.option("--png/--no-png", default=True, show_default=True, help="A preview PNG beside OUT (over the hillshade).")
-def contours(*, dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png):
+@click.option("--water", "water_path", type=click.Path(dir_okay=False), default=None,
+              help="Water polygons (lidarctl vectors' .gpkg, layer water) the contours are cut at: a map's contours "
+                   "stop at the shore, also of a river left unflattened as flowing water.")
+@click.option("--water-layer", default=None, help="The layer of --water holding the water polygons [water].")
+def contours(*, dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png, water_path,
+             water_layer):
     """Contour lines of DEM_PATH (GeoTIFF) into OUT_PATH (.gpkg or .geojson, layer 'contours': elevation in the
     DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata. An interval that
     would put adjacent levels less than a cell apart on average is refused (exit 2)."""
     from lidarctl.terrain.contours import contours_from_file
 
     s = contours_from_file(dem_path, out_path, interval_m=interval_m, index_every=index_every, smoothing=smoothing,
-                           tolerance_px=tolerance_px, tension=tension, png=png)
+                           tolerance_px=tolerance_px, tension=tension, png=png, water_path=water_path,
+                           water_layer=water_layer)
     # + 0.0: a level of -0.0 (a multiple of the interval reached from below) is written 0, not -0
     span = f" from {s.lowest_level + 0.0:g} to {s.highest_level + 0.0:g} {s.unit}" if s.levels else ""
     click.echo(f"{out_path}: {s.contours} contours on {s.levels} levels every {s.interval:g} {s.unit} "
@@ -92,7 +98,8 @@ def contours(*, dem_path, out_path, interval_m, index_every, smoothing, toleranc
                f"{s.index_contours} index), smoothing {s.smoothing} ({s.fell_back_to_traced} kept traced "
                f"to avoid crossings or a collapse), {s.crossings} crossings"
                + (f"; {s.under_a_tenth_of_a_cell} contours under a tenth of a cell across left out (a level grazing "
-                  f"one cell's height)" if s.under_a_tenth_of_a_cell else ""))
+                  f"one cell's height)" if s.under_a_tenth_of_a_cell else "")
+               + (f"; {s.cut_at_water} cut at the water's outlines (--water)" if water_path is not None else ""))
 
 
 @click.command(cls=Command)

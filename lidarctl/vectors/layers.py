@@ -725,22 +725,12 @@ def _outside_water(contours: Layer, water: list) -> Layer:
     the shore (the water's level is the water layer's ``water_z``). A DEM that is not hydro-flattened holds the
     water returns' waves and the TIN across the voids (trial-relief F8: the demo's ponds, 186 contour lines, 3,070 m
     of them more than 1 m inside the water at a 0.5 m interval). Each piece a line of its own, with its fields."""
-    import shapely
+    from lidarctl.terrain.contours import pieces_outside
 
     if not water or not contours.geometries:
         return contours
-    lake = shapely.union_all(water)
-    shapely.prepare(lake)
-    geoms, rows = [], []
-    for k, line in enumerate(contours.geometries):
-        if not lake.intersects(line):
-            geoms.append(line)
-            rows.append(k)
-            continue
-        for piece in shapely.get_parts(shapely.line_merge(line.difference(lake))):
-            if piece.length > 0:
-                geoms.append(piece)
-                rows.append(k)
+    kept = pieces_outside(contours.geometries, water)
+    geoms, rows = [g for _, g in kept], [k for k, _ in kept]
     rows = np.array(rows, int)
     fields = {name: np.asarray(v)[rows] for name, v in contours.fields.items()}
     if "closed" in fields:  # a ring cut at the shore is no longer closed

@@ -466,3 +466,39 @@ def test_tension_spline_stays_finite_over_a_segment_far_longer_than_the_median()
     out = _tension(xy, False, 1.0, 0.5)
     assert np.isfinite(out).all() and np.array_equal(out[0], xy[0]) and np.array_equal(out[-1], xy[-1])
     assert np.abs(out[:, 1]).max() < 10.0  # between the vertices' heights, give or take the spline's swing
+
+
+def test_contours_are_cut_at_the_water_given(tmp_path):
+    """Trial s98: 26 contour lines (1,884 ft) ran through Autzen's river, left unflattened as flowing water, and
+    ``contours`` had no way to stop them at the shore (``vectors --dem`` had). ``--water``: cut at the polygons'
+    outlines, the pieces inside left out, counted; a wrong layer is refused with nothing written."""
+    import shapely
+    from pyogrio.raw import read
+
+    from aerotri.core.vector_files import VectorLayer, write_layers
+
+    z, t = _dem(nodata_band=False)
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=500, height=400, count=1, dtype="float32",
+                       crs="EPSG:32631", transform=t, nodata=-9999.0) as d:
+        d.write(z.astype("float32"), 1)
+    river = shapely.Polygon([(0, 180), (500, 180), (500, 220), (0, 220)])  # a band across the DEM
+    write_layers(tmp_path / "water.gpkg", [VectorLayer("water", "Polygon", [river], {"water_z": np.array([20.0])})],
+                 crs="EPSG:32631")
+    runs = {}
+    for name, extra in (("plain", []), ("cut", ["--water", str(tmp_path / "water.gpkg")])):
+        r = CliRunner().invoke(main, ["contours", str(tmp_path / "dem.tif"), str(tmp_path / f"{name}.gpkg"),
+                                      "--interval-m", "1", "--no-png", *extra])
+        assert r.exit_code == 0, r.output
+        _, _, wkb, _ = read(tmp_path / f"{name}.gpkg", layer="contours")
+        runs[name] = shapely.from_wkb(wkb)
+        runs[name + "_out"] = r.output
+    inside = lambda lines: sum(g.intersection(river.buffer(-0.5)).length for g in lines)  # noqa: E731
+    assert inside(runs["plain"]) > 1000 and inside(runs["cut"]) == 0
+    n_cut = sum(1 for g in runs["plain"] if g.intersects(river.buffer(-0.5)))
+    assert f"; {n_cut} cut at the water's outlines (--water)" in runs["cut_out"]
+    # outside the water the lines are the same
+    outside = lambda lines: sum(g.difference(river.buffer(0.5)).length for g in lines)  # noqa: E731
+    assert outside(runs["cut"]) == pytest.approx(outside(runs["plain"]), rel=1e-9)
+    r = CliRunner().invoke(main, ["contours", str(tmp_path / "dem.tif"), str(tmp_path / "x.gpkg"), "--interval-m", "1",
+                                  "--water", str(tmp_path / "water.gpkg"), "--water-layer", "lakes"])
+    assert r.exit_code == 2 and "lakes" in r.output and not (tmp_path / "x.gpkg").exists()
