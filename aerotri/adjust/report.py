@@ -256,9 +256,12 @@ def _point_lists(ba, res: _Residuals) -> tuple[list, list, list]:
     worst = [j for j in np.argsort(-pt_rms)[:20] if n_rays[j] > 0]
     worst_points = [{"point_id": str(b.point_id[j]), "rays": int(n_rays[j]), "rms_um": _f(pt_rms[j], 2),
                      "xyz_m": _lst(ba.points_map[j], 3)} for j in worst]
+    # a point left out whole: its rays' residuals of the round they went (the point is not adjusted after it), and
+    # which of them the test flagged
     removed = [{"point_id": str(b.point_id[b.obs_point[x.obs]]), "image_id": b.image_id[b.obs_image[x.obs]],
-                "w": _f(x.w, 2), "round": x.round, "residual_px": _lst(r.residual_px[x.obs], 2),
-                **({"whole_point": True} if x.whole_point else {})} for x in r.removed]
+                "w": _f(x.w, 2), "round": x.round,
+                "residual_px": _lst(x.residual_px if x.whole_point else r.residual_px[x.obs], 2),
+                **({"whole_point": True, "flagged": bool(x.blamed)} if x.whole_point else {})} for x in r.removed]
     rejected = [{"id": str(ba.control.id[c]), "w": _f(w, 2)} for c, w in r.rejected_control]
     return worst_points, removed, rejected
 
@@ -266,8 +269,9 @@ def _point_lists(ba, res: _Residuals) -> tuple[list, list, list]:
 def _dropped_counts(ba, res: _Residuals, tie_pts) -> dict:
     """What the counts leave out otherwise: tie points measured but not adjusted and their observations neither used
     nor removed, by reason (``solve._drop_weak_points``): fewer than two rays left after the removals (the last ray
-    not used), or two rays or more left but so nearly parallel that the point is indeterminate (condition of its
-    normal matrix beyond 1e4-1e5: an intersection angle below about a third of a degree; all its rays not used). The
+    not used), two rays or more left but so nearly parallel that the point is indeterminate (condition of its
+    normal matrix beyond 1e4-1e5: an intersection angle below about a third of a degree; all its rays not used), or
+    left out whole by the data snooping (``Removed.whole_point``: every ray removed). The
     demo: 423 points and 423 rays, so that image observations + removed = 45,025 of the 45,445 measured."""
     b = ba.block
     tie_obs = ~np.isin(b.obs_point, b.control_point)
@@ -276,9 +280,11 @@ def _dropped_counts(ba, res: _Residuals, tie_pts) -> dict:
     removed[[x.obs for x in ba.result.removed]] = True
     unused = ~res.active & ~removed & np.isin(b.obs_point, dropped)
     left = np.bincount(b.obs_point[~removed], minlength=b.n_points)[dropped]
+    whole = np.isin(dropped, [b.obs_point[x.obs] for x in ba.result.removed if x.whole_point])
     return {"tie_points_dropped": int(len(dropped)), "observations_unused": int(unused.sum()),
-            "tie_points_dropped_single_ray": int(np.sum(left < 2)),
-            "tie_points_dropped_parallel_rays": int(np.sum(left >= 2))}
+            "tie_points_dropped_single_ray": int(np.sum((left < 2) & ~whole)),
+            "tie_points_dropped_parallel_rays": int(np.sum((left >= 2) & ~whole)),
+            "tie_points_dropped_whole": int(np.sum(whole))}
 
 
 def _dropped_text(c: dict) -> str:
@@ -288,8 +294,10 @@ def _dropped_text(c: dict) -> str:
     few, parallel = c.get("tie_points_dropped_single_ray"), c.get("tie_points_dropped_parallel_rays")
     if few is None or parallel is None:  # a report written before the reasons were counted
         return f" ({n} more measured, dropped; their {c.get('observations_unused', 0)} remaining rays not used)"
+    whole = c.get("tie_points_dropped_whole", 0)
     why = ([f"{few} with fewer than 2 rays left after the removals"] if few else []) + (
-        [f"{parallel} with rays too nearly parallel to intersect (below about 0.3 deg)"] if parallel else [])
+        [f"{parallel} with rays too nearly parallel to intersect (below about 0.3 deg)"] if parallel else []) + (
+        [f"{whole} left out whole, the test not telling which ray was wrong"] if whole else [])
     return f" ({n} more measured, dropped: {', '.join(why)}; their {c.get('observations_unused', 0)} remaining rays not used)"
 
 
@@ -1905,11 +1913,16 @@ def format_txt(rep: dict) -> str:
     for x in rep["worst_tie_points"]:
         L.append(f"{x['point_id']:>12} {x['rays']:4d} {x['rms_um']:8.2f}" + _v(x["xyz_m"][0], 14, 3) + _v(x["xyz_m"][1], 14, 3)
                  + _v(x["xyz_m"][2], 10, 3))
-    L += ["", f"Removed observations ({len(rep['removed_observations'])}; w = standardised residual; * every ray of "
-          "the point removed: the test could not tell which was wrong)"]
-    for x in rep["removed_observations"]:
+    rem = rep["removed_observations"]
+    whole = [x for x in rem if x.get("whole_point")]
+    L += ["", f"Removed observations ({len(rem)}; w = standardised residual"
+          + (f"; {len({x['point_id'] for x in whole})} tie points left out whole, their {len(whole)} rays marked: "
+             "* the ray the test flagged, + the point's other rays; the test could not tell which was wrong, v of "
+             "the round they went" if whole else "") + ")"]
+    for x in rem:
+        mark = (" *" if x.get("flagged", True) else " +") if x.get("whole_point") else ""
         L.append(f"  {x['point_id']:>10} {x['image_id']:>12}  w = {x['w']:8.2f}  v = {x['residual_px'][0]:8.2f} "
-                 f"{x['residual_px'][1]:8.2f} px  round {x['round']}{' *' if x.get('whole_point') else ''}")
+                 f"{x['residual_px'][1]:8.2f} px  round {x['round']}{mark}")
     return "\n".join(L) + "\n"
 
 
@@ -2065,7 +2078,8 @@ def format_html(rep: dict, ba=None) -> str:
                               "report.txt, report.json)",
                               ["point", "image", "w", "vx px", "vy px", "round", "point out"],
                               [[x["point_id"], x["image_id"], x["w"], *x["residual_px"], x["round"],
-                                "whole" if x.get("whole_point") else ""] for x in rem[:REMOVED_SHOWN]], 2),
+                                ("whole, flagged" if x.get("flagged", True) else "whole") if x.get("whole_point")
+                                else ""] for x in rem[:REMOVED_SHOWN]], 2),
     )
     if rep["check_points"]:
         crow = [[r["id"], r["rays"], *r["measured_m"], *r["adjusted_m"], *r["d_m"]] for r in rep["check_points"]]

@@ -76,17 +76,17 @@ def worst_per_point(w, obs_point, active, critical: float) -> np.ndarray:
     return out
 
 
-def w_correlations(flagged, obs_point, obs_image, points, centre, R_cv, cal, w_xy, *, active,
-                      point_info=None) -> np.ndarray:
-    """The largest |correlation| (len(flagged),) between the test of each flagged ray (its coordinate of the
-    larger w) and the test of any coordinate of another active ray of the same point, orientations held fixed:
+def w_correlations(flagged, obs_point, obs_image, points, centre, R_cv, cal, *, active,
+                   point_info=None) -> np.ndarray:
+    """(len(flagged), 2): per image coordinate of each flagged ray, the largest |correlation| between its test and
+    the test of any coordinate of another active ray of the same point, orientations held fixed:
     ``rho = Q_vv[a, b] / sqrt(Q_vv[a, a] Q_vv[b, b])`` with ``Q_vv = I - A N^-1 A'`` over the point's rays (and
-    its ``point_info``). Near one, a blunder in either ray gives both the same w (Foerstner's separability): the
-    test cannot tell which ray is wrong, e.g. an error along the base in one ray of a 3-ray point of one strip,
-    which has one redundancy in that direction. ``w_xy``: (K, 2) the coordinates' |w|."""
+    its ``point_info``). Near one, a blunder in either ray gives both the same w (Foerstner's separability): that
+    coordinate's test cannot tell which ray is wrong, e.g. the coordinate along the base in a 3-ray point of one
+    strip, which has one redundancy in that direction (the one across it has two)."""
     from aerotri.adjust.check_points import _ray_point_jacobian
 
-    out = np.zeros(len(flagged))
+    out = np.zeros((len(flagged), 2))
     order = np.argsort(obs_point, kind="stable")
     starts = np.searchsorted(obs_point[order], np.arange(len(points) + 1))
     cal = np.asarray(cal, dtype=float)
@@ -108,9 +108,8 @@ def w_correlations(flagged, obs_point, obs_image, points, centre, R_cv, cal, w_x
         except np.linalg.LinAlgError:
             continue
         i = int(np.flatnonzero(rays == k)[0])
-        a = 2 * i + int(np.argmax(w_xy[k]))
         d = np.sqrt(np.clip(np.diag(Q), 1e-12, None))
-        rho = np.abs(Q[a]) / (d[a] * d)
-        rho[2 * i:2 * i + 2] = 0.0
-        out[n] = float(rho.max())
+        rho = np.abs(Q[2 * i:2 * i + 2]) / (d[2 * i:2 * i + 2, None] * d[None, :])
+        rho[:, 2 * i:2 * i + 2] = 0.0
+        out[n] = rho.max(axis=1)
     return out

@@ -377,10 +377,10 @@ def test_dropped_tie_points_are_counted_by_reason():
     obs_point = np.array([0, 0, 0, 1, 1, 2, 2, 2])
     active = np.array([1, 1, 1, 0, 0, 0, 0, 0], bool)
     b = SimpleNamespace(obs_point=obs_point, control_point=np.array([], int), n_points=3)
-    ba = SimpleNamespace(block=b, result=SimpleNamespace(removed=[SimpleNamespace(obs=3)]))
+    ba = SimpleNamespace(block=b, result=SimpleNamespace(removed=[SimpleNamespace(obs=3, whole_point=False)]))
     c = report._dropped_counts(ba, SimpleNamespace(active=active), np.array([0]))
     assert c == {"tie_points_dropped": 2, "observations_unused": 4, "tie_points_dropped_single_ray": 1,
-                 "tie_points_dropped_parallel_rays": 1}
+                 "tie_points_dropped_parallel_rays": 1, "tie_points_dropped_whole": 0}
     text = report._dropped_text(c)
     assert "1 with fewer than 2 rays left after the removals" in text and "1 with rays too nearly parallel" in text
 

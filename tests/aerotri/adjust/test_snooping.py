@@ -112,12 +112,13 @@ def test_blunder_not_localisable_leaves_the_point_out(tmp_path):
     for row in rows:
         by_point.setdefault(row["point_id"], []).append(row)
     one_strip = [p for p, rs in by_point.items() if len(rs) == 3 and len({r["image_id"][:3] for r in rs}) == 1]
-    along, across = one_strip[:6], one_strip[6:9]
-    for n, p in enumerate(along + across):
+    along, across, both = one_strip[:6], one_strip[6:9], one_strip[9:12]
+    for n, p in enumerate(along + across + both):
         rs = sorted(by_point[p], key=lambda r: r["image_id"])
         xy = np.array([[float(r["x_px"]), float(r["y_px"])] for r in rs])
         base = (xy[2] - xy[0]) / np.linalg.norm(xy[2] - xy[0])  # the point's motion along the strip in the image
-        step = base if p in along else np.array([-base[1], base[0]])
+        step = {**{q: base for q in along}, **{q: np.array([-base[1], base[0]]) for q in across},
+                **{q: (base + np.array([-base[1], base[0]])) / np.sqrt(2.0) for q in both}}[p]
         wrong = rs[n % 3]
         wrong["x_px"], wrong["y_px"] = (f"{v:.3f}" for v in (xy[n % 3] + 40.0 * step))
     with path.open("w", newline="") as f:
@@ -125,16 +126,34 @@ def test_blunder_not_localisable_leaves_the_point_out(tmp_path):
         out.writeheader()
         out.writerows(rows)
     wrong_rays = {(p, sorted(by_point[p], key=lambda r: r["image_id"])[n % 3]["image_id"])
-                  for n, p in enumerate(along + across)}
+                  for n, p in enumerate(along + across + both)}
 
     ba = adjust_project(root, AdjustSettings(gnss_correction="shift", image_sigma_px=0.3))
     r, b = ba.result, ba.block
     ray = lambda x: (str(b.point_id[b.obs_point[x.obs]]), b.image_id[b.obs_image[x.obs]])  # noqa: E731
     whole = {ray(x) for x in r.removed if x.whole_point}
     single = {ray(x) for x in r.removed if not x.whole_point}
-    assert {p for p, _ in whole} == set(along)
-    assert len(whole) == 18  # every ray of the six points listed
+    assert set(along) <= {p for p, _ in whole} <= set(along + both)
+    assert len([x for x in r.removed if x.whole_point and ray(x)[0] in along]) == 18  # every ray of the six listed
     # across the base the wrong ray itself (w 159-163); beside them two chance removals at w 3.9-4.0 (3.89 critical)
-    assert {w for w in wrong_rays if w[0] in across} <= single and len(single) <= 5
+    assert {w for w in wrong_rays if w[0] in across} <= single and len(single - wrong_rays) <= 2
+    # along and across at once: the coordinate across names the ray where the test flagged it; never a sound ray
+    # removed alone
+    for p in both:
+        assert p in {q for q, _ in whole} or {x for x in single if x[0] == p} == {w for w in wrong_rays if w[0] == p}
     adjusted = set(np.asarray(b.point_id)[np.bincount(b.obs_point[r.obs_active], minlength=b.n_points) >= 2])
     assert not adjusted & set(along) and set(across) <= adjusted
+    # the report: the flagged ray '*', the others '+', with the residuals of the round they went (the wrong ray's
+    # 40 px along the base, or the middle ray's where the robust solution put it); the dropped points counted whole
+    from aerotri.adjust import report
+    from aerotri.core.records import to_record
+
+    rep = to_record(report.build_report(ba))
+    rows = [x for x in rep["removed_observations"] if x.get("whole_point") and x["point_id"] in along]
+    assert sum(x["flagged"] for x in rows) == 6 and len(rows) == 18
+    assert all(max(abs(v) for v in x["residual_px"]) > 10 for x in rows if x["flagged"])
+    assert rep["counts"]["tie_points_dropped_whole"] >= 6
+    txt = report.format_txt(rep)
+    assert "tie points left out whole" in txt and "left out whole, the test not telling which ray was wrong" in txt
+    assert sum(line.endswith(" *") for line in txt.splitlines()) == sum(x["flagged"] for x in rep[
+        "removed_observations"] if x.get("whole_point"))
