@@ -116,6 +116,15 @@ def test_one_mistyped_control_point_or_frames_named_against_the_flight_do_not_re
     assert by_flight == pytest.approx(shuffled) == pytest.approx(400.0 / 0.4 / (7680 * 12.0 / 120_000.0))
     # review 25: the two heads of a rig at every station (one GNSS event): the same base, not the 100 m fallback
     assert _flying_height_guess(np.repeat(xy, 2, axis=0), cam) == pytest.approx(by_flight)
+    # trial s97's second day: two strips of three flown again over their stations, each centre centimetres from its
+    # twin: the guess was 0.0002 m (the start values' ground at the cameras, attitudes tilted 60-89 deg, "the
+    # adjustment cannot start"); the twins are no base
+    again = xy[xy[:, 1] < 1000.0] + np.array([0.03, -0.02, 0.05])
+    assert _flying_height_guess(np.vstack([xy, again]), cam) == pytest.approx(by_flight)
+    # a single strip and a pair: as before
+    strip = xy[:6]
+    assert _flying_height_guess(strip, cam) == pytest.approx(by_flight)
+    assert _flying_height_guess(strip[:2], cam) == pytest.approx(by_flight)
 
 
 def test_all_height_control_left_out_while_plan_control_stays_is_weak(tmp_path):
