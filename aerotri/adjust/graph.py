@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import logging
 import time
 
 import gtsam
@@ -62,6 +63,9 @@ from aerotri.geom.rotation import FLIP_YZ
 # every self-calibration group a camera model offers; which Cal3DS2 entries each frees is the camera's
 # ``SELF_CAL_GROUPS``
 SELF_CAL_GROUPS = SELF_CALIBRATION_GROUPS
+log = logging.getLogger(__name__)
+# an iteration line at most this often (s): a 10,000-frame block's solve was silent for 1-2.7 min (trial s97 M1)
+PROGRESS_S = 20.0
 assert tuple(SELF_CAL_GROUPS) == SELF_CAL_GROUP_NAMES  # the light settings module spells them out
 LOOSE_SIGMA_M = 1.0e3  # sigma of the unconstrained components of horizontal/height control
 
@@ -647,7 +651,11 @@ def _schur_levenberg_marquardt(gr: Graph, opts: SolveSettings) -> tuple[gtsam.Va
     if gr.datum is not None:
         values, coords, cost = _datum_step(gr, values, coords, cost)
     lam, previous = 0.0, np.inf
+    t_said = time.perf_counter()
     for it in range(1, opts.max_iterations + 1):
+        if time.perf_counter() - t_said > PROGRESS_S:
+            log.info(f"  iteration {it}: cost {2.0 * cost:.6g}, damping {lam:.3g}")
+            t_said = time.perf_counter()
         gfg, rs = gr.linearize_reduced(values, coords)
         tp.pose_information = np.array(rs.U)  # a copy: the workspace is overwritten by the next linearisation
         diag, failure = None, None

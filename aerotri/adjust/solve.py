@@ -326,6 +326,7 @@ def _adjust_block(
         values, info = G.optimize(gr, opts)
         timings["final_s"] += time.perf_counter() - t0
         iterations += info.iterations
+        log.info(f"final solve: {info.iterations} iterations, {int(obs_active.sum())} observations")
         state = G.state_from_values(values, block, opts, state, tie=gr.tie)
         if not snooping:
             break
@@ -349,6 +350,8 @@ def _adjust_block(
     height_datum = gnss_surface = None
     if compute_marginals:
         t0 = time.perf_counter()
+        n_pts = int(np.sum(np.bincount(block.obs_point[obs_active], minlength=block.n_points) >= 2))
+        log.info(f"covariances of {block.n_images} frames' orientations and {n_pts} points")
         marg = _marginals(gr, values, block, obs_active)
         if marg is None:
             # an (almost) indeterminate point makes the covariance fail: drop weakly intersected points and
