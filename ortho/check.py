@@ -314,6 +314,8 @@ class DomCheck:
     method: str | None = None  # "ncc_patches" (against a reference orthophoto) or "surveyed_points" (``--points``)
     unmatched: UnmatchedPatches | None = None  # the open-ground textured patches that found no match, in all and by
     # region (``UnmatchedPatches``); None: surveyed points, or a report written before they were counted
+    roofs_in_dom_holes: int | None = None  # the roofs row: corners not measured, a fifth or more of their patch in the
+    # DOM's nodata (``RoofDisplacements.in_dom_holes``); None: a report written before they were counted
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -371,7 +373,8 @@ def _dom_check_of(d: dict) -> DomCheck:
                     d.get("crs"), (d.get("reference_operation") or {}).get("description"),
                     bool((d.get("reference_operation") or {}).get("ballpark")), d.get("dom_is_project_mosaic"),
                     d.get("dom"), row.get("in_nodata_warning"), _seams_of(d.get("seams")), d.get("method"),
-                    UnmatchedPatches.of_record(d["unmatched"]) if d.get("unmatched") else None)
+                    UnmatchedPatches.of_record(d["unmatched"]) if d.get("unmatched") else None,
+                    roofs_in_dom_holes=(row.get("not_measured") or {}).get("in_dom_holes"))
 
 
 def _seams_of(d: dict | None):
@@ -933,18 +936,30 @@ class RoofDisplacements:
     de_m: np.ndarray
     dn_m: np.ndarray
     corners: int  # roof corners given or found
-    outside_or_invalid: int  # patch not whole inside the DOM, or less than ROOF_MIN_VALID of it valid
+    outside_or_invalid: int  # patch not whole inside the DOM, or less than ROOF_MIN_VALID of the reference valid
     weak: int  # NCC peak below ROOF_MIN_NCC, or on the edge of the search (+- half a patch)
     patch_m: float
     in_nodata: int = 0  # not measurable: the evidence lies in the DOM's nodata (``roof_evidence_in_nodata``)
     # those corners: x_m, y_m and the shift of the DOM patch's own (ambiguous) best match, de_m, dn_m, one row each
     in_nodata_corners: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4)))
+    # not measured: less than ROOF_MIN_VALID of the DOM's patch valid, the corner beside the DOM's holes (trial s98:
+    # 493 of 2,094 on the tall block, filed with the patches off the DOM while the row said "11 in the DOM's nodata")
+    in_dom_holes: int = 0
 
     @property
     def in_nodata_pct(self) -> float:
         """Share (%) of the corners with a usable peak (measured or counted in nodata) counted in nodata."""
         usable = len(self.de_m) + self.in_nodata
         return 100.0 * self.in_nodata / usable if usable else 0.0
+
+
+def roofs_not_measured_words(report: "DomCheck") -> str:
+    """The roofs row's corners not measured for the DOM's nodata, in words (empty when none): their evidence in it
+    (``roof_evidence_in_nodata``), and their patch a fifth or more in it (``RoofDisplacements.in_dom_holes``)."""
+    parts = ([f"{report.roofs_in_nodata} not measurable: in the DOM's nodata"] if report.roofs_in_nodata else []) + (
+        [f"{report.roofs_in_dom_holes} not measured: {100 * (1 - ROOF_MIN_VALID):.0f} % or more of their patch in "
+         "the DOM's nodata"] if report.roofs_in_dom_holes else [])
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 def roofs_in_nodata_warning(in_nodata: int, measured: int) -> str | None:
@@ -1160,7 +1175,7 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
         cols, rows = inv @ (x_m, y_m)
         r0s, c0s = np.floor(rows).astype(np.int64) - n // 2, np.floor(cols).astype(np.int64) - n // 2
         inside = (r0s >= 0) & (c0s >= 0) & (r0s + n <= dom.height) & (c0s + n <= dom.width)
-        outside, weak, in_nodata = int(np.count_nonzero(~inside)), 0, 0
+        outside, weak, in_nodata, in_holes = int(np.count_nonzero(~inside)), 0, 0, 0
         rival_px = ROOF_RIVAL_M / res
         kept, hidden = [], []
         block_of = (r0s // block_px) * (dom.width // block_px + 1) + c0s // block_px
@@ -1183,8 +1198,11 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
             for i in sel:
                 r, c = int(r0s[i]) - br0, int(c0s[i]) - bc0
                 pv, rv = ok[r:r + n, c:c + n], refok[r + S:r + S + n, c + S:c + S + n]
-                if pv.mean() < ROOF_MIN_VALID or rv.mean() < ROOF_MIN_VALID:
+                if rv.mean() < ROOF_MIN_VALID:
                     outside += 1
+                    continue
+                if pv.mean() < ROOF_MIN_VALID:
+                    in_holes += 1
                     continue
                 ref_big, refok_big = ref_grey[r:r + n + 2 * S, c:c + n + 2 * S], refok[r:r + n + 2 * S, c:c + n + 2 * S]
                 ncc = masked_ncc_surface(np.where(pv, grey[r:r + n, c:c + n], 0.0), win * pv, ref_big, refok_big, S)
@@ -1204,7 +1222,8 @@ def measure_roof_patches(dom_path, reference_path, x_m, y_m, *, patch_m: float |
     for a in (k, h):
         a[:, 2] *= sx  # east and north (a south-oriented grid's x runs west, its y south)
         a[:, 3] *= sy
-    return RoofDisplacements(k[:, 0], k[:, 1], k[:, 2], k[:, 3], len(x_m), outside, weak, patch_m, in_nodata, h)
+    return RoofDisplacements(k[:, 0], k[:, 1], k[:, 2], k[:, 3], len(x_m), outside, weak, patch_m, in_nodata, h,
+                             in_holes)
 
 
 def _roofs_document(roofs: RoofDisplacements, res_m: float, source: str) -> dict:
@@ -1215,7 +1234,7 @@ def _roofs_document(roofs: RoofDisplacements, res_m: float, source: str) -> dict
         stats["median_xy_gsd"] = stats["median_xy_m"] / res_m
     stats.update(corners=roofs.corners, corners_from=source, patch_m=roofs.patch_m,
                  not_measured={"outside_or_invalid": roofs.outside_or_invalid, "weak": roofs.weak,
-                               "in_nodata": roofs.in_nodata})
+                               "in_nodata": roofs.in_nodata, "in_dom_holes": roofs.in_dom_holes})
     if roofs.in_nodata:
         h = roofs.in_nodata_corners[_spread(len(roofs.in_nodata_corners), MAX_LISTED)]
         stats["in_nodata_pct"] = round(roofs.in_nodata_pct, 2)

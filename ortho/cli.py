@@ -209,7 +209,9 @@ def _roofs_line(report: DomCheck) -> str:
     if not r.count:
         why = report.roofs_why or f"{report.roof_corners or 0} roof corners, none measurable"
         return f"roofs: none measured ({why})"
-    in_nodata = f" ({report.roofs_in_nodata} not measurable: in the DOM's nodata)" if report.roofs_in_nodata else ""
+    from ortho.check import roofs_not_measured_words
+
+    in_nodata = roofs_not_measured_words(report)
     # the median in GSD as _roofs_document divides
     return (f"roofs: {r.count} of {report.roof_corners} corners{in_nodata}: RMS {r.rms_xy_m:.3f} m "
             f"({r.rms_xy_gsd:.2f} GSD), median {r.median_xy_m:.3f} m ({r.median_xy_m / r.gsd_m:.2f} GSD)")

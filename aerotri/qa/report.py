@@ -314,7 +314,9 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
                       note=f"none measured ({why})")
     gsd = r.rms_xy_gsd if r.rms_xy_gsd is not None else float("nan")
     # corners whose evidence lies in the DOM's nodata: counted, not measured (``ortho.check.roof_evidence_in_nodata``)
-    in_nodata = f" ({dom_check.roofs_in_nodata} not measurable: in the DOM's nodata)" if dom_check.roofs_in_nodata else ""
+    from ortho.check import roofs_not_measured_words
+
+    in_nodata = roofs_not_measured_words(dom_check)
     if dom_check.roofs_in_nodata_warning:  # the rule may be hiding roofs that moved (``ROOF_MAX_IN_NODATA_PCT``)
         in_nodata += f" (warning: {dom_check.roofs_in_nodata_warning})"
     median_gsd = r.median_xy_m / r.gsd_m if r.median_xy_m is not None and r.gsd_m else float("nan")

@@ -175,6 +175,20 @@ def test_a_corner_whose_evidence_lies_in_the_doms_hole_is_counted_not_measured(t
            hole)
     got = measure_roof_patches(tmp_path / "plain_dom.tif", tmp_path / "plain_ref.tif", [x], [y])
     assert got.in_nodata == 0
+    # trial s98 H1: a patch a fifth or more in the DOM's holes was filed with the patches off the DOM, and the row
+    # said only the corners above ("11 in the DOM's nodata" where 493 more were left out beside holes); now counted
+    # and said apart
+    from ortho.check import _dom_check_of, _roofs_document, roofs_not_measured_words
+
+    hole = np.zeros(scene.shape, bool)
+    hole[r - 30:r + 30, c - 30:c - 8] = True  # a third of the patch
+    _write(tmp_path / "dom_big_hole.tif", dom, transform, hole)
+    got = measure_roof_patches(tmp_path / "dom_big_hole.tif", tmp_path / "reference.tif", [x, x + 1e4], [y, y])
+    assert (got.in_dom_holes, got.outside_or_invalid, got.in_nodata, len(got.de_m)) == (1, 1, 0, 0)
+    row = _roofs_document(got, res, "corners.csv")
+    assert row["not_measured"] == {"outside_or_invalid": 1, "weak": 0, "in_nodata": 0, "in_dom_holes": 1}
+    words = roofs_not_measured_words(_dom_check_of({"displacement": {"count": 0}, "roofs": row}))
+    assert words == " (1 not measured: 20 % or more of their patch in the DOM's nodata)"
 
 
 def test_roofs_moved_beside_holes_counted_in_nodata_warn_and_are_listed(tmp_path, caplog):
