@@ -142,8 +142,14 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
                                  f"({c.x:.1f}, {c.y:.1f}); a cell belongs to one frame")
     labels = features.rasterize(((g, k) for k, g in polygons), out_shape=labels_shape, transform=transform,
                                 fill=-1, dtype="int32")
+    # the polygons' parts beyond the seam grid are not in ``labels``: said with the part inside it (trial s98 M2: a
+    # polygon grown 200 m past the block's edge was "768 m2 outside the frame", 8,592 m2 by its geometry)
+    (h, w), (x0, y0) = labels_shape, transform @ (0, 0)
+    x1, y1 = transform @ (w, h)
+    grid = shapely.box(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
+    beyond_grid = {k: float(g.difference(grid).area) for k, g in polygons}
     _check_coverage(path, labels, names, feature_of_frame=feature_of_frame, transform=transform, valid=valid,
-                    offsets=offsets)
+                    offsets=offsets, beyond_grid_m2=beyond_grid)
     return EditedSeamlines(path, labels, {names[k]: fid for k, fid in feature_of_frame.items()})
 
 
@@ -165,8 +171,10 @@ def _place(a: np.ndarray, off, shape) -> np.ndarray:
     return out
 
 
-def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, offsets) -> None:
-    """No gap (a cell some frame sees outside every polygon), no polygon beyond its frame's footprint."""
+def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, offsets,
+                    beyond_grid_m2=None) -> None:
+    """No gap (a cell some frame sees outside every polygon), no polygon beyond its frame's footprint;
+    ``beyond_grid_m2``: per frame, its polygon's area beyond the seam grid (no frame's there), added to what is said."""
     seen = np.zeros(labels.shape, bool)
     for v, off in zip(valid, offsets):
         seen |= _place(v, off, labels.shape)
@@ -184,6 +192,9 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
         if beyond.any():
             r, c = np.argwhere(beyond)[0]
             x, y = transform @ (c + 0.5, r + 0.5)
+            past = (beyond_grid_m2 or {}).get(k, 0.0)
             raise InputError(f"{path}: feature {fid}: frame {names[k]} does not cover its polygon: "
-                             f"{beyond.sum() * abs(transform.a * transform.e):.0f} m2 of it lie outside the frame's "
-                             f"ortho (e.g. at ({x:.1f}, {y:.1f})); move the edge back inside the frame")
+                             f"{beyond.sum() * abs(transform.a * transform.e) + past:.0f} m2 of it lie outside the "
+                             f"frame's ortho (e.g. at ({x:.1f}, {y:.1f})"
+                             + (f"; {past:.0f} m2 of them beyond the mosaic's extent" if past >= 1.0 else "")
+                             + "); move the edge back inside the frame")

@@ -243,6 +243,19 @@ def test_bad_edits_are_refused_naming_the_feature_and_nothing_is_written(mosaick
     assert str(edited) in line and message.format(fid=fid, name=names[k]) in line, line
     assert "Traceback" not in r.output
     assert {p.name: p.stat().st_mtime_ns for p in (root / "ortho").iterdir()} == stamp
+    if edit == "beyond":
+        # the part past the mosaic's extent is said with the rest (trial s98 M2: 768 m2 said of 8,592)
+        import re
+
+        import rasterio
+
+        with rasterio.open(root / "ortho" / "mosaic.tif") as m:
+            past = geoms[k].difference(shapely.box(*m.bounds)).area
+        said = re.search(r"its polygon: (\d+) m2 of it lie outside .*; (\d+) m2 of them beyond the mosaic's extent",
+                         line)
+        # (the seam grid reaches a little past the mosaic's own raster: 18,235 against 18,456 m2)
+        assert past > 100 and said and int(said.group(2)) == pytest.approx(past, rel=0.05), (past, line)
+        assert int(said.group(1)) > int(said.group(2))
 
 
 def test_the_seamline_writers_threads_find_shapely_imported(tmp_path):
