@@ -11,7 +11,7 @@ from aerotri.core.commands import Command, FiniteFloatRange, finite, fraction
 
 @click.command(cls=Command)
 @click.option("--preset", "preset", default="demo", show_default=True,
-              help="Preset name (tiny, demo, dmc, dmc_block, scale) or path to a preset .toml file.")
+              help="Preset name (tiny, demo, tall, dmc, dmc_block, scale) or path to a preset .toml file.")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override the preset's random seed.")
 @click.option("--set", "overrides", multiple=True, metavar="SECTION.KEY=VALUE",
               help="Override one preset parameter, e.g. --set flight.side_overlap=0.35 (repeatable).")
