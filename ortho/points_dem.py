@@ -36,7 +36,7 @@ _log = logging.getLogger(__name__)
 MIN_POINTS_PER_FRAME = 10
 from aerotri.core.project import Project
 from aerotri.geom.crs.definition import project_crs
-from ortho.tie_points import read_tie_points
+from ortho.tie_points import read_tie_points, read_tie_points_with_rays
 
 NODATA = -9999.0
 POINTS_DEM_VERSION = 1  # the chain's dem stage stamp: bump when at/dem.tif changes at the same tie points and EO
@@ -175,10 +175,10 @@ def _footprint_bounds(root: Path, z_lo_m: float, z_hi_m: float, margin_m: float 
             float(b[:, 3].max()) + margin_m)
 
 
-def _sparse(project, n_points: int) -> bool:
+def _n_frames(project) -> int:
     from aerotri.geom.eo import read_eo
 
-    return n_points < MIN_POINTS_PER_FRAME * len(read_eo(project.eo_path).image_id)
+    return len(read_eo(project.eo_path).image_id)
 
 
 def chain_min_rays(root) -> int:
@@ -187,17 +187,14 @@ def chain_min_rays(root) -> int:
     (docs/your-own-block.md's advice for a few obliques; trial s98: Tuniu's 4 frames, 14 points in three frames, a
     plane under the orthophotos, and no way to give ``--min-rays 2`` to ``aerotri run``)."""
     project = Project.open(root)
-    three = len(read_tie_points(project.object_points_path, 3))
-    if _sparse(project, three) and not _sparse(project, len(read_tie_points(project.object_points_path, 2))):
-        return 2
-    return 3
+    _, rays = read_tie_points_with_rays(project.object_points_path)
+    enough = MIN_POINTS_PER_FRAME * _n_frames(project)
+    return 2 if np.sum(rays >= 3) < enough <= np.sum(rays >= 2) else 3
 
 
 def _warn_if_sparse(project, n_points: int, min_rays: int) -> None:
-    from aerotri.geom.eo import read_eo
-
-    if _sparse(project, n_points):
-        n_frames = len(read_eo(project.eo_path).image_id)
+    n_frames = _n_frames(project)
+    if n_points < MIN_POINTS_PER_FRAME * n_frames:
         _log.warning(f"{project.object_points_path}: {n_points} tie points seen in {min_rays} or more frames for "
                      f"{n_frames} frames ({n_points / n_frames:.1f} a frame, fewer than {MIN_POINTS_PER_FRAME}): the "
                      f"DEM follows the plane through them, not the ground's relief; a lower --min-rays or a DEM from "

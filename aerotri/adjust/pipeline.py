@@ -955,15 +955,16 @@ def _flying_height_guess(centre, cam) -> float:
     # one position per station: the heads of a multi-camera rig (or duplicated gnss.txt rows) share theirs, and their
     # nearest other centre at 0 m left the fixed 100 m base (a 2-head drone block at 60 m refused; review 25)
     xy = np.unique(np.asarray(centre, dtype=float)[:, :2], axis=0)
-    if len(xy) < 2:
-        return float(100.0 / 0.4 / (min(cam.width, cam.height) * cam.pixel_um / (cam.focal_mm * 1000.0)))
-    d = cKDTree(xy).query(xy, k=min(5, len(xy)))[0][:, 1:]
-    # a strip flown again over the same stations puts each centre beside its twin (centimetres apart): the nearest
-    # distances of half the block were that, the base "0.0002 m", the start values' ground at the cameras' height and
-    # the start attitudes tilted 60-89 deg (trial s97's second day: "the adjustment cannot start"). Nearest
-    # distances under a quarter of the stations' typical 4th-nearest (a few bases in any block) are twins, not bases
-    near, coarse = d[:, 0], float(np.median(d[:, -1]))
-    base = np.median(near[near > 0.25 * coarse]) if np.any(near > 0.25 * coarse) else coarse
+    base = 100.0
+    if len(xy) > 1:
+        d = cKDTree(xy).query(xy, k=min(5, len(xy)))[0][:, 1:]
+        # a strip flown again over the same stations puts each centre beside its twin (centimetres apart): the
+        # nearest distances of half the block were that, the base "0.0002 m", the start values' ground at the cameras'
+        # height and the start attitudes tilted 60-89 deg (trial s97's second day: "the adjustment cannot start").
+        # Nearest distances under a quarter of the stations' typical 4th-nearest (a few bases in any block) are
+        # twins, not bases
+        near, coarse = d[:, 0], float(np.median(d[:, -1]))
+        base = np.median(near[near > 0.25 * coarse]) if np.any(near > 0.25 * coarse) else coarse
     return float(base / 0.4 / (min(cam.width, cam.height) * cam.pixel_um / (cam.focal_mm * 1000.0)))
 
 

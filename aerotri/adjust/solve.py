@@ -203,10 +203,10 @@ def _adjust_block(
         w = standardised_residuals(v, r, s0)
         testable = obs_active if with_control else obs_active & ~is_control_obs
         bad = worst_per_point(w, block.obs_point, testable, crit)
-        whole = _not_separable(st, v, r, s0, bad)
-        for k in np.flatnonzero(bad & ~np.isin(block.obs_point, whole)):
+        in_whole = np.isin(block.obs_point, _not_separable(st, v, r, s0, bad))
+        for k in np.flatnonzero(bad & ~in_whole):
             removed.append(Removed(int(k), float(w[k]), rnd))
-        for k in np.flatnonzero(np.isin(block.obs_point, whole) & obs_active):
+        for k in np.flatnonzero(in_whole & obs_active):
             removed.append(Removed(int(k), float(w[k]), rnd, whole_point=True, blamed=bool(bad[k]),
                                    residual_px=(float(v[k, 0]), float(v[k, 1]))))
             bad[k] = True
@@ -611,8 +611,10 @@ def _warn_off_dem(block: G.Block, state: G.State) -> None:
 def _start_failure(block: G.Block, state: G.State) -> str:
     """Why the solve cannot start: the start values' cost is infinite (tie points behind cameras that see them),
     naming the frames whose start attitude is far from level (trial s97 H2: a re-flown strip beside the frames of its
-    stations and a frame taken out; tie points joined frames that do not overlap, the resection of the start values
-    tilted 11 of 23 frames 57-89 deg, and the run stopped on a map projection error, then on a crash)."""
+    stations and a frame taken out: the resection of the start values tilted 11 of 23 frames 57-89 deg, and the run
+    stopped on a map projection error, then on a crash. Its cause, found later, was the flying-height guess taking
+    the re-flown twins for the base, ``pipeline._flying_height_guess``; tie points joining frames that do not
+    overlap do the same)."""
     tilt = np.degrees(np.arccos(np.clip(np.abs(state.R_cv[:, 2, 2]), 0.0, 1.0)))
     bad = np.argsort(-tilt)[:8]
     bad = [i for i in bad if tilt[i] > 20.0]

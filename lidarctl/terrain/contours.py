@@ -453,10 +453,11 @@ def cut_at_water(contours: list, polygons: list) -> tuple[list, int]:
     of contours cut."""
     import shapely
 
-    kept = pieces_outside([shapely.LineString(c.xy) for c in contours], polygons)
+    lines = [shapely.LineString(c.xy) for c in contours]
+    kept = pieces_outside(lines, polygons)
     out = [dataclasses.replace(contours[k], closed=bool(piece.is_closed), xy=np.asarray(piece.coords)[:, :2])
            for k, piece in kept]
-    whole = {k for k, piece in kept if piece.length == shapely.LineString(contours[k].xy).length}
+    whole = {k for k, piece in kept if piece.length == lines[k].length}
     return out, len(contours) - len(whole)
 
 
