@@ -100,7 +100,7 @@ from ortho.block import (FrameIndex, frame_index, index_operation, operation_tag
                          require_current_frames, verify_index, without_threads_for_extra_samples)
 from ortho.grid import OrthoGrid, overview_factors
 from ortho.settings import MosaicSettings
-from ortho.seamlines_gpkg import write_seamlines_gpkg
+from ortho.seamlines_gpkg import require_seamlines_file, write_seamlines_gpkg
 from ortho.seam_crossings import FILE as CROSSINGS_FILE, CrossingsSummary
 from ortho.seamlines_preview import preview_shape, write_seamlines_preview
 from ortho.unseen import unseen_cells, unseen_without_heights
@@ -1282,8 +1282,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                           f"({resolved.sources.get('balance', 'default')}) turns off: give one or the other",
                           param="--offsets")
     if seamlines is not None:
-        if not Path(seamlines).is_file():
-            raise InputError(f"{seamlines}: edited seamlines not found (--seamlines)")
+        require_seamlines_file(seamlines)
         # absolute in mosaic.json: the chain re-makes an edited mosaic with them from any folder (review 49: a relative
         # name was looked for in the folder `aerotri run` started in, and another file of that name taken)
         seamlines = Path(os.path.abspath(seamlines))

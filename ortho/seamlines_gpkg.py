@@ -59,6 +59,16 @@ def write_seamlines_gpkg(path, labels: np.ndarray, transform, names: list[str], 
     write_layers(path, [VectorLayer(LAYER, "MultiPolygon", geoms, {"frame": frames, "area_m2": areas})], crs=crs)
 
 
+def require_seamlines_file(path) -> None:
+    """An ``InputError`` unless ``path`` is a file (a folder was "not found": trial s98 L4)."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: a folder; expected the edited seamlines file, a GeoPackage such as ortho mosaic "
+                         "writes (ortho/seamlines.gpkg, edited in a copy) (--seamlines)")
+    if not path.is_file():
+        raise InputError(f"{path}: edited seamlines not found (--seamlines)")
+
+
 def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transform, valid: list, offsets: list
                           ) -> EditedSeamlines:
     """The polygons of an edited seamlines GeoPackage (or any OGR vector file) as labels on the seam grid
@@ -70,8 +80,7 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
     from rasterio import features
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: edited seamlines not found (--seamlines)")
+    require_seamlines_file(path)
     try:
         layers = [name for name, _ in pyogrio.list_layers(path)]
         if len(layers) > 1:
@@ -182,11 +191,23 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
     if gap.any():
         n, lab = cv2.connectedComponents(gap.view(np.uint8), connectivity=4)
         sizes = np.bincount(lab.ravel())[1:]
-        r, c = np.argwhere(lab == 1 + int(np.argmax(sizes)))[0]
+        largest = lab == 1 + int(np.argmax(sizes))
+        r, c = np.argwhere(largest)[0]
         x, y = transform @ (c + 0.5, r + 0.5)
+        # who can take it (trial s98 L2: the gap was named by a coordinate only): the frames that see it, and the
+        # polygons beside it by feature id
+        seeing = [names[k] for k, (v, off) in enumerate(zip(valid, offsets)) if (_place(v, off, labels.shape)
+                                                                                  & largest).any()]
+        ring = cv2.dilate(largest.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        beside = sorted({int(k) for k in np.unique(labels[ring & ~largest]) if k >= 0},
+                        key=lambda k: feature_of_frame.get(k, -1))
+        beside_text = ", ".join(f"{names[k]} (feature {feature_of_frame[k]})" for k in beside
+                                if k in feature_of_frame) or "none"
         raise InputError(f"{path}: a gap between the polygons: {int(gap.sum())} seam cells "
-                         f"({gap.sum() * abs(transform.a * transform.e):.0f} m2, {n - 1} area(s); the largest around "
-                         f"({x:.1f}, {y:.1f})) that frames see are in no polygon; extend a neighbouring polygon over it")
+                         f"({gap.sum() * abs(transform.a * transform.e):.0f} m2, {n - 1} area(s)) that frames see are "
+                         f"in no polygon; the largest around ({x:.1f}, {y:.1f}), seen by {', '.join(seeing[:6])}"
+                         f"{' ...' if len(seeing) > 6 else ''}; the polygons beside it: {beside_text}: extend one "
+                         "over it")
     for k, fid in sorted(feature_of_frame.items(), key=lambda kv: kv[1]):
         beyond = (labels == k) & ~_place(footprint(valid[k]), offsets[k], labels.shape)
         if beyond.any():

@@ -243,6 +243,10 @@ def test_bad_edits_are_refused_naming_the_feature_and_nothing_is_written(mosaick
     assert str(edited) in line and message.format(fid=fid, name=names[k]) in line, line
     assert "Traceback" not in r.output
     assert {p.name: p.stat().st_mtime_ns for p in (root / "ortho").iterdir()} == stamp
+    if edit == "gap":
+        # who can take the gap (trial s98 L2: named by a coordinate only): the frames that see it, the polygon around it
+        assert f"seen by {names[k]}" in line or f", {names[k]}" in line.split("seen by")[1].split(";")[0], line
+        assert f"the polygons beside it: {names[k]} (feature {fids[k]}): extend one" in line, line
     if edit == "beyond":
         # the part past the mosaic's extent is said with the rest (trial s98 M2: 768 m2 said of 8,592)
         import re
@@ -256,6 +260,13 @@ def test_bad_edits_are_refused_naming_the_feature_and_nothing_is_written(mosaick
         # (the seam grid reaches a little past the mosaic's own raster: 18,235 against 18,456 m2)
         assert past > 100 and said and int(said.group(2)) == pytest.approx(past, rel=0.05), (past, line)
         assert int(said.group(1)) > int(said.group(2))
+
+
+def test_a_folder_given_as_the_seamlines_is_named_a_folder(mosaicked, tmp_path):
+    """trial s98 L4: a folder (the project's images/) given as --seamlines was "not found"."""
+    r = CliRunner().invoke(main, ["mosaic", str(mosaicked), "--seamlines", str(tmp_path)])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert f"{tmp_path}: a folder; expected the edited seamlines file" in r.output, r.output
 
 
 def test_the_seamline_writers_threads_find_shapely_imported(tmp_path):
