@@ -103,7 +103,7 @@ from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import require_seamlines_file, write_seamlines_gpkg
 from ortho.seam_crossings import FILE as CROSSINGS_FILE, CrossingsSummary
 from ortho.seamlines_preview import preview_shape, write_seamlines_preview
-from ortho.unseen import unseen_cells, unseen_without_heights
+from ortho.unseen import unseen_cells, unseen_on_objects, unseen_without_heights
 from ortho.seamlines import (footprint, frame_regions, import_path_search, keep_objects_whole, label_polygons,
                              least_cost_seams, neighbour_pairs, seam_lines, voronoi_labels)
 
@@ -1216,6 +1216,9 @@ class MosaicSummary:
     # the block's cells (``ortho.unseen.unseen_without_heights``; None in a record before it was kept)
     cells_without_heights: int | None = None
     share_without_heights: float | None = None
+    # of the cells seen by no frame of a true ortho, those on the nDSM's objects (``ortho.unseen.unseen_on_objects``;
+    # None: not a true ortho, no nDSM, or a record before it was kept)
+    cells_on_objects: int | None = None
 
 
 def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
@@ -1225,7 +1228,8 @@ def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
                          doc.get("share_seen_by_no_frame"),
                          CrossingsSummary.from_record(doc["seam_crossings"]) if doc.get("seam_crossings") else None,
                          tuple(str(n) for n in doc.get("frames_without_cells") or ()),
-                         doc.get("cells_without_heights"), doc.get("share_without_heights"))
+                         doc.get("cells_without_heights"), doc.get("share_without_heights"),
+                         doc.get("cells_on_objects"))
 
 
 def read_mosaic_summary(path) -> MosaicSummary:
@@ -1451,7 +1455,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                                   rolloff=rolloff, offsets=offsets, toe=toe,
                                   mosaic=mosaic, factor=factor, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                                   seams=seams, executor=executor, settings_record=resolved.record(), previous=previous,
-                                  resume=keep, output=out_map, crossings=crossings)
+                                  resume=keep, output=out_map, crossings=crossings,
+                                  objects=(ndsm_path, object_height_m) if ndsm_path is not None else None)
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all new, or (a failure, a kill) all as before
             for name in ("seams.tif", "seamlines.geojson", "seamlines.gpkg", "seamlines_preview.png", "mosaic.tif",
@@ -1708,9 +1713,10 @@ def _open_frame(path):
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
                     feather_px, tile_px, seams, executor, settings_record: dict, previous=None, resume=None,
-                    rolloff=None, offsets=None, toe=None, output=None, crossings=None) -> dict:
+                    rolloff=None, offsets=None, toe=None, output=None, crossings=None, objects=None) -> dict:
     """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
-    returns the summary. ``previous``
+    returns the summary. ``objects``: (nDSM path, object height in m), whose objects the cells no frame sees of a true
+    ortho are counted on (``ortho.unseen.unseen_on_objects``). ``previous``
     (``PreviousMosaic``): the mosaic whose tiles away from changed seams are taken over. ``resume``
     (``ResumeFolder``): the rows of tiles an interrupted run finished (``_write_mosaic``)."""
     crs, res = mosaic.crs, mosaic.res_m
@@ -1751,8 +1757,9 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
             # no cell lacks heights, and the surfaces are not read (0.35 s of the demo's 3 CPU-s mosaic)
             shares = [f.get("height_covered_share") for f in index.document.get("frames", [])]
             covered = bool(shares) and all(v is not None and v >= 1.0 for v in shares)
+            true_ortho = isinstance(index.inputs, dict) and isinstance(index.inputs.get("dsm"), dict)  # (rectified_on)
             nodata = _interior_nodata(work / "mosaic.tif", res, footprints=footprints,
-                                      surfaces=() if covered else surfaces)
+                                      surfaces=() if covered else surfaces, objects=objects if true_ortho else None)
             nodata["surfaces_counted"] = [str(p.relative_to(root)) if p.is_relative_to(root) else str(p)
                                           for p in surfaces]
             nodata["surfaces_cover_every_frame"] = covered  # (then not read: no cell lacks heights)
@@ -1801,12 +1808,26 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
         off = 100 * summary["share_without_heights"]
         logger.warning("%d cells (%s %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
                        "over DEM nodata, or over the frames' own nodata): nodata in the mosaic; %s %% of the block "
-                       "where the surface the frames were rectified on has no heights (%s)",
+                       "where the surface the frames were rectified on has no heights (%s)%s",
                        summary["cells_seen_by_no_frame"], f"{pct:.2f}" if pct >= 0.1 else f"{pct:.2g}",
                        f"{off:.2f}" if off >= 0.1 or off == 0 else f"{off:.2g}",
-                       ", ".join(Path(p).name for p in summary["surfaces_counted"]) or "none recorded")
+                       ", ".join(Path(p).name for p in summary["surfaces_counted"]) or "none recorded",
+                       on_objects_words(summary["cells_on_objects"], summary["cells_seen_by_no_frame"]))
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+def on_objects_words(on_objects: int | None, unseen: int) -> str:
+    """The unseen cells on the nDSM's objects, said after the mosaic's warning and in the report's row ("" for none or
+    not counted): a frame looks down on a roof, so these are the true ortho's masks at the objects' edges (the LiDAR
+    DSM's roofs reach past the walls), not occlusion (trial s98 M1: a third of the tall block's nodata)."""
+    if not on_objects or not unseen:
+        return ""
+    # (the demo: 46,849 of 149,079, 82 % of them on the truth's roofs and crowns, the rest ground the nDSM's wider
+    # roofs cover)
+    return (f"; {on_objects} of them ({100 * on_objects / unseen:.0f} %) on the nDSM's roofs and crowns, which frames "
+            "look down on: most are the true ortho's masks at the objects' edges (the LiDAR DSM's roofs reach past "
+            "the walls), not occlusion (docs/true-ortho.md)")
 
 
 def frames_without_cells(labels: np.ndarray, names: list) -> list:
@@ -1853,7 +1874,8 @@ def _white_level_record(red: ReducedFrames) -> dict:
             "saturated_share_frames": shares}
 
 
-def _interior_nodata(path: Path, res_m: float, *, footprints=(), surfaces=(), max_cells: float = 6.4e7) -> dict:
+def _interior_nodata(path: Path, res_m: float, *, footprints=(), surfaces=(), objects=None,
+                     max_cells: float = 6.4e7) -> dict:
     """Cells of the mosaic without a value that lie inside the block: enclosed by valid cells (not connected to
     the mosaic's outer edge), or inside the ground a frame images (``footprints``: per frame its ring (x, y) in the
     mosaic's CRS, ``FrameEntry.footprint_xy_m``; None for an index written before it was recorded). The second
@@ -1863,7 +1885,9 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), surfaces=(), ma
     the mask read that large (an overview of a large mosaic, scaled to mosaic cells: the overviews' masks close
     small holes, the count is then low; the demo's at half resolution read 91,268 of 138,797 enclosed cells).
     ``surfaces``: the DEM (and a true ortho's DSM) the frames were rectified on: the unseen cells where one has no
-    heights are counted apart (``..._without_heights``; Brighton on its cloud's DEM: 44.7 % of the block)."""
+    heights are counted apart (``..._without_heights``; Brighton on its cloud's DEM: 44.7 % of the block), and with
+    ``objects`` (a true ortho's nDSM path and object height in m) those on the nDSM's roofs and crowns
+    (``..._on_objects``, ``ortho.unseen.unseen_on_objects``; None without)."""
     with rasterio.open(path) as ds:
         step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / max_cells))))
         shape = (max(1, ds.height // step), max(1, ds.width // step))
@@ -1874,9 +1898,18 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), surfaces=(), ma
     holes = int(np.count_nonzero(unseen))
     block = holes + int(np.count_nonzero(ok))
     off = unseen_without_heights(unseen, read_transform, crs, surfaces)
+    on_objects = None
+    if objects is not None:
+        from aerotri.geom.crs.definition import height_unit_m, parse_crs
+
+        with rasterio.open(objects[0]) as nd:
+            unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{objects[0]} CRS")) if nd.crs is not None else 1.0
+        on = unseen_on_objects(unseen, read_transform, crs, objects[0], objects[1], unit)
+        on_objects = None if on is None else int(round(on * sx * sy))
     return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),
             "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1),
-            "cells_without_heights": int(round(off * sx * sy)), "share_without_heights": off / max(1, block)}
+            "cells_without_heights": int(round(off * sx * sy)), "share_without_heights": off / max(1, block),
+            "cells_on_objects": on_objects}
 
 
 def _write_seamlines(work: Path, labels, transform, names, crs, write_labels: bool = False) -> None:

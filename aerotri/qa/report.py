@@ -443,10 +443,14 @@ def _holes_row(section: str, m) -> QaCheck:
     """The DOM's cells inside the block that no frame sees (``m``: ortho/mosaic.json, ``MosaicSummary``): nodata in
     the delivered mosaic (a true ortho's ground occluded in every frame, or DEM nodata). Shown, not judged: no table
     has a limit."""
+    from ortho.mosaic import on_objects_words
+
     share = None if m.share_seen_by_no_frame is None else round(100.0 * m.share_seen_by_no_frame, 3)
     return _check("dom_seen_by_no_frame_pct", section, "DOM cells seen by no frame (nodata inside the block)", share,
                   None, "%", note=f"{m.cells_seen_by_no_frame:,} cells, {_area_m2(m.area_seen_by_no_frame_m2)}; occluded "
-                  "in every frame (true ortho) or over DEM nodata; hatched in ortho/seamlines_preview.png; not judged")
+                  "in every frame (true ortho) or over DEM nodata"
+                  + on_objects_words(m.cells_on_objects, m.cells_seen_by_no_frame)
+                  + "; hatched in ortho/seamlines_preview.png; not judged")
 
 
 def _without_heights_row(section: str, m, tol: dict) -> QaCheck | None:

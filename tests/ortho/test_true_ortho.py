@@ -98,6 +98,53 @@ def test_the_mosaic_counts_the_cells_no_frame_sees(block, tmp_path):
     # occluded in every frame, not off the surfaces: the DEM and the DSM cover the block
     assert summary["cells_without_heights"] == 0 and len(summary["surfaces_counted"]) == 2
     assert summary["surfaces_cover_every_frame"]  # (every frame under them: they are not read)
+    # the conventional mosaic does not count the cells on objects (its nodata is the DEM's or the frames')
+    r = CliRunner().invoke(main, ["mosaic", str(conventional), "--ndsm", str(_ndsm(conventional, tmp_path / "c.tif"))])
+    assert r.exit_code == 0, r.output
+    assert json.loads((conventional / "ortho" / "mosaic.json").read_text())["cells_on_objects"] is None
+
+
+def _ndsm(root, path):
+    """truth/dsm.tif - truth/dem.tif as an nDSM at ``path``."""
+    import rasterio
+
+    with rasterio.open(root / "truth" / "dsm.tif") as s, rasterio.open(root / "truth" / "dem.tif") as d:
+        assert s.transform == d.transform and s.shape == d.shape
+        profile = s.profile
+        nd = s.read(1).astype(np.float32) - d.read(1).astype(np.float32)
+    profile.update(dtype="float32", nodata=None)
+    with rasterio.open(path, "w", **profile) as out:
+        out.write(nd, 1)
+    return path
+
+
+def test_a_true_orthos_unseen_cells_on_roofs_are_counted_apart(block, tmp_path):
+    """trial s98 M1: a third of the tall block's nodata lay on roofs some frame sees (the LiDAR DSM's roofs reach past
+    the walls and the true ortho masks their edges); the warning called all of it occluded. The mosaic counts the
+    unseen cells on the nDSM's objects (above 2.5 m) and says so; truth: the same cells counted on the nDSM here."""
+    import rasterio
+
+    from ortho.unseen import unseen_cells
+
+    root = tmp_path / "p"
+    shutil.copytree(block, root, ignore=shutil.ignore_patterns("ortho"))
+    r = CliRunner().invoke(main, ["rectify", str(root), "--true-ortho", "--dsm", str(root / "truth" / "dsm.tif")])
+    assert r.exit_code == 0, r.output
+    ndsm = _ndsm(root, tmp_path / "ndsm.tif")
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--ndsm", str(ndsm)])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((root / "ortho" / "mosaic.json").read_text())
+    index = json.loads((root / "ortho" / "frames" / "index.json").read_text())
+    with rasterio.open(root / "ortho" / "mosaic.tif") as ds:
+        unseen = unseen_cells(ds.read_masks(1) > 0, ~ds.transform, [e.get("footprint_xy_m") for e in index["frames"]])
+        rows, cols = np.nonzero(unseen)
+        x, y = ds.transform * (cols + 0.5, rows + 0.5)
+    with rasterio.open(ndsm) as nd:
+        values = np.array(list(nd.sample(zip(x, y))))[:, 0]
+    want = int(np.count_nonzero(values > 2.5))
+    assert 0 < want < len(values)
+    assert summary["cells_on_objects"] == want
+    assert f"{want} of them" in r.stderr and "on the nDSM's roofs and crowns" in r.stderr
 
 
 def test_the_dom_check_measures_roofs_against_the_true_orthophoto(block, tmp_path):
