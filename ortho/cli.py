@@ -99,6 +99,11 @@ def dem(project, res_m, min_rays, out):
         click.echo(f"  {s.extension_words()}")
 
 
+def _frame_ids(ctx, param, values):
+    """--exclude given once per frame or as a comma-separated list (as rectify's --frames)."""
+    return tuple(i.strip() for v in values for i in v.split(",") if i.strip())
+
+
 @main.command()
 @click.argument("project", type=click.Path(path_type=Path))
 @click_option(MosaicSettings, "seams", "--seams")
@@ -109,6 +114,9 @@ def dem(project, res_m, min_rays, out):
 @click_option(MosaicSettings, "tile_px", "--tile-px")
 @click_option(MosaicSettings, "output_bits", "--output-bits")
 @click_option(MosaicSettings, "output_range", "--output-range")
+@click_option(MosaicSettings, "exclude", "--exclude", multiple=True, show_default=False, callback=_frame_ids,
+              help="Leave this frame out of the mosaic (repeatable, or image ids separated by commas): no seams, "
+                   "balancing or blending from it; its ortho stays in ortho/frames (project.toml [mosaic] exclude).")
 @click.option("--seamlines", "seamlines", type=click.Path(path_type=Path),
               help="edited seamlines: a GeoPackage of one polygon per frame (field 'frame'), as ortho/seamlines.gpkg; "
                    "its polygons are the seams (checked for gaps, overlaps and frames that do not cover them; where "

@@ -1219,6 +1219,7 @@ class MosaicSummary:
     # of the cells seen by no frame of a true ortho, those on the nDSM's objects (``ortho.unseen.unseen_on_objects``;
     # None: not a true ortho, no nDSM, or a record before it was kept)
     cells_on_objects: int | None = None
+    excluded: tuple[str, ...] = ()  # the frames left out ([mosaic] exclude, ``without_frames``)
 
 
 def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
@@ -1229,7 +1230,7 @@ def _mosaic_summary(doc: dict, summary_path: Path) -> MosaicSummary:
                          CrossingsSummary.from_record(doc["seam_crossings"]) if doc.get("seam_crossings") else None,
                          tuple(str(n) for n in doc.get("frames_without_cells") or ()),
                          doc.get("cells_without_heights"), doc.get("share_without_heights"),
-                         doc.get("cells_on_objects"))
+                         doc.get("cells_on_objects"), tuple(doc.get("excluded") or ()))
 
 
 def read_mosaic_summary(path) -> MosaicSummary:
@@ -1303,6 +1304,9 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         raise InputError(f"{frames_dir / 'index.json'}: no frames")
     verify_index(frames_dir, index)
     require_current_frames(root, index, f"`ortho mosaic {root}`")
+    if s.exclude:
+        index = without_frames(index, s.exclude, resolved.sources.get("exclude", "default"))
+        logger.info("mosaic: %d frame(s) left out (exclude): %s", len(s.exclude), ", ".join(s.exclude))
     grids = index.grids
     mosaic = OrthoGrid.union(grids)
     res = mosaic.res_m
@@ -1398,7 +1402,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
             from ortho.seamlines_gpkg import read_edited_seamlines
 
             edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, labels_shape=red.shape,
-                                           transform=red.transform, valid=red.valid, offsets=red.offsets)
+                                           transform=red.transform, valid=red.valid, offsets=red.offsets,
+                                           excluded=s.exclude)
         # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
         # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
         # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
@@ -1778,6 +1783,8 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
     # seamline polygon: named, so that the frames of the mosaic and the polygons of the layer reconcile (trial-gis F4:
     # 18 frames, 17 polygons, nothing said)
     summary["frames_without_cells"] = frames_without_cells(labels, red.names)
+    # the frames of ortho/frames left out by the operator ([mosaic] exclude): not in "frames", no polygon
+    summary["excluded"] = sorted(set(read_index(root).image_ids) - set(red.names))
     if summary["frames_without_cells"]:
         logger.info("%d of %d frames have no cell of the mosaic (the other frames cover theirs), so no seamline "
                     "polygon: %s", len(summary["frames_without_cells"]), len(red.names),
@@ -1815,6 +1822,22 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                        on_objects_words(summary["cells_on_objects"], summary["cells_seen_by_no_frame"]))
     write_text_atomic(work / "mosaic.json", json.dumps(summary, indent=1) + "\n")
     return summary
+
+
+def without_frames(index: FrameIndex, exclude, source: str = "--exclude") -> FrameIndex:
+    """``index`` without the frames named in ``exclude`` (image ids), its document too (what Dask tasks read);
+    OptionError naming an id that is not a frame, or when none would be left (``source``: where the list came from)."""
+    drop = set(exclude)
+    unknown = [f for f in exclude if f not in index.image_ids]
+    if unknown:
+        raise OptionError(f"{', '.join(unknown)} ({source}): not a frame of {index.path} ({len(index.frames)} frames, "
+                          f"e.g. {', '.join(index.image_ids[:3])})", param="--exclude")
+    keep = tuple(e for e in index.frames if e.image_id not in drop)
+    if not keep:
+        raise OptionError(f"exclude ({source}) leaves out every frame of {index.path}: nothing to mosaic",
+                          param="--exclude")
+    document = {**index.document, "frames": [f for f in index.document.get("frames", []) if f.get("image_id") not in drop]}
+    return dataclasses.replace(index, frames=keep, document=document)
 
 
 def on_objects_words(on_objects: int | None, unseen: int) -> str:
@@ -3118,6 +3141,7 @@ def _row_keys(index, mosaic: OrthoGrid, rows: dict, *, labels, seams_path, facto
             labels = sds.read(1)
     labels = np.ascontiguousarray(labels)
     doc = {"index_sha1": hashlib.sha1(Path(index.path).read_bytes()).hexdigest(),
+           "frames": list(index.image_ids),  # (a run that leaves frames out: the labels number the others)
            "labels": [hashlib.sha256(labels.tobytes()).hexdigest(), list(labels.shape), str(labels.dtype)],
            "gains": np.asarray(gains, float).tolist(), "nadir": np.asarray(nadir, float).tolist(),
            "factor": int(factor), "halo": int(halo), "feather_px": float(feather_px), "tile_px": int(tile_px),

@@ -69,11 +69,12 @@ def require_seamlines_file(path) -> None:
         raise InputError(f"{path}: edited seamlines not found (--seamlines)")
 
 
-def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transform, valid: list, offsets: list
-                          ) -> EditedSeamlines:
+def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transform, valid: list, offsets: list,
+                          excluded=()) -> EditedSeamlines:
     """The polygons of an edited seamlines GeoPackage (or any OGR vector file) as labels on the seam grid
     (``labels_shape``, ``transform``), checked against the frames (``names``; ``valid``/``offsets``: each frame's
-    valid seam cells and the (row, col) of its first cell) as the module doc says."""
+    valid seam cells and the (row, col) of its first cell) as the module doc says; ``excluded``: frames of ortho/frames
+    the mosaic leaves out (``[mosaic] exclude``), named as such when a polygon holds one."""
     import pyogrio
     import shapely
     from pyproj import CRS
@@ -122,6 +123,9 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
         if name is None or not str(name).strip():
             raise InputError(f"{where}: no frame name (field 'frame' empty); expected one of the mosaic's frames "
                              f"(ortho/frames/index.json: {len(names)} frames, e.g. {', '.join(names[:3])})")
+        if name in set(excluded):
+            raise InputError(f"{where}: frame {name} is left out of the mosaic ([mosaic] exclude / --exclude): give "
+                             "its cells to the neighbouring polygons, or take it off the list")
         if name not in known:
             raise InputError(f"{where}: frame {name!r} is not a frame of the mosaic (ortho/frames/index.json: "
                              f"{len(names)} frames, e.g. {', '.join(names[:3])})")

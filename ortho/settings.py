@@ -104,6 +104,9 @@ class MosaicSettings:
     offsets: bool = setting(False, help="With the gains, an offset per frame and band (haze, a black level) by the "
                                         "same least squares (default: gains only; needs balance).")
     tile_px: int = setting(1024, min=16, help="Mosaic processing tile size (px).")
+    exclude: tuple[str, ...] = setting(
+        (), help="Frames left out of the mosaic (image ids): no seams, balancing or blending from them; their orthos "
+                 "stay in ortho/frames (a re-flown strip's frames, a cloud, a bad exposure).")
     output_bits: int | None = setting(
         None, choices=(8,),
         help="8: write the DOM with 8-bit samples, the balanced samples mapped linearly to 0 .. 255 by one mapping for "

@@ -450,6 +450,8 @@ def _holes_row(section: str, m) -> QaCheck:
                   None, "%", note=f"{m.cells_seen_by_no_frame:,} cells, {_area_m2(m.area_seen_by_no_frame_m2)}; occluded "
                   "in every frame (true ortho) or over DEM nodata"
                   + on_objects_words(m.cells_on_objects, m.cells_seen_by_no_frame)
+                  + (f"; {len(m.excluded)} frame(s) left out of the mosaic ([mosaic] exclude): "
+                     f"{', '.join(m.excluded[:8])}{' ...' if len(m.excluded) > 8 else ''}" if m.excluded else "")
                   + "; hatched in ortho/seamlines_preview.png; not judged")
 
 
