@@ -81,16 +81,20 @@ def hydro_flatten(*, dem_path, out_path, water_path, water_layer, **_settings):
               help="Water polygons (lidarctl vectors' .gpkg, layer water) the contours are cut at: a map's contours "
                    "stop at the shore, also of a river left unflattened as flowing water.")
 @click.option("--water-layer", default=None, help="The layer of --water holding the water polygons [water].")
+@click.option("--min-ring-cells", type=at_least(0), default=None,
+              help="Closed contours enclosing fewer DEM cells than this are left out: hills and pits the DEM does not "
+                   "resolve (a return's noise, a post, a bush); 0 keeps every ring [4].")
 def contours(*, dem_path, out_path, interval_m, index_every, smoothing, tolerance_px, tension, png, water_path,
-             water_layer):
+             water_layer, min_ring_cells):
     """Contour lines of DEM_PATH (GeoTIFF) into OUT_PATH (.gpkg or .geojson, layer 'contours': elevation in the
     DEM's unit, elevation_m, index, closed), traced on the cell centres and cut at nodata. An interval that
     would put adjacent levels less than a cell apart on average is refused (exit 2)."""
-    from lidarctl.terrain.contours import contours_from_file
+    from lidarctl.terrain.contours import MIN_RING_CELLS, contours_from_file
 
+    min_ring_cells = MIN_RING_CELLS if min_ring_cells is None else min_ring_cells
     s = contours_from_file(dem_path, out_path, interval_m=interval_m, index_every=index_every, smoothing=smoothing,
                            tolerance_px=tolerance_px, tension=tension, png=png, water_path=water_path,
-                           water_layer=water_layer)
+                           water_layer=water_layer, min_ring_cells=min_ring_cells)
     # + 0.0: a level of -0.0 (a multiple of the interval reached from below) is written 0, not -0
     span = f" from {s.lowest_level + 0.0:g} to {s.highest_level + 0.0:g} {s.unit}" if s.levels else ""
     click.echo(f"{out_path}: {s.contours} contours on {s.levels} levels every {s.interval:g} {s.unit} "
@@ -99,6 +103,8 @@ def contours(*, dem_path, out_path, interval_m, index_every, smoothing, toleranc
                f"to avoid crossings or a collapse), {s.crossings} crossings"
                + (f"; {s.under_a_tenth_of_a_cell} contours under a tenth of a cell across left out (a level grazing "
                   f"one cell's height)" if s.under_a_tenth_of_a_cell else "")
+               + (f"; {s.small_rings} closed contours enclosing fewer than {s.min_ring_cells:g} cells left out "
+                  f"(--min-ring-cells)" if s.small_rings else "")
                + (f"; {s.cut_at_water} cut at the water's outlines (--water)" if water_path is not None else ""))
 
 

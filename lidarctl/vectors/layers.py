@@ -702,7 +702,7 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs, clou
     metres beside a cloud in feet gave contours at 124 beside spot heights at 425, the command saying "(ft)")."""
     import shapely
 
-    from lidarctl.terrain.contours import trace, whole_unit_interval
+    from lidarctl.terrain.contours import MIN_RING_CELLS, trace, whole_unit_interval, without_small_rings
     from lidarctl.terrain.dem_io import open_dem
 
     src, z_m = open_dem(path, out_path)
@@ -712,6 +712,8 @@ def _dem_contours(path: Path, out_path: Path, interval_m: float, cloud_crs, clou
         transform = src.transform
     # in whole units of the DEM when meant so, said when not (trial s96 F6: Autzen's map contours at 406.824 ft)
     cs = trace(dem, transform, whole_unit_interval(interval_m, z_m), option="--contour-interval-m")
+    # the map's contours as lidarctl contours draws them by default: no ring the DEM does not resolve (trial s98 L8)
+    cs, _ = without_small_rings(cs, MIN_RING_CELLS * abs(transform.a * transform.e))
     return Layer("contours", "LineString", [shapely.LineString(c.xy) for c in cs],
                  {"elevation": np.array([c.level for c in cs], float) * (z_m / cloud_z_m if z_m != cloud_z_m else 1.0),
                   "elevation_m": np.array([c.level * z_m for c in cs], float),

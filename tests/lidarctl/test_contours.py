@@ -502,3 +502,40 @@ def test_contours_are_cut_at_the_water_given(tmp_path):
     r = CliRunner().invoke(main, ["contours", str(tmp_path / "dem.tif"), str(tmp_path / "x.gpkg"), "--interval-m", "1",
                                   "--water", str(tmp_path / "water.gpkg"), "--water-layer", "lakes"])
     assert r.exit_code == 2 and "lakes" in r.output and not (tmp_path / "x.gpkg").exists()
+
+
+def test_rings_the_dem_does_not_resolve_are_left_out_by_the_command(tmp_path):
+    """trial s98 L8: 406 of 589 Topography contours at 1 m were closed rings under 10 m long (median 3.3 m), one or two
+    cells' heights. By default a closed contour enclosing fewer than 4 cells (2 x 2) is left out and counted; a hill's
+    rings enclosing more stay, and open lines stay whatever their length; --min-ring-cells 0 keeps every ring."""
+    from pyogrio.raw import read
+
+    from lidarctl.terrain.contours import ring_area
+
+    rows, cols = np.mgrid[0:60, 0:80] + 0.5
+    z = 10.0 + 0.05 * cols  # a gentle slope: open lines
+    z[20, 20] += 1.2  # one cell above its neighbours: a ring under a cell's area at every level it crosses
+    z += 3.0 * np.exp(-((rows - 40.0) ** 2 + (cols - 55.0) ** 2) / 30.0)  # a hill: rings of tens of cells
+    path = tmp_path / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=80, height=60, count=1, dtype="float32", crs="EPSG:32631",
+                       transform=from_origin(0.0, 60.0, 1.0, 1.0)) as d:
+        d.write(z.astype("float32"), 1)
+    found = {}
+    for args in ([], ["--min-ring-cells", "0"]):
+        out = tmp_path / f"c{len(args)}.gpkg"
+        r = CliRunner().invoke(main, ["contours", str(path), str(out), "--interval-m", "0.5", "--no-png"] + args)
+        assert r.exit_code == 0, r.output
+        meta, _, geom, fields = read(out, layer="contours")
+        import shapely
+
+        lines = shapely.from_wkb(geom)
+        closed = fields[list(meta["fields"]).index("closed")]
+        areas = [ring_area(np.asarray(g.coords)) for g, c in zip(lines, closed) if c]
+        found[len(args)] = (len(lines), sorted(areas), int(np.sum(~closed.astype(bool))), r.output)
+    (n4, areas4, open4, out4), (n0, areas0, open0, out0) = found[0], found[2]
+    small = [a for a in areas0 if a < 4.0]
+    assert len(small) >= 2 and max(small) < 1.0  # the single cell's rings: under a cell's area
+    assert areas4 == [a for a in areas0 if a >= 4.0] and len(areas4) >= 4  # the hill's rings kept (7.5-140 m2)
+    assert open4 == open0 > 0 and n0 - n4 == len(small)
+    assert f"{len(small)} closed contours enclosing fewer than 4 cells left out" in out4
+    assert "closed contours enclosing" not in out0
