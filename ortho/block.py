@@ -193,11 +193,16 @@ def _left_out_by_adjustment(project: Project) -> dict:
     return {k: lo.get("reason", "") for lo in comp.get("left_out", []) for k in lo.get("images", [])}
 
 
-def default_resolution(camera: BrownCamera, eo: ExteriorOrientations, ground_height_m) -> float:
-    """The median nadir GSD of the block (ground heights under the nadir points), rounded to a nice value."""
+def default_resolution(camera: BrownCamera, eo: ExteriorOrientations, ground_height_m, dem_path=None) -> float:
+    """The median nadir GSD of the block (ground heights under the nadir points), rounded to a nice value;
+    ``dem_path``: the DEM the heights are of, named when the centres lie below it."""
     agl = float(np.median(eo.centre_m[:, 2] - ground_height_m))
     if agl <= 0:
-        raise InputError(f"projection centres are below the DEM (median height above ground {agl:.1f} m)")
+        # (trial s99 lidmut M4: a DEM in feet read as metres was "projection centres are below the DEM", no file)
+        raise InputError(f"{dem_path or 'the DEM'}: the projection centres lie below it (median height above ground "
+                         f"{agl:.1f} m, DEM {float(np.nanmedian(ground_height_m)):.1f} under the nadir points, centres "
+                         f"{float(np.median(eo.centre_m[:, 2])):.1f}): heights in another unit (feet as metres?) or "
+                         "another height system than the orientations'?")
     return nice_resolution(camera.gsd_m(float(agl)))
 
 
@@ -877,7 +882,7 @@ def rectify_block(root, settings: RectifySettings | Resolved | None = None, *, e
             if ok.any():
                 _, _, nadir_z[ok] = height_op.transform(eo_sel.centre_m[ok, 0], eo_sel.centre_m[ok, 1], nadir_z[ok])
         nadir_z = np.where(np.isfinite(nadir_z), nadir_z, 0.5 * (zlo + zhi))
-        gsd_res = default_resolution(block.camera, eo_sel, nadir_z)
+        gsd_res = default_resolution(block.camera, eo_sel, nadir_z, dem_path)
         res = gsd_res if res_m is None else float(res_m)
     finally:
         dem_ds.close()

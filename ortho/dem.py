@@ -25,9 +25,10 @@ from rasterio.windows import Window, from_bounds
 
 from aerotri.core.errors import CrsError, InputError
 from aerotri.geom.crs.definition import (crs_label, height_crs, height_unit_m, heights_in_unit, horizontal_crs,
-                                         same_horizontal, vertical_crs)
+                                         length_unit_name, same_horizontal, vertical_crs)
 from aerotri.geom.crs.raster_warp import anchor_grid, height_change, interpolate_anchors, open_north_up
 from aerotri.geom.crs.transform import CrsTransformer
+from aerotri.geom.crs.height_rasters import refuse_above_ground, stated_height_unit_m, undeclared_fill
 
 _log = logging.getLogger(__name__)
 
@@ -86,6 +87,14 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
                          + (f" (it holds {', '.join(inside)})" if inside else ""))
     expected = f"; expected the project CRS {project_crs.to_string()}" if project_crs is not None else ""
     ds = open_north_up(path, what, no_crs_hint=expected, square=True, heights=True)
+    try:
+        if what in ("DEM", "DSM", "occlusion DSM"):
+            refuse_above_ground(ds, path, f"the {what} must hold the {'terrain' if what == 'DEM' else 'surface'}'s "
+                                          f"heights (lidarctl rasters' {'dem' if what == 'DEM' else 'dsm'}.tif)")
+        refuse_stated_height_unit(ds, path, what)
+    except InputError:
+        ds.close()
+        raise
     if project_crs is not None and not same_horizontal(CRS(ds.crs), CRS(project_crs)):
         got = crs_label(CRS(ds.crs))
         ds.close()
@@ -94,6 +103,24 @@ def open_height_raster(path, project_crs: CRS | None, what: str = "DEM"):
             f"{crs_label(CRS(project_crs))}; reproject the {what} (aerotri crs warp) or fix project.toml"
         )
     return ds
+
+
+def refuse_stated_height_unit(ds, path, what: str = "DEM") -> None:
+    """InputError when a raster whose CRS is 2D states its heights in another unit than that CRS's (its band's unit
+    type or a VERTICAL_UNITS tag, what ``lidarctl check-heights`` asks a user to add): the orthos read heights in the
+    CRS's unit (trial s99 lidmut H2: a UTM DEM tagged feet read as metres, exit 0 with the frames off, or "projection
+    centres below the DEM"). A compound CRS says both and is converted."""
+    crs = CRS(ds.crs)
+    if crs.is_compound or len(crs.axis_info) >= 3:
+        return
+    stated, implied = stated_height_unit_m(ds), height_unit_m(crs)
+    if stated is None or abs(stated - implied) < 1e-9:
+        return
+    raise InputError(f"{path}: states its height unit as {length_unit_name(stated, long=True)} (its band unit or "
+                     f"VERTICAL_UNITS tag) while its CRS, 2D, is in {length_unit_name(implied, long=True)}: the "
+                     f"{what}'s heights are read in the CRS's unit; convert them (gdal_calc.py -A {path} --outfile "
+                     f"OUT.tif --calc \"A*{stated / implied:.10g}\") or give the {what} a compound CRS whose vertical "
+                     f"axis is in {length_unit_name(stated, long=True)}")
 
 
 def require_overlap(ds, path, what: str, bounds, bounds_crs=None, area: str = "the block") -> None:
@@ -214,61 +241,6 @@ def convert_heights(heights: np.ndarray, x_left: float, y_top: float, res: float
 def read_height_raster(path, project_crs: CRS | None = None, what: str = "DEM") -> HeightRaster:
     with open_height_raster(path, project_crs, what) as ds:
         return read_height_window(ds, ds.bounds, what=what)
-
-
-# a DEM's cells at exactly 0 are taken for an undeclared fill when its other heights all lie more than this (m)
-# above 0: gdalwarp fills what lies beyond its source with 0 and declares no nodata for a float DEM unless told; a
-# coast's ground runs down to the sea's 0 (its lowest heights within this), a plateau of 0 beside 400 m does not
-ZERO_FILL_GAP_M = 10.0
-ZERO_FILL_MIN_SHARE = 0.001  # of the valid cells (a decimated read): fewer zeros are not worth a word
-
-
-# below 0, the values software writes for "no height" when it declares none (ESRI's and surveyors' -9999, -999, -99;
-# a 16-bit DEM's -32767 / -32768): taken for an undeclared fill when they are the raster's lowest value, with the other
-# heights more than ``ZERO_FILL_GAP_M`` above. Beyond -1000 m they are refused anyway (``aerotri.geom.inputs.check_height_values``);
-# -999 and -99 lie within them and were neither refused nor warned of (review 28)
-NEGATIVE_FILL_VALUES = (-99.0, -999.0, -9999.0, -99999.0, -32767.0, -32768.0)
-
-
-@dataclasses.dataclass(frozen=True)
-class UndeclaredFill:
-    """A height raster's cells that look like an undeclared nodata fill: ``value`` (raster units), their ``share`` of
-    the valid cells, the lowest and highest other heights ``lo``, ``hi`` (raster units)."""
-    value: float
-    share: float
-    lo: float
-    hi: float
-
-
-def undeclared_fill(ds, max_cells: int = 1_000_000) -> UndeclaredFill | None:
-    """The cells of band 1 of the open height raster ``ds`` that look like an undeclared fill: no nodata value, mask or
-    alpha declared, at least ``ZERO_FILL_MIN_SHARE`` of the cells at exactly 0 or at one of ``NEGATIVE_FILL_VALUES``
-    (the raster's lowest value), and every other height more than ``ZERO_FILL_GAP_M`` above it (0 with heights below
-    0 too: not a DEM of land above sea level); None otherwise. A decimated read, as ``height_range``."""
-    from rasterio.enums import MaskFlags
-
-    if ds.mask_flag_enums[0] != [MaskFlags.all_valid]:
-        return None
-    step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / max_cells))))
-    v = ds.read(1, out_shape=(max(1, ds.height // step), max(1, ds.width // step)),
-                resampling=rasterio.enums.Resampling.nearest).ravel()
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return None
-    lowest = float(v.min())
-    unit_m = height_unit_m(CRS(ds.crs)) if ds.crs is not None else 1.0
-    for value in (0.0, lowest):
-        if value != 0.0 and value not in NEGATIVE_FILL_VALUES:
-            continue
-        fill = v == value
-        n = int(np.count_nonzero(fill))
-        if n < ZERO_FILL_MIN_SHARE * v.size or n == v.size:
-            continue
-        other = v[~fill]
-        lo, hi = float(other.min()), float(other.max())
-        if (lo - value) * unit_m > ZERO_FILL_GAP_M:
-            return UndeclaredFill(value, n / v.size, lo, hi)
-    return None
 
 
 def warn_zero_fill(ds, path, what: str = "DEM") -> None:

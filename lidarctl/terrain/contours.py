@@ -523,7 +523,7 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
                           param="--interval-m")
     dem_path, out_path = Path(dem_path), Path(out_path)
     refuse_foreign_layers(out_path, ("contours",), "lidarctl contours")
-    src, z_m = open_dem(dem_path, out_path)
+    src, z_m = open_dem(dem_path, out_path, say_unit=True)
     interval = whole_unit_interval(interval_m, z_m)
     with src:
         # contours are lines over the whole DEM: it is read whole (a 10 x 10 km DEM at 1 m is 400 MB in float32)

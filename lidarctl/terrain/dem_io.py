@@ -12,18 +12,6 @@ from aerotri.core.errors import InputError
 HYDRO_TAG = "HYDRO_FLATTENED"  # lidarctl hydro-flatten's tag on its DEM: lidarctl smooth warns of it
 
 
-def stated_height_unit_m(src) -> float | None:
-    """Metres per height unit the raster states itself (its band's unit type, else a VERTICAL_UNITS tag), None when it
-    states none or one not known here."""
-    from aerotri.geom.crs.definition import length_unit_m
-
-    for name in (src.units[0] if src.units else None, src.tags().get("VERTICAL_UNITS")):
-        unit_m = length_unit_m(name)
-        if unit_m is not None:
-            return unit_m
-    return None
-
-
 @dataclasses.dataclass(frozen=True)
 class DemHeightUnit:
     """Metres per height unit of a DEM (``unit_m``) and whether the file declares it (``declared``: a compound or 3D
@@ -35,13 +23,34 @@ class DemHeightUnit:
     horizontal_unit_m: float
 
 
-def open_dem(in_path, out_path=None):
+def open_dem(in_path, out_path=None, say_unit: bool = False):
     """(open rasterio dataset, metres per height unit) of a north-up DEM with a CRS, one band of finite,
     plausible heights with at least one valid cell and at least 2 x 2 cells (``aerotri.geom.crs.raster_warp.
-    open_north_up``); refuses ``out_path`` equal to the input (``OptionError`` naming OUT; None: a check that
-    writes no raster) and anything else with an ``InputError`` naming the file. The caller closes the dataset."""
+    open_north_up``), no undeclared fill (``refuse_undeclared_fill``); refuses ``out_path`` equal to the input
+    (``OptionError`` naming OUT; None: a check that writes no raster) and anything else with an ``InputError`` naming
+    the file. ``say_unit``: a warning when the heights' unit is assumed from a CRS in feet (``undeclared_unit_words``).
+    The caller closes the dataset."""
     src, unit = open_dem_unit(in_path, out_path)
+    words = undeclared_unit_words(in_path, unit) if say_unit else None
+    if words:
+        import logging
+
+        logging.getLogger(__name__).warning("%s", words)
     return src, unit.unit_m
+
+
+def undeclared_unit_words(path, unit: "DemHeightUnit") -> str | None:
+    """The assumption made when a DEM on a grid in feet declares no height unit (no vertical CRS, band unit or
+    VERTICAL_UNITS tag): heights in feet too, as LAS has it; a State Plane grid with NAVD88 metres is common (trial
+    s99 lidmut H4: metres under EPSG:2992 contoured as feet, elevation_m 95 for 311.7 m, no word). None when declared
+    or metric."""
+    from aerotri.geom.crs.definition import length_unit_name
+
+    if unit.declared or abs(unit.horizontal_unit_m - 1.0) < 1e-12:
+        return None
+    return (f"{path}: declares no vertical unit (no vertical CRS, band unit or VERTICAL_UNITS tag): its heights are "
+            f"taken in its CRS's horizontal unit, {length_unit_name(unit.unit_m, long=True)}; if they are metres, tag "
+            f"the raster (gdal_edit.py -mo VERTICAL_UNITS=metre {path}) and run again")
 
 
 def open_dem_unit(in_path, out_path=None):
@@ -55,10 +64,13 @@ def open_dem_unit(in_path, out_path=None):
         refuse_input_as_output(Path(out_path), [in_path], option="OUT")
     src = open_north_up(in_path, "DEM", heights=True)
     try:
+        refuse_undeclared_fill(src, in_path)
         from aerotri.geom.crs.definition import length_unit_name, linear_unit_m, parse_crs
 
         crs = parse_crs(src.crs.to_wkt())
         unit_m = height_unit_m(crs)
+        from aerotri.geom.crs.height_rasters import stated_height_unit_m
+
         stated = stated_height_unit_m(src)
         vertical_in_crs = crs.is_compound or len(crs.axis_info) >= 3
         if stated is not None and not vertical_in_crs and abs(stated - unit_m) > 1e-9:
@@ -77,18 +89,22 @@ def open_dem_unit(in_path, out_path=None):
         raise
 
 
-# lidarctl rasters' grids of heights above the ground (their band descriptions' starts): no terrain, though heights
-ABOVE_GROUND_DESCRIPTIONS = ("CHM:", "nDSM:")
+def refuse_undeclared_fill(src, path) -> None:
+    """InputError when the DEM's cells at 0 or at a negative fill value (-99, -999, -9999 ...) look like a nodata value
+    it does not declare (``aerotri.geom.inputs.undeclared_fill``): its contours, drainage, smoothing and height check
+    took them for heights (trial s99 lidmut H1: -999 over a 310-370 m block gave 806 contours from -995 m, a drainage
+    fill raising cells 1,312 m, check-heights RMSE 594 m; ``ortho rectify`` warned of the same file)."""
+    from aerotri.geom.crs.height_rasters import undeclared_fill
 
-
-def refuse_above_ground(src, path, command: str) -> None:
-    """InputError when the raster says it holds heights above the ground (lidarctl rasters' chm.tif, ndsm.tif, by
-    their band descriptions), for a ``command`` that needs terrain (trial s94: ``lidarctl drainage chm.tif`` traced
-    streams over the crowns, exit 0, where intensity.tif was refused)."""
-    desc = (src.descriptions[0] if src.count >= 1 and src.descriptions else None) or ""
-    if desc.startswith(ABOVE_GROUND_DESCRIPTIONS):
-        raise InputError(f"{path}: holds heights above the ground (its band description {desc!r}), not terrain; "
-                         f"{command} needs a DEM of the ground (lidarctl rasters' dem.tif)")
+    found = undeclared_fill(src)
+    if found is None:
+        return
+    v = f"{found.value:g}"
+    raise InputError(f"{path}: {100 * found.share:.1f} % of the DEM's cells hold exactly {v} while its other heights "
+                     f"are {found.lo:.6g} .. {found.hi:.6g} and it declares no nodata value: a fill (gdalwarp's beyond "
+                     f"its source, a clipped DEM)? Declare it (gdal_edit.py -a_nodata {v} {path}, or rio edit-info "
+                     f"--nodata {v} {path}); if those cells are ground at {v}, declare the nodata value the DEM does use "
+                     "(any value it does not hold) and they are read as heights")
 
 
 def write_dem_cog(work, out_path) -> None:

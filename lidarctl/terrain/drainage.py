@@ -660,7 +660,8 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
 
     from aerotri.core.atomic import atomic_dir
     from aerotri.geom.crs.definition import height_unit_m, linear_unit_m, unit_long_name, unit_name
-    from lidarctl.terrain.dem_io import open_dem, refuse_above_ground
+    from aerotri.geom.crs.height_rasters import refuse_above_ground
+    from lidarctl.terrain.dem_io import open_dem
 
     if method not in METHODS:
         raise OptionError(f"depression handling is one of {', '.join(METHODS)}, got {method!r}", param="--fill/--breach")
@@ -675,9 +676,9 @@ def drainage(dem_path, outdir, min_area_m2: float | None = None, method: str = "
     if outdir.exists() and (not outdir.is_dir() or any(p.name not in FILES for p in outdir.iterdir())):
         raise OptionError(f"{outdir}: OUTDIR must be a new folder or a previous drainage output (it is replaced as "
                           f"a whole; it holds other files)", param="OUTDIR")
-    src, z_m = open_dem(dem_path, outdir / "conditioned.tif")
+    src, z_m = open_dem(dem_path, outdir / "conditioned.tif", say_unit=True)
     with src:
-        refuse_above_ground(src, dem_path, "drainage")
+        refuse_above_ground(src, dem_path, "drainage needs a DEM of the ground (lidarctl rasters' dem.tif)")
         crs = src.crs
         xy_m = linear_unit_m(crs)
         if not np.isfinite(xy_m):

@@ -188,7 +188,7 @@ def hydro_flatten(dem_path, water_path, out_path, params: HydroSettings = HydroS
         raise OptionError(f"must be a positive number of metres, got {params.max_range_m}", param="--max-range-m")
     dem_path, water_path, out_path = Path(dem_path), Path(water_path), Path(out_path)
     refuse_input_as_output(out_path, [dem_path, water_path], option="OUT")
-    src, z_m = open_dem(dem_path, out_path)
+    src, z_m = open_dem(dem_path, out_path, say_unit=True)
     with src:
         dem_crs = pyproj.CRS.from_user_input(src.crs.to_wkt())
         xy_m = linear_unit_m(dem_crs)

@@ -183,7 +183,7 @@ def smooth_dem(in_path, out_path, params: DiffusionSettings = DiffusionSettings(
     if window_px < 16:
         raise OptionError(f"windows of at least 16 cells, got {window_px}", param="--window-px")
     in_path, out_path = Path(in_path), Path(out_path)
-    src, z_m = open_dem(in_path, out_path)
+    src, z_m = open_dem(in_path, out_path, say_unit=True)
     with src:
         nodata = src.nodata
         profile = dict(driver="GTiff", width=src.width, height=src.height, count=1, dtype="float32", crs=src.crs,

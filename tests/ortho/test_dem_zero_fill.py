@@ -12,8 +12,8 @@ import pytest
 import rasterio
 from click.testing import CliRunner
 
+from aerotri.geom.crs.height_rasters import ZERO_FILL_GAP_M, undeclared_fill
 from ortho.cli import main
-from ortho.dem import ZERO_FILL_GAP_M, undeclared_fill
 from tests.shared_builds import write_synthetic_project
 
 
