@@ -33,9 +33,9 @@ def merge_las(paths, out_path, crs=None, chunk_points: int = 2_000_000) -> int:
     paths = [Path(p) for p in paths]
     if not paths:
         raise InputError("no LAS/LAZ files to merge")
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(paths)  # a strip given twice would count every point twice
     refuse_input_as_output(out_path, paths)
     project_crs = parse_crs(crs, "project CRS") if crs is not None else None
     if project_crs is not None and not horizontal_crs(project_crs).is_projected:

@@ -1096,9 +1096,9 @@ def classify_files(in_paths, out_dir, crs=None, params=None, *, suffix: str | No
     in_paths = [Path(q) for q in in_paths]
     if not in_paths:
         raise InputError("no LAS/LAZ strips to classify")
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(in_paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(in_paths)  # a strip given twice would count every point twice
     out_dir = Path(out_dir)
     names = classified_names(in_paths, suffix)
     for q in in_paths:

@@ -511,9 +511,9 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
     density.validate()
     paths = [] if cloud_paths is None else (
         [cloud_paths] if isinstance(cloud_paths, (str, Path)) else list(cloud_paths))
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(paths)  # a strip given twice would count every point twice
     if not paths and dem_path is None:
         raise OptionError("nothing to check: give the classified cloud(s) before POINTS_CSV, --dem DEM.tif, or both",
                           param="--dem")

@@ -206,9 +206,9 @@ def evaluate_map(pred_paths, ref_path, params: MapEvalSettings = MapEvalSettings
     """The stage (``lidarctl evaluate PRED... --reference REF``): the prediction (one class raster, or one or
     more classified clouds: strips) and the reference onto one grid, then ``score_maps``."""
     pred_paths = [Path(pred_paths)] if isinstance(pred_paths, (str, Path)) else [Path(q) for q in pred_paths]
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(pred_paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(pred_paths)  # a strip given twice would count every point twice
     ref_path = Path(ref_path)
     kinds = {_kind(q, ("cloud", "raster"), "the prediction") for q in pred_paths}
     pk = kinds.pop()

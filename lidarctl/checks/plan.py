@@ -379,9 +379,9 @@ def check_plan_files(cloud_paths, points_csv, params: PlanCheckSettings = PlanCh
     """``check_plan_file`` + the JSON and the PNG (atomic, written only after the check succeeded)."""
     from aerotri.core.atomic import refuse_input_as_output, write_text_atomic
 
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files([cloud_paths] if isinstance(cloud_paths, (str, Path)) else cloud_paths, "LAS/LAZ file")
+    check_distinct_clouds([cloud_paths] if isinstance(cloud_paths, (str, Path)) else cloud_paths)
     for opt, p in (("--json", json_path), ("--png", png_path)):
         if p is not None:
             refuse_input_as_output(p, [*cloud_paths, points_csv], opt)

@@ -1468,9 +1468,9 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
     outdir = Path(outdir)
     resolved = settings_of(settings, CornerSettings)  # a Resolved (lidarctl corners, the chain): with sources
     s = resolved.settings
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(paths)  # a strip given twice would count every point twice
     for name in ("corners.csv", "corners.geojson", "corners.json", "corners.png", ROOF_PLANES_FILE):
         refuse_input_as_output(outdir / name, paths, "OUTDIR")
     names = ", ".join(str(p) for p in paths)

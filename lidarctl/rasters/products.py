@@ -911,9 +911,9 @@ def write_rasters(cloud, outdir, res_m: float, crs=None, *, tile_px: int | None 
     check_res(res_m)
     if not isinstance(cloud, PointCloud):
         paths = [cloud] if isinstance(cloud, (str, Path)) else list(cloud)
-        from aerotri.geom.inputs import check_distinct_files
+        from lidarctl.io import check_distinct_clouds
 
-        check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+        check_distinct_clouds(paths)  # a strip given twice would count every point twice
         return write_rasters_tiled(paths, outdir, res_m, crs=crs, tile_px=tile_px, buffer_px=buffer_px,
                                    chunk_points=chunk_points, dem_fill_radius_px=dem_fill_radius_px,
                                    resume_dir=resume_dir)

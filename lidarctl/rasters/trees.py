@@ -524,9 +524,9 @@ def trees_from_files(in_paths, outdir, settings: TreeSettings | None = None, crs
     s = settings or TreeSettings()
     s.validate()
     paths = [Path(p) for p in ([in_paths] if isinstance(in_paths, (str, Path)) else in_paths)]
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(paths)  # a strip given twice would count every point twice
     outdir = Path(outdir)
     for f in FILES:
         refuse_input_as_output(outdir / f, paths, "OUTDIR")

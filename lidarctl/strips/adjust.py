@@ -817,9 +817,9 @@ def adjust_strips(paths, outdir, settings: StripAdjustSettings = StripAdjustSett
     paths = [Path(p) for p in paths]
     outdir = Path(outdir)
     refuse_input_as_output(outdir, paths, option)
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(paths)  # a strip given twice would count every point twice
     for p in paths:
         refuse_input_as_output(outdir / p.name, paths, option)
     chk.refuse_replacing(outdir, paths, option)

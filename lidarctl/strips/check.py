@@ -516,9 +516,9 @@ def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), *, 
     outdir = Path(outdir)
     refuse_input_as_output(outdir, paths, option)
     refuse_replacing(outdir, paths, option)
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(paths)  # a strip given twice would count every point twice
     ss = read_strip_planes(paths, params, crs)
     res = analyse(ss, params, paths)
     for p in res.summary.pairs:

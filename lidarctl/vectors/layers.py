@@ -897,9 +897,9 @@ def vectors_to_file(paths, out_path, *, params: MapVectorSettings = MapVectorSet
 
     out_path = Path(out_path)
     inputs = [Path(q) for q in paths] + [Path(q) for q in (dem, contours, image) if q is not None]
-    from aerotri.geom.inputs import check_distinct_files
+    from lidarctl.io import check_distinct_clouds
 
-    check_distinct_files(paths, "LAS/LAZ file")  # a strip given twice would count every point twice
+    check_distinct_clouds(paths)  # a strip given twice would count every point twice
     refuse_input_as_output(out_path, inputs, option="OUT")
     for q in inputs:
         if not q.is_file():

@@ -34,6 +34,10 @@ def files(tmp_path_factory):
     synthetic.write_las(d / "c14.las", cloud, classification=truth, crs="EPSG:32632")
     synthetic.write_las(d / "c12.las", cloud, classification=truth, crs="EPSG:32632", version="1.2")
     synthetic.write_las(d / "c.laz", cloud, classification=truth, crs="EPSG:32632")
+    # another scene on the same ground: a second strip that is not the first one again (the same points under other
+    # bytes are refused, lidarctl.io.check_distinct_clouds)
+    other, other_truth = synthetic.synthetic_scene(width_m=130.0, density_per_m2=4.0, seed=4, n_buildings=4)
+    synthetic.write_las(d / "other14.las", other, classification=other_truth, crs="EPSG:32632")
     rng = np.random.default_rng(1)
     px, py = cloud.x.min() + rng.uniform(10, 120, 5), cloud.y.min() + rng.uniform(10, 120, 5)
     (d / "points.csv").write_text("id,x,y,z\n" + "".join(
@@ -51,7 +55,7 @@ def _commands(bad: Path, good: Path, points: Path, out: Path):
         "evaluate-truth": ["evaluate", good, "--truth", bad],
         "check-heights": ["check-heights", bad, points, "--json", out / "hc.json"],
         "corners": ["corners", bad, out / "co"],
-        "corners-second": ["corners", good, bad, out / "co2"],
+        "corners-second": ["corners", good.parent / "other14.las", bad, out / "co2"],
     }
 
 
@@ -638,7 +642,7 @@ def test_crs_option_naming_another_crs_than_the_files_record_is_refused(files, t
         "vectors": ["vectors", cloud, out / "v.gpkg"],
         "corners": ["corners", cloud, out / "co"],
         "check-heights": ["check-heights", cloud, points, "--json", out / "hc.json"],
-        "strips check": ["strips", "check", cloud, d / "c.laz", out / "s"],
+        "strips check": ["strips", "check", cloud, d / "other14.las", out / "s"],
     }
     for name, args in commands.items():
         r = CliRunner().invoke(main, [str(a) for a in args] + ["--crs", "EPSG:32633"])
