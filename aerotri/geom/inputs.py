@@ -89,7 +89,11 @@ def check_height_values(ds, path, what: str = "DEM", unit_m: float = 1.0, band: 
             why = ("an infinity; expected finite heights, or the raster's nodata value where there is none"
                    if np.isinf(v) else
                    f"beyond the heights on Earth ({lo_u:g} .. {hi_u:g} {unit}): an undeclared nodata value? "
-                   "(declare it, e.g. gdal_edit.py -a_nodata <value>)")
+                   "(declare it, e.g. gdal_edit.py -a_nodata <value>)" + (
+                       # (trial s99 lidmut L3: an integer DEM in centimetres was asked only about nodata)
+                       "; or heights in centimetres or millimetres (an integer raster: convert it to metres)"
+                       if np.issubdtype(np.dtype(ds.dtypes[band - 1]), np.integer) and hi_u < abs(v) <= 1000 * hi_u
+                       else ""))
             raise InputError(f"{path}: band {band}, cell (row {r0 + i}, column {j}) of the {what} holds {v:g}, {why}")
         ok = ~mask
         n = int(ok.sum())

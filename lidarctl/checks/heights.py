@@ -645,10 +645,40 @@ def _height_check_document(cloud_paths, points_csv, *, radius_m, exclude_m, crs,
                 break
     if "unit_slip" not in result:
         for what, dz in surfaces:
+            if slip := surface_unit_slip(dz, points_m.z):
+                result["surface_unit_slip"] = {**slip, "surface": what}
+                break
+    if "unit_slip" not in result and "surface_unit_slip" not in result:
+        for what, dz in surfaces:
             if offset := constant_offset(dz):
                 result["constant_offset"] = {**offset, "surface": what}
                 break
     return result
+
+
+# the surface's heights read in metres when they were (name, factor to metres of what was read): feet, metres read as
+# feet (a DEM in metres under a grid in feet that declares no unit), centimetres (an integer DEM)
+SURFACE_UNIT_SLIPS = (("feet", las.FOOT_M), ("metres read as feet", 1.0 / las.FOOT_M), ("centimetres", 0.01))
+
+
+def surface_unit_slip(dz_m: np.ndarray, z_points_m: np.ndarray) -> dict | None:
+    """Whether the surface's heights (``dz_m`` + ``z_points_m``, as read, metres) fit the survey if they were in
+    another unit (``SURFACE_UNIT_SLIPS``): the median |dz| beyond ``UNIT_SLIP_MIN_M`` and, in that unit, below
+    ``UNIT_SLIP_FRACTION`` of it; None otherwise. Trial s99 lidmut M2: a DEM in feet read as metres was "a nearly
+    constant +707 m: two height systems (the geoid)", an integer DEM in centimetres RMSE 1,821 m with no word."""
+    ok = np.isfinite(dz_m)
+    if np.count_nonzero(ok) < 3:
+        return None
+    med = float(np.median(np.abs(dz_m[ok])))
+    if med <= UNIT_SLIP_MIN_M:
+        return None
+    surface = dz_m[ok] + z_points_m[ok]
+    for unit, factor in SURFACE_UNIT_SLIPS:
+        med_other = float(np.median(np.abs(surface * factor - z_points_m[ok])))
+        if med_other < UNIT_SLIP_FRACTION * med:
+            return {"median_abs_dz_m": med, "median_abs_dz_other_unit_m": med_other, "unit": unit,
+                    "factor": factor}
+    return None
 
 
 def constant_offset(dz_m: np.ndarray) -> dict | None:
@@ -851,6 +881,15 @@ def format_report(check: HeightCheck) -> str:
                   "two height systems (ellipsoidal against orthometric heights differ by the geoid, tens of metres; "
                   "another vertical datum), or a cloud of heights above the ground (normalised)? The RMSE measures "
                   "that offset, not the surface's accuracy"]
+    sslip = result.get("surface_unit_slip")
+    if sslip:
+        how = ("give --dem-z-unit, or tag the DEM (gdal_edit.py -mo VERTICAL_UNITS=...)" if sslip["surface"] == "DEM"
+               else "give the cloud a CRS whose vertical unit is right (--crs)")
+        lines += ["", f"warning: the {sslip['surface']} and the surveyed heights differ by a median |dz| of "
+                  f"{sslip['median_abs_dz_m']:.3f} m, but by {sslip['median_abs_dz_other_unit_m']:.3f} m if the "
+                  f"{sslip['surface']}'s heights were {sslip['unit']} (x {sslip['factor']:.6g}): its height unit is "
+                  f"wrong, not the datum; {how}" + ("" if sslip["unit"] != "centimetres" else
+                                                   " (centimetres: convert it, gdal_calc.py --calc \"A*0.01\")")]
     slip = result.get("unit_slip")
     if slip:
         lines += ["", f"warning: the {slip['surface']} and the surveyed heights differ by a median |dz| of "

@@ -86,3 +86,13 @@ def test_heights_taken_in_feet_from_the_grid_are_said_and_a_tag_settles_them(tmp
         assert r.exit_code == 0, r.output
         text = caplog.text + r.output
         assert ("declares no vertical unit" in text and "gdal_edit.py -mo VERTICAL_UNITS=metre" in text) == said, text
+
+
+def test_an_integer_dem_in_centimetres_is_asked_about_its_unit(tmp_path):
+    """trial s99 lidmut L3: 31,000 (310 m in cm, int32) was refused as "an undeclared nodata value?" alone."""
+    path = tmp_path / "cm.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=20, height=20, count=1, dtype="int32", crs="EPSG:32649",
+                       transform=from_origin(X0, Y0, 1.0, 1.0)) as d:
+        d.write(np.full((20, 20), 31000, np.int32), 1)
+    r = CliRunner().invoke(main, ["contours", str(path), str(tmp_path / "c.gpkg"), "--interval-m", "1"])
+    assert r.exit_code == 2 and "heights in centimetres or millimetres" in r.output, r.output

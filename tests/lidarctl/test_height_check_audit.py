@@ -181,3 +181,19 @@ def test_points_mostly_off_the_dem_are_said_before_a_height_offset(tmp_path):
     assert "7 of 10 points lie off the DEM" in r.output and "another CRS, zone or grid" in r.output
     r = _run(["check-heights", _points(tmp_path / "q.csv", [0.05] * 10, 100.0), "--dem", dem])
     assert "lie off the DEM" not in r.output
+
+
+@pytest.mark.parametrize("scale, unit, z", [(1 / 0.3048, "feet", 310.0), (100.0, "centimetres", 45.0)])
+def test_a_dem_in_another_height_unit_is_named_so_not_a_datum(tmp_path, scale, unit, z):
+    """trial s99 lidmut M2: a DEM of feet on a metric grid (no tag) read "a nearly constant +707 m: two height systems
+    (the geoid)"; an integer DEM in centimetres gave RMSE 1,821 m with no word. The unit that fits is named."""
+    dem = _flat_dem(tmp_path / "dem.tif", "EPSG:32633", z * scale)
+    pts = _points(tmp_path / "p.csv", [0.02, -0.01, 0.03, 0.0, -0.02], z)
+    r = _run(["check-heights", pts, "--dem", dem])
+    assert r.exit_code == 0, r.output
+    assert f"if the DEM's heights were {unit}" in r.output and "its height unit is wrong, not the datum" in r.output
+    assert "two height systems" not in r.output
+    # a datum's offset stays one
+    dem2 = _flat_dem(tmp_path / "dem2.tif", "EPSG:32633", z + 31.5)
+    r = _run(["check-heights", pts, "--dem", dem2])
+    assert "two height systems" in r.output and "height unit is wrong" not in r.output
