@@ -1026,7 +1026,9 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
     check = {}
     chk_obs = None
     if len(chk):
-        m = np.isin(cobs.point_id, chk.id)
+        # measurements in a frame the adjustment left out (no tie points: a frame of another flight, cloud, water)
+        # have no orientation to intersect from (trial s99 atmut M1: KeyError, a traceback, exit 1)
+        m = np.isin(cobs.point_id, chk.id) & np.isin(cobs.image_id, list(img_index))
         chk_obs = cobs.subset(m)
         cid = {p: c for c, p in enumerate(chk.id)}
         opi = np.array([cid[p] for p in chk_obs.point_id], dtype=int)

@@ -149,3 +149,27 @@ def test_a_split_blocks_warning_names_the_overlap_that_fails(tmp_path):
     with open(ok / "project.toml", "a") as f:
         f.write("\n[flight]\nmean_terrain_height_m = 0.0\n")
     assert overlap_shortfall(ok) == ""
+
+
+def test_a_check_point_measured_in_a_frame_left_out_is_checked_from_the_others(project, tmp_path):
+    """trial s99 atmut M1: a frame of another flight (no tie point) whose image measured a check point made the
+    adjustment stop on a KeyError (a traceback, exit 1). The frame is left out; the check point is intersected from
+    the frames that were adjusted."""
+    rows = (project / "control/image_points.csv").read_text().splitlines()[1:]
+    checks = {ln.split(",")[0] for ln in (project / "control/points.csv").read_text().splitlines()[1:]
+              if ln.split(",")[1] == "check"}
+    seen = {c: [ln.split(",")[1] for ln in rows if ln.split(",")[0] == c] for c in sorted(checks)}
+    point = next(c for c, frames in seen.items() if len(frames) >= 3)  # seen by two frames besides
+    frame = seen[point][0]
+
+    def orphan(root):
+        _without(root, "at/tiepoints.csv", lambda ln: f",{frame}," not in ln)
+        _without(root, "control/image_points.csv", lambda ln: f",{frame}," not in ln or ln.split(",")[0] in checks)
+
+    root = _edited(project, tmp_path, orphan)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="shift"))
+    assert [lo.image_ids for lo in ba.left_out] == [[frame]]
+    others = sum(1 for ln in rows if ln.split(",")[0] == point and ln.split(",")[1] != frame)
+    assert ba.check[point]["rays"] == others >= 2
+    assert np.all(np.isfinite(ba.check[point]["adjusted_m"]))
+    assert np.abs(np.subtract(ba.check[point]["adjusted_m"], ba.check[point]["measured_m"])).max() < 0.5
