@@ -54,8 +54,9 @@ class ImageTopCheck:
                 f"{self.plan_deg:g} deg of the flight plan (by default from the frame's shape: a portrait frame is "
                 f"taken as turned across the flight): over {self.pairs} pairs of neighbouring frames their two ground "
                 f"positions agree within {self.misfit_m[best]:.1f} m turned so, {self.misfit_m[0.0]:.1f} m as planned. "
-                "Matching guided by the wrong plan finds fewer ties and calls stereo models weak; run again with "
-                f"--image-top-deg {deg:g} ([match] image_top_deg)")
+                "Matching guided by the wrong plan finds fewer ties and calls stereo models weak; set [match] "
+                f"image_top_deg = {deg:g} in project.toml (aerotri run), or give aerotri match --image-top-deg "
+                f"{deg:g}, and run again")
 
 
 def image_top_check(plan: BlockPlan, camera, track: np.ndarray, image: np.ndarray, xy: np.ndarray

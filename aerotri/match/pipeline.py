@@ -420,7 +420,10 @@ def _components(project: Project, ids: list[str], ties_per_pair: list[tuple[int,
     c = [j for i, j, t in ties_per_pair if t > 0]
     n = len(ids)
     if n > 1 and not r:
-        raise InputError(f"{project.images_dir}: no two frames share verified tie points (no overlap at all?)")
+        # (trial s99 atmut M2: NGI frames stored turned 180 deg matched nothing on the GNSS plan, "no overlap at all?")
+        raise InputError(f"{project.images_dir}: no two frames share verified tie points: no overlap at all, frames "
+                         "stored turned against the flight plan (a camera mounted the other way: [match] "
+                         "image_top_deg = 180, or 90 / 270), or GNSS positions of other frames?")
     ncomp, comp = connected_components(coo_matrix((np.ones(len(r)), (r, c)), shape=(n, n)), directed=False)
     return [[ids[k] for k in np.flatnonzero(comp == q)] for q in range(ncomp)]
 
@@ -478,7 +481,12 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
 
             top = image_top_check(plan, camera, ties.track, ties.image, ties.xy)
             if top is not None and top.wrong:
-                log.warning(f"{project.root}: {top.text()}")
+                if s.image_top_deg is None:
+                    # the plan's top came from the frame's shape: the block goes on with half its ties and falls
+                    # apart (trial s99 atmut H2: frames stored turned 180 deg, 2 unconnected strips, "Solution
+                    # Successful", QA pass, the ground 0.53 m off); a top the user gave is theirs to keep
+                    raise InputError(f"{project.root}: {top.text()}")
+                log.warning(f"{project.root}: {top.text()} (the plan's image top is the one given: kept)")
         densified = Densified()
         if s.densify and plan is not None:
             ties, extra, densified = _densify(mt, plan, sparse, ties, s)
