@@ -44,6 +44,10 @@ def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m,
     med = np.median(sigma_m[gnss_observed(sigma_m)], axis=0)
     weights = f"positions weighted with {med[0]:.3g} / {med[2]:.3g} m (plan / height; {source})"
     if correction == "none":
+        if not observed:  # (trial s99 atmut H1: the heights 14 m off with a focal length 5 % long, "as good as ...")
+            return (f"GNSS: {weights}, independent between frames, no offset estimated: the datum is the GNSS "
+                    "positions' alone, as good as these sigmas say only where the GNSS heights and the camera's focal "
+                    "length are right; no control point or surface (DEM) in the solve checks it.")
         return (f"GNSS: {weights}, independent between frames, no offset estimated: the datum is as good as these "
                 "sigmas say.")
     what = {"offset": "one 3-D offset for the whole flight (a consumer receiver's common error)",

@@ -481,12 +481,10 @@ def match_project(root, settings: MatchSettings | Resolved | None = None,
 
             top = image_top_check(plan, camera, ties.track, ties.image, ties.xy)
             if top is not None and top.wrong:
-                if s.image_top_deg is None:
-                    # the plan's top came from the frame's shape: the block goes on with half its ties and falls
-                    # apart (trial s99 atmut H2: frames stored turned 180 deg, 2 unconnected strips, "Solution
-                    # Successful", QA pass, the ground 0.53 m off); a top the user gave is theirs to keep
-                    raise InputError(f"{project.root}: {top.text()}")
-                log.warning(f"{project.root}: {top.text()} (the plan's image top is the one given: kept)")
+                # said, not refused: a drone holding its heading flies every other strip backwards (Brighton Beach's
+                # frames read 180 deg), where the plan's top is right for the strips it is not; a block matched on
+                # a wrong plan that falls apart is the adjustment's weakness (components)
+                log.warning(f"{project.root}: {top.text()}")
         densified = Densified()
         if s.densify and plan is not None:
             ties, extra, densified = _densify(mt, plan, sparse, ties, s)

@@ -439,6 +439,21 @@ def _dom_crs_note(dom_check, project: Project) -> str:
     return note
 
 
+HEIGHTS_UNCHECKED = "heights_unchecked"
+
+
+def heights_unchecked_words(gnss_given: bool) -> str:
+    """Why a block without control points, surface control or check points with heights is not testable (trial s99
+    atmut H1: a GNSS-only block with its camera held, the focal length 1 % / 5 % off or the GNSS heights 40 m off,
+    read "Solution Successful" and QA pass with the ground 2.7 / 14.3 / 40.2 m off in height)."""
+    held = ("the GNSS heights and the camera's focal length alone (a focal length 1 % off moves them by 1 % of the "
+            "flying height, GNSS heights of another height system by the geoid)" if gnss_given else
+            "nothing measured: no GNSS either")
+    return (f"no control point, DEM (surface control) or check point with a height: the block's heights rest on "
+            f"{held}, and nothing in the block can see an error there; the overall verdict is not testable. Give "
+            "check points, control or the LiDAR DEM ([adjust] dem)")
+
+
 def _holes_row(section: str, m) -> QaCheck:
     """The DOM's cells inside the block that no frame sees (``m``: ortho/mosaic.json, ``MosaicSummary``): nodata in
     the delivered mosaic (a true ortho's ground occluded in every frame, or DEM nodata). Shown, not judged: no table
@@ -916,6 +931,10 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
             note = "no LiDAR control: " + ("the datum comes from GNSS alone" if at.gnss_given else
                                            "no datum from control")
         rows.append(_check("control_points_used", sec, "control points in the adjustment", 0, None, "", note=note))
+        chk_z = at.check_rms_m[2] if at.check_rms_m and len(at.check_rms_m) > 2 else None
+        if not used and chk_z is None:
+            rows.append(_check(HEIGHTS_UNCHECKED, sec, "block heights checked (control, DEM or check points)", "no",
+                               None, "", note=heights_unchecked_words(at.gnss_given)))
     ctrl = at.control_rms_m if at else None
     # plan and height each when there is one: plan-only control (the kite block's targets) has no height RMS
     if ctrl and None not in ctrl[:2]:
@@ -1168,6 +1187,9 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                            note=f"not measured: {missing}"))
 
     verdicts = [r.verdict for r in rows if r.verdict]
+    overall = overall_verdict(verdicts, dataclasses.asdict(compliance))
+    if overall == "pass" and any(r.id == HEIGHTS_UNCHECKED for r in rows):
+        overall = NOT_TESTABLE  # (every row passes, but nothing measured the block's heights: not "pass")
     ks_info = dict(sigma0_um=ks.sigma0_um, iterations=ks.iterations) if ks else dict(sigma0_um=None, iterations=None)
     info = dict(
         adjustment=dict(**ks_info, counts=at.counts or None,
@@ -1191,7 +1213,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                     tolerance_table=str(tol_path.name), terrain=terrain, tolerances=tol,
                     table=_table_record(table, lidar_only),
                     block=dataclasses.asdict(block), checks=rows,
-                    overall=overall_verdict(verdicts, dataclasses.asdict(compliance)),
+                    overall=overall,
                     passed=verdicts.count("pass"), failed=verdicts.count("fail"), details=info,
                     flight_acceptance=fa, compliance=dataclasses.asdict(compliance),
                     not_judged=tuple(r.id for r in rows if r.verdict is None and r.limit is not None))

@@ -357,31 +357,6 @@ def test_the_tie_points_tell_a_portrait_camera_flown_with_its_long_side_along_tr
     assert not check.wrong and check.misfit_m[0.0] < 2.0, check
 
 
-def test_frames_stored_turned_stop_the_matching_until_their_top_is_given(tiny_project, tmp_path):
-    """trial s99 atmut H2: frames stored turned 180 deg (a camera mounted the other way) were matched on the plan's
-    top with a warning alone; the block fell into two strips no tie point joined, "Solution Successful", QA pass,
-    the ground 0.53 m off. With the top taken from the frame's shape the matching stops (exit 2) naming the setting;
-    given, the block is matched whole."""
-    import json
-
-    import rasterio
-
-    p = shutil.copytree(tiny_project, tmp_path / "p")
-    for f in sorted((p / "images").glob("*.tif")):
-        with rasterio.open(f) as d:
-            a, prof = d.read(), d.profile
-        f.unlink()  # (images/ may hold links to the shared build: a new file, not the linked one written over)
-        with rasterio.open(f, "w", **prof) as o:
-            o.write(a[:, ::-1, ::-1].copy())
-    r = CliRunner().invoke(aerotri_main, ["match", str(p)])
-    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
-    assert "image top at 180 deg" in r.output and "[match] image_top_deg = 180 in project.toml" in r.output
-    assert not (p / "at" / "tiepoints.csv").exists()
-    r = CliRunner().invoke(aerotri_main, ["match", str(p), "--image-top-deg", "180"])
-    assert r.exit_code == 0, r.output
-    assert json.loads((p / "at" / "connectivity.json").read_text())["components"] == 1
-
-
 def test_the_flight_plan_takes_the_frames_in_image_id_order_whatever_the_order_of_gnss_txt(tiny_project, tmp_path):
     """Trial s97 M5: a frame's line put back at the end of gnss.txt broke its strip in two (a false weak model,
     16,623 tracks for 17,053): the plan takes the frames in image-id order, as the adjustment does."""

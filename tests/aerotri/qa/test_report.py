@@ -205,6 +205,31 @@ def test_surface_control_is_said_where_no_control_point_holds_the_heights(tmp_pa
         "no LiDAR control points; surface control: 560 tie points on the DEM hold the block's heights with the GNSS")
 
 
+def test_a_block_whose_heights_nothing_checks_is_not_testable(tmp_path):
+    """trial s99 atmut H1: GNSS alone, no control, DEM or check point: a focal length 5 % long put the ground 14.3 m
+    off in height under "Solution Successful" and QA pass. Every row may pass; the overall verdict is not testable,
+    and the row says why. Surface control or check points with heights make it testable again."""
+    p = _project(tmp_path, None, 0.18)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    rep.update(counts={"control_points": 0}, options={"given_eo_gps": "Enabled"})
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    out = write_qa_report(p)
+    row = out.check("heights_unchecked")
+    assert row.value == "no" and row.verdict is None and "focal length 1 % off" in row.note
+    assert out.failed == 0 and out.overall == "not testable"
+    rep["surface_control"] = {"used": 560, "rejected": 1, "rms_m": 1.6}
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    out = write_qa_report(p)
+    assert out.overall == "pass" and "heights_unchecked" not in [r.id for r in out.checks]
+    (tmp_path / "chk").mkdir()
+    q = _project(tmp_path / "chk", [0.1, 0.1, 0.2], 0.18)  # check points with heights, no control, no DEM
+    rep = json.loads((q / "at" / "report.json").read_text())
+    rep.update(counts={"control_points": 0}, options={"given_eo_gps": "Enabled"})
+    (q / "at" / "report.json").write_text(json.dumps(rep))
+    out = write_qa_report(q)
+    assert "heights_unchecked" not in [r.id for r in out.checks] and out.overall == "pass"
+
+
 def test_plan_only_control_is_reported_in_plan(tmp_path):
     """The kite block's targets are plan-only control (heights nobody measured): at/report.json has a control RMS of
     [1.34, 0.87, None]; the report gave no control row at all. The plan row is there, no height row."""
