@@ -125,7 +125,7 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
         )
     else:
         crs, source, vertical = parse_crs(crs_arg, "--crs"), f"--crs {crs_arg}", None
-        _check_given_crs(path, header, crs, crs_arg)
+        check_given_crs(path, header, crs, crs_arg)
     units = units_of(crs, source, vertical)
     if file_crs is not None and crs_arg is not None and str(crs_arg).strip() != "":
         _note_unused_vertical(path, file_crs, parse_crs(crs_arg, crs_name), crs_arg, crs_name, units)
@@ -138,7 +138,7 @@ _VERTICAL_NOTED: set = set()
 _AREA_NOTED: set = set()
 
 
-def _check_given_crs(path, header: laspy.LasHeader, crs: pyproj.CRS, crs_arg) -> None:
+def check_given_crs(path, header: laspy.LasHeader, crs: pyproj.CRS, crs_arg) -> None:
     """The header's bounds against the area of use of ``--crs`` given for a file without a CRS record, as ``aerotri
     crs assign`` checks them: coordinates the CRS cannot hold are a CrsError, coordinates outside its area of use a
     warning (once per file and ``--crs``; national grids are used past their zone's area). New-user trial s94: a

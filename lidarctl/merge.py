@@ -145,6 +145,17 @@ def check_strips(paths, headers, project_crs=None):
                            f"{crs_label(horizontal_crs(reference))}; transform the strip into "
                            f"{crs_label(horizontal_crs(reference))} first (strips are never mixed or reprojected "
                            "silently)")
+    if untagged and project_crs is not None:
+        from lidarctl.io import check_given_crs
+
+        # --crs's area of use against the untagged strips' bounds, as every other command checks it (trial s99
+        # lidmut M5: metre UTM strips merged as Oregon Lambert feet, exit 0, no word)
+        for p in untagged:
+            check_given_crs(p, headers[list(paths).index(p)], project_crs, crs_label(project_crs))
+    if untagged and reference is None:
+        # (trial s99 lidmut L1: a merged file without a CRS, no word; every later command asks for one)
+        log.warning("none of the %d strips has a CRS record and no --crs was given: %s has none either; give the "
+                    "strips' CRS with --crs EPSG:<code> (it is never guessed)", len(paths), "the merged file")
     if untagged and reference is not None and project_crs is None:
         # trial-lidar: a tagged strip first gave the merged file its CRS for the untagged one without a word, an
         # untagged strip first a merged file with no CRS at all (exit 0 either way)

@@ -529,6 +529,12 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
         # contours are lines over the whole DEM: it is read whole (a 10 x 10 km DEM at 1 m is 400 MB in float32)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
         transform, crs = src.transform, src.crs
+        desc = (src.descriptions[0] if src.descriptions else None) or ""
+    from aerotri.geom.crs.height_rasters import ABOVE_GROUND_DESCRIPTIONS
+
+    if desc.startswith(ABOVE_GROUND_DESCRIPTIONS):  # said, not refused: a canopy's height lines may be wanted
+        log.warning(f"{dem_path}: holds heights above the ground (its band description {desc!r}): its contours are "
+                    "lines of equal height above the ground, not of the terrain (lidarctl rasters' dem.tif for those)")
     z_unit = length_unit_name(z_m)
     check_interval(dem, interval, z_unit, unit_m=z_m)  # before any work: the interval fits the data
     if not (np.isfinite(min_ring_cells) and min_ring_cells >= 0):

@@ -96,3 +96,16 @@ def test_an_integer_dem_in_centimetres_is_asked_about_its_unit(tmp_path):
         d.write(np.full((20, 20), 31000, np.int32), 1)
     r = CliRunner().invoke(main, ["contours", str(path), str(tmp_path / "c.gpkg"), "--interval-m", "1"])
     assert r.exit_code == 2 and "heights in centimetres or millimetres" in r.output, r.output
+
+
+def test_contours_of_a_chm_say_they_are_not_of_the_terrain(tmp_path, caplog):
+    """trial s99 lidmut M6: chm.tif contoured into 452 canopy lines as if terrain, no word."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    path = _dem(tmp_path / "chm.tif")
+    with rasterio.open(path, "r+") as d:
+        d.set_band_description(1, "CHM: vegetation height above the ground (m)")
+    r = CliRunner().invoke(main, ["contours", str(path), str(tmp_path / "c.gpkg"), "--interval-m", "5", "--no-png"])
+    assert r.exit_code == 0, r.output
+    assert "holds heights above the ground" in caplog.text + r.output
