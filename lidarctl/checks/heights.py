@@ -203,7 +203,12 @@ def read_points_csv(path, require_z: bool = True) -> SurveyedPoints:
         if not found:
             if key == "z" and not require_z:
                 continue
-            raise InputError(f"{path}: line 1: no '{key}' column in header {rows[0]}")
+            other = next((name for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars"))
+                          if len(rows[0]) == 1 and sep in rows[0][0]), None)
+            # (trial s99 lidmut L4: a semicolon file read "no 'x' column in header ['id;x;y;z']")
+            raise InputError(f"{path}: line 1: no '{key}' column in header {rows[0]}"
+                             + (f": the file is separated by {other}; expected commas (and a decimal point)"
+                                if other else ""))
         col[key] = found[0]
     if unit.get("x") != unit.get("y"):
         raise InputError(f"{path}: line 1: x in {unit.get('x') or 'the CRS unit'} but y in "

@@ -197,3 +197,10 @@ def test_a_dem_in_another_height_unit_is_named_so_not_a_datum(tmp_path, scale, u
     dem2 = _flat_dem(tmp_path / "dem2.tif", "EPSG:32633", z + 31.5)
     r = _run(["check-heights", pts, "--dem", dem2])
     assert "two height systems" in r.output and "height unit is wrong" not in r.output
+
+
+def test_a_semicolon_table_is_named_so(tmp_path):
+    """trial s99 lidmut L4: "no 'x' column in header ['id;x;y;z']" did not name the separator."""
+    (tmp_path / "p.csv").write_text("id;x;y;z\nP1;4000010,5;799990,0;310,2\n")
+    with pytest.raises(InputError, match="separated by semicolons; expected commas"):
+        read_points_csv(tmp_path / "p.csv")
