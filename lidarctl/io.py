@@ -446,25 +446,32 @@ def check_distinct_clouds(paths, what: str = "LAS/LAZ file") -> None:
     from aerotri.geom.inputs import check_distinct_files
 
     check_distinct_files(paths, what)
-    heads = []
+    by_count: dict = {}  # point count -> (path, mins, maxs): only files of one count can hold the same points
     for p in paths:
         try:
             h = las.read_header(p)
         except (InputError, OSError):
             continue  # the reader names it
-        heads.append((Path(p), int(h.point_count), np.asarray(h.mins, float), np.asarray(h.maxs, float)))
-    for i, (p, n, lo, hi) in enumerate(heads):
-        for q, m, lo2, hi2 in heads[:i]:
-            if n != m or n == 0 or np.abs(lo - lo2).max() > 0.01 or np.abs(hi - hi2).max() > 0.01:
-                continue
-            try:
-                same = np.array_equal(_first_points_mm(p), _first_points_mm(q))
-            except Exception:  # noqa: BLE001 - a file its reader will name (corrupt points): not compared here
-                continue
-            if same:
-                raise InputError(f"{p}: holds the same points as {q} ({n:,} points, the same extent, the first "
-                                 f"{min(n, SAME_POINTS_SAMPLE):,} equal to the millimetre): one strip under two names "
-                                 f"or formats? give each {what} once")
+        by_count.setdefault(int(h.point_count), []).append((Path(p), np.asarray(h.mins, float),
+                                                            np.asarray(h.maxs, float)))
+    for n, heads in by_count.items():
+        if n == 0 or len(heads) < 2:
+            continue
+        first = {}
+        for i, (p, lo, hi) in enumerate(heads):
+            for q, lo2, hi2 in heads[:i]:
+                if np.abs(lo - lo2).max() > 0.01 or np.abs(hi - hi2).max() > 0.01:
+                    continue
+                try:
+                    for f in (p, q):
+                        if f not in first:
+                            first[f] = _first_points_mm(f)
+                except Exception:  # noqa: BLE001 - a file its reader will name (corrupt points): not compared here
+                    continue
+                if np.array_equal(first[p], first[q]):
+                    raise InputError(f"{p}: holds the same points as {q} ({n:,} points, the same extent, the first "
+                                     f"{min(n, SAME_POINTS_SAMPLE):,} equal to the millimetre): one strip under two "
+                                     f"names or formats? give each {what} once")
 
 
 def _first_points_mm(path) -> np.ndarray:

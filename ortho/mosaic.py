@@ -1762,9 +1762,9 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
             # no cell lacks heights, and the surfaces are not read (0.35 s of the demo's 3 CPU-s mosaic)
             shares = [f.get("height_covered_share") for f in index.document.get("frames", [])]
             covered = bool(shares) and all(v is not None and v >= 1.0 for v in shares)
-            true_ortho = isinstance(index.inputs, dict) and isinstance(index.inputs.get("dsm"), dict)  # (rectified_on)
             nodata = _interior_nodata(work / "mosaic.tif", res, footprints=footprints,
-                                      surfaces=() if covered else surfaces, objects=objects if true_ortho else None)
+                                      surfaces=() if covered else surfaces,
+                                      objects=objects if index.true_ortho else None)
             nodata["surfaces_counted"] = [str(p.relative_to(root)) if p.is_relative_to(root) else str(p)
                                           for p in surfaces]
             nodata["surfaces_cover_every_frame"] = covered  # (then not read: no cell lacks heights)
@@ -1784,7 +1784,7 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
     # 18 frames, 17 polygons, nothing said)
     summary["frames_without_cells"] = frames_without_cells(labels, red.names)
     # the frames of ortho/frames left out by the operator ([mosaic] exclude): not in "frames", no polygon
-    summary["excluded"] = sorted(set(read_index(root).image_ids) - set(red.names))
+    summary["excluded"] = sorted((settings_record.get("exclude") or {}).get("value") or ())
     if summary["frames_without_cells"]:
         logger.info("%d of %d frames have no cell of the mosaic (the other frames cover theirs), so no seamline "
                     "polygon: %s", len(summary["frames_without_cells"]), len(red.names),
@@ -1836,7 +1836,8 @@ def without_frames(index: FrameIndex, exclude, source: str = "--exclude") -> Fra
     if not keep:
         raise OptionError(f"exclude ({source}) leaves out every frame of {index.path}: nothing to mosaic",
                           param="--exclude")
-    document = {**index.document, "frames": [f for f in index.document.get("frames", []) if f.get("image_id") not in drop]}
+    document = {**index.document,
+                "frames": [f for f in index.document.get("frames", []) if f.get("image_id") not in drop]}
     return dataclasses.replace(index, frames=keep, document=document)
 
 

@@ -43,8 +43,8 @@ def _unseen_centres(unseen: np.ndarray, transform, max_samples: int):
 
 def _surface_at(path, x: np.ndarray, y: np.ndarray, crs, values: bool = False):
     """A raster's band 1 at the points (x, y) in ``crs`` (nearest cell): (has, value), ``has`` False beyond its extent
-    or on its nodata, ``value`` None unless ``values`` (NaN where not ``has``). The band's mask (and values) are read over
-    the points' bounding box only."""
+    or on its nodata, ``value`` None unless ``values`` (NaN where not ``has``). The band's mask (and values) are read
+    over the points' bounding box only."""
     import rasterio
     from rasterio.windows import Window
 

@@ -103,8 +103,8 @@ def refuse_undeclared_fill(src, path) -> None:
     raise InputError(f"{path}: {100 * found.share:.1f} % of the DEM's cells hold exactly {v} while its other heights "
                      f"are {found.lo:.6g} .. {found.hi:.6g} and it declares no nodata value: a fill (gdalwarp's beyond "
                      f"its source, a clipped DEM)? Declare it (gdal_edit.py -a_nodata {v} {path}, or rio edit-info "
-                     f"--nodata {v} {path}); if those cells are ground at {v}, declare the nodata value the DEM does use "
-                     "(any value it does not hold) and they are read as heights")
+                     f"--nodata {v} {path}); if those cells are ground at {v}, declare the nodata value the DEM does "
+                     "use (any value it does not hold) and they are read as heights")
 
 
 def write_dem_cog(work, out_path) -> None:
