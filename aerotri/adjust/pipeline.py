@@ -97,6 +97,7 @@ class BlockAdjustment:
     n_tie_points: int
     check_obs: ImageObservations | None
     components: int = 1
+    components_without_control: int = 0  # of those parts, the ones no control point is measured in
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent
     datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS), for the report
     # False: no height was measured (plan-only control, no GNSS, no DEM): heights relative to the control's ground
@@ -346,6 +347,7 @@ class PreparedBlock:
     gnss_map: np.ndarray | None  # (N, 3) antenna positions, block order
     n_tie_points: int
     components: int = 1  # parts of the block no tie point connects, adjusted together (each with its datum)
+    components_without_control: int = 0  # of those parts, the ones no control point is measured in
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent: parts without a datum
     datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS)
     level: object | None = None  # level_datum.LevelDatum: plan-only control, heights and tilt by assumption
@@ -449,6 +451,7 @@ class _Observations:
     n_tie: int
     left_out: list = dataclasses.field(default_factory=list)  # LeftOutComponent: parts of the block without a datum
     components: int = 1  # components of the block adjusted together
+    components_without_control: int = 0  # of those, the ones no control point is measured in
 
 
 def _images(n: int) -> str:
@@ -549,8 +552,11 @@ def _observations(inp: ProjectInputs, ctrl_used: ControlPoints, already_left: fr
         weak = LeftOutComponent(few_ids, f"fewer than the 3 measurements that orient an image ({counts})")
         log.warning(f"{tie_path}: {_images(len(few_ids))} left out: {weak.reason}")
         return _observations_without(inp, ctrl_used, [weak], already_left)
+    controlled = set(obs_image[obs_point >= len(tie_ids)].tolist())
     return _Observations(image_ids, order, point_id, ctrl_pos, obs_point, obs_image, obs_xy, len(tie_ids),
-                         components=len(comps))
+                         components=len(comps),
+                         components_without_control=sum(not controlled.intersection(g.tolist()) for g in comps)
+                         if len(comps) > 1 else 0)
 
 
 def _observations_without(inp: ProjectInputs, ctrl_used: ControlPoints, left: list, already_left: frozenset
@@ -797,7 +803,8 @@ def prepare_project(root, settings: AdjustSettings | None = None) -> tuple[Prepa
         check_points=chk, control_obs=inp.control_obs, image_ids=ob.image_ids,
         image_index={k: i for i, k in enumerate(ob.image_ids)},
         gnss_map=gnss.position_m[ob.order] if gnss is not None else None, n_tie_points=ob.n_tie,
-        components=ob.components, left_out=ob.left_out, datum_notes=notes, level=level,
+        components=ob.components, components_without_control=ob.components_without_control, left_out=ob.left_out,
+        datum_notes=notes, level=level,
         check_surface=check_surface, control_rays_left_out=inp.control_rays_left_out,
         control_held_out=inp.control_held_out, gnss_left_out=gnss_left,
         gnss_sigma_source=gnss_model.sigma_source(project, gnss.sigma_m is not None) if gnss is not None else "",
@@ -1058,6 +1065,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         points_map=pts_map, points_sigma_map=psig, control=p.control_used,
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
+        components_without_control=p.components_without_control,
         left_out=p.left_out, datum_notes=list(p.datum_notes), heights_measured=p.level is None, dem_checks=dem_checks,
         check_from_lidar=int(_lidar_control(p.project, chk).sum()) if len(chk) else 0,
         control_rays_left_out=p.control_rays_left_out, gnss_left_out=p.gnss_left_out,

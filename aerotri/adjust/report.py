@@ -1022,13 +1022,15 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     failed = [d.gnss_text(height_limit_m) for d in gnss_dem] + failed
     if weak:
         weaknesses.append("Weak geometry: " + "; ".join(why for _, why in weak) + ".")
-    if getattr(ba, "components", 1) > 1:
+    alone = getattr(ba, "components_without_control", 0)
+    if getattr(ba, "components", 1) > 1 and alone:
         # (trial s99 atmut H2: frames stored turned 180 deg matched strip by strip on the wrong plan, the two strips
-        # held together by the GNSS alone, "Solution Successful", the ground 0.53 m off)
-        weaknesses.append(f"Block in {ba.components} parts: no tie point joins them, so their relative position rests "
-                          "on the GNSS (and control) of each alone, which nothing checks: a gap in the cover, water, "
-                          "or a matching guided by a wrong flight plan (at/connectivity.json; the frames' image top, "
-                          "[match] image_top_deg).")
+        # held together by the GNSS alone, "Solution Successful", the ground 0.53 m off); parts that each hold
+        # control are checked by it
+        weaknesses.append(f"Block in {ba.components} parts: no tie point joins them, and {alone} of them hold no "
+                          "control point, so their position against the rest rests on their GNSS alone, which nothing "
+                          "checks: a gap in the cover, water, or a matching guided by a wrong flight plan "
+                          "(at/connectivity.json; the frames' image top, [match] image_top_deg).")
     fixed = [c for c in getattr(ba, "calibration_checks", []) or [] if c.action == "fixed"]
     if fixed:
         weaknesses.append("Self-calibration: " + "; ".join(

@@ -61,3 +61,17 @@ def test_a_height_raster_that_is_not_the_terrain_in_the_crs_unit_is_refused(bloc
     r = CliRunner().invoke(main, ["rectify", str(root), "--dem", str(_variant(dem, tmp_path / "m.tif",
                                                                                tags={"VERTICAL_UNITS": "metre"}))])
     assert r.exit_code == 0, r.output
+
+
+def test_a_dem_tagged_with_the_other_foot_is_read(block, tmp_path):
+    """The international and the US survey foot differ by 2 ppm: a State Plane DEM (US survey feet) tagged "foot" is
+    not refused as "another unit" (regression trial s99: the message asked to multiply its heights by 1.000002)."""
+    from ortho.dem import refuse_stated_height_unit
+
+    path = tmp_path / "ft.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=4, height=4, count=1, dtype="float32", crs="EPSG:2994",
+                       transform=rasterio.transform.from_origin(0, 100, 3, 3)) as d:
+        d.write(np.full((4, 4), 300.0, np.float32), 1)
+        d.update_tags(VERTICAL_UNITS="US survey foot")
+    with rasterio.open(path) as ds:
+        refuse_stated_height_unit(ds, path)  # EPSG:2994 is in international feet

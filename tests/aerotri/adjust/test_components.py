@@ -50,7 +50,7 @@ def test_parts_with_gnss_are_adjusted_together(split_block):
     # not "Successful": the two parts' relative position rests on the GNSS alone (trial s99 atmut H2: frames stored
     # turned matched strip by strip, the ground 0.53 m off under "Solution Successful")
     assert rep["key_statistics"]["verdict"] == "weak"
-    assert "Block in 2 parts: no tie point joins them" in rep["key_statistics"]["message"]
+    assert "Block in 2 parts: no tie point joins them, and 1 of them hold no control point" in rep["key_statistics"]["message"]
     assert ba.block.n_images == 18
     truth = block.eo_map()
     err = np.linalg.norm(ba.eo_map.centre_m - truth.centre_m[truth.rows(ba.eo_map.image_id)], axis=1)
@@ -90,3 +90,28 @@ def test_the_datum_shortfall_names_only_the_coordinates_needed():
     assert "0 with height coordinates, have" not in msg
     msg = datum_shortfall(none, gnss=True, correction="shift_drift")
     assert "need at least 2 with plan coordinates and 2 with height coordinates" in msg
+
+
+def test_parts_that_each_hold_control_are_not_weak_for_it(tmp_path):
+    """The parts' relative position is checked where each holds control points of its own (regression trial s99: a
+    block in two parts, each with its control, read "Block in 2 parts ... which nothing checks")."""
+    block = geometric_block(3, 6, seed=11, gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=6, points_per_image=150, n_check=0, seed=12)
+    rows = list(csv.DictReader(open(root / "at" / "tiepoints.csv")))
+    first = {r["point_id"] for r in rows if r["image_id"].startswith("s01")}
+    rest = {r["point_id"] for r in rows if not r["image_id"].startswith("s01")}
+    _rewrite(root / "at" / "tiepoints.csv", lambda r: r["point_id"] not in (first & rest))
+    # each control point measured in one part only: the part holding most of its measurements
+    obs = list(csv.DictReader(open(root / "control" / "image_points.csv")))
+    part = {}
+    for pid in {r["point_id"] for r in obs}:
+        in_first = [r["image_id"].startswith("s01") for r in obs if r["point_id"] == pid]
+        part[pid] = sum(in_first) * 2 > len(in_first)
+    _rewrite(root / "control" / "image_points.csv", lambda r: r["image_id"].startswith("s01") == part[r["point_id"]])
+    kept = list(csv.DictReader(open(root / "control" / "image_points.csv")))
+    assert {part[r["point_id"]] for r in kept} == {True, False}  # both parts hold control
+    res = run_adjustment(root, AdjustSettings(image_sigma_px=SIGMA_PX), html=False)
+    rep = json.loads(res.report_path.read_text())
+    assert rep["components"]["adjusted"] == 2
+    assert "Block in" not in rep["key_statistics"]["message"]
