@@ -1540,10 +1540,11 @@ def _say_voids(voids: list, res_m: float) -> None:
         return
     # a few cells (lidR Topography at 1 m: 4) are said as information; a void of 0.1 ha beyond the reach (one about
     # 85 m across) as a warning
-    (log.warning if far * res_m * res_m >= VOID_WARN_M2 else log.info)("%s DEM cells (%.2f %% of its valid cells, %.2f ha) lie more than %g m from any ground return: "
-                "interpolated across voids (water, dense canopy, large buildings, or ground left unclassified); the "
-                "DEM there is a guess from the ground around it, not a measurement", f"{far:,}", 100.0 * far / valid,
-                far * res_m * res_m / 1e4, VOID_REACH_M)
+    say = log.warning if far * res_m * res_m >= VOID_WARN_M2 else log.info
+    say("%s DEM cells (%.2f %% of its valid cells, %.2f ha) lie more than %g m from any ground return: interpolated "
+        "across voids (water, dense canopy, large buildings, or ground left unclassified); the DEM there is a guess "
+        "from the ground around it, not a measurement", f"{far:,}", 100.0 * far / valid, far * res_m * res_m / 1e4,
+        VOID_REACH_M)
 
 
 def _hillshade_png(src, png_path: Path, res_m: float) -> None:

@@ -24,16 +24,23 @@ def _rewrite(path, keep):
         w.writerows(r for r in rows if keep(r))
 
 
-@pytest.fixture
-def split_block(tmp_path):
-    """3 strips; no tie point joins strip 1 to strips 2-3; the control points are measured in strips 2-3 only."""
+def _split(tmp_path, n_control: int):
+    """3 strips, ``n_control`` control points; no tie point joins strip 1 to strips 2-3."""
     block = geometric_block(3, 6, seed=11, gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0)
     root = write_block_project(block, tmp_path / "blk")
-    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=4, points_per_image=150, n_check=0, seed=12)
+    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=n_control, points_per_image=150, n_check=0,
+                             seed=12)
     rows = list(csv.DictReader(open(root / "at" / "tiepoints.csv")))
     first = {r["point_id"] for r in rows if r["image_id"].startswith("s01")}
     rest = {r["point_id"] for r in rows if not r["image_id"].startswith("s01")}
     _rewrite(root / "at" / "tiepoints.csv", lambda r: r["point_id"] not in (first & rest))
+    return block, root
+
+
+@pytest.fixture
+def split_block(tmp_path):
+    """3 strips; no tie point joins strip 1 to strips 2-3; the control points are measured in strips 2-3 only."""
+    block, root = _split(tmp_path, 4)
     _rewrite(root / "control" / "image_points.csv", lambda r: not r["image_id"].startswith("s01"))
     measured = {r["point_id"] for r in csv.DictReader(open(root / "control" / "image_points.csv"))}
     _rewrite(root / "control" / "points.csv", lambda r: r["id"] in measured)
@@ -50,7 +57,8 @@ def test_parts_with_gnss_are_adjusted_together(split_block):
     # not "Successful": the two parts' relative position rests on the GNSS alone (trial s99 atmut H2: frames stored
     # turned matched strip by strip, the ground 0.53 m off under "Solution Successful")
     assert rep["key_statistics"]["verdict"] == "weak"
-    assert "Block in 2 parts: no tie point joins them, and 1 of them hold no control point" in rep["key_statistics"]["message"]
+    assert "Block in 2 parts: no tie point joins them, and 1 of them hold no control point" in \
+        rep["key_statistics"]["message"]
     assert ba.block.n_images == 18
     truth = block.eo_map()
     err = np.linalg.norm(ba.eo_map.centre_m - truth.centre_m[truth.rows(ba.eo_map.image_id)], axis=1)
@@ -95,13 +103,7 @@ def test_the_datum_shortfall_names_only_the_coordinates_needed():
 def test_parts_that_each_hold_control_are_not_weak_for_it(tmp_path):
     """The parts' relative position is checked where each holds control points of its own (regression trial s99: a
     block in two parts, each with its control, read "Block in 2 parts ... which nothing checks")."""
-    block = geometric_block(3, 6, seed=11, gnss_shift_sigma_m=0.0, gnss_drift_sigma_m_per_km=0.0)
-    root = write_block_project(block, tmp_path / "blk")
-    write_truth_observations(root, tie_sigma_px=SIGMA_PX, n_control=6, points_per_image=150, n_check=0, seed=12)
-    rows = list(csv.DictReader(open(root / "at" / "tiepoints.csv")))
-    first = {r["point_id"] for r in rows if r["image_id"].startswith("s01")}
-    rest = {r["point_id"] for r in rows if not r["image_id"].startswith("s01")}
-    _rewrite(root / "at" / "tiepoints.csv", lambda r: r["point_id"] not in (first & rest))
+    _, root = _split(tmp_path, 6)
     # each control point measured in one part only: the part holding most of its measurements
     obs = list(csv.DictReader(open(root / "control" / "image_points.csv")))
     part = {}
