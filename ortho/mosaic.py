@@ -1924,11 +1924,7 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), surfaces=(), ob
     off = unseen_without_heights(unseen, read_transform, crs, surfaces)
     on_objects = None
     if objects is not None:
-        from aerotri.geom.crs.definition import height_unit_m, parse_crs
-
-        with rasterio.open(objects[0]) as nd:
-            unit = height_unit_m(parse_crs(nd.crs.to_wkt(), f"{objects[0]} CRS")) if nd.crs is not None else 1.0
-        on = unseen_on_objects(unseen, read_transform, crs, objects[0], objects[1], unit)
+        on = unseen_on_objects(unseen, read_transform, crs, objects[0], objects[1])
         on_objects = None if on is None else int(round(on * sx * sy))
     return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),
             "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1),

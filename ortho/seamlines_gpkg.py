@@ -80,7 +80,7 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
     from pyproj import CRS
     from rasterio import features
 
-    path = Path(path)
+    path, excluded = Path(path), frozenset(excluded)
     require_seamlines_file(path)
     try:
         layers = [name for name, _ in pyogrio.list_layers(path)]
@@ -123,7 +123,7 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
         if name is None or not str(name).strip():
             raise InputError(f"{where}: no frame name (field 'frame' empty); expected one of the mosaic's frames "
                              f"(ortho/frames/index.json: {len(names)} frames, e.g. {', '.join(names[:3])})")
-        if name in set(excluded):
+        if name in excluded:
             raise InputError(f"{where}: frame {name} is left out of the mosaic ([mosaic] exclude / --exclude): give "
                              "its cells to the neighbouring polygons, or take it off the list")
         if name not in known:

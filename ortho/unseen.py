@@ -42,9 +42,9 @@ def _unseen_centres(unseen: np.ndarray, transform, max_samples: int):
 
 
 def _surface_at(path, x: np.ndarray, y: np.ndarray, crs, values: bool = False):
-    """A raster's band 1 at the points (x, y) in ``crs`` (nearest cell): (has, value), ``has`` False beyond its extent
-    or on its nodata, ``value`` None unless ``values`` (NaN where not ``has``). The band's mask (and values) are read
-    over the points' bounding box only."""
+    """A height raster's band 1 at the points (x, y) in ``crs`` (nearest cell): (has, value), ``has`` False beyond its
+    extent or on its nodata, ``value`` None unless ``values``: metres (its CRS's height unit converted), NaN where not
+    ``has``. The band's mask (and values) are read over the points' bounding box only."""
     import rasterio
     from rasterio.windows import Window
 
@@ -66,7 +66,10 @@ def _surface_at(path, x: np.ndarray, y: np.ndarray, crs, values: bool = False):
             ri, ci = r[inside] - r0, c[inside] - c0
             has[inside] = src.read_masks(1, window=window)[ri, ci] > 0
             if values:
-                value[inside] = src.read(1, window=window)[ri, ci]
+                from aerotri.geom.crs.definition import height_unit_m, parse_crs
+
+                unit_m = height_unit_m(parse_crs(src.crs.to_wkt(), f"{path} CRS")) if src.crs is not None else 1.0
+                value[inside] = src.read(1, window=window)[ri, ci] * unit_m
                 value[~has] = np.nan
     return has, value
 
@@ -92,10 +95,10 @@ def unseen_without_heights(unseen: np.ndarray, transform, crs, surfaces, max_sam
     return int(np.count_nonzero(gap)) * step
 
 
-def unseen_on_objects(unseen: np.ndarray, transform, crs, ndsm_path, object_height_m: float, height_unit_m: float = 1.0,
+def unseen_on_objects(unseen: np.ndarray, transform, crs, ndsm_path, object_height_m: float,
                       max_samples: int = 2_000_000) -> int | None:
-    """How many of the ``unseen`` cells lie on the nDSM's objects (above ``object_height_m``; the nDSM's heights times
-    ``height_unit_m`` are metres): roofs and crowns, which a frame looks down on. In a true ortho most of them are
+    """How many of the ``unseen`` cells lie on the nDSM's objects (above ``object_height_m``, metres; the nDSM's heights
+    in its CRS's height unit): roofs and crowns, which a frame looks down on. In a true ortho most of them are
     masked at the objects' edges where the LiDAR DSM's roofs reach past the walls (trial s98 M1: on the tall block
     224 of 225 sampled nodata cells on the truth's roofs were seen by some frame), not hidden. None when the nDSM
     cannot be read; sampled as ``unseen_without_heights``."""
@@ -109,4 +112,4 @@ def unseen_on_objects(unseen: np.ndarray, transform, crs, ndsm_path, object_heig
     except (OSError, rasterio.errors.RasterioError):
         return None
     with np.errstate(invalid="ignore"):
-        return int(np.count_nonzero(h * height_unit_m > object_height_m)) * step
+        return int(np.count_nonzero(h > object_height_m)) * step

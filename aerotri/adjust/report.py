@@ -1022,8 +1022,8 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     failed = [d.gnss_text(height_limit_m) for d in gnss_dem] + failed
     if weak:
         weaknesses.append("Weak geometry: " + "; ".join(why for _, why in weak) + ".")
-    alone = getattr(ba, "components_without_control", 0)
-    if getattr(ba, "components", 1) > 1 and alone:
+    alone = getattr(ba, "components_without_control", 0)  # (counted only when the block is in parts)
+    if alone:
         # (trial s99 atmut H2: frames stored turned 180 deg matched strip by strip on the wrong plan, the two strips
         # held together by the GNSS alone, "Solution Successful", the ground 0.53 m off); parts that each hold
         # control are checked by it

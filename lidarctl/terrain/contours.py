@@ -521,6 +521,8 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
     if not (np.isfinite(interval_m) and interval_m > 0):
         raise OptionError(f"the contour interval must be a positive number of metres, got {interval_m}",
                           param="--interval-m")
+    if not (np.isfinite(min_ring_cells) and min_ring_cells >= 0):
+        raise OptionError(f"{min_ring_cells!r}: expected a number of cells >= 0", param="--min-ring-cells")
     dem_path, out_path = Path(dem_path), Path(out_path)
     refuse_foreign_layers(out_path, ("contours",), "lidarctl contours")
     src, z_m = open_dem(dem_path, out_path, say_unit=True)
@@ -537,8 +539,6 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
                     "lines of equal height above the ground, not of the terrain (lidarctl rasters' dem.tif for those)")
     z_unit = length_unit_name(z_m)
     check_interval(dem, interval, z_unit, unit_m=z_m)  # before any work: the interval fits the data
-    if not (np.isfinite(min_ring_cells) and min_ring_cells >= 0):
-        raise OptionError(f"{min_ring_cells!r}: expected a number of cells >= 0", param="--min-ring-cells")
     traced, tiny = trace_counted(dem, transform, interval, index_every)
     traced, small_rings = without_small_rings(traced, min_ring_cells * abs(transform.a * transform.e))
     if not traced and np.isfinite(dem).any():  # (trial s96 F12: an empty file, exit 0, no word)
