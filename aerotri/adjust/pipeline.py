@@ -878,6 +878,10 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
             prepared.opts.gnss_correction, b.gnss_sigma_m, prepared.gnss_sigma_source, b.gnss_offset_sigma_m,
             f"{prepared.project.config_path.name} [gnss] offset_sigma_xy_m, offset_sigma_z_m", result.state.shift,
             observed=len(b.control_point) > 0 or b.surface is not None))
+        g = next((c for c in result.variance_components or [] if c.group == "gnss"), None)
+        note = gnss_model.unchecked_note(g.redundancy, g.n, b.gnss_sigma_m) if g is not None else None
+        if note:
+            prepared.datum_notes.append(note)
     ba = finish(prepared, result)
     ba.self_calibration_requested = requested
     ba.calibration_checks = [checks[g] for g in requested if g in checks]

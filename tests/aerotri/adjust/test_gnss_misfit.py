@@ -116,3 +116,24 @@ def test_the_misfit_names_the_lens_and_principal_point_when_they_are_held(self_c
     for words in ("lens distortion held", "principal point held"):
         assert (words in note) == (words in named), note
     assert "a lever arm, the GNSS heights' unit or datum" in note
+
+
+def test_gnss_sigmas_that_leave_it_no_redundancy_are_said_unchecked(tmp_path):
+    """Trial s99 atmut L3: GNSS sigmas typed 0.001 m put the centres where the GNSS says, with sigmas of 0.000 m
+    against real errors of decimetres; their variance component has no redundancy to show it. The DATUM section says
+    the GNSS is unchecked; with the sigmas the receiver holds it does not."""
+    block = geometric_block(2, 4, seed=23, relief_m=20.0, gnss_shift_sigma_m=0.1, gnss_drift_sigma_m_per_km=0.0)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=3, points_per_image=80, n_check=0, seed=24)
+    settings = AdjustSettings(image_sigma_px=0.3, gnss_correction="none")
+    stated = adjust_project(root, settings)
+    toml = (root / "project.toml").read_text()
+    (root / "project.toml").write_text(toml.replace("sigma_xy_m = 0.05\nsigma_z_m = 0.08", "sigma_xy_m = 0.001\n"
+                                                                                          "sigma_z_m = 0.001", 1))
+    typed = adjust_project(root, settings)
+    unchecked = [[n for n in ba.datum_notes if n.startswith("GNSS unchecked")] for ba in (stated, typed)]
+    assert unchecked[0] == [], stated.datum_notes
+    (note,) = unchecked[1]
+    assert "its 24 coordinates hold 0.0 of the redundancy" in note and "0.001 / 0.001 m" in note, note
+    gnss = {c.group: c for c in typed.result.variance_components}["gnss"]
+    assert gnss.redundancy < 0.02 * gnss.n
