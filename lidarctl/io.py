@@ -117,6 +117,10 @@ def resolve_crs_units(path, header: laspy.LasHeader, crs_arg: str | int | None,
         crs, source = file_crs, f"{path}: CRS record"
         if crs_arg is not None and str(crs_arg).strip() != "":
             _refuse_other_crs(path, file_crs, parse_crs(crs_arg, crs_name), crs_arg, crs_name)
+        # (a geographic record is refused below: lidarctl needs lengths; a record stating no area of use, a user's own
+        # WKT as Autzen's, is not checked: PROJ takes 0.2-1 s to find its way back to longitude and latitude)
+        if not crs.is_geographic and horizontal_crs(crs).area_of_use is not None:
+            check_given_crs(path, header, crs, None)
     elif crs_arg is None or str(crs_arg).strip() == "":
         if not require_crs:
             return None, UNKNOWN
@@ -143,18 +147,28 @@ def check_given_crs(path, header: laspy.LasHeader, crs: pyproj.CRS, crs_arg) -> 
     crs assign`` checks them: coordinates the CRS cannot hold are a CrsError, coordinates outside its area of use a
     warning (once per file and ``--crs``; national grids are used past their zone's area). New-user trial s94: a
     UTM 12N cloud classified with ``--crs EPSG:6880`` (Nebraska, US feet; the points at 50 deg N, beyond its area
-    of use at 40-43 deg) was read in feet, the trees 3.28x lower, exit 0 and no word."""
+    of use at 40-43 deg) was read in feet, the trees 3.28x lower, exit 0 and no word. ``crs_arg`` None: ``crs`` is
+    the file's own record, warned of (once per file) where it cannot hold the coordinates (a record edited to another
+    CRS, trial s99 lidmut H6), not beside its area."""
     from aerotri.geom.crs.definition import check_coordinates, crs_label
 
-    if header.point_count == 0:
+    if header.point_count == 0 or (crs_arg is None and (str(path), None) in _AREA_NOTED):
         return
     cx, cy = las.header_corners(header)
     corners = [f"header bounds corner {i + 1}" for i in range(4)]
     try:
         far = check_coordinates(crs, cx, cy, str(path), corners, outside_area="warn")
     except InputError as exc:
+        if crs_arg is None:   # (said, not refused: the record's unit may still be right, and the heights with it)
+            _AREA_NOTED.add((str(path), None))
+            log.warning("%s; is the file's CRS record right? If not, re-tag the file with the CRS its coordinates "
+                        "are in (aerotri crs assign IN OUT --crs EPSG:<code>)", exc)
+            return
         raise CrsError(f"{exc}; --crs {crs_arg}: the coordinates cannot be {crs_label(crs)}'s (give the CRS they "
                        "are in)") from None
+    if crs_arg is None:
+        _AREA_NOTED.add((str(path), None))
+        return
     if far and (str(path), str(crs_arg)) not in _AREA_NOTED:
         _AREA_NOTED.add((str(path), str(crs_arg)))
         log.warning("%s; --crs %s used all the same: is it the CRS the coordinates are in (zone, datum, units)?",

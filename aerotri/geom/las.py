@@ -19,6 +19,7 @@ Units and scaling to metres belong to the readers of the stages (e.g. ``lidarctl
 
 from __future__ import annotations
 
+import functools
 import logging
 import re
 import struct
@@ -299,9 +300,16 @@ def read_header_crs(path, header: laspy.LasHeader, hint: str = "") -> pyproj.CRS
     that is present but unreadable (``hint``: what to do instead, appended after a semicolon)."""
     try:
         return _parse_crs(header)
+    except RecordsDisagree as exc:
+        raise CrsError(f"{path}: CRS records disagree ({exc}); {hint + ', or ' if hint else ''}re-tag the file with "
+                       "the CRS its coordinates are in (aerotri crs assign IN OUT --crs EPSG:<code>)") from None
     except Exception as exc:  # laspy/pyproj raise several types for malformed CRS records
         raise CrsError(f"{path}: CRS record present but unreadable ({one_line(exc)})"
                        + (f"; {hint}" if hint else "")) from exc
+
+
+class RecordsDisagree(ValueError):
+    """A header's WKT record and GeoTIFF keys state different linear units (``_parse_crs``)."""
 
 
 def _parse_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
@@ -309,8 +317,64 @@ def _parse_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
     (3076) applied when the CRS came from the keys: laspy takes ProjectedCSTypeGeoKey's EPSG code alone,
     so a file keyed "EPSG:32104 (metres), linear units US survey foot" (GDAL, PDAL and QGIS read feet:
     the GeoTIFF rule that the units key overrides the code's) was processed as metres."""
-    crs = header.parse_crs()
-    if crs is None or not crs.is_projected or _wkt_crs(header) is not None:
+    wkt = _wkt_crs(header)
+    if wkt is None:
+        return _keys_crs(header)
+    # a WKT record edited alone (trial s99 lidmut H6: Nebraska's WKT replaced by EPSG:32104, metres, its keys still
+    # in US survey feet) read 2,445,180 ft as metres, exit 0: two records in two units are not guessed
+    keyed = _keys_linear_unit(header) if wkt.is_projected else None
+    if keyed is not None:
+        unit = wkt.axis_info[0]
+        if abs(unit.unit_conversion_factor - keyed[0]) > 1e-6 * keyed[0]:
+            raise RecordsDisagree(f"its WKT record ({wkt.name}) states {unit.unit_name}, its GeoTIFF keys "
+                                  f"{keyed[1]}: the coordinates' unit is not known")
+    return wkt
+
+
+PROJECTED_CS_KEY = 3072  # ProjectedCSTypeGeoKey: an EPSG projected CRS
+
+
+def _keys_linear_unit(header: laspy.LasHeader) -> tuple[float, str] | None:
+    """(metres per unit, what states it) of the GeoTIFF keys' projected CRS: ProjLinearUnitsGeoKey (3076), else the
+    unit of the EPSG CRS in ProjectedCSTypeGeoKey (3072); None when the keys state neither or cannot be read (stale
+    keys beside a readable WKT record are otherwise not read: ``geokey_vertical_unit_m``). No CRS is built from
+    the keys: a user's own WKT record costs PROJ 0.05-0.1 s a CRS, and the stages read a header many times."""
+    keys = _geo_keys(header) or {}
+    key = keys.get(PROJ_LINEAR_UNITS_KEY)
+    if key is not None and key.tiff_tag_location == 0:
+        code = key.value_offset
+        if code == USER_DEFINED_KEY:
+            size = _geo_double(header, keys.get(PROJ_LINEAR_UNIT_SIZE_KEY))
+            return (size, f"ProjLinearUnitsGeoKey {size:g} m") if size is not None and size > 0 else None
+        return (EPSG_UNIT_M[code], f"ProjLinearUnitsGeoKey {code} ({_UNIT_NAME[code]})") if code in EPSG_UNIT_M \
+            else None
+    key = keys.get(PROJECTED_CS_KEY)
+    if key is None or key.tiff_tag_location != 0 or not 1024 <= key.value_offset < USER_DEFINED_KEY:
+        return None
+    unit = _epsg_projected_unit(int(key.value_offset))
+    return None if unit is None else (unit[0], f"EPSG:{key.value_offset} ({unit[1]})")
+
+
+_UNIT_NAME = {9001: "metre", 9002: "foot", 9003: "US survey foot"}
+
+
+@functools.lru_cache(maxsize=64)
+def _epsg_projected_unit(code: int) -> tuple[float, str] | None:
+    """(metres per unit, unit name) of an EPSG projected CRS, None for a code PROJ does not know as one."""
+    try:
+        crs = pyproj.CRS.from_epsg(code)
+    except pyproj.exceptions.CRSError:
+        return None
+    if not crs.is_projected:
+        return None
+    a = crs.axis_info[0]
+    return float(a.unit_conversion_factor), a.unit_name
+
+
+def _keys_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
+    """The CRS of the header's GeoTIFF keys, with ProjLinearUnitsGeoKey applied (``_parse_crs``)."""
+    crs = header.parse_crs(prefer_wkt=False)
+    if crs is None or not crs.is_projected:
         return crs
     keys = _geo_keys(header) or {}
     key = keys.get(PROJ_LINEAR_UNITS_KEY)

@@ -15,7 +15,7 @@ import pytest
 from click.testing import CliRunner
 from laspy.vlrs.known import GeoKeyEntryStruct
 
-from aerotri.core.errors import InputError
+from aerotri.core.errors import CrsError, InputError
 from lidarctl import io, synthetic
 from lidarctl.cli.main import main
 from aerotri.geom.las import FOOT_M
@@ -529,6 +529,34 @@ def test_nebraska_read_from_its_geotiff_keys_alone_equals_its_wkt(shared_data, t
         shared_data / "laspy_nebraska" / "file_with_both_wkt_and_geotiff_vlrs.las")
     assert c.units.xy_m == pytest.approx(ref.units.xy_m, rel=1e-12) and c.units.xy_m == pytest.approx(0.3048006096)
     np.testing.assert_allclose(c.x, ref.x, atol=1e-6)
+
+
+def test_a_wkt_record_in_another_unit_than_the_keys_is_refused(shared_data, tmp_path, caplog):
+    """Trial s99 lidmut H6: Nebraska's WKT record replaced by EPSG:32104's (metres), its GeoTIFF keys still in US
+    survey feet: its 2,445,180 ft were read as metres, exit 0. The two units are named and nothing is written; with
+    --crs in metres the coordinates lie 20 deg east of Nebraska (refused), and with the feet CRS it is read. The WKT
+    record alone cannot be told wrong by a unit: that its coordinates lie far from its area is said."""
+    from laspy.vlrs.known import WktCoordinateSystemVlr
+
+    src = laspy.read(shared_data / "laspy_nebraska" / "file_with_both_wkt_and_geotiff_vlrs.las")
+    keys = [v for v in src.header.vlrs if not isinstance(v, WktCoordinateSystemVlr)]
+    src.header.vlrs = [WktCoordinateSystemVlr(pyproj.CRS.from_epsg(32104).to_wkt())]
+    src.write(tmp_path / "wkt_only.las")
+    with caplog.at_level("WARNING", logger="lidarctl.io"):  # (before a command: the CLI's logging does not propagate)
+        io.read_cloud(tmp_path / "wkt_only.las")
+        io.read_cloud(tmp_path / "wkt_only.las")
+    (said,) = [m for m in caplog.messages if "is the file's CRS record right?" in m]
+    assert "more than 10 deg outside the area of use of EPSG:32104" in said and "aerotri crs assign" in said, said
+    src.header.vlrs += keys
+    path = tmp_path / "edited.las"
+    src.write(path)
+    with pytest.raises(CrsError, match="more than 10 deg outside the area of use"):
+        io.read_cloud(path, crs="EPSG:32104")
+    assert io.read_cloud(path, crs="EPSG:6880").units.xy_m == pytest.approx(0.3048006096)
+    r = CliRunner().invoke(main, ["rasters", str(path), str(tmp_path / "r"), "--res-m", "10"])
+    assert r.exit_code == 2 and not (tmp_path / "r").exists(), r.output
+    assert "CRS records disagree (its WKT record (NAD83 / Nebraska) states metre, its GeoTIFF keys " \
+           "ProjLinearUnitsGeoKey 9003 (US survey foot)" in r.output and "aerotri crs assign" in r.output, r.output
 
 
 def _withheld_pair(d, tmp_path):

@@ -264,7 +264,10 @@ def _with_stale_keys(src, out, keys):
 def test_a_wkt_record_makes_stale_vertical_units_keys_unread(tmp_path):
     """s6-fixes 3: a LAS 1.4 file with its WKT bit set had its GeoTIFF VerticalUnitsGeoKey (4099) read all the same,
     while its CRS came from the WKT alone: stale keys in US survey feet (4099 = 9003) beside a WKT in metres made
-    transform_las and lidarctl read the heights 3.28x wrong. The WKT is the CRS: its keys are not read."""
+    transform_las and lidarctl read the heights 3.28x wrong. The WKT is the CRS: its vertical keys are not read. Keys
+    whose linear unit is not the WKT's are refused (trial s99 lidmut H6: a WKT edited alone, beside keys that were
+    right): which record is stale is not guessed; --crs says it."""
+    from aerotri.core.errors import CrsError
     from aerotri.geom.las import geokey_vertical_unit_m
     from lidarctl.io import resolve_crs_units
 
@@ -274,7 +277,13 @@ def test_a_wkt_record_makes_stale_vertical_units_keys_unread(tmp_path):
     h = laspy.read(stale).header
     assert h.global_encoding.wkt and "GeoKeyDirectoryVlr" in [type(v).__name__ for v in h.vlrs]
     assert geokey_vertical_unit_m(h) is None
-    assert resolve_crs_units(stale, h, None)[1].z_m == 1.0
+    with pytest.raises(CrsError, match=r"CRS records disagree \(its WKT record \(WGS 84 / UTM zone 49N\) states "
+                                       r"metre, its GeoTIFF keys ProjLinearUnitsGeoKey 9003 \(US survey foot\)"):
+        resolve_crs_units(stale, h, None)
+    assert resolve_crs_units(stale, h, "EPSG:32649")[1].z_m == 1.0
+    # keys in the WKT's unit beside it are not read either: the vertical unit is the WKT's
+    agree = _with_stale_keys(plain, tmp_path / "agree.las", [(1024, 1), (3072, 32649), (3076, 9001), (4099, 9003)])
+    assert resolve_crs_units(agree, laspy.read(agree).header, None)[1].z_m == 1.0
     out = tmp_path / "utm50.las"
     transform_las(stale, out, CrsTransformer(32649, 32650))
     res = laspy.read(out)
