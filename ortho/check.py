@@ -316,6 +316,10 @@ class DomCheck:
     # region (``UnmatchedPatches``); None: surveyed points, or a report written before they were counted
     roofs_in_dom_holes: int | None = None  # the roofs row: corners not measured, a fifth or more of their patch in the
     # DOM's nodata (``RoofDisplacements.in_dom_holes``); None: a report written before they were counted
+    # the roofs row's other corners not measured (``RoofDisplacements``: patch not whole in the DOM or the reference
+    # too little valid; a weak or edge peak), so that the words add up to the corners (trial s100 rc F9)
+    roofs_outside_or_invalid: int | None = None
+    roofs_weak: int | None = None
 
     def stale_for(self, mosaic_path, report_path=None) -> bool:
         """Whether this check measured an earlier version of the project's mosaic at ``mosaic_path`` (made again
@@ -374,7 +378,9 @@ def _dom_check_of(d: dict) -> DomCheck:
                     bool((d.get("reference_operation") or {}).get("ballpark")), d.get("dom_is_project_mosaic"),
                     d.get("dom"), row.get("in_nodata_warning"), _seams_of(d.get("seams")), d.get("method"),
                     UnmatchedPatches.of_record(d["unmatched"]) if d.get("unmatched") else None,
-                    roofs_in_dom_holes=(row.get("not_measured") or {}).get("in_dom_holes"))
+                    roofs_in_dom_holes=(row.get("not_measured") or {}).get("in_dom_holes"),
+                    roofs_outside_or_invalid=(row.get("not_measured") or {}).get("outside_or_invalid"),
+                    roofs_weak=(row.get("not_measured") or {}).get("weak"))
 
 
 def _seams_of(d: dict | None):
@@ -958,7 +964,11 @@ def roofs_not_measured_words(report: "DomCheck") -> str:
     (``roof_evidence_in_nodata``), and their patch a fifth or more in it (``RoofDisplacements.in_dom_holes``)."""
     parts = ([f"{report.roofs_in_nodata} not measurable: in the DOM's nodata"] if report.roofs_in_nodata else []) + (
         [f"{report.roofs_in_dom_holes} not measured: {100 * (1 - ROOF_MIN_VALID):.0f} % or more of their patch in "
-         "the DOM's nodata"] if report.roofs_in_dom_holes else [])
+         "the DOM's nodata"] if report.roofs_in_dom_holes else []) + (
+        [f"{report.roofs_outside_or_invalid} not measured: their patch not whole in the DOM, or the reference's too "
+         "little valid"] if report.roofs_outside_or_invalid else []) + (
+        [f"{report.roofs_weak} without a clear match (a weak peak, or one at the search's edge)"]
+        if report.roofs_weak else [])
     return f" ({'; '.join(parts)})" if parts else ""
 
 

@@ -872,12 +872,15 @@ def height_datum_text(hd, height_limit_m: float) -> str:
     return head + why + right + f". Survey or re-measure the points left out{named}, or add check points."
 
 
-def height_checks_text(hd, n_checks: int, rms_z_m: float, height_limit_m: float) -> str:
-    """A ``height_datum.HeightDatumCheck`` that would not hold the heights, where check points with a height decide."""
+def height_checks_text(hd, n_checks: int, rms_z_m: float, height_limit_m: float, from_lidar: int = 0) -> str:
+    """A ``height_datum.HeightDatumCheck`` that would not hold the heights, where check points with a height decide;
+    ``from_lidar`` of them corners of the surface control's LiDAR (they test the block against it, not its datum)."""
+    lidar = (f" ({from_lidar} of them corners of the surface control's LiDAR: they test the block against it, not "
+             "the LiDAR's datum)" if from_lidar else "")
     return (f"Height control: {len(hd.height_control_out) or 'none'} of "
             f"{len(hd.height_control_out) + len(hd.height_control_left)}"
-            f" points with a height left out; the {n_checks} check points with a height decide the heights: RMS Z "
-            "{} m against the {} m height limit".format(*figure_and_limit(rms_z_m, height_limit_m))
+            f" points with a height left out; the {n_checks} check points with a height decide the heights{lidar}: "
+            "RMS Z {} m against the {} m height limit".format(*figure_and_limit(rms_z_m, height_limit_m))
             + (" (beyond it: see the tolerances)." if rms_z_m > height_limit_m else "."))
 
 
@@ -1020,6 +1023,13 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
     # meet the DEM, tie points on it, orthos 19 m off): beyond the height limit a wrong answer whatever else passed
     gnss_dem = [d for d in getattr(ba, "dem_checks", []) or [] if d.gnss_beyond(height_limit_m)]
     failed = [d.gnss_text(height_limit_m) for d in gnss_dem] + failed
+    # a check DEM's offset within its 3 sigma but beyond the height limit: the block cannot see it, and it is too large
+    # (trial s100 rc F4: NGI without its DEM, `--check-dem` the DEM, the tie points 7.9 m below it read "passed")
+    weaknesses += [f"Check DEM ({d.dem}): the tie points lie {d.median_m:+.2f} m from it (median of {d.n}), beyond the "
+                   f"height limit of {height_limit_m:g} m; the block's height sigma ({d.height_sigma_m or 0.0:.2f} m) "
+                   "is too large for the offset to be called significant, and too large for the heights to be "
+                   "trusted: hold the block to the DEM (--dem) or give control." for d in getattr(ba, "dem_checks", [])
+                   or [] if not d.failed and check_dem_beyond(d, height_limit_m)]
     if weak:
         weaknesses.append("Weak geometry: " + "; ".join(why for _, why in weak) + ".")
     alone = getattr(ba, "components_without_control", 0)  # (counted only when the block is in parts)
@@ -1152,7 +1162,8 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
                         dtype=float).reshape(-1, 2) * np.asarray(unit, dtype=float).reshape(-1)[0]
         xy_m, dz = xy_m[np.isfinite(dz)], dz[np.isfinite(dz)]
         if len(dz) >= HEIGHT_CHECKS_MIN and hd.checks_spread(xy_m):
-            hd_text = height_checks_text(hd, len(dz), float(np.sqrt(np.mean(dz**2))), height_limit_m)
+            hd_text = height_checks_text(hd, len(dz), float(np.sqrt(np.mean(dz**2))), height_limit_m,
+                                         int(getattr(ba, "check_from_lidar", 0)))
         else:
             hd_text = height_datum_text(hd, height_limit_m)
             height_datum_weak = True
@@ -1504,7 +1515,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
                         for s in range(G.n_shifts(b, opts.gnss_correction))] if opts.gnss_correction != "none" else None,
         "gnss_directions": _directions_dict(dirc),
         "surface_control": _surface_control(ba),
-        "dem_checks": [_dem_check_dict(d) for d in getattr(ba, "dem_checks", []) or []],
+        "dem_checks": [_dem_check_dict(d, rms_lim[2]) for d in getattr(ba, "dem_checks", []) or []],
         "variance_components": _variance_components(ba),
         "geometry_modes": _geometry_modes(ba, rms_lim[2]),
         "flight_acceptance": _flight(ba, ground, tol),
@@ -1513,9 +1524,13 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
     return AdjustmentReport(**sections)
 
 
-def _dem_check_dict(d) -> dict:
+def _dem_check_dict(d, height_limit_m: float | None = None) -> dict:
+    """A DemCheck for report.json; a check DEM's with the height limit its median is judged against as accuracy
+    (``beyond_height_limit``): the 3-sigma test says whether the block can see the offset, not whether it is small."""
     out = dataclasses.asdict(d) | {"failed": d.failed, "offset_failed": d.offset_failed, "below_failed": d.below_failed,
                                    "gnss_significant": d.gnss_significant}
+    if d.role == "check" and height_limit_m is not None:
+        out |= {"height_limit_m": _f(height_limit_m, 4), "beyond_height_limit": check_dem_beyond(d, height_limit_m)}
     for k in ("median_m", "nmad_m", "dem_sigma_m", "height_sigma_m", "sigma_offset_m", "limit_m", "gnss_offset_m",
               "gnss_offset_limit_m"):
         out[k] = _f(out[k], 4)
@@ -1607,6 +1622,17 @@ ISAT_OPTIONS = {"adjustment_mode": "Adjustment Mode", "precision_computation": "
                 "ins_shift_drift_correction": "INS Shift/Drift Correction", "tolerances": "Tolerances"}
 
 
+def check_dem_beyond(d, height_limit_m: float | None) -> bool:
+    """Whether a check DEM's median offset (``DemCheck``, role "check", tested) exceeds the height RMS limit."""
+    return bool(d.role == "check" and d.tested and height_limit_m is not None and abs(d.median_m) > height_limit_m)
+
+
+def lidar_check_points_words(n: int) -> str:
+    """The caveat under check points that are corners of the surface control's LiDAR (report.txt and report.html)."""
+    return (f"{n} check points are corners of the same LiDAR as the surface control: they share its strip offsets, so "
+            "their agreement does not test the LiDAR's datum")
+
+
 def _dem_check_line(d: dict) -> str:
     """The DemCheck numbers of report.json as one line (point - DEM, metres)."""
     if not d["n"]:
@@ -1619,6 +1645,8 @@ def _dem_check_line(d: dict) -> str:
     offset_failed = d.get("offset_failed", d["failed"])
     verdict = ("passed" if not d["failed"] else "FAILED (a systematic offset)" if offset_failed else
                "FAILED (points below the DEM)")
+    if d.get("beyond_height_limit"):  # (a check DEM: within what the block can see, beyond what it may be off)
+        verdict = f"{verdict} as a test of the offset, but BEYOND THE HEIGHT LIMIT of {d['height_limit_m']:g} m"
     gnss = d.get("gnss_offset_m")
     return s + (f"; offset sigma {d['sigma_offset_m']:.3f} m (DEM {d['dem_sigma_m']:.3f} m, block height "
                 f"{d['height_sigma_m'] or 0.0:.3f} m, median {1.2533 * d['nmad_m'] / math.sqrt(d['n']):.3f} m), "
@@ -1870,8 +1898,7 @@ def format_txt(rep: dict) -> str:
         L.append("  normalised check errors (d / sigma), RMS X Y Z: " + " ".join("-" if x is None else f"{x:.2f}" for x in rep["check_normalised_rms"]))
         L.extend(f"  {b}" for b in rep.get("check_blunders") or [])
         if rep.get("check_points_from_lidar"):
-            L.append(f"  {rep['check_points_from_lidar']} check points are corners of the same LiDAR as the surface "
-                     "control: they share its strip offsets, so their agreement does not test the LiDAR's datum")
+            L.append(f"  {lidar_check_points_words(rep['check_points_from_lidar'])}")
     unmeasured = [r for r in rep["check_points"] if None in (r["adjusted_m"] or [None])[:2]]
     few = [f"{r['id']} ({r['rays']} ray{'s' if r['rays'] != 1 else ''})" for r in unmeasured if r["rays"] < 2]
     parallel = [f"{r['id']} ({r['rays']} rays)" for r in unmeasured if r["rays"] >= 2]
@@ -2055,6 +2082,9 @@ def format_html(rep: dict, ba=None) -> str:
                                      [[r["id"], r["kind"], r.get("status", r["used"]), r["rays"], *r["residual_m"],
                                        r["image_rms_um"]] for r in rep["control_points"]], 4, num_from=3),
         rejected_control=", ".join(f"{x['id']} (w = {x['w']})" for x in rep["rejected_control"]),
+        # the text report's lines under the check points (blunders; LiDAR corners as check points): trial s100 rc F6
+        check_notes=list(rep.get("check_blunders") or []) + (
+            [lidar_check_points_words(rep["check_points_from_lidar"])] if rep.get("check_points_from_lidar") else []),
         check_points=None, check_sums=None, check_normalised=" ".join("-" if x is None else f"{x:.2f}" for x in rep["check_normalised_rms"] or []),
         gnss=gnss, gnss_strips=T(["strip", "shift X m", "shift Y m", "shift Z m", "drift X m/km", "drift Y m/km",
                                   "drift Z m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]

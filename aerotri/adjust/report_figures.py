@@ -17,6 +17,7 @@ import os
 
 import numpy as np
 
+from aerotri.adjust import gnss_model
 from aerotri.core.figures import png_bytes, pyplot
 
 MAX_FRAME_PANELS = 24  # image residual panels per figure (the frames with the largest RMS beyond that)
@@ -335,11 +336,10 @@ def gnss_strip_plot(rep: dict) -> Figure | None:
              "\"none\"): a level or a trend of the dots per strip calls for one.")
     gnss = next((c for c in rep.get("variance_components") or [] if c.get("group") == "gnss"), None)
     unchecked = ""
-    if gnss is not None and gnss.get("redundancy") is not None and gnss.get("observations"):
-        share = gnss["redundancy"] / gnss["observations"]
-        if share < 0.05:  # s95: residuals of millimetres from a GNSS nothing else checks read like a 2 mm fit
-            unchecked = (f" The GNSS's redundancy is {gnss['redundancy']:.1f} of {gnss['observations']} observations: "
-                         "nothing else in the block checks the positions, so small dots say nothing of their accuracy.")
+    if gnss is not None and gnss_model.unchecked(gnss.get("redundancy"), gnss.get("observations") or 0):
+        # s95: residuals of millimetres from a GNSS nothing else checks read like a 2 mm fit
+        unchecked = (f" The GNSS's redundancy is {gnss['redundancy']:.1f} of {gnss['observations']} observations: "
+                     "the images do not check the positions, so small dots say nothing of their accuracy.")
     return Figure("GNSS shift and drift per strip",
                   "Dots: GNSS antenna position minus the adjusted antenna position per frame (local east, north, "
                   f"up); {lines}{unchecked}", "vertical axes in metres, horizontal in km along the strip", fig)

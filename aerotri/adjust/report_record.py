@@ -85,6 +85,16 @@ class SurfaceControlClass:
 
 
 @dataclass(frozen=True)
+class CheckDemRecord:
+    """The adjusted tie points against a DEM given only to check them (``--check-dem``; report.json dem_checks, role
+    "check"): the DEM, the tie points compared and their median height - DEM (m; None: too few to test)."""
+
+    dem: str
+    n: int
+    median_m: float | None
+
+
+@dataclass(frozen=True)
 class AdjustmentRecord:
     """What ``at/report.json`` tells the stages after the adjustment."""
 
@@ -114,6 +124,7 @@ class AdjustmentRecord:
     inputs: dict | None = None
     # (image id, why) of the images the adjustment left out (report.json components.left_out): no orientation
     frames_left_out: tuple[tuple[str, str], ...] = ()
+    check_dem: CheckDemRecord | None = None  # the check DEM's comparison (``--check-dem``), None without one
 
     @property
     def sigma0_in_px(self) -> float | None:
@@ -176,7 +187,10 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
         check_points_from_lidar=int(d.get("check_points_from_lidar") or 0),
         inputs=_inputs(d.get("inputs")),
         frames_left_out=tuple((str(k), str(lo.get("reason", ""))) for lo in (d.get("components") or {}).get("left_out")
-                              or () for k in lo.get("images", ())))
+                              or () for k in lo.get("images", ())),
+        check_dem=next((CheckDemRecord(dem=str(c.get("dem", "")), n=int(c.get("n") or 0),
+                                       median_m=_number(c.get("median_m")) if c.get("limit_m") is not None else None)
+                        for c in d.get("dem_checks") or () if c.get("role") == "check"), None))
 
 
 def _inputs(v) -> dict | None:

@@ -156,6 +156,9 @@ class ComplianceCheck:
     outside_unknown_ids: tuple[str, ...] = ()  # those of ``outside_ids`` whose land cover is unknown
     # (RMSE_x, RMSE_y) m where a plan check gives them (ASPRS 2014's per-axis rows; its statement's RMSE_r)
     rmse_axes_m: tuple[float, float] | None = None
+    # the limit (m) the report's verdict table holds the same quantity to, where it is another number (the shipped
+    # map-scale tables: the standard's map millimetres read as metres), shown beside this row's limit
+    verdict_table_m: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1160,6 +1163,13 @@ def _cn(figs: Figures, c: Choice) -> list[ComplianceCheck]:
                     confirmed=conf, source=source, finest=fin, rank=rank, counted=cs.points)
         if cs.rmse_h_m is None:
             ch = dataclasses.replace(ch, verdict=NOT_TESTABLE, why=cs.note or "not measured")
+        elif twin:
+            ch = dataclasses.replace(ch, verdict_table_m=held)
+            if ch.verdict == "pass" and cs.rmse_h_m > held:
+                # passed here and failed on the same page (trial s100 rc F2: 0.66 m, "finest class met 1:2000" beside
+                # the verdict table's fail at 0.35 m): the row says so where a reader of the page sees it
+                ch = dataclasses.replace(ch, why=(f"{ch.why}; " if ch.why else "")
+                                         + f"the report's verdict table fails the same figure at its {held:g} m")
         out.append(ch)
         if product == "Aerotriangulation" and cs.rmse_v_m is not None:
             # the limit the verdict table holds the AT heights to (the design table's, 1:5000 and 1:10000)

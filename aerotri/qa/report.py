@@ -449,9 +449,10 @@ def heights_unchecked_words(gnss_given: bool) -> str:
     held = ("the GNSS heights and the camera's focal length alone (a focal length 1 % off moves them by 1 % of the "
             "flying height, GNSS heights of another height system by the geoid)" if gnss_given else
             "nothing measured: no GNSS either")
-    return (f"no control point, DEM (surface control) or check point with a height: the block's heights rest on "
-            f"{held}, and nothing in the block can see an error there; the overall verdict is not testable. Give "
-            "check points, control or the LiDAR DEM ([adjust] dem)")
+    # (said of a verdict that would pass: a failing row still fails the report, trial s100 rc F5)
+    return (f"no control point, DEM (surface control or --check-dem) or check point with a height: the block's heights "
+            f"rest on {held}, and nothing in the block can see an error there, so the report cannot pass: not "
+            "testable where every row passes. Give check points, control or the LiDAR DEM ([adjust] dem)")
 
 
 def _holes_row(section: str, m) -> QaCheck:
@@ -932,7 +933,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                            "no datum from control")
         rows.append(_check("control_points_used", sec, "control points in the adjustment", 0, None, "", note=note))
         chk_z = at.check_rms_m[2] if at.check_rms_m and len(at.check_rms_m) > 2 else None
-        if not used and chk_z is None:
+        if not used and chk_z is None and not (at.check_dem and at.check_dem.median_m is not None):
             rows.append(_check(HEIGHTS_UNCHECKED, sec, "block heights checked (control, DEM or check points)", "no",
                                None, "", note=heights_unchecked_words(at.gnss_given)))
     ctrl = at.control_rms_m if at else None
@@ -1048,6 +1049,15 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                                    f"check points with a {name} residual beyond {lim:g} m",
                                    100.0 * big / len(e), tol.get("gross_error_max_pct"), "%",
                                    note=f"{big} of {len(e)}", key="gross_error_max_pct", digits=2))
+
+    cd = at.check_dem if at else None
+    if cd is not None and cd.median_m is not None:
+        # the block's heights against a DEM given only to check them (trial s100 rc F4: 7.9 m below it, "passed" in
+        # the adjustment's 3-sigma test, and nowhere in this report, which said the heights were not checked)
+        rows.append(_check("check_dem_offset_m", "Aerotriangulation", "tie points against the check DEM, |median| "
+                           "height offset", abs(cd.median_m), tol.get("rms_z_m"), "m",
+                           note=f"median {cd.median_m:+.3f} m (tie point - DEM) over {cd.n} tie points on the ground; "
+                           f"{cd.dem} (--check-dem: compared, not held)", key="rms_z_m", digits=4))
 
     # DOM
     sec = "DOM"
@@ -1360,7 +1370,8 @@ def compliance_row(c: dict) -> list:
     verdict = c["verdict"] + (f": {c['why']}" if c["why"] else "")
     return [c["product"], c["quantity"], c["class_tested"], _num(c["measured"]),
             _value_cell(c["figure"], c["limit"]),
-            _num(c["limit"], c["limit_confirmed"] is False) + (f" {c['unit']}" if c["limit"] is not None else ""),
+            _num(c["limit"], c["limit_confirmed"] is False) + (f" {c['unit']}" if c["limit"] is not None else "")
+            + (f" (verdict table: {c['verdict_table_m']:g} m)" if c.get("verdict_table_m") is not None else ""),
             need, acc, verdict, c["finest_class"] or ""]
 
 

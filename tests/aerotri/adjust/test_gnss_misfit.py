@@ -131,9 +131,9 @@ def test_gnss_sigmas_that_leave_it_no_redundancy_are_said_unchecked(tmp_path):
     (root / "project.toml").write_text(toml.replace("sigma_xy_m = 0.05\nsigma_z_m = 0.08", "sigma_xy_m = 0.001\n"
                                                                                           "sigma_z_m = 0.001", 1))
     typed = adjust_project(root, settings)
-    unchecked = [[n for n in ba.datum_notes if n.startswith("GNSS unchecked")] for ba in (stated, typed)]
+    unchecked = [[n for n in ba.datum_notes if n.startswith("GNSS unchecked by the images")] for ba in (stated, typed)]
     assert unchecked[0] == [], stated.datum_notes
     (note,) = unchecked[1]
     assert "its 24 coordinates hold 0.0 of the redundancy" in note and "0.001 / 0.001 m" in note, note
     gnss = {c.group: c for c in typed.result.variance_components}["gnss"]
-    assert gnss.redundancy < 0.02 * gnss.n
+    assert gnss.redundancy < 0.05 * gnss.n

@@ -459,6 +459,6 @@ def test_the_gnss_figure_says_when_nothing_checks_the_positions():
     rep = {"photos": photos, "options": {"gps_shift_drift_correction": "Disabled"},
            "variance_components": [{"group": "gnss", "observations": 12, "redundancy": 0.0}]}
     fig = gnss_strip_plot(rep)
-    assert "The GNSS's redundancy is 0.0 of 12 observations: nothing else in the block checks" in fig.caption
+    assert "The GNSS's redundancy is 0.0 of 12 observations: the images do not check" in fig.caption
     rep["variance_components"][0]["redundancy"] = 6.0
     assert "redundancy" not in gnss_strip_plot(rep).caption

@@ -128,6 +128,19 @@ def test_one_dom_limit_per_scale_and_standard_and_patches_are_not_called_check_p
     # the default report (cn-at not asked for) keeps the design table's metres in its verdict table, and says so
     assert "the verdict table (the design table, cn_1to5000.toml) holds 0.5 m" in d.checkpoints_note
     assert "check points" not in d.quantity and "reference's accuracy" in d.checkpoints_note
+    # the verdict table's limit shown in the row's limit cell, not in a tooltip alone; a figure between the two
+    # passes here and says that the verdict table fails it (trial s100 rc F2: 0.66 m at 1:5000, "finest class met
+    # 1:2000" beside the verdict table's fail at 0.35 m)
+    from aerotri.core.records import to_record
+    from aerotri.qa.report import compliance_row
+
+    assert d.verdict_table_m == 0.5 and "(verdict table: 0.5 m)" in compliance_row(to_record(d))[5]
+    assert "verdict table fails" not in d.why
+    between = dataclasses.replace(dom, rmse_h_m=0.66)
+    (d,) = _by(judge(Figures(dom=between), Choice("cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat",
+                                                  verdict_file=design.path.name, verdict_shipped=True,
+                                                  verdict_limits=dict(design.limits))), "DOM")
+    assert d.verdict == "pass" and d.why.endswith("the report's verdict table fails the same figure at its 0.5 m")
     assert load_table("1:2000", "flat").limits["feature_rms_xy_m"] == 1.2  # 0.6 mm x 2000, confirmed
     # ASPRS: the patches are named, and counted against its check-point minimum as such
     (d,) = _by(judge(Figures(dom=CheckSet(rmse_h_m=0.08, n_h=12, points="ground patches")),

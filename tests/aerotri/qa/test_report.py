@@ -228,6 +228,17 @@ def test_a_block_whose_heights_nothing_checks_is_not_testable(tmp_path):
     (q / "at" / "report.json").write_text(json.dumps(rep))
     out = write_qa_report(q)
     assert "heights_unchecked" not in [r.id for r in out.checks] and out.overall == "pass"
+    # a DEM given only to check the heights (--check-dem) checks them: its median offset is a row judged against the
+    # height limit (trial s100 rc F4: 7.9 m below it, "passed" by its 3-sigma test, absent from this report)
+    rep = json.loads((p / "at" / "report.json").read_text())
+    del rep["surface_control"]
+    for median, verdict in ((-7.936, "fail"), (0.21, "pass")):
+        rep["dem_checks"] = [{"role": "check", "dem": "dem.tif", "n": 573, "median_m": median, "limit_m": 14.446}]
+        (p / "at" / "report.json").write_text(json.dumps(rep))
+        out = write_qa_report(p)
+        row = out.check("check_dem_offset_m")
+        assert "heights_unchecked" not in [r.id for r in out.checks] and row.verdict == verdict, row
+        assert row.value == abs(median) and f"median {median:+.3f} m" in row.note and out.overall == verdict
 
 
 def test_plan_only_control_is_reported_in_plan(tmp_path):
@@ -292,21 +303,24 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
     row = rep.check("dom_roofs_rms_xy_m")
     assert row.quantity == "displacement at roof corners, plan RMS"
     assert row.value == 3.2563 and row.limit is None and row.verdict is None and row.unit == "m"
-    assert row.note == ("412 of 1156 corners, 8.14 GSD, median 4.45 GSD; corners: truth/roof_corners.csv; "
-                        "conventional ortho (roofs lean); not judged")
+    # every corner not measured is said, so that the words add up to the corners (trial s100 rc F9)
+    assert row.note == ("412 of 1156 corners (82 not measured: their patch not whole in the DOM, or the re"
+                        "ference's too little valid; 54 without a clear match (a weak peak, or one at the search's edge)), 8.14 GSD, median 4.45 GSD; corners: "
+                        "truth/roof_corners.csv; conventional ortho (roofs lean); not judged")
     assert json.loads((p / "reports" / "summary.json").read_text())["overall"] == "pass"
     assert "displacement at roof corners" in (p / "reports" / "index.html").read_text()
     # corners whose evidence lies in the DOM's nodata: counted in the note (issue 41/42)
     dom["roofs"]["not_measured"]["in_nodata"] = 9
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
-        "412 of 1156 corners (9 not measurable: in the DOM's nodata), 8.14 GSD, median 4.45 GSD; ")
+        "412 of 1156 corners (9 not measurable: in the DOM's nodata; 82 not measured: ")
     # too many of them (review 12b: roofs moved beside holes are counted so): the note carries the check's warning
     dom["roofs"]["in_nodata_warning"] = "9 of 421 roof corners (2.1 %) ... look at those corners"
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
-        "412 of 1156 corners (9 not measurable: in the DOM's nodata) (warning: 9 of 421 roof corners (2.1 %) ... "
-        "look at those corners), 8.14 GSD")
+        "412 of 1156 corners (9 not measurable: in the DOM's nodata; 82 not measured: their patch not whole in the DOM, "
+        "or the reference's too little valid; 54 without a clear match (a weak peak, or one at the search's edge)) "
+        "(warning: 9 of 421 roof corners (2.1 %) ... look at those corners), 8.14 GSD")
     dom["roofs"] = dict(count=0, why="the nDSM is in another CRS than the DOM")
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     row = write_qa_report(p).check("dom_roofs_rms_xy_m")
