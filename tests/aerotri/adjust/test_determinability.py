@@ -190,6 +190,17 @@ def test_tie_points_against_a_dem_shifted_by_half_a_metre_fail(dem_block):
     assert d["role"] == "check" and d["n"] > 400 and not d["failed"]
     assert abs(d["median_m"]) < 0.1 and d["limit_m"] == pytest.approx(3 * d["sigma_offset_m"], abs=1e-3)
     assert d["sigma_offset_m"] >= 0.05  # the DEM's stated sigma is part of it
+    assert d["height_limit_m"] > abs(d["median_m"]) and not d["beyond_height_limit"]
+    # within what the block can see but beyond the height limit: a weakness, said in the line (trial s100 rc F4: NGI
+    # without its DEM, 7.9 m below the check DEM, "passed")
+    tight = abs(d["median_m"]) / 2
+    res = run_adjustment(root, dataclasses.replace(st, check_dem=dem, rms_limit_z_m=tight), html=False)
+    rep = json.loads(res.report_path.read_text())
+    (d,) = rep["dem_checks"]
+    assert not d["failed"] and d["beyond_height_limit"] and rep["key_statistics"]["verdict"] == "weak"
+    assert "Check DEM (" in rep["key_statistics"]["message"] and "beyond the height limit" in rep["key_statistics"][
+        "message"]
+    assert "BEYOND THE HEIGHT LIMIT" in res.report_path.with_suffix(".txt").read_text()
     assert (root / "at" / "eo.txt").is_file()
     before = (root / "at" / "eo.txt").read_text()
     with pytest.raises(SolveError, match=r"Tie points - DEM \(check"):
