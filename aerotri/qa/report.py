@@ -573,6 +573,11 @@ def _terrain_rows(project: Project, terrain: str | None, given: bool = False) ->
     if got is None:
         return []
     sec, name = "Tolerance table", "terrain class of the DEM"
+    if got.mostly_extrapolated:
+        return [_check("terrain_class_dem", sec, name, None, None, "", note=(
+            f"not measured: {got.extrapolated_pct:.0f} % of {got.path.name} is a flat continuation beyond its tie "
+            f"points, so its median slope ({got.median_slope_deg:.1f} deg) is the filling's, not the terrain's; "
+            "not judged"))]
     if TERRAIN_ORDER[terrain] > TERRAIN_ORDER[got.terrain]:
         return [_failed("terrain_class_dem", sec, name, f"{got.text()}; the limits are the {terrain} class's, looser "
                                                          "than the terrain's: "

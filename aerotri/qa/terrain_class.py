@@ -31,6 +31,15 @@ class DemTerrain:
     median_slope_deg: float
     cell_m: float
     path: Path
+    # the DEM's share (%) of cells extended beyond its data as a flat continuation (``ortho dem``'s tag
+    # CELLS_EXTRAPOLATED_PERCENT); None: not stated (a LiDAR DEM, one from elsewhere)
+    extrapolated_pct: float | None = None
+
+    @property
+    def mostly_extrapolated(self) -> bool:
+        """More than half the DEM a flat continuation: its median slope is that of the filling, near 0 (trial s100 rc
+        F7: Tuniu's tie-point DEM, 89 % extended, read "flat, median slope 0.0 deg" over 40 m of relief)."""
+        return self.extrapolated_pct is not None and self.extrapolated_pct > 50.0
 
     def text(self) -> str:
         return (f"median slope {self.median_slope_deg:.1f} deg over {self.cell_m:.0f} m cells of {self.path.name}: "
@@ -60,6 +69,10 @@ def dem_terrain(path) -> DemTerrain | None:
         f = max(1.0, CELL_M / cell_m, max(ds.width, ds.height) / MAX_SIDE_PX)
         shape = (max(1, round(ds.height / f)), max(1, round(ds.width / f)))
         z = ds.read(1, masked=True, out_shape=shape, resampling=Resampling.average).astype(float).filled(np.nan)
+        try:
+            extrapolated = float(ds.tags().get("CELLS_EXTRAPOLATED_PERCENT"))
+        except (TypeError, ValueError):
+            extrapolated = None
         dx_m = abs(ds.transform.a) * ux * ds.width / shape[1]
         dy_m = abs(ds.transform.e) * uy * ds.height / shape[0]
     if z.shape[0] < 3 or z.shape[1] < 3:
@@ -70,4 +83,4 @@ def dem_terrain(path) -> DemTerrain | None:
     if slope.size < 9:
         return None
     med = float(np.median(slope))
-    return DemTerrain(class_of_slope(med), med, max(dx_m, dy_m), path)
+    return DemTerrain(class_of_slope(med), med, max(dx_m, dy_m), path, extrapolated)

@@ -95,3 +95,20 @@ def test_the_dem_the_adjustment_used_is_classed_without_lidar_out(tmp_path):
     (root / "at" / "report.json").write_text(json.dumps({"surface_control": {"dem": str(dem.resolve())}}))
     (row,) = _terrain_rows(Project.open(root), "flat")
     assert row.value == "mountainous" and "median slope 22.0 deg" in row.note and "dem.tif" in row.note
+
+
+def test_a_dem_mostly_extended_beyond_its_points_gives_no_class(tmp_path, caplog):
+    """Trial s100 rc F7: Tuniu's tie-point DEM (ortho dem), 89 % a flat continuation beyond its points, read "flat,
+    median slope 0.0 deg" over 40 m of relief. Its tag says the share: the row says it is not measured and warns of
+    nothing; at 40 % extended the class is measured as before."""
+    project = _project(tmp_path, 0.5)
+    for pct, measured in (("89.1", False), ("40.0", True)):
+        with rasterio.open(project.root / "lidar_out" / "dem.tif", "r+") as ds:
+            ds.update_tags(CELLS_EXTRAPOLATED_PERCENT=pct)
+        with caplog.at_level(logging.WARNING):
+            (row,) = _terrain_rows(project, "mountainous")
+        if measured:
+            assert row.verdict == "fail" and "median slope 0.5 deg" in row.note
+        else:
+            assert row.value is None and row.verdict is None and not caplog.records
+            assert row.note.startswith("not measured: 89 % of dem.tif is a flat continuation beyond its tie points")
