@@ -262,7 +262,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
     polys = [footprint(camera, c[i], R[i], terrain) for i in range(n)]
     ground = terrain.height(c[:, 0], c[:, 1])
     frames = [dict(image_id=str(image_id[i]), strip=int(strip[i]), x_m=_r(c[i, 0], 3), y_m=_r(c[i, 1], 3),
-                   z_m=_r(c[i, 2], 3), height_above_ground_m=_r(c[i, 2] - ground[i], 1), tilt_deg=None,
+                   z_m=_r(c[i, 2], 3), height_above_ground_m=_r(c[i, 2] - ground[i], 2), tilt_deg=None,
                    kappa_deviation_deg=None, height_step_m=None, forward_overlap_pct=None, side_overlap_pct=None,
                    footprint=[[_r(x, 2), _r(y, 2)] for x, y in polys[i].exterior.coords])
               for i in range(n)]
@@ -286,7 +286,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
                 frames[i]["height_step_m"] = _r(abs(c[i, 2] - c[idx[m - 1], 2]), 2)
             if m + 1 < len(idx):
                 p, q = polys[i], polys[idx[m + 1]]
-                frames[i]["forward_overlap_pct"] = _r(100.0 * p.intersection(q).area / p.area, 1)
+                frames[i]["forward_overlap_pct"] = _r(100.0 * p.intersection(q).area / p.area, 2)
         # side overlap: each frame's share covered by the neighbouring strip(s) across track (the
         # smaller of the two for an inner strip: the weaker side decides)
         neighbours = [order[j] for j in (k - 1, k + 1) if 0 <= j < len(order)] if s not in cross else []
@@ -294,7 +294,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
         for i in idx:
             if unions:
                 frames[i]["side_overlap_pct"] = _r(min(100.0 * polys[i].intersection(u).area / polys[i].area
-                                                       for u in unions), 1)
+                                                       for u in unions), 2)
         ends = c[idx[-1], :2] - c[idx[0], :2]
         length = float(np.linalg.norm(ends))
         if len(idx) > 2 and length > 0:
@@ -307,12 +307,12 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
         fwd = [frames[i]["forward_overlap_pct"] for i in idx if frames[i]["forward_overlap_pct"] is not None]
         strips.append(dict(strip=int(s), frames=len(idx), first=str(image_id[idx[0]]), last=str(image_id[idx[-1]]),
                            cross_strip=s in cross,
-                           length_m=_r(length, 1), curvature_pct=_r(curvature, 3),
-                           height_range_m=_r(float(np.ptp(c[idx, 2])), 2), mean_z_m=_r(float(c[idx, 2].mean()), 1),
-                           mean_height_above_ground_m=_r(float(np.mean(c[idx, 2] - ground[idx])), 1),
+                           length_m=_r(length, 2), curvature_pct=_r(curvature, 3),
+                           height_range_m=_r(float(np.ptp(c[idx, 2])), 2), mean_z_m=_r(float(c[idx, 2].mean()), 2),
+                           mean_height_above_ground_m=_r(float(np.mean(c[idx, 2] - ground[idx])), 2),
                            forward_overlap_min_pct=min(fwd) if fwd else None,
-                           forward_overlap_mean_pct=_r(np.mean(fwd), 1) if fwd else None,
-                           side_overlap_median_pct=_r(np.median(side), 1) if side else None,
+                           forward_overlap_mean_pct=_r(np.mean(fwd), 2) if fwd else None,
+                           side_overlap_median_pct=_r(np.median(side), 2) if side else None,
                            max_tilt_deg=max((frames[i]["tilt_deg"] for i in idx if frames[i]["tilt_deg"] is not None),
                                             default=None),
                            max_kappa_deviation_deg=max((frames[i]["kappa_deviation_deg"] for i in idx

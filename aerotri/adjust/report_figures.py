@@ -205,8 +205,11 @@ def ground_residual_map(rep: dict) -> Figure | None:
     # the width it reached the figure's edge on the kite block, its head at the border)
     ax.quiverkey(q, 0.02, 1.015, key_m, f"{_fmt(key_m)} m plan residual", labelpos="E", coordinates="axes")
     bar = _map_axes(ax, o, extent, np.vstack([np.column_stack([x, y]), tips]))
+    # the scale is the 95th percentile of |dZ|: the points beyond it take its end colour, which the bar's arrows and
+    # the caption say (trial s100 rc F10: -0.53 .. +0.53 m with residuals to -1.37 m, nothing said)
+    beyond = int(np.count_nonzero(np.abs(dz[np.isfinite(dz)]) > lim)) if has_dz else 0
     if has_dz:
-        fig.colorbar(sc, ax=ax, shrink=0.8, label="height residual dZ (m)")
+        fig.colorbar(sc, ax=ax, shrink=0.8, label="height residual dZ (m)", extend="both" if beyond else "neither")
     for r, xi, yi in zip(ctrl, x[is_ctrl], y[is_ctrl]):
         ax.annotate(str(r["id"]), (xi, yi), fontsize=7, xytext=(4, 4), textcoords="offset points")
     # the largest plan residuals among the check points (control points are all named above)
@@ -224,7 +227,10 @@ def ground_residual_map(rep: dict) -> Figure | None:
                   + ("marker colour: height residual (grey: none)." if has_dz else
                      "plan-only control: no height residuals."),
                   f"arrow = {_fmt(key_m)} m on the ground; map scale bar {bar}; "
-                  + (f"colour -{lim:.2f} .. +{lim:.2f} m dZ" if has_dz else "no height residuals"),
+                  + (f"colour -{lim:.2f} .. +{lim:.2f} m dZ" + (
+                      f" (the 95th percentile; {beyond} point{'s' if beyond != 1 else ''} beyond it, to "
+                      f"{np.nanmin(dz):+.2f} / {np.nanmax(dz):+.2f} m, in its end colours)" if beyond else "")
+                     if has_dz else "no height residuals"),
                   fig)
 
 

@@ -290,6 +290,13 @@ def test_ground_residual_map_of_plan_only_control_has_no_height_colour_bar():
     check_pts, ctrl_pts = f.fig.axes[0].collections[:2]
     assert np.allclose(ctrl_pts.get_facecolors()[:, :3], 0.8)  # grey: no height residual
     assert not np.allclose(check_pts.get_facecolors()[:, :3], 0.8)
+    assert "beyond" not in f.key
+    # a residual beyond the scale's 95th percentile is said, with the residuals' range (trial s100 rc F10)
+    many = [{"id": f"c{k}", "d_m": [0.01, 0.02, 0.01 * (k % 5) - 0.02], "measured_m": [235000.0 + 9 * k, 3811000.0,
+                                                                                         0.0]} for k in range(39)]
+    many.append({"id": "far", "d_m": [0.01, 0.02, -1.37], "measured_m": [235500.0, 3811200.0, 0.0]})
+    f = RF.ground_residual_map({"control_points": [], "check_points": many})
+    assert "(the 95th percentile; 1 point beyond it, to -1.37 / +0.02 m, in its end colours)" in f.key, f.key
 
 
 def test_ground_residual_map_names_the_largest_check_residuals_and_says_how_many():
