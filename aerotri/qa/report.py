@@ -321,8 +321,8 @@ def _roofs_row(section: str, dom_check, project: Project) -> QaCheck:
         in_nodata += f" (warning: {dom_check.roofs_in_nodata_warning})"
     median_gsd = r.median_xy_m / r.gsd_m if r.median_xy_m is not None and r.gsd_m else float("nan")
     return _check("dom_roofs_rms_xy_m", section, "displacement at roof corners, plan RMS", round(r.rms_xy_m, 4), None,
-                  "m", note=f"{r.count} of {dom_check.roof_corners} corners{in_nodata}, {gsd:.2f} GSD, median "
-                  f"{median_gsd:.2f} GSD; "
+                  "m", note=f"{r.count} of {dom_check.roof_corners} corners{in_nodata}, {gsd:.2f} GSD"
+                  f"{_dom_cell_words(r)}, median {median_gsd:.2f} GSD; "
                   f"corners: {source}{kind}; not judged")
 
 
@@ -437,6 +437,11 @@ def _dom_crs_note(dom_check, project: Project) -> str:
             note += " (PROJ's ballpark operation, accepted with --allow-ballpark: the datum shift between them is " \
                     "ignored and is in the figure)"
     return note
+
+
+def _dom_cell_words(d) -> str:
+    """What the DOM rows' "GSD" is: the DOM's cell (trial s100 rc F13: read as the frames' 0.36 m image GSD)."""
+    return f" (of the DOM's {d.gsd_m:g} m cell)" if getattr(d, "gsd_m", None) else ""
 
 
 HEIGHTS_UNCHECKED = "heights_unchecked"
@@ -1090,7 +1095,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                            f"{asprs.quantity_suffix(judged.rms_xy_m, 'feature_rms_xy_m')}", figure,
                            tol.get("feature_rms_xy_m"), "m", digits=4,
                            note=f"{judged.count} {'points' if at_points is not None else 'patches'}, {gsd:.2f} GSD"
-                           f"{left_out}{_dom_crs_note(dom_check, project)}" + (f"; {combined}" if combined else ""),
+                           f"{_dom_cell_words(judged)}{left_out}{_dom_crs_note(dom_check, project)}" + (f"; {combined}" if combined else ""),
                            key="feature_rms_xy_m"))
         if lost is not None and lost.fails():
             # the RMS is of the patches matched: a DOM (or a frame's region) off by more than the search lost its

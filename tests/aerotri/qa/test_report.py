@@ -304,9 +304,10 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
     assert row.quantity == "displacement at roof corners, plan RMS"
     assert row.value == 3.2563 and row.limit is None and row.verdict is None and row.unit == "m"
     # every corner not measured is said, so that the words add up to the corners (trial s100 rc F9)
-    assert row.note == ("412 of 1156 corners (82 not measured: their patch not whole in the DOM, or the re"
-                        "ference's too little valid; 54 without a clear match (a weak peak, or one at the search's edge)), 8.14 GSD, median 4.45 GSD; corners: "
-                        "truth/roof_corners.csv; conventional ortho (roofs lean); not judged")
+    assert row.note == ("412 of 1156 corners (82 not measured: their patch not whole in the DOM, or the reference's "
+                        "too little valid; 54 without a clear match (a weak peak, or one at the search's edge)), 8.14 "
+                        "GSD (of the DOM's 0.4 m cell), median 4.45 GSD; corners: truth/roof_corners.csv; "
+                        "conventional ortho (roofs lean); not judged")
     assert json.loads((p / "reports" / "summary.json").read_text())["overall"] == "pass"
     assert "displacement at roof corners" in (p / "reports" / "index.html").read_text()
     # corners whose evidence lies in the DOM's nodata: counted in the note (issue 41/42)
@@ -320,7 +321,7 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
     assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
         "412 of 1156 corners (9 not measurable: in the DOM's nodata; 82 not measured: their patch not whole in the DOM, "
         "or the reference's too little valid; 54 without a clear match (a weak peak, or one at the search's edge)) "
-        "(warning: 9 of 421 roof corners (2.1 %) ... look at those corners), 8.14 GSD")
+        "(warning: 9 of 421 roof corners (2.1 %) ... look at those corners), 8.14 GSD (of the DOM's 0.4 m cell)")
     dom["roofs"] = dict(count=0, why="the nDSM is in another CRS than the DOM")
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     row = write_qa_report(p).check("dom_roofs_rms_xy_m")
