@@ -1095,7 +1095,8 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
                            f"{asprs.quantity_suffix(judged.rms_xy_m, 'feature_rms_xy_m')}", figure,
                            tol.get("feature_rms_xy_m"), "m", digits=4,
                            note=f"{judged.count} {'points' if at_points is not None else 'patches'}, {gsd:.2f} GSD"
-                           f"{_dom_cell_words(judged)}{left_out}{_dom_crs_note(dom_check, project)}" + (f"; {combined}" if combined else ""),
+                           f"{_dom_cell_words(judged)}{left_out}{_dom_crs_note(dom_check, project)}"
+                           + (f"; {combined}" if combined else ""),
                            key="feature_rms_xy_m"))
         if lost is not None and lost.fails():
             # the RMS is of the patches matched: a DOM (or a frame's region) off by more than the search lost its

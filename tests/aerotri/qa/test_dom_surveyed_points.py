@@ -41,7 +41,8 @@ def test_a_dom_checked_at_the_adjustments_control_is_not_independent(tmp_path):
     rep = write_qa_report(p, standard="asprs2023", accuracy_class="H10 V10")
     row = rep.check("dom_rms_xy_m")
     assert row.quantity == "displacement at surveyed points, plan RMS"
-    assert row.note.startswith("12 points, 0.50 GSD (of the DOM's 0.1 m cell); 20 of the 32 surveyed points left out, the adjustment's "
+    assert row.note.startswith("12 points, 0.50 GSD (of the DOM's 0.1 m cell); 20 of the 32 surveyed points left out, "
+                               "the adjustment's "
                                "control (T0, T1, T2, ...): not independent check points"), row.note
     dom = [c for c in rep.compliance["checks"] if c["product"] == "DOM"][0]
     assert dom["counted"] == "surveyed points" and dom["n_points"] == 12  # the independent ones
@@ -101,7 +102,8 @@ def test_the_verdict_table_judges_the_independent_points_only(tmp_path):
     rep = write_qa_report(_project(tmp_path, ids[:4], ids, shifts_m=shifts), scale="1:5000")
     row = rep.check("dom_rms_xy_m")
     assert row.limit == 0.5 and row.value == 0.6 and row.verdict == "fail", row
-    assert row.note.startswith("6 points, 6.00 GSD (of the DOM's 0.1 m cell); 4 of the 10 surveyed points left out, the adjustment's control "
+    assert row.note.startswith("6 points, 6.00 GSD (of the DOM's 0.1 m cell); 4 of the 10 surveyed points left out, "
+                               "the adjustment's control "
                                "(C0, C1, C2, ...)"), row.note
     assert rep.check("dom_p95_xy_m").value == 0.6  # of the 6 too
     assert rep.overall == "fail"
