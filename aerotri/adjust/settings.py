@@ -118,7 +118,8 @@ class AdjustSettings:
     check_dem: Path | None = setting(None, path=True, help="DEM (GeoTIFF, project CRS and heights) the adjusted tie "
                                                            "points are checked against without holding them to it: "
                                                            "count, median and spread of point - DEM; a median beyond "
-                                                           "3 sigma fails the solution.")
+                                                           "3 sigma fails the solution, one beyond the height RMS "
+                                                           "limit makes it weak (and fails the QA row).")
 
 
 def _usable_roof_planes(project) -> bool:
