@@ -647,7 +647,7 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
     tile_px, buffer_px = int(grid.tile_m), int(grid.buffer_m)
     lay = _TileLayout(res_m, x0, y0, tile_px, buffer_px, grid.nrows, grid.ncols)
     used = np.zeros(grid.n_tiles, bool)
-    n_ground = 0
+    n_ground = intensity_max = 0
     per_class = np.zeros(256, np.int64)
     read_points = min(chunk_points, _BIN_READ_POINTS)
     chunks = (c for path in inputs.paths for c in _file_points(path, inputs.units, read_points))
@@ -659,6 +659,7 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
             # classes contiguous (a strided record field of some files): numba compiles one signature
             n_ground += _gather_columns(cols, count, _ChunkPoints(x, y, z, np.ascontiguousarray(cls), rn, inten), lay)
             per_class += np.bincount(cls, minlength=256)
+            intensity_max = max(intensity_max, int(inten.max(initial=0)))
             for tid in np.flatnonzero(count[1:] > count[:-1]):
                 used[tid] = True
                 for (name, _), col in zip(_BIN_FIELDS, cols):
@@ -667,6 +668,10 @@ def _bin_points(inputs: _Inputs, args, grid, work: Path, chunk_points: int) -> n
             bar.update(len(x))
     if n_ground == 0:
         raise InputError(f"{inputs.names}: no ground points (class 2); run 'lidarctl classify' first")
+    if intensity_max == 0:
+        # trial s99 lidmut L6: a cloud written without intensities gave an intensity.tif of zeros, no word
+        log.warning(f"{inputs.names}: every point's intensity is 0 (the file was written without intensities): "
+                    "intensity.tif is 0 wherever there are points, not a measurement")
     if not per_class[list(VEGETATION)].any():
         # trial-lidar: AHN3 as delivered (its vegetation in class 1) gave a chm.tif of nodata alone, exit 0, without a
         # word, where `lidarctl trees` refuses the same cloud

@@ -162,6 +162,13 @@ def test_a_cloud_without_vegetation_classes_is_told_its_chm_is_empty(strips, tmp
     assert r.exit_code == 0, r.output
     assert "low.las: no medium or high vegetation points (classes 4, 5; the cloud holds classes 2, 3" in r.output
     assert "class 3, low vegetation, is not a canopy" in r.output and "lidarctl classify" not in r.output
+    # a cloud written without intensities (trial s99 lidmut L6: intensity.tif all 0, no word) is said; one with is not
+    assert "intensity is 0" not in r.output
+    cloud.intensity[:] = 0
+    synthetic.write_las(tmp_path / "no_intensity.las", cloud, crs="EPSG:32632")
+    r = CliRunner().invoke(main, ["rasters", str(tmp_path / "no_intensity.las"), str(tmp_path / "r4"), "--res-m", "4"])
+    assert r.exit_code == 0 and "no_intensity.las: every point's intensity is 0 (the file was written without " \
+                                "intensities)" in r.output, r.output
 
 
 def test_the_grid_holds_the_lowest_points_where_the_origin_rounds_above_them(tmp_path):
