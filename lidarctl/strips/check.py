@@ -521,16 +521,42 @@ def check_strips(paths, outdir, params: SurfaceSettings = SurfaceSettings(), *, 
     check_distinct_clouds(paths)  # a strip given twice would count every point twice
     ss = read_strip_planes(paths, params, crs)
     res = analyse(ss, params, paths)
+    limit = strip_rmsdz_limit_m()
     for p in res.summary.pairs:
         if (why := rigid_fit_warning(p.offset_3d_b_minus_a)) is not None:
             o = p.offset_3d_b_minus_a
             log.warning(f"{p.b} - {p.a}: 3D offset {offset_3d_text(o)}: {why}")
+        if (why := pair_beyond_words(p, limit)) is not None:
+            log.warning(why)
     with atomic_dir(outdir) as tmp:
         write_outputs(res, tmp, title, vmax_m, png)
         dt = time.perf_counter() - t0
         summary = dataclasses.replace(res.summary, seconds=dt, points_per_s=res.summary.points / dt if dt > 0 else None)
         (tmp / "strips.json").write_text(summary.to_json())
     return summary
+
+
+def strip_rmsdz_limit_m() -> float:
+    """The interswath RMSDz a pair is warned beyond: the project's tolerance tables' ``strip_rmsdz_m`` (0.08 m, USGS
+    LBS QL1/QL2 as the tables hold it; the QA report judges the strips by it)."""
+    from aerotri.core.tolerances import load_table
+
+    return float(load_table("1:5000", "flat").limits["strip_rmsdz_m"])
+
+
+def pair_beyond_words(p: "PairCheck", limit_m: float) -> str | None:
+    """A warning for a pair whose RMS dz exceeds ``limit_m`` (trial s99 lidmut L5: a strip 1 m high printed its
+    means, +0.993 / -1.023 m, with no warning); None within it or without cells."""
+    d = p.diff
+    if not d.n_cells or d.rms_m is None or d.rms_m <= limit_m:
+        return None
+    offset = d.median_m is not None and abs(d.median_m) > limit_m
+    return (f"{p.b} - {p.a}: RMS {d.rms_m:.3f} m over {d.n_cells} smooth cells, beyond the {limit_m:g} m interswath "
+            "RMSDz of the tolerance tables (strip_rmsdz_m; USGS LBS QL1/QL2): "
+            + (f"the strips stand {d.median_m:+.3f} m apart (median): a strip's height offset (its trajectory, a "
+               "geoid or datum applied to one strip only); lidarctl strips adjust estimates it" if offset else
+               f"a scatter about a median of {d.median_m:+.3f} m (NMAD {d.nmad_m:.3f} m): a misalignment in plan or "
+               "attitude, or cells of two surfaces"))
 
 
 def colour_limit_m(pairs: list[PairDiff]) -> float:
