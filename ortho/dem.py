@@ -28,7 +28,8 @@ from aerotri.geom.crs.definition import (crs_label, height_crs, height_unit_m, h
                                          length_unit_name, same_horizontal, vertical_crs)
 from aerotri.geom.crs.raster_warp import anchor_grid, height_change, interpolate_anchors, open_north_up
 from aerotri.geom.crs.transform import CrsTransformer
-from aerotri.geom.crs.height_rasters import refuse_above_ground, stated_height_unit_m, undeclared_fill
+from aerotri.geom.crs.height_rasters import (refuse_above_ground, stated_height_unit_m, stated_unit_differs,
+                                           undeclared_fill)
 
 _log = logging.getLogger(__name__)
 
@@ -114,9 +115,7 @@ def refuse_stated_height_unit(ds, path, what: str = "DEM") -> None:
     if crs.is_compound or len(crs.axis_info) >= 3:
         return
     stated, implied = stated_height_unit_m(ds), height_unit_m(crs)
-    # within 10 ppm: the international and the US survey foot (2 ppm apart) are one unit for a DEM's heights (a
-    # State Plane DEM tagged "ft" was refused, regression trial s99)
-    if stated is None or abs(stated / implied - 1.0) < 1e-5:
+    if not stated_unit_differs(stated, implied):
         return
     raise InputError(f"{path}: states its height unit as {length_unit_name(stated, long=True)} (its band unit or "
                      f"VERTICAL_UNITS tag) while its CRS, 2D, is in {length_unit_name(implied, long=True)}: the "

@@ -69,11 +69,11 @@ def open_dem_unit(in_path, out_path=None):
 
         crs = parse_crs(src.crs.to_wkt())
         unit_m = height_unit_m(crs)
-        from aerotri.geom.crs.height_rasters import stated_height_unit_m
+        from aerotri.geom.crs.height_rasters import stated_height_unit_m, stated_unit_differs
 
         stated = stated_height_unit_m(src)
         vertical_in_crs = crs.is_compound or len(crs.axis_info) >= 3
-        if stated is not None and not vertical_in_crs and abs(stated - unit_m) > 1e-9:
+        if not vertical_in_crs and stated_unit_differs(stated, unit_m):
             # a 2D CRS says nothing of heights (its horizontal unit is assumed): the file's own statement decides
             # (trial-hydro: metres on a foot grid, tagged metre, read as feet: contours labelled 124-132 ft)
             import logging

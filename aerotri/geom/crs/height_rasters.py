@@ -94,3 +94,14 @@ def stated_height_unit_m(src) -> float | None:
         if unit_m is not None:
             return unit_m
     return None
+
+
+# the international and the US survey foot (2 ppm apart) are one unit for a raster's heights (a State Plane DEM tagged
+# "ft" was refused by ortho rectify, regression trial s99)
+SAME_UNIT_REL = 1e-5
+
+
+def stated_unit_differs(stated_m: float | None, implied_m: float) -> bool:
+    """Whether a stated height unit (``stated_height_unit_m``, None: none stated) is another than the CRS's
+    ``implied_m`` (metres per unit), beyond ``SAME_UNIT_REL``."""
+    return stated_m is not None and abs(stated_m / implied_m - 1.0) >= SAME_UNIT_REL
