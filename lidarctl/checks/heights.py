@@ -671,19 +671,27 @@ def surface_unit_slip(dz_m: np.ndarray, z_points_m: np.ndarray) -> dict | None:
     another unit (``SURFACE_UNIT_SLIPS``): the median |dz| beyond ``UNIT_SLIP_MIN_M`` and, in that unit, below
     ``UNIT_SLIP_FRACTION`` of it; None otherwise. Trial s99 lidmut M2: a DEM in feet read as metres was "a nearly
     constant +707 m: two height systems (the geoid)", an integer DEM in centimetres RMSE 1,821 m with no word."""
+    for unit, factor in SURFACE_UNIT_SLIPS:
+        fits = _fits_in_other_unit(dz_m, z_points_m, surface_factor=factor, min_points=3)
+        if fits is not None:
+            return {"median_abs_dz_m": fits[0], "median_abs_dz_other_unit_m": fits[1], "unit": unit, "factor": factor}
+    return None
+
+
+def _fits_in_other_unit(dz_m: np.ndarray, z_points_m: np.ndarray, *, surface_factor: float = 1.0,
+                        points_factor: float = 1.0, min_points: int = 1) -> tuple[float, float] | None:
+    """(median |dz|, median |dz| with the surface's heights times ``surface_factor`` and the survey's times
+    ``points_factor``) when the first is beyond ``UNIT_SLIP_MIN_M`` and the second below ``UNIT_SLIP_FRACTION`` of it
+    (``dz_m``: surface - survey, metres, NaN not checked; at least ``min_points`` checked); None otherwise."""
     ok = np.isfinite(dz_m)
-    if np.count_nonzero(ok) < 3:
+    if np.count_nonzero(ok) < min_points:
         return None
     med = float(np.median(np.abs(dz_m[ok])))
     if med <= UNIT_SLIP_MIN_M:
         return None
     surface = dz_m[ok] + z_points_m[ok]
-    for unit, factor in SURFACE_UNIT_SLIPS:
-        med_other = float(np.median(np.abs(surface * factor - z_points_m[ok])))
-        if med_other < UNIT_SLIP_FRACTION * med:
-            return {"median_abs_dz_m": med, "median_abs_dz_other_unit_m": med_other, "unit": unit,
-                    "factor": factor}
-    return None
+    med_other = float(np.median(np.abs(surface * surface_factor - z_points_m[ok] * points_factor)))
+    return (med, med_other) if med_other < UNIT_SLIP_FRACTION * med else None
 
 
 def constant_offset(dz_m: np.ndarray) -> dict | None:
@@ -714,20 +722,14 @@ def unit_slip(dz_m: np.ndarray, z_points_m: np.ndarray, z_unit_m: float, z_colum
     survey, metres; NaN: not checked), ``z_points_m`` (the survey's heights as read, metres), ``z_unit_m`` (metres
     per unit of the CRS's heights, the unit assumed). Returns the medians, the unit that fits and the header that
     names it, or None."""
-    ok = np.isfinite(dz_m)
-    if not ok.any():
-        return None
-    med = float(np.median(np.abs(dz_m[ok])))
-    if med <= UNIT_SLIP_MIN_M:
-        return None
-    surface = dz_m[ok] + z_points_m[ok]
     if z_unit_m == 1.0:  # a metric CRS: were the numbers feet?
         other, factor, suffix = "feet", las.FOOT_M, "ft"
     else:  # a CRS in feet: were they metres?
         other, factor, suffix = "metres", 1.0 / z_unit_m, "m"
-    med_other = float(np.median(np.abs(surface - z_points_m[ok] * factor)))
-    if med_other >= UNIT_SLIP_FRACTION * med:
+    fits = _fits_in_other_unit(dz_m, z_points_m, points_factor=factor)
+    if fits is None:
         return None
+    med, med_other = fits
     base = z_column or "z"  # (a header without a unit suffix: with one, the heights' unit is not assumed)
     return {"median_abs_dz_m": med, "median_abs_dz_other_unit_m": med_other, "other_unit": other,
             "assumed_unit": length_unit_name(z_unit_m, long=True), "column": z_column or "z",
