@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -127,3 +128,32 @@ def test_a_standard_that_judges_nothing_here_makes_the_verdict_not_testable(tmp_
     assert write_qa_report(p).overall == "pass"
     r = CliRunner().invoke(aerotri_main, ["report", str(p), "--standard", "usgs-lbs"])
     assert r.exit_code == 0 and "not testable (" in r.output, r.output
+
+
+def test_the_filter_total_error_against_a_truth_holding_class_1_is_reported_not_judged(tmp_path):
+    """Trial s100 rc2 M1: Autzen and lidR Topography, whose class 1 holds ground, failed the LiDAR-only report on a
+    total error of 54.7 / 18.8 % that `lidarctl evaluate` itself says overstates (type I 0.34 / 0.04 %). Against such
+    a truth the row is reported with the type I error as the measure, not judged; against one without class 1 it is
+    judged as before."""
+    from lidarctl import synthetic
+    from lidarctl.cli.main import main as lidarctl_main
+
+    cloud, truth = synthetic.synthetic_scene(width_m=60.0, density_per_m2=2.0, seed=3, n_buildings=1, n_trees=5)
+    p = tmp_path / "P"
+    (p / "lidar_out").mkdir(parents=True)
+    (p / "project.toml").write_text('[project]\ncrs = "EPSG:32632"\n')
+    synthetic.write_las(tmp_path / "c.las", cloud, classification=truth, crs="EPSG:32632")
+    production = truth.copy()
+    production[np.flatnonzero(truth == 2)[::3]] = 1  # a third of the ground left unclassified, as delivered
+    synthetic.write_las(tmp_path / "t.las", cloud, classification=production, crs="EPSG:32632")
+    for ref, judged in (("c.las", True), ("t.las", False)):
+        r = CliRunner().invoke(lidarctl_main, ["evaluate", str(tmp_path / "c.las"), "--truth", str(tmp_path / ref),
+                                               "--json", str(p / "lidar_out" / "classification_eval.json")])
+        assert r.exit_code == 0, r.output
+        row = write_qa_report(p).check("filter_total_error_pct")
+        if judged:
+            assert row.verdict == "pass" and row.limit is not None and row.note == ""
+        else:
+            assert row.verdict is None and row.limit is None and row.value > 5, row
+            assert row.note.startswith("not judged: the reference's class 1 (unclassified) counts as object")
+            assert row.note.endswith("the type I error, 0.000 %, is the measure")
