@@ -516,9 +516,15 @@ def _weak_modes(ba, height_limit_m: float) -> list:
             out.append((g, f"{_MODE_NAMES[g.mode]} held only by {_holders(g)} (sigma {g.sigma_m:.3f} m)"))
         elif 3 * g.sigma_m > height_limit_m:
             # shares of a variance that is not finite (a diverged solve) are no shares: "image 7727 %" (trial-messy)
-            by = ", ".join(f"{k} {v:.0%}" for k, v in sorted(g.shares.items(), key=lambda kv: -kv[1]) if v >= 0.05) \
-                if math.isfinite(g.sigma_m) else ""
-            out.append((g, f"{_MODE_NAMES[g.mode]} sigma {g.sigma_m:.3f} m, 3 sigma ({3 * g.sigma_m:.2f} m) above the {height_limit_m:.2f} m "
+            # plan-only control carries pseudo heights during the solve: its share is theirs, no measurement (trial s100
+            # rc2 M2: the kite's "determined by control 100%" beside "heights not measured")
+            names = {} if getattr(ba, "heights_measured", True) else {"control": "the control's pseudo heights"}
+            by = ", ".join(f"{names.get(k, k)} {v:.0%}" for k, v in sorted(g.shares.items(), key=lambda kv: -kv[1])
+                           if v >= 0.05) if math.isfinite(g.sigma_m) else ""
+            # (a limit of 0.035 m, the kite's, read "0.04 m" at two decimals: trial s100 rc2 L5)
+            lim = f"{height_limit_m:.2f}" if abs(height_limit_m - round(height_limit_m, 2)) < 1e-9 else \
+                f"{height_limit_m:.3g}"
+            out.append((g, f"{_MODE_NAMES[g.mode]} sigma {g.sigma_m:.3f} m, 3 sigma ({3 * g.sigma_m:.2f} m) above the {lim} m "
                            f"height limit" + (f" (determined by {by})" if by else "")))
     return out
 
@@ -1269,6 +1275,18 @@ def _holders(g) -> str:
     return "the GNSS positions" if gnss >= priors else "the a-priori values"
 
 
+def weak_mode_label(g: dict) -> str:
+    """The BLOCK GEOMETRY table's "weak" cell of a mode (report.json's ``geometry_modes`` entry): a mode held by the
+    GNSS and the priors names the one holding it (trial s100 rc2 M3: Brighton's tilts "held by priors" beside their
+    own shares, GNSS 1.00, priors 0.00)."""
+    if g["mode"] == "focal_height":
+        return "YES (not determinable)" if g["weak"] else "no"
+    if g["held_by_priors"]:
+        gnss, priors = (g["shares"].get(k) or 0.0 for k in ("gnss", "priors"))
+        return "YES (held by the GNSS)" if gnss >= priors else "YES (held by priors)"
+    return "YES" if g["weak"] else "no"
+
+
 def _variance_components(ba) -> list | None:
     """Per observation group: equations, redundancy, the estimated factor on the a-priori sigmas, and the
     factor the solve's weights already carry (variance-component reweighting)."""
@@ -1823,10 +1841,7 @@ def format_txt(rep: dict) -> str:
         L += ["BLOCK GEOMETRY (modes of the tie-point heights: sigma, and the share of each group in determining them)",
               f"  {'mode':12}{'sigma m':>9}{'deg':>9}" + "".join(f"{k:>9}" for k in groups) + "  weak"]
         for g in gm:
-            if g["mode"] == "focal_height":
-                weak = "  YES (not determinable)" if g["weak"] else "  no"
-            else:
-                weak = "  YES (held by priors)" if g["held_by_priors"] else "  YES" if g["weak"] else "  no"
+            weak = f"  {weak_mode_label(g)}"
             L.append(f"  {g['mode']:12}{_v(g['sigma_m'], 9, 3)}{_v(g['sigma_deg'], 9, 4)}"
                      + "".join(_v(g["shares"].get(k), 9, 2) for k in groups) + weak
                      + (f"  (correlation with the height {g['correlation_with_height']:.3f})"
@@ -2150,5 +2165,4 @@ def _geometry_modes_table(gm: list):
     groups = [x for x in ("image", "gnss", "control", "surface", "priors") if any(x in g["shares"] for g in gm)]
     return RF.table(["mode", "sigma m", "sigma deg"] + [f"share {x}" for x in groups] + ["weak"],
                     [[g["mode"], g["sigma_m"], g["sigma_deg"], *[g["shares"].get(x) for x in groups],
-                      ("YES (not determinable)" if g["weak"] else "no") if g["mode"] == "focal_height" else
-                      "YES (held by priors)" if g["held_by_priors"] else "YES" if g["weak"] else "no"] for g in gm], 4)
+                      weak_mode_label(g)] for g in gm], 4)

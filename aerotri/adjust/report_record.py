@@ -125,6 +125,8 @@ class AdjustmentRecord:
     # (image id, why) of the images the adjustment left out (report.json components.left_out): no orientation
     frames_left_out: tuple[tuple[str, str], ...] = ()
     check_dem: CheckDemRecord | None = None  # the check DEM's comparison (``--check-dem``), None without one
+    # the block height mode's shares of its determination (report.json geometry_modes: group -> share); None without
+    height_shares: dict | None = None
 
     @property
     def sigma0_in_px(self) -> float | None:
@@ -190,7 +192,9 @@ def adjustment_record(d: dict, path="at/report.json") -> AdjustmentRecord:
                               or () for k in lo.get("images", ())),
         check_dem=next((CheckDemRecord(dem=str(c.get("dem", "")), n=int(c.get("n") or 0),
                                        median_m=_number(c.get("median_m")) if c.get("limit_m") is not None else None)
-                        for c in d.get("dem_checks") or () if c.get("role") == "check"), None))
+                        for c in d.get("dem_checks") or () if c.get("role") == "check"), None),
+        height_shares=next((dict(g.get("shares") or {}) for g in d.get("geometry_modes") or ()
+                            if g.get("mode") == "height"), None))
 
 
 def _inputs(v) -> dict | None:

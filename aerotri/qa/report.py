@@ -447,13 +447,19 @@ def _dom_cell_words(d) -> str:
 HEIGHTS_UNCHECKED = "heights_unchecked"
 
 
-def heights_unchecked_words(gnss_given: bool) -> str:
+def heights_unchecked_words(gnss_given: bool, height_shares: dict | None = None) -> str:
     """Why a block without control points, surface control or check points with heights is not testable (trial s99
     atmut H1: a GNSS-only block with its camera held, the focal length 1 % / 5 % off or the GNSS heights 40 m off,
     read "Solution Successful" and QA pass with the ground 2.7 / 14.3 / 40.2 m off in height)."""
     held = ("the GNSS heights and the camera's focal length alone (a focal length 1 % off moves them by 1 % of the "
             "flying height, GNSS heights of another height system by the geoid)" if gnss_given else
             "nothing measured: no GNSS either")
+    shares = height_shares or {}
+    if gnss_given and shares.get("priors", 0.0) > max(shares.get("gnss", 0.0), shares.get("image", 0.0)):
+        # a consumer receiver's one offset for the flight, unobserved: its a-priori value holds the block's height
+        # (trial s100 rc2 M3: Brighton, "rest on the GNSS heights" beside a GNSS share of 0.00)
+        held = ("the a-priori value of the GNSS's offset for the flight (a consumer receiver's common error of metres, "
+                "which nothing observes) and the camera's focal length alone")
     # (said of a verdict that would pass: a failing row still fails the report, trial s100 rc F5)
     return (f"no control point, DEM (surface control or --check-dem) or check point with a height: the block's heights "
             f"rest on {held}, and nothing in the block can see an error there, so the report cannot pass: not "
@@ -953,7 +959,7 @@ def build_qa_report(root, *, tolerance_file=None, terrain: str | None = None, sc
         chk_z = at.check_rms_m[2] if at.check_rms_m and len(at.check_rms_m) > 2 else None
         if not used and chk_z is None and not (at.check_dem and at.check_dem.median_m is not None):
             rows.append(_check(HEIGHTS_UNCHECKED, sec, "block heights checked (control, DEM or check points)", "no",
-                               None, "", note=heights_unchecked_words(at.gnss_given)))
+                               None, "", note=heights_unchecked_words(at.gnss_given, at.height_shares)))
     ctrl = at.control_rms_m if at else None
     # plan and height each when there is one: plan-only control (the kite block's targets) has no height RMS
     if ctrl and None not in ctrl[:2]:

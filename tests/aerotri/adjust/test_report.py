@@ -397,3 +397,27 @@ def test_a_height_rms_a_hundredth_of_a_millimetre_beyond_its_limit_is_beyond_it(
     assert b["value_m"] == pytest.approx(rms_z, abs=1e-6) and b["limit_m"] == pytest.approx(limit, abs=1e-9)
     value, lim = report.figure_and_limit(rms_z, limit)
     assert value != lim and f"check points, height RMS {value} m > {lim} m" in rep["key_statistics"]["message"]
+
+
+def test_weak_modes_name_what_holds_them():
+    """Trial s100 rc2: Brighton's tilts read "held by priors" beside their own shares (GNSS 1.00, priors 0.00): the
+    label names the GNSS (M3); the kite's plan-only control carries pseudo heights, and "determined by control 100%"
+    beside "heights not measured" now names them (M2)."""
+    import types
+
+    from aerotri.adjust.geometry_modes import GeometryMode
+    from aerotri.adjust.report import _weak_modes, weak_mode_label
+
+    def mode(name, shares, held=False, weak=True):
+        return {"mode": name, "shares": shares, "held_by_priors": held, "weak": weak}
+
+    assert weak_mode_label(mode("tilt_east", {"gnss": 1.0, "priors": 0.0}, held=True)) == "YES (held by the GNSS)"
+    assert weak_mode_label(mode("height", {"gnss": 0.002, "priors": 0.998}, held=True)) == "YES (held by priors)"
+    assert weak_mode_label(mode("bending", {"image": 1.0})) == "YES"
+    assert weak_mode_label(mode("focal_height", {}, weak=False)) == "no"
+    g = GeometryMode("height", 0.392, 100.0, {"image": 0.0, "control": 1.0, "priors": 0.0}, False)
+    for measured, words in ((True, "(determined by control 100%)"),
+                            (False, "(determined by the control's pseudo heights 100%)")):
+        ba = types.SimpleNamespace(result=types.SimpleNamespace(geometry=[g]), heights_measured=measured)
+        ((_, why),) = _weak_modes(ba, 0.035)
+        assert why.endswith(words) and "above the 0.035 m height limit" in why, why  # (not "0.04": L5)

@@ -217,6 +217,12 @@ def test_a_block_whose_heights_nothing_checks_is_not_testable(tmp_path):
     row = out.check("heights_unchecked")
     assert row.value == "no" and row.verdict is None and "focal length 1 % off" in row.note
     assert out.failed == 0 and out.overall == "not testable"
+    # a consumer receiver's offset for the flight, unobserved: its a-priori value holds the height, not the GNSS
+    # heights (trial s100 rc2 M3: Brighton, "rest on the GNSS heights" beside a GNSS share of 0.00)
+    rep["geometry_modes"] = [{"mode": "height", "shares": {"image": 0.001, "gnss": 0.002, "priors": 0.998}}]
+    (p / "at" / "report.json").write_text(json.dumps(rep))
+    note = write_qa_report(p).check("heights_unchecked").note
+    assert "rest on the a-priori value of the GNSS's offset for the flight" in note and "GNSS heights" not in note
     rep["surface_control"] = {"used": 560, "rejected": 1, "rms_m": 1.6}
     (p / "at" / "report.json").write_text(json.dumps(rep))
     out = write_qa_report(p)
