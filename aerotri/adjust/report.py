@@ -1433,9 +1433,12 @@ def directions_txt(g: dict | None) -> list[str]:
         return L
     for p in g["pairs"]:
         lag = "" if p["lag_s"] is None else f"; time lag {p['lag_s']:+.4f} +- {p['lag_sigma_s']:.4f} s"
-        L.append(f"  {p['headings_deg'][0]:.0f} / {p['headings_deg'][1]:.0f} deg: turning with the heading along "
-                 f"{p['along_turning_m']:+.3f} +- {p['along_sigma_m']:.3f}, across {p['across_turning_m']:+.3f} +- "
-                 f"{p['across_sigma_m']:.3f} (limits {p['critical_along']:g} / {p['critical_across']:g} sigma){lag}: "
+        # the offset itself: half the two directions' sum (``along_turning_m`` is the sum: trial s100 rc2 M5, "+0.584"
+        # printed for an offset of 0.292 m, which the finding's sentence gave)
+        L.append(f"  {p['headings_deg'][0]:.0f} / {p['headings_deg'][1]:.0f} deg: an offset turning with the heading, "
+                 f"along {p['along_turning_m'] / 2:+.3f} +- {p['along_sigma_m'] / 2:.3f}, across "
+                 f"{p['across_turning_m'] / 2:+.3f} +- {p['across_sigma_m'] / 2:.3f} (half the two directions' sum; "
+                 f"limits {p['critical_along']:g} / {p['critical_across']:g} sigma){lag}: "
                  + ("SIGNIFICANT" if p["along_significant"] or p["across_significant"] else
                     "not significant" if p.get("separable", True) else "not separable (one strip each way)"))
     L += [f"  {f}" for f in g["findings"]] + [f"  {f}" for f in g.get("not_separable", [])]
@@ -1451,10 +1454,10 @@ def _directions_html(g: dict | None, T) -> dict | None:
     directions = T(["heading deg", "strips", "photos", "along m", "+- m", "across m", "+- m"],
                    [[m["heading_deg"], ", ".join(str(s) for s in m["strips"]), m["photos"], m["along_m"],
                      m["along_se_m"], m["across_m"], m["across_se_m"]] for m in g["directions"]], 3)
-    pairs = T(["headings deg", "along turning m", "sigma m", "across turning m", "sigma m", "lag s", "sigma s",
-               "verdict"],
-              [[" / ".join(f"{h:.0f}" for h in p["headings_deg"]), p["along_turning_m"], p["along_sigma_m"],
-                p["across_turning_m"], p["across_sigma_m"], p["lag_s"], p["lag_sigma_s"],
+    pairs = T(["headings deg", "along offset m (turning)", "sigma m", "across offset m (turning)", "sigma m", "lag s",
+               "sigma s", "verdict"],
+              [[" / ".join(f"{h:.0f}" for h in p["headings_deg"]), p["along_turning_m"] / 2, p["along_sigma_m"] / 2,
+                p["across_turning_m"] / 2, p["across_sigma_m"] / 2, p["lag_s"], p["lag_sigma_s"],
                 "fail" if p["along_significant"] or p["across_significant"] else
                 "pass" if p.get("separable", True) else "not separable"] for p in g["pairs"]],
               4, verdict_col=7) if g["pairs"] else None

@@ -106,6 +106,11 @@ def test_lag_without_speed_and_one_direction():
     assert c.significant and p.lag_s is None and not p.across_significant
     assert p.along_turning_m == pytest.approx(-1.0, abs=4 * p.along_sigma_m)  # the flight's offset cancels
     assert " m ahead of the projection centres" in c.findings()[0] and "no ground speed" in c.findings()[0]
+    # the report prints the offset, half the two directions' sum (trial s100 rc2 M5: the sum was printed)
+    from aerotri.adjust.report import _directions_dict, directions_txt
+
+    (line,) = [x for x in directions_txt(_directions_dict(c)) if "an offset turning with the heading" in x]
+    assert f"along {p.along_turning_m / 2:+.3f} +- {p.along_sigma_m / 2:.3f}" in line, line
     c = check(np.asarray(sim.strip) != 1, SPEED_MPS)  # strips 1 and 3: east only
     assert not c.testable and c.reason == "not testable: one flight direction" and not c.findings()
 
