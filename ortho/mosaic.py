@@ -1927,9 +1927,15 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), surfaces=(), ob
         on = unseen_on_objects(unseen, read_transform, crs, objects[0], objects[1])
         on_objects = None if on is None else int(round(on * sx * sy))
     return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),
-            "area_seen_by_no_frame_m2": round(holes * sx * sy * res_m * res_m, 1),
+            # (below 10 m2 three significant digits: a 1 cm DOM's 0.035 m2 was stored 0.0, "346 cells, 0 m2": s100 rc2 L6)
+            "area_seen_by_no_frame_m2": _area_digits(holes * sx * sy * res_m * res_m),
             "cells_without_heights": int(round(off * sx * sy)), "share_without_heights": off / max(1, block),
             "cells_on_objects": on_objects}
+
+
+def _area_digits(a_m2: float) -> float:
+    """An area (m2) as mosaic.json stores it: 0.1 m2 from 10 m2 up, three significant digits below."""
+    return round(a_m2, 1) if a_m2 >= 10 else float(f"{a_m2:.3g}")
 
 
 def _write_seamlines(work: Path, labels, transform, names, crs, write_labels: bool = False) -> None:

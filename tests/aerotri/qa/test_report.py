@@ -775,3 +775,13 @@ def test_the_stage_plots_are_embedded_so_reports_can_be_copied(tmp_path):
     assert "../ortho/dom_report.png" not in page and "../at/connectivity.png" not in page
     uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
     assert page.count(f'<img src="{uri}"') == 2
+
+
+def test_a_small_unseen_area_is_not_stored_as_zero():
+    """Trial s100 rc2 L6: the kite's 1 cm DOM, 346 cells seen by no frame, read "346 cells, 0 m2": mosaic.json kept
+    0.1 m2. Below 10 m2 three significant digits; the report's words keep two."""
+    from aerotri.qa.report import _area_m2
+    from ortho.mosaic import _area_digits
+
+    assert _area_digits(346 * 0.01 ** 2) == 0.0346 and _area_m2(_area_digits(346 * 0.01 ** 2)) == "0.035 m2"
+    assert _area_digits(34032.74) == 34032.7 and _area_digits(0.0) == 0.0
