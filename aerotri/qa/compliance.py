@@ -1078,7 +1078,8 @@ def _lbs(figs: Figures, c: Choice) -> list[ComplianceCheck]:
             ch = _check("LiDAR density", quantity, c.class_tested, fig, fig, limit=limit, unit="per m2", n=None,
                         need=None, cp_ok=None, cp_note=note, confirmed=conf, source=source, finest=fin, rank=rank,
                         verdict=NOT_TESTABLE if ok is None else ("pass" if ok else "fail"),
-                        why=(note or "not measured") if ok is None else "a lower limit: the density must reach it")
+                        why=(note or "not measured") if ok is None else "a lower limit: the density must reach it",
+                        counted="first returns")  # (not "check points": trial s100 rc2 L8)
         out.append(ch)
 
     # the DEM rows always: without surveyed points they say so (not testable)

@@ -520,6 +520,7 @@ def test_lidar_only_report_has_no_frame_camera_table(tmp_path):
     assert "manned" not in rep.table["reason"] and "no standard named" not in rep.table["reason"]
     dens = [c for c in rep.compliance["checks"] if c["product"] == "LiDAR density"][0]
     assert dens["verdict"] == "not testable" and f"no LAS/LAZ strips in {tmp_path / 'lidar'}" in dens["why"]
+    assert dens["counted"] == "first returns"  # (trial s100 rc2 L8: "check points")
 
     assert lidar_only_project(Project.open(tmp_path))
     (tmp_path / "images").mkdir()
