@@ -1600,7 +1600,8 @@ def _systematic_txt(sy: dict) -> str:
     if not sy.get("considered"):
         return ("  the surface's systematic error is not in the sigmas (surface_bias_sigma_m 0 or not stated for a DEM "
                 "from elsewhere): the orientation and point sigmas are formal, the surface's points taken as "
-                "independent, and too small by the DEM's systematic error (a LiDAR's strip offsets: 0.03 m)")
+                "independent, and too small by the DEM's systematic error (its datum's, whatever made it: a LiDAR's "
+                "strip offsets are about 0.03 m, a photogrammetric or national DEM's often more)")
     return (f"  LiDAR strip offsets in the sigmas: {sy['sigma_xy_m']:.3f} m plan, {sy['sigma_z_m']:.3f} m height per cell "
             f"of {sy['cell_across_m']:g} x {sy['cell_along_m']:g} m (across x along the flight; {sy['cells']} cells, "
             f"{sy['observations']} observations, {sy['lidar_control_points']} control points from the LiDAR), added "
