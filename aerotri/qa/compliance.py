@@ -1284,7 +1284,7 @@ JUDGES = {"asprs2023": _asprs, "asprs2014": _asprs2014, "usgs-lbs": _lbs, "cn-at
 def summarise(checks) -> tuple[ProductCompliance, ...]:
     """Per product: fail if any check fails, else not testable if any class test is, else pass (checks that are
     only reported do not count); the finest class met by all its checks (per dimension for ASPRS), "not
-    established" when one of them is not testable (with the class the rows tested meet)."""
+    established" when one of them is not testable (with the class its figures meet)."""
     out = []
     for product in PRODUCTS:
         cs = [c for c in checks if c.product == product]
@@ -1307,7 +1307,10 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
         if untested and parts and not meets_none:
             # a class is met when every row meets it: with a row not testable none is established (unless a row
             # meets no class at all: then none is, whatever the untested rows)
-            finest = f"not established ({'; '.join(untested)}: not testable); the rows tested meet {' '.join(parts)}"
+            # ("the figures": a row not testable at the class tested still ranks by the classes the standard has
+            # limits for; "the rows tested meet 1:500" of the LiDAR DEM's one row, not tested: trial s100 rc2 L2)
+            finest = (f"not established ({'; '.join(untested)}: not testable); its figures meet {' '.join(parts)} by "
+                      "the limits the standard states")
         out.append(ProductCompliance(product, verdict, finest))
     return tuple(out)
 

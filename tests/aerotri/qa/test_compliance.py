@@ -621,7 +621,7 @@ def test_the_at_height_row_does_not_coarsen_the_finest_class_where_no_finer_heig
     # fixes2 4: the height row is not testable at 1:2000, so the product's class is not established; the plan rows'
     # 1:500 is said as what the rows tested meet
     assert {p.product: p.finest_class for p in comp.products}["Aerotriangulation"] == \
-        f"not established ({h.quantity}: not testable); the rows tested meet 1:500"
+        f"not established ({h.quantity}: not testable); its figures meet 1:500 by the limits the standard states"
     # hilly: 2.0 m at both scales; a height of 2.5 m meets neither: unranked as before (no finer class claimed)
     comp = judge(Figures(at=dataclasses.replace(at, rmse_v_m=2.5)),
                  Choice("cn-at", "1:5000 hilly", "t", scale="1:5000", terrain="hilly"))
@@ -1249,7 +1249,7 @@ def test_no_finest_class_is_stated_beside_a_row_not_testable():
     assert vva.verdict == "not testable" and nva.verdict == "pass" and nva.finest_class == "QL0"  # 0.04 m <= QL0's 0.05 m
     dem = {p.product: p for p in comp.products}["LiDAR DEM"]
     assert dem.verdict == "not testable"
-    assert dem.finest_class == f"not established ({vva.quantity}: not testable); the rows tested meet QL0"
+    assert dem.finest_class == f"not established ({vva.quantity}: not testable); its figures meet QL0 by the limits the standard states"
     lines = compliance_lines({**dataclasses.asdict(comp), "name": "n", "class_tested": "c", "reason": "r"})
     assert any(x.startswith(f"  not testable LiDAR DEM: finest class not established ({vva.quantity}") for x in lines)
     tested = judge(Figures(lidar=dataclasses.replace(lf, vva_p95_m=0.2, vva_rmse_m=0.1, n_vva=12)),
