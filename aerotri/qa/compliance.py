@@ -1311,6 +1311,13 @@ def summarise(checks) -> tuple[ProductCompliance, ...]:
             # limits for; "the rows tested meet 1:500" of the LiDAR DEM's one row, not tested: trial s100 rc2 L2)
             finest = (f"not established ({'; '.join(untested)}: not testable); its figures meet {' '.join(parts)} by "
                       "the limits the standard states")
+        held = [c for c in cs if c.verdict_table_m is not None and c.measured is not None
+                and c.measured > c.verdict_table_m]
+        if held and verdict == "pass":
+            # the product line is what a summary quotes (trial s100 rc2, F2's rest: "pass, finest class met 1:2000"
+            # beside the verdict table's fail of the same 0.66 m)
+            finest += "; the report's verdict table fails " + ", ".join(
+                f"its {c.quantity} at {c.verdict_table_m:g} m" for c in held)
         out.append(ProductCompliance(product, verdict, finest))
     return tuple(out)
 

@@ -141,6 +141,11 @@ def test_one_dom_limit_per_scale_and_standard_and_patches_are_not_called_check_p
                                                   verdict_file=design.path.name, verdict_shipped=True,
                                                   verdict_limits=dict(design.limits))), "DOM")
     assert d.verdict == "pass" and d.why.endswith("the report's verdict table fails the same figure at its 0.5 m")
+    (prod,) = [p for p in judge(Figures(dom=between), Choice(
+        "cn-at", "1:5000 flat", "t", scale="1:5000", terrain="flat", verdict_file=design.path.name,
+        verdict_shipped=True, verdict_limits=dict(design.limits))).products if p.product == "DOM"]
+    assert prod.finest_class.endswith("; the report's verdict table fails its ground patches, plan RMS (radial) at "
+                                      "0.5 m"), prod
     assert load_table("1:2000", "flat").limits["feature_rms_xy_m"] == 1.2  # 0.6 mm x 2000, confirmed
     # ASPRS: the patches are named, and counted against its check-point minimum as such
     (d,) = _by(judge(Figures(dom=CheckSet(rmse_h_m=0.08, n_h=12, points="ground patches")),
