@@ -1546,7 +1546,10 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
     fa = rep.get("flight_acceptance")
     return render("qa_report.html.j2", project=rep["project"],
                   table_name=(rep.get("table") or {}).get("name") or str(rep["map_scale"]),
-                  tolerance_table=rep["tolerance_table"], terrain=rep["terrain"],
+                  # (an ASPRS table has one set of limits for every terrain: no class beside it, trial s100 rc2 L1)
+                  tolerance_table=rep["tolerance_table"],
+                  terrain=None if str((rep.get("table") or {}).get("key", "")).upper().startswith("ASPRS")
+                  else rep["terrain"],
                   reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
                   overall_class=verdict_class(rep["overall"] or ""),
                   compliance_headline=compliance_headline(rep.get("compliance")),
