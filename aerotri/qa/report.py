@@ -1689,8 +1689,10 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         fig.text(0.04, 0.898, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
         headline = "; ".join(x for x in (compliance_headline(rep.get("compliance")),
                                          standard_fails_note(rep.get("compliance"))) if x)
+        nj = len(rep.get("not_judged") or ())  # (as the page and the console: trial s100 rc2 L3)
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
-                             f"({rep['passed']} passed, {rep['failed']} failed)", fontsize=10, va="top")
+                             f"({rep['passed']} passed, {rep['failed']} failed"
+                             + (f", {nj} with a limit not judged" if nj else "") + ")", fontsize=10, va="top")
         # the compliance verdict on its own lines, wrapped: one line cut it off after a long standard's name (cn-at)
         lines = textwrap.wrap(headline[:1].upper() + headline[1:], 125) if headline else []
         if lines:
