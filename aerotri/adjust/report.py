@@ -1703,7 +1703,7 @@ def _self_calibration_txt(sc: dict) -> list[str]:
                 c["action"], "FIXED at its a-priori value")
             L.append(f"  {c['group']:11} {state}"
                      f": corner sigma {c['corner_sigma_px']:.2f} px ({100 * c['corner_sigma_fraction']:.3f} % of the "
-                     f"focal length); correlation {corr}")
+                     f"focal length); partial correlation (the other estimated groups held) {corr}")
             L.append(f"  {'':11} {'refused estimate' if c['action'] == 'fixed' else 'estimate'}: {est}")
             if c.get("sigma_fraction") is not None:
                 L.append(f"  {'':11} over the focal length: sigma {100 * c['sigma_fraction']:.3f} %, moved by up to "
@@ -1848,7 +1848,9 @@ def format_txt(rep: dict) -> str:
             weak = f"  {weak_mode_label(g)}"
             L.append(f"  {g['mode']:12}{_v(g['sigma_m'], 9, 3)}{_v(g['sigma_deg'], 9, 4)}"
                      + "".join(_v(g["shares"].get(k), 9, 2) for k in groups) + weak
-                     + (f"  (correlation with the height {g['correlation_with_height']:.3f})"
+                     # (the solve's correlation, every group free; SELF-CALIBRATION DETERMINABILITY gives the partial
+                     # one, the other groups held: two numbers a reader took for one, trial s100 rc2 M4)
+                     + (f"  (correlation with the height, every group free: {g['correlation_with_height']:.3f})"
                         if g.get("correlation_with_height") is not None else "")
                      + (f"  [{g['note']}]" if g.get("note") else ""))
         L.append(f"  (height: the mean height; tilts and bending: the height change at the block's edge, "
