@@ -21,6 +21,7 @@ from click.testing import CliRunner
 from aerotri.cli import main as aerotri_cli
 from aerotri.geom.eo import read_eo
 from lidarctl.strips.check import read_strip_check
+from tests.ortho.test_true_ortho import roofs_not_measured_said
 
 REPO = Path(__file__).resolve().parents[3]
 BIN = Path(sys.executable).parent  # the venv's aerotri, lidarctl, ortho
@@ -227,8 +228,7 @@ def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end
                                            str(q / "truth" / "roof_corners.csv"), "--out", str(tmp_path / way)])
         assert r.exit_code == 0, r.output
         rep = json.loads((tmp_path / f"{way}.json").read_text())["roofs"]
-        holes = rep["not_measured"]["in_dom_holes"]  # said with the count (trial s98): 5 on the true ortho here
-        said = f" ({holes} not measured: 20 % or more of their patch in the DOM's nodata)" if holes else ""
+        said = roofs_not_measured_said(rep["not_measured"])  # said with the count (trial s98, s100 rc F9)
         assert r.stdout.splitlines()[1].startswith(f"roofs: {rep['count']} of {rep['corners']} corners{said}: RMS ")
         assert rep["count"] >= 0.5 * rep["corners"]
         rms[way] = rep["rms_xy_gsd"]
@@ -254,8 +254,7 @@ def test_the_chain_dom_check_measures_roofs_at_the_configured_or_the_simulator_c
     summary = json.loads((p0 / "reports" / "summary.json").read_text())
     row = next(r for r in summary["checks"] if r["quantity"] == "displacement at roof corners, plan RMS")
     assert row["value"] == round(rep["roofs"]["rms_xy_m"], 4) and row["limit"] is None and row["verdict"] is None
-    holes = rep["roofs"]["not_measured"]["in_dom_holes"]
-    said = f" ({holes} not measured: 20 % or more of their patch in the DOM's nodata)" if holes else ""
+    said = roofs_not_measured_said(rep["roofs"]["not_measured"])
     assert row["note"].startswith(f"{rep['roofs']['count']} of {len(truth_rows)} corners{said}, ")
     assert "corners: truth/roof_corners.csv; true ortho on the DSM" in row["note"]
 
