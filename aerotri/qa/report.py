@@ -705,6 +705,15 @@ def strip_rows(project: Project, tol: dict) -> tuple[list[QaCheck], list | None]
     worst = max(chk.pairs, key=lambda p: p.diff.rms_m)
     note = (f"{len(pairs)} pairs, {a.n_cells} cells of {chk.cell_m:g} m; NMAD {a.nmad_m:.3f} m; worst pair "
             f"{worst.b} - {worst.a}: mean {worst.diff.mean_m:+.3f} m, RMS {worst.diff.rms_m:.3f} m")
+    from lidarctl.strips.check import rigid_fit_warning
+
+    # the strip check's warning of a pair a rigid shift does not model (a boresight or scan-angle error) reaches the
+    # accuracy report too (trial s100 rc2 L4: AHN3's pair warned on the strips' page, "pass QL0" here without a word)
+    tilted = [f"{p.b} - {p.a}" for p in chk.pairs if rigid_fit_warning(p.offset_3d_b_minus_a) is not None]
+    if tilted:
+        note += (f"; {len(tilted)} pair(s) a rigid shift does not model ({', '.join(tilted[:4])}"
+                 f"{', ...' if len(tilted) > 4 else ''}): a boresight or scan-angle error tilts the strips "
+                 "(lidar_out/strips/index.html; lidarctl strips adjust --trajectory)")
     if adjusted:
         before = read_strip_adjustment(project.strips_adjust_path).check_before
         if before.rms_m is not None:

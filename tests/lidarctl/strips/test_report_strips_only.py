@@ -45,3 +45,17 @@ def test_a_lidar_folder_with_its_strip_check_alone_is_reported(clean_block, tmp_
     assert rows["LiDAR swath overlaps"]["measured"] == round(rms, 4) and rows["LiDAR swath overlaps"]["verdict"] == "pass"
     assert rows["LiDAR density"]["measured"] == round(first / (nx * ny * 4.0), 4)
     assert rows["LiDAR DEM"]["verdict"] == "not testable" and "no surveyed check points" in rows["LiDAR DEM"]["why"]
+
+
+def test_a_pair_the_strip_check_warned_of_is_said_in_the_report(shifted_block, tmp_path):
+    """Trial s100 rc2 L4: AHN3's strip check warned that a rigid shift does not model one pair (a boresight or
+    scan-angle error), and the accuracy report passed the swath row without a word of it. The row's note says it."""
+    from aerotri.qa.report import write_qa_report
+
+    p = tmp_path / "P"
+    (p / "lidar").mkdir(parents=True)
+    (p / "project.toml").write_text('[project]\ncrs = "EPSG:32632"\n')
+    r = CliRunner().invoke(lidarctl, ["strips", "check", *map(str, shifted_block.paths), str(p / "lidar_out" / "strips")])
+    assert r.exit_code == 0 and "a rigid shift does not model" in r.output, r.output
+    note = write_qa_report(p).check("strip_rmsdz_m").note
+    assert "2 pair(s) a rigid shift does not model (strip_2 - strip_1, strip_3 - strip_2)" in note, note
