@@ -1927,7 +1927,8 @@ def _interior_nodata(path: Path, res_m: float, *, footprints=(), surfaces=(), ob
         on = unseen_on_objects(unseen, read_transform, crs, objects[0], objects[1])
         on_objects = None if on is None else int(round(on * sx * sy))
     return {"cells_seen_by_no_frame": int(round(holes * sx * sy)), "share_seen_by_no_frame": holes / max(1, block),
-            # (below 10 m2 three significant digits: a 1 cm DOM's 0.035 m2 was stored 0.0, "346 cells, 0 m2": s100 rc2 L6)
+            # (below 10 m2 three significant digits: a 1 cm DOM's 0.035 m2 was stored 0.0, "346 cells, 0 m2",
+            # trial s100 rc2 L6)
             "area_seen_by_no_frame_m2": _area_digits(holes * sx * sy * res_m * res_m),
             "cells_without_heights": int(round(off * sx * sy)), "share_without_heights": off / max(1, block),
             "cells_on_objects": on_objects}

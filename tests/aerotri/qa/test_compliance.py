@@ -1254,7 +1254,8 @@ def test_no_finest_class_is_stated_beside_a_row_not_testable():
     assert vva.verdict == "not testable" and nva.verdict == "pass" and nva.finest_class == "QL0"  # 0.04 m <= QL0's 0.05 m
     dem = {p.product: p for p in comp.products}["LiDAR DEM"]
     assert dem.verdict == "not testable"
-    assert dem.finest_class == f"not established ({vva.quantity}: not testable); its figures meet QL0 by the limits the standard states"
+    assert dem.finest_class == (f"not established ({vva.quantity}: not testable); its figures meet QL0 by the limits "
+                                "the standard states")
     lines = compliance_lines({**dataclasses.asdict(comp), "name": "n", "class_tested": "c", "reason": "r"})
     assert any(x.startswith(f"  not testable LiDAR DEM: finest class not established ({vva.quantity}") for x in lines)
     tested = judge(Figures(lidar=dataclasses.replace(lf, vva_p95_m=0.2, vva_rmse_m=0.1, n_vva=12)),

@@ -326,7 +326,8 @@ def test_the_dom_checks_roofs_row_is_shown_not_judged(tmp_path):
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))
     assert write_qa_report(p).check("dom_roofs_rms_xy_m").note.startswith(
         "412 of 1156 corners (9 not measurable: in the DOM's nodata; 82 not measured: their patch not whole in the "
-        "DOM, or the reference's too little valid; 54 without a clear match (a weak peak, or one at the search's edge)) "
+        "DOM, or the reference's too little valid; 54 without a clear match (a weak peak, or one at the search's "
+        "edge)) "
         "(warning: 9 of 421 roof corners (2.1 %) ... look at those corners), 8.14 GSD (of the DOM's 0.4 m cell)")
     dom["roofs"] = dict(count=0, why="the nDSM is in another CRS than the DOM")
     (p / "ortho" / "dom_report.json").write_text(json.dumps(dom))

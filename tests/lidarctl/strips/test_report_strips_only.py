@@ -55,7 +55,8 @@ def test_a_pair_the_strip_check_warned_of_is_said_in_the_report(shifted_block, t
     p = tmp_path / "P"
     (p / "lidar").mkdir(parents=True)
     (p / "project.toml").write_text('[project]\ncrs = "EPSG:32632"\n')
-    r = CliRunner().invoke(lidarctl, ["strips", "check", *map(str, shifted_block.paths), str(p / "lidar_out" / "strips")])
+    r = CliRunner().invoke(lidarctl, ["strips", "check", *map(str, shifted_block.paths),
+                                      str(p / "lidar_out" / "strips")])
     assert r.exit_code == 0 and "a rigid shift does not model" in r.output, r.output
     note = write_qa_report(p).check("strip_rmsdz_m").note
     assert "2 pair(s) a rigid shift does not model (strip_2 - strip_1, strip_3 - strip_2)" in note, note
