@@ -282,17 +282,20 @@ def scale_note(project: Project, block: ImportedBlock) -> list[str]:
             f"the block's UTM zone {utm}, keeps it within 0.1 % ([project] crs in {project.config_path.name})"]
 
 
-def lever_arm_note(project: Project, block: ImportedBlock) -> list[str]:
+def lever_arm_note(project: Project, block: ImportedBlock, centre_priors: bool = False) -> list[str]:
     """A note when ``--as-gnss`` writes projection centres to gnss.txt (a reconstruction's, not its GNSS) and the
     project has a lever arm: the adjustment takes gnss.txt as antenna positions and puts each centre the lever arm
-    away (the demo's [0.05, -0.12, 1.45] m: the check heights 1.64 m RMS off, 4 of the 7 control points rejected)."""
-    if block.gnss is None or block.eo is None:
+    away (the demo's [0.05, -0.12, 1.45] m: the check heights 1.64 m RMS off, 4 of the 7 control points rejected).
+    ``centre_priors``: the positions are the format's priors of the centres (OpenSfM's gps_position, which OpenSfM
+    compares with the optical centre; aerotri's export reduces its antennas to them: trial s100 ex F1)."""
+    if block.gnss is None or (block.eo is None and not centre_priors):
         return []
-    eo_rows = {i: k for k, i in enumerate(block.eo.image_id)}
-    pairs = [(k, eo_rows[i]) for k, i in enumerate(block.gnss.image_id) if i in eo_rows]
-    if not pairs or np.abs(block.gnss.position_m[[a for a, _ in pairs]]
-                           - block.eo.centre_m[[b for _, b in pairs]]).max() > 1e-3:
-        return []  # the format's own GNSS (OpenSfM gps_position), not the centres
+    if not centre_priors:
+        eo_rows = {i: k for k, i in enumerate(block.eo.image_id)}
+        pairs = [(k, eo_rows[i]) for k, i in enumerate(block.gnss.image_id) if i in eo_rows]
+        if not pairs or np.abs(block.gnss.position_m[[a for a, _ in pairs]]
+                               - block.eo.centre_m[[b for _, b in pairs]]).max() > 1e-3:
+            return []  # GNSS positions of the format's own, not the centres
     table = project.stage_table("adjust")
     where = f"{project.config_path.name} [adjust]" if "lever_arm_m" in table else f"{project.config_path.name} [gnss]"
     lever = np.asarray(table.get("lever_arm_m", project.gnss.lever_arm_m), float)
@@ -362,7 +365,7 @@ def check_import(project: Project, block: ImportedBlock, replaced: set, format_n
         why = radians_read_as_degrees(block.eo)
         if why:
             log.warning(f"{block.source_of('eo')}: {why}")
-    return notes + lever_arm_note(project, block)
+    return notes + lever_arm_note(project, block, centre_priors=format_name == "opensfm")
 
 
 def unmeasured_heights(z: np.ndarray) -> str | None:

@@ -2,7 +2,7 @@
 
 | file | holds |
 |---|---|
-| ``odm/opensfm/reconstruction.json`` | OpenSfM reconstruction (``aerotri.exchange.opensfm.reconstruction``): the adjusted orientations as shots (rotation/translation world -> camera in the topocentric frame), the self-calibrated camera (``brown``), the adjusted object points, ``reference_lla``; the shots' ``gps_position``/``gps_dop`` from gnss.txt when the project has one |
+| ``odm/opensfm/reconstruction.json`` | OpenSfM reconstruction (``aerotri.exchange.opensfm.reconstruction``): the adjusted orientations as shots (rotation/translation world -> camera in the topocentric frame), the self-calibrated camera (``brown``), the adjusted object points, ``reference_lla``; the shots' ``gps_position``/``gps_dop`` from gnss.txt when the project has one, reduced from the antenna to the camera centre by the adjustment's lever arm |
 | ``odm/opensfm/reference_lla.json`` | the reference point alone (what OpenSfM datasets older than ``reference_lla`` in the reconstruction read) |
 | ``odm/cameras.json`` | the camera, OpenSfM's ``camera_models.json`` layout (ODM's ``--cameras``) |
 | ``odm/gcp_list.txt`` | the control points the adjustment used and their measurements it kept (``aerotri.exchange.odm`` documents the layout); none for a block without control |
@@ -134,6 +134,17 @@ def _ground_control_points_json(obs: ImageObservations, ids, xyz: dict, project:
     return json.dumps({"points": points}, indent=2) + "\n"
 
 
+def _adjusted_lever_arm_m(project: Project):
+    """The lever arm (m, camera frame x right, y up, z up) the adjustment used: its report's setting (a command line's
+    --lever-arm-m too), else project.toml [gnss] lever_arm_m."""
+    from aerotri.core.textio import read_json
+
+    path = project.adjustment_report_path
+    used = ((read_json(path, "adjustment report").get("settings") or {}).get("lever_arm_m") or {}).get("value") \
+        if path.is_file() else None
+    return tuple(float(v) for v in used) if used is not None else tuple(project.gnss.lever_arm_m)
+
+
 def files(block: AdjustedBlock, project: Project, image_names: dict | None = None) -> list[ExportFile]:
     """The ODM/OpenSfM files of an adjusted project (see the module docstring)."""
     from aerotri.geom.eo import read_gnss
@@ -144,7 +155,8 @@ def files(block: AdjustedBlock, project: Project, image_names: dict | None = Non
     gnss = read_gnss(project.gnss_path) if project.gnss_path.is_file() else None
     rec = opensfm.reconstruction(eo, camera, project, reference, names,
                                  points=(block.point_id, block.frame.to_map(block.points_local)),
-                                 gnss=gnss, gnss_sigma_m=float(project.gnss.sigma_xy_m))
+                                 gnss=gnss, gnss_sigma_m=float(project.gnss.sigma_xy_m),
+                                 lever_arm_m=_adjusted_lever_arm_m(project))
     cam_id = opensfm.camera_id_of(camera)
     out = [ExportFile("odm/opensfm/reconstruction.json", json.dumps([rec], indent=2) + "\n"),
            ExportFile("odm/opensfm/reference_lla.json", json.dumps(reference, indent=2) + "\n"),

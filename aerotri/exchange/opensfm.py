@@ -425,11 +425,14 @@ def camera_id_of(camera: Camera) -> str:
 
 def reconstruction(eo: ExteriorOrientations, camera: Camera, project: Project, reference: dict,
                    shot_names: dict | None = None, *, points=None, gnss: GnssPositions | None = None,
-                   gnss_sigma_m: float | None = None) -> dict:
+                   gnss_sigma_m: float | None = None, lever_arm_m=None) -> dict:
     """One OpenSfM reconstruction (a JSON object): shots of ``eo`` (project CRS), ``camera``, topocentric
     frame at ``reference`` (reference_lla); ``shot_names``: image id -> shot id (the frames' file names);
     ``points``: (ids, (P, 3) project CRS); ``gnss``: the shots' gps_position with gps_dop = its sX (or
-    ``gnss_sigma_m``)."""
+    ``gnss_sigma_m``). OpenSfM takes gps_position for the camera centre's prior (``_gps_errors``: optical centre -
+    gps): the antenna positions are reduced to the centres by ``lever_arm_m`` (camera frame, x right, y up, z up; the
+    adjustment's) turned by each shot's adjusted attitude (trial s100 ex F1: the demo's antennas, 1.46 m above the
+    centres, were written as they are)."""
     from scipy.spatial.transform import Rotation
 
     names = shot_names or {}
@@ -442,9 +445,11 @@ def reconstruction(eo: ExteriorOrientations, camera: Camera, project: Project, r
     if gnss is not None:
         gi = {k: i for i, k in enumerate(gnss.image_id)}  # the frames with a GNSS position
         g_topo, _ = project_to_topocentric(reference, project, gnss.position_m, None, "gnss.txt")
-        for iid in eo.image_id:
+        arm = FLIP_YZ @ np.asarray(lever_arm_m if lever_arm_m is not None else (0.0, 0.0, 0.0), dtype=float)
+        for i, iid in enumerate(eo.image_id):
             if iid in gi:
                 k = gi[iid]
+                g_topo[k] = g_topo[k] - R_cv[i] @ arm  # antenna = centre + R l
                 dop = float(gnss.sigma_m[k, 0]) if gnss.sigma_m is not None else gnss_sigma_m
                 gps[iid] = {"gps_position": [float(v) for v in g_topo[k]]} | ({"gps_dop": dop} if dop else {})
     shots = {}

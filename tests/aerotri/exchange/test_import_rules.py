@@ -121,8 +121,15 @@ def test_opensfm_as_gnss_takes_the_shots_gnss_and_gps_dop(exported, adjusted_tin
     r = _import(dst2, "opensfm", out, "--as-gnss")
     assert r.exit_code == 0, r.output
     g, src = read_gnss(dst2 / "gnss.txt"), read_gnss(root / "gnss.txt")
-    assert g.image_id == src.image_id and np.abs(g.position_m - src.position_m).max() < 1e-4
+    # the export wrote OpenSfM's centre priors: the antennas reduced by the source's lever arm (trial s100 ex F1), and
+    # the import says that the project's lever arm would be applied to them again
+    assert g.image_id == src.image_id and np.abs(g.position_m - src.position_m).max() > 1.0
     assert np.allclose(g.sigma_m, 0.05) and "accuracies from OpenSfM gps_dop" in r.output
+    said = "positions are projection centres, but project.toml [gnss] lever_arm_m = [0.05, -0.12, 1.25] m"
+    assert said in r.output, r.output
+    eo = read_eo(dst2 / "imported" / "eo.txt")
+    up = {i: c for i, c in zip(eo.image_id, eo.centre_m)}
+    assert max(abs(float(p[2] - up[i][2])) for i, p in zip(g.image_id, g.position_m)) < 0.5  # (1.25 m before)
 
 
 @pytest.mark.parametrize("fmt", ["odm", "micmac"])
@@ -187,7 +194,8 @@ def test_import_all_or_none(exported, tmp_path, fresh_project, monkeypatch):
 def test_as_gnss_centres_with_a_lever_arm_are_named(exported, tmp_path, table):
     """Projection centres written to gnss.txt in a project with a lever arm: the adjustment takes them as antenna
     positions and moves every centre by the lever arm (the demo, [0.05, -0.12, 1.45] m: its check heights 1.64 m RMS
-    off, 4 of 7 control points rejected), so the import says so; OpenSfM's gps_position (GNSS) is not named."""
+    off, 4 of 7 control points rejected), so the import says so; OpenSfM's gps_position too, OpenSfM's prior of the
+    camera centre (aerotri's export reduces its antennas to the centres: trial s100 ex F1)."""
     root, out = exported
     dst = _bare(root, tmp_path)
     with open(dst / "project.toml", "a") as f:
@@ -203,4 +211,4 @@ def test_as_gnss_centres_with_a_lever_arm_are_named(exported, tmp_path, table):
     with open(dst2 / "project.toml", "a") as f:
         f.write(f"\n[{table}]\nlever_arm_m = [0.05, -0.12, 1.45]\n")
     r = _import(dst2, "opensfm", out, "--as-gnss")
-    assert r.exit_code == 0 and "projection centres, but" not in r.output, r.output
+    assert r.exit_code == 0 and f"projection centres, but project.toml [{table}] lever_arm_m" in r.output, r.output

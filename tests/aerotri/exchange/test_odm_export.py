@@ -94,6 +94,22 @@ def test_reconstruction_is_opensfm_s(exported):
     rms = float(np.sqrt(np.mean(np.vstack(res) ** 2)))
     rms_adj = float(np.sqrt(np.mean(ba.result.residual_px[ba.result.obs_active] ** 2)))
     assert abs(rms - rms_adj) < 0.2 * rms_adj, (rms, rms_adj)
+    # gps_position is OpenSfM's prior of the camera centre: gnss.txt's antenna reduced by the lever arm at the shot's
+    # attitude (trial s100 ex F1: the antennas were written, 1.46 m above the centres on the demo)
+    from scipy.spatial.transform import Rotation
+
+    from aerotri.core.project import Project
+    from aerotri.geom.eo import read_gnss
+    from aerotri.geom.rotation import FLIP_YZ
+
+    g = read_gnss(root / "gnss.txt")
+    antenna = dict(zip(g.image_id, _topocentric(g.position_m, blk.crs, ref)))
+    arm = FLIP_YZ @ np.asarray(Project.open(root).gnss.lever_arm_m, float)
+    assert np.linalg.norm(arm) > 1.0  # (tiny's antenna, 1.45 m above the centre)
+    for iid in blk.image_id:
+        shot = rec["shots"][iid]
+        R_cv = Rotation.from_rotvec(shot["rotation"]).as_matrix().T
+        np.testing.assert_allclose(np.asarray(shot["gps_position"]) + R_cv @ arm, antenna[iid], atol=1e-6)
 
 
 def test_round_trip_through_the_opensfm_import(exported, tmp_path, fresh_project):
