@@ -150,8 +150,9 @@ def check_strips(paths, headers, project_crs=None):
 
         # --crs's area of use against the untagged strips' bounds, as every other command checks it (trial s99
         # lidmut M5: metre UTM strips merged as Oregon Lambert feet, exit 0, no word)
-        for p in untagged:
-            check_given_crs(p, headers[list(paths).index(p)], project_crs, crs_label(project_crs))
+        for p, h in zip(paths, headers):
+            if p in untagged:
+                check_given_crs(p, h, project_crs, crs_label(project_crs))
     if untagged and reference is None:
         # (trial s99 lidmut L1: a merged file without a CRS, no word; every later command asks for one)
         log.warning("none of the %d strips has a CRS record and no --crs was given: %s has none either; give the "

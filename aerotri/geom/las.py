@@ -340,14 +340,17 @@ def _keys_linear_unit(header: laspy.LasHeader) -> tuple[float, str] | None:
     keys beside a readable WKT record are otherwise not read: ``geokey_vertical_unit_m``). No CRS is built from
     the keys: a user's own WKT record costs PROJ 0.05-0.1 s a CRS, and the stages read a header many times."""
     keys = _geo_keys(header) or {}
-    key = keys.get(PROJ_LINEAR_UNITS_KEY)
-    if key is not None and key.tiff_tag_location == 0:
-        code = key.value_offset
-        if code == USER_DEFINED_KEY:
-            size = _geo_double(header, keys.get(PROJ_LINEAR_UNIT_SIZE_KEY))
-            return (size, f"ProjLinearUnitsGeoKey {size:g} m") if size is not None and size > 0 else None
-        return (EPSG_UNIT_M[code], f"ProjLinearUnitsGeoKey {code} ({_UNIT_NAME[code]})") if code in EPSG_UNIT_M \
-            else None
+    if _in_directory(keys.get(PROJ_LINEAR_UNITS_KEY)):
+        try:
+            unit = _units_key(header, keys)
+        except ValueError:  # (a user-defined unit without its size: the keys' unit is not known)
+            return None
+        if unit is None:
+            return None
+        unit_m, code = unit
+        user = keys[PROJ_LINEAR_UNITS_KEY].value_offset == USER_DEFINED_KEY  # (its size said, not the code it matches)
+        return unit_m, (f"ProjLinearUnitsGeoKey {unit_m:g} m" if user else
+                        f"ProjLinearUnitsGeoKey {code} ({_UNIT_NAME[code]})")
     key = keys.get(PROJECTED_CS_KEY)
     if key is None or key.tiff_tag_location != 0 or not 1024 <= key.value_offset < USER_DEFINED_KEY:
         return None
@@ -376,24 +379,36 @@ def _keys_crs(header: laspy.LasHeader) -> pyproj.CRS | None:
     crs = header.parse_crs(prefer_wkt=False)
     if crs is None or not crs.is_projected:
         return crs
-    keys = _geo_keys(header) or {}
-    key = keys.get(PROJ_LINEAR_UNITS_KEY)
-    if key is None or key.tiff_tag_location != 0:
+    unit = _units_key(header, _geo_keys(header) or {})
+    if unit is None:
         return crs
+    unit_m, code = unit
+    if all(abs(a.unit_conversion_factor - unit_m) < 1e-12 for a in crs.axis_info):
+        return crs
+    return with_linear_unit(crs, code if code is not None else unit_m)
+
+
+def _in_directory(key) -> bool:
+    """Whether a GeoTIFF key holds its value in the key directory itself (tag location 0: a SHORT, e.g. a code)."""
+    return key is not None and key.tiff_tag_location == 0
+
+
+def _units_key(header: laspy.LasHeader, keys: dict) -> tuple[float, int | None] | None:
+    """ProjLinearUnitsGeoKey (3076) as (metres per unit, its EPSG unit code; None for a user-defined size matching no
+    known unit); None when the key is absent or holds a code that is no linear unit known here. A user-defined unit
+    (32767) takes its size from ProjLinearUnitSizeGeoKey (3077, GeoTIFF 1.0 6.3.1.3), a known unit's code when it is
+    one's size (so that the CRS and the outputs name it as GDAL does); ValueError without that size."""
+    key = keys.get(PROJ_LINEAR_UNITS_KEY)
+    if not _in_directory(key):
+        return None
     code = key.value_offset
-    if code == USER_DEFINED_KEY:  # the unit's size in metres is ProjLinearUnitSizeGeoKey's (GeoTIFF 1.0 6.3.1.3)
+    if code == USER_DEFINED_KEY:
         size = _geo_double(header, keys.get(PROJ_LINEAR_UNIT_SIZE_KEY))
         if size is None or not size > 0:
             raise ValueError("ProjLinearUnitsGeoKey (3076) is user-defined (32767) but ProjLinearUnitSizeGeoKey "
                              "(3077), the unit's size in metres, is missing or not a positive number")
-        # the known units by their size, so that the CRS and the outputs name them as GDAL does
-        code = next((c for c, m in EPSG_UNIT_M.items() if abs(size - m) <= 1e-9 * m), size)
-    elif code not in EPSG_UNIT_M:
-        return crs
-    unit_m = EPSG_UNIT_M.get(code, code)
-    if all(abs(a.unit_conversion_factor - unit_m) < 1e-12 for a in crs.axis_info):
-        return crs
-    return with_linear_unit(crs, code)
+        return size, next((c for c, m in EPSG_UNIT_M.items() if abs(size - m) <= 1e-9 * m), None)
+    return (EPSG_UNIT_M[code], code) if code in EPSG_UNIT_M else None
 
 
 def _geo_double(header: laspy.LasHeader, key) -> float | None:
