@@ -516,6 +516,7 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
     Returns the summary (counts, fall-backs, crossings, the interval in the DEM's unit and that unit)."""
     from aerotri.geom.crs.definition import length_unit_name, linear_unit_m, unit_name
     from aerotri.core.vector_files import refuse_foreign_layers
+    from aerotri.geom.crs.height_rasters import above_ground_description
     from lidarctl.terrain.dem_io import open_dem
 
     if not (np.isfinite(interval_m) and interval_m > 0):
@@ -531,10 +532,8 @@ def contours_from_file(dem_path, out_path, *, interval_m: float, index_every: in
         # contours are lines over the whole DEM: it is read whole (a 10 x 10 km DEM at 1 m is 400 MB in float32)
         dem = src.read(1, masked=True).astype(np.float64).filled(np.nan)
         transform, crs = src.transform, src.crs
-        desc = (src.descriptions[0] if src.descriptions else None) or ""
-    from aerotri.geom.crs.height_rasters import ABOVE_GROUND_DESCRIPTIONS
-
-    if desc.startswith(ABOVE_GROUND_DESCRIPTIONS):  # said, not refused: a canopy's height lines may be wanted
+        desc = above_ground_description(src)
+    if desc is not None:  # said, not refused: a canopy's height lines may be wanted
         log.warning(f"{dem_path}: holds heights above the ground (its band description {desc!r}): its contours are "
                     "lines of equal height above the ground, not of the terrain (lidarctl rasters' dem.tif for those)")
     z_unit = length_unit_name(z_m)

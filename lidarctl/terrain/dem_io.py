@@ -5,9 +5,12 @@ from its working GeoTIFF."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 
 from aerotri.core.errors import InputError
+
+log = logging.getLogger(__name__)
 
 HYDRO_TAG = "HYDRO_FLATTENED"  # lidarctl hydro-flatten's tag on its DEM: lidarctl smooth warns of it
 
@@ -33,9 +36,7 @@ def open_dem(in_path, out_path=None, say_unit: bool = False):
     src, unit = open_dem_unit(in_path, out_path)
     words = undeclared_unit_words(in_path, unit) if say_unit else None
     if words:
-        import logging
-
-        logging.getLogger(__name__).warning("%s", words)
+        log.warning("%s", words)
     return src, unit.unit_m
 
 
@@ -76,9 +77,7 @@ def open_dem_unit(in_path, out_path=None):
         if not vertical_in_crs and stated_unit_differs(stated, unit_m):
             # a 2D CRS says nothing of heights (its horizontal unit is assumed): the file's own statement decides
             # (trial-hydro: metres on a foot grid, tagged metre, read as feet: contours labelled 124-132 ft)
-            import logging
-
-            logging.getLogger(__name__).info(
+            log.info(
                 "%s: heights in %s as the file states them (its CRS is 2D, in %s)", in_path,
                 length_unit_name(stated, long=True), length_unit_name(unit_m, long=True))
             unit_m = stated
@@ -91,7 +90,7 @@ def open_dem_unit(in_path, out_path=None):
 
 def refuse_undeclared_fill(src, path) -> None:
     """InputError when the DEM's cells at 0 or at a negative fill value (-99, -999, -9999 ...) look like a nodata value
-    it does not declare (``aerotri.geom.inputs.undeclared_fill``): its contours, drainage, smoothing and height check
+    it does not declare (``aerotri.geom.crs.height_rasters.undeclared_fill``): its contours, drainage, smoothing and height check
     took them for heights (trial s99 lidmut H1: -999 over a 310-370 m block gave 806 contours from -995 m, a drainage
     fill raising cells 1,312 m, check-heights RMSE 594 m; ``ortho rectify`` warned of the same file)."""
     from aerotri.geom.crs.height_rasters import undeclared_fill

@@ -75,13 +75,20 @@ def undeclared_fill(ds, max_cells: int = 1_000_000) -> UndeclaredFill | None:
 ABOVE_GROUND_DESCRIPTIONS = ("CHM:", "nDSM:")
 
 
-def refuse_above_ground(src, path, needs: str) -> None:
-    """InputError when the open raster says it holds heights above the ground (lidarctl rasters' chm.tif, ndsm.tif, by
-    their band descriptions) where ``needs`` (e.g. "drainage needs a DEM of the ground ...") asks for heights of the
-    terrain or surface (trial s94: ``lidarctl drainage chm.tif`` traced streams over the crowns, exit 0; trial s99
-    lidmut H3: ``ortho rectify --dem ndsm.tif`` made frames 8-16 m off, exit 0)."""
+def above_ground_description(src) -> str | None:
+    """The band description of an open raster that says it holds heights above the ground (lidarctl rasters' chm.tif,
+    ndsm.tif), None for any other raster."""
     desc = (src.descriptions[0] if src.count >= 1 and src.descriptions else None) or ""
-    if desc.startswith(ABOVE_GROUND_DESCRIPTIONS):
+    return desc if desc.startswith(ABOVE_GROUND_DESCRIPTIONS) else None
+
+
+def refuse_above_ground(src, path, needs: str) -> None:
+    """InputError when the open raster says it holds heights above the ground (``above_ground_description``) where
+    ``needs`` (e.g. "drainage needs a DEM of the ground ...") asks for heights of the terrain or surface (trial s94:
+    ``lidarctl drainage chm.tif`` traced streams over the crowns, exit 0; trial s99 lidmut H3: ``ortho rectify --dem
+    ndsm.tif`` made frames 8-16 m off, exit 0)."""
+    desc = above_ground_description(src)
+    if desc is not None:
         raise InputError(f"{path}: holds heights above the ground (its band description {desc!r}), not heights of the "
                          f"terrain; {needs}")
 
