@@ -86,6 +86,12 @@ class ToleranceTable:
     limits_from: str = ""
 
     @property
+    def terrain_classes(self) -> bool:
+        """Whether the table's limits differ by terrain class: the map-scale tables' do, an ASPRS table has one set for
+        every terrain (asprs2023.toml: terrain_classes = false)."""
+        return not self.key.upper().startswith("ASPRS")
+
+    @property
     def unconfirmed(self) -> list[str]:
         return [k for k, p in self.provenance.items() if not p.confirmed and k in self.limits]
 

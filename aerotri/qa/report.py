@@ -118,7 +118,7 @@ def _table_record(table: ToleranceTable, lidar_only: bool = False) -> dict:
     return dict(key=table.key, name=table.name, file=table.path.name, terrain=table.terrain, reason=table.reason,
                 platform=table.platform, flight_spec=table.limits.get("flight_spec"), unconfirmed=table.unconfirmed,
                 provenance={k: dataclasses.asdict(p) for k, p in table.provenance.items()}, lidar_only=lidar_only,
-                limits_from=table.limits_from)
+                limits_from=table.limits_from, terrain_classes=table.terrain_classes)
 
 
 # the limits that can judge a LiDAR-only project: its LiDAR products and a line map drawn from them
@@ -437,6 +437,13 @@ def _dom_crs_note(dom_check, project: Project) -> str:
             note += " (PROJ's ballpark operation, accepted with --allow-ballpark: the datum shift between them is " \
                     "ignored and is in the figure)"
     return note
+
+
+def verdict_counts(passed: int, failed: int, not_judged=()) -> str:
+    """The verdict table's counts as the console, the page and the PDF say them ("8 passed, 1 failed, 1 with a limit
+    not judged"; the PDF left the last out: trial s100 rc2 L3)."""
+    n = len(not_judged or ())
+    return f"{passed} passed, {failed} failed" + (f", {n} with a limit not judged" if n else "")
 
 
 def _dom_cell_words(d) -> str:
@@ -1557,14 +1564,13 @@ def format_html(rep: dict, figures: list | None = None, stage_images=STAGE_IMAGE
                   table_name=(rep.get("table") or {}).get("name") or str(rep["map_scale"]),
                   # (an ASPRS table has one set of limits for every terrain: no class beside it, trial s100 rc2 L1)
                   tolerance_table=rep["tolerance_table"],
-                  terrain=None if str((rep.get("table") or {}).get("key", "")).upper().startswith("ASPRS")
-                  else rep["terrain"],
+                  terrain=rep["terrain"] if (rep.get("table") or {}).get("terrain_classes", True) else None,
                   reason=(rep.get("table") or {}).get("reason") or "given", overall=rep["overall"] or "",
                   overall_class=verdict_class(rep["overall"] or ""),
                   compliance_headline=compliance_headline(rep.get("compliance")),
                   standard_fails=standard_fails_note(rep.get("compliance")),
                   compliance_verdict=verdict_class(compliance_verdict(rep.get("compliance"))),
-                  passed=rep["passed"], failed=rep["failed"], not_judged=len(rep.get("not_judged") or ()),
+                  counts=verdict_counts(rep["passed"], rep["failed"], rep.get("not_judged")),
                   generated=f"{rep.get('generated_utc') or ''} (aerotri {rep.get('aerotri_version') or '?'})",
                   verdicts=verdicts,
                   compliance=_compliance_section(rep.get("compliance")), stage_links=list(stage_links),
@@ -1698,10 +1704,9 @@ def write_pdf(path: Path, rep: dict, project: Project, figures: list | None = No
         fig.text(0.04, 0.898, "\n".join(textwrap.wrap(head, 190)[:3]), fontsize=6.5, va="bottom")
         headline = "; ".join(x for x in (compliance_headline(rep.get("compliance")),
                                          standard_fails_note(rep.get("compliance"))) if x)
-        nj = len(rep.get("not_judged") or ())  # (as the page and the console: trial s100 rc2 L3)
         fig.text(0.04, 0.885, f"limits marked * are not confirmed in their source; overall verdict: {rep['overall'] or 'none'} "
-                             f"({rep['passed']} passed, {rep['failed']} failed"
-                             + (f", {nj} with a limit not judged" if nj else "") + ")", fontsize=10, va="top")
+                             f"({verdict_counts(rep['passed'], rep['failed'], rep.get('not_judged'))})", fontsize=10,
+                 va="top")
         # the compliance verdict on its own lines, wrapped: one line cut it off after a long standard's name (cn-at)
         lines = textwrap.wrap(headline[:1].upper() + headline[1:], 125) if headline else []
         if lines:
@@ -1856,8 +1861,8 @@ def console_summary(report: QaReport) -> str:
         judged_by += f" with the {t['limits_from']}"
     headline = "; ".join(x for x in (compliance_headline(report.compliance), standard_fails_note(report.compliance))
                          if x)
-    unjudged = f", {len(report.not_judged)} with a limit not judged" if report.not_judged else ""
-    lines.append(f"{report.html}: {verdict} ({report.passed} passed, {report.failed} failed{unjudged}; {judged_by})"
+    lines.append(f"{report.html}: {verdict} ({verdict_counts(report.passed, report.failed, report.not_judged)}; "
+                 f"{judged_by})"
                  + (f"; {headline}" if headline else ""))
     return "\n".join(lines)
 
