@@ -201,6 +201,11 @@ def _warn_if_sparse(project, n_points: int, min_rays: int) -> None:
                      f"LiDAR would show more")
 
 
+# the DEM's tag holding the share (%) of its cells extended beyond the tie points (the QA report's terrain class reads
+# it: the slope of a flat continuation is no terrain's, ``aerotri.qa.terrain_class``)
+EXTRAPOLATED_PERCENT_TAG = "CELLS_EXTRAPOLATED_PERCENT"
+
+
 @dataclasses.dataclass(frozen=True)
 class PointsDemResult:
     """``ortho dem``'s numbers (``<out>.json``, keys in field order): the COG, its grid (project CRS, cells of
@@ -299,7 +304,7 @@ def write_points_dem(root, out=None, res_m: float | None = None, min_rays: int =
             ds.update_tags(SOURCE="aerotri adjusted tie points (ortho dem)", CELLS_MEASURED=str(dem.cells_measured),
                            CELLS_INTERPOLATED=str(dem.cells_interpolated),
                            CELLS_EXTRAPOLATED=str(dem.cells_extrapolated),
-                           CELLS_EXTRAPOLATED_PERCENT=f"{stats.extrapolated_percent:.1f}",
+                           **{EXTRAPOLATED_PERCENT_TAG: f"{stats.extrapolated_percent:.1f}"},
                            EXTRAPOLATED_MAX_DISTANCE_M=f"{stats.extrapolated_max_distance_m:.2f}",
                            EXTENDED_BEYOND_NESW_M=" ".join(f"{v:.2f}" for v in stats.extended_beyond_nesw_m),
                            EXTRAPOLATION=stats.extension_words(), HEIGHTS=_heights_words(project))

@@ -40,8 +40,7 @@ def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m,
     ``sigma_m`` (N, 3) the positions' sigmas; ``offset_sigma_m`` (3,) or None the shifts' a-priori sigma;
     ``shift_m`` (S, 3) the estimated shifts (ENU, m); ``observed``: the solve has control points or a surface
     (DEM, roof planes), without which nothing but the GNSS positions themselves says where the block is."""
-    sigma_m = np.asarray(sigma_m, dtype=float)
-    med = np.median(sigma_m[gnss_observed(sigma_m)], axis=0)
+    med = _median_sigma_m(sigma_m)
     weights = f"positions weighted with {med[0]:.3g} / {med[2]:.3g} m (plan / height; {source})"
     if correction == "none":
         if not observed:  # (trial s99 atmut H1: the heights 14 m off with a focal length 5 % long, "as good as ...")
@@ -89,9 +88,14 @@ def unchecked_note(redundancy: float | None, n: int, sigma_m: np.ndarray) -> str
     otherwise."""
     if not unchecked(redundancy, n):
         return None
-    sigma_m = np.asarray(sigma_m, dtype=float)
-    med = np.median(sigma_m[gnss_observed(sigma_m)], axis=0)
+    med = _median_sigma_m(sigma_m)
     return (f"GNSS unchecked by the images: its {n} coordinates hold {redundancy:.1f} of the redundancy (their sigmas, "
             f"{med[0]:.3g} / {med[2]:.3g} m, weight them far above the images): the projection centres are where the "
             "GNSS puts them and their sigmas are the stated ones, which nothing in the block tests. If the receiver "
             "holds less, state what it holds ([gnss] sigma_xy_m, sigma_z_m, or gnss.txt sX sY sZ).")
+
+
+def _median_sigma_m(sigma_m) -> np.ndarray:
+    """(3,) the median sigma of the positions observed (``gnss_observed``): plan x, y and height, m."""
+    sigma_m = np.asarray(sigma_m, dtype=float)
+    return np.median(sigma_m[gnss_observed(sigma_m)], axis=0)

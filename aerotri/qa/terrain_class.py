@@ -31,8 +31,8 @@ class DemTerrain:
     median_slope_deg: float
     cell_m: float
     path: Path
-    # the DEM's share (%) of cells extended beyond its data as a flat continuation (``ortho dem``'s tag
-    # CELLS_EXTRAPOLATED_PERCENT); None: not stated (a LiDAR DEM, one from elsewhere)
+    # the DEM's share (%) of cells extended beyond its data as a flat continuation (``ortho dem``'s tag,
+    # ``ortho.points_dem.EXTRAPOLATED_PERCENT_TAG``); None: not stated (a LiDAR DEM, one from elsewhere)
     extrapolated_pct: float | None = None
 
     @property
@@ -58,6 +58,7 @@ def dem_terrain(path) -> DemTerrain | None:
 
     from aerotri.core.errors import CrsError
     from aerotri.geom.crs.definition import map_axes_unit_m
+    from ortho.points_dem import EXTRAPOLATED_PERCENT_TAG
 
     path = Path(path)
     with rasterio.open(path) as ds:
@@ -70,7 +71,7 @@ def dem_terrain(path) -> DemTerrain | None:
         shape = (max(1, round(ds.height / f)), max(1, round(ds.width / f)))
         z = ds.read(1, masked=True, out_shape=shape, resampling=Resampling.average).astype(float).filled(np.nan)
         try:
-            extrapolated = float(ds.tags().get("CELLS_EXTRAPOLATED_PERCENT"))
+            extrapolated = float(ds.tags().get(EXTRAPOLATED_PERCENT_TAG))
         except (TypeError, ValueError):
             extrapolated = None
         dx_m = abs(ds.transform.a) * ux * ds.width / shape[1]
