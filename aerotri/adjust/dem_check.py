@@ -69,6 +69,12 @@ class DemCheck:
     def gnss_beyond(self, height_limit_m: float) -> bool:
         return self.gnss_significant and abs(self.gnss_offset_m) > height_limit_m
 
+    def check_beyond(self, height_limit_m: float | None) -> bool:
+        """A check DEM's (role "check", tested) median offset beyond the height RMS limit: an accuracy finding, whether
+        or not the 3-sigma test can call it significant (trial s100 rc F4: NGI 7.9 m below it, "passed")."""
+        return bool(self.role == "check" and self.tested and height_limit_m is not None
+                    and abs(self.median_m) > height_limit_m)
+
     @property
     def offset_failed(self) -> bool:
         return self.tested and abs(self.median_m) > self.limit_m

@@ -1035,7 +1035,7 @@ def _key_statistics(ba, height_limit_m: float, parameters: dict | None = None, t
                    f"height limit of {height_limit_m:g} m; the block's height sigma ({d.height_sigma_m or 0.0:.2f} m) "
                    "is too large for the offset to be called significant, and too large for the heights to be "
                    "trusted: hold the block to the DEM (--dem) or give control." for d in getattr(ba, "dem_checks", [])
-                   or [] if not d.failed and check_dem_beyond(d, height_limit_m)]
+                   or [] if not d.failed and d.check_beyond(height_limit_m)]
     if weak:
         weaknesses.append("Weak geometry: " + "; ".join(why for _, why in weak) + ".")
     alone = getattr(ba, "components_without_control", 0)  # (counted only when the block is in parts)
@@ -1551,7 +1551,7 @@ def _dem_check_dict(d, height_limit_m: float | None = None) -> dict:
     out = dataclasses.asdict(d) | {"failed": d.failed, "offset_failed": d.offset_failed, "below_failed": d.below_failed,
                                    "gnss_significant": d.gnss_significant}
     if d.role == "check" and height_limit_m is not None:
-        out |= {"height_limit_m": _f(height_limit_m, 4), "beyond_height_limit": check_dem_beyond(d, height_limit_m)}
+        out |= {"height_limit_m": _f(height_limit_m, 4), "beyond_height_limit": d.check_beyond(height_limit_m)}
     for k in ("median_m", "nmad_m", "dem_sigma_m", "height_sigma_m", "sigma_offset_m", "limit_m", "gnss_offset_m",
               "gnss_offset_limit_m"):
         out[k] = _f(out[k], 4)
@@ -1642,11 +1642,6 @@ ISAT_OPTIONS = {"adjustment_mode": "Adjustment Mode", "precision_computation": "
                 "self_calibration": "Self-Calibration", "given_eo_gps": "Given EO/GPS",
                 "antenna_offsets": "Antenna Offsets", "gps_shift_drift_correction": "GPS Shift/Drift Correction",
                 "ins_shift_drift_correction": "INS Shift/Drift Correction", "tolerances": "Tolerances"}
-
-
-def check_dem_beyond(d, height_limit_m: float | None) -> bool:
-    """Whether a check DEM's median offset (``DemCheck``, role "check", tested) exceeds the height RMS limit."""
-    return bool(d.role == "check" and d.tested and height_limit_m is not None and abs(d.median_m) > height_limit_m)
 
 
 def lidar_check_points_words(n: int) -> str:
