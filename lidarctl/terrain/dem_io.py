@@ -90,9 +90,9 @@ def open_dem_unit(in_path, out_path=None):
 
 def refuse_undeclared_fill(src, path) -> None:
     """InputError when the DEM's cells at 0 or at a negative fill value (-99, -999, -9999 ...) look like a nodata value
-    it does not declare (``aerotri.geom.crs.height_rasters.undeclared_fill``): its contours, drainage, smoothing and height check
-    took them for heights (trial s99 lidmut H1: -999 over a 310-370 m block gave 806 contours from -995 m, a drainage
-    fill raising cells 1,312 m, check-heights RMSE 594 m; ``ortho rectify`` warned of the same file)."""
+    it does not declare (``aerotri.geom.crs.height_rasters.undeclared_fill``): its contours, drainage, smoothing and
+    height check took them for heights (trial s99 lidmut H1: -999 over a 310-370 m block gave 806 contours from -995 m,
+    a drainage fill raising cells 1,312 m, check-heights RMSE 594 m; ``ortho rectify`` warned of the same file)."""
     from aerotri.geom.crs.height_rasters import undeclared_fill
 
     found = undeclared_fill(src)
