@@ -262,8 +262,13 @@ def build_workspace(tiny_project: Path, w: Path) -> None:
 # Snapshots
 
 
+_SHA1: dict[tuple[int, int, int, int], str] = {}
+
+
 def snapshot(root: Path) -> dict:
-    """Every file (sha1 of its bytes, inode) and folder below ``root``; links by their target."""
+    """Every file (sha1 of its bytes, inode) and folder below ``root``; links by their target. A file's bytes are
+    hashed once per (device, inode, size, modification time): the cases' files are hard links to the shared
+    workspace's, whose times are older than any case, and a write sets the time."""
     out = {}
     for dirpath, dirnames, filenames in os.walk(root):
         d = Path(dirpath)
@@ -272,10 +277,14 @@ def snapshot(root: Path) -> dict:
             out[str(q.relative_to(root)) + "/"] = "link" if q.is_symlink() else "dir"
         for n in filenames:
             q = d / n
+            st = q.lstat()
             if q.is_symlink():
                 out[str(q.relative_to(root))] = ("link", os.readlink(q))
-            else:
-                out[str(q.relative_to(root))] = (hashlib.sha1(q.read_bytes()).hexdigest(), q.stat().st_ino)
+                continue
+            key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+            if key not in _SHA1:
+                _SHA1[key] = hashlib.sha1(q.read_bytes()).hexdigest()
+            out[str(q.relative_to(root))] = (_SHA1[key], st.st_ino)
     return out
 
 
