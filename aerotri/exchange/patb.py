@@ -5,7 +5,8 @@ PAT-B (Ackermann's bundle block adjustment, Inpho/Trimble) exchanges fixed-colum
 - ``block.ori`` (orientations), the layout PCI Geomatics documents for reading PAT-B orientations
   ("Using Pat-B in OrthoEngine"): three records per photo, no terminator::
 
-      I16, 16X, 3F16.5    photo number, (16 columns not read), X0 Y0 Z0 (projection centre, project CRS)
+      I16, F16.5, 3F16.5  photo number, c (mm; columns OrthoEngine does not read, where MATCH-AT and ISAT
+                          write the principal distance), X0 Y0 Z0 (projection centre, project CRS)
       5F16.12             a11 a12 a13 a21 a22
       4F16.12             a23 a31 a32 a33
 
@@ -108,13 +109,16 @@ def _i16(n: int) -> str:
     return f"{n:{FIELD}d}"
 
 
-def orientation_text(eo, photo_no: PatbNumbering) -> str:
-    """``block.ori``: three fixed-column records per photo (I16,16X,3F16.5 / 5F16.12 / 4F16.12)."""
+def orientation_text(eo, photo_no: PatbNumbering, c_mm: float | None = None) -> str:
+    """``block.ori``: three fixed-column records per photo (I16,F16.5,3F16.5 / 5F16.12 / 4F16.12); the principal
+    distance ``c_mm`` in columns 17-32 where MATCH-AT and ISAT write it (OrthoEngine does not read them: blank
+    without ``c_mm``)."""
     lines = []
     R = eo.rotations()
+    c_field = " " * FIELD if c_mm is None else f"{c_mm:{FIELD}.5f}"
     for i, iid in enumerate(eo.image_id):
         a = R[i].reshape(9)
-        lines.append(_i16(photo_no.number_of(iid)) + " " * FIELD + "".join(f"{v:{FIELD}.5f}" for v in eo.centre_m[i]))
+        lines.append(_i16(photo_no.number_of(iid)) + c_field + "".join(f"{v:{FIELD}.5f}" for v in eo.centre_m[i]))
         lines.append("".join(f"{v:{FIELD}.12f}" for v in a[:5]))
         lines.append("".join(f"{v:{FIELD}.12f}" for v in a[5:]))
     return "\n".join(lines) + "\n"
@@ -168,7 +172,7 @@ def files(block: AdjustedBlock, project: Project | None = None) -> list[ExportFi
         out.append(ExportFile(f"patb/{CON_FILES['check']}", control_text(check.id.astype(str), check.xyz_m, point_no)))
         kinds.update({str(p): "check" for p in check.id})
     if eo is not None:
-        out.append(ExportFile("patb/block.ori", orientation_text(eo, photo_no)))
+        out.append(ExportFile("patb/block.ori", orientation_text(eo, photo_no, camera.focal_mm)))
         out.append(ExportFile("patb/block.cam", camera_text(camera)))
     nums = ["# aerotri: PAT-B numbers of the files beside this one -> ids (photo|point number id [kind])"]
     nums += [f"photo {n} {i}" for i, n in zip(photo_no.ids, photo_no.numbers)]

@@ -160,8 +160,9 @@ def _i(text: str) -> int:
 
 def test_files_in_the_documented_columns(exported):
     """A reader written from the layouts in the module docstring and docs/exchange.md (fixed columns, not split on
-    blanks) reads the export back: .ori records I16,16X,3F16.5 / 5F16.12 / 4F16.12 equal at/eo.txt (centres to
-    0.01 mm, matrix to 1e-12); .im records I16 / I16,2F16.6 / -99 equal the undistorted photo coordinates
+    blanks) reads the export back: .ori records I16,F16.5,3F16.5 / 5F16.12 / 4F16.12 equal at/eo.txt (centres to
+    0.01 mm, matrix to 1e-12) and the principal distance at/camera.toml's focal length (0.01 um; trial s100 exchange
+    F2: columns 17-32 were blank); .im records I16 / I16,2F16.6 / -99 equal the undistorted photo coordinates
     (1e-6 mm); .con records I16,3F16.4 and -99 equal the control coordinates (0.1 mm)."""
     root, patb = exported
     p = Project.open(root)
@@ -172,11 +173,12 @@ def test_files_in_the_documented_columns(exported):
         (photo if kind == "photo" else point)[int(n)] = ident
     # orientations
     eo = read_eo(p.eo_path)
+    f_mm = read_camera(p.camera_path).focal_mm
     ori = (patb / "block.ori").read_text().splitlines()
     assert len(ori) == 3 * len(eo.image_id)
     for k, iid in enumerate(eo.image_id):
-        n, blank, *xyz = _fields(ori[3 * k], (16, 16, 16, 16, 16))
-        assert blank.strip() == "" and photo[_i(n)] == iid
+        n, c, *xyz = _fields(ori[3 * k], (16, 16, 16, 16, 16))
+        assert abs(_f(c, 5) - f_mm) < 1e-5 and photo[_i(n)] == iid
         a = [_f(v, 12) for v in _fields(ori[3 * k + 1], (16,) * 5) + _fields(ori[3 * k + 2], (16,) * 4)]
         assert np.abs(np.array([_f(v, 5) for v in xyz]) - eo.centre_m[k]).max() < 1e-5
         assert np.abs(np.array(a).reshape(3, 3) - eo.rotation(k)).max() < 1e-12
@@ -234,7 +236,7 @@ def test_principal_distance_of_the_ori_against_the_camera(exported, tmp_path, fr
     def with_c(c_mm):
         out = []
         for n, line in enumerate(lines):
-            if n % 3 == 0 and len(line.split()) == 4:  # a photo's first record: number, 16 blank columns, X0 Y0 Z0
+            if n % 3 == 0:  # a photo's first record: number, c, X0 Y0 Z0
                 line = line[:16] + f"{c_mm:16.5f}" + line[32:]
             out.append(line)
         path = tmp_path / f"c{c_mm:.5f}.ori"
