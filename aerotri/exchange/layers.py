@@ -1,6 +1,8 @@
 """Map layers of an adjusted block: GeoPackage (``aerotri export --format gpkg``, project CRS) and KML
-(``--format kml``, WGS84 longitude/latitude/ellipsoidal height, as KML requires), written by
-``aerotri.core.vector_files``.
+(``--format kml``, WGS84 longitude/latitude and ellipsoidal height), written by ``aerotri.core.vector_files``.
+KML takes an absolute altitude above sea level (EGM96), not above the ellipsoid; no ``altitudeMode`` is written, so
+viewers clamp the placemarks to their terrain (KML's default, ``clampToGround``) and the heights, N (tens of metres)
+above EGM96 ones, are for readers that take them as ellipsoidal (trial s100 exchange F4: this said "as KML requires").
 
 Layers (the same in both files):
 
