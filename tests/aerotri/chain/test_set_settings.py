@@ -116,6 +116,21 @@ def test_settings_set_changes_the_project(tiny_project, tmp_path):
     assert "heights : EPSG:3855  [project.toml]" in r.output
 
 
+def test_a_file_setting_of_a_relative_project_path_is_looked_for_once_beside_it(tiny_project, tmp_path, monkeypatch):
+    """Docs trial s101 F1: with the project given as a relative path P, a file setting was looked for in P/P/...: a
+    warning "P/P/../dem/town_dem.tif is not there (yet)" also when the file was there."""
+    _project(tiny_project, tmp_path)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "dem").mkdir()
+    args = ["settings", "blk", "--set", "rectify.dem=../dem/town_dem.tif"]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0 and "blk/../dem/town_dem.tif is not there (yet)" in r.stderr, r.output
+    assert "blk/blk" not in r.output
+    (tmp_path / "dem" / "town_dem.tif").write_bytes(b"")
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0 and "not there" not in r.output, r.output
+
+
 @pytest.mark.parametrize("args, expect", [
     (["--set", "flight.speed_mps=fast"], "--set flight.speed_mps=fast [flight] speed_mps = 'fast': expected a number"),
     (["--set", "flight.speed_mps=65", "--set", "mosaic.no_such_key=1"], "--set mosaic.no_such_key=1 [mosaic]: unknown key"),
