@@ -443,6 +443,10 @@ def verdict_counts(passed: int, failed: int, not_judged=()) -> str:
     """The verdict table's counts as the console, the page and the PDF say them ("8 passed, 1 failed, 1 with a limit
     not judged"; the PDF left the last out: trial s100 rc2 L3)."""
     n = len(not_judged or ())
+    if passed == failed == n == 0:
+        # (a LiDAR-only report whose compliance rows pass read "0 passed, 0 failed" under a density "pass": docs
+        # trial s101 F8)
+        return "no row of the verdict table judged"
     return f"{passed} passed, {failed} failed" + (f", {n} with a limit not judged" if n else "")
 
 

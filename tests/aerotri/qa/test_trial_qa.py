@@ -157,3 +157,13 @@ def test_the_filter_total_error_against_a_truth_holding_class_1_is_reported_not_
             assert row.verdict is None and row.limit is None and row.value > 5, row
             assert row.note.startswith("not judged: the reference's class 1 (unclassified) counts as object")
             assert row.note.endswith("the type I error, 0.000 %, is the measure")
+
+
+def test_an_empty_verdict_table_is_said_so_not_counted_as_nought_passed():
+    """Docs trial s101 F8: a LiDAR-only report whose only judged rows were the standard's (density "pass") read "not
+    testable (0 passed, 0 failed; ...)"."""
+    from aerotri.qa.report import verdict_counts
+
+    assert verdict_counts(0, 0) == "no row of the verdict table judged"
+    assert verdict_counts(0, 0, ["x"]) == "0 passed, 0 failed, 1 with a limit not judged"
+    assert verdict_counts(8, 1) == "8 passed, 1 failed"
