@@ -176,6 +176,17 @@ def cal_from_camera(cam: Camera) -> np.ndarray:
     return cam.calibration_vector()
 
 
+def estimated_or_apriori(cal, camera: Camera, groups) -> np.ndarray:
+    """Cal3DS2 values ``cal`` (9,) with every entry no group of ``groups`` estimates set back to ``camera``'s own: the
+    priors that hold those entries let them move by a fraction of their ``fixed_parameter_sigmas`` (the demo: fx by
+    5e-4 px, p1 by -1.3e-7), and a parameter not estimated is written and reported as given (trial s100 exchange
+    F3: 120.0000088 mm in at/camera.toml for the 120 mm held)."""
+    out = cal_from_camera(camera).astype(float)
+    free = [i for g in groups for i in camera.SELF_CAL_GROUPS[g]]
+    out[free] = np.asarray(cal, dtype=float)[free]
+    return out
+
+
 def camera_from_cal(cal, like: Camera) -> Camera:
     """``like`` with the interior orientation of Cal3DS2 values (``Camera.from_calibration_vector``)."""
     return like.from_calibration_vector(cal)

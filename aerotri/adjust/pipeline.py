@@ -1065,7 +1065,8 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
     dem_checks = _dem_checks(p, result)
     return BlockAdjustment(
         project_name=p.project.name, crs=p.project.crs, settings=st, frame=frame, camera_apriori=p.camera,
-        camera_adjusted=G.camera_from_cal(state.cal, p.camera), block=block, opts=opts, result=result, eo_map=eo,
+        camera_adjusted=G.camera_from_cal(G.estimated_or_apriori(state.cal, p.camera, opts.self_calibration), p.camera),
+        block=block, opts=opts, result=result, eo_map=eo,
         points_map=pts_map, points_sigma_map=psig, control=p.control_used,
         control_index_of_point={int(j): c for c, j in enumerate(block.control_point)}, check=check, gnss_map=gnss_map,
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,

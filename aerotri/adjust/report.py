@@ -336,7 +336,8 @@ def _self_calibration(ba) -> dict | None:
     return {"groups": list(requested), "estimated": list(opts.self_calibration),
             "fixed": [c.group for c in checks if c.action == "fixed"],
             "apriori": dict(zip(_CAL_NAMES, _lst(G.cal_from_camera(ba.camera_apriori), 8))),
-            "adjusted": dict(zip(_CAL_NAMES, _lst(r.state.cal, 8))),
+            "adjusted": dict(zip(_CAL_NAMES, _lst(G.estimated_or_apriori(r.state.cal, ba.camera_apriori,
+                                                                       opts.self_calibration), 8))),
             "std_dev": std,
             "determinability": [_check_dict(c) for c in checks],
             "camera": ba.camera_adjusted.to_dict()}
