@@ -187,15 +187,33 @@ def leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjus
 
 
 def run_leave_one_out(root, settings: AdjustSettings | None = None, full: BlockAdjustment | None = None) -> LeaveOneOut:
-    """``leave_one_out`` and its record ``at/leave_one_out.json`` (the stage's output)."""
+    """``leave_one_out``, its record ``at/leave_one_out.json`` (the stage's output) and its table at the end of
+    ``at/report.txt`` when the adjustment wrote one (one commit: both or neither)."""
     import json
 
-    from aerotri.core.atomic import write_text_atomic
+    from aerotri.core.atomic import commit_outputs, write_text_atomic
     from aerotri.core.project import Project
 
     loo = leave_one_out(root, settings, full)
-    write_text_atomic(Project.open(root).at_dir / "leave_one_out.json", json.dumps(_record(loo), indent=1) + "\n")
+    at = Project.open(root).at_dir
+    report = at / "report.txt"
+    with commit_outputs(at):
+        write_text_atomic(at / "leave_one_out.json", json.dumps(_record(loo), indent=1) + "\n")
+        if report.is_file():  # trial s100 rc2 L7: the result was in the JSON and the QA report only
+            write_text_atomic(report, with_leave_one_out_section(report.read_text(), loo))
     return loo
+
+
+LOO_HEADING = "LEAVE-ONE-OUT CHECK OF THE CONTROL POINTS (at/leave_one_out.json)"
+
+
+def with_leave_one_out_section(report_txt: str, loo: LeaveOneOut) -> str:
+    """``report_txt`` (at/report.txt) with the leave-one-out section at its end, in place of one there before."""
+    text = report_txt.split("\n" + LOO_HEADING + "\n")[0].rstrip("\n")
+    lines = [LOO_HEADING, "  each control point left out in turn, adjusted again and intersected: adjusted - given "
+             "(project CRS axes, m);", "  control, not independent check points: bounded by their own accuracy"]
+    lines += ["  " + ln for ln in loo.table().splitlines()]
+    return text + "\n\n" + "\n".join(lines) + "\n"
 
 
 # -- at/leave_one_out.json: the record the stage writes, built from the dataclasses --------------------------

@@ -91,6 +91,9 @@ def test_copr_kite_subset_end_to_end(shared_data, tmp_path):
         assert ds.tags()["HEIGHTS"].startswith("relative: no height was measured")
     loo = json.loads((root / "at" / "leave_one_out.json").read_text())
     assert loo["checked"] == 4 and loo["rms_z_m"] is None
+    # and at/report.txt says it too (trial s100 rc2 L7: the JSON and the QA report only)
+    txt = (root / "at" / "report.txt").read_text()
+    assert f"leave-one-out plan RMS {loo['rms_xy_m']:.3f} m over 4 points" in txt.split("LEAVE-ONE-OUT CHECK")[1]
     # the check is bounded by the targets' handheld GNSS: about their scatter, and no worse than 1.5 x it
     assert loo["rms_xy_m"] < 1.5 * TARGETS_SCATTER_XY_M
     # the level datum: the frames hang from the vertical as on the whole block (plan noise alone tilted the whole

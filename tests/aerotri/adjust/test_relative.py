@@ -216,6 +216,13 @@ def test_leave_one_out_against_the_known_control_noise(no_gnss_block, tmp_path, 
     # each left-out point: its own 0.5 m noise plus the datum from the others: sqrt(2) x 0.5 m plan, a little more
     assert 0.4 < loo.rms_xy_m < 1.2
     assert 0.6 < loo.rms_xy_m / loo.scatter.rms_xy_dof_m < 1.6
+    # at/report.txt ends with its table (trial s100 rc2 L7), once however often it is run
+    from aerotri.adjust.leave_one_out import LOO_HEADING, with_leave_one_out_section
+
+    txt = with_leave_one_out_section(with_leave_one_out_section("REPORT\n  sigma0 ...\n", loo), loo)
+    assert txt.startswith("REPORT\n  sigma0 ...\n\n" + LOO_HEADING + "\n") and txt.count(LOO_HEADING) == 1
+    assert f"leave-one-out plan RMS {round(loo.rms_xy_m, 4):.3f} m over {loo.n_checked} points" in txt
+    assert sum(ln.split()[0] in {p.id for p in loo.points} for ln in txt.splitlines()[4:]) == len(loo.points)
 
 
 def test_too_little_control_leaves_the_model_in_a_local_frame(no_gnss_block, tmp_path):
