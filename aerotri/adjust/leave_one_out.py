@@ -107,12 +107,21 @@ class LeaveOneOut:
                 lines.append(f"{p.id:>12} {p.kind:>10} {p.rays:4d}  not checked (fewer than 2 rays)")
                 continue
             dz = f"{d[2]:8.3f}" if p.kind in ("full", "height") else f"{'-':>8}"
-            lines.append(f"{p.id:>12} {p.kind:>10} {p.rays:4d} {d[0]:8.3f} {d[1]:8.3f} {math.hypot(d[0], d[1]):8.3f} {dz}")
+            # a height-only point's plan position was never given (trial s102 txt M3: 0.396 m read against the
+            # plan limit)
+            plan = (f"{d[0]:8.3f} {d[1]:8.3f} {math.hypot(d[0], d[1]):8.3f}" if p.kind != "height"
+                    else f"{'-':>8} {'-':>8} {'-':>8}")
+            lines.append(f"{p.id:>12} {p.kind:>10} {p.rays:4d} {plan} {dz}")
         if self.n_checked:  # the table shows the record's rounded figures (at/leave_one_out.json)
             rx, ry = (_f(v) for v in self.rms_m[:2])
+            s = self.scatter
             lines.append(f"leave-one-out plan RMS {_f(self.rms_xy_m):.3f} m over {self.n_checked} points (X {rx:.3f}, "
                          f"Y {ry:.3f}); the control points' own plan scatter about the block "
-                         f"{self.scatter.rms_xy_dof_m:.3f} m ({self.scatter.n} points, all in the adjustment)")
+                         f"{s.rms_xy_dof_m:.3f} m ({s.n} points, all in the adjustment: their plan RMS "
+                         f"{s.rms_xy_m:.3f} m x sqrt(n / (n - 2)) for the shift, scale and rotation they fix)")
+        n_z = len(self._d(("full", "height")))
+        if n_z:  # (trial s102 txt M2: the height RMS was in the JSON only)
+            lines.append(f"leave-one-out height RMS {_f(self.rms_m[2]):.3f} m over {n_z} points")
         return "\n".join(lines)
 
 
@@ -211,7 +220,10 @@ def with_leave_one_out_section(report_txt: str, loo: LeaveOneOut) -> str:
     """``report_txt`` (at/report.txt) with the leave-one-out section at its end, in place of one there before."""
     text = report_txt.split("\n" + LOO_HEADING + "\n")[0].rstrip("\n")
     lines = [LOO_HEADING, "  each control point left out in turn, adjusted again and intersected: adjusted - given "
-             "(project CRS axes, m);", "  control, not independent check points: bounded by their own accuracy"]
+             "(project CRS axes, m); plan-only points in plan, height-only points in height only;",
+             "  rays: those the check intersected, its own blunder test on the image rays alone (a ray the adjustment "
+             "left out as control is judged again: that rejection rested on the given position the check tests);",
+             "  control, not independent check points: bounded by their own accuracy"]
     lines += ["  " + ln for ln in loo.table().splitlines()]
     return text + "\n\n" + "\n".join(lines) + "\n"
 
@@ -220,9 +232,11 @@ def with_leave_one_out_section(report_txt: str, loo: LeaveOneOut) -> str:
 
 def _point_record(p: LeftOutPoint) -> dict:
     d = p.d_m
+    plan = p.kind != "height"  # a height-only point's plan position was never given
     return {"id": p.id, "kind": p.kind, "rays": p.rays, "given": list(p.given),
-            "adjusted": _finite(p.adjusted), "dx_m": _f(d[0]), "dy_m": _f(d[1]),
-            "dz_m": _f(d[2]) if p.kind in ("full", "height") else None, "dxy_m": _f(math.hypot(d[0], d[1])),
+            "adjusted": _finite(p.adjusted), "dx_m": _f(d[0]) if plan else None, "dy_m": _f(d[1]) if plan else None,
+            "dz_m": _f(d[2]) if p.kind in ("full", "height") else None,
+            "dxy_m": _f(math.hypot(d[0], d[1])) if plan else None,
             "sigma_m": _finite(p.sigma_m), "seconds": round(p.seconds, 2)}
 
 
@@ -245,8 +259,11 @@ def _record(loo: LeaveOneOut) -> dict:
         "points": [_point_record(p) for p in loo.points], "seconds": round(loo.seconds, 1),
         "note": "each control point left out in turn; adjusted (intersected with the orientations the others "
                 "hold) minus given, on the project CRS's axes; given and adjusted in the CRS's units, every _m "
-                "figure in metres; plan-only points in plan only. control_scatter: the points' "
-                "plan residuals with all of them in the adjustment, the reference for the plan RMS"}
+                "figure in metres; plan-only points in plan only, height-only points in height only. rays: those "
+                "the check intersected after its own blunder test on the image rays alone (a ray the adjustment "
+                "left out as control is judged again: that rejection rested on the given position the check "
+                "tests). control_scatter: the points' plan residuals with all of them in the adjustment, the "
+                "reference for the plan RMS (rms_xy_dof_corrected_m: x sqrt(n / (n - 2)))"}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -102,6 +102,7 @@ class BlockAdjustment:
     datum_notes: list = dataclasses.field(default_factory=list)  # what the datum rests on (no GNSS), for the report
     # False: no height was measured (plan-only control, no GNSS, no DEM): heights relative to the control's ground
     heights_measured: bool = True
+    heights: str | None = None  # the project's height system by name ([project] heights); None: ellipsoidal
     self_calibration_requested: tuple = ()  # the groups asked for (opts.self_calibration: those estimated)
     calibration_checks: list = dataclasses.field(default_factory=list)  # determinability.GroupCheck, every group
     dem_checks: list = dataclasses.field(default_factory=list)  # dem_check.DemCheck: surface control DEM, check DEM
@@ -1072,6 +1073,7 @@ def finish(prepared: PreparedBlock, result: AdjustmentResult) -> BlockAdjustment
         gnss_residual_m=gres, n_tie_points=p.n_tie_points, check_obs=chk_obs, components=p.components,
         components_without_control=p.components_without_control,
         left_out=p.left_out, datum_notes=list(p.datum_notes), heights_measured=p.level is None, dem_checks=dem_checks,
+        heights=getattr(project_heights(p.project), "name", None),
         check_from_lidar=int(_lidar_control(p.project, chk).sum()) if len(chk) else 0,
         control_rays_left_out=p.control_rays_left_out, gnss_left_out=p.gnss_left_out,
     )
@@ -1356,7 +1358,8 @@ def write_outputs(ba: BlockAdjustment, root, html: bool = True, out_dir=None,
     positions = (ba.eo_map.centre_m, "the adjusted projection centres")
     qa = qa_settings(root, project_block_scale(project, ba.points_map[:, 2], camera=camera, positions=positions))
     built = report.build_report(ba, qa.map_scale, qa.terrain, qa.tolerances,
-                                project_terrain(project, dem=ba.settings.dem), speed_mps=project.flight.speed_mps)
+                                project_terrain(project, dem=ba.settings.dem), speed_mps=project.flight.speed_mps,
+                                tolerance_reason=qa.table.reason)
     if settings_record is None:  # a library caller's own settings
         settings_record = settings_of(ba.settings, AdjustSettings).record()
     if inputs is None:  # a library caller's own adjustment: its inputs as they are now

@@ -439,6 +439,37 @@ def tolerance_findings(parameters: dict, unit_m=(1.0, 1.0, 1.0), *, control_resi
     return out
 
 
+def _beyond_residual_limits(ba, check_rows: list, res_lim, tolerated_pct) -> dict | None:
+    """The check points whose single plan or height residual (metres) exceeds the residual limits (trial s102 txt M6:
+    named nowhere, counted only in the QA report's share); None without check points."""
+    unit = map_unit_m(getattr(ba, "crs", None), "project crs")
+    plan, height, points = 0, 0, []
+    for row in check_rows:
+        d = np.array(row["d_m"], dtype=float)
+        e_xy = float(np.hypot(d[0], d[1]) * unit[0]) if np.all(np.isfinite(d[:2])) else math.nan
+        e_z = float(abs(d[2]) * unit[2]) if math.isfinite(d[2]) else math.nan
+        plan, height = plan + math.isfinite(e_xy), height + math.isfinite(e_z)
+        if e_xy > res_lim[0] or e_z > res_lim[2]:
+            points.append({"id": row["id"], "plan_m": _f(e_xy, 4), "height_m": _f(e_z, 4)})
+    if not plan and not height:
+        return None
+    return {"plan_limit_m": float(res_lim[0]), "height_limit_m": float(res_lim[2]), "checked_plan": plan,
+            "checked_height": height, "tolerated_pct": tolerated_pct, "points": points}
+
+
+def _beyond_residual_limits_txt(b: dict) -> str:
+    """The report.txt line of ``_beyond_residual_limits`` under the check-point table."""
+    n_xy = sum(p["plan_m"] is not None and p["plan_m"] > b["plan_limit_m"] for p in b["points"])
+    n_z = sum(p["height_m"] is not None and p["height_m"] > b["height_limit_m"] for p in b["points"])
+    named = "; ".join(f"{p['id']} (plan {p['plan_m']:.3f} m, height "
+                      + ("-" if p["height_m"] is None else f"{p['height_m']:.3f} m") + ")" for p in b["points"][:20])
+    more = f" and {len(b['points']) - 20} more (report.json)" if len(b["points"]) > 20 else ""
+    tolerated = "" if b["tolerated_pct"] is None else f" (the table tolerates {b['tolerated_pct']:g} % of them)"
+    return (f"  beyond the residual limits ({b['plan_limit_m']:g} m plan, {b['height_limit_m']:g} m height): "
+            f"{n_xy} of {b['checked_plan']} in plan, {n_z} of {b['checked_height']} in height{tolerated}"
+            + (f": {named}{more}" if named else ""))
+
+
 def _plan_check(parameters: dict | None, unit_m) -> tuple | None:
     """("check" or "control", plan RMS m, plan RMS limit m) of the Parameters table: the check points' when there
     are, else the control points'; None without either."""
@@ -493,7 +524,9 @@ def _options(ba, tolerances: str) -> dict:
         "precision_computation": "Enabled" if r.pose_cov is not None else
         "Failed (the normal matrix too ill-conditioned for its factor)",
         "error_detection": "Enabled" if st.snooping else "Disabled",
+        "coordinate_system": _coordinate_system(ba),
         "camera_calibration": "Enabled (the given calibration: camera.toml, a priori)",
+        "camera": _camera_words(ba.camera_apriori),
         "self_calibration": _self_calibration_option(ba),
         "given_eo_gps": "Enabled" if has_gnss else "Disabled",
         "antenna_offsets": ("Enabled (" + ", ".join(f"{v:.3f}" for v in b.lever_arm_m) + " m)") if has_gnss and np.any(b.lever_arm_m) else "Disabled",
@@ -504,6 +537,60 @@ def _options(ba, tolerances: str) -> dict:
         "snooping_alpha": st.alpha,
         "tolerances": tolerances,
     }
+
+
+def _flight_verdict_words(checks: list) -> str:
+    """The flight acceptance's verdict beside the solution's, which does not include it (trial s102 txt M5: NGI's
+    "Solution Successful." with its forward overlap failing 2 of 2, said 50 lines further down only)."""
+    judged = [c for c in checks if c.get("verdict") in ("pass", "fail")]
+    if not judged:
+        return ""
+    fails = [c for c in judged if c["verdict"] == "fail"]
+    if not fails:
+        return f"Flight acceptance: pass ({len(judged)} row{'s' if len(judged) != 1 else ''}; FLIGHT ACCEPTANCE below)"
+    what = "; ".join(f"{c['quantity']} {c['value']:g} {c['unit']} against {c['limit']:g} {c['unit']} "
+                     f"({c['n_fail']} of {c['n']} fail)" for c in fails)
+    return (f"Flight acceptance: fail ({what}); not part of the solution's verdict above (FLIGHT ACCEPTANCE below, "
+            "the QA report's overall verdict)")
+
+
+def _tolerance_words(table, reason: str) -> dict:
+    """Why the tolerance table judges the block and which of its limits the standard's text does not confirm
+    (trial s102 txt M7: in summary.json only; report.txt named the table alone)."""
+    out = {"tolerances_reason": reason} if reason else {}
+    mine = [k for k in table.unconfirmed if k in _AT_LIMIT_KEYS]  # the limits this report judges by
+    if mine:
+        flight = any(k.startswith("flight_") for k in table.unconfirmed)
+        others = sum(k not in mine and not k.startswith("flight_") for k in table.unconfirmed)
+        out["tolerances_unconfirmed"] = (", ".join(mine) + (" and the flight limits" if flight else "")
+                                         + ": not confirmed in the standard's text"
+            + (f" (with {others} more of the table: reports/summary.json limit_source)" if others else ""))
+    return out
+
+
+_AT_LIMIT_KEYS = ("rms_xy_m", "rms_z_m", "residual_xy_m", "residual_z_m", "gross_error_max_pct", "check_points_min",
+                  "sigma0_max_px")
+
+
+def _coordinate_system(ba) -> str:
+    """The project CRS and its heights in words (trial s102 txt M4: report.txt named neither)."""
+    from aerotri.geom.crs.definition import crs_label, parse_crs
+
+    crs = parse_crs(ba.crs, "the adjustment's CRS")
+    label = crs_label(crs)
+    words = label if label == crs.name else f"{label} ({crs.name})"
+    heights = getattr(ba, "heights", None) or "ellipsoidal"
+    if not getattr(ba, "heights_measured", True):
+        heights += "; relative: no height was measured (0 at the control points' median ground)"
+    return f"{words}; heights {heights}"
+
+
+def _camera_words(cam) -> str:
+    """The a-priori interior orientation in one line: focal length, pixel, frame, principal point and lens (mm, um,
+    px; the coefficients of camera.toml's model)."""
+    lens = ", ".join(f"{c} {getattr(cam, c):.6g}" for c in cam.COEFFICIENTS)
+    return (f"{cam.name}: f {cam.focal_mm:.4f} mm, pixel {cam.pixel_um:g} um, {cam.width} x {cam.height} px, "
+            f"pp {cam.ppx_mm:+.4f} {cam.ppy_mm:+.4f} mm, {cam.MODEL}" + (f" ({lens})" if lens else ""))
 
 
 def _weak_modes(ba, height_limit_m: float) -> list:
@@ -1300,6 +1387,9 @@ def _variance_components(ba) -> list | None:
     if ba.block.gnss_sigma_m is not None:
         med = np.median(ba.block.gnss_sigma_m[ba.block.gnss_used], axis=0) / wf.get("gnss", 1.0)
         apriori["gnss"] = f"{med[0]:.3f} / {med[2]:.3f} m"
+    if len(ba.control):  # (trial s102 txt M9: the control's sigmas were in control/points.csv alone)
+        med = np.median(np.asarray(ba.control.sigma_m, dtype=float), axis=0) / wf.get("control", 1.0)
+        apriori["control"] = f"{med[0]:.3f} / {med[2]:.3f} m"
     out = []
     for c in r.variance_components:
         w = wf.get(c.group, 1.0)
@@ -1373,6 +1463,7 @@ class AdjustmentReport:
     check_rms_m: list | None
     check_normalised_rms: list | None
     check_blunders: list  # check points off by more than CHECK_BLUNDER_SIGMAS of their sigmas (text per point)
+    check_beyond_residual_limits: dict | None  # check points whose single residual exceeds the residual limits (m)
     check_points_from_lidar: int  # corners of the surface control's LiDAR: their agreement does not test its datum
     photos: list
     image_pairs: list
@@ -1469,15 +1560,17 @@ def _directions_html(g: dict | None, T) -> dict | None:
 
 
 def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance_file=None,
-                 ground=None, speed_mps: float | None = None) -> AdjustmentReport:
+                 ground=None, speed_mps: float | None = None, tolerance_reason: str = "") -> AdjustmentReport:
     """All report numbers as an ``AdjustmentReport`` (keys with units). RMS and residual limits come from the
-    tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them.
+    tolerance table of ``map_scale`` and ``terrain`` (or ``tolerance_file``) unless the settings give them;
+    ``tolerance_reason``: why that table judges the block (``ToleranceTable.reason``), said beside it.
     ``ground``: a ``flight_acceptance.Terrain`` for the flight acceptance section (None: no section);
     ``speed_mps``: the ground speed ([flight] speed_mps) the direction check turns an along-track flip into a lag by."""
     from aerotri.adjust.gnss_direction import direction_check
 
     r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
-    tol = load_table(map_scale, terrain, tolerance_file).limits
+    table = load_table(map_scale, terrain, tolerance_file)
+    tol = table.limits
     tol_table = tolerance_path(map_scale, tolerance_file).name
     rms_lim = [st.rms_limit_xy_m or tol["rms_xy_m"]] * 2 + [st.rms_limit_z_m or tol["rms_z_m"]]
     res_lim = [st.residual_limit_m or tol["residual_xy_m"]] * 2 + [st.residual_limit_m or tol["residual_z_m"]]
@@ -1497,7 +1590,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "crs": ba.crs,
         "local_frame": {"origin_map": [float(v) for v in ba.frame.origin_map],
                         "note": "ENU tangent plane of the adjustment at origin_map (x, y, h in the project CRS)"},
-        "options": _options(ba, tolerances),
+        "options": _options(ba, tolerances) | _tolerance_words(table, tolerance_reason),
         "parameters": (params := _parameters(ba, rms_control, cres, dchk, mean_sd_obj, rms_lim, res_lim=res_lim)),
         "key_statistics": _key_statistics(ba, rms_lim[2], params, tolerances, judged=dict(
             control_residuals=cres, check_residuals=dchk, n_check=len(check_rows),
@@ -1527,6 +1620,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "check_rms_m": _lst(_rms(dchk), 6) if len(dchk) else None,
         "check_normalised_rms": _lst(_rms(nchk), 3) if len(nchk) else None,
         "check_blunders": check_point_blunders(ba),
+        "check_beyond_residual_limits": _beyond_residual_limits(ba, check_rows, res_lim,
+                                                                tol.get("gross_error_max_pct")),
         "check_points_from_lidar": int(getattr(ba, "check_from_lidar", 0)),
         "photos": _photo_rows(ba, res),
         "image_pairs": _pair_rows(ba, res, ba.camera_apriori.pixel_um),
@@ -1639,10 +1734,12 @@ def _v(x, w=10, nd=3):
 
 # report.json option key -> the ISAT "PhotoT Triangulation Options" name
 ISAT_OPTIONS = {"adjustment_mode": "Adjustment Mode", "precision_computation": "Precision Computation",
-                "error_detection": "Error Detection", "camera_calibration": "Camera Calibration",
+                "error_detection": "Error Detection", "coordinate_system": "Coordinate System",
+                "camera_calibration": "Camera Calibration", "camera": "Camera (a priori)",
                 "self_calibration": "Self-Calibration", "given_eo_gps": "Given EO/GPS",
                 "antenna_offsets": "Antenna Offsets", "gps_shift_drift_correction": "GPS Shift/Drift Correction",
-                "ins_shift_drift_correction": "INS Shift/Drift Correction", "tolerances": "Tolerances"}
+                "ins_shift_drift_correction": "INS Shift/Drift Correction", "tolerances": "Tolerances",
+                "tolerances_reason": "Tolerances chosen by", "tolerances_unconfirmed": "Tolerances unconfirmed"}
 
 
 def lidar_check_points_words(n: int) -> str:
@@ -1784,7 +1881,8 @@ def format_txt(rep: dict) -> str:
     unit = ground_unit(rep)
     L = [f"Photo-T Parameters and Results for Project {rep['project']}", "", "PhotoT Triangulation Options"]
     for key, name in ISAT_OPTIONS.items():
-        L.append(f"  {name} : {o[key]}")
+        if key in o:  # (the tolerances' reason and unconfirmed limits only where there are)
+            L.append(f"  {name} : {o[key]}")
     L += [""] + settings_lines(rep.get("settings"), "Settings (value [where it came from])")[:-1]
     L += ["", "Parameters", f"{'':32}{'X/Omega':>10}{'Y/Phi':>10}{'Z/Kappa':>10}{'XY':>10}"]
     rows = [("RMS Control (m)", "rms_control_m", 3), ("RMS Check (m)", "rms_check_m", 3), ("RMS Limits (m)", "rms_limits_m", 4),
@@ -1796,6 +1894,12 @@ def format_txt(rep: dict) -> str:
     for label, key, nd in rows:
         vals = rep["parameters"][key] or [None] * 4
         L.append(f"{_parameter_label(label, key, unit):32}" + "".join(_v(x, 10, nd) for x in vals))
+    off = [p["gnss_offset_m"] for p in rep.get("photos") or [] if p.get("gnss_offset_m") and not p.get("gnss_left_out")]
+    if off and str(o.get("gps_shift_drift_correction", "")).startswith("Enabled"):
+        # (trial s102 txt L14: 0.024 / 0.035 / 0.039 m read as the GNSS's fit, 0.139 / 0.066 / 0.087 m before them)
+        rms = np.sqrt(np.mean(np.square(np.array(off, dtype=float)), axis=0))
+        L.append("  (RMS Photo Position: the GNSS positions' residuals after the per-strip corrections; GNSS - "
+                 "adjusted antenna before them, east north up: " + " ".join(f"{v:.3f}" for v in rms) + " m)")
     if unit != "m":  # a feet CRS: the ground figures are feet, the tolerance tables' limits metres
         L.append(f"  (the coordinates, residuals and sigmas of control, check and object points and the GNSS residuals "
                  f"in the project CRS's unit, {unit}, here and below; limits, the key statistics' findings, photo "
@@ -1811,6 +1915,9 @@ def format_txt(rep: dict) -> str:
                  f"{o['image_sigma_apriori_px']:g} px)")
     L += [f"  Number of iterations: {k['iterations']}",
           f"  Degrees of Freedom: {k['degrees_of_freedom']}", f"  {k['message']}"]
+    flight = _flight_verdict_words((rep.get("flight_acceptance") or {}).get("checks") or [])
+    if flight:
+        L.append(f"  {flight}")
     behind = (k.get("points_behind_camera") or {}).get("messages")
     if behind:
         L.append(f"  (gtsam found points behind a camera at some iterate: {behind} CheiralityException messages for "
@@ -1833,7 +1940,7 @@ def format_txt(rep: dict) -> str:
             L.append(f"  {g['group']:10}{g['observations']:8d}{_v(g['redundancy'], 12, 1)}{_v(g['factor'], 9, 3)}"
                      f"{_v(g['weight_factor'], 10, 3)}{_v(g['estimated_factor'], 11, 3)}  {g['apriori_sigma'] or ''}")
         L.append("  (factor: of this solve's weights; weighted: the factor they carry from reweighting; estimated: "
-                 "their product; blank: redundancy below 5)")
+                 "their product; blank: redundancy below 5; a-priori: plan / height, the median over the group)")
         L.append("")
     gm = rep.get("geometry_modes")
     if gm:
@@ -1913,6 +2020,8 @@ def format_txt(rep: dict) -> str:
         L.append(f"{'sum':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_sum_m"]))
         L.append(f"{'rms':>12}" + " " * 84 + "".join(_v(x, 9, 3) for x in rep["check_rms_m"]))
         L.append("  normalised check errors (d / sigma), RMS X Y Z: " + " ".join("-" if x is None else f"{x:.2f}" for x in rep["check_normalised_rms"]))
+        if rep.get("check_beyond_residual_limits"):
+            L.append(_beyond_residual_limits_txt(rep["check_beyond_residual_limits"]))
         L.extend(f"  {b}" for b in rep.get("check_blunders") or [])
         if rep.get("check_points_from_lidar"):
             L.append(f"  {lidar_check_points_words(rep['check_points_from_lidar'])}")

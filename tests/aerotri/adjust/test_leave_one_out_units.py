@@ -43,3 +43,25 @@ def test_an_older_record_takes_the_unit_of_the_adjustment_beside_it(tmp_path):
     (tmp_path / "report.json").write_text(json.dumps({"crs": FEET_CRS}))
     assert read_leave_one_out(tmp_path / "leave_one_out.json").rms_xy_m == pytest.approx(
         5 * US_FT / math.sqrt(2), abs=1e-4)
+
+
+def test_a_height_only_point_is_checked_in_height_alone_and_the_height_rms_is_said():
+    """trial s102 txt M2/M3: a height-only point printed plan differences (0.396 m, read against the plan limit) and
+    the section of report.txt had no height RMS."""
+    nan3 = (math.nan,) * 3
+    pts = (LeftOutPoint("a", "full", 2, (100.0, 200.0, 50.0), (103.0, 196.0, 52.0), nan3, 1.0),
+           LeftOutPoint("h", "height", 3, (400.0, 200.0, 50.0), (400.3, 199.6, 49.0), nan3, 1.0),
+           LeftOutPoint("p", "horizontal", 2, (700.0, 200.0, 0.0), (700.0, 201.0, 9.0), nan3, 1.0))
+    loo = LeaveOneOut(pts, ControlScatter(3, 0.1, 0.1 * math.sqrt(3), {}), 1.0, crs="EPSG:32649")
+    rows = {ln.split()[0]: ln.split() for ln in loo.table().splitlines()[1:4]}
+    assert rows["h"][3:6] == ["-", "-", "-"] and rows["h"][6] == "-1.000"
+    assert rows["p"][3:6] == ["0.000", "1.000", "1.000"] and rows["p"][6] == "-"
+    # plan over a and p, height over a and h
+    assert loo.rms_xy_m == pytest.approx(math.sqrt((25 + 1) / 2))
+    lines = loo.table().splitlines()
+    assert f"leave-one-out plan RMS {math.sqrt(13):.3f} m over 2 points" in lines[-2]
+    assert "plan RMS 0.100 m x sqrt(n / (n - 2))" in lines[-2]
+    assert lines[-1] == f"leave-one-out height RMS {math.sqrt((4 + 1) / 2):.3f} m over 2 points"
+    rec = _record(loo)["points"]
+    assert rec[1]["dx_m"] is None and rec[1]["dxy_m"] is None and rec[1]["dz_m"] == -1.0
+    assert rec[2]["dz_m"] is None and rec[2]["dxy_m"] == 1.0

@@ -128,6 +128,25 @@ def test_text_layout_is_isat_then_patb(ba):
     assert f"Sigma: {rep['key_statistics']['sigma0_um']:.2f} um" in txt
     html = report.format_html(rep, ba)
     assert html.count("data:image/png;base64,") >= 1 and "Key Statistics" in html
+    # the CRS, its heights and the a-priori camera, read from report.txt alone (trial s102 txt M4, M9: only in
+    # project.toml, report.json and camera.toml)
+    from aerotri.geom.crs.definition import crs_label, parse_crs
+
+    cam = ba.camera_apriori
+    first = lines.index("PhotoT Triangulation Options") + 1
+    options = lines[first:lines.index("", first)]
+    assert f"  Coordinate System : {crs_label(parse_crs(ba.crs))}" in [ln.split(" (")[0] for ln in options]
+    assert options[3].endswith("; heights ellipsoidal")
+    assert options[5] == (f"  Camera (a priori) : {cam.name}: f {cam.focal_mm:.4f} mm, pixel {cam.pixel_um:g} um, "
+                          f"{cam.width} x {cam.height} px, pp +0.0000 +0.0000 mm, brown (k1 0, k2 0, k3 0, p1 0, p2 0)")
+    assert "Coordinate System" in html and "Camera (a priori)" in html
+    # the control's a-priori sigmas (trial s102 txt M9: in control/points.csv alone)
+    vc = {g["group"]: g for g in rep["variance_components"]}
+    med = np.median(ba.control.sigma_m, axis=0)
+    assert vc["control"]["apriori_sigma"] == f"{med[0]:.3f} / {med[2]:.3f} m"
+    other = dataclasses.replace(ba, heights="EGM2008 height", heights_measured=False)
+    assert report._options(other, "")["coordinate_system"].endswith(
+        "; heights EGM2008 height; relative: no height was measured (0 at the control points' median ground)")
 
 
 
@@ -421,3 +440,54 @@ def test_weak_modes_name_what_holds_them():
         ba = types.SimpleNamespace(result=types.SimpleNamespace(geometry=[g]), heights_measured=measured)
         ((_, why),) = _weak_modes(ba, 0.035)
         assert why.endswith(words) and "above the 0.035 m height limit" in why, why  # (not "0.04": L5)
+
+
+def test_check_points_beyond_the_residual_limits_are_named(ba):
+    """trial s102 txt M6: RC00646, 0.85 m in plan against the 0.70 m residual limit, was named nowhere in report.txt
+    (the QA report counted it in a share)."""
+    rows = [{"id": "a", "d_m": [0.6, 0.5, 0.1]}, {"id": "b", "d_m": [0.1, 0.1, -2.5]},
+            {"id": "c", "d_m": [0.1, 0.1, None]}, {"id": "d", "d_m": [None, None, None]}]
+    b = report._beyond_residual_limits(ba, rows, [0.7, 0.7, 2.0], 5.0)
+    assert [p["id"] for p in b["points"]] == ["a", "b"] and (b["checked_plan"], b["checked_height"]) == (3, 2)
+    assert report._beyond_residual_limits_txt(b) == (
+        "  beyond the residual limits (0.7 m plan, 2 m height): 1 of 3 in plan, 1 of 2 in height (the table tolerates "
+        "5 % of them): a (plan 0.781 m, height 0.100 m); b (plan 0.141 m, height 2.500 m)")
+    rep = to_record(report.build_report(ba))
+    assert rep["check_beyond_residual_limits"]["checked_plan"] == len(rep["check_points"])
+    assert "  beyond the residual limits (" in report.format_txt(rep)
+
+
+def test_the_flight_acceptance_verdict_stands_beside_the_solution_s(ba):
+    """trial s102 txt M5: NGI's "Solution Successful." beside a forward overlap of 27.54 % against 56 % (2 of 2
+    fail), said only 50 lines further down."""
+    rep = to_record(report.build_report(ba))
+    checks = [{"quantity": "tilt of the camera axis", "value": 1.01, "limit": 2.0, "unit": "deg", "verdict": "pass",
+               "n": 4, "n_fail": 0, "key": "flight_tilt_max_deg", "where": "f1"},
+              {"quantity": "strip curvature", "value": None, "limit": 3.0, "unit": "%", "verdict": None, "n": 0,
+               "n_fail": 0, "key": "flight_curvature_max_pct", "where": ""}]
+    fail = {"quantity": "forward overlap (footprints on the terrain)", "value": 27.54, "limit": 56.0, "unit": "%",
+            "verdict": "fail", "n": 2, "n_fail": 2, "key": "flight_forward_overlap_min_pct", "where": "f2"}
+    fa = {"checks": checks + [fail], "source": "exterior orientations", "terrain": "dem.tif"}
+    lines = report.format_txt({**rep, "flight_acceptance": fa}).splitlines()
+    at = next(i for i, ln in enumerate(lines) if ln.startswith("  Solution "))
+    assert lines[at + 1] == ("  Flight acceptance: fail (forward overlap (footprints on the terrain) 27.54 % against "
+                             "56 % (2 of 2 fail)); not part of the solution's verdict above (FLIGHT ACCEPTANCE below, "
+                             "the QA report's overall verdict)")
+    assert report._flight_verdict_words(checks) == "Flight acceptance: pass (1 row; FLIGHT ACCEPTANCE below)"
+    assert report._flight_verdict_words(checks[1:]) == ""
+
+
+def test_the_tolerance_table_s_reason_and_unconfirmed_limits_are_said(ba):
+    """trial s102 txt M7: report.txt named the table ("ASPRS2023 H3.5cm V5cm UAS flat") whose limits made the kite
+    weak, without why it was chosen or that its limits are unconfirmed (summary.json only)."""
+    from aerotri.core.tolerances import load_table
+
+    rep = to_record(report.build_report(ba, tolerance_reason="GSD 0.36 cm: ASPRS 2023 class H3.5 cm"))
+    txt = report.format_txt(rep)
+    assert "  Tolerances chosen by : GSD 0.36 cm: ASPRS 2023 class H3.5 cm\n" in txt
+    table = load_table("1:5000", "flat")
+    words = report._tolerance_words(table, "")
+    assert "tolerances_reason" not in words
+    unconfirmed = [k for k in table.unconfirmed if k in ("rms_xy_m", "rms_z_m")]
+    assert all(k in words.get("tolerances_unconfirmed", "") for k in unconfirmed)
+    assert (f"  Tolerances unconfirmed : {words['tolerances_unconfirmed']}" in txt) == bool(unconfirmed)
