@@ -578,7 +578,7 @@ def _coordinate_system(ba) -> str:
 
     crs = parse_crs(ba.crs, "the adjustment's CRS")
     label = crs_label(crs)
-    words = label if label == crs.name else f"{label} ({crs.name})"
+    words = label if label == crs.name or crs.name in ("", "unknown") else f"{label} ({crs.name})"
     heights = getattr(ba, "heights", None) or "ellipsoidal"
     if not getattr(ba, "heights_measured", True):
         heights += "; relative: no height was measured (0 at the control points' median ground)"

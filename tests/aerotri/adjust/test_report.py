@@ -147,6 +147,11 @@ def test_text_layout_is_isat_then_patb(ba):
     other = dataclasses.replace(ba, heights="EGM2008 height", heights_measured=False)
     assert report._options(other, "")["coordinate_system"].endswith(
         "; heights EGM2008 height; relative: no height was measured (0 at the control points' median ground)")
+    # a CRS PROJ names "unknown" (the NGI block's .prj) by its projection alone
+    lo25 = dataclasses.replace(ba, crs="+proj=tmerc +lon_0=25 +k=1 +datum=WGS84 +units=m +no_defs +type=crs")
+    assert report._options(lo25, "")["coordinate_system"] == ("Transverse Mercator (Longitude of natural origin 25, "
+                                                              "Scale factor at natural origin 1), World Geodetic System "
+                                                              "1984; heights ellipsoidal")
 
 
 
