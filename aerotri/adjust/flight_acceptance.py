@@ -240,11 +240,14 @@ def _check(quantity, values, where, key, limits: FlightLimits) -> dict:
 
 
 def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, strip=None, *, limits: dict | None = None,
-                      attitude_measured=True) -> FlightAcceptance:
+                      attitude_measured=True, unit_m=(1.0, 1.0, 1.0)) -> FlightAcceptance:
     """The flight acceptance of frames in flight order (``image_id`` order is the track order when
     ``strip`` is None: ``strips_from_track`` splits it). ``opk_deg`` in the photogrammetric
     convention; ``attitude_measured`` False for a nominal attitude (tilt and kappa not reported), one
-    bool for all frames or one per frame."""
+    bool for all frames or one per frame. ``centre_m`` and the footprints are in the CRS's units (``x_m``, ``y_m``,
+    ``z_m``, ``mean_z_m`` stay coordinates); ``unit_m``: metres per unit of x, y, z (``map_unit_m``), so that heights
+    above ground, height steps and ranges and strip lengths are metres, as the limits are (trial s102 txt2 H1: a feet
+    block's 13.15 ft step judged against 30 m)."""
     import shapely
 
     c = np.asarray(centre_m, float)
@@ -261,8 +264,9 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
     R = rotation_matrix_opk(opk[:, 0], opk[:, 1], opk[:, 2])
     polys = [footprint(camera, c[i], R[i], terrain) for i in range(n)]
     ground = terrain.height(c[:, 0], c[:, 1])
+    uxy, uz = float(unit_m[0]), float(unit_m[2])
     frames = [dict(image_id=str(image_id[i]), strip=int(strip[i]), x_m=_r(c[i, 0], 3), y_m=_r(c[i, 1], 3),
-                   z_m=_r(c[i, 2], 3), height_above_ground_m=_r(c[i, 2] - ground[i], 2), tilt_deg=None,
+                   z_m=_r(c[i, 2], 3), height_above_ground_m=_r((c[i, 2] - ground[i]) * uz, 2), tilt_deg=None,
                    kappa_deviation_deg=None, height_step_m=None, forward_overlap_pct=None, side_overlap_pct=None,
                    footprint=[[_r(x, 2), _r(y, 2)] for x, y in polys[i].exterior.coords])
               for i in range(n)]
@@ -283,7 +287,7 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
                 if measured[i]:
                     frames[i]["kappa_deviation_deg"] = _r(abs((ang + 45.0) % 90.0 - 45.0), 3)
             if m > 0:
-                frames[i]["height_step_m"] = _r(abs(c[i, 2] - c[idx[m - 1], 2]), 2)
+                frames[i]["height_step_m"] = _r(abs(c[i, 2] - c[idx[m - 1], 2]) * uz, 2)
             if m + 1 < len(idx):
                 p, q = polys[i], polys[idx[m + 1]]
                 frames[i]["forward_overlap_pct"] = _r(100.0 * p.intersection(q).area / p.area, 2)
@@ -307,9 +311,9 @@ def flight_acceptance(image_id, centre_m, opk_deg, camera, terrain: Terrain, str
         fwd = [frames[i]["forward_overlap_pct"] for i in idx if frames[i]["forward_overlap_pct"] is not None]
         strips.append(dict(strip=int(s), frames=len(idx), first=str(image_id[idx[0]]), last=str(image_id[idx[-1]]),
                            cross_strip=s in cross,
-                           length_m=_r(length, 2), curvature_pct=_r(curvature, 3),
-                           height_range_m=_r(float(np.ptp(c[idx, 2])), 2), mean_z_m=_r(float(c[idx, 2].mean()), 2),
-                           mean_height_above_ground_m=_r(float(np.mean(c[idx, 2] - ground[idx])), 2),
+                           length_m=_r(length * uxy, 2), curvature_pct=_r(curvature, 3),
+                           height_range_m=_r(float(np.ptp(c[idx, 2])) * uz, 2), mean_z_m=_r(float(c[idx, 2].mean()), 2),
+                           mean_height_above_ground_m=_r(float(np.mean(c[idx, 2] - ground[idx])) * uz, 2),
                            forward_overlap_min_pct=min(fwd) if fwd else None,
                            forward_overlap_mean_pct=_r(np.mean(fwd), 2) if fwd else None,
                            side_overlap_median_pct=_r(np.median(side), 2) if side else None,
@@ -402,7 +406,10 @@ def project_flight_acceptance(root, limits: dict | None = None, *,
         return None
     if terrain is None:
         return None  # the footprints need a terrain: the caller says the checks were not made
-    return flight_acceptance(ids, c, opk, camera, terrain, strip + 1, limits=limits, attitude_measured=measured)
+    from aerotri.adjust.report_record import map_unit_m
+
+    return flight_acceptance(ids, c, opk, camera, terrain, strip + 1, limits=limits, attitude_measured=measured,
+                             unit_m=map_unit_m(crs, f"{project.config_path} [project] crs"))
 
 
 def overlap_shortfall(root) -> str:

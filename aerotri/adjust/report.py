@@ -544,7 +544,9 @@ def _flight_verdict_words(checks: list) -> str:
     "Solution Successful." with its forward overlap failing 2 of 2, said 50 lines further down only)."""
     judged = [c for c in checks if c.get("verdict") in ("pass", "fail")]
     if not judged:
-        return ""
+        # a UAS block: no manned flight specification (trial s102 txt2 M5: Tuniu's 23.7 % forward overlap unsaid)
+        return ("Flight acceptance: not judged (the tolerance table has no flight limits; the measured figures: "
+                "FLIGHT ACCEPTANCE below)" if any(c.get("value") is not None for c in checks) else "")
     fails = [c for c in judged if c["verdict"] == "fail"]
     if not fails:
         return f"Flight acceptance: pass ({len(judged)} row{'s' if len(judged) != 1 else ''}; FLIGHT ACCEPTANCE below)"
@@ -579,6 +581,10 @@ def _coordinate_system(ba) -> str:
     crs = parse_crs(ba.crs, "the adjustment's CRS")
     label = crs_label(crs)
     words = label if label == crs.name or crs.name in ("", "unknown") else f"{label} ({crs.name})"
+    unit = map_unit_m(crs, "the adjustment's CRS")
+    if abs(unit[0] - 1.0) > 1e-12 or abs(unit[2] - 1.0) > 1e-12:  # (trial s102 txt2 M6: a feet CRS named no unit)
+        names = [a.unit_name for a in crs.axis_info]
+        words += f"; coordinates in {names[0] if names else f'{unit[0]:g} m'}"
     heights = getattr(ba, "heights", None) or "ellipsoidal"
     if not getattr(ba, "heights_measured", True):
         heights += "; relative: no height was measured (0 at the control points' median ground)"
@@ -748,6 +754,12 @@ def common_height_shift_note(ba, gcc: GnssCorrectionCheck | None, plan_check: tu
                  f"metres in many places)")
     if "focal" in ba.opts.self_calibration:  # estimated: the solve has fitted it, it is no cause left
         return text + "; not the focal length, which is estimated."
+    held = getattr(ba.result, "held_focal", None)
+    if held is not None and not held.rejected:
+        # the images tested it (freed in a solve of its own) and keep it (trial s102 txt2 H2: a right focal length
+        # named "the likely cause" of a weak 6-frame block's shifts, its own test F = 0.15 against 10.85)
+        return text + (f"; not the focal length by the images' own test: freed, it moves {100 * held.shift:+.2f} % "
+                       f"(F = {held.f_statistic:.2f} against {held.f_limit:.2f}), no change they ask for.")
     focal = f"a focal length {abs(pct):.2f} % too {'long' if pct < 0 else 'short'} in camera.toml"
     text += f", or {focal} ({abs(pct):.2f} % of the {height_m:.0f} m flying height above the tie points). "
     shows = plan_check is not None and all(x is not None and math.isfinite(x) for x in plan_check[1:]) \
@@ -1388,8 +1400,11 @@ def _variance_components(ba) -> list | None:
         med = np.median(ba.block.gnss_sigma_m[ba.block.gnss_used], axis=0) / wf.get("gnss", 1.0)
         apriori["gnss"] = f"{med[0]:.3f} / {med[2]:.3f} m"
     if len(ba.control):  # (trial s102 txt M9: the control's sigmas were in control/points.csv alone)
-        med = np.median(np.asarray(ba.control.sigma_m, dtype=float), axis=0) / wf.get("control", 1.0)
-        apriori["control"] = f"{med[0]:.3f} / {med[2]:.3f} m"
+        # over the coordinates measured: not a height-only point's plan sigma, a plan-only one's height (txt2 M3)
+        sig, kind = np.asarray(ba.control.sigma_m, dtype=float), np.asarray(ba.control.kind)
+        plan, height = sig[np.isin(kind, ("full", "horizontal")), 0], sig[np.isin(kind, ("full", "height")), 2]
+        words = [f"{np.median(v) / wf.get('control', 1.0):.3f}" if len(v) else "-" for v in (plan, height)]
+        apriori["control"] = f"{words[0]} / {words[1]} m"
     out = []
     for c in r.variance_components:
         w = wf.get(c.group, 1.0)
@@ -1422,10 +1437,11 @@ def _flight(ba, ground, tol: dict) -> dict | None:
     from aerotri.adjust.flight_acceptance import flight_acceptance
 
     eo = ba.eo_map
+    unit = map_unit_m(getattr(ba, "crs", None), "project crs")  # the limits are metres
     left = [(k, xyz) for lo in ba.left_out if lo.position_map is not None for k, xyz in zip(lo.image_ids, lo.position_map)]
     if not left:
         return dataclasses.asdict(flight_acceptance(eo.image_id, eo.centre_m, eo.opk_deg, ba.camera_adjusted, ground,
-                                                    np.asarray(ba.block.strip) + 1, limits=tol))
+                                                    np.asarray(ba.block.strip) + 1, limits=tol, unit_m=unit))
     # trial-relief F1: the frames the adjustment left out (a block split over a mountain by a side overlap of 6 %)
     # were missing from these checks, which passed the overlaps that split it; from their GNSS positions here
     from aerotri.adjust.flight_acceptance import in_flight_order
@@ -1433,7 +1449,7 @@ def _flight(ba, ground, tol: dict) -> dict | None:
     ids, c, opk, measured, strip = in_flight_order(eo.image_id, eo.centre_m, eo.opk_deg, [k for k, _ in left],
                                                    np.array([xyz for _, xyz in left], float))
     return dataclasses.asdict(flight_acceptance(ids, c, opk, ba.camera_adjusted, ground, strip + 1, limits=tol,
-                                                attitude_measured=measured))
+                                                attitude_measured=measured, unit_m=unit))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1894,12 +1910,16 @@ def format_txt(rep: dict) -> str:
     for label, key, nd in rows:
         vals = rep["parameters"][key] or [None] * 4
         L.append(f"{_parameter_label(label, key, unit):32}" + "".join(_v(x, 10, nd) for x in vals))
-    off = [p["gnss_offset_m"] for p in rep.get("photos") or [] if p.get("gnss_offset_m") and not p.get("gnss_left_out")]
-    if off and str(o.get("gps_shift_drift_correction", "")).startswith("Enabled"):
-        # (trial s102 txt L14: 0.024 / 0.035 / 0.039 m read as the GNSS's fit, 0.139 / 0.066 / 0.087 m before them)
-        rms = np.sqrt(np.mean(np.square(np.array(off, dtype=float)), axis=0))
-        L.append("  (RMS Photo Position: the GNSS positions' residuals after the per-strip corrections; GNSS - "
-                 "adjusted antenna before them, east north up: " + " ".join(f"{v:.3f}" for v in rms) + " m)")
+    used = [p for p in rep.get("photos") or [] if p.get("gnss_offset_m") and not p.get("gnss_left_out")]
+    corr = np.array([p.get("gnss_correction_m") or [0.0] * 3 for p in used], dtype=float).reshape(-1, 3)
+    mode = str(o.get("gps_shift_drift_correction", ""))
+    if used and mode.startswith("Enabled") and np.abs(corr).max() >= 5e-4:
+        # (trial s102 txt L14: 0.024 / 0.035 / 0.039 m read as the GNSS's fit, 0.139 / 0.066 / 0.087 m before the
+        # corrections; txt2 M4: said of a flight offset the solve left at 0, on other axes than the row's)
+        rms = np.sqrt(np.mean(np.square(np.array([p["gnss_offset_m"] for p in used], dtype=float)), axis=0))
+        L.append(f"  (RMS Photo Position: the GNSS positions' residuals after the corrections, {mode[9:-1]}; GNSS - "
+                 "adjusted antenna before them, on the local east, north, up (the grid's axes turn from them by the "
+                 "meridian convergence): " + " ".join(f"{v:.3f}" for v in rms) + " m)")
     if unit != "m":  # a feet CRS: the ground figures are feet, the tolerance tables' limits metres
         L.append(f"  (the coordinates, residuals and sigmas of control, check and object points and the GNSS residuals "
                  f"in the project CRS's unit, {unit}, here and below; limits, the key statistics' findings, photo "

@@ -143,7 +143,17 @@ def test_text_layout_is_isat_then_patb(ba):
     # the control's a-priori sigmas (trial s102 txt M9: in control/points.csv alone)
     vc = {g["group"]: g for g in rep["variance_components"]}
     med = np.median(ba.control.sigma_m, axis=0)
-    assert vc["control"]["apriori_sigma"] == f"{med[0]:.3f} / {med[2]:.3f} m"
+    assert set(ba.control.kind) == {"full"} and vc["control"]["apriori_sigma"] == f"{med[0]:.3f} / {med[2]:.3f} m"
+    # over the coordinates measured (trial s102 txt2 M3): a height-only point's plan sigma, a plan-only one's height
+    # are none
+    sig = np.array(ba.control.sigma_m, dtype=float)
+    sig[0], sig[1] = (9.0, 9.0, 0.02), (0.01, 0.01, 9.0)
+    kind = np.array(ba.control.kind, dtype=object)
+    kind[0], kind[1] = "height", "horizontal"
+    mixed = dataclasses.replace(ba, control=dataclasses.replace(ba.control, sigma_m=sig, kind=kind))
+    rows = {g["group"]: g for g in report._variance_components(mixed)}
+    want = np.median(sig[1:, 0]), np.median(np.r_[sig[0, 2], sig[2:, 2]])
+    assert rows["control"]["apriori_sigma"] == f"{want[0]:.3f} / {want[1]:.3f} m"
     other = dataclasses.replace(ba, heights="EGM2008 height", heights_measured=False)
     assert report._options(other, "")["coordinate_system"].endswith(
         "; heights EGM2008 height; relative: no height was measured (0 at the control points' median ground)")
@@ -363,7 +373,19 @@ def test_common_height_shift_names_the_focal_length_only_when_the_plan_shows_it(
     assert plan < lim  # a lever arm error leaves the plan alone
     msg = rep["key_statistics"]["message"]
     assert "one offset for the whole block" in msg and "lever arm" in msg and "height datum" in msg, msg
-    assert "likely cause" not in msg and "do not tell these apart" in msg, msg
+    # the held focal length's own test (freed in a solve of its own) keeps it: not named as a cause (trial s102 txt2
+    # H2: a right focal length called "the likely cause" of a weak block's shifts)
+    held = ba.result.held_focal
+    assert held is not None and not held.rejected
+    assert "likely cause" not in msg and "not the focal length by the images' own test" in msg, msg
+    # without that test (no ground heights observed), or with the test rejecting the held value, the plan residuals
+    # decide as before
+    untested = dataclasses.replace(ba, result=dataclasses.replace(ba.result, held_focal=None))
+    note = report.common_height_shift_note(untested, gcc, ("check", plan, lim))
+    assert "likely cause" not in note and "do not tell these apart" in note, note
+    rejected = dataclasses.replace(held, free_px=1.025 * held.held_px, f_statistic=10 * held.f_limit)
+    assert rejected.rejected
+    ba = dataclasses.replace(ba, result=dataclasses.replace(ba.result, held_focal=rejected))
     # a plan RMS beyond its limit is no scale by itself (trial-site: a height datum mix-up blamed on the focal length)
     note = report.common_height_shift_note(ba, gcc, ("check", 0.625, 0.35))  # the 123 mm demo's check plan RMS
     assert "likely cause" not in note and "show no scale error" in note and "0.625 m is beyond its 0.350 m limit" in note
@@ -480,6 +502,9 @@ def test_the_flight_acceptance_verdict_stands_beside_the_solution_s(ba):
                              "the QA report's overall verdict)")
     assert report._flight_verdict_words(checks) == "Flight acceptance: pass (1 row; FLIGHT ACCEPTANCE below)"
     assert report._flight_verdict_words(checks[1:]) == ""
+    # a UAS table judges nothing, and says so (trial s102 txt2 M5)
+    uas = [{**c, "verdict": None, "limit": None} for c in checks + [fail]]
+    assert report._flight_verdict_words(uas).startswith("Flight acceptance: not judged (the tolerance table has no ")
 
 
 def test_the_tolerance_table_s_reason_and_unconfirmed_limits_are_said(ba):

@@ -173,3 +173,33 @@ def test_the_check_points_scale_pattern_is_the_same_in_feet(pair):
     assert m is not None and ft is not None
     assert ft[0] == pytest.approx(m[0], abs=1.0) and ft[1] == pytest.approx(m[1], abs=0.01)
     assert ft[2] == pytest.approx(m[2], rel=0.01, abs=1e-4)
+
+
+def test_the_flight_acceptance_judges_metres_in_a_feet_crs(pair):
+    """trial s102 txt2 H1: a feet block's height step of 13.15 ft was printed as "13.15 m" and judged against 30 m
+    (its metre copy: 4.01 m)."""
+    from aerotri.adjust.flight_acceptance import Terrain
+
+    ground = {"m": Terrain(100.0), "ft": Terrain(100.0 / FT)}  # the same ground, in each project's unit
+    fa = {u: to_record(report.build_report(pair[u].adjustment, ground=ground[u]))["flight_acceptance"]
+          for u in ("m", "ft")}
+    assert fa["m"] and fa["ft"]
+    for key in ("height_step_m", "height_above_ground_m"):
+        a = [f[key] for f in fa["m"]["frames"]]
+        b = [f[key] for f in fa["ft"]["frames"]]
+        assert any(v for v in a) and np.allclose(np.array(b, float), np.array(a, float), atol=0.02, equal_nan=True), key
+    for key in ("height_range_m", "length_m", "mean_height_above_ground_m"):
+        a, b = ([s[key] for s in fa[u]["strips"]] for u in ("m", "ft"))
+        assert np.allclose(b, a, atol=0.02), key
+    # the rows the verdict reads: the same values, the same verdicts
+    rows = {u: {c["key"]: (c["value"], c["verdict"]) for c in fa[u]["checks"]} for u in ("m", "ft")}
+    for key, (v, verdict) in rows["m"].items():
+        assert rows["ft"][key][1] == verdict and (v is None or abs(rows["ft"][key][0] - v) <= 0.02), key
+
+
+def test_the_coordinate_system_line_names_the_feet(pair):
+    """trial s102 txt2 M6: report.txt's Coordinate System line of a feet CRS named no unit (its false easting reads
+    as 500000 ft)."""
+    txt = {u: pair[u].report_path.with_suffix(".txt").read_text() for u in ("m", "ft")}
+    line = {u: next(ln for ln in txt[u].splitlines() if ln.startswith("  Coordinate System : ")) for u in txt}
+    assert "coordinates in" not in line["m"] and "; coordinates in foot; heights ellipsoidal" in line["ft"], line
