@@ -117,8 +117,8 @@ class LeaveOneOut:
             s = self.scatter
             lines.append(f"leave-one-out plan RMS {_f(self.rms_xy_m):.3f} m over {self.n_checked} points (X {rx:.3f}, "
                          f"Y {ry:.3f}); the control points' own plan scatter about the block "
-                         f"{s.rms_xy_dof_m:.3f} m ({s.n} points, all in the adjustment: their plan RMS "
-                         f"{s.rms_xy_m:.3f} m x sqrt(n / (n - 2)) for the shift, scale and rotation they fix)")
+                         f"{s.rms_xy_dof_m:.3f} m ({s.n} points in 2 frames or more, all in the adjustment: their "
+                         f"plan RMS {s.rms_xy_m:.3f} m x sqrt(n / (n - 2)) for the shift, scale and rotation they fix)")
         n_z = len(self._d(("full", "height")))
         if n_z:  # (trial s102 txt M2: the height RMS was in the JSON only)
             lines.append(f"leave-one-out height RMS {_f(self.rms_m[2]):.3f} m over {n_z} points")
