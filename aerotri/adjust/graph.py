@@ -182,9 +182,21 @@ def estimated_or_apriori(cal, camera: Camera, groups) -> np.ndarray:
     5e-4 px, p1 by -1.3e-7), and a parameter not estimated is written and reported as given (trial s100 exchange
     F3: 120.0000088 mm in at/camera.toml for the 120 mm held)."""
     out = cal_from_camera(camera).astype(float)
-    free = [i for g in groups for i in camera.SELF_CAL_GROUPS[g]]
+    free = ~held_entries(camera, groups)
     out[free] = np.asarray(cal, dtype=float)[free]
     return out
+
+
+def held_entries(camera: Camera, groups) -> np.ndarray:
+    """(9,) bool: the Cal3DS2 entries no self-calibration group of ``groups`` frees (held by priors in the solve);
+    InputError for a group the camera's model has not."""
+    fixed = np.ones(9, dtype=bool)
+    for grp in groups:
+        if grp not in camera.SELF_CAL_GROUPS:
+            raise InputError(f"self-calibration group {grp!r}: the {camera.MODEL} camera model has only "
+                             f"{', '.join(camera.SELF_CAL_GROUPS)}")
+        fixed[list(camera.SELF_CAL_GROUPS[grp])] = False
+    return fixed
 
 
 def camera_from_cal(cal, like: Camera) -> Camera:
@@ -413,13 +425,7 @@ def build_graph(block: Block, opts: SolveSettings, state: State, obs_active, con
     if self_cal:
         v.insert(K_KEY, _cal3ds2(state.cal))
         sig = np.array([200.0, 200.0, 1e-3, 200.0, 200.0, 0.05, 0.05, 0.01, 0.01])  # loose a-priori
-        fixed = np.ones(9, dtype=bool)
-        groups = block.camera.SELF_CAL_GROUPS
-        for grp in opts.self_calibration:
-            if grp not in groups:
-                raise InputError(f"self-calibration group {grp!r}: the {block.camera.MODEL} camera model has only "
-                                 f"{', '.join(groups)}")
-            fixed[list(groups[grp])] = False
+        fixed = held_entries(block.camera, opts.self_calibration)
         # the prior is the a-priori camera, wherever this solve starts: a prior re-centred on the state of
         # each rebuild (robust rounds, snooping) would let the parameters held fixed drift by a sigma per round
         apriori = cal_from_camera(block.camera)

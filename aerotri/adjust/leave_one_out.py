@@ -53,6 +53,16 @@ class LeftOutPoint:
         return np.subtract(self.adjusted, self.given) * np.asarray(self.unit_m)
 
     @property
+    def plan_given(self) -> bool:
+        """Whether its plan position was given (a height-only point's was not)."""
+        return self.kind != "height"
+
+    @property
+    def height_given(self) -> bool:
+        """Whether its height was given (a plan-only point's was not)."""
+        return self.kind in ("full", "height")
+
+    @property
     def checked(self) -> bool:
         return bool(np.all(np.isfinite(self.adjusted[:2])))
 
@@ -106,10 +116,9 @@ class LeaveOneOut:
             if not p.checked:
                 lines.append(f"{p.id:>12} {p.kind:>10} {p.rays:4d}  not checked (fewer than 2 rays)")
                 continue
-            dz = f"{d[2]:8.3f}" if p.kind in ("full", "height") else f"{'-':>8}"
-            # a height-only point's plan position was never given (trial s102 txt M3: 0.396 m read against the
-            # plan limit)
-            plan = (f"{d[0]:8.3f} {d[1]:8.3f} {math.hypot(d[0], d[1]):8.3f}" if p.kind != "height"
+            dz = f"{d[2]:8.3f}" if p.height_given else f"{'-':>8}"
+            # (trial s102 txt M3: a height-only point's plan difference, 0.396 m, read against the plan limit)
+            plan = (f"{d[0]:8.3f} {d[1]:8.3f} {math.hypot(d[0], d[1]):8.3f}" if p.plan_given
                     else f"{'-':>8} {'-':>8} {'-':>8}")
             lines.append(f"{p.id:>12} {p.kind:>10} {p.rays:4d} {plan} {dz}")
         if self.n_checked:  # the table shows the record's rounded figures (at/leave_one_out.json)
@@ -231,12 +240,10 @@ def with_leave_one_out_section(report_txt: str, loo: LeaveOneOut) -> str:
 # -- at/leave_one_out.json: the record the stage writes, built from the dataclasses --------------------------
 
 def _point_record(p: LeftOutPoint) -> dict:
-    d = p.d_m
-    plan = p.kind != "height"  # a height-only point's plan position was never given
+    d, plan = p.d_m, p.plan_given
     return {"id": p.id, "kind": p.kind, "rays": p.rays, "given": list(p.given),
             "adjusted": _finite(p.adjusted), "dx_m": _f(d[0]) if plan else None, "dy_m": _f(d[1]) if plan else None,
-            "dz_m": _f(d[2]) if p.kind in ("full", "height") else None,
-            "dxy_m": _f(math.hypot(d[0], d[1])) if plan else None,
+            "dz_m": _f(d[2]) if p.height_given else None, "dxy_m": _f(math.hypot(d[0], d[1])) if plan else None,
             "sigma_m": _finite(p.sigma_m), "seconds": round(p.seconds, 2)}
 
 

@@ -426,8 +426,8 @@ def tolerance_findings(parameters: dict, unit_m=(1.0, 1.0, 1.0), *, control_resi
     for who, d in (("control", control_residuals), ("check", check_residuals)):
         if d is None or not len(d):
             continue
-        d = np.asarray(d, dtype=float).reshape(-1, 3)
-        for name, i, e in (("plan", 3, np.hypot(d[:, 0], d[:, 1]) * to_m[3]), ("height", 2, np.abs(d[:, 2]) * to_m[2])):
+        e_xy, e_z = single_residuals_m(d, unit_m)
+        for name, i, e in (("plan", 3, e_xy), ("height", 2, e_z)):
             e, lim = e[np.isfinite(e)], res_lims[i]  # heights not surveyed are no residuals
             if not len(e) or lim is None:
                 continue
@@ -439,20 +439,25 @@ def tolerance_findings(parameters: dict, unit_m=(1.0, 1.0, 1.0), *, control_resi
     return out
 
 
+def single_residuals_m(d, unit_m) -> tuple[np.ndarray, np.ndarray]:
+    """Plan and height residuals in metres, sqrt(dX^2 + dY^2) and |dZ|, of differences ``d`` (n, 3) in the CRS's
+    units (``unit_m``: metres per unit of x, y, z); NaN where a coordinate was not measured."""
+    d = np.asarray(d, dtype=float).reshape(-1, 3)
+    return np.hypot(d[:, 0], d[:, 1]) * float(unit_m[0]), np.abs(d[:, 2]) * float(unit_m[2])
+
+
 def _beyond_residual_limits(ba, check_rows: list, res_lim, tolerated_pct) -> dict | None:
     """The check points whose single plan or height residual (metres) exceeds the residual limits (trial s102 txt M6:
     named nowhere, counted only in the QA report's share); None without check points."""
-    unit = map_unit_m(getattr(ba, "crs", None), "project crs")
-    plan, height, points = 0, 0, []
-    for row in check_rows:
-        d = np.array(row["d_m"], dtype=float)
-        e_xy = float(np.hypot(d[0], d[1]) * unit[0]) if np.all(np.isfinite(d[:2])) else math.nan
-        e_z = float(abs(d[2]) * unit[2]) if math.isfinite(d[2]) else math.nan
-        plan, height = plan + math.isfinite(e_xy), height + math.isfinite(e_z)
-        if e_xy > res_lim[0] or e_z > res_lim[2]:
-            points.append({"id": row["id"], "plan_m": _f(e_xy, 4), "height_m": _f(e_z, 4)})
+    if not check_rows:
+        return None
+    e_xy, e_z = single_residuals_m([row["d_m"] for row in check_rows], map_unit_m(getattr(ba, "crs", None),
+                                                                                  "project crs"))
+    plan, height = int(np.isfinite(e_xy).sum()), int(np.isfinite(e_z).sum())
     if not plan and not height:
         return None
+    beyond = np.flatnonzero((e_xy > res_lim[0]) | (e_z > res_lim[2]))  # (NaN compares False: not measured)
+    points = [{"id": check_rows[k]["id"], "plan_m": _f(e_xy[k], 4), "height_m": _f(e_z[k], 4)} for k in beyond]
     return {"plan_limit_m": float(res_lim[0]), "height_limit_m": float(res_lim[2]), "checked_plan": plan,
             "checked_height": height, "tolerated_pct": tolerated_pct, "points": points}
 
@@ -1402,8 +1407,8 @@ def _variance_components(ba) -> list | None:
         apriori["gnss"] = f"{med[0]:.3f} / {med[2]:.3f} m"
     if len(ba.control):  # (trial s102 txt M9: the control's sigmas were in control/points.csv alone)
         # over the coordinates measured: not a height-only point's plan sigma, a plan-only one's height (txt2 M3)
-        sig, kind = np.asarray(ba.control.sigma_m, dtype=float), np.asarray(ba.control.kind)
-        plan, height = sig[np.isin(kind, ("full", "horizontal")), 0], sig[np.isin(kind, ("full", "height")), 2]
+        sig, measured = np.asarray(ba.control.sigma_m, dtype=float), ba.control.measured_xyz()
+        plan, height = sig[measured[:, 0] & measured[:, 1], 0], sig[measured[:, 2], 2]
         words = [f"{np.median(v) / wf.get('control', 1.0):.3f}" if len(v) else "-" for v in (plan, height)]
         apriori["control"] = f"{words[0]} / {words[1]} m"
     out = []
