@@ -35,13 +35,18 @@ def sigma_source(project, per_record: bool) -> str:
 
 
 def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m, offset_source: str,
-              shift_m: np.ndarray | None = None, observed: bool = True) -> str:
+              shift_m: np.ndarray | None = None, observed: bool = True, weight_factor: float = 1.0) -> str:
     """The GNSS model in one paragraph. ``correction``: the solve's GNSS model (``graph.GNSS_MODELS``);
     ``sigma_m`` (N, 3) the positions' sigmas; ``offset_sigma_m`` (3,) or None the shifts' a-priori sigma;
     ``shift_m`` (S, 3) the estimated shifts (ENU, m); ``observed``: the solve has control points or a surface
-    (DEM, roof planes), without which nothing but the GNSS positions themselves says where the block is."""
+    (DEM, roof planes), without which nothing but the GNSS positions themselves says where the block is;
+    ``weight_factor``: the variance components' factor the solve multiplied those a-priori sigmas by."""
     med = _median_sigma_m(sigma_m)
     weights = f"positions weighted with {med[0]:.3g} / {med[2]:.3g} m (plan / height; {source})"
+    if abs(weight_factor - 1.0) > 5e-4:  # (trial s102 txt2 M7: the reweighted sigmas had been named as project.toml's)
+        used = med * weight_factor
+        weights = (f"positions weighted with {med[0]:.3g} / {med[2]:.3g} m a priori (plan / height; {source}), "
+                   f"x {weight_factor:.3f} by variance components: {used[0]:.3g} / {used[2]:.3g} m in the solve")
     if correction == "none":
         if not observed:  # (trial s99 atmut H1: the heights 14 m off with a focal length 5 % long, "as good as ...")
             return (f"GNSS: {weights}, independent between frames, no offset estimated: the datum is the GNSS "

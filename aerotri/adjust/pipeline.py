@@ -875,10 +875,11 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
             focal_mode, note="from the solve that estimated the focal length; fixed since")]
     if prepared.block.gnss_local is not None:  # the GNSS model and where its sigmas came from (DATUM)
         b = prepared.block
+        w = (result.weight_factors or {}).get("gnss", 1.0)  # the block's sigmas are the reweighted ones
         prepared.datum_notes.append(gnss_model.statement(
-            prepared.opts.gnss_correction, b.gnss_sigma_m, prepared.gnss_sigma_source, b.gnss_offset_sigma_m,
+            prepared.opts.gnss_correction, b.gnss_sigma_m / w, prepared.gnss_sigma_source, b.gnss_offset_sigma_m,
             f"{prepared.project.config_path.name} [gnss] offset_sigma_xy_m, offset_sigma_z_m", result.state.shift,
-            observed=len(b.control_point) > 0 or b.surface is not None))
+            observed=len(b.control_point) > 0 or b.surface is not None, weight_factor=w))
         g = next((c for c in result.variance_components or [] if c.group == "gnss"), None)
         note = gnss_model.unchecked_note(g.redundancy, g.n, b.gnss_sigma_m) if g is not None else None
         if note:

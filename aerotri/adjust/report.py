@@ -565,6 +565,11 @@ def _tolerance_words(table, reason: str) -> dict:
     """Why the tolerance table judges the block and which of its limits the standard's text does not confirm
     (trial s102 txt M7: in summary.json only; report.txt named the table alone)."""
     out = {"tolerances_reason": reason} if reason else {}
+    z = table.provenance.get("rms_z_m")
+    if z is not None and z.of_class == "horizontal" and "rms_z_m" in table.limits:
+        # (trial s102 txt2 M8: "V10cm" in the table's name beside a height limit of 0.071 m, said nowhere why)
+        out["tolerances_height_limit"] = (f"the AT height RMS limit {table.limits['rms_z_m']:g} m is {z.factor:g} x "
+                                          f"the horizontal class H, not the vertical class V: {z.source}")
     mine = [k for k in table.unconfirmed if k in _AT_LIMIT_KEYS]  # the limits this report judges by
     if mine:
         flight = any(k.startswith("flight_") for k in table.unconfirmed)
@@ -1606,7 +1611,10 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
     tie_pts = np.setdiff1d(np.unique(b.obs_point[res.active]), b.control_point)
     sd_tie = ba.points_sigma_map[tie_pts]
     mean_sd_obj = _mean(sd_tie, axis=0) if len(tie_pts) else np.full(3, np.nan)
-    tolerances = f"{map_scale} {terrain} ({tol_table})" if tolerance_file is None else f"{terrain} ({tol_table})"
+    # a table with one set of limits for every terrain (ASPRS) is not named by a terrain class (trial s102 txt2 M8)
+    terrain_words = f" {terrain}" if table.terrain_classes else ""
+    tolerances = (f"{map_scale}{terrain_words} ({tol_table})" if tolerance_file is None
+                  else f"{terrain_words.strip() or table.key} ({tol_table})")
     sections = {
         "project": ba.project_name,
         "crs": ba.crs,
@@ -1697,6 +1705,8 @@ def _surface_control(ba) -> dict | None:
     if d.get("plane_sigma_strip_m"):
         d["plane_sigma_strip_m"] = list(d["plane_sigma_strip_m"])
     d["systematic"] = _surface_systematic(ba)
+    # the variance components' factor on sigma_m: the normalised RMS is of the sigmas so multiplied (trial s102 txt2 M7)
+    d["sigma_factor"] = _f((ba.result.weight_factors or {}).get("surface", 1.0), 4)
     return d
 
 
@@ -1727,12 +1737,21 @@ def _systematic_txt(sy: dict) -> str:
             "is not changed by it)")
 
 
+def _reweighted_words(sc: dict) -> str:
+    """The surface sigmas' variance-component factor, where the solve used one (norm. rms is against those sigmas)."""
+    w = sc.get("sigma_factor")
+    if w is None or abs(w - 1.0) <= 5e-4:
+        return ""
+    return (f" a priori, x {w:.3f} by variance components: {w * sc['sigma_m']:.3f} m (+ slope) in the solve and in "
+            "the norm. rms")
+
+
 def _surface_txt(sc: dict) -> list[str]:
     """The SURFACE CONTROL lines of report.txt: sources, then a table per class (and all)."""
     roofs = bool(sc.get("classes"))
     L = ["SURFACE CONTROL (tie points on the ground observe the DEM height"
          + (", on roof faces the roof plane)" if roofs else ")"),
-         f"  DEM {sc['dem']}, sigma {sc['sigma_m']:.3f} m (+ slope x half a cell)"
+         f"  DEM {sc['dem']}, sigma {sc['sigma_m']:.3f} m (+ slope x half a cell)" + _reweighted_words(sc)
          + (f", nDSM {sc['ndsm']} (objects above {sc['max_ndsm_m']:g} m excluded)" if sc.get("ndsm") else "")]
     if roofs:
         sxy, sz = sc["plane_sigma_strip_m"]
@@ -1761,7 +1780,8 @@ ISAT_OPTIONS = {"adjustment_mode": "Adjustment Mode", "precision_computation": "
                 "self_calibration": "Self-Calibration", "given_eo_gps": "Given EO/GPS",
                 "antenna_offsets": "Antenna Offsets", "gps_shift_drift_correction": "GPS Shift/Drift Correction",
                 "ins_shift_drift_correction": "INS Shift/Drift Correction", "tolerances": "Tolerances",
-                "tolerances_reason": "Tolerances chosen by", "tolerances_unconfirmed": "Tolerances unconfirmed"}
+                "tolerances_reason": "Tolerances chosen by", "tolerances_height_limit": "Tolerances height limit",
+                "tolerances_unconfirmed": "Tolerances unconfirmed"}
 
 
 def lidar_check_points_words(n: int) -> str:
@@ -1923,9 +1943,10 @@ def format_txt(rep: dict) -> str:
         # (trial s102 txt L14: 0.024 / 0.035 / 0.039 m read as the GNSS's fit, 0.139 / 0.066 / 0.087 m before the
         # corrections; txt2 M4: said of a flight offset the solve left at 0, on other axes than the row's)
         rms = np.sqrt(np.mean(np.square(np.array([p["gnss_offset_m"] for p in used], dtype=float)), axis=0))
-        L.append(f"  (RMS Photo Position: the GNSS positions' residuals after the corrections, {mode[9:-1]}; GNSS - "
-                 "adjusted antenna before them, on the local east, north, up (the grid's axes turn from them by the "
-                 "meridian convergence): " + " ".join(f"{v:.3f}" for v in rms) + " m)")
+        # (the direction section's sign, adjusted antenna - GNSS: txt2 L10; an RMS, so the same numbers)
+        L.append(f"  (RMS Photo Position: the GNSS positions' residuals after the corrections, {mode[9:-1]}; RMS of "
+                 "adjusted antenna - GNSS before them, on the local east, north, up (the grid's axes turn from them by "
+                 "the meridian convergence): " + " ".join(f"{v:.3f}" for v in rms) + " m)")
     if unit != "m":  # a feet CRS: the ground figures are feet, the tolerance tables' limits metres
         L.append(f"  (the coordinates, residuals and sigmas of control, check and object points and the GNSS residuals "
                  f"in the project CRS's unit, {unit}, here and below; limits, the key statistics' findings, photo "
@@ -2062,9 +2083,14 @@ def format_txt(rep: dict) -> str:
     if rep["self_calibration"]:
         L += [""] + _self_calibration_txt(rep["self_calibration"])
     if rep["gnss_strips"]:
-        L += ["", "GNSS corrections per strip", f"{'strip':>6} {'shift X':>9} {'Y':>9} {'Z':>9} {'drift X':>9} {'Y':>9} {'Z':>9} (m, m/km)"]
+        # on the local east, north, up as the solve estimates them; one offset for a flight is not a strip's (txt2 L10)
+        flight = str(rep["options"].get("gps_shift_drift_correction", "")).startswith("Enabled (one offset")
+        L += ["", "GNSS correction: one offset for the flight" if flight else "GNSS corrections per strip",
+              f"{'flight' if flight else 'strip':>6} {'shift E':>9} {'N':>9} {'U':>9}"
+              + ("" if flight else f" {'drift E':>9} {'N':>9} {'U':>9}") + (" (m)" if flight else " (m, m/km)")]
         for s in rep["gnss_strips"]:
-            L.append(f"{s['strip']:6d}" + "".join(_v(x, 10, 3) for x in s["shift_m"] + s["drift_m_per_km"]))
+            L.append(("all".rjust(6) if flight else f"{s['strip']:6d}")
+                     + "".join(_v(x, 10, 3) for x in s["shift_m"] + ([] if flight else s["drift_m_per_km"])))
         sus = rep["key_statistics"].get("gnss_corrections_suspect") or []
         if sus:
             L.append("  suspect (beyond the a-priori limit, key statistics): " + ", ".join(
@@ -2238,8 +2264,8 @@ def format_html(rep: dict, ba=None) -> str:
         check_notes=list(rep.get("check_blunders") or []) + (
             [lidar_check_points_words(rep["check_points_from_lidar"])] if rep.get("check_points_from_lidar") else []),
         check_points=None, check_sums=None, check_normalised=" ".join("-" if x is None else f"{x:.2f}" for x in rep["check_normalised_rms"] or []),
-        gnss=gnss, gnss_strips=T(["strip", "shift X m", "shift Y m", "shift Z m", "drift X m/km", "drift Y m/km",
-                                  "drift Z m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]
+        gnss=gnss, gnss_strips=T(["strip", "shift E m", "shift N m", "shift U m", "drift E m/km", "drift N m/km",
+                                  "drift U m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]
                                                     for s in rep["gnss_strips"]], 4) if rep.get("gnss_strips") else None,
         gnss_directions=_directions_html(rep.get("gnss_directions"), T),
         flight_tables=RF.flight_tables(fa) if fa else None,

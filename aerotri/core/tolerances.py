@@ -55,6 +55,9 @@ class Provenance:
     source: str
     confirmed: bool
     nva: bool = False
+    # a limit that is a multiple of an accuracy class: the class ("horizontal" H or "vertical" V) and the factor
+    of_class: str = ""
+    factor: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,7 +204,8 @@ def asprs_table(h_cm: float, v_cm: float) -> tuple[dict, dict, dict]:
         else:
             cls = {"horizontal": h_cm, "vertical": v_cm}[e["of"]]
             limits[k] = round(e["factor"] * cls / 100.0, 4)
-        prov[k] = Provenance(e["source"], bool(e["confirmed"]), bool(e.get("nva", False)))
+        prov[k] = Provenance(e["source"], bool(e["confirmed"]), bool(e.get("nva", False)), of_class=e.get("of", ""),
+                             factor=e.get("factor"))
     return limits, prov, d["table"]
 
 

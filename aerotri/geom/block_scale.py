@@ -77,6 +77,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     ``BlockScale`` without GSD says what was missing."""
     from aerotri.geom.camera import oriented_camera
     from aerotri.geom.crs.definition import height_unit_m, project_crs
+    from aerotri.geom.crs.definition import length_unit_name
     from aerotri.geom.eo import read_eo, read_gnss
 
     if not project.camera_path.is_file():
@@ -101,7 +102,8 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     # the adjusted tie points before the planned terrain height: they are the ground the frames were measured on
     if ground_heights is not None and np.isfinite(np.asarray(ground_heights, float)).any():
         g = float(np.nanmedian(np.asarray(ground_heights, float)))
-        return block_scale(camera, pos[:, 2], g, unit, f"{head} over the median height of {ground_source} ({g:.1f})")
+        return block_scale(camera, pos[:, 2], g, unit, f"{head} over the median height of {ground_source} "
+                                                       f"({g:.1f} {length_unit_name(unit)})")
     if project.object_points_path.is_file():
         z = _object_point_heights(project.object_points_path)
         z = z[np.isfinite(z)]
@@ -109,7 +111,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
             g = float(np.median(z))
             return block_scale(camera, pos[:, 2], g, unit,
                                f"{head} over the median height of the adjusted points of at/object_points.csv "
-                               f"({g:.1f})")
+                               f"({g:.1f} {length_unit_name(unit)})")
     if planned is not None:
         return block_scale(camera, pos[:, 2], planned, unit, f"{head} over [flight] mean_terrain_height_m "
                            f"({project.flight.mean_terrain_height_m:g} m; no adjusted tie points)")

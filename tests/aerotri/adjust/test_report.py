@@ -521,3 +521,37 @@ def test_the_tolerance_table_s_reason_and_unconfirmed_limits_are_said(ba):
     unconfirmed = [k for k in table.unconfirmed if k in ("rms_xy_m", "rms_z_m")]
     assert all(k in words.get("tolerances_unconfirmed", "") for k in unconfirmed)
     assert (f"  Tolerances unconfirmed : {words['tolerances_unconfirmed']}" in txt) == bool(unconfirmed)
+
+
+def test_an_asprs_table_s_height_limit_is_said_to_come_from_h(ba):
+    """trial s102 txt2 M8: "Tolerances : ASPRS2023 H7.1cm V10cm UAS flat" beside a height RMS limit of 0.071 m, with
+    no word that the AT's height limit is the horizontal class's, and a terrain class the table does not have."""
+    from aerotri.core.tolerances import asprs_key, load_table
+
+    key = asprs_key(7.1, 10.0, uas=True)
+    rep = to_record(report.build_report(ba, key, "flat"))
+    txt = report.format_txt(rep)
+    table = load_table(key, "flat")
+    assert rep["options"]["tolerances"] == f"{key} ({table.path.name})"  # no "flat": one set for every terrain
+    assert rep["parameters"]["rms_limits_m"][2] == pytest.approx(0.071) == table.limits["rms_z_m"]
+    line = next(x for x in txt.splitlines() if x.startswith("  Tolerances height limit : "))
+    assert "the AT height RMS limit 0.071 m is 1 x the horizontal class H, not the vertical class V" in line
+    # a map-scale table: its terrain class named, its height limit its own
+    rep = to_record(report.build_report(ba, "1:2000", "hilly"))
+    assert rep["options"]["tolerances"].startswith("1:2000 hilly (")
+    assert "tolerances_height_limit" not in rep["options"]
+
+
+def test_one_flight_offset_is_not_listed_as_a_strip_s_correction(tmp_path):
+    """txt2 L10: a consumer receiver's one offset for the flight stood under "GNSS corrections per strip" as strip 1,
+    with X / Y / Z headers for values on the local east, north, up."""
+    block = geometric_block(2, 5, seed=11)
+    root = write_block_project(block, tmp_path / "blk")
+    write_truth_observations(root, tie_sigma_px=0.3, n_control=5, points_per_image=60, n_check=0, seed=5)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="offset", image_sigma_px=0.3))
+    rep = to_record(report.build_report(ba))
+    txt = report.format_txt(rep).splitlines()
+    at = txt.index("GNSS correction: one offset for the flight")
+    assert txt[at + 1].split() == ["flight", "shift", "E", "N", "U", "(m)"]
+    assert [float(v) for v in txt[at + 2].split()[1:]] == pytest.approx(rep["gnss_strips"][0]["shift_m"], abs=6e-4)
+    assert txt[at + 2].split()[0] == "all" and "GNSS corrections per strip" not in txt

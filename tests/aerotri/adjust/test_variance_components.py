@@ -134,3 +134,30 @@ def test_report_names_a_weak_mode(gnss_block):
     height = {g["mode"]: g for g in rep["geometry_modes"]}["height"]
     assert height["shares"]["surface"] > 0.5
     assert {g["group"] for g in rep["variance_components"]} == {"image", "gnss", "surface"}
+
+
+def test_the_report_says_the_sigmas_a_priori_and_as_reweighted(gnss_block):
+    """trial s102 txt2 M7: SURFACE CONTROL gave the a-priori sigma beside a normalised RMS of the reweighted one, and
+    DATUM named the reweighted GNSS sigmas as project.toml's. Both now give the a-priori sigma, the factor and the
+    sigma used, and the normalised RMS is the residuals' in the sigmas used."""
+    from aerotri.adjust import report
+    from aerotri.core.records import to_record
+
+    block, root, dem = gnss_block
+    ba = adjust_project(root, AdjustSettings(image_sigma_px=SIGMA_PX, dem=dem, surface_sigma_m=0.5,
+                                             variance_components=True))
+    rep = to_record(report.build_report(ba))
+    w = ba.result.weight_factors
+    sc = rep["surface_control"]
+    assert sc["sigma_m"] == 0.5 and sc["sigma_factor"] == pytest.approx(w["surface"], abs=1e-4) and w["surface"] < 0.5
+    used = ba.result.surface_use == 1
+    e, _, sigma = ba.block.surface.observe(ba.result.state.points[used], jacobian=False)
+    assert sc["rms_normalised"] == pytest.approx(np.sqrt(np.mean((e / sigma) ** 2)), rel=1e-3)
+    assert np.median(sigma) >= 0.5 * w["surface"]  # the sigmas used: the a-priori one times the factor (+ slope)
+    txt = report.format_txt(rep)
+    assert (f"sigma 0.500 m (+ slope x half a cell) a priori, x {w['surface']:.3f} by variance components: "
+            f"{0.5 * w['surface']:.3f} m (+ slope) in the solve and in the norm. rms") in txt
+    gnss = next(n for n in rep["datum"] if n.startswith("GNSS: "))
+    apriori = block.gnss_sigma_m  # project.toml [gnss] sigma_xy_m, sigma_z_m (0.05 / 0.08 m)
+    assert f"positions weighted with {apriori[0]:.3g} / {apriori[2]:.3g} m a priori (plan / height; " in gnss
+    assert f"x {w['gnss']:.3f} by variance components" in gnss and abs(w["gnss"] - 1) > 5e-4

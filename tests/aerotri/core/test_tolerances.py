@@ -245,7 +245,7 @@ def test_the_ground_of_the_gsd_is_the_adjusted_tie_points_not_the_planned_terrai
     assert "the adjusted points of at/object_points.csv" in block.how and "mean_terrain_height_m" not in block.how
     # the adjustment's own tie points when it passes them (its report is written before object_points.csv)
     block = project_block_scale(Project.open(root), np.r_[np.full(50, GROUND_M + 12.0), np.nan])
-    assert block.height_above_ground_m == pytest.approx(28.0) and "the adjusted tie points (192.0)" in block.how
+    assert block.height_above_ground_m == pytest.approx(28.0) and "the adjusted tie points (192.0 m)" in block.how
     assert "GSD 1.2 cm at 28 m above ground" in qa_settings(root, block).table.reason
 
 
