@@ -21,7 +21,7 @@ from aerotri.adjust.solve import one_ray_control
 from aerotri.core.figures import pyplot
 from aerotri.core.quantiles import chi2_isf, norm_isf
 from aerotri.core.settings import settings_lines
-from aerotri.core.tolerances import load_table, tolerance_path
+from aerotri.core.tolerances import load_table, sigma0_limit_px, tolerance_path
 
 
 def _rms(a, axis=0):
@@ -1416,6 +1416,13 @@ def _variance_components(ba) -> list | None:
         plan, height = sig[measured[:, 0] & measured[:, 1], 0], sig[measured[:, 2], 2]
         words = [f"{np.median(v) / wf.get('control', 1.0):.3f}" if len(v) else "-" for v in (plan, height)]
         apriori["control"] = f"{words[0]} / {words[1]} m"
+        # the coordinates the solve holds by an a-priori value without a measurement (a plan-only point's pseudo
+        # height) are observations of the group too (trial s102 txt L10: the kite's "control 30" of 10 plan points)
+        held = np.sqrt(np.diagonal(ba.block.control_cov_local, axis1=1, axis2=2)) < G.LOOSE_SIGMA_M / 10
+        pseudo = (held & ~measured)[np.asarray(r.control_active, dtype=bool)]
+        if pseudo.any():
+            what = "heights" if not pseudo[:, :2].any() else "coordinates"
+            apriori["control"] += f"; {int(pseudo.sum())} of the observations pseudo {what}, not measured"
     out = []
     for c in r.variance_components:
         w = wf.get(c.group, 1.0)
@@ -1668,6 +1675,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "flight_acceptance": _flight(ba, ground, tol),
         "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},
     }
+    # the table's self-check of sigma naught, in pixels as the QA report judges it (trial s102 txt L12)
+    sections["key_statistics"]["sigma0_limit_px"] = sigma0_limit_px(tol, ba.camera_apriori.pixel_um)
     return AdjustmentReport(**sections)
 
 
@@ -1918,6 +1927,28 @@ def _parameter_label(label: str, key: str, unit: str) -> str:
     return label.replace("(m)", f"({unit})") if key in _MAP_UNIT_ROWS else label
 
 
+def _von_gruber_txt(photos: list[dict], shown: int = 40) -> list[str]:
+    """The frames whose von Gruber areas (3 x 3 ninths of the frame) hold fewer tie observations than a reviewer's
+    distribution check asks, worst first (trial s102 txt M8: in report.html's map and report.json alone)."""
+    from aerotri.adjust.report_figures import VON_GRUBER_MIN_PER_AREA as least
+
+    counted = [p for p in photos if p.get("von_gruber_tie_obs")]
+    if not counted:
+        return []
+    weak = sorted(((sum(v < least for v in p["von_gruber_tie_obs"]), i) for i, p in enumerate(counted)
+                   if min(p["von_gruber_tie_obs"]) < least), key=lambda t: (-t[0], t[1]))
+    L = ["", f"Tie-point distribution (von Gruber areas: tie observations in each ninth of the frame, rows top to "
+             f"bottom): {len(counted) - len(weak)} of {len(counted)} frames with {least} or more in every area"]
+    if weak:
+        L.append(f"{'image':>12} {'areas below':>11}  top | middle | bottom"
+                 + (f"  (the {shown} worst; all: report.json photos[].von_gruber_tie_obs)" if len(weak) > shown else ""))
+        for n, i in weak[:shown]:
+            v = counted[i]["von_gruber_tie_obs"]
+            L.append(f"{counted[i]['image_id']:>12} {n:11d}  " + " | ".join(" ".join(f"{x:d}" for x in v[r:r + 3])
+                                                                             for r in (0, 3, 6)))
+    return L
+
+
 def format_txt(rep: dict) -> str:
     o = rep["options"]
     unit = ground_unit(rep)
@@ -1953,6 +1984,11 @@ def format_txt(rep: dict) -> str:
                  f"position sigmas and image residuals on the ground in metres)")
     k = rep["key_statistics"]
     sigma = "n/a" if k["sigma0_um"] is None else f"{k['sigma0_um']:.2f} um ({k['sigma0_px']:.3f} px of {k['pixel_um']:g} um)"
+    lim = k.get("sigma0_limit_px")
+    if lim is not None and k["sigma0_px"] is not None:
+        # (trial s102 txt L12: "14.49 um" of the demo's resampled 96 um pixel read against a DMC's 8 um self-check)
+        sigma += (f"; self-check limit {lim:g} px ({lim * k['pixel_um']:.2f} um of this pixel; the tolerance "
+                  "table's, in pixels whatever their size)")
     L += ["", "Key Statistics", f"  Sigma: {sigma}"]
     if k.get("sigma0_note"):
         L.append(f"  Note: {k['sigma0_note']}")
@@ -2116,6 +2152,7 @@ def format_txt(rep: dict) -> str:
         L.append(f"{p['image_id']:>12} {p['strip']:5d} {p['obs']:5d}" + _v(p["rms_x_um"], 8, 2) + _v(p["rms_y_um"], 8, 2)
                  + "".join(_v(x, 9, 3) for x in g) + "".join(_v(x, 8, 3) for x in s)
                  + ("  GNSS left out" if p.get("gnss_left_out") else ""))
+    L += _von_gruber_txt(rep["photos"])
     pairs = rep.get("image_pairs") or []
     L += ["", f"Image pairs ({len(pairs)} sharing tie points; the {min(len(pairs), 20)} weakest; all: report.json)",
           f"{'left':>12} {'right':>12} {'points':>7} {'in 3+':>6} {'rms um':>8} {'rms px':>7}"]

@@ -351,10 +351,11 @@ def gnss_strip_plot(rep: dict) -> Figure | None:
                   f"up); {lines}{unchecked}", "vertical axes in metres, horizontal in km along the strip", fig)
 
 
+VON_GRUBER_MIN_PER_AREA = 3  # tie observations a von Gruber area (a ninth of the frame) should hold at least
 VON_GRUBER_MIN_SHRINK = 0.2  # the von Gruber map's frames: at least this share of their ground size
 
 
-def von_gruber_map(rep: dict, min_per_area: int = 3) -> Figure | None:
+def von_gruber_map(rep: dict, min_per_area: int = VON_GRUBER_MIN_PER_AREA) -> Figure | None:
     """The tie observations in each frame's nine von Gruber areas, drawn as a 3 x 3 block at the frame's
     projection centre (colour: count, colour bar; red outline: fewer than ``min_per_area``)."""
     photos = [p for p in rep.get("photos", []) if p.get("von_gruber_tie_obs")]

@@ -99,6 +99,16 @@ class ToleranceTable:
         return [k for k, p in self.provenance.items() if not p.confirmed and k in self.limits]
 
 
+def sigma0_limit_px(limits: dict, pixel_um: float | None) -> float | None:
+    """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_px`` (digital cameras: a fraction
+    of a pixel, whatever its size), or a contract's ``sigma0_max_um`` on the image over the pixel size (um)."""
+    if limits.get("sigma0_max_px") is not None:
+        return float(limits["sigma0_max_px"])
+    if limits.get("sigma0_max_um") is not None and pixel_um:
+        return round(float(limits["sigma0_max_um"]) / float(pixel_um), 3)
+    return None
+
+
 def _toml(path: Path, what: str = "tolerance table (TOML)") -> dict:
     try:
         return tomllib.loads(read_text(path, what))

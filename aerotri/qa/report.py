@@ -567,14 +567,12 @@ def _sigma0_limit_px(tol: dict, ks: KeyStatistics, s0_px: float) -> float | None
     """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_px`` (digital cameras: a
     fraction of a pixel, whatever its size), or a contract's ``sigma0_max_um`` on the image over the pixel
     size (``key_statistics`` pixel_um, or sigma0_um / sigma0_px of older reports)."""
-    if tol.get("sigma0_max_px") is not None:
-        return tol["sigma0_max_px"]
+    from aerotri.core.tolerances import sigma0_limit_px
+
     pixel_um = ks.pixel_um
     if pixel_um is None and ks.sigma0_um and s0_px:
         pixel_um = ks.sigma0_um / s0_px
-    if tol.get("sigma0_max_um") is not None and pixel_um:
-        return round(float(tol["sigma0_max_um"]) / float(pixel_um), 3)
-    return None
+    return sigma0_limit_px(tol, pixel_um)
 
 
 

@@ -94,6 +94,14 @@ def test_copr_kite_subset_end_to_end(shared_data, tmp_path):
     # and at/report.txt says it too (trial s100 rc2 L7: the JSON and the QA report only)
     txt = (root / "at" / "report.txt").read_text()
     assert f"leave-one-out plan RMS {loo['rms_xy_m']:.3f} m over 4 points" in txt.split("LEAVE-ONE-OUT CHECK")[1]
+    # the control group's observations count the plan-only targets' pseudo heights: said beside them (trial s102 txt
+    # L10: "control 30" of 10 plan points)
+    rep = json.loads((root / "at" / "report.json").read_text())
+    row = next(g for g in rep["variance_components"] if g["group"] == "control")
+    n = rep["counts"]["control_points"]
+    assert row["observations"] == 3 * n and row["apriori_sigma"].endswith(f"; {n} of the observations pseudo heights, "
+                                                                          "not measured")
+    assert row["apriori_sigma"].startswith("1.000 / - m")  # --sigma-xyz-m 1 1 5: the plan's; no height measured
     # the check is bounded by the targets' handheld GNSS: about their scatter, and no worse than 1.5 x it
     assert loo["rms_xy_m"] < 1.5 * TARGETS_SCATTER_XY_M
     # the level datum: the frames hang from the vertical as on the whole block (plan noise alone tilted the whole

@@ -153,7 +153,9 @@ def test_text_layout_is_isat_then_patb(ba):
     mixed = dataclasses.replace(ba, control=dataclasses.replace(ba.control, sigma_m=sig, kind=kind))
     rows = {g["group"]: g for g in report._variance_components(mixed)}
     want = np.median(sig[1:, 0]), np.median(np.r_[sig[0, 2], sig[2:, 2]])
-    assert rows["control"]["apriori_sigma"] == f"{want[0]:.3f} / {want[1]:.3f} m"
+    # the block held the coordinates not measured (their sigmas as given): pseudo observations of the group
+    assert rows["control"]["apriori_sigma"] == (f"{want[0]:.3f} / {want[1]:.3f} m; 3 of the observations pseudo "
+                                                "coordinates, not measured")
     other = dataclasses.replace(ba, heights="EGM2008 height", heights_measured=False)
     assert report._options(other, "")["coordinate_system"].endswith(
         "; heights EGM2008 height; relative: no height was measured (0 at the control points' median ground)")
@@ -555,3 +557,33 @@ def test_one_flight_offset_is_not_listed_as_a_strip_s_correction(tmp_path):
     assert txt[at + 1].split() == ["flight", "shift", "E", "N", "U", "(m)"]
     assert [float(v) for v in txt[at + 2].split()[1:]] == pytest.approx(rep["gnss_strips"][0]["shift_m"], abs=6e-4)
     assert txt[at + 2].split()[0] == "all" and "GNSS corrections per strip" not in txt
+
+
+def test_the_tie_point_distribution_and_the_sigma_self_check_are_in_the_text(ba):
+    """trial s102 txt M8 and L12: the von Gruber counts per frame were in report.html's map and report.json alone, and
+    sigma naught stood in um of the frames' pixel with no limit (the demo's 14.49 um of a 96 um pixel read against a
+    DMC's 8 um)."""
+    from aerotri.core.tolerances import load_table
+
+    rep = to_record(report.build_report(ba))
+    photos = [dict(p, von_gruber_tie_obs=[9] * 9) for p in rep["photos"]]
+    photos[1]["von_gruber_tie_obs"] = [5, 0, 7, 2, 9, 9, 9, 9, 1]  # three areas below 3
+    photos[3]["von_gruber_tie_obs"] = [5, 5, 7, 4, 9, 9, 9, 9, 0]  # one
+    txt = report.format_txt({**rep, "photos": photos}).splitlines()
+    head = next(i for i, x in enumerate(txt) if x.startswith("Tie-point distribution (von Gruber areas"))
+    good = sum(min(p["von_gruber_tie_obs"]) >= 3 for p in photos)
+    assert txt[head].endswith(f": {good} of {len(photos)} frames with 3 or more in every area")
+    assert good == len(photos) - 2 and txt[head + 1].split()[:3] == ["image", "areas", "below"]
+    rows = [x.split() for x in txt[head + 2:head + 4]]  # worst first
+    assert rows[0][:2] == [photos[1]["image_id"], "3"] and " ".join(rows[0][2:]) == "5 0 7 | 2 9 9 | 9 9 1"
+    assert rows[1][:2] == [photos[3]["image_id"], "1"] and txt[head + 4] == ""
+    # the block as adjusted: every frame counted, those below named
+    txt = report.format_txt(rep)
+    real = [p["von_gruber_tie_obs"] for p in rep["photos"]]
+    assert f": {sum(min(v) >= 3 for v in real)} of {len(real)} frames with 3 or more in every area\n" in txt
+    # the self-check limit of sigma naught: the table's, in pixels and in um of this camera's pixel
+    lim = load_table("1:5000", "flat").limits["sigma0_max_px"]
+    k = rep["key_statistics"]
+    assert k["sigma0_limit_px"] == lim
+    sigma = next(x for x in report.format_txt(rep).splitlines() if x.startswith("  Sigma: "))
+    assert f"; self-check limit {lim:g} px ({lim * k['pixel_um']:.2f} um of this pixel;" in sigma
