@@ -1941,7 +1941,8 @@ def _von_gruber_txt(photos: list[dict], shown: int = 40) -> list[str]:
              f"bottom): {len(counted) - len(weak)} of {len(counted)} frames with {least} or more in every area"]
     if weak:
         L.append(f"{'image':>12} {'areas below':>11}  top | middle | bottom"
-                 + (f"  (the {shown} worst; all: report.json photos[].von_gruber_tie_obs)" if len(weak) > shown else ""))
+                 + (f"  (the {shown} worst; all: report.json photos[].von_gruber_tie_obs)"
+                    if len(weak) > shown else ""))
         for n, i in weak[:shown]:
             v = counted[i]["von_gruber_tie_obs"]
             L.append(f"{counted[i]['image_id']:>12} {n:11d}  " + " | ".join(" ".join(f"{x:d}" for x in v[r:r + 3])
