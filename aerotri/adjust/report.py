@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+import aerotri
 from aerotri.adjust import graph as G
 from aerotri.adjust.dem_check import BELOW_SHARE_LIMIT
 from aerotri.adjust.determinability import PP_RELIEF_PLAN_FRACTION
@@ -1512,6 +1513,7 @@ class AdjustmentReport:
     geometry_modes: list | None
     flight_acceptance: dict | None
     timings_s: dict
+    software: str | None = None  # "aerotri <version>" that made the report (None: a report written before it said)
     # the input files as the adjustment read them (``report_record.record_inputs``: path -> size and sha256, null
     # where absent): the accuracy report judges "adjustment made from the current inputs" by them (None: not attached)
     inputs: dict | None = None
@@ -1674,6 +1676,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "geometry_modes": _geometry_modes(ba, rms_lim[2]),
         "flight_acceptance": _flight(ba, ground, tol),
         "timings_s": {k: _f(v, 3) for k, v in r.timings_s.items()},
+        "software": f"aerotri {aerotri.__version__}",
     }
     # the table's self-check of sigma naught, in pixels as the QA report judges it (trial s102 txt L12)
     sections["key_statistics"]["sigma0_limit_px"] = sigma0_limit_px(tol, ba.camera_apriori.pixel_um)
@@ -1953,7 +1956,10 @@ def _von_gruber_txt(photos: list[dict], shown: int = 40) -> list[str]:
 def format_txt(rep: dict) -> str:
     o = rep["options"]
     unit = ground_unit(rep)
-    L = [f"Photo-T Parameters and Results for Project {rep['project']}", "", "PhotoT Triangulation Options"]
+    L = [f"Photo-T Parameters and Results for Project {rep['project']}"]
+    if rep.get("software"):  # (trial s102 txt L15: an archived report.txt did not say what made it)
+        L.append(f"  made by {rep['software']}")
+    L += ["", "PhotoT Triangulation Options"]
     for key, name in ISAT_OPTIONS.items():
         if key in o:  # (the tolerances' reason and unconfirmed limits only where there are)
             L.append(f"  {name} : {o[key]}")

@@ -124,6 +124,9 @@ def test_text_layout_is_isat_then_patb(ba):
     order = [next(i for i, ln in enumerate(lines) if ln.strip() == h) for h in
              ("PhotoT Triangulation Options", "Parameters", "Key Statistics")]
     assert lines[0].startswith("Photo-T Parameters and Results for Project") and order == sorted(order)
+    import aerotri
+
+    assert lines[1] == f"  made by aerotri {aerotri.__version__}" == f"  made by {rep['software']}"  # (txt L15)
     assert txt.index("Key Statistics") < txt.index("ROOT MEAN SQUARE VALUES")
     assert f"Sigma: {rep['key_statistics']['sigma0_um']:.2f} um" in txt
     html = report.format_html(rep, ba)
