@@ -518,6 +518,20 @@ def _self_calibration_option(ba) -> str:
         f"; {', '.join(fixed)} asked for but fixed (not determinable by this block)" if fixed else "")
 
 
+def _gnss_offset_observed(ba) -> bool:
+    """Whether anything but the GNSS positions observes a GNSS offset: control points or a surface (DEM) in the
+    solve. Without them one offset for the flight stays at its a-priori value (DATUM says so)."""
+    return len(ba.block.control_point) > 0 or ba.block.surface is not None
+
+
+def _offset_unobserved(mode: str, ba) -> str:
+    """The GNSS correction option, said "not estimated" for one offset for the flight nothing observes (trial s103
+    F1: "Enabled (one offset for the flight)" over its a-priori zero)."""
+    if ba.opts.gnss_correction == "offset" and not _gnss_offset_observed(ba):
+        return mode[:-1] + "; not estimated: no control point or DEM observes it, its a-priori value kept)"
+    return mode
+
+
 def _options(ba, tolerances: str) -> dict:
     """The ISAT "PhotoT Triangulation Options" block."""
     r, b, opts, st = ba.result, ba.block, ba.opts, ba.settings
@@ -536,7 +550,8 @@ def _options(ba, tolerances: str) -> dict:
         "self_calibration": _self_calibration_option(ba),
         "given_eo_gps": "Enabled" if has_gnss else "Disabled",
         "antenna_offsets": ("Enabled (" + ", ".join(f"{v:.3f}" for v in b.lever_arm_m) + " m)") if has_gnss and np.any(b.lever_arm_m) else "Disabled",
-        "gps_shift_drift_correction": gps_mode[opts.gnss_correction] if has_gnss else "Disabled",
+        "gps_shift_drift_correction": (_offset_unobserved(gps_mode[opts.gnss_correction], ba) if has_gnss
+                                       else "Disabled"),
         "ins_shift_drift_correction": "Disabled",
         "image_sigma_px": opts.image_sigma_px,  # the final solve's: sigma0 is relative to it
         "image_sigma_apriori_px": st.image_sigma_px,
@@ -571,13 +586,19 @@ def _tolerance_words(table, reason: str) -> dict:
         # (trial s102 txt2 M8: "V10cm" in the table's name beside a height limit of 0.071 m, said nowhere why)
         out["tolerances_height_limit"] = (f"the AT height RMS limit {table.limits['rms_z_m']:g} m is {z.factor:g} x "
                                           f"the horizontal class H, not the vertical class V: {z.source}")
+        dem = table.provenance.get("dem_rmse_m")
+        if dem is not None and dem.of_class == "vertical" and dem.factor and "dem_rmse_m" in table.limits:
+            # (trial s103 L6: the elevation product's limit named without its number)
+            v_m = table.limits["dem_rmse_m"] / dem.factor
+            out["tolerances_height_limit"] += f" (here 1/2 V = {0.5 * v_m:g} m)"
     mine = [k for k in table.unconfirmed if k in _AT_LIMIT_KEYS]  # the limits this report judges by
     if mine:
         flight = any(k.startswith("flight_") for k in table.unconfirmed)
         others = sum(k not in mine and not k.startswith("flight_") for k in table.unconfirmed)
         out["tolerances_unconfirmed"] = (", ".join(mine) + (" and the flight limits" if flight else "")
                                          + ": not confirmed in the standard's text"
-            + (f" (with {others} more of the table: reports/summary.json limit_source)" if others else ""))
+            + (f" (with {others} more of the table: `aerotri report` lists them, reports/summary.json "
+               "limit_source)" if others else ""))
     return out
 
 
@@ -1414,16 +1435,20 @@ def _variance_components(ba) -> list | None:
     if len(ba.control):  # (trial s102 txt M9: the control's sigmas were in control/points.csv alone)
         # over the coordinates measured: not a height-only point's plan sigma, a plan-only one's height (txt2 M3)
         sig, measured = np.asarray(ba.control.sigma_m, dtype=float), ba.control.measured_xyz()
-        plan, height = sig[measured[:, 0] & measured[:, 1], 0], sig[measured[:, 2], 2]
+        # a point's plan sigma: the RMS of its sx and sy (trial s103: sx alone, the demo's 0.103 for 0.098 m)
+        xy = np.sqrt(0.5 * (sig[:, 0] ** 2 + sig[:, 1] ** 2))
+        plan, height = xy[measured[:, 0] & measured[:, 1]], sig[measured[:, 2], 2]
         words = [f"{np.median(v) / wf.get('control', 1.0):.3f}" if len(v) else "-" for v in (plan, height)]
         apriori["control"] = f"{words[0]} / {words[1]} m"
         # the coordinates the solve holds by an a-priori value without a measurement (a plan-only point's pseudo
         # height) are observations of the group too (trial s102 txt L10: the kite's "control 30" of 10 plan points)
-        held = np.sqrt(np.diagonal(ba.block.control_cov_local, axis1=1, axis2=2)) < G.LOOSE_SIGMA_M / 10
-        pseudo = (held & ~measured)[np.asarray(r.control_active, dtype=bool)]
-        if pseudo.any():
+        sd = np.sqrt(np.diagonal(ba.block.control_cov_local, axis1=1, axis2=2)) / wf.get("control", 1.0)
+        active = np.asarray(r.control_active, dtype=bool)
+        pseudo = ((sd < G.LOOSE_SIGMA_M / 10) & ~measured)[active]
+        if pseudo.any():  # with their a-priori sigma (trial s103 F5: the kite's 2.09 m stood in DATUM alone)
             what = "heights" if not pseudo[:, :2].any() else "coordinates"
-            apriori["control"] += f"; {int(pseudo.sum())} of the observations pseudo {what}, not measured"
+            apriori["control"] += (f"; {int(pseudo.sum())} of the observations pseudo {what} at "
+                                   f"{np.median(sd[active][pseudo]):.3g} m, not measured")
     out = []
     for c in r.variance_components:
         w = wf.get(c.group, 1.0)
@@ -1667,7 +1692,10 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "removed_observations": removed,
         "worst_tie_points": worst_points,
         "self_calibration": _self_calibration(ba),
-        "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4)}
+        # estimated false: one offset for the flight nothing but the GNSS observes, at its a-priori value
+        "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4),
+                         "drift_m_per_km": _lst(r.state.drift[s], 4),
+                         "estimated": opts.gnss_correction != "offset" or _gnss_offset_observed(ba)}
                         for s in range(G.n_shifts(b, opts.gnss_correction))] if opts.gnss_correction != "none" else None,
         "gnss_directions": _directions_dict(dirc),
         "surface_control": _surface_control(ba),
@@ -1680,6 +1708,8 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
     }
     # the table's self-check of sigma naught, in pixels as the QA report judges it (trial s102 txt L12)
     sections["key_statistics"]["sigma0_limit_px"] = sigma0_limit_px(tol, ba.camera_apriori.pixel_um)
+    key = "sigma0_max_px" if tol.get("sigma0_max_px") is not None else "sigma0_max_um"
+    sections["key_statistics"]["sigma0_limit_source"] = getattr(table.provenance.get(key), "source", None)
     return AdjustmentReport(**sections)
 
 
@@ -1754,8 +1784,9 @@ def _reweighted_words(sc: dict) -> str:
     w = sc.get("sigma_factor")
     if w is None or abs(w - 1.0) <= 5e-4:
         return ""
-    return (f" a priori, x {w:.3f} by variance components: {w * sc['sigma_m']:.3f} m (+ slope) in the solve and in "
-            "the norm. rms")
+    # the factor multiplies the whole sigma, its slope term too (trial s103: "0.019 m (+ slope)" read as added)
+    return (f" a priori, x {w:.3f} by variance components (the whole sigma, slope term included): "
+            f"{w * sc['sigma_m']:.3f} m on flat ground in the solve and in the norm. rms")
 
 
 def _surface_txt(sc: dict) -> list[str]:
@@ -1782,7 +1813,12 @@ def _surface_txt(sc: dict) -> list[str]:
 
 
 def _v(x, w=10, nd=3):
-    return f"{'' if x is None else f'{x:.{nd}f}':>{w}}"
+    return f"{'' if x is None else _unsigned_zero(f'{x:.{nd}f}'):>{w}}"
+
+
+def _unsigned_zero(text: str) -> str:
+    """"-0.000" (a tiny negative rounded) as "0.000" (trial s103 F1, F7a)."""
+    return text[1:] if text.startswith("-") and not text.strip("-0.") else text
 
 
 # report.json option key -> the ISAT "PhotoT Triangulation Options" name
@@ -1940,15 +1976,17 @@ def _von_gruber_txt(photos: list[dict], shown: int = 40) -> list[str]:
         return []
     weak = sorted(((sum(v < least for v in p["von_gruber_tie_obs"]), i) for i, p in enumerate(counted)
                    if min(p["von_gruber_tie_obs"]) < least), key=lambda t: (-t[0], t[1]))
-    L = ["", f"Tie-point distribution (von Gruber areas: tie observations in each ninth of the frame, rows top to "
-             f"bottom): {len(counted) - len(weak)} of {len(counted)} frames with {least} or more in every area"]
+    L = ["", f"Tie-point distribution (von Gruber areas: the tie observations kept in each ninth of the frame; "
+             f"information, not part of the solution's verdict): {len(counted) - len(weak)} of {len(counted)} frames "
+             f"with {least} or more in every area"]
     if weak:
-        L.append(f"{'image':>12} {'areas below':>11}  top | middle | bottom"
+        w = max(12, *(len(counted[i]["image_id"]) for _, i in weak[:shown]))
+        L.append(f"{'image':>{w}} {'areas below':>11}  top | middle | bottom (each left centre right)"
                  + (f"  (the {shown} worst; all: report.json photos[].von_gruber_tie_obs)"
                     if len(weak) > shown else ""))
         for n, i in weak[:shown]:
             v = counted[i]["von_gruber_tie_obs"]
-            L.append(f"{counted[i]['image_id']:>12} {n:11d}  " + " | ".join(" ".join(f"{x:d}" for x in v[r:r + 3])
+            L.append(f"{counted[i]['image_id']:>{w}} {n:11d}  " + " | ".join(" ".join(f"{x:d}" for x in v[r:r + 3])
                                                                              for r in (0, 3, 6)))
     return L
 
@@ -1994,8 +2032,10 @@ def format_txt(rep: dict) -> str:
     lim = k.get("sigma0_limit_px")
     if lim is not None and k["sigma0_px"] is not None:
         # (trial s102 txt L12: "14.49 um" of the demo's resampled 96 um pixel read against a DMC's 8 um self-check)
-        sigma += (f"; self-check limit {lim:g} px ({lim * k['pixel_um']:.2f} um of this pixel; the tolerance "
-                  "table's, in pixels whatever their size)")
+        # (trial s103 F2: NGI's frames resampled to 144 um, the limit read as 96 um where the camera's is 8 um)
+        sigma += (f"; self-check limit {lim:g} px ({lim * k['pixel_um']:.2f} um of this {k['pixel_um']:g} um pixel, "
+                  "the frames' as given: a resampled frame's pixel is coarser than the camera's"
+                  + (f"; {k['sigma0_limit_source']}" if k.get("sigma0_limit_source") else "") + ")")
     L += ["", "Key Statistics", f"  Sigma: {sigma}"]
     if k.get("sigma0_note"):
         L.append(f"  Note: {k['sigma0_note']}")
@@ -2128,12 +2168,16 @@ def format_txt(rep: dict) -> str:
     if rep["gnss_strips"]:
         # on the local east, north, up as the solve estimates them; one offset for a flight is not a strip's (txt2 L10)
         flight = str(rep["options"].get("gps_shift_drift_correction", "")).startswith("Enabled (one offset")
+        # the sign: GNSS - adjusted antenna, what is subtracted from the GNSS positions (trial s103 F4)
         L += ["", "GNSS correction: one offset for the flight" if flight else "GNSS corrections per strip",
               f"{'flight' if flight else 'strip':>6} {'shift E':>9} {'N':>9} {'U':>9}"
-              + ("" if flight else f" {'drift E':>9} {'N':>9} {'U':>9}") + (" (m)" if flight else " (m, m/km)")]
+              + ("" if flight else f" {'drift E':>9} {'N':>9} {'U':>9}")
+              + (" (m" if flight else " (m, m/km") + "; GNSS - adjusted antenna, subtracted from the GNSS)"]
         for s in rep["gnss_strips"]:
             L.append(("all".rjust(6) if flight else f"{s['strip']:6d}")
-                     + "".join(_v(x, 10, 3) for x in s["shift_m"] + ([] if flight else s["drift_m_per_km"])))
+                     + "".join(_v(x, 10, 3) for x in s["shift_m"] + ([] if flight else s["drift_m_per_km"]))
+                     + ("" if s.get("estimated", True) else
+                        "  not estimated: no control point or DEM observes it (its a-priori value)"))
         sus = rep["key_statistics"].get("gnss_corrections_suspect") or []
         if sus:
             L.append("  suspect (beyond the a-priori limit, key statistics): " + ", ".join(

@@ -196,7 +196,8 @@ def for_project(project, resolved: Resolved, *, first: bool = False, datum_short
     if s.gnss_correction == "none" and s.use_gnss and project.gnss.offset_sigma_m is not None:
         # the solve estimates the flight's one offset (the consumer model): say so where the setting is listed
         note = "; ".join([n for n in (resolved.notes.get("gnss_correction"),) if n] +
-                         ["no per-strip correction; one GNSS offset for the flight is estimated "
-                          "([gnss] offset_sigma_xy_m, offset_sigma_z_m)"])
+                         # (trial s103 F1: "is estimated" where nothing observed it)
+                         ["no per-strip correction; one GNSS offset for the flight, estimated where control points "
+                          "or a DEM observe it ([gnss] offset_sigma_xy_m, offset_sigma_z_m)"])
         resolved = resolved.replace("gnss_correction", "none", resolved.sources.get("gnss_correction", DEFAULT), note)
     return resolved

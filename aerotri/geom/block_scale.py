@@ -77,7 +77,6 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     ``BlockScale`` without GSD says what was missing."""
     from aerotri.geom.camera import oriented_camera
     from aerotri.geom.crs.definition import height_unit_m, project_crs
-    from aerotri.geom.crs.definition import length_unit_name
     from aerotri.geom.eo import read_eo, read_gnss
 
     if not project.camera_path.is_file():
@@ -103,7 +102,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
     if ground_heights is not None and np.isfinite(np.asarray(ground_heights, float)).any():
         g = float(np.nanmedian(np.asarray(ground_heights, float)))
         return block_scale(camera, pos[:, 2], g, unit, f"{head} over the median height of {ground_source} "
-                                                       f"({g:.1f} {length_unit_name(unit)})")
+                                                       f"({_height_words(g, unit)})")
     if project.object_points_path.is_file():
         z = _object_point_heights(project.object_points_path)
         z = z[np.isfinite(z)]
@@ -111,9 +110,17 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
             g = float(np.median(z))
             return block_scale(camera, pos[:, 2], g, unit,
                                f"{head} over the median height of the adjusted points of at/object_points.csv "
-                               f"({g:.1f} {length_unit_name(unit)})")
+                               f"({_height_words(g, unit)})")
     if planned is not None:
         return block_scale(camera, pos[:, 2], planned, unit, f"{head} over [flight] mean_terrain_height_m "
                            f"({project.flight.mean_terrain_height_m:g} m; no adjusted tie points)")
     return BlockScale(None, None, None, f"{head}; no terrain height (no lidar_out/dem.tif, no [flight] "
                                         f"mean_terrain_height_m, no adjusted tie points)")
+
+
+def _height_words(height: float, unit_m: float) -> str:
+    """A ground height with its unit, one decimal, no "-0.0" (trial s103: the kite's relative heights)."""
+    from aerotri.geom.crs.definition import length_unit_name
+
+    text = f"{height:.1f}"
+    return f"{'0.0' if text == '-0.0' else text} {length_unit_name(unit_m)}"

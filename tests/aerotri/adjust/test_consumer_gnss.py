@@ -75,7 +75,8 @@ def test_the_flight_offset_model_states_metres_where_the_survey_model_claims_cen
 
     resolved = project_settings(Project.open(root))
     assert resolved.settings.gnss_correction == "none"
-    assert "one GNSS offset for the flight is estimated" in resolved.notes["gnss_correction"]
+    assert "one GNSS offset for the flight, estimated where control points or a DEM observe it" in resolved.notes[
+        "gnss_correction"]
 
 
 def test_with_a_dem_the_height_offset_is_estimated(consumer_block):

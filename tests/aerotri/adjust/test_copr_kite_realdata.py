@@ -99,8 +99,10 @@ def test_copr_kite_subset_end_to_end(shared_data, tmp_path):
     rep = json.loads((root / "at" / "report.json").read_text())
     row = next(g for g in rep["variance_components"] if g["group"] == "control")
     n = rep["counts"]["control_points"]
-    assert row["observations"] == 3 * n and row["apriori_sigma"].endswith(f"; {n} of the observations pseudo heights, "
-                                                                          "not measured")
+    pseudo = next(x for x in rep["datum"] if "pseudo heights from the approximate orientations" in x)
+    sigma = pseudo.split("(sigma ")[1].split(" m")[0]  # DATUM's "(sigma 2.09 m, 0.1 of the ... flying height"
+    assert row["observations"] == 3 * n and row["apriori_sigma"].endswith(
+        f"; {n} of the observations pseudo heights at {float(sigma):.3g} m, not measured"), (row, pseudo)
     assert row["apriori_sigma"].startswith("1.000 / - m")  # --sigma-xyz-m 1 1 5: the plan's; no height measured
     # the check is bounded by the targets' handheld GNSS: about their scatter, and no worse than 1.5 x it
     assert loo["rms_xy_m"] < 1.5 * TARGETS_SCATTER_XY_M

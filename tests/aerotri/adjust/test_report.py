@@ -145,8 +145,15 @@ def test_text_layout_is_isat_then_patb(ba):
     assert "Coordinate System" in html and "Camera (a priori)" in html
     # the control's a-priori sigmas (trial s102 txt M9: in control/points.csv alone)
     vc = {g["group"]: g for g in rep["variance_components"]}
+    sig = np.array(ba.control.sigma_m, dtype=float)
+    sig[::2, 1] *= 3.0  # sy unlike sx: a point's plan sigma is the RMS of the two (trial s103: sx alone before)
+    plan = np.median(np.sqrt(0.5 * (sig[:, 0] ** 2 + sig[:, 1] ** 2)))
+    rows = {g["group"]: g for g in report._variance_components(
+        dataclasses.replace(ba, control=dataclasses.replace(ba.control, sigma_m=sig)))}
+    assert set(ba.control.kind) == {"full"} and rows["control"]["apriori_sigma"] == (
+        f"{plan:.3f} / {np.median(sig[:, 2]):.3f} m") and f"{plan:.3f}" != f"{np.median(sig[:, 0]):.3f}"
     med = np.median(ba.control.sigma_m, axis=0)
-    assert set(ba.control.kind) == {"full"} and vc["control"]["apriori_sigma"] == f"{med[0]:.3f} / {med[2]:.3f} m"
+    assert vc["control"]["apriori_sigma"] == f"{med[0]:.3f} / {med[2]:.3f} m"  # sx = sy
     # over the coordinates measured (trial s102 txt2 M3): a height-only point's plan sigma, a plan-only one's height
     # are none
     sig = np.array(ba.control.sigma_m, dtype=float)
@@ -155,10 +162,11 @@ def test_text_layout_is_isat_then_patb(ba):
     kind[0], kind[1] = "height", "horizontal"
     mixed = dataclasses.replace(ba, control=dataclasses.replace(ba.control, sigma_m=sig, kind=kind))
     rows = {g["group"]: g for g in report._variance_components(mixed)}
-    want = np.median(sig[1:, 0]), np.median(np.r_[sig[0, 2], sig[2:, 2]])
+    want = np.median(np.hypot(sig[1:, 0], sig[1:, 1]) / np.sqrt(2)), np.median(np.r_[sig[0, 2], sig[2:, 2]])
     # the block held the coordinates not measured (their sigmas as given): pseudo observations of the group
+    sd = np.sqrt(np.diagonal(ba.block.control_cov_local, axis1=1, axis2=2))[[0, 0, 1], [0, 1, 2]]
     assert rows["control"]["apriori_sigma"] == (f"{want[0]:.3f} / {want[1]:.3f} m; 3 of the observations pseudo "
-                                                "coordinates, not measured")
+                                                f"coordinates at {np.median(sd):.3g} m, not measured")
     other = dataclasses.replace(ba, heights="EGM2008 height", heights_measured=False)
     assert report._options(other, "")["coordinate_system"].endswith(
         "; heights EGM2008 height; relative: no height was measured (0 at the control points' median ground)")
@@ -541,6 +549,7 @@ def test_an_asprs_table_s_height_limit_is_said_to_come_from_h(ba):
     assert rep["parameters"]["rms_limits_m"][2] == pytest.approx(0.071) == table.limits["rms_z_m"]
     line = next(x for x in txt.splitlines() if x.startswith("  Tolerances height limit : "))
     assert "the AT height RMS limit 0.071 m is 1 x the horizontal class H, not the vertical class V" in line
+    assert line.endswith(" (here 1/2 V = 0.05 m)")  # an elevation product's, with its number (trial s103 L6)
     # a map-scale table: its terrain class named, its height limit its own
     rep = to_record(report.build_report(ba, "1:2000", "hilly"))
     assert rep["options"]["tolerances"].startswith("1:2000 hilly (")
@@ -557,9 +566,22 @@ def test_one_flight_offset_is_not_listed_as_a_strip_s_correction(tmp_path):
     rep = to_record(report.build_report(ba))
     txt = report.format_txt(rep).splitlines()
     at = txt.index("GNSS correction: one offset for the flight")
-    assert txt[at + 1].split() == ["flight", "shift", "E", "N", "U", "(m)"]
+    # the sign said (trial s103 F4): the shift is GNSS - adjusted antenna, subtracted from the GNSS
+    assert txt[at + 1].split() == ["flight", "shift", "E", "N", "U", "(m;", "GNSS", "-", "adjusted", "antenna,",
+                                   "subtracted", "from", "the", "GNSS)"]
     assert [float(v) for v in txt[at + 2].split()[1:]] == pytest.approx(rep["gnss_strips"][0]["shift_m"], abs=6e-4)
     assert txt[at + 2].split()[0] == "all" and "GNSS corrections per strip" not in txt
+    assert rep["gnss_strips"][0]["estimated"] and "not estimated" not in rep["options"]["gps_shift_drift_correction"]
+    # without control or a DEM nothing observes the offset: its a-priori zero is not a result (trial s103 F1)
+    ba = adjust_project(root, AdjustSettings(gnss_correction="offset", image_sigma_px=0.3, use_control=False))
+    rep = to_record(report.build_report(ba))
+    txt = report.format_txt(rep).splitlines()
+    at = txt.index("GNSS correction: one offset for the flight")
+    assert not rep["gnss_strips"][0]["estimated"] and "-0.000" not in txt[at + 2]
+    assert txt[at + 2].endswith("  not estimated: no control point or DEM observes it (its a-priori value)")
+    assert rep["options"]["gps_shift_drift_correction"] == (
+        "Enabled (one offset for the flight; not estimated: no control point or DEM observes it, its a-priori value "
+        "kept)")
 
 
 def test_the_tie_point_distribution_and_the_sigma_self_check_are_in_the_text(ba):
@@ -589,4 +611,8 @@ def test_the_tie_point_distribution_and_the_sigma_self_check_are_in_the_text(ba)
     k = rep["key_statistics"]
     assert k["sigma0_limit_px"] == lim
     sigma = next(x for x in report.format_txt(rep).splitlines() if x.startswith("  Sigma: "))
-    assert f"; self-check limit {lim:g} px ({lim * k['pixel_um']:.2f} um of this pixel;" in sigma
+    assert f"; self-check limit {lim:g} px ({lim * k['pixel_um']:.2f} um of this {k['pixel_um']:g} um pixel, " in sigma
+    # what the limit rests on, from the table (trial s103 F2: "the tolerance table's" read as a standard's)
+    table = load_table("1:5000", "flat")
+    assert k["sigma0_limit_source"] == table.provenance["sigma0_max_px"].source
+    assert sigma.endswith(f"; {table.provenance['sigma0_max_px'].source})")

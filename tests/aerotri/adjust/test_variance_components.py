@@ -155,8 +155,9 @@ def test_the_report_says_the_sigmas_a_priori_and_as_reweighted(gnss_block):
     assert sc["rms_normalised"] == pytest.approx(np.sqrt(np.mean((e / sigma) ** 2)), rel=1e-3)
     assert np.median(sigma) >= 0.5 * w["surface"]  # the sigmas used: the a-priori one times the factor (+ slope)
     txt = report.format_txt(rep)
-    assert (f"sigma 0.500 m (+ slope x half a cell) a priori, x {w['surface']:.3f} by variance components: "
-            f"{0.5 * w['surface']:.3f} m (+ slope) in the solve and in the norm. rms") in txt
+    assert (f"sigma 0.500 m (+ slope x half a cell) a priori, x {w['surface']:.3f} by variance components (the whole "
+            f"sigma, slope term included): {0.5 * w['surface']:.3f} m on flat ground in the solve and in the norm. "
+            "rms") in txt
     gnss = next(n for n in rep["datum"] if n.startswith("GNSS: "))
     apriori = block.gnss_sigma_m  # project.toml [gnss] sigma_xy_m, sigma_z_m (0.05 / 0.08 m)
     assert f"positions weighted with {apriori[0]:.3g} / {apriori[2]:.3g} m a priori (plan / height; " in gnss
