@@ -34,6 +34,12 @@ def sigma_source(project, per_record: bool) -> str:
     return DEFAULT_SOURCE
 
 
+def offset_observed(block) -> bool:
+    """Whether anything but the GNSS positions observes a GNSS offset or shift: control points or a surface (DEM,
+    roof planes) in the solve. Without them an offset stays at its a-priori value."""
+    return len(block.control_point) > 0 or block.surface is not None
+
+
 def statement(correction: str, sigma_m: np.ndarray, source: str, offset_sigma_m, offset_source: str,
               shift_m: np.ndarray | None = None, observed: bool = True, weight_factor: float = 1.0) -> str:
     """The GNSS model in one paragraph. ``correction``: the solve's GNSS model (``graph.GNSS_MODELS``);

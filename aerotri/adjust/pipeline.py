@@ -879,7 +879,7 @@ def adjust_project(root, settings: AdjustSettings | None = None) -> BlockAdjustm
         prepared.datum_notes.append(gnss_model.statement(
             prepared.opts.gnss_correction, b.gnss_sigma_m / w, prepared.gnss_sigma_source, b.gnss_offset_sigma_m,
             f"{prepared.project.config_path.name} [gnss] offset_sigma_xy_m, offset_sigma_z_m", result.state.shift,
-            observed=len(b.control_point) > 0 or b.surface is not None, weight_factor=w))
+            observed=gnss_model.offset_observed(b), weight_factor=w))
         g = next((c for c in result.variance_components or [] if c.group == "gnss"), None)
         note = gnss_model.unchecked_note(g.redundancy, g.n, b.gnss_sigma_m) if g is not None else None
         if note:

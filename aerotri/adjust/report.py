@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 import aerotri
+from aerotri.adjust import gnss_model
 from aerotri.adjust import graph as G
 from aerotri.adjust.dem_check import BELOW_SHARE_LIMIT
 from aerotri.adjust.determinability import PP_RELIEF_PLAN_FRACTION
@@ -518,16 +519,10 @@ def _self_calibration_option(ba) -> str:
         f"; {', '.join(fixed)} asked for but fixed (not determinable by this block)" if fixed else "")
 
 
-def _gnss_offset_observed(ba) -> bool:
-    """Whether anything but the GNSS positions observes a GNSS offset: control points or a surface (DEM) in the
-    solve. Without them one offset for the flight stays at its a-priori value (DATUM says so)."""
-    return len(ba.block.control_point) > 0 or ba.block.surface is not None
-
-
 def _offset_unobserved(mode: str, ba) -> str:
     """The GNSS correction option, said "not estimated" for one offset for the flight nothing observes (trial s103
     F1: "Enabled (one offset for the flight)" over its a-priori zero)."""
-    if ba.opts.gnss_correction == "offset" and not _gnss_offset_observed(ba):
+    if ba.opts.gnss_correction == "offset" and not gnss_model.offset_observed(ba.block):
         return mode[:-1] + "; not estimated: no control point or DEM observes it, its a-priori value kept)"
     return mode
 
@@ -1695,7 +1690,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         # estimated false: one offset for the flight nothing but the GNSS observes, at its a-priori value
         "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4),
                          "drift_m_per_km": _lst(r.state.drift[s], 4),
-                         "estimated": opts.gnss_correction != "offset" or _gnss_offset_observed(ba)}
+                         "estimated": opts.gnss_correction != "offset" or gnss_model.offset_observed(b)}
                         for s in range(G.n_shifts(b, opts.gnss_correction))] if opts.gnss_correction != "none" else None,
         "gnss_directions": _directions_dict(dirc),
         "surface_control": _surface_control(ba),
@@ -1813,12 +1808,8 @@ def _surface_txt(sc: dict) -> list[str]:
 
 
 def _v(x, w=10, nd=3):
-    return f"{'' if x is None else _unsigned_zero(f'{x:.{nd}f}'):>{w}}"
-
-
-def _unsigned_zero(text: str) -> str:
-    """"-0.000" (a tiny negative rounded) as "0.000" (trial s103 F1, F7a)."""
-    return text[1:] if text.startswith("-") and not text.strip("-0.") else text
+    # + 0.0: a tiny negative rounds to 0, not -0 (trial s103 F1, F7a: "-0.000")
+    return f"{'' if x is None else f'{round(x, nd) + 0.0:.{nd}f}':>{w}}"
 
 
 # report.json option key -> the ISAT "PhotoT Triangulation Options" name

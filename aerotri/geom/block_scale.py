@@ -119,8 +119,7 @@ def project_block_scale(project, ground_heights=None, ground_source: str = "the 
 
 
 def _height_words(height: float, unit_m: float) -> str:
-    """A ground height with its unit, one decimal, no "-0.0" (trial s103: the kite's relative heights)."""
+    """A ground height with its unit, one decimal (+ 0.0: no "-0.0", trial s103: the kite's relative heights)."""
     from aerotri.geom.crs.definition import length_unit_name
 
-    text = f"{height:.1f}"
-    return f"{'0.0' if text == '-0.0' else text} {length_unit_name(unit_m)}"
+    return f"{round(height, 1) + 0.0:.1f} {length_unit_name(unit_m)}"

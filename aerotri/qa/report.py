@@ -38,7 +38,7 @@ from aerotri.core.project import Project
 from aerotri.core.records import to_record
 from aerotri.core.figures import pyplot
 from aerotri.core.tolerances import (ASPRS_FILE, TERRAINS, TOLERANCE_DIR, ToleranceTable, choose_table,
-                                     read_qa_config, split_key)
+                                     read_qa_config, sigma0_limit_px, split_key)
 from aerotri.geom.block_scale import planned_terrain_height, project_block_scale
 from aerotri.qa.standards import formulas as F
 from aerotri.qa.rounding import round_on_its_side, text_on_its_side, within
@@ -567,8 +567,6 @@ def _sigma0_limit_px(tol: dict, ks: KeyStatistics, s0_px: float) -> float | None
     """The self-check limit of sigma naught in the camera's pixels: ``sigma0_max_px`` (digital cameras: a
     fraction of a pixel, whatever its size), or a contract's ``sigma0_max_um`` on the image over the pixel
     size (``key_statistics`` pixel_um, or sigma0_um / sigma0_px of older reports)."""
-    from aerotri.core.tolerances import sigma0_limit_px
-
     pixel_um = ks.pixel_um
     if pixel_um is None and ks.sigma0_um and s0_px:
         pixel_um = ks.sigma0_um / s0_px
