@@ -437,8 +437,9 @@ def read(files, project: Project, options: ImportSettings) -> ImportedBlock:
         sxy, sz, oxy, oz = CONSUMER_GNSS
         block.notes.append(f"positions: the EXIF states no accuracy (no DJI RTK): {project.config_path.name} [gnss] "
                            f"gets a consumer receiver's model, {sxy:g} / {sz:g} m between frames and one offset for "
-                           f"the flight of {oxy:g} / {oz:g} m (plan / height) that the adjustment estimates; edit "
-                           "them for your receiver, or give --sigma-xyz-m for positions of a stated accuracy")
+                           f"the flight of {oxy:g} / {oz:g} m (plan / height) that the adjustment estimates where "
+                           "control points or a DEM observe it; edit them for your receiver, or give --sigma-xyz-m "
+                           "for positions of a stated accuracy")
     elif sigma is None and any(project.source_of("gnss", k) != "project.toml" for k in ("sigma_xy_m", "sigma_z_m")):
         g = project.gnss
         block.notes.append(f"positions: the EXIF states no accuracy (no DJI RTK): the adjustment takes [gnss] "
