@@ -1,10 +1,17 @@
 """Real reference data: ISPRS filter test (7 samples) and the AHN3 Delft crop."""
 
+import sqlite3
+from pathlib import Path
+
 import numpy as np
 import pytest
+import shapely
+import shapely.wkb
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from lidarctl import io
+from lidarctl import io, tiles
+from lidarctl.classify import class_grid as cg
 from lidarctl.classify import pipeline as classify
 from lidarctl.checks import classes as evaluate
 from lidarctl.classify import noise
@@ -31,20 +38,61 @@ def test_isprs_mean_total_error_one_parameter_set(shared_data):
     assert np.mean(totals) <= 3.3, totals
 
 
+def _bgt_footprints(sqlite_path) -> list:
+    con = sqlite3.connect(f"file:{sqlite_path}?mode=ro", uri=True)
+    rows = con.execute("SELECT GEOMETRY FROM buildingpart").fetchall()
+    con.close()
+    return [shapely.wkb.loads(bytes(b)) for (b,) in rows]
+
+
 @pytest.mark.realdata
-def test_ahn3_has_no_crs_and_ground_is_found(shared_data):
+def test_ahn3_has_no_crs_and_ground_is_found_and_buildings_cover_the_bgt_footprints(shared_data, tmp_path):
+    """Issue 44's measure: the building class rasterised at 0.5 m (highest return per cell) against the BGT
+    footprints (an independent survey), cells within 0.5 m of an outline ignored, inside the footprints' block
+    hulls, per quarter of the crop (split at the median x and y of its returns; bench/eval_buildings_bgt.py)."""
     path = shared_data / "ahn3_delft" / "ahn3_cropped_1.laz"
     with pytest.raises(io.InputError, match="no CRS"):
         io.read_cloud(path)
-    c = io.read_cloud(path, crs="EPSG:28992")
+    out = tmp_path / "classified.laz"
+    tiles.classify_file(path, out, crs="EPSG:28992")
+    c = io.read_cloud(out)
     assert c.crs.to_epsg() == 28992
-    cls = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity)
-    conf = evaluate.confusion(np.where(np.isin(cls, (2, 6)), cls, 1), c.classification, classes=[1, 2, 6, 9, 26])
-    # Target of issue 3: building and ground producer's and user's accuracy at least 95 %
-    # (measured 95.4 / 95.1 % building, 98.4 / 96.6 % ground; bench/results/lidar_ahn3_holdout.json).
-    for cls_ in ("2", "6"):
-        assert conf.producers_accuracy_pct[cls_] >= 95.0, conf
-        assert conf.users_accuracy_pct[cls_] >= 95.0, conf
+    ref_cls = io.read_cloud(path, crs="EPSG:28992").classification
+    cls = np.asarray(c.classification)
+    conf = evaluate.confusion(np.where(np.isin(cls, (2, 6)), cls, 1), ref_cls, classes=[1, 2, 6, 9, 26])
+    # Ground against AHN3's classes (issue 3's target, kept): measured 98.2 / 97.4 %.
+    assert conf.producers_accuracy_pct["2"] >= 95.0, conf
+    assert conf.users_accuracy_pct["2"] >= 95.0, conf
+    # Buildings per point against AHN3 are a reported figure since issue 44 (AHN3 calls building the see-through
+    # garden structures the BGT does not map, and the pierced-growth test takes them): 93.2 / 96.3 % measured
+    # (95.5 / 95.3 % without the test).
+    assert conf.producers_accuracy_pct["6"] >= 93.0, conf
+    assert conf.users_accuracy_pct["6"] >= 96.0, conf
+
+    polys = _bgt_footprints(shared_data / "ahn3_delft" / "bgt_pand.sqlite")
+    grid, _ = cg.cloud_grid(out, 0.5, "EPSG:28992")
+    footprints = cg.ClassPolygons(polys, np.full(len(polys), classify.BUILDING, np.uint8), None, Path("bgt"))
+    ref, _ = cg.rasterize_polygons(footprints, grid)
+    band = cg.rasterize_mask([shapely.union_all([p.boundary for p in polys]).buffer(0.5)], grid)
+    in_blocks = cg.rasterize_mask(cg.block_hulls(footprints), grid)
+    top = cg.cloud_classes(out, grid)
+    empty = top == cg.IGNORE
+    top = top[tuple(ndimage.distance_transform_edt(empty, return_distances=False, return_indices=True))]
+    building, footprint = top == classify.BUILDING, ref == classify.BUILDING
+    xc, yc = grid.centres()
+    quarter = (xc[None, :] >= np.median(c.x)).astype(int) + 2 * (yc[:, None] >= np.median(c.y)).astype(int)
+    scored_quarters = 0
+    for k in range(4):
+        scored = in_blocks & ~band & (quarter == k)
+        tp, fn, fp = (np.sum(a & b & scored) for a, b in ((building, footprint), (~building, footprint),
+                                                          (building, ~footprint)))
+        if tp + fn == 0:
+            continue   # the south-west quarter holds no footprint
+        scored_quarters += 1
+        # measured (SE, NW, NE): completeness 96.6 / 95.8 / 97.5 %, correctness 97.7 / 96.1 / 95.6 %
+        assert 100.0 * tp / (tp + fn) >= 95.0, (k, tp, fn, fp)
+        assert 100.0 * tp / (tp + fp) >= 95.0, (k, tp, fn, fp)
+    assert scored_quarters == 3
 
 
 @pytest.mark.realdata

@@ -180,7 +180,10 @@ def _house_with_hedge_and_glass_roof(seed: int, density_per_m2: float = 10.0):
 
 
 def test_growth_that_passes_pulses_to_the_ground_leaves_the_building_a_glass_roof_does_not():
-    off = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.0, low_growth_max_height_m=0.0)
+    # pierced growth alone: the edge completion's stop (a default since stop 104) takes the points the completion
+    # grows over a glass roof as over a pergola (test_roof_edge_completion_stops_at_a_surface_the_pulses_pass)
+    off = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.0, low_growth_max_height_m=0.0,
+                              pierced_edge_completion=False)
     pierced = dataclasses.replace(off, pierced_growth_max_fraction=0.1)
     for seed in (0, 1, 2):
         x, y, z, rn, nr, truth = _house_with_hedge_and_glass_roof(seed)
@@ -294,7 +297,11 @@ def _house_with_pergola(seed: int, density_per_m2: float = 10.0):
 
 
 def test_roof_edge_completion_stops_at_a_surface_the_pulses_pass():
-    pierced = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.1, low_growth_max_height_m=0.0)
+    # the defaults since stop 104 hold the stop; the base here is pierced growth without it
+    pierced = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.1,
+                                  low_growth_max_height_m=0.0, pierced_edge_completion=False)
+    assert dataclasses.replace(pierced, pierced_edge_completion=True) == dataclasses.replace(
+        classify.ClassifySettings(), low_growth_max_height_m=0.0)   # the shipped set is the one "with the stop"
     for seed in (0, 1, 2):
         x, y, z, rn, nr, truth = _house_with_pergola(seed)
         inten = np.full(len(x), 300, np.uint16)
@@ -320,7 +327,7 @@ def test_roof_edge_completion_stops_at_a_surface_the_pulses_pass():
             continue
         # the switch alone (pierced growth off) changes nothing; without return numbers neither
         stop = dataclasses.replace(pierced, pierced_edge_completion=True)
-        off = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.0)
+        off = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.0, pierced_edge_completion=False)
         assert (classify.classify_points(x, y, z, rn, nr, inten, params=off) ==
                 classify.classify_points(x, y, z, rn, nr, inten, params=dataclasses.replace(off, pierced_edge_completion=True))).all()
         assert (classify.classify_points(x, y, z, params=stop) == classify.classify_points(x, y, z, params=pierced)).all()
