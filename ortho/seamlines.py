@@ -7,10 +7,12 @@ of frames stay in memory:
    projection centre's ground position) is nearest - the least relief displacement.
 2. Least-cost seams: for each pair of neighbouring frames, the seam is re-routed along the cheapest
    8-connected path (Dijkstra, ``scipy.sparse.csgraph``) through their common overlap between the ends
-   of the Voronoi seam. Cost per cell = 1 + ``object_cost`` where the nDSM shows buildings or trees
-   (height above ground > ``object_height_m``, dilated by one cell) + ``difference_cost`` x the
-   normalised grey-value difference of the two frames. The cells of the overlap on either side of the
-   new path go to the frame whose exclusive area they touch.
+   of the Voronoi seam. Cost per cell = 1 + ``object_cost`` within a cell of where the nDSM shows buildings
+   or trees (height above ground > ``object_height_m``) + ``difference_cost`` x the normalised grey-value
+   difference of the two frames; a cell of the object itself costs more than any route over open ground
+   through the pair's overlap can, so the seam crosses as few object cells as it can: none where a ground
+   route exists. The cells of the overlap on either side of the new path go to the frame whose exclusive
+   area they touch.
 3. Objects still split (where seams meet, at seam ends) go whole to a frame that sees all of them.
 
 Labels are frame indices (int32), -1 where no frame is valid.
@@ -187,7 +189,11 @@ def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, *, gray: li
     ``valid`` are the cells it covers (``covered``: a true ortho's occlusion holes filled); a cell one of the two
     frames does not see has the highest grey-value difference cost (its difference is unknown), still far below a
     building's."""
-    obj = _dilate(np.ascontiguousarray(object_mask, bool), _SQUARE) if object_mask is not None else None
+    obj = None
+    if object_mask is not None:
+        core = np.ascontiguousarray(object_mask, bool)
+        # 1 on the object's cells, 0.5 on the cell round them (the margin costs object_cost as before)
+        obj = (_dilate(core, _SQUARE).astype(np.float32) + core) / 2
     done = set()
     labels = labels.copy()
     # the cells no frame covers, framed by more of them: a re-routing only moves cells between the pair's two frames,
@@ -240,7 +246,13 @@ def _reroute_pair(labels, i, j, *, valid, offsets, gray, obj, object_cost, diffe
         d[corridor & ~both] = 3.0  # a frame does not see the cell: its difference is unknown
         cost += difference_cost * d
     if obj is not None:
-        cost += object_cost * obj[r0:r1, c0:c1]
+        o = obj[r0:r1, c0:c1]
+        # an object's own cell costs more than the most a route over open ground through the corridor can (each
+        # of its cells at most 1 + 3 x difference_cost + object_cost on a margin, over at most a step of sqrt(2);
+        # a path's end cell counts half an edge), so the path has the fewest object cells there are; the margin
+        # and the grey values decide among those paths
+        through = 3.0 * (1.0 + 3.0 * difference_cost + object_cost) * np.count_nonzero(corridor) + 1.0
+        cost += np.where(o >= 1.0, through, object_cost * (o > 0))
     # the seam may leave the overlap anywhere on the overlap's border near its Voronoi ends, so that an end
     # does not pin it onto a building: within end_reach x seam length, and within end_reach_cells where
     # the border is the edge of the block (no frame beyond it, so no other seam is disturbed)
@@ -312,7 +324,8 @@ def _reroute_pair(labels, i, j, *, valid, offsets, gray, obj, object_cost, diffe
 def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list, offsets: list,
                        max_cells: int = 20000) -> np.ndarray:
     """Give every object (building, tree: connected cells of ``object_mask``) still split between frames
-    to one of those frames that sees all of it (the one holding most of it).
+    to one of those frames that sees all of it (the one holding most of it); all of it is its cells in the
+    mosaic (label >= 0), so an object the block's edge cuts goes whole to a frame as well.
 
     The seams then run round the object along its outline; objects no single frame covers stay split.
     """
@@ -326,10 +339,12 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
         # one cell of margin so the seam does not run along the wall
         r0, r1 = max(y - 1, 0), min(y + h + 1, labels.shape[0])
         c0, c1 = max(x - 1, 0), min(x + w + 1, labels.shape[1])
-        obj = _dilate(parts[r0:r1, c0:c1] == k, _SQUARE)
+        lab = labels[r0:r1, c0:c1]
+        # its cells no frame covers are not in the mosaic (the block's edge): a frame that covers the rest covers
+        # all of it there is, else a building the block's edge cut kept the seam along a frame's edge across it
+        obj = _dilate(parts[r0:r1, c0:c1] == k, _SQUARE) & (lab >= 0)
         if np.count_nonzero(obj) > max_cells:
             continue
-        lab = labels[r0:r1, c0:c1]
         present, counts = np.unique(lab[obj], return_counts=True)
         keep = present >= 0
         present, counts = present[keep], counts[keep]

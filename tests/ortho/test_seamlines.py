@@ -42,6 +42,32 @@ def test_least_cost_seam_runs_round_a_building_within_the_overlap():
     assert (labels[:, :13] == 0).all() and (labels[:, 28:] == 1).all()
 
 
+def test_a_seam_takes_a_ground_route_however_long_and_crosses_an_object_only_where_none_exists():
+    """Issue 42: "never through a building or tree crown where a ground route exists". A row of buildings across
+    the overlap, open only at its far end: the detour round it (about 210 cells) costs more than crossing one
+    object cell and its margin at the old finite object cost (150), yet the seam takes it; closed, the seam
+    crosses the row once, through its fewest cells."""
+    h, w = 40, 300
+    valid = [np.ones((h, 260), bool), np.ones((h, 260), bool)]   # overlap: columns 40-259
+    offsets = [(0, 0), (0, 40)]
+    nadir = np.array([[20.0, 100.25], [20.0, 200.25]])           # the Voronoi seam between columns 150 and 151
+    labels = voronoi_labels(valid, offsets, nadir, (h, w))
+    for gap in (True, False):
+        obj = np.zeros((h, w), bool)
+        obj[20, 40:255 if gap else 260] = True
+        out = least_cost_seams(labels, valid, offsets, object_mask=obj)
+        assert (out[:, :40] == 0).all() and (out[:, 260:] == 1).all()
+        # a seam cell: labels differ from the right or the lower neighbour
+        seam = np.zeros((h, w), bool)
+        seam[:, :-1] |= out[:, :-1] != out[:, 1:]
+        seam[:-1, :] |= out[:-1, :] != out[1:, :]
+        if gap:
+            assert not (seam & obj).any()
+            assert len(np.unique(out[obj])) == 1
+        else:
+            assert 1 <= np.count_nonzero(seam & obj) <= 2   # one crossing of the one-cell row
+
+
 def test_keep_objects_whole_gives_a_split_object_to_a_frame_that_sees_all_of_it():
     labels = _voronoi()
     obj = np.zeros((H, W), bool)
@@ -52,6 +78,21 @@ def test_keep_objects_whole_gives_a_split_object_to_a_frame_that_sees_all_of_it(
     wide = np.zeros((H, W), bool)
     wide[10:14, 5:35] = True  # no frame sees all of it: stays split
     assert len(np.unique(keep_objects_whole(labels, wide, VALID, OFFSETS)[wide])) == 2
+
+
+def test_an_object_the_block_edge_cuts_goes_whole_to_a_frame_that_covers_the_rest():
+    """An object whose southern part no frame covers (the block ends across it): both frames cover all of it there
+    is in the mosaic, so it is not left split by the seam (issue 42: on the demo and the tall block every seam
+    left on a roof was such a building at the block's edge)."""
+    valid = [np.ones((25, 28), bool), np.ones((25, 27), bool)]      # rows 25-29: no frame
+    labels = voronoi_labels(valid, OFFSETS, NADIR_RC, (H, W))
+    assert (labels[25:] == -1).all()
+    obj = np.zeros((H, W), bool)
+    obj[18:30, 17:24] = True                                          # across the seam and the block's edge
+    assert len(np.unique(labels[obj & (labels >= 0)])) == 2
+    out = keep_objects_whole(labels, obj, valid, OFFSETS)
+    assert len(np.unique(out[obj & (out >= 0)])) == 1
+    assert (out[25:] == -1).all()                                     # cells no frame covers stay unlabelled
 
 
 def test_polygons_and_seam_lines_in_map_units():
