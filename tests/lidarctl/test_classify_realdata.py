@@ -1,12 +1,10 @@
 """Real reference data: ISPRS filter test (7 samples) and the AHN3 Delft crop."""
 
-import sqlite3
 from pathlib import Path
 
 import numpy as np
 import pytest
 import shapely
-import shapely.wkb
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
@@ -38,15 +36,9 @@ def test_isprs_mean_total_error_one_parameter_set(shared_data):
     assert np.mean(totals) <= 3.3, totals
 
 
-def _bgt_footprints(sqlite_path) -> list:
-    con = sqlite3.connect(f"file:{sqlite_path}?mode=ro", uri=True)
-    rows = con.execute("SELECT GEOMETRY FROM buildingpart").fetchall()
-    con.close()
-    return [shapely.wkb.loads(bytes(b)) for (b,) in rows]
-
-
 @pytest.mark.realdata
-def test_ahn3_has_no_crs_and_ground_is_found_and_buildings_cover_the_bgt_footprints(shared_data, tmp_path):
+def test_ahn3_has_no_crs_and_ground_is_found_and_buildings_cover_the_bgt_footprints(shared_data, bgt_footprints,
+                                                                                     tmp_path):
     """Issue 44's measure: the building class rasterised at 0.5 m (highest return per cell) against the BGT
     footprints (an independent survey), cells within 0.5 m of an outline ignored, inside the footprints' block
     hulls, per quarter of the crop (split at the median x and y of its returns; bench/eval_buildings_bgt.py)."""
@@ -69,7 +61,7 @@ def test_ahn3_has_no_crs_and_ground_is_found_and_buildings_cover_the_bgt_footpri
     assert conf.producers_accuracy_pct["6"] >= 93.0, conf
     assert conf.users_accuracy_pct["6"] >= 96.0, conf
 
-    polys = _bgt_footprints(shared_data / "ahn3_delft" / "bgt_pand.sqlite")
+    polys = bgt_footprints
     grid, _ = cg.cloud_grid(out, 0.5, "EPSG:28992")
     footprints = cg.ClassPolygons(polys, np.full(len(polys), classify.BUILDING, np.uint8), None, Path("bgt"))
     ref, _ = cg.rasterize_polygons(footprints, grid)

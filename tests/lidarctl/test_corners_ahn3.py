@@ -6,12 +6,8 @@ expected (bench/eval_corners_ahn3.py reports the whole crop).
 
 from __future__ import annotations
 
-import sqlite3
-
 import numpy as np
 import pytest
-import shapely
-import shapely.wkb
 from scipy.spatial import cKDTree
 
 from lidarctl.corners.roof_corners import find_roof_corners, read_classified_cloud
@@ -20,16 +16,14 @@ WINDOW = (84880.0, 84990.0, 447480.0, 447600.0)  # the terraced blocks in the mi
 
 
 @pytest.mark.realdata
-def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data):
+def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data, bgt_footprints):
     d = shared_data / "ahn3_delft"
     c = read_classified_cloud(d / "ahn3_cropped_1.laz")
     x0, x1, y0, y1 = WINDOW
     w = (c.x >= x0) & (c.x < x1) & (c.y >= y0) & (c.y < y1)
     res = find_roof_corners(c.x[w], c.y[w], c.z[w], c.classification[w], c.point_source_id[w],
                             roof="any")
-    con = sqlite3.connect(f"file:{d / 'bgt_pand.sqlite'}?mode=ro", uri=True)
-    polys = [shapely.wkb.loads(bytes(b)) for (b,) in con.execute("SELECT GEOMETRY FROM buildingpart")]
-    con.close()
+    polys = bgt_footprints
     vertices = np.concatenate([np.asarray(p.exterior.coords)[:-1] for p in polys])
     cxy = np.array([[q["x"], q["y"]] for q in res.corners])
     # corners well inside the window, where BGT has footprints
@@ -51,7 +45,7 @@ def test_ahn3_window_corners_near_bgt_footprint_vertices(shared_data):
 
 
 @pytest.mark.realdata
-def test_ahn3_tree_crowns_hide_corners_only_where_they_rise_above_the_view_rays(shared_data):
+def test_ahn3_tree_crowns_hide_corners_only_where_they_rise_above_the_view_rays(shared_data, bgt_footprints):
     """The whole crop. Trees in the back gardens: the corner under the crown at (84842, 447563) is hidden
     from every side and not usable; corners with trees on one side stay open from the others; usable
     corners have both edges ending at corners of their outline; those that match a BGT vertex lie at
@@ -74,9 +68,7 @@ def test_ahn3_tree_crowns_hide_corners_only_where_they_rise_above_the_view_rays(
         k = int(np.argmin(np.hypot(*(ring - [q["x"], q["y"]]).T)))
         prev_m, next_m = np.hypot(*(ring[k] - ring[k - 1])), np.hypot(*(ring[(k + 1) % len(ring)] - ring[k]))
         assert abs(prev_m - q["edge1_m"]) < 1e-6 and abs(next_m - q["edge2_m"]) < 1e-6
-    con = sqlite3.connect(f"file:{d / 'bgt_pand.sqlite'}?mode=ro", uri=True)
-    polys = [shapely.wkb.loads(bytes(b)) for (b,) in con.execute("SELECT GEOMETRY FROM buildingpart")]
-    con.close()
+    polys = bgt_footprints
     vertices = np.concatenate([np.asarray(p.exterior.coords)[:-1] for p in polys])
     usable = np.array([[q["x"], q["y"]] for q in corners if q["usable"]])
     dist, _ = cKDTree(vertices).query(usable)
