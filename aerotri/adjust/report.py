@@ -519,10 +519,15 @@ def _self_calibration_option(ba) -> str:
         f"; {', '.join(fixed)} asked for but fixed (not determinable by this block)" if fixed else "")
 
 
-def _offset_unobserved(mode: str, ba) -> str:
-    """The GNSS correction option, said "not estimated" for one offset for the flight nothing observes (trial s103
+def _flight_offset_unobserved(ba) -> bool:
+    """One GNSS offset for the flight that nothing but the GNSS observes: it stays at its a-priori value (trial s103
     F1: "Enabled (one offset for the flight)" over its a-priori zero)."""
-    if ba.opts.gnss_correction == "offset" and not gnss_model.offset_observed(ba.block):
+    return ba.opts.gnss_correction == "offset" and not gnss_model.offset_observed(ba.block)
+
+
+def _offset_unobserved(mode: str, ba) -> str:
+    """The GNSS correction option, said "not estimated" for such an offset."""
+    if _flight_offset_unobserved(ba):
         return mode[:-1] + "; not estimated: no control point or DEM observes it, its a-priori value kept)"
     return mode
 
@@ -1690,7 +1695,7 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         # estimated false: one offset for the flight nothing but the GNSS observes, at its a-priori value
         "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4),
                          "drift_m_per_km": _lst(r.state.drift[s], 4),
-                         "estimated": opts.gnss_correction != "offset" or gnss_model.offset_observed(b)}
+                         "estimated": not _flight_offset_unobserved(ba)}
                         for s in range(G.n_shifts(b, opts.gnss_correction))] if opts.gnss_correction != "none" else None,
         "gnss_directions": _directions_dict(dirc),
         "surface_control": _surface_control(ba),
