@@ -192,8 +192,8 @@ def least_cost_seams(labels: np.ndarray, valid: list, offsets: list, *, gray: li
     obj = None
     if object_mask is not None:
         core = np.ascontiguousarray(object_mask, bool)
-        # 1 on the object's cells, 0.5 on the cell round them (the margin costs object_cost as before)
-        obj = (_dilate(core, _SQUARE).astype(np.float32) + core) / 2
+        # 2 on the object's cells, 1 on the cell round them (the margin, which costs object_cost), 0 elsewhere
+        obj = _dilate(core, _SQUARE).view(np.uint8) + core.view(np.uint8)
     done = set()
     labels = labels.copy()
     # the cells no frame covers, framed by more of them: a re-routing only moves cells between the pair's two frames,
@@ -252,7 +252,7 @@ def _reroute_pair(labels, i, j, *, valid, offsets, gray, obj, object_cost, diffe
         # a path's end cell counts half an edge), so the path has the fewest object cells there are; the margin
         # and the grey values decide among those paths
         through = 3.0 * (1.0 + 3.0 * difference_cost + object_cost) * np.count_nonzero(corridor) + 1.0
-        cost += np.where(o >= 1.0, through, object_cost * (o > 0))
+        cost += np.where(o == 2, through, object_cost * (o == 1))
     # the seam may leave the overlap anywhere on the overlap's border near its Voronoi ends, so that an end
     # does not pin it onto a building: within end_reach x seam length, and within end_reach_cells where
     # the border is the edge of the block (no frame beyond it, so no other seam is disturbed)
