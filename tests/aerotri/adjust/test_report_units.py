@@ -203,3 +203,16 @@ def test_the_coordinate_system_line_names_the_feet(pair):
     txt = {u: pair[u].report_path.with_suffix(".txt").read_text() for u in ("m", "ft")}
     line = {u: next(ln for ln in txt[u].splitlines() if ln.startswith("  Coordinate System : ")) for u in txt}
     assert "coordinates in" not in line["m"] and "; coordinates in foot; heights ellipsoidal" in line["ft"], line
+
+
+def test_the_gnss_misfit_before_the_corrections_is_also_in_feet(pair):
+    """trial s103 L10: report.txt's RMS of adjusted antenna - GNSS before the corrections was in metres alone, under
+    the Parameters rows in the CRS's feet; now also in its feet (the same block: the metre copy's figures / 0.3048)."""
+    txt = {u: pair[u].report_path.with_suffix(".txt").read_text() for u in ("m", "ft")}
+    pattern = r"RMS of adjusted antenna - GNSS before them, .*?: ([-\d. ]+) m(?:, ([-\d. ]+) ft)?\)"
+    found = {u: re.search(pattern, txt[u]) for u in txt}
+    assert found["m"] and found["ft"], txt["ft"]
+    metres = np.array(found["m"].group(1).split(), float)
+    assert found["m"].group(2) is None and metres.size == 3 and metres.max() > 0
+    assert np.allclose(np.array(found["ft"].group(1).split(), float), metres, atol=0.002)
+    assert np.allclose(np.array(found["ft"].group(2).split(), float), metres / FT, atol=0.01)
