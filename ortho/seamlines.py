@@ -327,7 +327,9 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
     to one of those frames that sees all of it (the one holding most of it); all of it is its cells in the
     mosaic (label >= 0), so an object the block's edge cuts goes whole to a frame as well.
 
-    The seams then run round the object along its outline; objects no single frame covers stay split.
+    The seams then run round the object a cell away from its outline; an object that no frame covers with that
+    margin goes whole to a frame that covers the object itself (the seam along its wall: a building in the corner of
+    an overlap, against one frame's edge); objects no single frame covers stay split.
     """
     import cv2
 
@@ -342,7 +344,8 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
         lab = labels[r0:r1, c0:c1]
         # its cells no frame covers are not in the mosaic (the block's edge): a frame that covers the rest covers
         # all of it there is, else a building the block's edge cut kept the seam along a frame's edge across it
-        obj = _dilate(parts[r0:r1, c0:c1] == k, _SQUARE) & (lab >= 0)
+        own = parts[r0:r1, c0:c1] == k
+        obj = _dilate(own, _SQUARE) & (lab >= 0)
         if np.count_nonzero(obj) > max_cells:
             continue
         present, counts = np.unique(lab[obj], return_counts=True)
@@ -350,15 +353,26 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
         present, counts = present[keep], counts[keep]
         if len(present) < 2:
             continue
-        rr0, cc0 = np.nonzero(obj)
-        for f in present[np.argsort(-counts, kind="stable")]:
-            (fr, fc), v = offsets[f], valid[f]
-            rr, cc = rr0 + r0 - fr, cc0 + c0 - fc
-            inside = (rr >= 0) & (rr < v.shape[0]) & (cc >= 0) & (cc < v.shape[1])
-            if inside.all() and v[rr, cc].all():
-                lab[obj] = f
+        order = present[np.argsort(-counts, kind="stable")]
+        for cells in (obj, own & (lab >= 0)):
+            f = _frame_covering(cells, order, valid, offsets, r0, c0)
+            if f is not None:
+                lab[cells] = f
                 break
     return labels
+
+
+def _frame_covering(cells: np.ndarray, frames, valid: list, offsets: list, r0: int, c0: int) -> int | None:
+    """The first of ``frames`` whose valid cells hold every cell of ``cells`` (a window of the seam grid at row
+    ``r0``, column ``c0``), None if none does."""
+    rr0, cc0 = np.nonzero(cells)
+    for f in frames:
+        (fr, fc), v = offsets[f], valid[f]
+        rr, cc = rr0 + r0 - fr, cc0 + c0 - fc
+        inside = (rr >= 0) & (rr < v.shape[0]) & (cc >= 0) & (cc < v.shape[1])
+        if inside.all() and v[rr, cc].all():
+            return int(f)
+    return None
 
 
 @dataclasses.dataclass(frozen=True)

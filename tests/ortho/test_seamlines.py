@@ -95,6 +95,21 @@ def test_an_object_the_block_edge_cuts_goes_whole_to_a_frame_that_covers_the_res
     assert (out[25:] == -1).all()                                     # cells no frame covers stay unlabelled
 
 
+def test_an_object_no_frame_covers_with_a_margin_goes_whole_to_a_frame_that_covers_it():
+    """A building in a corner of the overlap: frame 0 ends at its east wall, frame 1 at its west wall, so neither
+    covers it with the cell of margin the seam keeps from a wall; it goes whole to one that covers it, the seam along
+    its wall (issue 42: the tall block's conventional DOM crossed such a roof at the block's edge)."""
+    valid = [np.ones((H, 23), bool), np.ones((H, 27), bool)]         # frame 0: columns 0-22, frame 1: 13-39
+    labels = voronoi_labels(valid, OFFSETS, NADIR_RC, (H, W))
+    obj = np.zeros((H, W), bool)
+    obj[10:14, 13:23] = True                                           # columns 13-22, across the seam at 20 | 21
+    assert len(np.unique(labels[obj])) == 2
+    out = keep_objects_whole(labels, obj, valid, OFFSETS)
+    assert np.unique(out[obj]).tolist() == [0]                         # frame 0 held most of it
+    assert (out[~obj] == labels[~obj]).all()                           # nothing round it moved: the seam at its wall
+    assert (out[10:14, 23] == 1).all()
+
+
 def test_polygons_and_seam_lines_in_map_units():
     labels = _voronoi()
     transform = Affine(2.0, 0.0, 1000.0, 0.0, -2.0, 5000.0)  # 2 m seam cells
