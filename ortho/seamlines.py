@@ -354,11 +354,16 @@ def keep_objects_whole(labels: np.ndarray, object_mask: np.ndarray, valid: list,
         if len(present) < 2:
             continue
         order = present[np.argsort(-counts, kind="stable")]
-        for cells in (obj, own & (lab >= 0)):
-            f = _frame_covering(cells, order, valid, offsets, r0, c0)
-            if f is not None:
-                lab[cells] = f
-                break
+        f = _frame_covering(obj, order, valid, offsets, r0, c0)
+        if f is not None:
+            lab[obj] = f
+            continue
+        cells = own & (lab >= 0)
+        if len(np.unique(lab[cells])) < 2:  # the object itself is whole already; only its margin is shared
+            continue
+        f = _frame_covering(cells, order, valid, offsets, r0, c0)
+        if f is not None:
+            lab[cells] = f
     return labels
 
 

@@ -108,6 +108,13 @@ def test_an_object_no_frame_covers_with_a_margin_goes_whole_to_a_frame_that_cove
     assert np.unique(out[obj]).tolist() == [0]                         # frame 0 held most of it
     assert (out[~obj] == labels[~obj]).all()                           # nothing round it moved: the seam at its wall
     assert (out[10:14, 23] == 1).all()
+    # an object whole in one frame, most of its margin in the other: left as it is (not moved into the other frame)
+    row = np.zeros((H, W), bool)
+    row[10, 13:23] = True
+    whole = labels.copy()
+    whole[9:12, 12:24] = 0
+    whole[row] = 1
+    assert (keep_objects_whole(whole, row, valid, OFFSETS) == whole).all()
 
 
 def test_polygons_and_seam_lines_in_map_units():
