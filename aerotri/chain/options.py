@@ -178,5 +178,11 @@ def project_settings_text(project: Project, ctx=None) -> str:
         if name == "adjust":  # as aerotri adjust P completes it from the project folder
             adjust = project_settings(project, resolve(AdjustSettings, project, ctx))
             record, title = adjust.record(), "[adjust] (as aerotri adjust PROJECT takes it)"
+        elif name == "rectify":  # as the chain completes it: the true ortho whenever a DSM exists (trial s105 F2)
+            from aerotri.chain.stages import Chain
+
+            record = Chain(project, read_options(project, ctx)).rectify_settings().record()
+            title = ("[rectify] (as aerotri run PROJECT takes it; ortho rectify PROJECT alone makes the conventional ortho "
+                     "unless --true-ortho or true_ortho = true)")
         lines += settings_lines(record, title)
     return "\n".join(lines)

@@ -205,10 +205,21 @@ def test_run_makes_the_true_ortho_on_the_lidar_dsm_unless_told_not_to(run_to_end
     assert (p0 / index["crowns"]).resolve() == (p0 / "lidar_out" / "crowns.gpkg").resolve()
     assert index["settings"]["true_ortho"]["value"] is True and index["settings"]["true_ortho"]["source"] == "aerotri run"
     assert "ortho=true (DSM)" in table and "rectify: true ortho on the DSM lidar_out/dsm.tif" in table
+    # aerotri settings lists [rectify] as the chain takes it (trial s105 F2: "true_ortho : False [default]" beside a
+    # chain that made the true ortho)
+    def rectify_rows(q):
+        text = CliRunner().invoke(aerotri_cli, ["settings", str(q)], catch_exceptions=False).output
+        block = text.split("[rectify] (as aerotri run PROJECT takes it")[1].split("\n[")[0]
+        return {ln.split(":")[0].strip(): ln for ln in block.splitlines()[1:] if ":" in ln}
+    rows = rectify_rows(p0)
+    assert "True  [aerotri run] (a DSM exists: the chain makes the true ortho)" in rows["true_ortho"], rows
+    assert "lidar_out/dsm.tif" in rows["dsm"]
     p = tmp_path / "p"
     shutil.copytree(p0, p)
     with open(p / "project.toml", "a") as f:
         f.write("\n[rectify]\ntrue_ortho = false\n")
+    rows = rectify_rows(p)
+    assert "False  [project.toml]" in rows["true_ortho"] and rows["dsm"].split(":", 1)[1].split()[0] == "-", rows
     r = CliRunner().invoke(aerotri_cli, ["run", str(p), "--reference", str(p / "truth" / "ortho.tif"),
                                          "--points", str(p / "truth" / "checkpoints.csv")], catch_exceptions=False)
     assert r.exit_code == 0, r.output
