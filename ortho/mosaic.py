@@ -1296,7 +1296,8 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
         for out in (root / "ortho" / "seamlines.gpkg", root / "ortho" / "seamlines.geojson"):
             if out.exists() and os.path.samefile(out, seamlines):
                 raise OptionError(f"{seamlines}: this is a file the mosaic writes (inputs are never modified); edit a "
-                                  f"copy of it (e.g. {out.with_name('seamlines_edited' + out.suffix)}) and give that",
+                                  f"copy of it outside ortho/ (e.g. {root / ('seamlines_edited' + out.suffix)}, "
+                                  "as docs/true-ortho.md does) and give that",
                                   param="--seamlines")
     index = read_index(root)
     frames_dir = root / "ortho" / "frames"
@@ -1813,10 +1814,12 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
         # (two significant digits: "1608 cells (0.00 % of the block)" read as none, new-user trial s51)
         pct = 100 * summary["share_seen_by_no_frame"]
         off = 100 * summary["share_without_heights"]
-        logger.warning("%d cells (%s %% of the block) are seen by no frame (occluded in every frame of a true ortho, "
-                       "over DEM nodata, or over the frames' own nodata): nodata in the mosaic; %s %% of the block "
-                       "where the surface the frames were rectified on has no heights (%s)%s",
-                       summary["cells_seen_by_no_frame"], f"{pct:.2f}" if pct >= 0.1 else f"{pct:.2g}",
+        # (trial s105 F7: "occluded in every frame of a true ortho" said of a conventional DOM)
+        why = ("occluded in every frame, over DEM nodata, or over the frames' own nodata" if index.true_ortho
+               else "over DEM nodata or the frames' own nodata")
+        logger.warning("%d cells (%s %% of the block) are seen by no frame (%s): nodata in the mosaic; %s %% of the "
+                       "block where the surface the frames were rectified on has no heights (%s)%s",
+                       summary["cells_seen_by_no_frame"], f"{pct:.2f}" if pct >= 0.1 else f"{pct:.2g}", why,
                        f"{off:.2f}" if off >= 0.1 or off == 0 else f"{off:.2g}",
                        ", ".join(Path(p).name for p in summary["surfaces_counted"]) or "none recorded",
                        on_objects_words(summary["cells_on_objects"], summary["cells_seen_by_no_frame"]))

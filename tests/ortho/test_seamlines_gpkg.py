@@ -206,6 +206,8 @@ def test_an_edit_in_a_second_layer_or_the_mosaics_own_geojson_is_refused(mosaick
     text = own.read_bytes()
     r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(own)])
     assert r.exit_code == 2 and "this is a file the mosaic writes" in r.output and own.read_bytes() == text
+    # the copy it suggests lies outside ortho/, as the docs' (trial s105 F6: it named ortho/seamlines_edited.geojson)
+    assert f"outside ortho/ (e.g. {root / 'seamlines_edited.geojson'}," in " ".join(r.output.split())
 
 
 @pytest.mark.parametrize("edit, message", [

@@ -207,6 +207,8 @@ def test_the_preview_hatches_the_cells_mosaic_json_counts_as_seen_by_no_frame(tm
     assert summary["share_without_heights"] > 0.15 and summary["surfaces_counted"] == ["lidar_out/dem.tif"]
     assert summary["surfaces_cover_every_frame"] is False
     assert "of the block where the surface the frames were rectified on has no heights (dem.tif)" in r.stderr
+    # a conventional DOM: no occlusion named among the causes (trial s105 F7)
+    assert "seen by no frame (over DEM nodata or the frames' own nodata)" in r.stderr and "occluded" not in r.stderr
 
 
 def test_a_south_oriented_grid_is_previewed_north_up_and_says_so(tmp_path):

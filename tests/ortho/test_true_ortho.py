@@ -94,7 +94,7 @@ def test_the_mosaic_counts_the_cells_no_frame_sees(block, tmp_path):
     assert summary["cells_seen_by_no_frame"] >= enclosed
     assert abs(summary["cells_seen_by_no_frame"] - unseen) <= 0.1 * unseen, (summary["cells_seen_by_no_frame"], unseen)
     assert 0 < summary["share_seen_by_no_frame"] < 0.05
-    assert "seen by no frame" in r.stderr
+    assert "seen by no frame (occluded in every frame, over DEM nodata, or over the frames' own nodata)" in r.stderr
     # occluded in every frame, not off the surfaces: the DEM and the DSM cover the block
     assert summary["cells_without_heights"] == 0 and len(summary["surfaces_counted"]) == 2
     assert summary["surfaces_cover_every_frame"]  # (every frame under them: they are not read)
