@@ -186,8 +186,21 @@ def _place(a: np.ndarray, off, shape) -> np.ndarray:
 
 def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, offsets,
                     beyond_grid_m2=None) -> None:
-    """No gap (a cell some frame sees outside every polygon), no polygon beyond its frame's footprint;
+    """No polygon beyond its frame's footprint, no gap (a cell some frame sees outside every polygon);
     ``beyond_grid_m2``: per frame, its polygon's area beyond the seam grid (no frame's there), added to what is said."""
+    # a polygon beyond its frame first: a polygon dragged off its frame leaves a gap too, and the gap's remedy
+    # ("extend one over it") misled (trial s105 F5: 64,072 m2 to cover instead of the polygon to move back)
+    for k, fid in sorted(feature_of_frame.items(), key=lambda kv: kv[1]):
+        beyond = (labels == k) & ~_place(footprint(valid[k]), offsets[k], labels.shape)
+        if beyond.any():
+            r, c = np.argwhere(beyond)[0]
+            x, y = transform @ (c + 0.5, r + 0.5)
+            past = (beyond_grid_m2 or {}).get(k, 0.0)
+            raise InputError(f"{path}: feature {fid}: frame {names[k]} does not cover its polygon: "
+                             f"{beyond.sum() * abs(transform.a * transform.e) + past:.0f} m2 of it lie outside the "
+                             f"frame's ortho (e.g. at ({x:.1f}, {y:.1f})"
+                             + (f"; {past:.0f} m2 of them beyond the mosaic's extent" if past >= 1.0 else "")
+                             + "); move the edge back inside the frame")
     seen = np.zeros(labels.shape, bool)
     for v, off in zip(valid, offsets):
         seen |= _place(v, off, labels.shape)
@@ -212,14 +225,3 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
                          f"in no polygon; the largest around ({x:.1f}, {y:.1f}), seen by {', '.join(seeing[:6])}"
                          f"{' ...' if len(seeing) > 6 else ''}; the polygons beside it: {beside_text}: extend one "
                          "over it")
-    for k, fid in sorted(feature_of_frame.items(), key=lambda kv: kv[1]):
-        beyond = (labels == k) & ~_place(footprint(valid[k]), offsets[k], labels.shape)
-        if beyond.any():
-            r, c = np.argwhere(beyond)[0]
-            x, y = transform @ (c + 0.5, r + 0.5)
-            past = (beyond_grid_m2 or {}).get(k, 0.0)
-            raise InputError(f"{path}: feature {fid}: frame {names[k]} does not cover its polygon: "
-                             f"{beyond.sum() * abs(transform.a * transform.e) + past:.0f} m2 of it lie outside the "
-                             f"frame's ortho (e.g. at ({x:.1f}, {y:.1f})"
-                             + (f"; {past:.0f} m2 of them beyond the mosaic's extent" if past >= 1.0 else "")
-                             + "); move the edge back inside the frame")
