@@ -43,7 +43,14 @@ def settings(project, markdown, items):
         for line in set_in_project(Project.open(project), items):
             click.echo(line)
         return
-    click.echo(reference_page(command_groups()) if markdown else project_settings_text(Project.open(project)))
+    if markdown:
+        click.echo(reference_page(command_groups()))
+        return
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain
+
+    p = Project.open(project)
+    click.echo(project_settings_text(p, completed=Chain(p, read_options(p)).completed_settings()))
 
 
 def command_groups() -> list:

@@ -159,8 +159,9 @@ sub-sections (`[match.sparse]`); file names are relative to the project folder. 
     return head + markdown_reference([(n, cs, READERS[n]) for n, cs in sections.items()], _option_names(groups))
 
 
-def project_settings_text(project: Project, ctx=None) -> str:
-    """Every setting of a project with where it came from (``aerotri settings PROJECT``)."""
+def project_settings_text(project: Project, ctx=None, completed: dict | None = None) -> str:
+    """Every setting of a project with where it came from (``aerotri settings PROJECT``); ``completed``: section ->
+    (its settings record, its title) where the chain completes the section (``Chain.completed_settings``)."""
     from aerotri.core.settings import Resolved, settings_lines
 
     lines = []
@@ -178,11 +179,7 @@ def project_settings_text(project: Project, ctx=None) -> str:
         if name == "adjust":  # as aerotri adjust P completes it from the project folder
             adjust = project_settings(project, resolve(AdjustSettings, project, ctx))
             record, title = adjust.record(), "[adjust] (as aerotri adjust PROJECT takes it)"
-        elif name == "rectify":  # as the chain completes it: the true ortho whenever a DSM exists (trial s105 F2)
-            from aerotri.chain.stages import Chain
-
-            record = Chain(project, read_options(project, ctx)).rectify_settings().record()
-            title = ("[rectify] (as aerotri run PROJECT takes it; ortho rectify PROJECT alone makes the conventional ortho "
-                     "unless --true-ortho or true_ortho = true)")
+        elif name in (completed or {}):  # as the chain completes it (``Chain.completed_settings``)
+            record, title = completed[name]
         lines += settings_lines(record, title)
     return "\n".join(lines)

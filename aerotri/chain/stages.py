@@ -987,6 +987,14 @@ class Chain:
                                   "the LiDAR stages' tree crowns fitted to their returns")
         return r
 
+    def completed_settings(self) -> dict:
+        """The sections the chain completes from the project folder, as ``aerotri settings`` lists them: section ->
+        (its settings record, its title). [rectify]: the true ortho whenever a DSM exists (trial s105 F2: listed as
+        ``true_ortho : False [default]`` beside a chain that made the true ortho)."""
+        return {"rectify": (self.rectify_settings().record(),
+                            "[rectify] (as aerotri run PROJECT takes it; ortho rectify PROJECT alone makes the "
+                            "conventional ortho unless --true-ortho or true_ortho = true)")}
+
     def run_rectify(self, root) -> R.RectifyResult:
         from ortho.block import rectify_block
 
