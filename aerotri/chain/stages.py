@@ -973,7 +973,9 @@ class Chain:
         (lidar_out/dsm_crowns.tif and lidar_out/crowns.gpkg) unless [rectify] occlusion_dsm says otherwise."""
         r = self.stage_settings("rectify")
         if r.settings.dem is None and self.dem_path() is not None:
-            r = r.replace("dem", self.dem_path(), r.sources.get("dem", "default"), "the LiDAR stages' DEM")
+            # (trial s105: a block without LiDAR has the tie points' DEM, said to be "the LiDAR stages' DEM")
+            r = r.replace("dem", self.dem_path(), r.sources.get("dem", "default"),
+                          "the LiDAR stages' DEM" if self.has_lidar else "the adjusted tie points' DEM: no LiDAR")
         dsm = self.dsm_path()
         if dsm is not None and r.sources.get("true_ortho", DEFAULT) == DEFAULT:
             r = r.replace("true_ortho", True, "aerotri run", "a DSM exists: the chain makes the true ortho")

@@ -394,6 +394,8 @@ def test_run_without_lidar_makes_the_tie_point_dem_or_uses_a_dem_from_elsewhere(
     # a GNSS block without LiDAR or a DEM: the orthophotos on the DEM of the adjusted tie points
     index = json.loads((p / "ortho" / "frames" / "index.json").read_text())
     assert (p / index["dem"]).resolve() == (p / "at" / "dem.tif").resolve()
+    # said to be the tie points' DEM, not the LiDAR stages' (trial s105: aerotri settings on the NGI block)
+    assert index["settings"]["dem"]["note"] == "the adjusted tie points' DEM: no LiDAR", index["settings"]["dem"]
     assert (p / "ortho" / "mosaic.tif").is_file()
     with rasterio.open(p / "at" / "dem.tif") as tie, rasterio.open(p / "truth" / "dem.tif") as true:
         z_tie = tie.read(1, masked=True)
