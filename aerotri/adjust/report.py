@@ -1958,14 +1958,14 @@ def ground_unit(rep: dict) -> str:
     return h if h == z else f"{h}, Z {z}"
 
 
-def _in_map_units(enu_m, rep: dict) -> str:
+def _in_map_units(enu_m, rep: dict, unit: str) -> str:
     """", <east> <north> <up> <unit>" of local east, north, up figures in metres, in the project CRS's units where
-    they are not metres (trial s103 L10: metres under the rows in us-ft); "" in a metre CRS."""
-    u = np.asarray(map_unit_m(rep.get("crs"), "at/report.json crs"), dtype=float)
-    if np.all(u == 1.0):
+    they are not metres (trial s103 L10: metres under the rows in us-ft); "" in a metre CRS. ``unit``: the report's
+    ``ground_unit`` (a CRS in metres, or none, is not read again: its warning is said once)."""
+    if unit == "m":
         return ""
-    v = np.asarray(enu_m, dtype=float) / u[[0, 1, 2]]
-    return ", " + " ".join(f"{x:.3f}" for x in v) + f" {ground_unit(rep)}"
+    v = np.asarray(enu_m, dtype=float) / np.asarray(map_unit_m(rep.get("crs"), "at/report.json crs"), dtype=float)
+    return ", " + " ".join(f"{x:.3f}" for x in v) + f" {unit}"
 
 
 def _parameter_label(label: str, key: str, unit: str) -> str:
@@ -2029,7 +2029,7 @@ def format_txt(rep: dict) -> str:
         L.append(f"  (RMS Photo Position: the GNSS positions' residuals after the corrections, {mode[9:-1]}; RMS of "
                  "adjusted antenna - GNSS before them, on the local east, north, up (the grid's axes turn from them by "
                  "the meridian convergence): " + " ".join(f"{v:.3f}" for v in rms) + " m"
-                 + _in_map_units(rms, rep) + ")")
+                 + _in_map_units(rms, rep, unit) + ")")
     if unit != "m":  # a feet CRS: the ground figures are feet, the tolerance tables' limits metres
         L.append(f"  (the coordinates, residuals and sigmas of control, check and object points and the GNSS residuals "
                  f"in the project CRS's unit, {unit}, here and below; limits, the key statistics' findings, photo "
