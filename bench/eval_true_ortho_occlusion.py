@@ -349,29 +349,32 @@ def source_frames(labels: np.ndarray, masks: list, nadir_idx_of_valid) -> np.nda
 
 # ------------------------------------------------------------------------------------------------ measures
 
-def crossings_by_roof(on_roof: np.ndarray, roof: np.ndarray, dom_valid: np.ndarray, coverage: list) -> dict:
+def crossings_by_roof(on_roof: np.ndarray, roof: np.ndarray, dom_valid: np.ndarray, masks: list) -> dict:
     """The DOM's seam cells on roofs, per roof they cross: could one frame have taken the whole roof?
 
     A roof is a 4-connected part of the truth's roof cells (``roof``), judged by its cells in the DOM (``dom_valid``:
-    a roof the block's edge cuts, or the DOM's nodata, is one roof, not its pieces); ``coverage``: per frame, its
-    valid cells on the DOM grid (a true ortho's leave out what the frame does not see). A roof whose cells in the DOM
-    some frame covers whole could have been given to that frame, a seam round it (``..._one_frame_covers_whole``);
-    a roof no single frame covers whole (cut by the frames' edges or their occlusion masks) is split by any choice of
-    frames. The per-pair figure (``ground_route_existed``) asks the coarser question of the seam grid: is there a
-    roof-free route through the pair's overlap between the ends of the pair's seam, whichever part of it crosses."""
+    a roof the block's edge cuts, or the DOM's nodata, is one roof, not its pieces); ``masks``: per frame (image_id,
+    row, col, its valid cells) on the DOM grid (``frame_masks``; a true ortho's leave out what the frame does not
+    see), read in each crossed roof's box only. A roof whose cells in the DOM some frame covers whole could have been
+    given to that frame, a seam round it (``..._one_frame_covers_whole``); a roof no single frame covers whole (cut by
+    the frames' edges or their occlusion masks) is split by any choice of frames. The per-pair figure
+    (``ground_route_existed``) asks the coarser question of the seam grid: is there a roof-free route through the
+    pair's overlap between the ends of the pair's seam, whichever part of it crosses."""
     import cv2
 
-    n, parts = cv2.connectedComponents(roof.view(np.uint8), connectivity=4)
+    n, parts, stats, _ = cv2.connectedComponentsWithStats(roof.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
     crossed = np.unique(parts[on_roof])
-    crossed = crossed[crossed > 0]
     rows = []
-    for k in crossed.tolist():
-        cells = (parts == k) & dom_valid
-        whole = [f for f, cov in enumerate(coverage) if np.count_nonzero(cells & ~cov) == 0]
+    for k in crossed[crossed > 0].tolist():
+        x, y, w, h = (int(v) for v in stats[k, :4])
+        box = (slice(y, y + h), slice(x, x + w))
+        cells = (parts[box] == k) & dom_valid[box]
+        whole = [f for f, (_, r0, c0, m) in enumerate(masks)
+                 if np.count_nonzero(cells & ~place((h, w), r0 - y, c0 - x, m)) == 0]
         rr, cc = np.nonzero(cells)
-        rows.append({"roof_cells": int(cells.sum()), "seam_cells": int((on_roof & cells).sum()),
+        rows.append({"roof_cells": int(cells.sum()), "seam_cells": int((on_roof[box] & cells).sum()),
                      "frames_covering_it_whole": len(whole),
-                     "rows_cols": [int(rr.min()), int(rr.max()), int(cc.min()), int(cc.max())]})
+                     "rows_cols": [int(rr.min()) + y, int(rr.max()) + y, int(cc.min()) + x, int(cc.max()) + x]})
     avoidable = [r for r in rows if r["frames_covering_it_whole"] > 0]
     return {"roofs_crossed": len(rows), "roofs_crossed_that_one_frame_covers_whole": len(avoidable),
             "roof_cells_crossed_on_roofs_one_frame_covers_whole": sum(r["seam_cells"] for r in avoidable),
@@ -474,7 +477,7 @@ def measure_way(project: Path, truth: Truth, grid, surface_kind, ground, roof, v
              "roof_crossings": int(n_parts - 1),
              "roof_share_of_seam": float(on_roof.sum() / max(1, seam.sum())),
              "tree_cells_crossed": int((seam & (surface_kind == 4)).sum())}
-    seams.update(crossings_by_roof(on_roof, roof, dom_valid, [place((H, W), r0_, c0_, m) for _, r0_, c0_, m in masks]))
+    seams.update(crossings_by_roof(on_roof, roof, dom_valid, masks))
     # per pair: did a ground route exist? (on the seam grid: roof-free cells of the pair's overlap)
     sh = seam_grid_labels.shape
     roof_seam = np.zeros(sh, bool)

@@ -1,0 +1,31 @@
+"""bench/eval_true_ortho_occlusion.py's per-roof seam measure (``crossings_by_roof``) on a constructed grid: a roof one
+frame covers whole is counted as one a seam could have gone round, a roof the frames' edges cut as one no choice of
+frames keeps whole, and a roof the DOM's nodata cuts in two is still one roof."""
+
+from __future__ import annotations
+
+import numpy as np
+
+BENCH_SCRIPT = "eval_true_ortho_occlusion.py"
+
+H, W = 20, 30
+
+
+def test_a_roof_is_avoidable_only_where_one_frame_covers_all_its_cells_in_the_dom(bench_script):
+    # frame a covers columns 0-17, frame b columns 12-29 (masks placed at their first row and column)
+    masks = [("a", 0, 0, np.ones((H, 18), bool)), ("b", 0, 12, np.ones((H, 18), bool))]
+    roof = np.zeros((H, W), bool)
+    roof[2:6, 13:17] = True     # inside both frames: either could take it whole
+    roof[10:14, 8:22] = True    # from column 8 (a only) to 21 (b only): no frame holds it whole
+    dom_valid = np.ones((H, W), bool)
+    dom_valid[2:6, 15] = False  # the DOM's nodata cuts the first roof in two: still one roof
+    on_roof = np.zeros((H, W), bool)
+    on_roof[2:6, 14] = True     # a seam down column 14 across both roofs
+    on_roof[10:14, 14] = True
+    got = bench_script.crossings_by_roof(on_roof, roof, dom_valid, masks)
+    assert got["roofs_crossed"] == 2 and got["roofs_crossed_that_one_frame_covers_whole"] == 1
+    assert got["roof_cells_crossed_on_roofs_one_frame_covers_whole"] == 4
+    assert got["roof_cells_crossed_on_roofs_no_frame_covers_whole"] == 4
+    small, wide = sorted(got["roofs_crossed_detail"], key=lambda r: r["roof_cells"])
+    assert small == {"roof_cells": 12, "seam_cells": 4, "frames_covering_it_whole": 2, "rows_cols": [2, 5, 13, 16]}
+    assert wide["frames_covering_it_whole"] == 0 and wide["rows_cols"] == [10, 13, 8, 21]
