@@ -263,9 +263,11 @@ def check_seam_crossings(labels: np.ndarray, automatic: np.ndarray, transform, n
                          ndsm_path, operation=None, feature_of_frame: dict | None = None) -> SeamCrossings:
     """The edited seams (``labels``, seam grid of affine ``transform``) against the automatic ones (``automatic``)
     over the nDSM (``ndsm_path``, None: not checked; ``operation``: mosaic CRS -> nDSM CRS when they differ);
-    ``feature_of_frame``: frame name -> feature id in the edited file (for the warnings). The labels are not changed."""
+    ``feature_of_frame``: frame name -> feature ids in the edited file (for the warnings). The labels are not changed."""
     import shapely
     from shapely.ops import substring
+
+    from ortho.seamlines_gpkg import features_text
 
     if ndsm_path is None:
         return SeamCrossings(False, "no nDSM (lidar_out/ndsm.tif or [mosaic] ndsm): where the edited seams cross "
@@ -313,8 +315,9 @@ def check_seam_crossings(labels: np.ndarray, automatic: np.ndarray, transform, n
                 auto_what = "no seam between them" if a_line is None else (
                     ("%.1f m / %.1f m" % (ab_m, at_m)) if chm is not None else "%.1f m" % ab_m)
                 warnings.append(
-                    f"edited seam between frames {names[i]}{'' if fa is None else f' (feature {fa})'} and {names[j]}"
-                    f"{'' if fb is None else f' (feature {fb})'} crosses {what} (automatic seams: {auto_what}); "
+                    f"edited seam between frames {names[i]}{'' if fa is None else f' ({features_text(fa)})'} and "
+                    f"{names[j]}{'' if fb is None else f' ({features_text(fb)})'} crosses {what} (automatic seams: "
+                    f"{auto_what}); "
                     f"{len(new)} new crossing(s), {new_m:.1f} m, the longest {longest.length_m:.1f} m over "
                     f"{'a ' + longest.kind if longest.kind != 'raised' else 'a raised object'} at "
                     f"({longest.x_m:.1f}, {longest.y_m:.1f}): roofs and crowns tear there (ortho/{FILE})")

@@ -5,7 +5,8 @@ layer ``seamlines``, openable and editable in QGIS), and the edited polygons rea
 An edited file is checked whole before the mosaic writes anything (``InputError`` naming the file, the feature and
 the frame; exit 2): every feature names a frame of ``ortho/frames/index.json`` (field ``frame``, or ``image_id``
 as in seamlines.geojson, whose features of another ``kind`` than ``frame_region``, the seam lines, are passed over)
-once, holds a valid polygon in the mosaic's CRS; no two polygons overlap (by more than
+and holds a valid polygon in the mosaic's CRS (a frame's polygon may come in several features, single parts: they
+are merged); no two polygons overlap (by more than
 ``OVERLAP_TOLERANCE_CELLS`` seam cells); every seam cell some frame sees is inside a polygon (no gap); and every
 polygon lies inside its frame's footprint (the cells its ortho covers, holes of occlusion included, widened by one
 seam cell for the rounding of edited vertices).
@@ -31,8 +32,8 @@ OVERLAP_TOLERANCE_CELLS = 0.5  # overlaps smaller than half a seam cell are roun
 
 @dataclasses.dataclass(frozen=True)
 class EditedSeamlines:
-    """The edited polygons as seam labels: ``labels`` (seam grid, frame index or -1), per frame the feature id it
-    came from, and the changed cells against an earlier labelling (set by the caller)."""
+    """The edited polygons as seam labels: ``labels`` (seam grid, frame index or -1) and per frame name the ids of
+    the features its polygon came from (a tuple)."""
 
     path: Path
     labels: np.ndarray
@@ -116,8 +117,8 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
     region = np.array([k == REGION_KIND for k in fields[columns.index("kind")]], bool) if "kind" in columns else None
     if region is not None and region.any():  # seamlines.geojson as the mosaic writes it: seam lines beside polygons
         fids, frame_names, geoms = fids[region], frame_names[region], geoms[region]
-    feature_of_frame: dict[int, int] = {}
-    polygons = []
+    feature_of_frame: dict[int, tuple] = {}
+    parts: dict[int, list] = {}
     for fid, name, g in zip(fids, frame_names, geoms):
         where = f"{path}: feature {fid}"
         if name is None or not str(name).strip():
@@ -130,16 +131,16 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
             raise InputError(f"{where}: frame {name!r} is not a frame of the mosaic (ortho/frames/index.json: "
                              f"{len(names)} frames, e.g. {', '.join(names[:3])})")
         k = known[name]
-        if k in feature_of_frame:
-            raise InputError(f"{where}: frame {name} has a polygon already (feature {feature_of_frame[k]}); one "
-                             "(multi)polygon per frame: merge them")
         if g is None or g.is_empty or g.geom_type not in ("Polygon", "MultiPolygon"):
             got = "nothing" if g is None else f"an empty {g.geom_type}" if g.is_empty else g.geom_type
             raise InputError(f"{where} (frame {name}): expected a polygon, got {got}")
         if not g.is_valid:
             raise InputError(f"{where} (frame {name}): invalid polygon ({shapely.is_valid_reason(g)})")
-        feature_of_frame[k] = int(fid)
-        polygons.append((k, g))
+        # a frame's polygon may come in several features: QGIS's "Multipart to singleparts", or a part drawn as a
+        # feature of its own, were refused with "merge them" (trial s105 F4); they are one region of the frame
+        feature_of_frame[k] = feature_of_frame.get(k, ()) + (int(fid),)
+        parts.setdefault(k, []).append(g)
+    polygons = [(k, g[0] if len(g) == 1 else shapely.union_all(g)) for k, g in parts.items()]
     if not polygons:
         raise InputError(f"{path}: no polygons in layer {layer!r}")
     cell_m2 = abs(transform.a * transform.e)
@@ -149,10 +150,10 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
             area = polygons[a][1].intersection(polygons[b][1]).area
             if area > OVERLAP_TOLERANCE_CELLS * cell_m2:
                 c = polygons[a][1].intersection(polygons[b][1]).representative_point()
-                raise InputError(f"{path}: the polygons of frames {names[polygons[a][0]]} (feature "
-                                 f"{feature_of_frame[polygons[a][0]]}) and {names[polygons[b][0]]} (feature "
-                                 f"{feature_of_frame[polygons[b][0]]}) overlap by {area:.1f} m2 around "
-                                 f"({c.x:.1f}, {c.y:.1f}); a cell belongs to one frame")
+                raise InputError(f"{path}: the polygons of frames {names[polygons[a][0]]} "
+                                 f"({features_text(feature_of_frame[polygons[a][0]])}) and {names[polygons[b][0]]} "
+                                 f"({features_text(feature_of_frame[polygons[b][0]])}) overlap by {area:.1f} m2 "
+                                 f"around ({c.x:.1f}, {c.y:.1f}); a cell belongs to one frame")
     labels = features.rasterize(((g, k) for k, g in polygons), out_shape=labels_shape, transform=transform,
                                 fill=-1, dtype="int32")
     # the polygons' parts beyond the seam grid are not in ``labels``: said with the part inside it (trial s98 M2: a
@@ -164,6 +165,12 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
     _check_coverage(path, labels, names, feature_of_frame=feature_of_frame, transform=transform, valid=valid,
                     offsets=offsets, beyond_grid_m2=beyond_grid)
     return EditedSeamlines(path, labels, {names[k]: fid for k, fid in feature_of_frame.items()})
+
+
+def features_text(fids) -> str:
+    """The features of one frame's polygon as said in messages: "feature 3", "features 3, 7"."""
+    fids = (fids,) if isinstance(fids, int) else tuple(fids)
+    return f"feature{'s' if len(fids) > 1 else ''} {', '.join(str(f) for f in fids)}"
 
 
 def footprint(valid: np.ndarray) -> np.ndarray:
@@ -196,7 +203,7 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
             r, c = np.argwhere(beyond)[0]
             x, y = transform @ (c + 0.5, r + 0.5)
             past = (beyond_grid_m2 or {}).get(k, 0.0)
-            raise InputError(f"{path}: feature {fid}: frame {names[k]} does not cover its polygon: "
+            raise InputError(f"{path}: {features_text(fid)}: frame {names[k]} does not cover its polygon: "
                              f"{beyond.sum() * abs(transform.a * transform.e) + past:.0f} m2 of it lie outside the "
                              f"frame's ortho (e.g. at ({x:.1f}, {y:.1f})"
                              + (f"; {past:.0f} m2 of them beyond the mosaic's extent" if past >= 1.0 else "")
@@ -217,8 +224,8 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
                                                                                   & largest).any()]
         ring = cv2.dilate(largest.view(np.uint8), np.ones((3, 3), np.uint8)) > 0
         beside = sorted({int(k) for k in np.unique(labels[ring & ~largest]) if k >= 0},
-                        key=lambda k: feature_of_frame.get(k, -1))
-        beside_text = ", ".join(f"{names[k]} (feature {feature_of_frame[k]})" for k in beside
+                        key=lambda k: feature_of_frame.get(k, (-1,)))
+        beside_text = ", ".join(f"{names[k]} ({features_text(feature_of_frame[k])})" for k in beside
                                 if k in feature_of_frame) or "none"
         raise InputError(f"{path}: a gap between the polygons: {int(gap.sum())} seam cells "
                          f"({gap.sum() * abs(transform.a * transform.e):.0f} m2, {n - 1} area(s)) that frames see are "

@@ -177,6 +177,35 @@ def test_the_seamlines_geojson_given_back_is_read_by_its_frame_polygons(mosaicke
     assert _tile_sums(root / "ortho" / "mosaic.tif") == before
 
 
+def test_a_frames_polygon_in_several_single_part_features_is_read_as_one(mosaicked, tmp_path):
+    """QGIS's "Multipart to singleparts" (a Polygon layer, a frame's polygon in several features) was refused with
+    "one (multi)polygon per frame: merge them" (trial s105 F4): the parts of a frame are its one region. Every frame's
+    polygon cut in two along a north-south line through its centre, each part a feature of its own: the same seams,
+    0 tiles blended, the same mosaic."""
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    before = _tile_sums(root / "ortho" / "mosaic.tif")
+    meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
+    parts_names, parts = [], []
+    for name, g in zip(names, geoms):
+        x0, y0, x1, y1 = g.bounds
+        xm = round(0.5 * (x0 + x1))
+        for half in (shapely.box(x0 - 1, y0 - 1, xm, y1 + 1), shapely.box(xm, y0 - 1, x1 + 1, y1 + 1)):
+            for part in shapely.get_parts(g.intersection(half)):
+                if part.geom_type == "Polygon" and part.area > 0:
+                    parts_names.append(name)
+                    parts.append(part)
+    assert len(parts) >= 2 * len(geoms)
+    single = tmp_path / "singleparts.gpkg"
+    pyogrio.raw.write(str(single), shapely.to_wkb(np.array(parts, dtype=object)),
+                      [np.array(parts_names, dtype=object)], ["frame"], layer="seamlines", driver="GPKG",
+                      geometry_type="Polygon", crs=meta["crs"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(single)])
+    assert r.exit_code == 0, r.output
+    assert json.loads((root / "ortho" / "mosaic.json").read_text())["tiles"]["blended"] == 0
+    assert _tile_sums(root / "ortho" / "mosaic.tif") == before
+
+
 def test_an_edit_in_a_second_layer_or_the_mosaics_own_geojson_is_refused(mosaicked, tmp_path):
     """trial-ortho2: an edit saved as a second layer of the GeoPackage (QGIS "Save features as...") was passed over for
     the layer 'seamlines', the mosaic remade unchanged and called edited; ortho/seamlines.geojson given back was read,
@@ -217,7 +246,8 @@ def test_an_edit_in_a_second_layer_or_the_mosaics_own_geojson_is_refused(mosaick
     ("beyond", "feature {fid}: frame {name} does not cover its polygon"),
     # dragged off its frame: the gap it leaves is not what is said (trial s105 F5: "extend one over it")
     ("moved", "feature {fid}: frame {name} does not cover its polygon"),
-    ("twice", "has a polygon already"),
+    # a second feature of a frame is a part of its polygon (trial s105 F4), here a copy of it moved onto the others
+    ("twice", "{name} (features {fid}, {extra}) and"),
 ])
 def test_bad_edits_are_refused_naming_the_feature_and_nothing_is_written(mosaicked, tmp_path, edit, message):
     root = tmp_path / "p"
@@ -225,7 +255,7 @@ def test_bad_edits_are_refused_naming_the_feature_and_nothing_is_written(mosaick
     meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
     names, geoms = list(names), list(geoms)
     k = 0
-    fid = fids[k] if edit != "twice" else None
+    fid = fids[k]
     if edit == "unknown":
         names[k] = "no_such_frame"
     elif edit == "overlap":
@@ -242,14 +272,17 @@ def test_bad_edits_are_refused_naming_the_feature_and_nothing_is_written(mosaick
         b = shapely.union_all(geoms).bounds
         geoms[k] = affinity.translate(geoms[k], xoff=-(b[2] - b[0]) / 2)
     elif edit == "twice":
-        names, geoms = names + [names[k]], geoms + [shapely.box(0, 0, 1, 1)]
+        from shapely import affinity
+
+        b = shapely.union_all(geoms).bounds
+        names, geoms = names + [names[k]], geoms + [affinity.translate(geoms[k], xoff=(b[2] - b[0]) / 2)]
     edited = tmp_path / "edited.gpkg"
     _write(edited, names, geoms, meta["crs"])
     stamp = {p.name: p.stat().st_mtime_ns for p in (root / "ortho").iterdir()}
     r = CliRunner().invoke(main, ["mosaic", str(root), "--seamlines", str(edited)])
     assert r.exit_code == 2, r.output
     line = r.output.strip().splitlines()[-1]
-    assert str(edited) in line and message.format(fid=fid, name=names[k]) in line, line
+    assert str(edited) in line and message.format(fid=fid, name=names[k], extra=max(fids) + 1) in line, line
     assert "Traceback" not in r.output
     assert {p.name: p.stat().st_mtime_ns for p in (root / "ortho").iterdir()} == stamp
     if edit == "gap":
