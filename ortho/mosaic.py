@@ -1246,11 +1246,13 @@ def read_mosaic_summary(path) -> MosaicSummary:
 
 def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, object_height_m: float = 2.5,
                  max_seam_cells: float = 5e7, end_reach_m: float = 30.0, seam_cell_m: float = 1.5,
-                 executor=None, seamlines=None) -> MosaicSummary:
+                 executor=None, seamlines=None, give_sole_gaps: bool = False) -> MosaicSummary:
     """``ortho mosaic``: see the module doc. Returns what it made (``MosaicSummary``).
 
     ``seamlines``: an edited seamlines GeoPackage (``ortho/seamlines.gpkg`` as a run writes it, edited in QGIS) whose
-    polygons replace the seams the run would route (checked first: ``ortho.seamlines_gpkg``).
+    polygons replace the seams the run would route (checked first: ``ortho.seamlines_gpkg``); ``give_sole_gaps``
+    (the chain re-making an edited mosaic): cells in no polygon that one frame alone sees go to it, with a warning,
+    and are listed in mosaic.json (``edited_gaps_given``), instead of being refused as a gap.
 
     ``settings``: None reads [mosaic] of project.toml; a ``Resolved`` (``ortho mosaic``, the chain) carries the
     source of every setting into mosaic.json (``settings``). The output tiles are blended as tasks on
@@ -1259,12 +1261,13 @@ def mosaic_block(root, settings: MosaicSettings | Resolved | None = None, *, obj
     of the stage starts: ``aerotri.core.gdal_cache``)."""
     with stage_block_cache(MOSAIC_CACHE_BYTES):
         doc = _mosaic_block(root, settings, object_height_m=object_height_m, max_seam_cells=max_seam_cells,
-                            end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor, seamlines=seamlines)
+                            end_reach_m=end_reach_m, seam_cell_m=seam_cell_m, executor=executor, seamlines=seamlines,
+                            give_sole_gaps=give_sole_gaps)
     return _mosaic_summary(doc, Path(root) / "ortho" / "mosaic.json")
 
 
 def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_m, seam_cell_m, executor,
-                  seamlines=None) -> dict:
+                  seamlines=None, give_sole_gaps=False) -> dict:
     root = Path(root)
     timer = _PhaseTimer()
     resolved = settings_of(settings, MosaicSettings, Project.open(root) if settings is None else None)
@@ -1404,7 +1407,12 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
 
             edited = read_edited_seamlines(seamlines, red.names, mosaic.crs, labels_shape=red.shape,
                                            transform=red.transform, valid=red.valid, offsets=red.offsets,
-                                           excluded=s.exclude)
+                                           excluded=s.exclude, give_sole_gaps=give_sole_gaps)
+            for g in edited.gaps_given:
+                logger.warning("edited seamlines %s: %d seam cell%s (%.0f m2, %d area(s), the largest around (%.1f, "
+                               "%.1f)) in no polygon that frame %s alone sees (its ortho covers more than when the "
+                               "seamlines were edited): given to it", seamlines, g.cells, "s" * (g.cells != 1),
+                               g.area_m2, g.areas, g.x, g.y, g.frame)
         # the seams are routed on the cells each frame covers, the holes of what it does not see (a true ortho's
         # occlusion) included: one region per frame whose holes the blending fills from the frame of the nearest
         # nadir point that sees them (on the frames' valid cells, every hole became an island of another frame
@@ -1462,6 +1470,7 @@ def _mosaic_block(root, settings, *, object_height_m, max_seam_cells, end_reach_
                                   mosaic=mosaic, factor=factor, nadir=nadir, feather_px=feather_px, tile_px=tile_px,
                                   seams=seams, executor=executor, settings_record=resolved.record(), previous=previous,
                                   resume=keep, output=out_map, crossings=crossings,
+                                  gaps_given=edited.gaps_given if edited is not None else (),
                                   objects=(ndsm_path, object_height_m) if ndsm_path is not None else None)
         timer.done("blend and COG")
         with commit_outputs(out_dir):  # one commit: all new, or (a failure, a kill) all as before
@@ -1719,7 +1728,8 @@ def _open_frame(path):
 
 def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, gains, mosaic: OrthoGrid, factor, nadir,
                     feather_px, tile_px, seams, executor, settings_record: dict, previous=None, resume=None,
-                    rolloff=None, offsets=None, toe=None, output=None, crossings=None, objects=None) -> dict:
+                    rolloff=None, offsets=None, toe=None, output=None, crossings=None, objects=None,
+                    gaps_given=()) -> dict:
     """seams.tif, seamlines.geojson, seamlines.gpkg, mosaic.tif, seamlines_preview.png and mosaic.json into ``work``;
     returns the summary. ``objects``: (nDSM path, object height in m), whose objects the cells no frame sees of a true
     ortho are counted on (``ortho.unseen.unseen_on_objects``). ``previous``
@@ -1797,6 +1807,8 @@ def _mosaic_outputs(work: Path, root: Path, index, frames_dir, *, red, labels, g
                     "the mapping, %.4f %% clipped by it), %.4f %% at 0", output.formula, output.source,
                     100 * o["share_at_255"], 100 * (o["blended_share_at_white"] or 0.0),
                     100 * (o["clipped_by_mapping_share"] or 0.0), 100 * o["share_at_0"])
+    if gaps_given:  # an edited run re-made by the chain: the cells one frame alone sees, given to it
+        summary["edited_gaps_given"] = [g.record() for g in gaps_given]
     if crossings is not None:  # an edited run: where its seams cross buildings and trees (ortho.seam_crossings)
         summary["seam_crossings"] = crossings.record()
         if crossings.checked:

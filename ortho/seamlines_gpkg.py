@@ -38,6 +38,23 @@ class EditedSeamlines:
     path: Path
     labels: np.ndarray
     feature_of_frame: dict
+    gaps_given: tuple = ()  # ``GapGiven`` s: the gaps one frame alone sees, given to it (``give_sole_gaps``)
+
+
+@dataclasses.dataclass(frozen=True)
+class GapGiven:
+    """Seam cells in no edited polygon that one frame alone sees, given to that frame: how many, their area (m2) and
+    a point (map x, y) of the largest area of them."""
+
+    frame: str
+    cells: int
+    area_m2: float
+    areas: int
+    x: float
+    y: float
+
+    def record(self) -> dict:
+        return dataclasses.asdict(self)
 
 
 def write_seamlines_gpkg(path, labels: np.ndarray, transform, names: list[str], crs, features: list | None = None
@@ -71,11 +88,14 @@ def require_seamlines_file(path) -> None:
 
 
 def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transform, valid: list, offsets: list,
-                          excluded=()) -> EditedSeamlines:
+                          excluded=(), give_sole_gaps: bool = False) -> EditedSeamlines:
     """The polygons of an edited seamlines GeoPackage (or any OGR vector file) as labels on the seam grid
     (``labels_shape``, ``transform``), checked against the frames (``names``; ``valid``/``offsets``: each frame's
     valid seam cells and the (row, col) of its first cell) as the module doc says; ``excluded``: frames of ortho/frames
-    the mosaic leaves out (``[mosaic] exclude``), named as such when a polygon holds one."""
+    the mosaic leaves out (``[mosaic] exclude``), named as such when a polygon holds one. ``give_sole_gaps``: a gap's
+    cells that one frame alone sees go to that frame (``EditedSeamlines.gaps_given``) instead of being refused; the
+    cells several frames see still are (the chain re-making an edited mosaic over frame orthos made again since the
+    edit: their new edges left the operator's polygons short of cells no other frame could take, trial s105 F3)."""
     import pyogrio
     import shapely
     from pyproj import CRS
@@ -162,9 +182,9 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
     x1, y1 = transform @ (w, h)
     grid = shapely.box(min(x0, x1), min(y0, y1), max(x0, x1), max(y0, y1))
     beyond_grid = {k: float(g.difference(grid).area) for k, g in polygons}
-    _check_coverage(path, labels, names, feature_of_frame=feature_of_frame, transform=transform, valid=valid,
-                    offsets=offsets, beyond_grid_m2=beyond_grid)
-    return EditedSeamlines(path, labels, {names[k]: fid for k, fid in feature_of_frame.items()})
+    given = _check_coverage(path, labels, names, feature_of_frame=feature_of_frame, transform=transform, valid=valid,
+                            offsets=offsets, beyond_grid_m2=beyond_grid, give_sole_gaps=give_sole_gaps)
+    return EditedSeamlines(path, labels, {names[k]: fid for k, fid in feature_of_frame.items()}, given)
 
 
 def features_text(fids) -> str:
@@ -192,9 +212,11 @@ def _place(a: np.ndarray, off, shape) -> np.ndarray:
 
 
 def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, offsets,
-                    beyond_grid_m2=None) -> None:
+                    beyond_grid_m2=None, give_sole_gaps: bool = False) -> tuple:
     """No polygon beyond its frame's footprint, no gap (a cell some frame sees outside every polygon);
-    ``beyond_grid_m2``: per frame, its polygon's area beyond the seam grid (no frame's there), added to what is said."""
+    ``beyond_grid_m2``: per frame, its polygon's area beyond the seam grid (no frame's there), added to what is said.
+    ``give_sole_gaps``: the gap cells one frame alone sees are labelled with it (``labels`` changed in place) and
+    returned as ``GapGiven`` s; the other gap cells are refused as before."""
     # a polygon beyond its frame first: a polygon dragged off its frame leaves a gap too, and the gap's remedy
     # ("extend one over it") misled (trial s105 F5: 64,072 m2 to cover instead of the polygon to move back)
     for k, fid in sorted(feature_of_frame.items(), key=lambda kv: kv[1]):
@@ -212,6 +234,23 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
     for v, off in zip(valid, offsets):
         seen |= _place(v, off, labels.shape)
     gap = seen & (labels < 0)
+    given = []
+    if give_sole_gaps and gap.any():
+        count, owner = np.zeros(labels.shape, np.uint8), np.full(labels.shape, -1, np.int32)
+        for k, (v, off) in enumerate(zip(valid, offsets)):
+            placed = _place(v, off, labels.shape) & gap
+            count[placed] = np.minimum(count[placed], 1) + 1
+            owner[placed] = k
+        cell_m2 = abs(transform.a * transform.e)
+        for k in np.unique(owner[gap & (count == 1)]):
+            mine = gap & (count == 1) & (owner == k)
+            n, lab = cv2.connectedComponents(mine.view(np.uint8), connectivity=4)
+            r, c = np.argwhere(lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:])))[0]
+            x, y = transform @ (c + 0.5, r + 0.5)
+            given.append(GapGiven(names[k], int(mine.sum()), round(float(mine.sum() * cell_m2), 1), n - 1,
+                                  round(float(x), 2), round(float(y), 2)))
+            labels[mine] = k
+        gap = seen & (labels < 0)
     if gap.any():
         n, lab = cv2.connectedComponents(gap.view(np.uint8), connectivity=4)
         sizes = np.bincount(lab.ravel())[1:]
@@ -232,3 +271,4 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
                          f"in no polygon; the largest around ({x:.1f}, {y:.1f}), seen by {', '.join(seeing[:6])}"
                          f"{' ...' if len(seeing) > 6 else ''}; the polygons beside it: {beside_text}: extend one "
                          "over it")
+    return tuple(given)

@@ -1035,7 +1035,10 @@ class Chain:
             _log.warning(f"[mosaic] made again with the edited seamlines {edited} the mosaic on disk was made with "
                          f"(remove {_rel(self.project.mosaic_path, self.root)} to have the chain route its own)")
             try:
-                done = mosaic_block(root, self.stage_settings("mosaic"), seamlines=edited)
+                # frame orthos made again (another rectify setting) may cover a little more than when the polygons
+                # were drawn: the cells only such a frame sees go to it, said (trial s105 F3: 10 m2 beside the one
+                # frame that sees them stopped the chain until the operator edited again or dropped the edit)
+                done = mosaic_block(root, self.stage_settings("mosaic"), seamlines=edited, give_sole_gaps=True)
             except InputError as e:
                 raise InputError(f"{e}; the chain re-makes the operator's edited mosaic with these seamlines: fix them, "
                               f"or remove {_rel(self.project.mosaic_path, self.root)} to have the chain route its "

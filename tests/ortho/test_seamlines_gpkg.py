@@ -484,3 +484,67 @@ def test_the_chain_makes_an_edited_mosaic_again_with_its_seamlines(mosaicked, tm
     assert chain.edited_seamlines() is None
     chain.run_mosaic(root)
     assert json.loads((root / "ortho" / "mosaic.json").read_text())["seams"] == "least-cost"
+
+
+def _frame_regions(root, names):
+    """Each frame ortho's valid pixels as a polygon (map coordinates)."""
+    from rasterio import features
+
+    out = {}
+    for name in names:
+        with rasterio.open(root / "ortho" / "frames" / f"{name}.tif") as ds:
+            mask = ds.dataset_mask() > 0
+            out[name] = shapely.union_all([shapely.geometry.shape(g) for g, v in features.shapes(
+                mask.view(np.uint8), mask=mask, transform=ds.transform) if v])
+    return out
+
+
+def test_the_chain_gives_a_gap_one_frame_alone_sees_to_that_frame(mosaicked, tmp_path, monkeypatch, caplog):
+    """Trial s105 F3: after a seam edit, frame orthos made again (another rectify setting) covered 10 m2 more beside
+    the one frame that sees them; the chain, re-making the operator's edited mosaic, stopped on that gap (exit 2)
+    until the operator edited again or dropped the edit. Re-made by the chain, the cells one frame alone sees go to
+    it, said and listed in mosaic.json; ``ortho mosaic --seamlines`` given the same file still refuses the gap.
+    Here a square of a frame's polygon that no other frame sees is cut out of the edit: given back, the seams are the
+    unedited ones, the mosaic the same."""
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain
+    from aerotri.core.project import Project
+
+    root = tmp_path / "p"
+    shutil.copytree(mosaicked, root)
+    before = _tile_sums(root / "ortho" / "mosaic.tif")
+    meta, fids, names, geoms = _read(root / "ortho" / "seamlines.gpkg")
+    regions = _frame_regions(root, names)
+    for k, name in enumerate(names):
+        others = shapely.union_all([g for n, g in regions.items() if n != name]).buffer(6.0)
+        alone = geoms[k].difference(others).buffer(-6.0)
+        if not alone.is_empty:
+            break
+    else:
+        raise AssertionError("no frame with a part of its polygon no other frame sees")
+    c = alone.representative_point()
+    cut = shapely.box(c.x - 5, c.y - 5, c.x + 5, c.y + 5)
+    edited = tmp_path / "edited.gpkg"
+    _write(edited, names, [g.difference(cut) if i == k else g for i, g in enumerate(geoms)], meta["crs"])
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(edited)])
+    assert r.exit_code == 2 and "a gap between the polygons" in r.output and f"seen by {name};" in r.output, r.output
+
+    # an edited mosaic on disk (the unedited polygons given back), then the chain re-makes it with the gap's file
+    shutil.copy(root / "ortho" / "seamlines.gpkg", tmp_path / "unedited.gpkg")
+    r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines",
+                                  str(tmp_path / "unedited.gpkg")])
+    assert r.exit_code == 0, r.output
+    shutil.copy(edited, tmp_path / "unedited.gpkg")  # the recorded edit, now with the gap
+    monkeypatch.chdir(root)
+    project = Project.open(root)
+    (root / "project.toml").write_text((root / "project.toml").read_text() + f"\n[mosaic]\ntile_px = {TILE_PX}\n")
+    chain = Chain(project, read_options(project))
+    chain.run_mosaic(root)
+    doc = json.loads((root / "ortho" / "mosaic.json").read_text())
+    (given,) = doc["edited_gaps_given"]
+    # the 10 x 10 m cut, to the seam cells whose centres it holds
+    assert given["frame"] == name and given["areas"] == 1 and 80.0 <= given["area_m2"] <= 120.0, given
+    assert cut.buffer(2.0).contains(shapely.Point(given["x"], given["y"])), given
+    assert doc["tiles"]["blended"] == 0 and _tile_sums(root / "ortho" / "mosaic.tif") == before
+    said = " ".join(caplog.text.split())
+    assert f"seam cells ({given['area_m2']:.0f} m2, 1 area(s)" in said and f"frame {name} alone sees" in said, said
