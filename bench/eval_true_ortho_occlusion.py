@@ -31,7 +31,9 @@ Figures, per block and way (``conventional``, ``true_ortho``):
   ground route existed (the seam's two ends, each snapped to the nearest roof-free overlap cell within 30 m, in one
   8-connected part of the pair's roof-free overlap on the seam grid);
 - seam misalignment: ``ortho.mosaic.seam_misalignment`` (NCC of 32 px ground patches of the two frame orthos on the
-  seam), px.
+  seam), px;
+- roofs left nodata: the roof cells some frame's footprint covers, by their distance from the roof's outline
+  (``roof_nodata_by_depth``: 0-1 m, 1-2 m, deeper), and the share the DOM leaves nodata.
 
 Usage: python bench/eval_true_ortho_occlusion.py [--demo /work/ref/demo_chain/project] [--tall DIR] [--work DIR]
        [--blocks demo,tall] [--chain NAME=DIR] [--key KEY]
@@ -383,6 +385,25 @@ def crossings_by_roof(on_roof: np.ndarray, roof: np.ndarray, dom_valid: np.ndarr
             "roofs_crossed_detail": rows}
 
 
+ROOF_DEPTH_BANDS_M = ((0.0, 1.0), (1.0, 2.0), (2.0, float("inf")))
+
+
+def roof_nodata_by_depth(roof: np.ndarray, covered: np.ndarray, dom_valid: np.ndarray, res_m: float) -> dict:
+    """The truth's roof cells a frame's footprint covers, by their distance (m, cell centres) from the nearest cell
+    that is not roof, and the share the DOM leaves nodata (trial s105 F1: a true ortho masked the roofs' outer
+    metre, 40 % of it on the tall block, where the frames look down on it)."""
+    import cv2
+
+    depth = cv2.distanceTransform(roof.view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5) * res_m
+    out = {}
+    for lo, hi in ROOF_DEPTH_BANDS_M:
+        band = roof & covered & (depth > lo) & (depth <= hi)
+        n = int(band.sum())
+        out[f"{lo:g}-{hi:g}m"] = {"cells": n, "nodata": int((band & ~dom_valid).sum()),
+                                  "nodata_share": float((band & ~dom_valid).sum() / max(1, n))}
+    return out
+
+
 def measure_way(project: Path, truth: Truth, grid, surface_kind, ground, roof, vis, foot_nadir, conv_masks) -> dict:
     import cv2
     import rasterio
@@ -527,6 +548,7 @@ def measure_way(project: Path, truth: Truth, grid, surface_kind, ground, roof, v
     mis = seam_misalignment(project)
     seams["misalignment"] = {k: getattr(mis, k) for k in ("patch_px", "patches", "rms_px", "max_px")}
     return {"source_frame_by_value": agree, "ghosts": ghosts, "occluded_ground": occluded,
+            "roofs_nodata_by_depth": roof_nodata_by_depth(roof, foot_nadir >= 0, dom_valid, grid.res_m),
             "seams": seams}
 
 

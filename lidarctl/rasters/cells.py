@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 NOT_VALID = (7, 18)      # noise classes: not in the occupancy, the DSM or the intensity
+BUILDING = 6             # building returns: the roofs above wall returns (``beneath``)
 GROUND = (2, 9)          # ground and water: the DEM
 VEGETATION = (4, 5)      # medium and high vegetation: the CHM
 LOW_VEGETATION = 3       # not in the CHM (grass and crops are no canopy)
@@ -22,7 +23,7 @@ LOW_VEGETATION = 3       # not in the CHM (grass and crops are no canopy)
 
 # columns of the per-cell records (one record per cell: a point touches one or two cache lines, not seven)
 _SLOT, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                      # int32 (2^31 points a cell)
-_DSM, _GROUND_SUM, _INTEN_SUM, _TOP = 0, 1, 2, 3                      # float64
+_DSM, _GROUND_SUM, _INTEN_SUM, _TOP, _BUILDING_TOP = 0, 1, 2, 3, 4   # float64
 # columns of a chunk's sums, one row per cell the chunk touches (its slot)
 _GROUND_CHUNK, _INTEN_CHUNK = 0, 1
 
@@ -84,6 +85,8 @@ def _accumulate(pts, win, counts, sums, touched, chunk_sums):
         counts[c, _VALID_N] += 1
         if np.isnan(sums[c, _TOP]) or z[k] > sums[c, _TOP]:
             sums[c, _TOP] = z[k]
+        if cl == 6 and (np.isnan(sums[c, _BUILDING_TOP]) or z[k] > sums[c, _BUILDING_TOP]):
+            sums[c, _BUILDING_TOP] = z[k]
         if not (ground or first):
             continue
         s = counts[c, _SLOT]
@@ -145,7 +148,7 @@ class CellStats:
     """Running per-cell statistics of a window of ``nrows`` x ``ncols`` cells (flat arrays): points
     not noise per cell (``valid_n``), the sum and count of ground heights (``ground_sum``,
     ``ground_n``), the highest first return (``dsm``, NaN where none), the highest return of any number (``top``,
-    NaN where none), the sum and count of
+    NaN where none), the highest building return (``building_top``, NaN where none), the sum and count of
     first-return intensities (``inten_sum``, ``inten_n``), the highest vegetation above the DEM
     (``chm``, NaN where none)."""
 
@@ -154,9 +157,10 @@ class CellStats:
         self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
         n = self.nrows * self.ncols
         self._counts = np.zeros((n, 4), np.int32)
-        self._sums = np.zeros((n, 4))
+        self._sums = np.zeros((n, 5))
         self._sums[:, _DSM] = np.nan
         self._sums[:, _TOP] = np.nan
+        self._sums[:, _BUILDING_TOP] = np.nan
         self.chm = np.full(n, np.nan)
 
     valid_n = property(lambda self: self._counts[:, _VALID_N])
@@ -166,6 +170,7 @@ class CellStats:
     inten_sum = property(lambda self: self._sums[:, _INTEN_SUM])
     dsm = property(lambda self: self._sums[:, _DSM])
     top = property(lambda self: self._sums[:, _TOP])
+    building_top = property(lambda self: self._sums[:, _BUILDING_TOP])
 
     def _window(self) -> _Window:
         return _Window(self.res_m, self.x0, self.y0, self.row0, self.col0, self.nrows, self.ncols)

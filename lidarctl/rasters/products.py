@@ -14,10 +14,12 @@ description, and the tags ``LINEAR_UNITS``, ``VERTICAL_UNITS`` and ``CELL_SIZE_M
 * dsm.tif: highest first return (noise excluded) per cell, gaps filled as for the DEM; then raised to the highest
   return of any number in the cell, and a cell no return hit to the DEM plus the CHM's fill (``dsm_filled``: a
   tilted pulse's later return from a crown can fall in a cell whose own first returns reached the ground through a
-  gap, which the CHM counts): nDSM >= CHM.
+  gap, which the CHM counts): nDSM >= CHM. A building return beneath a roof (a wall return, one under an eave:
+  more than ``beneath.BENEATH_DZ_M`` below a building return within ``beneath.BENEATH_RADIUS_M``) counts at the
+  roof's height (``beneath``).
 * dsm_nearest.tif: height of the first return (noise excluded) nearest each cell centre (``nearest``: the
-  surface straight down at the centres, the true ortho's occlusion test); the DSM's value where none lies within
-  ``nearest.SEARCH_RADIUS_M``; nodata where the DSM is.
+  surface straight down at the centres, the true ortho's occlusion test), building returns beneath a roof at the
+  roof's height; the DSM's value where none lies within ``nearest.SEARCH_RADIUS_M``; nodata where the DSM is.
 * ndsm.tif: dsm - dem.
 * chm.tif: highest vegetation (classes 4, 5) height above the DEM per cell; a cell no return hit takes the mean of
   its observed neighbours (a cell seen without trees counts 0); nodata where no trees (and in wider gaps).
@@ -56,7 +58,7 @@ from aerotri.core.limits import (cache_bytes, check_allocation, check_task_count
 from aerotri.core.limits import check_disk
 from lidarctl.grid import check_grid
 from lidarctl.io import PointCloud
-from lidarctl.rasters import nearest
+from lidarctl.rasters import beneath, nearest
 from lidarctl.rasters.cells import LOW_VEGETATION, VEGETATION, CellStats
 from lidarctl.raster_ops import DEFAULT_TIN_FILL_RADIUS_PX, fill_nodata, fill_nodata_tin
 from aerotri.geom.crs.definition import length_unit_name, parse_crs
@@ -91,7 +93,8 @@ class RasterGrids:
             return self
         heights = {n: (getattr(self, n).astype(float) / units.z_m).astype(np.float32) for n in HEIGHT_GRIDS}
         return dataclasses.replace(self, **heights, transform=_transform_in_units(self.transform, units))
-DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points", "dsm": "DSM: highest first return, raised to any higher return",
+DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points",
+                "dsm": "DSM: highest first return, raised to any higher return; wall returns at the roof above",
                 "ndsm": "nDSM: DSM - DEM", "chm": "CHM: highest vegetation above the DEM",
                 "intensity": INTENSITY_DESCRIPTION,   # (by which a DEM reader refuses it: raster_warp.not_heights)
                 "dsm_nearest": "DSM: first return nearest the cell centre"}
@@ -182,6 +185,7 @@ class _CellSums:
         self.args = args
         self.offset = offset
         self._stats = CellStats(args[0], args[1], args[2], args[3], args[4], row0=offset[0], col0=offset[1])
+        self._beneath = None
 
     # per-cell arrays (flat): points not noise, sum and count of ground heights, highest first return,
     # sum and count of first-return intensities, highest vegetation above the DEM
@@ -234,6 +238,24 @@ class _CellSums:
                                      metric=units.is_metric, nodata=NODATA, chm=chm.ravel())
         return dict(zip(("dem_m", *RASTERS), out))
 
+    def beneath(self) -> tuple[np.ndarray, np.ndarray]:
+        """(``beneath.roof_above``, ``beneath.lifted_cells``) of the window, rows south to north, once every chunk is
+        added (pass 1): the roof above each cell's building returns, and the height a cell's returns beneath a roof
+        are lifted to (NaN where none is)."""
+        if self._beneath is None:
+            shape = self.args[3], self.args[4]
+            top = self._stats.building_top.reshape(shape)
+            above = beneath.roof_above(top, self.args[0])
+            self._beneath = above, beneath.lifted_cells(top, above)
+        return self._beneath
+
+    def lifted(self, x, y, z, cls) -> np.ndarray:
+        """``z`` with the building returns beneath a roof lifted to it (``beneath.lift_points``; after pass 1): the
+        returns the nearest-return DSM takes."""
+        res_m, x0, y0 = self.args[:3]
+        return beneath.lift_points(x, y, z, cls, self.beneath()[0], x0_m=x0, y0_m=y0, res_m=res_m,
+                                   row0=self.offset[0], col0=self.offset[1])
+
     def dsm_filled(self, dem: np.ndarray, chm_filled: np.ndarray) -> np.ndarray:
         """The DSM per cell (rows south to north; ``dem`` and ``chm_filled``, ``chm_gaps_filled``, the same): the
         highest first return, gaps filled (pull-push), raised to the highest return of any number in the cell, and a
@@ -242,9 +264,12 @@ class _CellSums:
         a gap, and the two fills differ (trial-gis: the demo's CHM above its nDSM by more than 0.5 m in 13,768 of
         80,159 cells, 841 with a vegetation return, by up to 19.15 m). Every return alone: a cell under a crown
         holding only a last return from the ground is a pit that the first returns' fill closes (the demo: 23,364
-        cells lower, by up to 20 m)."""
+        cells lower, by up to 20 m). Building returns beneath a roof count at the roof's height (``beneath``: a wall
+        return, one under an eave)."""
         shape = self.args[3], self.args[4]
-        filled = np.fmax(fill_nodata(self.dsm.reshape(shape)), self._stats.top.reshape(shape))
+        lifted = self.beneath()[1]
+        filled = np.fmax(fill_nodata(np.fmax(self.dsm.reshape(shape), lifted)),
+                         np.fmax(self._stats.top.reshape(shape), lifted))
         empty = (self.valid_n == 0).reshape(shape)
         with np.errstate(invalid="ignore"):
             return np.fmax(filled, np.where(empty & (chm_filled > 0), dem + chm_filled, np.nan))
@@ -323,7 +348,7 @@ def make_grids(cloud: PointCloud, res_m: float, footprint_cells: int = 3,
     sums.add_chm(x, y, z, cls, dem)
     near = sums.nearest_returns()
     near.count(x, y, cls, cloud.return_number)
-    near.add(x, y, z, cls, cloud.return_number)
+    near.add(x, y, sums.lifted(x, y, z, cls), cls, cloud.return_number)
     return sums.grids(dem, footprint_cells, near.surface())
 
 
@@ -390,7 +415,7 @@ def make_grids_streamed(path, res_m: float, footprint_cells: int = 3, chunk_poin
     dem = sums.dem()
     for x, y, z, cls, rn, _ in _file_points(path, units, chunk_points, validate=False):
         sums.add_chm(x, y, z, cls, dem)
-        near.add(x, y, z, cls, rn)
+        near.add(x, y, sums.lifted(x, y, z, cls), cls, rn)
     return sums.grids(dem, footprint_cells, near.surface()), int(header.point_count)
 
 
@@ -1135,8 +1160,9 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int |
 # what a cell gets at the same settings are computed again (the toolkit's version, 0.1.0, never changes with them).
 # Bump it when the grids' values change. 1: resume-keys (the algorithm as of main 195def90); 2: CHM cells no return
 # hit filled from their neighbours, road surface (11) of LAS 1.4 in the DEM; 3: the DSM raised to a cell's later
-# returns and, where no return hit, to the DEM plus the CHM's fill (``dsm_filled``).
-RASTERS_VERSION = 3
+# returns and, where no return hit, to the DEM plus the CHM's fill (``dsm_filled``); 4: building returns beneath a
+# roof lifted to it in the DSM and the nearest-return DSM (``beneath``).
+RASTERS_VERSION = 4
 
 
 def _tiles_key_doc(inputs: _Inputs, args, grid, **settings) -> dict:
@@ -1378,7 +1404,7 @@ def _tile_grids(inputs: _Inputs, args, tile, work: Path, *, chunk_points: int, f
     check()
     for ch in _bin_chunks(work, tid, chunk_points):
         sums.add_chm(ch.x, ch.y, ch.z, ch.cls, dem)
-        near.add(ch.x, ch.y, ch.z, ch.cls, ch.rn)
+        near.add(ch.x, ch.y, sums.lifted(ch.x, ch.y, ch.z, ch.cls), ch.cls, ch.rn)
     check()
     for name, _ in _BIN_FIELDS:
         os.remove(work / f"tile_{tid}_{name}.bin")

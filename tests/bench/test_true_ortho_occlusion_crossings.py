@@ -29,3 +29,22 @@ def test_a_roof_is_avoidable_only_where_one_frame_covers_all_its_cells_in_the_do
     small, wide = sorted(got["roofs_crossed_detail"], key=lambda r: r["roof_cells"])
     assert small == {"roof_cells": 12, "seam_cells": 4, "frames_covering_it_whole": 2, "rows_cols": [2, 5, 13, 16]}
     assert wide["frames_covering_it_whole"] == 0 and wide["rows_cols"] == [10, 13, 8, 21]
+
+
+def test_roof_nodata_is_counted_by_depth_inside_the_roof(bench_script):
+    """``roof_nodata_by_depth``: a 12 x 12 cell roof at 0.4 m, its outer ring of cells nodata; the cells at up to 1 m
+    from the outline (the two outer rings: centres 0.4, 0.8 m) hold every nodata cell, the roof's inside none; a
+    roof outside every footprint is not counted."""
+    roof = np.zeros((H, W), bool)
+    roof[4:16, 4:16] = True
+    roof[4:8, 24:28] = True          # outside the footprints
+    covered = np.zeros((H, W), bool)
+    covered[:, :20] = True
+    dom_valid = np.ones((H, W), bool)
+    dom_valid[4:16, 4:16] = False
+    dom_valid[5:15, 5:15] = True     # the outer ring nodata
+    got = bench_script.roof_nodata_by_depth(roof, covered, dom_valid, 0.4)
+    ring = 12 * 4 - 4
+    assert got["0-1m"]["nodata"] == ring and got["1-2m"]["nodata"] == 0 and got["2-infm"]["nodata"] == 0
+    assert sum(b["cells"] for b in got.values()) == 144
+    assert got["0-1m"]["nodata_share"] == ring / got["0-1m"]["cells"]
