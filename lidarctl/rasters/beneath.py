@@ -8,11 +8,14 @@ tall block's LiDAR (20-40 m buildings, eaves of 0.3-0.8 m, a return per 1.3 m2) 
 inside the roof outline lay more than 1 m below the roof, and a true ortho rectified on it (points under their own
 roof, every frame) left 40 % of the roofs' outer metre nodata (trial s105 F1; docs/true-ortho.md "Wall returns").
 
-A building return (class 6) more than ``BENEATH_DZ_M`` below the highest building return of the cells whose centres
-lie within ``BENEATH_RADIUS_M`` of its cell's centre takes that height: the surface above it. Ground, vegetation and
-other classes are never lifted (ground beside a wall stays where it is: the step stays at the wall); a roof step
-of less than ``BENEATH_DZ_M`` within the radius (a pitched roof, a parapet, a rooftop unit) is left. Grids: rows and
-columns of a window as ``cells.CellStats`` has them (rows south to north from the window's first cell).
+A building return (class 6) that lies on a wall takes the height of the roof above it: more than ``BENEATH_DZ_M``
+below the highest building return and more than ``BENEATH_DZ_M`` above the lowest return of any class among the
+cells whose centres lie within ``BENEATH_RADIUS_M`` of its cell's centre (the roof above it, the ground or lower
+roof at the wall's foot). A lower roof's returns beside a higher roof's wall have no lower return beside them and
+stay (the step stays between the two roofs' returns: on AHN3 Delft a first rule without the lower test lifted rear
+annexes a metre out from the main roofs' walls); ground, vegetation and other classes are never lifted; a roof
+step of less than ``BENEATH_DZ_M`` within the radius (a pitched roof, a parapet, a rooftop unit) is left. Grids:
+rows and columns of a window as ``cells.CellStats`` has them (rows south to north from the window's first cell).
 """
 
 from __future__ import annotations
@@ -33,29 +36,42 @@ BENEATH_RADIUS_M = 1.0
 BENEATH_DZ_M = 2.5
 
 
-def roof_above(building_top: np.ndarray, res_m: float) -> np.ndarray:
-    """The highest building return of the cells whose centres lie within ``BENEATH_RADIUS_M`` of each cell's centre
-    (``building_top``: per cell, NaN for none; the same shape, NaN where none)."""
+def _disc(res_m: float) -> np.ndarray:
+    """The cells whose centres lie within ``BENEATH_RADIUS_M`` of a cell's centre (itself at least)."""
     r = max(1, int(math.floor(BENEATH_RADIUS_M / res_m + 1e-9)))
     di, dj = np.mgrid[-r:r + 1, -r:r + 1]
-    disc = np.hypot(di, dj) * res_m <= BENEATH_RADIUS_M + 1e-9
-    top = np.where(np.isnan(building_top), -np.inf, building_top)
-    above = ndimage.maximum_filter(top, footprint=disc, mode="constant", cval=-np.inf)
-    return np.where(np.isfinite(above), above, np.nan)
+    return np.hypot(di, dj) * res_m <= BENEATH_RADIUS_M + 1e-9
 
 
-def lifted_cells(building_top: np.ndarray, above: np.ndarray) -> np.ndarray:
-    """Per cell, the height its building returns beneath a roof are lifted to (``above``, ``roof_above``) where its
-    highest building return lies more than ``BENEATH_DZ_M`` below it; NaN elsewhere."""
+def wall_span(building_top: np.ndarray, bottom: np.ndarray, res_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(above, below): the highest building return and the lowest return of any class of the cells within
+    ``BENEATH_RADIUS_M`` of each cell (``building_top``, ``bottom``: per cell, NaN for none; NaN where none)."""
+    disc = _disc(res_m)
+    above = ndimage.maximum_filter(np.where(np.isnan(building_top), -np.inf, building_top), footprint=disc,
+                                   mode="constant", cval=-np.inf)
+    below = ndimage.minimum_filter(np.where(np.isnan(bottom), np.inf, bottom), footprint=disc, mode="constant",
+                                   cval=np.inf)
+    return np.where(np.isfinite(above), above, np.nan), np.where(np.isfinite(below), below, np.nan)
+
+
+def _on_wall(z, above, below):
     with np.errstate(invalid="ignore"):
-        return np.where(building_top < above - BENEATH_DZ_M, above, np.nan)
+        return (z < above - BENEATH_DZ_M) & (z > below + BENEATH_DZ_M)
 
 
-def lift_points(x, y, z, cls, above: np.ndarray, *, x0_m: float, y0_m: float, res_m: float, row0: int = 0,
-                col0: int = 0) -> np.ndarray:
-    """``z`` (metres) with every building return more than ``BENEATH_DZ_M`` below ``above`` at its cell lifted to
-    it; ``above`` on the window of cells from (``row0``, ``col0``) of the grid with origin (``x0_m``, ``y0_m``),
-    rows south to north; points off the window are left. A new array only where a point is lifted."""
+def lifted_cells(building_top: np.ndarray, span: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Per cell, the height its highest building return is lifted to (``span``'s above, ``wall_span``) where that
+    return lies on a wall; NaN elsewhere."""
+    above, below = span
+    return np.where(_on_wall(building_top, above, below), above, np.nan)
+
+
+def lift_points(x, y, z, cls, span: tuple[np.ndarray, np.ndarray], *, x0_m: float, y0_m: float, res_m: float,
+                row0: int = 0, col0: int = 0) -> np.ndarray:
+    """``z`` (metres) with every building return on a wall (``span``, ``wall_span``, at its cell) lifted to the roof
+    above it; ``span`` on the window of cells from (``row0``, ``col0``) of the grid with origin (``x0_m``,
+    ``y0_m``), rows south to north; points off the window are left. A new array only where a point is lifted."""
+    above, below = span
     z = np.asarray(z)
     building = np.asarray(cls) == BUILDING
     if not building.any():
@@ -66,8 +82,7 @@ def lift_points(x, y, z, cls, above: np.ndarray, *, x0_m: float, y0_m: float, re
     inside = (i >= 0) & (i < above.shape[0]) & (j >= 0) & (j < above.shape[1])
     k, i, j = k[inside], i[inside], j[inside]
     a = above[i, j]
-    with np.errstate(invalid="ignore"):
-        lift = z[k] < a - BENEATH_DZ_M
+    lift = _on_wall(z[k], a, below[i, j])
     if not lift.any():
         return z
     out = np.array(z, dtype=np.float64)

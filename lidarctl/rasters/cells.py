@@ -23,7 +23,7 @@ LOW_VEGETATION = 3       # not in the CHM (grass and crops are no canopy)
 
 # columns of the per-cell records (one record per cell: a point touches one or two cache lines, not seven)
 _SLOT, _VALID_N, _GROUND_N, _INTEN_N = 0, 1, 2, 3                      # int32 (2^31 points a cell)
-_DSM, _GROUND_SUM, _INTEN_SUM, _TOP, _BUILDING_TOP = 0, 1, 2, 3, 4   # float64
+_DSM, _GROUND_SUM, _INTEN_SUM, _TOP, _BUILDING_TOP, _BOTTOM = 0, 1, 2, 3, 4, 5   # float64
 # columns of a chunk's sums, one row per cell the chunk touches (its slot)
 _GROUND_CHUNK, _INTEN_CHUNK = 0, 1
 
@@ -85,6 +85,8 @@ def _accumulate(pts, win, counts, sums, touched, chunk_sums):
         counts[c, _VALID_N] += 1
         if np.isnan(sums[c, _TOP]) or z[k] > sums[c, _TOP]:
             sums[c, _TOP] = z[k]
+        if np.isnan(sums[c, _BOTTOM]) or z[k] < sums[c, _BOTTOM]:
+            sums[c, _BOTTOM] = z[k]
         if cl == 6 and (np.isnan(sums[c, _BUILDING_TOP]) or z[k] > sums[c, _BUILDING_TOP]):
             sums[c, _BUILDING_TOP] = z[k]
         if not (ground or first):
@@ -148,7 +150,8 @@ class CellStats:
     """Running per-cell statistics of a window of ``nrows`` x ``ncols`` cells (flat arrays): points
     not noise per cell (``valid_n``), the sum and count of ground heights (``ground_sum``,
     ``ground_n``), the highest first return (``dsm``, NaN where none), the highest return of any number (``top``,
-    NaN where none), the highest building return (``building_top``, NaN where none), the sum and count of
+    NaN where none), the highest building return (``building_top``, NaN where none), the lowest return of any number
+    (``bottom``, NaN where none), the sum and count of
     first-return intensities (``inten_sum``, ``inten_n``), the highest vegetation above the DEM
     (``chm``, NaN where none)."""
 
@@ -157,10 +160,11 @@ class CellStats:
         self.nrows, self.ncols, self.row0, self.col0 = int(nrows), int(ncols), int(row0), int(col0)
         n = self.nrows * self.ncols
         self._counts = np.zeros((n, 4), np.int32)
-        self._sums = np.zeros((n, 5))
+        self._sums = np.zeros((n, 6))
         self._sums[:, _DSM] = np.nan
         self._sums[:, _TOP] = np.nan
         self._sums[:, _BUILDING_TOP] = np.nan
+        self._sums[:, _BOTTOM] = np.nan
         self.chm = np.full(n, np.nan)
 
     valid_n = property(lambda self: self._counts[:, _VALID_N])
@@ -171,6 +175,7 @@ class CellStats:
     dsm = property(lambda self: self._sums[:, _DSM])
     top = property(lambda self: self._sums[:, _TOP])
     building_top = property(lambda self: self._sums[:, _BUILDING_TOP])
+    bottom = property(lambda self: self._sums[:, _BOTTOM])
 
     def _window(self) -> _Window:
         return _Window(self.res_m, self.x0, self.y0, self.row0, self.col0, self.nrows, self.ncols)

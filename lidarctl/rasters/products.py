@@ -14,11 +14,11 @@ description, and the tags ``LINEAR_UNITS``, ``VERTICAL_UNITS`` and ``CELL_SIZE_M
 * dsm.tif: highest first return (noise excluded) per cell, gaps filled as for the DEM; then raised to the highest
   return of any number in the cell, and a cell no return hit to the DEM plus the CHM's fill (``dsm_filled``: a
   tilted pulse's later return from a crown can fall in a cell whose own first returns reached the ground through a
-  gap, which the CHM counts): nDSM >= CHM. A building return beneath a roof (a wall return, one under an eave:
-  more than ``beneath.BENEATH_DZ_M`` below a building return within ``beneath.BENEATH_RADIUS_M``) counts at the
-  roof's height (``beneath``).
+  gap, which the CHM counts): nDSM >= CHM. A building return on a wall (one under an eave: more than
+  ``beneath.BENEATH_DZ_M`` below a building return and above a return of any class within
+  ``beneath.BENEATH_RADIUS_M``) counts at the roof's height (``beneath``).
 * dsm_nearest.tif: height of the first return (noise excluded) nearest each cell centre (``nearest``: the
-  surface straight down at the centres, the true ortho's occlusion test), building returns beneath a roof at the
+  surface straight down at the centres, the true ortho's occlusion test), building returns on a wall at the
   roof's height; the DSM's value where none lies within ``nearest.SEARCH_RADIUS_M``; nodata where the DSM is.
 * ndsm.tif: dsm - dem.
 * chm.tif: highest vegetation (classes 4, 5) height above the DEM per cell; a cell no return hit takes the mean of
@@ -238,20 +238,20 @@ class _CellSums:
                                      metric=units.is_metric, nodata=NODATA, chm=chm.ravel())
         return dict(zip(("dem_m", *RASTERS), out))
 
-    def beneath(self) -> tuple[np.ndarray, np.ndarray]:
-        """(``beneath.roof_above``, ``beneath.lifted_cells``) of the window, rows south to north, once every chunk is
-        added (pass 1): the roof above each cell's building returns, and the height a cell's returns beneath a roof
-        are lifted to (NaN where none is)."""
+    def beneath(self) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+        """(``beneath.wall_span``, ``beneath.lifted_cells``) of the window, rows south to north, once every chunk is
+        added (pass 1): the roof above and the foot below each cell's returns, and the height a cell's returns on a
+        wall are lifted to (NaN where none is)."""
         if self._beneath is None:
             shape = self.args[3], self.args[4]
             top = self._stats.building_top.reshape(shape)
-            above = beneath.roof_above(top, self.args[0])
-            self._beneath = above, beneath.lifted_cells(top, above)
+            span = beneath.wall_span(top, self._stats.bottom.reshape(shape), self.args[0])
+            self._beneath = span, beneath.lifted_cells(top, span)
         return self._beneath
 
     def lifted(self, x, y, z, cls) -> np.ndarray:
-        """``z`` with the building returns beneath a roof lifted to it (``beneath.lift_points``; after pass 1): the
-        returns the nearest-return DSM takes."""
+        """``z`` with the building returns on a wall lifted to the roof above (``beneath.lift_points``; after pass
+        1): the returns the nearest-return DSM takes."""
         res_m, x0, y0 = self.args[:3]
         return beneath.lift_points(x, y, z, cls, self.beneath()[0], x0_m=x0, y0_m=y0, res_m=res_m,
                                    row0=self.offset[0], col0=self.offset[1])
