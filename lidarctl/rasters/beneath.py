@@ -45,13 +45,17 @@ def _disc(res_m: float) -> np.ndarray:
 
 def wall_span(building_top: np.ndarray, bottom: np.ndarray, res_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(above, below): the highest building return and the lowest return of any class of the cells within
-    ``BENEATH_RADIUS_M`` of each cell (``building_top``, ``bottom``: per cell, NaN for none; NaN where none)."""
+    ``BENEATH_RADIUS_M`` of each cell (``building_top``, ``bottom``: per cell, NaN for none; float32, NaN where
+    none: a tile's window holds them through its second pass, and the DSMs are float32)."""
     disc = _disc(res_m)
-    above = ndimage.maximum_filter(np.where(np.isnan(building_top), -np.inf, building_top), footprint=disc,
-                                   mode="constant", cval=-np.inf)
-    below = ndimage.minimum_filter(np.where(np.isnan(bottom), np.inf, bottom), footprint=disc, mode="constant",
-                                   cval=np.inf)
-    return np.where(np.isfinite(above), above, np.nan), np.where(np.isfinite(below), below, np.nan)
+    out = []
+    for grid, filt, none in ((building_top, ndimage.maximum_filter, -np.inf), (bottom, ndimage.minimum_filter, np.inf)):
+        g = np.asarray(grid, np.float32)
+        g = np.where(np.isnan(g), np.float32(none), g)
+        g = filt(g, footprint=disc, mode="constant", cval=none)
+        g[~np.isfinite(g)] = np.nan
+        out.append(g)
+    return out[0], out[1]
 
 
 def _on_wall(z, above, below):
@@ -63,7 +67,7 @@ def lifted_cells(building_top: np.ndarray, span: tuple[np.ndarray, np.ndarray]) 
     """Per cell, the height its highest building return is lifted to (``span``'s above, ``wall_span``) where that
     return lies on a wall; NaN elsewhere."""
     above, below = span
-    return np.where(_on_wall(building_top, above, below), above, np.nan)
+    return np.where(_on_wall(building_top, above, below), above, np.float32(np.nan))
 
 
 def lift_points(x, y, z, cls, span: tuple[np.ndarray, np.ndarray], *, x0_m: float, y0_m: float, res_m: float,

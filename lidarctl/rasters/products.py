@@ -102,7 +102,9 @@ DESCRIPTIONS = {"dem": "DEM: mean height of ground and water points",
 # records, the pull-push pyramid, the triangulation; measured: 1.07 GB peak RSS with one tile of
 # 2304 x 2224 cells at a time, 1.65 GB with two, of which 0.25 GB the process itself). Two tiles are
 # computed at once when they fit in half of the RAM.
-RASTER_BYTES_PER_CELL = 168  # (+8: the highest return of any number, ``CellStats.top``)
+# (+8: the highest return of any number, ``CellStats.top``; +28: the highest building return and the lowest return,
+# and the wall returns' roof, foot and lift held through the second pass, ``beneath``)
+RASTER_BYTES_PER_CELL = 196
 # Tiles of the rasters of LAS/LAZ files (cells): a 2048 + 2 x 256 cell window needs about 1 GB
 # (RASTER_BYTES_PER_CELL); both multiples of 256, so the gap filling's pyramid blocks up to 256
 # cells coincide with the whole grid's.
