@@ -248,10 +248,11 @@ def stale_reason(root: Path, st: Stage) -> str | None:
                          "recorded) cannot tell an edit from a copy without times (cp -r; cp -a and rsync -t keep "
                          "them): taken as the stage's own; `aerotri run --force` makes every stage again")
         changed = None
+    kept_note = None
     if changed:
         kept = st.hand_made(root) if changed and st.hand_made is not None else None
         if kept:
-            _log.warning(f"[{st.name}] kept: {changed} changed since this stage wrote it ({kept}); the chain makes "
+            kept_note = (f"[{st.name}] kept: {changed} changed since this stage wrote it ({kept}); the chain makes "
                          "its own again once it is removed")
         elif changed:
             reasons.append(f"outputs changed since this stage wrote them: {changed}")
@@ -272,6 +273,10 @@ def stale_reason(root: Path, st: Stage) -> str | None:
         versions = _differing(stamp["versions"] or {}, now, values=True)
         if versions:
             reasons.append(f"code changed: {versions}")
+    if kept_note and not reasons:
+        # said only when the stage stays as the user left it: a stage that runs for another reason says how it
+        # treats the user's output itself (trial s106 F3: "kept" then "made again with the edited seamlines")
+        _log.warning(kept_note)
     return "; ".join(reasons) or None
 
 

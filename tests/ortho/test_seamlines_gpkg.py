@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import shutil
 
 import numpy as np
@@ -528,6 +529,10 @@ def test_the_chain_gives_a_gap_one_frame_alone_sees_to_that_frame(mosaicked, tmp
     _write(edited, names, [g.difference(cut) if i == k else g for i, g in enumerate(geoms)], meta["crs"])
     r = CliRunner().invoke(main, ["mosaic", str(root), "--tile-px", str(TILE_PX), "--seamlines", str(edited)])
     assert r.exit_code == 2 and "a gap between the polygons" in r.output and f"seen by {name};" in r.output, r.output
+    # the cells one frame alone sees are said apart, with where they come from (trial s106 F2)
+    said = " ".join(r.output.split())
+    assert re.search(r"; \d+ of the cells \(\d+ m2\) are seen by one frame alone \(frame orthos rectified again", said)
+    assert "aerotri run gives such cells to their frame" in said, said
 
     # an edited mosaic on disk (the unedited polygons given back), then the chain re-makes it with the gap's file
     shutil.copy(root / "ortho" / "seamlines.gpkg", tmp_path / "unedited.gpkg")

@@ -642,6 +642,13 @@ def test_an_operators_hand_made_output_is_kept_and_a_new_time_alone_is_no_edit(t
         rows = run_stages(tmp_path, stages, log=lambda m: None)
     assert calls == ["add"] and rows[-1]["value"] == 101
     assert "[double] kept: mid.txt changed since this stage wrote it (edited by the operator)" in caplog.text
+    # a stage that runs for another reason as well does not say "kept" (trial s106 F3: "kept", then the mosaic made
+    # again with the edited seamlines): it says itself how it treats the operator's output
+    caplog.clear()
+    (tmp_path / "in.txt").write_text("4")
+    with caplog.at_level(logging.WARNING):
+        run_stages(tmp_path, stages, log=lambda m: None)
+    assert "double" in calls and "kept:" not in caplog.text
     # outputs over the hash limit: a new time alone keeps the stage, a new size re-runs it
     monkeypatch.setattr(runner, "_signature", lambda paths, root, hash_limit_bytes=0, before=None: {
         runner._key(p, root): [p.stat().st_size, p.stat().st_mtime_ns] for p in paths if p.is_file()})
