@@ -230,18 +230,16 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
                              f"frame's ortho (e.g. at ({x:.1f}, {y:.1f})"
                              + (f"; {past:.0f} m2 of them beyond the mosaic's extent" if past >= 1.0 else "")
                              + "); move the edge back inside the frame")
-    seen = np.zeros(labels.shape, bool)
-    for v, off in zip(valid, offsets):
-        seen |= _place(v, off, labels.shape)
+    # how many frames see each cell (2: more than one), and the (last) one that does
+    count, owner = np.zeros(labels.shape, np.uint8), np.full(labels.shape, -1, np.int32)
+    for k, (v, off) in enumerate(zip(valid, offsets)):
+        placed = _place(v, off, labels.shape)
+        count[placed] = np.minimum(count[placed], 1) + 1
+        owner[placed] = k
+    seen = count > 0
     gap = seen & (labels < 0)
     given = []
     cell_m2 = abs(transform.a * transform.e)
-    count, owner = np.zeros(labels.shape, np.uint8), np.full(labels.shape, -1, np.int32)
-    if gap.any():  # how many frames see each gap cell (2: more than one), and the one that does
-        for k, (v, off) in enumerate(zip(valid, offsets)):
-            placed = _place(v, off, labels.shape) & gap
-            count[placed] = np.minimum(count[placed], 1) + 1
-            owner[placed] = k
     if give_sole_gaps and gap.any():
         for k in np.unique(owner[gap & (count == 1)]):
             mine = gap & (count == 1) & (owner == k)

@@ -266,8 +266,8 @@ class _CellSums:
         a gap, and the two fills differ (trial-gis: the demo's CHM above its nDSM by more than 0.5 m in 13,768 of
         80,159 cells, 841 with a vegetation return, by up to 19.15 m). Every return alone: a cell under a crown
         holding only a last return from the ground is a pit that the first returns' fill closes (the demo: 23,364
-        cells lower, by up to 20 m). Building returns beneath a roof count at the roof's height (``beneath``: a wall
-        return, one under an eave)."""
+        cells lower, by up to 20 m). Building returns on a wall count at the height of the roof above them
+        (``beneath``: a wall return, one under an eave)."""
         shape = self.args[3], self.args[4]
         lifted = self.beneath()[1]
         filled = np.fmax(fill_nodata(np.fmax(self.dsm.reshape(shape), lifted)),
@@ -1162,8 +1162,8 @@ def write_rasters_tiled(paths, outdir, res_m: float, crs=None, *, tile_px: int |
 # what a cell gets at the same settings are computed again (the toolkit's version, 0.1.0, never changes with them).
 # Bump it when the grids' values change. 1: resume-keys (the algorithm as of main 195def90); 2: CHM cells no return
 # hit filled from their neighbours, road surface (11) of LAS 1.4 in the DEM; 3: the DSM raised to a cell's later
-# returns and, where no return hit, to the DEM plus the CHM's fill (``dsm_filled``); 4: building returns beneath a
-# roof lifted to it in the DSM and the nearest-return DSM (``beneath``).
+# returns and, where no return hit, to the DEM plus the CHM's fill (``dsm_filled``); 4: building returns on a wall
+# lifted to the roof above them in the DSM and the nearest-return DSM (``beneath``).
 RASTERS_VERSION = 4
 
 
