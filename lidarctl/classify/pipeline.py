@@ -195,6 +195,11 @@ class ClassifySettings:
     # max_multi_return_fraction: the share of multi-return points a roof's plane-fit window must be
     # shown to stay below (95 % confidence, see classify_points), not one cell's observed share.
     building_min_area_m2: float = setting(10.0, min=0.0, help="Smallest roof segment (m2) classified as a building.")
+    # A roof is planes; a closed canopy fits a local plane here and there by chance (BC Timber Sales' forest tiles of
+    # lasR's data: 43 scattered roof cells, at most 3 together, made a 6,650 m2 crown segment a building). The
+    # smallest building's area (small_building_min_area_m2) is the least a plane of a roof shows.
+    roof_min_patch_m2: float = setting(6.0, min=0.0, help="Roof cells count toward a segment's roof area only in "
+                                       "connected planar patches at least this large (m2); 0: every roof cell.")
     roof_rms_m: float = setting(0.25, min=0.0, min_open=True, help="Largest RMS (m) of a roof cell's local plane (3 x 3 "
                                                                    "cells of the DSM).")
     roof_depth_m: float = setting(100.0, min=0.0, help="Building points lie at most this far below the DSM (m).")
@@ -454,6 +459,18 @@ def labelled_median(values: np.ndarray, labels: np.ndarray, nlab: int) -> np.nda
     first = np.concatenate([[0], np.cumsum(count)[:-1]])
     lo, hi = first + (count - 1) // 2, first + count // 2
     return (v[lo] + v[hi]) / 2.0
+
+
+def roof_patches(roof: np.ndarray, cell_m: float, min_area_m2: float) -> np.ndarray:
+    """The roof cells in 8-connected patches of at least ``min_area_m2`` (all of them for 0): a roof's planes, not the
+    scattered cells where a canopy fits a local plane by chance."""
+    if min_area_m2 <= 0 or not roof.any():
+        return roof
+    lab, n = ndimage.label(roof, np.ones((3, 3), int))
+    size_m2 = np.bincount(lab.ravel(), minlength=n + 1) * cell_m * cell_m
+    keep = size_m2 >= min_area_m2
+    keep[0] = False
+    return keep[lab]
 
 
 def planar_cores(surface: np.ndarray, seeds: np.ndarray, allowed: np.ndarray, multi_frac: np.ndarray,
@@ -3027,7 +3044,7 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
     see_through = None
     if nlab:
         ids = np.arange(1, nlab + 1)
-        roof_area = ndimage.sum_labels(roof, labels, ids) * c * c
+        roof_area = ndimage.sum_labels(roof_patches(roof, c, p.roof_min_patch_m2), labels, ids) * c * c
         big = roof_area >= p.building_min_area_m2
         # Sheds and garages: the planar interior of a small roof loses a cell on every side to the
         # 3x3 fit, so a small segment counts by its whole area when it is planar and single-return.

@@ -1,6 +1,10 @@
 """Building rule of lidarctl.classify.pipeline: penetration evidence keeps tree crowns out of the roofs."""
 
+import dataclasses
+
 import numpy as np
+from scipy.spatial import cKDTree
+
 from lidarctl.classify import pipeline as classify
 
 
@@ -56,3 +60,60 @@ def test_fewer_multi_returns_is_the_wilson_bound_below_the_fraction():
     assert classify.fewer_multi_returns(np.array([0, 13]), np.array([36, 36]), 0.3).tolist() == [True, False]
     assert not classify.fewer_multi_returns(np.array([0]), np.array([4]), 0.3)[0]
     assert not classify.fewer_multi_returns(np.array([0]), np.array([0]), 0.3)[0]
+
+
+def _closed_conifer_canopy(seed: int, density_per_m2: float = 10.0, canopy_gap: float = 0.15):
+    """A gable house (10 x 12 m, 30 deg facets, eaves 6 m up) and a flat garage (5 x 5 m, 3 m) in the open, and beside
+    them a closed conifer stand on a jittered 3 m grid (cones of 2.2-3 m radius rising 2.5 m per m to 12-18 m, 0.3 m
+    of branch roughness; ``canopy_gap`` of the pulses split to the ground), on a 5 % slope. Returns x, y, z, return
+    number, number of returns, truth class (2 ground, 5 crown, 6 building)."""
+    rng = np.random.default_rng(seed)
+    n = int(120.0 * 80.0 * density_per_m2)
+    u, v = rng.uniform(0, 120.0, n), rng.uniform(0, 80.0, n)
+    ground_z = 300.0 + 0.05 * u + rng.normal(0, 0.03, n)
+    z, truth = ground_z.copy(), np.full(n, 2, np.uint8)
+    cu, cv = (a.ravel() for a in np.meshgrid(np.arange(41.5, 120.0, 3.0), np.arange(1.5, 80.0, 3.0)))
+    cu, cv = cu + rng.uniform(-0.6, 0.6, cu.size), cv + rng.uniform(-0.6, 0.6, cv.size)
+    radius, top = rng.uniform(2.2, 3.0, cu.size), rng.uniform(12.0, 18.0, cu.size)
+    dist, near = cKDTree(np.column_stack([cu, cv])).query(np.column_stack([u, v]), k=4)
+    surface = np.where(dist < radius[near], top[near] - 2.5 * dist, -np.inf).max(axis=1) + rng.normal(0, 0.3, n)
+    crown = np.isfinite(surface)
+    z[crown] = ground_z[crown] + surface[crown]
+    truth[crown] = 5
+    house = (u > 8) & (u < 20) & (v > 20) & (v < 30)
+    z[house] = ground_z[house] + 6.0 + np.tan(np.radians(30.0)) * (5.0 - np.abs(v[house] - 25.0))
+    garage = (u > 25) & (u < 30) & (v > 50) & (v < 55)
+    z[garage] = ground_z[garage] + 3.0 + rng.normal(0, 0.02, garage.sum())
+    truth[house | garage] = 6
+    through = crown & (rng.random(n) < canopy_gap)
+    k = int(through.sum())
+    return (np.r_[u, u[through]] + 885000.0, np.r_[v, v[through]] + 629000.0, np.r_[z, ground_z[through]],
+            np.r_[np.ones(n, np.uint8), np.full(k, 2, np.uint8)],
+            np.r_[np.where(through, 2, 1).astype(np.uint8), np.full(k, 2, np.uint8)],
+            np.r_[truth, np.full(k, 2, np.uint8)])
+
+
+def test_a_closed_conifer_canopy_is_no_building_by_its_chance_plane_fits():
+    # lasR's BC Timber Sales forest tiles (classes 1/2, no building): a closed stand's crown surface fits a local plane
+    # in scattered cells, whose sum over the whole stand's segment passed building_min_area_m2 (bcts_2: 246,848 of
+    # 823,945 returns called building). Roof area counts only in planar patches of roof_min_patch_m2.
+    x, y, z, rn, nr, truth = _closed_conifer_canopy(seed=0)
+    intensity = np.full(len(x), 300, np.uint16)
+    cls = classify.classify_points(x, y, z, rn, nr, intensity)
+    assert np.mean(cls[truth == 5] == classify.BUILDING) < 0.01
+    assert np.mean(cls[truth == 6] == classify.BUILDING) > 0.99
+    every_cell = dataclasses.replace(classify.ClassifySettings(), roof_min_patch_m2=0.0)
+    before = classify.classify_points(x, y, z, rn, nr, intensity, params=every_cell)
+    assert np.mean(before[truth == 5] == classify.BUILDING) > 0.5
+
+
+def test_roof_patches_keep_the_connected_planes_of_at_least_the_area():
+    roof = np.zeros((12, 12), bool)
+    roof[1:6, 1:6] = True          # 25 cells: 6.25 m2 at 0.5 m
+    roof[8, 8] = roof[9, 9] = True  # two cells touching at a corner: 0.5 m2
+    roof[8, 1:4] = True             # 0.75 m2
+    kept = classify.roof_patches(roof, 0.5, 6.0)
+    assert kept.sum() == 25 and kept[1:6, 1:6].all()
+    assert classify.roof_patches(roof, 0.5, 0.5).sum() == 25 + 2 + 3
+    assert classify.roof_patches(roof, 0.5, 0.6).sum() == 25 + 3
+    assert np.array_equal(classify.roof_patches(roof, 0.5, 0.0), roof)
