@@ -11,10 +11,12 @@ look thinned (lidR's own classification): most accepted 'objects' lie within cen
 ground, so the type II figure is an upper bound; the share within 0.15 m is reported.
 
 With ``--fetched DIR``, labelled airborne clouds found in public repositories and never looked at while the rules were
-made (``FETCHED``: lasR's four BC Timber Sales forest tiles, classes 1/2, and lidR's Megaplot, classes 1/2, normalised
-heights), each file taken from its repository at the commit named (``git show COMMIT:PATH > DIR/NAME``; nothing is
-copied into this repository). They hold no building: every building return called there is false, and is counted
-with the shipped defaults and with ``roof_min_patch_m2 = 0`` (the rule before it).
+made (``FETCHED``: lasR's four BC Timber Sales forest tiles and lidR's Megaplot, classes 1/2, no building; test tiles of
+IGN's LiDAR HD from three IGNF repositories, ASPRS classes with buildings, water and bridges), each file taken from its
+repository at the commit named (``git show COMMIT:PATH > DIR/BASENAME``; nothing is copied into this repository).
+Building returns are counted with the shipped defaults and with ``roof_min_patch_m2 = 0`` (the rule before stop 107);
+where the labels hold buildings, building producer's / user's accuracy per point and the high vegetation called
+building.
 Writes bench/results/ground_more_data.json. Run: nice .venv/bin/python bench/eval_ground_more_data.py [--fetched DIR]
 """
 
@@ -44,24 +46,99 @@ SETS = {
     "lidr_topography": ("lidr_topography/Topography.laz", (2, 9)),
 }
 
-# name -> (file name in --fetched DIR, repository, commit, path, git blob sha1, what it is)
+@dataclasses.dataclass(frozen=True)
+class Fetched:
+    """Labelled files of a public repository at a commit (``paths``, their git blob sha1s), read from ``--fetched DIR``
+    by their base names and scored as one cloud (several adjacent tiles merged); ``bare``: the bare-earth classes,
+    ``left_out``: classes that are no returns (IGN's virtual points, 66)."""
+
+    repository: str
+    commit: str
+    paths: tuple
+    blobs: tuple
+    what: str
+    bare: tuple = (2,)
+    left_out: tuple = ()
+
+    def record(self) -> dict:
+        return {"repository": self.repository, "commit": self.commit, "paths": list(self.paths),
+                "git_blob_sha1": list(self.blobs), "what": self.what, "bare_earth_classes": list(self.bare),
+                "classes_left_out": list(self.left_out)}
+
+
 LASR = ("r-lidar/lasR", "86cb3bde85fb02a4ebdf272f6a251b4f0a21b0c6")
+BCTS = ("BC Timber Sales airborne LiDAR, coastal conifer forest on Vancouver Island (EPSG:3005), classes 1/2, up to 4 "
+        "returns; lasR (GPL-3)")
+# IGN's LiDAR HD (France, EPSG:2154, classes 1-6, 9, 17 and IGN's 64-67; test data of IGN's own tools). Bare earth 2
+# and 9 (a DTM's), IGN's virtual points (66, synthetic) left out.
+IGN_TOOLS = ("IGNF/ign-pdal-tools", "ccb4819f4c4a8070f0a93fb1e0c43023d261ed3c")
+IGN_MODELS = ("IGNF/las-digital-models", "8a94dd67d1c3c1baeb3d62ea33d84dca3e870b46")
+IGN_PLUGIN = ("IGNF/pdal-ign-plugin", "651e7dd9c599df3f318a4b4ea47b1ee1973f66c2")
+IGN = dict(bare=(2, 9), left_out=(66,))
+MONTPELLIER = tuple(f"test/data/test_data_{e}_{n}_LA93_IGN69.laz"
+                    for e in (77050, 77055, 77060) for n in (627755, 627760))
 FETCHED = {
-    **{f"lasr_bcts_{k}": (f"bcts_{k}.laz", *LASR, f"inst/extdata/bcts/bcts_{k}.laz", blob,
-                          "BC Timber Sales airborne LiDAR, coastal conifer forest on Vancouver Island (EPSG:3005), "
-                          "classes 1/2, 4 returns; lasR (GPL-3)")
+    **{f"lasr_bcts_{k}": Fetched(*LASR, (f"inst/extdata/bcts/bcts_{k}.laz",), (blob,), BCTS)
        for k, blob in ((1, "70f56f5731995c47fad18defbcd1cb504db04518"),
                        (2, "0b86872ff7b5d63c389ea61d78cf681504cf6c10"),
                        (3, "6c483a7269fc03f340cc04734d51904ccc428480"),
                        (4, "ef48c0f24b223435567c72834117438118e0d1d6"))},
-    "lasr_megaplot": ("Megaplot.las", *LASR, "inst/extdata/Megaplot.las", "c00b535621ae4711e42078a59feafc3f9c4bc9e5",
-                      "lidR's Megaplot: forest plot (EPSG:26917), classes 1/2, heights normalised to the ground; lasR "
-                      "(GPL-3)"),
+    "lasr_megaplot": Fetched(*LASR, ("inst/extdata/Megaplot.las",), ("c00b535621ae4711e42078a59feafc3f9c4bc9e5",),
+                             "lidR's Megaplot: forest plot (EPSG:26917), classes 1/2, heights normalised to the "
+                             "ground; lasR (GPL-3)"),
+    "ign_montpellier": Fetched(*IGN_TOOLS, MONTPELLIER, (
+        "e5f7cb0ece9503320f6249adce4292b0afcab705", "b088feeb7d0c9487871138b185eaf6512feefb23",
+        "6d7cc9c5347956041b8216c15affffc8f3c4d11d", "13129bd7271bd84b76b11a18dc4294d9c58b104c",
+        "70e61b914118792d1b938a7d1f7fb33bd94d5e76", "ee821759375661b9c647c245bf125ba692e84618"),
+        "six adjacent 50 m tiles, city blocks with street trees (27 returns per m2; MIT)", **IGN),
+    "ign_larochelle_decimated": Fetched(*IGN_TOOLS, ("test/data/decimated_laz/test_semis_2021_0382_6565_LA93_IGN69_"
+                                                     "cropped.laz",), ("d898cb65478cf4d89f875eae22353d46f26aa899",),
+                                        "a decimated tile (0.3 returns per m2; MIT)", **IGN),
+    "ign_brittany_0292_decimated": Fetched(*IGN_TOOLS,
+                                           ("test/data/decimated_laz/test_semis_2023_0292_6833_LA93_IGN69.laz",),
+                                           ("ef6b393e92300fd4c38b95c946a86ca90c976b49",), "a decimated tile (MIT)",
+                                           **IGN),
+    **{f"ign_brittany_{k}_decimated": Fetched(*IGN_MODELS,
+                                              (f"test/data/bridge/pointcloud/test_semis_2023_{k}_6802_LA93_IGN69.laz",),
+                                              (blob,), "a decimated tile with a bridge (MIT)", **IGN)
+       for k, blob in (("0299", "77cfd105d19bd2f981ac796a589a59fd64c66629"),
+                       ("0300", "3d1e16dd3a7e51f6a6787d5d5c57d45e9ada0b1e"))},
+    "ign_jura_decimated": Fetched(*IGN_TOOLS, ("test/data/check_las/Semis_2022_0906_6665_LA93_IGN69_ok.laz",),
+                                  ("884cd9cf3bc17079f59a8739c2304f25bb6014ae",), "a decimated forest tile (MIT)",
+                                  **IGN),
+    "ign_vienne": Fetched(*IGN_TOOLS, ("test/data/las_with_several_extra_byte_bloc.laz",),
+                          ("e1a7ec0c21fdf42c112e8a9a384f118104074433",), "fields and a farm (5.4 returns per m2; MIT)",
+                          **IGN),
+    "ign_haute_saone": Fetched(*IGN_TOOLS, ("test/data/las_with_origin_dsmMarker.laz",),
+                               ("8b91f694aa9d4a3d8439198a40d9d3b2a3746c24",), "a field (MIT)", **IGN),
+    **{f"ign_{name}": Fetched(*IGN_PLUGIN, (f"test/data/mnx/input/{file}",), (blob,), what + " (no licence file in the "
+                              "repository; LiDAR HD is published under Licence Ouverte 2.0)", **IGN)
+       for name, file, blob, what in (
+           ("isere_buildings", "bat.laz", "e0061c7027435b51966040ad2a9bd8ff7b138f4f",
+            "houses among broadleaf crowns (57 returns per m2)"),
+           ("bonifacio_cliffs", "corse.laz", "c25a20d2b2646a9709a8e44e915e565546b29b89",
+            "a 48 x 40 m tile of bare sea cliffs and a cove"),
+           ("loiret_1", "crop_1.laz", "3478412e1d70f8244bd14236364b749b8b678777", "a 50 m tile (84 returns per m2)"),
+           ("loiret_2", "crop_2.laz", "c070343602ab6560cf2e9dd90aadc15aa1aa49d5", "a 50 m tile across a river"),
+           ("loiret_3", "crop_3.laz", "d7348b76718f696e096f6b1f5dc70268224706f6", "a 50 m tile of fields"),
+           ("yonne_bridge", "pont.laz", "e59fb0623c9d88389659716b9fbca4f7599ef113",
+            "a bridge over a river (mostly virtual points, left out)"))},
 }
 
 
-def one(path: Path, bare: tuple, every_roof_cell: bool = False) -> dict:
-    c = io.read_cloud(path)
+def _merged(paths, left_out: tuple = ()) -> io.PointCloud:
+    """The clouds of ``paths`` as one (the first file's CRS), without the returns of the classes ``left_out``."""
+    clouds = [io.read_cloud(p) for p in paths]
+    fields = ("x", "y", "z", "intensity", "return_number", "number_of_returns", "classification")
+    c = io.PointCloud(**{f: np.concatenate([getattr(k, f) for k in clouds]) for f in fields}, crs=clouds[0].crs)
+    if left_out:
+        keep = ~np.isin(c.classification, left_out)
+        c = io.PointCloud(**{f: getattr(c, f)[keep] for f in fields}, crs=c.crs)
+    return c
+
+
+def one(path, bare: tuple, every_roof_cell: bool = False, left_out: tuple = ()) -> dict:
+    c = _merged(path if isinstance(path, (list, tuple)) else [path], left_out)
     truth = c.classification
     true_ground = np.isin(truth, bare)
     t0 = time.perf_counter()
@@ -73,6 +150,13 @@ def one(path: Path, bare: tuple, every_roof_cell: bool = False) -> dict:
     pred = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity)
     cls_s = time.perf_counter() - t0
     buildings = {"building_returns_called": int(np.sum(pred == classify.BUILDING))}
+    pb, tb = pred == classify.BUILDING, truth == classify.BUILDING
+    if tb.any():   # per point against the labels
+        buildings["building_pa_pct"] = 100.0 * float(np.mean(pb[tb]))
+        buildings["building_ua_pct"] = 100.0 * float(np.mean(tb[pb])) if pb.any() else None
+        buildings["high_vegetation_called_building"] = [int(np.sum(pb & (truth == classify.HIGH_VEG))),
+                                                        int(np.sum(truth == classify.HIGH_VEG))]
+    buildings["bare_earth_called_building"] = int(np.sum(pb & true_ground))
     if every_roof_cell:   # the rule before roof_min_patch_m2: every roof cell counts toward a segment's roof area
         every_cell = dataclasses.replace(classify.ClassifySettings(), roof_min_patch_m2=0.0)
         before = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
@@ -131,13 +215,13 @@ def main(argv=None):
             continue
         out[name] = one(path, bare, every_roof_cell=True)
         _say(name, out[name])
-    for name, (file, repo, commit, rel, blob, what) in FETCHED.items() if args.fetched else ():
-        path = args.fetched / file
-        if not path.is_file():
-            print(f"{name}: {path} absent, skipped")
+    for name, f in FETCHED.items() if args.fetched else ():
+        paths = [args.fetched / Path(p).name for p in f.paths]
+        absent = [str(p) for p in paths if not p.is_file()]
+        if absent:
+            print(f"{name}: {', '.join(absent)} absent, skipped")
             continue
-        out[name] = {"source": {"repository": repo, "commit": commit, "path": rel, "git_blob_sha1": blob,
-                                "what": what}, **one(path, (2,), every_roof_cell=True)}
+        out[name] = {"source": f.record(), **one(paths, f.bare, every_roof_cell=True, left_out=f.left_out)}
         _say(name, out[name])
     out["seconds"] = time.perf_counter() - t0
     out["load_average_before_after"] = [list(load0), list(os.getloadavg())]
