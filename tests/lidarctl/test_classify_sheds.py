@@ -327,10 +327,13 @@ def test_roof_edge_completion_stops_at_a_surface_the_pulses_pass():
             continue
         # the switch alone (pierced growth off) changes nothing; without return numbers neither
         stop = dataclasses.replace(pierced, pierced_edge_completion=True)
-        off = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.0, pierced_edge_completion=False)
+        off = dataclasses.replace(classify.ClassifySettings(), pierced_growth_max_fraction=0.0,
+                                  pierced_edge_completion=False)
         assert (classify.classify_points(x, y, z, rn, nr, inten, params=off) ==
-                classify.classify_points(x, y, z, rn, nr, inten, params=dataclasses.replace(off, pierced_edge_completion=True))).all()
-        assert (classify.classify_points(x, y, z, params=stop) == classify.classify_points(x, y, z, params=pierced)).all()
+                classify.classify_points(x, y, z, rn, nr, inten,
+                                         params=dataclasses.replace(off, pierced_edge_completion=True))).all()
+        assert (classify.classify_points(x, y, z, params=stop) ==
+                classify.classify_points(x, y, z, params=pierced)).all()
 
 
 def _house_hedge_and_dropout_shed(seed: int, density_per_m2: float = 10.0):
