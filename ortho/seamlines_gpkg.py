@@ -188,8 +188,7 @@ def read_edited_seamlines(path, names: list[str], crs, *, labels_shape, transfor
 
 
 def features_text(fids) -> str:
-    """The features of one frame's polygon as said in messages: "feature 3", "features 3, 7"."""
-    fids = (fids,) if isinstance(fids, int) else tuple(fids)
+    """The features of one frame's polygon (a tuple of ids) as said in messages: "feature 3", "features 3, 7"."""
     return f"feature{'s' if len(fids) > 1 else ''} {', '.join(str(f) for f in fids)}"
 
 
@@ -217,6 +216,7 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
     ``beyond_grid_m2``: per frame, its polygon's area beyond the seam grid (no frame's there), added to what is said.
     ``give_sole_gaps``: the gap cells one frame alone sees are labelled with it (``labels`` changed in place) and
     returned as ``GapGiven`` s; the other gap cells are refused as before."""
+    cell_m2 = abs(transform.a * transform.e)
     # a polygon beyond its frame first: a polygon dragged off its frame leaves a gap too, and the gap's remedy
     # ("extend one over it") misled (trial s105 F5: 64,072 m2 to cover instead of the polygon to move back)
     for k, fid in sorted(feature_of_frame.items(), key=lambda kv: kv[1]):
@@ -226,7 +226,7 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
             x, y = transform @ (c + 0.5, r + 0.5)
             past = (beyond_grid_m2 or {}).get(k, 0.0)
             raise InputError(f"{path}: {features_text(fid)}: frame {names[k]} does not cover its polygon: "
-                             f"{beyond.sum() * abs(transform.a * transform.e) + past:.0f} m2 of it lie outside the "
+                             f"{beyond.sum() * cell_m2 + past:.0f} m2 of it lie outside the "
                              f"frame's ortho (e.g. at ({x:.1f}, {y:.1f})"
                              + (f"; {past:.0f} m2 of them beyond the mosaic's extent" if past >= 1.0 else "")
                              + "); move the edge back inside the frame")
@@ -239,7 +239,6 @@ def _check_coverage(path, labels, names, *, feature_of_frame, transform, valid, 
     seen = count > 0
     gap = seen & (labels < 0)
     given = []
-    cell_m2 = abs(transform.a * transform.e)
     if give_sole_gaps and gap.any():
         for k in np.unique(owner[gap & (count == 1)]):
             mine = gap & (count == 1) & (owner == k)

@@ -87,7 +87,7 @@ def _accumulate(pts, win, counts, sums, touched, chunk_sums):
             sums[c, _TOP] = z[k]
         if np.isnan(sums[c, _BOTTOM]) or z[k] < sums[c, _BOTTOM]:
             sums[c, _BOTTOM] = z[k]
-        if cl == 6 and (np.isnan(sums[c, _BUILDING_TOP]) or z[k] > sums[c, _BUILDING_TOP]):
+        if cl == BUILDING and (np.isnan(sums[c, _BUILDING_TOP]) or z[k] > sums[c, _BUILDING_TOP]):
             sums[c, _BUILDING_TOP] = z[k]
         if not (ground or first):
             continue
