@@ -14,9 +14,9 @@ With ``--fetched DIR``, labelled airborne clouds found in public repositories an
 made (``FETCHED``: lasR's four BC Timber Sales forest tiles and lidR's Megaplot, classes 1/2, no building; test tiles of
 IGN's LiDAR HD from three IGNF repositories, ASPRS classes with buildings, water and bridges), each file taken from its
 repository at the commit named (``git show COMMIT:PATH > DIR/BASENAME``; nothing is copied into this repository).
-Building returns are counted with the shipped defaults and with ``roof_min_patch_m2 = 0`` (the rule before stop 107);
-where the labels hold buildings, building producer's / user's accuracy per point and the high vegetation called
-building.
+Building returns are counted with the shipped defaults and with each later building rule off alone (``RULES_OFF``:
+``roof_min_patch_m2 = 0``, the rule before stop 107; ``cut_pieces_judged = false``, before stop 108); where the labels
+hold buildings, building producer's / user's accuracy per point and the high vegetation called building.
 Writes bench/results/ground_more_data.json. Run: nice .venv/bin/python bench/eval_ground_more_data.py [--fetched DIR]
 """
 
@@ -137,6 +137,12 @@ def _merged(paths, left_out: tuple = ()) -> io.PointCloud:
     return c
 
 
+# Building rules added after a set here was scored, each switched off alone in the same run: roof patches (stop 107:
+# every roof cell counts toward a segment's roof area) and cut pieces (stop 108: a piece of a segment cut off by the
+# growth tests keeps the segment's verdict).
+RULES_OFF = {"roof_patches": {"roof_min_patch_m2": 0.0}, "cut_pieces": {"cut_pieces_judged": False}}
+
+
 def one(path, bare: tuple, every_roof_cell: bool = False, left_out: tuple = ()) -> dict:
     c = _merged(path if isinstance(path, (list, tuple)) else [path], left_out)
     truth = c.classification
@@ -157,12 +163,24 @@ def one(path, bare: tuple, every_roof_cell: bool = False, left_out: tuple = ()) 
         buildings["high_vegetation_called_building"] = [int(np.sum(pb & (truth == classify.HIGH_VEG))),
                                                         int(np.sum(truth == classify.HIGH_VEG))]
     buildings["bare_earth_called_building"] = int(np.sum(pb & true_ground))
-    if every_roof_cell:   # the rule before roof_min_patch_m2: every roof cell counts toward a segment's roof area
-        every_cell = dataclasses.replace(classify.ClassifySettings(), roof_min_patch_m2=0.0)
-        before = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
-                                          params=every_cell)
-        buildings["building_returns_called_every_roof_cell"] = int(np.sum(before == classify.BUILDING))
-        buildings["returns_whose_class_the_rule_changed"] = int(np.sum(before != pred))
+    if every_roof_cell:   # each later building rule off alone, in the same run (RULES_OFF)
+        buildings["rules_off"] = {}
+        for rule, off in RULES_OFF.items():
+            before = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
+                                              params=dataclasses.replace(classify.ClassifySettings(), **off))
+            bb = before == classify.BUILDING
+            r = {"settings": off, "building_returns_called": int(bb.sum()),
+                 "returns_whose_class_the_rule_changed": int(np.sum(before != pred))}
+            if tb.any():
+                r["building_pa_pct"] = 100.0 * float(np.mean(bb[tb]))
+                r["building_ua_pct"] = 100.0 * float(np.mean(tb[bb])) if bb.any() else None
+                r["high_vegetation_called_building"] = int(np.sum(bb & (truth == classify.HIGH_VEG)))
+            buildings["rules_off"][rule] = r
+        # the keys of stop 107 (the roof-patch rule off)
+        buildings["building_returns_called_every_roof_cell"] = \
+            buildings["rules_off"]["roof_patches"]["building_returns_called"]
+        buildings["returns_whose_class_the_rule_changed"] = \
+            buildings["rules_off"]["roof_patches"]["returns_whose_class_the_rule_changed"]
     pw, tw = pred == classify.WATER, truth == 9
     out = {"points": len(c), "truth_classes": {str(k): int(v) for k, v in zip(*np.unique(truth, return_counts=True))},
            "ground_filter": dataclasses.asdict(evaluate.filter_errors(g, true_ground)),
@@ -235,7 +253,8 @@ def _say(name: str, r: dict) -> None:
           f"{r['ground_filter']['type_i_error_pct']:.2f}, II {r['ground_filter']['type_ii_error_pct']:.2f}); "
           f"classify total {r['classify_pipeline']['total_error_pct']:.2f} %; water {r['water_predicted']} "
           f"(truth {r['water_truth']}, PA {r.get('water_pa_pct')}, UA {r.get('water_ua_pct')}); building returns "
-          f"{r['building_returns_called']} (every roof cell: {r.get('building_returns_called_every_roof_cell')})")
+          f"{r['building_returns_called']} (rule off: " + ", ".join(
+              f"{k} {v['building_returns_called']}" for k, v in r.get("rules_off", {}).items()) + ")")
 
 
 if __name__ == "__main__":

@@ -33,7 +33,10 @@
 # 16: roof patches (a segment's roof area counts only its planar patches of ``roof_min_patch_m2``: lasR's BC Timber
 # Sales forest tiles 52,485 / 246,848 / 239,821 / 175,047 building returns -> 0 / 45 / 214 / 48; the 7 ISPRS samples,
 # AHN3 Delft, Topography, MixedConifer, Megaplot, Autzen, Nebraska and the demo's strips unchanged).
-RULES_VERSION = 16
+# 17: cut pieces (``cut_pieces_judged``: a piece of a building segment cut off by the growth tests stays only with a
+# building's roof patches or a shed's single returns: IGN LiDAR HD Montpellier's high vegetation called building
+# 51,935 -> 22,075 returns).
+RULES_VERSION = 17
 
 # The versions whose changes decide classes only with a setting on (version -> the setting's name): a run with that
 # setting off keeps the version before them (``rules_version``), so its kept tiles and its stage stay up to date

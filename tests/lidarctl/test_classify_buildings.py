@@ -117,3 +117,71 @@ def test_roof_patches_keep_the_connected_planes_of_at_least_the_area():
     assert classify.roof_patches(roof, 0.5, 0.5).sum() == 25 + 2 + 3
     assert classify.roof_patches(roof, 0.5, 0.6).sum() == 25 + 3
     assert np.array_equal(classify.roof_patches(roof, 0.5, 0.0), roof)
+
+
+def _roof_hedge_crown(seed: int, density_per_m2: float = 10.0):
+    """A flat 18 x 16 m roof 8 m high; along its east eave a 3 m wide hedge 6 m high that passes 40 % of its pulses to
+    the ground; beyond it a dense broadleaf crown (dome of radius 7 m, base 5 m, top 11 m, rough) whose split pulses
+    (40 %) end inside the crown, none on the ground. Returns x, y, z, return number, number of returns, truth class
+    (2 ground, 5 crown or hedge, 6 building)."""
+    rng = np.random.default_rng(seed)
+    n = int(70.0 * 40.0 * density_per_m2)
+    u, v = rng.uniform(0, 70.0, n), rng.uniform(0, 40.0, n)
+    ground_z = 50.0 + 0.01 * u + rng.normal(0, 0.03, n)
+    z, truth = ground_z.copy(), np.full(n, 2, np.uint8)
+    roof = (u > 6) & (u < 24) & (v > 12) & (v < 28)
+    z[roof] = ground_z[roof] + 8.0 + rng.normal(0, 0.03, roof.sum())
+    truth[roof] = 6
+    hedge = (u >= 24) & (u < 27) & (v > 16) & (v < 24)
+    z[hedge] = ground_z[hedge] + 6.0 - rng.uniform(0.0, 1.0, hedge.sum())
+    d2 = ((u - 33.5) ** 2 + (v - 20.0) ** 2) / 7.0 ** 2
+    crown = (d2 < 1.0) & ~roof & ~hedge
+    z[crown] = ground_z[crown] + 5.0 + 6.0 * np.sqrt(1.0 - d2[crown]) * rng.uniform(0.8, 1.0, crown.sum())
+    truth[hedge | crown] = 5
+    split = (hedge | crown) & (rng.random(n) < 0.4)
+    k = int(split.sum())
+    # a hedge's split pulse ends on the ground; a dense crown's on a lower layer of leaves
+    second = np.where(hedge[split], ground_z[split], z[split] - rng.uniform(1.0, 3.0, k))
+    return (np.r_[u, u[split]] + 770000.0, np.r_[v, v[split]] + 6277000.0, np.r_[z, second],
+            np.r_[np.ones(n, np.uint8), np.full(k, 2, np.uint8)],
+            np.r_[np.where(split, 2, 1).astype(np.uint8), np.full(k, 2, np.uint8)],
+            np.r_[truth, np.where(hedge[split], 2, 5).astype(np.uint8)])
+
+
+def test_a_crown_cut_off_from_the_roof_by_pierced_growth_leaves_the_building():
+    # IGN LiDAR HD Montpellier (leaf-on street and courtyard crowns): a crown touching a roof through a hedge joins the
+    # roof's segment; pierced growth takes the hedge (its pulses reach the ground) but left the dense crown beyond it,
+    # cut off from every roof, with the segment's building verdict. Each piece left is judged again.
+    x, y, z, rn, nr, truth = _roof_hedge_crown(seed=0)
+    intensity = np.full(len(x), 300, np.uint16)
+    cls = classify.classify_points(x, y, z, rn, nr, intensity)
+    crown = (truth == 5) & (np.hypot(x - 770033.5, y - 6277020.0) < 6.0) & (x > 770028.0)
+    assert np.mean(cls[crown] == classify.BUILDING) < 0.01
+    assert np.mean(cls[truth == 6] == classify.BUILDING) > 0.99
+    uncut = dataclasses.replace(classify.ClassifySettings(), cut_pieces_judged=False)
+    before = classify.classify_points(x, y, z, rn, nr, intensity, params=uncut)
+    assert np.mean(before[crown] == classify.BUILDING) > 0.5
+    assert np.mean(before[truth == 6] == classify.BUILDING) > 0.99
+
+
+def test_cut_pieces_keep_roofs_and_single_return_fragments():
+    p = classify.ClassifySettings()   # building_min_area_m2 10, roof_min_patch_m2 6, small-building share 0.2
+    cells = np.zeros((30, 40), bool)
+    roof = np.zeros_like(cells)
+    multi = np.zeros(cells.shape)
+    cells[2:12, 2:12] = roof[3:11, 3:11] = True       # a roof: 64 roof cells, 16 m2 at 0.5 m
+    cells[2:12, 15:25] = True                         # a crown cut off: no roof cell, half its returns split
+    multi[2:12, 15:25] = 0.5
+    roof[4:7, 16:19] = True                           # with a chance patch of 9 cells (2.25 m2)
+    cells[15:18, 2:5] = True                          # a shed's fragment: single returns, no roof cell
+    cells[15:25, 15:25] = roof[15:25, 15:25] = True   # a second roof, 25 m2, among split returns
+    multi[15:25, 15:25] = 0.5
+    cells[20:23, 30:33] = True                        # a small building judged whole (kept whatever its piece)
+    multi[20:23, 30:33] = 0.5
+    keep = np.zeros_like(cells)
+    keep[20:23, 30:33] = True
+    left = classify.cut_pieces(cells, keep, roof, multi, 0.5, p)
+    assert not left[2:12, 15:25].any()
+    expected = cells.copy()
+    expected[2:12, 15:25] = False
+    assert np.array_equal(left, expected)
