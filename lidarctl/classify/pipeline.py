@@ -474,7 +474,7 @@ def labelled_median(values: np.ndarray, labels: np.ndarray, nlab: int) -> np.nda
 def cut_pieces(building_cells: np.ndarray, keep: np.ndarray, roof: np.ndarray, multi_frac: np.ndarray, cell_m: float,
                p: "ClassifySettings") -> np.ndarray:
     """The building cells that stay when each 8-connected piece of ``building_cells`` (cells of ``keep`` aside: small
-    buildings, judged whole) is judged as a segment: its roof patches (``roof_patches``) cover
+    buildings judged whole, rims of dropout roofs) is judged as a segment: its roof patches (``roof_patches``) cover
     ``building_min_area_m2``, or its cells' mean multi-return share is at most ``small_building_max_multi_fraction``."""
     pieces, n = ndimage.label(building_cells & ~keep, np.ones((3, 3), int))
     if n == 0:
@@ -3120,7 +3120,8 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
         if p.cut_pieces_judged and 9 * c * c <= p.building_min_area_m2:
             # A piece's roof patches are evidence only where a 3x3 window fits the smallest building: at a sparse
             # cloud's cells (IGN's tile decimated to 0.3 returns per m2: 3.7 m) a roof shows almost no roof cell.
-            judged_whole = np.concatenate([[False], small])[labels]
+            # small buildings were judged whole, a dropout roof's rims by their own rule
+            judged_whole = np.concatenate([[False], small])[labels] | rims
             building_cells = cut_pieces(building_cells, judged_whole, roof, multi_frac, c, p)
         if p.small_building_planar_cores:
             building_cells |= planar_cores(dsm_f, roof & ~building_cells, candidate & ~building_cells, multi_frac, c,
