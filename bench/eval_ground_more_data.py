@@ -143,7 +143,17 @@ def _merged(paths, left_out: tuple = ()) -> io.PointCloud:
 RULES_OFF = {"roof_patches": {"roof_min_patch_m2": 0.0}, "cut_pieces": {"cut_pieces_judged": False}}
 
 
-def one(path, bare: tuple, every_roof_cell: bool = False, left_out: tuple = ()) -> dict:
+def _building_scores(called: np.ndarray, truth: np.ndarray) -> dict:
+    """Building producer's / user's accuracy per point (%) of the returns ``called`` building against the labels
+    ``truth`` (which hold buildings), and the high-vegetation returns called building."""
+    tb = truth == classify.BUILDING
+    return {"building_pa_pct": 100.0 * float(np.mean(called[tb])),
+            "building_ua_pct": 100.0 * float(np.mean(tb[called])) if called.any() else None,
+            "high_vegetation_called_building": int(np.sum(called & (truth == classify.HIGH_VEG)))}
+
+
+def one(path, bare: tuple, rules_off: bool = False, left_out: tuple = ()) -> dict:
+    """The figures of the labelled cloud(s) ``path``; ``rules_off``: also each rule of ``RULES_OFF`` off alone."""
     c = _merged(path if isinstance(path, (list, tuple)) else [path], left_out)
     truth = c.classification
     true_ground = np.isin(truth, bare)
@@ -156,14 +166,14 @@ def one(path, bare: tuple, every_roof_cell: bool = False, left_out: tuple = ()) 
     pred = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity)
     cls_s = time.perf_counter() - t0
     buildings = {"building_returns_called": int(np.sum(pred == classify.BUILDING))}
-    pb, tb = pred == classify.BUILDING, truth == classify.BUILDING
-    if tb.any():   # per point against the labels
-        buildings["building_pa_pct"] = 100.0 * float(np.mean(pb[tb]))
-        buildings["building_ua_pct"] = 100.0 * float(np.mean(tb[pb])) if pb.any() else None
-        buildings["high_vegetation_called_building"] = [int(np.sum(pb & (truth == classify.HIGH_VEG))),
+    pb = pred == classify.BUILDING
+    labelled = bool(np.any(truth == classify.BUILDING))
+    if labelled:   # per point against the labels
+        buildings.update(_building_scores(pb, truth))
+        buildings["high_vegetation_called_building"] = [buildings["high_vegetation_called_building"],
                                                         int(np.sum(truth == classify.HIGH_VEG))]
     buildings["bare_earth_called_building"] = int(np.sum(pb & true_ground))
-    if every_roof_cell:   # each later building rule off alone, in the same run (RULES_OFF)
+    if rules_off:   # each later building rule off alone, in the same run (RULES_OFF)
         buildings["rules_off"] = {}
         for rule, off in RULES_OFF.items():
             before = classify.classify_points(c.x, c.y, c.z, c.return_number, c.number_of_returns, c.intensity,
@@ -171,10 +181,8 @@ def one(path, bare: tuple, every_roof_cell: bool = False, left_out: tuple = ()) 
             bb = before == classify.BUILDING
             r = {"settings": off, "building_returns_called": int(bb.sum()),
                  "returns_whose_class_the_rule_changed": int(np.sum(before != pred))}
-            if tb.any():
-                r["building_pa_pct"] = 100.0 * float(np.mean(bb[tb]))
-                r["building_ua_pct"] = 100.0 * float(np.mean(tb[bb])) if bb.any() else None
-                r["high_vegetation_called_building"] = int(np.sum(bb & (truth == classify.HIGH_VEG)))
+            if labelled:
+                r.update(_building_scores(bb, truth))
             buildings["rules_off"][rule] = r
         # the keys of stop 107 (the roof-patch rule off)
         buildings["building_returns_called_every_roof_cell"] = \
@@ -231,7 +239,7 @@ def main(argv=None):
         if not path.is_file():
             print(f"{name}: {path} absent, skipped")
             continue
-        out[name] = one(path, bare, every_roof_cell=True)
+        out[name] = one(path, bare, rules_off=True)
         _say(name, out[name])
     for name, f in FETCHED.items() if args.fetched else ():
         paths = [args.fetched / Path(p).name for p in f.paths]
@@ -239,7 +247,7 @@ def main(argv=None):
         if absent:
             print(f"{name}: {', '.join(absent)} absent, skipped")
             continue
-        out[name] = {"source": f.record(), **one(paths, f.bare, every_roof_cell=True, left_out=f.left_out)}
+        out[name] = {"source": f.record(), **one(paths, f.bare, rules_off=True, left_out=f.left_out)}
         _say(name, out[name])
     out["seconds"] = time.perf_counter() - t0
     out["load_average_before_after"] = [list(load0), list(os.getloadavg())]

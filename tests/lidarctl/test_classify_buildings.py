@@ -8,16 +8,23 @@ from scipy.spatial import cKDTree
 from lidarctl.classify import pipeline as classify
 
 
+def _sloped_ground(rng, width_m: float, depth_m: float, density_per_m2: float, base_m: float, slope: float):
+    """Returns uniformly over a ``width_m`` x ``depth_m`` plot rising ``slope`` along u from ``base_m`` (3 cm range
+    noise): u, v, ground z, and z and truth class (2) to build the scene's objects on."""
+    n = int(width_m * depth_m * density_per_m2)
+    u, v = rng.uniform(0, width_m, n), rng.uniform(0, depth_m, n)
+    ground_z = base_m + slope * u + rng.normal(0, 0.03, n)
+    return u, v, ground_z, ground_z.copy(), np.full(n, 2, np.uint8)
+
+
 def _roof_and_crown(seed: int, density_per_m2: float = 10.0, canopy_gap: float = 0.35):
     """A flat 18 x 16 m roof 8 m high and, 6 m beside it, a dome-shaped crown (radius 8 m, base
     6 m, top 10 m above the ground; first returns at the simulator's depth into the crown) that
     passes ``canopy_gap`` of its pulses to the ground as a second return. Returns x, y, z,
     return number, number of returns, truth class (2 ground, 5 high vegetation, 6 building)."""
     rng = np.random.default_rng(seed)
-    n = int(60.0 * 40.0 * density_per_m2)
-    u, v = rng.uniform(0, 60.0, n), rng.uniform(0, 40.0, n)
-    ground_z = 100.0 + 0.02 * u + rng.normal(0, 0.03, n)
-    z, truth = ground_z.copy(), np.full(n, 2, np.uint8)
+    u, v, ground_z, z, truth = _sloped_ground(rng, 60.0, 40.0, density_per_m2, 100.0, 0.02)
+    n = len(u)
     roof = (u > 6) & (u < 24) & (v > 10) & (v < 26)
     z[roof] = 108.0 + rng.normal(0, 0.03, roof.sum())
     truth[roof] = 6
@@ -68,10 +75,8 @@ def _closed_conifer_canopy(seed: int, density_per_m2: float = 10.0, canopy_gap: 
     of branch roughness; ``canopy_gap`` of the pulses split to the ground), on a 5 % slope. Returns x, y, z, return
     number, number of returns, truth class (2 ground, 5 crown, 6 building)."""
     rng = np.random.default_rng(seed)
-    n = int(120.0 * 80.0 * density_per_m2)
-    u, v = rng.uniform(0, 120.0, n), rng.uniform(0, 80.0, n)
-    ground_z = 300.0 + 0.05 * u + rng.normal(0, 0.03, n)
-    z, truth = ground_z.copy(), np.full(n, 2, np.uint8)
+    u, v, ground_z, z, truth = _sloped_ground(rng, 120.0, 80.0, density_per_m2, 300.0, 0.05)
+    n = len(u)
     cu, cv = (a.ravel() for a in np.meshgrid(np.arange(41.5, 120.0, 3.0), np.arange(1.5, 80.0, 3.0)))
     cu, cv = cu + rng.uniform(-0.6, 0.6, cu.size), cv + rng.uniform(-0.6, 0.6, cv.size)
     radius, top = rng.uniform(2.2, 3.0, cu.size), rng.uniform(12.0, 18.0, cu.size)
@@ -125,10 +130,8 @@ def _roof_hedge_crown(seed: int, density_per_m2: float = 10.0):
     (40 %) end inside the crown, none on the ground. Returns x, y, z, return number, number of returns, truth class
     (2 ground, 5 crown or hedge, 6 building)."""
     rng = np.random.default_rng(seed)
-    n = int(70.0 * 40.0 * density_per_m2)
-    u, v = rng.uniform(0, 70.0, n), rng.uniform(0, 40.0, n)
-    ground_z = 50.0 + 0.01 * u + rng.normal(0, 0.03, n)
-    z, truth = ground_z.copy(), np.full(n, 2, np.uint8)
+    u, v, ground_z, z, truth = _sloped_ground(rng, 70.0, 40.0, density_per_m2, 50.0, 0.01)
+    n = len(u)
     roof = (u > 6) & (u < 24) & (v > 12) & (v < 28)
     z[roof] = ground_z[roof] + 8.0 + rng.normal(0, 0.03, roof.sum())
     truth[roof] = 6
