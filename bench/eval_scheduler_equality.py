@@ -6,6 +6,16 @@ file of the two projects compared.
     python bench/eval_scheduler_equality.py --compare WORK   (compares what is there)
         [--json bench/results/scheduler_equality.json]
 
+On a full-size block the two chains are run by ``bench/scale.py`` (its stage table for each), then compared:
+
+    python bench/scale.py --size dmc_2x2 --run-dir WORK/threads --key K_THREADS
+    python bench/scale.py --size dmc_2x2 --run-dir WORK/cluster --scheduler local:2 --key K_CLUSTER
+    python bench/eval_scheduler_equality.py --compare WORK --scale-json bench/results/scale_dmc.json \
+        --json bench/results/scheduler_equality_dmc_2x2.json
+
+``--scale-json`` takes each run's command, wall, CPU and peak memory from the entry of that file whose run folder
+is WORK/threads or WORK/cluster.
+
 Files are compared by SHA-256: text (JSON, CSV, TXT, GeoJSON, XML, HTML) with the run's folder name replaced,
 the run-time columns of summary.txt's stage table left out; a GeoPackage by its SQL without the time each layer
 was written; an .npz (the feature caches) by its arrays (the zip's member dates differ). A JSON file that still
@@ -29,7 +39,11 @@ from pathlib import Path
 TEXT_SUFFIXES = (".json", ".csv", ".txt", ".geojson", ".xml", ".html", ".toml", ".prj", ".log")
 # keys of a run's records that say how it ran, not what it made
 RUN_KEYS = re.compile(r"time|elapsed|wall|cpu|peak|rss|memory_mb|scheduler|workers|host|pid|started|finished|"
-                      r"duration|seconds|_s$|date|version|load_avg|mtime|points_per_s", re.I)
+                      r"duration|seconds|_s$|date|version|load_avg|mtime|points_per_s|_utc$", re.I)
+# a stage stamp's [size, mtime_ns] of a file too large to hash: its mtime is a run record
+STAMP_MTIME = re.compile(r"/(inputs|outputs)/.+\[1\]$")
+# when a page was made ("Made 2026-12-07T00:16:48Z")
+ISO_TIME = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z")
 # summary.txt's stage rows: "stage  status  time s  CPU s  peak MB  key numbers"
 STAGE_ROW = re.compile(r"^(\S+\s+\S+)\s+[\d.]+\s+[\d.-]+\s+[\d-]+(.*)$", re.M)
 
@@ -55,7 +69,9 @@ def _digest(p: Path, root: Path) -> str:
         return h.hexdigest()
     data = p.read_bytes()
     if p.suffix in TEXT_SUFFIXES:
-        text = _neutral(data.decode("utf-8", "replace"), root)
+        text = ISO_TIME.sub("TIME", _neutral(data.decode("utf-8", "replace"), root))
+        if p.suffix == ".html":  # a page's title and heading name the project by its folder
+            text = re.sub(rf"(?<![\w/.-]){re.escape(root.name)}(?![\w/-])", "ROOT", text)
         if p.name == "summary.txt":
             text = STAGE_ROW.sub(r"\1\2", text)
         data = text.encode()
@@ -100,21 +116,23 @@ def compare(a_root: Path, b_root: Path) -> dict:
             continue
         if n.endswith(".json"):
             keys = _json_differences(_neutral_json(files_a[n], a_root), _neutral_json(files_b[n], b_root))
-            product_keys = [k for k in keys if not any(RUN_KEYS.search(part) for part in k.split("/"))]
+            product_keys = [k for k in keys if not any(RUN_KEYS.search(part) for part in k.split("/"))
+                            and not STAMP_MTIME.search(k)]
             if not product_keys:
                 run_records[n] = keys
             else:
                 pending[n] = (keys, product_keys)
         else:
             products_differ[n] = ["bytes"]
-    # a stage stamp's /inputs/<file> (a hash of that file) and mosaic.json's index_sha1 (of ortho/frames/index.json)
-    # follow files that differ in run records only
+    # a stage stamp's /inputs/<file> and /outputs/<file> (a hash of that file) and mosaic.json's index_sha1 (of
+    # ortho/frames/index.json) follow files that differ in run records only
     changed = True
     while changed:
         changed = False
         for n, (keys, product_keys) in list(pending.items()):
-            derived = {k: k.split("/inputs/", 1)[-1] if "/inputs/" in k else
-                       "ortho/frames/index.json" if k.endswith("/index_sha1") else None for k in product_keys}
+            derived = {k: k.split("/inputs/", 1)[-1] if "/inputs/" in k else k.split("/outputs/", 1)[-1]
+                       if "/outputs/" in k else "ortho/frames/index.json" if k.endswith("/index_sha1") else None
+                       for k in product_keys}
             # (a file identical but for the folder name in it also changes the stamp's hash of its bytes)
             follows = [k for k, f in derived.items()
                        if f is not None and any(r.endswith(f) for r in [*run_records, *identical])]
@@ -128,7 +146,8 @@ def compare(a_root: Path, b_root: Path) -> dict:
 
 
 def _run_demo(out: Path, scheduler: str | None) -> dict:
-    cmd = [sys.executable, "-m", "aerotri.cli", "demo", str(out), "-q"]
+    # aerotri.cli has no __main__ (``-m aerotri.cli`` ran nothing): the console script's call
+    cmd = [sys.executable, "-c", "import sys; from aerotri.cli import main; sys.exit(main())", "demo", str(out), "-q"]
     if scheduler:
         cmd += ["--scheduler", scheduler]
     t0 = time.time()
@@ -140,12 +159,34 @@ def _run_demo(out: Path, scheduler: str | None) -> dict:
             "cpu_s": round(float(user) + float(sys_), 1), "peak_rss_mb": round(int(rss) / 1024, 1)}
 
 
+def _runs_from_scale(path: Path, work: Path) -> tuple[dict, dict]:
+    """The records of bench/scale.py's entries run in WORK/threads and WORK/cluster, and their commands."""
+    entries = json.loads(path.read_text())
+    runs, labels = {}, {}
+    for name in ("threads", "cluster"):
+        found = [(k, e) for k, e in entries.items()
+                 if isinstance(e, dict) and Path(str(e.get("run_dir", ""))).resolve() == (work / name).resolve()]
+        if not found:
+            raise SystemExit(f"{path}: no entry whose run_dir is {work / name}")
+        key, e = found[-1]
+        run = e.get("run") or {}
+        labels[name] = f"{run.get('command', '?')} ({path.name} key {key})"
+        runs[name] = {"key": key, "wall_s": run.get("wall_s"), "cpu_s": run.get("cpu_s"),
+                      "largest_process_peak_rss_mb": run.get("largest_process_peak_rss_mb"),
+                      "stages_wall_min": (e.get("verdict") or {}).get("stages_wall_min"),
+                      "cpu_min": (e.get("verdict") or {}).get("cpu_min"), "measured_utc": e.get("measured_utc")}
+    return runs, labels
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     g = ap.add_mutually_exclusive_group(required=True)
     g.add_argument("--run", type=Path, help="run both demos into this folder, then compare")
     g.add_argument("--compare", type=Path, help="compare WORK/threads and WORK/cluster")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--scale-json", type=Path,
+                    help="bench/scale.py's results file: the two runs' records from its entries for WORK/threads and "
+                         "WORK/cluster (chains run by bench/scale.py)")
     a = ap.parse_args()
     work = a.run or a.compare
     runs = {}
@@ -159,8 +200,10 @@ def main() -> None:
                 runs[name] = {"cpu_s": round(float(t["User time (seconds)"]) + float(t["System time (seconds)"]), 1),
                               "peak_rss_mb": round(int(t["Maximum resident set size (kbytes)"]) / 1024, 1),
                               "wall": t["Elapsed (wall clock) time (h:mm:ss or m:ss)"]}
-    result = {"threads": "aerotri demo (Dask local threads, 2)", "cluster": "aerotri demo --scheduler local:2",
-              "runs": runs, **compare(work / "threads", work / "cluster")}
+    labels = {"threads": "aerotri demo (Dask local threads, 2)", "cluster": "aerotri demo --scheduler local:2"}
+    if a.scale_json:
+        runs, labels = _runs_from_scale(a.scale_json, work)
+    result = {**labels, "runs": runs, **compare(work / "threads", work / "cluster")}
     n_prod = len(result["products_differ"]) + len(result["only_in_one"])
     print(f"{result['files']} files: {result['identical']} identical, "
           f"{len(result['differ_in_run_records_only'])} differ in run records only (times, memory, scheduler), "

@@ -281,24 +281,28 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
                           sides=None, overviews: bool = False, source_valid=None, ground=None) -> float:
     """Rectify tile by tile straight into a GeoTIFF (the frame ortho is never whole in memory); ``occluder``,
     ``sides``, ``source_valid``, ``ground``: as ``rectify_frame``; ``overviews``: internal overviews too
-    (``add_overviews``).
+    (``add_overviews``). Returns the valid fraction of the grid.
 
-    The tile threads compute the next tiles while this thread writes (GDAL compresses the blocks on
-    all cores). Returns the valid fraction of the grid.
+    The tiles go into an uncompressed scratch GeoTIFF beside ``path`` (the tile threads compute the next tiles
+    while this thread writes), which is then copied into the frame ortho block by block in file order
+    (``ordered_copy``): GDAL places a block in the file when its block cache flushes it, and the cache is the
+    process's, shared with the other frames' tasks, so a file written straight from the tiles had its blocks in an
+    order that changed from run to run (the same samples, other bytes and checksums).
     """
-    from rasterio.windows import Window
-
     bands = 1 if image.ndim == 2 else image.shape[2]
+    profile = frame_profile(grid, bands, image.dtype.name, compression=compression)
+    path = Path(path)
     # GDAL's block cache is the stage's (``rectify_block``, ``aerotri.core.gdal_cache``): never set here, in a task
     # that runs on a worker thread beside other frames' tasks
-    with atomic_path(path) as tmp, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
-        with rasterio.open(tmp, "w", **frame_profile(grid, bands, image.dtype.name, compression=compression)) as dst:
+    with atomic_path(path) as tmp, _scratch_file(path) as raw, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        with rasterio.open(raw, "w", **uncompressed(profile)) as dst:
             if tags:
                 dst.update_tags(**tags)
-
             valid = [0]
 
             def sink(r0, c0, o, m):
+                from rasterio.windows import Window
+
                 w = Window(c0, r0, m.shape[1], m.shape[0])
                 dst.write(o, window=w, indexes=band_order)
                 dst.write_mask(m, window=w)
@@ -309,8 +313,45 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
                           max_view_angle_deg=max_view_angle_deg, occluder=occluder, sides=sides,
                           source_valid=source_valid, ground=ground)
         if overviews:
-            add_overviews(tmp)
+            add_overviews(raw)
+        ordered_copy(raw, tmp, profile)
     return valid[0] / float(grid.width * grid.height)
+
+
+# the creation options that are no compression: the rest of a frame profile
+_UNCOMPRESSED_DROP = ("compress", "predictor", "zstd_level", "zlevel", "jpeg_quality", "num_threads", "max_z_error")
+
+
+def uncompressed(profile: dict) -> dict:
+    """``profile`` without compression (a scratch file: written once, read once)."""
+    return {k: v for k, v in profile.items() if k.lower() not in _UNCOMPRESSED_DROP}
+
+
+def ordered_copy(src, dst, profile: dict) -> None:
+    """Copy the GeoTIFF ``src`` (with its internal mask, overviews and tags) into ``dst`` with ``profile``'s creation
+    options, every block written in file order (GDAL's ``COPY_SRC_OVERVIEWS``, the cloud-optimised layout: the
+    bytes depend on the samples only, not on when a block cache flushed them)."""
+    import rasterio.shutil
+
+    skip = ("driver", "width", "height", "count", "dtype", "crs", "transform", "nodata")
+    options = {k: v for k, v in profile.items() if k not in skip}
+    rasterio.shutil.copy(src, dst, driver="GTiff", COPY_SRC_OVERVIEWS="YES", **options)
+
+
+@contextlib.contextmanager
+def _scratch_file(path: Path):
+    """A scratch ``.tif`` beside ``path`` named as a temporary (``remove_leftovers`` finds it after a kill), removed
+    at the end."""
+    import tempfile
+
+    from aerotri.core.atomic import TEMP_MARKER
+
+    fd, name = tempfile.mkstemp(prefix=f".{path.stem}.raw{TEMP_MARKER}", suffix=".tif", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(name)
+    finally:
+        Path(name).unlink(missing_ok=True)
 
 
 RESUME_DIR_NAME = "rectify_resume"  # in work/: the frames a killed or failed rectify finished (``FrameTask``)

@@ -95,20 +95,28 @@ def test_cli_scheduler_option(small_block, tmp_path):
     assert r.exit_code == 2 and "local:N" in r.output
 
 
-def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
+def _first_frame(root, res_m: float):
+    """The first frame of ``root`` with its camera, orientation (C, R), DEM and an ortho grid of ``res_m``."""
     from aerotri.geom.camera import BrownCamera
     from aerotri.geom.eo import read_eo
     from ortho.dem import read_height_raster
     from ortho.grid import GridToProject, parse_crs
-    from ortho.rectify import frame_grid, rectify_frame
+    from ortho.rectify import frame_grid
 
     crs = parse_crs("EPSG:32649")
-    cam = BrownCamera.read(small_block / "camera.toml")
-    eo = read_eo(small_block / "at" / "eo.txt")
-    dem = read_height_raster(small_block / "lidar_out" / "dem.tif", crs)
-    img, _ = read_native(small_block / "images" / "s01_001.tif", (cam.width, cam.height))
+    cam = BrownCamera.read(root / "camera.toml")
+    eo = read_eo(root / "at" / "eo.txt")
+    dem = read_height_raster(root / "lidar_out" / "dem.tif", crs)
+    img, _ = read_native(root / "images" / "s01_001.tif", (cam.width, cam.height))
     C, R = eo.centre_m[0], eo.rotation(0)
-    grid = frame_grid(cam, C, R, dem, 0.2, crs, to_project=GridToProject(crs, crs))
+    grid = frame_grid(cam, C, R, dem, res_m, crs, to_project=GridToProject(crs, crs))
+    return img, cam, C, R, dem, grid, GridToProject(crs, crs)
+
+
+def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
+    from ortho.rectify import rectify_frame
+
+    img, cam, C, R, dem, grid, _ = _first_frame(small_block, 0.2)
     one, m1 = rectify_frame(img, cam, C, R, dem, grid, tile_px=128, threads=1)
     three, m3 = rectify_frame(img, cam, C, R, dem, grid, tile_px=128, threads=3)
     assert np.array_equal(one, three) and np.array_equal(m1, m3)
@@ -127,6 +135,35 @@ def test_tile_threads_and_sink_do_not_change_the_ortho(small_block):
     # cubic: pixels outside the frame stay 0 also with the pooled, reused buffers
     cub, mc = rectify_frame(img, cam, C, R, dem, grid, interpolation="cubic", tile_px=128, threads=2)
     assert np.all(cub[mc == 0] == 0) and np.array_equal(mc, m1)
+
+
+def test_a_frame_orthos_bytes_do_not_depend_on_gdals_block_cache(small_block, tmp_path):
+    """GDAL places a block in a GeoTIFF when its cache flushes it; the cache is the process's, shared with the other
+    frames' tasks, so a frame ortho written straight from its tiles had its blocks in another order whenever the
+    cache was fuller (the 2 x 2 DMC block's threads and LocalCluster runs, and a threads run again: other bytes, the
+    same samples). Written through ``ordered_copy`` the file is the same bytes under a cache that holds a few
+    blocks and one that holds the frame, with the samples and mask of the in-memory rectification."""
+    from ortho.block import rectify_frame_to_file
+    from ortho.rectify import rectify_frame
+
+    # 6 cm cells: 3 x 4 blocks of 512 px and 3 bands, more than a 1 MiB cache holds
+    img, cam, C, R, dem, grid, to_project = _first_frame(small_block, 0.06)
+    assert grid.width > 1024 and grid.height > 1024
+    digests = []
+    for cache_bytes in (2 ** 20, 2 ** 30, 2 ** 20):
+        out = tmp_path / f"cache_{cache_bytes}_{len(digests)}.tif"
+        with rasterio.Env(GDAL_CACHEMAX=cache_bytes):
+            rectify_frame_to_file(out, img, [1, 2, 3], cam, C, R, heights=dem, grid=grid, interpolation="bilinear",
+                                  to_project=to_project, tags={"FRAME": "s01_001"}, overviews=True)
+        digests.append(hashlib.sha256(out.read_bytes()).hexdigest())
+    assert digests[0] == digests[1] == digests[2]
+    want, want_mask = rectify_frame(img, cam, C, R, dem, grid)
+    with rasterio.open(out) as ds:
+        assert np.array_equal(np.moveaxis(ds.read(), 0, -1), want)
+        assert np.array_equal(ds.dataset_mask() > 0, want_mask > 0)
+        assert ds.tags()["FRAME"] == "s01_001" and ds.overviews(1) and ds.compression.name.lower() == "zstd"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"cache_{c}_{i}.tif" for i, c in
+                                                                enumerate((2 ** 20, 2 ** 30, 2 ** 20)))
 
 
 def test_mapped_and_decoded_frames_give_the_same_ortho(small_block, tmp_path):
