@@ -45,7 +45,7 @@ from aerotri.core.records import to_record
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.local_frame import FramesOnEarth
 from aerotri.geom.rotation import rotation_matrix_opk
-from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, write_text_atomic
+from aerotri.core.atomic import TEMP_MARKER, atomic_dir, atomic_path, remove_leftovers, write_text_atomic
 from aerotri.core.resume import ResumeFolder, file_stamp, resumable, resume_key
 from aerotri.core.resume import link_or_copy as _link_or_copy
 from aerotri.core.errors import OptionError
@@ -340,13 +340,11 @@ def ordered_copy(src, dst, profile: dict) -> None:
 
 @contextlib.contextmanager
 def _scratch_file(path: Path):
-    """A scratch ``.tif`` beside ``path`` named as a temporary (``remove_leftovers`` finds it after a kill), removed
-    at the end."""
+    """A scratch ``.tif`` beside ``path``, named as ``path``'s temporaries are (``.<stem>.part-raw*``: what a kill
+    leaves is swept with them, ``remove_leftovers``), removed at the end."""
     import tempfile
 
-    from aerotri.core.atomic import TEMP_MARKER
-
-    fd, name = tempfile.mkstemp(prefix=f".{path.stem}.raw{TEMP_MARKER}", suffix=".tif", dir=path.parent)
+    fd, name = tempfile.mkstemp(prefix=f".{path.stem}{TEMP_MARKER}raw", suffix=".tif", dir=path.parent)
     os.close(fd)
     try:
         yield Path(name)
