@@ -14,7 +14,6 @@ give a copy.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import signal
@@ -24,14 +23,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
-
-def _sha1(path: Path) -> str:
-    h = hashlib.sha1()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 24), b""):
-            h.update(chunk)
-    return h.hexdigest()
+from ortho.block import file_fingerprint  # noqa: E402
 
 
 def rectify_once(project: Path, src: Path | None, extra: list[str]) -> dict:
@@ -52,7 +46,8 @@ def rectify_once(project: Path, src: Path | None, extra: list[str]) -> dict:
         raise SystemExit(f"{' '.join(cmd)}: rectify did not finish, see {log}")
     stamp = json.loads((project / "work" / "stages" / "rectify.json").read_text())
     frames = sorted((project / "ortho" / "frames").glob("*.tif"))
-    return {**stamp["usage"], "frames_sha1": {f.name: _sha1(f) for f in frames}}
+    # the SHA-1 ortho/frames/index.json records
+    return {**stamp["usage"], "frames_sha1": {f.name: file_fingerprint(f).sha1 for f in frames}}
 
 
 def main() -> None:
