@@ -45,7 +45,7 @@ from aerotri.core.records import to_record
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.geom.local_frame import FramesOnEarth
 from aerotri.geom.rotation import rotation_matrix_opk
-from aerotri.core.atomic import TEMP_MARKER, atomic_dir, atomic_path, remove_leftovers, write_text_atomic
+from aerotri.core.atomic import atomic_dir, atomic_path, remove_leftovers, scratch_dir, write_text_atomic
 from aerotri.core.resume import ResumeFolder, file_stamp, resumable, resume_key
 from aerotri.core.resume import link_or_copy as _link_or_copy
 from aerotri.core.errors import OptionError
@@ -283,26 +283,29 @@ def rectify_frame_to_file(path, image, band_order, camera, C, R, *, heights, gri
     ``sides``, ``source_valid``, ``ground``: as ``rectify_frame``; ``overviews``: internal overviews too
     (``add_overviews``). Returns the valid fraction of the grid.
 
-    The tiles go into an uncompressed scratch GeoTIFF beside ``path`` (the tile threads compute the next tiles
-    while this thread writes), which is then copied into the frame ortho block by block in file order
+    The tiles go into an uncompressed scratch GeoTIFF in a folder beside ``path`` (``scratch_dir``: swept with
+    ``path``'s temporaries after a kill; the tile threads compute the next tiles while this thread writes), which
+    is then copied into the frame ortho block by block in file order
     (``ordered_copy``): GDAL places a block in the file when its block cache flushes it, and the cache is the
     process's, shared with the other frames' tasks, so a file written straight from the tiles had its blocks in an
     order that changed from run to run (the same samples, other bytes and checksums).
     """
+    from rasterio.windows import Window
+
     bands = 1 if image.ndim == 2 else image.shape[2]
     profile = frame_profile(grid, bands, image.dtype.name, compression=compression)
     path = Path(path)
     # GDAL's block cache is the stage's (``rectify_block``, ``aerotri.core.gdal_cache``): never set here, in a task
     # that runs on a worker thread beside other frames' tasks
-    with atomic_path(path) as tmp, _scratch_file(path) as raw, rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+    with atomic_path(path) as tmp, scratch_dir(path.parent, path.name) as scratch, \
+            rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+        raw = scratch / "raw.tif"
         with rasterio.open(raw, "w", **uncompressed(profile)) as dst:
             if tags:
                 dst.update_tags(**tags)
             valid = [0]
 
             def sink(r0, c0, o, m):
-                from rasterio.windows import Window
-
                 w = Window(c0, r0, m.shape[1], m.shape[0])
                 dst.write(o, window=w, indexes=band_order)
                 dst.write_mask(m, window=w)
@@ -323,7 +326,7 @@ _UNCOMPRESSED_DROP = ("compress", "predictor", "zstd_level", "zlevel", "jpeg_qua
 
 
 def uncompressed(profile: dict) -> dict:
-    """``profile`` without compression (a scratch file: written once, read once)."""
+    """``profile`` without compression (a scratch file or stage: written once, read once)."""
     return {k: v for k, v in profile.items() if k.lower() not in _UNCOMPRESSED_DROP}
 
 
@@ -336,20 +339,6 @@ def ordered_copy(src, dst, profile: dict) -> None:
     skip = ("driver", "width", "height", "count", "dtype", "crs", "transform", "nodata")
     options = {k: v for k, v in profile.items() if k not in skip}
     rasterio.shutil.copy(src, dst, driver="GTiff", COPY_SRC_OVERVIEWS="YES", **options)
-
-
-@contextlib.contextmanager
-def _scratch_file(path: Path):
-    """A scratch ``.tif`` beside ``path``, named as ``path``'s temporaries are (``.<stem>.part-raw*``: what a kill
-    leaves is swept with them, ``remove_leftovers``), removed at the end."""
-    import tempfile
-
-    fd, name = tempfile.mkstemp(prefix=f".{path.stem}{TEMP_MARKER}raw", suffix=".tif", dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(name)
-    finally:
-        Path(name).unlink(missing_ok=True)
 
 
 RESUME_DIR_NAME = "rectify_resume"  # in work/: the frames a killed or failed rectify finished (``FrameTask``)

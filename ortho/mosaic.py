@@ -97,7 +97,7 @@ from aerotri.core.resume import file_stamp, link_or_copy, resumable, resume_key
 from aerotri.core.settings import Resolved, settings_of
 from aerotri.core.textio import read_json
 from ortho.block import (FrameIndex, frame_index, index_operation, operation_tags, read_index, rectified_on,
-                         require_current_frames, verify_index, without_threads_for_extra_samples)
+                         require_current_frames, uncompressed, verify_index, without_threads_for_extra_samples)
 from ortho.grid import OrthoGrid, overview_factors
 from ortho.settings import MosaicSettings
 from ortho.seamlines_gpkg import require_seamlines_file, write_seamlines_gpkg
@@ -3262,7 +3262,7 @@ def _stage_profile(mosaic: OrthoGrid, bands: int, dtype) -> dict:
     raw = mosaic.width * mosaic.height * bands * np.dtype(dtype).itemsize
     if raw > STAGE_RAW_MAX_BYTES:
         return dict(STAGE_PROFILE)
-    return {k: v for k, v in STAGE_PROFILE.items() if k not in ("compress", "zstd_level", "predictor", "num_threads")}
+    return uncompressed(STAGE_PROFILE)
 
 
 def halve(img: np.ndarray, valid: np.ndarray):
