@@ -40,7 +40,9 @@ lidar_out/dsm_crowns.tif with the trees' disks of lidar_out/crowns.gpkg, ``--cro
 (``true_ortho_crowns``, ``true_ortho_crowns_footprints``). Each way's CPU in the occluder's steps:
 ``--steps`` (``STEPS``: the thread CPU of each step per block, ``steps_cpu_s`` in every run).
 
-``--frames A,B``: only those frames (each way's block of them).
+``--frames A,B``: only those frames (each way's block of them). The footprints are written for every way when the
+truth folder has buildings.geojson; without it (a chain's run folder of a block whose truth is gone) the ways
+without footprints still run.
 
 ``--per-frame`` adds a fourth way, the true ortho with footprints rasterised per frame (as ``ortho.block`` does when
 the block's DSM window exceeds ``SHARED_FOOTPRINT_CELLS_MAX`` cells, e.g. the 120-frame DMC block), and compares its
@@ -150,7 +152,9 @@ def _timed_steps() -> None:
 
     for module, name in STEPS:
         m = importlib.import_module(module)
-        inner = getattr(m, name)
+        inner = getattr(m, name, None)
+        if inner is None:  # a step of another commit's code (``--code``)
+            continue
 
         def timed(*a, _inner=inner, _name=name, **k):
             c = time.thread_time()
@@ -336,14 +340,15 @@ def main() -> None:
     source = args.project or args.demo
     truth = args.truth or source / "truth"
     buildings = truth / "buildings.geojson"
-    projects = {}
+    projects, n = {}, None
     for way in ways:
         p = projects[way] = args.work / way
         small_project(source, p)
         if args.project is not None and (source / "at" / "camera.toml").is_file():
             shutil.copy2(source / "at" / "camera.toml", p / "at" / "camera.toml")  # the camera of at/eo.txt
         (p / "truth").mkdir()
-        n = write_footprints_gpkg(buildings, p / "truth" / "footprints.gpkg", Project.open(p).crs)
+        if "footprints" in way or buildings.is_file():  # ways without footprints run on a block without truth
+            n = write_footprints_gpkg(buildings, p / "truth" / "footprints.gpkg", Project.open(p).crs)
         if way in OCCLUSION:
             shutil.copy2(source / "lidar_out" / "dsm_nearest.tif", p / "lidar_out" / "dsm_nearest.tif")
         if way in CHAIN_CROWNS:

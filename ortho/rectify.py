@@ -652,22 +652,6 @@ def zbuffer_occlusion(geometry: FrameGeometry, zbuffer: ZBuffer, heights_m: np.n
     return occ
 
 
-def zbuffer_occlusion_affine(geometry: FrameGeometry, zbuffer: ZBuffer, tile: OrthoGrid, heights_m: np.ndarray, *,
-                             out: np.ndarray, near_share: np.ndarray | None = None,
-                             affine: GridAffine | None = None) -> np.ndarray:
-    """``zbuffer_occlusion`` of a tile in the project CRS (ground X, Y affine in its rows and columns; ``affine``: a
-    contract CRS's tile, ``GridToProject.affine``), vectorised: where the maps were made at other heights than the
-    occlusion test's surface (``--occlusion-dsm``), so that the test cannot read them
-    (``zbuffer_occlusion_from_maps``). ``near_share``: as ``zbuffer_occlusion_from_maps``."""
-    from ortho.rectify_kernels import _zbuffer_test_affine
-
-    out[...] = False
-    near = np.empty(heights_m.shape, np.float32) if near_share is None else near_share
-    _zbuffer_test_affine(_affine_tile(heights_m, tile, affine), geometry.kernel_frame(),
-                         ZBufferArgs(zbuffer.depth_m, zbuffer.cell_px, float(zbuffer.tolerance_m)), out, near)
-    return out
-
-
 def zbuffer_occlusion_from_maps(geometry: FrameGeometry, zbuffer: ZBuffer, tile: OrthoGrid, map_int: np.ndarray,
                                 mask: np.ndarray, heights_m: np.ndarray, *, out: np.ndarray,
                                 near_share: np.ndarray | None = None, affine: GridAffine | None = None) -> np.ndarray:
@@ -1030,10 +1014,6 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     # true ortho: the frame's z-buffer of the DSM first (the occluders of a tile can lie in any other tile)
     zbuffer = frame_zbuffer(geometry, occlusion_dsm, grid, to_project, tile_px) if occlusion_dsm is not None else None
     bound = march_bound(occlusion_dsm, occluder=occluder) if occlusion_dsm is not None else None
-    # the maps are the image positions at the DSM's heights when the ortho is rectified on the DSM itself (as
-    # ``ortho rectify --true-ortho`` does), a tile affine in the project CRS: the z-buffer test reads them instead of
-    # projecting again
-    maps_at_dsm = occlusion_dsm is not None and dem_dataset is occlusion_dsm
 
     local = threading.local()
     # tile outputs handed to the consumer come from a pool and go back to it once consumed: fresh
@@ -1071,12 +1051,12 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             affine = None if to_project.identity else to_project.affine(tile)
             near = local.near_share[:tile.height * tile.width].reshape(tile.height, tile.width) \
                 if to_project.identity or affine is not None else None
-            if maps_at_dsm and near is not None:
+            if near is not None:
+                # the points tested are the maps' own (at the heights ``z`` they were made at, on the DSM of the
+                # ortho whichever surface the z-buffer holds): the test reads their image positions instead of
+                # projecting every pixel again
                 behind = zbuffer_occlusion_from_maps(geometry, zbuffer, tile, map_int, m, z, out=occ_out,
                                                      near_share=near, affine=affine)
-            elif near is not None:
-                behind = zbuffer_occlusion_affine(geometry, zbuffer, tile, z, out=occ_out, near_share=near,
-                                                  affine=affine)
             else:
                 behind = zbuffer_occlusion(geometry, zbuffer, z, anchors, out=occ_out)
             if behind.any():

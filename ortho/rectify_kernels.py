@@ -909,44 +909,6 @@ def _zbuffer_scatter_affine(tile, frame, zbuffer):
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
-def _zbuffer_test_affine(tile, frame, zbuffer, occluded, near_share):
-    """The test pass of ``_zbuffer_kernel`` when the output grid is in the project CRS (``AffineTile`` ``tile``: ground
-    X, Y affine in (row, col), the points at ``tile.heights_m``) where the tile's maps were made at other heights (the
-    occlusion test on its own DSM): the projection branch-free and vectorised into row arrays as in
-    ``_zbuffer_scatter_affine``, then the cell test of ``_zbuffer_kernel`` (the same points tested, the same cells: the
-    positions differ from the anchors' interpolation in the last bits only). ``occluded`` set, never cleared; and
-    there ``near_share`` as ``_zbuffer_test_maps`` (where the march looks first)."""
-    heights = tile.heights_m
-    centre, M, cam, inv_r = frame.centre_m, frame.M, frame.cam, frame.inv_radius
-    limits = (frame.limits.fold_r2, frame.width_px, frame.height_px)
-    zbuf, cell_px, tolerance_m = zbuffer
-    rows, cols = heights.shape
-    zh, zw = zbuf.shape
-    inv_cell = 1.0 / cell_px
-    steps = _affine_steps(tile, M)
-    z_centre = centre[2]
-    cell_i = np.empty(cols, np.int32)
-    cell_j = np.empty(cols, np.int32)
-    zcs = np.empty(cols, np.float64)
-    oks = np.empty(cols, np.bool_)
-    for r in range(rows):
-        row = _affine_row(tile, r, centre, M)
-        z_row = heights[r]
-        for c in range(cols):
-            x, y, zc, ok = _affine_pixel(row, c, z_row[c], steps, z_centre, inv_r, cam, limits)
-            oks[c] = ok
-            # (a select, not a branch: the loop stays vectorised; NaN or far positions never reach the conversion)
-            cell_i[c] = min(np.int32((y if ok else 0.0) * inv_cell), zh - 1)
-            cell_j[c] = min(np.int32((x if ok else 0.0) * inv_cell), zw - 1)
-            zcs[c] = zc
-        occ_row, near_row = occluded[r], near_share[r]
-        for c in range(cols):
-            if oks[c] and zcs[c] > zbuf[cell_i[c], cell_j[c]] + tolerance_m:
-                occ_row[c] = True
-                near_row[c] = zbuf[cell_i[c], cell_j[c]] / zcs[c]
-
-
-@numba.njit(cache=True, nogil=True, fastmath=_FASTMATH, error_model="numpy")
 def _zbuffer_test_maps(imaged, tile, frame, zbuffer, occluded, near_share):
     """The test pass of ``_zbuffer_kernel`` reusing the tile's cv2.remap maps (``imaged``: the integer map and the
     mask of ``RemapMaps``, the image position of every imaged pixel of ``AffineTile`` ``tile`` at the same heights,
