@@ -141,7 +141,7 @@ STEPS = (("ortho.block", "_frame_occluder"), ("ortho.footprints", "footprint_cel
          ("aerotri.geom.crown_disks", "crown_sub_cells"), ("ortho.rectify", "frame_zbuffer"),
          ("ortho.rectify", "march_bound"), ("ortho.rectify", "occlusion_mask"), ("ortho.rectify", "heights_by_side"),
          ("ortho.rectify", "zbuffer_occlusion_affine"), ("ortho.rectify", "zbuffer_occlusion_from_maps"),
-         ("ortho.rectify", "fixed_point_maps"))
+         ("ortho.rectify", "fixed_point_maps"), ("ortho.block", "read_height_window"), ("ortho.block", "ground_flags"))
 _step_cpu_s: dict = {}  # step -> [thread CPU of each call] of the current block
 
 
