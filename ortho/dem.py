@@ -207,18 +207,24 @@ def read_heights(ds, window: Window) -> np.ndarray:
     NaN. A float raster whose mask is its nodata value (or that has none) is compared here in one pass (GDAL's
     nodata mask: equal to the nodata value in the band's own type, or both NaN); a numpy masked array costs 5-10
     times the read of a frame's window (the true ortho reads two or three a frame). Other masks: GDAL's."""
-    flags = [MaskFlags(f) for f in ds.mask_flag_enums[0]]
+    flags = list(ds.mask_flag_enums[0])
     dtype = np.dtype(ds.dtypes[0])
     nodata = ds.nodatavals[0]
-    with np.errstate(over="ignore"):
-        exact = nodata is None or np.isnan(nodata) or float(np.asarray(nodata).astype(dtype)) == nodata
-    if dtype.kind == "f" and exact and flags in ([MaskFlags.all_valid], [MaskFlags.nodata]):
+    if dtype.kind == "f" and flags in ([MaskFlags.all_valid], [MaskFlags.nodata]) and _exact_in(nodata, dtype):
         raw = ds.read(1, window=window)
         a = raw.astype(np.float32, copy=False)
         if flags == [MaskFlags.nodata]:
             a[np.isnan(raw) if np.isnan(nodata) else raw == dtype.type(nodata)] = np.nan
         return a
     return ds.read(1, window=window, masked=True).astype(np.float32).filled(np.nan)
+
+
+def _exact_in(nodata, dtype: np.dtype) -> bool:
+    """``nodata`` (None: none) is a value of the float type ``dtype`` (GDAL compares in the band's type)."""
+    if nodata is None or np.isnan(nodata):
+        return True
+    with np.errstate(over="ignore"):
+        return float(dtype.type(nodata)) == nodata
 
 
 def height_window(ds, bounds, margin_m: float = 0.0, what: str = "DEM", frame: str | None = None) -> Window:
