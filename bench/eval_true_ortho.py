@@ -33,7 +33,7 @@ sys.path.insert(0, str(REPO))
 PATCH_M = 24.0
 
 
-def copy_project(src: Path, dst: Path) -> None:
+def copy_project(src: Path, dst: Path, lidar_files: tuple = ("dem.tif", "dsm.tif", "ndsm.tif")) -> None:
     if dst.exists():
         shutil.rmtree(dst)
     dst.mkdir(parents=True)
@@ -41,7 +41,7 @@ def copy_project(src: Path, dst: Path) -> None:
         p = src / name
         (shutil.copytree if p.is_dir() else shutil.copy2)(p, dst / name)
     (dst / "lidar_out").mkdir()
-    for name in ("dem.tif", "dsm.tif", "ndsm.tif"):
+    for name in lidar_files:
         shutil.copy2(src / "lidar_out" / name, dst / "lidar_out" / name)
 
 

@@ -172,8 +172,7 @@ def measure_block(work: Path, name: str, *, true_ortho: Path | None = None, trut
                  "seen_but_masked": int((sees & ~valid).sum())}
     # clearance of what the frames see, at the occluded cells another frame sees
     cells = np.flatnonzero(seen_other)
-    X = (grid.centres()[0][cells % W] - truth.origin[0])
-    Y = (grid.centres()[1][cells // W] - truth.origin[1])
+    X, Y = truth.local_xy(grid, cells // W, cells % W)
     clear = {}
     for r_m in CLEARANCES_M:
         t = time.perf_counter()

@@ -142,6 +142,14 @@ def remosaic_dom(project: Path) -> dict:
 
 # ------------------------------------------------------------------------------------------------ the truth
 
+def _project_crs(project: Path):
+    import tomllib
+
+    from pyproj import CRS
+
+    return CRS.from_user_input(tomllib.loads((project / "project.toml").read_text())["project"]["crs"])
+
+
 class Truth:
     """The simulated scene of a project, its origin and the true projection centres."""
 
@@ -162,6 +170,7 @@ class Truth:
         self.scene = build_scene(cfg.scene, layout.width_m, layout.height_m, self.origin, scene_seed)
         self.accel = raycast.build_accel(self.scene)
         self.cast_many = raycast.cast_many
+        self.crs = _project_crs(project)
         self._check(project)
         self.centres = {}
         for line in (project / "truth" / "eo.txt").read_text().splitlines():
@@ -188,6 +197,18 @@ class Truth:
                 if np.median(err) > 1e-3 or np.mean(err > 0.05) > 0.01:
                     raise SystemExit(f"{project}/truth/{name}: the rebuilt scene differs (median {np.median(err):.3f} "
                                      "m): the simulator changed since the project was made")
+
+    def local_xy(self, grid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Local scene coordinates (m) of the centres of ``grid``'s cells (``rows``, ``cols``; arrays of one shape):
+        a grid in another CRS than the project's (``ortho rectify --crs``) through PROJ's operation between them
+        (the ballpark one where PROJ knows none, as ``--allow-ballpark``)."""
+        xs = grid.x_left_m + (np.asarray(cols, float) + 0.5) * grid.res_m
+        ys = grid.y_top_m - (np.asarray(rows, float) + 0.5) * grid.res_m
+        if not grid.crs.equals(self.crs):
+            from pyproj import Transformer
+
+            xs, ys = Transformer.from_crs(grid.crs, self.crs, always_xy=True).transform(xs, ys)
+        return np.asarray(xs) - self.origin[0], np.asarray(ys) - self.origin[1]
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray):
         t = np.empty(len(dirs))
@@ -558,9 +579,8 @@ def truth_on_grid(truth: Truth, project: Path, grid):
     from aerotri.sim.scene import KIND_ROOF, KIND_TERRAIN
 
     H, W = grid.height, grid.width
-    xs, ys = grid.centres()
-    X = np.broadcast_to(xs[None, :] - truth.origin[0], (H, W)).ravel()
-    Y = np.broadcast_to(ys[:, None] - truth.origin[1], (H, W)).ravel()
+    rows, cols = np.indices((H, W))
+    X, Y = (a.ravel() for a in truth.local_xy(grid, rows, cols))
     kind, _, _ = truth.surface(X, Y)
     kind = kind.reshape(H, W)
     ground = kind == KIND_TERRAIN

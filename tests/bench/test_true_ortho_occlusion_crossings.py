@@ -48,3 +48,23 @@ def test_roof_nodata_is_counted_by_depth_inside_the_roof(bench_script):
     assert got["0-1m"]["nodata"] == ring and got["1-2m"]["nodata"] == 0 and got["2-infm"]["nodata"] == 0
     assert sum(b["cells"] for b in got.values()) == 144
     assert got["0-1m"]["nodata_share"] == ring / got["0-1m"]["cells"]
+
+
+def test_the_truth_takes_a_contract_crs_grid_s_cells_to_the_project_crs(bench_script):
+    """``Truth.local_xy``: a grid in the project CRS gives its cell centres less the scene's origin, as before; a
+    grid in CGCS2000 3-degree Gauss-Krueger (EPSG:4546, ``ortho rectify --crs gk3:cgcs2000``) gives each cell centre
+    taken to UTM 49N by PROJ (known points: a UTM point taken to EPSG:4546 and back lands within a millimetre)."""
+    from pyproj import CRS, Transformer
+
+    from ortho.grid import OrthoGrid
+
+    truth = bench_script.Truth.__new__(bench_script.Truth)
+    truth.crs, truth.origin = CRS.from_epsg(32649), np.array([500_000.0, 2_500_000.0, 100.0])
+    utm = OrthoGrid(truth.crs, 500_100.0, 2_500_900.0, 0.4, 30, 20)
+    x, y = truth.local_xy(utm, np.array([0, 19]), np.array([0, 29]))
+    assert np.allclose(x, [100.2, 111.8]) and np.allclose(y, [899.8, 892.2])
+    e, n = Transformer.from_crs(truth.crs, "EPSG:4546", always_xy=True).transform(500_300.0, 2_500_600.0)
+    gk = OrthoGrid(CRS.from_epsg(4546), e - 0.2, n + 0.2, 0.4, 30, 20)  # cell (0, 0) centred on that point
+    x, y = truth.local_xy(gk, np.array([0]), np.array([0]))
+    assert abs(x[0] - 300.0) < 1e-3 and abs(y[0] - 600.0) < 1e-3
+    assert abs(n - 2_500_600.0) > 100  # the grids differ there (UTM's scale 0.9996): the test is not the identity
