@@ -5,8 +5,8 @@ without, each way conventional and true ortho (the chain's occlusion test: ``lid
 ``crowns.gpkg``), mosaicked, checked by ``ortho check`` against the simulator's true orthophoto (open ground and
 roofs, the reference read through the coordinate operation), and measured against the simulator's geometry by
 ``bench/eval_true_ortho_fill.py`` (occluded ground filled from a frame that sees it) and
-``bench/eval_true_ortho_occlusion.py`` (ghosts). The truth is ray cast at each DOM cell's centre taken to the project
-CRS (``eval_true_ortho_occlusion.Truth.local_xy``).
+``bench/eval_true_ortho_occlusion.py`` (ghosts, seams on roofs). The truth is ray cast at each DOM cell's centre
+taken to the project CRS (``eval_true_ortho_occlusion.Truth.local_xy``).
 
 Usage: python bench/eval_true_ortho_crs.py --demo PROJECT [--crs gk3:cgcs2000] [--work DIR] [--key KEY] [--reuse]
 (PROJECT a demo project after ``aerotri run``). Writes bench/results/true_ortho_crs.json.
@@ -111,6 +111,8 @@ def main() -> None:
         for way in ("conventional", "true_ortho"):
             m = E.measure_way(args.work / tag / way, truth, grid, kind, ground, roof, vis, foot_nadir, masks)
             res["ways"][way]["ghosts"] = m["ghosts"]
+            res["ways"][way]["seams"] = {k: v for k, v in m["seams"].items()
+                                         if k not in ("pairs", "roofs_crossed_detail")}
         out["grids"][tag] = res
         print(tag, json.dumps({k: v for k, v in res.items() if k != "ways"}), flush=True)
     out["commit"] = git_commit(REPO)
