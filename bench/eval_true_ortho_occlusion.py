@@ -199,14 +199,16 @@ class Truth:
                                      "m): the simulator changed since the project was made")
 
     def local_xy(self, grid, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Local scene coordinates (m) of the centres of ``grid``'s cells (``rows``, ``cols``; arrays of one shape):
-        a grid in another CRS than the project's (``ortho rectify --crs``) through PROJ's operation between them
-        (the ballpark one where PROJ knows none, as ``--allow-ballpark``)."""
+        """Local scene coordinates (m) of the centres of ``grid``'s cells (``rows``, ``cols``: arrays that broadcast
+        together; in the project CRS the results keep their own shapes, a row and a column of the grid stay that): a
+        grid in another CRS than the project's (``ortho rectify --crs``) through PROJ's operation between them (the
+        ballpark one where PROJ knows none, as ``--allow-ballpark``)."""
         xs = grid.x_left_m + (np.asarray(cols, float) + 0.5) * grid.res_m
         ys = grid.y_top_m - (np.asarray(rows, float) + 0.5) * grid.res_m
         if not grid.crs.equals(self.crs):
             from pyproj import Transformer
 
+            xs, ys = (np.ascontiguousarray(a) for a in np.broadcast_arrays(xs, ys))
             xs, ys = Transformer.from_crs(grid.crs, self.crs, always_xy=True).transform(xs, ys)
         return np.asarray(xs) - self.origin[0], np.asarray(ys) - self.origin[1]
 
@@ -579,8 +581,9 @@ def truth_on_grid(truth: Truth, project: Path, grid):
     from aerotri.sim.scene import KIND_ROOF, KIND_TERRAIN
 
     H, W = grid.height, grid.width
-    rows, cols = np.indices((H, W))
-    X, Y = (a.ravel() for a in truth.local_xy(grid, rows, cols))
+    # (a row and a column in the project CRS, broadcast as before: no grid of indices)
+    X, Y = (np.broadcast_to(a, (H, W)).ravel()
+            for a in truth.local_xy(grid, np.arange(H)[:, None], np.arange(W)[None, :]))
     kind, _, _ = truth.surface(X, Y)
     kind = kind.reshape(H, W)
     ground = kind == KIND_TERRAIN
