@@ -37,37 +37,27 @@ def copy_demo(src: Path, dst: Path) -> None:
 
 
 def make_dom(project: Path, true_ortho: bool, crs: str | None) -> dict:
-    """Rectify (the chain's true ortho, or conventional on the DEM) into ``crs`` (None: the project CRS), mosaic,
-    check against truth/ortho.tif; times and the check's figures."""
-    from aerotri.core.executor import Executor
-    from ortho.block import rectify_block
+    """Rectify (the chain's true ortho, or conventional on the DEM) into ``crs`` (None: the project CRS) and mosaic
+    (``eval_true_ortho_occlusion.make_dom``), check against truth/ortho.tif; times and the check's figures."""
+    import eval_true_ortho_occlusion as E
+
+    from ortho.block import read_index
     from ortho.check import run_check
-    from ortho.mosaic import mosaic_block
-    from ortho.settings import MosaicSettings, RectifySettings
 
     lo = project / "lidar_out"
-    settings = RectifySettings(crs=crs, true_ortho=True, dsm=str(lo / "dsm.tif"),
-                               occlusion_dsm=str(lo / "dsm_crowns.tif"), crowns=str(lo / "crowns.gpkg")) \
-        if true_ortho else RectifySettings(crs=crs)
-    with Executor() as ex:
-        t, c = time.perf_counter(), time.process_time()
-        done = rectify_block(project, settings, executor=ex, allow_ballpark=crs is not None)
-        rect = {"wall_s": round(time.perf_counter() - t, 2), "cpu_s": round(time.process_time() - c, 2)}
-        t, c = time.perf_counter(), time.process_time()
-        summary = json.loads(mosaic_block(project, MosaicSettings(), executor=ex).summary_path.read_text())
-        mos = {"wall_s": round(time.perf_counter() - t, 2), "cpu_s": round(time.process_time() - c, 2)}
-    mp = sum(g.width * g.height for g in done.grids) / 1e6
-    rect.update(frame_ortho_mp=round(mp, 2), cpu_s_per_mp=round(rect["cpu_s"] / mp, 4),
-                crs=done.grids[0].crs.to_string())
+    made = E.make_dom(project, true_ortho, occlusion_dsm=lo / "dsm_crowns.tif", crowns=lo / "crowns.gpkg", crs=crs)
+    rect = {k: round(made["rectify"][k], 2) for k in ("wall_s", "cpu_s", "frame_ortho_mp")}
+    rect.update(cpu_s_per_mp=round(made["rectify"]["cpu_s_per_mp"], 4),
+                crs=read_index(project).grids[0].crs.to_string())
     check = run_check(project, reference_path=project / "truth" / "ortho.tif", allow_ballpark=crs is not None)
     report = json.loads((project / "ortho" / "dom_report.json").read_text())
     figures = {"open_ground": {k: report["displacement"].get(k) for k in ("count", "rms_xy_m", "median_xy_m")},
                "roofs": None if check.roofs is None else
                {k: (report.get("roofs") or {}).get(k) for k in ("count", "rms_xy_m", "median_xy_m")},
                "roof_corners": check.roof_corners, "reference_operation": report.get("reference_operation")}
-    return {"rectify": rect, "mosaic": mos, "check": figures,
-            "cells_seen_by_no_frame": summary.get("cells_seen_by_no_frame"),
-            "cells_on_objects": summary.get("cells_on_objects")}
+    return {"rectify": rect, "mosaic": {k: round(v, 2) for k, v in made["mosaic"].items()}, "check": figures,
+            "cells_seen_by_no_frame": made["summary"].get("cells_seen_by_no_frame"),
+            "cells_on_objects": made["summary"].get("cells_on_objects")}
 
 
 def main() -> None:

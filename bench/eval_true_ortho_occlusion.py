@@ -102,23 +102,25 @@ def copy_tall(src: Path, dst: Path) -> None:
 
 
 def make_dom(project: Path, true_ortho: bool, eo_path=None, camera_path=None, footprints=None, crown_base=None,
-             occlusion_dsm=None, crowns=None) -> dict:
+             occlusion_dsm=None, crowns=None, crs=None) -> dict:
     """Rectify (``footprints``: a footprints GeoPackage, ``crown_base``: a crown-base raster, ``occlusion_dsm``: a DSM
-    of its own, in the true ortho's occlusion test) and mosaic the project; the rectify and mosaic times."""
+    of its own, in the true ortho's occlusion test; ``crs``: the output CRS, PROJ's ballpark operation accepted, as
+    ``ortho rectify --crs ... --allow-ballpark``) and mosaic the project; the rectify and mosaic times."""
     from aerotri.core.executor import Executor
     from ortho.block import rectify_block
     from ortho.mosaic import mosaic_block
     from ortho.settings import MosaicSettings, RectifySettings
 
-    settings = RectifySettings(true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
+    settings = RectifySettings(crs=crs, true_ortho=True, dsm=str(project / "lidar_out" / "dsm.tif"),
                                footprints=str(footprints) if footprints else None,
                                crown_base=str(crown_base) if crown_base else None,
                                occlusion_dsm=str(occlusion_dsm) if occlusion_dsm else None,
                                crowns=str(crowns) if crowns else None) if true_ortho \
-        else RectifySettings()
+        else RectifySettings(crs=crs)
     with Executor() as ex:
         t, c = time.perf_counter(), time.process_time()
-        done = rectify_block(project, settings, eo_path=eo_path, camera_path=camera_path, executor=ex)
+        done = rectify_block(project, settings, eo_path=eo_path, camera_path=camera_path, executor=ex,
+                             allow_ballpark=crs is not None)
         rect = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
         t, c = time.perf_counter(), time.process_time()
         summary = json.loads(mosaic_block(project, MosaicSettings(), executor=ex).summary_path.read_text())
@@ -142,20 +144,15 @@ def remosaic_dom(project: Path) -> dict:
 
 # ------------------------------------------------------------------------------------------------ the truth
 
-def _project_crs(project: Path):
-    import tomllib
-
-    from pyproj import CRS
-
-    return CRS.from_user_input(tomllib.loads((project / "project.toml").read_text())["project"]["crs"])
-
-
 class Truth:
     """The simulated scene of a project, its origin and the true projection centres."""
 
     def __init__(self, project: Path, overrides: tuple = ()):
         """``overrides``: the ``--set`` options the block was simulated with (truth.json does not keep them; e.g. a
         DMC subset's ``flight.strips=2``: the scene grows with the flight)."""
+        from pyproj import CRS
+
+        from aerotri.core.project import Project
         from aerotri.sim import raycast
         from aerotri.sim.config import load_preset
         from aerotri.sim.flight import block_layout
@@ -170,7 +167,7 @@ class Truth:
         self.scene = build_scene(cfg.scene, layout.width_m, layout.height_m, self.origin, scene_seed)
         self.accel = raycast.build_accel(self.scene)
         self.cast_many = raycast.cast_many
-        self.crs = _project_crs(project)
+        self.crs = CRS.from_user_input(Project.open(project).crs)
         self._check(project)
         self.centres = {}
         for line in (project / "truth" / "eo.txt").read_text().splitlines():
