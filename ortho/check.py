@@ -972,6 +972,16 @@ def roofs_not_measured_words(report: "DomCheck") -> str:
     return f" ({'; '.join(parts)})" if parts else ""
 
 
+def reference_ballpark_words(report: "DomCheck") -> str:
+    """Words for a reference reached through PROJ's ballpark operation (empty otherwise): the datum shift between the
+    DOM's CRS and the reference's was ignored and is in the check's figures (the console, the report and the
+    accuracy report say it alike)."""
+    if not report.reference_ballpark:
+        return ""
+    return ("PROJ's ballpark operation, accepted with --allow-ballpark: the datum shift between them is ignored and "
+            "is in the figure")
+
+
 def roofs_in_nodata_warning(in_nodata: int, measured: int) -> str | None:
     """The warning when more than ``ROOF_MAX_IN_NODATA_PCT`` of the roof corners with a usable peak were counted
     in the DOM's nodata (``roof_evidence_in_nodata``): the rule may be hiding roofs that moved; None otherwise."""

@@ -170,6 +170,10 @@ def check(*, project, reference_path, points_path, dom_path, out_stem, params_pa
     report = run_check(project, settings, reference_path=reference_path, points_path=points_path, dom_path=dom_path,
                        out_stem=out_stem, params=params_path, allow_ballpark=allow_ballpark)
     click.echo(_check_line(report, "patches" if reference_path else "points"))
+    if report.reference_ballpark:  # the figures hold the datum shift: said beside them, not only in the JSON
+        from ortho.check import reference_ballpark_words
+
+        click.echo(f"reference through {report.reference_operation}: {reference_ballpark_words(report)}")
     if report.roofs is not None:
         click.echo(_roofs_line(report))
     if report.seams is not None:

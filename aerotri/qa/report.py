@@ -434,8 +434,9 @@ def _dom_crs_note(dom_check, project: Project) -> str:
     if dom_check.reference_operation:
         note += f"; reference through {dom_check.reference_operation}"
         if dom_check.reference_ballpark:
-            note += " (PROJ's ballpark operation, accepted with --allow-ballpark: the datum shift between them is " \
-                    "ignored and is in the figure)"
+            from ortho.check import reference_ballpark_words
+
+            note += f" ({reference_ballpark_words(dom_check)})"
     return note
 
 

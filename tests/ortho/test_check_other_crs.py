@@ -159,3 +159,26 @@ def test_a_reference_in_degrees_is_measured_through_the_operation(tmp_path):
     rep = run_check(tmp_path / "proj", reference_path=tmp_path / "geo.tif", dom_path=dom, out_stem=tmp_path / "r",
                     allow_ballpark=True)
     assert rep.displacement.count > 10 and rep.displacement.rms_xy_m < 0.05
+
+
+def test_the_console_says_a_ballpark_reference_beside_the_figures(tmp_path):
+    """``ortho check --allow-ballpark`` printed its RMS with no word that the reference was reached through PROJ's
+    ballpark operation (the report and the JSON said it, the console not): the line beside the figures says it; a
+    check in one CRS says nothing of it."""
+    from click.testing import CliRunner
+
+    from ortho.cli import main
+
+    ref, _ = _reference(tmp_path)
+    lines = {}
+    for crs, name in ((GK, "dom_gk.tif"), (UTM, "dom_utm.tif")):
+        dom = _dom_in(tmp_path, ref, crs, name)
+        r = CliRunner().invoke(main, ["check", str(tmp_path / "proj"), "--reference",
+                                      str(tmp_path / "truth" / "ortho.tif"), "--dom", str(dom),
+                                      "--out", str(tmp_path / f"report_{name}"), "--allow-ballpark"])
+        assert r.exit_code == 0, r.output
+        lines[name] = r.output.splitlines()
+    said = [ln for ln in lines["dom_gk.tif"] if "ballpark" in ln]
+    assert len(said) == 1 and said[0].startswith("reference through EPSG:4546 -> EPSG:32649")
+    assert "datum shift" in said[0] and "--allow-ballpark" in said[0]
+    assert not [ln for ln in lines["dom_utm.tif"] if "ballpark" in ln]
