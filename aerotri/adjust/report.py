@@ -525,6 +525,27 @@ def _flight_offset_unobserved(ba) -> bool:
     return ba.opts.gnss_correction == "offset" and not gnss_model.offset_observed(ba.block)
 
 
+def _flight_offset_rows(rep: dict) -> bool:
+    """Whether report.json's ``gnss_strips`` hold one offset for the flight (``[adjust] gnss_correction = "offset"``)
+    rather than corrections per strip: the rows' ``flight``; a report written before the rows said it, from the
+    option's words."""
+    rows = rep.get("gnss_strips") or []
+    if rows and "flight" in rows[0]:
+        return bool(rows[0]["flight"])
+    return str((rep.get("options") or {}).get("gps_shift_drift_correction", "")).startswith("Enabled (one offset")
+
+
+def _gnss_corrections_table(rep: dict, table):
+    """The HTML report's GNSS corrections: per strip its shift and drift, or the flight's one offset (no drift)."""
+    rows = rep.get("gnss_strips")
+    if not rows:
+        return None
+    if _flight_offset_rows(rep):
+        return table(["flight", "shift E m", "shift N m", "shift U m"], [["all", *s["shift_m"]] for s in rows], 4)
+    return table(["strip", "shift E m", "shift N m", "shift U m", "drift E m/km", "drift N m/km", "drift U m/km"],
+                 [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]] for s in rows], 4)
+
+
 def _offset_unobserved(mode: str, ba) -> str:
     """The GNSS correction option, said "not estimated" for such an offset."""
     if _flight_offset_unobserved(ba):
@@ -1692,9 +1713,10 @@ def build_report(ba, map_scale: str = "1:5000", terrain: str = "flat", tolerance
         "removed_observations": removed,
         "worst_tie_points": worst_points,
         "self_calibration": _self_calibration(ba),
-        # estimated false: one offset for the flight nothing but the GNSS observes, at its a-priori value
-        "gnss_strips": [{"strip": s + 1, "shift_m": _lst(r.state.shift[s], 4),
-                         "drift_m_per_km": _lst(r.state.drift[s], 4),
+        # estimated false: one offset for the flight nothing but the GNSS observes, at its a-priori value; flight
+        # true: the one row is the whole flight's offset ([adjust] gnss_correction = "offset"), no strip's
+        "gnss_strips": [{"strip": s + 1, "flight": opts.gnss_correction == "offset",
+                         "shift_m": _lst(r.state.shift[s], 4), "drift_m_per_km": _lst(r.state.drift[s], 4),
                          "estimated": not _flight_offset_unobserved(ba)}
                         for s in range(G.n_shifts(b, opts.gnss_correction))] if opts.gnss_correction != "none" else None,
         "gnss_directions": _directions_dict(dirc),
@@ -2174,7 +2196,7 @@ def format_txt(rep: dict) -> str:
         L += [""] + _self_calibration_txt(rep["self_calibration"])
     if rep["gnss_strips"]:
         # on the local east, north, up as the solve estimates them; one offset for a flight is not a strip's (txt2 L10)
-        flight = str(rep["options"].get("gps_shift_drift_correction", "")).startswith("Enabled (one offset")
+        flight = _flight_offset_rows(rep)
         # the sign: GNSS - adjusted antenna, what is subtracted from the GNSS positions (trial s103 F4)
         L += ["", "GNSS correction: one offset for the flight" if flight else "GNSS corrections per strip",
               f"{'flight' if flight else 'strip':>6} {'shift E':>9} {'N':>9} {'U':>9}"
@@ -2359,9 +2381,7 @@ def format_html(rep: dict, ba=None) -> str:
         check_notes=list(rep.get("check_blunders") or []) + (
             [lidar_check_points_words(rep["check_points_from_lidar"])] if rep.get("check_points_from_lidar") else []),
         check_points=None, check_sums=None, check_normalised=" ".join("-" if x is None else f"{x:.2f}" for x in rep["check_normalised_rms"] or []),
-        gnss=gnss, gnss_strips=T(["strip", "shift E m", "shift N m", "shift U m", "drift E m/km", "drift N m/km",
-                                  "drift U m/km"], [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]]
-                                                    for s in rep["gnss_strips"]], 4) if rep.get("gnss_strips") else None,
+        gnss=gnss, gnss_strips=_gnss_corrections_table(rep, T),
         gnss_directions=_directions_html(rep.get("gnss_directions"), T),
         flight_tables=RF.flight_tables(fa) if fa else None,
         self_calibration=None,

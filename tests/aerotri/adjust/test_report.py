@@ -572,6 +572,16 @@ def test_one_flight_offset_is_not_listed_as_a_strip_s_correction(tmp_path):
     assert [float(v) for v in txt[at + 2].split()[1:]] == pytest.approx(rep["gnss_strips"][0]["shift_m"], abs=6e-4)
     assert txt[at + 2].split()[0] == "all" and "GNSS corrections per strip" not in txt
     assert rep["gnss_strips"][0]["estimated"] and "not estimated" not in rep["options"]["gps_shift_drift_correction"]
+    # the rows say it is the flight's offset, not the option's words (the text report parsed them); the HTML table
+    # the same: the flight's offset, no strip and no drift columns (they listed strip 1 with its zero drift)
+    assert [s["flight"] for s in rep["gnss_strips"]] == [True]
+    worded = {**rep, "options": {**rep["options"], "gps_shift_drift_correction": "Enabled"}}
+    assert "GNSS correction: one offset for the flight" in report.format_txt(worded).splitlines()
+    html = report.format_html(rep)
+    assert "<th>flight</th>" in html.replace(" ", "") and "drift E m/km" not in html
+    # a report written before the rows said it: from the option's words, as then
+    old = {**rep, "gnss_strips": [{k: v for k, v in rep["gnss_strips"][0].items() if k != "flight"}]}
+    assert "GNSS correction: one offset for the flight" in report.format_txt(old).splitlines()
     # without control or a DEM nothing observes the offset: its a-priori zero is not a result (trial s103 F1)
     ba = adjust_project(root, AdjustSettings(gnss_correction="offset", image_sigma_px=0.3, use_control=False))
     rep = to_record(report.build_report(ba))
