@@ -541,7 +541,12 @@ def _gnss_corrections_table(rep: dict, table):
     if not rows:
         return None
     if _flight_offset_rows(rep):
-        return table(["flight", "shift E m", "shift N m", "shift U m"], [["all", *s["shift_m"]] for s in rows], 4)
+        # an offset nothing but the GNSS observes stays at its a-priori value: said, not shown as a result (s103 F1)
+        unobserved = [not s.get("estimated", True) for s in rows]
+        return table(["flight", "shift E m", "shift N m", "shift U m"] + (["estimated"] if any(unobserved) else []),
+                     [["all", *(v + 0.0 for v in s["shift_m"])]
+                      + (["no: no control point or DEM observes it (its a-priori value)" if u else "yes"]
+                         if any(unobserved) else []) for s, u in zip(rows, unobserved)], 4)
     return table(["strip", "shift E m", "shift N m", "shift U m", "drift E m/km", "drift N m/km", "drift U m/km"],
                  [[s["strip"], *s["shift_m"], *s["drift_m_per_km"]] for s in rows], 4)
 

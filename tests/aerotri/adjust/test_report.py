@@ -589,6 +589,10 @@ def test_one_flight_offset_is_not_listed_as_a_strip_s_correction(tmp_path):
     at = txt.index("GNSS correction: one offset for the flight")
     assert not rep["gnss_strips"][0]["estimated"] and "-0.000" not in txt[at + 2]
     assert txt[at + 2].endswith("  not estimated: no control point or DEM observes it (its a-priori value)")
+    # report.html the same (it showed -0.0000 as the flight's offset; a real consumer-GNSS block, Brighton Beach)
+    html = report.format_html(rep)
+    gnss = html[html.index("<h2>GNSS</h2>"):html.index("GNSS residuals by flight direction")]
+    assert "no control point or DEM observes it (its a-priori value)" in gnss and "-0.0000" not in gnss
     assert rep["options"]["gps_shift_drift_correction"] == (
         "Enabled (one offset for the flight; not estimated: no control point or DEM observes it, its a-priori value "
         "kept)")
