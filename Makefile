@@ -23,9 +23,9 @@ $(STAMP): pyproject.toml $(CONSTRAINTS) | $(BIN)/python
 	$(BIN)/python -m compileall -qq -j 0 $(VENV)/lib || true
 	touch $(STAMP)
 
-# The numba kernels a demo run and the test suite call, compiled into their cache (__pycache__ beside each module)
-# before the first run, on every core: else the first run compiles them one after another on one core
-# (aerotri/core/precompile.py, docs/testing.md). A kernel changed later compiles on its next call, as without this step.
+# The numba kernels a demo run calls, compiled into their cache (__pycache__ beside each module) before the first
+# run, on every core: else the first run compiles them one after another on one core (aerotri/core/precompile.py,
+# docs/testing.md). A kernel changed later compiles on its next call, as without this step.
 $(KERNELS): $(STAMP) aerotri/core/numba_signatures.txt
 	$(BIN)/python -m aerotri.core.precompile
 	touch $(KERNELS)

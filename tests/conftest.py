@@ -256,26 +256,14 @@ def pytest_collection_finish(session) -> None:
         # our copy of the lock's descriptor is closed: the build process holds the lock alone
 
 
-# a folder: each test process writes the numba signatures its tests called there at the end of the run
-# (``bench/record_numba_signatures.py --suite``, which lists them for ``make install`` to compile beforehand)
-RECORD_SIGNATURES_ENV = "AEROTRI_RECORD_NUMBA_SIGNATURES"
-
-
 def pytest_sessionfinish(session, exitstatus) -> None:
     """Wait for the background builds (a test of the other worker may be waiting for one); a stopped run
-    (``-x``, ``--maxfail``, interrupted) kills them. With ``RECORD_SIGNATURES_ENV`` set: the signatures of the
-    kernels this process called, written to that folder."""
+    (``-x``, ``--maxfail``, interrupted) kills them."""
     stopped = session.shouldstop or session.shouldfail or exitstatus not in (0, 1)
     for proc in _background:
         if stopped and proc.poll() is None:
             proc.kill()
         proc.wait()
-    record = os.environ.get(RECORD_SIGNATURES_ENV)
-    if record:
-        from aerotri.core.precompile import loaded_signatures, write_manifest
-
-        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
-        write_manifest(loaded_signatures(), Path(record) / f"{worker}.txt")
 
 
 @pytest.fixture(scope="session")

@@ -4,8 +4,7 @@ Every kernel of the toolkit is ``numba.njit(cache=True)``: compiled on its first
 ``__pycache__`` beside its source. On a fresh install that first compilation happens inside the first run, one
 kernel after another on one core (``make demo`` on a fresh clone: 3-3.5 of its 6-6.5 min; docs/testing.md).
 ``make install`` therefore compiles them beforehand, like ``compileall`` does the bytecode: the signatures a
-demo run and the test suite call (``numba_signatures.txt`` beside this module, written by
-``bench/record_numba_signatures.py --suite``) are
+demo run calls (``numba_signatures.txt`` beside this module, ``bench/record_numba_signatures.py`` writes it) are
 compiled in worker processes, a module per task, the largest first. A kernel later called with another
 signature still compiles on its first call; a stale entry (a kernel renamed, its argument types changed) is
 reported and left out, never an error of the install.
