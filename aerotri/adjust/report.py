@@ -544,7 +544,7 @@ def _gnss_corrections_table(rep: dict, table):
         # an offset nothing but the GNSS observes stays at its a-priori value: said, not shown as a result (s103 F1)
         unobserved = [not s.get("estimated", True) for s in rows]
         return table(["flight", "shift E m", "shift N m", "shift U m"] + (["estimated"] if any(unobserved) else []),
-                     [["all", *(v + 0.0 for v in s["shift_m"])]
+                     [["all", *s["shift_m"]]
                       + (["no: no control point or DEM observes it (its a-priori value)" if u else "yes"]
                          if any(unobserved) else []) for s, u in zip(rows, unobserved)], 4)
     return table(["strip", "shift E m", "shift N m", "shift U m", "drift E m/km", "drift N m/km", "drift U m/km"],

@@ -529,13 +529,14 @@ class Table:
 
 
 def cell(v, nd: int = 3) -> str:
-    """A value as table text: None empty, booleans yes/no, floats with ``nd`` decimals (not finite: empty)."""
+    """A value as table text: None empty, booleans yes/no, floats with ``nd`` decimals (not finite: empty; a value
+    that rounds to zero is 0, never -0, as the text report's figures since trial s103 F1)."""
     if v is None:
         return ""
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, float):
-        return f"{v:.{nd}f}" if math.isfinite(v) else ""
+        return f"{round(v, nd) + 0.0:.{nd}f}" if math.isfinite(v) else ""
     return str(v)
 
 

@@ -469,3 +469,11 @@ def test_the_gnss_figure_says_when_nothing_checks_the_positions():
     assert "The GNSS's redundancy is 0.0 of 12 observations: the images do not check" in fig.caption
     rep["variance_components"][0]["redundancy"] = 6.0
     assert "redundancy" not in gnss_strip_plot(rep).caption
+
+
+def test_a_table_cell_that_rounds_to_zero_is_never_minus_zero():
+    """report.html's cells printed a shift held at its a-priori zero as -0.0000 (Brighton Beach's flight offset), and
+    any tiny negative the same; the text report writes 0 since trial s103 F1, the HTML's cells now too."""
+    assert RF.cell(-0.0, 4) == "0.0000" and RF.cell(-4e-5, 4) == "0.0000" and RF.cell(-6e-5, 4) == "-0.0001"
+    assert RF.cell(0.12345, 3) == f"{0.12345:.3f}" and RF.cell(-2.5, 1) == "-2.5" and RF.cell(float("nan")) == ""
+    assert RF.cell(True) == "yes" and RF.cell(3) == "3" and RF.cell(None) == ""
