@@ -200,8 +200,7 @@ class Truth:
         together; in the project CRS the results keep their own shapes, a row and a column of the grid stay that): a
         grid in another CRS than the project's (``ortho rectify --crs``) through PROJ's operation between them (the
         ballpark one where PROJ knows none, as ``--allow-ballpark``)."""
-        xs = grid.x_left_m + (np.asarray(cols, float) + 0.5) * grid.res_m
-        ys = grid.y_top_m - (np.asarray(rows, float) + 0.5) * grid.res_m
+        xs, ys = grid.centres(rows, cols)
         if not grid.crs.equals(self.crs):
             from pyproj import Transformer
 
