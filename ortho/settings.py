@@ -59,7 +59,8 @@ class RectifySettings:
              "ortho's occlusion test: inside them the DSM is solid; a roof overhang outside them (within 1.5 m, 2 m "
              "above the DEM) hides only down to 0.3 m below its building's eave line and only within the roof outline "
              "(the footprint grown by the eave width the DSM gives, at most 1 m), so ground seen beneath and beside "
-             "eaves is kept (docs/true-ortho.md).")
+             "eaves is kept (docs/true-ortho.md). aerotri run on the LiDAR stages' DSM without it: the roof outlines "
+             "the corners stage traced (lidar_out/roof_outlines.gpkg).")
     crown_base: Path | None = setting(
         None, path=True,
         help="Tree crown bases (GeoTIFF on the DSM's grid: per cell the height of the lowest vegetation return, nodata "

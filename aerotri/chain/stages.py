@@ -663,7 +663,8 @@ class Chain:
         path = self.project.corners_summary_path
         usable = read_corner_summary(path).stats.n_usable > 0 if path.is_file() else True
         return [self.project.corners_summary_path] + (
-            [self.project.corners_path, self.project.roof_planes_path] if usable else [])
+            [self.project.corners_path, self.project.roof_planes_path, self.project.roof_outlines_path]
+            if usable else [])
 
     def run_corners(self, root) -> R.CornersResult:
         from lidarctl.corners.roof_corners import corner_control
@@ -970,7 +971,9 @@ class Chain:
         """[rectify] with the chain's defaults: the DEM of ``dem_path``; a true ortho on the DSM whenever there is
         one (``dsm_path``) and [rectify] true_ortho is not set (``true_ortho = false``: the conventional ortho); on
         the LiDAR stages' DSM its occlusion test on their nearest-return DSM with the trees' fitted crowns
-        (lidar_out/dsm_crowns.tif and lidar_out/crowns.gpkg) unless [rectify] occlusion_dsm says otherwise."""
+        (lidar_out/dsm_crowns.tif and lidar_out/crowns.gpkg) unless [rectify] occlusion_dsm says otherwise, and the
+        roof outlines the corners stage traced as the building footprints (lidar_out/roof_outlines.gpkg,
+        ``lidar_roof_outlines``) unless [rectify] footprints names a cadastre."""
         r = self.stage_settings("rectify")
         if r.settings.dem is None and self.dem_path() is not None:
             # (trial s105: a block without LiDAR has the tie points' DEM, said to be "the LiDAR stages' DEM")
@@ -987,7 +990,30 @@ class Chain:
                 if r.settings.crowns is None:
                     r = r.replace("crowns", self.project.crowns_path, r.sources.get("crowns", DEFAULT),
                                   "the LiDAR stages' tree crowns fitted to their returns")
+            if r.settings.footprints is None and self.lidar_roof_outlines() is not None:
+                r = r.replace("footprints", self.project.roof_outlines_path, r.sources.get("footprints", DEFAULT),
+                              "the LiDAR stages' roof outlines: no cadastre given")
         return r
+
+    def lidar_roof_outlines(self) -> Path | None:
+        """lidar_out/roof_outlines.gpkg when the corners stage writes it (it has, or has not run yet: its outputs are
+        decided as ``corner_outputs`` decides them) in the project CRS; None without LiDAR, when it found no usable
+        corner (it writes no outlines then) or traced them in another CRS."""
+        from aerotri.geom.crs.definition import same_horizontal
+        from lidarctl.corners.roof_corners import read_corner_summary
+
+        if not self.has_lidar:
+            return None
+        path = self.project.corners_summary_path
+        if path.is_file():
+            summary = read_corner_summary(path)
+            if summary.stats.n_usable == 0 or summary.crs is None:
+                return None
+            from pyproj import CRS
+
+            if not same_horizontal(CRS.from_user_input(summary.crs), CRS.from_user_input(self.project.crs)):
+                return None
+        return self.project.roof_outlines_path
 
     def completed_settings(self) -> dict:
         """The sections the chain completes from the project folder, as ``aerotri settings`` lists them: section ->
@@ -1015,6 +1041,10 @@ class Chain:
                    else f"[rectify] true_ortho = true in {self.project.config_path.name}" if source == PROJECT_TOML
                    else f"true_ortho from the {source}")
             occl = f", occlusion on {_rel(s.occlusion_dsm, self.root)}" if s.occlusion_dsm is not None else ""
+            if s.footprints is not None:
+                lidar = Path(s.footprints) == self.project.roof_outlines_path
+                occl += (f" with the building footprints {_rel(s.footprints, self.root)}"
+                         + (" (the LiDAR's roof outlines: [rectify] footprints for a cadastre)" if lidar else ""))
             return (f"true ortho on the DSM {_rel(s.dsm, self.root)}{occl} ({why}; occluded cells filled from the frames "
                     f"that see them; [rectify] true_ortho = false for the conventional ortho on the DEM)")
         if self.dsm_path() is not None:

@@ -334,6 +334,7 @@ class Project:
     corners_path = property(lambda self: self.lidar_out_dir / "corners.csv")
     corners_summary_path = property(lambda self: self.lidar_out_dir / "corners.json")
     roof_planes_path = property(lambda self: self.lidar_out_dir / "roof_planes.geojson")  # lidarctl corners
+    roof_outlines_path = property(lambda self: self.lidar_out_dir / "roof_outlines.gpkg")  # lidarctl corners
     height_check_path = property(lambda self: self.lidar_out_dir / "height_check.json")
     classification_eval_path = property(lambda self: self.lidar_out_dir / "classification_eval.json")
     vectors_path = property(lambda self: self.lidar_out_dir / "vectors.gpkg")  # [vectors] enabled: the line map

@@ -123,6 +123,8 @@ SUPPORT_FULL_BINS = MIN_EDGE_SPACINGS - 2.0 * CORNER_MARGIN_SPACINGS
 RIGHT_ANGLE_TOL_DEG = 5.0
 MIN_OBLIQUE_TURN_DEG = 30.0
 ROOF_PLANES_FILE = "roof_planes.geojson"
+ROOF_OUTLINES_FILE = "roof_outlines.gpkg"  # the roof outlines as a GeoPackage (QGIS; the true ortho's footprints)
+OUTLINES_TIMESTAMP = "2000-01-01T00:00:00.000Z"  # GDAL's time stamp in the GeoPackage: the same data, the same bytes
 
 CSV_COLUMNS = [
     "id", "x", "y", "z", "sx_m", "sy_m", "sz_m", "roof", "building_id",
@@ -294,6 +296,7 @@ class CornerFiles:
     planes: Path
     summary_json: Path
     summary: CornerControlResult | None
+    outlines: Path | None = None  # roof_outlines.gpkg (None: the corners have no CRS to write it in)
 
 
 def read_classified_cloud(path, crs=None, require_crs: bool = False) -> las_io.PointCloud:
@@ -1212,10 +1215,9 @@ def valid_outline(rings: list[np.ndarray]) -> dict | None:
     return json.loads(shapely.to_geojson(shapely.orient_polygons(poly)))  # exteriors CCW, holes CW
 
 
-def _corners_geojson_document(corners: list[dict], outlines: list[dict], crs=None) -> dict:
-    """Corners (Point) and regularised roof outlines (Polygon or MultiPolygon, valid: ``valid_outline``;
-    exteriors CCW, courtyards CW), map CRS."""
-    feats = []
+def _outline_features(outlines: list[dict]) -> list[tuple[dict, dict]]:
+    """(GeoJSON geometry, properties) of each regularised roof outline that keeps an area (``valid_outline``)."""
+    out = []
     for o in outlines:
         if not o["rings"] or len(o["rings"][0]) < 3:
             continue  # no exterior ring left
@@ -1225,7 +1227,15 @@ def _corners_geojson_document(corners: list[dict], outlines: list[dict], crs=Non
         props = {k: o[k] for k in ("building_id", "roof", "n_points", "n_planes")}
         props.update(spacing_m=round(o["spacing_m"], 3), sigma0=round(o["sigma0"], 3),
                      theta_deg=round(o["theta_deg"], 3))
-        feats.append({"type": "Feature", "geometry": geometry, "properties": {"kind": "roof_outline", **props}})
+        out.append((geometry, props))
+    return out
+
+
+def _corners_geojson_document(corners: list[dict], outlines: list[dict], crs=None) -> dict:
+    """Corners (Point) and regularised roof outlines (Polygon or MultiPolygon, valid: ``valid_outline``;
+    exteriors CCW, courtyards CW), map CRS."""
+    feats = [{"type": "Feature", "geometry": geometry, "properties": {"kind": "roof_outline", **props}}
+             for geometry, props in _outline_features(outlines)]
     for c in corners:
         props = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items() if k not in ("x", "y", "z")}
         xyz = [round(c["x"], 3), round(c["y"], 3), round(c["z"], 3)]
@@ -1237,6 +1247,25 @@ def _corners_geojson_document(corners: list[dict], outlines: list[dict], crs=Non
         name = f"urn:ogc:def:crs:EPSG::{epsg}" if epsg else str(crs)
         out["crs"] = {"type": "name", "properties": {"name": name}}  # legacy member: coordinates are projected
     return out
+
+
+def write_roof_outlines(path, outlines: list[dict], crs) -> Path:
+    """The regularised roof outlines as a GeoPackage (layer ``roof_outlines``, MultiPolygon, in ``crs``): the
+    eave lines the LiDAR traced, for QGIS and as the true ortho's building footprints when no cadastre is given
+    (``ortho rectify --footprints``; the chain's default, ``[rectify] footprints``)."""
+    from shapely.geometry import shape
+
+    from aerotri.core.vector_files import VectorLayer, write_layers
+
+    feats = _outline_features(outlines)
+    geoms = [shape(g) for g, _ in feats]
+    fields = {"building_id": np.array([int(p["building_id"]) for _, p in feats], np.int64),
+              "roof": np.array([str(p["roof"]) for _, p in feats], object),
+              "n_points": np.array([int(p["n_points"]) for _, p in feats], np.int64),
+              "spacing_m": np.array([float(p["spacing_m"]) for _, p in feats], float)}
+    note = "regularised roof (eave) outlines of lidarctl corners; building_id as in corners.csv"
+    return write_layers(path, [VectorLayer("roof_outlines", "MultiPolygon", geoms, fields, note=note)], crs=crs,
+                        timestamp=OUTLINES_TIMESTAMP)
 
 
 ROOF_PLANE_MODEL = (
@@ -1298,8 +1327,8 @@ def _faces_in_crs_units(faces: list[dict], units) -> list[dict]:
 
 def write_corner_files(outdir, result: RoofCorners, crs=None, source: str | None = None, inputs=(),
                        settings_record: dict | None = None) -> CornerFiles:
-    """Write corners.csv, corners.geojson, roof_planes.geojson and corners.json (summary) atomically; return
-    the paths and the summary.
+    """Write corners.csv, corners.geojson, roof_planes.geojson, roof_outlines.gpkg (with a ``crs``) and corners.json
+    (summary) atomically; return the paths and the summary.
 
     ``result``: corners and faces in the CRS's units (``RoofCorners.in_crs_units``; a result in metres without
     units is written as metres). ``inputs``: the input files, which no output may replace. ``settings_record``: the
@@ -1307,11 +1336,16 @@ def write_corner_files(outdir, result: RoofCorners, crs=None, source: str | None
     outdir = Path(outdir)
     files = CornerFiles(outdir / "corners.csv", outdir / "corners.geojson", outdir / ROOF_PLANES_FILE,
                         outdir / "corners.json", None)
-    for p in (files.csv, files.geojson, files.planes, files.summary_json):
-        refuse_input_as_output(p, inputs, "OUTDIR")
+    if crs is not None:
+        files = dataclasses.replace(files, outlines=outdir / ROOF_OUTLINES_FILE)
+    for p in (files.csv, files.geojson, files.planes, files.summary_json, files.outlines):
+        if p is not None:
+            refuse_input_as_output(p, inputs, "OUTDIR")
     outdir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(files.csv, corners_csv_text(result.corners))
     write_text_atomic(files.geojson, json.dumps(_corners_geojson_document(result.corners, result.outlines, crs)))
+    if files.outlines is not None:
+        write_roof_outlines(files.outlines, result.outlines, crs)
     faces = result.faces
     if result.units is None:  # still in metres (find_roof_corners' result as it is)
         from lidarctl.units import METRE
@@ -1441,7 +1475,7 @@ def _record_no_usable(outdir: Path, summary: CornerControlResult) -> CornerContr
     outdir.mkdir(parents=True, exist_ok=True)
     from aerotri.core.atomic import remove_output
 
-    for name in ("corners.csv", "corners.geojson", "corners.png", ROOF_PLANES_FILE):
+    for name in ("corners.csv", "corners.geojson", "corners.png", ROOF_PLANES_FILE, ROOF_OUTLINES_FILE):
         remove_output(outdir / name)  # with corners.json, one commit: all old on a failure
     write_text_atomic(outdir / "corners.json", summary.to_json())
     return summary
@@ -1454,7 +1488,7 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
     candidates. ``crs``: the CRS of files that have none (never guessed).
 
     Writes corners.csv, corners.geojson, roof_planes.geojson (the roof faces as surface control),
-    corners.json (summary) and, with ``settings.figure``, corners.png into ``outdir`` when at least one
+    roof_outlines.gpkg (the roof outlines: QGIS, the true ortho's footprints), corners.json (summary) and, with ``settings.figure``, corners.png into ``outdir`` when at least one
     corner is usable as control; x, y, z in the files' CRS and units, sigmas in metres (every length
     setting is in metres, also for clouds in feet). Without a usable corner it writes nothing, or, with
     ``record_none`` (the chain, which goes on without LiDAR control), only corners.json saying why
@@ -1471,7 +1505,7 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
     from lidarctl.io import check_distinct_clouds
 
     check_distinct_clouds(paths)  # a strip given twice would count every point twice
-    for name in ("corners.csv", "corners.geojson", "corners.json", "corners.png", ROOF_PLANES_FILE):
+    for name in ("corners.csv", "corners.geojson", "corners.json", "corners.png", ROOF_PLANES_FILE, ROOF_OUTLINES_FILE):
         refuse_input_as_output(outdir / name, paths, "OUTDIR")
     names = ", ".join(str(p) for p in paths)
     if s.buffer_m > s.tile_m:

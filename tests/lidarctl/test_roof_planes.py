@@ -141,3 +141,41 @@ def test_bad_roof_planes_files_are_refused(planes_dirs, tmp_path):
     # the strip sigma from the option instead of the file
     pl = read_roof_planes(tmp_path / "nosigma", utm, plane_sigma_m=0.05)
     assert pl.sigma_strip_z_m == pl.sigma_strip_xy_m == 0.05
+
+
+def test_roof_outlines_gpkg_holds_the_traced_outlines_as_footprints_for_the_true_ortho(planes_dirs):
+    """roof_outlines.gpkg (issue 42: the true ortho's building footprints where no cadastre is given): the outlines
+    of corners.geojson, read by ``ortho rectify --footprints`` in the clouds' CRS, each on its building's eave."""
+    from ortho.footprints import read_footprints
+
+    gj = json.loads((planes_dirs["utm"] / "corners.geojson").read_text())
+    traced = [shape(f["geometry"]) for f in gj["features"] if f["properties"]["kind"] == "roof_outline"]
+    polys = read_footprints(planes_dirs["utm"] / "roof_outlines.gpkg", pyproj.CRS(UTM))
+    assert len(polys) == len(traced) == len(planes_dirs["buildings"])
+    assert sum(p.symmetric_difference(t).area for p, t in zip(polys, traced)) < 1e-3
+    for b in planes_dirs["buildings"]:
+        eave = affinity.translate(b[0], tu.X0_M, tu.Y0_M)
+        best = min(polys, key=lambda p: p.symmetric_difference(eave).area)
+        # the regularised outline on the eave: off by 0.03-0.12 m on average along its perimeter (the area between
+        # them over the perimeter), a sixth of the cloud's 0.77 m point spacing at most
+        assert best.symmetric_difference(eave).area < 0.2 * eave.length, (best.wkt, eave.wkt)
+    # in feet: the coordinates in the clouds' CRS and unit, as corners.csv's
+    ft = read_footprints(planes_dirs["ft"] / "roof_outlines.gpkg", pyproj.CRS(tu.FT_CRS))
+    assert len(ft) == len(polys)
+    assert sum(p.area for p in ft) * FOOT_M**2 == pytest.approx(sum(p.area for p in polys), rel=0.01)
+
+
+def test_a_run_without_usable_corners_removes_the_roof_outlines_of_an_earlier_one(planes_dirs, tmp_path):
+    """The chain's corners stage (``record_none``) finding no usable corner removes every corner file of the run
+    before, roof_outlines.gpkg too: the true ortho must not take stale outlines as its footprints."""
+    import shutil
+
+    from lidarctl.corners.roof_corners import CornerSettings, corner_control
+
+    out = tmp_path / "lidar_out"
+    shutil.copytree(planes_dirs["utm"], out)
+    assert (out / "roof_outlines.gpkg").is_file()
+    res = corner_control([planes_dirs["utm"].parent / "utm.las"], out, CornerSettings(min_edge_m=100.0, figure=False),
+                         record_none=True)
+    assert res.no_usable and sorted(p.name for p in out.iterdir()) == ["corners.json"]
+

@@ -238,25 +238,31 @@ def test_stage_cost_without_memory_figures(tmp_path, monkeypatch):
     assert line[0] == "s" and line[3] == f"{rows[0]['cpu_s']:.1f}" and line[4] == "-"
 
 
+def _rectify_stage(root: Path, toml: str):
+    """The chain of the project ``root`` with ``toml`` as its project.toml: (chain, the rectify stage's inputs, its
+    options)."""
+    from aerotri.chain.options import read_options
+    from aerotri.chain.stages import Chain
+    from aerotri.core.project import Project
+
+    (root / "project.toml").write_text(toml)
+    p = Project.open(root)
+    chain = Chain(p, read_options(p))
+    st = next(s for s in chain.stages() if s.name == "rectify")
+    return chain, set(st.inputs(root)), st.options_now(root)
+
+
 def test_the_rectify_stage_reads_the_dsm_of_the_true_ortho(tmp_path):
     """Issue 42: with LiDAR strips the rectify stage makes the true ortho on lidar_out/dsm.tif (an input: a new DSM
     re-runs it) unless [rectify] true_ortho = false; true_ortho = true without any DSM is refused before any stage."""
-    from aerotri.chain.options import read_options
-    from aerotri.chain.stages import Chain
     from aerotri.core.errors import ConfigError
-    from aerotri.core.project import Project
 
     toml = '[project]\ncrs = "EPSG:32649"\n'
-    (tmp_path / "project.toml").write_text(toml)
     (tmp_path / "lidar").mkdir()
     (tmp_path / "lidar" / "strip_01.las").write_bytes(b"")
 
     def rectify(extra=""):
-        (tmp_path / "project.toml").write_text(toml + extra)
-        p = Project.open(tmp_path)
-        chain = Chain(p, read_options(p))
-        st = next(s for s in chain.stages() if s.name == "rectify")
-        return chain, set(st.inputs(tmp_path)), st.options_now(tmp_path)
+        return _rectify_stage(tmp_path, toml + extra)
 
     chain, inputs, options = rectify()
     assert tmp_path / "lidar_out" / "dsm.tif" in inputs and options["true_ortho"] is True
@@ -283,6 +289,51 @@ def test_the_rectify_stage_reads_the_dsm_of_the_true_ortho(tmp_path):
     chain, _, _ = rectify("[rectify]\ntrue_ortho = true\n")
     with pytest.raises(ConfigError, match=r"project.toml \[rectify\] true_ortho = true: no DSM"):
         chain.check_files()
+
+
+def test_the_true_ortho_takes_the_lidar_roof_outlines_as_footprints_unless_a_cadastre_is_given(tmp_path):
+    """Issue 42: without [rectify] footprints the true ortho's occlusion test takes the roof outlines the corners
+    stage traced (lidar_out/roof_outlines.gpkg, an output of that stage and an input of rectify); not when the
+    corners stage found no usable corner (it writes no outlines) or traced them in another CRS; a cadastre given
+    wins."""
+    from lidarctl.corners.roof_corners import CornerControlResult, CornerStats
+
+    toml = '[project]\ncrs = "EPSG:32649"\n'
+    (tmp_path / "lidar").mkdir()
+    (tmp_path / "lidar" / "strip_01.las").write_bytes(b"")
+    outlines = tmp_path / "lidar_out" / "roof_outlines.gpkg"
+
+    def rectify(extra=""):
+        return _rectify_stage(tmp_path, toml + extra)
+
+    def corners_found(n_usable, crs="EPSG:32649"):
+        stats = CornerStats(1000, 500, 0.5, 3, 3, 12, 12, n_usable, 3, 4.0, "default", "flat", 0.05, 0.05, 0.5,
+                            0.05 if n_usable else None, 1.0)
+        (tmp_path / "lidar_out").mkdir(exist_ok=True)
+        (tmp_path / "lidar_out" / "corners.json").write_text(
+            CornerControlResult("s.laz", crs, None, stats, None, None if n_usable else "no usable").to_json())
+
+    chain, inputs, options = rectify()  # before the corners stage has run: it will write them
+    assert outlines in inputs and Path(options["footprints"]) == outlines
+    assert chain.rectify_settings().record()["footprints"]["note"] == "the LiDAR stages' roof outlines: no cadastre given"
+    corners = next(s for s in chain.stages() if s.name == "corners")
+    assert outlines in corners.outputs(tmp_path)
+    corners_found(5)
+    chain, inputs, options = rectify()
+    assert outlines in inputs and Path(options["footprints"]) == outlines
+    corners_found(0)  # no usable corner: the corners stage wrote no outlines
+    chain, inputs, options = rectify()
+    assert outlines not in inputs and options["footprints"] is None
+    assert outlines not in next(s for s in chain.stages() if s.name == "corners").outputs(tmp_path)
+    corners_found(5, crs="EPSG:32650")  # traced in another CRS than the project's
+    chain, inputs, options = rectify()
+    assert options["footprints"] is None
+    corners_found(5)
+    (tmp_path / "bgt.gpkg").write_bytes(b"")
+    chain, inputs, options = rectify('[rectify]\nfootprints = "bgt.gpkg"\n')
+    assert outlines not in inputs and Path(options["footprints"]).resolve() == (tmp_path / "bgt.gpkg").resolve()
+    chain, inputs, options = rectify("[rectify]\ntrue_ortho = false\n")
+    assert outlines not in inputs
 
 
 def test_the_log_says_why_a_stage_runs(tmp_path):

@@ -63,9 +63,10 @@ def run_readme_chain(p: Path, self_cal: bool, start: str | None = None, stop: st
         if no_control and "--gnss-correction" in args:
             i = args.index("--gnss-correction")
             args = args[:i] + args[i + 2:]
-        if "--planes" in args and not (p / "lidar_out" / "roof_planes.geojson").is_file():
-            i = args.index("--planes")  # lidarctl corners wrote nothing (no usable corner)
-            args = args[:i] + args[i + 2:]
+        for opt, name in (("--planes", "roof_planes.geojson"), ("--footprints", "roof_outlines.gpkg")):
+            if opt in args and not (p / "lidar_out" / name).is_file():
+                i = args.index(opt)  # lidarctl corners wrote nothing (no usable corner)
+                args = args[:i] + args[i + 2:]
         cmd = [str(BIN / args[0])] + _substitute(args[1:], p)
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
         done[" ".join(args[:2])] = res
