@@ -28,6 +28,9 @@ eval_true_ortho_occlusion.py; the demo: a project made by ``aerotri demo``. ``ma
 true classes). A DSM spec ending in ``+fp`` is the same DSM with the simulator's building footprints (the wall
 lines of truth/buildings.geojson written as truth/footprints.gpkg, ``aerotri.sim.project.write_footprints_gpkg``) in
 the occlusion test (``ortho rectify --footprints``, ``ortho.footprints``), e.g. ``--blocks "tall:0.5,0.5+fp"``;
+``+fpl`` the LiDAR's own roof outlines instead (the buildings layer of ``lidarctl vectors`` of the block's classified
+strips: the demo's chain, a tall block's simulated strips with their true classes), ``+fpc`` those of ``lidarctl
+corners`` (roof_outlines.gpkg: the chain's footprints when [rectify] footprints is not given);
 ``+fp4``, ``+fp5``, ... the same (names of their own, so that a DOM made with ``+fp`` by earlier code is kept beside it: each DOM's
 made.json records the commit that made it). ``+cb``: tree crown bases in the occlusion test (``ortho rectify
 --crown-base``): on the tall blocks the truth's (``truth_crown_base``: per cell the lowest underside of the crowns
@@ -588,14 +591,29 @@ def with_crown_model(frame_occluder, cells_path: Path, use_base: bool, sub: int 
 task_tolerance_m = 0.3  # the march's tolerance (``ortho.rectify.march_bound``'s default, the true ortho's)
 
 
+def classified_strips(src: Path, tall: bool, tmp: Path) -> list[Path]:
+    """The block's classified strips: the demo's of its chain (lidar_out/classified), a tall block's simulated strips
+    with their true classes (copies written into ``tmp``, which the caller removes)."""
+    import laspy
+
+    if not tall:
+        return sorted((src / "lidar_out" / "classified").glob("*.la[sz]"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for q in sorted((src / "lidar").glob("*.la[sz]")):
+        las = laspy.read(q)
+        las.classification = laspy.read(src / "truth" / "lidar" / q.name).classification
+        las.write(tmp / q.name)
+        paths.append(tmp / q.name)
+    return paths
+
+
 def block_crown_model(name: str, src: Path, work: Path, tall: bool) -> dict:
     """The product's crowns of the block (``lidarctl.rasters.crown_model.write_crown_model``: crowns.gpkg and
     dsm_crowns.tif, as the chain's rasters stage writes them) into ``work/<name>/crown_model``, made once: from the
     demo's classified strips and dsm_nearest.tif of the chain, a tall block's simulated strips with their true
     classes (classified copies in a temporary folder) and its ``lidar_rasters`` dsm_nearest.tif; paths and CPU s."""
     import shutil
-
-    import laspy
 
     from lidarctl.rasters.crown_model import write_crown_model
 
@@ -605,26 +623,48 @@ def block_crown_model(name: str, src: Path, work: Path, tall: bool) -> dict:
         return json.loads(made.read_text())
     out.mkdir(parents=True, exist_ok=True)
     nearest = lidar_rasters(name, src, work, tall) / "dsm_nearest.tif"
-    tmp = None
-    if tall:
-        tmp = work / name / "classified_crowns_tmp"
-        tmp.mkdir(parents=True, exist_ok=True)
-        paths = []
-        for q in sorted((src / "lidar").glob("*.la[sz]")):
-            las = laspy.read(q)
-            las.classification = laspy.read(src / "truth" / "lidar" / q.name).classification
-            las.write(tmp / q.name)
-            paths.append(tmp / q.name)
-    else:
-        paths = sorted((src / "lidar_out" / "classified").glob("*.la[sz]"))
+    tmp = work / name / "classified_crowns_tmp"
+    paths = classified_strips(src, tall, tmp)
     t, c = time.perf_counter(), time.process_time()
     gpkg, tif = write_crown_model(paths, nearest, out)
     got = {"crowns": str(gpkg), "occlusion_dsm": str(tif), "wall_s": time.perf_counter() - t,
            "cpu_s": time.process_time() - c}
-    if tmp is not None:
-        shutil.rmtree(tmp)
+    shutil.rmtree(tmp, ignore_errors=True)
     made.write_text(json.dumps(got, indent=1) + "\n")
     return got
+
+
+def block_lidar_footprints(name: str, src: Path, work: Path, tall: bool, command: str = "vectors") -> Path:
+    """The LiDAR's own regularised roof outlines of the block's classified strips as a one-layer GeoPackage for
+    ``--footprints``: ``command`` "vectors" the buildings layer of ``lidarctl vectors`` (``+fpl``), "corners" the
+    roof_outlines.gpkg of ``lidarctl corners`` (``+fpc``, what the chain takes when no footprints are given); made
+    once into ``work/<name>/lidar_footprints`` (``lidar_corners``): the demo's classified strips of the chain, a tall
+    block's simulated strips with their true classes."""
+    import shutil
+
+    import pyogrio
+
+    out = work / name / ("lidar_footprints" if command == "vectors" else "lidar_corners")
+    gpkg = out / ("buildings.gpkg" if command == "vectors" else "roof_outlines.gpkg")
+    if gpkg.exists():
+        return gpkg
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = work / name / f"classified_{command}_tmp"
+    paths = classified_strips(src, tall, tmp)
+    t = time.perf_counter()
+    lidarctl = str(Path(sys.executable).parent / "lidarctl")
+    if command == "vectors":
+        subprocess.run([lidarctl, "vectors", *map(str, paths), str(out / "vectors.gpkg")], check=True)
+        meta, _, wkb, fields = pyogrio.raw.read(str(out / "vectors.gpkg"), layer="buildings")
+        pyogrio.raw.write(str(gpkg), wkb, fields, layer="buildings", driver="GPKG", crs=meta["crs"],
+                          geometry_type=meta["geometry_type"], fields=meta["fields"])
+    else:
+        subprocess.run([lidarctl, "corners", *map(str, paths), str(out)], check=True)
+        wkb = pyogrio.raw.read(str(gpkg))[2]
+    (out / "made.json").write_text(json.dumps({"wall_s": time.perf_counter() - t, "buildings": len(wkb),
+                                               "strips": [q.name for q in paths]}, indent=1) + "\n")
+    shutil.rmtree(tmp, ignore_errors=True)
+    return gpkg
 
 
 def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None,
@@ -645,21 +685,13 @@ def lidar_rasters(name: str, src: Path, work: Path, tall: bool) -> Path:
         return src / "lidar_out"
     import shutil
 
-    import laspy
-
     from lidarctl.rasters.products import write_rasters
 
     out = work / name / "lidar_rasters"
     if (out / "made.json").exists():
         return out
     tmp = work / name / "classified_tmp"
-    tmp.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for q in sorted((src / "lidar").glob("*.la[sz]")):
-        las = laspy.read(q)
-        las.classification = laspy.read(src / "truth" / "lidar" / q.name).classification
-        las.write(tmp / q.name)
-        paths.append(tmp / q.name)
+    paths = classified_strips(src, True, tmp)
     t, c = time.perf_counter(), time.process_time()
     write_rasters(paths, out, 0.5)
     made = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "strips": [p.name for p in paths]}
@@ -707,7 +739,9 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
         if not made_path.exists():
             copy(src, p)
             fp_path = None
-            if footprints:
+            if "fpl" in flags or "fpc" in flags:  # the LiDAR's own roof outlines as the footprints
+                fp_path = block_lidar_footprints(name, src, work, tall, "vectors" if "fpl" in flags else "corners")
+            elif footprints:
                 from aerotri.core.project import Project
                 from aerotri.sim.project import write_footprints_gpkg
 

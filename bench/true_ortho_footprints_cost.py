@@ -277,6 +277,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--project", type=Path, default=None, help="a chain's project instead of the demo (full-size frames)")
+    ap.add_argument("--footprints", type=Path, default=None,
+                    help="the footprints of the footprints' ways (copied into each way's truth/footprints.gpkg) instead "
+                         "of those written from the truth's buildings.geojson, e.g. a chain's lidar_out/roof_outlines.gpkg "
+                         "(its default since stop 113)")
     ap.add_argument("--truth", type=Path, default=None,
                     help="the simulator's truth folder of the block (default: truth/ of the demo or --project)")
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_footprints_cost")
@@ -347,7 +351,9 @@ def main() -> None:
         if args.project is not None and (source / "at" / "camera.toml").is_file():
             shutil.copy2(source / "at" / "camera.toml", p / "at" / "camera.toml")  # the camera of at/eo.txt
         (p / "truth").mkdir()
-        if "footprints" in way or buildings.is_file():  # ways without footprints run on a block without truth
+        if args.footprints is not None:
+            shutil.copy2(args.footprints, p / "truth" / "footprints.gpkg")
+        elif "footprints" in way or buildings.is_file():  # ways without footprints run on a block without truth
             n = write_footprints_gpkg(buildings, p / "truth" / "footprints.gpkg", Project.open(p).crs)
         if way in OCCLUSION:
             shutil.copy2(source / "lidar_out" / "dsm_nearest.tif", p / "lidar_out" / "dsm_nearest.tif")
@@ -371,7 +377,9 @@ def main() -> None:
             r = one_block(projects[way], way, frames)
             runs[way].append(r)
             print(k, way, r, flush=True)
-    out = {"project": str(source), "buildings": str(buildings), "footprints": n, "rounds": args.rounds,
+    out = {"project": str(source), "buildings": str(buildings) if args.footprints is None else None,
+           "footprints_file": str(args.footprints) if args.footprints is not None else None,
+           "footprints": n, "rounds": args.rounds,
            "first_calls_not_counted": first, "ways": {}}
     for way, rs in runs.items():
         per_mp = sorted(r["cpu_s_per_mp"] for r in rs)
