@@ -1864,7 +1864,10 @@ def on_objects_words(on_objects: int | None, unseen: int) -> str:
         return ""
     # (the demo: 46,849 of 149,079, 82 % of them on the truth's roofs and crowns, the rest ground the nDSM's wider
     # roofs cover)
-    return (f"; {on_objects} of them ({100 * on_objects / unseen:.0f} %) on the nDSM's roofs and crowns, which frames "
+    pct = 100 * on_objects / unseen
+    # (a share under 1 % with its first significant digit: a block mostly without heights said "18650 of them (0 %)")
+    share = f"{pct:.0f}" if pct >= 1 else f"{pct:.1g}"
+    return (f"; {on_objects} of them ({share} %) on the nDSM's roofs and crowns, which frames "
             "look down on: most are the true ortho's masks at the objects' edges (the LiDAR DSM's roofs reach past "
             "the walls), not occlusion (docs/true-ortho.md)")
 

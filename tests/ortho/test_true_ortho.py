@@ -592,3 +592,13 @@ def roofs_not_measured_said(nm: dict) -> str:
          "valid"] if nm.get("outside_or_invalid") else []) + (
         [f"{nm['weak']} without a clear match (a weak peak, or one at the search's edge)"] if nm.get("weak") else [])
     return f" ({'; '.join(parts)})" if parts else ""
+
+
+def test_the_unseen_cells_on_objects_say_a_share_under_one_percent():
+    """Trial s113: a block mostly without heights said "18650 of them (0 %) on the nDSM's roofs"; a share under 1 %
+    keeps its first significant digit, one of 1 % or more is whole."""
+    from ortho.mosaic import on_objects_words
+
+    assert "18650 of them (0.1 %) on the nDSM's roofs" in on_objects_words(18650, 18138878)
+    assert "(0.005 %)" in on_objects_words(1, 20000) and "(30 %)" in on_objects_words(41040, 135131)
+    assert on_objects_words(0, 100) == "" and on_objects_words(5, 0) == ""
