@@ -44,6 +44,20 @@ NEAR_RETURNS_M = 1.5
 AHN3_BUILDING, AHN3_GROUND = 6, 2
 
 
+CRS = "EPSG:28992"  # the crop's (its file declares none)
+DATASET = f"AHN3 Delft crop (ahn3_cropped_1.laz) vs BGT footprints (bgt_pand.sqlite), {CRS}"
+
+
+def classified_crops(laz: Path, tmp: Path) -> list[tuple[str, Path]]:
+    """The shared crop classified two ways, (name, file): AHN3's own classes (the file as given) and ``lidarctl
+    classify``'s defaults (written into ``tmp``)."""
+    from lidarctl.cli.main import main as lidarctl
+
+    ours = Path(tmp) / "ours.laz"
+    lidarctl(["classify", str(laz), str(ours), "--crs", CRS], standalone_mode=False)
+    return [("ahn3_classes", laz), ("lidarctl_classify", ours)]
+
+
 def coverage(polys) -> shapely.Geometry:
     """Where the BGT can judge a corner: the footprints' convex hull and ``COVERAGE_BUFFER_M`` around each."""
     many = shapely.MultiPolygon(polys)
@@ -97,20 +111,18 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     args = ap.parse_args()
     from aerotri.core.atomic import write_text_atomic
-    from lidarctl.cli.main import main as lidarctl
 
     laz = args.data / "ahn3_cropped_1.laz"
     polys = read_footprints(args.data / "bgt_pand.sqlite")
-    ahn3 = read_classified_cloud(laz, crs="EPSG:28992")
-    result = {"dataset": "AHN3 Delft crop (ahn3_cropped_1.laz) vs BGT footprints (bgt_pand.sqlite), EPSG:28992",
+    ahn3 = read_classified_cloud(laz, crs=CRS)
+    result = {"dataset": DATASET,
               "definitions": {"coverage": f"the footprints' convex hull and {COVERAGE_BUFFER_M:g} m around each",
                               "on_a_footprint_boundary": f"within {ON_BOUNDARY_M:g} m of a single footprint's ring",
                               "outside": f"outside every footprint, 1-{FAR_M:g} m or beyond {FAR_M:g} m"},
               "n_footprints": len(polys)}
     with tempfile.TemporaryDirectory(prefix="corners_bgt_") as tmp:
-        ours = Path(tmp) / "ours.laz"
-        lidarctl(["classify", str(laz), str(ours), "--crs", "EPSG:28992"], standalone_mode=False)
-        for name, cloud in (("ahn3_classes", ahn3), ("lidarctl_classify", read_classified_cloud(ours))):
+        for name, path in classified_crops(laz, Path(tmp)):
+            cloud = ahn3 if path == laz else read_classified_cloud(path)
             for roof in ("flat", "any"):
                 res = find_roof_corners(cloud.x, cloud.y, cloud.z, cloud.classification, cloud.point_source_id,
                                         roof=roof)

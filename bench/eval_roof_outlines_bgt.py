@@ -35,7 +35,7 @@ import shapely
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from eval_corners_ahn3 import REPO, SHARED, read_footprints  # noqa: E402
-from eval_corners_bgt_correctness import coverage  # noqa: E402
+from eval_corners_bgt_correctness import COVERAGE_BUFFER_M, CRS, DATASET, classified_crops, coverage  # noqa: E402
 
 from ortho.footprints import OVERHANG_REACH_M  # noqa: E402
 
@@ -83,26 +83,23 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=SHARED / "ahn3_delft")
     ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
     args = ap.parse_args()
-    from pyproj import CRS
+    import pyproj
 
     from aerotri.core.atomic import write_text_atomic
-    from lidarctl.cli.main import main as lidarctl
     from lidarctl.corners.roof_corners import CornerSettings, corner_control
     from ortho.footprints import read_footprints as read_outlines
 
     laz = args.data / "ahn3_cropped_1.laz"
     polys = read_footprints(args.data / "bgt_pand.sqlite")
-    result = {"dataset": "AHN3 Delft crop (ahn3_cropped_1.laz) vs BGT footprints (bgt_pand.sqlite), EPSG:28992",
-              "definitions": {"coverage": "the footprints' convex hull and 3 m around each",
+    result = {"dataset": DATASET,
+              "definitions": {"coverage": f"the footprints' convex hull and {COVERAGE_BUFFER_M:g} m around each",
                               "found": "a footprint at least half covered by the outlines",
                               "eave band": f"outline area beyond every footprint within {EAVE_BAND_M:g} m of one"}}
     with tempfile.TemporaryDirectory(prefix="outlines_bgt_") as tmp:
-        ours = Path(tmp) / "ours.laz"
-        lidarctl(["classify", str(laz), str(ours), "--crs", "EPSG:28992"], standalone_mode=False)
-        for name, path in (("ahn3_classes", laz), ("lidarctl_classify", ours)):
+        for name, path in classified_crops(laz, Path(tmp)):
             out = Path(tmp) / name
-            corner_control([path], out, CornerSettings(figure=False), crs="EPSG:28992")
-            outlines = read_outlines(out / "roof_outlines.gpkg", CRS("EPSG:28992"))
+            corner_control([path], out, CornerSettings(figure=False), crs=CRS)
+            outlines = read_outlines(out / "roof_outlines.gpkg", pyproj.CRS(CRS))
             r = result[name] = score_outlines(list(outlines), polys)
             print(f"{name}: {r['outlines_in_coverage']} outlines in the BGT's coverage; completeness "
                   f"{r['completeness_pct']} %, correctness {r['correctness_pct']} % (beyond the BGT: "
@@ -110,7 +107,8 @@ def main() -> int:
                   f"{r['footprints_found']} of {r['footprints']} footprints found; vertices to the BGT's walls "
                   f"median {r['vertex_to_bgt_boundary_m_median']} m, 90 % {r['vertex_to_bgt_boundary_m_p90']} m; "
                   f"building area without an outline {r['bgt_area_without_outline_m2']} m2, "
-                  f"{r['of_it_within_the_overhang_reach_of_an_outline_m2']} m2 of it within 1.5 m of one")
+                  f"{r['of_it_within_the_overhang_reach_of_an_outline_m2']} m2 of it within "
+                  f"{OVERHANG_REACH_M:g} m of one")
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "roof_outlines_bgt.json", json.dumps(result, indent=2) + "\n")
     return 0
