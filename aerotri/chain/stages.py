@@ -1002,18 +1002,17 @@ class Chain:
         from aerotri.geom.crs.definition import same_horizontal
         from lidarctl.corners.roof_corners import read_corner_summary
 
-        if not self.has_lidar:
+        outlines = self.project.roof_outlines_path
+        if not self.has_lidar or outlines not in self.corner_outputs(self.root):
             return None
         path = self.project.corners_summary_path
         if path.is_file():
-            summary = read_corner_summary(path)
-            if summary.stats.n_usable == 0 or summary.crs is None:
-                return None
+            crs = read_corner_summary(path).crs
             from pyproj import CRS
 
-            if not same_horizontal(CRS.from_user_input(summary.crs), CRS.from_user_input(self.project.crs)):
+            if crs is None or not same_horizontal(CRS.from_user_input(crs), CRS.from_user_input(self.project.crs)):
                 return None
-        return self.project.roof_outlines_path
+        return outlines
 
     def completed_settings(self) -> dict:
         """The sections the chain completes from the project folder, as ``aerotri settings`` lists them: section ->
