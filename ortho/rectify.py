@@ -295,10 +295,21 @@ def heights_by_side(sides: OutlineHeights, grid: OrthoGrid, out: np.ndarray | No
     near = sides.tree.query(shapely.box(grid.x_left_m, y0, x1, grid.y_top_m), predicate="intersects")
     if len(near) == 0:
         return z
-    within = rasterize(((sides.shapes[k], 1) for k in near),
-                       out_shape=(grid.height, grid.width),
-                       transform=from_origin(grid.x_left_m, grid.y_top_m, grid.res_m, grid.res_m), dtype="uint8")
-    np.copyto(z, heights_on_grid(sides.roof, grid), where=within.astype(np.bool_))
+    # rasterised and warped over the outlines' box within the tile only (on the full-size DMC frames a tenth of the
+    # tiles' pixels lie within an outline)
+    bounds = shapely.bounds(sides.outlines[near]).reshape(-1, 4)
+    x0_m, y0_m = bounds[:, :2].min(axis=0)
+    x1_m, y1_m = bounds[:, 2:].max(axis=0)
+    c0 = max(int(math.floor((x0_m - grid.x_left_m) / grid.res_m)), 0)
+    c1 = min(int(math.ceil((x1_m - grid.x_left_m) / grid.res_m)), grid.width)
+    r0 = max(int(math.floor((grid.y_top_m - y1_m) / grid.res_m)), 0)
+    r1 = min(int(math.ceil((grid.y_top_m - y0_m) / grid.res_m)), grid.height)
+    if c1 <= c0 or r1 <= r0:
+        return z
+    box = grid.window(c0, r0, c1 - c0, r1 - r0)
+    within = rasterize(((sides.shapes[k], 1) for k in near), out_shape=(box.height, box.width),
+                       transform=from_origin(box.x_left_m, box.y_top_m, box.res_m, box.res_m), dtype="uint8")
+    np.copyto(z[r0:r1, c0:c1], heights_on_grid(sides.roof, box), where=within.view(np.bool_))
     return z
 
 

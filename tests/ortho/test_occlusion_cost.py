@@ -12,11 +12,13 @@ import warnings
 import numpy as np
 import pytest
 import rasterio
+from pyproj import CRS
 
 from aerotri.geom.rotation import rotation_matrix_opk
 from ortho.block import load_block
 from ortho.dem import HeightRaster, read_height_raster
-from ortho.grid import GridToProject
+from ortho.footprints import with_crown_base
+from ortho.grid import GridToProject, OrthoGrid
 from ortho.rectify import (FrameGeometry, fixed_point_maps, frame_grid, frame_zbuffer, heights_on_grid, march_bound,
                            occlusion_mask, zbuffer_occlusion, zbuffer_occlusion_from_maps)
 from tests.shared_builds import write_synthetic_project
@@ -103,18 +105,27 @@ def test_the_march_bounds_are_the_highest_heights_each_block_reads(shape):
 
 
 def test_the_march_with_any_hint_gives_the_march_without(block):
-    """The hint probes skip the columns whose tops lie below the ray 1.5 cells before the probe: with the z-buffer's
-    hint, a random one and none, the same points occluded (every imaged point a candidate)."""
+    """The hint's walk (from two cells before where the ray meets the hinted depth, then from the start up to there,
+    then on) tests every cell once: with the z-buffer's hint, a random one and none, the same points occluded (every
+    imaged point a candidate), on the DSM's columns and with slabs (crowns over a third of the cells, their bases a
+    random depth under their tops: rays that pass beneath them walk on)."""
     geometry, dsm, grid, to_project = _frame(block, "s01_002")
     map_int, _, mask, z, anchors = fixed_point_maps(geometry, dsm, grid, to_project)
     zbuffer = frame_zbuffer(geometry, dsm, grid, to_project, 256)
     near = np.zeros(z.shape, np.float32)
     zbuffer_occlusion_from_maps(geometry, zbuffer, grid, map_int, mask, z, out=np.zeros(z.shape, np.bool_),
                                 near_share=near)
-    none = occlusion_mask(geometry, dsm, grid, z, anchors)
-    assert (none & (mask > 0)).mean() > 0.002
-    for hint in (near, np.random.default_rng(5).uniform(0.0, 1.0, z.shape).astype(np.float32)):
-        assert np.array_equal(occlusion_mask(geometry, dsm, grid, z, anchors, near_share=hint), none)
+    rng = np.random.default_rng(5)
+    top = dsm.heights_m
+    crown_base = np.where(rng.random(top.shape) < 0.33, top - rng.uniform(0.0, 15.0, top.shape), np.nan)
+    for occluder in (None, with_crown_base(None, top, crown_base.astype(np.float32))):
+        none = occlusion_mask(geometry, dsm, grid, z, anchors, occluder=occluder)
+        assert (none & (mask > 0)).mean() > 0.002
+        # (a random share near 1: the hinted depth a few cells from the point, before and after its occluder)
+        for hint in (near, rng.uniform(0.0, 1.0, z.shape).astype(np.float32),
+                     rng.uniform(0.97, 1.0, z.shape).astype(np.float32)):
+            assert np.array_equal(occlusion_mask(geometry, dsm, grid, z, anchors, near_share=hint, occluder=occluder),
+                                  none)
 
 
 def _sha256_of_frames(root) -> dict:
@@ -181,3 +192,30 @@ def test_the_dsm_given_again_as_the_occlusion_dsm_gives_the_true_ortho_on_the_ds
                                             dsm=str(root / "truth" / "dsm.tif"), occlusion_dsm=occlusion))
         frames[name] = _sha256_of_frames(root)
     assert len(frames["alone"]) == 2 and frames["copy"] == frames["alone"]
+
+
+def test_the_hints_walk_finds_an_occluder_before_after_and_beyond_the_hinted_depth():
+    """A 20 m wall 10-30 cells east of a row of ground points, the camera east of it: every point occluded; with a
+    hinted depth 3, 5, 8 or 30 cells from each point (before the wall: the third part of the walk finds it; beyond
+    it: the second) and without (``ortho.rectify_kernels._occlusion_kernel``), the same; and with the wall a row of
+    crowns from 15 m up (the nearer points' rays pass beneath them), the same."""
+    import types
+
+    heights = np.zeros((100, 100), np.float32)
+    heights[:, 60:62] = 20.0
+    crs = CRS.from_epsg(32649)
+    dsm = HeightRaster(heights, 0.0, 50.0, 0.5, crs, "dsm")
+    grid = OrthoGrid(crs, 10.0, 30.0, 0.5, 20, 20)  # columns 20 .. 40 of the DSM
+    ax, ay = np.meshgrid(10.25 + 0.5 * np.arange(21), 29.75 - 0.5 * np.arange(21))
+    anchors = (ax, ay, 1.0)
+    geometry = types.SimpleNamespace(centre_m=np.array([130.0, 25.0, 100.0]))
+    z = np.zeros((20, 20), np.float32)
+    hd_m = 130.0 - ax[:20, :20]
+    crowns = with_crown_base(None, heights, np.where(heights > 0, np.float32(15.0), np.float32(np.nan)))
+    for occluder in (None, crowns):
+        none = occlusion_mask(geometry, dsm, grid, z, anchors, occluder=occluder)
+        assert none.all() if occluder is None else 0 < none.sum() < none.size
+        for cells in (3.0, 5.0, 8.0, 30.0):
+            share = (1.0 - cells * dsm.res_m / hd_m).astype(np.float32)
+            assert np.array_equal(occlusion_mask(geometry, dsm, grid, z, anchors, near_share=share,
+                                                 occluder=occluder), none)
