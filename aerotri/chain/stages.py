@@ -995,6 +995,15 @@ class Chain:
                               "the LiDAR stages' roof outlines: no cadastre given")
         return r
 
+    def _outlined_share_words(self) -> str:
+        """The corners stage's outlined share (corners.json) for the rectify note: ", 90 % of the building points on an
+        outlined roof"; "" when it has none (not run yet, or a record from before it was kept)."""
+        from lidarctl.corners.roof_corners import read_corner_summary
+
+        path = self.project.corners_summary_path
+        share = read_corner_summary(path).stats.outlined_share if path.is_file() else None
+        return "" if share is None else f", {100 * share:.0f} % of the building points on an outlined roof"
+
     def lidar_roof_outlines(self) -> Path | None:
         """lidar_out/roof_outlines.gpkg when the corners stage writes it (it has, or has not run yet: its outputs are
         decided as ``corner_outputs`` decides them) in the project CRS; None without LiDAR, when it found no usable
@@ -1041,9 +1050,10 @@ class Chain:
                    else f"true_ortho from the {source}")
             occl = f", occlusion on {_rel(s.occlusion_dsm, self.root)}" if s.occlusion_dsm is not None else ""
             if s.footprints is not None:
-                lidar = Path(s.footprints) == self.project.roof_outlines_path
-                occl += (f" with the building footprints {_rel(s.footprints, self.root)}"
-                         + (" (the LiDAR's roof outlines: [rectify] footprints for a cadastre)" if lidar else ""))
+                occl += f" with the building footprints {_rel(s.footprints, self.root)}"
+                if Path(s.footprints) == self.project.roof_outlines_path:
+                    occl += f" (the LiDAR's roof outlines{self._outlined_share_words()}: [rectify] footprints for a " \
+                            "cadastre)"
             return (f"true ortho on the DSM {_rel(s.dsm, self.root)}{occl} ({why}; occluded cells filled from the frames "
                     f"that see them; [rectify] true_ortho = false for the conventional ortho on the DEM)")
         if self.dsm_path() is not None:

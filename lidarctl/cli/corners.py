@@ -44,7 +44,8 @@ def corners(*, classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_str
         raise InputError(f"{res.no_usable}; {hint}")
     st = res.stats
     click.echo(
-        f"{st.n_corners} corners ({st.n_usable} usable) on {st.n_outlines} roofs, "
+        f"{st.n_corners} corners ({st.n_usable} usable) on {st.n_outlines} roofs "
+        f"({100 * st.outlined_share:.0f} % of the building points on an outlined roof), "
         f"point spacing {st.point_spacing_m:.2f} m, edges >= {st.min_edge_m:.2f} m; "
         f"{res.units_text} -> {outdir / 'corners.csv'}"
     )

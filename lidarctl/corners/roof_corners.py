@@ -179,6 +179,18 @@ class CornerStats:
     tiles: int | None = None
     tile_m: float | None = None
     buffer_m: float | None = None
+    # building points of the roofs roof_outlines.gpkg holds an outline of (None: a record from before stop 114)
+    n_outlined_points: int | None = None
+
+    @property
+    def outlined_share(self) -> float | None:
+        """The share of the building points on the roofs that have an outline (roof_outlines.gpkg): how much of the
+        building class the true ortho's footprints from the LiDAR stand for (AHN3 Delft's own classes: 98 %; 95 %
+        of the points lie within an outline's polygon, 98.5 % within 0.5 m of one); None when not recorded or no
+        building points."""
+        if self.n_outlined_points is None or not self.n_building_points:
+            return None
+        return self.n_outlined_points / self.n_building_points
 
     @classmethod
     def of_record(cls, d: Mapping) -> "CornerStats":
@@ -747,6 +759,7 @@ def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_r
             if n_usable else None
         ),
         "runtime_s": time.perf_counter() - t_start,
+        "n_outlined_points": sum(int(props["n_points"]) for _, props in _outline_features(outlines)),
     })
     if not raw:
         raise NoRoofs(f"no roof outline could be traced from {n_building_points} building points ({n_roofs} roofs of "

@@ -68,6 +68,33 @@ def test_corners_command_writes_csv_geojson_summary_and_figure(tmp_path):
     assert f"edges >= {st.min_edge_m:.2f} m; x, y, z in metre" in r.output
 
 
+def test_corners_record_the_share_of_the_building_class_within_a_roof_outline(tmp_path):
+    """A clump of building points too small to be a roof (2 m x 2 m on the ground, away from the buildings) has no
+    outline: corners.json's ``n_outlined_points`` is the building points of the outlined roofs (the n_points of
+    roof_outlines.gpkg's features), every building point but the clump's, and the summary line prints its share."""
+    buildings = cs.default_buildings()
+    x, y, z, cls, sid = cs.make_cloud(buildings, seed=3, heading_deg=-20.0)
+    rng = np.random.default_rng(4)
+    n_clump = 40
+    far_x, far_y = float(x.max()) - 3.0, float(y.max()) - 3.0
+    clump = (far_x + rng.uniform(0, 2, n_clump), far_y + rng.uniform(0, 2, n_clump), np.full(n_clump, 6.0))
+    x, y = np.concatenate([x, clump[0]]), np.concatenate([y, clump[1]])
+    z = np.concatenate([z, float(np.median(z)) + clump[2]])
+    cls = np.concatenate([cls, np.full(n_clump, 6, cls.dtype)])
+    sid = np.concatenate([sid, np.full(n_clump, sid[0], sid.dtype)])
+    las = tmp_path / "classified.las"
+    _write_las(las, x, y, z, cls, sid)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["corners", str(las), str(out), "--roof", "flat"])
+    assert r.exit_code == 0, r.output
+    st = read_corner_summary(out / "corners.json").stats
+    gj = json.loads((out / "corners.geojson").read_text())
+    outlined = sum(f["properties"]["n_points"] for f in gj["features"] if f["properties"]["kind"] == "roof_outline")
+    assert st.n_building_points == int((cls == 6).sum())
+    assert st.n_outlined_points == outlined == st.n_building_points - n_clump
+    assert f"({100 * st.outlined_share:.0f} % of the building points on an outlined roof)" in r.output
+
+
 def test_figure_draws_cells_without_height_apart_from_the_tallest(tmp_path):
     """nDSM cells without a height (water drop-outs) get a colour of their own, not the grey scale's white."""
     import matplotlib.image as mpimg

@@ -31,7 +31,7 @@ def test_tiled_corners_equal_whole_cloud(tiny_project, tmp_path):
     assert len(whole.corners) > 20
     assert C.corners_csv_text(tiled.corners) == C.corners_csv_text(whole.corners)
     for k in ("n_points", "n_building_points", "point_spacing_m", "n_roofs", "n_outlines", "n_corners_traced",
-              "n_usable", "n_roof_planes"):
+              "n_usable", "n_roof_planes", "n_outlined_points"):
         assert getattr(tiled.stats, k) == getattr(whole.stats, k), k
     planes = [C.roof_planes_geojson(C._faces_in_crs_units(r.faces, units), None,
                                     sigma_strip_xy_m=r.stats.sigma_strip_xy_m, sigma_strip_z_m=r.stats.sigma_strip_z_m)

@@ -306,9 +306,9 @@ def test_the_true_ortho_takes_the_lidar_roof_outlines_as_footprints_unless_a_cad
     def rectify(extra=""):
         return _rectify_stage(tmp_path, toml + extra)
 
-    def corners_found(n_usable, crs="EPSG:32649"):
+    def corners_found(n_usable, crs="EPSG:32649", n_outlined_points=None):
         stats = CornerStats(1000, 500, 0.5, 3, 3, 12, 12, n_usable, 3, 4.0, "default", "flat", 0.05, 0.05, 0.5,
-                            0.05 if n_usable else None, 1.0)
+                            0.05 if n_usable else None, 1.0, n_outlined_points=n_outlined_points)
         (tmp_path / "lidar_out").mkdir(exist_ok=True)
         (tmp_path / "lidar_out" / "corners.json").write_text(
             CornerControlResult("s.laz", crs, None, stats, None, None if n_usable else "no usable").to_json())
@@ -321,6 +321,12 @@ def test_the_true_ortho_takes_the_lidar_roof_outlines_as_footprints_unless_a_cad
     corners_found(5)
     chain, inputs, options = rectify()
     assert outlines in inputs and Path(options["footprints"]) == outlines
+    assert "(the LiDAR's roof outlines: [rectify] footprints for a cadastre)" in \
+        chain.true_ortho_note(chain.rectify_settings())  # a corners.json from before the share was kept
+    corners_found(5, n_outlined_points=335)  # of 500 building points
+    chain, inputs, options = rectify()
+    assert ("(the LiDAR's roof outlines, 67 % of the building points on an outlined roof: [rectify] footprints for a "
+            "cadastre)") in chain.true_ortho_note(chain.rectify_settings())
     corners_found(0)  # no usable corner: the corners stage wrote no outlines
     chain, inputs, options = rectify()
     assert outlines not in inputs and options["footprints"] is None
