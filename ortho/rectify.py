@@ -567,7 +567,8 @@ def occlusion_mask(geometry: FrameGeometry, dsm: HeightRaster, grid: OrthoGrid, 
     bound = bound or march_bound(dsm, occluder=occluder, tolerance_m=tolerance_m)
     from ortho.rectify_kernels import _occlusion_kernel
 
-    points = TilePoints(heights_m.astype(np.float32), np.ones(occ.shape, np.bool_) if candidates is None else candidates,
+    points = TilePoints(np.ascontiguousarray(heights_m, np.float32),
+                        np.ones(occ.shape, np.bool_) if candidates is None else candidates,
                         np.zeros((1, 1), np.float32) if near_share is None else near_share)
     march = MarchArgs(bound.max_m, bound.block_max_m, bound.block, bound.coarse_max_m, bound.coarse,
                       float(tolerance_m), float(OWN_COLUMN_M), float(dsm.res_m * math.tan(math.radians(WALL_SLOPE_DEG))),
@@ -1023,7 +1024,7 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
     compact_source = (not windowed and flag == cv2.INTER_LINEAR and image.dtype == np.uint8 and nb <= 4
                       and image.strides[0] >= _REMAP_VECTOR_MAX_STEP)
     # the compiled kernels loaded here, in the calling thread, before the tile threads call them
-    from ortho import rectify_kernels  # noqa: F401  (``import ortho.…`` would rebind the local name ortho)
+    from ortho import rectify_kernels  # (``import ortho.…`` would rebind the local name ortho)
 
     # true ortho: the frame's z-buffer of the DSM first (the occluders of a tile can lie in any other tile)
     zbuffer = frame_zbuffer(geometry, occlusion_dsm, grid, to_project, tile_px) if occlusion_dsm is not None else None
@@ -1076,15 +1077,12 @@ def rectify_frame(image: np.ndarray, camera: Camera, centre_m, R, dem_dataset: H
             if behind.any():
                 occluded = occlusion_mask(geometry, occlusion_dsm, tile, z, anchors, candidates=behind, bound=bound,
                                           near_share=near, occluder=occluder, ground=ground)
-                m[occluded] = 0
-                map_int[occluded] = -32768
+                rectify_kernels._clear_cells(occluded, m, map_int)
         if source_valid is not None and m.any():
             # the frame's own nodata (grown by the kernel's reach): the maps' integer positions, before any shift
             seen = cv2.remap(source_valid, map_int, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                              borderValue=0)
-            gone = (seen == 0) & (m != 0)
-            m[gone] = 0
-            map_int[gone] = -32768
+            rectify_kernels._clear_cells((seen == 0) & (m != 0), m, map_int)
         if not m.any():
             o[...] = 0
             return r0, c0, handle, o, m
