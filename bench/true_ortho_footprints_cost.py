@@ -278,9 +278,9 @@ def main() -> None:
     ap.add_argument("--demo", type=Path, default=Path("/work/ref/demo_chain/project"))
     ap.add_argument("--project", type=Path, default=None, help="a chain's project instead of the demo (full-size frames)")
     ap.add_argument("--footprints", type=Path, default=None,
-                    help="the footprints of the footprints' ways (copied into each way's truth/footprints.gpkg) instead "
-                         "of those written from the truth's buildings.geojson, e.g. a chain's lidar_out/roof_outlines.gpkg "
-                         "(its default since stop 113)")
+                    help="the footprints of the footprints' ways (copied into each way's truth/footprints.gpkg) "
+                         "instead of those written from the truth's buildings.geojson, e.g. a chain's "
+                         "lidar_out/roof_outlines.gpkg (its default since stop 113)")
     ap.add_argument("--truth", type=Path, default=None,
                     help="the simulator's truth folder of the block (default: truth/ of the demo or --project)")
     ap.add_argument("--work", type=Path, default=REPO / "out" / "true_ortho_footprints_cost")

@@ -33,7 +33,8 @@ def corners(*, classified, outdir, min_edge_m, roof, sigma_strip_xy_m, sigma_str
     roof face, shrunk 1 m or 2 point spacings inside its edges, with its plane z = a (x - x0) +
     b (y - y0) + c and the plane's covariance: surface control for aerotri adjust --planes),
     roof_outlines.gpkg (the roof outlines for QGIS, and building footprints for ortho rectify
-    --true-ortho --footprints where no cadastre is at hand) and corners.json (summary, with the units). Every length option is in metres, also for clouds in feet. When no corner is usable as
+    --true-ortho --footprints where no cadastre is at hand) and corners.json (summary, with the
+    units). Every length option is in metres, also for clouds in feet. When no corner is usable as
     control it stops with exit code 2 and writes nothing. The files are read by tiles (--tile-m with a
     --buffer-m border larger than the largest roof), never merged: memory is set by the tile size.
     """

@@ -315,7 +315,8 @@ def test_the_true_ortho_takes_the_lidar_roof_outlines_as_footprints_unless_a_cad
 
     chain, inputs, options = rectify()  # before the corners stage has run: it will write them
     assert outlines in inputs and Path(options["footprints"]) == outlines
-    assert chain.rectify_settings().record()["footprints"]["note"] == "the LiDAR stages' roof outlines: no cadastre given"
+    assert chain.rectify_settings().record()["footprints"]["note"] == \
+        "the LiDAR stages' roof outlines: no cadastre given"
     corners = next(s for s in chain.stages() if s.name == "corners")
     assert outlines in corners.outputs(tmp_path)
     corners_found(5)
