@@ -58,6 +58,27 @@ def classified_crops(laz: Path, tmp: Path) -> list[tuple[str, Path]]:
     return [("ahn3_classes", laz), ("lidarctl_classify", ours)]
 
 
+COVERAGE_DEFINITION = f"the footprints' convex hull and {COVERAGE_BUFFER_M:g} m around each"
+
+
+def bgt_crop_inputs(description: str) -> tuple[argparse.Namespace, Path, list]:
+    """The command line of the AHN3-against-BGT benches (``--data`` the shared folder, ``--out`` the results
+    folder) and their inputs: (arguments, the AHN3 crop, the BGT footprints)."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--data", type=Path, default=SHARED / "ahn3_delft")
+    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
+    args = ap.parse_args()
+    return args, args.data / "ahn3_cropped_1.laz", read_footprints(args.data / "bgt_pand.sqlite")
+
+
+def write_result(out_dir: Path, name: str, result: dict) -> None:
+    """``result`` as ``out_dir``/``name`` (JSON, atomically)."""
+    from aerotri.core.atomic import write_text_atomic
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out_dir / name, json.dumps(result, indent=2) + "\n")
+
+
 def coverage(polys) -> shapely.Geometry:
     """Where the BGT can judge a corner: the footprints' convex hull and ``COVERAGE_BUFFER_M`` around each."""
     many = shapely.MultiPolygon(polys)
@@ -106,17 +127,10 @@ def score_usable(corners: list[dict], polys, ahn3) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=SHARED / "ahn3_delft")
-    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
-    args = ap.parse_args()
-    from aerotri.core.atomic import write_text_atomic
-
-    laz = args.data / "ahn3_cropped_1.laz"
-    polys = read_footprints(args.data / "bgt_pand.sqlite")
+    args, laz, polys = bgt_crop_inputs(__doc__.splitlines()[0])
     ahn3 = read_classified_cloud(laz, crs=CRS)
     result = {"dataset": DATASET,
-              "definitions": {"coverage": f"the footprints' convex hull and {COVERAGE_BUFFER_M:g} m around each",
+              "definitions": {"coverage": COVERAGE_DEFINITION,
                               "on_a_footprint_boundary": f"within {ON_BOUNDARY_M:g} m of a single footprint's ring",
                               "outside": f"outside every footprint, 1-{FAR_M:g} m or beyond {FAR_M:g} m"},
               "n_footprints": len(polys)}
@@ -133,8 +147,7 @@ def main() -> int:
                       f"{r['on_a_footprint_boundary']} on a footprint boundary, {r['inside_a_footprint_beyond_1m']} "
                       f"inside beyond 1 m, {r['outside_1_to_3m']} outside by 1-3 m, {r['outside_beyond_3m']} beyond "
                       f"3 m ({r['outside_every_footprint_pct']} % outside every footprint)")
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.out / "corners_ahn3_correctness.json", json.dumps(result, indent=2) + "\n")
+    write_result(args.out, "corners_ahn3_correctness.json", result)
     return 0
 
 

@@ -24,8 +24,6 @@ No parameter is chosen. Writes bench/results/roof_outlines_bgt.json.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -34,8 +32,8 @@ import numpy as np
 import shapely
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from eval_corners_ahn3 import REPO, SHARED, read_footprints  # noqa: E402
-from eval_corners_bgt_correctness import COVERAGE_BUFFER_M, CRS, DATASET, classified_crops, coverage  # noqa: E402
+from eval_corners_bgt_correctness import (COVERAGE_DEFINITION, CRS, DATASET, bgt_crop_inputs,  # noqa: E402
+                                          classified_crops, coverage, write_result)
 
 from ortho.footprints import OVERHANG_REACH_M  # noqa: E402
 
@@ -79,20 +77,14 @@ def score_outlines(outlines, polys) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=SHARED / "ahn3_delft")
-    ap.add_argument("--out", type=Path, default=REPO / "bench" / "results")
-    args = ap.parse_args()
+    args, laz, polys = bgt_crop_inputs(__doc__.splitlines()[0])
     import pyproj
 
-    from aerotri.core.atomic import write_text_atomic
     from lidarctl.corners.roof_corners import CornerSettings, corner_control
     from ortho.footprints import read_footprints as read_outlines
 
-    laz = args.data / "ahn3_cropped_1.laz"
-    polys = read_footprints(args.data / "bgt_pand.sqlite")
     result = {"dataset": DATASET,
-              "definitions": {"coverage": f"the footprints' convex hull and {COVERAGE_BUFFER_M:g} m around each",
+              "definitions": {"coverage": COVERAGE_DEFINITION,
                               "found": "a footprint at least half covered by the outlines",
                               "eave band": f"outline area beyond every footprint within {EAVE_BAND_M:g} m of one"}}
     with tempfile.TemporaryDirectory(prefix="outlines_bgt_") as tmp:
@@ -109,8 +101,7 @@ def main() -> int:
                   f"building area without an outline {r['bgt_area_without_outline_m2']} m2, "
                   f"{r['of_it_within_the_overhang_reach_of_an_outline_m2']} m2 of it within "
                   f"{OVERHANG_REACH_M:g} m of one")
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.out / "roof_outlines_bgt.json", json.dumps(result, indent=2) + "\n")
+    write_result(args.out, "roof_outlines_bgt.json", result)
     return 0
 
 
