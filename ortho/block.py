@@ -412,11 +412,32 @@ def _frame_image(path, expect_size):
     return read_native(path, expect_size)
 
 
-def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent, crs) -> float:
-    """Share of the frame whose ground the height raster covers (``frame_coverage``): a warning naming the frame
-    and the share left as nodata when it is partial, split into what lies beyond the raster's extent and what falls
-    on its nodata cells (Tuniu on ODM's DSM: the warning named the extent alone, while 9.8 % of the DSM is nodata
-    inside it); an InputError naming the raster's extent when it covers none."""
+class FrameMessages(list):
+    """What a frame's task has to tell the user, (level name, text) in the order said: handed back in its index
+    entry (``messages``) and logged by ``_rectify_into`` frame by frame in the block's order once the frames are
+    made, whichever scheduler ran them (the threads' logging came in the order they finished; a distributed
+    worker's never reached the console), and again for a frame a resumed run takes over."""
+
+    def warning(self, text: str) -> None:
+        self.append(("warning", text))
+
+    def info(self, text: str) -> None:
+        self.append(("info", text))
+
+
+def _say_frame_messages(entries: list[dict]) -> None:
+    """Log the ``messages`` of each entry (``FrameMessages``) in the entries' order, taking them out of the index."""
+    for e in entries:
+        for level, text in e.pop("messages", ()):
+            getattr(_log, level)(text)
+
+
+def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent, crs,
+                      said: FrameMessages) -> float:
+    """Share of the frame whose ground the height raster covers (``frame_coverage``): a warning (into ``said``)
+    naming the frame and the share left as nodata when it is partial, split into what lies beyond the raster's
+    extent and what falls on its nodata cells (Tuniu on ODM's DSM: the warning named the extent alone, while 9.8 %
+    of the DSM is nodata inside it); an InputError naming the raster's extent when it covers none."""
     cover = frame_coverage(task.camera, C, R, heights, crs=crs, extent=extent)
     share = cover.covered
     b = extent
@@ -428,7 +449,7 @@ def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent
         parts = [f"{100 * v:.1f} % {t}" for v, t in ((cover.beyond, "beyond its extent"),
                                                       (cover.on_nodata, "on its nodata cells inside it"))
                  if round(100 * v, 1) > 0]
-        _log.warning(f"frame {task.image_id}: the {what} {path} covers {100 * share:.1f} % of it ({where}); "
+        said.warning(f"frame {task.image_id}: the {what} {path} covers {100 * share:.1f} % of it ({where}); "
                      f"the other {100 * (1 - share):.1f} % ({', '.join(parts) or 'at its edge'}) is nodata in its "
                      "ortho")
     return share
@@ -673,7 +694,8 @@ def _rectify_frame(task: FrameTask) -> dict:
             heights = read_height_window(dsm_ds, ground_bounds, margin_m=4 * dsm_ds.transform.a, what="DSM",
                                          frame=task.image_id, height_operation=heights_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
-    covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs)
+    said = FrameMessages()
+    covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs, said=said)
     surface = heights    # of the occlusion test: the DSM itself (the same object: the maps' z-buffer test) or its own
     if task.dsm_path and task.occlusion_dsm_path:
         with _height_raster(task.occlusion_dsm_path, project_crs, "DSM") as occ_ds:
@@ -718,7 +740,7 @@ def _rectify_frame(task: FrameTask) -> dict:
     source_valid = frame_validity(task.image_path, task.interpolation, image, band_order) if task.frame_nodata else None
     if source_valid is not None:
         invalid_share = 1.0 - cv2.countNonZero(source_valid) / source_valid.size
-        _log.info(f"frame {task.image_id}: {100 * invalid_share:.1f} % of "
+        said.info(f"frame {task.image_id}: {100 * invalid_share:.1f} % of "
                   "its pixels are its own nodata or beside it (its nodata value or mask): nodata in its ortho")
     # continuous surface over the ground alone (the DEM's window); a DSM standing off the DEM: told once for the block
     flags = ground_flags(surface, dem) if task.dsm_path else None
@@ -735,7 +757,7 @@ def _rectify_frame(task: FrameTask) -> dict:
         image.close()
     del image
     if valid_fraction == 0.0 and task.max_view_angle_deg < 90.0:
-        _log.warning(f"frame {task.image_id}: no ground within {task.max_view_angle_deg:g} deg of the vertical "
+        said.warning(f"frame {task.image_id}: no ground within {task.max_view_angle_deg:g} deg of the vertical "
                      f"([rectify] max_view_angle_deg): its ortho is empty")
     nadir_x, nadir_y = to_project.to_output(np.array([C[0]]), np.array([C[1]]))
     return {
@@ -746,6 +768,7 @@ def _rectify_frame(task: FrameTask) -> dict:
         "footprint_xy_m": np.round(footprint[::4], 2).tolist(),
         **to_record(file_fingerprint(task.out_path)),
         **({"black_corners": corners} if corners else {}),  # (taken out of the index by _rectify_into)
+        **({"messages": list(said)} if said else {}),  # (as black_corners)
         # (as black_corners)
         **({"ground_stand_off": [round(flags.level_m, 2), round(flags.share, 4), round(flags.level_share, 4)]}
            if flags is not None and flags.stands_off else {}),
@@ -1212,6 +1235,7 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
     done = dict(zip((t.image_id for t in todo), executor.map(_rectify_frame_task, todo, desc="rectify", unit="frame")
                     if todo else []))
     entries = [resumed.get(t.image_id) or done[t.image_id] for t in tasks]
+    _say_frame_messages(entries)
     # frames with black corners that declare no nodata (each frame's task looks at its decoded corners)
     collared = [e["image_id"] for e in entries if e.pop("black_corners", 0)]
     if collared:

@@ -100,6 +100,26 @@ def test_a_partly_covered_frame_is_rectified_where_the_dem_is(full, tmp_path):
             assert ds.bounds.bottom >= extent.bottom - 3 * ds.res[0] - 1e-6  # (and the snap to whole cells)
 
 
+def test_the_frames_warnings_come_in_the_blocks_order_from_every_scheduler(full, tmp_path):
+    """A frame's warnings are said in the order of the block's frames, whichever frame finishes first, and from a
+    cluster's worker processes too (their logging never reached the console): the same lines on 2 threads and on a
+    local cluster of 2 workers."""
+    dem = tmp_path / "dem_north.tif"
+    with rasterio.open(full / "lidar_out/dem.tif") as ds:
+        third = ds.height // 3
+    _write_dem(full / "lidar_out/dem.tif", dem, rows=slice(0, third))
+    said = {}
+    for scheduler in ("threads", "local:2"):
+        project = tmp_path / scheduler.replace(":", "_")
+        shutil.copytree(full, project, ignore=shutil.ignore_patterns("ortho"))
+        r = run("rectify", project, "--dem", dem, "--frames", "s02_001,s01_003", "--scheduler", scheduler,
+                "--workers", 2)
+        assert r.exit_code == 0, r.output
+        said[scheduler] = [line.split(": the DEM")[0] for line in r.stderr.splitlines() if ": the DEM " in line]
+    # the frames' order (as --frames names them)
+    assert said["threads"] == said["local:2"] == ["warning: frame s02_001", "warning: frame s01_003"], said
+
+
 def test_a_frame_on_a_nodata_band_is_rectified_around_it(full, tmp_path):
     """DEM nodata (NaN) across the middle of the block, as a DEM from a drone block's points has: the frames
     over it are rectified on both sides, nodata on the band."""
