@@ -31,6 +31,7 @@ the occlusion test (``ortho rectify --footprints``, ``ortho.footprints``), e.g. 
 ``+fpl`` the LiDAR's own roof outlines instead (the buildings layer of ``lidarctl vectors`` of the block's classified
 strips: the demo's chain, a tall block's simulated strips with their true classes), ``+fpc`` those of ``lidarctl
 corners`` (roof_outlines.gpkg: the chain's footprints when [rectify] footprints is not given);
+``+fpciNN`` those outlines moved NN cm inwards (the walls beneath the eaves, ``inset_outlines``);
 ``+fp4``, ``+fp5``, ... the same (names of their own, so that a DOM made with ``+fp`` by earlier code is kept beside it: each DOM's
 made.json records the commit that made it). ``+cb``: tree crown bases in the occlusion test (``ortho rectify
 --crown-base``): on the tall blocks the truth's (``truth_crown_base``: per cell the lowest underside of the crowns
@@ -667,6 +668,22 @@ def block_lidar_footprints(name: str, src: Path, work: Path, tall: bool, command
     return gpkg
 
 
+def inset_outlines(src: Path, dst: Path, inset_m: float) -> Path:
+    """The polygons of ``src`` moved ``inset_m`` inwards (shapely's negative buffer, mitred corners: a rectangle stays
+    one), written to ``dst`` with the same fields; a polygon that vanishes is left out."""
+    import pyogrio
+    import shapely
+
+    meta, _, wkb, fields = pyogrio.raw.read(str(src))
+    geoms = shapely.buffer(shapely.from_wkb(wkb), -inset_m, join_style="mitre")
+    keep = ~shapely.is_empty(geoms)
+    geoms = shapely.multipolygons([shapely.get_parts(g) for g in geoms[keep]]) if keep.any() else geoms[keep]
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    pyogrio.raw.write(str(dst), shapely.to_wkb(geoms), [f[keep] for f in fields], layer="roof_outlines",
+                      driver="GPKG", crs=meta["crs"], geometry_type="MultiPolygon", fields=meta["fields"])
+    return dst
+
+
 def make_dom(project: Path, eo_path=None, camera_path=None, footprints=None, crown_base=None,
              occlusion_dsm=None, crowns=None) -> dict:
     """The true ortho DOM of ``project`` on its lidar_out/dsm.tif (``footprints``, ``crown_base``, ``occlusion_dsm``:
@@ -739,8 +756,12 @@ def run_block(name: str, src: Path, work: Path, cells: list[str]) -> dict:
         if not made_path.exists():
             copy(src, p)
             fp_path = None
+            inset = [f for f in flags if f.startswith("fpci")]
             if "fpl" in flags or "fpc" in flags:  # the LiDAR's own roof outlines as the footprints
                 fp_path = block_lidar_footprints(name, src, work, tall, "vectors" if "fpl" in flags else "corners")
+            elif inset:  # ``+fpciNN``: the corners stage's roof outlines moved NN cm inwards (walls beneath eaves)
+                fp_path = inset_outlines(block_lidar_footprints(name, src, work, tall, "corners"),
+                                         p / "lidar_out" / "roof_outlines_inset.gpkg", int(inset[0][4:]) / 100.0)
             elif footprints:
                 from aerotri.core.project import Project
                 from aerotri.sim.project import write_footprints_gpkg
