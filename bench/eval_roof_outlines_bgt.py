@@ -14,7 +14,7 @@ crop's central blocks), areas of the unions:
   footprint: within 1 m (an eave beyond the wall line: BGT footprints are walls at the ground, the LiDAR's outlines
   eaves) or beyond (structures the BGT does not map, or wrong outlines);
 - the outlines' vertices' distance to the nearest BGT footprint boundary (median, 90th percentile; vertices within
-  3 m of one);
+  3 m of one), and signed (beyond every footprint +, inside one -: how far the walls stand inside the outlines);
 - the BGT's building area no outline covers, and how much of it lies within the footprints' overhang reach (1.5 m)
   of an outline: there the true ortho's occlusion test takes a building without an outline for its neighbour's
   eave.
@@ -60,6 +60,8 @@ def score_outlines(outlines, polys) -> dict:
     xy = shapely.get_coordinates(shapely.extract_unique_points(np.asarray(inside, object))) if inside \
         else np.zeros((0, 2))  # each vertex once (a ring's closing vertex repeats its first)
     d = shapely.distance(boundaries, shapely.points(xy))
+    # signed: + beyond every footprint (an eave outside the wall line), - inside one
+    signed = np.where(shapely.contains_xy(bgt, xy[:, 0], xy[:, 1]), -d, d)[d <= NEAR_BOUNDARY_M] if len(xy) else d
     d = d[d <= NEAR_BOUNDARY_M]
     return {
         "outlines_in_coverage": len(inside),
@@ -73,6 +75,11 @@ def score_outlines(outlines, polys) -> dict:
         "vertex_to_bgt_boundary_m_median": round(float(np.median(d)), 3) if len(d) else None,
         "vertex_to_bgt_boundary_m_p90": round(float(np.percentile(d, 90)), 3) if len(d) else None,
         "vertices_within_3m": int(len(d)),
+        # how far the outlines stand outside the BGT's walls (the walls' inset beneath the LiDAR's eave outline)
+        "vertex_beyond_bgt_wall_m_median": round(float(np.median(signed)), 3) if len(signed) else None,
+        "vertex_beyond_bgt_wall_m_quartiles": [round(float(q), 3) for q in np.percentile(signed, [25, 75])]
+        if len(signed) else None,
+        "vertices_beyond_bgt_share": round(float(np.mean(signed > 0)), 3) if len(signed) else None,
     }
 
 
