@@ -414,9 +414,10 @@ def _frame_image(path, expect_size):
 
 class FrameMessages(list):
     """What a frame's task has to tell the user, (level name, text) in the order said: handed back in its index
-    entry (``messages``) and logged by ``_rectify_into`` frame by frame in the block's order once the frames are
-    made, whichever scheduler ran them (the threads' logging came in the order they finished; a distributed
-    worker's never reached the console), and again for a frame a resumed run takes over."""
+    entry (``messages``) and logged by ``_rectify_into`` frame by frame in the block's order, each frame's as soon
+    as it and every frame before it are made, whichever scheduler ran them (the threads' logging came in the order
+    they finished; a distributed worker's never reached the console), and again for a frame a resumed run takes
+    over."""
 
     def warning(self, text: str) -> None:
         self.append(("warning", text))
@@ -425,11 +426,20 @@ class FrameMessages(list):
         self.append(("info", text))
 
 
-def _say_frame_messages(entries: list[dict]) -> None:
-    """Log the ``messages`` of each entry (``FrameMessages``) in the entries' order, taking them out of the index."""
-    for e in entries:
-        for level, text in e.pop("messages", ()):
-            getattr(_log, level)(text)
+class _SaidInOrder:
+    """Logs the ``messages`` (``FrameMessages``) of index entries handed over in any order (``take(k, entry)``), in
+    the order of k = 0, 1, ...: an entry's as soon as every entry before it has come; taken out of the entries."""
+
+    def __init__(self):
+        self._waiting: dict[int, dict] = {}
+        self._next = 0
+
+    def take(self, k: int, entry: dict) -> None:
+        self._waiting[k] = entry
+        while self._next in self._waiting:
+            for level, text in self._waiting.pop(self._next).pop("messages", ()):
+                getattr(_log, level)(text)
+            self._next += 1
 
 
 def _require_coverage(task: FrameTask, C, R, heights, *, what: str, path, extent, crs,
@@ -1232,10 +1242,17 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
         if resumed:
             _log.info(f"resumed {len(resumed)} of {len(tasks)} frames an interrupted run finished ({resume_dir})")
     todo = [t for t in tasks if t.image_id not in resumed]
-    done = dict(zip((t.image_id for t in todo), executor.map(_rectify_frame_task, todo, desc="rectify", unit="frame")
-                    if todo else []))
+    # each frame's warnings in the block's order, as soon as the frames before it are made too
+    said, position = _SaidInOrder(), {t.image_id: k for k, t in enumerate(tasks)}
+    for t in tasks:
+        if t.image_id in resumed:
+            said.take(position[t.image_id], resumed[t.image_id])
+    done = dict(zip((t.image_id for t in todo),
+                    executor.map(_rectify_frame_task, todo, desc="rectify", unit="frame",
+                                 on_result=lambda k, e: said.take(position[todo[k].image_id], e)) if todo else []))
     entries = [resumed.get(t.image_id) or done[t.image_id] for t in tasks]
-    _say_frame_messages(entries)
+    for e in entries:  # (a distributed map's results are copies of those handed over)
+        e.pop("messages", None)
     # frames with black corners that declare no nodata (each frame's task looks at its decoded corners)
     collared = [e["image_id"] for e in entries if e.pop("black_corners", 0)]
     if collared:

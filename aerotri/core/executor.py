@@ -140,12 +140,15 @@ class Executor:
         return f"dask local threads ({self.workers})"
 
     def map(self, fn: Callable, items: Iterable, desc: str = "tasks", unit: str = "task",
-            at_once: int | None = None) -> list[Any]:
+            at_once: int | None = None, on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
         """``[fn(item) for item in items]``, run as Dask tasks; results in the order of ``items``.
 
         ``at_once``: at most this many tasks run together in this process (tasks whose memory would not fit
         side by side under the process's limit); the workers of a distributed cluster are processes with their
         own memory and are not held back.
+
+        ``on_result(k, result)``: called in this thread for each item that succeeded, as it finishes (in the order
+        they finish, each once), e.g. to say what a task found while the others still run.
 
         When tasks fail, the exception of the first failing item in item order is raised (an
         InputError keeps its message), whichever scheduler ran them: after the first failure no
@@ -155,13 +158,15 @@ class Executor:
         if not items:
             return []
         if self._client is not None:
-            return self._map_distributed(fn, items, desc, unit)
+            return self._map_distributed(fn, items, desc, unit, on_result)
         if len(items) == 1:
             # one task (e.g. a one-frame ``ortho rectify``): run here, without importing dask (about 0.1 s
             # of a command that takes one); the task gets all the cores either way (cores_per_task)
             with progress(1, desc, unit) as bar:
                 out = [fn(items[0])]
                 bar.update(1)
+            if on_result is not None:
+                on_result(0, out[0])
             return out
         import threading
 
@@ -192,9 +197,14 @@ class Executor:
                     lock.notify_all()
 
         tasks = [dask.delayed(guarded, pure=False)((k, item)) for k, item in enumerate(items)]
+        index = {t.key: k for k, t in enumerate(tasks)}
+
         class _Progress(Callback):
+            # (dask's local schedulers call it in the thread that computes: this one)
             def _posttask(self, key, result, dsk, state, worker_id):
                 bar.update(1)
+                if on_result is not None and key in index and result is not _SKIPPED and not isinstance(result, _Failed):
+                    on_result(index[key], result)
 
         # the local schedulers as functions, not by name: a name makes dask import distributed (about
         # 0.3 s) to look for a default client, a tenth of what a one-frame ``ortho rectify`` takes
@@ -219,7 +229,7 @@ class Executor:
                 raise r.exc
         return out
 
-    def _map_distributed(self, fn, items, desc, unit):
+    def _map_distributed(self, fn, items, desc, unit, on_result=None):
         from distributed import as_completed
 
         futures = self._client.map(fn, items, pure=False)
@@ -232,6 +242,8 @@ class Executor:
                     first_bad = k
                     for f in futures[k + 1:]:
                         f.cancel()
+                elif fut.status == "finished" and on_result is not None:
+                    on_result(k, fut.result())
                 bar.update(1)
                 if all(f.done() for f in futures[:first_bad]) and first_bad < len(items):
                     break

@@ -51,6 +51,29 @@ def test_results_come_back_in_item_order_and_errors_surface(scheduler, cluster):
             ex.map(_fail_from_three, range(10))
 
 
+@pytest.mark.parametrize("scheduler", [None, "synchronous", "cluster"])
+def test_each_result_is_handed_over_in_this_thread_as_its_item_finishes(scheduler, cluster):
+    """``on_result(k, result)``: once per item that succeeded, in the calling thread, with the item's index; not for
+    a failed item nor for those a failure left unstarted; one item alone (run without dask) as well."""
+    import threading
+
+    ex = cluster if scheduler == "cluster" else Executor(scheduler)
+    got, here = [], threading.get_ident()
+
+    def take(k, result):
+        got.append((k, result, threading.get_ident() == here))
+
+    assert ex.map(_square, range(12), on_result=take) == [x * x for x in range(12)]
+    assert sorted(got) == [(k, k * k, True) for k in range(12)]
+    got.clear()
+    with pytest.raises(ValueError, match="task 3 failed"):
+        ex.map(_fail_on_three, range(8), on_result=take)
+    assert {k for k, _, _ in got} <= {0, 1, 2, 4, 5, 6, 7} and all(r == k for k, r, _ in got)
+    assert all(same for _, _, same in got)
+    got.clear()
+    assert ex.map(_square, [5], on_result=take) == [25] and got == [(0, 25, True)]
+
+
 def test_the_run_executor_is_used_by_commands_without_their_own(cluster):
     assert local_executor() is not cluster
     with activate(cluster):
