@@ -705,7 +705,8 @@ def _rectify_frame(task: FrameTask) -> dict:
                                          frame=task.image_id, height_operation=heights_op)
             extent, what, path = tuple(dsm_ds.bounds), "DSM", task.dsm_path
     said = FrameMessages()
-    covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs, said=said)
+    covered = _require_coverage(task, C, R, heights, what=what, path=path, extent=extent, crs=project_crs,
+                                said=said)
     surface = heights    # of the occlusion test: the DSM itself (the same object: the maps' z-buffer test) or its own
     if task.dsm_path and task.occlusion_dsm_path:
         with _height_raster(task.occlusion_dsm_path, project_crs, "DSM") as occ_ds:
@@ -778,10 +779,10 @@ def _rectify_frame(task: FrameTask) -> dict:
         "footprint_xy_m": np.round(footprint[::4], 2).tolist(),
         **to_record(file_fingerprint(task.out_path)),
         **({"black_corners": corners} if corners else {}),  # (taken out of the index by _rectify_into)
-        **({"messages": list(said)} if said else {}),  # (as black_corners)
         # (as black_corners)
         **({"ground_stand_off": [round(flags.level_m, 2), round(flags.share, 4), round(flags.level_share, 4)]}
            if flags is not None and flags.stands_off else {}),
+        **({"messages": list(said)} if said else {}),  # (said and taken out of the index by _rectify_into)
     }
 
 

@@ -203,7 +203,8 @@ class Executor:
             # (dask's local schedulers call it in the thread that computes: this one)
             def _posttask(self, key, result, dsk, state, worker_id):
                 bar.update(1)
-                if on_result is not None and key in index and result is not _SKIPPED and not isinstance(result, _Failed):
+                if (on_result is not None and key in index and result is not _SKIPPED
+                        and not isinstance(result, _Failed)):
                     on_result(index[key], result)
 
         # the local schedulers as functions, not by name: a name makes dask import distributed (about
