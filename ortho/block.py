@@ -1252,8 +1252,6 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
                     executor.map(_rectify_frame_task, todo, desc="rectify", unit="frame",
                                  on_result=lambda k, e: said.take(position[todo[k].image_id], e)) if todo else []))
     entries = [resumed.get(t.image_id) or done[t.image_id] for t in tasks]
-    for e in entries:  # (a distributed map's results are copies of those handed over)
-        e.pop("messages", None)
     # frames with black corners that declare no nodata (each frame's task looks at its decoded corners)
     collared = [e["image_id"] for e in entries if e.pop("black_corners", 0)]
     if collared:

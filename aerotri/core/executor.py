@@ -148,7 +148,8 @@ class Executor:
         own memory and are not held back.
 
         ``on_result(k, result)``: called in this thread for each item that succeeded, as it finishes (in the order
-        they finish, each once), e.g. to say what a task found while the others still run.
+        they finish, each once), e.g. to say what a task found while the others still run; the results returned are
+        the objects handed over (a cluster's fetched once).
 
         When tasks fail, the exception of the first failing item in item order is raised (an
         InputError keeps its message), whichever scheduler ran them: after the first failure no
@@ -236,6 +237,7 @@ class Executor:
         futures = self._client.map(fn, items, pure=False)
         index = {f.key: k for k, f in enumerate(futures)}
         first_bad = len(items)
+        got = {}  # with on_result: each result as handed over, returned as it is (not fetched again by a gather)
         with progress(len(items), desc, unit) as bar, _cancelled_when_interrupted(self._client, futures):
             for fut in as_completed(futures):
                 k = index[fut.key]
@@ -244,7 +246,8 @@ class Executor:
                     for f in futures[k + 1:]:
                         f.cancel()
                 elif fut.status == "finished" and on_result is not None:
-                    on_result(k, fut.result())
+                    got[k] = fut.result()
+                    on_result(k, got[k])
                 bar.update(1)
                 if all(f.done() for f in futures[:first_bad]) and first_bad < len(items):
                     break
@@ -253,7 +256,7 @@ class Executor:
             first_bad = next(k for k, f in enumerate(futures[:first_bad + 1]) if f.status == "error")
             fut = futures[first_bad]
             raise fut.exception().with_traceback(fut.traceback())
-        return self._client.gather(futures)
+        return [got[k] for k in range(len(items))] if on_result is not None else self._client.gather(futures)
 
     def close(self) -> None:
         if self._client is not None:

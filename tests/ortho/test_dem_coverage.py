@@ -116,6 +116,9 @@ def test_the_frames_warnings_come_in_the_blocks_order_from_every_scheduler(full,
                 "--workers", 2)
         assert r.exit_code == 0, r.output
         said[scheduler] = [line.split(": the DEM")[0] for line in r.stderr.splitlines() if ": the DEM " in line]
+        # (said, and not kept in the index)
+        frames = json.loads((project / "ortho/frames/index.json").read_text())["frames"]
+        assert len(frames) == 2 and not any("messages" in e for e in frames)
     # the frames' order (as --frames names them)
     assert said["threads"] == said["local:2"] == ["warning: frame s02_001", "warning: frame s01_003"], said
 

@@ -17,6 +17,10 @@ def _square(x):
     return x * x
 
 
+def _boxed(x):
+    return [x]
+
+
 def _fail_on_three(x):
     if x == 3:
         raise ValueError("task 3 failed")
@@ -65,6 +69,10 @@ def test_each_result_is_handed_over_in_this_thread_as_its_item_finishes(schedule
 
     assert ex.map(_square, range(12), on_result=take) == [x * x for x in range(12)]
     assert sorted(got) == [(k, k * k, True) for k in range(12)]
+    # the results returned are the objects handed over (what on_result changes in them stays changed)
+    handed = {}
+    out = ex.map(_boxed, range(6), on_result=lambda k, r: handed.setdefault(k, r).append("seen"))
+    assert all(out[k] is handed[k] for k in range(6)) and out == [[k, "seen"] for k in range(6)]
     got.clear()
     with pytest.raises(ValueError, match="task 3 failed"):
         ex.map(_fail_on_three, range(8), on_result=take)
