@@ -46,6 +46,8 @@ class _Joint:
 # single-threaded path does not (potrf + potri checked at n = 20,000 and 24,000). The selected inversion's
 # blocks are far smaller, unless the images' graph is nearly complete (every image sees every other).
 _THREADED_LAPACK_MAX_BYTES = 1 << 30
+# rows of the inverse's lower triangle mirrored into the upper at a time (_inverse_spd)
+_MIRROR_BLOCK_ROWS = 2048
 
 
 def _inverse_spd(H: np.ndarray) -> np.ndarray:
@@ -64,7 +66,7 @@ def _inverse_spd(H: np.ndarray) -> np.ndarray:
             raise np.linalg.LinAlgError(f"reduced normal matrix singular (LAPACK dpotri info {info})")
     # potri fills the lower triangle only: mirror it block by block (an index array of the whole upper
     # triangle would take twice the matrix's memory)
-    n, b = len(inv), 2048
+    n, b = len(inv), _MIRROR_BLOCK_ROWS
     for i in range(0, n, b):
         inv[i:i + b, i:i + b] = np.tril(inv[i:i + b, i:i + b]) + np.tril(inv[i:i + b, i:i + b], -1).T
         inv[i:i + b, i + b:] = inv[i + b:, i:i + b].T

@@ -1,5 +1,5 @@
 """The production chain on the simulated tiny project: the README's chain command by command through the
-real command lines (with and without self-calibration), ``aerotri run`` to the end (the same result as
+commands' own parsers (with and without self-calibration), ``aerotri run`` to the end (the same result as
 by hand), and ``aerotri run`` without LiDAR on a DEM from elsewhere."""
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import rasterio
@@ -24,7 +25,6 @@ from lidarctl.strips.check import read_strip_check
 from tests.ortho.test_true_ortho import roofs_not_measured_said
 
 REPO = Path(__file__).resolve().parents[3]
-BIN = Path(sys.executable).parent  # the venv's aerotri, lidarctl, ortho
 
 
 def readme_chain() -> list[list[str]]:
@@ -42,6 +42,18 @@ def _substitute(args: list[str], p: Path) -> list[str]:
         a = {"REF.tif": str(p / "truth" / "ortho.tif"), "POINTS.csv": str(p / "truth" / "checkpoints.csv")}.get(a, a)
         out += sorted(glob.glob(a)) if "*" in a else [a]
     return out
+
+
+def _invoke(cmd: list[str]) -> SimpleNamespace:
+    """``cmd`` through its console script's click command in this process, as (returncode, stdout, stderr). The
+    scripts themselves are the wheel's (tests/test_packaging.py); with a process of its own per command (1-2 s of
+    imports each) the fixture took 35 s, 21 s in this process."""
+    from lidarctl.cli.main import main as lidarctl_cli
+    from ortho.cli import main as ortho_cli
+
+    command = {"aerotri": aerotri_cli, "lidarctl": lidarctl_cli, "ortho": ortho_cli}[cmd[0]]
+    r = CliRunner().invoke(command, cmd[1:], catch_exceptions=False)
+    return SimpleNamespace(returncode=r.exit_code, stdout=r.stdout, stderr=r.stderr)
 
 
 def run_readme_chain(p: Path, self_cal: bool, start: str | None = None, stop: str | None = None) -> dict:
@@ -67,8 +79,8 @@ def run_readme_chain(p: Path, self_cal: bool, start: str | None = None, stop: st
             if opt in args and not (p / "lidar_out" / name).is_file():
                 i = args.index(opt)  # lidarctl corners wrote nothing (no usable corner)
                 args = args[:i] + args[i + 2:]
-        cmd = [str(BIN / args[0])] + _substitute(args[1:], p)
-        res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        cmd = [args[0]] + _substitute(args[1:], p)
+        res = _invoke(cmd)
         done[" ".join(args[:2])] = res
         if args[:2] == ["lidarctl", "corners"] and res.returncode == 2:
             # the README: no usable roof corner -> no control transfer, no GNSS corrections
