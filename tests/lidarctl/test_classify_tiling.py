@@ -10,22 +10,6 @@ from aerotri.core.executor import Executor
 from lidarctl import grid, raster_ops, synthetic, tiles
 
 
-def test_tiled_classes_equal_the_whole_cloud_s(tmp_path):
-    # 200 m x 200 m, 2.5 points/m2 (~100 k points); 3 x 3 tiles of 70 m + the default 60 m buffer (the ground
-    # filter's reach). Before: 27 points differed (vegetation <-> unclassified at tree edges, a ground point), all
-    # over the area: each tile's grids started at its window's lowest corner, its cells were 2 spacings of its
-    # window, its ground tolerances its window's noise.
-    cloud, _ = synthetic.synthetic_scene(width_m=200.0, density_per_m2=2.5, seed=5, n_buildings=6, n_trees=40)
-    synthetic.write_las(tmp_path / "in.laz", cloud, crs="EPSG:32632")
-    whole = tiles.classify_file(tmp_path / "in.laz", tmp_path / "whole.laz")
-    with Executor("synchronous") as ex:
-        tiled = tiles.classify_file(tmp_path / "in.laz", tmp_path / "tiled.laz", tile_size_m=70.0, executor=ex)
-    assert whole.run.n_tiles == 1 and tiled.run.n_tiles == 9 and tiled.grid.buffer_m == 60.0
-    a = np.asarray(laspy.read(tmp_path / "whole.laz").classification)
-    b = np.asarray(laspy.read(tmp_path / "tiled.laz").classification)
-    assert np.count_nonzero(a != b) == 0
-
-
 def test_a_window_denser_or_sparser_than_the_cloud_refines_the_ground_on_the_whole_cloud_s_surface(tmp_path, caplog):
     # The ground filter refines on a grid of mean ground heights where the ground holds at least
     # dense_points_per_cell (3) points per 1 m cell, else on a TIN. A cloud whose western half is thinned to 1.5
@@ -140,6 +124,10 @@ def test_the_rooftop_rule_takes_the_whole_cloud_s_range_noise(tmp_path, monkeypa
     # tiles). Now it is the lifted-ground test's figure, which a tile takes from the whole cloud: one value for
     # every window, the whole cloud's; also without return numbers (a photogrammetric or single-return cloud: the
     # lift test judges nothing) and with the lift test off (ground_lift_sigma 0), where a tile fell back to its own.
+    # And the classes of the 3 x 3 tiles equal the whole cloud's (200 m x 200 m, 2.5 points/m2, about 100 k points;
+    # tiles of 70 m and the default 60 m buffer, the ground filter's reach). Before: 27 points differed
+    # (vegetation <-> unclassified at tree edges, a ground point), all over the area: each tile's grids started at
+    # its window's lowest corner, its cells were 2 spacings of its window, its ground tolerances its window's noise.
     import dataclasses
 
     from lidarctl.classify import pipeline
@@ -160,10 +148,12 @@ def test_the_rooftop_rule_takes_the_whole_cloud_s_range_noise(tmp_path, monkeypa
         pipeline.ClassifySettings()
     synthetic.write_las(tmp_path / "in.laz", cloud, crs="EPSG:32632")
     with Executor("synchronous") as ex:
-        tiles.classify_file(tmp_path / "in.laz", tmp_path / "whole.laz", executor=ex, params=params)
+        run_whole = tiles.classify_file(tmp_path / "in.laz", tmp_path / "whole.laz", executor=ex, params=params)
         whole = list(seen)
         seen.clear()
-        tiles.classify_file(tmp_path / "in.laz", tmp_path / "tiled.laz", tile_size_m=70.0, executor=ex, params=params)
+        run_tiled = tiles.classify_file(tmp_path / "in.laz", tmp_path / "tiled.laz", tile_size_m=70.0, executor=ex,
+                                        params=params)
+    assert run_whole.run.n_tiles == 1 and run_tiled.run.n_tiles == 9 and run_tiled.grid.buffer_m == 60.0
     assert len(whole) == 1 and len(seen) == 9
     assert seen == pytest.approx([whole[0]] * 9, rel=1e-12)
     # the figure is the lifted-ground test's: the ground's robust spread about its local planes (1.4826 MAD)
