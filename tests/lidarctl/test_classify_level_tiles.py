@@ -203,9 +203,9 @@ def test_tiles_run_finds_the_whole_clouds_bodies_from_the_spool(tmp_path, monkey
 
 def test_the_parents_memory_is_a_windows_not_the_clouds(tmp_path, monkeypatch):
     """level-wire: the spooled pass (the store in files, as in a tiled run) holds one level tile's window and the
-    per-region tables: 1 and 4 copies of the lake scene side by side (the lake with its ring of patches joined
-    across a dropout in each: 964 body cells), 4 times the cells and bodies, the pass's tracemalloc peak within 1.5
-    times."""
+    per-region tables: 1 and 3 copies of the lake scene side by side (the lake with its ring of patches joined
+    across a dropout in each: 964 body cells), 3 times the cells and bodies, the pass's tracemalloc peak within 1.5
+    times (4 copies before: 9.7 of the test's 14-16 s)."""
     import tracemalloc
 
     cells, heights, wg = lake_cells()
@@ -213,7 +213,7 @@ def test_the_parents_memory_is_a_windows_not_the_clouds(tmp_path, monkeypatch):
     monkeypatch.setattr(lt, "LEVEL_TILE_M", 40.0)   # level tiles of the halo's 40 cells: a window of 3 x 3 tiles
     width = int(cells[:, 1].max()) + 4
     peaks, bodies = [], []
-    for k in (1, 4):
+    for k in (1, 3):
         many = np.concatenate([cells + (0, i * width) for i in range(k)])
         occ = np.ones((int(many[:, 0].max() * wg.cell_m / 10) + 2, int(many[:, 1].max() * wg.cell_m / 10) + 2), bool)
         wg_k = dataclasses.replace(wg, footprint_10m=classify.survey_footprint(occ))
@@ -235,5 +235,5 @@ def test_the_parents_memory_is_a_windows_not_the_clouds(tmp_path, monkeypatch):
         keys = np.concatenate([np.fromfile(f, np.int64) for f in folder.glob("out_keys_*.bin")])
         bodies.append(len(keys))
         assert ncols == (k - 1) * width + int(cells[:, 1].max()) + 1
-    assert bodies[0] > 900 and bodies[1] == 4 * bodies[0]
+    assert bodies[0] > 900 and bodies[1] == 3 * bodies[0]
     assert peaks[1] < 1.5 * peaks[0], peaks
