@@ -47,7 +47,7 @@ def _substitute(args: list[str], p: Path) -> list[str]:
 def _invoke(cmd: list[str]) -> SimpleNamespace:
     """``cmd`` through its console script's click command in this process, as (returncode, stdout, stderr). The
     scripts themselves are the wheel's (tests/test_packaging.py); with a process of its own per command (1-2 s of
-    imports each) the fixture took 35 s, 21 s in this process."""
+    imports each) the fixture took 35 s, 18-21 s in this process."""
     from lidarctl.cli.main import main as lidarctl_cli
     from ortho.cli import main as ortho_cli
 
