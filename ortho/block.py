@@ -1245,9 +1245,9 @@ def _rectify_into(out_dir: Path, block: BlockInputs, eo_idx, *, res, out_crs, pr
     todo = [t for t in tasks if t.image_id not in resumed]
     # each frame's warnings in the block's order, as soon as the frames before it are made too
     said, position = _SaidInOrder(), {t.image_id: k for k, t in enumerate(tasks)}
-    for t in tasks:
+    for k, t in enumerate(tasks):
         if t.image_id in resumed:
-            said.take(position[t.image_id], resumed[t.image_id])
+            said.take(k, resumed[t.image_id])
     done = dict(zip((t.image_id for t in todo),
                     executor.map(_rectify_frame_task, todo, desc="rectify", unit="frame",
                                  on_result=lambda k, e: said.take(position[todo[k].image_id], e)) if todo else []))

@@ -1500,15 +1500,15 @@ def corner_control(paths, outdir, settings: CornerSettings | Resolved = CornerSe
     """The stage: roof corners of classified LAS/LAZ file(s) (one or more strips in one CRS) as control
     candidates. ``crs``: the CRS of files that have none (never guessed).
 
-    Writes corners.csv, corners.geojson, roof_planes.geojson (the roof faces as surface control),
-    roof_outlines.gpkg (the roof outlines: QGIS, the true ortho's footprints), corners.json (summary) and, with
-    ``settings.figure``, corners.png into ``outdir`` when at least one corner is usable as control; x, y, z in the
-    files' CRS and units, sigmas in metres (every length setting is in metres, also for clouds in feet). Without a
-    usable corner it writes nothing, or, with ``record_none`` (the chain, which goes on without LiDAR control), only
-    corners.json saying why (``n_usable`` 0; also for a cloud with no roof at all, ``NoRoofs``: no building points, no roof outline,
-    which ``lidarctl corners`` is told by that error), and removes the corner files (and roof planes) of an
-    earlier run, so that nothing downstream takes stale corners; the chain then adjusts as ``lidarctl corners``' exit code 2 tells a
-    user to (README), without roof planes. Returns what corners.json holds, with ``no_usable`` the one-line
+    Writes corners.csv, corners.geojson, roof_planes.geojson (the roof faces as surface control), roof_outlines.gpkg
+    (the roof outlines: QGIS, the true ortho's footprints), corners.json (summary) and, with ``settings.figure``,
+    corners.png into ``outdir`` when at least one corner is usable as control; x, y, z in the files' CRS and units,
+    sigmas in metres (every length setting is in metres, also for clouds in feet). Without a usable corner it writes
+    nothing, or, with ``record_none`` (the chain, which goes on without LiDAR control), only corners.json saying why
+    (``n_usable`` 0; also for a cloud with no roof at all, ``NoRoofs``: no building points, no roof outline, which
+    ``lidarctl corners`` is told by that error), and removes the corner files (and roof planes) of an earlier run,
+    so that nothing downstream takes stale corners; the chain then adjusts as ``lidarctl corners``' exit code 2
+    tells a user to (README), without roof planes. Returns what corners.json holds, with ``no_usable`` the one-line
     reason when no corner is usable (else None).
     """
     paths = [Path(p) for p in paths]
