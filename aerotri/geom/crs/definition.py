@@ -122,7 +122,19 @@ def _crs_on_stated_datum(text: str, source: str) -> pyproj.CRS:
 def unknown_datum_hint(crs: pyproj.CRS, other: pyproj.CRS) -> str | None:
     """What is missing from ``crs`` when it names an ellipsoid but no datum (a PROJ string with +ellps and neither
     +datum nor +towgs84), so that PROJ has only a ballpark operation from ``other``: its datum, and how to state it
-    (the datum of ``other`` when its ellipsoid is the same: the likely one). None for a CRS with a datum."""
+    (the datum of ``other`` when its ellipsoid is the same: the likely one). Also for a vertical CRS whose datum is
+    unknown (``VDATUM["unknown"]``: a DEM cut with Debian's gdal_translate 3.6 from one in "Lo25 WGS84 + EGM2008
+    height" was refused naming EGM2008 height on both sides). None for a CRS with a datum."""
+    v = vertical_crs(crs)
+    if v is not None and v.datum is not None and v.datum.name.lower() == "unknown":
+        ov = vertical_crs(other)
+        likely = (f": if they are {ov.name} ({ov.datum.name}), as the name says, give the file its vertical datum "
+                  "again (the WKT of the file it was cut from, e.g. rio edit-info --crs), and the operation is exact"
+                  if ov is not None and ov.name == v.name and ov.datum is not None
+                  and ov.datum.name.lower() != "unknown" else
+                  ": state it (a vertical CRS by its EPSG code or WKT with its VDATUM)")
+        return (f"its vertical CRS {v.name!r} names no vertical datum (VDATUM unknown; some GDAL versions write a "
+                f"copied compound CRS so), so PROJ cannot know what its heights are{likely}")
     h = horizontal_crs(crs)
     if h.is_bound or h.datum is None or not h.datum.name.startswith(UNKNOWN_DATUM_PREFIX):
         return None

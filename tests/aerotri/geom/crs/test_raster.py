@@ -309,6 +309,26 @@ def test_ortho_takes_a_height_model_on_the_projects_datum_only():
         dem_height_operation("EPSG:32649+3855", "EPSG:32649", None, HeightAnomalyModel(**plane, h_crs="EPSG:4214"))
 
 
+def test_a_dem_whose_vertical_datum_was_lost_is_refused_saying_so():
+    """Trial 116: the NGI DEM ("Lo25 WGS84 + EGM2008 height") cut with Debian's gdal_translate 3.6 came back with
+    VDATUM["unknown"] under the same name: ``ortho rectify`` refused it (exit 2) naming EGM2008 height on both sides.
+    The error now says the vertical datum is missing and how to give it back; the file's own CRS passes."""
+    from aerotri.core.errors import CrsError
+    from ortho.dem import dem_height_operation
+
+    project = CRS("EPSG:32735+3855")
+    wkt = project.to_wkt("WKT2_2019")
+    lost = CRS(wkt.replace('VDATUM["EGM2008 geoid"]', 'VDATUM["unknown"]').replace(',ID["EPSG",3855]]]', "]]"))
+    assert lost.sub_crs_list[1].name == "EGM2008 height" and lost.sub_crs_list[1].datum.name == "unknown"
+    with pytest.raises(CrsError) as e:
+        dem_height_operation(lost, "EPSG:32735", CRS("EPSG:3855"))
+    said = str(e.value)
+    assert "its vertical CRS 'EGM2008 height' names no vertical datum (VDATUM unknown" in said
+    assert "if they are EGM2008 height (EGM2008 geoid), as the name says, give the file its vertical datum again" in said
+    assert "--allow-ballpark" in said   # the ways out said before are still there
+    assert dem_height_operation(project, "EPSG:32735", CRS("EPSG:3855")) is None
+
+
 def test_warp_keeps_every_cell_whose_bilinear_taps_are_valid(tmp_path):
     """trial-lidar: the validity rule (the nearest source pixel's 3 x 3 all valid) took a ring of valid cells off every
     nodata edge: Autzen's DEM (feet) in UTM 10N metres 48,502 cells where GDAL's bilinear warp gives 49,900 (ours now
