@@ -324,7 +324,7 @@ def test_a_dem_whose_vertical_datum_was_lost_is_refused_saying_so():
         dem_height_operation(lost, "EPSG:32735", CRS("EPSG:3855"))
     said = str(e.value)
     assert "its vertical CRS 'EGM2008 height' names no vertical datum (VDATUM unknown" in said
-    assert "if they are EGM2008 height (EGM2008 geoid), as the name says, give the file its vertical datum again" in said
+    assert "if they are EGM2008 height (EGM2008 geoid), as the name says, give the file its vertical datum" in said
     assert "--allow-ballpark" in said   # the ways out said before are still there
     assert dem_height_operation(project, "EPSG:32735", CRS("EPSG:3855")) is None
 
