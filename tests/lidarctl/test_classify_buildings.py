@@ -188,3 +188,45 @@ def test_cut_pieces_keep_roofs_and_single_return_fragments():
     expected = cells.copy()
     expected[2:12, 15:25] = False
     assert np.array_equal(left, expected)
+
+
+def _roof_and_touching_crown(seed: int, density_per_m2: float = 40.0):
+    """A flat 18 x 16 m roof 8 m high and a dense broadleaf crown against its east eave (a dome of radius 7 m, base
+    5 m, top 11 m, rough by its leaf clusters) whose split pulses (40 %) end on lower leaves inside it, none on the
+    ground; IGN LiDAR HD's density. Returns x, y, z, return number, number of returns, truth class (2 ground, 5 crown,
+    6 building)."""
+    rng = np.random.default_rng(seed)
+    u, v, ground_z, z, truth = _sloped_ground(rng, 60.0, 40.0, density_per_m2, 50.0, 0.01)
+    n = len(u)
+    roof = (u > 6) & (u < 24) & (v > 12) & (v < 28)
+    z[roof] = ground_z[roof] + 8.0 + rng.normal(0, 0.03, roof.sum())
+    truth[roof] = 6
+    d2 = ((u - 31.0) ** 2 + (v - 20.0) ** 2) / 7.0 ** 2
+    crown = (d2 < 1.0) & ~roof
+    # leaf clusters of about a metre: the crown's top is rough at that scale (+- 0.6 m), each return within its cluster
+    clusters = rng.normal(0.0, 0.6, (41, 61))[v.astype(int), u.astype(int)]
+    z[crown] = (ground_z[crown] + 5.0 + 6.0 * np.sqrt(1.0 - d2[crown]) + clusters[crown]
+                - rng.uniform(0.0, 0.5, crown.sum()))
+    truth[crown] = 5
+    split = crown & (rng.random(n) < 0.4)
+    k = int(split.sum())
+    return (np.r_[u, u[split]] + 770000.0, np.r_[v, v[split]] + 6277000.0,
+            np.r_[z, z[split] - rng.uniform(1.0, 3.0, k)], np.r_[np.ones(n, np.uint8), np.full(k, 2, np.uint8)],
+            np.r_[np.where(split, 2, 1).astype(np.uint8), np.full(k, 2, np.uint8)],
+            np.r_[truth, np.full(k, 5, np.uint8)])
+
+
+def test_a_dense_crown_grown_into_from_a_roof_leaves_the_building_by_its_foliage():
+    # IGN LiDAR HD Isère (leaf-on broadleaf crowns against houses): the crown joins the roof's segment by growth, and
+    # its pulses end on its own leaves, not on the ground, so pierced growth does not take it. Beyond 2 cells of a
+    # roof cell, a grown region that splits the pulses, is rough and holds its returns deep below its top is foliage.
+    x, y, z, rn, nr, truth = _roof_and_touching_crown(seed=0)
+    intensity = np.full(len(x), 300, np.uint16)
+    beyond_eave = (truth == 5) & (x > 770025.5)   # more than 1.5 m (3 cells) from the eave
+    cls = classify.classify_points(x, y, z, rn, nr, intensity)
+    assert np.mean(cls[beyond_eave] == classify.BUILDING) < 0.02
+    assert np.mean(cls[truth == 6] == classify.BUILDING) > 0.99
+    off = dataclasses.replace(classify.ClassifySettings(), foliage_beyond_roof_reach=False)
+    before = classify.classify_points(x, y, z, rn, nr, intensity, params=off)
+    assert np.mean(before[beyond_eave] == classify.BUILDING) > 0.9
+    assert np.mean(before[truth == 6] == classify.BUILDING) > 0.99

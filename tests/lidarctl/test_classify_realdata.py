@@ -56,10 +56,11 @@ def test_ahn3_has_no_crs_and_ground_is_found_and_buildings_cover_the_bgt_footpri
     assert conf.producers_accuracy_pct["2"] >= 95.0, conf
     assert conf.users_accuracy_pct["2"] >= 95.0, conf
     # Buildings per point against AHN3 are a reported figure since issue 44 (AHN3 calls building the see-through
-    # garden structures the BGT does not map, and the pierced-growth test takes them): 93.05 / 96.64 % measured
-    # (93.2 / 96.3 % before stop 108's cut pieces; 95.5 / 95.3 % without the pierced-growth test).
-    assert conf.producers_accuracy_pct["6"] >= 93.0, conf
-    assert conf.users_accuracy_pct["6"] >= 96.0, conf
+    # garden structures the BGT does not map, and the pierced-growth test takes them): 92.45 / 97.25 % measured
+    # (93.05 / 96.64 % before stop 117's foliage beyond a roof's reach, whose returns mostly lie outside every BGT
+    # footprint; 93.2 / 96.3 % before stop 108's cut pieces; 95.5 / 95.3 % without the pierced-growth test).
+    assert conf.producers_accuracy_pct["6"] >= 92.0, conf
+    assert conf.users_accuracy_pct["6"] >= 97.0, conf
 
     polys = bgt_footprints
     grid, _ = cg.cloud_grid(out, 0.5, "EPSG:28992")

@@ -329,7 +329,7 @@ def test_a_rule_change_under_an_option_that_is_off_reuses_the_tiles(strips, tmp_
     from lidarctl.classify import pipeline
 
     off, on = pipeline.ClassifySettings(water_whole_level_bodies=False), pipeline.ClassifySettings()
-    assert lidarctl.classify.rules_version(off) == 17   # versions 13 to 17 decide classes with it off too
+    assert lidarctl.classify.rules_version(off) == 18   # versions 13 to 18 decide classes with it off too
     assert lidarctl.classify.rules_version(on) == lidarctl.classify.RULES_VERSION
     monkeypatch.setattr(tiles, "_classify_tile", _Tiles(at=3))
     with pytest.raises(KeyboardInterrupt):
@@ -338,7 +338,7 @@ def test_a_rule_change_under_an_option_that_is_off_reuses_the_tiles(strips, tmp_
     monkeypatch.setattr(lidarctl.classify, "RULES_VERSION", bumped)
     monkeypatch.setattr(lidarctl.classify, "OPTION_ONLY_VERSIONS",
                         {**lidarctl.classify.OPTION_ONLY_VERSIONS, bumped: "water_whole_level_bodies"})
-    assert lidarctl.classify.rules_version(off) == 17 and lidarctl.classify.rules_version(on) == bumped
+    assert lidarctl.classify.rules_version(off) == 18 and lidarctl.classify.rules_version(on) == bumped
     count = _Tiles()
     monkeypatch.setattr(tiles, "_classify_tile", count)
     with caplog.at_level(logging.INFO, logger="lidarctl.tiles"):

@@ -438,10 +438,11 @@ def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path)
     # the rules' version at the stage's settings: with the whole cloud's level bodies off the version before
     # level-bodies-sparse (9), whose changes decide classes only with it on (review 19); on by default since
     # level-wire (12); 13 (high clusters), 14 (h1-tiling), 15 (rooftop-noise), 16 (roof patches) and 17 (cut pieces)
-    # decide classes with it off too
-    assert S._classify_versions(ClassifySettings(water_whole_level_bodies=False)) == {"classify rules": 17}
+    # decide classes with it off too; 18 (foliage beyond a roof's reach) only with its own setting on (on by default)
+    assert S._classify_versions(ClassifySettings(water_whole_level_bodies=False)) == {"classify rules": 18}
+    assert S._classify_versions(ClassifySettings(foliage_beyond_roof_reach=False)) == {"classify rules": 17}
     assert S._classify_versions(ClassifySettings()) == {"classify rules": lidarctl.classify.RULES_VERSION} == {
-        "classify rules": 17}
+        "classify rules": 18}
     assert S._rasters_versions() == {"rasters": lidarctl.rasters.products.RASTERS_VERSION,
                                      "crown model": lidarctl.rasters.crown_model.CROWNS_VERSION}
     assert S._corners_versions() == {"roof corners": roof_corners.CORNERS_VERSION}
@@ -462,7 +463,7 @@ def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path)
                                     "gains, offsets and seamlines": ortho.mosaic.RADIOMETRY_SEAMS_VERSION}
     (tmp_path / "project.toml").write_text('[project]\ncrs = "EPSG:32649"\n')
     versions = {st.name: st.versions_now() for st in S.chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
-    assert versions["classify"] == {"classify rules": 17} and versions["rasters"] == S._rasters_versions()
+    assert versions["classify"] == {"classify rules": 18} and versions["rasters"] == S._rasters_versions()
     assert versions["match"] == S._match_versions() and versions["control"] == S._control_versions()
     assert versions["rectify"] == S._rectify_versions(RectifySettings()) and versions["mosaic"] == S._mosaic_versions()
     assert versions["corners"] == S._corners_versions()
@@ -471,6 +472,10 @@ def test_the_chain_stamps_hold_the_algorithm_versions_next_to_the_code(tmp_path)
     assert versions["dem"] == S._dem_versions() and versions["report"] == S._report_versions()
     (tmp_path / "project.toml").write_text(
         '[project]\ncrs = "EPSG:32649"\n[classify]\nwater_whole_level_bodies = false\n')
+    versions = {st.name: st.versions_now() for st in S.chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
+    assert versions["classify"] == {"classify rules": 18}
+    (tmp_path / "project.toml").write_text(
+        '[project]\ncrs = "EPSG:32649"\n[classify]\nfoliage_beyond_roof_reach = false\n')
     versions = {st.name: st.versions_now() for st in S.chain_stages(tmp_path, dem=tmp_path / "dem.tif")}
     assert versions["classify"] == {"classify rules": 17}
 
