@@ -15,7 +15,8 @@ made (``FETCHED``: lasR's four BC Timber Sales forest tiles and lidR's Megaplot,
 IGN's LiDAR HD from three IGNF repositories, ASPRS classes with buildings, water and bridges), each file taken from its
 repository at the commit named (``git show COMMIT:PATH > DIR/BASENAME``; nothing is copied into this repository).
 Building returns are counted with the shipped defaults and with each later building rule off alone (``RULES_OFF``:
-``roof_min_patch_m2 = 0``, the rule before stop 107; ``cut_pieces_judged = false``, before stop 108); where the labels
+``roof_min_patch_m2 = 0``, the rule before stop 107; ``cut_pieces_judged = false``, before stop 108;
+``foliage_beyond_roof_reach = false``, before stop 117); where the labels
 hold buildings, building producer's / user's accuracy per point and the high vegetation called building.
 Writes bench/results/ground_more_data.json. Run: nice .venv/bin/python bench/eval_ground_more_data.py [--fetched DIR]
 """
@@ -138,9 +139,10 @@ def _merged(paths, left_out: tuple = ()) -> io.PointCloud:
 
 
 # Building rules added after a set here was scored, each switched off alone in the same run: roof patches (stop 107:
-# every roof cell counts toward a segment's roof area) and cut pieces (stop 108: a piece of a segment cut off by the
-# growth tests keeps the segment's verdict).
-RULES_OFF = {"roof_patches": {"roof_min_patch_m2": 0.0}, "cut_pieces": {"cut_pieces_judged": False}}
+# every roof cell counts toward a segment's roof area), cut pieces (stop 108: a piece of a segment cut off by the
+# growth tests keeps the segment's verdict) and foliage beyond a roof's reach (stop 117).
+RULES_OFF = {"roof_patches": {"roof_min_patch_m2": 0.0}, "cut_pieces": {"cut_pieces_judged": False},
+             "foliage_beyond_reach": {"foliage_beyond_roof_reach": False}}
 
 
 def _building_scores(called: np.ndarray, truth: np.ndarray) -> dict:
