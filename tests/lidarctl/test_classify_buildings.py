@@ -124,17 +124,24 @@ def test_roof_patches_keep_the_connected_planes_of_at_least_the_area():
     assert np.array_equal(classify.roof_patches(roof, 0.5, 0.0), roof)
 
 
+def _ground_and_roof(rng, width_m: float, density_per_m2: float):
+    """``_sloped_ground`` of ``width_m`` x 40 m (1 % slope) with a flat 18 x 16 m roof 8 m above it (u 6-24 m, v 12-28
+    m): u, v, ground z, z, truth class and the roof's mask."""
+    u, v, ground_z, z, truth = _sloped_ground(rng, width_m, 40.0, density_per_m2, 50.0, 0.01)
+    roof = (u > 6) & (u < 24) & (v > 12) & (v < 28)
+    z[roof] = ground_z[roof] + 8.0 + rng.normal(0, 0.03, roof.sum())
+    truth[roof] = 6
+    return u, v, ground_z, z, truth, roof
+
+
 def _roof_hedge_crown(seed: int, density_per_m2: float = 10.0):
     """A flat 18 x 16 m roof 8 m high; along its east eave a 3 m wide hedge 6 m high that passes 40 % of its pulses to
     the ground; beyond it a dense broadleaf crown (dome of radius 7 m, base 5 m, top 11 m, rough) whose split pulses
     (40 %) end inside the crown, none on the ground. Returns x, y, z, return number, number of returns, truth class
     (2 ground, 5 crown or hedge, 6 building)."""
     rng = np.random.default_rng(seed)
-    u, v, ground_z, z, truth = _sloped_ground(rng, 70.0, 40.0, density_per_m2, 50.0, 0.01)
+    u, v, ground_z, z, truth, roof = _ground_and_roof(rng, 70.0, density_per_m2)
     n = len(u)
-    roof = (u > 6) & (u < 24) & (v > 12) & (v < 28)
-    z[roof] = ground_z[roof] + 8.0 + rng.normal(0, 0.03, roof.sum())
-    truth[roof] = 6
     hedge = (u >= 24) & (u < 27) & (v > 16) & (v < 24)
     z[hedge] = ground_z[hedge] + 6.0 - rng.uniform(0.0, 1.0, hedge.sum())
     d2 = ((u - 33.5) ** 2 + (v - 20.0) ** 2) / 7.0 ** 2
@@ -196,11 +203,8 @@ def _roof_and_touching_crown(seed: int, density_per_m2: float = 40.0):
     ground; IGN LiDAR HD's density. Returns x, y, z, return number, number of returns, truth class (2 ground, 5 crown,
     6 building)."""
     rng = np.random.default_rng(seed)
-    u, v, ground_z, z, truth = _sloped_ground(rng, 60.0, 40.0, density_per_m2, 50.0, 0.01)
+    u, v, ground_z, z, truth, roof = _ground_and_roof(rng, 60.0, density_per_m2)
     n = len(u)
-    roof = (u > 6) & (u < 24) & (v > 12) & (v < 28)
-    z[roof] = ground_z[roof] + 8.0 + rng.normal(0, 0.03, roof.sum())
-    truth[roof] = 6
     d2 = ((u - 31.0) ** 2 + (v - 20.0) ** 2) / 7.0 ** 2
     crown = (d2 < 1.0) & ~roof
     # leaf clusters of about a metre: the crown's top is rough at that scale (+- 0.6 m), each return within its cluster
