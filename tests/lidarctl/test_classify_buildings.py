@@ -158,20 +158,28 @@ def _roof_hedge_crown(seed: int, density_per_m2: float = 10.0):
             np.r_[truth, np.where(hedge[split], 2, 5).astype(np.uint8)])
 
 
+def _building_shares(scene, part, **without):
+    """The shares of the returns ``part`` and of the roof (truth 6) of ``scene`` (x, y, z, return number, number of
+    returns, truth) called building with the shipped settings, then with the settings ``without`` a rule."""
+    x, y, z, rn, nr, truth = scene
+    intensity = np.full(len(x), 300, np.uint16)
+    out = []
+    for p in (classify.ClassifySettings(), dataclasses.replace(classify.ClassifySettings(), **without)):
+        cls = classify.classify_points(x, y, z, rn, nr, intensity, params=p)
+        out.append((np.mean(cls[part] == classify.BUILDING), np.mean(cls[truth == 6] == classify.BUILDING)))
+    return out
+
+
 def test_a_crown_cut_off_from_the_roof_by_pierced_growth_leaves_the_building():
     # IGN LiDAR HD Montpellier (leaf-on street and courtyard crowns): a crown touching a roof through a hedge joins the
     # roof's segment; pierced growth takes the hedge (its pulses reach the ground) but left the dense crown beyond it,
     # cut off from every roof, with the segment's building verdict. Each piece left is judged again.
-    x, y, z, rn, nr, truth = _roof_hedge_crown(seed=0)
-    intensity = np.full(len(x), 300, np.uint16)
-    cls = classify.classify_points(x, y, z, rn, nr, intensity)
+    scene = _roof_hedge_crown(seed=0)
+    x, y, truth = scene[0], scene[1], scene[5]
     crown = (truth == 5) & (np.hypot(x - 770033.5, y - 6277020.0) < 6.0) & (x > 770028.0)
-    assert np.mean(cls[crown] == classify.BUILDING) < 0.01
-    assert np.mean(cls[truth == 6] == classify.BUILDING) > 0.99
-    uncut = dataclasses.replace(classify.ClassifySettings(), cut_pieces_judged=False)
-    before = classify.classify_points(x, y, z, rn, nr, intensity, params=uncut)
-    assert np.mean(before[crown] == classify.BUILDING) > 0.5
-    assert np.mean(before[truth == 6] == classify.BUILDING) > 0.99
+    (crown_with, roof_with), (crown_without, roof_without) = _building_shares(scene, crown, cut_pieces_judged=False)
+    assert crown_with < 0.01 and roof_with > 0.99
+    assert crown_without > 0.5 and roof_without > 0.99
 
 
 def test_cut_pieces_keep_roofs_and_single_return_fragments():
@@ -224,13 +232,9 @@ def test_a_dense_crown_grown_into_from_a_roof_leaves_the_building_by_its_foliage
     # IGN LiDAR HD Isère (leaf-on broadleaf crowns against houses): the crown joins the roof's segment by growth, and
     # its pulses end on its own leaves, not on the ground, so pierced growth does not take it. Beyond 2 cells of a
     # roof cell, a grown region that splits the pulses, is rough and holds its returns deep below its top is foliage.
-    x, y, z, rn, nr, truth = _roof_and_touching_crown(seed=0)
-    intensity = np.full(len(x), 300, np.uint16)
-    beyond_eave = (truth == 5) & (x > 770025.5)   # more than 1.5 m (3 cells) from the eave
-    cls = classify.classify_points(x, y, z, rn, nr, intensity)
-    assert np.mean(cls[beyond_eave] == classify.BUILDING) < 0.02
-    assert np.mean(cls[truth == 6] == classify.BUILDING) > 0.99
-    off = dataclasses.replace(classify.ClassifySettings(), foliage_beyond_roof_reach=False)
-    before = classify.classify_points(x, y, z, rn, nr, intensity, params=off)
-    assert np.mean(before[beyond_eave] == classify.BUILDING) > 0.9
-    assert np.mean(before[truth == 6] == classify.BUILDING) > 0.99
+    scene = _roof_and_touching_crown(seed=0)
+    beyond_eave = (scene[5] == 5) & (scene[0] > 770025.5)   # more than 1.5 m (3 cells) from the eave
+    (crown_with, roof_with), (crown_without, roof_without) = _building_shares(scene, beyond_eave,
+                                                                              foliage_beyond_roof_reach=False)
+    assert crown_with < 0.02 and roof_with > 0.99
+    assert crown_without > 0.9 and roof_without > 0.99
