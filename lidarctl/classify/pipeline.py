@@ -3096,14 +3096,14 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
             small &= planar
             small &= ndimage.mean(multi_frac, labels, ids) <= p.small_building_max_multi_fraction
         building_cells = np.concatenate([[False], big | small])[labels]
+        small_cells = np.concatenate([[False], small])[labels]   # small buildings, judged whole
         if p.roof_reach_cells > 0:
             # A big segment's growth beyond its roof cells is for the cells the 3x3 fit cannot take
             # (ridges, edges, dormers: a window across a break spans 3 cells, so they lie within 2 cells
             # of a roof cell). Further out a cell joins only when it too stops the pulses, like a small
             # roof: a crown or hedge touching an eave splits them.
             near_roof = dilate_square(roof, 2 * p.roof_reach_cells + 1)
-            building_cells &= near_roof | (multi_frac <= p.small_building_max_multi_fraction) | \
-                np.concatenate([[False], small])[labels]
+            building_cells &= near_roof | (multi_frac <= p.small_building_max_multi_fraction) | small_cells
         rims = np.zeros_like(roof)
         if p.dropout_roof_rims and has_multi and (p.low_growth_max_height_m > 0 or p.pierced_growth_max_fraction > 0):
             occupied = np.bincount(flat, minlength=nrows * ncols).reshape(nrows, ncols) > 0
@@ -3128,9 +3128,10 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
                 see_through = pierced & ~roof & ~rims
             # A glass roof passes pulses too, but its surface is a roof's: planar, its returns at its top.
             roof_surface = (rms < p.roof_rms_m) & (cnt >= 3) & (depth <= p.roof_rms_m + reach) & p.pierced_glass_roofs
-            building_cells &= roof | rims | ~pierced | roof_surface | np.concatenate([[False], small])[labels]
+            building_cells &= roof | rims | ~pierced | roof_surface | small_cells
         if p.foliage_beyond_roof_reach and has_multi:
-            beyond = building_cells & ~dilate_square(roof, 5) & ~rims & ~np.concatenate([[False], small])[labels]
+            # beyond 2 cells of a roof cell: the 3 x 3 fit's reach over a ridge, dormer or eave
+            beyond = building_cells & ~dilate_square(roof, 5) & ~rims & ~small_cells
             grown, n_grown = ndimage.label(beyond, np.ones((3, 3), int))
             if n_grown:
                 ids = np.arange(1, n_grown + 1)
@@ -3143,7 +3144,7 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
             # A piece's roof patches are evidence only where a 3x3 window fits the smallest building: at a sparse
             # cloud's cells (IGN's tile decimated to 0.3 returns per m2: 3.7 m) a roof shows almost no roof cell.
             # small buildings were judged whole, a dropout roof's rims by their own rule
-            judged_whole = np.concatenate([[False], small])[labels] | rims
+            judged_whole = small_cells | rims
             building_cells = cut_pieces(building_cells, judged_whole, roof, multi_frac, c, p)
         if p.small_building_planar_cores:
             building_cells |= planar_cores(dsm_f, roof & ~building_cells, candidate & ~building_cells, multi_frac, c,
