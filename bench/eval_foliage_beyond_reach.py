@@ -22,6 +22,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from eval_buildings_bgt import PARTS, _worst  # noqa: E402
 from results_json import read_results, store_result  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -33,11 +34,8 @@ LOOKED_AT = ("ign_isere_buildings", "ign_montpellier")   # the rule's design set
 def ahn3_measures(bgt: dict) -> dict:
     """{"off": ..., "on": ...}: the lowest area completeness / correctness over the footprint parts (%)."""
     sets = bgt["rules_nested"]["rule_sets"]
-    out = {}
-    for state, name in (("off", SHIPPED_SET), ("on", WITH_RULE)):
-        parts = [p["area"] for p in sets[name]["footprint_parts"].values() if p["area"]["footprint_area_m2"] > 0]
-        out[state] = min(min(a["completeness_pct"], a["correctness_pct"]) for a in parts)
-    return out
+    return {state: _worst(sets[name]["footprint_parts"], PARTS)
+            for state, name in (("off", SHIPPED_SET), ("on", WITH_RULE))}
 
 
 def ign_measures(more: dict) -> dict:

@@ -165,6 +165,11 @@ CLASS_NAMES = {1: "unclassified", 2: "ground", 3: "low veg", 4: "medium veg", 5:
                6: "building", 7: "low noise", 9: "water", 11: "road", 17: "bridge deck", 18: "high noise"}
 
 
+# A roof's ridge, dormer or eave breaks the 3 x 3 plane fit of the roof cells within this many cells of a roof cell (a
+# window across a break spans 3 cells): the growth tests spare that band (foliage_beyond_roof_reach).
+ROOF_FIT_REACH_CELLS = 2
+
+
 @dataclasses.dataclass(frozen=True)
 class ClassifySettings:
     """Options of the classification stage (``lidarctl classify``, ``[classify]`` in project.toml).
@@ -3130,8 +3135,7 @@ def _classify_points(x, y, z, return_number, number_of_returns, intensity, *, p:
             roof_surface = (rms < p.roof_rms_m) & (cnt >= 3) & (depth <= p.roof_rms_m + reach) & p.pierced_glass_roofs
             building_cells &= roof | rims | ~pierced | roof_surface | small_cells
         if p.foliage_beyond_roof_reach and has_multi:
-            # beyond 2 cells of a roof cell: the 3 x 3 fit's reach over a ridge, dormer or eave
-            beyond = building_cells & ~dilate_square(roof, 5) & ~rims & ~small_cells
+            beyond = building_cells & ~dilate_square(roof, 2 * ROOF_FIT_REACH_CELLS + 1) & ~rims & ~small_cells
             grown, n_grown = ndimage.label(beyond, np.ones((3, 3), int))
             if n_grown:
                 ids = np.arange(1, n_grown + 1)
