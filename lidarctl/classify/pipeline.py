@@ -2695,6 +2695,8 @@ def bridge_decks(x, y, z, is_ground, is_building, spacing_m: float, *, p: Classi
         for s in range(reach, 0, -1):   # the nearest gap cell ahead (1) and behind (-1), in cells
             for sign in (1, -1):
                 r, q = sign * s * dr, sign * s * dc
+                if abs(r) >= nrows or abs(q) >= ncols:   # a grid narrower than the reach: no gap that far
+                    continue
                 dst = (slice(max(-r, 0), nrows - max(r, 0)), slice(max(-q, 0), ncols - max(q, 0)))
                 src = (slice(max(r, 0), nrows + min(r, 0)), slice(max(q, 0), ncols + min(q, 0)))
                 lab = np.zeros_like(labels)

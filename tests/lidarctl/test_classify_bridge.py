@@ -67,6 +67,26 @@ def test_classification_labels_the_deck_17_and_keeps_the_quays_ground():
     assert not np.any(cls[~deck] == classify.BRIDGE_DECK)
 
 
+def test_a_cloud_narrower_than_the_deck_search_is_classified():
+    """The deck search looks for water up to ``bridge_max_width_m`` (18 water cells here) along each direction; a
+    cloud fewer cells across than that raised ValueError (a helper's 18 m crop of a river, stop 118): the canal
+    scene cut 2 m beyond its quays (17 cells across), and a 15 x 30 m field with a 7 m dropout gap, through
+    ``classify_points``."""
+    x, y, z, deck, _ = bridge_scene()
+    band = (y - Y0 > 38) & (y - Y0 < 57)
+    ground = np.ones(int(band.sum()), bool)
+    found = classify.bridge_decks(x[band], y[band], z[band], ground, ~ground, 1 / np.sqrt(3.0),
+                                  p=classify.ClassifySettings())
+    assert not found[~deck[band]].any()
+    rng = np.random.default_rng(0)
+    u, v = rng.uniform(0, 15, 3600), rng.uniform(0, 30, 3600)
+    out = (np.abs(u - 7.5) < 3.5) & (np.abs(v - 15) < 3.5)
+    u, v = u[~out] + X0, v[~out] + Y0
+    cls = classify.classify_points(u, v, rng.normal(0, 0.02, len(u)), np.ones(len(u), int), np.ones(len(u), int),
+                                   np.full(len(u), 100))
+    assert np.all(cls == classify.GROUND)
+
+
 def footbridge_scene(seed=3):
     """A footbridge the ground filter leaves out (Autzen's case): a river along u (v 40-70 m) 5 m below the
     banks, its surface giving a few returns (5 % of the land's density), the banks sloping into it; a 5 m wide
