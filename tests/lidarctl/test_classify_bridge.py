@@ -70,7 +70,7 @@ def test_classification_labels_the_deck_17_and_keeps_the_quays_ground():
 def test_a_cloud_narrower_than_the_deck_search_is_classified():
     """The deck search looks for water up to ``bridge_max_width_m`` (18 water cells here) along each direction; a
     cloud fewer cells across than that raised ValueError (a helper's 18 m crop of a river, stop 118): the canal
-    scene cut 2 m beyond its quays (17 cells across), and a 15 x 30 m field with a 7 m dropout gap, through
+    scene cut 2 m beyond the canal's banks (17 cells across), and a 15 x 30 m field with a 7 m dropout gap, through
     ``classify_points``."""
     x, y, z, deck, _ = bridge_scene()
     band = (y - Y0 > 38) & (y - Y0 < 57)
