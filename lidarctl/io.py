@@ -314,12 +314,12 @@ def read_cloud(path, crs: str | int | None = None, require_crs: bool = True,
         cls[sl] = chunk.classification
         if sid is not None:
             sid[sl] = chunk.point_source_id
+    if at == 0:
+        raise las.all_withheld(path, n)
     used_mask = _used_mask(used, keep_records, at, n, path)
     if at < n:
         x, y, z, intensity, rn, nr, cls = (a[:at] for a in (x, y, z, intensity, rn, nr, cls))
         sid = None if sid is None else sid[:at]
-    if at == 0:
-        raise InputError(f"{path}: every one of its {n:,} points carries the withheld flag (not to be used)")
     rn, nr = sanitize_returns(rn, nr)
     cloud = PointCloud(x, y, z, intensity, rn, nr, cls, resolved, units, sid, used_mask)
     return (cloud, records) if keep_records else cloud

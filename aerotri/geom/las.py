@@ -149,7 +149,9 @@ def _laz_chunk_counts(path, header: laspy.LasHeader):
             table = lazrs.read_chunk_table(fh, lazvlr)
         except Exception as exc:
             raise InputError(f"{path}: corrupt LAZ chunk table ({one_line(exc)})") from exc
-    return [int(c) for c, _ in table], bool(lazvlr.uses_variable_size_chunks()), int(lazvlr.chunk_size())
+    # a chunk of no bytes holds no point: an empty cloud is written as one (laspy with lazrs)
+    return ([int(c) for c, n_bytes in table if n_bytes > 0], bool(lazvlr.uses_variable_size_chunks()),
+            int(lazvlr.chunk_size()))
 
 
 def _check_laz_point_count(path, header: laspy.LasHeader) -> None:
@@ -258,8 +260,15 @@ def iter_chunks(reader, path, chunk_points: int, *, withheld: bool = False):
         raise InputError(f"{path}: truncated or corrupt point data in {where} of {n} ({one_line(exc)})") from exc
     if done != n:
         raise InputError(f"{path}: truncated file: header says {n} points, read {done}")
+    if left_out and left_out == n:
+        raise all_withheld(path, n)
     if left_out:
         note_withheld(path, left_out, n, first_flagged)
+
+
+def all_withheld(path, n: int) -> InputError:
+    """The error for a file whose every record carries the withheld flag: nothing in it may be used."""
+    return InputError(f"{path}: every one of its {n:,} points carries the withheld flag (not to be used)")
 
 
 def note_withheld(path, left_out: int, n: int, first_flagged: int) -> None:

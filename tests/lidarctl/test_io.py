@@ -92,6 +92,20 @@ def test_header_point_count_lower_than_the_records_is_refused(files, tmp_path, n
         io.read_cloud(bad)
 
 
+def test_an_empty_laz_is_refused_as_holding_no_points(files, tmp_path):
+    """laspy with lazrs writes an empty cloud as one chunk of no bytes; it was refused as a header that says 0 points
+    over 'at least 1 point records' (fix the header), which sent the user after a header that is right (a helper's
+    crash hunt, stop 118)."""
+    d, _ = files
+    las = laspy.read(d / "c.laz")
+    empty = laspy.LasData(las.header)
+    empty.points = las.points[:0]
+    empty.update_header()
+    empty.write(tmp_path / "empty.laz", laz_backend=laspy.LazBackend.Lazrs)   # the single-threaded writer
+    _fails_everywhere(tmp_path / "empty.laz", d / "c14.las", d / "points.csv", tmp_path / "out",
+                      "the file holds no points")
+
+
 @pytest.mark.realdata
 def test_autzen_with_half_its_header_count_is_refused(shared_data, tmp_path):
     src = shared_data / "autzen" / "autzen_trim.laz"
@@ -614,6 +628,18 @@ def test_withheld_points_are_left_out(files, tmp_path, tiled):
             np.testing.assert_array_equal(ra.read(1), rb.read(1))
     notes = [line for line in said if "withheld flag" in line]
     assert notes and "200 of" in notes[0] and f"first record {idx[0]}" in notes[0] and "left out" in notes[0]
+
+
+def test_a_cloud_whose_every_point_is_withheld_is_refused_saying_so(files, tmp_path):
+    """Every command refuses a cloud whose every record carries the withheld flag with that reason; ``rasters`` and
+    ``corners`` (chunked readers) said "no ground points ... run lidarctl classify first" and "among 0 points, all
+    of them unclassified" (a helper's crash hunt, stop 118)."""
+    d, _ = files
+    cloud = laspy.read(d / "c14.las")
+    cloud.withheld = np.ones(len(cloud.points), bool)
+    cloud.write(tmp_path / "withheld.las")
+    _fails_everywhere(tmp_path / "withheld.las", d / "c14.las", d / "points.csv", tmp_path / "out",
+                      f"every one of its {len(cloud.points):,} points carries the withheld flag")
 
 
 def test_evaluate_names_withheld_points_when_the_counts_differ(files, tmp_path):
