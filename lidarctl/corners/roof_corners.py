@@ -763,7 +763,7 @@ def _finish(raw, outlines, faces, *, n_points, n_building_points, spacing_m, n_r
     })
     if not raw:
         raise NoRoofs(f"no roof outline could be traced from {n_building_points} building points ({n_roofs} roofs of "
-                      f"at least {min_roof_m2(min_edge_m):g} m^2; point spacing {spacing_m:.2f} m)", stats=stats)
+                      f"at least {min_roof_m2(min_edge_m):.3g} m^2; point spacing {spacing_m:.2f} m)", stats=stats)
     return RoofCorners(corners, outlines, faces, stats)
 
 
